@@ -1,5 +1,19 @@
 """CT volumes, the HU -> attenuation transfer, and DRR renderers (Warp and a numpy reference)."""
 
-from .volume import CTVolume, HUTransfer
+import warp as _wp
 
-__all__ = ["CTVolume", "HUTransfer"]
+_wp.config.log_level = _wp.LOG_WARNING  # keep Warp's start-up banner off stdout (the CLI prints JSON)
+
+from .drr import DRRBatch, DRRRenderer, default_device, projected_roi  # noqa: E402
+from .reference import render_reference  # noqa: E402
+from .volume import CTVolume, HUTransfer  # noqa: E402
+
+__all__ = [
+    "CTVolume",
+    "DRRBatch",
+    "DRRRenderer",
+    "HUTransfer",
+    "default_device",
+    "projected_roi",
+    "render_reference",
+]

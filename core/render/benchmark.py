@@ -1,0 +1,197 @@
+"""DRR throughput benchmark (``talus bench drr``): prints JSON, asserts nothing.
+
+Cases (DESIGN.md / GPU.md reference on one H100: 0.91 ms and 6 µs per DRR with textures):
+
+* ``ct_1024``: 1024² full-detector DRRs of a 512×512×300 CT (0.5 mm voxels);
+* ``bone_roi_300``: 300² ROI DRRs of a 150³ bone volume (0.5 mm voxels).
+
+Each case is timed with one pose × one view per launch and with a batch of poses × two views
+per launch (64 poses on CUDA; fewer on the CPU, where Warp runs on one thread — the JSON says how
+many). A timed call is the whole :meth:`DRRRenderer.render` (host-side tables, upload, launch)
+followed by a device synchronisation, i.e. what an optimizer sees.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+import numpy as np
+import warp as wp
+
+from ..geometry.camera import Camera, Rig, make_K
+from .drr import DRRRenderer
+from .volume import CTVolume
+
+__all__ = ["run_drr_benchmark"]
+
+REFERENCE_H100 = {"ct_1024_single_ms": 0.91, "bone_roi_300_batched_us": 6.0}
+TARGET_FACTOR = 1.5
+
+
+def _bench_rig(pixels: int = 1024, pixel_mm: float = 0.3, sid: float = 1400.0) -> Rig:
+    """Two cameras 90° apart looking at the origin, source 1 m from it."""
+    f = sid / pixel_mm
+    c = (pixels - 1) / 2.0
+    K = make_K(f, f, c, c)
+    cams = []
+    for k, ang in enumerate((0.0, np.pi / 2)):
+        ca, sa = np.cos(ang), np.sin(ang)
+        R = np.array([[ca, 0.0, -sa], [0.0, 1.0, 0.0], [sa, 0.0, ca]])
+        t = np.array([0.0, 0.0, 1000.0])
+        cams.append(Camera(K, R, t, pixels, pixels, pixel_size=pixel_mm, name=f"cam{k + 1:02d}"))
+    return Rig(tuple(cams))
+
+
+def _phantom(shape_kji: tuple[int, int, int], spacing: float, seed: int) -> CTVolume:
+    """A smooth random HU volume: soft-tissue ellipsoid with a denser core (content only matters
+    for realism; the ray marcher's cost does not depend on it)."""
+    rng = np.random.default_rng(seed)
+    nz, ny, nx = shape_kji
+    z, y, x = np.ogrid[-1 : 1 : nz * 1j, -1 : 1 : ny * 1j, -1 : 1 : nx * 1j]
+    r2 = x**2 + y**2 + z**2
+    hu = np.where(r2 < 0.9, 40.0, -1000.0) + np.where(r2 < 0.3, 900.0, 0.0)
+    hu = hu + rng.normal(0.0, 30.0, size=(1, ny, nx))  # cheap texture, broadcast along k
+    data = hu.astype(np.float32)
+    origin = -0.5 * spacing * (np.array([nx, ny, nz]) - 1)
+    return CTVolume(data, spacing=[spacing] * 3, origin=origin, name=f"phantom{nx}")
+
+
+def _poses(n: int, seed: int) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = Rotation.from_rotvec(rng.normal(0, np.deg2rad(3), (n, 3))).as_matrix()
+    T[:, :3, 3] = rng.normal(0, 3.0, (n, 3))
+    return T
+
+
+def _time(fn, sync, repeats: int) -> float:
+    fn()
+    sync()
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _case(renderer: DRRRenderer, n_poses: int, n_views: int, roi, scale: float, repeats: int) -> dict:
+    poses = _poses(n_poses, 1)[:, None]
+    views = list(range(n_views))
+    dev = renderer.device
+
+    def fn():
+        return renderer.render(poses, views=views, roi=roi, scale=scale)
+
+    sec = _time(fn, lambda: wp.synchronize_device(dev), repeats)
+    n_drr = n_poses * n_views
+    return {
+        "poses": n_poses,
+        "views": n_views,
+        "drrs_per_launch": n_drr,
+        "seconds_per_launch": sec,
+        "ms_per_drr": 1e3 * sec / n_drr,
+        "us_per_drr": 1e6 * sec / n_drr,
+        "repeats": repeats,
+    }
+
+
+def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
+                      interpolations: tuple[str, ...] | None = None) -> dict:
+    """Run the DRR benchmark on each device and return a JSON-serialisable dict.
+
+    Parameters
+    ----------
+    devices : list of str, optional
+        Warp devices; default ``["cpu"]`` plus ``"cuda:0"`` when present.
+    quick : bool
+        Smaller batches and fewer repeats (a smoke run, e.g. in tests).
+    interpolations : tuple of str, optional
+        Default: ``("texture", "trilinear")`` on CUDA, ``("trilinear",)`` on the CPU.
+    """
+    wp.init()
+    if devices is None:
+        devices = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
+    result = {
+        "benchmark": "drr",
+        "warp": wp.__version__,
+        "machine": {
+            "platform": platform.platform(),
+            "processor": platform.processor() or platform.machine(),
+            "cpu_count": os.cpu_count(),
+        },
+        "reference_h100": REFERENCE_H100,
+        "target_factor": TARGET_FACTOR,
+        "quick": quick,
+        "devices": {},
+    }
+    rig = _bench_rig()
+    ct_shape = (300, 512, 512) if not quick else (60, 96, 96)
+    bone_shape = (150, 150, 150) if not quick else (40, 40, 40)
+    spacing = 0.5 if not quick else 2.0
+    ct = _phantom(ct_shape, spacing, 0)
+    bone = _phantom(bone_shape, 0.5, 1)
+    for dev_name in devices:
+        dev = wp.get_device(dev_name)
+        cuda = dev.is_cuda
+        interps = interpolations or (("texture", "trilinear") if cuda else ("trilinear",))
+        batch = 64 if cuda else (2 if quick else 8)
+        repeats = (20 if not quick else 3) if cuda else 1
+        ct_pixels = 1024 if (cuda or not quick) else 128
+        entry = {"name": dev.name, "is_cuda": cuda, "interpolations": {}}
+        for interp in interps:
+            cases = {}
+            r_ct = DRRRenderer(rig, [ct], device=dev_name, interpolation=interp)
+            full = np.array([0, 0, ct_pixels, ct_pixels])
+            cases["ct_1024"] = {
+                "volume_ijk": list(ct.shape_ijk),
+                "image": [ct_pixels, ct_pixels],
+                "single": _case(r_ct, 1, 1, full, 1.0, repeats),
+            }
+            if cuda or not quick:
+                cases["ct_1024"]["batched"] = _case(r_ct, batch, 2, full, 1.0, max(1, repeats // 4))
+            del r_ct
+            r_bone = DRRRenderer(rig, [bone], device=dev_name, interpolation=interp)
+            side = 300 if not quick else 64
+            roi = np.array([512 - side // 2, 512 - side // 2, side, side])
+            cases["bone_roi_300"] = {
+                "volume_ijk": list(bone.shape_ijk),
+                "image": [side, side],
+                "single": _case(r_bone, 1, 2, roi, 1.0, repeats),
+                "batched": _case(r_bone, batch, 2, roi, 1.0, repeats),
+            }
+            del r_bone
+            if cuda and not quick:
+                ct_ms = cases["ct_1024"]["single"]["ms_per_drr"]
+                bone_us = cases["bone_roi_300"]["batched"]["us_per_drr"]
+                cases["ratio_to_reference"] = {
+                    "ct_1024_single": ct_ms / REFERENCE_H100["ct_1024_single_ms"],
+                    "bone_roi_300_batched": bone_us / REFERENCE_H100["bone_roi_300_batched_us"],
+                    "within_target": bool(
+                        ct_ms <= TARGET_FACTOR * REFERENCE_H100["ct_1024_single_ms"]
+                        and bone_us <= TARGET_FACTOR * REFERENCE_H100["bone_roi_300_batched_us"]
+                    ),
+                }
+            entry["interpolations"][interp] = cases
+        result["devices"][dev_name] = entry
+    return result
+
+
+def main() -> None:  # pragma: no cover - convenience for `python -m core.render.benchmark`
+    import argparse
+    import json
+
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--device", action="append")
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args()
+    print(json.dumps(run_drr_benchmark(devices=a.device, quick=a.quick), indent=2))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

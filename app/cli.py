@@ -1,0 +1,345 @@
+"""The ``talus`` command line.
+
+Subcommands::
+
+    talus demo  [--out DIR] [--frames N] [--pixels N] [--seed N] [--device cpu|cuda]
+    talus bench drr [--device cpu|cuda|all] [--out FILE] [--quick]
+    talus gui   [--demo DIR]
+    talus --version
+
+Machine-readable results (JSON) go to stdout; progress and diagnostics go to stderr, so
+``talus demo > result.json`` and ``talus bench drr | jq`` work. The numerical work is done by
+:mod:`core`; its modules are imported only when a command needs them, so ``talus --version`` and
+``--help`` are fast and a missing optional module is reported by name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import json
+import numbers
+import os
+import signal
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from . import __version__
+
+PROG = "talus"
+
+# exit statuses
+EXIT_OK = 0
+EXIT_ERROR = 1
+EXIT_USAGE = 2
+EXIT_CANCELLED = 130  # the shell's convention for "stopped by SIGINT"
+
+
+class CliError(Exception):
+    """An error reported to the user as one line, without a traceback."""
+
+    def __init__(self, message: str, status: int = EXIT_ERROR) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+# ----------------------------------------------------------------------------------- helpers
+
+
+def _load(module: str, attr: str, *, needed_for: str, hint: str = "") -> Callable[..., Any]:
+    """Import ``module.attr`` lazily; a missing module is named in the error."""
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        missing = exc.name or module
+        where = "" if missing == module else f" (imported by '{module}')"
+        extra = f" {hint}" if hint else ""
+        raise CliError(
+            f"{needed_for} needs the module '{missing}'{where}, which is not installed or "
+            f"cannot be imported.{extra}"
+        ) from exc
+    try:
+        return getattr(mod, attr)
+    except AttributeError as exc:
+        raise CliError(
+            f"{needed_for} needs '{module}.{attr}', which this installation does not provide"
+        ) from exc
+
+
+def _json_default(obj: Any) -> Any:
+    """JSON for paths, numpy scalars/arrays and dataclasses found in result dicts."""
+    if isinstance(obj, Path):
+        return str(obj)
+    if hasattr(obj, "tolist"):  # numpy arrays and scalars
+        return obj.tolist()
+    if hasattr(obj, "__dataclass_fields__"):
+        return {name: getattr(obj, name) for name in obj.__dataclass_fields__}
+    return repr(obj)
+
+
+def _to_json(result: Any) -> str:
+    return json.dumps(result, indent=2, default=_json_default)
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file and a rename: never half-written."""
+    path = path.expanduser()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+class CancelToken:
+    """Cancellation flag handed to :mod:`core` jobs.
+
+    Calling the token, ``token.is_set()``, ``token.cancelled`` and ``bool(token)`` all answer
+    "has the user asked to stop?", so it fits whichever of these forms a job polls.
+    """
+
+    def __init__(self) -> None:
+        self._set = False
+
+    def set(self) -> None:
+        self._set = True
+
+    def is_set(self) -> bool:
+        return self._set
+
+    @property
+    def cancelled(self) -> bool:
+        return self._set
+
+    __call__ = is_set
+    __bool__ = is_set
+
+
+@contextlib.contextmanager
+def _sigint_cancels(token: CancelToken, what: str):
+    """First Ctrl-C sets ``token`` (the job stops cleanly); a second one interrupts at once."""
+    previous = signal.getsignal(signal.SIGINT)
+
+    def on_sigint(signum, frame):
+        token.set()
+        print(f"\n{PROG} {what}: cancelling (Ctrl-C again to abort) ...", file=sys.stderr)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    try:
+        signal.signal(signal.SIGINT, on_sigint)
+    except ValueError:  # not the main thread: leave Ctrl-C alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _progress_printer(what: str, unit: str) -> Callable[..., None]:
+    """A progress callback printing one line per call to stderr.
+
+    Accepts ``(done, total)``, ``(done, total, message)`` or a single fraction in [0, 1].
+    """
+    start = time.perf_counter()
+
+    def progress(*args: Any, **kwargs: Any) -> None:
+        values = [a for a in args if isinstance(a, numbers.Real) and not isinstance(a, bool)]
+        texts = [str(a) for a in args if not isinstance(a, numbers.Real)]
+        texts += [str(v) for k, v in kwargs.items() if k in ("message", "msg", "stage")]
+        if len(values) >= 2:
+            status = f"{unit} {int(values[0])}/{int(values[1])}"
+        elif len(values) == 1:
+            status = f"{100.0 * float(values[0]):.0f}%"
+        else:
+            status = ""
+        line = " ".join(s for s in [status, *texts] if s)
+        elapsed = time.perf_counter() - start
+        print(f"{PROG} {what}: {line} ({elapsed:.1f} s)", file=sys.stderr, flush=True)
+
+    return progress
+
+
+# ---------------------------------------------------------------------------------- commands
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    make_demo_study = _load(
+        "core.synthetic.demo", "make_demo_study", needed_for="'talus demo'"
+    )
+    out = Path(args.out).expanduser()
+    token = CancelToken()
+    with _sigint_cancels(token, "demo"):
+        try:
+            # core libraries (Warp) print their start-up banner on stdout: keep stdout pure JSON
+            with contextlib.redirect_stdout(sys.stderr):
+                result = make_demo_study(
+                    out,
+                    n_frames=args.frames,
+                    pixels=args.pixels,
+                    seed=args.seed,
+                    device=args.device,
+                    progress=_progress_printer("demo", "frame"),
+                    cancel=token,
+                )
+        except KeyboardInterrupt:
+            token.set()
+            result = None
+        except Exception:
+            if not token.is_set():
+                raise
+            result = None
+    if token.is_set():
+        print(f"{PROG} demo: cancelled; partial output may remain in {out}", file=sys.stderr)
+        return EXIT_CANCELLED
+    print(_to_json(result))
+    return EXIT_OK
+
+
+def _bench_devices(choice: str) -> list[str]:
+    if choice != "all":
+        return [choice]
+    devices = ["cpu"]
+    try:
+        import warp as wp
+    except ImportError:
+        return devices
+    with contextlib.redirect_stdout(sys.stderr):
+        wp.init()
+    if wp.is_cuda_available():
+        devices.append("cuda")
+    return devices
+
+
+def _cmd_bench_drr(args: argparse.Namespace) -> int:
+    run_drr_benchmark = _load(
+        "core.render.benchmark", "run_drr_benchmark", needed_for="'talus bench drr'"
+    )
+    devices = _bench_devices(args.device)
+    print(f"{PROG} bench drr: devices {', '.join(devices)}", file=sys.stderr)
+    with contextlib.redirect_stdout(sys.stderr):
+        result = run_drr_benchmark(devices=devices, quick=args.quick)
+    text = _to_json(result)
+    if args.out:
+        _write_atomically(Path(args.out), text)
+        print(f"{PROG} bench drr: wrote {args.out}", file=sys.stderr)
+    print(text)
+    return EXIT_OK
+
+
+def _cmd_gui(args: argparse.Namespace) -> int:
+    run_gui = _load(
+        "app.main_window",
+        "run_gui",
+        needed_for="'talus gui'",
+        hint="Install the GUI extra: pip install 'talus-biplane[gui]'.",
+    )
+    demo = None
+    if args.demo is not None:
+        demo = Path(args.demo).expanduser()
+        if not demo.is_dir():
+            raise CliError(f"--demo: expected a demo study folder, '{demo}' is not a directory")
+    return int(run_gui(demo=demo))
+
+
+# ------------------------------------------------------------------------------------ parser
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Talus: biplane fluoroscopy bone tracking.",
+        epilog="JSON results go to stdout, progress to stderr.",
+    )
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    demo = sub.add_parser(
+        "demo",
+        help="render the built-in synthetic biplane study and track it",
+        description="Create the built-in synthetic demo study (known poses and cameras) in "
+        "--out and print a JSON summary. Ctrl-C cancels cleanly.",
+    )
+    demo.add_argument("--out", default="demo_out", metavar="DIR", help="output folder")
+    demo.add_argument("--frames", type=_positive_int, default=8, metavar="N",
+                      help="number of frames (default 8)")
+    demo.add_argument("--pixels", type=_positive_int, default=256, metavar="N",
+                      help="detector size in pixels, N x N (default 256)")
+    demo.add_argument("--seed", type=_non_negative_int, default=0, metavar="N",
+                      help="random seed (default 0)")
+    demo.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
+                      help="Warp device for DRRs (default cpu)")
+    demo.set_defaults(func=_cmd_demo)
+
+    bench = sub.add_parser("bench", help="benchmarks that print JSON")
+    bench_sub = bench.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
+    drr = bench_sub.add_parser(
+        "drr",
+        help="DRR rendering speed",
+        description="Time DRR rendering on the given devices and print JSON (machine, device, "
+        "sizes, times).",
+    )
+    drr.add_argument("--device", choices=["cpu", "cuda", "all"], default="all",
+                     help="device(s) to time; 'all' = cpu plus cuda when present (default)")
+    drr.add_argument("--out", metavar="FILE", help="also write the JSON to FILE")
+    drr.add_argument("--quick", action="store_true", help="small sizes, few repeats")
+    drr.set_defaults(func=_cmd_bench_drr)
+
+    gui = sub.add_parser("gui", help="open the Talus window")
+    gui.add_argument("--demo", metavar="DIR", help="open this demo study folder at start")
+    gui.set_defaults(func=_cmd_gui)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``talus`` command; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except CliError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return exc.status
+    except (ValueError, OSError) as exc:
+        if os.environ.get("TALUS_DEBUG"):
+            raise
+        print(f"{PROG} {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return EXIT_CANCELLED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,162 @@
+"""The ``talus`` command line: parsing, JSON on stdout, errors, Ctrl-C cancellation.
+
+The numerical commands are exercised with stand-ins for the core functions, so these tests stay
+fast and need no display; the real ``core`` functions have their own tests.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from app import __version__
+from app.cli import EXIT_CANCELLED, main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _talus_command() -> list[str]:
+    script = Path(sys.executable).with_name("talus")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "app.cli"]
+
+
+def _fake_module(monkeypatch, name: str, **attrs) -> None:
+    monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(__name__=name, **attrs))
+
+
+def test_version_console_script():
+    done = subprocess.run(
+        [*_talus_command(), "--version"], capture_output=True, text=True, timeout=60, cwd=ROOT
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == f"talus {__version__}"
+
+
+def test_cli_works_without_qt():
+    code = (
+        "import sys\n"
+        "for m in ('PySide6', 'pyvistaqt', 'pyvista', 'vtk'): sys.modules[m] = None\n"
+        "from app.cli import main\n"
+        "sys.exit(main(['bench', 'drr', '--help']))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT
+    )
+    assert done.returncode == 0, done.stderr
+    assert "--quick" in done.stdout
+
+
+def test_bench_drr_help(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "drr", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for option in ("--device", "--out", "--quick", "{cpu,cuda,all}"):
+        assert option in out
+
+
+def test_no_command_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([])
+    assert exc.value.code == 2
+    assert "required" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["bench", "drr", "--device", "tpu"], "invalid choice: 'tpu'"),
+        (["demo", "--frames", "0"], "--frames: expected a positive integer, got 0"),
+        (["demo", "--seed", "x"], "--seed: expected an integer >= 0, got 'x'"),
+    ],
+)
+def test_bad_arguments_are_named(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_missing_module_is_named(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "core.render.benchmark", None)  # import fails
+    assert main(["bench", "drr", "--device", "cpu"]) == 1
+    err = capsys.readouterr().err
+    assert "'talus bench drr' needs the module 'core.render.benchmark'" in err
+    assert "Traceback" not in err
+
+
+def test_gui_rejects_missing_demo_folder(tmp_path, capsys):
+    pytest.importorskip("PySide6")
+    assert main(["gui", "--demo", str(tmp_path / "nowhere")]) == 1
+    assert "--demo: expected a demo study folder" in capsys.readouterr().err
+
+
+def test_bench_drr_prints_json_and_writes_file(monkeypatch, tmp_path, capsys):
+    calls = []
+
+    def run_drr_benchmark(*, devices, quick):
+        calls.append((devices, quick))
+        print("banner a library prints")  # must not end up in stdout's JSON
+        return {"benchmark": "drr", "devices": {d: {"ms": 1.5} for d in devices}}
+
+    _fake_module(monkeypatch, "core.render.benchmark", run_drr_benchmark=run_drr_benchmark)
+    out_file = tmp_path / "sub" / "drr.json"
+    assert main(["bench", "drr", "--device", "cpu", "--quick", "--out", str(out_file)]) == 0
+    assert calls == [(["cpu"], True)]
+    captured = capsys.readouterr()
+    expected = {"benchmark": "drr", "devices": {"cpu": {"ms": 1.5}}}
+    assert json.loads(captured.out) == expected
+    assert json.loads(out_file.read_text()) == expected
+    assert "banner" in captured.err
+    assert list(out_file.parent.iterdir()) == [out_file]  # no temporary file left behind
+
+
+def test_demo_reports_progress_and_json(monkeypatch, tmp_path, capsys):
+    def make_demo_study(out_dir, *, n_frames, pixels, seed, device, progress, cancel):
+        for i in range(n_frames):
+            assert not cancel()
+            progress(i + 1, n_frames)
+        return {"out_dir": Path(out_dir), "frames": n_frames, "pixels": pixels, "seed": seed,
+                "device": device}
+
+    _fake_module(monkeypatch, "core.synthetic.demo", make_demo_study=make_demo_study)
+    argv = ["demo", "--out", str(tmp_path), "--frames", "3", "--pixels", "64", "--seed", "7"]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out) == {
+        "out_dir": str(tmp_path), "frames": 3, "pixels": 64, "seed": 7, "device": "cpu"
+    }
+    lines = [ln for ln in captured.err.splitlines() if "frame" in ln]
+    assert [ln.split(": ")[1].split(" (")[0] for ln in lines] == [
+        "frame 1/3", "frame 2/3", "frame 3/3"
+    ]
+
+
+def test_ctrl_c_cancels_the_demo_cleanly(monkeypatch, tmp_path, capsys):
+    seen = []
+
+    def make_demo_study(out_dir, *, n_frames, pixels, seed, device, progress, cancel):
+        for i in range(n_frames):
+            if cancel():
+                seen.append(i)
+                return {"cancelled": True}
+            progress(i + 1, n_frames)
+            if i == 1:
+                os.kill(os.getpid(), signal.SIGINT)  # the user presses Ctrl-C
+        return {"cancelled": False}
+
+    _fake_module(monkeypatch, "core.synthetic.demo", make_demo_study=make_demo_study)
+    before = signal.getsignal(signal.SIGINT)
+    assert main(["demo", "--out", str(tmp_path), "--frames", "10"]) == EXIT_CANCELLED
+    assert seen == [2]  # the job saw the request at its next check and stopped
+    assert signal.getsignal(signal.SIGINT) is before  # handler restored
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert "cancelled" in captured.err

@@ -1,0 +1,68 @@
+"""The one-way dependency ``app -> core`` is enforced, and ``core`` runs without Qt or a display."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+GUI_MODULES = ("PySide6", "shiboken6", "pyvistaqt", "pyvista", "vtk", "vtkmodules", "superqt",
+               "psygnal", "app")
+
+
+def _lint_imports_command() -> list[str]:
+    script = Path(sys.executable).with_name("lint-imports")
+    if script.exists():
+        return [str(script)]
+    found = shutil.which("lint-imports")
+    if found:
+        return [found]
+    return [sys.executable, "-c", "from importlinter.cli import lint_imports_command as c; c()"]
+
+
+def _env_without_display() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["QT_QPA_PLATFORM"] = "minimal"  # would be used only if something tried to start Qt
+    return env
+
+
+def test_import_contracts_hold():
+    done = subprocess.run(
+        _lint_imports_command(), capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
+    assert done.returncode == 0, f"lint-imports failed:\n{done.stdout}\n{done.stderr}"
+
+
+def test_every_core_module_imports_without_qt_or_display():
+    code = textwrap.dedent(
+        f"""
+        import importlib, pkgutil, sys, traceback
+        for name in {GUI_MODULES!r}:
+            sys.modules[name] = None  # any import of these raises ImportError
+        import core
+        names = ["core"]
+        failures = []
+        def onerror(name):
+            failures.append((name, traceback.format_exc()))
+        names += [m.name for m in pkgutil.walk_packages(core.__path__, "core.", onerror)]
+        for name in names:
+            try:
+                importlib.import_module(name)
+            except Exception:
+                failures.append((name, traceback.format_exc()))
+        for name, tb in failures:
+            print("FAILED", name, tb, sep="\\n")
+        print("imported", len(names) - len(failures), "of", len(names))
+        sys.exit(1 if failures else 0)
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True, text=True, cwd=ROOT, timeout=300, env=_env_without_display(),
+    )
+    assert done.returncode == 0, f"{done.stdout}\n{done.stderr}"
+    assert "imported" in done.stdout

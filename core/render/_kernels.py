@@ -1,13 +1,12 @@
 """Warp kernels for DRR ray casting (see :mod:`core.render.drr` for the model).
 
 One thread renders one pixel of one *item*; an item is one (pose, view, bone) triple. Per item
-the host uploads:
+the host uploads one row of ``items`` (float32, exact for the small integers it holds):
 
-* ``item_view``  camera index;
-* ``item_vol``   volume index into the atlas tables;
-* ``item_org``   the X-ray source in the bone's *voxel index* space (i, j, k);
-* ``item_A``     3x3 map from lab directions to index-space directions;
-* ``item_roi``   (u0, v0, w, h): the item's region of the full-resolution image, pixels.
+* ``[0]`` camera index, ``[1]`` volume index;
+* ``[2:5]`` the X-ray source in the bone's *voxel index* space (i, j, k);
+* ``[5:14]`` row-major 3x3 map from lab directions to index-space directions;
+* ``[14:18]`` ``(u0, v0, w, h)``: the item's region of the full-resolution image, pixels.
 
 Per camera: ``cam_M = R^T K^-1`` (pixel (u, v, 1) -> lab direction). Per volume: its size
 (nx, ny, nz) and the z offset of its block in the atlas; blocks carry one voxel of zero padding
@@ -43,74 +42,92 @@ def _clip_ray(org: wp.vec3f, dir: wp.vec3f, lo: wp.vec3f, hi: wp.vec3f):
     return t0, t1
 
 
+ITEM_COLS = 18
+
+
 @wp.func
-def _ray_setup(
-    item: int,
-    row: int,
-    col: int,
-    scale: float,
-    item_view: wp.array(dtype=wp.int32),
-    item_vol: wp.array(dtype=wp.int32),
-    item_org: wp.array(dtype=wp.vec3f),
-    item_A: wp.array(dtype=wp.mat33f),
-    item_roi: wp.array(dtype=wp.vec4i),
-    cam_M: wp.array(dtype=wp.mat33f),
-    vol_dims: wp.array(dtype=wp.vec3i),
-):
-    """Return (valid, org_idx, dir_idx per mm, t0, t1) for one pixel of one item."""
-    roi = item_roi[item]
-    u = float(roi[0]) + (float(col) + 0.5) * scale - 0.5
-    v = float(roi[1]) + (float(row) + 0.5) * scale - 0.5
-    d_lab = cam_M[item_view[item]] * wp.vec3f(u, v, 1.0)
-    d_lab = wp.normalize(d_lab)
-    d_idx = item_A[item] * d_lab  # index units per mm along the ray
-    dims = vol_dims[item_vol[item]]
+def _item_mat(items: wp.array2d(dtype=wp.float32), i: int) -> wp.mat33f:
+    return wp.mat33f(
+        items[i, 5], items[i, 6], items[i, 7],
+        items[i, 8], items[i, 9], items[i, 10],
+        items[i, 11], items[i, 12], items[i, 13],
+    )
+
+
+@wp.func
+def _skip_steps(dist: wp.array3d(dtype=wp.uint8), p: wp.vec3f, zoff: int, dmax_step: float) -> int:
+    """How many following samples are provably 0 (empty-space skipping, exact).
+
+    ``dist`` holds, per padded atlas voxel, the chessboard distance D (voxels, capped at 255) to
+    the nearest non-zero voxel. Every voxel that can contribute to a sample within ``j`` steps of
+    ``p`` lies closer than ``1.5 + j * dmax_step`` to the voxel nearest ``p``, so all samples with
+    ``j * dmax_step <= D - 1.5`` are exactly zero.
+    """
+    x = wp.clamp(int(wp.floor(p[0] + 1.5)), 0, dist.shape[2] - 1)
+    y = wp.clamp(int(wp.floor(p[1] + 1.5)), 0, dist.shape[1] - 1)
+    z = wp.clamp(int(wp.floor(p[2] + 1.5)) + zoff, 0, dist.shape[0] - 1)
+    d = float(dist[z, y, x])
+    if d < 2.5:
+        return 0
+    return int((d - 1.5) / dmax_step)
+
+
+@wp.func
+def _setup(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int, scale: float,
+           cam_M: wp.array(dtype=wp.mat33f), vol_dims: wp.array(dtype=wp.vec3i)):
+    """(org_idx, dir_idx per mm, t0, t1) of one pixel's ray, clipped to the padded volume box."""
+    u = items[item, 14] + (float(col) + 0.5) * scale - 0.5
+    v = items[item, 15] + (float(row) + 0.5) * scale - 0.5
+    d_lab = wp.normalize(cam_M[int(items[item, 0])] * wp.vec3f(u, v, 1.0))
+    d_idx = _item_mat(items, item) * d_lab
+    dims = vol_dims[int(items[item, 1])]
+    org = wp.vec3f(items[item, 2], items[item, 3], items[item, 4])
     lo = wp.vec3f(-1.0, -1.0, -1.0)
     hi = wp.vec3f(float(dims[0]), float(dims[1]), float(dims[2]))
-    org = item_org[item]
     t0, t1 = _clip_ray(org, d_idx, lo, hi)
     return org, d_idx, t0, t1
 
 
 @wp.func
-def _inside(row: int, col: int, roi: wp.vec4i, scale: float) -> bool:
-    return float(col) * scale < float(roi[2]) and float(row) * scale < float(roi[3])
+def _outside(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int, scale: float) -> bool:
+    return float(col) * scale >= items[item, 16] or float(row) * scale >= items[item, 17]
 
 
 @wp.kernel
 def drr_texture_kernel(
     atlas: wp.Texture3D,
+    dist: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
-    item_view: wp.array(dtype=wp.int32),
-    item_vol: wp.array(dtype=wp.int32),
-    item_org: wp.array(dtype=wp.vec3f),
-    item_A: wp.array(dtype=wp.mat33f),
-    item_roi: wp.array(dtype=wp.vec4i),
+    items: wp.array2d(dtype=wp.float32),
     cam_M: wp.array(dtype=wp.mat33f),
     vol_dims: wp.array(dtype=wp.vec3i),
     vol_zoff: wp.array(dtype=wp.int32),
     out: wp.array3d(dtype=wp.float32),
 ):
     item, row, col = wp.tid()
-    roi = item_roi[item]
-    if not _inside(row, col, roi, scale):
+    if _outside(items, item, row, col, scale):
         out[item, row, col] = 0.0
         return
-    org, d_idx, t0, t1 = _ray_setup(
-        item, row, col, scale, item_view, item_vol, item_org, item_A, item_roi, cam_M, vol_dims
-    )
+    org, d_idx, t0, t1 = _setup(items, item, row, col, scale, cam_M, vol_dims)
     acc = float(0.0)
     if t1 > t0:
         n = int(wp.ceil((t1 - t0) / step_mm))
         dt = (t1 - t0) / float(n)
-        # texel (i, j, k) of the padded block is centred at (i + 1.5, j + 1.5, zoff + k + 1.5)
-        shift = wp.vec3f(1.5, 1.5, float(vol_zoff[item_vol[item]]) + 1.5)
-        p = org + d_idx * (t0 + 0.5 * dt) + shift
+        zoff = vol_zoff[int(items[item, 1])]
         dp = d_idx * dt
-        for _s in range(n):
-            acc += wp.texture_sample(atlas, p, dtype=float)
-            p = p + dp
+        dmax_step = wp.max(wp.max(wp.abs(dp[0]), wp.abs(dp[1])), wp.abs(dp[2]))
+        p0 = org + d_idx * (t0 + 0.5 * dt)
+        # texel (i, j, k) of the padded block is centred at (i + 1.5, j + 1.5, zoff + k + 1.5)
+        shift = wp.vec3f(1.5, 1.5, float(zoff) + 1.5)
+        m = int(0)
+        while m < n:
+            p = p0 + dp * float(m)
+            val = wp.texture_sample(atlas, p + shift, dtype=float)
+            acc += val
+            if val == 0.0:
+                m += _skip_steps(dist, p, zoff, dmax_step)
+            m += 1
         acc = acc * dt
     out[item, row, col] = acc
 
@@ -148,35 +165,35 @@ def _trilinear(vol: wp.array3d(dtype=wp.float32), p: wp.vec3f, zoff: int) -> flo
 @wp.kernel
 def drr_trilinear_kernel(
     atlas: wp.array3d(dtype=wp.float32),
+    dist: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
-    item_view: wp.array(dtype=wp.int32),
-    item_vol: wp.array(dtype=wp.int32),
-    item_org: wp.array(dtype=wp.vec3f),
-    item_A: wp.array(dtype=wp.mat33f),
-    item_roi: wp.array(dtype=wp.vec4i),
+    items: wp.array2d(dtype=wp.float32),
     cam_M: wp.array(dtype=wp.mat33f),
     vol_dims: wp.array(dtype=wp.vec3i),
     vol_zoff: wp.array(dtype=wp.int32),
     out: wp.array3d(dtype=wp.float32),
 ):
     item, row, col = wp.tid()
-    roi = item_roi[item]
-    if not _inside(row, col, roi, scale):
+    if _outside(items, item, row, col, scale):
         out[item, row, col] = 0.0
         return
-    org, d_idx, t0, t1 = _ray_setup(
-        item, row, col, scale, item_view, item_vol, item_org, item_A, item_roi, cam_M, vol_dims
-    )
+    org, d_idx, t0, t1 = _setup(items, item, row, col, scale, cam_M, vol_dims)
     acc = float(0.0)
     if t1 > t0:
         n = int(wp.ceil((t1 - t0) / step_mm))
         dt = (t1 - t0) / float(n)
-        zoff = vol_zoff[item_vol[item]]
-        p = org + d_idx * (t0 + 0.5 * dt)
+        zoff = vol_zoff[int(items[item, 1])]
         dp = d_idx * dt
-        for _s in range(n):
-            acc += _trilinear(atlas, p, zoff)
-            p = p + dp
+        dmax_step = wp.max(wp.max(wp.abs(dp[0]), wp.abs(dp[1])), wp.abs(dp[2]))
+        p0 = org + d_idx * (t0 + 0.5 * dt)
+        m = int(0)
+        while m < n:
+            p = p0 + dp * float(m)
+            val = _trilinear(atlas, p, zoff)
+            acc += val
+            if val == 0.0:
+                m += _skip_steps(dist, p, zoff, dmax_step)
+            m += 1
         acc = acc * dt
     out[item, row, col] = acc

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
+from scipy.ndimage import distance_transform_cdt
 
 from .._validate import as_float_array, positive
 from ..geometry.camera import Camera, Rig
@@ -75,7 +76,9 @@ class DRRBatch:
     ----------
     images : wp.array, shape (n_items, H, W), float32, on the renderer's device
         Item ``(b, v, n)`` is at index ``(b * n_views + v) * n_bones + n``. Pixels beyond an
-        item's own ROI size are 0.
+        item's own ROI size are 0. The buffer belongs to the renderer and is reused by the next
+        render of the same batch and image size (so an optimizer loop allocates nothing): use
+        or copy it before rendering again.
     roi : (B, n_views, n_bones, 4) int array
         ``(u0, v0, w, h)`` of each item in full-resolution pixels; output pixel ``[r, c]`` of an
         item is the ray through ``(u, v) = (u0 + (c + 0.5) s - 0.5, v0 + (r + 0.5) s - 0.5)``.
@@ -170,8 +173,7 @@ class DRRRenderer:
         # the bone-space box corners used for automatic ROIs
         self._corners = [v.corners() for v in vols]
         self._T_idx = np.stack([v.T_index_from_physical for v in vols])
-        self._out: wp.array | None = None
-        self._items: dict[str, wp.array] = {}
+        self._launches: dict[tuple[int, int, int], tuple] = {}
 
     # ------------------------------------------------------------------ set-up
     def _upload(self, mus: list[np.ndarray]) -> None:
@@ -199,16 +201,44 @@ class DRRRenderer:
         else:
             self._atlas = wp.array(atlas, dtype=wp.float32, device=self.device)
             self._kernel = _kernels.drr_trilinear_kernel
+        # empty-space skipping: chessboard distance (voxels) to the nearest non-zero voxel
+        dist = distance_transform_cdt(atlas == 0, metric="chessboard")
+        self._dist = wp.array(np.minimum(dist, 255).astype(np.uint8), dtype=wp.uint8, device=self.device)
         self.atlas_shape = atlas.shape
 
-    def _buffer(self, name: str, n: int, dtype, shape_tail=()) -> wp.array:
-        """Grow-only device buffers so repeated renders of the same size allocate nothing."""
-        buf = self._items.get(name)
-        if buf is None or buf.shape[0] < n:
-            buf = wp.empty((max(n, 1), *shape_tail) if shape_tail else max(n, 1), dtype=dtype,
-                           device=self.device)
-            self._items[name] = buf
-        return buf
+    def _launch(self, table: np.ndarray, H: int, W: int, scale: float) -> wp.array:
+        """Upload the item table (one copy) and launch; buffers and the recorded launch are
+        reused while the batch size and output size stay the same."""
+        n_items = table.shape[0]
+        key = (n_items, H, W)
+        cached = self._launches.get(key)
+        if cached is None:
+            dev = self.device
+            pinned = dev.is_cuda
+            host = wp.empty((n_items, _kernels.ITEM_COLS), dtype=wp.float32, device="cpu", pinned=pinned)
+            items = wp.empty((n_items, _kernels.ITEM_COLS), dtype=wp.float32, device=dev)
+            out = wp.empty((n_items, H, W), dtype=wp.float32, device=dev)
+            cmd = wp.launch(
+                self._kernel,
+                dim=(n_items, H, W),
+                inputs=[self._atlas, self._dist, float(scale), float(self.step_mm), items,
+                        self._cam_M, self._vol_dims, self._vol_zoff, out],
+                device=dev,
+                record_cmd=True,
+            )
+            if len(self._launches) >= 8:  # keep a few shapes (e.g. optimizer + display)
+                self._launches.pop(next(iter(self._launches)))
+            cached = self._launches[key] = [host, items, out, cmd, None]
+        host, items, out, cmd, copied = cached
+        if copied is not None:  # the previous upload from this pinned buffer must be done
+            wp.synchronize_event(copied)
+        host.numpy()[...] = table
+        wp.copy(items, host)
+        if self.device.is_cuda:
+            cached[4] = wp.record_event()
+        cmd.set_param_at_index(2, float(scale))
+        cmd.launch()
+        return out
 
     # ------------------------------------------------------------------ ROIs
     def auto_roi(self, poses: np.ndarray, *, views: Sequence[int], bones: Sequence[int],
@@ -308,32 +338,13 @@ class DRRRenderer:
         H = max(1, math.ceil(int(rois[..., 3].max()) / scale)) if n_items else 1
         W = max(1, math.ceil(int(rois[..., 2].max()) / scale)) if n_items else 1
 
-        dev = self.device
-        tables = {
-            "view": (item_view.reshape(-1).astype(np.int32), wp.int32),
-            "vol": (item_vol.reshape(-1).astype(np.int32), wp.int32),
-            "org": (org.reshape(-1, 3).astype(np.float32), wp.vec3f),
-            "A": (A.reshape(-1, 3, 3).astype(np.float32), wp.mat33f),
-            "roi": (rois.reshape(-1, 4).astype(np.int32), wp.vec4i),
-        }
-        arrays = {}
-        for name, (host, dtype) in tables.items():
-            buf = self._buffer(name, n_items, dtype)
-            view = buf[:n_items]
-            view.assign(host)
-            arrays[name] = view
-        out_flat = self._buffer("out", n_items * H * W, wp.float32)
-        out = out_flat[: n_items * H * W].reshape((n_items, H, W))
-        wp.launch(
-            self._kernel,
-            dim=(n_items, H, W),
-            inputs=[
-                self._atlas, float(scale), float(self.step_mm),
-                arrays["view"], arrays["vol"], arrays["org"], arrays["A"], arrays["roi"],
-                self._cam_M, self._vol_dims, self._vol_zoff, out,
-            ],
-            device=dev,
-        )
+        table = np.empty((n_items, _kernels.ITEM_COLS), dtype=np.float32)
+        table[:, 0] = item_view.reshape(-1)
+        table[:, 1] = item_vol.reshape(-1)
+        table[:, 2:5] = org.reshape(-1, 3)
+        table[:, 5:14] = A.reshape(-1, 9)
+        table[:, 14:18] = rois.reshape(-1, 4)
+        out = self._launch(table, H, W, scale)
         return DRRBatch(images=out, roi=rois, scale=scale, views=views, bones=bones)
 
     def render_full(self, poses, view: int, *, bones: Sequence[int] | None = None) -> np.ndarray:

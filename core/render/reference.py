@@ -15,11 +15,32 @@ import math
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from .._validate import as_float_array, check_rigid, positive
+from .._validate import check_rigid, positive
 from ..geometry.camera import Camera
 from .volume import CTVolume
 
 __all__ = ["render_reference"]
+
+
+def _index_rays(volume: CTVolume, T: np.ndarray, src: np.ndarray, d: np.ndarray):
+    """Ray origin and directions (index units per mm) in the volume's (i, j, k) space."""
+    T_idx = volume.T_index_from_physical @ np.linalg.inv(T)
+    return T_idx[:3, :3] @ src + T_idx[:3, 3], d @ T_idx[:3, :3].T
+
+
+def _clip_rays(volume: CTVolume, T: np.ndarray, src: np.ndarray, d: np.ndarray):
+    """Entry/exit distances (mm from the source) of rays in the zero-padded box [-1, n]."""
+    o, di = _index_rays(volume, T, src, d)
+    lo = np.full(3, -1.0)
+    hi = np.array(volume.shape_ijk, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = (lo - o) / di
+        tb = (hi - o) / di
+    par = np.abs(di) < 1e-12
+    inside = (o >= lo) & (o <= hi)
+    t_near = np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb))
+    t_far = np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb))
+    return np.maximum(t_near.max(axis=1), 0.0), t_far.min(axis=1)
 
 
 def render_reference(
@@ -64,20 +85,8 @@ def render_reference(
     uv = np.stack([u0 + (cc + 0.5) * scale - 0.5, v0 + (rr + 0.5) * scale - 0.5], -1).reshape(-1, 2)
     src, d = camera.rays(uv)
 
-    T_idx = volume.T_index_from_physical @ np.linalg.inv(T)
-    o = T_idx[:3, :3] @ src + T_idx[:3, 3]
-    di = d @ T_idx[:3, :3].T  # index units per mm
-    lo = np.full(3, -1.0)
-    hi = np.array(volume.shape_ijk, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta = (lo - o) / di
-        tb = (hi - o) / di
-    par = np.abs(di) < 1e-12
-    inside = (o >= lo) & (o <= hi)
-    t_near = np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb))
-    t_far = np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb))
-    t0 = np.maximum(t_near.max(axis=1), 0.0)
-    t1 = t_far.min(axis=1)
+    o, di = _index_rays(volume, T, src, d)
+    t0, t1 = _clip_rays(volume, T, src, d)
     hit = t1 > t0
     out = np.zeros(len(uv))
     data = np.asarray(volume.data, dtype=np.float64)

@@ -1,0 +1,165 @@
+#!/usr/bin/env bash
+# Set up a development environment for Talus and run it.
+#
+#   bash installer/dev.sh demo [talus demo options]   venv + GUI extra, then `talus demo --out demo_out`
+#   bash installer/dev.sh test [pytest options]       system packages, venv + test extra, ruff,
+#                                                     import contracts, pytest under Xvfb
+#   bash installer/dev.sh gui  [talus gui options]    venv + GUI extra, then open the window
+#
+# Idempotent: re-running reuses the virtual environment (.venv, or $TALUS_VENV) and installs only
+# what is missing. Needs Python >= 3.11 (python3.11 or python3; override with $TALUS_PYTHON).
+# System packages are installed with apt-get when running as root on Debian/Ubuntu; otherwise the
+# missing ones are listed. The exit status is that of the command run (ruff, lint-imports or
+# pytest for `test`).
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="${TALUS_VENV:-$ROOT/.venv}"
+XVFB_SCREEN="-screen 0 1280x1024x24"
+
+# Runtime libraries of Qt's xcb platform plugin and VTK's OpenGL window, plus a font.
+GUI_PACKAGES=(
+    libgl1 libegl1 libgl1-mesa-dri libxkbcommon-x11-0 libxcb-cursor0 libxcb-icccm4
+    libxcb-image0 libxcb-keysyms1 libxcb-render-util0 libxcb-shape0 libxcb-xinerama0
+    libxcb-randr0 libxcb-xfixes0 libdbus-1-3 libfontconfig1 fonts-dejavu-core
+)
+# A virtual X server for the GUI tests.
+TEST_PACKAGES=(xvfb xauth)
+
+log() { printf '[dev.sh] %s\n' "$*" >&2; }
+die() { log "error: $*"; exit 1; }
+
+usage() {
+    sed -n '2,/^set -euo/{/^#/p}' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//' >&2
+}
+
+# ---------------------------------------------------------------------------- system packages
+
+apt_install() {  # apt_install PKG...: install the Debian packages that are not installed yet
+    local missing=() pkg
+    command -v dpkg >/dev/null 2>&1 || { log "not a Debian system: skipping system packages ($*)"; return 0; }
+    for pkg in "$@"; do
+        dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
+    done
+    [ "${#missing[@]}" -eq 0 ] && return 0
+    if [ "$(id -u)" -ne 0 ]; then
+        log "warning: missing system packages: ${missing[*]}"
+        log "         install them with: sudo apt-get install ${missing[*]}"
+        return 0
+    fi
+    log "installing system packages: ${missing[*]}"
+    export DEBIAN_FRONTEND=noninteractive
+    if ! apt-get install -y -q --no-install-recommends "${missing[@]}" >&2; then
+        log "package lists missing or stale: apt-get update"
+        apt-get update -q >&2
+        apt-get install -y -q --no-install-recommends "${missing[@]}" >&2
+    fi
+}
+
+# ------------------------------------------------------------------------------------- python
+
+python_ok() {  # python_ok EXE: is EXE a Python >= 3.11?
+    "$1" -c 'import sys; sys.exit(sys.version_info < (3, 11))' >/dev/null 2>&1
+}
+
+find_python() {
+    local candidate
+    for candidate in "${TALUS_PYTHON:-}" python3.11 python3; do
+        [ -n "$candidate" ] || continue
+        if command -v "$candidate" >/dev/null 2>&1 && python_ok "$candidate"; then
+            command -v "$candidate"
+            return 0
+        fi
+    done
+    die "Python >= 3.11 not found (tried \$TALUS_PYTHON, python3.11, python3); on Debian: apt-get install python3.11 python3.11-venv"
+}
+
+ensure_venv() {
+    if [ -x "$VENV/bin/python" ] && python_ok "$VENV/bin/python" \
+        && "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then
+        return 0
+    fi
+    local py
+    py="$(find_python)"
+    log "creating virtual environment $VENV with $py"
+    if ! "$py" -c 'import ensurepip, venv' >/dev/null 2>&1; then
+        # Debian splits venv/ensurepip out of the interpreter package
+        local ver
+        ver="$("$py" -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')"
+        apt_install "python${ver}-venv"
+    fi
+    "$py" -m venv --clear "$VENV" || die "could not create $VENV (on Debian: apt-get install python3-venv)"
+}
+
+pip_install() {  # pip_install EXTRA: editable install of the project with that extra
+    log "installing talus-biplane[$1] into $VENV"
+    # always re-run: cheap when satisfied, and it refreshes the editable finder when packages
+    # are added to core/ or app/
+    "$VENV/bin/python" -m pip install -q -e "$ROOT[$1]" >&2
+}
+
+# ----------------------------------------------------------------------------------- commands
+
+cmd_demo() {
+    ensure_venv
+    pip_install gui
+    cd "$ROOT"
+    log "running: talus demo --out demo_out $*"
+    "$VENV/bin/talus" demo --out demo_out "$@"
+}
+
+cmd_gui() {
+    apt_install "${GUI_PACKAGES[@]}"
+    ensure_venv
+    pip_install gui
+    cd "$ROOT"
+    if [ -z "${DISPLAY:-}" ] && [ -z "${WAYLAND_DISPLAY:-}" ]; then
+        die "no display (DISPLAY is not set): run this from a desktop session or with ssh -X"
+    fi
+    QT_QPA_PLATFORM="${QT_QPA_PLATFORM:-xcb}" exec "$VENV/bin/talus" gui "$@"
+}
+
+cmd_test() {
+    apt_install "${GUI_PACKAGES[@]}" "${TEST_PACKAGES[@]}"
+    ensure_venv
+    pip_install test
+    cd "$ROOT"
+
+    local cache status=0
+    cache="$(mktemp -d "${TMPDIR:-/tmp}/talus-test-cache.XXXXXX")"
+    # shellcheck disable=SC2064  # expand now: the path is fixed
+    trap "rm -rf '$cache'" EXIT
+    export XDG_CACHE_HOME="$cache/xdg" WARP_CACHE_PATH="$cache/warp" TALUS_TEST_CACHE_DIR="$cache"
+    export QT_QPA_PLATFORM=xcb PYTHONDONTWRITEBYTECODE=1
+
+    log "ruff check ."
+    "$VENV/bin/ruff" check . || status=$?
+    log "lint-imports (import contracts in pyproject.toml)"
+    "$VENV/bin/lint-imports" || status=$?
+
+    log "pytest $*"
+    local pytest_status=0
+    if command -v xvfb-run >/dev/null 2>&1; then
+        xvfb-run -a -s "$XVFB_SCREEN" "$VENV/bin/python" -m pytest -q "$@" || pytest_status=$?
+    else
+        log "warning: xvfb-run not found; GUI tests run only if a display is available"
+        "$VENV/bin/python" -m pytest -q "$@" || pytest_status=$?
+    fi
+    [ "$pytest_status" -ne 0 ] && status=$pytest_status
+    if [ "$status" -eq 0 ]; then log "all checks passed"; else log "FAILED (exit $status)"; fi
+    return "$status"
+}
+
+main() {
+    local cmd="${1:-}"
+    [ $# -gt 0 ] && shift
+    case "$cmd" in
+        demo) cmd_demo "$@" ;;
+        test) cmd_test "$@" ;;
+        gui) cmd_gui "$@" ;;
+        -h|--help|help) usage ;;
+        *) usage; die "unknown command '${cmd}' (expected demo, test or gui)" ;;
+    esac
+}
+
+main "$@"

@@ -238,6 +238,17 @@ def _cmd_bench_drr(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _check_display() -> None:
+    """Qt aborts the process when it finds no display: say so clearly instead."""
+    if not sys.platform.startswith("linux") or os.environ.get("QT_QPA_PLATFORM"):
+        return
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise CliError(
+            "'talus gui' needs a display: DISPLAY is not set (run it from a desktop session, "
+            "over ssh -X, or under xvfb-run)"
+        )
+
+
 def _cmd_gui(args: argparse.Namespace) -> int:
     run_gui = _load(
         "app.main_window",
@@ -250,6 +261,7 @@ def _cmd_gui(args: argparse.Namespace) -> int:
         demo = Path(args.demo).expanduser()
         if not demo.is_dir():
             raise CliError(f"--demo: expected a demo study folder, '{demo}' is not a directory")
+    _check_display()
     return int(run_gui(demo=demo))
 
 

@@ -98,6 +98,15 @@ def test_gui_rejects_missing_demo_folder(tmp_path, capsys):
     assert "--demo: expected a demo study folder" in capsys.readouterr().err
 
 
+def test_gui_without_display_is_a_clear_error(monkeypatch, capsys):
+    pytest.importorskip("PySide6")
+    for var in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    assert main(["gui"]) == 1
+    assert "'talus gui' needs a display: DISPLAY is not set" in capsys.readouterr().err
+
+
 def test_bench_drr_prints_json_and_writes_file(monkeypatch, tmp_path, capsys):
     calls = []
 

@@ -26,12 +26,14 @@ from .transforms import (
     random_perturbation,
     rotvec_to_matrix,
 )
+from .triangulate import Triangulation, triangulate
 
 __all__ = [
     "Camera",
     "DLTFit",
     "P_from_dlt",
     "Rig",
+    "Triangulation",
     "apply_rigid",
     "camera_from_P",
     "camera_from_dlt",
@@ -52,4 +54,5 @@ __all__ = [
     "quat_to_matrix",
     "random_perturbation",
     "rotvec_to_matrix",
+    "triangulate",
 ]

@@ -11,6 +11,7 @@ from .conversions import (
     dlt_from_correspondences,
     dlt_from_P,
 )
+from .mayacam import read_mayacam, rig_from_mayacam, write_mayacam
 from .transforms import (
     apply_rigid,
     compose_rigid,
@@ -53,6 +54,9 @@ __all__ = [
     "pose_from_params",
     "quat_to_matrix",
     "random_perturbation",
+    "read_mayacam",
+    "rig_from_mayacam",
     "rotvec_to_matrix",
     "triangulate",
+    "write_mayacam",
 ]

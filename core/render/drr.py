@@ -156,10 +156,13 @@ class DRRRenderer:
         self.cameras = cams
         self.volumes = vols
         tr = transfer or HUTransfer()
+        for v in vols:
+            if v.units not in ("HU", "1/mm"):
+                raise ValueError(
+                    f"volumes: {v.name or 'a volume'} has units {v.units!r}, expected HU or 1/mm"
+                )
         mus = [v.data.astype(np.float32) if v.units == "1/mm" else tr(v.data) for v in vols]
         for v, mu in zip(vols, mus, strict=True):
-            if v.units not in ("HU", "1/mm"):
-                raise ValueError(f"volumes: {v.name or 'a volume'} has units {v.units!r}, expected HU or 1/mm")
             if not np.all(np.isfinite(mu)):
                 raise ValueError(f"volumes: {v.name or 'a volume'} has non-finite attenuation")
         self.step_mm = (
@@ -228,14 +231,15 @@ class DRRRenderer:
             )
             if len(self._launches) >= 8:  # keep a few shapes (e.g. optimizer + display)
                 self._launches.pop(next(iter(self._launches)))
-            cached = self._launches[key] = [host, items, out, cmd, None]
-        host, items, out, cmd, copied = cached
-        if copied is not None:  # the previous upload from this pinned buffer must be done
-            wp.synchronize_event(copied)
-        host.numpy()[...] = table
+            event = wp.Event(dev) if dev.is_cuda else None
+            cached = self._launches[key] = (host, host.numpy(), items, out, cmd, event)
+        host, host_np, items, out, cmd, event = cached
+        if event is not None:  # the previous upload from this pinned buffer must be done
+            wp.synchronize_event(event)
+        host_np[...] = table
         wp.copy(items, host)
-        if self.device.is_cuda:
-            cached[4] = wp.record_event()
+        if event is not None:
+            wp.record_event(event)
         cmd.set_param_at_index(2, float(scale))
         cmd.launch()
         return out
@@ -308,7 +312,8 @@ class DRRRenderer:
             P = P[None]
         if P.ndim != 4 or P.shape[1:] != (len(bones), 4, 4):
             raise ValueError(
-                f"poses: expected shape (B, {len(bones)}, 4, 4) or ({len(bones)}, 4, 4), got {np.shape(poses)}"
+                f"poses: expected shape (B, {len(bones)}, 4, 4) or ({len(bones)}, 4, 4), "
+                f"got {np.shape(poses)}"
             )
         scale = positive(scale, "scale")
         B, nv, nb = P.shape[0], len(views), len(bones)

@@ -88,11 +88,7 @@ def _numbers(path: Path, lineno: int, line: str, count: int | None, what: str) -
         vals = [float(p) for p in parts]
     except ValueError:
         vals = None
-    if (
-        vals is None
-        or (count is not None and len(vals) != count)
-        or not all(np.isfinite(v) for v in vals)
-    ):
+    if vals is None or (count is not None and len(vals) != count) or not all(np.isfinite(v) for v in vals):
         n = "comma-separated numbers" if count is None else f"{count} comma-separated number(s)"
         raise ValueError(f"{path}: line {lineno} ({what}): expected {n}, got {line!r}")
     return vals
@@ -111,7 +107,10 @@ def _image_size(path: Path, lineno: int, vals: Sequence[float], what: str) -> tu
 
 
 def _lines(path: Path) -> list[tuple[int, str]]:
-    text = path.read_text(encoding="utf-8-sig")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: expected a text MayaCam file, got undecodable bytes ({exc})") from None
     return [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
 
 
@@ -202,8 +201,7 @@ def _read_v1(path, lines, pixel_size, name) -> Camera:
     w, h = _image_size(path, ln5, (w, h), "scale,width,height")
     if not z < 0:
         raise ValueError(
-            f"{path}: line {content[3][0]} (u0,v0,z): expected z = -(focal length in pixels) < 0, "
-            f"got z = {z}"
+            f"{path}: line {content[3][0]} (u0,v0,z): expected z = -(focal length in pixels) < 0, got z = {z}"
         )
     f = -z
     K = np.array([[f, 0.0, u0 - 1.0], [0.0, f, h - v0], [0.0, 0.0, 1.0]])
@@ -374,9 +372,7 @@ def rig_from_mayacam(
         Passed to :func:`read_mayacam`.
     """
     if isinstance(paths, str | os.PathLike) or not isinstance(paths, Sequence) or not paths:
-        raise ValueError(
-            f"paths: expected a non-empty sequence of MayaCam file paths, got {paths!r}"
-        )
+        raise ValueError(f"paths: expected a non-empty sequence of MayaCam file paths, got {paths!r}")
     if pixel_size is None or np.ndim(pixel_size) == 0:
         sizes = [pixel_size] * len(paths)
     else:

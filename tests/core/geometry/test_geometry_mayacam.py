@@ -293,6 +293,13 @@ def test_malformed_files_name_file_and_line(tmp_path, text, match):
         read_mayacam(path)
 
 
+def test_binary_file_is_rejected(tmp_path):
+    path = tmp_path / "image.tif"
+    path.write_bytes(b"II*\x00\xff\xfe\x80")
+    with pytest.raises(ValueError, match=re.escape(str(path)) + ": expected a text MayaCam file"):
+        read_mayacam(path)
+
+
 def test_write_is_atomic(tmp_path, monkeypatch):
     cam = _random_camera(4)
     path = tmp_path / "cam.txt"

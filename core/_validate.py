@@ -32,7 +32,8 @@ def as_float_array(
             s is None or s == a for s, a in zip(shape, arr.shape, strict=False)
         )
         if not ok:
-            want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+            dims = ["N" if s is None else str(s) for s in shape]
+            want = f"({dims[0]},)" if len(dims) == 1 else "(" + ", ".join(dims) + ")"
             raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
     if finite and not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: contains NaN or infinite values")

@@ -250,6 +250,13 @@ class Rig:
             raise ValueError("cameras: expected a non-empty sequence of Camera objects")
         object.__setattr__(self, "cameras", cams)
 
+    @classmethod
+    def from_mayacam(cls, paths, **kwargs) -> Rig:
+        """Read one MayaCam 1.0/2.0 file per camera (see :mod:`core.geometry.mayacam`)."""
+        from .mayacam import rig_from_mayacam
+
+        return rig_from_mayacam(paths, **kwargs)
+
     def __len__(self) -> int:
         return len(self.cameras)
 

@@ -99,6 +99,7 @@ def drr_texture_kernel(
     dist: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
+    value_scale: float,
     items: wp.array2d(dtype=wp.float32),
     cam_M: wp.array(dtype=wp.mat33f),
     vol_dims: wp.array(dtype=wp.vec3i),
@@ -128,7 +129,7 @@ def drr_texture_kernel(
             if val == 0.0:
                 m += _skip_steps(dist, p, zoff, dmax_step)
             m += 1
-        acc = acc * dt
+        acc = acc * dt * value_scale
     out[item, row, col] = acc
 
 
@@ -168,6 +169,7 @@ def drr_trilinear_kernel(
     dist: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
+    value_scale: float,
     items: wp.array2d(dtype=wp.float32),
     cam_M: wp.array(dtype=wp.mat33f),
     vol_dims: wp.array(dtype=wp.vec3i),
@@ -195,5 +197,5 @@ def drr_trilinear_kernel(
             if val == 0.0:
                 m += _skip_steps(dist, p, zoff, dmax_step)
             m += 1
-        acc = acc * dt
+        acc = acc * dt * value_scale
     out[item, row, col] = acc

@@ -132,6 +132,14 @@ def _case(renderer: DRRRenderer, n_poses: int, n_views: int, roi, scale: float, 
     }
 
 
+CONFIGS = {
+    "texture": {"interpolation": "texture"},
+    "texture_uint16": {"interpolation": "texture", "texture_dtype": "uint16"},
+    "texture_float16": {"interpolation": "texture", "texture_dtype": "float16"},
+    "trilinear": {"interpolation": "trilinear"},
+}
+
+
 def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
                       interpolations: tuple[str, ...] | None = None) -> dict:
     """Run the DRR benchmark on each device and return a JSON-serialisable dict.
@@ -143,7 +151,8 @@ def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
     quick : bool
         Smaller batches and fewer repeats (a smoke run, e.g. in tests).
     interpolations : tuple of str, optional
-        Default: ``("texture", "trilinear")`` on CUDA, ``("trilinear",)`` on the CPU.
+        Renderer configurations, keys of :data:`CONFIGS`. Default: all on CUDA,
+        ``("trilinear",)`` on the CPU.
     """
     wp.init()
     if devices is None:
@@ -171,14 +180,14 @@ def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
     for dev_name in devices:
         dev = wp.get_device(dev_name)
         cuda = dev.is_cuda
-        interps = interpolations or (("texture", "trilinear") if cuda else ("trilinear",))
+        interps = interpolations or (tuple(CONFIGS) if cuda else ("trilinear",))
         batch = 64 if cuda else (2 if quick else 8)
         repeats = (20 if not quick else 3) if cuda else 1
         ct_pixels = 1024 if (cuda or not quick) else 128
         entry = {"name": dev.name, "is_cuda": cuda, "interpolations": {}}
         for interp in interps:
             cases = {}
-            r_ct = DRRRenderer(rig, [ct], device=dev_name, interpolation=interp)
+            r_ct = DRRRenderer(rig, [ct], device=dev_name, **CONFIGS[interp])
             full = np.array([0, 0, ct_pixels, ct_pixels])
             cases["ct_1024"] = {
                 "volume_ijk": list(ct.shape_ijk),
@@ -188,8 +197,8 @@ def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
             if cuda or not quick:
                 cases["ct_1024"]["batched"] = _case(r_ct, batch, 2, full, 1.0, max(1, repeats // 4))
             del r_ct
-            r_bone = DRRRenderer(rig, [bone], device=dev_name, interpolation=interp,
-                                 transfer=bone_transfer)
+            r_bone = DRRRenderer(rig, [bone], device=dev_name, transfer=bone_transfer,
+                                 **CONFIGS[interp])
             side = 300 if not quick else 64
             roi = np.array([512 - side // 2, 512 - side // 2, side, side])
             cases["bone_roi_300"] = {
@@ -200,7 +209,16 @@ def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
                 "march_steps_per_drr": _steps_per_drr(r_bone, roi, np.eye(4)),
                 "occupied_fraction_of_box": float((bone_transfer(bone.data) > 0).mean()),
             }
-            if cuda and interp == "texture":
+            if cuda and not quick:
+                scan = {}
+                for bd in (64, 128, 256, 512):
+                    r_bone.block_dim = bd
+                    r_bone._launches.clear()
+                    scan[str(bd)] = _case(r_bone, batch, 2, roi, 1.0, repeats)["us_per_drr"]
+                r_bone.block_dim = 256
+                r_bone._launches.clear()
+                cases["bone_roi_300"]["batched_us_per_drr_by_block_dim"] = scan
+            if cuda and interp != "trilinear":
                 exact = DRRRenderer(rig, [bone], device=dev_name, interpolation="trilinear",
                                     transfer=bone_transfer)
                 poses = _poses(4, 2)[:, None]

@@ -89,13 +89,19 @@ def test_trilinear_kernel_matches_reference_with_roi_scale_and_two_bones():
             np.testing.assert_allclose(got, ref, atol=1e-4 * ref.max(), rtol=0)
 
 
-def test_texture_path_close_to_exact():
+@pytest.mark.parametrize(("texture_dtype", "tol"), [("float32", 1e-5), ("uint16", 2e-5), ("float16", 5e-4)])
+def test_texture_path_close_to_exact(texture_dtype, tol):
+    # Warp's CPU texture filter uses exact weights, so only the storage precision shows here;
+    # CUDA's 8-bit filter weights are measured by `talus bench drr` ("texture_vs_exact").
     cam = _camera()
     vol = _random_volume(3)
     T = _rigid([0.3, -0.1, 0.2], [0.5, 0.5, -1.0])
     exact = DRRRenderer([cam], [vol], device="cpu", interpolation="trilinear").render_full(T[None], 0)
-    tex = DRRRenderer([cam], [vol], device="cpu", interpolation="texture").render_full(T[None], 0)
-    assert np.abs(tex - exact).max() < 1e-2 * exact.max()
+    tex = DRRRenderer(
+        [cam], [vol], device="cpu", interpolation="texture", texture_dtype=texture_dtype
+    ).render_full(T[None], 0)
+    assert exact.max() > 0.1
+    assert np.abs(tex - exact).max() < tol * exact.max()
 
 
 def test_batch_items_equal_single_renders_and_roi_is_a_crop_of_full():

@@ -54,22 +54,28 @@ def _item_mat(items: wp.array2d(dtype=wp.float32), i: int) -> wp.mat33f:
     )
 
 
-@wp.func
-def _skip_steps(dist: wp.array3d(dtype=wp.uint8), p: wp.vec3f, zoff: int, dmax_step: float) -> int:
-    """How many following samples are provably 0 (empty-space skipping, exact).
+BRICK = 4  # voxels per empty-space brick edge
 
-    ``dist`` holds, per padded atlas voxel, the chessboard distance D (voxels, capped at 255) to
-    the nearest non-zero voxel. Every voxel that can contribute to a sample within ``j`` steps of
-    ``p`` lies closer than ``1.5 + j * dmax_step`` to the voxel nearest ``p``, so all samples with
-    ``j * dmax_step <= D - 1.5`` are exactly zero.
+
+@wp.func
+def _empty_steps(bricks: wp.array3d(dtype=wp.uint8), p: wp.vec3f, zoff: int, dmax_step: float) -> int:
+    """Samples, from this one on, that are provably 0 (exact empty-space skipping); 0 if none.
+
+    The padded atlas is cut into bricks of ``BRICK``³ voxels; brick ``b`` covers atlas voxels
+    ``[4b, 4b + 3]`` and is *occupied* when any voxel in ``[4b - 1, 4b + 4]`` (its trilinear
+    support) is non-zero. ``bricks`` holds the chessboard distance Db (in bricks, capped at 255)
+    to the nearest occupied brick. A point in an empty brick (Db >= 1) that moves by at most
+    ``BRICK * (Db - 1)`` voxels per axis stays in empty bricks, so the current sample and the
+    next ``floor(BRICK * (Db - 1) / dmax_step)`` ones are exactly zero.
     """
-    x = wp.clamp(int(wp.floor(p[0] + 1.5)), 0, dist.shape[2] - 1)
-    y = wp.clamp(int(wp.floor(p[1] + 1.5)), 0, dist.shape[1] - 1)
-    z = wp.clamp(int(wp.floor(p[2] + 1.5)) + zoff, 0, dist.shape[0] - 1)
-    d = float(dist[z, y, x])
-    if d < 2.5:
+    # atlas voxel coordinates (voxel centres at integers) -> brick index
+    bx = wp.clamp(int(wp.floor((p[0] + 1.5) * 0.25)), 0, bricks.shape[2] - 1)
+    by = wp.clamp(int(wp.floor((p[1] + 1.5) * 0.25)), 0, bricks.shape[1] - 1)
+    bz = wp.clamp(int(wp.floor((p[2] + 1.5 + float(zoff)) * 0.25)), 0, bricks.shape[0] - 1)
+    d = int(bricks[bz, by, bx])
+    if d == 0:
         return 0
-    return int((d - 1.5) / dmax_step)
+    return 1 + int(float(BRICK * (d - 1)) / dmax_step)
 
 
 @wp.func
@@ -96,7 +102,7 @@ def _outside(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int,
 @wp.kernel
 def drr_texture_kernel(
     atlas: wp.Texture3D,
-    dist: wp.array3d(dtype=wp.uint8),
+    bricks: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
     value_scale: float,
@@ -124,11 +130,12 @@ def drr_texture_kernel(
         m = int(0)
         while m < n:
             p = p0 + dp * float(m)
-            val = wp.texture_sample(atlas, p + shift, dtype=float)
-            acc += val
-            if val == 0.0:
-                m += _skip_steps(dist, p, zoff, dmax_step)
-            m += 1
+            k = _empty_steps(bricks, p, zoff, dmax_step)
+            if k > 0:
+                m += k
+            else:
+                acc += wp.texture_sample(atlas, p + shift, dtype=float)
+                m += 1
         acc = acc * dt * value_scale
     out[item, row, col] = acc
 
@@ -166,7 +173,7 @@ def _trilinear(vol: wp.array3d(dtype=wp.float32), p: wp.vec3f, zoff: int) -> flo
 @wp.kernel
 def drr_trilinear_kernel(
     atlas: wp.array3d(dtype=wp.float32),
-    dist: wp.array3d(dtype=wp.uint8),
+    bricks: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
     value_scale: float,
@@ -192,10 +199,11 @@ def drr_trilinear_kernel(
         m = int(0)
         while m < n:
             p = p0 + dp * float(m)
-            val = _trilinear(atlas, p, zoff)
-            acc += val
-            if val == 0.0:
-                m += _skip_steps(dist, p, zoff, dmax_step)
-            m += 1
+            k = _empty_steps(bricks, p, zoff, dmax_step)
+            if k > 0:
+                m += k
+            else:
+                acc += _trilinear(atlas, p, zoff)
+                m += 1
         acc = acc * dt * value_scale
     out[item, row, col] = acc

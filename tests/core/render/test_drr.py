@@ -165,3 +165,25 @@ def test_bad_arguments_name_the_argument():
     nan_pose[0, 3] = np.nan
     with pytest.raises(ValueError, match="poses"):
         r.render(nan_pose[None])
+
+
+@pytest.mark.parametrize("interpolation", ["trilinear", "texture"])
+def test_empty_space_skipping_is_exact(interpolation):
+    """A small blob in a large empty box, with a second volume stacked in the atlas."""
+    rng = np.random.default_rng(7)
+    data = np.zeros((40, 37, 33), np.float32)
+    data[18:23, 10:14, 20:26] = rng.random((5, 4, 6)) * 0.05
+    data[30, 30, 5] = 0.08  # a lone voxel: thin support at brick borders
+    sparse = CTVolume(data, spacing=[0.5, 0.6, 0.7], origin=[-9.0, -10.0, -13.0], units="1/mm")
+    cams = Rig((_camera(0.0), _camera(np.deg2rad(100))))
+    vols = [_random_volume(8), sparse]
+    rng = np.random.default_rng(1)
+    poses = np.stack([[_rigid(rng.normal(0, 0.4, 3), rng.normal(0, 2, 3)) for _ in range(2)]
+                      for _ in range(3)])
+    on = DRRRenderer(cams, vols, device="cpu", interpolation=interpolation, step_mm=0.4)
+    off = DRRRenderer(cams, vols, device="cpu", interpolation=interpolation, step_mm=0.4,
+                      empty_space_skipping=False)
+    a = on.render(poses, roi="full").numpy()
+    b = off.render(poses, roi="full").numpy()
+    assert b[:, :, 1].max() > 0.01
+    np.testing.assert_array_equal(a, b)

@@ -37,6 +37,7 @@ __all__ = [
     "bead_line_integrals",
     "box_line_integrals",
     "cylinder_line_integrals",
+    "slab_chords",
     "slab_line_integrals",
     "sphere_chords",
 ]
@@ -107,7 +108,10 @@ def _box_chords(origin, dirs, T, half):
 
 
 def _cylinder_chords(origin, dirs, T, radius, half_length):
-    o, d = _local(origin, dirs, T)
+    """Chords through finite cylinders; ``T`` (N, 4, 4), ``radius``/``half_length`` (N,) per ray."""
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    o = np.einsum("nji,nj->ni", R, origin - t)
+    d = np.einsum("nji,nj->ni", R, dirs)
     a = d[:, 0] ** 2 + d[:, 1] ** 2
     b = o[:, 0] * d[:, 0] + o[:, 1] * d[:, 1]
     c = o[:, 0] ** 2 + o[:, 1] ** 2 - radius * radius
@@ -118,7 +122,8 @@ def _cylinder_chords(origin, dirs, T, radius, half_length):
         r0, r1 = (-b - sq) / a, (-b + sq) / a
     r0 = np.where(par, np.where(c <= 0, -np.inf, np.inf), np.where(disc > 0, r0, np.inf))
     r1 = np.where(par, np.where(c <= 0, np.inf, -np.inf), np.where(disc > 0, r1, -np.inf))
-    z0, z1 = _slab_interval(o[:, 2:], d[:, 2:], -half_length, half_length)
+    hl = half_length[:, None]
+    z0, z1 = _slab_interval(o[:, 2:], d[:, 2:], -hl, hl)
     lo = np.maximum(np.maximum(r0, z0), 0.0)
     return np.maximum(np.minimum(r1, z1) - lo, 0.0)
 
@@ -133,8 +138,17 @@ def _roi(camera: Camera, roi) -> tuple[int, int, int, int]:
     return r
 
 
-def _splat(camera, corners, chord: Callable, mu, roi, supersample: int, chunk_rays: int = 2_000_000):
-    """Render N local objects: ``corners (N, 8, 3)`` bound each; ``chord(idx, o, d)`` -> mm."""
+def _splat(camera, corners, chord: Callable, mu, roi, supersample: int, *, average: str = "line",
+           base: Callable | None = None, chunk_rays: int = 2_000_000):
+    """Render N local objects: ``corners (N, 8, 3)`` bound each; ``chord(idx, o, d)`` -> mm.
+
+    ``average="line"`` box-filters the line integral over each pixel; ``"fluence"`` box-filters
+    the transmitted fluence and returns the *effective* line integral ``-log(mean(exp(-L)))``
+    minus the pixel mean of ``base(dirs)`` (a smooth background integral such as a plate the
+    objects are embedded in), so that adding it back gives the right pixel fluence.
+    """
+    if average not in ("line", "fluence"):
+        raise ValueError(f"average: expected 'line' or 'fluence', got {average!r}")
     u0, v0, w, h = _roi(camera, roi)
     out = np.zeros((h, w))
     s = int(supersample)
@@ -169,21 +183,26 @@ def _splat(camera, corners, chord: Callable, mu, roi, supersample: int, chunk_ra
         uvs = (np.stack([pu, pv], axis=1)[:, None, :] + sub[None]).reshape(-1, 2)
         _, dirs = camera.rays(uvs)
         k = np.repeat(idx[obj], s * s)
-        L = chord(k, src, dirs) * mu[k]
-        val = L.reshape(-1, s * s).mean(axis=1)
+        L = (chord(k, src, dirs) * mu[k]).reshape(-1, s * s)
+        if average == "line":
+            val = L.mean(axis=1)
+        else:
+            b = np.zeros_like(L) if base is None else base(dirs).reshape(-1, s * s)
+            val = -np.log(np.mean(np.exp(-(L + b)), axis=1)) - b.mean(axis=1)
         np.add.at(out, (pv - v0, pu - u0), val)
         start = stop
     return out.astype(np.float32)
 
 
-def _mu_array(mu, n: int, name: str = "mu") -> np.ndarray:
+def _mu_array(mu, n: int, name: str = "mu", *, signed: bool = False) -> np.ndarray:
     m = np.broadcast_to(as_float_array(mu, name), (n,)).astype(float)
-    if np.any(m < 0):
+    if not signed and np.any(m < 0):
         raise ValueError(f"{name}: expected attenuation coefficients >= 0 (1/mm)")
     return m
 
 
-def bead_line_integrals(camera: Camera, centers, diameters, mu, *, roi=None, supersample: int = 4):
+def bead_line_integrals(camera: Camera, centers, diameters, mu, *, roi=None, supersample: int = 4,
+                        average: str = "line", _base=None):
     """Anti-aliased image of ``∫ μ dl`` through spherical beads (exact chords, no voxels).
 
     Parameters
@@ -200,6 +219,11 @@ def bead_line_integrals(camera: Camera, centers, diameters, mu, *, roi=None, sup
         of the result is centred at ``(u, v) = (u0 + c, v0 + r)``.
     supersample : int
         Rays per pixel along each axis (4 → 16 rays per pixel, box-filtered).
+    average : {"line", "fluence"}
+        Box-filter the line integral (the DRR-style ground truth) or the transmitted fluence
+        (returns ``-log`` of the pixel-mean transmission: what a detector pixel integrates, and
+        what to feed :class:`~core.synthetic.imaging.ImagingModel` for opaque beads whose edges
+        fall inside pixels).
 
     Returns
     -------
@@ -215,7 +239,8 @@ def bead_line_integrals(camera: Camera, centers, diameters, mu, *, roi=None, sup
     cube = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=float)
     corners = C[:, None, :] + r[:, None, None] * cube[None]
     return _splat(camera, corners, lambda k, o, d: sphere_chords(o, d, C[k], r[k]),
-                  _mu_array(mu, n), roi, supersample)
+                  _mu_array(mu, n, signed=average == "fluence"), roi, supersample, average=average,
+                  base=_base)
 
 
 def box_line_integrals(camera: Camera, T_lab_from_box, half_extents, mu, *, roi=None,
@@ -230,12 +255,13 @@ def box_line_integrals(camera: Camera, T_lab_from_box, half_extents, mu, *, roi=
 
 
 def cylinder_line_integrals(camera: Camera, T_lab_from_cyl, radius, half_length, mu, *,
-                            roi=None, supersample: int = 2):
+                            roi=None, supersample: int = 2, average: str = "line", _base=None):
     """Line integrals through homogeneous finite cylinders along their local z-axis.
 
     ``T_lab_from_cyl`` is (4, 4) or (N, 4, 4); ``radius``, ``half_length`` (mm) and ``mu``
-    (1/mm; negative values are *not* allowed — subtract holes from a plate yourself) broadcast
-    to (N,).
+    (1/mm) broadcast to (N,). A negative ``mu`` *removes* material: drilled holes in a plate or
+    the bore of a tube, added to the plate's or tube's own integral. ``average`` as for
+    :func:`bead_line_integrals`.
     """
     T = as_float_array(T_lab_from_cyl, "T_lab_from_cyl")
     T = T[None] if T.ndim == 2 else T
@@ -248,14 +274,20 @@ def cylinder_line_integrals(camera: Camera, T_lab_from_cyl, radius, half_length,
     loc = cube[None] * np.stack([r, r, hl], axis=1)[:, None, :]
     corners = np.einsum("nij,nkj->nki", T[:, :3, :3], loc) + T[:, None, :3, 3]
 
-    def chord(k, o, d):
-        out = np.empty(len(k))
-        for i in np.unique(k):
-            m = k == i
-            out[m] = _cylinder_chords(o, d[m], T[i], r[i], hl[i])
-        return out
+    return _splat(camera, corners, lambda k, o, d: _cylinder_chords(o, d, T[k], r[k], hl[k]),
+                  _mu_array(mu, n, signed=True), roi, supersample, average=average, base=_base)
 
-    return _splat(camera, corners, chord, _mu_array(mu, n), roi, supersample)
+
+def slab_chords(origin, dirs, point, normal, thickness: float) -> np.ndarray:
+    """Chords (mm) of rays ``origin + t·dirs`` (t > 0) through ``|(x - point)·n| <= thickness/2``."""
+    nrm = np.asarray(normal, dtype=float)
+    nrm = nrm / np.linalg.norm(nrm)
+    cos = dirs @ nrm
+    s0 = (np.asarray(point, dtype=float) - origin) @ nrm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (s0 - thickness / 2) / cos, (s0 + thickness / 2) / cos
+    L = np.maximum(np.maximum(ta, tb) - np.maximum(np.minimum(ta, tb), 0.0), 0.0)
+    return np.where(np.abs(cos) < 1e-12, 0.0, L)
 
 
 def slab_line_integrals(camera: Camera, point, normal, thickness: float, mu: float, *, roi=None):
@@ -266,15 +298,8 @@ def slab_line_integrals(camera: Camera, point, normal, thickness: float, mu: flo
     """
     p = as_float_array(point, "point", shape=(3,))
     nrm = as_float_array(normal, "normal", shape=(3,))
-    nrm = nrm / np.linalg.norm(nrm)
     t = positive(thickness, "thickness")
     u0, v0, w, h = _roi(camera, roi)
     v, u = np.mgrid[v0 : v0 + h, u0 : u0 + w].astype(float)
     src, d = camera.rays(np.stack([u, v], axis=-1))
-    cos = d @ nrm
-    s0 = (p - src) @ nrm
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta, tb = (s0 - t / 2) / cos, (s0 + t / 2) / cos
-    L = np.maximum(np.maximum(ta, tb) - np.maximum(np.minimum(ta, tb), 0.0), 0.0)
-    L = np.where(np.abs(cos) < 1e-12, 0.0, L)
-    return (float(mu) * L).astype(np.float32)
+    return (float(mu) * slab_chords(src, d, p, nrm, t)).astype(np.float32)

@@ -54,28 +54,22 @@ def _item_mat(items: wp.array2d(dtype=wp.float32), i: int) -> wp.mat33f:
     )
 
 
-BRICK = 4  # voxels per empty-space brick edge
-
-
 @wp.func
-def _empty_steps(bricks: wp.array3d(dtype=wp.uint8), p: wp.vec3f, zoff: int, dmax_step: float) -> int:
-    """Samples, from this one on, that are provably 0 (exact empty-space skipping); 0 if none.
+def _skip_steps(dist: wp.array3d(dtype=wp.uint8), p: wp.vec3f, zoff: int, dmax_step: float) -> int:
+    """How many following samples are provably 0 (empty-space skipping, exact).
 
-    The padded atlas is cut into bricks of ``BRICK``³ voxels; brick ``b`` covers atlas voxels
-    ``[4b, 4b + 3]`` and is *occupied* when any voxel in ``[4b - 1, 4b + 4]`` (its trilinear
-    support) is non-zero. ``bricks`` holds the chessboard distance Db (in bricks, capped at 255)
-    to the nearest occupied brick. A point in an empty brick (Db >= 1) that moves by at most
-    ``BRICK * (Db - 1)`` voxels per axis stays in empty bricks, so the current sample and the
-    next ``floor(BRICK * (Db - 1) / dmax_step)`` ones are exactly zero.
+    ``dist`` holds, per padded atlas voxel, the chessboard distance D (voxels, capped at 255) to
+    the nearest non-zero voxel. Every voxel that can contribute to a sample within ``j`` steps of
+    ``p`` lies closer than ``1.5 + j * dmax_step`` to the voxel nearest ``p``, so all samples with
+    ``j * dmax_step <= D - 1.5`` are exactly zero.
     """
-    # atlas voxel coordinates (voxel centres at integers) -> brick index
-    bx = wp.clamp(int(wp.floor((p[0] + 1.5) * 0.25)), 0, bricks.shape[2] - 1)
-    by = wp.clamp(int(wp.floor((p[1] + 1.5) * 0.25)), 0, bricks.shape[1] - 1)
-    bz = wp.clamp(int(wp.floor((p[2] + 1.5 + float(zoff)) * 0.25)), 0, bricks.shape[0] - 1)
-    d = int(bricks[bz, by, bx])
-    if d == 0:
+    x = wp.clamp(int(wp.floor(p[0] + 1.5)), 0, dist.shape[2] - 1)
+    y = wp.clamp(int(wp.floor(p[1] + 1.5)), 0, dist.shape[1] - 1)
+    z = wp.clamp(int(wp.floor(p[2] + 1.5)) + zoff, 0, dist.shape[0] - 1)
+    d = float(dist[z, y, x])
+    if d < 2.5:
         return 0
-    return 1 + int(float(BRICK * (d - 1)) / dmax_step)
+    return int((d - 1.5) / dmax_step)
 
 
 @wp.func
@@ -94,6 +88,32 @@ def _setup(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int, s
     return org, d_idx, t0, t1
 
 
+TILE_W = 8  # pixels per thread tile: a warp renders an 8 x 4 patch and a 256-thread block four
+TILE_H = 8  # 8 x 8 tiles, so neighbouring threads sample neighbouring voxels (texture cache);
+# measured on an H100: 8x8 beat 16x16, 8x4, 16x4, 32x4 and 32x8 tiles and row-major order
+
+
+def tiled_threads(n_items: int, H: int, W: int) -> int:
+    """Number of threads of a tiled launch over ``n_items`` images of ``H x W`` pixels."""
+    return n_items * (-(-H // TILE_H)) * (-(-W // TILE_W)) * TILE_W * TILE_H
+
+
+@wp.func
+def _tile_pixel(tid: int, H: int, W: int):
+    """Thread -> (item, row, col): TILE_W x TILE_H tiles in row-major order, item after item."""
+    tiles_x = (W + TILE_W - 1) // TILE_W
+    tiles_y = (H + TILE_H - 1) // TILE_H
+    per_tile = TILE_W * TILE_H
+    per_item = tiles_x * tiles_y * per_tile
+    item = tid // per_item
+    r = tid - item * per_item
+    tile = r // per_tile
+    lane = r - tile * per_tile
+    ty = tile // tiles_x
+    tx = tile - ty * tiles_x
+    return item, ty * TILE_H + lane // TILE_W, tx * TILE_W + lane - (lane // TILE_W) * TILE_W
+
+
 @wp.func
 def _outside(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int, scale: float) -> bool:
     return float(col) * scale >= items[item, 16] or float(row) * scale >= items[item, 17]
@@ -102,7 +122,7 @@ def _outside(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int,
 @wp.kernel
 def drr_texture_kernel(
     atlas: wp.Texture3D,
-    bricks: wp.array3d(dtype=wp.uint8),
+    dist: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
     value_scale: float,
@@ -112,7 +132,9 @@ def drr_texture_kernel(
     vol_zoff: wp.array(dtype=wp.int32),
     out: wp.array3d(dtype=wp.float32),
 ):
-    item, row, col = wp.tid()
+    item, row, col = _tile_pixel(wp.tid(), out.shape[1], out.shape[2])
+    if row >= out.shape[1] or col >= out.shape[2]:
+        return
     if _outside(items, item, row, col, scale):
         out[item, row, col] = 0.0
         return
@@ -130,12 +152,11 @@ def drr_texture_kernel(
         m = int(0)
         while m < n:
             p = p0 + dp * float(m)
-            k = _empty_steps(bricks, p, zoff, dmax_step)
-            if k > 0:
-                m += k
-            else:
-                acc += wp.texture_sample(atlas, p + shift, dtype=float)
-                m += 1
+            val = wp.texture_sample(atlas, p + shift, dtype=float)
+            acc += val
+            if val == 0.0:
+                m += _skip_steps(dist, p, zoff, dmax_step)
+            m += 1
         acc = acc * dt * value_scale
     out[item, row, col] = acc
 
@@ -173,7 +194,7 @@ def _trilinear(vol: wp.array3d(dtype=wp.float32), p: wp.vec3f, zoff: int) -> flo
 @wp.kernel
 def drr_trilinear_kernel(
     atlas: wp.array3d(dtype=wp.float32),
-    bricks: wp.array3d(dtype=wp.uint8),
+    dist: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
     value_scale: float,
@@ -183,7 +204,9 @@ def drr_trilinear_kernel(
     vol_zoff: wp.array(dtype=wp.int32),
     out: wp.array3d(dtype=wp.float32),
 ):
-    item, row, col = wp.tid()
+    item, row, col = _tile_pixel(wp.tid(), out.shape[1], out.shape[2])
+    if row >= out.shape[1] or col >= out.shape[2]:
+        return
     if _outside(items, item, row, col, scale):
         out[item, row, col] = 0.0
         return
@@ -199,11 +222,10 @@ def drr_trilinear_kernel(
         m = int(0)
         while m < n:
             p = p0 + dp * float(m)
-            k = _empty_steps(bricks, p, zoff, dmax_step)
-            if k > 0:
-                m += k
-            else:
-                acc += _trilinear(atlas, p, zoff)
-                m += 1
+            val = _trilinear(atlas, p, zoff)
+            acc += val
+            if val == 0.0:
+                m += _skip_steps(dist, p, zoff, dmax_step)
+            m += 1
         acc = acc * dt * value_scale
     out[item, row, col] = acc

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
-from scipy.ndimage import distance_transform_cdt, maximum_filter
+from scipy.ndimage import distance_transform_cdt
 
 from .._validate import as_float_array, positive
 from ..geometry.camera import Camera, Rig
@@ -43,25 +43,6 @@ from . import _kernels
 from .volume import CTVolume, HUTransfer
 
 __all__ = ["DRRBatch", "DRRRenderer", "default_device", "projected_roi"]
-
-
-def _brick_distance(atlas: np.ndarray, enabled: bool) -> np.ndarray:
-    """Per brick of ``_kernels.BRICK``³ atlas voxels: chessboard distance (bricks, <= 255) to the
-    nearest brick whose trilinear support holds a non-zero voxel (see ``_empty_steps``)."""
-    B = _kernels.BRICK
-    nb = [-(-n // B) for n in atlas.shape]
-    if not enabled:
-        return np.zeros(nb, dtype=np.uint8)
-    nz = atlas != 0
-    # dilate by one voxel (trilinear support), then OR-reduce each brick
-    nz = maximum_filter(nz, size=3, mode="constant", cval=False)
-    pad = [(0, b * B - n) for b, n in zip(nb, atlas.shape, strict=True)]
-    nz = np.pad(nz, pad)
-    occ = nz.reshape(nb[0], B, nb[1], B, nb[2], B).any(axis=(1, 3, 5))
-    if not occ.any():
-        return np.full(nb, 255, dtype=np.uint8)
-    dist = distance_transform_cdt(~occ, metric="chessboard")
-    return np.minimum(dist, 255).astype(np.uint8)
 
 
 def default_device() -> str:
@@ -152,8 +133,8 @@ class DRRRenderer:
         16-bit normalised integers (resolution 1/65535 of the largest μ), which CUDA filters at
         twice the rate of float32; default ``"float32"``.
     empty_space_skipping : bool
-        Skip, exactly, the ray samples that lie in empty 4³-voxel bricks (default True); the
-        result is identical either way.
+        After a zero sample, jump over the following samples that a per-voxel chessboard
+        distance map proves to be zero (default True); the result is identical either way.
     """
 
     def __init__(
@@ -247,8 +228,12 @@ class DRRRenderer:
         else:
             self._atlas = wp.array(atlas, dtype=wp.float32, device=self.device)
             self._kernel = _kernels.drr_trilinear_kernel
-        self._bricks = wp.array(_brick_distance(atlas, self.empty_space_skipping), dtype=wp.uint8,
-                                device=self.device)
+        # empty-space skipping: chessboard distance (voxels) to the nearest non-zero voxel
+        if self.empty_space_skipping:
+            dist = np.minimum(distance_transform_cdt(atlas == 0, metric="chessboard"), 255)
+        else:
+            dist = np.zeros(atlas.shape, dtype=np.uint8)
+        self._dist = wp.array(dist.astype(np.uint8), dtype=wp.uint8, device=self.device)
         self.atlas_shape = atlas.shape
 
     def _launch(self, table: np.ndarray, H: int, W: int, scale: float) -> wp.array:
@@ -265,8 +250,8 @@ class DRRRenderer:
             out = wp.empty((n_items, H, W), dtype=wp.float32, device=dev)
             cmd = wp.launch(
                 self._kernel,
-                dim=(n_items, H, W),
-                inputs=[self._atlas, self._bricks, float(scale), float(self.step_mm),
+                dim=_kernels.tiled_threads(n_items, H, W),
+                inputs=[self._atlas, self._dist, float(scale), float(self.step_mm),
                         float(self._value_scale), items,
                         self._cam_M, self._vol_dims, self._vol_zoff, out],
                 device=dev,

@@ -169,3 +169,19 @@ def test_ctrl_c_cancels_the_demo_cleanly(monkeypatch, tmp_path, capsys):
     captured = capsys.readouterr()
     assert captured.out == ""
     assert "cancelled" in captured.err
+
+
+def test_sample_wrist_writes_preview_png(sample_data, tmp_path, capsys):
+    folder = sample_data / "autoscoper_wrist"
+    if not folder.is_dir():
+        pytest.skip(reason=f"wrist sample not found at {folder}")
+    out = tmp_path / "wrist.png"
+    assert main(["sample", "wrist", "--data", str(folder), "--out", str(out), "--device", "cpu"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["views"] == 2 and min(result["drr_max"]) > 0.3
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_sample_wrist_names_a_missing_folder(tmp_path, capsys):
+    assert main(["sample", "wrist", "--data", str(tmp_path / "nope")]) != 0
+    assert "--data" in capsys.readouterr().err

@@ -215,7 +215,7 @@ def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
                     r_bone.block_dim = bd
                     r_bone._launches.clear()
                     scan[str(bd)] = _case(r_bone, batch, 2, roi, 1.0, repeats)["us_per_drr"]
-                r_bone.block_dim = 256
+                r_bone.block_dim = 128
                 r_bone._launches.clear()
                 cases["bone_roi_300"]["batched_us_per_drr_by_block_dim"] = scan
             if cuda and interp != "trilinear":

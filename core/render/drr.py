@@ -192,7 +192,7 @@ class DRRRenderer:
         self._corners = [v.corners() for v in vols]
         self._T_idx = np.stack([v.T_index_from_physical for v in vols])
         self._launches: dict[tuple[int, int, int], tuple] = {}
-        self.block_dim = 256  # CUDA threads per block (tunable; see the benchmark)
+        self.block_dim = 128  # CUDA threads per block: two 8x8 tiles (fastest on an H100)
 
     # ------------------------------------------------------------------ set-up
     def _upload(self, mus: list[np.ndarray]) -> None:

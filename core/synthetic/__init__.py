@@ -30,6 +30,7 @@ from .calibration import (
     object_frames,
     pinhole_frames,
 )
+from .demo import make_demo_study, write_volume
 from .distortion import Distortion
 from .imaging import ImagingModel
 from .motion import stance_trajectories
@@ -43,18 +44,22 @@ from .phantoms import (
     soft_tissue_envelope,
 )
 from .rig import FLOOR_Z_MM, foot_rig
+from .scene import BeadSet, BiplaneScene, SceneRenderer, excess_transfer, make_foot_scene
 from .voxelize import box_mesh, icosphere, mesh_volume, voxelize_mesh
 
 __all__ = [
     "BONE_NAMES",
     "FLOOR_Z_MM",
     "FOOT_IN_LAB",
+    "BeadSet",
+    "BiplaneScene",
     "CalibrationFrame",
     "CalibrationObject",
     "Distortion",
     "FacePlate",
     "ImagingModel",
     "Phantom",
+    "SceneRenderer",
     "attenuation_per_mm",
     "bead_lattice",
     "bead_lattice_frame",
@@ -67,12 +72,15 @@ __all__ = [
     "cylinder_line_integrals",
     "distortion_grid",
     "distortion_grid_frame",
+    "excess_transfer",
     "flatfield_frames",
     "foot_phantoms",
     "foot_rig",
     "helical_spiral",
     "helix_frame_from_beads",
     "icosphere",
+    "make_demo_study",
+    "make_foot_scene",
     "mesh_volume",
     "object_frames",
     "pinhole_bar",
@@ -81,4 +89,5 @@ __all__ = [
     "soft_tissue_envelope",
     "stance_trajectories",
     "voxelize_mesh",
+    "write_volume",
 ]

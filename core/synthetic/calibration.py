@@ -45,6 +45,7 @@ from .imaging import ImagingModel
 __all__ = [
     "CalibrationFrame",
     "bead_lattice_frame",
+    "bead_line_integrals",
     "distortion_grid_frame",
     "face_plate_frame",
     "flatfield_frames",

@@ -175,7 +175,7 @@ class ImagingModel:
         camera: Camera,
         *,
         rng: np.random.Generator | int = 0,
-        fluence_per_mm2: float = 800.0,
+        fluence_per_mm2: float = 5000.0,
         mtf50_cycles_per_mm: float = 0.5,
         glare_fraction: float = 0.05,
         glare_sigma_mm: float = 20.0,
@@ -189,9 +189,12 @@ class ImagingModel:
         """A realistic model for ``camera`` with parameters in physical units.
 
         * ``fluence_per_mm2`` (detected quanta/mm² at full fluence, ×pixel area → per pixel):
-          ~3×10⁴ quanta/(mm²·µGy) for a 70 kV spectrum (IEC 62220-1 RQA5), ~0.03–0.05 µGy at the
-          intensifier per 1–2 ms high-speed frame, ~0.6 CsI absorption → ~600–1000 /mm²; 800
-          gives ~70 quanta per 0.29 mm pixel — the "extremely noisy" raw frames of thesis §3.
+          the lab's tube at ~19 mA (thesis §3.2) gives ~0.04 mAs per 2 ms frame; at ~15–25 µGy/mAs
+          at 1.4 m that is ~0.6–1 µGy at the intensifier, ~3×10⁴ quanta/(mm²·µGy) for a 70 kV
+          spectrum (IEC 62220-1 RQA5) → 2–3×10⁴ quanta/mm²; CsI absorption (~0.6) and the
+          lens-coupled high-speed camera (a secondary quantum sink) leave an effective
+          ~5×10³/mm², ~430 quanta per 0.29 mm pixel in air and a few tens behind the hindfoot:
+          the noisy raw frames of thesis §3.
         * ``mtf50_cycles_per_mm``: the lab's measured MTF50 ≈ 0.5 cycles/mm (thesis §3.4.1,
           Fig. 3.7); a Gaussian PSF has MTF50 = sqrt(ln 2 / 2π²) / σ → σ ≈ 0.37 mm.
         * ``glare_fraction`` / ``glare_sigma_mm``: veiling glare of intensifiers, a few per cent

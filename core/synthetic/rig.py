@@ -70,7 +70,7 @@ def foot_rig(
     detector_mm: float = 300.0,
     pixels: int = 1024,
     angle_deg=(60.0, 120.0),
-    elevation_deg=(15.0, 30.0),
+    elevation_deg=(20.0, 35.0),
     odd_mm=(380.0, 480.0),
     aim_mm=(0.0, 0.0, 0.0),
     aim_jitter_mm: float = 5.0,
@@ -95,10 +95,11 @@ def foot_rig(
         Image width = height in pixels; ``pixel_size = detector_mm / pixels``
         (1024 → 0.293 mm; 128 for fast tests, same geometry).
     angle_deg : float or (float, float)
-        Angle between the two principal rays, degrees, drawn uniformly.
+        Angle between the two principal rays, degrees, drawn uniformly from the part of this
+        range that the drawn elevations allow (views tilted up by ``e1, e2`` are at most
+        ``180 - e1 - e2`` degrees apart); raises when no part is feasible.
     elevation_deg : float or (float, float)
-        Upward tilt of each principal ray above the horizontal, degrees. Both views tilted by
-        ``e1, e2`` can be at most ``180 - e1 - e2`` degrees apart; infeasible draws raise.
+        Upward tilt of each principal ray above the horizontal, degrees.
     odd_mm : float or (float, float)
         Object (aim point) to intensifier distance, mm: the clearance a walking subject needs.
         The magnification at the aim point is ``SID / (SID - ODD)`` (≈1.4).
@@ -133,8 +134,15 @@ def foot_rig(
         raise ValueError(f"angle_deg: expected angles below 180 degrees, got {angle_deg!r}")
 
     # ---- draws (all physical; independent of `pixels`)
-    theta = np.radians(rng.uniform(*ang_r))
     elev = np.radians(rng.uniform(*ele_r, size=2))
+    max_angle = 180.0 - np.degrees(elev.sum())
+    if ang_r[0] > max_angle + 1e-9:
+        raise ValueError(
+            f"angle_deg/elevation_deg: views tilted up by {np.degrees(elev).round(1).tolist()} deg "
+            f"are at most {max_angle:.1f} deg apart (180 - e1 - e2), below angle_deg {angle_deg!r}; "
+            "lower the elevations or the angle"
+        )
+    theta = np.radians(rng.uniform(ang_r[0], min(ang_r[1], max_angle)))
     sid = rng.uniform(*sid_r, size=2)
     odd = rng.uniform(*odd_r, size=2)
     jitter = rng.normal(size=(2, 3))
@@ -147,13 +155,7 @@ def foot_rig(
     # azimuth split so that the principal rays are `theta` apart:
     # cos(theta) = cos e1 cos e2 cos(da) + sin e1 sin e2
     c = (np.cos(theta) - np.sin(elev[0]) * np.sin(elev[1])) / (np.cos(elev[0]) * np.cos(elev[1]))
-    if not -1.0 <= c <= 1.0:
-        raise ValueError(
-            f"angle_deg/elevation_deg: views tilted up by {np.degrees(elev).round(1).tolist()} deg "
-            f"cannot be {np.degrees(theta):.1f} deg apart (at most 180 - e1 - e2); lower the "
-            "elevations or the angle"
-        )
-    da = np.arccos(c)
+    da = np.arccos(np.clip(c, -1.0, 1.0))
     azimuth = np.pi / 2 + np.array([-da / 2, da / 2])  # beams point towards +y, split front/back
 
     px = det / pixels

@@ -104,7 +104,7 @@ def test_distortion_and_aperture_in_the_chain(cam):
 
 def test_fluoroscope_preset_and_determinism(cam):
     m = ImagingModel.fluoroscope(cam, rng=0)
-    assert m.photons_per_pixel == pytest.approx(800 * cam.pixel_size**2)
+    assert m.photons_per_pixel == pytest.approx(5000 * cam.pixel_size**2)
     assert m.psf_sigma_px * cam.pixel_size == pytest.approx(0.3748, rel=1e-3)  # MTF50 0.5 c/mm
     assert m.distortion is not None and m.read_noise_dn > 0
     L = np.zeros(cam.image_shape)

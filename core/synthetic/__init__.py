@@ -3,6 +3,21 @@
 Everything is seeded (an ``int`` seed or a ``numpy.random.Generator``) and documented with its
 physical units and the source of its parameter values. Frames: see :mod:`core.synthetic.rig` (lab)
 and :mod:`core.synthetic.phantoms` (anatomical / CT frame of the bones).
+
+Modules: ``rig`` (walkway biplane cameras), ``sdf`` + ``phantoms`` (HU bone phantoms, soft
+tissue), ``voxelize`` (meshes → HU volumes), ``analytic`` (exact chords through beads, plates,
+boxes, cylinders; NIST attenuation), ``distortion`` + ``imaging`` (intensifier image chain),
+``motion`` (stance-phase poses), ``calib_objects`` + ``calibration`` (cube, spirals, grid, lattice,
+pinholes, flatfields), ``scene`` (a whole trial) and ``demo`` (a study folder on disk).
+
+Example::
+
+    from core.synthetic import make_foot_scene
+    scene = make_foot_scene(n_frames=20, pixels=512, seed=0)
+    frames = scene.render_frame(5)              # (2, 512, 512) uint16, 12-bit
+    poses = scene.poses(5)                      # (n_bones, 4, 4) T_lab_from_bone
+    uv = scene.bead_uv(5)                       # (2, n_beads, 2) distorted bead centres
+    flat = scene.imaging[0].to_float(frames[0])  # flatfield-normalised [0, 1]
 """
 
 from .analytic import (

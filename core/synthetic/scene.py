@@ -45,10 +45,12 @@ __all__ = ["BeadSet", "BiplaneScene", "SceneRenderer", "excess_transfer", "make_
 def excess_transfer(base: HUTransfer, background_hu: float = SOFT_HU) -> HUTransfer:
     """``HU -> max(μ(HU) - μ(background_hu), 0)`` as a piecewise-linear :class:`HUTransfer`.
 
-    Exact for the bilinear model (its knots at 0 HU and at ``background_hu`` are kept).
+    Exact for the bilinear model and for ``curve`` tables (their knots, 0 HU and
+    ``background_hu`` are all kept).
     """
     lo, hi = base.window if base.window is not None else (-1000.0, 3000.0)
-    knots = np.unique(np.clip([lo, -1000.0, 0.0, background_hu, hi], lo, hi))
+    extra = list(base.curve[0]) if base.curve is not None else []
+    knots = np.unique(np.clip([lo, -1000.0, 0.0, background_hu, hi, *extra], lo, hi))
     plain = HUTransfer(mu_water=base.mu_water, window=base.window, bone_slope=base.bone_slope,
                        curve=base.curve)
     mu = np.maximum(plain(knots) - plain(np.array([background_hu]))[0], 0.0)

@@ -27,6 +27,10 @@ def test_excess_transfer_counts_tissue_once():
     hu = np.array([-1000.0, 0.0, 30.0, 40.0, 300.0, 1500.0, 3000.0])
     np.testing.assert_allclose(ex(hu), np.maximum(base(hu) - base(np.array([40.0]))[0], 0), atol=1e-7)
     assert ex(np.array([40.0]))[0] == 0.0
+    hu = np.linspace(-1000.0, 3000.0, 801)
+    for tr in (HUTransfer(bone_slope=1.6), HUTransfer(curve=((-1000, 0, 500, 3000), (0, 0.02, 0.04, 0.09)))):
+        want = np.maximum(tr(hu) - tr(np.array([40.0]))[0], 0.0)
+        np.testing.assert_allclose(excess_transfer(tr)(hu), want, atol=1e-7)
 
 
 def test_scene_volumes_are_small(tiny_scene):

@@ -189,15 +189,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     with _sigint_cancels(token, "demo"):
         try:
             # core libraries (Warp) print their start-up banner on stdout: keep stdout pure JSON
+            # options left out take the defaults of make_demo_study
+            given = {"n_frames": args.frames, "pixels": args.pixels, "seed": args.seed,
+                     "device": args.device}
+            options = {k: v for k, v in given.items() if v is not None}
             with contextlib.redirect_stdout(sys.stderr):
                 result = make_demo_study(
-                    out,
-                    n_frames=args.frames,
-                    pixels=args.pixels,
-                    seed=args.seed,
-                    device=args.device,
-                    progress=_progress_printer("demo", "frame"),
-                    cancel=token,
+                    out, **options, progress=_progress_printer("demo", "frame"), cancel=token
                 )
         except KeyboardInterrupt:
             token.set()
@@ -206,10 +204,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             if not token.is_set():
                 raise
             result = None
+    if result is not None:
+        print(_to_json(result))  # also after a cancel: the summary says what was written
     if token.is_set():
-        print(f"{PROG} demo: cancelled; partial output may remain in {out}", file=sys.stderr)
+        print(f"{PROG} demo: cancelled; complete frames so far are in {out}", file=sys.stderr)
         return EXIT_CANCELLED
-    print(_to_json(result))
     return EXIT_OK
 
 
@@ -301,24 +300,20 @@ def _cmd_gui(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------ parser
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _int_at_least(minimum: int) -> Callable[[str], int]:
+    """argparse type: an integer >= ``minimum``; the error names the value given."""
+    want = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
 
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {value}")
+        return value
 
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
+    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -332,19 +327,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser(
         "demo",
-        help="render the built-in synthetic biplane study and track it",
-        description="Create the built-in synthetic demo study (known poses and cameras) in "
-        "--out and print a JSON summary. Ctrl-C cancels cleanly.",
+        help="write the built-in synthetic biplane study (known poses and cameras)",
+        description="Write the built-in synthetic biplane study (rig, CT volumes, fluoroscope "
+        "frames rendered at known bone poses, ground truth) to --out and print its summary as "
+        "JSON. Ctrl-C cancels cleanly after the frame in progress.",
     )
     demo.add_argument("--out", default="demo_out", metavar="DIR", help="output folder")
-    demo.add_argument("--frames", type=_positive_int, default=8, metavar="N",
-                      help="number of frames (default 8)")
-    demo.add_argument("--pixels", type=_positive_int, default=256, metavar="N",
-                      help="detector size in pixels, N x N (default 256)")
-    demo.add_argument("--seed", type=_non_negative_int, default=0, metavar="N",
+    demo.add_argument("--frames", type=_int_at_least(1), metavar="N",
+                      help="number of frames (default: the demo's, 10)")
+    demo.add_argument("--pixels", type=_int_at_least(1), metavar="N",
+                      help="image size in pixels, N x N (default: the demo's, 512)")
+    demo.add_argument("--seed", type=_int_at_least(0), metavar="N",
                       help="random seed (default 0)")
-    demo.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
-                      help="Warp device for DRRs (default cpu)")
+    demo.add_argument("--device", choices=["cpu", "cuda"],
+                      help="Warp device for the DRRs (default: cuda when present, else cpu)")
     demo.set_defaults(func=_cmd_demo)
 
     bench = sub.add_parser("bench", help="benchmarks that print JSON")

@@ -13,6 +13,7 @@ closes it.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import sys
@@ -27,7 +28,7 @@ _PLACEHOLDER_SHAPE = (512, 512)
 _DRAG_PIXELS = 200.0  # mouse travel that changes the window by a factor e / the level by a window
 _IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".npy"}
 _VIEW_KEY = re.compile(r"(?:cam(?:era)?|view)[_\-]?0*(\d+)", re.IGNORECASE)
-_NOT_FLUORO = re.compile(r"drr|mask|label|truth", re.IGNORECASE)
+_NOT_FLUORO = re.compile(r"drr|mask|label|truth|flatfield", re.IGNORECASE)
 
 
 def _read_image(path: Path) -> np.ndarray:
@@ -50,14 +51,37 @@ def _read_image(path: Path) -> np.ndarray:
     return image
 
 
-def load_view_images(folder: Path, *, n_views: int = 2) -> list[tuple[str, np.ndarray]]:
-    """``[(label, image), ...]``: the first image of each camera found under ``folder``.
+def _summary_frames(folder: Path) -> dict[str, list[Path]] | None:
+    """Frames per camera listed by a study's ``summary.json`` (``files.frames``), if any."""
+    path = folder / "summary.json"
+    if not path.is_file():
+        return None
+    try:
+        frames = json.loads(path.read_text(encoding="utf-8")).get("files", {}).get("frames")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise ValueError(f"{path}: not a study summary ({exc})") from exc
+    if not isinstance(frames, dict):
+        raise ValueError(f"{path}: expected 'files': {{'frames': {{camera: [paths]}}}}")
+    return {cam: [folder / p for p in paths] for cam, paths in sorted(frames.items()) if paths}
 
-    Cameras are recognised by ``cam01``/``camera1``/``view0``-style names of files or folders;
-    images whose names mention a DRR, mask, label or ground truth are skipped.
+
+def load_view_images(folder: Path, *, n_views: int = 2) -> list[tuple[str, np.ndarray]]:
+    """``[(label, image), ...]``: the first frame of each camera of a study folder.
+
+    The frames are those listed in ``summary.json`` (written by ``talus demo``); without one,
+    cameras are recognised by ``cam01``/``camera1``/``view0``-style names of files or folders,
+    skipping images whose names mention a DRR, mask, label, ground truth or flatfield.
     """
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: not a folder")
+    listed = _summary_frames(folder)
+    if listed is not None:
+        if not listed:
+            raise ValueError(f"{folder / 'summary.json'}: no camera images (no frames written)")
+        return [
+            (f"{cam}: {paths[0].relative_to(folder)}", _read_image(paths[0]))
+            for cam, paths in list(listed.items())[:n_views]
+        ]
     groups: dict[int, list[Path]] = {}
     for path in sorted(folder.rglob("*")):
         rel = path.relative_to(folder)

@@ -128,7 +128,8 @@ def test_bench_drr_prints_json_and_writes_file(monkeypatch, tmp_path, capsys):
 
 
 def test_demo_reports_progress_and_json(monkeypatch, tmp_path, capsys):
-    def make_demo_study(out_dir, *, n_frames, pixels, seed, device, progress, cancel):
+    def make_demo_study(out_dir, *, n_frames=10, pixels=512, seed=0, device=None, progress,
+                        cancel):
         for i in range(n_frames):
             assert not cancel()
             progress(i + 1, n_frames)
@@ -139,8 +140,8 @@ def test_demo_reports_progress_and_json(monkeypatch, tmp_path, capsys):
     argv = ["demo", "--out", str(tmp_path), "--frames", "3", "--pixels", "64", "--seed", "7"]
     assert main(argv) == 0
     captured = capsys.readouterr()
-    assert json.loads(captured.out) == {
-        "out_dir": str(tmp_path), "frames": 3, "pixels": 64, "seed": 7, "device": "cpu"
+    assert json.loads(captured.out) == {  # --device left out: the demo's default
+        "out_dir": str(tmp_path), "frames": 3, "pixels": 64, "seed": 7, "device": None
     }
     lines = [ln for ln in captured.err.splitlines() if "frame" in ln]
     assert [ln.split(": ")[1].split(" (")[0] for ln in lines] == [
@@ -151,11 +152,11 @@ def test_demo_reports_progress_and_json(monkeypatch, tmp_path, capsys):
 def test_ctrl_c_cancels_the_demo_cleanly(monkeypatch, tmp_path, capsys):
     seen = []
 
-    def make_demo_study(out_dir, *, n_frames, pixels, seed, device, progress, cancel):
+    def make_demo_study(out_dir, *, n_frames, progress, cancel):
         for i in range(n_frames):
             if cancel():
                 seen.append(i)
-                return {"cancelled": True}
+                return {"status": "cancelled", "frames_written": i}
             progress(i + 1, n_frames)
             if i == 1:
                 os.kill(os.getpid(), signal.SIGINT)  # the user presses Ctrl-C
@@ -167,7 +168,7 @@ def test_ctrl_c_cancels_the_demo_cleanly(monkeypatch, tmp_path, capsys):
     assert seen == [2]  # the job saw the request at its next check and stopped
     assert signal.getsignal(signal.SIGINT) is before  # handler restored
     captured = capsys.readouterr()
-    assert captured.out == ""
+    assert json.loads(captured.out) == {"status": "cancelled", "frames_written": 2}
     assert "cancelled" in captured.err
 
 

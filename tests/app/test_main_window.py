@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -125,6 +126,29 @@ def test_open_demo_study_folder(window, tmp_path):
     empty.mkdir()
     with pytest.raises(ValueError, match="no camera images"):
         window.open_demo_study(empty)
+
+
+@pytest.mark.gui
+def test_open_study_listed_in_summary(window, tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    frames = {}
+    for cam in ("cam01", "cam02"):
+        (tmp_path / "frames" / cam).mkdir(parents=True)
+        paths = []
+        for i in range(2):
+            img = (4095 * _phantom_radiograph(32, 48, 0.02 * i)).astype(np.uint16)  # 12-bit
+            tifffile.imwrite(tmp_path / "frames" / cam / f"frame_{i:04d}.tif", img)
+            paths.append(f"frames/{cam}/frame_{i:04d}.tif")
+        frames[cam] = paths
+    tifffile.imwrite(tmp_path / "flatfield_cam01.tif", np.zeros((32, 48), np.float32))
+    (tmp_path / "summary.json").write_text(json.dumps({"files": {"frames": frames}}))
+    window.open_demo_study(tmp_path)
+    expected = tifffile.imread(tmp_path / "frames" / "cam02" / "frame_0000.tif")
+    np.testing.assert_array_equal(window.panes[1].image, expected)
+    assert "cam01: frames/cam01/frame_0000.tif" in window.statusBar().currentMessage()
+    (tmp_path / "summary.json").write_text(json.dumps({"files": {"frames": {"cam01": []}}}))
+    with pytest.raises(ValueError, match="no frames written"):
+        window.open_demo_study(tmp_path)
 
 
 @pytest.mark.gui

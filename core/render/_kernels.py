@@ -19,6 +19,8 @@ chord of length ``L`` (mm), so every ray is sampled with a step of at most ``ste
 
 from __future__ import annotations
 
+from typing import Any
+
 import warp as wp
 
 
@@ -119,48 +121,6 @@ def _outside(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int,
     return float(col) * scale >= items[item, 16] or float(row) * scale >= items[item, 17]
 
 
-@wp.kernel
-def drr_texture_kernel(
-    atlas: wp.Texture3D,
-    dist: wp.array3d(dtype=wp.uint8),
-    scale: float,
-    step_mm: float,
-    value_scale: float,
-    items: wp.array2d(dtype=wp.float32),
-    cam_M: wp.array(dtype=wp.mat33f),
-    vol_dims: wp.array(dtype=wp.vec3i),
-    vol_zoff: wp.array(dtype=wp.int32),
-    out: wp.array3d(dtype=wp.float32),
-):
-    item, row, col = _tile_pixel(wp.tid(), out.shape[1], out.shape[2])
-    if row >= out.shape[1] or col >= out.shape[2]:
-        return
-    if _outside(items, item, row, col, scale):
-        out[item, row, col] = 0.0
-        return
-    org, d_idx, t0, t1 = _setup(items, item, row, col, scale, cam_M, vol_dims)
-    acc = float(0.0)
-    if t1 > t0:
-        n = int(wp.ceil((t1 - t0) / step_mm))
-        dt = (t1 - t0) / float(n)
-        zoff = vol_zoff[int(items[item, 1])]
-        dp = d_idx * dt
-        dmax_step = wp.max(wp.max(wp.abs(dp[0]), wp.abs(dp[1])), wp.abs(dp[2]))
-        p0 = org + d_idx * (t0 + 0.5 * dt)
-        # texel (i, j, k) of the padded block is centred at (i + 1.5, j + 1.5, zoff + k + 1.5)
-        shift = wp.vec3f(1.5, 1.5, float(zoff) + 1.5)
-        m = int(0)
-        while m < n:
-            p = p0 + dp * float(m)
-            val = wp.texture_sample(atlas, p + shift, dtype=float)
-            acc += val
-            if val == 0.0:
-                m += _skip_steps(dist, p, zoff, dmax_step)
-            m += 1
-        acc = acc * dt * value_scale
-    out[item, row, col] = acc
-
-
 @wp.func
 def _trilinear(vol: wp.array3d(dtype=wp.float32), p: wp.vec3f, zoff: int) -> float:
     """Trilinear sample at index (i, j, k) = p of the padded block starting at atlas z = zoff."""
@@ -191,9 +151,22 @@ def _trilinear(vol: wp.array3d(dtype=wp.float32), p: wp.vec3f, zoff: int) -> flo
     return c0 * (1.0 - fz) + c1 * fz
 
 
+@wp.func
+def _sample(atlas: wp.Texture3D, p: wp.vec3f, zoff: int) -> float:
+    """Hardware-filtered sample at index (i, j, k) = p of the padded block at atlas z = zoff;
+    texel (i, j, k) of the padded block is centred at (i + 1.5, j + 1.5, zoff + k + 1.5)."""
+    return wp.texture_sample(atlas, p + wp.vec3f(1.5, 1.5, float(zoff) + 1.5), dtype=float)
+
+
+@wp.func
+def _sample(atlas: wp.array3d(dtype=wp.float32), p: wp.vec3f, zoff: int) -> float:
+    """Exact float32 trilinear sample (see ``_trilinear``)."""
+    return _trilinear(atlas, p, zoff)
+
+
 @wp.kernel
-def drr_trilinear_kernel(
-    atlas: wp.array3d(dtype=wp.float32),
+def drr_kernel(
+    atlas: Any,
     dist: wp.array3d(dtype=wp.uint8),
     scale: float,
     step_mm: float,
@@ -222,10 +195,14 @@ def drr_trilinear_kernel(
         m = int(0)
         while m < n:
             p = p0 + dp * float(m)
-            val = _trilinear(atlas, p, zoff)
+            val = _sample(atlas, p, zoff)
             acc += val
             if val == 0.0:
                 m += _skip_steps(dist, p, zoff, dmax_step)
             m += 1
         acc = acc * dt * value_scale
     out[item, row, col] = acc
+
+
+drr_texture_kernel = wp.overload(drr_kernel, {"atlas": wp.Texture3D})
+drr_trilinear_kernel = wp.overload(drr_kernel, {"atlas": wp.array3d(dtype=wp.float32)})

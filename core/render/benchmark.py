@@ -23,6 +23,7 @@ import warp as wp
 
 from ..geometry.camera import Camera, Rig, make_K
 from .drr import DRRRenderer
+from .reference import render_reference
 from .volume import CTVolume, HUTransfer
 
 __all__ = ["run_drr_benchmark"]
@@ -228,6 +229,14 @@ def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
                     "max_abs_diff_rel_to_max": float(np.abs(a - e).max() / e.max()),
                     "mean_abs_diff_rel_to_mean": float(np.abs(a - e).mean() / e[e > 0].mean()),
                 }
+                # the device's exact path against the independent numpy reference (small ROI)
+                small = np.array([480, 480, 64, 64])
+                got = exact.render(poses[:1], views=[1], roi=small).item(0, 0, 0)
+                ref = render_reference(rig[1], bone.to_attenuation(bone_transfer), poses[0, 0],
+                                       step_mm=exact.step_mm, roi=tuple(small))
+                cases["bone_roi_300"]["exact_vs_numpy_reference_max_rel"] = float(
+                    np.abs(got - ref).max() / ref.max()
+                )
                 del exact
             b = cases["bone_roi_300"]
             b["gsteps_per_s_batched"] = b["march_steps_per_drr"] / b["batched"]["us_per_drr"] / 1e3

@@ -109,10 +109,9 @@ def _write_atomically(path: Path, content: str | bytes) -> None:
 
 
 class CancelToken:
-    """Cancellation flag handed to :mod:`core` jobs.
+    """Cancellation flag handed to :mod:`core` jobs as their ``cancel`` callback.
 
-    Calling the token, ``token.is_set()``, ``token.cancelled`` and ``bool(token)`` all answer
-    "has the user asked to stop?", so it fits whichever of these forms a job polls.
+    ``token()``, ``token.is_set()`` and ``bool(token)`` answer "has the user asked to stop?".
     """
 
     def __init__(self) -> None:
@@ -122,10 +121,6 @@ class CancelToken:
         self._set = True
 
     def is_set(self) -> bool:
-        return self._set
-
-    @property
-    def cancelled(self) -> bool:
         return self._set
 
     __call__ = is_set

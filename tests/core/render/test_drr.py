@@ -186,4 +186,6 @@ def test_empty_space_skipping_is_exact(interpolation):
     a = on.render(poses, roi="full").numpy()
     b = off.render(poses, roi="full").numpy()
     assert b[:, :, 1].max() > 0.01
-    np.testing.assert_array_equal(a, b)
+    # skipped samples are exactly 0; only the float32 grouping of the partial sums may differ
+    # (a wrongly skipped sample would change a pixel by ~mu * step, i.e. > 1e-4 relative)
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)

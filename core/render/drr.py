@@ -129,9 +129,9 @@ class DRRRenderer:
     interpolation : {"texture", "trilinear"}, optional
         See the module docs; default ``"texture"`` on CUDA, ``"trilinear"`` on the CPU.
     texture_dtype : {"float32", "uint16", "float16"}, optional
-        Storage of the texture atlas (``"texture"`` only). ``"uint16"`` stores μ / max(μ) as
-        16-bit normalised integers (resolution 1/65535 of the largest μ), which CUDA filters at
-        twice the rate of float32; default ``"float32"``.
+        Storage of the texture atlas (``"texture"`` only). The default ``"uint16"`` stores
+        μ / max(μ) as 16-bit normalised integers (resolution 1/65535 of the largest μ): half the
+        memory of float32 and ~4 % faster on an H100 (``talus bench drr``).
     empty_space_skipping : bool
         After a zero sample, jump over the following samples that a per-voxel chessboard
         distance map proves to be zero (default True); the result is identical either way.
@@ -146,7 +146,7 @@ class DRRRenderer:
         device: str | None = None,
         step_mm: float | None = None,
         interpolation: str | None = None,
-        texture_dtype: str = "float32",
+        texture_dtype: str = "uint16",
         empty_space_skipping: bool = True,
     ) -> None:
         cams = tuple(cameras.cameras if isinstance(cameras, Rig) else cameras)

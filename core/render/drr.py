@@ -192,6 +192,8 @@ class DRRRenderer:
         self._corners = [v.corners() for v in vols]
         self._T_idx = np.stack([v.T_index_from_physical for v in vols])
         self._launches: dict[tuple[int, int, int], tuple] = {}
+        self._tables: dict[tuple, np.ndarray] = {}
+        self._src_h = np.array([[*c.source, 1.0] for c in cams])  # homogeneous sources (n_cams, 4)
         self.block_dim = 128  # CUDA threads per block: two 8x8 tiles (fastest on an H100)
 
     # ------------------------------------------------------------------ set-up
@@ -235,6 +237,21 @@ class DRRRenderer:
             dist = np.zeros(atlas.shape, dtype=np.uint8)
         self._dist = wp.array(dist.astype(np.uint8), dtype=wp.uint8, device=self.device)
         self.atlas_shape = atlas.shape
+
+    def _table(self, B: int, views: tuple[int, ...], bones: tuple[int, ...]) -> np.ndarray:
+        """Reusable host item table with the camera/volume columns filled in."""
+        key = (B, views, bones)
+        table = self._tables.get(key)
+        if table is None:
+            nv, nb = len(views), len(bones)
+            table = np.zeros((B * nv * nb, _kernels.ITEM_COLS), dtype=np.float32)
+            t = table.reshape(B, nv, nb, _kernels.ITEM_COLS)
+            t[..., 0] = np.array(views, dtype=np.float32)[None, :, None]
+            t[..., 1] = np.array(bones, dtype=np.float32)[None, None, :]
+            if len(self._tables) >= 8:
+                self._tables.pop(next(iter(self._tables)))
+            self._tables[key] = table
+        return table
 
     def _launch(self, table: np.ndarray, H: int, W: int, scale: float) -> wp.array:
         """Upload the item table (one copy) and launch; buffers and the recorded launch are
@@ -360,24 +377,17 @@ class DRRRenderer:
             if np.any(rois[..., 2:] < 0):
                 raise ValueError("roi: widths and heights must be >= 0")
 
-        # per-item tables (host, float64 -> float32)
-        Tinv = np.linalg.inv(P)  # bone_from_lab, (B, nb, 4, 4)
-        Tidx = np.einsum("nij,bnjk->bnik", self._T_idx[list(bones)], Tinv)  # index_from_lab
-        src = np.stack([np.append(self.cameras[v].source, 1.0) for v in views])  # (nv, 4)
-        org = np.einsum("bnij,vj->bvni", Tidx, src)[..., :3]
-        A = np.broadcast_to(Tidx[:, None, :, :3, :3], (B, nv, nb, 3, 3))
+        # per-item table (host, float64 -> float32); item (b, v, n) is row (b * nv + v) * nb + n
         n_items = B * nv * nb
-        item_view = np.broadcast_to(np.array(views, dtype=np.int32)[None, :, None], (B, nv, nb))
-        item_vol = np.broadcast_to(np.array(bones, dtype=np.int32)[None, None, :], (B, nv, nb))
+        Tidx = np.einsum("nij,bnjk->bnik", self._T_idx[list(bones)], np.linalg.inv(P))
+        table = self._table(B, views, bones)
+        t = table.reshape(B, nv, nb, _kernels.ITEM_COLS)
+        # X-ray source in index space: Tidx @ (C, 1) for every (pose, view, bone)
+        t[..., 2:5] = np.einsum("bnij,vj->bvni", Tidx[..., :3, :], self._src_h[list(views)])
+        t[..., 5:14] = Tidx[:, None, :, :3, :3].reshape(B, 1, nb, 9)
+        t[..., 14:18] = rois
         H = max(1, math.ceil(int(rois[..., 3].max()) / scale)) if n_items else 1
         W = max(1, math.ceil(int(rois[..., 2].max()) / scale)) if n_items else 1
-
-        table = np.empty((n_items, _kernels.ITEM_COLS), dtype=np.float32)
-        table[:, 0] = item_view.reshape(-1)
-        table[:, 1] = item_vol.reshape(-1)
-        table[:, 2:5] = org.reshape(-1, 3)
-        table[:, 5:14] = A.reshape(-1, 9)
-        table[:, 14:18] = rois.reshape(-1, 4)
         out = self._launch(table, H, W, scale)
         return DRRBatch(images=out, roi=rois, scale=scale, views=views, bones=bones)
 

@@ -57,21 +57,22 @@ def _item_mat(items: wp.array2d(dtype=wp.float32), i: int) -> wp.mat33f:
 
 
 @wp.func
-def _skip_steps(dist: wp.array3d(dtype=wp.uint8), p: wp.vec3f, zoff: int, dmax_step: float) -> int:
-    """How many following samples are provably 0 (empty-space skipping, exact).
+def _zero_run(dist: wp.array3d(dtype=wp.uint8), p: wp.vec3f, zoff: int, dmax_step: float) -> int:
+    """How many samples, from the one at ``p`` on, are provably 0 (exact empty-space skipping).
 
     ``dist`` holds, per padded atlas voxel, the chessboard distance D (voxels, capped at 255) to
-    the nearest non-zero voxel. Every voxel that can contribute to a sample within ``j`` steps of
-    ``p`` lies closer than ``1.5 + j * dmax_step`` to the voxel nearest ``p``, so all samples with
-    ``j * dmax_step <= D - 1.5`` are exactly zero.
+    the nearest non-zero voxel. With v the voxel nearest to ``p`` (|p - v| <= 0.5 per axis), a
+    sample j steps further depends only on voxels q with |q - v| < 1.5 + j * dmax_step (per
+    axis), which are all zero while 1.5 + j * dmax_step <= D. Hence samples 0..j are zero for
+    j <= (D - 1.5) / dmax_step, and none is guaranteed when D < 2.
     """
     x = wp.clamp(int(wp.floor(p[0] + 1.5)), 0, dist.shape[2] - 1)
     y = wp.clamp(int(wp.floor(p[1] + 1.5)), 0, dist.shape[1] - 1)
     z = wp.clamp(int(wp.floor(p[2] + 1.5)) + zoff, 0, dist.shape[0] - 1)
     d = float(dist[z, y, x])
-    if d < 2.5:
+    if d < 2.0:
         return 0
-    return int((d - 1.5) / dmax_step)
+    return int((d - 1.5) / dmax_step) + 1
 
 
 @wp.func
@@ -196,18 +197,25 @@ def drr_kernel(
         dp = d_idx * dt
         dmax_step = wp.max(wp.max(wp.abs(dp[0]), wp.abs(dp[1])), wp.abs(dp[2]))
         p0 = org + d_idx * (t0 + 0.5 * dt)
-        # CHUNK independent samples per iteration keep several texture fetches in flight; only
-        # when all of them are 0 does the distance map decide how far to jump
+        # In empty space the distance map alone moves the ray on (no texture fetch); once it
+        # guarantees nothing, CHUNK independent samples per iteration keep several fetches in
+        # flight, until a chunk is all zero and the ray is probed again.
         m = int(0)
+        probe = int(1)
         while m < n:
-            chunk = float(0.0)
-            for i in range(CHUNK):
-                if m + i < n:
-                    chunk += _sample(atlas, p0 + dp * float(m + i), zoff)
-            acc += chunk
-            m += CHUNK
-            if chunk == 0.0 and m < n:
-                m += _skip_steps(dist, p0 + dp * float(m - 1), zoff, dmax_step)
+            k = int(0)
+            if probe == 1:
+                k = _zero_run(dist, p0 + dp * float(m), zoff, dmax_step)
+            if k > 0:
+                m += k
+            else:
+                chunk = float(0.0)
+                for i in range(CHUNK):
+                    if m + i < n:
+                        chunk += _sample(atlas, p0 + dp * float(m + i), zoff)
+                acc += chunk
+                m += CHUNK
+                probe = int(chunk == 0.0)
         acc = acc * dt * value_scale
     out[item, row, col] = acc
 

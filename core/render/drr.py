@@ -21,10 +21,19 @@ Interpolation
 ``"texture"`` samples a ``wp.Texture3D`` with hardware trilinear filtering. CUDA texture units
 compute the interpolation weights in 9-bit fixed point (8 fractional bits): each weight is
 quantised to 1/256, so a sample can differ from exact trilinear interpolation by up to ~0.4 % of
-the local voxel difference; along a ray these errors average out (the tests bound the per-pixel
-difference to the exact path). ``"trilinear"`` does the interpolation in float32 arithmetic on a
-plain ``wp.array3d`` — slower on the GPU but exact. The default is ``"texture"`` on CUDA and
-``"trilinear"`` on the CPU (where Warp's texture filter is emulated in software anyway).
+the local voxel difference; along a ray these errors average out (``talus bench drr`` reports
+the largest per-pixel difference to the exact path: 0.05 % of the brightest pixel on an H100).
+``"trilinear"`` does the interpolation in float32 arithmetic on a plain ``wp.array3d`` — slower
+on the GPU but exact. The default is ``"texture"`` on CUDA and ``"trilinear"`` on the CPU (where
+Warp's texture filter is emulated in software with exact weights).
+
+Speed
+-----
+Threads render 8 × 8 pixel tiles (texture-cache locality) and issue two samples per loop
+iteration. Empty space is skipped *exactly*: a per-voxel chessboard distance map (voxels to the
+nearest non-zero voxel) proves how many of the following samples are zero, and the ray jumps
+over them without fetching (see ``_kernels._zero_run``); results equal those with skipping off
+up to float32 summation order.
 """
 
 from __future__ import annotations

@@ -5,8 +5,9 @@ Model
 A DRR pixel is the line integral ``∫ μ(x) dl`` (unitless) of linear attenuation (1/mm) along the
 ray from the camera's X-ray source through the pixel centre. ``μ`` is the trilinear interpolant
 of the voxel values (after :class:`~core.render.HUTransfer`) with zeros outside the volume; each
-ray is clipped to the volume box (one voxel of zero padding included) and integrated with the
-midpoint rule at a fixed step of at most ``step_mm`` (default: the smallest voxel spacing).
+ray is clipped to the volume box (one voxel of zero padding included) and integrated with
+samples at ``(k + 0.5) * step_mm`` from the source (default step: the smallest voxel spacing).
+The sample grid belongs to the ray, not the volume, so a DRR changes continuously with the pose.
 
 Batching
 --------
@@ -134,7 +135,7 @@ class DRRRenderer:
     device : str, optional
         Warp device (``"cpu"``, ``"cuda"``, ``"cuda:1"``…); default :func:`default_device`.
     step_mm : float, optional
-        Largest ray-marching step in mm; default the smallest voxel spacing of all volumes.
+        Ray-marching step in mm; default the smallest voxel spacing of all volumes.
     interpolation : {"texture", "trilinear"}, optional
         See the module docs; default ``"texture"`` on CUDA, ``"trilinear"`` on the CPU.
     texture_dtype : {"float32", "uint16", "float16"}, optional
@@ -143,7 +144,7 @@ class DRRRenderer:
         memory of float32 and ~4 % faster on an H100 (``talus bench drr``).
     empty_space_skipping : bool
         After a zero sample, jump over the following samples that a per-voxel chessboard
-        distance map proves to be zero (default True); the result is identical either way.
+        distance map proves to be zero (default True); results agree up to float32 summation order.
     """
 
     def __init__(

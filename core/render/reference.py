@@ -1,7 +1,7 @@
 """Slow, independent numpy/scipy DRR reference used to check the Warp kernels.
 
 Same model as :mod:`core.render.drr` (trilinear μ with zeros outside the volume, ray clipped to
-the zero-padded box ``[-1, n]`` in index units, midpoint rule with ``ceil(L / step)`` equal steps)
+the zero-padded box ``[-1, n]`` in index units, samples at ``(k + 0.5) * step`` from the source)
 but written with different machinery: rays in float64, clipping by a vectorised slab test, and
 ``scipy.ndimage.map_coordinates(order=1, mode="grid-constant")`` for the interpolation. Agreement
 with the ``"trilinear"`` kernel is limited by float32 arithmetic (relative error ≲ 1e-4 of the
@@ -87,11 +87,13 @@ def render_reference(
 
     o, di = _index_rays(volume, T, src, d)
     t0, t1 = _clip_rays(volume, T, src, d)
-    hit = t1 > t0
+    # samples at (k + 0.5) * step from the source, k0 <= k <= k1 (see core.render._kernels)
+    k0 = np.ceil(t0 / step - 0.5).astype(np.int64)
+    k1 = np.floor(t1 / step - 0.5).astype(np.int64)
     out = np.zeros(len(uv))
     data = np.asarray(volume.data, dtype=np.float64)
-    idx = np.nonzero(hit)[0]
-    n_steps = np.ceil((t1[idx] - t0[idx]) / step).astype(np.int64)
+    idx = np.nonzero((t1 > t0) & (k1 >= k0))[0]
+    n_steps = k1[idx] - k0[idx] + 1
     start = 0
     while start < len(idx):
         stop, total = start, 0
@@ -102,11 +104,10 @@ def render_reference(
         ns = n_steps[start:stop]
         ray = np.repeat(np.arange(len(sel)), ns)
         m = np.arange(ns.sum()) - np.repeat(np.cumsum(ns) - ns, ns)
-        dt = (t1[sel] - t0[sel]) / ns
-        t = t0[sel][ray] + (m + 0.5) * dt[ray]
+        t = (k0[sel][ray] + m + 0.5) * step
         p = o + t[:, None] * di[sel][ray]  # (S, 3) in (i, j, k)
         vals = map_coordinates(data, [p[:, 2], p[:, 1], p[:, 0]], order=1, mode="grid-constant",
                                cval=0.0, prefilter=False)
-        out[sel] = np.bincount(ray, weights=vals, minlength=len(sel)) * dt
+        out[sel] = np.bincount(ray, weights=vals, minlength=len(sel)) * step
         start = stop
     return out.reshape(ho, wo)

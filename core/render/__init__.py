@@ -4,7 +4,7 @@ import warp as _wp
 
 _wp.config.log_level = _wp.LOG_WARNING  # keep Warp's start-up banner off stdout (the CLI prints JSON)
 
-from .drr import DRRBatch, DRRRenderer, default_device, projected_roi  # noqa: E402
+from .drr import DRRBatch, DRRRenderer, default_device  # noqa: E402
 from .reference import render_reference  # noqa: E402
 from .volume import CTVolume, HUTransfer  # noqa: E402
 
@@ -14,6 +14,5 @@ __all__ = [
     "DRRRenderer",
     "HUTransfer",
     "default_device",
-    "projected_roi",
     "render_reference",
 ]

@@ -52,30 +52,20 @@ from ..geometry.camera import Camera, Rig
 from . import _kernels
 from .volume import CTVolume, HUTransfer
 
-__all__ = ["DRRBatch", "DRRRenderer", "default_device", "projected_roi"]
+__all__ = ["DRRBatch", "DRRRenderer", "default_device"]
+
+
+def _clip_box_corners(vol: CTVolume) -> np.ndarray:
+    """(8, 3) physical corners of the box a ray is clipped to: index -1 .. n on each axis."""
+    n = np.array(vol.shape_ijk, dtype=float)
+    c = np.array([[a, b, d] for a in (0, 1) for b in (0, 1) for d in (0, 1)], dtype=float)
+    return vol.index_to_physical(c * (n + 1.0) - 1.0)
 
 
 def default_device() -> str:
     """``"cuda:0"`` when a CUDA device is present, otherwise ``"cpu"``."""
     wp.init()
     return "cuda:0" if wp.is_cuda_available() else "cpu"
-
-
-def projected_roi(camera: Camera, corners_lab: np.ndarray, *, margin: int = 4) -> np.ndarray:
-    """Integer ``(u0, v0, w, h)`` pixel box covering the projection of lab points (N, 3).
-
-    The box is expanded by ``margin`` pixels and clipped to the image; ``w`` or ``h`` is 0 when
-    the points project outside the image (or lie behind the source).
-    """
-    uv, z = camera.project(corners_lab, return_depth=True)
-    if np.any(z <= 0):
-        return np.array([0, 0, camera.width, camera.height])
-    lo = np.floor(uv.min(axis=0)) - margin
-    hi = np.ceil(uv.max(axis=0)) + margin + 1
-    lo = np.clip(lo, 0, [camera.width, camera.height])
-    hi = np.clip(hi, 0, [camera.width, camera.height])
-    wh = np.maximum(hi - lo, 0)
-    return np.array([lo[0], lo[1], wh[0], wh[1]], dtype=np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,6 +180,11 @@ class DRRRenderer:
         for v, mu in zip(vols, mus, strict=True):
             if not np.all(np.isfinite(mu)):
                 raise ValueError(f"volumes: {v.name or 'a volume'} has non-finite attenuation")
+            if mu.min() < 0:
+                raise ValueError(
+                    f"volumes: {v.name or 'a volume'} has negative attenuation ({mu.min():.3g} /mm); "
+                    "expected μ >= 0 (convert HU through an HUTransfer)"
+                )
         self.step_mm = (
             positive(step_mm, "step_mm") if step_mm is not None
             else float(min(v.spacing.min() for v in vols))
@@ -198,8 +193,9 @@ class DRRRenderer:
         # per-camera M = R^T K^-1 and source positions
         M = np.stack([c.R.T @ np.linalg.inv(c.K) for c in cams]).astype(np.float32)
         self._cam_M = wp.array(M, dtype=wp.mat33f, device=self.device)
-        # the bone-space box corners used for automatic ROIs
-        self._corners = [v.corners() for v in vols]
+        # corners of the clipping box (index -1 and n: the interpolant reaches into the zero
+        # padding) in bone coordinates, for automatic ROIs
+        self._corners = [_clip_box_corners(v) for v in vols]
         self._T_idx = np.stack([v.T_index_from_physical for v in vols])
         self._launches: dict[tuple[int, int, int], tuple] = {}
         self._tables: dict[tuple, np.ndarray] = {}
@@ -371,6 +367,12 @@ class DRRRenderer:
                 f"poses: expected shape (B, {len(bones)}, 4, 4) or ({len(bones)}, 4, 4), "
                 f"got {np.shape(poses)}"
             )
+        R = P[..., :3, :3]
+        if (np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max(initial=0.0) > 1e-6
+                or np.abs(P[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max(initial=0.0) > 1e-12
+                or np.linalg.det(R).min(initial=1.0) <= 0):
+            raise ValueError("poses: expected rigid transforms (orthonormal rotation with det +1, "
+                             "last row (0, 0, 0, 1))")
         scale = positive(scale, "scale")
         B, nv, nb = P.shape[0], len(views), len(bones)
         if roi is None:

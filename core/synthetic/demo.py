@@ -128,7 +128,7 @@ def _write_static(scene: BiplaneScene, out: Path, rel) -> dict:
     for bs in scene.beads:
         bone = "lab" if bs.bone < 0 else scene.names[bs.bone]
         for c, d in zip(bs.centers, bs.diameters, strict=True):
-            lines.append(f"{k},{bone},{c[0]!r},{c[1]!r},{c[2]!r},{d!r}")
+            lines.append(f"{k},{bone}," + ",".join(repr(float(a)) for a in (*c, d)))
             k += 1
     _atomic_bytes(out / "beads" / "beads.csv", ("\n".join(lines) + "\n").encode())
     files["beads"].append(rel(out / "beads" / "beads.csv"))

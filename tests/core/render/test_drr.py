@@ -203,3 +203,29 @@ def test_empty_space_skipping_is_exact(interpolation):
     # skipped samples are exactly 0; only the float32 grouping of the partial sums may differ
     # (a wrongly skipped sample would change a pixel by ~mu * step, i.e. > 1e-4 relative)
     np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)
+
+
+def test_non_rigid_poses_and_negative_attenuation_are_rejected():
+    cam = _camera()
+    vol = _random_volume(10)
+    r = DRRRenderer([cam], [vol], device="cpu")
+    scaled = np.diag([1.1, 1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="poses: expected rigid"):
+        r.render(scaled[None])
+    neg = CTVolume(-vol.data, spacing=vol.spacing, origin=vol.origin, units="1/mm", name="neg")
+    with pytest.raises(ValueError, match="neg has negative attenuation"):
+        DRRRenderer([cam], [neg], device="cpu")
+
+
+def test_auto_roi_holds_the_whole_drr_even_without_margin():
+    """The interpolant reaches half a voxel beyond the outer voxel faces: coarse voxels."""
+    cam = _camera(0.2)
+    data = np.full((4, 5, 6), 0.02, np.float32)
+    vol = CTVolume(data, spacing=[4.0, 4.0, 4.0], origin=[-10.0, -8.0, -6.0], units="1/mm")
+    r = DRRRenderer([cam], [vol], device="cpu")
+    T = _rigid([0.1, 0.3, 0.0], [1.0, 0.0, 0.0])[None]
+    full = r.render(T, roi="full").numpy()[0, 0, 0]
+    auto = r.render(T, margin=0)
+    _, _, w, h = auto.roi[0, 0, 0]
+    assert 0 < w < cam.width and 0 < h < cam.height
+    np.testing.assert_allclose(auto.item(0, 0, 0).sum(), full.sum(), rtol=1e-6)

@@ -114,6 +114,11 @@ def test_demo_study_files_and_ground_truth(tmp_path):
         uv = np.load(out / "beads" / f"uv_{cam.name}.npy")
         np.testing.assert_allclose(uv[1], sc.bead_uv(1)[v])
     np.testing.assert_array_equal(np.load(out / "poses" / "all.npy"), sc.trajectories)
+    beads = np.loadtxt(out / "beads" / "beads.csv", delimiter=",", skiprows=1,
+                       usecols=(0, 2, 3, 4, 5))
+    assert beads.ndim == 2 and beads.shape[1] == 5 and np.all(np.isfinite(beads))
+    assert np.all((beads[:, 4] > 0.5) & (beads[:, 4] < 10))  # diameters, mm
+    np.testing.assert_array_equal(beads[:, 1:4], np.concatenate([b.centers for b in sc.beads]))
     rows = np.loadtxt(out / "poses" / "talus.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(rows[:, 1:].reshape(-1, 4, 4), sc.trajectories[1])
     meta = json.loads((out / "volumes" / "talus.json").read_text())

@@ -108,8 +108,11 @@ def wrist_preview(
     for v in range(len(sample.rig)):
         u0, v0, w, h = batch.roi[0, v, 0]
         drr = batch.item(0, v, 0)
-        img = sample.frame(v, frame_index)[v0 : v0 + h, u0 : u0 + w]
-        img = cv2.resize(img, (drr.shape[1], drr.shape[0]), interpolation=cv2.INTER_AREA)
+        # sample the radiograph at the DRR's ray positions: (u0 + (c + 0.5) s - 0.5, ...)
+        rr, cc = np.mgrid[0 : drr.shape[0], 0 : drr.shape[1]].astype(np.float32)
+        map_u = (u0 + (cc + 0.5) * batch.scale - 0.5).astype(np.float32)
+        map_v = (v0 + (rr + 0.5) * batch.scale - 0.5).astype(np.float32)
+        img = cv2.remap(sample.frame(v, frame_index), map_u, map_v, cv2.INTER_LINEAR)
         hi = np.percentile(drr[drr > 0], 99.5) if np.any(drr > 0) else 1.0
         d8 = (255 * np.clip(drr / hi, 0, 1)).astype(np.uint8)
         grey = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)

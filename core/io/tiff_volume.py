@@ -18,7 +18,9 @@ def read_tiff_volume(
     spacing,
     *,
     origin=(0.0, 0.0, 0.0),
+    direction=None,
     hu_offset: float = 0.0,
+    units: str = "HU",
     name: str | None = None,
 ) -> CTVolume:
     """Read a multipage TIFF volume (pages = slices, k) into a :class:`CTVolume` in HU.
@@ -32,25 +34,36 @@ def read_tiff_volume(
         given (e.g. from an Autoscoper ``.cfg`` ``VoxelSize`` line).
     origin : (3,) sequence
         Physical position (mm) of the centre of voxel (0, 0, 0).
+    direction : (3, 3) array, optional
+        Columns = directions of the i, j, k axes (default identity).
     hu_offset : float
         Added to the stored values to obtain HU (e.g. ``-1024`` for unsigned CT numbers stored
         as HU + 1024).
+    units : str
+        ``"HU"`` (default) or ``"1/mm"`` for an attenuation volume.
     name : str, optional
         Defaults to the file stem.
 
     Raises
     ------
     ValueError
-        When the file is missing, unreadable, or not a 3-D scalar stack.
+        When the file is missing, unreadable, or not a stack of single-channel 2-D slices.
     """
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"path: no such TIFF volume file: {p}")
     spacing = as_float_array(spacing, "spacing", shape=(3,))
     try:
-        data = tifffile.imread(p)
+        with tifffile.TiffFile(p) as tif:
+            series = tif.series[0]
+            spp = tif.pages[0].samplesperpixel
+            data = series.asarray()
     except Exception as exc:  # tifffile raises many types for broken files
         raise ValueError(f"path: cannot read {p} as a TIFF stack ({exc})") from exc
+    if spp != 1:
+        raise ValueError(
+            f"path: {p} has {spp} samples per pixel (colour?); expected single-channel slices"
+        )
     if data.ndim != 3:
         raise ValueError(
             f"path: {p} holds an array of shape {data.shape}; expected a stack of 2-D slices "
@@ -58,4 +71,5 @@ def read_tiff_volume(
         )
     if hu_offset:
         data = data.astype(np.float32) + np.float32(hu_offset)
-    return CTVolume(data, spacing=spacing, origin=origin, units="HU", name=name or p.stem)
+    kw = {} if direction is None else {"direction": direction}
+    return CTVolume(data, spacing=spacing, origin=origin, units=units, name=name or p.stem, **kw)

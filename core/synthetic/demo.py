@@ -75,8 +75,9 @@ def _json_bytes(obj) -> bytes:
 def write_volume(volume: CTVolume, path) -> tuple[Path, Path]:
     """Write ``volume`` as a multipage TIFF (``data`` as stored) plus a JSON geometry sidecar.
 
-    Readable with ``core.io.read_tiff_volume(path, spacing, origin=...)`` using the sidecar's
-    ``spacing`` and ``origin``. Returns ``(tif_path, json_path)``.
+    Read it back with ``core.io.read_tiff_volume(path, meta["spacing"], origin=meta["origin"],
+    direction=meta["direction"], units=meta["units"])`` where ``meta`` is the JSON sidecar.
+    Returns ``(tif_path, json_path)``.
     """
     p = Path(path)
     _atomic_bytes(p, _tiff_bytes(np.ascontiguousarray(volume.data), photometric="minisblack"))

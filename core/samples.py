@@ -106,7 +106,7 @@ def wrist_preview(
     batch = r.render(T[None, None], margin=120, scale=scale)
     rows, drrs = [], []
     for v in range(len(sample.rig)):
-        u0, v0, w, h = batch.roi[0, v, 0]
+        u0, v0 = batch.roi[0, v, 0, :2]
         drr = batch.item(0, v, 0)
         # sample the radiograph at the DRR's ray positions: (u0 + (c + 0.5) s - 0.5, ...)
         rr, cc = np.mgrid[0 : drr.shape[0], 0 : drr.shape[1]].astype(np.float32)

@@ -23,11 +23,11 @@ def test_bad_files_are_named(tmp_path):
         read_tiff_volume(tmp_path / "missing.tif", [1, 1, 1])
     rgb = tmp_path / "rgb.tif"
     tifffile.imwrite(rgb, np.zeros((50, 40, 3), np.uint8), photometric="rgb")
-    with pytest.raises(ValueError, match="rgb.tif has 3 samples per pixel"):
+    with pytest.raises(ValueError, match=r"rgb\.tif has 3 samples per pixel"):
         read_tiff_volume(rgb, [1, 1, 1])
     flat = tmp_path / "flat.tif"
     tifffile.imwrite(flat, np.zeros((50, 40), np.uint16))
-    with pytest.raises(ValueError, match="flat.tif holds an array of shape"):
+    with pytest.raises(ValueError, match=r"flat\.tif holds an array of shape"):
         read_tiff_volume(flat, [1, 1, 1])
     junk = tmp_path / "junk.tif"
     junk.write_bytes(b"not a tiff")

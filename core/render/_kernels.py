@@ -129,33 +129,35 @@ def _outside(items: wp.array2d(dtype=wp.float32), item: int, row: int, col: int,
 
 
 @wp.func
-def _voxel(vol: wp.array3d(dtype=wp.float32), z: int, y: int, x: int) -> float:
-    """Atlas voxel, 0 outside the atlas."""
-    if x < 0 or y < 0 or z < 0 or x >= vol.shape[2] or y >= vol.shape[1] or z >= vol.shape[0]:
-        return 0.0
-    return vol[z, y, x]
-
-
-@wp.func
 def _trilinear(vol: wp.array3d(dtype=wp.float32), p: wp.vec3f, zoff: int) -> float:
-    """Trilinear sample at index (i, j, k) = p of the padded block starting at atlas z = zoff
-    (zeros outside the atlas, so samples a rounding error outside the clipping box are 0)."""
-    x = p[0] + 1.0
-    y = p[1] + 1.0
-    z = p[2] + 1.0 + float(zoff)
+    """Trilinear sample at index (i, j, k) = p of the padded block starting at atlas z = zoff.
+
+    Samples lie in the clipping box [-1, n] up to rounding; coordinates are clamped to its lower
+    face (the zero padding), and upper neighbours beyond the atlas are clamped onto the padding
+    with zero weight, so a sample a rounding error outside the box reads 0, not a voxel.
+    """
+    x = wp.max(p[0] + 1.0, 0.0)
+    y = wp.max(p[1] + 1.0, 0.0)
+    z = wp.max(p[2] + 1.0, 0.0) + float(zoff)
+    nx = vol.shape[2]
+    ny = vol.shape[1]
+    nz = vol.shape[0]
     x0f = wp.floor(x)
     y0f = wp.floor(y)
     z0f = wp.floor(z)
     fx = x - x0f
     fy = y - y0f
     fz = z - z0f
-    x0 = int(x0f)
-    y0 = int(y0f)
-    z0 = int(z0f)
-    c00 = _voxel(vol, z0, y0, x0) * (1.0 - fx) + _voxel(vol, z0, y0, x0 + 1) * fx
-    c01 = _voxel(vol, z0, y0 + 1, x0) * (1.0 - fx) + _voxel(vol, z0, y0 + 1, x0 + 1) * fx
-    c10 = _voxel(vol, z0 + 1, y0, x0) * (1.0 - fx) + _voxel(vol, z0 + 1, y0, x0 + 1) * fx
-    c11 = _voxel(vol, z0 + 1, y0 + 1, x0) * (1.0 - fx) + _voxel(vol, z0 + 1, y0 + 1, x0 + 1) * fx
+    x0 = wp.min(int(x0f), nx - 1)
+    y0 = wp.min(int(y0f), ny - 1)
+    z0 = wp.min(int(z0f), nz - 1)
+    x1 = wp.min(x0 + 1, nx - 1)
+    y1 = wp.min(y0 + 1, ny - 1)
+    z1 = wp.min(z0 + 1, nz - 1)
+    c00 = vol[z0, y0, x0] * (1.0 - fx) + vol[z0, y0, x1] * fx
+    c01 = vol[z0, y1, x0] * (1.0 - fx) + vol[z0, y1, x1] * fx
+    c10 = vol[z1, y0, x0] * (1.0 - fx) + vol[z1, y0, x1] * fx
+    c11 = vol[z1, y1, x0] * (1.0 - fx) + vol[z1, y1, x1] * fx
     c0 = c00 * (1.0 - fy) + c01 * fy
     c1 = c10 * (1.0 - fy) + c11 * fy
     return c0 * (1.0 - fz) + c1 * fz

@@ -96,7 +96,6 @@ def sample_data() -> Path:
     """
     path = sample_data_dir()
     if not path.is_dir():
-        pytest.skip(
-            reason=f"sample data not found at {path} (set TALUS_SAMPLE_DATA to its folder)"
-        )
+        why = f"sample data not found at {path} (set TALUS_SAMPLE_DATA to its folder)"
+        pytest.skip(reason=why)
     return path

@@ -297,12 +297,7 @@ def pose_from_params(params, *, center, base=None) -> np.ndarray:
     Rd = rotvec_to_matrix(p[..., 3:])
     R = Rd @ Rb
     t = c_lab + p[..., :3] - np.einsum("...ij,...j->...i", R, c)
-    lead = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
-    T = np.zeros((*lead, 4, 4))
-    T[..., :3, :3] = R
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
+    return make_rigid(R, t)
 
 
 def params_from_pose(T, *, center, base=None) -> np.ndarray:

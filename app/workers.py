@@ -1,0 +1,159 @@
+"""Background work for the GUI: request -> response, off the GUI thread.
+
+* A request is a plain function with its arguments (snapshots: arrays are copied by the caller),
+  submitted under a *key* ("overlay", "track:talus", ...). Submitting again under the same key
+  supersedes the previous request: it is cancelled if it has not started and its result is
+  dropped if it has, so the GUI only ever sees the newest answer.
+* Work runs in a ``concurrent.futures`` thread pool (Warp releases the GIL during launches); by
+  default one worker, which also serialises use of the GPU.
+* Results, errors and progress come back as Qt signals on the GUI thread. A worker exception is
+  reported through ``failed`` (with the traceback text) and never raises into the event loop.
+* Cancellation is cooperative: the function receives ``cancel`` (a callable returning True once
+  cancelled) and ``progress(done, total)`` when it accepts those keyword arguments.
+"""
+
+from __future__ import annotations
+
+import inspect
+import itertools
+import threading
+import traceback
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+from PySide6 import QtCore
+
+__all__ = ["CancelToken", "Job", "WorkerPool"]
+
+
+class CancelToken:
+    """Thread-safe cancel flag; calling it returns whether cancellation was requested."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+
+    def set(self) -> None:
+        self._event.set()
+
+    def is_set(self) -> bool:
+        return self._event.is_set()
+
+    __call__ = is_set
+
+
+@dataclass(eq=False)
+class Job:
+    key: str
+    id: int
+    token: CancelToken = field(default_factory=CancelToken)
+    future: Future | None = None
+
+    def cancel(self) -> None:
+        self.token.set()
+        if self.future is not None:
+            self.future.cancel()
+
+
+class WorkerPool(QtCore.QObject):
+    """Run requests off the GUI thread and deliver the newest result per key on it."""
+
+    finished = QtCore.Signal(str, object)  # key, result
+    failed = QtCore.Signal(str, str)  # key, message (with traceback)
+    cancelled = QtCore.Signal(str)
+    progress = QtCore.Signal(str, int, int)  # key, done, total
+    busy_changed = QtCore.Signal(bool)
+
+    _done = QtCore.Signal(object, object, object)  # job, result, error text (None if ok)
+    _progress = QtCore.Signal(object, int, int)
+
+    def __init__(self, parent: QtCore.QObject | None = None, *, max_workers: int = 1) -> None:
+        super().__init__(parent)
+        self._executor = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="talus")
+        self._latest: dict[str, Job] = {}
+        self._ids = itertools.count(1)
+        self._done.connect(self._deliver, QtCore.Qt.ConnectionType.QueuedConnection)
+        self._progress.connect(self._relay_progress, QtCore.Qt.ConnectionType.QueuedConnection)
+        self._closed = False
+
+    # ------------------------------------------------------------------ API
+    def submit(self, key: str, fn: Callable, /, *args, **kwargs) -> Job:
+        """Run ``fn(*args, **kwargs)`` in the pool; supersedes the previous job of ``key``."""
+        if self._closed:
+            raise RuntimeError("WorkerPool: already shut down")
+        old = self._latest.get(key)
+        if old is not None:
+            old.cancel()
+        job = Job(key, next(self._ids))
+        params = _accepted(fn)
+        if "cancel" in params:
+            kwargs.setdefault("cancel", job.token)
+        if "progress" in params:
+            kwargs.setdefault("progress", lambda done, total: self._progress.emit(job, done, total))
+        was_busy = self.busy
+        self._latest[key] = job
+        job.future = self._executor.submit(self._run, job, fn, args, kwargs)
+        if not was_busy:
+            self.busy_changed.emit(True)
+        return job
+
+    def cancel(self, key: str) -> None:
+        job = self._latest.get(key)
+        if job is not None:
+            job.cancel()
+
+    @property
+    def busy(self) -> bool:
+        return any(j.future is not None and not j.future.done() for j in self._latest.values())
+
+    def shutdown(self, *, wait: bool = True) -> None:
+        """Cancel everything and stop the threads (call when the window closes)."""
+        self._closed = True
+        for job in self._latest.values():
+            job.cancel()
+        self._executor.shutdown(wait=wait, cancel_futures=True)
+
+    # ------------------------------------------------------------------ internals
+    def _run(self, job: Job, fn, args, kwargs) -> None:
+        if job.token.is_set():
+            self._done.emit(job, None, "cancelled")
+            return
+        try:
+            result = fn(*args, **kwargs)
+        except BaseException as exc:  # a worker must never take the window down
+            text = "".join(traceback.format_exception(exc)).rstrip()
+            self._done.emit(job, None, text)
+            return
+        self._done.emit(job, result, "cancelled" if job.token.is_set() else None)
+
+    @QtCore.Slot(object, object, object)
+    def _deliver(self, job: Job, result, error) -> None:
+        latest = self._latest.get(job.key)
+        current = latest is job
+        if current:
+            del self._latest[job.key]
+        if not self.busy:
+            self.busy_changed.emit(False)
+        if not current or self._closed:
+            return  # superseded: drop the stale answer
+        if error == "cancelled":
+            self.cancelled.emit(job.key)
+        elif error is not None:
+            self.failed.emit(job.key, error)
+        else:
+            self.finished.emit(job.key, result)
+
+    @QtCore.Slot(object, int, int)
+    def _relay_progress(self, job: Job, done: int, total: int) -> None:
+        if self._latest.get(job.key) is job:
+            self.progress.emit(job.key, done, total)
+
+
+def _accepted(fn: Callable) -> set[str]:
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return set()
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return {"cancel", "progress"}
+    return set(params)

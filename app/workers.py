@@ -8,6 +8,9 @@
   default one worker, which also serialises use of the GPU.
 * Results, errors and progress come back as Qt signals on the GUI thread. A worker exception is
   reported through ``failed`` (with the traceback text) and never raises into the event loop.
+  Worker threads never touch Qt: they put messages in a thread-safe queue that a GUI-thread
+  timer drains while jobs are running (emitting Qt signals from Python threads corrupts the
+  reference counts of ``True``/``False`` in PySide6 6.12 on Python 3.11 and aborts the process).
 * Cancellation is cooperative: the function receives ``cancel`` (a callable returning True once
   cancelled) and ``progress(done, total)`` when it accepts those keyword arguments.
 """
@@ -16,6 +19,7 @@ from __future__ import annotations
 
 import inspect
 import itertools
+import queue
 import threading
 import traceback
 from collections.abc import Callable
@@ -64,16 +68,18 @@ class WorkerPool(QtCore.QObject):
     progress = QtCore.Signal(str, int, int)  # key, done, total
     busy_changed = QtCore.Signal(bool)
 
-    _done = QtCore.Signal(object, object, object)  # job, result, error text (None if ok)
-    _progress = QtCore.Signal(object, int, int)
+    POLL_MS = 10  # how often the GUI thread collects worker messages while jobs run
 
     def __init__(self, parent: QtCore.QObject | None = None, *, max_workers: int = 1) -> None:
         super().__init__(parent)
         self._executor = ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="talus")
         self._latest: dict[str, Job] = {}
+        self._jobs: dict[int, Job] = {}
+        self._inbox: queue.SimpleQueue = queue.SimpleQueue()
         self._ids = itertools.count(1)
-        self._done.connect(self._deliver, QtCore.Qt.ConnectionType.QueuedConnection)
-        self._progress.connect(self._relay_progress, QtCore.Qt.ConnectionType.QueuedConnection)
+        self._timer = QtCore.QTimer(self)
+        self._timer.setInterval(self.POLL_MS)
+        self._timer.timeout.connect(self._drain)
         self._closed = False
 
     # ------------------------------------------------------------------ API
@@ -89,10 +95,14 @@ class WorkerPool(QtCore.QObject):
         if "cancel" in params:
             kwargs.setdefault("cancel", job.token)
         if "progress" in params:
-            kwargs.setdefault("progress", lambda done, total: self._progress.emit(job, done, total))
+            kwargs.setdefault("progress", lambda done, total: self._inbox.put(
+                ("progress", job.id, (int(done), int(total)))))
         was_busy = self.busy
         self._latest[key] = job
+        self._jobs[job.id] = job
         job.future = self._executor.submit(self._run, job, fn, args, kwargs)
+        if not self._timer.isActive():
+            self._timer.start()
         if not was_busy:
             self.busy_changed.emit(True)
         return job
@@ -109,6 +119,7 @@ class WorkerPool(QtCore.QObject):
     def shutdown(self, *, wait: bool = True) -> None:
         """Cancel everything and stop the threads (call when the window closes)."""
         self._closed = True
+        self._timer.stop()
         for job in self._latest.values():
             job.cancel()
         self._executor.shutdown(wait=wait, cancel_futures=True)
@@ -116,18 +127,41 @@ class WorkerPool(QtCore.QObject):
     # ------------------------------------------------------------------ internals
     def _run(self, job: Job, fn, args, kwargs) -> None:
         if job.token.is_set():
-            self._done.emit(job, None, "cancelled")
+            self._post(job, None, "cancelled")
             return
         try:
             result = fn(*args, **kwargs)
         except BaseException as exc:  # a worker must never take the window down
             text = "".join(traceback.format_exception(exc)).rstrip()
-            self._done.emit(job, None, text)
+            self._post(job, None, text)
             return
-        self._done.emit(job, result, "cancelled" if job.token.is_set() else None)
+        self._post(job, result, "cancelled" if job.token.is_set() else None)
 
-    @QtCore.Slot(object, object, object)
-    def _deliver(self, job: Job, result, error) -> None:
+    def _post(self, job: Job, result, error: str | None) -> None:
+        self._inbox.put(("done", job.id, (result, error)))
+
+    def drain(self) -> None:
+        """Deliver pending worker messages now (normally done by the timer)."""
+        self._drain()
+
+    @QtCore.Slot()
+    def _drain(self) -> None:
+        while True:
+            try:
+                kind, job_id, payload = self._inbox.get_nowait()
+            except queue.Empty:
+                break
+            if kind == "progress":
+                self._relay_progress(job_id, *payload)
+            else:
+                self._deliver(job_id, *payload)
+        if not self._jobs:
+            self._timer.stop()
+
+    def _deliver(self, job_id: int, result, error: str | None) -> None:
+        job = self._jobs.pop(job_id, None)
+        if job is None:
+            return
         latest = self._latest.get(job.key)
         current = latest is job
         if current:
@@ -143,9 +177,9 @@ class WorkerPool(QtCore.QObject):
         else:
             self.finished.emit(job.key, result)
 
-    @QtCore.Slot(object, int, int)
-    def _relay_progress(self, job: Job, done: int, total: int) -> None:
-        if self._latest.get(job.key) is job:
+    def _relay_progress(self, job_id: int, done: int, total: int) -> None:
+        job = self._jobs.get(job_id)
+        if job is not None and self._latest.get(job.key) is job:
             self.progress.emit(job.key, done, total)
 
 

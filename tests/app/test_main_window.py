@@ -13,7 +13,8 @@ pytest.importorskip("PySide6", reason="the GUI extra (PySide6) is not installed"
 
 from PySide6 import QtCore, QtGui
 
-from app.main_window import MainWindow, auto_window_level, to_qimage
+from app.main_window import MainWindow
+from app.panes import auto_window_level, to_qimage
 
 
 def _grey(qimage: QtGui.QImage, u: int, v: int) -> int:

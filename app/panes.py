@@ -1,0 +1,186 @@
+"""Fluoroscope panes: an image through a window/level, DRR overlays, and mouse interaction.
+
+Image display follows radiology viewers: an image is shown through a *window/level* mapping,
+grey value ``0`` at ``level - window / 2`` and ``255`` at ``level + window / 2``. Image arrays are
+indexed ``[row, col]``; pixel ``(u, v) = (col, row)`` is drawn centred at scene coordinates
+``(u + 0.5, v + 0.5)``, so scene ``(x, y)`` is image ``(u, v) = (x - 0.5, y - 0.5)``.
+
+Mouse: right-drag changes window/level (double click resets it), the wheel zooms about the
+cursor, middle-drag pans; left-drag moves the selected bone in this view's plane and
+Ctrl+left-drag turns it about the ray through its centre (signals ``pose_drag_*``, in image
+coordinates; the window turns them into pose edits).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6 import QtCore, QtGui, QtWidgets
+
+_PLACEHOLDER_SHAPE = (512, 512)
+_DRAG_PIXELS = 200.0  # mouse travel that changes the window by a factor e / the level by a window
+
+
+def auto_window_level(image: np.ndarray) -> tuple[float, float]:
+    """(window, level) spanning the 0.5-99.5 % range of the finite values of ``image``."""
+    finite = image[np.isfinite(image)]
+    if finite.size == 0:
+        return 1.0, 0.5
+    lo, hi = np.percentile(finite, [0.5, 99.5])
+    if hi <= lo:
+        lo, hi = float(finite.min()), float(finite.max())
+    if hi <= lo:
+        return 1.0, float(lo)
+    return float(hi - lo), float(0.5 * (hi + lo))
+
+
+def to_qimage(image: np.ndarray, window: float, level: float) -> QtGui.QImage:
+    """An 8-bit grey ``QImage`` of a 2-D array through ``(window, level)``; NaN shows black."""
+    if image.ndim != 2:
+        raise ValueError(f"image: expected a 2-D array [row, col], got shape {image.shape}")
+    if not window > 0:
+        raise ValueError(f"window: expected a positive number, got {window}")
+    scaled = (image.astype(np.float32) - (level - 0.5 * window)) * np.float32(255.0 / window)
+    grey = np.clip(np.nan_to_num(scaled, nan=0.0) + 0.5, 0, 255).astype(np.uint8)
+    grey = np.ascontiguousarray(grey)
+    h, w = grey.shape
+    return QtGui.QImage(grey.data, w, h, w, QtGui.QImage.Format.Format_Grayscale8).copy()
+
+
+class _ImageView(QtWidgets.QGraphicsView):
+    """Graphics view keeping the image fitted; right-drag adjusts window/level."""
+
+    drag_window_level = QtCore.Signal(float, float)  # (dx, dy) in screen pixels
+    reset_window_level = QtCore.Signal()
+
+    def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setBackgroundBrush(QtGui.QColor(20, 20, 20))
+        self.setRenderHint(QtGui.QPainter.RenderHint.SmoothPixmapTransform, False)
+        self.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.setVerticalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self._last: QtCore.QPointF | None = None
+
+    def fit(self) -> None:
+        if self.scene() is not None:
+            self.fitInView(self.scene().sceneRect(), QtCore.Qt.AspectRatioMode.KeepAspectRatio)
+
+    def resizeEvent(self, event: QtGui.QResizeEvent) -> None:
+        super().resizeEvent(event)
+        self.fit()
+
+    def mousePressEvent(self, event: QtGui.QMouseEvent) -> None:
+        if event.button() == QtCore.Qt.MouseButton.RightButton:
+            self._last = event.position()
+            event.accept()
+            return
+        super().mousePressEvent(event)
+
+    def mouseMoveEvent(self, event: QtGui.QMouseEvent) -> None:
+        if self._last is not None:
+            delta = event.position() - self._last
+            self._last = event.position()
+            self.drag_window_level.emit(delta.x(), delta.y())
+            event.accept()
+            return
+        super().mouseMoveEvent(event)
+
+    def mouseReleaseEvent(self, event: QtGui.QMouseEvent) -> None:
+        if event.button() == QtCore.Qt.MouseButton.RightButton:
+            self._last = None
+        super().mouseReleaseEvent(event)
+
+    def mouseDoubleClickEvent(self, event: QtGui.QMouseEvent) -> None:
+        self.reset_window_level.emit()
+        super().mouseDoubleClickEvent(event)
+
+
+class FluoroPane(QtWidgets.QWidget):
+    """One fluoroscope view: a title and an image shown through a window/level."""
+
+    window_level_changed = QtCore.Signal(float, float)
+
+    def __init__(self, title: str, parent: QtWidgets.QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName(title)
+        self._title = QtWidgets.QLabel(title)
+        self._title.setStyleSheet("font-weight: bold; padding: 2px;")
+        self._scene = QtWidgets.QGraphicsScene(self)
+        self._pixmap = self._scene.addPixmap(QtGui.QPixmap())
+        self._note = self._scene.addSimpleText("")
+        self._note.setBrush(QtGui.QColor(230, 230, 230))
+        self.view = _ImageView(self)
+        self.view.setScene(self._scene)
+        self.view.drag_window_level.connect(self._on_drag)
+        self.view.reset_window_level.connect(self.auto_window_level)
+        layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(2, 2, 2, 2)
+        layout.addWidget(self._title)
+        layout.addWidget(self.view, 1)
+        self._image: np.ndarray | None = None
+        self._window, self._level = 1.0, 0.5
+        self.clear()
+
+    # -- state
+    @property
+    def image(self) -> np.ndarray | None:
+        """The array shown (``[row, col]``), or ``None`` while the placeholder is shown."""
+        return self._image
+
+    @property
+    def window_level(self) -> tuple[float, float]:
+        return self._window, self._level
+
+    def qimage(self) -> QtGui.QImage:
+        """The 8-bit image currently displayed."""
+        return self._pixmap.pixmap().toImage()
+
+    # -- intents
+    def set_image(
+        self, image: np.ndarray, *, window: float | None = None, level: float | None = None
+    ) -> None:
+        """Show a 2-D array ``[row, col]`` (or ``[row, col, 3|4]`` colour, shown as grey)."""
+        arr = np.asarray(image)
+        if arr.ndim == 3 and arr.shape[2] in (3, 4):
+            arr = arr[..., :3].mean(axis=2)
+        if arr.ndim != 2 or arr.size == 0:
+            raise ValueError(f"image: expected a 2-D array [row, col], got shape {arr.shape}")
+        if not (np.issubdtype(arr.dtype, np.number) and not np.iscomplexobj(arr)):
+            raise ValueError(f"image: expected a real numeric array, got dtype {arr.dtype}")
+        self._image = arr
+        self._note.setText("")
+        auto_w, auto_l = auto_window_level(arr)
+        self._scene.setSceneRect(0, 0, arr.shape[1], arr.shape[0])
+        self.set_window_level(
+            auto_w if window is None else window, auto_l if level is None else level
+        )
+        self.view.fit()
+
+    def set_window_level(self, window: float, level: float) -> None:
+        window, level = float(window), float(level)
+        if not (np.isfinite(window) and window > 0 and np.isfinite(level)):
+            raise ValueError(
+                f"window/level: expected window > 0 and a finite level, got {window}, {level}"
+            )
+        self._window, self._level = window, level
+        shown = self._image if self._image is not None else np.full(_PLACEHOLDER_SHAPE, 0.5)
+        self._pixmap.setPixmap(QtGui.QPixmap.fromImage(to_qimage(shown, window, level)))
+        self.window_level_changed.emit(window, level)
+
+    def auto_window_level(self) -> None:
+        if self._image is not None:
+            self.set_window_level(*auto_window_level(self._image))
+
+    def clear(self) -> None:
+        """Show the grey placeholder."""
+        self._image = None
+        self._scene.setSceneRect(0, 0, _PLACEHOLDER_SHAPE[1], _PLACEHOLDER_SHAPE[0])
+        self.set_window_level(1.0, 0.5)
+        self._note.setText("No image loaded")
+        self._note.setScale(3.0)
+        self._note.setPos(20, 20)
+        self.view.fit()
+
+    def _on_drag(self, dx: float, dy: float) -> None:
+        if self._image is not None:
+            window = self._window * float(np.exp(dx / _DRAG_PIXELS))
+            self.set_window_level(window, self._level - dy * self._window / _DRAG_PIXELS)

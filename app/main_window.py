@@ -23,8 +23,13 @@ import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from . import __version__
+from .controller import Controller
+from .layers import LayerList
+from .model import ViewerModel
 from .panes import FluoroPane
 from .scene3d import ScenePane
+from .timeline import Timeline
+from .workers import WorkerPool
 
 _IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".npy"}
 _VIEW_KEY = re.compile(r"(?:cam(?:era)?|view)[_\-]?0*(\d+)", re.IGNORECASE)
@@ -103,22 +108,57 @@ def load_view_images(folder: Path, *, n_views: int = 2) -> list[tuple[str, np.nd
 
 
 class MainWindow(QtWidgets.QMainWindow):
-    """Talus main window: File/Help menus, status bar, two fluoro panes and the 3D scene."""
+    """Talus main window: two fluoroscope panes, the 3D scene, bone layers and a timeline.
 
-    def __init__(self, *, create_scene_on_show: bool = True) -> None:
+    Keys (with a study open): ``Left``/``Right`` or ``,``/``.`` step frames, ``Space`` plays;
+    ``W``/``S``, ``A``/``D``, ``Q``/``E`` move the selected bone ±x, ±y, ±z by the translation
+    step (mm) and, with ``Shift``, rotate it about those lab axes by the rotation step (deg);
+    ``Ctrl+Z`` / ``Ctrl+Shift+Z`` undo/redo.
+    """
+
+    def __init__(self, *, create_scene_on_show: bool = True, device: str | None = None) -> None:
         super().__init__()
         self.setWindowTitle("Talus")
-        self.resize(1280, 720)
+        self.resize(1280, 760)
+        self.device = device
+        self.translate_step_mm = 0.5
+        self.rotate_step_deg = 0.5
+        self.model = None
+        self.controller = None
+        self.study = None
+        self.pool = WorkerPool(self)
         self.panes = [FluoroPane("Camera 1"), FluoroPane("Camera 2")]
         self.scene = ScenePane(create_on_show=create_scene_on_show)
         self.splitter = QtWidgets.QSplitter(QtCore.Qt.Orientation.Horizontal)
         for widget in (*self.panes, self.scene):
             self.splitter.addWidget(widget)
         self.splitter.setSizes([420, 420, 440])
-        self.setCentralWidget(self.splitter)
+        central = QtWidgets.QWidget()
+        self._central_layout = QtWidgets.QVBoxLayout(central)
+        self._central_layout.setContentsMargins(0, 0, 0, 0)
+        self._central_layout.addWidget(self.splitter, 1)
+        self.setCentralWidget(central)
+        self.messages = QtWidgets.QListWidget()
+        self.messages.setObjectName("messages")
+        self.messages_dock = QtWidgets.QDockWidget("Messages", self)
+        self.messages_dock.setWidget(self.messages)
+        self.addDockWidget(QtCore.Qt.DockWidgetArea.BottomDockWidgetArea, self.messages_dock)
+        self.messages_dock.hide()  # shown by the first message
+        self.progress = QtWidgets.QProgressBar()
+        self.progress.setMaximumWidth(200)
+        self.progress.hide()
+        self.cancel_button = QtWidgets.QPushButton("Cancel")
+        self.cancel_button.hide()
+        self.statusBar().addPermanentWidget(self.progress)
+        self.statusBar().addPermanentWidget(self.cancel_button)
+        self.pool.failed.connect(self._on_failed)
+        self.pool.progress.connect(self._on_progress)
+        self.pool.busy_changed.connect(self._on_busy)
+        self.cancel_button.clicked.connect(self._cancel_jobs)
         self._build_menus()
         self.statusBar().showMessage("Ready")
 
+    # ------------------------------------------------------------------ menus and keys
     def _build_menus(self) -> None:
         file_menu = self.menuBar().addMenu("&File")
         self.open_demo_action = file_menu.addAction("&Open demo study…")
@@ -129,13 +169,83 @@ class MainWindow(QtWidgets.QMainWindow):
         self.quit_action.setShortcut(QtGui.QKeySequence("Ctrl+Q"))
         self.quit_action.setShortcutContext(QtCore.Qt.ShortcutContext.ApplicationShortcut)
         self.quit_action.triggered.connect(self.close)
+        edit = self.menuBar().addMenu("&Edit")
+        self.undo_action = edit.addAction("&Undo")
+        self.undo_action.setShortcut(QtGui.QKeySequence.StandardKey.Undo)
+        self.redo_action = edit.addAction("&Redo")
+        self.redo_action.setShortcut(QtGui.QKeySequence("Ctrl+Shift+Z"))
+        self.undo_action.triggered.connect(lambda: self.model and self.model.undo())
+        self.redo_action.triggered.connect(lambda: self.model and self.model.redo())
+        view = self.menuBar().addMenu("&View")
+        for text, keys, slot in (
+            ("Next frame", ("Right", "."), lambda: self.model and self.model.step(1)),
+            ("Previous frame", ("Left", ","), lambda: self.model and self.model.step(-1)),
+            ("Play / pause", ("Space",), lambda: self.timeline and self.timeline.toggle()),
+        ):
+            act = view.addAction(text)
+            act.setShortcuts([QtGui.QKeySequence(k) for k in keys])
+            act.triggered.connect(slot)
+        pose = self.menuBar().addMenu("&Pose")
+        for axis, (minus, plus) in enumerate((("A", "D"), ("S", "W"), ("Q", "E"))):
+            for key, sign in ((minus, -1.0), (plus, 1.0)):
+                act = pose.addAction(f"Move {'xyz'[axis]}{'+' if sign > 0 else '-'}")
+                act.setShortcut(QtGui.QKeySequence(key))
+                act.triggered.connect(lambda _=False, a=axis, sg=sign: self._nudge(a, sg, False))
+                act = pose.addAction(f"Turn about {'xyz'[axis]}{'+' if sign > 0 else '-'}")
+                act.setShortcut(QtGui.QKeySequence(f"Shift+{key}"))
+                act.triggered.connect(lambda _=False, a=axis, sg=sign: self._nudge(a, sg, True))
         help_menu = self.menuBar().addMenu("&Help")
         self.about_action = help_menu.addAction("&About Talus")
         self.about_action.triggered.connect(self._about)
+        self.timeline = None
+
+    def _nudge(self, axis: int, sign: float, rotate: bool) -> None:
+        if self.controller is None:
+            return
+        vec = np.zeros(3)
+        if rotate:
+            vec[axis] = sign * np.deg2rad(self.rotate_step_deg)
+            self.controller.nudge(rotate=vec)
+        else:
+            vec[axis] = sign * self.translate_step_mm
+            self.controller.nudge(translate=vec)
+
+    # ------------------------------------------------------------------ studies
+    def set_model(self, model: ViewerModel) -> None:
+        """Show a viewer model: panes per camera, bone layers, timeline, overlays, 3D scene."""
+        self.model = model
+        for pane, cam in zip(self.panes, model.rig, strict=False):
+            pane._title.setText(f"Camera {cam.name or ''}".strip())
+        self.layers = LayerList(model)
+        dock = QtWidgets.QDockWidget("Layers", self)
+        dock.setWidget(self.layers)
+        self.addDockWidget(QtCore.Qt.DockWidgetArea.LeftDockWidgetArea, dock)
+        self.timeline = Timeline(model)
+        self._central_layout.addWidget(self.timeline)
+        self.controller = Controller(model, self.panes, self.pool, device=self.device,
+                                     parent=self)
+        self.layers.mode_changed.connect(self.controller.set_mode)
+        self.scene.set_model(model)
+        model.history_changed.connect(self._update_history)
+        self._update_history()
+
+    def _update_history(self) -> None:
+        self.undo_action.setEnabled(bool(self.model and self.model.can_undo))
+        self.redo_action.setEnabled(bool(self.model and self.model.can_redo))
 
     def open_demo_study(self, folder: str | Path) -> None:
-        """Show the first frame of each camera of a study folder (e.g. from ``talus demo``)."""
+        """Open a ``talus demo`` study (bones, poses, frames); a plain folder of camera images
+        shows the first image of each camera."""
         folder = Path(folder)
+        if (folder / "summary.json").is_file() and '"talus-synthetic-study"' in (
+                folder / "summary.json").read_text(encoding="utf-8"):
+            from .demo_study import open_demo_study
+
+            self.study = open_demo_study(folder)
+            self.set_model(self.study.model)
+            names = ", ".join(layer.name for layer in self.study.model.layers)
+            self.statusBar().showMessage(f"Opened {folder}: {names}")
+            return
         images = load_view_images(folder, n_views=len(self.panes))
         for pane, (name, image) in zip(self.panes, images, strict=False):
             pane.set_image(image)
@@ -152,6 +262,30 @@ class MainWindow(QtWidgets.QMainWindow):
             except (OSError, ValueError) as exc:
                 QtWidgets.QMessageBox.warning(self, "Talus", f"Cannot open {folder}:\n{exc}")
 
+    # ------------------------------------------------------------------ jobs
+    def notify(self, text: str) -> None:
+        self.messages_dock.show()
+        self.messages.addItem(text.splitlines()[-1] if text else "")
+        self.messages.item(self.messages.count() - 1).setToolTip(text)
+        self.messages.scrollToBottom()
+        self.statusBar().showMessage(text.splitlines()[-1] if text else "", 10000)
+
+    def _on_failed(self, key: str, text: str) -> None:
+        self.notify(f"{key} failed:\n{text}")
+
+    def _on_progress(self, key: str, done: int, total: int) -> None:
+        self.progress.setRange(0, max(total, 1))
+        self.progress.setValue(done)
+        self.progress.setFormat(f"{key} %v/%m")
+
+    def _on_busy(self, busy: bool) -> None:
+        self.progress.setVisible(busy and self.progress.maximum() > 1)
+        self.cancel_button.setVisible(busy and self.progress.maximum() > 1)
+
+    def _cancel_jobs(self) -> None:
+        for key in list(self.pool._latest):
+            self.pool.cancel(key)
+
     def _about(self) -> None:
         QtWidgets.QMessageBox.about(
             self,
@@ -161,6 +295,7 @@ class MainWindow(QtWidgets.QMainWindow):
         )
 
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:
+        self.pool.shutdown(wait=False)
         self.scene.close_interactor()
         super().closeEvent(event)
 

@@ -47,10 +47,13 @@ def to_qimage(image: np.ndarray, window: float, level: float) -> QtGui.QImage:
 
 
 class _ImageView(QtWidgets.QGraphicsView):
-    """Graphics view keeping the image fitted; right-drag adjusts window/level."""
+    """Graphics view of one image: fitted on resize until the user zooms; mouse handling."""
 
     drag_window_level = QtCore.Signal(float, float)  # (dx, dy) in screen pixels
     reset_window_level = QtCore.Signal()
+    pose_drag_started = QtCore.Signal(str, float, float)  # kind ("move"|"rotate"), u, v
+    pose_drag_moved = QtCore.Signal(str, float, float)
+    pose_drag_finished = QtCore.Signal()
 
     def __init__(self, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
@@ -58,39 +61,83 @@ class _ImageView(QtWidgets.QGraphicsView):
         self.setRenderHint(QtGui.QPainter.RenderHint.SmoothPixmapTransform, False)
         self.setHorizontalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         self.setVerticalScrollBarPolicy(QtCore.Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.setTransformationAnchor(QtWidgets.QGraphicsView.ViewportAnchor.AnchorUnderMouse)
         self._last: QtCore.QPointF | None = None
+        self._pan: QtCore.QPointF | None = None
+        self._pose_kind: str | None = None
+        self._zoomed = False
 
     def fit(self) -> None:
         if self.scene() is not None:
             self.fitInView(self.scene().sceneRect(), QtCore.Qt.AspectRatioMode.KeepAspectRatio)
+            self._zoomed = False
 
     def resizeEvent(self, event: QtGui.QResizeEvent) -> None:
         super().resizeEvent(event)
-        self.fit()
+        if not self._zoomed:
+            self.fit()
+
+    def image_uv(self, pos: QtCore.QPointF) -> tuple[float, float]:
+        """Image ``(u, v)`` under a viewport position."""
+        p = self.mapToScene(pos.toPoint())
+        return p.x() - 0.5, p.y() - 0.5
+
+    def wheelEvent(self, event: QtGui.QWheelEvent) -> None:
+        factor = 1.25 ** (event.angleDelta().y() / 120.0)
+        self.scale(factor, factor)
+        self._zoomed = True
+        event.accept()
 
     def mousePressEvent(self, event: QtGui.QMouseEvent) -> None:
-        if event.button() == QtCore.Qt.MouseButton.RightButton:
+        button = event.button()
+        if button == QtCore.Qt.MouseButton.RightButton:
             self._last = event.position()
-            event.accept()
+        elif button == QtCore.Qt.MouseButton.MiddleButton:
+            self._pan = event.position()
+        elif button == QtCore.Qt.MouseButton.LeftButton:
+            ctrl = event.modifiers() & QtCore.Qt.KeyboardModifier.ControlModifier
+            self._pose_kind = "rotate" if ctrl else "move"
+            self.pose_drag_started.emit(self._pose_kind, *self.image_uv(event.position()))
+        else:
+            super().mousePressEvent(event)
             return
-        super().mousePressEvent(event)
+        event.accept()
 
     def mouseMoveEvent(self, event: QtGui.QMouseEvent) -> None:
         if self._last is not None:
             delta = event.position() - self._last
             self._last = event.position()
             self.drag_window_level.emit(delta.x(), delta.y())
-            event.accept()
+        elif self._pan is not None:
+            delta = event.position() - self._pan
+            self._pan = event.position()
+            h, v = self.horizontalScrollBar(), self.verticalScrollBar()
+            h.setValue(h.value() - int(delta.x()))
+            v.setValue(v.value() - int(delta.y()))
+            self._zoomed = True
+        elif self._pose_kind is not None:
+            self.pose_drag_moved.emit(self._pose_kind, *self.image_uv(event.position()))
+        else:
+            super().mouseMoveEvent(event)
             return
-        super().mouseMoveEvent(event)
+        event.accept()
 
     def mouseReleaseEvent(self, event: QtGui.QMouseEvent) -> None:
-        if event.button() == QtCore.Qt.MouseButton.RightButton:
+        button = event.button()
+        if button == QtCore.Qt.MouseButton.RightButton:
             self._last = None
+        elif button == QtCore.Qt.MouseButton.MiddleButton:
+            self._pan = None
+        elif button == QtCore.Qt.MouseButton.LeftButton and self._pose_kind is not None:
+            self._pose_kind = None
+            self.pose_drag_finished.emit()
         super().mouseReleaseEvent(event)
 
     def mouseDoubleClickEvent(self, event: QtGui.QMouseEvent) -> None:
-        self.reset_window_level.emit()
+        if event.button() == QtCore.Qt.MouseButton.RightButton:
+            self.reset_window_level.emit()
+        else:
+            self.fit()
         super().mouseDoubleClickEvent(event)
 
 
@@ -118,6 +165,7 @@ class FluoroPane(QtWidgets.QWidget):
         layout.addWidget(self.view, 1)
         self._image: np.ndarray | None = None
         self._window, self._level = 1.0, 0.5
+        self._overlays: dict = {}
         self.clear()
 
     # -- state
@@ -136,9 +184,12 @@ class FluoroPane(QtWidgets.QWidget):
 
     # -- intents
     def set_image(
-        self, image: np.ndarray, *, window: float | None = None, level: float | None = None
+        self, image: np.ndarray, *, window: float | None = None, level: float | None = None,
+        keep_view: bool = False,
     ) -> None:
-        """Show a 2-D array ``[row, col]`` (or ``[row, col, 3|4]`` colour, shown as grey)."""
+        """Show a 2-D array ``[row, col]`` (or ``[row, col, 3|4]`` colour, shown as grey).
+
+        ``keep_view`` keeps the zoom and window/level (stepping through frames)."""
         arr = np.asarray(image)
         if arr.ndim == 3 and arr.shape[2] in (3, 4):
             arr = arr[..., :3].mean(axis=2)
@@ -146,8 +197,12 @@ class FluoroPane(QtWidgets.QWidget):
             raise ValueError(f"image: expected a 2-D array [row, col], got shape {arr.shape}")
         if not (np.issubdtype(arr.dtype, np.number) and not np.iscomplexobj(arr)):
             raise ValueError(f"image: expected a real numeric array, got dtype {arr.dtype}")
+        same_shape = self._image is not None and self._image.shape == arr.shape
         self._image = arr
         self._note.setText("")
+        if keep_view and same_shape and window is None and level is None:
+            self.set_window_level(self._window, self._level)
+            return
         auto_w, auto_l = auto_window_level(arr)
         self._scene.setSceneRect(0, 0, arr.shape[1], arr.shape[0])
         self.set_window_level(
@@ -179,6 +234,43 @@ class FluoroPane(QtWidgets.QWidget):
         self._note.setScale(3.0)
         self._note.setPos(20, 20)
         self.view.fit()
+
+    # -- overlays
+    def set_overlay(self, key, rgba: np.ndarray, roi: tuple[int, int, int, int],
+                    scale: float) -> None:
+        """Show an RGBA (H, W, 4) uint8 overlay whose pixel ``[r, c]`` covers the full-resolution
+        block starting at ``(u0 + c * scale, v0 + r * scale)`` of ``roi = (u0, v0, w, h)``."""
+        rgba = np.ascontiguousarray(rgba, dtype=np.uint8)
+        if rgba.ndim != 3 or rgba.shape[2] != 4:
+            raise ValueError(f"rgba: expected (H, W, 4) uint8, got {rgba.shape}")
+        h, w = rgba.shape[:2]
+        qimg = QtGui.QImage(rgba.data, w, h, 4 * w, QtGui.QImage.Format.Format_RGBA8888).copy()
+        item = self._overlays.get(key)
+        if item is None:
+            item = self._scene.addPixmap(QtGui.QPixmap())
+            item.setZValue(10)
+            self._overlays[key] = item
+        item.setPixmap(QtGui.QPixmap.fromImage(qimg))
+        item.setScale(float(scale))
+        item.setPos(float(roi[0]), float(roi[1]))
+        item.setVisible(True)
+
+    def hide_overlay(self, key) -> None:
+        item = self._overlays.get(key)
+        if item is not None:
+            item.setVisible(False)
+
+    def overlay_keys(self) -> list:
+        return [k for k, item in self._overlays.items() if item.isVisible()]
+
+    def overlay_image(self, key) -> QtGui.QImage | None:
+        item = self._overlays.get(key)
+        return None if item is None else item.pixmap().toImage()
+
+    def overlay_geometry(self, key) -> tuple[float, float, float] | None:
+        """``(x, y, scale)`` of an overlay in scene coordinates."""
+        item = self._overlays.get(key)
+        return None if item is None else (item.pos().x(), item.pos().y(), item.scale())
 
     def _on_drag(self, dx: float, dy: float) -> None:
         if self._image is not None:

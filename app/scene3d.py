@@ -1,4 +1,11 @@
-"""The 3D lab scene (pyvistaqt): lab axes, X-ray sources, detector planes, bone meshes."""
+"""The 3D lab scene (pyvistaqt): lab axes, X-ray sources, detector planes, bone meshes.
+
+With a model set, each camera appears as its source (a sphere), its detector (a quad at the
+SID) textured with the current
+frame (at 1.4x the source-to-origin distance when the pixel size is unknown), and the four
+frustum edges; each bone as its surface mesh (iso-surface of its CT at the
+bone threshold, computed once) placed by its current pose and coloured like its layer.
+"""
 
 from __future__ import annotations
 
@@ -14,6 +21,7 @@ class ScenePane(QtWidgets.QWidget):
     def __init__(self, parent: QtWidgets.QWidget | None = None, *, create_on_show: bool = True):
         super().__init__(parent)
         self.plotter = None
+        self.model = None
         self._create_on_show = create_on_show
         self._placeholder = QtWidgets.QLabel("3D scene")
         self._placeholder.setAlignment(QtCore.Qt.AlignmentFlag.AlignCenter)
@@ -49,7 +57,95 @@ class ScenePane(QtWidgets.QWidget):
             self._placeholder.hide()
             self._layout.addWidget(plotter.interactor)
             self.plotter = plotter
+            if self.model is not None:
+                self._populate()
         return self.plotter
+
+    # ------------------------------------------------------------------ model
+    def set_model(self, model) -> None:
+        self.model = model
+        model.current_frame_changed.connect(lambda f: self._update_frames())
+        model.pose_changed.connect(lambda b, f: self._update_poses())
+        model.layer_property_changed.connect(lambda i, name: self._update_poses())
+        if self.plotter is not None:
+            self._populate()
+
+    def _populate(self) -> None:
+        import pyvista as pv
+
+        m = self.model
+        p = self.plotter
+        self._actors = {}
+        self._textures = {}
+        for k, cam in enumerate(m.rig):
+            # the detector at the SID; without a pixel size, 1.4x the source-origin distance
+            dist = cam.sid if cam.pixel_size is not None else 1.4 * np.linalg.norm(cam.source)
+            corners = cam.detector_corners(distance=dist)
+            quad = pv.Rectangle(corners[:3])
+            quad.texture_map_to_plane(inplace=True, origin=corners[3], point_u=corners[2],
+                                      point_v=corners[0])
+            self._textures[k] = p.add_mesh(quad, name=f"detector-{k}", opacity=0.9)
+            p.add_mesh(pv.Sphere(radius=15.0, center=cam.source), color="yellow",
+                       name=f"source-{k}")
+            lines = np.vstack([np.array([cam.source, c]) for c in corners])
+            p.add_lines(lines, color="#888888", width=1, name=f"frustum-{k}")
+        for i, layer in enumerate(m.layers):
+            mesh = self._bone_mesh(layer)
+            if mesh is not None:
+                self._actors[i] = p.add_mesh(mesh, color=layer.color, name=f"bone-{i}",
+                                             smooth_shading=True)
+        self._update_frames()
+        self._update_poses()
+        p.reset_camera()
+
+    @staticmethod
+    def _bone_mesh(layer):
+        import pyvista as pv
+
+        if layer.mesh is not None:
+            v, f = layer.mesh
+            faces = np.hstack([np.full((len(f), 1), 3), f]).ravel()
+            return pv.PolyData(np.asarray(v, float), faces)
+        vol = layer.volume
+        grid = pv.ImageData(dimensions=vol.shape_ijk, spacing=tuple(vol.spacing),
+                            origin=tuple(vol.origin))
+        grid.point_data["hu"] = np.asarray(vol.data, np.float32).transpose(2, 1, 0).ravel("F")
+        surf = grid.contour([200.0], scalars="hu")
+        if surf.n_points == 0:
+            return None
+        surf = surf.decimate(0.7) if surf.n_cells > 50000 else surf
+        if not np.allclose(vol.direction, np.eye(3)):
+            T = np.eye(4)
+            T[:3, :3] = vol.direction
+            T[:3, 3] = vol.origin - vol.direction @ vol.origin
+            surf = surf.transform(T, inplace=False)
+        layer.mesh = (np.asarray(surf.points), surf.faces.reshape(-1, 4)[:, 1:])
+        return surf
+
+    def _update_poses(self) -> None:
+        if self.plotter is None or not hasattr(self, "_actors"):
+            return
+        for i, actor in self._actors.items():
+            layer = self.model.layers[i]
+            actor.user_matrix = self.model.pose(i)
+            actor.SetVisibility(layer.visible)
+            actor.prop.color = layer.color
+        self.plotter.render()
+
+    def _update_frames(self) -> None:
+        if self.plotter is None or not hasattr(self, "_textures"):
+            return
+        import pyvista as pv
+
+        for k, actor in self._textures.items():
+            img = self.model.frame_image(k)
+            if img is None:
+                continue
+            img = np.asarray(img, np.float32)
+            lo, hi = np.percentile(img, [0.5, 99.5])
+            grey = np.clip((img - lo) / max(hi - lo, 1e-6) * 255, 0, 255).astype(np.uint8)
+            actor.texture = pv.numpy_to_texture(np.ascontiguousarray(grey[::-1]))
+        self.plotter.render()
 
     def close_interactor(self) -> None:
         if self.plotter is not None:

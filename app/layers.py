@@ -1,0 +1,108 @@
+"""Layer list: bones with visibility, colour, opacity, lock and the overlay mode (napari-style)."""
+
+from __future__ import annotations
+
+from PySide6 import QtCore, QtGui, QtWidgets
+
+from .model import ViewerModel
+from .overlay import MODES
+
+__all__ = ["LayerList"]
+
+
+def _swatch(color) -> QtGui.QIcon:
+    pix = QtGui.QPixmap(14, 14)
+    pix.fill(QtGui.QColor.fromRgbF(*color))
+    return QtGui.QIcon(pix)
+
+
+class LayerList(QtWidgets.QWidget):
+    """Shows the model's bones; edits go back to the model as intents."""
+
+    mode_changed = QtCore.Signal(str)
+
+    def __init__(self, model: ViewerModel, parent: QtWidgets.QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.model = model
+        self.list = QtWidgets.QListWidget()
+        self.list.setObjectName("layer-list")
+        self.opacity = QtWidgets.QSlider(QtCore.Qt.Orientation.Horizontal)
+        self.opacity.setRange(0, 100)
+        self.opacity.setToolTip("Overlay opacity of the selected bone")
+        self.locked = QtWidgets.QCheckBox("Locked")
+        self.mode = QtWidgets.QComboBox()
+        self.mode.addItems(MODES)
+        self.mode.setToolTip("How bones are drawn over the fluoroscope images")
+        form = QtWidgets.QFormLayout()
+        form.addRow("Opacity", self.opacity)
+        form.addRow("", self.locked)
+        form.addRow("Overlay", self.mode)
+        layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(4, 4, 4, 4)
+        layout.addWidget(QtWidgets.QLabel("Bones"))
+        layout.addWidget(self.list, 1)
+        layout.addLayout(form)
+        self._syncing = False
+        self.list.currentRowChanged.connect(self._on_row)
+        self.list.itemChanged.connect(self._on_item)
+        self.opacity.valueChanged.connect(self._on_opacity)
+        self.locked.toggled.connect(self._on_locked)
+        self.mode.currentTextChanged.connect(self.mode_changed)
+        model.layers_changed.connect(self.refresh)
+        model.selection_changed.connect(self._on_selection)
+        model.layer_property_changed.connect(lambda i, name: self.refresh())
+        self.refresh()
+
+    def refresh(self) -> None:
+        self._syncing = True
+        try:
+            self.list.clear()
+            for layer in self.model.layers:
+                item = QtWidgets.QListWidgetItem(_swatch(layer.color), layer.name)
+                item.setFlags(item.flags() | QtCore.Qt.ItemFlag.ItemIsUserCheckable)
+                item.setCheckState(QtCore.Qt.CheckState.Checked if layer.visible
+                                   else QtCore.Qt.CheckState.Unchecked)
+                if layer.locked:
+                    item.setToolTip("locked")
+                self.list.addItem(item)
+            self.list.setCurrentRow(self.model.selected)
+            self._show_selected()
+        finally:
+            self._syncing = False
+
+    def _show_selected(self) -> None:
+        i = self.model.selected
+        enabled = i >= 0
+        self.opacity.setEnabled(enabled)
+        self.locked.setEnabled(enabled)
+        if enabled:
+            self.opacity.setValue(round(100 * self.model.layers[i].opacity))
+            self.locked.setChecked(self.model.layers[i].locked)
+
+    def _on_selection(self, i: int) -> None:
+        self._syncing = True
+        try:
+            self.list.setCurrentRow(i)
+            self._show_selected()
+        finally:
+            self._syncing = False
+
+    def _on_row(self, row: int) -> None:
+        if not self._syncing and row >= 0:
+            self.model.select(row)
+
+    def _on_item(self, item: QtWidgets.QListWidgetItem) -> None:
+        if self._syncing:
+            return
+        row = self.list.row(item)
+        visible = item.checkState() == QtCore.Qt.CheckState.Checked
+        if self.model.layers[row].visible != visible:
+            self.model.set_layer_property(row, "visible", visible)
+
+    def _on_opacity(self, value: int) -> None:
+        if not self._syncing and self.model.selected >= 0:
+            self.model.set_layer_property(self.model.selected, "opacity", value / 100.0)
+
+    def _on_locked(self, checked: bool) -> None:
+        if not self._syncing and self.model.selected >= 0:
+            self.model.set_layer_property(self.model.selected, "locked", bool(checked))

@@ -1,5 +1,31 @@
-"""File formats. (This package grows with the data I/O work; see the README.)"""
+"""File formats: fluoro sequences, CT volumes, meshes, Autoscoper/XMALab interop, crash-safe writing.
 
+Readers validate what they read and raise :class:`ValueError` naming the file and what was
+expected; writers write atomically (:mod:`core.io.atomic`).
+"""
+
+from .atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json
+from .paired import TwoViewSequence
+from .sequences import (
+    FrameSequence,
+    MultipageTiffSequence,
+    TiffFolderSequence,
+    VideoSequence,
+    open_sequence,
+)
 from .tiff_volume import read_tiff_volume
 
-__all__ = ["read_tiff_volume"]
+__all__ = [
+    "FileLock",
+    "FrameSequence",
+    "LockedError",
+    "MultipageTiffSequence",
+    "TiffFolderSequence",
+    "TwoViewSequence",
+    "VideoSequence",
+    "atomic_open",
+    "atomic_write",
+    "atomic_write_json",
+    "open_sequence",
+    "read_tiff_volume",
+]

@@ -1,0 +1,280 @@
+"""Crash-safe file writing and an exclusive lock between processes.
+
+Every file Talus writes for a user goes through :func:`atomic_write` / :func:`atomic_open`: the
+content is written to a temporary file *in the destination's folder*, flushed and ``fsync``-ed,
+then renamed over the destination with :func:`os.replace` (atomic on POSIX and on Windows for
+files on one volume), and finally the folder itself is ``fsync``-ed so the rename survives a
+power cut. A crash at any point leaves either the complete old file or the complete new one,
+never a mixture; a stray ``.<name>.*.tmp`` file may remain and is ignored by readers.
+
+Append-only journals (tracking results saved frame by frame) use :func:`append_durable`, which
+``fsync``-s each appended record; their readers detect and drop a torn last record (see
+:mod:`core.study.results`).
+
+:class:`FileLock` is an advisory, exclusive, non-blocking lock on a lock file (``fcntl.flock``
+on POSIX, ``msvcrt.locking`` on Windows). The kernel releases it when the holding process dies,
+so a crashed writer never leaves a study locked. The lock file records the holder (pid, host,
+time) so the error raised to a second process can say who holds it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import json
+import os
+import socket
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+__all__ = [
+    "FileLock",
+    "LockedError",
+    "append_durable",
+    "atomic_open",
+    "atomic_write",
+    "atomic_write_json",
+    "fsync_dir",
+]
+
+
+def fsync_dir(folder: str | os.PathLike) -> None:
+    """Flush a folder's entries (new names, renames) to disk; a no-op where unsupported."""
+    if sys.platform.startswith("win"):  # directories cannot be opened for fsync on Windows
+        return
+    fd = os.open(os.fspath(folder), os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems (e.g. certain network mounts) refuse; nothing to do
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_open(
+    path: str | os.PathLike, mode: str = "w", *, encoding: str = "utf-8", newline: str | None = "\n"
+) -> Iterator[IO[Any]]:
+    """Open a temporary file that replaces ``path`` atomically when the block exits cleanly.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; its folder must exist. An existing file is replaced only after the new
+        content is complete and on disk.
+    mode : {"w", "wb"}
+        Text or binary.
+    encoding, newline
+        For text mode (``newline="\\n"`` writes the same bytes on every platform).
+
+    Yields
+    ------
+    file object
+        Write the new content to it. If the block raises, the temporary file is removed and
+        ``path`` is left untouched.
+
+    Raises
+    ------
+    ValueError
+        For a ``mode`` other than ``"w"`` or ``"wb"``, or a missing destination folder.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f'mode: expected "w" or "wb", got {mode!r}')
+    dest = Path(path)
+    folder = dest.parent if str(dest.parent) else Path(".")
+    if not folder.is_dir():
+        raise ValueError(f"path: folder {folder} of {dest.name} does not exist")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{dest.name}.", suffix=".tmp")
+    try:
+        if mode == "wb":
+            fh = os.fdopen(fd, "wb")
+        else:
+            fh = os.fdopen(fd, "w", encoding=encoding, newline=newline)
+        with fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, dest)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(folder)
+
+
+def atomic_write(path: str | os.PathLike, data: bytes | str, *, encoding: str = "utf-8") -> None:
+    """Write ``data`` (bytes, or text encoded with ``encoding``) to ``path`` atomically."""
+    if isinstance(data, str):
+        with atomic_open(path, "w", encoding=encoding) as fh:
+            fh.write(data)
+    elif isinstance(data, bytes | bytearray | memoryview):
+        with atomic_open(path, "wb") as fh:
+            fh.write(data)
+    else:
+        raise ValueError(f"data: expected bytes or str, got {type(data).__name__}")
+
+
+def atomic_write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> None:
+    """Write ``obj`` as strict JSON (no NaN/Infinity: use ``None``) atomically, UTF-8.
+
+    Raises
+    ------
+    ValueError
+        If ``obj`` holds NaN/Infinity or a value JSON cannot represent; nothing is written.
+    """
+    try:
+        text = json.dumps(obj, indent=indent, allow_nan=False, ensure_ascii=False, sort_keys=False)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{os.fspath(path)}: cannot be written as strict JSON ({exc})") from exc
+    atomic_write(path, text + "\n")
+
+
+def append_durable(path: str | os.PathLike, data: bytes) -> None:
+    """Append ``data`` to ``path`` (created if missing) and ``fsync`` it before returning."""
+    p = Path(path)
+    new = not p.exists()
+    with open(p, "ab") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
+    if new:
+        fsync_dir(p.parent)
+
+
+# ---------------------------------------------------------------------------- locking
+class LockedError(RuntimeError):
+    """Raised when a :class:`FileLock` is already held (by another process or handle).
+
+    Attributes
+    ----------
+    path : Path
+        The lock file.
+    holder : dict
+        What the holder recorded (``pid``, ``host``, ``since``, ``purpose``), possibly empty.
+    """
+
+    def __init__(self, path: Path, holder: dict[str, Any], what: str = ""):
+        self.path = path
+        self.holder = holder
+        who = (
+            f"process {holder.get('pid', '?')} on {holder.get('host', '?')} "
+            f"since {holder.get('since', '?')}"
+            if holder
+            else "another process"
+        )
+        target = what or str(path)
+        super().__init__(
+            f"{target} is locked for writing by {who} (lock file {path}); close it there first, "
+            "or open it read-only"
+        )
+
+
+if sys.platform.startswith("win"):  # pragma: no cover - exercised on Windows only
+    import msvcrt
+
+    def _try_lock(fd: int) -> bool:
+        try:
+            os.lseek(fd, 0, os.SEEK_SET)
+            msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        except OSError:
+            return False
+        return True
+
+    def _unlock(fd: int) -> None:
+        os.lseek(fd, 0, os.SEEK_SET)
+        msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
+
+else:
+    import fcntl
+
+    def _try_lock(fd: int) -> bool:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return False
+        return True
+
+    def _unlock(fd: int) -> None:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+
+
+class FileLock:
+    """Exclusive, non-blocking, inter-process lock held on the file ``path``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Lock file (created if missing; left in place on release).
+    purpose : str
+        Recorded in the lock file and used in the error message (e.g. the study folder).
+
+    Notes
+    -----
+    Two :class:`FileLock` objects on one file conflict even inside one process (``flock``
+    locks belong to the open file description), so a study cannot be opened for writing twice.
+    The lock is advisory: it protects Talus processes from each other, not against other tools.
+    """
+
+    def __init__(self, path: str | os.PathLike, *, purpose: str = ""):
+        self.path = Path(path)
+        self.purpose = str(purpose)
+        self._fd: int | None = None
+
+    @property
+    def locked(self) -> bool:
+        """True while this object holds the lock."""
+        return self._fd is not None
+
+    def read_holder(self) -> dict[str, Any]:
+        """The holder information stored in the lock file (empty if unreadable)."""
+        try:
+            info = json.loads(self.path.read_text(encoding="utf-8") or "{}")
+        except (OSError, ValueError):
+            return {}
+        return info if isinstance(info, dict) else {}
+
+    def acquire(self) -> FileLock:
+        """Take the lock or raise :class:`LockedError` at once (never waits)."""
+        if self._fd is not None:
+            raise LockedError(self.path, self.read_holder(), self.purpose)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        if not _try_lock(fd):
+            os.close(fd)
+            raise LockedError(self.path, self.read_holder(), self.purpose)
+        info = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "since": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            "purpose": self.purpose,
+        }
+        blob = json.dumps(info).encode()
+        os.ftruncate(fd, 0)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, blob)
+        os.fsync(fd)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        """Release the lock (idempotent)."""
+        fd, self._fd = self._fd, None
+        if fd is None:
+            return
+        try:
+            os.ftruncate(fd, 0)
+            _unlock(fd)
+        finally:
+            os.close(fd)
+
+    def __enter__(self) -> FileLock:
+        return self.acquire()
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def __del__(self) -> None:  # a forgotten lock is released with its object
+        with contextlib.suppress(Exception):
+            self.release()

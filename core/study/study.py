@@ -1,0 +1,433 @@
+"""The :class:`Study` façade: one folder holding a lab session's references and results.
+
+Layout of a study folder::
+
+    study.json                        manifest (schema: core.study.schema), written atomically
+    .talus.lock                       lock file of the process that has it open for writing
+    results/<trial>/poses/<bone>.jsonl  tracking results, appended frame by frame
+    results/reports/<kind>/<name>.json  calibration reports and other summaries (atomic)
+
+Raw data (fluoro sequences, camera files, CT) is *referenced*, not copied. Opening for writing
+takes an exclusive lock, so a second process gets :class:`~core.io.atomic.LockedError` instead
+of corrupting the study; read-only opens need no lock (every write is an atomic rename or a
+checksummed append, so readers never see half-written files).
+
+Example
+-------
+>>> with Study.create("subject07") as st:                       # doctest: +SKIP
+...     st.add_calibration("day1", ["calib/cam1.txt", "calib/cam2.txt"])
+...     st.add_volume("foot", "ct/foot.nii.gz", labels="ct/labels.nii.gz")
+...     st.add_bone("talus", volume="foot", label=3)
+...     st.add_trial("walk01", ["raw/c1.cine", "raw/c2.cine"], calibration="day1", bones=["talus"])
+...     st.trial("walk01").record_pose("talus", 0, T, score=0.8)
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from ..io.atomic import FileLock, atomic_write, atomic_write_json
+from .errors import StudyError
+from .manifest import new_manifest, read_manifest, resolve_path, store_path, write_manifest
+from .schema import MANIFEST_NAME, NAME_RE
+
+__all__ = ["Study"]
+
+LOCK_NAME = ".talus.lock"
+_TIFF = (".tif", ".tiff")
+
+
+def _check_name(name: str, what: str) -> str:
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise ValueError(
+            f"{what}: expected 1-64 letters, digits, '_', '-', '.' starting with a letter or digit, "
+            f"got {name!r}"
+        )
+    return name
+
+
+class Study:
+    """A study folder opened read-only (``mode="r"``) or for writing (``mode="w"``).
+
+    Use :meth:`create` or :meth:`open`; close it (or use ``with``) to release the write lock.
+    Every editing method validates and saves the manifest atomically before returning.
+    """
+
+    def __init__(self, folder: Path, doc: dict, mode: str, lock: FileLock | None, from_version: int):
+        self._folder = folder
+        self._doc = doc
+        self._mode = mode
+        self._lock = lock
+        self._from_version = from_version
+        self._trials: dict[str, Any] = {}
+        self._volume_cache: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ opening
+    @classmethod
+    def create(cls, folder: str | os.PathLike, *, name: str | None = None) -> Study:
+        """Create a new, empty study in ``folder`` (created if needed) and open it for writing.
+
+        Raises
+        ------
+        StudyError
+            If ``folder`` already holds a study.
+        """
+        folder = Path(folder).absolute()
+        if (folder / MANIFEST_NAME).exists():
+            raise StudyError(f"{folder}: already holds a study ({MANIFEST_NAME}); use Study.open")
+        folder.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(folder / LOCK_NAME, purpose=f"study {folder}").acquire()
+        try:
+            doc = new_manifest(name or folder.name)
+            write_manifest(folder, doc, touch=False)
+        except BaseException:
+            lock.release()
+            raise
+        return cls(folder, doc, "w", lock, doc["schema_version"])
+
+    @classmethod
+    def open(cls, folder: str | os.PathLike, *, mode: str = "r", check_files: bool = True) -> Study:
+        """Open an existing study.
+
+        Parameters
+        ----------
+        folder : str or os.PathLike
+            The study folder (holding ``study.json``).
+        mode : {"r", "w"}
+            Read-only, or for writing (exclusive lock between processes). A manifest of an older
+            schema version is migrated; in ``"w"`` mode the migrated manifest is saved (the old
+            one is kept as ``study.json.v<N>.bak``).
+        check_files : bool
+            Verify that every referenced file exists (else :class:`StudyError` naming it).
+
+        Raises
+        ------
+        StudyError
+            Not a study, corrupt or future-version manifest, or a missing referenced file.
+        LockedError
+            ``mode="w"`` while another process (or another handle) has it open for writing.
+        """
+        if mode not in ("r", "w"):
+            raise ValueError(f'mode: expected "r" or "w", got {mode!r}')
+        folder = Path(folder).absolute()
+        lock = FileLock(folder / LOCK_NAME, purpose=f"study {folder}").acquire() if mode == "w" else None
+        try:
+            doc, version = read_manifest(folder)
+            study = cls(folder, doc, mode, lock, version)
+            if check_files:
+                missing = study.missing_files()
+                if missing:
+                    where, path = missing[0]
+                    more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+                    raise StudyError(
+                        f"{folder / MANIFEST_NAME}: {where}: referenced file {path} does not exist{more}"
+                    )
+            if mode == "w" and version < doc["schema_version"]:
+                old = (folder / MANIFEST_NAME).read_bytes()
+                atomic_write(folder / f"{MANIFEST_NAME}.v{version}.bak", old)
+                write_manifest(folder, doc)
+        except BaseException:
+            if lock is not None:
+                lock.release()
+            raise
+        return study
+
+    def close(self) -> None:
+        """Close open sequences and release the write lock (idempotent)."""
+        for t in self._trials.values():
+            t._close()
+        self._trials.clear()
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+        self._mode = "closed"
+
+    def __enter__(self) -> Study:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Study({str(self._folder)!r}, mode={self._mode!r}, trials={list(self._doc['trials'])})"
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def folder(self) -> Path:
+        return self._folder
+
+    @property
+    def name(self) -> str:
+        return self._doc["name"]
+
+    @property
+    def mode(self) -> str:
+        """``"r"``, ``"w"`` or ``"closed"``."""
+        return self._mode
+
+    @property
+    def migrated_from(self) -> int:
+        """Schema version of the manifest as found on disk."""
+        return self._from_version
+
+    @property
+    def manifest(self) -> MappingProxyType:
+        """A read-only deep copy of the manifest."""
+        return MappingProxyType(copy.deepcopy(self._doc))
+
+    @property
+    def calibrations(self) -> tuple[str, ...]:
+        return tuple(self._doc["calibrations"])
+
+    @property
+    def volumes(self) -> tuple[str, ...]:
+        return tuple(self._doc["volumes"])
+
+    @property
+    def bones(self) -> tuple[str, ...]:
+        return tuple(self._doc["bones"])
+
+    @property
+    def trials(self) -> tuple[str, ...]:
+        return tuple(self._doc["trials"])
+
+    @property
+    def settings(self) -> dict:
+        """A copy of the free-form settings object."""
+        return copy.deepcopy(self._doc["settings"])
+
+    def path(self, stored: str) -> Path:
+        """Absolute path of a reference as stored in the manifest."""
+        return resolve_path(self._folder, stored)
+
+    def missing_files(self) -> list[tuple[str, Path]]:
+        """``(manifest location, path)`` of every referenced file that does not exist."""
+        out = []
+        d = self._doc
+        for n, c in d["calibrations"].items():
+            out += [(f"calibrations[{n!r}].cameras[{i}]", p) for i, p in enumerate(c["cameras"])]
+        for n, v in d["volumes"].items():
+            out.append((f"volumes[{n!r}].path", v["path"]))
+            if v.get("labels"):
+                out.append((f"volumes[{n!r}].labels", v["labels"]))
+        for n, t in d["trials"].items():
+            out += [(f"trials[{n!r}].views[{i}].path", v["path"]) for i, v in enumerate(t["views"])]
+        return [(w, self.path(p)) for w, p in out if not self.path(p).exists()]
+
+    # ------------------------------------------------------------------ editing
+    def _require_write(self) -> None:
+        if self._mode != "w":
+            state = "read-only" if self._mode == "r" else "no more"
+            raise StudyError(f'{self._folder}: study is open {state}; open it with mode="w" to change it')
+
+    def _commit(self, doc: dict) -> None:
+        write_manifest(self._folder, doc)
+        self._doc = doc
+
+    def _existing(self, path, what: str) -> str:
+        p = Path(path).expanduser()
+        if not p.is_absolute():
+            p = Path.cwd() / p
+        if not p.exists():
+            raise StudyError(f"{what}: referenced file {p} does not exist")
+        return store_path(self._folder, p)
+
+    def add_calibration(
+        self, name: str, cameras: Sequence[str | os.PathLike], *, pixel_size_mm: float | None = None
+    ) -> None:
+        """Reference one MayaCam (1.0/2.0) file per camera under ``name`` (files are read to check them)."""
+        from ..geometry.mayacam import read_mayacam
+
+        self._require_write()
+        _check_name(name, "name")
+        if isinstance(cameras, str | os.PathLike) or len(cameras) < 1:
+            raise ValueError(f"cameras: expected a sequence of camera file paths, got {cameras!r}")
+        stored = [self._existing(p, f"cameras[{i}]") for i, p in enumerate(cameras)]
+        for s in stored:
+            read_mayacam(self.path(s), pixel_size=pixel_size_mm)
+        doc = copy.deepcopy(self._doc)
+        doc["calibrations"][name] = {"format": "mayacam", "cameras": stored, "pixel_size_mm": pixel_size_mm}
+        self._commit(doc)
+
+    def add_volume(
+        self,
+        name: str,
+        path: str | os.PathLike,
+        *,
+        voxel_size_mm: Sequence[float] | None = None,
+        hu_offset: float = 0.0,
+        labels: str | os.PathLike | None = None,
+    ) -> None:
+        """Reference a CT (DICOM folder, NIfTI, NRRD, MHA, or TIFF stack + ``voxel_size_mm``)."""
+        self._require_write()
+        _check_name(name, "name")
+        stored = self._existing(path, "path")
+        if Path(stored).suffix.lower() in _TIFF and voxel_size_mm is None:
+            raise ValueError(
+                f"voxel_size_mm: required for the TIFF volume {path} (TIFF stores no voxel size)"
+            )
+        entry = {
+            "path": stored,
+            "voxel_size_mm": None if voxel_size_mm is None else [float(v) for v in voxel_size_mm],
+            "hu_offset": float(hu_offset),
+            "labels": None if labels is None else self._existing(labels, "labels"),
+        }
+        doc = copy.deepcopy(self._doc)
+        doc["volumes"][name] = entry
+        self._commit(doc)
+
+    def add_bone(self, name: str, *, volume: str, label: int | None = None, margin_mm: float = 5.0) -> None:
+        """A bone: the whole ``volume`` (``label=None``) or its label-map region plus ``margin_mm``."""
+        self._require_write()
+        _check_name(name, "name")
+        vol = self._doc["volumes"].get(volume)
+        if vol is None:
+            raise StudyError(f"volume: no volume named {volume!r} (have {list(self._doc['volumes'])})")
+        if label is not None and not vol.get("labels"):
+            raise StudyError(f"label: volume {volume!r} has no label map; add it with labels=...")
+        doc = copy.deepcopy(self._doc)
+        doc["bones"][name] = {"volume": volume, "label": label, "margin_mm": float(margin_mm)}
+        self._commit(doc)
+        self._volume_cache.pop(name, None)
+
+    def add_trial(
+        self,
+        name: str,
+        views: Sequence[str | os.PathLike],
+        *,
+        calibration: str,
+        frame_offset: int = 0,
+        bones: Sequence[str] = (),
+        bit_depth: int | None = None,
+    ) -> None:
+        """Reference one fluoro sequence per camera of ``calibration``.
+
+        The sequences are opened to check them: each must be readable, match its camera's image
+        size, and the views must hold the same number of frames (see
+        :class:`core.io.TwoViewSequence`).
+        """
+        from ..io.paired import TwoViewSequence
+        from ..io.sequences import open_sequence
+
+        self._require_write()
+        _check_name(name, "name")
+        cal = self._calibration_entry(calibration)
+        if isinstance(views, str | os.PathLike) or len(views) != len(cal["cameras"]):
+            n = len(cal["cameras"])
+            raise ValueError(f"views: expected {n} sequence paths (one per camera), got {views!r}")
+        for b in bones:
+            if b not in self._doc["bones"]:
+                raise StudyError(f"bones: no bone named {b!r} (have {list(self.bones)})")
+        stored = [self._existing(p, f"views[{i}]") for i, p in enumerate(views)]
+        rig = self.rig(calibration)
+        seqs = [open_sequence(self.path(s), bit_depth=bit_depth) for s in stored]
+        try:
+            for i, (seq, cam) in enumerate(zip(seqs, rig, strict=True)):
+                if seq.frame_shape != cam.image_shape:
+                    raise StudyError(
+                        f"views[{i}]: {seq.path} has frames of {seq.frame_shape[1]}x{seq.frame_shape[0]} "
+                        f"pixels but camera {cam.name!r} expects {cam.width}x{cam.height}"
+                    )
+            if len(seqs) == 2:
+                TwoViewSequence(seqs[0], seqs[1], offset=frame_offset)
+        finally:
+            for s in seqs:
+                s.close()
+        doc = copy.deepcopy(self._doc)
+        doc["trials"][name] = {
+            "calibration": calibration,
+            "views": [{"path": s, "bit_depth": bit_depth} for s in stored],
+            "frame_offset": int(frame_offset),
+            "bones": list(bones),
+        }
+        self._commit(doc)
+
+    def update_settings(self, **values: Any) -> None:
+        """Merge ``values`` (JSON-serialisable) into the settings object."""
+        self._require_write()
+        doc = copy.deepcopy(self._doc)
+        doc["settings"].update(values)
+        self._commit(doc)
+
+    # ------------------------------------------------------------------ loading
+    def _calibration_entry(self, calibration: str) -> dict:
+        cal = self._doc["calibrations"].get(calibration)
+        if cal is None:
+            have = list(self.calibrations)
+            raise StudyError(f"calibration: no calibration named {calibration!r} (have {have})")
+        return cal
+
+    def rig(self, calibration: str):
+        """The :class:`~core.geometry.Rig` of a calibration."""
+        from ..geometry.mayacam import rig_from_mayacam
+
+        cal = self._calibration_entry(calibration)
+        return rig_from_mayacam([self.path(p) for p in cal["cameras"]], pixel_size=cal.get("pixel_size_mm"))
+
+    def bone_volume(self, bone: str):
+        """The bone's :class:`~core.render.CTVolume` in HU (label region + margin when labelled)."""
+        from ..io.ct import read_ct, split_labels
+
+        if bone in self._volume_cache:
+            return self._volume_cache[bone]
+        b = self._doc["bones"].get(bone)
+        if b is None:
+            raise StudyError(f"bone: no bone named {bone!r} (have {list(self.bones)})")
+        v = self._doc["volumes"][b["volume"]]
+        vox = v.get("voxel_size_mm")
+        ct = read_ct(self.path(v["path"]), voxel_size=vox, hu_offset=v.get("hu_offset", 0.0))
+        if b.get("label") is None:
+            vol = ct
+        else:
+            labels = read_ct(self.path(v["labels"]), voxel_size=v.get("voxel_size_mm"), units="label")
+            vol = split_labels(ct, labels, {bone: b["label"]}, margin_mm=b.get("margin_mm", 5.0))[bone]
+        self._volume_cache[bone] = vol
+        return vol
+
+    def trial(self, name: str):
+        """The :class:`~core.study.Trial` called ``name``."""
+        from .trial import Trial
+
+        if name not in self._doc["trials"]:
+            raise StudyError(f"trial: no trial named {name!r} (have {list(self.trials)})")
+        if name not in self._trials:
+            self._trials[name] = Trial(self, name)
+        return self._trials[name]
+
+    # ------------------------------------------------------------------ reports
+    def _report_path(self, kind: str, name: str) -> Path:
+        _check_name(kind, "kind")
+        _check_name(name, "name")
+        return self._folder / "results" / "reports" / kind / f"{name}.json"
+
+    def write_report(self, kind: str, name: str, data: dict) -> Path:
+        """Save a JSON report (e.g. ``kind="calibration"``) atomically; NaN must be given as None."""
+        self._require_write()
+        if not isinstance(data, dict):
+            raise ValueError(f"data: expected a dict, got {type(data).__name__}")
+        p = self._report_path(kind, name)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(p, data)
+        return p
+
+    def read_report(self, kind: str, name: str) -> dict:
+        """A report written by :meth:`write_report`."""
+        import json
+
+        p = self._report_path(kind, name)
+        if not p.is_file():
+            raise StudyError(f"{p}: no {kind!r} report named {name!r}")
+        try:
+            return json.loads(p.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise StudyError(f"{p}: expected a JSON report ({exc})") from None
+
+    def report_names(self, kind: str) -> tuple[str, ...]:
+        folder = self._folder / "results" / "reports" / _check_name(kind, "kind")
+        return tuple(sorted(p.stem for p in folder.glob("*.json") if not re.match(r"^\.", p.name)))

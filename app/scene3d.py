@@ -96,7 +96,14 @@ class ScenePane(QtWidgets.QWidget):
                                              smooth_shading=True)
         self._update_frames()
         self._update_poses()
-        p.reset_camera()
+        QtCore.QTimer.singleShot(0, self._frame_all)
+
+    def _frame_all(self) -> None:
+        """Fit the whole rig (sources, detectors, bones) in view, seen from above the walkway."""
+        if self.plotter is not None:
+            self.plotter.view_vector((0.3, -1.0, 0.6), viewup=(0, 0, 1))
+            self.plotter.reset_camera()
+            self.plotter.render()
 
     @staticmethod
     def _bone_mesh(layer):

@@ -1,0 +1,40 @@
+"""Image similarity metrics for DRR-to-fluoroscope registration (thesis §6.2–6.3).
+
+* Numpy references (ground truth, any image size): :func:`similarity` by name, or the functions
+  :func:`sid`, :func:`lad`, :func:`ncc`, :func:`mutual_information`,
+  :func:`regional_mutual_information`, :func:`pattern_intensity`, :func:`gradient_difference`,
+  :func:`gradient_correlation`, :func:`gradient_information`, :func:`gradient_orientation`.
+  :data:`METRICS` lists names, families and ranges. Conventions (Ω, polarity, bad input):
+  :mod:`core.similarity.domain`.
+"""
+
+from .domain import domain, line_integral_image, sample_roi
+from .gradient import (
+    gradient_correlation,
+    gradient_difference,
+    gradient_information,
+    gradient_orientation,
+)
+from .information import joint_histogram, mutual_information, regional_mutual_information
+from .intensity import lad, ncc, pattern_intensity, sid
+from .metrics import METRICS, MetricInfo, similarity
+
+__all__ = [
+    "METRICS",
+    "MetricInfo",
+    "domain",
+    "gradient_correlation",
+    "gradient_difference",
+    "gradient_information",
+    "gradient_orientation",
+    "joint_histogram",
+    "lad",
+    "line_integral_image",
+    "mutual_information",
+    "ncc",
+    "pattern_intensity",
+    "regional_mutual_information",
+    "sample_roi",
+    "sid",
+    "similarity",
+]

@@ -180,6 +180,12 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         "core.synthetic.demo", "make_demo_study", needed_for="'talus demo'"
     )
     out = Path(args.out).expanduser()
+    cached = None if args.regenerate else _cached_demo(out, args)
+    if cached is not None:
+        print(f"{PROG} demo: using the demo study already in {out} (--regenerate to rebuild)",
+              file=sys.stderr)
+        print(_to_json(cached))
+        return _open_demo_gui(out, args)
     token = CancelToken()
     with _sigint_cancels(token, "demo"):
         try:
@@ -204,7 +210,40 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if token.is_set():
         print(f"{PROG} demo: cancelled; complete frames so far are in {out}", file=sys.stderr)
         return EXIT_CANCELLED
-    return EXIT_OK
+    return _open_demo_gui(out, args)
+
+
+def _cached_demo(out: Path, args: argparse.Namespace) -> dict | None:
+    """The summary of a complete demo study in ``out`` made with the same options, if any."""
+    try:
+        summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if summary.get("format") != "talus-synthetic-study" or summary.get("status") != "complete":
+        return None
+    for option, key in (("frames", "n_frames"), ("pixels", "pixels"), ("seed", "seed")):
+        value = getattr(args, option)
+        if value is not None and summary.get(key) != value:
+            return None
+    return summary
+
+
+def _open_demo_gui(out: Path, args: argparse.Namespace) -> int:
+    """Show the demo study in the window when asked to and a display is available."""
+    if args.no_gui:
+        return EXIT_OK
+    if sys.platform.startswith("linux") and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        print(f"{PROG} demo: no display; view the study with '{PROG} gui --demo {out}'",
+              file=sys.stderr)
+        return EXIT_OK
+    try:
+        run_gui = _load("app.main_window", "run_gui", needed_for="showing the demo",
+                        hint="Install the GUI extra: pip install 'talus-biplane[gui]'.")
+    except CliError as exc:
+        print(f"{PROG} demo: {exc}", file=sys.stderr)
+        return EXIT_OK
+    return int(run_gui(demo=out))
 
 
 def _bench_devices(choice: str) -> list[str]:
@@ -322,10 +361,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser(
         "demo",
-        help="write the built-in synthetic biplane study (known poses and cameras)",
+        help="write (once) and open the built-in synthetic biplane study",
         description="Write the built-in synthetic biplane study (rig, CT volumes, fluoroscope "
-        "frames rendered at known bone poses, ground truth) to --out and print its summary as "
-        "JSON. Ctrl-C cancels cleanly after the frame in progress.",
+        "frames rendered at known bone poses, ground truth) to --out, print its summary as "
+        "JSON and open it in the window when a display is available. A study already in --out "
+        "made with the same options is reused. Ctrl-C cancels cleanly after the frame in "
+        "progress.",
     )
     demo.add_argument("--out", default="demo_out", metavar="DIR", help="output folder")
     demo.add_argument("--frames", type=_int_at_least(1), metavar="N",
@@ -336,6 +377,11 @@ def build_parser() -> argparse.ArgumentParser:
                       help="random seed (default 0)")
     demo.add_argument("--device", choices=["cpu", "cuda"],
                       help="Warp device for the DRRs (default: cuda when present, else cpu)")
+    demo.add_argument("--no-gui", action="store_true",
+                      help="only write the study (the window opens when a display is available)")
+    demo.add_argument("--regenerate", action="store_true",
+                      help="rebuild the study even if --out already holds one made with the "
+                      "same options")
     demo.set_defaults(func=_cmd_demo)
 
     bench = sub.add_parser("bench", help="benchmarks that print JSON")

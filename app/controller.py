@@ -68,7 +68,7 @@ class Controller(QtCore.QObject):
 
     # ------------------------------------------------------------------ overlays
     def request_overlays(self, *, preview: bool, bones: list[int] | None = None) -> None:
-        if self.renderer is None:
+        if self.renderer is None or self.pool.closed:
             return
         bones = list(range(len(self.model.layers))) if bones is None else bones
         bones = [b for b in bones if self.model.layers[b].visible]
@@ -149,6 +149,10 @@ class Controller(QtCore.QObject):
             self._drag = None
             self.model.end_interaction()
             self._idle.start(0)
+
+    def shutdown(self) -> None:
+        """Stop timers (the window is closing)."""
+        self._idle.stop()
 
     # ------------------------------------------------------------------ keyboard posing
     def nudge(self, *, translate=(0.0, 0.0, 0.0), rotate=(0.0, 0.0, 0.0)) -> None:

@@ -295,6 +295,10 @@ class MainWindow(QtWidgets.QMainWindow):
         )
 
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:
+        if self.controller is not None:
+            self.controller.shutdown()
+        if self.timeline is not None:
+            self.timeline.set_playing(False)
         self.pool.shutdown(wait=False)
         self.scene.close_interactor()
         super().closeEvent(event)

@@ -113,6 +113,10 @@ class WorkerPool(QtCore.QObject):
             job.cancel()
 
     @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
     def busy(self) -> bool:
         return any(j.future is not None and not j.future.done() for j in self._latest.values())
 

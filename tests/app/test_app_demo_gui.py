@@ -146,3 +146,21 @@ def test_screenshot_of_the_demo(window, qtbot, tmp_path):
         path.parent.mkdir(parents=True, exist_ok=True)
         assert window.grab().save(str(path))
         assert path.stat().st_size > 10_000
+
+
+def test_python_api_drives_the_open_window(qtbot, demo_folder, tmp_path):
+    from app import Viewer
+
+    v = Viewer(demo_folder, device="cpu")
+    qtbot.addWidget(v.window)
+    try:
+        assert v.bones == ["tibia", "talus", "calcaneus", "metatarsal2"]
+        T = v.pose("talus")
+        T[0, 3] += 2.0
+        v.set_pose("talus", T)
+        np.testing.assert_allclose(v.window.model.pose("talus"), T)
+        v.frame = 2
+        assert v.window.timeline.slider.value() == 2
+        assert v.screenshot(tmp_path / "api.png").stat().st_size > 1000
+    finally:
+        v.close()

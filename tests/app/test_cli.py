@@ -137,7 +137,8 @@ def test_demo_reports_progress_and_json(monkeypatch, tmp_path, capsys):
                 "device": device}
 
     _fake_module(monkeypatch, "core.synthetic.demo", make_demo_study=make_demo_study)
-    argv = ["demo", "--out", str(tmp_path), "--frames", "3", "--pixels", "64", "--seed", "7"]
+    argv = ["demo", "--out", str(tmp_path), "--frames", "3", "--pixels", "64", "--seed", "7",
+            "--no-gui"]
     assert main(argv) == 0
     captured = capsys.readouterr()
     assert json.loads(captured.out) == {  # --device left out: the demo's default
@@ -164,7 +165,7 @@ def test_ctrl_c_cancels_the_demo_cleanly(monkeypatch, tmp_path, capsys):
 
     _fake_module(monkeypatch, "core.synthetic.demo", make_demo_study=make_demo_study)
     before = signal.getsignal(signal.SIGINT)
-    assert main(["demo", "--out", str(tmp_path), "--frames", "10"]) == EXIT_CANCELLED
+    assert main(["demo", "--out", str(tmp_path), "--frames", "10", "--no-gui"]) == EXIT_CANCELLED
     assert seen == [2]  # the job saw the request at its next check and stopped
     assert signal.getsignal(signal.SIGINT) is before  # handler restored
     captured = capsys.readouterr()
@@ -186,3 +187,24 @@ def test_sample_wrist_writes_preview_png(sample_data, tmp_path, capsys):
 def test_sample_wrist_names_a_missing_folder(tmp_path, capsys):
     assert main(["sample", "wrist", "--data", str(tmp_path / "nope")]) != 0
     assert "--data" in capsys.readouterr().err
+
+
+def test_demo_reuses_a_complete_study_with_the_same_options(monkeypatch, tmp_path, capsys):
+    calls = []
+
+    def make_demo_study(out_dir, *, progress, cancel, **options):
+        calls.append(options)
+        summary = {"format": "talus-synthetic-study", "status": "complete", "n_frames": 3,
+                   "pixels": 64, "seed": 0}
+        (Path(out_dir) / "summary.json").write_text(json.dumps(summary))
+        return summary
+
+    _fake_module(monkeypatch, "core.synthetic.demo", make_demo_study=make_demo_study)
+    argv = ["demo", "--out", str(tmp_path), "--frames", "3", "--pixels", "64", "--no-gui"]
+    assert main(argv) == 0
+    assert main(argv) == 0  # cached
+    assert len(calls) == 1
+    assert "using the demo study already in" in capsys.readouterr().err
+    assert main([*argv, "--pixels", "32"]) == 0  # other options: rebuilt
+    assert main([*argv, "--regenerate"]) == 0
+    assert len(calls) == 3

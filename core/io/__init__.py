@@ -5,6 +5,8 @@ expected; writers write atomically (:mod:`core.io.atomic`).
 """
 
 from .atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json
+from .cine import CineInfo, CineSequence, read_cine_info
+from .cine_writer import write_cine
 from .paired import TwoViewSequence
 from .sequences import (
     FrameSequence,
@@ -16,6 +18,8 @@ from .sequences import (
 from .tiff_volume import read_tiff_volume
 
 __all__ = [
+    "CineInfo",
+    "CineSequence",
     "FileLock",
     "FrameSequence",
     "LockedError",
@@ -27,5 +31,7 @@ __all__ = [
     "atomic_write",
     "atomic_write_json",
     "open_sequence",
+    "read_cine_info",
     "read_tiff_volume",
+    "write_cine",
 ]

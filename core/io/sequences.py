@@ -266,9 +266,12 @@ class MultipageTiffSequence(FrameSequence):
                 raise ValueError(
                     f"{self.path}: {self._n} frames announced but {len(self._tif.pages)} pages stored"
                 )
-        except BaseException:
+        except ValueError:
             self._tif.close()
             raise
+        except Exception as exc:  # damaged files make tifffile raise many types
+            self._tif.close()
+            raise ValueError(f"path: cannot read {self.path} as a TIFF stack ({exc!r})") from exc
         self._bit_depth = _check_bit_depth(bit_depth, self._dtype, self.path)
         self._check_range = self._bit_depth < self._dtype.itemsize * 8
 

@@ -4,6 +4,7 @@ Subcommands::
 
     talus demo  [--out DIR] [--frames N] [--pixels N] [--seed N] [--device cpu|cuda]
     talus bench drr [--device cpu|cuda|all] [--out FILE] [--quick]
+    talus bench interaction [--pixels N] [--device cpu|cuda] [--out FILE]
     talus gui   [--demo DIR]
     talus sample wrist [--data DIR] [--out PNG] [--device cpu|cuda]
     talus --version
@@ -304,6 +305,18 @@ def _cmd_sample_wrist(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_interaction(args: argparse.Namespace) -> int:
+    run = _load("app.benchmark", "run_interaction_benchmark",
+                needed_for="'talus bench interaction'")
+    with contextlib.redirect_stdout(sys.stderr):
+        result = run(pixels=args.pixels, device=args.device)
+    text = _to_json(result)
+    if args.out:
+        _write_atomically(Path(args.out), text)
+    print(text)
+    return EXIT_OK
+
+
 def _check_display() -> None:
     """Qt aborts the process when it finds no display: say so clearly instead."""
     if not sys.platform.startswith("linux") or os.environ.get("QT_QPA_PLATFORM"):
@@ -397,6 +410,16 @@ def build_parser() -> argparse.ArgumentParser:
     drr.add_argument("--out", metavar="FILE", help="also write the JSON to FILE")
     drr.add_argument("--quick", action="store_true", help="small sizes, few repeats")
     drr.set_defaults(func=_cmd_bench_drr)
+    inter = bench_sub.add_parser(
+        "interaction",
+        help="overlay update latency while dragging a bone",
+        description="Time preview and full-resolution overlay updates of one dragged bone on "
+        "the demo study and print JSON.",
+    )
+    inter.add_argument("--pixels", type=_int_at_least(16), default=512, metavar="N")
+    inter.add_argument("--device", choices=["cpu", "cuda"], default=None)
+    inter.add_argument("--out", metavar="FILE", help="also write the JSON to FILE")
+    inter.set_defaults(func=_cmd_bench_interaction)
 
     sample = sub.add_parser("sample", help="previews of real sample data")
     sample_sub = sample.add_subparsers(dest="sample", metavar="SAMPLE", required=True)

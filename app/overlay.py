@@ -50,13 +50,13 @@ class OverlayRenderer:
     device : str, optional
         Warp device (default CUDA when present).
     preview_scale : float
-        Full-resolution pixels per preview ray (default 4).
+        Full-resolution pixels per preview ray (default 2).
     transfer : HUTransfer, optional
         Default: bone only (HU >= 150).
     """
 
     def __init__(self, rig: Rig, volumes: Sequence[CTVolume], *, device: str | None = None,
-                 preview_scale: float = 4.0, transfer: HUTransfer | None = None) -> None:
+                 preview_scale: float = 2.0, transfer: HUTransfer | None = None) -> None:
         tr = transfer or HUTransfer(threshold=150.0)
         step = float(min(v.spacing.min() for v in volumes))
         self.full = DRRRenderer(rig, volumes, transfer=tr, device=device)

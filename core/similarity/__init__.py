@@ -6,8 +6,11 @@
   :func:`gradient_correlation`, :func:`gradient_information`, :func:`gradient_orientation`.
   :data:`METRICS` lists names, families and ranges. Conventions (Ω, polarity, bad input):
   :mod:`core.similarity.domain`.
+* Batched on the device (Warp, CPU or CUDA): :class:`BatchedMetric` scores a whole
+  :class:`core.render.DRRBatch` against fixed fluoroscope ROIs, one number per pose.
 """
 
+from .batched import BATCHED_KINDS, BatchedMetric, BatchedScores
 from .domain import domain, line_integral_image, sample_roi
 from .gradient import (
     gradient_correlation,
@@ -20,7 +23,10 @@ from .intensity import lad, ncc, pattern_intensity, sid
 from .metrics import METRICS, MetricInfo, similarity
 
 __all__ = [
+    "BATCHED_KINDS",
     "METRICS",
+    "BatchedMetric",
+    "BatchedScores",
     "MetricInfo",
     "domain",
     "gradient_correlation",

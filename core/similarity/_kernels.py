@@ -1,0 +1,484 @@
+"""Warp kernels of :class:`core.similarity.BatchedMetric` (see :mod:`core.similarity.batched`).
+
+Layout: ``drr`` is the renderer's ``(n_items, H, W)`` float32 array; item ``k`` is compared with
+reference ``ref = k % n_refs`` (``n_refs`` = views × bones: items are ordered (pose, view,
+bone)), whose ROI is ``ref_hw[ref] = (h, w)`` (``h <= H``, ``w <= W``). Per reference the host
+uploads the fluoroscope ROI (``fluoro``), its gradient (``fgrad``, vec2 ``(E_u, E_v)``) and its
+mask (``fmask``, 1 = usable), zero-padded to a common size.
+
+Pixel loops are *tiled*: a launch of ``dim = (n_items, n_chunks)`` blocks; each block walks
+``chunk`` consecutive pixels of one item with a stride of the block size, keeps per-thread
+partial sums in registers, reduces them across the block (``wp.tile_sum`` / ``tile_min`` /
+``tile_max``) and adds one value per block to the item's accumulator (float64 atomics). On the
+CPU Warp runs one thread per block, which then walks the whole chunk. NaN DRR pixels read as 0
+(outside Ω; 0 in gradient stencils).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+vec6f = wp.types.vector(length=6, dtype=wp.float32)
+
+#: gradient magnitudes at or below this (DRR: absolute; fluoroscope: relative, host side) are 0
+ZERO_GRADIENT = wp.constant(1.0e-6)
+BIG = wp.constant(1.0e30)
+
+
+@wp.func
+def _val(img: wp.array3d(dtype=wp.float32), k: int, r: int, c: int) -> float:
+    x = img[k, r, c]
+    if wp.isnan(x):
+        x = 0.0
+    return x
+
+
+@wp.func
+def _in_omega(drr: wp.array3d(dtype=wp.float32), fmask: wp.array3d(dtype=wp.uint8), k: int, ref: int,
+              r: int, c: int, h: int, w: int, thr: float, dil: int) -> bool:
+    inside = bool(False)
+    if fmask[ref, r, c] != wp.uint8(0):
+        if dil == 0:
+            inside = drr[k, r, c] > thr
+        else:
+            for rr in range(wp.max(r - dil, 0), wp.min(r + dil, h - 1) + 1):
+                for cc in range(wp.max(c - dil, 0), wp.min(c + dil, w - 1) + 1):
+                    if drr[k, rr, cc] > thr:
+                        inside = True
+    return inside
+
+
+@wp.func
+def _grad(img: wp.array3d(dtype=wp.float32), k: int, r: int, c: int, h: int, w: int,
+          ku: wp.mat33f, kv: wp.mat33f) -> wp.vec2f:
+    """3x3 correlation gradient with replicated borders of the (h, w) ROI."""
+    gu = float(0.0)
+    gv = float(0.0)
+    for a in range(3):
+        rr = wp.clamp(r + a - 1, 0, h - 1)
+        for b in range(3):
+            cc = wp.clamp(c + b - 1, 0, w - 1)
+            x = _val(img, k, rr, cc)
+            gu += ku[a, b] * x
+            gv += kv[a, b] * x
+    g = wp.vec2f(gu, gv)
+    if wp.length(g) <= ZERO_GRADIENT:
+        g = wp.vec2f(0.0, 0.0)
+    return g
+
+
+@wp.func
+def _cos2(gd: wp.vec2f, gf: wp.vec2f) -> float:
+    den = wp.length_sq(gd) * wp.length_sq(gf)
+    c2 = float(0.0)
+    if den > 0.0:
+        d = wp.dot(gd, gf)
+        c2 = wp.min(d * d / den, 1.0)
+    return c2
+
+
+@wp.func
+def _pair(mode: int, drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
+          fgrad: wp.array3d(dtype=wp.vec2f), fshift: float, k: int, ref: int, r: int, c: int,
+          h: int, w: int, ku: wp.mat33f, kv: wp.mat33f) -> wp.vec2f:
+    """(a, b): intensities (mode 0; F shifted by its ROI mean) or gradient magnitudes (mode 1)."""
+    out = wp.vec2f(0.0, 0.0)
+    if mode == 0:
+        out = wp.vec2f(_val(drr, k, r, c), fluoro[ref, r, c] - fshift)
+    else:
+        out = wp.vec2f(wp.length(_grad(drr, k, r, c, h, w, ku, kv)), wp.length(fgrad[ref, r, c]))
+    return out
+
+
+@wp.kernel
+def stats_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
+                 fgrad: wp.array3d(dtype=wp.vec2f), fmask: wp.array3d(dtype=wp.uint8),
+                 ref_hw: wp.array(dtype=wp.vec2i), fshift: wp.array(dtype=wp.float32), n_refs: int,
+                 thr: float, dil: int, mode: int, ku: wp.mat33f, kv: wp.mat33f, chunk: int,
+                 acc: wp.array2d(dtype=wp.float64)):
+    """acc[k] += (N, Σa, Σb, Σa², Σb², Σab) over Ω."""
+    k, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    W = drr.shape[2]
+    start = ch * chunk
+    stop = wp.min(drr.shape[1] * W, start + chunk)
+    s = vec6f()
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        if r < h and c < w:
+            if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+                ab = _pair(mode, drr, fluoro, fgrad, fshift[ref], k, ref, r, c, h, w, ku, kv)
+                a = ab[0]
+                b = ab[1]
+                s += vec6f(1.0, a, b, a * a, b * b, a * b)
+    t = wp.tile_sum(wp.tile(s, preserve_type=True))
+    if lane == 0:
+        x = t[0]
+        for m in range(6):
+            wp.atomic_add(acc, k, m, wp.float64(x[m]))
+
+
+@wp.kernel
+def range_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
+                 fgrad: wp.array3d(dtype=wp.vec2f), fmask: wp.array3d(dtype=wp.uint8),
+                 ref_hw: wp.array(dtype=wp.vec2i), fshift: wp.array(dtype=wp.float32), n_refs: int,
+                 thr: float, dil: int, mode: int, ku: wp.mat33f, kv: wp.mat33f, chunk: int,
+                 rng: wp.array2d(dtype=wp.float32), count: wp.array(dtype=wp.float64)):
+    """rng[k] = (min a, max a, min b, max b) over Ω (initialised to ±BIG); count[k] += |Ω|."""
+    k, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    W = drr.shape[2]
+    start = ch * chunk
+    stop = wp.min(drr.shape[1] * W, start + chunk)
+    amin = float(BIG)
+    amax = float(-BIG)
+    bmin = float(BIG)
+    bmax = float(-BIG)
+    n = float(0.0)
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        if r < h and c < w:
+            if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+                ab = _pair(mode, drr, fluoro, fgrad, fshift[ref], k, ref, r, c, h, w, ku, kv)
+                amin = wp.min(amin, ab[0])
+                amax = wp.max(amax, ab[0])
+                bmin = wp.min(bmin, ab[1])
+                bmax = wp.max(bmax, ab[1])
+                n += 1.0
+    t0 = wp.tile_min(wp.tile(amin))
+    t1 = wp.tile_max(wp.tile(amax))
+    t2 = wp.tile_min(wp.tile(bmin))
+    t3 = wp.tile_max(wp.tile(bmax))
+    tn = wp.tile_sum(wp.tile(n))
+    if lane == 0:
+        wp.atomic_min(rng, k, 0, t0[0])
+        wp.atomic_max(rng, k, 1, t1[0])
+        wp.atomic_min(rng, k, 2, t2[0])
+        wp.atomic_max(rng, k, 3, t3[0])
+        wp.atomic_add(count, k, wp.float64(tn[0]))
+
+
+@wp.kernel
+def init_range_kernel(rng: wp.array2d(dtype=wp.float32)):
+    k = wp.tid()
+    rng[k, 0] = BIG
+    rng[k, 1] = -BIG
+    rng[k, 2] = BIG
+    rng[k, 3] = -BIG
+
+
+@wp.kernel
+def gi_kernel(drr: wp.array3d(dtype=wp.float32), fgrad: wp.array3d(dtype=wp.vec2f),
+              fmask: wp.array3d(dtype=wp.uint8), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+              thr: float, dil: int, ku: wp.mat33f, kv: wp.mat33f, chunk: int,
+              stats: wp.array2d(dtype=wp.float64), acc: wp.array2d(dtype=wp.float64)):
+    """acc[k, 0] += Σ_Ω cos(2Δ) min(|g_D| / m_D, |g_F| / m_F), means from the stats pass."""
+    k, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    W = drr.shape[2]
+    start = ch * chunk
+    stop = wp.min(drr.shape[1] * W, start + chunk)
+    md = float(stats[k, 1])
+    mf = float(stats[k, 2])
+    s = float(0.0)
+    if md > 0.0 and mf > 0.0:
+        nn = float(stats[k, 0])
+        md = md / nn
+        mf = mf / nn
+        for p in range(start + lane, stop, bd):
+            r = p // W
+            c = p - r * W
+            if r < h and c < w:
+                if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+                    gd = _grad(drr, k, r, c, h, w, ku, kv)
+                    gf = fgrad[ref, r, c]
+                    m = wp.min(wp.length(gd) / md, wp.length(gf) / mf)
+                    s += (2.0 * _cos2(gd, gf) - 1.0) * m
+    t = wp.tile_sum(wp.tile(s))
+    if lane == 0:
+        wp.atomic_add(acc, k, 0, wp.float64(t[0]))
+
+
+@wp.kernel
+def magnitude_hist_kernel(drr: wp.array3d(dtype=wp.float32), fgrad: wp.array3d(dtype=wp.vec2f),
+                          fmask: wp.array3d(dtype=wp.uint8), ref_hw: wp.array(dtype=wp.vec2i),
+                          n_refs: int, thr: float, dil: int, ku: wp.mat33f, kv: wp.mat33f,
+                          rng: wp.array2d(dtype=wp.float32), hist: wp.array3d(dtype=wp.int32)):
+    """Histograms over [0, max] of |g_D| (hist[k, 0]) and |g_F| (hist[k, 1]) on Ω; one thread
+    per pixel (dim = (n_items, H, W))."""
+    k, r, c = wp.tid()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    if r < h and c < w:
+        if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+            nb = hist.shape[2]
+            a = wp.length(_grad(drr, k, r, c, h, w, ku, kv))
+            b = wp.length(fgrad[ref, r, c])
+            if rng[k, 1] > 0.0:
+                wp.atomic_add(hist, k, 0, wp.clamp(int(a / rng[k, 1] * float(nb)), 0, nb - 1), 1)
+            if rng[k, 3] > 0.0:
+                wp.atomic_add(hist, k, 1, wp.clamp(int(b / rng[k, 3] * float(nb)), 0, nb - 1), 1)
+
+
+@wp.kernel
+def median_kernel(hist: wp.array3d(dtype=wp.int32), rng: wp.array2d(dtype=wp.float32),
+                  count: wp.array(dtype=wp.float64), med: wp.array2d(dtype=wp.float32)):
+    """Median of each histogram (linear within the bin holding the middle); dim = (n_items, 2)."""
+    k, i = wp.tid()
+    nb = hist.shape[2]
+    top = rng[k, 1 + 2 * i]
+    target = float(count[k]) * 0.5
+    cum = float(0.0)
+    out = float(0.0)
+    done = int(0)
+    if top > 0.0:
+        for j in range(nb):
+            cnt = float(hist[k, i, j])
+            if done == 0 and cum + cnt >= target and cnt > 0.0:
+                out = (float(j) + (target - cum) / cnt) * top / float(nb)
+                done = 1
+            cum += cnt
+    med[k, i] = out
+
+
+@wp.kernel
+def go_kernel(drr: wp.array3d(dtype=wp.float32), fgrad: wp.array3d(dtype=wp.vec2f),
+              fmask: wp.array3d(dtype=wp.uint8), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+              thr: float, dil: int, ku: wp.mat33f, kv: wp.mat33f, chunk: int, go_mean: float,
+              med: wp.array2d(dtype=wp.float32), acc: wp.array2d(dtype=wp.float64)):
+    """acc[k] += (|S|, Σ_S centred log weight) with S = Ω ∩ above-median magnitudes in both."""
+    k, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    W = drr.shape[2]
+    start = ch * chunk
+    stop = wp.min(drr.shape[1] * W, start + chunk)
+    td = med[k, 0]
+    tf = med[k, 1]
+    s = wp.vec2f(0.0, 0.0)
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        if r < h and c < w:
+            if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+                gd = _grad(drr, k, r, c, h, w, ku, kv)
+                gf = fgrad[ref, r, c]
+                if wp.length(gd) > td and wp.length(gf) > tf:
+                    delta = wp.acos(wp.sqrt(_cos2(gd, gf)))
+                    wgt = (2.0 - wp.log(1.0 + delta)) * 0.5
+                    s += wp.vec2f(1.0, (wgt - go_mean) / (1.0 - go_mean))
+    t = wp.tile_sum(wp.tile(s, preserve_type=True))
+    if lane == 0:
+        x = t[0]
+        wp.atomic_add(acc, k, 0, wp.float64(x[0]))
+        wp.atomic_add(acc, k, 1, wp.float64(x[1]))
+
+
+@wp.func
+def _bin(x: float, lo: float, hi: float, nb: int, linear: int) -> wp.vec2f:
+    """(lower bin, weight of the next bin) as in core.similarity.information._bin_weights."""
+    i0 = float(0.0)
+    f = float(0.0)
+    if hi > lo:
+        t = (x - lo) / (hi - lo) * float(nb - 1)
+        if linear == 0:
+            i0 = wp.clamp(wp.floor(t + 0.5), 0.0, float(nb - 1))
+        else:
+            i0 = wp.clamp(wp.floor(t), 0.0, float(nb - 2))
+            f = wp.clamp(t - i0, 0.0, 1.0)
+    return wp.vec2f(i0, f)
+
+
+@wp.kernel
+def joint_hist_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
+                      fmask: wp.array3d(dtype=wp.uint8), ref_hw: wp.array(dtype=wp.vec2i),
+                      fshift: wp.array(dtype=wp.float32), n_refs: int, thr: float, dil: int,
+                      linear: int, rng: wp.array2d(dtype=wp.float32), joint: wp.array3d(dtype=wp.float32),
+                      selfd: wp.array3d(dtype=wp.float32), selff: wp.array3d(dtype=wp.float32)):
+    """Partial-volume joint histogram of (D, F) on Ω and the two self-joint band histograms
+    (``self[k, 0]`` diagonal, ``self[k, 1]`` first off-diagonal); dim = (n_items, H, W)."""
+    k, r, c = wp.tid()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    if r < h and c < w:
+        if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+            nb = selfd.shape[2]
+            bd = _bin(_val(drr, k, r, c), rng[k, 0], rng[k, 1], nb, linear)
+            bf = _bin(fluoro[ref, r, c] - fshift[ref], rng[k, 2], rng[k, 3], nb, linear)
+            ia = int(bd[0])
+            ib = int(bf[0])
+            fa = bd[1]
+            fb = bf[1]
+            ja = wp.min(ia + 1, nb - 1)
+            jb = wp.min(ib + 1, nb - 1)
+            wp.atomic_add(joint, k, ia, ib, (1.0 - fa) * (1.0 - fb))
+            wp.atomic_add(joint, k, ia, jb, (1.0 - fa) * fb)
+            wp.atomic_add(joint, k, ja, ib, fa * (1.0 - fb))
+            wp.atomic_add(joint, k, ja, jb, fa * fb)
+            wp.atomic_add(selfd, k, 0, ia, (1.0 - fa) * (1.0 - fa))
+            wp.atomic_add(selfd, k, 1, ia, fa * (1.0 - fa))
+            wp.atomic_add(selfd, k, 0, ja, fa * fa)
+            wp.atomic_add(selff, k, 0, ib, (1.0 - fb) * (1.0 - fb))
+            wp.atomic_add(selff, k, 1, ib, fb * (1.0 - fb))
+            wp.atomic_add(selff, k, 0, jb, fb * fb)
+
+
+@wp.func
+def _plogp(x: float, n: float) -> float:
+    out = float(0.0)
+    if x > 0.0:
+        p = x / n
+        out = -p * wp.log(p)
+    return out
+
+
+@wp.func
+def _self_entropies(band: wp.array3d(dtype=wp.float32), k: int, n: float) -> wp.vec2f:
+    """(H_X, H_XX) from a self-joint band histogram."""
+    nb = band.shape[2]
+    hx = float(0.0)
+    hxx = float(0.0)
+    for i in range(nb):
+        d = band[k, 0, i]
+        o = band[k, 1, i]
+        m = d + o
+        if i > 0:
+            m += band[k, 1, i - 1]
+        hx += _plogp(m, n)
+        hxx += _plogp(d, n) + 2.0 * _plogp(o, n)
+    return wp.vec2f(hx, hxx)
+
+
+@wp.kernel
+def entropy_kernel(joint: wp.array3d(dtype=wp.float32), selfd: wp.array3d(dtype=wp.float32),
+                   selff: wp.array3d(dtype=wp.float32), count: wp.array(dtype=wp.float64),
+                   ent: wp.array2d(dtype=wp.float64)):
+    """ent[k] = (H_D, H_F, H_DF, H_DD, H_FF) in nats."""
+    k = wp.tid()
+    n = float(count[k])
+    if n > 0.0:
+        nb = joint.shape[1]
+        hab = float(0.0)
+        for i in range(nb):
+            for j in range(nb):
+                hab += _plogp(joint[k, i, j], n)
+        sd = _self_entropies(selfd, k, n)
+        sf = _self_entropies(selff, k, n)
+        ent[k, 0] = wp.float64(sd[0])
+        ent[k, 1] = wp.float64(sf[0])
+        ent[k, 2] = wp.float64(hab)
+        ent[k, 3] = wp.float64(sd[1])
+        ent[k, 4] = wp.float64(sf[1])
+    else:
+        for m in range(5):
+            ent[k, m] = wp.float64(0.0)
+
+
+# kinds of the finalize kernel
+K_NCC, K_SID, K_GC, K_GD, K_GI, K_GO, K_MI, K_NMI = 0, 1, 2, 3, 4, 5, 6, 7
+
+
+@wp.func
+def _pearson(a: wp.array2d(dtype=wp.float64), k: int) -> wp.float64:
+    n = a[k, 0]
+    out = wp.float64(0.0)
+    if n > wp.float64(0.0):
+        saa = a[k, 3] - a[k, 1] * a[k, 1] / n
+        sbb = a[k, 4] - a[k, 2] * a[k, 2] / n
+        sab = a[k, 5] - a[k, 1] * a[k, 2] / n
+        den = wp.sqrt(saa * sbb)
+        if saa > wp.float64(0.0) and sbb > wp.float64(0.0) and den > wp.float64(0.0):
+            out = sab / den
+    return out
+
+
+@wp.func
+def _concordance(a: wp.array2d(dtype=wp.float64), k: int, shift: wp.float64) -> wp.float64:
+    n = a[k, 0]
+    out = wp.float64(0.0)
+    if n > wp.float64(0.0):
+        ma = a[k, 1] / n
+        mb = a[k, 2] / n + shift
+        saa = wp.max(a[k, 3] - a[k, 1] * a[k, 1] / n, wp.float64(0.0))
+        sbb = wp.max(a[k, 4] - a[k, 2] * a[k, 2] / n, wp.float64(0.0))
+        sab = a[k, 5] - a[k, 1] * a[k, 2] / n
+        den = saa + sbb + n * (ma - mb) * (ma - mb)
+        if den > wp.float64(0.0):
+            out = wp.float64(2.0) * sab / den
+    return out
+
+
+@wp.func
+def _mi(e: wp.array2d(dtype=wp.float64), k: int, normalized: int) -> wp.float64:
+    ha = e[k, 0]
+    hb = e[k, 1]
+    hab = e[k, 2]
+    haa = e[k, 3]
+    hbb = e[k, 4]
+    zero = wp.float64(0.0)
+    two = wp.float64(2.0)
+    out = zero
+    if ha > zero and hb > zero and hab > zero and haa > zero and hbb > zero:
+        if normalized == 1:
+            da = two * ha / haa - wp.float64(1.0)
+            db = two * hb / hbb - wp.float64(1.0)
+            if da > zero and db > zero:
+                out = wp.max((ha + hb) / hab - wp.float64(1.0), zero) / wp.sqrt(da * db)
+        else:
+            sa = two * ha - haa
+            sb = two * hb - hbb
+            if sa > zero and sb > zero:
+                out = wp.max(ha + hb - hab, zero) / wp.sqrt(sa * sb)
+    return out
+
+
+@wp.kernel
+def finalize_kernel(kind: int, n_per_pose: int, stats: wp.array2d(dtype=wp.float64),
+                    extra: wp.array2d(dtype=wp.float64), count: wp.array(dtype=wp.float64),
+                    fshift: wp.array(dtype=wp.float32),
+                    n_refs: int, n_lb_fraction: float, weights: wp.array(dtype=wp.float32),
+                    out: wp.array(dtype=wp.float32)):
+    """Per pose b: item scores to out[B + k], their weighted mean to out[b]."""
+    b = wp.tid()
+    n_pose = out.shape[0] // (n_per_pose + 1)
+    total = float(0.0)
+    wsum = float(0.0)
+    for j in range(n_per_pose):
+        k = b * n_per_pose + j
+        s = wp.float64(0.0)
+        if kind == K_NCC or kind == K_GC:
+            s = _pearson(stats, k)
+        elif kind == K_SID:
+            s = _concordance(stats, k, wp.float64(fshift[k % n_refs]))
+        elif kind == K_GD:
+            s = _concordance(stats, k, wp.float64(0.0))
+        elif kind == K_GI:
+            if stats[k, 0] > wp.float64(0.0):
+                s = extra[k, 0] / stats[k, 0]
+        elif kind == K_GO:
+            nsel = extra[k, 0]
+            if nsel > wp.float64(0.0):
+                s = extra[k, 1] / wp.max(nsel, wp.float64(n_lb_fraction) * count[k])
+        elif kind == K_MI:
+            s = _mi(extra, k, 0)
+        else:
+            s = _mi(extra, k, 1)
+        out[n_pose + k] = float(s)
+        total += weights[j] * float(s)
+        wsum += weights[j]
+    out[b] = total / wsum

@@ -65,8 +65,10 @@ class ScenePane(QtWidgets.QWidget):
     def set_model(self, model) -> None:
         self.model = model
         model.current_frame_changed.connect(lambda f: self._update_frames())
+        model.current_frame_changed.connect(lambda f: self._update_poses())
         model.pose_changed.connect(lambda b, f: self._update_poses())
         model.layer_property_changed.connect(lambda i, name: self._update_poses())
+        model.selection_changed.connect(self.manipulate)
         if self.plotter is not None:
             self._populate()
 
@@ -97,6 +99,39 @@ class ScenePane(QtWidgets.QWidget):
         self._update_frames()
         self._update_poses()
         QtCore.QTimer.singleShot(0, self._frame_all)
+        self.manipulate(m.selected)
+
+    # ------------------------------------------------------------------ 3D manipulator
+    def manipulate(self, bone: int) -> None:
+        """Attach the translate/rotate widget to a bone (arrows move, rings turn it about its
+        centroid); each drag is one undoable pose edit."""
+        widget = getattr(self, "_widget", None)
+        if widget is not None:
+            widget.remove()
+            self._widget = None
+        if self.plotter is None or bone < 0 or bone not in getattr(self, "_actors", {}):
+            return
+        layer = self.model.layers[bone]
+        if layer.locked:
+            return
+        T = self.model.pose(bone)
+        centre = T[:3, :3] @ layer.centroid + T[:3, 3]
+        self._drag_id = object()
+        self._widget = self.plotter.add_affine_transform_widget(
+            self._actors[bone], origin=tuple(float(x) for x in centre), scale=0.05,
+            interact_callback=lambda M: self.widget_moved(bone, M, final=False),
+            release_callback=lambda M: self.widget_moved(bone, M, final=True),
+        )
+
+    def widget_moved(self, bone: int, matrix, *, final: bool) -> None:
+        """The widget's callbacks: the actor's new matrix is the bone's new pose."""
+        T = np.array(matrix, dtype=float)
+        if np.allclose(T, self.model.pose(bone)):
+            return
+        self.model.set_pose(bone, T, merge=self._drag_id, label="3D drag")
+        if final:
+            self.model.end_interaction()
+            QtCore.QTimer.singleShot(0, lambda: self.manipulate(self.model.selected))
 
     def _frame_all(self) -> None:
         """Fit the whole rig (sources, detectors, bones) in view, seen from above the walkway."""
@@ -155,6 +190,10 @@ class ScenePane(QtWidgets.QWidget):
         self.plotter.render()
 
     def close_interactor(self) -> None:
+        widget = getattr(self, "_widget", None)
+        if widget is not None:
+            widget.remove()
+            self._widget = None
         if self.plotter is not None:
             plotter, self.plotter = self.plotter, None
             plotter.close()

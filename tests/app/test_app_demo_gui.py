@@ -164,3 +164,24 @@ def test_python_api_drives_the_open_window(qtbot, demo_folder, tmp_path):
         assert v.screenshot(tmp_path / "api.png").stat().st_size > 1000
     finally:
         v.close()
+
+
+def test_3d_manipulator_edits_the_pose_through_the_widget_callbacks(window, qtbot):
+    window.scene.ensure_interactor()
+    qtbot.waitUntil(lambda: getattr(window.scene, "_widget", None) is not None, timeout=10_000)
+    m = window.model
+    m.select("talus")
+    qtbot.waitUntil(lambda: window.scene._widget is not None, timeout=5_000)
+    i = m.selected
+    T0 = m.pose(i)
+    M = T0.copy()
+    M[:3, 3] += [3.0, 0.0, -2.0]  # what the arrows do while dragging
+    window.scene.widget_moved(i, M * 1.0, final=False)
+    M2 = M.copy()
+    M2[:3, 3] += [1.0, 1.0, 0.0]
+    window.scene.widget_moved(i, M2, final=True)
+    np.testing.assert_allclose(m.pose(i), M2)
+    actor = window.scene._actors[i]
+    np.testing.assert_allclose(np.asarray(actor.user_matrix), M2)
+    m.undo()  # the whole 3D drag is one step
+    np.testing.assert_allclose(m.pose(i), T0)

@@ -7,6 +7,7 @@ expected; writers write atomically (:mod:`core.io.atomic`).
 from .atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json
 from .cine import CineInfo, CineSequence, read_cine_info
 from .cine_writer import write_cine
+from .ct import DicomSeriesInfo, inspect_dicom_folder, read_ct, split_labels
 from .paired import TwoViewSequence
 from .sequences import (
     FrameSequence,
@@ -20,6 +21,7 @@ from .tiff_volume import read_tiff_volume
 __all__ = [
     "CineInfo",
     "CineSequence",
+    "DicomSeriesInfo",
     "FileLock",
     "FrameSequence",
     "LockedError",
@@ -30,8 +32,11 @@ __all__ = [
     "atomic_open",
     "atomic_write",
     "atomic_write_json",
+    "inspect_dicom_folder",
     "open_sequence",
     "read_cine_info",
+    "read_ct",
     "read_tiff_volume",
+    "split_labels",
     "write_cine",
 ]

@@ -5,6 +5,19 @@ expected; writers write atomically (:mod:`core.io.atomic`).
 """
 
 from .atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json
+from .autoscoper import (
+    AutoscoperFilter,
+    AutoscoperTrial,
+    AutoscoperViewSettings,
+    AutoscoperVolume,
+    matrix_to_xyzypr,
+    read_autoscoper_cfg,
+    read_tra,
+    read_vie,
+    write_autoscoper_cfg,
+    write_tra,
+    xyzypr_to_matrix,
+)
 from .cine import CineInfo, CineSequence, read_cine_info
 from .cine_writer import write_cine
 from .ct import DicomSeriesInfo, inspect_dicom_folder, read_ct, split_labels
@@ -17,8 +30,22 @@ from .sequences import (
     open_sequence,
 )
 from .tiff_volume import read_tiff_volume
+from .xmalab import (
+    dlt_csv_from_rig,
+    read_dlt_csv,
+    read_points_2d,
+    read_points_3d,
+    rig_from_dlt_csv,
+    write_dlt_csv,
+    write_points_2d,
+    write_points_3d,
+)
 
 __all__ = [
+    "AutoscoperFilter",
+    "AutoscoperTrial",
+    "AutoscoperViewSettings",
+    "AutoscoperVolume",
     "CineInfo",
     "CineSequence",
     "DicomSeriesInfo",
@@ -32,11 +59,26 @@ __all__ = [
     "atomic_open",
     "atomic_write",
     "atomic_write_json",
+    "dlt_csv_from_rig",
     "inspect_dicom_folder",
+    "matrix_to_xyzypr",
     "open_sequence",
+    "read_autoscoper_cfg",
     "read_cine_info",
     "read_ct",
+    "read_dlt_csv",
+    "read_points_2d",
+    "read_points_3d",
     "read_tiff_volume",
+    "read_tra",
+    "read_vie",
+    "rig_from_dlt_csv",
     "split_labels",
+    "write_autoscoper_cfg",
     "write_cine",
+    "write_dlt_csv",
+    "write_points_2d",
+    "write_points_3d",
+    "write_tra",
+    "xyzypr_to_matrix",
 ]

@@ -50,8 +50,12 @@ def _need(cond: bool, source: str, msg: str) -> None:
 
 
 def _v1_to_v2(doc: dict, source: str) -> dict:
+    def is_str(x) -> bool:
+        return isinstance(x, str) and x != ""
+
     cams = doc.get("cameras")
-    _need(isinstance(cams, list) and len(cams) >= 1, source, "cameras: expected a list of MayaCam files")
+    _need(isinstance(cams, list) and len(cams) >= 1 and all(is_str(c) for c in cams), source,
+          "cameras: expected a list of MayaCam file paths")
     bones_in = doc.get("bones", [])
     trials_in = doc.get("trials", [])
     _need(isinstance(bones_in, list), source, "bones: expected a list")
@@ -60,7 +64,8 @@ def _v1_to_v2(doc: dict, source: str) -> dict:
     by_path: dict[str, str] = {}
     bones: dict[str, dict] = {}
     for i, b in enumerate(bones_in):
-        _need(isinstance(b, dict) and "name" in b and "ct" in b, source, f"bones[{i}]: expected name and ct")
+        ok = isinstance(b, dict) and is_str(b.get("name")) and is_str(b.get("ct"))
+        _need(ok, source, f"bones[{i}]: expected name and ct (strings)")
         path = b["ct"]
         if path not in by_path:
             vname = f"ct{len(by_path) + 1}"
@@ -72,7 +77,7 @@ def _v1_to_v2(doc: dict, source: str) -> dict:
         bones[b["name"]] = {"volume": by_path[path], "label": b.get("label"), "margin_mm": 5.0}
     trials: dict[str, dict] = {}
     for i, t in enumerate(trials_in):
-        ok = isinstance(t, dict) and "name" in t and "views" in t
+        ok = isinstance(t, dict) and is_str(t.get("name")) and isinstance(t.get("views"), list)
         _need(ok, source, f"trials[{i}]: expected name and views")
         trials[t["name"]] = {
             "calibration": "default",
@@ -130,5 +135,8 @@ def migrate(doc: Any, *, source: str = "study.json") -> tuple[dict, int]:
         )
     out = copy.deepcopy(doc)
     for v in range(version, SCHEMA_VERSION):
-        out = _STEPS[v](out, source)
+        try:
+            out = _STEPS[v](out, source)
+        except (TypeError, KeyError, AttributeError) as exc:  # malformed old manifest
+            raise StudyError(f"{source}: (schema version {v}) malformed manifest ({exc!r})") from None
     return out, version

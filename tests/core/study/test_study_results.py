@@ -102,3 +102,19 @@ def test_reports(study):
         study.write_report("calibration", "bad", {"rms_px": float("nan")})
     with pytest.raises(StudyError, match="no 'calibration' report named 'x'"):
         study.read_report("calibration", "x")
+
+
+def test_export_tra(study, tmp_path):
+    from core.io.autoscoper import read_tra
+
+    tr = study.trial("walk01")
+    tr.record_pose("talus", 1, _pose(1))
+    tr.record_pose("calcaneus", 1, _pose(2))
+    tr.record_pose("calcaneus", 3, _pose(3))
+    out = tmp_path / "walk01.tra"
+    tr.export_tra(out)
+    P = read_tra(out, n_volumes=2)
+    assert P.shape == (6, 2, 4, 4)
+    np.testing.assert_allclose(P[1, 0], _pose(1), atol=1e-12)
+    np.testing.assert_allclose(P[3, 1], _pose(3), atol=1e-12)
+    assert np.isnan(P[3, 0]).all() and np.isnan(P[0]).all()

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -35,7 +36,7 @@ from ._windows import extract
 from .batch import RECOMMENDED, localize
 from .results import STATUS
 
-__all__ = ["BeadDetections", "detect_beads"]
+__all__ = ["BeadDetections", "detect_beads", "field_mask"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +91,20 @@ def _check(image, diameter_px, size_range, min_snr, min_circularity, polarity) -
     if polarity not in ("dark", "bright"):
         raise ValueError(f"polarity: expected 'dark' or 'bright', got {polarity!r}")
     return img
+
+
+def field_mask(image, *, margin_px: int = 40) -> np.ndarray:
+    """``(H, W)`` bool: the exposed field (above the image's minimum, e.g. inside the round
+    intensifier aperture or the collimator), shrunk by ``margin_px`` pixels so that edge
+    lettering and the field's rim are excluded. Pass it as ``mask`` to :func:`detect_beads`."""
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"image: expected a 2-D image, got shape {img.shape}")
+    if int(margin_px) != margin_px or margin_px < 0:
+        raise ValueError(f"margin_px: expected an integer >= 0, got {margin_px!r}")
+    lit = np.pad((img > img.min()).astype(np.uint8), 1)
+    dist = cv2.distanceTransform(lit, cv2.DIST_L2, 5)[1:-1, 1:-1]
+    return dist > margin_px
 
 
 def _unclipped(img: np.ndarray) -> np.ndarray:
@@ -156,7 +171,8 @@ def detect_beads(image, *, diameter_px: float, polarity: str = "dark", min_snr: 
     lo, hi = (float(x) for x in size_range)
     radii = r0 * np.geomspace(lo / 1.3, hi * 1.3, 7)
     sigmas = radii / np.sqrt(2.0)
-    resp = np.stack([-(s * s) * ndimage.gaussian_laplace(sig, s, mode="nearest") for s in sigmas])
+    sig32 = sig.astype(np.float32)
+    resp = np.stack([-(s * s) * ndimage.gaussian_laplace(sig32, s, mode="nearest") for s in sigmas])
     valid = _unclipped(img)
     flat = resp[:, valid][:, ::7]
     med = np.median(flat, axis=1)

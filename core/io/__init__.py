@@ -4,7 +4,7 @@ Readers validate what they read and raise :class:`ValueError` naming the file an
 expected; writers write atomically (:mod:`core.io.atomic`).
 """
 
-from .atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json
+from .atomic import FileLock, LockedError, atomic_open, atomic_path, atomic_write, atomic_write_json
 from .autoscoper import (
     AutoscoperFilter,
     AutoscoperTrial,
@@ -21,6 +21,7 @@ from .autoscoper import (
 from .cine import CineInfo, CineSequence, read_cine_info
 from .cine_writer import write_cine
 from .ct import DicomSeriesInfo, inspect_dicom_folder, read_ct, split_labels
+from .meshes import Mesh, read_mesh, write_mesh
 from .paired import TwoViewSequence
 from .sequences import (
     FrameSequence,
@@ -52,11 +53,13 @@ __all__ = [
     "FileLock",
     "FrameSequence",
     "LockedError",
+    "Mesh",
     "MultipageTiffSequence",
     "TiffFolderSequence",
     "TwoViewSequence",
     "VideoSequence",
     "atomic_open",
+    "atomic_path",
     "atomic_write",
     "atomic_write_json",
     "dlt_csv_from_rig",
@@ -67,6 +70,7 @@ __all__ = [
     "read_cine_info",
     "read_ct",
     "read_dlt_csv",
+    "read_mesh",
     "read_points_2d",
     "read_points_3d",
     "read_tiff_volume",
@@ -77,6 +81,7 @@ __all__ = [
     "write_autoscoper_cfg",
     "write_cine",
     "write_dlt_csv",
+    "write_mesh",
     "write_points_2d",
     "write_points_3d",
     "write_tra",

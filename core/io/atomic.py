@@ -35,6 +35,7 @@ __all__ = [
     "LockedError",
     "append_durable",
     "atomic_open",
+    "atomic_path",
     "atomic_write",
     "atomic_write_json",
     "fsync_dir",
@@ -96,6 +97,31 @@ def atomic_open(
         with fh:
             yield fh
             fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, dest)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(folder)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A temporary path (same folder and suffix) for a library that writes files by name.
+
+    On a clean exit the file written there is ``fsync``-ed and renamed over ``path``; on an
+    exception it is removed and ``path`` is untouched.
+    """
+    dest = Path(path)
+    folder = dest.parent if str(dest.parent) else Path(".")
+    if not folder.is_dir():
+        raise ValueError(f"path: folder {folder} of {dest.name} does not exist")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{dest.stem}.", suffix=f".tmp{dest.suffix}")
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, dest)
     except BaseException:

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
 from .distortion_models import DistortionModel
+from .pointmaps import PolynomialMap
 
 __all__ = ["remap_tables", "undistort_image"]
 
@@ -44,7 +45,10 @@ def _shape(shape, name: str = "shape") -> tuple[int, int]:
 
 def _compute(model: DistortionModel, shape: tuple[int, int], step: int) -> tuple[np.ndarray, np.ndarray]:
     h, w = shape
-    if step == 1:
+    if step == 1 and isinstance(model.forward_map, PolynomialMap):
+        src = model.forward_map.on_grid(np.arange(w), np.arange(h))  # separable: fast
+        mu, mv = src[..., 0], src[..., 1]
+    elif step == 1:
         v, u = np.mgrid[0:h, 0:w].astype(np.float64)
         src = model.forward(np.stack([u, v], axis=-1))
         mu, mv = src[..., 0], src[..., 1]

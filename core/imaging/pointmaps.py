@@ -101,6 +101,28 @@ class PolynomialMap:
     def n_terms(self) -> int:
         return int(self.coef.shape[0])
 
+    def on_grid(self, u, v) -> np.ndarray:
+        """Map of every point of the regular grid ``u (W,) × v (H,)`` as ``(H, W, 2)``.
+
+        The normalisation is isotropic and separable, so the polynomial factors into
+        ``B_y(v) C B_x(u)ᵀ`` per output: ``O((H + W) n + H W n)`` with tiny matrices, instead of a
+        ``(H W, n_terms)`` Vandermonde matrix (dense remap tables).
+        """
+        from .polybasis import _basis_1d
+
+        uu = (np.asarray(u, float) - self.norm.center[0]) * self.norm.scale
+        vv = (np.asarray(v, float) - self.norm.center[1]) * self.norm.scale
+        nx, ny = self.order
+        bx = _basis_1d(uu, nx, self.basis, self.norm.extent[0])[0]
+        by = _basis_1d(vv, ny, self.basis, self.norm.extent[1])[0]
+        idx = polynomial_terms(self.order, self.terms)
+        out = np.empty((vv.size, uu.size, 2))
+        for c in range(2):
+            C = np.zeros((ny + 1, nx + 1))
+            C[idx[:, 1], idx[:, 0]] = self.coef[:, c]
+            out[..., c] = np.einsum("vj,ji,ui->vu", by, C, bx, optimize=True)
+        return out
+
     def to_dict(self) -> dict:
         return {"type": "polynomial", "order": list(self.order), "basis": self.basis,
                 "terms": self.terms, "norm": self.norm.to_dict(), "coef": self.coef.tolist(),

@@ -218,5 +218,43 @@ def make_demo_study(
                         "poses": "T_lab_from_bone maps the volume's physical mm into the lab"},
         "files": files,
     }
+    if status == "complete" and done > 0:
+        summary["study"] = _write_study(scene, out)
     _atomic_bytes(out / "summary.json", _json_bytes(summary))
     return summary
+
+
+def _write_study(scene: BiplaneScene, out: Path) -> str:
+    """Describe the folder as a :class:`core.study.Study` (``study.json``): the MayaCam rig,
+    the bone CTs (as MetaImage volumes, which keep origin and direction), and one trial over
+    the frame folders with every bone's true frame-0 pose recorded as its starting keyframe.
+    A previous study manifest and its results in ``out`` are replaced."""
+    import shutil
+
+    import SimpleITK as sitk
+
+    from ..io.atomic import atomic_path
+    from ..study import Study
+
+    (out / "study.json").unlink(missing_ok=True)
+    shutil.rmtree(out / "results", ignore_errors=True)
+    bones = [n for n in scene.names]
+    with Study.create(out, name="talus-demo") as st:
+        st.add_calibration("rig", [out / "rig" / f"{c.name}.txt" for c in scene.rig],
+                           pixel_size_mm=scene.rig[0].pixel_size)
+        for name, vol in zip(scene.names, scene.bones, strict=True):
+            img = sitk.GetImageFromArray(np.ascontiguousarray(vol.data))
+            img.SetSpacing([float(v) for v in vol.spacing])
+            img.SetOrigin([float(v) for v in vol.origin])
+            img.SetDirection([float(v) for v in np.asarray(vol.direction).ravel()])
+            dest = out / "volumes" / f"{name}.mha"
+            with atomic_path(dest) as tmp:
+                sitk.WriteImage(img, str(tmp))
+            st.add_volume(name, dest)
+            st.add_bone(name, volume=name)
+        st.add_trial("walk", [out / "frames" / c.name for c in scene.rig], calibration="rig",
+                     bones=bones, bit_depth=scene.imaging[0].bits)
+        trial = st.trial("walk")
+        for k, name in enumerate(bones):
+            trial.record_pose(name, 0, scene.trajectories[k][0])
+    return "study.json"

@@ -121,6 +121,21 @@ def test_demo_study_files_and_ground_truth(tmp_path):
     np.testing.assert_array_equal(beads[:, 1:4], np.concatenate([b.centers for b in sc.beads]))
     rows = np.loadtxt(out / "poses" / "talus.csv", delimiter=",", skiprows=1)
     np.testing.assert_allclose(rows[:, 1:].reshape(-1, 4, 4), sc.trajectories[1])
+    # the folder is also a study: rig, bones (MetaImage keeps the geometry), trial, keyframe 0
+    from core.study import Study
+
+    with Study.open(out) as st:
+        trial = st.trial("walk")
+        assert trial.n_frames == 2 and st.bones == tuple(sc.names)
+        np.testing.assert_allclose(trial.rig()[0].P, sc.rig[0].P, rtol=1e-12, atol=1e-9)
+        talus = st.bone_volume("talus")
+        np.testing.assert_array_equal(talus.data, sc.bones[1].data)
+        np.testing.assert_allclose(talus.origin, sc.bones[1].origin)
+        np.testing.assert_allclose(talus.spacing, sc.bones[1].spacing)
+        np.testing.assert_allclose(trial.poses("talus")[0], sc.trajectories[1][0])
+        assert np.isnan(trial.poses("talus")[1]).all()
+        np.testing.assert_array_equal(trial.frames(1)[0], tifffile.imread(
+            out / "frames" / sc.rig[0].name / "frame_0001.tif"))
     meta = json.loads((out / "volumes" / "talus.json").read_text())
     vol = read_tiff_volume(out / "volumes" / "talus.tif", meta["spacing"], origin=meta["origin"])
     np.testing.assert_array_equal(vol.data, sc.bones[1].data)

@@ -180,7 +180,7 @@ def localize(frames, guesses, *, diameter_px, method: str = RECOMMENDED, polarit
         else:
             H, support = h, h
         centre = np.rint(uv[idx]).astype(np.int64)
-        win = extract(stack, fidx[idx], centre, H)
+        win = extract(stack, fidx[idx], centre, H, np.float32 if method == RECOMMENDED else np.float64)
         sig = sign * (border_median(win.data)[:, None, None] - win.data)
         g_rel = uv[idx] - centre
         if method == RECOMMENDED:

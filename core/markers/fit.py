@@ -5,7 +5,7 @@ centroid) and precise under quantum noise (the iterative Gaussian). This localiz
 
 1. **Seed** (robust): the bead signal is filtered with a centre-surround box filter matched to
    the bead (mean over a ``(2a+1)²`` box minus the mean of the rest of a ``(2b+1)²`` box, ``a ≈ 0.6 r``,
-   ``b = ceil(r) + 3``; integral images, so O(1) per pixel) and the seed is the strongest response within
+   ``b = ceil(r) + 3``; OpenCV box filters, O(1) per pixel) and the seed is the strongest response within
    ``search_radius`` pixels of the guess. Broad structures (bone edges, large faint circles)
    cancel in the centre-surround difference; the seed is within a pixel of the bead centre for
    any guess inside the search disc (default 3.5 bead radii, i.e. beyond the 300 % of the
@@ -34,6 +34,7 @@ not converge.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .results import STATUS
@@ -49,15 +50,22 @@ def fit_half_size(radius_px: float) -> int:
     return int(np.ceil(float(radius_px))) + 3
 
 
-def _box_mean(ii: np.ndarray, a: int, S: int) -> np.ndarray:
-    """Mean over ``(2a+1)²`` boxes from a zero-padded integral image ``ii (M, S+1, S+1)``.
+def _box_means(sig: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """Means over ``(2a+1)²`` and ``(2b+1)²`` boxes centred on the pixels ``b..S-1-b`` of each
+    window (``(M, S-2b, S-2b)`` each).
 
-    Box centres are the window pixels ``a..S-1-a``; returns ``(M, S-2a, S-2a)``.
+    The windows are stacked into one tall image for OpenCV's box filter; boxes centred at least
+    ``b`` pixels inside a window never reach its neighbours in the stack, so the cropped result
+    is exact.
     """
-    n = S - 2 * a
-    w = 2 * a + 1
-    tot = ii[:, w : w + n, w : w + n] - ii[:, :n, w : w + n] - ii[:, w : w + n, :n] + ii[:, :n, :n]
-    return tot / (w * w)
+    M, S, _ = sig.shape
+    tall = np.ascontiguousarray(sig, dtype=np.float32).reshape(M * S, S)
+    out = []
+    for h in (a, b):
+        m = cv2.boxFilter(tall, cv2.CV_32F, (2 * h + 1, 2 * h + 1), normalize=True,
+                          borderType=cv2.BORDER_REPLICATE)
+        out.append(m.reshape(M, S, S)[:, b : S - b, b : S - b])
+    return out[0], out[1]
 
 
 def _boxes(radius: float) -> tuple[int, int]:
@@ -80,10 +88,7 @@ def seed_by_matched_filter(sig: np.ndarray, g: np.ndarray, radius: float, search
     """
     M, S, _ = sig.shape
     a, b = _boxes(radius)
-    ii = np.zeros((M, S + 1, S + 1), np.float32)
-    np.cumsum(np.cumsum(sig.astype(np.float32), axis=2), axis=1, out=ii[:, 1:, 1:])
-    inner = _box_mean(ii, a, S)[:, b - a : b - a + S - 2 * b, b - a : b - a + S - 2 * b]
-    outer = _box_mean(ii, b, S)
+    inner, outer = _box_means(sig, a, b)
     n_out = (2 * b + 1) ** 2
     n_in = (2 * a + 1) ** 2
     # surround mean = (outer box sum - inner box sum) / (n_out - n_in)
@@ -116,15 +121,20 @@ def seed_by_matched_filter(sig: np.ndarray, g: np.ndarray, radius: float, search
 
 
 def _gaussian(p: np.ndarray, x: np.ndarray, y: np.ndarray):
-    """Gaussian on a plane; ``p (M, 7)`` = (u, v, A, σ, b₀, b_x, b_y) -> f (M, P), J (M, 7, P)."""
-    u, v, A, s, b0, bx, by = (p[:, i, None] for i in range(7))
+    """Gaussian on a plane; ``p (M, 7)`` = (u, v, A, σ, b₀, b_x, b_y) -> f (M, P), J (M, 7, P).
+
+    Evaluated in ``x.dtype`` (float32 in the hot path: half the memory traffic; the normal
+    equations are solved in float64).
+    """
+    q = p.astype(x.dtype)
+    u, v, A, s, b0, bx, by = (q[:, i, None] for i in range(7))
     dx, dy = x[None] - u, y[None] - v
     r2 = dx * dx + dy * dy
     inv = 1.0 / (s * s)
     e = np.exp(-0.5 * r2 * inv)
     Ae = A * e
     f = b0 + bx * x[None] + by * y[None] + Ae
-    J = np.empty((f.shape[0], 7, f.shape[1]))
+    J = np.empty((f.shape[0], 7, f.shape[1]), x.dtype)
     J[:, 0] = Ae * dx * inv
     J[:, 1] = Ae * dy * inv
     J[:, 2] = e
@@ -136,18 +146,19 @@ def _gaussian(p: np.ndarray, x: np.ndarray, y: np.ndarray):
 
 
 def _sigmoid(p: np.ndarray, x: np.ndarray, y: np.ndarray):
-    """Sigmoid-edged disc on a plane, ``A / (1 + exp((ρ² - α²) / (2 α w)))``.
+    """Sigmoid-edged disc on a plane, ``A / (1 + exp((ρ² - α²) / (2 α w)))``, in ``x.dtype``.
 
     ``p (M, 8)`` = (u, v, A, α, w, b₀, b_x, b_y): half-maximum radius α and edge width w (px).
     """
-    u, v, A, a, w, b0, bx, by = (p[:, i, None] for i in range(8))
+    q = p.astype(x.dtype)
+    u, v, A, a, w, b0, bx, by = (q[:, i, None] for i in range(8))
     dx, dy = x[None] - u, y[None] - v
     r2 = dx * dx + dy * dy
     z = np.clip((r2 - a * a) / (2.0 * a * w), -60.0, 60.0)
     g = 1.0 / (1.0 + np.exp(z))
     Agg = A * g * (1.0 - g)
     f = b0 + bx * x[None] + by * y[None] + A * g
-    J = np.empty((f.shape[0], 8, f.shape[1]))
+    J = np.empty((f.shape[0], 8, f.shape[1]), x.dtype)
     t = Agg / (a * w)
     J[:, 0] = t * dx
     J[:, 1] = t * dy
@@ -163,52 +174,74 @@ def _sigmoid(p: np.ndarray, x: np.ndarray, y: np.ndarray):
 _MODELS = {"gaussian": (_gaussian, 7), "sigmoid": (_sigmoid, 8)}
 
 
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched solve of ``A x = b``; singular systems give NaN rows."""
+    try:
+        return np.linalg.solve(A, b[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        out = np.full(b.shape, np.nan)
+        for i in range(len(A)):  # rare: isolate the singular systems
+            try:
+                out[i] = np.linalg.solve(A[i], b[i])
+            except np.linalg.LinAlgError:
+                pass
+        return out
+
+
 def _lm(data: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, model):
-    """Batched Levenberg–Marquardt; returns params, converged mask, singular mask, iterations."""
+    """Batched Levenberg–Marquardt; returns params, J, residuals, converged, singular, iterations.
+
+    Works on whole arrays (views) while most items are still iterating and compacts the active
+    set only once fewer than half remain, so that the common case copies nothing.
+    """
     M, n = p.shape
     lam = np.full(M, 1e-3)
     f, J = model(p, x, y)
     res = f - data
-    cost = np.einsum("mp,mp->m", res, res)
+    cost = np.einsum("mp,mp->m", res, res).astype(np.float64)
     conv = np.zeros(M, bool)
     sing = np.zeros(M, bool)
     iters = np.zeros(M, np.int32)
     act = np.arange(M)
+    eye = np.eye(n)[None]
     for it in range(1, _MAX_ITER + 1):
-        Ja, ra = J[act], res[act]
-        JtJ = Ja @ Ja.transpose(0, 2, 1)
-        Jtr = (Ja @ ra[:, :, None])[..., 0]
+        # whole arrays (views, no copies) while at least half the items iterate; then compact
+        full = 2 * act.size >= M
+        sel = slice(None) if full else act
+        live = np.zeros(M, bool)
+        live[act] = True
+        live = live[sel]
+        Ja, ra = J[sel], res[sel]
+        JtJ = (Ja @ Ja.transpose(0, 2, 1)).astype(np.float64)
+        Jtr = np.einsum("mip,mp->mi", Ja, ra).astype(np.float64)
         diag = np.einsum("mii->mi", JtJ)
-        A = JtJ + (lam[act, None] * np.maximum(diag, 1e-12))[:, :, None] * np.eye(n)[None]
-        try:
-            step = -np.linalg.solve(A, Jtr[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = np.full((len(act), n), np.nan)
-            for i in range(len(act)):  # rare: isolate the singular systems
-                try:
-                    step[i] = -np.linalg.solve(A[i], Jtr[i])
-                except np.linalg.LinAlgError:
-                    pass
-        bad = ~np.all(np.isfinite(step), axis=1)
-        sing[act[bad]] = True
-        step[bad] = 0.0
-        pn = p[act] + step
-        pn[:, 3:n - 3] = np.abs(pn[:, 3:n - 3])
+        step = -_solve(JtJ + (lam[sel, None] * np.maximum(diag, 1e-12))[:, :, None] * eye, Jtr)
+        bad = ~np.all(np.isfinite(step), axis=1) & live
+        step[~np.all(np.isfinite(step), axis=1) | ~live] = 0.0
+        pn = p[sel] + step
+        pn[:, 3 : n - 3] = np.abs(pn[:, 3 : n - 3])
         fn, Jn = model(pn, x, y)
-        rn = fn - data[act]
-        cn = np.einsum("mp,mp->m", rn, rn)
-        better = (cn <= cost[act]) & ~bad
-        idx = act[better]
-        p[idx], J[idx], res[idx] = pn[better], Jn[better], rn[better]
+        rn = fn - data[sel]
+        cn = np.einsum("mp,mp->m", rn, rn).astype(np.float64)
+        ca = cost[sel]
+        better = (cn <= ca) & ~bad & live
         small = np.abs(step[:, :2]).max(axis=1) < _STEP_TOL
-        rel = np.abs(cost[act] - cn) <= 1e-10 * np.maximum(cost[act], 1e-300)
-        cost[idx] = cn[better]
-        lam[idx] = np.maximum(lam[idx] / 10.0, 1e-9)
-        lam[act[~better]] *= 10.0
-        iters[act] = it
-        done = (better & small) | (rel & small) | bad | (lam[act] > 1e8)
-        conv[act[done & ~bad & (lam[act] <= 1e8)]] = True
-        act = act[~done]
+        rel = np.abs(ca - cn) <= 1e-10 * np.maximum(ca, 1e-300)
+        ids = np.arange(M)[sel]
+        if full and better.all():
+            p, J, res = pn, Jn, rn
+        else:
+            idx = ids[better]
+            p[idx], J[idx], res[idx] = pn[better], Jn[better], rn[better]
+        cost[ids[better]] = cn[better]
+        la = lam[sel]
+        lam[ids[live]] = np.where(better, np.maximum(la / 10.0, 1e-9), la * 10.0)[live]
+        iters[ids[live]] = it
+        sing[ids[bad]] = True
+        stop = lam[sel] > 1e8
+        done = live & ((better & small) | (rel & small) | bad | stop)
+        conv[ids[done & ~bad & ~stop]] = True
+        act = ids[live & ~done]
         if act.size == 0:
             break
     return p, J, res, conv, sing, iters
@@ -234,6 +267,8 @@ def _autocorr(res: np.ndarray, S: int, lag: int = 2) -> list[tuple[int, int, np.
 
 def _sandwich_sigma(J: np.ndarray, res: np.ndarray, S: int) -> np.ndarray:
     """(M, 2) σ of (u, v) from the linearised estimator and the residual autocorrelation."""
+    J = J.astype(np.float64)
+    res = res.astype(np.float64)
     M, n, P = J.shape
     JtJ = J @ J.transpose(0, 2, 1)
     with np.errstate(invalid="ignore"):
@@ -297,7 +332,7 @@ def robust_fit(sig: np.ndarray, g: np.ndarray, radius: np.ndarray, *, search: fl
         snr = np.where(rnoise > 0, peak / rnoise, np.where(peak > 0, np.inf, 0.0))
     status = np.full(M, STATUS["ok"], np.int8)
     status[~(snr >= min_snr)] = STATUS["flat"]
-    off = np.arange(-k, k + 1, dtype=np.float64)
+    off = np.arange(-k, k + 1, dtype=sig.dtype if sig.dtype == np.float32 else np.float64)
     xs = np.tile(off, 2 * k + 1)
     ys = np.repeat(off, 2 * k + 1)
     centre = seed.copy()

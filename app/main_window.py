@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
-from . import __version__
+from . import __version__, settings
 from .controller import Controller
 from .layers import LayerList
 from .model import ViewerModel
@@ -126,6 +126,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.model = None
         self.controller = None
         self.study = None
+        self.session = None
         self.pool = WorkerPool(self)
         self.panes = [FluoroPane("Camera 1"), FluoroPane("Camera 2")]
         self.scene = ScenePane(create_on_show=create_scene_on_show)
@@ -161,9 +162,11 @@ class MainWindow(QtWidgets.QMainWindow):
     # ------------------------------------------------------------------ menus and keys
     def _build_menus(self) -> None:
         file_menu = self.menuBar().addMenu("&File")
-        self.open_demo_action = file_menu.addAction("&Open demo study…")
+        self.open_demo_action = file_menu.addAction("&Open study…")
         self.open_demo_action.setShortcut(QtGui.QKeySequence("Ctrl+O"))
         self.open_demo_action.triggered.connect(self._ask_open_demo)
+        self.recent_menu = file_menu.addMenu("Open &recent")
+        self._fill_recent()
         file_menu.addSeparator()
         self.quit_action = file_menu.addAction("&Quit")
         self.quit_action.setShortcut(QtGui.QKeySequence("Ctrl+Q"))
@@ -233,10 +236,51 @@ class MainWindow(QtWidgets.QMainWindow):
         self.undo_action.setEnabled(bool(self.model and self.model.can_undo))
         self.redo_action.setEnabled(bool(self.model and self.model.can_redo))
 
+    def open_study(self, folder: str | Path, *, read_only: bool = False) -> None:
+        """Open a study folder (``study.json``); pose edits are journalled as they happen."""
+        from core.study import LockedError
+
+        from .session import open_study
+
+        if self.model is not None:
+            raise ValueError("study: this window already shows a study; open another window")
+        try:
+            self.session = open_study(folder, read_only=read_only)
+        except LockedError as exc:  # open elsewhere for writing: show it read-only
+            self.session = open_study(folder, read_only=True)
+            self.notify(f"{exc} — opened read-only.")
+        self.set_model(self.session.model)
+        folder = self.session.folder
+        names = ", ".join(layer.name for layer in self.model.layers)
+        self.statusBar().showMessage(f"Opened {folder} ({self.session.trial_name}): {names}")
+        if self.session.recovered:
+            self.notify(f"{folder} was not closed cleanly last time; every pose recorded up to "
+                        "then has been restored.")
+        if not self.session.writable:
+            self.notify(f"{folder} is open read-only: pose edits are not saved.")
+        settings.add_recent(str(folder))
+        self._fill_recent()
+
+    def _fill_recent(self) -> None:
+        self.recent_menu.clear()
+        for path in settings.recent():
+            act = self.recent_menu.addAction(path)
+            act.triggered.connect(lambda _=False, p=path: self._open_checked(p))
+        self.recent_menu.setEnabled(bool(settings.recent()))
+
+    def _open_checked(self, folder: str) -> None:
+        try:
+            self.open_demo_study(folder)
+        except Exception as exc:  # any reason the study cannot be shown, shown to the user
+            QtWidgets.QMessageBox.warning(self, "Talus", f"Cannot open {folder}:\n{exc}")
+
     def open_demo_study(self, folder: str | Path) -> None:
-        """Open a ``talus demo`` study (bones, poses, frames); a plain folder of camera images
-        shows the first image of each camera."""
+        """Open a study folder, a ``talus demo`` folder without a manifest, or (a plain folder of
+        camera images) show the first image of each camera."""
         folder = Path(folder)
+        if (folder / "study.json").is_file():
+            self.open_study(folder)
+            return
         if (folder / "summary.json").is_file() and '"talus-synthetic-study"' in (
                 folder / "summary.json").read_text(encoding="utf-8"):
             from .demo_study import open_demo_study
@@ -255,12 +299,9 @@ class MainWindow(QtWidgets.QMainWindow):
         )
 
     def _ask_open_demo(self) -> None:
-        folder = QtWidgets.QFileDialog.getExistingDirectory(self, "Open demo study", os.getcwd())
+        folder = QtWidgets.QFileDialog.getExistingDirectory(self, "Open study", os.getcwd())
         if folder:
-            try:
-                self.open_demo_study(folder)
-            except (OSError, ValueError) as exc:
-                QtWidgets.QMessageBox.warning(self, "Talus", f"Cannot open {folder}:\n{exc}")
+            self._open_checked(folder)
 
     # ------------------------------------------------------------------ jobs
     def notify(self, text: str) -> None:
@@ -300,6 +341,8 @@ class MainWindow(QtWidgets.QMainWindow):
         if self.timeline is not None:
             self.timeline.set_playing(False)
         self.pool.shutdown(wait=False)
+        if self.session is not None:
+            self.session.close()
         self.scene.close_interactor()
         super().closeEvent(event)
 

@@ -87,6 +87,7 @@ class ViewerModel:
 
     current_frame_changed = Signal(int)
     pose_changed = Signal(int, int)  # bone index, frame
+    trajectory_changed = Signal(int)  # bone index: poses of many frames replaced
     layers_changed = Signal()
     layer_property_changed = Signal(int, str)  # bone index, property name
     selection_changed = Signal(int)  # bone index or -1
@@ -240,6 +241,7 @@ class ViewerModel:
         self._redo.clear()
         self.dirty = True
         self.history_changed.emit()
+        self.trajectory_changed.emit(i)
         self.pose_changed.emit(i, self._frame)
 
     # ------------------------------------------------------------------ undo / redo

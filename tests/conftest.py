@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-_CACHE_VARS = ("XDG_CACHE_HOME", "WARP_CACHE_PATH")
+_CACHE_VARS = ("XDG_CACHE_HOME", "WARP_CACHE_PATH", "TALUS_SETTINGS_DIR")
 _session_cache: dict[str, object] = {}
 
 
@@ -34,6 +34,7 @@ def pytest_configure(config: pytest.Config) -> None:
         root=root, owned=owned, saved={k: os.environ.get(k) for k in _CACHE_VARS}
     )
     os.environ["XDG_CACHE_HOME"] = str(root / "xdg")
+    os.environ["TALUS_SETTINGS_DIR"] = str(root / "settings")  # never the user's own settings
     os.environ["WARP_CACHE_PATH"] = str(root / "warp")
     if has_display():
         # VTK's Qt interactor needs X11 (Qt's offscreen/wayland platforms are not reliable)

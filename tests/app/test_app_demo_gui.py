@@ -25,7 +25,16 @@ def demo_folder(tmp_path_factory):
 
 
 @pytest.fixture
-def window(qtbot, demo_folder):
+def study_folder(demo_folder, tmp_path):
+    """A private copy: the window journals pose edits into the study."""
+    import shutil
+
+    return Path(shutil.copytree(demo_folder, tmp_path / "study"))
+
+
+@pytest.fixture
+def window(qtbot, study_folder):
+    demo_folder = study_folder
     win = MainWindow(device="cpu", create_scene_on_show=False)
     qtbot.addWidget(win)
     win.resize(1400, 800)
@@ -148,10 +157,10 @@ def test_screenshot_of_the_demo(window, qtbot, tmp_path):
         assert path.stat().st_size > 10_000
 
 
-def test_python_api_drives_the_open_window(qtbot, demo_folder, tmp_path):
+def test_python_api_drives_the_open_window(qtbot, study_folder, tmp_path):
     from app import Viewer
 
-    v = Viewer(demo_folder, device="cpu")
+    v = Viewer(study_folder, device="cpu")
     qtbot.addWidget(v.window)
     try:
         assert v.bones == ["tibia", "talus", "calcaneus", "metatarsal2"]

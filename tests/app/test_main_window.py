@@ -63,7 +63,7 @@ def test_window_opens_with_menus_shortcuts_and_status(window):
     assert menus == ["&File", "&Edit", "&View", "&Pose", "&Help"]
     assert window.quit_action.shortcut() == QtGui.QKeySequence("Ctrl+Q")
     assert window.open_demo_action.shortcut() == QtGui.QKeySequence("Ctrl+O")
-    assert window.open_demo_action.text().startswith("&Open demo study")
+    assert window.open_demo_action.text().startswith("&Open study")
     assert window.about_action in window.menuBar().actions()[-1].menu().actions()
     assert window.statusBar().currentMessage() == "Ready"
     # placeholders until a study is loaded: mid grey

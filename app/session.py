@@ -1,0 +1,131 @@
+"""An open study in the window: a :class:`core.study.Study` trial as a :class:`ViewerModel`.
+
+* Every pose edit (drag, nudge, undo, tracking result) is appended to the trial's pose journal
+  at once (``Trial.record_pose``: fsync-ed appends), so closing, a crash or a power cut loses
+  nothing; there is no separate "save".
+* A marker file ``results/.session-open`` is written while the study is open; finding one at
+  open time means the previous session ended without closing (the window reports that what
+  was recorded up to then has been restored).
+* Frames are read lazily from the trial's sequences and cached.
+* Bones start at their recorded poses; frames without one take the nearest recorded frame's
+  pose (or the identity), and recorded frames are the keyframes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from core.study import Study
+
+from .model import ViewerModel
+
+__all__ = ["MissingFilesError", "StudySession", "open_study"]
+
+MARKER = ".session-open"
+
+
+class MissingFilesError(ValueError):
+    """The study references files that are not there (``missing``: (what, path) pairs)."""
+
+    def __init__(self, folder: Path, missing: list[tuple[str, Path]]):
+        self.folder = folder
+        self.missing = missing
+        lines = "\n".join(f"  {what}: {path}" for what, path in missing[:10])
+        super().__init__(f"{folder}: {len(missing)} referenced file(s) are missing:\n{lines}")
+
+
+def _fill(poses: np.ndarray) -> tuple[np.ndarray, set[int]]:
+    """Fill NaN frames from the nearest recorded frame; returns (poses, recorded frames)."""
+    known = np.flatnonzero(np.isfinite(poses).all(axis=(1, 2)))
+    out = np.tile(np.eye(4), (len(poses), 1, 1))
+    if known.size:
+        nearest = known[np.abs(np.arange(len(poses))[:, None] - known[None, :]).argmin(axis=1)]
+        out = poses[nearest]
+    return out, set(int(k) for k in known)
+
+
+@dataclass
+class StudySession:
+    study: Study
+    trial_name: str
+    model: ViewerModel
+    recovered: bool = False
+    writable: bool = True
+    _closed: bool = field(default=False, repr=False)
+
+    @property
+    def folder(self) -> Path:
+        return self.study.folder
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self.writable:
+            with contextlib.suppress(OSError):
+                (self.study.folder / "results" / MARKER).unlink()
+        self.study.close()
+
+
+def open_study(folder: str | Path, *, trial: str | None = None,
+               read_only: bool = False) -> StudySession:
+    """Open a study folder for the window.
+
+    Raises
+    ------
+    MissingFilesError
+        When referenced files are missing (the caller can offer to relocate them).
+    core.study.LockedError
+        When another process has the study open for writing (retry with ``read_only``).
+    ValueError / core.study.StudyError
+        For a folder that is not a valid study.
+    """
+    folder = Path(folder).expanduser()
+    st = Study.open(folder, mode="r" if read_only else "w", check_files=False)
+    try:
+        missing = st.missing_files()
+        if missing:
+            raise MissingFilesError(folder, list(missing))
+        if not st.trials:
+            raise ValueError(f"{folder}: the study has no trial to show")
+        name = trial or st.trials[0]
+        tr = st.trial(name)
+        rig = tr.rig()
+
+        @lru_cache(maxsize=32)
+        def frames(t: int):
+            return tr.frames(t)
+
+        model = ViewerModel(rig, tr.n_frames, frame_source=lambda view, t: frames(t)[view])
+        for bone in tr.bones:
+            poses, recorded = _fill(tr.poses(bone))
+            i = model.add_bone(bone, st.bone_volume(bone), poses)
+            model.layers[i].keyframes = recorded
+        model.dirty = False
+        recovered = False
+        if not read_only:
+            results = folder / "results"
+            results.mkdir(exist_ok=True)
+            marker = results / MARKER
+            recovered = marker.exists()
+            marker.write_text("open\n", encoding="utf-8")
+
+            def record(bone: int, frame: int) -> None:
+                tr.record_pose(model.layers[bone].name, int(frame), model.pose(bone, frame))
+
+            def record_all(bone: int) -> None:
+                layer = model.layers[bone]
+                for f in range(model.n_frames):
+                    tr.record_pose(layer.name, f, layer.poses[f])
+
+            model.pose_changed.connect(record)
+            model.trajectory_changed.connect(record_all)
+        return StudySession(st, name, model, recovered=recovered, writable=not read_only)
+    except BaseException:
+        st.close()
+        raise

@@ -24,6 +24,7 @@ from PySide6 import QtCore, QtGui, QtWidgets
 
 from . import __version__, settings
 from .controller import Controller
+from .importing import ImportActions
 from .layers import LayerList
 from .model import ViewerModel
 from .panes import FluoroPane
@@ -162,11 +163,20 @@ class MainWindow(QtWidgets.QMainWindow):
     # ------------------------------------------------------------------ menus and keys
     def _build_menus(self) -> None:
         file_menu = self.menuBar().addMenu("&File")
+        self.importer = ImportActions(self)
+        self.new_action = file_menu.addAction("&New study…")
+        self.new_action.setShortcut(QtGui.QKeySequence("Ctrl+N"))
+        self.new_action.triggered.connect(lambda: self._guard(self.importer.new_study))
         self.open_demo_action = file_menu.addAction("&Open study…")
         self.open_demo_action.setShortcut(QtGui.QKeySequence("Ctrl+O"))
         self.open_demo_action.triggered.connect(self._ask_open_demo)
         self.recent_menu = file_menu.addMenu("Open &recent")
         self._fill_recent()
+        imp = file_menu.addMenu("&Import")
+        for text, fn in (("Calibration (MayaCam files)…", self.importer.import_calibration),
+                         ("CT volume as a bone…", self.importer.import_volume),
+                         ("Trial (one sequence per camera)…", self.importer.import_trial)):
+            imp.addAction(text).triggered.connect(lambda _=False, f=fn: self._guard(f))
         file_menu.addSeparator()
         self.quit_action = file_menu.addAction("&Quit")
         self.quit_action.setShortcut(QtGui.QKeySequence("Ctrl+Q"))
@@ -267,6 +277,14 @@ class MainWindow(QtWidgets.QMainWindow):
             act = self.recent_menu.addAction(path)
             act.triggered.connect(lambda _=False, p=path: self._open_checked(p))
         self.recent_menu.setEnabled(bool(settings.recent()))
+
+    def _guard(self, action) -> None:
+        """Run a menu action; a failure is shown, never raised into the event loop."""
+        try:
+            action()
+        except Exception as exc:  # shown to the user with its reason
+            self.notify(f"{exc}")
+            QtWidgets.QMessageBox.warning(self, "Talus", str(exc))
 
     def _open_checked(self, folder: str) -> None:
         try:

@@ -85,3 +85,22 @@ def test_missing_files_are_listed(folder):
     with pytest.raises(MissingFilesError, match="missing") as info:
         open_study(folder)
     assert any("cam02" in str(path) for _, path in info.value.missing)
+
+
+@pytest.mark.gui
+def test_new_study_from_imports_opens_in_the_window(demo_folder, tmp_path, qtbot):
+    """New study -> calibration -> CT volume -> trial, through the import actions the menus call."""
+    win = MainWindow(device="cpu", create_scene_on_show=False)
+    qtbot.addWidget(win)
+    imp = win.importer
+    imp.create(tmp_path / "new")
+    with pytest.raises(ValueError, match="calibration"):
+        imp.import_trial()
+    imp.add_calibration("day1", [demo_folder / "rig" / "cam01.txt", demo_folder / "rig" / "cam02.txt"])
+    imp.add_volume("talus", demo_folder / "volumes" / "talus.mha")
+    with pytest.raises(ValueError, match="voxel_size_mm"):
+        imp.add_volume("tibia", demo_folder / "volumes" / "tibia.tif")  # TIFF without voxel size
+    imp.add_trial("walk", [demo_folder / "frames" / "cam01", demo_folder / "frames" / "cam02"])
+    assert win.model is not None and [b.name for b in win.model.layers] == ["talus"]
+    assert win.model.n_frames == 3 and win.panes[0].image.shape == (96, 96)
+    win.close()

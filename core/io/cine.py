@@ -144,26 +144,58 @@ def _time64(v) -> np.ndarray:
     return (v >> np.uint64(32)).astype(np.float64) + (v & np.uint64(0xFFFFFFFF)).astype(np.float64) / 2.0**32
 
 
+def _window(buf, offset: int, nbytes: int, extra: int) -> tuple[object, int]:
+    """``(buffer, offset)`` with ``extra`` readable bytes after the ``nbytes`` at ``offset``."""
+    if offset + nbytes + extra <= len(buf):
+        return buf, offset
+    tail = np.zeros(nbytes + extra, dtype=np.uint8)
+    tail[:nbytes] = np.frombuffer(buf, dtype=np.uint8, count=nbytes, offset=offset)
+    return tail, 0
+
+
+def _unpack12(buf, offset: int, shape: tuple[int, int]) -> np.ndarray:
+    """P12L: each 3-byte group, read as the top of a big-endian 32-bit word at stride 3, holds
+    ``p0 = bits 31..20`` and ``p1 = bits 19..8`` (an unaligned strided view: no byte shuffling)."""
+    n = shape[0] * shape[1] // 2
+    buf, offset = _window(buf, offset, 3 * n, 1)
+    v = np.ndarray(shape=(n,), dtype=">u4", buffer=buf, offset=offset, strides=(3,)).astype(np.uint32)
+    out = np.empty((n, 2), dtype=np.uint16)
+    np.right_shift(v, 20, out=out[:, 0], casting="unsafe")
+    v >>= 8
+    v &= 0x0FFF
+    out[:, 1] = v
+    return out.reshape(shape)
+
+
+def _unpack10(buf, offset: int, shape: tuple[int, int]) -> np.ndarray:
+    """P10: each 5-byte group, read as the top of a big-endian 64-bit word at stride 5."""
+    n = shape[0] * shape[1] // 4
+    buf, offset = _window(buf, offset, 5 * n, 3)
+    v = np.ndarray(shape=(n,), dtype=">u8", buffer=buf, offset=offset, strides=(5,)).astype(np.uint64)
+    out = np.empty((n, 4), dtype=np.uint16)
+    for k, shift in enumerate((54, 44, 34, 24)):
+        out[:, k] = (v >> np.uint64(shift)) & np.uint64(0x3FF)
+    return out.reshape(shape)
+
+
 def unpack_12bit(raw: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Unpack P12L bytes (2 pixels in 3 bytes, MSB first) into a ``uint16`` image of ``shape``."""
-    b = raw.reshape(-1, 3).astype(np.uint16)
-    out = np.empty((b.shape[0], 2), dtype=np.uint16)
-    np.left_shift(b[:, 0], 4, out=out[:, 0])
-    out[:, 0] |= b[:, 1] >> 4
-    np.left_shift(b[:, 1] & 0x0F, 8, out=out[:, 1])
-    out[:, 1] |= b[:, 2]
-    return out.reshape(shape)
+    raw = np.ascontiguousarray(raw, dtype=np.uint8)
+    if raw.size != shape[0] * shape[1] * 3 // 2 or (shape[0] * shape[1]) % 2:
+        raise ValueError(
+            f"raw: expected {shape[0] * shape[1] * 3 // 2} bytes for {shape} 12-bit pixels, got {raw.size}"
+        )
+    return _unpack12(raw, 0, shape)
 
 
 def unpack_10bit(raw: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Unpack P10 bytes (4 pixels in 5 bytes, MSB first) into a ``uint16`` image of ``shape``."""
-    b = raw.reshape(-1, 5).astype(np.uint16)
-    out = np.empty((b.shape[0], 4), dtype=np.uint16)
-    out[:, 0] = (b[:, 0] << 2) | (b[:, 1] >> 6)
-    out[:, 1] = ((b[:, 1] & 0x3F) << 4) | (b[:, 2] >> 4)
-    out[:, 2] = ((b[:, 2] & 0x0F) << 6) | (b[:, 3] >> 2)
-    out[:, 3] = ((b[:, 3] & 0x03) << 8) | b[:, 4]
-    return out.reshape(shape)
+    raw = np.ascontiguousarray(raw, dtype=np.uint8)
+    if raw.size != shape[0] * shape[1] * 5 // 4 or (shape[0] * shape[1]) % 4:
+        raise ValueError(
+            f"raw: expected {shape[0] * shape[1] * 5 // 4} bytes for {shape} 10-bit pixels, got {raw.size}"
+        )
+    return _unpack10(raw, 0, shape)
 
 
 class _Reader:
@@ -186,8 +218,8 @@ class _Reader:
         return st.unpack_from(self.buf, offset)
 
 
-def _parse(buf, path: Path) -> tuple[CineInfo, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Validate the headers; return ``(info, image data offsets, ..., timestamps, exposures)``."""
+def _parse(buf, path: Path) -> tuple[CineInfo, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Validate the headers; return ``(info, image offsets pImage, timestamps, exposures)``."""
     r = _Reader(buf, path)
     (magic, hsize, compression, version, first_movie, total, first_no, count, off_bmp, off_setup,
      off_offsets, trigger) = r.unpack(HEADER, 0, "CINEFILEHEADER")
@@ -260,37 +292,38 @@ def _parse(buf, path: Path) -> tuple[CineInfo, np.ndarray, np.ndarray, np.ndarra
             f"{path}: truncated or corrupt cine: image {k} is at offset {int(p_image[k])}, outside "
             f"{off_offsets + 8 * count}..{r.size - 8}"
         )
-    u8 = np.frombuffer(buf, dtype=np.uint8)
-    ann = u8[p_image[:, None] + np.arange(4)].copy().view("<u4").ravel().astype(np.int64)
-    if ann.min() < 8:
-        raise ValueError(f"{path}: image {int(np.argmin(ann))}: AnnotationSize {int(ann.min())} < 8")
-    size_at = p_image + ann - 4
-    if size_at.max() + 4 > r.size:
-        k = int(np.argmax(size_at + 4 > r.size))
-        raise ValueError(
-            f"{path}: truncated or corrupt cine: header of image {k} runs past the end of the file"
-        )
-    sizes = u8[size_at[:, None] + np.arange(4)].copy().view("<u4").ravel().astype(np.int64)
-    bad = np.flatnonzero(sizes != info.bytes_per_image)
-    if bad.size:
-        k = int(bad[0])
-        raise ValueError(
-            f"{path}: image {k} holds {int(sizes[k])} bytes; expected {info.bytes_per_image} for "
-            f"{width}x{h} {storage} pixels"
-        )
-    data_at = p_image + ann
-    ends = data_at + info.bytes_per_image
-    if ends.max() > r.size:
-        k = int(np.argmax(ends > r.size))
-        raise ValueError(
-            f"{path}: truncated cine: image {k} of {count} needs bytes up to {int(ends[k])} but the file has "
-            f"{r.size} bytes"
-        )
+    # Per-image headers are checked when an image is read (opening touches no pixel page); the
+    # first image and the one stored last (a truncated file loses it) are checked now.
+    for k in {0, int(np.argmax(p_image))}:
+        _image_data_offset(r, info, p_image, k)
     times, exposures = _tagged_blocks(r, off_setup + length, off_offsets, count)
     if times is not None:  # relative to the trigger, in exact integer 32.32 arithmetic
         rel = (times - np.uint64(trigger)).view(np.int64)  # modular difference, signed
         times = rel / 2.0**32
-    return info, data_at, p_image, times, exposures
+    return info, p_image, times, exposures
+
+
+def _image_data_offset(r: _Reader, info: CineInfo, p_image: np.ndarray, k: int) -> int:
+    """Validate image ``k``'s annotation header; return the file offset of its pixels."""
+    p = int(p_image[k])
+    r.need(p, 4, f"header of image {k}")
+    ann = struct.unpack_from("<I", r.buf, p)[0]
+    if ann < 8:
+        raise ValueError(f"{r.path}: image {k}: AnnotationSize {ann} < 8")
+    r.need(p + ann - 4, 4, f"header of image {k}")
+    size = struct.unpack_from("<I", r.buf, p + ann - 4)[0]
+    if size != info.bytes_per_image:
+        raise ValueError(
+            f"{r.path}: image {k} holds {size} bytes; expected {info.bytes_per_image} for "
+            f"{info.width}x{info.height} {info.storage} pixels"
+        )
+    end = p + ann + size
+    if end > r.size:
+        raise ValueError(
+            f"{r.path}: truncated cine: image {k} of {info.image_count} needs bytes up to {end} but the "
+            f"file has {r.size} bytes"
+        )
+    return p + ann
 
 
 def _tagged_blocks(r: _Reader, start: int, stop: int, count: int):
@@ -348,7 +381,7 @@ class CineSequence(FrameSequence):
             raise ValueError(f"{self.path}: truncated cine ({self.path.stat().st_size} bytes, no header)")
         self._mm = np.memmap(self.path, dtype=np.uint8, mode="r")
         try:
-            self.info, self._data_at, _, times, exposures = _parse(self._mm, self.path)
+            self.info, self._p_image, times, exposures = _parse(self._mm, self.path)
         except BaseException:
             self._mm = None
             raise
@@ -395,15 +428,16 @@ class CineSequence(FrameSequence):
         if self._mm is None:
             raise ValueError(f"{self.path}: the cine is closed")
         i = self.info
-        off = int(self._data_at[k])
+        off = _image_data_offset(_Reader(self._mm, self.path), i, self._p_image, k)
         shape = (i.height, i.width)
         if i.storage == "uint8":
             img = np.frombuffer(self._mm, dtype=np.uint8, count=i.width * i.height, offset=off).reshape(shape)
         elif i.storage == "uint16":
             img = np.frombuffer(self._mm, dtype="<u2", count=i.width * i.height, offset=off).reshape(shape)
+        elif i.storage == "p12":
+            img = _unpack12(self._mm, off, shape)
         else:
-            raw = self._mm[off : off + i.bytes_per_image]
-            img = unpack_12bit(raw, shape) if i.storage == "p12" else unpack_10bit(raw, shape)
+            img = _unpack10(self._mm, off, shape)
         if i.bottom_up:
             img = img[::-1]
         if self._lut is not None:

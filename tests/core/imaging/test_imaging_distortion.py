@@ -94,7 +94,7 @@ def test_acceptance_lattice_errors_and_model_ranking(calibration, lattice_points
     for spec in ("poly(3,3)", "poly(5,5)", "poly(6,6)", "poly(8,8)", "poly(10,10)", "tps"):
         m = fit_distortion(g.ideal_uv, g.distorted_uv, spec, mm_per_px=g.mm_per_px)
         le = evaluate_lattice(m, lattice_points, pitch_mm=20.0)
-        assert le.distance_error_mm.size == 5 * 2 * 6 * 15  # 15 row/column pairs of 6 per line
+        assert le.distance_error_mm.size == 3 * 2 * 6 * 15  # 15 row/column pairs of 6 per line
         rms[spec] = le.distance_rms_mm
     for spec in ("poly(5,5)", "poly(6,6)", "poly(8,8)", "poly(10,10)"):
         assert rms[spec] < 0.1, rms
@@ -116,7 +116,7 @@ def test_condition_numbers_fig_3_11(calibration):
 
 def test_round_trip_and_residual_table(calibration):
     g = calibration.grid
-    v, u = np.mgrid[40:1000:23, 40:1000:23]
+    v, u = np.mgrid[40:1000:37, 40:1000:37]
     q = np.stack([u, v], -1).reshape(-1, 2).astype(float)
     q = q[np.linalg.norm(q - 511.5, axis=1) < 440]  # the field the grid covers
     models = [fit_distortion(g.ideal_uv, g.distorted_uv, s, mm_per_px=g.mm_per_px)
@@ -135,8 +135,8 @@ def test_round_trip_and_residual_table(calibration):
 def test_cross_validation_picks_a_high_order_polynomial(calibration):
     """...which is why models are chosen on held-out points, not on their residual."""
     g = calibration.grid
-    cands = ["poly(3,3)", "poly(5,5)", "poly(8,8)", "poly(15,15)", "tps", "lwm(12)"]
-    best, rows = select_model(g.ideal_uv, g.distorted_uv, cands, folds=5)
+    cands = ["poly(3,3)", "poly(5,5)", "poly(8,8)", "poly(15,15)", "tps"]
+    best, rows = select_model(g.ideal_uv, g.distorted_uv, cands, folds=4)
     assert best.kind == "polynomial" and 5 <= best.order[0] <= 10
     by = {r["model"]: r["rms_px"] for r in rows}
     assert by["tps"] > by[best.label] and by["poly(3,3)"] > 3 * by[best.label]

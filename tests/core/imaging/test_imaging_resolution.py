@@ -80,7 +80,7 @@ def test_line_pair_modulation_is_the_mtf(camera1024):
 
 def test_psf_from_pinhole_frames(camera1024):
     model = ImagingModel.fluoroscope(camera1024, rng=0, distortion=None, glare_fraction=0.0)
-    fr = pinhole_frames(camera1024, model, n_frames=40, rng=3, psf_size=21)
+    fr = pinhole_frames(camera1024, model, n_frames=16, rng=3, psf_size=21)
     est = psf_from_pinholes(fr.image, size=21, dark=model.dark_dn)
     assert len(est.kernels) == 7
     np.testing.assert_allclose(np.sort(est.centers_uv[:, 0]), np.sort(fr.distorted_uv[:, 0]), atol=0.3)

@@ -19,7 +19,7 @@ def _v1(rig_files, views, ct):
             {"name": "talus", "ct": str(ct), "label": 3},
             {"name": "calcaneus", "ct": str(ct), "label": 4},
         ],
-        "trials": [{"name": "walk01", "views": [str(p) for p in views[0]], "offset": 0}],
+        "trials": [{"name": "walk01", "views": [str(p) for p in views[0]], "offset": 2}],
         "settings": {"metric": "ncc"},
     }
 
@@ -41,8 +41,9 @@ def test_v1_migrates_forward(tmp_path, rig_files, views):
         assert m["volumes"] == {"ct1": {"path": str(ct)}}  # one CT shared by both bones
         assert m["bones"]["calcaneus"] == {"volume": "ct1", "label": 4, "margin_mm": 5.0}
         assert m["trials"]["walk01"]["bones"] == ["talus", "calcaneus"]
+        assert m["trials"]["walk01"]["frame_offset"] == 2
         assert ro.settings == {"metric": "ncc"}
-        assert ro.trial("walk01").n_frames == 6
+        assert ro.trial("walk01").n_frames == 4  # 6 frames per view, view 1 two frames ahead
     assert json.loads((folder / "study.json").read_text())["schema_version"] == 1
     with Study.open(folder, mode="w") as rw:  # write mode saves the migrated manifest + a backup
         assert rw.migrated_from == 1

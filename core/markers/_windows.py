@@ -36,13 +36,22 @@ def extract(frames: np.ndarray, frame_index: np.ndarray, center: np.ndarray, hal
     ``frames`` is ``(F, H, W)``; ``frame_index (M,)`` picks the frame of each window.
     """
     _, h, w = frames.shape
-    off = np.arange(-half, half + 1)
-    cols = center[:, 0:1] + off  # (M, S)
-    rows = center[:, 1:2] + off
-    inside = (cols[:, 0] >= 0) & (cols[:, -1] < w) & (rows[:, 0] >= 0) & (rows[:, -1] < h)
-    cc = np.clip(cols, 0, w - 1)
-    rr = np.clip(rows, 0, h - 1)
-    data = frames[frame_index[:, None, None], rr[:, :, None], cc[:, None, :]].astype(dtype)
+    S = 2 * half + 1
+    c0 = center[:, 0] - half
+    r0 = center[:, 1] - half
+    inside = (c0 >= 0) & (c0 + S <= w) & (r0 >= 0) & (r0 + S <= h)
+    data = np.empty((len(center), S, S), dtype)
+    if inside.any() and S <= min(h, w):
+        # whole blocks through a strided view: copies rows of S pixels, no per-pixel indices
+        view = np.lib.stride_tricks.sliding_window_view(frames, (S, S), axis=(1, 2))
+        i = np.flatnonzero(inside)
+        data[i] = view[frame_index[i], r0[i], c0[i]]
+    out = np.flatnonzero(~inside)
+    if out.size:
+        off = np.arange(-half, half + 1)
+        cc = np.clip(center[out, 0:1] + off, 0, w - 1)
+        rr = np.clip(center[out, 1:2] + off, 0, h - 1)
+        data[out] = frames[frame_index[out, None, None], rr[:, :, None], cc[:, None, :]]
     return Windows(data, center, half, inside)
 
 

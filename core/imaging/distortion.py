@@ -25,11 +25,24 @@ import numpy as np
 
 from .._validate import as_float_array, positive
 from .distortion_eval import ResidualStats, residual_stats
+from .distortion_maps import remap_tables, undistort_image
 from .distortion_models import DistortionModel, ModelSpec, fit_distortion
 from .grid_detection import GridPoints, detect_grid_points
 from .grid_indexing import GridIndex, index_grid
 
-__all__ = ["DistortionCalibration", "IdealGrid", "calibrate_distortion", "ideal_grid"]
+__all__ = [
+    "DistortionCalibration",
+    "DistortionModel",
+    "IdealGrid",
+    "ModelSpec",
+    "calibrate_distortion",
+    "detect_grid_points",
+    "fit_distortion",
+    "ideal_grid",
+    "index_grid",
+    "remap_tables",
+    "undistort_image",
+]
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,7 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from . import localize as _loc
+from . import localizers as _loc
 from ._windows import border_median, extract, noise_sigma, smoothed_contrast, snr_of
 from .fit import fit_half_size, robust_fit, seed_margin
 from .profiles import radius_array, window_half_size

@@ -3,9 +3,11 @@
 Run ``python -m core.markers.study [--quick] [--out DIR]``: it renders the 21-bead lattice of
 :mod:`core.markers.lattice` in ``n_frames`` static frames with independent quantum noise,
 runs all seven localizers (:data:`core.markers.batch.METHODS`) and writes ``markers_study.json``
-plus the figures ``markers_convergence.png``, ``markers_drift.png`` and
-``markers_intermarker.png`` (via :mod:`core.markers.plots`). The moving-bone pose study
-(:func:`core.markers.motion_study.moving_bone_study`) runs too and lands in the same JSON.
+plus the figures ``markers_convergence.png``, ``markers_drift.png``,
+``markers_intermarker.png`` and ``markers_dose.png`` (via :mod:`core.markers.plots`). The
+moving-bone pose study (:func:`core.markers.motion_study.moving_bone_study`) and a dose sweep
+(drift and inter-marker σ of three localizers at ¼–4 × the dose, :func:`dose_sweep`) run too
+and land in the same JSON.
 
 Experiments (thesis numbering):
 
@@ -42,7 +44,7 @@ from .batch import METHODS, RECOMMENDED, localize
 from .detect import detect_beads
 from .lattice import LatticeScene, make_lattice_scene
 
-__all__ = ["StudyConfig", "convergence", "drift_and_distances", "run_study"]
+__all__ = ["StudyConfig", "convergence", "dose_sweep", "drift_and_distances", "run_study"]
 
 
 @dataclass(frozen=True)
@@ -55,10 +57,13 @@ class StudyConfig:
     fluence_per_mm2: float = 5000.0
     seed: int = 0
     motion_frames: int = 50
+    dose_factors: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0, 4.0)
+    dose_frames: int = 200
 
     @classmethod
     def quick(cls) -> StudyConfig:
-        return cls(n_frames=40, n_mc=40, levels_percent=(0.0, 150.0, 300.0), motion_frames=10)
+        return cls(n_frames=40, n_mc=40, levels_percent=(0.0, 150.0, 300.0), motion_frames=10,
+                   dose_factors=(0.5, 2.0), dose_frames=20)
 
 
 def convergence(scene: LatticeScene, frames: np.ndarray, cfg: StudyConfig, methods=tuple(METHODS),
@@ -137,10 +142,25 @@ def drift_and_distances(scene: LatticeScene, frames: np.ndarray, methods=tuple(M
         }
         d = np.linalg.norm(uv[:, i] - uv[:, j], axis=-1) * scene.mm_per_px - scene.pitch_mm
         d = d[np.isfinite(d)]
-        hist, edges = np.histogram(d, bins=60, range=(-0.6, 0.6))
+        hist, edges = np.histogram(d, bins=600, range=(-0.6, 0.6))  # 2 µm bins
         dist[m] = {"mu": _f(d.mean()), "sigma": _f(d.std()), "n": int(d.size),
                    "hist": hist.tolist(), "edges": edges.tolist()}
     return drift, dist
+
+
+def dose_sweep(cfg: StudyConfig, methods=("intensity_centroid", "iterative_gaussian", RECOMMENDED)) -> list:
+    """Drift RMS and inter-marker σ of a few localizers at multiples of the thesis-like dose."""
+    out = []
+    for k in cfg.dose_factors:
+        dose = cfg.fluence_per_mm2 * k
+        scene = make_lattice_scene(fluence_per_mm2=dose, seed=cfg.seed)
+        frames = scene.frames(cfg.dose_frames, np.random.default_rng(cfg.seed + 7))
+        drift, dist = drift_and_distances(scene, frames, methods)
+        out.append({"dose_factor": k, "fluence_per_mm2": dose,
+                    "photons_per_pixel": scene.imaging.photons_per_pixel,
+                    "drift_rms_px": {m: drift[m]["rms"] for m in methods},
+                    "intermarker_sigma_mm": {m: dist[m]["sigma"] for m in methods}})
+    return out
 
 
 def run_study(cfg: StudyConfig = StudyConfig(), *, progress=None) -> dict:
@@ -158,6 +178,8 @@ def run_study(cfg: StudyConfig = StudyConfig(), *, progress=None) -> dict:
     say("convergence done")
     motion = moving_bone_study(n_frames=cfg.motion_frames, seed=cfg.seed)
     say("moving bone done")
+    doses = dose_sweep(cfg)
+    say("dose sweep done")
     rec = RECOMMENDED
     worst = max(c["mean"] for c in conv[rec])
     acceptance = {
@@ -184,6 +206,7 @@ def run_study(cfg: StudyConfig = StudyConfig(), *, progress=None) -> dict:
                   "n_pairs": len(scene.pairs)},
         "methods": METHODS, "recommended": rec,
         "convergence": conv, "drift": drift, "intermarker": dist, "moving_bone": motion,
+        "dose_sweep": doses,
         "acceptance": acceptance, "seconds": time.perf_counter() - t0,
     }
 

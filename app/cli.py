@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import inspect
 import json
 import numbers
 import os
@@ -317,6 +318,26 @@ def _cmd_bench_interaction(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_module(module: str, what: str):
+    """A ``talus bench`` subcommand running ``core.<module>.benchmark.main(argv)``."""
+
+    def command(args: argparse.Namespace) -> int:
+        main_fn = _load(f"core.{module}.benchmark", "main", needed_for=f"'talus bench {what}'")
+        argv = [a for a in args.rest if a != "--"]
+        if inspect.signature(main_fn).parameters:
+            result = main_fn(argv)
+        else:  # a main() that parses sys.argv itself
+            saved = sys.argv
+            sys.argv = [f"{PROG} bench {what}", *argv]
+            try:
+                result = main_fn()
+            finally:
+                sys.argv = saved
+        return int(result or 0)
+
+    return command
+
+
 def _check_display() -> None:
     """Qt aborts the process when it finds no display: say so clearly instead."""
     if not sys.platform.startswith("linux") or os.environ.get("QT_QPA_PLATFORM"):
@@ -420,6 +441,16 @@ def build_parser() -> argparse.ArgumentParser:
     inter.add_argument("--device", choices=["cpu", "cuda"], default=None)
     inter.add_argument("--out", metavar="FILE", help="also write the JSON to FILE")
     inter.set_defaults(func=_cmd_bench_interaction)
+    for what, module, text in (
+        ("io", "io", "frame access of cine and TIFF sequences"),
+        ("imaging", "imaging", "flatfield, undistortion, deconvolution, grid fits"),
+        ("markers", "markers", "bead localisations per second"),
+        ("metrics", "similarity", "similarity metrics of DRR batches"),
+    ):
+        sp = bench_sub.add_parser(what, help=text, description=f"Benchmark: {text}. Options "
+                                  f"after '--' go to python -m core.{module}.benchmark.")
+        sp.add_argument("rest", nargs=argparse.REMAINDER, help="benchmark options")
+        sp.set_defaults(func=_cmd_bench_module(module, what))
 
     sample = sub.add_parser("sample", help="previews of real sample data")
     sample_sub = sample.add_subparsers(dest="sample", metavar="SAMPLE", required=True)

@@ -14,3 +14,14 @@ Conventions used everywhere in :mod:`core` (see ``DESIGN.md``):
 """
 
 __version__ = "0.1.0"
+
+__all__ = ["Study", "Trial", "__version__"]
+
+
+def __getattr__(name: str):
+    """``core.Study`` / ``core.Trial``: the study store façade (imported on first use)."""
+    if name in ("Study", "Trial"):
+        from . import study
+
+        return getattr(study, name)
+    raise AttributeError(f"module 'core' has no attribute {name!r}")

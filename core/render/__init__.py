@@ -1,12 +1,10 @@
-"""CT volumes, the HU -> attenuation transfer, and DRR renderers (Warp and a numpy reference)."""
+"""CT volumes, the HU -> attenuation transfer, and DRR renderers (Warp and a numpy reference).
 
-import warp as _wp
+The Warp-based parts (``DRRRenderer`` …) are imported on first use, so code that only needs
+volumes (file readers, the study store) does not pay for importing Warp.
+"""
 
-_wp.config.log_level = _wp.LOG_WARNING  # keep Warp's start-up banner off stdout (the CLI prints JSON)
-
-from .drr import DRRBatch, DRRRenderer, default_device  # noqa: E402
-from .reference import render_reference  # noqa: E402
-from .volume import CTVolume, HUTransfer  # noqa: E402
+from .volume import CTVolume, HUTransfer
 
 __all__ = [
     "CTVolume",
@@ -16,3 +14,15 @@ __all__ = [
     "default_device",
     "render_reference",
 ]
+
+_LAZY = {"DRRBatch": "drr", "DRRRenderer": "drr", "default_device": "drr",
+         "render_reference": "reference"}
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'core.render' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(f".{module}", __name__), name)

@@ -54,6 +54,8 @@ from .volume import CTVolume, HUTransfer
 
 __all__ = ["DRRBatch", "DRRRenderer", "default_device"]
 
+wp.config.log_level = wp.LOG_WARNING  # keep Warp's start-up banner off stdout (the CLI prints JSON)
+
 
 def _clip_box_corners(vol: CTVolume) -> np.ndarray:
     """(8, 3) physical corners of the box a ray is clipped to: index -1 .. n on each axis."""

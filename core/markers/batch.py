@@ -87,6 +87,8 @@ def _method(method: str, options: dict) -> Callable:
             raise ValueError(f"{key}: expected a positive integer, got {val!r}")
         if key in ("tol", "beta") and not (np.isfinite(val) and val > 0):
             raise ValueError(f"{key}: expected a positive number, got {val!r}")
+        if key == "model" and val not in ("sigmoid", "gaussian"):
+            raise ValueError(f"model: expected 'sigmoid' or 'gaussian', got {val!r}")
     table = {
         "intensity_centroid": _loc.intensity_centroid,
         "gaussian_centroid": _loc.gaussian_centroid,
@@ -129,7 +131,8 @@ def localize(frames, guesses, *, diameter_px, method: str = RECOMMENDED, polarit
         Threads that process chunks in parallel (default: the CPU count, at most 8; 1 = serial).
     **options
         Per-method options: ``tol`` (px) and ``max_iter`` of the iterative centroids, ``beta``
-        (1/px) of the sigmoid, ``upsample`` of the DFT registration.
+        (1/px) of the sigmoid, ``upsample`` of the DFT registration, ``model`` (``"sigmoid"``
+        or ``"gaussian"``) of the recommended localizer.
 
     Returns
     -------

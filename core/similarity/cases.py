@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from ..render import DRRBatch, DRRRenderer, HUTransfer
@@ -53,6 +54,8 @@ class RegistrationCase:
         thesis' pixel translations to mm).
     truth : bool
         True when ``pose`` is the ground truth.
+    masks : tuple of (h, w) bool arrays or None
+        Usable fluoroscope pixels per view (the ``fluoro_mask`` of the metrics), or None = all.
     """
 
     name: str
@@ -65,6 +68,11 @@ class RegistrationCase:
     fluoro: tuple[np.ndarray, ...]
     mm_per_px: float
     truth: bool
+    masks: tuple[np.ndarray, ...] | None = None
+
+    def options(self, view: int) -> dict:
+        """Domain options of ``view`` for the metrics (its ``fluoro_mask`` when there is one)."""
+        return {} if self.masks is None else {"fluoro_mask": self.masks[view]}
 
     @property
     def n_views(self) -> int:
@@ -112,15 +120,21 @@ def _mm_per_px(renderer: DRRRenderer, pose: np.ndarray, centre: np.ndarray, scal
     return float(np.mean(vals))
 
 
-def _build(name, renderer, mu, pose, fluence_frames, *, scale, margin, truth) -> RegistrationCase:
+def _build(name, renderer, mu, pose, fluence_frames, *, scale, margin, truth,
+           valid: tuple[float, float] | None = None) -> RegistrationCase:
     roi = renderer.auto_roi(pose[None, None], views=range(len(renderer.cameras)), bones=[0],
                             margin=margin)[0, :, 0]
     fluence = tuple(np.clip(sample_roi(f, r, scale=scale), 0.0, 1.0) for f, r in
                     zip(fluence_frames, roi, strict=True))
     fluoro = tuple(line_integral_image(f) for f in fluence)
+    masks = None
+    if valid is not None:  # exclude black (outside the field) and saturated pixels and their rims
+        lo, hi = valid
+        masks = tuple(ndimage.binary_erosion((f > lo) & (f < hi), iterations=5, border_value=1)
+                      for f in fluence)
     centre = _centroid(mu)
     return RegistrationCase(name, renderer, pose, centre, roi, float(scale), fluence, fluoro,
-                            _mm_per_px(renderer, pose, centre, scale), truth)
+                            _mm_per_px(renderer, pose, centre, scale), truth, masks)
 
 
 def synthetic_case(*, bone: str = "talus", pixels: int = 256, seed: int = 0, frame: int = 0,
@@ -161,8 +175,10 @@ def wrist_case(data_dir: str | Path, *, bone: str = "radius", frame_index: int =
     """The radius of the Autoscoper wrist sample at the hand-found pose, against radiograph 0099.
 
     The 8-bit radiographs are not flatfield-corrected: grey level / 255 stands in for relative
-    fluence. The DRR uses the preview's transfer (bone above ``threshold_hu``), 0.5 mm steps, and
-    ``scale`` (2 → one DRR pixel per 2 × 2 radiograph pixels).
+    fluence. Pixels outside the intensifier field (fluence < 0.12) or saturated (≥ 0.995, air
+    beside the forearm), and 5 px around them, are masked out. The DRR uses the preview's transfer
+    (bone above ``threshold_hu``), 0.5 mm steps, and ``scale`` (2 → one DRR pixel per 2 × 2
+    radiograph pixels).
     """
     from ..samples import WRIST_RADIUS_POSE, load_wrist_sample
 
@@ -173,4 +189,4 @@ def wrist_case(data_dir: str | Path, *, bone: str = "radius", frame_index: int =
     renderer = DRRRenderer(sample.rig, [mu], device=device, step_mm=0.5)
     frames = [sample.frame(v, frame_index).astype(np.float32) / 255.0 for v in range(len(sample.rig))]
     return _build("wrist-radius", renderer, mu, np.array(WRIST_RADIUS_POSE), frames, scale=scale,
-                  margin=margin, truth=False)
+                  margin=margin, truth=False, valid=(0.12, 0.995))

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -142,6 +141,8 @@ def sample_roi(image, roi, *, scale: float = 1.0) -> np.ndarray:
     s = float(scale)
     if not np.isfinite(s) or s <= 0:
         raise ValueError(f"scale: expected a positive number of pixels, got {scale!r}")
+    import cv2  # only here: the device metrics and the benchmark do not need OpenCV
+
     u0, v0, w, h = (int(a) for a in r)
     ho, wo = math.ceil(h / s), math.ceil(w / s)
     cc = (u0 + (np.arange(wo, dtype=np.float32) + 0.5) * s - 0.5).astype(np.float32)

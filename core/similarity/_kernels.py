@@ -210,34 +210,62 @@ def gi_kernel(drr: wp.array3d(dtype=wp.float32), fgrad: wp.array3d(dtype=wp.vec2
         wp.atomic_add(acc, k, 0, wp.float64(t[0]))
 
 
+#: bins of GO's magnitude histograms (median estimate)
+MEDIAN_BINS = 1024
+_MED = wp.constant(MEDIAN_BINS)
+_MED2 = wp.constant(2 * MEDIAN_BINS)
+
+
 @wp.kernel
 def magnitude_hist_kernel(drr: wp.array3d(dtype=wp.float32), fgrad: wp.array3d(dtype=wp.vec2f),
                           fmask: wp.array3d(dtype=wp.uint8), ref_hw: wp.array(dtype=wp.vec2i),
-                          n_refs: int, thr: float, dil: int, ku: wp.mat33f, kv: wp.mat33f,
-                          rng: wp.array2d(dtype=wp.float32), hist: wp.array3d(dtype=wp.int32)):
-    """Histograms over [0, max] of |g_D| (hist[k, 0]) and |g_F| (hist[k, 1]) on Ω; one thread
-    per pixel (dim = (n_items, H, W))."""
-    k, r, c = wp.tid()
+                          n_refs: int, thr: float, dil: int, ku: wp.mat33f, kv: wp.mat33f, chunk: int,
+                          rng: wp.array2d(dtype=wp.float32), hist: wp.array(dtype=wp.int32)):
+    """Histograms over [0, max] of |g_D| (``hist[k * 2 MED + i]``) and |g_F| (``+ MED``) on Ω,
+    accumulated per block in shared memory."""
+    k, ch, lane = wp.tid()
+    bd = wp.block_dim()
     ref = k % n_refs
     h = ref_hw[ref][0]
     w = ref_hw[ref][1]
-    if r < h and c < w:
-        if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
-            nb = hist.shape[2]
-            a = wp.length(_grad(drr, k, r, c, h, w, ku, kv))
-            b = wp.length(fgrad[ref, r, c])
-            if rng[k, 1] > 0.0:
-                wp.atomic_add(hist, k, 0, wp.clamp(int(a / rng[k, 1] * float(nb)), 0, nb - 1), 1)
-            if rng[k, 3] > 0.0:
-                wp.atomic_add(hist, k, 1, wp.clamp(int(b / rng[k, 3] * float(nb)), 0, nb - 1), 1)
+    W = drr.shape[2]
+    start = ch * chunk
+    stop = wp.min(drr.shape[1] * W, start + chunk)
+    th = wp.tile_zeros(shape=_MED2, dtype=wp.int32, storage="shared")
+    top_d = rng[k, 1]
+    top_f = rng[k, 3]
+    n_iter = (chunk + bd - 1) // bd
+    for it in range(n_iter):
+        p = start + it * bd + lane
+        okd = bool(False)
+        okf = bool(False)
+        jd = int(0)
+        jf = int(0)
+        if p < stop:
+            r = p // W
+            c = p - r * W
+            if r < h and c < w:
+                if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+                    a = wp.length(_grad(drr, k, r, c, h, w, ku, kv))
+                    b = wp.length(fgrad[ref, r, c])
+                    if top_d > 0.0:
+                        jd = wp.clamp(int(a / top_d * float(_MED)), 0, _MED - 1)
+                        okd = True
+                    if top_f > 0.0:
+                        jf = _MED + wp.clamp(int(b / top_f * float(_MED)), 0, _MED - 1)
+                        okf = True
+        wp.tile_scatter_add(th, jd, 1, okd)
+        wp.tile_scatter_add(th, jf, 1, okf)
+    wp.tile_atomic_add(hist, th, offset=k * _MED2)
 
 
 @wp.kernel
-def median_kernel(hist: wp.array3d(dtype=wp.int32), rng: wp.array2d(dtype=wp.float32),
+def median_kernel(hist: wp.array(dtype=wp.int32), rng: wp.array2d(dtype=wp.float32),
                   count: wp.array(dtype=wp.float64), med: wp.array2d(dtype=wp.float32)):
     """Median of each histogram (linear within the bin holding the middle); dim = (n_items, 2)."""
     k, i = wp.tid()
-    nb = hist.shape[2]
+    nb = _MED
+    base = k * _MED2 + i * _MED
     top = rng[k, 1 + 2 * i]
     target = float(count[k]) * 0.5
     cum = float(0.0)
@@ -245,7 +273,7 @@ def median_kernel(hist: wp.array3d(dtype=wp.int32), rng: wp.array2d(dtype=wp.flo
     done = int(0)
     if top > 0.0:
         for j in range(nb):
-            cnt = float(hist[k, i, j])
+            cnt = float(hist[base + j])
             if done == 0 and cum + cnt >= target and cnt > 0.0:
                 out = (float(j) + (target - cum) / cnt) * top / float(nb)
                 done = 1
@@ -303,39 +331,73 @@ def _bin(x: float, lo: float, hi: float, nb: int, linear: int) -> wp.vec2f:
     return wp.vec2f(i0, f)
 
 
+#: largest number of MI histogram bins per image (shared-memory tiles are sized for it)
+MAX_BINS = 64
+_MB = wp.constant(MAX_BINS)
+_MB2 = wp.constant(MAX_BINS * MAX_BINS)
+_MB_BAND = wp.constant(2 * MAX_BINS)
+
+
 @wp.kernel
 def joint_hist_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
                       fmask: wp.array3d(dtype=wp.uint8), ref_hw: wp.array(dtype=wp.vec2i),
-                      fshift: wp.array(dtype=wp.float32), n_refs: int, thr: float, dil: int,
-                      linear: int, rng: wp.array2d(dtype=wp.float32), joint: wp.array3d(dtype=wp.float32),
-                      selfd: wp.array3d(dtype=wp.float32), selff: wp.array3d(dtype=wp.float32)):
-    """Partial-volume joint histogram of (D, F) on Ω and the two self-joint band histograms
-    (``self[k, 0]`` diagonal, ``self[k, 1]`` first off-diagonal); dim = (n_items, H, W)."""
-    k, r, c = wp.tid()
+                      fshift: wp.array(dtype=wp.float32), n_refs: int, thr: float, dil: int, nb: int,
+                      linear: int, chunk: int, rng: wp.array2d(dtype=wp.float32),
+                      joint: wp.array(dtype=wp.float32), selfd: wp.array(dtype=wp.float32),
+                      selff: wp.array(dtype=wp.float32)):
+    """Partial-volume joint histogram of (D, F) on Ω (``joint[k * MB² + i * MB + j]``) and the two
+    self-joint band histograms (``self[k * 2 MB + i]`` diagonal, ``+ MB`` first off-diagonal),
+    accumulated per block in shared memory and added to global memory once per block."""
+    k, ch, lane = wp.tid()
+    bd = wp.block_dim()
     ref = k % n_refs
     h = ref_hw[ref][0]
     w = ref_hw[ref][1]
-    if r < h and c < w:
-        if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
-            nb = selfd.shape[2]
-            bd = _bin(_val(drr, k, r, c), rng[k, 0], rng[k, 1], nb, linear)
-            bf = _bin(fluoro[ref, r, c] - fshift[ref], rng[k, 2], rng[k, 3], nb, linear)
-            ia = int(bd[0])
-            ib = int(bf[0])
-            fa = bd[1]
-            fb = bf[1]
-            ja = wp.min(ia + 1, nb - 1)
-            jb = wp.min(ib + 1, nb - 1)
-            wp.atomic_add(joint, k, ia, ib, (1.0 - fa) * (1.0 - fb))
-            wp.atomic_add(joint, k, ia, jb, (1.0 - fa) * fb)
-            wp.atomic_add(joint, k, ja, ib, fa * (1.0 - fb))
-            wp.atomic_add(joint, k, ja, jb, fa * fb)
-            wp.atomic_add(selfd, k, 0, ia, (1.0 - fa) * (1.0 - fa))
-            wp.atomic_add(selfd, k, 1, ia, fa * (1.0 - fa))
-            wp.atomic_add(selfd, k, 0, ja, fa * fa)
-            wp.atomic_add(selff, k, 0, ib, (1.0 - fb) * (1.0 - fb))
-            wp.atomic_add(selff, k, 1, ib, fb * (1.0 - fb))
-            wp.atomic_add(selff, k, 0, jb, fb * fb)
+    W = drr.shape[2]
+    start = ch * chunk
+    stop = wp.min(drr.shape[1] * W, start + chunk)
+    tj = wp.tile_zeros(shape=_MB2, dtype=wp.float32, storage="shared")
+    td = wp.tile_zeros(shape=_MB_BAND, dtype=wp.float32, storage="shared")
+    tf = wp.tile_zeros(shape=_MB_BAND, dtype=wp.float32, storage="shared")
+    lo_d = rng[k, 0]
+    hi_d = rng[k, 1]
+    lo_f = rng[k, 2]
+    hi_f = rng[k, 3]
+    n_iter = (chunk + bd - 1) // bd
+    for it in range(n_iter):  # uniform trip count: every thread reaches the cooperative adds
+        p = start + it * bd + lane
+        ok = bool(False)
+        ia = int(0)
+        ib = int(0)
+        fa = float(0.0)
+        fb = float(0.0)
+        if p < stop:
+            r = p // W
+            c = p - r * W
+            if r < h and c < w:
+                if _in_omega(drr, fmask, k, ref, r, c, h, w, thr, dil):
+                    bdv = _bin(_val(drr, k, r, c), lo_d, hi_d, nb, linear)
+                    bfv = _bin(fluoro[ref, r, c] - fshift[ref], lo_f, hi_f, nb, linear)
+                    ia = int(bdv[0])
+                    ib = int(bfv[0])
+                    fa = bdv[1]
+                    fb = bfv[1]
+                    ok = True
+        ja = wp.min(ia + 1, nb - 1)
+        jb = wp.min(ib + 1, nb - 1)
+        wp.tile_scatter_add(tj, ia * _MB + ib, (1.0 - fa) * (1.0 - fb), ok)
+        wp.tile_scatter_add(tj, ia * _MB + jb, (1.0 - fa) * fb, ok)
+        wp.tile_scatter_add(tj, ja * _MB + ib, fa * (1.0 - fb), ok)
+        wp.tile_scatter_add(tj, ja * _MB + jb, fa * fb, ok)
+        wp.tile_scatter_add(td, ia, (1.0 - fa) * (1.0 - fa), ok)
+        wp.tile_scatter_add(td, _MB + ia, fa * (1.0 - fa), ok)
+        wp.tile_scatter_add(td, ja, fa * fa, ok)
+        wp.tile_scatter_add(tf, ib, (1.0 - fb) * (1.0 - fb), ok)
+        wp.tile_scatter_add(tf, _MB + ib, fb * (1.0 - fb), ok)
+        wp.tile_scatter_add(tf, jb, fb * fb, ok)
+    wp.tile_atomic_add(joint, tj, offset=k * _MB2)
+    wp.tile_atomic_add(selfd, td, offset=k * _MB_BAND)
+    wp.tile_atomic_add(selff, tf, offset=k * _MB_BAND)
 
 
 @wp.func
@@ -348,37 +410,37 @@ def _plogp(x: float, n: float) -> float:
 
 
 @wp.func
-def _self_entropies(band: wp.array3d(dtype=wp.float32), k: int, n: float) -> wp.vec2f:
+def _self_entropies(band: wp.array(dtype=wp.float32), k: int, nb: int, n: float) -> wp.vec2f:
     """(H_X, H_XX) from a self-joint band histogram."""
-    nb = band.shape[2]
+    base = k * _MB_BAND
     hx = float(0.0)
     hxx = float(0.0)
     for i in range(nb):
-        d = band[k, 0, i]
-        o = band[k, 1, i]
+        d = band[base + i]
+        o = band[base + _MB + i]
         m = d + o
         if i > 0:
-            m += band[k, 1, i - 1]
+            m += band[base + _MB + i - 1]
         hx += _plogp(m, n)
         hxx += _plogp(d, n) + 2.0 * _plogp(o, n)
     return wp.vec2f(hx, hxx)
 
 
 @wp.kernel
-def entropy_kernel(joint: wp.array3d(dtype=wp.float32), selfd: wp.array3d(dtype=wp.float32),
-                   selff: wp.array3d(dtype=wp.float32), count: wp.array(dtype=wp.float64),
+def entropy_kernel(joint: wp.array(dtype=wp.float32), selfd: wp.array(dtype=wp.float32),
+                   selff: wp.array(dtype=wp.float32), nb: int, count: wp.array(dtype=wp.float64),
                    ent: wp.array2d(dtype=wp.float64)):
     """ent[k] = (H_D, H_F, H_DF, H_DD, H_FF) in nats."""
     k = wp.tid()
     n = float(count[k])
     if n > 0.0:
-        nb = joint.shape[1]
+        base = k * _MB2
         hab = float(0.0)
         for i in range(nb):
             for j in range(nb):
-                hab += _plogp(joint[k, i, j], n)
-        sd = _self_entropies(selfd, k, n)
-        sf = _self_entropies(selff, k, n)
+                hab += _plogp(joint[base + i * _MB + j], n)
+        sd = _self_entropies(selfd, k, nb, n)
+        sf = _self_entropies(selff, k, nb, n)
         ent[k, 0] = wp.float64(sd[0])
         ent[k, 1] = wp.float64(sf[0])
         ent[k, 2] = wp.float64(hab)

@@ -117,3 +117,13 @@ def test_bad_input_is_rejected(talus_case, batch):
         bm(drr_batch.numpy())
     with pytest.raises(ValueError, match="images"):
         BatchedMetric("ncc", [f[0]], device="cpu")(drr_batch)  # a two-view batch, one ROI
+
+
+def test_benchmark_quick_run_reports_every_kind_and_agrees_with_the_reference():
+    from core.similarity.benchmark import run_similarity_benchmark
+
+    res = run_similarity_benchmark(devices=["cpu"], quick=True, kinds=("ncc", "gc", "mi"))
+    case = res["devices"]["cpu"]["cases"]["batch128_one_roi"]
+    assert set(case["metrics"]) == {"ncc", "gc", "mi"} and 0 < case["omega_fraction"] < 1
+    for kind, m in case["metrics"].items():
+        assert m["ms_per_batch"] > 0 and m["max_abs_diff_vs_numpy_reference"] < TOL[kind], kind

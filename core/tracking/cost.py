@@ -1,0 +1,333 @@
+"""The registration cost: a weighted combination of similarity metrics over a population of poses.
+
+Search space
+------------
+Optimisers see ``x = (tx, ty, tz, rx, ry, rz)`` in **millimetres and degrees** (so that one unit
+of translation and one of rotation are of comparable effect on a bone of a few cm), relative to
+a *base pose* (the initial guess) and about the bone's centroid ``c``: ``x`` maps to the pose
+:func:`core.geometry.transforms.pose_from_params` ``((t, radians(r)), center=c, base=base)``
+— the centre moves by ``t`` in the lab and the bone turns by the rotation vector ``r`` (lab axes)
+about its centre. ``x = 0`` is the base pose.
+
+Cost
+----
+For metric terms ``k`` with weights ``w_k`` (scores of :mod:`core.similarity`, larger = more
+similar, 1 = identical)::
+
+    cost(x) = Σ_k w_k (1 - score_k(x)) / Σ_k w_k,     score_k = mean over views of the metric
+
+so the cost is 0 for a perfect match and the optimiser minimises it. :data:`DEFAULT_TERMS` is
+gradient correlation on a fluoroscope ROI smoothed by a 1.5 px Gaussian (``gc~1.5``), the
+metric of the response study of :mod:`core.similarity` (monotonic, no false optima within the
+capture range, robust to quantum noise); NCC, GI, GO, GD, SID, MI and NMI can be combined.
+
+Hot path (DESIGN.md)
+--------------------
+One call ``cost(X (B, 6))`` = one :meth:`core.render.DRRRenderer.render` launch of every pose ×
+both views at the fixed ROI and pyramid scale (the renderer reuses its buffers), one
+:meth:`core.similarity.BatchedMetric.evaluate` per metric term (a single term by default: one
+launch, a CUDA graph on the GPU) and one copy of ``B (1 + n_views)`` floats to the host. The
+ROI of each view is fixed for the whole optimisation (the bone's projected box at the base pose
+grown by the search range), so the fluoroscope ROIs are sampled, smoothed and uploaded once per
+frame and pyramid level.
+
+Fluoroscope frames enter as flatfield-normalised fluence in [0, 1] and are compared in DRR
+polarity (``-ln I/I0``, :func:`core.similarity.line_integral_image`). At a pyramid level of
+``scale`` s > 1 the frame is low-passed with a Gaussian of σ = 0.5 s px before it is sampled at
+the DRR's ray positions (one ray per s × s block), so its noise is not aliased.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.transforms import pose_from_params
+
+__all__ = ["DEFAULT_TERMS", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
+           "RegistrationCost", "prepare_frame", "search_roi"]
+
+
+class OutsideViewError(ValueError):
+    """The bone's search region does not overlap a view's image (or its usable pixels)."""
+
+
+@dataclass(frozen=True)
+class MetricTerm:
+    """One metric of the cost: ``kind`` (a :data:`core.similarity.BATCHED_KINDS` name), its
+    ``weight`` (> 0) and ``options`` for :class:`core.similarity.BatchedMetric` (``fluoro_sigma``,
+    ``dilate``, ``threshold``, ``operator``, ``bins``…)."""
+
+    kind: str
+    weight: float = 1.0
+    options: Mapping = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        from ..similarity import BATCHED_KINDS
+
+        if self.kind not in BATCHED_KINDS:
+            raise ValueError(f"kind: expected one of {BATCHED_KINDS}, got {self.kind!r}")
+        if not (np.isfinite(self.weight) and self.weight > 0):
+            raise ValueError(f"weight: expected a positive weight, got {self.weight!r}")
+        object.__setattr__(self, "options", dict(self.options))
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "weight": self.weight, "options": dict(self.options)}
+
+
+DEFAULT_TERMS = (MetricTerm("gc", 1.0),)
+
+
+@dataclass(frozen=True, eq=False)
+class FrameImages:
+    """One biplane frame ready for registration.
+
+    Attributes
+    ----------
+    images : tuple of (H, W) float32
+        Per view the line-integral image ``-ln(I/I0)`` (DRR polarity).
+    masks : tuple of (H, W) bool or None
+        Usable pixels per view (False outside the intensifier's field, on black/saturated
+        pixels); None = all usable.
+    """
+
+    images: tuple[np.ndarray, ...]
+    masks: tuple[np.ndarray | None, ...]
+
+    @property
+    def n_views(self) -> int:
+        return len(self.images)
+
+
+def prepare_frame(fluence, *, masks=None, valid_range: tuple[float, float] | None = (0.02, 0.999),
+                  erode_px: int = 3) -> FrameImages:
+    """:class:`FrameImages` from flatfield-normalised frames (one ``(H, W)`` per view, in [0, 1]).
+
+    ``valid_range`` (relative fluence) marks pixels outside it — black (outside the round field,
+    collimator) or saturated — as unusable, together with ``erode_px`` pixels around them;
+    ``masks`` (True = usable) are combined with that. ``valid_range=None`` keeps every pixel.
+    """
+    from scipy import ndimage
+
+    from ..similarity import line_integral_image
+
+    views = [np.asarray(f, dtype=np.float32) for f in fluence]
+    if not views or any(v.ndim != 2 for v in views):
+        raise ValueError("fluence: expected one 2-D flatfield-normalised image per view")
+    given = [None] * len(views) if masks is None else list(masks)
+    if len(given) != len(views):
+        raise ValueError(f"masks: expected {len(views)} masks (one per view) or None")
+    out_img, out_mask = [], []
+    for v, (img, m) in enumerate(zip(views, given, strict=True)):
+        if not np.all(np.isfinite(img)):
+            raise ValueError(f"fluence[{v}]: contains NaN or infinite pixels")
+        mask = None
+        if valid_range is not None:
+            lo, hi = valid_range
+            mask = (img > lo) & (img < hi)
+            if erode_px:
+                mask = ndimage.binary_erosion(mask, iterations=int(erode_px), border_value=1)
+        if m is not None:
+            m = np.asarray(m, dtype=bool)
+            if m.shape != img.shape:
+                raise ValueError(f"masks[{v}]: expected shape {img.shape}, got {m.shape}")
+            mask = m if mask is None else mask & m
+        out_img.append(line_integral_image(np.clip(img, 0.0, 1.0)))
+        out_mask.append(mask)
+    return FrameImages(tuple(out_img), tuple(out_mask))
+
+
+def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], center: np.ndarray,
+               reach_mm: float, margin_px: int = 4) -> np.ndarray:
+    """``(n_views, 4)`` ROIs ``(u0, v0, w, h)``: the bone's projected box at ``pose`` grown by the
+    image displacement of a ``reach_mm`` move of its centre (plus ``margin_px``), clipped to the
+    image. Raises :class:`OutsideViewError` when a view's ROI is empty."""
+    box = renderer.auto_roi(np.asarray(pose, float)[None, None], views=views, bones=[bone],
+                            margin=0)[0, :, 0]
+    c_lab = pose[:3, :3] @ center + pose[:3, 3]
+    out = np.zeros((len(views), 4), dtype=np.int64)
+    for i, v in enumerate(views):
+        cam = renderer.cameras[v]
+        _, depth = cam.project(c_lab[None], return_depth=True)
+        grow = margin_px + (math.ceil(reach_mm * max(cam.fx, cam.fy) / max(float(depth[0]), 1e-6))
+                            if depth[0] > 0 else 0)
+        _, _, w0, h0 = box[i]
+        if w0 <= 0 or h0 <= 0:
+            raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
+        lo = np.maximum(box[i, :2] - grow, 0)
+        hi = np.minimum(box[i, :2] + box[i, 2:] + grow, [cam.width, cam.height])
+        out[i, :2], out[i, 2:] = lo, hi - lo
+    return out
+
+
+@dataclass
+class CostTimer:
+    """Accumulated wall time (s) of the cost's stages and its evaluation counts.
+
+    ``render``: host tables + DRR launch (+ the device's rendering time when the cost runs with
+    ``profile=True``, which synchronises after the launch); ``metric``: metric launches, the
+    device's remaining work and the copy to the host; ``host``: parameters → poses and the
+    weighted sum. ``calls`` launches rendered ``evaluations`` poses.
+    """
+
+    render: float = 0.0
+    metric: float = 0.0
+    host: float = 0.0
+    calls: int = 0
+    evaluations: int = 0
+
+    def total(self) -> float:
+        return self.render + self.metric + self.host
+
+    def to_dict(self) -> dict:
+        return {"render_s": self.render, "metric_s": self.metric, "host_s": self.host,
+                "calls": self.calls, "evaluations": self.evaluations}
+
+
+class RegistrationCost:
+    """``cost(X (B, 6)) -> (B,)`` for one bone in one frame at one pyramid scale.
+
+    Parameters
+    ----------
+    renderer : core.render.DRRRenderer
+        Holds the bone volumes (HU→μ already applied) and the cameras.
+    frame : FrameImages
+    bone : int
+        Volume index of the bone in ``renderer``.
+    base_pose : (4, 4) array
+        ``T_lab_from_bone`` at ``x = 0`` (the initial guess).
+    center : (3,) array
+        Rotation centre in the bone's CT frame, mm.
+    roi : (n_views, 4) int array
+        Fixed ROIs (:func:`search_roi`).
+    scale : float
+        Full-resolution pixels per DRR pixel (pyramid level).
+    terms : sequence of MetricTerm
+    views : sequence of int, optional
+        Cameras used (default all).
+    others : (poses (n, 4, 4), bones (n,)) , optional
+        Other bones at fixed poses whose DRRs are subtracted from the fluoroscope ROIs (their
+        projections accounted for when bones overlap).
+    profile : bool
+        Synchronise after each render to time DRR and metric separately (slower; benchmarks).
+    """
+
+    def __init__(self, renderer, frame: FrameImages, *, bone: int, base_pose, center, roi,
+                 scale: float = 1.0, terms: Sequence[MetricTerm] = DEFAULT_TERMS,
+                 views: Sequence[int] | None = None, others=None, profile: bool = False) -> None:
+        from scipy import ndimage
+
+        from ..similarity import BatchedMetric, sample_roi
+
+        self.renderer = renderer
+        self.views = tuple(range(frame.n_views)) if views is None else tuple(int(v) for v in views)
+        if frame.n_views != len(renderer.cameras):
+            raise ValueError(f"frame: {frame.n_views} views, the renderer has "
+                             f"{len(renderer.cameras)} cameras")
+        self.bone = int(bone)
+        self.base = np.asarray(base_pose, dtype=float)
+        self.center = np.asarray(center, dtype=float)
+        self.scale = float(scale)
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise ValueError(f"scale: expected a positive pyramid scale, got {scale!r}")
+        self.terms = tuple(terms)
+        if not self.terms:
+            raise ValueError("terms: expected at least one MetricTerm")
+        self.roi = np.asarray(roi, dtype=np.int64).reshape(len(self.views), 4)
+        self.profile = bool(profile)
+        self.timer = CostTimer()
+        s = self.scale
+        rois, masks = [], []
+        for i, v in enumerate(self.views):
+            u0, v0, w, h = (int(a) for a in self.roi[i])
+            if w <= 0 or h <= 0:
+                raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
+            img = frame.images[v]
+            pad = math.ceil(2 * s) + 2
+            ys, xs = max(v0 - pad, 0), max(u0 - pad, 0)
+            sub = img[ys:min(v0 + h + pad, img.shape[0]), xs:min(u0 + w + pad, img.shape[1])]
+            if s > 1:
+                sub = ndimage.gaussian_filter(sub, 0.5 * s, mode="nearest")
+            r = np.array([u0 - xs, v0 - ys, w, h])
+            rois.append(sample_roi(sub, r, scale=s))
+            m = frame.masks[v]
+            if m is None:
+                masks.append(np.ones(rois[-1].shape, bool))
+            else:
+                ms = m[ys:ys + sub.shape[0], xs:xs + sub.shape[1]].astype(np.float32)
+                masks.append(sample_roi(ms, r, scale=s) > 0.999)
+            if not masks[-1].any():
+                raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
+        if others is not None:
+            poses_o, bones_o = others
+            poses_o = np.asarray(poses_o, dtype=float)
+            if len(bones_o):
+                batch = renderer.render(poses_o[None], views=self.views, bones=list(bones_o),
+                                        roi=self.roi[None, :, None, :], scale=s)
+                bg = batch.numpy()[0].sum(axis=1)  # (n_views, H, W)
+                rois = [r - bg[i, : r.shape[0], : r.shape[1]] for i, r in enumerate(rois)]
+        self.fluoro_rois = tuple(rois)
+        self.fluoro_masks = tuple(masks)
+        dev = str(renderer.device)
+        self.metrics = [BatchedMetric(t.kind, list(self.fluoro_rois), device=dev,
+                                      fluoro_masks=list(self.fluoro_masks), **t.options)
+                        for t in self.terms]
+        w = np.array([t.weight for t in self.terms], dtype=float)
+        self._w = w / w.sum()
+        self._roi_arg = self.roi[None, :, None, :]
+
+    # ------------------------------------------------------------------ mapping
+    def poses(self, X) -> np.ndarray:
+        """``(B, 4, 4)`` poses of parameter rows ``X (B, 6)`` (mm, degrees)."""
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        if X.ndim != 2 or X.shape[1] != 6:
+            raise ValueError(f"X: expected shape (B, 6) (mm, degrees), got {np.shape(X)}")
+        p = np.concatenate([X[:, :3], np.radians(X[:, 3:])], axis=1)
+        return pose_from_params(p, center=self.center, base=self.base)
+
+    def params(self, pose) -> np.ndarray:
+        """``(6,)`` x (mm, degrees) of a pose (inverse of :meth:`poses`)."""
+        from ..geometry.transforms import params_from_pose
+
+        p = params_from_pose(np.asarray(pose, float), center=self.center, base=self.base)
+        return np.concatenate([p[:3], np.degrees(p[3:])])
+
+    # ------------------------------------------------------------------ evaluation
+    def scores(self, X) -> np.ndarray:
+        """``(B, n_terms)`` similarity scores (mean over views) of each term."""
+        import warp as wp
+
+        t0 = time.perf_counter()
+        P = self.poses(X)
+        t1 = time.perf_counter()
+        batch = self.renderer.render(P[:, None], views=self.views, bones=[self.bone],
+                                     roi=self._roi_arg, scale=self.scale)
+        if self.profile:
+            wp.synchronize_device(self.renderer.device)
+        t2 = time.perf_counter()
+        out = np.stack([m.evaluate(batch).pose for m in self.metrics], axis=1)
+        t3 = time.perf_counter()
+        tm = self.timer
+        tm.host += t1 - t0
+        tm.render += t2 - t1
+        tm.metric += t3 - t2
+        tm.calls += 1
+        tm.evaluations += len(P)
+        return out
+
+    def __call__(self, X) -> np.ndarray:
+        """``(B,)`` costs ``Σ w_k (1 - score_k)`` (weights normalised to sum 1)."""
+        s = self.scores(X)
+        t0 = time.perf_counter()
+        c = (1.0 - s) @ self._w
+        c = np.where(np.isfinite(c), c, 2.0)
+        self.timer.host += time.perf_counter() - t0
+        return c
+
+    def score(self, x) -> float:
+        """Weighted mean similarity (1 - cost) at one parameter vector."""
+        return float(1.0 - self(np.asarray(x, float)[None])[0])

@@ -1,0 +1,302 @@
+"""Single-frame 2D/3D registration of one bone in both views: coarse-to-fine, global then local.
+
+:func:`register` minimises :class:`~core.tracking.cost.RegistrationCost` over the 6 pose
+parameters ``x`` (mm, degrees; about the bone's centroid, relative to the initial pose) inside
+the box ``|t_i| <= bounds[0]`` mm, ``|r_i| <= bounds[1]`` degrees, level by level of an image
+pyramid (:class:`Level`: pyramid ``scale``, optimiser and its budget). Each level starts from the
+previous level's best point; an optional local refinement (``refine``) polishes the result at
+the finest level. All levels share the base pose, the centre and the ROIs (the bone's projected
+box at the initial pose grown by the search bounds), so ``x`` means the same at every level.
+
+The result is converged when the last stage stopped on a convergence rule and the optimum is
+not on the search box (a point on the box means the true pose may lie beyond it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from . import optimize as opt
+from .cost import DEFAULT_TERMS, FrameImages, MetricTerm, RegistrationCost, search_roi
+
+__all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels", "mm_per_pixel",
+           "register"]
+
+_METHODS = ("cmaes", "pso", "pattern", "nelder_mead", "powell")
+
+
+@dataclass(frozen=True)
+class Level:
+    """One pyramid level: ``scale`` (full-resolution pixels per DRR pixel), the optimiser
+    (``method`` in ``cmaes``, ``pso``, ``pattern``, ``nelder_mead``, ``powell``), its initial
+    step ``sigma`` (mm, degrees; CMA-ES σ, pattern/simplex step; PSO uses ±3·sigma as its start
+    range), ``popsize`` (CMA-ES; PSO particles), ``max_generations``, ``tol_x`` (mm/degrees) and
+    extra optimiser keywords ``options``."""
+
+    scale: float = 1.0
+    method: str = "cmaes"
+    sigma: tuple[float, float] = (1.0, 1.0)
+    popsize: int | None = None
+    max_generations: int = 60
+    tol_x: float = 0.01
+    options: Mapping = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.method not in _METHODS:
+            raise ValueError(f"method: expected one of {_METHODS}, got {self.method!r}")
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise ValueError(f"scale: expected a positive pyramid scale, got {self.scale!r}")
+        if len(self.sigma) != 2 or min(self.sigma) <= 0:
+            raise ValueError(f"sigma: expected (mm, degrees) > 0, got {self.sigma!r}")
+        object.__setattr__(self, "options", dict(self.options))
+
+    def to_dict(self) -> dict:
+        return {"scale": self.scale, "method": self.method, "sigma": list(self.sigma),
+                "popsize": self.popsize, "max_generations": self.max_generations,
+                "tol_x": self.tol_x, "options": dict(self.options)}
+
+
+def mm_per_pixel(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence[int] | None = None) -> float:
+    """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views``."""
+    views = range(len(renderer.cameras)) if views is None else views
+    c = pose[:3, :3] @ center + pose[:3, 3]
+    out = []
+    for v in views:
+        cam = renderer.cameras[v]
+        _, depth = cam.project(c[None], return_depth=True)
+        out.append(float(depth[0]) / max(cam.fx, cam.fy))
+    return float(np.mean(out))
+
+
+def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
+                   coarsest_mm: float = 1.2) -> tuple[Level, ...]:
+    """CMA-ES levels from DRR pixels of about ``coarsest_mm`` mm down to full resolution.
+
+    Scales 4, 2, 1 are kept while ``scale × mm_per_px <= coarsest_mm`` (1024² views of a foot,
+    ~0.3 mm pixels: 4, 2, 1; 256²: 1 only). The first level searches with ``sigma`` (mm, deg),
+    each finer one with a third of the previous step.
+    """
+    if not (np.isfinite(mm_per_px) and mm_per_px > 0):
+        raise ValueError(f"mm_per_px: expected a positive pixel size, got {mm_per_px!r}")
+    scales = [s for s in (4.0, 2.0) if s * mm_per_px <= coarsest_mm] + [1.0]
+    out, sig = [], np.asarray(sigma, dtype=float)
+    for i, s in enumerate(scales):
+        last = i == len(scales) - 1
+        out.append(Level(scale=s, method="cmaes", sigma=tuple(sig), popsize=12,
+                         max_generations=60 if last else 40, tol_x=0.01 if last else 0.05))
+        sig = np.maximum(sig / 3.0, 0.1)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class RegistrationOptions:
+    """Options of :func:`register`.
+
+    ``levels=None`` picks :func:`default_levels` for the pixel size at the bone. ``bounds``:
+    search box half-widths about the initial pose (mm, degrees). ``refine``: a local method run
+    at full resolution after the levels (``"pattern"``, ``"nelder_mead"``, ``"powell"`` or
+    None) with initial step ``refine_step`` (mm, degrees). ``sigma``: first-level step when the
+    levels are automatic. ``margin_px``: extra ROI margin.
+    """
+
+    terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
+    levels: tuple[Level, ...] | None = None
+    bounds: tuple[float, float] = (10.0, 10.0)
+    sigma: tuple[float, float] = (1.5, 1.5)
+    refine: str | None = "pattern"
+    refine_step: tuple[float, float] = (0.1, 0.1)
+    refine_tol: float = 0.005
+    margin_px: int = 4
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "terms", tuple(self.terms))
+        if self.levels is not None:
+            object.__setattr__(self, "levels", tuple(self.levels))
+            if not self.levels or not all(isinstance(lv, Level) for lv in self.levels):
+                raise ValueError("levels: expected a non-empty sequence of Level (or None for automatic)")
+        if len(self.bounds) != 2 or min(self.bounds) <= 0:
+            raise ValueError(f"bounds: expected (mm, degrees) > 0, got {self.bounds!r}")
+        if self.refine not in (None, "pattern", "nelder_mead", "powell"):
+            raise ValueError(f"refine: expected 'pattern', 'nelder_mead', 'powell' or None, "
+                             f"got {self.refine!r}")
+
+    def widened(self, factor: float = 2.0) -> RegistrationOptions:
+        """The same options with ``factor``× larger bounds and first steps and twice the
+        population (for a retry after a failure or a poor initial guess)."""
+        lv = None
+        if self.levels is not None:
+            lv = tuple(replace(x, sigma=(x.sigma[0] * factor, x.sigma[1] * factor),
+                               popsize=None if x.popsize is None else 2 * x.popsize) if i == 0 else x
+                       for i, x in enumerate(self.levels))
+        return replace(self, bounds=(self.bounds[0] * factor, self.bounds[1] * factor),
+                       sigma=(self.sigma[0] * factor, self.sigma[1] * factor), levels=lv,
+                       seed=self.seed + 1)
+
+    def to_dict(self) -> dict:
+        return {"terms": [t.to_dict() for t in self.terms],
+                "levels": None if self.levels is None else [lv.to_dict() for lv in self.levels],
+                "bounds": list(self.bounds), "sigma": list(self.sigma), "refine": self.refine,
+                "refine_step": list(self.refine_step), "refine_tol": self.refine_tol,
+                "margin_px": self.margin_px, "seed": self.seed}
+
+
+@dataclass(frozen=True, eq=False)
+class RegistrationResult:
+    """Outcome of :func:`register`.
+
+    Attributes
+    ----------
+    pose : (4, 4) array
+        Registered ``T_lab_from_bone``.
+    x : (6,) array
+        Its parameters relative to the initial pose (mm, degrees, about the centre).
+    score : float
+        Weighted mean similarity at the pose, full resolution (1 - cost).
+    view_scores : (n_views,) array
+        The first metric term's score per view at the pose.
+    evaluations, generations : int
+        Poses rendered and batched calls, all stages.
+    time_s : float
+    converged : bool
+    reason : str
+        Stopping rule of the last stage, or ``"at_bound"``.
+    stages : tuple of OptimizeResult
+    timing : dict
+        :class:`~core.tracking.cost.CostTimer` totals over the levels plus ``optimizer_s`` (the
+        rest of the wall time: optimiser arithmetic and set-up).
+    """
+
+    pose: np.ndarray
+    x: np.ndarray
+    score: float
+    view_scores: np.ndarray
+    evaluations: int
+    generations: int
+    time_s: float
+    converged: bool
+    reason: str
+    stages: tuple[opt.OptimizeResult, ...]
+    timing: dict
+
+    def to_dict(self) -> dict:
+        return {"pose": self.pose.tolist(), "x": self.x.tolist(), "score": self.score,
+                "view_scores": self.view_scores.tolist(), "evaluations": self.evaluations,
+                "generations": self.generations, "time_s": self.time_s, "converged": self.converged,
+                "reason": self.reason, "stages": [s.to_dict() for s in self.stages], "timing": self.timing}
+
+
+def _run(level_method: str, fun, x0, *, sigma6, lo, hi, level: Level | None, tol, seed, cancel, popsize,
+         max_gen):
+    extra = {} if level is None else dict(level.options)
+    if level_method == "cmaes":
+        return opt.cmaes(fun, x0, sigma0=sigma6, lower=lo, upper=hi, popsize=popsize,
+                         max_generations=max_gen, tol_x=tol, seed=seed, cancel=cancel, **extra)
+    if level_method == "pso":
+        kw = {"start_min": -3 * sigma6, "start_max": 3 * sigma6, "max_generations": max_gen}
+        if popsize:
+            kw["n_particles"] = popsize
+        kw.update(extra)
+        return opt.pso(fun, x0, lower=lo, upper=hi, seed=seed, cancel=cancel, **kw)
+    if level_method == "pattern":
+        return opt.pattern_search(fun, x0, step=sigma6, lower=lo, upper=hi, tol_x=tol,
+                                  max_generations=max_gen, cancel=cancel, **extra)
+    if level_method == "nelder_mead":
+        return opt.nelder_mead(fun, x0, step=sigma6, lower=lo, upper=hi, tol_x=tol, cancel=cancel, **extra)
+    return opt.powell(fun, x0, lower=lo, upper=hi, tol_x=tol, cancel=cancel, **extra)
+
+
+def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
+             options: RegistrationOptions | None = None, views: Sequence[int] | None = None,
+             others=None, cancel: Callable[[], bool] | None = None, profile: bool = False,
+             x0=None) -> RegistrationResult:
+    """Register bone ``bone`` of ``renderer`` to ``frame`` starting from ``initial_pose``.
+
+    Parameters
+    ----------
+    renderer : core.render.DRRRenderer
+    frame : FrameImages
+    bone : int
+        Volume index in the renderer.
+    initial_pose : (4, 4) array
+        Initial guess ``T_lab_from_bone`` (the search box is centred on it).
+    center : (3,) array
+        Rotation centre in the bone's CT frame (its centroid), mm.
+    options : RegistrationOptions
+    views : sequence of int, optional
+        Views to use (default all).
+    others : (poses, bones), optional
+        Other bones to subtract from the fluoroscope (see :class:`RegistrationCost`).
+    cancel : callable, optional
+        Polled once per generation; a cancelled run returns its best point, not converged.
+    profile : bool
+        Time DRR and metric separately (:class:`RegistrationCost`).
+    x0 : (6,) array, optional
+        Start point inside the box (default 0: the initial pose).
+
+    Raises
+    ------
+    core.tracking.cost.OutsideViewError
+        The bone's search region misses a view.
+    """
+    o = options or RegistrationOptions()
+    t_start = time.perf_counter()
+    base = np.asarray(initial_pose, dtype=float)
+    center = np.asarray(center, dtype=float)
+    views = tuple(range(frame.n_views)) if views is None else tuple(views)
+    levels = o.levels or default_levels(mm_per_pixel(renderer, base, center, views), sigma=o.sigma)
+    roi = search_roi(renderer, base, bone, views=views, center=center,
+                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px)
+    hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
+    lo = -hi
+    x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
+    stages, costs = [], {}
+
+    def cost_at(scale: float) -> RegistrationCost:
+        if scale not in costs:
+            costs[scale] = RegistrationCost(renderer, frame, bone=bone, base_pose=base, center=center,
+                                            roi=roi, scale=scale, terms=o.terms, views=views,
+                                            others=others, profile=profile)
+        return costs[scale]
+
+    for i, lv in enumerate(levels):
+        sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
+        r = _run(lv.method, cost_at(lv.scale), x, sigma6=sig6, lo=lo, hi=hi, level=lv, tol=lv.tol_x,
+                 seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
+        stages.append(r)
+        x = r.x
+        if r.reason == "cancelled":
+            break
+    full = cost_at(1.0)
+    if o.refine and stages[-1].reason != "cancelled":
+        step6 = np.array([o.refine_step[0]] * 3 + [o.refine_step[1]] * 3)
+        r = _run(o.refine, full, x, sigma6=step6, lo=lo, hi=hi, level=None, tol=o.refine_tol,
+                 seed=o.seed, cancel=cancel, popsize=None, max_gen=200)
+        stages.append(r)
+        if r.fun <= full(x[None])[0]:
+            x = r.x
+    m0 = full.metrics[0].evaluate(full.renderer.render(full.poses(x[None])[:, None], views=views,
+                                                       bones=[bone], roi=full._roi_arg, scale=1.0))
+    score = full.score(x)
+    last = stages[-1]
+    converged = last.converged and all(s.reason != "cancelled" for s in stages)
+    reason = last.reason
+    if np.any(np.abs(x) >= hi * (1 - 1e-6)):
+        converged, reason = False, "at_bound"
+    timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
+    for c in costs.values():
+        for k, v in c.timer.to_dict().items():
+            timing[k] += v
+    total = time.perf_counter() - t_start
+    timing["total_s"] = total
+    timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
+    return RegistrationResult(
+        pose=full.poses(x[None])[0], x=np.asarray(x, float), score=score,
+        view_scores=m0.item[0, :, 0].copy(), evaluations=sum(s.evaluations for s in stages),
+        generations=sum(s.generations for s in stages), time_s=total, converged=converged,
+        reason=reason, stages=tuple(stages), timing=timing)

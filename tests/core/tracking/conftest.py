@@ -1,0 +1,35 @@
+"""Shared fixtures of the tracking tests: small synthetic biplane scenes on Warp's CPU device."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def _fluence(scene, i):
+    frames = scene.render_frame(i)
+    out = []
+    for m, f in zip(scene.imaging, frames, strict=True):
+        img = m.to_float(f)
+        out.append(img if m.distortion is None else m.distortion.unwarp(img))
+    return out
+
+
+@pytest.fixture(scope="session")
+def talus_scene():
+    """Ideal (noise-free, undistorted) 128² views of the talus alone, 1.5 mm voxels, 6 frames,
+    with its bone model and a CPU renderer."""
+    from core.render import DRRRenderer
+    from core.synthetic import make_foot_scene
+    from core.tracking.bones import bone_model
+
+    sc = make_foot_scene(n_frames=6, pixels=128, spacing=1.5, names=("talus",), beads_per_bone=0,
+                         soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
+    model = bone_model(sc.bones[0], mesh=False)
+    r = DRRRenderer(sc.rig, [sc.bones[0].to_attenuation(sc.bone_transfer)], device="cpu")
+    return {"scene": sc, "model": model, "renderer": r, "fluence": lambda i: _fluence(sc, i)}
+
+
+@pytest.fixture(scope="session")
+def rng():
+    return np.random.default_rng(1234)

@@ -1,0 +1,496 @@
+"""Calibration objects: bead geometry, definition files, built-ins (thesis §5.3).
+
+A :class:`CalibrationTarget` is what calibration needs to know about an object: an identifier,
+centre (object frame, mm) and diameter (mm) of every bead, the object's kind (``"spiral"``,
+``"cube"`` or ``"generic"``; it selects the labelling algorithm), a sentence defining the object
+frame, and free metadata. The geometry of the built-ins is not duplicated here: it comes from
+:mod:`core.synthetic.calib_objects` (the same objects the synthetic frames are rendered from).
+
+Built-ins
+---------
+* ``"cube15"``: the lab's old cube, three planes of five beads of 1.78, 3.17 and 4.76 mm.
+* ``"spiral23"`` / ``"spiral33"``: helical spirals of beads alternating 3.0 / 5.0 mm
+  (:func:`spiral_target` takes any count, radius, pitch and turns). Object frame (§5.3.2):
+  z along the helix axis from the first to the last bead, x from the axis towards the first
+  bead, origin on the axis half-way between the end beads.
+
+Definition file (``.csv``; UTF-8 text)
+--------------------------------------
+::
+
+    # talus calibration object v1
+    # name: spiral23
+    # kind: spiral
+    # units: mm
+    # frame: z along the helix axis ...
+    # meta.material: stainless steel
+    id,x,y,z,diameter
+    B01,30.0,0.0,-60.0,3.0
+    ...
+
+Lines starting with ``#`` hold ``key: value`` pairs (``meta.<key>`` goes to ``metadata``); the
+first non-comment line is the header ``id,x,y,z,diameter`` (any column order), then one bead per
+line. Coordinates and diameters are in millimetres. The same content as JSON (``.json``) is
+:meth:`CalibrationTarget.to_dict`.
+
+Micro-CT
+--------
+:func:`extract_beads` finds bright beads in a (micro-)CT volume and returns their 3-D
+intensity-weighted centroids and equivalent-sphere diameters; :func:`target_from_volume` turns
+them into a target in the object's local frame (the helix frame for a spiral).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from .._validate import as_float_array, positive
+from ..io.atomic import atomic_write
+from ..render.volume import CTVolume
+from ..synthetic.analytic import attenuation_per_mm
+from ..synthetic.calib_objects import (
+    CalibrationObject,
+    calibration_cube,
+    helical_spiral,
+    helix_frame_from_beads,
+)
+
+__all__ = [
+    "KINDS",
+    "CalibrationTarget",
+    "VolumeBeads",
+    "builtin_target",
+    "cube_target",
+    "extract_beads",
+    "read_target",
+    "spiral_target",
+    "target_from_volume",
+    "write_target",
+]
+
+#: Object kinds understood by the labelling step.
+KINDS = ("spiral", "cube", "generic")
+FORMAT_NAME = "talus calibration object"
+FORMAT_VERSION = 1
+_HELIX_FRAME = ("z along the helix axis from the first to the last bead; x from the axis towards "
+                "the first bead; origin on the axis half-way between the end beads (thesis 5.3.2)")
+_CUBE_FRAME = ("origin at the block centre; z normal to the three bead planes (z = -30, 0, +30 mm "
+               "for 1.78, 3.17, 4.76 mm beads); x, y along the block edges")
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationTarget:
+    """Beads of a calibration object in its own frame.
+
+    Parameters
+    ----------
+    name : str
+        Object name (e.g. ``"spiral23"``).
+    bead_ids : sequence of str
+        Unique identifier of each bead (e.g. ``"B01"``), in model order (along the helix for a
+        spiral).
+    centers : (n, 3) array
+        Bead centres in the object frame, mm.
+    diameters : (n,) array
+        Bead diameters, mm.
+    kind : {"spiral", "cube", "generic"}
+        Selects the labelling algorithm.
+    frame : str
+        How the object frame is defined (free text, stored with the object).
+    metadata : dict
+        Free JSON-serialisable metadata (material, serial number, scan date, ...).
+    body : tuple, optional
+        The homogeneous body of a built-in (see :class:`core.synthetic.CalibrationObject`), used
+        only to render synthetic frames.
+    """
+
+    name: str
+    bead_ids: tuple[str, ...]
+    centers: np.ndarray
+    diameters: np.ndarray
+    kind: str = "generic"
+    frame: str = ""
+    metadata: dict[str, Any] = field(default_factory=dict)
+    body: tuple | None = None
+
+    def __post_init__(self) -> None:
+        c = as_float_array(self.centers, "centers", shape=(None, 3))
+        n = len(c)
+        d = as_float_array(self.diameters, "diameters")
+        d = np.broadcast_to(d, (n,)).astype(float) if d.ndim == 0 else d
+        if d.shape != (n,):
+            raise ValueError(f"diameters: expected {n} values (one per bead), got shape {d.shape}")
+        if np.any(d <= 0):
+            raise ValueError("diameters: expected positive bead diameters in mm")
+        ids = tuple(str(i) for i in self.bead_ids)
+        if len(ids) != n:
+            raise ValueError(f"bead_ids: expected {n} identifiers (one per bead), got {len(ids)}")
+        if len(set(ids)) != n or any(not i.strip() or "," in i for i in ids):
+            raise ValueError("bead_ids: expected unique, non-empty identifiers without commas")
+        if n < 1:
+            raise ValueError("centers: expected at least one bead")
+        if self.kind not in KINDS:
+            raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        if not isinstance(self.metadata, dict):
+            raise ValueError(f"metadata: expected a dict, got {type(self.metadata).__name__}")
+        for nm, arr in (("centers", c), ("diameters", d)):
+            arr = arr.copy()
+            arr.setflags(write=False)
+            object.__setattr__(self, nm, arr)
+        object.__setattr__(self, "bead_ids", ids)
+        object.__setattr__(self, "metadata", dict(self.metadata))
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    def index(self, bead_id: str) -> int:
+        """Model index of ``bead_id`` (raises ``ValueError`` naming the unknown id)."""
+        try:
+            return self.bead_ids.index(str(bead_id))
+        except ValueError:
+            raise ValueError(f"bead_id: {bead_id!r} is not a bead of {self.name!r}") from None
+
+    @property
+    def size_classes(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(sizes (k,), class_of_bead (n,))``: the distinct diameters (ascending, mm, merged
+        within 5 %) and the class index of every bead."""
+        order = np.sort(self.diameters)
+        sizes = [order[0]]
+        for d in order[1:]:
+            if d > 1.05 * sizes[-1]:
+                sizes.append(d)
+        sizes = np.array(sizes)
+        cls = np.argmin(np.abs(np.log(self.diameters[:, None] / sizes[None])), axis=1)
+        return sizes, cls
+
+    def centers_lab(self, T_lab_from_object) -> np.ndarray:
+        """Bead centres in the lab (mm) for the object pose ``T_lab_from_object`` (4x4)."""
+        T = as_float_array(T_lab_from_object, "T_lab_from_object", shape=(4, 4))
+        return self.centers @ T[:3, :3].T + T[:3, 3]
+
+    def to_synthetic(self, *, energy_kev: float = 60.0, with_body: bool = True) -> CalibrationObject:
+        """The :class:`core.synthetic.CalibrationObject` to render frames of this target (steel
+        beads at ``energy_kev``; the built-in body unless ``with_body=False``)."""
+        return CalibrationObject(self.name, self.centers, self.diameters,
+                                 attenuation_per_mm("steel", energy_kev),
+                                 self.body if with_body else None)
+
+    def to_dict(self) -> dict:
+        """JSON-ready description (the ``.json`` definition file)."""
+        return {
+            "format": FORMAT_NAME, "version": FORMAT_VERSION, "name": self.name, "kind": self.kind,
+            "units": "mm", "frame": self.frame, "metadata": self.metadata,
+            "beads": [{"id": i, "x": float(c[0]), "y": float(c[1]), "z": float(c[2]),
+                       "diameter": float(d)}
+                      for i, c, d in zip(self.bead_ids, self.centers, self.diameters, strict=True)],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, *, source: str = "target") -> CalibrationTarget:
+        """Inverse of :meth:`to_dict`; errors name ``source`` and the bad key."""
+        if not isinstance(d, dict):
+            raise ValueError(f"{source}: expected a JSON object, got {type(d).__name__}")
+        ver = d.get("version")
+        if ver != FORMAT_VERSION:
+            raise ValueError(f"{source}: unsupported calibration object version {ver!r} "
+                             f"(this Talus reads version {FORMAT_VERSION})")
+        if d.get("units", "mm") != "mm":
+            raise ValueError(f"{source}: units: expected 'mm', got {d.get('units')!r}")
+        beads = d.get("beads")
+        if not isinstance(beads, list) or not beads:
+            raise ValueError(f"{source}: beads: expected a non-empty list of beads")
+        try:
+            ids = [b["id"] for b in beads]
+            xyz = [[float(b["x"]), float(b["y"]), float(b["z"])] for b in beads]
+            dia = [float(b["diameter"]) for b in beads]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: beads: each bead needs id, x, y, z, diameter ({exc!r})") from None
+        try:
+            return cls(str(d.get("name", "object")), ids, xyz, dia, kind=d.get("kind", "generic"),
+                       frame=str(d.get("frame", "")), metadata=d.get("metadata") or {})
+        except ValueError as exc:
+            raise ValueError(f"{source}: {exc}") from None
+
+
+# ---------------------------------------------------------------------------- built-ins
+def _ids(n: int) -> list[str]:
+    w = max(2, len(str(n)))
+    return [f"B{k + 1:0{w}d}" for k in range(n)]
+
+
+def cube_target(*, energy_kev: float = 60.0) -> CalibrationTarget:
+    """The lab's old 15-bead cube (:func:`core.synthetic.calibration_cube`)."""
+    obj = calibration_cube(energy_kev=energy_kev)
+    return CalibrationTarget(obj.name, _ids(len(obj)), obj.centers, obj.diameters, kind="cube",
+                             frame=_CUBE_FRAME, metadata={"material": "R1/BB Butter-Board resin"},
+                             body=obj.body)
+
+
+def spiral_target(n_beads: int = 23, *, radius_mm: float | None = None, pitch_mm: float = 40.0,
+                  turns: float | None = None, diameters=None, energy_kev: float = 60.0
+                  ) -> CalibrationTarget:
+    """A helical spiral (:func:`core.synthetic.helical_spiral`; presets for 23 and 33 beads).
+
+    Parameters
+    ----------
+    n_beads : int
+        Number of beads (23 and 33 have presets; other counts need ``radius_mm`` and ``turns``).
+    radius_mm, pitch_mm, turns : float
+        Helix radius (mm), axial advance per turn (mm) and turns from the first to the last bead.
+    diameters : sequence of float, optional
+        Bead diameters (mm) along the helix; default alternating 3.0 / 5.0 mm.
+    """
+    obj = helical_spiral(n_beads, radius_mm=radius_mm, pitch_mm=pitch_mm, turns=turns,
+                         diameters=diameters, energy_kev=energy_kev)
+    meta = {"radius_mm": float(np.hypot(*obj.centers[0, :2])), "pitch_mm": float(pitch_mm),
+            "material": "stainless steel beads in cast polyurethane foam"}
+    return CalibrationTarget(obj.name, _ids(len(obj)), obj.centers, obj.diameters, kind="spiral",
+                             frame=_HELIX_FRAME, metadata=meta, body=obj.body)
+
+
+_BUILTINS = {"cube15": cube_target, "spiral23": lambda: spiral_target(23),
+             "spiral33": lambda: spiral_target(33)}
+
+
+def builtin_target(name: str) -> CalibrationTarget:
+    """A built-in object by name: ``"cube15"``, ``"spiral23"`` or ``"spiral33"``."""
+    if name not in _BUILTINS:
+        raise ValueError(f"name: expected one of {sorted(_BUILTINS)}, got {name!r}")
+    return _BUILTINS[name]()
+
+
+# ---------------------------------------------------------------------------- files
+def write_target(target: CalibrationTarget, path) -> None:
+    """Write a definition file (``.csv`` or ``.json`` by extension), atomically."""
+    if not isinstance(target, CalibrationTarget):
+        raise ValueError(f"target: expected a CalibrationTarget, got {type(target).__name__}")
+    p = Path(path)
+    if p.suffix.lower() == ".json":
+        atomic_write(p, json.dumps(target.to_dict(), indent=2) + "\n")
+        return
+    if p.suffix.lower() not in (".csv", ".txt"):
+        raise ValueError(f"path: expected a .csv, .txt or .json file name, got {p.name!r}")
+    lines = [f"# {FORMAT_NAME} v{FORMAT_VERSION}", f"# name: {target.name}", f"# kind: {target.kind}",
+             "# units: mm", f"# frame: {target.frame}"]
+    for k, v in target.metadata.items():
+        lines.append(f"# meta.{k}: {json.dumps(v)}")
+    lines.append("id,x,y,z,diameter")
+    for i, c, d in zip(target.bead_ids, target.centers, target.diameters, strict=True):
+        lines.append(",".join([i, *(repr(float(x)) for x in c), repr(float(d))]))
+    atomic_write(p, "\n".join(lines) + "\n")
+
+
+def _parse_csv(p: Path, text: str) -> dict:
+    head: dict[str, Any] = {"metadata": {}}
+    rows, header = [], None
+    for ln, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            body = s[1:].strip()
+            if body.lower().startswith(FORMAT_NAME):
+                ver = body[len(FORMAT_NAME):].strip().lstrip("v")
+                head["version"] = int(ver) if ver.isdigit() else ver
+            elif ":" in body:
+                k, v = (x.strip() for x in body.split(":", 1))
+                if k.startswith("meta."):
+                    try:
+                        head["metadata"][k[5:]] = json.loads(v)
+                    except json.JSONDecodeError:
+                        head["metadata"][k[5:]] = v
+                else:
+                    head[k] = v
+            continue
+        cells = [c.strip() for c in s.split(",")]
+        if header is None:
+            header = [c.lower() for c in cells]
+            missing = {"id", "x", "y", "z", "diameter"} - set(header)
+            if missing:
+                raise ValueError(f"{p}: line {ln}: header misses column(s) {sorted(missing)}; "
+                                 "expected id,x,y,z,diameter")
+            continue
+        if len(cells) != len(header):
+            raise ValueError(f"{p}: line {ln}: expected {len(header)} values, got {len(cells)}")
+        rows.append((ln, dict(zip(header, cells, strict=True))))
+    if header is None:
+        raise ValueError(f"{p}: no bead table (header line id,x,y,z,diameter) found")
+    head.setdefault("version", FORMAT_VERSION)
+    beads = []
+    for ln, r in rows:
+        try:
+            beads.append({"id": r["id"], **{k: float(r[k]) for k in ("x", "y", "z", "diameter")}})
+        except ValueError:
+            raise ValueError(f"{p}: line {ln}: expected numbers for x, y, z, diameter") from None
+    head["beads"] = beads
+    return head
+
+
+def read_target(path) -> CalibrationTarget:
+    """Read a definition file (``.csv``/``.txt`` table with ``#`` metadata, or ``.json``).
+
+    Raises
+    ------
+    ValueError
+        Naming the file (and line) on a missing file, bad header, non-numeric value, duplicate
+        id, non-positive diameter or unsupported version.
+    """
+    p = Path(os.fspath(path))
+    if not p.is_file():
+        raise ValueError(f"path: no such calibration object file: {p}")
+    text = p.read_text(encoding="utf-8-sig")
+    if p.suffix.lower() == ".json":
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{p}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    else:
+        d = _parse_csv(p, text)
+    return CalibrationTarget.from_dict(d, source=str(p))
+
+
+# ---------------------------------------------------------------------------- micro-CT
+@dataclass(frozen=True, eq=False)
+class VolumeBeads:
+    """Beads found in a CT volume by :func:`extract_beads`.
+
+    ``centers (n, 3)`` physical mm (intensity-weighted centroids), ``diameters (n,)`` mm
+    (equivalent sphere of the bead's excess intensity), ``n_voxels (n,)`` voxels above the
+    threshold, ``threshold`` and ``background`` in the volume's units.
+    """
+
+    centers: np.ndarray
+    diameters: np.ndarray
+    n_voxels: np.ndarray
+    threshold: float
+    background: float
+
+
+def extract_beads(volume: CTVolume, *, threshold: float | None = None, min_diameter_mm: float = 0.5,
+                  max_diameter_mm: float = 20.0, margin_voxels: int = 2) -> VolumeBeads:
+    """Bead centres in a (micro-)CT volume by 3-D intensity-weighted centroids.
+
+    1. Voxels above ``threshold`` (default: half-way between the background, the volume's median,
+       and the 99.99th percentile) form connected components (26-connectivity).
+    2. Each component is dilated by ``margin_voxels`` so the partial-volume rim is included; its
+       centroid is weighted by the excess ``max(value - background, 0)``.
+    3. The diameter is that of the sphere whose volume is the excess summed over the component
+       divided by the bead's plateau excess (median of the component's core, the voxels above
+       the 75th percentile of its excess).
+
+    Components outside ``[min_diameter_mm, max_diameter_mm]`` are dropped (dust, end plates).
+
+    Parameters
+    ----------
+    volume : CTVolume
+        Scan of the object (any units; beads brighter than the body).
+    threshold : float, optional
+        Segmentation threshold in the volume's units.
+    min_diameter_mm, max_diameter_mm : float
+        Accepted equivalent diameters, mm.
+    margin_voxels : int
+        Rim added around each component for the weighted centroid.
+
+    Returns
+    -------
+    VolumeBeads
+        Ordered by decreasing diameter.
+    """
+    if not isinstance(volume, CTVolume):
+        raise ValueError(f"volume: expected a CTVolume, got {type(volume).__name__}")
+    lo, hi = positive(min_diameter_mm, "min_diameter_mm"), positive(max_diameter_mm, "max_diameter_mm")
+    if int(margin_voxels) != margin_voxels or margin_voxels < 0:
+        raise ValueError(f"margin_voxels: expected an integer >= 0, got {margin_voxels!r}")
+    data = np.asarray(volume.data, dtype=np.float64)
+    bg = float(np.median(data))
+    top = float(np.percentile(data, 99.99))
+    thr = bg + 0.5 * (top - bg) if threshold is None else float(threshold)
+    if not thr > bg:
+        raise ValueError(f"threshold: expected a value above the background {bg:g}, got {thr:g}")
+    lab, n = ndimage.label(data > thr, structure=np.ones((3, 3, 3)))
+    empty = VolumeBeads(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), thr, bg)
+    if n == 0:
+        return empty
+    voxel_mm3 = float(np.prod(volume.spacing))
+    excess = np.clip(data - bg, 0.0, None)
+    centers, dias, counts = [], [], []
+    for idx, sl in enumerate(ndimage.find_objects(lab), start=1):
+        m = margin_voxels
+        sl = tuple(slice(max(s.start - m, 0), min(s.stop + m, dim))
+                   for s, dim in zip(sl, data.shape, strict=True))
+        comp = lab[sl] == idx
+        region = ndimage.binary_dilation(comp, iterations=m) if m else comp
+        region &= (lab[sl] == 0) | comp  # never take a neighbour's voxels
+        w = np.where(region, excess[sl], 0.0)
+        total = w.sum()
+        core = excess[sl][comp]
+        plateau = float(np.median(core[core >= np.percentile(core, 75)]))
+        if total <= 0 or plateau <= 0:
+            continue
+        d = (6.0 * total / plateau * voxel_mm3 / np.pi) ** (1.0 / 3.0)
+        if not lo <= d <= hi:
+            continue
+        kk, jj, ii = np.nonzero(w)
+        ww = w[kk, jj, ii]
+        ijk = np.array([ii @ ww, jj @ ww, kk @ ww]) / total + [s.start for s in sl[::-1]]
+        centers.append(volume.index_to_physical(ijk))
+        dias.append(d)
+        counts.append(int(comp.sum()))
+    if not centers:
+        return empty
+    order = np.argsort(-np.asarray(dias), kind="stable")
+    return VolumeBeads(np.asarray(centers)[order], np.asarray(dias)[order],
+                       np.asarray(counts, np.int64)[order], thr, bg)
+
+
+def _snap(d: np.ndarray, nominal) -> np.ndarray:
+    if nominal is None:
+        return d
+    nom = np.asarray(nominal, dtype=float)
+    return nom[np.argmin(np.abs(d[:, None] - nom[None]), axis=1)]
+
+
+def target_from_volume(volume: CTVolume, *, kind: str = "spiral", name: str = "object",
+                       nominal_diameters=None, reverse: bool = False, metadata: dict | None = None,
+                       **extract_options) -> CalibrationTarget:
+    """A target from a micro-CT scan of the object (thesis §5.3.2).
+
+    ``kind="spiral"``: beads are ordered along the helix axis (principal axis of the bead cloud)
+    and expressed in the helix frame of :func:`core.synthetic.helix_frame_from_beads` (the
+    module docstring's definition); the first bead is at the end of the axis whose direction's
+    largest scan component is negative (``reverse=True`` starts from the other end). Other kinds
+    keep the scan's physical coordinates, ordered by
+    decreasing diameter. ``nominal_diameters`` (mm) snaps each measured diameter to the nearest
+    nominal size (the measured one is kept in ``metadata["measured_diameters_mm"]``).
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+    beads = extract_beads(volume, **extract_options)
+    P, d = beads.centers, beads.diameters
+    meta = dict(metadata or {})
+    meta.update(source="micro-CT", threshold=beads.threshold, spacing_mm=volume.spacing.tolist())
+    if kind == "spiral":
+        if len(P) < 5:
+            raise ValueError(f"volume: found {len(P)} beads, a helix needs at least 5")
+        m = P.mean(axis=0)
+        axis = np.linalg.svd(P - m)[2][0]
+        axis = axis * np.sign(axis[np.argmax(np.abs(axis))]) * (-1.0 if reverse else 1.0)
+        order = np.argsort((P - m) @ axis)
+        P, d = P[order], d[order]
+        T = helix_frame_from_beads(P)
+        local = (P - T[:3, 3]) @ T[:3, :3]
+        frame = _HELIX_FRAME
+    else:
+        if len(P) < 1:
+            raise ValueError("volume: no beads found")
+        local, frame = P, "physical coordinates of the CT scan (mm)"
+    meta["measured_diameters_mm"] = [round(float(x), 4) for x in d]
+    return CalibrationTarget(name, _ids(len(local)), local, _snap(d, nominal_diameters), kind=kind,
+                             frame=frame, metadata=meta)

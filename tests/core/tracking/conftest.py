@@ -33,3 +33,24 @@ def talus_scene():
 @pytest.fixture(scope="session")
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="session")
+def walking_talus():
+    """The talus over 60 frames of stance (≈0.1–2.6 mm per frame early on), ideal 128² views."""
+    from core.render import DRRRenderer
+    from core.synthetic import make_foot_scene
+    from core.tracking.bones import bone_model
+
+    sc = make_foot_scene(n_frames=60, pixels=128, spacing=1.5, names=("talus",), beads_per_bone=0,
+                         soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
+    model = bone_model(sc.bones[0], mesh=False)
+    r = DRRRenderer(sc.rig, [sc.bones[0].to_attenuation(sc.bone_transfer)], device="cpu")
+    cache = {}
+
+    def frames(i):
+        if i not in cache:
+            cache[i] = _fluence(sc, i)
+        return cache[i]
+
+    return {"scene": sc, "model": model, "renderer": r, "frames": frames}

@@ -1,0 +1,176 @@
+"""Tracking a :class:`core.study.Study` trial: frames, bone models, journal and report wired in.
+
+:func:`track_study` reads the trial's two views frame by frame, turns raw camera frames into
+flatfield-normalised fluence (:func:`frame_reader`), builds each bone's :class:`BoneModel` from
+the study's CT (a bone whose CT has no voxel above the threshold is reported and left out; the
+others are tracked), starts from the poses already in the trial's journal (keyframes), records
+every registered frame with :meth:`core.study.Trial.record_pose` as it finishes, and keeps the
+report ``results/reports/tracking/<trial>.json`` (summary, per-frame scores, evaluations,
+confidence and review flags) up to date — written when a frame is flagged, at least every
+``report_every_s`` seconds, and at the end. ``resume=True`` skips the frames of the range that
+already have a pose in the journal.
+
+Frame normalisation, in order of precedence
+-------------------------------------------
+1. ``correction``: one callable per view, raw DN frame → fluence in [0, 1] (e.g. a
+   :class:`core.imaging.Pipeline`);
+2. the study settings ``"correction": {"views": [pipeline dict, ...]}``
+   (:meth:`core.imaging.Pipeline.from_dict`);
+3. the layout written by :func:`core.synthetic.make_demo_study`: ``imaging/<camera>.json``
+   (dark level, distortion) and ``imaging/flatfield_<camera>.tif`` beside ``study.json``;
+4. otherwise frames are divided by the full scale ``2**bits - 1`` (no flatfield: noted in the
+   report).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..render import HUTransfer
+from .bones import bone_model
+from .trial import TrackingOptions, TrackingResult, track
+
+__all__ = ["frame_reader", "track_study"]
+
+
+def _demo_correction(folder: Path, rig) -> list[Callable] | None:
+    import tifffile
+
+    out = []
+    for cam in rig:
+        js, ff = folder / "imaging" / f"{cam.name}.json", folder / "imaging" / f"flatfield_{cam.name}.tif"
+        if not (js.is_file() and ff.is_file()):
+            return None
+        meta = json.loads(js.read_text())
+        dark = float(meta.get("dark_dn", 0.0))
+        gain = tifffile.imread(ff).astype(np.float64) - dark
+        dist = None
+        d = meta.get("distortion")
+        if d:
+            from ..synthetic.distortion import Distortion
+
+            dist = Distortion(center=tuple(d["center"]), scale_px=d["scale_px"], k1=d["k1"], k2=d["k2"],
+                              twist_rad=d["twist_rad"], twist_power=d["twist_power"])
+
+        def correct(raw, gain=gain, dark=dark, dist=dist):
+            ok = gain > 1e-6
+            img = np.where(ok, (np.asarray(raw, np.float64) - dark) / np.where(ok, gain, 1.0), 0.0)
+            img = np.clip(img, 0.0, 1.0).astype(np.float32)
+            return dist.unwarp(img) if dist is not None else img
+
+        out.append(correct)
+    return out
+
+
+def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) -> tuple[Callable, str]:
+    """``(read(frame) -> [fluence per view], description)`` for a study trial (see the module
+    docs for how raw frames are normalised). A view whose frame cannot be read gives None."""
+    rig = trial.rig()
+    how = "given"
+    fns = list(correction) if correction is not None else None
+    if fns is None and isinstance(study.settings.get("correction"), dict):
+        from ..imaging.pipeline import Pipeline
+
+        fns = [Pipeline.from_dict(d) for d in study.settings["correction"]["views"]]
+        how = "study settings"
+    if fns is None:
+        fns = _demo_correction(study.folder, rig)
+        how = "demo flatfield + distortion"
+    if fns is None:
+        bits = [v.get("bit_depth") or 16 for v in study.manifest["trials"][trial.name]["views"]]
+        fns = [lambda raw, b=b: np.clip(np.asarray(raw, np.float32) / (2**b - 1), 0, 1) for b in bits]
+        how = "full scale (no flatfield)"
+    if len(fns) != len(rig):
+        raise ValueError(f"correction: expected {len(rig)} per-view corrections, got {len(fns)}")
+
+    def read(t: int):
+        try:
+            raw = trial.frames(t)
+        except (ValueError, OSError, IndexError):
+            raw = None
+        if raw is None:
+            return [None] * len(rig)
+        return [None if r is None else np.asarray(fn(r), dtype=np.float32)
+                for fn, r in zip(fns, raw, strict=True)]
+
+    return read, how
+
+
+def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
+                frames: Sequence[int] | None = None, *, options: TrackingOptions | None = None,
+                device: str | None = None, resume: bool = False,
+                threshold_hu: float = 200.0, transfer: HUTransfer | None = None,
+                correction: Sequence[Callable] | None = None, progress=None, cancel=None,
+                report_every_s: float = 5.0) -> tuple[TrackingResult | None, dict]:
+    """Track ``bones`` of trial ``trial_name`` over ``frames`` (default all, forward).
+
+    ``study`` must be open for writing. Returns ``(result, report)``; ``result`` is None when no
+    bone could be tracked (the report says why). Bones whose CT has no bone above
+    ``threshold_hu`` are listed under ``report["stopped"]`` with the reason.
+    """
+    from ..render import DRRRenderer
+
+    trial = study.trial(trial_name)
+    names = list(trial.bones if bones is None else bones)
+    for b in names:
+        if b not in trial.bones:
+            raise ValueError(f"bones: trial {trial_name!r} has no bone {b!r} (has {list(trial.bones)})")
+    n = trial.n_frames
+    order = list(range(n) if frames is None else frames)
+    bad = [f for f in order if not 0 <= f < n]
+    if bad:
+        raise ValueError(f"frames: {bad[:3]} outside the trial's 0..{n - 1}")
+    stopped, models = {}, []
+    for b in names:
+        try:
+            models.append(bone_model(study.bone_volume(b), name=b, threshold=threshold_hu, mesh=False))
+        except ValueError as exc:
+            stopped[b] = str(exc)
+    existing = {m.name: {f: P for f, P in enumerate(trial.poses(m.name)) if np.all(np.isfinite(P))}
+                for m in models}
+    for m in list(models):
+        if not existing[m.name]:
+            stopped[m.name] = "no keyframe: record a starting pose for this bone first"
+            models.remove(m)
+    read, how = frame_reader(study, trial, correction=correction)
+    report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
+              "normalisation": how,
+              "stopped": stopped, "options": {"resume": resume}}
+    if not models:
+        report["summary"] = {"status": "stopped", "message": "no bone to track"}
+        study.write_report("tracking", trial_name, report)
+        return None, report
+    tr = transfer or HUTransfer(threshold=threshold_hu)
+    renderer = DRRRenderer(trial.rig(), [m.volume for m in models], transfer=tr, device=device)
+    in_range = set(order)
+    skip = ({b: {f: P for f, P in existing[b].items() if f in in_range} for b in existing}
+            if resume else None)
+    state = {"last": time.monotonic(), "frames": []}
+
+    def write(result_frames, summary=None):
+        rep = dict(report, frames_done=result_frames)
+        if summary:
+            rep["summary"] = summary
+        study.write_report("tracking", trial_name, rep)
+
+    def on_progress(done, total, fr):
+        state["frames"].append(fr.to_dict())
+        now = time.monotonic()
+        if fr.flags or now - state["last"] > report_every_s:
+            write(state["frames"])
+            state["last"] = now
+        if progress is not None:
+            progress(done, total, fr)
+
+    result = track(renderer, models, read, order, keyframes=existing, options=options,
+                   record=lambda b, f, P, s: trial.record_pose(b, int(f), P, score=float(s)),
+                   skip=skip, progress=on_progress, cancel=cancel)
+    report["summary"] = result.summary()
+    report["flagged"] = [r.to_dict() for r in result.flagged]
+    write(state["frames"], report["summary"])
+    return result, report

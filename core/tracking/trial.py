@@ -1,0 +1,356 @@
+"""Whole-trial tracking: many bones over a frame range, saved frame by frame, resumable.
+
+:func:`track` registers every bone in every frame of ``frames`` (in the given order: forward,
+backward, or any list), frame-major (all bones of a frame, then the next), and hands each
+finished (bone, frame) to ``record`` at once — with a :class:`core.study.Trial` that is
+:meth:`~core.study.Trial.record_pose`, which makes the frame durable before tracking goes on.
+:func:`track_study` wires a study trial in (frames, rig, bone CTs, journal, report).
+
+Initial guess of a frame (``guess``)
+------------------------------------
+* ``"previous"`` — the bone's last good pose;
+* ``"velocity"`` — constant velocity from the last two good poses (centre displacement and
+  rotation vector about the centroid, scaled by the frame gaps), ``"previous"`` with one;
+* ``"spline"`` — a cubic spline through the user's keyframes (6 parameters about the first
+  keyframe); ``"velocity"`` outside the keyframes' span or with fewer than 2 keyframes.
+The first frame of a bone starts from its keyframe at that frame, else the nearest keyframe
+(the study journal's poses recorded before tracking act as keyframes), and is registered with
+the widened first-frame options.
+
+Bones (``mode``)
+----------------
+``"sequential"`` registers each bone alone; ``"joint"`` runs ``joint_rounds`` rounds in which each
+bone is registered with the other bones' DRRs (at their latest estimates) subtracted from the
+fluoroscope images, so overlapping projections do not pull a bone towards its neighbour.
+
+Failure detection and review flags
+----------------------------------
+A registration fails when it did not converge (or hit the search box), when its score falls below
+``min_score_ratio`` × the median of the bone's last ``history`` good scores, or when it jumps more
+than ``max_jump`` (mm, degrees) from the initial guess. A failed frame is retried once with
+``retry_factor``× wider bounds and steps (from the guess and from the last good pose); the best
+retry is kept, and if it still fails the frame is recorded *flagged for review* with its reasons
+and is not used for later guesses. A bone outside a view's field or a frame missing in a view is
+flagged with that reason, nothing is recorded, and tracking continues.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..geometry.transforms import params_from_pose, pose_from_params
+from .bones import BoneModel
+from .confidence import curvature_confidence
+from .cost import OutsideViewError, RegistrationCost, prepare_frame, search_roi
+from .register import RegistrationOptions, register
+
+__all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "predict_pose", "track"]
+
+_GUESSES = ("previous", "velocity", "spline")
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """Options of :func:`track` (see the module docs)."""
+
+    registration: RegistrationOptions = field(
+        default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0)))
+    first: RegistrationOptions | None = None
+    guess: str = "velocity"
+    mode: str = "sequential"
+    joint_rounds: int = 2
+    min_score_ratio: float = 0.85
+    max_jump: tuple[float, float] = (4.0, 6.0)
+    history: int = 10
+    retry_factor: float = 2.0
+    confidence: bool = True
+    confidence_step: tuple[float, float] = (0.25, 0.25)
+
+    def __post_init__(self) -> None:
+        if self.guess not in _GUESSES:
+            raise ValueError(f"guess: expected one of {_GUESSES}, got {self.guess!r}")
+        if self.mode not in ("sequential", "joint"):
+            raise ValueError(f"mode: expected 'sequential' or 'joint', got {self.mode!r}")
+        if not 0 <= self.min_score_ratio <= 1:
+            raise ValueError(f"min_score_ratio: expected a ratio in [0, 1], got {self.min_score_ratio!r}")
+        if self.retry_factor < 1:
+            raise ValueError(f"retry_factor: expected >= 1, got {self.retry_factor!r}")
+
+    @property
+    def first_options(self) -> RegistrationOptions:
+        return self.first or self.registration.widened(2.0)
+
+
+@dataclass(frozen=True, eq=False)
+class FrameResult:
+    """One bone in one frame: ``pose`` (None when nothing was recorded), ``score``, work done,
+    ``converged`` (passed every check), ``flags`` (reasons for review), ``retried``, and the
+    :class:`~core.tracking.confidence.PoseConfidence` as a dict (or None)."""
+
+    bone: str
+    frame: int
+    pose: np.ndarray | None
+    score: float
+    evaluations: int
+    time_s: float
+    converged: bool
+    flags: tuple[str, ...] = ()
+    retried: bool = False
+    confidence: dict | None = None
+
+    def to_dict(self) -> dict:
+        score = None if not np.isfinite(self.score) else self.score
+        return {"bone": self.bone, "frame": self.frame, "score": score,
+                "evaluations": self.evaluations, "time_s": self.time_s, "converged": self.converged,
+                "flags": list(self.flags), "retried": self.retried, "confidence": self.confidence}
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingResult:
+    """All frame results of a :func:`track` run; ``status`` is ``"complete"`` or ``"cancelled"``."""
+
+    bones: tuple[str, ...]
+    frames: tuple[int, ...]
+    results: dict
+    status: str
+    time_s: float
+
+    def poses(self, bone: str) -> np.ndarray:
+        """``(len(frames), 4, 4)`` poses of ``bone`` in ``frames`` order, NaN where none."""
+        out = np.full((len(self.frames), 4, 4), np.nan)
+        for k, f in enumerate(self.frames):
+            r = self.results.get((bone, f))
+            if r is not None and r.pose is not None:
+                out[k] = r.pose
+        return out
+
+    @property
+    def flagged(self) -> list[FrameResult]:
+        return [r for r in self.results.values() if r.flags]
+
+    def summary(self) -> dict:
+        rs = list(self.results.values())
+        done = [r for r in rs if r.pose is not None]
+        return {"status": self.status, "bones": list(self.bones), "frames": len(self.frames),
+                "results": len(rs), "recorded": len(done),
+                "converged_fraction": float(np.mean([r.converged for r in rs])) if rs else None,
+                "flagged": len(self.flagged), "evaluations": int(sum(r.evaluations for r in rs)),
+                "time_s": self.time_s,
+                "time_per_frame_s": self.time_s / max(len({r.frame for r in rs}), 1)}
+
+    def report(self) -> dict:
+        """JSON-ready report: summary and every frame result (flags and reasons included)."""
+        return {"summary": self.summary(), "frames": [r.to_dict() for r in self.results.values()]}
+
+
+def _delta(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Parameters (mm, rad) taking pose ``a`` to pose ``b`` about centre ``c``."""
+    return params_from_pose(b, center=c, base=a)
+
+
+def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, *,
+                 guess: str = "velocity",
+                 keyframes: Mapping[int, np.ndarray] | None = None) -> np.ndarray:
+    """Initial guess for ``frame`` from the bone's good ``(frame, pose)`` history (in tracking
+    order, last = most recent) and its ``keyframes`` (see the module docs)."""
+    c = np.asarray(center, dtype=float)
+    kf = dict(keyframes or {})
+    if guess == "spline" and len(kf) >= 2:
+        ks = sorted(kf)
+        if ks[0] <= frame <= ks[-1]:
+            from scipy.interpolate import CubicSpline
+
+            base = np.asarray(kf[ks[0]], float)
+            P = np.array([_delta(base, np.asarray(kf[k], float), c) for k in ks])
+            bc = "not-a-knot" if len(ks) > 2 else "clamped"
+            return pose_from_params(CubicSpline(ks, P, axis=0, bc_type=bc)(frame), center=c, base=base)
+    if not history:
+        if not kf:
+            raise ValueError(f"keyframes: no pose to start frame {frame} from")
+        near = min(kf, key=lambda k: (abs(k - frame), k))
+        return np.asarray(kf[near], dtype=float)
+    f1, T1 = history[-1]
+    if guess == "previous" or len(history) < 2 or f1 == frame:
+        return np.asarray(T1, dtype=float)
+    f0, T0 = history[-2]
+    if f0 == f1:
+        return np.asarray(T1, dtype=float)
+    d = _delta(np.asarray(T0, float), np.asarray(T1, float), c)
+    return pose_from_params(d * (frame - f1) / (f1 - f0), center=c, base=np.asarray(T1, float))
+
+
+def _failures(res, guess_pose, center, good_scores, o: TrackingOptions) -> list[str]:
+    out = []
+    if not res.converged:
+        out.append(f"not converged ({res.reason})")
+    if good_scores:
+        med = float(np.median(good_scores[-o.history:]))
+        if res.score < o.min_score_ratio * med:
+            out.append(f"score drop ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
+    d = _delta(guess_pose, res.pose, center)
+    dt, dr = float(np.linalg.norm(d[:3])), float(np.degrees(np.linalg.norm(d[3:])))
+    if dt > o.max_jump[0] or dr > o.max_jump[1]:
+        out.append(f"pose jump ({dt:.2f} mm, {dr:.2f} deg from the guess)")
+    return out
+
+
+def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence],
+          frame_order: Sequence[int], *,
+          keyframes: Mapping[str, Mapping[int, np.ndarray]], options: TrackingOptions | None = None,
+          record: Callable[[str, int, np.ndarray, float], None] | None = None,
+          skip: Mapping[str, Mapping[int, np.ndarray]] | None = None,
+          progress: Callable[[int, int, FrameResult], None] | None = None,
+          cancel: Callable[[], bool] | None = None) -> TrackingResult:
+    """Track ``bones`` (volume ``i`` of ``renderer`` is ``bones[i]``) over ``frame_order``.
+
+    Parameters
+    ----------
+    frames : callable(frame) -> sequence
+        Per view the flatfield-normalised image in [0, 1], or None where that view has no frame.
+    frame_order : sequence of int
+        Frames in tracking order (``range(a, b)`` forward, ``range(b - 1, a - 1, -1)`` backward).
+    keyframes : mapping bone name -> {frame: pose}
+        Starting poses (at least one per bone) and spline knots.
+    record : callable(bone, frame, pose, score), optional
+        Called as soon as each (bone, frame) is registered (e.g. ``Trial.record_pose``).
+    skip : mapping bone name -> {frame: pose}, optional
+        Frames already done (resume): not registered again; their poses feed the guesses.
+    progress : callable(done, total, FrameResult), optional
+    cancel : callable() -> bool, optional
+        Polled between registrations and once per optimiser generation; the frame in flight is
+        dropped and the result says ``"cancelled"``.
+    """
+    o = options or TrackingOptions()
+    order = [int(f) for f in frame_order]
+    if len(bones) != len(renderer.volumes):
+        raise ValueError(f"bones: expected {len(renderer.volumes)} bone models, one per renderer volume")
+    names = tuple(b.name for b in bones)
+    for b in names:
+        if not (keyframes.get(b) or (skip or {}).get(b)):
+            raise ValueError(f"keyframes: bone {b!r} has no keyframe to start from")
+    skip = {b: dict((skip or {}).get(b, {})) for b in names}
+    hist: dict[str, list] = {b: [] for b in names}
+    scores: dict[str, list] = {b: [] for b in names}
+    results: dict = {}
+    total, done = len(order) * len(names), 0
+    t0 = time.perf_counter()
+    status = "complete"
+
+    def finish(fr: FrameResult) -> None:
+        nonlocal done
+        results[(fr.bone, fr.frame)] = fr
+        done += 1
+        if progress is not None:
+            progress(done, total, fr)
+
+    for f in order:
+        if cancel is not None and cancel():
+            status = "cancelled"
+            break
+        todo = [i for i, b in enumerate(names) if f not in skip[b]]
+        for b in names:
+            if f in skip[b]:
+                hist[b].append((f, np.asarray(skip[b][f], float)))
+                done += 1
+        if not todo:
+            continue
+        imgs = list(frames(f))
+        missing = [v for v, im in enumerate(imgs) if im is None]
+        if missing:
+            for i in todo:
+                finish(FrameResult(names[i], f, None, np.nan, 0, 0.0, False,
+                                   (f"frame missing in view {', '.join(map(str, missing))}",)))
+            continue
+        frame = prepare_frame(imgs)
+        guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
+                                   keyframes=keyframes.get(names[i])) for i in todo}
+        current = {i: guesses[i] for i in todo}
+        for i, b in enumerate(names):
+            if i not in current:
+                current[i] = hist[b][-1][1] if hist[b] else predict_pose(
+                    [], f, bones[i].centroid, keyframes=keyframes.get(b) or skip[b])
+        rounds = o.joint_rounds if (o.mode == "joint" and len(names) > 1) else 1
+        out: dict[int, tuple] = {}
+        for rnd in range(rounds):
+            for i in todo:
+                if cancel is not None and cancel():
+                    status = "cancelled"
+                    break
+                others = None
+                if o.mode == "joint" and len(names) > 1:
+                    ids = [k for k in range(len(names)) if k != i]
+                    others = (np.stack([current[k] for k in ids]), ids)
+                first = not hist[names[i]]
+                opts = o.first_options if first else o.registration
+                start = current[i] if rnd else guesses[i]
+                out[i] = _register_one(renderer, frame, bones[i], i, start, guesses[i], opts, o,
+                                       scores[names[i]], others, cancel, hist[names[i]])
+                if out[i][0] is not None:
+                    current[i] = out[i][0].pose
+            if status == "cancelled":
+                break
+        if status == "cancelled":
+            break
+        for i in todo:
+            res, flags, retried, evals, dt, conf = out[i]
+            b = names[i]
+            if res is None:
+                finish(FrameResult(b, f, None, np.nan, evals, dt, False, tuple(flags), retried))
+                continue
+            if record is not None:
+                record(b, f, res.pose, res.score)
+            if not flags:
+                hist[b].append((f, res.pose))
+                scores[b].append(res.score)
+            finish(FrameResult(b, f, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf))
+    return TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
+
+
+def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
+                  o: TrackingOptions, good_scores, others, cancel, history):
+    """Register with failure checks and one wider retry.
+
+    Returns (result, flags, retried, evaluations, time, confidence dict)."""
+    t0 = time.perf_counter()
+    c = bone.centroid
+    try:
+        res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
+                       others=others, cancel=cancel)
+    except OutsideViewError as exc:
+        return None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None
+    evals = res.evaluations
+    flags = _failures(res, guess, c, good_scores, o)
+    retried = False
+    if flags and not (cancel is not None and cancel()):
+        retried = True
+        wide = opts.widened(o.retry_factor)
+        starts = [guess] + ([history[-1][1]] if history else [])
+        for s in starts:
+            try:
+                r2 = register(renderer, frame, bone=index, initial_pose=s, center=c, options=wide,
+                              others=others, cancel=cancel)
+            except OutsideViewError:
+                continue
+            evals += r2.evaluations
+            f2 = _failures(r2, guess, c, good_scores, replace(o, max_jump=(o.max_jump[0] * o.retry_factor,
+                                                                          o.max_jump[1] * o.retry_factor)))
+            if (len(f2), -r2.score) < (len(flags), -res.score):
+                res, flags = r2, f2
+            if not flags:
+                break
+    conf = None
+    if o.confidence:
+        try:
+            roi = search_roi(renderer, res.pose, index, views=tuple(range(frame.n_views)), center=c,
+                             reach_mm=2.0, margin_px=opts.margin_px)
+            cost = RegistrationCost(renderer, frame, bone=index, base_pose=res.pose, center=c, roi=roi,
+                                    terms=opts.terms, others=others)
+            conf = curvature_confidence(cost, np.zeros(6), step=o.confidence_step).to_dict()
+        except OutsideViewError:
+            conf = None
+        evals += 73 if conf is not None else 0
+    return res, flags, retried, evals, time.perf_counter() - t0, conf

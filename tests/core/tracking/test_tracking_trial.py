@@ -1,0 +1,116 @@
+import numpy as np
+import pytest
+
+from core.geometry.transforms import params_from_pose, pose_from_params
+from core.tracking.register import Level, RegistrationOptions
+from core.tracking.trial import TrackingOptions, predict_pose, track
+
+FAST = TrackingOptions(registration=RegistrationOptions(
+    bounds=(4.0, 4.0), levels=(Level(1.0, "cmaes", (0.7, 0.7), popsize=10, max_generations=40, tol_x=0.02),),
+    refine="pattern"), confidence=False)
+
+
+def _err(P, T, c):
+    e = params_from_pose(P, center=c, base=T)
+    return np.linalg.norm(e[:3]), np.degrees(np.linalg.norm(e[3:]))
+
+
+def test_predict_pose_rules():
+    c = np.array([1.0, 2.0, 3.0])
+    step = np.r_[0.5, -0.2, 0.1, 0.01, 0.02, -0.01]
+    T0 = np.eye(4)
+    T1 = pose_from_params(step, center=c, base=T0)
+    T2 = pose_from_params(step, center=c, base=T1)
+    hist = [(0, T0), (1, T1)]
+    np.testing.assert_allclose(predict_pose(hist, 2, c, guess="velocity"), T2, atol=1e-9)
+    np.testing.assert_allclose(predict_pose(hist, 2, c, guess="previous"), T1)
+    np.testing.assert_allclose(predict_pose([], 5, c, keyframes={0: T0, 9: T1}), T1)  # nearest keyframe
+    kf = {0: T0, 10: T1, 20: T2}
+    np.testing.assert_allclose(predict_pose(hist, 10, c, guess="spline", keyframes=kf), T1, atol=1e-9)
+    mid = predict_pose(hist, 5, c, guess="spline", keyframes=kf)
+    assert np.isclose(params_from_pose(mid, center=c, base=T0)[0], 0.25, atol=0.02)
+    with pytest.raises(ValueError, match="keyframes"):
+        predict_pose([], 0, c)
+    with pytest.raises(ValueError, match="guess"):
+        TrackingOptions(guess="psychic")
+
+
+def test_track_forward_records_each_frame_and_is_accurate(walking_talus):
+    w = walking_talus
+    sc, c = w["scene"], w["model"].centroid
+    start = pose_from_params(np.r_[1.5, -1.0, 1.0, 0.02, -0.02, 0.01], center=c, base=sc.poses(0)[0])
+    recs, prog = [], []
+    res = track(w["renderer"], [w["model"]], w["frames"], range(5), keyframes={"talus": {0: start}},
+                options=FAST, record=lambda *a: recs.append(a), progress=lambda d, n, fr: prog.append((d, n)))
+    assert [r[1] for r in recs] == [0, 1, 2, 3, 4] and prog[-1] == (5, 5)
+    assert res.status == "complete" and res.summary()["converged_fraction"] == 1.0
+    P = res.poses("talus")
+    for k in range(5):
+        dt, dr = _err(P[k], sc.poses(k)[0], c)
+        assert dt < 0.1 and dr < 0.2, (k, dt, dr)
+        np.testing.assert_allclose(recs[k][2], P[k])
+
+
+def test_track_backward_cancel_and_resume(walking_talus):
+    w = walking_talus
+    sc = w["scene"]
+    kf = {"talus": {6: sc.poses(6)[0]}}
+    journal = {}
+    calls = []
+
+    def cancel():
+        calls.append(1)
+        return len(journal) >= 2
+
+    def record(b, f, P, s):
+        journal[f] = P
+
+    order = range(6, 2, -1)
+    res = track(w["renderer"], [w["model"]], w["frames"], order, keyframes=kf, options=FAST, record=record,
+                cancel=cancel)
+    assert res.status == "cancelled" and sorted(journal) == [5, 6]
+    seen = []
+    res2 = track(w["renderer"], [w["model"]], w["frames"], order, keyframes=kf, options=FAST,
+                 record=lambda b, f, P, s: seen.append(f), skip={"talus": dict(journal)})
+    assert seen == [4, 3] and res2.status == "complete"
+    c = w["model"].centroid
+    dt, dr = _err(res2.poses("talus")[3], sc.poses(3)[0], c)
+    assert dt < 0.1 and dr < 0.2
+
+
+def test_bad_frames_are_flagged_and_tracking_goes_on(walking_talus):
+    w = walking_talus
+    sc = w["scene"]
+
+    def frames(i):
+        if i == 1:
+            return [w["frames"](1)[0], None]  # view 1 lost this frame
+        if i == 2:
+            return w["frames"](40)  # the wrong images: the bone is elsewhere
+        return w["frames"](i)
+
+    recs = []
+    res = track(w["renderer"], [w["model"]], frames, range(4), keyframes={"talus": {0: sc.poses(0)[0]}},
+                options=FAST, record=lambda *a: recs.append(a[1]))
+    r1, r2, r3 = (res.results[("talus", k)] for k in (1, 2, 3))
+    assert r1.pose is None and "missing in view 1" in r1.flags[0]
+    assert r2.retried and r2.flags and not r2.converged
+    assert r3.converged and not r3.flags  # the flagged frame did not spoil the next guess
+    assert 1 not in recs and 3 in recs
+    assert {r.frame for r in res.flagged} == {1, 2}
+    far = {"talus": {0: sc.poses(0)[0] @ np.diag([1, 1, 1, 1.0])}}
+    far["talus"][0] = far["talus"][0].copy()
+    far["talus"][0][:3, 3] += [0, 0, 3000.0]
+    res = track(w["renderer"], [w["model"]], w["frames"], [0], keyframes=far, options=FAST)
+    assert "outside the field of view" in res.results[("talus", 0)].flags[0]
+
+
+def test_confidence_is_reported(walking_talus):
+    w = walking_talus
+    sc = w["scene"]
+    o = TrackingOptions(registration=FAST.registration, confidence=True)
+    res = track(w["renderer"], [w["model"]], w["frames"], [0], keyframes={"talus": {0: sc.poses(0)[0]}},
+                options=o)
+    conf = res.results[("talus", 0)].confidence
+    assert conf["method"] == "curvature" and len(conf["sigma"]) == 6
+    assert all(s is not None and 0 < s < 1.0 for s in conf["sigma"])

@@ -287,10 +287,38 @@ class MainWindow(QtWidgets.QMainWindow):
             QtWidgets.QMessageBox.warning(self, "Talus", str(exc))
 
     def _open_checked(self, folder: str) -> None:
+        from .session import MissingFilesError
+
         try:
             self.open_demo_study(folder)
+        except MissingFilesError as exc:
+            if self.relocate_missing(exc):
+                self._open_checked(folder)
         except Exception as exc:  # any reason the study cannot be shown, shown to the user
             QtWidgets.QMessageBox.warning(self, "Talus", f"Cannot open {folder}:\n{exc}")
+
+    def relocate_missing(self, exc) -> bool:
+        """Show what is missing and let the user point at each file's new place; True when
+        every missing file was relocated (the study can be opened again)."""
+        from core.study import Study
+
+        answer = QtWidgets.QMessageBox.question(
+            self, "Talus", f"{exc}\n\nLocate the missing files now?")
+        if answer != QtWidgets.QMessageBox.StandardButton.Yes:
+            return False
+        with Study.open(exc.folder, mode="w", check_files=False) as st:
+            for what, path in exc.missing:
+                if path.suffix:
+                    new, _ = QtWidgets.QFileDialog.getOpenFileName(
+                        self, f"Where is {path.name}? ({what})", str(path.parent))
+                else:
+                    new = QtWidgets.QFileDialog.getExistingDirectory(
+                        self, f"Where is {path.name}? ({what})", str(path.parent))
+                if not new:
+                    return False
+                st.relocate(path, new)
+                self.notify(f"{what}: now {new}")
+        return True
 
     def open_demo_study(self, folder: str | Path) -> None:
         """Open a study folder, a ``talus demo`` folder without a manifest, or (a plain folder of

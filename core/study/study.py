@@ -220,6 +220,38 @@ class Study:
             out += [(f"trials[{n!r}].views[{i}].path", v["path"]) for i, v in enumerate(t["views"])]
         return [(w, self.path(p)) for w, p in out if not self.path(p).exists()]
 
+    def relocate(self, missing: str | os.PathLike, new_path: str | os.PathLike) -> int:
+        """Point every reference to the file ``missing`` (as reported by
+        :meth:`missing_files`) at ``new_path`` instead (which must exist); returns how many
+        references changed. The manifest is saved atomically."""
+        self._require_write()
+        old = Path(missing).expanduser().absolute()
+        new = self._existing(new_path, "new_path")
+        doc = copy.deepcopy(self._doc)
+        count = 0
+
+        def swap(stored: str) -> str:
+            nonlocal count
+            if self.path(stored).absolute() == old:
+                count += 1
+                return new
+            return stored
+
+        for c in doc["calibrations"].values():
+            c["cameras"] = [swap(p) for p in c["cameras"]]
+        for v in doc["volumes"].values():
+            v["path"] = swap(v["path"])
+            if v.get("labels"):
+                v["labels"] = swap(v["labels"])
+        for t in doc["trials"].values():
+            for view in t["views"]:
+                view["path"] = swap(view["path"])
+        if count == 0:
+            raise StudyError(f"missing: {old} is not referenced by this study")
+        self._commit(doc)
+        self._volume_cache.clear()
+        return count
+
     # ------------------------------------------------------------------ editing
     def _require_write(self) -> None:
         if self._mode != "w":

@@ -104,3 +104,20 @@ def test_new_study_from_imports_opens_in_the_window(demo_folder, tmp_path, qtbot
     assert win.model is not None and [b.name for b in win.model.layers] == ["talus"]
     assert win.model.n_frames == 3 and win.panes[0].image.shape == (96, 96)
     win.close()
+
+
+@pytest.mark.gui
+def test_missing_files_can_be_relocated_from_the_window(folder, tmp_path, qtbot, monkeypatch):
+    from PySide6 import QtWidgets
+
+    moved = tmp_path / "moved_cam02"
+    shutil.move(folder / "frames" / "cam02", moved)
+    monkeypatch.setattr(QtWidgets.QMessageBox, "question",
+                        lambda *a, **k: QtWidgets.QMessageBox.StandardButton.Yes)
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getExistingDirectory", lambda *a, **k: str(moved))
+    win = MainWindow(device="cpu", create_scene_on_show=False)
+    qtbot.addWidget(win)
+    win._open_checked(str(folder))
+    assert win.model is not None and win.panes[1].image is not None
+    assert any("now" in win.messages.item(i).text() for i in range(win.messages.count()))
+    win.close()

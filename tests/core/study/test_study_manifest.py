@@ -148,3 +148,21 @@ def test_trial_view_checks(tmp_path, rig_files, views, make_tiff_folder):
         st.add_trial("t", [views[0][0]], calibration="day1")
     assert st.trials == ()
     st.close()
+
+
+def test_relocate_a_moved_file(tmp_path, rig_files, views):
+    _study(tmp_path, rig_files, views).close()
+    moved = tmp_path / "elsewhere" / rig_files[1].name
+    moved.parent.mkdir()
+    rig_files[1].rename(moved)
+    st = Study.open(tmp_path / "st", mode="w", check_files=False)
+    (_what, path), = st.missing_files()
+    with pytest.raises(StudyError, match="does not exist"):
+        st.relocate(path, tmp_path / "nowhere.txt")
+    with pytest.raises(StudyError, match="is not referenced"):
+        st.relocate(tmp_path / "other.txt", moved)
+    assert st.relocate(path, moved) == 1
+    assert st.missing_files() == []
+    st.close()
+    with Study.open(tmp_path / "st") as again:  # saved, and the rig loads from the new place
+        assert len(again.rig("day1")) == 2

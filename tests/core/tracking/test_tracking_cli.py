@@ -1,0 +1,56 @@
+import json
+
+import numpy as np
+import pytest
+
+from core.tracking.cli import main, parse_frames
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("demo")
+    make_demo_study(out, n_frames=3, pixels=96, spacing=2.0, tissue_spacing=4.0, device="cpu")
+    return out
+
+
+def test_parse_frames():
+    assert parse_frames("2:5", 10) == [2, 3, 4]
+    assert parse_frames(":2", 10) == [0, 1] and parse_frames("8:", 10) == [8, 9]
+    assert parse_frames("3", 10) == [3] and parse_frames(None, 3) == [0, 1, 2]
+    with pytest.raises(ValueError, match="--frames"):
+        parse_frames("5:2", 10)
+    with pytest.raises(ValueError, match="--frames"):
+        parse_frames("a:b", 10)
+
+
+def test_track_command_records_reports_and_resumes(demo, capsys):
+    from core.study import Study
+
+    rc = main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--device", "cpu",
+               "--no-confidence"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    doc = json.loads(out.out)
+    assert doc["summary"]["results"] == 1 and doc["normalisation"] == "demo flatfield + distortion"
+    assert "[" in out.err and "1/1" in out.err  # the progress bar
+    with Study.open(demo) as st:
+        P = st.trial("walk").poses("talus")
+        assert np.all(np.isfinite(P[1])) and np.all(np.isnan(P[2]))
+        rep = st.read_report("tracking", "walk")
+        assert rep["summary"]["results"] == 1 and len(rep["frames_done"]) == 1
+    rc = main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--device", "cpu",
+               "--resume", "--quiet"])
+    doc = json.loads(capsys.readouterr().out)
+    assert rc == 0 and doc["summary"]["results"] == 0  # nothing left to do
+
+
+def test_track_command_bad_input(demo, capsys):
+    assert main([str(demo), "--trial", "nope"]) == 1
+    assert "nope" in capsys.readouterr().err
+    assert main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "0:1", "--device", "cpu",
+                 "--threshold", "99999", "--quiet"]) == 2  # no bone above the threshold: stopped cleanly
+    doc = json.loads(capsys.readouterr().out)
+    assert "threshold" in doc["stopped"]["talus"]
+    assert main([str(demo / "missing"), "--trial", "walk"]) == 1

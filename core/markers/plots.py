@@ -120,6 +120,8 @@ def _dose_figure(plt, res: dict, path: Path) -> Path:
         ax.axvline(thesis, color="tab:gray", ls=":", lw=1)
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.set_xticks(ppp, [f"{q:.0f}" for q in ppp])
+        ax.xaxis.set_minor_locator(plt.NullLocator())
         ax.set_xlabel("detected quanta per pixel at full fluence (dotted: thesis-like)")
         ax.set_ylabel(lab)
         ax.legend(fontsize=8)

@@ -69,6 +69,7 @@ class TrackingOptions:
     retry_factor: float = 2.0
     confidence: bool = True
     confidence_step: tuple[float, float] = (0.25, 0.25)
+    profile: bool = False
 
     def __post_init__(self) -> None:
         if self.guess not in _GUESSES:
@@ -101,12 +102,14 @@ class FrameResult:
     flags: tuple[str, ...] = ()
     retried: bool = False
     confidence: dict | None = None
+    timing: dict | None = None
 
     def to_dict(self) -> dict:
         score = None if not np.isfinite(self.score) else self.score
         return {"bone": self.bone, "frame": self.frame, "score": score,
                 "evaluations": self.evaluations, "time_s": self.time_s, "converged": self.converged,
-                "flags": list(self.flags), "retried": self.retried, "confidence": self.confidence}
+                "flags": list(self.flags), "retried": self.retried, "confidence": self.confidence,
+                "timing": self.timing}
 
 
 @dataclass(frozen=True, eq=False)
@@ -296,17 +299,18 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         if status == "cancelled":
             break
         for i in todo:
-            res, flags, retried, evals, dt, conf = out[i]
+            res, flags, retried, evals, dt, conf, timing = out[i]
             b = names[i]
             if res is None:
-                finish(FrameResult(b, f, None, np.nan, evals, dt, False, tuple(flags), retried))
+                finish(FrameResult(b, f, None, np.nan, evals, dt, False, tuple(flags), retried, None, timing))
                 continue
             if record is not None:
                 record(b, f, res.pose, res.score)
             if not flags:
                 hist[b].append((f, res.pose))
                 scores[b].append(res.score)
-            finish(FrameResult(b, f, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf))
+            finish(FrameResult(b, f, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf,
+                               timing))
     return TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
 
 
@@ -319,10 +323,11 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
     c = bone.centroid
     try:
         res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
-                       others=others, cancel=cancel)
+                       others=others, cancel=cancel, profile=o.profile)
     except OutsideViewError as exc:
-        return None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None
+        return None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None, None
     evals = res.evaluations
+    timing = {k: v for k, v in res.timing.items() if k != "total_s"}
     flags = _failures(res, guess, c, good_scores, o)
     retried = False
     if flags and not (cancel is not None and cancel()):
@@ -332,10 +337,12 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
         for s in starts:
             try:
                 r2 = register(renderer, frame, bone=index, initial_pose=s, center=c, options=wide,
-                              others=others, cancel=cancel)
+                              others=others, cancel=cancel, profile=o.profile)
             except OutsideViewError:
                 continue
             evals += r2.evaluations
+            for k in timing:
+                timing[k] += r2.timing.get(k, 0.0)
             f2 = _failures(r2, guess, c, good_scores, replace(o, max_jump=(o.max_jump[0] * o.retry_factor,
                                                                           o.max_jump[1] * o.retry_factor)))
             if (len(f2), -r2.score) < (len(flags), -res.score):
@@ -353,4 +360,6 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
         except OutsideViewError:
             conf = None
         evals += 73 if conf is not None else 0
-    return res, flags, retried, evals, time.perf_counter() - t0, conf
+    dt = time.perf_counter() - t0
+    timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))  # confidence, set-up
+    return res, flags, retried, evals, dt, conf, timing

@@ -26,7 +26,8 @@ def test_curvature_recovers_the_hessian_and_scales_with_noise():
     assert np.all(loud.sigma > quiet.sigma)
     # the least curved direction is the least certain
     assert np.argmax(loud.sigma) == 4 and np.argmin(loud.sigma) == 5
-    np.testing.assert_allclose(loud.sigma, np.sqrt(np.diag(2 * loud.cost_noise * np.linalg.inv(loud.hessian))))
+    expected = np.sqrt(np.diag(2 * loud.cost_noise * np.linalg.inv(loud.hessian)))
+    np.testing.assert_allclose(loud.sigma, expected)
 
 
 def test_flat_direction_is_unbounded():

@@ -5,6 +5,7 @@ Subcommands::
     talus demo  [--out DIR] [--frames N] [--pixels N] [--seed N] [--device cpu|cuda]
     talus bench drr [--device cpu|cuda|all] [--out FILE] [--quick]
     talus bench interaction [--pixels N] [--device cpu|cuda] [--out FILE]
+    talus track STUDY --trial T [--bones a,b] [--frames 0:500] [--device cuda:0] [--resume]
     talus gui   [--demo DIR]
     talus sample wrist [--data DIR] [--out PNG] [--device cpu|cuda]
     talus --version
@@ -338,6 +339,12 @@ def _cmd_bench_module(module: str, what: str):
     return command
 
 
+def _cmd_track(args: argparse.Namespace) -> int:
+    main_fn = _load("core.tracking.cli", "main", needed_for="'talus track'")
+    argv = [a for a in args.rest if a != "--"] or ["--help"]
+    return int(main_fn(argv) or 0)
+
+
 def _check_display() -> None:
     """Qt aborts the process when it finds no display: say so clearly instead."""
     if not sys.platform.startswith("linux") or os.environ.get("QT_QPA_PLATFORM"):
@@ -446,6 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
         ("imaging", "imaging", "flatfield, undistortion, deconvolution, grid fits"),
         ("markers", "markers", "bead localisations per second"),
         ("metrics", "similarity", "similarity metrics of DRR batches"),
+        ("track", "tracking", "whole-trial tracking speed and where the time goes"),
     ):
         sp = bench_sub.add_parser(what, help=text, description=f"Benchmark: {text}. Options "
                                   f"after '--' go to python -m core.{module}.benchmark.")
@@ -467,6 +475,15 @@ def build_parser() -> argparse.ArgumentParser:
     wrist.add_argument("--device", choices=["cpu", "cuda"], default=None,
                        help="Warp device (default: cuda when present)")
     wrist.set_defaults(func=_cmd_sample_wrist)
+
+    track = sub.add_parser(
+        "track", help="track bones of a study trial (results saved frame by frame)",
+        description="Track bones of a study trial; options as in core.tracking.cli: STUDY "
+        "--trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0] [--resume] "
+        "[--guess velocity|previous|spline] [--mode sequential|joint] [--metric gc]. "
+        "Use 'talus track -- --help' for the full list.", add_help=False)
+    track.add_argument("rest", nargs=argparse.REMAINDER, help="tracking options")
+    track.set_defaults(func=_cmd_track)
 
     gui = sub.add_parser("gui", help="open the Talus window")
     gui.add_argument("--demo", metavar="DIR", help="open this demo study folder at start")

@@ -30,6 +30,7 @@ from .model import ViewerModel
 from .panes import FluoroPane
 from .scene3d import ScenePane
 from .timeline import Timeline
+from .tracking_actions import TrackingActions
 from .workers import WorkerPool
 
 _IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".npy"}
@@ -207,6 +208,14 @@ class MainWindow(QtWidgets.QMainWindow):
                 act = pose.addAction(f"Turn about {'xyz'[axis]}{'+' if sign > 0 else '-'}")
                 act.setShortcut(QtGui.QKeySequence(f"Shift+{key}"))
                 act.triggered.connect(lambda _=False, a=axis, sg=sign: self._nudge(a, sg, True))
+        self.tracking = TrackingActions(self)
+        track = self.menuBar().addMenu("&Tracking")
+        self.track_action = track.addAction("Track &selected bone")
+        self.track_action.setShortcut(QtGui.QKeySequence("Ctrl+T"))
+        self.track_action.triggered.connect(lambda: self._guard(self.tracking.track_selected))
+        track.addAction("Track &all bones").triggered.connect(
+            lambda: self._guard(self.tracking.track_all))
+        track.addAction("&Cancel tracking").triggered.connect(self.tracking.cancel)
         help_menu = self.menuBar().addMenu("&Help")
         self.about_action = help_menu.addAction("&About Talus")
         self.about_action.triggered.connect(self._about)

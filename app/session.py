@@ -56,6 +56,7 @@ class StudySession:
     model: ViewerModel
     recovered: bool = False
     writable: bool = True
+    recording: bool = True  # False while applying poses read back from the journal
     _closed: bool = field(default=False, repr=False)
 
     @property
@@ -115,17 +116,26 @@ def open_study(folder: str | Path, *, trial: str | None = None,
             recovered = marker.exists()
             marker.write_text("open\n", encoding="utf-8")
 
+            session_ref: list[StudySession] = []
+
             def record(bone: int, frame: int) -> None:
+                if session_ref and not session_ref[0].recording:
+                    return
                 tr.record_pose(model.layers[bone].name, int(frame), model.pose(bone, frame))
 
             def record_all(bone: int) -> None:
+                if session_ref and not session_ref[0].recording:
+                    return
                 layer = model.layers[bone]
                 for f in range(model.n_frames):
                     tr.record_pose(layer.name, f, layer.poses[f])
 
             model.pose_changed.connect(record)
             model.trajectory_changed.connect(record_all)
-        return StudySession(st, name, model, recovered=recovered, writable=not read_only)
+            session = StudySession(st, name, model, recovered=recovered, writable=True)
+            session_ref.append(session)
+            return session
+        return StudySession(st, name, model, recovered=False, writable=False)
     except BaseException:
         st.close()
         raise

@@ -3,7 +3,9 @@
 "Efficient subpixel image registration algorithms", Opt. Lett. 33(2):156–158. The integer peak
 of the FFT cross-correlation is refined by evaluating the cross-correlation on an
 ``upsample``-times finer grid in a 1.5-pixel neighbourhood of the peak with a matrix-multiply
-DFT — no zero-padded FFT of the whole image. Vectorised over a stack of equally sized images.
+DFT — no zero-padded FFT of the whole image. The refinement runs in stages of at most 10×
+(1.5 px at 1/10 px, then ±1.5 samples at 1/100 px), which finds the same peak of the smooth
+correlation with 15² instead of 150² DFT samples. Vectorised over a stack of equally sized images.
 """
 
 from __future__ import annotations
@@ -54,13 +56,18 @@ def register_translation(image: np.ndarray, template: np.ndarray, *, upsample: i
     shifts = np.stack([peak // C, peak % C], axis=1).astype(np.float64)
     mid = np.array([R // 2, C // 2])
     shifts = np.where(shifts > mid, shifts - np.array([R, C]), shifts)
-    if upsample > 1:
-        region = int(np.ceil(upsample * 1.5))
+    # refine in stages of at most 10x (1.5 px at 1/10 px, then 0.15 px at 1/100 px, ...): the
+    # same peak as one 1.5-px grid at the final factor, with 15² instead of (1.5 upsample)² samples
+    factor, span = 1, 1.5
+    while factor < upsample:
+        factor = min(upsample, factor * 10)
+        region = int(np.ceil(span * factor))
         dftshift = np.fix(region / 2.0)
-        shifts = np.round(shifts * upsample) / upsample
-        offsets = dftshift - shifts * upsample
-        up = upsampled_dft(prod, region, upsample, offsets).real.reshape(M, -1)
+        shifts = np.round(shifts * factor) / factor
+        offsets = dftshift - shifts * factor
+        up = upsampled_dft(prod, region, factor, offsets).real.reshape(M, -1)
         k = np.argmax(up, axis=1)
         fine = np.stack([k // region, k % region], axis=1) - dftshift
-        shifts = shifts + fine / upsample
+        shifts = shifts + fine / factor
+        span = 1.5 / factor  # the next grid covers ±1.5 samples of this one
     return shifts[:, ::-1].copy()  # (row, col) -> (dx, dy)

@@ -31,3 +31,17 @@ def test_convergence_from_perturbed_guesses(lattice, lattice_frames):
     assert [c["level_percent"] for c in rob] == [0.0, 300.0]
     assert max(c["mean"] for c in rob) < 0.1 and rob[-1]["failed_fraction"] == 0.0
     assert conv["gaussian_centroid"][-1]["mean"] > 1.0
+
+
+def test_benchmark_smoke_run_reports_json():
+    from core.markers.benchmark import bead_grid_frames, run_benchmark
+
+    frames, _, dia = bead_grid_frames(6, 2)
+    assert frames.shape == (2, 128, 128)
+    np.testing.assert_allclose(sorted(set(np.round(dia, 2))), [6.16, 9.24], atol=0.01)
+    res = run_benchmark(n_beads=6, n_frames=3, repeats=1)
+    json.dumps(res)
+    rob = res["robust"]["threads"]
+    assert rob["localisations"] == 18 and rob["ok_fraction"] == 1.0 and rob["rms_error_px"] < 0.1
+    assert set(res["other_methods"]) == {"intensity_centroid", "gaussian_centroid", "iterative_gaussian",
+                                         "iterative_sigmoid", "template_gaussian", "template_sigmoid"}

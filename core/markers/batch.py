@@ -122,7 +122,8 @@ def localize(frames, guesses, *, diameter_px, method: str = RECOMMENDED, polarit
     polarity : {"dark", "bright"}
         Beads darker (X-ray attenuation images) or brighter than the background.
     search_radius : float, optional
-        ``"robust"`` only: how far (px) from the guess the bead may lie; default 3.5 radii.
+        ``"robust"`` only: how far (px) from the guess the bead may lie; default 3.5 radii of
+        each bead.
     min_snr : float
         Minimum bead contrast over its noise (matched-filter SNR); weaker → ``"flat"``.
     chunk : int
@@ -157,11 +158,12 @@ def localize(frames, guesses, *, diameter_px, method: str = RECOMMENDED, polarit
     fidx = np.repeat(np.arange(g.shape[0]), n_beads)
     uv = g.reshape(-1, 2)
     if search_radius is None:
-        search = 3.5 * float(radius.max()) if radius.size else 0.0
+        search = 3.5 * radius  # per bead
     else:
-        search = float(search_radius)
-        if not (np.isfinite(search) and search >= 0):
+        s = float(search_radius)
+        if not (np.isfinite(s) and s >= 0):
             raise ValueError(f"search_radius: expected a distance >= 0 in pixels, got {search_radius!r}")
+        search = np.full(radius.shape, s)
     out = Localization.empty(len(uv), method)
     finite = np.all(np.isfinite(uv), axis=1)
     inside = finite & np.all((uv >= -0.5) & (uv <= np.array([Ww, Hh]) - 0.5), axis=1)
@@ -176,7 +178,7 @@ def localize(frames, guesses, *, diameter_px, method: str = RECOMMENDED, polarit
         h = window_half_size(rmax)
         if method == RECOMMENDED:
             k = fit_half_size(rmax)
-            H = int(np.ceil(search)) + max(seed_margin(float(np.median(r))), k + 1)
+            H = int(np.ceil(search[idx].max())) + max(seed_margin(float(np.median(r))), k + 1)
             support = k
         elif method.startswith("iterative"):
             H, support = h + int(np.ceil(3.5 * rmax)), h
@@ -187,7 +189,7 @@ def localize(frames, guesses, *, diameter_px, method: str = RECOMMENDED, polarit
         sig = sign * (border_median(win.data)[:, None, None] - win.data)
         g_rel = uv[idx] - centre
         if method == RECOMMENDED:
-            off, sg, st, it, contrast, snr = robust_fit(sig, g_rel, r, search=search, min_snr=min_snr,
+            off, sg, st, it, contrast, snr = robust_fit(sig, g_rel, r, search=search[idx], min_snr=min_snr,
                                                         **options)
         else:
             noise = noise_sigma(win.data)

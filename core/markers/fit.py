@@ -79,7 +79,7 @@ def seed_margin(radius: float) -> int:
     return max(_boxes(radius)[1], fit_half_size(radius)) + 1
 
 
-def seed_by_matched_filter(sig: np.ndarray, g: np.ndarray, radius: float, search: float
+def seed_by_matched_filter(sig: np.ndarray, g: np.ndarray, radius: float, search
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Seed of each window: integer ``(M, 2)`` offsets, sub-pixel part ``(M, 2)``, response and noise.
 
@@ -100,7 +100,8 @@ def seed_by_matched_filter(sig: np.ndarray, g: np.ndarray, radius: float, search
     sub = resp[:, ::3, ::3].reshape(M, -1)  # the noise from every third pixel is plenty
     med = np.median(sub, axis=1)
     noise = 1.4826 * np.median(np.abs(sub - med[:, None]), axis=1)
-    cand = np.where((d2 <= search * search).reshape(M, -1), flat, -np.inf)
+    s2 = np.broadcast_to(np.asarray(search, dtype=np.float64), (M,))[:, None, None] ** 2
+    cand = np.where((d2 <= s2).reshape(M, -1), flat, -np.inf)
     idx = np.argmax(cand, axis=1)
     peak = np.take_along_axis(flat, idx[:, None], axis=1)[:, 0] - med
     iy, ix = idx // n, idx % n
@@ -296,7 +297,7 @@ def _cut(sig: np.ndarray, centre: np.ndarray, k: int) -> np.ndarray:
     return sig[m, rows[:, :, None], cols[:, None, :]].reshape(len(sig), -1)
 
 
-def robust_fit(sig: np.ndarray, g: np.ndarray, radius: np.ndarray, *, search: float,
+def robust_fit(sig: np.ndarray, g: np.ndarray, radius: np.ndarray, *, search,
                min_snr: float, model: str = "sigmoid"):
     """Seed + Gaussian-on-plane fit on windows of bead signal (see the module docs).
 
@@ -304,13 +305,13 @@ def robust_fit(sig: np.ndarray, g: np.ndarray, radius: np.ndarray, *, search: fl
     ----------
     sig : (M, S, S) float64
         Bead signal (background minus image), windows centred on the rounded guesses; ``S``
-        must be at least ``2 (search + max(2 r, k) + 1) + 1``.
+        must be at least ``2 (max(search) + seed_margin(r)) + 1``.
     g : (M, 2)
         Guesses relative to the window centre pixel (x = column, y = row offset).
     radius : (M,)
         Projected bead radii, px.
-    search : float
-        Search radius about the guess, px.
+    search : float or (M,) array
+        Search radius about each guess, px.
     min_snr : float
         Minimum matched-filter signal-to-noise ratio of a bead.
     model : {"sigmoid", "gaussian"}
@@ -375,7 +376,7 @@ def robust_fit(sig: np.ndarray, g: np.ndarray, radius: np.ndarray, *, search: fl
         width_bad = (p[:, 3] + p[:, 4] < 0.25 * radius) | (p[:, 3] > 3.0 * radius) | (p[:, 4] > 2.0 * radius)
     status[ok & (sing | (p[:, 2] <= 0) | width_bad | ~np.all(np.isfinite(p), axis=1))] = STATUS["bad_fit"]
     ok = status == STATUS["ok"]
-    far = np.hypot(*(offset - g).T) > search + 1.0
+    far = np.hypot(*(offset - g).T) > np.asarray(search, dtype=np.float64) + 1.0
     status[ok & (far | ~conv)] = STATUS["diverged"]
     contrast = np.where(status != STATUS["flat"], p[:, 2], peak)
     return offset, sigma, status, iters, contrast, snr

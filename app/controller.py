@@ -23,6 +23,22 @@ from .workers import WorkerPool
 __all__ = ["Controller"]
 
 
+def _detect_markers(images, diameter_px: float):
+    """Bead detections per view (in a worker); ``None`` for a view without an image."""
+    from core.markers import detect_beads
+
+    out = []
+    for img in images:
+        if img is None:
+            out.append(None)
+            continue
+        f = np.asarray(img, np.float32)
+        lo, hi = np.percentile(f, [1, 99.5])
+        out.append(detect_beads((f - lo) / max(hi - lo, 1e-6), diameter_px=diameter_px,
+                                max_beads=200))
+    return out
+
+
 class Controller(QtCore.QObject):
     overlays_updated = QtCore.Signal(bool)  # preview?
 
@@ -37,6 +53,7 @@ class Controller(QtCore.QObject):
         self.renderer = OverlayRenderer(model.rig, [b.volume for b in model.layers],
                                         device=device) if model.layers else None
         self._last: list[OverlayImage] = []
+        self.bead_diameter_px: float | None = None  # None: markers hidden
         self._drag: dict | None = None
         self._idle = QtCore.QTimer(self)
         self._idle.setSingleShot(True)
@@ -65,6 +82,22 @@ class Controller(QtCore.QObject):
     def _on_frame(self, frame: int) -> None:
         self.show_frame()
         self.request_overlays(preview=False)
+        self.request_markers()
+
+    # ------------------------------------------------------------------ markers
+    def set_markers(self, shown: bool, diameter_px: float) -> None:
+        self.bead_diameter_px = float(diameter_px) if shown else None
+        if shown:
+            self.request_markers()
+        else:
+            for pane in self.panes:
+                pane.set_markers(np.zeros((0, 2)), np.zeros(0))
+
+    def request_markers(self) -> None:
+        if self.bead_diameter_px is None or self.pool.closed:
+            return
+        images = [self.model.frame_image(v) for v in range(len(self.panes))]
+        self.pool.submit("markers", _detect_markers, images, self.bead_diameter_px)
 
     # ------------------------------------------------------------------ overlays
     def request_overlays(self, *, preview: bool, bones: list[int] | None = None) -> None:
@@ -83,6 +116,11 @@ class Controller(QtCore.QObject):
                                                     cancel=cancel)
 
     def _on_result(self, key: str, result) -> None:
+        if key == "markers":
+            for pane, det in zip(self.panes, result, strict=False):
+                if det is not None:
+                    pane.set_markers(det.uv, det.radius)
+            return
         if key != "overlay":
             return
         preview, bones, images = result

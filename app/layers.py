@@ -20,6 +20,8 @@ class LayerList(QtWidgets.QWidget):
     """Shows the model's bones; edits go back to the model as intents."""
 
     mode_changed = QtCore.Signal(str)
+    markers_changed = QtCore.Signal(bool, float)  # shown?, expected bead diameter (px)
+    cameras_changed = QtCore.Signal(bool)
 
     def __init__(self, model: ViewerModel, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
@@ -37,6 +39,21 @@ class LayerList(QtWidgets.QWidget):
         form.addRow("Opacity", self.opacity)
         form.addRow("", self.locked)
         form.addRow("Overlay", self.mode)
+        self.markers = QtWidgets.QCheckBox("Markers (beads)")
+        self.markers.setToolTip("Detect radiopaque beads in the current frames and circle them")
+        self.bead_px = QtWidgets.QDoubleSpinBox()
+        self.bead_px.setRange(2.0, 60.0)
+        self.bead_px.setValue(8.0)
+        self.bead_px.setSuffix(" px")
+        self.bead_px.setToolTip("Expected bead diameter in the images")
+        self.cameras = QtWidgets.QCheckBox("Cameras (3D)")
+        self.cameras.setChecked(True)
+        form.addRow(self.markers, self.bead_px)
+        form.addRow("", self.cameras)
+        self.markers.toggled.connect(lambda on: self.markers_changed.emit(on, self.bead_px.value()))
+        self.bead_px.valueChanged.connect(
+            lambda v: self.markers.isChecked() and self.markers_changed.emit(True, v))
+        self.cameras.toggled.connect(self.cameras_changed)
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(4, 4, 4, 4)
         layout.addWidget(QtWidgets.QLabel("Bones"))

@@ -247,6 +247,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.controller = Controller(model, self.panes, self.pool, device=self.device,
                                      parent=self)
         self.layers.mode_changed.connect(self.controller.set_mode)
+        self.layers.markers_changed.connect(self.controller.set_markers)
+        self.layers.cameras_changed.connect(self.scene.set_cameras_visible)
         self.scene.set_model(model)
         model.history_changed.connect(self._update_history)
         self._update_history()

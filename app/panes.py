@@ -166,6 +166,7 @@ class FluoroPane(QtWidgets.QWidget):
         self._image: np.ndarray | None = None
         self._window, self._level = 1.0, 0.5
         self._overlays: dict = {}
+        self._markers: list = []
         self.clear()
 
     # -- state
@@ -271,6 +272,24 @@ class FluoroPane(QtWidgets.QWidget):
         """``(x, y, scale)`` of an overlay in scene coordinates."""
         item = self._overlays.get(key)
         return None if item is None else (item.pos().x(), item.pos().y(), item.scale())
+
+    # -- markers
+    def set_markers(self, uv, radius) -> None:
+        """Draw bead markers: circles of ``radius`` px centred at image ``(u, v)``."""
+        for item in self._markers:
+            self._scene.removeItem(item)
+        self._markers = []
+        pen = QtGui.QPen(QtGui.QColor(0, 255, 255))
+        pen.setCosmetic(True)
+        pen.setWidthF(1.5)
+        for (u, v), r in zip(np.asarray(uv, float).reshape(-1, 2), np.ravel(radius), strict=True):
+            item = self._scene.addEllipse(u + 0.5 - r, v + 0.5 - r, 2 * r, 2 * r, pen)
+            item.setZValue(20)
+            self._markers.append(item)
+
+    @property
+    def marker_count(self) -> int:
+        return len(self._markers)
 
     def _on_drag(self, dx: float, dy: float) -> None:
         if self._image is not None:

@@ -140,6 +140,15 @@ class ScenePane(QtWidgets.QWidget):
             self.plotter.reset_camera()
             self.plotter.render()
 
+    def set_cameras_visible(self, on: bool) -> None:
+        """Show or hide the sources, detectors and frustums."""
+        if self.plotter is None:
+            return
+        for name, actor in self.plotter.actors.items():
+            if name.startswith(("source-", "detector-", "frustum-")):
+                actor.SetVisibility(bool(on))
+        self.plotter.render()
+
     @staticmethod
     def _bone_mesh(layer):
         import pyvista as pv

@@ -31,8 +31,11 @@ def _env_without_display() -> dict[str, str]:
 
 
 def test_import_contracts_hold():
+    # lint-imports prints box-drawing characters: decode as UTF-8 whatever the locale (CI: C)
+    env = {**os.environ, "PYTHONIOENCODING": "utf-8", "PYTHONUTF8": "1"}
     done = subprocess.run(
-        _lint_imports_command(), capture_output=True, text=True, cwd=ROOT, timeout=300
+        _lint_imports_command(), capture_output=True, text=True, encoding="utf-8",
+        errors="replace", cwd=ROOT, timeout=300, env=env,
     )
     assert done.returncode == 0, f"lint-imports failed:\n{done.stdout}\n{done.stderr}"
 

@@ -2,6 +2,11 @@
 
 * :mod:`~core.calibration.objects`: calibration objects (15-bead cube, helical spirals),
   definition files, bead centres from a micro-CT scan.
+* :mod:`~core.calibration.detection`, :mod:`~core.calibration.labelling`,
+  :mod:`~core.calibration.matching`: beads detected and size-classified with
+  :mod:`core.markers`, labelled per view (spiral: PCA axis + string matching, chains of
+  neighbours; cube: RANSAC), resolved between views by epipolar geometry (7/8-point F + RANSAC);
+  a manual-correction API for the wizard.
 * :mod:`~core.calibration.dlt`: single-frame 11-parameter DLT with explicit failure results,
   and a batched form for sensitivity studies.
 * :mod:`~core.calibration.bundle`: rigid-rig bundle adjustment over many frames of an object
@@ -16,6 +21,7 @@ arrays are indexed ``[row, col]``; lengths in mm, angles in radians.
 """
 
 from .bundle import BundleResult, ObjectFrame, bundle_adjust
+from .detection import ObjectDetections, classify_sizes, detect_object_beads
 from .dlt import DLTCalibration, calibrate_dlt, camera_parameters, dlt_batch
 from .errormap import (
     ErrorMap,
@@ -24,6 +30,17 @@ from .errormap import (
     error_map,
     object_reconstruction,
     reconstruction_errors,
+)
+from .labelling import Labelling, fit_labels, label_ransac, label_spiral, label_view, propagate_labels
+from .matching import (
+    FrameLabels,
+    FundamentalFit,
+    fundamental_7point,
+    fundamental_8point,
+    label_sequence,
+    ransac_fundamental,
+    resolve_frame,
+    transfer_labels,
 )
 from .objects import (
     CalibrationTarget,
@@ -42,6 +59,10 @@ __all__ = [
     "CalibrationTarget",
     "DLTCalibration",
     "ErrorMap",
+    "FrameLabels",
+    "FundamentalFit",
+    "Labelling",
+    "ObjectDetections",
     "ObjectFrame",
     "ObjectReconstruction",
     "VolumeBeads",
@@ -50,14 +71,27 @@ __all__ = [
     "calibrate_dlt",
     "camera_parameters",
     "capture_lattice",
+    "classify_sizes",
     "cube_target",
+    "detect_object_beads",
     "dlt_batch",
     "error_map",
     "extract_beads",
+    "fit_labels",
+    "fundamental_7point",
+    "fundamental_8point",
+    "label_ransac",
+    "label_sequence",
+    "label_spiral",
+    "label_view",
     "object_reconstruction",
+    "propagate_labels",
+    "ransac_fundamental",
     "read_target",
     "reconstruction_errors",
+    "resolve_frame",
     "spiral_target",
     "target_from_volume",
+    "transfer_labels",
     "write_target",
 ]

@@ -170,6 +170,26 @@ class CalibrationTarget:
         cls = np.argmin(np.abs(np.log(self.diameters[:, None] / sizes[None])), axis=1)
         return sizes, cls
 
+    @property
+    def symmetries(self) -> tuple[np.ndarray, ...]:
+        """Label permutations ``π`` (identity first) under which the object is unchanged: a rigid
+        motion maps bead ``k`` onto bead ``π[k]`` (within 1 µm) with the same diameter.
+
+        A helix of strictly alternating beads with an odd count is symmetric under a half-turn
+        about an axis through its middle bead (``π = reversed``): images cannot tell its two
+        ends apart, so a labelling is only defined up to these permutations.
+        """
+        n = len(self)
+        out = [np.arange(n)]
+        rev = np.arange(n)[::-1]
+        if n >= 3 and np.array_equal(self.diameters, self.diameters[rev]):
+            from ..markers.pose import rigid_fit
+
+            fit = rigid_fit(self.centers, self.centers[rev])
+            if np.isfinite(fit.rms) and np.nanmax(fit.residuals) < 1e-3:
+                out.append(rev)
+        return tuple(out)
+
     def centers_lab(self, T_lab_from_object) -> np.ndarray:
         """Bead centres in the lab (mm) for the object pose ``T_lab_from_object`` (4x4)."""
         T = as_float_array(T_lab_from_object, "T_lab_from_object", shape=(4, 4))

@@ -14,6 +14,10 @@
   SID priors), with parameter standard deviations.
 * :mod:`~core.calibration.errormap`: reprojection / reconstruction error, error maps over the
   intersection of the X-ray cones.
+* :mod:`~core.calibration.sensitivity`: Monte Carlo / Latin-hypercube perturbation of bead
+  coordinates and Sobol indices of the DLT camera parameters.
+* :mod:`~core.calibration.io`: the versioned Talus calibration file (JSON), MayaCam 1.0/2.0 and
+  DLT CSV export/import.
 * :mod:`~core.calibration.simulate`: synthetic calibration sequences (ground truth).
 
 Pixels are ``(u, v) = (column, row)`` with the origin at the centre of the top-left pixel; image
@@ -30,6 +34,14 @@ from .errormap import (
     error_map,
     object_reconstruction,
     reconstruction_errors,
+)
+from .io import (
+    CalibrationFile,
+    export_rig,
+    load_calibration,
+    read_dlt_csv_rig,
+    read_mayacam_rig,
+    save_calibration,
 )
 from .labelling import Labelling, fit_labels, label_ransac, label_spiral, label_view, propagate_labels
 from .matching import (
@@ -53,9 +65,11 @@ from .objects import (
     target_from_volume,
     write_target,
 )
+from .sensitivity import PerturbationStudy, SobolResult, perturbation_study, sobol_analysis
 
 __all__ = [
     "BundleResult",
+    "CalibrationFile",
     "CalibrationTarget",
     "DLTCalibration",
     "ErrorMap",
@@ -65,6 +79,8 @@ __all__ = [
     "ObjectDetections",
     "ObjectFrame",
     "ObjectReconstruction",
+    "PerturbationStudy",
+    "SobolResult",
     "VolumeBeads",
     "builtin_target",
     "bundle_adjust",
@@ -76,6 +92,7 @@ __all__ = [
     "detect_object_beads",
     "dlt_batch",
     "error_map",
+    "export_rig",
     "extract_beads",
     "fit_labels",
     "fundamental_7point",
@@ -84,12 +101,18 @@ __all__ = [
     "label_sequence",
     "label_spiral",
     "label_view",
+    "load_calibration",
     "object_reconstruction",
+    "perturbation_study",
     "propagate_labels",
     "ransac_fundamental",
+    "read_dlt_csv_rig",
+    "read_mayacam_rig",
     "read_target",
     "reconstruction_errors",
     "resolve_frame",
+    "save_calibration",
+    "sobol_analysis",
     "spiral_target",
     "target_from_volume",
     "transfer_labels",

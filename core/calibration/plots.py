@@ -1,0 +1,239 @@
+"""Figures of the calibration study and the real-data epipolar check (matplotlib, Agg only)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .epipolar_check import EpipolarCheck
+from .sensitivity import PARAMETERS
+
+__all__ = ["epipolar_figure", "error_map_figure", "instability_figure", "labelling_figure",
+           "sensitivity_figure", "sobol_figure"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _line_ends(l: np.ndarray, box) -> np.ndarray | None:
+    """End points of the line ``a u + b v + c = 0`` inside ``box = (u0, v0, u1, v1)``."""
+    a, b, c = l
+    u0, v0, u1, v1 = box
+    pts = []
+    if abs(b) > 1e-12:
+        for u in (u0, u1):
+            v = -(a * u + c) / b
+            if v0 <= v <= v1:
+                pts.append((u, v))
+    if abs(a) > 1e-12:
+        for v in (v0, v1):
+            u = -(b * v + c) / a
+            if u0 <= u <= u1:
+                pts.append((u, v))
+    return np.array(pts[:2]) if len(pts) >= 2 else None
+
+
+def epipolar_figure(images, check: EpipolarCheck, path, *, names=("cam01", "cam02"),
+                    margin: int = 90) -> Path:
+    """Both radiographs (cropped to the beads) with the epipolar lines of the other view's
+    matched beads (one colour per bead, dashed) and the beads (circles; unmatched in red)."""
+    plt = _plt()
+    cmap = plt.get_cmap("tab20")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 7.5))
+    for v, ax in enumerate(axes):
+        img = np.asarray(images[v])
+        uv = check.uv[v]
+        lo = np.maximum(uv.min(axis=0) - margin, 0) if len(uv) else np.zeros(2)
+        hi = np.minimum(uv.max(axis=0) + margin, [img.shape[1] - 1, img.shape[0] - 1]) if len(uv) \
+            else np.array(img.shape[::-1]) - 1
+        box = (lo[0], lo[1], hi[0], hi[1])
+        ax.imshow(img, cmap="gray", extent=(-0.5, img.shape[1] - 0.5, img.shape[0] - 0.5, -0.5))
+        other = check.uv[1 - v]
+        for k, (i1, i2) in enumerate(check.pairs):
+            src = other[i2] if v == 0 else other[i1]
+            h = np.append(src, 1.0)
+            line = check.F.T @ h if v == 0 else check.F @ h
+            ends = _line_ends(line, box)
+            col = cmap(k % 20)
+            if ends is not None:
+                ax.plot(ends[:, 0], ends[:, 1], "--", color=col, lw=0.9)
+            me = uv[i1] if v == 0 else uv[i2]
+            ax.plot(*me, "o", mfc="none", mec=col, ms=9, mew=1.4)
+        matched = set(check.pairs[:, v].tolist())
+        for i, p in enumerate(uv):
+            if i not in matched:
+                ax.plot(*p, "x", color="red", ms=8, mew=1.5)
+        d = check.d_view1 if v == 0 else check.d_view2
+        ax.set_xlim(box[0], box[2])
+        ax.set_ylim(box[3], box[1])
+        txt = (f"{names[v]}: {len(uv)} beads, {len(check.pairs)} matched\ndistance to the other "
+               f"view's lines: median {np.median(d):.2f} px, max {d.max():.2f} px" if len(d) else
+               f"{names[v]}: {len(uv)} beads, none matched")
+        ax.set_title(txt, fontsize=9)
+        ax.set_xlabel("u (column, px)")
+        ax.set_ylabel("v (row, px)")
+    fig.suptitle("Epipolar lines of the other view's beads\n(dashed, same colour = matched pair; "
+                 "red x = unmatched)", fontsize=10)
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def instability_figure(dlt: dict, ba: dict, path) -> Path:
+    """Spread of the SID and source position: single-frame cube DLT vs bundle adjustment.
+
+    ``dlt``/``ba`` hold per-draw deviations ``sid (D, V)`` mm and ``source (D, V, 3)`` mm.
+    """
+    plt = _plt()
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
+    for lab, d, col in (("cube DLT, 1 frame", dlt, "tab:red"), ("spiral BA", ba, "tab:blue")):
+        sid = np.asarray(d["sid"])
+        src = np.linalg.norm(np.asarray(d["source"]), axis=-1)
+        axes[0].hist(sid.ravel(), bins=40, alpha=0.6, color=col, label=lab)
+        axes[1].hist(src.ravel(), bins=40, alpha=0.6, color=col, label=lab)
+        s = np.asarray(d["source"]).reshape(-1, 3)
+        axes[2].scatter(s[:, 0], s[:, 2], s=6, alpha=0.5, color=col, label=lab)
+    axes[0].set_xlabel("SID error (mm)")
+    axes[1].set_xlabel("source position error |ΔC| (mm)")
+    axes[2].set_xlabel("ΔX (mm)")
+    axes[2].set_ylabel("ΔZ (mm)")
+    for ax in axes:
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("draws x cameras")
+    fig.suptitle("Camera parameters under 0.05 px localisation noise (thesis §5.2.1)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def error_map_figure(points: np.ndarray, maps: dict, sources: np.ndarray, path, *,
+                     what: str = "mean") -> Path:
+    """Per-lattice-point reconstruction error (``maps``: name -> (N,) mm), shown as the points
+    of the cone intersection seen along two lab axes, coloured by error (Fig. 5.6)."""
+    plt = _plt()
+    names = list(maps)
+    fig, axes = plt.subplots(len(names), 2, figsize=(12, 4.6 * len(names)), squeeze=False)
+    for r, name in enumerate(names):
+        e = np.asarray(maps[name])
+        order = np.argsort(e)
+        vmax = float(np.percentile(e, 99))
+        for c, (i, j, lab) in enumerate(((0, 2, ("x (mm)", "z (mm)")), (1, 2, ("y (mm)", "z (mm)")))):
+            ax = axes[r, c]
+            sc = ax.scatter(points[order, i], points[order, j], c=e[order], s=7, cmap="inferno", vmin=0,
+                            vmax=vmax)
+            ax.plot(sources[:, i], sources[:, j], "c^", ms=8)
+            cen = points.mean(axis=0)
+            for s in sources:  # direction to each source (they are far outside the plot)
+                d = (s - cen)[[i, j]]
+                d = d / np.linalg.norm(d) * 0.4 * np.ptp(points[:, [i, j]], axis=0).max()
+                ax.annotate("", xy=cen[[i, j]] + d, xytext=cen[[i, j]],
+                            arrowprops={"arrowstyle": "->", "color": "c"})
+            ax.set_xlabel(lab[0])
+            ax.set_ylabel(lab[1])
+            ax.set_aspect("equal")
+            ax.set_xlim(points[:, i].min() - 10, points[:, i].max() + 10)
+            ax.set_ylim(points[:, j].min() - 10, points[:, j].max() + 10)
+            fig.colorbar(sc, ax=ax, label=f"{what} error (mm)")
+            ax.set_title(f"{name}: {what} over draws, RMS {np.sqrt(np.mean(e**2)):.3f} mm, "
+                         f"max {e.max():.3f} mm", fontsize=9)
+    fig.suptitle("3-D reconstruction error over the intersection of the X-ray cones (10 mm lattice; "
+                 "arrows: towards the sources)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)
+
+
+def error_histogram_figure(levels: dict, path) -> Path:
+    """Histograms of the per-point mean and max reconstruction error per noise level (Fig. 5.7);
+    ``levels``: label -> (mean (N,), max (N,))."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    for lab, (mean, mx) in levels.items():
+        axes[0].hist(mean, bins=50, histtype="step", lw=1.5, label=lab)
+        axes[1].hist(mx, bins=50, histtype="step", lw=1.5, label=lab)
+    axes[0].set_xlabel("mean reconstruction error per lattice point (mm)")
+    axes[1].set_xlabel("max reconstruction error per lattice point (mm)")
+    for ax in axes:
+        ax.set_ylabel("lattice points")
+        ax.legend(fontsize=8)
+        ax.set_xscale("log")
+    fig.suptitle("Reconstruction error vs localisation noise: single-frame cube DLT and spiral BA")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def sensitivity_figure(study, path) -> Path:
+    """Deviation of each camera parameter vs perturbation amplitude (Figs. 5.3-5.5)."""
+    plt = _plt()
+    names = ["sid", "cu", "cv", "X", "Y", "Z", "rx", "ry", "rz"]
+    fig, axes = plt.subplots(2, 5, figsize=(17, 6.5))
+    for ax, name in zip(axes.ravel(), [*names, "rms"], strict=True):
+        if name == "rms":
+            y, unit = study.reprojection_rms, "px"
+            ax.set_title("reprojection RMS", fontsize=9)
+        else:
+            y, unit = study.parameter(name), PARAMETERS[name]
+            if unit == "rad":
+                y, unit = np.degrees(y), "deg"
+            ax.set_title(name, fontsize=9)
+        ax.scatter(study.amplitude, y, s=2, alpha=0.3, c=study.marker, cmap="tab20")
+        ax.set_xlabel("perturbation (px)", fontsize=8)
+        ax.set_ylabel(unit, fontsize=8)
+    fig.suptitle("Cube DLT: parameter deviations when one bead at a time is moved (colour = bead)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)
+
+
+def sobol_figure(table: dict, path) -> Path:
+    """Bar chart of the Sobol indices per camera parameter (Table 5.1 analogue)."""
+    plt = _plt()
+    names = list(table)
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.bar(x - 0.2, [table[n]["max_first_order"] for n in names], 0.4,
+           label="largest first-order index")
+    ax.bar(x + 0.2, [table[n]["max_bead_total"] for n in names], 0.4,
+           label="largest total index of a bead (u+v)")
+    ax.set_xticks(x, names)
+    ax.set_ylabel("Sobol index")
+    ax.legend(fontsize=8)
+    ax.set_title("Which bead coordinates drive each DLT parameter (cube, ±0.25 px uniform)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def labelling_figure(images, labellings, bead_ids, path, *, titles=("view 1", "view 2")) -> Path:
+    """Rendered frames with every labelled bead annotated with its id."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(images), figsize=(6.5 * len(images), 6.5))
+    for ax, img, lab, t in zip(np.atleast_1d(axes), images, labellings, titles, strict=True):
+        ax.imshow(img, cmap="gray")
+        for (u, v), k in zip(lab.uv, lab.labels, strict=True):
+            if k >= 0:
+                ax.plot(u, v, "o", mfc="none", mec="lime", ms=7)
+                ax.text(u + 4, v - 4, bead_ids[k], color="yellow", fontsize=6)
+            else:
+                ax.plot(u, v, "x", color="red", ms=6)
+        ax.set_title(f"{t}: {lab.n_labelled} of {len(lab.uv)} detections labelled", fontsize=9)
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

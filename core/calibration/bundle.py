@@ -477,31 +477,62 @@ def bundle_adjust(
     return _result(prob, sol, reference, T_ref, px, max_rms_px, max_outliers)
 
 
-def _covariance(J, cost: float, m: int, n: int) -> tuple[np.ndarray, float]:
-    JtJ = (J.T @ J).toarray() if scipy.sparse.issparse(J) else J.T @ J
-    s2 = 2.0 * cost / max(m - n, 1)
-    d = np.sqrt(np.maximum(np.diag(JtJ), 1e-300))
-    Nn = JtJ / d[:, None] / d[None]
-    w, U = np.linalg.eigh(Nn)
-    bad = w <= 1e-12 * w.max()
+def _pinv_sym(N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of a symmetric PSD matrix (Jacobi-scaled eigen-decomposition) and a mask of the
+    parameters touched by its null space (unobservable: infinite variance)."""
+    d = np.sqrt(np.maximum(np.diag(N), 1e-300))
+    w, U = np.linalg.eigh(N / d[:, None] / d[None])
+    bad = w <= 1e-12 * max(w.max(), 1e-300)
     winv = np.where(bad, 0.0, 1.0 / np.where(bad, 1.0, w))
-    cov = (U * winv) @ U.T / d[:, None] / d[None] * s2
-    if bad.any():  # unobservable directions: the parameters involved get infinite variance
-        null = np.any(np.abs(U[:, bad]) > 1e-6, axis=1)
-        cov[null, :] = np.inf
-        cov[:, null] = np.inf
-    return cov, float(np.sqrt(s2))
+    null = np.any(np.abs(U[:, bad]) > 1e-6, axis=1) if bad.any() else np.zeros(len(N), bool)
+    return (U * winv) @ U.T / d[:, None] / d[None], null
+
+
+def _covariance(J, cost: float, m: int, p0: int, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Standard deviations of all parameters and the covariance of the parameters ``keep``
+    (global ones and one frame block), ``s² (JᵀJ)⁻¹``, by the Schur complement of the
+    block-diagonal frame-pose part (6 x 6 per frame): cheap for many frames."""
+    n = J.shape[1]
+    s2 = 2.0 * cost / max(m - n, 1)
+    JtJ = (J.T @ J).tocsr() if scipy.sparse.issparse(J) else scipy.sparse.csr_matrix(J.T @ J)
+    A = JtJ[:p0, :p0].toarray()
+    B = JtJ[:p0, p0:].toarray()
+    F = (n - p0) // 6
+    Dinv = np.zeros((F, 6, 6))
+    dnull = np.zeros((F, 6), bool)
+    for f in range(F):
+        sl = slice(p0 + 6 * f, p0 + 6 * f + 6)
+        Dinv[f], dnull[f] = _pinv_sym(JtJ[sl, sl].toarray())
+    Bf = B.reshape(p0, F, 6).transpose(1, 0, 2)  # (F, p0, 6)
+    BD = Bf @ Dinv  # (F, p0, 6)
+    S = A - np.einsum("fij,fkj->ik", BD, Bf)
+    Sinv, snull = _pinv_sym(S) if p0 else (np.zeros((0, 0)), np.zeros(0, bool))
+    # frame blocks: D⁻¹ + D⁻¹ Bᵀ S⁻¹ B D⁻¹ ; cross terms global-frame: -S⁻¹ B D⁻¹
+    cross = -np.einsum("ij,fjk->fik", Sinv, BD)  # (F, p0, 6)
+    blocks = Dinv + np.einsum("fji,jk,fkl->fil", BD, Sinv, BD)
+    var = np.concatenate([np.diag(Sinv), np.einsum("fii->fi", blocks).ravel()]) * s2
+    var[np.concatenate([snull, dnull.ravel()])] = np.inf
+    if snull.any():  # an unobservable rig parameter makes every pose uncertain too
+        var[p0:] = np.inf
+    full = lambda i, j: (Sinv[i, j] if i < p0 and j < p0 else  # noqa: E731
+                         cross[(j - p0) // 6, i, (j - p0) % 6] if i < p0 else
+                         cross[(i - p0) // 6, j, (i - p0) % 6] if j < p0 else
+                         blocks[(i - p0) // 6, (i - p0) % 6, (j - p0) % 6] if (i - p0) // 6 == (j - p0) // 6
+                         else np.nan)
+    sub = np.array([[full(i, j) for j in keep] for i in keep]) * s2
+    if not np.all(np.isfinite(var[keep])):
+        sub[:] = np.inf
+    return np.sqrt(var), sub, float(np.sqrt(s2))
 
 
 def _result(prob: _Problem, sol, ref, T_ref, px, max_rms_px, max_outliers) -> BundleResult:
     x = sol.x
     n_res = len(sol.fun)
-    cov, s0 = _covariance(sol.jac, sol.cost, n_res, len(x))
-    std = np.sqrt(np.diag(cov))
     cams = prob.cameras_lab(x, ref, T_ref, px)
-    # derived quantities: focal, principal point, source (lab), SID per camera
-    idx = np.flatnonzero(np.arange(len(x)) < prob.pose0)
-    idx = np.concatenate([idx, prob.pose0 + 6 * ref + np.arange(6)])
+    # derived quantities (focal, principal point, source in the lab) depend on the global
+    # parameters and the reference frame's pose
+    idx = np.concatenate([np.arange(prob.pose0), prob.pose0 + 6 * ref + np.arange(6)])
+    std, sub, s0 = _covariance(sol.jac, sol.cost, n_res, prob.pose0, idx)
 
     def derived(xx):
         out = []
@@ -516,7 +547,6 @@ def _result(prob: _Problem, sol, ref, T_ref, px, max_rms_px, max_outliers) -> Bu
         xp = x.copy()
         xp[i] += h
         G[:, i] = (derived(xp) - g0) / h
-    sub = cov[np.ix_(idx, idx)]
     with np.errstate(invalid="ignore"):
         Cg = G[:, idx] @ sub @ G[:, idx].T if np.all(np.isfinite(sub)) else np.full((len(g0),) * 2, np.inf)
     sg = np.sqrt(np.abs(np.diag(Cg)))

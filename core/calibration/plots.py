@@ -118,36 +118,36 @@ def instability_figure(dlt: dict, ba: dict, path) -> Path:
 
 def error_map_figure(points: np.ndarray, maps: dict, sources: np.ndarray, path, *,
                      what: str = "mean") -> Path:
-    """Per-lattice-point reconstruction error (``maps``: name -> (N,) mm), shown as the points
-    of the cone intersection seen along two lab axes, coloured by error (Fig. 5.6)."""
+    """Per-lattice-point reconstruction error (``maps``: name -> (N,) mm) in two central slices
+    of the cone intersection (one lattice layer each: x-z through the middle y, y-z through the
+    middle x), coloured by error (Fig. 5.6)."""
     plt = _plt()
     names = list(maps)
     fig, axes = plt.subplots(len(names), 2, figsize=(12, 4.6 * len(names)), squeeze=False)
+    cen = np.median(points, axis=0)
+    step = np.min(np.diff(np.unique(points[:, 0]))) if len(np.unique(points[:, 0])) > 1 else 10.0
     for r, name in enumerate(names):
         e = np.asarray(maps[name])
-        order = np.argsort(e)
-        vmax = float(np.percentile(e, 99))
-        for c, (i, j, lab) in enumerate(((0, 2, ("x (mm)", "z (mm)")), (1, 2, ("y (mm)", "z (mm)")))):
+        vmax = float(np.percentile(e, 99.5))
+        for c, (i, j, k) in enumerate(((0, 2, 1), (1, 2, 0))):
             ax = axes[r, c]
-            sc = ax.scatter(points[order, i], points[order, j], c=e[order], s=7, cmap="inferno", vmin=0,
-                            vmax=vmax)
-            ax.plot(sources[:, i], sources[:, j], "c^", ms=8)
-            cen = points.mean(axis=0)
-            for s in sources:  # direction to each source (they are far outside the plot)
-                d = (s - cen)[[i, j]]
-                d = d / np.linalg.norm(d) * 0.4 * np.ptp(points[:, [i, j]], axis=0).max()
+            sl = np.abs(points[:, k] - cen[k]) <= step / 2
+            sc = ax.scatter(points[sl, i], points[sl, j], c=e[sl], s=14, marker="s", cmap="inferno",
+                            vmin=0, vmax=vmax)
+            for s_ in sources:  # direction to each source (they lie far outside the plot)
+                d = (s_ - cen)[[i, j]]
+                d = d / np.linalg.norm(d) * 0.35 * np.ptp(points[:, [i, j]], axis=0).max()
                 ax.annotate("", xy=cen[[i, j]] + d, xytext=cen[[i, j]],
-                            arrowprops={"arrowstyle": "->", "color": "c"})
-            ax.set_xlabel(lab[0])
-            ax.set_ylabel(lab[1])
+                            arrowprops={"arrowstyle": "->", "color": "c", "lw": 1.5})
+            lab = "xyz"
+            ax.set_xlabel(f"{lab[i]} (mm)")
+            ax.set_ylabel(f"{lab[j]} (mm)")
             ax.set_aspect("equal")
-            ax.set_xlim(points[:, i].min() - 10, points[:, i].max() + 10)
-            ax.set_ylim(points[:, j].min() - 10, points[:, j].max() + 10)
             fig.colorbar(sc, ax=ax, label=f"{what} error (mm)")
-            ax.set_title(f"{name}: {what} over draws, RMS {np.sqrt(np.mean(e**2)):.3f} mm, "
-                         f"max {e.max():.3f} mm", fontsize=9)
-    fig.suptitle("3-D reconstruction error over the intersection of the X-ray cones (10 mm lattice; "
-                 "arrows: towards the sources)", fontsize=10)
+            ax.set_title(f"{name}: slice {lab[k]} = {cen[k]:.0f} mm; whole volume RMS "
+                         f"{np.sqrt(np.mean(e**2)):.3f} mm, max {e.max():.3f} mm", fontsize=9)
+    fig.suptitle(f"3-D reconstruction error ({what} over calibrations) in the intersection of the "
+                 "X-ray cones, 10 mm lattice; arrows point to the sources", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -159,9 +159,12 @@ def error_histogram_figure(levels: dict, path) -> Path:
     ``levels``: label -> (mean (N,), max (N,))."""
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    allv = np.concatenate([np.concatenate(v) for v in levels.values()])
+    allv = allv[allv > 0]
+    bins = np.geomspace(allv.min(), allv.max(), 60)
     for lab, (mean, mx) in levels.items():
-        axes[0].hist(mean, bins=50, histtype="step", lw=1.5, label=lab)
-        axes[1].hist(mx, bins=50, histtype="step", lw=1.5, label=lab)
+        axes[0].hist(mean, bins=bins, histtype="step", lw=1.5, label=lab)
+        axes[1].hist(mx, bins=bins, histtype="step", lw=1.5, label=lab)
     axes[0].set_xlabel("mean reconstruction error per lattice point (mm)")
     axes[1].set_xlabel("max reconstruction error per lattice point (mm)")
     for ax in axes:

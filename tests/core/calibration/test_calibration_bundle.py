@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.sparse
 
 from core.calibration import bundle as ba
 from core.calibration.bundle import ObjectFrame, bundle_adjust
@@ -136,3 +137,24 @@ def test_bad_input_gives_explicit_failures(rig, spiral, poses, sizes):
         bundle_adjust(frames, sizes, focal="zoom")
     with pytest.raises(ValueError, match="uv"):
         ObjectFrame(np.zeros((3, 3)), np.zeros((2, 4, 2)))
+
+
+def test_schur_covariance_equals_the_dense_inverse():
+    g = np.random.default_rng(0)
+    p0, F = 5, 4
+    rows = []
+    for f in range(F):  # each frame's residuals see the globals and its own 6 pose parameters
+        blk = np.zeros((20, p0 + 6 * F))
+        blk[:, :p0] = g.normal(size=(20, p0))
+        blk[:, p0 + 6 * f : p0 + 6 * f + 6] = g.normal(size=(20, 6))
+        rows.append(blk)
+    J = np.vstack(rows)
+    keep = np.r_[np.arange(p0), p0 + 6 * 2 + np.arange(6)]
+    std, sub, s0 = ba._covariance(scipy.sparse.csr_matrix(J), 0.5 * 70.0, len(J), p0, keep)
+    cov = np.linalg.inv(J.T @ J) * (70.0 / (len(J) - J.shape[1]))
+    np.testing.assert_allclose(std, np.sqrt(np.diag(cov)), rtol=1e-8)
+    np.testing.assert_allclose(sub, cov[np.ix_(keep, keep)], rtol=1e-7, atol=1e-12)
+    assert s0 == pytest.approx(np.sqrt(70.0 / (len(J) - J.shape[1])))
+    J[:, 1] = 0.0  # an unobservable global parameter: infinite variance, never a silent number
+    std, _, _ = ba._covariance(scipy.sparse.csr_matrix(J), 1.0, len(J), p0, keep)
+    assert np.isinf(std[1]) and np.isfinite(std[0])

@@ -16,6 +16,9 @@ summary and writes ``study.json`` and the figures. Parts:
 4. **Independent object**: the cube at another place, triangulated with each BA rig.
 5. **Sensitivity** (§5.2.1, Table 5.1): 5000 Latin-hypercube samples per camera (one bead at a
    time, 0.01-0.25 px) and Sobol indices (``n_sobol`` base samples, ±0.25 px).
+6. **Real data** (when ``../shared/data`` or ``$TALUS_SAMPLE_DATA`` holds the Autoscoper wrist
+   sample): the beads of the three wrist radiograph pairs against the epipolar lines of the real
+   calibration (:mod:`core.calibration.epipolar_check`).
 
 Labelling and the image-based end-to-end run are in :mod:`core.calibration.labelling_study`.
 """
@@ -164,6 +167,33 @@ def sensitivity(rig: Rig, *, n_samples: int, n_sobol: int, rng) -> tuple[dict, o
     return out, first, sob.table()
 
 
+def wrist_epipolar(figures_dir=None) -> dict:
+    """Part 6: distances of the wrist beads from the real rig's epipolar lines, per frame pair."""
+    import os
+
+    from ..samples import load_wrist_sample
+    from .epipolar_check import epipolar_check
+
+    env = os.environ.get("TALUS_SAMPLE_DATA")
+    base = Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "data"
+    folder = base / "autoscoper_wrist"
+    if not folder.is_dir():
+        return {"skipped": f"wrist sample not found at {folder}"}
+    sample = load_wrist_sample(folder)
+    out = {}
+    for k, path in enumerate(sample.frame_paths[0]):
+        imgs = [sample.frame(0, k), sample.frame(1, k)]
+        chk = epipolar_check(sample.rig, imgs)
+        out[path.stem.split(".")[-1]] = {**chk.summary(), "distances_px": np.round(
+            np.concatenate([chk.d_view1, chk.d_view2]), 3).tolist()}
+        if figures_dir is not None and k == 1:
+            from .plots import epipolar_figure
+
+            epipolar_figure(imgs, chk, Path(figures_dir) / "calibration_wrist_epipolar.png",
+                            names=(sample.rig[0].name, sample.rig[1].name))
+    return out
+
+
 def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=None, progress=None) -> dict:
     """Run every part (module docstring); ``quick`` shrinks the draws ~10x."""
     say = progress or (lambda msg: None)
@@ -198,6 +228,10 @@ def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=N
     say("sensitivity")
     res["sensitivity"], first, table = sensitivity(rig, n_samples=cfg["n_samples"], n_sobol=cfg["n_sobol"],
                                                    rng=rng)
+    say("real data: wrist epipolar lines")
+    if figures_dir is not None:
+        Path(figures_dir).mkdir(parents=True, exist_ok=True)
+    res["wrist_epipolar"] = wrist_epipolar(figures_dir)
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         (Path(out_dir) / "study.json").write_text(json.dumps(res, indent=1))

@@ -1,7 +1,7 @@
 """Camera calibration of the biplane X-ray rig (thesis Chapter 5).
 
-* :mod:`~core.calibration.objects`: calibration objects (15-bead cube, helical spirals),
-  definition files, bead centres from a micro-CT scan.
+* :mod:`~core.calibration.objects`, :mod:`~core.calibration.microct`: calibration objects
+  (15-bead cube, helical spirals), definition files, bead centres from a micro-CT scan.
 * :mod:`~core.calibration.detection`, :mod:`~core.calibration.labelling`,
   :mod:`~core.calibration.matching`: beads detected and size-classified with
   :mod:`core.markers`, labelled per view (spiral: PCA axis + string matching, chains of
@@ -54,17 +54,8 @@ from .matching import (
     resolve_frame,
     transfer_labels,
 )
-from .objects import (
-    CalibrationTarget,
-    VolumeBeads,
-    builtin_target,
-    cube_target,
-    extract_beads,
-    read_target,
-    spiral_target,
-    target_from_volume,
-    write_target,
-)
+from .microct import VolumeBeads, extract_beads, target_from_volume
+from .objects import CalibrationTarget, builtin_target, cube_target, read_target, spiral_target, write_target
 from .sensitivity import PerturbationStudy, SobolResult, perturbation_study, sobol_analysis
 
 __all__ = [

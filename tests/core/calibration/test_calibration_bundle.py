@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse
 
-from core.calibration import bundle as ba
+from core.calibration import _bundle_model as bm
 from core.calibration.bundle import ObjectFrame, bundle_adjust
 from core.calibration.objects import cube_target, spiral_target
 from core.calibration.simulate import capture_centre, capture_poses, observe
@@ -29,7 +29,7 @@ def _errors(res, rig):
 
 def test_analytic_jacobian_matches_finite_differences(rig, spiral, poses, sizes):
     frames = observe(rig, spiral, poses[:3], noise_px=0.3, rng=0, drop=2)
-    prob = ba._Problem(frames, sizes, "separate", [None, (510.0, 515.0)],
+    prob = bm.Problem(frames, sizes, "separate", [None, (510.0, 515.0)],
                        [(1300.0, 0.29, 5.0), None], 0.1, poses[:3, :3, :3].copy(),
                        np.stack([np.eye(3), rig[1].R @ rig[0].R.T]))
     g = np.random.default_rng(0)
@@ -150,11 +150,11 @@ def test_schur_covariance_equals_the_dense_inverse():
         rows.append(blk)
     J = np.vstack(rows)
     keep = np.r_[np.arange(p0), p0 + 6 * 2 + np.arange(6)]
-    std, sub, s0 = ba._covariance(scipy.sparse.csr_matrix(J), 0.5 * 70.0, len(J), p0, keep)
+    std, sub, s0 = bm.covariance(scipy.sparse.csr_matrix(J), 0.5 * 70.0, len(J), p0, keep)
     cov = np.linalg.inv(J.T @ J) * (70.0 / (len(J) - J.shape[1]))
     np.testing.assert_allclose(std, np.sqrt(np.diag(cov)), rtol=1e-8)
     np.testing.assert_allclose(sub, cov[np.ix_(keep, keep)], rtol=1e-7, atol=1e-12)
     assert s0 == pytest.approx(np.sqrt(70.0 / (len(J) - J.shape[1])))
     J[:, 1] = 0.0  # an unobservable global parameter: infinite variance, never a silent number
-    std, _, _ = ba._covariance(scipy.sparse.csr_matrix(J), 1.0, len(J), p0, keep)
+    std, _, _ = bm.covariance(scipy.sparse.csr_matrix(J), 1.0, len(J), p0, keep)
     assert np.isinf(std[1]) and np.isfinite(std[0])

@@ -5,14 +5,13 @@ import json
 import numpy as np
 import pytest
 
+from core.calibration.microct import extract_beads, target_from_volume
 from core.calibration.objects import (
     CalibrationTarget,
     builtin_target,
     cube_target,
-    extract_beads,
     read_target,
     spiral_target,
-    target_from_volume,
     write_target,
 )
 from core.render.volume import CTVolume

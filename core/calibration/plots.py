@@ -95,14 +95,18 @@ def instability_figure(dlt: dict, ba: dict, path) -> Path:
     """
     plt = _plt()
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
-    for lab, d, col in (("cube DLT, 1 frame", dlt, "tab:red"), ("spiral BA", ba, "tab:blue")):
-        sid = np.asarray(d["sid"])
-        src = np.linalg.norm(np.asarray(d["source"]), axis=-1)
-        axes[0].hist(sid.ravel(), bins=40, alpha=0.6, color=col, label=lab)
-        axes[1].hist(src.ravel(), bins=40, alpha=0.6, color=col, label=lab)
+    sids = [np.abs(np.asarray(d["sid"])).ravel() for d in (dlt, ba)]
+    srcs = [np.linalg.norm(np.asarray(d["source"]), axis=-1).ravel() for d in (dlt, ba)]
+    bins = [np.geomspace(max(min(v.min() for v in vals), 1e-4), max(v.max() for v in vals), 50)
+            for vals in (sids, srcs)]
+    for k, (lab, d, col) in enumerate((("cube DLT, 1 frame", dlt, "tab:red"), ("spiral BA", ba, "tab:blue"))):
+        axes[0].hist(sids[k], bins=bins[0], alpha=0.6, color=col, label=lab)
+        axes[1].hist(srcs[k], bins=bins[1], alpha=0.6, color=col, label=lab)
         s = np.asarray(d["source"]).reshape(-1, 3)
         axes[2].scatter(s[:, 0], s[:, 2], s=6, alpha=0.5, color=col, label=lab)
-    axes[0].set_xlabel("SID error (mm)")
+    axes[0].set_xscale("log")
+    axes[1].set_xscale("log")
+    axes[0].set_xlabel("|SID error| (mm)")
     axes[1].set_xlabel("source position error |ΔC| (mm)")
     axes[2].set_xlabel("ΔX (mm)")
     axes[2].set_ylabel("ΔZ (mm)")

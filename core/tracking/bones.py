@@ -29,6 +29,7 @@ cases.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 from itertools import permutations
 
 import numpy as np
@@ -192,6 +193,27 @@ class BoneModel:
     @property
     def n_voxels(self) -> int:
         return int(self.mask.sum())
+
+    @cached_property
+    def outline(self) -> np.ndarray:
+        """``(n, 3)`` points (CT physical frame, mm) whose convex hull holds every voxel the DRR
+        of the bone can touch: the convex-hull vertices of the mask's voxel centres, each moved
+        by ±1 voxel along every axis (trilinear support). Projected, they bound the bone's
+        image more tightly than the crop's box (search ROIs, :func:`core.tracking.cost.search_roi`)."""
+        from scipy.ndimage import binary_erosion
+        from scipy.spatial import ConvexHull, QhullError
+
+        shell = self.mask & ~binary_erosion(self.mask)
+        k, j, i = np.nonzero(shell)
+        P = np.column_stack([i, j, k]).astype(float)
+        try:
+            P = P[ConvexHull(P).vertices]
+        except (QhullError, ValueError):  # flat or tiny masks: keep every shell voxel
+            pass
+        corners = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
+        out = self.volume.index_to_physical((P[:, None, :] + corners[None]).reshape(-1, 3))
+        out.setflags(write=False)
+        return out
 
     def surface_points(self, pose: np.ndarray) -> np.ndarray:
         """Mesh vertices mapped by ``pose`` (4x4 ``T_lab_from_bone``) into the lab, mm."""

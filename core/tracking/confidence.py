@@ -18,6 +18,11 @@ affected coordinates and ``well_posed = False``. The number is a *scale*, not a 
 standard error: the acceptance study of :mod:`core.tracking.acceptance` reports how often the
 true error lies within 2 sigma.
 
+The same construction applies to the last full-resolution fit of the quadratic-model search
+(:func:`confidence_from_fit`), which samples a 73-point design of half-widths
+``(0.25 mm, 0.5°)`` about the optimum anyway: tracking gets the uncertainty of every frame
+without another launch.
+
 Restarts (:func:`restart_confidence`)
 -------------------------------------
 ``n`` registrations from starts scattered about the optimum; the spread (standard deviation) of
@@ -27,11 +32,11 @@ their results is an empirical repeatability. Costs ``n`` registrations.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import combinations
 
 import numpy as np
 
-__all__ = ["PoseConfidence", "curvature_confidence", "restart_confidence", "stencil"]
+__all__ = ["PoseConfidence", "confidence_from_fit", "curvature_confidence", "restart_confidence",
+           "stencil"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,61 +86,56 @@ class PoseConfidence:
 
 
 def stencil(n: int = 6) -> np.ndarray:
-    """``(1 + 2n + 2n(n-1), n)`` unit second-order stencil: centre, ±e_i, ±e_i ± e_j."""
-    rows = [np.zeros(n)]
-    eye = np.eye(n)
-    for i in range(n):
-        rows += [eye[i], -eye[i]]
-    for i, j in combinations(range(n), 2):
-        for si in (1, -1):
-            for sj in (1, -1):
-                rows.append(si * eye[i] + sj * eye[j])
-    return np.array(rows)
+    """``(1 + 2n + 2n(n-1), n)`` unit second-order stencil: centre, ±e_i, ±e_i ± e_j
+    (:func:`core.tracking.quadratic.design` ``"full"``)."""
+    from .quadratic import design
+
+    return design(n, "full")
 
 
-def _quadratic_design(D: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int]]]:
-    n = D.shape[1]
-    pairs = [(i, j) for i in range(n) for j in range(i, n)]
-    cols = [np.ones(len(D))] + [D[:, i] for i in range(n)]
-    cols += [D[:, i] * D[:, j] * (0.5 if i == j else 1.0) for i, j in pairs]
-    return np.column_stack(cols), pairs
+def _from_hessian(H: np.ndarray, noise: float, method: str) -> PoseConfidence:
+    H = 0.5 * (np.asarray(H, dtype=float) + np.asarray(H, dtype=float).T)
+    w, V = np.linalg.eigh(H)
+    # a floor on the noise: float32 metric arithmetic cannot resolve cost differences below ~1e-6
+    noise_eff = max(float(noise), 1e-6)
+    flat = w <= 1e-9 * max(float(np.abs(w).max()), 1e-300)  # zero up to round-off
+    if flat.any():
+        cov = np.full((6, 6), np.inf)
+        sig = np.sqrt(np.abs(np.diag(2 * noise_eff * np.linalg.pinv(H))))
+        # coordinates touched by a non-positive direction are unbounded
+        bad = np.abs(V[:, flat]).max(axis=1) > 0.3
+        sig[bad] = np.inf
+        return PoseConfidence(sig, cov, method, float(noise), H, False)
+    cov = 2.0 * noise_eff * np.linalg.inv(H)
+    return PoseConfidence(np.sqrt(np.diag(cov)), cov, method, float(noise), H, True)
 
 
 def curvature_confidence(cost, x, *, step=(0.25, 0.25)) -> PoseConfidence:
     """Uncertainty of the optimum ``x`` (mm, degrees) of ``cost(X (B, 6)) -> (B,)`` from the
     curvature of a quadratic fitted on a 73-point stencil of half-widths ``step`` (mm, degrees)
     — one batched call of ``cost``."""
+    from .quadratic import fit_quadratic
+
     x = np.asarray(x, dtype=float).ravel()
     if x.shape != (6,):
         raise ValueError(f"x: expected 6 parameters (mm, degrees), got shape {x.shape}")
     h = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
     if np.any(h <= 0) or not np.all(np.isfinite(h)):
         raise ValueError(f"step: expected positive (mm, degrees) steps, got {step!r}")
-    S = stencil(6)
-    D = S * h
+    D = stencil(6) * h
     f = np.asarray(cost(x + D), dtype=float)
-    A, pairs = _quadratic_design(D)
-    coef, *_ = np.linalg.lstsq(A, f, rcond=None)
-    resid = f - A @ coef
-    dof = max(len(f) - A.shape[1], 1)
-    noise = float(np.sqrt(np.sum(resid**2) / dof))
-    H = np.zeros((6, 6))
-    for k, (i, j) in enumerate(pairs):
-        H[i, j] = H[j, i] = coef[7 + k]
-    w = np.linalg.eigvalsh(H)
-    # a floor on the noise: float32 metric arithmetic cannot resolve cost differences below ~1e-6
-    noise_eff = max(noise, 1e-6)
-    if w.min() <= 0:
-        cov = np.full((6, 6), np.inf)
-        Hinv = np.linalg.pinv(H)
-        sig = np.sqrt(np.abs(np.diag(2 * noise_eff * Hinv)))
-        # coordinates touched by a non-positive direction are unbounded
-        V = np.linalg.eigh(H)[1]
-        bad = np.abs(V[:, w <= 0]).max(axis=1) > 0.3 if np.any(w <= 0) else np.zeros(6, bool)
-        sig[bad] = np.inf
-        return PoseConfidence(sig, cov, "curvature", noise, H, False)
-    cov = 2.0 * noise_eff * np.linalg.inv(H)
-    return PoseConfidence(np.sqrt(np.diag(cov)), cov, "curvature", noise, H, True)
+    fit = fit_quadratic(D, f, h, x=x)
+    return _from_hessian(fit.H, fit.noise, "curvature")
+
+
+def confidence_from_fit(fit) -> PoseConfidence:
+    """Uncertainty from a :class:`core.tracking.quadratic.QuadraticFit` of the cost about the
+    optimum (6 parameters in mm and degrees): ``Σ = 2 σ_c H⁻¹`` as in
+    :func:`curvature_confidence`, ``method = "curvature"``."""
+    H = np.asarray(fit.H, dtype=float)
+    if H.shape != (6, 6):
+        raise ValueError(f"fit: expected a 6-parameter quadratic fit, got a Hessian of shape {H.shape}")
+    return _from_hessian(H, fit.noise, "curvature")
 
 
 def restart_confidence(renderer, frame, *, bone: int, pose, center, options=None, n: int = 5,

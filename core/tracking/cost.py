@@ -82,25 +82,82 @@ class MetricTerm:
 DEFAULT_TERMS = (MetricTerm("gc", 1.0),)
 
 
-@dataclass(frozen=True, eq=False)
 class FrameImages:
     """One biplane frame ready for registration.
+
+    Holds each view's flatfield-normalised fluence and computes what registration compares —
+    the line-integral image ``-ln(I/I0)`` (DRR polarity, :func:`core.similarity.line_integral_image`)
+    and the usable-pixel mask — only for the regions asked for (:meth:`region`): a bone's search
+    region is a small part of a 1024² frame. Build it with :func:`prepare_frame`.
 
     Attributes
     ----------
     images : tuple of (H, W) float32
-        Per view the line-integral image ``-ln(I/I0)`` (DRR polarity).
+        Whole-image line integrals per view (computed on first access).
     masks : tuple of (H, W) bool or None
-        Usable pixels per view (False outside the intensifier's field, on black/saturated
-        pixels); None = all usable.
+        Whole-image usable pixels per view (False outside the intensifier's field, on
+        black/saturated pixels and ``erode_px`` around them); None = all usable.
     """
 
-    images: tuple[np.ndarray, ...]
-    masks: tuple[np.ndarray | None, ...]
+    def __init__(self, fluence, masks, valid_range, erode_px: int) -> None:
+        self._fluence = tuple(fluence)
+        self._given = tuple(masks)
+        self._valid = valid_range
+        self._erode = int(erode_px)
+        self._whole: tuple | None = None
 
     @property
     def n_views(self) -> int:
-        return len(self.images)
+        return len(self._fluence)
+
+    @property
+    def shapes(self) -> tuple[tuple[int, int], ...]:
+        return tuple(f.shape for f in self._fluence)
+
+    def region(self, view: int, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(line_integral (h, w) float32, mask (h, w) bool or None)`` of ``view`` over
+        ``[rows, cols]`` (slices with explicit, in-range bounds); the same values as the whole
+        image's, cut out (the erosion of the mask sees ``erode_px`` pixels beyond the region)."""
+        from scipy import ndimage
+
+        from ..similarity import line_integral_image
+
+        img = self._fluence[view]
+        H, W = img.shape
+        r0, r1, c0, c1 = rows.start, rows.stop, cols.start, cols.stop
+        if not (0 <= r0 < r1 <= H and 0 <= c0 < c1 <= W):
+            raise ValueError(f"rows, cols: expected a non-empty region inside {H}x{W}, got {rows}, {cols}")
+        li = line_integral_image(np.clip(img[r0:r1, c0:c1], 0.0, 1.0))
+        mask = None
+        if self._valid is not None:
+            p = self._erode
+            R0, R1, C0, C1 = max(r0 - p, 0), min(r1 + p, H), max(c0 - p, 0), min(c1 + p, W)
+            sub = img[R0:R1, C0:C1]
+            lo, hi = self._valid
+            valid = (sub > lo) & (sub < hi)
+            if p and not valid.all():
+                valid = ndimage.binary_erosion(valid, iterations=p, border_value=1)
+            mask = valid[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
+        given = self._given[view]
+        if given is not None:
+            g = given[r0:r1, c0:c1]
+            mask = g if mask is None else mask & g
+        return li, mask
+
+    def _all(self) -> tuple:
+        if self._whole is None:
+            out = [self.region(v, slice(0, f.shape[0]), slice(0, f.shape[1]))
+                   for v, f in enumerate(self._fluence)]
+            self._whole = (tuple(o[0] for o in out), tuple(o[1] for o in out))
+        return self._whole
+
+    @property
+    def images(self) -> tuple[np.ndarray, ...]:
+        return self._all()[0]
+
+    @property
+    def masks(self) -> tuple[np.ndarray | None, ...]:
+        return self._all()[1]
 
 
 def prepare_frame(fluence, *, masks=None, valid_range: tuple[float, float] | None = (0.02, 0.999),
@@ -110,44 +167,57 @@ def prepare_frame(fluence, *, masks=None, valid_range: tuple[float, float] | Non
     ``valid_range`` (relative fluence) marks pixels outside it — black (outside the round field,
     collimator) or saturated — as unusable, together with ``erode_px`` pixels around them;
     ``masks`` (True = usable) are combined with that. ``valid_range=None`` keeps every pixel.
+    The line integrals and masks are computed lazily, per search region.
     """
-    from scipy import ndimage
-
-    from ..similarity import line_integral_image
-
     views = [np.asarray(f, dtype=np.float32) for f in fluence]
     if not views or any(v.ndim != 2 for v in views):
         raise ValueError("fluence: expected one 2-D flatfield-normalised image per view")
     given = [None] * len(views) if masks is None else list(masks)
     if len(given) != len(views):
         raise ValueError(f"masks: expected {len(views)} masks (one per view) or None")
-    out_img, out_mask = [], []
     for v, (img, m) in enumerate(zip(views, given, strict=True)):
-        if not np.all(np.isfinite(img)):
+        if not np.isfinite(img).all():
             raise ValueError(f"fluence[{v}]: contains NaN or infinite pixels")
-        mask = None
-        if valid_range is not None:
-            lo, hi = valid_range
-            mask = (img > lo) & (img < hi)
-            if erode_px:
-                mask = ndimage.binary_erosion(mask, iterations=int(erode_px), border_value=1)
         if m is not None:
             m = np.asarray(m, dtype=bool)
             if m.shape != img.shape:
                 raise ValueError(f"masks[{v}]: expected shape {img.shape}, got {m.shape}")
-            mask = m if mask is None else mask & m
-        out_img.append(line_integral_image(np.clip(img, 0.0, 1.0)))
-        out_mask.append(mask)
-    return FrameImages(tuple(out_img), tuple(out_mask))
+            given[v] = m
+    if valid_range is not None:
+        lo, hi = (float(a) for a in valid_range)
+        if not lo < hi:
+            raise ValueError(f"valid_range: expected (low, high) with low < high, got {valid_range!r}")
+        valid_range = (lo, hi)
+    if isinstance(erode_px, bool) or int(erode_px) != erode_px or erode_px < 0:
+        raise ValueError(f"erode_px: expected an integer >= 0, got {erode_px!r}")
+    return FrameImages(views, given, valid_range, int(erode_px))
 
 
 def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], center: np.ndarray,
-               reach_mm: float, margin_px: int = 4) -> np.ndarray:
+               reach_mm: float, margin_px: int = 4, points=None) -> np.ndarray:
     """``(n_views, 4)`` ROIs ``(u0, v0, w, h)``: the bone's projected box at ``pose`` grown by the
     image displacement of a ``reach_mm`` move of its centre (plus ``margin_px``), clipped to the
-    image. Raises :class:`OutsideViewError` when a view's ROI is empty."""
-    box = renderer.auto_roi(np.asarray(pose, float)[None, None], views=views, bones=[bone],
-                            margin=0)[0, :, 0]
+    image. The box is that of ``points`` (``(n, 3)`` in the bone's CT frame, mm; e.g.
+    :attr:`core.tracking.bones.BoneModel.outline`) when given, else of the volume's box.
+    Raises :class:`OutsideViewError` when a view's ROI is empty."""
+    pose = np.asarray(pose, float)
+    if points is None:
+        box = renderer.auto_roi(pose[None, None], views=views, bones=[bone], margin=0)[0, :, 0]
+    else:
+        P = np.asarray(points, dtype=float)
+        if P.ndim != 2 or P.shape[1] != 3 or not len(P):
+            raise ValueError(f"points: expected (n, 3) bone-frame points, got shape {P.shape}")
+        lab = P @ pose[:3, :3].T + pose[:3, 3]
+        box = np.zeros((len(views), 4), dtype=np.int64)
+        for i, v in enumerate(views):
+            cam = renderer.cameras[v]
+            uv, z = cam.project(lab, return_depth=True)
+            if np.any(z <= 0):
+                lo, hi = np.zeros(2), np.array([cam.width, cam.height], float)
+            else:
+                lo = np.clip(np.floor(uv.min(axis=0)), 0, [cam.width, cam.height])
+                hi = np.clip(np.ceil(uv.max(axis=0)) + 1, 0, [cam.width, cam.height])
+            box[i, :2], box[i, 2:] = lo, np.maximum(hi - lo, 0)
     c_lab = pose[:3, :3] @ center + pose[:3, 3]
     out = np.zeros((len(views), 4), dtype=np.int64)
     for i, v in enumerate(views):
@@ -160,6 +230,8 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
         lo = np.maximum(box[i, :2] - grow, 0)
         hi = np.minimum(box[i, :2] + box[i, 2:] + grow, [cam.width, cam.height])
+        if np.any(hi <= lo):
+            raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
         out[i, :2], out[i, 2:] = lo, hi - lo
     return out
 
@@ -246,20 +318,23 @@ class RegistrationCost:
             u0, v0, w, h = (int(a) for a in self.roi[i])
             if w <= 0 or h <= 0:
                 raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
-            img = frame.images[v]
+            H_img, W_img = frame.shapes[v]
             pad = math.ceil(2 * s) + 2
             ys, xs = max(v0 - pad, 0), max(u0 - pad, 0)
-            sub = img[ys:min(v0 + h + pad, img.shape[0]), xs:min(u0 + w + pad, img.shape[1])]
+            ye, xe = min(v0 + h + pad, H_img), min(u0 + w + pad, W_img)
+            if ye <= ys or xe <= xs:
+                raise OutsideViewError(f"roi: the search region of view {v} lies outside its image")
+            sub, m = frame.region(v, slice(ys, ye), slice(xs, xe))
             if s > 1:
                 sub = ndimage.gaussian_filter(sub, 0.5 * s, mode="nearest")
             r = np.array([u0 - xs, v0 - ys, w, h])
-            rois.append(sample_roi(sub, r, scale=s))
-            m = frame.masks[v]
-            if m is None:
-                masks.append(np.ones(rois[-1].shape, bool))
+            if s == 1 and r[0] + w <= sub.shape[1] and r[1] + h <= sub.shape[0]:
+                rois.append(np.ascontiguousarray(sub[r[1]:r[1] + h, r[0]:r[0] + w], dtype=np.float32))
+                mm = None if m is None else m[r[1]:r[1] + h, r[0]:r[0] + w]
             else:
-                ms = m[ys:ys + sub.shape[0], xs:xs + sub.shape[1]].astype(np.float32)
-                masks.append(sample_roi(ms, r, scale=s) > 0.999)
+                rois.append(sample_roi(sub, r, scale=s))
+                mm = None if m is None else sample_roi(m.astype(np.float32), r, scale=s) > 0.999
+            masks.append(np.ones(rois[-1].shape, bool) if mm is None else np.ascontiguousarray(mm))
             if not masks[-1].any():
                 raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
         if others is not None:
@@ -297,8 +372,9 @@ class RegistrationCost:
         return np.concatenate([p[:3], np.degrees(p[3:])])
 
     # ------------------------------------------------------------------ evaluation
-    def scores(self, X) -> np.ndarray:
-        """``(B, n_terms)`` similarity scores (mean over views) of each term."""
+    def scores(self, X, *, views: bool = False):
+        """``(B, n_terms)`` similarity scores (mean over views) of each term; with ``views=True``
+        also ``(B, n_terms, n_views)`` per-view scores (same launch)."""
         import warp as wp
 
         t0 = time.perf_counter()
@@ -309,7 +385,8 @@ class RegistrationCost:
         if self.profile:
             wp.synchronize_device(self.renderer.device)
         t2 = time.perf_counter()
-        out = np.stack([m.evaluate(batch).pose for m in self.metrics], axis=1)
+        res = [m.evaluate(batch) for m in self.metrics]
+        out = np.stack([r.pose for r in res], axis=1)
         t3 = time.perf_counter()
         tm = self.timer
         tm.host += t1 - t0
@@ -317,6 +394,8 @@ class RegistrationCost:
         tm.metric += t3 - t2
         tm.calls += 1
         tm.evaluations += len(P)
+        if views:
+            return out, np.stack([r.item[:, :, 0] for r in res], axis=1)
         return out
 
     def __call__(self, X) -> np.ndarray:
@@ -331,3 +410,10 @@ class RegistrationCost:
     def score(self, x) -> float:
         """Weighted mean similarity (1 - cost) at one parameter vector."""
         return float(1.0 - self(np.asarray(x, float)[None])[0])
+
+    def score_and_views(self, x) -> tuple[float, np.ndarray]:
+        """Weighted mean similarity at ``x`` and the weighted per-view similarity
+        ``(n_views,)``, from one launch."""
+        s, v = self.scores(np.asarray(x, float)[None], views=True)
+        tot = float(1.0 - np.nan_to_num((1.0 - s[0]) @ self._w, nan=2.0))
+        return tot, np.nan_to_num(v[0].T @ self._w, nan=-1.0)

@@ -23,6 +23,8 @@ Algorithms
 * :func:`pattern_search` — compass search: all 2n axis moves of the current step are evaluated in
   one call; the best improving move is taken, otherwise the step halves (Kolda, Lewis & Torczon
   2003). A GPU-friendly local refinement.
+* :func:`core.tracking.quadratic.quadratic_search` — fitted quadratic models on a batched
+  second-order design (a trust-region Newton method): the fast local search of tracking.
 * :func:`nelder_mead`, :func:`powell` — scipy's serial methods (one point per call; slower on the
   GPU, kept for comparison and for Autoscoper-like set-ups: Autoscoper refines with a downhill
   simplex of initial offsets 0.1).
@@ -60,6 +62,9 @@ class OptimizeResult:
     reason : str
         The stopping rule (see the module docs).
     method : str
+    model : object, optional
+        Method-specific final state: the last :class:`~core.tracking.quadratic.QuadraticFit` of
+        :func:`~core.tracking.quadratic.quadratic_search` (None for the other methods).
     """
 
     x: np.ndarray
@@ -70,6 +75,7 @@ class OptimizeResult:
     converged: bool
     reason: str
     method: str
+    model: object = None
 
     def to_dict(self) -> dict:
         return {"x": self.x.tolist(), "fun": self.fun, "evaluations": self.evaluations,

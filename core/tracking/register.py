@@ -6,7 +6,19 @@ the box ``|t_i| <= bounds[0]`` mm, ``|r_i| <= bounds[1]`` degrees, level by leve
 pyramid (:class:`Level`: pyramid ``scale``, optimiser and its budget). Each level starts from the
 previous level's best point; an optional local refinement (``refine``) polishes the result at
 the finest level. All levels share the base pose, the centre and the ROIs (the bone's projected
-box at the initial pose grown by the search bounds), so ``x`` means the same at every level.
+outline at the initial pose grown by the search bounds), so ``x`` means the same at every level.
+
+Default levels (:func:`default_levels`)
+---------------------------------------
+* ``search="global"`` (a hand-placed start, a retry): CMA-ES with a population of 24 at the
+  coarsest pyramid level, then the quadratic-model search
+  (:func:`core.tracking.quadratic.quadratic_search`) at the finer levels;
+* ``search="local"`` (tracking from a predicted pose): the quadratic-model search only, at
+  half and full resolution. Each generation renders one design of 73 poses in one launch, and a
+  frame converges in a handful of generations.
+
+The full-resolution quadratic fit of the last level is returned (``fit``): its Hessian and
+residual give the pose uncertainty without another launch.
 
 The result is converged when the last stage stopped on a convergence rule and the optimum is
 not on the search box (a point on the box means the true pose may lie beyond it).
@@ -23,20 +35,25 @@ import numpy as np
 
 from . import optimize as opt
 from .cost import DEFAULT_TERMS, FrameImages, MetricTerm, RegistrationCost, search_roi
+from .quadratic import quadratic_search
 
 __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels", "mm_per_pixel",
            "register"]
 
-_METHODS = ("cmaes", "pso", "pattern", "nelder_mead", "powell")
+_METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell")
+_SEARCHES = ("global", "local")
+#: Design half-widths (mm, degrees) of the full-resolution quadratic fits.
+FINAL_STEP = (0.25, 0.5)
 
 
 @dataclass(frozen=True)
 class Level:
     """One pyramid level: ``scale`` (full-resolution pixels per DRR pixel), the optimiser
-    (``method`` in ``cmaes``, ``pso``, ``pattern``, ``nelder_mead``, ``powell``), its initial
-    step ``sigma`` (mm, degrees; CMA-ES σ, pattern/simplex step; PSO uses ±3·sigma as its start
-    range), ``popsize`` (CMA-ES; PSO particles), ``max_generations``, ``tol_x`` (mm/degrees) and
-    extra optimiser keywords ``options``."""
+    (``method`` in ``cmaes``, ``pso``, ``pattern``, ``quadratic``, ``nelder_mead``, ``powell``),
+    its initial step ``sigma`` (mm, degrees; CMA-ES σ, pattern/simplex step, quadratic design
+    half-widths; PSO uses ±3·sigma as its start range), ``popsize`` (CMA-ES; PSO particles),
+    ``max_generations``, ``tol_x`` (mm/degrees) and extra optimiser keywords ``options``
+    (for ``quadratic``: ``min_step`` as (mm, degrees), ``kind``, ``trust``)."""
 
     scale: float = 1.0
     method: str = "cmaes"
@@ -74,41 +91,68 @@ def mm_per_pixel(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence
 
 
 def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
-                   coarsest_mm: float = 1.2) -> tuple[Level, ...]:
-    """CMA-ES levels from DRR pixels of about ``coarsest_mm`` mm down to full resolution.
+                   coarsest_mm: float = 1.2, search: str = "global") -> tuple[Level, ...]:
+    """Levels from DRR pixels of about ``coarsest_mm`` mm down to full resolution.
 
-    Scales 4, 2, 1 are kept while ``scale × mm_per_px <= coarsest_mm`` (1024² views of a foot,
-    ~0.3 mm pixels: 4, 2, 1; 256²: 1 only). The first level searches with ``sigma`` (mm, deg),
-    each finer one with a third of the previous step.
+    Pyramid scales 4, 2, 1 are kept while ``scale × mm_per_px <= coarsest_mm`` (1024² views of a
+    foot, ~0.3 mm pixels: 4, 2, 1; 256²: 1 only).
+
+    * ``"global"``: CMA-ES (population 24, first step ``sigma`` in mm and degrees) at the
+      coarsest scale, then quadratic-model searches at each finer scale (at a single scale:
+      CMA-ES then a quadratic search, both at full resolution);
+    * ``"local"``: a quadratic search at the second-finest scale (design half-widths
+      ``max(sigma / 2, (0.4 mm, 0.8°))``) and one at full resolution; with one scale, one
+      search from ``(0.5 mm, 1°)`` down to :data:`FINAL_STEP`.
+
+    The full-resolution search ends with designs of :data:`FINAL_STEP` half-widths and a Newton
+    step below 0.02 (mm, degrees).
     """
     if not (np.isfinite(mm_per_px) and mm_per_px > 0):
         raise ValueError(f"mm_per_px: expected a positive pixel size, got {mm_per_px!r}")
+    if search not in _SEARCHES:
+        raise ValueError(f"search: expected one of {_SEARCHES}, got {search!r}")
+    if len(sigma) != 2 or min(sigma) <= 0:
+        raise ValueError(f"sigma: expected (mm, degrees) > 0, got {sigma!r}")
     scales = [s for s in (4.0, 2.0) if s * mm_per_px <= coarsest_mm] + [1.0]
-    out, sig = [], np.asarray(sigma, dtype=float)
-    for i, s in enumerate(scales):
-        last = i == len(scales) - 1
-        out.append(Level(scale=s, method="cmaes", sigma=tuple(sig), popsize=12,
-                         max_generations=60 if last else 40, tol_x=0.01 if last else 0.05))
-        sig = np.maximum(sig / 3.0, 0.1)
-    return tuple(out)
+    fin = FINAL_STEP
+    mid = (max(sigma[0] / 2, 0.4), max(sigma[1] / 2, 0.8))
+
+    def final(step):
+        return Level(scale=1.0, method="quadratic", sigma=step, max_generations=8, tol_x=0.02,
+                     options={"min_step": fin})
+
+    def between(s):
+        return Level(scale=s, method="quadratic", sigma=mid, max_generations=6, tol_x=0.1,
+                     options={"min_step": mid})
+
+    if search == "global":
+        out = [Level(scale=scales[0], method="cmaes", sigma=tuple(sigma), popsize=24,
+                     max_generations=40, tol_x=0.05)]
+        out += [between(s) for s in scales[1:-1]]
+        out.append(final((0.5, 1.0)))
+        return tuple(out)
+    if len(scales) > 1:
+        return between(scales[-2]), final(fin)
+    return (final((0.5, 1.0)),)
 
 
 @dataclass(frozen=True)
 class RegistrationOptions:
     """Options of :func:`register`.
 
-    ``levels=None`` picks :func:`default_levels` for the pixel size at the bone. ``bounds``:
-    search box half-widths about the initial pose (mm, degrees). ``refine``: a local method run
-    at full resolution after the levels (``"pattern"``, ``"nelder_mead"``, ``"powell"`` or
-    None) with initial step ``refine_step`` (mm, degrees). ``sigma``: first-level step when the
-    levels are automatic. ``margin_px``: extra ROI margin.
+    ``levels=None`` picks :func:`default_levels` (with ``search`` and ``sigma``) for the pixel
+    size at the bone. ``bounds``: search box half-widths about the initial pose (mm, degrees).
+    ``refine``: an extra local method run at full resolution after the levels (``"pattern"``,
+    ``"quadratic"``, ``"nelder_mead"``, ``"powell"`` or None) with initial step ``refine_step``
+    (mm, degrees). ``margin_px``: extra ROI margin.
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
     levels: tuple[Level, ...] | None = None
     bounds: tuple[float, float] = (10.0, 10.0)
     sigma: tuple[float, float] = (1.5, 1.5)
-    refine: str | None = "pattern"
+    search: str = "global"
+    refine: str | None = None
     refine_step: tuple[float, float] = (0.1, 0.1)
     refine_tol: float = 0.005
     margin_px: int = 4
@@ -122,13 +166,16 @@ class RegistrationOptions:
                 raise ValueError("levels: expected a non-empty sequence of Level (or None for automatic)")
         if len(self.bounds) != 2 or min(self.bounds) <= 0:
             raise ValueError(f"bounds: expected (mm, degrees) > 0, got {self.bounds!r}")
-        if self.refine not in (None, "pattern", "nelder_mead", "powell"):
-            raise ValueError(f"refine: expected 'pattern', 'nelder_mead', 'powell' or None, "
+        if self.refine not in (None, "pattern", "quadratic", "nelder_mead", "powell"):
+            raise ValueError(f"refine: expected 'pattern', 'quadratic', 'nelder_mead', 'powell' or None, "
                              f"got {self.refine!r}")
+        if self.search not in _SEARCHES:
+            raise ValueError(f"search: expected one of {_SEARCHES}, got {self.search!r}")
 
     def widened(self, factor: float = 2.0) -> RegistrationOptions:
-        """The same options with ``factor``× larger bounds and first steps and twice the
-        population (for a retry after a failure or a poor initial guess)."""
+        """The same options with ``factor``× larger bounds and first steps, twice the
+        population and a global first stage (for a retry after a failure or a poor initial
+        guess)."""
         lv = None
         if self.levels is not None:
             lv = tuple(replace(x, sigma=(x.sigma[0] * factor, x.sigma[1] * factor),
@@ -136,12 +183,13 @@ class RegistrationOptions:
                        for i, x in enumerate(self.levels))
         return replace(self, bounds=(self.bounds[0] * factor, self.bounds[1] * factor),
                        sigma=(self.sigma[0] * factor, self.sigma[1] * factor), levels=lv,
-                       seed=self.seed + 1)
+                       search="global", seed=self.seed + 1)
 
     def to_dict(self) -> dict:
         return {"terms": [t.to_dict() for t in self.terms],
                 "levels": None if self.levels is None else [lv.to_dict() for lv in self.levels],
-                "bounds": list(self.bounds), "sigma": list(self.sigma), "refine": self.refine,
+                "bounds": list(self.bounds), "sigma": list(self.sigma), "search": self.search,
+                "refine": self.refine,
                 "refine_step": list(self.refine_step), "refine_tol": self.refine_tol,
                 "margin_px": self.margin_px, "seed": self.seed}
 
@@ -159,7 +207,7 @@ class RegistrationResult:
     score : float
         Weighted mean similarity at the pose, full resolution (1 - cost).
     view_scores : (n_views,) array
-        The first metric term's score per view at the pose.
+        Weighted similarity per view at the pose.
     evaluations, generations : int
         Poses rendered and batched calls, all stages.
     time_s : float
@@ -170,6 +218,9 @@ class RegistrationResult:
     timing : dict
         :class:`~core.tracking.cost.CostTimer` totals over the levels plus ``optimizer_s`` (the
         rest of the wall time: optimiser arithmetic and set-up).
+    fit : QuadraticFit or None
+        The last full-resolution quadratic fit about the result (x units: mm, degrees), when
+        the last stage was a quadratic search.
     """
 
     pose: np.ndarray
@@ -183,6 +234,7 @@ class RegistrationResult:
     reason: str
     stages: tuple[opt.OptimizeResult, ...]
     timing: dict
+    fit: object = None
 
     def to_dict(self) -> dict:
         return {"pose": self.pose.tolist(), "x": self.x.tolist(), "score": self.score,
@@ -203,6 +255,13 @@ def _run(level_method: str, fun, x0, *, sigma6, lo, hi, level: Level | None, tol
             kw["n_particles"] = popsize
         kw.update(extra)
         return opt.pso(fun, x0, lower=lo, upper=hi, seed=seed, cancel=cancel, **kw)
+    if level_method == "quadratic":
+        kw = dict(extra)
+        if "min_step" in kw:
+            ms = np.asarray(kw.pop("min_step"), dtype=float)
+            kw["min_step"] = np.minimum(np.repeat(ms, 3) if ms.size == 2 else ms, sigma6)
+        kw.setdefault("max_generations", max_gen)
+        return quadratic_search(fun, x0, step=sigma6, lower=lo, upper=hi, tol_x=tol, cancel=cancel, **kw)
     if level_method == "pattern":
         return opt.pattern_search(fun, x0, step=sigma6, lower=lo, upper=hi, tol_x=tol,
                                   max_generations=max_gen, cancel=cancel, **extra)
@@ -214,7 +273,7 @@ def _run(level_method: str, fun, x0, *, sigma6, lo, hi, level: Level | None, tol
 def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
              options: RegistrationOptions | None = None, views: Sequence[int] | None = None,
              others=None, cancel: Callable[[], bool] | None = None, profile: bool = False,
-             x0=None) -> RegistrationResult:
+             x0=None, outline=None) -> RegistrationResult:
     """Register bone ``bone`` of ``renderer`` to ``frame`` starting from ``initial_pose``.
 
     Parameters
@@ -238,6 +297,9 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         Time DRR and metric separately (:class:`RegistrationCost`).
     x0 : (6,) array, optional
         Start point inside the box (default 0: the initial pose).
+    outline : (n, 3) array, optional
+        Bone-frame points bounding the bone (:attr:`core.tracking.bones.BoneModel.outline`):
+        tighter search ROIs than the volume's box (fewer pixels per DRR).
 
     Raises
     ------
@@ -249,9 +311,11 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     base = np.asarray(initial_pose, dtype=float)
     center = np.asarray(center, dtype=float)
     views = tuple(range(frame.n_views)) if views is None else tuple(views)
-    levels = o.levels or default_levels(mm_per_pixel(renderer, base, center, views), sigma=o.sigma)
+    levels = o.levels or default_levels(mm_per_pixel(renderer, base, center, views), sigma=o.sigma,
+                                        search=o.search)
     roi = search_roi(renderer, base, bone, views=views, center=center,
-                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px)
+                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
+                     points=outline)
     hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
     lo = -hi
     x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
@@ -280,9 +344,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         stages.append(r)
         if r.fun <= full(x[None])[0]:
             x = r.x
-    m0 = full.metrics[0].evaluate(full.renderer.render(full.poses(x[None])[:, None], views=views,
-                                                       bones=[bone], roi=full._roi_arg, scale=1.0))
-    score = full.score(x)
+    score, view_scores = full.score_and_views(x)
     last = stages[-1]
     converged = last.converged and all(s.reason != "cancelled" for s in stages)
     reason = last.reason
@@ -295,8 +357,10 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     total = time.perf_counter() - t_start
     timing["total_s"] = total
     timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
+    fit = last.model if (last.method == "quadratic" and last.model is not None
+                         and (o.refine == "quadratic" or levels[-1].scale == 1.0)) else None
     return RegistrationResult(
         pose=full.poses(x[None])[0], x=np.asarray(x, float), score=score,
-        view_scores=m0.item[0, :, 0].copy(), evaluations=sum(s.evaluations for s in stages),
+        view_scores=view_scores, evaluations=sum(s.evaluations for s in stages),
         generations=sum(s.generations for s in stages), time_s=total, converged=converged,
-        reason=reason, stages=tuple(stages), timing=timing)
+        reason=reason, stages=tuple(stages), timing=timing, fit=fit)

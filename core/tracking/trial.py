@@ -26,27 +26,47 @@ fluoroscope images, so overlapping projections do not pull a bone towards its ne
 Failure detection and review flags
 ----------------------------------
 A registration fails when it did not converge (or hit the search box), when its score falls below
-``min_score_ratio`` × the median of the bone's last ``history`` good scores, or when it jumps more
-than ``max_jump`` (mm, degrees) from the initial guess. A failed frame is retried once with
-``retry_factor``× wider bounds and steps (from the guess and from the last good pose); the best
-retry is kept, and if it still fails the frame is recorded *flagged for review* with its reasons
-and is not used for later guesses. A bone outside a view's field or a frame missing in a view is
-flagged with that reason, nothing is recorded, and tracking continues.
+``min_score_ratio`` × the median of the bone's last ``history`` good scores or below
+``min_start_ratio`` × the score of its verified first frame (an absolute floor that a slow drift
+into a false optimum cannot move), or when it jumps more than ``max_jump`` (mm, degrees) from the
+initial guess (``retry_factor`` × that on a bone's first frame, which starts from a hand-placed
+pose). A failed frame is retried once with ``retry_factor``× wider bounds and steps and a global
+first stage (from the guess and from the last good pose); the best retry is kept, and if it
+still fails the frame is recorded *flagged for review* with its reasons and is not used for later
+guesses. A bone outside a view's field or a frame missing in a view is flagged with that reason,
+nothing is recorded, and tracking continues.
+
+False optima at the start
+-------------------------
+Every bone's first frame, and every frame that needed a retry, is checked by
+``verify_restarts`` local restarts from its result displaced by ``verify_spread`` (mm, degrees)
+(:func:`core.tracking.verify.verify_start`). When a restart scores higher, the first result was
+a false optimum: a wider registration from the better restart follows and the best is kept
+(noted as ``"start corrected by restarts"``; the frame is not flagged for it). When a restart
+converges to a different pose with an equal score, the frame is flagged ``"ambiguous optimum"``.
+
+Speed
+-----
+Tracking frames use the quadratic-model local search (``registration.search == "local"``, see
+:mod:`core.tracking.register`), and the per-frame confidence comes from its last full-resolution
+fit, so a frame costs a few batched launches; only first frames, retries and restarts run the
+global CMA-ES stage.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..geometry.transforms import params_from_pose, pose_from_params
 from .bones import BoneModel
-from .confidence import curvature_confidence
+from .confidence import confidence_from_fit, curvature_confidence
 from .cost import OutsideViewError, RegistrationCost, prepare_frame, search_roi
 from .register import RegistrationOptions, register
+from .verify import verify_start
 
 __all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "predict_pose", "track"]
 
@@ -58,15 +78,18 @@ class TrackingOptions:
     """Options of :func:`track` (see the module docs)."""
 
     registration: RegistrationOptions = field(
-        default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0)))
+        default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
     first: RegistrationOptions | None = None
     guess: str = "velocity"
     mode: str = "sequential"
     joint_rounds: int = 2
     min_score_ratio: float = 0.85
+    min_start_ratio: float = 0.7
     max_jump: tuple[float, float] = (4.0, 6.0)
     history: int = 10
     retry_factor: float = 2.0
+    verify_restarts: int = 4
+    verify_spread: tuple[float, float] = (3.0, 3.0)
     confidence: bool = True
     confidence_step: tuple[float, float] = (0.25, 0.25)
     profile: bool = False
@@ -78,8 +101,13 @@ class TrackingOptions:
             raise ValueError(f"mode: expected 'sequential' or 'joint', got {self.mode!r}")
         if not 0 <= self.min_score_ratio <= 1:
             raise ValueError(f"min_score_ratio: expected a ratio in [0, 1], got {self.min_score_ratio!r}")
+        if not 0 <= self.min_start_ratio <= 1:
+            raise ValueError(f"min_start_ratio: expected a ratio in [0, 1], got {self.min_start_ratio!r}")
         if self.retry_factor < 1:
             raise ValueError(f"retry_factor: expected >= 1, got {self.retry_factor!r}")
+        if isinstance(self.verify_restarts, bool) or int(self.verify_restarts) != self.verify_restarts \
+                or self.verify_restarts < 0:
+            raise ValueError(f"verify_restarts: expected an integer >= 0, got {self.verify_restarts!r}")
 
     @property
     def first_options(self) -> RegistrationOptions:
@@ -89,8 +117,9 @@ class TrackingOptions:
 @dataclass(frozen=True, eq=False)
 class FrameResult:
     """One bone in one frame: ``pose`` (None when nothing was recorded), ``score``, work done,
-    ``converged`` (passed every check), ``flags`` (reasons for review), ``retried``, and the
-    :class:`~core.tracking.confidence.PoseConfidence` as a dict (or None)."""
+    ``converged`` (passed every check), ``flags`` (reasons for review), ``retried``, the
+    :class:`~core.tracking.confidence.PoseConfidence` as a dict (or None), the time breakdown
+    and ``notes`` (events that needed no review, e.g. a start corrected by restarts)."""
 
     bone: str
     frame: int
@@ -103,13 +132,14 @@ class FrameResult:
     retried: bool = False
     confidence: dict | None = None
     timing: dict | None = None
+    notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         score = None if not np.isfinite(self.score) else self.score
         return {"bone": self.bone, "frame": self.frame, "score": score,
                 "evaluations": self.evaluations, "time_s": self.time_s, "converged": self.converged,
                 "flags": list(self.flags), "retried": self.retried, "confidence": self.confidence,
-                "timing": self.timing}
+                "timing": self.timing, "notes": list(self.notes)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,7 +216,8 @@ def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, 
     return pose_from_params(d * (frame - f1) / (f1 - f0), center=c, base=np.asarray(T1, float))
 
 
-def _failures(res, guess_pose, center, good_scores, o: TrackingOptions) -> list[str]:
+def _failures(res, guess_pose, center, good_scores, o: TrackingOptions, *, start_score=None,
+              jump_factor: float = 1.0) -> list[str]:
     out = []
     if not res.converged:
         out.append(f"not converged ({res.reason})")
@@ -194,9 +225,12 @@ def _failures(res, guess_pose, center, good_scores, o: TrackingOptions) -> list[
         med = float(np.median(good_scores[-o.history:]))
         if res.score < o.min_score_ratio * med:
             out.append(f"score drop ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
+    if start_score is not None and res.score < o.min_start_ratio * start_score:
+        out.append(f"score below the start ({res.score:.3f} < {o.min_start_ratio:g} x first frame "
+                   f"{start_score:.3f})")
     d = _delta(guess_pose, res.pose, center)
     dt, dr = float(np.linalg.norm(d[:3])), float(np.degrees(np.linalg.norm(d[3:])))
-    if dt > o.max_jump[0] or dr > o.max_jump[1]:
+    if dt > o.max_jump[0] * jump_factor or dr > o.max_jump[1] * jump_factor:
         out.append(f"pose jump ({dt:.2f} mm, {dr:.2f} deg from the guess)")
     return out
 
@@ -238,6 +272,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
     skip = {b: dict((skip or {}).get(b, {})) for b in names}
     hist: dict[str, list] = {b: [] for b in names}
     scores: dict[str, list] = {b: [] for b in names}
+    start_scores: dict[str, float] = {}
     results: dict = {}
     total, done = len(order) * len(names), 0
     t0 = time.perf_counter()
@@ -276,7 +311,10 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
             if i not in current:
                 current[i] = hist[b][-1][1] if hist[b] else predict_pose(
                     [], f, bones[i].centroid, keyframes=keyframes.get(b) or skip[b])
-        rounds = o.joint_rounds if (o.mode == "joint" and len(names) > 1) else 1
+        joint = o.mode == "joint" and len(names) > 1
+        rounds = o.joint_rounds if joint else 1
+        # poses good enough to subtract: tracked bones' guesses, and bones registered this frame
+        known = {i for i, b in enumerate(names) if hist[b] or f in skip[b]}
         out: dict[int, tuple] = {}
         for rnd in range(rounds):
             for i in todo:
@@ -284,22 +322,27 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                     status = "cancelled"
                     break
                 others = None
-                if o.mode == "joint" and len(names) > 1:
-                    ids = [k for k in range(len(names)) if k != i]
-                    others = (np.stack([current[k] for k in ids]), ids)
+                if joint:
+                    ids = [k for k in range(len(names)) if k != i and k in known]
+                    others = (np.stack([current[k] for k in ids]), ids) if ids else None
                 first = not hist[names[i]]
-                opts = o.first_options if first else o.registration
-                start = current[i] if rnd else guesses[i]
+                if rnd == 0:
+                    opts, start = (o.first_options if first else o.registration), guesses[i]
+                else:
+                    opts, start = o.registration, current[i]
                 out[i] = _register_one(renderer, frame, bones[i], i, start, guesses[i], opts, o,
-                                       scores[names[i]], others, cancel, hist[names[i]])
+                                       scores[names[i]], others, cancel, hist[names[i]],
+                                       verify=first and rnd == 0, start_score=start_scores.get(names[i]),
+                                       seed=f)
                 if out[i][0] is not None:
                     current[i] = out[i][0].pose
+                    known.add(i)
             if status == "cancelled":
                 break
         if status == "cancelled":
             break
         for i in todo:
-            res, flags, retried, evals, dt, conf, timing = out[i]
+            res, flags, retried, evals, dt, conf, timing, notes = out[i]
             b = names[i]
             if res is None:
                 finish(FrameResult(b, f, None, np.nan, evals, dt, False, tuple(flags), retried, None, timing))
@@ -309,51 +352,94 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
             if not flags:
                 hist[b].append((f, res.pose))
                 scores[b].append(res.score)
+                start_scores.setdefault(b, res.score)
             finish(FrameResult(b, f, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf,
-                               timing))
+                               timing, notes))
     return TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
 
 
 def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
-                  o: TrackingOptions, good_scores, others, cancel, history):
-    """Register with failure checks and one wider retry.
+                  o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
+                  start_score: float | None = None, seed: int = 0):
+    """Register with failure checks, one wider retry and (first frames, retries) the restart
+    check of :func:`core.tracking.verify.verify_start`.
 
-    Returns (result, flags, retried, evaluations, time, confidence dict)."""
+    Returns (result, flags, retried, evaluations, time, confidence dict, timing)."""
     t0 = time.perf_counter()
     c = bone.centroid
+    cancelled = cancel if cancel is not None else (lambda: False)
     try:
         res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
-                       others=others, cancel=cancel, profile=o.profile)
+                       others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
     except OutsideViewError as exc:
-        return None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None, None
+        return (None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None, None,
+                ())
     evals = res.evaluations
     timing = {k: v for k, v in res.timing.items() if k != "total_s"}
-    flags = _failures(res, guess, c, good_scores, o)
+
+    def add(r) -> None:
+        nonlocal evals
+        evals += r.evaluations
+        for k in timing:
+            timing[k] += r.timing.get(k, 0.0)
+
+    jump = o.retry_factor if verify else 1.0
+    flags = _failures(res, guess, c, good_scores, o, start_score=start_score, jump_factor=jump)
     retried = False
-    if flags and not (cancel is not None and cancel()):
+    wide = opts.widened(o.retry_factor)
+    if flags and not cancelled():
         retried = True
-        wide = opts.widened(o.retry_factor)
         starts = [guess] + ([history[-1][1]] if history else [])
         for s in starts:
             try:
                 r2 = register(renderer, frame, bone=index, initial_pose=s, center=c, options=wide,
-                              others=others, cancel=cancel, profile=o.profile)
+                              others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
             except OutsideViewError:
                 continue
-            evals += r2.evaluations
-            for k in timing:
-                timing[k] += r2.timing.get(k, 0.0)
-            f2 = _failures(r2, guess, c, good_scores, replace(o, max_jump=(o.max_jump[0] * o.retry_factor,
-                                                                          o.max_jump[1] * o.retry_factor)))
+            add(r2)
+            f2 = _failures(r2, guess, c, good_scores, o, start_score=start_score,
+                           jump_factor=o.retry_factor * jump)
             if (len(f2), -r2.score) < (len(flags), -res.score):
                 res, flags = r2, f2
             if not flags:
                 break
+    notes = []
+    if (verify or retried) and o.verify_restarts and not cancelled():
+        try:
+            chk = verify_start(renderer, frame, bone=index, result=res, center=c, options=o.registration,
+                               n=o.verify_restarts, spread=o.verify_spread, seed=seed, others=others,
+                               outline=bone.outline, cancel=cancel)
+        except OutsideViewError:
+            chk = None
+        if chk is not None:
+            evals += chk.evaluations
+            if chk.improved:  # the first optimum was false: search wider from the better one
+                best = chk.result
+                try:
+                    r2 = register(renderer, frame, bone=index, initial_pose=best.pose, center=c,
+                                  options=wide, others=others, cancel=cancel, profile=o.profile,
+                                  outline=bone.outline)
+                    add(r2)
+                    if r2.score > best.score:
+                        best = r2
+                except OutsideViewError:
+                    pass
+                res = best
+                flags = _failures(res, guess, c, good_scores, o, start_score=start_score,
+                                  jump_factor=o.retry_factor * jump)
+                notes.append("start corrected by restarts")
+            if chk.ambiguous:
+                far = max(d for d, sc in zip(chk.distances, chk.scores, strict=True)
+                          if abs(sc - chk.result.score) <= 0.01)
+                flags.append(f"ambiguous optimum (a restart {far[0]:.2f} mm, {far[1]:.2f} deg away "
+                             f"scores within 0.01)")
     conf = None
-    if o.confidence:
+    if o.confidence and res.fit is not None:
+        conf = confidence_from_fit(res.fit).to_dict()  # the last design about the optimum
+    elif o.confidence:
         try:
             roi = search_roi(renderer, res.pose, index, views=tuple(range(frame.n_views)), center=c,
-                             reach_mm=2.0, margin_px=opts.margin_px)
+                             reach_mm=2.0, margin_px=opts.margin_px, points=bone.outline)
             cost = RegistrationCost(renderer, frame, bone=index, base_pose=res.pose, center=c, roi=roi,
                                     terms=opts.terms, others=others)
             conf = curvature_confidence(cost, np.zeros(6), step=o.confidence_step).to_dict()
@@ -361,5 +447,6 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
             conf = None
         evals += 73 if conf is not None else 0
     dt = time.perf_counter() - t0
-    timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))  # confidence, set-up
-    return res, flags, retried, evals, dt, conf, timing
+    # confidence, restarts, set-up
+    timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))
+    return res, flags, retried, evals, dt, conf, timing, tuple(notes)

@@ -53,8 +53,9 @@ def test_register_recovers_the_pose(talus_scene, rng):
     assert dt < 0.05 and dr < 0.1
     assert res.converged and res.score > 0.99 and res.view_scores.shape == (2,)
     assert res.evaluations == sum(st.evaluations for st in res.stages)
-    assert res.timing["calls"] == res.generations + 2  # + the two final full-resolution scorings
-    assert res.stages[-1].method == "pattern"
+    assert res.timing["calls"] == res.generations + 1  # + the final full-resolution scoring
+    assert [st.method for st in res.stages] == ["cmaes", "quadratic"]
+    assert res.fit is not None and res.fit.H.shape == (6, 6)
 
 
 def test_register_with_pso_and_simplex_levels(talus_scene, rng):
@@ -89,9 +90,15 @@ def test_bounds_and_outside_view(talus_scene, rng):
 def test_options_validation_and_levels():
     lv = default_levels(0.3)
     assert [x.scale for x in lv] == [4.0, 2.0, 1.0]
-    assert [x.scale for x in default_levels(1.0)] == [1.0]
-    w = RegistrationOptions().widened(2.0)
-    assert w.bounds == (20.0, 20.0) and w.sigma == (3.0, 3.0)
+    assert [x.method for x in lv] == ["cmaes", "quadratic", "quadratic"]
+    assert [(x.scale, x.method) for x in default_levels(1.0)] == [(1.0, "cmaes"), (1.0, "quadratic")]
+    assert [(x.scale, x.method) for x in default_levels(0.3, search="local")] == [(2.0, "quadratic"),
+                                                                                  (1.0, "quadratic")]
+    assert [x.scale for x in default_levels(1.0, search="local")] == [1.0]
+    w = RegistrationOptions(search="local").widened(2.0)
+    assert w.bounds == (20.0, 20.0) and w.sigma == (3.0, 3.0) and w.search == "global"
+    with pytest.raises(ValueError, match="search"):
+        RegistrationOptions(search="everywhere")
     with pytest.raises(ValueError, match="method"):
         Level(1.0, "annealing")
     with pytest.raises(ValueError, match="bounds"):

@@ -284,7 +284,7 @@ def label_spiral(target: CalibrationTarget, det: ObjectDetections, *, run: int =
     best = _choose(results, det.uv, target)
     if not best.ok or best.ambiguous or best.n_labelled < 0.9 * len(use):
         # oblique view (the order along the axis is scrambled): chains + affine camera seeds
-        results += _refine(target, det, affine_seeds(target, det), gate)
+        results += _refine(target, det, affine_seeds(target, det), gate, keep=12)
         best = _choose(results, det.uv, target)
     return best
 

@@ -211,32 +211,43 @@ class FrameLabels:
 
 
 def transfer_labels(source: Labelling, det: ObjectDetections, F, target: CalibrationTarget, *,
-                    source_view: int = 0, max_px: float = 2.0) -> Labelling:
+                    source_view: int = 0, max_px: float = 2.0, samples: int = 3000, rng=0) -> Labelling:
     """Label a view from the other view's labelling and the epipolar geometry.
 
-    Each labelled bead of ``source`` gives an epipolar line in the other view; detections of the
-    right size class are matched to the lines (Hungarian on the distance, within ``max_px``) and
-    the matches seed :func:`~core.calibration.labelling.fit_labels`, whose projection
-    consistency rejects the wrong ones. ``source_view`` says which view ``source`` is (0: the
-    ``x1`` of ``x₂ᵀ F x₁ = 0``).
+    Each labelled bead of ``source`` gives an epipolar line in the other view; the detections of
+    the right size class within ``max_px`` of it are its candidates. The lines of a biplane rig
+    are nearly parallel, so a line often passes several beads: RANSAC over random 6-tuples of
+    candidate pairs (batched DLTs) keeps the one whose projection explains most detections, and
+    :func:`~core.calibration.labelling.fit_labels` completes it. ``source_view`` says which view
+    ``source`` is (0: the ``x1`` of ``x₂ᵀ F x₁ = 0``).
     """
-    from scipy.optimize import linear_sum_assignment
-
-    from .labelling import fit_labels
+    from .labelling import _batched_dlt, _score, fit_labels
 
     k = np.flatnonzero(source.labels >= 0)
+    fail = Labelling(np.full(len(det), -1), det.uv.copy(), len(target), False,
+                     "too few epipolar candidates to transfer labels")
     if len(k) < 6 or len(det) < 6:
-        return Labelling(np.full(len(det), -1), det.uv.copy(), len(target), False,
-                         "too few labelled beads or detections to transfer labels")
+        return fail
     src = source.uv[k]
     D = epipolar_distance(F, src, det.uv) if source_view == 0 else epipolar_distance(F, det.uv, src).T
-    _, bead_cls = target.size_classes
+    sizes, bead_cls = target.size_classes
     cls_ok = (det.size_class[None] < 0) | (det.size_class[None] == bead_cls[source.labels[k]][:, None])
-    cost = np.where(cls_ok & (D <= max_px), D, 1e6)
-    r, c = linear_sum_assignment(cost)
-    keep = cost[r, c] < 1e6
+    bi, di = np.nonzero(cls_ok & (D <= max_px))  # candidate (source bead, detection) pairs
+    if len(np.unique(bi)) < 6:
+        return fail
+    g = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    pick = np.argsort(g.random((samples, len(bi))), axis=1)[:, :6]
+    B, Dt = source.labels[k[bi[pick]]], di[pick]
+    distinct = np.array([len(set(b)) == 6 and len(set(d)) == 6 for b, d in zip(B, Dt, strict=True)])
+    if not distinct.any():
+        return fail
+    B, Dt = B[distinct], Dt[distinct]
+    P = _batched_dlt(target.centers[B], det.uv[Dt])
+    scale = det.px_per_mm if np.isfinite(det.px_per_mm) else 1.0
+    gate = max(2.0, 0.6 * sizes[0] * scale)
+    h = int(np.argmax(_score(P, target, det, gate)))
     seed = np.full(len(det), -1)
-    seed[c[keep]] = source.labels[k[r[keep]]]
+    seed[Dt[h]] = B[h]
     return fit_labels(target, det, seed)
 
 
@@ -244,9 +255,12 @@ def resolve_frame(labs: tuple[Labelling, Labelling], F, *, target: CalibrationTa
                   detections: tuple[ObjectDetections, ObjectDetections] | None = None,
                   max_px: float = 2.0, min_common: int = 6, margin: float = 3.0) -> FrameLabels:
     """Choose, among each view's labelling and its ``alternatives``, the pair whose common beads
-    lie on each other's epipolar lines (median symmetric distance <= ``max_px``). A runner-up
-    within ``margin`` x the best distance leaves the frame ambiguous (``ok=False``), unless it is
-    the image of the best pair under a symmetry of ``target`` (equivalent labellings).
+    lie on each other's epipolar lines: fewest beads farther than ``max_px`` from the line (at
+    most 10 % of the common beads, which then lose their labels), then the smallest median
+    distance. A runner-up as good (median within ``margin`` x the best) that is not the image of
+    the best pair under a symmetry of ``target`` is resolved by the detections each pair
+    explains, or else by keeping only the labels both agree on; failing that the frame is
+    ambiguous (``ok=False``).
 
     With ``target`` and ``detections``, a frame that is not consistent is tried once more with
     each view labelled from the other one (:func:`transfer_labels`).
@@ -262,7 +276,12 @@ def resolve_frame(labs: tuple[Labelling, Labelling], F, *, target: CalibrationTa
         for src in [labs[v].labels, *labs[v].alternatives]:
             other = transfer_labels(replace(labs[v], labels=src), detections[1 - v], F, target,
                                     source_view=v, max_px=max_px)
-            if not other.ok:
+            own = labs[1 - v]
+            worse = own.ok and other.n_explained < own.n_explained - max(2, 0.15 * own.n_explained)
+            # when the epipolar lines run along the object (a spiral's axis in the epipolar
+            # plane) a wrong transfer can be epipolar-consistent: it must explain the view well
+            weak = other.n_explained < 0.85 * np.sum(detections[1 - v].size_class >= 0)
+            if not other.ok or worse or weak:
                 continue
             pair = (replace(labs[v], labels=src, alternatives=()), other)
             retry = _resolve(pair if v == 0 else pair[::-1], F, target, max_px, min_common, margin)
@@ -310,27 +329,29 @@ def _resolve(labs, F, target, max_px, min_common, margin, dets=None) -> FrameLab
             if len(p1) < min_common:
                 continue
             d = np.diag(epipolar_distance(F, p1, p2))
-            scores.append((float(np.median(d)), i, j))
+            n_bad = int(np.sum(d > max_px))
+            scores.append((n_bad, float(np.median(d)), i, j))
     if not scores:
         return FrameLabels(labs, False, f"fewer than {min_common} beads labelled in both views", float("nan"))
     scores.sort()
 
     def pair(i, j):
-        return (replace(a, labels=_options(a)[i], alternatives=(), ambiguous=False),
-                replace(b, labels=_options(b)[j], alternatives=(), ambiguous=False))
+        return _prune(replace(a, labels=_options(a)[i], alternatives=(), ambiguous=False),
+                      replace(b, labels=_options(b)[j], alternatives=(), ambiguous=False), F, max_px)
 
-    best, i, j = scores[0]
+    n_bad, best, i, j = scores[0]
     pick = pair(i, j)
-    if best > max_px:
-        return FrameLabels(pick, False, f"no pair of labellings is epipolar-consistent (best median "
-                           f"{best:.2g} px > {max_px:g} px)", best)
+    shared = len(_pairs(_options(a)[i], _options(b)[j], a.uv, b.uv)[0])
+    if n_bad > max(1, 0.1 * shared) or best > max_px:
+        return FrameLabels(pick, False, f"no pair of labellings is epipolar-consistent (best: {n_bad} of "
+                           f"{shared} common beads off their lines by > {max_px:g} px)", best)
     perms = target.symmetries[1:] if target is not None else ()
     equiv = {(np.where(pick[0].labels >= 0, p[pick[0].labels], -1).tobytes(),
               np.where(pick[1].labels >= 0, p[pick[1].labels], -1).tobytes()) for p in perms}
     equiv.add((pick[0].labels.tobytes(), pick[1].labels.tobytes()))
-    rivals = [(sc, i2, j2) for sc, i2, j2 in scores[1:]
+    rivals = [(sc, i2, j2) for nb, sc, i2, j2 in scores[1:]
               if (_options(a)[i2].tobytes(), _options(b)[j2].tobytes()) not in equiv
-              and sc <= margin * max(best, 0.05)]
+              and nb <= max(n_bad, 1) and sc <= margin * max(best, 0.05)]
     if rivals and target is not None and dets is not None:
         # the right pair explains the most detections (a wrong shift along a helix loses its ends)
         cand = [(i, j)] + [(i2, j2) for _, i2, j2 in rivals]
@@ -339,9 +360,46 @@ def _resolve(labs, F, target, max_px, min_common, margin, dets=None) -> FrameLab
         if n_exp.count(n_exp[top]) == 1 and n_exp[top] >= 0:
             return FrameLabels(pair(*cand[top]), True, "", best)
     if rivals:
+        # rivals that agree on every bead both views see differ only where no epipolar check is
+        # possible: keep the labels all of them agree on
+        agreed = _consensus(pick, [pair(i2, j2) for _, i2, j2 in rivals], perms)
+        if all(lab.n_labelled >= min_common for lab in agreed):
+            p1, p2 = _pairs(agreed[0].labels, agreed[1].labels, a.uv, b.uv)
+            if len(p1) >= min_common:
+                return FrameLabels(agreed, True, "", best)
         return FrameLabels(pick, False, "two pairs of labellings agree with the epipolar geometry "
                            "equally well (end beads missing in both views)", best)
     return FrameLabels(pick, True, "", best)
+
+
+def _prune(a: Labelling, b: Labelling, F, max_px: float) -> tuple[Labelling, Labelling]:
+    """Unlabel the beads labelled in both views that lie off each other's epipolar lines."""
+    la, lb = a.labels.copy(), b.labels.copy()
+    common = np.intersect1d(la[la >= 0], lb[lb >= 0])
+    if common.size:
+        ia = np.array([np.flatnonzero(la == k)[0] for k in common])
+        ib = np.array([np.flatnonzero(lb == k)[0] for k in common])
+        bad = np.diag(epipolar_distance(F, a.uv[ia], b.uv[ib])) > max_px
+        la[ia[bad]] = -1
+        lb[ib[bad]] = -1
+    return replace(a, labels=la), replace(b, labels=lb)
+
+
+def _consensus(pick, others, perms) -> tuple[Labelling, Labelling]:
+    """``pick`` with the labels removed where any of ``others`` (each brought into the same
+    symmetric representative as ``pick``) disagrees."""
+    la, lb = pick[0].labels.copy(), pick[1].labels.copy()
+    for o in others:
+        best = None
+        for p in (np.arange(max(la.max(), lb.max(), o[0].labels.max(), o[1].labels.max()) + 1), *perms):
+            oa = np.where(o[0].labels >= 0, p[o[0].labels], -1)
+            ob = np.where(o[1].labels >= 0, p[o[1].labels], -1)
+            agree = np.sum(oa == la) + np.sum(ob == lb)
+            if best is None or agree > best[0]:
+                best = (agree, oa, ob)
+        la[best[1] != la] = -1
+        lb[best[2] != lb] = -1
+    return replace(pick[0], labels=la), replace(pick[1], labels=lb)
 
 
 def _estimate_F(per_frame: list, threshold_px: float, rng) -> FundamentalFit:

@@ -112,3 +112,26 @@ def test_sequence_with_estimated_F_matches_the_rig(rig):
                            for v, lab in enumerate(fr.labellings)) for p in tg.symmetries)
     with pytest.raises(ValueError, match="detections"):
         label_sequence(tg, [dets[0][0]])
+
+
+def test_inconsistent_labels_are_removed_and_a_bad_pairing_is_rejected(rig):
+    tg = spiral_target(23)
+    T = capture_poses(rig, tg, 1, rng=8)[0]
+    g = np.random.default_rng(5)
+    d1, d2 = _fake(rig, 0, tg, T, g)[0], _fake(rig, 1, tg, T, g)[0]
+    F = fundamental_matrix(rig[0], rig[1])
+    l1, l2 = label_view(tg, d1), label_view(tg, d2)
+    fr = resolve_frame((l1, l2), F, target=tg)
+    assert fr.ok
+    good = fr.labellings[1].labels
+    i, j = np.flatnonzero(good >= 0)[:2]
+    swapped = good.copy()
+    swapped[[i, j]] = good[[j, i]]  # two labels swapped by hand in view 2
+    fr2 = resolve_frame((fr.labellings[0], replace(l2, labels=swapped, alternatives=())), F, target=tg)
+    assert fr2.ok and fr2.labellings[1].labels[i] == -1 and fr2.labellings[1].labels[j] == -1
+    # half the labels of view 2 shuffled: no consistent pair
+    bad = good.copy()
+    idx = np.flatnonzero(good >= 0)[::2]
+    bad[idx] = np.roll(good[idx], 1)
+    fr3 = resolve_frame((fr.labellings[0], replace(l2, labels=bad, alternatives=())), F, target=tg)
+    assert not fr3.ok and "consistent" in fr3.reason

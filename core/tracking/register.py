@@ -144,7 +144,10 @@ class RegistrationOptions:
     size at the bone. ``bounds``: search box half-widths about the initial pose (mm, degrees).
     ``refine``: an extra local method run at full resolution after the levels (``"pattern"``,
     ``"quadratic"``, ``"nelder_mead"``, ``"powell"`` or None) with initial step ``refine_step``
-    (mm, degrees). ``margin_px``: extra ROI margin.
+    (mm, degrees). ``margin_px``: extra ROI margin. ``final_scale``: the pyramid scale that
+    counts as full resolution — the finest automatic level, the final score, the refinement and
+    the confidence fit (2 for detectors much finer than the bone needs, e.g. 1760² views of a
+    wrist at 0.15 mm per pixel).
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
@@ -152,6 +155,7 @@ class RegistrationOptions:
     bounds: tuple[float, float] = (10.0, 10.0)
     sigma: tuple[float, float] = (1.5, 1.5)
     search: str = "global"
+    final_scale: float = 1.0
     refine: str | None = None
     refine_step: tuple[float, float] = (0.1, 0.1)
     refine_tol: float = 0.005
@@ -171,6 +175,8 @@ class RegistrationOptions:
                              f"got {self.refine!r}")
         if self.search not in _SEARCHES:
             raise ValueError(f"search: expected one of {_SEARCHES}, got {self.search!r}")
+        if not (np.isfinite(self.final_scale) and self.final_scale >= 1):
+            raise ValueError(f"final_scale: expected a pyramid scale >= 1, got {self.final_scale!r}")
 
     def widened(self, factor: float = 2.0) -> RegistrationOptions:
         """The same options with ``factor``× larger bounds and first steps, twice the
@@ -189,6 +195,7 @@ class RegistrationOptions:
         return {"terms": [t.to_dict() for t in self.terms],
                 "levels": None if self.levels is None else [lv.to_dict() for lv in self.levels],
                 "bounds": list(self.bounds), "sigma": list(self.sigma), "search": self.search,
+                "final_scale": self.final_scale,
                 "refine": self.refine,
                 "refine_step": list(self.refine_step), "refine_tol": self.refine_tol,
                 "margin_px": self.margin_px, "seed": self.seed}
@@ -205,7 +212,7 @@ class RegistrationResult:
     x : (6,) array
         Its parameters relative to the initial pose (mm, degrees, about the centre).
     score : float
-        Weighted mean similarity at the pose, full resolution (1 - cost).
+        Weighted mean similarity at the pose at ``final_scale`` (full resolution by default).
     view_scores : (n_views,) array
         Weighted similarity per view at the pose.
     evaluations, generations : int
@@ -311,8 +318,11 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     base = np.asarray(initial_pose, dtype=float)
     center = np.asarray(center, dtype=float)
     views = tuple(range(frame.n_views)) if views is None else tuple(views)
-    levels = o.levels or default_levels(mm_per_pixel(renderer, base, center, views), sigma=o.sigma,
-                                        search=o.search)
+    fs = o.final_scale
+    levels = o.levels or tuple(
+        replace(lv, scale=lv.scale * fs)
+        for lv in default_levels(mm_per_pixel(renderer, base, center, views) * fs, sigma=o.sigma,
+                                 search=o.search))
     roi = search_roi(renderer, base, bone, views=views, center=center,
                      reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
                      points=outline)
@@ -336,7 +346,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         x = r.x
         if r.reason == "cancelled":
             break
-    full = cost_at(1.0)
+    full = cost_at(fs)
     if o.refine and stages[-1].reason != "cancelled":
         step6 = np.array([o.refine_step[0]] * 3 + [o.refine_step[1]] * 3)
         r = _run(o.refine, full, x, sigma6=step6, lo=lo, hi=hi, level=None, tol=o.refine_tol,
@@ -358,7 +368,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     timing["total_s"] = total
     timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
     fit = last.model if (last.method == "quadratic" and last.model is not None
-                         and (o.refine == "quadratic" or levels[-1].scale == 1.0)) else None
+                         and (o.refine == "quadratic" or levels[-1].scale == fs)) else None
     return RegistrationResult(
         pose=full.poses(x[None])[0], x=np.asarray(x, float), score=score,
         view_scores=view_scores, evaluations=sum(s.evaluations for s in stages),

@@ -75,7 +75,8 @@ _GUESSES = ("previous", "velocity", "spline")
 
 @dataclass(frozen=True)
 class TrackingOptions:
-    """Options of :func:`track` (see the module docs)."""
+    """Options of :func:`track` (see the module docs; ``valid_range`` and ``erode_px`` mark the
+    usable fluoroscope pixels, :func:`core.tracking.cost.prepare_frame`)."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
@@ -92,6 +93,8 @@ class TrackingOptions:
     verify_spread: tuple[float, float] = (3.0, 3.0)
     confidence: bool = True
     confidence_step: tuple[float, float] = (0.25, 0.25)
+    valid_range: tuple[float, float] | None = (0.02, 0.999)
+    erode_px: int = 3
     profile: bool = False
 
     def __post_init__(self) -> None:
@@ -303,7 +306,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                 finish(FrameResult(names[i], f, None, np.nan, 0, 0.0, False,
                                    (f"frame missing in view {', '.join(map(str, missing))}",)))
             continue
-        frame = prepare_frame(imgs)
+        frame = prepare_frame(imgs, valid_range=o.valid_range, erode_px=o.erode_px)
         guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
                                    keyframes=keyframes.get(names[i])) for i in todo}
         current = {i: guesses[i] for i in todo}

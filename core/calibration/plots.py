@@ -148,10 +148,11 @@ def error_map_figure(points: np.ndarray, maps: dict, sources: np.ndarray, path, 
             ax.set_ylabel(f"{lab[j]} (mm)")
             ax.set_aspect("equal")
             fig.colorbar(sc, ax=ax, label=f"{what} error (mm)")
-            ax.set_title(f"{name}: slice {lab[k]} = {cen[k]:.0f} mm; whole volume RMS "
-                         f"{np.sqrt(np.mean(e**2)):.3f} mm, max {e.max():.3f} mm", fontsize=9)
+            ax.set_title(f"{name}: slice {lab[k]} = {cen[k]:.0f} mm\nwhole volume: RMS "
+                         f"{np.sqrt(np.mean(e**2)):.3f} mm, worst point {e.max():.3f} mm", fontsize=9)
     fig.suptitle(f"3-D reconstruction error ({what} over calibrations) in the intersection of the "
-                 "X-ray cones, 10 mm lattice; arrows point to the sources", fontsize=10)
+                 "X-ray cones, 10 mm lattice\narrows point to the sources; note the different colour "
+                 "scales of the rows", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -182,7 +183,12 @@ def error_histogram_figure(levels: dict, path) -> Path:
     return Path(path)
 
 
-def sensitivity_figure(study, path) -> Path:
+_LONG = {"sid": "SID (source-image distance)", "cu": "principal point u", "cv": "principal point v",
+         "X": "source X", "Y": "source Y", "Z": "source Z", "rx": "rotation rx", "ry": "rotation ry",
+         "rz": "rotation rz"}
+
+
+def sensitivity_figure(study, path, *, camera: str = "") -> Path:
     """Deviation of each camera parameter vs perturbation amplitude (Figs. 5.3-5.5)."""
     plt = _plt()
     names = ["sid", "cu", "cv", "X", "Y", "Z", "rx", "ry", "rz"]
@@ -195,52 +201,75 @@ def sensitivity_figure(study, path) -> Path:
             y, unit = study.parameter(name), PARAMETERS[name]
             if unit == "rad":
                 y, unit = np.degrees(y), "deg"
-            ax.set_title(name, fontsize=9)
+            ax.set_title(_LONG.get(name, name), fontsize=9)
         ax.scatter(study.amplitude, y, s=2, alpha=0.3, c=study.marker, cmap="tab20")
         ax.set_xlabel("perturbation (px)", fontsize=8)
         ax.set_ylabel(unit, fontsize=8)
-    fig.suptitle("Cube DLT: parameter deviations when one bead at a time is moved (colour = bead)")
+    cam = f" ({camera})" if camera else ""
+    fig.suptitle(f"Cube DLT{cam}: deviation of each camera parameter from the noise-free DLT when one "
+                 f"bead at a time is moved by the given amplitude ({len(study.amplitude)} Latin-hypercube "
+                 "samples; colour = bead)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
 
 
-def sobol_figure(table: dict, path) -> Path:
-    """Bar chart of the Sobol indices per camera parameter (Table 5.1 analogue)."""
+def sobol_figure(sobol, path, *, camera: str = "") -> Path:
+    """Sobol indices of every DLT camera parameter w.r.t. every bead image coordinate (Table 5.1
+    analogue): heat maps of the first-order and total indices (rows: parameters, columns: ``u`` and
+    ``v`` of each bead) and the sum of the first-order indices per parameter (≈ 1: additive)."""
     plt = _plt()
-    names = list(table)
-    x = np.arange(len(names))
-    fig, ax = plt.subplots(figsize=(10, 4))
-    ax.bar(x - 0.2, [table[n]["max_first_order"] for n in names], 0.4,
-           label="largest first-order index")
-    ax.bar(x + 0.2, [table[n]["max_bead_total"] for n in names], 0.4,
-           label="largest total index of a bead (u+v)")
-    ax.set_xticks(x, names)
-    ax.set_ylabel("Sobol index")
-    ax.legend(fontsize=8)
-    ax.set_title("Which bead coordinates drive each DLT parameter (cube, ±0.25 px uniform)", fontsize=10)
+    names = list(PARAMETERS)
+    s1, st = np.clip(sobol.first_order, 0, None), np.clip(sobol.total, 0, None)
+    vmax = float(max(s1.max(), st.max()))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.6), gridspec_kw={"width_ratios": [6, 6, 1.3]})
+    for ax, m, title in ((axes[0], s1, "first-order index"), (axes[1], st, "total index")):
+        im = ax.imshow(m, aspect="auto", cmap="viridis", vmin=0, vmax=vmax)
+        ax.set_yticks(range(len(names)), names)
+        ax.set_xticks(range(len(sobol.inputs)), sobol.inputs, rotation=90, fontsize=7)
+        ax.set_xlabel("input: image coordinate of a bead")
+        ax.set_title(title, fontsize=10)
+        fig.colorbar(im, ax=ax, fraction=0.04)
+    tot = sobol.first_order.sum(axis=1)
+    axes[2].barh(range(len(names)), tot, color="tab:blue")
+    axes[2].axvline(1.0, color="k", lw=0.8, ls="--")
+    axes[2].set_yticks(range(len(names)), names)
+    axes[2].invert_yaxis()
+    axes[2].set_xlabel("sum of first-order")
+    axes[2].set_title("additivity", fontsize=10)
+    cam = f", {camera}" if camera else ""
+    fig.suptitle(f"Sobol indices of the cube DLT parameters{cam}: inputs uniform in ±0.25 px, "
+                 f"{sobol.n_evaluations} DLT evaluations", fontsize=11)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return Path(path)
 
 
 def labelling_figure(images, labellings, bead_ids, path, *, titles=("view 1", "view 2")) -> Path:
-    """Rendered frames with every labelled bead annotated with its id."""
+    """Rendered frames (cropped to the detections) with every labelled bead annotated with its id."""
     plt = _plt()
-    fig, axes = plt.subplots(1, len(images), figsize=(6.5 * len(images), 6.5))
+    fig, axes = plt.subplots(1, len(images), figsize=(6.5 * len(images), 6.9), layout="constrained")
     for ax, img, lab, t in zip(np.atleast_1d(axes), images, labellings, titles, strict=True):
         ax.imshow(img, cmap="gray")
         for (u, v), k in zip(lab.uv, lab.labels, strict=True):
             if k >= 0:
                 ax.plot(u, v, "o", mfc="none", mec="lime", ms=7)
-                ax.text(u + 4, v - 4, bead_ids[k], color="yellow", fontsize=6)
+                ax.text(u + 4, v - 4, bead_ids[k], color="yellow", fontsize=7)
             else:
-                ax.plot(u, v, "x", color="red", ms=6)
-        ax.set_title(f"{t}: {lab.n_labelled} of {len(lab.uv)} detections labelled", fontsize=9)
-        ax.axis("off")
-    fig.tight_layout()
+                ax.plot(u, v, "x", color="red", ms=7, mew=1.5)
+        if len(lab.uv):
+            m = 0.12 * np.ptp(lab.uv, axis=0).max() + 10
+            lo, hi = lab.uv.min(axis=0) - m, lab.uv.max(axis=0) + m
+            ax.set_xlim(max(lo[0], -0.5), min(hi[0], img.shape[1] - 0.5))
+            ax.set_ylim(min(hi[1], img.shape[0] - 0.5), max(lo[1], -0.5))
+        ax.set_title(f"{t}: {lab.n_labelled} of {len(lab.uv)} detections labelled", fontsize=10)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle("Automatic labelling: green circle + id = labelled detection, red x = detection left "
+                 "unlabelled;\nbeads without a mark = detections removed on purpose (simulated missed "
+                 "or occluded beads)", fontsize=10)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -164,7 +165,7 @@ def sensitivity(rig: Rig, *, n_samples: int, n_sobol: int, rng) -> tuple[dict, o
     sob = sobol_analysis(rig[0], X, amplitude=0.25, n=n_sobol, rng=rng)
     out["sobol"] = {"camera": rig[0].name, "n_evaluations": sob.n_evaluations, "table": sob.table(),
                     "seconds": time.perf_counter() - t0}
-    return out, first, sob.table()
+    return out, first, sob
 
 
 def wrist_epipolar(figures_dir=None) -> dict:
@@ -201,7 +202,8 @@ def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=N
     rig = foot_rig(seed=0, pixels=1024)
     cfg = {"n_dlt": 60 if quick else 500, "n_ba": 3 if quick else 20, "n_frames": 25 if quick else 40,
            "noise_px": 0.05, "n_samples": 1000 if quick else 5000, "n_sobol": 128 if quick else 1024}
-    res = {"machine": {"platform": platform.platform(), "python": sys.version.split()[0]},
+    res = {"machine": {"platform": platform.platform(), "processor": platform.machine(),
+                       "cpus": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__},
            "config": cfg, "rig": [{"name": c.name, "sid_mm": c.sid, "fx_px": c.fx, "pixel_mm": c.pixel_size,
                                    "source_mm": c.source.tolist()} for c in rig],
            "view_angle_deg": float(np.degrees(rig.angle_between_views()))}
@@ -226,15 +228,12 @@ def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=N
     res["independent_object"] = {"spiral_ba": independent_object(rig, ba_rigs, noise_px=noise, rng=rng),
                                  "cube_dlt": independent_object(rig, dlt_rigs[:50], noise_px=noise, rng=rng)}
     say("sensitivity")
-    res["sensitivity"], first, table = sensitivity(rig, n_samples=cfg["n_samples"], n_sobol=cfg["n_sobol"],
+    res["sensitivity"], first, sob = sensitivity(rig, n_samples=cfg["n_samples"], n_sobol=cfg["n_sobol"],
                                                    rng=rng)
     say("real data: wrist epipolar lines")
     if figures_dir is not None:
         Path(figures_dir).mkdir(parents=True, exist_ok=True)
     res["wrist_epipolar"] = wrist_epipolar(figures_dir)
-    if out_dir is not None:
-        Path(out_dir).mkdir(parents=True, exist_ok=True)
-        (Path(out_dir) / "study.json").write_text(json.dumps(res, indent=1))
     if figures_dir is not None:
         from . import plots
 
@@ -247,8 +246,11 @@ def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=N
                                              "spiral BA": maps["spiral_ba"].mean(axis=0)}, srcs,
                                    d / "calibration_error_map.png"),
             plots.error_histogram_figure(levels, d / "calibration_error_histograms.png"),
-            plots.sensitivity_figure(first, d / "calibration_sensitivity.png"),
-            plots.sobol_figure(table, d / "calibration_sobol.png"))]
+            plots.sensitivity_figure(first, d / "calibration_sensitivity.png", camera=rig[0].name),
+            plots.sobol_figure(sob, d / "calibration_sobol.png", camera=rig[0].name))]
+    if out_dir is not None:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        (Path(out_dir) / "study.json").write_text(json.dumps(res, indent=1))
     return res
 
 

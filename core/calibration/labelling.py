@@ -125,6 +125,17 @@ def _empty(uv, n, reason) -> Labelling:
     return Labelling(np.full(len(uv), -1), np.asarray(uv, float).reshape(-1, 2), n, False, reason)
 
 
+def _collinear(uv: np.ndarray, *, min_px: float = 1.0, min_ratio: float = 0.02) -> bool:
+    """Image points on (nearly) one line: their spread across the principal direction is below
+    ``min_px`` (RMS) or ``min_ratio`` of the spread along it. No view of a calibration object
+    (helix or cube) images its beads on a line, and no camera can be fitted to such points."""
+    uv = np.asarray(uv, float)
+    if len(uv) < 3:
+        return True
+    s = np.linalg.svd(uv - uv.mean(axis=0), compute_uv=False) / np.sqrt(len(uv))
+    return bool(s[1] < max(min_px, min_ratio * s[0]))
+
+
 def _project(P: np.ndarray, X: np.ndarray) -> np.ndarray:
     h = X @ P[..., :3].swapaxes(-1, -2) + P[..., None, :, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -191,6 +202,8 @@ def fit_labels(target: CalibrationTarget, det: ObjectDetections, seed_labels, *,
     k = lab >= 0
     if k.sum() < 6:
         return _empty(uv, n, "fewer than 6 detections agree with the fitted projection")
+    if _collinear(uv[k]):
+        return _empty(uv, n, "the labelled detections lie on a line: no camera can be fitted to them")
     P = dlt_batch(X[lab[k]], uv[k][None])[0]
     rms = float(np.sqrt(np.mean(np.sum((_project(P, X[lab[k]]) - uv[k]) ** 2, axis=1))))
     if not rms <= max_rms_px:
@@ -358,6 +371,9 @@ def label_view(target: CalibrationTarget, det: ObjectDetections, **options) -> L
         raise ValueError(f"target: expected a CalibrationTarget, got {type(target).__name__}")
     if not isinstance(det, ObjectDetections):
         raise ValueError(f"det: expected ObjectDetections, got {type(det).__name__}")
+    if len(det) >= 6 and _collinear(det.uv):
+        return _empty(det.uv, len(target), f"all {len(det)} detections lie on a line (no view of the "
+                      "object does that: wrong input or a degenerate detection)")
     if target.kind == "spiral":
         return label_spiral(target, det, **options)
     return label_ransac(target, det, **options)

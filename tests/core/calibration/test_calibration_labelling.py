@@ -142,8 +142,23 @@ def test_degenerate_views_fail_with_reasons(rig):
     assert not lab.ok and "only 5" in lab.reason and lab.n_labelled == 0
     empty = ObjectDetections(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, int), 4.0,
                              np.array([3.0, 5.0]), np.zeros(0))
-    assert not label_view(tg, empty).ok
-    assert not label_view(cube_target(), empty).ok
+    for t in (tg, cube_target()):  # a view with no detections
+        lab = label_view(t, empty)
+        assert not lab.ok and "only 0 detection" in lab.reason and lab.n_labelled == 0
+    # all detections on one line (sizes and count of a real view): refused, not a 6-bead labelling
+    det, _ = _fake(rig, 0, tg, T, g)
+    s = np.linspace(0, 1, len(det))[:, None]
+    line = ObjectDetections(np.array([100.0, 200.0]) + s * [800.0, 400.0], det.sigma, det.size_px,
+                            det.size_class, det.px_per_mm, det.nominal_mm, det.snr)
+    for t in (tg, cube_target()):
+        lab = label_view(t, line)
+        assert not lab.ok and "on a line" in lab.reason and lab.n_labelled == 0
+    lab = fit_labels(tg, line, np.r_[np.arange(8), np.full(len(line) - 8, -1)])
+    assert not lab.ok and lab.n_labelled == 0
+    # a frame with an empty view fails with the reason; the other frames are labelled
+    pair = [_fake(rig, v, tg, T, g, drop=2)[0] for v in range(2)]
+    frames, _, _ = label_sequence(tg, [tuple(pair), (pair[0], empty)], rig=rig)
+    assert frames[0].ok and not frames[1].ok and "only 0 detection" in frames[1].reason
     det, keep = _fake(rig, 0, tg, T, g)
     wrong = fit_labels(tg, det, g.permutation(keep))  # nonsense labels: no consistent camera
     assert not wrong.ok or wrong.n_labelled < 10

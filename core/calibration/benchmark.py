@@ -61,6 +61,7 @@ def run_benchmark(*, quick: bool = False, repeats: int = 3) -> dict:
     sp = spiral_target(33)
     out = {"machine": {"platform": platform.platform(), "processor": platform.machine(),
                        "cpus": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__,
+                       "load_average_at_start": list(os.getloadavg()),
                        "scipy": scipy.__version__},
            "device": "cpu", "repeats": r, "quick": quick}
     ba = {}

@@ -13,6 +13,8 @@
 3. **End to end**: the labelled rendered frames of the 33-bead spiral feed the bundle
    adjustment; the calibrated rig is compared with the truth.
 
+``by_missing`` splits the frames by the most beads absent from one view's detections (removed
+at random, hidden or merged by overlap; for projected frames exactly the removed ones).
 A frame counts as *correct* when it is accepted and every label in both views is right (up to
 the object's symmetry, applied to both views alike); *wrong* when accepted with any wrong label;
 *rejected* when the labelling reports it cannot decide.
@@ -22,6 +24,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import sys
 import time
 from pathlib import Path
@@ -54,25 +58,42 @@ def _correct(fr, truth_uv, target: CalibrationTarget, tol_px: float) -> bool:
     return False
 
 
-def score_frames(frames, truth_uv, target: CalibrationTarget, *, tol_px: float = 2.0) -> dict:
-    """Counts of correct / wrong / rejected frames and the labelled fraction of detections."""
+def score_frames(frames, truth_uv, target: CalibrationTarget, *, tol_px: float = 2.0, missing=None) -> dict:
+    """Counts of correct / wrong / rejected frames and the labelled fraction of detections;
+    with ``missing`` (per frame, e.g. the most beads absent from a view) also the counts per
+    value of ``missing`` (``by_missing``: value -> [frames, correct])."""
     c = w = r = 0
-    frac, reasons = [], {}
-    for fr, uv in zip(frames, truth_uv, strict=True):
+    frac, reasons, by = [], {}, {}
+    miss = [None] * len(frames) if missing is None else list(missing)
+    for fr, uv, k in zip(frames, truth_uv, miss, strict=True):
+        ok = False
         if not fr.ok:
             r += 1
             key = fr.reason.split(" (")[0][:80]
             reasons[key] = reasons.get(key, 0) + 1
-            continue
-        if _correct(fr, uv, target, tol_px):
+        elif _correct(fr, uv, target, tol_px):
             c += 1
+            ok = True
         else:
             w += 1
-        frac += [lab.n_labelled / max(len(lab.uv), 1) for lab in fr.labellings]
+        if fr.ok:
+            frac += [lab.n_labelled / max(len(lab.uv), 1) for lab in fr.labellings]
+        if k is not None:
+            b = by.setdefault(int(k), [0, 0])
+            b[0] += 1
+            b[1] += int(ok)
     n = len(frames)
-    return {"frames": n, "correct": c, "wrong": w, "rejected": r, "correct_percent": 100.0 * c / n,
-            "labelled_fraction_of_detections": float(np.mean(frac)) if frac else None,
-            "rejected_reasons": reasons}
+    out = {"frames": n, "correct": c, "wrong": w, "rejected": r, "correct_percent": 100.0 * c / n,
+           "labelled_fraction_of_detections": float(np.mean(frac)) if frac else None,
+           "rejected_reasons": reasons}
+    if missing is not None:
+        out["by_missing"] = {str(k): by[k] for k in sorted(by)}
+    return out
+
+
+def _most_missing(target, dets) -> list[int]:
+    """Per frame: the most beads absent from one view's detections (removed, hidden or merged)."""
+    return [max(len(target) - len(d) for d in pair) for pair in dets]
 
 
 def _drop(det: ObjectDetections, g, k: int) -> ObjectDetections:
@@ -160,7 +181,10 @@ def run_labelling_study(*, quick: bool = False, seed: int = 0, out_dir=None, fig
     g = np.random.default_rng(seed)
     rig512, rig1024 = foot_rig(seed=0, pixels=512), foot_rig(seed=0, pixels=1024)
     n_render, n_points = (6, 40) if quick else (60, 300)
-    res = {"config": {"rendered_frames": n_render, "projected_frames": n_points, "drop_max": 3,
+    res = {"machine": {"platform": platform.platform(), "processor": platform.machine(),
+                       "cpus": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__,
+                       "load_average_at_start": list(os.getloadavg())},
+           "config": {"rendered_frames": n_render, "projected_frames": n_points, "drop_max": 3,
                       "rendered_pixels": 512, "projected_pixels": 1024}}
     for n_beads in (23, 33):
         tg = spiral_target(n_beads)
@@ -171,7 +195,8 @@ def run_labelling_study(*, quick: bool = False, seed: int = 0, out_dir=None, fig
         t1 = time.perf_counter()
         frames, obs, _ = label_sequence(tg, dets, rng=g)
         t2 = time.perf_counter()
-        res[f"spiral{n_beads}_rendered"] = {**score_frames(frames, truth, tg), **stats,
+        res[f"spiral{n_beads}_rendered"] = {**score_frames(frames, truth, tg,
+                                                           missing=_most_missing(tg, dets)), **stats,
                                             "render_detect_seconds_per_frame": (t1 - t0) / n_render,
                                             "label_seconds_per_frame": (t2 - t1) / n_render}
         if n_beads == 33:
@@ -190,7 +215,8 @@ def run_labelling_study(*, quick: bool = False, seed: int = 0, out_dir=None, fig
         dets, truth = projected_frames(tg, rig1024, n_points, rng=g)
         t0 = time.perf_counter()
         frames, _, _ = label_sequence(tg, dets, rng=g)
-        res[f"spiral{n_beads}_projected"] = {**score_frames(frames, truth, tg),
+        res[f"spiral{n_beads}_projected"] = {**score_frames(frames, truth, tg,
+                                                            missing=_most_missing(tg, dets)),
                                              "label_seconds_per_frame": (time.perf_counter() - t0) / n_points}
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)

@@ -203,7 +203,8 @@ def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=N
     cfg = {"n_dlt": 60 if quick else 500, "n_ba": 3 if quick else 20, "n_frames": 25 if quick else 40,
            "noise_px": 0.05, "n_samples": 1000 if quick else 5000, "n_sobol": 128 if quick else 1024}
     res = {"machine": {"platform": platform.platform(), "processor": platform.machine(),
-                       "cpus": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__},
+                       "cpus": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__,
+                       "load_average_at_start": list(os.getloadavg())},
            "config": cfg, "rig": [{"name": c.name, "sid_mm": c.sid, "fx_px": c.fx, "pixel_mm": c.pixel_size,
                                    "source_mm": c.source.tolist()} for c in rig],
            "view_angle_deg": float(np.degrees(rig.angle_between_views()))}

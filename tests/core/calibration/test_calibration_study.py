@@ -28,8 +28,12 @@ def test_labelling_score(rig):
     g = np.random.default_rng(1)
     dets, truth = projected_frames(tg, rig, 4, rng=g)
     frames, _, _ = label_sequence(tg, dets, rng=0)
-    s = score_frames(frames, truth, tg)
+    missing = [max(len(tg) - len(d) for d in pair) for pair in dets]
+    s = score_frames(frames, truth, tg, missing=missing)
     assert s["frames"] == 4 and s["correct"] + s["wrong"] + s["rejected"] == 4
+    assert all(0 <= int(k) <= 3 for k in s["by_missing"])  # 0-3 beads removed per view
+    assert sum(f for f, _ in s["by_missing"].values()) == 4
+    assert sum(c for _, c in s["by_missing"].values()) == s["correct"]
     assert s["wrong"] == 0 and s["correct"] >= 3
     shuffled = [truth[1], truth[0], truth[3], truth[2]]  # wrong ground truth: nothing is correct
     assert score_frames(frames, shuffled, tg)["correct"] == 0

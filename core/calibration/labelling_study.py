@@ -10,7 +10,8 @@
    epipolar geometry estimated from the sequence itself (no rig given).
 2. **Projected points**: many more frames (exact projections, 0.05 px noise, 0-3 beads missing per
    view, the spiral axis up to 30° out of the ideal orientation), same labelling.
-3. **End to end**: the labelled rendered frames of the 33-bead spiral feed the bundle
+3. **The cube** (15 beads, labelled by RANSAC): frames of projected points as in 2.
+4. **End to end**: the labelled rendered frames of the 33-bead spiral feed the bundle
    adjustment; the calibrated rig is compared with the truth.
 
 ``by_missing`` splits the frames by the most beads absent from one view's detections (removed
@@ -38,7 +39,7 @@ from .bundle import bundle_adjust
 from .detection import ObjectDetections, detect_object_beads
 from .errormap import capture_lattice, reconstruction_errors
 from .matching import label_sequence
-from .objects import CalibrationTarget, spiral_target
+from .objects import CalibrationTarget, cube_target, spiral_target
 from .simulate import capture_centre, capture_poses, render
 
 __all__ = ["main", "run_labelling_study", "score_frames"]
@@ -180,11 +181,12 @@ def run_labelling_study(*, quick: bool = False, seed: int = 0, out_dir=None, fig
     say = progress or (lambda msg: None)
     g = np.random.default_rng(seed)
     rig512, rig1024 = foot_rig(seed=0, pixels=512), foot_rig(seed=0, pixels=1024)
-    n_render, n_points = (6, 40) if quick else (60, 300)
+    n_render, n_points, n_cube = (6, 40, 10) if quick else (60, 300, 200)
     res = {"machine": {"platform": platform.platform(), "processor": platform.machine(),
                        "cpus": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__,
                        "load_average_at_start": list(os.getloadavg())},
-           "config": {"rendered_frames": n_render, "projected_frames": n_points, "drop_max": 3,
+           "config": {"rendered_frames": n_render, "projected_frames": n_points,
+                      "cube_projected_frames": n_cube, "drop_max": 3,
                       "rendered_pixels": 512, "projected_pixels": 1024}}
     for n_beads in (23, 33):
         tg = spiral_target(n_beads)
@@ -218,6 +220,13 @@ def run_labelling_study(*, quick: bool = False, seed: int = 0, out_dir=None, fig
         res[f"spiral{n_beads}_projected"] = {**score_frames(frames, truth, tg,
                                                             missing=_most_missing(tg, dets)),
                                              "label_seconds_per_frame": (time.perf_counter() - t0) / n_points}
+    cube = cube_target()
+    say(f"cube15: {n_cube} frames of projected points")
+    dets, truth = projected_frames(cube, rig1024, n_cube, rng=g)
+    t0 = time.perf_counter()
+    frames, _, _ = label_sequence(cube, dets, rng=g)
+    res["cube15_projected"] = {**score_frames(frames, truth, cube, missing=_most_missing(cube, dets)),
+                               "label_seconds_per_frame": (time.perf_counter() - t0) / n_cube}
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         (Path(out_dir) / "labelling_study.json").write_text(json.dumps(res, indent=1))

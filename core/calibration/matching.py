@@ -255,8 +255,9 @@ def resolve_frame(labs: tuple[Labelling, Labelling], F, *, target: CalibrationTa
                   detections: tuple[ObjectDetections, ObjectDetections] | None = None,
                   max_px: float = 2.0, min_common: int = 6, margin: float = 3.0) -> FrameLabels:
     """Choose, among each view's labelling and its ``alternatives``, the pair whose common beads
-    lie on each other's epipolar lines: fewest beads farther than ``max_px`` from the line (at
-    most 10 % of the common beads, which then lose their labels), then the smallest median
+    (at least ``min_common``; 4 when neither view has an alternative, and then all of them on
+    their lines) lie on each other's epipolar lines: fewest beads farther than ``max_px`` from the
+    line (at most 10 % of the common beads, which then lose their labels), then the smallest median
     distance. A runner-up as good (median within ``margin`` x the best) that is not the image of
     the best pair under a symmetry of ``target`` is resolved by the detections each pair
     explains, or else by keeping only the labels both agree on; failing that the frame is
@@ -322,17 +323,21 @@ def _resolve(labs, F, target, max_px, min_common, margin, dets=None) -> FrameLab
     if not (a.ok and b.ok):
         why = a.reason if not a.ok else b.reason
         return FrameLabels(labs, False, f"a view has no labelling: {why}", float("nan"))
+    # a view whose labelling has no alternative (no rival, no symmetric image) needs no choice
+    # between pairs, only a check: then 4 common beads do, every one on its epipolar line
+    single = len(_options(a)) == 1 and len(_options(b)) == 1
+    need = min(min_common, 4) if single else min_common
     scores = []
     for i, l1 in enumerate(_options(a)):
         for j, l2 in enumerate(_options(b)):
             p1, p2 = _pairs(l1, l2, a.uv, b.uv)
-            if len(p1) < min_common:
+            if len(p1) < need:
                 continue
             d = np.diag(epipolar_distance(F, p1, p2))
             n_bad = int(np.sum(d > max_px))
             scores.append((n_bad, float(np.median(d)), i, j))
     if not scores:
-        return FrameLabels(labs, False, f"fewer than {min_common} beads labelled in both views", float("nan"))
+        return FrameLabels(labs, False, f"fewer than {need} beads labelled in both views", float("nan"))
     scores.sort()
 
     def pair(i, j):
@@ -342,7 +347,7 @@ def _resolve(labs, F, target, max_px, min_common, margin, dets=None) -> FrameLab
     n_bad, best, i, j = scores[0]
     pick = pair(i, j)
     shared = len(_pairs(_options(a)[i], _options(b)[j], a.uv, b.uv)[0])
-    if n_bad > max(1, 0.1 * shared) or best > max_px:
+    if n_bad > (max(1, 0.1 * shared) if shared >= min_common else 0) or best > max_px:
         return FrameLabels(pick, False, f"no pair of labellings is epipolar-consistent (best: {n_bad} of "
                            f"{shared} common beads off their lines by > {max_px:g} px)", best)
     perms = target.symmetries[1:] if target is not None else ()

@@ -135,3 +135,33 @@ def test_inconsistent_labels_are_removed_and_a_bad_pairing_is_rejected(rig):
     bad[idx] = np.roll(good[idx], 1)
     fr3 = resolve_frame((fr.labellings[0], replace(l2, labels=bad, alternatives=())), F, target=tg)
     assert not fr3.ok and "consistent" in fr3.reason
+
+
+def test_unambiguous_views_with_few_common_beads(rig):
+    """The cube has no symmetry: two single-answer labellings sharing only 5 beads are checked on
+    those (all on their lines), not refused; a wrong label among them, or 3 common beads, is."""
+    from core.calibration.labelling import fit_labels
+    from core.calibration.objects import cube_target
+
+    tg = cube_target()
+    T = capture_poses(rig, tg, 1, rng=4)[0]
+    F = fundamental_matrix(rig[0], rig[1])
+    g = np.random.default_rng(2)
+
+    def view(v, beads):
+        uv = rig[v].project(tg.centers_lab(T))[beads] + g.normal(0, 0.05, (len(beads), 2))
+        det = ObjectDetections(uv, np.zeros((len(beads), 2)), tg.diameters[beads] * 4.5,
+                               tg.size_classes[1][beads], 4.5, tg.size_classes[0], np.ones(len(beads)))
+        lab = fit_labels(tg, det, np.asarray(beads), overlap=0)
+        assert lab.ok and np.array_equal(lab.labels, beads)
+        return lab
+
+    l1, l2 = view(0, np.arange(8)), view(1, np.arange(3, 15))  # beads 3-7 in both views
+    fr = resolve_frame((l1, l2), F, target=tg)
+    assert fr.ok and fr.labellings[0].n_labelled == 8 and fr.labellings[1].n_labelled == 12
+    wrong = l2.labels.copy()
+    wrong[[0, 4]] = wrong[[4, 0]]  # beads 3 and 7 swapped in view 2
+    fr = resolve_frame((l1, replace(l2, labels=wrong)), F, target=tg)
+    assert not fr.ok and "consistent" in fr.reason
+    fr = resolve_frame((l1, view(1, np.arange(5, 15))), F, target=tg)  # beads 5-7 only
+    assert not fr.ok and "fewer than 4" in fr.reason

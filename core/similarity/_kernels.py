@@ -91,6 +91,27 @@ def _pair(mode: int, drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype
 
 
 @wp.kernel
+def blur_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
+                weights: wp.array(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+                axis: int):
+    """One pass of a separable Gaussian blur within each item's (h, w) ROI, replicated borders
+    (scipy's ``mode="nearest"``), NaN read as 0; pixels outside the ROI become 0. dim = items, H, W."""
+    k, r, c = wp.tid()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    acc = float(0.0)
+    if r < h and c < w:
+        rad = (weights.shape[0] - 1) // 2
+        for j in range(weights.shape[0]):
+            if axis == 0:
+                acc += weights[j] * _val(src, k, wp.clamp(r + j - rad, 0, h - 1), c)
+            else:
+                acc += weights[j] * _val(src, k, r, wp.clamp(c + j - rad, 0, w - 1))
+    dst[k, r, c] = acc
+
+
+@wp.kernel
 def stats_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
                  fgrad: wp.array3d(dtype=wp.vec2f), fmask: wp.array3d(dtype=wp.uint8),
                  ref_hw: wp.array(dtype=wp.vec2i), fshift: wp.array(dtype=wp.float32), n_refs: int,

@@ -83,6 +83,15 @@ def _as_refs(value, name: str, *, masks: bool = False) -> tuple[list[np.ndarray]
     return refs, len(per_view), nb
 
 
+def gaussian_weights(sigma: float, truncate: float = 3.0) -> np.ndarray:
+    """Normalised 1-D Gaussian taps of :class:`BatchedMetric`'s ``drr_sigma`` blur (radius
+    ``int(truncate σ + 0.5)``, as :func:`scipy.ndimage.gaussian_filter1d` with that ``truncate``)."""
+    rad = int(truncate * float(sigma) + 0.5)
+    x = np.arange(-rad, rad + 1, dtype=float)
+    w = np.exp(-0.5 * (x / float(sigma)) ** 2)
+    return (w / w.sum()).astype(np.float32)
+
+
 def _pad_stack(arrays: list[np.ndarray], shape: tuple[int, int], dtype) -> np.ndarray:
     out = np.zeros((len(arrays), *shape, *arrays[0].shape[2:]), dtype=dtype)
     for i, a in enumerate(arrays):
@@ -108,6 +117,12 @@ class BatchedMetric:
         Boolean masks nested like ``fluoro_rois`` (True = usable pixel).
     threshold, dilate, fluoro_sigma :
         The domain options of :mod:`core.similarity.domain`.
+    drr_sigma : float
+        Gaussian blur (σ in DRR pixels, truncated at 3σ, replicated borders, NaN as 0) of every
+        DRR on the device before the metric — with ``fluoro_sigma`` equal, both images are
+        filtered alike, so smoothing against noise does not shift the optimum (one-sided
+        smoothing does: a blurred fluoroscope matches a sharp DRR best elsewhere). Ω then comes
+        from the blurred DRR.
     operator : str
         Gradient operator with 3 × 3 kernels (default ``"sobel"``; not ``"abdou"``).
     bins, binning :
@@ -124,7 +139,7 @@ class BatchedMetric:
 
     def __init__(self, kind: str, fluoro_rois, *, device: str | None = None, fluoro_masks=None,
                  threshold: float = 0.0, dilate: int = 0, fluoro_sigma: float = 0.0,
-                 operator: str = "sobel", bins: int = 32, binning: str = "linear",
+                 drr_sigma: float = 0.0, operator: str = "sobel", bins: int = 32, binning: str = "linear",
                  n_lb_fraction: float = 0.25, weights=None, block_dim: int = 128,
                  chunk: int = 4096) -> None:
         if kind not in _KIND_CODES:
@@ -144,6 +159,7 @@ class BatchedMetric:
             raise ValueError(f"threshold: expected a finite number, got {threshold!r}")
         self.dilate = _nonneg_int(dilate, "dilate")
         sigma = _nonneg_float(fluoro_sigma, "fluoro_sigma")
+        self.drr_sigma = _nonneg_float(drr_sigma, "drr_sigma")
         if binning not in ("linear", "nearest"):
             raise ValueError(f"binning: expected 'linear' or 'nearest', got {binning!r}")
         self.bins = _nonneg_int(bins, "bins")
@@ -196,6 +212,9 @@ class BatchedMetric:
         self._weights = wp.array(w.astype(np.float32), dtype=wp.float32, device=dev)
         self._ku = wp.mat33f(*ku.astype(np.float32).ravel())
         self._kv = wp.mat33f(*kv.astype(np.float32).ravel())
+        self._blur = None
+        if self.drr_sigma > 0:
+            self._blur = wp.array(gaussian_weights(self.drr_sigma), dtype=wp.float32, device=dev)
         self._plans: dict[tuple, _Plan] = {}
 
     # ------------------------------------------------------------------ evaluation
@@ -266,6 +285,12 @@ class _Plan:
         def plain(kernel, dim, inputs):
             launches.append(wp.launch(kernel, dim=dim, inputs=inputs, device=dev, record_cmd=True))
 
+        if m._blur is not None:  # blurred copies of the DRRs; the metric reads those
+            self.tmp = wp.zeros(images.shape, dtype=wp.float32, device=dev)
+            self.blurred = wp.zeros(images.shape, dtype=wp.float32, device=dev)
+            plain(K.blur_kernel, (n, H, W), [images, self.tmp, m._blur, m._ref_hw, m.n_refs, 1])
+            plain(K.blur_kernel, (n, H, W), [self.tmp, self.blurred, m._blur, m._ref_hw, m.n_refs, 0])
+            images = self.blurred
         geo = [m.n_refs, m.threshold, m.dilate]
         if kind in ("ncc", "sid", "gc", "gd", "gi"):
             mode = 0 if kind in ("ncc", "sid") else 1

@@ -79,15 +79,19 @@ def main(argv=None) -> int:
                    help="Warp device: cpu, cuda, cuda:1 (default CUDA when present)")
     p.add_argument("--resume", action="store_true", help="skip frames that already have a pose")
     p.add_argument("--guess", choices=("velocity", "previous", "spline"), default="velocity")
-    p.add_argument("--mode", choices=("sequential", "joint"), default="sequential")
-    p.add_argument("--metric", default="gc", help="similarity metric (a core.similarity batched kind)")
+    p.add_argument("--mode", choices=("sequential", "joint"), default="sequential",
+                   help="joint: register each bone with the others' DRRs subtracted (needs DRR "
+                        "intensities that match the radiographs: flatfield-corrected frames and a "
+                        "calibrated HU transfer)")
+    p.add_argument("--metric", default="gc", help="similarity metric (a core.similarity batched kind; "
+                                                  "gc: both images smoothed by 1 px, the default cost)")
     p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     a = p.parse_args(argv)
 
     from ..study import Study, StudyError
-    from .cost import MetricTerm
+    from .cost import DEFAULT_TERMS, MetricTerm
     from .from_study import track_study
     from .register import RegistrationOptions
     from .trial import TrackingOptions
@@ -110,7 +114,8 @@ def main(argv=None) -> int:
         if a.backward:
             frames = frames[::-1]
         bones = a.bones.split(",") if a.bones else None
-        reg = RegistrationOptions(terms=(MetricTerm(a.metric),), bounds=(5.0, 5.0), sigma=(1.0, 1.0))
+        terms = DEFAULT_TERMS if a.metric == "gc" else (MetricTerm(a.metric),)
+        reg = RegistrationOptions(terms=terms, bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local")
         opts = TrackingOptions(registration=reg, guess=a.guess, mode=a.mode, confidence=not a.no_confidence)
         result, report = track_study(study, a.trial, bones, frames, options=opts, device=a.device,
                                      resume=a.resume, threshold_hu=a.threshold, progress=bar,

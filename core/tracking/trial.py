@@ -19,9 +19,19 @@ the widened first-frame options.
 
 Bones (``mode``)
 ----------------
-``"sequential"`` registers each bone alone; ``"joint"`` runs ``joint_rounds`` rounds in which each
-bone is registered with the other bones' DRRs (at their latest estimates) subtracted from the
-fluoroscope images, so overlapping projections do not pull a bone towards its neighbour.
+``"sequential"`` registers each bone alone; ``"joint"`` (the default) runs ``joint_rounds`` rounds
+in which each bone is registered with the other bones' DRRs (at their latest estimates)
+subtracted from the fluoroscope images, so overlapping projections do not pull a bone towards
+its neighbour. On the synthetic walking trial (tibia, talus, calcaneus, 1024², 100 frames, H200)
+joint tracking lowered the per-frame rotation errors from 0.23/0.34/0.17° to 0.20/0.28/0.15°
+(tibia/talus/calcaneus) for about twice the time.
+
+Filtered trajectories
+---------------------
+Per-frame registrations carry independent noise (~0.2° in rotation at thesis-like dose);
+bone motion is smooth. :meth:`TrackingResult.filtered_poses` low-passes a bone's poses with
+the zero-phase Butterworth filter of :mod:`core.tracking.kinematics`, its cut-off from Winter's
+residual analysis of the centroid path unless given: the kinematics users analyse.
 
 Failure detection and review flags
 ----------------------------------
@@ -68,7 +78,7 @@ from .cost import OutsideViewError, RegistrationCost, prepare_frame, search_roi
 from .register import RegistrationOptions, register
 from .verify import verify_start
 
-__all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "predict_pose", "track"]
+__all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "predict_pose", "register_start", "track"]
 
 _GUESSES = ("previous", "velocity", "spline")
 
@@ -82,7 +92,7 @@ class TrackingOptions:
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
     first: RegistrationOptions | None = None
     guess: str = "velocity"
-    mode: str = "sequential"
+    mode: str = "joint"
     joint_rounds: int = 2
     min_score_ratio: float = 0.85
     min_start_ratio: float = 0.7
@@ -163,6 +173,27 @@ class TrackingResult:
             if r is not None and r.pose is not None:
                 out[k] = r.pose
         return out
+
+    def filtered_poses(self, bone: str, frame_rate_hz: float, *, cutoff_hz: float | None = None,
+                       center=None, order: int = 2) -> tuple[np.ndarray, float]:
+        """Zero-phase low-passed :meth:`poses` of ``bone`` (``frames`` must be consecutive frames
+        at ``frame_rate_hz``) and the cut-off used: ``cutoff_hz`` or, when None, Winter's
+        residual analysis of the path of ``center`` (bone frame, mm; default the origin). Flagged
+        and missing frames are interpolated for the filter and stay NaN."""
+        from .kinematics import filter_poses, residual_cutoff
+
+        P = self.poses(bone)
+        for k, f in enumerate(self.frames):
+            r = self.results.get((bone, f))
+            if r is not None and r.flags:
+                P[k] = np.nan
+        c = np.zeros(3) if center is None else np.asarray(center, float)
+        if cutoff_hz is None:
+            ok = np.all(np.isfinite(P), axis=(1, 2))
+            path = np.full((len(P), 3), np.nan)
+            path[ok] = P[ok, :3, :3] @ c + P[ok, :3, 3]
+            cutoff_hz, _ = residual_cutoff(path, frame_rate_hz, order=order)
+        return filter_poses(P, frame_rate_hz, cutoff_hz, center=c, order=order), float(cutoff_hz)
 
     @property
     def flagged(self) -> list[FrameResult]:
@@ -359,6 +390,22 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
             finish(FrameResult(b, f, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf,
                                timing, notes))
     return TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
+
+
+def register_start(renderer, frame, bone: BoneModel, index: int, start, *,
+                   options: TrackingOptions | None = None, others=None, cancel=None, seed: int = 0):
+    """Register ``bone`` (volume ``index`` of ``renderer``) in one prepared ``frame`` from a
+    hand-placed ``start`` exactly as :func:`track` does a bone's first frame: the widened
+    first-frame options, the failure checks with a wider retry and the restart check of
+    :func:`core.tracking.verify.verify_start`. Returns a :class:`FrameResult` (frame -1)."""
+    o = options or TrackingOptions()
+    res, flags, retried, evals, dt, conf, timing, notes = _register_one(
+        renderer, frame, bone, index, start, start, o.first_options, o, [], others, cancel, [],
+        verify=True, seed=seed)
+    if res is None:
+        return FrameResult(bone.name, -1, None, np.nan, evals, dt, False, tuple(flags), retried, None, timing)
+    return FrameResult(bone.name, -1, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf,
+                       timing, notes)
 
 
 def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,

@@ -23,7 +23,10 @@ Starting poses (frame 0099)
 
 Tracking: frames in the order 0099, 0158, 0002 (the start's frame first; the frames are 59 and
 97 camera frames apart, so each starts from the bone's previous pose with a global search),
-both bones jointly (each registered with the other's DRR subtracted), 8-bit grey / 255 as
+each bone on its own (``mode="sequential"``: joint tracking subtracts the other bone's DRR from
+the radiograph, which needs DRR intensities matched to the images — these 8-bit radiographs are
+not flatfield-corrected, and a run with joint tracking pulled the radius onto the hole left where
+the ulna was subtracted in camera 1), 8-bit grey / 255 as
 relative fluence (the radiographs are not flatfield-corrected) with pixels below 0.12 (outside
 the field) or above 0.995 (saturated air) and 5 px around them masked, bone above 300 HU,
 0.5 mm ray steps, and ``final_scale`` 2 (0.29 mm DRR pixels at the bones; the radiographs'
@@ -59,17 +62,17 @@ ORDER = (1, 2, 0)  # frame indices: 0099 (the start), 0158, 0002
 BONES = ("radius", "ulna")
 
 
-def _options(final_scale: float):
+def _options(final_scale: float, first_widen: float = 1.5):
     from .register import RegistrationOptions
     from .trial import TrackingOptions
 
     reg = RegistrationOptions(bounds=(10.0, 10.0), sigma=(2.0, 2.0), search="global", final_scale=final_scale)
-    return TrackingOptions(registration=reg, first=reg.widened(1.5), guess="previous", mode="joint",
-                           max_jump=(15.0, 20.0), valid_range=(0.12, 0.995), erode_px=5)
+    return TrackingOptions(registration=reg, first=reg.widened(first_widen), guess="previous",
+                           mode="sequential", max_jump=(15.0, 20.0), valid_range=(0.12, 0.995), erode_px=5)
 
 
 def run(data_dir: str | Path, *, device: str | None = None, final_scale: float = 2.0,
-        figure: str | None = None) -> dict:
+        figure: str | None = None, first_widen: float = 1.5) -> dict:
     """Track radius and ulna over the sample's frames; returns the JSON-ready report."""
     from ..geometry.transforms import params_from_pose
     from ..render import DRRRenderer, HUTransfer
@@ -89,7 +92,7 @@ def run(data_dir: str | Path, *, device: str | None = None, final_scale: float =
     def fluence(i: int):
         return [sample.frame(v, i).astype(np.float32) / 255.0 for v in range(n_views)]
 
-    o = _options(final_scale)
+    o = _options(final_scale, first_widen)
     res = track(renderer, models, fluence, list(ORDER), keyframes={b: {ORDER[0]: starts[b]} for b in BONES},
                 options=o)
 
@@ -123,7 +126,7 @@ def run(data_dir: str | Path, *, device: str | None = None, final_scale: float =
             frames_out.append(entry)
     out = {"check": "core.tracking.wrist_check", "machine": platform.machine(),
            "device": str(renderer.device),
-           "data": str(data_dir), "final_scale": final_scale, "metric": "gc",
+           "data": str(data_dir), "final_scale": final_scale, "first_widen": first_widen, "metric": "gc",
            "options": o.registration.to_dict(), "mode": o.mode, "results": frames_out,
            "summary": res.summary(), "total_s": time.perf_counter() - t0}
     if figure:
@@ -184,10 +187,12 @@ def main(argv=None) -> int:
                    help="the autoscoper_wrist folder")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--final-scale", type=float, default=2.0, help="full-resolution pixels per DRR pixel")
+    p.add_argument("--first-widen", type=float, default=1.5,
+                   help="first-frame search box and steps relative to the tracking ones (10 mm, 10 deg)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save the overlays as a PNG")
     a = p.parse_args(argv)
-    res = run(a.data, device=a.device, final_scale=a.final_scale, figure=a.figure)
+    res = run(a.data, device=a.device, final_scale=a.final_scale, figure=a.figure, first_widen=a.first_widen)
     text = json.dumps(res, indent=2)
     if a.out:
         from ..io.atomic import atomic_write

@@ -127,3 +127,27 @@ def test_benchmark_quick_run_reports_every_kind_and_agrees_with_the_reference():
     assert set(case["metrics"]) == {"ncc", "gc", "mi"} and 0 < case["omega_fraction"] < 1
     for kind, m in case["metrics"].items():
         assert m["ms_per_batch"] > 0 and m["max_abs_diff_vs_numpy_reference"] < TOL[kind], kind
+
+
+@pytest.mark.parametrize("kind", ["gc", "ncc"])
+def test_drr_blur_on_the_device_matches_blurring_on_the_host(talus_case, batch, kind):
+    """``drr_sigma`` blurs each DRR within its ROI like scipy (nearest borders, 3σ taps)."""
+    from scipy import ndimage
+
+    from core.similarity.batched import gaussian_weights
+
+    _, drr_batch, drrs = batch
+    sigma = 1.3
+    w = gaussian_weights(sigma)
+    assert w.size == 2 * int(3 * sigma + 0.5) + 1 and np.isclose(w.sum(), 1.0)
+    blurred = [[ndimage.gaussian_filter(np.nan_to_num(d), sigma, mode="nearest", truncate=3.0) for d in row]
+               for row in drrs]
+    got = BatchedMetric(kind, list(talus_case.fluoro), device="cpu", drr_sigma=sigma,
+                        fluoro_sigma=sigma).evaluate(drr_batch)
+    ref = _reference(kind, blurred, talus_case.fluoro, fluoro_sigma=sigma)
+    np.testing.assert_allclose(got.item[:, :, 0], ref, atol=TOL[kind], rtol=0)
+    # the blur matters: without it the scores differ
+    plain = BatchedMetric(kind, list(talus_case.fluoro), device="cpu", fluoro_sigma=sigma).evaluate(drr_batch)
+    assert np.abs(plain.item - got.item).max() > 10 * TOL[kind]
+    with pytest.raises(ValueError, match="drr_sigma"):
+        BatchedMetric(kind, list(talus_case.fluoro), device="cpu", drr_sigma=-1.0)

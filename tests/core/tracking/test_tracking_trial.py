@@ -114,3 +114,58 @@ def test_confidence_is_reported(walking_talus):
     conf = res.results[("talus", 0)].confidence
     assert conf["method"] == "curvature" and len(conf["sigma"]) == 6
     assert all(s is not None and 0 < s < 1.0 for s in conf["sigma"])
+
+
+def test_filtered_poses_reduce_independent_noise_and_skip_flagged_frames():
+    from core.tracking.trial import FrameResult, TrackingResult
+
+    g = np.random.default_rng(3)
+    c = np.array([5.0, -3.0, 10.0])
+    n, fs = 120, 250.0
+    t = np.arange(n) / fs
+    truth = [pose_from_params(np.r_[8 * np.sin(2 * np.pi * 2 * t[k]), 3 * t[k], 0.0,
+                                    np.radians(10) * np.sin(2 * np.pi * 1.5 * t[k]), 0.0, 0.0],
+                              center=c, base=np.eye(4)) for k in range(n)]
+    noisy = [pose_from_params(np.r_[g.normal(size=3) * 0.1, np.radians(g.normal(size=3) * 0.3)], center=c, base=T)
+             for T in truth]
+    results = {("b", k): FrameResult("b", k, noisy[k], 0.9, 1, 0.0, True) for k in range(n)}
+    results[("b", 40)] = FrameResult("b", 40, noisy[40] @ np.diag([1, 1, 1, 1.0]), 0.2, 1, 0.0, False,
+                                     ("score drop",))
+    res = TrackingResult(("b",), tuple(range(n)), results, "complete", 1.0)
+    F, fc = res.filtered_poses("b", fs, center=c)
+    assert 3.0 < fc < 0.2 * fs
+    assert np.all(np.isnan(F[40])) and np.all(np.isfinite(F[39]))
+    raw = np.array([_err(noisy[k], truth[k], c) for k in range(n) if k != 40])
+    filt = np.array([_err(F[k], truth[k], c) for k in range(n) if k != 40])
+    assert np.sqrt(np.mean(filt**2, axis=0)).max() < 0.6 * np.sqrt(np.mean(raw**2, axis=0)).min() or \
+        np.all(np.sqrt(np.mean(filt**2, axis=0)) < 0.6 * np.sqrt(np.mean(raw**2, axis=0)))
+    F2, fc2 = res.filtered_poses("b", fs, cutoff_hz=12.0, center=c)
+    assert fc2 == 12.0 and F2.shape == (n, 4, 4)
+
+
+def test_register_start_recovers_a_hand_placed_pose(talus_scene):
+    from core.tracking.cost import prepare_frame
+    from core.tracking.trial import register_start
+
+    s = talus_scene
+    sc, m = s["scene"], s["model"]
+    truth = sc.poses(2)[0]
+    start = pose_from_params(np.r_[2.0, -1.5, 1.0, np.radians([2.0, -2.0, 1.5])], center=m.centroid, base=truth)
+    o = TrackingOptions(first=FAST.registration, verify_restarts=2, confidence=False)
+    fr = register_start(s["renderer"], prepare_frame(s["fluence"](2)), m, 0, start, options=o)
+    dt, dr = _err(fr.pose, truth, m.centroid)
+    assert fr.converged and not fr.flags and dt < 0.15 and dr < 0.3, (dt, dr, fr.flags)
+    assert fr.evaluations > 0 and fr.frame == -1
+
+
+def test_mean_tre_of_a_known_motion(talus_scene):
+    from core.tracking.acceptance import mean_tre
+
+    m = talus_scene["model"]
+    T = np.eye(4)
+    S = T.copy()
+    S[:3, 3] = [0.3, 0.0, 0.4]
+    assert np.isclose(mean_tre(m, S, T), 0.5)
+    R = pose_from_params(np.r_[0, 0, 0, np.radians(2.0), 0, 0], center=m.centroid, base=T)
+    tre = mean_tre(m, R, T)
+    assert 0.0 < tre < np.radians(2.0) * 40  # points within 40 mm of the centroid

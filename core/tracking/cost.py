@@ -86,6 +86,8 @@ class MetricTerm:
         return {"kind": self.kind, "weight": self.weight, "options": dict(self.options)}
 
 
+_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=np.uint8)
+
 DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma": 1.0, "drr_sigma": 1.0}),)
 
 
@@ -125,7 +127,7 @@ class FrameImages:
         """``(line_integral (h, w) float32, mask (h, w) bool or None)`` of ``view`` over
         ``[rows, cols]`` (slices with explicit, in-range bounds); the same values as the whole
         image's, cut out (the erosion of the mask sees ``erode_px`` pixels beyond the region)."""
-        from scipy import ndimage
+        import cv2
 
         from ..similarity import line_integral_image
 
@@ -142,8 +144,9 @@ class FrameImages:
             sub = img[R0:R1, C0:C1]
             lo, hi = self._valid
             valid = (sub > lo) & (sub < hi)
-            if p and not valid.all():
-                valid = ndimage.binary_erosion(valid, iterations=p, border_value=1)
+            if p and not valid.all():  # = ndimage.binary_erosion(valid, iterations=p, border_value=1)
+                valid = cv2.erode(valid.view(np.uint8), _CROSS, iterations=p, borderType=cv2.BORDER_CONSTANT,
+                                  borderValue=1).view(bool)
             mask = valid[r0 - R0:r1 - R0, c0 - C0:c1 - C0]
         given = self._given[view]
         if given is not None:

@@ -62,7 +62,7 @@ ORDER = (1, 2, 0)  # frame indices: 0099 (the start), 0158, 0002
 BONES = ("radius", "ulna")
 
 
-def _options(final_scale: float, first_widen: float = 1.5):
+def _options(final_scale: float, first_widen: float = 1.0):
     from .register import RegistrationOptions
     from .trial import TrackingOptions
 
@@ -72,7 +72,7 @@ def _options(final_scale: float, first_widen: float = 1.5):
 
 
 def run(data_dir: str | Path, *, device: str | None = None, final_scale: float = 2.0,
-        figure: str | None = None, first_widen: float = 1.5) -> dict:
+        figure: str | None = None, first_widen: float = 1.0) -> dict:
     """Track radius and ulna over the sample's frames; returns the JSON-ready report."""
     from ..geometry.transforms import params_from_pose
     from ..render import DRRRenderer, HUTransfer
@@ -187,7 +187,7 @@ def main(argv=None) -> int:
                    help="the autoscoper_wrist folder")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--final-scale", type=float, default=2.0, help="full-resolution pixels per DRR pixel")
-    p.add_argument("--first-widen", type=float, default=1.5,
+    p.add_argument("--first-widen", type=float, default=1.0,
                    help="first-frame search box and steps relative to the tracking ones (10 mm, 10 deg)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save the overlays as a PNG")

@@ -84,7 +84,7 @@ def main(argv=None) -> int:
                         "intensities that match the radiographs: flatfield-corrected frames and a "
                         "calibrated HU transfer)")
     p.add_argument("--metric", default="gc", help="similarity metric (a core.similarity batched kind; "
-                                                  "gc: both images smoothed by 1 px, the default cost)")
+                                                  "gc: both images smoothed by 0.3 mm, the default cost)")
     p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

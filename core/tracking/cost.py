@@ -17,8 +17,10 @@ similar, 1 = identical)::
     cost(x) = Σ_k w_k (1 - score_k(x)) / Σ_k w_k,     score_k = mean over views of the metric
 
 so the cost is 0 for a perfect match and the optimiser minimises it. :data:`DEFAULT_TERMS` is
-gradient correlation with the fluoroscope ROI *and* every DRR smoothed by the same 1 px Gaussian
-(``fluoro_sigma = drr_sigma = 1``; the DRR blur runs on the device, :class:`core.similarity.
+gradient correlation with the fluoroscope ROI *and* every DRR smoothed by the same Gaussian of
+σ = 0.3 mm at the bone (``fluoro_sigma_mm = drr_sigma_mm = 0.3``: about 1 px of a 1024² view of
+the foot, turned into pixels per pyramid level and dropped below a quarter pixel, so coarse
+views are not blurred further; the DRR blur runs on the device, :class:`core.similarity.
 BatchedMetric`). The response study of :mod:`core.similarity` ranked smoothed GC first
 (monotonic, no false optima within the capture range, robust to quantum noise). Smoothing only
 the fluoroscope moves the optimum (on ideal 128² test views it made a 2 mm / 2° offset score
@@ -67,7 +69,8 @@ class OutsideViewError(ValueError):
 class MetricTerm:
     """One metric of the cost: ``kind`` (a :data:`core.similarity.BATCHED_KINDS` name), its
     ``weight`` (> 0) and ``options`` for :class:`core.similarity.BatchedMetric` (``fluoro_sigma``,
-    ``dilate``, ``threshold``, ``operator``, ``bins``…)."""
+    ``drr_sigma``, ``dilate``, ``threshold``, ``operator``, ``bins``…; ``fluoro_sigma_mm`` and
+    ``drr_sigma_mm`` give the smoothing in mm at the bone instead of DRR pixels)."""
 
     kind: str
     weight: float = 1.0
@@ -86,9 +89,36 @@ class MetricTerm:
         return {"kind": self.kind, "weight": self.weight, "options": dict(self.options)}
 
 
+_MM_KEYS = {"fluoro_sigma_mm": "fluoro_sigma", "drr_sigma_mm": "drr_sigma"}
+
+
+def _pixel_mm(renderer, pose, center, views) -> float:
+    """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views``."""
+    c = pose[:3, :3] @ center + pose[:3, 3]
+    out = []
+    for v in views:
+        cam = renderer.cameras[v]
+        _, depth = cam.project(c[None], return_depth=True)
+        out.append(float(depth[0]) / max(cam.fx, cam.fy))
+    return float(np.mean(out))
+
+
+def _in_pixels(options, px_mm: float | None) -> dict:
+    """Metric options with ``*_sigma_mm`` (mm at the bone) turned into DRR-pixel σ; below a
+    quarter pixel the smoothing is dropped (coarse views: nothing to smooth at that scale)."""
+    out = dict(options)
+    for k_mm, k in _MM_KEYS.items():
+        if k_mm in out:
+            if k in out:
+                raise ValueError(f"metric options: give {k} or {k_mm}, not both")
+            sig = float(out.pop(k_mm)) / px_mm
+            out[k] = sig if sig >= 0.25 else 0.0
+    return out
+
+
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=np.uint8)
 
-DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma": 1.0, "drr_sigma": 1.0}),)
+DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3}),)
 
 
 class FrameImages:
@@ -358,8 +388,11 @@ class RegistrationCost:
         self.fluoro_rois = tuple(rois)
         self.fluoro_masks = tuple(masks)
         dev = str(renderer.device)
+        px_mm = None
+        if any(k in t.options for t in self.terms for k in _MM_KEYS):
+            px_mm = s * _pixel_mm(renderer, self.base, self.center, self.views)
         self.metrics = [BatchedMetric(t.kind, list(self.fluoro_rois), device=dev,
-                                      fluoro_masks=list(self.fluoro_masks), **t.options)
+                                      fluoro_masks=list(self.fluoro_masks), **_in_pixels(t.options, px_mm))
                         for t in self.terms]
         w = np.array([t.weight for t in self.terms], dtype=float)
         self._w = w / w.sum()

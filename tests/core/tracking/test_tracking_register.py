@@ -107,3 +107,25 @@ def test_options_validation_and_levels():
         MetricTerm("lad")
     with pytest.raises(ValueError, match="fluence"):
         prepare_frame([np.zeros(3)])
+
+
+def test_smoothing_in_mm_becomes_pixels_per_level(talus_scene):
+    from core.tracking.cost import RegistrationCost, _in_pixels, _pixel_mm, prepare_frame, search_roi
+
+    assert _in_pixels({"fluoro_sigma_mm": 0.6, "dilate": 1}, 0.3) == {"fluoro_sigma": 2.0, "dilate": 1}
+    assert _in_pixels({"drr_sigma_mm": 0.3}, 1.5) == {"drr_sigma": 0.0}  # below a quarter pixel: none
+    with pytest.raises(ValueError, match="not both"):
+        _in_pixels({"drr_sigma_mm": 0.3, "drr_sigma": 1.0}, 0.3)
+    s = talus_scene
+    sc, m = s["scene"], s["model"]
+    T = sc.poses(0)[0]
+    px = _pixel_mm(s["renderer"], T, m.centroid, (0, 1))
+    cam = sc.rig[0]
+    assert 0.5 * cam.pixel_size < px < 1.5 * cam.pixel_size
+    frame = prepare_frame(s["fluence"](0))
+    roi = search_roi(s["renderer"], T, 0, views=(0, 1), center=m.centroid, reach_mm=2.0)
+    terms = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 2 * px, "drr_sigma_mm": 2 * px}),)
+    c1 = RegistrationCost(s["renderer"], frame, bone=0, base_pose=T, center=m.centroid, roi=roi, terms=terms)
+    c2 = RegistrationCost(s["renderer"], frame, bone=0, base_pose=T, center=m.centroid, roi=roi, scale=2.0,
+                          terms=terms)
+    assert np.isclose(c1.metrics[0].drr_sigma, 2.0) and np.isclose(c2.metrics[0].drr_sigma, 1.0)

@@ -126,8 +126,8 @@ def test_filtered_poses_reduce_independent_noise_and_skip_flagged_frames():
     truth = [pose_from_params(np.r_[8 * np.sin(2 * np.pi * 2 * t[k]), 3 * t[k], 0.0,
                                     np.radians(10) * np.sin(2 * np.pi * 1.5 * t[k]), 0.0, 0.0],
                               center=c, base=np.eye(4)) for k in range(n)]
-    noisy = [pose_from_params(np.r_[g.normal(size=3) * 0.1, np.radians(g.normal(size=3) * 0.3)], center=c, base=T)
-             for T in truth]
+    noisy = [pose_from_params(np.r_[g.normal(size=3) * 0.1, np.radians(g.normal(size=3) * 0.3)], center=c,
+                              base=T) for T in truth]
     results = {("b", k): FrameResult("b", k, noisy[k], 0.9, 1, 0.0, True) for k in range(n)}
     results[("b", 40)] = FrameResult("b", 40, noisy[40] @ np.diag([1, 1, 1, 1.0]), 0.2, 1, 0.0, False,
                                      ("score drop",))
@@ -150,7 +150,8 @@ def test_register_start_recovers_a_hand_placed_pose(talus_scene):
     s = talus_scene
     sc, m = s["scene"], s["model"]
     truth = sc.poses(2)[0]
-    start = pose_from_params(np.r_[2.0, -1.5, 1.0, np.radians([2.0, -2.0, 1.5])], center=m.centroid, base=truth)
+    start = pose_from_params(np.r_[2.0, -1.5, 1.0, np.radians([2.0, -2.0, 1.5])], center=m.centroid,
+                             base=truth)
     o = TrackingOptions(first=FAST.registration, verify_restarts=2, confidence=False)
     fr = register_start(s["renderer"], prepare_frame(s["fluence"](2)), m, 0, start, options=o)
     dt, dr = _err(fr.pose, truth, m.centroid)

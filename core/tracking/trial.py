@@ -22,9 +22,11 @@ Bones (``mode``)
 ``"sequential"`` registers each bone alone; ``"joint"`` (the default) runs ``joint_rounds`` rounds
 in which each bone is registered with the other bones' DRRs (at their latest estimates)
 subtracted from the fluoroscope images, so overlapping projections do not pull a bone towards
-its neighbour. On the synthetic walking trial (tibia, talus, calcaneus, 1024², 100 frames, H200)
-joint tracking lowered the per-frame rotation errors from 0.23/0.34/0.17° to 0.20/0.28/0.15°
-(tibia/talus/calcaneus) for about twice the time.
+its neighbour. On the synthetic walking trial (tibia, talus, calcaneus, 1024², 100 frames, H200,
+GC on a fluoroscope smoothed by 1 px) joint tracking lowered the per-frame rotation errors from
+0.23/0.34/0.17° to 0.20/0.28/0.15° (tibia/talus/calcaneus) for about twice the time; with the
+default cost (both images smoothed alike) joint tracking gave 0.18/0.27/0.14°
+(``resources/benchmarks/tracking_cost_study_h200.json``).
 
 Filtered trajectories
 ---------------------

@@ -73,8 +73,10 @@ def _case(ts, bones: list[int], options, frames: int) -> dict:
 
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,
-        pixels: int | None = None) -> dict:
-    """Run both cases; returns the JSON-ready results."""
+        pixels: int | None = None, cases: str = "both") -> dict:
+    """Run the cases (``"one"``, ``"three"`` or ``"both"``); returns the JSON-ready results."""
+    if cases not in ("one", "three", "both"):
+        raise ValueError(f"cases: expected 'one', 'three' or 'both', got {cases!r}")
     import warp as wp
 
     from .acceptance import TrackingScene
@@ -96,8 +98,11 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
            "sizes": {"pixels": px, "voxel_mm": 1.0 if quick else 0.5, "frames": n,
                      "volumes_kji": {m.name: list(m.volume.data.shape) for m in ts.models}},
            "synthesis_s": synth, "options": o.registration.to_dict()}
-    res["one_bone"] = _case(ts, [1], o, n)
-    res["three_bones"] = _case(ts, [0, 1, 2], o, n)
+    res["mode"] = o.mode
+    if cases in ("one", "both"):
+        res["one_bone"] = _case(ts, [1], o, n)
+    if cases in ("three", "both"):
+        res["three_bones"] = _case(ts, [0, 1, 2], o, n)
     res["autoscoper_reference_s_per_frame_per_bone"] = [3.0, 13.0]
     return res
 
@@ -108,9 +113,11 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--frames", type=int, default=None)
     p.add_argument("--pixels", type=int, default=None)
+    p.add_argument("--cases", choices=("one", "three", "both"), default="both",
+                   help="one bone (talus), three bones (joint), or both")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
-    res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels)
+    res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases)
     text = json.dumps(res, indent=2)
     if a.out:
         from ..io.atomic import atomic_write

@@ -170,3 +170,15 @@ def test_mean_tre_of_a_known_motion(talus_scene):
     R = pose_from_params(np.r_[0, 0, 0, np.radians(2.0), 0, 0], center=m.centroid, base=T)
     tre = mean_tre(m, R, T)
     assert 0.0 < tre < np.radians(2.0) * 40  # points within 40 mm of the centroid
+
+
+def test_benchmark_smoke_reports_one_bone_with_breakdown():
+    from core.tracking.benchmark import run
+
+    res = run(quick=True, device="cpu", frames=2, pixels=64, cases="one")
+    assert "three_bones" not in res and res["mode"] == "joint"
+    e = res["one_bone"]["profiled"]
+    assert e["frames_per_second"] > 0 and set(e["breakdown_ms_per_frame"]) == {
+        "drr", "metric_and_sync", "cost_host", "optimizer", "other"}
+    with pytest.raises(ValueError, match="cases"):
+        run(quick=True, device="cpu", frames=2, pixels=64, cases="four")

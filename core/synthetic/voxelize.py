@@ -26,6 +26,7 @@ from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from .._validate import as_float_array, positive
+from ..geometry.triangles import closest_point_on_triangles
 from ..render.volume import CTVolume
 from .phantoms import SOFT_HU, _texture, hu_from_sdf, voxel_grid
 
@@ -117,31 +118,7 @@ def mesh_inside_grid(vertices, faces, origin, spacing: float, shape_ijk, *,
 
 def point_triangle_distance(p, a, b, c) -> np.ndarray:
     """Euclidean distance (mm) from points ``p`` to triangles ``(a, b, c)``; all (N, 3) row-wise."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        v, w = vb / denom, vc / denom
-        q = a + v[:, None] * ab + w[:, None] * ac  # interior by default
-        t_ab = d1 / (d1 - d3)
-        t_ac = d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    cases = [  # later cases take precedence, in reverse of Ericson's early returns
-        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), b + t_bc[:, None] * (c - b)),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + t_ac[:, None] * ac),
-        ((d6 >= 0) & (d5 <= d6), c),
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + t_ab[:, None] * ab),
-        ((d3 >= 0) & (d4 <= d3), b),
-        ((d1 <= 0) & (d2 <= 0), a),
-    ]
-    for cond, pt in cases:
-        q = np.where(cond[:, None], pt, q)
-    return np.linalg.norm(p - q, axis=1)
+    return np.linalg.norm(p - closest_point_on_triangles(p, a, b, c), axis=1)
 
 
 def _exact_distance(points: np.ndarray, V: np.ndarray, F: np.ndarray, chunk: int = 20000):

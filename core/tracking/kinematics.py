@@ -39,6 +39,8 @@ from collections.abc import Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..geometry.triangles import closest_point_on_triangles
+
 __all__ = ["butterworth", "export_csv", "export_json", "export_tra", "filter_poses", "frame_from_axes",
            "helical_axes", "joint_angles", "min_distance", "principal_axes_frame", "residual_cutoff"]
 
@@ -259,37 +261,6 @@ def helical_axes(prox_poses, dist_poses=None, *, step: int = 1) -> dict[str, np.
 
 
 # ---------------------------------------------------------------------------- joint space
-def _point_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Closest points on triangles (a, b, c) to points p, all (m, 3) (Ericson, RTCD §5.1.5)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    den = va + vb + vc
-    den = np.where(np.abs(den) < 1e-30, 1e-30, den)
-    v, w = vb / den, vc / den
-    q = a + ab * v[:, None] + ac * w[:, None]  # interior
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cases = [
-            ((d1 <= 0) & (d2 <= 0), a),
-            ((d3 >= 0) & (d4 <= d3), b),
-            ((d6 >= 0) & (d5 <= d6), c),
-        ]
-        for m, pt in cases:
-            q = np.where(m[:, None], pt, q)
-        e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0) & ~cases[0][0] & ~cases[1][0]
-        q = np.where(e_ab[:, None], a + ab * (d1 / np.where(d1 - d3 == 0, 1, d1 - d3))[:, None], q)
-        e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0) & ~cases[0][0] & ~cases[2][0]
-        q = np.where(e_ac[:, None], a + ac * (d2 / np.where(d2 - d6 == 0, 1, d2 - d6))[:, None], q)
-        e_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0) & ~cases[1][0] & ~cases[2][0]
-        wb = (d4 - d3) / np.where((d4 - d3) + (d5 - d6) == 0, 1, (d4 - d3) + (d5 - d6))
-        q = np.where(e_bc[:, None], b + (c - b) * wb[:, None], q)
-    return q
-
-
 def _one_way(Pa, Va, Fb_tri, Vb, tree, k):
     d, j = tree.query(Pa, k=1)
     cand = np.argsort(d)[:k]
@@ -298,7 +269,7 @@ def _one_way(Pa, Va, Fb_tri, Vb, tree, k):
         tris = Fb_tri[j[i]]
         a, b, c = (Vb[tris[:, m]] for m in range(3))
         p = np.repeat(Pa[i][None], len(tris), axis=0)
-        q = _point_triangle(p, a, b, c)
+        q = closest_point_on_triangles(p, a, b, c)
         dist = np.linalg.norm(q - p, axis=1)
         m = int(np.argmin(dist))
         if dist[m] < best[0]:

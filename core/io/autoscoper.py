@@ -34,7 +34,7 @@ from pathlib import Path
 from types import MappingProxyType
 
 from .atomic import atomic_write
-from .autoscoper_tra import matrix_to_xyzypr, read_tra, write_tra, xyzypr_to_matrix
+from .autoscoper_tra import _text_lines, matrix_to_xyzypr, read_tra, write_tra, xyzypr_to_matrix
 
 __all__ = [
     "AutoscoperFilter",
@@ -49,17 +49,6 @@ __all__ = [
     "write_tra",
     "xyzypr_to_matrix",
 ]
-
-
-def _text_lines(path: Path, what: str) -> list[str]:
-    if not path.is_file():
-        raise ValueError(f"path: no such {what} file: {path}")
-    try:
-        return path.read_text(encoding="utf-8-sig").splitlines()
-    except UnicodeDecodeError as exc:
-        raise ValueError(
-            f"{path}: expected a text {what} file, got undecodable bytes ({exc.reason})"
-        ) from None
 
 
 def _numbers(path: Path, lineno: int, text: str, n: int, what: str, kind=float) -> list:

@@ -31,7 +31,7 @@ import numpy as np
 import warp as wp
 
 from ..render import DRRRenderer, HUTransfer
-from ..render.benchmark import _bench_rig, _bone, _poses
+from ..render.benchmark import _bench_rig, _bone, _poses, _time
 from .batched import BATCHED_KINDS, BatchedMetric
 from .domain import line_integral_image
 from .metrics import similarity
@@ -63,18 +63,6 @@ def _drrs(device: str, side: int, n_poses: int, n_views: int, quick: bool):
         counts = rng.poisson(fluence * 400.0) / 400.0  # ~400 quanta per pixel in air
         fluoro.append(line_integral_image(ndimage.gaussian_filter(counts, 1.0)))
     return batch, fluoro
-
-
-def _time(fn, sync, repeats: int) -> float:
-    fn()
-    sync()
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        sync()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def _case(device: str, side: int, n_poses: int, n_views: int, kinds, repeats: int, quick: bool) -> dict:

@@ -47,7 +47,7 @@ import numpy as np
 from ..geometry.transforms import params_from_pose, pose_from_params
 
 __all__ = ["FRAME_RATE_HZ", "TrackingScene", "capture_range", "main", "mean_tre", "pose_errors", "run",
-           "tracking_scene"]
+           "surface_points", "tracking_scene"]
 
 BONES = ("tibia", "talus", "calcaneus")
 STANCE_S = 0.6
@@ -125,15 +125,20 @@ def _random_offset(g: np.random.Generator, mm: float, deg: float) -> np.ndarray:
     return np.r_[d / np.linalg.norm(d) * mm, a / np.linalg.norm(a) * np.radians(deg)]
 
 
-def mean_tre(model, pose: np.ndarray, truth: np.ndarray, *, max_points: int = 4000) -> float:
-    """Mean distance (mm) between the bone's surface (shell voxel centres of its mask, at most
-    ``max_points``) placed by ``pose`` and by ``truth``."""
+def surface_points(model, max_points: int = 4000) -> np.ndarray:
+    """``(n, 3)`` shell voxel centres of the bone's mask (CT frame, mm), at most ``max_points``."""
     from scipy.ndimage import binary_erosion
 
     shell = model.mask & ~binary_erosion(model.mask)
     k, j, i = np.nonzero(shell)
     P = model.volume.index_to_physical(np.column_stack([i, j, k]).astype(float))
-    P = P[:: max(1, len(P) // max_points)]
+    return P[:: max(1, len(P) // max_points)]
+
+
+def mean_tre(model, pose: np.ndarray, truth: np.ndarray, *, points: np.ndarray | None = None) -> float:
+    """Mean distance (mm) between the bone's surface (``points``, default
+    :func:`surface_points`) placed by ``pose`` and by ``truth``."""
+    P = surface_points(model) if points is None else points
     A, B = np.asarray(pose, float), np.asarray(truth, float)
     return float(np.mean(np.linalg.norm(P @ (A[:3, :3] - B[:3, :3]).T + (A[:3, 3] - B[:3, 3]), axis=1)))
 
@@ -149,6 +154,7 @@ def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1
     out = {}
     for b, m in enumerate(ts.models):
         ok, strict, errs, times, tres, flagged = 0, 0, [], [], [], 0
+        surface = surface_points(m)
         for k in range(trials):
             f = int(g.integers(ts.scene.n_frames))
             truth = ts.truth(f)[b]
@@ -156,7 +162,7 @@ def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1
             res = register_start(ts.renderer, prepare_frame(ts.frames(f)), m, b, init, options=o, seed=k)
             e = pose_errors(res.pose, truth, m.centroid)
             et, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
-            tre = mean_tre(m, res.pose, truth)
+            tre = mean_tre(m, res.pose, truth, points=surface)
             errs.append([et, er])
             tres.append(tre)
             times.append(res.time_s)

@@ -58,7 +58,7 @@ import numpy as np
 from ..geometry.transforms import pose_from_params
 
 __all__ = ["DEFAULT_TERMS", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
-           "RegistrationCost", "prepare_frame", "search_roi"]
+           "RegistrationCost", "mm_per_pixel", "prepare_frame", "search_roi"]
 
 
 class OutsideViewError(ValueError):
@@ -92,8 +92,9 @@ class MetricTerm:
 _MM_KEYS = {"fluoro_sigma_mm": "fluoro_sigma", "drr_sigma_mm": "drr_sigma"}
 
 
-def _pixel_mm(renderer, pose, center, views) -> float:
+def mm_per_pixel(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence[int] | None = None) -> float:
     """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views``."""
+    views = range(len(renderer.cameras)) if views is None else views
     c = pose[:3, :3] @ center + pose[:3, 3]
     out = []
     for v in views:
@@ -390,7 +391,7 @@ class RegistrationCost:
         dev = str(renderer.device)
         px_mm = None
         if any(k in t.options for t in self.terms for k in _MM_KEYS):
-            px_mm = s * _pixel_mm(renderer, self.base, self.center, self.views)
+            px_mm = s * mm_per_pixel(renderer, self.base, self.center, self.views)
         self.metrics = [BatchedMetric(t.kind, list(self.fluoro_rois), device=dev,
                                       fluoro_masks=list(self.fluoro_masks), **_in_pixels(t.options, px_mm))
                         for t in self.terms]

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import optimize as opt
-from .cost import DEFAULT_TERMS, FrameImages, MetricTerm, RegistrationCost, search_roi
+from .cost import DEFAULT_TERMS, FrameImages, MetricTerm, RegistrationCost, mm_per_pixel, search_roi
 from .quadratic import quadratic_search
 
 __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels", "mm_per_pixel",
@@ -76,18 +76,6 @@ class Level:
         return {"scale": self.scale, "method": self.method, "sigma": list(self.sigma),
                 "popsize": self.popsize, "max_generations": self.max_generations,
                 "tol_x": self.tol_x, "options": dict(self.options)}
-
-
-def mm_per_pixel(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence[int] | None = None) -> float:
-    """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views``."""
-    views = range(len(renderer.cameras)) if views is None else views
-    c = pose[:3, :3] @ center + pose[:3, 3]
-    out = []
-    for v in views:
-        cam = renderer.cameras[v]
-        _, depth = cam.project(c[None], return_depth=True)
-        out.append(float(depth[0]) / max(cam.fx, cam.fy))
-    return float(np.mean(out))
 
 
 def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),

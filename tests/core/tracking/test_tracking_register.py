@@ -110,7 +110,7 @@ def test_options_validation_and_levels():
 
 
 def test_smoothing_in_mm_becomes_pixels_per_level(talus_scene):
-    from core.tracking.cost import RegistrationCost, _in_pixels, _pixel_mm, prepare_frame, search_roi
+    from core.tracking.cost import RegistrationCost, _in_pixels, mm_per_pixel, prepare_frame, search_roi
 
     assert _in_pixels({"fluoro_sigma_mm": 0.6, "dilate": 1}, 0.3) == {"fluoro_sigma": 2.0, "dilate": 1}
     assert _in_pixels({"drr_sigma_mm": 0.3}, 1.5) == {"drr_sigma": 0.0}  # below a quarter pixel: none
@@ -119,7 +119,7 @@ def test_smoothing_in_mm_becomes_pixels_per_level(talus_scene):
     s = talus_scene
     sc, m = s["scene"], s["model"]
     T = sc.poses(0)[0]
-    px = _pixel_mm(s["renderer"], T, m.centroid, (0, 1))
+    px = mm_per_pixel(s["renderer"], T, m.centroid, (0, 1))
     cam = sc.rig[0]
     assert 0.5 * cam.pixel_size < px < 1.5 * cam.pixel_size
     frame = prepare_frame(s["fluence"](0))

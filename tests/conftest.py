@@ -100,3 +100,15 @@ def sample_data() -> Path:
         why = f"sample data not found at {path} (set TALUS_SAMPLE_DATA to its folder)"
         pytest.skip(reason=why)
     return path
+
+
+@pytest.fixture(scope="session")
+def wrist(sample_data):
+    """The Autoscoper wrist sample (:func:`core.samples.load_wrist_sample`), loaded once; skips
+    the test when its folder is absent."""
+    from core.samples import load_wrist_sample
+
+    folder = sample_data / "autoscoper_wrist"
+    if not folder.is_dir():
+        pytest.skip(reason=f"wrist sample not found at {folder}")
+    return load_wrist_sample(folder)

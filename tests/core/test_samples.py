@@ -4,15 +4,7 @@ import numpy as np
 import pytest
 
 from core.render import DRRRenderer, HUTransfer
-from core.samples import WRIST_RADIUS_POSE, load_wrist_sample, wrist_preview
-
-
-@pytest.fixture(scope="module")
-def wrist(sample_data):
-    folder = sample_data / "autoscoper_wrist"
-    if not folder.is_dir():
-        pytest.skip(reason=f"wrist sample not found at {folder}")
-    return load_wrist_sample(folder)
+from core.samples import WRIST_RADIUS_POSE, wrist_preview
 
 
 def test_wrist_volumes_and_cameras_load(wrist):

@@ -1,21 +1,10 @@
 """Real radiographs: the wrist sample's beads lie on the epipolar lines of the real calibration."""
 
 import numpy as np
-import pytest
 
 from core.calibration.epipolar_check import epipolar_check, line_distances
 from core.geometry.camera import Rig
 from core.markers import fundamental_matrix
-
-
-@pytest.fixture(scope="module")
-def wrist(sample_data):
-    from core.samples import load_wrist_sample
-
-    folder = sample_data / "autoscoper_wrist"
-    if not folder.is_dir():
-        pytest.skip(reason=f"wrist sample not found at {folder}")
-    return load_wrist_sample(folder)
 
 
 def test_wrist_beads_lie_on_the_epipolar_lines(wrist):

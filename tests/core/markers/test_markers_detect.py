@@ -42,16 +42,6 @@ def test_arguments_are_validated():
         detect_beads(np.ones((32, 32)), diameter_px=8, mask=np.ones((3, 3), bool))
 
 
-@pytest.fixture(scope="module")
-def wrist(sample_data):
-    from core.samples import load_wrist_sample
-
-    folder = sample_data / "autoscoper_wrist"
-    if not folder.is_dir():
-        pytest.skip(reason=f"wrist sample not found at {folder}")
-    return load_wrist_sample(folder)
-
-
 WRIST = {"diameter_px": 7.0, "min_snr": 10.0}
 
 

@@ -274,7 +274,7 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict) -> None:
     for a in ax[1]:
         a.set(xlabel="frame")
     fig.suptitle(f"Synthetic walking trial, {cfg['pixels']}² views, {cfg['voxel_mm']} mm voxels, "
-                 f"{cfg['mode']} tracking, start 5 mm / 5° off; lower row: Butterworth low-pass at "
+                 f"{cfg['mode']} tracking, start 5 mm / 5° off\nlower row: Butterworth low-pass at "
                  f"{cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: 0.15 target)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

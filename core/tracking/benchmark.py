@@ -90,7 +90,7 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     for i in range(ts.scene.n_frames):
         ts.frames(i)
     synth = time.perf_counter() - t0
-    o = TrackingOptions()
+    o = TrackingOptions(mode="joint")  # synthetic frames: DRR intensities match the images
     dev = wp.get_device(str(ts.renderer.device))
     res = {"benchmark": "core.tracking", "machine": platform.machine(),
            "processor": platform.processor() or platform.machine(), "device": str(dev),

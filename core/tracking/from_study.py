@@ -113,10 +113,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     bone could be tracked (the report says why). Bones whose CT has no bone above
     ``threshold_hu`` are listed under ``report["stopped"]`` with the reason.
 
-    Without ``options`` the bones are tracked one at a time (``mode="sequential"``): joint
-    tracking subtracts DRRs from the frames, which needs DRR intensities matched to the
-    radiographs (flatfield-corrected frames, a calibrated HU transfer) — pass
-    ``TrackingOptions(mode="joint")`` when a study has them.
+    Bones are tracked one at a time unless ``options`` ask for ``mode="joint"`` (see
+    :mod:`core.tracking.trial`: it needs DRR intensities matched to the radiographs).
     """
     from ..render import DRRRenderer
 
@@ -172,7 +170,6 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
         if progress is not None:
             progress(done, total, fr)
 
-    options = options or TrackingOptions(mode="sequential")
     result = track(renderer, models, read, order, keyframes=existing, options=options,
                    record=lambda b, f, P, s: trial.record_pose(b, int(f), P, score=float(s)),
                    skip=skip, progress=on_progress, cancel=cancel)

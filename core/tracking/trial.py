@@ -19,13 +19,17 @@ the widened first-frame options.
 
 Bones (``mode``)
 ----------------
-``"sequential"`` registers each bone alone; ``"joint"`` (the default) runs ``joint_rounds`` rounds
+``"sequential"`` (the default) registers each bone alone; ``"joint"`` runs ``joint_rounds`` rounds
 in which each bone is registered with the other bones' DRRs (at their latest estimates)
 subtracted from the fluoroscope images, so overlapping projections do not pull a bone towards
-its neighbour. On the synthetic walking trial (tibia, talus, calcaneus, 1024², 100 frames, H200,
-GC on a fluoroscope smoothed by 1 px) joint tracking lowered the per-frame rotation errors from
-0.23/0.34/0.17° to 0.20/0.28/0.15° (tibia/talus/calcaneus) for about twice the time; with the
-default cost (both images smoothed alike) joint tracking gave 0.18/0.27/0.14°
+its neighbour. Subtraction needs DRR intensities matched to the frames (flatfield-corrected
+frames, a calibrated HU transfer — true of the synthetic scenes; on the wrist sample's 8-bit
+radiographs it pulled the radius into the hole left where the ulna was subtracted), so joint
+tracking is asked for, not assumed. On the synthetic walking trial (tibia, talus,
+calcaneus, 1024², 100 frames, H200, GC on a fluoroscope smoothed by 1 px) joint tracking
+lowered the per-frame rotation errors from 0.23/0.34/0.17° to 0.20/0.28/0.15°
+(tibia/talus/calcaneus) for about twice the time; with the default cost (both images
+smoothed alike) joint tracking gave 0.18/0.27/0.14°
 (``resources/benchmarks/tracking_cost_study_h200.json``).
 
 Filtered trajectories
@@ -94,7 +98,7 @@ class TrackingOptions:
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
     first: RegistrationOptions | None = None
     guess: str = "velocity"
-    mode: str = "joint"
+    mode: str = "sequential"
     joint_rounds: int = 2
     min_score_ratio: float = 0.85
     min_start_ratio: float = 0.7

@@ -27,7 +27,11 @@ Measurements
   reported two ways: ``success_fraction`` — the bone's surface (shell voxels of its mask) lies
   within 0.5 mm of the truth on average (mean target registration error, the usual capture
   criterion); ``strict_success_fraction`` — centroid error ≤ 0.5 mm *and* rotation ≤ 0.5°;
-* **confidence** — the fraction of per-axis errors within 2 sigma of the curvature confidence.
+* **confidence** — the fraction of per-axis errors within 2 sigma of the curvature confidence;
+* **Cramér–Rao bound** — per bone, the least RMS error any unbiased estimate from one frame can
+  have at the trial's photon counts (:func:`cramer_rao`, every tenth frame), and the measured
+  RMS errors divided by it (``rms_over_bound``): how close the tracker gets to what the images
+  allow, and whether a per-frame target is reachable at all.
 
 ``--quick`` (CPU, this machine) uses 256² views, 1 mm voxels, 20 frames and 5 capture trials per
 bone; the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). The JSON goes
@@ -46,8 +50,8 @@ import numpy as np
 
 from ..geometry.transforms import params_from_pose, pose_from_params
 
-__all__ = ["FRAME_RATE_HZ", "TrackingScene", "capture_range", "main", "mean_tre", "pose_errors", "run",
-           "surface_points", "tracking_scene"]
+__all__ = ["FRAME_RATE_HZ", "TrackingScene", "capture_range", "cramer_rao", "main", "mean_tre", "pose_errors",
+           "run", "surface_points", "tracking_scene"]
 
 BONES = ("tibia", "talus", "calcaneus")
 STANCE_S = 0.6
@@ -143,6 +147,31 @@ def mean_tre(model, pose: np.ndarray, truth: np.ndarray, *, points: np.ndarray |
     return float(np.mean(np.linalg.norm(P @ (A[:3, :3] - B[:3, :3]).T + (A[:3, 3] - B[:3, 3]), axis=1)))
 
 
+def cramer_rao(ts: TrackingScene, frames) -> dict:
+    """Per bone, the Cramér–Rao bound (:func:`core.tracking.bound.pose_bound`) of a per-frame
+    pose at the trial's photon counts, averaged over ``frames`` (mean covariance): ``rms_mm`` and
+    ``rms_deg`` are the least RMS centroid and rotation errors any unbiased per-frame estimator
+    can reach; ``sigma`` per axis (mm ×3, degrees ×3). Empty when the frames are noise-free."""
+    from .bound import pose_bound
+
+    N = [m.photons_per_pixel for m in ts.scene.imaging]
+    if any(n is None for n in N):
+        return {}
+    frames = [int(f) for f in frames]
+    covs: dict[str, list] = {n: [] for n in ts.names}
+    for f in frames:
+        L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+        for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
+            covs[n].append(pose_bound(ts.renderer, b, ts.truth(f)[b], m.centroid, line_integral=L,
+                                      quanta_per_pixel=N).covariance)
+    out = {}
+    for n, cs in covs.items():
+        C = np.mean(cs, axis=0)
+        out[n] = {"rms_mm": float(np.sqrt(np.trace(C[:3, :3]))),
+                  "rms_deg": float(np.sqrt(np.trace(C[3:, 3:]))), "sigma": np.sqrt(np.diag(C)).round(5).tolist(), "frames": frames}
+    return out
+
+
 def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1, mm: float = 5.0,
                   deg: float = 5.0, tol=(0.5, 0.5), tre_mm: float = 0.5) -> dict:
     """Success fractions of first-frame registrations from ``mm``/``deg`` initial errors."""
@@ -236,6 +265,18 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
             "within_2_sigma_fraction": float(np.mean(inside)) if inside else None,
             "motion_per_frame_mm": {"median": float(np.median(motion)), "max": float(np.max(motion))},
         }
+    bound = cramer_rao(ts, range(0, ts.scene.n_frames, max(1, ts.scene.n_frames // 10)))
+    for n, E in all_err.items():
+        if n in bound:
+            cb = bound[n]
+            per_bone[n]["cramer_rao"] = cb
+            per_bone[n]["rms_over_bound"] = {"mm": per_bone[n]["rms_error_mm"] / cb["rms_mm"],
+                                             "deg": per_bone[n]["rms_error_deg"] / cb["rms_deg"],
+                                             "filtered_deg": per_bone[n]["filtered"]["rms_error_deg"]
+                                             / cb["rms_deg"]}
+            per_bone[n]["std_error"] = {"mm": E[:, :3].std(0).round(4).tolist(),
+                                        "deg": E[:, 3:].std(0).round(4).tolist()}
+        per_bone[n]["per_frame_error"] = E.round(5).tolist()
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
            "frames": ts.scene.n_frames, "mode": mode, "start_error": "5 mm, 5 deg",
            "residual_distortion_rms_mm": ts.residual_distortion_mm(), "frame_rate_hz": FRAME_RATE_HZ,
@@ -248,11 +289,11 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         out["capture_range"] = capture_range(ts, trials=trials, options=o, seed=seed + 1)
     out["total_s"] = time.perf_counter() - t0
     if figure:
-        _figure(all_err, all_filt, figure, cfg)
+        _figure(all_err, all_filt, figure, cfg, bound)
     return out
 
 
-def _figure(errors: dict, filtered: dict, path: str, cfg: dict) -> None:
+def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -265,6 +306,9 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict) -> None:
             et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
             ax[row, 0].plot(et, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(et ** 2)):.3f} mm)")
             ax[row, 1].plot(er, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(er ** 2)):.3f}°)")
+            if bound and n in bound:  # the least RMS error of any unbiased per-frame estimate
+                ax[row, 0].axhline(bound[n]["rms_mm"], color=c, lw=1.2, ls=":")
+                ax[row, 1].axhline(bound[n]["rms_deg"], color=c, lw=1.2, ls=":")
         ax[row, 0].set(ylabel=f"centroid error, {what} (mm)")
         ax[row, 1].set(ylabel=f"rotation error, {what} (deg)")
     for a in ax.ravel():
@@ -275,7 +319,8 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict) -> None:
         a.set(xlabel="frame")
     fig.suptitle(f"Synthetic walking trial, {cfg['pixels']}² views, {cfg['voxel_mm']} mm voxels, "
                  f"{cfg['mode']} tracking, start 5 mm / 5° off\nlower row: Butterworth low-pass at "
-                 f"{cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: 0.15 target)", fontsize=9)
+                 f"{cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: 0.15 target; dotted: Cramér–Rao bound "
+                 f"of a per-frame estimate)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

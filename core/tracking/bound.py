@@ -1,0 +1,166 @@
+"""Cramér–Rao lower bound of a bone's pose from one biplane frame.
+
+How precisely can *any* per-frame registration place a bone, given the photons that reached the
+detector? The bound answers that from the imaging physics, independently of the cost function
+and the optimiser, so the tracker's per-frame errors can be compared with what the images allow.
+
+Model (the quantum stage of :class:`core.synthetic.ImagingModel`): pixel ``p`` of view ``v``
+detects ``n_p ~ Poisson(N_v · exp(-L_p(θ)))`` quanta, ``L`` being the line integral of everything
+in the beam (the bone at pose ``θ`` plus the other bones, soft tissue, walkway) and ``N_v`` the
+quanta per pixel at full fluence. The views are independent, so the Fisher information is
+
+    J(θ) = Σ_v Σ_p N_v · exp(-L_p) · ∂L_p/∂θ · ∂L_p/∂θᵀ
+
+and every unbiased estimator of ``θ`` from that frame has covariance ``⪰ J⁻¹``. ``θ`` is the
+registration's parameter vector (:class:`core.tracking.cost.RegistrationCost`): displacement of
+the rotation centre in the lab (mm) and a rotation vector about lab axes through it (degrees),
+the axes in which :func:`core.tracking.acceptance.pose_errors` reports errors.
+
+The intensifier blur, glare, roll-off and distortion that follow the quantum stage are
+invertible linear maps of the detected image: with no noise after them they neither add nor
+remove information. Camera read noise and quantisation (small next to the quantum noise) are
+left out. Both choices make ``J`` larger, so the bound stays a *lower* bound — optimistic.
+The other bones are taken as known (joint tracking), which is optimistic too.
+
+``∂L/∂θ`` is the bone's DRR (:class:`core.render.DRRRenderer`, the renderer that synthesises the
+study's frames) differentiated by central differences.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["PoseBound", "pose_bound"]
+
+
+@dataclass(frozen=True)
+class PoseBound:
+    """Fisher information and Cramér–Rao bound of one bone's 6 pose parameters (mm, degrees).
+
+    Attributes
+    ----------
+    information : (6, 6) array
+        ``J`` in units of 1/mm² (translation block) and 1/deg² (rotation block).
+    covariance : (6, 6) array
+        ``J⁻¹``: the smallest covariance an unbiased per-frame estimator can have.
+    sigma : (6,) array
+        Square roots of its diagonal (mm ×3, degrees ×3).
+    rms_mm, rms_deg : float
+        ``sqrt(trace)`` of the translation and rotation blocks: the least RMS length of the
+        centroid error vector (mm) and of the rotation error vector (degrees).
+    pixels : int
+        Pixels (both views) in which the bone's projection changes with its pose.
+    """
+
+    information: np.ndarray
+    covariance: np.ndarray
+    sigma: np.ndarray
+    rms_mm: float
+    rms_deg: float
+    pixels: int
+
+    def to_dict(self) -> dict:
+        return {"sigma": self.sigma.tolist(), "rms_mm": self.rms_mm, "rms_deg": self.rms_deg,
+                "pixels": self.pixels}
+
+
+def _per_view(value, n: int, name: str) -> list[float]:
+    vals = np.broadcast_to(np.asarray(value, dtype=float), (n,)) if np.ndim(value) == 0 else \
+        np.asarray(value, dtype=float)
+    if vals.shape != (n,) or not np.all(np.isfinite(vals)) or np.any(vals <= 0):
+        raise ValueError(f"{name}: expected a positive number or one per view ({n}), got {value!r}")
+    return [float(v) for v in vals]
+
+
+def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.ndarray],
+               quanta_per_pixel, views: Sequence[int] | None = None, step=(0.1, 0.1),
+               margin_px: int = 6) -> PoseBound:
+    """Cramér–Rao bound of ``bone``'s pose in one frame (see the module docstring).
+
+    Parameters
+    ----------
+    renderer : core.render.DRRRenderer
+        Holds the bone's attenuation volume (index ``bone``) and the cameras.
+    pose : (4, 4) array
+        The true ``T_lab_from_bone``.
+    center : (3,) array
+        Rotation centre in the bone's CT frame (its centroid), mm.
+    line_integral : sequence of (H, W) arrays
+        Total line integral ``L`` of each camera's image (all of ``renderer.cameras``) at this
+        frame: what sets the quanta behind each pixel.
+    quanta_per_pixel : float or sequence of float
+        Detected quanta per pixel at full fluence (``L = 0``), per view or one for all.
+    views : sequence of int, optional
+        Views used (default all).
+    step : (mm, degrees)
+        Central-difference steps.
+    margin_px : int
+        Pixels around the bone's projected box that are included.
+
+    Raises
+    ------
+    core.tracking.cost.OutsideViewError
+        The bone projects outside every used view.
+    ValueError
+        Bad shapes or values (named in the message).
+    """
+    from .cost import OutsideViewError, search_roi
+
+    views = tuple(range(len(renderer.cameras))) if views is None else tuple(int(v) for v in views)
+    n_cam = len(renderer.cameras)
+    L = list(line_integral)
+    if len(L) != n_cam:
+        raise ValueError(f"line_integral: expected {n_cam} images (one per camera), got {len(L)}")
+    N = _per_view(quanta_per_pixel, n_cam, "quanta_per_pixel")
+    pose = np.asarray(pose, dtype=float)
+    center = np.asarray(center, dtype=float)
+    if pose.shape != (4, 4) or center.shape != (3,):
+        raise ValueError(f"pose, center: expected (4, 4) and (3,), got {pose.shape} and {center.shape}")
+    h_mm, h_deg = (float(s) for s in step)
+    if not (h_mm > 0 and h_deg > 0):
+        raise ValueError(f"step: expected positive (mm, degrees), got {step!r}")
+    from ..geometry.transforms import pose_from_params
+
+    roi = np.zeros((len(views), 4), dtype=np.int64)
+    used = []
+    for i, v in enumerate(views):  # a bone seen in one view only still has a (weaker) bound
+        try:
+            roi[i] = search_roi(renderer, pose, bone, views=[v], center=center, reach_mm=0.0,
+                                margin_px=margin_px)[0]
+            used.append(i)
+        except OutsideViewError:
+            pass
+    if not used:
+        raise OutsideViewError(f"bone {bone}: its projection misses every view {views}")
+    h = np.array([h_mm] * 3 + [h_deg] * 3)
+    X = np.concatenate([np.diag(h), -np.diag(h)])  # (12, 6): +h_k then -h_k
+    P = pose_from_params(np.concatenate([X[:, :3], np.radians(X[:, 3:])], axis=1), center=center, base=pose)
+    vsel = [views[i] for i in used]
+    batch = renderer.render(P[:, None], views=vsel, bones=[bone], roi=roi[used][None, :, None, :])
+    img = batch.numpy()[:, :, 0]  # (12, n_used, H, W)
+    J = np.zeros((6, 6))
+    pixels = 0
+    for j, i in enumerate(used):
+        v = views[i]
+        u0, v0, w, hh = (int(a) for a in roi[i])
+        Lv = np.asarray(L[v], dtype=float)
+        if Lv.shape != tuple(renderer.cameras[v].image_shape):
+            raise ValueError(f"line_integral[{v}]: expected shape {tuple(renderer.cameras[v].image_shape)}, "
+                             f"got {Lv.shape}")
+        D = (img[:6, j, :hh, :w] - img[6:, j, :hh, :w]).astype(float) / (2 * h[:, None, None])  # (6, h, w)
+        q = N[v] * np.exp(-Lv[v0:v0 + hh, u0:u0 + w])
+        G = D.reshape(6, -1)
+        J += (G * q.ravel()) @ G.T
+        pixels += int(np.count_nonzero(np.any(D != 0, axis=0)))
+    try:
+        C = np.linalg.inv(J)
+    except np.linalg.LinAlgError:
+        C = np.full((6, 6), np.inf)
+    if not np.all(np.isfinite(C)) or np.any(np.diag(C) < 0):
+        C = np.full((6, 6), np.inf)
+    sig = np.sqrt(np.diag(C))
+    return PoseBound(information=J, covariance=C, sigma=sig, rms_mm=float(np.sqrt(np.trace(C[:3, :3]))),
+                     rms_deg=float(np.sqrt(np.trace(C[3:, 3:]))), pixels=pixels)

@@ -168,7 +168,8 @@ def cramer_rao(ts: TrackingScene, frames) -> dict:
     for n, cs in covs.items():
         C = np.mean(cs, axis=0)
         out[n] = {"rms_mm": float(np.sqrt(np.trace(C[:3, :3]))),
-                  "rms_deg": float(np.sqrt(np.trace(C[3:, 3:]))), "sigma": np.sqrt(np.diag(C)).round(5).tolist(), "frames": frames}
+                  "rms_deg": float(np.sqrt(np.trace(C[3:, 3:]))),
+                  "sigma": np.sqrt(np.diag(C)).round(5).tolist(), "frames": frames}
     return out
 
 

@@ -138,7 +138,8 @@ class FrameResult:
     """One bone in one frame: ``pose`` (None when nothing was recorded), ``score``, work done,
     ``converged`` (passed every check), ``flags`` (reasons for review), ``retried``, the
     :class:`~core.tracking.confidence.PoseConfidence` as a dict (or None), the time breakdown
-    and ``notes`` (events that needed no review, e.g. a start corrected by restarts)."""
+    and ``notes`` (events that needed no review, e.g. a start corrected by restarts). Work and
+    time add up every registration of the bone in the frame (both rounds of joint tracking)."""
 
     bone: str
     frame: int
@@ -356,6 +357,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         # poses good enough to subtract: tracked bones' guesses, and bones registered this frame
         known = {i for i, b in enumerate(names) if hist[b] or f in skip[b]}
         out: dict[int, tuple] = {}
+        spent: dict[int, list] = {i: [0, 0.0, {}] for i in todo}  # evaluations, s, timing: all rounds
         for rnd in range(rounds):
             for i in todo:
                 if cancel is not None and cancel():
@@ -374,6 +376,11 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                                        scores[names[i]], others, cancel, hist[names[i]],
                                        verify=first and rnd == 0, start_score=start_scores.get(names[i]),
                                        seed=f)
+                sp = spent[i]
+                sp[0] += out[i][3]
+                sp[1] += out[i][4]
+                for k, v in (out[i][6] or {}).items():
+                    sp[2][k] = sp[2].get(k, 0) + v
                 if out[i][0] is not None:
                     current[i] = out[i][0].pose
                     known.add(i)
@@ -382,7 +389,8 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         if status == "cancelled":
             break
         for i in todo:
-            res, flags, retried, evals, dt, conf, timing, notes = out[i]
+            res, flags, retried, _, _, conf, _, notes = out[i]
+            evals, dt, timing = spent[i][0], spent[i][1], (spent[i][2] or None)
             b = names[i]
             if res is None:
                 finish(FrameResult(b, f, None, np.nan, evals, dt, False, tuple(flags), retried, None, timing))

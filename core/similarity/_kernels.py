@@ -478,15 +478,19 @@ K_NCC, K_SID, K_GC, K_GD, K_GI, K_GO, K_MI, K_NMI = 0, 1, 2, 3, 4, 5, 6, 7
 
 @wp.func
 def _pearson(a: wp.array2d(dtype=wp.float64), k: int) -> wp.float64:
+    # The sums come from float32 lanes: a variance below ~1e-5 of the raw second moment is
+    # rounding, not signal (one pixel, a constant image), and then the score is 0 as in numpy;
+    # without that guard a one-pixel Ω scored ~9.
     n = a[k, 0]
     out = wp.float64(0.0)
-    if n > wp.float64(0.0):
+    tol = wp.float64(1.0e-5)
+    if n > wp.float64(1.5):
         saa = a[k, 3] - a[k, 1] * a[k, 1] / n
         sbb = a[k, 4] - a[k, 2] * a[k, 2] / n
         sab = a[k, 5] - a[k, 1] * a[k, 2] / n
-        den = wp.sqrt(saa * sbb)
-        if saa > wp.float64(0.0) and sbb > wp.float64(0.0) and den > wp.float64(0.0):
-            out = sab / den
+        den = wp.sqrt(wp.max(saa, wp.float64(0.0)) * wp.max(sbb, wp.float64(0.0)))
+        if saa > tol * a[k, 3] and sbb > tol * a[k, 4] and den > wp.float64(0.0):
+            out = wp.clamp(sab / den, wp.float64(-1.0), wp.float64(1.0))
     return out
 
 

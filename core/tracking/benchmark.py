@@ -6,15 +6,16 @@ clock starts; frame 0 starts from the true pose so the numbers are steady-state 
 * ``one_bone`` — the talus over ``frames`` frames, two views of ``pixels``²;
 * ``three_bones`` — tibia, talus and calcaneus over the same frames.
 
-Each case runs twice: plainly (``end_to_end``: frames per second and ms per frame for everything
-:func:`core.tracking.trial.track` does — frame preparation, registrations, retries, the per-frame
-confidence) and with ``profile=True`` (a device synchronisation after each DRR launch) for the
-breakdown: ``drr`` (host tables + launch + rendering), ``metric_and_sync`` (metric launches, the
-wait for the device and the copy of the scores to the host), ``cost_host`` (parameters → poses,
-weighted sums), ``optimizer`` (CMA-ES/pattern-search arithmetic), ``other`` (frame preparation,
-confidence stencil, set-up). Accuracy (RMS error vs the truth) is reported alongside, per frame
-and after the Butterworth low-pass of the kinematics (``filtered_*``, at the acceptance study's
-frame rate).
+Each case runs plainly ``repeats`` times (``end_to_end``: frames per second and ms per frame of
+the median run, for everything :func:`core.tracking.trial.track` does — frame preparation,
+registrations, retries, the per-frame confidence; every run's wall time is kept, as the host's
+timing varies by 10–20 % between runs) and once with ``profile=True`` (a device synchronisation
+after each DRR launch) for the breakdown: ``drr`` (host tables + launch + rendering),
+``metric_and_sync`` (metric launches, the wait for the device and the copy of the scores to the
+host), ``cost_host`` (parameters → poses, weighted sums), ``optimizer`` (CMA-ES/pattern-search
+arithmetic), ``other`` (frame preparation, confidence stencil, set-up). Accuracy (RMS error vs the
+truth) is reported alongside, per frame and after the Butterworth low-pass of the kinematics
+(``filtered_*``, at the acceptance study's frame rate).
 
 Full size: 1024² views, 0.5 mm voxels, 100 frames (a GPU); ``--quick``: 192² views, 1 mm voxels,
 8 frames (this machine's CPU). JSON on stdout.
@@ -33,7 +34,7 @@ import numpy as np
 __all__ = ["main", "run"]
 
 
-def _case(ts, bones: list[int], options, frames: int) -> dict:
+def _case(ts, bones: list[int], options, frames: int, repeats: int = 3) -> dict:
     from ..render import DRRRenderer
     from .acceptance import FRAME_RATE_HZ, pose_errors
     from .trial import track
@@ -48,16 +49,21 @@ def _case(ts, bones: list[int], options, frames: int) -> dict:
         from dataclasses import replace
 
         o = replace(options, profile=prof)
-        t0 = time.perf_counter()
-        res = track(r, models, ts.frames, range(frames), keyframes=kf, options=o)
-        wall = time.perf_counter() - t0
+        walls = []
+        for _ in range(1 if prof else repeats):  # the median of repeats: host timing is noisy
+            t0 = time.perf_counter()
+            res = track(r, models, ts.frames, range(frames), keyframes=kf, options=o)
+            walls.append(time.perf_counter() - t0)
+        wall = float(np.median(walls))
         rs = list(res.results.values())
         tim = {k: float(sum((x.timing or {}).get(k, 0.0) for x in rs))
                for k in ("render_s", "metric_s", "host_s", "optimizer_s", "other_s")}
         errs = np.array([pose_errors(x.pose, ts.truth(x.frame)[bones[[m.name for m in models].index(x.bone)]],
                                      models[[m.name for m in models].index(x.bone)].centroid)
                          for x in rs if x.pose is not None])
-        entry = {"wall_s": wall, "frames_per_second": frames / wall, "ms_per_frame": 1e3 * wall / frames,
+        entry = {"wall_s": wall, "runs_wall_s": walls, "frames_per_second": frames / wall,
+                 "frames_per_second_range": [frames / max(walls), frames / min(walls)],
+                 "ms_per_frame": 1e3 * wall / frames,
                  "evaluations_per_frame": float(np.mean([x.evaluations for x in rs])) * len(bones),
                  "generations": int(sum(x.timing.get("calls", 0) for x in rs if x.timing)),
                  "converged_fraction": res.summary()["converged_fraction"],
@@ -84,8 +90,10 @@ def _case(ts, bones: list[int], options, frames: int) -> dict:
 
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,
-        pixels: int | None = None, cases: str = "both") -> dict:
+        pixels: int | None = None, cases: str = "both", repeats: int = 3) -> dict:
     """Run the cases (``"one"``, ``"three"`` or ``"both"``); returns the JSON-ready results."""
+    if int(repeats) != repeats or repeats < 1:
+        raise ValueError(f"repeats: expected a whole number >= 1, got {repeats!r}")
     if cases not in ("one", "three", "both"):
         raise ValueError(f"cases: expected 'one', 'three' or 'both', got {cases!r}")
     import warp as wp
@@ -108,12 +116,12 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
            "device_name": getattr(dev, "name", str(dev)), "quick": quick,
            "sizes": {"pixels": px, "voxel_mm": 1.0 if quick else 0.5, "frames": n,
                      "volumes_kji": {m.name: list(m.volume.data.shape) for m in ts.models}},
-           "synthesis_s": synth, "options": o.registration.to_dict()}
+           "synthesis_s": synth, "repeats": int(repeats), "options": o.registration.to_dict()}
     res["mode"] = o.mode
     if cases in ("one", "both"):
-        res["one_bone"] = _case(ts, [1], o, n)
+        res["one_bone"] = _case(ts, [1], o, n, int(repeats))
     if cases in ("three", "both"):
-        res["three_bones"] = _case(ts, [0, 1, 2], o, n)
+        res["three_bones"] = _case(ts, [0, 1, 2], o, n, int(repeats))
     res["autoscoper_reference_s_per_frame_per_bone"] = [3.0, 13.0]
     return res
 
@@ -126,9 +134,12 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=None)
     p.add_argument("--cases", choices=("one", "three", "both"), default="both",
                    help="one bone (talus), three bones (joint), or both")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="end-to-end runs per case; the median is reported (default 3)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
-    res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases)
+    res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases,
+              repeats=a.repeats)
     text = json.dumps(res, indent=2)
     if a.out:
         from ..io.atomic import atomic_write

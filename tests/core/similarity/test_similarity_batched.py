@@ -93,6 +93,28 @@ def test_nan_drr_pixels_count_as_zero_and_empty_domain_scores_zero(talus_case, b
         assert np.all(BatchedMetric(kind, list(talus_case.fluoro), device="cpu")(empty) == 0.0), kind
 
 
+@pytest.mark.parametrize("kind", ["ncc", "gc"])
+def test_a_domain_of_one_or_two_pixels_scores_within_bounds(talus_case, batch, kind):
+    """Float32 rounding of the sums must not pass for variance: a one-pixel Ω scored ~9."""
+    _, drr_batch, drrs = batch
+    f = talus_case.fluoro
+    inside = np.argwhere(drrs[0][0] > 0)
+    for n_px in (1, 2):
+        masks = []
+        for v in range(2):
+            m = np.zeros(f[v].shape, bool)
+            for r, c in np.argwhere(drrs[v][0] > 0)[len(inside) // 2: len(inside) // 2 + n_px]:
+                m[r, c] = True
+            masks.append(m)
+        bm = BatchedMetric(kind, list(f), device="cpu", fluoro_masks=masks)
+        got = bm.evaluate(drr_batch).item[:, :, 0]
+        ref = np.array([[similarity(kind, drrs[v][b], f[v], fluoro_mask=masks[v]) for v in range(2)]
+                        for b in range(5)])
+        assert np.all(np.abs(got) <= 1.0)
+        if n_px == 1:  # (two pixels correlate ±1 in exact arithmetic, ill-conditioned in float32)
+            np.testing.assert_allclose(got, ref, atol=TOL[kind], rtol=0)
+
+
 def test_bad_input_is_rejected(talus_case, batch):
     _, drr_batch, _ = batch
     f = list(talus_case.fluoro)

@@ -36,9 +36,10 @@ Filtered trajectories
 ---------------------
 Per-frame registrations carry independent noise (~0.2° in rotation at thesis-like dose; the
 Cramér–Rao bound of :mod:`core.tracking.bound` shows that no single-frame estimate of a talus
-(unbiased) gets below ~0.16° RMS at that dose); bone motion is smooth. :meth:`TrackingResult.filtered_poses` low-passes a bone's poses with
-the zero-phase Butterworth filter of :mod:`core.tracking.kinematics`, its cut-off from Winter's
-residual analysis of the centroid path unless given: the kinematics users analyse.
+(unbiased) gets below ~0.16° RMS at that dose); bone motion is smooth.
+:meth:`TrackingResult.filtered_poses` low-passes a bone's poses with the zero-phase Butterworth
+filter of :mod:`core.tracking.kinematics`, its cut-off from Winter's residual analysis of the
+centroid path unless given: the kinematics users analyse.
 
 Failure detection and review flags
 ----------------------------------

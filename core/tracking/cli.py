@@ -87,6 +87,9 @@ def main(argv=None) -> int:
                                                   "gc: both images smoothed by 0.3 mm, the default cost)")
     p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
+    p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",
+                   help="flag frames for review whose confidence (length of the sigma vector) exceeds "
+                        "MM in translation or DEG in rotation, e.g. 0.3,0.6")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     a = p.parse_args(argv)
 
@@ -116,7 +119,15 @@ def main(argv=None) -> int:
         bones = a.bones.split(",") if a.bones else None
         terms = DEFAULT_TERMS if a.metric == "gc" else (MetricTerm(a.metric),)
         reg = RegistrationOptions(terms=terms, bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local")
-        opts = TrackingOptions(registration=reg, guess=a.guess, mode=a.mode, confidence=not a.no_confidence)
+        limits = None
+        if a.max_uncertainty is not None:
+            try:
+                limits = tuple(float(v) for v in a.max_uncertainty.split(","))
+            except ValueError:
+                raise ValueError(f"--max-uncertainty: expected MM,DEG (two numbers), got "
+                                 f"{a.max_uncertainty!r}") from None
+        opts = TrackingOptions(registration=reg, guess=a.guess, mode=a.mode, confidence=not a.no_confidence,
+                               max_uncertainty=limits)
         result, report = track_study(study, a.trial, bones, frames, options=opts, device=a.device,
                                      resume=a.resume, threshold_hu=a.threshold, progress=bar,
                                      cancel=lambda: stop["flag"])

@@ -52,7 +52,10 @@ pose). A failed frame is retried once with ``retry_factor``× wider bounds and s
 first stage (from the guess and from the last good pose); the best retry is kept, and if it
 still fails the frame is recorded *flagged for review* with its reasons and is not used for later
 guesses. A bone outside a view's field or a frame missing in a view is flagged with that reason,
-nothing is recorded, and tracking continues.
+nothing is recorded, and tracking continues. With ``max_uncertainty = (mm, degrees)`` a frame
+whose per-frame confidence (the length of its σ vector in translation or rotation) exceeds
+either limit, or is not well posed, is flagged ``"uncertain"`` as well (recorded, not retried):
+registrations in the noise's tail are then sent for review instead of passing silently.
 
 False optima at the start
 -------------------------
@@ -111,6 +114,7 @@ class TrackingOptions:
     verify_spread: tuple[float, float] = (3.0, 3.0)
     confidence: bool = True
     confidence_step: tuple[float, float] = (0.25, 0.25)
+    max_uncertainty: tuple[float, float] | None = None
     valid_range: tuple[float, float] | None = (0.02, 0.999)
     erode_px: int = 3
     profile: bool = False
@@ -129,6 +133,13 @@ class TrackingOptions:
         if isinstance(self.verify_restarts, bool) or int(self.verify_restarts) != self.verify_restarts \
                 or self.verify_restarts < 0:
             raise ValueError(f"verify_restarts: expected an integer >= 0, got {self.verify_restarts!r}")
+        if self.max_uncertainty is not None:
+            mu = tuple(float(v) for v in self.max_uncertainty)
+            if len(mu) != 2 or not all(np.isfinite(v) and v > 0 for v in mu):
+                raise ValueError(f"max_uncertainty: expected positive (mm, degrees) or None, "
+                                 f"got {self.max_uncertainty!r}")
+            if not self.confidence:
+                raise ValueError("max_uncertainty: needs confidence=True (the limits apply to it)")
 
     @property
     def first_options(self) -> RegistrationOptions:
@@ -276,6 +287,18 @@ def _failures(res, guess_pose, center, good_scores, o: TrackingOptions, *, start
     if dt > o.max_jump[0] * jump_factor or dr > o.max_jump[1] * jump_factor:
         out.append(f"pose jump ({dt:.2f} mm, {dr:.2f} deg from the guess)")
     return out
+
+
+def _uncertain(conf: dict | None, limits: tuple[float, float]) -> list[str]:
+    lt, lr = (float(v) for v in limits)
+    if conf is None:
+        return ["uncertain (no confidence could be computed)"]
+    t, r = conf.get("translation_mm"), conf.get("rotation_deg")
+    if not conf.get("well_posed", True) or t is None or r is None:
+        return ["uncertain (the pose is not determined along every axis)"]
+    if t > lt or r > lr:
+        return [f"uncertain (confidence {t:.3f} mm, {r:.3f} deg; limits {lt:g} mm, {lr:g} deg)"]
+    return []
 
 
 def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence],
@@ -512,6 +535,8 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
         except OutsideViewError:
             conf = None
         evals += 73 if conf is not None else 0
+    if o.max_uncertainty is not None:
+        flags += _uncertain(conf, o.max_uncertainty)
     dt = time.perf_counter() - t0
     # confidence, restarts, set-up
     timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))

@@ -54,3 +54,8 @@ def test_track_command_bad_input(demo, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert "threshold" in doc["stopped"]["talus"]
     assert main([str(demo / "missing"), "--trial", "walk"]) == 1
+    capsys.readouterr()
+    for bad in ("0.3", "a,b", "0.3,-1"):
+        args = [str(demo), "--trial", "walk", "--frames", "0:1", "--max-uncertainty", bad, "--quiet"]
+        assert main(args) == 1
+        assert "max_uncertainty" in capsys.readouterr().err.replace("-", "_")

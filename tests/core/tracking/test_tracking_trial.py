@@ -116,6 +116,31 @@ def test_confidence_is_reported(walking_talus):
     assert all(s is not None and 0 < s < 1.0 for s in conf["sigma"])
 
 
+def test_uncertain_frames_are_flagged_when_asked(walking_talus):
+    w = walking_talus
+    sc = w["scene"]
+    kf = {"talus": {0: sc.poses(0)[0]}}
+    base = TrackingOptions(registration=FAST.registration, confidence=True)
+    plain = track(w["renderer"], [w["model"]], w["frames"], [0, 1], keyframes=kf, skip=kf, options=base)
+    conf = plain.results[("talus", 1)].confidence
+    assert not plain.results[("talus", 1)].flags
+    from dataclasses import replace
+
+    tight = replace(base, max_uncertainty=(0.5 * conf["translation_mm"], 1e3))
+    res = track(w["renderer"], [w["model"]], w["frames"], [0, 1], keyframes=kf, skip=kf, options=tight)
+    fr = res.results[("talus", 1)]
+    assert fr.pose is not None and not fr.converged  # recorded, sent for review
+    assert any(f.startswith("uncertain (confidence") for f in fr.flags), fr.flags
+    loose = replace(base, max_uncertainty=(2 * conf["translation_mm"], 2 * conf["rotation_deg"]))
+    ok = track(w["renderer"], [w["model"]], w["frames"], [0, 1], keyframes=kf, skip=kf, options=loose)
+    assert not ok.results[("talus", 1)].flags
+    for bad in ((0.0, 1.0), (1.0,), (1.0, float("nan"))):
+        with pytest.raises(ValueError, match="max_uncertainty"):
+            TrackingOptions(max_uncertainty=bad)
+    with pytest.raises(ValueError, match="confidence"):
+        TrackingOptions(max_uncertainty=(1.0, 1.0), confidence=False)
+
+
 def test_filtered_poses_reduce_independent_noise_and_skip_flagged_frames():
     from core.tracking.trial import FrameResult, TrackingResult
 

@@ -233,7 +233,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         Ef = np.array([pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in range(ts.scene.n_frames)
                        if np.all(np.isfinite(F[f]))])
         all_filt[n] = Ef
-        rows, inside, silent, conv = [], [], 0, 0
+        rows, inside, silent, conv, sig = [], [], 0, 0, []
         for f in range(ts.scene.n_frames):
             fr = res.results[(n, f)]
             conv += fr.converged
@@ -241,6 +241,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
                 continue
             e = pose_errors(fr.pose, ts.truth(f)[b], m.centroid)
             rows.append(e)
+            sig.append(fr.confidence["sigma"] if fr.confidence else None)
             bad = np.linalg.norm(e[:3]) > 0.5 or np.linalg.norm(e[3:]) > 0.5
             silent += bool(bad and not fr.flags)
             if fr.confidence and all(s is not None for s in fr.confidence["sigma"]):
@@ -265,6 +266,8 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
             "silent_failures": silent,
             "within_2_sigma_fraction": float(np.mean(inside)) if inside else None,
             "motion_per_frame_mm": {"median": float(np.median(motion)), "max": float(np.max(motion))},
+            "per_frame_sigma": [None if q is None else [None if v is None else round(v, 5) for v in q]
+                                for q in sig],
         }
     bound = cramer_rao(ts, range(0, ts.scene.n_frames, max(1, ts.scene.n_frames // 10)))
     for n, E in all_err.items():

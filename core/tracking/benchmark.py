@@ -75,7 +75,9 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3) -> dict:
                 F, _ = res.filtered_poses(m.name, FRAME_RATE_HZ, center=m.centroid)
                 ef += [pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in range(frames)
                        if np.all(np.isfinite(F[f]))]
-            ef = np.array(ef)
+            ef = np.array(ef).reshape(-1, 6)
+            if not len(ef):
+                ef = np.full((1, 6), np.nan)
             entry["filtered_rms_error_mm"] = float(np.sqrt(np.mean(np.sum(ef[:, :3] ** 2, axis=1))))
             entry["filtered_rms_error_deg"] = float(np.sqrt(np.mean(np.sum(ef[:, 3:] ** 2, axis=1))))
         if prof:

@@ -155,11 +155,10 @@ def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.
         G = D.reshape(6, -1)
         J += (G * q.ravel()) @ G.T
         pixels += int(np.count_nonzero(np.any(D != 0, axis=0)))
-    try:
-        C = np.linalg.inv(J)
-    except np.linalg.LinAlgError:
-        C = np.full((6, 6), np.inf)
-    if not np.all(np.isfinite(C)) or np.any(np.diag(C) < 0):
+    w, V = np.linalg.eigh(0.5 * (J + J.T))
+    if np.all(np.isfinite(w)) and w.max() > 0 and w.min() > 1e-12 * w.max():
+        C = (V / w) @ V.T  # symmetric positive definite by construction
+    else:  # some combination of parameters leaves the images unchanged: no finite bound
         C = np.full((6, 6), np.inf)
     sig = np.sqrt(np.diag(C))
     return PoseBound(information=J, covariance=C, sigma=sig, rms_mm=float(np.sqrt(np.trace(C[:3, :3]))),

@@ -397,10 +397,16 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                     opts, start = (o.first_options if first else o.registration), guesses[i]
                 else:
                     opts, start = o.registration, current[i]
-                out[i] = _register_one(renderer, frame, bones[i], i, start, guesses[i], opts, o,
-                                       scores[names[i]], others, cancel, hist[names[i]],
-                                       verify=first and rnd == 0, start_score=start_scores.get(names[i]),
-                                       seed=f)
+                new = _register_one(renderer, frame, bones[i], i, start, guesses[i], opts, o,
+                                    scores[names[i]], others, cancel, hist[names[i]],
+                                    verify=first and rnd == 0, start_score=start_scores.get(names[i]),
+                                    seed=f)
+                if new[0] is not None or i not in out or out[i][0] is None:
+                    out[i] = new
+                else:  # a later round lost the bone (outside a view): the earlier round's pose stands
+                    spent[i][0] += new[3]
+                    spent[i][1] += new[4]
+                    continue
                 sp = spent[i]
                 sp[0] += out[i][3]
                 sp[1] += out[i][4]

@@ -455,8 +455,9 @@ def build_parser() -> argparse.ArgumentParser:
         ("metrics", "similarity", "similarity metrics of DRR batches"),
         ("track", "tracking", "whole-trial tracking speed and where the time goes"),
     ):
-        sp = bench_sub.add_parser(what, help=text, description=f"Benchmark: {text}. Options "
-                                  f"after '--' go to python -m core.{module}.benchmark.")
+        sp = bench_sub.add_parser(what, help=text, description=f"Benchmark: {text}. Other options "
+                                  f"go to python -m core.{module}.benchmark (its own help: "
+                                  f"'talus bench {what} -- --help').")
         sp.add_argument("rest", nargs=argparse.REMAINDER, help="benchmark options")
         sp.set_defaults(func=_cmd_bench_module(module, what))
 
@@ -480,8 +481,8 @@ def build_parser() -> argparse.ArgumentParser:
         "track", help="track bones of a study trial (results saved frame by frame)",
         description="Track bones of a study trial; options as in core.tracking.cli: STUDY "
         "--trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0] [--resume] "
-        "[--guess velocity|previous|spline] [--mode sequential|joint] [--metric gc]. "
-        "Use 'talus track -- --help' for the full list.", add_help=False)
+        "[--guess velocity|previous|spline] [--mode sequential|joint] [--metric gc] "
+        "[--max-uncertainty MM,DEG]. Use 'talus track --help' for the full list.", add_help=False)
     track.add_argument("rest", nargs=argparse.REMAINDER, help="tracking options")
     track.set_defaults(func=_cmd_track)
 
@@ -494,7 +495,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``talus`` command; returns the exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    # commands that hand their options to a core module take them without a '--' too
+    # ('talus track --help', 'talus bench track --cases one')
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        if not hasattr(args, "rest"):
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        args.rest = [*extra, *args.rest]
     try:
         return args.func(args)
     except CliError as exc:

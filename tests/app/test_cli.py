@@ -62,6 +62,26 @@ def test_bench_drr_help(capsys):
         assert option in out
 
 
+def test_track_and_module_benchmarks_take_their_options_without_a_separator(monkeypatch, capsys):
+    seen = {}
+
+    def fake_main(argv):
+        seen["argv"] = list(argv)
+        return 0
+
+    _fake_module(monkeypatch, "core.tracking.cli", main=fake_main)
+    assert main(["track", "--help"]) == 0 and seen["argv"] == ["--help"]
+    assert main(["track", "--trial", "walk", "study", "--resume"]) == 0
+    assert seen["argv"] == ["--trial", "walk", "study", "--resume"]
+    _fake_module(monkeypatch, "core.tracking.benchmark", main=fake_main)
+    assert main(["bench", "track", "--cases", "one", "--frames", "10"]) == 0
+    assert seen["argv"] == ["--cases", "one", "--frames", "10"]
+    assert main(["bench", "track", "--", "--help"]) == 0 and seen["argv"] == ["--help"]
+    with pytest.raises(SystemExit) as exc:  # commands without a module still refuse strangers
+        main(["demo", "--frobnicate"])
+    assert exc.value.code == 2 and "--frobnicate" in capsys.readouterr().err
+
+
 def test_no_command_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as exc:
         main([])

@@ -103,3 +103,25 @@ def test_bound_bad_input(talus_scene):
     one = pose_bound(r, 0, truth, model.centroid, line_integral=L, quanta_per_pixel=100.0, views=[0])
     both = pose_bound(r, 0, truth, model.centroid, line_integral=L, quanta_per_pixel=100.0)
     assert both.rms_mm < one.rms_mm  # a second view adds information (depth, above all)
+
+
+def test_acceptance_bounds_per_bone_and_frames_without_a_bound_are_skipped(monkeypatch):
+    from core.tracking import acceptance
+
+    ts = acceptance.TrackingScene(n_frames=2, pixels=96, spacing=1.5, device="cpu")
+    out = acceptance.cramer_rao(ts, [0, 1])
+    assert set(out) == set(ts.names)
+    for b in out.values():
+        assert b["frames"] == [0, 1] and np.isfinite(b["rms_mm"]) and np.isfinite(b["rms_deg"])
+        assert 0 < b["rms_mm"] < 5 and 0 < b["rms_deg"] < 5 and len(b["sigma"]) == 6
+    truth = ts.truth
+
+    def moved(f):  # the talus leaves both views in frame 1
+        P = truth(f).copy()
+        if f == 1:
+            P[1, :3, 3] += 5000.0
+        return P
+
+    monkeypatch.setattr(ts, "truth", moved)
+    out = acceptance.cramer_rao(ts, [0, 1])
+    assert out["talus"]["frames"] == [0] and out["tibia"]["frames"] == [0, 1]

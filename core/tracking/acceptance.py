@@ -27,7 +27,8 @@ Measurements
   reported two ways: ``success_fraction`` — the bone's surface (shell voxels of its mask) lies
   within 0.5 mm of the truth on average (mean target registration error, the usual capture
   criterion); ``strict_success_fraction`` — centroid error ≤ 0.5 mm *and* rotation ≤ 0.5°;
-* **confidence** — the fraction of per-axis errors within 2 sigma of the curvature confidence;
+* **confidence** — the fraction of per-axis errors within 2 sigma of the curvature confidence
+  (each frame's error and confidence sigma are kept: ``per_frame_error``, ``per_frame_sigma``);
 * **Cramér–Rao bound** — per bone, the least RMS error any unbiased estimate from one frame can
   have at the trial's photon counts (:func:`cramer_rao`, every tenth frame), and the measured
   RMS errors divided by it (``rms_over_bound``): how close the tracker gets to what the images

@@ -20,10 +20,8 @@ that can be slower than one thread — ``OPENBLAS_NUM_THREADS`` is reported.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
-import sys
 import time
 
 import cv2
@@ -122,11 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", help="also write the JSON to this file")
     args = ap.parse_args(argv)
     res = run(quick=args.quick)
-    text = json.dumps(res, indent=2)
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as fh:
-            fh.write(text + "\n")
-    sys.stdout.write(text + "\n")
+    from ..io.atomic import print_json
+
+    print_json(res, args.out)
     return 0
 
 

@@ -39,6 +39,7 @@ __all__ = [
     "atomic_write",
     "atomic_write_json",
     "fsync_dir",
+    "print_json",
 ]
 
 
@@ -141,6 +142,15 @@ def atomic_write(path: str | os.PathLike, data: bytes | str, *, encoding: str = 
             fh.write(data)
     else:
         raise ValueError(f"data: expected bytes or str, got {type(data).__name__}")
+
+
+def print_json(obj: Any, out: str | os.PathLike | None = None, *, indent: int = 2) -> None:
+    """Print ``obj`` as JSON on stdout and, with ``out``, also write it there atomically: the
+    output of the ``python -m core.<package>.benchmark`` and study commands."""
+    text = json.dumps(obj, indent=indent)
+    if out:
+        atomic_write(out, text + "\n")
+    sys.stdout.write(text + "\n")
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> None:

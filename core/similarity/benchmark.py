@@ -141,7 +141,6 @@ def run_similarity_benchmark(*, devices: list[str] | None = None, quick: bool = 
 
 def main() -> None:  # pragma: no cover - `python -m core.similarity.benchmark`
     import argparse
-    import json
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--device", action="append", help="Warp device (repeatable); default cpu (+ cuda:0)")
@@ -150,11 +149,9 @@ def main() -> None:  # pragma: no cover - `python -m core.similarity.benchmark`
     ap.add_argument("--out", help="also write the JSON to this file")
     a = ap.parse_args()
     res = run_similarity_benchmark(devices=a.device, quick=a.quick, kinds=tuple(a.kind or BATCHED_KINDS))
-    text = json.dumps(res, indent=2)
-    print(text)
-    if a.out:
-        with open(a.out, "w") as fh:
-            fh.write(text + "\n")
+    from ..io.atomic import print_json
+
+    print_json(res, a.out)
 
 
 if __name__ == "__main__":  # pragma: no cover

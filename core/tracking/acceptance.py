@@ -44,9 +44,7 @@ to stdout (and ``--out``); ``--figure`` saves per-frame errors as a PNG.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
-import sys
 import time
 
 import numpy as np
@@ -356,12 +354,9 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, capture_trials=a.capture_trials, mode=a.mode, figure=a.figure,
               n_frames=a.frames)
-    text = json.dumps(res, indent=2)
-    if a.out:
-        from ..io.atomic import atomic_write
+    from ..io.atomic import print_json
 
-        atomic_write(a.out, text + "\n")
-    sys.stdout.write(text + "\n")
+    print_json(res, a.out)
     return 0
 
 

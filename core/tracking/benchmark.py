@@ -24,9 +24,7 @@ Full size: 1024² views, 0.5 mm voxels, 100 frames (a GPU); ``--quick``: 192² v
 from __future__ import annotations
 
 import argparse
-import json
 import platform
-import sys
 import time
 
 import numpy as np
@@ -142,12 +140,9 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases,
               repeats=a.repeats)
-    text = json.dumps(res, indent=2)
-    if a.out:
-        from ..io.atomic import atomic_write
+    from ..io.atomic import print_json
 
-        atomic_write(a.out, text + "\n")
-    sys.stdout.write(text + "\n")
+    print_json(res, a.out)
     return 0
 
 

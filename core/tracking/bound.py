@@ -68,8 +68,9 @@ class PoseBound:
 
 
 def _per_view(value, n: int, name: str) -> list[float]:
-    vals = np.broadcast_to(np.asarray(value, dtype=float), (n,)) if np.ndim(value) == 0 else \
-        np.asarray(value, dtype=float)
+    vals = np.asarray(value, dtype=float)
+    if vals.ndim == 0:
+        vals = np.full(n, float(vals))
     if vals.shape != (n,) or not np.all(np.isfinite(vals)) or np.any(vals <= 0):
         raise ValueError(f"{name}: expected a positive number or one per view ({n}), got {value!r}")
     return [float(v) for v in vals]

@@ -401,19 +401,16 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                                     scores[names[i]], others, cancel, hist[names[i]],
                                     verify=first and rnd == 0, start_score=start_scores.get(names[i]),
                                     seed=f)
-                if new[0] is not None or i not in out or out[i][0] is None:
-                    out[i] = new
-                else:  # a later round lost the bone (outside a view): the earlier round's pose stands
-                    spent[i][0] += new[3]
-                    spent[i][1] += new[4]
-                    continue
                 sp = spent[i]
-                sp[0] += out[i][3]
-                sp[1] += out[i][4]
-                for k, v in (out[i][6] or {}).items():
+                sp[0] += new[3]
+                sp[1] += new[4]
+                for k, v in (new[6] or {}).items():
                     sp[2][k] = sp[2].get(k, 0) + v
-                if out[i][0] is not None:
-                    current[i] = out[i][0].pose
+                if new[0] is None and i in out and out[i][0] is not None:
+                    continue  # a later round lost the bone (outside a view): the earlier pose stands
+                out[i] = new
+                if new[0] is not None:
+                    current[i] = new[0].pose
                     known.add(i)
             if status == "cancelled":
                 break

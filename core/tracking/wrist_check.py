@@ -36,9 +36,7 @@ the field) or above 0.995 (saturated air) and 5 px around them masked, bone abov
 from __future__ import annotations
 
 import argparse
-import json
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -193,12 +191,9 @@ def main(argv=None) -> int:
     p.add_argument("--figure", default=None, help="save the overlays as a PNG")
     a = p.parse_args(argv)
     res = run(a.data, device=a.device, final_scale=a.final_scale, figure=a.figure, first_widen=a.first_widen)
-    text = json.dumps(res, indent=2)
-    if a.out:
-        from ..io.atomic import atomic_write
+    from ..io.atomic import print_json
 
-        atomic_write(a.out, text + "\n")
-    sys.stdout.write(text + "\n")
+    print_json(res, a.out)
     return 0
 
 

@@ -4,7 +4,7 @@ import math
 import pytest
 
 from core.io import atomic
-from core.io.atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json
+from core.io.atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json, print_json
 
 
 def _leftovers(folder):
@@ -52,6 +52,15 @@ def test_json_rejects_nan_and_writes_nothing(tmp_path):
     with pytest.raises(ValueError, match=r"r\.json: cannot be written as strict JSON"):
         atomic_write_json(p, {"score": math.nan})
     assert not p.exists() and _leftovers(tmp_path) == []
+
+
+def test_print_json_prints_and_optionally_writes(tmp_path, capsys):
+    obj = {"fps": 26.4, "missing": float("nan")}  # benchmark JSON may carry NaN
+    print_json(obj)
+    assert capsys.readouterr().out == json.dumps(obj, indent=2) + "\n"
+    out = tmp_path / "r.json"
+    print_json(obj, out)
+    assert out.read_text() == capsys.readouterr().out == json.dumps(obj, indent=2) + "\n"
 
 
 def test_bad_arguments(tmp_path):

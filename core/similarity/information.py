@@ -139,6 +139,12 @@ def regional_mutual_information(drr, fluoro, *, radius: int = 1, eps: float = 1e
     if om.sum() < 2 * k + 1:
         return 0.0
     x = np.concatenate([_neighbourhoods(d, om, r), _neighbourhoods(f, om, r)], axis=1)
+    # Shift by the first vector before removing the mean: a column of equal values then becomes
+    # exactly zero, so a constant image gives an exactly-zero covariance block and scores 0.0.
+    # Centring on the mean alone leaves residues of ±1 ulp (the mean of n copies of 0.7 is not
+    # 0.7), a rank-1 block of size ~1e-32 that passes the variance test, and a score made of
+    # slogdet round-off (±5e-11, its sign depending on the BLAS build).
+    x = x - x[0]
     x = x - x.mean(axis=0)
     c = x.T @ x / len(x)
     va, vb = np.trace(c[:k, :k]) / k, np.trace(c[k:, k:]) / k

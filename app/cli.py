@@ -266,7 +266,7 @@ def _bench_devices(choice: str) -> list[str]:
 
 def _cmd_bench_drr(args: argparse.Namespace) -> int:
     run_drr_benchmark = _load(
-        "core.render.benchmark", "run_drr_benchmark", needed_for="'talus bench drr'"
+        "core.studies.render.benchmark", "run_drr_benchmark", needed_for="'talus bench drr'"
     )
     devices = _bench_devices(args.device)
     print(f"{PROG} bench drr: devices {', '.join(devices)}", file=sys.stderr)
@@ -320,10 +320,10 @@ def _cmd_bench_interaction(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_module(module: str, what: str):
-    """A ``talus bench`` subcommand running ``core.<module>.benchmark.main(argv)``."""
+    """A ``talus bench`` subcommand running ``core.studies.<module>.benchmark.main(argv)``."""
 
     def command(args: argparse.Namespace) -> int:
-        main_fn = _load(f"core.{module}.benchmark", "main", needed_for=f"'talus bench {what}'")
+        main_fn = _load(f"core.studies.{module}.benchmark", "main", needed_for=f"'talus bench {what}'")
         argv = [a for a in args.rest if a != "--"]
         if inspect.signature(main_fn).parameters:
             result = main_fn(argv)
@@ -456,7 +456,7 @@ def build_parser() -> argparse.ArgumentParser:
         ("track", "tracking", "whole-trial tracking speed and where the time goes"),
     ):
         sp = bench_sub.add_parser(what, help=text, description=f"Benchmark: {text}. Other options "
-                                  f"go to python -m core.{module}.benchmark (its own help: "
+                                  f"go to python -m core.studies.{module}.benchmark (its own help: "
                                   f"'talus bench {what} -- --help').")
         sp.add_argument("rest", nargs=argparse.REMAINDER, help="benchmark options")
         sp.set_defaults(func=_cmd_bench_module(module, what))

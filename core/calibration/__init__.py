@@ -18,7 +18,7 @@
   coordinates and Sobol indices of the DLT camera parameters.
 * :mod:`~core.calibration.io`: the versioned Talus calibration file (JSON), MayaCam 1.0/2.0 and
   DLT CSV export/import.
-* :mod:`~core.calibration.simulate`: synthetic calibration sequences (ground truth).
+* :mod:`~core.synthetic.capture`: synthetic calibration sequences (ground truth).
 
 Pixels are ``(u, v) = (column, row)`` with the origin at the centre of the top-left pixel; image
 arrays are indexed ``[row, col]``; lengths in mm, angles in radians.

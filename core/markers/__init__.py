@@ -4,8 +4,8 @@ Thesis Chapter 4 in code: the six localizers of §4.2 and a recommended one that
 to poor initial guesses and precise under quantum noise (:func:`localize`, :data:`METHODS`),
 scale-space bead detection (:func:`detect_beads`), 2-D tracking with gap filling
 (:func:`track_beads`), epipolar matching, triangulation and rigid-body pose from beads
-(:mod:`core.markers.pose`), and the §4.3 study on synthetic lattices (:mod:`core.markers.study`,
-``python -m core.markers.study``; speed: ``python -m core.markers.benchmark``).
+(:mod:`core.markers.pose`), and the §4.3 study on synthetic lattices (:mod:`core.studies.markers.study`,
+``python -m core.studies.markers.study``; speed: ``python -m core.studies.markers.benchmark``).
 
 Pixels are ``(u, v) = (column, row)`` with the origin at the centre of the top-left pixel; image
 arrays are indexed ``[row, col]``; lab coordinates are in mm.

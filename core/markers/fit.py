@@ -22,7 +22,7 @@ centroid) and precise under quantum noise (the iterative Gaussian). This localiz
 3. **Uncertainty**: the least-squares covariance ``σ̂² (JᵀJ)⁻¹`` assumes white noise; fluoroscope
    noise is blurred by the intensifier's PSF, so the variance of the linear estimator
    ``w = (JᵀJ)⁻¹Jᵀ`` is evaluated with the residuals' own spatial autocorrelation up to lag 2
-   (a sandwich estimate). The harness (:mod:`core.markers.study`) compares it with the observed
+   (a sandwich estimate). The harness (:mod:`core.studies.markers.study`) compares it with the observed
    scatter.
 
 Failures: ``"flat"`` when the seed's matched-filter response is below ``min_snr`` times its

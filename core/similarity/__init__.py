@@ -8,12 +8,12 @@
   :mod:`core.similarity.domain`.
 * Batched on the device (Warp, CPU or CUDA): :class:`BatchedMetric` scores a whole
   :class:`core.render.DRRBatch` against fixed fluoroscope ROIs, one number per pose
-  (``python -m core.similarity.benchmark`` times it).
-* Studies: :mod:`core.similarity.cases` (synthetic and wrist registration cases),
-  :mod:`core.similarity.study` (response to noise, translation and rotation; its docstring holds
+  (``python -m core.studies.similarity.benchmark`` times it).
+* Studies: :mod:`core.studies.similarity.cases` (synthetic and wrist registration cases),
+  :mod:`core.studies.similarity.study` (response to noise, translation and rotation; its docstring holds
   the results and the recommended default cost: ``1 - GC`` on the fluoroscope ROI smoothed with
-  σ = 1.5 px), :mod:`core.similarity.study_report` (JSON + figures),
-  :mod:`core.similarity.edge_study` (edge operators on line pairs and a foot frame).
+  σ = 1.5 px), :mod:`core.studies.similarity.study_report` (JSON + figures),
+  :mod:`core.studies.similarity.edge_study` (edge operators on line pairs and a foot frame).
 """
 
 from .batched import BATCHED_KINDS, BatchedMetric, BatchedScores

@@ -14,7 +14,7 @@ quanta per pixel at full fluence. The views are independent, so the Fisher infor
 and every unbiased estimator of ``θ`` from that frame has covariance ``⪰ J⁻¹``. ``θ`` is the
 registration's parameter vector (:class:`core.tracking.cost.RegistrationCost`): displacement of
 the rotation centre in the lab (mm) and a rotation vector about lab axes through it (degrees),
-the axes in which :func:`core.tracking.acceptance.pose_errors` reports errors.
+the axes in which :func:`core.studies.tracking.acceptance.pose_errors` reports errors.
 
 The intensifier blur, glare, roll-off and distortion that follow the quantum stage are
 invertible linear maps of the detected image: with no noise after them they neither add nor

@@ -15,7 +15,7 @@ This is the Laplace / indifference-region construction; it grows with noise (σ_
 poorly constrained directions (small curvature, e.g. a rotation about a long bone's axis). A
 Hessian that is not positive definite (a saddle or a flat direction) gives infinite sigma in the
 affected coordinates and ``well_posed = False``. The number is a *scale*, not a calibrated
-standard error: the acceptance study of :mod:`core.tracking.acceptance` reports how often the
+standard error: the acceptance study of :mod:`core.studies.tracking.acceptance` reports how often the
 true error lies within 2 sigma.
 
 The same construction applies to the last full-resolution fit of the quadratic-model search

@@ -73,7 +73,7 @@ def test_track_and_module_benchmarks_take_their_options_without_a_separator(monk
     assert main(["track", "--help"]) == 0 and seen["argv"] == ["--help"]
     assert main(["track", "--trial", "walk", "study", "--resume"]) == 0
     assert seen["argv"] == ["--trial", "walk", "study", "--resume"]
-    _fake_module(monkeypatch, "core.tracking.benchmark", main=fake_main)
+    _fake_module(monkeypatch, "core.studies.tracking.benchmark", main=fake_main)
     assert main(["bench", "track", "--cases", "one", "--frames", "10"]) == 0
     assert seen["argv"] == ["--cases", "one", "--frames", "10"]
     assert main(["bench", "track", "--", "--help"]) == 0 and seen["argv"] == ["--help"]
@@ -105,10 +105,10 @@ def test_bad_arguments_are_named(argv, message, capsys):
 
 
 def test_missing_module_is_named(monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "core.render.benchmark", None)  # import fails
+    monkeypatch.setitem(sys.modules, "core.studies.render.benchmark", None)  # import fails
     assert main(["bench", "drr", "--device", "cpu"]) == 1
     err = capsys.readouterr().err
-    assert "'talus bench drr' needs the module 'core.render.benchmark'" in err
+    assert "'talus bench drr' needs the module 'core.studies.render.benchmark'" in err
     assert "Traceback" not in err
 
 
@@ -135,7 +135,7 @@ def test_bench_drr_prints_json_and_writes_file(monkeypatch, tmp_path, capsys):
         print("banner a library prints")  # must not end up in stdout's JSON
         return {"benchmark": "drr", "devices": {d: {"ms": 1.5} for d in devices}}
 
-    _fake_module(monkeypatch, "core.render.benchmark", run_drr_benchmark=run_drr_benchmark)
+    _fake_module(monkeypatch, "core.studies.render.benchmark", run_drr_benchmark=run_drr_benchmark)
     out_file = tmp_path / "sub" / "drr.json"
     assert main(["bench", "drr", "--device", "cpu", "--quick", "--out", str(out_file)]) == 0
     assert calls == [(["cpu"], True)]

@@ -7,8 +7,8 @@ import scipy.sparse
 from core.calibration import _bundle_model as bm
 from core.calibration.bundle import ObjectFrame, bundle_adjust
 from core.calibration.objects import cube_target, spiral_target
-from core.calibration.simulate import capture_centre, capture_poses, observe
 from core.geometry.transforms import make_rigid
+from core.synthetic.capture import capture_centre, capture_poses, observe
 
 
 @pytest.fixture(scope="module")

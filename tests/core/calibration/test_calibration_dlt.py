@@ -5,8 +5,8 @@ import pytest
 
 from core.calibration.dlt import calibrate_dlt, camera_parameters, dlt_batch
 from core.calibration.objects import cube_target, spiral_target
-from core.calibration.simulate import capture_centre
 from core.geometry.transforms import make_rigid
+from core.synthetic.capture import capture_centre
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,9 @@ import pytest
 
 from core.calibration.errormap import capture_lattice, error_map, object_reconstruction, reconstruction_errors
 from core.calibration.objects import cube_target
-from core.calibration.simulate import capture_centre
 from core.geometry.camera import Rig
 from core.geometry.transforms import make_rigid
+from core.synthetic.capture import capture_centre
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from core.calibration.io import (
     save_calibration,
 )
 from core.calibration.objects import spiral_target
-from core.calibration.simulate import capture_poses, observe
+from core.synthetic.capture import capture_poses, observe
 
 
 @pytest.fixture(scope="module")

@@ -7,9 +7,9 @@ from core.calibration.detection import ObjectDetections, classify_sizes, detect_
 from core.calibration.labelling import fit_labels, label_ransac, label_view, propagate_labels
 from core.calibration.matching import label_sequence
 from core.calibration.objects import cube_target, spiral_target
-from core.calibration.simulate import capture_centre, capture_poses, render
 from core.geometry.transforms import make_rigid
 from core.synthetic import ImagingModel, foot_rig
+from core.synthetic.capture import capture_centre, capture_poses, render
 
 
 def _ppm(rig, v):

@@ -17,8 +17,8 @@ from core.calibration.matching import (
     transfer_labels,
 )
 from core.calibration.objects import spiral_target
-from core.calibration.simulate import capture_centre, capture_poses
 from core.markers import fundamental_matrix
+from core.synthetic.capture import capture_centre, capture_poses
 
 
 def _same_F(A, B):

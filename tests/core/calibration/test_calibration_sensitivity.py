@@ -6,8 +6,8 @@ import pytest
 from core.calibration.dlt import camera_parameters, dlt_batch
 from core.calibration.objects import cube_target
 from core.calibration.sensitivity import PARAMETERS, _params, perturbation_study, sobol_analysis
-from core.calibration.simulate import capture_centre
 from core.geometry.transforms import make_rigid
+from core.synthetic.capture import capture_centre
 
 
 @pytest.fixture(scope="module")

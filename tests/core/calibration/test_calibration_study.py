@@ -1,11 +1,11 @@
-"""The study helpers on tiny configurations (the full study runs as python -m core.calibration.study)."""
+"""The study helpers on tiny configurations (the full study: python -m core.studies.calibration.study)."""
 
 import numpy as np
 
-from core.calibration.labelling_study import projected_frames, score_frames
 from core.calibration.matching import label_sequence
 from core.calibration.objects import spiral_target
-from core.calibration.study import bundle_study, dlt_instability, error_maps, independent_object
+from core.studies.calibration.labelling_study import projected_frames, score_frames
+from core.studies.calibration.study import bundle_study, dlt_instability, error_maps, independent_object
 
 
 def test_dlt_is_unstable_and_the_bundle_adjustment_is_not(rig):

@@ -1,4 +1,4 @@
-from core.io.benchmark import main, run
+from core.studies.io.benchmark import main, run
 
 
 def test_quick_benchmark_runs_and_verifies_frames(tmp_path, capsys):

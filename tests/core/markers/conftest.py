@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from core.markers.lattice import make_lattice_scene
+from core.synthetic.lattice import make_lattice_scene
 
 
 @pytest.fixture(scope="session")

@@ -5,7 +5,7 @@ import pytest
 
 from core.geometry import make_rigid, rotvec_to_matrix
 from core.markers import epipolar_distance, fundamental_matrix, match_epipolar, rigid_fit
-from core.markers.motion_study import moving_bone_study
+from core.studies.markers.motion_study import moving_bone_study
 from core.synthetic import foot_rig
 
 

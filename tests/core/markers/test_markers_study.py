@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from core.markers.study import StudyConfig, convergence, drift_and_distances, initial_guesses
+from core.studies.markers.study import StudyConfig, convergence, drift_and_distances, initial_guesses
 
 
 def test_initial_guesses_come_from_the_temporal_mean(lattice, lattice_frames):
@@ -34,7 +34,7 @@ def test_convergence_from_perturbed_guesses(lattice, lattice_frames):
 
 
 def test_benchmark_smoke_run_reports_json():
-    from core.markers.benchmark import bead_grid_frames, run_benchmark
+    from core.studies.markers.benchmark import bead_grid_frames, run_benchmark
 
     frames, _, dia = bead_grid_frames(6, 2)
     assert frames.shape == (2, 128, 128)

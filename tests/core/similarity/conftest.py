@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from core.similarity.cases import synthetic_case
+from core.studies.similarity.cases import synthetic_case
 
 
 @pytest.fixture(scope="session")

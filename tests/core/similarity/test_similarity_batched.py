@@ -142,7 +142,7 @@ def test_bad_input_is_rejected(talus_case, batch):
 
 
 def test_benchmark_quick_run_reports_every_kind_and_agrees_with_the_reference():
-    from core.similarity.benchmark import run_similarity_benchmark
+    from core.studies.similarity.benchmark import run_similarity_benchmark
 
     res = run_similarity_benchmark(devices=["cpu"], quick=True, kinds=("ncc", "gc", "mi"))
     case = res["devices"]["cpu"]["cases"]["batch128_one_roi"]

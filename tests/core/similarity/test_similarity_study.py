@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from core.similarity.edge_study import _auc, foot_comparison, line_pair_comparison, line_pair_image
-from core.similarity.study import StudyConfig, combine, curve_stats, response_study, summarize
-from core.similarity.study_report import ranking, write_figures
+from core.studies.similarity.edge_study import _auc, foot_comparison, line_pair_comparison, line_pair_image
+from core.studies.similarity.study import StudyConfig, combine, curve_stats, response_study, summarize
+from core.studies.similarity.study_report import ranking, write_figures
 
 
 def test_curve_stats_of_clean_bumpy_and_offset_peaks():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from core.geometry.transforms import pose_from_params
-from core.tracking.acceptance import pose_errors
+from core.studies.tracking.acceptance import pose_errors
 from core.tracking.bound import pose_bound
 from core.tracking.cost import OutsideViewError, search_roi
 
@@ -106,7 +106,7 @@ def test_bound_bad_input(talus_scene):
 
 
 def test_acceptance_bounds_per_bone_and_frames_without_a_bound_are_skipped(monkeypatch):
-    from core.tracking import acceptance
+    from core.studies.tracking import acceptance
 
     ts = acceptance.TrackingScene(n_frames=2, pixels=96, spacing=1.5, device="cpu")
     out = acceptance.cramer_rao(ts, [0, 1])

@@ -185,7 +185,7 @@ def test_register_start_recovers_a_hand_placed_pose(talus_scene):
 
 
 def test_mean_tre_of_a_known_motion(talus_scene):
-    from core.tracking.acceptance import mean_tre
+    from core.studies.tracking.acceptance import mean_tre
 
     m = talus_scene["model"]
     T = np.eye(4)
@@ -198,7 +198,7 @@ def test_mean_tre_of_a_known_motion(talus_scene):
 
 
 def test_benchmark_smoke_reports_one_bone_with_breakdown():
-    from core.tracking.benchmark import run
+    from core.studies.tracking.benchmark import run
 
     res = run(quick=True, device="cpu", frames=2, pixels=64, cases="one", repeats=2)
     assert "three_bones" not in res and res["mode"] == "joint"

@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import positive
-from ..geometry.camera import Rig
-from ..synthetic.calibration import CalibrationFrame, object_frames
-from ..synthetic.imaging import ImagingModel
-from . import _so3
-from .bundle import ObjectFrame
-from .objects import CalibrationTarget
+from core._validate import positive
+from core.calibration import _so3
+from core.calibration.bundle import ObjectFrame
+from core.calibration.objects import CalibrationTarget
+from core.geometry.camera import Rig
+from core.synthetic.calibration import CalibrationFrame, object_frames
+from core.synthetic.imaging import ImagingModel
 
 __all__ = ["capture_centre", "capture_poses", "observe", "render"]
 

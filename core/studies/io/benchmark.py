@@ -1,6 +1,6 @@
 """Fluoro sequence read speed: random access and sequential throughput of cine and TIFF files.
 
-Run ``python -m core.io.benchmark [--quick] [--out FILE] [--dir DIR]``; prints JSON (machine,
+Run ``python -m core.studies.io.benchmark [--quick] [--out FILE] [--dir DIR]``; prints JSON (machine,
 sizes, times). The default case is the issue's: a 1000-frame 1024² 12-bit **packed** (P12L) cine
 (~1.5 GB) and the same frames as a 16-bit multipage TIFF (~2 GB), written to a temporary folder
 (removed afterwards; the run scales the frame count down, and says so, when the disk is short).
@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
-from .cine import CineSequence
-from .cine_writer import write_cine
-from .sequences import MultipageTiffSequence
+from core.io.cine import CineSequence
+from core.io.cine_writer import write_cine
+from core.io.sequences import MultipageTiffSequence
 
 __all__ = ["run"]
 
@@ -176,7 +176,8 @@ def run(*, quick: bool = False, folder: str | os.PathLike | None = None, keep: b
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.io.benchmark", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m core.studies.io.benchmark",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="50 frames of 256², a smoke run")
     ap.add_argument("--out", type=Path, help="also write the JSON to this file")
     ap.add_argument("--dir", type=Path, help="folder for the temporary test files (default: system temp)")
@@ -184,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     result = run(quick=args.quick, folder=args.dir)
     text = json.dumps(result, indent=2)
     if args.out:
-        from .atomic import atomic_write
+        from core.io.atomic import atomic_write
 
         atomic_write(args.out, text + "\n")
     print(text)

@@ -1,6 +1,6 @@
-"""Tracking speed benchmark: ``python -m core.tracking.benchmark [--device cuda:0] [--quick]``.
+"""Tracking speed benchmark: ``python -m core.studies.tracking.benchmark [--device cuda:0] [--quick]``.
 
-Cases (synthetic walking trial of :mod:`core.tracking.acceptance`, frames synthesised before the
+Cases (synthetic walking trial of :mod:`core.studies.tracking.acceptance`, frames synthesised before the
 clock starts; frame 0 starts from the true pose so the numbers are steady-state tracking):
 
 * ``one_bone`` — the talus over ``frames`` frames, two views of ``pixels``²;
@@ -33,9 +33,9 @@ __all__ = ["main", "run"]
 
 
 def _case(ts, bones: list[int], options, frames: int, repeats: int = 3) -> dict:
-    from ..render import DRRRenderer
-    from .acceptance import FRAME_RATE_HZ, pose_errors
-    from .trial import track
+    from core.render import DRRRenderer
+    from core.studies.tracking.acceptance import FRAME_RATE_HZ, pose_errors
+    from core.tracking.trial import track
 
     models = [ts.models[b] for b in bones]
     r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
@@ -98,8 +98,8 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
         raise ValueError(f"cases: expected 'one', 'three' or 'both', got {cases!r}")
     import warp as wp
 
-    from .acceptance import TrackingScene
-    from .trial import TrackingOptions
+    from core.studies.tracking.acceptance import TrackingScene
+    from core.tracking.trial import TrackingOptions
 
     n = frames or (8 if quick else 100)
     px = pixels or (192 if quick else 1024)
@@ -127,7 +127,8 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.tracking.benchmark", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.benchmark",
+                                description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="192² views, 1 mm voxels, 8 frames")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--frames", type=int, default=None)
@@ -140,7 +141,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases,
               repeats=a.repeats)
-    from ..io.atomic import print_json
+    from core.io.atomic import print_json
 
     print_json(res, a.out)
     return 0

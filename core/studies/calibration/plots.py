@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .epipolar_check import EpipolarCheck
-from .sensitivity import PARAMETERS
+from core.calibration.epipolar_check import EpipolarCheck
+from core.calibration.sensitivity import PARAMETERS
 
 __all__ = ["epipolar_figure", "error_map_figure", "instability_figure", "labelling_figure",
            "sensitivity_figure", "sobol_figure"]

@@ -1,13 +1,13 @@
 """Acceptance study of the calibration (thesis Ch. 5) on the synthetic foot rig.
 
-``python -m core.calibration.study [--out DIR] [--quick] [--figures DIR]`` prints a JSON
+``python -m core.studies.calibration.study [--out DIR] [--quick] [--figures DIR]`` prints a JSON
 summary and writes ``study.json`` and the figures. Parts:
 
 1. **DLT instability** (§5.2.1): the 15-bead cube at the centre of the capture volume, one frame,
    bead positions with Gaussian noise of 0.05 px per axis, calibrated by the DLT ``n_dlt`` times:
    spread of the focal length / SID and of the source positions.
 2. **Bundle adjustment**: a 33-bead spiral moved through the volume (``n_frames`` poses from
-   :func:`~core.calibration.simulate.capture_poses`), 0.05 px noise, lab frame from frame 0,
+   :func:`~core.synthetic.capture.capture_poses`), 0.05 px noise, lab frame from frame 0,
    ``n_ba`` noise draws: focal length, SID and source errors against the truth, and the
    standard deviations the adjustment predicts.
 3. **Error maps** (§5.2.2): reconstruction error over the 10 mm lattice filling the intersection
@@ -20,7 +20,7 @@ summary and writes ``study.json`` and the figures. Parts:
    sample): the beads of the three wrist radiograph pairs against the epipolar lines of the real
    calibration (:mod:`core.calibration.epipolar_check`).
 
-Labelling and the image-based end-to-end run are in :mod:`core.calibration.labelling_study`.
+Labelling and the image-based end-to-end run are in :mod:`core.studies.calibration.labelling_study`.
 """
 
 from __future__ import annotations
@@ -35,15 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..geometry.camera import Rig
-from ..geometry.transforms import make_rigid
-from ..synthetic.rig import foot_rig
-from .bundle import bundle_adjust
-from .dlt import calibrate_dlt
-from .errormap import capture_lattice, object_reconstruction, reconstruction_errors
-from .objects import cube_target, spiral_target
-from .sensitivity import perturbation_study, sobol_analysis
-from .simulate import capture_centre, capture_poses, observe
+from core.calibration.bundle import bundle_adjust
+from core.calibration.dlt import calibrate_dlt
+from core.calibration.errormap import capture_lattice, object_reconstruction, reconstruction_errors
+from core.calibration.objects import cube_target, spiral_target
+from core.calibration.sensitivity import perturbation_study, sobol_analysis
+from core.geometry.camera import Rig
+from core.geometry.transforms import make_rigid
+from core.synthetic.capture import capture_centre, capture_poses, observe
+from core.synthetic.rig import foot_rig
 
 __all__ = ["main", "run_study"]
 
@@ -172,8 +172,8 @@ def wrist_epipolar(figures_dir=None) -> dict:
     """Part 6: distances of the wrist beads from the real rig's epipolar lines, per frame pair."""
     import os
 
-    from ..samples import load_wrist_sample
-    from .epipolar_check import epipolar_check
+    from core.calibration.epipolar_check import epipolar_check
+    from core.samples import load_wrist_sample
 
     env = os.environ.get("TALUS_SAMPLE_DATA")
     base = Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "data"
@@ -188,7 +188,7 @@ def wrist_epipolar(figures_dir=None) -> dict:
         out[path.stem.split(".")[-1]] = {**chk.summary(), "distances_px": np.round(
             np.concatenate([chk.d_view1, chk.d_view2]), 3).tolist()}
         if figures_dir is not None and k == 1:
-            from .plots import epipolar_figure
+            from core.studies.calibration.plots import epipolar_figure
 
             epipolar_figure(imgs, chk, Path(figures_dir) / "calibration_wrist_epipolar.png",
                             names=(sample.rig[0].name, sample.rig[1].name))
@@ -236,7 +236,7 @@ def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=N
         Path(figures_dir).mkdir(parents=True, exist_ok=True)
     res["wrist_epipolar"] = wrist_epipolar(figures_dir)
     if figures_dir is not None:
-        from . import plots
+        from core.studies.calibration import plots
 
         d = Path(figures_dir)
         d.mkdir(parents=True, exist_ok=True)
@@ -256,7 +256,8 @@ def run_study(*, quick: bool = False, seed: int = 0, out_dir=None, figures_dir=N
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.calibration.study", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m core.studies.calibration.study",
+                                 description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=None, help="folder for study.json")
     ap.add_argument("--figures", default=None, help="folder for the PNG figures")
     ap.add_argument("--quick", action="store_true", help="~10x fewer draws (a smoke run)")

@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.camera import Camera, Rig, make_K
-from ..geometry.transforms import rotvec_to_matrix
-from ..synthetic.analytic import attenuation_per_mm, bead_line_integrals, cylinder_line_integrals
-from ..synthetic.imaging import ImagingModel
-from ..synthetic.rig import foot_rig
-from .pose import rigid_fit, triangulate_beads
-from .track import TRACKED, track_beads
+from core.geometry.camera import Camera, Rig, make_K
+from core.geometry.transforms import rotvec_to_matrix
+from core.markers.pose import rigid_fit, triangulate_beads
+from core.markers.track import TRACKED, track_beads
+from core.synthetic.analytic import attenuation_per_mm, bead_line_integrals, cylinder_line_integrals
+from core.synthetic.imaging import ImagingModel
+from core.synthetic.rig import foot_rig
 
 __all__ = ["moving_bone_study"]
 

@@ -1,4 +1,4 @@
-"""Thesis Ch. 3 experiments on a synthetic intensifier: ``python -m core.imaging.acceptance``.
+"""Thesis Ch. 3 experiments on a synthetic intensifier: ``python -m core.studies.imaging.acceptance``.
 
 Reproduces, on ground truth from :mod:`core.synthetic`, the distortion study of thesis §3.5
 (Fig. 3.11; Tables 3.1–3.3) and the flatfield, MTF and deconvolution checks of §3.3–3.4, and
@@ -23,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .distortion import calibrate_distortion
-from .distortion_eval import condition_sweep, cross_validate, evaluate_lattice, residual_stats
-from .distortion_models import fit_distortion
-from .flatfield import build_flatfield
-from .grid_detection import detect_grid_points
-from .grid_indexing import index_grid
+from core.imaging.distortion import calibrate_distortion
+from core.imaging.distortion_eval import condition_sweep, cross_validate, evaluate_lattice, residual_stats
+from core.imaging.distortion_models import fit_distortion
+from core.imaging.flatfield import build_flatfield
+from core.imaging.grid_detection import detect_grid_points
+from core.imaging.grid_indexing import index_grid
 
 TABLE_MODELS = ("tps", "lwm(12)", "poly(2,2)", "poly(2,3)", "poly(3,2)", "poly(3,3)", "poly(3,4)",
                 "poly(4,3)", "poly(4,4)", "poly(4,5)", "poly(5,4)", "poly(5,5)", "poly(6,6)", "poly(7,7)",
@@ -39,7 +39,7 @@ PLACEMENTS = (((0.0, 0.0), 0.0), ((40.0, 40.0), 0.3), ((-40.0, 40.0), -0.2), ((4
 
 
 def _scene():
-    from ..synthetic import Distortion, ImagingModel, foot_rig
+    from core.synthetic import Distortion, ImagingModel, foot_rig
 
     cam = foot_rig(seed=0, pixels=1024)[0]
     d = Distortion.for_camera(cam, k1=0.04, k2=0.06, twist_deg=5.0, twist_power=4.0,
@@ -49,7 +49,7 @@ def _scene():
 
 def distortion_study() -> dict:
     """Fig. 3.11 sweep and Tables 3.1–3.3 rows (plus cross-validation) as JSON-ready dicts."""
-    from ..synthetic import bead_lattice_frame, distortion_grid_frame
+    from core.synthetic import bead_lattice_frame, distortion_grid_frame
 
     cam, dist, model = _scene()
     fr = distortion_grid_frame(cam, model, rng=1)
@@ -92,7 +92,7 @@ def distortion_study() -> dict:
 
 def flatfield_check() -> dict:
     """Residual roll-off after each flatfield method (16 frames, 15 px kernel)."""
-    from ..synthetic import flatfield_frames
+    from core.synthetic import flatfield_frames
 
     cam, _, model = _scene()
     frames, truth = flatfield_frames(cam, model, 16, rng=1)
@@ -167,7 +167,7 @@ def _figure_table(rows: list[dict], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.imaging.acceptance",
+    ap = argparse.ArgumentParser(prog="python -m core.studies.imaging.acceptance",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--figures", help="folder for the PNG figures")
     ap.add_argument("--out", help="also write the JSON here")

@@ -1,6 +1,6 @@
 """Real-data check: track the radius and ulna of the Autoscoper wrist sample over its three frames.
 
-``python -m core.tracking.wrist_check [--data DIR] [--device cuda:0] [--out JSON] [--figure PNG]``
+``python -m core.studies.tracking.wrist_check [--data DIR] [--device cuda:0] [--out JSON] [--figure PNG]``
 
 The sample (:mod:`core.samples`) has no ground truth, so the check reports what can be judged:
 the final similarity per bone, frame and view, how far registration moved each bone from its
@@ -61,8 +61,8 @@ BONES = ("radius", "ulna")
 
 
 def _options(final_scale: float, first_widen: float = 1.0):
-    from .register import RegistrationOptions
-    from .trial import TrackingOptions
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions
 
     reg = RegistrationOptions(bounds=(10.0, 10.0), sigma=(2.0, 2.0), search="global", final_scale=final_scale)
     return TrackingOptions(registration=reg, first=reg.widened(first_widen), guess="previous",
@@ -72,12 +72,12 @@ def _options(final_scale: float, first_widen: float = 1.0):
 def run(data_dir: str | Path, *, device: str | None = None, final_scale: float = 2.0,
         figure: str | None = None, first_widen: float = 1.0) -> dict:
     """Track radius and ulna over the sample's frames; returns the JSON-ready report."""
-    from ..geometry.transforms import params_from_pose
-    from ..render import DRRRenderer, HUTransfer
-    from ..samples import WRIST_RADIUS_POSE, load_wrist_sample
-    from .bones import bone_model
-    from .cost import RegistrationCost, prepare_frame, search_roi
-    from .trial import track
+    from core.geometry.transforms import params_from_pose
+    from core.render import DRRRenderer, HUTransfer
+    from core.samples import WRIST_RADIUS_POSE, load_wrist_sample
+    from core.tracking.bones import bone_model
+    from core.tracking.cost import RegistrationCost, prepare_frame, search_roi
+    from core.tracking.trial import track
 
     t0 = time.perf_counter()
     sample = load_wrist_sample(data_dir)
@@ -122,7 +122,7 @@ def run(data_dir: str | Path, *, device: str | None = None, final_scale: float =
                                       "moved_mm": float(np.linalg.norm(d[:3])),
                                       "turned_deg": float(np.degrees(np.linalg.norm(d[3:])))}
             frames_out.append(entry)
-    out = {"check": "core.tracking.wrist_check", "machine": platform.machine(),
+    out = {"check": "core.studies.tracking.wrist_check", "machine": platform.machine(),
            "device": str(renderer.device),
            "data": str(data_dir), "final_scale": final_scale, "first_widen": first_widen, "metric": "gc",
            "options": o.registration.to_dict(), "mode": o.mode, "results": frames_out,
@@ -178,7 +178,7 @@ def _figure(sample, renderer, res, models, starts, path: str) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.tracking.wrist_check",
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.wrist_check",
                                 description=__doc__.split("\n")[0])
     here = Path(__file__).resolve().parents[3]
     p.add_argument("--data", default=str(here / "shared" / "data" / "autoscoper_wrist"),
@@ -191,7 +191,7 @@ def main(argv=None) -> int:
     p.add_argument("--figure", default=None, help="save the overlays as a PNG")
     a = p.parse_args(argv)
     res = run(a.data, device=a.device, final_scale=a.final_scale, figure=a.figure, first_widen=a.first_widen)
-    from ..io.atomic import print_json
+    from core.io.atomic import print_json
 
     print_json(res, a.out)
     return 0

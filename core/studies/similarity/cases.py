@@ -21,9 +21,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
-from ..render import DRRBatch, DRRRenderer, HUTransfer
-from ..render.volume import CTVolume
-from .domain import line_integral_image, sample_roi
+from core.render import DRRBatch, DRRRenderer, HUTransfer
+from core.render.volume import CTVolume
+from core.similarity.domain import line_integral_image, sample_roi
 
 __all__ = ["RegistrationCase", "synthetic_case", "wrist_case"]
 
@@ -148,7 +148,7 @@ def synthetic_case(*, bone: str = "talus", pixels: int = 256, seed: int = 0, fra
     correction is a separate step); the whole foot, soft tissue, walkway and beads are in the
     image, only ``bone`` is in the DRR. ``pixels`` is the detector width (256 → 1.17 mm pixels).
     """
-    from ..synthetic import BONE_NAMES, ImagingModel, make_foot_scene
+    from core.synthetic import BONE_NAMES, ImagingModel, make_foot_scene
 
     if bone not in BONE_NAMES:
         raise ValueError(f"bone: expected one of {BONE_NAMES}, got {bone!r}")
@@ -180,7 +180,7 @@ def wrist_case(data_dir: str | Path, *, bone: str = "radius", frame_index: int =
     (bone above ``threshold_hu``), 0.5 mm steps, and ``scale`` (2 → one DRR pixel per 2 × 2
     radiograph pixels).
     """
-    from ..samples import WRIST_RADIUS_POSE, load_wrist_sample
+    from core.samples import WRIST_RADIUS_POSE, load_wrist_sample
 
     if bone != "radius":
         raise ValueError(f"bone: only the radius has a reference pose (WRIST_RADIUS_POSE), got {bone!r}")

@@ -21,10 +21,10 @@ import time
 import numpy as np
 import warp as wp
 
-from ..geometry.camera import Camera, Rig, make_K
-from .drr import DRRRenderer
-from .reference import render_reference
-from .volume import CTVolume, HUTransfer
+from core.geometry.camera import Camera, Rig, make_K
+from core.render.drr import DRRRenderer
+from core.render.reference import render_reference
+from core.render.volume import CTVolume, HUTransfer
 
 __all__ = ["run_drr_benchmark"]
 
@@ -79,7 +79,7 @@ def _bone(n: int, spacing: float, seed: int) -> CTVolume:
 def _steps_per_drr(renderer: DRRRenderer, roi, pose: np.ndarray) -> float:
     """Mean number of ray-marching steps per DRR before empty-space skipping, at ``pose`` (host
     estimate; the timed poses differ from it by a few mm and degrees)."""
-    from .reference import _clip_rays
+    from core.render.reference import _clip_rays
 
     vol = renderer.volumes[0]
     counts = []
@@ -259,7 +259,7 @@ def run_drr_benchmark(*, devices: list[str] | None = None, quick: bool = False,
     return result
 
 
-def main() -> None:  # pragma: no cover - convenience for `python -m core.render.benchmark`
+def main() -> None:  # pragma: no cover - convenience for `python -m core.studies.render.benchmark`
     import argparse
     import json
 

@@ -1,6 +1,6 @@
 """Response study of the similarity metrics (thesis §6.3): noise, translation, rotation.
 
-For a :class:`~core.similarity.cases.RegistrationCase` (one bone, a reference pose, fluoroscope
+For a :class:`~core.studies.similarity.cases.RegistrationCase` (one bone, a reference pose, fluoroscope
 ROIs of every view) and each metric of :data:`core.similarity.METRICS` (numpy references; a
 pose's score is the mean over the views):
 
@@ -22,7 +22,7 @@ pose's score is the mean over the views):
   at the reference from a quadratic fit over ±2 samples, relative to the sweep's range).
 
 :func:`summarize` condenses a study into one row per metric for ranking; :mod:`.study_report`
-writes JSON and plots (``python -m core.similarity.study_report``; figures
+writes JSON and plots (``python -m core.studies.similarity.study_report``; figures
 ``resources/figures/similarity_*.png``).
 
 Results and recommended default cost
@@ -90,9 +90,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import spearmanr
 
-from .cases import RegistrationCase
-from .domain import line_integral_image
-from .metrics import METRICS
+from core.similarity.domain import line_integral_image
+from core.similarity.metrics import METRICS
+from core.studies.similarity.cases import RegistrationCase
 
 __all__ = ["PARTS", "StudyConfig", "StudyResult", "combine", "curve_stats", "default_metrics", "merge",
            "response_study", "summarize"]

@@ -1,4 +1,5 @@
-"""Acceptance study of the tracker on a synthetic walking trial (``python -m core.tracking.acceptance``).
+"""Acceptance study of the tracker on a synthetic walking trial
+(``python -m core.studies.tracking.acceptance``).
 
 Scene (:func:`tracking_scene`): tibia, talus and calcaneus of :func:`core.synthetic.make_foot_scene`
 (soft-tissue envelope, carbon walkway, no beads) over ``n_frames`` frames of the first ``phase``
@@ -49,7 +50,7 @@ import time
 
 import numpy as np
 
-from ..geometry.transforms import params_from_pose, pose_from_params
+from core.geometry.transforms import params_from_pose, pose_from_params
 
 __all__ = ["FRAME_RATE_HZ", "TrackingScene", "capture_range", "cramer_rao", "main", "mean_tre", "pose_errors",
            "run", "surface_points", "tracking_scene"]
@@ -64,9 +65,9 @@ class TrackingScene:
 
     def __init__(self, *, n_frames: int, pixels: int, spacing: float, seed: int = 0, names=BONES,
                  phase=(0.0, 0.6), residual: float = 0.03, device: str | None = None) -> None:
-        from ..render import DRRRenderer
-        from ..synthetic import Distortion, make_foot_scene
-        from .bones import bone_model
+        from core.render import DRRRenderer
+        from core.synthetic import Distortion, make_foot_scene
+        from core.tracking.bones import bone_model
 
         self.scene = make_foot_scene(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed,
                                      names=tuple(names), beads_per_bone=0, phase=phase, tissue_spacing=3.0)
@@ -153,12 +154,12 @@ def cramer_rao(ts: TrackingScene, frames) -> dict:
     pose at the trial's photon counts, averaged over ``frames`` (mean covariance): ``rms_mm`` and
     ``rms_deg`` are the least RMS centroid and rotation errors any unbiased per-frame estimator
     can reach; ``sigma`` per axis (mm ×3, degrees ×3). Empty when the frames are noise-free."""
-    from .bound import pose_bound
+    from core.tracking.bound import pose_bound
 
     N = [m.photons_per_pixel for m in ts.scene.imaging]
     if any(n is None for n in N):
         return {}
-    from .cost import OutsideViewError
+    from core.tracking.cost import OutsideViewError
 
     frames = [int(f) for f in frames]
     covs: dict[str, list] = {n: [] for n in ts.names}
@@ -188,8 +189,8 @@ def cramer_rao(ts: TrackingScene, frames) -> dict:
 def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1, mm: float = 5.0,
                   deg: float = 5.0, tol=(0.5, 0.5), tre_mm: float = 0.5) -> dict:
     """Success fractions of first-frame registrations from ``mm``/``deg`` initial errors."""
-    from .cost import prepare_frame
-    from .trial import TrackingOptions, register_start
+    from core.tracking.cost import prepare_frame
+    from core.tracking.trial import TrackingOptions, register_start
 
     o = options or TrackingOptions()
     g = np.random.default_rng(seed)
@@ -227,7 +228,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         mode: str = "joint", figure: str | None = None, seed: int = 0,
         n_frames: int | None = None) -> dict:
     """Run the acceptance study; returns the JSON-ready results."""
-    from .trial import TrackingOptions, track
+    from core.tracking.trial import TrackingOptions, track
 
     t0 = time.perf_counter()
     ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames)
@@ -297,7 +298,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
            "frames": ts.scene.n_frames, "mode": mode, "start_error": "5 mm, 5 deg",
            "residual_distortion_rms_mm": ts.residual_distortion_mm(), "frame_rate_hz": FRAME_RATE_HZ,
            "pixel_mm_at_isocentre": float(ts.scene.rig[0].pixel_size)}
-    out = {"study": "core.tracking.acceptance", "quick": quick, "machine": platform.machine(),
+    out = {"study": "core.studies.tracking.acceptance", "quick": quick, "machine": platform.machine(),
            "processor": platform.processor() or platform.machine(), "device": str(ts.renderer.device),
            "config": cfg, "tracking": per_bone, "summary": res.summary(), "setup_s": setup}
     trials = capture_trials if capture_trials is not None else (5 if quick else 50)
@@ -343,7 +344,8 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.tracking.acceptance", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.acceptance",
+                                description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="256² views, 1 mm voxels, 20 frames, 5 trials")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--frames", type=int, default=None, help="number of frames (default 20 quick / 100)")
@@ -354,7 +356,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, capture_trials=a.capture_trials, mode=a.mode, figure=a.figure,
               n_frames=a.frames)
-    from ..io.atomic import print_json
+    from core.io.atomic import print_json
 
     print_json(res, a.out)
     return 0

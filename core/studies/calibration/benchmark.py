@@ -1,4 +1,4 @@
-"""Speed of the calibration steps: ``python -m core.calibration.benchmark [--quick] [--out FILE]``.
+"""Speed of the calibration steps: ``python -m core.studies.calibration.benchmark [--quick] [--out FILE]``.
 
 Prints JSON (machine, sizes, seconds). Cases:
 
@@ -42,18 +42,18 @@ def _time(fn, repeats: int) -> float:
 def run_benchmark(*, quick: bool = False, repeats: int = 3) -> dict:
     import scipy
 
-    from ..geometry.transforms import make_rigid
-    from ..synthetic.imaging import ImagingModel
-    from ..synthetic.rig import foot_rig
-    from .bundle import bundle_adjust
-    from .detection import detect_object_beads
-    from .dlt import calibrate_dlt, dlt_batch
-    from .labelling import label_view
-    from .labelling_study import projected_frames
-    from .matching import label_sequence
-    from .objects import cube_target, spiral_target
-    from .sensitivity import perturbation_study, sobol_analysis
-    from .simulate import capture_centre, capture_poses, observe, render
+    from core.calibration.bundle import bundle_adjust
+    from core.calibration.detection import detect_object_beads
+    from core.calibration.dlt import calibrate_dlt, dlt_batch
+    from core.calibration.labelling import label_view
+    from core.calibration.matching import label_sequence
+    from core.calibration.objects import cube_target, spiral_target
+    from core.calibration.sensitivity import perturbation_study, sobol_analysis
+    from core.geometry.transforms import make_rigid
+    from core.studies.calibration.labelling_study import projected_frames
+    from core.synthetic.capture import capture_centre, capture_poses, observe, render
+    from core.synthetic.imaging import ImagingModel
+    from core.synthetic.rig import foot_rig
 
     r = 1 if quick else repeats
     rig = foot_rig(seed=0, pixels=1024)
@@ -106,7 +106,7 @@ def run_benchmark(*, quick: bool = False, repeats: int = 3) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.calibration.benchmark",
+    ap = argparse.ArgumentParser(prog="python -m core.studies.calibration.benchmark",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="one repeat, 512-pixel detection frame")
     ap.add_argument("--repeats", type=int, default=3)

@@ -1,11 +1,11 @@
 """Thesis §4.3 reproduced on synthetic lattices: robustness, stability and accuracy of localizers.
 
-Run ``python -m core.markers.study [--quick] [--out DIR]``: it renders the 21-bead lattice of
-:mod:`core.markers.lattice` in ``n_frames`` static frames with independent quantum noise,
+Run ``python -m core.studies.markers.study [--quick] [--out DIR]``: it renders the 21-bead lattice of
+:mod:`core.synthetic.lattice` in ``n_frames`` static frames with independent quantum noise,
 runs all seven localizers (:data:`core.markers.batch.METHODS`) and writes ``markers_study.json``
 plus the figures ``markers_convergence.png``, ``markers_drift.png``,
-``markers_intermarker.png`` and ``markers_dose.png`` (via :mod:`core.markers.plots`). The
-moving-bone pose study (:func:`core.markers.motion_study.moving_bone_study`) and a dose sweep
+``markers_intermarker.png`` and ``markers_dose.png`` (via :mod:`core.studies.markers.plots`). The
+moving-bone pose study (:func:`core.studies.markers.motion_study.moving_bone_study`) and a dose sweep
 (drift and inter-marker σ of three localizers at ¼–4 × the dose, :func:`dose_sweep`) run too
 and land in the same JSON.
 
@@ -40,9 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .batch import METHODS, RECOMMENDED, localize
-from .detect import detect_beads
-from .lattice import LatticeScene, make_lattice_scene
+from core.markers.batch import METHODS, RECOMMENDED, localize
+from core.markers.detect import detect_beads
+from core.synthetic.lattice import LatticeScene, make_lattice_scene
 
 __all__ = ["StudyConfig", "convergence", "dose_sweep", "drift_and_distances", "run_study"]
 
@@ -165,7 +165,7 @@ def dose_sweep(cfg: StudyConfig, methods=("intensity_centroid", "iterative_gauss
 
 def run_study(cfg: StudyConfig = StudyConfig(), *, progress=None) -> dict:
     """All three experiments and the moving-bone pose study; returns the JSON-ready result."""
-    from .motion_study import moving_bone_study
+    from core.studies.markers.motion_study import moving_bone_study
 
     say = progress or (lambda msg: None)
     t0 = time.perf_counter()
@@ -212,7 +212,8 @@ def run_study(cfg: StudyConfig = StudyConfig(), *, progress=None) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.markers.study", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m core.studies.markers.study",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
     ap.add_argument("--out", default="resources/figures", help="folder for the JSON and figures")
     args = ap.parse_args(argv)
@@ -221,7 +222,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "markers_study.json").write_text(json.dumps(res, indent=1))
-    from .plots import study_figures
+    from core.studies.markers.plots import study_figures
 
     study_figures(res, out)
     summary = {"acceptance": res["acceptance"],

@@ -27,7 +27,7 @@ def _plt():
 
 
 def study_figures(res: dict, out_dir) -> list[Path]:
-    """Write the three study figures for a :func:`core.markers.study.run_study` result."""
+    """Write the three study figures for a :func:`core.studies.markers.study.run_study` result."""
     plt = _plt()
     out = Path(out_dir)
     methods = list(res["methods"])
@@ -167,8 +167,8 @@ def wrist_detection_figure(sample, out_path, *, frame: int = 1, diameter_px: flo
     """
     import cv2
 
-    from .detect import detect_beads, field_mask
-    from .pose import match_epipolar, triangulate_beads
+    from core.markers.detect import detect_beads, field_mask
+    from core.markers.pose import match_epipolar, triangulate_beads
 
     dets = []
     for v in range(2):

@@ -1,6 +1,6 @@
-"""JSON and figures of the metric response study (``python -m core.similarity.study_report``).
+"""JSON and figures of the metric response study (``python -m core.studies.similarity.study_report``).
 
-Runs :func:`core.similarity.study.response_study` on the synthetic cases (talus, calcaneus and
+Runs :func:`core.studies.similarity.study.response_study` on the synthetic cases (talus, calcaneus and
 second metatarsal of a :func:`core.synthetic.make_foot_scene` frame: ground truth) and on the
 real wrist sample (radius at the hand-found pose; skipped with a message when the data folder is
 absent), adds weighted combinations of metrics, and writes
@@ -22,7 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .study import PARTS, SWEEP_AXES, StudyConfig, StudyResult, combine, merge, response_study, summarize
+from core.studies.similarity.study import (
+    PARTS,
+    SWEEP_AXES,
+    StudyConfig,
+    StudyResult,
+    combine,
+    merge,
+    response_study,
+    summarize,
+)
 
 __all__ = ["COMBINATIONS", "ranking", "report", "run_study", "study_case", "write_figures"]
 
@@ -195,7 +204,7 @@ def study_case(name: str, *, quick: bool = False, pixels: int = 512, data_dir: P
     """Build one case (``"talus"``, ``"calcaneus"``, ``"metatarsal2"`` or ``"wrist"``) and run the
     study ``parts`` on it; None (with a message) when the wrist data is absent. With ``save_raw``
     (a folder) the result is also pickled there as ``<name>_<parts>.pkl``."""
-    from .cases import synthetic_case, wrist_case
+    from core.studies.similarity.cases import synthetic_case, wrist_case
 
     cfg = StudyConfig(n_random=60, sweep_steps=21, noise_repeats=2) if quick else StudyConfig()
     if name == "wrist":

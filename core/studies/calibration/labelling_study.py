@@ -1,6 +1,6 @@
 """Labelling acceptance and the image-based end-to-end calibration (thesis §5.4).
 
-``python -m core.calibration.labelling_study [--out DIR] [--figures DIR] [--quick]``
+``python -m core.studies.calibration.labelling_study [--out DIR] [--figures DIR] [--quick]``
 
 1. **Rendered frames**: spirals moved through the volume of the 512-pixel foot rig are rendered
    through the image chain (quantum noise, blur, glare, roll-off; distortion off), beads are
@@ -33,14 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..synthetic.imaging import ImagingModel
-from ..synthetic.rig import foot_rig
-from .bundle import bundle_adjust
-from .detection import ObjectDetections, detect_object_beads
-from .errormap import capture_lattice, reconstruction_errors
-from .matching import label_sequence
-from .objects import CalibrationTarget, cube_target, spiral_target
-from .simulate import capture_centre, capture_poses, render
+from core.calibration.bundle import bundle_adjust
+from core.calibration.detection import ObjectDetections, detect_object_beads
+from core.calibration.errormap import capture_lattice, reconstruction_errors
+from core.calibration.matching import label_sequence
+from core.calibration.objects import CalibrationTarget, cube_target, spiral_target
+from core.synthetic.capture import capture_centre, capture_poses, render
+from core.synthetic.imaging import ImagingModel
+from core.synthetic.rig import foot_rig
 
 __all__ = ["main", "run_labelling_study", "score_frames"]
 
@@ -154,7 +154,7 @@ def end_to_end(rig, target, frames, obs, poses, truth) -> dict:
     sym = next(p for p in target.symmetries if _correct(frames[ref], truth[ref], target, 2.0))
     T_ref = poses[ref].copy()
     if not np.array_equal(sym, np.arange(len(target))):  # reference labelled by its mirror image
-        from ..markers.pose import rigid_fit
+        from core.markers.pose import rigid_fit
 
         T_ref = rigid_fit(target.centers, target.centers_lab(poses[ref])[sym]).T
     t0 = time.perf_counter()
@@ -206,7 +206,7 @@ def run_labelling_study(*, quick: bool = False, seed: int = 0, out_dir=None, fig
             res["end_to_end_spiral33_rendered"] = end_to_end(rig512, tg, frames, obs, poses, truth)
             shown = [f for f in range(len(images) // 2) if frames[f].ok]
             if figures_dir is not None and shown:
-                from .plots import labelling_figure
+                from core.studies.calibration.plots import labelling_figure
 
                 f = shown[0]
                 Path(figures_dir).mkdir(parents=True, exist_ok=True)
@@ -234,7 +234,7 @@ def run_labelling_study(*, quick: bool = False, seed: int = 0, out_dir=None, fig
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.calibration.labelling_study",
+    ap = argparse.ArgumentParser(prog="python -m core.studies.calibration.labelling_study",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=None)
     ap.add_argument("--figures", default=None)

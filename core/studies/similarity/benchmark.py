@@ -1,9 +1,9 @@
-"""Benchmark of the batched device metrics (``python -m core.similarity.benchmark``): prints JSON.
+"""Benchmark of the batched device metrics (``python -m core.studies.similarity.benchmark``): prints JSON.
 
 Case (issue target): a batch of 128 DRRs against one fluoroscope ROI — 300² on CUDA (target on one
 H100: ≤ 0.2 ms per batch for NCC and GC), 128² on the CPU — timed for every kind of
 :data:`core.similarity.BATCHED_KINDS`, plus 64 poses × 2 views (two ROIs) on CUDA. The DRRs are
-real renders of the DRR benchmark's bone volume (:mod:`core.render.benchmark`: a 45 mm
+real renders of the DRR benchmark's bone volume (:mod:`core.studies.render.benchmark`: a 45 mm
 talus-sized box, 0.3 mm voxels) at jittered poses; the fluoroscope ROI is the reference pose's DRR
 on a soft-tissue background through a noisy, blurred image chain, in DRR polarity. A timed call is
 a whole :meth:`BatchedMetric.evaluate` (graph replay or launches, device synchronisation, copy of
@@ -30,11 +30,11 @@ import time
 import numpy as np
 import warp as wp
 
-from ..render import DRRRenderer, HUTransfer
-from ..render.benchmark import _bench_rig, _bone, _poses, _time
-from .batched import BATCHED_KINDS, BatchedMetric
-from .domain import line_integral_image
-from .metrics import similarity
+from core.render import DRRRenderer, HUTransfer
+from core.similarity.batched import BATCHED_KINDS, BatchedMetric
+from core.similarity.domain import line_integral_image
+from core.similarity.metrics import similarity
+from core.studies.render.benchmark import _bench_rig, _bone, _poses, _time
 
 __all__ = ["run_similarity_benchmark"]
 
@@ -139,7 +139,7 @@ def run_similarity_benchmark(*, devices: list[str] | None = None, quick: bool = 
     return result
 
 
-def main() -> None:  # pragma: no cover - `python -m core.similarity.benchmark`
+def main() -> None:  # pragma: no cover - `python -m core.studies.similarity.benchmark`
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__)
@@ -149,7 +149,7 @@ def main() -> None:  # pragma: no cover - `python -m core.similarity.benchmark`
     ap.add_argument("--out", help="also write the JSON to this file")
     a = ap.parse_args()
     res = run_similarity_benchmark(devices=a.device, quick=a.quick, kinds=tuple(a.kind or BATCHED_KINDS))
-    from ..io.atomic import print_json
+    from core.io.atomic import print_json
 
     print_json(res, a.out)
 

@@ -1,4 +1,4 @@
-"""Speed of the image-correction chain: ``python -m core.imaging.benchmark [--quick] [--out FILE]``.
+"""Speed of the image-correction chain: ``python -m core.studies.imaging.benchmark [--quick] [--out FILE]``.
 
 Prints JSON (machine, device, sizes, times in ms, ratios). Cases:
 
@@ -27,14 +27,14 @@ import time
 import cv2
 import numpy as np
 
-from .deconvolution import richardson_lucy
-from .distortion import calibrate_distortion
-from .distortion_maps import remap_tables
-from .distortion_models import fit_distortion
-from .flatfield import build_flatfield
-from .pipeline import Pipeline
-from .pointmaps import fit_polynomial_map
-from .psf import gaussian_psf
+from core.imaging.deconvolution import richardson_lucy
+from core.imaging.distortion import calibrate_distortion
+from core.imaging.distortion_maps import remap_tables
+from core.imaging.distortion_models import fit_distortion
+from core.imaging.flatfield import build_flatfield
+from core.imaging.pipeline import Pipeline
+from core.imaging.pointmaps import fit_polynomial_map
+from core.imaging.psf import gaussian_psf
 
 
 def _median_ms(fn, repeat: int) -> float:
@@ -56,7 +56,7 @@ def _machine() -> dict:
 
 def run(*, quick: bool = False) -> dict:
     """Run every case and return the JSON-ready result."""
-    from ..synthetic import Distortion, ImagingModel, distortion_grid_frame, flatfield_frames, foot_rig
+    from core.synthetic import Distortion, ImagingModel, distortion_grid_frame, flatfield_frames, foot_rig
 
     n = 512 if quick else 1024
     rep = 3 if quick else 10
@@ -115,12 +115,13 @@ def run(*, quick: bool = False) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.imaging.benchmark", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m core.studies.imaging.benchmark",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="512² frames, fewer repeats (a smoke run)")
     ap.add_argument("--out", help="also write the JSON to this file")
     args = ap.parse_args(argv)
     res = run(quick=args.quick)
-    from ..io.atomic import print_json
+    from core.io.atomic import print_json
 
     print_json(res, args.out)
     return 0

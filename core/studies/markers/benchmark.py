@@ -1,4 +1,4 @@
-"""Speed of bead localisation: ``python -m core.markers.benchmark [--quick] [--out FILE]``.
+"""Speed of bead localisation: ``python -m core.studies.markers.benchmark [--quick] [--out FILE]``.
 
 Times :func:`core.markers.batch.localize` on ``n_beads`` beads (2 and 3 mm steel, 6–9 px) in a
 grid, over ``n_frames`` noisy frames (Poisson noise at the thesis-like dose), with guesses 1 px
@@ -22,9 +22,9 @@ import time
 
 import numpy as np
 
-from ..geometry.camera import Camera, make_K
-from ..synthetic.analytic import attenuation_per_mm, bead_line_integrals
-from .batch import METHODS, RECOMMENDED, localize
+from core.geometry.camera import Camera, make_K
+from core.markers.batch import METHODS, RECOMMENDED, localize
+from core.synthetic.analytic import attenuation_per_mm, bead_line_integrals
 
 __all__ = ["bead_grid_frames", "run_benchmark"]
 
@@ -119,7 +119,8 @@ def run_benchmark(*, n_beads: int = 100, n_frames: int = 1000, repeats: int = 1)
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.markers.benchmark", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m core.studies.markers.benchmark",
+                                 description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="100 beads x 50 frames (a smoke run)")
     ap.add_argument("--repeats", type=int, default=None, help="timed runs per case (best is kept)")
     ap.add_argument("--out", default=None, help="also write the JSON to this file")

@@ -1,6 +1,6 @@
 """Edge-operator comparison of thesis §6.4: line pairs and a foot frame, with ground truth.
 
-Line pairs (``python -m core.similarity.edge_study``)
+Line pairs (``python -m core.studies.similarity.edge_study``)
 ----------------------------------------------------
 A lead bar pattern (0.1 mm Pb on 40 mm of water, 60 keV) with groups of five line pairs at
 0.5, 0.75 and 1.5 lp/mm in the detector plane is area-sampled (8 × 8 sub-pixels) on the pixels of
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from ..imaging.edges import OPERATORS, detect_edges
+from core.imaging.edges import OPERATORS, detect_edges
 
 __all__ = ["FREQUENCIES_LP_MM", "VARIANTS", "foot_comparison", "line_pair_comparison", "line_pair_image"]
 
@@ -44,7 +44,7 @@ VARIANTS["sobel~1"] = ("sobel", 1.0)
 
 
 def _camera(pixels: int = 1024):
-    from ..synthetic import foot_rig
+    from core.synthetic import foot_rig
 
     return foot_rig(pixels=pixels)[0]
 
@@ -56,7 +56,7 @@ def line_pair_image(*, pixels: int = 1024, size: int = 384, seed: int = 0, lead_
     ``truth`` holds per frequency the row span ``(r0, r1)`` of the group, the true edge columns
     (float, pixel centres at integers), and the background span of columns.
     """
-    from ..synthetic import ImagingModel, attenuation_per_mm
+    from core.synthetic import ImagingModel, attenuation_per_mm
 
     cam = _camera(pixels)
     px = float(cam.pixel_size)
@@ -142,8 +142,8 @@ def foot_image(*, pixels: int = 512, seed: int = 0, view: int = 0, spacing: floa
     (``spacing``: voxel size of the phantoms, mm)."""
     from dataclasses import replace
 
-    from ..render import DRRRenderer
-    from ..synthetic import ImagingModel, make_foot_scene
+    from core.render import DRRRenderer
+    from core.synthetic import ImagingModel, make_foot_scene
 
     scene = make_foot_scene(n_frames=1, pixels=pixels, seed=seed, imaging="ideal", spacing=spacing,
                             tissue_spacing=max(2.0, spacing))

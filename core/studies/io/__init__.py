@@ -1,0 +1,1 @@
+"""Reading speed of sequences and volumes (``python -m core.studies.io.benchmark``, ``talus bench io``)."""

@@ -1,0 +1,1 @@
+"""DRR rendering speed (``python -m core.studies.render.benchmark``, ``talus bench drr``)."""

@@ -48,7 +48,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .sequences import FrameSequence
+from .errors import FileError, reading
+from .frames import FrameSequence
 
 __all__ = ["CineInfo", "CineSequence", "read_cine_info", "unpack_10bit", "unpack_12bit"]
 
@@ -368,23 +369,25 @@ class CineSequence(FrameSequence):
 
     Raises
     ------
-    ValueError
-        Not a cine, colour/compressed, or truncated/corrupt (the message names the file and
-        the image or structure at fault).
+    FileError
+        (a ``ValueError``) Not a cine, colour/compressed, or truncated/corrupt (the message
+        names the file and the image or structure at fault).
     """
 
     def __init__(self, path, *, lut=None):
         self.path = Path(path)
-        if not self.path.is_file():
-            raise ValueError(f"path: no such cine file: {self.path}")
-        if self.path.stat().st_size < HEADER.size:
-            raise ValueError(f"{self.path}: truncated cine ({self.path.stat().st_size} bytes, no header)")
-        self._mm = np.memmap(self.path, dtype=np.uint8, mode="r")
-        try:
-            self.info, self._p_image, times, exposures = _parse(self._mm, self.path)
-        except BaseException:
-            self._mm = None
-            raise
+        self._mm = None
+        with reading(self.path, "a grey-level Phantom cine file"):
+            if not self.path.is_file():
+                raise FileError(f"path: no such cine file: {self.path}", path=self.path)
+            if self.path.stat().st_size < HEADER.size:
+                raise ValueError(f"{self.path}: truncated cine ({self.path.stat().st_size} bytes, no header)")
+            self._mm = np.memmap(self.path, dtype=np.uint8, mode="r")
+            try:
+                self.info, self._p_image, times, exposures = _parse(self._mm, self.path)
+            except BaseException:
+                self._mm = None
+                raise
         i = self.info
         self.timestamps = times
         self.exposures = np.full(i.image_count, i.exposure_s) if exposures is None else exposures

@@ -8,10 +8,11 @@ into the lab. Volumes are returned as :class:`core.render.CTVolume` (``data[k, j
 
 A DICOM folder is checked before reading (:func:`inspect_dicom_folder`): several series in one
 folder, slices of different size or orientation in one series, duplicate or missing slices
-(gaps in the slice positions) and slices not stacked along their normal (gantry tilt) raise
-:class:`ValueError` naming the files. Slices are ordered by their position along the slice
-normal, whatever the file names or instance numbers say (an unsorted folder is reported in the
-series info, not misread).
+(gaps in the slice positions), slices not stacked along their normal (gantry tilt) and files that
+look like slices but cannot be read (a truncated first or last slice would otherwise shift the
+volume silently) raise :class:`~core.io.errors.FileError` naming the files. Slices are ordered by
+their position along the slice normal, whatever the file names or instance numbers say (an
+unsorted folder is reported in the series info, not misread).
 """
 
 from __future__ import annotations
@@ -25,11 +26,13 @@ import numpy as np
 
 from .._validate import as_float_array
 from ..render.volume import CTVolume
+from .errors import FileError, reading
 from .tiff_volume import read_tiff_volume
 
 __all__ = ["DicomSeriesInfo", "inspect_dicom_folder", "read_ct", "split_labels"]
 
 _ITK_SUFFIXES = (".nii", ".nii.gz", ".nrrd", ".nhdr", ".mha", ".mhd")
+_DICOM_SUFFIXES = (".dcm", ".dicom", ".ima")
 _TAGS = {
     "uid": "0020|000e",
     "position": "0020|0032",
@@ -130,21 +133,58 @@ def inspect_dicom_folder(folder, *, tolerance: float = 0.05) -> tuple[DicomSerie
 
     Raises
     ------
-    ValueError
-        No DICOM images, a series with slices of different size/orientation, duplicate slice
-        positions, missing slices (gaps) or slices not stacked along the normal.
+    FileError
+        (a ``ValueError``) No DICOM images, a file that looks like a slice (``.dcm`` suffix,
+        ``DICM`` preamble, or named like the other slices) but cannot be read, a series with
+        slices of different size/orientation, duplicate slice positions, missing slices (gaps)
+        or slices not stacked along the normal.
     """
     folder = Path(folder)
-    if not folder.is_dir():
-        raise ValueError(f"folder: {folder} is not a folder of DICOM files")
-    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-    headers = [h for h in (_header(p) for p in files) if h is not None]
-    if not headers:
-        raise ValueError(f"folder: {folder} holds no DICOM images")
-    by_uid: dict[str, list[dict]] = {}
-    for h in headers:
-        by_uid.setdefault(h["uid"], []).append(h)
-    return tuple(_check_series(uid, hs, tolerance) for uid, hs in by_uid.items())
+    with reading(folder, "a folder of DICOM CT slices"):
+        if not folder.is_dir():
+            raise FileError(f"folder: {folder} is not a folder of DICOM files", path=folder)
+        files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+        headers, unreadable = [], []
+        for p in files:
+            h = _header(p)
+            (unreadable if h is None else headers).append(h or p)
+        damaged = [p for p in unreadable if _looks_like_dicom(p, headers)]
+        if damaged:
+            more = f" (and {len(damaged) - 1} more: {', '.join(p.name for p in damaged[1:4])})" if len(
+                damaged) > 1 else ""
+            raise FileError(
+                f"{damaged[0]}: cannot be read as a DICOM slice (truncated or damaged){more}; expected every "
+                f"DICOM file in {folder} to be readable: restore it from the scanner's copy or move it out "
+                "(a series missing its first or last slice would be read with a shifted origin)",
+                path=damaged[0], expected="a readable DICOM slice",
+            )
+        if not headers:
+            raise FileError(f"folder: {folder} holds no DICOM images", path=folder)
+        by_uid: dict[str, list[dict]] = {}
+        for h in headers:
+            by_uid.setdefault(h["uid"], []).append(h)
+        return tuple(_check_series(uid, hs, tolerance) for uid, hs in by_uid.items())
+
+
+def _stem_pattern(name: str) -> str:
+    return "".join("#" if c.isdigit() else c for c in name)
+
+
+def _looks_like_dicom(path: Path, headers: list[dict]) -> bool:
+    """Whether a file GDCM cannot read is meant as a slice: a DICOM suffix, the ``DICM``
+    preamble, or a name without a suffix patterned like the readable slices' (``IM0001``)."""
+    if path.name.upper() == "DICOMDIR":
+        return False
+    if path.suffix.lower() in _DICOM_SUFFIXES:
+        return True
+    with open(path, "rb") as fh:
+        head = fh.read(132)
+    if head[128:132] == b"DICM":
+        return True
+    if path.suffix:
+        return False
+    pattern = _stem_pattern(path.name)
+    return any(not h["path"].suffix and _stem_pattern(h["path"].name) == pattern for h in headers)
 
 
 def _check_series(uid: str, hs: list[dict], tol: float) -> DicomSeriesInfo:
@@ -277,38 +317,38 @@ def read_ct(
 
     Raises
     ------
-    ValueError
-        Unknown format, unreadable file, several DICOM series without ``series_uid``, gaps or
-        mixed slices, a non-3-D or multi-channel image; the message names the file.
+    FileError
+        (a ``ValueError``) Unknown format, unreadable file (a damaged slice of a DICOM series
+        included), several DICOM series without ``series_uid``, gaps or mixed slices, a non-3-D
+        or multi-channel image; the message names the file.
     """
     sitk = _sitk()
     if units not in ("HU", "1/mm", "label"):
         raise ValueError(f'units: expected "HU", "1/mm" or "label", got {units!r}')
     p = Path(path)
     lower = p.name.lower()
-    if p.is_file() and lower.endswith((".tif", ".tiff")):
-        if voxel_size is None:
-            raise ValueError(f"voxel_size: required for the TIFF volume {p} (TIFF stores no voxel size)")
-        vol = read_tiff_volume(p, voxel_size, hu_offset=hu_offset, units="HU" if units == "label" else units,
-                               name=name or p.stem)
-        return vol if units != "label" else CTVolume(_compact(vol.data, units, p), spacing=vol.spacing,
-                                                     origin=vol.origin, units=units, name=vol.name)
-    if p.is_file() and lower.endswith(_ITK_SUFFIXES):
-        try:
-            img = sitk.ReadImage(str(p))
-        except RuntimeError as exc:
-            why = str(exc).strip().splitlines()[-1]
-            raise ValueError(f"path: cannot read {p} as a volume ({why})") from None
-        stem = p.name[: -len(".nii.gz")] if lower.endswith(".nii.gz") else p.stem
-        return _from_sitk(img, p, units, name or stem, hu_offset)
-    if p.is_dir() or (p.is_file() and (lower.endswith(".dcm") or "." not in p.name)):
-        return _read_dicom(p, series_uid, units, name, hu_offset, tolerance)
-    if not p.exists():
-        raise ValueError(f"path: {p} does not exist")
-    raise ValueError(
-        f"path: cannot tell the format of {p}; expected a DICOM folder, .nii(.gz), .nrrd, .nhdr, .mha, "
-        ".mhd or .tif/.tiff"
-    )
+    if p.is_file() and lower.endswith((".tif", ".tiff")) and voxel_size is None:
+        raise ValueError(f"voxel_size: required for the TIFF volume {p} (TIFF stores no voxel size)")
+    expected = "a CT volume: a DICOM folder, .nii(.gz), .nrrd, .nhdr, .mha, .mhd or .tif/.tiff"
+    with reading(p, expected):
+        if p.is_file() and lower.endswith((".tif", ".tiff")):
+            vol = read_tiff_volume(p, voxel_size, hu_offset=hu_offset,
+                                   units="HU" if units == "label" else units, name=name or p.stem)
+            return vol if units != "label" else CTVolume(_compact(vol.data, units, p), spacing=vol.spacing,
+                                                         origin=vol.origin, units=units, name=vol.name)
+        if p.is_file() and lower.endswith(_ITK_SUFFIXES):
+            try:
+                img = sitk.ReadImage(str(p))
+            except RuntimeError as exc:
+                why = str(exc).strip().splitlines()[-1]
+                raise FileError(f"path: cannot read {p} as a volume ({why})", path=p) from exc
+            stem = p.name[: -len(".nii.gz")] if lower.endswith(".nii.gz") else p.stem
+            return _from_sitk(img, p, units, name or stem, hu_offset)
+        if p.is_dir() or (p.is_file() and (lower.endswith(_DICOM_SUFFIXES) or "." not in p.name)):
+            return _read_dicom(p, series_uid, units, name, hu_offset, tolerance)
+        if not p.exists():
+            raise FileError(f"path: {p} does not exist; expected {expected}", path=p)
+        raise FileError(f"path: cannot tell the format of {p}; expected {expected}", path=p)
 
 
 def _read_dicom(p: Path, series_uid, units, name, hu_offset, tolerance) -> CTVolume:
@@ -335,7 +375,16 @@ def _read_dicom(p: Path, series_uid, units, name, hu_offset, tolerance) -> CTVol
         img = reader.Execute()
     except RuntimeError as exc:
         why = str(exc).strip().splitlines()[-1]
-        raise ValueError(f"{folder}: cannot read DICOM series {info.uid} ({why})") from None
+        for f in info.files:  # name the slice at fault
+            try:
+                sitk.ReadImage(str(f))
+            except RuntimeError as one:
+                why = str(one).strip().splitlines()[-1]
+                raise FileError(
+                    f"{f}: cannot read the pixels of this slice of DICOM series {info.uid} ({why}); "
+                    "expected a complete DICOM slice", path=f, expected="a complete DICOM slice",
+                ) from exc
+        raise FileError(f"{folder}: cannot read DICOM series {info.uid} ({why})", path=folder) from exc
     dz = info.slice_spacing_mm
     if len(info.files) > 1 and abs(img.GetSpacing()[2] - dz) > 1e-3 * dz:
         raise ValueError(

@@ -13,20 +13,23 @@ number of significant bits (8, 10, 12, 14 or 16); a TIFF's container dtype says 
 data, so pass ``bit_depth=12`` to have every frame checked to lie in ``[0, 4095]``.
 
 Errors: a file that cannot be read, a colour or non-integer image, frames of different sizes or
-dtypes in one folder, or values above the declared bit depth raise :class:`ValueError` naming the
-file and what was expected; an out-of-range frame index raises :class:`IndexError`.
+dtypes in one folder, or values above the declared bit depth raise
+:class:`~core.io.errors.FileError` (a ``ValueError``) naming the file and what was expected; an
+out-of-range frame index raises :class:`IndexError`.
 """
 
 from __future__ import annotations
 
+import math
 import re
 import threading
-from abc import ABC, abstractmethod
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import tifffile
+
+from .errors import FileError, reading
+from .frames import FrameSequence, _check_bit_depth
 
 __all__ = [
     "FrameSequence",
@@ -39,106 +42,6 @@ __all__ = [
 _TIFF = (".tif", ".tiff")
 _VIDEO = (".avi", ".mp4", ".mov", ".mkv", ".m4v")
 _DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
-
-
-def _check_bit_depth(bit_depth, dtype: np.dtype, path: Path) -> int:
-    container = dtype.itemsize * 8
-    if bit_depth is None:
-        return container
-    if bit_depth not in (8, 10, 12, 14, 16) or bit_depth > container:
-        raise ValueError(
-            f"bit_depth: expected 8, 10, 12, 14 or 16 and at most the {container} bits of {path}'s "
-            f"{dtype} pixels, got {bit_depth!r}"
-        )
-    return int(bit_depth)
-
-
-class FrameSequence(ABC):
-    """A lazily read sequence of grey-level frames (see the module docstring)."""
-
-    path: Path
-    _bit_depth: int
-    _check_range: bool = False
-
-    @abstractmethod
-    def __len__(self) -> int: ...
-
-    @property
-    @abstractmethod
-    def frame_shape(self) -> tuple[int, int]:
-        """``(rows, columns)`` of every frame."""
-
-    @property
-    @abstractmethod
-    def dtype(self) -> np.dtype:
-        """``uint8`` or ``uint16``."""
-
-    @abstractmethod
-    def _read(self, k: int) -> np.ndarray:
-        """Frame ``k`` (already range-checked, non-negative)."""
-
-    @property
-    def bit_depth(self) -> int:
-        """Significant bits per pixel."""
-        return self._bit_depth
-
-    @property
-    def frame_rate(self) -> float | None:
-        """Frames per second when the file records it, else None."""
-        return None
-
-    @property
-    def frame_numbers(self) -> np.ndarray:
-        """Number of each frame as the source labels it (file-name numbers, cine image numbers)."""
-        return np.arange(len(self))
-
-    @property
-    def shape(self) -> tuple[int, int, int]:
-        return (len(self), *self.frame_shape)
-
-    def frame(self, k: int) -> np.ndarray:
-        """Frame ``k`` as an ``(H, W)`` array (negative ``k`` counts from the end)."""
-        n = len(self)
-        if isinstance(k, bool) or not isinstance(k, int | np.integer):
-            raise TypeError(f"frame index: expected an integer, got {type(k).__name__}")
-        kk = int(k) + n if k < 0 else int(k)
-        if not 0 <= kk < n:
-            raise IndexError(f"frame {k} out of range for {self.path} ({n} frames)")
-        img = self._read(kk)
-        if self._check_range and img.max(initial=0) >> self._bit_depth:
-            raise ValueError(
-                f"{self.path}: frame {kk} has value {int(img.max())} above the declared "
-                f"{self._bit_depth}-bit range [0, {(1 << self._bit_depth) - 1}]"
-            )
-        return img
-
-    def __getitem__(self, key):
-        if isinstance(key, slice):
-            idx = range(*key.indices(len(self)))
-            out = np.empty((len(idx), *self.frame_shape), dtype=self.dtype)
-            for i, k in enumerate(idx):
-                out[i] = self.frame(k)
-            return out
-        return self.frame(key)
-
-    def __iter__(self) -> Iterator[np.ndarray]:
-        for k in range(len(self)):
-            yield self.frame(k)
-
-    def close(self) -> None:  # noqa: B027 - optional hook
-        """Release the file handles (idempotent)."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __repr__(self) -> str:
-        return (
-            f"{type(self).__name__}({str(self.path)!r}, frames={len(self)}, "
-            f"shape={self.frame_shape}, {self.bit_depth}-bit)"
-        )
 
 
 def _grey_page_info(page, path: Path) -> tuple[tuple[int, int], np.dtype]:
@@ -167,30 +70,29 @@ class TiffFolderSequence(FrameSequence):
 
     def __init__(self, folder, *, bit_depth: int | None = None):
         self.path = Path(folder)
-        if not self.path.is_dir():
-            raise ValueError(f"folder: {self.path} is not a folder of TIFF frames")
-        files = [p for p in self.path.iterdir() if p.suffix.lower() in _TIFF and not p.name.startswith(".")]
-        if not files:
-            raise ValueError(f"folder: {self.path} holds no .tif/.tiff files")
-        nums = [_NUM.search(p.stem) for p in files]
-        if all(m is not None for m in nums):
-            order = sorted(range(len(files)), key=lambda i: (int(nums[i].group(1)), files[i].name))
-            numbers = np.array([int(nums[i].group(1)) for i in order])
-            if len(set(numbers.tolist())) != len(numbers):
-                dup = int(numbers[np.flatnonzero(np.diff(numbers) == 0)[0]])
-                raise ValueError(f"folder: {self.path} holds two frames numbered {dup}")
-        else:
-            order = sorted(range(len(files)), key=lambda i: files[i].name)
-            numbers = np.arange(len(files))
-        self._files = [files[i] for i in order]
-        self._numbers = numbers
-        try:
-            with tifffile.TiffFile(self._files[0]) as tif:
-                self._shape, self._dtype = _grey_page_info(tif.pages[0], self._files[0])
-        except ValueError:
-            raise
-        except Exception as exc:  # tifffile raises many types for broken files
-            raise ValueError(f"{self._files[0]}: cannot read as a TIFF frame ({exc})") from exc
+        with reading(self.path, "a folder of single-page grey-level TIFF frames"):
+            if not self.path.is_dir():
+                raise FileError(f"folder: {self.path} is not a folder of TIFF frames", path=self.path)
+            files = [
+                p for p in self.path.iterdir() if p.suffix.lower() in _TIFF and not p.name.startswith(".")
+            ]
+            if not files:
+                raise FileError(f"folder: {self.path} holds no .tif/.tiff files", path=self.path)
+            nums = [_NUM.search(p.stem) for p in files]
+            if all(m is not None for m in nums):
+                order = sorted(range(len(files)), key=lambda i: (int(nums[i].group(1)), files[i].name))
+                numbers = np.array([int(nums[i].group(1)) for i in order])
+                if len(set(numbers.tolist())) != len(numbers):
+                    dup = int(numbers[np.flatnonzero(np.diff(numbers) == 0)[0]])
+                    raise FileError(f"folder: {self.path} holds two frames numbered {dup}", path=self.path)
+            else:
+                order = sorted(range(len(files)), key=lambda i: files[i].name)
+                numbers = np.arange(len(files))
+            self._files = [files[i] for i in order]
+            self._numbers = numbers
+        first = self._files[0]
+        with reading(first, "a single-page grey-level TIFF frame"), tifffile.TiffFile(first) as tif:
+            self._shape, self._dtype = _grey_page_info(tif.pages[0], self._files[0])
         self._bit_depth = _check_bit_depth(bit_depth, self._dtype, self.path)
         self._check_range = self._bit_depth < self._dtype.itemsize * 8
 
@@ -215,16 +117,11 @@ class TiffFolderSequence(FrameSequence):
 
     def _read(self, k: int) -> np.ndarray:
         p = self._files[k]
-        try:
-            with tifffile.TiffFile(p) as tif:
-                if len(tif.pages) != 1:
-                    raise ValueError(f"{p}: expected a single-page TIFF frame, got {len(tif.pages)} pages")
-                shape, dtype = _grey_page_info(tif.pages[0], p)
-                img = tif.pages[0].asarray()
-        except ValueError:
-            raise
-        except Exception as exc:
-            raise ValueError(f"{p}: cannot read as a TIFF frame ({exc})") from exc
+        with reading(p, "a single-page grey-level TIFF frame"), tifffile.TiffFile(p) as tif:
+            if len(tif.pages) != 1:
+                raise ValueError(f"{p}: expected a single-page TIFF frame, got {len(tif.pages)} pages")
+            shape, dtype = _grey_page_info(tif.pages[0], p)
+            img = tif.pages[0].asarray()
         if shape != self._shape or dtype != self._dtype:
             raise ValueError(
                 f"{p}: frame of {shape[1]}x{shape[0]} {dtype} pixels; expected {self._shape[1]}x"
@@ -239,41 +136,45 @@ class MultipageTiffSequence(FrameSequence):
 
     def __init__(self, path, *, bit_depth: int | None = None):
         self.path = Path(path)
-        if not self.path.is_file():
-            raise ValueError(f"path: no such TIFF file: {self.path}")
-        try:
+        with reading(self.path, "a multipage TIFF stack of grey-level frames"):
+            if not self.path.is_file():
+                raise FileError(f"path: no such TIFF file: {self.path}", path=self.path)
             self._tif = tifffile.TiffFile(self.path)
-        except Exception as exc:
-            raise ValueError(f"path: cannot read {self.path} as a TIFF ({exc})") from exc
+            try:
+                self._open_series()
+            except BaseException:
+                self._tif.close()
+                raise
         self._lock = threading.Lock()
-        try:
-            series = self._tif.series[0]
-            self._shape, self._dtype = _grey_page_info(self._tif.pages[0], self.path)
-            shape = tuple(int(s) for s in series.shape)
-            if len(shape) == 2:
-                shape = (1, *shape)
-            if len(shape) != 3 or shape[1:] != self._shape:
-                raise ValueError(
-                    f"{self.path}: expected a stack of (frames, rows, columns), got series shape {shape}"
-                )
-            self._n = shape[0]
-            self._mmap = None
-            offset = series.dataoffset
-            if offset is not None and np.dtype(series.dtype) == self._dtype:
-                dt = self._dtype.newbyteorder(self._tif.byteorder)
-                self._mmap = np.memmap(self.path, dtype=dt, mode="r", offset=offset, shape=shape)
-            elif len(self._tif.pages) < self._n:
-                raise ValueError(
-                    f"{self.path}: {self._n} frames announced but {len(self._tif.pages)} pages stored"
-                )
-        except ValueError:
-            self._tif.close()
-            raise
-        except Exception as exc:  # damaged files make tifffile raise many types
-            self._tif.close()
-            raise ValueError(f"path: cannot read {self.path} as a TIFF stack ({exc!r})") from exc
         self._bit_depth = _check_bit_depth(bit_depth, self._dtype, self.path)
         self._check_range = self._bit_depth < self._dtype.itemsize * 8
+
+    def _open_series(self) -> None:
+        series = self._tif.series[0]
+        self._shape, self._dtype = _grey_page_info(self._tif.pages[0], self.path)
+        shape = tuple(int(s) for s in series.shape)
+        if len(shape) == 2:
+            shape = (1, *shape)
+        if len(shape) != 3 or shape[1:] != self._shape:
+            raise ValueError(
+                f"{self.path}: expected a stack of (frames, rows, columns), got series shape {shape}"
+            )
+        self._n = shape[0]
+        self._mmap = None
+        offset = series.dataoffset
+        if offset is not None and np.dtype(series.dtype) == self._dtype:
+            dt = self._dtype.newbyteorder(self._tif.byteorder)
+            need = offset + math.prod(shape) * dt.itemsize
+            size = self.path.stat().st_size
+            if size < need:
+                raise ValueError(
+                    f"{self.path}: truncated TIFF stack: {size} bytes, the {shape[0]} frames need {need}"
+                )
+            self._mmap = np.memmap(self.path, dtype=dt, mode="r", offset=offset, shape=shape)
+        elif len(self._tif.pages) < self._n:
+            raise ValueError(
+                f"{self.path}: {self._n} frames announced but {len(self._tif.pages)} pages stored"
+            )
 
     def __len__(self) -> int:
         return self._n
@@ -295,14 +196,9 @@ class MultipageTiffSequence(FrameSequence):
         if self._mmap is not None:
             return self._mmap[k]
         with self._lock:
-            try:
-                page = self._tif.pages[k]
-                shape, dtype = _grey_page_info(page, self.path)
-                img = page.asarray()
-            except ValueError:
-                raise
-            except Exception as exc:
-                raise ValueError(f"{self.path}: cannot read page {k} ({exc})") from exc
+            page = self._tif.pages[k]
+            shape, dtype = _grey_page_info(page, self.path)
+            img = page.asarray()
         if shape != self._shape or dtype != self._dtype:
             raise ValueError(
                 f"{self.path}: page {k} is {shape} {dtype}; expected {self._shape} {self._dtype}"
@@ -329,19 +225,24 @@ class VideoSequence(FrameSequence):
 
         self._cv2 = cv2
         self.path = Path(path)
-        if not self.path.is_file():
-            raise ValueError(f"path: no such video file: {self.path}")
-        self._cap = cv2.VideoCapture(str(self.path))
-        if not self._cap.isOpened():
-            raise ValueError(f"path: OpenCV cannot open {self.path} as a video")
-        self._n = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        self._fps = float(self._cap.get(cv2.CAP_PROP_FPS)) or None
-        self._next = 0
-        self._lock = threading.Lock()
-        if self._n <= 0:
-            self.close()
-            raise ValueError(f"path: {self.path} reports no frames")
-        first = self._read(0)
+        self._cap = None
+        with reading(self.path, "a video OpenCV can decode"):
+            if not self.path.is_file():
+                raise FileError(f"path: no such video file: {self.path}", path=self.path)
+            self._cap = cv2.VideoCapture(str(self.path))
+            if not self._cap.isOpened():
+                raise FileError(f"path: OpenCV cannot open {self.path} as a video", path=self.path)
+            self._n = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            self._fps = float(self._cap.get(cv2.CAP_PROP_FPS)) or None
+            self._next = 0
+            self._lock = threading.Lock()
+            try:
+                if self._n <= 0:
+                    raise FileError(f"path: {self.path} reports no frames", path=self.path)
+                first = self._read(0)
+            except BaseException:
+                self.close()
+                raise
         self._shape = first.shape
         self._bit_depth = 8
 
@@ -414,9 +315,7 @@ def open_sequence(path, *, bit_depth: int | None = None) -> FrameSequence:
         return MultipageTiffSequence(p, bit_depth=bit_depth)
     if suffix in _VIDEO:
         return VideoSequence(p)
+    expected = f"a folder of TIFFs, .tif/.tiff, .cine or a video ({', '.join(_VIDEO)})"
     if not p.exists():
-        raise ValueError(f"path: {p} does not exist")
-    raise ValueError(
-        f"path: cannot tell the format of {p}; expected a folder of TIFFs, .tif/.tiff, .cine or a "
-        f"video ({', '.join(_VIDEO)})"
-    )
+        raise FileError(f"path: {p} does not exist; expected {expected}", path=p, expected=expected)
+    raise FileError(f"path: cannot tell the format of {p}; expected {expected}", path=p, expected=expected)

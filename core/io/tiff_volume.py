@@ -9,6 +9,7 @@ import tifffile
 
 from .._validate import as_float_array
 from ..render.volume import CTVolume
+from .errors import FileError, reading
 
 __all__ = ["read_tiff_volume"]
 
@@ -46,29 +47,27 @@ def read_tiff_volume(
 
     Raises
     ------
-    ValueError
-        When the file is missing, unreadable, or not a stack of single-channel 2-D slices.
+    FileError
+        (a ``ValueError``) When the file is missing, unreadable, or not a stack of single-channel 2-D slices.
     """
     p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"path: no such TIFF volume file: {p}")
     spacing = as_float_array(spacing, "spacing", shape=(3,))
-    try:
+    with reading(p, "a multipage TIFF stack of single-channel slices"):
+        if not p.is_file():
+            raise FileError(f"path: no such TIFF volume file: {p}", path=p)
         with tifffile.TiffFile(p) as tif:
             series = tif.series[0]
             spp = tif.pages[0].samplesperpixel
             data = series.asarray()
-    except Exception as exc:  # tifffile raises many types for broken files
-        raise ValueError(f"path: cannot read {p} as a TIFF stack ({exc})") from exc
-    if spp != 1:
-        raise ValueError(
-            f"path: {p} has {spp} samples per pixel (colour?); expected single-channel slices"
-        )
-    if data.ndim != 3:
-        raise ValueError(
-            f"path: {p} holds an array of shape {data.shape}; expected a stack of 2-D slices "
-            "(pages, rows, columns)"
-        )
+        if spp != 1:
+            raise ValueError(
+                f"path: {p} has {spp} samples per pixel (colour?); expected single-channel slices"
+            )
+        if data.ndim != 3:
+            raise ValueError(
+                f"path: {p} holds an array of shape {data.shape}; expected a stack of 2-D slices "
+                "(pages, rows, columns)"
+            )
     if hu_offset:
         data = data.astype(np.float32) + np.float32(hu_offset)
     kw = {} if direction is None else {"direction": direction}

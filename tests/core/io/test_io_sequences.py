@@ -102,7 +102,7 @@ def test_multipage_tiff_compressed_and_8bit(tmp_path):
         MultipageTiffSequence(bad)
     junk = tmp_path / "junk.tif"
     junk.write_bytes(b"II*\x00garbage")
-    with pytest.raises(ValueError, match=r"cannot read .*junk\.tif as a TIFF"):
+    with pytest.raises(ValueError, match=r"junk\.tif: cannot read as a multipage TIFF"):
         open_sequence(junk)
 
 

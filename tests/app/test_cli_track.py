@@ -3,7 +3,13 @@ import json
 import numpy as np
 import pytest
 
-from core.tracking.cli import main, parse_frames
+from app.cli import EXIT_NOTHING_DONE
+from app.cli import main as talus
+from app.commands.track import parse_frames
+
+
+def main(argv):
+    return talus(["track", *argv])
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +56,7 @@ def test_track_command_bad_input(demo, capsys):
     assert main([str(demo), "--trial", "nope"]) == 1
     assert "nope" in capsys.readouterr().err
     assert main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "0:1", "--device", "cpu",
-                 "--threshold", "99999", "--quiet"]) == 2  # no bone above the threshold: stopped cleanly
+                 "--threshold", "99999", "--quiet"]) == EXIT_NOTHING_DONE  # no bone above the threshold
     doc = json.loads(capsys.readouterr().out)
     assert "threshold" in doc["stopped"]["talus"]
     assert main([str(demo / "missing"), "--trial", "walk"]) == 1

@@ -1,0 +1,118 @@
+"""``talus demo``: write (once) and open the built-in synthetic biplane study."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from ._shared import (
+    EXIT_CANCELLED,
+    EXIT_OK,
+    PROG,
+    CancelToken,
+    CliError,
+    Progress,
+    load,
+    print_json,
+    sigint_cancels,
+    stdout_to_stderr,
+)
+from .types import int_at_least
+
+HELP = "write (once) and open the synthetic demo study"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Write the built-in synthetic biplane study (rig, CT volumes, fluoroscope frames "
+        "rendered at known bone poses, ground truth) to --out, print its summary as JSON and "
+        "open it in the window when a display is available. A study already in --out made with "
+        "the same options is reused. Ctrl-C cancels cleanly after the frame in progress.")
+    parser.add_argument("--out", default="demo_out", metavar="DIR", help="output folder")
+    parser.add_argument("--frames", type=int_at_least(1), metavar="N",
+                        help="number of frames (default: the demo's, 10)")
+    parser.add_argument("--pixels", type=int_at_least(1), metavar="N",
+                        help="image size in pixels, N x N (default: the demo's, 512)")
+    parser.add_argument("--seed", type=int_at_least(0), metavar="N", help="random seed (default 0)")
+    parser.add_argument("--device", choices=["cpu", "cuda"],
+                        help="Warp device for the DRRs (default: cuda when present, else cpu)")
+    parser.add_argument("--no-gui", action="store_true",
+                        help="only write the study (the window opens when a display is available)")
+    parser.add_argument("--regenerate", action="store_true",
+                        help="rebuild the study even if --out already holds one made with the "
+                        "same options")
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    make_demo_study = load("core.synthetic.demo:make_demo_study", needed_for="'talus demo'")
+    out = Path(args.out).expanduser()
+    cached = None if args.regenerate else _cached_demo(out, args)
+    if cached is not None:
+        print(f"{PROG} demo: using the demo study already in {out} (--regenerate to rebuild)",
+              file=sys.stderr)
+        print_json(cached)
+        return _open_demo_gui(out, args)
+    token = CancelToken()
+    progress = Progress("demo", "frame")
+    with sigint_cancels(token, "demo"):
+        try:
+            # options left out take the defaults of make_demo_study
+            given = {"n_frames": args.frames, "pixels": args.pixels, "seed": args.seed,
+                     "device": args.device}
+            options = {k: v for k, v in given.items() if v is not None}
+            with stdout_to_stderr():
+                result = make_demo_study(out, **options, progress=progress, cancel=token)
+        except KeyboardInterrupt:
+            token.set()
+            result = None
+        except Exception:
+            if not token.is_set():
+                raise
+            result = None
+        finally:
+            progress.close()
+    if result is not None:
+        print_json(result)  # also after a cancel: the summary says what was written
+    if token.is_set():
+        print(f"{PROG} demo: cancelled; complete frames so far are in {out}", file=sys.stderr)
+        return EXIT_CANCELLED
+    return _open_demo_gui(out, args)
+
+
+def _cached_demo(out: Path, args: argparse.Namespace) -> dict | None:
+    """The summary of a complete demo study in ``out`` made with the same options, if any."""
+    try:
+        summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if summary.get("format") != "talus-synthetic-study" or summary.get("status") != "complete":
+        return None
+    if summary.get("study") and not (out / str(summary["study"])).is_file():
+        return None  # the study manifest is gone: rebuild
+    for option, key in (("frames", "n_frames"), ("pixels", "pixels"), ("seed", "seed")):
+        value = getattr(args, option)
+        if value is not None and summary.get(key) != value:
+            return None
+    return summary
+
+
+def _open_demo_gui(out: Path, args: argparse.Namespace) -> int:
+    """Show the demo study in the window when asked to and a display is available."""
+    if args.no_gui:
+        return EXIT_OK
+    if sys.platform.startswith("linux") and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        print(f"{PROG} demo: no display; view the study with '{PROG} gui --demo {out}'",
+              file=sys.stderr)
+        return EXIT_OK
+    try:
+        run_gui = load("app.main_window:run_gui", needed_for="showing the demo",
+                       hint="Install the GUI extra: pip install 'talus-biplane[gui]'.")
+    except CliError as exc:
+        print(f"{PROG} demo: {exc}", file=sys.stderr)
+        return EXIT_OK
+    return int(run_gui(demo=out))

@@ -1,0 +1,67 @@
+"""``talus study …``: look after a study folder.
+
+``talus study repair STUDY [--dry-run]`` salvages pose journals that fail their checksums:
+every record whose checksum holds is kept, the rest are reported (and, without ``--dry-run``,
+set aside by the library so the study opens again). The JSON report says what was kept and
+what was dropped, per journal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import sys
+from pathlib import Path
+
+from ._shared import EXIT_OK, PROG, CliError, print_json, stdout_to_stderr
+
+HELP = "look after a study folder (repair damaged pose journals)"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    repair = sub.add_parser(
+        "repair", help="salvage damaged pose journals (keep every record whose checksum holds)",
+        description="Check every pose journal of the study; keep each record whose checksum "
+        "holds and report the rest. With --dry-run only report what would be done.")
+    repair.add_argument("study", metavar="STUDY", help="study folder (study.json)")
+    repair.add_argument("--dry-run", action="store_true",
+                        help="report what would be kept and dropped; change nothing")
+    repair.set_defaults(run=run_repair)
+
+
+def _salvage(folder: Path, dry_run: bool) -> dict:
+    """The library's salvage: ``Study.repair(dry_run=...)``, else ``salvage_journal`` per file."""
+    from core.study import Study
+
+    if hasattr(Study, "repair"):
+        with Study.open(folder, mode="r" if dry_run else "w", check_files=False) as study:
+            return study.repair(dry_run=dry_run)
+    from core.study import results
+
+    salvage = getattr(results, "salvage_journal", None)
+    if salvage is None:
+        raise CliError("'talus study repair' needs core.study.Study.repair (or "
+                       "core.study.results.salvage_journal), which this installation does not "
+                       "provide")
+    takes_dry_run = "dry_run" in inspect.signature(salvage).parameters
+    if dry_run and not takes_dry_run:
+        raise CliError("--dry-run: this installation's journal salvage cannot run without writing")
+    # hold the study's write lock while journals are rewritten
+    with Study.open(folder, mode="r" if dry_run else "w", check_files=False):
+        journals = sorted((folder / "results").glob("*/poses/*.jsonl"))
+        done = {str(p.relative_to(folder)): (salvage(p, dry_run=dry_run) if takes_dry_run
+                                              else salvage(p)) for p in journals}
+    return {"study": str(folder), "dry_run": dry_run, "journals": done}
+
+
+def run_repair(args: argparse.Namespace) -> int:
+    folder = Path(args.study).expanduser()
+    if not folder.is_dir():
+        raise CliError(f"STUDY: no study folder at {folder}")
+    with stdout_to_stderr():
+        result = _salvage(folder.absolute(), bool(args.dry_run))
+    print_json(result)
+    if not args.dry_run:
+        print(f"{PROG} study repair: done ({folder})", file=sys.stderr)
+    return EXIT_OK

@@ -1,0 +1,160 @@
+"""``talus track``: track bones of a study trial from the command line.
+
+Usage::
+
+    talus track STUDY --trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0]
+                [--resume] [--guess velocity|previous|spline] [--mode sequential|joint]
+                [--metric gc] [--max-uncertainty MM,DEG] [--no-confidence] [--quiet]
+
+Every registered frame is saved to the study's pose journal as it finishes; the tracking report
+(``results/reports/tracking/<trial>.json``) lists per-frame scores and the frames flagged for
+review. A progress bar goes to stderr, the JSON summary to stdout. Ctrl-C stops after the
+registration in flight (``--resume`` continues later). Exit status: 0 done, 1 bad input,
+3 study locked by another writer, 4 no bone could be tracked, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ._shared import (
+    EXIT_CANCELLED,
+    EXIT_NOTHING_DONE,
+    EXIT_OK,
+    PROG,
+    CancelToken,
+    CliError,
+    Progress,
+    print_json,
+    sigint_cancels,
+    stdout_to_stderr,
+)
+
+__all__ = ["HELP", "configure", "parse_frames", "run"]
+
+HELP = "track bones of a study trial, saving each pose as it finishes"
+
+
+def parse_frames(text: str | None, n_frames: int) -> list[int]:
+    """``"a:b"`` (b exclusive; either side may be empty), ``"a"`` or None (all) → frame list."""
+    if text is None:
+        return list(range(n_frames))
+    try:
+        if ":" in text:
+            a, b = text.split(":", 1)
+            lo = int(a) if a.strip() else 0
+            hi = int(b) if b.strip() else n_frames
+        else:
+            lo = int(text)
+            hi = lo + 1
+    except ValueError:
+        raise ValueError(f"--frames: expected START:STOP or a frame number, got {text!r}") from None
+    if not 0 <= lo < hi <= n_frames:
+        raise ValueError(f"--frames: {text!r} is not a non-empty range inside 0:{n_frames}")
+    return list(range(lo, hi))
+
+
+def parse_limits(text: str | None) -> tuple[float, float] | None:
+    """``--max-uncertainty MM,DEG`` → ``(mm, deg)``; the range is checked by the library."""
+    if text is None:
+        return None
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--max-uncertainty: expected MM,DEG (two numbers), got {text!r}") from None
+    return mm, deg
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Track bones of a study trial frame after frame. Each pose is saved to the "
+                     "study's journal as it finishes; Ctrl-C stops after the registration in "
+                     "flight (exit 130) and --resume carries on. JSON summary on stdout.")
+    p.add_argument("study", help="study folder (study.json)")
+    p.add_argument("--trial", required=True, help="trial name")
+    p.add_argument("--bones", default=None, help="comma-separated bone names (default: the trial's bones)")
+    p.add_argument("--frames", default=None, help="START:STOP (STOP exclusive; default all frames)")
+    p.add_argument("--backward", action="store_true", help="track from the last frame to the first")
+    p.add_argument("--device", default=None,
+                   help="Warp device: cpu, cuda, cuda:1 (default CUDA when present)")
+    p.add_argument("--resume", action="store_true", help="skip frames that already have a pose")
+    p.add_argument("--guess", choices=("velocity", "previous", "spline"), default="velocity")
+    p.add_argument("--mode", choices=("sequential", "joint"), default="sequential",
+                   help="joint: register each bone with the others' DRRs subtracted (needs DRR "
+                        "intensities that match the radiographs: flatfield-corrected frames and a "
+                        "calibrated HU transfer)")
+    p.add_argument("--metric", default="gc", help="similarity metric (a core.similarity batched kind; "
+                                                  "gc: both images smoothed by 0.3 mm, the default cost)")
+    p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
+    p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
+    p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",
+                   help="flag frames for review whose confidence (length of the sigma vector) exceeds "
+                        "MM in translation or DEG in rotation, e.g. 0.3,0.6")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=run)
+
+
+class _Bar:
+    """The tracking progress callback ``(done, total, frame_result)``: a bar with the score."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+
+    def __call__(self, done: int, total: int, fr) -> None:
+        w = 30
+        k = int(w * done / max(total, 1))
+        self.progress(done, total, f"[{'#' * k}{'.' * (w - k)}] {fr.bone}@{fr.frame} "
+                                   f"score {fr.score:.3f}")
+        if fr.flags:
+            self.progress.note(f"flagged {fr.bone}@{fr.frame}: {', '.join(map(str, fr.flags))}")
+
+
+def run(a: argparse.Namespace) -> int:
+    folder = Path(a.study).expanduser()
+    if not folder.is_dir():
+        raise CliError(f"STUDY: no study folder at {folder}")
+    limits = parse_limits(a.max_uncertainty)
+    from core.study import Study
+    from core.tracking.cost import DEFAULT_TERMS, MetricTerm
+    from core.tracking.from_study import track_study
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions
+
+    token = CancelToken()
+    progress = Progress("track", quiet=a.quiet)
+    with Study.open(folder, mode="w") as study, sigint_cancels(token, "track"):
+        try:
+            trial = study.trial(a.trial)
+            frames = parse_frames(a.frames, trial.n_frames)
+            if a.backward:
+                frames = frames[::-1]
+            bones = a.bones.split(",") if a.bones else None
+            terms = DEFAULT_TERMS if a.metric == "gc" else (MetricTerm(a.metric),)
+            reg = RegistrationOptions(terms=terms, bounds=(5.0, 5.0), sigma=(1.0, 1.0),
+                                      search="local")
+            opts = TrackingOptions(registration=reg, guess=a.guess, mode=a.mode,
+                                   confidence=not a.no_confidence, max_uncertainty=limits)
+            with stdout_to_stderr():
+                result, report = track_study(study, a.trial, bones, frames, options=opts,
+                                             device=a.device, resume=a.resume,
+                                             threshold_hu=a.threshold, progress=_Bar(progress),
+                                             cancel=token)
+        except KeyboardInterrupt:  # a second Ctrl-C: stop at once (the journal stays valid)
+            token.set()
+            result, report = None, {}
+        finally:
+            progress.close()
+    cancelled = token.is_set() or (result is not None and result.status == "cancelled")
+    summary = dict(report.get("summary") or {})
+    if cancelled:
+        summary["status"] = "cancelled"  # never "complete" once the user has pressed Ctrl-C
+    out = {"trial": a.trial, "summary": summary, "stopped": report.get("stopped"),
+           "flagged": [(f["bone"], f["frame"], f["flags"]) for f in report.get("flagged", [])],
+           "normalisation": report.get("normalisation")}
+    print_json(out)
+    if cancelled:
+        print(f"{PROG} track: cancelled; the poses finished so far are saved "
+              f"('{PROG} track ... --resume' carries on)", file=sys.stderr)
+        return EXIT_CANCELLED
+    return EXIT_NOTHING_DONE if result is None else EXIT_OK

@@ -69,3 +69,21 @@ def test_every_core_module_imports_without_qt_or_display():
     )
     assert done.returncode == 0, f"{done.stdout}\n{done.stderr}"
     assert "imported" in done.stdout
+
+
+def test_contracts_cover_every_library_package():
+    """A new package of ``core`` is a library package, and so is bound by the contracts that keep
+    the evaluation (``core.studies``) and the generator (``core.synthetic``) out of the library,
+    unless it is one of those two."""
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    contracts = {c["name"]: c for c in config["tool"]["importlinter"]["contracts"]}
+    packages = {f"core.{p.name}" for p in (ROOT / "core").iterdir()
+                if (p / "__init__.py").is_file()} - {"core.studies", "core.synthetic"}
+    assert packages, "no package found under core/"
+    for forbidden in ("core.studies", "core.synthetic"):
+        found = [c for c in contracts.values() if c.get("forbidden_modules") == [forbidden]]
+        assert len(found) == 1, f"pyproject.toml: expected one contract forbidding {forbidden}"
+        missing = packages - set(found[0]["source_modules"])
+        assert not missing, f"pyproject.toml: {found[0]['name']!r} does not list {sorted(missing)}"

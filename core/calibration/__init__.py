@@ -1,7 +1,8 @@
 """Camera calibration of the biplane X-ray rig (thesis Chapter 5).
 
-* :mod:`~core.calibration.objects`, :mod:`~core.calibration.microct`: calibration objects
-  (15-bead cube, helical spirals), definition files, bead centres from a micro-CT scan.
+* :mod:`~core.calibration.objects`, :mod:`~core.calibration.hardware`,
+  :mod:`~core.calibration.microct`: calibration objects (15-bead cube, helical spirals, the
+  helix frame), definition files, bead centres from a micro-CT scan.
 * :mod:`~core.calibration.detection`, :mod:`~core.calibration.labelling`,
   :mod:`~core.calibration.matching`: beads detected and size-classified with
   :mod:`core.markers`, labelled per view (spiral: PCA axis + string matching, chains of
@@ -18,7 +19,6 @@
   coordinates and Sobol indices of the DLT camera parameters.
 * :mod:`~core.calibration.io`: the versioned Talus calibration file (JSON), MayaCam 1.0/2.0 and
   DLT CSV export/import.
-* :mod:`~core.synthetic.capture`: synthetic calibration sequences (ground truth).
 
 Pixels are ``(u, v) = (column, row)`` with the origin at the centre of the top-left pixel; image
 arrays are indexed ``[row, col]``; lengths in mm, angles in radians.

@@ -3,7 +3,7 @@
 :func:`extract_beads` finds bright beads in a (micro-)CT volume and returns their 3-D
 intensity-weighted centroids and equivalent-sphere diameters; :func:`target_from_volume` turns
 them into a :class:`~core.calibration.objects.CalibrationTarget` in the object's local frame (the
-helix frame of :func:`core.synthetic.helix_frame_from_beads` for a spiral). Physical coordinates
+helix frame of :func:`core.calibration.hardware.helix_frame_from_beads` for a spiral). Physical coordinates
 (mm) follow the volume's spacing, origin and direction (:class:`core.render.CTVolume`).
 """
 
@@ -16,7 +16,7 @@ from scipy import ndimage
 
 from .._validate import positive
 from ..render.volume import CTVolume
-from ..synthetic.calib_objects import helix_frame_from_beads
+from .hardware import helix_frame_from_beads
 from .objects import _HELIX_FRAME, KINDS, CalibrationTarget, _ids
 
 __all__ = ["VolumeBeads", "extract_beads", "target_from_volume"]
@@ -128,7 +128,7 @@ def target_from_volume(volume: CTVolume, *, kind: str = "spiral", name: str = "o
     """A target from a micro-CT scan of the object (thesis §5.3.2).
 
     ``kind="spiral"``: beads are ordered along the helix axis (principal axis of the bead cloud)
-    and expressed in the helix frame of :func:`core.synthetic.helix_frame_from_beads` (the
+    and expressed in the helix frame of :func:`core.calibration.hardware.helix_frame_from_beads` (the
     module docstring's definition); the first bead is at the end of the axis whose direction's
     largest scan component is negative (``reverse=True`` starts from the other end). Other kinds
     keep the scan's physical coordinates, ordered by

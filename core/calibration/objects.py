@@ -4,7 +4,7 @@ A :class:`CalibrationTarget` is what calibration needs to know about an object: 
 centre (object frame, mm) and diameter (mm) of every bead, the object's kind (``"spiral"``,
 ``"cube"`` or ``"generic"``; it selects the labelling algorithm), a sentence defining the object
 frame, and free metadata. The geometry of the built-ins is not duplicated here: it comes from
-:mod:`core.synthetic.calib_objects` (the same objects the synthetic frames are rendered from).
+:mod:`core.calibration.hardware` (the same objects the synthetic frames are rendered from).
 
 Built-ins
 ---------
@@ -48,12 +48,8 @@ import numpy as np
 
 from .._validate import as_float_array
 from ..io.atomic import atomic_write
-from ..synthetic.analytic import attenuation_per_mm
-from ..synthetic.calib_objects import (
-    CalibrationObject,
-    calibration_cube,
-    helical_spiral,
-)
+from ..render.attenuation import attenuation_per_mm
+from .hardware import CalibrationObject, calibration_cube, helical_spiral
 
 __all__ = [
     "KINDS",
@@ -97,7 +93,7 @@ class CalibrationTarget:
     metadata : dict
         Free JSON-serialisable metadata (material, serial number, scan date, ...).
     body : tuple, optional
-        The homogeneous body of a built-in (see :class:`core.synthetic.CalibrationObject`), used
+        The homogeneous body of a built-in (see :class:`core.calibration.hardware.CalibrationObject`), used
         only to render synthetic frames.
     """
 
@@ -186,7 +182,7 @@ class CalibrationTarget:
         return self.centers @ T[:3, :3].T + T[:3, 3]
 
     def to_synthetic(self, *, energy_kev: float = 60.0, with_body: bool = True) -> CalibrationObject:
-        """The :class:`core.synthetic.CalibrationObject` to render frames of this target (steel
+        """The :class:`~core.calibration.hardware.CalibrationObject` to render frames of this target (steel
         beads at ``energy_kev``; the built-in body unless ``with_body=False``)."""
         return CalibrationObject(self.name, self.centers, self.diameters,
                                  attenuation_per_mm("steel", energy_kev),
@@ -236,7 +232,7 @@ def _ids(n: int) -> list[str]:
 
 
 def cube_target(*, energy_kev: float = 60.0) -> CalibrationTarget:
-    """The lab's old 15-bead cube (:func:`core.synthetic.calibration_cube`)."""
+    """The lab's old 15-bead cube (:func:`core.calibration.hardware.calibration_cube`)."""
     obj = calibration_cube(energy_kev=energy_kev)
     return CalibrationTarget(obj.name, _ids(len(obj)), obj.centers, obj.diameters, kind="cube",
                              frame=_CUBE_FRAME, metadata={"material": "R1/BB Butter-Board resin"},
@@ -246,7 +242,7 @@ def cube_target(*, energy_kev: float = 60.0) -> CalibrationTarget:
 def spiral_target(n_beads: int = 23, *, radius_mm: float | None = None, pitch_mm: float = 40.0,
                   turns: float | None = None, diameters=None, energy_kev: float = 60.0
                   ) -> CalibrationTarget:
-    """A helical spiral (:func:`core.synthetic.helical_spiral`; presets for 23 and 33 beads).
+    """A helical spiral (:func:`core.calibration.hardware.helical_spiral`; presets for 23 and 33 beads).
 
     Parameters
     ----------

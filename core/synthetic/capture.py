@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from core._validate import positive
-from core.calibration import _so3
-from core.calibration.bundle import ObjectFrame
-from core.calibration.objects import CalibrationTarget
-from core.geometry.camera import Rig
-from core.synthetic.calibration import CalibrationFrame, object_frames
-from core.synthetic.imaging import ImagingModel
+from .._validate import positive
+from ..calibration import _so3
+from ..calibration.bundle import ObjectFrame
+from ..calibration.objects import CalibrationTarget
+from ..geometry.camera import Rig
+from .calibration import CalibrationFrame, object_frames
+from .imaging import ImagingModel
 
 __all__ = ["capture_centre", "capture_poses", "observe", "render"]
 

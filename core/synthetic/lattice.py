@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.geometry.camera import Camera, make_K
-from core.synthetic.analytic import attenuation_per_mm, bead_line_integrals, slab_line_integrals
-from core.synthetic.calib_objects import face_frame
-from core.synthetic.imaging import ImagingModel
+from ..geometry.camera import Camera, make_K
+from .analytic import attenuation_per_mm, bead_line_integrals, slab_line_integrals
+from .calib_objects import face_frame
+from .imaging import ImagingModel
 
 __all__ = ["LatticeScene", "lattice_beads", "make_lattice_scene", "neighbour_pairs"]
 

@@ -4,7 +4,8 @@ See :mod:`core.study.study` for the folder layout and :mod:`core.study.schema` f
 """
 
 from .errors import LockedError, StudyError
-from .results import JournalState, PoseRecord, read_journal
+from .repair import repair_study
+from .results import JournalState, PoseRecord, read_journal, salvage_journal
 from .schema import SCHEMA_VERSION, validate_manifest
 from .study import Study
 from .trial import Trial
@@ -18,5 +19,7 @@ __all__ = [
     "StudyError",
     "Trial",
     "read_journal",
+    "repair_study",
+    "salvage_journal",
     "validate_manifest",
 ]

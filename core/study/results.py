@@ -3,14 +3,39 @@
 One file per bone per trial, ``results/<trial>/poses/<bone>.jsonl``. Each finished frame
 appends one line and ``fsync``-s it (:func:`core.io.atomic.append_durable`)::
 
-    {"frame": 12, "pose": [16 numbers, row-major T_lab_from_bone, mm], "score": 0.83}<TAB>1a2b3c4d
+    {"v":2,"frame":12,"pose":[16 numbers, row-major T_lab_from_bone, mm],"score":0.83,"time":"…",
+     "tracking":{"flags":[],"converged":true,…}}<TAB>1a2b3c4d
 
 The hexadecimal suffix is the CRC-32 of the JSON text. A crash can only damage the *last*
 line (a partial write); :func:`read_journal` drops such a torn tail and reports it, so the
 journal reads as it was before the frame in flight. A damaged line followed by good ones is not
-a crash artefact and is reported as corruption. Later records for a frame supersede earlier ones
-(re-tracking a frame); ``"pose": null`` clears a frame. :func:`rewrite_journal` compacts a journal
-atomically (temporary file + rename).
+a crash artefact: it is refused as corruption (silently wrong data is never read), and
+:func:`salvage_journal` (``talus study repair``) keeps every record whose checksum holds, sets
+the original aside and reports the lines it dropped.
+
+Records
+-------
+Three kinds of line, all version 2 (``"v": 2``):
+
+* a **hand-set pose** (no ``"tracking"``): a pose placed or corrected by the user;
+* a **tracking result** (``"tracking"``: the tracker's flags — the reasons for review —,
+  convergence, retry, work, confidence, time breakdown and notes, as
+  :meth:`core.tracking.trial.FrameResult.journal_fields` writes them): everything a tracking
+  report holds about the frame, so that a resumed run rebuilds exactly the report of an
+  uninterrupted one;
+* a **clear** (``"pose": null``).
+
+Version-1 lines (no ``"v"``: Talus before tracking results were journalled) read as *legacy*
+poses: a pose with a score and no review state. Later records for a frame supersede earlier
+ones for its pose. Per frame the journal also keeps (:class:`JournalState`):
+
+* ``keyframes`` — the latest hand-set (or legacy) pose since the last clear, which a tracking
+  result does not replace: the starting poses a tracking run saw;
+* ``done`` — the frame's tracking result, or a hand-set pose recorded after one (a hand fix),
+  or a legacy pose: what ``resume`` skips.
+
+:func:`rewrite_journal` / :func:`compact_journal` rewrite a journal atomically (temporary file
++ rename), keeping what ``keyframes`` and ``done`` need.
 """
 
 from __future__ import annotations
@@ -20,26 +45,81 @@ import json
 import math
 import os
 import zlib
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .._validate import check_rigid
-from ..io.atomic import append_durable, atomic_open
+from ..io.atomic import append_durable, atomic_open, atomic_write
 from .errors import StudyError
 
-__all__ = ["JournalState", "PoseRecord", "append_pose", "read_journal", "repair_tail", "rewrite_journal"]
+__all__ = ["RECORD_VERSION", "JournalState", "PoseRecord", "append_pose", "compact_journal", "read_journal",
+           "repair_tail", "rewrite_journal", "salvage_journal"]
+
+RECORD_VERSION = 2
+REPAIR_HINT = ("`talus study repair STUDY` (core.study.Study.repair) keeps every record whose checksum "
+               "holds, sets the original aside as a backup and reports the rest")
 
 
 @dataclass(frozen=True, eq=False)
 class PoseRecord:
-    """One journal entry: ``pose`` (4x4, mm) or ``None`` for a cleared frame; ``score`` or NaN."""
+    """One journal entry: ``pose`` (4x4, mm) or ``None`` for a cleared frame; ``score`` or NaN;
+    ``tracking`` the tracker's review state of the frame (None for a hand-set pose); ``version``
+    the record format it was read from (1: before review state was journalled)."""
 
     frame: int
     pose: np.ndarray | None
     score: float
     time: str = ""
+    tracking: dict | None = None
+    version: int = RECORD_VERSION
+
+    @property
+    def kind(self) -> str:
+        """``"cleared"``, ``"tracked"``, ``"hand"`` or ``"legacy"`` (a version-1 pose)."""
+        if self.pose is None:
+            return "cleared"
+        if self.tracking is not None:
+            return "tracked"
+        return "legacy" if self.version < 2 else "hand"
+
+
+@dataclass
+class _FrameLog:
+    latest: PoseRecord | None = None
+    keyframe: PoseRecord | None = None
+    result: PoseRecord | None = None
+    fixed: PoseRecord | None = None
+
+    def add(self, rec: PoseRecord) -> None:
+        self.latest = rec
+        kind = rec.kind
+        if kind == "cleared":
+            self.keyframe = self.result = self.fixed = None
+        elif kind == "tracked":
+            self.result, self.fixed = rec, None
+        elif kind == "hand":
+            self.keyframe = rec
+            if self.result is not None:
+                self.fixed = rec
+        else:  # legacy: a starting pose and a done frame, as version 1 treated every pose
+            self.keyframe = self.fixed = rec
+            self.result = None
+
+    def essential(self) -> list[PoseRecord]:
+        """The fewest records that rebuild this state."""
+        if self.latest is None or self.latest.kind == "cleared":
+            return [self.latest] if self.latest is not None else []
+        out = []
+        if self.keyframe is not None and self.keyframe is not self.fixed:
+            out.append(self.keyframe)
+        if self.result is not None:
+            out.append(self.result)
+        if self.fixed is not None:
+            out.append(self.fixed)
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,6 +142,7 @@ class JournalState:
     n_lines: int
     valid_bytes: int
     torn_bytes: int
+    _log: dict = field(default_factory=dict, repr=False)
 
     def poses(self, n_frames: int) -> np.ndarray:
         """``(n_frames, 4, 4)`` poses, NaN for frames without a pose."""
@@ -83,35 +164,87 @@ class JournalState:
     def tracked_frames(self) -> tuple[int, ...]:
         return tuple(sorted(f for f, r in self.records.items() if r.pose is not None))
 
+    @property
+    def keyframes(self) -> dict[int, PoseRecord]:
+        """Per frame the latest hand-set (or legacy) pose since its last clear, tracking results
+        notwithstanding: the starting poses a tracking run saw."""
+        return {f: lg.keyframe for f, lg in sorted(self._log.items()) if lg.keyframe is not None}
 
-def _encode(frame: int, pose: np.ndarray | None, score: float, time: str) -> bytes:
-    rec = {
+    @property
+    def done(self) -> dict[int, PoseRecord]:
+        """Per frame what a resumed tracking run takes as done: a hand fix recorded after a
+        tracking result, else the tracking result (with its review state), else a legacy pose."""
+        out = {}
+        for f, lg in sorted(self._log.items()):
+            rec = lg.fixed or lg.result
+            if rec is not None:
+                out[f] = rec
+        return out
+
+    def essential_records(self) -> dict[int, list[PoseRecord]]:
+        """Per frame the fewest records (in order) that rebuild ``records``, ``keyframes`` and
+        ``done``: what :func:`compact_journal` keeps."""
+        return {f: lg.essential() for f, lg in sorted(self._log.items()) if lg.essential()}
+
+
+def _encode(frame: int, pose: np.ndarray | None, score: float, time: str, tracking: dict | None = None,
+            version: int = RECORD_VERSION) -> bytes:
+    rec = {"v": RECORD_VERSION} if version >= 2 else {}
+    rec.update({
         "frame": int(frame),
         "pose": None if pose is None else [float(x) for x in np.asarray(pose).ravel()],
         "score": None if not math.isfinite(score) else float(score),
         "time": time,
-    }
+    })
+    if tracking is not None and version >= 2:
+        rec["tracking"] = tracking
     text = json.dumps(rec, separators=(",", ":"), allow_nan=False)
     return f"{text}\t{zlib.crc32(text.encode()):08x}\n".encode()
 
 
-def _decode(line: bytes) -> PoseRecord | None:
-    """Parse one line (without its newline); None if damaged."""
+class _NewerRecord(Exception):
+    pass
+
+
+def _parse(line: bytes) -> tuple[PoseRecord | None, str]:
+    """Parse one line (without its newline): ``(record, "")`` or ``(None, why it is damaged)``.
+    Raises _NewerRecord for an intact record of a newer format."""
     try:
         text, crc = line.decode("utf-8").rsplit("\t", 1)
-        if int(crc, 16) != zlib.crc32(text.encode()) or len(crc) != 8:
-            return None
+    except UnicodeDecodeError:
+        return None, "not UTF-8 text"
+    except ValueError:
+        return None, "no checksum (no tab)"
+    if len(crc) != 8 or any(c not in "0123456789abcdefABCDEF" for c in crc):
+        return None, "malformed checksum"
+    if int(crc, 16) != zlib.crc32(text.encode()):
+        return None, "checksum mismatch"
+    try:
         rec = json.loads(text)
+        version = rec.get("v", 1)
+        if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+            return None, f"bad record version {version!r}"
+        if version > RECORD_VERSION:
+            raise _NewerRecord(version)
         frame = rec["frame"]
-        if not isinstance(frame, int) or frame < 0:
-            return None
+        if isinstance(frame, bool) or not isinstance(frame, int) or frame < 0:
+            return None, f"bad frame {frame!r}"
         pose = rec["pose"]
         if pose is not None:
             pose = np.asarray(pose, dtype=float).reshape(4, 4)
         score = rec.get("score")
-        return PoseRecord(frame, pose, math.nan if score is None else float(score), rec.get("time", ""))
-    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
-        return None
+        tracking = rec.get("tracking") if version >= 2 else None
+        if tracking is not None and (not isinstance(tracking, dict) or pose is None):
+            return None, "bad tracking state"
+        return PoseRecord(frame, pose, math.nan if score is None else float(score), rec.get("time", ""),
+                          tracking, version), ""
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        return None, f"invalid record ({type(exc).__name__})"
+
+
+def _newer(p: Path, i: int, exc: _NewerRecord) -> StudyError:
+    return StudyError(f"{p}: line {i + 1}: record version {exc.args[0]} is newer than this Talus reads "
+                      f"({RECORD_VERSION}); update Talus to read this journal")
 
 
 def read_journal(path: str | os.PathLike) -> JournalState:
@@ -120,32 +253,46 @@ def read_journal(path: str | os.PathLike) -> JournalState:
     Raises
     ------
     StudyError
-        If a line other than the last is damaged (corruption, not an interrupted write).
+        If a line other than the last is damaged (corruption, not an interrupted write: the
+        message names the line and the salvage, :func:`salvage_journal`), or a record is of a
+        newer format than this version reads.
     """
     p = Path(path)
     if not p.exists():
         return JournalState({}, 0, 0, 0)
     data = p.read_bytes()
-    records: dict[int, PoseRecord] = {}
+    log: dict[int, _FrameLog] = {}
     pos = 0
     n = 0
     lines = data.split(b"\n")
+
+    def state(torn: int) -> JournalState:
+        recs = {f: lg.latest for f, lg in sorted(log.items()) if lg.latest is not None}
+        return JournalState(recs, n, pos, torn, log)
+
     for i, line in enumerate(lines):
         last = i == len(lines) - 1
         if last and line == b"":  # file ends with a newline
             break
-        rec = _decode(line) if not last else None  # a last line without newline is torn
+        rec, why = (None, "torn") if last else _parse_or_raise(p, i, line)  # no newline: torn
         if rec is None:
             if last or all(rest == b"" for rest in lines[i + 1 :]):
-                return JournalState(records, n, pos, len(data) - pos)
+                return state(len(data) - pos)
             raise StudyError(
-                f"{p}: line {i + 1}: damaged record (bad checksum or JSON) followed by valid "
-                "records; the journal is corrupt (not an interrupted write)"
+                f"{p}: line {i + 1}: damaged record ({why}) followed by valid records; the journal "
+                f"is corrupt (not an interrupted write). {REPAIR_HINT}."
             )
-        records[rec.frame] = rec
+        log.setdefault(rec.frame, _FrameLog()).add(rec)
         n += 1
         pos += len(line) + 1
-    return JournalState(records, n, pos, 0)
+    return state(0)
+
+
+def _parse_or_raise(p: Path, i: int, line: bytes) -> tuple[PoseRecord | None, str]:
+    try:
+        return _parse(line)
+    except _NewerRecord as exc:
+        raise _newer(p, i, exc) from None
 
 
 def repair_tail(path: str | os.PathLike) -> int:
@@ -171,19 +318,119 @@ def _check(frame, pose, score) -> tuple[int, np.ndarray | None, float]:
     return int(frame), pose, score
 
 
+def _check_tracking(tracking, pose) -> dict | None:
+    if tracking is None:
+        return None
+    if not isinstance(tracking, Mapping):
+        raise ValueError(f"tracking: expected a dict of the frame's review state, "
+                         f"got {type(tracking).__name__}")
+    if pose is None:
+        raise ValueError("tracking: a tracking result needs a pose (pose=None clears the frame)")
+    try:
+        return json.loads(json.dumps(dict(tracking), allow_nan=False))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"tracking: expected strict JSON values (None for NaN), {exc}") from None
+
+
 def _now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
-def append_pose(path: str | os.PathLike, frame: int, pose, *, score: float | None = None) -> None:
-    """Append one frame's result durably (``pose=None`` clears the frame)."""
+def append_pose(path: str | os.PathLike, frame: int, pose, *, score: float | None = None,
+                tracking: Mapping | None = None) -> None:
+    """Append one frame's result durably (``pose=None`` clears the frame; ``tracking``: the
+    tracker's review state, JSON values, for a tracking result — None for a hand-set pose)."""
     frame, pose, score = _check(frame, pose, score)
-    append_durable(path, _encode(frame, pose, score, _now()))
+    append_durable(path, _encode(frame, pose, score, _now(), _check_tracking(tracking, pose)))
 
 
-def rewrite_journal(path: str | os.PathLike, records: dict[int, PoseRecord]) -> None:
-    """Replace a journal atomically by one line per frame (sorted), e.g. to compact it."""
+def rewrite_journal(path: str | os.PathLike,
+                    records: Mapping[int, PoseRecord | Sequence[PoseRecord]]) -> None:
+    """Replace a journal atomically by the given records (per frame one record or a list, in
+    order; frames sorted), each in its own format (a legacy record stays version 1)."""
     with atomic_open(path, "wb") as fh:
         for f in sorted(records):
-            rec = records[f]
-            fh.write(_encode(f, rec.pose, rec.score, rec.time or _now()))
+            recs = records[f]
+            for rec in ([recs] if isinstance(recs, PoseRecord) else recs):
+                fh.write(_encode(f, rec.pose, rec.score, rec.time or _now(), rec.tracking, rec.version))
+
+
+def compact_journal(path: str | os.PathLike) -> JournalState:
+    """Rewrite a journal atomically with the fewest lines that keep its poses, keyframes and
+    done frames (:meth:`JournalState.essential_records`); returns the state read."""
+    state = read_journal(path)
+    rewrite_journal(path, state.essential_records())
+    return state
+
+
+def salvage_journal(path: str | os.PathLike, *, dry_run: bool = False) -> dict:
+    """Keep every record of a damaged journal whose checksum holds; report the rest.
+
+    The original file is first copied aside (``<name>.damaged-<UTC time>``, atomically), then the
+    journal is rewritten atomically with the intact lines, byte for byte and in order (later
+    records still supersede earlier ones). Nothing is written when no line is dropped or with
+    ``dry_run``.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``path``, ``lines`` (lines read), ``kept`` (count), ``dropped`` (one
+        ``{"line": n (1-based), "bytes": size, "reason": …}`` per dropped line, with ``"frame"``
+        where the damaged text still names one), ``frames_lost`` (frames named by dropped lines
+        that have no intact record left; a dropped line may also have superseded an intact
+        earlier record of its frame), ``changed`` and ``backup`` (the copy's path, or None).
+
+    Raises
+    ------
+    StudyError
+        If an intact record is of a newer format than this version reads (nothing is touched).
+    """
+    p = Path(path)
+    report = {"path": str(p), "lines": 0, "kept": 0, "dropped": [], "frames_lost": [], "changed": False,
+              "backup": None}
+    if not p.exists():
+        return report
+    data = p.read_bytes()
+    torn = bool(data) and not data.endswith(b"\n")
+    lines = data.split(b"\n")
+    if lines[-1] == b"":
+        lines.pop()
+    keep, frames_kept, frames_named = [], set(), set()
+    for i, line in enumerate(lines):
+        if i == len(lines) - 1 and torn:
+            rec, why = None, "torn last record (no newline: an interrupted write)"
+        elif line == b"":
+            rec, why = None, "empty line"
+        else:
+            try:
+                rec, why = _parse(line)
+            except _NewerRecord as exc:
+                raise _newer(p, i, exc) from None
+        if rec is not None:
+            keep.append(line + b"\n")
+            frames_kept.add(rec.frame)
+            continue
+        entry = {"line": i + 1, "bytes": len(line), "reason": why}
+        frame = _frame_hint(line)
+        if frame is not None:
+            entry["frame"] = frame
+            frames_named.add(frame)
+        report["dropped"].append(entry)
+    report["lines"], report["kept"] = len(lines), len(keep)
+    report["frames_lost"] = sorted(frames_named - frames_kept)
+    if not report["dropped"] or dry_run:
+        return report
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
+    backup = p.with_name(f"{p.name}.damaged-{stamp}")
+    atomic_write(backup, data)
+    atomic_write(p, b"".join(keep))
+    report["changed"], report["backup"] = True, str(backup)
+    return report
+
+
+def _frame_hint(line: bytes) -> int | None:
+    """The frame number a damaged line still shows, if any (for the salvage report)."""
+    import re
+
+    m = re.search(rb'"frame":(\d{1,9})[,}]', line)
+    return int(m.group(1)) if m else None

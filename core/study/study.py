@@ -32,7 +32,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from ..io.atomic import FileLock, atomic_write, atomic_write_json
+from ..io.atomic import FileLock, atomic_write, atomic_write_json, remove_stale_temporaries
 from .errors import StudyError
 from .manifest import new_manifest, read_manifest, resolve_path, store_path, write_manifest
 from .schema import MANIFEST_NAME, NAME_RE
@@ -40,11 +40,34 @@ from .schema import MANIFEST_NAME, NAME_RE
 __all__ = ["Study"]
 
 LOCK_NAME = ".talus.lock"
+STALE_TEMP_S = 600.0  # temporaries of crashed writes older than this are removed on a write open
 _TIFF = (".tif", ".tiff")
 
 
+def _check_no_escape(folder: Path) -> None:
+    """Refuse a study whose ``results/`` (or anything below it) is a symbolic link leading out
+    of the study folder: results would be written, and read, somewhere else."""
+    root = folder.resolve()
+    results = folder / "results"
+    if not results.is_symlink() and not results.exists():
+        return
+    todo = [results]
+    while todo:
+        p = todo.pop()
+        if p.is_symlink():
+            target = p.resolve()
+            if not target.is_relative_to(root):
+                raise StudyError(
+                    f"{p}: is a symbolic link to {target}, outside the study folder {root}; expected "
+                    "the study's results inside it (replace the link by a folder, or move the study)",
+                    path=p, expected="a folder inside the study",
+                )
+        if p.is_dir() and not p.is_symlink():
+            todo.extend(p.iterdir())
+
+
 def _check_name(name: str, what: str) -> str:
-    if not isinstance(name, str) or not NAME_RE.match(name):
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
         raise ValueError(
             f"{what}: expected 1-64 letters, digits, '_', '-', '.' starting with a letter or digit, "
             f"got {name!r}"
@@ -84,6 +107,7 @@ class Study:
         folder.mkdir(parents=True, exist_ok=True)
         lock = FileLock(folder / LOCK_NAME, purpose=f"study {folder}").acquire()
         try:
+            _check_no_escape(folder)
             doc = new_manifest(name or folder.name)
             write_manifest(folder, doc, touch=False)
         except BaseException:
@@ -112,12 +136,30 @@ class Study:
             Not a study, corrupt or future-version manifest, or a missing referenced file.
         LockedError
             ``mode="w"`` while another process (or another handle) has it open for writing.
+
+        Notes
+        -----
+        Opening for writing removes temporary files of crashed atomic writes
+        (``.study.json.*.tmp`` and the like) older than :data:`STALE_TEMP_S` seconds. A study
+        whose ``results/`` (or a folder or file below it) is a symbolic link to outside the study
+        folder is refused.
         """
         if mode not in ("r", "w"):
             raise ValueError(f'mode: expected "r" or "w", got {mode!r}')
         folder = Path(folder).absolute()
+        if not folder.is_dir():
+            what = "is not a folder" if folder.exists() else "does not exist"
+            raise StudyError(f"{folder}: study folder {what}", path=folder, expected="a Talus study folder")
+        if not (folder / MANIFEST_NAME).is_file():
+            raise StudyError(
+                f"{folder}: not a Talus study folder (expected a manifest file {folder / MANIFEST_NAME})",
+                path=folder, expected="a Talus study folder",
+            )
         lock = FileLock(folder / LOCK_NAME, purpose=f"study {folder}").acquire() if mode == "w" else None
         try:
+            _check_no_escape(folder)
+            if lock is not None:
+                remove_stale_temporaries(folder, older_than_s=STALE_TEMP_S)
             doc, version = read_manifest(folder)
             study = cls(folder, doc, mode, lock, version)
             if check_files:
@@ -432,11 +474,31 @@ class Study:
             self._trials[name] = Trial(self, name)
         return self._trials[name]
 
+    def repair(self, *, dry_run: bool = False) -> dict:
+        """Salvage damaged pose journals, keeping every intact record (see :mod:`core.study.repair`)."""
+        from .repair import repair_study
+
+        return repair_study(self, dry_run=dry_run)
+
     # ------------------------------------------------------------------ reports
     def _report_path(self, kind: str, name: str) -> Path:
         _check_name(kind, "kind")
         _check_name(name, "name")
-        return self._folder / "results" / "reports" / kind / f"{name}.json"
+        p = self._folder / "results" / "reports" / kind / f"{name}.json"
+        return self.inside(p)
+
+    def inside(self, path: str | os.PathLike) -> Path:
+        """``path`` if it (following any symbolic links) lies inside the study folder, else
+        :class:`StudyError`; writers of study files check their destination with it."""
+        p = Path(path)
+        p = p if p.is_absolute() else self._folder / p
+        root = self._folder.resolve()
+        if not p.resolve().is_relative_to(root):
+            raise StudyError(
+                f"{p}: leads to {p.resolve()}, outside the study folder {root} (a symbolic link?); "
+                "expected a path inside the study", path=p, expected="a path inside the study",
+            )
+        return p
 
     def write_report(self, kind: str, name: str, data: dict) -> Path:
         """Save a JSON report (e.g. ``kind="calibration"``) atomically; NaN must be given as None."""

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import StudyError
-from .results import JournalState, append_pose, read_journal, repair_tail, rewrite_journal
+from .results import JournalState, append_pose, compact_journal, read_journal, repair_tail
 
 if TYPE_CHECKING:
     from ..geometry.camera import Rig
@@ -127,24 +127,30 @@ class Trial:
             self._repaired.add(bone)
         return path
 
-    def record_pose(self, bone: str, frame: int, pose, *, score: float | None = None) -> None:
-        """Save one frame's pose (4x4 rigid ``T_lab_from_bone``, mm) and score durably."""
+    def record_pose(self, bone: str, frame: int, pose, *, score: float | None = None,
+                    tracking: dict | None = None) -> None:
+        """Save one frame's pose (4x4 rigid ``T_lab_from_bone``, mm) and score durably.
+
+        ``tracking`` is the tracker's review state of the frame (flags and their reasons,
+        confidence, …: :meth:`core.tracking.trial.FrameResult.journal_fields`) for a tracking
+        result; without it the pose is a hand-set one (a keyframe, or a fix of a tracked frame).
+        See :mod:`core.study.results`."""
         path = self._writable_journal(bone)
         n = self.n_frames
         if isinstance(frame, bool) or not isinstance(frame, int | np.integer) or not 0 <= frame < n:
             raise ValueError(
                 f"frame: expected an integer in [0, {n}) for trial {self._name!r}, got {frame!r}"
             )
-        append_pose(path, int(frame), pose, score=score)
+        append_pose(path, int(frame), pose, score=score, tracking=tracking)
 
     def clear_pose(self, bone: str, frame: int) -> None:
         """Mark ``frame`` untracked for ``bone`` (e.g. before re-tracking a bad frame)."""
         append_pose(self._writable_journal(bone), frame, None)
 
     def compact(self, bone: str) -> None:
-        """Rewrite the bone's journal with one line per frame (atomic)."""
-        path = self._writable_journal(bone)
-        rewrite_journal(path, read_journal(path).records)
+        """Rewrite the bone's journal with the fewest lines that keep its poses, keyframes and
+        tracking results (atomic; :func:`core.study.results.compact_journal`)."""
+        compact_journal(self._writable_journal(bone))
 
     def export_tra(self, path: str | os.PathLike, bones: tuple[str, ...] | None = None, **options) -> None:
         """Write the poses of ``bones`` (default: all) as an Autoscoper ``.tra`` file.

@@ -21,3 +21,17 @@ and benchmarks may read the ground truth of :mod:`core.synthetic`. Each runs as
 * :mod:`core.studies.tracking` — thesis Chapter 6: tracking acceptance on a synthetic walking
   trial (``acceptance``), the wrist sample check (``wrist_check``), speed (``benchmark``).
 """
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+__all__ = ["sample_data_dir"]
+
+
+def sample_data_dir() -> Path:
+    """The real-data folder the studies read: ``$TALUS_SAMPLE_DATA``, else ``../shared/data``
+    next to the repository (as the tests' ``sample_data`` fixture)."""
+    env = os.environ.get("TALUS_SAMPLE_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "data"

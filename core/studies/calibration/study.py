@@ -170,14 +170,12 @@ def sensitivity(rig: Rig, *, n_samples: int, n_sobol: int, rng) -> tuple[dict, o
 
 def wrist_epipolar(figures_dir=None) -> dict:
     """Part 6: distances of the wrist beads from the real rig's epipolar lines, per frame pair."""
-    import os
 
     from core.calibration.epipolar_check import epipolar_check
     from core.samples import load_wrist_sample
+    from core.studies import sample_data_dir
 
-    env = os.environ.get("TALUS_SAMPLE_DATA")
-    base = Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "data"
-    folder = base / "autoscoper_wrist"
+    folder = sample_data_dir() / "autoscoper_wrist"
     if not folder.is_dir():
         return {"skipped": f"wrist sample not found at {folder}"}
     sample = load_wrist_sample(folder)

@@ -208,11 +208,9 @@ def study_case(name: str, *, quick: bool = False, pixels: int = 512, data_dir: P
 
     cfg = StudyConfig(n_random=60, sweep_steps=21, noise_repeats=2) if quick else StudyConfig()
     if name == "wrist":
-        import os
+        from core.studies import sample_data_dir
 
-        root = os.environ.get("TALUS_SAMPLE_DATA") or (
-            Path(__file__).resolve().parents[3] / "shared" / "data")
-        folder = Path(data_dir) if data_dir else Path(root) / "autoscoper_wrist"
+        folder = Path(data_dir) if data_dir else sample_data_dir() / "autoscoper_wrist"
         if not folder.is_dir():
             progress(f"wrist: sample not found at {folder}; skipped")
             return None

@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from core.studies import sample_data_dir
+
 __all__ = ["WRIST_ULNA_START", "main", "run"]
 
 WRIST_ULNA_START = np.array(
@@ -180,8 +182,7 @@ def _figure(sample, renderer, res, models, starts, path: str) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.wrist_check",
                                 description=__doc__.split("\n")[0])
-    here = Path(__file__).resolve().parents[3]
-    p.add_argument("--data", default=str(here / "shared" / "data" / "autoscoper_wrist"),
+    p.add_argument("--data", default=str(sample_data_dir() / "autoscoper_wrist"),
                    help="the autoscoper_wrist folder")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--final-scale", type=float, default=2.0, help="full-resolution pixels per DRR pixel")

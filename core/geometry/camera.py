@@ -240,7 +240,11 @@ class Camera:
 
 @dataclass(frozen=True)
 class Rig:
-    """A set of calibrated cameras sharing one lab frame (two for a biplane system)."""
+    """A set of calibrated cameras sharing one lab frame (two for a biplane system).
+
+    Read one from MayaCam files with :func:`core.geometry.rig_from_mayacam` (kept in
+    :mod:`core.geometry.mayacam`, which builds on this module, not the other way round).
+    """
 
     cameras: tuple[Camera, ...]
 
@@ -249,13 +253,6 @@ class Rig:
         if not cams or not all(isinstance(c, Camera) for c in cams):
             raise ValueError("cameras: expected a non-empty sequence of Camera objects")
         object.__setattr__(self, "cameras", cams)
-
-    @classmethod
-    def from_mayacam(cls, paths, **kwargs) -> Rig:
-        """Read one MayaCam 1.0/2.0 file per camera (see :mod:`core.geometry.mayacam`)."""
-        from .mayacam import rig_from_mayacam
-
-        return rig_from_mayacam(paths, **kwargs)
 
     def __len__(self) -> int:
         return len(self.cameras)

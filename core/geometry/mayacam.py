@@ -64,7 +64,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._files import fsync_dir, new_file_mode
 from .._validate import positive
+from ..errors import reads
 from .camera import Camera, Rig
 from .transforms import _quiet_euler
 
@@ -249,16 +251,19 @@ def read_mayacam(
 
     Raises
     ------
-    ValueError
-        On a malformed file; the message names the file, the line/section and what was expected.
-    OSError
-        If the file cannot be read.
+    FileError
+        (a ``ValueError``, :mod:`core.errors`) On a missing, unreadable or malformed file; the
+        message names the file, the line/section and what was expected.
     """
     if pixel_size is not None:
         pixel_size = positive(pixel_size, "pixel_size")
     path = Path(path)
+    return _read_mayacam(path, pixel_size, path.stem if name is None else name, ignore_distortion)
+
+
+@reads("a MayaCam 1.0 (.csv) or 2.0 (.txt) camera file")
+def _read_mayacam(path: Path, pixel_size, name, ignore_distortion) -> Camera:
     lines = _lines(path)
-    name = path.stem if name is None else name
     first = next((ln for _, ln in lines if ln), None)
     if first is None:
         raise ValueError(f"{path}: empty file, expected a MayaCam 1.0 or 2.0 camera")
@@ -306,8 +311,13 @@ def _v1_text(cam: Camera, average_focal: bool) -> str:
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    """Temporary file + fsync + rename + folder fsync, with the mode a plain ``open()`` gives
+    (like :func:`core.io.atomic.atomic_write`, which this layer below ``core.io`` cannot import)."""
+    folder = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        if hasattr(os, "fchmod"):
+            os.fchmod(fd, new_file_mode(path))
         with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(text)
             fh.flush()
@@ -319,6 +329,7 @@ def _atomic_write(path: Path, text: str) -> None:
         except FileNotFoundError:
             pass
         raise
+    fsync_dir(folder)  # the rename itself survives a power cut
 
 
 def write_mayacam(camera: Camera, path, *, version: int = 2, average_focal: bool = False) -> None:

@@ -1,7 +1,8 @@
 """File formats: fluoro sequences, CT volumes, meshes, Autoscoper/XMALab interop, crash-safe writing.
 
-Readers validate what they read and raise :class:`ValueError` naming the file and what was
-expected; writers write atomically (:mod:`core.io.atomic`).
+Readers validate what they read and raise :class:`~core.io.errors.FileError` (a ``ValueError``)
+naming the file and what was expected, whatever the third-party parser underneath raised (its
+exception is chained); writers write atomically (:mod:`core.io.atomic`).
 """
 
 from .atomic import FileLock, LockedError, atomic_open, atomic_path, atomic_write, atomic_write_json
@@ -21,6 +22,7 @@ from .autoscoper import (
 from .cine import CineInfo, CineSequence, read_cine_info
 from .cine_writer import write_cine
 from .ct import DicomSeriesInfo, inspect_dicom_folder, read_ct, split_labels
+from .errors import FileError
 from .meshes import Mesh, read_mesh, write_mesh
 from .paired import TwoViewSequence
 from .sequences import (
@@ -50,6 +52,7 @@ __all__ = [
     "CineInfo",
     "CineSequence",
     "DicomSeriesInfo",
+    "FileError",
     "FileLock",
     "FrameSequence",
     "LockedError",

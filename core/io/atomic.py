@@ -5,7 +5,10 @@ content is written to a temporary file *in the destination's folder*, flushed an
 then renamed over the destination with :func:`os.replace` (atomic on POSIX and on Windows for
 files on one volume), and finally the folder itself is ``fsync``-ed so the rename survives a
 power cut. A crash at any point leaves either the complete old file or the complete new one,
-never a mixture; a stray ``.<name>.*.tmp`` file may remain and is ignored by readers.
+never a mixture; a stray ``.<name>.*.tmp`` file may remain and is ignored by readers
+(:func:`remove_stale_temporaries` clears old ones; a study does so when opened for writing).
+New files get the permissions a plain ``open()`` would give (``0o666`` less the umask, or the
+replaced file's mode), not ``mkstemp``'s owner-only ``0o600``.
 
 Append-only journals (tracking results saved frame by frame) use :func:`append_durable`, which
 ``fsync``-s each appended record; their readers detect and drop a torn last record (see
@@ -23,12 +26,15 @@ import contextlib
 import datetime as _dt
 import json
 import os
+import re
 import socket
 import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
+
+from .._files import fsync_dir, new_file_mode
 
 __all__ = [
     "FileLock",
@@ -40,20 +46,17 @@ __all__ = [
     "atomic_write_json",
     "fsync_dir",
     "print_json",
+    "remove_stale_temporaries",
 ]
 
 
-def fsync_dir(folder: str | os.PathLike) -> None:
-    """Flush a folder's entries (new names, renames) to disk; a no-op where unsupported."""
-    if sys.platform.startswith("win"):  # directories cannot be opened for fsync on Windows
-        return
-    fd = os.open(os.fspath(folder), os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    except OSError:  # some file systems (e.g. certain network mounts) refuse; nothing to do
-        pass
-    finally:
-        os.close(fd)
+def _chmod(fd: int, tmp: str, dest: Path) -> None:
+    """Give the temporary file the mode ``dest`` would get from a plain ``open()``."""
+    mode = new_file_mode(dest)
+    if hasattr(os, "fchmod"):
+        os.fchmod(fd, mode)
+    else:  # pragma: no cover - Windows
+        os.chmod(tmp, mode)
 
 
 @contextlib.contextmanager
@@ -91,6 +94,7 @@ def atomic_open(
         raise ValueError(f"path: folder {folder} of {dest.name} does not exist")
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{dest.name}.", suffix=".tmp")
     try:
+        _chmod(fd, tmp, dest)
         if mode == "wb":
             fh = os.fdopen(fd, "wb")
         else:
@@ -119,7 +123,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     if not folder.is_dir():
         raise ValueError(f"path: folder {folder} of {dest.name} does not exist")
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{dest.stem}.", suffix=f".tmp{dest.suffix}")
-    os.close(fd)
+    try:
+        _chmod(fd, tmp, dest)
+    finally:
+        os.close(fd)
     try:
         yield Path(tmp)
         with open(tmp, "rb+") as fh:
@@ -130,6 +137,49 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             os.unlink(tmp)
         raise
     fsync_dir(folder)
+
+
+_TEMP = re.compile(r"\..+\.[A-Za-z0-9_]{8}\.tmp(\.[A-Za-z0-9]+)?")  # mkstemp's names above
+
+
+def remove_stale_temporaries(
+    folder: str | os.PathLike, *, older_than_s: float = 600.0, recursive: bool = True
+) -> list[Path]:
+    """Delete the temporary files that crashed atomic writes left in ``folder``.
+
+    Only names of the form :func:`atomic_open` / :func:`atomic_path` create
+    (``.<name>.<8 characters>.tmp`` or ``.tmp<suffix>``) last modified more than
+    ``older_than_s`` seconds ago are removed: a live writer keeps its temporary file for
+    milliseconds to seconds, so an old one belongs to a process that died. Symbolic links are
+    neither followed nor removed. Call it while holding the folder's write lock.
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    import time
+
+    root = Path(folder)
+    limit = time.time() - float(older_than_s)
+    removed: list[Path] = []
+    walker = os.walk(root, followlinks=False) if recursive else [(str(root), [], os.listdir(root))]
+    for dirpath, _dirs, names in walker:
+        for name in names:
+            if not _TEMP.fullmatch(name):
+                continue
+            p = Path(dirpath) / name
+            try:
+                st = p.lstat()
+                if not p.is_symlink() and p.is_file() and st.st_mtime < limit:
+                    p.unlink()
+                    removed.append(p)
+            except FileNotFoundError:  # removed meanwhile
+                continue
+    if removed:
+        for d in {p.parent for p in removed}:
+            fsync_dir(d)
+    return removed
 
 
 def atomic_write(path: str | os.PathLike, data: bytes | str, *, encoding: str = "utf-8") -> None:

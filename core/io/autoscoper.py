@@ -35,6 +35,7 @@ from types import MappingProxyType
 
 from .atomic import atomic_write
 from .autoscoper_tra import _text_lines, matrix_to_xyzypr, read_tra, write_tra, xyzypr_to_matrix
+from .errors import reads
 
 __all__ = [
     "AutoscoperFilter",
@@ -94,6 +95,7 @@ def _cfg_path(value: str, base: Path) -> Path:
     return p if p.is_absolute() or re.match(r"^[A-Za-z]:/", value) else base / p
 
 
+@reads("an Autoscoper trial .cfg")
 def read_autoscoper_cfg(path: str | os.PathLike) -> AutoscoperTrial:
     """Read an Autoscoper trial ``.cfg`` (versions 1.0 and 1.1; see the module docstring).
 
@@ -234,6 +236,7 @@ class AutoscoperViewSettings:
     drr_filters: tuple[AutoscoperFilter, ...]
 
 
+@reads("an Autoscoper .vie filter settings file")
 def read_vie(path: str | os.PathLike) -> AutoscoperViewSettings:
     """Read an Autoscoper ``.vie`` filter/renderer settings file.
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_write
+from .errors import reads
 
 __all__ = ["matrix_to_xyzypr", "read_tra", "write_tra", "xyzypr_to_matrix"]
 
@@ -147,9 +148,13 @@ def read_tra(
         Non-numeric values, inconsistent counts, partly-NaN poses, non-rigid matrices or an
         ambiguous layout/order; the message names the file and line.
     """
-    path = Path(path)
     for name, value in (("layout", layout), ("order", order), ("units", units), ("angles", angles)):
         _opt(name, value)
+    return _read_tra(Path(path), n_volumes, layout, order, units, angles)
+
+
+@reads("an Autoscoper .tra pose file (one line of 16 or 6 numbers per volume and frame)")
+def _read_tra(path: Path, n_volumes, layout, order, units, angles) -> np.ndarray:
     rows = []
     for lineno, line in enumerate(_text_lines(path, "Autoscoper .tra"), start=1):
         if not line.strip():

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_path, atomic_write
+from .errors import reads
 from .vtp import read_vtp, write_vtp
 
 __all__ = ["Mesh", "read_mesh", "write_mesh"]
@@ -178,6 +179,7 @@ def _read_meshio(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(m.points, dtype=np.float64)[:, :3], np.concatenate(faces).astype(np.int64)
 
 
+@reads("a triangle mesh (.stl, .ply, .obj or .vtp)")
 def read_mesh(path: str | os.PathLike, *, name: str | None = None) -> Mesh:
     """Read a triangle surface from ``.stl``, ``.ply``, ``.obj`` or ``.vtp``.
 

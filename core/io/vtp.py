@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import reads
+
 __all__ = ["read_vtp", "write_vtp"]
 
 _TYPES = {
@@ -159,6 +161,7 @@ def _triangles(path: Path, conn: np.ndarray, offs: np.ndarray, n_points: int, st
     return np.array(tris, dtype=np.int64).reshape(-1, 3)
 
 
+@reads("a VTK XML PolyData (.vtp) surface")
 def read_vtp(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Read a ``.vtp`` surface: ``(vertices (N, 3) float64, triangles (M, 3) int64)``."""
     path = Path(path)

@@ -32,6 +32,7 @@ import numpy as np
 from ..geometry.camera import Rig
 from ..geometry.conversions import camera_from_dlt, dlt_from_P
 from .atomic import atomic_write
+from .errors import reads
 
 __all__ = [
     "dlt_csv_from_rig",
@@ -84,6 +85,7 @@ def _to_float(path: Path, lineno: int, cells: list[str], allow_nan: bool) -> np.
 
 
 # ---------------------------------------------------------------------------- DLT
+@reads("an XMALab DLT coefficient CSV")
 def read_dlt_csv(path: str | os.PathLike) -> np.ndarray:
     """The DLT coefficients of each camera, ``(n_cameras, 11)``, as stored (DLTdv image coordinates)."""
     path = Path(path)
@@ -169,6 +171,7 @@ def _header_and_data(path: Path, rows, per: int, what: str):
     return header, data
 
 
+@reads("an XMALab 2D point CSV")
 def read_points_2d(
     path: str | os.PathLike,
     *,
@@ -282,6 +285,7 @@ def write_points_2d(
     atomic_write(path, "\n".join(lines) + "\n")
 
 
+@reads("an XMALab 3D point CSV")
 def read_points_3d(path: str | os.PathLike) -> tuple[tuple[str, ...], np.ndarray]:
     """Read an XMALab 3D point file: ``(names, (n_frames, n_markers, 3))``, NaN where missing."""
     path = Path(path)

@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path, PurePosixPath
 
+from ..errors import reading
 from ..io.atomic import atomic_write_json
 from .errors import StudyError
 from .migrations import migrate
@@ -53,8 +54,15 @@ def read_manifest(folder: str | os.PathLike) -> tuple[dict, int]:
         names the file and what was expected.
     """
     path = Path(folder) / MANIFEST_NAME
+    if not Path(folder).is_dir():
+        raise StudyError(f"{folder}: no such study folder", path=folder, expected="a Talus study folder")
     if not path.is_file():
-        raise StudyError(f"{folder}: not a Talus study folder (expected a manifest file {path})")
+        raise StudyError(f"{folder}: not a Talus study folder (expected a manifest file {path})", path=folder)
+    with reading(path, "a Talus study manifest (UTF-8 JSON)", error=StudyError):
+        return _read_manifest(path)
+
+
+def _read_manifest(path: Path) -> tuple[dict, int]:
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:

@@ -49,7 +49,7 @@ __all__ = ["FORMAT", "MANIFEST_NAME", "SCHEMA_VERSION", "validate_manifest"]
 FORMAT = "talus-study"
 MANIFEST_NAME = "study.json"
 SCHEMA_VERSION = 2
-NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
+NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")  # use fullmatch ("$" accepts a final newline)
 
 
 def _show(value: Any) -> str:
@@ -137,7 +137,7 @@ class _Map:
         if not isinstance(value, dict):
             fail(f"{where}: expected a JSON object of named entries, got {_show(value)}")
         for name, item in value.items():
-            if not NAME_RE.match(name):
+            if not NAME_RE.fullmatch(name):
                 fail(
                     f"{where}: entry name {name!r} must be 1-64 letters, digits, '_', '-', '.' "
                     "starting with a letter or digit"

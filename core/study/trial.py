@@ -14,7 +14,6 @@ from .results import JournalState, append_pose, compact_journal, read_journal, r
 if TYPE_CHECKING:
     from ..geometry.camera import Rig
     from ..io.paired import TwoViewSequence
-    from .study import Study
 
 __all__ = ["Trial"]
 
@@ -28,7 +27,7 @@ class Trial:
     so a crash or cancel loses at most the frame in flight.
     """
 
-    def __init__(self, study: Study, name: str):
+    def __init__(self, study, name: str):  # study: a Study (not imported: study.py imports this module)
         self._study = study
         self._name = name
         self._seq: TwoViewSequence | None = None

@@ -82,8 +82,14 @@ def test_invalid_manifests_are_named(tmp_path):
     man.write_bytes(b"\xff\xfe\x00")
     with pytest.raises(StudyError, match="UTF-8"):
         Study.open(folder)
+    for mode in ("r", "w"):  # a missing folder is named as such, not as its lock file
+        with pytest.raises(StudyError, match=r"elsewhere: study folder does not exist") as err:
+            Study.open(tmp_path / "elsewhere", mode=mode)
+        assert ".talus.lock" not in str(err.value) and not (tmp_path / "elsewhere").exists()
+    (tmp_path / "empty").mkdir()
     with pytest.raises(StudyError, match="not a Talus study folder"):
-        Study.open(tmp_path / "elsewhere")
+        Study.open(tmp_path / "empty", mode="w")
+    assert not (tmp_path / "empty" / ".talus.lock").exists()  # no lock file left in a non-study
 
 
 def test_validation_cross_references():

@@ -65,3 +65,42 @@ def test_track_command_bad_input(demo, capsys):
         args = [str(demo), "--trial", "walk", "--frames", "0:1", "--max-uncertainty", bad, "--quiet"]
         assert main(args) == 1
         assert "max_uncertainty" in capsys.readouterr().err.replace("-", "_")
+
+
+def test_ctrl_c_during_the_last_frame_exits_130_and_never_reports_complete(demo, tmp_path):
+    """A real ``talus track`` process gets SIGINT while it registers its last frame."""
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from core.study import Study
+
+    study = Path(shutil.copytree(demo, tmp_path / "study"))
+    cmd = [sys.executable, "-m", "app.cli", "track", str(study), "--trial", "walk", "--bones",
+           "talus", "--frames", "1:3", "--device", "cpu", "--no-confidence"]
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen(cmd, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    err = []
+    try:
+        for line in proc.stderr:  # wait for the event: frame 1 of 2 done, frame 2 in flight
+            err.append(line)
+            if "1/2" in line:
+                proc.send_signal(signal.SIGINT)
+                break
+        out, rest = proc.communicate(timeout=600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = "".join(err) + rest
+    assert any("1/2" in ln for ln in err.splitlines()), err
+    assert proc.returncode == 130, err
+    doc = json.loads(out)
+    assert doc["summary"]["status"] == "cancelled"
+    assert "complete" not in out and "complete" not in rest.replace("completed", "")
+    assert "Traceback" not in err and "cancelled" in err
+    with Study.open(study) as st:
+        P = st.trial("walk").poses("talus")
+    assert np.all(np.isfinite(P[1]))  # the finished frame is saved

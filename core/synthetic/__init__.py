@@ -8,7 +8,14 @@ Modules: ``rig`` (walkway biplane cameras), ``sdf`` + ``phantoms`` (HU bone phan
 tissue), ``voxelize`` (meshes → HU volumes), ``analytic`` (exact chords through beads, plates,
 boxes, cylinders; NIST attenuation), ``distortion`` + ``imaging`` (intensifier image chain),
 ``motion`` (stance-phase poses), ``calib_objects`` + ``calibration`` (cube, spirals, grid, lattice,
-pinholes, flatfields), ``scene`` (a whole trial) and ``demo`` (a study folder on disk).
+pinholes, flatfields), ``capture`` (calibration objects moved through a rig's capture volume:
+poses, noisy projections, rendered frames), ``lattice`` (the §4.3 bead lattice on an
+intensifier), ``scene`` (a whole trial) and ``demo`` (a study folder on disk).
+
+The generator sits on top of the library: the cube, spirals and helix frame are
+:mod:`core.calibration.hardware`'s and the attenuation table :mod:`core.render.attenuation`'s,
+re-exported here. Only tests and :mod:`core.studies` import this package; nothing a user runs
+does (an import contract).
 
 Example::
 

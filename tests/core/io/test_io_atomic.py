@@ -1,10 +1,15 @@
 import json
 import math
+import os
+import stat
+import time
 
 import pytest
 
+from core.geometry import write_mayacam
 from core.io import atomic
 from core.io.atomic import FileLock, LockedError, atomic_open, atomic_write, atomic_write_json, print_json
+from core.synthetic import foot_rig
 
 
 def _leftovers(folder):
@@ -84,3 +89,53 @@ def test_lock_is_exclusive_and_names_the_holder(tmp_path):
     with other:
         assert other.locked
     assert not other.locked
+
+
+@pytest.fixture(params=[0o022, 0o077, 0o002])
+def umask(request):
+    old = os.umask(request.param)
+    yield request.param
+    os.umask(old)
+
+
+def test_new_files_get_the_mode_a_plain_open_gives(tmp_path, umask):
+    """mkstemp alone makes 0600 files: a lab's shared study folder became unreadable to others."""
+    want = 0o666 & ~umask
+    with open(tmp_path / "plain", "w"):
+        pass
+    assert stat.S_IMODE((tmp_path / "plain").stat().st_mode) == want
+    atomic_write(tmp_path / "a.json", "x")
+    with atomic_open(tmp_path / "b.bin", "wb") as fh:
+        fh.write(b"x")
+    with atomic.atomic_path(tmp_path / "c.npy") as tmp:
+        tmp.write_bytes(b"x")
+    write_mayacam(foot_rig(seed=1, pixels=16)[0], tmp_path / "cam.txt")
+    for name in ("a.json", "b.bin", "c.npy", "cam.txt"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == want, name
+    os.chmod(tmp_path / "a.json", 0o640)  # a replaced file keeps its mode, as with open("w")
+    atomic_write(tmp_path / "a.json", "y")
+    write_mayacam(foot_rig(seed=1, pixels=16)[1], tmp_path / "cam.txt")
+    assert stat.S_IMODE((tmp_path / "a.json").stat().st_mode) == 0o640
+    assert stat.S_IMODE((tmp_path / "cam.txt").stat().st_mode) == want
+
+
+def test_remove_stale_temporaries(tmp_path):
+    old = time.time() - 3600
+    (tmp_path / "sub").mkdir()
+    stale = [tmp_path / ".study.json.ab_cd123.tmp", tmp_path / "sub" / ".vol.x1y2z3w4.tmp.npy"]
+    fresh = tmp_path / ".study.json.zz9yy8xx.tmp"  # a live writer's: too young
+    others = [tmp_path / "study.json", tmp_path / ".notes.tmp", tmp_path / "keep.tmp"]
+    for p in [*stale, fresh, *others]:
+        p.write_text("x")
+    for p in [*stale, *others]:
+        os.utime(p, (old, old))
+    outside = tmp_path.parent / f"{tmp_path.name}_outside"
+    outside.mkdir()
+    (outside / ".a.json.12345678.tmp").write_text("x")
+    os.utime(outside / ".a.json.12345678.tmp", (old, old))
+    (tmp_path / "link").symlink_to(outside)  # never followed
+    removed = atomic.remove_stale_temporaries(tmp_path, older_than_s=600)
+    assert sorted(removed) == sorted(stale)
+    assert fresh.exists() and all(p.exists() for p in others)
+    assert (outside / ".a.json.12345678.tmp").exists()
+    assert atomic.remove_stale_temporaries(tmp_path, older_than_s=0) == [fresh]

@@ -3,7 +3,7 @@ import pytest
 import SimpleITK as sitk
 
 from core.geometry import rotvec_to_matrix
-from core.io import read_tiff_volume
+from core.io import FileError, read_tiff_volume
 from core.io.ct import inspect_dicom_folder, read_ct, split_labels
 from core.render import CTVolume
 from core.synthetic import bone_phantom
@@ -213,3 +213,38 @@ def test_real_wrist_tiff_volume(sample_data):
     assert v.name == "rad_dcm_cropped" and v.data.max() > 1000  # cortical bone in HU
     with pytest.raises(ValueError, match="voxel_size: required for the TIFF volume"):
         read_ct(p)
+
+
+@pytest.mark.parametrize("which", [0, -1])
+@pytest.mark.parametrize("keep", [10, 140, -2])
+def test_damaged_first_or_last_slice_is_named_not_dropped(tmp_path, dicom_writer, which, keep):
+    """A truncated end slice used to be skipped as 'not DICOM': 10 slices read as 9, origin shifted."""
+    data = np.random.default_rng(0).integers(-1000, 1000, (10, 8, 8))
+    files = dicom_writer(tmp_path / "s", data)
+    blob = files[which].read_bytes()
+    files[which].write_bytes(blob[:keep])
+    with pytest.raises(FileError, match=rf"{files[which].name}: cannot be read as a DICOM slice") as err:
+        read_ct(tmp_path / "s")
+    assert err.value.path == files[which]
+    with pytest.raises(FileError, match=files[which].name):
+        inspect_dicom_folder(tmp_path / "s")
+
+
+def test_damaged_extensionless_slice_and_unrelated_files(tmp_path, dicom_writer):
+    data = np.random.default_rng(1).integers(-1000, 1000, (4, 8, 8))
+    files = dicom_writer(tmp_path / "s", data, names=[f"IM{k:04d}" for k in range(4)])
+    (tmp_path / "s" / "notes.txt").write_text("scanned on Tuesday")  # not DICOM, ignored
+    (tmp_path / "s" / "DICOMDIR").write_bytes(b"\0" * 128 + b"DICM" + b"\0" * 20)  # index, ignored
+    assert read_ct(tmp_path / "s").data.shape == (4, 8, 8)
+    files[-1].write_bytes(files[-1].read_bytes()[:60])  # too short for the DICM preamble
+    with pytest.raises(FileError, match=r"IM0003: cannot be read as a DICOM slice"):
+        read_ct(tmp_path / "s")
+
+
+def test_damaged_pixel_data_names_the_slice(tmp_path, dicom_writer):
+    data = np.random.default_rng(2).integers(-1000, 1000, (4, 32, 32))
+    files = dicom_writer(tmp_path / "s", data)
+    blob = files[2].read_bytes()
+    files[2].write_bytes(blob[: len(blob) - 1000])  # header intact, pixels cut
+    with pytest.raises(FileError, match=files[2].name):
+        read_ct(tmp_path / "s")

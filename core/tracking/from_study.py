@@ -7,8 +7,9 @@ others are tracked), starts from the poses already in the trial's journal (keyfr
 every registered frame with :meth:`core.study.Trial.record_pose` as it finishes, and keeps the
 report ``results/reports/tracking/<trial>.json`` (summary, per-frame scores, evaluations,
 confidence and review flags) up to date — written when a frame is flagged, at least every
-``report_every_s`` seconds, and at the end. ``resume=True`` skips the frames of the range that
-already have a pose in the journal.
+``report_every_s`` seconds, and at the end. ``resume=True`` carries on an interrupted run from
+the journal: the frames done keep their review state and enter the report as they were
+(:func:`core.tracking.trial.journal_inputs`).
 
 Frame normalisation, in order of precedence
 -------------------------------------------
@@ -33,7 +34,7 @@ import numpy as np
 
 from ..render import HUTransfer
 from .bones import bone_model
-from .trial import TrackingOptions, TrackingResult, track
+from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
 __all__ = ["frame_reader", "track_study"]
 
@@ -134,10 +135,9 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             models.append(bone_model(study.bone_volume(b), name=b, threshold=threshold_hu, mesh=False))
         except ValueError as exc:
             stopped[b] = str(exc)
-    existing = {m.name: {f: P for f, P in enumerate(trial.poses(m.name)) if np.all(np.isfinite(P))}
-                for m in models}
+    existing, skip = journal_inputs({m.name: trial.results(m.name) for m in models}, order, resume=resume)
     for m in list(models):
-        if not existing[m.name]:
+        if not (existing[m.name] or skip[m.name]):
             stopped[m.name] = "no keyframe: record a starting pose for this bone first"
             models.remove(m)
     read, how = frame_reader(study, trial, correction=correction)
@@ -150,9 +150,6 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
         return None, report
     tr = transfer or HUTransfer(threshold=threshold_hu)
     renderer = DRRRenderer(trial.rig(), [m.volume for m in models], transfer=tr, device=device)
-    in_range = set(order)
-    skip = ({b: {f: P for f, P in existing[b].items() if f in in_range} for b in existing}
-            if resume else None)
     state = {"last": time.monotonic(), "frames": []}
 
     def write(result_frames, summary=None):
@@ -171,7 +168,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             progress(done, total, fr)
 
     result = track(renderer, models, read, order, keyframes=existing, options=options,
-                   record=lambda b, f, P, s: trial.record_pose(b, int(f), P, score=float(s)),
+                   record_result=lambda fr: trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score,
+                                                              tracking=fr.journal_fields()),
                    skip=skip, progress=on_progress, cancel=cancel)
     report["summary"] = result.summary()
     report["flagged"] = [r.to_dict() for r in result.flagged]

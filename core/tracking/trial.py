@@ -89,7 +89,8 @@ from .cost import OutsideViewError, RegistrationCost, prepare_frame, search_roi
 from .register import RegistrationOptions, register
 from .verify import verify_start
 
-__all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "predict_pose", "register_start", "track"]
+__all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs", "predict_pose",
+           "register_start", "track"]
 
 _GUESSES = ("previous", "velocity", "spline")
 
@@ -173,6 +174,27 @@ class FrameResult:
                 "evaluations": self.evaluations, "time_s": self.time_s, "converged": self.converged,
                 "flags": list(self.flags), "retried": self.retried, "confidence": self.confidence,
                 "timing": self.timing, "notes": list(self.notes)}
+
+    def journal_fields(self) -> dict:
+        """The review state a journal keeps beside the pose and score (``tracking`` of
+        :meth:`core.study.Trial.record_pose`): everything :meth:`to_dict` holds but bone,
+        frame and score."""
+        d = self.to_dict()
+        for k in ("bone", "frame", "score"):
+            d.pop(k)
+        return d
+
+    @classmethod
+    def from_journal(cls, bone: str, record) -> FrameResult:
+        """Rebuild a tracked frame from a journal record (a :class:`core.study.PoseRecord` with
+        ``tracking``), exactly as it was reported."""
+        t = record.tracking
+        if t is None or record.pose is None:
+            raise ValueError(f"record: frame {record.frame} of {bone!r} is not a tracking result")
+        return cls(bone, int(record.frame), np.asarray(record.pose, float), float(record.score),
+                   int(t.get("evaluations", 0)), float(t.get("time_s", 0.0)), bool(t.get("converged", False)),
+                   tuple(t.get("flags", ())), bool(t.get("retried", False)), t.get("confidence"),
+                   t.get("timing"), tuple(t.get("notes", ())))
 
 
 @dataclass(frozen=True, eq=False)
@@ -301,11 +323,162 @@ def _uncertain(conf: dict | None, limits: tuple[float, float]) -> list[str]:
     return []
 
 
+def journal_inputs(states: Mapping, frames: Sequence[int], *, resume: bool = False) -> tuple[dict, dict]:
+    """``(keyframes, skip)`` for :func:`track` from each bone's journal (a mapping bone name ->
+    :class:`core.study.JournalState`) over the tracking range ``frames``.
+
+    Keyframes are the poses a run over ``frames`` starts from: in the range the hand-set poses
+    (:attr:`~core.study.JournalState.keyframes`, which tracking results do not replace), outside
+    it every recorded pose. With ``resume`` the frames of the range already done are skipped:
+    tracking results come back as :class:`FrameResult` with their review state (flagged frames
+    stay flagged and are not used for guesses, their scores refill the score history, and the
+    report holds them), hand fixes and version-1 poses as poses. Both runs of a resumed range —
+    the interrupted one and the one that completes it — thus see the same inputs, and the
+    resumed run gives the report the uninterrupted run would have given (frames flagged for
+    review are not retried on resume: an uninterrupted run does not retry them either)."""
+    rng = {int(f) for f in frames}
+    keyframes, skip = {}, {}
+    for b, st in states.items():
+        kf = {f: r.pose for f, r in st.keyframes.items() if f in rng}
+        kf.update({f: r.pose for f, r in st.records.items() if f not in rng and r.pose is not None})
+        keyframes[b] = dict(sorted(kf.items()))
+        done = {}
+        if resume:
+            for f, r in st.done.items():
+                if f in rng:
+                    done[f] = FrameResult.from_journal(b, r) if r.kind == "tracked" else r.pose
+        skip[b] = done
+    return keyframes, skip
+
+
+class _Cancel:
+    """A cancel token that stays fired once it has fired (a poll that said "stop" is never lost)."""
+
+    def __init__(self, fn: Callable[[], bool] | None) -> None:
+        self.fn, self.fired = fn, False
+
+    def __call__(self) -> bool:
+        if not self.fired and self.fn is not None and self.fn():
+            self.fired = True
+        return self.fired
+
+
+@dataclass
+class _BoneState:
+    """What a bone's next frames are registered from: its good ``(frame, pose)`` history (for
+    the guesses), its good scores (the score-drop check) and its first good score."""
+
+    history: list = field(default_factory=list)
+    scores: list = field(default_factory=list)
+    start_score: float | None = None
+
+    def add_good(self, frame: int, pose, score: float | None) -> None:
+        self.history.append((frame, np.asarray(pose, float)))
+        if score is not None:
+            self.scores.append(score)
+            if self.start_score is None:
+                self.start_score = score
+
+
+@dataclass
+class _Attempt:
+    """One bone's registration in one frame with its checks (:func:`_register_one`)."""
+
+    result: object  # RegistrationResult | None (outside a view)
+    flags: list
+    retried: bool
+    evaluations: int
+    time_s: float
+    confidence: dict | None
+    timing: dict | None
+    notes: tuple = ()
+
+
+@dataclass
+class _Run:
+    """The fixed inputs of a :func:`track` run."""
+
+    renderer: object
+    bones: Sequence[BoneModel]
+    names: tuple
+    keyframes: Mapping
+    options: TrackingOptions
+    cancel: _Cancel
+
+
+def _track_frame(run: _Run, f: int, imgs: list, todo: list[int], state: dict[str, _BoneState],
+                 skip: dict) -> dict[int, FrameResult] | None:
+    """Register bones ``todo`` in frame ``f``; their results, or None when cancelled."""
+    o, names, bones = run.options, run.names, run.bones
+    missing = [v for v, im in enumerate(imgs) if im is None]
+    if missing:
+        why = (f"frame missing in view {', '.join(map(str, missing))}",)
+        return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, why) for i in todo}
+    frame = prepare_frame(imgs, valid_range=o.valid_range, erode_px=o.erode_px)
+    hist = {b: state[b].history for b in names}
+    guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
+                               keyframes=run.keyframes.get(names[i])) for i in todo}
+    joint = o.mode == "joint" and len(names) > 1
+    current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
+    if joint:
+        for i, b in enumerate(names):
+            if i not in current:  # skipped: given as a pose (see track)
+                current[i] = hist[b][-1][1] if hist[b] else predict_pose(
+                    [], f, bones[i].centroid, keyframes=run.keyframes.get(b) or {
+                        k: getattr(v, "pose", v) for k, v in skip[b].items()})
+    # poses good enough to subtract: tracked bones' guesses, and bones given or registered this frame
+    known = {i for i, b in enumerate(names) if hist[b] or (f in skip[b] and i not in todo)}
+    out: dict[int, _Attempt] = {}
+    spent = {i: [0, 0.0, {}] for i in todo}  # evaluations, s, timing: all rounds
+    for rnd in range(o.joint_rounds if joint else 1):
+        for i in todo:
+            if run.cancel():
+                return None
+            b = names[i]
+            others = None
+            if joint:
+                ids = [k for k in range(len(names)) if k != i and k in known]
+                others = (np.stack([current[k] for k in ids]), ids) if ids else None
+            first = not hist[b]
+            if rnd == 0:
+                opts, start = (o.first_options if first else o.registration), guesses[i]
+            else:
+                opts, start = o.registration, current[i]
+            new = _register_one(run.renderer, frame, bones[i], i, start, guesses[i], opts, o, state[b].scores,
+                                others, run.cancel, hist[b], verify=first and rnd == 0,
+                                start_score=state[b].start_score, seed=f)
+            if run.cancel.fired:  # the registration was cut short: nothing of this frame stands
+                return None
+            sp = spent[i]
+            sp[0] += new.evaluations
+            sp[1] += new.time_s
+            for k, v in (new.timing or {}).items():
+                sp[2][k] = sp[2].get(k, 0) + v
+            if new.result is None and i in out and out[i].result is not None:
+                continue  # a later round lost the bone (outside a view): the earlier pose stands
+            out[i] = new
+            if new.result is not None:
+                current[i] = new.result.pose
+                known.add(i)
+    results = {}
+    for i in todo:
+        a, (evals, dt, timing) = out[i], spent[i]
+        res, b = a.result, names[i]
+        if res is None:
+            results[i] = FrameResult(b, f, None, np.nan, evals, dt, False, tuple(a.flags), a.retried, None,
+                                     timing or None)
+        else:
+            results[i] = FrameResult(b, f, res.pose, res.score, evals, dt, not a.flags, tuple(a.flags),
+                                     a.retried, a.confidence, timing or None, a.notes)
+    return results
+
+
 def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence],
           frame_order: Sequence[int], *,
           keyframes: Mapping[str, Mapping[int, np.ndarray]], options: TrackingOptions | None = None,
           record: Callable[[str, int, np.ndarray, float], None] | None = None,
-          skip: Mapping[str, Mapping[int, np.ndarray]] | None = None,
+          record_result: Callable[[FrameResult], None] | None = None,
+          skip: Mapping[str, Mapping[int, np.ndarray | FrameResult]] | None = None,
           progress: Callable[[int, int, FrameResult], None] | None = None,
           cancel: Callable[[], bool] | None = None) -> TrackingResult:
     """Track ``bones`` (volume ``i`` of ``renderer`` is ``bones[i]``) over ``frame_order``.
@@ -319,13 +492,28 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
     keyframes : mapping bone name -> {frame: pose}
         Starting poses (at least one per bone) and spline knots.
     record : callable(bone, frame, pose, score), optional
-        Called as soon as each (bone, frame) is registered (e.g. ``Trial.record_pose``).
-    skip : mapping bone name -> {frame: pose}, optional
-        Frames already done (resume): not registered again; their poses feed the guesses.
+        Called as soon as each (bone, frame) with a pose is registered.
+    record_result : callable(FrameResult), optional
+        Called likewise with the whole result (pose, score and review state), e.g. to journal
+        it with :meth:`core.study.Trial.record_pose` (``tracking=fr.journal_fields()``).
+        Results without a pose (outside a view, frame missing) are not recorded; they are
+        registered again on resume, with the same outcome.
+    skip : mapping bone name -> {frame: pose or FrameResult}, optional
+        Frames already done (resume, see :func:`journal_inputs`): not registered again. A
+        :class:`FrameResult` is taken back as it was (into the result and its report, through
+        ``progress``; a flagged one is not used for guesses, a good one's score refills the
+        score history); a pose is a good pose that feeds the guesses. In joint mode a frame
+        in which some bone still needs registering is registered again for every bone whose
+        entry is a FrameResult (the bones' registrations depend on each other there).
     progress : callable(done, total, FrameResult), optional
     cancel : callable() -> bool, optional
-        Polled between registrations and once per optimiser generation; the frame in flight is
-        dropped and the result says ``"cancelled"``.
+        Polled between registrations and once per optimiser generation. Once it has returned
+        True the frame in flight is dropped whole (nothing of it is recorded or reported) and
+        the result says ``"cancelled"``; a cancel that comes after the last frame is recorded
+        leaves the run ``"complete"``.
+
+    Frames are registered from their inputs only (the seeds depend on the frame, not on what
+    ran before), so a run resumed from its journal gives the results of an uninterrupted run.
     """
     o = options or TrackingOptions()
     order = [int(f) for f in frame_order]
@@ -336,9 +524,9 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         if not (keyframes.get(b) or (skip or {}).get(b)):
             raise ValueError(f"keyframes: bone {b!r} has no keyframe to start from")
     skip = {b: dict((skip or {}).get(b, {})) for b in names}
-    hist: dict[str, list] = {b: [] for b in names}
-    scores: dict[str, list] = {b: [] for b in names}
-    start_scores: dict[str, float] = {}
+    state = {b: _BoneState() for b in names}
+    run = _Run(renderer, bones, names, keyframes, o, _Cancel(cancel))
+    joint = o.mode == "joint" and len(names) > 1
     results: dict = {}
     total, done = len(order) * len(names), 0
     t0 = time.perf_counter()
@@ -352,85 +540,35 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
             progress(done, total, fr)
 
     for f in order:
-        if cancel is not None and cancel():
+        if run.cancel():
             status = "cancelled"
             break
+        restored = {i: skip[b][f] for i, b in enumerate(names)
+                    if f in skip[b] and isinstance(skip[b][f], FrameResult)}
         todo = [i for i, b in enumerate(names) if f not in skip[b]]
-        for b in names:
-            if f in skip[b]:
-                hist[b].append((f, np.asarray(skip[b][f], float)))
-                done += 1
-        if not todo:
-            continue
-        imgs = list(frames(f))
-        missing = [v for v, im in enumerate(imgs) if im is None]
-        if missing:
-            for i in todo:
-                finish(FrameResult(names[i], f, None, np.nan, 0, 0.0, False,
-                                   (f"frame missing in view {', '.join(map(str, missing))}",)))
-            continue
-        frame = prepare_frame(imgs, valid_range=o.valid_range, erode_px=o.erode_px)
-        guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
-                                   keyframes=keyframes.get(names[i])) for i in todo}
-        current = {i: guesses[i] for i in todo}
+        if joint and todo:
+            todo = sorted(todo + list(restored))
+            restored = {}
         for i, b in enumerate(names):
-            if i not in current:
-                current[i] = hist[b][-1][1] if hist[b] else predict_pose(
-                    [], f, bones[i].centroid, keyframes=keyframes.get(b) or skip[b])
-        joint = o.mode == "joint" and len(names) > 1
-        rounds = o.joint_rounds if joint else 1
-        # poses good enough to subtract: tracked bones' guesses, and bones registered this frame
-        known = {i for i, b in enumerate(names) if hist[b] or f in skip[b]}
-        out: dict[int, tuple] = {}
-        spent: dict[int, list] = {i: [0, 0.0, {}] for i in todo}  # evaluations, s, timing: all rounds
-        for rnd in range(rounds):
-            for i in todo:
-                if cancel is not None and cancel():
-                    status = "cancelled"
-                    break
-                others = None
-                if joint:
-                    ids = [k for k in range(len(names)) if k != i and k in known]
-                    others = (np.stack([current[k] for k in ids]), ids) if ids else None
-                first = not hist[names[i]]
-                if rnd == 0:
-                    opts, start = (o.first_options if first else o.registration), guesses[i]
-                else:
-                    opts, start = o.registration, current[i]
-                new = _register_one(renderer, frame, bones[i], i, start, guesses[i], opts, o,
-                                    scores[names[i]], others, cancel, hist[names[i]],
-                                    verify=first and rnd == 0, start_score=start_scores.get(names[i]),
-                                    seed=f)
-                sp = spent[i]
-                sp[0] += new[3]
-                sp[1] += new[4]
-                for k, v in (new[6] or {}).items():
-                    sp[2][k] = sp[2].get(k, 0) + v
-                if new[0] is None and i in out and out[i][0] is not None:
-                    continue  # a later round lost the bone (outside a view): the earlier pose stands
-                out[i] = new
-                if new[0] is not None:
-                    current[i] = new[0].pose
-                    known.add(i)
-            if status == "cancelled":
-                break
-        if status == "cancelled":
+            if f in skip[b] and i not in restored and i not in todo:  # a pose: a good frame, as given
+                state[b].add_good(f, skip[b][f], None)
+                done += 1
+        new = _track_frame(run, f, list(frames(f)), todo, state, skip) if todo else {}
+        if new is None:
+            status = "cancelled"
             break
-        for i in todo:
-            res, flags, retried, _, _, conf, _, notes = out[i]
-            evals, dt, timing = spent[i][0], spent[i][1], (spent[i][2] or None)
-            b = names[i]
-            if res is None:
-                finish(FrameResult(b, f, None, np.nan, evals, dt, False, tuple(flags), retried, None, timing))
+        for i, b in enumerate(names):
+            fr = restored.get(i) or new.get(i)
+            if fr is None:
                 continue
-            if record is not None:
-                record(b, f, res.pose, res.score)
-            if not flags:
-                hist[b].append((f, res.pose))
-                scores[b].append(res.score)
-                start_scores.setdefault(b, res.score)
-            finish(FrameResult(b, f, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf,
-                               timing, notes))
+            if i in new and fr.pose is not None:
+                if record is not None:
+                    record(b, f, fr.pose, fr.score)
+                if record_result is not None:
+                    record_result(fr)
+            if fr.pose is not None and not fr.flags:
+                state[b].add_good(f, fr.pose, fr.score)
+            finish(fr)
     return TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
 
 
@@ -441,13 +579,13 @@ def register_start(renderer, frame, bone: BoneModel, index: int, start, *,
     first-frame options, the failure checks with a wider retry and the restart check of
     :func:`core.tracking.verify.verify_start`. Returns a :class:`FrameResult` (frame -1)."""
     o = options or TrackingOptions()
-    res, flags, retried, evals, dt, conf, timing, notes = _register_one(
-        renderer, frame, bone, index, start, start, o.first_options, o, [], others, cancel, [],
-        verify=True, seed=seed)
-    if res is None:
-        return FrameResult(bone.name, -1, None, np.nan, evals, dt, False, tuple(flags), retried, None, timing)
-    return FrameResult(bone.name, -1, res.pose, res.score, evals, dt, not flags, tuple(flags), retried, conf,
-                       timing, notes)
+    a = _register_one(renderer, frame, bone, index, start, start, o.first_options, o, [], others, cancel, [],
+                      verify=True, seed=seed)
+    if a.result is None:
+        return FrameResult(bone.name, -1, None, np.nan, a.evaluations, a.time_s, False, tuple(a.flags),
+                           a.retried, None, a.timing)
+    return FrameResult(bone.name, -1, a.result.pose, a.result.score, a.evaluations, a.time_s, not a.flags,
+                       tuple(a.flags), a.retried, a.confidence, a.timing, a.notes)
 
 
 def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
@@ -456,7 +594,7 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
     """Register with failure checks, one wider retry and (first frames, retries) the restart
     check of :func:`core.tracking.verify.verify_start`.
 
-    Returns (result, flags, retried, evaluations, time, confidence dict, timing)."""
+    Returns an :class:`_Attempt`."""
     t0 = time.perf_counter()
     c = bone.centroid
     cancelled = cancel if cancel is not None else (lambda: False)
@@ -464,8 +602,8 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
         res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
                        others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
     except OutsideViewError as exc:
-        return (None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None, None,
-                ())
+        return _Attempt(None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None,
+                        None)
     evals = res.evaluations
     timing = {k: v for k, v in res.timing.items() if k != "total_s"}
 
@@ -543,4 +681,4 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
     dt = time.perf_counter() - t0
     # confidence, restarts, set-up
     timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))
-    return res, flags, retried, evals, dt, conf, timing, tuple(notes)
+    return _Attempt(res, flags, retried, evals, dt, conf, timing, tuple(notes))

@@ -10,17 +10,12 @@ beside it, and the report lists the dropped lines with their line numbers and re
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from .results import salvage_journal
-
-if TYPE_CHECKING:
-    from .study import Study
 
 __all__ = ["repair_study"]
 
 
-def repair_study(study: Study, *, dry_run: bool = False) -> dict:
+def repair_study(study, *, dry_run: bool = False) -> dict:  # study: a Study (study.py imports this module)
     """Salvage every pose journal of ``study`` (open for writing unless ``dry_run``).
 
     Returns a JSON-ready dict: ``study`` (folder), ``dry_run``, ``journals`` (one

@@ -19,6 +19,7 @@ from .autoscoper import (
     write_tra,
     xyzypr_to_matrix,
 )
+from .calibration_session import CalibrationSession, read_session
 from .cine import CineInfo, CineSequence, read_cine_info
 from .cine_writer import write_cine
 from .ct import DicomSeriesInfo, inspect_dicom_folder, read_ct, split_labels
@@ -49,6 +50,7 @@ __all__ = [
     "AutoscoperTrial",
     "AutoscoperViewSettings",
     "AutoscoperVolume",
+    "CalibrationSession",
     "CineInfo",
     "CineSequence",
     "DicomSeriesInfo",
@@ -76,6 +78,7 @@ __all__ = [
     "read_mesh",
     "read_points_2d",
     "read_points_3d",
+    "read_session",
     "read_tiff_volume",
     "read_tra",
     "read_vie",

@@ -15,20 +15,21 @@ Frame normalisation, in order of precedence
 -------------------------------------------
 1. ``correction``: one callable per view, raw DN frame → fluence in [0, 1] (e.g. a
    :class:`core.imaging.Pipeline`);
-2. the study settings ``"correction": {"views": [pipeline dict, ...]}``
+2. the correction pipelines saved with the calibration version the trial uses
+   (:func:`core.study.calibrations.trial_correction`, written by ``talus calibrate``);
+3. the study settings ``"correction": {"views": [pipeline dict, ...]}``
    (:meth:`core.imaging.Pipeline.from_dict`);
-3. the layout written by :func:`core.synthetic.make_demo_study`: ``imaging/<camera>.json``
-   (dark level, distortion) and ``imaging/flatfield_<camera>.tif`` beside ``study.json``;
 4. otherwise frames are divided by the full scale ``2**bits - 1`` (no flatfield: noted in the
    report).
+
+The rig is the trial's calibration (:meth:`core.study.Trial.rig`), so a trial calibrated by
+``talus calibrate`` is tracked with the saved rig and its saved correction.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
 
 import numpy as np
 
@@ -39,49 +40,22 @@ from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 __all__ = ["frame_reader", "track_study"]
 
 
-def _demo_correction(folder: Path, rig) -> list[Callable] | None:
-    import tifffile
-
-    out = []
-    for cam in rig:
-        js, ff = folder / "imaging" / f"{cam.name}.json", folder / "imaging" / f"flatfield_{cam.name}.tif"
-        if not (js.is_file() and ff.is_file()):
-            return None
-        meta = json.loads(js.read_text())
-        dark = float(meta.get("dark_dn", 0.0))
-        gain = tifffile.imread(ff).astype(np.float64) - dark
-        dist = None
-        d = meta.get("distortion")
-        if d:
-            from ..synthetic.distortion import Distortion
-
-            dist = Distortion(center=tuple(d["center"]), scale_px=d["scale_px"], k1=d["k1"], k2=d["k2"],
-                              twist_rad=d["twist_rad"], twist_power=d["twist_power"])
-
-        def correct(raw, gain=gain, dark=dark, dist=dist):
-            ok = gain > 1e-6
-            img = np.where(ok, (np.asarray(raw, np.float64) - dark) / np.where(ok, gain, 1.0), 0.0)
-            img = np.clip(img, 0.0, 1.0).astype(np.float32)
-            return dist.unwarp(img) if dist is not None else img
-
-        out.append(correct)
-    return out
-
-
 def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) -> tuple[Callable, str]:
     """``(read(frame) -> [fluence per view], description)`` for a study trial (see the module
     docs for how raw frames are normalised). A view whose frame cannot be read gives None."""
     rig = trial.rig()
     how = "given"
     fns = list(correction) if correction is not None else None
+    if fns is None:
+        from ..study.calibrations import trial_correction
+
+        fns = trial_correction(study, trial.name)
+        how = f"saved with calibration {trial.calibration}"
     if fns is None and isinstance(study.settings.get("correction"), dict):
         from ..imaging.pipeline import Pipeline
 
         fns = [Pipeline.from_dict(d) for d in study.settings["correction"]["views"]]
         how = "study settings"
-    if fns is None:
-        fns = _demo_correction(study.folder, rig)
-        how = "demo flatfield + distortion"
     if fns is None:
         bits = [v.get("bit_depth") or 16 for v in study.manifest["trials"][trial.name]["views"]]
         fns = [lambda raw, b=b: np.clip(np.asarray(raw, np.float32) / (2**b - 1), 0, 1) for b in bits]

@@ -1,0 +1,428 @@
+"""A calibration session, end to end: raw frames → correction pipelines and a calibrated rig.
+
+:func:`calibrate_session` runs, per camera and then for the rig, the steps a lab runs at the
+start of a collection day (thesis Ch. 3 and 5):
+
+1. **flatfield** — dark frames averaged into a dark frame, empty-field frames of the session's
+   kV into the fluence surface (:func:`core.imaging.flatfield.build_flatfield`);
+2. **distortion** — every grid frame detected and indexed, frames of one placement merged, the
+   ideal grid refined, the model chosen by cross-validation (``model="auto"``) or as given, and
+   its residuals (:mod:`core.calibration._session_grid`);
+3. **beads** — spiral and cube frames corrected by ``dark → flatfield → undistort``
+   (:class:`core.imaging.pipeline.Pipeline`), beads detected, sized
+   (:func:`core.calibration.detection.detect_object_beads`) and labelled in both views with the
+   epipolar geometry estimated from the sequence (:func:`core.calibration.matching.label_sequence`);
+4. **DLT start and bundle adjustment** — the rigid rig from all labelled frames
+   (:func:`core.calibration.bundle.bundle_adjust`, whose initial guess is per-frame DLTs), the lab
+   frame from the static cube frame (or the first spiral frame when there is no cube), an SID
+   prior when the session gives one; parameter standard deviations;
+5. **report** — per step figures of merit (:attr:`SessionCalibration.report`).
+
+A *session* is anything with the reading interface of
+:class:`core.io.calibration_session.CalibrationSession`: ``cameras``, ``manifest``,
+``frames(camera, group)`` (the frame references of ``"dark"``, ``"flat:<kV>"``, ``"grid"``,
+``"cube"``, ``"spiral"``) and ``read(ref)`` (float32 raw counts).
+
+Every step raises :class:`SessionError` on bad input, naming the step, the file and frame, what
+was expected and what can be done; nothing is written anywhere (saving into a study is
+:mod:`core.study.calibrations`). ``progress(step, done, total)`` is called as work advances and
+``cancel()`` is polled between frames (:class:`CalibrationCancelled` is raised when it returns
+True).
+
+Pixels are ``(u, v) = (column, row)``, origin at the centre of the top-left pixel; mm, radians.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.camera import Rig
+from ..imaging.flatfield import Flatfield, build_flatfield
+from ..imaging.pipeline import Pipeline
+from . import _session_grid as grids
+from .bundle import BundleResult, bundle_adjust
+from .detection import ObjectDetections, detect_object_beads
+from .dlt import calibrate_dlt
+from .matching import label_sequence
+from .objects import CalibrationTarget, builtin_target, read_target
+
+__all__ = ["CalibrationCancelled", "SessionCalibration", "SessionError", "calibrate_session"]
+
+#: Defaults when the session manifest does not say (the built-in hole grid, spiral and cube).
+DEFAULTS = {"pitch_mm": 15.0, "hole_diameter_mm": 3.0, "object": "spiral33", "static_object": "cube15",
+            "magnification": (1.1, 1.5, 2.0)}
+MIN_LABELLED_FRAMES = 8
+
+
+class SessionError(ValueError):
+    """A calibration step could not run on the session's input.
+
+    Attributes: ``step`` (``"session"``, ``"flatfield"``, ``"distortion"``, ``"beads"``,
+    ``"bundle"``), ``where`` (file and frame, or camera), ``hint`` (what can be done).
+    """
+
+    def __init__(self, step: str, where: str, what: str, hint: str = ""):
+        msg = f"{step}: {where}: {what}" + (f". {hint}" if hint else "")
+        super().__init__(msg)
+        self.step, self.where, self.what, self.hint = step, where, what, hint
+
+
+class CalibrationCancelled(Exception):
+    """``cancel()`` returned True; nothing was saved."""
+
+
+@dataclass(frozen=True, eq=False)
+class CameraCorrection:
+    """What the session gives one camera: flatfield, distortion fit and the correction pipeline."""
+
+    name: str
+    flatfield: Flatfield
+    grid: grids.GridFit
+    pipeline: Pipeline
+    kv: float | None
+
+
+@dataclass(frozen=True, eq=False)
+class SessionCalibration:
+    """Result of :func:`calibrate_session`.
+
+    Attributes
+    ----------
+    rig : Rig
+        The calibrated cameras in the lab frame (the static object's frame), pixels of the
+        *corrected* images.
+    cameras : list of CameraCorrection
+        Per camera: flatfield, distortion fit and the :class:`~core.imaging.pipeline.Pipeline`
+        that turns raw frames into corrected fluence (``pipelines`` lists them alone).
+    bundle : BundleResult
+        The bundle adjustment (parameters, standard deviations, residuals per observation).
+    frames : list of dict
+        Per object frame: ``group``, ``index``, ``labelled`` (beads per view), ``ok``,
+        ``reason`` and, once adjusted, ``rms_px``.
+    observations : list of ObjectFrame
+        The labelled frames given to the bundle adjustment, in ``frames`` order of the ok ones.
+    target, static_target : CalibrationTarget
+    report : dict
+        JSON-ready figures of merit of every step (see :mod:`core.calibration.report`).
+    """
+
+    rig: Rig
+    cameras: list
+    bundle: BundleResult
+    frames: list
+    observations: list
+    target: CalibrationTarget
+    static_target: CalibrationTarget | None
+    report: dict = field(default_factory=dict)
+
+    @property
+    def pipelines(self) -> list[Pipeline]:
+        return [c.pipeline for c in self.cameras]
+
+
+# ---------------------------------------------------------------------------- input
+def _target(spec, what: str) -> CalibrationTarget:
+    if isinstance(spec, CalibrationTarget):
+        return spec
+    s = str(spec)
+    try:
+        if s.lower().endswith((".csv", ".json")):
+            return read_target(s)
+        return builtin_target(s)
+    except (ValueError, OSError) as exc:
+        raise SessionError("session", what, f"cannot use calibration object {s!r} ({exc})",
+                           "name a built-in object (spiral23, spiral33, cube15) or an object file "
+                           "(.csv/.json)") from None
+
+
+class _Reader:
+    """Frames of the session with checks: a missing group, an unreadable file, a wrong size."""
+
+    def __init__(self, session, cancel):
+        self.s, self.cancel, self.shape = session, cancel, {}
+
+    def refs(self, cam: str, group: str, *, required: bool = True) -> list:
+        try:
+            refs = list(self.s.frames(cam, group))
+        except (KeyError, ValueError, OSError, FileNotFoundError) as exc:
+            refs, why = [], str(exc)
+        else:
+            why = "no frames"
+        if not refs and required:
+            raise SessionError("session", f"camera {cam}, {group!r} frames", f"missing ({why})",
+                               f"record the {group!r} frames of camera {cam} or remove the camera "
+                               "from the session manifest")
+        return refs
+
+    def read(self, cam: str, ref, k: int, step: str) -> np.ndarray:
+        if self.cancel is not None and self.cancel():
+            raise CalibrationCancelled(f"cancelled during {step}")
+        try:
+            img = np.asarray(self.s.read(ref), dtype=np.float32)
+        except (OSError, ValueError) as exc:
+            raise SessionError(step, f"{ref} (frame {k})", f"cannot read the frame ({exc})",
+                               "replace or remove the file") from None
+        if img.ndim != 2:
+            raise SessionError(step, f"{ref} (frame {k})", f"expected a 2-D frame, got shape {img.shape}")
+        want = self.shape.setdefault(cam, (img.shape, ref))
+        if img.shape != want[0]:
+            raise SessionError(step, f"{ref} (frame {k})",
+                               f"frame of {img.shape[1]}x{img.shape[0]} pixels, but {want[1]} of the "
+                               f"same camera has {want[0][1]}x{want[0][0]}",
+                               "every frame of a camera must have one size: re-export the session "
+                               "at the detector's full resolution")
+        return img
+
+
+def _flat_groups(session, cam: str) -> list[tuple[float | None, str]]:
+    """``(kV, group)`` of the camera's empty-field frame sets."""
+    man = getattr(session, "manifest", {}) or {}
+    kvs = man.get("flat_kv") or man.get("kv") or []
+    if isinstance(kvs, int | float):
+        kvs = [kvs]
+    groups = [(float(k), f"flat:{float(k):g}") for k in kvs]
+    if hasattr(session, "groups"):
+        try:
+            groups = [(float(g.split(":", 1)[1]) if g[5:] else None, g) for g in session.groups(cam)
+                      if g.startswith("flat")] or groups
+        except (TypeError, ValueError):
+            pass
+    return groups
+
+
+# ---------------------------------------------------------------------------- steps
+def _flatfield(rd: _Reader, cam: str, groups, kv, progress) -> tuple[Flatfield, float | None]:
+    darks = rd.refs(cam, "dark")
+    dark = np.mean([rd.read(cam, r, k, "flatfield") for k, r in enumerate(darks)], axis=0)
+    if not groups:
+        raise SessionError("flatfield", f"camera {cam}", "no empty-field (flat) frames in the session",
+                           "record empty-field frames at the trial's kV")
+    pick = groups[0] if kv is None else min(groups, key=lambda g: abs((g[0] or 0) - kv))
+    refs = rd.refs(cam, pick[1])
+    flats = [rd.read(cam, r, k, "flatfield") for k, r in enumerate(refs)]
+    progress("flatfield", 1, 1)
+    ff = build_flatfield(np.stack(flats), dark=dark, method="max", kernel_size=15, kv=pick[0])
+    bad = ff.n_invalid / ff.gain.size
+    if bad > 0.5:
+        raise SessionError("flatfield", f"camera {cam}, {refs[0]}",
+                           f"{100 * bad:.0f} % of the field has no signal above the dark frames",
+                           "check that the empty-field frames were taken with the beam on")
+    return ff, pick[0]
+
+
+def _distortion(rd: _Reader, cam: str, ff: Flatfield, *, model, pitch, feature_mm, px_mm, progress):
+    refs = rd.refs(cam, "grid")
+    feat = feature_mm / px_mm
+    found = []
+    for k, r in enumerate(refs):
+        img = ff.normalise(rd.read(cam, r, k, "distortion"))
+        c = ((img.shape[1] - 1) / 2, (img.shape[0] - 1) / 2)
+        try:
+            found.append(grids.detect_frame(img, k, pitch_mm=pitch, feature_px=feat, center=c))
+        except grids.GridFrameError as exc:
+            raise SessionError("distortion", f"{r} (grid frame {k} of camera {cam})", str(exc),
+                               "check that the grid lies on the intensifier in this frame, remove the "
+                               f"frame, or give the grid's pitch ({pitch:g} mm) and hole diameter "
+                               f"({feature_mm:g} mm) in the session manifest") from None
+        progress(f"distortion {cam}", k + 1, len(refs))
+    pl = grids.merge_placements(found)
+    try:
+        return grids.fit_view(pl, model=model, pitch_mm=pitch, center=c, n_frames=len(refs))
+    except ValueError as exc:
+        raise SessionError("distortion", f"camera {cam} ({len(refs)} grid frames)", str(exc),
+                           "use a lower-order model (--model poly 4,4) or add grid frames") from None
+
+
+def _detect(img: np.ndarray, target: CalibrationTarget, ppm: float) -> ObjectDetections:
+    return detect_object_beads(img, target.size_classes[0], px_per_mm=ppm)
+
+
+def _scale(img: np.ndarray, target: CalibrationTarget, px_mm: float) -> float:
+    """Projected px per bead-mm: the magnification that classifies the most beads of a frame."""
+    best = (-1, 1.5 / px_mm)
+    for mag in DEFAULTS["magnification"]:
+        d = _detect(img, target, mag / px_mm)
+        n = int(np.sum(d.size_class >= 0))
+        if n > best[0]:
+            best = (n, d.px_per_mm if np.isfinite(d.px_per_mm) else mag / px_mm)
+    return best[1]
+
+
+def _beads(rd: _Reader, cams, pipes, group: str, target, px_mm, progress, *, required=True):
+    refs = [rd.refs(c, group, required=required) for c in cams]
+    n = len(refs[0])
+    for c, r in zip(cams, refs, strict=True):
+        if len(r) != n:
+            raise SessionError("beads", f"{group!r} frames", f"camera {cams[0]} has {n} frames but camera "
+                               f"{c} has {len(r)}", "both views of every object pose are needed")
+    ppm = [None] * len(cams)
+    dets = []
+    for k in range(n):
+        pair = []
+        for v, c in enumerate(cams):
+            img = pipes[v](rd.read(c, refs[v][k], k, "beads"))
+            if ppm[v] is None:
+                ppm[v] = _scale(img, target, px_mm[v])
+            pair.append(_detect(img, target, ppm[v]))
+        dets.append(tuple(pair))
+        progress(f"beads {group}", k + 1, n)
+    return refs, dets
+
+
+def _labels(target, dets, refs, group, F=None):
+    frames, obs, F = label_sequence(target, dets, F=F)
+    rows = []
+    for k, fr in enumerate(frames):
+        rows.append({"group": group, "index": k, "files": [str(r[k]) for r in refs], "ok": bool(fr.ok),
+                     "reason": fr.reason, "labelled": [int(lab.n_labelled) for lab in fr.labellings]})
+    return rows, obs, F
+
+
+def _manifest_T(man: dict) -> np.ndarray | None:
+    T = man.get("T_lab_from_static_object") or man.get("lab_from_cube")
+    if T is None:
+        return None
+    T = np.asarray(T, float)
+    return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
+
+
+# ---------------------------------------------------------------------------- main
+def calibrate_session(session, *, object=None, static_object=None, model: str = "auto", kv=None,
+                      sid_prior=None, pixel_sigma: float = 0.1,
+                      progress: Callable[[str, int, int], None] | None = None,
+                      cancel: Callable[[], bool] | None = None) -> SessionCalibration:
+    """Correction pipelines and the calibrated rig from a calibration session (module docs).
+
+    Parameters
+    ----------
+    session : CalibrationSession
+        The session (see the module docs for the interface).
+    object : str, CalibrationTarget or path, optional
+        The object moved through the volume (default: the manifest's ``object``, else spiral33).
+    static_object : str, CalibrationTarget or path, optional
+        The static object that defines the lab frame (default: the manifest's, else cube15).
+    model : str
+        Distortion model: ``"auto"`` (cross-validated choice), ``"poly(N,M)"``, ``"tps"``,
+        ``"lwm"`` (any :class:`~core.imaging.distortion_models.ModelSpec` label).
+    kv : float, optional
+        Which empty-field set to use (nearest kV; default the first).
+    sid_prior : sequence of (SID_mm, tolerance_mm), optional
+        Per camera; default from the manifest's ``sid_mm`` (± ``sid_tolerance_mm``, 20 mm).
+    pixel_sigma : float
+        Expected bead localisation noise (px), the weight of the reprojection residuals.
+    progress : callable(step, done, total), optional
+    cancel : callable() -> bool, optional
+
+    Raises
+    ------
+    SessionError
+        A step could not run (missing view, frames of different sizes, a grid frame without a
+        grid, too few labelled frames, a bundle adjustment that does not converge).
+    CalibrationCancelled
+        ``cancel()`` returned True.
+    """
+    say = progress or (lambda step, done, total: None)
+    t0 = time.perf_counter()
+    times: dict[str, float] = {}
+    man = dict(getattr(session, "manifest", {}) or {})
+    cams = [str(c) for c in getattr(session, "cameras", ())]
+    if len(cams) != 2:
+        raise SessionError("session", "cameras", f"expected the 2 cameras of a biplane rig, got {cams}",
+                           "check the session manifest's camera list")
+    grid_man = man.get("grid") or {}
+    pitch = float(grid_man.get("pitch_mm", DEFAULTS["pitch_mm"]))
+    feature_mm = float(grid_man.get("hole_diameter_mm", grid_man.get("feature_diameter_mm",
+                                                                      DEFAULTS["hole_diameter_mm"])))
+    target = _target(object or man.get("object") or DEFAULTS["object"], "object")
+    static = _target(static_object or man.get("static_object") or DEFAULTS["static_object"], "static_object")
+    rd = _Reader(session, cancel)
+    px_nominal = man.get("pixel_size_mm")
+    # 1-2: flatfield and distortion per camera
+    corr = []
+    for cam in cams:
+        t = time.perf_counter()
+        ff, used_kv = _flatfield(rd, cam, _flat_groups(session, cam), kv, say)
+        times[f"flatfield {cam}"] = time.perf_counter() - t
+        t = time.perf_counter()
+        px = float(px_nominal) if px_nominal else 0.3
+        fit = _distortion(rd, cam, ff, model=model, pitch=pitch, feature_mm=feature_mm, px_mm=px,
+                          progress=say)
+        times[f"distortion {cam}"] = time.perf_counter() - t
+        pipe = Pipeline.standard(flatfield=ff, dark=ff.dark, distortion=fit.model)
+        pipe.prepare(ff.shape)
+        corr.append(CameraCorrection(cam, ff, fit, pipe, used_kv))
+    pipes = [c.pipeline for c in corr]
+    px_mm = [c.grid.mm_per_px for c in corr]
+    # 3: beads
+    t = time.perf_counter()
+    refs, dets = _beads(rd, cams, pipes, "spiral", target, px_mm, say)
+    rows, obs, F = _labels(target, dets, refs, "spiral")
+    times["beads spiral"] = time.perf_counter() - t
+    n_ok = len(obs)
+    if n_ok < MIN_LABELLED_FRAMES:
+        bad = [r for r in rows if not r["ok"]][:3]
+        ex = "; ".join(f"{r['files'][0]} (frame {r['index']}): {r['reason']}" for r in bad)
+        raise SessionError("beads", f"{target.name} frames", f"only {n_ok} of {len(rows)} frames could be "
+                           f"labelled in both views, the bundle adjustment needs {MIN_LABELLED_FRAMES}"
+                           + (f" (e.g. {ex})" if ex else ""),
+                           "record more frames with the whole object inside both views, or check "
+                           "the object definition (--object)")
+    static_rows, static_obs = [], []
+    if rd.refs(cams[0], "cube", required=False):
+        srefs, sdets = _beads(rd, cams, pipes, "cube", static, px_mm, say)
+        static_rows, static_obs, _ = _labels(static, sdets, srefs, "cube", F=F)
+    # 4: DLT start (report) and bundle adjustment
+    t = time.perf_counter()
+    sizes = [tuple(int(a) for a in rd.shape[c][0][::-1]) for c in cams]
+    all_obs = list(obs) + list(static_obs)
+    if static_obs:
+        reference, T_ref = len(obs), _manifest_T(man)
+        lab_note = f"lab frame: the static {static.name} frame"
+    else:
+        reference, T_ref = 0, None
+        lab_note = (f"lab frame: the {target.name} in its first labelled frame (no static object "
+                    "frame was labelled)")
+    if sid_prior is None and man.get("sid_mm") is not None:
+        sids = man["sid_mm"] if np.ndim(man["sid_mm"]) else [man["sid_mm"]] * 2
+        sid_prior = [(float(s), float(man.get("sid_tolerance_mm", 20.0))) for s in sids]
+    dlt = []
+    first = static_obs[0] if static_obs else obs[0]
+    for v, c in enumerate(cams):
+        d = calibrate_dlt(first.points, first.uv[v], width=sizes[v][0], height=sizes[v][1],
+                          pixel_size=px_mm[v], max_skew_px=1e9)
+        dlt.append({"camera": c, "ok": bool(d.ok), "reason": d.reason,
+                    "fx_px": d.camera.fx if d.ok else None,
+                    "source_mm": d.camera.source.tolist() if d.ok else None})
+    say("bundle adjustment", 0, 1)
+    ba = bundle_adjust(all_obs, sizes, reference=reference, T_lab_from_reference=T_ref, pixel_size=px_mm,
+                       sid_prior=sid_prior, pixel_sigma=pixel_sigma, max_evaluations=400)
+    times["bundle adjustment"] = time.perf_counter() - t
+    say("bundle adjustment", 1, 1)
+    if not ba.ok:
+        raise SessionError("bundle", f"{len(all_obs)} labelled frames ({target.name}"
+                           + (f" + {static.name}" if static_obs else "") + ")",
+                           f"the bundle adjustment did not converge: {ba.reason}",
+                           "check the labelled frames in the report, remove frames with wrong labels, "
+                           "or give the SID (sid_mm in the session manifest) as a prior")
+    named = []
+    for c, cam in zip(ba.rig, cams, strict=True):
+        named.append(type(c)(c.K, c.R, c.t, c.width, c.height, c.pixel_size, cam))
+    rig = Rig(tuple(named))
+    ok_rows = [r for r in rows if r["ok"]] + [r for r in static_rows if r["ok"]]
+    err = ba.errors_px
+    for f, r in enumerate(ok_rows):
+        sel = ba.frame_index == f
+        r["rms_px"] = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else None
+        r["outliers"] = int(ba.outliers[sel].sum())
+    times["total"] = time.perf_counter() - t0
+    result = SessionCalibration(rig, corr, ba, rows + static_rows, all_obs, target,
+                                static if static_obs else None)
+    from .report import session_report
+
+    result.report.update(session_report(result, notes=[lab_note], dlt=dlt, seconds=times,
+                                        manifest=man))
+    return result

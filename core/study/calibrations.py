@@ -1,0 +1,246 @@
+"""Calibrations saved in a study: versioned rigs and correction pipelines, and which one a trial uses.
+
+A session calibration (:func:`core.calibration.session.calibrate_session`) is saved as one
+*version* of a named calibration series::
+
+    calibrations/<series>/v<N>/
+        <camera>.txt                 MayaCam 2.0, one per camera (the rig, corrected pixels)
+        calibration.json             Talus calibration file: cameras, parameter SDs, quality
+        correction_<camera>.json     imaging pipeline (dark → flatfield → undistort), arrays in
+        correction_<camera>_<k>.npy  .npy files beside it
+        report/report.json, *.png    the calibration report
+        version.json                 what was saved, from which session, when
+
+and registered in the manifest as the calibration ``<series>.v<N>`` (its MayaCam files), with
+``settings["calibration_files"]["<series>.v<N>"]`` naming the files above. Which version a
+trial uses is its manifest entry ``trials[<trial>]["calibration"]``; :func:`trial_correction`
+gives the trial's saved pipelines. An earlier version is never changed or removed.
+
+Saving is atomic: the version folder is written under a temporary name and renamed, then the
+manifest is replaced in one write; if anything fails the folder is removed and the study is as
+it was.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import json
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import atomic_write_json
+from .errors import StudyError
+from .manifest import store_path
+
+__all__ = ["SavedCalibration", "calibration_versions", "load_correction", "save_session_calibration",
+           "trial_correction", "use_calibration"]
+
+FILES_KEY = "calibration_files"
+_SERIES_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,40}$")
+
+
+@dataclass(frozen=True)
+class SavedCalibration:
+    """A saved calibration version: its manifest ``name`` (``<series>.v<N>``), ``series``,
+    ``version``, ``folder`` and the ``trials`` that now use it."""
+
+    name: str
+    series: str
+    version: int
+    folder: Path
+    trials: tuple[str, ...]
+
+
+def _versions_on_disk(base: Path) -> list[int]:
+    if not base.is_dir():
+        return []
+    return sorted(int(p.name[1:]) for p in base.iterdir() if re.fullmatch(r"v\d+", p.name) and p.is_dir())
+
+
+def calibration_versions(study, series: str | None = None) -> list[dict]:
+    """Saved versions (oldest first): name, series, version, created, folder and the trials using it."""
+    files = study.settings.get(FILES_KEY, {})
+    uses: dict[str, list[str]] = {}
+    for t, entry in study.manifest["trials"].items():
+        uses.setdefault(entry["calibration"], []).append(t)
+    out = []
+    for name, f in files.items():
+        if series is not None and f.get("series") != series:
+            continue
+        out.append({"name": name, "series": f.get("series"), "version": f.get("version"),
+                    "created": f.get("created"), "folder": f.get("folder"), "trials": uses.get(name, [])})
+    return sorted(out, key=lambda d: (str(d["series"]), int(d["version"] or 0)))
+
+
+def _encoder(folder: Path, stem: str):
+    count = [0]
+
+    def enc(a: np.ndarray) -> dict:
+        name = f"{stem}_{count[0]}.npy"
+        count[0] += 1
+        np.save(folder / name, np.ascontiguousarray(a))
+        return {"__npy__": name}
+
+    return enc
+
+
+def _decoder(folder: Path):
+    from ..imaging.serialize import decode_array
+
+    def dec(d):
+        if isinstance(d, dict) and "__npy__" in d:
+            p = folder / str(d["__npy__"])
+            if not p.is_file():
+                raise StudyError(f"{p}: array file of a saved correction pipeline is missing")
+            return np.load(p, allow_pickle=False)
+        return decode_array(d)
+
+    return dec
+
+
+def load_correction(path) -> object:
+    """The :class:`~core.imaging.pipeline.Pipeline` saved at ``path`` (a ``correction_*.json``)."""
+    from ..imaging.pipeline import Pipeline
+
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise StudyError(f"{p}: cannot read the saved correction pipeline ({exc})") from None
+    try:
+        return Pipeline.from_dict(doc, array_decoder=_decoder(p.parent))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise StudyError(f"{p}: not a correction pipeline ({exc})") from None
+
+
+def trial_correction(study, trial: str) -> list | None:
+    """The correction pipelines (one per view) saved with the calibration ``trial`` uses, or None
+    when that calibration was not made by :func:`save_session_calibration`."""
+    entry = study.manifest["trials"].get(trial)
+    if entry is None:
+        raise StudyError(f"trial: no trial named {trial!r} (have {list(study.trials)})")
+    f = study.settings.get(FILES_KEY, {}).get(entry["calibration"])
+    if not f or not f.get("corrections"):
+        return None
+    return [load_correction(study.path(p)) for p in f["corrections"]]
+
+
+def _write_version(tmp: Path, cal, report: bool, meta: dict) -> dict:
+    from ..calibration.io import save_calibration
+    from ..geometry.mayacam import write_mayacam
+
+    files = {"cameras": [], "corrections": []}
+    for cam, c in zip(cal.rig, cal.cameras, strict=True):
+        write_mayacam(cam, tmp / f"{cam.name}.txt", version=2)
+        files["cameras"].append(f"{cam.name}.txt")
+        d = c.pipeline.to_dict(array_encoder=_encoder(tmp, f"correction_{cam.name}"))
+        atomic_write_json(tmp / f"correction_{cam.name}.json", d)
+        files["corrections"].append(f"correction_{cam.name}.json")
+    save_calibration(tmp / "calibration.json", cal.bundle, metadata={**meta, "camera_names": [
+        c.name for c in cal.rig]})
+    if report:
+        from ..calibration.report import write_report
+
+        write_report(cal, tmp / "report")
+        files["report"] = "report/report.json"
+    atomic_write_json(tmp / "version.json", {**meta, "files": files})
+    return files
+
+
+def save_session_calibration(study, cal, *, series: str = "session", trials="series",
+                             session_path=None, report: bool = True) -> SavedCalibration:
+    """Save ``cal`` (a :class:`~core.calibration.session.SessionCalibration`) as the next version
+    of ``series`` (module docs) and point ``trials`` at it.
+
+    Parameters
+    ----------
+    study : Study
+        Open for writing.
+    trials : "series", "all", "none" or sequence of str
+        Trials that use the new version: those on an earlier version of ``series`` (default),
+        every trial, none, or the named ones.
+    session_path : path, optional
+        Recorded with the version (where the frames came from).
+    report : bool
+        Also write the report (JSON and figures) into the version folder.
+    """
+    study._require_write()
+    if not isinstance(series, str) or not _SERIES_RE.match(series):
+        raise ValueError(f"series: expected 1-41 letters, digits, '_' or '-', got {series!r}")
+    doc = copy.deepcopy(study._doc)
+    if isinstance(trials, str):
+        if trials == "all":
+            names = list(doc["trials"])
+        elif trials == "none":
+            names = []
+        elif trials == "series":
+            names = [t for t, e in doc["trials"].items() if e["calibration"].startswith(f"{series}.v")]
+        else:
+            raise ValueError(f"trials: expected 'series', 'all', 'none' or trial names, got {trials!r}")
+    else:
+        names = [str(t) for t in trials]
+    for t in names:
+        if t not in doc["trials"]:
+            raise StudyError(f"trials: no trial named {t!r} (have {list(doc['trials'])})")
+        views = len(doc["trials"][t]["views"])
+        if views != len(cal.rig):
+            raise StudyError(f"trials: trial {t!r} has {views} views but the calibration has "
+                             f"{len(cal.rig)} cameras")
+    base = study.folder / "calibrations" / series
+    base.mkdir(parents=True, exist_ok=True)
+    known = [int(f.get("version", 0)) for f in doc["settings"].get(FILES_KEY, {}).values()
+             if f.get("series") == series]
+    n = max([0, *known, *_versions_on_disk(base)]) + 1
+    name = f"{series}.v{n}"
+    final = base / f"v{n}"
+    now = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    meta = {"name": name, "series": series, "version": n, "created": now,
+            "session": None if session_path is None else str(Path(session_path).absolute()),
+            "object": cal.target.name,
+            "static_object": None if cal.static_target is None else cal.static_target.name,
+            "rms_px": float(cal.bundle.rms_px)}
+    tmp = Path(tempfile.mkdtemp(prefix=f".v{n}.", suffix=".partial", dir=base))
+    try:
+        files = _write_version(tmp, cal, report, meta)
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    try:
+        rel = lambda f: store_path(study.folder, final / f)  # noqa: E731
+        px = [c.pixel_size for c in cal.rig]
+        doc["calibrations"][name] = {"format": "mayacam", "cameras": [rel(f) for f in files["cameras"]],
+                                     "pixel_size_mm": float(np.mean(px)) if all(px) else None}
+        entry = {"series": series, "version": n, "created": now, "folder": store_path(study.folder, final),
+                 "calibration": rel("calibration.json"),
+                 "corrections": [rel(f) for f in files["corrections"]],
+                 "report": rel(files["report"]) if "report" in files else None,
+                 "session": meta["session"]}
+        doc["settings"].setdefault(FILES_KEY, {})[name] = entry
+        for t in names:
+            doc["trials"][t]["calibration"] = name
+        study._commit(doc)
+    except BaseException:
+        shutil.rmtree(final, ignore_errors=True)
+        raise
+    return SavedCalibration(name, series, n, final, tuple(names))
+
+
+def use_calibration(study, trial: str, calibration: str) -> None:
+    """Point ``trial`` at the saved calibration version ``calibration`` (e.g. ``"session.v1"``)."""
+    study._require_write()
+    doc = copy.deepcopy(study._doc)
+    if trial not in doc["trials"]:
+        raise StudyError(f"trial: no trial named {trial!r} (have {list(doc['trials'])})")
+    if calibration not in doc["calibrations"]:
+        have = list(doc["calibrations"])
+        raise StudyError(f"calibration: no calibration named {calibration!r} (have {have})")
+    doc["trials"][trial]["calibration"] = calibration
+    study._commit(doc)

@@ -19,6 +19,15 @@ converts them to millimetres in the grid's plane.
 
 A model is described by a :class:`ModelSpec` (``"poly(5,5)"``, ``"cheb(15,15)"``,
 ``"tps"``, ``"tps(0.01)"``, ``"lwm(12)"``) and serialises to plain JSON types.
+
+Large grids
+-----------
+A polynomial or a local weighted mean is fitted to every point at any size (their cost grows
+linearly with the points). A thin-plate spline is a dense ``(n + 3)²`` linear system and every
+evaluation sums over all ``n`` centres, so it is fitted to at most :data:`TPS_MAX_POINTS`
+points (2,000: ~1 s per map on a 2-core CPU): beyond that, to a spatially even subsample of the
+ideal grid (:func:`even_subsample`, seeded). :attr:`DistortionModel.n_fit` records how many
+points a model was fitted to and ``n_points`` how many were given.
 """
 
 from __future__ import annotations
@@ -40,9 +49,11 @@ from .pointmaps import (
 )
 from .polybasis import BASES, check_order
 
-__all__ = ["DistortionModel", "ModelSpec", "fit_distortion"]
+__all__ = ["TPS_MAX_POINTS", "DistortionModel", "ModelSpec", "even_subsample", "fit_distortion"]
 
 _KINDS = ("polynomial", "tps", "lwm")
+#: Largest number of control points a thin-plate spline is fitted to (see the module docs).
+TPS_MAX_POINTS = 2000
 _PREFIX = {"poly": "power", "cheb": "chebyshev", "bern": "bernstein"}
 
 
@@ -165,6 +176,9 @@ class DistortionModel:
         Size of one ideal pixel in the grid plane (mm), when known.
     refine : bool
         Newton-refine :meth:`inverse` to the exact inverse of :meth:`forward`.
+    n_fit : int or None
+        Control points the maps were fitted to, when fewer than ``n_points`` (a subsample,
+        see the module docs); None = all of them.
     """
 
     spec: ModelSpec
@@ -173,6 +187,7 @@ class DistortionModel:
     n_points: int
     mm_per_px: float | None = None
     refine: bool = True
+    n_fit: int | None = None
 
     @property
     def label(self) -> str:
@@ -230,13 +245,14 @@ class DistortionModel:
     def with_scale(self, mm_per_px: float | None) -> DistortionModel:
         """The same model with ``mm_per_px`` set."""
         return DistortionModel(self.spec, self.forward_map, self.inverse_map, self.n_points,
-                               mm_per_px, self.refine)
+                               mm_per_px, self.refine, self.n_fit)
 
     def to_dict(self) -> dict:
         """Plain-JSON description (spec, both fitted maps, scale)."""
         return {"type": "distortion_model", "spec": self.spec.to_dict(),
                 "forward": self.forward_map.to_dict(), "inverse": self.inverse_map.to_dict(),
-                "n_points": self.n_points, "mm_per_px": self.mm_per_px, "refine": self.refine}
+                "n_points": self.n_points, "mm_per_px": self.mm_per_px, "refine": self.refine,
+                "n_fit": self.n_fit}
 
     @classmethod
     def from_dict(cls, d: dict) -> DistortionModel:
@@ -245,11 +261,41 @@ class DistortionModel:
                              f"got type {d.get('type')!r}")
         return cls(ModelSpec.from_dict(d["spec"]), map_from_dict(d["forward"]), map_from_dict(d["inverse"]),
                    int(d["n_points"]), None if d.get("mm_per_px") is None else float(d["mm_per_px"]),
-                   bool(d.get("refine", True)))
+                   bool(d.get("refine", True)), None if d.get("n_fit") is None else int(d["n_fit"]))
+
+
+def even_subsample(points, n: int, *, seed: int = 0) -> np.ndarray:
+    """Sorted rows of about ``n`` of ``points (N, 2)`` spread evenly over their extent.
+
+    The bounding box is cut into ~``n`` square bins and one point (drawn with ``seed``) is kept
+    per occupied bin; the count is then trimmed or topped up at random to exactly ``n``. All
+    rows when ``N <= n``.
+    """
+    p, _ = as_points(points, "points", 2)
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"n: expected a positive number of points, got {n}")
+    if len(p) <= n:
+        return np.arange(len(p))
+    rng = np.random.default_rng(seed)
+    perm = rng.permutation(len(p))
+    lo, span = p.min(axis=0), np.ptp(p, axis=0)
+    side = max(float(np.sqrt(max(span[0], 1e-9) * max(span[1], 1e-9) / n)), 1e-9)
+    cell = np.floor((p[perm] - lo) / side).astype(np.int64)
+    key = cell[:, 0] * (int(cell[:, 1].max()) + 1) + cell[:, 1]
+    _, first = np.unique(key, return_index=True)
+    keep = perm[np.sort(first)]
+    if len(keep) > n:
+        keep = rng.choice(keep, n, replace=False)
+    elif len(keep) < n:
+        rest = np.setdiff1d(perm, keep)
+        keep = np.concatenate([keep, rng.choice(rest, n - len(keep), replace=False)])
+    return np.sort(keep)
 
 
 def fit_distortion(ideal_uv, distorted_uv, model: str | ModelSpec = "poly(8,8)", *,
-                   mm_per_px: float | None = None, refine: bool = True) -> DistortionModel:
+                   mm_per_px: float | None = None, refine: bool = True, max_points: int | None = None,
+                   seed: int = 0) -> DistortionModel:
     """Fit a distortion model to control points.
 
     Parameters
@@ -264,6 +310,12 @@ def fit_distortion(ideal_uv, distorted_uv, model: str | ModelSpec = "poly(8,8)",
         Ideal pixel size in the grid plane, kept on the model for reports.
     refine : bool
         Newton-refine the inverse (see the module docs).
+    max_points : int, optional
+        Fit to at most this many points (an even subsample, :func:`even_subsample`); default
+        :data:`TPS_MAX_POINTS` for a thin-plate spline, all points for the other models.
+        :attr:`DistortionModel.n_fit` says when a subsample was used.
+    seed : int
+        Seed of the subsample.
 
     Raises
     ------
@@ -276,7 +328,14 @@ def fit_distortion(ideal_uv, distorted_uv, model: str | ModelSpec = "poly(8,8)",
     if len(p) != len(q):
         raise ValueError(f"ideal_uv, distorted_uv: expected the same number of points, "
                          f"got {len(p)} and {len(q)}")
+    cap = (TPS_MAX_POINTS if spec.kind == "tps" else None) if max_points is None else int(max_points)
+    if cap is not None and cap < 1:
+        raise ValueError(f"max_points: expected a positive number of points, got {max_points!r}")
+    n_all, n_fit = len(p), None
+    if cap is not None and len(p) > cap:
+        keep = even_subsample(p, cap, seed=seed)
+        p, q, n_fit = p[keep], q[keep], cap
     fwd = spec.fit_map(p, q)
     inv = spec.fit_map(q, p)
-    return DistortionModel(spec, fwd, inv, len(p), None if mm_per_px is None else float(mm_per_px),
-                           bool(refine))
+    return DistortionModel(spec, fwd, inv, n_all, None if mm_per_px is None else float(mm_per_px),
+                           bool(refine), n_fit)

@@ -166,14 +166,18 @@ def fit_polynomial_map(src, dst, order, *, basis: str = "power", terms: str | No
         norm = Normalisation.hartley(s, extent=True)
     V = design_matrix(norm.apply(s), (nx, ny), basis=basis, terms=terms, extent=norm.extent)
     with np.errstate(all="ignore"):
-        sv = np.linalg.svd(V, compute_uv=False)
+        # plain Householder QR, as MATLAB's mldivide (thesis): no column equilibration, so that
+        # normalise=False shows what raw pixel coordinates do to the solution (Fig. 3.11). The
+        # right-hand sides ride along as extra columns, so R's last columns are Qᵀd and Q is never
+        # formed; V and R have the same singular values (rank, condition).
+        n = V.shape[1]
+        Ra = np.linalg.qr(np.hstack([V, d]), mode="r")
+        R, qtd = Ra[:n, :n], Ra[:n, n:]
+        sv = np.linalg.svd(R, compute_uv=False)
         tol = sv.max() * max(V.shape) * np.finfo(float).eps
         rank = int(np.sum(sv > tol))
         cond = float(sv.max() / sv.min()) if sv.min() > 0 else float("inf")
-        # plain Householder QR, as MATLAB's mldivide (thesis): no column equilibration, so that
-        # normalise=False shows what raw pixel coordinates do to the solution (Fig. 3.11)
-        Q, R = np.linalg.qr(V)
-        coef = np.linalg.lstsq(R, Q.T @ d, rcond=None)[0]
+        coef = np.linalg.lstsq(R, qtd, rcond=None)[0]
     return PolynomialMap((nx, ny), basis, terms, norm, coef, rank, cond)
 
 
@@ -246,19 +250,35 @@ class LocalWeightedMeanMap:
             object.__setattr__(self, "_tree", cKDTree(self.centers))
 
     def _eval(self, pts: np.ndarray) -> np.ndarray:
+        """Blend of the local quadratics whose support covers each point. The supports are
+        found with the k-d tree (the ``k`` nearest centres, ``k`` doubled for the points where
+        the k-th is still within the largest radius), so the cost grows with the number of
+        points, not with points × centres."""
         x = self.norm.apply(pts)
         num = np.zeros((len(x), 2))
         den = np.zeros(len(x))
-        for i, (c, r) in enumerate(zip(self.centers, self.radius, strict=True)):
-            dv = x - c
-            R2 = np.einsum("nk,nk->n", dv, dv) / (r * r)
-            sel = np.flatnonzero(R2 < 1.0)
-            if sel.size == 0:
-                continue
-            R = np.sqrt(R2[sel])
-            w = 1 - 3 * R**2 + 2 * R**3
-            num[sel] += w[:, None] * (_quad_basis(dv[sel]) @ self.coef[i])
-            den[sel] += w
+        rmax = float(self.radius.max())
+        todo = np.arange(len(x))
+        k = min(len(self.centers), 4 * self.n_neighbours)
+        while todo.size:
+            d, j = self._tree.query(x[todo], k, distance_upper_bound=rmax)
+            d, j = d.reshape(len(todo), -1), j.reshape(len(todo), -1)
+            more = np.isfinite(d[:, -1]) & (k < len(self.centers))
+            done = todo[~more]
+            dd, jj = d[~more], j[~more]
+            hit = np.isfinite(dd)
+            hit[hit] = dd[hit] < self.radius[jj[hit]]
+            q, c = np.nonzero(hit)
+            if q.size:
+                jc = jj[q, c]
+                R = dd[q, c] / self.radius[jc]
+                w = 1 - 3 * R**2 + 2 * R**3
+                val = np.einsum("kt,ktc->kc", _quad_basis(x[done[q]] - self.centers[jc]), self.coef[jc])
+                den += np.bincount(done[q], w, minlength=len(x))
+                num[:, 0] += np.bincount(done[q], w * val[:, 0], minlength=len(x))
+                num[:, 1] += np.bincount(done[q], w * val[:, 1], minlength=len(x))
+            todo = todo[more]
+            k = min(len(self.centers), 2 * k)
         out = np.empty_like(num)
         good = den > 1e-12
         out[good] = num[good] / den[good, None]
@@ -291,10 +311,9 @@ def fit_local_weighted_mean(src, dst, *, n_neighbours: int = 12) -> LocalWeighte
     x = norm.apply(s)
     tree = cKDTree(x)
     dist, nb = tree.query(x, n_neighbours)
-    coef = np.empty((len(x), 6, 2))
-    for i in range(len(x)):
-        B = _quad_basis(x[nb[i]] - x[i])
-        coef[i] = np.linalg.lstsq(B, d[nb[i]], rcond=None)[0]
+    # every point's quadratic at once: least squares by a stacked pseudo-inverse (lstsq's cutoff)
+    B = _quad_basis((x[nb] - x[:, None, :]).reshape(-1, 2)).reshape(len(x), n_neighbours, 6)
+    coef = np.linalg.pinv(B, rcond=max(B.shape[1:]) * np.finfo(float).eps) @ d[nb]
     return LocalWeightedMeanMap(x, coef, dist[:, -1].copy(), n_neighbours, norm, tree)
 
 

@@ -93,6 +93,9 @@ def _cached_demo(out: Path, args: argparse.Namespace) -> dict | None:
         return None
     if summary.get("study") and not (out / str(summary["study"])).is_file():
         return None  # the study manifest is gone: rebuild
+    session = summary.get("calibration_session")
+    if not session or not (out / str(session) / "session.json").is_file():
+        return None  # made before demos had a calibration session, or it is gone: rebuild
     for option, key in (("frames", "n_frames"), ("pixels", "pixels"), ("seed", "seed")):
         value = getattr(args, option)
         if value is not None and summary.get(key) != value:

@@ -16,10 +16,15 @@ Layout of ``out_dir``::
     beads/beads.csv                 bead, bone, x, y, z (bone CT frame, mm), diameter
     beads/uv_cam01.npy              (N, n_beads, 2) distorted bead centres (u, v) per frame
     beads/uv_ideal_cam01.npy        (N, n_beads, 2) pinhole (undistorted) bead centres
+    calibration_session/            the collection day's calibration frames of the same rig and
+                                    image chains, as a lab records them (session.json, cam1/…,
+                                    cam2/…; truth/ apart): :mod:`core.synthetic.session`, read
+                                    with :func:`core.io.read_session`
 
 Every file is written atomically (temporary file in the same folder + rename), frames one by one
-as they are rendered, and ``summary.json`` last; a cancelled run leaves complete files and a
-summary saying how many frames were written.
+as they are rendered, the calibration session as a whole folder after the trial, and
+``summary.json`` last; a cancelled run leaves complete files and a summary saying how many frames
+were written (and no calibration session unless it was complete).
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -153,6 +159,7 @@ def make_demo_study(
     cancel: Callable[[], bool] | None = None,
     spacing: float = 0.5,
     tissue_spacing: float = 2.0,
+    calibration_session: bool = True,
 ) -> dict:
     """Render :func:`~core.synthetic.scene.make_foot_scene` and write it as a study folder.
 
@@ -164,12 +171,17 @@ def make_demo_study(
         Trial length, image size (square) and master seed.
     device : str, optional
         Warp device for the DRRs (default: CUDA when present, else CPU).
-    progress : callable(i, n), optional
-        Called after each frame is written (``i`` frames done of ``n``).
+    progress : callable(i, n[, stage]), optional
+        Called after each trial frame is written (``i`` frames done of ``n``), then after each
+        step of the calibration session as ``(i, n, "calibration session")``.
     cancel : callable() -> bool, optional
         Checked before each frame; when it returns True the run stops cleanly.
     spacing, tissue_spacing : float
         Voxel sizes of the bone and soft-tissue volumes, mm.
+    calibration_session : bool
+        Also write ``calibration_session/`` (:func:`core.synthetic.session.write_calibration_session`
+        with its defaults: 40 spiral, 5 grid, 5 lattice, 5 dark and 10 empty-field frames per
+        camera) from the same rig, image chains and seed.
 
     Returns
     -------
@@ -186,6 +198,8 @@ def make_demo_study(
 
     scene = make_foot_scene(n_frames=n_frames, pixels=pixels, seed=seed, spacing=spacing,
                             tissue_spacing=tissue_spacing)
+    # a session of an earlier demo in this folder may belong to another rig: never keep it
+    shutil.rmtree(out / "calibration_session", ignore_errors=True)
     files = _write_static(scene, out, rel)
     renderer = scene.renderer(device=device)
     files["frames"] = {cam.name: [] for cam in scene.rig}
@@ -202,6 +216,19 @@ def make_demo_study(
         done = i + 1
         if progress is not None:
             progress(done, scene.n_frames)
+    session = None
+    if calibration_session and status == "complete" and done > 0:
+        from .session import write_calibration_session
+
+        def session_progress(i: int, n: int) -> None:
+            if progress is not None:
+                progress(i, n, "calibration session")
+
+        if write_calibration_session(out / "calibration_session", scene=scene, seed=seed,
+                                     progress=session_progress, cancel=cancel) is None:
+            status = "cancelled"
+        else:
+            session = "calibration_session"
     _, d, _ = scene.bead_positions(0)
     summary = {
         "format": "talus-synthetic-study", "version": 1, "status": status,
@@ -217,6 +244,7 @@ def make_demo_study(
                         "pixels": "(u, v) = (column, row), origin at the centre of the top-left pixel",
                         "poses": "T_lab_from_bone maps the volume's physical mm into the lab"},
         "files": files,
+        "calibration_session": session,
     }
     if status == "complete" and done > 0:
         summary["study"] = _write_study(scene, out)
@@ -229,8 +257,6 @@ def _write_study(scene: BiplaneScene, out: Path) -> str:
     the bone CTs (as MetaImage volumes, which keep origin and direction), and one trial over
     the frame folders with every bone's true frame-0 pose recorded as its starting keyframe.
     A previous study manifest and its results in ``out`` are replaced."""
-    import shutil
-
     import SimpleITK as sitk
 
     from ..io.atomic import atomic_path

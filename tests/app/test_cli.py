@@ -214,7 +214,9 @@ def test_demo_reuses_a_complete_study_with_the_same_options(monkeypatch, tmp_pat
     def make_demo_study(out_dir, *, progress, cancel, **options):
         calls.append(options)
         summary = {"format": "talus-synthetic-study", "status": "complete", "n_frames": 3,
-                   "pixels": 64, "seed": 0}
+                   "pixels": 64, "seed": 0, "calibration_session": "calibration_session"}
+        (Path(out_dir) / "calibration_session").mkdir(exist_ok=True)
+        (Path(out_dir) / "calibration_session" / "session.json").write_text("{}")
         (Path(out_dir) / "summary.json").write_text(json.dumps(summary))
         return summary
 
@@ -227,3 +229,6 @@ def test_demo_reuses_a_complete_study_with_the_same_options(monkeypatch, tmp_pat
     assert main([*argv, "--pixels", "32"]) == 0  # other options: rebuilt
     assert main([*argv, "--regenerate"]) == 0
     assert len(calls) == 3
+    (tmp_path / "calibration_session" / "session.json").unlink()  # session gone: rebuilt
+    assert main(argv) == 0
+    assert len(calls) == 4

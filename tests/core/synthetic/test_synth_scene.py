@@ -99,9 +99,20 @@ def test_scene_validation(tiny_scene):
 def test_demo_study_files_and_ground_truth(tmp_path):
     calls = []
     s = make_demo_study(tmp_path / "study", n_frames=2, pixels=64, seed=3, device="cpu",
-                        spacing=4.0, tissue_spacing=8.0, progress=lambda i, n: calls.append((i, n)))
+                        spacing=4.0, tissue_spacing=8.0,
+                        progress=lambda i, n, *stage: calls.append((i, n, *stage)))
     out = tmp_path / "study"
-    assert s["status"] == "complete" and s["frames_written"] == 2 and calls == [(1, 2), (2, 2)]
+    assert s["status"] == "complete" and s["frames_written"] == 2 and calls[:2] == [(1, 2), (2, 2)]
+    # then the calibration session beside the trial, of the same rig and image chains
+    assert calls[-1] == (66, 66, "calibration session") and len(calls) == 2 + 66
+    assert s["calibration_session"] == "calibration_session"
+    from core.io import read_session
+
+    session = read_session(out / "calibration_session")
+    assert session.frame_size == (64, 64) and len(session.frames("cam2", "spiral")) == 40
+    truth = json.loads((out / "calibration_session" / "truth" / "truth.json").read_text())
+    assert [c["rig_name"] for c in truth["cameras"]] == ["cam01", "cam02"]
+    assert truth["imaging"]["cam1"] == json.loads((out / "imaging" / "cam01.json").read_text())
     assert (out / "summary.json").is_file()
     assert not list(out.rglob("*.tmp"))
     sc = make_foot_scene(n_frames=2, pixels=64, seed=3, spacing=4.0, tissue_spacing=8.0)
@@ -153,5 +164,6 @@ def test_demo_study_cancel(tmp_path):
                         tissue_spacing=8.0, cancel=cancel)
     assert s["status"] == "cancelled" and s["frames_written"] == 1
     assert len(list((tmp_path / "frames" / "cam01").glob("*.tif"))) == 1
+    assert s["calibration_session"] is None and not (tmp_path / "calibration_session").exists()
     with pytest.raises(ValueError, match="out_dir"):
         make_demo_study(tmp_path / "summary.json", n_frames=1, pixels=64, spacing=4.0)

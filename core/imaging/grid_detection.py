@@ -17,11 +17,11 @@ Method (thesis §3.5.2, with the polarity generalised)
 
 Polarity
 --------
-``polarity="auto"`` runs the top-hat both ways and keeps the polarity with the stronger,
-more numerous feature responses; ``"bright"``/``"dark"`` force it, and a :class:`ValueError`
-says so when the image clearly holds features of the other polarity (e.g. a bead grid passed as
-a hole plate). Points are ``(u, v) = (column, row)`` pixels, origin at the centre of the
-top-left pixel.
+``polarity="auto"`` runs the top-hat both ways (on a binned copy of the image when the features
+span 10 px or more) and keeps the polarity with the stronger, more numerous feature responses;
+``"bright"``/``"dark"`` force it, and a :class:`ValueError` says so when the image clearly holds
+features of the other polarity (e.g. a bead grid passed as a hole plate). Points are
+``(u, v) = (column, row)`` pixels, origin at the centre of the top-left pixel.
 """
 
 from __future__ import annotations
@@ -54,9 +54,11 @@ class GridPoints:
         Polarity used.
     contrast : dict
         ``{"bright": score, "dark": score}`` — the feature response of each polarity (robust
-        top-hat peak height over noise σ, times the count of feature-sized regions).
+        top-hat peak height over noise σ, times the count of feature-sized regions), scored on
+        the image binned ``f × f`` with ``f = ⌊feature_diameter_px / 5⌋`` (features of 10 px
+        and more: a quarter of the pixels or fewer to weigh the polarity).
     threshold : float
-        Median over the image of the (local) top-hat threshold used (image units).
+        Median over the image's blocks of the (local) top-hat threshold used (image units).
     """
 
     uv: np.ndarray
@@ -90,39 +92,94 @@ def _disc(diameter: float) -> np.ndarray:
 
 
 def _tophat(img: np.ndarray, element: np.ndarray, bright: bool) -> np.ndarray:
-    src = img if bright else -img
-    return cv2.morphologyEx(src, cv2.MORPH_TOPHAT, element, borderType=cv2.BORDER_REPLICATE)
+    """White (``bright``) or black (dark features) top-hat. The morphology runs on the image
+    quantised to 16 bits over its range (about twice as fast as on floats); openings and
+    closings commute with that monotonic map, so the result differs from the float one by at
+    most one quantum (range / 65535)."""
+    lo, hi = cv2.minMaxLoc(img)[:2]
+    q = cv2.normalize(img, None, 0, 65535, cv2.NORM_MINMAX, cv2.CV_16U)
+    op = cv2.MORPH_TOPHAT if bright else cv2.MORPH_BLACKHAT
+    th = cv2.morphologyEx(q, op, element, borderType=cv2.BORDER_REPLICATE)
+    return np.multiply(th, np.float32((hi - lo) / 65535.0 if hi > lo else 1.0), dtype=np.float32)
 
 
 def _noise(th: np.ndarray, block: int = 64, floor: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Local median and noise σ maps of a top-hat image, from blocks of ``block`` pixels.
+    """Local median and noise σ of a top-hat image per block of ``block`` pixels (block maps;
+    :func:`_full` interpolates them to every pixel).
 
     Quantum noise grows with the signal and a round field leaves noise-free corners, so one
     global σ would be wrong in both places. σ has a floor of 2 % of the feature peaks so that
     noise-free images threshold sensibly too, and at least ``floor`` (quantisation of
-    integer frames, whose saturated or flat regions have no measurable noise).
+    integer frames, whose saturated or flat regions have no measurable noise). The blocks tile
+    the image in equal sizes (the last rows/columns, fewer than the number of blocks, fall in no
+    block); each block's median and MAD come from a regular subsample of at least ~1,000 of its
+    pixels, all blocks in one call.
     """
     H, W = th.shape
     nb_v, nb_u = max(1, H // block), max(1, W // block)
-    med = np.empty((nb_v, nb_u), np.float32)
-    mad = np.empty((nb_v, nb_u), np.float32)
-    for a in range(nb_v):
-        for b in range(nb_u):
-            t = th[a * H // nb_v : (a + 1) * H // nb_v, b * W // nb_u : (b + 1) * W // nb_u]
-            m = np.median(t)
-            med[a, b], mad[a, b] = m, 1.4826 * np.median(np.abs(t - m))
+    bh, bw = H // nb_v, W // nb_u
+    # at least ~1,000 samples per block: every pixel of small blocks, a regular subsample of large
+    step = max(1, int(np.sqrt(bh * bw / 1024)))
+    bh, bw = bh - bh % step, bw - bw % step
+    t = th[: nb_v * (H // nb_v), : nb_u * (W // nb_u)].reshape(nb_v, H // nb_v, nb_u, W // nb_u)
+    t = t[:, :bh:step, :, :bw:step].swapaxes(1, 2).reshape(nb_v, nb_u, -1)
+    med = np.median(t, axis=-1).astype(np.float32)
+    mad = (1.4826 * np.median(np.abs(t - med[..., None]), axis=-1)).astype(np.float32)
     sub = th[:: max(1, H // 512), :: max(1, W // 512)]
     peak = float(np.percentile(sub, 99.8)) - float(np.median(sub))
     mad = np.maximum(mad, max(0.02 * peak, floor, 1e-12))
-    size = (W, H)
-    return (cv2.resize(med, size, interpolation=cv2.INTER_LINEAR),
-            cv2.resize(mad, size, interpolation=cv2.INTER_LINEAR))
+    return med, mad
 
 
-def _regions(th: np.ndarray, med: np.ndarray, sig: np.ndarray, k: float):
-    mask = (th > med + k * sig).astype(np.uint8)
+def _full(block_map: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A block map interpolated (bilinearly) to every pixel."""
+    return cv2.resize(block_map, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
+def _regions(th: np.ndarray, thr: np.ndarray):
+    mask = cv2.compare(th, thr, cv2.CMP_GT)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     return n, labels, stats
+
+
+@dataclass(frozen=True, eq=False)
+class _Response:
+    """Top-hat of one polarity, its noise maps, regions above threshold and their score."""
+
+    th: np.ndarray
+    med: np.ndarray  # local median of th, every pixel
+    thr: np.ndarray  # local threshold, every pixel
+    thr_blocks: np.ndarray  # the threshold per block
+    n: int
+    labels: np.ndarray
+    stats: np.ndarray
+    score: float
+
+
+def _response(img: np.ndarray, d: float, el: float, bright: bool, k: float, min_area_fraction: float,
+              floor: float, score: bool = True) -> _Response:
+    th = _tophat(img, _disc(el), bright)
+    med_b, sig_b = _noise(th, _block(d), floor)
+    # the interpolation is linear: the threshold map is that of the block thresholds
+    med, thr = _full(med_b, th.shape), _full(med_b + np.float32(k) * sig_b, th.shape)
+    n, labels, stats = _regions(th, thr)
+    expect = np.pi * d * d / 4
+    area = stats[1:, cv2.CC_STAT_AREA]
+    ok = (area >= min_area_fraction * expect) & (area <= 4 * expect + 9)
+    if not score:
+        return _Response(th, med, thr, med_b + np.float32(k) * sig_b, n, labels, stats, float("nan"))
+    score = 0.0
+    if np.any(ok):
+        lab = np.flatnonzero(ok) + 1
+        # each region's peak: the maximum of its pixels (only labelled pixels are visited)
+        where = np.flatnonzero(labels)
+        peaks = np.full(n, -np.inf, np.float32)
+        np.maximum.at(peaks, labels.ravel()[where], th.ravel()[where])
+        rows = stats[lab, cv2.CC_STAT_TOP] + stats[lab, cv2.CC_STAT_HEIGHT] // 2
+        cols = stats[lab, cv2.CC_STAT_LEFT] + stats[lab, cv2.CC_STAT_WIDTH] // 2
+        snr = k * (peaks[lab] - med[rows, cols]) / (thr[rows, cols] - med[rows, cols])
+        score = float(ok.sum() * np.median(snr))
+    return _Response(th, med, thr, med_b + np.float32(k) * sig_b, n, labels, stats, score)
 
 
 def feature_contrast(image, *, feature_diameter_px: float, polarity: str,
@@ -132,21 +189,66 @@ def feature_contrast(image, *, feature_diameter_px: float, polarity: str,
     the count of feature-sized regions times their median peak height in noise σ units."""
     img = _mean_image(image)
     d = positive(feature_diameter_px, "feature_diameter_px")
-    th = _tophat(img, _disc(2.5 * d), polarity == "bright")
-    med, sig = _noise(th, _block(d), noise_floor)
-    n, labels, stats = _regions(th, med, sig, threshold_sigma)
-    expect = np.pi * d * d / 4
-    area = stats[1:, cv2.CC_STAT_AREA]
-    ok = (area >= min_area_fraction * expect) & (area <= 4 * expect + 9)
-    if not np.any(ok):
-        return 0.0
-    peaks = np.zeros(n)
-    np.maximum.at(peaks, labels.ravel(), th.ravel())
-    lab = np.flatnonzero(ok) + 1
-    rows = stats[lab, cv2.CC_STAT_TOP] + stats[lab, cv2.CC_STAT_HEIGHT] // 2
-    cols = stats[lab, cv2.CC_STAT_LEFT] + stats[lab, cv2.CC_STAT_WIDTH] // 2
-    snr = (peaks[lab] - med[rows, cols]) / sig[rows, cols]
-    return float(ok.sum() * np.median(snr))
+    f = _bin_factor(d)
+    return _response(_binned(img, f), d / f, 2.5 * d / f, polarity == "bright", threshold_sigma,
+                     min_area_fraction, noise_floor / f).score
+
+
+def _bin_factor(d: float) -> int:
+    """Binning of the polarity score: features stay at least 5 px across."""
+    return max(1, int(d // 5))
+
+
+def _binned(img: np.ndarray, f: int) -> np.ndarray:
+    if f == 1:
+        return img
+    H, W = img.shape
+    return cv2.resize(img[: H - H % f, : W - W % f], (W // f, H // f), interpolation=cv2.INTER_AREA)
+
+
+def _centroids(resp: _Response, keep: np.ndarray):
+    """Intensity-weighted centroids of the regions ``keep`` (labels), each grown by one pixel.
+
+    The weight is the top-hat above its local median. Every region is cut out in a window of
+    its bounding box plus 2 pixels (regions of one window size at once), its own mask is grown
+    by one pixel there (a pixel next to two regions counts for both), and the weighted sums
+    are taken over the window — no pass over the whole image.
+    """
+    n = len(keep)
+    uv, sw = np.full((n, 2), np.nan), np.zeros(n)
+    if n == 0:
+        return uv, sw > 0, sw
+    st = resp.stats[keep]
+    size = np.maximum(st[:, cv2.CC_STAT_WIDTH], st[:, cv2.CC_STAT_HEIGHT]) + 4
+    for S in np.unique(size):
+        sel = np.flatnonzero(size == S)
+        uv[sel], sw[sel] = _window_centroids(resp, keep[sel], st[sel], int(S))
+    good = sw > 0
+    return uv[good], good, sw[good]
+
+
+def _window_centroids(resp: _Response, keep: np.ndarray, st: np.ndarray, S: int):
+    H, W = resp.labels.shape
+    g = np.arange(S)
+    rows = st[:, cv2.CC_STAT_TOP, None] - 2 + g[None]  # (n, S)
+    cols = st[:, cv2.CC_STAT_LEFT, None] - 2 + g[None]
+    rr, cc = np.clip(rows, 0, H - 1), np.clip(cols, 0, W - 1)
+    inside = ((rows == rr) & (g[None] < st[:, cv2.CC_STAT_HEIGHT, None] + 4))[:, :, None] & \
+        ((cols == cc) & (g[None] < st[:, cv2.CC_STAT_WIDTH, None] + 4))[:, None, :]
+    R, C = rr[:, :, None], cc[:, None, :]
+    own = resp.labels[R, C] == keep[:, None, None]
+    grown = own.copy()
+    grown[:, 1:] |= own[:, :-1]
+    grown[:, :-1] |= own[:, 1:]
+    g2 = grown.copy()
+    g2[:, :, 1:] |= grown[:, :, :-1]
+    g2[:, :, :-1] |= grown[:, :, 1:]
+    wt = np.where(g2 & inside, np.clip(resp.th[R, C] - resp.med[R, C], 0, None), 0).astype(np.float64)
+    sw = wt.sum(axis=(1, 2))
+    su = np.einsum("nrc,nc->n", wt, cols.astype(float))
+    sv = np.einsum("nrc,nr->n", wt, rows.astype(float))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.column_stack([su / sw, sv / sw]), sw
 
 
 def detect_grid_points(image, *, feature_diameter_px: float, polarity: str = "auto",
@@ -208,9 +310,11 @@ def detect_grid_points(image, *, feature_diameter_px: float, polarity: str = "au
         raise ValueError(f"smooth_sigma_px: expected >= 0, got {smooth_sigma_px}")
     if s > 0:
         img = cv2.GaussianBlur(img, (0, 0), s, borderType=cv2.BORDER_REPLICATE)
-    score = {p: feature_contrast(img, feature_diameter_px=d, polarity=p, threshold_sigma=threshold_sigma,
-                                 min_area_fraction=min_area_fraction, noise_floor=floor)
-             for p in ("bright", "dark")}
+    f = _bin_factor(d)
+    small = _binned(img, f)
+    resp = {p: _response(small, d / f, 2.5 * d / f, p == "bright", threshold_sigma, min_area_fraction,
+                         floor / f) for p in ("bright", "dark")}
+    score = {p: r.score for p, r in resp.items()}
     best = max(score, key=score.get)
     if polarity == "auto":
         polarity = best
@@ -224,37 +328,19 @@ def detect_grid_points(image, *, feature_diameter_px: float, polarity: str = "au
             raise ValueError(f"image: polarity={polarity!r} was requested, but the grid features are "
                              f"{kind[other]} (response {score[other]:.0f} vs {score[polarity]:.0f}); "
                              f"pass polarity={other!r} or 'auto'")
-    th = _tophat(img, _disc(el), polarity == "bright")
-    med, sig = _noise(th, _block(d), floor)
-    n, labels, stats = _regions(th, med, sig, threshold_sigma)
+    r = resp[polarity] if f == 1 and el == 2.5 * d else _response(
+        img, d, el, polarity == "bright", threshold_sigma, min_area_fraction, floor, score=False)
     expect = np.pi * d * d / 4
     H, W = img.shape
     b = int(exclude_border_px)
-    keep = []
-    for k in range(1, n):
-        x, y, w, h, a = stats[k]
-        if a < min_area_fraction * expect or a > max_area_factor * expect + 9:
-            continue
-        if b > 0 and (x < b or y < b or x + w > W - b or y + h > H - b):
-            continue
-        if max(w, h) > max_aspect * min(w, h) + 1 or a < min_fill * w * h:
-            continue  # elongated or ragged: an edge or a rim, not a round hole or bead
-        keep.append(k)
-    weight = np.clip(th - med, 0, None)
-    uv, area, strength = [], [], []
-    kernel = np.ones((3, 3), np.uint8)
-    for k in keep:
-        x, y, w, h, a = stats[k]
-        x0, y0, x1, y1 = max(x - 2, 0), max(y - 2, 0), min(x + w + 2, W), min(y + h + 2, H)
-        m = cv2.dilate((labels[y0:y1, x0:x1] == k).astype(np.uint8), kernel).astype(bool)
-        wt = weight[y0:y1, x0:x1] * m
-        tot = float(wt.sum())
-        if tot <= 0:
-            continue
-        vv, uu = np.mgrid[y0:y1, x0:x1]
-        uv.append(((uu * wt).sum() / tot, (vv * wt).sum() / tot))
-        area.append(int(a))
-        strength.append(tot)
-    return GridPoints(np.asarray(uv, float).reshape(-1, 2), np.asarray(area, int),
-                      np.asarray(strength, float), polarity, score,
-                      float(np.median(med + threshold_sigma * sig)))
+    x, y, w, h, a = (r.stats[1:, c] for c in range(5))
+    ok = (a >= min_area_fraction * expect) & (a <= max_area_factor * expect + 9)
+    if b > 0:
+        ok &= (x >= b) & (y >= b) & (x + w <= W - b) & (y + h <= H - b)
+    # elongated or ragged: an edge or a rim, not a round hole or bead
+    ok &= (np.maximum(w, h) <= max_aspect * np.minimum(w, h) + 1) & (a >= min_fill * w * h)
+    keep = np.flatnonzero(ok) + 1
+    uv, good, strength = _centroids(r, keep)
+    area = r.stats[keep[good], cv2.CC_STAT_AREA].astype(int)
+    return GridPoints(np.asarray(uv, float).reshape(-1, 2), area, np.asarray(strength, float), polarity,
+                      score, float(np.median(r.thr_blocks)))

@@ -19,6 +19,7 @@ from __future__ import annotations
 COMMANDS: dict[str, str] = {
     "demo": "app.commands.demo",
     "gui": "app.commands.gui",
+    "calibrate": "app.commands.calibrate",
     "track": "app.commands.track",
     "study": "app.commands.study",
     "bench": "app.commands.bench",

@@ -53,7 +53,7 @@ def error_volume(rig, noise_px: float, *, spacing_mm: float = 20.0, draws: int =
             "max_point_rms_mm": float(rms.max()), "points_mm": X.tolist(), "point_rms_mm": rms.tolist()}
 
 
-def session_report(cal, *, notes=(), dlt=(), seconds=None, manifest=None) -> dict:
+def session_report(cal, *, notes=(), dlt=(), seconds=None, manifest=None, lattice=None) -> dict:
     """The JSON-ready report of a :class:`~core.calibration.session.SessionCalibration`."""
     ba = cal.bundle
     cams = []
@@ -72,6 +72,7 @@ def session_report(cal, *, notes=(), dlt=(), seconds=None, manifest=None) -> dic
                            "table": [{k: (_f(v) if isinstance(v, float) else v) for k, v in r.items()}
                                      for r in g.table],
                            "notes": list(g.notes)},
+            "lattice_check": (lattice or {}).get(c.name),
         })
     err = ba.errors_px
     per_bead = {}

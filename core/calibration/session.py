@@ -41,7 +41,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.camera import Rig
+from ..imaging.distortion_eval import evaluate_lattice
 from ..imaging.flatfield import Flatfield, build_flatfield
+from ..imaging.grid_detection import detect_grid_points
+from ..imaging.grid_indexing import index_grid
 from ..imaging.pipeline import Pipeline
 from . import _session_grid as grids
 from .bundle import BundleResult, bundle_adjust
@@ -180,18 +183,20 @@ class _Reader:
 
 def _flat_groups(session, cam: str) -> list[tuple[float | None, str]]:
     """``(kV, group)`` of the camera's empty-field frame sets."""
-    man = getattr(session, "manifest", {}) or {}
-    kvs = man.get("flat_kv") or man.get("kv") or []
-    if isinstance(kvs, int | float):
-        kvs = [kvs]
-    groups = [(float(k), f"flat:{float(k):g}") for k in kvs]
-    if hasattr(session, "groups"):
-        try:
-            groups = [(float(g.split(":", 1)[1]) if g[5:] else None, g) for g in session.groups(cam)
-                      if g.startswith("flat")] or groups
-        except (TypeError, ValueError):
-            pass
-    return groups
+    kvs = getattr(session, "kvs", None)
+    if kvs is None:
+        man = getattr(session, "manifest", {}) or {}
+        kvs = man.get("flat_kv") or man.get("kv") or []
+        kvs = [kvs] if isinstance(kvs, int | float) else kvs
+    return [(float(k), f"flat:{float(k):g}") for k in kvs]
+
+
+def _pixel_size(man: dict) -> float | None:
+    px = (man.get("detector") or {}).get("pixel_size_mm", man.get("pixel_size_mm"))
+    try:
+        return float(px) if px is not None and float(px) > 0 else None
+    except (TypeError, ValueError):
+        return None
 
 
 # ---------------------------------------------------------------------------- steps
@@ -235,6 +240,31 @@ def _distortion(rd: _Reader, cam: str, ff: Flatfield, *, model, pitch, feature_m
     except ValueError as exc:
         raise SessionError("distortion", f"camera {cam} ({len(refs)} grid frames)", str(exc),
                            "use a lower-order model (--model poly 4,4) or add grid frames") from None
+
+
+def _lattice(rd: _Reader, cam: str, c: CameraCorrection, man: dict) -> dict | None:
+    """Bead-lattice frames (optional): inter-bead distance and right-angle errors after the
+    view's correction (thesis Tables 3.2-3.3), an independent check of the distortion model."""
+    refs = rd.refs(cam, "lattice", required=False)
+    if not refs:
+        return None
+    lat = man.get("lattice") or {}
+    pitch = float(lat.get("pitch_mm", 20.0))
+    bead_px = float(lat.get("bead_diameter_mm", 2.0)) / c.grid.mm_per_px
+    found, failed = [], []
+    for k, r in enumerate(refs):
+        img = c.flatfield.normalise(rd.read(cam, r, k, "distortion"))
+        try:
+            pts = detect_grid_points(img, feature_diameter_px=bead_px, polarity="dark")
+            gi = index_grid(pts.uv, min_points=9)
+            found.append((gi.uv, gi.ij))
+        except ValueError as exc:
+            failed.append(f"{r} (lattice frame {k}): {exc}")
+    out: dict = {"frames": len(refs), "pitch_mm": pitch, "failed": failed}
+    if found:
+        e = evaluate_lattice(c.grid.model, found, pitch_mm=pitch, mm_per_px=c.grid.mm_per_px)
+        out.update(e.to_dict(), beads=int(sum(len(uv) for uv, _ in found)))
+    return out
 
 
 def _detect(img: np.ndarray, target: CalibrationTarget, ppm: float) -> ObjectDetections:
@@ -337,24 +367,27 @@ def calibrate_session(session, *, object=None, static_object=None, model: str = 
     pitch = float(grid_man.get("pitch_mm", DEFAULTS["pitch_mm"]))
     feature_mm = float(grid_man.get("hole_diameter_mm", grid_man.get("feature_diameter_mm",
                                                                       DEFAULTS["hole_diameter_mm"])))
-    target = _target(object or man.get("object") or DEFAULTS["object"], "object")
-    static = _target(static_object or man.get("static_object") or DEFAULTS["static_object"], "static_object")
+    objs = man.get("objects") or {}
+    target = _target(object or objs.get("spiral") or man.get("object") or DEFAULTS["object"], "object")
+    static = _target(static_object or objs.get("cube") or man.get("static_object")
+                     or DEFAULTS["static_object"], "static_object")
     rd = _Reader(session, cancel)
-    px_nominal = man.get("pixel_size_mm")
+    px_nominal = _pixel_size(man)
     # 1-2: flatfield and distortion per camera
-    corr = []
+    corr, lattice = [], {}
     for cam in cams:
         t = time.perf_counter()
         ff, used_kv = _flatfield(rd, cam, _flat_groups(session, cam), kv, say)
         times[f"flatfield {cam}"] = time.perf_counter() - t
         t = time.perf_counter()
-        px = float(px_nominal) if px_nominal else 0.3
+        px = px_nominal or 300.0 / max(rd.shape[cam][0])  # a 300 mm field when not given
         fit = _distortion(rd, cam, ff, model=model, pitch=pitch, feature_mm=feature_mm, px_mm=px,
                           progress=say)
         times[f"distortion {cam}"] = time.perf_counter() - t
         pipe = Pipeline.standard(flatfield=ff, dark=ff.dark, distortion=fit.model)
         pipe.prepare(ff.shape)
         corr.append(CameraCorrection(cam, ff, fit, pipe, used_kv))
+        lattice[cam] = _lattice(rd, cam, corr[-1], man)
     pipes = [c.pipeline for c in corr]
     px_mm = [c.grid.mm_per_px for c in corr]
     # 3: beads
@@ -423,6 +456,8 @@ def calibrate_session(session, *, object=None, static_object=None, model: str = 
                                 static if static_obs else None)
     from .report import session_report
 
-    result.report.update(session_report(result, notes=[lab_note], dlt=dlt, seconds=times,
-                                        manifest=man))
+    notes = [lab_note] + ([] if px_nominal else ["no detector pixel size in the session manifest: "
+                                                 "a 300 mm field was assumed to size the grid holes"])
+    result.report.update(session_report(result, notes=notes, dlt=dlt, seconds=times, manifest=man,
+                                        lattice=lattice))
     return result

@@ -1,0 +1,145 @@
+"""``talus calibrate``: turn a calibration session into a study's correction and rig.
+
+Usage::
+
+    talus calibrate SESSION --study STUDY [--object NAME|FILE] [--model auto|poly N,M|tps|lwm]
+                    [--report DIR] [--series NAME] [--trials series|all|none|a,b] [--quiet]
+
+Runs :func:`core.calibration.session.calibrate_session` (flatfield → distortion grid → beads →
+DLT start → bundle adjustment) on the session folder (:func:`core.io.read_session`) and saves
+the result into the study as the next version of a calibration series
+(:func:`core.study.calibrations.save_session_calibration`: MayaCam rig, parameter SDs, one
+correction pipeline per camera, the report); the trials of the series (or those named) then use
+it. Nothing is saved when a step fails or on Ctrl-C: the study is unchanged. A progress bar goes
+to stderr, the JSON summary to stdout. Exit status: 0 done, 1 bad input (the message names the
+step, the file and frame, and what can be done), 3 study locked by another writer,
+130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ._shared import (
+    EXIT_CANCELLED,
+    EXIT_OK,
+    PROG,
+    CancelToken,
+    CliError,
+    Progress,
+    print_json,
+    sigint_cancels,
+    stdout_to_stderr,
+)
+
+__all__ = ["HELP", "configure", "parse_model", "run"]
+
+HELP = "calibrate the rig and the image correction from a calibration session into a study"
+
+
+def parse_model(words: list[str] | None) -> str:
+    """``--model auto | poly N,M | tps | lwm`` (or a label such as ``poly(5,5)``) → a model label."""
+    if not words:
+        return "auto"
+    text = " ".join(words).strip().lower()
+    if text in ("auto", "tps", "lwm"):
+        return text
+    if text.startswith("poly"):
+        rest = text[4:].strip().strip("()").replace(" ", "")
+        try:
+            n, m = (int(v) for v in rest.split(",")) if "," in rest else (int(rest), int(rest))
+        except ValueError:
+            raise ValueError(f"--model: expected 'poly N,M' (two orders), got {text!r}") from None
+        return f"poly({n},{m})"
+    return text  # any other label is checked by the library (e.g. tps(0.01), lwm(16), cheb(9,9))
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Calibrate from a calibration session (dark, empty-field, distortion-grid, "
+                     "cube and spiral frames of both cameras): flatfield, distortion model, bead "
+                     "labelling, DLT start and bundle adjustment. The correction pipelines and the "
+                     "rig with its uncertainties are saved into the study as a new calibration "
+                     "version (earlier versions are kept). JSON summary on stdout.")
+    p.add_argument("session", help="calibration session folder (session.json)")
+    p.add_argument("--study", required=True, help="study folder (study.json) to save into")
+    p.add_argument("--object", default=None, metavar="NAME|FILE",
+                   help="the object moved through the volume: a built-in (spiral33, spiral23, cube15) "
+                        "or a definition file (.csv/.json); default: the session's")
+    p.add_argument("--model", nargs="+", default=None, metavar="MODEL",
+                   help="distortion model: auto (cross-validated choice, default), poly N,M, tps, lwm")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="also write the report (JSON and figures) here")
+    p.add_argument("--series", default="session", help="calibration series name (default session)")
+    p.add_argument("--trials", default="series",
+                   help="trials that use the new calibration: series (those on an earlier version, "
+                        "default), all, none, or comma-separated names")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=run)
+
+
+class _Steps:
+    """``progress(step, done, total)`` of the calibration as a bar with the step's name."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+
+    def __call__(self, step: str, done: int, total: int) -> None:
+        w = 20
+        k = int(w * done / max(total, 1))
+        self.progress(done, total, f"[{'#' * k}{'.' * (w - k)}] {step}")
+
+
+def run(a: argparse.Namespace) -> int:
+    session_dir = Path(a.session).expanduser()
+    folder = Path(a.study).expanduser()
+    if not session_dir.is_dir():
+        raise CliError(f"SESSION: no calibration session folder at {session_dir}")
+    if not folder.is_dir():
+        raise CliError(f"--study: no study folder at {folder}")
+    model = parse_model(a.model)
+    trials = a.trials if a.trials in ("series", "all", "none") else [t for t in a.trials.split(",") if t]
+    from core.calibration.session import CalibrationCancelled, calibrate_session
+    from core.io.calibration_session import read_session
+    from core.study import Study
+    from core.study.calibrations import save_session_calibration
+
+    token = CancelToken()
+    progress = Progress("calibrate", quiet=a.quiet)
+    session = read_session(session_dir)
+    cal = saved = None
+    with Study.open(folder, mode="w") as study, sigint_cancels(token, "calibrate"):
+        try:
+            with stdout_to_stderr():
+                cal = calibrate_session(session, object=a.object, model=model, progress=_Steps(progress),
+                                        cancel=token)
+                if not token.is_set():
+                    saved = save_session_calibration(study, cal, series=a.series, trials=trials,
+                                                     session_path=session_dir)
+        except (CalibrationCancelled, KeyboardInterrupt):
+            token.set()
+        finally:
+            progress.close()
+    if token.is_set() and saved is None:
+        print_json({"status": "cancelled", "saved": None})
+        print(f"{PROG} calibrate: cancelled; the study is unchanged", file=sys.stderr)
+        return EXIT_CANCELLED
+    report_files = None
+    if a.report:
+        from core.calibration.report import write_report
+
+        report_files = {k: str(p) for k, p in write_report(cal, Path(a.report).expanduser()).items()}
+    rep = cal.report
+    out = {"status": "complete", "saved": {"calibration": saved.name, "folder": str(saved.folder),
+                                           "trials": list(saved.trials)},
+           "rig": [{k: c[k] for k in ("name", "fx_px", "sid_mm", "source_mm", "std")} for c in rep["rig"]],
+           "reprojection_rms_px": rep["bundle"]["rms_px"],
+           "frames_labelled": rep["n_frames_labelled"], "frames": len(rep["frames"]),
+           "distortion": {c["name"]: {"model": c["distortion"]["model"],
+                                      "grid_residual_rms_mm": c["distortion"]["residuals"]["mm"]["rms"],
+                                      "lattice_check": c.get("lattice_check")} for c in rep["cameras"]},
+           "error_volume_rms_mm": rep["error_volume"].get("rms_mm"), "notes": rep["notes"],
+           "report": report_files}
+    print_json(out)
+    return EXIT_OK

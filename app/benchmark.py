@@ -28,14 +28,15 @@ def run_interaction_benchmark(*, folder: str | Path | None = None, pixels: int =
     """Time preview/full overlay updates for one dragged bone on a demo study."""
     from core.synthetic.demo import make_demo_study
 
-    from .demo_study import open_demo_study
+    from .session import open_study
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(folder) if folder else Path(tmp) / "demo"
-        if not (path / "summary.json").is_file():
+        if not (path / "study.json").is_file():
             make_demo_study(path, n_frames=1, pixels=pixels, seed=0, device=device)
-        study = open_demo_study(path)
-    m = study.model
+        session = open_study(path, read_only=True)
+        session.close()  # the model holds what the benchmark needs (rig, volumes, poses)
+    m = session.model
     dev = device or default_device()
     renderer = OverlayRenderer(m.rig, [b.volume for b in m.layers], device=dev)
     bone = [b.name for b in m.layers].index("talus")

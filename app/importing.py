@@ -10,10 +10,12 @@ error) and saves the manifest atomically.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from PySide6 import QtWidgets
 
-from core.study import Study
+if TYPE_CHECKING:
+    from core.study import Study
 
 __all__ = ["ImportActions"]
 
@@ -50,6 +52,8 @@ class ImportActions:
     def create(self, folder: str | Path) -> None:
         if self.study is not None:
             self.study.close()
+        from core.study import Study
+
         self.study = Study.create(folder)
         self.window.notify(f"New study in {folder}: import a calibration, CT volumes and a trial.")
 

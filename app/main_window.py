@@ -13,100 +13,40 @@ closes it.
 
 from __future__ import annotations
 
-import json
 import os
-import re
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from . import __version__, settings
-from .controller import Controller
 from .importing import ImportActions
-from .layers import LayerList
-from .model import ViewerModel
 from .panes import FluoroPane
 from .scene3d import ScenePane
-from .timeline import Timeline
 from .tracking_actions import TrackingActions
 from .workers import WorkerPool
 
-_IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".npy"}
-_VIEW_KEY = re.compile(r"(?:cam(?:era)?|view)[_\-]?0*(\d+)", re.IGNORECASE)
-_NOT_FLUORO = re.compile(r"drr|mask|label|truth|flatfield", re.IGNORECASE)
+if TYPE_CHECKING:
+    from .model import ViewerModel
 
-
-def _read_image(path: Path) -> np.ndarray:
-    """First frame of an image file as an array ``[row, col]`` (.npy, .tif/.tiff, .png)."""
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        image = np.load(path, allow_pickle=False)
-    elif suffix in (".tif", ".tiff"):
-        import tifffile
-
-        image = tifffile.imread(path, key=0)
-    else:
-        import cv2
-
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise ValueError(f"{path}: not a readable image")
-    while image.ndim > 2 and image.shape[-1] not in (3, 4):
-        image = image[0]  # a stack: [frame, row, col]
-    return image
-
-
-def _summary_frames(folder: Path) -> dict[str, list[Path]] | None:
-    """Frames per camera listed by a study's ``summary.json`` (``files.frames``), if any."""
-    path = folder / "summary.json"
-    if not path.is_file():
-        return None
-    try:
-        frames = json.loads(path.read_text(encoding="utf-8")).get("files", {}).get("frames")
-    except (OSError, ValueError, AttributeError) as exc:
-        raise ValueError(f"{path}: not a study summary ({exc})") from exc
-    if not isinstance(frames, dict):
-        raise ValueError(f"{path}: expected 'files': {{'frames': {{camera: [paths]}}}}")
-    return {cam: [folder / p for p in paths] for cam, paths in sorted(frames.items()) if paths}
+# The window shows before the heavy parts load: the study classes, the overlay renderer (Warp)
+# and the posing maths (scipy) are imported when a study is opened, the 3D scene (VTK) once
+# the window has been painted.
 
 
 def load_view_images(folder: Path, *, n_views: int = 2) -> list[tuple[str, np.ndarray]]:
-    """``[(label, image), ...]``: the first frame of each camera of a study folder.
+    """``[(label, image), ...]``: the first image of each camera of a folder that is not a
+    study (see :func:`core.io.images.camera_images`)."""
+    from core.io.images import camera_images, read_image
 
-    The frames are those listed in ``summary.json`` (written by ``talus demo``); without one,
-    cameras are recognised by ``cam01``/``camera1``/``view0``-style names of files or folders,
-    skipping images whose names mention a DRR, mask, label, ground truth or flatfield.
-    """
-    if not folder.is_dir():
-        raise FileNotFoundError(f"{folder}: not a folder")
-    listed = _summary_frames(folder)
-    if listed is not None:
-        if not listed:
-            raise ValueError(f"{folder / 'summary.json'}: no camera images (no frames written)")
-        return [
-            (f"{cam}: {paths[0].relative_to(folder)}", _read_image(paths[0]))
-            for cam, paths in list(listed.items())[:n_views]
-        ]
-    groups: dict[int, list[Path]] = {}
-    for path in sorted(folder.rglob("*")):
-        rel = path.relative_to(folder)
-        if (path.suffix.lower() not in _IMAGE_SUFFIXES or len(rel.parts) > 3
-                or _NOT_FLUORO.search(str(rel)) or not path.is_file()):
-            continue
-        keys = _VIEW_KEY.findall(str(rel))
-        if keys:
-            groups.setdefault(int(keys[-1]), []).append(path)
-    if not groups:
-        raise ValueError(
-            f"{folder}: no camera images found (expected .tif/.png/.npy images in files or "
-            "folders named like cam01, cam02)"
-        )
-    return [
-        (f"cam{key:02d}: {groups[key][0].relative_to(folder)}", _read_image(groups[key][0]))
-        for key in sorted(groups)[:n_views]
-    ]
+    return [(label, read_image(path)) for label, path in camera_images(folder, n_views=n_views)]
+
+
+def _breakable(text: str) -> str:
+    """Let a label wrap long paths: a zero-width space after each ``/`` and ``_``."""
+    return text.replace("/", "/\u200b").replace("_", "_\u200b")
 
 
 class MainWindow(QtWidgets.QMainWindow):
@@ -220,6 +160,26 @@ class MainWindow(QtWidgets.QMainWindow):
         self.about_action = help_menu.addAction("&About Talus")
         self.about_action.triggered.connect(self._about)
         self.timeline = None
+        self.controller = None
+        self.layers = self.layers_dock = None
+        self.last_error: tuple[str, str] | None = None
+        self._painted = False
+        self._after_paint: list = []
+
+    def after_first_paint(self, fn) -> None:
+        """Call ``fn`` once the window has been painted (at once if it has been)."""
+        if self._painted:
+            QtCore.QTimer.singleShot(0, fn)
+        else:
+            self._after_paint.append(fn)
+
+    def paintEvent(self, event: QtGui.QPaintEvent) -> None:
+        super().paintEvent(event)
+        if not self._painted:
+            self._painted = True
+            for fn in self._after_paint:
+                QtCore.QTimer.singleShot(0, fn)
+            self._after_paint.clear()
 
     def _nudge(self, axis: int, sign: float, rotate: bool) -> None:
         if self.controller is None:
@@ -234,23 +194,71 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ------------------------------------------------------------------ studies
     def set_model(self, model: ViewerModel) -> None:
-        """Show a viewer model: panes per camera, bone layers, timeline, overlays, 3D scene."""
+        """Show a viewer model: panes per camera, bone layers, timeline, overlays, 3D scene.
+
+        All or nothing: if any part fails, what was added is removed again and the error is
+        raised, leaving the window as it was.
+        """
+        from .controller import Controller
+        from .layers import LayerList
+        from .timeline import Timeline
+
+        if self.model is not None:
+            raise ValueError("study: this window already shows a study; open another window")
+        before = [(pane.image, pane.window_level, pane._title.text()) for pane in self.panes]
         self.model = model
-        for pane, cam in zip(self.panes, model.rig, strict=False):
-            pane._title.setText(f"Camera {cam.name or ''}".strip())
-        self.layers = LayerList(model)
-        dock = QtWidgets.QDockWidget("Layers", self)
-        dock.setWidget(self.layers)
-        self.addDockWidget(QtCore.Qt.DockWidgetArea.LeftDockWidgetArea, dock)
-        self.timeline = Timeline(model)
-        self._central_layout.addWidget(self.timeline)
-        self.controller = Controller(model, self.panes, self.pool, device=self.device,
-                                     parent=self)
-        self.layers.mode_changed.connect(self.controller.set_mode)
-        self.layers.markers_changed.connect(self.controller.set_markers)
-        self.layers.cameras_changed.connect(self.scene.set_cameras_visible)
-        self.scene.set_model(model)
-        model.history_changed.connect(self._update_history)
+        try:
+            for pane, cam in zip(self.panes, model.rig, strict=False):
+                pane._title.setText(f"Camera {cam.name or ''}".strip())
+            self.layers = LayerList(model)
+            self.layers_dock = QtWidgets.QDockWidget("Layers", self)
+            self.layers_dock.setWidget(self.layers)
+            self.addDockWidget(QtCore.Qt.DockWidgetArea.LeftDockWidgetArea, self.layers_dock)
+            self.timeline = Timeline(model)
+            self._central_layout.addWidget(self.timeline)
+            self.controller = Controller(model, self.panes, self.pool, device=self.device,
+                                         parent=self)
+            self.layers.mode_changed.connect(self.controller.set_mode)
+            self.layers.markers_changed.connect(self.controller.set_markers)
+            self.layers.cameras_changed.connect(self.scene.set_cameras_visible)
+            self.scene.set_model(model)
+            model.history_changed.connect(self._update_history)
+        except BaseException:
+            self._unset_model(panes=before)
+            raise
+        self._update_history()
+
+    def _unset_model(self, *, panes=None) -> None:
+        """Take a (partly) shown model out of the window: layers, timeline, scene; the panes
+        go back to ``panes`` (``(image, (window, level), title)`` each) or to placeholders."""
+        model, self.model = self.model, None
+        if self.controller is not None:
+            self.controller.shutdown()
+            self.controller.setParent(None)
+            self.controller.deleteLater()
+            self.controller = None
+        self.pool.cancel("overlay")
+        if self.timeline is not None:
+            self.timeline.set_playing(False)
+            self._central_layout.removeWidget(self.timeline)
+            self.timeline.deleteLater()
+            self.timeline = None
+        dock = getattr(self, "layers_dock", None)
+        if dock is not None:
+            self.removeDockWidget(dock)
+            dock.deleteLater()
+            self.layers_dock = self.layers = None
+        if self.scene.model is model:
+            self.scene.model = None
+        panes = panes or [(None, None, f"Camera {k}") for k in range(1, len(self.panes) + 1)]
+        for pane, (image, window_level, title) in zip(self.panes, panes, strict=True):
+            pane._title.setText(title)
+            for key in pane.overlay_keys():
+                pane.hide_overlay(key)
+            if image is None:
+                pane.clear()
+            elif image is not pane.image:
+                pane.set_image(image, window=window_level[0], level=window_level[1])
         self._update_history()
 
     def _update_history(self) -> None:
@@ -258,26 +266,41 @@ class MainWindow(QtWidgets.QMainWindow):
         self.redo_action.setEnabled(bool(self.model and self.model.can_redo))
 
     def open_study(self, folder: str | Path, *, read_only: bool = False) -> None:
-        """Open a study folder (``study.json``); pose edits are journalled as they happen."""
+        """Open a study folder (``study.json``); pose edits are journalled as they happen.
+
+        Everything the window shows first (the cameras' first frames, every bone's volume)
+        is read before the window changes; if anything fails, the study is closed again and
+        the window stays as it was.
+        """
         from core.study import LockedError
 
         from .session import open_study
 
         if self.model is not None:
             raise ValueError("study: this window already shows a study; open another window")
+        notes = []
         try:
-            self.session = open_study(folder, read_only=read_only)
+            session = open_study(folder, read_only=read_only)
         except LockedError as exc:  # open elsewhere for writing: show it read-only
-            self.session = open_study(folder, read_only=True)
-            self.notify(f"{exc} — opened read-only.")
-        self.set_model(self.session.model)
-        folder = self.session.folder
+            session = open_study(folder, read_only=True)
+            notes.append(f"{exc} — opened read-only.")
+        try:
+            for view in range(len(session.model.rig)):
+                session.model.frame_image(view)  # a damaged first frame fails here
+            self.set_model(session.model)
+        except BaseException:
+            session.close()
+            raise
+        self.session = session
+        folder = session.folder
         names = ", ".join(layer.name for layer in self.model.layers)
-        self.statusBar().showMessage(f"Opened {folder} ({self.session.trial_name}): {names}")
-        if self.session.recovered:
+        self.statusBar().showMessage(f"Opened {folder} ({session.trial_name}): {names}")
+        for note in notes:
+            self.notify(note)
+        if session.recovered:
             self.notify(f"{folder} was not closed cleanly last time; every pose recorded up to "
                         "then has been restored.")
-        if not self.session.writable:
+        if not session.writable:
             self.notify(f"{folder} is open read-only: pose edits are not saved.")
         settings.add_recent(str(folder))
         self._fill_recent()
@@ -289,13 +312,31 @@ class MainWindow(QtWidgets.QMainWindow):
             act.triggered.connect(lambda _=False, p=path: self._open_checked(p))
         self.recent_menu.setEnabled(bool(settings.recent()))
 
+    def show_error(self, title: str, text: str) -> None:
+        """A warning dialog whose text wraps (long paths included) instead of being cut off."""
+        box = QtWidgets.QMessageBox(QtWidgets.QMessageBox.Icon.Warning, "Talus", "", parent=self)
+        box.setObjectName("error-dialog")
+        box.setTextFormat(QtCore.Qt.TextFormat.PlainText)
+        box.setText(_breakable(title))
+        box.setInformativeText(_breakable(text))
+        screen = (self.screen() or QtWidgets.QApplication.primaryScreen()).availableGeometry()
+        width = max(360, min(640, screen.width() - 80))
+        for label in box.findChildren(QtWidgets.QLabel):
+            if label.text():
+                label.setWordWrap(True)
+                label.setMinimumWidth(width)
+                label.setTextInteractionFlags(
+                    QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.last_error = (title, text)
+        box.exec()
+
     def _guard(self, action) -> None:
         """Run a menu action; a failure is shown, never raised into the event loop."""
         try:
             action()
         except Exception as exc:  # shown to the user with its reason
             self.notify(f"{exc}")
-            QtWidgets.QMessageBox.warning(self, "Talus", str(exc))
+            self.show_error("This did not work:", str(exc))
 
     def _open_checked(self, folder: str) -> None:
         from .session import MissingFilesError
@@ -306,7 +347,8 @@ class MainWindow(QtWidgets.QMainWindow):
             if self.relocate_missing(exc):
                 self._open_checked(folder)
         except Exception as exc:  # any reason the study cannot be shown, shown to the user
-            QtWidgets.QMessageBox.warning(self, "Talus", f"Cannot open {folder}:\n{exc}")
+            self.notify(f"Cannot open {folder}: {exc}")
+            self.show_error(f"Cannot open {folder}", str(exc))
 
     def relocate_missing(self, exc) -> bool:
         """Show what is missing and let the user point at each file's new place; True when
@@ -332,21 +374,21 @@ class MainWindow(QtWidgets.QMainWindow):
         return True
 
     def open_demo_study(self, folder: str | Path) -> None:
-        """Open a study folder, a ``talus demo`` folder without a manifest, or (a plain folder of
-        camera images) show the first image of each camera."""
+        """Open a study folder (through :mod:`core.study`; ``talus demo`` writes one), or
+        show the first image of each camera of a plain folder of images (:mod:`core.io`)."""
         folder = Path(folder)
         if (folder / "study.json").is_file():
             self.open_study(folder)
             return
-        if (folder / "summary.json").is_file() and '"talus-synthetic-study"' in (
-                folder / "summary.json").read_text(encoding="utf-8"):
-            from .demo_study import open_demo_study
-
-            self.study = open_demo_study(folder)
-            self.set_model(self.study.model)
-            names = ", ".join(layer.name for layer in self.study.model.layers)
-            self.statusBar().showMessage(f"Opened {folder}: {names}")
-            return
+        summary = folder / "summary.json"
+        if summary.is_file() and '"talus-synthetic-study"' in summary.read_text(
+                encoding="utf-8", errors="replace"):
+            raise ValueError(
+                f"{folder}: a 'talus demo' folder without its study manifest (study.json): the "
+                f"demo was cancelled or written by an older Talus; run 'talus demo --out "
+                f"{folder} --regenerate' to write it again")
+        if self.model is not None:
+            raise ValueError("study: this window already shows a study; open another window")
         images = load_view_images(folder, n_views=len(self.panes))
         for pane, (name, image) in zip(self.panes, images, strict=False):
             pane.set_image(image)
@@ -405,17 +447,24 @@ class MainWindow(QtWidgets.QMainWindow):
 
 
 def run_gui(*, demo: Path | None = None) -> int:
-    """Open the main window (optionally with a demo study) and run the Qt event loop."""
+    """Open the main window and run the Qt event loop; with ``demo`` (a study folder), open it
+    once the window is on screen (a failure is shown in a dialog and on stderr)."""
     if sys.platform.startswith("linux") and os.environ.get("DISPLAY"):
         os.environ.setdefault("QT_QPA_PLATFORM", "xcb")  # VTK's interactor needs X11/GLX
     app = QtWidgets.QApplication.instance() or QtWidgets.QApplication(sys.argv[:1])
     app.setApplicationName("Talus")
     window = MainWindow()
-    if demo is not None:
+    window.show()  # first on screen; the study and the heavy modules load after its first paint
+
+    def open_demo() -> None:
+        window.statusBar().showMessage(f"Opening {demo} …")
         try:
             window.open_demo_study(demo)
-        except (OSError, ValueError) as exc:
+        except Exception as exc:  # shown to the user, the window stays as it was
             print(f"talus gui: cannot open {demo}: {exc}", file=sys.stderr)
-            window.statusBar().showMessage(f"Cannot open {demo}: {exc}")
-    window.show()
+            window.statusBar().showMessage(f"Cannot open {demo}")
+            window.show_error(f"Cannot open {demo}", str(exc))
+
+    if demo is not None:
+        window.after_first_paint(open_demo)
     return app.exec()

@@ -23,15 +23,18 @@ class ScenePane(QtWidgets.QWidget):
         self.plotter = None
         self.model = None
         self._create_on_show = create_on_show
+        self._scheduled = False
         self._placeholder = QtWidgets.QLabel("3D scene")
         self._placeholder.setAlignment(QtCore.Qt.AlignmentFlag.AlignCenter)
         self._layout = QtWidgets.QVBoxLayout(self)
         self._layout.setContentsMargins(0, 0, 0, 0)
         self._layout.addWidget(self._placeholder)
 
-    def showEvent(self, event: QtGui.QShowEvent) -> None:
-        super().showEvent(event)
-        if self._create_on_show and self.plotter is None:
+    def paintEvent(self, event: QtGui.QPaintEvent) -> None:
+        super().paintEvent(event)
+        if self._create_on_show and self.plotter is None and not self._scheduled:
+            # after the first paint: the window is on screen before VTK loads (~2 s)
+            self._scheduled = True
             QtCore.QTimer.singleShot(0, self.ensure_interactor)
 
     def ensure_interactor(self):

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .session import _fill
-
 __all__ = ["TrackingActions"]
 
 KEY = "tracking"
@@ -81,6 +79,8 @@ class TrackingActions:
         session.recording = False  # these poses come from the journal: don't write them back
         try:
             for b in self._bones:
+                from .session import _fill
+
                 poses, recorded = _fill(trial.poses(b))
                 m.set_trajectory(b, poses)
                 layer = m.layers[m.index(b)]

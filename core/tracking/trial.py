@@ -57,6 +57,23 @@ whose per-frame confidence (the length of its σ vector in translation or rotati
 either limit, or is not well posed, is flagged ``"uncertain"`` as well (recorded, not retried):
 registrations in the noise's tail are then sent for review instead of passing silently.
 
+Resume and cancel
+-----------------
+Every result with a pose is handed to ``record_result`` with its review state
+(:meth:`FrameResult.journal_fields`; :func:`core.tracking.from_study.track_study` journals it
+with :meth:`core.study.Trial.record_pose`). :func:`journal_inputs` turns the journal back into a
+run's inputs: ``skip`` holds the frames done, as :class:`FrameResult` objects that keep their
+flags, reasons, score and confidence — a flagged frame is not used for guesses and is **not
+retried** (an uninterrupted run does not retry it either; clear the frame, or track it
+without ``resume``, to register it again), a good frame's score refills the score history of the
+checks — and the report of a resumed run holds them as the interrupted run left them. Keyframes
+are the hand-set poses, which a tracking result does not replace in the journal, so a resumed
+run starts from what the interrupted one started from. Each registration is seeded from its
+frame number, never from what ran before, so a run killed at any moment and resumed, any number
+of times, ends with the same poses, flags and report as an uninterrupted run (checked with
+SIGKILLs by :mod:`core.studies.crash_resume`). A cancel drops the frame in flight whole: nothing
+of it is recorded or reported, and the result says ``"cancelled"``.
+
 False optima at the start
 -------------------------
 Every bone's first frame, and every frame that needed a retry, is checked by

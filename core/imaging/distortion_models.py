@@ -222,17 +222,22 @@ class DistortionModel:
         q, lead = as_points(uv_distorted, "uv_distorted", 2)
         x = self.inverse_map(q)
         if self.refine:
+            # Newton steps on the points not yet within tol_px (a spline or local map costs per
+            # evaluated point, and most points converge in a step or two)
+            act = np.arange(len(x))
             for _ in range(int(iterations)):
-                r = self.forward_map(x) - q
-                if np.max(np.abs(r), initial=0.0) < tol_px:
+                r = self.forward_map(x[act]) - q[act]
+                busy = np.max(np.abs(r), axis=1, initial=0.0) >= tol_px
+                act, r = act[busy], r[busy]
+                if act.size == 0:
                     break
-                J = _jacobian(self.forward_map, x)
+                J = _jacobian(self.forward_map, x[act])
                 det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
                 ok = np.abs(det) > 1e-12
-                dx = np.zeros_like(x)
+                dx = np.zeros((len(act), 2))
                 dx[ok, 0] = (J[ok, 1, 1] * r[ok, 0] - J[ok, 0, 1] * r[ok, 1]) / det[ok]
                 dx[ok, 1] = (-J[ok, 1, 0] * r[ok, 0] + J[ok, 0, 0] * r[ok, 1]) / det[ok]
-                x = x - dx
+                x[act] -= dx
         return x.reshape(*lead, 2)
 
     def round_trip_error(self, uv_distorted, *, refined: bool = True) -> np.ndarray:

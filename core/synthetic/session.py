@@ -39,11 +39,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import tifffile
 
 from ..geometry.camera import Camera, Rig
-from .analytic import attenuation_per_mm, bead_line_integrals, slab_line_integrals
+from .analytic import attenuation_per_mm, slab_line_integrals
 from .calib_objects import (
     CalibrationObject,
     bead_lattice,
@@ -198,38 +199,45 @@ def spiral_poses(rig: Rig, imaging: Sequence[ImagingModel], n: int, *, obj: Cali
     return np.stack([kept[k] for k in chosen])
 
 
+def _ray_map(cam: Camera) -> np.ndarray:
+    """``M`` with ``M @ (u, v, 1)`` along the lab ray through pixel ``(u, v)`` (unnormalised)."""
+    return cam.R.T @ np.linalg.inv(cam.K)
+
+
+def _unit_rays(M: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` unit lab directions through pixels ``(u, v)`` (elementwise: BLAS threads for
+    (n, 3) @ (3, 3) products cost more than they save on a busy machine)."""
+    d = u[:, None] * M[:, 0] + v[:, None] * M[:, 1] + M[:, 2]
+    return d / np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+
+
 class _ObjectRenderer:
     """Line integrals of a tube-bodied object (the spiral) in one view, many poses.
 
-    The body (foam core and polycarbonate wall: low contrast, smooth) is sampled once per pixel
-    centre with exact chords through the two cylinders, the pixel rays computed once; the steel
-    beads get :func:`~core.synthetic.analytic.bead_line_integrals` with fluence averaging over
-    4 × 4 rays per pixel, as :func:`~core.synthetic.calibration.object_line_integrals` does.
+    The body (foam core and polycarbonate wall: low contrast, smooth) is sampled with exact
+    chords through its two cylinders at every pixel centre, or on images of 512 pixels and more
+    at the centres of 2 × 2 pixel blocks interpolated (bilinear) to full resolution; the steel
+    beads are rendered exactly as :func:`~core.synthetic.analytic.bead_line_integrals` with
+    fluence averaging over 4 × 4 rays per pixel does (as
+    :func:`~core.synthetic.calibration.object_line_integrals` calls it), without its (n, 3) @
+    (3, 3) products, which OpenBLAS threads slow 30-fold on a busy 2-core machine.
     """
 
-    def __init__(self, cam: Camera, obj: CalibrationObject) -> None:
+    def __init__(self, cam: Camera, obj: CalibrationObject, *, supersample: int = 4) -> None:
         if obj.body is None or obj.body[0] != "tube":
             raise ValueError(f"obj: expected an object with a tube body, got {obj.name}")
-        self.cam, self.obj = cam, obj
-        v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float64)
-        self.src, dirs = cam.rays(np.stack([u.ravel(), v.ravel()], axis=1))
-        self.dirs = dirs.reshape(cam.height, cam.width, 3)
+        self.cam, self.obj, self.ss = cam, obj, int(supersample)
+        self.M, self.src = _ray_map(cam), cam.source
+        b = self.block = 2 if min(cam.image_shape) >= 512 else 1
+        hb, wb = -(-cam.height // b), -(-cam.width // b)
+        v, u = np.mgrid[0:hb, 0:wb].astype(np.float64) * b + (b - 1) / 2
+        self.coarse = (hb, wb)
+        self.dirs = _unit_rays(self.M, u.ravel(), v.ravel())
 
-    def _box(self, T: np.ndarray) -> tuple[slice, slice]:
-        """Rows and columns of the pixels the body's bounding box can cover."""
-        _, radius, half = self.obj.body[:3]
-        corners = np.array([[a * radius, b * radius, c * half] for a in (-1, 1) for b in (-1, 1)
-                            for c in (-1, 1)]) @ T[:3, :3].T + T[:3, 3]
-        uv, z = self.cam.project(corners, return_depth=True)
-        if np.any(z <= 0):
-            return slice(None), slice(None)
-        lo = np.maximum(np.floor(uv.min(axis=0)).astype(int) - 1, 0)
-        hi = np.minimum(np.ceil(uv.max(axis=0)).astype(int) + 2, [self.cam.width, self.cam.height])
-        return slice(lo[1], max(lo[1], hi[1])), slice(lo[0], max(lo[0], hi[0]))
-
-    def _chords(self, T: np.ndarray, radius: float, half: float, box) -> np.ndarray:
+    def _chords(self, T: np.ndarray, radius: float, half: float) -> np.ndarray:
         R, t = T[:3, :3], T[:3, 3]
-        o, d = (self.src - t) @ R, self.dirs[box].reshape(-1, 3) @ R
+        o = (self.src - t) @ R
+        d = np.einsum("ni,ij->nj", self.dirs, R)
         a = d[:, 0] ** 2 + d[:, 1] ** 2
         b = o[0] * d[:, 0] + o[1] * d[:, 1]
         c = o[0] ** 2 + o[1] ** 2 - radius * radius
@@ -245,16 +253,55 @@ class _ObjectRenderer:
         lo = np.maximum(np.maximum(r0, z0), 0.0)
         return np.maximum(np.minimum(r1, z1) - lo, 0.0)
 
-    def __call__(self, T: np.ndarray) -> np.ndarray:
+    def body(self, T: np.ndarray) -> np.ndarray:
+        """``(H, W)`` line integrals of the body at pose ``T``."""
         _, radius, half, mu_core, wall, mu_wall = self.obj.body
-        box = self._box(T)
-        L = np.zeros(self.cam.image_shape)
-        sub = L[box]
-        sub += (mu_wall * self._chords(T, radius, half, box) + (mu_core - mu_wall) * self._chords(
-            T, radius - wall, half, box)).reshape(sub.shape)
-        L += bead_line_integrals(self.cam, self.obj.centers_lab(T), self.obj.diameters,
-                                 self.obj.bead_mu - mu_core, average="fluence")
-        return np.maximum(L, 0.0).astype(np.float32)
+        L = (mu_wall * self._chords(T, radius, half)
+             + (mu_core - mu_wall) * self._chords(T, radius - wall, half)).reshape(self.coarse)
+        if self.block == 1:
+            return L
+        # coarse sample k sits at pixel b k + (b - 1) / 2: cv2.resize's half-pixel alignment
+        h, w = self.cam.image_shape
+        b = self.block
+        full = cv2.resize(L, (b * self.coarse[1], b * self.coarse[0]), interpolation=cv2.INTER_LINEAR)
+        return full[:h, :w]
+
+    def beads(self, T: np.ndarray) -> np.ndarray:
+        """``(H, W)`` effective line integrals of the beads (μ above the foam core) at ``T``."""
+        cam, ss = self.cam, self.ss
+        C = self.obj.centers_lab(T)
+        r = self.obj.diameters / 2
+        mu = np.full(len(C), self.obj.bead_mu - self.obj.body[3])
+        cube = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=float)
+        uv, z = cam.project(C[:, None, :] + r[:, None, None] * cube[None], return_depth=True)
+        lo = np.maximum(np.floor(uv.min(axis=1)).astype(np.int64) - 1, 0)
+        hi = np.minimum(np.ceil(uv.max(axis=1)).astype(np.int64) + 2, [cam.width, cam.height])
+        keep = np.nonzero(np.all(z > 0, axis=1) & np.all(hi > lo, axis=1))[0]
+        out = np.zeros(cam.image_shape)
+        if len(keep) == 0:
+            return out
+        bw, bh = hi[keep, 0] - lo[keep, 0], hi[keep, 1] - lo[keep, 1]
+        npx = bw * bh
+        obj = np.repeat(np.arange(len(keep)), npx)
+        local = np.arange(len(obj)) - np.repeat(np.cumsum(npx) - npx, npx)
+        pu = lo[keep, 0][obj] + local % bw[obj]
+        pv = lo[keep, 1][obj] + local // bw[obj]
+        off = (np.arange(ss) + 0.5) / ss - 0.5
+        ou, ov = (a.ravel() for a in np.meshgrid(off, off))
+        su = (pu[:, None] + ou[None]).ravel()
+        sv = (pv[:, None] + ov[None]).ravel()
+        d = _unit_rays(self.M, su, sv)
+        k = np.repeat(keep[obj], ss * ss)
+        w = C[k] - self.src
+        t = np.einsum("ij,ij->i", w, d)
+        d2 = np.einsum("ij,ij->i", w, w) - t * t
+        chord = np.where(t > 0, 2.0 * np.sqrt(np.maximum(r[k] ** 2 - d2, 0.0)), 0.0)
+        val = -np.log(np.mean(np.exp(-(chord * mu[k]).reshape(-1, ss * ss)), axis=1))
+        np.add.at(out, (pv, pu), val)
+        return out
+
+    def __call__(self, T: np.ndarray) -> np.ndarray:
+        return np.maximum(self.body(T) + self.beads(T), 0.0).astype(np.float32)
 
 
 def _at_kv(model: ImagingModel, kv: float, kv_ref: float) -> ImagingModel:

@@ -139,12 +139,15 @@ class Progress:
                          if in_place is None else in_place)
         self.start = time.perf_counter()
         self._open_line = False
+        # a job in stages (the demo's trial, then its calibration session) counts each stage's
+        # steps afresh: the ETA runs from the stage's start (the previous stage's last step)
+        self._count, self._stage_start, self._last = None, self.start, self.start
 
     def eta(self, fraction: float) -> float | None:
-        """Seconds left at ``fraction`` done (None before the first step)."""
+        """Seconds left at ``fraction`` done of the current stage (None before the first step)."""
         if not 0.0 < fraction <= 1.0:
             return None
-        elapsed = time.perf_counter() - self.start
+        elapsed = time.perf_counter() - self._stage_start
         return elapsed * (1.0 - fraction) / fraction
 
     def __call__(self, *args: Any, **kwargs: Any) -> None:
@@ -154,6 +157,12 @@ class Progress:
         texts = [str(a) for a in args if not isinstance(a, numbers.Real) and a is not None]
         texts += [str(v) for k, v in kwargs.items() if k in ("message", "msg", "stage")]
         fraction = None
+        if len(values) >= 2:
+            count = (int(values[0]), int(values[1]))
+            if self._count is not None and (count[1] != self._count[1] or count[0] < self._count[0]):
+                self._stage_start = self._last  # the count restarted: a new stage
+            self._count = count
+        self._last = time.perf_counter()
         if len(values) >= 2:
             done, total = int(values[0]), int(values[1])
             status = f"{self.unit} {done}/{total}".strip()

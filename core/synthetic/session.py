@@ -44,6 +44,7 @@ import numpy as np
 import tifffile
 
 from ..geometry.camera import Camera, Rig
+from ..io.atomic import fsync_dir
 from .analytic import attenuation_per_mm, slab_line_integrals
 from .calib_objects import (
     CalibrationObject,
@@ -77,8 +78,12 @@ def _tiff_bytes(image: np.ndarray) -> bytes:
 
 
 def _write(path: Path, data: bytes) -> None:
+    """Write a file of the (temporary) session folder and flush it to disk."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(data)
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def _json(obj) -> bytes:
@@ -586,6 +591,8 @@ def write_calibration_session(
         _write(tmp / "truth" / "truth.json", _json(truth_json))
         _write(tmp / "truth" / "truth.npz", _npz(truth))
         _write(tmp / "session.json", _json(manifest))
+        for folder in sorted({p.parent for p in tmp.rglob("*")}):
+            fsync_dir(folder)
     except _Cancelled:
         shutil.rmtree(tmp, ignore_errors=True)
         return None
@@ -603,5 +610,6 @@ def _replace_folder(new: Path, dest: Path) -> None:
         old = Path(tempfile.mkdtemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".old"))
         os.replace(dest, old / dest.name)
     os.replace(new, dest)
+    fsync_dir(dest.parent)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)

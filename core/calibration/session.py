@@ -267,22 +267,35 @@ def _lattice(rd: _Reader, cam: str, c: CameraCorrection, man: dict) -> dict | No
     return out
 
 
-def _detect(img: np.ndarray, target: CalibrationTarget, ppm: float) -> ObjectDetections:
-    return detect_object_beads(img, target.size_classes[0], px_per_mm=ppm)
+def _detect(img: np.ndarray, target: CalibrationTarget, ppm: float, mask) -> ObjectDetections:
+    # the strongest detections are enough (a few missed or extra beads are labelled around):
+    # the labelling's cost grows with detections x beads x hypotheses
+    return detect_object_beads(img, target.size_classes[0], px_per_mm=ppm, mask=mask,
+                               max_beads=2 * len(target) + 10)
 
 
-def _scale(img: np.ndarray, target: CalibrationTarget, px_mm: float) -> float:
+def _field_mask(c: CameraCorrection, margin_px: int = 12) -> np.ndarray:
+    """Corrected-image pixels inside the intensifier's field, ``margin_px`` from its rim."""
+    import cv2
+
+    undist = next(s for s in c.pipeline.steps if getattr(s, "kind", "") == "undistort")
+    inside = undist(c.flatfield.valid.astype(np.float32)) > 0.99
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+    return cv2.erode(inside.astype(np.uint8), k).astype(bool)
+
+
+def _scale(img: np.ndarray, target: CalibrationTarget, px_mm: float, mask) -> float:
     """Projected px per bead-mm: the magnification that classifies the most beads of a frame."""
     best = (-1, 1.5 / px_mm)
     for mag in DEFAULTS["magnification"]:
-        d = _detect(img, target, mag / px_mm)
+        d = _detect(img, target, mag / px_mm, mask)
         n = int(np.sum(d.size_class >= 0))
         if n > best[0]:
             best = (n, d.px_per_mm if np.isfinite(d.px_per_mm) else mag / px_mm)
     return best[1]
 
 
-def _beads(rd: _Reader, cams, pipes, group: str, target, px_mm, progress, *, required=True):
+def _beads(rd: _Reader, cams, corr, group: str, target, progress, *, required=True):
     refs = [rd.refs(c, group, required=required) for c in cams]
     n = len(refs[0])
     for c, r in zip(cams, refs, strict=True):
@@ -290,14 +303,15 @@ def _beads(rd: _Reader, cams, pipes, group: str, target, px_mm, progress, *, req
             raise SessionError("beads", f"{group!r} frames", f"camera {cams[0]} has {n} frames but camera "
                                f"{c} has {len(r)}", "both views of every object pose are needed")
     ppm = [None] * len(cams)
+    masks = [_field_mask(c) for c in corr]
     dets = []
     for k in range(n):
         pair = []
         for v, c in enumerate(cams):
-            img = pipes[v](rd.read(c, refs[v][k], k, "beads"))
+            img = corr[v].pipeline(rd.read(c, refs[v][k], k, "beads"))
             if ppm[v] is None:
-                ppm[v] = _scale(img, target, px_mm[v])
-            pair.append(_detect(img, target, ppm[v]))
+                ppm[v] = _scale(img, target, corr[v].grid.mm_per_px, masks[v])
+            pair.append(_detect(img, target, ppm[v], masks[v]))
         dets.append(tuple(pair))
         progress(f"beads {group}", k + 1, n)
     return refs, dets
@@ -388,11 +402,12 @@ def calibrate_session(session, *, object=None, static_object=None, model: str = 
         pipe.prepare(ff.shape)
         corr.append(CameraCorrection(cam, ff, fit, pipe, used_kv))
         lattice[cam] = _lattice(rd, cam, corr[-1], man)
-    pipes = [c.pipeline for c in corr]
-    px_mm = [c.grid.mm_per_px for c in corr]
+    # corrected pixels have the raw pixels' size at the centre: the detector's pixel pitch when the
+    # session gives it (the grid lies a few mm above the detector, so its own scale reads ~0.3 % small)
+    px_mm = [px_nominal or c.grid.mm_per_px for c in corr]
     # 3: beads
     t = time.perf_counter()
-    refs, dets = _beads(rd, cams, pipes, "spiral", target, px_mm, say)
+    refs, dets = _beads(rd, cams, corr, "spiral", target, say)
     rows, obs, F = _labels(target, dets, refs, "spiral")
     times["beads spiral"] = time.perf_counter() - t
     n_ok = len(obs)
@@ -406,7 +421,7 @@ def calibrate_session(session, *, object=None, static_object=None, model: str = 
                            "the object definition (--object)")
     static_rows, static_obs = [], []
     if rd.refs(cams[0], "cube", required=False):
-        srefs, sdets = _beads(rd, cams, pipes, "cube", static, px_mm, say)
+        srefs, sdets = _beads(rd, cams, corr, "cube", static, say)
         static_rows, static_obs, _ = _labels(static, sdets, srefs, "cube", F=F)
     # 4: DLT start (report) and bundle adjustment
     t = time.perf_counter()

@@ -39,8 +39,8 @@ from ..io.atomic import atomic_write_json
 from .errors import StudyError
 from .manifest import store_path
 
-__all__ = ["SavedCalibration", "calibration_versions", "load_correction", "save_session_calibration",
-           "trial_correction", "use_calibration"]
+__all__ = ["SavedCalibration", "calibrate_study", "calibration_versions", "load_correction",
+           "save_session_calibration", "trial_correction", "use_calibration"]
 
 FILES_KEY = "calibration_files"
 _SERIES_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,40}$")
@@ -244,3 +244,20 @@ def use_calibration(study, trial: str, calibration: str) -> None:
         raise StudyError(f"calibration: no calibration named {calibration!r} (have {have})")
     doc["trials"][trial]["calibration"] = calibration
     study._commit(doc)
+
+
+def calibrate_study(study, session, *, object=None, model: str = "auto", series: str = "session",
+                    trials="series", progress=None, cancel=None):
+    """Calibrate the session folder ``session`` (:func:`core.io.read_session`) and save the result
+    into ``study`` (open for writing) as the next version of ``series``.
+
+    Returns ``(saved, calibration)``: the :class:`SavedCalibration` and the
+    :class:`~core.calibration.session.SessionCalibration`. Raises what
+    :func:`~core.calibration.session.calibrate_session` raises; nothing is saved then.
+    """
+    from ..calibration.session import calibrate_session
+    from ..io.calibration_session import read_session
+
+    sess = read_session(session)
+    cal = calibrate_session(sess, object=object, model=model, progress=progress, cancel=cancel)
+    return save_session_calibration(study, cal, series=series, trials=trials, session_path=session), cal

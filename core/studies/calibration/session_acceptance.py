@@ -1,0 +1,193 @@
+"""Acceptance and timing of ``talus calibrate`` on the demo's calibration session.
+
+``python -m core.studies.calibration.session_acceptance [--session DIR] [--pixels 1024]
+[--spiral 40] [--grid 5] [--out FILE]`` writes a synthetic session
+(:func:`core.synthetic.session.write_calibration_session`) unless one is given, calibrates it
+from its images alone (:func:`core.calibration.session.calibrate_session`, timed per step) and
+compares the result with the session's ``truth/`` (read here only):
+
+* **distortion on the independent bead lattice**: the lattice beads detected in each lattice
+  frame, corrected by the fitted model, against their true pinhole positions after the best
+  similarity (the correction is defined up to one: the camera absorbs it), RMS in mm at the
+  intensifier; and the user-side check (inter-bead distances and right angles);
+* **cameras**: focal length (relative), source position and SID against the truth, with the
+  predicted standard deviations;
+* **3-D reconstruction over the capture volume**: lattice points (10 mm) in both cones,
+  projected by the true cameras, distorted by the true intensifiers, corrected by the fitted
+  models and triangulated by the calibrated rig; RMS distance to the true points (the error of
+  the calibration alone), and with the bundle's own localisation noise added.
+
+It prints the JSON and writes it to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["evaluate", "main", "run"]
+
+
+def _truth(session_dir: Path):
+    from core.geometry.camera import Camera, Rig
+    from core.synthetic.distortion import Distortion
+
+    doc = json.loads((session_dir / "truth" / "truth.json").read_text())
+    arrays = dict(np.load(session_dir / "truth" / "truth.npz"))
+    cams = [Camera(np.array(c["K"]), np.array(c["R"]), np.array(c["t"]), c["width"], c["height"],
+                   c["pixel_size_mm"], c["session_name"]) for c in doc["cameras"]]
+    dist = {}
+    for name, m in doc["imaging"].items():
+        d = m.get("distortion")
+        dist[name] = None if d is None else Distortion(tuple(d["center"]), d["scale_px"], d["k1"], d["k2"],
+                                                       d["twist_rad"], d["twist_power"])
+    return Rig(tuple(cams)), dist, arrays
+
+
+def _similarity_residual(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """|q - S(p)| after the least-squares similarity S (complex ``a p + b``)."""
+    zp, zq = p[:, 0] + 1j * p[:, 1], q[:, 0] + 1j * q[:, 1]
+    A = np.column_stack([zp, np.ones_like(zp)])
+    coef = np.linalg.lstsq(A, zq, rcond=None)[0]
+    return np.abs(A @ coef - zq)
+
+
+def _lattice_truth(session, cal, arrays) -> dict:
+    from core.imaging.grid_detection import detect_grid_points
+
+    out = {}
+    allr = []
+    for v, cam in enumerate(session.cameras):
+        c = cal.cameras[v]
+        res = []
+        for k, ref in enumerate(session.frames(cam, "lattice") if session.has("lattice") else []):
+            img = c.flatfield.normalise(session.read(ref))
+            bead_mm = float(session.manifest.get("lattice", {}).get("bead_diameter_mm", 2.0))
+            bead_px = bead_mm / c.grid.mm_per_px
+            try:
+                pts = detect_grid_points(img, feature_diameter_px=bead_px, polarity="dark").uv
+            except ValueError as exc:
+                out.setdefault("failed", []).append(f"{ref}: {exc}")
+                continue
+            key = f"lattice_{cam}_{k:04d}"
+            dist_t, ideal_t = arrays[f"{key}_distorted_uv"], arrays[f"{key}_ideal_uv"]
+            d = np.linalg.norm(pts[:, None] - dist_t[None], axis=2)
+            j = d.argmin(axis=1)
+            ok = d[np.arange(len(pts)), j] < 2.0
+            corrected = c.grid.model.inverse(pts[ok])
+            r = _similarity_residual(corrected, ideal_t[j[ok]]) * c.grid.mm_per_px
+            res.append(r)
+        r = np.concatenate(res) if res else np.zeros(0)
+        allr.append(r)
+        out[cam] = {"beads": len(r), "rms_mm": float(np.sqrt(np.mean(r**2))) if len(r) else None,
+                    "max_mm": float(r.max()) if len(r) else None}
+    a = np.concatenate(allr)
+    out["all"] = {"beads": len(a), "rms_mm": float(np.sqrt(np.mean(a**2))) if len(a) else None}
+    return out
+
+
+def evaluate(session, cal, session_dir: Path) -> dict:
+    """Everything against the truth (module docs)."""
+    from core.calibration.errormap import capture_lattice
+    from core.geometry.triangulate import triangulate
+
+    true_rig, dist, arrays = _truth(session_dir)
+    cams = []
+    for c, t, s in zip(cal.rig, true_rig, cal.bundle.camera_std, strict=True):
+        cams.append({"camera": t.name, "f_rel_error_percent": 100 * (c.fx / t.fx - 1),
+                     "f_sd_percent": 100 * float(s["f"]) / c.fx,
+                     "source_error_mm": float(np.linalg.norm(c.source - t.source)),
+                     "source_error_xyz_mm": (c.source - t.source).tolist(),
+                     "source_sd_mm": [float(x) for x in s["source"]],
+                     "sid_error_mm": c.sid - t.sid if c.pixel_size else None,
+                     "principal_point_shift_px": [c.cu - t.cu, c.cv - t.cv]})
+    X = capture_lattice(true_rig, spacing_mm=10.0, margin_px=10.0)
+    uv = true_rig.project(X)
+    obs = np.stack([cal.cameras[v].grid.model.inverse(dist[t.name].forward(uv[v]) if dist[t.name] else uv[v])
+                    for v, t in enumerate(true_rig)])
+    rec = triangulate(cal.rig, obs, method="linear").points
+    e = np.linalg.norm(rec - X, axis=1)
+    g = np.random.default_rng(0)
+    noise = cal.bundle.rms_px / np.sqrt(2)
+    e2 = np.linalg.norm(triangulate(cal.rig, obs + g.normal(0, noise, obs.shape), method="linear").points - X,
+                        axis=1)
+    return {"cameras": cams,
+            "max_f_error_percent": max(abs(c["f_rel_error_percent"]) for c in cams),
+            "max_source_error_mm": max(c["source_error_mm"] for c in cams),
+            "lattice_vs_truth": _lattice_truth(session, cal, arrays),
+            "lattice_check": {c["name"]: c.get("lattice_check") for c in cal.report["cameras"]},
+            "reconstruction": {"points": len(X), "spacing_mm": 10.0, "rms_mm": float(np.sqrt(np.mean(e**2))),
+                               "p95_mm": float(np.percentile(e, 95)), "max_mm": float(e.max()),
+                               "with_localisation_noise_px": float(noise),
+                               "with_noise_rms_mm": float(np.sqrt(np.mean(e2**2)))}}
+
+
+def run(*, session_dir=None, pixels: int = 1024, n_spiral: int = 40, n_grid: int = 5, seed: int = 0,
+        progress=None) -> dict:
+    from core.calibration.session import calibrate_session
+    from core.io.calibration_session import read_session
+
+    say = progress or (lambda m: None)
+    res = {"machine": {"platform": platform.platform(), "processor": platform.machine(),
+                       "cpus": os.cpu_count(), "python": sys.version.split()[0],
+                       "load_average_at_start": list(os.getloadavg())}}
+    if session_dir is None or not (Path(session_dir) / "session.json").is_file():
+        from core.synthetic.session import write_calibration_session
+
+        session_dir = Path(session_dir or f"calibration_session_{pixels}")
+        say(f"writing the session ({pixels}², {n_spiral} spiral, {n_grid} grid frames) to {session_dir}")
+        t = time.perf_counter()
+        write_calibration_session(session_dir, pixels=pixels, seed=seed, n_spiral=n_spiral, n_grid=n_grid)
+        res["session_write_seconds"] = time.perf_counter() - t
+    session_dir = Path(session_dir)
+    session = read_session(session_dir)
+    res["session"] = {"folder": str(session_dir), "frame_size": list(session.frame_size),
+                      "n_frames": session.manifest.get("n_frames")}
+    say("calibrating")
+    t = time.perf_counter()
+    cal = calibrate_session(session, progress=lambda s, d, n: say(f"{s} {d}/{n}") if d == n else None)
+    res["calibrate_seconds"] = time.perf_counter() - t
+    res["seconds_by_step"] = cal.report["seconds"]
+    res["load_average_at_end"] = list(os.getloadavg())
+    res["report"] = {k: cal.report[k] for k in ("bundle", "n_frames_labelled", "error_volume", "notes")}
+    res["distortion"] = {c["name"]: {k: c["distortion"][k] for k in ("model", "residuals", "table", "points")}
+                         for c in cal.report["cameras"]}
+    say("comparing with the truth")
+    res["truth"] = evaluate(session, cal, session_dir)
+    tr = res["truth"]
+    res["acceptance"] = {
+        "lattice_rms_mm<=0.05": tr["lattice_vs_truth"]["all"]["rms_mm"] is not None
+        and tr["lattice_vs_truth"]["all"]["rms_mm"] <= 0.05,
+        "f_within_0.1%": tr["max_f_error_percent"] <= 0.1,
+        "sources_within_0.5mm": tr["max_source_error_mm"] <= 0.5,
+        "reconstruction_rms<=0.1mm": tr["reconstruction"]["rms_mm"] <= 0.1}
+    return res
+
+
+def main(argv=None) -> int:
+    from core.io.atomic import print_json
+
+    ap = argparse.ArgumentParser(prog="python -m core.studies.calibration.session_acceptance",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("--session", default=None, help="session folder (written when it holds none)")
+    ap.add_argument("--pixels", type=int, default=1024)
+    ap.add_argument("--spiral", type=int, default=40)
+    ap.add_argument("--grid", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None, help="also write the JSON here")
+    a = ap.parse_args(argv)
+    res = run(session_dir=a.session, pixels=a.pixels, n_spiral=a.spiral, n_grid=a.grid, seed=a.seed,
+              progress=lambda m: print(f"[calibration session] {m}", file=sys.stderr, flush=True))
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

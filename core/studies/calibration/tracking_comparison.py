@@ -1,0 +1,125 @@
+"""Tracking the demo trial with the estimated calibration against tracking it with the truth.
+
+``python -m core.studies.calibration.tracking_comparison DEMO [--frames 0:20] [--bones a,b]
+[--device cuda] [--out FILE]`` (a GPU job). ``DEMO`` is a folder written by
+:func:`core.synthetic.make_demo_study` whose trial ``walk`` uses the calibration saved from its
+session (``talus calibrate DEMO/calibration_session --study DEMO --trials all`` when it does not).
+A second trial ``walk_truth`` over the same frames is added (once) with the true rig (the
+study's calibration ``rig``) and corrected with the generator's true flatfield and distortion;
+both start from the true frame-0 poses and are tracked by
+:func:`core.tracking.from_study.track_study`. Per bone: RMS centroid (mm) and rotation (°) errors
+against the true poses for each, and their differences (acceptance: ≤ 0.02 mm and ≤ 0.05°).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "run", "true_correction"]
+
+
+def true_correction(folder: Path, names) -> list:
+    """The generator's flatfield and distortion of each view (``imaging/`` of the demo folder)."""
+    import tifffile
+
+    from core.synthetic.distortion import Distortion
+
+    out = []
+    for name in names:
+        meta = json.loads((folder / "imaging" / f"{name}.json").read_text())
+        dark = float(meta.get("dark_dn", 0.0))
+        gain = tifffile.imread(folder / "imaging" / f"flatfield_{name}.tif").astype(np.float64) - dark
+        d = meta.get("distortion")
+        dist = None if not d else Distortion(tuple(d["center"]), d["scale_px"], d["k1"], d["k2"],
+                                             d["twist_rad"], d["twist_power"])
+
+        def correct(raw, gain=gain, dark=dark, dist=dist):
+            ok = gain > 1e-6
+            img = np.where(ok, (np.asarray(raw, np.float64) - dark) / np.where(ok, gain, 1.0), 0.0)
+            img = np.clip(img, 0.0, 1.0).astype(np.float32)
+            return dist.unwarp(img) if dist is not None else img
+
+        out.append(correct)
+    return out
+
+
+def _errors(study, trial: str, bone: str, frames, truth: np.ndarray) -> dict:
+    from core.studies.tracking.acceptance import pose_errors
+
+    P = study.trial(trial).poses(bone)
+    vol = study.bone_volume(bone)
+    centre = np.asarray(vol.centroid(200.0), float)
+    e = np.array([pose_errors(P[f], truth[f], centre) for f in frames if np.all(np.isfinite(P[f]))])
+    if not len(e):
+        return {"frames": 0}
+    return {"frames": len(e), "rms_mm": float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))),
+            "rms_deg": float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1))))}
+
+
+def run(demo, *, frames=None, bones=None, device=None, progress=None) -> dict:
+    from core.study import Study
+    from core.tracking.from_study import track_study
+
+    say = progress or (lambda m: None)
+    folder = Path(demo)
+    res: dict = {"demo": str(folder)}
+    with Study.open(folder, mode="w") as st:
+        walk = st.trial("walk")
+        if walk.calibration == "rig":
+            raise ValueError(f"{folder}: trial 'walk' still uses the true rig; run 'talus calibrate "
+                             f"{folder / 'calibration_session'} --study {folder} --trials all' first")
+        if "walk_truth" not in st.trials:
+            st.add_trial("walk_truth", list(walk.view_paths), calibration="rig", bones=list(walk.bones),
+                         bit_depth=st.manifest["trials"]["walk"]["views"][0].get("bit_depth"))
+        names = list(bones or walk.bones)
+        n = walk.n_frames
+        order = list(range(n) if frames is None else frames)
+        truths = {b: np.load(folder / "poses" / f"{b}.npy") for b in names}
+        for b in names:
+            for t in ("walk", "walk_truth"):
+                st.trial(t).record_pose(b, 0, truths[b][0])
+        cams = [c.name for c in st.trial("walk_truth").rig()]
+        corr = {"walk": None, "walk_truth": true_correction(folder, cams)}
+        for t in ("walk", "walk_truth"):
+            say(f"tracking {t} ({st.trial(t).calibration})")
+            t0 = time.perf_counter()
+            _, rep = track_study(st, t, names, order, device=device, correction=corr[t])
+            res[t] = {"calibration": st.trial(t).calibration, "normalisation": rep.get("normalisation"),
+                      "seconds": time.perf_counter() - t0, "summary": rep.get("summary"),
+                      "bones": {b: _errors(st, t, b, order, truths[b]) for b in names}}
+    res["difference"] = {b: {"rms_mm": res["walk"]["bones"][b].get("rms_mm", np.nan)
+                             - res["walk_truth"]["bones"][b].get("rms_mm", np.nan),
+                             "rms_deg": res["walk"]["bones"][b].get("rms_deg", np.nan)
+                             - res["walk_truth"]["bones"][b].get("rms_deg", np.nan)} for b in names}
+    return res
+
+
+def main(argv=None) -> int:
+    from core.io.atomic import print_json
+
+    ap = argparse.ArgumentParser(prog="python -m core.studies.calibration.tracking_comparison",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("demo")
+    ap.add_argument("--frames", default=None, help="START:STOP")
+    ap.add_argument("--bones", default=None)
+    ap.add_argument("--device", default=None)
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args(argv)
+    frames = None
+    if a.frames:
+        lo, hi = (int(v) for v in a.frames.split(":"))
+        frames = list(range(lo, hi))
+    res = run(a.demo, frames=frames, bones=a.bones.split(",") if a.bones else None, device=a.device,
+              progress=lambda m: print(f"[tracking comparison] {m}", file=sys.stderr, flush=True))
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

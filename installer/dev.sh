@@ -5,9 +5,14 @@
 #   bash installer/dev.sh test [pytest options]       system packages, venv + test extra, ruff,
 #                                                     import contracts, pytest under Xvfb
 #   bash installer/dev.sh gui  [talus gui options]    venv + GUI extra, then open the window
+#   bash installer/dev.sh lock                        rewrite installer/constraints.txt: the
+#                                                     newest versions the ranges in pyproject.toml
+#                                                     allow, installed into a fresh temporary venv
 #
 # Idempotent: re-running reuses the virtual environment (.venv, or $TALUS_VENV) and installs only
 # what is missing. Needs Python >= 3.11 (python3.11 or python3; override with $TALUS_PYTHON).
+# Every install is pinned by installer/constraints.txt (the exact versions CI tested); set
+# TALUS_CONSTRAINTS to another file, or to an empty value to install from the ranges alone.
 # System packages are installed with apt-get when running as root on Debian/Ubuntu; otherwise the
 # missing ones are listed. The exit status is that of the command run (ruff, lint-imports or
 # pytest for `test`).
@@ -15,6 +20,8 @@ set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="${TALUS_VENV:-$ROOT/.venv}"
+LOCK="$ROOT/installer/constraints.txt"
+CONSTRAINTS="${TALUS_CONSTRAINTS-$LOCK}"
 XVFB_SCREEN="-screen 0 1280x1024x24"
 
 # Runtime libraries of Qt's xcb platform plugin and VTK's OpenGL window, plus a font.
@@ -74,28 +81,39 @@ find_python() {
     die "Python >= 3.11 not found (tried \$TALUS_PYTHON, python3.11, python3); on Debian: apt-get install python3.11 python3.11-venv"
 }
 
-ensure_venv() {
-    if [ -x "$VENV/bin/python" ] && python_ok "$VENV/bin/python" \
-        && "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then
-        return 0
-    fi
+make_venv() {  # make_venv DIR: a new virtual environment in DIR
     local py
     py="$(find_python)"
-    log "creating virtual environment $VENV with $py"
+    log "creating virtual environment $1 with $py"
     if ! "$py" -c 'import ensurepip, venv' >/dev/null 2>&1; then
         # Debian splits venv/ensurepip out of the interpreter package
         local ver
         ver="$("$py" -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')"
         apt_install "python${ver}-venv"
     fi
-    "$py" -m venv --clear "$VENV" || die "could not create $VENV (on Debian: apt-get install python3-venv)"
+    "$py" -m venv --clear "$1" || die "could not create $1 (on Debian: apt-get install python3-venv)"
+}
+
+ensure_venv() {
+    if [ -x "$VENV/bin/python" ] && python_ok "$VENV/bin/python" \
+        && "$VENV/bin/python" -m pip --version >/dev/null 2>&1; then
+        return 0
+    fi
+    make_venv "$VENV"
 }
 
 pip_install() {  # pip_install EXTRA: editable install of the project with that extra
-    log "installing talus-biplane[$1] into $VENV"
+    local pin=()
+    if [ -n "$CONSTRAINTS" ]; then
+        [ -f "$CONSTRAINTS" ] || die "constraints file $CONSTRAINTS not found (TALUS_CONSTRAINTS: expected a pip constraints file, or empty to install from the ranges in pyproject.toml)"
+        pin=(-c "$CONSTRAINTS")
+        log "installing talus-biplane[$1] into $VENV, pinned by ${CONSTRAINTS#"$ROOT/"}"
+    else
+        log "installing talus-biplane[$1] into $VENV from the ranges in pyproject.toml (unpinned)"
+    fi
     # always re-run: cheap when satisfied, and it refreshes the editable finder when packages
-    # are added to core/ or app/
-    "$VENV/bin/python" -m pip install -q -e "$ROOT[$1]" >&2
+    # are added to core/ or app/; a package at another version than the pin is replaced
+    "$VENV/bin/python" -m pip install -q "${pin[@]}" -e "$ROOT[$1]" >&2
 }
 
 # ----------------------------------------------------------------------------------- commands
@@ -150,6 +168,35 @@ cmd_test() {
     return "$status"
 }
 
+cmd_lock() {
+    [ $# -eq 0 ] || die "lock takes no arguments, got: $*"
+    local tmp venv out
+    tmp="$(mktemp -d "${TMPDIR:-/tmp}/talus-lock.XXXXXX")"
+    # shellcheck disable=SC2064  # expand now: the path is fixed
+    trap "rm -rf '$tmp'" EXIT
+    venv="$tmp/venv"
+    make_venv "$venv"
+    log "installing talus-biplane[test] from the ranges in pyproject.toml (no constraints)"
+    # the pip configuration of this machine (index, find-links) applies as for any install
+    "$venv/bin/python" -m pip install -q -e "$ROOT[test]" >&2
+    out="$tmp/constraints.txt"
+    {
+        echo "# Exact versions of every dependency of talus-biplane[test] (which includes [gui]),"
+        echo "# resolved from the ranges in pyproject.toml by \`bash installer/dev.sh lock\`."
+        echo "# Made $(date -u +%Y-%m-%d) with Python $("$venv/bin/python" -c 'import platform, sys; print(platform.python_version(), "on", sys.platform, platform.machine())')."
+        echo "# installer/dev.sh installs with \`pip install -c\` this file; README says when to refresh it."
+        "$venv/bin/python" -m pip freeze --exclude-editable
+    } >"$out"
+    if grep -q ' @ ' "$out"; then
+        grep ' @ ' "$out" >&2
+        die "pip freeze gave direct references (above), which a constraints file cannot hold"
+    fi
+    # atomic: a crash leaves the old file or the new one, never half of it
+    cp "$out" "$LOCK.tmp.$$"
+    mv -f "$LOCK.tmp.$$" "$LOCK"
+    log "wrote ${LOCK#"$ROOT/"} ($(grep -c '==' "$LOCK") packages); review with git diff, then run the tests"
+}
+
 main() {
     local cmd="${1:-}"
     [ $# -gt 0 ] && shift
@@ -157,8 +204,9 @@ main() {
         demo) cmd_demo "$@" ;;
         test) cmd_test "$@" ;;
         gui) cmd_gui "$@" ;;
+        lock) cmd_lock "$@" ;;
         -h|--help|help) usage ;;
-        *) usage; die "unknown command '${cmd}' (expected demo, test or gui)" ;;
+        *) usage; die "unknown command '${cmd}' (expected demo, test, gui or lock)" ;;
     esac
 }
 

@@ -43,9 +43,9 @@ import numpy as np
 from ..geometry.camera import Rig
 from ..imaging.distortion_eval import evaluate_lattice
 from ..imaging.flatfield import Flatfield, build_flatfield
-from ..imaging.grid_detection import detect_grid_points
 from ..imaging.grid_indexing import index_grid
 from ..imaging.pipeline import Pipeline
+from ..markers import detect_beads
 from . import _session_grid as grids
 from .bundle import BundleResult, bundle_adjust
 from .detection import ObjectDetections, detect_object_beads
@@ -255,7 +255,7 @@ def _lattice(rd: _Reader, cam: str, c: CameraCorrection, man: dict) -> dict | No
     for k, r in enumerate(refs):
         img = c.flatfield.normalise(rd.read(cam, r, k, "distortion"))
         try:
-            pts = detect_grid_points(img, feature_diameter_px=bead_px, polarity="dark")
+            pts = detect_beads(img, diameter_px=bead_px, polarity="dark", mask=c.flatfield.valid)
             gi = index_grid(pts.uv, min_points=9)
             found.append((gi.uv, gi.ij))
         except ValueError as exc:

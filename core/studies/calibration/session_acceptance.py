@@ -60,7 +60,8 @@ def _similarity_residual(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def _lattice_truth(session, cal, arrays) -> dict:
-    from core.imaging.grid_detection import detect_grid_points
+    from core.imaging.grid_indexing import index_grid
+    from core.markers import detect_beads
 
     out = {}
     allr = []
@@ -72,7 +73,8 @@ def _lattice_truth(session, cal, arrays) -> dict:
             bead_mm = float(session.manifest.get("lattice", {}).get("bead_diameter_mm", 2.0))
             bead_px = bead_mm / c.grid.mm_per_px
             try:
-                pts = detect_grid_points(img, feature_diameter_px=bead_px, polarity="dark").uv
+                det = detect_beads(img, diameter_px=bead_px, polarity="dark", mask=c.flatfield.valid)
+                pts = index_grid(det.uv, min_points=9).uv
             except ValueError as exc:
                 out.setdefault("failed", []).append(f"{ref}: {exc}")
                 continue

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
 import sys
 from collections.abc import Sequence
 
@@ -41,8 +40,29 @@ __all__ = ["EXIT_CANCELLED", "EXIT_ERROR", "EXIT_LOCKED", "EXIT_NOTHING_DONE", "
            "EXIT_USAGE", "CliError", "build_parser", "main"]
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, with room for sub-command names beside their help: argparse
+    measures them one indent short, so a name as long as 'calibrate' put its help on the next
+    line."""
+
+    def add_argument(self, action: argparse.Action) -> None:
+        super().add_argument(action)
+        if action.help is not argparse.SUPPRESS and isinstance(action, argparse._SubParsersAction):
+            names = [len(self._format_action_invocation(a)) for a in action._get_subactions()]
+            self._action_max_length = max(self._action_max_length,
+                                          max(names, default=0) + self._current_indent + 2)
+
+
+class _Parser(argparse.ArgumentParser):
+    """The parser of ``talus`` and of every command (sub-parsers are of the same class)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog=PROG,
         description="Talus: biplane fluoroscopy bone tracking.",
         epilog="JSON results go to stdout, progress to stderr. Exit status: 0 done, 1 error, "
@@ -70,8 +90,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not hasattr(args, "rest"):
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         args.rest = [*extra, *args.rest]
-    if args.debug:
-        os.environ[DEBUG_ENV] = "1"
     command = " ".join(str(v) for v in (args.command, getattr(args, "benchmark", None),
                                         getattr(args, "sample", None),
                                         getattr(args, "action", None)) if v)
@@ -81,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\n{PROG} {command}: interrupted", file=sys.stderr)
         return EXIT_CANCELLED
     except Exception as exc:
-        if debugging() and not isinstance(exc, CliError):
+        if (args.debug or debugging()) and not isinstance(exc, CliError):
             raise
         return report_error(exc, command)
 

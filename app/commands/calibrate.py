@@ -36,7 +36,7 @@ from ._shared import (
 
 __all__ = ["HELP", "configure", "parse_model", "run"]
 
-HELP = "calibrate the rig and the image correction from a calibration session into a study"
+HELP = "calibrate a study's rig and image correction from a session"
 
 
 def parse_model(words: list[str] | None) -> str:

@@ -27,14 +27,15 @@ def _imports_after(code: str) -> list[str]:
 
 
 def test_help_lists_every_command_on_one_line(capsys, monkeypatch):
-    monkeypatch.setenv("COLUMNS", "100")
+    monkeypatch.setenv("COLUMNS", "80")  # a plain terminal
     with pytest.raises(SystemExit) as exc:
         main(["--help"])
     assert exc.value.code == 0
     lines = capsys.readouterr().out.splitlines()
-    for name in COMMANDS:
-        listed = [ln for ln in lines if ln.startswith("    ") and ln.split()[0] == name]
-        assert len(listed) == 1 and len(listed[0].split(None, 1)) == 2, (name, lines)
+    start = lines.index("  COMMAND") + 1
+    listed = lines[start:lines.index("", start)]
+    assert [ln.split()[0] for ln in listed] == list(COMMANDS), "\n".join(listed)  # no wrapping
+    assert all(len(ln.split(None, 1)) == 2 for ln in listed), "\n".join(listed)
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["--version"], ["demo", "--frames", "x"],
@@ -112,7 +113,9 @@ def test_debug_shows_the_traceback(study, monkeypatch):
     (study / "study.json").write_text("{ not json")
     with pytest.raises(ValueError, match=r"study\.json"):
         main(["--debug", "track", str(study), "--trial", "walk"])
-    monkeypatch.delenv("TALUS_DEBUG", raising=False)  # main sets it for the library
+    monkeypatch.setenv("TALUS_DEBUG", "1")
+    with pytest.raises(ValueError, match=r"study\.json"):
+        main(["track", str(study), "--trial", "walk"])
 
 
 def test_an_unexpected_error_is_one_line_with_a_hint(monkeypatch, capsys):

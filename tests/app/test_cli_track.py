@@ -39,17 +39,21 @@ def test_track_command_records_reports_and_resumes(demo, capsys):
     out = capsys.readouterr()
     assert rc == 0, out.err
     doc = json.loads(out.out)
-    assert doc["summary"]["results"] == 1 and doc["normalisation"] == "demo flatfield + distortion"
+    assert doc["summary"]["results"] == 1 and isinstance(doc["normalisation"], str)
     assert "[" in out.err and "1/1" in out.err  # the progress bar
     with Study.open(demo) as st:
         P = st.trial("walk").poses("talus")
         assert np.all(np.isfinite(P[1])) and np.all(np.isnan(P[2]))
         rep = st.read_report("tracking", "walk")
         assert rep["summary"]["results"] == 1 and len(rep["frames_done"]) == 1
+        assert rep["normalisation"] == doc["normalisation"]  # how the frames were corrected
+    journal = demo / "results" / "walk" / "poses" / "talus.jsonl"
+    before = journal.read_bytes()
     rc = main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--device", "cpu",
                "--resume", "--quiet"])
     doc = json.loads(capsys.readouterr().out)
-    assert rc == 0 and doc["summary"]["results"] == 0  # nothing left to do
+    assert rc == 0 and doc["summary"]["results"] == 1  # the report keeps the earlier frame
+    assert journal.read_bytes() == before  # nothing left to do: nothing re-tracked
 
 
 def test_track_command_bad_input(demo, capsys):
@@ -104,3 +108,4 @@ def test_ctrl_c_during_the_last_frame_exits_130_and_never_reports_complete(demo,
     with Study.open(study) as st:
         P = st.trial("walk").poses("talus")
     assert np.all(np.isfinite(P[1]))  # the finished frame is saved
+    assert np.all(np.isnan(P[2]))  # the cancelled one is not: --resume will track it

@@ -1,0 +1,80 @@
+"""``talus calibrate``: a session saved into a study, bad input, Ctrl-C (the study unchanged)."""
+
+import json
+import shutil
+
+import pytest
+
+from app.cli import main as talus
+from app.commands.calibrate import parse_model
+
+
+def main(argv):
+    return talus(["calibrate", *argv])
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    from core.synthetic.session import write_calibration_session
+
+    out = tmp_path_factory.mktemp("cal") / "session"
+    write_calibration_session(out, pixels=384, seed=2, n_spiral=10, n_grid=1, n_lattice=1, n_dark=2,
+                              n_flat=3)
+    return out
+
+
+@pytest.fixture
+def study(tmp_path):
+    from core.study import Study
+
+    Study.create(tmp_path / "study").close()
+    return tmp_path / "study"
+
+
+def test_parse_model():
+    assert parse_model(None) == "auto" and parse_model(["tps"]) == "tps"
+    assert parse_model(["poly", "5,4"]) == "poly(5,4)" and parse_model(["poly(6,6)"]) == "poly(6,6)"
+    with pytest.raises(ValueError, match="--model"):
+        parse_model(["poly", "a,b"])
+
+
+def test_calibrate_saves_a_version(session, study, tmp_path, capsys):
+    from core.study import Study
+
+    rc = main([str(session), "--study", str(study), "--report", str(tmp_path / "rep")])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    doc = json.loads(out.out)
+    assert doc["saved"]["calibration"] == "session.v1" and doc["reprojection_rms_px"] < 0.3
+    assert (tmp_path / "rep" / "report.json").is_file()
+    assert (tmp_path / "rep" / "grid_residuals.png").is_file()
+    assert "bundle adjustment" in out.err  # the progress bar names the steps
+    with Study.open(study) as st:
+        assert "session.v1" in st.calibrations and len(st.rig("session.v1")) == 2
+
+
+def test_bad_input_leaves_the_study_unchanged(session, study, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(session, bad)
+    cam = json.loads((bad / "session.json").read_text())["cameras"][1]
+    shutil.copy(bad / cam / "flat_70kV" / "0000.tif", bad / cam / "grid" / "0000.tif")
+    before = (study / "study.json").read_bytes()
+    assert main([str(bad), "--study", str(study), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert f"{cam}/grid/0000.tif (grid frame 0 of camera {cam}): no distortion grid found" in err
+    assert (study / "study.json").read_bytes() == before
+    assert main([str(tmp_path / "nowhere"), "--study", str(study)]) == 1
+    assert "SESSION" in capsys.readouterr().err
+
+
+def test_ctrl_c_leaves_the_study_unchanged(session, study, monkeypatch, capsys):
+    import core.calibration.session as cs
+
+    def cancelled(*a, **k):
+        raise cs.CalibrationCancelled("cancelled during beads")
+
+    monkeypatch.setattr(cs, "calibrate_session", cancelled)
+    before = (study / "study.json").read_bytes()
+    assert main([str(session), "--study", str(study), "--quiet"]) == 130
+    assert json.loads(capsys.readouterr().out)["status"] == "cancelled"
+    assert (study / "study.json").read_bytes() == before

@@ -166,3 +166,16 @@ def test_polynomial_fit_is_the_least_squares_solution():
     assert np.allclose(m.coef, ref, rtol=1e-8, atol=1e-8)
     sv = np.linalg.svd(V, compute_uv=False)
     assert m.rank == V.shape[1] and m.condition == pytest.approx(sv.max() / sv.min(), rel=1e-8)
+
+
+def test_grid_benchmark_smallest_case_checks_out():
+    import json
+
+    from core.studies.imaging.grid_benchmark import run
+
+    res = run(sizes=(250,), repeats=1, folds=3)
+    case = res["cases"][0]
+    assert case["indexing"]["exact"] and case["indexing"]["indexed"] == case["detection"]["detected"] >= 245
+    assert case["model"]["chosen"] in res["candidates"] and case["model"]["truth_rms_px"] < 0.2
+    assert set(case["times_median_s"]["fit_s"]) == set(res["candidates"])
+    json.dumps(res)  # plain JSON types

@@ -20,6 +20,9 @@ Layout of ``out_dir``::
                                     image chains, as a lab records them (session.json, cam1/…,
                                     cam2/…; truth/ apart): :mod:`core.synthetic.session`, read
                                     with :func:`core.io.read_session`
+    calibrations/session/v1/        the rig and correction estimated from that session alone
+                                    (:func:`core.study.calibrations.calibrate_study`, as
+                                    ``talus calibrate``); the trial uses them (256² and larger)
 
 Every file is written atomically (temporary file in the same folder + rename), frames one by one
 as they are rendered, the calibration session as a whole folder after the trial, and
@@ -248,8 +251,31 @@ def make_demo_study(
     }
     if status == "complete" and done > 0:
         summary["study"] = _write_study(scene, out)
+        if session is not None:
+            summary["calibration"] = _calibrate(out, pixels, progress, cancel)
     _atomic_bytes(out / "summary.json", _json_bytes(summary))
     return summary
+
+
+def _calibrate(out: Path, pixels: int, progress, cancel) -> dict:
+    """Calibrate the study from its session as a lab would (``talus calibrate``): the trial then
+    uses the estimated rig and correction, never the generator's truth. Beads of fewer than
+    ~4 pixels (images under 256²) cannot be localised: the trial keeps the true rig then."""
+    if pixels < 256:
+        return {"skipped": f"{pixels}-pixel images are too coarse to calibrate (256 or more needed); "
+                           "the trial uses the true rig without correction"}
+    from ..study import Study
+    from ..study.calibrations import calibrate_study
+
+    shutil.rmtree(out / "calibrations", ignore_errors=True)  # versions of an earlier demo's rig
+    step = None if progress is None else (lambda s, i, n: progress(i, n, f"calibration: {s}"))
+    try:
+        with Study.open(out, mode="w") as st:
+            saved, cal = calibrate_study(st, out / "calibration_session", trials="all", progress=step,
+                                         cancel=cancel)
+    except ValueError as exc:
+        return {"error": str(exc)}
+    return {"calibration": saved.name, "reprojection_rms_px": cal.bundle.rms_px}
 
 
 def _write_study(scene: BiplaneScene, out: Path) -> str:

@@ -91,8 +91,8 @@ def _cached_demo(out: Path, args: argparse.Namespace) -> dict | None:
         return None
     if summary.get("format") != "talus-synthetic-study" or summary.get("status") != "complete":
         return None
-    if summary.get("study") and not (out / str(summary["study"])).is_file():
-        return None  # the study manifest is gone: rebuild
+    if not (out / str(summary.get("study") or "study.json")).is_file():
+        return None  # no study manifest (a demo of an older Talus, or it was removed): rebuild
     session = summary.get("calibration_session")
     if not session or not (out / str(session) / "session.json").is_file():
         return None  # made before demos had a calibration session, or it is gone: rebuild

@@ -218,6 +218,7 @@ def test_demo_reuses_a_complete_study_with_the_same_options(monkeypatch, tmp_pat
         (Path(out_dir) / "calibration_session").mkdir(exist_ok=True)
         (Path(out_dir) / "calibration_session" / "session.json").write_text("{}")
         (Path(out_dir) / "summary.json").write_text(json.dumps(summary))
+        (Path(out_dir) / "study.json").write_text("{}")
         return summary
 
     _fake_module(monkeypatch, "core.synthetic.demo", make_demo_study=make_demo_study)
@@ -229,6 +230,9 @@ def test_demo_reuses_a_complete_study_with_the_same_options(monkeypatch, tmp_pat
     assert main([*argv, "--pixels", "32"]) == 0  # other options: rebuilt
     assert main([*argv, "--regenerate"]) == 0
     assert len(calls) == 3
-    (tmp_path / "calibration_session" / "session.json").unlink()  # session gone: rebuilt
+    (tmp_path / "study.json").unlink()  # a demo folder without its study manifest: rebuilt
     assert main(argv) == 0
     assert len(calls) == 4
+    (tmp_path / "calibration_session" / "session.json").unlink()  # session gone: rebuilt
+    assert main(argv) == 0
+    assert len(calls) == 5

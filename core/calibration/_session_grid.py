@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..imaging.distortion import ideal_grid
 from ..imaging.distortion_eval import ResidualStats, cross_validate, residual_stats
@@ -90,29 +91,24 @@ def detect_frame(image: np.ndarray, k: int, *, pitch_mm: float, feature_px: floa
 def merge_placements(frames: list[Placement], *, tol_px: float = 1.0) -> list[Placement]:
     """Group frames of the same placement (ideal positions within ``tol_px``) and average them."""
     groups: list[list[Placement]] = []
+    trees: list[cKDTree] = []
     for p in frames:
-        for grp in groups:
-            q = grp[0]
-            # where p's lattice lands in q's: match by ideal position
-            zq = q.ideal()
-            zp = p.ideal()
-            d = np.linalg.norm(zp[:, None] - zq[None], axis=2)
-            near = d.min(axis=1)
-            if np.median(near) < tol_px:
+        zp = p.ideal()
+        for grp, tree in zip(groups, trees, strict=True):
+            if np.median(tree.query(zp)[0]) < tol_px:  # p's holes land on q's: same placement
                 grp.append(p)
                 break
         else:
             groups.append([p])
+            trees.append(cKDTree(zp))
     out = []
-    for grp in groups:
+    for grp, tree in zip(groups, trees, strict=True):
         ref = grp[0]
-        zr = ref.ideal()
         acc = {tuple(c): [uv] for c, uv in zip(ref.ij, ref.distorted_uv, strict=True)}
         for p in grp[1:]:
-            d = np.linalg.norm(p.ideal()[:, None] - zr[None], axis=2)
-            k = d.argmin(axis=1)
-            for n, kk in enumerate(k):
-                if d[n, kk] < 0.25 * abs(ref.sim):
+            d, k = tree.query(p.ideal())
+            for n, (dd, kk) in enumerate(zip(d, k, strict=True)):
+                if dd < 0.25 * abs(ref.sim):
                     acc[tuple(ref.ij[kk])].append(p.distorted_uv[n])
         ij = np.array(list(acc.keys()), int)
         uv = np.array([np.mean(v, axis=0) for v in acc.values()])

@@ -138,7 +138,9 @@ def lab_from_bone_from_tra(T_tra, volume, flip=(False, False, False), voxel_size
     return np.asarray(T_tra, dtype=float) @ M
 
 
-def tra_from_lab_from_bone(T_lab_from_bone, volume, flip=(False, False, False), voxel_size=None) -> np.ndarray:
+def tra_from_lab_from_bone(
+    T_lab_from_bone, volume, flip=(False, False, False), voxel_size=None
+) -> np.ndarray:
     """Inverse of :func:`lab_from_bone_from_tra`: the ``.tra`` matrices of ``T_lab_from_bone``."""
     M = _rigid(T_autoscoper_from_ct(volume, flip, voxel_size), "volume")
     return np.asarray(T_lab_from_bone, dtype=float) @ np.linalg.inv(M)

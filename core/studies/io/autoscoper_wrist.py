@@ -110,7 +110,9 @@ def _perturb(T: np.ndarray, k: int, mm: float, deg: float) -> np.ndarray:
     return P
 
 
-def scores(sample, volumes, poses, *, mm: float = 3.0, deg: float = 5.0, scale: float = 3.0, device=None) -> dict:
+def scores(
+    sample, volumes, poses, *, mm: float = 3.0, deg: float = 5.0, scale: float = 3.0, device=None
+) -> dict:
     """:func:`edge_agreement` at ``poses`` and at 12 perturbations (±``mm`` along the lab's x, y,
     z; ±``deg`` about the bone's axes through its centroid), per bone, mean over the views."""
     base = render_pair(sample, volumes, poses, scale=scale, device=device)

@@ -161,19 +161,27 @@ def fit_view(placements: list[Placement], *, model: str | ModelSpec, pitch_mm: f
     mm_per_px = pitch_mm / abs(pl[0].sim)
     # a mid-order polynomial refines the ideal grids; the chosen model is fitted to the result
     ref_spec = ModelSpec.parse("poly(6,6)")
+    n_in = sum(len(p.ij) for p in pl)
     for _ in range(int(rounds)):
         ideal, dist, _ = pooled()
         m = fit_distortion(ideal, dist, ref_spec if len(ideal) >= 60 else "poly(3,3)", mm_per_px=mm_per_px)
         new = []
         for p in pl:
-            a, b = _similarity(p.ij, m.inverse(p.distorted_uv))
-            new.append(Placement(p.ij, p.distorted_uv, p.frames, a, b))
+            # holes far off the smooth map (a hole cut by the field's rim, a merged or stray
+            # detection) would pull every model: drop those beyond 5 robust sigma
+            r = np.linalg.norm(m.inverse(p.distorted_uv) - p.ideal(), axis=1)
+            keep = r <= max(5.0 * np.median(r) / 1.1774, 0.05)
+            a, b = _similarity(p.ij[keep], m.inverse(p.distorted_uv[keep]))
+            new.append(Placement(p.ij[keep], p.distorted_uv[keep], p.frames, a, b))
         pl = new
         J = _jacobian_similarity(m, c)  # forward Jacobian; ideal' = c + J (ideal - c)
         cz = complex(c[0], c[1])
         pl = [Placement(p.ij, p.distorted_uv, p.frames, J * p.sim, cz + J * (p.origin - cz)) for p in pl]
         mm_per_px = pitch_mm / abs(pl[0].sim)
     ideal, dist, lab = pooled()
+    if len(ideal) < n_in:
+        notes.append(f"{n_in - len(ideal)} of {n_in} grid points left out: farther than 5 robust "
+                     "standard deviations from the smooth correction")
     table: list = []
     if isinstance(model, str) and model == "auto":
         cand = list(AUTO_MODELS)

@@ -1,0 +1,104 @@
+"""C3D files of tracked bones (read/write through ezc3d, the ``interop`` extra).
+
+Written: ``POINT`` data — per bone its origin ``<bone>_O`` and three axis points ``<bone>_X``,
+``_Y``, ``_Z`` 10 mm along its axes (what Visual3D and other gait tools build segments from),
+``NaN`` where the bone has no pose — and the C3D ``ROTATION`` section (ezc3d's ``rotations``:
+one 4x4 matrix per bone and frame, ``ROTATION:LABELS`` = bone names, ``ROTATION:RATIO`` 1),
+which holds ``T_lab_from_bone`` (mm) directly. Units mm, ``POINT:RATE`` the frame rate.
+
+Read: the rotations when the file has them, else nothing is invented — the points are returned
+as they are.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_path
+from .errors import FileError, reads
+
+__all__ = ["AXIS_MM", "C3DBones", "read_c3d", "write_c3d"]
+
+AXIS_MM = 10.0
+
+
+@dataclass(frozen=True)
+class C3DBones:
+    bones: tuple[str, ...]  # ROTATION:LABELS
+    poses: np.ndarray  # (n_frames, n_bones, 4, 4), NaN = no pose
+    rate: float
+    point_labels: tuple[str, ...]
+    points: np.ndarray  # (n_frames, n_points, 3), NaN = missing
+    units: str
+
+
+def _ezc3d():
+    try:
+        import ezc3d
+    except ImportError:  # pragma: no cover - depends on the installation
+        raise ImportError("C3D files need ezc3d: pip install 'talus-biplane[interop]'") from None
+    return ezc3d
+
+
+def write_c3d(path: str | os.PathLike, bones, poses, *, rate: float) -> None:
+    """Write ``poses`` ``(n_frames, n_bones, 4, 4)`` (``T_lab_from_bone``, mm) of ``bones``."""
+    ezc3d = _ezc3d()
+    names = tuple(str(b) for b in bones)
+    P = np.asarray(poses, dtype=float)
+    if P.ndim != 4 or P.shape[1:] != (len(names), 4, 4) or not len(P):
+        raise ValueError(f"poses: expected shape (n_frames, {len(names)}, 4, 4), got {P.shape}")
+    if not names or len(set(names)) != len(names) or any(not n or len(n) > 24 for n in names):
+        raise ValueError(f"bones: expected distinct names of 1-24 characters, got {names}")
+    if not (float(rate) > 0 and np.isfinite(rate)):
+        raise ValueError(f"rate: expected a positive frame rate, got {rate!r}")
+    n, nb = P.shape[:2]
+    offsets = np.array([[0, 0, 0], [AXIS_MM, 0, 0], [0, AXIS_MM, 0], [0, 0, AXIS_MM]], dtype=float)
+    pts = np.einsum("fbij,pj->fbpi", P[..., :3, :3], offsets) + P[:, :, None, :3, 3]  # (n, nb, 4, 3)
+    labels = [f"{b}_{s}" for b in names for s in "OXYZ"]
+    data = np.ones((4, nb * 4, n))
+    data[:3] = pts.reshape(n, nb * 4, 3).transpose(2, 1, 0)
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [float(rate)]
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
+    c["data"]["points"] = data
+    c["data"]["rotations"] = np.ascontiguousarray(P.transpose(2, 3, 1, 0))
+    c.add_parameter("ROTATION", "LABELS", list(names))
+    with atomic_path(path) as tmp:
+        out = Path(tmp)
+        if out.suffix.lower() != ".c3d":  # ezc3d writes the path as given
+            out = out.with_suffix(out.suffix + ".c3d")
+        c.write(str(out))
+        if out != Path(tmp):
+            os.replace(out, tmp)
+
+
+def read_c3d(path: str | os.PathLike) -> C3DBones:
+    """Read bones' poses (the ``ROTATION`` section) and points of a C3D file."""
+    return _read(Path(path))
+
+
+@reads("a C3D file")
+def _read(path: Path) -> C3DBones:
+    ezc3d = _ezc3d()
+    if not path.is_file():
+        raise FileError(f"{path}: no such file", path=path)
+    c = ezc3d.c3d(str(path))
+    params = c["parameters"]
+    rate = float(params["POINT"]["RATE"]["value"][0])
+    units = str(params["POINT"].get("UNITS", {}).get("value", ["mm"])[0] or "mm")
+    plabels = tuple(params["POINT"]["LABELS"]["value"])
+    pts = np.asarray(c["data"]["points"], dtype=float)
+    points = pts[:3].transpose(2, 1, 0) if pts.size else np.zeros((0, len(plabels), 3))
+    rot = np.asarray(c["data"].get("rotations", np.zeros((4, 4, 0, 0))), dtype=float)
+    labels = tuple(params.get("ROTATION", {}).get("LABELS", {}).get("value", ()))
+    if rot.ndim != 4 or rot.shape[:2] != (4, 4):
+        raise ValueError(f"{path}: rotation data of shape {rot.shape}, expected 4 x 4 x bones x frames")
+    if len(labels) != rot.shape[2]:
+        labels = tuple(f"rotation{k + 1}" for k in range(rot.shape[2]))
+    poses = rot.transpose(3, 2, 0, 1)
+    return C3DBones(labels, poses, rate, plabels, points, units)

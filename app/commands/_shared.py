@@ -255,7 +255,7 @@ def locked_message(exc: BaseException) -> str:
     holder = dict(getattr(exc, "holder", None) or {})
     path = getattr(exc, "path", None)
     purpose = str(holder.get("purpose") or "")
-    if purpose.startswith("study "):
+    if purpose.startswith(("study ", "bone ", "the manifest ", "report ")):
         what = purpose
     elif path is not None:
         what = f"study {Path(path).parent}" if Path(path).name == ".talus.lock" else str(path)
@@ -267,9 +267,9 @@ def locked_message(exc: BaseException) -> str:
     else:
         who, since = "another process", ""
     lock = f" (lock file {path})" if path is not None else ""
-    return (f"{what} is open for writing by {who}{since}{lock}. Only one program may write to a "
-            "study at a time: close it there or wait for that job to finish, then try again. "
-            "Reading it (opening it read-only) is possible meanwhile.")
+    return (f"{what} is open for writing by {who}{since}{lock}. Only one program may write it "
+            "at a time (others may track other bones or trials of the study): close it there or "
+            "wait for that job to finish, then try again. Reading the study is possible meanwhile.")
 
 
 def _is_locked(exc: BaseException) -> bool:

@@ -14,10 +14,13 @@ Append-only journals (tracking results saved frame by frame) use :func:`append_d
 ``fsync``-s each appended record; their readers detect and drop a torn last record (see
 :mod:`core.study.results`).
 
-:class:`FileLock` is an advisory, exclusive, non-blocking lock on a lock file (``fcntl.flock``
-on POSIX, ``msvcrt.locking`` on Windows). The kernel releases it when the holding process dies,
-so a crashed writer never leaves a study locked. The lock file records the holder (pid, host,
-time) so the error raised to a second process can say who holds it.
+:class:`FileLock` is an advisory, exclusive lock on a lock file (``fcntl.flock`` on POSIX,
+``msvcrt.locking`` on Windows). The kernel releases it when the holding process dies, so a
+crashed writer never leaves anything locked. The lock file records the holder (pid, host, time,
+purpose) so the error raised to a second process can say who holds it. Writers lock what they
+write: a study's pose journal for as long as they track that bone (refused at once when held
+elsewhere), the study manifest only for one read-modify-write (``acquire(timeout=...)`` waits
+for such a short lock).
 """
 
 from __future__ import annotations
@@ -48,6 +51,16 @@ __all__ = [
     "print_json",
     "remove_stale_temporaries",
 ]
+
+
+def _finite(x: Any) -> bool:
+    """True for a finite real number (no numpy needed)."""
+    import math
+
+    try:
+        return math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
 
 
 def _chmod(fd: int, tmp: str, dest: Path) -> None:
@@ -322,14 +335,27 @@ class FileLock:
             return {}
         return info if isinstance(info, dict) else {}
 
-    def acquire(self) -> FileLock:
-        """Take the lock or raise :class:`LockedError` at once (never waits)."""
+    def acquire(self, timeout: float = 0.0) -> FileLock:
+        """Take the lock, or raise :class:`LockedError` if it is still held elsewhere after
+        ``timeout`` seconds (0, the default: at once; a short lock, such as the study
+        manifest's, is waited for)."""
+        import time
+
         if self._fd is not None:
             raise LockedError(self.path, self.read_holder(), self.purpose)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        if not _try_lock(fd):
+        if not _finite(timeout) or timeout < 0:
+            raise ValueError(f"timeout: expected a finite number of seconds >= 0, got {timeout!r}")
+        deadline = time.monotonic() + float(timeout)
+        delay = 0.002
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            if _try_lock(fd):
+                break
             os.close(fd)
-            raise LockedError(self.path, self.read_holder(), self.purpose)
+            if time.monotonic() >= deadline:
+                raise LockedError(self.path, self.read_holder(), self.purpose)
+            time.sleep(min(delay, max(0.0, deadline - time.monotonic())))
+            delay = min(delay * 2, 0.05)
         info = {
             "pid": os.getpid(),
             "host": socket.gethostname(),
@@ -356,7 +382,8 @@ class FileLock:
             os.close(fd)
 
     def __enter__(self) -> FileLock:
-        return self.acquire()
+        # ``with FileLock(p):`` takes the lock; ``with FileLock(p).acquire(timeout=...):`` keeps it
+        return self if self._fd is not None else self.acquire()
 
     def __exit__(self, *exc) -> None:
         self.release()

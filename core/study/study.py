@@ -3,14 +3,27 @@
 Layout of a study folder::
 
     study.json                        manifest (schema: core.study.schema), written atomically
-    .talus.lock                       lock file of the process that has it open for writing
+    .talus.lock                       lock file of the manifest (held for one update)
     results/<trial>/poses/<bone>.jsonl  tracking results, appended frame by frame
+    results/<trial>/poses/.<bone>.lock  lock file of that journal (held by its writer)
     results/reports/<kind>/<name>.json  calibration reports and other summaries (atomic)
 
-Raw data (fluoro sequences, camera files, CT) is *referenced*, not copied. Opening for writing
-takes an exclusive lock, so a second process gets :class:`~core.io.atomic.LockedError` instead
-of corrupting the study; read-only opens need no lock (every write is an atomic rename or a
-checksummed append, so readers never see half-written files).
+Raw data (fluoro sequences, camera files, CT) is *referenced*, not copied.
+
+Writers lock what they write, not the whole study, so several processes may have one study open
+for writing (e.g. ``talus batch`` tracking different trials or bones of it side by side):
+
+* a bone's pose journal is locked by the first write to it (or :meth:`Study.lock_journal`,
+  which :func:`core.tracking.from_study.track_study` calls before it starts) and stays locked
+  until the study is closed; a second process writing that bone gets
+  :class:`~core.io.atomic.LockedError` naming the bone and its holder;
+* the manifest is changed under a short lock as one read-modify-write: the file is read again,
+  this handle's changes (the entries it added, replaced or removed) are merged into it and it is
+  saved atomically, so edits of two processes do not overwrite each other;
+* a report is written under its own short lock (atomic rename).
+
+Read-only opens need no lock (every write is an atomic rename or a checksummed append, so
+readers never see half-written files).
 
 Example
 -------
@@ -39,7 +52,8 @@ from .schema import MANIFEST_NAME, NAME_RE
 
 __all__ = ["Study"]
 
-LOCK_NAME = ".talus.lock"
+LOCK_NAME = ".talus.lock"  # the manifest's
+MANIFEST_LOCK_S = 30.0  # how long a manifest update waits for another process's update
 STALE_TEMP_S = 600.0  # temporaries of crashed writes older than this are removed on a write open
 _TIFF = (".tif", ".tiff")
 
@@ -66,6 +80,33 @@ def _check_no_escape(folder: Path) -> None:
             todo.extend(p.iterdir())
 
 
+_SECTIONS = ("calibrations", "volumes", "bones", "trials", "settings")
+
+
+def _merge(base: dict, mine: dict, theirs: dict) -> dict:
+    """``theirs`` (the manifest on disk now) with the changes from ``base`` to ``mine`` (this
+    handle's edits) applied entry by entry: an added, replaced or removed calibration, volume,
+    bone, trial or setting, or a changed top-level value. Another process's edits of other
+    entries are kept; for one entry edited by both, the later save wins."""
+    out = copy.deepcopy(theirs)
+    for key in set(base) | set(mine):
+        if key == "modified":
+            continue
+        b, m = base.get(key), mine.get(key)
+        if key in _SECTIONS and isinstance(m, dict) and isinstance(out.get(key), dict):
+            b = b if isinstance(b, dict) else {}
+            for k in set(b) | set(m):
+                if k not in m:
+                    out[key].pop(k, None)
+                elif k not in b or b[k] != m[k]:
+                    out[key][k] = copy.deepcopy(m[k])
+        elif key not in mine:
+            out.pop(key, None)
+        elif key not in base or b != m:
+            out[key] = copy.deepcopy(m)
+    return out
+
+
 def _check_name(name: str, what: str) -> str:
     if not isinstance(name, str) or not NAME_RE.fullmatch(name):
         raise ValueError(
@@ -78,15 +119,17 @@ def _check_name(name: str, what: str) -> str:
 class Study:
     """A study folder opened read-only (``mode="r"``) or for writing (``mode="w"``).
 
-    Use :meth:`create` or :meth:`open`; close it (or use ``with``) to release the write lock.
-    Every editing method validates and saves the manifest atomically before returning.
+    Use :meth:`create` or :meth:`open`; close it (or use ``with``) to release the journal locks
+    it holds. Every editing method validates and saves the manifest atomically (merged with
+    other writers' changes under the manifest's short lock) before returning.
     """
 
     def __init__(self, folder: Path, doc: dict, mode: str, lock: FileLock | None, from_version: int):
         self._folder = folder
         self._doc = doc
         self._mode = mode
-        self._lock = lock
+        self._lock = lock  # unused (no study-wide lock); kept for the constructor's signature
+        self._journal_locks: dict[Path, FileLock] = {}
         self._from_version = from_version
         self._trials: dict[str, Any] = {}
         self._volume_cache: dict[str, Any] = {}
@@ -105,15 +148,19 @@ class Study:
         if (folder / MANIFEST_NAME).exists():
             raise StudyError(f"{folder}: already holds a study ({MANIFEST_NAME}); use Study.open")
         folder.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(folder / LOCK_NAME, purpose=f"study {folder}").acquire()
-        try:
+        with cls._manifest_lock(folder):
+            if (folder / MANIFEST_NAME).exists():  # created meanwhile by another process
+                raise StudyError(f"{folder}: already holds a study ({MANIFEST_NAME}); use Study.open")
             _check_no_escape(folder)
             doc = new_manifest(name or folder.name)
             write_manifest(folder, doc, touch=False)
-        except BaseException:
-            lock.release()
-            raise
-        return cls(folder, doc, "w", lock, doc["schema_version"])
+        return cls(folder, doc, "w", None, doc["schema_version"])
+
+    @staticmethod
+    def _manifest_lock(folder: Path) -> FileLock:
+        """The manifest's short lock (taken with a wait of up to :data:`MANIFEST_LOCK_S`)."""
+        lock = FileLock(folder / LOCK_NAME, purpose=f"the manifest of study {folder}")
+        return lock.acquire(timeout=MANIFEST_LOCK_S)
 
     @classmethod
     def open(cls, folder: str | os.PathLike, *, mode: str = "r", check_files: bool = True) -> Study:
@@ -124,7 +171,8 @@ class Study:
         folder : str or os.PathLike
             The study folder (holding ``study.json``).
         mode : {"r", "w"}
-            Read-only, or for writing (exclusive lock between processes). A manifest of an older
+            Read-only, or for writing (several processes may; each locks the bone journals it
+            writes, see the module notes). A manifest of an older
             schema version is migrated; in ``"w"`` mode the migrated manifest is saved (the old
             one is kept as ``study.json.v<N>.bak``).
         check_files : bool
@@ -135,7 +183,8 @@ class Study:
         StudyError
             Not a study, corrupt or future-version manifest, or a missing referenced file.
         LockedError
-            ``mode="w"`` while another process (or another handle) has it open for writing.
+            ``mode="w"`` and another process held the manifest's short lock for
+            :data:`MANIFEST_LOCK_S` seconds (an older manifest is being migrated).
 
         Notes
         -----
@@ -155,40 +204,64 @@ class Study:
                 f"{folder}: not a Talus study folder (expected a manifest file {folder / MANIFEST_NAME})",
                 path=folder, expected="a Talus study folder",
             )
-        lock = FileLock(folder / LOCK_NAME, purpose=f"study {folder}").acquire() if mode == "w" else None
-        try:
-            _check_no_escape(folder)
-            if lock is not None:
-                remove_stale_temporaries(folder, older_than_s=STALE_TEMP_S)
-            doc, version = read_manifest(folder)
-            study = cls(folder, doc, mode, lock, version)
-            if check_files:
-                missing = study.missing_files()
-                if missing:
-                    where, path = missing[0]
-                    more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
-                    raise StudyError(
-                        f"{folder / MANIFEST_NAME}: {where}: referenced file {path} does not exist{more}"
-                    )
-            if mode == "w" and version < doc["schema_version"]:
-                old = (folder / MANIFEST_NAME).read_bytes()
-                atomic_write(folder / f"{MANIFEST_NAME}.v{version}.bak", old)
-                write_manifest(folder, doc)
-        except BaseException:
-            if lock is not None:
-                lock.release()
-            raise
+        _check_no_escape(folder)
+        if mode == "w":  # only temporaries older than any live write: safe beside other writers
+            remove_stale_temporaries(folder, older_than_s=STALE_TEMP_S)
+        doc, version = read_manifest(folder)
+        study = cls(folder, doc, mode, None, version)
+        if check_files:
+            missing = study.missing_files()
+            if missing:
+                where, path = missing[0]
+                more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+                raise StudyError(
+                    f"{folder / MANIFEST_NAME}: {where}: referenced file {path} does not exist{more}"
+                )
+        if mode == "w" and version < doc["schema_version"]:
+            with cls._manifest_lock(folder):
+                doc, version = read_manifest(folder)  # another writer may have migrated it
+                if version < doc["schema_version"]:
+                    old = (folder / MANIFEST_NAME).read_bytes()
+                    atomic_write(folder / f"{MANIFEST_NAME}.v{version}.bak", old)
+                    write_manifest(folder, doc)
+                study._doc = doc
         return study
 
     def close(self) -> None:
-        """Close open sequences and release the write lock (idempotent)."""
+        """Close open sequences and release the journal locks (idempotent)."""
         for t in self._trials.values():
             t._close()
         self._trials.clear()
-        if self._lock is not None:
-            self._lock.release()
-            self._lock = None
+        locks, self._journal_locks = self._journal_locks, {}
+        for lock in locks.values():
+            lock.release()
         self._mode = "closed"
+
+    def lock_journal(self, trial: str, bone: str) -> None:
+        """Lock the pose journal of ``bone`` in ``trial`` for this handle until :meth:`close`
+        (idempotent). The first write to a journal does it too; trackers call it before they
+        start, so a second writer of that bone is refused at once.
+
+        Raises
+        ------
+        LockedError
+            Another process (or another handle) writes that bone; the message names the bone,
+            the trial, the study and the holder.
+        StudyError
+            The study is not open for writing, or the trial has no such bone.
+        """
+        self._require_write()
+        path = self.trial(trial)._journal(bone)
+        if path in self._journal_locks:
+            return
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = FileLock(path.with_name(f".{bone}.lock"),
+                        purpose=f"bone {bone!r} of trial {trial!r} in study {self._folder}")
+        self._journal_locks[path] = lock.acquire()
+
+    def journal_locked(self, trial: str, bone: str) -> bool:
+        """True while this handle holds the lock of ``bone``'s journal in ``trial``."""
+        return self.trial(trial)._journal(bone) in self._journal_locks
 
     def __enter__(self) -> Study:
         return self
@@ -301,8 +374,14 @@ class Study:
             raise StudyError(f'{self._folder}: study is open {state}; open it with mode="w" to change it')
 
     def _commit(self, doc: dict) -> None:
-        write_manifest(self._folder, doc)
-        self._doc = doc
+        """Save ``doc`` (this handle's manifest with its edits) as one read-modify-write under
+        the manifest's short lock: the edits are merged into the manifest on disk, which other
+        processes may have changed since (:func:`_merge`)."""
+        with self._manifest_lock(self._folder):
+            theirs, _ = read_manifest(self._folder)
+            merged = _merge(self._doc, doc, theirs)
+            write_manifest(self._folder, merged)
+        self._doc = merged
 
     def _existing(self, path, what: str) -> str:
         p = Path(path).expanduser()
@@ -507,7 +586,9 @@ class Study:
             raise ValueError(f"data: expected a dict, got {type(data).__name__}")
         p = self._report_path(kind, name)
         p.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(p, data)
+        lock = FileLock(p.with_name(f".{name}.lock"), purpose=f"report {p}")
+        with lock.acquire(timeout=MANIFEST_LOCK_S):
+            atomic_write_json(p, data)
         return p
 
     def read_report(self, kind: str, name: str) -> dict:

@@ -121,8 +121,8 @@ class Trial:
         self._study._require_write()
         path = self._journal(bone)
         if bone not in self._repaired:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            repair_tail(path)  # safe: we hold the study's write lock
+            self._study.lock_journal(self._name, bone)  # held until the study is closed
+            repair_tail(path)  # safe: we hold the journal's lock
             self._repaired.add(bone)
         return path
 

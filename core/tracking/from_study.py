@@ -81,7 +81,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                 device: str | None = None, resume: bool = False,
                 threshold_hu: float = 200.0, transfer: HUTransfer | None = None,
                 correction: Sequence[Callable] | None = None, progress=None, cancel=None,
-                report_every_s: float = 5.0) -> tuple[TrackingResult | None, dict]:
+                report_every_s: float = 5.0,
+                report_name: str | None = None) -> tuple[TrackingResult | None, dict]:
     """Track ``bones`` of trial ``trial_name`` over ``frames`` (default all, forward).
 
     ``study`` must be open for writing. Returns ``(result, report)``; ``result`` is None when no
@@ -90,6 +91,11 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
 
     Bones are tracked one at a time unless ``options`` ask for ``mode="joint"`` (see
     :mod:`core.tracking.trial`: it needs DRR intensities matched to the radiographs).
+
+    The bones' journals are locked first (:meth:`core.study.Study.lock_journal`): a bone
+    another process is tracking raises :class:`~core.io.atomic.LockedError` before any work.
+    The report is ``results/reports/tracking/<report_name>.json`` (default: the trial's name;
+    ``talus batch`` gives each (trial, bone) task its own).
     """
     from ..render import DRRRenderer
 
@@ -98,6 +104,9 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     for b in names:
         if b not in trial.bones:
             raise ValueError(f"bones: trial {trial_name!r} has no bone {b!r} (has {list(trial.bones)})")
+    for b in names:
+        study.lock_journal(trial_name, b)
+    report_name = trial_name if report_name is None else report_name
     n = trial.n_frames
     order = list(range(n) if frames is None else frames)
     bad = [f for f in order if not 0 <= f < n]
@@ -120,7 +129,7 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
               "stopped": stopped, "options": {"resume": resume}}
     if not models:
         report["summary"] = {"status": "stopped", "message": "no bone to track"}
-        study.write_report("tracking", trial_name, report)
+        study.write_report("tracking", report_name, report)
         return None, report
     tr = transfer or HUTransfer(threshold=threshold_hu)
     renderer = DRRRenderer(trial.rig(), [m.volume for m in models], transfer=tr, device=device)
@@ -130,7 +139,7 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
         rep = dict(report, frames_done=result_frames)
         if summary:
             rep["summary"] = summary
-        study.write_report("tracking", trial_name, rep)
+        study.write_report("tracking", report_name, rep)
 
     def on_progress(done, total, fr):
         state["frames"].append(fr.to_dict())

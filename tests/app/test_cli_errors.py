@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -70,29 +71,39 @@ def study(tmp_path):
     return tmp_path / "gait study"
 
 
-def test_a_locked_study_is_one_paragraph_naming_study_holder_and_time(study, capsys):
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("demo")
+    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    return out
+
+
+def test_a_locked_bone_is_one_paragraph_naming_bone_holder_and_time(demo, capsys):
     from core.study import Study
 
-    with Study.open(study, mode="w"):  # another writer holds it
-        status = main(["track", str(study), "--trial", "walk"])
+    with Study.open(demo, mode="w") as st:  # another writer tracks the talus of this trial
+        st.lock_journal("walk", "talus")
+        status = main(["track", str(demo), "--trial", "walk", "--bones", "talus", "--quiet"])
     err = capsys.readouterr().err
     assert status == EXIT_LOCKED
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
-    holder = json.loads((study / ".talus.lock").read_text() or "{}")  # released: may be empty
-    assert str(study) in err and "since" in err and "process" in err
-    assert not holder or str(holder["pid"]) in err
+    assert f"bone 'talus' of trial 'walk' in study {demo}" in err and "since" in err
+    assert f"process {os.getpid()}" in err
 
 
-def test_a_locked_study_from_a_second_process(study):
+def test_a_locked_bone_from_a_second_process(demo):
     from core.study import Study
 
-    with Study.open(study, mode="w"):
-        done = subprocess.run([sys.executable, "-m", "app.cli", "track", str(study), "--trial",
-                               "walk"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    with Study.open(demo, mode="w") as st:
+        st.lock_journal("walk", "talus")
+        done = subprocess.run([sys.executable, "-m", "app.cli", "track", str(demo), "--trial",
+                               "walk", "--bones", "talus", "--quiet"],
+                              capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert done.returncode == EXIT_LOCKED, done.stderr
-    assert "Traceback" not in done.stderr and str(study) in done.stderr
-    import os
-
+    assert "Traceback" not in done.stderr and str(demo) in done.stderr
     assert f"process {os.getpid()}" in done.stderr
 
 

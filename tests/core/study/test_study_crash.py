@@ -15,6 +15,7 @@ HOLD = """
 import time
 from core.study import Study
 st = Study.open({folder!r}, mode="w")
+st.lock_journal("walk01", "talus")
 print("ready", flush=True)
 time.sleep(600)  # killed by the test
 """
@@ -32,23 +33,27 @@ def folder(tmp_path, rig_files, views):
     return tmp_path / "st"
 
 
-def test_two_writers_get_a_clear_error(folder, python_child):
+def test_two_writers_of_one_bone_get_a_clear_error(folder, python_child):
     child = python_child.start(HOLD.format(folder=str(folder)))
     assert child.stdout.readline().strip() == "ready"
-    with pytest.raises(LockedError, match=rf"study .*st is locked for writing by process {child.pid} on "):
-        Study.open(folder, mode="w")
+    held = rf"bone 'talus' of trial 'walk01' in study .*st is locked for writing by process {child.pid} on "
+    with Study.open(folder, mode="w") as st:  # the study itself is not locked ...
+        with pytest.raises(LockedError, match=held):  # ... the bone's journal is
+            st.lock_journal("walk01", "talus")
+        with pytest.raises(LockedError, match=held):
+            st.trial("walk01").record_pose("talus", 0, np.eye(4))
     with Study.open(folder) as ro:  # readers are not blocked
         assert ro.trials == ("walk01",)
     child.kill()  # the kernel releases the lock of a dead process
     child.wait(timeout=30)
     with Study.open(folder, mode="w") as st:
-        assert st.mode == "w"
+        st.lock_journal("walk01", "talus")
         # and now a second process is the one refused
         out = python_child.run(
             f"""
             from core.study import Study, LockedError
             try:
-                Study.open({str(folder)!r}, mode="w")
+                Study.open({str(folder)!r}, mode="w").lock_journal("walk01", "talus")
             except LockedError as exc:
                 print("refused:", exc)
             """

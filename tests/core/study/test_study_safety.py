@@ -82,11 +82,19 @@ def test_missing_or_locked_study_errors_are_readable(tmp_path, rig_files, views)
         with pytest.raises(StudyError, match=r"nowhere: study folder does not exist") as err:
             Study.open(tmp_path / "nowhere", mode=mode)
         assert isinstance(err.value, FileError) and err.value.path == tmp_path / "nowhere"
-    with _study(tmp_path, rig_files, views):
-        with pytest.raises(LockedError) as err:
-            Study.open(tmp_path / "st", mode="w")
+    import core.study.study as study_module
+    from core.io.atomic import FileLock
+
+    with _study(tmp_path, rig_files, views) as st, FileLock(tmp_path / "st" / ".talus.lock"):
+        # another writer is updating the manifest (for longer than an update waits)
+        study_module.MANIFEST_LOCK_S, wait = 0.05, study_module.MANIFEST_LOCK_S
+        try:
+            with pytest.raises(LockedError) as err:
+                st.update_settings(a=1)
+        finally:
+            study_module.MANIFEST_LOCK_S = wait
     msg = str(err.value)
-    assert f"study {tmp_path / 'st'} is locked for writing by process {os.getpid()} on " in msg
+    assert f"manifest of study {tmp_path / 'st'} is locked for writing by process {os.getpid()} on " in msg
     assert "since 20" in msg and "open it read-only" in msg
     assert err.value.holder["pid"] == os.getpid()
 

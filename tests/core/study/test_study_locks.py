@@ -1,0 +1,111 @@
+"""Lock granularity between real processes: writers lock the bone journal they write, the manifest
+only for one read-modify-write, so processes tracking different bones or trials of one study work
+side by side and two on one bone are refused."""
+
+import json
+
+import numpy as np
+import pytest
+
+from core.study import LockedError, Study
+
+# a writer process: journals N poses of one bone (holding its lock), then edits the manifest
+WRITER = """
+import os, sys, time
+import numpy as np
+from core.geometry import make_rigid
+from core.study import Study, LockedError
+st = Study.open({folder!r}, mode="w")
+try:
+    st.lock_journal({trial!r}, {bone!r})
+except LockedError as exc:
+    print("refused:", exc, flush=True)
+    sys.exit(3)
+print("locked", flush=True)
+while not os.path.exists({go!r}):  # wait until every writer holds its lock
+    time.sleep(0.01)
+tr = st.trial({trial!r})
+for i in range(6):
+    tr.record_pose({bone!r}, i, make_rigid(np.eye(3), [{k}, i, 0]), score={k} / 10)
+for i in range(20):  # many short manifest updates, interleaved with the other writers'
+    st.update_settings(**{{"{trial}.{bone}": i}})
+print("done", flush=True)
+st.close()
+"""
+
+
+@pytest.fixture
+def folder(tmp_path, rig_files, views):
+    with Study.create(tmp_path / "st") as st:
+        st.add_calibration("day1", rig_files)
+        vol = tmp_path / "ct.tif"
+        vol.write_bytes(b"placeholder")
+        st.add_volume("ct", vol, voxel_size_mm=[1, 1, 1])
+        for b in ("talus", "calcaneus"):
+            st.add_bone(b, volume="ct")
+        for t in ("walk01", "walk02"):
+            st.add_trial(t, views[0], calibration="day1", bones=["talus", "calcaneus"])
+    return tmp_path / "st"
+
+
+def test_writers_of_different_bones_and_trials_work_side_by_side(folder, python_child):
+    jobs = [("walk01", "talus"), ("walk01", "calcaneus"), ("walk02", "talus")]
+    go = folder.parent / "go"
+    children = [python_child.start(WRITER.format(folder=str(folder), trial=t, bone=b, k=k, go=str(go)))
+                for k, (t, b) in enumerate(jobs)]
+    for c in children:
+        assert c.stdout.readline().strip() == "locked", c.stderr.read()
+    # a fourth process on a bone in use is refused at once, naming the bone and its holder
+    same = python_child.start(WRITER.format(folder=str(folder), trial="walk01", bone="talus", k=9,
+                                            go=str(go)))
+    assert same.wait(timeout=60) == 3
+    refusal = same.stdout.read()
+    assert (f"refused: bone 'talus' of trial 'walk01' in study {folder} is locked for writing by "
+            f"process {children[0].pid}") in refusal
+    go.touch()
+    for c in children:
+        out, err = c.communicate(timeout=120)
+        assert c.returncode == 0 and out.strip() == "done", err
+    with Study.open(folder) as st:
+        for k, (t, b) in enumerate(jobs):
+            P = st.trial(t).poses(b)
+            np.testing.assert_array_equal(P[:, 0, 3], np.full(6, k))  # every writer's poses, intact
+            np.testing.assert_array_equal(P[:, 1, 3], np.arange(6))
+            assert st.settings[f"{t}.{b}"] == 19  # no manifest update was lost to another's
+        assert np.isnan(st.trial("walk02").poses("calcaneus")).all()
+    doc = json.loads((folder / "study.json").read_text())
+    assert set(doc["trials"]) == {"walk01", "walk02"} and set(doc["bones"]) == {"talus", "calcaneus"}
+
+
+def test_manifest_edits_of_two_handles_merge(folder, tmp_path, views):
+    a = Study.open(folder, mode="w")
+    b = Study.open(folder, mode="w")  # e.g. a second process, opened before a's edits
+    try:
+        a.update_settings(from_a=1)
+        a.add_trial("walk03", views[0], calibration="day1", bones=["talus"])
+        b.update_settings(from_b=2)
+        b.add_trial("walk04", views[0], calibration="day1", bones=["calcaneus"])
+    finally:
+        a.close()
+        b.close()
+    with Study.open(folder) as st:
+        assert st.trials == ("walk01", "walk02", "walk03", "walk04")
+        assert st.settings == {"from_a": 1, "from_b": 2}
+
+
+def test_one_handle_keeps_its_journal_locks_until_closed(folder):
+    a = Study.open(folder, mode="w")
+    b = Study.open(folder, mode="w")
+    try:
+        a.trial("walk01").record_pose("talus", 0, np.eye(4))  # the first write locks the journal
+        assert a.journal_locked("walk01", "talus") and not b.journal_locked("walk01", "talus")
+        with pytest.raises(LockedError, match="bone 'talus' of trial 'walk01'"):
+            b.trial("walk01").record_pose("talus", 1, np.eye(4))
+        b.trial("walk01").record_pose("calcaneus", 1, np.eye(4))  # another bone: fine
+        a.lock_journal("walk01", "talus")  # idempotent
+        with pytest.raises(LockedError, match="bone 'calcaneus' of trial 'walk01'"):
+            a.lock_journal("walk01", "calcaneus")
+    finally:
+        a.close()
+    b.lock_journal("walk01", "talus")  # released by a's close
+    b.close()

@@ -1,0 +1,80 @@
+"""An Autoscoper project opened as a study: the wrist sample described by a version 1.2 .cfg
+(Windows line endings, as the sample README lists its lines) and a .tra of radius and ulna."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.errors import FileError
+
+
+def wrist_cfg(folder, data, *, crlf=True, version="1.2") -> str:
+    lines = [
+        f"Version {version}",
+        f"mayaCam_csv {data / 'Calibration' / 'xr_calib_wrist_cam01.txt'}",
+        f"mayaCam_csv {data / 'Calibration' / 'xr_calib_wrist_cam02.txt'}",
+        f"CameraRootDir {data / 'XMA_UND' / 'xr_data_wrist_cam01'}",
+        f"CameraRootDir {data / 'XMA_UND' / 'xr_data_wrist_cam02'}",
+    ]
+    for stem in ("rad", "uln"):
+        lines += [f"VolumeFile {data / 'Models' / f'{stem}_dcm_cropped.tif'}", "VolumeFlip 0 0 0",
+                  "VoxelSize 0.39625 0.39625 0.625"]
+    lines += ["RenderResolution 512 512", "OptimizationOffsets 0.1 0.1 0.1 0.1 0.1 0.1"]
+    p = folder / "wrist.cfg"
+    p.write_bytes(("\r\n" if crlf else "\n").join(lines).encode() + b"\r\n")
+    return p
+
+
+@pytest.fixture(scope="module")
+def wrist_project(tmp_path_factory, sample_data):
+    data = sample_data / "autoscoper_wrist"
+    if not data.is_dir():
+        pytest.skip(reason=f"wrist sample not found at {data}")
+    from core.io.autoscoper import write_tra
+    from core.io.autoscoper_pose import tra_from_lab_from_bone
+    from core.samples import load_wrist_sample
+    from core.studies.io.autoscoper_wrist import BONES, wrist_tra_poses
+
+    d = tmp_path_factory.mktemp("wrist_project")
+    cfg = wrist_cfg(d, data)
+    sample = load_wrist_sample(data)
+    talus = wrist_tra_poses()
+    tra = np.full((3, 2, 4, 4), np.nan)  # frames 0002, 0099, 0158: a pose at 0099
+    for b, bone in enumerate(BONES):
+        tra[1, b] = tra_from_lab_from_bone(talus[b], sample.volumes[bone])
+    write_tra(d / "wrist.tra", tra)
+    return d, cfg, talus
+
+
+def test_wrist_cfg_opens_as_a_study_with_its_poses(wrist_project):
+    from core.study import Study
+    from core.study.import_project import import_project
+
+    d, cfg, talus = wrist_project
+    with import_project(cfg, d / "study", tra=d / "wrist.tra") as s:
+        assert s.bones == ("rad_dcm_cropped", "uln_dcm_cropped")
+        assert s.settings["imported_from"]["version"] == "1.2"
+    with Study.open(d / "study") as s:
+        tr = s.trial("trial")
+        assert tr.n_frames == 3
+        for b, bone in enumerate(s.bones):
+            P = tr.poses(bone)
+            assert np.isnan(P[[0, 2]]).all()
+            np.testing.assert_allclose(P[1], talus[b], atol=1e-6)
+        vol = s.bone_volume("rad_dcm_cropped")
+        np.testing.assert_allclose(vol.spacing, [0.39625, 0.39625, 0.625])
+        assert vol.data.min() == -1024
+        # the study references the original files
+        assert all(not str(p).startswith(str(d)) for p in tr.view_paths)
+
+
+def test_bad_project_files_name_the_file(tmp_path):
+    from core.study.import_project import import_project
+
+    p = tmp_path / "bad.cfg"
+    p.write_text("Version 1.2\nmayaCam_csv\n")
+    with pytest.raises(FileError, match=r"bad\.cfg"):
+        import_project(p, tmp_path / "s")
+    with pytest.raises(ValueError, match="expected an Autoscoper"):
+        import_project(tmp_path / "x.zip", tmp_path / "s")

@@ -10,6 +10,7 @@ beside it, and the report lists the dropped lines with their line numbers and re
 
 from __future__ import annotations
 
+from .errors import LockedError, StudyError
 from .results import salvage_journal
 
 __all__ = ["repair_study"]
@@ -21,7 +22,9 @@ def repair_study(study, *, dry_run: bool = False) -> dict:  # study: a Study (st
     Returns a JSON-ready dict: ``study`` (folder), ``dry_run``, ``journals`` (one
     :func:`~core.study.results.salvage_journal` report per journal file, with ``trial`` and
     ``bone``), ``damaged`` (journals with dropped lines), ``dropped_lines`` (their total) and
-    ``skipped`` (journal paths that are not regular files, left alone).
+    ``skipped`` (journals left alone: not regular files, or damaged ones whose lock another
+    writer holds or whose trial or bone the manifest no longer has, with the reason). A damaged
+    journal is locked (:meth:`~core.study.Study.lock_journal`) before it is rewritten.
     """
     if not dry_run:
         study._require_write()
@@ -34,8 +37,16 @@ def repair_study(study, *, dry_run: bool = False) -> dict:  # study: a Study (st
         if path.is_symlink() or not path.is_file() or path.name.startswith("."):
             out["skipped"].append(str(path))
             continue
-        rep = salvage_journal(path, dry_run=dry_run)
-        rep = {"trial": path.parent.parent.name, "bone": path.stem, **rep}
+        trial, bone = path.parent.parent.name, path.stem
+        rep = salvage_journal(path, dry_run=True)
+        if rep["dropped"] and not dry_run:
+            try:  # no other writer may append while the journal is rewritten
+                study.lock_journal(trial, bone)
+            except (LockedError, StudyError) as exc:
+                out["skipped"].append(f"{path} ({exc})")
+                continue
+            rep = salvage_journal(path)
+        rep = {"trial": trial, "bone": bone, **rep}
         out["journals"].append(rep)
         if rep["dropped"]:
             out["damaged"] += 1

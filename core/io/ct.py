@@ -18,6 +18,8 @@ unsorted folder is reported in the series info, not misread).
 from __future__ import annotations
 
 import math
+import os
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -337,7 +339,10 @@ def read_ct(
             return vol if units != "label" else CTVolume(_compact(vol.data, units, p), spacing=vol.spacing,
                                                          origin=vol.origin, units=units, name=vol.name)
         if p.is_file() and lower.endswith(_ITK_SUFFIXES):
+            if lower.endswith((".mha", ".mhd")):
+                _check_metaimage(p)
             try:
+                _check_announced_size(p)
                 img = sitk.ReadImage(str(p))
             except RuntimeError as exc:
                 why = str(exc).strip().splitlines()[-1]
@@ -349,6 +354,57 @@ def read_ct(
         if not p.exists():
             raise FileError(f"path: {p} does not exist; expected {expected}", path=p)
         raise FileError(f"path: cannot tell the format of {p}; expected {expected}", path=p)
+
+
+def _physical_memory() -> int:
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, OSError, ValueError):  # pragma: no cover - not POSIX
+        return 1 << 40
+
+
+def _check_metaimage(p: Path) -> None:
+    """MetaIO (ITK 2.x) corrupts its heap and aborts the process on some damaged ``ElementDataFile``
+    values: accept only ``LOCAL`` in ``.mha`` and an existing, printable file name in ``.mhd``."""
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    for raw in head.split(b"\n"):
+        key, _, value = raw.partition(b"=")
+        if key.strip() != b"ElementDataFile":
+            continue
+        value = value.strip()
+        if p.name.lower().endswith(".mha") and value == b"LOCAL":
+            return
+        try:
+            name = value.decode("ascii")
+        except UnicodeDecodeError:
+            name = ""
+        if name and name.isprintable() and name != "LOCAL" and (p.parent / name).is_file():
+            return
+        raise ValueError(
+            f"{p}: ElementDataFile {value[:40]!r}; expected LOCAL (.mha) or the name of the raw data "
+            "file next to a .mhd header"
+        )
+    raise ValueError(f"{p}: no ElementDataFile line in the first 64 kB; expected a MetaImage header")
+
+
+def _check_announced_size(p: Path) -> None:
+    """Refuse a header that announces more voxels than this machine's memory could hold (a
+    damaged header would otherwise make ITK try to allocate terabytes, or swap for minutes)."""
+    sitk = _sitk()
+    r = sitk.ImageFileReader()
+    r.SetFileName(str(p))
+    r.ReadImageInformation()
+    size = r.GetSize()
+    bits = re.search(r"(\d+)-bit", sitk.GetPixelIDValueAsString(r.GetPixelID()))
+    per = int(bits.group(1)) // 8 if bits else 8
+    nbytes = math.prod(int(s) for s in size) * r.GetNumberOfComponents() * per
+    if nbytes > _physical_memory() // 2:
+        raise FileError(
+            f"{p}: the header announces a {'x'.join(str(int(s)) for s in size)}-voxel image "
+            f"({nbytes / 1e9:.3g} GB), more than half this machine's memory; a damaged header? "
+            "expected a CT volume that fits in memory", path=p, expected="a CT volume that fits in memory",
+        )
 
 
 def _read_dicom(p: Path, series_uid, units, name, hu_offset, tolerance) -> CTVolume:

@@ -13,6 +13,8 @@ segmentations exported from the CT); nothing is rescaled.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import warnings
 from dataclasses import dataclass
@@ -162,12 +164,19 @@ def _write_stl(path: Path, V: np.ndarray, F: np.ndarray, binary: bool) -> None:
 def _read_meshio(path: Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:
     import meshio
 
+    if fmt == "ply":  # meshio reads header lines forever when "end_header" is missing
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)
+        if not head.startswith(b"ply") or b"end_header" not in head:
+            raise ValueError(f"{path}: expected a PLY header ('ply' ... 'end_header' in the first 64 kB)")
+    said = io.StringIO()
     try:
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
+        with warnings.catch_warnings(), np.errstate(all="ignore"), contextlib.redirect_stdout(said):
             warnings.simplefilter("ignore")
             m = meshio.read(path, file_format=fmt)
-    except Exception as exc:  # meshio raises ReadError, ValueError, IndexError... on bad files
-        raise ValueError(f"{path}: cannot read as {fmt.upper()} ({type(exc).__name__}: {exc})") from None
+    except (Exception, SystemExit) as exc:  # meshio raises many types, and exits on some PLY headers
+        why = f"{type(exc).__name__}: {exc}" if not isinstance(exc, SystemExit) else said.getvalue().strip()
+        raise ValueError(f"{path}: cannot read as {fmt.upper()} ({why})") from None
     faces = []
     for block in m.cells:
         data = np.asarray(block.data)

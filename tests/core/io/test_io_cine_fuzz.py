@@ -1,4 +1,4 @@
-"""Property-based fuzzing of the cine parser: damaged files raise ValueError and nothing else."""
+"""Property-based fuzzing of the cine parser: damaged files raise FileError naming the file, nothing else."""
 
 import itertools
 import struct
@@ -8,6 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from core.errors import FileError
 from core.io.cine import CineSequence
 from core.io.cine_writer import write_cine
 
@@ -33,14 +34,16 @@ def _try(folder, data: bytes) -> bool:
     p.write_bytes(data)
     try:
         seq = CineSequence(p)
-    except ValueError:
+    except FileError as exc:
+        assert str(p) in str(exc), str(exc)
         OUTCOME["rejected"] += 1
         return False
     try:  # per-image headers are checked when each image is read
         for k in range(len(seq)):
             img = seq[k]
             assert img.shape == seq.frame_shape
-    except ValueError:
+    except FileError as exc:
+        assert str(p) in str(exc), str(exc)
         OUTCOME["rejected"] += 1
         return False
     finally:

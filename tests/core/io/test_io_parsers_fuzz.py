@@ -1,4 +1,4 @@
-"""Property-based fuzzing of the text parsers: damaged files raise ValueError and nothing else."""
+"""Property-based fuzzing of the text parsers: damaged files raise FileError naming the file, nothing else."""
 
 import itertools
 
@@ -7,6 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from core.errors import FileError
 from core.geometry import make_rigid, rotvec_to_matrix
 from core.io.autoscoper import read_autoscoper_cfg, read_tra, read_vie, write_tra
 from core.io.xmalab import read_dlt_csv, read_points_2d, read_points_3d, write_points_2d
@@ -103,7 +104,8 @@ def _parse(folder, kind, reader, text) -> None:
     TRIED[kind] = TRIED.get(kind, 0) + 1
     try:
         reader(p)
-    except ValueError:
+    except FileError as exc:
+        assert str(p) in str(exc), str(exc)
         OUTCOME["rejected"] += 1
     else:
         OUTCOME["parsed"] += 1

@@ -199,9 +199,9 @@ class MultipageTiffSequence(FrameSequence):
             page = self._tif.pages[k]
             shape, dtype = _grey_page_info(page, self.path)
             img = page.asarray()
-        if shape != self._shape or dtype != self._dtype:
+        if shape != self._shape or dtype != self._dtype or img.shape != self._shape or img.dtype != dtype:
             raise ValueError(
-                f"{self.path}: page {k} is {shape} {dtype}; expected {self._shape} {self._dtype}"
+                f"{self.path}: page {k} is {img.shape} {img.dtype}; expected {self._shape} {self._dtype}"
             )
         return img
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,13 +47,15 @@ from ..imaging.grid_indexing import index_grid
 from ..imaging.pipeline import Pipeline
 from ..markers import detect_beads
 from . import _session_grid as grids
-from .bundle import BundleResult, bundle_adjust
+from .bundle import BundleResult, ObjectFrame, bundle_adjust
 from .detection import ObjectDetections, detect_object_beads
 from .dlt import calibrate_dlt
-from .matching import label_sequence
+from .matching import FrameLabels, label_sequence
 from .objects import CalibrationTarget, builtin_target, read_target
 
-__all__ = ["CalibrationCancelled", "SessionCalibration", "SessionError", "calibrate_session"]
+__all__ = ["BeadsStep", "CalibrationCancelled", "DistortionStep", "SessionCalibration", "SessionError",
+           "SessionSetup", "beads_step", "calibrate_session", "distortion_step", "exclude_frames",
+           "flatfield_step", "prepare", "refit_distortion", "relabel", "solve_step"]
 
 #: Defaults when the session manifest does not say (the built-in hole grid, spiral and cube).
 DEFAULTS = {"pitch_mm": 15.0, "hole_diameter_mm": 3.0, "object": "spiral33", "static_object": "cube15",
@@ -236,7 +238,7 @@ def _distortion(rd: _Reader, cam: str, ff: Flatfield, *, model, pitch, feature_m
         progress(f"distortion {cam}", k + 1, len(refs))
     pl = grids.merge_placements(found)
     try:
-        return grids.fit_view(pl, model=model, pitch_mm=pitch, center=c, n_frames=len(refs))
+        return grids.fit_view(pl, model=model, pitch_mm=pitch, center=c, n_frames=len(refs)), pl
     except ValueError as exc:
         raise SessionError("distortion", f"camera {cam} ({len(refs)} grid frames)", str(exc),
                            "use a lower-order model (--model poly 4,4) or add grid frames") from None
@@ -317,15 +319,6 @@ def _beads(rd: _Reader, cams, corr, group: str, target, progress, *, required=Tr
     return refs, dets
 
 
-def _labels(target, dets, refs, group, F=None):
-    frames, obs, F = label_sequence(target, dets, F=F)
-    rows = []
-    for k, fr in enumerate(frames):
-        rows.append({"group": group, "index": k, "files": [str(r[k]) for r in refs], "ok": bool(fr.ok),
-                     "reason": fr.reason, "labelled": [int(lab.n_labelled) for lab in fr.labellings]})
-    return rows, obs, F
-
-
 def _manifest_T(man: dict) -> np.ndarray | None:
     T = man.get("T_lab_from_static_object") or man.get("lab_from_cube")
     if T is None:
@@ -334,12 +327,282 @@ def _manifest_T(man: dict) -> np.ndarray | None:
     return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
 
 
+# ---------------------------------------------------------------------------- steps, one by one
+@dataclass(eq=False)
+class SessionSetup:
+    """What every step reads: the session, its manifest, cameras, grid and objects (:func:`prepare`)."""
+
+    session: object
+    manifest: dict
+    cameras: list
+    pitch_mm: float
+    feature_mm: float
+    target: CalibrationTarget
+    static: CalibrationTarget
+    px_nominal: float | None
+    reader: _Reader
+    times: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class DistortionStep:
+    """Per camera: the correction, the grid placements found (a model can be refitted from them
+    without reading a frame: :func:`refit_distortion`) and the bead-lattice check."""
+
+    cameras: list
+    placements: list
+    lattice: dict
+
+
+@dataclass(frozen=True, eq=False)
+class BeadsStep:
+    """The object frames: detections and labellings of both views.
+
+    ``frames`` / ``static_frames`` are :class:`~core.calibration.matching.FrameLabels` per frame,
+    ``detections`` / ``static_detections`` the ``(view 1, view 2)`` detections, ``refs`` /
+    ``static_refs`` the frame references per camera, ``excluded`` the frame indices (of ``frames``)
+    left out by hand. :func:`exclude_frames` and :func:`relabel` give edited copies.
+    """
+
+    frames: list
+    detections: list
+    refs: list
+    static_frames: list
+    static_detections: list
+    static_refs: list
+    F: np.ndarray
+    excluded: frozenset = frozenset()
+
+    def rows(self) -> tuple[list, list]:
+        """Per-frame report rows (``group``, ``index``, ``files``, ``ok``, ``reason``, ``labelled``)."""
+        out = []
+        for group, frames, refs in (("spiral", self.frames, self.refs), ("cube", self.static_frames,
+                                                                          self.static_refs)):
+            rows = []
+            for k, fr in enumerate(frames):
+                ex = group == "spiral" and k in self.excluded
+                rows.append({"group": group, "index": k, "files": [str(r[k]) for r in refs],
+                             "ok": bool(fr.ok) and not ex,
+                             "reason": "excluded by hand" if ex else fr.reason,
+                             "labelled": [int(lab.n_labelled) for lab in fr.labellings]})
+                if any(lab.manual for lab in fr.labellings):
+                    rows[-1]["manual"] = True
+            out.append(rows)
+        return out[0], out[1]
+
+    def observations(self, target, static) -> tuple[list, list]:
+        obs = [ObjectFrame(target.centers, np.stack([lab.observed() for lab in fr.labellings]))
+               for k, fr in enumerate(self.frames) if fr.ok and k not in self.excluded]
+        sobs = [ObjectFrame(static.centers, np.stack([lab.observed() for lab in fr.labellings]))
+                for fr in self.static_frames if fr.ok]
+        return obs, sobs
+
+
+def exclude_frames(beads: BeadsStep, frames) -> BeadsStep:
+    """A copy of ``beads`` with the object frames ``frames`` (indices) left out of the solve."""
+    idx = frozenset(int(k) for k in frames)
+    bad = [k for k in idx if not 0 <= k < len(beads.frames)]
+    if bad:
+        raise ValueError(f"frames: indices {sorted(bad)} are not in [0, {len(beads.frames)})")
+    return replace(beads, excluded=idx)
+
+
+def relabel(beads: BeadsStep, frame: int, view: int, detection: int, bead: int,
+            *, min_labelled: int = 6) -> BeadsStep:
+    """A copy of ``beads`` in which detection ``detection`` of view ``view`` of object frame
+    ``frame`` is bead ``bead`` (model index) — :meth:`~core.calibration.labelling.Labelling.assign`,
+    the manual correction of a wrong label. A frame with at least ``min_labelled`` labels in both
+    views counts as labelled after the edit."""
+    if not 0 <= int(frame) < len(beads.frames):
+        raise ValueError(f"frame: expected an index in [0, {len(beads.frames)}), got {frame!r}")
+    fr = beads.frames[int(frame)]
+    if view not in (0, 1):
+        raise ValueError(f"view: expected 0 or 1, got {view!r}")
+    labs = list(fr.labellings)
+    labs[view] = labs[view].assign(detection, bead)
+    ok = all(lab.n_labelled >= min_labelled for lab in labs)
+    new = FrameLabels(tuple(labs), ok, "" if ok else f"fewer than {min_labelled} labelled beads in a view",
+                      fr.distance_px)
+    frames = list(beads.frames)
+    frames[int(frame)] = new
+    return replace(beads, frames=frames)
+
+
+def prepare(session, *, object=None, static_object=None, cancel=None) -> SessionSetup:
+    """Check the session's cameras and read its grid and objects (step 0 of :func:`calibrate_session`)."""
+    man = dict(getattr(session, "manifest", {}) or {})
+    cams = [str(c) for c in getattr(session, "cameras", ())]
+    if len(cams) != 2:
+        raise SessionError("session", "cameras", f"expected the 2 cameras of a biplane rig, got {cams}",
+                           "check the session manifest's camera list")
+    grid_man = man.get("grid") or {}
+    pitch = float(grid_man.get("pitch_mm", DEFAULTS["pitch_mm"]))
+    feature_mm = float(grid_man.get("hole_diameter_mm", grid_man.get("feature_diameter_mm",
+                                                                      DEFAULTS["hole_diameter_mm"])))
+    objs = man.get("objects") or {}
+    target = _target(object or objs.get("spiral") or man.get("object") or DEFAULTS["object"], "object")
+    static = _target(static_object or objs.get("cube") or man.get("static_object")
+                     or DEFAULTS["static_object"], "static_object")
+    return SessionSetup(session, man, cams, pitch, feature_mm, target, static, _pixel_size(man),
+                        _Reader(session, cancel))
+
+
+def _say(progress):
+    return progress or (lambda step, done, total: None)
+
+
+def flatfield_step(setup: SessionSetup, *, kv=None, progress=None) -> list[tuple[Flatfield, float | None]]:
+    """Step 1: ``(flatfield, kV used)`` per camera."""
+    out = []
+    for cam in setup.cameras:
+        t = time.perf_counter()
+        out.append(_flatfield(setup.reader, cam, _flat_groups(setup.session, cam), kv, _say(progress)))
+        setup.times[f"flatfield {cam}"] = time.perf_counter() - t
+    return out
+
+
+def _correction(cam, ff, kv, fit) -> CameraCorrection:
+    pipe = Pipeline.standard(flatfield=ff, dark=ff.dark, distortion=fit.model)
+    pipe.prepare(ff.shape)
+    return CameraCorrection(cam, ff, fit, pipe, kv)
+
+
+def distortion_step(setup: SessionSetup, flatfields, *, model: str = "auto", progress=None) -> DistortionStep:
+    """Step 2: the distortion model of every camera and its correction pipeline."""
+    rd, corr, placements, lattice = setup.reader, [], [], {}
+    for cam, (ff, used_kv) in zip(setup.cameras, flatfields, strict=True):
+        t = time.perf_counter()
+        px = setup.px_nominal or 300.0 / max(rd.shape[cam][0])  # a 300 mm field when not given
+        fit, pl = _distortion(rd, cam, ff, model=model, pitch=setup.pitch_mm, feature_mm=setup.feature_mm,
+                              px_mm=px, progress=_say(progress))
+        setup.times[f"distortion {cam}"] = time.perf_counter() - t
+        corr.append(_correction(cam, ff, used_kv, fit))
+        placements.append(pl)
+        lattice[cam] = _lattice(rd, cam, corr[-1], setup.manifest)
+    return DistortionStep(corr, placements, lattice)
+
+
+def refit_distortion(setup: SessionSetup, dist: DistortionStep, camera: int, model: str) -> DistortionStep:
+    """``dist`` with camera ``camera``'s model refitted as ``model`` (a label, or ``"auto"``) from
+    the grid points already found (the model table of an ``"auto"`` fit is kept)."""
+    c = dist.cameras[camera]
+    shape = c.flatfield.shape
+    centre = ((shape[1] - 1) / 2, (shape[0] - 1) / 2)
+    try:
+        fit = grids.fit_view(dist.placements[camera], model=model, pitch_mm=setup.pitch_mm, center=centre,
+                             n_frames=c.grid.n_frames)
+    except ValueError as exc:
+        raise SessionError("distortion", f"camera {c.name}", str(exc), "choose another model") from None
+    if not fit.table and c.grid.table:
+        fit = replace(fit, table=c.grid.table)
+    cams = list(dist.cameras)
+    cams[camera] = _correction(c.name, c.flatfield, c.kv, fit)
+    lattice = dict(dist.lattice)
+    lattice[c.name] = _lattice(setup.reader, c.name, cams[camera], setup.manifest)
+    return DistortionStep(cams, dist.placements, lattice)
+
+
+def beads_step(setup: SessionSetup, dist: DistortionStep, *, progress=None) -> BeadsStep:
+    """Step 3: beads of the object (and static object) frames detected and labelled in both views."""
+    say, rd, cams, corr = _say(progress), setup.reader, setup.cameras, dist.cameras
+    t = time.perf_counter()
+    refs, dets = _beads(rd, cams, corr, "spiral", setup.target, say)
+    frames, _, F = label_sequence(setup.target, dets)
+    setup.times["beads spiral"] = time.perf_counter() - t
+    srefs, sdets, sframes = [], [], []
+    if rd.refs(cams[0], "cube", required=False):
+        srefs, sdets = _beads(rd, cams, corr, "cube", setup.static, say)
+        sframes, _, _ = label_sequence(setup.static, sdets, F=F)
+    return BeadsStep(frames, dets, refs, sframes, sdets, srefs, F)
+
+
+def solve_step(setup: SessionSetup, dist: DistortionStep, beads: BeadsStep, *, sid_prior=None,
+               pixel_sigma: float = 0.1, progress=None) -> SessionCalibration:
+    """Steps 4-5: DLT start, bundle adjustment and the report."""
+    say, rd, cams, man = _say(progress), setup.reader, setup.cameras, setup.manifest
+    target, static, corr = setup.target, setup.static, dist.cameras
+    rows, static_rows = beads.rows()
+    obs, static_obs = beads.observations(target, static)
+    n_ok = len(obs)
+    if n_ok < MIN_LABELLED_FRAMES:
+        bad = [r for r in rows if not r["ok"]][:3]
+        ex = "; ".join(f"{r['files'][0]} (frame {r['index']}): {r['reason']}" for r in bad)
+        raise SessionError("beads", f"{target.name} frames", f"only {n_ok} of {len(rows)} frames could be "
+                           f"labelled in both views, the bundle adjustment needs {MIN_LABELLED_FRAMES}"
+                           + (f" (e.g. {ex})" if ex else ""),
+                           "record more frames with the whole object inside both views, or check "
+                           "the object definition (--object)")
+    if setup.reader.cancel is not None and setup.reader.cancel():
+        raise CalibrationCancelled("cancelled before the bundle adjustment")
+    # corrected pixels have the raw pixels' size at the centre: the detector's pixel pitch when the
+    # session gives it (the grid lies a few mm above the detector, so its own scale reads ~0.3 % small)
+    px_nominal = setup.px_nominal
+    px_mm = [px_nominal or c.grid.mm_per_px for c in corr]
+    t = time.perf_counter()
+    sizes = [tuple(int(a) for a in rd.shape[c][0][::-1]) for c in cams]
+    all_obs = list(obs) + list(static_obs)
+    if static_obs:
+        reference, T_ref = len(obs), _manifest_T(man)
+        lab_note = f"lab frame: the static {static.name} frame"
+    else:
+        reference, T_ref = 0, None
+        lab_note = (f"lab frame: the {target.name} in its first labelled frame (no static object "
+                    "frame was labelled)")
+    if sid_prior is None and man.get("sid_mm") is not None:
+        sids = man["sid_mm"] if np.ndim(man["sid_mm"]) else [man["sid_mm"]] * 2
+        sid_prior = [(float(s), float(man.get("sid_tolerance_mm", 20.0))) for s in sids]
+    dlt = []
+    first = static_obs[0] if static_obs else obs[0]
+    for v, c in enumerate(cams):
+        d = calibrate_dlt(first.points, first.uv[v], width=sizes[v][0], height=sizes[v][1],
+                          pixel_size=px_mm[v], max_skew_px=1e9)
+        dlt.append({"camera": c, "ok": bool(d.ok), "reason": d.reason,
+                    "fx_px": d.camera.fx if d.ok else None,
+                    "source_mm": d.camera.source.tolist() if d.ok else None})
+    say("bundle adjustment", 0, 1)
+    ba = bundle_adjust(all_obs, sizes, reference=reference, T_lab_from_reference=T_ref, pixel_size=px_mm,
+                       sid_prior=sid_prior, pixel_sigma=pixel_sigma, max_evaluations=400)
+    times = setup.times
+    times["bundle adjustment"] = time.perf_counter() - t
+    say("bundle adjustment", 1, 1)
+    if not ba.ok:
+        raise SessionError("bundle", f"{len(all_obs)} labelled frames ({target.name}"
+                           + (f" + {static.name}" if static_obs else "") + ")",
+                           f"the bundle adjustment did not converge: {ba.reason}",
+                           "check the labelled frames in the report, remove frames with wrong labels, "
+                           "or give the SID (sid_mm in the session manifest) as a prior")
+    named = []
+    for c, cam in zip(ba.rig, cams, strict=True):
+        named.append(type(c)(c.K, c.R, c.t, c.width, c.height, c.pixel_size, cam))
+    rig = Rig(tuple(named))
+    ok_rows = [r for r in rows if r["ok"]] + [r for r in static_rows if r["ok"]]
+    err = ba.errors_px
+    for f, r in enumerate(ok_rows):
+        sel = ba.frame_index == f
+        r["rms_px"] = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else None
+        r["outliers"] = int(ba.outliers[sel].sum())
+    times["total"] = sum(v for k, v in times.items() if k != "total")
+    result = SessionCalibration(rig, corr, ba, rows + static_rows, all_obs, target,
+                                static if static_obs else None)
+    from .report import session_report
+
+    notes = [lab_note] + ([] if px_nominal else ["no detector pixel size in the session manifest: "
+                                                 "a 300 mm field was assumed to size the grid holes"])
+    result.report.update(session_report(result, notes=notes, dlt=dlt, seconds=dict(times), manifest=man,
+                                        lattice=dist.lattice))
+    return result
+
+
 # ---------------------------------------------------------------------------- main
 def calibrate_session(session, *, object=None, static_object=None, model: str = "auto", kv=None,
                       sid_prior=None, pixel_sigma: float = 0.1,
                       progress: Callable[[str, int, int], None] | None = None,
                       cancel: Callable[[], bool] | None = None) -> SessionCalibration:
     """Correction pipelines and the calibrated rig from a calibration session (module docs).
+
+    The steps one by one (the calibration wizard runs them separately, keeping each result):
+    :func:`prepare` → :func:`flatfield_step` → :func:`distortion_step` → :func:`beads_step`
+    (edited by :func:`exclude_frames` / :func:`relabel`) → :func:`solve_step`.
 
     Parameters
     ----------
@@ -369,110 +632,8 @@ def calibrate_session(session, *, object=None, static_object=None, model: str = 
     CalibrationCancelled
         ``cancel()`` returned True.
     """
-    say = progress or (lambda step, done, total: None)
-    t0 = time.perf_counter()
-    times: dict[str, float] = {}
-    man = dict(getattr(session, "manifest", {}) or {})
-    cams = [str(c) for c in getattr(session, "cameras", ())]
-    if len(cams) != 2:
-        raise SessionError("session", "cameras", f"expected the 2 cameras of a biplane rig, got {cams}",
-                           "check the session manifest's camera list")
-    grid_man = man.get("grid") or {}
-    pitch = float(grid_man.get("pitch_mm", DEFAULTS["pitch_mm"]))
-    feature_mm = float(grid_man.get("hole_diameter_mm", grid_man.get("feature_diameter_mm",
-                                                                      DEFAULTS["hole_diameter_mm"])))
-    objs = man.get("objects") or {}
-    target = _target(object or objs.get("spiral") or man.get("object") or DEFAULTS["object"], "object")
-    static = _target(static_object or objs.get("cube") or man.get("static_object")
-                     or DEFAULTS["static_object"], "static_object")
-    rd = _Reader(session, cancel)
-    px_nominal = _pixel_size(man)
-    # 1-2: flatfield and distortion per camera
-    corr, lattice = [], {}
-    for cam in cams:
-        t = time.perf_counter()
-        ff, used_kv = _flatfield(rd, cam, _flat_groups(session, cam), kv, say)
-        times[f"flatfield {cam}"] = time.perf_counter() - t
-        t = time.perf_counter()
-        px = px_nominal or 300.0 / max(rd.shape[cam][0])  # a 300 mm field when not given
-        fit = _distortion(rd, cam, ff, model=model, pitch=pitch, feature_mm=feature_mm, px_mm=px,
-                          progress=say)
-        times[f"distortion {cam}"] = time.perf_counter() - t
-        pipe = Pipeline.standard(flatfield=ff, dark=ff.dark, distortion=fit.model)
-        pipe.prepare(ff.shape)
-        corr.append(CameraCorrection(cam, ff, fit, pipe, used_kv))
-        lattice[cam] = _lattice(rd, cam, corr[-1], man)
-    # corrected pixels have the raw pixels' size at the centre: the detector's pixel pitch when the
-    # session gives it (the grid lies a few mm above the detector, so its own scale reads ~0.3 % small)
-    px_mm = [px_nominal or c.grid.mm_per_px for c in corr]
-    # 3: beads
-    t = time.perf_counter()
-    refs, dets = _beads(rd, cams, corr, "spiral", target, say)
-    rows, obs, F = _labels(target, dets, refs, "spiral")
-    times["beads spiral"] = time.perf_counter() - t
-    n_ok = len(obs)
-    if n_ok < MIN_LABELLED_FRAMES:
-        bad = [r for r in rows if not r["ok"]][:3]
-        ex = "; ".join(f"{r['files'][0]} (frame {r['index']}): {r['reason']}" for r in bad)
-        raise SessionError("beads", f"{target.name} frames", f"only {n_ok} of {len(rows)} frames could be "
-                           f"labelled in both views, the bundle adjustment needs {MIN_LABELLED_FRAMES}"
-                           + (f" (e.g. {ex})" if ex else ""),
-                           "record more frames with the whole object inside both views, or check "
-                           "the object definition (--object)")
-    static_rows, static_obs = [], []
-    if rd.refs(cams[0], "cube", required=False):
-        srefs, sdets = _beads(rd, cams, corr, "cube", static, say)
-        static_rows, static_obs, _ = _labels(static, sdets, srefs, "cube", F=F)
-    # 4: DLT start (report) and bundle adjustment
-    t = time.perf_counter()
-    sizes = [tuple(int(a) for a in rd.shape[c][0][::-1]) for c in cams]
-    all_obs = list(obs) + list(static_obs)
-    if static_obs:
-        reference, T_ref = len(obs), _manifest_T(man)
-        lab_note = f"lab frame: the static {static.name} frame"
-    else:
-        reference, T_ref = 0, None
-        lab_note = (f"lab frame: the {target.name} in its first labelled frame (no static object "
-                    "frame was labelled)")
-    if sid_prior is None and man.get("sid_mm") is not None:
-        sids = man["sid_mm"] if np.ndim(man["sid_mm"]) else [man["sid_mm"]] * 2
-        sid_prior = [(float(s), float(man.get("sid_tolerance_mm", 20.0))) for s in sids]
-    dlt = []
-    first = static_obs[0] if static_obs else obs[0]
-    for v, c in enumerate(cams):
-        d = calibrate_dlt(first.points, first.uv[v], width=sizes[v][0], height=sizes[v][1],
-                          pixel_size=px_mm[v], max_skew_px=1e9)
-        dlt.append({"camera": c, "ok": bool(d.ok), "reason": d.reason,
-                    "fx_px": d.camera.fx if d.ok else None,
-                    "source_mm": d.camera.source.tolist() if d.ok else None})
-    say("bundle adjustment", 0, 1)
-    ba = bundle_adjust(all_obs, sizes, reference=reference, T_lab_from_reference=T_ref, pixel_size=px_mm,
-                       sid_prior=sid_prior, pixel_sigma=pixel_sigma, max_evaluations=400)
-    times["bundle adjustment"] = time.perf_counter() - t
-    say("bundle adjustment", 1, 1)
-    if not ba.ok:
-        raise SessionError("bundle", f"{len(all_obs)} labelled frames ({target.name}"
-                           + (f" + {static.name}" if static_obs else "") + ")",
-                           f"the bundle adjustment did not converge: {ba.reason}",
-                           "check the labelled frames in the report, remove frames with wrong labels, "
-                           "or give the SID (sid_mm in the session manifest) as a prior")
-    named = []
-    for c, cam in zip(ba.rig, cams, strict=True):
-        named.append(type(c)(c.K, c.R, c.t, c.width, c.height, c.pixel_size, cam))
-    rig = Rig(tuple(named))
-    ok_rows = [r for r in rows if r["ok"]] + [r for r in static_rows if r["ok"]]
-    err = ba.errors_px
-    for f, r in enumerate(ok_rows):
-        sel = ba.frame_index == f
-        r["rms_px"] = float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else None
-        r["outliers"] = int(ba.outliers[sel].sum())
-    times["total"] = time.perf_counter() - t0
-    result = SessionCalibration(rig, corr, ba, rows + static_rows, all_obs, target,
-                                static if static_obs else None)
-    from .report import session_report
-
-    notes = [lab_note] + ([] if px_nominal else ["no detector pixel size in the session manifest: "
-                                                 "a 300 mm field was assumed to size the grid holes"])
-    result.report.update(session_report(result, notes=notes, dlt=dlt, seconds=times, manifest=man,
-                                        lattice=lattice))
-    return result
+    setup = prepare(session, object=object, static_object=static_object, cancel=cancel)
+    ffs = flatfield_step(setup, kv=kv, progress=progress)
+    dist = distortion_step(setup, ffs, model=model, progress=progress)
+    beads = beads_step(setup, dist, progress=progress)
+    return solve_step(setup, dist, beads, sid_prior=sid_prior, pixel_sigma=pixel_sigma, progress=progress)

@@ -68,7 +68,9 @@ def read_tiff_volume(
                 f"path: {p} holds an array of shape {data.shape}; expected a stack of 2-D slices "
                 "(pages, rows, columns)"
             )
-    if hu_offset:
-        data = data.astype(np.float32) + np.float32(hu_offset)
-    kw = {} if direction is None else {"direction": direction}
-    return CTVolume(data, spacing=spacing, origin=origin, units=units, name=name or p.stem, **kw)
+        if 0 in data.shape:
+            raise ValueError(f"path: {p} holds an empty stack {data.shape}; expected slices of voxels")
+        if hu_offset:
+            data = data.astype(np.float32) + np.float32(hu_offset)
+        kw = {} if direction is None else {"direction": direction}
+        return CTVolume(data, spacing=spacing, origin=origin, units=units, name=name or p.stem, **kw)

@@ -1,0 +1,99 @@
+"""``talus import``: a study from a lab's collection folder (or an Autoscoper project).
+
+Usage::
+
+    talus import FOLDER [--out STUDY] [--bit-depth N] [--trial NAME] [--bones a,b,...]
+    talus import PROJECT.cfg --out STUDY [--tra POSES.tra] ...   (app.commands.import_project)
+
+FOLDER holds two views (folders of TIFF frames or .cine files), the cameras (two MayaCam files
+or a DLT CSV) and one CT (or a CT and a label map, or one CT per bone):
+:func:`core.study.import_folder.scan_folder` reads them and detects the frames' bit depth (cine
+header, TIFF tags, the frames' maximum); the study is written by
+:func:`~core.study.import_folder.make_study_from_folder` (default ``FOLDER/study``), only when
+nothing is wrong. A bit depth guessed from the values is said on stderr with how to override it
+(``--bit-depth``); views whose pixels are mostly unusable at that depth are reported before any
+tracking. JSON summary on stdout. Exit status: 0 done, 1 bad input (every problem named, nothing
+written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ._shared import EXIT_OK, PROG, CliError, print_json
+
+__all__ = ["HELP", "configure", "run"]
+
+HELP = "make a study from a collection folder (views, cameras, CT) or an Autoscoper project (.cfg)"
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Make a study from what a lab has after a collection: two frame folders or cine "
+                     "files, the cameras (MayaCam or DLT CSV) and the CT (a CT, a CT and a label map, or "
+                     "one CT per bone), found anywhere in FOLDER. The frames' bit depth is detected (cine "
+                     "header, TIFF tags or the frames' maximum) and printed; give --bit-depth when it is "
+                     "wrong. CT orientation: LPS inside Talus (NIfTI headers store RAS and are converted "
+                     "on reading). An Autoscoper .cfg is imported as a study too (--tra, --hu-offset).")
+    p.add_argument("source", metavar="FOLDER|PROJECT.cfg", help="collection folder or Autoscoper .cfg")
+    p.add_argument("--out", default=None, metavar="STUDY", help="new study folder (default FOLDER/study)")
+    p.add_argument("--bit-depth", type=int, default=None, choices=(8, 10, 12, 14, 16),
+                   help="significant bits of the frames (default: detected)")
+    p.add_argument("--trial", default=None,
+                   help="name of the study's trial (default trial1; 'trial' for .cfg)")
+    p.add_argument("--bones", default=None,
+                   help="comma-separated bone names, in the order of the label map's labels or of the "
+                        "per-bone CTs (default: bone<label> / the CT file names)")
+    p.add_argument("--check", action="store_true", help="only say what was found; write nothing")
+    p.add_argument("--tra", default=None, help="(.cfg) Autoscoper .tra poses")
+    p.add_argument("--hu-offset", type=float, default=-1024.0, help="(.cfg) added to the stacks' values")
+    p.set_defaults(run=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    src = Path(a.source).expanduser()
+    if src.is_file() and src.suffix.lower() == ".cfg":
+        from . import import_project
+
+        if a.out is None:
+            raise CliError("--out: required for an Autoscoper project")
+        a.project, a.trial = str(src), a.trial or "trial"
+        return import_project.run(a)
+    if not src.is_dir():
+        raise CliError(f"FOLDER: no folder at {src} (or an Autoscoper .cfg file)")
+    from core.study.import_folder import ImportFolderError, make_study_from_folder, scan_folder
+
+    scan = scan_folder(src, bit_depth=a.bit_depth)
+    summary = scan.summary()
+    for v in scan.views:
+        how = "given" if a.bit_depth else v.bit_depth.text
+        print(f"{PROG} import: {v.path}: {a.bit_depth or v.bit_depth.bits}-bit frames ({how})",
+              file=sys.stderr)
+    if scan.questions and not a.bit_depth:
+        print(f"{PROG} import: not read from the files (defaults used): {scan.questions}; "
+              "override with --bit-depth / --bones", file=sys.stderr)
+    for w in scan.warnings:
+        print(f"{PROG} import: warning: {w}", file=sys.stderr)
+    if scan.problems:
+        raise CliError(str(ImportFolderError(src, scan.problems)))
+    if a.check:
+        print_json({**summary, "study": None})
+        return EXIT_OK
+    bones = None
+    if a.bones:
+        names = [b.strip() for b in a.bones.split(",") if b.strip()]
+        default = scan.bones()
+        if len(names) != len(default):
+            raise CliError(f"--bones: expected {len(default)} names (for {list(default)}), got {names}")
+        bones = dict(zip(names, default.values(), strict=True))
+    out = Path(a.out).expanduser() if a.out else src / "study"
+    try:
+        made = make_study_from_folder(scan, out, bit_depth=a.bit_depth, bones=bones,
+                                      trial=a.trial or "trial1")
+    except ImportFolderError as exc:
+        raise CliError(str(exc)) from None
+    print(f"{PROG} import: created {made}", file=sys.stderr)
+    print_json({**summary, "study": str(made), "bit_depth": a.bit_depth or scan.bit_depth,
+                "trial": a.trial or "trial1", "bones": list(bones or scan.bones())})
+    return EXIT_OK

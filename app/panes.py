@@ -9,6 +9,12 @@ Mouse: right-drag changes window/level (double click resets it), the wheel zooms
 cursor, middle-drag pans; left-drag moves the selected bone in this view's plane and
 Ctrl+left-drag turns it about the ray through its centre (signals ``pose_drag_*``, in image
 coordinates; the window turns them into pose edits).
+
+Correction: with a correction set (:meth:`FluoroPane.set_correction`: the study's saved
+pipeline, raw counts → fluence), the pane's *Corrected* button shows the corrected frame instead
+of the raw one, and *Usable* tints red the pixels outside the usable fluence range of tracking
+(:data:`USABLE`: black outside the field or collimated, saturated), computed on the corrected
+frame or on the raw frame divided by its full scale (``2**bits - 1``).
 """
 
 from __future__ import annotations
@@ -17,6 +23,8 @@ import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 _PLACEHOLDER_SHAPE = (512, 512)
+USABLE = (0.02, 0.999)  # relative fluence of usable pixels (core.tracking.cost.prepare_frame)
+_MASK_KEY = "__usable__"
 _DRAG_PIXELS = 200.0  # mouse travel that changes the window by a factor e / the level by a window
 
 
@@ -159,10 +167,31 @@ class FluoroPane(QtWidgets.QWidget):
         self.view.setScene(self._scene)
         self.view.drag_window_level.connect(self._on_drag)
         self.view.reset_window_level.connect(self.auto_window_level)
+        self.corrected_button = QtWidgets.QToolButton()
+        self.corrected_button.setText("Corrected")
+        self.corrected_button.setCheckable(True)
+        self.corrected_button.setToolTip("show the frame corrected by the study's saved correction "
+                                         "(dark, flatfield, distortion) instead of the raw frame")
+        self.corrected_button.setVisible(False)
+        self.corrected_button.toggled.connect(lambda _: self._redisplay())
+        self.usable_button = QtWidgets.QToolButton()
+        self.usable_button.setText("Usable")
+        self.usable_button.setCheckable(True)
+        self.usable_button.setToolTip("tint red the pixels tracking cannot use (outside the usable fluence "
+                                      "range: outside the field, collimated or saturated)")
+        self.usable_button.toggled.connect(lambda _: self._draw_mask())
+        head = QtWidgets.QHBoxLayout()
+        head.setContentsMargins(0, 0, 0, 0)
+        head.addWidget(self._title, 1)
+        head.addWidget(self.corrected_button)
+        head.addWidget(self.usable_button)
         layout = QtWidgets.QVBoxLayout(self)
         layout.setContentsMargins(2, 2, 2, 2)
-        layout.addWidget(self._title)
+        layout.addLayout(head)
         layout.addWidget(self.view, 1)
+        self._raw: np.ndarray | None = None
+        self._correct = None
+        self._full_scale: float | None = None
         self._image: np.ndarray | None = None
         self._window, self._level = 1.0, 0.5
         self._overlays: dict = {}
@@ -198,11 +227,18 @@ class FluoroPane(QtWidgets.QWidget):
             raise ValueError(f"image: expected a 2-D array [row, col], got shape {arr.shape}")
         if not (np.issubdtype(arr.dtype, np.number) and not np.iscomplexobj(arr)):
             raise ValueError(f"image: expected a real numeric array, got dtype {arr.dtype}")
+        self._raw = arr
+        if self._correct is not None and self.corrected_button.isChecked():
+            arr = np.asarray(self._correct(arr), dtype=np.float32)
+        self._show(arr, window=window, level=level, keep_view=keep_view)
+
+    def _show(self, arr: np.ndarray, *, window=None, level=None, keep_view=False) -> None:
         same_shape = self._image is not None and self._image.shape == arr.shape
         self._image = arr
         self._note.setText("")
         if keep_view and same_shape and window is None and level is None:
             self.set_window_level(self._window, self._level)
+            self._draw_mask()
             return
         auto_w, auto_l = auto_window_level(arr)
         self._scene.setSceneRect(0, 0, arr.shape[1], arr.shape[0])
@@ -210,6 +246,61 @@ class FluoroPane(QtWidgets.QWidget):
             auto_w if window is None else window, auto_l if level is None else level
         )
         self.view.fit()
+        self._draw_mask()
+
+    # -- correction and usable pixels
+    @property
+    def raw_image(self) -> np.ndarray | None:
+        """The frame as given to :meth:`set_image` (before any correction)."""
+        return self._raw
+
+    @property
+    def showing_corrected(self) -> bool:
+        return self._correct is not None and self.corrected_button.isChecked()
+
+    def set_correction(self, correct, *, full_scale: float | None = None, corrected: bool = True) -> None:
+        """``correct(raw) -> fluence`` (None: none saved; the button hides), ``full_scale`` of the
+        raw counts (``2**bits - 1``) for the usable mask of raw frames; ``corrected`` toggles it on."""
+        self._correct = correct
+        self._full_scale = None if full_scale is None else float(full_scale)
+        self.corrected_button.setVisible(correct is not None)
+        self.corrected_button.blockSignals(True)
+        self.corrected_button.setChecked(bool(corrected) and correct is not None)
+        self.corrected_button.blockSignals(False)
+        self._redisplay()
+
+    def set_corrected(self, on: bool) -> None:
+        """Show the corrected (True) or the raw frame."""
+        self.corrected_button.setChecked(bool(on))
+
+    def _redisplay(self) -> None:
+        if self._raw is not None:
+            arr = self._raw
+            if self.showing_corrected:
+                arr = np.asarray(self._correct(arr), dtype=np.float32)
+            self._show(arr)
+
+    def usable_mask(self) -> np.ndarray | None:
+        """True where tracking can use the pixel (the shown corrected frame, or the raw frame over its
+        full scale); None without a frame or, for a raw frame, without a full scale."""
+        if self._image is None:
+            return None
+        if self.showing_corrected:
+            x = np.asarray(self._image, np.float32)
+        elif self._full_scale:
+            x = np.asarray(self._raw, np.float32) / np.float32(self._full_scale)
+        else:
+            return None
+        return (x > USABLE[0]) & (x < USABLE[1])
+
+    def _draw_mask(self) -> None:
+        m = self.usable_mask() if self.usable_button.isChecked() else None
+        if m is None:
+            self.hide_overlay(_MASK_KEY)
+            return
+        rgba = np.zeros((*m.shape, 4), np.uint8)
+        rgba[~m] = (255, 0, 0, 110)
+        self.set_overlay(_MASK_KEY, rgba, (0, 0, m.shape[1], m.shape[0]), 1.0)
 
     def set_window_level(self, window: float, level: float) -> None:
         window, level = float(window), float(level)
@@ -228,7 +319,8 @@ class FluoroPane(QtWidgets.QWidget):
 
     def clear(self) -> None:
         """Show the grey placeholder."""
-        self._image = None
+        self._image = self._raw = None
+        self.hide_overlay(_MASK_KEY)
         self._scene.setSceneRect(0, 0, _PLACEHOLDER_SHAPE[1], _PLACEHOLDER_SHAPE[0])
         self.set_window_level(1.0, 0.5)
         self._note.setText("No image loaded")
@@ -262,7 +354,7 @@ class FluoroPane(QtWidgets.QWidget):
             item.setVisible(False)
 
     def overlay_keys(self) -> list:
-        return [k for k, item in self._overlays.items() if item.isVisible()]
+        return [k for k, item in self._overlays.items() if item.isVisible() and k != _MASK_KEY]
 
     def overlay_image(self, key) -> QtGui.QImage | None:
         item = self._overlays.get(key)
@@ -295,3 +387,23 @@ class FluoroPane(QtWidgets.QWidget):
         if self._image is not None:
             window = self._window * float(np.exp(dx / _DRAG_PIXELS))
             self.set_window_level(window, self._level - dy * self._window / _DRAG_PIXELS)
+
+
+def attach_study_correction(panes, study, trial_name: str) -> str:
+    """Give each pane the correction saved with the calibration the trial uses
+    (:func:`core.study.calibrations.trial_correction`) and the raw full scale of its view's bit
+    depth; the panes then show corrected frames. Returns how the frames are shown."""
+    from core.study.calibrations import trial_correction
+
+    views = study.manifest["trials"][trial_name]["views"]
+    scales = [float(2 ** int(v.get("bit_depth") or 16) - 1) for v in views]
+    try:
+        fns = trial_correction(study, trial_name)
+    except (ValueError, OSError):
+        fns = None
+    for k, pane in enumerate(panes):
+        fn = None if fns is None or k >= len(fns) else fns[k]
+        pane.set_correction(fn, full_scale=scales[k] if k < len(scales) else None)
+    if fns is None:
+        return "raw frames (no saved correction)"
+    return f"corrected with calibration {study.manifest['trials'][trial_name]['calibration']}"

@@ -1,0 +1,85 @@
+"""File → New study from folder…: the dialog reads a lab's folder, shows the detected bit depth
+for confirmation and the usable pixels, names bad input, and makes the study with real clicks.
+Set ``TALUS_SCREENSHOTS=DIR`` to keep a screenshot."""
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from PySide6 import QtCore
+
+pytestmark = pytest.mark.gui
+HUNG_MS = 30 * 60_000
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    from core.synthetic import make_demo_study
+
+    base = tmp_path_factory.mktemp("lab")
+    demo = base / "demo"
+    make_demo_study(demo, n_frames=2, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu",
+                    calibration_session=False)
+    lab = base / "lab"
+    (lab / "cameras").mkdir(parents=True)
+    for src in sorted((demo / "frames").iterdir()):  # 12-bit frames in 16-bit TIFFs
+        shutil.copytree(src, lab / "fluoro" / src.name)
+        shutil.copy(demo / "rig" / f"{src.name}.txt", lab / "cameras")
+    (lab / "ct").mkdir()
+    shutil.copy(demo / "volumes" / "talus.mha", lab / "ct" / "talus.mha")
+    return lab
+
+
+def _click(qtbot, w):
+    qtbot.mouseClick(w, QtCore.Qt.MouseButton.LeftButton)
+
+
+def _read(qtbot, dlg):
+    with qtbot.waitSignal(dlg.step_done, timeout=HUNG_MS, check_params_cb=lambda k: k == "scan"):
+        _click(qtbot, dlg.read_button)
+
+
+def test_new_study_from_folder(qtbot, lab, tmp_path):
+    from app.import_dialog import CT_ORIENTATION, ImportFolderDialog
+
+    dlg = ImportFolderDialog(folder=lab)
+    qtbot.addWidget(dlg)
+    dlg.show()
+    _read(qtbot, dlg)
+    assert dlg.scan is not None and not dlg.scan.problems
+    # detected from the frames' maximum: shown, to be confirmed before anything is written
+    assert dlg.bits_combo.currentText() == "12" and not dlg.bits_confirm.isChecked()
+    assert "largest value" in dlg.found.text() and not dlg.create_button.isEnabled()
+    assert "LPS" in CT_ORIENTATION and "RAS" in CT_ORIENTATION
+    assert "usable at 12 bits" in dlg.views[0].caption and "Before tracking" not in dlg.messages.text()
+    # at 16 bits most of each view is unusable, and the dialog says why
+    dlg.bits_combo.setCurrentText("16")
+    assert "Before tracking" in dlg.messages.text() and "black at 16 bits" in dlg.messages.text()
+    dlg.bits_combo.setCurrentText("12")
+    _click(qtbot, dlg.bits_confirm)
+    assert dlg.create_button.isEnabled()
+    dlg.bones_table.item(0, 0).setText("tal")
+    dlg.out_edit.setText(str(tmp_path / "study"))
+    if os.environ.get("TALUS_SCREENSHOTS"):
+        Path(os.environ["TALUS_SCREENSHOTS"]).mkdir(parents=True, exist_ok=True)
+        assert dlg.grab().save(str(Path(os.environ["TALUS_SCREENSHOTS"]) / "new_study_from_folder.png"))
+    with qtbot.waitSignal(dlg.study_created, timeout=HUNG_MS) as made:
+        _click(qtbot, dlg.create_button)
+    assert made.args[0] == str(tmp_path / "study")
+    doc = json.loads((tmp_path / "study" / "study.json").read_text())
+    assert doc["trials"]["trial1"]["views"][0]["bit_depth"] == 12 and list(doc["bones"]) == ["tal"]
+
+
+def test_bad_folder_is_named_and_nothing_written(qtbot, lab, tmp_path):
+    from app.import_dialog import ImportFolderDialog
+
+    bad = tmp_path / "bad"
+    shutil.copytree(lab, bad)
+    shutil.rmtree(bad / "fluoro" / "cam02")
+    dlg = ImportFolderDialog(folder=bad)
+    qtbot.addWidget(dlg)
+    _read(qtbot, dlg)
+    assert "expected two views" in dlg.messages.text() and "nothing will be written" in dlg.messages.text()
+    assert not dlg.create_button.isEnabled() and not (bad / "study").exists()

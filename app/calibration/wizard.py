@@ -1,0 +1,733 @@
+"""The calibration wizard: a calibration session, one step per page, saved into a study.
+
+Pages: session folder → flatfield (the corrected field and its roll-off) → distortion (grid
+points found on a frame, residual vectors, the cross-validated model table; another model can
+be chosen) → calibration object (the frames with their detections and labels; a frame can be
+excluded, a wrong label fixed by clicking the bead and choosing its id) → solve (bundle
+adjustment: reprojection, cameras and object poses, parameter SDs) → save into a study.
+
+The computing is that of ``talus calibrate``, step by step (:mod:`core.calibration.session`:
+:func:`~core.calibration.session.prepare`, ``flatfield_step``, ``distortion_step``,
+``refit_distortion``, ``beads_step``, ``exclude_frames``, ``relabel``, ``solve_step``; saving is
+:func:`core.study.calibrations.save_session_calibration`). Every step runs in a
+:class:`~app.workers.WorkerPool`; its result is kept, so going back shows it at once, and only the
+steps after a change are computed again. A saved calibration can be opened again
+(:meth:`CalibrationWizard.inspect_saved`) to see what it was made from and redo it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from PySide6 import QtCore, QtWidgets
+
+from ..workers import WorkerPool
+from .views import FigureView, ImageView
+
+__all__ = ["CalibrationWizard"]
+
+PAGES = ("Session", "Flatfield", "Distortion", "Calibration object", "Solve", "Save")
+MODELS = ("auto", "poly(3,3)", "poly(4,4)", "poly(5,5)", "poly(6,6)", "tps", "lwm")
+
+
+# ---------------------------------------------------------------------------- work (worker threads)
+def _with(setup, cancel):
+    setup.reader.cancel = cancel
+    return setup
+
+
+def job_flatfield(folder: str, *, cancel=None, progress=None):
+    from core.calibration import session as cs
+    from core.io.calibration_session import read_session
+
+    from .figures import rolloff_figure
+
+    setup = cs.prepare(read_session(folder), cancel=cancel)
+    say = None if progress is None else (lambda s, d, t: progress(d, t))
+    ffs = cs.flatfield_step(setup, progress=say)
+    corrected = []
+    for cam, (ff, kv) in zip(setup.cameras, ffs, strict=True):
+        groups = cs._flat_groups(setup.session, cam)
+        pick = groups[0] if kv is None else min(groups, key=lambda g: abs((g[0] or 0) - kv))
+        ref = setup.reader.refs(cam, pick[1])[0]
+        corrected.append(ff.normalise(setup.reader.read(cam, ref, 0, "flatfield")))
+    return {"setup": setup, "flatfields": ffs, "corrected": corrected,
+            "rolloff": rolloff_figure([f for f, _ in ffs], setup.cameras)}
+
+
+def _grid_views(setup, dist) -> list:
+    out = []
+    for cam, c in zip(setup.cameras, dist.cameras, strict=True):
+        ref = setup.reader.refs(cam, "grid")[0]
+        img = c.flatfield.normalise(setup.reader.read(cam, ref, 0, "distortion"))
+        g = c.grid
+        sel = g.placement == 0
+        resid = g.model.inverse(g.distorted_uv[sel]) - g.ideal_uv[sel]
+        out.append({"image": img, "uv": g.distorted_uv[sel], "resid": resid, "ref": str(ref)})
+    return out
+
+
+def job_distortion(setup, flatfields, model: str = "auto", *, cancel=None, progress=None):
+    from core.calibration import session as cs
+
+    say = None if progress is None else (lambda s, d, t: progress(d, t))
+    dist = cs.distortion_step(_with(setup, cancel), flatfields, model=model, progress=say)
+    return {"dist": dist, "views": _grid_views(setup, dist)}
+
+
+def job_refit(setup, dist, camera: int, model: str, *, cancel=None):
+    from core.calibration import session as cs
+
+    new = cs.refit_distortion(_with(setup, cancel), dist, camera, model)
+    return {"dist": new, "views": _grid_views(setup, new)}
+
+
+def job_beads(setup, dist, *, cancel=None, progress=None):
+    from core.calibration import session as cs
+
+    say = None if progress is None else (lambda s, d, t: progress(d, t))
+    return cs.beads_step(_with(setup, cancel), dist, progress=say)
+
+
+def job_frame(setup, dist, beads, k: int):
+    """The corrected images of object frame ``k`` (both views)."""
+    return [c.pipeline(setup.reader.read(cam, beads.refs[v][k], k, "beads"))
+            for v, (cam, c) in enumerate(zip(setup.cameras, dist.cameras, strict=True))]
+
+
+def job_solve(setup, dist, beads, *, cancel=None, progress=None):
+    from core.calibration import session as cs
+
+    from .figures import poses_figure, reprojection_figure
+
+    say = None if progress is None else (lambda s, d, t: progress(d, t))
+    cal = cs.solve_step(_with(setup, cancel), dist, beads, progress=say)
+    return {"cal": cal, "reprojection": reprojection_figure(cal), "poses": poses_figure(cal)}
+
+
+def job_save(study_folder: str, cal, series: str, trials, session_folder: str):
+    from core.study import Study
+    from core.study.calibrations import save_session_calibration
+
+    with Study.open(study_folder, mode="w") as st:
+        return save_session_calibration(st, cal, series=series, trials=trials, session_path=session_folder)
+
+
+# ---------------------------------------------------------------------------- pages
+def _table(headers) -> QtWidgets.QTableWidget:
+    t = QtWidgets.QTableWidget(0, len(headers))
+    t.setHorizontalHeaderLabels(list(headers))
+    t.horizontalHeader().setStretchLastSection(True)
+    t.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+    t.verticalHeader().setVisible(False)
+    return t
+
+
+def _fill(t: QtWidgets.QTableWidget, rows) -> None:
+    t.setRowCount(len(rows))
+    for i, row in enumerate(rows):
+        for j, v in enumerate(row):
+            t.setItem(i, j, QtWidgets.QTableWidgetItem(str(v)))
+    t.resizeColumnsToContents()
+
+
+def _fmt(x, nd=3) -> str:
+    return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{nd}f}"
+
+
+class CalibrationWizard(QtWidgets.QDialog):
+    """File → Calibrate… (module docs). ``saved_calibration`` is emitted with the
+    :class:`~core.study.calibrations.SavedCalibration` once saved."""
+
+    saved_calibration = QtCore.Signal(object)
+    step_done = QtCore.Signal(str)  # the key of a step whose result arrived (or failed/cancelled)
+
+    def __init__(self, parent=None, *, session_folder=None, study_folder=None,
+                 pool: WorkerPool | None = None):
+        super().__init__(parent)
+        self.setWindowTitle("Calibrate")
+        self.resize(1000, 720)
+        self.pool = pool if pool is not None else WorkerPool(self)
+        self._own_pool = pool is None
+        self.results: dict = {}  # step -> result (kept: going back is instant)
+        self._frames: dict = {}  # object frame -> corrected images
+        self._running: str | None = None
+        self.pool.finished.connect(self._finished)
+        self.pool.failed.connect(self._failed)
+        self.pool.cancelled.connect(self._cancelled)
+        self.pool.progress.connect(self._progress)
+
+        self.stack = QtWidgets.QStackedWidget()
+        self.title = QtWidgets.QLabel()
+        self.title.setStyleSheet("font-weight: bold; font-size: 14px")
+        self.status = QtWidgets.QLabel()
+        self.status.setWordWrap(True)
+        self.bar = QtWidgets.QProgressBar()
+        self.bar.setVisible(False)
+        self.cancel_button = QtWidgets.QPushButton("Cancel step")
+        self.cancel_button.setEnabled(False)
+        self.cancel_button.clicked.connect(self.cancel_step)
+        self.back_button = QtWidgets.QPushButton("< Back")
+        self.next_button = QtWidgets.QPushButton("Next >")
+        self.close_button = QtWidgets.QPushButton("Close")
+        self.back_button.clicked.connect(self.back)
+        self.next_button.clicked.connect(self.next)
+        self.close_button.clicked.connect(self.close)
+        buttons = QtWidgets.QHBoxLayout()
+        for w in (self.bar, self.cancel_button):
+            buttons.addWidget(w)
+        buttons.addStretch(1)
+        for w in (self.back_button, self.next_button, self.close_button):
+            buttons.addWidget(w)
+        lay = QtWidgets.QVBoxLayout(self)
+        lay.addWidget(self.title)
+        lay.addWidget(self.stack, 1)
+        lay.addWidget(self.status)
+        lay.addLayout(buttons)
+        for build in (self._page_session, self._page_flatfield, self._page_distortion, self._page_object,
+                      self._page_solve, self._page_save):
+            self.stack.addWidget(build())
+        if session_folder is not None:
+            self.session_edit.setText(str(session_folder))
+        if study_folder is not None:
+            self.study_edit.setText(str(study_folder))
+        self._show(0)
+
+    # ------------------------------------------------------------------ pages
+    def _page_session(self) -> QtWidgets.QWidget:
+        w = QtWidgets.QWidget()
+        f = QtWidgets.QFormLayout(w)
+        row = QtWidgets.QHBoxLayout()
+        self.session_edit = QtWidgets.QLineEdit()
+        self.session_edit.setPlaceholderText("calibration session folder (session.json)")
+        browse = QtWidgets.QPushButton("Browse…")
+        browse.clicked.connect(lambda: self._browse(self.session_edit, "Calibration session folder"))
+        row.addWidget(self.session_edit, 1)
+        row.addWidget(browse)
+        f.addRow("Session folder", row)
+        self.session_info = QtWidgets.QLabel(
+            "A calibration session holds, per camera, dark and empty-field frames, distortion-grid "
+            "frames, calibration-object (spiral) frames and one static-object (cube) frame.")
+        self.session_info.setWordWrap(True)
+        f.addRow(self.session_info)
+        return w
+
+    def _page_flatfield(self) -> QtWidgets.QWidget:
+        w = QtWidgets.QWidget()
+        g = QtWidgets.QGridLayout(w)
+        self.ff_views = [ImageView(), ImageView()]
+        for k, v in enumerate(self.ff_views):
+            g.addWidget(v, 0, k)
+        self.rolloff_view = FigureView()
+        g.addWidget(self.rolloff_view, 1, 0, 1, 2)
+        return w
+
+    def _page_distortion(self) -> QtWidgets.QWidget:
+        w = QtWidgets.QWidget()
+        h = QtWidgets.QHBoxLayout(w)
+        left = QtWidgets.QVBoxLayout()
+        self.dist_camera = QtWidgets.QComboBox()
+        self.dist_camera.currentIndexChanged.connect(lambda _: self._draw_distortion())
+        left.addWidget(self.dist_camera)
+        self.grid_view = ImageView()
+        left.addWidget(self.grid_view, 1)
+        h.addLayout(left, 3)
+        right = QtWidgets.QVBoxLayout()
+        right.addWidget(QtWidgets.QLabel("Models, 5-fold cross-validated error on held-out grid points:"))
+        self.model_table = _table(["model", "CV RMS (px)", "CV RMS (mm)", ""])
+        right.addWidget(self.model_table, 1)
+        self.dist_info = QtWidgets.QLabel()
+        self.dist_info.setWordWrap(True)
+        right.addWidget(self.dist_info)
+        row = QtWidgets.QHBoxLayout()
+        self.model_combo = QtWidgets.QComboBox()
+        self.model_combo.setEditable(True)
+        self.model_combo.addItems(MODELS)
+        self.refit_button = QtWidgets.QPushButton("Use this model")
+        self.refit_button.clicked.connect(self.refit)
+        row.addWidget(self.model_combo, 1)
+        row.addWidget(self.refit_button)
+        right.addLayout(row)
+        h.addLayout(right, 2)
+        return w
+
+    def _page_object(self) -> QtWidgets.QWidget:
+        w = QtWidgets.QWidget()
+        h = QtWidgets.QHBoxLayout(w)
+        left = QtWidgets.QVBoxLayout()
+        self.frame_list = QtWidgets.QListWidget()
+        self.frame_list.currentRowChanged.connect(self._select_frame)
+        left.addWidget(self.frame_list, 1)
+        self.exclude_box = QtWidgets.QCheckBox("Exclude this frame from the solve")
+        self.exclude_box.clicked.connect(self._toggle_exclude)
+        left.addWidget(self.exclude_box)
+        left.addWidget(QtWidgets.QLabel("Click a bead, choose its id:"))
+        row = QtWidgets.QHBoxLayout()
+        self.bead_combo = QtWidgets.QComboBox()
+        self.assign_button = QtWidgets.QPushButton("Assign")
+        self.assign_button.setEnabled(False)
+        self.assign_button.clicked.connect(self.assign_label)
+        row.addWidget(self.bead_combo, 1)
+        row.addWidget(self.assign_button)
+        left.addLayout(row)
+        self.object_info = QtWidgets.QLabel()
+        self.object_info.setWordWrap(True)
+        left.addWidget(self.object_info)
+        h.addLayout(left, 1)
+        self.object_views = [ImageView(), ImageView()]
+        for v, view in enumerate(self.object_views):
+            view.clicked.connect(lambda u, y, v=v: self._click_bead(v, u, y))
+            h.addWidget(view, 2)
+        self._picked: tuple[int, int] | None = None
+        return w
+
+    def _page_solve(self) -> QtWidgets.QWidget:
+        w = QtWidgets.QWidget()
+        g = QtWidgets.QGridLayout(w)
+        self.solve_info = QtWidgets.QLabel()
+        self.solve_info.setWordWrap(True)
+        g.addWidget(self.solve_info, 0, 0, 1, 2)
+        self.reprojection_view = FigureView()
+        self.poses_view = FigureView()
+        g.addWidget(self.reprojection_view, 1, 0)
+        g.addWidget(self.poses_view, 1, 1)
+        self.sd_table = _table(["camera", "f (px)", "SD f", "SD cu", "SD cv", "SID (mm)",
+                                "SD source x/y/z (mm)"])
+        g.addWidget(self.sd_table, 2, 0, 1, 2)
+        self.resolve_button = QtWidgets.QPushButton("Solve again")
+        self.resolve_button.clicked.connect(lambda: self._run_solve(force=True))
+        g.addWidget(self.resolve_button, 3, 0)
+        return w
+
+    def _page_save(self) -> QtWidgets.QWidget:
+        w = QtWidgets.QWidget()
+        f = QtWidgets.QFormLayout(w)
+        row = QtWidgets.QHBoxLayout()
+        self.study_edit = QtWidgets.QLineEdit()
+        self.study_edit.setPlaceholderText("study folder (study.json)")
+        browse = QtWidgets.QPushButton("Browse…")
+        browse.clicked.connect(lambda: self._browse(self.study_edit, "Study folder"))
+        row.addWidget(self.study_edit, 1)
+        row.addWidget(browse)
+        f.addRow("Study", row)
+        self.series_edit = QtWidgets.QLineEdit("session")
+        f.addRow("Calibration series", self.series_edit)
+        self.trials_combo = QtWidgets.QComboBox()
+        self.trials_combo.addItems(["series", "all", "none"])
+        self.trials_combo.setToolTip("trials that use the new version: those on an earlier version of the "
+                                     "series, every trial, or none")
+        f.addRow("Trials using it", self.trials_combo)
+        self.save_button = QtWidgets.QPushButton("Save into the study")
+        self.save_button.clicked.connect(self.save)
+        f.addRow(self.save_button)
+        self.save_info = QtWidgets.QLabel("Earlier versions are kept; the new one is saved as the next "
+                                          "version.")
+        self.save_info.setWordWrap(True)
+        f.addRow(self.save_info)
+        return w
+
+    def _browse(self, edit: QtWidgets.QLineEdit, title: str) -> None:
+        d = QtWidgets.QFileDialog.getExistingDirectory(self, title, edit.text() or str(Path.cwd()))
+        if d:
+            edit.setText(d)
+
+    # ------------------------------------------------------------------ navigation
+    @property
+    def page(self) -> int:
+        return self.stack.currentIndex()
+
+    def _show(self, k: int) -> None:
+        self.stack.setCurrentIndex(k)
+        self.title.setText(f"Step {k + 1} of {len(PAGES)}: {PAGES[k]}")
+        self.back_button.setEnabled(k > 0)
+        if self._running is None:
+            self.status.setText("")
+        {1: self._enter_flatfield, 2: self._enter_distortion, 3: self._enter_object, 4: self._enter_solve,
+         5: self._enter_save}.get(k, lambda: None)()
+        self._update_next()
+
+    def _update_next(self) -> None:
+        need = {0: None, 1: "flatfield", 2: "distortion", 3: "beads", 4: "solve", 5: None}[self.page]
+        ok = self.page < len(PAGES) - 1 and (need is None or need in self.results) and self._running is None
+        if self.page == 0:
+            ok = bool(self.session_edit.text().strip()) and self._running is None
+        self.next_button.setEnabled(ok)
+
+    def next(self) -> None:
+        if self.page < len(PAGES) - 1:
+            self._show(self.page + 1)
+
+    def back(self) -> None:
+        if self._running is not None:
+            self.cancel_step()
+        if self.page > 0:
+            self._show(self.page - 1)
+
+    def _submit(self, key: str, fn, *args, **kwargs) -> None:
+        self._running = key
+        self.bar.setRange(0, 0)
+        self.bar.setVisible(True)
+        self.cancel_button.setEnabled(True)
+        self.status.setStyleSheet("")
+        self.status.setText(f"{key}: computing…")
+        self.pool.submit(key, fn, *args, **kwargs)
+        self._update_next()
+
+    def cancel_step(self) -> None:
+        """Cancel the step that is computing: the window is free at once; the step stops at its next
+        frame and its result, if one still comes, is dropped (nothing is saved)."""
+        key = self._running
+        if key is not None:
+            self.pool.cancel(key)
+            self._cancelled(key)
+
+    def _invalidate(self, *steps: str) -> None:
+        for s in steps:
+            self.results.pop(s, None)
+        if "beads" in steps:
+            self._frames.clear()
+
+    # ------------------------------------------------------------------ worker answers
+    def _idle(self) -> None:
+        self._running = None
+        self.bar.setVisible(False)
+        self.cancel_button.setEnabled(False)
+
+    def _progress(self, key: str, done: int, total: int) -> None:
+        if key == self._running:
+            self.bar.setRange(0, max(total, 1))
+            self.bar.setValue(done)
+            self.status.setText(f"{key}: {done} of {total}")
+
+    def _finished(self, key: str, result) -> None:
+        if key == "frame":
+            k, imgs = result
+            self._frames[k] = imgs
+            if self.frame_list.currentRow() == k:
+                self._draw_frame()
+            self.step_done.emit(key)
+            return
+        if key != self._running:
+            return  # a step cancelled or superseded: its answer is dropped
+        self._idle()
+        self.status.setText(f"{key}: done")
+        if key == "save":
+            self.save_info.setText(f"Saved as {result.name} in {result.folder}; used by "
+                                   f"{', '.join(result.trials) or 'no trial yet'}.")
+            self.saved_calibration.emit(result)
+        elif key == "refit":
+            self.results["distortion"] = result
+            self._invalidate("beads", "solve")
+        else:
+            self.results[key] = result
+        enter = {"flatfield": self._enter_flatfield, "distortion": self._enter_distortion,
+                 "refit": self._enter_distortion, "beads": self._enter_object, "solve": self._enter_solve}
+        enter.get(key, lambda: None)()
+        self._update_next()
+        self.step_done.emit(key)
+
+    def _failed(self, key: str, text: str) -> None:
+        if key != "frame" and key != self._running:
+            return  # a step cancelled or superseded
+        if "CalibrationCancelled" in text:  # cancel() seen between frames: the step stopped there
+            self._cancelled(key)
+            return
+        if key != "frame":
+            self._idle()
+        last = text.strip().splitlines()[-1] if text.strip() else text
+        msg = last.split(": ", 1)[1] if last.split(":", 1)[0].endswith(("Error", "Exception")) else last
+        self.status.setStyleSheet("color: #c00000")
+        self.status.setText(f"{key} failed: {msg}")
+        self._update_next()
+        self.step_done.emit(key)
+
+    def _cancelled(self, key: str) -> None:
+        if key == "frame":
+            return
+        if key != self._running:
+            return
+        self._idle()
+        self.status.setText(f"{key}: cancelled")
+        self._update_next()
+        self.step_done.emit(key)
+
+    # ------------------------------------------------------------------ flatfield
+    def _enter_flatfield(self) -> None:
+        folder = self.session_edit.text().strip()
+        r = self.results.get("flatfield")
+        if r is not None and r.get("folder") != folder:
+            self._invalidate("flatfield", "distortion", "beads", "solve")
+            r = None
+        if r is None:
+            if self._running is None:
+                self._submit("flatfield", _flatfield_for, folder)
+            return
+        setup = r["setup"]
+        for view, cam, img, (ff, kv) in zip(self.ff_views, setup.cameras, r["corrected"], r["flatfields"],
+                                            strict=True):
+            view.set_image(img, levels=(0.0, 1.25))
+            view.caption = (f"{cam}: a corrected empty-field frame ({kv:g} kV); "
+                            f"{100 * ff.valid.mean():.0f} % of pixels usable" if kv else f"{cam}")
+            view.set_points(np.zeros((0, 2)))
+        self.rolloff_view.set_figure(r["rolloff"])
+        self.session_info.setText(_session_text(setup))
+
+    # ------------------------------------------------------------------ distortion
+    def _enter_distortion(self) -> None:
+        r = self.results.get("distortion")
+        if r is None:
+            ff = self.results.get("flatfield")
+            if ff is not None and self._running is None:
+                self._submit("distortion", job_distortion, ff["setup"], ff["flatfields"])
+            return
+        if self.dist_camera.count() != len(r["dist"].cameras):
+            self.dist_camera.blockSignals(True)
+            self.dist_camera.clear()
+            self.dist_camera.addItems([c.name for c in r["dist"].cameras])
+            self.dist_camera.blockSignals(False)
+        self._draw_distortion()
+
+    def _draw_distortion(self) -> None:
+        r = self.results.get("distortion")
+        if r is None:
+            return
+        k = max(self.dist_camera.currentIndex(), 0)
+        c, view = r["dist"].cameras[k], r["views"][k]
+        g = c.grid
+        n = np.linalg.norm(view["resid"], axis=1)
+        scale = 10.0 / max(float(np.percentile(n, 99)) if n.size else 1.0, 1e-6)
+        self.grid_view.set_image(view["image"])
+        self.grid_view.set_points(view["uv"], vectors=view["resid"], vector_scale=scale)
+        st = g.residuals.to_dict()["mm"]
+        self.grid_view.caption = (f"{c.name}: {len(view['uv'])} grid points of {view['ref']}; residual "
+                                  f"vectors × {scale:.0f}")
+        rows = []
+        for t in g.table:
+            rows.append([t["model"], _fmt(t.get("rms_px")), _fmt(t.get("rms_mm"), 4),
+                         "chosen" if t["model"] == g.spec.label else ""])
+        if not any(row[3] for row in rows):
+            rows.append([g.spec.label, "(given)", "", "chosen"])
+        _fill(self.model_table, rows)
+        self.dist_info.setText(f"{c.name}: {g.spec.label}; grid residual RMS {st['rms']:.4f} mm (max "
+                               f"{st['max']:.4f} mm) over {len(g.ideal_uv)} points of {g.n_placements} "
+                               f"placement(s)." + "".join(f"\n{n}" for n in g.notes))
+
+    def refit(self) -> None:
+        """Fit the chosen model to the current camera's grid points (later steps are redone)."""
+        r, ff = self.results.get("distortion"), self.results.get("flatfield")
+        if r is None or self._running is not None:
+            return
+        self._submit("refit", job_refit, ff["setup"], r["dist"], max(self.dist_camera.currentIndex(), 0),
+                     self.model_combo.currentText().strip())
+
+    # ------------------------------------------------------------------ object frames
+    def _enter_object(self) -> None:
+        b = self.results.get("beads")
+        if b is None:
+            ff, d = self.results.get("flatfield"), self.results.get("distortion")
+            if d is not None and self._running is None:
+                self._submit("beads", job_beads, ff["setup"], d["dist"])
+            return
+        setup = self.results["flatfield"]["setup"]
+        if self.bead_combo.count() != len(setup.target):
+            self.bead_combo.clear()
+            self.bead_combo.addItems([str(i) for i in setup.target.bead_ids])
+        row = max(self.frame_list.currentRow(), 0)
+        self._fill_frames()
+        self.frame_list.setCurrentRow(row)
+        self._select_frame(row)
+
+    def _fill_frames(self) -> None:
+        b = self.results["beads"]
+        self.frame_list.blockSignals(True)
+        row = self.frame_list.currentRow()
+        self.frame_list.clear()
+        for k, fr in enumerate(b.frames):
+            labs = "/".join(str(lab.n_labelled) for lab in fr.labellings)
+            state = "excluded" if k in b.excluded else ("ok" if fr.ok else f"not used: {fr.reason}")
+            manual = " (edited)" if any(lab.manual for lab in fr.labellings) else ""
+            self.frame_list.addItem(f"frame {k}: {labs} labelled, {state}{manual}")
+        self.frame_list.setCurrentRow(row)
+        self.frame_list.blockSignals(False)
+        n = sum(1 for k, fr in enumerate(b.frames) if fr.ok and k not in b.excluded)
+        self.object_info.setText(f"{n} of {len(b.frames)} frames go to the solve"
+                                 + (f"; {len(b.static_frames)} static-object frame(s)"
+                                    if b.static_frames else ""))
+
+    def _select_frame(self, k: int) -> None:
+        b = self.results.get("beads")
+        if b is None or k < 0:
+            return
+        self._picked = None
+        self.assign_button.setEnabled(False)
+        self.exclude_box.setChecked(k in b.excluded)
+        if k in self._frames:
+            self._draw_frame()
+        else:
+            ff, d = self.results["flatfield"], self.results["distortion"]
+            for v in self.object_views:
+                v.caption = f"frame {k}: correcting…"
+                v.update()
+            self.pool.submit("frame", lambda: (k, job_frame(ff["setup"], d["dist"], b, k)))
+
+    def _draw_frame(self) -> None:
+        b = self.results.get("beads")
+        k = self.frame_list.currentRow()
+        if b is None or k not in self._frames:
+            return
+        setup = self.results["flatfield"]["setup"]
+        fr = b.frames[k]
+        for v, (view, img) in enumerate(zip(self.object_views, self._frames[k], strict=True)):
+            lab = fr.labellings[v]
+            ids = [str(setup.target.bead_ids[i]) if i >= 0 else "" for i in lab.labels]
+            cols = ["#40ff40" if i >= 0 else "#ff4040" for i in lab.labels]
+            view.set_image(img)
+            view.set_points(lab.uv, colors=cols, labels=ids)
+            if self._picked is not None and self._picked[0] == v:
+                view.selected = self._picked[1]
+            view.caption = (f"{setup.cameras[v]}, frame {k}: {lab.n_labelled} of {len(lab.uv)} detections "
+                            f"labelled" + (" (edited)" if lab.manual else ""))
+
+    def _click_bead(self, v: int, u: float, y: float) -> None:
+        b = self.results.get("beads")
+        k = self.frame_list.currentRow()
+        if b is None or k < 0:
+            return
+        i = self.object_views[v].nearest(u, y)
+        self._picked = None if i is None else (v, i)
+        self.assign_button.setEnabled(i is not None)
+        for w, view in enumerate(self.object_views):
+            view.selected = i if w == v else None
+            view.update()
+        if i is not None:
+            lab = b.frames[k].labellings[v]
+            cur = int(lab.labels[i])
+            if cur >= 0:
+                self.bead_combo.setCurrentIndex(cur)
+            ids = self.results["flatfield"]["setup"].target.bead_ids
+            now = f"bead {ids[cur]}" if cur >= 0 else "unlabelled"
+            self.status.setText(f"detection {i} of view {v + 1} selected (now {now}); choose its id and "
+                                "Assign")
+
+    def assign_label(self) -> None:
+        """The picked detection becomes the bead chosen in the list (the solve is redone)."""
+        from core.calibration.session import relabel
+
+        b = self.results.get("beads")
+        k = self.frame_list.currentRow()
+        if b is None or self._picked is None:
+            return
+        v, i = self._picked
+        bead = self.bead_combo.currentIndex()
+        self.results["beads"] = relabel(b, k, v, i, bead)
+        self._invalidate("solve")
+        self.status.setText(f"frame {k}, view {v + 1}: detection {i} is now bead "
+                            f"{self.bead_combo.currentText()}")
+        self._fill_frames()
+        self._draw_frame()
+
+    def _toggle_exclude(self, checked: bool) -> None:
+        from core.calibration.session import exclude_frames
+
+        b = self.results.get("beads")
+        k = self.frame_list.currentRow()
+        if b is None or k < 0:
+            return
+        ex = set(b.excluded) | {k} if checked else set(b.excluded) - {k}
+        self.results["beads"] = exclude_frames(b, ex)
+        self._invalidate("solve")
+        self._fill_frames()
+
+    # ------------------------------------------------------------------ solve
+    def _enter_solve(self) -> None:
+        self._run_solve(force=False)
+
+    def _run_solve(self, *, force: bool) -> None:
+        r = self.results.get("solve")
+        if r is None or force:
+            b = self.results.get("beads")
+            if b is not None and self._running is None:
+                self.solve_info.setText("Bundle adjustment running…")
+                self._submit("solve", job_solve, self.results["flatfield"]["setup"],
+                             self.results["distortion"]["dist"], b)
+            return
+        cal = r["cal"]
+        rep = cal.report
+        self.reprojection_view.set_figure(r["reprojection"])
+        self.poses_view.set_figure(r["poses"])
+        rows = []
+        for c in rep["rig"]:
+            sd = c["std"]
+            rows.append([c["name"], _fmt(c["fx_px"], 1), _fmt(sd["f_px"]), _fmt(sd["cu_px"]),
+                         _fmt(sd["cv_px"]), _fmt(c["sid_mm"], 1),
+                         " / ".join(_fmt(s) for s in sd["source_mm"])])
+        _fill(self.sd_table, rows)
+        ev = rep.get("error_volume", {}).get("rms_mm")
+        self.solve_info.setText(f"Reprojection RMS {rep['bundle']['rms_px']:.3f} px over "
+                                f"{rep['n_frames_labelled']} labelled frames; predicted 3-D reconstruction "
+                                f"error {_fmt(ev)} mm RMS over the capture volume."
+                                + "".join(f"\n{n}" for n in rep.get("notes", [])))
+
+    # ------------------------------------------------------------------ save
+    def _enter_save(self) -> None:
+        self.save_button.setEnabled("solve" in self.results and self._running is None)
+
+    def save(self) -> None:
+        """Save the solved calibration into the study as the next version of the series."""
+        r = self.results.get("solve")
+        folder = self.study_edit.text().strip()
+        if r is None or self._running is not None:
+            return
+        if not folder or not (Path(folder) / "study.json").is_file():
+            self.status.setStyleSheet("color: #c00000")
+            self.status.setText(f"Study: no study (study.json) in {folder or '(no folder given)'}")
+            return
+        self._submit("save", job_save, folder, r["cal"], self.series_edit.text().strip(),
+                     self.trials_combo.currentText(), self.session_edit.text().strip())
+
+    # ------------------------------------------------------------------ a saved calibration
+    @classmethod
+    def inspect_saved(cls, study_folder, name: str, parent=None, **kwargs) -> CalibrationWizard:
+        """A wizard on the saved calibration version ``name`` of the study: what it was made from
+        (its session folder, object, reprojection error, report) on the first page; Next redoes it."""
+        folder = Path(study_folder)
+        doc = json.loads((folder / "study.json").read_text(encoding="utf-8"))
+        entry = doc.get("settings", {}).get("calibration_files", {}).get(name)
+        if entry is None:
+            have = list(doc.get("settings", {}).get("calibration_files", {}))
+            raise ValueError(f"calibration: no saved session calibration named {name!r} in {folder} "
+                             f"(have {have})")
+        meta = json.loads((folder / entry["folder"] / "version.json").read_text(encoding="utf-8"))
+        w = cls(parent, session_folder=meta.get("session") or "", study_folder=folder, **kwargs)
+        w.series_edit.setText(str(entry.get("series", "session")))
+        w.session_info.setText(
+            f"Saved calibration {name} ({meta.get('created')}): object {meta.get('object')}, static object "
+            f"{meta.get('static_object')}, reprojection RMS {meta.get('rms_px', float('nan')):.3f} px; "
+            f"report: {folder / entry['report'] if entry.get('report') else '(none)'}.\n"
+            f"Made from the session {meta.get('session')}. Next recomputes it step by step; saving makes "
+            "a new version (this one is kept).")
+        return w
+
+    def closeEvent(self, ev) -> None:
+        if self._running is not None:
+            self.pool.cancel(self._running)
+        if self._own_pool:
+            self.pool.shutdown(wait=False)
+        super().closeEvent(ev)
+
+
+def _flatfield_for(folder: str, *, cancel=None, progress=None):
+    out = job_flatfield(folder, cancel=cancel, progress=progress)
+    out["folder"] = folder
+    return out
+
+
+def _session_text(setup) -> str:
+    counts = []
+    for cam in setup.cameras:
+        n = {g: len(setup.reader.refs(cam, g, required=False)) for g in ("dark", "grid", "spiral", "cube")}
+        counts.append(f"{cam}: " + ", ".join(f"{v} {g}" for g, v in n.items()))
+    return (f"Cameras {', '.join(setup.cameras)}; object {setup.target.name}, static object "
+            f"{setup.static.name}; grid pitch {setup.pitch_mm:g} mm.\n" + "\n".join(counts))

@@ -118,6 +118,9 @@ class MainWindow(QtWidgets.QMainWindow):
                          ("CT volume as a bone…", self.importer.import_volume),
                          ("Trial (one sequence per camera)…", self.importer.import_trial)):
             imp.addAction(text).triggered.connect(lambda _=False, f=fn: self._guard(f))
+        from .calibration.menu import add_file_actions
+
+        add_file_actions(self, file_menu)
         file_menu.addSeparator()
         self.quit_action = file_menu.addAction("&Quit")
         self.quit_action.setShortcut(QtGui.QKeySequence("Ctrl+Q"))
@@ -288,6 +291,9 @@ class MainWindow(QtWidgets.QMainWindow):
             for view in range(len(session.model.rig)):
                 session.model.frame_image(view)  # a damaged first frame fails here
             self.set_model(session.model)
+            from .panes import attach_study_correction
+
+            attach_study_correction(self.panes, session.study, session.trial_name)
         except BaseException:
             session.close()
             raise

@@ -1,0 +1,103 @@
+"""``core.tracking.batch``: tasks of a study, and a batch on a local Dask cluster of 2 CPU worker
+processes that gives the poses of a serial run, even when one worker is killed mid-run."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+
+import numpy as np
+import pytest
+
+from core.study import Study
+from core.tracking.batch import BatchTask, TaskSettings, build_tasks, run_serial, summarize
+
+BONES = ("talus", "calcaneus")
+# 2 frames per trial, the first-frame verification restarts left out: a small, quick batch
+SETTINGS = TaskSettings(device="cpu", confidence=False, frames=(0, 2), options=(("verify_restarts", 0),))
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """A demo study of 2 trials (the second on the first one's frames) × 2 bones with keyframes."""
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("batch") / "demo"
+    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    with Study.open(out, mode="w") as st:
+        walk = st.manifest["trials"]["walk"]
+        st.add_trial("walk2", [st.path(v["path"]) for v in walk["views"]], calibration=walk["calibration"],
+                     bones=list(BONES), bit_depth=walk["views"][0]["bit_depth"])
+        for b in BONES:
+            st.trial("walk2").record_pose(b, 0, st.trial("walk").poses(b)[0])  # the same keyframe
+    return out
+
+
+def _copy(demo, dest):
+    shutil.copytree(demo, dest)
+    return dest
+
+
+def test_build_tasks(demo):
+    tasks = build_tasks([demo], bones=list(BONES))
+    assert [t.key for t in tasks] == ["demo/walk/talus", "demo/walk/calcaneus",
+                                      "demo/walk2/talus", "demo/walk2/calcaneus"]
+    assert tasks[0] == BatchTask(str(demo.absolute()), "walk", ("talus",))
+    assert tasks[0].report_name == "walk.talus"
+    joint = build_tasks([demo], trials=["walk2"], joint=True)
+    assert [(t.trial, t.bones) for t in joint] == [("walk2", BONES)]
+    assert joint[0].report_name == "walk2.talus+calcaneus"
+    assert len(build_tasks([demo, demo], trials=["walk"])) == 8  # every bone of walk, twice
+    with pytest.raises(ValueError, match=r"--trials: \['run'\] not found"):
+        build_tasks([demo], trials=["walk", "run"])
+    with pytest.raises(ValueError, match=r"--bones: \['ulna'\] not found"):
+        build_tasks([demo], bones=["ulna"])
+
+
+def test_summary_reports_failures():
+    t = [BatchTask("/s", "walk", ("talus",)), BatchTask("/s", "walk", ("tibia",))]
+    rec = {"key": t[0].key, "status": "complete", "seconds": 2.0, "frames_tracked": 4,
+           "frames_recorded": 4}
+    s = summarize(t, [rec], [{"key": t[1].key, "error": "ValueError: bad", "attempts": 2}],
+                  wall_s=4.0, workers=2, attempts={t[0].key: 1, t[1].key: 2})
+    assert s["status"] == "failed" and s["tasks"] == 2 and s["tasks_failed"] == 1
+    assert s["failures"] == [{"key": "s/walk/tibia", "error": "ValueError: bad", "attempts": 2}]
+    assert s["frames_tracked"] == 4 and s["frames_per_s"] == 1.0
+
+
+def test_batch_on_two_workers_matches_serial_and_survives_a_killed_worker(demo, tmp_path):
+    pytest.importorskip("distributed")
+    from core.tracking.batch import run_batch
+
+    serial_dir, batch_dir = _copy(demo, tmp_path / "serial"), _copy(demo, tmp_path / "batch")
+    serial = run_serial(build_tasks([serial_dir], bones=list(BONES)), SETTINGS)
+    assert serial["status"] == "complete" and serial["frames_tracked"] == 8
+
+    killed, events, started = [], [], []
+
+    def on_event(e):
+        events.append(e)
+        if e["kind"] == "frame" and not killed:  # a worker dies after its first frame
+            killed.append(e["key"])
+            os.kill(e["pid"], signal.SIGKILL)
+
+    summary = run_batch(build_tasks([batch_dir], bones=list(BONES)), SETTINGS, workers=2,
+                        on_event=on_event, on_start=started.append)
+    assert started and started[0]["workers"] == 2 and started[0]["dashboard"].startswith("http")
+    assert summary["status"] == "complete" and summary["tasks_complete"] == 4, summary
+    assert summary["failures"] == [] and summary["workers"] == 2
+    rows = {r["key"]: r for r in summary["task_records"]}
+    assert killed and rows[killed[0]]["attempts"] == 2  # run again, from the journal
+    assert rows[killed[0]]["frames_tracked"] <= 1  # the frame done before the kill was kept
+    assert len({r["pid"] for r in rows.values()}) >= 2  # two worker processes (and a restarted one)
+    assert {e["kind"] for e in events} == {"start", "frame", "end"}
+    with Study.open(serial_dir) as a, Study.open(batch_dir) as b:
+        for t in ("walk", "walk2"):
+            for bone in BONES:
+                pa, pb = a.trial(t).poses(bone), b.trial(t).poses(bone)
+                assert np.isfinite(pb).all(), (t, bone)  # nothing lost
+                np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-9, err_msg=f"{t}/{bone}")
+                rep = b.read_report("tracking", f"{t}.{bone}")
+                assert rep["summary"]["status"] == "complete"

@@ -230,6 +230,8 @@ class MainWindow(QtWidgets.QMainWindow):
             self._unset_model(panes=before)
             raise
         self._update_history()
+        if getattr(self, "welcome", None) is not None:  # the welcome page gives the study its room
+            self.welcome.study_shown()
 
     def _unset_model(self, *, panes=None) -> None:
         """Take a (partly) shown model out of the window: layers, timeline, scene; the panes
@@ -459,7 +461,12 @@ def run_gui(*, demo: Path | None = None) -> int:
         os.environ.setdefault("QT_QPA_PLATFORM", "xcb")  # VTK's interactor needs X11/GLX
     app = QtWidgets.QApplication.instance() or QtWidgets.QApplication(sys.argv[:1])
     app.setApplicationName("Talus")
+    from .welcome import app_icon, show_welcome
+
+    app.setWindowIcon(app_icon())
     window = MainWindow()
+    if demo is None:  # no study asked for: the welcome page (start actions, CUDA check)
+        show_welcome(window)
     window.show()  # first on screen; the study and the heavy modules load after its first paint
 
     def open_demo() -> None:

@@ -1,0 +1,130 @@
+"""The welcome page of a window started without a study: open the demo, open a study, reopen a
+recent one and import a project, all through clicks; the CUDA check runs in a worker and says
+what the CPU costs. ``TALUS_SCREENSHOTS=DIR`` keeps a screenshot of the page (welcome.png)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from PySide6 import QtCore, QtWidgets
+
+from app.device_check import CPU_BENCH, GPU_BENCH, DeviceInfo, cpu_slowdown, describe
+
+BENCH = Path(__file__).resolve().parents[2] / "resources" / "benchmarks"
+HUNG_MS = 10 * 60_000
+
+
+def test_quoted_speeds_are_the_measured_ones():
+    for quoted in (CPU_BENCH, GPU_BENCH):
+        data = json.loads((BENCH / quoted["file"]).read_text(encoding="utf-8"))
+        assert data["one_bone"]["end_to_end"]["ms_per_frame"] == quoted["ms_per_frame"]
+        assert data["sizes"]["pixels"] == quoted["pixels"]
+        assert data["device_name"] == quoted["device_name"]
+    assert 40 < cpu_slowdown() < 60
+
+
+def test_describe_says_which_device_and_what_the_cpu_costs():
+    level, text = describe(DeviceInfo())
+    assert level == "cpu" and "run on the CPU" in text and f"{cpu_slowdown():.0f}× slower" in text
+    assert "1.9 s per frame" in text and "38 ms per frame" in text
+    level, text = describe(DeviceInfo(cuda_devices=("NVIDIA H100 80GB HBM3",)))
+    assert level == "gpu" and "NVIDIA H100" in text and "CPU" not in text
+    level, text = describe(DeviceInfo(error="OSError: warp.so not found"))
+    assert level == "error" and "warp.so not found" in text
+
+
+def _click(qtbot, widget):
+    qtbot.mouseClick(widget, QtCore.Qt.MouseButton.LeftButton)
+
+
+def _window(qtbot):
+    from app.main_window import MainWindow
+    from app.welcome import show_welcome
+
+    win = MainWindow(create_scene_on_show=False)
+    qtbot.addWidget(win)
+    page = show_welcome(win)
+    win.show()
+    return win, page
+
+
+@pytest.mark.gui
+def test_welcome_page_through_clicks(qtbot, tmp_path, monkeypatch):
+    from app import settings
+
+    monkeypatch.setenv("TALUS_DEMO_DIR", str(tmp_path / "demo"))
+    monkeypatch.setenv("TALUS_SETTINGS_DIR", str(tmp_path / "settings"))
+    win, page = _window(qtbot)
+    # the window is up before Warp answers; the answer names the device (no GPU here: the CPU)
+    assert page.isVisible() and not win.splitter.isVisible()
+    assert page.recent.count() == 1 and "No study" in page.recent.item(0).text()
+    with qtbot.waitSignal(page.device_checked, timeout=HUNG_MS) as sig:
+        pass
+    info = sig.args[0]
+    level, text = describe(info)
+    assert page.device.text() == text and page.device.property("level") == level
+    if info.uses_cpu and info.error is None:
+        assert "will run on the CPU" in page.device.text() and "× slower" in page.device.text()
+    shots = os.environ.get("TALUS_SCREENSHOTS")
+    if shots:
+        win.resize(1100, 700)
+        qtbot.wait(200)
+        win.grab().save(str(Path(shots) / "welcome.png"))
+
+    # Open the demo: written once in a worker (tiny here), then shown in place of the page
+    page.demo_options = dict(n_frames=2, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu",
+                             calibration_session=False)
+    _click(qtbot, page.demo_button)
+    assert not page.demo_button.isEnabled() and "Writing the demo" in page.status.text()
+    qtbot.waitUntil(lambda: win.model is not None, timeout=HUNG_MS)
+    assert not page.isVisible() and win.splitter.isVisible()
+    demo = tmp_path / "demo"
+    assert settings.recent() == [str(demo)]
+    win.close()
+
+    # Open a study… (the folder dialog answered), in a new window
+    win, page = _window(qtbot)
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getExistingDirectory", lambda *a, **k: str(demo))
+    _click(qtbot, page.open_button)
+    assert win.model is not None and not page.isVisible()
+    win.close()
+
+    # a recent study: one click
+    win, page = _window(qtbot)
+    assert [page.recent.item(i).text() for i in range(page.recent.count())] == [str(demo)]
+    item = page.recent.item(0)
+    qtbot.mouseClick(page.recent.viewport(), QtCore.Qt.MouseButton.LeftButton,
+                     pos=page.recent.visualItemRect(item).center())
+    assert win.model is not None and not page.isVisible()
+    win.close()
+
+    # Open the demo again: already written, opened at once
+    win, page = _window(qtbot)
+    _click(qtbot, page.demo_button)
+    assert win.model is not None
+    win.close()
+
+
+@pytest.mark.gui
+def test_import_a_project_names_a_bad_file(qtbot, tmp_path, monkeypatch):
+    monkeypatch.setenv("TALUS_SETTINGS_DIR", str(tmp_path / "settings"))
+    win, page = _window(qtbot)
+    cfg = tmp_path / "trial.cfg"
+    cfg.write_text("Version 1.2\nmayaCam_csv missing_cam01.txt\n", encoding="utf-8")
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getOpenFileName", lambda *a, **k: (str(cfg), ""))
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getSaveFileName",
+                        lambda *a, **k: (str(tmp_path / "study"), ""))
+    shown = []
+    monkeypatch.setattr(win, "show_error", lambda title, text: shown.append((title, text)))
+    _click(qtbot, page.import_button)
+    assert shown and ("trial.cfg" in shown[0][1] or "missing_cam01" in shown[0][1])
+    assert win.model is None and page.isVisible()
+    assert not (tmp_path / "study" / "study.json").exists()
+    # cancelled dialogs: nothing happens
+    monkeypatch.setattr(QtWidgets.QFileDialog, "getOpenFileName", lambda *a, **k: ("", ""))
+    _click(qtbot, page.import_button)
+    assert len(shown) == 1
+    win.close()

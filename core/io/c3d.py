@@ -13,6 +13,9 @@ as they are.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,9 +47,31 @@ def _ezc3d():
     return ezc3d
 
 
+def _clashes() -> bool:
+    """True when ezc3d is (or would be) imported after SimpleITK in this process: both are SWIG modules
+    and, in that order, ezc3d's own vectors match none of its overloads (TypeError on write, a
+    "not standard" file on read). Then the C3D work runs in a fresh interpreter."""
+    mods = list(sys.modules)  # in import order
+    if "SimpleITK" not in mods:
+        return False
+    return "ezc3d" not in mods or mods.index("ezc3d") > mods.index("SimpleITK")
+
+
+def _in_subprocess(code: str, *args: str, **arrays) -> dict:
+    root = Path(__file__).resolve().parents[2]
+    with tempfile.TemporaryDirectory(prefix="talus-c3d-") as d:
+        np.savez(Path(d) / "in.npz", **arrays)
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+        r = subprocess.run([sys.executable, "-c", code, d, *args], env=env, capture_output=True, text=True)
+        if r.returncode:
+            last = (r.stderr.strip().splitlines() or ["(no message)"])[-1]
+            raise ValueError(last)
+        out = Path(d) / "out.npz"
+        return dict(np.load(out, allow_pickle=False)) if out.exists() else {}
+
+
 def write_c3d(path: str | os.PathLike, bones, poses, *, rate: float) -> None:
     """Write ``poses`` ``(n_frames, n_bones, 4, 4)`` (``T_lab_from_bone``, mm) of ``bones``."""
-    ezc3d = _ezc3d()
     names = tuple(str(b) for b in bones)
     P = np.asarray(poses, dtype=float)
     if P.ndim != 4 or P.shape[1:] != (len(names), 4, 4) or not len(P):
@@ -55,6 +80,14 @@ def write_c3d(path: str | os.PathLike, bones, poses, *, rate: float) -> None:
         raise ValueError(f"bones: expected distinct names of 1-24 characters, got {names}")
     if not (float(rate) > 0 and np.isfinite(rate)):
         raise ValueError(f"rate: expected a positive frame rate, got {rate!r}")
+    if _clashes():
+        _in_subprocess(
+            "import sys, numpy as np; from core.io.c3d import write_c3d;"
+            " a = np.load(sys.argv[1] + '/in.npz');"
+            " write_c3d(str(a['path']), [str(b) for b in a['bones']], a['poses'], rate=float(a['rate']))",
+            path=np.array(str(Path(path).absolute())), bones=np.array(names), poses=P, rate=np.array(rate))
+        return
+    ezc3d = _ezc3d()
     n, nb = P.shape[:2]
     offsets = np.array([[0, 0, 0], [AXIS_MM, 0, 0], [0, AXIS_MM, 0], [0, 0, AXIS_MM]], dtype=float)
     pts = np.einsum("fbij,pj->fbpi", P[..., :3, :3], offsets) + P[:, :, None, :3, 3]  # (n, nb, 4, 3)
@@ -84,9 +117,20 @@ def read_c3d(path: str | os.PathLike) -> C3DBones:
 
 @reads("a C3D file")
 def _read(path: Path) -> C3DBones:
-    ezc3d = _ezc3d()
     if not path.is_file():
         raise FileError(f"{path}: no such file", path=path)
+    if _clashes():
+        try:
+            a = _in_subprocess(
+                "import sys, dataclasses, numpy as np; from core.io.c3d import read_c3d;"
+                " r = read_c3d(sys.argv[2]); d = dataclasses.asdict(r);"
+                " np.savez(sys.argv[1] + '/out.npz', **{k: np.asarray(v) for k, v in d.items()})",
+                str(path.absolute()), dummy=np.zeros(0))
+        except ValueError as exc:
+            raise ValueError(str(exc).split(": ", 1)[-1]) from None
+        return C3DBones(tuple(str(b) for b in a["bones"]), a["poses"], float(a["rate"]),
+                        tuple(str(b) for b in a["point_labels"]), a["points"], str(a["units"]))
+    ezc3d = _ezc3d()
     c = ezc3d.c3d(str(path))
     params = c["parameters"]
     rate = float(params["POINT"]["RATE"]["value"][0])

@@ -63,6 +63,7 @@ def import_autoscoper(
 
     from ..io.autoscoper import read_autoscoper_cfg, read_tra
     from ..io.autoscoper_pose import lab_from_bone_from_tra
+    from ..io.sequences import open_sequence
     from .study import Study
 
     cfg = Path(cfg).absolute()
@@ -80,7 +81,15 @@ def import_autoscoper(
             study.add_volume(b, v.path, voxel_size_mm=v.voxel_size, hu_offset=hu_offset)
             study.add_bone(b, volume=b)
             bones.append(b)
-        study.add_trial(trial, list(t.camera_root_dirs), calibration="autoscoper", bones=bones)
+        bits = set()
+        for d in t.camera_root_dirs:  # the stored bit depth (8-bit radiographs are common)
+            seq = open_sequence(d)
+            try:
+                bits.add(int(seq.bit_depth))
+            finally:
+                seq.close()
+        study.add_trial(trial, list(t.camera_root_dirs), calibration="autoscoper", bones=bones,
+                        bit_depth=bits.pop() if len(bits) == 1 else None)
         meshes = [None if getattr(v, "mesh", None) is None else str(v.mesh) for v in t.volumes]
         study.update_settings(imported_from={
             "format": "autoscoper-cfg",

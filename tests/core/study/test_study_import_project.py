@@ -78,3 +78,78 @@ def test_bad_project_files_name_the_file(tmp_path):
         import_project(p, tmp_path / "s")
     with pytest.raises(ValueError, match="expected an Autoscoper"):
         import_project(tmp_path / "x.zip", tmp_path / "s")
+
+
+@pytest.fixture(scope="module")
+def wrist_study(wrist_project):
+    from core.study.import_project import import_project
+
+    d, cfg, talus = wrist_project
+    out = d / "study_export"
+    import_project(cfg, out, tra=d / "wrist.tra").close()
+    return out, talus
+
+
+@pytest.mark.parametrize("fmt", ["tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs"])
+def test_export_formats_read_back(wrist_study, fmt, tmp_path):
+    from core.study import Study
+    from core.study.export_trial import export_trial
+
+    folder, talus = wrist_study
+    if fmt == "c3d":
+        pytest.importorskip("ezc3d")
+    out = tmp_path / ("out" if fmt in ("tfm", "jts") else f"out.{fmt}")
+    with Study.open(folder) as s:
+        paths = export_trial(s, "trial", fmt, out, rate=50.0)
+        bones = s.bones
+        if fmt == "tra":
+            from core.io.autoscoper_pose import lab_from_bone_from_tra
+            from core.io.autoscoper_tra import read_tra
+
+            T = read_tra(out, n_volumes=2)
+            for b, bone in enumerate(bones):
+                np.testing.assert_allclose(lab_from_bone_from_tra(T[1, b], s.bone_volume(bone)), talus[b],
+                                           atol=1e-6)
+            assert np.isnan(T[0]).all()
+            return
+        rig = s.trial("trial").rig()
+    if fmt == "xromm-csv":
+        from core.io.rigid_body_csv import read_rigid_body_csv
+
+        r = read_rigid_body_csv(out)
+        assert r.bodies == bones and list(r.frames) == [1, 2, 3]
+        got = r.poses[1]
+    elif fmt == "tfm":
+        from core.io.slicer_tfm import read_slicer_tfm
+
+        assert [p.name for p in paths] == [f"{b}.tfm" for b in bones]
+        got = np.stack([read_slicer_tfm(p) for p in paths])
+    elif fmt == "jts":
+        from core.io.jointtrack import jts_to_lab, read_jts
+
+        got = np.stack([jts_to_lab(read_jts(p)[1], rig[0]) for p in paths])
+    elif fmt == "c3d":
+        from core.io.c3d import read_c3d
+
+        r = read_c3d(out)
+        assert r.bones == bones and r.rate == 50.0
+        got = r.poses[1]
+    elif fmt == "mot":
+        from core.io.opensim import kinematics_to_poses, read_mot
+
+        got = kinematics_to_poses(read_mot(out), bones)[1]
+    elif fmt == "trc":
+        from core.io.opensim import read_trc
+
+        r = read_trc(out)
+        assert len(r.names) == 8 and r.rate == 50.0
+        np.testing.assert_allclose(r.xyz[1, 0], talus[0][:3, 3], atol=1e-6)
+        np.testing.assert_allclose(r.xyz[1, 5], (talus[1] @ [10, 0, 0, 1])[:3], atol=1e-6)
+        return
+    else:
+        from core.io.jcs_csv import read_jcs_csv
+
+        r = read_jcs_csv(out)
+        assert len(r.joints) == 1 and np.isfinite(r.values[1]).all() and np.isnan(r.values[0]).all()
+        return
+    np.testing.assert_allclose(got, talus, atol=1e-5)

@@ -1,0 +1,57 @@
+"""``talus export``: write a trial's poses for the peers' and downstream tools.
+
+Usage::
+
+    talus export STUDY --trial T --format tra|xromm-csv|tfm|jts|c3d|mot|trc|jcs [--out PATH]
+                 [--bones a,b] [--rate HZ] [--frame F] [--camera C]
+
+Formats (see :mod:`core.study.export_trial`): Autoscoper ``.tra`` (its volume frame), XMALab /
+XROMM rigid-body CSV, one Slicer ``.tfm`` per bone (one frame), one JointTrack ``.jts`` per bone
+(a camera's frame), C3D (4x4 rotations), OpenSim ``.mot`` / ``.trc``, JCS angle CSV. Default
+output: ``STUDY/exports/<trial>.<ext>`` (a folder for tfm and jts).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ._shared import EXIT_OK, PROG, CliError, print_json
+
+__all__ = ["HELP", "configure", "run"]
+
+HELP = "write a trial's poses for other tools (.tra, C3D, .mot...)"
+FORMATS = ("tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs")
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Write the poses of a study trial in another tool's format. NaN / empty "
+                     "where a bone has no pose. JSON summary (files written) on stdout.")
+    p.add_argument("study", metavar="STUDY", help="study folder (study.json)")
+    p.add_argument("--trial", required=True, help="trial name")
+    p.add_argument("--format", required=True, choices=FORMATS, dest="fmt")
+    p.add_argument("--out", default=None, metavar="PATH", help="output file (folder for tfm, jts)")
+    p.add_argument("--bones", default=None, help="comma-separated bones (default: the trial's)")
+    p.add_argument("--rate", type=float, default=100.0, help="frame rate, Hz (default 100)")
+    p.add_argument("--frame", type=int, default=None, help="tfm: the frame (default the first with poses)")
+    p.add_argument("--camera", type=int, default=0, help="jts: camera index (default 0)")
+    p.set_defaults(run=run)
+
+
+def run(a: argparse.Namespace) -> int:
+    folder = Path(a.study).expanduser()
+    if not folder.is_dir():
+        raise CliError(f"STUDY: no study folder at {folder}")
+    from core.study import Study
+    from core.study.export_trial import default_out, export_trial
+
+    out = Path(a.out).expanduser() if a.out else default_out(folder, a.trial, a.fmt)
+    if a.fmt not in ("tfm", "jts"):
+        out.parent.mkdir(parents=True, exist_ok=True)
+    with Study.open(folder, mode="r") as study:
+        paths = export_trial(study, a.trial, a.fmt, out, bones=a.bones.split(",") if a.bones else None,
+                             rate=a.rate, frame=a.frame, camera=a.camera)
+    print(f"{PROG} export: wrote {len(paths)} file(s)", file=sys.stderr)
+    print_json({"format": a.fmt, "files": [str(p) for p in paths]})
+    return EXIT_OK

@@ -24,7 +24,8 @@ COMMANDS: dict[str, str] = {
     "study": "app.commands.study",
     "bench": "app.commands.bench",
     "sample": "app.commands.sample",
-    "import": "app.commands.import_folder",
+    "import": "app.commands.import_project",
+    "export": "app.commands.export",
 }
 
 __all__ = ["COMMANDS"]

@@ -1,0 +1,164 @@
+"""``talus batch``: track many trials and bones of one or more studies on a Dask cluster.
+
+Usage::
+
+    talus batch STUDY... [--trials a,b] [--bones a,b] [--joint] [--workers N]
+                [--scheduler ADDRESS] [--device cpu|cuda] [--frames START:STOP] [--metric gc]
+                [--no-confidence] [--max-uncertainty MM,DEG] [--out SUMMARY.json] [--quiet]
+
+Each (trial, bone) — or (trial, bone group) with ``--joint`` — is one task
+(:mod:`core.tracking.batch`); tasks run on a local Dask cluster (one worker process per GPU,
+else per CPU core; ``--workers`` sets how many) or on the cluster of ``--scheduler``. Each
+task tracks into its study's journal as ``talus track --resume`` would, so a batch that was
+stopped, or whose worker died, carries on where it was; a failed task is retried once and then
+reported. ``--workers 0`` runs the tasks one after the other in this process, without Dask.
+Progress goes to stderr (the Dask dashboard address first), the JSON summary to stdout.
+Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
+it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from pathlib import Path
+
+from ._shared import (
+    EXIT_CANCELLED,
+    EXIT_ERROR,
+    EXIT_NOTHING_DONE,
+    EXIT_OK,
+    PROG,
+    CliError,
+    Progress,
+    print_json,
+    stdout_to_stderr,
+)
+
+__all__ = ["HELP", "configure", "run"]
+
+HELP = "track many trials and bones of studies on a Dask cluster"
+
+
+def _names(text: str | None) -> list[str] | None:
+    return None if text is None else [s for s in (t.strip() for t in text.split(",")) if s]
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = ("Track the trials and bones of one or more studies as independent tasks on "
+                     "Dask distributed: a local cluster (one worker per GPU, else per CPU core) or "
+                     "--scheduler's. Poses go to the studies' journals as with 'talus track "
+                     "--resume': run it again to carry on. JSON summary on stdout.")
+    p.add_argument("studies", nargs="+", metavar="STUDY", help="study folders (study.json)")
+    p.add_argument("--trials", default=None, help="comma-separated trial names (default: all)")
+    p.add_argument("--bones", default=None, help="comma-separated bone names (default: each trial's)")
+    p.add_argument("--joint", action="store_true",
+                   help="one task per trial tracking its bones jointly (mode joint) instead of one per bone")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: one per GPU, else per CPU core; "
+                        "0: run the tasks here, one after the other, without Dask)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="an existing Dask scheduler, e.g. tcp://head:8786 (its workers must see the "
+                        "study folders at the same paths)")
+    p.add_argument("--device", default=None, help="Warp device of every task: cpu or cuda (default: "
+                                                  "the worker's GPU when it has one, else cpu)")
+    p.add_argument("--frames", default=None, help="START:STOP of every trial (default: all frames)")
+    p.add_argument("--metric", default="gc", help="similarity metric (as talus track)")
+    p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
+    p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
+    p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",
+                   help="flag frames whose confidence exceeds MM or DEG for review (as talus track)")
+    p.add_argument("--out", default=None, help="also write the JSON summary to this file")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(run=run)
+
+
+def _frames(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    try:
+        a, b = text.split(":", 1)
+        lo, hi = int(a), int(b)
+    except ValueError:
+        raise ValueError(f"--frames: expected START:STOP (two frame numbers), got {text!r}") from None
+    if not 0 <= lo < hi:
+        raise ValueError(f"--frames: {text!r} is not a non-empty range START:STOP with 0 <= START")
+    return lo, hi
+
+
+class _Follow:
+    """Worker events → progress lines: tasks done of all, and the frame of the task that moved."""
+
+    def __init__(self, progress: Progress, n_tasks: int) -> None:
+        self.progress, self.n_tasks, self.done = progress, n_tasks, 0
+
+    def __call__(self, e: dict) -> None:
+        kind, key = e.get("kind"), e.get("key", "?")
+        if kind == "start":
+            self.progress.note(f"{key}: started on {e.get('host')} (pid {e.get('pid')}, "
+                               f"device {e.get('device')})")
+        elif kind == "frame":
+            w = 20
+            k = int(w * e["done"] / max(e["total"], 1))
+            score = e.get("score")
+            self.progress(self.done, self.n_tasks,
+                          f"tasks | {key} [{'#' * k}{'.' * (w - k)}] frame {e['done']}/{e['total']}"
+                          + ("" if score is None else f" score {score:.3f}"))
+        elif kind == "end":
+            self.done += 1
+            self.progress.note(f"{key}: {e.get('status')} in {e.get('seconds', 0.0):.1f} s "
+                               f"({self.done}/{self.n_tasks} tasks)")
+
+
+def run(a: argparse.Namespace) -> int:
+    for s in a.studies:
+        if not Path(s).expanduser().is_dir():
+            raise CliError(f"STUDY: no study folder at {Path(s).expanduser()}")
+    if a.workers is not None and a.workers < 0:
+        raise CliError(f"--workers: expected 0 or more worker processes, got {a.workers}")
+    if a.workers == 0 and a.scheduler:
+        raise CliError("--workers 0 runs the tasks here; it cannot be combined with --scheduler")
+    from .track import parse_limits
+
+    limits = parse_limits(a.max_uncertainty)
+    frames = _frames(a.frames)
+    if a.workers != 0 and importlib.util.find_spec("distributed") is None:
+        raise CliError(f"{PROG} batch needs Dask distributed, which is not installed: "
+                       "pip install 'talus-biplane[batch]' (or run with --workers 0, without Dask)")
+    from core.tracking.batch import TaskSettings, build_tasks, run_batch, run_serial
+
+    tasks = build_tasks([Path(s).expanduser() for s in a.studies], _names(a.trials), _names(a.bones),
+                        joint=a.joint)
+    settings = TaskSettings(device=a.device, metric=a.metric, threshold_hu=a.threshold,
+                            confidence=not a.no_confidence, max_uncertainty=limits, frames=frames)
+    progress = Progress("batch", quiet=a.quiet)
+    follow = _Follow(progress, len(tasks))
+    progress.note(f"{len(tasks)} tasks: {', '.join(t.key for t in tasks[:6])}"
+                  + (" ..." if len(tasks) > 6 else ""))
+
+    def started(info: dict) -> None:
+        progress.note(f"Dask dashboard: {info['dashboard']} (scheduler {info['scheduler']}, "
+                      f"{info['workers']} workers)")
+
+    try:
+        with stdout_to_stderr():
+            if a.workers == 0:
+                summary = run_serial(tasks, settings, progress=follow)
+            else:
+                summary = run_batch(tasks, settings, workers=a.workers, scheduler=a.scheduler,
+                                    on_event=follow, on_start=started)
+    except KeyboardInterrupt:
+        progress.close()
+        print(f"{PROG} batch: interrupted; the frames finished so far are saved (run the same "
+              f"'{PROG} batch' again to carry on)", file=sys.stderr)
+        return EXIT_CANCELLED
+    finally:
+        progress.close()
+    print_json(summary, a.out)
+    for f in summary["failures"]:
+        print(f"{PROG} batch: task {f['key']} failed after {f['attempts']} attempts: {f['error']}",
+              file=sys.stderr)
+    if summary["status"] == "failed":
+        return EXIT_ERROR
+    return EXIT_NOTHING_DONE if summary["status"] == "stopped" else EXIT_OK

@@ -1,0 +1,70 @@
+"""``talus batch``: the command wires core.tracking.batch (tasks, progress lines, JSON summary,
+exit statuses); the Dask runs themselves are tested in tests/core/tracking/test_batch.py."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from app.commands import batch
+from app.commands._shared import EXIT_ERROR, EXIT_OK, CliError, report_error
+
+
+def talus_batch(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="talus batch")
+    batch.configure(p)
+    a = p.parse_args(argv)
+    try:
+        return a.run(a)
+    except Exception as exc:
+        return report_error(exc, "batch")
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("demo")
+    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    return out
+
+
+def test_batch_without_dask_tracks_journals_and_summarises(demo, capsys):
+    from core.study import Study
+
+    rc = talus_batch([str(demo), "--trials", "walk", "--bones", "talus,calcaneus", "--frames", "0:2",
+                      "--workers", "0", "--device", "cpu", "--no-confidence"])
+    out = capsys.readouterr()
+    assert rc == EXIT_OK, out.err
+    s = json.loads(out.out)
+    assert s["status"] == "complete" and s["tasks"] == 2 and s["frames_tracked"] == 4
+    assert [r["key"] for r in s["task_records"]] == [f"{demo.name}/walk/talus", f"{demo.name}/walk/calcaneus"]
+    assert all(r["attempts"] == 1 and r["seconds"] > 0 for r in s["task_records"])
+    assert "2 tasks:" in out.err and "frame 2/2" in out.err and "complete in" in out.err
+    with Study.open(demo) as st:
+        for b in ("talus", "calcaneus"):
+            assert np.isfinite(st.trial("walk").poses(b)).all()
+            assert st.read_report("tracking", f"walk.{b}")["summary"]["status"] == "complete"
+    # run again: everything is in the journals already, nothing is tracked
+    rc = talus_batch([str(demo), "--trials", "walk", "--bones", "talus", "--frames", "0:2",
+                      "--workers", "0", "--device", "cpu", "--quiet"])
+    s = json.loads(capsys.readouterr().out)
+    assert rc == EXIT_OK and s["frames_tracked"] == 0 and s["task_records"][0]["frames_resumed"] == 2
+
+
+def test_batch_bad_input(demo, tmp_path, capsys):
+    assert talus_batch([str(tmp_path / "nowhere")]) == EXIT_ERROR
+    assert "no study folder" in capsys.readouterr().err
+    assert talus_batch([str(demo), "--trials", "run"]) == EXIT_ERROR
+    assert "--trials: ['run'] not found" in capsys.readouterr().err
+    assert talus_batch([str(demo), "--frames", "2:1", "--workers", "0"]) == EXIT_ERROR
+    assert "--frames" in capsys.readouterr().err
+    with pytest.raises(CliError, match="--workers"):
+        p = argparse.ArgumentParser()
+        batch.configure(p)
+        a = p.parse_args([str(demo), "--workers", "0", "--scheduler", "tcp://h:8786"])
+        a.run(a)

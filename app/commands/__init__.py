@@ -24,7 +24,7 @@ COMMANDS: dict[str, str] = {
     "study": "app.commands.study",
     "bench": "app.commands.bench",
     "sample": "app.commands.sample",
-    "import": "app.commands.import_project",
+    "import": "app.commands.import_folder",
     "export": "app.commands.export",
 }
 

@@ -6,13 +6,17 @@ Sources: Autoscoper ``libautoscoper/src/Trial.cpp`` (``parse``, ``save``), ``Coo
 (config, filter file). MayaCam camera files are read by :mod:`core.geometry.mayacam`.
 
 Trial configuration (``.cfg``)
-    ``key value`` lines; blank lines and lines starting with ``#`` are skipped. Keys:
-    ``Version`` (``1.1``; missing means 1.0), ``mayaCam_csv`` and ``CameraRootDir`` (one each per
-    camera, in camera order), per volume ``VolumeFile``, ``VolumeFlip x y z`` (0/1) and
-    ``VoxelSize sx sy sz`` (mm), ``RenderResolution w h``, ``OptimizationOffsets`` (6 numbers),
-    ``TrackingFolder``, ``FilterFolder``. Version 1.1 paths may be relative to the ``.cfg``'s
-    folder; version 1.0 files normally hold absolute paths (a relative one is also resolved
-    against the ``.cfg``'s folder here). Backslashes are read as ``/``.
+    ``key value`` lines; blank lines and lines starting with ``#`` are skipped; Windows line
+    endings are read like Unix ones (Autoscoper reads lines with ``SystemTools::GetLineFromStream``,
+    ``Trial.cpp`` line 215, which drops the ``\r``). Keys:
+    ``Version`` (``1.2``, ``1.1``; missing means 1.0), ``mayaCam_csv`` and ``CameraRootDir`` (one
+    each per camera, in camera order), per volume ``VolumeFile``, ``VolumeFlip x y z`` (0/1) and
+    ``VoxelSize sx sy sz`` (mm), and from version 1.2 ``MeshFile`` (the volume's surface model:
+    none at all or one per volume, in volume order — ``Trial.cpp`` lines 147-149 and 302-309;
+    read only from 1.2 on, as Autoscoper does), ``RenderResolution w h``, ``OptimizationOffsets``
+    (6 numbers), ``TrackingFolder``, ``FilterFolder``. Version 1.1+ paths may be relative to the
+    ``.cfg``'s folder; version 1.0 files normally hold absolute paths (a relative one is also
+    resolved against the ``.cfg``'s folder here). Backslashes are read as ``/``.
 
 Tracking results (``.tra``)
     See :mod:`core.io.autoscoper_tra` (re-exported here).
@@ -66,11 +70,12 @@ def _numbers(path: Path, lineno: int, text: str, n: int, what: str, kind=float) 
 # ---------------------------------------------------------------------------- .cfg
 @dataclass(frozen=True)
 class AutoscoperVolume:
-    """One ``VolumeFile`` of a trial: TIFF stack, voxel size (mm, x y z) and flips."""
+    """One ``VolumeFile`` of a trial: TIFF stack, voxel size (mm, x y z), flips and (1.2) mesh."""
 
     path: Path
     voxel_size: tuple[float, float, float]
     flip: tuple[bool, bool, bool] = (False, False, False)
+    mesh: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -97,7 +102,7 @@ def _cfg_path(value: str, base: Path) -> Path:
 
 @reads("an Autoscoper trial .cfg")
 def read_autoscoper_cfg(path: str | os.PathLike) -> AutoscoperTrial:
-    """Read an Autoscoper trial ``.cfg`` (versions 1.0 and 1.1; see the module docstring).
+    """Read an Autoscoper trial ``.cfg`` (versions 1.0 to 1.2; see the module docstring).
 
     Raises
     ------
@@ -107,7 +112,7 @@ def read_autoscoper_cfg(path: str | os.PathLike) -> AutoscoperTrial:
     """
     path = Path(path)
     base = path.parent.absolute()
-    keys = ("mayaCam_csv", "CameraRootDir", "VolumeFile", "VolumeFlip", "VoxelSize")
+    keys = ("mayaCam_csv", "CameraRootDir", "VolumeFile", "VolumeFlip", "VoxelSize", "MeshFile")
     lists: dict[str, list] = {k: [] for k in keys}
     version, resolution, offsets = None, (512, 512), (0.1,) * 6
     folders = {"TrackingFolder": "Tracking", "FilterFolder": "xParameters"}
@@ -117,7 +122,7 @@ def read_autoscoper_cfg(path: str | os.PathLike) -> AutoscoperTrial:
             continue
         key, _, value = line.strip().partition(" ")
         value = value.strip()
-        if key in ("mayaCam_csv", "CameraRootDir", "VolumeFile"):
+        if key in ("mayaCam_csv", "CameraRootDir", "VolumeFile", "MeshFile"):
             if not value:
                 raise ValueError(f"{path}: line {lineno} ({key}): expected a path, got nothing")
             lists[key].append(_cfg_path(value, base))
@@ -155,8 +160,8 @@ def read_autoscoper_cfg(path: str | os.PathLike) -> AutoscoperTrial:
         else:
             raise ValueError(
                 f"{path}: line {lineno}: unknown key {key!r}; expected one of Version, mayaCam_csv, "
-                "CameraRootDir, VolumeFile, VolumeFlip, VoxelSize, RenderResolution, OptimizationOffsets, "
-                "TrackingFolder, FilterFolder"
+                "CameraRootDir, VolumeFile, VolumeFlip, VoxelSize, MeshFile, RenderResolution, "
+                "OptimizationOffsets, TrackingFolder, FilterFolder"
             )
     cams, dirs = lists["mayaCam_csv"], lists["CameraRootDir"]
     if not cams or len(cams) != len(dirs):
@@ -171,7 +176,14 @@ def read_autoscoper_cfg(path: str | os.PathLike) -> AutoscoperTrial:
             f"volume), got {len(files)} file(s), {len(sizes)} voxel size(s), {len(flips)} flip(s)"
         )
     flips = flips + [(False, False, False)] * (len(files) - len(flips))
-    vols = tuple(AutoscoperVolume(f, s, fl) for f, s, fl in zip(files, sizes, flips, strict=True))
+    meshes = lists["MeshFile"] if (version or (1, 0)) >= (1, 2) else []
+    if meshes and len(meshes) != len(files):
+        raise ValueError(
+            f"{path}: expected a MeshFile for each VolumeFile or none at all, got {len(files)} volume(s) "
+            f"and {len(meshes)} mesh file(s)"
+        )
+    meshes = meshes or [None] * len(files)
+    vols = tuple(AutoscoperVolume(*v) for v in zip(files, sizes, flips, meshes, strict=True))
     return AutoscoperTrial(
         cameras=tuple(cams), camera_root_dirs=tuple(dirs), volumes=vols, render_resolution=resolution,
         optimization_offsets=offsets, version=version or (1, 0),
@@ -190,22 +202,33 @@ def _g(x: float) -> str:
     return f"{float(x):.12g}"
 
 
-def write_autoscoper_cfg(trial: AutoscoperTrial, path: str | os.PathLike) -> None:
-    """Write a version 1.1 ``.cfg`` (paths relative to its folder), atomically."""
+def write_autoscoper_cfg(trial: AutoscoperTrial, path: str | os.PathLike, *, newline: str = "\n") -> None:
+    """Write a ``.cfg`` (paths relative to its folder), atomically: version 1.2 with a ``MeshFile``
+    per volume when the volumes have meshes, else 1.1. ``newline="\r\n"`` writes Windows line
+    endings (as Autoscoper does on Windows)."""
     if not isinstance(trial, AutoscoperTrial):
         raise ValueError(f"trial: expected an AutoscoperTrial, got {type(trial).__name__}")
+    if newline not in ("\n", "\r\n"):
+        raise ValueError(f"newline: expected '\\n' or '\\r\\n', got {newline!r}")
+    has_mesh = [v.mesh is not None for v in trial.volumes]
+    if any(has_mesh) and not all(has_mesh):
+        raise ValueError("trial: expected a mesh for every volume or for none (as Autoscoper 1.2 reads them)")
     path = Path(path)
     base = path.parent.absolute()
-    lines = ["Version 1.1", f"FilterFolder {trial.filter_folder}", f"TrackingFolder {trial.tracking_folder}"]
+    version = "1.2" if all(has_mesh) else "1.1"
+    lines = [f"Version {version}", f"FilterFolder {trial.filter_folder}",
+             f"TrackingFolder {trial.tracking_folder}"]
     lines += [f"mayaCam_csv {_rel(p, base)}" for p in trial.cameras]
     lines += [f"CameraRootDir {_rel(p, base)}" for p in trial.camera_root_dirs]
     for v in trial.volumes:
         lines.append(f"VolumeFile {_rel(v.path, base)}")
         lines.append("VolumeFlip " + " ".join(str(int(f)) for f in v.flip))
         lines.append("VoxelSize " + " ".join(_g(s) for s in v.voxel_size))
+        if v.mesh is not None:
+            lines.append(f"MeshFile {_rel(v.mesh, base)}")
     lines.append("RenderResolution {} {}".format(*trial.render_resolution))
     lines.append("OptimizationOffsets " + " ".join(_g(o) for o in trial.optimization_offsets))
-    atomic_write(path, "\n".join(lines) + "\n")
+    atomic_write(path, newline.join(lines) + newline)
     read_autoscoper_cfg(path)  # what was written must read back
 
 

@@ -7,9 +7,11 @@ commas or spaces (Autoscoper ``AutoscoperMainWindow::save_tracking_results`` /
 with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (``CoordFrame::from_xyzypr``; degrees unless radians
 were chosen). Translations are in mm or cm. ``NaN`` values mark an untracked frame.
 
-The matrices are read and written as they are: Talus writes ``T_lab_from_bone`` (CT physical
-frame); Autoscoper's own files hold the pose of its volume frame (the TIFF stack with its flips
-and pivot), which is not converted here.
+The matrices are read and written as they are. Autoscoper's files hold the pose of its *volume
+frame* (the TIFF stack turned 180° about x, after its flips; no pivot): convert them to and from
+Talus's ``T_lab_from_bone`` with :func:`core.io.autoscoper_pose.lab_from_bone_from_tra` and
+:func:`~core.io.autoscoper_pose.tra_from_lab_from_bone` (re-exported here), whose docs cite the
+lines of Autoscoper's source that settled each convention.
 """
 
 from __future__ import annotations
@@ -21,9 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_write
+from .autoscoper_pose import lab_from_bone_from_tra, tra_from_lab_from_bone
 from .errors import reads
 
-__all__ = ["matrix_to_xyzypr", "read_tra", "write_tra", "xyzypr_to_matrix"]
+__all__ = [
+    "lab_from_bone_from_tra",
+    "matrix_to_xyzypr",
+    "read_tra",
+    "tra_from_lab_from_bone",
+    "write_tra",
+    "xyzypr_to_matrix",
+]
 
 
 def _text_lines(path: Path, what: str) -> list[str]:

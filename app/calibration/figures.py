@@ -43,7 +43,7 @@ def reprojection_figure(cal) -> object:
     n = int(ba.frame_index.max()) + 1 if ba.frame_index.size else 0
     per = [np.sqrt(np.mean(err[ba.frame_index == f] ** 2)) if np.any(ba.frame_index == f) else np.nan
            for f in range(n)]
-    fig = _fig(5.2, 3.0)
+    fig = _fig(6.0, 4.2)
     ax = fig.add_subplot(1, 1, 1)
     ax.bar(np.arange(n), per, color="tab:blue")
     ax.set_xlabel("labelled frame (the last is the static object when there is one)")
@@ -55,7 +55,7 @@ def reprojection_figure(cal) -> object:
 
 def poses_figure(cal) -> object:
     """Cameras (source → detector centre) and the object's poses in the lab frame, 3-D."""
-    fig = _fig(5.2, 4.2)
+    fig = _fig(5.6, 4.8)
     ax = fig.add_subplot(1, 1, 1, projection="3d")
     for cam, col in zip(cal.rig, ("tab:red", "tab:green"), strict=False):
         s = np.asarray(cam.source, float)

@@ -295,10 +295,14 @@ class CalibrationWizard(QtWidgets.QDialog):
         g.addWidget(self.poses_view, 1, 1)
         self.sd_table = _table(["camera", "f (px)", "SD f", "SD cu", "SD cv", "SID (mm)",
                                 "SD source x/y/z (mm)"])
+        self.sd_table.setMaximumHeight(110)
         g.addWidget(self.sd_table, 2, 0, 1, 2)
         self.resolve_button = QtWidgets.QPushButton("Solve again")
         self.resolve_button.clicked.connect(lambda: self._run_solve(force=True))
         g.addWidget(self.resolve_button, 3, 0)
+        g.setRowStretch(1, 1)
+        self.solve_info.setSizePolicy(QtWidgets.QSizePolicy.Policy.Preferred,
+                                      QtWidgets.QSizePolicy.Policy.Minimum)
         return w
 
     def _page_save(self) -> QtWidgets.QWidget:

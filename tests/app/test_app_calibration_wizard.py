@@ -1,0 +1,167 @@
+"""The calibration wizard walked with real clicks on a small rendered session: flatfield,
+distortion (another model chosen), the object frames (a wrong label fixed by clicking the bead
+and choosing its id, a frame excluded), the solve, saved into a study that ``talus track`` then
+uses. The window stays responsive while a step computes (a timer keeps ticking) and a step can
+be cancelled. Set ``TALUS_SCREENSHOTS=DIR`` to keep a screenshot of every page."""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PySide6 import QtCore
+
+pytestmark = pytest.mark.gui
+
+# waits end on the event itself; the timeout is only the ceiling for an event that never comes
+HUNG_MS = 30 * 60_000
+PIXELS = 384  # beads must be a few pixels wide to be localised
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    from core.synthetic import make_demo_study
+    from core.synthetic.session import write_calibration_session
+
+    base = tmp_path_factory.mktemp("wizard")
+    # the session's rig is the demo trial's (same pixels and seed, built without bones)
+    write_calibration_session(base / "session", pixels=PIXELS, seed=0, n_spiral=11, n_grid=1, n_lattice=0,
+                              n_dark=2, n_flat=3)
+    make_demo_study(base / "study", n_frames=2, pixels=PIXELS, seed=0, spacing=2.0, tissue_spacing=8.0,
+                    calibration_session=False, device="cpu")
+    return base / "session", base / "study"
+
+
+def _shot(w, name):
+    out = os.environ.get("TALUS_SCREENSHOTS")
+    if out:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        assert w.grab().save(str(Path(out) / f"calibration_wizard_{name}.png"))
+
+
+def _click(qtbot, widget, pos=None):
+    if pos is None:
+        qtbot.mouseClick(widget, QtCore.Qt.MouseButton.LeftButton)
+    else:
+        qtbot.mouseClick(widget, QtCore.Qt.MouseButton.LeftButton, pos=pos)
+
+
+def _step(qtbot, w, key, click):
+    """Click, then wait for the step ``key`` to answer; returns the timer ticks meanwhile."""
+    ticks = []
+    timer = QtCore.QTimer()
+    timer.setInterval(20)
+    timer.timeout.connect(lambda: ticks.append(1))
+    timer.start()
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda k: k == key):
+        click()
+    timer.stop()
+    assert w.results.get(key if key != "refit" else "distortion") is not None, w.status.text()
+    return len(ticks)
+
+
+def _click_item(qtbot, lst, row):
+    rect = lst.visualItemRect(lst.item(row))
+    _click(qtbot, lst.viewport(), rect.center())
+
+
+def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
+    from app.calibration import CalibrationWizard
+    from app.cli import main as talus
+
+    session, study = folders
+    w = CalibrationWizard(session_folder=session, study_folder=study)
+    qtbot.addWidget(w)
+    w.show()
+    _shot(w, "1_session")
+    # flatfield: computed in the pool while the window keeps ticking
+    ticks = _step(qtbot, w, "flatfield", lambda: _click(qtbot, w.next_button))
+    assert ticks >= 2 and w.page == 1
+    assert "usable" in w.ff_views[0].caption and w.rolloff_view.pixmap() is not None
+    _shot(w, "2_flatfield")
+    # distortion: the model table, then another model chosen
+    _step(qtbot, w, "distortion", lambda: _click(qtbot, w.next_button))
+    assert w.model_table.rowCount() >= 2 and len(w.grid_view.points) > 25
+    w.model_combo.setCurrentText("poly(4,4)")
+    _step(qtbot, w, "refit", lambda: _click(qtbot, w.refit_button))
+    assert "poly(4,4)" in w.dist_info.text()
+    assert w.results["distortion"]["dist"].cameras[0].grid.spec.label == "poly(4,4)"
+    _shot(w, "3_distortion")
+    # object frames: the first try is cancelled, going back is instant, then it runs again
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda k: k == "beads"):
+        _click(qtbot, w.next_button)
+        _click(qtbot, w.cancel_button)
+    assert "beads" not in w.results and "cancelled" in w.status.text()
+    _click(qtbot, w.back_button)
+    assert w.page == 2 and w._running is None and w.grid_view.points.size  # kept, nothing recomputed
+    ticks = _step(qtbot, w, "beads", lambda: _click(qtbot, w.next_button))
+    assert ticks >= 2
+    beads = w.results["beads"]
+    ok = [k for k, fr in enumerate(beads.frames) if fr.ok]
+    assert len(ok) >= 9, [fr.reason for fr in beads.frames]
+    # a wrong label: frame k, view 1, detection i carries bead b2 (detection j's) instead of b1
+    k = ok[0]
+    lab = beads.frames[k].labellings[0]
+    i, j = np.flatnonzero(lab.labels >= 0)[:2]
+    b1, b2 = int(lab.labels[i]), int(lab.labels[j])
+    from core.calibration.session import relabel
+
+    w.results["beads"] = relabel(beads, k, 0, int(i), b2)
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda key: key == "frame"):
+        _click_item(qtbot, w.frame_list, k)
+    assert w.frame_list.currentRow() == k and w.object_views[0].labels[i] == str(beads_ids(w)[b2])
+    _shot(w, "4_object_frames")
+    # fixed by hand: click detection i, choose bead b1, Assign; then detection j, bead b2
+    view = w.object_views[0]
+    for det, bead in ((i, b1), (j, b2)):
+        _click(qtbot, view, view.widget_pos(*view.points[det]))
+        assert w.assign_button.isEnabled() and view.selected == det
+        w.bead_combo.setCurrentIndex(bead)
+        _click(qtbot, w.assign_button)
+    fixed = w.results["beads"].frames[k].labellings[0]
+    assert np.array_equal(fixed.labels, lab.labels) and fixed.manual
+    # a frame excluded with a click
+    other = ok[1]
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda key: key == "frame"):
+        _click_item(qtbot, w.frame_list, other)
+    _click(qtbot, w.exclude_box)
+    assert w.results["beads"].excluded == {other} and "excluded" in w.frame_list.item(other).text()
+    _shot(w, "4_object_frames_edited")
+    # solve
+    _step(qtbot, w, "solve", lambda: _click(qtbot, w.next_button))
+    cal = w.results["solve"]["cal"]
+    rows = {(r["group"], r["index"]): r for r in cal.frames}
+    assert rows[("spiral", other)]["reason"] == "excluded by hand" and not rows[("spiral", other)]["ok"]
+    assert rows[("spiral", k)].get("manual") and cal.bundle.rms_px < 0.3
+    assert w.sd_table.rowCount() == 2 and w.poses_view.pixmap() is not None
+    _shot(w, "5_solve")
+    # save into the study: every trial uses it
+    _click(qtbot, w.next_button)
+    w.trials_combo.setCurrentText("all")
+    with qtbot.waitSignal(w.saved_calibration, timeout=HUNG_MS) as saved:
+        _click(qtbot, w.save_button)
+    assert saved.args[0].name == "session.v1" and saved.args[0].trials == ("walk",)
+    assert "session.v1" in w.save_info.text()
+    _shot(w, "6_save")
+    w.close()
+    doc = json.loads((study / "study.json").read_text())
+    assert doc["trials"]["walk"]["calibration"] == "session.v1"
+    # reopened on the saved calibration
+    again = CalibrationWizard.inspect_saved(study, "session.v1")
+    qtbot.addWidget(again)
+    assert again.session_edit.text() == str(session.absolute()) and "session.v1" in again.session_info.text()
+    again.close()
+    # talus track uses it
+    capsys.readouterr()
+    rc = talus(["track", str(study), "--trial", "walk", "--bones", "talus", "--frames", "0:2",
+                "--device", "cpu", "--no-confidence", "--quiet"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    doc = json.loads(out.out)
+    assert doc["normalisation"] == "saved with calibration session.v1"
+    assert doc["summary"]["status"] == "complete", doc
+
+
+def beads_ids(w):
+    return w.results["flatfield"]["setup"].target.bead_ids

@@ -16,6 +16,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = ("Open the Talus window; with --demo DIR (a study folder, e.g. one "
                           "written by 'talus demo'), show that study.")
     parser.add_argument("--demo", metavar="DIR", help="open this study folder at start")
+    # start-up check of an installation (installer/smoke_bundle.sh): close once up, report times
+    parser.add_argument("--smoke", action="store_true", help=argparse.SUPPRESS)
     parser.set_defaults(run=run)
 
 
@@ -39,4 +41,6 @@ def run(args: argparse.Namespace) -> int:
     check_display()
     run_gui = load("app.main_window:run_gui", needed_for="'talus gui'",
                    hint="Install the GUI extra: pip install 'talus-biplane[gui]'.")
+    if getattr(args, "smoke", False):
+        load("app.smoke:arm", needed_for="'talus gui --smoke'")(demo)
     return int(run_gui(demo=demo))

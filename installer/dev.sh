@@ -5,6 +5,8 @@
 #   bash installer/dev.sh test [pytest options]       system packages, venv + test extra, ruff,
 #                                                     import contracts, pytest under Xvfb
 #   bash installer/dev.sh gui  [talus gui options]    venv + GUI extra, then open the window
+#   bash installer/dev.sh bundle                      venv + GUI extra, then the standalone folder
+#                                                     dist/talus (installer/build.sh bundle)
 #   bash installer/dev.sh lock                        rewrite installer/constraints.txt: the
 #                                                     newest versions the ranges in pyproject.toml
 #                                                     allow, installed into a fresh temporary venv
@@ -205,8 +207,9 @@ main() {
         test) cmd_test "$@" ;;
         gui) cmd_gui "$@" ;;
         lock) cmd_lock "$@" ;;
+        bundle) ensure_venv; pip_install gui; exec bash "$ROOT/installer/build.sh" bundle "$@" ;;
         -h|--help|help) usage ;;
-        *) usage; die "unknown command '${cmd}' (expected demo, test, gui or lock)" ;;
+        *) usage; die "unknown command '${cmd}' (expected demo, test, gui, lock or bundle)" ;;
     esac
 }
 

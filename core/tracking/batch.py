@@ -147,9 +147,12 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
              progress: Callable[[dict], None] | None = None) -> dict:
     """Track ``task`` into its study's journal (resuming what is there) and return its record:
     ``key``, ``status`` (``"complete"``, ``"stopped"`` — nothing could be tracked, the reason in
-    ``stopped`` — or ``"cancelled"``), frame counts, ``seconds`` (wall), ``setup_s`` (opening,
-    CT and renderer, until the first frame started), ``frame_s`` (per registered frame), host and
-    process. ``progress(event)`` (and, on a Dask worker, the client) gets an event per frame."""
+    ``stopped`` — or ``"cancelled"``), frame counts, ``seconds`` (wall), ``load_s`` (opening the
+    study, reading the bones' CTs, opening the views, reading the journals), ``first_frame_s``
+    (after loading, until the first frame is registered: bone models, renderer and Warp kernels,
+    and the first frame's widened search and its check), ``frame_s`` (median of the later
+    frames), host and process. ``progress(event)`` (and, on a Dask worker, the client) gets an
+    event per frame."""
     from ..study import Study
     from .from_study import track_study
     from .trial import journal_inputs
@@ -179,10 +182,13 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         progress(start)
     with Study.open(task.study, mode="w", check_files=False) as st:
         trial = st.trial(task.trial)
+        for b in task.bones:
+            st.bone_volume(b)  # read once here (cached for track_study) to time the loading
         frames = None if settings.frames is None else list(range(*settings.frames))
         order = list(range(trial.n_frames)) if frames is None else frames
         _, skip = journal_inputs({b: trial.results(b) for b in task.bones}, order, resume=True)
         resumed.update((b, int(f)) for b in task.bones for f in skip[b])
+        load_s = time.perf_counter() - t0
         result, report = track_study(
             st, task.trial, list(task.bones), frames,
             options=settings.tracking_options(joint=len(task.bones) > 1), device=device,
@@ -193,7 +199,6 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     summary = dict(report.get("summary") or {})
     steps = [b - a for a, b in itertools.pairwise(marks)]
     frame_s = sorted(steps)[len(steps) // 2] if steps else None
-    first = (marks[0] - t0) if marks else seconds
     record = dict(
         base, study=task.study, trial=task.trial, bones=list(task.bones), device=device or "default",
         status="stopped" if result is None else result.status,
@@ -203,7 +208,8 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         frames_recorded=int(summary.get("recorded", 0)),
         flagged=int(summary.get("flagged", 0)),
         seconds=seconds,
-        setup_s=max(0.0, first - (frame_s or 0.0)),
+        load_s=load_s,
+        first_frame_s=(marks[0] - t0 - load_s) if marks else None,
         frame_s=frame_s,
         stopped=report.get("stopped") or {},
     )

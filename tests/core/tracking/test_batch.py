@@ -67,6 +67,18 @@ def test_summary_reports_failures():
     assert s["frames_tracked"] == 4 and s["frames_per_s"] == 1.0
 
 
+def test_throughput_model_is_a_longest_task_first_makespan():
+    from core.studies.batch.benchmark import model
+
+    one = {"task_s": [4.0, 3.0, 2.0, 1.0], "scheduling_s_per_task": 0.5, "cluster_startup_s": 1.0,
+           "frames_tracked": 20, "wall_s": 13.0}
+    m = {r["workers"]: r for r in model(one, counts=(1, 2, 4, 8))}
+    assert m[1]["wall_s"] == 13.0 and m[1]["speed_up"] == 1.0  # 1 + 4.5 + 3.5 + 2.5 + 1.5
+    assert m[2]["wall_s"] == 7.0  # {4.5, 1.5} and {3.5, 2.5}
+    assert m[4]["wall_s"] == m[8]["wall_s"] == 5.5  # the longest task bounds it
+    assert m[2]["frames_per_s"] == round(20 / 7.0, 4)
+
+
 def test_batch_on_two_workers_matches_serial_and_survives_a_killed_worker(demo, tmp_path):
     pytest.importorskip("distributed")
     from core.tracking.batch import run_batch

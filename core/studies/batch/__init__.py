@@ -1,0 +1,2 @@
+"""Throughput of ``talus batch`` (:mod:`core.tracking.batch`) against the number of workers
+(``benchmark``)."""

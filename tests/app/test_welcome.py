@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -106,6 +108,17 @@ def test_welcome_page_through_clicks(qtbot, tmp_path, monkeypatch):
     _click(qtbot, page.demo_button)
     assert win.model is not None
     win.close()
+
+    # an installation's start-up check (the bundle's smoke test runs the same): the window opens
+    # the study and closes itself cleanly
+    cmd = [sys.executable, "-c", "from app.cli import main; raise SystemExit(main())",
+           "gui", "--smoke", "--demo", str(demo)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    line = [ln for ln in r.stderr.splitlines() if ln.startswith('{"smoke"')]
+    assert r.returncode == 0 and line, r.stderr[-3000:]
+    report = json.loads(line[-1])
+    assert report["smoke"] == "ok" and report["study_s"] >= report["window_s"] > 0
+    assert set(report["bones"]) >= {"talus", "calcaneus"}
 
 
 @pytest.mark.gui

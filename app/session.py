@@ -82,7 +82,7 @@ def open_study(folder: str | Path, *, trial: str | None = None,
     MissingFilesError
         When referenced files are missing (the caller can offer to relocate them).
     core.study.LockedError
-        When another process has the study open for writing (retry with ``read_only``).
+        When another process writes a bone of the trial (retry with ``read_only``).
     ValueError / core.study.StudyError
         For a folder that is not a valid study.
     """
@@ -96,6 +96,9 @@ def open_study(folder: str | Path, *, trial: str | None = None,
             raise ValueError(f"{folder}: the study has no trial to show")
         name = trial or st.trials[0]
         tr = st.trial(name)
+        if not read_only:  # the window may write any bone of its trial: a second writer is refused
+            for bone in tr.bones:
+                st.lock_journal(name, bone)
         rig = tr.rig()
 
         @lru_cache(maxsize=32)

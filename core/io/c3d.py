@@ -7,7 +7,9 @@ one 4x4 matrix per bone and frame, ``ROTATION:LABELS`` = bone names, ``ROTATION:
 which holds ``T_lab_from_bone`` (mm) directly. Units mm, ``POINT:RATE`` the frame rate.
 
 Read: the rotations when the file has them, else nothing is invented — the points are returned
-as they are.
+as they are. ezc3d runs in a child process for reading (it crashed the process with a
+segmentation fault on damaged files while fuzzing), and for writing when SimpleITK was imported
+before it (both are SWIG modules; in that order ezc3d's vectors match none of its overloads).
 """
 
 from __future__ import annotations
@@ -58,14 +60,19 @@ def _clashes() -> bool:
 
 
 def _in_subprocess(code: str, *args: str, **arrays) -> dict:
+    """Run ``code`` in a fresh interpreter (argv: a scratch folder holding ``in.npz``, then
+    ``args``); returns the ``out.npz`` it wrote. A failure or a crash is a ``ValueError``."""
     root = Path(__file__).resolve().parents[2]
     with tempfile.TemporaryDirectory(prefix="talus-c3d-") as d:
         np.savez(Path(d) / "in.npz", **arrays)
         env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
         r = subprocess.run([sys.executable, "-c", code, d, *args], env=env, capture_output=True, text=True)
+        if r.returncode < 0:
+            raise ValueError(f"ezc3d crashed on it (signal {-r.returncode})")
         if r.returncode:
             last = (r.stderr.strip().splitlines() or ["(no message)"])[-1]
-            raise ValueError(last)
+            raise ValueError(last.split(": ", 1)[-1] if last.startswith(("OSError", "ValueError",
+                                                                          "RuntimeError")) else last)
         out = Path(d) / "out.npz"
         return dict(np.load(out, allow_pickle=False)) if out.exists() else {}
 
@@ -119,17 +126,18 @@ def read_c3d(path: str | os.PathLike) -> C3DBones:
 def _read(path: Path) -> C3DBones:
     if not path.is_file():
         raise FileError(f"{path}: no such file", path=path)
-    if _clashes():
-        try:
-            a = _in_subprocess(
-                "import sys, dataclasses, numpy as np; from core.io.c3d import read_c3d;"
-                " r = read_c3d(sys.argv[2]); d = dataclasses.asdict(r);"
-                " np.savez(sys.argv[1] + '/out.npz', **{k: np.asarray(v) for k, v in d.items()})",
-                str(path.absolute()), dummy=np.zeros(0))
-        except ValueError as exc:
-            raise ValueError(str(exc).split(": ", 1)[-1]) from None
-        return C3DBones(tuple(str(b) for b in a["bones"]), a["poses"], float(a["rate"]),
-                        tuple(str(b) for b in a["point_labels"]), a["points"], str(a["units"]))
+    # ezc3d crashes the process (segmentation fault) on some damaged files: read in a child
+    a = _in_subprocess(
+        "import sys, dataclasses, numpy as np; from core.io.c3d import _read_here;"
+        " d = dataclasses.asdict(_read_here(sys.argv[2]));"
+        " np.savez(sys.argv[1] + '/out.npz', **{k: np.asarray(v) for k, v in d.items()})",
+        str(path.absolute()), dummy=np.zeros(0))
+    return C3DBones(tuple(str(b) for b in a["bones"]), a["poses"], float(a["rate"]),
+                    tuple(str(b) for b in a["point_labels"]), a["points"], str(a["units"]))
+
+
+def _read_here(path: str) -> C3DBones:
+    """The read itself (run in a child process by :func:`read_c3d`)."""
     ezc3d = _ezc3d()
     c = ezc3d.c3d(str(path))
     params = c["parameters"]
@@ -141,7 +149,7 @@ def _read(path: Path) -> C3DBones:
     rot = np.asarray(c["data"].get("rotations", np.zeros((4, 4, 0, 0))), dtype=float)
     labels = tuple(params.get("ROTATION", {}).get("LABELS", {}).get("value", ()))
     if rot.ndim != 4 or rot.shape[:2] != (4, 4):
-        raise ValueError(f"{path}: rotation data of shape {rot.shape}, expected 4 x 4 x bones x frames")
+        raise ValueError(f"rotation data of shape {rot.shape}, expected 4 x 4 x bones x frames")
     if len(labels) != rot.shape[2]:
         labels = tuple(f"rotation{k + 1}" for k in range(rot.shape[2]))
     poses = rot.transpose(3, 2, 0, 1)

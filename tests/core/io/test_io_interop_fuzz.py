@@ -124,3 +124,32 @@ def test_c3d_damaged_bytes(tmp_path):
             read_c3d(p)
         except FileError as exc:
             assert str(p) in str(exc)
+
+
+@FUZZ
+@given(data=st.data())
+def test_xma_mutated_project_xml(tmp_path_factory, data):
+    import zipfile
+
+    from core.io.xma_project import read_xma_project
+    from tests.core.io.test_io_xma_project import make_xma
+
+    d = tmp_path_factory.mktemp("xma")
+    good = d / "good.xma"
+    make_xma(good, np.zeros((2, 3)))
+    with zipfile.ZipFile(good) as zf:
+        members = {n: zf.read(n).decode() for n in zf.namelist()}
+    name = data.draw(st.sampled_from(sorted(members)))
+    members[name] = data.draw(mutated(members[name]))
+    p = d / f"f{next(_names)}.xma"
+    with zipfile.ZipFile(p, "w") as zf:
+        for k, v in members.items():
+            zf.writestr(k, v)
+    try:
+        prj = read_xma_project(p)
+        if prj.trials and prj.trials[0].markers:
+            prj.marker_points(prj.trials[0].name, prj.trials[0].markers[0].id)
+    except FileError as exc:
+        assert str(p) in str(exc), str(exc)
+    except ValueError as exc:  # a lookup argument (trial or marker name) that the file no longer has
+        assert "trial" in str(exc) or "marker" in str(exc), str(exc)

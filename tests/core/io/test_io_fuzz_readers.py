@@ -235,10 +235,17 @@ def _vm_bytes() -> int:
     return 0
 
 
+_CAP: list[int] = []
+
+
 @contextlib.contextmanager
 def _memory_cap(extra: int = 3 << 29):
+    """One fixed cap for the whole run (address space at the first read + ``extra``), so that
+    memory a parser leaks case after case cannot grow without bound either."""
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    cap = _vm_bytes() + extra
+    if not _CAP:
+        _CAP.append(_vm_bytes() + 2 * extra)
+    cap = max(_CAP[0], _vm_bytes() + (64 << 20))
     if hard != resource.RLIM_INFINITY:
         cap = min(cap, hard)
     resource.setrlimit(resource.RLIMIT_AS, (cap, hard))

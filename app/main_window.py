@@ -61,7 +61,7 @@ class MainWindow(QtWidgets.QMainWindow):
     def __init__(self, *, create_scene_on_show: bool = True, device: str | None = None) -> None:
         super().__init__()
         self.setWindowTitle("Talus")
-        self.resize(1280, 760)
+        self._restore_geometry()
         self.device = device
         self.translate_step_mm = 0.5
         self.rotate_step_deg = 0.5
@@ -92,6 +92,10 @@ class MainWindow(QtWidgets.QMainWindow):
         self.progress.hide()
         self.cancel_button = QtWidgets.QPushButton("Cancel")
         self.cancel_button.hide()
+        self.feedback = QtWidgets.QLabel()  # tracking: frame i/N, frames per second, ETA
+        self.feedback.setObjectName("tracking-feedback")
+        self.feedback.hide()
+        self.statusBar().addPermanentWidget(self.feedback)
         self.statusBar().addPermanentWidget(self.progress)
         self.statusBar().addPermanentWidget(self.cancel_button)
         self.pool.failed.connect(self._on_failed)
@@ -162,6 +166,9 @@ class MainWindow(QtWidgets.QMainWindow):
         help_menu = self.menuBar().addMenu("&Help")
         self.about_action = help_menu.addAction("&About Talus")
         self.about_action.triggered.connect(self._about)
+        from .review_actions import ReviewActions
+
+        self.review = ReviewActions(self)
         self.timeline = None
         self.controller = None
         self.layers = self.layers_dock = None
@@ -226,6 +233,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self.layers.cameras_changed.connect(self.scene.set_cameras_visible)
             self.scene.set_model(model)
             model.history_changed.connect(self._update_history)
+            self.review.attach(model, self.session)
         except BaseException:
             self._unset_model(panes=before)
             raise
@@ -237,6 +245,7 @@ class MainWindow(QtWidgets.QMainWindow):
         """Take a (partly) shown model out of the window: layers, timeline, scene; the panes
         go back to ``panes`` (``(image, (window, level), title)`` each) or to placeholders."""
         model, self.model = self.model, None
+        self.review.detach()
         if self.controller is not None:
             self.controller.shutdown()
             self.controller.setParent(None)
@@ -289,6 +298,7 @@ class MainWindow(QtWidgets.QMainWindow):
         except LockedError as exc:  # open elsewhere for writing: show it read-only
             session = open_study(folder, read_only=True)
             notes.append(f"{exc} — opened read-only.")
+        self.session = session
         try:
             for view in range(len(session.model.rig)):
                 session.model.frame_image(view)  # a damaged first frame fails here
@@ -297,9 +307,9 @@ class MainWindow(QtWidgets.QMainWindow):
 
             attach_study_correction(self.panes, session.study, session.trial_name)
         except BaseException:
+            self.session = None
             session.close()
             raise
-        self.session = session
         folder = session.folder
         names = ", ".join(layer.name for layer in self.model.layers)
         self.statusBar().showMessage(f"Opened {folder} ({session.trial_name}): {names}")
@@ -412,7 +422,9 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ------------------------------------------------------------------ jobs
     def notify(self, text: str) -> None:
-        self.messages_dock.show()
+        if self.messages_dock.isHidden():  # shown small: a few lines, the review docks keep the room
+            self.messages_dock.show()
+            self.resizeDocks([self.messages_dock], [80], QtCore.Qt.Orientation.Vertical)
         self.messages.addItem(text.splitlines()[-1] if text else "")
         self.messages.item(self.messages.count() - 1).setToolTip(text)
         self.messages.scrollToBottom()
@@ -425,10 +437,25 @@ class MainWindow(QtWidgets.QMainWindow):
         self.progress.setRange(0, max(total, 1))
         self.progress.setValue(done)
         self.progress.setFormat(f"{key} %v/%m")
+        self.progress.setVisible(total > 1)
+        self.cancel_button.setVisible(total > 1)
 
     def _on_busy(self, busy: bool) -> None:
-        self.progress.setVisible(busy and self.progress.maximum() > 1)
-        self.cancel_button.setVisible(busy and self.progress.maximum() > 1)
+        if not busy:  # every job ended: no bar, button or tracking line left behind
+            self.set_feedback(None)
+
+    def set_feedback(self, text: str | None) -> None:
+        """Show a job's feedback line in the status bar; None takes it away with the progress bar
+        and the cancel button."""
+        if text is None:
+            self.feedback.hide()
+            self.feedback.clear()
+            self.progress.hide()
+            self.progress.reset()
+            self.cancel_button.hide()
+        else:
+            self.feedback.setText(text)
+            self.feedback.show()
 
     def _cancel_jobs(self) -> None:
         for key in list(self.pool._latest):
@@ -442,7 +469,21 @@ class MainWindow(QtWidgets.QMainWindow):
             "X-ray camera calibration and DRR-based 2D/3D registration.</p>",
         )
 
+    def _restore_geometry(self) -> None:
+        """Open at the size of last time, else at 85 % of the screen's free area (at least 1024 × 700
+        where the screen has it), centred."""
+        saved = settings.get("window/geometry")
+        if saved is not None and self.restoreGeometry(QtCore.QByteArray(saved)):
+            return
+        screen = QtWidgets.QApplication.primaryScreen()
+        avail = screen.availableGeometry() if screen is not None else QtCore.QRect(0, 0, 1280, 800)
+        w = min(max(int(avail.width() * 0.85), 1024), avail.width())
+        h = min(max(int(avail.height() * 0.85), 700), avail.height())
+        self.resize(w, h)
+        self.move(avail.x() + (avail.width() - w) // 2, avail.y() + (avail.height() - h) // 2)
+
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:
+        settings.set_value("window/geometry", self.saveGeometry())
         if self.controller is not None:
             self.controller.shutdown()
         if self.timeline is not None:

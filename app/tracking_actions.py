@@ -2,20 +2,29 @@
 
 *Tracking → Track selected bone* (``Ctrl+T``) or *Track all bones* runs
 :func:`core.tracking.from_study.track_study` on the open study in the worker pool, over all
-frames, starting from the bones' keyframes. Every registered frame is written to the trial's
-journal by the tracker itself as it finishes; when the job ends (done, cancelled or failed) the
-window reloads the poses from the journal, marks frames tracked or flagged in the timeline and
-lists the flagged frames with their reasons. Tracked bones are locked against edits while the
-job runs.
+frames, starting from the bones' keyframes; the review actions (:mod:`app.review_actions`) run it
+over part of the trial (forward or backward from a frame, or between two keyframes). Every
+registered frame is written to the trial's journal by the tracker itself as it finishes, and
+handed to the window's review data at once (the frame table, plots and timeline fill in while the
+job runs); the status bar shows the frame, frames per second and the time left. When the job ends
+(done, cancelled or failed) the window reloads the poses and review state from the journal and
+lists the flagged frames with their reasons. Tracked bones are locked against edits while the job
+runs.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import queue
+import time
 
 __all__ = ["TrackingActions"]
 
 KEY = "tracking"
+
+
+def _clock(seconds: float) -> str:
+    s = round(seconds)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
 class TrackingActions:
@@ -24,9 +33,15 @@ class TrackingActions:
         self.options = None  # core.tracking TrackingOptions (None: the engine's defaults)
         self._bones: list[str] = []
         self._was_locked: dict[str, bool] = {}
+        self._results: queue.SimpleQueue = queue.SimpleQueue()  # (FrameResult dict, pose) from the worker
+        self._t0 = 0.0
+        self._frames_total = 0
+        self._frames_seen: set[int] = set()
+        self.last_feedback = ""
         window.pool.finished.connect(self._on_finished)
         window.pool.failed.connect(lambda key, text: key == KEY and self._on_failed())
         window.pool.cancelled.connect(lambda key: key == KEY and self._on_cancelled())
+        window.pool.progress.connect(lambda key, d, t: key == KEY and self.drain_results())
 
     @property
     def running(self) -> bool:
@@ -45,6 +60,7 @@ class TrackingActions:
         self.start([layer.name for layer in m.layers])
 
     def start(self, bones: list[str], frames=None) -> None:
+        """Track ``bones`` over ``frames`` (frame numbers in tracking order; default all, forward)."""
         session = self.window.session
         if session is None or not session.writable:
             raise ValueError("study: tracking needs a study open for writing")
@@ -53,29 +69,67 @@ class TrackingActions:
         from core.tracking.from_study import track_study
 
         m = self.window.model
+        frames = None if frames is None else [int(f) for f in frames]
         self._bones = list(bones)
         for b in bones:  # no hand edits of a bone while the tracker writes its journal
             self._was_locked[b] = m.layers[m.index(b)].locked
             m.set_layer_property(b, "locked", True)
         study, trial = session.study, session.trial_name
         device, options = self.window.device, self.options
+        results = self._results
+        while not results.empty():
+            results.get_nowait()
+
+        def on_progress(progress, done, total, fr):
+            results.put((fr.to_dict(), fr.pose))
+            progress(done, total)
 
         def job(progress, cancel):
             return track_study(study, trial, bones, frames, options=options, device=device,
-                               resume=False, progress=lambda d, t, *_: progress(d, t),
+                               resume=False, progress=lambda d, t, fr: on_progress(progress, d, t, fr),
                                cancel=cancel)
 
-        self.window.notify(f"Tracking {', '.join(bones)} over {m.n_frames} frames…")
+        n = m.n_frames if frames is None else len(frames)
+        self._t0 = time.monotonic()
+        self._frames_total = n
+        self._frames_seen = set()
+        span = "" if frames is None else f" (frames {frames[0]}–{frames[-1]})"
+        self.window.notify(f"Tracking {', '.join(bones)} over {n} frames{span}…")
+        self.window.set_feedback(f"Tracking: frame –/{n}")
         self.window.pool.submit(KEY, job)
 
     def cancel(self) -> None:
         self.window.pool.cancel(KEY)
 
+    # ------------------------------------------------------------------ live results
+    def drain_results(self) -> None:
+        """Hand the results finished so far to the review data (GUI thread) and update the
+        status bar: frame i/N, frames per second, time left."""
+        review = getattr(self.window, "review", None)
+        got = False
+        while True:
+            try:
+                res, pose = self._results.get_nowait()
+            except queue.Empty:
+                break
+            got = True
+            self._frames_seen.add(int(res["frame"]))
+            if review is not None and review.data is not None:
+                review.data.apply_result(res, pose)
+        if not got:
+            return
+        done, n = len(self._frames_seen), self._frames_total
+        dt = max(time.monotonic() - self._t0, 1e-9)
+        fps = done / dt
+        eta = (n - done) / fps if fps > 0 else float("inf")
+        self.last_feedback = (f"Tracking: frame {done}/{n} · {fps:.2f} frames/s · "
+                              f"ETA {_clock(eta) if eta != float('inf') else '–'}")
+        self.window.set_feedback(self.last_feedback)
+
     # ------------------------------------------------------------------ results
     def _reload(self) -> None:
         session, m = self.window.session, self.window.model
         trial = session.study.trial(session.trial_name)
-        status = self.window.timeline.status.copy()
         session.recording = False  # these poses come from the journal: don't write them back
         try:
             for b in self._bones:
@@ -85,44 +139,49 @@ class TrackingActions:
                 m.set_trajectory(b, poses)
                 layer = m.layers[m.index(b)]
                 layer.keyframes |= recorded
-                status[sorted(recorded)] = np.maximum(status[sorted(recorded)], 2)
         finally:
             session.recording = True
-        self.window.timeline.set_status(status)
+        review = getattr(self.window, "review", None)
+        if review is not None and review.data is not None:
+            review.data.load_journal(trial)
 
     def _restore(self) -> None:
         m = self.window.model
         for b in self._bones:
             m.set_layer_property(b, "locked", self._was_locked.get(b, False))
         self._bones = []
+        self.window.set_feedback(None)
 
     def _on_failed(self) -> None:
-        self._reload()  # whatever was registered before the failure is in the journal
-        self._restore()
+        self.drain_results()
+        try:
+            self._reload()  # whatever was registered before the failure is in the journal
+        finally:
+            self._restore()
 
     def _on_finished(self, key: str, result) -> None:
         if key != KEY:
             return
+        self.drain_results()
         try:
             self._show(result)
         finally:
             self._restore()
 
     def _on_cancelled(self) -> None:
-        self._reload()
-        self.window.notify("Tracking cancelled; the frames finished so far are saved.")
-        self._restore()
+        self.drain_results()
+        try:
+            self._reload()
+            self.window.notify("Tracking cancelled; the frames finished so far are saved.")
+        finally:
+            self._restore()
 
     def _show(self, result) -> None:
         res, report = result
         self._reload()
-        status = self.window.timeline.status.copy()
         flagged = report.get("flagged", []) if isinstance(report, dict) else []
         for entry in flagged:  # FrameResult.to_dict(): bone, frame, flags, ...
-            frame = int(entry["frame"])
-            status[frame] = 3
-            self.window.notify(f"{entry['bone']} frame {frame + 1}: " + "; ".join(entry["flags"]))
-        self.window.timeline.set_status(status)
+            self.window.notify(f"{entry['bone']} frame {int(entry['frame'])}: " + "; ".join(entry["flags"]))
         summary = report.get("summary", {}) if isinstance(report, dict) else {}
         self.window.notify(
             f"Tracking {summary.get('status', 'done')}: {summary.get('results', 0)} frames, "

@@ -22,6 +22,7 @@ COMMANDS: dict[str, str] = {
     "calibrate": "app.commands.calibrate",
     "track": "app.commands.track",
     "study": "app.commands.study",
+    "report": "app.commands.report",
     "bench": "app.commands.bench",
     "sample": "app.commands.sample",
     "import": "app.commands.import_folder",

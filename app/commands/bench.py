@@ -27,6 +27,7 @@ BENCHMARKS: dict[str, str] = {
     "metrics": "core.studies.similarity.benchmark:main",
     "calibration": "core.studies.calibration.benchmark:main",
     "track": "core.studies.tracking.benchmark:main",
+    "review": "app.benchmark_review:main",
 }
 
 _HELP = {
@@ -38,6 +39,7 @@ _HELP = {
     "metrics": "similarity metrics of DRR batches",
     "calibration": "bead detection, labelling, DLT and bundle adjustment",
     "track": "whole-trial tracking speed and where the time goes",
+    "review": "GUI-thread cost of the review docks per tracked frame",
 }
 
 

@@ -34,7 +34,8 @@ import numpy as np
 
 from .kinematics import helical_axes, joint_angles, principal_axes_frame
 
-__all__ = ["Joint", "anatomical_frames", "compose_jcs", "default_joints", "jcs_rms", "joint_series"]
+__all__ = ["Joint", "anatomical_frames", "compose_jcs", "default_joints", "jcs_rms", "joint_series",
+           "volume_points"]
 
 _AXES = ("x", "y", "z")
 
@@ -78,6 +79,19 @@ def default_joints(bones: Sequence[str]) -> list[Joint]:
     if out:
         return out
     return [Joint(f"{a}–{b}", a, b) for a, b in pairwise(bones)]
+
+
+def volume_points(volume, threshold: float = 200.0, max_points: int = 20000) -> np.ndarray:
+    """Voxel centres (the volume's physical frame, mm) of a CT (:class:`core.render.CTVolume`, HU)
+    at or above ``threshold``, evenly thinned to at most ``max_points``: the points whose principal
+    axes give a bone's default anatomical frame."""
+    k, j, i = np.nonzero(np.asarray(volume.data) >= threshold)
+    if len(i) < 4:
+        raise ValueError(f"volume: fewer than 4 voxels of {getattr(volume, 'name', 'the bone')!r} reach "
+                         f"{threshold} HU; expected a bone CT")
+    step = max(1, len(i) // max_points)
+    ijk = np.column_stack([i[::step], j[::step], k[::step]]).astype(float)
+    return volume.index_to_physical(ijk)
 
 
 def anatomical_frames(points: Mapping[str, np.ndarray], *,

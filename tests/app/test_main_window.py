@@ -64,7 +64,7 @@ def test_to_qimage_window_level_mapping():
 def test_window_opens_with_menus_shortcuts_and_status(window):
     assert window.windowTitle() == "Talus"
     menus = [a.text() for a in window.menuBar().actions()]
-    assert menus == ["&File", "&Edit", "&View", "&Pose", "&Tracking", "&Help"]
+    assert menus == ["&File", "&Edit", "&View", "&Pose", "&Tracking", "&Review", "&Help"]
     assert window.quit_action.shortcut() == QtGui.QKeySequence("Ctrl+Q")
     assert window.open_demo_action.shortcut() == QtGui.QKeySequence("Ctrl+O")
     assert window.open_demo_action.text().startswith("&Open study")

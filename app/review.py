@@ -1,0 +1,318 @@
+"""Per-frame review state of the open trial and the frame table that shows it.
+
+:class:`ReviewData` holds, per bone and frame, what the tracker and the user left in the trial's
+journal (:mod:`core.study.results`): status (untracked, keyframe, tracked, flagged, edited),
+score, per-frame confidence σ (mm, °), the reasons for review, and the recorded pose (NaN where
+none). It is filled from the journal when a study opens and updated frame by frame from tracking
+results as they finish (:meth:`ReviewData.apply_result`), and emits ``changed(bone, frame)`` (or
+``reset()``) so that every view follows: the frame table (:class:`FrameTableModel`, a
+``QAbstractTableModel``), the plots dock and the timeline strip.
+
+Frame numbers are 0-based everywhere: in the API, the journal, the table and the window.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6 import QtCore, QtGui, QtWidgets
+
+__all__ = ["STATUS_COLORS", "STATUS_NAMES", "FrameTableDock", "FrameTableModel", "ReviewData"]
+
+UNTRACKED, KEYFRAME, TRACKED, FLAGGED, EDITED = range(5)
+STATUS_NAMES = ("untracked", "keyframe", "tracked", "flagged", "edited")
+STATUS_COLORS = np.array([[60, 60, 60], [240, 200, 60], [70, 170, 90], [220, 70, 60], [80, 140, 230]],
+                         np.uint8)
+
+
+class ReviewData(QtCore.QObject):
+    """Review state of ``n_bones`` bones over ``n_frames`` frames (see the module docs)."""
+
+    changed = QtCore.Signal(int, int)  # bone, frame
+    reset = QtCore.Signal()
+
+    def __init__(self, bones: list[str], n_frames: int, parent: QtCore.QObject | None = None) -> None:
+        super().__init__(parent)
+        self.bones = list(bones)
+        self.n_frames = int(n_frames)
+        shape = (len(self.bones), self.n_frames)
+        self.status = np.zeros(shape, np.uint8)
+        self.score = np.full(shape, np.nan)
+        self.sigma_mm = np.full(shape, np.nan)
+        self.sigma_deg = np.full(shape, np.nan)
+        self.poses = np.full((*shape, 4, 4), np.nan)
+        self.reasons: dict[tuple[int, int], str] = {}
+
+    # ------------------------------------------------------------------ filling
+    def load_journal(self, trial) -> None:
+        """Fill everything from ``trial`` (a :class:`core.study.Trial`) journals; emits ``reset``."""
+        for b, name in enumerate(self.bones):
+            self._load_bone(b, trial.results(name))
+        self.reset.emit()
+
+    def reload_bone(self, trial, bone: str) -> None:
+        self._load_bone(self.bones.index(bone), trial.results(bone))
+        self.reset.emit()
+
+    def _load_bone(self, b: int, state) -> None:
+        self.status[b] = UNTRACKED
+        self.score[b] = self.sigma_mm[b] = self.sigma_deg[b] = np.nan
+        self.poses[b] = np.nan
+        for key in [k for k in self.reasons if k[0] == b]:
+            del self.reasons[key]
+        done = state.done
+        for f, rec in state.records.items():
+            if not 0 <= f < self.n_frames or rec.pose is None:
+                continue
+            self.poses[b, f] = rec.pose
+            res = done.get(f)
+            if rec.kind == "tracked":
+                self._set_tracked(b, f, rec.score, rec.tracking or {})
+            elif rec.kind == "hand" and res is not None and res.kind == "hand":
+                self.status[b, f] = EDITED  # a hand fix recorded after a tracking result
+                self.reasons[(b, f)] = "corrected by hand"
+            else:
+                self.status[b, f] = KEYFRAME
+            if rec.kind != "tracked" and np.isfinite(rec.score):
+                self.score[b, f] = rec.score
+
+    def _set_tracked(self, b: int, f: int, score, tracking: dict) -> None:
+        flags = list(tracking.get("flags") or ())
+        self.status[b, f] = FLAGGED if flags else TRACKED
+        self.score[b, f] = np.nan if score is None else float(score)
+        conf = tracking.get("confidence") or {}
+        self.sigma_mm[b, f] = _num(conf.get("translation_mm"))
+        self.sigma_deg[b, f] = _num(conf.get("rotation_deg"))
+        if flags:
+            self.reasons[(b, f)] = "; ".join(flags)
+        else:
+            self.reasons.pop((b, f), None)
+
+    def apply_result(self, result: dict, pose=None) -> None:
+        """One finished tracking result (``FrameResult.to_dict()`` and its pose); emits ``changed``."""
+        name, f = result["bone"], int(result["frame"])
+        if name not in self.bones or not 0 <= f < self.n_frames:
+            return
+        b = self.bones.index(name)
+        if pose is not None:
+            self.poses[b, f] = pose
+        elif result.get("flags"):
+            self.reasons[(b, f)] = "; ".join(result["flags"])
+            self.status[b, f] = FLAGGED
+            self.changed.emit(b, f)
+            return
+        self._set_tracked(b, f, result.get("score"), result)
+        self.changed.emit(b, f)
+
+    def mark_edited(self, b: int, f: int, pose) -> None:
+        """A pose set by hand at a frame: a keyframe, or an edit of a tracked/flagged frame."""
+        was = self.status[b, f]
+        self.poses[b, f] = pose
+        if was in (TRACKED, FLAGGED, EDITED):
+            self.status[b, f] = EDITED
+            self.reasons[(b, f)] = "corrected by hand"
+        else:
+            self.status[b, f] = KEYFRAME
+        self.changed.emit(b, f)
+
+    # ------------------------------------------------------------------ queries
+    def frame_status(self) -> np.ndarray:
+        """``(n_frames,)`` the most severe status over bones (flagged > edited > tracked > keyframe)."""
+        rank = np.array([0, 1, 2, 4, 3])[self.status]  # flagged outranks edited
+        inv = np.array([0, 1, 2, 4, 3])
+        return inv[rank.max(axis=0)] if len(self.bones) else np.zeros(self.n_frames, np.uint8)
+
+    def frame_status_at(self, f: int) -> int:
+        """The most severe status over bones at frame ``f`` (as :meth:`frame_status`)."""
+        rank = np.array([0, 1, 2, 4, 3])
+        return int(rank[int(rank[self.status[:, f]].max())]) if len(self.bones) else 0
+
+    def frame_reason(self, f: int) -> str:
+        parts = []
+        for b, name in enumerate(self.bones):
+            s = STATUS_NAMES[self.status[b, f]]
+            why = self.reasons.get((b, f))
+            parts.append(f"{name}: {s}" + (f" — {why}" if why else ""))
+        return "\n".join(parts)
+
+    def flagged(self) -> list[tuple[int, int]]:
+        """``(bone, frame)`` of every frame flagged for review."""
+        b, f = np.nonzero(self.status == FLAGGED)
+        return sorted(zip(b.tolist(), f.tolist(), strict=True), key=lambda k: (k[1], k[0]))
+
+
+def _num(v) -> float:
+    return float(v) if v is not None else np.nan
+
+
+# ---------------------------------------------------------------------------- the table
+COLUMNS = ("Frame", "Bone", "Status", "Score", "σ mm", "σ °", "Edited", "Reason")
+SORT_ROLE = QtCore.Qt.ItemDataRole.UserRole + 1
+
+
+class FrameTableModel(QtCore.QAbstractTableModel):
+    """One row per (frame, bone): row ``frame * n_bones + bone``."""
+
+    def __init__(self, data: ReviewData, parent: QtCore.QObject | None = None) -> None:
+        super().__init__(parent)
+        self.review = data
+        data.changed.connect(self._on_changed)
+        data.reset.connect(self._on_reset)
+
+    def rowCount(self, parent=QtCore.QModelIndex()) -> int:  # noqa: B008 (Qt's signature)
+        return 0 if parent.isValid() else self.review.n_frames * len(self.review.bones)
+
+    def columnCount(self, parent=QtCore.QModelIndex()) -> int:  # noqa: B008
+        return 0 if parent.isValid() else len(COLUMNS)
+
+    def headerData(self, section, orientation, role=QtCore.Qt.ItemDataRole.DisplayRole):
+        if role == QtCore.Qt.ItemDataRole.DisplayRole and orientation == QtCore.Qt.Orientation.Horizontal:
+            return COLUMNS[section]
+        return None
+
+    def locate(self, row: int) -> tuple[int, int]:
+        """``(bone, frame)`` of a row."""
+        n = len(self.review.bones)
+        return row % n, row // n
+
+    def row_of(self, bone: int, frame: int) -> int:
+        return frame * len(self.review.bones) + bone
+
+    def data(self, index, role=QtCore.Qt.ItemDataRole.DisplayRole):
+        if not index.isValid():
+            return None
+        d = self.review
+        b, f = self.locate(index.row())
+        c = index.column()
+        st = int(d.status[b, f])
+        R = QtCore.Qt.ItemDataRole
+        if role == R.DisplayRole:
+            if c == 0:
+                return f
+            if c == 1:
+                return d.bones[b]
+            if c == 2:
+                return STATUS_NAMES[st]
+            if c in (3, 4, 5):
+                v = (d.score, d.sigma_mm, d.sigma_deg)[c - 3][b, f]
+                return "" if not np.isfinite(v) else f"{v:.3f}"
+            if c == 6:
+                return "yes" if st == EDITED else ""
+            return d.reasons.get((b, f), "")
+        if role == SORT_ROLE:
+            if c in (3, 4, 5):
+                v = (d.score, d.sigma_mm, d.sigma_deg)[c - 3][b, f]
+                return float(v) if np.isfinite(v) else -1.0
+            if c == 0:
+                return f
+            if c == 2:
+                return st
+            return self.data(index, R.DisplayRole)
+        if role == R.ToolTipRole:
+            return d.reasons.get((b, f)) or STATUS_NAMES[st]
+        if role == R.DecorationRole and c == 2:
+            return QtGui.QColor(*STATUS_COLORS[st].tolist())
+        return None
+
+    def _on_changed(self, b: int, f: int) -> None:
+        r = self.row_of(b, f)
+        self.dataChanged.emit(self.index(r, 0), self.index(r, len(COLUMNS) - 1))
+
+    def _on_reset(self) -> None:
+        self.beginResetModel()
+        self.endResetModel()
+
+
+class _Filter(QtCore.QSortFilterProxyModel):
+    def __init__(self, parent=None) -> None:
+        super().__init__(parent)
+        self.statuses: set[int] | None = None
+        self.bone: int | None = None
+        self.setSortRole(SORT_ROLE)
+
+    def set_filter(self, statuses: set[int] | None, bone: int | None) -> None:
+        if hasattr(self, "beginFilterChange"):  # Qt >= 6.9 (invalidateFilter is deprecated there)
+            self.beginFilterChange()
+            self.statuses, self.bone = statuses, bone
+            self.endFilterChange(QtCore.QSortFilterProxyModel.Direction.Rows)
+        else:
+            self.statuses, self.bone = statuses, bone
+            self.invalidateFilter()
+
+    def filterAcceptsRow(self, row: int, parent) -> bool:
+        src = self.sourceModel()
+        b, f = src.locate(row)
+        if self.bone is not None and b != self.bone:
+            return False
+        return self.statuses is None or int(src.review.status[b, f]) in self.statuses
+
+
+class FrameTableDock(QtWidgets.QWidget):
+    """The frame table with its filters; selecting a row moves the window to that frame and bone."""
+
+    FILTERS = (("All frames", None), ("Flagged", {FLAGGED}), ("Flagged or edited", {FLAGGED, EDITED}),
+               ("Tracked", {TRACKED, FLAGGED, EDITED}), ("Keyframes", {KEYFRAME, EDITED}))
+
+    def __init__(self, data: ReviewData, model, parent: QtWidgets.QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.viewer = model
+        self.table_model = FrameTableModel(data, self)
+        self.proxy = _Filter(self)
+        self.proxy.setSourceModel(self.table_model)
+        self.proxy.setDynamicSortFilter(True)
+        self.status_filter = QtWidgets.QComboBox()
+        for text, _ in self.FILTERS:
+            self.status_filter.addItem(text)
+        self.bone_filter = QtWidgets.QComboBox()
+        self.bone_filter.addItem("All bones")
+        self.bone_filter.addItems(data.bones)
+        self.view = QtWidgets.QTableView()
+        self.view.setModel(self.proxy)
+        self.view.setSortingEnabled(True)
+        self.view.sortByColumn(0, QtCore.Qt.SortOrder.AscendingOrder)
+        self.view.setSelectionBehavior(QtWidgets.QAbstractItemView.SelectionBehavior.SelectRows)
+        self.view.setSelectionMode(QtWidgets.QAbstractItemView.SelectionMode.SingleSelection)
+        self.view.verticalHeader().hide()
+        self.view.verticalHeader().setDefaultSectionSize(20)
+        self.view.horizontalHeader().setStretchLastSection(True)
+        self.view.setAlternatingRowColors(True)
+        top = QtWidgets.QHBoxLayout()
+        top.addWidget(QtWidgets.QLabel("Show"))
+        top.addWidget(self.status_filter, 1)
+        top.addWidget(self.bone_filter, 1)
+        layout = QtWidgets.QVBoxLayout(self)
+        layout.setContentsMargins(2, 2, 2, 2)
+        layout.addLayout(top)
+        layout.addWidget(self.view, 1)
+        self.status_filter.currentIndexChanged.connect(self._refilter)
+        self.bone_filter.currentIndexChanged.connect(self._refilter)
+        self.view.selectionModel().currentRowChanged.connect(self._on_row)
+
+    def set_filter(self, name: str) -> None:
+        """Show rows of one filter by its name (``"Flagged"``, ``"All frames"``, …)."""
+        names = [t for t, _ in self.FILTERS]
+        if name not in names:
+            raise ValueError(f"filter: expected one of {names}, got {name!r}")
+        self.status_filter.setCurrentIndex(names.index(name))
+
+    def _refilter(self) -> None:
+        b = self.bone_filter.currentIndex() - 1
+        self.proxy.set_filter(self.FILTERS[self.status_filter.currentIndex()][1], None if b < 0 else b)
+
+    def visible_rows(self) -> list[tuple[int, int]]:
+        """``(bone, frame)`` of the rows shown, in their order."""
+        out = []
+        for r in range(self.proxy.rowCount()):
+            src = self.proxy.mapToSource(self.proxy.index(r, 0))
+            out.append(self.table_model.locate(src.row()))
+        return out
+
+    def select_row(self, row: int) -> None:
+        self.view.selectRow(row)
+        self.view.setCurrentIndex(self.proxy.index(row, 0))
+
+    def _on_row(self, current, _previous) -> None:
+        if not current.isValid():
+            return
+        b, f = self.table_model.locate(self.proxy.mapToSource(current).row())
+        self.viewer.select(b)
+        self.viewer.set_frame(f)

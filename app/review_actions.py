@@ -1,0 +1,297 @@
+"""Review, fix and export in the window: the frame table and plots docks and the fix loop.
+
+With a study open the window shows (and these actions drive):
+
+* the **Frames** dock (:class:`app.review.FrameTableDock`): a row per frame and bone (score, σ,
+  status and reason, edited); sort, filter (e.g. flagged only); selecting a row moves there;
+* the **Plots** dock (:class:`app.plots.PlotsDock`): pose, JCS, helical-axis and joint-space
+  curves with a cursor at the current frame; a click moves to that frame;
+* the **fix loop** (menu *Review*, and the buttons above the table): on a flagged frame drag the
+  bone (every hand-set pose is journalled: a keyframe), or mark its current pose a keyframe
+  (``K``); then re-track the selected bone forward (``]``) or backward (``[``) from the frame, or
+  between the keyframes around it (``Ctrl+B``), in the background. The journal is append-only:
+  *Undo fix* (``Ctrl+Alt+Z``) puts back the tracking result a hand fix replaced;
+* **export** (*File → Export…*): poses in every format of :func:`core.study.exports.available_formats`,
+  the plots as PNG/SVG/PDF and the one-page trial report (:func:`core.study.report.write_report`).
+
+Frame numbers are 0-based, on screen as in the API.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from PySide6 import QtCore, QtGui, QtWidgets
+
+__all__ = ["ReviewActions"]
+
+
+class ReviewActions:
+    def __init__(self, window) -> None:
+        self.window = window
+        self.data = None
+        self.table = self.plots = None
+        self.table_dock = self.plots_dock = None
+        self._connected = []
+        mb = window.menuBar()
+        file_menu = next(a.menu() for a in mb.actions() if a.text() == "&File")
+        self.export_action = QtGui.QAction("&Export…", window)
+        self.export_action.setShortcut(QtGui.QKeySequence("Ctrl+E"))
+        self.export_action.triggered.connect(lambda: window._guard(self.export_dialog))
+        file_menu.insertAction(window.quit_action, self.export_action)
+        file_menu.insertSeparator(window.quit_action)
+        help_menu = next(a for a in mb.actions() if a.text() == "&Help")
+        menu = QtWidgets.QMenu("&Review", window)
+        mb.insertMenu(help_menu, menu)
+        self.menu = menu
+        self.keyframe_action = self._add(menu, "Mark &keyframe", "K", self.mark_keyframe)
+        self.forward_action = self._add(menu, "Re-track &forward from this frame", "]",
+                                        lambda: self.retrack("forward"))
+        self.backward_action = self._add(menu, "Re-track &backward from this frame", "[",
+                                         lambda: self.retrack("backward"))
+        self.between_action = self._add(menu, "Re-track &between the keyframes around this frame",
+                                        "Ctrl+B", lambda: self.retrack("between"))
+        self.undo_fix_action = self._add(menu, "&Undo the fix of this frame", "Ctrl+Alt+Z", self.undo_fix)
+        menu.addSeparator()
+        self.next_flagged_action = self._add(menu, "&Next flagged frame", "N", lambda: self.goto_flagged(1))
+        self._add(menu, "&Previous flagged frame", "Shift+N", lambda: self.goto_flagged(-1))
+
+    def _add(self, menu, text, key, fn):
+        act = menu.addAction(text)
+        act.setShortcut(QtGui.QKeySequence(key))
+        act.triggered.connect(lambda _=False: self.window._guard(fn))
+        return act
+
+    # ------------------------------------------------------------------ docks
+    def attach(self, model, session) -> None:
+        """Build the review data and docks for a newly shown model (``session``: the open study
+        or None for a bare model)."""
+        from .plots import PlotsDock
+        from .review import FrameTableDock, ReviewData
+
+        w = self.window
+        self.data = ReviewData([layer.name for layer in model.layers], model.n_frames, w)
+        if session is not None:
+            self.data.load_journal(session.study.trial(session.trial_name))
+        self.table = FrameTableDock(self.data, model)
+        bar = QtWidgets.QHBoxLayout()
+        buttons = (("Keyframe (K)", self.keyframe_action), ("Re-track → (])", self.forward_action),
+                   ("Re-track ← ([)", self.backward_action), ("Between keyframes", self.between_action),
+                   ("Undo fix", self.undo_fix_action))
+        for text, act in buttons:
+            btn = QtWidgets.QToolButton()
+            btn.setText(text)
+            btn.setToolTip(act.text().replace("&", ""))
+            btn.clicked.connect(act.trigger)
+            bar.addWidget(btn)
+        bar.addStretch(1)
+        self.table.layout().insertLayout(0, bar)
+        self.table_dock = QtWidgets.QDockWidget("Frames", w)
+        self.table_dock.setObjectName("frames-dock")
+        self.table_dock.setWidget(self.table)
+        w.addDockWidget(QtCore.Qt.DockWidgetArea.RightDockWidgetArea, self.table_dock)
+        self.plots = PlotsDock(self.data, model)
+        self.plots.joint_space_requested.connect(lambda: w._guard(self.request_joint_space))
+        self.plots_dock = QtWidgets.QDockWidget("Plots", w)
+        self.plots_dock.setObjectName("plots-dock")
+        self.plots_dock.setWidget(self.plots)
+        w.addDockWidget(QtCore.Qt.DockWidgetArea.RightDockWidgetArea, self.plots_dock)
+        w.splitDockWidget(self.table_dock, self.plots_dock, QtCore.Qt.Orientation.Vertical)
+        self.data.changed.connect(self._on_review_changed)
+        self.data.reset.connect(self._sync_timeline)
+        w.timeline.reason_for = self.data.frame_reason
+        model.pose_changed.connect(self._on_pose)
+        w.pool.finished.connect(self._on_job)
+        self._connected = [(model.pose_changed, self._on_pose), (w.pool.finished, self._on_job)]
+        self._sync_timeline()
+
+    def detach(self) -> None:
+        for signal, slot in self._connected:
+            signal.disconnect(slot)
+        self._connected = []
+        for dock in (self.table_dock, self.plots_dock):
+            if dock is not None:
+                self.window.removeDockWidget(dock)
+                dock.deleteLater()
+        self.table_dock = self.plots_dock = self.table = self.plots = None
+        self.data = None
+
+    def _sync_timeline(self) -> None:
+        tl = self.window.timeline
+        if tl is not None and self.data is not None:
+            tl.set_status(self.data.frame_status())
+
+    def _on_review_changed(self, _b: int, f: int) -> None:
+        tl = self.window.timeline
+        if tl is None or self.data is None:
+            return
+        code = self.data.frame_status_at(f)
+        if tl.status[f] != code:
+            tl.status[f] = code
+            tl.refresh_status()
+
+    def _on_pose(self, bone: int, frame: int) -> None:
+        """A pose edit by hand (drag, nudge, undo): a keyframe, or a fix of a tracked frame."""
+        s = self.window.session
+        m = self.window.model
+        if self.data is None or (s is not None and not s.recording) or m.layers[bone].locked:
+            return
+        self.data.mark_edited(bone, frame, m.pose(bone, frame))
+
+    # ------------------------------------------------------------------ the fix loop
+    def _selected(self):
+        m, s = self.window.model, self.window.session
+        if m is None or s is None:
+            raise ValueError("study: open a study first")
+        if m.selected < 0:
+            raise ValueError("bone: select a bone first")
+        return m, s, m.layers[m.selected].name
+
+    def mark_keyframe(self) -> None:
+        """Record the selected bone's pose at the current frame as a hand-set pose (a keyframe)."""
+        m, s, bone = self._selected()
+        if not s.writable:
+            raise ValueError("study: open for writing to set keyframes")
+        if m.layers[m.selected].locked:
+            raise ValueError(f"bone: {bone} is locked (being tracked)")
+        f = m.current_frame
+        s.study.trial(s.trial_name).record_pose(bone, f, m.pose(bone, f))
+        m.layers[m.selected].keyframes.add(f)
+        self.data.mark_edited(m.selected, f, m.pose(bone, f))
+        self.window.notify(f"{bone} frame {f}: keyframe set")
+
+    def keyframes(self, bone: str) -> list[int]:
+        s = self.window.session
+        return sorted(s.study.trial(s.trial_name).results(bone).keyframes)
+
+    def frames_for(self, direction: str, bone: str, frame: int, n_frames: int) -> list[int]:
+        """The frames a re-track covers, in tracking order."""
+        if direction == "forward":
+            return list(range(frame, n_frames))
+        if direction == "backward":
+            return list(range(frame, -1, -1))
+        if direction == "between":
+            keys = self.keyframes(bone)
+            before = [k for k in keys if k <= frame]
+            after = [k for k in keys if k > frame]
+            if not before or not after:
+                raise ValueError(f"keyframes: {bone} needs a keyframe at or before frame {frame} and one "
+                                 f"after it (has {keys})")
+            return list(range(before[-1], after[0] + 1))
+        raise ValueError(f"direction: expected 'forward', 'backward' or 'between', got {direction!r}")
+
+    def retrack(self, direction: str) -> None:
+        """Re-track the selected bone from the current frame (see :meth:`frames_for`)."""
+        m, _, bone = self._selected()
+        frames = self.frames_for(direction, bone, m.current_frame, m.n_frames)
+        self.window.tracking.start([bone], frames)
+
+    def undo_fix(self) -> None:
+        """Put back the tracking result that a hand fix of the selected bone at the current frame
+        replaced (the journal keeps it; the fix stays in the journal's history too)."""
+        m, s, bone = self._selected()
+        if not s.writable:
+            raise ValueError("study: open for writing to undo a fix")
+        f = m.current_frame
+        trial = s.study.trial(s.trial_name)
+        recs = trial.results(bone).essential_records().get(f, [])
+        tracked = [r for r in recs if r.kind == "tracked"]
+        if not tracked or recs[-1].kind != "hand":
+            raise ValueError(f"frame {f}: {bone} has no hand fix of a tracked frame to undo")
+        rec = tracked[-1]
+        trial.clear_pose(bone, f)
+        trial.record_pose(bone, f, rec.pose, score=rec.score, tracking=rec.tracking)
+        i = m.index(bone)
+        s.recording = False
+        try:
+            m.layers[i].poses[f] = rec.pose
+            m.layers[i].keyframes.discard(f)
+            m.pose_changed.emit(i, f)
+        finally:
+            s.recording = True
+        self.data.reload_bone(trial, bone)
+        self.window.notify(f"{bone} frame {f}: fix undone (tracking result restored)")
+
+    def goto_flagged(self, step: int) -> None:
+        m = self.window.model
+        if m is None or self.data is None:
+            return
+        frames = sorted({f for _, f in self.data.flagged()})
+        if not frames:
+            self.window.notify("No flagged frame")
+            return
+        cur = m.current_frame
+        nxt = [f for f in frames if f > cur] if step > 0 else [f for f in frames if f < cur][::-1]
+        m.set_frame((nxt or (frames if step > 0 else frames[::-1]))[0])
+
+    # ------------------------------------------------------------------ joint space
+    def request_joint_space(self) -> None:
+        """Compute the joints' smallest surface distances in the background (bone surfaces are
+        built from the CTs at half resolution)."""
+        if self.plots is None or not self.plots.joints:
+            raise ValueError("joints: the trial has no joint to measure")
+        from core.tracking.bones import bone_model
+        from core.tracking.kinematics import min_distance
+
+        m = self.window.model
+        joints = self.plots.joints
+        volumes = {layer.name: layer.volume for layer in m.layers}
+        poses = {b: self.data.poses[i].copy() for i, b in enumerate(self.data.bones)}
+
+        def job(cancel):
+            meshes = {}
+            out = {}
+            for j in joints:
+                for b in (j.proximal, j.distal):
+                    if b not in meshes:
+                        bm = bone_model(volumes[b], name=b, mesh=True, mesh_step=2)
+                        meshes[b] = (bm.vertices, bm.faces)
+                    if cancel():
+                        return None
+                out[j.name] = min_distance(meshes[j.proximal], meshes[j.distal], poses[j.proximal],
+                                           poses[j.distal])["distance"]
+            return out
+
+        self.window.notify("Computing the joint space…")
+        self.window.pool.submit("joint-space", job)
+
+    def _on_job(self, key: str, result) -> None:
+        if key == "joint-space" and result is not None and self.plots is not None:
+            self.plots.set_joint_space(result)
+            self.window.notify("Joint space computed")
+
+    # ------------------------------------------------------------------ export
+    def export(self, path: str | Path, kind: str):
+        """Export to ``path``: ``kind`` a pose format name (:func:`core.study.exports.available_formats`),
+        ``"plots"`` (PNG/SVG/PDF by suffix; returns the list of files, one per page for PNG/SVG)
+        or ``"report"`` (HTML/PDF by suffix). Returns the path written."""
+        s = self.window.session
+        if s is None:
+            raise ValueError("study: open a study first")
+        p = Path(path)
+        if kind == "plots":
+            return self.plots.export(str(p))
+        if kind == "report":
+            from core.study.report import write_report
+
+            return write_report(s.study, s.trial_name, p)
+        from core.study.exports import export_poses
+
+        return export_poses(s.study.trial(s.trial_name), p, kind)
+
+    def export_dialog(self) -> None:
+        from core.study.exports import available_formats
+
+        if self.window.session is None:
+            raise ValueError("study: open a study first")
+        choices = [(f"Poses: {f.description} (*{f.suffix})", name) for name, f in available_formats().items()]
+        choices += [("Plots as PNG (*.png)", "plots"), ("Plots as SVG (*.svg)", "plots"),
+                    ("Plots as PDF (*.pdf)", "plots"), ("Trial report, HTML (*.html)", "report"),
+                    ("Trial report, PDF (*.pdf)", "report")]
+        path, chosen = QtWidgets.QFileDialog.getSaveFileName(
+            self.window, "Export", str(self.window.session.folder), ";;".join(c for c, _ in choices))
+        if not path:
+            return
+        kind = dict(choices)[chosen]
+        out = self.export(path, kind)
+        self.window.notify(f"Exported {', '.join(map(str, out)) if isinstance(out, list) else out}")

@@ -1,0 +1,207 @@
+"""Review, fix and export in the window: live table and plots while tracking, a click on a plot
+moves the frame, a flagged frame fixed, undone, fixed again and re-tracked, exports read back."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+from PySide6 import QtCore
+
+from app.main_window import MainWindow
+from app.review import EDITED, FLAGGED, KEYFRAME, TRACKED
+from core.io.autoscoper_tra import read_tra
+from core.study import Study
+from core.synthetic import make_demo_study
+from core.tracking.register import RegistrationOptions
+from core.tracking.trial import TrackingOptions
+
+pytestmark = pytest.mark.gui
+
+HUNG_JOB_MS = 30 * 60_000  # only the ceiling for a job that never ends
+BONES = ["tibia", "talus", "calcaneus"]
+N = 5
+FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0), refine=None),
+                       confidence=False)
+
+
+@contextmanager
+def job_ends(qtbot, pool, key: str, expect: str = "finished"):
+    ends: list = []
+    slots = ((pool.finished, lambda k, r: k == key and ends.append(("finished", r))),
+             (pool.failed, lambda k, m: k == key and ends.append(("failed", m))),
+             (pool.cancelled, lambda k: k == key and ends.append(("cancelled", None))))
+    for signal, slot in slots:
+        signal.connect(slot)
+    try:
+        yield ends
+        qtbot.waitUntil(lambda: bool(ends), timeout=HUNG_JOB_MS)
+    finally:
+        for signal, slot in slots:
+            signal.disconnect(slot)
+    if ends[0][0] != expect:
+        pytest.fail(f"job {key!r} {ends[0][0]} instead of {expect}: {ends[0][1]}")
+
+
+@pytest.fixture(scope="module")
+def demo_folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("review") / "study"
+    make_demo_study(out, n_frames=N, pixels=96, seed=5, device="cpu", spacing=2.0, tissue_spacing=8.0,
+                    calibration_session=False)
+    return out
+
+
+@pytest.fixture
+def window(qtbot, demo_folder, tmp_path, monkeypatch):
+    monkeypatch.setenv("TALUS_SETTINGS_DIR", str(tmp_path / "settings"))
+    folder = shutil.copytree(demo_folder, tmp_path / "study")
+    win = MainWindow(device="cpu", create_scene_on_show=False)
+    qtbot.addWidget(win)
+    win.show()
+    with job_ends(qtbot, win.pool, "overlay"):
+        win.open_study(folder)
+    win.tracking.options = FAST
+    yield win
+    win.close()
+
+
+def _status(win, bone, frame):
+    return int(win.review.data.status[BONES.index(bone), frame])
+
+
+def test_track_review_fix_retrack_and_export(window, qtbot, demo_folder, tmp_path):
+    win, m = window, window.model
+    rv = win.review
+    seen = []  # (tracking running?, table rows tracked, points in the plots) at each live update
+    plotted = []
+
+    def on_changed(b, f):
+        table = rv.table.table_model
+        n_tracked = sum(table.data(table.index(r, 2)) in ("tracked", "flagged")
+                        for r in range(table.rowCount()))
+        seen.append((win.tracking.running, n_tracked))
+
+    def on_refreshed():
+        x, _ = rv.plots.curves["translation"][0].getData()  # the page shown: Pose
+        plotted.append((win.tracking.running, 0 if x is None else len(x)))
+
+    rv.data.changed.connect(on_changed)
+    rv.plots.refreshed.connect(on_refreshed)
+    with job_ends(qtbot, win.pool, "tracking"):
+        win.tracking.start(BONES)
+        qtbot.waitUntil(lambda: bool(seen), timeout=HUNG_JOB_MS)  # a first result arrived
+        assert win.feedback.isVisible() and "frames/s" in win.feedback.text() and "ETA" in win.feedback.text()
+    # the table and the plots filled in while the job was still running
+    assert any(running and n > 0 for running, n in seen)
+    assert any(running and n > 0 for running, n in plotted)
+    assert seen[-1][1] == len(BONES) * N or _status(win, "talus", N - 1) in (TRACKED, FLAGGED)
+    # nothing stale once it ended
+    assert not win.feedback.isVisible() and not win.progress.isVisible() and not win.cancel_button.isVisible()
+    assert not win.tracking.running
+
+    # a click on a plot moves to the frame under the mouse
+    m.set_frame(0)
+    rv.plots.show_page("Pose")
+    canvas = rv.plots.canvas_of("translation")
+    pos = canvas.mapFromScene(rv.plots.scene_point("translation", 3))
+    qtbot.mouseClick(canvas.viewport(), QtCore.Qt.MouseButton.LeftButton, pos=pos)
+    assert m.current_frame == 3
+    assert rv.plots.cursor_frame == 3
+
+    # a flagged frame: talus frame 2 registered 3 mm off and flagged by the tracker's score check
+    with Study.open(win.session.folder, mode="r") as st:
+        good = st.trial("walk").poses("talus")[2]
+    bad = good.copy()
+    bad[:3, 3] += [3.0, 0.0, 0.0]
+    trial = win.session.study.trial("walk")
+    why = {"flags": ["score 0.40 below 0.85 x the recent median"], "converged": False}
+    trial.record_pose("talus", 2, bad, score=0.4, tracking=why)
+    rv.data.reload_bone(trial, "talus")
+    assert _status(win, "talus", 2) == FLAGGED
+    assert win.timeline.status[2] == FLAGGED and "score 0.40" in win.timeline.tooltip(2)
+    # the table's flagged filter shows it; selecting the row goes there
+    rv.table.set_filter("Flagged")
+    rows = rv.table.visible_rows()
+    assert (BONES.index("talus"), 2) in rows and all(rv.data.status[b, f] == FLAGGED for b, f in rows)
+    rv.table.select_row(rows.index((BONES.index("talus"), 2)))
+    assert m.current_frame == 2 and m.layers[m.selected].name == "talus"
+
+    # the user drags the bone to the right place (here: the true pose) and marks a keyframe
+    truth = np.load(demo_folder / "poses" / "talus.npy")[2]
+    m.set_layer_property("talus", "locked", False)
+    m.set_pose("talus", bad)  # the window shows the flagged pose
+    m.set_pose("talus", truth)
+    win.review.keyframe_action.trigger()
+    assert _status(win, "talus", 2) == EDITED
+    # undo the fix: the tracking result comes back from the journal
+    win.review.undo_fix_action.trigger()
+    assert _status(win, "talus", 2) == FLAGGED
+    np.testing.assert_allclose(m.pose("talus", 2), bad)
+    # fix again and re-track forward from the frame
+    m.set_pose("talus", truth)
+    assert _status(win, "talus", 2) == EDITED
+    with job_ends(qtbot, win.pool, "tracking"):
+        win.review.forward_action.trigger()
+    journal = trial.results("talus")
+    assert journal.records[2].kind == "tracked" and not journal.records[2].tracking["flags"]
+    assert 2 in journal.keyframes  # the fix stays a keyframe
+    assert _status(win, "talus", 2) == TRACKED
+    fixed = m.pose("talus", 2)
+    assert np.linalg.norm(fixed[:3, 3] - truth[:3, 3]) < 1.5  # re-tracked from the fix, not the bad pose
+    assert _status(win, "tibia", 0) in (KEYFRAME, TRACKED)
+
+    # export: every pose format, the plots, the report; read back
+    out = tmp_path / "export"
+    out.mkdir()
+    poses = {b: trial.poses(b) for b in trial.bones}
+    win.review.export(out / "poses.tra", "tra")
+    back = read_tra(out / "poses.tra", n_volumes=len(trial.bones))
+    np.testing.assert_allclose(back, np.stack([poses[b] for b in trial.bones], axis=1), atol=1e-6)
+    win.review.export(out / "poses.csv", "csv")
+    with open(out / "poses.csv", newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0][0] == "frame" and len(rows) == N + 1
+    for b, name in enumerate(trial.bones):
+        vals = np.array([[float(v) if v else np.nan for v in r[1 + 16 * b:17 + 16 * b]] for r in rows[1:]])
+        np.testing.assert_allclose(vals.reshape(N, 4, 4), poses[name], atol=0, equal_nan=True)
+    win.review.export(out / "poses.json", "json")
+    doc = json.loads((out / "poses.json").read_text())
+    np.testing.assert_allclose(np.array(doc["bones"]["talus"]["poses"][2]).reshape(4, 4), poses["talus"][2])
+    for suffix in (".png", ".svg", ".pdf"):
+        written = win.review.export(out / f"plots{suffix}", "plots")
+        assert written[0] == out / f"plots{suffix}" and all(p.stat().st_size > 1000 for p in written)
+    assert (out / "plots-Joint-angles.png").is_file()  # every page
+    assert (out / "plots.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "plots.pdf").read_bytes()[:4] == b"%PDF"
+    html = win.review.export(out / "report.html", "report").read_text()
+    assert "Calibration" in html and "Flagged frames" in html and "ankle" in html and "data:image/png" in html
+    assert win.review.export(out / "report.pdf", "report").read_bytes()[:4] == b"%PDF"
+
+
+def test_cancel_leaves_nothing_stale(window, qtbot):
+    win = window
+    with job_ends(qtbot, win.pool, "tracking", expect="cancelled"):
+        win.tracking.start(BONES)
+        qtbot.waitUntil(lambda: win.feedback.isVisible(), timeout=HUNG_JOB_MS)
+        win.tracking.cancel()
+    qtbot.waitUntil(lambda: not win.pool.busy, timeout=HUNG_JOB_MS)
+    assert not win.feedback.isVisible() and not win.progress.isVisible() and not win.cancel_button.isVisible()
+
+
+def test_window_size_suits_the_screen_and_is_remembered(qtbot, tmp_path, monkeypatch):
+    monkeypatch.setenv("TALUS_SETTINGS_DIR", str(tmp_path))
+    win = MainWindow(create_scene_on_show=False)
+    qtbot.addWidget(win)
+    avail = win.screen().availableGeometry()
+    assert win.width() <= avail.width() and win.height() <= avail.height()
+    assert win.width() >= min(1024, avail.width())
+    win.resize(1000, 640)
+    win.close()
+    again = MainWindow(create_scene_on_show=False)
+    qtbot.addWidget(again)
+    assert (again.width(), again.height()) == (1000, 640)
+    again.close()

@@ -21,6 +21,7 @@ COMMANDS: dict[str, str] = {
     "gui": "app.commands.gui",
     "calibrate": "app.commands.calibrate",
     "track": "app.commands.track",
+    "batch": "app.commands.batch",
     "study": "app.commands.study",
     "report": "app.commands.report",
     "bench": "app.commands.bench",

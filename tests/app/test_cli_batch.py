@@ -68,3 +68,10 @@ def test_batch_bad_input(demo, tmp_path, capsys):
         batch.configure(p)
         a = p.parse_args([str(demo), "--workers", "0", "--scheduler", "tcp://h:8786"])
         a.run(a)
+
+
+def test_talus_batch_is_registered(tmp_path, capsys):
+    from app.cli import main
+
+    assert main(["batch", str(tmp_path / "nowhere")]) == EXIT_ERROR
+    assert "talus batch: error: STUDY: no study folder" in capsys.readouterr().err

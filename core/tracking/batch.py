@@ -317,6 +317,8 @@ def local_cluster(workers: int | None = None, *, device: str | None = None,
         env = {"CUDA_VISIBLE_DEVICES": "", "OMP_NUM_THREADS": str(threads),
                "OPENBLAS_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
         specs = {f"cpu{i}": {"cls": Nanny, "options": {"nthreads": 1, "env": env}} for i in range(n)}
+    for spec in specs.values():  # the workers' own log lines only for errors (progress is ours)
+        spec["options"]["silence_logs"] = 40
     scheduler = {"cls": Scheduler, "options": {"dashboard_address": dashboard_address}}
     with dask.config.set({"distributed.scheduler.allowed-failures": 1,
                           "distributed.worker.daemon": False}):

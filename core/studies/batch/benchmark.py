@@ -39,7 +39,8 @@ from ...tracking.batch import TaskSettings, build_tasks, run_batch, run_serial
 BONES = ("talus", "calcaneus")
 
 
-def make_study(folder: Path, *, pixels: int, frames: int, trials: int, device: str | None) -> Path:
+def make_study(folder: Path, *, pixels: int, frames: int, trials: int, device: str | None,
+               bones=BONES) -> Path:
     """The demo study with ``trials`` trials on the same frames (same keyframes)."""
     from ...synthetic import make_demo_study
 
@@ -50,9 +51,9 @@ def make_study(folder: Path, *, pixels: int, frames: int, trials: int, device: s
         views = [st.path(v["path"]) for v in walk["views"]]
         for k in range(2, trials + 1):
             name = f"walk{k}"
-            st.add_trial(name, views, calibration=walk["calibration"], bones=list(BONES),
+            st.add_trial(name, views, calibration=walk["calibration"], bones=list(bones),
                          bit_depth=walk["views"][0]["bit_depth"])
-            for b in BONES:
+            for b in bones:
                 st.trial(name).record_pose(b, 0, st.trial("walk").poses(b)[0])
     return folder
 
@@ -65,8 +66,8 @@ def _fresh(study: Path, dest: Path) -> Path:
     return dest
 
 
-def _run(study: Path, settings: TaskSettings, workers: int) -> dict:
-    tasks = build_tasks([study], bones=list(BONES))
+def _run(study: Path, settings: TaskSettings, workers: int, bones=BONES) -> dict:
+    tasks = build_tasks([study], bones=list(bones))
     load0 = os.getloadavg()[0]
     if workers == 0:
         s = run_serial(tasks, settings)
@@ -95,6 +96,17 @@ def _run(study: Path, settings: TaskSettings, workers: int) -> dict:
     }
 
 
+def _gpu_names() -> list[str]:
+    """The GPUs of this machine as nvidia-smi names them (empty when it is missing)."""
+    import subprocess
+
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        return []
+    return [line.split(" (UUID")[0] for line in out.splitlines() if line.strip()]
+
+
 def model(one: dict, counts=(1, 2, 4, 8, 16)) -> list[dict]:
     """Predicted wall time and throughput against workers from a one-worker run (see the
     module docs): start-up + greedy makespan of (task time + scheduling per task)."""
@@ -118,7 +130,8 @@ def main(argv=None) -> dict:
     p.add_argument("--workers", default="1,2", help="comma-separated worker counts")
     p.add_argument("--pixels", type=int, default=None, help="image size (default 64 on cpu, 256 on cuda)")
     p.add_argument("--frames", type=int, default=None, help="frames per trial (default 3 on cpu, 20 on cuda)")
-    p.add_argument("--trials", type=int, default=2, help="trials (each with talus and calcaneus)")
+    p.add_argument("--trials", type=int, default=2, help="trials (each with the --bones)")
+    p.add_argument("--bones", default=",".join(BONES), help="bones, comma-separated (a task each)")
     p.add_argument("--serial", action="store_true", help="also run the tasks in this process without Dask")
     p.add_argument("--confidence", action="store_true", help="with the per-frame uncertainty")
     p.add_argument("--out", default=None, help="also write the JSON here")
@@ -127,20 +140,21 @@ def main(argv=None) -> dict:
     pixels = a.pixels or (64 if cpu else 256)
     frames = a.frames or (3 if cpu else 20)
     counts = [int(w) for w in a.workers.split(",")]
+    bones = tuple(b.strip() for b in a.bones.split(",") if b.strip())
     settings = TaskSettings(device=a.device, confidence=a.confidence)
     with tempfile.TemporaryDirectory(prefix="talus-batch-bench-") as tmp:
         t0 = time.perf_counter()
         base = make_study(Path(tmp) / "demo", pixels=pixels, frames=frames, trials=a.trials,
-                          device=a.device)
+                          device=a.device, bones=bones)
         made = time.perf_counter() - t0
         runs = []
         for w in ([0] if a.serial else []) + counts:
-            runs.append(_run(_fresh(base, Path(tmp) / f"run{w}"), settings, w))
+            runs.append(_run(_fresh(base, Path(tmp) / f"run{w}"), settings, w, bones))
     result = {
         "benchmark": "talus batch throughput against workers",
-        "device": a.device, "cpu_count": os.cpu_count(),
-        "study": {"pixels": pixels, "frames_per_trial": frames, "trials": a.trials, "bones": list(BONES),
-                  "tasks": a.trials * len(BONES), "made_s": round(made, 1)},
+        "device": a.device, "gpus": _gpu_names() if not cpu else [], "cpu_count": os.cpu_count(),
+        "study": {"pixels": pixels, "frames_per_trial": frames, "trials": a.trials, "bones": list(bones),
+                  "tasks": a.trials * len(bones), "made_s": round(made, 1)},
         "settings": {"confidence": a.confidence, "metric": settings.metric},
         "runs": runs,
     }

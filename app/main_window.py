@@ -422,9 +422,10 @@ class MainWindow(QtWidgets.QMainWindow):
 
     # ------------------------------------------------------------------ jobs
     def notify(self, text: str) -> None:
-        if self.messages_dock.isHidden():  # shown small: a few lines, the review docks keep the room
+        if self.messages_dock.isHidden():  # shown small (or as a tab beside the plots) until needed
             self.messages_dock.show()
-            self.resizeDocks([self.messages_dock], [80], QtCore.Qt.Orientation.Vertical)
+            if not self.tabifiedDockWidgets(self.messages_dock):
+                self.resizeDocks([self.messages_dock], [80], QtCore.Qt.Orientation.Vertical)
         self.messages.addItem(text.splitlines()[-1] if text else "")
         self.messages.item(self.messages.count() - 1).setToolTip(text)
         self.messages.scrollToBottom()

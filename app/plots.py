@@ -141,14 +141,13 @@ class PlotsDock(QtWidgets.QWidget):
         row = sum(1 for k in self.page_of.values() if k == page)
         p = canvas.addPlot(row=row, col=0)
         self.page_of[key] = page
-        p.setTitle(title, size="9pt")
+        p.setTitle(f"{title} — by frame", size="8pt")
         p.setLabel("left", units)
         p.showGrid(x=True, y=True, alpha=0.25)
         p.setMouseEnabled(x=True, y=False)
         p.addLegend(offset=(5, 5), labelTextSize="8pt", verSpacing=-6)
         if self.plots:
             p.setXLink(next(iter(self.plots.values())))
-        p.setLabel("bottom", "frame")
         # a fixed frame axis: no re-layout of its ticks as frames come in
         p.setXRange(-0.5, self.review.n_frames - 0.5, padding=0.0)
         p.enableAutoRange(x=False)

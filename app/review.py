@@ -274,9 +274,10 @@ class FrameTableDock(QtWidgets.QWidget):
         self.view.verticalHeader().hide()
         self.view.verticalHeader().setDefaultSectionSize(20)
         self.view.horizontalHeader().setStretchLastSection(True)
+        for col, width in enumerate((52, 90, 100, 58, 52, 52, 50)):  # fixed: no scan of every row
+            self.view.setColumnWidth(col, width)
         self.view.setAlternatingRowColors(True)
         top = QtWidgets.QHBoxLayout()
-        top.addWidget(QtWidgets.QLabel("Show"))
         top.addWidget(self.status_filter, 1)
         top.addWidget(self.bone_filter, 1)
         layout = QtWidgets.QVBoxLayout(self)

@@ -75,8 +75,8 @@ class ReviewActions:
             self.data.load_journal(session.study.trial(session.trial_name))
         self.table = FrameTableDock(self.data, model)
         bar = QtWidgets.QHBoxLayout()
-        buttons = (("Keyframe (K)", self.keyframe_action), ("Re-track → (])", self.forward_action),
-                   ("Re-track ← ([)", self.backward_action), ("Between keyframes", self.between_action),
+        buttons = (("Key K", self.keyframe_action), ("Track → ]", self.forward_action),
+                   ("Track ← [", self.backward_action), ("Between", self.between_action),
                    ("Undo fix", self.undo_fix_action))
         for text, act in buttons:
             btn = QtWidgets.QToolButton()
@@ -95,8 +95,16 @@ class ReviewActions:
         self.plots_dock = QtWidgets.QDockWidget("Plots", w)
         self.plots_dock.setObjectName("plots-dock")
         self.plots_dock.setWidget(self.plots)
-        w.addDockWidget(QtCore.Qt.DockWidgetArea.RightDockWidgetArea, self.plots_dock)
-        w.splitDockWidget(self.table_dock, self.plots_dock, QtCore.Qt.Orientation.Vertical)
+        # the table on the right over the whole height; the plots under the images, sharing the
+        # bottom with the messages (a tab: no room taken until they are looked at)
+        w.setCorner(QtCore.Qt.Corner.BottomRightCorner, QtCore.Qt.DockWidgetArea.RightDockWidgetArea)
+        w.setCorner(QtCore.Qt.Corner.TopRightCorner, QtCore.Qt.DockWidgetArea.RightDockWidgetArea)
+        w.addDockWidget(QtCore.Qt.DockWidgetArea.BottomDockWidgetArea, self.plots_dock)
+        w.tabifyDockWidget(self.plots_dock, w.messages_dock)
+        self.plots_dock.show()
+        self.plots_dock.raise_()
+        w.resizeDocks([self.table_dock], [max(340, w.width() // 4)], QtCore.Qt.Orientation.Horizontal)
+        w.resizeDocks([self.plots_dock], [max(220, w.height() // 3)], QtCore.Qt.Orientation.Vertical)
         self.data.changed.connect(self._on_review_changed)
         self.data.reset.connect(self._sync_timeline)
         w.timeline.reason_for = self.data.frame_reason

@@ -140,8 +140,23 @@ class ScenePane(QtWidgets.QWidget):
         """Fit the whole rig (sources, detectors, bones) in view, seen from above the walkway."""
         if self.plotter is not None:
             self.plotter.view_vector((0.3, -1.0, 0.6), viewup=(0, 0, 1))
-            self.plotter.reset_camera()
+            self.plotter.reset_camera(bounds=self._focus_bounds())
             self.plotter.render()
+
+    def _focus_bounds(self):
+        """Bounds of the bones and the detectors (the sources, a metre away, would leave the
+        bones a few pixels wide); None (everything) without a model."""
+        if self.model is None or self.plotter is None:
+            return None
+        pts = []
+        for name, actor in self.plotter.actors.items():
+            if name.startswith(("bone-", "detector-")) and actor.GetVisibility():
+                b = actor.GetBounds()
+                pts += [(b[0], b[2], b[4]), (b[1], b[3], b[5])]
+        if not pts:
+            return None
+        lo, hi = np.min(pts, axis=0), np.max(pts, axis=0)
+        return (lo[0], hi[0], lo[1], hi[1], lo[2], hi[2])
 
     def set_cameras_visible(self, on: bool) -> None:
         """Show or hide the sources, detectors and frustums."""

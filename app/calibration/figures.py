@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["poses_figure", "reprojection_figure", "rolloff_figure"]
+__all__ = ["field_fraction", "poses_figure", "reprojection_figure", "rolloff_figure"]
+
+
+def field_fraction(ff, level: float = 0.1) -> float:
+    """Fraction of the image inside the intensifier's field: fluence surface above ``level`` of
+    its peak (outside it the surface is noise)."""
+    g = np.asarray(ff.gain, float)
+    return float(np.mean(g > level * np.percentile(g[np.isfinite(g)], 99)))
 
 
 def _fig(w: float, h: float):
@@ -27,7 +34,7 @@ def rolloff_figure(flatfields, names) -> object:
         k = np.digitize(r[ok], bins)
         prof = [np.median(g[ok][k == i]) if np.any(k == i) else np.nan for i in range(1, len(bins))]
         ax.plot(bins[1:], np.asarray(prof) / np.nanmax(prof),
-                label=f"{name} ({100 * ok.mean():.0f} % usable)")
+                label=f"{name} ({100 * field_fraction(ff):.0f} % of the image inside the field)")
     ax.set_xlabel("distance from the image centre (px)")
     ax.set_ylabel("relative fluence")
     ax.set_title("Flatfield roll-off", fontsize=9)

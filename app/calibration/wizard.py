@@ -288,6 +288,8 @@ class CalibrationWizard(QtWidgets.QDialog):
         g = QtWidgets.QGridLayout(w)
         self.solve_info = QtWidgets.QLabel()
         self.solve_info.setWordWrap(True)
+        self.solve_info.setMinimumHeight(80)
+        self.solve_info.setAlignment(QtCore.Qt.AlignmentFlag.AlignTop | QtCore.Qt.AlignmentFlag.AlignLeft)
         g.addWidget(self.solve_info, 0, 0, 1, 2)
         self.reprojection_view = FigureView()
         self.poses_view = FigureView()
@@ -472,8 +474,10 @@ class CalibrationWizard(QtWidgets.QDialog):
         for view, cam, img, (ff, kv) in zip(self.ff_views, setup.cameras, r["corrected"], r["flatfields"],
                                             strict=True):
             view.set_image(img, levels=(0.0, 1.25))
-            view.caption = (f"{cam}: a corrected empty-field frame ({kv:g} kV); "
-                            f"{100 * ff.valid.mean():.0f} % of pixels usable" if kv else f"{cam}")
+            from .figures import field_fraction
+
+            view.caption = (f"{cam}: a corrected empty-field frame" + (f" ({kv:g} kV)" if kv else "")
+                            + f"; {100 * field_fraction(ff):.0f} % of the image inside the field")
             view.set_points(np.zeros((0, 2)))
         self.rolloff_view.set_figure(r["rolloff"])
         self.session_info.setText(_session_text(setup))

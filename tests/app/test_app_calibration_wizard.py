@@ -78,7 +78,7 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     # flatfield: computed in the pool while the window keeps ticking
     ticks = _step(qtbot, w, "flatfield", lambda: _click(qtbot, w.next_button))
     assert ticks >= 2 and w.page == 1
-    assert "usable" in w.ff_views[0].caption and w.rolloff_view.pixmap() is not None
+    assert "inside the field" in w.ff_views[0].caption and w.rolloff_view.pixmap() is not None
     _shot(w, "2_flatfield")
     # distortion: the model table, then another model chosen
     _step(qtbot, w, "distortion", lambda: _click(qtbot, w.next_button))

@@ -68,7 +68,7 @@ class PlotsDock(QtWidgets.QWidget):
     joint_space_requested = QtCore.Signal()
     refreshed = QtCore.Signal()
 
-    def __init__(self, review: ReviewData, model, *, refresh_ms: int = 100,
+    def __init__(self, review: ReviewData, model, *, refresh_ms: int = 250,
                  parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self.review = review
@@ -254,20 +254,24 @@ class PlotsDock(QtWidgets.QWidget):
             return none
 
     def _shade(self) -> None:
+        """Shade the flagged frames: one bar item per plot (a region item per run of frames made
+        each repaint cost grow with the number of flagged runs)."""
         flagged = np.flatnonzero((self.review.status == FLAGGED).any(axis=0))
         runs = tuple(_runs(flagged))
         if runs == self._shaded:
             return
-        for p, item in self._shading:
-            p.removeItem(item)
-        self._shading = []
-        for p in self.plots.values():
-            for a, b in runs:
-                item = pg.LinearRegionItem((a - 0.5, b + 0.5), movable=False,
-                                           brush=pg.mkBrush(220, 70, 60, 45), pen=pg.mkPen(None))
+        x = np.array([(a + b) / 2 for a, b in runs], float)
+        w = np.array([b - a + 1 for a, b in runs], float)
+        if not self._shading:
+            for p in self.plots.values():
+                item = pg.BarGraphItem(x=x, width=w, y0=-1e6, height=2e6, brush=pg.mkBrush(220, 70, 60, 45),
+                                       pen=pg.mkPen(None))
                 item.setZValue(-10)
                 p.addItem(item, ignoreBounds=True)
                 self._shading.append((p, item))
+        else:
+            for _, item in self._shading:
+                item.setOpts(x=x, width=w, y0=-1e6, height=2e6)
         self._shaded = runs
 
     def set_joint_space(self, distances: dict[str, np.ndarray]) -> None:

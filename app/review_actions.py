@@ -292,7 +292,8 @@ class ReviewActions:
 
         if self.window.session is None:
             raise ValueError("study: open a study first")
-        choices = [(f"Poses: {f.description} (*{f.suffix})", name) for name, f in available_formats().items()]
+        choices = [(f"Poses: {f.description} (*{f.suffix or ''})", name)
+                   for name, f in available_formats().items()]
         choices += [("Plots as PNG (*.png)", "plots"), ("Plots as SVG (*.svg)", "plots"),
                     ("Plots as PDF (*.pdf)", "plots"), ("Trial report, HTML (*.html)", "report"),
                     ("Trial report, PDF (*.pdf)", "report")]

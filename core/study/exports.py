@@ -3,7 +3,8 @@
 :data:`POSE_FORMATS` maps a format name to its file suffix, a description and a writer
 ``write(path, poses, trial)`` (``poses``: bone -> ``(n_frames, 4, 4)`` ``T_lab_from_bone``, mm,
 NaN for untracked frames). Built in: Autoscoper ``.tra``, CSV (row-major 4×4 per bone, or 6-DOF),
-JSON; formats whose writers :mod:`core.io` provides are added when their modules are there
+JSON; the formats of ``talus export`` (:mod:`core.study.export_trial`: XROMM CSV, .tfm, .jts,
+C3D, OpenSim .mot/.trc, JCS CSV, Autoscoper-frame .tra) are added when that module is there
 (:func:`available_formats`). Every writer writes atomically.
 
 Frame numbers are 0-based in Talus; a format that numbers frames from 1 says so in its own docs.
@@ -61,20 +62,28 @@ POSE_FORMATS: dict[str, PoseFormat] = {
 }
 
 
-def _optional() -> dict[str, PoseFormat]:
-    """Writers of :mod:`core.io` that take a trial's poses, when their modules are present."""
-    out = {}
-    try:
-        from ..io.rigid_body_csv import write_rigid_body_csv
-    except ImportError:
-        pass
-    else:
-        def xma(path, poses, trial):
-            names = list(poses)
-            write_rigid_body_csv(path, names, np.stack([poses[b] for b in names], axis=1))
+_SUFFIX = {"xromm-csv": ".csv", "tfm": "", "jts": "", "c3d": ".c3d", "mot": ".mot", "trc": ".trc",
+           "jcs": ".csv", "tra": ".tra"}
 
-        out["xromm-csv"] = PoseFormat("xromm-csv", ".csv", "XMALab / XROMM rigid-body transforms CSV "
-                                      "(frames numbered from 1)", xma)
+
+def _optional() -> dict[str, PoseFormat]:
+    """The formats of :func:`core.study.export_trial.export_trial` (``talus export``: XROMM CSV,
+    Slicer .tfm and JointTrack .jts folders, C3D, OpenSim .mot/.trc, JCS CSV, and Autoscoper .tra
+    in Autoscoper's volume frame as ``tra-autoscoper``) when that module is present."""
+    try:
+        from .export_trial import FORMATS, export_trial
+    except ImportError:
+        return {}
+    out = {}
+    for fmt in FORMATS:
+        name = "tra-autoscoper" if fmt == "tra" else fmt
+
+        def write(path, poses, trial, fmt=fmt):
+            export_trial(trial._study, trial.name, fmt, path, bones=list(poses))
+
+        what = ", a folder of files" if _SUFFIX.get(fmt) == "" else ""
+        out[name] = PoseFormat(name, _SUFFIX.get(fmt, ""), f"{name}: as talus export --format {fmt}{what}",
+                               write)
     return out
 
 
@@ -98,6 +107,8 @@ def export_poses(trial, path: str | os.PathLike, fmt: str, *, bones=None) -> Pat
     if fmt not in formats:
         raise ValueError(f"fmt: expected one of {sorted(formats)}, got {fmt!r}")
     p = Path(path)
+    if formats[fmt].suffix == "":  # a folder of files (one per bone)
+        p.mkdir(parents=False, exist_ok=True)
     if not p.parent.is_dir():
         raise ValueError(f"path: the folder {p.parent} does not exist")
     formats[fmt].write(p, trial_poses(trial, bones), trial)

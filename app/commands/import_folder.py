@@ -26,7 +26,7 @@ from ._shared import EXIT_OK, PROG, CliError, print_json
 
 __all__ = ["HELP", "configure", "run"]
 
-HELP = "make a study from a collection folder (views, cameras, CT) or an Autoscoper project (.cfg)"
+HELP = "make a study from a lab folder or an Autoscoper project (.cfg)"
 
 
 def configure(p: argparse.ArgumentParser) -> None:

@@ -286,7 +286,12 @@ class FrameTableDock(QtWidgets.QWidget):
         layout.addWidget(self.view, 1)
         self.status_filter.currentIndexChanged.connect(self._refilter)
         self.bone_filter.currentIndexChanged.connect(self._refilter)
-        self.view.selectionModel().currentRowChanged.connect(self._on_row)
+        # go to a row's frame when the user picks it (a click, or the keys while the table has the
+        # focus) — not when an edit moves or hides the current row (e.g. a fixed frame leaving the
+        # "Flagged" filter), which would jump the window to a neighbouring row's frame
+        self.view.clicked.connect(lambda index: self._on_row(index, None))
+        self.view.selectionModel().currentRowChanged.connect(
+            lambda cur, prev: self.view.hasFocus() and self._on_row(cur, prev))
 
     def set_filter(self, name: str) -> None:
         """Show rows of one filter by its name (``"Flagged"``, ``"All frames"``, …)."""
@@ -308,8 +313,10 @@ class FrameTableDock(QtWidgets.QWidget):
         return out
 
     def select_row(self, row: int) -> None:
+        """Select a shown row and go to its frame and bone (as a click does)."""
         self.view.selectRow(row)
         self.view.setCurrentIndex(self.proxy.index(row, 0))
+        self._on_row(self.proxy.index(row, 0), None)
 
     def _on_row(self, current, _previous) -> None:
         if not current.isValid():

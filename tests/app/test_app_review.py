@@ -135,17 +135,18 @@ def test_track_review_fix_retrack_and_export(window, qtbot, demo_folder, tmp_pat
     m.set_layer_property("talus", "locked", False)
     m.set_pose("talus", bad)  # the window shows the flagged pose
     m.set_pose("talus", truth)
-    win.review.keyframe_action.trigger()
+    assert win.review.keyframe_action.shortcut().toString() == "K"
+    win.review.mark_keyframe()  # what K and the button do (called directly: a failure raises here)
     assert _status(win, "talus", 2) == EDITED
     # undo the fix: the tracking result comes back from the journal
-    win.review.undo_fix_action.trigger()
+    win.review.undo_fix()
     assert _status(win, "talus", 2) == FLAGGED
     np.testing.assert_allclose(m.pose("talus", 2), bad)
     # fix again and re-track forward from the frame
     m.set_pose("talus", truth)
     assert _status(win, "talus", 2) == EDITED
     with job_ends(qtbot, win.pool, "tracking"):
-        win.review.forward_action.trigger()
+        win.review.retrack("forward")
     journal = trial.results("talus")
     assert journal.records[2].kind == "tracked" and not journal.records[2].tracking["flags"]
     assert 2 in journal.keyframes  # the fix stays a keyframe

@@ -281,7 +281,9 @@ def resolve_frame(labs: tuple[Labelling, Labelling], F, *, target: CalibrationTa
             worse = own.ok and other.n_explained < own.n_explained - max(2, 0.15 * own.n_explained)
             # when the epipolar lines run along the object (a spiral's axis in the epipolar
             # plane) a wrong transfer can be epipolar-consistent: it must explain the view well
-            weak = other.n_explained < 0.85 * np.sum(detections[1 - v].size_class >= 0)
+            # (at most one detection per bead: spurious detections of a frame, e.g. a walkway
+            # plate's, cannot be explained and must not make a right transfer look weak)
+            weak = other.n_explained < 0.85 * min(np.sum(detections[1 - v].size_class >= 0), len(target))
             if not other.ok or worse or weak:
                 continue
             pair = (replace(labs[v], labels=src, alternatives=()), other)

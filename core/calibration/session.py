@@ -548,6 +548,12 @@ def solve_step(setup: SessionSetup, dist: DistortionStep, beads: BeadsStep, *, s
         reference, T_ref = 0, None
         lab_note = (f"lab frame: the {target.name} in its first labelled frame (no static object "
                     "frame was labelled)")
+        missed = [r for r in static_rows if not r["ok"]]
+        if missed:
+            # the lab's frame is the static object's: poses in this calibration are not in it
+            lab_note += (f"; WARNING: the {static.name} frame {missed[0]['files'][0]} was recorded but "
+                         f"not labelled ({missed[0]['reason']}): poses will not be in the "
+                         f"{static.name}'s frame")
     if sid_prior is None and man.get("sid_mm") is not None:
         sids = man["sid_mm"] if np.ndim(man["sid_mm"]) else [man["sid_mm"]] * 2
         sid_prior = [(float(s), float(man.get("sid_tolerance_mm", 20.0))) for s in sids]

@@ -35,7 +35,7 @@ def test_every_entry_point_names_its_own_path():
 
 def test_python_m_runs_a_moved_entry_point():
     done = subprocess.run([sys.executable, "-m", "core.studies.io.benchmark", "--help"],
-                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+                          capture_output=True, text=True, encoding="utf-8", cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "python -m core.studies.io.benchmark" in done.stdout
 

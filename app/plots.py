@@ -352,7 +352,7 @@ class PlotsDock(QtWidgets.QWidget):
                         painter.end()
                 written.append(p)
             else:
-                from pyqtgraph.exporters import ImageExporter, SVGExporter
+                from pyqtgraph.exporters import ImageExporter
 
                 for page in [shown, *[q for q in self.canvases if q != shown]]:
                     dest = p if page == shown else p.with_name(f"{p.stem}-{page.replace(' ', '-')}{suffix}")
@@ -361,9 +361,9 @@ class PlotsDock(QtWidgets.QWidget):
                         if suffix == ".png":
                             ex = ImageExporter(canvas.scene())
                             ex.parameters()["width"] = max(int(canvas.width()), 1200)
-                        else:
-                            ex = SVGExporter(canvas.scene())
-                        ex.export(str(tmp))
+                            ex.export(str(tmp))
+                        else:  # Qt's own SVG writer: pyqtgraph's SVGExporter fails on filled items
+                            _write_svg(canvas.scene(), tmp)
                     written.append(dest)
         finally:
             self.show_page(shown)
@@ -378,6 +378,23 @@ class PlotsDock(QtWidgets.QWidget):
         if page not in self._fresh:
             self.refresh()
         return self.canvases[page]
+
+
+def _write_svg(scene, path) -> None:
+    """Render a graphics scene to an SVG file with QtSvg (vector paths and text)."""
+    from PySide6.QtSvg import QSvgGenerator
+
+    src = scene.sceneRect()
+    gen = QSvgGenerator()
+    gen.setFileName(str(path))
+    gen.setSize(QtCore.QSize(int(src.width()), int(src.height())))
+    gen.setViewBox(QtCore.QRectF(0, 0, src.width(), src.height()))
+    gen.setTitle("Talus plot")
+    painter = QtGui.QPainter(gen)
+    try:
+        scene.render(painter, QtCore.QRectF(0, 0, src.width(), src.height()), src)
+    finally:
+        painter.end()
 
 
 def _runs(frames: np.ndarray):

@@ -165,6 +165,16 @@ def _lines(summary: dict) -> tuple[list[str], list[list[str]], list[str]]:
     return cl, table, fl
 
 
+def _joint_line(name: str, k: dict) -> str:
+    """One joint's angle ranges over the tracked frames, e.g. ``ankle (tibia–talus): flexion …``."""
+    a = np.asarray(k["angles_deg"], float).reshape(-1, len(k["names"]))
+    parts = []
+    for i, n in enumerate(k["names"]):
+        v = a[:, i][np.isfinite(a[:, i])]
+        parts.append(f"{n} {v.min():.1f} to {v.max():.1f}°" if len(v) else f"{n} –")
+    return f"{name} ({k['proximal']}–{k['distal']}): " + ", ".join(parts)
+
+
 def _html(summary: dict, png: bytes) -> str:
     e = html.escape
     cl, table, fl = _lines(summary)
@@ -174,6 +184,8 @@ def _html(summary: dict, png: bytes) -> str:
     rows = "".join("<tr>" + "".join(f"<t{'h' if i == 0 else 'd'}>{e(c)}</t{'h' if i == 0 else 'd'}>"
                                     for c in r) + "</tr>" for i, r in enumerate(table))
     flagged = "".join(f"<li>{e(t)}</li>" for t in fl) or "<li>none</li>"
+    joints = "".join(f"<li>{e(_joint_line(name, k))}</li>" for name, k in summary["kinematics"].items())
+    joints = joints or "<li>no joint between two bones of this trial</li>"
     img = base64.b64encode(png).decode("ascii")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>Talus report: {e(summary['trial'])}</title>
@@ -185,6 +197,7 @@ h2{{font-size:14px;margin-bottom:2px}}</style></head><body>
 <h2>Calibration</h2><ul>{''.join(f'<li>{e(t)}</li>' for t in cl)}</ul>
 <h2>Tracking</h2><p>{runline}</p><table>{rows}</table>
 <h2>Plots</h2><img alt="scores and joint angles" style="max-width:100%" src="data:image/png;base64,{img}">
+<h2>Joint angles (Grood–Suntay)</h2><ul>{joints}</ul>
 <h2>Flagged frames</h2><ul>{flagged}</ul>
 </body></html>
 """

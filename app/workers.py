@@ -13,6 +13,11 @@
   reference counts of ``True``/``False`` in PySide6 6.12 on Python 3.11 and aborts the process).
 * Cancellation is cooperative: the function receives ``cancel`` (a callable returning True once
   cancelled) and ``progress(done, total)`` when it accepts those keyword arguments.
+* Every job ends exactly once, whatever way it ends: a result, an error, or ``cancelled`` — also a
+  job cancelled (or superseded, or dropped by :meth:`WorkerPool.shutdown`) while it still waited
+  for a worker, whose function never runs: its future's done-callback posts the end then. After
+  the end of the last job ``busy_changed(False)`` follows, so nothing waits on a job that will
+  never come back and no progress bar is left behind.
 """
 
 from __future__ import annotations
@@ -81,6 +86,7 @@ class WorkerPool(QtCore.QObject):
         self._timer.setInterval(self.POLL_MS)
         self._timer.timeout.connect(self._drain)
         self._closed = False
+        self._busy_shown = False  # the state busy_changed last announced (it fires on changes only)
 
     # ------------------------------------------------------------------ API
     def submit(self, key: str, fn: Callable, /, *args, **kwargs) -> Job:
@@ -97,13 +103,16 @@ class WorkerPool(QtCore.QObject):
         if "progress" in params:
             kwargs.setdefault("progress", lambda done, total: self._inbox.put(
                 ("progress", job.id, (int(done), int(total)))))
-        was_busy = self.busy
         self._latest[key] = job
         self._jobs[job.id] = job
         job.future = self._executor.submit(self._run, job, fn, args, kwargs)
+        # a job cancelled before a worker took it never runs ``_run``: report its end from here
+        # (called at once by ``Future.cancel`` on the cancelling thread; never for a job that ran)
+        job.future.add_done_callback(lambda fut, job=job: self._on_future_done(job, fut))
         if not self._timer.isActive():
             self._timer.start()
-        if not was_busy:
+        if not self._busy_shown:
+            self._busy_shown = True
             self.busy_changed.emit(True)
         return job
 
@@ -141,6 +150,10 @@ class WorkerPool(QtCore.QObject):
             return
         self._post(job, result, "cancelled" if job.token.is_set() else None)
 
+    def _on_future_done(self, job: Job, fut: Future) -> None:
+        if fut.cancelled():  # never started: ``_run`` posts nothing for it
+            self._post(job, None, "cancelled")
+
     def _post(self, job: Job, result, error: str | None) -> None:
         self._inbox.put(("done", job.id, (result, error)))
 
@@ -170,7 +183,8 @@ class WorkerPool(QtCore.QObject):
         current = latest is job
         if current:
             del self._latest[job.key]
-        if not self.busy:
+        if self._busy_shown and not self.busy:
+            self._busy_shown = False
             self.busy_changed.emit(False)
         if not current or self._closed:
             return  # superseded: drop the stale answer

@@ -85,3 +85,77 @@ def test_long_job_keeps_gui_responsive_reports_progress_and_cancels(qtbot, pool)
     assert len(ticks) >= 8  # the 10 ms timer kept ticking while the job worked
     assert progress == sorted(progress) and progress[-1] < 1000
     assert not pool.busy
+
+
+def _ends(pool):
+    """Every end the pool reports, in order: (signal name, key)."""
+    ends = []
+    pool.finished.connect(lambda key, result: ends.append(("finished", key)))
+    pool.failed.connect(lambda key, text: ends.append(("failed", key)))
+    pool.cancelled.connect(lambda key: ends.append(("cancelled", key)))
+    return ends
+
+
+def test_job_cancelled_before_it_starts_ends_once_and_the_pool_goes_idle(qtbot, pool):
+    """The one worker is held by a job that waits on an event, so "queued" is cancelled while it
+    still waits for a worker: its function never runs, and its end is still reported, once."""
+    ends = _ends(pool)
+    busy = []
+    pool.busy_changed.connect(busy.append)
+    release = threading.Event()
+    ran = []
+    pool.submit("hold", lambda: release.wait(HUNG_MS / 1000) and "held")
+    pool.submit("queued", lambda: ran.append(1))
+    assert busy == [True]
+    with qtbot.waitSignal(pool.cancelled, timeout=HUNG_MS, check_params_cb=lambda key: key == "queued"):
+        pool.cancel("queued")
+    assert ends == [("cancelled", "queued")] and pool.busy  # "hold" still runs
+    with qtbot.waitSignal(pool.finished, timeout=HUNG_MS):
+        release.set()
+    qtbot.waitUntil(lambda: busy[-1] is False, timeout=HUNG_MS)
+    pool.drain()  # nothing more is reported for either job
+    assert ends == [("cancelled", "queued"), ("finished", "hold")]
+    assert ran == [] and busy == [True, False] and not pool.busy
+    assert not pool._jobs and not pool._latest  # no job left waiting for an answer
+
+
+def test_job_superseded_before_it_starts_gives_only_the_newest_answer(qtbot, pool):
+    ends = _ends(pool)
+    got = []
+    pool.finished.connect(lambda key, result: got.append((key, result)))
+    release = threading.Event()
+    pool.submit("hold", lambda: release.wait(HUNG_MS / 1000) and "held")
+    for x in (1, 2, 3):  # the first two are superseded while they wait: dropped, never reported
+        pool.submit("overlay", lambda x=x: x)
+    release.set()
+    qtbot.waitUntil(lambda: not pool._jobs, timeout=HUNG_MS)
+    assert sorted(got) == [("hold", "held"), ("overlay", 3)]
+    assert sorted(ends) == [("finished", "hold"), ("finished", "overlay")]
+    assert not pool.busy
+
+
+def test_cancel_every_job_while_one_runs_and_others_wait(qtbot, pool):
+    """What the window's Cancel button does: each job ends once, running or waiting, and the
+    busy state (which clears the progress bar) falls back to False."""
+    ends = _ends(pool)
+    busy = []
+    pool.busy_changed.connect(busy.append)
+    started = threading.Event()
+
+    def running(cancel):
+        started.set()
+        while not cancel():
+            time.sleep(0.001)
+        return "stopped"
+
+    pool.submit("run", running)
+    pool.submit("wait1", lambda: 1)
+    pool.submit("wait2", lambda: 2)
+    qtbot.waitUntil(started.is_set, timeout=HUNG_MS)
+    for key in ("wait2", "run", "wait1"):
+        pool.cancel(key)
+    qtbot.waitUntil(lambda: len(ends) == 3, timeout=HUNG_MS)
+    qtbot.waitUntil(lambda: bool(busy) and busy[-1] is False, timeout=HUNG_MS)
+    pool.drain()
+    assert sorted(ends) == [("cancelled", "run"), ("cancelled", "wait1"), ("cancelled", "wait2")]
+    assert busy == [True, False] and not pool.busy and not pool._jobs

@@ -15,28 +15,13 @@ import numpy as np
 from PySide6 import QtCore
 
 from . import posing
+from .layers import detect_markers
 from .model import ViewerModel
 from .overlay import OverlayImage, OverlayRenderer, colorize
 from .panes import FluoroPane
 from .workers import WorkerPool
 
 __all__ = ["Controller"]
-
-
-def _detect_markers(images, diameter_px: float):
-    """Bead detections per view (in a worker); ``None`` for a view without an image."""
-    from core.markers import detect_beads
-
-    out = []
-    for img in images:
-        if img is None:
-            out.append(None)
-            continue
-        f = np.asarray(img, np.float32)
-        lo, hi = np.percentile(f, [1, 99.5])
-        out.append(detect_beads((f - lo) / max(hi - lo, 1e-6), diameter_px=diameter_px,
-                                max_beads=200))
-    return out
 
 
 class Controller(QtCore.QObject):
@@ -69,6 +54,7 @@ class Controller(QtCore.QObject):
             pane.view.pose_drag_moved.connect(
                 lambda kind, u, v, view=view: self._drag_move(view, kind, u, v))
             pane.view.pose_drag_finished.connect(self._drag_end)
+            pane.display_changed.connect(self.request_markers)  # raw/corrected: find them again
         self.show_frame(keep_view=False)
         self.request_overlays(preview=False)
 
@@ -96,8 +82,9 @@ class Controller(QtCore.QObject):
     def request_markers(self) -> None:
         if self.bead_diameter_px is None or self.pool.closed:
             return
-        images = [self.model.frame_image(v) for v in range(len(self.panes))]
-        self.pool.submit("markers", _detect_markers, images, self.bead_diameter_px)
+        # on the frame each pane shows (corrected by the study's saved correction, or raw)
+        self.pool.submit("markers", detect_markers, [p.marker_input() for p in self.panes],
+                         self.bead_diameter_px)
 
     # ------------------------------------------------------------------ overlays
     def request_overlays(self, *, preview: bool, bones: list[int] | None = None) -> None:

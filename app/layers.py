@@ -2,12 +2,39 @@
 
 from __future__ import annotations
 
+import numpy as np
 from PySide6 import QtCore, QtGui, QtWidgets
 
 from .model import ViewerModel
 from .overlay import MODES
 
-__all__ = ["LayerList"]
+__all__ = ["LayerList", "detect_markers"]
+
+
+def detect_markers(inputs, diameter_px: float, max_beads: int = 200):
+    """The markers layer's bead detections per view (run in a worker): ``inputs`` holds, per pane,
+    :meth:`~app.panes.FluoroPane.marker_input` — ``(image, mask)`` of the frame the pane shows,
+    raw or corrected by the study's saved correction — or None (no detections for that view).
+    The image is scaled to its 1-99.5 % range inside the mask; pixels outside it (outside the
+    field, saturated, NaN) are set to the background and no bead is kept there."""
+    from core.markers import detect_beads
+
+    out = []
+    for item in inputs:
+        if item is None:
+            out.append(None)
+            continue
+        img, mask = item
+        f = np.asarray(img, np.float32)
+        ok = np.isfinite(f) if mask is None else (np.asarray(mask, bool) & np.isfinite(f))
+        if ok.sum() < 64:
+            out.append(None)
+            continue
+        lo, hi = np.percentile(f[ok], [1, 99.5])
+        g = np.where(ok, (f - lo) / max(float(hi - lo), 1e-6), 1.0).astype(np.float32)
+        out.append(detect_beads(g, diameter_px=diameter_px, max_beads=max_beads,
+                                mask=None if mask is None else ok))
+    return out
 
 
 def _swatch(color) -> QtGui.QIcon:

@@ -153,6 +153,7 @@ class FluoroPane(QtWidgets.QWidget):
     """One fluoroscope view: a title and an image shown through a window/level."""
 
     window_level_changed = QtCore.Signal(float, float)
+    display_changed = QtCore.Signal()  # raw/corrected switched or the correction replaced
 
     def __init__(self, title: str, parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
@@ -279,6 +280,20 @@ class FluoroPane(QtWidgets.QWidget):
             if self.showing_corrected:
                 arr = np.asarray(self._correct(arr), dtype=np.float32)
             self._show(arr)
+        self.display_changed.emit()
+
+    def marker_input(self) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """What the markers layer looks for beads in: ``(image, mask)`` of the frame shown — the
+        corrected frame (its usable, finite pixels as the mask: beads are found where tracking can
+        see) when the pane shows corrected, else the raw frame (no mask) — so the circles drawn land
+        on the image under them. None while no frame is shown."""
+        if self._image is None:
+            return None
+        img = np.asarray(self._image, np.float32)
+        if not self.showing_corrected:
+            return img, None
+        mask = np.isfinite(img) & (img > USABLE[0]) & (img < USABLE[1])
+        return img, mask
 
     def usable_mask(self) -> np.ndarray | None:
         """True where tracking can use the pixel (the shown corrected frame, or the raw frame over its
@@ -382,6 +397,12 @@ class FluoroPane(QtWidgets.QWidget):
     @property
     def marker_count(self) -> int:
         return len(self._markers)
+
+    @property
+    def markers_uv(self) -> np.ndarray:
+        """Image ``(u, v)`` of the bead markers drawn, ``(N, 2)``."""
+        c = [item.rect().center() for item in self._markers]
+        return np.array([[p.x() - 0.5, p.y() - 0.5] for p in c]).reshape(-1, 2)
 
     def _on_drag(self, dx: float, dy: float) -> None:
         if self._image is not None:

@@ -1,45 +1,77 @@
-"""XMALab projects (``.xma``): cameras, undistortion files, trials and markers, read from the zip.
+"""XMALab projects (``.xma``): cameras, undistortion grids, trials and markers, read from and
+written to the zip.
 
-Layout, from XMALab's ``ProjectFileIO::writeProjectFile`` (XROMMPackages/xmalab
-``src/ui/ProjectFileIO.cpp`` lines 1459-1715) and the savers it calls: a zip holding
+Layout, from XMALab 2.2.7 (XROMMPackages/xmalab ``src/ui/ProjectFileIO.cpp``:
+``saveProject`` lines 150-271 and ``writeProjectFile`` 1459-1715; the readers it mirrors,
+``readProjectFile`` 1717-2200): a zip holding
 
-* ``project.xml``: ``<Project Version=… CalibrationType=…>`` with per camera
-  ``<Camera Name isCalibrated isFlipped CameraMatrix=<cam>/data/<cam>_CameraMatrix.csv
-  [UndistortionParameter=…]>``, an optional ``<UndistortionGrid Filename isComputed>`` (with
-  ``<PointsDetected>``, ``<GridPointsDistorted>``, ``<GridPointsReferences>``,
-  ``<GridPointsInlier>`` file children), and ``<CalibrationSequence Filename Frames Width
-  Height>`` or per calibration frame ``<CalibrationImage Filename|Frame isCalibrated>`` with
-  ``<RotationMatrix Filename>`` and ``<TranslationVector Filename>``; a ``<CalibrationObject>``;
-  then per trial ``<Trial Name startFrame endFrame referenceCalibration recordingSpeed
-  cutOffFrequency nbImages>`` with ``<Marker Description ID FilenamePoints2D …>`` and
-  ``<RigidBody Description ID …>`` children;
+* ``project.xml``: ``<Project Version="0.3" CalibrationType=…>`` (0 none, 1 internal, 2
+  external: ``src/core/Project.h`` 39-44) with per camera ``<Camera Name isLightCamera
+  isCalibrated isFlipped CameraMatrix=<cam>/data/<cam>_CameraMatrix.csv
+  [UndistortionParameter=<cam>/data/<cam>_UndistortionParameter.csv]>``, an optional
+  ``<UndistortionGrid Filename isComputed>`` (with ``<Center x y>``, ``<PointsDetected>``,
+  ``<GridPointsDistorted>``, ``<GridPointsReferences>``, ``<GridPointsInlier>`` file children),
+  and ``<CalibrationSequence Filename Frames Width Height>`` or per calibration frame
+  ``<CalibrationImage Filename|Frame [Width Height] isCalibrated>`` (``Filename="external"``
+  with ``Width``/``Height`` for an external calibration) with ``<RotationMatrix Filename>`` and
+  ``<TranslationVector Filename>``; then per trial ``<Trial Name Default startFrame endFrame
+  referenceCalibration recordingSpeed cutOffFrequency nbImages>`` with ``<Marker Description ID
+  FilenamePoints2D FilenameStatus2D FilenamePoints3D FilenameStatus3D …>`` and ``<RigidBody
+  Description ID …>`` children;
 * the camera matrix (``Camera::saveCameraMatrix``, ``src/core/Camera.cpp`` 417-427) and
   rotation matrix (``CalibrationImage::saveRotationMatrix``, ``src/core/CalibrationImage.cpp``
   606-621): three lines of ``a, b, c``; the translation vector (623-632): three lines of one
-  number. They are OpenCV's pinhole model of the calibration frame: ``x ~ K [R | t] X``, ``X``
-  in the calibration object's frame, which is the lab of a trial whose ``referenceCalibration``
-  is that frame;
+  number; the lens-model coefficients (``Camera::saveUndistortionParam``, ``Camera.cpp``
+  467-480): eight lines of one number, OpenCV's ``k1 k2 p1 p2 k3 k4 k5 k6``. They are OpenCV's
+  pinhole model of the calibration frame: ``x ~ K [R | t] X``, ``X`` in the calibration object's
+  frame, which is the lab of a trial whose ``referenceCalibration`` is that frame;
+* the undistortion grid (``UndistortionObject::savePoints``, ``src/core/UndistortionObject.cpp``
+  844-853): one ``x, y`` line per grid point, distorted (detected) and reference (ideal) positions
+  in the same order, and the inliers (870-886) one ``1`` or ``0`` a line. XMALab keeps no fitted
+  model in the file: it refits its local weighted mean to the inlier pairs when it opens the
+  project (``LocalUndistortion::localUndistortion_thread``, ``src/processing/LocalUndistortion.cpp``
+  116-139; 12 neighbours, ``src/core/Settings.cpp`` 72);
+* a trial's frames (``Trial::save``, ``src/core/Trial.cpp`` 351-361, via ``VideoStream::save``):
+  ``<trial>/<cam>_filenames_absolute.txt``, one absolute image path a line (one line for an
+  ``.avi`` or ``.cine``); the marker names ``<trial>/data/MarkerDescription.txt`` and rigid bodies
+  ``<trial>/data/RigidBodies.txt`` (``name[i,j,…]``, 1-based marker numbers: ``Trial.cpp``
+  890-916);
 * a marker's 2-D points (``Marker::save``, ``src/core/Marker.cpp`` 634-650): one line per frame,
-  ``x,y`` per camera, comma-separated.
+  ``x,y`` per camera, comma-separated, in the raw (distorted) image; its status file one
+  ``s1,s2`` line per frame (``src/core/Marker.h`` 54-68: a point is set where the status is
+  above 0, as the 3-D reconstruction requires, ``Marker.cpp`` 259); 3-D points ``x,y,z`` a line
+  with their status (``Marker::save3DPoints``, 783-806).
+
+Pixels are OpenCV's: ``(x, y) = (column, row)``, origin at the centre of the top-left pixel,
+Talus's convention. A camera with ``isFlipped="1"`` sees its images mirrored left-right
+(``src/core/Image.cpp`` 81-85).
 
 :func:`read_xma_project` returns the project; :meth:`XMAProject.rig` gives Talus cameras for a
-trial, :meth:`XMAProject.marker_points` a marker's 2-D track.
+trial, :meth:`XMAProject.grid` a camera's undistortion grid, :meth:`XMAProject.view_files` a
+trial's image files, :meth:`XMAProject.marker_points` a marker's 2-D track.
+:func:`write_xma_project` writes a project of an external calibration (one calibration frame),
+undistortion grids, trials and markers in the same layout.
 """
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import zipfile
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from xml.etree import ElementTree
+from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from .atomic import atomic_write
 from .errors import reads
 
-__all__ = ["XMACamera", "XMAMarker", "XMAProject", "XMATrial", "read_xma_project"]
+__all__ = ["XMACamera", "XMAGrid", "XMAMarker", "XMAMarkerData", "XMAProject", "XMATrial", "XMATrialData",
+           "read_xma_project", "write_xma_project"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +84,18 @@ class XMACamera:
     calibrated: bool
     poses: dict  # calibration frame index -> (R (3, 3), t (3,)): lab (calibration object) -> camera
     undistortion: dict = field(default_factory=dict)  # name -> member path in the zip
+    light: bool = False  # a light (video) camera, not an X-ray view
+    distortion_coeffs: np.ndarray | None = None  # (8,) OpenCV k1 k2 p1 p2 k3 k4 k5 k6, or None
+
+
+@dataclass(frozen=True)
+class XMAGrid:
+    """A camera's undistortion grid: ``distorted`` (detected) and ``references`` (ideal) pixel
+    positions ``(n, 2)`` of the same points, and which are ``inlier`` ``(n,)``."""
+
+    distorted: np.ndarray
+    references: np.ndarray
+    inlier: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -59,6 +103,9 @@ class XMAMarker:
     id: int
     description: str
     points2d: str | None  # member path
+    status2d: str | None = None
+    points3d: str | None = None
+    status3d: str | None = None
 
 
 @dataclass(frozen=True)
@@ -72,6 +119,8 @@ class XMATrial:
     n_images: int
     markers: tuple[XMAMarker, ...]
     rigid_bodies: tuple[str, ...]
+    default: bool = False  # XMALab's placeholder trial, without images
+    views: tuple[str | None, ...] = ()  # per camera: member path of its file list
 
 
 @dataclass(frozen=True)
@@ -80,10 +129,12 @@ class XMAProject:
     version: str
     cameras: tuple[XMACamera, ...]
     trials: tuple[XMATrial, ...]
+    calibration_type: int = 1
 
-    def rig(self, trial: str | None = None):
+    def rig(self, trial: str | None = None, *, sizes=None):
         """Talus :class:`~core.geometry.camera.Rig` of the cameras at ``trial``'s reference
-        calibration frame (default: the first trial's, else frame 0)."""
+        calibration frame (default: the first trial's, else frame 0). ``sizes``: ``(width,
+        height)`` per camera, for cameras whose image size the project does not record."""
         from ..geometry.camera import Camera, Rig
 
         ref = 0
@@ -91,13 +142,21 @@ class XMAProject:
             t = self.trial(trial) if trial is not None else self.trials[0]
             ref = t.reference_calibration
         cams = []
-        for c in self.cameras:
+        for k, c in enumerate(self.cameras):
             if ref not in c.poses:
                 raise ValueError(f"{self.path}: camera {c.name!r} has no calibration at frame {ref}")
-            if c.width is None or c.height is None:
+            w, h = c.width, c.height
+            if (w is None or h is None) and sizes is not None:
+                w, h = sizes[k]
+            if w is None or h is None:
                 raise ValueError(f"{self.path}: camera {c.name!r}: image size unknown")
+            if not np.isfinite(c.K).all():
+                raise ValueError(f"{self.path}: camera {c.name!r} has no camera matrix (not calibrated)")
             R, t = c.poses[ref]
-            cams.append(Camera(K=c.K, R=R, t=t, width=c.width, height=c.height, name=c.name))
+            try:
+                cams.append(Camera(K=c.K, R=R, t=t, width=w, height=h, name=c.name))
+            except ValueError as exc:
+                raise ValueError(f"{self.path}: camera {c.name!r}: {exc}") from None
         return Rig(cams)
 
     def trial(self, name: str) -> XMATrial:
@@ -107,13 +166,46 @@ class XMAProject:
         have = [t.name for t in self.trials]
         raise ValueError(f"trial: no trial named {name!r} in {self.path} (have {have})")
 
+    def camera(self, name: str) -> XMACamera:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        have = [c.name for c in self.cameras]
+        raise ValueError(f"camera: no camera named {name!r} in {self.path} (have {have})")
+
     def marker_points(self, trial: str, marker: int) -> np.ndarray:
-        """``(n_frames, n_cameras, 2)`` pixel positions of a marker (NaN where untracked)."""
+        """``(n_frames, n_cameras, 2)`` raw-image pixel positions of a marker, NaN where it is not
+        set (status 0 or below, or XMALab's ``-2, -2`` placeholder when there is no status file)."""
         return _marker_points(self.path, self, trial, marker)
+
+    def marker_status(self, trial: str, marker: int) -> np.ndarray | None:
+        """``(n_frames, n_cameras)`` XMALab status codes of a marker's 2-D points (``Marker.h``
+        54-68: 0 undefined, 10 predicted, 20 interpolated, 40 tracked, 50 set, 60 manual, below 0
+        lost or deleted), or None when the project has no status file."""
+        return _marker_status(self.path, self, trial, marker)
+
+    def marker_points3d(self, trial: str, marker: int) -> np.ndarray | None:
+        """``(n_frames, 3)`` reconstructed positions (lab, the project's units), NaN where the 3-D
+        status is 0 or below; None when the project holds none."""
+        return _marker_points3d(self.path, self, trial, marker)
+
+    def grid(self, camera: str) -> XMAGrid | None:
+        """The undistortion grid of ``camera``, or None when it has none (not computed)."""
+        return _grid(self.path, self.camera(camera))
+
+    def view_files(self, trial: str) -> list[list[str]]:
+        """Per camera, the image files a trial lists (absolute paths on the machine that saved
+        the project, as written; one file for a video)."""
+        return _view_files(self.path, self, trial)
+
+
+# ---------------------------------------------------------------------------- reading
+def _rows(text: str) -> list[str]:
+    return [r for r in text.replace("\r", "").split("\n") if r.strip()]
 
 
 def _numbers(path, member: str, text: str, shape) -> np.ndarray:
-    rows = [r for r in text.replace("\r", "").split("\n") if r.strip()]
+    rows = _rows(text)
     try:
         vals = [float(v) for r in rows for v in r.split(",")]
     except ValueError:
@@ -123,8 +215,29 @@ def _numbers(path, member: str, text: str, shape) -> np.ndarray:
     return np.array(vals).reshape(shape)
 
 
+def _table(path, member: str, text: str, width: int, *, finite: bool = True) -> np.ndarray:
+    """Rows of ``width`` comma-separated numbers → ``(n, width)``."""
+    out = []
+    for i, r in enumerate(_rows(text)):
+        parts = r.split(",")
+        if len(parts) != width:
+            raise ValueError(f"{path}: {member}: line {i + 1}: {len(parts)} values, expected {width}")
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            raise ValueError(f"{path}: {member}: line {i + 1}: expected numbers") from None
+        if finite and not all(math.isfinite(v) for v in vals):
+            raise ValueError(f"{path}: {member}: line {i + 1}: expected finite numbers")
+        out.append(vals)
+    return np.array(out, float).reshape(len(out), width)
+
+
+def _norm(rel: str) -> str:
+    return str(PurePosixPath(rel.replace("\\", "/")))
+
+
 def _member(zf: zipfile.ZipFile, names: set[str], rel: str, path) -> str:
-    m = str(PurePosixPath(rel.replace("\\", "/")))
+    m = _norm(rel)
     if m not in names:
         raise ValueError(f"{path}: project.xml names {rel!r}, which is not in the archive")
     return m
@@ -150,6 +263,15 @@ def _float(path, el, attr: str, default: float = 0.0) -> float:
         raise ValueError(f"{path}: <{el.tag} {attr}={v!r}>: expected a number") from None
 
 
+def _text(path, zf: zipfile.ZipFile, member: str, limit: int = 256 << 20) -> str:
+    if zf.getinfo(member).file_size > limit:
+        raise ValueError(f"{path}: {member} is too large")
+    try:
+        return zf.read(member).decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: {member}: expected UTF-8 text") from None
+
+
 def read_xma_project(path: str | os.PathLike) -> XMAProject:
     """Read an XMALab ``.xma`` project (see the module docs)."""
     return _read(Path(path))
@@ -159,20 +281,19 @@ def read_xma_project(path: str | os.PathLike) -> XMAProject:
 def _read(path: Path) -> XMAProject:
     with zipfile.ZipFile(path) as zf:
         names = set(zf.namelist())
-        root_xml = next((n for n in ("project.xml",) if n in names), None)
-        if root_xml is None:
+        if "project.xml" not in names:
             raise ValueError(f"{path}: no project.xml in the archive")
-        info = zf.getinfo(root_xml)
-        if info.file_size > 64 << 20:
-            raise ValueError(f"{path}: project.xml of {info.file_size} bytes (expected a small XML file)")
-        root = ElementTree.fromstring(zf.read(root_xml))
+        if zf.getinfo("project.xml").file_size > 64 << 20:
+            raise ValueError(f"{path}: project.xml is too large (expected a small XML file)")
+        try:
+            root = ElementTree.fromstring(zf.read("project.xml"))
+        except ElementTree.ParseError as exc:
+            raise ValueError(f"{path}: project.xml: expected XML ({exc})") from None
         if root.tag != "Project":
             raise ValueError(f"{path}: project.xml: root element <{root.tag}>, expected <Project>")
 
         def text(member: str) -> str:
-            if zf.getinfo(member).file_size > 256 << 20:
-                raise ValueError(f"{path}: {member} is too large")
-            return zf.read(member).decode("utf-8-sig")
+            return _text(path, zf, member)
 
         cameras = []
         for c in root.findall("Camera"):
@@ -183,11 +304,19 @@ def _read(path: Path) -> XMAProject:
             if c.get("CameraMatrix"):
                 m = _member(zf, names, c.get("CameraMatrix"), path)
                 K = _numbers(path, m, text(m), (3, 3))
+            coeffs = None
+            if c.get("UndistortionParameter"):
+                m = _member(zf, names, c.get("UndistortionParameter"), path)
+                vals = _table(path, m, text(m), 1)[:, 0]
+                if len(vals) > 8:
+                    raise ValueError(f"{path}: {m}: {len(vals)} lines, expected 8 lens coefficients")
+                coeffs = np.zeros(8)
+                coeffs[: len(vals)] = vals  # XMALab reads missing lines as 0 (Camera.cpp 501-507)
             und = {}
             grid = c.find("UndistortionGrid")
-            if grid is not None:
+            if grid is not None and grid.get("isComputed", "1") not in ("0", ""):
                 if grid.get("Filename"):
-                    und["image"] = str(PurePosixPath(grid.get("Filename").replace("\\", "/")))
+                    und["image"] = _norm(grid.get("Filename"))
                 for child in grid:
                     if child.get("Filename"):
                         und[child.tag] = _member(zf, names, child.get("Filename"), path)
@@ -208,44 +337,289 @@ def _read(path: Path) -> XMAProject:
                 if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0:
                     raise ValueError(f"{path}: {mr}: not a rotation matrix")
                 poses[frame] = (R, _numbers(path, mt, text(mt), (3,)))
+            if (width is not None and width <= 0) or (height is not None and height <= 0):
+                raise ValueError(f"{path}: camera {name!r}: image size {width}x{height}, expected positive")
             cameras.append(XMACamera(name, K, width, height, c.get("isFlipped", "0") == "1",
-                                     c.get("isCalibrated", "0") == "1", poses, und))
+                                     c.get("isCalibrated", "0") == "1", poses, und,
+                                     c.get("isLightCamera", "0") == "1", coeffs))
+        if not cameras:
+            raise ValueError(f"{path}: project.xml has no <Camera>")
         trials = []
         for t in root.findall("Trial"):
+            tname = t.get("Name") or f"trial{len(trials) + 1}"
             markers = []
             for m in t.findall("Marker"):
-                p2 = m.get("FilenamePoints2D")
+                def opt(attr, m=m):
+                    v = m.get(attr)
+                    return None if not v else _norm(v)
+
                 markers.append(XMAMarker(_int(path, m, "ID"), m.get("Description", ""),
-                                         None if not p2 else str(PurePosixPath(p2.replace("\\", "/")))))
+                                         opt("FilenamePoints2D"), opt("FilenameStatus2D"),
+                                         opt("FilenamePoints3D"), opt("FilenameStatus3D")))
+            default = t.get("Default", "0") == "1" or tname == "Default"
+            views = tuple(
+                (f"{tname}/{c.name}_filenames_absolute.txt"
+                 if f"{tname}/{c.name}_filenames_absolute.txt" in names else None) for c in cameras)
             trials.append(XMATrial(
-                t.get("Name") or f"trial{len(trials) + 1}", _int(path, t, "startFrame", 1),
+                tname, _int(path, t, "startFrame", 1),
                 _int(path, t, "endFrame", 1), _int(path, t, "referenceCalibration", 0),
                 _float(path, t, "recordingSpeed"), _float(path, t, "cutOffFrequency"),
                 _int(path, t, "nbImages", 0), tuple(markers),
-                tuple(r.get("Description", "") for r in t.findall("RigidBody"))))
-        if not cameras:
-            raise ValueError(f"{path}: project.xml has no <Camera>")
-    return XMAProject(path, root.get("Version", ""), tuple(cameras), tuple(trials))
+                tuple(r.get("Description", "") for r in t.findall("RigidBody")), default, views))
+    return XMAProject(path, root.get("Version", ""), tuple(cameras), tuple(trials),
+                      _int(path, root, "CalibrationType", 1))
+
+
+def _open_member(path: Path, member: str) -> str:
+    with zipfile.ZipFile(path) as zf:
+        if member not in zf.namelist():
+            raise ValueError(f"{path}: {member} is not in the archive")
+        return _text(path, zf, member)
+
+
+def _marker(path: Path, project: XMAProject, trial: str, marker: int) -> XMAMarker:
+    t = project.trial(trial)
+    m = next((m for m in t.markers if m.id == marker), None)
+    if m is None:
+        raise ValueError(f"marker: trial {trial!r} of {path} has no marker {marker}")
+    return m
 
 
 @reads("an XMALab project marker file (one line per frame, x,y per camera)")
 def _marker_points(path: Path, project: XMAProject, trial: str, marker: int) -> np.ndarray:
-    t = project.trial(trial)
-    m = next((m for m in t.markers if m.id == marker), None)
-    if m is None or m.points2d is None:
+    m = _marker(path, project, trial, marker)
+    if m.points2d is None:
         raise ValueError(f"{path}: trial {trial!r} has no 2-D points of marker {marker}")
-    with zipfile.ZipFile(path) as zf:
-        if m.points2d not in zf.namelist():
-            raise ValueError(f"{path}: {m.points2d} is not in the archive")
-        rows = [r for r in zf.read(m.points2d).decode("utf-8-sig").replace("\r", "").split("\n") if r.strip()]
     nc = len(project.cameras)
-    out = np.full((len(rows), nc, 2), np.nan)
-    for i, r in enumerate(rows):
-        parts = r.split(",")
-        if len(parts) != 2 * nc:
-            raise ValueError(f"{path}: {m.points2d}: line {i + 1}: {len(parts)} values, expected {2 * nc}")
-        try:
-            out[i] = np.array([float(p) for p in parts]).reshape(nc, 2)
-        except ValueError:
-            raise ValueError(f"{path}: {m.points2d}: line {i + 1}: expected numbers") from None
+    out = _table(path, m.points2d, _open_member(path, m.points2d), 2 * nc).reshape(-1, nc, 2)
+    status = _marker_status(path, project, trial, marker)
+    if status is not None:
+        if len(status) != len(out):
+            raise ValueError(f"{path}: {m.status2d}: {len(status)} frames, the points {len(out)}")
+        out[status <= 0] = np.nan
+    else:
+        out[(out == -2.0).all(axis=2)] = np.nan  # XMALab's placeholder of an unset point (Marker.cpp 1901)
+    return out
+
+
+@reads("an XMALab project marker status file (one line per frame, a code per camera)")
+def _marker_status(path: Path, project: XMAProject, trial: str, marker: int) -> np.ndarray | None:
+    m = _marker(path, project, trial, marker)
+    if m.status2d is None:
+        return None
+    with zipfile.ZipFile(path) as zf:
+        if m.status2d not in zf.namelist():
+            return None  # optional: XMALab reads the points without it
+        text = _text(path, zf, m.status2d)
+    return _table(path, m.status2d, text, len(project.cameras)).astype(int)
+
+
+@reads("an XMALab project 3-D marker file (one x,y,z line per frame)")
+def _marker_points3d(path: Path, project: XMAProject, trial: str, marker: int) -> np.ndarray | None:
+    m = _marker(path, project, trial, marker)
+    if m.points3d is None:
+        return None
+    with zipfile.ZipFile(path) as zf:
+        have = zf.namelist()
+        if m.points3d not in have:
+            return None
+        X = _table(path, m.points3d, _text(path, zf, m.points3d), 3, finite=False)
+        if m.status3d and m.status3d in have:
+            s = _table(path, m.status3d, _text(path, zf, m.status3d), 1)[:, 0]
+            if len(s) != len(X):
+                raise ValueError(f"{path}: {m.status3d}: {len(s)} frames, the points {len(X)}")
+            X[s <= 0] = np.nan
+    return X
+
+
+@reads("an XMALab undistortion grid (x, y lines; inliers 1 or 0)")
+def _grid(path: Path, cam: XMACamera) -> XMAGrid | None:
+    u = cam.undistortion
+    if "GridPointsDistorted" not in u or "GridPointsReferences" not in u:
+        return None
+    with zipfile.ZipFile(path) as zf:
+        d = _table(path, u["GridPointsDistorted"], _text(path, zf, u["GridPointsDistorted"]), 2)
+        r = _table(path, u["GridPointsReferences"], _text(path, zf, u["GridPointsReferences"]), 2)
+        if len(d) != len(r):
+            raise ValueError(f"{path}: camera {cam.name!r}: {len(d)} distorted grid points but "
+                             f"{len(r)} reference points")
+        inl = np.ones(len(d), bool)
+        if "GridPointsInlier" in u:
+            v = _table(path, u["GridPointsInlier"], _text(path, zf, u["GridPointsInlier"]), 1)[:, 0]
+            if len(v) != len(d):
+                raise ValueError(f"{path}: {u['GridPointsInlier']}: {len(v)} lines, expected {len(d)} "
+                                 "(one per grid point)")
+            inl = v > 0.5  # UndistortionObject.cpp 994
+    return XMAGrid(d, r, inl)
+
+
+@reads("an XMALab trial file list (one image path a line)")
+def _view_files(path: Path, project: XMAProject, trial: str) -> list[list[str]]:
+    t = project.trial(trial)
+    if t.default:
+        raise ValueError(f"trial: {trial!r} of {path} is XMALab's default trial (no images)")
+    out = []
+    with zipfile.ZipFile(path) as zf:
+        for c, member in zip(project.cameras, t.views, strict=True):
+            if member is None:
+                raise ValueError(f"{path}: trial {trial!r} has no {t.name}/{c.name}_filenames_absolute.txt")
+            files = [r.strip() for r in _rows(_text(path, zf, member))]
+            if not files:
+                raise ValueError(f"{path}: {member}: expected one image path a line, found none")
+            out.append(files)
+    return out
+
+
+# ---------------------------------------------------------------------------- writing
+@dataclass(frozen=True)
+class XMAMarkerData:
+    """A marker to write: ``points2d`` ``(n_frames, n_cameras, 2)`` raw-image pixels (NaN: not
+    set), optional ``points3d`` ``(n_frames, 3)`` (NaN: none)."""
+
+    description: str
+    points2d: np.ndarray
+    points3d: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class XMATrialData:
+    """A trial to write: ``views`` per camera the image files (one for a video)."""
+
+    name: str
+    views: Sequence[Sequence[str]]
+    markers: Sequence[XMAMarkerData] = ()
+    rigid_bodies: Mapping[str, Sequence[int]] = field(default_factory=dict)  # name -> 0-based markers
+    recording_speed: float = 0.0
+    cutoff_frequency: float = 0.0
+    n_frames: int | None = None  # default: the number of image files, else the markers' frames
+
+
+def _csv(M, sep: str = ", ") -> str:
+    M = np.atleast_2d(np.asarray(M, float))
+    return "".join(sep.join(repr(float(v)) for v in row) + "\n" for row in M)
+
+
+def _blank_tiff(width: int, height: int) -> bytes:
+    import tifffile
+
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, np.zeros((height, width), np.uint8), compression="zlib")
+    return buf.getvalue()
+
+
+def write_xma_project(path: str | os.PathLike, cameras, trials: Sequence[XMATrialData] = (), *,
+                      grids: Sequence[XMAGrid | None] | None = None,
+                      distortion_coeffs: Sequence[np.ndarray | None] | None = None) -> Path:
+    """Write an XMALab project of an external calibration (``CalibrationType="2"``).
+
+    Parameters
+    ----------
+    cameras : sequence of :class:`~core.geometry.camera.Camera` (or a Rig)
+        Calibration frame 0 of every camera (``K``, ``R``, ``t`` in pixels and the lab frame).
+    trials : sequence of XMATrialData
+        Every trial refers to calibration frame 0.
+    grids : per camera, an :class:`XMAGrid` or None
+        Undistortion grids (written with a blank grid image of the camera's size).
+    distortion_coeffs : per camera, OpenCV's 8 lens coefficients or None
+
+    The layout is XMALab's (module docs); the file is written atomically.
+    """
+    cams = list(cameras)
+    n = len(cams)
+    if n < 1:
+        raise ValueError("cameras: expected at least one camera")
+    grids = [None] * n if grids is None else list(grids)
+    coeffs = [None] * n if distortion_coeffs is None else list(distortion_coeffs)
+    if len(grids) != n or len(coeffs) != n:
+        raise ValueError(f"grids, distortion_coeffs: expected one entry per camera ({n})")
+    names = [c.name for c in cams]
+    if len(set(names)) != n or not all(names):
+        raise ValueError(f"cameras: expected distinct non-empty names, got {names}")
+    files: dict[str, bytes | str] = {}
+    x = ['<?xml version="1.0" encoding="UTF-8"?>',
+         '<Project Version="0.3" DateCreated="" ActiveTrial="0" CalibrationType="2">']
+    for cam, g, k in zip(cams, grids, coeffs, strict=True):
+        nm = cam.name
+        attrs = (f'Name={quoteattr(nm)} isLightCamera="0" isCalibrated="1" isOptimized="0" isFlipped="0" '
+                 f'CameraMatrix={quoteattr(f"{nm}/data/{nm}_CameraMatrix.csv")}')
+        files[f"{nm}/data/{nm}_CameraMatrix.csv"] = _csv(cam.K)
+        if k is not None:
+            kk = np.zeros(8)
+            kk[: len(k)] = np.asarray(k, float)
+            attrs += f' UndistortionParameter={quoteattr(f"{nm}/data/{nm}_UndistortionParameter.csv")}'
+            files[f"{nm}/data/{nm}_UndistortionParameter.csv"] = "".join(f"{v!r}\n" for v in map(float, kk))
+        x.append(f"<Camera {attrs}>")
+        if g is not None:
+            stem = "UndistortionGrid"
+            files[f"{nm}/{stem}.tif"] = _blank_tiff(cam.width, cam.height)
+            x.append(f'<UndistortionGrid Filename={quoteattr(f"{nm}/{stem}.tif")} isComputed="1">')
+            d, r = np.asarray(g.distorted, float), np.asarray(g.references, float)
+            inl = np.asarray(g.inlier, bool)
+            if d.shape != r.shape or d.ndim != 2 or d.shape[1] != 2 or inl.shape != (len(d),):
+                raise ValueError(f"grids: camera {nm!r}: expected (n, 2) distorted and reference points "
+                                 f"and (n,) inliers, got {d.shape}, {r.shape}, {inl.shape}")
+            for tag, data in (("PointsDetected", _csv(d)), ("GridPointsDistorted", _csv(d)),
+                              ("GridPointsReferences", _csv(r)),
+                              ("GridPointsInlier", "".join(f"{int(v)}\n" for v in inl))):
+                member = f"{nm}/data/{stem}_{tag}.csv"
+                files[member] = data
+                x.append(f"<{tag} Filename={quoteattr(member)}/>")
+            x.append("</UndistortionGrid>")
+        x.append(f'<CalibrationImage Filename="external" Width="{int(cam.width)}" Height="{int(cam.height)}" '
+                 'isCalibrated="1">')
+        for tag, data in (("RotationMatrix", _csv(cam.R)),
+                          ("TranslationVector", _csv(np.reshape(cam.t, (3, 1))))):
+            member = f"{nm}/data/external_{tag}.csv"
+            files[member] = data
+            x.append(f"<{tag} Filename={quoteattr(member)}/>")
+        x.append("</CalibrationImage></Camera>")
+    for tr in trials:
+        if len(tr.views) != n:
+            raise ValueError(f"trials: trial {tr.name!r} has {len(tr.views)} views, expected {n}")
+        n_img = tr.n_frames or (len(tr.views[0]) if len(tr.views[0]) > 1 or not tr.markers
+                                else len(tr.markers[0].points2d))
+        x.append(f'<Trial Name={quoteattr(tr.name)} Default="0" FromDefault="0" startFrame="1" '
+                 f'endFrame="{n_img}" referenceCalibration="0" '
+                 f'recordingSpeed="{float(tr.recording_speed)!r}" '
+                 f'cutOffFrequency="{float(tr.cutoff_frequency)!r}" interpolate3D="0" nbImages="{n_img}">')
+        for c, v in zip(names, tr.views, strict=True):
+            files[f"{tr.name}/{c}_filenames_absolute.txt"] = "".join(f"{f}\n" for f in v)
+        files[f"{tr.name}/data/MarkerDescription.txt"] = "".join(f"{m.description}\n" for m in tr.markers)
+        for i, m in enumerate(tr.markers):
+            P = np.asarray(m.points2d, float)
+            if P.ndim != 3 or P.shape[1:] != (n, 2):
+                raise ValueError(f"trials: marker {m.description!r}: expected points2d of shape "
+                                 f"(n_frames, {n}, 2), got {P.shape}")
+            unset = np.isnan(P).any(axis=2)
+            P = np.where(unset[..., None], -2.0, P)
+            base = f"{tr.name}/data/Marker{i:03d}"
+            files[f"{base}points2d.csv"] = "".join(",".join(repr(float(v)) for v in row.ravel()) + "\n"
+                                                   for row in P)
+            files[f"{base}status2d.csv"] = "".join(",".join("0" if u else "50" for u in row) + "\n"
+                                                   for row in unset)
+            a = (f'<Marker Description={quoteattr(m.description)} ID="{i}" TrackingPenalty="125" '
+                 f'DetectionMethod="0" SizeOverride="-1" ThresholdOffset="8" RequiresRecomputation="0" '
+                 f'FilenamePoints2D="{base}points2d.csv" FilenameStatus2D="{base}status2d.csv"')
+            if m.points3d is not None:
+                X = np.asarray(m.points3d, float).reshape(len(P), 3)
+                bad = np.isnan(X).any(axis=1)
+                files[f"{base}points3d.csv"] = "".join(
+                    ",".join(repr(float(v)) for v in row) + "\n" for row in np.where(bad[:, None], 0.0, X))
+                files[f"{base}status3d.csv"] = "".join("0\n" if b else "50\n" for b in bad)
+                a += f' FilenamePoints3D="{base}points3d.csv" FilenameStatus3D="{base}status3d.csv"'
+            x.append(a + "/>")
+        rb_lines = []
+        for j, (body, idx) in enumerate(tr.rigid_bodies.items()):
+            rb_lines.append(f"{body}[{','.join(str(int(i) + 1) for i in idx)}]\n")
+            x.append(f'<RigidBody Description={quoteattr(body)} ID="{j}" Visible="1"/>')
+        files[f"{tr.name}/data/RigidBodies.txt"] = "".join(rb_lines)
+        x.append("</Trial>")
+    x.append("</Project>")
+    files["project.xml"] = "\n".join(x) + "\n"
+    out = Path(path)
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for k2, v2 in files.items():
+            zf.writestr(k2, v2)
+    atomic_write(out, buf.getvalue())
     return out

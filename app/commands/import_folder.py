@@ -35,9 +35,12 @@ def configure(p: argparse.ArgumentParser) -> None:
                      "one CT per bone), found anywhere in FOLDER. The frames' bit depth is detected (cine "
                      "header, TIFF tags or the frames' maximum) and printed; give --bit-depth when it is "
                      "wrong. CT orientation: LPS inside Talus (NIfTI headers store RAS and are converted "
-                     "on reading). An Autoscoper .cfg is imported as a study too (--tra, --hu-offset).")
-    p.add_argument("source", metavar="FOLDER|PROJECT.cfg", help="collection folder or Autoscoper .cfg")
-    p.add_argument("--out", default=None, metavar="STUDY", help="new study folder (default FOLDER/study)")
+                     "on reading). An Autoscoper .cfg (--tra, --hu-offset) or an XMALab .xma (--search) "
+                     "is imported as a study too.")
+    p.add_argument("source", metavar="FOLDER|PROJECT",
+                   help="collection folder, Autoscoper .cfg or XMALab .xma")
+    p.add_argument("--out", "--study", default=None, metavar="STUDY", dest="out",
+                   help="new study folder (default FOLDER/study)")
     p.add_argument("--bit-depth", type=int, default=None, choices=(8, 10, 12, 14, 16),
                    help="significant bits of the frames (default: detected)")
     p.add_argument("--trial", default=None,
@@ -48,16 +51,18 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", action="store_true", help="only say what was found; write nothing")
     p.add_argument("--tra", default=None, help="(.cfg) Autoscoper .tra poses")
     p.add_argument("--hu-offset", type=float, default=-1024.0, help="(.cfg) added to the stacks' values")
+    p.add_argument("--search", action="append", default=[], metavar="DIR",
+                   help="(.xma) a folder to look for the trials' images in (repeatable)")
     p.set_defaults(run=run)
 
 
 def run(a: argparse.Namespace) -> int:
     src = Path(a.source).expanduser()
-    if src.is_file() and src.suffix.lower() == ".cfg":
+    if src.is_file() and src.suffix.lower() in (".cfg", ".xma"):
         from . import import_project
 
         if a.out is None:
-            raise CliError("--out: required for an Autoscoper project")
+            raise CliError("--out: required for an Autoscoper or XMALab project")
         a.project, a.trial = str(src), a.trial or "trial"
         return import_project.run(a)
     if not src.is_dir():

@@ -125,8 +125,14 @@ def import_autoscoper(
 
 
 def import_project(path: str | os.PathLike, out: str | os.PathLike, **options):
-    """Create a study in ``out`` from a peer's project file (see the module docs)."""
+    """Create a study in ``out`` from a peer's project file: an Autoscoper ``.cfg`` (see the
+    module docs) or an XMALab ``.xma`` (:func:`core.study.import_xma.import_xma`)."""
     p = Path(path)
     if p.suffix.lower() == ".cfg":
         return import_autoscoper(p, out, **options)
-    raise ValueError(f"path: expected an Autoscoper trial configuration (.cfg), got {p}")
+    if p.suffix.lower() == ".xma":
+        from .import_xma import import_xma
+
+        return import_xma(p, out, **options)
+    raise ValueError(f"path: expected an Autoscoper trial configuration (.cfg) or an XMALab project (.xma), "
+                     f"got {p}")

@@ -148,9 +148,15 @@ def _view(files: list[str], where: str, base: Path, search: Sequence[Path]) -> P
 
     seq = open_sequence(folder)
     try:
-        n = seq.n_frames
+        n, held = len(seq), [f.name for f in seq.files]
     finally:
         seq.close()
+    listed = [PureWindowsPath(f).name if "\\" in f else PurePosixPath(f).name for f in files]
+    if n == len(files) and held != listed:
+        raise StudyError(f"{where}: the folder {folder} holds other frames than the trial lists (e.g. "
+                         f"{next(a for a, b in zip(held, listed, strict=True) if a != b)}); expected "
+                         "exactly the trial's frames in its order", path=folder,
+                         expected="the trial's frames")
     if n != len(files):
         raise StudyError(f"{where}: the folder {folder} holds {n} TIFF frames but the trial lists "
                          f"{len(files)}; expected a folder of exactly the trial's frames", path=folder,

@@ -1,0 +1,111 @@
+"""An XMALab project opened as a Talus study: cameras, the undistortion as the calibration's
+correction pipeline, trials referencing their images, markers as a report; a moved project found
+through search folders; bad projects refused naming the file, nothing left behind."""
+
+from __future__ import annotations
+
+import zipfile
+
+import numpy as np
+import pytest
+import tifffile
+
+from core.errors import FileError
+from core.io.xma_project import XMATrialData, write_xma_project
+from core.study import Study, StudyError
+from core.study.calibrations import trial_correction
+from core.study.import_xma import import_xma
+from tests.core.io.test_xma_project_format import H, W, cameras, grid, markers, radial
+
+
+def frames(folder, cam, n=4):
+    d = folder / f"cam{cam}"
+    d.mkdir(parents=True)
+    rng = np.random.default_rng(cam)
+    paths = []
+    for k in range(1, n + 1):
+        p = d / f"hop_cam{cam}.{k:04d}.tif"
+        tifffile.imwrite(p, rng.integers(0, 4000, (H, W), dtype=np.uint16))
+        paths.append(str(p))
+    return paths
+
+
+def make(tmp_path, *, views=None, flipped=False, name="lab.xma"):
+    views = views or [frames(tmp_path / "raw", c) for c in (1, 2)]
+    tr = XMATrialData("hop 1", views, markers(), {"tibia": [0, 1]}, recording_speed=250.0,
+                      cutoff_frequency=25.0)
+    p = write_xma_project(tmp_path / name, cameras(), [tr], grids=[grid(), None])
+    if flipped:
+        with zipfile.ZipFile(p) as zf:
+            m = {n: zf.read(n) for n in zf.namelist()}
+        m["project.xml"] = m["project.xml"].replace(b'isFlipped="0"', b'isFlipped="1"', 1)
+        with zipfile.ZipFile(p, "w") as zf:
+            for k, v in m.items():
+                zf.writestr(k, v)
+    return p
+
+
+def test_project_opens_as_a_study(tmp_path):
+    p = make(tmp_path)
+    with import_xma(p, tmp_path / "study") as st:
+        assert st.trials == ("hop_1",) and st.calibrations == ("xmalab.v1",) and st.bones == ()
+        tr = st.trial("hop_1")
+        assert tr.n_frames == 4
+        rig = tr.rig()
+        for a, b in zip(rig, cameras(), strict=True):
+            np.testing.assert_allclose(a.K, b.K, atol=1e-12)
+            np.testing.assert_allclose(a.R, b.R, atol=1e-12)
+            np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+        fix = trial_correction(st, "hop_1")
+        assert len(fix) == 2 and len(fix[1].steps) == 0
+        (und,) = fix[0].steps
+        g = grid()
+        keep = g.inlier
+        np.testing.assert_allclose(und.model.forward(g.references[keep]), g.distorted[keep], atol=5e-3)
+        np.testing.assert_allclose(und.model.inverse(radial([[20.0, 30.0]])), [[20.0, 30.0]], atol=1e-3)
+        rep = st.read_report("markers", "hop_1")
+        assert rep["cameras"] == ["cam1", "cam2"] and rep["frame_base"] == 0
+        assert rep["rigid_bodies"] == ["tibia"]
+        P = np.array(rep["markers"][0]["points2d"], dtype=float)
+        np.testing.assert_array_equal(P, markers()[0].points2d)
+        imp = st.settings["imported_from"]
+        assert imp["format"] == "xmalab-xma" and imp["trials"]["hop_1"]["recording_speed_hz"] == 250.0
+        assert imp["cameras"]["cam1"]["grid_inliers"] == int(grid().inlier.sum())
+    with Study.open(tmp_path / "study") as st:  # reopens read-only with every file there
+        assert st.trial("hop_1").n_frames == 4
+
+
+def test_a_moved_project_finds_its_images_in_search_folders(tmp_path):
+    real = [frames(tmp_path / "moved" / "hop", c) for c in (1, 2)]
+    saved = [[f"C:\\Users\\lab\\data\\hop\\cam{c}\\" + f.rsplit("/", 1)[1] for f in v]
+             for c, v in zip((1, 2), real, strict=True)]
+    p = make(tmp_path, views=saved)
+    with pytest.raises(StudyError, match=r"hop_cam1\.0001\.tif not found"):
+        import_xma(p, tmp_path / "s1")
+    assert not (tmp_path / "s1").exists()
+    with import_xma(p, tmp_path / "s2", search=[tmp_path / "moved"]) as st:
+        view = st.manifest["trials"]["hop_1"]["views"][0]["path"]
+        assert st.path(view) == tmp_path / "moved" / "hop" / "cam1"
+
+
+def test_refusals_name_the_file_and_leave_nothing(tmp_path):
+    p = make(tmp_path, flipped=True)
+    with pytest.raises(StudyError, match=r"lab\.xma: camera 'cam1' is mirrored"):
+        import_xma(p, tmp_path / "s")
+    assert not (tmp_path / "s").exists()
+    q = make(tmp_path / "b")
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("x")
+    with pytest.raises(StudyError, match="not an empty folder"):
+        import_xma(q, tmp_path / "full")
+    assert [x.name for x in (tmp_path / "full").iterdir()] == ["x"]
+    # a trial listing frames its folder does not hold exactly
+    v = [frames(tmp_path / "c", c) for c in (1, 2)]
+    r = make(tmp_path / "c", views=[v[0][:3], v[1][:3]])
+    with pytest.raises(StudyError, match="holds 4 TIFF frames but the trial lists 3"):
+        import_xma(r, tmp_path / "s3")
+    bad = tmp_path / "bad.xma"
+    bad.write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(FileError, match=r"bad\.xma"):
+        import_xma(bad, tmp_path / "s4")
+    assert not (tmp_path / "s4").exists()

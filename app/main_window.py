@@ -117,6 +117,9 @@ class MainWindow(QtWidgets.QMainWindow):
         self.open_demo_action.triggered.connect(self._ask_open_demo)
         self.recent_menu = file_menu.addMenu("Open &recent")
         self._fill_recent()
+        self.import_project_action = file_menu.addAction("Import &project (Autoscoper .cfg, XMALab .xma)…")
+        self.import_project_action.setShortcut(QtGui.QKeySequence("Ctrl+Shift+I"))
+        self.import_project_action.triggered.connect(lambda: self._guard(self.import_project_dialog))
         imp = file_menu.addMenu("&Import")
         for text, fn in (("Calibration (MayaCam files)…", self.importer.import_calibration),
                          ("CT volume as a bone…", self.importer.import_volume),
@@ -173,6 +176,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.controller = None
         self.layers = self.layers_dock = None
         self.last_error: tuple[str, str] | None = None
+        self.last_dialog = None  # the import-project or export dialog last opened (tests drive it)
         self._painted = False
         self._after_paint: list = []
 
@@ -414,6 +418,17 @@ class MainWindow(QtWidgets.QMainWindow):
         self.statusBar().showMessage(
             f"Opened {folder}: " + ", ".join(name for name, _ in images)
         )
+
+    def import_project_dialog(self):
+        """*File → Import project…*: an Autoscoper or XMALab project as a new study, then opened
+        (:class:`app.import_project_dialog.ImportProjectDialog`). Returns the dialog (shown)."""
+        from .import_project_dialog import ImportProjectDialog
+
+        dlg = ImportProjectDialog(self)
+        dlg.setAttribute(QtCore.Qt.WidgetAttribute.WA_DeleteOnClose)
+        dlg.open()
+        self.last_dialog = dlg
+        return dlg
 
     def _ask_open_demo(self) -> None:
         folder = QtWidgets.QFileDialog.getExistingDirectory(self, "Open study", os.getcwd())

@@ -287,20 +287,13 @@ class ReviewActions:
 
         return export_poses(s.study.trial(s.trial_name), p, kind)
 
-    def export_dialog(self) -> None:
-        from core.study.exports import available_formats
+    def export_dialog(self):
+        """The export dialog (:class:`app.export_dialog.ExportDialog`: every format, bones, path),
+        shown; returns it."""
+        from .export_dialog import ExportDialog
 
-        if self.window.session is None:
-            raise ValueError("study: open a study first")
-        choices = [(f"Poses: {f.description} (*{f.suffix or ''})", name)
-                   for name, f in available_formats().items()]
-        choices += [("Plots as PNG (*.png)", "plots"), ("Plots as SVG (*.svg)", "plots"),
-                    ("Plots as PDF (*.pdf)", "plots"), ("Trial report, HTML (*.html)", "report"),
-                    ("Trial report, PDF (*.pdf)", "report")]
-        path, chosen = QtWidgets.QFileDialog.getSaveFileName(
-            self.window, "Export", str(self.window.session.folder), ";;".join(c for c, _ in choices))
-        if not path:
-            return
-        kind = dict(choices)[chosen]
-        out = self.export(path, kind)
-        self.window.notify(f"Exported {', '.join(map(str, out)) if isinstance(out, list) else out}")
+        dlg = ExportDialog(self.window)
+        dlg.setAttribute(QtCore.Qt.WidgetAttribute.WA_DeleteOnClose)
+        dlg.open()
+        self.window.last_dialog = dlg
+        return dlg

@@ -2,13 +2,16 @@
 
 Usage::
 
-    talus export STUDY --trial T --format tra|xromm-csv|tfm|jts|c3d|mot|trc|jcs [--out PATH]
-                 [--bones a,b] [--rate HZ] [--frame F] [--camera C]
+    talus export STUDY --trial T --format F [--out PATH] [--bones a,b] [--rate HZ] [--frame F]
+                 [--camera C]
 
-Formats (see :mod:`core.study.export_trial`): Autoscoper ``.tra`` (its volume frame), XMALab /
-XROMM rigid-body CSV, one Slicer ``.tfm`` per bone (one frame), one JointTrack ``.jts`` per bone
-(a camera's frame), C3D (4x4 rotations), OpenSim ``.mot`` / ``.trc``, JCS angle CSV. Default
-output: ``STUDY/exports/<trial>.<ext>`` (a folder for tfm and jts).
+Formats (see :mod:`core.study.export_trial` and :mod:`core.study.exports`): ``tra`` or
+``tra-autoscoper``: Autoscoper ``.tra`` in Autoscoper's volume frame; ``tra-talus``: the same
+layout holding Talus's ``T_lab_from_bone`` (the CT's physical frame; what ``Trial.export_tra``
+writes; not for Autoscoper); XMALab / XROMM rigid-body CSV, one Slicer ``.tfm`` per bone (one
+frame), one JointTrack ``.jts`` per bone (a camera's frame), C3D (4x4 rotations), OpenSim
+``.mot`` / ``.trc``, JCS angle CSV; CSV of 4x4 or 6-DOF poses, JSON. Default output:
+``STUDY/exports/<trial>.<ext>`` (a folder for tfm and jts).
 """
 
 from __future__ import annotations
@@ -22,7 +25,10 @@ from ._shared import EXIT_OK, PROG, CliError, print_json
 __all__ = ["HELP", "configure", "run"]
 
 HELP = "write a trial's poses for other tools (.tra, C3D, .mot...)"
-FORMATS = ("tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs")
+TRIAL_FORMATS = ("tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs")  # export_trial's names
+POSE_FORMATS = ("tra-talus", "csv", "csv-6dof", "json")  # core.study.exports
+FORMATS = (*TRIAL_FORMATS, "tra-autoscoper", *POSE_FORMATS)
+_OUT = {"tra-talus": "_talus.tra", "csv": ".csv", "csv-6dof": "_6dof.csv", "json": ".json"}
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -30,7 +36,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                      "where a bone has no pose. JSON summary (files written) on stdout.")
     p.add_argument("study", metavar="STUDY", help="study folder (study.json)")
     p.add_argument("--trial", required=True, help="trial name")
-    p.add_argument("--format", required=True, choices=FORMATS, dest="fmt")
+    p.add_argument("--format", required=True, choices=FORMATS, dest="fmt",
+                   help="tra = tra-autoscoper (Autoscoper's volume frame); tra-talus: T_lab_from_bone")
     p.add_argument("--out", default=None, metavar="PATH", help="output file (folder for tfm, jts)")
     p.add_argument("--bones", default=None, help="comma-separated bones (default: the trial's)")
     p.add_argument("--rate", type=float, default=100.0, help="frame rate, Hz (default 100)")
@@ -46,12 +53,24 @@ def run(a: argparse.Namespace) -> int:
     from core.study import Study
     from core.study.export_trial import default_out, export_trial
 
-    out = Path(a.out).expanduser() if a.out else default_out(folder, a.trial, a.fmt)
-    if a.fmt not in ("tfm", "jts"):
+    fmt = "tra" if a.fmt == "tra-autoscoper" else a.fmt
+    bones = a.bones.split(",") if a.bones else None
+    if a.out:
+        out = Path(a.out).expanduser()
+    elif fmt in POSE_FORMATS:
+        out = folder / "exports" / f"{a.trial}{_OUT[fmt]}"
+    else:
+        out = default_out(folder, a.trial, fmt)
+    if fmt not in ("tfm", "jts"):
         out.parent.mkdir(parents=True, exist_ok=True)
     with Study.open(folder, mode="r") as study:
-        paths = export_trial(study, a.trial, a.fmt, out, bones=a.bones.split(",") if a.bones else None,
-                             rate=a.rate, frame=a.frame, camera=a.camera)
+        if fmt in POSE_FORMATS:
+            from core.study.exports import export_poses
+
+            paths = [export_poses(study.trial(a.trial), out, fmt, bones=bones)]
+        else:
+            paths = export_trial(study, a.trial, fmt, out, bones=bones, rate=a.rate, frame=a.frame,
+                                 camera=a.camera)
     print(f"{PROG} export: wrote {len(paths)} file(s)", file=sys.stderr)
     print_json({"format": a.fmt, "files": [str(p) for p in paths]})
     return EXIT_OK

@@ -83,3 +83,74 @@ def test_bad_folder_is_named_and_nothing_written(qtbot, lab, tmp_path):
     _read(qtbot, dlg)
     assert "expected two views" in dlg.messages.text() and "nothing will be written" in dlg.messages.text()
     assert not dlg.create_button.isEnabled() and not (bad / "study").exists()
+
+
+def _files(folder):
+    return sorted(str(p.relative_to(folder)) for p in Path(folder).rglob("*"))
+
+
+def _smaller(path, rows=48, cols=56):
+    import tifffile
+
+    a = tifffile.imread(path)
+    tifffile.imwrite(path, a[:rows, :cols])
+
+
+def _views_of_other_sizes(lab):
+    for f in sorted((lab / "fluoro" / "cam02").iterdir()):
+        _smaller(f)
+    return ["the views have frames of different sizes", "fluoro/cam01 64x64", "fluoro/cam02 56x48"]
+
+
+def _one_frame_smaller(lab):
+    first = sorted((lab / "fluoro" / "cam01").iterdir())[0]
+    _smaller(first)
+    return ["fluoro/cam01/: frames of different sizes", f"1 of 56x48 pixels (e.g. {first.name})"]
+
+
+def _cameras_not_matching(lab):
+    for cam in ("cam01", "cam02"):
+        for f in sorted((lab / "fluoro" / cam).iterdir()):
+            _smaller(f, 60, 60)
+    return ["cameras/cam01.txt: camera 1 expects 64x64-pixel frames but fluoro/cam01 has 60x60",
+            "cameras/cam02.txt: camera 2 expects 64x64-pixel frames"]
+
+
+def _ct_without_bone(lab):
+    import SimpleITK as sitk
+
+    ct = lab / "ct" / "talus.mha"
+    img = sitk.ReadImage(str(ct))
+    soft = sitk.GetImageFromArray(sitk.GetArrayFromImage(img).clip(-1000, 80))
+    soft.CopyInformation(img)
+    sitk.WriteImage(soft, str(ct))
+    return ["ct/talus.mha: no bone in the CT (largest value 80 HU, under 200 HU)"]
+
+
+@pytest.mark.parametrize("spoil", [_views_of_other_sizes, _one_frame_smaller, _cameras_not_matching,
+                                   _ct_without_bone], ids=lambda f: f.__name__.strip("_"))
+def test_bad_input_says_what_and_where_and_writes_nothing(qtbot, lab, tmp_path, spoil):
+    """Frames of different sizes (between the views, within a view), cameras that do not match the
+    frames' size, a CT without bone: the dialog lists the problem naming the file, Create stays
+    off, and nothing is written (not even when asked to create)."""
+    from app.import_dialog import ImportFolderDialog
+
+    bad = tmp_path / "bad"
+    shutil.copytree(lab, bad)
+    expected = spoil(bad)
+    before = _files(tmp_path)
+    dlg = ImportFolderDialog(folder=bad)
+    qtbot.addWidget(dlg)
+    dlg.show()
+    _read(qtbot, dlg)
+    text = dlg.messages.text()
+    assert "Cannot make a study (nothing will be written)" in text
+    for part in expected:
+        assert part in text, text
+    assert not dlg.create_button.isEnabled()
+    _click(qtbot, dlg.bits_confirm)  # even with the bit depth confirmed
+    assert not dlg.create_button.isEnabled()
+    dlg.out_edit.setText(str(tmp_path / "study"))
+    dlg.create()  # refused: no job, nothing written
+    assert "Creating" not in dlg.messages.text()
+    assert _files(tmp_path) == before and not (tmp_path / "study").exists()

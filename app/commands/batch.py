@@ -2,17 +2,18 @@
 
 Usage::
 
-    talus batch STUDY... [--trials a,b] [--bones a,b] [--joint] [--workers N]
+    talus batch STUDY... [--trials a,b] [--bones a,b] [--joint] [--ranges] [--workers N]
                 [--scheduler ADDRESS] [--device cpu|cuda] [--frames START:STOP] [--metric gc]
                 [--no-confidence] [--max-uncertainty MM,DEG] [--out SUMMARY.json] [--quiet]
 
 Each (trial, bone) — or (trial, bone group) with ``--joint`` — is one task
-(:mod:`core.tracking.batch`); tasks run on a local Dask cluster (one worker process per GPU,
-else per CPU core; ``--workers`` sets how many) or on the cluster of ``--scheduler``. Each
-task tracks into its study's journal as ``talus track --resume`` would, so a batch that was
-stopped, or whose worker died, carries on where it was; a failed task is retried once and then
-reported. ``--workers 0`` runs the tasks one after the other in this process, without Dask.
-Progress goes to stderr (the Dask dashboard address first), the JSON summary to stdout.
+(:mod:`core.tracking.batch`); with ``--ranges`` each frame range between the bone's keyframes
+is one, so one long trial spreads over the workers too. Tasks run on a local Dask cluster (one
+worker process per GPU, else per CPU core; ``--workers`` sets how many) or on the cluster of
+``--scheduler``. Each task tracks into its study's journal as ``talus track --resume`` would,
+so a batch that was stopped, or whose worker died, carries on where it was; a failed task is
+retried once and then reported. ``--workers 0`` runs the tasks one after the other in this
+process, without Dask. Progress goes to stderr (the Dask dashboard address first), the JSON summary to stdout.
 Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
 it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -55,6 +56,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bones", default=None, help="comma-separated bone names (default: each trial's)")
     p.add_argument("--joint", action="store_true",
                    help="one task per trial tracking its bones jointly (mode joint) instead of one per bone")
+    p.add_argument("--ranges", action="store_true",
+                   help="one task per frame range between each bone's keyframes (from a keyframe "
+                        "back to the first frame, or forward to the frame before the next "
+                        "keyframe), so the ranges of one bone run side by side")
     p.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: one per GPU, else per CPU core; "
                         "0: run the tasks here, one after the other, without Dask)")
@@ -129,7 +134,7 @@ def run(a: argparse.Namespace) -> int:
     from core.tracking.batch import TaskSettings, build_tasks, run_batch, run_serial
 
     tasks = build_tasks([Path(s).expanduser() for s in a.studies], _names(a.trials), _names(a.bones),
-                        joint=a.joint)
+                        joint=a.joint, ranges=a.ranges, frames=frames)
     settings = TaskSettings(device=a.device, metric=a.metric, threshold_hu=a.threshold,
                             confidence=not a.no_confidence, max_uncertainty=limits, frames=frames)
     progress = Progress("batch", quiet=a.quiet)

@@ -1,14 +1,32 @@
 """Tracking many trials of many studies as independent tasks, on Dask distributed (``talus batch``).
 
 A *task* is one trial's bone — or one trial's joint bone group (``joint=True``, tracked with
-``mode="joint"``) — of one study (:class:`BatchTask`, from :func:`build_tasks`). A task runs
+``mode="joint"``) — of one study (:class:`BatchTask`, from :func:`build_tasks`), over the whole
+trial or, with ``ranges=True``, over one frame range between the bone's keyframes
+(:func:`keyframe_ranges`). A task runs
 :func:`run_task`: it opens its study for writing, which locks only the journals of its bones
 (:meth:`core.study.Study.lock_journal`), and calls :func:`core.tracking.from_study.track_study`
 — what ``talus track`` calls — with ``resume=True``, so every registered frame is in the
 study's journal as soon as it finishes and a task that runs again (after its worker was killed,
 or in a later batch) carries on from the journal: nothing is lost but the frame in flight, and
 the poses are those of an uninterrupted run (each registration is seeded from its frame number).
-Each task writes its own tracking report, ``results/reports/tracking/<trial>.<bone>.json``.
+Each task writes its own tracking report, ``results/reports/tracking/<trial>.<bone>.json``
+(``<trial>.<bone>.<first>-<last>.json`` for a frame range).
+
+Frame ranges
+------------
+A bone with hand-set keyframes ``k0 < k1 < ... < km`` in the tracked frames ``[lo, hi)`` splits
+into ranges that start at a keyframe: ``k0`` backward to ``lo``, then ``k0`` forward to
+``k1 - 1``, ``k1`` forward to ``k2 - 1``, ..., ``km`` forward to ``hi - 1`` (a joint group splits
+at the frames where every bone of it has a keyframe). Each range is tracked from its own
+keyframe, so the ranges of one bone run side by side on different workers and give the poses a
+serial run of the same ranges gives (the first frame of every range is the keyframe itself; the
+frame ``k0``, in two ranges, is registered from the same inputs by both). Tasks of one bone's
+ranges write one journal: each record takes the journal's lock for its append only (the study
+layout's ``.<bone>.lock``), so a range task waits for another's append but is refused at its start
+when another writer holds the bone for good (``talus track``, or the window). Only
+``guess="velocity"`` or ``"previous"`` suit ranges: a spline guess would read other ranges'
+results as knots.
 
 :func:`run_batch` submits the tasks to a Dask cluster — a local one by default
 (:func:`local_cluster`: one worker process per GPU, its ``CUDA_VISIBLE_DEVICES`` set to that GPU
@@ -22,6 +40,7 @@ worker events, and returns a JSON-ready summary (:func:`summarize`). Nothing her
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import socket
@@ -36,6 +55,7 @@ __all__ = [
     "BatchTask",
     "TaskSettings",
     "build_tasks",
+    "keyframe_ranges",
     "local_cluster",
     "run_batch",
     "run_serial",
@@ -44,28 +64,43 @@ __all__ = [
 ]
 
 EVENT_TOPIC = "talus-batch"  # worker events: task start, frame done, task end
+JOURNAL_WAIT_S = 60.0  # how long a range task's record waits for another range's append
+JOURNAL_START_WAIT_S = 5.0  # how long a range task's start waits for a bone another writer holds
 
 
 @dataclass(frozen=True)
 class BatchTask:
     """One unit of work: ``bones`` of ``trial`` in the study at ``study`` (an absolute folder).
 
-    More than one bone is a joint bone group (tracked together with ``mode="joint"``)."""
+    More than one bone is a joint bone group (tracked together with ``mode="joint"``).
+    ``frames`` is ``(first, last)``, both tracked, in tracking order (``first > last``:
+    backward) for a frame range; None for the batch's frames (:attr:`TaskSettings.frames`)."""
 
     study: str
     trial: str
     bones: tuple[str, ...]
+    frames: tuple[int, int] | None = None
+
+    @property
+    def order(self) -> list[int] | None:
+        """The frames of a range in tracking order (None: not a range)."""
+        if self.frames is None:
+            return None
+        a, b = (int(x) for x in self.frames)
+        return list(range(a, b + 1)) if a <= b else list(range(a, b - 1, -1))
 
     @property
     def key(self) -> str:
-        """``<study folder name>/<trial>/<bone>[+<bone>...]``: unique within a batch."""
-        return f"{Path(self.study).name}/{self.trial}/{'+'.join(self.bones)}"
+        """``<study folder name>/<trial>/<bone>[+<bone>...][:<first>-<last>]``: unique within a
+        batch."""
+        span = "" if self.frames is None else f":{self.frames[0]}-{self.frames[1]}"
+        return f"{Path(self.study).name}/{self.trial}/{'+'.join(self.bones)}{span}"
 
     @property
     def report_name(self) -> str:
         """The task's tracking report (``results/reports/tracking/<report_name>.json``)."""
-        return f"{self.trial}.{'+'.join(self.bones)}" if len(self.bones) > 1 else \
-            f"{self.trial}.{self.bones[0]}"
+        span = "" if self.frames is None else f".{self.frames[0]}-{self.frames[1]}"
+        return f"{self.trial}.{'+'.join(self.bones)}{span}"
 
 
 @dataclass(frozen=True)
@@ -89,15 +124,39 @@ class TaskSettings:
 
         terms = DEFAULT_TERMS if self.metric == "gc" else (MetricTerm(self.metric),)
         reg = RegistrationOptions(terms=terms, bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local")
-        return TrackingOptions(registration=reg, guess=self.guess, mode="joint" if joint else "sequential",
-                               confidence=self.confidence, max_uncertainty=self.max_uncertainty,
-                               **dict(self.options))
+        kw = dict(registration=reg, guess=self.guess, confidence=self.confidence,
+                  max_uncertainty=self.max_uncertainty)
+        kw.update(dict(self.options))  # e.g. the window's own registration options
+        kw["mode"] = "joint" if joint else "sequential"
+        return TrackingOptions(**kw)
+
+
+def keyframe_ranges(keyframes: Sequence[int], start: int, stop: int) -> list[tuple[int, int]]:
+    """The frame ranges of ``[start, stop)`` between ``keyframes``, each ``(first, last)`` in
+    tracking order from a keyframe (see the module notes): ``k0`` back to ``start``, then from
+    every keyframe forward to the frame before the next one (the last to ``stop - 1``). Without
+    a keyframe in ``[start, stop)``: the whole range forward, ``[(start, stop - 1)]``.
+
+    >>> keyframe_ranges([3, 10], 0, 20)
+    [(3, 0), (3, 9), (10, 19)]
+    """
+    if not 0 <= start < stop:
+        raise ValueError(f"frames: expected 0 <= start < stop, got {start}:{stop}")
+    ks = sorted({int(k) for k in keyframes if start <= int(k) < stop})
+    if not ks:
+        return [(start, stop - 1)]
+    out = [(ks[0], start)] if ks[0] > start else []
+    out += [(a, b - 1) for a, b in itertools.pairwise(ks)]
+    return [*out, (ks[-1], stop - 1)]
 
 
 def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | None = None,
-                bones: Sequence[str] | None = None, *, joint: bool = False) -> list[BatchTask]:
+                bones: Sequence[str] | None = None, *, joint: bool = False, ranges: bool = False,
+                frames: tuple[int, int] | None = None) -> list[BatchTask]:
     """The tasks of ``studies``: every trial (or those named in ``trials``) × every bone of it
-    (or those named in ``bones``), one task per (trial, bone), or per trial with ``joint``.
+    (or those named in ``bones``), one task per (trial, bone), or per trial with ``joint``; with
+    ``ranges``, one per frame range between the bone's (the group's common) hand-set keyframes
+    in ``frames`` (``[start, stop)``, default all; :func:`keyframe_ranges`).
 
     Raises
     ------
@@ -122,7 +181,18 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
                 if not names:
                     continue
                 groups = [tuple(names)] if joint else [(b,) for b in names]
-                tasks += [BatchTask(str(st.folder), t, g) for g in groups]
+                if not ranges:
+                    tasks += [BatchTask(str(st.folder), t, g) for g in groups]
+                    continue
+                trial = st.trial(t)
+                lo, hi = frames if frames is not None else (0, trial.n_frames)
+                hi = min(int(hi), trial.n_frames)
+                if not 0 <= lo < hi:
+                    raise ValueError(f"frames: {lo}:{hi} is not a range of trial {t!r} (0:{trial.n_frames})")
+                keys = {b: set(trial.results(b).keyframes) for b in names}
+                for g in groups:
+                    common = set.intersection(*(keys[b] for b in g))
+                    tasks += [BatchTask(str(st.folder), t, g, r) for r in keyframe_ranges(common, lo, hi)]
     for what, asked, seen in (("--trials", trials, seen_trials), ("--bones", bones, seen_bones)):
         missing = [x for x in (asked or ()) if x not in seen]
         if missing:
@@ -143,8 +213,92 @@ def _emit(event: dict) -> None:
     worker.log_event(EVENT_TOPIC, event)
 
 
+def _stop_flag(name: str | None, every_s: float = 0.5) -> Callable[[], bool] | None:
+    """A cancel callable that reads the Dask event ``name`` (set by the client to stop the batch)
+    at most every ``every_s`` seconds; None without a name or off a Dask worker."""
+    if name is None:
+        return None
+    try:
+        from distributed import Event, get_worker
+
+        get_worker()
+    except (ImportError, ValueError):
+        return None
+    event = Event(name)
+    state = {"next": 0.0, "set": False}
+
+    def stop() -> bool:
+        now = time.monotonic()
+        if not state["set"] and now >= state["next"]:
+            state["next"] = now + every_s
+            try:
+                state["set"] = bool(event.is_set())
+            except Exception:  # the scheduler is gone: the batch is over
+                state["set"] = True
+        return state["set"]
+
+    return stop
+
+
+# ------------------------------------------------------------------ journals shared by ranges
+def _journal_lock(folder: Path, trial: str, bone: str, wait_s: float):
+    """The lock of a bone's journal (the study layout's ``results/<trial>/poses/.<bone>.lock``,
+    the one :meth:`core.study.Study.lock_journal` holds), taken within ``wait_s`` seconds."""
+    from ..io.atomic import FileLock
+
+    path = folder / "results" / trial / "poses" / f".{bone}.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = FileLock(path, purpose=f"bone {bone!r} of trial {trial!r} in study {folder}")
+    return lock.acquire(timeout=wait_s)
+
+
+class _SharedTrial:
+    """A trial whose :meth:`record_pose` takes the bone journal's lock for one append."""
+
+    def __init__(self, trial, folder: Path, wait_s: float) -> None:
+        self._trial, self._folder, self._wait_s = trial, folder, wait_s
+
+    def __getattr__(self, name):
+        return getattr(self._trial, name)
+
+    def record_pose(self, bone: str, frame: int, pose, *, score=None, tracking=None) -> None:
+        from ..study.results import append_pose, repair_tail
+
+        path = self._folder / "results" / self._trial.name / "poses" / f"{bone}.jsonl"
+        lock = _journal_lock(self._folder, self._trial.name, bone, self._wait_s)
+        try:
+            if path.exists() and path.stat().st_size:  # a torn last record (a writer killed
+                with open(path, "rb") as fh:  # mid-append) is cut off first, as Trial does
+                    fh.seek(-1, os.SEEK_END)
+                    if fh.read(1) != b"\n":
+                        repair_tail(path)
+            append_pose(path, int(frame), pose, score=score, tracking=tracking)
+        finally:
+            lock.release()
+
+
+class _SharedJournals:
+    """The study as :func:`~core.tracking.from_study.track_study` sees it in a range task: the
+    bone journals are shared with the other ranges' tasks (module notes), so locking one only
+    checks that no other writer holds it for good, and each record locks it for its append."""
+
+    def __init__(self, study, wait_s: float = JOURNAL_WAIT_S) -> None:
+        self._study, self._wait_s = study, wait_s
+
+    def __getattr__(self, name):
+        return getattr(self._study, name)
+
+    def lock_journal(self, trial: str, bone: str) -> None:
+        self._study.trial(trial).bones  # noqa: B018 (an unknown trial raises here)
+        _journal_lock(self._study.folder, trial, bone, JOURNAL_START_WAIT_S).release()
+
+    def trial(self, name: str) -> _SharedTrial:
+        return _SharedTrial(self._study.trial(name), self._study.folder, self._wait_s)
+
+
 def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
-             progress: Callable[[dict], None] | None = None) -> dict:
+             progress: Callable[[dict], None] | None = None,
+             cancel: Callable[[], bool] | None = None, stop_event: str | None = None) -> dict:
     """Track ``task`` into its study's journal (resuming what is there) and return its record:
     ``key``, ``status`` (``"complete"``, ``"stopped"`` — nothing could be tracked, the reason in
     ``stopped`` — or ``"cancelled"``), frame counts, ``seconds`` (wall), ``load_s`` (opening the
@@ -152,7 +306,8 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     (after loading, until the first frame is registered: bone models, renderer and Warp kernels,
     and the first frame's widened search and its check), ``frame_s`` (median of the later
     frames), host and process. ``progress(event)`` (and, on a Dask worker, the client) gets an
-    event per frame."""
+    event per frame. ``cancel()`` (or, on a Dask worker, the Dask event named ``stop_event``)
+    stops the task between registrations: the frames done stay in the journal."""
     from ..study import Study
     from .from_study import track_study
     from .trial import journal_inputs
@@ -162,6 +317,10 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     device = settings.device  # None: CUDA when this process sees a GPU (a CPU worker sees none)
     marks: list[float] = []
     base = {"key": task.key, "host": socket.gethostname(), "pid": os.getpid()}
+    stop = cancel or _stop_flag(stop_event)
+    if task.frames is not None and settings.guess == "spline":
+        raise ValueError("guess: a frame-range task cannot use the spline guess (its knots would be "
+                         "other ranges' results); use 'velocity' or 'previous'")
 
     resumed: set[tuple[str, int]] = set()  # (bone, frame) done before, from the journal
 
@@ -184,17 +343,19 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         trial = st.trial(task.trial)
         for b in task.bones:
             st.bone_volume(b)  # read once here (cached for track_study) to time the loading
-        frames = None if settings.frames is None else list(range(*settings.frames))
+        frames = task.order
+        if frames is None and settings.frames is not None:
+            frames = list(range(*settings.frames))
         order = list(range(trial.n_frames)) if frames is None else frames
         _, skip = journal_inputs({b: trial.results(b) for b in task.bones}, order, resume=True)
         resumed.update((b, int(f)) for b in task.bones for f in skip[b])
         load_s = time.perf_counter() - t0
         result, report = track_study(
-            st, task.trial, list(task.bones), frames,
+            st if task.frames is None else _SharedJournals(st), task.trial, list(task.bones), frames,
             options=settings.tracking_options(joint=len(task.bones) > 1), device=device,
             resume=True, threshold_hu=settings.threshold_hu, progress=on_frame,
-            report_name=task.report_name)
-        n_frames = len(frames) if frames is not None else trial.n_frames
+            report_name=task.report_name, cancel=stop)
+        n_frames = len(order)
     seconds = time.perf_counter() - t0
     summary = dict(report.get("summary") or {})
     steps = [b - a for a, b in itertools.pairwise(marks)]
@@ -221,18 +382,29 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
 
 
 def run_serial(tasks: Sequence[BatchTask], settings: TaskSettings | None = None, *,
-               progress: Callable[[dict], None] | None = None) -> dict:
+               progress: Callable[[dict], None] | None = None,
+               cancel: Callable[[], bool] | None = None) -> dict:
     """Run ``tasks`` one after the other in this process (no Dask): the reference a batch is
-    checked against, and ``talus batch --workers 0``. Returns :func:`summarize`'s summary."""
+    checked against, and ``talus batch --workers 0``. Returns :func:`summarize`'s summary;
+    after ``cancel()`` the task in flight stops and the others are reported cancelled."""
     settings = settings or TaskSettings()
     t0 = time.perf_counter()
     records, failures = [], []
     for task in tasks:
+        if cancel is not None and cancel():
+            records.append(_cancelled(task))
+            continue
         try:
-            records.append(run_task(task, settings, progress=progress))
+            records.append(run_task(task, settings, progress=progress, cancel=cancel))
         except Exception as exc:  # reported in the summary, the batch goes on
             failures.append({"key": task.key, "error": f"{type(exc).__name__}: {exc}", "attempts": 1})
     return summarize(tasks, records, failures, wall_s=time.perf_counter() - t0, workers=0)
+
+
+def _cancelled(task: BatchTask) -> dict:
+    """The record of a task cancelled before it started."""
+    return dict(key=task.key, study=task.study, trial=task.trial, bones=list(task.bones),
+                status="cancelled", frames_tracked=0, frames_recorded=0, seconds=0.0)
 
 
 def summarize(tasks: Sequence[BatchTask], records: Sequence[dict], failures: Sequence[dict], *,
@@ -329,7 +501,8 @@ def local_cluster(workers: int | None = None, *, device: str | None = None,
 def run_batch(tasks: Sequence[BatchTask], settings: TaskSettings | None = None, *,
               workers: int | None = None, scheduler: str | None = None,
               on_event: Callable[[dict], None] | None = None,
-              on_start: Callable[[dict], None] | None = None) -> dict:
+              on_start: Callable[[dict], None] | None = None,
+              cancel: Callable[[], bool] | None = None, cancel_wait_s: float = 60.0) -> dict:
     """Run ``tasks`` on Dask and return :func:`summarize`'s summary.
 
     Parameters
@@ -345,8 +518,15 @@ def run_batch(tasks: Sequence[BatchTask], settings: TaskSettings | None = None, 
         ``"end"``; ``key`` of the task).
     on_start : callable(info), optional
         Called once the cluster is up with ``{"dashboard", "scheduler", "workers"}``.
+    cancel : callable() -> bool, optional
+        Polled about 4 times a second. Once it returns True the tasks not started are cancelled
+        and the running ones stop at their next registration (a Dask event they poll), keeping
+        the frames done in the journals; they are waited for up to ``cancel_wait_s`` seconds
+        (then the local cluster is closed, which ends them). Their records say ``"cancelled"``.
     """
-    from distributed import Client, as_completed
+    import uuid
+
+    from distributed import Client, Event
 
     settings = settings or TaskSettings()
     t0 = time.perf_counter()
@@ -376,19 +556,42 @@ def run_batch(tasks: Sequence[BatchTask], settings: TaskSettings | None = None, 
                     on_event(msg)
 
         client.subscribe_topic(EVENT_TOPIC, handler)
+        stop_name = f"talus-batch-stop-{uuid.uuid4().hex}"
+        stop = Event(stop_name, client=client)
         resources = {"GPU": 1} if uses_gpu else None
         futures = {client.submit(run_task, t, settings, key=f"talus-batch-{i}-{t.key}", retries=1,
-                                 pure=False, resources=resources): t for i, t in enumerate(tasks)}
+                                 pure=False, resources=resources, stop_event=stop_name): t
+                   for i, t in enumerate(tasks)}
         records, failures = [], []
-        for fut in as_completed(futures):
-            task = futures[fut]
-            try:
-                records.append(fut.result())
-            except Exception as exc:  # a task that failed twice is reported
-                failures.append({"key": task.key, "error": f"{type(exc).__name__}: {exc}",
-                                 "attempts": max(2, attempts.get(task.key, 0))})
+        pending, stopping = set(futures), None
+        while pending:
+            done = {f for f in pending if f.done()}
+            if not done:
+                time.sleep(0.25)
+            pending -= done
+            for fut in done:
+                task = futures[fut]
+                if fut.status == "cancelled":
+                    records.append(_cancelled(task))
+                    continue
+                try:
+                    records.append(fut.result())
+                except Exception as exc:  # a task that failed twice is reported
+                    failures.append({"key": task.key, "error": f"{type(exc).__name__}: {exc}",
+                                     "attempts": max(2, attempts.get(task.key, 0))})
+            if stopping is None and cancel is not None and cancel():
+                stopping = time.monotonic() + cancel_wait_s
+                stop.set()  # running tasks stop at their next registration
+                queued = [f for f in pending if futures[f].key not in attempts]
+                client.cancel(queued)
+            elif stopping is not None and time.monotonic() >= stopping:
+                records += [_cancelled(futures[f]) for f in pending]  # still running: given up
+                client.cancel(list(pending))
+                pending = set()
         time.sleep(0.2)  # let the last events arrive
         client.unsubscribe_topic(EVENT_TOPIC)
+        with contextlib.suppress(Exception):  # an existing scheduler keeps no stale stop event
+            stop.clear()
         return summarize(tasks, records, failures, wall_s=time.perf_counter() - t0,
                          workers=n_workers, attempts=attempts, dashboard=info["dashboard"],
                          scheduler=None if cluster is not None else scheduler, startup_s=startup_s)
@@ -396,4 +599,3 @@ def run_batch(tasks: Sequence[BatchTask], settings: TaskSettings | None = None, 
         client.close()
         if cluster is not None:
             cluster.close()
-

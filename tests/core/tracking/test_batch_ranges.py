@@ -1,0 +1,106 @@
+"""``core.tracking.batch`` frame-range tasks: ranges between keyframes, run side by side on a local
+Dask cluster of 2 CPU worker processes into one bone's journal, give the poses of a serial run of
+the same ranges (``track_study`` over each range, as ``talus track --frames --resume`` does), and a
+second run resumes everything from the journal."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from core.io.atomic import LockedError
+from core.study import Study
+from core.tracking import batch
+from core.tracking.batch import BatchTask, TaskSettings, build_tasks, keyframe_ranges, run_serial, run_task
+
+BONE = "talus"
+SETTINGS = TaskSettings(device="cpu", confidence=False, options=(("verify_restarts", 0),))
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """A 4-frame demo study whose talus has keyframes at frames 1 and 3 (the true poses) only."""
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("ranges") / "demo"
+    make_demo_study(out, n_frames=4, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    truth = np.load(out / "poses" / f"{BONE}.npy")
+    with Study.open(out, mode="w") as st:
+        trial = st.trial("walk")
+        trial.clear_pose(BONE, 0)
+        for k in (1, 3):
+            trial.record_pose(BONE, k, truth[k])
+    return out
+
+
+def test_keyframe_ranges():
+    assert keyframe_ranges([3, 10], 0, 20) == [(3, 0), (3, 9), (10, 19)]
+    assert keyframe_ranges([0, 1, 4], 0, 5) == [(0, 0), (1, 3), (4, 4)]
+    assert keyframe_ranges([7, 30], 5, 12) == [(7, 5), (7, 11)]  # keyframes outside are ignored
+    assert keyframe_ranges([], 2, 6) == [(2, 5)]  # none inside: the whole range, forward
+    with pytest.raises(ValueError, match="frames"):
+        keyframe_ranges([1], 3, 3)
+
+
+def test_range_tasks(demo):
+    tasks = build_tasks([demo], bones=[BONE], ranges=True)
+    assert [t.key for t in tasks] == ["demo/walk/talus:1-0", "demo/walk/talus:1-2", "demo/walk/talus:3-3"]
+    assert [t.order for t in tasks] == [[1, 0], [1, 2], [3]]
+    assert tasks[0].report_name == "walk.talus.1-0"
+    first3 = build_tasks([demo], bones=[BONE], ranges=True, frames=(0, 3))
+    assert [t.frames for t in first3] == [(1, 0), (1, 2)]
+    # a joint group splits where every bone has a keyframe: talus {1, 3}, calcaneus {0}: nowhere
+    joint = build_tasks([demo], bones=[BONE, "calcaneus"], joint=True, ranges=True)
+    assert [(t.bones, t.frames) for t in joint] == [((BONE, "calcaneus"), (0, 3))]
+    whole = BatchTask("/s", "walk", (BONE,))
+    assert whole.order is None and whole.key == "s/walk/talus" and whole.report_name == "walk.talus"
+    with pytest.raises(ValueError, match="spline"):
+        run_task(tasks[0], TaskSettings(guess="spline"))
+
+
+def test_range_task_is_refused_while_another_writer_holds_the_bone(demo, tmp_path, monkeypatch):
+    monkeypatch.setattr(batch, "JOURNAL_START_WAIT_S", 0.05)
+    folder = shutil.copytree(demo, tmp_path / "held")
+    task = build_tasks([folder], bones=[BONE], ranges=True)[1]
+    with Study.open(folder, mode="w") as st:
+        st.lock_journal("walk", BONE)  # e.g. the window, or talus track
+        with pytest.raises(LockedError, match="talus"):
+            run_task(task, SETTINGS)
+    with Study.open(folder) as st:
+        assert not np.isfinite(st.trial("walk").poses(BONE)[2]).any()  # nothing written
+
+
+def test_ranges_on_two_workers_match_a_serial_run_and_resume(demo, tmp_path):
+    pytest.importorskip("distributed")
+    from core.tracking.batch import run_batch
+    from core.tracking.from_study import track_study
+
+    serial_dir = shutil.copytree(demo, tmp_path / "serial")
+    batch_dir = shutil.copytree(demo, tmp_path / "batch")
+    tasks = build_tasks([batch_dir], bones=[BONE], ranges=True)
+    with Study.open(serial_dir, mode="w") as st:  # the reference: talus track over each range
+        for t in tasks:
+            res, _ = track_study(st, "walk", [BONE], t.order, options=SETTINGS.tracking_options(False),
+                                 device="cpu", resume=True)
+            assert res.status == "complete"
+
+    events = []
+    summary = run_batch(tasks, SETTINGS, workers=2, on_event=events.append)
+    assert summary["status"] == "complete" and summary["tasks_complete"] == 3, summary
+    rows = {r["key"]: r for r in summary["task_records"]}
+    assert sum(r["frames_tracked"] for r in rows.values()) in (4, 5)  # frame 1 by one range or both
+    assert {e["kind"] for e in events} == {"start", "frame", "end"}
+    with Study.open(serial_dir) as a, Study.open(batch_dir) as b:
+        pa, pb = a.trial("walk").poses(BONE), b.trial("walk").poses(BONE)
+        assert np.isfinite(pb).all()
+        np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-9)
+        assert sorted(b.trial("walk").results(BONE).keyframes) == [1, 3]  # still the hand-set ones
+        for t in tasks:
+            assert b.read_report("tracking", t.report_name)["summary"]["status"] == "complete"
+
+    again = run_serial(build_tasks([batch_dir], bones=[BONE], ranges=True), SETTINGS)
+    assert again["status"] == "complete" and again["frames_tracked"] == 0
+    assert [r["frames_resumed"] for r in again["task_records"]] == [2, 2, 1]

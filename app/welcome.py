@@ -97,7 +97,7 @@ class WelcomePage(QtWidgets.QFrame):
         self.demo_button.setToolTip("A synthetic foot study (three bones, two cameras), written once "
                                     f"to {demo_folder()}")
         self.import_button = QtWidgets.QPushButton("Import a project…")
-        self.import_button.setToolTip("Make a study from an Autoscoper project (.cfg)")
+        self.import_button.setToolTip("Make a study from an Autoscoper (.cfg) or XMALab (.xma) project")
         for b, name in ((self.open_button, "open"), (self.demo_button, "demo"),
                         (self.import_button, "import")):
             b.setObjectName(f"welcome-{name}")
@@ -181,9 +181,10 @@ class WelcomePage(QtWidgets.QFrame):
         self.pool.submit("demo", _write_demo, str(folder), dict(self.demo_options))
 
     def import_project(self) -> None:
-        """Autoscoper .cfg → a new study folder beside it (asked for), then opened."""
+        """Autoscoper .cfg or XMALab .xma → a new study folder beside it (asked for), then opened."""
         cfg, _ = QtWidgets.QFileDialog.getOpenFileName(
-            self, "Import an Autoscoper project", os.getcwd(), "Autoscoper trial (*.cfg)")
+            self, "Import a project", os.getcwd(),
+            "Autoscoper or XMALab project (*.cfg *.xma);;Autoscoper trial (*.cfg);;XMALab project (*.xma)")
         if not cfg:
             return
         default = str(Path(cfg).with_suffix("")) + "_study"

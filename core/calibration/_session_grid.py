@@ -25,15 +25,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..imaging.distortion import ideal_grid
-from ..imaging.distortion_eval import ResidualStats, cross_validate, residual_stats
-from ..imaging.distortion_models import DistortionModel, ModelSpec, fit_distortion
+from ..imaging.distortion_eval import AUTO_MODELS, ResidualStats, residual_stats, select_model
+from ..imaging.distortion_models import TPS_MAX_POINTS, DistortionModel, ModelSpec, fit_distortion
 from ..imaging.grid_detection import detect_grid_points
 from ..imaging.grid_indexing import index_grid
-
-#: Candidate models of ``model="auto"`` (cross-validated).
-AUTO_MODELS = ("poly(4,4)", "poly(5,5)", "poly(6,6)", "poly(7,7)", "poly(8,8)", "lwm(12)", "tps")
-#: Largest number of points a thin-plate spline is fitted to (a subsample beyond).
-TPS_MAX_POINTS = 2000
 
 
 class GridFrameError(ValueError):
@@ -137,13 +132,6 @@ def _jacobian_similarity(model: DistortionModel, c: np.ndarray, h: float = 2.0) 
     return complex(a, b)
 
 
-def _fit(spec: ModelSpec, ideal: np.ndarray, dist: np.ndarray, mm_per_px: float, rng) -> DistortionModel:
-    if spec.kind == "tps" and len(ideal) > TPS_MAX_POINTS:
-        keep = np.sort(rng.choice(len(ideal), TPS_MAX_POINTS, replace=False))
-        ideal, dist = ideal[keep], dist[keep]
-    return fit_distortion(ideal, dist, spec, mm_per_px=mm_per_px)
-
-
 def fit_view(placements: list[Placement], *, model: str | ModelSpec, pitch_mm: float, center,
              n_frames: int, rounds: int = 3, folds: int = 5, seed: int = 0) -> GridFit:
     """Choose (``model="auto"``) and fit the distortion model of one view (module docs)."""
@@ -184,25 +172,26 @@ def fit_view(placements: list[Placement], *, model: str | ModelSpec, pitch_mm: f
                      "standard deviations from the smooth correction")
     table: list = []
     if isinstance(model, str) and model == "auto":
-        cand = list(AUTO_MODELS)
         sub = np.arange(len(ideal))
         if len(ideal) > TPS_MAX_POINTS:
+            # every candidate is cross-validated on one subsample (the spline's cost grows as n²)
             sub = np.sort(rng.choice(len(ideal), TPS_MAX_POINTS, replace=False))
             notes.append(f"cross-validation on {TPS_MAX_POINTS} of {len(ideal)} grid points (a random "
-                         "subsample; the thin-plate spline is also fitted to such a subsample)")
-        table = cross_validate(ideal[sub], dist[sub], cand, folds=folds, seed=seed, mm_per_px=mm_per_px)
-        best = min(range(len(table)), key=lambda k: table[k]["rms_px"])
-        if not np.isfinite(table[best]["rms_px"]):
-            raise ValueError("no candidate distortion model could be fitted to the grid points")
-        spec = ModelSpec.parse(cand[best])
+                         "subsample; the thin-plate spline is fitted to an even subsample of as many)")
+        try:
+            spec, table = select_model(ideal[sub], dist[sub], AUTO_MODELS, folds=folds, seed=seed,
+                                       mm_per_px=mm_per_px)
+        except ValueError:
+            raise ValueError("no candidate distortion model could be fitted to the grid points") from None
     else:
         spec = ModelSpec.parse(model)
     try:
-        fitted = _fit(spec, ideal, dist, mm_per_px, rng)
+        fitted = fit_distortion(ideal, dist, spec, mm_per_px=mm_per_px, seed=seed)
     except ValueError as exc:
         raise ValueError(f"model {spec.label}: cannot be fitted to {len(ideal)} grid points "
                          f"({exc})") from None
-    if spec.kind == "tps" and len(ideal) > TPS_MAX_POINTS:
-        notes.append(f"thin-plate spline fitted to {TPS_MAX_POINTS} of {len(ideal)} grid points")
+    if fitted.n_fit is not None:
+        notes.append(f"{spec.label} fitted to an even subsample of {fitted.n_fit} of {len(ideal)} grid "
+                     "points")
     res = residual_stats(fitted, dist, ideal, mm_per_px=mm_per_px)
     return GridFit(fitted, spec, table, res, ideal, dist, lab, n_frames, len(pl), mm_per_px, notes)

@@ -15,6 +15,7 @@ Lengths in mm, pixels ``(u, v) = (column, row)``.
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -107,41 +108,49 @@ def session_report(cal, *, notes=(), dlt=(), seconds=None, manifest=None, lattic
     return rep
 
 
-def _plt():
+@contextmanager
+def _figure(path: Path, figsize, *, rows: int = 1, cols: int = 1, projection: str | None = None):
+    """``(fig, axes)`` of a new Agg figure (``dpi`` 100), laid out tightly and saved to ``path``
+    when the block ends; the figure is closed in any case."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    return plt
+    if projection is None:
+        fig, axes = plt.subplots(rows, cols, figsize=figsize, dpi=100)
+    else:
+        fig = plt.figure(figsize=figsize, dpi=100)
+        axes = fig.add_subplot(projection=projection)
+    try:
+        yield fig, axes
+        fig.tight_layout()
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
 
 
 def _grid_figure(cal, path: Path) -> Path:
-    plt = _plt()
     n = len(cal.cameras)
-    fig, axes = plt.subplots(1, n, figsize=(6 * n, 6.2), dpi=100)
-    for ax, c in zip(np.atleast_1d(axes), cal.cameras, strict=True):
-        g = c.grid
-        r = g.model.inverse(g.distorted_uv) - g.ideal_uv
-        scale = 0.5 * np.median(np.linalg.norm(np.diff(g.ideal_uv[:2], axis=0))) / max(
-            np.percentile(np.linalg.norm(r, axis=1), 99), 1e-6)
-        ax.quiver(g.ideal_uv[:, 0], g.ideal_uv[:, 1], r[:, 0], r[:, 1], np.linalg.norm(r, axis=1),
-                  angles="xy", scale_units="xy", scale=1 / scale, cmap="viridis")
-        ax.set_aspect("equal")
-        ax.invert_yaxis()
-        st = g.residuals.to_dict()["mm"]
-        ax.set_title(f"{c.name}: {g.spec.label}, grid residual RMS {st['rms']:.3f} mm "
-                     f"(max {st['max']:.3f})\narrows × {scale:.0f}", fontsize=9)
-        ax.set_xlabel("u (px)")
-        ax.set_ylabel("v (px)")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    with _figure(path, (6 * n, 6.2), cols=n) as (_, axes):
+        for ax, c in zip(np.atleast_1d(axes), cal.cameras, strict=True):
+            g = c.grid
+            r = g.model.inverse(g.distorted_uv) - g.ideal_uv
+            scale = 0.5 * np.median(np.linalg.norm(np.diff(g.ideal_uv[:2], axis=0))) / max(
+                np.percentile(np.linalg.norm(r, axis=1), 99), 1e-6)
+            ax.quiver(g.ideal_uv[:, 0], g.ideal_uv[:, 1], r[:, 0], r[:, 1], np.linalg.norm(r, axis=1),
+                      angles="xy", scale_units="xy", scale=1 / scale, cmap="viridis")
+            ax.set_aspect("equal")
+            ax.invert_yaxis()
+            st = g.residuals.to_dict()["mm"]
+            ax.set_title(f"{c.name}: {g.spec.label}, grid residual RMS {st['rms']:.3f} mm "
+                         f"(max {st['max']:.3f})\narrows × {scale:.0f}", fontsize=9)
+            ax.set_xlabel("u (px)")
+            ax.set_ylabel("v (px)")
     return path
 
 
 def _table_figure(cal, path: Path) -> Path:
-    plt = _plt()
     rows = []
     for c in cal.cameras:
         for r in c.grid.table:
@@ -150,20 +159,16 @@ def _table_figure(cal, path: Path) -> Path:
                          "chosen" if r["model"] == c.grid.spec.label else ""])
     if not rows:
         rows = [[c.name, c.grid.spec.label, "(given)", "chosen"] for c in cal.cameras]
-    fig, ax = plt.subplots(figsize=(7, 0.3 * len(rows) + 1.0), dpi=100)
-    ax.axis("off")
-    t = ax.table(cellText=rows, colLabels=["camera", "model", "5-fold CV RMS (mm)", ""], loc="center")
-    t.auto_set_font_size(False)
-    t.set_fontsize(8)
-    ax.set_title("Distortion models: cross-validated error on held-out grid points", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    with _figure(path, (7, 0.3 * len(rows) + 1.0)) as (_, ax):
+        ax.axis("off")
+        t = ax.table(cellText=rows, colLabels=["camera", "model", "5-fold CV RMS (mm)", ""], loc="center")
+        t.auto_set_font_size(False)
+        t.set_fontsize(8)
+        ax.set_title("Distortion models: cross-validated error on held-out grid points", fontsize=9)
     return path
 
 
 def _reprojection_figure(cal, path: Path) -> Path:
-    plt = _plt()
     ba = cal.bundle
     err = ba.errors_px
     F = int(ba.frame_index.max()) + 1 if ba.frame_index.size else 0
@@ -173,60 +178,48 @@ def _reprojection_figure(cal, path: Path) -> Path:
     sel_t = ba.frame_index < len(cal.observations) - (cal.static_target is not None)
     per_bead = [np.sqrt(np.mean(err[(ba.point_index == b) & sel_t & ~ba.outliers] ** 2))
                 if np.any((ba.point_index == b) & sel_t & ~ba.outliers) else np.nan for b in range(nb)]
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), dpi=100)
-    a1.bar(np.arange(F), per_frame, color="tab:blue")
-    a1.set_xlabel("labelled frame (the last is the static object when there is one)")
-    a1.set_ylabel("RMS reprojection error (px)")
-    a1.set_title(f"Bundle adjustment: {ba.rms_px:.3f} px RMS over {len(err)} observations, "
-                 f"{int(ba.outliers.sum())} outliers", fontsize=9)
-    a2.bar(np.arange(nb), per_bead, color="tab:orange")
-    a2.set_xticks(np.arange(nb), cal.target.bead_ids, rotation=90, fontsize=6)
-    a2.set_ylabel(f"RMS per bead of {cal.target.name} (px)")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    with _figure(path, (9, 6), rows=2) as (_, (a1, a2)):
+        a1.bar(np.arange(F), per_frame, color="tab:blue")
+        a1.set_xlabel("labelled frame (the last is the static object when there is one)")
+        a1.set_ylabel("RMS reprojection error (px)")
+        a1.set_title(f"Bundle adjustment: {ba.rms_px:.3f} px RMS over {len(err)} observations, "
+                     f"{int(ba.outliers.sum())} outliers", fontsize=9)
+        a2.bar(np.arange(nb), per_bead, color="tab:orange")
+        a2.set_xticks(np.arange(nb), cal.target.bead_ids, rotation=90, fontsize=6)
+        a2.set_ylabel(f"RMS per bead of {cal.target.name} (px)")
     return path
 
 
 def _volume_figure(cal, vol: dict, path: Path) -> Path:
-    plt = _plt()
     X = np.asarray(vol.get("points_mm", []))
     e = np.asarray(vol.get("point_rms_mm", []))
-    fig = plt.figure(figsize=(7, 6), dpi=100)
-    ax = fig.add_subplot(projection="3d")
-    if len(X):
-        sc = ax.scatter(X[:, 0], X[:, 1], X[:, 2], c=e, cmap="magma", s=6)
-        fig.colorbar(sc, ax=ax, shrink=0.6, label="RMS reconstruction error (mm)")
-    for c in cal.rig:
-        ax.scatter(*c.source, color="k", marker="*", s=60)
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_zlabel("z (mm)")
-    ax.set_title(f"3-D reconstruction error over the capture volume\n(beads localised to "
-                 f"{vol.get('noise_px', 0):.3f} px; RMS {vol.get('rms_mm', float('nan')):.4f} mm)",
-                 fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    with _figure(path, (7, 6), projection="3d") as (fig, ax):
+        if len(X):
+            sc = ax.scatter(X[:, 0], X[:, 1], X[:, 2], c=e, cmap="magma", s=6)
+            fig.colorbar(sc, ax=ax, shrink=0.6, label="RMS reconstruction error (mm)")
+        for c in cal.rig:
+            ax.scatter(*c.source, color="k", marker="*", s=60)
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+        ax.set_zlabel("z (mm)")
+        ax.set_title(f"3-D reconstruction error over the capture volume\n(beads localised to "
+                     f"{vol.get('noise_px', 0):.3f} px; RMS {vol.get('rms_mm', float('nan')):.4f} mm)",
+                     fontsize=9)
     return path
 
 
 def _sd_figure(cal, path: Path) -> Path:
-    plt = _plt()
     ba = cal.bundle
     names = ["f (px)", "cu (px)", "cv (px)", "source x", "source y", "source z", "SID"]
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=100)
     w = 0.8 / len(cal.rig)
-    for v, (c, s) in enumerate(zip(cal.rig, ba.camera_std, strict=True)):
-        vals = [s["f"], s["cu"], s["cv"], *s["source"], s.get("sid", np.nan)]
-        ax.bar(np.arange(len(names)) + v * w, vals, w, label=c.name)
-    ax.set_xticks(np.arange(len(names)) + 0.4 - w / 2, names)
-    ax.set_ylabel("standard deviation (px or mm)")
-    ax.set_title("Parameter standard deviations from the bundle adjustment", fontsize=9)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    with _figure(path, (8, 4)) as (_, ax):
+        for v, (c, s) in enumerate(zip(cal.rig, ba.camera_std, strict=True)):
+            vals = [s["f"], s["cu"], s["cv"], *s["source"], s.get("sid", np.nan)]
+            ax.bar(np.arange(len(names)) + v * w, vals, w, label=c.name)
+        ax.set_xticks(np.arange(len(names)) + 0.4 - w / 2, names)
+        ax.set_ylabel("standard deviation (px or mm)")
+        ax.set_title("Parameter standard deviations from the bundle adjustment", fontsize=9)
+        ax.legend()
     return path
 
 

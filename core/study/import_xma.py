@@ -17,8 +17,11 @@
   to the inlier pairs when a project opens (``src/processing/LocalUndistortion.cpp`` 116-139
   and 247-328, ``src/core/Settings.cpp`` 72; the map is evaluated by
   ``UndistortionObject::transformLWM``, ``src/core/UndistortionObject.cpp`` 339-400). The two
-  differ only outside every point's support, where XMALab leaves a point where it is (409-415)
-  and Talus extrapolates the nearest point's polynomial. A camera that also has OpenCV lens
+  differ outside every point's support, where XMALab leaves a point where it is (409-415)
+  and Talus extrapolates the nearest point's polynomial, and where a point's 12th-nearest
+  neighbour is a tie (a perfect lattice of reference points), which the two sorts may break
+  differently (1.2e-3 px at most on a 4-px test lattice; 1e-8 px without ties,
+  ``tests/core/io/test_xma_project_format.py``). A camera that also has OpenCV lens
   coefficients (``UndistortionParameter``, applied after the grid: ``Camera::undistortPoint``,
   ``src/core/Camera.cpp`` 672-684) gets one local weighted mean fitted to the composition sampled
   every 16 pixels (1024² images);
@@ -51,6 +54,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
+from ..errors import FileError
 from .errors import StudyError
 
 __all__ = ["import_xma", "xma_distortion_model", "xma_markers"]
@@ -213,6 +217,18 @@ def import_xma(project: str | os.PathLike, out: str | os.PathLike, *, name: str 
         ``out`` holds files already, a camera is mirrored or uncalibrated, a trial's images are
         missing or are not a sequence Talus reads.
     """
+    src = Path(project).absolute()
+    try:
+        return _import_xma(src, Path(out), name=name, search=search, n_neighbours=n_neighbours)
+    except FileError:
+        raise
+    except ValueError as exc:  # what the project's numbers make impossible (a singular K, ...)
+        text = str(exc)
+        raise StudyError(text if str(src) in text else f"{src}: {text}", path=src,
+                         expected="an XMALab project Talus can open") from exc
+
+
+def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
     from ..geometry.mayacam import write_mayacam
     from ..imaging.pipeline import Pipeline, UndistortStep
     from ..io.atomic import atomic_write_json
@@ -221,7 +237,6 @@ def import_xma(project: str | os.PathLike, out: str | os.PathLike, *, name: str 
     from .manifest import store_path
     from .study import Study
 
-    src = Path(project).absolute()
     prj = read_xma_project(src)
     search = [Path(s).expanduser() for s in search]
     for c in prj.cameras:
@@ -232,7 +247,6 @@ def import_xma(project: str | os.PathLike, out: str | os.PathLike, *, name: str 
     trials = [t for t in prj.trials if not t.default]
     if not trials:
         raise StudyError(f"{src}: the project has no trial with images", path=src, expected="a trial")
-    out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise StudyError(f"out: {out} exists and is not an empty folder", path=out, expected="a new folder")
     created = not out.exists()
@@ -272,8 +286,14 @@ def import_xma(project: str | os.PathLike, out: str | os.PathLike, *, name: str 
                     stem = _name(xc.name, taken_cams)
                     write_mayacam(cam, folder / f"{stem}.txt", version=2)
                     cam_files.append(folder / f"{stem}.txt")
-                    model = xma_distortion_model(prj.grid(xc.name), coeffs=xc.distortion_coeffs, K=cam.K,
-                                                 size=(cam.width, cam.height), n_neighbours=n_neighbours)
+                    try:
+                        model = xma_distortion_model(prj.grid(xc.name), coeffs=xc.distortion_coeffs, K=cam.K,
+                                                     size=(cam.width, cam.height), n_neighbours=n_neighbours)
+                    except FileError:
+                        raise
+                    except ValueError as exc:
+                        raise StudyError(f"{src}: camera {xc.name!r}: undistortion: {exc}", path=src,
+                                         expected="a usable undistortion grid") from None
                     steps = () if model is None else (UndistortStep(model),)
                     atomic_write_json(folder / f"correction_{stem}.json", Pipeline(steps).to_dict())
                     corr_files.append(folder / f"correction_{stem}.json")

@@ -4,11 +4,14 @@ through search folders; bad projects refused naming the file, nothing left behin
 
 from __future__ import annotations
 
+import itertools
 import zipfile
 
 import numpy as np
 import pytest
 import tifffile
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from core.errors import FileError
 from core.io.xma_project import XMATrialData, write_xma_project
@@ -109,3 +112,40 @@ def test_refusals_name_the_file_and_leave_nothing(tmp_path):
     with pytest.raises(FileError, match=r"bad\.xma"):
         import_xma(bad, tmp_path / "s4")
     assert not (tmp_path / "s4").exists()
+
+
+_n = itertools.count()
+FUZZ = settings(max_examples=30, deadline=None, database=None,
+                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+
+@pytest.fixture(scope="module")
+def good_project(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fz")
+    p = make(d)
+    with zipfile.ZipFile(p) as zf:
+        return d, {n: zf.read(n) for n in zf.namelist()}
+
+
+@FUZZ
+@given(data=st.data())
+def test_damaged_projects_are_refused_naming_the_file(good_project, data):
+    """A damaged member of the project either imports or raises FileError naming the project (or
+    the image it lists), and leaves no study behind."""
+    from tests.core.io.test_xma_project_format import mutated
+
+    d, members = good_project
+    members = dict(members)
+    name = data.draw(st.sampled_from(sorted(k for k in members if not k.endswith(".tif"))))
+    members[name] = data.draw(mutated(members[name]))
+    k = next(_n)
+    p = d / f"f{k}.xma"
+    with zipfile.ZipFile(p, "w") as zf:
+        for m, v in members.items():
+            zf.writestr(m, v)
+    out = d / f"s{k}"
+    try:
+        import_xma(p, out).close()
+    except FileError as exc:
+        assert str(p) in str(exc) or "trial" in str(exc), str(exc)
+        assert not out.exists()

@@ -149,3 +149,28 @@ def test_damaged_projects_are_refused_naming_the_file(good_project, data):
     except FileError as exc:
         assert str(p) in str(exc) or "trial" in str(exc), str(exc)
         assert not out.exists()
+
+
+def test_the_wrist_sample_as_an_xmalab_project(tmp_path, sample_data):
+    """The real wrist radiographs (already undistorted by XMALab) and cameras, as an XMALab project
+    saved on a Windows machine would list them: the study's rig is the sample's MayaCam rig and
+    its trial the three frames, found through a search folder."""
+    from core.geometry.mayacam import rig_from_mayacam
+
+    data = sample_data / "autoscoper_wrist"
+    if not data.is_dir():
+        pytest.skip(reason=f"wrist sample not found at {data}")
+    rig = rig_from_mayacam([data / "Calibration" / f"xr_calib_wrist_cam0{c}.txt" for c in (1, 2)])
+    cams = [type(c)(K=c.K, R=c.R, t=c.t, width=c.width, height=c.height, name=f"camera{k + 1}")
+            for k, c in enumerate(rig)]
+    views = [[f"D:\\XROMM\\wrist\\xr_data_wrist_cam0{c}\\{p.name}"
+              for p in sorted((data / "XMA_UND" / f"xr_data_wrist_cam0{c}").glob("*.tif"))] for c in (1, 2)]
+    p = write_xma_project(tmp_path / "wrist.xma", cams, [XMATrialData("wrist", views, recording_speed=125.0)])
+    with import_xma(p, tmp_path / "study", search=[data / "XMA_UND"]) as st:
+        tr = st.trial("wrist")
+        assert tr.n_frames == 3
+        for a, b in zip(tr.rig(), rig, strict=True):
+            np.testing.assert_allclose(a.K, b.K, atol=1e-9)
+            np.testing.assert_allclose(a.R, b.R, atol=1e-12)
+            np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+        assert [len(f.steps) for f in trial_correction(st, "wrist")] == [0, 0]  # nothing to undistort

@@ -145,7 +145,10 @@ def _optional() -> dict[str, PoseFormat]:
 def available_formats() -> dict[str, PoseFormat]:
     """:data:`POSE_FORMATS` and the optional :mod:`core.io` writers present in this install (the
     old names of :data:`ALIASES` are not listed)."""
-    return {**POSE_FORMATS, **_optional()}
+    opt = _optional()
+    first = {k: f for k, f in (("tra-autoscoper", opt.get("tra-autoscoper")),
+                                ("tra-talus", POSE_FORMATS["tra-talus"])) if f is not None}
+    return {**first, **POSE_FORMATS, **opt}  # the two .tra side by side, Autoscoper's first
 
 
 def trial_poses(trial, bones=None) -> dict[str, np.ndarray]:

@@ -131,10 +131,11 @@ class XMAProject:
     trials: tuple[XMATrial, ...]
     calibration_type: int = 1
 
-    def rig(self, trial: str | None = None, *, sizes=None):
+    def rig(self, trial: str | None = None, *, sizes=None, cameras=None):
         """Talus :class:`~core.geometry.camera.Rig` of the cameras at ``trial``'s reference
-        calibration frame (default: the first trial's, else frame 0). ``sizes``: ``(width,
-        height)`` per camera, for cameras whose image size the project does not record."""
+        calibration frame (default: the first trial's, else frame 0). ``cameras``: indices of the
+        cameras to include (default all); ``sizes``: ``(width, height)`` per included camera, for
+        cameras whose image size the project does not record."""
         from ..geometry.camera import Camera, Rig
 
         ref = 0
@@ -142,7 +143,8 @@ class XMAProject:
             t = self.trial(trial) if trial is not None else self.trials[0]
             ref = t.reference_calibration
         cams = []
-        for k, c in enumerate(self.cameras):
+        chosen = range(len(self.cameras)) if cameras is None else list(cameras)
+        for k, c in enumerate(self.cameras[i] for i in chosen):
             if ref not in c.poses:
                 raise ValueError(f"{self.path}: camera {c.name!r} has no calibration at frame {ref}")
             w, h = c.width, c.height

@@ -35,8 +35,9 @@
   (:meth:`Study.read_report`), frames numbered from 0 (XMALab's frame 1 is frame 0), with the
   rigid bodies' names.
 
-The study has no bones (an XMALab project holds no CT); add volumes and bones to track. What the
-study has no place for (recording speed, filter cut-off, light cameras, the lens coefficients)
+Light (video) cameras are left out of the calibration and the trials (their marker points stay
+in the report). The study has no bones (an XMALab project holds no CT); add volumes and bones to
+track. What the study has no place for (recording speed, filter cut-off, light cameras, the lens coefficients)
 is kept under ``settings["imported_from"]``.
 
 A camera whose images XMALab mirrors (``isFlipped``) is refused: its calibration is that of the
@@ -239,7 +240,11 @@ def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
 
     prj = read_xma_project(src)
     search = [Path(s).expanduser() for s in search]
-    for c in prj.cameras:
+    xray = [k for k, c in enumerate(prj.cameras) if not c.light]  # light (video) cameras are left out
+    if not xray:
+        raise StudyError(f"{src}: every camera is a light camera; expected X-ray cameras", path=src,
+                         expected="X-ray cameras")
+    for c in (prj.cameras[k] for k in xray):
         if c.flipped:
             raise StudyError(f"{src}: camera {c.name!r} is mirrored (isFlipped=\"1\"): its calibration is of "
                              "the mirror image; expected unmirrored cameras (turn the flip off in XMALab and "
@@ -255,8 +260,8 @@ def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
     views = {}
     for t in trials:
         lists = prj.view_files(t.name)
-        views[t.name] = [_view(files, f"trial {t.name!r}, camera {c.name!r}", base, search)
-                         for c, files in zip(prj.cameras, lists, strict=True)]
+        views[t.name] = [_view(lists[k], f"trial {t.name!r}, camera {prj.cameras[k].name!r}", base, search)
+                         for k in xray]
     study = Study.create(out, name=name or src.stem)
     try:
         taken_trials: set[str] = set()
@@ -275,14 +280,14 @@ def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
                         sizes.append((seq.frame_shape[1], seq.frame_shape[0]))
                     finally:
                         seq.close()
-                rig = prj.rig(t.name, sizes=sizes)
+                rig = prj.rig(t.name, sizes=sizes, cameras=xray)
                 k = len(cal_of_ref) + 1
                 cal = f"{SERIES}.v{k}"
                 folder = study.folder / "calibrations" / SERIES / f"v{k}"
                 folder.mkdir(parents=True)
                 taken_cams: set[str] = set()
                 cam_files, corr_files = [], []
-                for xc, cam in zip(prj.cameras, rig, strict=True):
+                for xc, cam in zip((prj.cameras[k] for k in xray), rig, strict=True):
                     stem = _name(xc.name, taken_cams)
                     write_mayacam(cam, folder / f"{stem}.txt", version=2)
                     cam_files.append(folder / f"{stem}.txt")
@@ -324,6 +329,7 @@ def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
         study.update_settings(imported_from={
             "format": "xmalab-xma", "path": str(src), "version": prj.version,
             "calibration_type": prj.calibration_type, "cameras": cams_info,
+            "light_cameras": [c.name for c in prj.cameras if c.light],
             "trials": {_n: {"xmalab_name": t.name, "start_frame": t.start_frame, "end_frame": t.end_frame,
                             "reference_calibration": t.reference_calibration,
                             "recording_speed_hz": t.recording_speed,

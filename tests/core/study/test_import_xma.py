@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from core.errors import FileError
-from core.io.xma_project import XMATrialData, write_xma_project
+from core.io.xma_project import XMAMarkerData, XMATrialData, write_xma_project
 from core.study import Study, StudyError
 from core.study.calibrations import trial_correction
 from core.study.import_xma import import_xma
@@ -174,3 +174,27 @@ def test_the_wrist_sample_as_an_xmalab_project(tmp_path, sample_data):
             np.testing.assert_allclose(a.R, b.R, atol=1e-12)
             np.testing.assert_allclose(a.t, b.t, atol=1e-9)
         assert [len(f.steps) for f in trial_correction(st, "wrist")] == [0, 0]  # nothing to undistort
+
+
+def test_light_cameras_are_left_out(tmp_path):
+    """A project with a light (video) camera beside the two X-ray ones: the study's calibration
+    and trial have the X-ray cameras; the light camera's video need not be there."""
+    from core.geometry.camera import Camera
+
+    c1, c2 = cameras()
+    light = Camera(K=c2.K, R=c2.R, t=c2.t, width=W, height=H, name="video")
+    views = [frames(tmp_path / "raw", c) for c in (1, 2)] + [["/gone/video.avi"]]
+    P = np.concatenate([markers()[0].points2d, markers()[0].points2d[:, :1]], axis=1)
+    tr = XMATrialData("hop", views, [XMAMarkerData("bead", P)])
+    p = write_xma_project(tmp_path / "three.xma", [c1, c2, light], [tr])
+    with zipfile.ZipFile(p) as zf:
+        m = {n: zf.read(n) for n in zf.namelist()}
+    m["project.xml"] = m["project.xml"].replace(b'Name="video" isLightCamera="0"',
+                                                b'Name="video" isLightCamera="1"')
+    with zipfile.ZipFile(p, "w") as zf:
+        for k, v in m.items():
+            zf.writestr(k, v)
+    with import_xma(p, tmp_path / "st") as st:
+        assert [c.name for c in st.trial("hop").rig()] == ["cam1", "cam2"]
+        assert st.settings["imported_from"]["light_cameras"] == ["video"]
+        assert st.read_report("markers", "hop")["cameras"] == ["cam1", "cam2", "video"]

@@ -4,8 +4,9 @@ The list holds every pose format of :func:`core.study.exports.available_formats`
 the coordinate frame its numbers are in: the two ``.tra`` formats say which is Autoscoper's),
 the plots of the Plots dock as PNG, SVG or PDF (:meth:`app.plots.PlotsDock.export`) and the
 trial report as HTML or PDF (:func:`core.study.report.write_report`). Below: what the selected
-format holds, the bones to write (pose formats), and where (a file, or a folder for the formats
-written one file per bone), filled with ``<study>/exports/<trial>…`` and changed by typing or
+format holds, the bones to write (pose formats), the frame rate the C3D, OpenSim and JCS files
+record (an imported XMALab trial's recording speed, else 100 Hz), and where (a file, or a folder
+for the formats written one file per bone), filled with ``<study>/exports/<trial>…`` and changed by typing or
 *Browse…*. *Export* writes it and keeps the dialog open for the next one; a failure is said in
 the dialog, in red, with its reason.
 """
@@ -19,6 +20,17 @@ from PySide6 import QtCore, QtWidgets
 __all__ = ["ExportDialog"]
 
 _KIND = QtCore.Qt.ItemDataRole.UserRole
+RATE_FORMATS = ("c3d", "mot", "trc", "jcs")  # the formats that record a frame rate
+
+
+def _recording_rate(study, trial: str) -> float:
+    """An imported XMALab trial's recording speed (Hz), else 100."""
+    imp = study.settings.get("imported_from") or {}
+    try:
+        rate = imp["trials"][trial]["recording_speed_hz"]
+        return float(rate) if rate and float(rate) > 0 else 100.0
+    except (KeyError, TypeError, ValueError):
+        return 100.0
 
 
 class ExportDialog(QtWidgets.QDialog):
@@ -60,6 +72,14 @@ class ExportDialog(QtWidgets.QDialog):
             it.setCheckState(QtCore.Qt.CheckState.Checked)
             self.bones.addItem(it)
         self.bones.setMaximumHeight(90)
+        self.rate = QtWidgets.QDoubleSpinBox()
+        self.rate.setObjectName("export-rate")
+        self.rate.setRange(0.1, 100000.0)
+        self.rate.setDecimals(2)
+        self.rate.setSuffix(" Hz")
+        self.rate.setValue(_recording_rate(s.study, s.trial_name))
+        self.rate.setToolTip("Frame rate written into the C3D, OpenSim and JCS files (an imported XMALab "
+                             "trial's recording speed, else 100 Hz)")
         self.path = QtWidgets.QLineEdit()
         self.path.setObjectName("export-path")
         self.browse = QtWidgets.QPushButton("Browse…")
@@ -79,6 +99,7 @@ class ExportDialog(QtWidgets.QDialog):
         where.addWidget(self.browse)
         form = QtWidgets.QFormLayout()
         form.addRow("Bones", self.bones)
+        form.addRow("Frame rate", self.rate)
         form.addRow("Save to", where)
         lay = QtWidgets.QVBoxLayout(self)
         lay.addWidget(QtWidgets.QLabel(f"Trial {s.trial_name!r} of {s.study.folder}"))
@@ -128,6 +149,7 @@ class ExportDialog(QtWidgets.QDialog):
         kind, about = self.choice[0], self.choice[4]
         self.about.setText(about)
         self.bones.setEnabled(kind == "poses")
+        self.rate.setEnabled(kind == "poses" and self.choice[1] in RATE_FORMATS)
         self.path.setText(str(self._default_path()))
         self.status.clear()
 
@@ -165,7 +187,8 @@ class ExportDialog(QtWidgets.QDialog):
                 bones = self.chosen_bones()
                 if not bones:
                     raise ValueError("Bones: tick at least one bone")
-                out = export_poses(self.trial, p, fmt, bones=bones)
+                options = {"rate": self.rate.value()} if fmt in RATE_FORMATS else {}
+                out = export_poses(self.trial, p, fmt, bones=bones, **options)
             else:
                 if not folder and p.suffix.lower() != suffix:
                     raise ValueError(f"Save to: expected a {suffix} file for this export, got {p.name}")

@@ -168,7 +168,7 @@ def _read_back(fmt, path, names, poses, study):
         from core.io.c3d import read_c3d
 
         r = read_c3d(path)
-        assert list(r.bones) == names
+        assert list(r.bones) == names and r.rate == 50.0  # the dialog's frame rate
         return r.poses
     if fmt == "mot":
         from core.io.opensim import kinematics_to_poses, read_mot
@@ -236,6 +236,8 @@ def test_export_menu_writes_every_format_that_reads_back(qtbot, demo_folder, tmp
                 continue
             dlg.formats.setCurrentRow(k)
             assert dlg.bones.isEnabled() and fmt in dlg.about.text()
+            assert dlg.rate.isEnabled() == (fmt in ("c3d", "mot", "trc", "jcs"))
+            dlg.rate.setValue(50.0)
             out = tmp_path / "out" / (fmt if folder_fmt else f"{fmt}{suffix}")
             out.parent.mkdir(exist_ok=True)
             dlg.path.setText(str(out))

@@ -165,6 +165,7 @@ class MainWindow(QtWidgets.QMainWindow):
         self.track_action.triggered.connect(lambda: self._guard(self.tracking.track_selected))
         track.addAction("Track &all bones").triggered.connect(
             lambda: self._guard(self.tracking.track_all))
+        self.tracking.add_batch_action(track)
         track.addAction("&Cancel tracking").triggered.connect(self.tracking.cancel)
         help_menu = self.menuBar().addMenu("&Help")
         self.about_action = help_menu.addAction("&About Talus")

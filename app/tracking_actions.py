@@ -10,6 +10,9 @@ job runs); the status bar shows the frame, frames per second and the time left. 
 (done, cancelled or failed) the window reloads the poses and review state from the journal and
 lists the flagged frames with their reasons. Tracked bones are locked against edits while the job
 runs.
+
+*Tracking → Track in batch…* hands the study's tracking to a Dask batch instead (local cluster or
+a given scheduler) and follows it: :mod:`app.batch_panel`.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from __future__ import annotations
 import queue
 import time
 
-__all__ = ["TrackingActions"]
+__all__ = ["TrackingActions", "check_batch_available"]
 
 KEY = "tracking"
 
@@ -27,9 +30,20 @@ def _clock(seconds: float) -> str:
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
+def check_batch_available() -> None:
+    """Raise a clear error when Dask distributed (the ``batch`` extra) is not installed."""
+    import importlib.util
+
+    if importlib.util.find_spec("distributed") is None:
+        raise ValueError("batch: tracking in batch needs Dask distributed, which is not installed: "
+                         "pip install 'talus-biplane[batch]'")
+
+
 class TrackingActions:
     def __init__(self, window) -> None:
         self.window = window
+        self.batch = None  # app.batch_panel.BatchPanel, made on first use
+        self.batch_action = None
         self.options = None  # core.tracking TrackingOptions (None: the engine's defaults)
         self._bones: list[str] = []
         self._was_locked: dict[str, bool] = {}
@@ -46,6 +60,21 @@ class TrackingActions:
     @property
     def running(self) -> bool:
         return bool(self._bones)
+
+    def add_batch_action(self, menu) -> None:
+        """Add *Track in batch…* to the window's Tracking menu."""
+        self.batch_action = menu.addAction("Track in &batch…")
+        self.batch_action.triggered.connect(lambda: self.window._guard(self.track_in_batch))
+
+    def track_in_batch(self):
+        """Open the batch dialog (:mod:`app.batch_panel`); returns it."""
+        if self.running:
+            raise ValueError("tracking: a tracking job is running (cancel it first)")
+        if self.batch is None:
+            from .batch_panel import BatchPanel
+
+            self.batch = BatchPanel(self.window)
+        return self.batch.ask()
 
     def track_selected(self) -> None:
         m = self.window.model
@@ -66,6 +95,8 @@ class TrackingActions:
             raise ValueError("study: tracking needs a study open for writing")
         if self.running:
             raise ValueError("tracking: a tracking job is already running (cancel it first)")
+        if self.batch is not None and self.batch.running:
+            raise ValueError("tracking: a batch is tracking this study (cancel it first)")
         from core.tracking.from_study import track_study
 
         m = self.window.model
@@ -100,6 +131,8 @@ class TrackingActions:
 
     def cancel(self) -> None:
         self.window.pool.cancel(KEY)
+        if self.batch is not None:
+            self.batch.cancel()
 
     # ------------------------------------------------------------------ live results
     def drain_results(self) -> None:
@@ -128,11 +161,15 @@ class TrackingActions:
 
     # ------------------------------------------------------------------ results
     def _reload(self) -> None:
+        self.reload_bones(self._bones)
+
+    def reload_bones(self, bones: list[str]) -> None:
+        """Show the poses and review state of ``bones`` as the trial's journals hold them."""
         session, m = self.window.session, self.window.model
         trial = session.study.trial(session.trial_name)
         session.recording = False  # these poses come from the journal: don't write them back
         try:
-            for b in self._bones:
+            for b in bones:
                 from .session import _fill
 
                 poses, recorded = _fill(trial.poses(b))

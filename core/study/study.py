@@ -259,6 +259,15 @@ class Study:
                         purpose=f"bone {bone!r} of trial {trial!r} in study {self._folder}")
         self._journal_locks[path] = lock.acquire()
 
+    def unlock_journal(self, trial: str, bone: str) -> None:
+        """Release this handle's lock of ``bone``'s journal in ``trial`` (idempotent), e.g. to
+        let ``talus batch`` workers track that bone; this handle's next write locks it again."""
+        path = self.trial(trial)._journal(bone)
+        lock = self._journal_locks.pop(path, None)
+        if lock is not None:
+            lock.release()
+        self.trial(trial)._repaired.discard(bone)  # the next write repairs the tail again
+
     def journal_locked(self, trial: str, bone: str) -> bool:
         """True while this handle holds the lock of ``bone``'s journal in ``trial``."""
         return self.trial(trial)._journal(bone) in self._journal_locks

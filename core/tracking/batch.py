@@ -524,11 +524,21 @@ def run_batch(tasks: Sequence[BatchTask], settings: TaskSettings | None = None, 
         the frames done in the journals; they are waited for up to ``cancel_wait_s`` seconds
         (then the local cluster is closed, which ends them). Their records say ``"cancelled"``.
     """
+    import dask
+
+    # a local worker whose process died is restarted by its nanny; the cluster waits this long
+    # for it to register again before it gives the worker up (Dask's default, 15 s, is shorter
+    # than a worker's start on a loaded machine: the retried task then failed as well)
+    with dask.config.set({"distributed.deploy.lost-worker-timeout": "300s"}):
+        return _run_batch(tasks, settings or TaskSettings(), workers, scheduler, on_event, on_start,
+                          cancel, cancel_wait_s)
+
+
+def _run_batch(tasks, settings, workers, scheduler, on_event, on_start, cancel, cancel_wait_s) -> dict:
     import uuid
 
     from distributed import Client, Event
 
-    settings = settings or TaskSettings()
     t0 = time.perf_counter()
     cluster = None
     uses_gpu = False

@@ -1,0 +1,417 @@
+"""Tracking in batch from the window: a study's tracking handed to Dask, followed in the window.
+
+*Tracking → Track in batch…* opens :class:`BatchDialog`: the study's trials (the window's one
+checked), the bones (the selected one, or all), optionally one task per frame range between the
+keyframes, and where to run — a local Dask cluster of N worker processes on this computer (one
+per GPU, else per CPU core) or an existing scheduler's cluster (``tcp://host:8786``; its workers
+must see the study folder at the same path). *Start* builds the tasks of
+:func:`core.tracking.batch.build_tasks` and runs :func:`core.tracking.batch.run_batch` — what
+``talus batch`` runs — off the GUI thread (:class:`BatchPanel`):
+
+* the window lets go of the journals of the handed bones of its trial
+  (:meth:`core.study.Study.unlock_journal`) and locks those bones against edits, so the workers
+  can write them; when the batch ends it takes them back;
+* the **Batch** dock lists every task with its state, a progress bar of its frames and its last
+  score; the status bar shows the tasks and frames done of all; each task's start and end, and
+  the summary, go to the messages;
+* *Cancel* (in the dock, or *Tracking → Cancel tracking*) stops the batch: tasks not started are
+  dropped, running ones stop at their next registration; every frame finished is in the journal;
+* at the end the window reloads the poses and review state of its trial from the journals.
+
+Worker events reach the GUI thread through a queue drained by a timer (no Qt call from the
+batch's thread).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import queue
+import threading
+import traceback
+
+from PySide6 import QtCore, QtWidgets
+
+__all__ = ["BatchDialog", "BatchPanel"]
+
+
+def default_workers() -> int:
+    """Local workers offered by default: one per GPU Warp sees, else one per CPU core."""
+    from core.tracking.batch import _gpu_count
+
+    return _gpu_count() or os.cpu_count() or 1
+
+
+class BatchDialog(QtWidgets.QDialog):
+    """What to track in batch, and where (see the module notes)."""
+
+    def __init__(self, parent, *, trials: list[str], current_trial: str, bones: list[str],
+                 selected: list[str], workers: int) -> None:
+        super().__init__(parent)
+        self.setObjectName("batch-dialog")
+        self.setWindowTitle("Track in batch")
+        form = QtWidgets.QVBoxLayout(self)
+        what = QtWidgets.QGroupBox("Tasks")
+        grid = QtWidgets.QFormLayout(what)
+        self.trial_boxes = self._boxes(grid, "Trials:", trials, [current_trial])
+        self.bone_boxes = self._boxes(grid, "Bones:", bones, selected)
+        self.ranges_box = QtWidgets.QCheckBox("One task per frame range between keyframes")
+        self.ranges_box.setToolTip("Each bone's frames split at its keyframes: the ranges of one "
+                                   "bone are tracked side by side on different workers")
+        grid.addRow(self.ranges_box)
+        form.addWidget(what)
+        where = QtWidgets.QGroupBox("Run on")
+        grid = QtWidgets.QGridLayout(where)
+        self.local_radio = QtWidgets.QRadioButton("A local cluster on this computer, workers:")
+        self.local_radio.setChecked(True)
+        self.workers_spin = QtWidgets.QSpinBox()
+        self.workers_spin.setRange(1, 256)
+        self.workers_spin.setValue(max(1, int(workers)))
+        self.scheduler_radio = QtWidgets.QRadioButton("The Dask scheduler at:")
+        self.scheduler_edit = QtWidgets.QLineEdit()
+        self.scheduler_edit.setMinimumWidth(260)
+        self.scheduler_edit.setPlaceholderText("tcp://host:8786")
+        self.scheduler_edit.setToolTip("Its workers must see the study folder at the same path")
+        grid.addWidget(self.local_radio, 0, 0)
+        grid.addWidget(self.workers_spin, 0, 1)
+        grid.addWidget(self.scheduler_radio, 1, 0)
+        grid.addWidget(self.scheduler_edit, 1, 1)
+        form.addWidget(where)
+        self.note = QtWidgets.QLabel()
+        self.note.setWordWrap(True)
+        self.note.setObjectName("batch-dialog-note")
+        form.addWidget(self.note)
+        buttons = QtWidgets.QDialogButtonBox()
+        self.start_button = buttons.addButton("Start", QtWidgets.QDialogButtonBox.ButtonRole.AcceptRole)
+        self.cancel_button = buttons.addButton(QtWidgets.QDialogButtonBox.StandardButton.Cancel)
+        buttons.accepted.connect(self._accept)
+        buttons.rejected.connect(self.reject)
+        form.addWidget(buttons)
+        for w in (*self.trial_boxes.values(), *self.bone_boxes.values()):
+            w.toggled.connect(self._check)
+        self.local_radio.toggled.connect(self._check)
+        self.scheduler_edit.textChanged.connect(self._check)
+        self.scheduler_edit.textEdited.connect(lambda _: self.scheduler_radio.setChecked(True))
+        self._check()
+
+    @staticmethod
+    def _boxes(form: QtWidgets.QFormLayout, label: str, names: list[str], checked: list[str]) -> dict:
+        col = QtWidgets.QVBoxLayout()
+        boxes = {}
+        for n in names:
+            boxes[n] = box = QtWidgets.QCheckBox(n)
+            box.setChecked(n in checked)
+            col.addWidget(box)
+        form.addRow(label, col)
+        return boxes
+
+    def choice(self) -> dict:
+        """``trials``, ``bones``, ``ranges``, and ``workers`` or ``scheduler`` (the other None)."""
+        local = self.local_radio.isChecked()
+        return {
+            "trials": [t for t, b in self.trial_boxes.items() if b.isChecked()],
+            "bones": [t for t, b in self.bone_boxes.items() if b.isChecked()],
+            "ranges": self.ranges_box.isChecked(),
+            "workers": self.workers_spin.value() if local else None,
+            "scheduler": None if local else self.scheduler_edit.text().strip(),
+        }
+
+    def _problem(self) -> str:
+        c = self.choice()
+        if not c["trials"]:
+            return "Check a trial to track."
+        if not c["bones"]:
+            return "Check a bone to track."
+        if c["scheduler"] is not None and not c["scheduler"]:
+            return "Give the scheduler's address (tcp://host:8786), or run on a local cluster."
+        return ""
+
+    def _check(self, *_) -> None:
+        problem = self._problem()
+        self.note.setText(problem or "The frames tracked go to the study's journals as they finish; "
+                                     "a batch run again carries on where it was.")
+        self.start_button.setEnabled(not problem)
+
+    def _accept(self) -> None:
+        if not self._problem():
+            self.accept()
+
+
+class BatchPanel(QtCore.QObject):
+    """Runs a batch for the window and shows its progress (see the module notes)."""
+
+    event = QtCore.Signal(object)  # each worker event, once shown (GUI thread)
+    finished = QtCore.Signal(object)  # the summary (core.tracking.batch.summarize) or {"error": text}
+
+    POLL_MS = 100
+
+    def __init__(self, window) -> None:
+        super().__init__(window)
+        self.window = window
+        self.dialog: BatchDialog | None = None
+        self.dock: QtWidgets.QDockWidget | None = None
+        self.summary: dict | None = None  # the last batch's (core.tracking.batch.summarize)
+        self._events: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._rows: dict[str, int] = {}
+        self._tasks: dict = {}
+        self._frames: dict[str, tuple[int, int]] = {}
+        self._ended: set[str] = set()
+        self._bones: list[str] = []  # the window's trial's bones handed to the batch
+        self._was_locked: dict[str, bool] = {}
+        self._timer = QtCore.QTimer(self)
+        self._timer.setInterval(self.POLL_MS)
+        self._timer.timeout.connect(self.drain)
+        self.status = QtWidgets.QLabel()
+        self.status.setObjectName("batch-status")
+        self.bar = QtWidgets.QProgressBar()
+        self.bar.setMaximumWidth(160)
+        for w in (self.status, self.bar):
+            window.statusBar().addPermanentWidget(w)
+            w.hide()
+        window.installEventFilter(self)
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
+    # ------------------------------------------------------------------ dialog
+    def ask(self) -> BatchDialog:
+        """Open the dialog (not blocking); its *Start* starts the batch."""
+        from .tracking_actions import check_batch_available
+
+        check_batch_available()
+        session, m = self.window.session, self.window.model
+        if session is None or m is None:
+            raise ValueError("study: open a study first")
+        if self.running:
+            raise ValueError("batch: a batch is running (cancel it first)")
+        selected = [m.layers[m.selected].name] if m.selected >= 0 else [layer.name for layer in m.layers]
+        dlg = BatchDialog(self.window, trials=list(session.study.trials), current_trial=session.trial_name,
+                          bones=[layer.name for layer in m.layers], selected=selected,
+                          workers=default_workers())
+        dlg.accepted.connect(lambda: self.window._guard(lambda: self.start(**dlg.choice())))
+        self.dialog = dlg
+        dlg.open()
+        return dlg
+
+    # ------------------------------------------------------------------ run
+    def start(self, *, trials: list[str], bones: list[str], ranges: bool = False,
+              workers: int | None = None, scheduler: str | None = None) -> None:
+        """Build the tasks and run them off the GUI thread (see the module notes)."""
+        from core.tracking.batch import TaskSettings, build_tasks, run_batch
+
+        session, m = self.window.session, self.window.model
+        if session is None or not session.writable:
+            raise ValueError("study: tracking needs a study open for writing")
+        if self.running or self.window.tracking.running:
+            raise ValueError("tracking: a tracking job is running (cancel it first)")
+        tasks = build_tasks([session.folder], trials, bones, ranges=ranges)
+        opts = self.window.tracking.options
+        options = () if opts is None else tuple(
+            (f.name, getattr(opts, f.name)) for f in dataclasses.fields(opts) if f.init and f.name != "mode")
+        settings = TaskSettings(device=self.window.device, options=options)
+        trial = session.trial_name
+        self._bones = [b for b in bones if b in session.study.trial(trial).bones] if trial in trials else []
+        for b in self._bones:  # the workers write these journals: no edits here meanwhile
+            self._was_locked[b] = m.layers[m.index(b)].locked
+            m.set_layer_property(b, "locked", True)
+            session.study.unlock_journal(trial, b)
+        n_frames = {t: session.study.trial(t).n_frames for t in {task.trial for task in tasks}}
+        self._show_tasks(tasks, {t.key: len(t.order or range(n_frames[t.trial])) * len(t.bones)
+                                 for t in tasks})
+        self.summary = None
+        self._stop.clear()
+        events, stop = self._events, self._stop
+
+        def work() -> None:
+            try:
+                summary = run_batch(tasks, settings, workers=workers, scheduler=scheduler,
+                                    on_event=events.put, cancel=stop.is_set,
+                                    on_start=lambda info: events.put(dict(info, kind="cluster")))
+                events.put({"kind": "done", "summary": summary})
+            except BaseException as exc:  # shown in the window; the batch thread never raises
+                events.put({"kind": "error", "text": "".join(traceback.format_exception(exc)).rstrip()})
+
+        where = scheduler or f"a local cluster of {workers or 'default'} workers"
+        self.window.notify(f"Batch: {len(tasks)} tasks on {where}…")
+        self._thread = threading.Thread(target=work, name="talus-batch", daemon=True)
+        self._thread.start()
+        self._timer.start()
+
+    def cancel(self) -> None:
+        """Stop the batch (the frames finished stay in the journals)."""
+        if self.running and not self._stop.is_set():
+            self._stop.set()
+            self.window.notify("Batch: cancelling…")
+            self.cancel_button.setEnabled(False)
+
+    # ------------------------------------------------------------------ progress
+    def _show_tasks(self, tasks, totals: dict[str, int]) -> None:
+        if self.dock is None:
+            self.dock = QtWidgets.QDockWidget("Batch", self.window)
+            self.dock.setObjectName("batch-dock")
+            body = QtWidgets.QWidget()
+            lay = QtWidgets.QVBoxLayout(body)
+            lay.setContentsMargins(4, 4, 4, 4)
+            self.table = QtWidgets.QTableWidget(0, 4)
+            self.table.setObjectName("batch-tasks")
+            self.table.setHorizontalHeaderLabels(["Task", "State", "Frames", "Score"])
+            self.table.verticalHeader().hide()
+            self.table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
+            header = self.table.horizontalHeader()
+            header.setSectionResizeMode(0, QtWidgets.QHeaderView.ResizeMode.Stretch)
+            for c, w in ((1, 150), (2, 140), (3, 60)):
+                header.resizeSection(c, w)
+            lay.addWidget(self.table)
+            row = QtWidgets.QHBoxLayout()
+            self.where = QtWidgets.QLabel()
+            self.where.setTextInteractionFlags(QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
+            self.cancel_button = QtWidgets.QPushButton("Cancel batch")
+            self.cancel_button.setObjectName("batch-cancel")
+            self.cancel_button.clicked.connect(self.cancel)
+            row.addWidget(self.where, 1)
+            row.addWidget(self.cancel_button)
+            lay.addLayout(row)
+            self.dock.setWidget(body)
+            self.window.addDockWidget(QtCore.Qt.DockWidgetArea.BottomDockWidgetArea, self.dock)
+        self.dock.show()
+        self.dock.raise_()
+        self.where.setText("Starting the cluster…")
+        self.cancel_button.setEnabled(True)
+        self.table.setRowCount(len(tasks))
+        self._rows = {t.key: i for i, t in enumerate(tasks)}
+        self._tasks = {t.key: t for t in tasks}
+        self._frames = {t.key: (0, totals[t.key]) for t in tasks}
+        self._ended = set()
+        for i, t in enumerate(tasks):
+            self.table.setItem(i, 0, QtWidgets.QTableWidgetItem(t.key))
+            self.table.setItem(i, 1, QtWidgets.QTableWidgetItem("waiting"))
+            bar = QtWidgets.QProgressBar()
+            bar.setRange(0, max(totals[t.key], 1))
+            bar.setValue(0)
+            bar.setFormat(f"0/{totals[t.key]}")
+            self.table.setCellWidget(i, 2, bar)
+            self.table.setItem(i, 3, QtWidgets.QTableWidgetItem(""))
+        for w in (self.status, self.bar):
+            w.show()
+        self._overall()
+
+    def task_state(self, key: str) -> tuple[str, str]:
+        """``(state, frames text)`` of a task's row (for tests and scripts)."""
+        i = self._rows[key]
+        return self.table.item(i, 1).text(), self.table.cellWidget(i, 2).text()
+
+    def _overall(self) -> None:
+        done = sum(d for d, _ in self._frames.values())
+        total = sum(t for _, t in self._frames.values())
+        n = len(self._rows)
+        self.bar.setRange(0, max(n, 1))
+        self.bar.setValue(len(self._ended))
+        self.bar.setFormat("batch %v/%m tasks")
+        self.status.setText(f"Batch: {len(self._ended)}/{n} tasks, {done}/{total} frames")
+
+    def drain(self) -> None:
+        """Apply the batch's events that arrived (GUI thread)."""
+        while True:
+            try:
+                e = self._events.get_nowait()
+            except queue.Empty:
+                break
+            kind, key = e.get("kind"), e.get("key")
+            row = self._rows.get(key)
+            if kind == "cluster":
+                n = e["workers"]
+                self.where.setText(f"{n} worker{'s' if n != 1 else ''} · scheduler {e['scheduler']} · "
+                                   f"dashboard {e['dashboard']}")
+                self.window.notify(f"Batch: Dask dashboard {e['dashboard']}")
+            elif kind == "start" and row is not None:
+                self.table.item(row, 1).setText(f"running (pid {e.get('pid')})")
+                self.window.notify(f"Batch: {key} started on {e.get('host')} (pid {e.get('pid')})")
+            elif kind == "frame" and row is not None:
+                done, total = int(e["done"]), int(e["total"])
+                self._frames[key] = (done, total)
+                bar = self.table.cellWidget(row, 2)
+                bar.setRange(0, max(total, 1))
+                bar.setValue(done)
+                bar.setFormat(f"{done}/{total}")
+                if e.get("score") is not None:
+                    self.table.item(row, 3).setText(f"{e['score']:.3f}")
+                self._overall()
+            elif kind == "end" and row is not None:
+                self._ended.add(key)
+                self.table.item(row, 1).setText(str(e.get("status")))
+                self.window.notify(f"Batch: {key} {e.get('status')} in {e.get('seconds', 0.0):.1f} s")
+                self._overall()
+                task, session = self._tasks[key], self.window.session
+                shown = [b for b in task.bones if b in self._bones]
+                if shown and session is not None and task.trial == session.trial_name:
+                    self.window.tracking.reload_bones(shown)  # the window's trial: show it now
+            elif kind in ("done", "error"):
+                self._finish(e)
+                continue
+            self.event.emit(e)
+
+    def _finish(self, e: dict) -> None:
+        self._timer.stop()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        self._thread = None
+        self.cancel_button.setEnabled(False)
+        try:
+            self._take_back()
+        finally:
+            for w in (self.status, self.bar):
+                w.hide()
+        if e["kind"] == "error":
+            self.where.setText("The batch failed")
+            self.window.notify(f"Batch failed:\n{e['text']}")
+            self.finished.emit({"error": e["text"]})
+            return
+        s = self.summary = e["summary"]
+        for r in s["task_records"]:
+            row = self._rows.get(r["key"])
+            if row is not None:
+                self.table.item(row, 1).setText(
+                    r["status"] + (f", {r['flagged']} flagged" if r.get("flagged") else "")
+                    + (f" ({r['attempts']} attempts)" if r.get("attempts", 1) > 1 else ""))
+            if r.get("flagged"):
+                self.window.notify(f"Batch: {r['key']}: {r['flagged']} frames flagged for review")
+        for f in s["failures"]:
+            self.window.notify(f"Batch: {f['key']} failed after {f['attempts']} attempts: {f['error']}")
+        self.where.setText(f"Batch {s['status']}: {s['tasks_complete']}/{s['tasks']} tasks complete, "
+                           f"{s['frames_tracked']} frames tracked in {s['wall_s']:.1f} s")
+        self.window.notify(self.where.text())
+        self.finished.emit(s)
+
+    def _take_back(self) -> None:
+        """Lock the handed bones' journals for the window again and show what the batch wrote."""
+        from core.io.atomic import LockedError
+
+        session, m = self.window.session, self.window.model
+        bones, self._bones = self._bones, []
+        if session is None or m is None or not bones:
+            return
+        held = []
+        for b in bones:
+            try:
+                session.study.lock_journal(session.trial_name, b)
+            except LockedError as exc:  # a worker of another cluster still writes it
+                held.append(b)
+                self.window.notify(f"Batch: {b} is still being written elsewhere ({exc}); "
+                                   "it stays locked here")
+        self.window.tracking.reload_bones(bones)
+        for b in bones:
+            if b not in held:
+                m.set_layer_property(b, "locked", self._was_locked.get(b, False))
+
+    # ------------------------------------------------------------------ window closing
+    def eventFilter(self, obj, event) -> bool:
+        if obj is self.window and event.type() == QtCore.QEvent.Type.Close and self.running:
+            self._stop.set()  # the window goes: stop the batch (frames done are saved)
+            if self._thread is not None:
+                self._thread.join(timeout=30.0)
+            self._timer.stop()
+            self._thread = None
+        return False

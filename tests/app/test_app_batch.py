@@ -1,0 +1,154 @@
+"""Tracking in batch from the window (Tracking → Track in batch…): the dialog driven by clicks hands
+a bone of two trials to a Dask scheduler, the Batch dock follows each task's frames, the window
+shows the journal's poses when the batch is done, and Cancel stops a batch and gives the window its
+bones back. The scheduler is an in-process Dask cluster of one thread worker (no process start-up).
+
+Set ``TALUS_SCREENSHOTS=DIR`` to keep screenshots of the dialog and of the batch in progress."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PySide6 import QtCore
+
+from app.main_window import MainWindow
+from core.study import Study
+from core.tracking.register import RegistrationOptions
+from core.tracking.trial import TrackingOptions
+
+pytestmark = pytest.mark.gui
+distributed = pytest.importorskip("distributed")
+
+# the ceiling for a batch that never ends, not a time the work is expected to take
+HUNG_MS = 20 * 60_000
+BONE = "talus"
+FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0), refine=None),
+                       confidence=False, verify_restarts=0)
+LEFT = QtCore.Qt.MouseButton.LeftButton
+
+
+def _shot(widget, name: str) -> None:
+    folder = os.environ.get("TALUS_SCREENSHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        assert widget.grab().save(str(Path(folder) / name))
+
+
+@pytest.fixture(scope="module")
+def demo_folder(tmp_path_factory):
+    """A 2-frame 48-px demo study with a second trial (walk2) on the same frames and keyframes."""
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("appbatch") / "study"
+    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    with Study.open(out, mode="w") as st:
+        walk = st.manifest["trials"]["walk"]
+        bones = list(st.trial("walk").bones)
+        st.add_trial("walk2", [st.path(v["path"]) for v in walk["views"]], calibration=walk["calibration"],
+                     bones=bones, bit_depth=walk["views"][0]["bit_depth"])
+        for b in bones:
+            st.trial("walk2").record_pose(b, 0, st.trial("walk").poses(b)[0])
+    return out
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    """An in-process Dask cluster: one worker thread running one task at a time."""
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=":0") as cluster:
+        yield cluster.scheduler_address
+
+
+@pytest.fixture
+def window(qtbot, demo_folder, tmp_path):
+    folder = shutil.copytree(demo_folder, tmp_path / "study")
+    win = MainWindow(device="cpu", create_scene_on_show=False)
+    qtbot.addWidget(win)
+    win.resize(1100, 760)
+    win.show()
+    win.open_study(folder)
+    win.tracking.options = FAST
+    yield win
+    win.close()
+
+
+def _click_box(qtbot, box) -> None:
+    """Click a check box or radio button on its indicator (its centre may lie past its text)."""
+    qtbot.mouseClick(box, LEFT, pos=QtCore.QPoint(8, box.height() // 2))
+
+
+def _fill_dialog(window, qtbot, scheduler):
+    window.model.select(BONE)
+    window.tracking.batch_action.trigger()
+    dlg = window.tracking.batch.dialog
+    qtbot.waitExposed(dlg)
+    assert dlg.trial_boxes["walk"].isChecked() and not dlg.trial_boxes["walk2"].isChecked()
+    assert [b for b, box in dlg.bone_boxes.items() if box.isChecked()] == [BONE]
+    _click_box(qtbot, dlg.trial_boxes["walk2"])
+    _click_box(qtbot, dlg.scheduler_radio)
+    assert not dlg.start_button.isEnabled() and "address" in dlg.note.text()  # no address yet
+    qtbot.keyClicks(dlg.scheduler_edit, scheduler)
+    assert dlg.start_button.isEnabled()
+    assert dlg.choice() == {"trials": ["walk", "walk2"], "bones": [BONE], "ranges": False,
+                            "workers": None, "scheduler": scheduler}
+    return dlg
+
+
+def test_track_in_batch_from_the_window(window, qtbot, scheduler):
+    dlg = _fill_dialog(window, qtbot, scheduler)
+    _shot(dlg, "batch_dialog.png")
+    panel = window.tracking.batch
+    frames = []
+    panel.event.connect(lambda e: e["kind"] == "frame" and frames.append(e))
+    with qtbot.waitSignal(panel.finished, timeout=HUNG_MS) as done:
+        qtbot.mouseClick(dlg.start_button, LEFT)
+        assert panel.running and window.model.layers[window.model.index(BONE)].locked
+        assert not window.session.study.journal_locked("walk", BONE)  # handed to the workers
+        with pytest.raises(ValueError, match="batch"):
+            window.tracking.start([BONE])  # no second tracker on the study meanwhile
+        qtbot.waitUntil(lambda: bool(frames) or not panel.running, timeout=HUNG_MS)
+        if panel.running:
+            _shot(window, "batch_progress.png")
+    s = done.args[0]
+    assert s.get("status") == "complete", s
+    assert [r["key"] for r in s["task_records"]] == ["study/walk/talus", "study/walk2/talus"]
+    assert s["frames_tracked"] == 4
+    assert {(e["key"], e["done"]) for e in frames} >= {("study/walk/talus", 2), ("study/walk2/talus", 2)}
+    state, shown = panel.task_state("study/walk2/talus")
+    assert state.startswith("complete") and shown == "2/2"
+    assert "2/2 tasks complete" in panel.where.text()
+    _shot(window, "batch_done.png")
+    # the window has its bone back and shows the journal's poses
+    assert window.session.study.journal_locked("walk", BONE)
+    assert not window.model.layers[window.model.index(BONE)].locked
+    with Study.open(window.session.folder) as st:
+        for t in ("walk", "walk2"):
+            assert st.read_report("tracking", f"{t}.{BONE}")["summary"]["status"] == "complete"
+        poses = st.trial("walk").poses(BONE)
+    assert np.isfinite(poses).all()
+    np.testing.assert_allclose(window.model.pose(BONE, 1), poses[1])
+    texts = [window.messages.item(i).text() for i in range(window.messages.count())]
+    assert any("study/walk2/talus complete" in t for t in texts)
+
+
+def test_a_batch_can_be_cancelled(window, qtbot, scheduler):
+    dlg = _fill_dialog(window, qtbot, scheduler)
+    panel = window.tracking.batch
+    started = []
+    panel.event.connect(lambda e: e["kind"] == "start" and started.append(e))
+    with qtbot.waitSignal(panel.finished, timeout=HUNG_MS) as done:
+        qtbot.mouseClick(dlg.start_button, LEFT)
+        qtbot.waitUntil(lambda: bool(started) or not panel.running, timeout=HUNG_MS)
+        qtbot.mouseClick(panel.cancel_button, LEFT)
+    s = done.args[0]
+    assert s.get("status") == "cancelled", s
+    assert [r["status"] for r in s["task_records"]][1] == "cancelled"  # walk2 never started
+    assert not panel.running and window.session.study.journal_locked("walk", BONE)
+    assert not window.model.layers[window.model.index(BONE)].locked
+    texts = [window.messages.item(i).text() for i in range(window.messages.count())]
+    assert any("Batch cancelled" in t for t in texts)

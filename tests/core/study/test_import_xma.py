@@ -198,3 +198,39 @@ def test_light_cameras_are_left_out(tmp_path):
         assert [c.name for c in st.trial("hop").rig()] == ["cam1", "cam2"]
         assert st.settings["imported_from"]["light_cameras"] == ["video"]
         assert st.read_report("markers", "hop")["cameras"] == ["cam1", "cam2", "video"]
+
+
+def test_trials_on_two_calibration_frames_get_two_calibrations(tmp_path):
+    """A second trial referring to calibration frame 1 (the cube moved): a second calibration
+    ``xmalab.v2`` with that frame's cameras."""
+    from xml.etree import ElementTree
+
+    from scipy.spatial.transform import Rotation
+
+    views = [frames(tmp_path / "raw", c) for c in (1, 2)]
+    tr = [XMATrialData(n, views) for n in ("a", "b")]
+    p = write_xma_project(tmp_path / "two.xma", cameras(), tr)
+    with zipfile.ZipFile(p) as zf:
+        m = {n: zf.read(n) for n in zf.namelist()}
+    root = ElementTree.fromstring(m["project.xml"])
+    moved = Rotation.from_euler("z", 10, degrees=True).as_matrix()
+    for cam, el in zip(cameras(), root.findall("Camera"), strict=True):
+        img = ElementTree.SubElement(el, "CalibrationImage", Filename=f"{cam.name}/calib2.tif",
+                                     isCalibrated="1")
+        R2 = cam.R @ moved.T  # the lab turned by 10 degrees about z
+        rows = "".join(", ".join(repr(float(v)) for v in r) + "\n" for r in R2)
+        for tag, data in (("RotationMatrix", rows),
+                          ("TranslationVector", "".join(f"{float(v)!r}\n" for v in cam.t))):
+            member = f"{cam.name}/data/calib2_{tag}.csv"
+            m[member] = data.encode()
+            ElementTree.SubElement(img, tag, Filename=member)
+    root.findall("Trial")[1].set("referenceCalibration", "1")
+    m["project.xml"] = ElementTree.tostring(root)
+    with zipfile.ZipFile(p, "w") as zf:
+        for k, v in m.items():
+            zf.writestr(k, v)
+    with import_xma(p, tmp_path / "st") as st:
+        assert st.calibrations == ("xmalab.v1", "xmalab.v2")
+        assert [st.manifest["trials"][t]["calibration"] for t in ("a", "b")] == ["xmalab.v1", "xmalab.v2"]
+        np.testing.assert_allclose(st.trial("b").rig()[0].R, cameras()[0].R @ moved.T, atol=1e-12)
+        assert st.settings["calibration_files"]["xmalab.v2"]["reference_frame"] == 1

@@ -287,7 +287,7 @@ def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
                 folder.mkdir(parents=True)
                 taken_cams: set[str] = set()
                 cam_files, corr_files = [], []
-                for xc, cam in zip((prj.cameras[k] for k in xray), rig, strict=True):
+                for xc, cam in zip([prj.cameras[i] for i in xray], rig, strict=True):
                     stem = _name(xc.name, taken_cams)
                     write_mayacam(cam, folder / f"{stem}.txt", version=2)
                     cam_files.append(folder / f"{stem}.txt")

@@ -3,7 +3,8 @@
 Usage::
 
     talus calibrate SESSION --study STUDY [--object NAME|FILE] [--model auto|poly N,M|tps|lwm]
-                    [--report DIR] [--series NAME] [--trials series|all|none|a,b] [--quiet]
+                    [--lab-frame static|object] [--report DIR] [--series NAME]
+                    [--trials series|all|none|a,b] [--quiet]
 
 Runs :func:`core.calibration.session.calibrate_session` (flatfield → distortion grid → beads →
 DLT start → bundle adjustment) on the session folder (:func:`core.io.read_session`) and saves
@@ -11,7 +12,10 @@ the result into the study as the next version of a calibration series
 (:func:`core.study.calibrations.save_session_calibration`: MayaCam rig, parameter SDs, one
 correction pipeline per camera, the report); the trials of the series (or those named) then use
 it. Nothing is saved when a step fails or on Ctrl-C: the study is unchanged. A progress bar goes
-to stderr, the JSON summary to stdout. Exit status: 0 done, 1 bad input (the message names the
+to stderr, the JSON summary to stdout. The lab frame is the static cube's: a cube frame that
+cannot be labelled is an error unless ``--lab-frame object`` asks for the spiral's first frame;
+whenever the lab frame is not the cube's a warning goes to stderr and into the summary's
+``warnings``. Exit status: 0 done, 1 bad input (the message names the
 step, the file and frame, and what can be done), 3 study locked by another writer,
 130 interrupted.
 """
@@ -69,6 +73,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "or a definition file (.csv/.json); default: the session's")
     p.add_argument("--model", nargs="+", default=None, metavar="MODEL",
                    help="distortion model: auto (cross-validated choice, default), poly N,M, tps, lwm")
+    p.add_argument("--lab-frame", default="static", choices=("static", "object"),
+                   help="what defines the lab frame: the static object (cube) frame (default; an error "
+                        "when it was recorded but cannot be labelled) or the moving object's first "
+                        "labelled frame")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="also write the report (JSON and figures) here")
     p.add_argument("--series", default="session", help="calibration series name (default session)")
@@ -113,7 +121,7 @@ def run(a: argparse.Namespace) -> int:
         try:
             with stdout_to_stderr():
                 cal = calibrate_session(session, object=a.object, model=model, progress=_Steps(progress),
-                                        cancel=token)
+                                        cancel=token, lab_frame=a.lab_frame)
                 if not token.is_set():
                     saved = save_session_calibration(study, cal, series=a.series, trials=trials,
                                                      session_path=session_dir)
@@ -131,6 +139,8 @@ def run(a: argparse.Namespace) -> int:
 
         report_files = {k: str(p) for k, p in write_report(cal, Path(a.report).expanduser()).items()}
     rep = cal.report
+    for w in rep.get("warnings", []):
+        print(f"{PROG} calibrate: WARNING: {w}", file=sys.stderr)
     out = {"status": "complete", "saved": {"calibration": saved.name, "folder": str(saved.folder),
                                            "trials": list(saved.trials)},
            "rig": [{k: c[k] for k in ("name", "fx_px", "sid_mm", "source_mm", "std")} for c in rep["rig"]],
@@ -139,7 +149,8 @@ def run(a: argparse.Namespace) -> int:
            "distortion": {c["name"]: {"model": c["distortion"]["model"],
                                       "grid_residual_rms_mm": c["distortion"]["residuals"]["mm"]["rms"],
                                       "lattice_check": c.get("lattice_check")} for c in rep["cameras"]},
-           "error_volume_rms_mm": rep["error_volume"].get("rms_mm"), "notes": rep["notes"],
+           "error_volume_rms_mm": rep["error_volume"].get("rms_mm"), "lab_frame": rep.get("lab_frame"),
+           "warnings": rep.get("warnings", []), "notes": rep["notes"],
            "report": report_files}
     print_json(out)
     return EXIT_OK

@@ -14,8 +14,10 @@ start of a collection day (thesis Ch. 3 and 5):
    epipolar geometry estimated from the sequence (:func:`core.calibration.matching.label_sequence`);
 4. **DLT start and bundle adjustment** — the rigid rig from all labelled frames
    (:func:`core.calibration.bundle.bundle_adjust`, whose initial guess is per-frame DLTs), the lab
-   frame from the static cube frame (or the first spiral frame when there is no cube), an SID
-   prior when the session gives one; parameter standard deviations;
+   frame from the static cube frame (a cube frame that cannot be labelled is an error; a session
+   without one, or ``lab_frame="object"``, puts the lab in the first spiral frame and says so in
+   ``report["warnings"]``), an SID prior when the session gives one; parameter standard
+   deviations;
 5. **report** — per step figures of merit (:attr:`SessionCalibration.report`).
 
 A *session* is anything with the reading interface of
@@ -61,6 +63,8 @@ __all__ = ["BeadsStep", "CalibrationCancelled", "DistortionStep", "SessionCalibr
 DEFAULTS = {"pitch_mm": 15.0, "hole_diameter_mm": 3.0, "object": "spiral33", "static_object": "cube15",
             "magnification": (1.1, 1.5, 2.0)}
 MIN_LABELLED_FRAMES = 8
+#: What defines the lab frame (:func:`solve_step`): the static object's frame, or the moving object's first.
+LAB_FRAMES = ("static", "object")
 
 
 class SessionError(ValueError):
@@ -507,7 +511,18 @@ def beads_step(setup: SessionSetup, dist: DistortionStep, *, progress=None) -> B
     say, rd, cams, corr = _say(progress), setup.reader, setup.cameras, dist.cameras
     t = time.perf_counter()
     refs, dets = _beads(rd, cams, corr, "spiral", setup.target, say)
-    frames, _, F = label_sequence(setup.target, dets)
+    try:
+        frames, _, F = label_sequence(setup.target, dets)
+    except ValueError as exc:  # not one frame labelled well enough to estimate the epipolar geometry
+        found = ", ".join(f"{len(a)}/{len(b)}" for a, b in dets[:10]) + (" …" if len(dets) > 10 else "")
+        crowded = np.median([max(len(a), len(b)) for a, b in dets]) >= 2 * len(setup.target)
+        raise SessionError("beads", f"{setup.target.name} frames ({refs[0][0]} to {refs[0][-1]}, "
+                           f"{len(dets)} frames)", f"no frame could be labelled in both views ({exc}; "
+                           f"detections per frame, view 1/view 2: {found})",
+                           "record more frames with the whole object inside both views, or check the "
+                           "object definition (--object)"
+                           + ("; many more detections than beads: check the dark and empty-field "
+                              "frames (more of them give a smoother flatfield)" if crowded else "")) from None
     setup.times["beads spiral"] = time.perf_counter() - t
     srefs, sdets, sframes = [], [], []
     if rd.refs(cams[0], "cube", required=False):
@@ -516,13 +531,50 @@ def beads_step(setup: SessionSetup, dist: DistortionStep, *, progress=None) -> B
     return BeadsStep(frames, dets, refs, sframes, sdets, srefs, F)
 
 
+def _lab_frame(lab_frame: str, target, static, static_obs, static_rows) -> tuple[list, str, list[str]]:
+    """The static observations that define the lab (none: the object's first labelled frame),
+    the report's note and its warnings; :class:`SessionError` when a recorded static frame was
+    not labelled and ``lab_frame`` is ``"static"``."""
+    if lab_frame not in LAB_FRAMES:
+        raise ValueError(f"lab_frame: expected one of {LAB_FRAMES}, got {lab_frame!r}")
+    if lab_frame == "static" and static_obs:
+        return static_obs, f"lab frame: the static {static.name} frame", []
+    fallback = f"lab frame: the {target.name} in its first labelled frame"
+    missed = [r for r in static_rows if not r["ok"]]
+    if lab_frame == "static" and missed:
+        r = missed[0]
+        raise SessionError("beads", f"{r['files'][0]} ({static.name} frame {r['index']})",
+                           f"the static {static.name} frame was recorded but could not be labelled "
+                           f"({r['reason']}); it defines the lab frame",
+                           f"record the {static.name} again with all its beads inside both views, or "
+                           f"calibrate with the lab frame in the {target.name}'s first labelled frame "
+                           "(lab_frame='object'; talus calibrate --lab-frame object): the cameras are "
+                           f"then not in the {static.name}'s frame")
+    if lab_frame == "object":
+        why = f"asked for; the static {static.name} frame is not used" if static_rows else "asked for"
+        return [], f"{fallback} ({why})", [
+            f"the lab frame is the {target.name}'s first labelled frame, not the static "
+            f"{static.name}'s: the cameras and every pose tracked with them are in that frame"]
+    return [], f"{fallback} (the session has no static {static.name} frame)", [
+        f"the session has no static {static.name} frame: the lab frame is the {target.name}'s first "
+        "labelled frame, an arbitrary pose of a hand-held object (record a static object frame to "
+        "fix the lab frame)"]
+
+
 def solve_step(setup: SessionSetup, dist: DistortionStep, beads: BeadsStep, *, sid_prior=None,
-               pixel_sigma: float = 0.1, progress=None) -> SessionCalibration:
-    """Steps 4-5: DLT start, bundle adjustment and the report."""
+               pixel_sigma: float = 0.1, lab_frame: str = "static", progress=None) -> SessionCalibration:
+    """Steps 4-5: DLT start, bundle adjustment and the report.
+
+    ``lab_frame``: ``"static"`` (default) puts the lab in the static object's frame; a static frame
+    that was recorded but not labelled is then a :class:`SessionError`, and a session without one
+    falls back to the moving object's first labelled frame with a warning in the report
+    (``report["warnings"]``). ``"object"`` asks for the moving object's first labelled frame.
+    """
     say, rd, cams, man = _say(progress), setup.reader, setup.cameras, setup.manifest
     target, static, corr = setup.target, setup.static, dist.cameras
     rows, static_rows = beads.rows()
     obs, static_obs = beads.observations(target, static)
+    static_obs, lab_note, warnings = _lab_frame(lab_frame, target, static, static_obs, static_rows)
     n_ok = len(obs)
     if n_ok < MIN_LABELLED_FRAMES:
         bad = [r for r in rows if not r["ok"]][:3]
@@ -543,17 +595,8 @@ def solve_step(setup: SessionSetup, dist: DistortionStep, beads: BeadsStep, *, s
     all_obs = list(obs) + list(static_obs)
     if static_obs:
         reference, T_ref = len(obs), _manifest_T(man)
-        lab_note = f"lab frame: the static {static.name} frame"
     else:
         reference, T_ref = 0, None
-        lab_note = (f"lab frame: the {target.name} in its first labelled frame (no static object "
-                    "frame was labelled)")
-        missed = [r for r in static_rows if not r["ok"]]
-        if missed:
-            # the lab's frame is the static object's: poses in this calibration are not in it
-            lab_note += (f"; WARNING: the {static.name} frame {missed[0]['files'][0]} was recorded but "
-                         f"not labelled ({missed[0]['reason']}): poses will not be in the "
-                         f"{static.name}'s frame")
     if sid_prior is None and man.get("sid_mm") is not None:
         sids = man["sid_mm"] if np.ndim(man["sid_mm"]) else [man["sid_mm"]] * 2
         sid_prior = [(float(s), float(man.get("sid_tolerance_mm", 20.0))) for s in sids]
@@ -581,6 +624,9 @@ def solve_step(setup: SessionSetup, dist: DistortionStep, beads: BeadsStep, *, s
     for c, cam in zip(ba.rig, cams, strict=True):
         named.append(type(c)(c.K, c.R, c.t, c.width, c.height, c.pixel_size, cam))
     rig = Rig(tuple(named))
+    if not static_obs:
+        for r in static_rows:  # not in the solve (the lab frame is the object's)
+            r["ok"], r["reason"] = False, r["reason"] or "not used: the lab frame is the object's"
     ok_rows = [r for r in rows if r["ok"]] + [r for r in static_rows if r["ok"]]
     err = ba.errors_px
     for f, r in enumerate(ok_rows):
@@ -596,12 +642,17 @@ def solve_step(setup: SessionSetup, dist: DistortionStep, beads: BeadsStep, *, s
                                                  "a 300 mm field was assumed to size the grid holes"])
     result.report.update(session_report(result, notes=notes, dlt=dlt, seconds=dict(times), manifest=man,
                                         lattice=dist.lattice))
+    result.report["lab_frame"] = {"defined_by": "static" if static_obs else "object",
+                                  "object": static.name if static_obs else target.name,
+                                  "frame": (next(r["files"] for r in static_rows if r["ok"]) if static_obs
+                                            else next(r["files"] for r in rows if r["ok"]))}
+    result.report["warnings"] = warnings
     return result
 
 
 # ---------------------------------------------------------------------------- main
 def calibrate_session(session, *, object=None, static_object=None, model: str = "auto", kv=None,
-                      sid_prior=None, pixel_sigma: float = 0.1,
+                      sid_prior=None, pixel_sigma: float = 0.1, lab_frame: str = "static",
                       progress: Callable[[str, int, int], None] | None = None,
                       cancel: Callable[[], bool] | None = None) -> SessionCalibration:
     """Correction pipelines and the calibrated rig from a calibration session (module docs).
@@ -627,6 +678,10 @@ def calibrate_session(session, *, object=None, static_object=None, model: str = 
         Per camera; default from the manifest's ``sid_mm`` (± ``sid_tolerance_mm``, 20 mm).
     pixel_sigma : float
         Expected bead localisation noise (px), the weight of the reprojection residuals.
+    lab_frame : {"static", "object"}
+        What defines the lab frame (:func:`solve_step`): the static object (default; a recorded
+        static frame that cannot be labelled is an error) or the moving object's first labelled
+        frame. Whenever the lab is not the static object's frame, ``report["warnings"]`` says so.
     progress : callable(step, done, total), optional
     cancel : callable() -> bool, optional
 
@@ -634,12 +689,16 @@ def calibrate_session(session, *, object=None, static_object=None, model: str = 
     ------
     SessionError
         A step could not run (missing view, frames of different sizes, a grid frame without a
-        grid, too few labelled frames, a bundle adjustment that does not converge).
+        grid, too few labelled frames, a static object frame that cannot be labelled, a bundle
+        adjustment that does not converge).
     CalibrationCancelled
         ``cancel()`` returned True.
     """
+    if lab_frame not in LAB_FRAMES:
+        raise ValueError(f"lab_frame: expected one of {LAB_FRAMES}, got {lab_frame!r}")
     setup = prepare(session, object=object, static_object=static_object, cancel=cancel)
     ffs = flatfield_step(setup, kv=kv, progress=progress)
     dist = distortion_step(setup, ffs, model=model, progress=progress)
     beads = beads_step(setup, dist, progress=progress)
-    return solve_step(setup, dist, beads, sid_prior=sid_prior, pixel_sigma=pixel_sigma, progress=progress)
+    return solve_step(setup, dist, beads, sid_prior=sid_prior, pixel_sigma=pixel_sigma, lab_frame=lab_frame,
+                      progress=progress)

@@ -188,7 +188,8 @@ def _check_frame(p: Path, shape, dtype, size: tuple[int, int], bits: int) -> Non
                          f"array of shape {tuple(shape)}")
     if tuple(shape) != tuple(size):
         raise _fail(p, f"frame of {shape[0]}x{shape[1]} (H x W); expected {size[0]}x{size[1]} "
-                         "as frame_size in session.json says (frames of different sizes)")
+                         "as frame_size in session.json says (frames of different sizes): export "
+                         "every frame at the detector's full resolution, or remove this one")
     if dtype is None or not np.issubdtype(np.dtype(dtype), np.unsignedinteger):
         raise _fail(p, f"expected raw unsigned integer counts (uint16), got {dtype}")
     if np.iinfo(np.dtype(dtype)).bits < bits:
@@ -295,21 +296,27 @@ def read_session(path) -> CalibrationSession:
     for cam in m["cameras"]:
         cdir = root / cam
         if not cdir.is_dir():
-            raise _fail(cdir, f"missing view folder; {mpath} lists cameras {m['cameras']}")
+            raise _fail(cdir, f"missing view folder; {mpath} lists cameras {m['cameras']}: copy the "
+                              "view's frames into it (a biplane calibration needs both views) or "
+                              "correct the camera list")
         files[cam] = {}
         for key, folder in folders.items():
             gdir = cdir / folder
             if not gdir.is_dir():
                 raise _fail(gdir, f"missing {key} group folder of view {cam!r} "
-                                 f"(listed in {mpath})")
+                                 f"(listed in {mpath}): record or copy the view's {key} frames "
+                                 f"into it, or remove the group from 'groups' when it is optional "
+                                 "(lattice, cube)")
             paths = tuple(sorted((p for p in gdir.iterdir()
                                   if p.suffix.lower() in _SUFFIXES and not p.name.startswith(".")),
                                  key=lambda p: p.name))
             if not paths:
-                raise _fail(gdir, f"no frames (.tif) in the {key} group of view {cam!r}")
+                raise _fail(gdir, f"no frames (.tif) in the {key} group of view {cam!r}: copy the "
+                                 "view's frames into it as one TIFF per frame")
             want = counts.get(folder)
             if isinstance(want, int) and len(paths) != want:
-                raise _fail(gdir, f"{len(paths)} frames; {mpath} says n_frames {want}")
+                raise _fail(gdir, f"{len(paths)} frames; {mpath} says n_frames {want}: add the "
+                                 "missing frames or correct n_frames")
             for p in paths:
                 try:
                     with tifffile.TiffFile(p) as tf:
@@ -326,6 +333,7 @@ def read_session(path) -> CalibrationSession:
             n = {cam: len(files[cam][g]) for cam in m["cameras"]}
             if len(set(n.values())) > 1:
                 raise _fail(root, f"the {g} group has {n} frames per view; frame i of every "
-                                 "view must be one exposure, so the counts must match")
+                                 "view must be one exposure, so the counts must match: remove the "
+                                 "frames one view has without the other")
     return CalibrationSession(root=root, cameras=tuple(m["cameras"]), bit_depth=bits,
                               frame_size=size, manifest=m, _files=files)

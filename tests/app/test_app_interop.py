@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -118,20 +120,46 @@ def test_import_project_dialog_says_why_it_failed(window, qtbot, tmp_path):
 
 @pytest.mark.gui
 def test_import_project_menu_opens_the_wrist_cfg(window, qtbot, tmp_path, sample_data):
+    """The wrist sample's version 1.2 .cfg and a .tra of radius and ulna at frame 0099 (in
+    Autoscoper's volume frame) through the dialog: the window opens the study with the poses as
+    keyframes and renders both bones at frame 1 (``TALUS_SCREENSHOTS=DIR`` keeps the picture;
+    ``resources/screenshots/wrist_cfg_imported.png``)."""
+    from core.io.autoscoper import write_tra
+    from core.io.autoscoper_pose import tra_from_lab_from_bone
+    from core.samples import load_wrist_sample
+    from core.studies.io.autoscoper_wrist import BONES, wrist_tra_poses
     from tests.core.study.test_study_import_project import wrist_cfg
 
     data = sample_data / "autoscoper_wrist"
     if not data.is_dir():
         pytest.skip(reason=f"wrist sample not found at {data}")
     cfg = wrist_cfg(tmp_path, data)
+    sample, talus = load_wrist_sample(data), wrist_tra_poses()
+    tra = np.full((3, 2, 4, 4), np.nan)
+    for b, bone in enumerate(BONES):
+        tra[1, b] = tra_from_lab_from_bone(talus[b], sample.volumes[bone])
+    write_tra(tmp_path / "wrist.tra", tra)
     win = window
+    win.resize(1600, 900)
     dlg = win.import_project_dialog()
     dlg.project.setText(str(cfg))
     assert dlg.tra.isEnabled() and not dlg.search.isEnabled()
+    dlg.tra.setText(str(tmp_path / "wrist.tra"))
     dlg.import_button.click()
     qtbot.waitUntil(lambda: win.session is not None, timeout=300_000)
-    assert win.session.study.folder == tmp_path / "wrist_study"
-    assert set(win.session.study.bones) == {"rad_dcm_cropped", "uln_dcm_cropped"}
+    st = win.session.study
+    assert st.folder == tmp_path / "wrist_study"
+    assert set(st.bones) == {"rad_dcm_cropped", "uln_dcm_cropped"}
+    for k, b in enumerate(("rad_dcm_cropped", "uln_dcm_cropped")):
+        np.testing.assert_allclose(st.trial("trial").poses(b)[1], talus[k], atol=1e-6)
+    rendered = []
+    win.pool.finished.connect(lambda key, r: key == "overlay" and rendered.append(key))
+    win.model.set_frame(1)
+    qtbot.waitUntil(lambda: bool(rendered), timeout=300_000)
+    folder = os.environ.get("TALUS_SCREENSHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        assert win.grab().save(str(Path(folder) / "wrist_cfg_imported.png"))
 
 
 def _read_back(fmt, path, names, poses, study):

@@ -23,22 +23,12 @@ _KIND = QtCore.Qt.ItemDataRole.UserRole
 RATE_FORMATS = ("c3d", "mot", "trc", "jcs")  # the formats that record a frame rate
 
 
-def _recording_rate(study, trial: str) -> float:
-    """An imported XMALab trial's recording speed (Hz), else 100."""
-    imp = study.settings.get("imported_from") or {}
-    try:
-        rate = imp["trials"][trial]["recording_speed_hz"]
-        return float(rate) if rate and float(rate) > 0 else 100.0
-    except (KeyError, TypeError, ValueError):
-        return 100.0
-
-
 class ExportDialog(QtWidgets.QDialog):
     """Export the window's open trial (see the module docs)."""
 
     def __init__(self, window) -> None:
         super().__init__(window)
-        from core.study.exports import available_formats
+        from core.study.exports import available_formats, recording_rate
 
         self.window = window
         s = window.session
@@ -77,7 +67,7 @@ class ExportDialog(QtWidgets.QDialog):
         self.rate.setRange(0.1, 100000.0)
         self.rate.setDecimals(2)
         self.rate.setSuffix(" Hz")
-        self.rate.setValue(_recording_rate(s.study, s.trial_name))
+        self.rate.setValue(recording_rate(s.study, s.trial_name))
         self.rate.setToolTip("Frame rate written into the C3D, OpenSim and JCS files (an imported XMALab "
                              "trial's recording speed, else 100 Hz)")
         self.path = QtWidgets.QLineEdit()

@@ -40,7 +40,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="tra = tra-autoscoper (Autoscoper's volume frame); tra-talus: T_lab_from_bone")
     p.add_argument("--out", default=None, metavar="PATH", help="output file (folder for tfm, jts)")
     p.add_argument("--bones", default=None, help="comma-separated bones (default: the trial's)")
-    p.add_argument("--rate", type=float, default=100.0, help="frame rate, Hz (default 100)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="frame rate, Hz (default: an imported XMALab trial's recording speed, else 100)")
     p.add_argument("--frame", type=int, default=None, help="tfm: the frame (default the first with poses)")
     p.add_argument("--camera", type=int, default=0, help="jts: camera index (default 0)")
     p.set_defaults(run=run)
@@ -64,6 +65,10 @@ def run(a: argparse.Namespace) -> int:
     if fmt not in ("tfm", "jts"):
         out.parent.mkdir(parents=True, exist_ok=True)
     with Study.open(folder, mode="r") as study:
+        if a.rate is None:
+            from core.study.exports import recording_rate
+
+            a.rate = recording_rate(study, a.trial)
         if fmt in POSE_FORMATS:
             from core.study.exports import export_poses
 

@@ -39,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ALIASES", "POSE_FORMATS", "PoseFormat", "available_formats", "export_poses", "trial_poses"]
+__all__ = ["ALIASES", "POSE_FORMATS", "PoseFormat", "available_formats", "export_poses", "recording_rate",
+           "trial_poses"]
 
 
 @dataclass(frozen=True)
@@ -149,6 +150,17 @@ def available_formats() -> dict[str, PoseFormat]:
     first = {k: f for k, f in (("tra-autoscoper", opt.get("tra-autoscoper")),
                                 ("tra-talus", POSE_FORMATS["tra-talus"])) if f is not None}
     return {**first, **POSE_FORMATS, **opt}  # the two .tra side by side, Autoscoper's first
+
+
+def recording_rate(study, trial: str, default: float = 100.0) -> float:
+    """The frame rate of ``trial`` (Hz) for the formats that record one: an imported XMALab
+    trial's recording speed (``settings["imported_from"]``), else ``default``."""
+    imp = study.settings.get("imported_from") or {}
+    try:
+        rate = float(imp["trials"][trial]["recording_speed_hz"])
+    except (KeyError, TypeError, ValueError):
+        return float(default)
+    return rate if rate > 0 and np.isfinite(rate) else float(default)
 
 
 def trial_poses(trial, bones=None) -> dict[str, np.ndarray]:

@@ -74,6 +74,9 @@ def test_project_opens_as_a_study(tmp_path):
         imp = st.settings["imported_from"]
         assert imp["format"] == "xmalab-xma" and imp["trials"]["hop_1"]["recording_speed_hz"] == 250.0
         assert imp["cameras"]["cam1"]["grid_inliers"] == int(grid().inlier.sum())
+        from core.study.exports import recording_rate
+
+        assert recording_rate(st, "hop_1") == 250.0 and recording_rate(st, "other") == 100.0
     with Study.open(tmp_path / "study") as st:  # reopens read-only with every file there
         assert st.trial("hop_1").n_frames == 4
 

@@ -138,6 +138,7 @@ def test_track_in_batch_from_the_window(window, qtbot, scheduler):
 
 def test_a_batch_can_be_cancelled(window, qtbot, scheduler):
     dlg = _fill_dialog(window, qtbot, scheduler)
+    _click_box(qtbot, dlg.ranges_box)  # one task per range between keyframes: here frame 0 on
     panel = window.tracking.batch
     started = []
     panel.event.connect(lambda e: e["kind"] == "start" and started.append(e))
@@ -147,6 +148,7 @@ def test_a_batch_can_be_cancelled(window, qtbot, scheduler):
         qtbot.mouseClick(panel.cancel_button, LEFT)
     s = done.args[0]
     assert s.get("status") == "cancelled", s
+    assert [r["key"] for r in s["task_records"]] == ["study/walk/talus:0-1", "study/walk2/talus:0-1"]
     assert [r["status"] for r in s["task_records"]][1] == "cancelled"  # walk2 never started
     assert not panel.running and window.session.study.journal_locked("walk", BONE)
     assert not window.model.layers[window.model.index(BONE)].locked

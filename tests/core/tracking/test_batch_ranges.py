@@ -73,6 +73,25 @@ def test_range_task_is_refused_while_another_writer_holds_the_bone(demo, tmp_pat
         assert not np.isfinite(st.trial("walk").poses(BONE)[2]).any()  # nothing written
 
 
+def test_range_records_share_the_journal_and_cut_a_torn_tail(demo, tmp_path):
+    """Two handles write one bone's journal record by record (as two range tasks do); a record
+    torn by a killed writer is cut off before the next append."""
+    folder = shutil.copytree(demo, tmp_path / "shared")
+    pose = np.load(folder / "poses" / f"{BONE}.npy")
+    with Study.open(folder, mode="w") as a, Study.open(folder, mode="w") as b:
+        ta, tb = batch._SharedJournals(a).trial("walk"), batch._SharedJournals(b).trial("walk")
+        ta.record_pose(BONE, 0, pose[0], score=0.5)
+        journal = folder / "results" / "walk" / "poses" / f"{BONE}.jsonl"
+        with open(journal, "ab") as fh:
+            fh.write(b'{"v":2,"frame":2,"pose":[1.0')  # a writer killed mid-append
+        tb.record_pose(BONE, 2, pose[2], score=0.6)
+        assert not a.journal_locked("walk", BONE) and not b.journal_locked("walk", BONE)
+    with Study.open(folder) as st:
+        state = st.trial("walk").results(BONE)
+        assert state.torn_bytes == 0 and sorted(state.records) == [0, 1, 2, 3]
+        np.testing.assert_allclose(st.trial("walk").poses(BONE)[[0, 2]], pose[[0, 2]])
+
+
 def test_ranges_on_two_workers_match_a_serial_run_and_resume(demo, tmp_path):
     pytest.importorskip("distributed")
     from core.tracking.batch import run_batch

@@ -168,18 +168,25 @@ class ImportFolderDialog(QtWidgets.QDialog):
 
     def _show_scan(self) -> None:
         s = self.scan
-        lines = []
+
+        def rel(p) -> str:  # paths inside the folder, as the problems name them
+            try:
+                return str(Path(p).relative_to(s.folder))
+            except ValueError:
+                return str(p)
+
+        lines = [f"In {s.folder}:"]
         for v in s.views:
-            lines.append(f"View {v.path}: {v.n_frames} frames of {v.shape[1]}x{v.shape[0]} pixels; "
+            lines.append(f"View {rel(v.path)}: {v.n_frames} frames of {v.shape[1]}x{v.shape[0]} pixels; "
                          f"{v.bit_depth.text}")
         if s.cameras:
-            lines.append(f"Cameras ({s.camera_format}): " + ", ".join(str(c) for c in s.cameras))
+            lines.append(f"Cameras ({s.camera_format}): " + ", ".join(rel(c) for c in s.cameras))
         if s.ct is not None:
-            lab = f", label map {s.labels} (labels {s.label_values})" if s.labels else ""
-            lines.append(f"CT: {s.ct}{lab}")
+            lab = f", label map {rel(s.labels)} (labels {s.label_values})" if s.labels else ""
+            lines.append(f"CT: {rel(s.ct)}{lab}")
         for b, p in s.bone_volumes.items():
-            lines.append(f"CT of {b}: {p}")
-        self.found.setText("\n".join(lines) or "Nothing found.")
+            lines.append(f"CT of {b}: {rel(p)}")
+        self.found.setText("\n".join(lines) if len(lines) > 1 else f"Nothing found in {s.folder}.")
         bits = s.bit_depth
         if bits is not None:
             self.bits_combo.blockSignals(True)
@@ -194,7 +201,7 @@ class ImportFolderDialog(QtWidgets.QDialog):
         for i, (name, label) in enumerate(bones.items()):
             self.bones_table.setItem(i, 0, QtWidgets.QTableWidgetItem(name))
             src = QtWidgets.QTableWidgetItem(f"label {label}" if label is not None else
-                                             str(s.bone_volumes.get(name, s.ct)))
+                                             rel(s.bone_volumes.get(name, s.ct)))
             src.setFlags(src.flags() & ~QtCore.Qt.ItemFlag.ItemIsEditable)
             self.bones_table.setItem(i, 1, src)
         if not self.out_edit.text().strip():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["field_fraction", "poses_figure", "reprojection_figure", "rolloff_figure"]
+__all__ = ["field_fraction", "reprojection_figure", "rolloff_figure"]
 
 
 def field_fraction(ff, level: float = 0.1) -> float:
@@ -24,7 +24,7 @@ def rolloff_figure(flatfields, names) -> object:
     """Radial roll-off of every camera's fluence surface (gain against distance from the centre)."""
     fig = _fig(5.2, 3.2)
     ax = fig.add_subplot(1, 1, 1)
-    for ff, name in zip(flatfields, names, strict=True):
+    for c, (ff, name) in enumerate(zip(flatfields, names, strict=True)):
         g = np.asarray(ff.gain, float)
         h, w = g.shape
         yy, xx = np.mgrid[0:h, 0:w]
@@ -33,7 +33,8 @@ def rolloff_figure(flatfields, names) -> object:
         bins = np.linspace(0, r.max(), 40)
         k = np.digitize(r[ok], bins)
         prof = [np.median(g[ok][k == i]) if np.any(k == i) else np.nan for i in range(1, len(bins))]
-        ax.plot(bins[1:], np.asarray(prof) / np.nanmax(prof),
+        ax.plot(bins[1:], np.asarray(prof) / np.nanmax(prof), linestyle=("-", "--", ":", "-.")[c % 4],
+                linewidth=1.6,
                 label=f"{name} ({100 * field_fraction(ff):.0f} % of the image inside the field)")
     ax.set_xlabel("distance from the image centre (px)")
     ax.set_ylabel("relative fluence")
@@ -56,27 +57,5 @@ def reprojection_figure(cal) -> object:
     ax.set_xlabel("labelled frame (the last is the static object when there is one)")
     ax.set_ylabel("RMS reprojection (px)")
     ax.set_title(f"Bundle adjustment: {ba.rms_px:.3f} px RMS, {int(ba.outliers.sum())} outliers", fontsize=9)
-    fig.tight_layout()
-    return fig
-
-
-def poses_figure(cal) -> object:
-    """Cameras (source → detector centre) and the object's poses in the lab frame, 3-D."""
-    fig = _fig(5.6, 4.8)
-    ax = fig.add_subplot(1, 1, 1, projection="3d")
-    for cam, col in zip(cal.rig, ("tab:red", "tab:green"), strict=False):
-        s = np.asarray(cam.source, float)
-        d = np.asarray(cam.principal_ray, float).reshape(-1)
-        end = s + d / np.linalg.norm(d) * float(cam.sid if cam.pixel_size else 1000.0)
-        ax.plot(*np.stack([s, end]).T, color=col, label=str(cam.name))
-        ax.scatter(*s, color=col, s=20)
-    P = np.asarray(cal.bundle.object_poses, float)
-    if P.size:
-        ax.scatter(P[:, 0, 3], P[:, 1, 3], P[:, 2, 3], color="k", s=8, label="object poses")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_zlabel("z (mm)")
-    ax.legend(fontsize=7)
-    ax.set_title("Cameras and object poses (lab frame)", fontsize=9)
     fig.tight_layout()
     return fig

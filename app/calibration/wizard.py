@@ -24,6 +24,7 @@ import numpy as np
 from PySide6 import QtCore, QtWidgets
 
 from ..workers import WorkerPool
+from .scene import SceneView
 from .views import FigureView, ImageView
 
 __all__ = ["CalibrationWizard"]
@@ -36,6 +37,30 @@ MODELS = ("auto", "poly(3,3)", "poly(4,4)", "poly(5,5)", "poly(6,6)", "tps", "lw
 def _with(setup, cancel):
     setup.reader.cancel = cancel
     return setup
+
+
+def job_inspect(folder: str) -> str:
+    """What the session folder holds (read and checked by :func:`core.io.calibration_session.read_session`):
+    cameras, frame size and bit depth, frames per group, the objects; a ``ValueError`` names what is
+    wrong and where."""
+    from core.io.calibration_session import read_session
+
+    ses = read_session(folder)
+    m = ses.manifest
+    groups = ", ".join(f"{len(ses.frames(ses.cameras[0], g))} {g.replace('flat:', 'empty-field at ')}"
+                       + (" kV" if g.startswith("flat:") else "") for g in ses.groups)
+    objs = ", ".join(f"{k}: {v}" for k, v in ses.objects.items()) or "none named (give one when solving)"
+    grid = m.get("grid") or {}
+    lines = [f"{ses.root}",
+             f"Cameras {', '.join(ses.cameras)}: {ses.frame_size[1]}x{ses.frame_size[0]} pixels, "
+             f"{ses.bit_depth}-bit raw counts.",
+             f"Frames per camera: {groups}.",
+             f"Objects: {objs}."]
+    if grid:
+        lines.append(f"Distortion grid: {grid.get('kind', '?')} grid, pitch {grid.get('pitch_mm', '?')} mm.")
+    if m.get("notes"):
+        lines.append(f"Notes: {m['notes']}")
+    return "\n".join(lines)
 
 
 def job_flatfield(folder: str, *, cancel=None, progress=None):
@@ -65,8 +90,16 @@ def _grid_views(setup, dist) -> list:
         g = c.grid
         sel = g.placement == 0
         resid = g.model.inverse(g.distorted_uv[sel]) - g.ideal_uv[sel]
-        out.append({"image": img, "uv": g.distorted_uv[sel], "resid": resid, "ref": str(ref)})
+        out.append({"image": img, "uv": g.distorted_uv[sel], "resid": resid, "ref": _short(ref, setup)})
     return out
+
+
+def _short(ref, setup) -> str:
+    """A frame's file relative to the session folder (the full path stays in the report)."""
+    try:
+        return str(Path(str(ref)).relative_to(setup.session.root))
+    except (ValueError, AttributeError):
+        return str(ref)
 
 
 def job_distortion(setup, flatfields, model: str = "auto", *, cancel=None, progress=None):
@@ -100,11 +133,13 @@ def job_frame(setup, dist, beads, k: int):
 def job_solve(setup, dist, beads, *, cancel=None, progress=None):
     from core.calibration import session as cs
 
-    from .figures import poses_figure, reprojection_figure
+    from .figures import reprojection_figure
 
     say = None if progress is None else (lambda s, d, t: progress(d, t))
     cal = cs.solve_step(_with(setup, cancel), dist, beads, progress=say)
-    return {"cal": cal, "reprojection": reprojection_figure(cal), "poses": poses_figure(cal)}
+    import pyvista  # noqa: F401  (loaded here, off the GUI thread, for the page's 3-D scene)
+
+    return {"cal": cal, "reprojection": reprojection_figure(cal)}
 
 
 def job_save(study_folder: str, cal, series: str, trials, session_folder: str):
@@ -154,6 +189,9 @@ class CalibrationWizard(QtWidgets.QDialog):
         self.results: dict = {}  # step -> result (kept: going back is instant)
         self._frames: dict = {}  # object frame -> corrected images
         self._running: str | None = None
+        self._closed = False
+        self._inspected: str | None = None  # the session folder last summarised on the first page
+        self._saved_note = ""  # what a reopened saved calibration was made from (inspect_saved)
         self.pool.finished.connect(self._finished)
         self.pool.failed.connect(self._failed)
         self.pool.cancelled.connect(self._cancelled)
@@ -194,6 +232,7 @@ class CalibrationWizard(QtWidgets.QDialog):
         if study_folder is not None:
             self.study_edit.setText(str(study_folder))
         self._show(0)
+        self._inspect_session()
 
     # ------------------------------------------------------------------ pages
     def _page_session(self) -> QtWidgets.QWidget:
@@ -207,11 +246,17 @@ class CalibrationWizard(QtWidgets.QDialog):
         row.addWidget(self.session_edit, 1)
         row.addWidget(browse)
         f.addRow("Session folder", row)
-        self.session_info = QtWidgets.QLabel(
+        intro = QtWidgets.QLabel(
             "A calibration session holds, per camera, dark and empty-field frames, distortion-grid "
-            "frames, calibration-object (spiral) frames and one static-object (cube) frame.")
+            "frames, calibration-object (spiral) frames and one static-object (cube) frame. Next computes "
+            "the flatfield, then each page computes its step; going back keeps what was computed.")
+        intro.setWordWrap(True)
+        f.addRow(intro)
+        self.session_info = QtWidgets.QLabel()
         self.session_info.setWordWrap(True)
+        self.session_info.setTextInteractionFlags(QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
         f.addRow(self.session_info)
+        self.session_edit.editingFinished.connect(self._inspect_session)
         return w
 
     def _page_flatfield(self) -> QtWidgets.QWidget:
@@ -292,9 +337,12 @@ class CalibrationWizard(QtWidgets.QDialog):
         self.solve_info.setAlignment(QtCore.Qt.AlignmentFlag.AlignTop | QtCore.Qt.AlignmentFlag.AlignLeft)
         g.addWidget(self.solve_info, 0, 0, 1, 2)
         self.reprojection_view = FigureView()
-        self.poses_view = FigureView()
+        self.scene_view = SceneView()  # cameras and the object's poses in 3-D (drag to turn)
+        self.scene_view.setMinimumSize(320, 240)
         g.addWidget(self.reprojection_view, 1, 0)
-        g.addWidget(self.poses_view, 1, 1)
+        g.addWidget(self.scene_view, 1, 1)
+        g.setColumnStretch(0, 2)
+        g.setColumnStretch(1, 3)
         self.sd_table = _table(["camera", "f (px)", "SD f", "SD cu", "SD cv", "SID (mm)",
                                 "SD source x/y/z (mm)"])
         self.sd_table.setMaximumHeight(110)
@@ -332,6 +380,11 @@ class CalibrationWizard(QtWidgets.QDialog):
                                           "version.")
         self.save_info.setWordWrap(True)
         f.addRow(self.save_info)
+        self.study_info = QtWidgets.QLabel()
+        self.study_info.setWordWrap(True)
+        f.addRow(self.study_info)
+        self.study_edit.editingFinished.connect(self._describe_study)
+        self.trials_combo.currentIndexChanged.connect(lambda _: self._describe_study())
         return w
 
     def _browse(self, edit: QtWidgets.QLineEdit, title: str) -> None:
@@ -407,7 +460,20 @@ class CalibrationWizard(QtWidgets.QDialog):
             self.bar.setValue(done)
             self.status.setText(f"{key}: {done} of {total}")
 
+    def _inspect_session(self) -> None:
+        folder = self.session_edit.text().strip()
+        if folder and folder != self._inspected:
+            self._inspected = folder
+            self.session_info.setStyleSheet("")
+            self.session_info.setText(f"Reading {folder}…")
+            self.pool.submit("inspect", job_inspect, folder)
+
     def _finished(self, key: str, result) -> None:
+        if key == "inspect":
+            self.session_info.setStyleSheet("")
+            self.session_info.setText(self._saved_note + result)
+            self.step_done.emit(key)
+            return
         if key == "frame":
             k, imgs = result
             self._frames[k] = imgs
@@ -422,6 +488,7 @@ class CalibrationWizard(QtWidgets.QDialog):
         if key == "save":
             self.save_info.setText(f"Saved as {result.name} in {result.folder}; used by "
                                    f"{', '.join(result.trials) or 'no trial yet'}.")
+            self._describe_study()
             self.saved_calibration.emit(result)
         elif key == "refit":
             self.results["distortion"] = result
@@ -435,6 +502,13 @@ class CalibrationWizard(QtWidgets.QDialog):
         self.step_done.emit(key)
 
     def _failed(self, key: str, text: str) -> None:
+        if key == "inspect":
+            last = text.strip().splitlines()[-1] if text.strip() else text
+            self.session_info.setStyleSheet("color: #c00000")
+            self.session_info.setText(self._saved_note
+                                      + f"Not a usable calibration session: {last.split(': ', 1)[-1]}")
+            self.step_done.emit(key)
+            return
         if key != "frame" and key != self._running:
             return  # a step cancelled or superseded
         if "CalibrationCancelled" in text:  # cancel() seen between frames: the step stopped there
@@ -480,7 +554,6 @@ class CalibrationWizard(QtWidgets.QDialog):
                             + f"; {100 * field_fraction(ff):.0f} % of the image inside the field")
             view.set_points(np.zeros((0, 2)))
         self.rolloff_view.set_figure(r["rolloff"])
-        self.session_info.setText(_session_text(setup))
 
     # ------------------------------------------------------------------ distortion
     def _enter_distortion(self) -> None:
@@ -664,7 +737,11 @@ class CalibrationWizard(QtWidgets.QDialog):
         cal = r["cal"]
         rep = cal.report
         self.reprojection_view.set_figure(r["reprojection"])
-        self.poses_view.set_figure(r["poses"])
+        if self.scene_view.scene is None or getattr(self.scene_view.scene, "cal", None) is not cal:
+            # drawn once the page's text and plots are on screen (VTK renders on the GUI thread)
+            self.scene_view.caption = "drawing the cameras and object poses…"
+            self.scene_view.update()
+            QtCore.QTimer.singleShot(0, lambda: self._draw_scene(cal))
         rows = []
         for c in rep["rig"]:
             sd = c["std"]
@@ -678,9 +755,46 @@ class CalibrationWizard(QtWidgets.QDialog):
                                 f"error {_fmt(ev)} mm RMS over the capture volume."
                                 + "".join(f"\n{n}" for n in rep.get("notes", [])))
 
+    def _draw_scene(self, cal) -> None:
+        r = self.results.get("solve")
+        if (self._closed or r is None or r["cal"] is not cal
+                or getattr(self.scene_view.scene, "cal", None) is cal):
+            return
+        from .scene import scene_from_calibration
+
+        scene = scene_from_calibration(cal)
+        scene.cal = cal
+        self.scene_view.caption = ""
+        self.scene_view.set_scene(scene)
+
     # ------------------------------------------------------------------ save
     def _enter_save(self) -> None:
         self.save_button.setEnabled("solve" in self.results and self._running is None)
+        self._describe_study()
+
+    def _describe_study(self) -> None:
+        """The study's trials and the calibration each uses, and which will use the new version."""
+        folder = Path(self.study_edit.text().strip() or ".")
+        try:
+            doc = json.loads((folder / "study.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            self.study_info.setText(f"No study (study.json) in {folder}." if self.study_edit.text().strip()
+                                    else "Choose the study folder.")
+            return
+        series = self.series_edit.text().strip() or "session"
+        mode = self.trials_combo.currentText()
+        rows = []
+        for name, tr in doc.get("trials", {}).items():
+            cur = tr.get("calibration") or "none"
+            new = mode == "all" or (mode == "series" and str(cur).startswith(f"{series}.v"))
+            rows.append(f"• {name}: uses {cur}" + (" → will use the new version" if new else ""))
+        saved = doc.get("settings", {}).get("calibration_files", {})
+        mine = sorted(k for k in saved if k.startswith(f"{series}.v"))
+        self.study_info.setText(
+            f"Trials using it: 'series' moves the trials on an earlier version of {series} to the new one, "
+            "'all' moves every trial, 'none' only saves it.\n"
+            f"Saved versions of {series}: {', '.join(mine) or 'none yet'}.\nTrials of the study:\n"
+            + ("\n".join(rows) or "(none)"))
 
     def save(self) -> None:
         """Save the solved calibration into the study as the next version of the series."""
@@ -710,12 +824,13 @@ class CalibrationWizard(QtWidgets.QDialog):
         meta = json.loads((folder / entry["folder"] / "version.json").read_text(encoding="utf-8"))
         w = cls(parent, session_folder=meta.get("session") or "", study_folder=folder, **kwargs)
         w.series_edit.setText(str(entry.get("series", "session")))
-        w.session_info.setText(
+        w._saved_note = (
             f"Saved calibration {name} ({meta.get('created')}): object {meta.get('object')}, static object "
             f"{meta.get('static_object')}, reprojection RMS {meta.get('rms_px', float('nan')):.3f} px; "
             f"report: {folder / entry['report'] if entry.get('report') else '(none)'}.\n"
             f"Made from the session {meta.get('session')}. Next recomputes it step by step; saving makes "
-            "a new version (this one is kept).")
+            "a new version (this one is kept).\n\n")
+        w.session_info.setText(w._saved_note + w.session_info.text())
         return w
 
     def closeEvent(self, ev) -> None:
@@ -723,6 +838,8 @@ class CalibrationWizard(QtWidgets.QDialog):
             self.pool.cancel(self._running)
         if self._own_pool:
             self.pool.shutdown(wait=False)
+        self._closed = True
+        self.scene_view.close_scene()
         super().closeEvent(ev)
 
 
@@ -730,12 +847,3 @@ def _flatfield_for(folder: str, *, cancel=None, progress=None):
     out = job_flatfield(folder, cancel=cancel, progress=progress)
     out["folder"] = folder
     return out
-
-
-def _session_text(setup) -> str:
-    counts = []
-    for cam in setup.cameras:
-        n = {g: len(setup.reader.refs(cam, g, required=False)) for g in ("dark", "grid", "spiral", "cube")}
-        counts.append(f"{cam}: " + ", ".join(f"{v} {g}" for g, v in n.items()))
-    return (f"Cameras {', '.join(setup.cameras)}; object {setup.target.name}, static object "
-            f"{setup.static.name}; grid pitch {setup.pitch_mm:g} mm.\n" + "\n".join(counts))

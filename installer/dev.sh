@@ -151,6 +151,10 @@ cmd_test() {
     trap "rm -rf '$cache'" EXIT
     export XDG_CACHE_HOME="$cache/xdg" WARP_CACHE_PATH="$cache/warp" TALUS_TEST_CACHE_DIR="$cache"
     export QT_QPA_PLATFORM=xcb PYTHONDONTWRITEBYTECODE=1
+    # one BLAS/OpenMP thread: the tests' many small matrix products and SVDs (200x200) ran 14-40x
+    # slower, at 20-50x the CPU time, with a thread per core on a loaded 2-core machine
+    export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}" OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
+    export MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 
     log "ruff check ."
     "$VENV/bin/ruff" check . || status=$?

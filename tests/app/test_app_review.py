@@ -7,7 +7,6 @@ import csv
 import json
 import shutil
 import threading
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -20,6 +19,7 @@ from core.study import Study
 from core.synthetic import make_demo_study
 from core.tracking.register import RegistrationOptions
 from core.tracking.trial import TrackingOptions
+from tests.app._helpers import job_ends
 
 pytestmark = pytest.mark.gui
 
@@ -28,24 +28,6 @@ BONES = ["tibia", "talus", "calcaneus"]
 N = 5
 FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0), refine=None),
                        confidence=False)
-
-
-@contextmanager
-def job_ends(qtbot, pool, key: str, expect: str = "finished"):
-    ends: list = []
-    slots = ((pool.finished, lambda k, r: k == key and ends.append(("finished", r))),
-             (pool.failed, lambda k, m: k == key and ends.append(("failed", m))),
-             (pool.cancelled, lambda k: k == key and ends.append(("cancelled", None))))
-    for signal, slot in slots:
-        signal.connect(slot)
-    try:
-        yield ends
-        qtbot.waitUntil(lambda: bool(ends), timeout=HUNG_JOB_MS)
-    finally:
-        for signal, slot in slots:
-            signal.disconnect(slot)
-    if ends[0][0] != expect:
-        pytest.fail(f"job {key!r} {ends[0][0]} instead of {expect}: {ends[0][1]}")
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import shutil
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -14,49 +13,9 @@ from core.study import Study
 from core.synthetic import make_demo_study
 from core.tracking.register import RegistrationOptions
 from core.tracking.trial import TrackingOptions
+from tests.app._helpers import HUNG_JOB_MS, job_ends
 
 pytestmark = pytest.mark.gui
-
-# The tests wait for the job's own end signal (finished, failed or cancelled), however long a
-# loaded machine takes to get there (Warp compiles its kernels in the first render). This is only
-# the ceiling for a job that never ends, not a time the work is expected to take.
-HUNG_JOB_MS = 30 * 60_000
-
-
-@contextmanager
-def job_ends(qtbot, pool, key: str, expect: str = "finished"):
-    """Run the block, then wait until the pool's newest job ``key`` ends; fail unless as expected.
-
-    Yields the list of ends seen so far (``(kind, payload)``), so a test can also wait for an
-    earlier event inside the block without missing a failure. A failure ends the wait at once,
-    with the worker's message.
-    """
-    ends: list[tuple[str, object]] = []
-
-    def on_finished(k, result):
-        if k == key:
-            ends.append(("finished", result))
-
-    def on_failed(k, message):
-        if k == key:
-            ends.append(("failed", message))
-
-    def on_cancelled(k):
-        if k == key:
-            ends.append(("cancelled", None))
-
-    slots = ((pool.finished, on_finished), (pool.failed, on_failed), (pool.cancelled, on_cancelled))
-    for signal, slot in slots:
-        signal.connect(slot)
-    try:
-        yield ends
-        qtbot.waitUntil(lambda: bool(ends), timeout=HUNG_JOB_MS)
-    finally:
-        for signal, slot in slots:
-            signal.disconnect(slot)
-    kind, payload = ends[0]
-    if kind != expect:
-        pytest.fail(f"background job {key!r} {kind} instead of being {expect}: {payload}")
 
 FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0),
                                                         refine=None), confidence=False)
@@ -66,7 +25,7 @@ FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma
 def demo_folder(tmp_path_factory):
     out = tmp_path_factory.mktemp("trk") / "study"
     make_demo_study(out, n_frames=3, pixels=96, seed=5, device="cpu", spacing=2.0,
-                    tissue_spacing=8.0)
+                    tissue_spacing=8.0, calibration_session=False)
     return out
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -11,47 +10,9 @@ import pytest
 from app.main_window import MainWindow
 from app.model import ViewerModel
 from core.samples import WRIST_RADIUS_POSE, load_wrist_sample
+from tests.app._helpers import job_ends
 
 pytestmark = pytest.mark.gui
-
-# The tests wait for the job's own end signal (finished, failed or cancelled), however long a
-# loaded machine takes to get there (Warp compiles its kernels in the first render). This is only
-# the ceiling for a job that never ends, not a time the work is expected to take.
-HUNG_JOB_MS = 30 * 60_000
-
-
-@contextmanager
-def job_ends(qtbot, pool, key: str):
-    """Run the block, then wait until the pool's newest job ``key`` ends; fail unless it finished.
-
-    Failures and cancellations end the wait at once, with the worker's message.
-    """
-    ends: list[tuple[str, object]] = []
-
-    def on_finished(k, result):
-        if k == key:
-            ends.append(("finished", result))
-
-    def on_failed(k, message):
-        if k == key:
-            ends.append(("failed", message))
-
-    def on_cancelled(k):
-        if k == key:
-            ends.append(("cancelled", None))
-
-    slots = ((pool.finished, on_finished), (pool.failed, on_failed), (pool.cancelled, on_cancelled))
-    for signal, slot in slots:
-        signal.connect(slot)
-    try:
-        yield
-        qtbot.waitUntil(lambda: bool(ends), timeout=HUNG_JOB_MS)
-    finally:
-        for signal, slot in slots:
-            signal.disconnect(slot)
-    kind, payload = ends[0]
-    if kind != "finished":
-        pytest.fail(f"background job {key!r} {kind} instead of finishing: {payload}")
 
 
 @pytest.fixture

@@ -267,8 +267,10 @@ class DRRRenderer:
         reused while the batch size and output size stay the same."""
         n_items = table.shape[0]
         key = (n_items, H, W)
-        cached = self._launches.get(key)
-        if cached is None:
+        cached = self._launches.pop(key, None)
+        if cached is not None:  # most recently used last: the least recently used goes first
+            self._launches[key] = cached
+        else:
             dev = self.device
             pinned = dev.is_cuda
             host = wp.empty((n_items, _kernels.ITEM_COLS), dtype=wp.float32, device="cpu", pinned=pinned)
@@ -284,7 +286,7 @@ class DRRRenderer:
                 block_dim=self.block_dim,
                 record_cmd=True,
             )
-            if len(self._launches) >= 8:  # keep a few shapes (e.g. optimizer + display)
+            if len(self._launches) >= 32:  # keep a few shapes (optimiser steps of several bones, display)
                 self._launches.pop(next(iter(self._launches)))
             event = wp.Event(dev) if dev.is_cuda else None
             cached = self._launches[key] = (host, host.numpy(), items, out, cmd, event)
@@ -332,6 +334,7 @@ class DRRRenderer:
         roi=None,
         scale: float = 1.0,
         margin: int = 4,
+        out_shape: tuple[int, int] | None = None,
     ) -> DRRBatch:
         """Render every (pose, view, bone) item in one launch.
 
@@ -348,6 +351,10 @@ class DRRRenderer:
             box of each bone's volume + ``margin`` pixels; ``"full"`` = whole image.
         scale : float
             Full-resolution pixels per output pixel (1 = full resolution).
+        out_shape : (H, W), optional
+            Least size of the output items (default: that of the largest ROI at ``scale``). A
+            fixed size keeps the output buffer — and everything recorded on it, e.g. a CUDA
+            graph of the metric — the same while the ROIs change from frame to frame.
 
         Returns
         -------
@@ -403,6 +410,8 @@ class DRRRenderer:
         t[..., 14:18] = rois
         H = max(1, math.ceil(int(rois[..., 3].max()) / scale)) if n_items else 1
         W = max(1, math.ceil(int(rois[..., 2].max()) / scale)) if n_items else 1
+        if out_shape is not None:
+            H, W = max(H, int(out_shape[0])), max(W, int(out_shape[1]))
         out = self._launch(table, H, W, scale)
         return DRRBatch(images=out, roi=rois, scale=scale, views=views, bones=bones)
 

@@ -58,7 +58,7 @@ import numpy as np
 from ..geometry.transforms import pose_from_params
 
 __all__ = ["DEFAULT_TERMS", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
-           "RegistrationCost", "mm_per_pixel", "prepare_frame", "search_roi"]
+           "RegistrationCost", "fluoro_rois", "mm_per_pixel", "prepare_frame", "search_roi"]
 
 
 class OutsideViewError(ValueError):
@@ -145,6 +145,7 @@ class FrameImages:
         self._valid = valid_range
         self._erode = int(erode_px)
         self._whole: tuple | None = None
+        self._regions: dict = {}  # the last few regions asked for (pyramid levels, rounds of joint tracking)
 
     @property
     def n_views(self) -> int:
@@ -158,6 +159,20 @@ class FrameImages:
         """``(line_integral (h, w) float32, mask (h, w) bool or None)`` of ``view`` over
         ``[rows, cols]`` (slices with explicit, in-range bounds); the same values as the whole
         image's, cut out (the erosion of the mask sees ``erode_px`` pixels beyond the region)."""
+        key = (int(view), rows.start, rows.stop, cols.start, cols.stop)
+        hit = self._regions.get(key)
+        if hit is not None:  # the same region again: the same (read-only) arrays
+            return hit
+        out = self._region(view, rows, cols)
+        for a in out:
+            if a is not None:
+                a.flags.writeable = False
+        if len(self._regions) >= 16:
+            self._regions.pop(next(iter(self._regions)))
+        self._regions[key] = out
+        return out
+
+    def _region(self, view: int, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray | None]:
         import cv2
 
         from ..similarity import line_integral_image
@@ -217,7 +232,7 @@ def prepare_frame(fluence, *, masks=None, valid_range: tuple[float, float] | Non
     if len(given) != len(views):
         raise ValueError(f"masks: expected {len(views)} masks (one per view) or None")
     for v, (img, m) in enumerate(zip(views, given, strict=True)):
-        if not np.isfinite(img).all():
+        if img.size and not (math.isfinite(float(img.min())) and math.isfinite(float(img.max()))):
             raise ValueError(f"fluence[{v}]: contains NaN or infinite pixels")
         if m is not None:
             m = np.asarray(m, dtype=bool)
@@ -234,6 +249,35 @@ def prepare_frame(fluence, *, masks=None, valid_range: tuple[float, float] | Non
     return FrameImages(views, given, valid_range, int(erode_px))
 
 
+_HULLS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _hull_points(points) -> np.ndarray:
+    """The vertices of the convex hull of ``(n, 3)`` points (all points when degenerate): a
+    perspective projection maps the hull onto the hull of the projections, so their image box is
+    that of all the points. Kept per array for the next frames."""
+    key = id(points)
+    hit = _HULLS.get(key)
+    if hit is not None and hit[0] is points:
+        return hit[1]
+    P = np.asarray(points, dtype=float)
+    if P.ndim != 2 or P.shape[1] != 3 or not len(P):
+        raise ValueError(f"points: expected (n, 3) bone-frame points, got shape {P.shape}")
+    V = P
+    if len(P) > 16:
+        from scipy.spatial import ConvexHull, QhullError
+
+        try:
+            V = P[ConvexHull(P).vertices]
+        except (QhullError, ValueError):
+            V = P
+    if isinstance(points, np.ndarray):
+        if len(_HULLS) >= 64:
+            _HULLS.pop(next(iter(_HULLS)))
+        _HULLS[key] = (points, V)
+    return V
+
+
 def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], center: np.ndarray,
                reach_mm: float, margin_px: int = 4, points=None) -> np.ndarray:
     """``(n_views, 4)`` ROIs ``(u0, v0, w, h)``: the bone's projected box at ``pose`` grown by the
@@ -245,9 +289,7 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
     if points is None:
         box = renderer.auto_roi(pose[None, None], views=views, bones=[bone], margin=0)[0, :, 0]
     else:
-        P = np.asarray(points, dtype=float)
-        if P.ndim != 2 or P.shape[1] != 3 or not len(P):
-            raise ValueError(f"points: expected (n, 3) bone-frame points, got shape {P.shape}")
+        P = _hull_points(points)
         lab = P @ pose[:3, :3].T + pose[:3, 3]
         box = np.zeros((len(views), 4), dtype=np.int64)
         for i, v in enumerate(views):
@@ -275,6 +317,54 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
         out[i, :2], out[i, 2:] = lo, hi - lo
     return out
+
+
+def fluoro_rois(renderer, frame: FrameImages, *, views: Sequence[int], roi, scale: float = 1.0,
+                others=None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The fluoroscope's search regions of ``views`` in DRR polarity at pyramid ``scale``, as the
+    cost compares them (low-passed and sampled at the DRR's rays for ``scale`` > 1), with their
+    usable-pixel masks, and the DRRs of ``others`` (``(poses (n, 4, 4), bones (n,))`` at fixed
+    poses) subtracted. ``roi``: ``(n_views, 4)`` full-resolution ``(u0, v0, w, h)``.
+    Raises :class:`OutsideViewError` when a region is empty or has no usable pixel."""
+    from scipy import ndimage
+
+    from ..similarity import sample_roi
+
+    s = float(scale)
+    roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
+    rois, masks = [], []
+    for i, v in enumerate(views):
+        u0, v0, w, h = (int(a) for a in roi[i])
+        if w <= 0 or h <= 0:
+            raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
+        H_img, W_img = frame.shapes[v]
+        pad = 8 * math.ceil((math.ceil(2 * s) + 2) / 8)  # the same region at scales 1 and 2: one read
+        ys, xs = max(v0 - pad, 0), max(u0 - pad, 0)
+        ye, xe = min(v0 + h + pad, H_img), min(u0 + w + pad, W_img)
+        if ye <= ys or xe <= xs:
+            raise OutsideViewError(f"roi: the search region of view {v} lies outside its image")
+        sub, m = frame.region(v, slice(ys, ye), slice(xs, xe))
+        if s > 1:
+            sub = ndimage.gaussian_filter(sub, 0.5 * s, mode="nearest")
+        r = np.array([u0 - xs, v0 - ys, w, h])
+        if s == 1 and r[0] + w <= sub.shape[1] and r[1] + h <= sub.shape[0]:
+            rois.append(np.ascontiguousarray(sub[r[1]:r[1] + h, r[0]:r[0] + w], dtype=np.float32))
+            mm = None if m is None else m[r[1]:r[1] + h, r[0]:r[0] + w]
+        else:
+            rois.append(sample_roi(sub, r, scale=s))
+            mm = None if m is None else sample_roi(m.astype(np.float32), r, scale=s) > 0.999
+        masks.append(np.ones(rois[-1].shape, bool) if mm is None else np.ascontiguousarray(mm))
+        if not masks[-1].any():
+            raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
+    if others is not None:
+        poses_o, bones_o = others
+        poses_o = np.asarray(poses_o, dtype=float)
+        if len(bones_o):
+            batch = renderer.render(poses_o[None], views=tuple(views), bones=list(bones_o),
+                                    roi=roi[None, :, None, :], scale=s)
+            bg = batch.numpy()[0].sum(axis=1)  # (n_views, H, W)
+            rois = [r - bg[i, : r.shape[0], : r.shape[1]] for i, r in enumerate(rois)]
+    return rois, masks
 
 
 @dataclass
@@ -332,9 +422,7 @@ class RegistrationCost:
     def __init__(self, renderer, frame: FrameImages, *, bone: int, base_pose, center, roi,
                  scale: float = 1.0, terms: Sequence[MetricTerm] = DEFAULT_TERMS,
                  views: Sequence[int] | None = None, others=None, profile: bool = False) -> None:
-        from scipy import ndimage
-
-        from ..similarity import BatchedMetric, sample_roi
+        from ..similarity import BatchedMetric
 
         self.renderer = renderer
         self.views = tuple(range(frame.n_views)) if views is None else tuple(int(v) for v in views)
@@ -353,39 +441,9 @@ class RegistrationCost:
         self.roi = np.asarray(roi, dtype=np.int64).reshape(len(self.views), 4)
         self.profile = bool(profile)
         self.timer = CostTimer()
+        rois, masks = fluoro_rois(renderer, frame, views=self.views, roi=self.roi, scale=self.scale,
+                                  others=others)
         s = self.scale
-        rois, masks = [], []
-        for i, v in enumerate(self.views):
-            u0, v0, w, h = (int(a) for a in self.roi[i])
-            if w <= 0 or h <= 0:
-                raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
-            H_img, W_img = frame.shapes[v]
-            pad = math.ceil(2 * s) + 2
-            ys, xs = max(v0 - pad, 0), max(u0 - pad, 0)
-            ye, xe = min(v0 + h + pad, H_img), min(u0 + w + pad, W_img)
-            if ye <= ys or xe <= xs:
-                raise OutsideViewError(f"roi: the search region of view {v} lies outside its image")
-            sub, m = frame.region(v, slice(ys, ye), slice(xs, xe))
-            if s > 1:
-                sub = ndimage.gaussian_filter(sub, 0.5 * s, mode="nearest")
-            r = np.array([u0 - xs, v0 - ys, w, h])
-            if s == 1 and r[0] + w <= sub.shape[1] and r[1] + h <= sub.shape[0]:
-                rois.append(np.ascontiguousarray(sub[r[1]:r[1] + h, r[0]:r[0] + w], dtype=np.float32))
-                mm = None if m is None else m[r[1]:r[1] + h, r[0]:r[0] + w]
-            else:
-                rois.append(sample_roi(sub, r, scale=s))
-                mm = None if m is None else sample_roi(m.astype(np.float32), r, scale=s) > 0.999
-            masks.append(np.ones(rois[-1].shape, bool) if mm is None else np.ascontiguousarray(mm))
-            if not masks[-1].any():
-                raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
-        if others is not None:
-            poses_o, bones_o = others
-            poses_o = np.asarray(poses_o, dtype=float)
-            if len(bones_o):
-                batch = renderer.render(poses_o[None], views=self.views, bones=list(bones_o),
-                                        roi=self.roi[None, :, None, :], scale=s)
-                bg = batch.numpy()[0].sum(axis=1)  # (n_views, H, W)
-                rois = [r - bg[i, : r.shape[0], : r.shape[1]] for i, r in enumerate(rois)]
         self.fluoro_rois = tuple(rois)
         self.fluoro_masks = tuple(masks)
         dev = str(renderer.device)

@@ -16,6 +16,10 @@ Default levels (:func:`default_levels`)
 * ``search="local"`` (tracking from a predicted pose): the quadratic-model search only, at
   half and full resolution. Each generation renders one design of 73 poses in one launch, and a
   frame converges in a handful of generations.
+* ``search="newton"`` (tracking from a predicted pose): Levenberg–Marquardt steps of the
+  Gauss–Newton engine (:mod:`core.tracking.engine`: the cost's gradient and 6 × 6 curvature from
+  13 poses per launch) at full resolution. The engine keeps its device buffers from frame to
+  frame; only ``gc`` and ``ncc`` single-term costs.
 
 The full-resolution quadratic fit of the last level is returned (``fit``): its Hessian and
 residual give the pose uncertainty without another launch.
@@ -34,14 +38,22 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import optimize as opt
-from .cost import DEFAULT_TERMS, FrameImages, MetricTerm, RegistrationCost, mm_per_pixel, search_roi
+from .cost import (
+    DEFAULT_TERMS,
+    CostTimer,
+    FrameImages,
+    MetricTerm,
+    RegistrationCost,
+    mm_per_pixel,
+    search_roi,
+)
 from .quadratic import quadratic_search
 
 __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels", "mm_per_pixel",
            "register"]
 
-_METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell")
-_SEARCHES = ("global", "local")
+_METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell", "gauss_newton")
+_SEARCHES = ("global", "local", "newton")
 #: Design half-widths (mm, degrees) of the full-resolution quadratic fits.
 FINAL_STEP = (0.25, 0.5)
 
@@ -90,7 +102,10 @@ def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
       CMA-ES then a quadratic search, both at full resolution);
     * ``"local"``: a quadratic search at the second-finest scale (design half-widths
       ``max(sigma / 2, (0.4 mm, 0.8°))``) and one at full resolution; with one scale, one
-      search from ``(0.5 mm, 1°)`` down to :data:`FINAL_STEP`.
+      search from ``(0.5 mm, 1°)`` down to :data:`FINAL_STEP`;
+    * ``"newton"``: Gauss–Newton steps at full resolution only (central-difference half-steps
+      :data:`FINAL_STEP`, at most 8, stopping below 0.02 or when the predicted decrease is
+      below a tenth of the cost's roughness).
 
     The full-resolution search ends with designs of :data:`FINAL_STEP` half-widths and a Newton
     step below 0.02 (mm, degrees).
@@ -113,6 +128,8 @@ def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
         return Level(scale=s, method="quadratic", sigma=mid, max_generations=6, tol_x=0.1,
                      options={"min_step": mid})
 
+    if search == "newton":  # a coarse level first made it slower, not more accurate (1024² trial)
+        return (Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02),)
     if search == "global":
         out = [Level(scale=scales[0], method="cmaes", sigma=tuple(sigma), popsize=24,
                      max_generations=40, tol_x=0.05)]
@@ -200,7 +217,9 @@ class RegistrationResult:
     x : (6,) array
         Its parameters relative to the initial pose (mm, degrees, about the centre).
     score : float
-        Weighted mean similarity at the pose at ``final_scale`` (full resolution by default).
+        Weighted mean similarity at the pose at ``final_scale`` (full resolution by default); after
+        a converged Gauss–Newton search, the value of its last model there (the last centre it
+        scored lies within ``tol_x`` of the pose).
     view_scores : (n_views,) array
         Weighted similarity per view at the pose.
     evaluations, generations : int
@@ -265,6 +284,21 @@ def _run(level_method: str, fun, x0, *, sigma6, lo, hi, level: Level | None, tol
     return opt.powell(fun, x0, lower=lo, upper=hi, tol_x=tol, cancel=cancel, **extra)
 
 
+def _snap(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:
+    """ROIs grown outwards to a ``grid``-pixel lattice (inside the image): a bone that moves
+    little keeps its region from round to round and frame to frame (the frame's line integrals
+    of a region are computed once, :meth:`core.tracking.cost.FrameImages.region`)."""
+    out = np.array(roi, dtype=np.int64)
+    for i, v in enumerate(views):
+        cam = renderer.cameras[v]
+        u0, v0, w, h = out[i]
+        a0, b0 = (u0 // grid) * grid, (v0 // grid) * grid
+        a1 = min(-(-(u0 + w) // grid) * grid, cam.width)
+        b1 = min(-(-(v0 + h) // grid) * grid, cam.height)
+        out[i] = (a0, b0, a1 - a0, b1 - b0)
+    return out
+
+
 def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
              options: RegistrationOptions | None = None, views: Sequence[int] | None = None,
              others=None, cancel: Callable[[], bool] | None = None, profile: bool = False,
@@ -307,17 +341,25 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     center = np.asarray(center, dtype=float)
     views = tuple(range(frame.n_views)) if views is None else tuple(views)
     fs = o.final_scale
+    search = o.search
+    if search == "newton" and o.levels is None:
+        from .engine import supports
+
+        if not supports(o.terms):
+            search = "local"  # the engine scores gc and ncc only: the quadratic-model search
     levels = o.levels or tuple(
         replace(lv, scale=lv.scale * fs)
         for lv in default_levels(mm_per_pixel(renderer, base, center, views) * fs, sigma=o.sigma,
-                                 search=o.search))
+                                 search=search))
     roi = search_roi(renderer, base, bone, views=views, center=center,
                      reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
                      points=outline)
+    if all(lv.method == "gauss_newton" for lv in levels):
+        roi = _snap(roi, renderer, views)
     hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
     lo = -hi
     x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
-    stages, costs = [], {}
+    stages, costs, engines = [], {}, {}
 
     def cost_at(scale: float) -> RegistrationCost:
         if scale not in costs:
@@ -326,15 +368,37 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
                                             others=others, profile=profile)
         return costs[scale]
 
+    def engine_at(scale: float):
+        if scale not in engines:
+            from .engine import engine_cost
+
+            if len(o.terms) != 1:
+                raise ValueError("levels: the Gauss-Newton engine takes a single metric term")
+            c = engine_cost(renderer, bone=bone, views=views, scale=scale, term=o.terms[0])
+            c.timer = CostTimer()
+            c.batches = {}
+            c.profile = profile
+            c.set_frame(frame, base_pose=base, center=center, roi=roi, others=others)
+            engines[scale] = c
+        return engines[scale]
+
     for i, lv in enumerate(levels):
         sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
-        r = _run(lv.method, cost_at(lv.scale), x, sigma6=sig6, lo=lo, hi=hi, level=lv, tol=lv.tol_x,
-                 seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
+        if lv.method == "gauss_newton":
+            from .engine import gauss_newton_search
+
+            kw = dict(lv.options)
+            r = gauss_newton_search(engine_at(lv.scale), x, step=sig6, lower=lo, upper=hi, tol_x=lv.tol_x,
+                                    max_generations=lv.max_generations, cancel=cancel, **kw)
+        else:
+            r = _run(lv.method, cost_at(lv.scale), x, sigma6=sig6, lo=lo, hi=hi, level=lv, tol=lv.tol_x,
+                     seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
         stages.append(r)
         x = r.x
         if r.reason == "cancelled":
             break
-    full = cost_at(fs)
+    last_gn = levels[-1].method == "gauss_newton" and levels[-1].scale == fs
+    full = engine_at(fs) if (last_gn and not o.refine) else cost_at(fs)
     if o.refine and stages[-1].reason != "cancelled":
         step6 = np.array([o.refine_step[0]] * 3 + [o.refine_step[1]] * 3)
         r = _run(o.refine, full, x, sigma6=step6, lo=lo, hi=hi, level=None, tol=o.refine_tol,
@@ -342,20 +406,29 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         stages.append(r)
         if r.fun <= full(x[None])[0]:
             x = r.x
-    score, view_scores = full.score_and_views(x)
     last = stages[-1]
+    if last_gn and not o.refine and last.converged and last.model is not None:
+        # the model's similarity at its minimum (the last step's centre is within tol_x of it) and
+        # the per-view similarities at that centre: no launch of its own
+        score = float(1.0 - last.model.predict(x - last.model.x))
+        view_scores = np.asarray(last.model.view_scores, dtype=float)
+    else:
+        score, view_scores = full.score_and_views(x)
     converged = last.converged and all(s.reason != "cancelled" for s in stages)
     reason = last.reason
     if np.any(np.abs(x) >= hi * (1 - 1e-6)):
         converged, reason = False, "at_bound"
     timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
-    for c in costs.values():
+    for c in (*costs.values(), *engines.values()):
         for k, v in c.timer.to_dict().items():
             timing[k] += v
+    for sc, c in engines.items():  # launches of the engine per scale (13-pose steps, 1-pose scores)
+        timing[f"engine_steps_x{sc:g}"] = c.batches.get(13, 0)
+        timing[f"engine_scores_x{sc:g}"] = sum(v for b, v in c.batches.items() if b != 13)
     total = time.perf_counter() - t_start
     timing["total_s"] = total
     timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
-    fit = last.model if (last.method == "quadratic" and last.model is not None
+    fit = last.model if (last.method in ("quadratic", "gauss_newton") and last.model is not None
                          and (o.refine == "quadratic" or levels[-1].scale == fs)) else None
     return RegistrationResult(
         pose=full.poses(x[None])[0], x=np.asarray(x, float), score=score,

@@ -1,4 +1,5 @@
-"""Tracking speed benchmark: ``python -m core.studies.tracking.benchmark [--device cuda:0] [--quick]``.
+"""Tracking speed benchmark: ``python -m core.studies.tracking.benchmark [--device cuda:0] [--quick]
+[--search newton|local] [--compare]``.
 
 Cases (synthetic walking trial of :mod:`core.studies.tracking.acceptance`, frames synthesised before the
 clock starts; frame 0 starts from the true pose so the numbers are steady-state tracking):
@@ -17,13 +18,26 @@ arithmetic), ``other`` (frame preparation, confidence stencil, set-up). Accuracy
 truth) is reported alongside, per frame and after the Butterworth low-pass of the kinematics
 (``filtered_*``, at the acceptance study's frame rate).
 
-Full size: 1024² views, 0.5 mm voxels, 100 frames (a GPU); ``--quick``: 192² views, 1 mm voxels,
-8 frames (this machine's CPU). JSON on stdout.
+Per bone, the per-frame RMS errors are divided by the Cramér–Rao bound of the same trial
+(:func:`core.studies.tracking.acceptance.cramer_rao`, every tenth frame; ``bound_ratio``).
+
+Physical floor (``floor``, Gauss–Newton engine only): the time of the device work alone — the DRR
+launches and the metric graphs of the evaluations the tracker used per frame (its 13-pose steps
+and single-pose scores, per bone and pyramid scale), enqueued back to back with one
+synchronisation at the end — so the ratio of the end-to-end time to what the GPU must do is
+visible.
+
+``--search`` picks the tracking search (``newton``: the Gauss–Newton engine,
+:mod:`core.tracking.engine`; ``local``: the quadratic-model search); ``--compare`` runs both on
+the same scene and device. Full size: 1024² views, 0.5 mm voxels, 100 frames (a GPU);
+``--quick``: 192² views, 1 mm voxels, 8 frames (this machine's CPU); ``--pixels``, ``--voxel``,
+``--frames`` override. JSON on stdout.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import time
 
@@ -32,7 +46,66 @@ import numpy as np
 __all__ = ["main", "run"]
 
 
-def _case(ts, bones: list[int], options, frames: int, repeats: int = 3) -> dict:
+def _floor(r, frames: int, results, bone_names) -> dict | None:
+    """Device time of the evaluations the tracker used (module docs), or None without the
+    Gauss-Newton engine."""
+    import warp as wp
+
+    from core.tracking.engine import _CACHE, step_design
+
+    costs = [c for c in _CACHE.get(r, {}).values() if c.roi is not None]
+    if not costs:
+        return None
+    names = {i: m for i, m in enumerate(bone_names)}
+    per_frame = 0.0
+    detail = {}
+    for c in costs:
+        key = f"{names.get(c.bone, c.bone)}@{c.scale:g}"
+        mine = [x for x in results if x.bone == names.get(c.bone)]
+        n13 = sum((x.timing or {}).get(f"engine_steps_x{c.scale:g}", 0) for x in mine) / frames
+        n1 = sum((x.timing or {}).get(f"engine_scores_x{c.scale:g}", 0) for x in mine) / frames
+        if not (n13 or n1):
+            continue
+        out, wall = {}, {}
+        for B in (13, 1):
+            X = step_design(np.zeros(6), np.full(6, 0.25))[:B]
+            P = c.poses(X)
+            Hc, Wc = c._cap
+            c._evaluate(X)  # the pipeline of this batch exists
+            pipe = c._pipes[B]
+            reps = 50
+
+            def once(P=P, c=c, pipe=pipe, Hc=Hc, Wc=Wc):
+                r.render(P[:, None], views=c.views, bones=[c.bone], roi=c.roi[None, :, None, :],
+                         scale=c.scale, out_shape=(Hc, Wc))
+                if pipe.graph is not None:
+                    wp.capture_launch(pipe.graph)
+                else:
+                    pipe._enqueue()
+
+            wp.synchronize_device(r.device)
+            t0 = time.perf_counter()
+            for _ in range(reps):
+                once()
+            wp.synchronize_device(r.device)
+            wall[B] = (time.perf_counter() - t0) / reps
+            if r.device.is_cuda:  # the device's own time: kernels, graphs and copies, from CUDA events
+                wp.timing_begin(cuda_filter=wp.TIMING_KERNEL | wp.TIMING_GRAPH | wp.TIMING_MEMCPY)
+                for _ in range(reps):
+                    once()
+                res = wp.timing_end()
+                out[B] = sum(t.elapsed for t in res) / 1e3 / reps
+            else:
+                out[B] = wall[B]
+        ms = 1e3 * (n13 * out[13] + n1 * out[1])
+        detail[key] = {"steps_per_frame": n13, "scores_per_frame": n1, "ms_per_13_poses": 1e3 * out[13],
+                       "ms_per_pose": 1e3 * out[1], "ms_per_frame": ms,
+                       "enqueued_ms_per_13_poses": 1e3 * wall[13], "enqueued_ms_per_pose": 1e3 * wall[1]}
+        per_frame += ms
+    return {"ms_per_frame": per_frame, "per_bone_scale": detail}
+
+
+def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: dict | None = None) -> dict:
     from core.render import DRRRenderer
     from core.studies.tracking.acceptance import FRAME_RATE_HZ, pose_errors
     from core.tracking.trial import track
@@ -59,14 +132,41 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3) -> dict:
         errs = np.array([pose_errors(x.pose, ts.truth(x.frame)[bones[[m.name for m in models].index(x.bone)]],
                                      models[[m.name for m in models].index(x.bone)].centroid)
                          for x in rs if x.pose is not None])
+        names = [m.name for m in models]
+        per_bone = {}
+        for m, b in zip(models, bones, strict=True):
+            e = np.array([pose_errors(x.pose, ts.truth(x.frame)[b], m.centroid)
+                          for x in rs if x.bone == m.name and x.pose is not None]).reshape(-1, 6)
+            pb = {"rms_error_mm": float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))),
+                  "rms_error_deg": float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))),
+                  "max_error_deg": float(np.max(np.linalg.norm(e[:, 3:], axis=1))),
+                  "flagged": sum(bool(x.flags) for x in rs if x.bone == m.name),
+                  "retried": sum(bool(x.retried) for x in rs if x.bone == m.name)}
+            cb = (bound or {}).get(ts.names[b])
+            if cb:
+                pb["bound_mm"], pb["bound_deg"] = cb["rms_mm"], cb["rms_deg"]
+                pb["bound_ratio"] = {"mm": pb["rms_error_mm"] / cb["rms_mm"],
+                                     "deg": pb["rms_error_deg"] / cb["rms_deg"]}
+            sig = [x.confidence for x in rs if x.bone == m.name and x.pose is not None and x.confidence]
+            if sig and len(sig) == len(e) and all(c.get("sigma") and None not in c["sigma"] for c in sig):
+                S = np.array([c["sigma"] for c in sig])
+                pb["within_2_sigma"] = float(np.mean(np.all(np.abs(e) <= 2 * S, axis=1)))
+            per_bone[m.name] = pb
+        del names
+        per_frame = {}
+        for x in rs:
+            per_frame[x.frame] = per_frame.get(x.frame, 0.0) + x.time_s
+        later = [per_frame[f] for f in sorted(per_frame) if f > 0]  # frame 0: the global first-frame search
         entry = {"wall_s": wall, "runs_wall_s": walls, "frames_per_second": frames / wall,
+                 "registration_ms_median_after_first_frame": 1e3 * float(np.median(later)) if later else None,
                  "frames_per_second_range": [frames / max(walls), frames / min(walls)],
                  "ms_per_frame": 1e3 * wall / frames,
                  "evaluations_per_frame": float(np.mean([x.evaluations for x in rs])) * len(bones),
                  "generations": int(sum(x.timing.get("calls", 0) for x in rs if x.timing)),
                  "converged_fraction": res.summary()["converged_fraction"],
                  "rms_error_mm": float(np.sqrt(np.mean(np.sum(errs[:, :3] ** 2, axis=1)))),
-                 "rms_error_deg": float(np.sqrt(np.mean(np.sum(errs[:, 3:] ** 2, axis=1))))}
+                 "rms_error_deg": float(np.sqrt(np.mean(np.sum(errs[:, 3:] ** 2, axis=1)))),
+                 "per_bone": per_bone}
         if not prof and frames >= 12:  # the trajectories low-passed (the kinematics' default filter)
             ef = []
             for m, b in zip(models, bones, strict=True):
@@ -85,43 +185,67 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3) -> dict:
                 "cost_host": 1e3 * tim["host_s"] / frames, "optimizer": 1e3 * tim["optimizer_s"] / frames,
                 "other": 1e3 * tim["other_s"] / frames}
             entry["breakdown_fraction"] = {k: v / tot for k, v in tim.items()}
+        else:
+            fl = _floor(r, frames, rs, [m.name for m in models])
+            if fl is not None:
+                fl["end_to_end_over_floor"] = entry["ms_per_frame"] / max(fl["ms_per_frame"], 1e-9)
+                entry["floor"] = fl
         out[label] = entry
     return out
 
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,
-        pixels: int | None = None, cases: str = "both", repeats: int = 3) -> dict:
-    """Run the cases (``"one"``, ``"three"`` or ``"both"``); returns the JSON-ready results."""
+        pixels: int | None = None, cases: str = "both", repeats: int = 3, search: str = "newton",
+        compare: bool = False, voxel: float | None = None, bound: bool = True) -> dict:
+    """Run the cases (``"one"``, ``"three"`` or ``"both"``) with the tracking ``search``
+    (``compare``: ``newton`` and ``local`` both, the second under ``"<case>_local"``); returns
+    the JSON-ready results."""
     if int(repeats) != repeats or repeats < 1:
         raise ValueError(f"repeats: expected a whole number >= 1, got {repeats!r}")
     if cases not in ("one", "three", "both"):
         raise ValueError(f"cases: expected 'one', 'three' or 'both', got {cases!r}")
+    from dataclasses import replace
+
     import warp as wp
 
-    from core.studies.tracking.acceptance import TrackingScene
+    from core.studies.tracking.acceptance import TrackingScene, cramer_rao
     from core.tracking.trial import TrackingOptions
 
     n = frames or (8 if quick else 100)
     px = pixels or (192 if quick else 1024)
-    ts = TrackingScene(n_frames=max(n, 2), pixels=px, spacing=1.0 if quick else 0.5,
+    vox = float(voxel or (1.0 if quick else 0.5))
+    ts = TrackingScene(n_frames=max(n, 2), pixels=px, spacing=vox,
                        phase=(0.0, 0.6 * max(n, 2) / 100.0), device=device)
     t0 = time.perf_counter()
     for i in range(ts.scene.n_frames):
         ts.frames(i)
     synth = time.perf_counter() - t0
-    o = TrackingOptions(mode="joint")  # synthetic frames: DRR intensities match the images
+    base = TrackingOptions(mode="joint")  # synthetic frames: DRR intensities match the images
+    o = replace(base, registration=replace(base.registration, search=search))
+    t0 = time.perf_counter()
+    cr = cramer_rao(ts, range(0, n, max(1, n // 10))) if bound else {}
+    bound_s = time.perf_counter() - t0
     dev = wp.get_device(str(ts.renderer.device))
-    res = {"benchmark": "core.tracking", "machine": platform.machine(),
+    res = {"benchmark": "core.tracking", "machine": platform.machine(), "cpu_count": os.cpu_count(),
            "processor": platform.processor() or platform.machine(), "device": str(dev),
            "device_name": getattr(dev, "name", str(dev)), "quick": quick,
-           "sizes": {"pixels": px, "voxel_mm": 1.0 if quick else 0.5, "frames": n,
+           "sizes": {"pixels": px, "voxel_mm": vox, "frames": n,
                      "volumes_kji": {m.name: list(m.volume.data.shape) for m in ts.models}},
            "synthesis_s": synth, "repeats": int(repeats), "options": o.registration.to_dict()}
     res["mode"] = o.mode
-    if cases in ("one", "both"):
-        res["one_bone"] = _case(ts, [1], o, n, int(repeats))
-    if cases in ("three", "both"):
-        res["three_bones"] = _case(ts, [0, 1, 2], o, n, int(repeats))
+    res["search"] = search
+    res["cramer_rao"] = cr
+    res["cramer_rao_s"] = bound_s
+    res["threads"] = {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    runs = [("", o)]
+    if compare:
+        other = "local" if search != "local" else "newton"
+        runs.append((f"_{other}", replace(base, registration=replace(base.registration, search=other))))
+    for suffix, oo in runs:
+        if cases in ("one", "both"):
+            res["one_bone" + suffix] = _case(ts, [1], oo, n, int(repeats), cr)
+        if cases in ("three", "both"):
+            res["three_bones" + suffix] = _case(ts, [0, 1, 2], oo, n, int(repeats), cr)
     res["autoscoper_reference_s_per_frame_per_bone"] = [3.0, 13.0]
     return res
 
@@ -137,10 +261,15 @@ def main(argv=None) -> int:
                    help="one bone (talus), three bones (joint), or both")
     p.add_argument("--repeats", type=int, default=3,
                    help="end-to-end runs per case; the median is reported (default 3)")
+    p.add_argument("--voxel", type=float, default=None, help="CT voxel size, mm (default 0.5; --quick 1)")
+    p.add_argument("--search", choices=("newton", "local"), default="newton",
+                   help="tracking search: the Gauss-Newton engine (default) or the quadratic-model search")
+    p.add_argument("--compare", action="store_true", help="also run the other search on the same scene")
+    p.add_argument("--no-bound", action="store_true", help="skip the Cramér-Rao bound")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases,
-              repeats=a.repeats)
+              repeats=a.repeats, search=a.search, compare=a.compare, voxel=a.voxel, bound=not a.no_bound)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

@@ -37,9 +37,9 @@ __all__ = ["BatchDialog", "BatchPanel"]
 
 def default_workers() -> int:
     """Local workers offered by default: one per GPU Warp sees, else one per CPU core."""
-    from core.tracking.batch import _gpu_count
+    from core.tracking.batch_dask import gpu_count
 
-    return _gpu_count() or os.cpu_count() or 1
+    return gpu_count() or os.cpu_count() or 1
 
 
 class BatchDialog(QtWidgets.QDialog):

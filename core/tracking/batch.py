@@ -22,8 +22,8 @@ at the frames where every bone of it has a keyframe). Each range is tracked from
 keyframe, so the ranges of one bone run side by side on different workers and give the poses a
 serial run of the same ranges gives (the first frame of every range is the keyframe itself; the
 frame ``k0``, in two ranges, is registered from the same inputs by both). Tasks of one bone's
-ranges write one journal: each record takes the journal's lock for its append only (the study
-layout's ``.<bone>.lock``), so a range task waits for another's append but is refused at its start
+ranges write one journal: each record takes the journal's lock for its append only
+(:mod:`core.tracking.batch_journal`), so a range task waits for another's append but is refused at its start
 when another writer holds the bone for good (``talus track``, or the window). Only
 ``guess="velocity"`` or ``"previous"`` suit ranges: a spline guess would read other ranges'
 results as knots.
@@ -33,14 +33,14 @@ results as knots.
 and a ``GPU`` worker resource, or one single-threaded worker process per CPU core group without a
 GPU), or an existing scheduler — retries a failed task once (an exception, or its worker dying:
 Dask's ``allowed-failures`` is set to 1 for the local cluster), follows the tasks' frames through
-worker events, and returns a JSON-ready summary (:func:`summarize`). Nothing here imports Qt;
+worker events, and returns a JSON-ready summary (:func:`summarize`); both live in
+:mod:`core.tracking.batch_dask` and are importable from here. Nothing here imports Qt;
 ``dask[distributed]`` is the optional ``batch`` extra, imported only by :func:`run_batch` and
 :func:`local_cluster`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import os
 import socket
@@ -56,16 +56,14 @@ __all__ = [
     "TaskSettings",
     "build_tasks",
     "keyframe_ranges",
-    "local_cluster",
-    "run_batch",
+    "local_cluster",  # noqa: F822 (from batch_dask, through __getattr__)
+    "run_batch",  # noqa: F822
     "run_serial",
     "run_task",
     "summarize",
 ]
 
 EVENT_TOPIC = "talus-batch"  # worker events: task start, frame done, task end
-JOURNAL_WAIT_S = 60.0  # how long a range task's record waits for another range's append
-JOURNAL_START_WAIT_S = 5.0  # how long a range task's start waits for a bone another writer holds
 
 
 @dataclass(frozen=True)
@@ -213,89 +211,6 @@ def _emit(event: dict) -> None:
     worker.log_event(EVENT_TOPIC, event)
 
 
-def _stop_flag(name: str | None, every_s: float = 0.5) -> Callable[[], bool] | None:
-    """A cancel callable that reads the Dask event ``name`` (set by the client to stop the batch)
-    at most every ``every_s`` seconds; None without a name or off a Dask worker."""
-    if name is None:
-        return None
-    try:
-        from distributed import Event, get_worker
-
-        get_worker()
-    except (ImportError, ValueError):
-        return None
-    event = Event(name)
-    state = {"next": 0.0, "set": False}
-
-    def stop() -> bool:
-        now = time.monotonic()
-        if not state["set"] and now >= state["next"]:
-            state["next"] = now + every_s
-            try:
-                state["set"] = bool(event.is_set())
-            except Exception:  # the scheduler is gone: the batch is over
-                state["set"] = True
-        return state["set"]
-
-    return stop
-
-
-# ------------------------------------------------------------------ journals shared by ranges
-def _journal_lock(folder: Path, trial: str, bone: str, wait_s: float):
-    """The lock of a bone's journal (the study layout's ``results/<trial>/poses/.<bone>.lock``,
-    the one :meth:`core.study.Study.lock_journal` holds), taken within ``wait_s`` seconds."""
-    from ..io.atomic import FileLock
-
-    path = folder / "results" / trial / "poses" / f".{bone}.lock"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    lock = FileLock(path, purpose=f"bone {bone!r} of trial {trial!r} in study {folder}")
-    return lock.acquire(timeout=wait_s)
-
-
-class _SharedTrial:
-    """A trial whose :meth:`record_pose` takes the bone journal's lock for one append."""
-
-    def __init__(self, trial, folder: Path, wait_s: float) -> None:
-        self._trial, self._folder, self._wait_s = trial, folder, wait_s
-
-    def __getattr__(self, name):
-        return getattr(self._trial, name)
-
-    def record_pose(self, bone: str, frame: int, pose, *, score=None, tracking=None) -> None:
-        from ..study.results import append_pose, repair_tail
-
-        path = self._folder / "results" / self._trial.name / "poses" / f"{bone}.jsonl"
-        lock = _journal_lock(self._folder, self._trial.name, bone, self._wait_s)
-        try:
-            if path.exists() and path.stat().st_size:  # a torn last record (a writer killed
-                with open(path, "rb") as fh:  # mid-append) is cut off first, as Trial does
-                    fh.seek(-1, os.SEEK_END)
-                    if fh.read(1) != b"\n":
-                        repair_tail(path)
-            append_pose(path, int(frame), pose, score=score, tracking=tracking)
-        finally:
-            lock.release()
-
-
-class _SharedJournals:
-    """The study as :func:`~core.tracking.from_study.track_study` sees it in a range task: the
-    bone journals are shared with the other ranges' tasks (module notes), so locking one only
-    checks that no other writer holds it for good, and each record locks it for its append."""
-
-    def __init__(self, study, wait_s: float = JOURNAL_WAIT_S) -> None:
-        self._study, self._wait_s = study, wait_s
-
-    def __getattr__(self, name):
-        return getattr(self._study, name)
-
-    def lock_journal(self, trial: str, bone: str) -> None:
-        self._study.trial(trial).bones  # noqa: B018 (an unknown trial raises here)
-        _journal_lock(self._study.folder, trial, bone, JOURNAL_START_WAIT_S).release()
-
-    def trial(self, name: str) -> _SharedTrial:
-        return _SharedTrial(self._study.trial(name), self._study.folder, self._wait_s)
-
-
 def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
              progress: Callable[[dict], None] | None = None,
              cancel: Callable[[], bool] | None = None, stop_event: str | None = None) -> dict:
@@ -309,6 +224,8 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     event per frame. ``cancel()`` (or, on a Dask worker, the Dask event named ``stop_event``)
     stops the task between registrations: the frames done stay in the journal."""
     from ..study import Study
+    from .batch_dask import stop_flag
+    from .batch_journal import SharedJournals
     from .from_study import track_study
     from .trial import journal_inputs
 
@@ -317,7 +234,7 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     device = settings.device  # None: CUDA when this process sees a GPU (a CPU worker sees none)
     marks: list[float] = []
     base = {"key": task.key, "host": socket.gethostname(), "pid": os.getpid()}
-    stop = cancel or _stop_flag(stop_event)
+    stop = cancel or stop_flag(stop_event)
     if task.frames is not None and settings.guess == "spline":
         raise ValueError("guess: a frame-range task cannot use the spline guess (its knots would be "
                          "other ranges' results); use 'velocity' or 'previous'")
@@ -351,7 +268,7 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         resumed.update((b, int(f)) for b in task.bones for f in skip[b])
         load_s = time.perf_counter() - t0
         result, report = track_study(
-            st if task.frames is None else _SharedJournals(st), task.trial, list(task.bones), frames,
+            st if task.frames is None else SharedJournals(st), task.trial, list(task.bones), frames,
             options=settings.tracking_options(joint=len(task.bones) > 1), device=device,
             resume=True, threshold_hu=settings.threshold_hu, progress=on_frame,
             report_name=task.report_name, cancel=stop)
@@ -450,162 +367,10 @@ def summarize(tasks: Sequence[BatchTask], records: Sequence[dict], failures: Seq
     }
 
 
-# ------------------------------------------------------------------------------ Dask
-def _gpu_count() -> int:
-    """CUDA devices Warp sees here (0 without a GPU or a driver)."""
-    try:
-        import warp as wp
+def __getattr__(name: str):
+    """:func:`local_cluster` and :func:`run_batch` live in :mod:`core.tracking.batch_dask`."""
+    if name in ("local_cluster", "run_batch"):
+        from . import batch_dask
 
-        wp.config.quiet = True
-        wp.init()
-        return int(wp.get_cuda_device_count())
-    except Exception:  # no driver, no CUDA: CPU workers
-        return 0
-
-
-def local_cluster(workers: int | None = None, *, device: str | None = None,
-                  dashboard_address: str | None = ":0"):
-    """A Dask cluster on this machine: one worker process per GPU (``CUDA_VISIBLE_DEVICES`` set
-    to it, a ``GPU: 1`` resource) or, without a GPU or with ``device="cpu"``, one
-    single-threaded worker process per CPU core group (``workers`` of them; default: the CPU
-    count). Each worker runs one task at a time; a worker that dies is restarted by its nanny.
-
-    Returns
-    -------
-    (cluster, n_workers, uses_gpu)
-    """
-    import dask
-    from distributed import Nanny, Scheduler, SpecCluster
-
-    gpus = 0 if (device or "").startswith("cpu") else _gpu_count()
-    if gpus:
-        n = min(workers or gpus, gpus)
-        specs = {f"gpu{i}": {"cls": Nanny, "options": {
-            "nthreads": 1, "resources": {"GPU": 1}, "env": {"CUDA_VISIBLE_DEVICES": str(i)}}}
-            for i in range(n)}
-    else:
-        n = max(1, int(workers or os.cpu_count() or 1))
-        threads = max(1, (os.cpu_count() or 1) // n)  # cores per worker (numpy, OpenCV)
-        env = {"CUDA_VISIBLE_DEVICES": "", "OMP_NUM_THREADS": str(threads),
-               "OPENBLAS_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
-        specs = {f"cpu{i}": {"cls": Nanny, "options": {"nthreads": 1, "env": env}} for i in range(n)}
-    for spec in specs.values():  # the workers' own log lines only for errors (progress is ours)
-        spec["options"]["silence_logs"] = 40
-    scheduler = {"cls": Scheduler, "options": {"dashboard_address": dashboard_address}}
-    with dask.config.set({"distributed.scheduler.allowed-failures": 1,
-                          "distributed.worker.daemon": False}):
-        cluster = SpecCluster(workers=specs, scheduler=scheduler, silence_logs=40)
-    return cluster, n, bool(gpus)
-
-
-def run_batch(tasks: Sequence[BatchTask], settings: TaskSettings | None = None, *,
-              workers: int | None = None, scheduler: str | None = None,
-              on_event: Callable[[dict], None] | None = None,
-              on_start: Callable[[dict], None] | None = None,
-              cancel: Callable[[], bool] | None = None, cancel_wait_s: float = 60.0) -> dict:
-    """Run ``tasks`` on Dask and return :func:`summarize`'s summary.
-
-    Parameters
-    ----------
-    workers : int, optional
-        Worker processes of the local cluster (default: one per GPU, else per CPU core).
-    scheduler : str, optional
-        Address of an existing Dask scheduler (``tcp://host:8786``) instead of a local cluster;
-        its workers must reach the study folders at the same paths, and should run one task at a
-        time each (``dask worker --nthreads 1``; ``--resources GPU=1`` on GPU nodes).
-    on_event : callable(event), optional
-        Called on the client for each worker event (``kind``: ``"start"``, ``"frame"``,
-        ``"end"``; ``key`` of the task).
-    on_start : callable(info), optional
-        Called once the cluster is up with ``{"dashboard", "scheduler", "workers"}``.
-    cancel : callable() -> bool, optional
-        Polled about 4 times a second. Once it returns True the tasks not started are cancelled
-        and the running ones stop at their next registration (a Dask event they poll), keeping
-        the frames done in the journals; they are waited for up to ``cancel_wait_s`` seconds
-        (then the local cluster is closed, which ends them). Their records say ``"cancelled"``.
-    """
-    import dask
-
-    # a local worker whose process died is restarted by its nanny; the cluster waits this long
-    # for it to register again before it gives the worker up (Dask's default, 15 s, is shorter
-    # than a worker's start on a loaded machine: the retried task then failed as well)
-    with dask.config.set({"distributed.deploy.lost-worker-timeout": "300s"}):
-        return _run_batch(tasks, settings or TaskSettings(), workers, scheduler, on_event, on_start,
-                          cancel, cancel_wait_s)
-
-
-def _run_batch(tasks, settings, workers, scheduler, on_event, on_start, cancel, cancel_wait_s) -> dict:
-    import uuid
-
-    from distributed import Client, Event
-
-    t0 = time.perf_counter()
-    cluster = None
-    uses_gpu = False
-    if scheduler is None:
-        cluster, n_workers, uses_gpu = local_cluster(workers, device=settings.device)
-        client = Client(cluster)
-    else:
-        client = Client(scheduler)
-        n_workers = len(client.scheduler_info().get("workers", {}))
-    attempts: dict[str, int] = {}
-    try:
-        client.wait_for_workers(1)
-        info = {"dashboard": client.dashboard_link, "scheduler": client.scheduler.address,
-                "workers": n_workers}
-        if on_start is not None:
-            on_start(info)
-        startup_s = time.perf_counter() - t0
-
-        def handler(event):
-            msg = event[1] if isinstance(event, tuple) and len(event) == 2 else event
-            if isinstance(msg, dict):
-                if msg.get("kind") == "start":
-                    attempts[msg["key"]] = attempts.get(msg["key"], 0) + 1
-                if on_event is not None:
-                    on_event(msg)
-
-        client.subscribe_topic(EVENT_TOPIC, handler)
-        stop_name = f"talus-batch-stop-{uuid.uuid4().hex}"
-        stop = Event(stop_name, client=client)
-        resources = {"GPU": 1} if uses_gpu else None
-        futures = {client.submit(run_task, t, settings, key=f"talus-batch-{i}-{t.key}", retries=1,
-                                 pure=False, resources=resources, stop_event=stop_name): t
-                   for i, t in enumerate(tasks)}
-        records, failures = [], []
-        pending, stopping = set(futures), None
-        while pending:
-            done = {f for f in pending if f.done()}
-            if not done:
-                time.sleep(0.25)
-            pending -= done
-            for fut in done:
-                task = futures[fut]
-                if fut.status == "cancelled":
-                    records.append(_cancelled(task))
-                    continue
-                try:
-                    records.append(fut.result())
-                except Exception as exc:  # a task that failed twice is reported
-                    failures.append({"key": task.key, "error": f"{type(exc).__name__}: {exc}",
-                                     "attempts": max(2, attempts.get(task.key, 0))})
-            if stopping is None and cancel is not None and cancel():
-                stopping = time.monotonic() + cancel_wait_s
-                stop.set()  # running tasks stop at their next registration
-                queued = [f for f in pending if futures[f].key not in attempts]
-                client.cancel(queued)
-            elif stopping is not None and time.monotonic() >= stopping:
-                records += [_cancelled(futures[f]) for f in pending]  # still running: given up
-                client.cancel(list(pending))
-                pending = set()
-        time.sleep(0.2)  # let the last events arrive
-        client.unsubscribe_topic(EVENT_TOPIC)
-        with contextlib.suppress(Exception):  # an existing scheduler keeps no stale stop event
-            stop.clear()
-        return summarize(tasks, records, failures, wall_s=time.perf_counter() - t0,
-                         workers=n_workers, attempts=attempts, dashboard=info["dashboard"],
-                         scheduler=None if cluster is not None else scheduler, startup_s=startup_s)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        return getattr(batch_dask, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -12,7 +12,7 @@ import pytest
 
 from core.io.atomic import LockedError
 from core.study import Study
-from core.tracking import batch
+from core.tracking import batch_journal
 from core.tracking.batch import BatchTask, TaskSettings, build_tasks, keyframe_ranges, run_serial, run_task
 
 BONE = "talus"
@@ -62,7 +62,7 @@ def test_range_tasks(demo):
 
 
 def test_range_task_is_refused_while_another_writer_holds_the_bone(demo, tmp_path, monkeypatch):
-    monkeypatch.setattr(batch, "JOURNAL_START_WAIT_S", 0.05)
+    monkeypatch.setattr(batch_journal, "JOURNAL_START_WAIT_S", 0.05)
     folder = shutil.copytree(demo, tmp_path / "held")
     task = build_tasks([folder], bones=[BONE], ranges=True)[1]
     with Study.open(folder, mode="w") as st:
@@ -79,7 +79,7 @@ def test_range_records_share_the_journal_and_cut_a_torn_tail(demo, tmp_path):
     folder = shutil.copytree(demo, tmp_path / "shared")
     pose = np.load(folder / "poses" / f"{BONE}.npy")
     with Study.open(folder, mode="w") as a, Study.open(folder, mode="w") as b:
-        ta, tb = batch._SharedJournals(a).trial("walk"), batch._SharedJournals(b).trial("walk")
+        ta, tb = batch_journal.SharedJournals(a).trial("walk"), batch_journal.SharedJournals(b).trial("walk")
         ta.record_pose(BONE, 0, pose[0], score=0.5)
         journal = folder / "results" / "walk" / "poses" / f"{BONE}.jsonl"
         with open(journal, "ab") as fh:

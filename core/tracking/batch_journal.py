@@ -1,0 +1,74 @@
+"""Range tasks of ``talus batch`` sharing one bone's journal (:mod:`core.tracking.batch`).
+
+The ranges of one bone (:func:`core.tracking.batch.keyframe_ranges`) are tracked side by side by
+different worker processes into the bone's one pose journal. :class:`SharedJournals` is the study
+as :func:`~core.tracking.from_study.track_study` sees it in such a task: locking a journal only
+checks that no other writer (``talus track``, the window) holds it for good, and each record takes
+the journal's lock — the study layout's ``results/<trial>/poses/.<bone>.lock``, the one
+:meth:`core.study.Study.lock_journal` holds — for its append only, after cutting off a record torn
+by a writer that was killed mid-append.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+__all__ = ["JOURNAL_START_WAIT_S", "JOURNAL_WAIT_S", "SharedJournals"]
+
+JOURNAL_WAIT_S = 60.0  # how long a range task's record waits for another range's append
+JOURNAL_START_WAIT_S = 5.0  # how long a range task's start waits for a bone another writer holds
+
+
+def _journal_lock(folder: Path, trial: str, bone: str, wait_s: float):
+    """The lock of a bone's journal (the study layout's ``results/<trial>/poses/.<bone>.lock``,
+    the one :meth:`core.study.Study.lock_journal` holds), taken within ``wait_s`` seconds."""
+    from ..io.atomic import FileLock
+
+    path = folder / "results" / trial / "poses" / f".{bone}.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lock = FileLock(path, purpose=f"bone {bone!r} of trial {trial!r} in study {folder}")
+    return lock.acquire(timeout=wait_s)
+
+
+class _SharedTrial:
+    """A trial whose :meth:`record_pose` takes the bone journal's lock for one append."""
+
+    def __init__(self, trial, folder: Path, wait_s: float) -> None:
+        self._trial, self._folder, self._wait_s = trial, folder, wait_s
+
+    def __getattr__(self, name):
+        return getattr(self._trial, name)
+
+    def record_pose(self, bone: str, frame: int, pose, *, score=None, tracking=None) -> None:
+        from ..study.results import append_pose, repair_tail
+
+        path = self._folder / "results" / self._trial.name / "poses" / f"{bone}.jsonl"
+        lock = _journal_lock(self._folder, self._trial.name, bone, self._wait_s)
+        try:
+            if path.exists() and path.stat().st_size:  # a torn last record (a writer killed
+                with open(path, "rb") as fh:  # mid-append) is cut off first, as Trial does
+                    fh.seek(-1, os.SEEK_END)
+                    if fh.read(1) != b"\n":
+                        repair_tail(path)
+            append_pose(path, int(frame), pose, score=score, tracking=tracking)
+        finally:
+            lock.release()
+
+
+class SharedJournals:
+    """The study ``study`` (open for writing) as a range task's ``track_study`` sees it (module
+    notes)."""
+
+    def __init__(self, study, wait_s: float = JOURNAL_WAIT_S) -> None:
+        self._study, self._wait_s = study, wait_s
+
+    def __getattr__(self, name):
+        return getattr(self._study, name)
+
+    def lock_journal(self, trial: str, bone: str) -> None:
+        self._study.trial(trial).bones  # noqa: B018 (an unknown trial raises here)
+        _journal_lock(self._study.folder, trial, bone, JOURNAL_START_WAIT_S).release()
+
+    def trial(self, name: str) -> _SharedTrial:
+        return _SharedTrial(self._study.trial(name), self._study.folder, self._wait_s)

@@ -117,6 +117,7 @@ def _in_pixels(options, px_mm: float | None) -> dict:
     return out
 
 
+_LI_FLOOR = np.float32(1.0 / 4096)  # core.similarity.line_integral_image's default floor
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=np.uint8)
 
 DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3}),)
@@ -175,14 +176,15 @@ class FrameImages:
     def _region(self, view: int, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray | None]:
         import cv2
 
-        from ..similarity import line_integral_image
-
         img = self._fluence[view]
         H, W = img.shape
         r0, r1, c0, c1 = rows.start, rows.stop, cols.start, cols.stop
         if not (0 <= r0 < r1 <= H and 0 <= c0 < c1 <= W):
             raise ValueError(f"rows, cols: expected a non-empty region inside {H}x{W}, got {rows}, {cols}")
-        li = line_integral_image(np.clip(img[r0:r1, c0:c1], 0.0, 1.0))
+        # = line_integral_image(clip(sub, 0, 1)) in float32 (prepare_frame checked the frame is finite)
+        li = np.clip(img[r0:r1, c0:c1], _LI_FLOOR, 1.0).astype(np.float32, copy=False)
+        np.log(li, out=li)
+        np.negative(li, out=li)
         mask = None
         if self._valid is not None:
             p = self._erode

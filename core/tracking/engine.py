@@ -425,16 +425,19 @@ class GaussNewtonCost:
         Hc, Wc = self._cap
         nv = self.n_views
         raw, fm = self._host_raw, self._host_mask
-        raw.fill(0.0)
-        fm.fill(0)
         shift = np.zeros(nv, np.float32)
         fmax = np.zeros(nv, np.float32)
         for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
             h, w = f.shape
             raw[i, :h, :w] = f
+            raw[i, h:] = 0.0
+            raw[i, :h, w:] = 0.0
             fm[i, :h, :w] = m
-            shift[i] = float(f[m].mean()) if m.any() else 0.0  # the Pearson scores do not depend on it
-            fmax[i] = float(np.abs(f).max())
+            fm[i, h:] = 0
+            fm[i, :h, w:] = 0
+            if self.mode == 0:  # the intensities' mean (the Pearson scores do not depend on it)
+                shift[i] = float(f[m].mean()) if m.any() else 0.0
+            fmax[i] = max(float(f.max()), -float(f.min()))
         dev = self.device
         wp.copy(self._raw, self._host_raw_wp)
         if others is not None and len(others[1]):  # subtracted on the device, at the fixed output size

@@ -53,7 +53,7 @@ __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels
            "register"]
 
 _METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell", "gauss_newton")
-_SEARCHES = ("global", "local", "newton")
+_SEARCHES = ("global", "local", "newton", "global_newton")
 #: Design half-widths (mm, degrees) of the full-resolution quadratic fits.
 FINAL_STEP = (0.25, 0.5)
 
@@ -103,6 +103,8 @@ def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
     * ``"local"``: a quadratic search at the second-finest scale (design half-widths
       ``max(sigma / 2, (0.4 mm, 0.8°))``) and one at full resolution; with one scale, one
       search from ``(0.5 mm, 1°)`` down to :data:`FINAL_STEP`;
+    * ``"global_newton"``: the CMA-ES stage of ``"global"``, then Gauss–Newton steps at each finer
+      scale (half-steps :data:`FINAL_STEP` × scale) — the widened options of ``"newton"``;
     * ``"newton"``: Gauss–Newton steps at full resolution only (central-difference half-steps
       :data:`FINAL_STEP`, at most 8, stopping below 0.02 or when the predicted decrease is
       below a tenth of the cost's roughness).
@@ -130,6 +132,13 @@ def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
 
     if search == "newton":  # a coarse level first made it slower, not more accurate (1024² trial)
         return (Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02),)
+    if search == "global_newton":  # CMA-ES at the coarsest scale, then Gauss-Newton steps
+        out = [Level(scale=scales[0], method="cmaes", sigma=tuple(sigma), popsize=24,
+                     max_generations=40, tol_x=0.05)]
+        out += [Level(scale=s, method="gauss_newton", sigma=(fin[0] * s, fin[1] * s), max_generations=6,
+                      tol_x=0.05) for s in scales[1:-1]]
+        out.append(Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02))
+        return tuple(out)
     if search == "global":
         out = [Level(scale=scales[0], method="cmaes", sigma=tuple(sigma), popsize=24,
                      max_generations=40, tol_x=0.05)]
@@ -186,7 +195,8 @@ class RegistrationOptions:
     def widened(self, factor: float = 2.0) -> RegistrationOptions:
         """The same options with ``factor``× larger bounds and first steps, twice the
         population and a global first stage (for a retry after a failure or a poor initial
-        guess)."""
+        guess): ``"global"``, or ``"global_newton"`` (CMA-ES, then Gauss–Newton steps) for the
+        Gauss–Newton searches."""
         lv = None
         if self.levels is not None:
             lv = tuple(replace(x, sigma=(x.sigma[0] * factor, x.sigma[1] * factor),
@@ -194,7 +204,8 @@ class RegistrationOptions:
                        for i, x in enumerate(self.levels))
         return replace(self, bounds=(self.bounds[0] * factor, self.bounds[1] * factor),
                        sigma=(self.sigma[0] * factor, self.sigma[1] * factor), levels=lv,
-                       search="global", seed=self.seed + 1)
+                       search="global_newton" if self.search in ("newton", "global_newton") else "global",
+                       seed=self.seed + 1)
 
     def to_dict(self) -> dict:
         return {"terms": [t.to_dict() for t in self.terms],
@@ -342,11 +353,11 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     views = tuple(range(frame.n_views)) if views is None else tuple(views)
     fs = o.final_scale
     search = o.search
-    if search == "newton" and o.levels is None:
+    if search in ("newton", "global_newton") and o.levels is None:
         from .engine import supports
 
-        if not supports(o.terms):
-            search = "local"  # the engine scores gc and ncc only: the quadratic-model search
+        if not supports(o.terms):  # the engine scores gc and ncc only: the quadratic-model searches
+            search = "local" if search == "newton" else "global"
     levels = o.levels or tuple(
         replace(lv, scale=lv.scale * fs)
         for lv in default_levels(mm_per_pixel(renderer, base, center, views) * fs, sigma=o.sigma,

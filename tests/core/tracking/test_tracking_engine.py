@@ -139,3 +139,21 @@ def test_moments_to_newton_of_a_known_correlation():
     bh = bc / nb
     J = (Dc - np.outer(bh, bh @ Dc)) / nb
     np.testing.assert_allclose(Hm, r[0] * (J.T @ J), rtol=1e-9)
+
+
+def test_widened_newton_options_search_globally_then_by_gauss_newton(talus_scene):
+    o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    w = o.widened(2.0)
+    assert w.search == "global_newton" and w.bounds == (10.0, 10.0)
+    assert RegistrationOptions(search="local").widened().search == "global"
+    lv = default_levels(0.3, search="global_newton")
+    assert [x.method for x in lv] == ["cmaes", "gauss_newton", "gauss_newton"]
+    assert [x.scale for x in lv] == [4.0, 2.0, 1.0]
+    sc = talus_scene
+    m = sc["model"]
+    truth, start = _start(sc["scene"], 4, m.centroid, [3.0, -2.0, 2.0, 3.0, -2.0, 3.0])
+    res = register(sc["renderer"], prepare_frame(sc["fluence"](4)), bone=0, initial_pose=start,
+                   center=m.centroid, options=w, outline=m.outline)
+    assert res.converged and [s.method for s in res.stages] == ["cmaes", "gauss_newton"]
+    err = pose_errors(res.pose, truth, m.centroid)
+    assert np.linalg.norm(err[:3]) < 0.05 and np.linalg.norm(err[3:]) < 0.1, err

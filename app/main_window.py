@@ -166,6 +166,7 @@ class MainWindow(QtWidgets.QMainWindow):
         track.addAction("Track &all bones").triggered.connect(
             lambda: self._guard(self.tracking.track_all))
         self.tracking.add_batch_action(track)
+        self.tracking.add_options_action(track)
         track.addAction("&Cancel tracking").triggered.connect(self.tracking.cancel)
         help_menu = self.menuBar().addMenu("&Help")
         self.about_action = help_menu.addAction("&About Talus")

@@ -45,6 +45,7 @@ class TrackingActions:
         self.batch = None  # app.batch_panel.BatchPanel, made on first use
         self.batch_action = None
         self.options = None  # core.tracking TrackingOptions (None: the engine's defaults)
+        self.options_action = None
         self._bones: list[str] = []
         self._was_locked: dict[str, bool] = {}
         self._results: queue.SimpleQueue = queue.SimpleQueue()  # (FrameResult dict, pose) from the worker
@@ -65,6 +66,32 @@ class TrackingActions:
         """Add *Track in batch…* to the window's Tracking menu."""
         self.batch_action = menu.addAction("Track in &batch…")
         self.batch_action.triggered.connect(lambda: self.window._guard(self.track_in_batch))
+
+    def add_options_action(self, menu) -> None:
+        """Add *Options…* (search, resolution, mode, guess, confidence) to the Tracking menu."""
+        action = menu.addAction("Tracking &options…")
+        action.setShortcut("Ctrl+Alt+T")
+        action.triggered.connect(lambda: self.window._guard(self.edit_options))
+        self.options_action = action
+
+    def edit_options(self):
+        """Open :class:`app.tracking_options.TrackingOptionsDialog`; the options apply to the next
+        tracking job started in the window. Returns the (modal) dialog."""
+        from .tracking_options import TrackingOptionsDialog
+
+        dialog = TrackingOptionsDialog(self.options, self.window)
+        dialog.accepted.connect(lambda: self._set_options(dialog.options()))
+        dialog.open()
+        return dialog
+
+    def _set_options(self, options) -> None:
+        from .tracking_options import choices_of
+
+        self.options = options
+        c = choices_of(options)
+        res = "full" if c["scale"] == 1 else f"1/{c['scale']:g}"
+        self.window.notify(f"Tracking options: {c['search']} search, {res} resolution, {c['mode']}, "
+                           f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}")
 
     def track_in_batch(self):
         """Open the batch dialog (:mod:`app.batch_panel`); returns it."""

@@ -1,0 +1,84 @@
+"""Tracking > Tracking options…: the window offers what ``talus track`` offers (search, resolution,
+mode, guess, confidence), chosen with real clicks and keys."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+pytest.importorskip("PySide6", reason="the GUI extra (PySide6) is not installed")
+
+from PySide6 import QtCore, QtWidgets
+
+from app.main_window import MainWindow
+from app.tracking_options import TrackingOptionsDialog, choices_of, options_from_choices
+
+HUNG_MS = 30 * 60_000  # ceiling for an event that never comes, not a time budget
+
+
+@pytest.fixture
+def window(qtbot):
+    win = MainWindow()
+    qtbot.addWidget(win)
+    win.show()
+    qtbot.waitExposed(win)
+    qtbot.waitUntil(lambda: win.scene.plotter is not None, timeout=HUNG_MS)
+    yield win
+    win.close()
+
+
+def _pick(qtbot, box: QtWidgets.QComboBox, data) -> None:
+    """Choose the entry holding ``data`` with the keyboard, as a user would."""
+    box.setFocus()
+    target = box.findData(data)
+    assert target >= 0
+    while box.currentIndex() != target:
+        key = QtCore.Qt.Key.Key_Down if box.currentIndex() < target else QtCore.Qt.Key.Key_Up
+        qtbot.keyClick(box, key)
+
+
+def test_options_match_the_command_line_defaults():
+    opts = options_from_choices()
+    assert choices_of(opts) == choices_of(None)
+    assert (opts.registration.search, opts.registration.final_scale) == ("local", 1.0)
+    assert opts.registration.bounds == (5.0, 5.0) and opts.registration.sigma == (1.0, 1.0)
+    with pytest.raises(ValueError, match="final_scale"):
+        options_from_choices(scale=0.5)
+
+
+def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
+    action = window.tracking.options_action
+    assert action is not None and action.text().replace("&", "") == "Tracking options…"
+    assert action in window.menuBar().actions()[[a.text() for a in window.menuBar().actions()]
+                                                 .index("&Tracking")].menu().actions()
+    action.trigger()
+    dialog = window.findChild(TrackingOptionsDialog)
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    _pick(qtbot, dialog.search, "newton")
+    _pick(qtbot, dialog.resolution, 2.0)
+    _pick(qtbot, dialog.mode, "joint")
+    qtbot.mouseClick(dialog.confidence, QtCore.Qt.MouseButton.LeftButton)
+    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
+        qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
+                         QtCore.Qt.MouseButton.LeftButton)
+    opts = window.tracking.options
+    assert choices_of(opts) == {"search": "newton", "scale": 2.0, "mode": "joint", "guess": "velocity",
+                                "confidence": False}
+    last = window.messages.item(window.messages.count() - 1).text()
+    assert "newton search, 1/2 resolution, joint" in last and "no confidence" in last
+
+    # re-opened, the dialog shows the current choices; Restore defaults then Cancel changes nothing
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    assert dialog.choices() == choices_of(opts)
+    grab = dialog.grab()
+    out = os.environ.get("TALUS_SCREENSHOT_DIR")
+    if out:
+        grab.save(f"{out}/tracking_options.png")
+    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults),
+                     QtCore.Qt.MouseButton.LeftButton)
+    assert dialog.choices() == choices_of(None)
+    with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
+        qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)
+    assert window.tracking.options is opts

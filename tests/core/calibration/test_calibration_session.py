@@ -2,6 +2,7 @@
 and each step's error on bad input (file, frame, what can be done)."""
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -9,17 +10,17 @@ import pytest
 from core.calibration import session as cs
 from core.calibration.bundle import _failure
 from core.calibration.session import SessionError, calibrate_session
-from core.studies.calibration.memory_session import make_memory_session
 
 
-@pytest.fixture(scope="module")
-def small_session():
-    return make_memory_session(pixels=384, n_spiral=10, n_grid=1, n_flat=4, n_dark=2, seed=3)
+@pytest.fixture
+def small_session(memory_session):
+    """The 384-px session of conftest, shared with the other calibration tests (never changed)."""
+    return memory_session
 
 
-@pytest.fixture(scope="module")
-def calibrated(small_session):
-    return calibrate_session(small_session)
+@pytest.fixture
+def calibrated(memory_session_calibrated):
+    return memory_session_calibrated
 
 
 def _copy(s, **images):
@@ -104,15 +105,22 @@ def test_grid_frame_without_grid(small_session):
         calibrate_session(s)
 
 
-def test_too_few_labelled_frames(small_session):
-    s = _copy(small_session, **{f"{c}__spiral": small_session.images[(c, "spiral")][:3]
-                                for c in small_session.cameras})
+def test_too_few_labelled_frames(small_session, memory_session_steps, monkeypatch):
+    # a session of 3 object frames: the first 3 of this session's, whose beads are labelled already
+    # (conftest; labelling them again took 12 s of CPU)
+    b = memory_session_steps[2]
+    three = dataclasses.replace(b, frames=b.frames[:3], detections=b.detections[:3],
+                                refs=[r[:3] for r in b.refs])
+    monkeypatch.setattr(cs, "beads_step", lambda setup, dist, **kw: three)
     with pytest.raises(SessionError, match=r"beads: spiral33 frames: only \d of 3 frames") as e:
-        calibrate_session(s)
+        calibrate_session(small_session)
     assert "record more frames" in e.value.hint
 
 
-def test_bundle_not_converging(small_session, monkeypatch):
+def test_bundle_not_converging(small_session, memory_session_steps, monkeypatch):
+    # the beads of this session are labelled already (conftest): the bundle adjustment is what fails
+    beads = memory_session_steps[2]
+    monkeypatch.setattr(cs, "beads_step", lambda setup, dist, **kw: beads)
     monkeypatch.setattr(cs, "bundle_adjust", lambda frames, sizes, **kw: _failure(
         "the optimizer did not converge (max evaluations)", len(sizes), len(frames)))
     with pytest.raises(SessionError, match=r"bundle: \d+ labelled frames \(spiral33 \+ cube15\): the bundle "

@@ -5,22 +5,23 @@ import numpy as np
 import pytest
 
 from core.calibration import session as cs
-from core.studies.calibration.memory_session import make_memory_session
 
 
-@pytest.fixture(scope="module")
-def steps():
-    s = make_memory_session(pixels=384, n_spiral=10, n_grid=1, n_flat=4, n_dark=2, seed=3)
-    setup = cs.prepare(s)
-    ffs = cs.flatfield_step(setup)
-    dist = cs.distortion_step(setup, ffs)
-    beads = cs.beads_step(setup, dist)
-    return s, setup, dist, beads
+@pytest.fixture
+def steps(memory_session, memory_session_steps):
+    """The 384-px session of conftest and its steps run one by one (shared, never changed)."""
+    return (memory_session, *memory_session_steps)
 
 
-def test_steps_give_what_the_one_call_gives(steps):
+def test_steps_give_what_the_one_call_gives(steps, _memory_session_one_call):
     s, setup, dist, beads = steps
-    one = cs.calibrate_session(s)
+    one, one_dist, _ = _memory_session_one_call  # calibrate_session(s) and its distortion step
+    # the beads step's input: the step-by-step correction gives the one call's corrected frames
+    # (the beads step, labelled once in conftest, is a function of them)
+    for v, cam in enumerate(s.cameras):
+        for group in ("spiral", "cube"):
+            raw = s.read(s.frames(cam, group)[0])
+            assert np.array_equal(dist.cameras[v].pipeline(raw), one_dist.cameras[v].pipeline(raw))
     parts = cs.solve_step(setup, dist, beads)
     assert parts.bundle.rms_px == pytest.approx(one.bundle.rms_px, rel=1e-9)
     for a, b in zip(parts.rig, one.rig, strict=True):

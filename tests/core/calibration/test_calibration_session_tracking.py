@@ -26,7 +26,8 @@ def test_tracking_a_study_imports_no_synthetic_module(tmp_path):
     from core.synthetic import make_demo_study
 
     out = tmp_path / "demo"
-    make_demo_study(out, n_frames=2, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu")
+    make_demo_study(out, n_frames=2, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu",
+                    calibration_session=False)
     env_py = sys.executable
     done = subprocess.run([env_py, "-c", SCRIPT, str(out)], capture_output=True, text=True, timeout=600,
                           env={"PYTHONWARNINGS": "error", **_env(tmp_path)})

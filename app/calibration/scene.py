@@ -89,7 +89,6 @@ class RigScene:
                        + "; lab axes x/y/z red/green/blue, 50 mm. Drag: turn · wheel: zoom · "
                        "double click: first view")
         self.azimuth, self.elevation, self.zoom = 0.0, 0.0, 1.0
-        self._home = None
         self._bounds = p.bounds
 
     def set_size(self, width: int, height: int) -> None:

@@ -190,6 +190,7 @@ class CalibrationWizard(QtWidgets.QDialog):
         self._frames: dict = {}  # object frame -> corrected images
         self._running: str | None = None
         self._closed = False
+        self._last_saved: str | None = None  # the version this wizard saved last
         self._inspected: str | None = None  # the session folder last summarised on the first page
         self._saved_note = ""  # what a reopened saved calibration was made from (inspect_saved)
         self.pool.finished.connect(self._finished)
@@ -488,6 +489,7 @@ class CalibrationWizard(QtWidgets.QDialog):
         if key == "save":
             self.save_info.setText(f"Saved as {result.name} in {result.folder}; used by "
                                    f"{', '.join(result.trials) or 'no trial yet'}.")
+            self._last_saved = result.name
             self._describe_study()
             self.saved_calibration.emit(result)
         elif key == "refit":
@@ -786,6 +788,9 @@ class CalibrationWizard(QtWidgets.QDialog):
         rows = []
         for name, tr in doc.get("trials", {}).items():
             cur = tr.get("calibration") or "none"
+            if cur == self._last_saved:
+                rows.append(f"• {name}: uses {cur} (just saved)")
+                continue
             new = mode == "all" or (mode == "series" and str(cur).startswith(f"{series}.v"))
             rows.append(f"• {name}: uses {cur}" + (" → will use the new version" if new else ""))
         saved = doc.get("settings", {}).get("calibration_files", {})

@@ -17,6 +17,9 @@ pytestmark = pytest.mark.gui
 # waits end on the event itself; the timeout is only the ceiling for an event that never comes
 HUNG_MS = 30 * 60_000
 PIXELS = 384  # beads must be a few pixels wide to be localised
+# the solve needs 8 labelled frames, one is excluded by hand; with 9 or 10 spiral frames (seed 0) the
+# grid lands where the distortion fit is poor and the static cube is not labelled
+N_SPIRAL = 11
 
 
 @pytest.fixture(scope="module")
@@ -26,9 +29,10 @@ def folders(tmp_path_factory):
 
     base = tmp_path_factory.mktemp("wizard")
     # the session's rig is the demo trial's (same pixels and seed, built without bones)
-    write_calibration_session(base / "session", pixels=PIXELS, seed=0, n_spiral=11, n_grid=1, n_lattice=0,
-                              n_dark=2, n_flat=3)
-    make_demo_study(base / "study", n_frames=2, pixels=PIXELS, seed=0, spacing=2.0, tissue_spacing=8.0,
+    write_calibration_session(base / "session", pixels=PIXELS, seed=0, n_spiral=N_SPIRAL, n_grid=1,
+                              n_lattice=0, n_dark=2, n_flat=3)
+    # one trial frame, coarse volumes: talus track only has to use the saved calibration
+    make_demo_study(base / "study", n_frames=1, pixels=PIXELS, seed=0, spacing=3.0, tissue_spacing=10.0,
                     calibration_session=False, device="cpu")
     return base / "session", base / "study"
 
@@ -36,6 +40,8 @@ def folders(tmp_path_factory):
 def _shot(w, name):
     out = os.environ.get("TALUS_SCREENSHOTS")
     if out:
+        w.layout().activate()  # a label whose text just grew is laid out before the picture
+        QtCore.QCoreApplication.processEvents()
         Path(out).mkdir(parents=True, exist_ok=True)
         assert w.grab().save(str(Path(out) / f"calibration_wizard_{name}.png"))
 
@@ -73,7 +79,9 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     session, study = folders
     w = CalibrationWizard(session_folder=session, study_folder=study)
     qtbot.addWidget(w)
-    w.show()
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda k: k == "inspect"):
+        w.show()  # the first page says what the session holds (read in the pool)
+    assert f"2 dark, 3 empty-field at 70 kV, 1 grid, 1 cube, {N_SPIRAL} spiral" in w.session_info.text()
     _shot(w, "1_session")
     # flatfield: computed in the pool while the window keeps ticking
     ticks = _step(qtbot, w, "flatfield", lambda: _click(qtbot, w.next_button))
@@ -134,7 +142,18 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     rows = {(r["group"], r["index"]): r for r in cal.frames}
     assert rows[("spiral", other)]["reason"] == "excluded by hand" and not rows[("spiral", other)]["ok"]
     assert rows[("spiral", k)].get("manual") and cal.bundle.rms_px < 0.3
-    assert w.sd_table.rowCount() == 2 and w.poses_view.pixmap() is not None
+    assert w.sd_table.rowCount() == 2 and w.reprojection_view.pixmap() is not None
+    # the cameras and the object's poses in the 3-D scene; a drag turns it
+    qtbot.waitUntil(lambda: w.scene_view.scene is not None, timeout=HUNG_MS)
+    scene = w.scene_view.scene
+    first = w.scene_view.grab().toImage()
+    qtbot.mousePress(w.scene_view, QtCore.Qt.MouseButton.LeftButton, pos=QtCore.QPoint(100, 100))
+    qtbot.mouseMove(w.scene_view, QtCore.QPoint(160, 110))
+    qtbot.mouseRelease(w.scene_view, QtCore.Qt.MouseButton.LeftButton, pos=QtCore.QPoint(160, 110))
+    qtbot.waitUntil(lambda: w.scene_view.grab().toImage() != first, timeout=HUNG_MS)
+    assert scene.azimuth != 0.0
+    qtbot.mouseDClick(w.scene_view, QtCore.Qt.MouseButton.LeftButton, pos=QtCore.QPoint(100, 100))
+    assert scene.azimuth == 0.0
     _shot(w, "5_solve")
     # save into the study: every trial uses it
     _click(qtbot, w.next_button)
@@ -154,7 +173,7 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     again.close()
     # talus track uses it
     capsys.readouterr()
-    rc = talus(["track", str(study), "--trial", "walk", "--bones", "talus", "--frames", "0:2",
+    rc = talus(["track", str(study), "--trial", "walk", "--bones", "metatarsal2", "--frames", "0:1",
                 "--device", "cpu", "--no-confidence", "--quiet"])
     out = capsys.readouterr()
     assert rc == 0, out.err

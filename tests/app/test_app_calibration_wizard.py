@@ -17,8 +17,8 @@ pytestmark = pytest.mark.gui
 # waits end on the event itself; the timeout is only the ceiling for an event that never comes
 HUNG_MS = 30 * 60_000
 PIXELS = 384  # beads must be a few pixels wide to be localised
-# the solve needs 8 labelled frames, one is excluded by hand; with 9 or 10 spiral frames (seed 0) the
-# grid lands where the distortion fit is poor and the static cube is not labelled
+# the solve needs 8 labelled frames, one is excluded by hand; with 9 spiral frames (seed 0; 10 was not
+# tried) the grid lands where the distortion fit is poor and the static cube is not labelled
 N_SPIRAL = 11
 
 

@@ -43,9 +43,10 @@ uncertainty as it does for the quadratic-model search's fit.
 Speed design
 ------------
 :class:`GaussNewtonCost` keeps its device buffers, the DRR output buffer (a fixed output size,
-:meth:`core.render.DRRRenderer.render` ``out_shape``) and, on CUDA, one graph of the metric
-pipeline (2 blur passes, scores, moments, copies to pinned host memory) from frame to frame:
-:meth:`~GaussNewtonCost.set_frame` only uploads the new fluoroscope ROIs. :func:`engine_cost`
+:meth:`core.render.DRRRenderer.render` ``out_shape``, the ROIs' size rounded up to 32 pixels)
+and, on CUDA, one graph of the metric pipeline (2 blur passes, scores, moments, copies to
+pinned host memory) from frame to frame: :meth:`~GaussNewtonCost.set_frame` only uploads the
+new fluoroscope ROIs (their smoothing and gradients run on the device). :func:`engine_cost`
 caches one per (renderer, bone, views, scale, terms). A step is one DRR launch, one graph
 launch and one synchronisation.
 """
@@ -353,7 +354,7 @@ class GaussNewtonCost:
             raise ValueError(f"term: options {sorted(bad)} are not supported by the Gauss-Newton engine")
         from ..imaging.edges import derivative_kernels
 
-        self.renderer = renderer
+        self._renderer = weakref.ref(renderer)  # the cache of engine_cost is keyed by the renderer
         self.device = renderer.device
         self.bone = int(bone)
         self.views = tuple(int(v) for v in views)
@@ -387,6 +388,13 @@ class GaussNewtonCost:
         self._fblur = None
         self.base = self.center = self.roi = None
 
+    @property
+    def renderer(self):
+        r = self._renderer()
+        if r is None:
+            raise RuntimeError("renderer: the renderer of this cost no longer exists")
+        return r
+
     # ------------------------------------------------------------------ per frame
     def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None) -> None:
         """Take the fluoroscope ROIs ``roi (n_views, 4)`` of ``frame`` (the DRRs of ``others``
@@ -413,11 +421,10 @@ class GaussNewtonCost:
         cap = self._cap
         same_taps = (taps is None and self._blur_taps is None) or (
             taps is not None and self._blur_taps is not None and len(taps) == len(self._blur_taps))
-        if cap is None or need[0] > cap[0] or need[1] > cap[1] or not same_taps:
-            # room for the bone's projection to grow by a quarter before the buffers change
-            new = tuple(int(math.ceil(1.25 * n / 8.0) * 8) for n in need)
-            if cap is not None:
-                new = (max(new[0], cap[0]), max(new[1], cap[1]))
+        # the buffers' size depends on this frame alone (32-pixel steps), so a frame is scored
+        # alike whatever came before it (a resumed run repeats an uninterrupted one)
+        new = tuple(int(math.ceil(n / 32.0) * 32) for n in need)
+        if new != cap or not same_taps:
             self._allocate(new, taps)
         elif taps is not None:
             self._blur.assign(taps)

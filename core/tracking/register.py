@@ -107,7 +107,8 @@ def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
       scale (half-steps :data:`FINAL_STEP` × scale) — the widened options of ``"newton"``;
     * ``"newton"``: Gauss–Newton steps at full resolution only (central-difference half-steps
       :data:`FINAL_STEP`, at most 8, stopping below 0.02 or when the predicted decrease is
-      below a tenth of the cost's roughness).
+      below a tenth of the cost's roughness); when they do not converge (a move beyond their
+      reach), :func:`register` starts again at half resolution with twice the half-steps.
 
     The full-resolution search ends with designs of :data:`FINAL_STEP` half-widths and a Newton
     step below 0.02 (mm, degrees).
@@ -295,6 +296,17 @@ def _run(level_method: str, fun, x0, *, sigma6, lo, hi, level: Level | None, tol
     return opt.powell(fun, x0, lower=lo, upper=hi, tol_x=tol, cancel=cancel, **extra)
 
 
+def _newton_fallback(mm_per_px: float, coarsest_mm: float = 1.2) -> tuple[Level, ...]:
+    """The levels of the ``"newton"`` search's second attempt: Gauss–Newton steps at the
+    second-finest pyramid scale (half-steps and trust twice as wide), then at full resolution; at
+    a single scale, full resolution with twice the half-steps first."""
+    fin = FINAL_STEP
+    s = 2.0 if 2.0 * mm_per_px <= coarsest_mm else 1.0
+    first = Level(scale=s, method="gauss_newton", sigma=(2 * fin[0], 2 * fin[1]), max_generations=6,
+                  tol_x=0.05)
+    return first, Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02)
+
+
 def _snap(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:
     """ROIs grown outwards to a ``grid``-pixel lattice (inside the image): a bone that moves
     little keeps its region from round to round and frame to frame (the frame's line integrals
@@ -393,7 +405,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             engines[scale] = c
         return engines[scale]
 
-    for i, lv in enumerate(levels):
+    def run_level(i: int, lv: Level, x):
         sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
         if lv.method == "gauss_newton":
             from .engine import gauss_newton_search
@@ -404,10 +416,27 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         else:
             r = _run(lv.method, cost_at(lv.scale), x, sigma6=sig6, lo=lo, hi=hi, level=lv, tol=lv.tol_x,
                      seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
+        return r
+
+    for i, lv in enumerate(levels):
+        r = run_level(i, lv, x)
         stages.append(r)
         x = r.x
         if r.reason == "cancelled":
             break
+    if (o.levels is None and search == "newton" and not stages[-1].converged
+            and stages[-1].reason != "cancelled"):
+        # beyond the full-resolution steps' reach (a large move since the last frame): again from
+        # the start, half resolution first (wider steps), then full resolution
+        x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
+        for i, lv in enumerate(_newton_fallback(mm_per_pixel(renderer, base, center, views) * fs)):
+            lv = replace(lv, scale=lv.scale * fs)
+            r = run_level(len(levels) + i, lv, x)
+            stages.append(r)
+            x = r.x
+            if r.reason == "cancelled":
+                break
+        levels = (*levels, lv)
     last_gn = levels[-1].method == "gauss_newton" and levels[-1].scale == fs
     full = engine_at(fs) if (last_gn and not o.refine) else cost_at(fs)
     if o.refine and stages[-1].reason != "cancelled":

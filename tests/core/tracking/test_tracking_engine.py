@@ -90,12 +90,36 @@ def test_register_with_the_newton_search(talus_scene):
     assert res.timing["engine_steps_x1"] >= 1 and res.timing["engine_scores_x1"] == 0  # scored by its model
     # the engine stays with the renderer: a second frame reuses its buffers
     c1 = engine_cost(sc["renderer"], bone=0, views=(0, 1), scale=1.0, term=DEFAULT_TERMS[0])
-    pipes = dict(c1._pipes)
+    pipes, cap = dict(c1._pipes), c1._cap
     frame2 = prepare_frame(sc["fluence"](2))
     res2 = register(sc["renderer"], frame2, bone=0, initial_pose=res.pose, center=m.centroid, options=o,
                     outline=m.outline)
     assert res2.converged
-    assert all(c1._pipes[k] is v for k, v in pipes.items())
+    if c1._cap == cap:  # buffers of the same size: the same pipelines (graphs on CUDA)
+        assert all(c1._pipes[k] is v for k, v in pipes.items())
+
+
+def test_a_frame_scores_alike_whatever_came_before(talus_scene):
+    """Buffers sized by the frame alone: a frame's costs do not depend on the frames before it
+    (a resumed run repeats an uninterrupted one)."""
+    sc = talus_scene
+    m = sc["model"]
+    fa, fb = prepare_frame(sc["fluence"](1)), prepare_frame(sc["fluence"](5))
+    pa, pb = sc["scene"].poses(1)[0], sc["scene"].poses(5)[0]
+    r = sc["renderer"]
+    roi_a = search_roi(r, pa, 0, views=(0, 1), center=m.centroid, reach_mm=7.6, points=m.outline)
+    roi_b = search_roi(r, pb, 0, views=(0, 1), center=m.centroid, reach_mm=15.0, points=m.outline)
+    X = step_design(np.zeros(6), H)
+    fresh = GaussNewtonCost(r, bone=0, views=(0, 1), term=DEFAULT_TERMS[0])
+    fresh.set_frame(fa, base_pose=pa, center=m.centroid, roi=roi_a)
+    first = fresh.step(np.zeros(6), H)
+    used = GaussNewtonCost(r, bone=0, views=(0, 1), term=DEFAULT_TERMS[0])
+    used.set_frame(fb, base_pose=pb, center=m.centroid, roi=roi_b)
+    used(X)
+    used.set_frame(fa, base_pose=pa, center=m.centroid, roi=roi_a)
+    again = used.step(np.zeros(6), H)
+    np.testing.assert_array_equal(again.costs, first.costs)
+    np.testing.assert_array_equal(again.g, first.g)
 
 
 def test_newton_levels_and_fallback(talus_scene):
@@ -157,3 +181,35 @@ def test_widened_newton_options_search_globally_then_by_gauss_newton(talus_scene
     assert res.converged and [s.method for s in res.stages] == ["cmaes", "gauss_newton"]
     err = pose_errors(res.pose, truth, m.centroid)
     assert np.linalg.norm(err[:3]) < 0.05 and np.linalg.norm(err[3:]) < 0.1, err
+
+
+def test_search_roi_from_the_outline_hull_is_that_of_every_point(talus_scene):
+    """The search region is the image box of the outline's convex hull: the same box as of all
+    its points (perspective maps the hull onto the hull of the projections)."""
+    sc = talus_scene
+    m, r = sc["model"], sc["renderer"]
+    for f in (0, 3):
+        pose = sc["scene"].poses(f)[0]
+        a = search_roi(r, pose, 0, views=(0, 1), center=m.centroid, reach_mm=5.0, points=m.outline)
+        b = search_roi(r, pose, 0, views=(0, 1), center=m.centroid, reach_mm=5.0, points=m.outline.tolist())
+        np.testing.assert_array_equal(a, b)
+
+
+def test_newton_starts_again_from_half_resolution_when_it_does_not_converge(talus_scene, monkeypatch):
+    import core.tracking.register as reg
+
+    sc = talus_scene
+    m = sc["model"]
+    truth, start = _start(sc["scene"], 2, m.centroid, [2.0, -1.5, 1.5, 2.0, -1.5, 2.0])
+    # a first attempt that cannot converge: one step only
+    monkeypatch.setattr(reg, "default_levels", lambda *a, **k: (reg.Level(
+        scale=1.0, method="gauss_newton", sigma=reg.FINAL_STEP, max_generations=1, tol_x=0.02),))
+    o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    res = register(sc["renderer"], prepare_frame(sc["fluence"](2)), bone=0, initial_pose=start,
+                   center=m.centroid, options=o, outline=m.outline)
+    assert [s.method for s in res.stages] == ["gauss_newton"] * 3
+    assert res.stages[0].reason == "max_generations" and res.converged
+    err = pose_errors(res.pose, truth, m.centroid)
+    assert np.linalg.norm(err[:3]) < 0.05 and np.linalg.norm(err[3:]) < 0.1, err
+    assert [lv.scale for lv in reg._newton_fallback(0.3)] == [2.0, 1.0]
+    assert [lv.scale for lv in reg._newton_fallback(1.0)] == [1.0, 1.0]

@@ -258,6 +258,7 @@ class CalibrationWizard(QtWidgets.QDialog):
         self.session_info.setTextInteractionFlags(QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
         f.addRow(self.session_info)
         self.session_edit.editingFinished.connect(self._inspect_session)
+        self.session_edit.textChanged.connect(lambda _: self._update_next())
         return w
 
     def _page_flatfield(self) -> QtWidgets.QWidget:
@@ -392,6 +393,7 @@ class CalibrationWizard(QtWidgets.QDialog):
         d = QtWidgets.QFileDialog.getExistingDirectory(self, title, edit.text() or str(Path.cwd()))
         if d:
             edit.setText(d)
+            edit.editingFinished.emit()  # summarised as when typed
 
     # ------------------------------------------------------------------ navigation
     @property

@@ -182,5 +182,23 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     assert doc["summary"]["status"] == "complete", doc
 
 
+def test_session_folder_typed_in_is_read_and_named_when_wrong(qtbot, tmp_path):
+    """Opened from the menu without a folder: Next waits for one; a typed folder that is not a
+    calibration session is named on the first page (read in the pool), nothing is computed."""
+    from app.calibration import CalibrationWizard
+
+    w = CalibrationWizard()
+    qtbot.addWidget(w)
+    w.show()
+    assert not w.next_button.isEnabled()
+    qtbot.keyClicks(w.session_edit, str(tmp_path))
+    assert w.next_button.isEnabled()
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda k: k == "inspect"):
+        qtbot.keyClick(w.session_edit, QtCore.Qt.Key.Key_Return)
+    assert "Not a usable calibration session" in w.session_info.text()
+    assert "session.json" in w.session_info.text() and not w.results
+    w.close()
+
+
 def beads_ids(w):
     return w.results["flatfield"]["setup"].target.bead_ids

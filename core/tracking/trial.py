@@ -32,6 +32,16 @@ lowered the per-frame rotation errors from 0.23/0.34/0.17° to 0.20/0.28/0.15°
 smoothed alike) joint tracking gave 0.18/0.27/0.14°
 (``resources/benchmarks/tracking_cost_study_h200.json``).
 
+Bones that touch (``contact``)
+------------------------------
+Overlapping bones can trade image evidence in joint mode: the talus, between the tibia and the
+calcaneus, may slide into a neighbour where their edges line up. With ``contact=True`` every
+joint registration whose pose comes closer than ``contact_margin_mm`` to a neighbour already
+registered in that frame (signed surface distance of :mod:`core.tracking.contact`) is
+polished under the image cost plus ``contact_weight`` × the squared interpenetration depth
+(mm²), and the frame notes the depth resolved. The constraint's curvature enters that frame's
+confidence.
+
 Filtered trajectories
 ---------------------
 Per-frame registrations carry independent noise (~0.2° in rotation at thesis-like dose; the
@@ -56,6 +66,10 @@ nothing is recorded, and tracking continues. With ``max_uncertainty = (mm, degre
 whose per-frame confidence (the length of its σ vector in translation or rotation) exceeds
 either limit, or is not well posed, is flagged ``"uncertain"`` as well (recorded, not retried):
 registrations in the noise's tail are then sent for review instead of passing silently.
+
+``confidence_scale`` multiplies every frame's confidence σ: the curvature construction is a
+scale, not a calibrated standard error, and a factor measured on a trial with ground truth
+(:mod:`core.studies.tracking.hard_trial`) makes 2σ cover the error as often as it should.
 
 Resume and cancel
 -----------------
@@ -95,7 +109,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -136,6 +150,10 @@ class TrackingOptions:
     valid_range: tuple[float, float] | None = (0.02, 0.999)
     erode_px: int = 3
     profile: bool = False
+    contact: bool = False
+    contact_weight: float = 0.05
+    contact_margin_mm: float = 0.0
+    confidence_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.guess not in _GUESSES:
@@ -158,6 +176,12 @@ class TrackingOptions:
                                  f"got {self.max_uncertainty!r}")
             if not self.confidence:
                 raise ValueError("max_uncertainty: needs confidence=True (the limits apply to it)")
+        if not (np.isfinite(self.confidence_scale) and self.confidence_scale > 0):
+            raise ValueError(f"confidence_scale: expected a positive factor, got {self.confidence_scale!r}")
+        if not (np.isfinite(self.contact_weight) and self.contact_weight >= 0):
+            raise ValueError(f"contact_weight: expected a weight >= 0 (per mm²), got {self.contact_weight!r}")
+        if not np.isfinite(self.contact_margin_mm):
+            raise ValueError(f"contact_margin_mm: expected a finite distance, got {self.contact_margin_mm!r}")
 
     @property
     def first_options(self) -> RegistrationOptions:
@@ -413,7 +437,8 @@ class _Attempt:
 
 @dataclass
 class _Run:
-    """The fixed inputs of a :func:`track` run."""
+    """The fixed inputs of a :func:`track` run (``contacts``: the bones'
+    :class:`~core.tracking.contact.ContactModel` when joint tracking keeps them apart)."""
 
     renderer: object
     bones: Sequence[BoneModel]
@@ -421,6 +446,32 @@ class _Run:
     keyframes: Mapping
     options: TrackingOptions
     cancel: _Cancel
+    contacts: list | None = None
+
+
+@dataclass
+class _Work:
+    """Work spent on one bone in one frame, every round and registration added up."""
+
+    evaluations: int = 0
+    time_s: float = 0.0
+    timing: dict = field(default_factory=dict)
+
+    def add(self, a: _Attempt) -> None:
+        self.evaluations += a.evaluations
+        self.time_s += a.time_s
+        for k, v in (a.timing or {}).items():
+            self.timing[k] = self.timing.get(k, 0) + v
+
+
+def _frame_result(name: str, f: int, a: _Attempt, w: _Work) -> FrameResult:
+    """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work."""
+    res = a.result
+    if res is None:
+        return FrameResult(name, f, None, np.nan, w.evaluations, w.time_s, False, tuple(a.flags), a.retried,
+                           None, w.timing or None)
+    return FrameResult(name, f, res.pose, res.score, w.evaluations, w.time_s, not a.flags, tuple(a.flags),
+                       a.retried, a.confidence, w.timing or None, a.notes)
 
 
 def _track_frame(run: _Run, f: int, imgs: list, todo: list[int], state: dict[str, _BoneState],
@@ -446,7 +497,7 @@ def _track_frame(run: _Run, f: int, imgs: list, todo: list[int], state: dict[str
     # poses good enough to subtract: tracked bones' guesses, and bones given or registered this frame
     known = {i for i, b in enumerate(names) if hist[b] or (f in skip[b] and i not in todo)}
     out: dict[int, _Attempt] = {}
-    spent = {i: [0, 0.0, {}] for i in todo}  # evaluations, s, timing: all rounds
+    work = {i: _Work() for i in todo}
     for rnd in range(o.joint_rounds if joint else 1):
         for i in todo:
             if run.cancel():
@@ -464,30 +515,65 @@ def _track_frame(run: _Run, f: int, imgs: list, todo: list[int], state: dict[str
             new = _register_one(run.renderer, frame, bones[i], i, start, guesses[i], opts, o, state[b].scores,
                                 others, run.cancel, hist[b], verify=first and rnd == 0,
                                 start_score=state[b].start_score, seed=f)
+            if run.contacts is not None and new.result is not None and not run.cancel.fired:
+                done = [k for k in range(len(names)) if k != i and k in out and out[k].result is not None]
+                if done:  # neighbours registered in this frame, not mere guesses
+                    _keep_apart(run, frame, i, new, others, [(k, current[k]) for k in done], opts)
             if run.cancel.fired:  # the registration was cut short: nothing of this frame stands
                 return None
-            sp = spent[i]
-            sp[0] += new.evaluations
-            sp[1] += new.time_s
-            for k, v in (new.timing or {}).items():
-                sp[2][k] = sp[2].get(k, 0) + v
+            work[i].add(new)
             if new.result is None and i in out and out[i].result is not None:
                 continue  # a later round lost the bone (outside a view): the earlier pose stands
             out[i] = new
             if new.result is not None:
                 current[i] = new.result.pose
                 known.add(i)
-    results = {}
-    for i in todo:
-        a, (evals, dt, timing) = out[i], spent[i]
-        res, b = a.result, names[i]
-        if res is None:
-            results[i] = FrameResult(b, f, None, np.nan, evals, dt, False, tuple(a.flags), a.retried, None,
-                                     timing or None)
-        else:
-            results[i] = FrameResult(b, f, res.pose, res.score, evals, dt, not a.flags, tuple(a.flags),
-                                     a.retried, a.confidence, timing or None, a.notes)
-    return results
+    return {i: _frame_result(names[i], f, out[i], work[i]) for i in todo}
+
+
+def _keep_apart(run: _Run, frame, i: int, a: _Attempt, others, placed: list,
+                opts: RegistrationOptions) -> None:
+    """Joint tracking with ``contact``: when bone ``i``'s registered pose comes closer than the
+    margin to a neighbour registered in this frame (``placed``: (index, pose)), polish it under
+    the interpenetration penalty of :mod:`core.tracking.contact` (``a`` is updated in place: pose,
+    score, confidence, work, a note with the depth resolved)."""
+    from dataclasses import replace as _replace
+
+    from .contact import penetration_depths, polish_with_contact
+
+    o = run.options
+    neighbours = [(run.contacts[k], P) for k, P in placed]
+    me = run.contacts[i]
+    depth = float(penetration_depths(me, a.result.pose[None], neighbours, margin=o.contact_margin_mm)[0])
+    if depth <= 0:
+        return
+    t0 = time.perf_counter()
+    bone = run.bones[i]
+    try:
+        P, score, fit, evals, left = polish_with_contact(
+            run.renderer, frame, bone=i, pose=a.result.pose, center=bone.centroid, contact=me,
+            neighbours=neighbours, terms=opts.terms, others=others, outline=bone.outline,
+            weight=o.contact_weight, margin=o.contact_margin_mm, margin_px=opts.margin_px, cancel=run.cancel)
+    except OutsideViewError:
+        return
+    a.result = _replace(a.result, pose=P, score=score, fit=fit)
+    a.evaluations += evals
+    dt = time.perf_counter() - t0
+    a.time_s += dt
+    if a.timing is not None:
+        a.timing["other_s"] = a.timing.get("other_s", 0.0) + dt
+    if o.confidence and fit is not None:
+        a.confidence = _confidence(fit, o)
+    a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm")
+
+
+def _confidence(fit, o: TrackingOptions) -> dict:
+    """The confidence of a quadratic fit about the optimum, σ scaled by ``confidence_scale``."""
+    c = confidence_from_fit(fit)
+    if o.confidence_scale != 1.0:
+        k = float(o.confidence_scale)
+        c = replace(c, sigma=c.sigma * k, covariance=c.covariance * k * k)
+    return c.to_dict()
 
 
 def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence],
@@ -542,8 +628,13 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
             raise ValueError(f"keyframes: bone {b!r} has no keyframe to start from")
     skip = {b: dict((skip or {}).get(b, {})) for b in names}
     state = {b: _BoneState() for b in names}
-    run = _Run(renderer, bones, names, keyframes, o, _Cancel(cancel))
     joint = o.mode == "joint" and len(names) > 1
+    contacts = None
+    if joint and o.contact:
+        from .contact import ContactModel
+
+        contacts = [ContactModel.from_bone(b) for b in bones]
+    run = _Run(renderer, bones, names, keyframes, o, _Cancel(cancel), contacts)
     results: dict = {}
     total, done = len(order) * len(names), 0
     t0 = time.perf_counter()
@@ -682,14 +773,18 @@ def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, op
                              f"scores within 0.01)")
     conf = None
     if o.confidence and res.fit is not None:
-        conf = confidence_from_fit(res.fit).to_dict()  # the last design about the optimum
+        conf = _confidence(res.fit, o)  # the last design about the optimum
     elif o.confidence:
         try:
             roi = search_roi(renderer, res.pose, index, views=tuple(range(frame.n_views)), center=c,
                              reach_mm=2.0, margin_px=opts.margin_px, points=bone.outline)
             cost = RegistrationCost(renderer, frame, bone=index, base_pose=res.pose, center=c, roi=roi,
                                     terms=opts.terms, others=others)
-            conf = curvature_confidence(cost, np.zeros(6), step=o.confidence_step).to_dict()
+            conf = curvature_confidence(cost, np.zeros(6), step=o.confidence_step)
+            if o.confidence_scale != 1.0:
+                k = float(o.confidence_scale)
+                conf = replace(conf, sigma=conf.sigma * k, covariance=conf.covariance * k * k)
+            conf = conf.to_dict()
         except OutsideViewError:
             conf = None
         evals += 73 if conf is not None else 0

@@ -50,7 +50,9 @@ class ContactModel:
         m = np.asarray(model.mask, bool)
         pad = close_iterations + 1
         mp = np.pad(m, pad)
-        mp = binary_fill_holes(binary_closing(mp, iterations=close_iterations))[pad:-pad, pad:-pad, pad:-pad]
+        if close_iterations > 0:
+            mp = binary_closing(mp, iterations=int(close_iterations))
+        mp = binary_fill_holes(mp)[pad:-pad, pad:-pad, pad:-pad]
         vol = model.volume
         sp = np.asarray(vol.spacing, float)
         samp = sp[::-1]

@@ -14,8 +14,16 @@ Rows (pyqtgraph, x = frame number, 0-based as everywhere in Talus):
   computed in the background on demand (the bone surfaces take a few seconds to build).
 
 Flagged frames are shaded, a vertical cursor follows the current frame and a click in any plot
-moves to the frame under the mouse. Updates during tracking are coalesced: results mark the
-plots stale and one redraw follows per ``refresh_ms``.
+moves to the frame under the mouse.
+
+Live updates while tracking stay cheap on the GUI thread (``talus bench review``): a result only
+marks its bone changed; a coalescing timer redraws at most every ``refresh_ms`` (100 ms: ≤ 10 Hz),
+only the page shown, only the curves of the changed bones, and nothing while the dock is hidden
+(a tab behind *Messages*, closed) — it catches up when shown. Curves are light
+``PlotCurveItem`` s fed the same preallocated per-frame arrays (NaN where no pose: gaps); each
+σ band is one filled path; the y ranges are set by the dock and widened in steps with a margin
+(no autorange pass and no re-layout of the axes' ticks on most redraws); the legend is the
+plot's coloured title and the grid a text-free item (outside the region a new point repaints).
 """
 
 from __future__ import annotations
@@ -27,11 +35,14 @@ from scipy.spatial.transform import Rotation
 
 from core.tracking.jcs import anatomical_frames, default_joints, joint_series, volume_points
 
-from .review import FLAGGED, ReviewData
+from .review import EDITED, FLAGGED, KEYFRAME, ReviewData
 
 __all__ = ["PlotsDock"]
 
 _PENS = ((230, 80, 80), (80, 190, 90), (90, 140, 240))
+_MIN_FILTERED = 15  # recorded frames before the low-passed curves are shown
+_Y_MARGIN = 0.3  # fraction of the data's span added on each side when a y range must grow
+_MIN_SPAN = 2.0  # smallest y span shown (mm or °): the first frames do not rescale the axes each time
 
 
 def _set(curve, x: np.ndarray, y: np.ndarray) -> None:
@@ -39,11 +50,40 @@ def _set(curve, x: np.ndarray, y: np.ndarray) -> None:
     y = np.asarray(y, float)
     ok = np.isfinite(y)
     if not ok.any():
-        curve.setData([], [])
+        curve.setData(x[:0], y[:0])
     elif ok.all():
-        curve.setData(x, y)
+        curve.setData(x, y, connect="all")
     else:
         curve.setData(x, y, connect="finite")
+
+
+def _band_path(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> QtGui.QPainterPath:
+    """One fillable path: a closed polygon (along ``hi``, back along ``lo``) per run of frames
+    where both are finite."""
+    ok = np.isfinite(lo) & np.isfinite(hi)
+    if not ok.any():
+        return QtGui.QPainterPath()
+    xs, ys, conn = [], [], []
+    for a, b in _runs(np.flatnonzero(ok)):
+        sl = slice(a, b + 1)
+        xs += [x[sl], x[sl][::-1]]
+        ys += [hi[sl], lo[sl][::-1]]
+        c = np.ones(2 * (b - a + 1), bool)
+        c[-1] = False  # no edge to the next run
+        conn.append(c)
+    return pg.arrayToQPath(np.concatenate(xs), np.concatenate(ys), connect=np.concatenate(conn))
+
+
+def _cache(item) -> None:
+    """Draw a static item (axis, grid, shading) from a pixmap cache on screen: a repaint of the
+    curves over it blits it instead of drawing its lines and text again. The cache follows the
+    item's own updates (a new range redraws it); exports switch it off (vector output)."""
+    item.setCacheMode(QtWidgets.QGraphicsItem.CacheMode.DeviceCoordinateCache)
+
+
+def _legend_title(title: str, names, styles=None) -> str:
+    parts = [f"<span style='color:rgb{_PENS[k % 3]}'>{name}</span>" for k, name in enumerate(names)]
+    return f"{title} — {' '.join(parts)}" + (f" <span style='color:#555'>({styles})</span>" if styles else "")
 
 
 def _rel_series(P: np.ndarray, centroid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +108,7 @@ class PlotsDock(QtWidgets.QWidget):
     joint_space_requested = QtCore.Signal()
     refreshed = QtCore.Signal()
 
-    def __init__(self, review: ReviewData, model, *, refresh_ms: int = 250,
+    def __init__(self, review: ReviewData, model, *, refresh_ms: int = 100,
                  parent: QtWidgets.QWidget | None = None) -> None:
         super().__init__(parent)
         self.review = review
@@ -98,20 +138,23 @@ class PlotsDock(QtWidgets.QWidget):
         layout.addWidget(self.tabs, 1)
         self.plots: dict[str, pg.PlotItem] = {}
         self.curves: dict[str, list] = {}
+        self._x = np.arange(review.n_frames, dtype=float)
+        self._y_range: dict[str, tuple[float, float]] = {}
+        self._cutoff: dict[int, tuple[int, float]] = {}  # bone -> (recorded frames, cut-off)
         self._cursors: list[pg.InfiniteLine] = []
         self._shading: list = []
         self._shaded: tuple = ()
         self._make_plots()
-        self._fresh: set[str] = set()  # pages drawn from the current data
-        self._stale = False
+        everything = set(range(len(review.bones)))
+        self._dirty: dict[str, set[int]] = {page: set(everything) for page in self.canvases}
         self._timer = QtCore.QTimer(self)
         self._timer.setSingleShot(True)
         self._timer.setInterval(int(refresh_ms))
-        self._timer.timeout.connect(self.refresh)
+        self._timer.timeout.connect(self._on_timer)
         review.changed.connect(self._on_changed)
-        review.reset.connect(self.refresh)
-        self.bone_combo.currentIndexChanged.connect(lambda _: self.refresh())
-        self.tabs.currentChanged.connect(lambda _: self.page not in self._fresh and self.refresh())
+        review.reset.connect(self._on_reset)
+        self.bone_combo.currentIndexChanged.connect(self._on_bone)
+        self.tabs.currentChanged.connect(lambda _: self._dirty[self.page] and self.refresh())
         model.current_frame_changed.connect(self.set_cursor)
         model.selection_changed.connect(self._on_selection)
         for canvas in self.canvases.values():
@@ -131,7 +174,7 @@ class PlotsDock(QtWidgets.QWidget):
     def canvas_of(self, key: str) -> pg.GraphicsLayoutWidget:
         return self.canvases[self.page_of[key]]
 
-    def _plot(self, page: str, key: str, title: str, units: str, names) -> pg.PlotItem:
+    def _plot(self, page: str, key: str, title: str, units: str, names, styles=None) -> pg.PlotItem:
         if page not in self.canvases:
             canvas = pg.GraphicsLayoutWidget()
             canvas.setMinimumHeight(120)
@@ -141,23 +184,32 @@ class PlotsDock(QtWidgets.QWidget):
         row = sum(1 for k in self.page_of.values() if k == page)
         p = canvas.addPlot(row=row, col=0)
         self.page_of[key] = page
-        p.setTitle(f"{title} — by frame", size="8pt")
+        p.setTitle(_legend_title(f"{title} — by frame", names, styles), size="8pt")
         p.setLabel("left", units)
-        p.showGrid(x=True, y=True, alpha=0.25)
+        for name in ("left", "bottom"):
+            axis = p.getAxis(name)
+            axis.enableAutoSIPrefix(False)  # no relabelling ("× 10³ mm") at each change of range
+            axis.setStyle(tickLength=4)  # ticks outside: the axis lies outside what new points repaint
+            _cache(axis)
         p.setMouseEnabled(x=True, y=False)
-        p.addLegend(offset=(5, 5), labelTextSize="8pt", verSpacing=-6)
+        # a text-free grid: the axes' grid would repaint their tick labels with every new point
+        grid = pg.GridItem()
+        grid.setTextPen(None)
+        grid.setPen(pg.mkPen((0, 0, 0, 40), width=1))
+        _cache(grid)
+        p.addItem(grid, ignoreBounds=True)
         if self.plots:
             p.setXLink(next(iter(self.plots.values())))
-        # a fixed frame axis: no re-layout of its ticks as frames come in
+        # fixed axes: the frame axis spans the trial, the y range is set by the dock (_fit_y)
         p.setXRange(-0.5, self.review.n_frames - 0.5, padding=0.0)
-        p.enableAutoRange(x=False)
-        p.setClipToView(True)
-        p.setDownsampling(auto=True, mode="peak")
+        p.enableAutoRange(x=False, y=False)
+        p.setYRange(-1.0, 1.0, padding=0.0)
         self.plots[key] = p
         curves = []
-        for k, name in enumerate(names):
-            pen = pg.mkPen(_PENS[k % 3], width=1.5)
-            curves.append(p.plot([], [], pen=pen, name=name))
+        for k, _name in enumerate(names):
+            c = pg.PlotCurveItem(pen=pg.mkPen(_PENS[k % 3], width=1.5))
+            p.addItem(c, ignoreBounds=True)
+            curves.append(c)
         self.curves[key] = curves
         cursor = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen((40, 40, 40), width=1))
         p.addItem(cursor, ignoreBounds=True)
@@ -167,16 +219,20 @@ class PlotsDock(QtWidgets.QWidget):
     def _make_plots(self) -> None:
         for key, title, units in (("translation", "translation of the centroid", "mm"),
                                   ("rotation", "rotation (vector, lab axes)", "°")):
-            p = self._plot("Pose", key, title, units, ["x", "y", "z"])
+            p = self._plot("Pose", key, title, units, ["x", "y", "z"],
+                           "solid raw, dashed low-passed, band ± σ")
             bands, filt = [], []
             for k in range(3):
-                lo = p.plot([], [], pen=None)
-                hi = p.plot([], [], pen=None)
-                fill = pg.FillBetweenItem(lo, hi, brush=pg.mkBrush(*_PENS[k], 50))
-                p.addItem(fill)
-                bands.append((lo, hi))
+                band = QtWidgets.QGraphicsPathItem()
+                band.setBrush(pg.mkBrush(*_PENS[k], 50))
+                band.setPen(pg.mkPen(None))
+                band.setZValue(-5)
+                p.addItem(band, ignoreBounds=True)
+                bands.append(band)
                 dash = pg.mkPen(_PENS[k], width=1, style=QtCore.Qt.PenStyle.DashLine)
-                filt.append(p.plot([], [], pen=dash))
+                c = pg.PlotCurveItem(pen=dash)
+                p.addItem(c, ignoreBounds=True)
+                filt.append(c)
             self.curves[key + ":band"] = bands
             self.curves[key + ":filtered"] = filt
         for j in self.joints:
@@ -190,65 +246,143 @@ class PlotsDock(QtWidgets.QWidget):
             self._plot("Joint space", "joint_space", "joint space (smallest surface distance)", "mm", names)
 
     # ------------------------------------------------------------------ updates
-    def _on_changed(self, _b: int, _f: int) -> None:
-        self._stale = True
+    def _on_changed(self, b: int, f: int) -> None:
+        for dirty in self._dirty.values():
+            dirty.add(b)
+        if self.review.status[b, f] in (KEYFRAME, EDITED):  # a hand edit: low-pass again
+            self._cutoff.pop(b, None)
         if not self._timer.isActive():
             self._timer.start()
+
+    def _on_reset(self) -> None:
+        self._cutoff.clear()
+        for page in self._dirty:
+            self._redraw_page(page, now=False)
+        self.refresh()
+
+    def _redraw_page(self, page: str, *, now: bool = True) -> None:
+        self._dirty[page] |= set(range(len(self.review.bones)))
+        if now and page == self.page:
+            self.refresh()
+
+    def _on_timer(self) -> None:
+        if self.isVisible():  # hidden (a tab behind Messages, closed): caught up in showEvent
+            self.refresh()
+
+    def showEvent(self, event) -> None:  # Qt's handler
+        super().showEvent(event)
+        if self._dirty.get(self.page):
+            self._timer.start(0)
+
+    def _on_bone(self, b: int) -> None:
+        self._cutoff.pop(b, None)  # the dashed curves show the bone shown
+        self._redraw_page("Pose")
 
     def _on_selection(self, bone: int) -> None:
         if 0 <= bone < self.bone_combo.count():
             self.bone_combo.setCurrentIndex(bone)
 
     def refresh(self) -> None:
-        """Redraw the curves of the page shown from the review data (and the shading of flagged
-        frames); the other pages are redrawn when they are shown."""
-        self._stale = False
-        self._fresh = {self.page}
+        """Draw the page shown from the review data: the curves of the bones changed since it was
+        last drawn, and the shading of flagged frames (the other pages follow when shown)."""
+        self._timer.stop()
         page = self.page
+        dirty, self._dirty[page] = self._dirty[page], set()
         d = self.review
-        x = np.arange(d.n_frames, dtype=float)
+        x = self._x
         b = max(self.bone_combo.currentIndex(), 0)
-        if d.bones and page == "Pose":
+        if d.bones and page == "Pose" and b in dirty:
             layer = self.model.layers[self.model.index(d.bones[b])]
             P = d.poses[b]
             t, r = _rel_series(P, layer.centroid)
-            filt = self._filtered(P, layer.centroid)
+            filt = self._filtered(b, P, layer.centroid) or (None, None)
             for key, series, sig, fser in (("translation", t, d.sigma_mm[b], filt[0]),
                                            ("rotation", r, d.sigma_deg[b], filt[1])):
+                has_sigma = bool(np.isfinite(sig).any())
                 s = np.where(np.isfinite(sig), sig, 0.0)
                 for k in range(3):
                     _set(self.curves[key][k], x, series[:, k])
-                    lo, hi = self.curves[key + ":band"][k]
-                    _set(lo, x, series[:, k] - s)
-                    _set(hi, x, series[:, k] + s)
-                    _set(self.curves[key + ":filtered"][k], x, fser[:, k])
-        poses = {name: d.poses[i] for i, name in enumerate(d.bones)}
-        for n, j in enumerate(self.joints if page in ("Joint angles", "Helical axis", "Joint space") else ()):
-            if page == "Joint space":
+                    band = self.curves[key + ":band"][k]
+                    band.setVisible(has_sigma)
+                    if has_sigma:
+                        band.setPath(_band_path(x, series[:, k] - s, series[:, k] + s))
+                    if fser is not None:
+                        _set(self.curves[key + ":filtered"][k], x, fser[:, k])
+                self._fit_y(key, series - s[:, None], series + s[:, None])
+        names = {j.proximal for j in self.joints} | {j.distal for j in self.joints}
+        if page in ("Joint angles", "Helical axis") and any(d.bones[i] in names for i in dirty):
+            poses = {name: d.poses[i] for i, name in enumerate(d.bones)}
+            hel_a, hel_t = [], []
+            for n, j in enumerate(self.joints):
+                js = joint_series(poses, j, self.frames)
+                if page == "Joint angles":
+                    for k in range(3):
+                        _set(self.curves[f"jcs:{j.name}"][k], x, js["angles_deg"][:, k])
+                    self._fit_y(f"jcs:{j.name}", js["angles_deg"])
+                else:
+                    _set(self.curves["helical_angle"][n], x, js["helical_angle_deg"])
+                    _set(self.curves["helical_translation"][n], x, js["helical_translation_mm"])
+                    hel_a.append(js["helical_angle_deg"])
+                    hel_t.append(js["helical_translation_mm"])
+            if page == "Helical axis":
+                self._fit_y("helical_angle", *hel_a)
+                self._fit_y("helical_translation", *hel_t)
+        if page == "Joint space":
+            spaces = []
+            for n, j in enumerate(self.joints):
                 space = self.joint_space.get(j.name)
                 if space is not None:
                     _set(self.curves["joint_space"][n], x, space)
-                continue
-            js = joint_series(poses, j, self.frames)
-            for k in range(3):
-                _set(self.curves[f"jcs:{j.name}"][k], x, js["angles_deg"][:, k])
-            _set(self.curves["helical_angle"][n], x, js["helical_angle_deg"])
-            _set(self.curves["helical_translation"][n], x, js["helical_translation_mm"])
+                    spaces.append(space)
+            self._fit_y("joint_space", *spaces)
         self._shade()
         self.refreshed.emit()
 
-    def _filtered(self, P: np.ndarray, centroid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _fit_y(self, key: str, *series) -> None:
+        """Keep the data of plot ``key`` in view: widen its y range (with a margin, so that the
+        next points rarely need another change) when the data leave it, narrow it when they use
+        less than a quarter of it."""
+        vals = [np.asarray(v, float) for v in series if v is not None and np.size(v)]
+        finite = [v[np.isfinite(v)] for v in vals]
+        finite = [v for v in finite if v.size]
+        if not finite:
+            return
+        lo = min(float(v.min()) for v in finite)
+        hi = max(float(v.max()) for v in finite)
+        span = max(hi - lo, _MIN_SPAN)
+        cur = self._y_range.get(key)
+        if cur is not None and cur[0] <= lo and hi <= cur[1] and span >= 0.25 * (cur[1] - cur[0]):
+            return
+        mid = 0.5 * (lo + hi)
+        new = (mid - (0.5 + _Y_MARGIN) * span, mid + (0.5 + _Y_MARGIN) * span)
+        self._y_range[key] = new
+        self.plots[key].setYRange(*new, padding=0.0)
+        for p, item in self._shading:
+            if p is self.plots[key]:
+                item.setOpts(y0=new[0], height=new[1] - new[0])
+
+    def _filtered(self, b: int, P: np.ndarray, centroid: np.ndarray):
+        """The low-passed series of bone ``b``, or None when the curves drawn still stand: while
+        results stream in, the low-pass (and Winter's residual cut-off, in cycles per frame) is
+        computed again only when the bone's recorded frames grew by a fifth (a few times per
+        trial); a reload of the journal (the job's end) or a hand edit computes it at once."""
         n = len(P)
-        none = (np.full((n, 3), np.nan), np.full((n, 3), np.nan))
         ok = np.all(np.isfinite(P), axis=(1, 2))
-        if ok.sum() < 15:
+        count = int(ok.sum())
+        seen = self._cutoff.get(b)
+        if seen is not None and seen[0] <= count < 1.2 * seen[0]:
+            return None
+        none = (np.full((n, 3), np.nan), np.full((n, 3), np.nan))
+        self._cutoff[b] = (count, np.nan)
+        if count < _MIN_FILTERED:
             return none
         from core.tracking.kinematics import filter_poses, residual_cutoff
 
         try:
             path = np.full((n, 3), np.nan)
             path[ok] = P[ok, :3, :3] @ centroid + P[ok, :3, 3]
-            cutoff, _ = residual_cutoff(path, 1.0)
+            cutoff, _ = residual_cutoff(path, 1.0, candidates=np.linspace(0.02, 0.2, 19))
+            self._cutoff[b] = (count, cutoff)
             return _rel_series(filter_poses(P, 1.0, cutoff, center=centroid), centroid)
         except ValueError:
             return none
@@ -262,21 +396,23 @@ class PlotsDock(QtWidgets.QWidget):
             return
         x = np.array([(a + b) / 2 for a, b in runs], float)
         w = np.array([b - a + 1 for a, b in runs], float)
-        if not self._shading:
+        if not self._shading:  # bars over the plot's y range (set again when the range changes)
             for p in self.plots.values():
-                item = pg.BarGraphItem(x=x, width=w, y0=-1e6, height=2e6, brush=pg.mkBrush(220, 70, 60, 45),
+                (y0, y1) = p.getViewBox().viewRange()[1]
+                item = pg.BarGraphItem(x=x, width=w, y0=y0, height=y1 - y0, brush=pg.mkBrush(220, 70, 60, 45),
                                        pen=pg.mkPen(None))
                 item.setZValue(-10)
+                _cache(item)
                 p.addItem(item, ignoreBounds=True)
                 self._shading.append((p, item))
         else:
             for _, item in self._shading:
-                item.setOpts(x=x, width=w, y0=-1e6, height=2e6)
+                item.setOpts(x=x, width=w)
         self._shaded = runs
 
     def set_joint_space(self, distances: dict[str, np.ndarray]) -> None:
         self.joint_space.update({k: np.asarray(v, float) for k, v in distances.items()})
-        self.refresh()
+        self._redraw_page("Joint space")
 
     # ------------------------------------------------------------------ cursor and clicks
     def set_cursor(self, frame: int) -> None:
@@ -331,6 +467,11 @@ class PlotsDock(QtWidgets.QWidget):
             raise ValueError(f"path: the folder {p.parent} does not exist")
         shown = self.page
         written = []
+        cache = QtWidgets.QGraphicsItem.CacheMode
+        cached = [item for canvas in self.canvases.values() for item in canvas.scene().items()
+                  if item.cacheMode() != cache.NoCache]
+        for item in cached:  # vector output: lines and text, not the screen's pixmaps
+            item.setCacheMode(cache.NoCache)
         try:
             if suffix == ".pdf":
                 with atomic_path(p) as tmp:
@@ -366,6 +507,8 @@ class PlotsDock(QtWidgets.QWidget):
                             _write_svg(canvas.scene(), tmp)
                     written.append(dest)
         finally:
+            for item in cached:
+                item.setCacheMode(cache.DeviceCoordinateCache)
             self.show_page(shown)
         for w in written:
             if not w.is_file() or w.stat().st_size == 0:
@@ -375,7 +518,7 @@ class PlotsDock(QtWidgets.QWidget):
     def _drawn(self, page: str):
         """Show ``page`` with its curves drawn from the current data; its canvas."""
         self.show_page(page)
-        if page not in self._fresh:
+        if self._dirty[page]:
             self.refresh()
         return self.canvases[page]
 

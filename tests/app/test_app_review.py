@@ -69,11 +69,13 @@ def test_track_review_fix_retrack_and_export(window, qtbot, demo_folder, tmp_pat
         seen.append((win.tracking.running, n_tracked))
 
     def on_refreshed():
-        x, _ = rv.plots.curves["translation"][0].getData()  # the page shown: Pose
-        plotted.append((win.tracking.running, 0 if x is None else len(x)))
+        _, y = rv.plots.curves["translation"][0].getData()  # the page shown: Pose
+        plotted.append((win.tracking.running, 0 if y is None else int(np.isfinite(y).sum())))
 
     rv.data.changed.connect(on_changed)
     rv.plots.refreshed.connect(on_refreshed)
+    rv.plots_dock.raise_()  # the plots redraw while shown (a tab behind Messages catches up when shown)
+    qtbot.waitUntil(rv.plots.isVisible, timeout=HUNG_JOB_MS)
     with job_ends(qtbot, win.pool, "tracking"):
         win.tracking.start(BONES)
         qtbot.waitUntil(lambda: bool(seen), timeout=HUNG_JOB_MS)  # a first result arrived

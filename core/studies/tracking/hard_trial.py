@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -146,7 +147,7 @@ def joint_space(hr: HardRun, poses: dict, contacts=None) -> dict:
 def evaluate(hr: HardRun, res, bounds: dict, contacts=None) -> dict:
     """Per-bone errors, bound ratios, σ coverage, silent failures and joint spaces of a run."""
     per = {}
-    nf = hr.scene.n_frames
+    nf = len(res.frames)
     poses = {}
     for b, (n, m) in enumerate(zip(hr.names, hr.models, strict=True)):
         E, sig, flags, ratios = [], [], [], []
@@ -200,27 +201,34 @@ def evaluate(hr: HardRun, res, bounds: dict, contacts=None) -> dict:
 
 
 def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MODES, seed: int = 0,
-        device: str | None = None, cache: str | None = None, start=(2.0, 3.0), options=None) -> dict:
-    """Track the harder trial in each of ``modes``; returns the JSON-ready results."""
+        device: str | None = None, cache: str | None = None, start=(2.0, 3.0), options=None,
+        progress=None, n_track: int | None = None) -> dict:
+    """Track the harder trial in each of ``modes``; returns the JSON-ready results
+    (``progress(done, total, FrameResult)`` is passed to :func:`core.tracking.trial.track`);
+    ``n_track`` tracks only the first frames of an ``n_frames`` trial (default all)."""
     from dataclasses import replace
 
     from core.tracking.trial import TrackingOptions, track
 
     t0 = time.perf_counter()
     hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device, cache=cache)
-    for f in range(n_frames):
+    nt = n_frames if n_track is None else min(int(n_track), n_frames)
+    for f in range(nt):
         hr.frames(f)
     t_frames = time.perf_counter() - t0
-    bounds = hr.bounds(range(n_frames))
+    bounds = hr.bounds(range(nt))
     contacts = _contacts(hr)
-    truth_poses = {n: np.array([hr.truth(f)[b] for f in range(n_frames)]) for b, n in enumerate(hr.names)}
+    truth_poses = {n: np.array([hr.truth(f)[b] for f in range(nt)]) for b, n in enumerate(hr.names)}
     truth_js = joint_space(hr, truth_poses, contacts)
+    base = options or TrackingOptions()
     g = np.random.default_rng(seed + 7)
     keyframes = {n: {0: pose_from_params(_random_offset(g, *start), center=m.centroid, base=hr.truth(0)[b])}
                  for b, (n, m) in enumerate(zip(hr.names, hr.models, strict=True))}
     out = {"study": "core.studies.tracking.hard_trial", "machine": platform.machine(),
            "processor": platform.processor() or platform.machine(), "device": str(hr.renderer.device),
-           "config": {"pixels": pixels, "voxel_mm": spacing, "frames": n_frames, "seed": seed,
+           "config": {"pixels": pixels, "voxel_mm": spacing, "frames": n_frames, "tracked_frames": nt,
+                      "seed": seed, "options": base.registration.to_dict(),
+                      "verify_restarts": base.verify_restarts,
                       "start_error": f"{start[0]} mm, {start[1]} deg",
                       "pixel_mm_at_isocentre": float(hr.scene.rig[0].pixel_size),
                       "tracked": list(hr.names),
@@ -228,12 +236,12 @@ def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MOD
            "build_s": hr.build_s, "frames_s": t_frames,
            "truth_joint_space_min_mm": {k: float(np.nanmin(v)) for k, v in truth_js.items()},
            "modes": {}}
-    base = options or TrackingOptions()
     for mode in modes:
         o = replace(base, mode="joint" if mode.startswith("joint") else "sequential",
                     contact=mode.endswith("+contact"))
         t1 = time.perf_counter()
-        res = track(hr.renderer, hr.models, hr.frames, range(n_frames), keyframes=keyframes, options=o)
+        res = track(hr.renderer, hr.models, hr.frames, range(nt), keyframes=keyframes, options=o,
+                    progress=progress)
         ev = evaluate(hr, res, bounds, contacts)
         ev["wall_s"] = time.perf_counter() - t1
         out["modes"][mode] = ev
@@ -247,13 +255,27 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=192)
     p.add_argument("--voxel", type=float, default=1.0, help="voxel size, mm")
     p.add_argument("--frames", type=int, default=6)
+    p.add_argument("--track", type=int, default=None, help="track only the first N frames")
+    p.add_argument("--verify-restarts", type=int, default=None,
+                   help="restarts checking first frames (default the tracker's, 4)")
     p.add_argument("--modes", default=",".join(MODES))
     p.add_argument("--device", default=None)
     p.add_argument("--cache", default=None, help="folder for the frames' line integrals")
     p.add_argument("--out", default=None)
+    p.add_argument("--verbose", action="store_true", help="print each frame's result to stderr")
     a = p.parse_args(argv)
+
+    def say(done, total, fr):
+        print(f"{done}/{total} {fr.bone} {fr.frame} flags={list(fr.flags)} notes={list(fr.notes)} "
+              f"{fr.time_s:.1f}s", file=sys.stderr, flush=True)
+
+    from core.tracking.trial import TrackingOptions
+
+    opts = TrackingOptions() if a.verify_restarts is None else \
+        TrackingOptions(verify_restarts=a.verify_restarts)
     res = run(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, modes=tuple(a.modes.split(",")),
-              device=a.device, cache=a.cache)
+              device=a.device, cache=a.cache, progress=say if a.verbose else None, n_track=a.track,
+              options=opts)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

@@ -24,7 +24,7 @@ HUNG_MS = 30 * 60_000
 def demo_folder(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo") / "study"
     make_demo_study(out, n_frames=3, pixels=160, seed=2, device="cpu", spacing=1.5,
-                    tissue_spacing=6.0)
+                    tissue_spacing=6.0, calibration_session=False)
     return out
 
 

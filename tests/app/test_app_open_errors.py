@@ -27,7 +27,7 @@ LONG = "gait_laboratory_2026_subject_07_left_foot_barefoot_walking_trials_sessio
 def demo_folder(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo") / "study"
     make_demo_study(out, n_frames=2, pixels=96, seed=4, device="cpu", spacing=2.0,
-                    tissue_spacing=6.0)
+                    tissue_spacing=6.0, calibration_session=False)
     return out
 
 

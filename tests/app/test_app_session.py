@@ -17,7 +17,7 @@ from core.synthetic import make_demo_study
 def demo_folder(tmp_path_factory):
     out = tmp_path_factory.mktemp("sess") / "study"
     make_demo_study(out, n_frames=3, pixels=96, seed=4, device="cpu", spacing=2.0,
-                    tissue_spacing=8.0)
+                    tissue_spacing=8.0, calibration_session=False)
     return out
 
 

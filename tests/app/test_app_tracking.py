@@ -11,14 +11,17 @@ from PySide6 import QtCore
 from app.main_window import MainWindow
 from core.study import Study
 from core.synthetic import make_demo_study
-from core.tracking.register import RegistrationOptions
+from core.tracking.register import Level, RegistrationOptions
 from core.tracking.trial import TrackingOptions
 from tests.app._helpers import HUNG_JOB_MS, job_ends
 
 pytestmark = pytest.mark.gui
 
-FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0),
-                                                        refine=None), confidence=False)
+# The window's plumbing is what is tested here, not the tracker's accuracy: one short CMA-ES level
+# and no restarts to verify a result (the default 4 restarts cost most of the tracking time)
+FAST = TrackingOptions(registration=RegistrationOptions(
+    bounds=(4.0, 4.0), levels=(Level(1.0, "cmaes", (0.7, 0.7), popsize=10, max_generations=40, tol_x=0.02),),
+    refine=None), confidence=False, verify_restarts=0)
 
 
 @pytest.fixture(scope="module")

@@ -150,7 +150,8 @@ def test_study_repair_keeps_good_records_and_reports_the_rest(tmp_path, capsys):
     from core.synthetic import make_demo_study
 
     out = tmp_path / "demo"
-    make_demo_study(out, n_frames=3, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu")
+    make_demo_study(out, n_frames=3, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu",
+                    calibration_session=False)
     with Study.open(out, mode="w") as st:
         tr = st.trial("walk")
         for f in (1, 2):

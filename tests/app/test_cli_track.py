@@ -17,7 +17,8 @@ def demo(tmp_path_factory):
     from core.synthetic import make_demo_study
 
     out = tmp_path_factory.mktemp("demo")
-    make_demo_study(out, n_frames=3, pixels=96, spacing=2.0, tissue_spacing=4.0, device="cpu")
+    make_demo_study(out, n_frames=3, pixels=96, spacing=2.0, tissue_spacing=4.0, device="cpu",
+                    calibration_session=False)
     return out
 
 

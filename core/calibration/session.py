@@ -277,7 +277,8 @@ def _detect(img: np.ndarray, target: CalibrationTarget, ppm: float, mask) -> Obj
     # the strongest detections are enough (a few missed or extra beads are labelled around):
     # the labelling's cost grows with detections x beads x hypotheses
     return detect_object_beads(img, target.size_classes[0], px_per_mm=ppm, mask=mask,
-                               max_beads=2 * len(target) + 10)
+                               max_beads=2 * len(target) + 10,
+                               flatten_background=target.body is not None and target.body[0] == "tube")
 
 
 def _field_mask(c: CameraCorrection, margin_px: int = 12) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Joint angles of the tracked demo against those of its ground-truth poses (Grood–Suntay JCS).
 
-``python -m core.studies.tracking.jcs_check [--pixels 128] [--frames 6] [--bones tibia,talus,calcaneus]
-[--fast] [--device cpu] [--out JSON]``
+``python -m core.studies.tracking.jcs_check [--pixels 128] [--frames 6] [--demo-frames 60]
+[--bones tibia,talus,calcaneus] [--fast] [--device cpu] [--out JSON]``
 
 A small foot demo (:func:`core.synthetic.make_demo_study`, the true rig, no calibration session)
 is tracked from the true frame-0 poses (its keyframes) with
@@ -30,8 +30,8 @@ import numpy as np
 __all__ = ["main", "run"]
 
 
-def run(*, pixels: int = 128, frames: int = 6, bones=("tibia", "talus", "calcaneus"), fast: bool = False,
-        device: str = "cpu", lost_mm: float = 2.0, folder=None, progress=None) -> dict:
+def run(*, pixels: int = 128, frames: int = 6, demo_frames: int = 60, bones=("tibia", "talus", "calcaneus"),
+        fast: bool = False, device: str = "cpu", lost_mm: float = 2.0, folder=None, progress=None) -> dict:
     from core.studies.tracking.acceptance import pose_errors
     from core.study import Study
     from core.synthetic import make_demo_study
@@ -45,9 +45,9 @@ def run(*, pixels: int = 128, frames: int = 6, bones=("tibia", "talus", "calcane
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(folder) if folder else Path(tmp) / "demo"
         t0 = time.perf_counter()
-        say(f"writing the demo ({frames} frames, {pixels} px)")
-        make_demo_study(out, n_frames=frames, pixels=pixels, seed=0, device=device, spacing=1.0,
-                        tissue_spacing=4.0, calibration_session=False)
+        say(f"writing the demo ({demo_frames} frames, {pixels} px)")
+        make_demo_study(out, n_frames=max(demo_frames, frames), pixels=pixels, seed=0, device=device,
+                        spacing=1.0, tissue_spacing=4.0, calibration_session=False)
         t_demo = time.perf_counter() - t0
         truth = {b: np.load(out / "poses" / f"{b}.npy")[:frames] for b in bones}
         options = None
@@ -83,7 +83,8 @@ def run(*, pixels: int = 128, frames: int = 6, bones=("tibia", "talus", "calcane
             well = not (per_bone[j.proximal]["lost"] or per_bone[j.distal]["lost"])
             rms[j.name].update(proximal=j.proximal, distal=j.distal, angle_names=list(j.angle_names),
                                bones_tracked_well=well)
-    return {"study": "jcs_check", "demo": {"pixels": pixels, "frames": frames, "seed": 0, "spacing_mm": 1.0,
+    return {"study": "jcs_check", "demo": {"pixels": pixels, "frames": max(demo_frames, frames),
+                                           "tracked_frames": frames, "seed": 0, "spacing_mm": 1.0,
                                            "calibration": "true rig"},
             "bones": bones, "options": "fast (GUI tests')" if fast else "default",
             "device": device, "seconds": {"demo": t_demo, "tracking": t_track},
@@ -100,7 +101,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m core.studies.tracking.jcs_check",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--pixels", type=int, default=128)
-    ap.add_argument("--frames", type=int, default=6)
+    ap.add_argument("--frames", type=int, default=6, help="frames tracked, from frame 0")
+    ap.add_argument("--demo-frames", type=int, default=60,
+                    help="length of the demo's walk (its motion spans the whole walk: 6 frames of a "
+                         "6-frame demo move the bones tens of mm apart)")
     ap.add_argument("--bones", default="tibia,talus,calcaneus")
     ap.add_argument("--fast", action="store_true", help="the GUI tests' faster tracking options")
     ap.add_argument("--device", default="cpu")
@@ -109,8 +113,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.frames < 2 or a.pixels < 32:
         ap.error("--frames: at least 2; --pixels: at least 32")
-    res = run(pixels=a.pixels, frames=a.frames, bones=a.bones.split(","), fast=a.fast, device=a.device,
-              lost_mm=a.lost_mm, progress=lambda m: print(f"[jcs check] {m}", file=sys.stderr, flush=True))
+    res = run(pixels=a.pixels, frames=a.frames, demo_frames=a.demo_frames, bones=a.bones.split(","),
+              fast=a.fast, device=a.device, lost_mm=a.lost_mm,
+              progress=lambda m: print(f"[jcs check] {m}", file=sys.stderr, flush=True))
     print_json(res, a.out)
     return 0
 

@@ -224,7 +224,6 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     event per frame. ``cancel()`` (or, on a Dask worker, the Dask event named ``stop_event``)
     stops the task between registrations: the frames done stay in the journal."""
     from ..study import Study
-    from .batch_dask import stop_flag
     from .batch_journal import SharedJournals
     from .from_study import track_study
     from .trial import journal_inputs
@@ -367,10 +366,38 @@ def summarize(tasks: Sequence[BatchTask], records: Sequence[dict], failures: Seq
     }
 
 
-def __getattr__(name: str):
-    """:func:`local_cluster` and :func:`run_batch` live in :mod:`core.tracking.batch_dask`."""
-    if name in ("local_cluster", "run_batch"):
-        from . import batch_dask
+def stop_flag(name: str | None, every_s: float = 0.5) -> Callable[[], bool] | None:
+    """A cancel callable that reads the Dask event ``name`` (set by the client to stop the batch)
+    at most every ``every_s`` seconds; None without a name or off a Dask worker."""
+    if name is None:
+        return None
+    try:
+        from distributed import Event, get_worker
 
-        return getattr(batch_dask, name)
+        get_worker()
+    except (ImportError, ValueError):
+        return None
+    event = Event(name)
+    state = {"next": 0.0, "set": False}
+
+    def stop() -> bool:
+        now = time.monotonic()
+        if not state["set"] and now >= state["next"]:
+            state["next"] = now + every_s
+            try:
+                state["set"] = bool(event.is_set())
+            except Exception:  # the scheduler is gone: the batch is over
+                state["set"] = True
+        return state["set"]
+
+    return stop
+
+
+def __getattr__(name: str):
+    """:func:`local_cluster` and :func:`run_batch` live in :mod:`core.tracking.batch_dask` (imported
+    by name, so that module's import of this one is no import circle)."""
+    if name in ("local_cluster", "run_batch"):
+        import importlib
+
+        return getattr(importlib.import_module(f"{__package__}.batch_dask"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -11,36 +11,11 @@ import os
 import time
 from collections.abc import Callable, Sequence
 
-from .batch import EVENT_TOPIC, BatchTask, TaskSettings, _cancelled, run_task, summarize
+from .batch import EVENT_TOPIC, BatchTask, TaskSettings, _cancelled, run_task, stop_flag, summarize
 
 __all__ = ["gpu_count", "local_cluster", "run_batch", "stop_flag"]
 
 
-def stop_flag(name: str | None, every_s: float = 0.5) -> Callable[[], bool] | None:
-    """A cancel callable that reads the Dask event ``name`` (set by the client to stop the batch)
-    at most every ``every_s`` seconds; None without a name or off a Dask worker."""
-    if name is None:
-        return None
-    try:
-        from distributed import Event, get_worker
-
-        get_worker()
-    except (ImportError, ValueError):
-        return None
-    event = Event(name)
-    state = {"next": 0.0, "set": False}
-
-    def stop() -> bool:
-        now = time.monotonic()
-        if not state["set"] and now >= state["next"]:
-            state["next"] = now + every_s
-            try:
-                state["set"] = bool(event.is_set())
-            except Exception:  # the scheduler is gone: the batch is over
-                state["set"] = True
-        return state["set"]
-
-    return stop
 
 
 def gpu_count() -> int:

@@ -18,7 +18,7 @@ def session(tmp_path_factory):
     from core.synthetic.session import write_calibration_session
 
     out = tmp_path_factory.mktemp("cal") / "session"
-    write_calibration_session(out, pixels=384, seed=2, n_spiral=10, n_grid=1, n_lattice=1, n_dark=2,
+    write_calibration_session(out, pixels=384, seed=0, n_spiral=11, n_grid=1, n_lattice=1, n_dark=2,
                               n_flat=3)
     return out
 

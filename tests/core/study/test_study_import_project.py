@@ -153,3 +153,24 @@ def test_export_formats_read_back(wrist_study, fmt, tmp_path):
         assert len(r.joints) == 1 and np.isfinite(r.values[1]).all() and np.isnan(r.values[0]).all()
         return
     np.testing.assert_allclose(got, talus, atol=1e-5)
+
+
+def test_talus_track_runs_on_the_imported_wrist_study(wrist_project, tmp_path, capsys):
+    """The 1.2 .cfg study tracks with the command a user runs: the radius from its .tra pose in
+    frame 0099 on to frame 0158, at a quarter of the resolution (the pipeline, not its accuracy)."""
+    import json
+
+    from app.cli import main
+    from core.study import Study
+    from core.study.import_project import import_project
+
+    d, cfg, _ = wrist_project
+    import_project(cfg, tmp_path / "study", tra=d / "wrist.tra").close()
+    rc = main(["track", str(tmp_path / "study"), "--trial", "trial", "--bones", "rad_dcm_cropped",
+               "--frames", "1:3", "--scale", "4", "--search", "newton", "--no-confidence", "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert json.loads(out)["summary"]
+    with Study.open(tmp_path / "study") as s:
+        P = s.trial("trial").poses("rad_dcm_cropped")
+        assert np.isfinite(P[1:]).all() and np.isnan(P[0]).all()

@@ -26,8 +26,10 @@ pytestmark = pytest.mark.gui
 HUNG_JOB_MS = 30 * 60_000  # only the ceiling for a job that never ends
 BONES = ["tibia", "talus", "calcaneus"]
 N = 5
+# no restarts to verify a result: the default 4 restarts cost most of the tracking time, and the
+# review's plumbing is tested here, not the tracker's accuracy
 FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0), refine=None),
-                       confidence=False)
+                       confidence=False, verify_restarts=0)
 
 
 @pytest.fixture(scope="module")

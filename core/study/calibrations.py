@@ -246,10 +246,17 @@ def use_calibration(study, trial: str, calibration: str) -> None:
     study._commit(doc)
 
 
-def calibrate_study(study, session, *, object=None, model: str = "auto", series: str = "session",
-                    trials="series", progress=None, cancel=None):
+def calibrate_study(study, session, *, object=None, model: str = "auto", lab_frame: str = "static",
+                    series: str = "session", trials="series", progress=None, cancel=None):
     """Calibrate the session folder ``session`` (:func:`core.io.read_session`) and save the result
     into ``study`` (open for writing) as the next version of ``series``.
+
+    ``object``, ``model`` and ``lab_frame`` are those of
+    :func:`~core.calibration.session.calibrate_session`: ``lab_frame="static"`` (default) puts the
+    lab in the static object's (cube's) frame, and a cube frame that was recorded but cannot be
+    labelled is then an error naming its file; ``"object"`` accepts the moving object's first
+    labelled frame as the lab frame, with a warning in ``calibration.report["warnings"]`` (saved
+    with the version's report).
 
     Returns ``(saved, calibration)``: the :class:`SavedCalibration` and the
     :class:`~core.calibration.session.SessionCalibration`. Raises what
@@ -259,5 +266,6 @@ def calibrate_study(study, session, *, object=None, model: str = "auto", series:
     from ..io.calibration_session import read_session
 
     sess = read_session(session)
-    cal = calibrate_session(sess, object=object, model=model, progress=progress, cancel=cancel)
+    cal = calibrate_session(sess, object=object, model=model, lab_frame=lab_frame, progress=progress,
+                            cancel=cancel)
     return save_session_calibration(study, cal, series=series, trials=trials, session_path=session), cal

@@ -63,7 +63,7 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
-from .cost import CostTimer, FrameImages, MetricTerm, _in_pixels, fluoro_rois, mm_per_pixel
+from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
 from .optimize import OptimizeResult
 from .quadratic import QuadraticFit
 
@@ -171,6 +171,86 @@ def fluoro_gradient_kernel(f: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dty
         if wp.length(g) <= K.ZERO_GRADIENT * wp.max(1.0, fmax[v]):
             g = wp.vec2f(0.0, 0.0)
     out[v, r, c] = g
+
+
+_LANES = 128  # threads per (view, chunk) of fluoro_roi_kernel
+LI_FLOOR = wp.constant(1.0 / 4096.0)  # core.tracking.cost's line-integral floor
+
+
+@wp.kernel
+def fluoro_roi_kernel(src: wp.array3d(dtype=wp.float32), given: wp.array3d(dtype=wp.uint8),
+                      info: wp.array2d(dtype=wp.int32), lo: float, hi: float, p: int, check: int, chunk: int,
+                      raw: wp.array3d(dtype=wp.float32), fmask: wp.array3d(dtype=wp.uint8),
+                      fmax: wp.array(dtype=wp.float32), msum: wp.array2d(dtype=wp.float64)):
+    """Each view's search region in DRR polarity ``-ln clip(I, 1/4096, 1)`` and its usable pixels,
+    as :meth:`core.tracking.cost.FrameImages.region` computes them on the host: ``src[v]`` holds
+    the fluence of the region grown by ``p`` pixels (clipped to the image) and ``given[v]`` the
+    frame's own mask there; ``info[v] = (h, w, oy, ox, hs, ws, has_given, _)`` (the region's size,
+    its offset in ``src``, the staged size). With ``check``, a pixel is usable when every pixel
+    within L1 distance ``p`` inside the image lies in ``(lo, hi)`` (the cross erosion iterated
+    ``p`` times, outside the image counted usable). ``fmax[v]`` = max over the region,
+    ``msum[v] = (usable pixels, Σ usable values)``. dim = (views, chunks, _LANES)."""
+    v, ch, lane = wp.tid()
+    h = info[v, 0]
+    w = info[v, 1]
+    oy = info[v, 2]
+    ox = info[v, 3]
+    hs = info[v, 4]
+    ws = info[v, 5]
+    W = raw.shape[2]
+    start = ch * chunk
+    stop = wp.min(raw.shape[1] * W, start + chunk)
+    n = float(0.0)  # noqa: UP018 (Warp variables, not constants)
+    s = float(0.0)  # noqa: UP018
+    mx = float(0.0)  # noqa: UP018
+    for q in range(start + lane, stop, _LANES):
+        r = q // W
+        c = q - r * W
+        x = float(0.0)  # noqa: UP018
+        ok = int(0)  # noqa: UP018, RUF046
+        if r < h and c < w:
+            rr = r + oy
+            cc = c + ox
+            x = -wp.log(wp.clamp(src[v, rr, cc], LI_FLOOR, 1.0))
+            ok = int(1)  # noqa: UP018, RUF046
+            if check != 0:
+                for dr in range(-p, p + 1):
+                    y = rr + dr
+                    if y >= 0 and y < hs:
+                        a = p - wp.abs(dr)
+                        for dc in range(-a, a + 1):
+                            z = cc + dc
+                            if z >= 0 and z < ws:
+                                u = src[v, y, z]
+                                if not (u > lo and u < hi):
+                                    ok = int(0)  # noqa: UP018, RUF046
+            if info[v, 6] != 0:
+                if given[v, rr, cc] == wp.uint8(0):
+                    ok = int(0)  # noqa: UP018, RUF046
+            mx = wp.max(mx, x)
+            if ok != 0:
+                n += 1.0
+                s += x
+        raw[v, r, c] = x
+        fmask[v, r, c] = wp.uint8(ok)
+    if mx > 0.0:
+        wp.atomic_max(fmax, v, mx)
+    if n > 0.0:
+        wp.atomic_add(msum, v, 0, wp.float64(n))
+        wp.atomic_add(msum, v, 1, wp.float64(s))
+
+
+@wp.kernel
+def fluoro_shift_kernel(msum: wp.array2d(dtype=wp.float64), mode: int, fshift: wp.array(dtype=wp.float32),
+                        count: wp.array(dtype=wp.int32)):
+    """NCC: the mean of each view's usable values (0 for GC); the usable pixels' count. dim = views."""
+    v = wp.tid()
+    n = msum[v, 0]
+    m = float(0.0)  # noqa: UP018
+    if mode == 0 and n > wp.float64(0.0):
+        m = float(msum[v, 1] / n)
+    fshift[v] = m
+    count[v] = int(n)
 
 
 def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
@@ -386,6 +466,20 @@ class GaussNewtonCost:
         self._fshift = wp.zeros(nv, dtype=wp.float32, device=dev)
         self._fmax = wp.zeros(nv, dtype=wp.float32, device=dev)
         self._fblur = None
+        self._fblur_taps: np.ndarray | None = None
+        self._taps_cache: dict = {}
+        pinned = dev.is_cuda
+        self._host_hw = wp.zeros(nv, dtype=wp.vec2i, device="cpu", pinned=pinned)
+        # device preparation of the fluoroscope ROIs (set_frame): per-view geometry, sums, counts
+        self._host_info = wp.zeros((nv, 8), dtype=wp.int32, device="cpu", pinned=pinned)
+        self._info = wp.zeros((nv, 8), dtype=wp.int32, device=dev)
+        self._msum = wp.zeros((nv, 2), dtype=wp.float64, device=dev)
+        self._count = wp.zeros(nv, dtype=wp.int32, device=dev)
+        self._host_count = wp.zeros(nv, dtype=wp.int32, device="cpu", pinned=pinned)
+        self._count_event = wp.Event(dev) if dev.is_cuda else None
+        self._stage_src = None
+        self._staged_last = None  # (the frame, its regions) now on the device
+        self.device_frames = True  # full-resolution ROIs prepared on the device (set_frame)
         self.base = self.center = self.roi = None
 
     @property
@@ -400,68 +494,73 @@ class GaussNewtonCost:
         """Take the fluoroscope ROIs ``roi (n_views, 4)`` of ``frame`` (the DRRs of ``others``
         subtracted, see :func:`core.tracking.cost.fluoro_rois`) and the parameterisation
         ``base_pose``, ``center`` for the next evaluations. The ROIs are smoothed and
-        differentiated on the device. Raises :class:`~core.tracking.cost.OutsideViewError` like
-        :class:`RegistrationCost`."""
-        from ..similarity.batched import gaussian_weights
-
+        differentiated on the device; at full resolution (``scale`` 1, the ROIs inside the
+        images) the line integrals and usable-pixel masks are computed there too, from the
+        fluence uploaded as it is (:attr:`device_frames`). Raises
+        :class:`~core.tracking.cost.OutsideViewError` like :class:`RegistrationCost`."""
         t0 = time.perf_counter()
         self.base = np.asarray(base_pose, dtype=float)
         self.center = np.asarray(center, dtype=float)
         self.roi = np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)
-        rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi, scale=self.scale)
         px_mm = self.scale * mm_per_pixel(self.renderer, self.base, self.center, self.views)
-        opts = _in_pixels({k: v for k, v in self.term.options.items()
-                           if k in ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm")}, px_mm)
-        f_sig = float(opts.get("fluoro_sigma", 0.0))
-        d_sig = float(opts.get("drr_sigma", 0.0))
-        taps = gaussian_weights(d_sig) if d_sig > 0 else None
-        ftaps = gaussian_weights(f_sig, truncate=4.0) if f_sig > 0 else None  # as the host preparation
-        shapes = [r.shape for r in rois]
-        need = (max(s[0] for s in shapes), max(s[1] for s in shapes))
-        cap = self._cap
+        taps, ftaps = self._taps(px_mm)
+        staged = self._staged_shapes(frame) if self.device_frames else None
+        if staged is None:
+            rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi, scale=self.scale)
+            shapes = [r.shape for r in rois]
+        else:
+            shapes = [(int(r[3]), int(r[2])) for r in self.roi]
+        need = (max(sh[0] for sh in shapes), max(sh[1] for sh in shapes))
         same_taps = (taps is None and self._blur_taps is None) or (
             taps is not None and self._blur_taps is not None and len(taps) == len(self._blur_taps))
         # the buffers' size depends on this frame alone (32-pixel steps), so a frame is scored
         # alike whatever came before it (a resumed run repeats an uninterrupted one)
         new = tuple(int(math.ceil(n / 32.0) * 32) for n in need)
-        if new != cap or not same_taps:
+        if new != self._cap or not same_taps:
             self._allocate(new, taps)
-        elif taps is not None:
+        elif taps is not None and not np.array_equal(taps, self._blur_taps):
             self._blur.assign(taps)
         self._blur_taps = taps
         Hc, Wc = self._cap
         nv = self.n_views
-        raw, fm = self._host_raw, self._host_mask
-        shift = np.zeros(nv, np.float32)
-        fmax = np.zeros(nv, np.float32)
-        for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
-            h, w = f.shape
-            raw[i, :h, :w] = f
-            raw[i, h:] = 0.0
-            raw[i, :h, w:] = 0.0
-            fm[i, :h, :w] = m
-            fm[i, h:] = 0
-            fm[i, :h, w:] = 0
-            if self.mode == 0:  # the intensities' mean (the Pearson scores do not depend on it)
-                shift[i] = float(f[m].mean()) if m.any() else 0.0
-            fmax[i] = max(float(f.max()), -float(f.min()))
         dev = self.device
-        wp.copy(self._raw, self._host_raw_wp)
+        hw = self._host_hw.numpy()
+        hw[:] = np.array(shapes, dtype=np.int32)
+        wp.copy(self._ref_hw, self._host_hw)
+        if staged is None:
+            raw, fm = self._host_raw, self._host_mask
+            shift = np.zeros(nv, np.float32)
+            fmax = np.zeros(nv, np.float32)
+            for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
+                h, w = f.shape
+                raw[i, :h, :w] = f
+                raw[i, h:] = 0.0
+                raw[i, :h, w:] = 0.0
+                fm[i, :h, :w] = m
+                fm[i, h:] = 0
+                fm[i, :h, w:] = 0
+                if self.mode == 0:  # the intensities' mean (the Pearson scores do not depend on it)
+                    shift[i] = float(f[m].mean()) if m.any() else 0.0
+                fmax[i] = max(float(f.max()), -float(f.min()))
+            wp.copy(self._raw, self._host_raw_wp)
+            wp.copy(self._fmask, self._host_mask_wp)
+            self._fshift.assign(shift)
+            self._fmax.assign(fmax)
+        else:
+            self._stage(frame, staged)
         if others is not None and len(others[1]):  # subtracted on the device, at the fixed output size
             nb = len(others[1])
             batch = self.renderer.render(np.asarray(others[0], dtype=float)[None], views=self.views,
                                          bones=list(others[1]), roi=self.roi[None, :, None, :],
                                          scale=self.scale, out_shape=(Hc, Wc))
             wp.launch(subtract_kernel, dim=(nv, Hc, Wc), inputs=[batch.images, nb, self._raw], device=dev)
-        wp.copy(self._fmask, self._host_mask_wp)
-        self._fshift.assign(shift)
-        self._fmax.assign(fmax)
-        self._ref_hw.assign(np.array(shapes, dtype=np.int32))
         if ftaps is not None:
             if self._fblur is None or len(self._fblur) != len(ftaps):
                 self._fblur = wp.array(ftaps, dtype=wp.float32, device=dev)
-            else:
+                self._fblur_taps = ftaps
+            elif not np.array_equal(ftaps, self._fblur_taps):
                 self._fblur.assign(ftaps)
+                self._fblur_taps = ftaps
             for src, dst, axis in ((self._raw, self._ftmp, 1), (self._ftmp, self._fluoro, 0)):
                 wp.launch(K.blur_kernel, dim=(nv, Hc, Wc), device=dev,
                           inputs=[src, dst, self._fblur, self._ref_hw, nv, axis])
@@ -469,7 +568,107 @@ class GaussNewtonCost:
             wp.copy(self._fluoro, self._raw)
         wp.launch(fluoro_gradient_kernel, dim=(nv, Hc, Wc), device=dev,
                   inputs=[self._fluoro, self._ref_hw, self._fmax, self._ku, self._kv, self._fgrad])
+        if staged is not None:  # the usable pixels counted on the device
+            if self._count_event is not None:
+                wp.synchronize_event(self._count_event)
+            else:
+                wp.synchronize_device(dev)
+            for i, n in enumerate(self._host_count.numpy()):
+                if n <= 0:
+                    raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view "
+                                           f"{self.views[i]}")
         self.timer.host += time.perf_counter() - t0
+
+    def _taps(self, px_mm: float):
+        """The DRR and fluoroscope blur taps at this pixel size (kept for the next frames)."""
+        from ..similarity.batched import gaussian_weights
+
+        opts = _in_pixels({k: v for k, v in self.term.options.items()
+                           if k in ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm")}, px_mm)
+        key = (float(opts.get("fluoro_sigma", 0.0)), float(opts.get("drr_sigma", 0.0)))
+        hit = self._taps_cache.get(key)
+        if hit is None:
+            f_sig, d_sig = key
+            taps = gaussian_weights(d_sig) if d_sig > 0 else None
+            ftaps = gaussian_weights(f_sig, truncate=4.0) if f_sig > 0 else None  # as the host preparation
+            if len(self._taps_cache) >= 64:
+                self._taps_cache.pop(next(iter(self._taps_cache)))
+            hit = self._taps_cache[key] = (taps, ftaps)
+        return hit
+
+    def _staged_shapes(self, frame) -> list | None:
+        """Per view ``(r0, r1, c0, c1, erode)``: the image rows and columns to upload for the device
+        preparation of the ROIs (each grown by the mask's erosion), or None where the host
+        prepares them (a pyramid level, an ROI reaching outside its image, not a
+        :class:`~core.tracking.cost.FrameImages`). Raises OutsideViewError for an empty ROI."""
+        if self.scale != 1.0 or not isinstance(frame, FrameImages):
+            return None
+        p = frame._erode if frame._valid is not None else 0
+        out = []
+        for i, v in enumerate(self.views):
+            u0, v0, w, h = (int(a) for a in self.roi[i])
+            if w <= 0 or h <= 0:
+                raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
+            H, W = frame.shapes[v]
+            if u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
+                return None
+            out.append((max(v0 - p, 0), min(v0 + h + p, H), max(u0 - p, 0), min(u0 + w + p, W), p))
+        return out
+
+    def _stage(self, frame: FrameImages, staged: list) -> None:
+        """Upload each view's region of the fluence (and the frame's own masks) and prepare the
+        line integrals, masks and their statistics on the device (:func:`fluoro_roi_kernel`)."""
+        dev = self.device
+        nv = self.n_views
+        p = staged[0][4]
+        Hc, Wc = self._cap
+        need = (nv, Hc + 2 * p, Wc + 2 * p)
+        given = any(frame._given[v] is not None for v in self.views)
+        key = (tuple(staged), tuple(self.views))
+        last = self._staged_last
+        if (last is not None and last[0]() is frame and last[1] == key and self._stage_src is not None
+                and self._stage_src.shape == need):
+            upload = False  # the same regions of the same frame (joint tracking's next round): on the device
+        else:
+            upload = True
+        if self._stage_src is None or self._stage_src.shape != need:
+            pinned = dev.is_cuda
+            self._host_stage_wp = wp.zeros(need, dtype=wp.float32, device="cpu", pinned=pinned)
+            self._host_stage = self._host_stage_wp.numpy()
+            self._stage_src = wp.zeros(need, dtype=wp.float32, device=dev)
+            self._host_gstage_wp = wp.zeros(need, dtype=wp.uint8, device="cpu", pinned=pinned)
+            self._host_gstage = self._host_gstage_wp.numpy()
+            self._stage_given = wp.zeros(need, dtype=wp.uint8, device=dev)
+        info = self._host_info.numpy()
+        info[:] = 0
+        for i, v in enumerate(self.views):
+            r0, r1, c0, c1, _ = staged[i]
+            u0, v0, w, h = (int(a) for a in self.roi[i])
+            g = frame._given[v]
+            if upload:
+                self._host_stage[i, :r1 - r0, :c1 - c0] = frame._fluence[v][r0:r1, c0:c1]
+                if g is not None:
+                    self._host_gstage[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
+            info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
+        if upload:
+            wp.copy(self._stage_src, self._host_stage_wp)
+            if given:
+                wp.copy(self._stage_given, self._host_gstage_wp)
+            self._staged_last = (weakref.ref(frame), key)
+        wp.copy(self._info, self._host_info)
+        self._fmax.zero_()
+        self._msum.zero_()
+        lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
+        chunk = 4096
+        wp.launch(fluoro_roi_kernel, dim=(nv, math.ceil(Hc * Wc / chunk), _LANES), device=dev,
+                  inputs=[self._stage_src, self._stage_given, self._info, float(lo), float(hi), int(p),
+                          int(frame._valid is not None), chunk, self._raw, self._fmask, self._fmax,
+                          self._msum])
+        wp.launch(fluoro_shift_kernel, dim=nv, device=dev,
+                  inputs=[self._msum, self.mode, self._fshift, self._count])
+        wp.copy(self._host_count, self._count)
+        if self._count_event is not None:
+            wp.record_event(self._count_event)
 
     def _allocate(self, cap: tuple[int, int], taps) -> None:
         dev = self.device
@@ -643,12 +842,18 @@ def gauss_newton_search(cost: GaussNewtonCost, x0, *, step, lower, upper, tol_x:
 
 def _residuals(s: GaussNewtonStep, alpha: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares ``(c0, g)`` of the 13 costs with the Hessian fixed (``alpha H``), and the
-    residuals."""
-    D = step_design(np.zeros(6), s.h)
-    y = s.costs - 0.5 * alpha * np.einsum("bi,ij,bj->b", D, s.H, D)
-    A = np.hstack([np.ones((_N, 1)), D])
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    return coef, y - A @ coef
+    residuals. The design's columns (1, ±h_k at rows 2k+1, 2k+2) are orthogonal: the fit is
+    the mean and the central differences, in closed form."""
+    h = np.asarray(s.h, dtype=float)
+    q = np.zeros(_N)
+    q[1:] = np.repeat(0.5 * alpha * h * h * np.diag(s.H), 2)
+    y = np.asarray(s.costs, dtype=float) - q
+    c0 = y.mean()
+    g = (y[1::2] - y[2::2]) / (2.0 * h)
+    fitted = np.full(_N, c0)
+    fitted[1::2] += h * g
+    fitted[2::2] -= h * g
+    return np.r_[c0, g], y - fitted
 
 
 def _roughness(s: GaussNewtonStep, alpha: float = 1.0) -> float:

@@ -213,3 +213,55 @@ def test_newton_starts_again_from_half_resolution_when_it_does_not_converge(talu
     assert np.linalg.norm(err[:3]) < 0.05 and np.linalg.norm(err[3:]) < 0.1, err
     assert [lv.scale for lv in reg._newton_fallback(0.3)] == [2.0, 1.0]
     assert [lv.scale for lv in reg._newton_fallback(1.0)] == [1.0, 1.0]
+
+
+@pytest.mark.parametrize("kind", ["gc", "ncc"])
+def test_device_frame_preparation_is_the_hosts(talus_scene, kind):
+    """Full-resolution ROIs prepared on the device (line integrals, the eroded usable-pixel mask,
+    the frame's own masks) score as those prepared on the host; an ROI without a usable pixel
+    raises OutsideViewError on both paths."""
+    from core.tracking.cost import OutsideViewError
+
+    sc = talus_scene
+    m = sc["model"]
+    flu = [0.8 * np.array(f, dtype=np.float32) for f in sc["fluence"](2)]  # the ideal views' background: 1
+    pose = sc["scene"].poses(2)[0]
+    r = sc["renderer"]
+    roi = search_roi(r, pose, 0, views=(0, 1), center=m.centroid, reach_mm=4.0, points=m.outline)
+    u0, v0, w, h = roi[0]
+    flu[0][v0 + h // 2: v0 + h // 2 + 3, u0: u0 + w // 2] = 0.0  # black pixels (eroded around)
+    flu[0][: v0 + 2] = 1.0  # saturated up to the region's second row
+    u0, v0, w, h = roi[1]
+    flu[1][v0 + h // 2: v0 + h // 2 + 4, u0 + w // 3: u0 + w] = 1.0
+    given = [None, np.ones(flu[1].shape, bool)]
+    given[1][: roi[1, 1] + roi[1, 3] // 3] = False
+    frame = prepare_frame(flu, masks=given)
+    term = MetricTerm(kind, 1.0, {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3})
+    X = step_design(np.zeros(6), H) + np.r_[0.3, -0.2, 0.1, 0.4, -0.3, 0.2]
+    out = {}
+    for dev in (True, False):
+        gn = GaussNewtonCost(r, bone=0, views=(0, 1), term=term)
+        gn.device_frames = dev
+        gn.set_frame(frame, base_pose=pose, center=m.centroid, roi=roi)
+        out[dev] = (gn._raw.numpy(), gn._fmask.numpy(), gn._fmax.numpy(), gn._fshift.numpy(), gn(X),
+                    gn.step(np.zeros(6), H))
+    a, b = out[True], out[False]
+    gn = GaussNewtonCost(r, bone=0, views=(0, 1), term=term)
+    for f in (frame, prepare_frame(sc["fluence"](3)), frame, frame):  # uploaded again, then kept
+        gn.set_frame(f, base_pose=pose, center=m.centroid, roi=roi)
+    np.testing.assert_array_equal(gn._raw.numpy(), a[0])
+    np.testing.assert_array_equal(gn._fmask.numpy(), a[1])
+    np.testing.assert_allclose(a[0], b[0], rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(a[1], b[1])
+    assert 0 < a[1].sum() < a[1].size
+    np.testing.assert_allclose(a[2], b[2], rtol=1e-6)
+    np.testing.assert_allclose(a[3], b[3], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(a[4], b[4], atol=1e-6)
+    np.testing.assert_allclose(a[5].g, b[5].g, rtol=1e-4, atol=1e-7)
+    bad = [f.copy() for f in flu]
+    bad[1][:] = 0.0
+    for dev in (True, False):
+        gn = GaussNewtonCost(r, bone=0, views=(0, 1), term=term)
+        gn.device_frames = dev
+        with pytest.raises(OutsideViewError, match="no usable fluoroscope pixel"):
+            gn.set_frame(prepare_frame(bad), base_pose=pose, center=m.centroid, roi=roi)

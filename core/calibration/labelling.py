@@ -215,13 +215,37 @@ def fit_labels(target: CalibrationTarget, det: ObjectDetections, seed_labels, *,
 
 def _score(P: np.ndarray, target: CalibrationTarget, det: ObjectDetections, gate: float) -> np.ndarray:
     """Detections explained by each hypothesis camera ``P (H, 3, 4)``: (H,) counts."""
-    proj = _project(P, target.centers)  # (H, n, 2)
-    d = np.linalg.norm(proj[:, :, None] - det.uv[None, None], axis=3)  # (H, n, m)
+    P = np.asarray(P, dtype=np.float64)
+    H, m = len(P), len(det)
+    if m == 0 or H == 0:
+        return np.zeros(H, np.int64)
     _, bead_cls = target.size_classes
-    known = det.size_class >= 0
-    match = ~known[None, None] | (bead_cls[None, :, None] == det.size_class[None, None])
-    d = np.where(match & np.isfinite(d), d, np.inf)
-    return (d.min(axis=1) <= gate).sum(axis=1)
+    cls = det.size_class
+    # each detection is explained by the nearest projected bead of its own size class (any bead
+    # for a detection of unknown size): per class, the squared distances of its beads to the
+    # detections that may be theirs, the nearest one kept (NaN projections ignored: fmin). The
+    # square root of the minimum is the minimum of the square roots, so the gate compares exactly
+    # the distances a (H, n, m) norm would give.
+    groups = []
+    for k in np.unique(bead_cls):
+        j = np.flatnonzero((cls < 0) | (cls == k))
+        if j.size:
+            groups.append((target.centers[bead_cls == k], j))
+    u, v = det.uv[:, 0], det.uv[:, 1]
+    out = np.empty(H, np.int64)
+    step = max(1, (1 << 20) // max(len(target) * m, 1))  # hypotheses per chunk (~8 MB temporaries)
+    for s in range(0, H, step):
+        Pc = P[s : s + step]
+        best = np.full((len(Pc), m), np.inf)
+        for X, j in groups:
+            proj = _project(Pc, X)  # (h, n_k, 2)
+            du = proj[:, :, 0, None] - u[j]
+            dv = proj[:, :, 1, None] - v[j]
+            d2 = np.fmin.reduce(du * du + dv * dv, axis=1)  # (h, |j|)
+            best[:, j] = np.fmin(best[:, j], d2)
+        with np.errstate(invalid="ignore"):
+            out[s : s + step] = (np.sqrt(best) <= gate).sum(axis=1)
+    return out
 
 
 def _refine(target, det, seeds: np.ndarray, gate: float, *, keep: int = 6) -> list[Labelling]:

@@ -111,8 +111,54 @@ def _unclipped(img: np.ndarray) -> np.ndarray:
     """Pixels away (2 px) from values clipped at the image's minimum or maximum (saturation,
     collimator): the noise statistics are taken there only."""
     lo, hi = img.min(), img.max()
-    m = ndimage.binary_erosion((img > lo) & (img < hi), iterations=2)
+    # ndimage.binary_erosion's (cross, 2 iterations, outside = False), by OpenCV
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    m = cv2.erode(((img > lo) & (img < hi)).astype(np.uint8), cross, iterations=2,
+                  borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
     return m if m.sum() >= 64 else np.ones(img.shape, bool)
+
+
+def _log_kernels(sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """The 1-D Gaussian (order 0) and its second derivative (order 2) of
+    ``ndimage.gaussian_laplace`` (truncated at 4 σ), as correlation kernels."""
+    s2 = float(sigma) ** 2
+    x = np.arange(-int(4.0 * float(sigma) + 0.5), int(4.0 * float(sigma) + 0.5) + 1, dtype=np.float64)
+    g = np.exp(-0.5 / s2 * x * x)
+    g /= g.sum()
+    return g.astype(np.float32), ((x * x / s2 - 1.0) / s2 * g).astype(np.float32)
+
+
+def _neg_log(img32: np.ndarray, sigma: float) -> np.ndarray:
+    """``-σ² ∇²G_σ * img`` (edges replicated): ``ndimage.gaussian_laplace(img, σ, mode="nearest")``
+    by OpenCV's separable filters (float32, several times faster on large frames)."""
+    g0, g2 = _log_kernels(sigma)
+    b = cv2.BORDER_REPLICATE
+    lap = cv2.sepFilter2D(img32, cv2.CV_32F, g0, g2, borderType=b)  # d²/drow²
+    lap += cv2.sepFilter2D(img32, cv2.CV_32F, g2, g0, borderType=b)  # d²/dcol²
+    return -(float(sigma) ** 2) * lap
+
+
+def _local_max3(z: np.ndarray) -> np.ndarray:
+    """``ndimage.maximum_filter(z, size=3, mode="nearest")`` of a ``(K, H, W)`` stack: a 3 × 3
+    dilation of each scale, then the maximum over the neighbouring scales."""
+    k3 = np.ones((3, 3), np.uint8)
+    sp = np.stack([cv2.dilate(zk, k3) for zk in z])
+    out = sp.copy()
+    np.maximum(out[1:], sp[:-1], out=out[1:])
+    np.maximum(out[:-1], sp[1:], out=out[:-1])
+    return out
+
+
+def _masked_median(win: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``np.median(win[i][mask[i]])`` of every window at once (NaN where a mask is empty)."""
+    M = len(win)
+    flat = np.where(mask, win, np.inf).reshape(M, -1)
+    n = mask.reshape(M, -1).sum(axis=1)
+    srt = np.sort(flat, axis=1)
+    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(srt, np.maximum(n // 2, 0)[:, None], axis=1)[:, 0]
+    with np.errstate(invalid="ignore"):
+        return np.where(n > 0, np.where(n % 2 == 1, lo, (lo + hi) / 2), np.nan)
 
 
 def _hessian_ratio(win: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -172,14 +218,14 @@ def detect_beads(image, *, diameter_px: float, polarity: str = "dark", min_snr: 
     radii = r0 * np.geomspace(lo / 1.3, hi * 1.3, 7)
     sigmas = radii / np.sqrt(2.0)
     sig32 = sig.astype(np.float32)
-    resp = np.stack([-(s * s) * ndimage.gaussian_laplace(sig32, s, mode="nearest") for s in sigmas])
+    resp = np.stack([_neg_log(sig32, s) for s in sigmas])
     valid = _unclipped(img)
     flat = resp[:, valid][:, ::7]
     med = np.median(flat, axis=1)
     noise = 1.4826 * np.median(np.abs(flat - med[:, None]), axis=1)
     noise = np.where(noise > 0, noise, np.finfo(float).tiny)
     z = (resp - med[:, None, None]) / noise[:, None, None]
-    peaks = (z == ndimage.maximum_filter(z, size=3, mode="nearest")) & (z >= min_snr)
+    peaks = (z == _local_max3(z)) & (z >= min_snr)
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
         if m.shape != img.shape:
@@ -209,14 +255,16 @@ def detect_beads(image, *, diameter_px: float, polarity: str = "dark", min_snr: 
     rr = radius[:, None, None]
     ring = (d >= 2 * rr) & (d <= 3 * rr)
     core = d <= np.maximum(rr / 2, 1.0)
-    bg = np.array([np.median(w[m]) for w, m in zip(win, ring, strict=True)])
+    bg = _masked_median(win, ring)
     centre = (win * core).sum(axis=(1, 2)) / core.sum(axis=(1, 2))
     contrast = centre - bg
     lap = ndimage.laplace(sig)[valid]
     pix_noise = 1.4826 * np.median(np.abs(lap - np.median(lap))) / np.sqrt(20.0)
     snr = contrast / max(pix_noise, np.finfo(float).tiny)
-    circ = _hessian_ratio(win, s_best)
-    ok = (circ >= min_circularity) & (snr >= min_snr) & (contrast > 0)
+    ok = (snr >= min_snr) & (contrast > 0)
+    circ = np.zeros(len(ok))
+    circ[ok] = _hessian_ratio(win[ok], s_best[ok])  # only where the contrast passed
+    ok &= circ >= min_circularity
     uv = np.stack([cols, rows], axis=1).astype(np.float64)[ok]
     radius, contrast, snr, circ, score = radius[ok], contrast[ok], snr[ok], circ[ok], score[ok]
     # non-maximum suppression: overlapping candidates keep the strongest

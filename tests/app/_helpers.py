@@ -2,9 +2,30 @@
 
 from __future__ import annotations
 
+import shutil
 from contextlib import contextmanager
+from pathlib import Path
 
 import pytest
+
+
+def _fast_tracking():
+    from core.tracking.register import Level, RegistrationOptions
+    from core.tracking.trial import TrackingOptions
+
+    return TrackingOptions(
+        registration=RegistrationOptions(
+            bounds=(4.0, 4.0), levels=(Level(2.0, "pattern", (0.5, 0.5), max_generations=30, tol_x=0.3),),
+            refine=None),
+        confidence=False, verify_restarts=0)
+
+
+# Tracking options for tests of the window's plumbing (jobs, progress, journals, cancel), not of the
+# tracker's accuracy: one pattern-search level at half resolution that converges in a few dozen
+# evaluations, no restart check, no confidence. (One CMA-ES level at full resolution stopped on
+# its generation budget, so every frame was flagged "not converged" and retried twice as wide:
+# 37 s for 3 frames of one bone on the loaded 2-core machine, against 1.6 s with these.)
+FAST_TRACKING = _fast_tracking()
 
 # The tests wait for the job's own end signal (finished, failed or cancelled), however long a
 # loaded machine takes to get there (Warp compiles its kernels in the first render). This is only
@@ -47,3 +68,38 @@ def job_ends(qtbot, pool, key: str, expect: str = "finished"):
     kind, payload = ends[0]
     if kind != expect:
         pytest.fail(f"background job {key!r} {kind} instead of being {expect}: {payload}")
+
+
+def copy_study(folder, tmp_path, name: str = "study") -> Path:
+    """A private copy of a shared study folder (e.g. the ``demo_study`` fixture's), for a test that
+    writes to it (the window journals every pose edit)."""
+    return Path(shutil.copytree(folder, Path(tmp_path) / name))
+
+
+@contextmanager
+def main_window(qtbot, *, scene: bool = False, device: str | None = "cpu", size=None):
+    """A shown :class:`~app.main_window.MainWindow`, closed on exit.
+
+    ``scene=True`` creates the 3-D scene (a VTK ``QtInteractor``) as the window shows and waits
+    for it; on exit the window's close must have closed that interactor too. Without it the scene
+    pane stays a placeholder until something asks for it (``window.scene.ensure_interactor()``),
+    which spares a test that never looks at the 3-D view the cost of an OpenGL context.
+    """
+    from app.main_window import MainWindow
+
+    win = MainWindow(device=device, create_scene_on_show=scene)
+    qtbot.addWidget(win)
+    if size is not None:
+        win.resize(*size)
+    win.show()
+    qtbot.waitExposed(win)
+    if scene:
+        qtbot.waitUntil(lambda: win.scene.plotter is not None, timeout=HUNG_JOB_MS)
+    try:
+        yield win
+    finally:
+        plotter = win.scene.plotter  # also one the test asked for
+        win.close()  # closes the QtInteractor; a live one would crash the next test
+        assert win.scene.plotter is None
+        if plotter is not None:
+            assert plotter._closed

@@ -2,63 +2,70 @@
 
 from __future__ import annotations
 
-import shutil
+import threading
 
 import numpy as np
 import pytest
 from PySide6 import QtCore
 
-from app.main_window import MainWindow
 from core.study import Study
-from core.synthetic import make_demo_study
-from core.tracking.register import Level, RegistrationOptions
-from core.tracking.trial import TrackingOptions
-from tests.app._helpers import HUNG_JOB_MS, job_ends
+from tests.app._helpers import FAST_TRACKING, HUNG_JOB_MS, copy_study, job_ends, main_window
 
 pytestmark = pytest.mark.gui
 
-# The window's plumbing is what is tested here, not the tracker's accuracy: one short CMA-ES level
-# and no restarts to verify a result (the default 4 restarts cost most of the tracking time)
-FAST = TrackingOptions(registration=RegistrationOptions(
-    bounds=(4.0, 4.0), levels=(Level(1.0, "cmaes", (0.7, 0.7), popsize=10, max_generations=40, tol_x=0.02),),
-    refine=None), confidence=False, verify_restarts=0)
-
-
-@pytest.fixture(scope="module")
-def demo_folder(tmp_path_factory):
-    out = tmp_path_factory.mktemp("trk") / "study"
-    make_demo_study(out, n_frames=3, pixels=96, seed=5, device="cpu", spacing=2.0,
-                    tissue_spacing=8.0, calibration_session=False)
-    return out
-
 
 @pytest.fixture
-def window(qtbot, demo_folder, tmp_path):
-    folder = shutil.copytree(demo_folder, tmp_path / "study")
-    win = MainWindow(device="cpu", create_scene_on_show=False)
-    qtbot.addWidget(win)
-    win.show()
-    with job_ends(qtbot, win.pool, "overlay"):
-        win.open_study(folder)
-    win.tracking.options = FAST
-    yield win
-    win.close()
+def window(qtbot, demo_study, tmp_path):
+    with main_window(qtbot) as win:
+        with job_ends(qtbot, win.pool, "overlay"):
+            win.open_study(copy_study(demo_study, tmp_path))
+        win.tracking.options = FAST_TRACKING
+        yield win
 
 
-def test_tracking_runs_in_the_background_and_lands_in_model_journal_and_timeline(window, qtbot):
+def _pause_after_first_frame(monkeypatch) -> threading.Event:
+    """Make the window's tracking job wait after its first frame until the returned event is set
+    (so the test acts while the job is surely running, however fast the machine tracks)."""
+    import core.tracking.from_study as from_study
+
+    track_study, go_on = from_study.track_study, threading.Event()
+
+    def paused(*args, progress, **kwargs):
+        def first_then_wait(*a):
+            progress(*a)
+            assert go_on.wait(HUNG_JOB_MS / 1000)
+
+        return track_study(*args, progress=first_then_wait, **kwargs)
+
+    monkeypatch.setattr(from_study, "track_study", paused)
+    return go_on
+
+
+def test_tracking_runs_in_the_background_and_lands_in_model_journal_and_timeline(
+        window, qtbot, monkeypatch):
     m = window.model
     m.select("calcaneus")
     start = m.pose("calcaneus", 2).copy()
+    go_on = _pause_after_first_frame(monkeypatch)
     ticks, progress = [], []
+
+    def tick():  # a timer of the GUI thread, firing while the tracker is mid-job
+        if progress and window.tracking.running:
+            ticks.append(progress[-1][1])
+            go_on.set()
+
     timer = QtCore.QTimer()
-    timer.timeout.connect(lambda: ticks.append(1))
+    timer.timeout.connect(tick)
     timer.start(20)
     window.pool.progress.connect(lambda key, done, total: progress.append((key, done, total)))
-    with job_ends(qtbot, window.pool, "tracking"):
-        window.track_action.trigger()
-        assert window.tracking.running and m.layers[2].locked
-    timer.stop()
-    assert len(ticks) > 5  # the event loop ran while the tracker worked
+    try:
+        with job_ends(qtbot, window.pool, "tracking"):
+            window.track_action.trigger()
+            assert window.tracking.running and m.layers[2].locked
+    finally:
+        timer.stop()
+        go_on.set()
+    assert ticks and ticks[0] == 1  # the event loop ran while the tracker worked (after frame 1 of 3)
     assert progress and progress[-1][1:] == (3, 3)
     assert not window.tracking.running and not m.layers[2].locked
     tracked = m.pose("calcaneus", 2)
@@ -68,14 +75,20 @@ def test_tracking_runs_in_the_background_and_lands_in_model_journal_and_timeline
     assert set(np.flatnonzero(window.timeline.status >= 2)) == {0, 1, 2}
 
 
-def test_tracking_can_be_cancelled(window, qtbot):
+def test_tracking_can_be_cancelled(window, qtbot, monkeypatch):
+    cancelled = _pause_after_first_frame(monkeypatch)
     window.model.select("tibia")
     seen = []
     window.pool.progress.connect(lambda key, done, total: seen.append(done))
-    with job_ends(qtbot, window.pool, "tracking", expect="cancelled") as ends:
-        window.tracking.track_all()  # 4 bones x 3 frames
-        qtbot.waitUntil(lambda: bool(seen or ends), timeout=HUNG_JOB_MS)  # a first frame done
-        window.tracking.cancel()
+    try:
+        with job_ends(qtbot, window.pool, "tracking", expect="cancelled") as ends:
+            window.tracking.track_all()  # 4 bones x 3 frames
+            qtbot.waitUntil(lambda: bool(seen or ends), timeout=HUNG_JOB_MS)  # a first frame done
+            window.tracking.cancel()
+            cancelled.set()
+    finally:
+        cancelled.set()
+    assert seen and seen[-1] < 12  # stopped part-way
     assert not window.tracking.running
     assert not any(layer.locked for layer in window.model.layers)
     texts = [window.messages.item(i).text() for i in range(window.messages.count())]

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import shutil
+import threading
+import time
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -103,3 +105,26 @@ def main_window(qtbot, *, scene: bool = False, device: str | None = "cpu", size=
         assert win.scene.plotter is None
         if plotter is not None:
             assert plotter._closed
+
+
+def pause_after_first_frame(monkeypatch, *, until_cancelled: bool = False) -> threading.Event:
+    """Make every tracking job (:func:`core.tracking.from_study.track_study`, as the window and the
+    batch's in-process workers call it) wait after its first frame until the returned event is set
+    or, with ``until_cancelled``, until the job's own cancel flag reads True. A test then acts while
+    the job surely runs, however fast the machine tracks."""
+    import core.tracking.from_study as from_study
+
+    track_study, go_on = from_study.track_study, threading.Event()
+
+    def paused(*args, progress, cancel=None, **kwargs):
+        def first_then_wait(*a):
+            progress(*a)
+            deadline = time.monotonic() + HUNG_JOB_MS / 1000  # a job that is never let go
+            while not (go_on.is_set() or (until_cancelled and cancel is not None and cancel())):
+                assert time.monotonic() < deadline, "the paused tracking job was never let go"
+                go_on.wait(0.02)
+
+        return track_study(*args, progress=first_then_wait, cancel=cancel, **kwargs)
+
+    monkeypatch.setattr(from_study, "track_study", paused)
+    return go_on

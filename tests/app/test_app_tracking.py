@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
 from PySide6 import QtCore
 
 from core.study import Study
-from tests.app._helpers import FAST_TRACKING, HUNG_JOB_MS, copy_study, job_ends, main_window
+from tests.app._helpers import (
+    FAST_TRACKING,
+    HUNG_JOB_MS,
+    copy_study,
+    job_ends,
+    main_window,
+    pause_after_first_frame,
+)
 
 pytestmark = pytest.mark.gui
 
@@ -23,30 +28,12 @@ def window(qtbot, demo_study, tmp_path):
         yield win
 
 
-def _pause_after_first_frame(monkeypatch) -> threading.Event:
-    """Make the window's tracking job wait after its first frame until the returned event is set
-    (so the test acts while the job is surely running, however fast the machine tracks)."""
-    import core.tracking.from_study as from_study
-
-    track_study, go_on = from_study.track_study, threading.Event()
-
-    def paused(*args, progress, **kwargs):
-        def first_then_wait(*a):
-            progress(*a)
-            assert go_on.wait(HUNG_JOB_MS / 1000)
-
-        return track_study(*args, progress=first_then_wait, **kwargs)
-
-    monkeypatch.setattr(from_study, "track_study", paused)
-    return go_on
-
-
 def test_tracking_runs_in_the_background_and_lands_in_model_journal_and_timeline(
         window, qtbot, monkeypatch):
     m = window.model
     m.select("calcaneus")
     start = m.pose("calcaneus", 2).copy()
-    go_on = _pause_after_first_frame(monkeypatch)
+    go_on = pause_after_first_frame(monkeypatch)
     ticks, progress = [], []
 
     def tick():  # a timer of the GUI thread, firing while the tracker is mid-job
@@ -76,7 +63,7 @@ def test_tracking_runs_in_the_background_and_lands_in_model_journal_and_timeline
 
 
 def test_tracking_can_be_cancelled(window, qtbot, monkeypatch):
-    cancelled = _pause_after_first_frame(monkeypatch)
+    cancelled = pause_after_first_frame(monkeypatch)
     window.model.select("tibia")
     seen = []
     window.pool.progress.connect(lambda key, done, total: seen.append(done))

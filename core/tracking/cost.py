@@ -92,6 +92,16 @@ class MetricTerm:
 _MM_KEYS = {"fluoro_sigma_mm": "fluoro_sigma", "drr_sigma_mm": "drr_sigma"}
 
 
+def _project(cam, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(uv (n, 2), depth (n,))`` of lab points ``(n, 3)``: :meth:`core.geometry.Camera.project`
+    without its input checks (the hot path of every registration's set-up)."""
+    xc = lab @ cam.R.T + cam.t
+    z = xc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.stack([cam.fx * xc[:, 0] / z + cam.cu, cam.fy * xc[:, 1] / z + cam.cv], axis=-1)
+    return uv, z
+
+
 def mm_per_pixel(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence[int] | None = None) -> float:
     """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views``."""
     views = range(len(renderer.cameras)) if views is None else views
@@ -99,8 +109,8 @@ def mm_per_pixel(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence
     out = []
     for v in views:
         cam = renderer.cameras[v]
-        _, depth = cam.project(c[None], return_depth=True)
-        out.append(float(depth[0]) / max(cam.fx, cam.fy))
+        depth = float(cam.R[2] @ c + cam.t[2])  # the depth of Camera.project
+        out.append(depth / max(cam.fx, cam.fy))
     return float(np.mean(out))
 
 
@@ -296,7 +306,7 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
         box = np.zeros((len(views), 4), dtype=np.int64)
         for i, v in enumerate(views):
             cam = renderer.cameras[v]
-            uv, z = cam.project(lab, return_depth=True)
+            uv, z = _project(cam, lab)
             if np.any(z <= 0):
                 lo, hi = np.zeros(2), np.array([cam.width, cam.height], float)
             else:
@@ -307,9 +317,9 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
     out = np.zeros((len(views), 4), dtype=np.int64)
     for i, v in enumerate(views):
         cam = renderer.cameras[v]
-        _, depth = cam.project(c_lab[None], return_depth=True)
-        grow = margin_px + (math.ceil(reach_mm * max(cam.fx, cam.fy) / max(float(depth[0]), 1e-6))
-                            if depth[0] > 0 else 0)
+        depth = float(cam.R[2] @ c_lab + cam.t[2])  # the depth of Camera.project
+        grow = margin_px + (math.ceil(reach_mm * max(cam.fx, cam.fy) / max(depth, 1e-6))
+                            if depth > 0 else 0)
         _, _, w0, h0 = box[i]
         if w0 <= 0 or h0 <= 0:
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")

@@ -62,6 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from ..render._kernels import ITEM_COLS
 from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
 from .optimize import OptimizeResult
@@ -478,6 +479,7 @@ class GaussNewtonCost:
         self._host_count = wp.zeros(nv, dtype=wp.int32, device="cpu", pinned=pinned)
         self._count_event = wp.Event(dev) if dev.is_cuda else None
         self._stage_src = None
+        self._tables: dict = {}  # DRR item tables per (batch, bones) (_render)
         self._staged_last = None  # (the frame, its regions) now on the device
         self.device_frames = True  # full-resolution ROIs prepared on the device (set_frame)
         self.base = self.center = self.roi = None
@@ -550,10 +552,8 @@ class GaussNewtonCost:
             self._stage(frame, staged)
         if others is not None and len(others[1]):  # subtracted on the device, at the fixed output size
             nb = len(others[1])
-            batch = self.renderer.render(np.asarray(others[0], dtype=float)[None], views=self.views,
-                                         bones=list(others[1]), roi=self.roi[None, :, None, :],
-                                         scale=self.scale, out_shape=(Hc, Wc))
-            wp.launch(subtract_kernel, dim=(nv, Hc, Wc), inputs=[batch.images, nb, self._raw], device=dev)
+            images = self._render(np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1]))
+            wp.launch(subtract_kernel, dim=(nv, Hc, Wc), inputs=[images, nb, self._raw], device=dev)
         if ftaps is not None:
             if self._fblur is None or len(self._fblur) != len(ftaps):
                 self._fblur = wp.array(ftaps, dtype=wp.float32, device=dev)
@@ -696,22 +696,51 @@ class GaussNewtonCost:
         return _poses(X, self.base, self.center)
 
     # ------------------------------------------------------------------ evaluation
+    def _render(self, P: np.ndarray, bones: tuple) -> wp.array:
+        """The DRRs of ``bones`` at poses ``P (B, n_bones, 4, 4)`` in this cost's views and ROIs
+        at its output size: the images of :meth:`core.render.DRRRenderer.render` (item
+        ``(b · n_views + v) · n_bones + n``), its item table filled here without the checks of
+        poses the engine made rigid itself (the inverse in closed form), one launch."""
+        r = self.renderer
+        B, nb = P.shape[:2]
+        nv = self.n_views
+        key = (B, bones)
+        table = self._tables.get(key)
+        if table is None:
+            table = np.zeros((B, nv, nb, ITEM_COLS), dtype=np.float32)
+            table[..., 0] = np.array(self.views, dtype=np.float32)[None, :, None]
+            table[..., 1] = np.array(bones, dtype=np.float32)[None, None, :]
+            if len(self._tables) >= 8:
+                self._tables.pop(next(iter(self._tables)))
+            self._tables[key] = table
+        Rt = np.swapaxes(P[..., :3, :3], -1, -2)
+        inv = np.zeros(P.shape)
+        inv[..., :3, :3] = Rt
+        inv[..., :3, 3] = -np.einsum("bnij,bnj->bni", Rt, P[..., :3, 3])
+        inv[..., 3, 3] = 1.0
+        Tidx = np.einsum("nij,bnjk->bnik", r._T_idx[list(bones)], inv)
+        table[..., 2:5] = np.einsum("bnij,vj->bvni", Tidx[..., :3, :], r._src_h[list(self.views)])
+        table[..., 5:14] = Tidx[:, None, :, :3, :3].reshape(B, 1, nb, 9)
+        table[..., 14:18] = self.roi[None, :, None, :]
+        Hc, Wc = self._cap
+        H = max(Hc, math.ceil(int(self.roi[:, 3].max()) / self.scale))
+        W = max(Wc, math.ceil(int(self.roi[:, 2].max()) / self.scale))
+        return r._launch(table.reshape(B * nv * nb, ITEM_COLS), H, W, self.scale)
+
     def _evaluate(self, X: np.ndarray):
         if self._cap is None:
             raise RuntimeError("set_frame: no frame set")
         t0 = time.perf_counter()
         P = self.poses(X)
         t1 = time.perf_counter()
-        Hc, Wc = self._cap
-        batch = self.renderer.render(P[:, None], views=self.views, bones=[self.bone],
-                                     roi=self.roi[None, :, None, :], scale=self.scale, out_shape=(Hc, Wc))
+        images = self._render(P[:, None], (self.bone,))
         if self.profile:
             wp.synchronize_device(self.device)
         t2 = time.perf_counter()
         B = len(P)
         pipe = self._pipes.get(B)
-        if pipe is None or pipe.images.ptr != batch.images.ptr:
-            pipe = self._pipes[B] = _Pipeline(self, batch.images, B)
+        if pipe is None or pipe.images.ptr != images.ptr:
+            pipe = self._pipes[B] = _Pipeline(self, images, B)
         out, gn = pipe.run()
         t3 = time.perf_counter()
         tm = self.timer

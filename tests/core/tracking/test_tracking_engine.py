@@ -265,3 +265,19 @@ def test_device_frame_preparation_is_the_hosts(talus_scene, kind):
         gn.device_frames = dev
         with pytest.raises(OutsideViewError, match="no usable fluoroscope pixel"):
             gn.set_frame(prepare_frame(bad), base_pose=pose, center=m.centroid, roi=roi)
+
+
+def test_engine_renders_as_the_renderer(talus_scene):
+    """The engine fills the renderer's item table itself (no checks of its own rigid poses):
+    the same images as DRRRenderer.render at the engine's ROIs and output size."""
+    sc = talus_scene
+    m = sc["model"]
+    frame = prepare_frame(sc["fluence"](1))
+    _, start = _start(sc["scene"], 1, m.centroid, [0.5, -0.5, 0.3, 1.0, 2.0, -1.0])
+    gn, roi = _engine(sc, frame, start)
+    P = gn.poses(step_design(np.r_[0.2, 0.1, -0.3, 1.5, -2.0, 0.5], H))
+    mine = gn._render(P[:, None], (0,)).numpy().copy()
+    ref = sc["renderer"].render(P[:, None], views=(0, 1), bones=[0], roi=roi[None, :, None, :],
+                                out_shape=gn._cap).images.numpy()
+    assert mine.shape == ref.shape and np.abs(ref).max() > 0
+    np.testing.assert_allclose(mine, ref, rtol=1e-5, atol=1e-5 * np.abs(ref).max())

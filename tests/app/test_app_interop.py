@@ -36,19 +36,16 @@ def test_cli_imports_an_xma_project(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------- the window
-N = 5
+N = 3  # frames of the shared demo study (tests/app/conftest.py)
 
 
 @pytest.fixture(scope="module")
-def demo_folder(tmp_path_factory):
-    """The 96-px demo study with poses at every frame: frame 0's keyframe moved a little per frame."""
+def demo_folder(tmp_path_factory, demo_study):
+    """The shared 96-px demo study with poses at every frame: frame 0's keyframe moved a little per
+    frame."""
     from scipy.spatial.transform import Rotation
 
-    from core.synthetic import make_demo_study
-
-    out = tmp_path_factory.mktemp("interop") / "study"
-    make_demo_study(out, n_frames=N, pixels=96, seed=5, device="cpu", spacing=2.0, tissue_spacing=8.0,
-                    calibration_session=False)
+    out = Path(shutil.copytree(demo_study, tmp_path_factory.mktemp("interop") / "study"))
     with Study.open(out, mode="w") as st:
         tr = st.trial("walk")
         for k, b in enumerate(tr.bones):

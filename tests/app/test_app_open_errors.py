@@ -14,7 +14,6 @@ import pytest
 from PySide6 import QtCore, QtWidgets
 
 from app.main_window import MainWindow
-from core.synthetic import make_demo_study
 
 pytestmark = pytest.mark.gui
 
@@ -23,12 +22,10 @@ HUNG_MS = 30 * 60_000
 LONG = "gait_laboratory_2026_subject_07_left_foot_barefoot_walking_trials_session_b"
 
 
-@pytest.fixture(scope="module")
-def demo_folder(tmp_path_factory):
-    out = tmp_path_factory.mktemp("demo") / "study"
-    make_demo_study(out, n_frames=2, pixels=96, seed=4, device="cpu", spacing=2.0,
-                    tissue_spacing=6.0, calibration_session=False)
-    return out
+@pytest.fixture
+def demo_folder(demo_study):
+    """The shared demo study (tests/app/conftest.py), read only."""
+    return demo_study
 
 
 @pytest.fixture

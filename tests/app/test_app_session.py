@@ -10,20 +10,18 @@ import pytest
 from app.main_window import MainWindow
 from app.session import MissingFilesError, open_study
 from core.study import Study
-from core.synthetic import make_demo_study
-
-
-@pytest.fixture(scope="module")
-def demo_folder(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sess") / "study"
-    make_demo_study(out, n_frames=3, pixels=96, seed=4, device="cpu", spacing=2.0,
-                    tissue_spacing=8.0, calibration_session=False)
-    return out
+from tests.app._helpers import copy_study
 
 
 @pytest.fixture
-def folder(demo_folder, tmp_path):
-    return shutil.copytree(demo_folder, tmp_path / "study")
+def demo_folder(demo_study):
+    """The shared demo study (tests/app/conftest.py), read only."""
+    return demo_study
+
+
+@pytest.fixture
+def folder(demo_study, tmp_path):
+    return copy_study(demo_study, tmp_path)
 
 
 def _moved(T, dx):

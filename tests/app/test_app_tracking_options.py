@@ -11,21 +11,17 @@ pytest.importorskip("PySide6", reason="the GUI extra (PySide6) is not installed"
 
 from PySide6 import QtCore, QtWidgets
 
-from app.main_window import MainWindow
 from app.tracking_options import TrackingOptionsDialog, choices_of, options_from_choices
+from tests.app._helpers import main_window
 
 HUNG_MS = 30 * 60_000  # ceiling for an event that never comes, not a time budget
 
 
 @pytest.fixture
 def window(qtbot):
-    win = MainWindow()
-    qtbot.addWidget(win)
-    win.show()
-    qtbot.waitExposed(win)
-    qtbot.waitUntil(lambda: win.scene.plotter is not None, timeout=HUNG_MS)
-    yield win
-    win.close()
+    """The window without its 3-D scene (the dialog is what is tested)."""
+    with main_window(qtbot) as win:
+        yield win
 
 
 def _pick(qtbot, box: QtWidgets.QComboBox, data) -> None:

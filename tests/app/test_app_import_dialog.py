@@ -14,15 +14,14 @@ pytestmark = pytest.mark.gui
 HUNG_MS = 30 * 60_000
 
 
-@pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    from core.synthetic import make_demo_study
+PIXELS = 96  # the shared demo study's frames (tests/app/conftest.py)
 
-    base = tmp_path_factory.mktemp("lab")
-    demo = base / "demo"
-    make_demo_study(demo, n_frames=2, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu",
-                    calibration_session=False)
-    lab = base / "lab"
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory, demo_study):
+    """A lab's folder laid out by hand from the shared demo study's files."""
+    demo = demo_study
+    lab = tmp_path_factory.mktemp("lab") / "lab"
     (lab / "cameras").mkdir(parents=True)
     for src in sorted((demo / "frames").iterdir()):  # 12-bit frames in 16-bit TIFFs
         shutil.copytree(src, lab / "fluoro" / src.name)
@@ -99,7 +98,8 @@ def _smaller(path, rows=48, cols=56):
 def _views_of_other_sizes(lab):
     for f in sorted((lab / "fluoro" / "cam02").iterdir()):
         _smaller(f)
-    return ["the views have frames of different sizes", "fluoro/cam01 64x64", "fluoro/cam02 56x48"]
+    return ["the views have frames of different sizes", f"fluoro/cam01 {PIXELS}x{PIXELS}",
+            "fluoro/cam02 56x48"]
 
 
 def _one_frame_smaller(lab):
@@ -112,8 +112,8 @@ def _cameras_not_matching(lab):
     for cam in ("cam01", "cam02"):
         for f in sorted((lab / "fluoro" / cam).iterdir()):
             _smaller(f, 60, 60)
-    return ["cameras/cam01.txt: camera 1 expects 64x64-pixel frames but fluoro/cam01 has 60x60",
-            "cameras/cam02.txt: camera 2 expects 64x64-pixel frames"]
+    return [f"cameras/cam01.txt: camera 1 expects {PIXELS}x{PIXELS}-pixel frames but fluoro/cam01 has 60x60",
+            f"cameras/cam02.txt: camera 2 expects {PIXELS}x{PIXELS}-pixel frames"]
 
 
 def _ct_without_bone(lab):

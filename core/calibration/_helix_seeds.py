@@ -122,15 +122,19 @@ def affine_seeds(target: CalibrationTarget, det: ObjectDetections, *, k_near: in
     off = np.arange(-4, 8)
     near = np.clip(win[:, None] + off[None], 0, n - 1)  # (W, 12) beads around the run
     uvm = det.uv
+    u, v = uvm[None, :, None, 0], uvm[None, :, None, 1]
+    bad_w = ~ok_pair[:, near].transpose(1, 0, 2)  # (W, m, 12): a detection of another size
     scores = np.empty(len(ci))
     g2 = gate * gate
     for s in range(0, len(ci), chunk):
         c_, w_ = ci[s : s + chunk], wi[s : s + chunk]
         A = Minv[w_] @ uvm[chains[c_]]  # (h, 4, 2) affine parameters
         pred = Xh[near[w_]] @ A  # (h, 12, 2)
-        d2 = ((uvm[None, :, None] - pred[:, None]) ** 2).sum(axis=3)  # (h, m, 12)
-        ok = ok_pair[:, near[w_]].transpose(1, 0, 2)  # (h, m, 12)
-        scores[s : s + chunk] = (np.where(ok, d2, np.inf).min(axis=2) <= g2).sum(axis=1)
+        du = u - pred[:, None, :, 0]
+        dv = v - pred[:, None, :, 1]
+        d2 = du * du + dv * dv  # (h, m, 12)
+        d2[bad_w[w_]] = np.inf
+        scores[s : s + chunk] = (d2.min(axis=2) <= g2).sum(axis=1)
     order = np.argsort(-scores, kind="stable")
     grown, shapes = [], set()
     for h in order[: 8 * top]:

@@ -359,7 +359,7 @@ class MainWindow(QtWidgets.QMainWindow):
         try:
             action()
         except Exception as exc:  # shown to the user with its reason
-            self.notify(f"{exc}")
+            self.notify(f"{exc}", error=True)
             self.show_error("This did not work:", str(exc))
 
     def _open_checked(self, folder: str) -> None:
@@ -371,7 +371,7 @@ class MainWindow(QtWidgets.QMainWindow):
             if self.relocate_missing(exc):
                 self._open_checked(folder)
         except Exception as exc:  # any reason the study cannot be shown, shown to the user
-            self.notify(f"Cannot open {folder}: {exc}")
+            self.notify(f"Cannot open {folder}: {exc}", error=True)
             self.show_error(f"Cannot open {folder}", str(exc))
 
     def relocate_missing(self, exc) -> bool:
@@ -438,18 +438,33 @@ class MainWindow(QtWidgets.QMainWindow):
             self._open_checked(folder)
 
     # ------------------------------------------------------------------ jobs
-    def notify(self, text: str) -> None:
-        if self.messages_dock.isHidden():  # shown small (or as a tab beside the plots) until needed
-            self.messages_dock.show()
-            if not self.tabifiedDockWidgets(self.messages_dock):
-                self.resizeDocks([self.messages_dock], [80], QtCore.Qt.Orientation.Vertical)
+    def notify(self, text: str, *, error: bool = False) -> None:
+        """Log a message in the Messages dock; its last line shows in the status bar for 10 s.
+
+        The dock is shown on the first message: small, or as a tab beside the plots. It comes to
+        the front only for an ``error``: other messages (tracking started or ended, a flagged
+        frame) leave the tab in front where it is — the Plots or the Frames the user watches
+        while tracking runs — and are seen in the status bar."""
+        dock = self.messages_dock
+        front = [d for d in self.findChildren(QtWidgets.QDockWidget)  # the tabs in front now
+                 if d is not dock and d.isVisible() and not d.visibleRegion().isEmpty()]
+        if dock.isHidden():  # shown small (or as a tab beside the plots) until needed
+            dock.show()
+            if not self.tabifiedDockWidgets(dock):
+                self.resizeDocks([dock], [80], QtCore.Qt.Orientation.Vertical)
+        if error:
+            dock.raise_()
+        else:
+            for other in self.tabifiedDockWidgets(dock):
+                if other in front:
+                    other.raise_()
         self.messages.addItem(text.splitlines()[-1] if text else "")
         self.messages.item(self.messages.count() - 1).setToolTip(text)
         self.messages.scrollToBottom()
         self.statusBar().showMessage(text.splitlines()[-1] if text else "", 10000)
 
     def _on_failed(self, key: str, text: str) -> None:
-        self.notify(f"{key} failed:\n{text}")
+        self.notify(f"{key} failed:\n{text}", error=True)
 
     def _on_progress(self, key: str, done: int, total: int) -> None:
         self.progress.setRange(0, max(total, 1))

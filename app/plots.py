@@ -17,16 +17,23 @@ Flagged frames are shaded, a vertical cursor follows the current frame and a cli
 moves to the frame under the mouse.
 
 Live updates while tracking stay cheap on the GUI thread (``talus bench review``): a result only
-marks its bone changed; a coalescing timer redraws at most every ``refresh_ms`` (100 ms: ≤ 10 Hz),
-only the page shown, only the curves of the changed bones, and nothing while the dock is hidden
-(a tab behind *Messages*, closed) — it catches up when shown. Curves are light
-``PlotCurveItem`` s fed the same preallocated per-frame arrays (NaN where no pose: gaps); each
-σ band is one filled path; the y ranges are set by the dock and widened in steps with a margin
-(no autorange pass and no re-layout of the axes' ticks on most redraws); the legend is the
-plot's coloured title and the grid a text-free item (outside the region a new point repaints).
+marks its bone and frame changed; a coalescing timer redraws at most every ``refresh_ms`` (100 ms:
+≤ 10 Hz), only the page shown, only the curves of the changed bones, and nothing while the dock is
+hidden (a tab behind *Messages*, closed) — it catches up when shown. The pose series of the bone
+shown are computed again only at the frames that changed (all of them when its first recorded
+frame, the reference, changes). The raw curves and the σ bands of a plot are one item each
+(:class:`_Live`) that compares new values with those drawn and asks Qt to repaint only the span of
+frames that differ, and paints only the frames inside the region repainted: a new frame repaints a
+strip a few pixels wide, not the plot. The low-passed (dashed) curves, the axes, the grid and the
+shading change a few times per trial and are drawn from pixmap caches on screen. The y ranges are
+set by the dock and widened in steps with a margin (no autorange pass and no re-layout of the axes'
+ticks on most redraws); the legend is the plot's coloured title and the grid a text-free item.
 """
 
 from __future__ import annotations
+
+import functools
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pyqtgraph as pg
@@ -57,21 +64,88 @@ def _set(curve, x: np.ndarray, y: np.ndarray) -> None:
         curve.setData(x, y, connect="finite")
 
 
-def _band_path(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> QtGui.QPainterPath:
-    """One fillable path: a closed polygon (along ``hi``, back along ``lo``) per run of frames
-    where both are finite."""
-    ok = np.isfinite(lo) & np.isfinite(hi)
-    if not ok.any():
-        return QtGui.QPainterPath()
-    xs, ys, conn = [], [], []
-    for a, b in _runs(np.flatnonzero(ok)):
-        sl = slice(a, b + 1)
-        xs += [x[sl], x[sl][::-1]]
-        ys += [hi[sl], lo[sl][::-1]]
-        c = np.ones(2 * (b - a + 1), bool)
-        c[-1] = False  # no edge to the next run
-        conn.append(c)
-    return pg.arrayToQPath(np.concatenate(xs), np.concatenate(ys), connect=np.concatenate(conn))
+def _finite_runs(ok: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` (stop exclusive) of each run of True in ``ok``."""
+    if ok.all():
+        return [(0, len(ok))]
+    d = np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+class _Live(QtWidgets.QGraphicsItem):
+    """Curves (``pens``: polylines with gaps at NaN), bands (``brushes``: filled between a low
+    and a high series) or shading (``shade``: a brush over the whole height of each frame whose
+    value is finite) of one plot over frames ``0..n-1``, repainted only where they changed.
+
+    :meth:`set_data` compares the new values with those drawn and asks Qt to repaint only the span
+    of frames that differ (with the segments that reach them); :meth:`paint` draws only the frames
+    inside the region being repainted (Qt's exposed rectangle), so a new frame costs a strip a few
+    pixels wide. The bounding rectangle spans the frames and the plot's y range
+    (:meth:`set_bounds`; the view box clips its children to the plot)."""
+
+    def __init__(self, n_frames: int, *, pens=(), brushes=(), shade=None) -> None:
+        super().__init__()
+        self.setFlag(QtWidgets.QGraphicsItem.GraphicsItemFlag.ItemUsesExtendedStyleOption)
+        self.n = int(n_frames)
+        self.pens = [pg.mkPen(p) for p in pens]
+        self.brushes = [pg.mkBrush(b) for b in brushes]
+        self.shade = None if shade is None else pg.mkBrush(shade)
+        self.bands = bool(self.brushes)
+        m = 1 if self.shade is not None else len(self.brushes) if self.bands else len(self.pens)
+        self.values = np.full((m, 2 if self.bands else 1, self.n), np.nan)  # [series, (lo, hi) | (y,), frame]
+        self._x = np.arange(self.n, dtype=float)
+        self._rect = QtCore.QRectF(-1.0, -1.0, self.n + 1.0, 2.0)
+
+    def boundingRect(self) -> QtCore.QRectF:  # Qt's name
+        return self._rect
+
+    def set_bounds(self, y0: float, y1: float) -> None:
+        """The plot's y range (the item's height)."""
+        self.prepareGeometryChange()
+        self._rect = QtCore.QRectF(-1.0, y0, self.n + 1.0, y1 - y0)
+
+    def set_data(self, values) -> None:
+        """New values ``(series, 2 | 1, n)`` (bands: low, high); repaints the frames that differ."""
+        v = np.asarray(values, float).reshape(self.values.shape)
+        old = self.values
+        differ = ~((v == old) | (np.isnan(v) & np.isnan(old)))
+        idx = np.flatnonzero(differ.reshape(-1, self.n).any(axis=0))
+        if not idx.size:
+            return
+        self.values = v.copy()
+        a, b = int(idx[0]) - 1, int(idx[-1]) + 1  # the segments that reach a changed frame
+        r = self._rect
+        self.update(QtCore.QRectF(a, r.top(), b - a, r.height()))
+
+    def series(self, k: int = 0) -> np.ndarray:
+        """The values drawn of curve ``k`` (bands: the high side)."""
+        return self.values[k, -1].copy()
+
+    def paint(self, painter, option, widget=None) -> None:  # Qt's name
+        r = option.exposedRect
+        a = max(int(np.floor(r.left())) - 1, 0)
+        b = min(int(np.ceil(r.right())) + 2, self.n)
+        if b - a < 2:
+            return
+        x = self._x[a:b]
+        if self.shade is not None:
+            top, height = self._rect.top(), self._rect.height()
+            for s, e in _finite_runs(np.isfinite(self.values[0, 0, a:b])):
+                painter.fillRect(QtCore.QRectF(x[s] - 0.5, top, e - s, height), self.shade)
+        elif self.bands:
+            painter.setPen(QtCore.Qt.PenStyle.NoPen)
+            for brush, (lo, hi) in zip(self.brushes, self.values[:, :, a:b], strict=True):
+                painter.setBrush(brush)
+                for s, e in _finite_runs(np.isfinite(lo) & np.isfinite(hi)):
+                    if e - s > 1:
+                        painter.drawPolygon(pg.functions.arrayToQPolygonF(
+                            np.concatenate([x[s:e], x[s:e][::-1]]), np.concatenate([hi[s:e], lo[s:e][::-1]])))
+        else:
+            for pen, (y,) in zip(self.pens, self.values[:, :, a:b], strict=True):
+                painter.setPen(pen)
+                for s, e in _finite_runs(np.isfinite(y)):
+                    if e - s > 1:
+                        painter.drawPolyline(pg.functions.arrayToQPolygonF(x[s:e], y[s:e]))
 
 
 def _cache(item) -> None:
@@ -100,6 +174,19 @@ def _rel_series(P: np.ndarray, centroid: np.ndarray) -> tuple[np.ndarray, np.nda
     R0 = P[k0, :3, :3]
     r[ok] = np.rad2deg(Rotation.from_matrix(P[ok, :3, :3] @ R0.T).as_rotvec())
     return t, r
+
+
+def _lowpass(P: np.ndarray, centroid: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
+    """Winter's residual cut-off (cycles per frame) of the centroid's path and the pose series
+    low-passed at it (:func:`_rel_series` of :func:`core.tracking.kinematics.filter_poses`). Runs in
+    a worker thread: numpy and scipy only."""
+    from core.tracking.kinematics import filter_poses, residual_cutoff
+
+    ok = np.all(np.isfinite(P), axis=(1, 2))
+    path = np.full((len(P), 3), np.nan)
+    path[ok] = P[ok, :3, :3] @ centroid + P[ok, :3, 3]
+    cutoff, _ = residual_cutoff(path, 1.0, candidates=np.linspace(0.02, 0.2, 19))
+    return cutoff, _rel_series(filter_poses(P, 1.0, cutoff, center=centroid), centroid)
 
 
 class PlotsDock(QtWidgets.QWidget):
@@ -137,16 +224,27 @@ class PlotsDock(QtWidgets.QWidget):
         layout.addLayout(top)
         layout.addWidget(self.tabs, 1)
         self.plots: dict[str, pg.PlotItem] = {}
-        self.curves: dict[str, list] = {}
+        self.curves: dict = {}  # plot key -> its _Live curves; "<key>:band", "<key>:filtered" (Pose)
+        self._live: dict[str, list[_Live]] = {}  # plot key -> its _Live items (curves, bands)
+        self._series: dict[int, tuple] = {}  # bone -> (reference frame, its centroid, rotation, t, r)
+        self._flagged = np.zeros(review.n_frames, bool)
         self._x = np.arange(review.n_frames, dtype=float)
         self._y_range: dict[str, tuple[float, float]] = {}
         self._cutoff: dict[int, tuple[int, float]] = {}  # bone -> (recorded frames, cut-off)
+        self._dashed_bone = -1  # the bone whose low-passed curves are drawn
+        self._lowpass_job = None  # (bone, recorded frames, future) of the low-pass being computed
+        self._lowpass_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="talus-lowpass")
+        self.destroyed.connect(functools.partial(self._lowpass_pool.shutdown, wait=False,
+                                                 cancel_futures=True))
+        self._lowpass_timer = QtCore.QTimer(self)
+        self._lowpass_timer.setInterval(20)
+        self._lowpass_timer.timeout.connect(self._poll_lowpass)
         self._cursors: list[pg.InfiniteLine] = []
-        self._shading: list = []
-        self._shaded: tuple = ()
+        self._shading: list[_Live] = []  # per plot: its flagged frames
         self._make_plots()
-        everything = set(range(len(review.bones)))
-        self._dirty: dict[str, set[int]] = {page: set(everything) for page in self.canvases}
+        # page -> bone -> frames changed since the page was drawn (None: all of them)
+        self._dirty: dict[str, dict[int, set[int] | None]] = {page: self._everything()
+                                                              for page in self.canvases}
         self._timer = QtCore.QTimer(self)
         self._timer.setSingleShot(True)
         self._timer.setInterval(int(refresh_ms))
@@ -195,6 +293,7 @@ class PlotsDock(QtWidgets.QWidget):
         # a text-free grid: the axes' grid would repaint their tick labels with every new point
         grid = pg.GridItem()
         grid.setTextPen(None)
+        grid.setTickSpacing(x=[None, None], y=[None, None])  # two levels: a third drew ~10x the lines
         grid.setPen(pg.mkPen((0, 0, 0, 40), width=1))
         _cache(grid)
         p.addItem(grid, ignoreBounds=True)
@@ -205,35 +304,41 @@ class PlotsDock(QtWidgets.QWidget):
         p.enableAutoRange(x=False, y=False)
         p.setYRange(-1.0, 1.0, padding=0.0)
         self.plots[key] = p
-        curves = []
-        for k, _name in enumerate(names):
-            c = pg.PlotCurveItem(pen=pg.mkPen(_PENS[k % 3], width=1.5))
-            p.addItem(c, ignoreBounds=True)
-            curves.append(c)
-        self.curves[key] = curves
+        self.curves[key] = self._add_live(key, _Live(self.review.n_frames,
+                                                     pens=[pg.mkPen(_PENS[k % 3], width=1.5)
+                                                           for k in range(len(names))]))
+        shade = self._add_live(key, _Live(self.review.n_frames, shade=(220, 70, 60, 45)))
+        shade.setZValue(-10)
+        self._shading.append(shade)
         cursor = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen((40, 40, 40), width=1))
         p.addItem(cursor, ignoreBounds=True)
         self._cursors.append(cursor)
         return p
+
+    def _add_live(self, key: str, item: _Live) -> _Live:
+        self.plots[key].addItem(item, ignoreBounds=True)
+        self._live.setdefault(key, []).append(item)
+        return item
+
+    def curve_data(self, key: str, k: int = 0) -> np.ndarray:
+        """The values drawn of curve ``k`` of plot ``key`` (NaN where none), by frame."""
+        return self.curves[key].series(k)
 
     def _make_plots(self) -> None:
         for key, title, units in (("translation", "translation of the centroid", "mm"),
                                   ("rotation", "rotation (vector, lab axes)", "°")):
             p = self._plot("Pose", key, title, units, ["x", "y", "z"],
                            "solid raw, dashed low-passed, band ± σ")
-            bands, filt = [], []
-            for k in range(3):
-                band = QtWidgets.QGraphicsPathItem()
-                band.setBrush(pg.mkBrush(*_PENS[k], 50))
-                band.setPen(pg.mkPen(None))
-                band.setZValue(-5)
-                p.addItem(band, ignoreBounds=True)
-                bands.append(band)
+            band = self._add_live(key, _Live(self.review.n_frames, brushes=[(*c, 50) for c in _PENS]))
+            band.setZValue(-5)  # under the grid and the curves
+            self.curves[key + ":band"] = band
+            filt = []
+            for k in range(3):  # changed a few times per trial: drawn from a pixmap cache
                 dash = pg.mkPen(_PENS[k], width=1, style=QtCore.Qt.PenStyle.DashLine)
                 c = pg.PlotCurveItem(pen=dash)
+                _cache(c)
                 p.addItem(c, ignoreBounds=True)
                 filt.append(c)
-            self.curves[key + ":band"] = bands
             self.curves[key + ":filtered"] = filt
         for j in self.joints:
             self._plot("Joint angles", f"jcs:{j.name}", f"{j.name} ({j.proximal}–{j.distal}) JCS angles", "°",
@@ -246,9 +351,14 @@ class PlotsDock(QtWidgets.QWidget):
             self._plot("Joint space", "joint_space", "joint space (smallest surface distance)", "mm", names)
 
     # ------------------------------------------------------------------ updates
+    def _everything(self) -> dict[int, None]:
+        return dict.fromkeys(range(len(self.review.bones)))
+
     def _on_changed(self, b: int, f: int) -> None:
         for dirty in self._dirty.values():
-            dirty.add(b)
+            frames = dirty.setdefault(b, set())
+            if frames is not None:
+                frames.add(f)
         if self.review.status[b, f] in (KEYFRAME, EDITED):  # a hand edit: low-pass again
             self._cutoff.pop(b, None)
         if not self._timer.isActive():
@@ -261,7 +371,7 @@ class PlotsDock(QtWidgets.QWidget):
         self.refresh()
 
     def _redraw_page(self, page: str, *, now: bool = True) -> None:
-        self._dirty[page] |= set(range(len(self.review.bones)))
+        self._dirty[page] = self._everything()
         if now and page == self.page:
             self.refresh()
 
@@ -287,54 +397,50 @@ class PlotsDock(QtWidgets.QWidget):
         last drawn, and the shading of flagged frames (the other pages follow when shown)."""
         self._timer.stop()
         page = self.page
-        dirty, self._dirty[page] = self._dirty[page], set()
+        dirty, self._dirty[page] = self._dirty[page], {}
         d = self.review
-        x = self._x
         b = max(self.bone_combo.currentIndex(), 0)
+        if d.bones and page == "Pose":
+            for other in dirty:  # drawn from scratch when shown
+                if other != b:
+                    self._series.pop(other, None)
         if d.bones and page == "Pose" and b in dirty:
-            layer = self.model.layers[self.model.index(d.bones[b])]
+            centroid = self.model.layers[self.model.index(d.bones[b])].centroid
             P = d.poses[b]
-            t, r = _rel_series(P, layer.centroid)
-            filt = self._filtered(b, P, layer.centroid) or (None, None)
-            for key, series, sig, fser in (("translation", t, d.sigma_mm[b], filt[0]),
-                                           ("rotation", r, d.sigma_deg[b], filt[1])):
+            t, r = self._pose_series(b, P, centroid, dirty[b])
+            self._request_lowpass(b, P, centroid)
+            for key, series, sig in (("translation", t, d.sigma_mm[b]), ("rotation", r, d.sigma_deg[b])):
                 has_sigma = bool(np.isfinite(sig).any())
                 s = np.where(np.isfinite(sig), sig, 0.0)
-                for k in range(3):
-                    _set(self.curves[key][k], x, series[:, k])
-                    band = self.curves[key + ":band"][k]
-                    band.setVisible(has_sigma)
-                    if has_sigma:
-                        band.setPath(_band_path(x, series[:, k] - s, series[:, k] + s))
-                    if fser is not None:
-                        _set(self.curves[key + ":filtered"][k], x, fser[:, k])
-                self._fit_y(key, series - s[:, None], series + s[:, None])
+                lo, hi = series - s[:, None], series + s[:, None]
+                self._fit_y(key, lo, hi)
+                self.curves[key].set_data(series.T)
+                band = self.curves[key + ":band"]
+                band.setVisible(has_sigma)
+                if has_sigma:
+                    band.set_data(np.stack([lo.T, hi.T], axis=1))
         names = {j.proximal for j in self.joints} | {j.distal for j in self.joints}
         if page in ("Joint angles", "Helical axis") and any(d.bones[i] in names for i in dirty):
             poses = {name: d.poses[i] for i, name in enumerate(d.bones)}
             hel_a, hel_t = [], []
-            for n, j in enumerate(self.joints):
+            for j in self.joints:
                 js = joint_series(poses, j, self.frames)
                 if page == "Joint angles":
-                    for k in range(3):
-                        _set(self.curves[f"jcs:{j.name}"][k], x, js["angles_deg"][:, k])
                     self._fit_y(f"jcs:{j.name}", js["angles_deg"])
+                    self.curves[f"jcs:{j.name}"].set_data(js["angles_deg"].T)
                 else:
-                    _set(self.curves["helical_angle"][n], x, js["helical_angle_deg"])
-                    _set(self.curves["helical_translation"][n], x, js["helical_translation_mm"])
                     hel_a.append(js["helical_angle_deg"])
                     hel_t.append(js["helical_translation_mm"])
             if page == "Helical axis":
                 self._fit_y("helical_angle", *hel_a)
                 self._fit_y("helical_translation", *hel_t)
-        if page == "Joint space":
-            spaces = []
-            for n, j in enumerate(self.joints):
-                space = self.joint_space.get(j.name)
-                if space is not None:
-                    _set(self.curves["joint_space"][n], x, space)
-                    spaces.append(space)
+                self.curves["helical_angle"].set_data(np.array(hel_a))
+                self.curves["helical_translation"].set_data(np.array(hel_t))
+        if page == "Joint space" and self.joints:
+            nan = np.full(d.n_frames, np.nan)
+            spaces = [self.joint_space.get(j.name, nan) for j in self.joints]
             self._fit_y("joint_space", *spaces)
+            self.curves["joint_space"].set_data(np.array(spaces))
         self._shade()
         self.refreshed.emit()
 
@@ -357,58 +463,100 @@ class PlotsDock(QtWidgets.QWidget):
         new = (mid - (0.5 + _Y_MARGIN) * span, mid + (0.5 + _Y_MARGIN) * span)
         self._y_range[key] = new
         self.plots[key].setYRange(*new, padding=0.0)
-        for p, item in self._shading:
-            if p is self.plots[key]:
-                item.setOpts(y0=new[0], height=new[1] - new[0])
+        for item in self._live.get(key, ()):
+            item.set_bounds(*new)
 
-    def _filtered(self, b: int, P: np.ndarray, centroid: np.ndarray):
-        """The low-passed series of bone ``b``, or None when the curves drawn still stand: while
+    def _pose_series(self, b: int, P: np.ndarray, centroid: np.ndarray,
+                     frames) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`_rel_series` of bone ``b``, computed again only at ``frames`` (a set; None: all)
+        while the reference frame (the first recorded) and its pose stay as they were."""
+        ok = np.all(np.isfinite(P), axis=(1, 2))
+        k0 = int(np.argmax(ok)) if ok.any() else -1
+        seen = self._series.get(b)
+        if frames is None or seen is None or seen[0] != k0 or k0 in frames or k0 < 0:
+            t, r = _rel_series(P, centroid)
+            if k0 >= 0:
+                self._series[b] = (k0, P[k0, :3, :3] @ centroid + P[k0, :3, 3], P[k0, :3, :3].copy(), t, r)
+            else:
+                self._series.pop(b, None)
+            return t, r
+        _, c0, R0, t, r = seen
+        idx = np.fromiter(frames, int, len(frames))
+        t[idx] = r[idx] = np.nan
+        idx = idx[ok[idx]]
+        if idx.size:
+            R = P[idx, :3, :3]
+            t[idx] = R @ centroid + P[idx, :3, 3] - c0
+            r[idx] = np.rad2deg(Rotation.from_matrix(R @ R0.T).as_rotvec())
+        return t, r
+
+    def _request_lowpass(self, b: int, P: np.ndarray, centroid: np.ndarray) -> None:
+        """Bring the dashed (low-passed) curves in step with bone ``b``, off the GUI thread: while
         results stream in, the low-pass (and Winter's residual cut-off, in cycles per frame) is
         computed again only when the bone's recorded frames grew by a fifth (a few times per
-        trial); a reload of the journal (the job's end) or a hand edit computes it at once."""
-        n = len(P)
-        ok = np.all(np.isfinite(P), axis=(1, 2))
-        count = int(ok.sum())
+        trial; each takes tens of ms); a reload of the journal (the job's end), a hand edit or
+        another bone shown computes it at once. One computation at a time, in a worker thread
+        (:func:`_lowpass`); :meth:`_poll_lowpass` draws its answer on the GUI thread."""
+        if self._dashed_bone != b:  # another bone shown: no dashed curves until its own are in
+            self._show_lowpass(b, None)
+        if self._lowpass_job is not None:
+            return  # asked again once the running one is in
+        count = int(np.all(np.isfinite(P), axis=(1, 2)).sum())
         seen = self._cutoff.get(b)
         if seen is not None and seen[0] <= count < 1.2 * seen[0]:
-            return None
-        none = (np.full((n, 3), np.nan), np.full((n, 3), np.nan))
+            return
         self._cutoff[b] = (count, np.nan)
         if count < _MIN_FILTERED:
-            return none
-        from core.tracking.kinematics import filter_poses, residual_cutoff
+            self._show_lowpass(b, None)
+            return
+        job = self._lowpass_pool.submit(_lowpass, P.copy(), np.array(centroid, float))
+        self._lowpass_job = (b, count, job)
+        self._lowpass_timer.start()
 
+    def _poll_lowpass(self, *, wait: bool = False) -> None:
+        if self._lowpass_job is None:
+            self._lowpass_timer.stop()
+            return
+        b, count, future = self._lowpass_job
+        if not (wait or future.done()):
+            return
+        self._lowpass_job = None
+        self._lowpass_timer.stop()
         try:
-            path = np.full((n, 3), np.nan)
-            path[ok] = P[ok, :3, :3] @ centroid + P[ok, :3, 3]
-            cutoff, _ = residual_cutoff(path, 1.0, candidates=np.linspace(0.02, 0.2, 19))
+            cutoff, series = future.result()
+        except Exception:  # too few frames, a failed fit: no dashed curves, never a crash
+            cutoff, series = np.nan, None
+        if self._cutoff.get(b, (None,))[0] == count:  # not asked again from scratch since
             self._cutoff[b] = (count, cutoff)
-            return _rel_series(filter_poses(P, 1.0, cutoff, center=centroid), centroid)
-        except ValueError:
-            return none
+        shown = max(self.bone_combo.currentIndex(), 0)
+        if b == shown:
+            self._show_lowpass(b, series)
+        if self.page == "Pose" and self.review.bones:  # frames in, or another bone, since: due?
+            self._request_lowpass(shown, self.review.poses[shown],
+                                  self.model.layers[self.model.index(self.review.bones[shown])].centroid)
+
+    def _show_lowpass(self, b: int, series) -> None:
+        """Set the dashed curves to ``series`` (translation, rotation ``(n, 3)`` each) of bone
+        ``b``; None: none."""
+        self._dashed_bone = b
+        for key, k in ((key, k) for key in ("translation", "rotation") for k in range(3)):
+            curve = self.curves[key + ":filtered"][k]
+            if series is None:
+                if curve.xData is not None and len(curve.xData):
+                    curve.setData(self._x[:0], self._x[:0])
+            else:
+                _set(curve, self._x, series[0 if key == "translation" else 1][:, k])
 
     def _shade(self) -> None:
-        """Shade the flagged frames: one bar item per plot (a region item per run of frames made
-        each repaint cost grow with the number of flagged runs)."""
-        flagged = np.flatnonzero((self.review.status == FLAGGED).any(axis=0))
-        runs = tuple(_runs(flagged))
-        if runs == self._shaded:
+        """Shade the flagged frames (one item per plot, repainted only at the frames whose flag
+        changed)."""
+        mask = (self.review.status == FLAGGED).any(axis=0)
+        if np.array_equal(mask, self._flagged):
             return
-        x = np.array([(a + b) / 2 for a, b in runs], float)
-        w = np.array([b - a + 1 for a, b in runs], float)
-        if not self._shading:  # bars over the plot's y range (set again when the range changes)
-            for p in self.plots.values():
-                (y0, y1) = p.getViewBox().viewRange()[1]
-                item = pg.BarGraphItem(x=x, width=w, y0=y0, height=y1 - y0, brush=pg.mkBrush(220, 70, 60, 45),
-                                       pen=pg.mkPen(None))
-                item.setZValue(-10)
-                _cache(item)
-                p.addItem(item, ignoreBounds=True)
-                self._shading.append((p, item))
-        else:
-            for _, item in self._shading:
-                item.setOpts(x=x, width=w)
-        self._shaded = runs
+        self._flagged = mask
+        values = np.where(mask, 1.0, np.nan)
+        for item in self._shading:
+            item.set_data(values)
 
     def set_joint_space(self, distances: dict[str, np.ndarray]) -> None:
         self.joint_space.update({k: np.asarray(v, float) for k, v in distances.items()})
@@ -520,6 +668,8 @@ class PlotsDock(QtWidgets.QWidget):
         self.show_page(page)
         if self._dirty[page]:
             self.refresh()
+        if page == "Pose":
+            self._poll_lowpass(wait=True)
         return self.canvases[page]
 
 
@@ -538,17 +688,3 @@ def _write_svg(scene, path) -> None:
         scene.render(painter, QtCore.QRectF(0, 0, src.width(), src.height()), src)
     finally:
         painter.end()
-
-
-def _runs(frames: np.ndarray):
-    """Contiguous runs ``(first, last)`` of sorted frame numbers."""
-    if len(frames) == 0:
-        return
-    start = prev = int(frames[0])
-    for f in frames[1:]:
-        f = int(f)
-        if f != prev + 1:
-            yield start, prev
-            start = f
-        prev = f
-    yield start, prev

@@ -214,8 +214,10 @@ class FrameTableModel(QtCore.QAbstractTableModel):
         return None
 
     def _on_changed(self, b: int, f: int) -> None:
+        # the row's frame and bone never change: leaving their columns out of the signal spares
+        # the sorting proxy a search for the row's new place when the table is sorted by them
         r = self.row_of(b, f)
-        self.dataChanged.emit(self.index(r, 0), self.index(r, len(COLUMNS) - 1))
+        self.dataChanged.emit(self.index(r, 2), self.index(r, len(COLUMNS) - 1))
 
     def _on_reset(self) -> None:
         self.beginResetModel()

@@ -17,19 +17,16 @@ from app.review import EDITED, FLAGGED, KEYFRAME, TRACKED
 from core.io.autoscoper_tra import read_tra
 from core.study import Study
 from core.synthetic import make_demo_study
-from core.tracking.register import RegistrationOptions
-from core.tracking.trial import TrackingOptions
-from tests.app._helpers import job_ends
+from tests.app._helpers import FAST_TRACKING, job_ends
 
 pytestmark = pytest.mark.gui
 
 HUNG_JOB_MS = 30 * 60_000  # only the ceiling for a job that never ends
 BONES = ["tibia", "talus", "calcaneus"]
 N = 5
-# no restarts to verify a result: the default 4 restarts cost most of the tracking time, and the
-# review's plumbing is tested here, not the tracker's accuracy
-FAST = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0), refine=None),
-                       confidence=False, verify_restarts=0)
+# the review's plumbing is tested here, not the tracker's accuracy: the GUI tests' cheap tracking
+# (one pattern-search level at half resolution, no restart check, no confidence)
+FAST = FAST_TRACKING
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +51,11 @@ def window(qtbot, demo_folder, tmp_path, monkeypatch):
     win.close()
 
 
+def _in_front(dock) -> bool:
+    """Whether a dock is shown and not behind another tab."""
+    return dock.isVisible() and not dock.visibleRegion().isEmpty()
+
+
 def _status(win, bone, frame):
     return int(win.review.data.status[BONES.index(bone), frame])
 
@@ -71,8 +73,8 @@ def test_track_review_fix_retrack_and_export(window, qtbot, demo_folder, tmp_pat
         seen.append((win.tracking.running, n_tracked))
 
     def on_refreshed():
-        _, y = rv.plots.curves["translation"][0].getData()  # the page shown: Pose
-        plotted.append((win.tracking.running, 0 if y is None else int(np.isfinite(y).sum())))
+        y = rv.plots.curve_data("translation", 0)  # the page shown: Pose
+        plotted.append((win.tracking.running, int(np.isfinite(y).sum())))
 
     rv.data.changed.connect(on_changed)
     rv.plots.refreshed.connect(on_refreshed)
@@ -82,6 +84,9 @@ def test_track_review_fix_retrack_and_export(window, qtbot, demo_folder, tmp_pat
         win.tracking.start(BONES)
         qtbot.waitUntil(lambda: bool(seen), timeout=HUNG_JOB_MS)  # a first result arrived
         assert win.feedback.isVisible() and "frames/s" in win.feedback.text() and "ETA" in win.feedback.text()
+        # "Tracking ... over N frames" went to the messages: the plots stay in front
+        assert any("Tracking" in win.messages.item(i).text() for i in range(win.messages.count()))
+        assert _in_front(rv.plots_dock) and not _in_front(win.messages_dock)
     # the table and the plots filled in while the job was still running
     assert any(running and n > 0 for running, n in seen)
     assert any(running and n > 0 for running, n in plotted)
@@ -89,6 +94,10 @@ def test_track_review_fix_retrack_and_export(window, qtbot, demo_folder, tmp_pat
     # nothing stale once it ended
     assert not win.feedback.isVisible() and not win.progress.isVisible() and not win.cancel_button.isVisible()
     assert not win.tracking.running
+    assert _in_front(rv.plots_dock)  # the summary and the flagged frames did not take the front either
+    win._on_failed("joint space", "Traceback ...\nValueError: no surface")  # an error does
+    assert _in_front(win.messages_dock) and not _in_front(rv.plots_dock)
+    rv.plots_dock.raise_()
 
     # a click on a plot moves to the frame under the mouse
     m.set_frame(0)

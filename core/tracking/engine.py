@@ -45,10 +45,16 @@ Speed design
 :class:`GaussNewtonCost` keeps its device buffers, the DRR output buffer (a fixed output size,
 :meth:`core.render.DRRRenderer.render` ``out_shape``, the ROIs' size rounded up to 32 pixels)
 and, on CUDA, one graph of the metric pipeline (2 blur passes, scores, moments, copies to
-pinned host memory) from frame to frame: :meth:`~GaussNewtonCost.set_frame` only uploads the
-new fluoroscope ROIs (their smoothing and gradients run on the device). :func:`engine_cost`
-caches one per (renderer, bone, views, scale, terms). A step is one DRR launch, one graph
-launch and one synchronisation.
+pinned host memory) from frame to frame. At full resolution :meth:`~GaussNewtonCost.set_frame`
+uploads each view's region of the fluence as it is (grown by the usable-pixel mask's erosion)
+and :func:`fluoro_roi_kernel` computes the line integrals, the eroded mask and their statistics
+on the device (the same values as :meth:`core.tracking.cost.FrameImages.region`; the regions
+stay on the device for the next round of joint tracking in the same frame); at a pyramid level
+the host prepares them. Smoothing and gradients run on the device. The engine fills the DRR
+item table of its own (rigid) poses itself and launches the renderer's recorded launch.
+:func:`engine_cost` caches one per (renderer, bone, views, scale, terms). A step is one DRR
+launch, one graph launch and one synchronisation; a frame's set-up one more synchronisation
+(the usable pixels counted).
 """
 
 from __future__ import annotations

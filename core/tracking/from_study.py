@@ -24,6 +24,29 @@ Frame normalisation, in order of precedence
 
 The rig is the trial's calibration (:meth:`core.study.Trial.rig`), so a trial calibrated by
 ``talus calibrate`` is tracked with the saved rig and its saved correction.
+
+Bone DRRs: attenuation in excess of the soft tissue
+---------------------------------------------------
+A bone in a radiograph sits in soft tissue: what its projection adds to the image is its
+attenuation *over* that of the tissue it displaces, ``μ(HU) - μ(soft tissue)``, not ``μ(HU)``.
+The default transfer (:func:`tissue_excess_transfer`) renders that excess above the bone
+threshold. The plain thresholded transfer (``HUTransfer(threshold=...)``) adds ``μ`` of ~40 HU
+tissue to every bone voxel, which weights trabecular bone (200–400 HU) almost as much as the
+cortex and makes a 0.025 /mm step at the threshold — each trabecular voxel whose CT number
+crosses it flickers in the DRR, edges the radiograph does not have. On the foot demo (256²,
+frames 2–17, the talus registered from its true pose on flatfield-corrected frames, 2-core CPU)
+the plain transfer left the talus 1.33° RMS off (mean −1.0° about the walking direction, the
+Cramér–Rao bound is 0.21°), the excess transfer 0.86°, and with the tibia, calcaneus and
+metatarsal subtracted at their poses (joint tracking) 0.48° (the plain transfer with
+subtraction: 1.26°, and 0.31 mm instead of 0.10 mm: subtracted DRRs must match the image).
+
+Bones (mode)
+------------
+With ``options=None`` and frames normalised by a flatfield correction (cases 1–3 above),
+several bones are tracked jointly (``TrackingOptions(mode="joint")``): overlapping bones —
+the talus between the tibia and the calcaneus — are then registered with their neighbours'
+DRRs subtracted. Frames divided by the full scale only are not matched to the DRRs' intensities,
+so they are tracked one bone at a time. Given ``options`` are used as they are.
 """
 
 from __future__ import annotations
@@ -37,7 +60,20 @@ from ..render import HUTransfer
 from .bones import bone_model
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
-__all__ = ["frame_reader", "track_study"]
+__all__ = ["frame_reader", "tissue_excess_transfer", "track_study"]
+
+#: CT number of the soft tissue around bones (muscle, tendon, fat-free tissue: 40 HU).
+SOFT_TISSUE_HU = 40.0
+
+
+def tissue_excess_transfer(threshold_hu: float = 200.0, *, soft_tissue_hu: float = SOFT_TISSUE_HU,
+                           mu_water: float = 0.0206) -> HUTransfer:
+    """HU → μ of a bone DRR for tracking: ``μ(HU) - μ(soft_tissue_hu)`` (the linear model at
+    ``mu_water``, 1/mm) for voxels at or above ``threshold_hu``, 0 below (see the module docs)."""
+    hi = 3000.0
+    return HUTransfer(mu_water=mu_water, threshold=float(threshold_hu),
+                      curve=((-1000.0, float(soft_tissue_hu), hi),
+                             (0.0, 0.0, mu_water * (hi - soft_tissue_hu) / 1000.0)))
 
 
 def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) -> tuple[Callable, str]:
@@ -89,8 +125,10 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     bone could be tracked (the report says why). Bones whose CT has no bone above
     ``threshold_hu`` are listed under ``report["stopped"]`` with the reason.
 
-    Bones are tracked one at a time unless ``options`` ask for ``mode="joint"`` (see
-    :mod:`core.tracking.trial`: it needs DRR intensities matched to the radiographs).
+    Bones are tracked jointly when ``options`` is None and the frames are flatfield-corrected,
+    else as ``options`` say (see the module docs and :mod:`core.tracking.trial`: joint tracking
+    needs DRR intensities matched to the radiographs). ``transfer`` defaults to
+    :func:`tissue_excess_transfer` at ``threshold_hu``.
 
     The bones' journals are locked first (:meth:`core.study.Study.lock_journal`): a bone
     another process is tracking raises :class:`~core.io.atomic.LockedError` before any work.
@@ -124,14 +162,17 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             stopped[m.name] = "no keyframe: record a starting pose for this bone first"
             models.remove(m)
     read, how = frame_reader(study, trial, correction=correction)
+    if options is None and len(models) > 1 and not how.startswith("full scale"):
+        options = TrackingOptions(mode="joint")  # flatfield-corrected frames: subtract the neighbours
     report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
               "normalisation": how,
-              "stopped": stopped, "options": {"resume": resume}}
+              "stopped": stopped, "options": {"resume": resume,
+                                              "mode": (options or TrackingOptions()).mode}}
     if not models:
         report["summary"] = {"status": "stopped", "message": "no bone to track"}
         study.write_report("tracking", report_name, report)
         return None, report
-    tr = transfer or HUTransfer(threshold=threshold_hu)
+    tr = transfer or tissue_excess_transfer(threshold_hu)
     renderer = DRRRenderer(trial.rig(), [m.volume for m in models], transfer=tr, device=device)
     state = {"last": time.monotonic(), "frames": []}
 

@@ -1,6 +1,6 @@
 """Tracking the demo trial with the estimated calibration against tracking it with the truth.
 
-``python -m core.studies.calibration.tracking_comparison DEMO [--frames 0:20] [--bones a,b]
+``python -m core.studies.calibration.tracking_comparison DEMO [--frames 0:20[:2]] [--bones a,b]
 [--device cuda] [--out FILE]`` (a GPU job). ``DEMO`` is a folder written by
 :func:`core.synthetic.make_demo_study` whose trial ``walk`` uses the calibration saved from its
 session (``talus calibrate DEMO/calibration_session --study DEMO --trials all`` when it does not).
@@ -8,7 +8,10 @@ A second trial ``walk_truth`` over the same frames is added (once) with the true
 study's calibration ``rig``) and corrected with the generator's true flatfield and distortion;
 both start from the true frame-0 poses and are tracked by
 :func:`core.tracking.from_study.track_study`. Per bone: RMS centroid (mm) and rotation (°) errors
-against the true poses for each, and their differences (acceptance: ≤ 0.02 mm and ≤ 0.05°).
+against the true poses for each, and their differences (acceptance: ≤ 0.02 mm and ≤ 0.05°); per
+trial the Grood–Suntay joint angles (ankle tibia–talus, subtalar talus–calcaneus) from the tracked
+poses against those from the true poses (:func:`core.studies.tracking.jcs_check.joint_check`;
+acceptance of the review issue: RMS ≤ 0.3°).
 """
 
 from __future__ import annotations
@@ -93,6 +96,14 @@ def run(demo, *, frames=None, bones=None, device=None, progress=None) -> dict:
             res[t] = {"calibration": st.trial(t).calibration, "normalisation": rep.get("normalisation"),
                       "seconds": time.perf_counter() - t0, "summary": rep.get("summary"),
                       "bones": {b: _errors(st, t, b, order, truths[b]) for b in names}}
+            foot = [b for b in ("tibia", "talus", "calcaneus") if b in names]
+            if len(foot) >= 2 and order[0] == 0:
+                from core.studies.tracking.jcs_check import joint_check
+
+                tr = st.trial(t)
+                res[t]["jcs"] = joint_check({b: tr.poses(b)[order] for b in foot},
+                                            {b: truths[b][order] for b in foot},
+                                            {b: st.bone_volume(b) for b in foot})
     res["difference"] = {b: {"rms_mm": res["walk"]["bones"][b].get("rms_mm", np.nan)
                              - res["walk_truth"]["bones"][b].get("rms_mm", np.nan),
                              "rms_deg": res["walk"]["bones"][b].get("rms_deg", np.nan)
@@ -106,15 +117,15 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m core.studies.calibration.tracking_comparison",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("demo")
-    ap.add_argument("--frames", default=None, help="START:STOP")
+    ap.add_argument("--frames", default=None,
+                    help="START:STOP or START:STOP:STEP (every STEP-th frame: a faster walk)")
     ap.add_argument("--bones", default=None)
     ap.add_argument("--device", default=None)
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     frames = None
     if a.frames:
-        lo, hi = (int(v) for v in a.frames.split(":"))
-        frames = list(range(lo, hi))
+        frames = list(range(*(int(v) for v in a.frames.split(":"))))
     res = run(a.demo, frames=frames, bones=a.bones.split(",") if a.bones else None, device=a.device,
               progress=lambda m: print(f"[tracking comparison] {m}", file=sys.stderr, flush=True))
     print_json(res, a.out)

@@ -1,0 +1,92 @@
+"""Defaults of tracking a study (core.tracking.from_study): the bone DRRs render a bone's
+attenuation in excess of the soft tissue around it, and flatfield-corrected frames of several
+bones are tracked jointly (each bone with its neighbours' DRRs subtracted)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.render import HUTransfer
+from core.study import Study
+from core.tracking import from_study
+from core.tracking.from_study import tissue_excess_transfer, track_study
+
+
+def test_tissue_excess_transfer_is_the_bone_over_soft_tissue():
+    from core.synthetic.scene import excess_transfer
+
+    hu = np.linspace(-1000.0, 3000.0, 4001)
+    mine = tissue_excess_transfer(200.0)(hu)
+    # what a bone adds to the generator's radiographs: mu(HU) - mu(40 HU), clipped at 0
+    truth = excess_transfer(HUTransfer())(hu)
+    above = hu >= 200.0
+    np.testing.assert_allclose(mine[above], truth[above], rtol=1e-5, atol=1e-7)
+    assert np.all(mine[~above] == 0.0)
+    # the step at the threshold is small against the cortex: trabecular voxels crossing it do not flicker
+    step = float(tissue_excess_transfer(200.0)(np.array([200.0]))[0])
+    cortex = float(tissue_excess_transfer(200.0)(np.array([1500.0]))[0])
+    assert step < 0.15 * cortex
+    plain = HUTransfer(threshold=200.0)
+    assert float(plain(np.array([200.0]))[0]) > 0.45 * float(plain(np.array([1500.0]))[0])  # the old default
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("defaults") / "demo"
+    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    return out
+
+
+def _captured(monkeypatch):
+    import types
+
+    import core.render
+
+    seen = {}
+
+    def renderer(rig, volumes, *, transfer=None, device=None, **kw):
+        return types.SimpleNamespace(transfer=transfer, volumes=volumes)
+
+    monkeypatch.setattr(core.render, "DRRRenderer", renderer)
+
+    def fake_track(renderer, bones, frames, order, *, options=None, **kw):
+        seen["options"], seen["transfer"], seen["bones"] = options, renderer.transfer, [b.name for b in bones]
+        frames(order[0])  # the reader works
+        from core.tracking.trial import TrackingResult
+
+        return TrackingResult(tuple(seen["bones"]), tuple(order), {}, "complete", 0.0)
+
+    monkeypatch.setattr(from_study, "track", fake_track)
+    return seen
+
+
+@pytest.mark.parametrize("corrected", [True, False])
+def test_track_study_defaults(demo, monkeypatch, corrected):
+    seen = _captured(monkeypatch)
+    names = ["tibia", "talus", "calcaneus"]
+    corr = [lambda raw: np.clip(np.asarray(raw, np.float32) / 4095.0, 0, 1)] * 2 if corrected else None
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", names, [1], correction=corr, device="cpu")
+    assert seen["bones"] == names
+    mode = "joint" if corrected else "sequential"
+    assert (seen["options"].mode if seen["options"] is not None else "sequential") == mode
+    assert rep["options"]["mode"] == mode
+    hu = np.array([100.0, 200.0, 1500.0])
+    np.testing.assert_allclose(seen["transfer"](hu), tissue_excess_transfer(200.0)(hu))
+
+
+def test_track_study_keeps_given_options(demo, monkeypatch):
+    from core.tracking.trial import TrackingOptions
+
+    seen = _captured(monkeypatch)
+    o = TrackingOptions(mode="sequential", confidence=False)
+    corr = [lambda raw: np.clip(np.asarray(raw, np.float32) / 4095.0, 0, 1)] * 2
+    with Study.open(demo, mode="w") as st:
+        track_study(st, "walk", ["tibia", "talus"], [1], correction=corr, options=o, device="cpu",
+                    transfer=HUTransfer(threshold=150.0))
+    assert seen["options"] is o
+    assert seen["transfer"] == HUTransfer(threshold=150.0)

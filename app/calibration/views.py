@@ -147,6 +147,11 @@ class FigureView(QtWidgets.QLabel):
         self._pm = figure_pixmap(fig)
         self._rescale()
 
+    def clear_figure(self) -> None:
+        """Show nothing (the figure of a result that no longer holds)."""
+        self._pm = None
+        self.clear()
+
     def resizeEvent(self, ev) -> None:
         super().resizeEvent(ev)
         self._rescale()

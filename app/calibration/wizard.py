@@ -4,7 +4,14 @@ Pages: session folder → flatfield (the corrected field and its roll-off) → d
 points found on a frame, residual vectors, the cross-validated model table; another model can
 be chosen) → calibration object (the frames with their detections and labels; a frame can be
 excluded, a wrong label fixed by clicking the bead and choosing its id) → solve (bundle
-adjustment: reprojection, cameras and object poses, parameter SDs) → save into a study.
+adjustment: reprojection, cameras and object poses, parameter SDs; what defines the lab frame)
+→ save into a study. The calibration report's warnings (``report["warnings"]``, e.g. a lab frame
+that is not the static cube's) are shown on the solve and save pages.
+
+The lab frame is the static object's (cube's) by default, as ``talus calibrate``: a cube frame
+that was recorded but cannot be labelled makes the solve fail, naming the file. The solve page
+offers the other choice of ``talus calibrate --lab-frame object``: the moving object's first
+labelled frame, accepted with a warning.
 
 The computing is that of ``talus calibrate``, step by step (:mod:`core.calibration.session`:
 :func:`~core.calibration.session.prepare`, ``flatfield_step``, ``distortion_step``,
@@ -31,6 +38,19 @@ __all__ = ["CalibrationWizard"]
 
 PAGES = ("Session", "Flatfield", "Distortion", "Calibration object", "Solve", "Save")
 MODELS = ("auto", "poly(3,3)", "poly(4,4)", "poly(5,5)", "poly(6,6)", "tps", "lwm")
+# what defines the lab frame (core.calibration.session.solve_step's lab_frame), as the combo offers it
+LAB_FRAMES = (("static", "The static object's frame (the cube on its stand; recommended)"),
+              ("object", "The moving object's first labelled frame (the spiral's)"))
+LAB_FRAME_HELP = (
+    "The lab frame is the one coordinate system the cameras, and every bone pose tracked with them, are "
+    "given in. By default it is the static cube's, as it stood on its stand: the same place every "
+    "collection day. If the cube frame is missing or its beads could not be labelled, you may accept "
+    "the spiral's first labelled frame instead: the cameras are just as accurate, but the axes are "
+    "wherever the hand-held spiral happened to be, so poses are not in the lab's axes and do not "
+    "compare with another day's. The calibration then carries a warning. (talus calibrate "
+    "--lab-frame static|object)")
+WARNING_STYLE = ("QLabel { background: #fff3cd; color: #664d03; border: 1px solid #e0a800; "
+                 "border-radius: 3px; padding: 4px; }")
 
 
 # ---------------------------------------------------------------------------- work (worker threads)
@@ -130,16 +150,16 @@ def job_frame(setup, dist, beads, k: int):
             for v, (cam, c) in enumerate(zip(setup.cameras, dist.cameras, strict=True))]
 
 
-def job_solve(setup, dist, beads, *, cancel=None, progress=None):
+def job_solve(setup, dist, beads, lab_frame: str = "static", *, cancel=None, progress=None):
     from core.calibration import session as cs
 
     from .figures import reprojection_figure
 
     say = None if progress is None else (lambda s, d, t: progress(d, t))
-    cal = cs.solve_step(_with(setup, cancel), dist, beads, progress=say)
+    cal = cs.solve_step(_with(setup, cancel), dist, beads, lab_frame=lab_frame, progress=say)
     import pyvista  # noqa: F401  (loaded here, off the GUI thread, for the page's 3-D scene)
 
-    return {"cal": cal, "reprojection": reprojection_figure(cal)}
+    return {"cal": cal, "reprojection": reprojection_figure(cal), "lab_frame": lab_frame}
 
 
 def job_save(study_folder: str, cal, series: str, trials, session_folder: str):
@@ -172,6 +192,22 @@ def _fmt(x, nd=3) -> str:
     return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{nd}f}"
 
 
+def _warning_label() -> QtWidgets.QLabel:
+    """A label for a calibration's warnings: hidden while there are none."""
+    w = QtWidgets.QLabel()
+    w.setWordWrap(True)
+    w.setStyleSheet(WARNING_STYLE)
+    w.setTextInteractionFlags(QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
+    w.setVisible(False)
+    return w
+
+
+def _show_warnings(label: QtWidgets.QLabel, warnings) -> None:
+    warnings = list(warnings or ())
+    label.setText("\n".join(f"⚠ Warning: {w}" for w in warnings))
+    label.setVisible(bool(warnings))
+
+
 class CalibrationWizard(QtWidgets.QDialog):
     """File → Calibrate… (module docs). ``saved_calibration`` is emitted with the
     :class:`~core.study.calibrations.SavedCalibration` once saved."""
@@ -188,6 +224,7 @@ class CalibrationWizard(QtWidgets.QDialog):
         self._own_pool = pool is None
         self.results: dict = {}  # step -> result (kept: going back is instant)
         self._frames: dict = {}  # object frame -> corrected images
+        self._solves: dict = {}  # lab frame -> solve result of the current beads (switching back is instant)
         self._running: str | None = None
         self._closed = False
         self._last_saved: str | None = None  # the version this wizard saved last
@@ -333,26 +370,47 @@ class CalibrationWizard(QtWidgets.QDialog):
     def _page_solve(self) -> QtWidgets.QWidget:
         w = QtWidgets.QWidget()
         g = QtWidgets.QGridLayout(w)
+        row = QtWidgets.QHBoxLayout()
+        row.addWidget(QtWidgets.QLabel("Lab frame:"))
+        self.lab_frame_combo = QtWidgets.QComboBox()
+        for key, text in LAB_FRAMES:
+            self.lab_frame_combo.addItem(text, key)
+        self.lab_frame_combo.setToolTip(LAB_FRAME_HELP)
+        self.lab_frame_combo.currentIndexChanged.connect(lambda _: self._lab_frame_changed())
+        row.addWidget(self.lab_frame_combo)
+        row.addStretch(1)
+        g.addLayout(row, 0, 0, 1, 2)
+        self.lab_frame_help = QtWidgets.QLabel(
+            "The coordinate system of the cameras and of every pose tracked with them. The static cube's "
+            "is the same every collection day; choose the spiral's first labelled frame only when the cube "
+            "frame is missing or could not be labelled: the axes are then wherever the hand-held spiral "
+            "happened to be, and the calibration carries a warning.")
+        self.lab_frame_help.setWordWrap(True)
+        self.lab_frame_help.setStyleSheet("color: #555555")
+        self.lab_frame_help.setToolTip(LAB_FRAME_HELP)
+        g.addWidget(self.lab_frame_help, 1, 0, 1, 2)
+        self.solve_warnings = _warning_label()
+        g.addWidget(self.solve_warnings, 2, 0, 1, 2)
         self.solve_info = QtWidgets.QLabel()
         self.solve_info.setWordWrap(True)
-        self.solve_info.setMinimumHeight(80)
+        self.solve_info.setMinimumHeight(60)
         self.solve_info.setAlignment(QtCore.Qt.AlignmentFlag.AlignTop | QtCore.Qt.AlignmentFlag.AlignLeft)
-        g.addWidget(self.solve_info, 0, 0, 1, 2)
+        g.addWidget(self.solve_info, 3, 0, 1, 2)
         self.reprojection_view = FigureView()
         self.scene_view = SceneView()  # cameras and the object's poses in 3-D (drag to turn)
         self.scene_view.setMinimumSize(320, 240)
-        g.addWidget(self.reprojection_view, 1, 0)
-        g.addWidget(self.scene_view, 1, 1)
+        g.addWidget(self.reprojection_view, 4, 0)
+        g.addWidget(self.scene_view, 4, 1)
         g.setColumnStretch(0, 2)
         g.setColumnStretch(1, 3)
         self.sd_table = _table(["camera", "f (px)", "SD f", "SD cu", "SD cv", "SID (mm)",
                                 "SD source x/y/z (mm)"])
         self.sd_table.setMaximumHeight(110)
-        g.addWidget(self.sd_table, 2, 0, 1, 2)
+        g.addWidget(self.sd_table, 5, 0, 1, 2)
         self.resolve_button = QtWidgets.QPushButton("Solve again")
         self.resolve_button.clicked.connect(lambda: self._run_solve(force=True))
-        g.addWidget(self.resolve_button, 3, 0)
-        g.setRowStretch(1, 1)
+        g.addWidget(self.resolve_button, 6, 0)
+        g.setRowStretch(4, 1)
         self.solve_info.setSizePolicy(QtWidgets.QSizePolicy.Policy.Preferred,
                                       QtWidgets.QSizePolicy.Policy.Minimum)
         return w
@@ -375,6 +433,11 @@ class CalibrationWizard(QtWidgets.QDialog):
         self.trials_combo.setToolTip("trials that use the new version: those on an earlier version of the "
                                      "series, every trial, or none")
         f.addRow("Trials using it", self.trials_combo)
+        self.save_summary = QtWidgets.QLabel()  # what is saved: the object, the error, the lab frame
+        self.save_summary.setWordWrap(True)
+        f.addRow(self.save_summary)
+        self.save_warnings = _warning_label()  # the calibration's warnings, saved with its report
+        f.addRow(self.save_warnings)
         self.save_button = QtWidgets.QPushButton("Save into the study")
         self.save_button.clicked.connect(self.save)
         f.addRow(self.save_button)
@@ -450,6 +513,8 @@ class CalibrationWizard(QtWidgets.QDialog):
             self.results.pop(s, None)
         if "beads" in steps:
             self._frames.clear()
+        if "solve" in steps:
+            self._solves.clear()
 
     # ------------------------------------------------------------------ worker answers
     def _idle(self) -> None:
@@ -499,6 +564,8 @@ class CalibrationWizard(QtWidgets.QDialog):
             self._invalidate("beads", "solve")
         else:
             self.results[key] = result
+        if key == "solve":
+            self._solves[result["lab_frame"]] = result
         enter = {"flatfield": self._enter_flatfield, "distortion": self._enter_distortion,
                  "refit": self._enter_distortion, "beads": self._enter_object, "solve": self._enter_solve}
         enter.get(key, lambda: None)()
@@ -524,8 +591,31 @@ class CalibrationWizard(QtWidgets.QDialog):
         msg = last.split(": ", 1)[1] if last.split(":", 1)[0].endswith(("Error", "Exception")) else last
         self.status.setStyleSheet("color: #c00000")
         self.status.setText(f"{key} failed: {msg}")
+        if key == "solve":
+            self._solve_failed(msg)
         self._update_next()
         self.step_done.emit(key)
+
+    def _clear_solve(self) -> None:
+        """Nothing of an earlier solve stays on the page while another computes or after it failed."""
+        self.reprojection_view.clear_figure()
+        self.scene_view.set_scene(None)
+        self.sd_table.setRowCount(0)
+        _show_warnings(self.solve_warnings, [])
+
+    def _solve_failed(self, msg: str) -> None:
+        """The solve page says that it failed (the message, with the file, is in the status line)
+        and what the wizard offers when the cube cannot define the lab frame."""
+        b, setup = self.results.get("beads"), self.results["flatfield"]["setup"]
+        text = "The solve failed: the message below says why and where."
+        if self.lab_frame == "static" and b is not None and any(not f.ok for f in b.static_frames):
+            text = (f"The solve failed: the static {setup.static.name} frame could not be labelled, so it "
+                    f"cannot define the lab frame. Record it again, or choose “{LAB_FRAMES[1][1]}” under Lab "
+                    "frame above: the solve runs again, and the calibration carries a warning that its lab "
+                    f"frame is not the {setup.static.name}'s.")
+        self.solve_info.setStyleSheet("color: #c00000")
+        self.solve_info.setText(text)
+        self._clear_solve()
 
     def _cancelled(self, key: str) -> None:
         if key == "frame":
@@ -637,9 +727,19 @@ class CalibrationWizard(QtWidgets.QDialog):
         self.frame_list.setCurrentRow(row)
         self.frame_list.blockSignals(False)
         n = sum(1 for k, fr in enumerate(b.frames) if fr.ok and k not in b.excluded)
-        self.object_info.setText(f"{n} of {len(b.frames)} frames go to the solve"
-                                 + (f"; {len(b.static_frames)} static-object frame(s)"
-                                    if b.static_frames else ""))
+        setup = self.results["flatfield"]["setup"]
+        static = getattr(setup.static, "name", "static object")
+        bad = [f for f in b.static_frames if not f.ok]
+        if not b.static_frames:
+            cube = (f"no static {static} frame: the lab frame will be the {setup.target.name}'s first "
+                    "labelled frame (with a warning)")
+        elif bad:
+            cube = (f"the static {static} frame could not be labelled ({bad[0].reason}): the solve needs "
+                    f"it for the lab frame, unless the {setup.target.name}'s first labelled frame is "
+                    "chosen on the Solve page")
+        else:
+            cube = f"the static {static} frame is labelled (it defines the lab frame)"
+        self.object_info.setText(f"{n} of {len(b.frames)} frames go to the solve; {cube}.")
 
     def _select_frame(self, k: int) -> None:
         b = self.results.get("beads")
@@ -726,20 +826,46 @@ class CalibrationWizard(QtWidgets.QDialog):
         self._fill_frames()
 
     # ------------------------------------------------------------------ solve
+    @property
+    def lab_frame(self) -> str:
+        """What defines the lab frame of the solve: ``"static"`` (the cube's) or ``"object"``."""
+        return self.lab_frame_combo.currentData()
+
+    def _lab_frame_changed(self) -> None:
+        """Another lab frame chosen: its solve is shown (computed once per choice and kept)."""
+        if self._running == "solve":
+            self.cancel_step()
+        if self.page == 4:
+            self._run_solve(force=False)
+            self._update_next()
+
     def _enter_solve(self) -> None:
         self._run_solve(force=False)
 
     def _run_solve(self, *, force: bool) -> None:
+        lab = self.lab_frame
         r = self.results.get("solve")
+        if r is not None and r["lab_frame"] != lab:  # the other choice's solve, if it was computed
+            r = self._solves.get(lab)
+            if r is None:
+                self.results.pop("solve", None)
+            else:
+                self.results["solve"] = r
         if r is None or force:
             b = self.results.get("beads")
+            _show_warnings(self.solve_warnings, [])
             if b is not None and self._running is None:
+                self._solves.pop(lab, None)
+                self._clear_solve()
+                self.solve_info.setStyleSheet("")
                 self.solve_info.setText("Bundle adjustment running…")
                 self._submit("solve", job_solve, self.results["flatfield"]["setup"],
-                             self.results["distortion"]["dist"], b)
+                             self.results["distortion"]["dist"], b, lab)
             return
         cal = r["cal"]
         rep = cal.report
+        _show_warnings(self.solve_warnings, rep.get("warnings"))
+        self.solve_info.setStyleSheet("")
         self.reprojection_view.set_figure(r["reprojection"])
         if self.scene_view.scene is None or getattr(self.scene_view.scene, "cal", None) is not cal:
             # drawn once the page's text and plots are on screen (VTK renders on the GUI thread)
@@ -774,6 +900,22 @@ class CalibrationWizard(QtWidgets.QDialog):
     # ------------------------------------------------------------------ save
     def _enter_save(self) -> None:
         self.save_button.setEnabled("solve" in self.results and self._running is None)
+        r = self.results.get("solve")
+        if r is None:
+            self.save_summary.setText("Nothing to save yet: solve first.")
+            _show_warnings(self.save_warnings, [])
+        else:
+            rep = r["cal"].report
+            lab = rep.get("lab_frame") or {}
+            obj = lab.get("object", "?")
+            where = (f"the static {obj} frame" if lab.get("defined_by") == "static"
+                     else f"the first labelled frame of the {obj}")
+            self.save_summary.setText(
+                f"To save: reprojection RMS {rep['bundle']['rms_px']:.3f} px over {rep['n_frames_labelled']} "
+                f"labelled frames; lab frame: {where}"
+                + (f" ({_short(lab['frame'][0], self.results['flatfield']['setup'])})" if lab.get("frame")
+                   else "") + " (chosen on the Solve page).")
+            _show_warnings(self.save_warnings, rep.get("warnings"))
         self._describe_study()
 
     def _describe_study(self) -> None:
@@ -831,10 +973,19 @@ class CalibrationWizard(QtWidgets.QDialog):
         meta = json.loads((folder / entry["folder"] / "version.json").read_text(encoding="utf-8"))
         w = cls(parent, session_folder=meta.get("session") or "", study_folder=folder, **kwargs)
         w.series_edit.setText(str(entry.get("series", "session")))
+        report = {}
+        if entry.get("report"):
+            try:
+                report = json.loads((folder / entry["report"]).read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                report = {}
+        if (report.get("lab_frame") or {}).get("defined_by") == "object":  # redone as it was made
+            w.lab_frame_combo.setCurrentIndex(1)
+        warned = "".join(f"\n⚠ Warning: {x}" for x in report.get("warnings", []))
         w._saved_note = (
             f"Saved calibration {name} ({meta.get('created')}): object {meta.get('object')}, static object "
             f"{meta.get('static_object')}, reprojection RMS {meta.get('rms_px', float('nan')):.3f} px; "
-            f"report: {folder / entry['report'] if entry.get('report') else '(none)'}.\n"
+            f"report: {folder / entry['report'] if entry.get('report') else '(none)'}.{warned}\n"
             f"Made from the session {meta.get('session')}. Next recomputes it step by step; saving makes "
             "a new version (this one is kept).\n\n")
         w.session_info.setText(w._saved_note + w.session_info.text())

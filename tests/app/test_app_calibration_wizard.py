@@ -2,8 +2,12 @@
 distortion (another model chosen), the object frames (a wrong label fixed by clicking the bead
 and choosing its id, a frame excluded), the solve, saved into a study that ``talus track`` then
 uses. The window stays responsive while a step computes (a timer keeps ticking) and a step can
-be cancelled. Set ``TALUS_SCREENSHOTS=DIR`` to keep a screenshot of every page."""
+be cancelled. The lab frame: a cube frame that cannot be labelled fails the solve, naming the
+file, and the page offers the spiral's first labelled frame instead, whose calibration shows its
+warning on the solve and save pages. Set ``TALUS_SCREENSHOTS=DIR`` to keep a screenshot of every
+page."""
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -135,16 +139,19 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
         _click_item(qtbot, w.frame_list, other)
     _click(qtbot, w.exclude_box)
     assert w.results["beads"].excluded == {other} and "excluded" in w.frame_list.item(other).text()
+    assert "the static cube15 frame is labelled (it defines the lab frame)" in w.object_info.text()
     _shot(w, "4_object_frames_edited")
-    # solve
-    _step(qtbot, w, "solve", lambda: _click(qtbot, w.next_button))
+    # solve: first with a cube frame that could not be labelled (the lab frame), then as it is
+    _lab_frame_choice(qtbot, w)
     cal = w.results["solve"]["cal"]
     rows = {(r["group"], r["index"]): r for r in cal.frames}
     assert rows[("spiral", other)]["reason"] == "excluded by hand" and not rows[("spiral", other)]["ok"]
     assert rows[("spiral", k)].get("manual") and cal.bundle.rms_px < 0.3
-    assert w.sd_table.rowCount() == 2 and w.reprojection_view.pixmap() is not None
+    assert w.sd_table.rowCount() == 2 and not w.reprojection_view.pixmap().isNull()
+    assert w.lab_frame == "static" and cal.report["lab_frame"]["defined_by"] == "static"
+    assert not cal.report["warnings"] and w.solve_warnings.isHidden()
     # the cameras and the object's poses in the 3-D scene; a drag turns it
-    qtbot.waitUntil(lambda: w.scene_view.scene is not None, timeout=HUNG_MS)
+    qtbot.waitUntil(lambda: getattr(w.scene_view.scene, "cal", None) is cal, timeout=HUNG_MS)
     scene = w.scene_view.scene
     first = w.scene_view.grab().toImage()
     qtbot.mousePress(w.scene_view, QtCore.Qt.MouseButton.LeftButton, pos=QtCore.QPoint(100, 100))
@@ -157,6 +164,7 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     _shot(w, "5_solve")
     # save into the study: every trial uses it
     _click(qtbot, w.next_button)
+    assert w.save_warnings.isHidden() and "lab frame: the static cube15" in w.save_summary.text()
     w.trials_combo.setCurrentText("all")
     with qtbot.waitSignal(w.saved_calibration, timeout=HUNG_MS) as saved:
         _click(qtbot, w.save_button)
@@ -170,6 +178,7 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     again = CalibrationWizard.inspect_saved(study, "session.v1")
     qtbot.addWidget(again)
     assert again.session_edit.text() == str(session.absolute()) and "session.v1" in again.session_info.text()
+    assert again.lab_frame == "static" and "Warning" not in again.session_info.text()
     again.close()
     # talus track uses it
     capsys.readouterr()
@@ -181,6 +190,48 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     doc = json.loads(out.out)
     assert doc["normalisation"] == "saved with calibration session.v1"
     assert doc["summary"]["status"] == "complete", doc
+
+
+def _use_beads(w, beads):
+    """The beads step's result replaced (as a step that found them so would give it); the solve is redone."""
+    w.results["beads"] = beads
+    w._invalidate("solve")
+
+
+def _lab_frame_choice(qtbot, w):
+    """From the object page: with a cube frame that could not be labelled the solve fails, naming
+    its file, and the solve page says what to do; the spiral's first labelled frame chosen in the
+    lab-frame box (the keyboard) solves with a warning shown on the solve and save pages. Then the
+    cube labelled and its lab frame chosen again: the solve the walk goes on with."""
+    from core.calibration.matching import FrameLabels
+
+    good = w.results["beads"]
+    (fr,) = good.static_frames
+    _use_beads(w, dataclasses.replace(good, static_frames=[
+        FrameLabels(fr.labellings, False, "no consistent labelling", fr.distance_px)]))
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda k: k == "solve"):
+        _click(qtbot, w.next_button)
+    assert w.page == 4 and w.lab_frame == "static"
+    assert "solve" not in w.results and "solve failed" in w.status.text()
+    assert "cam1/cube/0000.tif (cube15 frame 0): the static cube15 frame was recorded" in w.status.text()
+    assert "could not be labelled, so it cannot define the lab frame" in w.solve_info.text()
+    assert w.lab_frame_combo.itemText(1) in w.solve_info.text() and w.solve_warnings.isHidden()
+    _shot(w, "5_solve_cube_not_labelled")
+    _step(qtbot, w, "solve", lambda: qtbot.keyClick(w.lab_frame_combo, QtCore.Qt.Key.Key_Down))
+    cal = w.results["solve"]["cal"]
+    assert w.lab_frame == "object" and cal.report["lab_frame"]["defined_by"] == "object"
+    (warning,) = cal.report["warnings"]
+    assert "not the static cube15's" in warning
+    assert not w.solve_warnings.isHidden() and warning in w.solve_warnings.text()
+    qtbot.waitUntil(lambda: getattr(w.scene_view.scene, "cal", None) is cal, timeout=HUNG_MS)
+    _shot(w, "5_solve_lab_frame_object")
+    _click(qtbot, w.next_button)
+    assert w.page == 5 and not w.save_warnings.isHidden() and warning in w.save_warnings.text()
+    assert "lab frame: the first labelled frame of the spiral33" in w.save_summary.text()
+    _shot(w, "6_save_lab_frame_object")
+    _click(qtbot, w.back_button)
+    _use_beads(w, good)  # the cube labelled: its lab frame chosen back
+    _step(qtbot, w, "solve", lambda: qtbot.keyClick(w.lab_frame_combo, QtCore.Qt.Key.Key_Up))
 
 
 def test_session_folder_typed_in_is_read_and_named_when_wrong(qtbot, tmp_path):

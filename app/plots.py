@@ -49,6 +49,7 @@ __all__ = ["PlotsDock"]
 _PENS = ((230, 80, 80), (80, 190, 90), (90, 140, 240))
 _MIN_FILTERED = 15  # recorded frames before the low-passed curves are shown
 _Y_MARGIN = 0.3  # fraction of the data's span added on each side when a y range must grow
+_MIN_PLOT_PX = 105  # the least height of one plot (title, data, frame axis)
 _MIN_SPAN = 2.0  # smallest y span shown (mm or °): the first frames do not rescale the axes each time
 
 
@@ -280,6 +281,8 @@ class PlotsDock(QtWidgets.QWidget):
             self.tabs.addTab(canvas, page)
         canvas = self.canvases[page]
         row = sum(1 for k in self.page_of.values() if k == page)
+        # room for each plot's title, axis and a readable band of data (~60 px) on small screens
+        canvas.setMinimumHeight(max(120, _MIN_PLOT_PX * (row + 1)))
         p = canvas.addPlot(row=row, col=0)
         self.page_of[key] = page
         p.setTitle(_legend_title(f"{title} — by frame", names, styles), size="8pt")

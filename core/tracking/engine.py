@@ -536,7 +536,11 @@ class GaussNewtonCost:
         hw[:] = np.array(shapes, dtype=np.int32)
         wp.copy(self._ref_hw, self._host_hw)
         if staged is None:
-            raw, fm = self._host_raw, self._host_mask
+            if self._host_raw_wp is None:
+                pinned = dev.is_cuda
+                self._host_raw_wp = wp.zeros((nv, Hc, Wc), dtype=wp.float32, device="cpu", pinned=pinned)
+                self._host_mask_wp = wp.zeros((nv, Hc, Wc), dtype=wp.uint8, device="cpu", pinned=pinned)
+            raw, fm = self._host_raw_wp.numpy(), self._host_mask_wp.numpy()
             shift = np.zeros(nv, np.float32)
             fmax = np.zeros(nv, np.float32)
             for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
@@ -632,12 +636,14 @@ class GaussNewtonCost:
         given = any(frame._given[v] is not None for v in self.views)
         key = (tuple(staged), tuple(self.views))
         last = self._staged_last
-        if (last is not None and last[0]() is frame and last[1] == key and self._stage_src is not None
-                and self._stage_src.shape == need):
-            upload = False  # the same regions of the same frame (joint tracking's next round): on the device
-        else:
+        upload = not (last is not None and last[0]() is frame and last[1] == key)  # else on the device
+        if self._stage_src is None or any(a < b for a, b in zip(self._stage_src.shape, need, strict=True)):
+            # grown only, in 64-pixel steps: pinned host memory is slow to allocate, and the kernel
+            # reads each view's (hs, ws) corner alone
+            need = (nv, *(int(math.ceil(n / 64.0) * 64) for n in need[1:]))
+            if self._stage_src is not None:
+                need = (nv, *(max(a, b) for a, b in zip(self._stage_src.shape[1:], need[1:], strict=True)))
             upload = True
-        if self._stage_src is None or self._stage_src.shape != need:
             pinned = dev.is_cuda
             self._host_stage_wp = wp.zeros(need, dtype=wp.float32, device="cpu", pinned=pinned)
             self._host_stage = self._host_stage_wp.numpy()
@@ -656,10 +662,13 @@ class GaussNewtonCost:
                 if g is not None:
                     self._host_gstage[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
             info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
-        if upload:
-            wp.copy(self._stage_src, self._host_stage_wp)
-            if given:
-                wp.copy(self._stage_given, self._host_gstage_wp)
+        if upload:  # each view's first hs rows (whole rows of the buffer: one contiguous block)
+            _, Hs, Ws = self._stage_src.shape
+            for i in range(nv):
+                n = int(info[i, 4]) * Ws
+                wp.copy(self._stage_src, self._host_stage_wp, i * Hs * Ws, i * Hs * Ws, n)
+                if given:
+                    wp.copy(self._stage_given, self._host_gstage_wp, i * Hs * Ws, i * Hs * Ws, n)
             self._staged_last = (weakref.ref(frame), key)
         wp.copy(self._info, self._host_info)
         self._fmax.zero_()
@@ -680,11 +689,7 @@ class GaussNewtonCost:
         dev = self.device
         nv = self.n_views
         self._cap = cap
-        pinned = dev.is_cuda
-        self._host_raw_wp = wp.zeros((nv, *cap), dtype=wp.float32, device="cpu", pinned=pinned)
-        self._host_mask_wp = wp.zeros((nv, *cap), dtype=wp.uint8, device="cpu", pinned=pinned)
-        self._host_raw = self._host_raw_wp.numpy()
-        self._host_mask = self._host_mask_wp.numpy()
+        self._host_raw_wp = self._host_mask_wp = None  # the host preparation's (allocated when used)
         self._raw = wp.zeros((nv, *cap), dtype=wp.float32, device=dev)
         self._ftmp = wp.zeros((nv, *cap), dtype=wp.float32, device=dev)
         self._fluoro = wp.zeros((nv, *cap), dtype=wp.float32, device=dev)

@@ -247,8 +247,10 @@ def test_device_frame_preparation_is_the_hosts(talus_scene, kind):
                     gn.step(np.zeros(6), H))
     a, b = out[True], out[False]
     gn = GaussNewtonCost(r, bone=0, views=(0, 1), term=term)
-    for f in (frame, prepare_frame(sc["fluence"](3)), frame, frame):  # uploaded again, then kept
-        gn.set_frame(f, base_pose=pose, center=m.centroid, roi=roi)
+    wide = search_roi(r, pose, 0, views=(0, 1), center=m.centroid, reach_mm=12.0, points=m.outline)
+    assert np.all(wide[:, 2:] > roi[:, 2:])
+    for f, rr in ((frame, roi), (prepare_frame(sc["fluence"](3)), wide), (frame, roi), (frame, roi)):
+        gn.set_frame(f, base_pose=pose, center=m.centroid, roi=rr)  # grown, uploaded again, then kept
     np.testing.assert_array_equal(gn._raw.numpy(), a[0])
     np.testing.assert_array_equal(gn._fmask.numpy(), a[1])
     np.testing.assert_allclose(a[0], b[0], rtol=1e-6, atol=1e-6)

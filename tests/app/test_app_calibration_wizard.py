@@ -230,6 +230,12 @@ def _lab_frame_choice(qtbot, w):
     assert "lab frame: the first labelled frame of the spiral33" in w.save_summary.text()
     _shot(w, "6_save_lab_frame_object")
     _click(qtbot, w.back_button)
+    # the cube's frame again fails; the spiral's again is its kept solve, shown at once
+    with qtbot.waitSignal(w.step_done, timeout=HUNG_MS, check_params_cb=lambda k: k == "solve"):
+        qtbot.keyClick(w.lab_frame_combo, QtCore.Qt.Key.Key_Up)
+    assert "solve" not in w.results and w.solve_warnings.isHidden()
+    qtbot.keyClick(w.lab_frame_combo, QtCore.Qt.Key.Key_Down)
+    assert w._running is None and w.results["solve"]["cal"] is cal and warning in w.solve_warnings.text()
     _use_beads(w, good)  # the cube labelled: its lab frame chosen back
     _step(qtbot, w, "solve", lambda: qtbot.keyClick(w.lab_frame_combo, QtCore.Qt.Key.Key_Up))
 

@@ -24,8 +24,9 @@ shown are computed again only at the frames that changed (all of them when its f
 frame, the reference, changes). The raw curves and the σ bands of a plot are one item each
 (:class:`_Live`) that compares new values with those drawn and asks Qt to repaint only the span of
 frames that differ, and paints only the frames inside the region repainted: a new frame repaints a
-strip a few pixels wide, not the plot. The low-passed (dashed) curves, the axes, the grid and the
-shading change a few times per trial and are drawn from pixmap caches on screen. The y ranges are
+strip a few pixels wide, not the plot. The grid (:class:`_Grid`, at the axes' tick values, no text)
+draws only inside the region repainted too. The low-passed (dashed) curves and the axes change a
+few times per trial and are drawn from pixmap caches on screen. The y ranges are
 set by the dock and widened in steps with a margin (no autorange pass and no re-layout of the axes'
 ticks on most redraws); the legend is the plot's coloured title and the grid a text-free item.
 """
@@ -147,6 +148,56 @@ class _Live(QtWidgets.QGraphicsItem):
                 for s, e in _finite_runs(np.isfinite(y)):
                     if e - s > 1:
                         painter.drawPolyline(pg.functions.arrayToQPolygonF(x[s:e], y[s:e]))
+
+
+class _Grid(QtWidgets.QGraphicsItem):
+    """Grid lines of a plot at its axes' major and minor tick values, without text, drawn only
+    inside the region being repainted (a new frame's strip: a few short lines). The tick values
+    are asked of the axes once per view range."""
+
+    def __init__(self, plot: pg.PlotItem) -> None:
+        super().__init__()
+        self.setFlag(QtWidgets.QGraphicsItem.GraphicsItemFlag.ItemUsesExtendedStyleOption)
+        self.plot = plot
+        self.pens = (pg.mkPen((0, 0, 0, 55), width=1), pg.mkPen((0, 0, 0, 22), width=1))
+        self._rect = QtCore.QRectF()
+        self._ticks: tuple | None = None  # (x levels, y levels) of the view range drawn
+        plot.getViewBox().sigRangeChanged.connect(self._on_range)
+        self._on_range()
+
+    def _on_range(self, *_) -> None:
+        self.prepareGeometryChange()
+        self._rect = self.plot.getViewBox().viewRect()
+        self._ticks = None
+
+    def boundingRect(self) -> QtCore.QRectF:  # Qt's name
+        return self._rect
+
+    def _levels(self) -> tuple:
+        if self._ticks is None:
+            vb = self.plot.getViewBox()
+            (x0, x1), (y0, y1) = vb.viewRange()
+            self._ticks = tuple(
+                [np.asarray(v, float) for _, v in self.plot.getAxis(name).tickValues(lo, hi, size)[:2]]
+                for name, lo, hi, size in (("bottom", x0, x1, vb.width()), ("left", y0, y1, vb.height())))
+        return self._ticks
+
+    def paint(self, painter, option, widget=None) -> None:  # Qt's name
+        r = option.exposedRect
+        xs, ys = self._levels()
+        for level, pen in enumerate(self.pens):
+            lines = []
+            if level < len(xs):
+                v = xs[level]
+                v = v[(v >= r.left()) & (v <= r.right())]
+                lines += [QtCore.QLineF(x, r.top(), x, r.bottom()) for x in v]
+            if level < len(ys):
+                v = ys[level]
+                v = v[(v >= r.top()) & (v <= r.bottom())]
+                lines += [QtCore.QLineF(r.left(), y, r.right(), y) for y in v]
+            if lines:
+                painter.setPen(pen)
+                painter.drawLines(lines)
 
 
 def _cache(item) -> None:
@@ -294,12 +345,7 @@ class PlotsDock(QtWidgets.QWidget):
             _cache(axis)
         p.setMouseEnabled(x=True, y=False)
         # a text-free grid: the axes' grid would repaint their tick labels with every new point
-        grid = pg.GridItem()
-        grid.setTextPen(None)
-        grid.setTickSpacing(x=[None, None], y=[None, None])  # two levels: a third drew ~10x the lines
-        grid.setPen(pg.mkPen((0, 0, 0, 40), width=1))
-        _cache(grid)
-        p.addItem(grid, ignoreBounds=True)
+        p.addItem(_Grid(p), ignoreBounds=True)
         if self.plots:
             p.setXLink(next(iter(self.plots.values())))
         # fixed axes: the frame axis spans the trial, the y range is set by the dock (_fit_y)

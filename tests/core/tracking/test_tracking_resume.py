@@ -42,8 +42,8 @@ def _start(w):
     return pose_from_params(np.r_[1.5, -1.0, 1.0, 0.02, -0.02, 0.01], center=c, base=sc.poses(0)[0])
 
 
-def test_cancel_during_the_last_frame_records_nothing_and_says_cancelled(walking_talus, tmp_path):
-    w = walking_talus
+def test_cancel_during_the_last_frame_records_nothing_and_says_cancelled(walking_talus_64, tmp_path):
+    w = walking_talus_64
     path = tmp_path / "talus.jsonl"
     append_pose(path, 0, _start(w))
     polls = {"n": 0}
@@ -62,10 +62,10 @@ def test_cancel_during_the_last_frame_records_nothing_and_says_cancelled(walking
     assert res.results[("talus", 3)].converged
 
 
-def test_resumed_runs_rebuild_the_uninterrupted_report(walking_talus, tmp_path):
+def test_resumed_runs_rebuild_the_uninterrupted_report(walking_talus_64, tmp_path):
     """Stopped after every number of journalled frames and at random moments inside frames,
     then resumed: the report and journal equal the uninterrupted run's."""
-    w = walking_talus
+    w = walking_talus_64
     order = [0, 1, 2, 3, 4]
     ref_path = tmp_path / "ref.jsonl"
     append_pose(ref_path, 0, _start(w))
@@ -96,10 +96,10 @@ def test_resumed_runs_rebuild_the_uninterrupted_report(walking_talus, tmp_path):
             assert _strip(a.records[f].tracking) == _strip(b.records[f].tracking)
 
 
-def test_restored_state_feeds_the_checks_and_the_guesses(walking_talus):
+def test_restored_state_feeds_the_checks_and_the_guesses(walking_talus_64):
     """A resumed run refills the score history (the score-drop check fires as it would have)
     and does not start from a flagged frame."""
-    w = walking_talus
+    w = walking_talus_64
     sc = w["scene"]
     good = {f: FrameResult("talus", f, sc.poses(f)[0], 2.0, 1, 0.0, True) for f in (0, 1)}
     res = track(w["renderer"], [w["model"]], w["frames"], [0, 1, 2], keyframes={"talus": {0: sc.poses(0)[0]}},
@@ -142,6 +142,6 @@ def test_sigkill_at_random_moments_then_resume_matches_the_uninterrupted_run(tmp
     """The crash/resume study at a small size: real SIGKILLs of a tracking subprocess."""
     from core.studies.crash_resume import study
 
-    res = study(runs=1, n_frames=4, pixels=96, seed=3, max_kills=2, workdir=tmp_path)
+    res = study(runs=1, n_frames=4, pixels=64, seed=3, max_kills=2, workdir=tmp_path)
     assert res["runs"][0]["kills"] >= 1 and res["identical"] == 1, json.dumps(res["differences"])
     assert res["case"]["flagged_in_reference"]

@@ -223,3 +223,59 @@ def test_window_size_suits_the_screen_and_is_remembered(qtbot, tmp_path, monkeyp
     qtbot.addWidget(again)
     assert (again.width(), again.height()) == (1000, 640)
     again.close()
+
+
+def test_live_plot_items_repaint_only_the_frames_that_changed(qtbot):
+    """The plots' curves, bands and shading ask Qt to repaint only the span of frames whose values
+    changed, and a repaint of parts of the plot draws what a repaint of the whole draws."""
+    from PySide6 import QtGui, QtWidgets
+
+    from app.plots import _Live
+
+    class Spy(_Live):
+        def update(self, *rect):  # QGraphicsItem.update: what the item asks Qt to repaint
+            asked.append(rect[0] if rect else None)
+            super().update(*rect)
+
+    asked = []
+    n = 40
+    rng = np.random.default_rng(1)
+    y = rng.normal(size=(3, n))
+    y[1, 10:14] = np.nan  # a gap
+    scene = QtWidgets.QGraphicsScene()
+    items = [Spy(n, pens=[(200, 0, 0), (0, 150, 0), (0, 0, 200)]),
+             _Live(n, brushes=[(200, 0, 0, 60), (0, 150, 0, 60), (0, 0, 200, 60)]),
+             _Live(n, shade=(220, 70, 60, 45))]
+    for item in items:
+        item.set_bounds(-4.0, 4.0)
+        scene.addItem(item)
+    items[0].set_data(y)
+    items[1].set_data(np.stack([y - 0.3, y + 0.3], axis=1))
+    items[2].set_data(np.where(rng.random(n) < 0.2, 1.0, np.nan))
+    asked.clear()
+    y2 = y.copy()
+    y2[2, 25] += 1.0  # one frame of one curve changed
+    items[0].set_data(y2)
+    items[0].set_data(y2)  # the same values again: nothing to repaint
+    assert len(asked) == 1 and asked[0] is not None
+    assert (asked[0].left(), asked[0].right()) == (24.0, 26.0)  # the segments that reach frame 25
+    assert (asked[0].top(), asked[0].bottom()) == (-4.0, 4.0)
+    np.testing.assert_array_equal(items[0].series(2), y2[2])
+
+    src = QtCore.QRectF(-1.0, -4.0, n + 1.0, 8.0)
+
+    def render(parts: int) -> np.ndarray:
+        img = QtGui.QImage(410, 120, QtGui.QImage.Format.Format_ARGB32)
+        img.fill(QtGui.QColor("white"))
+        painter = QtGui.QPainter(img)
+        step = src.width() / parts
+        for k in range(parts):  # each part repainted on its own (its exposed rectangle only)
+            part = QtCore.QRectF(src.left() + k * step, src.top(), step, src.height())
+            target = QtCore.QRectF(k * img.width() / parts, 0, img.width() / parts, img.height())
+            scene.render(painter, target, part)
+        painter.end()
+        return np.frombuffer(img.constBits(), np.uint8).reshape(img.height(), img.width(), 4).copy()
+
+    whole = render(1)
+    assert (whole[..., :3] != 255).any()  # something was drawn
+    np.testing.assert_array_equal(render(5), whole)

@@ -161,6 +161,7 @@ def main(argv=None) -> int:
                     help="track the frames divided by the full scale only (no flatfield, still distorted)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--lost-mm", type=float, default=2.0)
+    ap.add_argument("--folder", default=None, help="write the demo here and keep it")
     ap.add_argument("--demo", default=None, help="a demo folder already tracked: compare its trial only")
     ap.add_argument("--trial", default="walk", help="with --demo: the trial to read")
     ap.add_argument("--out", default=None)
@@ -173,6 +174,7 @@ def main(argv=None) -> int:
         ap.error("--frames: at least 2; --pixels: at least 32")
     res = run(pixels=a.pixels, frames=a.frames, demo_frames=a.demo_frames, bones=a.bones.split(","),
               fast=a.fast, device=a.device, lost_mm=a.lost_mm, spacing=a.spacing, correct=not a.uncorrected,
+              folder=a.folder,
               progress=lambda m: print(f"[jcs check] {m}", file=sys.stderr, flush=True))
     print_json(res, a.out)
     return 0

@@ -4,8 +4,10 @@ adjustment that does not converge, a static cube frame that cannot be labelled. 
 the step, the file (and frame) and what can be done, and the study is left unchanged. A session
 without a static object frame calibrates with a warning that the lab frame is not the cube's.
 
-One small session (384², 9 spiral frames, 1 grid frame per camera) is written to disk; its beads
-are detected and labelled once, and the cases that need them reuse that step.
+The session is the calibration tests' small one (conftest: 384², 10 spiral frames, the static cube,
+1 grid frame per camera) written as a folder; the cases that need its labelled beads reuse the
+beads step the other calibration tests share (the same frames: labelling them again here would
+double the cost).
 """
 
 import dataclasses
@@ -26,21 +28,14 @@ from core.study.calibrations import calibrate_study
 
 
 @pytest.fixture(scope="module")
-def session_dir(tmp_path_factory):
-    from core.synthetic.session import write_calibration_session
-
-    out = tmp_path_factory.mktemp("bad") / "session"
-    write_calibration_session(out, pixels=384, seed=2, n_spiral=9, n_grid=1, n_lattice=0, n_dark=2,
-                              n_flat=3)
-    return out
+def session_dir(memory_session_dir):
+    return memory_session_dir
 
 
 @pytest.fixture(scope="module")
-def beads(session_dir):
-    """The labelled beads of the good session (the expensive step, once)."""
-    setup = cs.prepare(read_session(session_dir))
-    dist = cs.distortion_step(setup, cs.flatfield_step(setup))
-    out = cs.beads_step(setup, dist)
+def beads(memory_session_dir_beads):
+    """The labelled beads of the good session (the expensive step, shared)."""
+    out = memory_session_dir_beads
     assert sum(f.ok for f in out.frames) >= cs.MIN_LABELLED_FRAMES and out.static_frames[0].ok
     return out
 
@@ -158,7 +153,7 @@ def test_too_few_labelled_frames_names_them(session_dir, study, beads, monkeypat
                     f.distance_px) for k, f in enumerate(beads.frames)])
     _use_beads(monkeypatch, bad)
     e = _calibrate(study, session_dir)
-    assert e.step == "beads" and f"only {sum(f.ok for f in bad.frames)} of 9 frames" in e.what
+    assert e.step == "beads" and f"only {sum(f.ok for f in bad.frames)} of {len(bad.frames)} frames" in e.what
     assert "cam1/spiral/0000.tif (frame 0): fewer than 6 labelled beads in a view" in e.what
 
 

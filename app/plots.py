@@ -21,14 +21,15 @@ marks its bone and frame changed; a coalescing timer redraws at most every ``ref
 ≤ 10 Hz), only the page shown, only the curves of the changed bones, and nothing while the dock is
 hidden (a tab behind *Messages*, closed) — it catches up when shown. The pose series of the bone
 shown are computed again only at the frames that changed (all of them when its first recorded
-frame, the reference, changes). The raw curves and the σ bands of a plot are one item each
-(:class:`_Live`) that compares new values with those drawn and asks Qt to repaint only the span of
-frames that differ, and paints only the frames inside the region repainted: a new frame repaints a
-strip a few pixels wide, not the plot. The grid (:class:`_Grid`, at the axes' tick values, no text)
-draws only inside the region repainted too. The low-passed (dashed) curves and the axes change a
-few times per trial and are drawn from pixmap caches on screen. The y ranges are
-set by the dock and widened in steps with a margin (no autorange pass and no re-layout of the axes'
-ticks on most redraws); the legend is the plot's coloured title and the grid a text-free item.
+frame, the reference, changes). The raw curves, the σ bands and the shading of flagged frames of a
+plot are one item each (:class:`_Live`) that compares new values with those drawn, asks Qt to
+repaint only the span of frames that differ and paints only the frames inside the region
+repainted: a new frame repaints a strip a few pixels wide, not the plot. The grid (:class:`_Grid`,
+at the axes' tick values, no text) draws only inside that region too. Winter's cut-off and the
+low-passed (dashed) curves are computed in the dock's own worker thread when the bone's recorded
+frames grew by a fifth (tens of ms each), and drawn, with the axes, from pixmap caches on screen.
+The y ranges are set by the dock and widened in steps with a margin (no autorange pass and no
+re-layout of the axes' ticks on most redraws); the legend is the plot's coloured title.
 """
 
 from __future__ import annotations

@@ -366,7 +366,7 @@ class BatchPanel(QtCore.QObject):
                 w.hide()
         if e["kind"] == "error":
             self.where.setText("The batch failed")
-            self.window.notify(f"Batch failed:\n{e['text']}")
+            self.window.notify(f"Batch failed:\n{e['text']}", error=True)
             self.finished.emit({"error": e["text"]})
             return
         s = self.summary = e["summary"]
@@ -379,7 +379,8 @@ class BatchPanel(QtCore.QObject):
             if r.get("flagged"):
                 self.window.notify(f"Batch: {r['key']}: {r['flagged']} frames flagged for review")
         for f in s["failures"]:
-            self.window.notify(f"Batch: {f['key']} failed after {f['attempts']} attempts: {f['error']}")
+            self.window.notify(f"Batch: {f['key']} failed after {f['attempts']} attempts: {f['error']}",
+                               error=True)
         self.where.setText(f"Batch {s['status']}: {s['tasks_complete']}/{s['tasks']} tasks complete, "
                            f"{s['frames_tracked']} frames tracked in {s['wall_s']:.1f} s")
         self.window.notify(self.where.text())

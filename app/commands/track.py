@@ -3,7 +3,7 @@
 Usage::
 
     talus track STUDY --trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0]
-                [--resume] [--guess velocity|previous|spline] [--mode sequential|joint]
+                [--resume] [--guess velocity|previous|spline] [--mode auto|sequential|joint]
                 [--metric gc] [--search local|newton] [--scale S] [--max-uncertainty MM,DEG]
                 [--no-confidence] [--quiet]
 
@@ -81,10 +81,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="Warp device: cpu, cuda, cuda:1 (default CUDA when present)")
     p.add_argument("--resume", action="store_true", help="skip frames that already have a pose")
     p.add_argument("--guess", choices=("velocity", "previous", "spline"), default="velocity")
-    p.add_argument("--mode", choices=("sequential", "joint"), default="sequential",
+    p.add_argument("--mode", choices=("auto", "sequential", "joint"), default="auto",
                    help="joint: register each bone with the others' DRRs subtracted (needs DRR "
                         "intensities that match the radiographs: flatfield-corrected frames and a "
-                        "calibrated HU transfer)")
+                        "calibrated HU transfer); auto (the default): joint when the trial's frames "
+                        "are flatfield-corrected, else sequential")
     p.add_argument("--metric", default="gc", help="similarity metric (a core.similarity batched kind; "
                                                   "gc: both images smoothed by 0.3 mm, the default cost)")
     p.add_argument("--search", choices=("local", "newton"), default="local",

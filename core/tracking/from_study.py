@@ -42,17 +42,18 @@ subtraction: 1.26°, and 0.31 mm instead of 0.10 mm: subtracted DRRs must match 
 
 Bones (mode)
 ------------
-With ``options=None`` and frames normalised by a flatfield correction (cases 1–3 above),
-several bones are tracked jointly (``TrackingOptions(mode="joint")``): overlapping bones —
-the talus between the tibia and the calcaneus — are then registered with their neighbours'
-DRRs subtracted. Frames divided by the full scale only are not matched to the DRRs' intensities,
-so they are tracked one bone at a time. Given ``options`` are used as they are.
+With ``options=None`` (or ``mode="auto"``) and frames normalised by a flatfield correction
+(cases 1–3 above), several bones are tracked jointly: overlapping bones — the talus between the
+tibia and the calcaneus — are then registered with their neighbours' DRRs subtracted. Frames
+divided by the full scale only are not matched to the DRRs' intensities, so they are tracked one
+bone at a time. ``mode="sequential"`` or ``"joint"`` is used as given.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -125,10 +126,10 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     bone could be tracked (the report says why). Bones whose CT has no bone above
     ``threshold_hu`` are listed under ``report["stopped"]`` with the reason.
 
-    Bones are tracked jointly when ``options`` is None and the frames are flatfield-corrected,
-    else as ``options`` say (see the module docs and :mod:`core.tracking.trial`: joint tracking
-    needs DRR intensities matched to the radiographs). ``transfer`` defaults to
-    :func:`tissue_excess_transfer` at ``threshold_hu``.
+    Bones are tracked jointly when ``options`` is None (or its mode ``"auto"``) and the frames
+    are flatfield-corrected, else as ``options`` say (see the module docs and
+    :mod:`core.tracking.trial`: joint tracking needs DRR intensities matched to the
+    radiographs). ``transfer`` defaults to :func:`tissue_excess_transfer` at ``threshold_hu``.
 
     The bones' journals are locked first (:meth:`core.study.Study.lock_journal`): a bone
     another process is tracking raises :class:`~core.io.atomic.LockedError` before any work.
@@ -162,12 +163,15 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             stopped[m.name] = "no keyframe: record a starting pose for this bone first"
             models.remove(m)
     read, how = frame_reader(study, trial, correction=correction)
-    if options is None and len(models) > 1 and not how.startswith("full scale"):
-        options = TrackingOptions(mode="joint")  # flatfield-corrected frames: subtract the neighbours
+    if options is None:
+        options = TrackingOptions(mode="auto")
+    if options.mode == "auto":  # flatfield-corrected frames: subtract the neighbours
+        joint = len(models) > 1 and not how.startswith("full scale")
+        options = replace(options, mode="joint" if joint else "sequential")
     report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
               "normalisation": how,
               "stopped": stopped, "options": {"resume": resume,
-                                              "mode": (options or TrackingOptions()).mode}}
+                                              "mode": options.mode}}
     if not models:
         report["summary"] = {"status": "stopped", "message": "no bone to track"}
         study.write_report("tracking", report_name, report)

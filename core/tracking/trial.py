@@ -19,7 +19,10 @@ the widened first-frame options.
 
 Bones (``mode``)
 ----------------
-``"sequential"`` (the default) registers each bone alone; ``"joint"`` runs ``joint_rounds`` rounds
+``"sequential"`` (the default) registers each bone alone; ``"auto"`` is joint where
+:func:`core.tracking.from_study.track_study` finds the frames flatfield-corrected and sequential
+otherwise (:func:`track` itself, which cannot tell, takes it as sequential); ``"joint"`` runs
+``joint_rounds`` rounds
 in which each bone is registered with the other bones' DRRs (at their latest estimates)
 subtracted from the fluoroscope images, so overlapping projections do not pull a bone towards
 its neighbour. Subtraction needs DRR intensities matched to the frames (flatfield-corrected
@@ -140,6 +143,7 @@ __all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs",
            "register_start", "track"]
 
 _GUESSES = ("previous", "velocity", "spline")
+_MODES = ("sequential", "joint", "auto")
 
 
 @dataclass(frozen=True)
@@ -174,8 +178,8 @@ class TrackingOptions:
     def __post_init__(self) -> None:
         if self.guess not in _GUESSES:
             raise ValueError(f"guess: expected one of {_GUESSES}, got {self.guess!r}")
-        if self.mode not in ("sequential", "joint"):
-            raise ValueError(f"mode: expected 'sequential' or 'joint', got {self.mode!r}")
+        if self.mode not in _MODES:
+            raise ValueError(f"mode: expected one of {_MODES}, got {self.mode!r}")
         if not 0 <= self.min_score_ratio <= 1:
             raise ValueError(f"min_score_ratio: expected a ratio in [0, 1], got {self.min_score_ratio!r}")
         if not 0 <= self.min_start_ratio <= 1:

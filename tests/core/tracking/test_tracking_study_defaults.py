@@ -73,10 +73,23 @@ def test_track_study_defaults(demo, monkeypatch, corrected):
         _, rep = track_study(st, "walk", names, [1], correction=corr, device="cpu")
     assert seen["bones"] == names
     mode = "joint" if corrected else "sequential"
-    assert (seen["options"].mode if seen["options"] is not None else "sequential") == mode
+    assert seen["options"].mode == mode
     assert rep["options"]["mode"] == mode
     hu = np.array([100.0, 200.0, 1500.0])
     np.testing.assert_allclose(seen["transfer"](hu), tissue_excess_transfer(200.0)(hu))
+
+
+@pytest.mark.parametrize("corrected", [True, False])
+def test_auto_mode_follows_the_normalisation(demo, monkeypatch, corrected):
+    from core.tracking.trial import TrackingOptions
+
+    seen = _captured(monkeypatch)
+    corr = [lambda raw: np.clip(np.asarray(raw, np.float32) / 4095.0, 0, 1)] * 2 if corrected else None
+    with Study.open(demo, mode="w") as st:
+        track_study(st, "walk", ["tibia", "talus"], [1], correction=corr, device="cpu",
+                    options=TrackingOptions(mode="auto", confidence=False))
+    assert seen["options"].mode == ("joint" if corrected else "sequential")
+    assert seen["options"].confidence is False
 
 
 def test_track_study_keeps_given_options(demo, monkeypatch):

@@ -8,7 +8,9 @@ through :func:`options_from_choices`, the same mapping ``talus track`` uses for 
   engine: pose derivatives from one launch per iteration);
 * **Resolution** — full, ½ or ¼: the pyramid scale of a tracked frame's last level (detector
   pixels per DRR pixel). Reduced resolution is several times faster, chiefly without a GPU;
-* **Mode** — bones one after the other, or jointly (each with the others' DRRs subtracted);
+* **Mode** — automatic (the default, as ``talus track``: jointly when the trial's frames are
+  flatfield-corrected, else one after the other), bones one after the other, or jointly (each
+  with the others' DRRs subtracted);
 * **Guess** — the next frame's start: velocity, previous pose or a spline through the track;
 * **Confidence** — the pose uncertainty of every frame (costs a few renders per frame).
 """
@@ -23,11 +25,12 @@ __all__ = ["RESOLUTIONS", "SEARCHES", "TrackingOptionsDialog", "choices_of", "op
 SEARCHES = (("Local (quadratic models)", "local"), ("Gauss–Newton (faster)", "newton"))
 #: (label, final pyramid scale) pairs shown in the dialog.
 RESOLUTIONS = (("Full", 1.0), ("½ (4× fewer pixels)", 2.0), ("¼ (16× fewer pixels)", 4.0))
-_MODES = (("Sequential (one bone after another)", "sequential"), ("Joint (bones together)", "joint"))
+_MODES = (("Automatic (joint on flatfield-corrected frames)", "auto"),
+          ("Sequential (one bone after another)", "sequential"), ("Joint (bones together)", "joint"))
 _GUESSES = (("Velocity", "velocity"), ("Previous pose", "previous"), ("Spline", "spline"))
 
 
-def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = "sequential",
+def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = "auto",
                          guess: str = "velocity", confidence: bool = True):
     """The tracking options ``talus track --search S --scale X --mode M --guess G`` uses."""
     from core.tracking.register import RegistrationOptions
@@ -40,7 +43,7 @@ def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = 
 def choices_of(options) -> dict:
     """The dialog's choices for ``options`` (None: the defaults)."""
     if options is None:
-        return {"search": "local", "scale": 1.0, "mode": "sequential", "guess": "velocity",
+        return {"search": "local", "scale": 1.0, "mode": "auto", "guess": "velocity",
                 "confidence": True}
     reg = options.registration
     return {"search": reg.search, "scale": float(reg.final_scale), "mode": options.mode,

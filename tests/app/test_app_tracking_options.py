@@ -51,6 +51,7 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     action.trigger()
     dialog = window.findChild(TrackingOptionsDialog)
     qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    assert dialog.mode.currentData() == "auto"  # as talus track: joint on flatfield-corrected frames
     _pick(qtbot, dialog.search, "newton")
     _pick(qtbot, dialog.resolution, 2.0)
     _pick(qtbot, dialog.mode, "joint")

@@ -18,22 +18,30 @@
   for a worker, whose function never runs: its future's done-callback posts the end then. After
   the end of the last job ``busy_changed(False)`` follows, so nothing waits on a job that will
   never come back and no progress bar is left behind.
+* Python's garbage collector runs on the GUI thread only while a pool lives (see
+  :class:`GuiThreadCollector`): an automatic collection may start in whichever thread allocates,
+  and one in a worker thread that finalises a closed window's Qt objects deadlocks with the GUI
+  thread (the worker holds a Qt lock and waits for the interpreter lock, the GUI thread holds the
+  interpreter lock and waits for that Qt lock).
 """
 
 from __future__ import annotations
 
+import gc
 import inspect
 import itertools
 import queue
 import threading
+import time
 import traceback
+import weakref
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 from PySide6 import QtCore
 
-__all__ = ["CancelToken", "Job", "WorkerPool"]
+__all__ = ["CancelToken", "GuiThreadCollector", "Job", "WorkerPool"]
 
 
 class CancelToken:
@@ -87,6 +95,7 @@ class WorkerPool(QtCore.QObject):
         self._timer.timeout.connect(self._drain)
         self._closed = False
         self._busy_shown = False  # the state busy_changed last announced (it fires on changes only)
+        GuiThreadCollector.hold(self)  # no automatic collection in a worker thread (module notes)
 
     # ------------------------------------------------------------------ API
     def submit(self, key: str, fn: Callable, /, *args, **kwargs) -> Job:
@@ -136,6 +145,11 @@ class WorkerPool(QtCore.QObject):
         for job in self._latest.values():
             job.cancel()
         self._executor.shutdown(wait=wait, cancel_futures=True)
+        GuiThreadCollector.check()  # automatic collection back once no job of any pool runs
+
+    def running(self) -> bool:
+        """Whether a worker thread still runs one of this pool's jobs (also after shutdown)."""
+        return any(j.future is not None and j.future.running() for j in list(self._jobs.values()))
 
     # ------------------------------------------------------------------ internals
     def _run(self, job: Job, fn, args, kwargs) -> None:
@@ -199,6 +213,124 @@ class WorkerPool(QtCore.QObject):
         job = self._jobs.get(job_id)
         if job is not None and self._latest.get(job.key) is job:
             self.progress.emit(job.key, done, total)
+
+
+class GuiThreadCollector(QtCore.QObject):
+    """Python's garbage collection on the GUI thread, from a timer, while worker pools live.
+
+    CPython collects cyclic garbage in whichever thread happens to allocate past the threshold.
+    When that is a worker thread and the garbage holds a closed window's Qt objects, the worker
+    destroys them holding a Qt lock and then waits for the interpreter lock, which the GUI thread
+    holds while it waits for the same Qt lock: the window hangs for ever (seen in a GUI test, gdb
+    stacks of both threads). So, as PyQtGraph does, automatic collection is disabled while any
+    :class:`WorkerPool` is alive (or a worker still runs a job of a closed one) and this timer
+    collects on the GUI thread instead: generation 0 whenever its count passed the threshold (every
+    ``INTERVAL_MS`` at most), generation 1 likewise, a full collection at most every
+    ``FULL_MIN_S`` (one of the ~200 000 objects of the imported libraries takes 0.4 s on a 2-core
+    machine). When the last pool has gone, one full collection runs here and automatic collection
+    is restored as it was. Worker threads never call ``gc.collect``.
+
+    One instance per application, made by the first pool (``WorkerPool.__init__`` calls
+    :meth:`hold`), so ``talus gui``, :class:`app.viewer.Viewer` and tests that build a window all
+    get it, whoever created the ``QApplication``.
+    """
+
+    INTERVAL_MS = 100
+    FULL_MIN_S = 30.0
+
+    _instance: GuiThreadCollector | None = None
+
+    def __init__(self, app: QtCore.QCoreApplication) -> None:
+        super().__init__(app)
+        self._pools: weakref.WeakSet = weakref.WeakSet()
+        self._was_enabled: bool | None = None  # gc.isenabled() when armed; None: not armed
+        self._last_full = time.monotonic()
+        self.collections = [0, 0, 0]  # collections run by this timer, per generation
+        self._timer = QtCore.QTimer(self)
+        self._timer.setInterval(self.INTERVAL_MS)
+        self._timer.timeout.connect(self._tick)
+
+    # ------------------------------------------------------------------ API
+    @classmethod
+    def instance(cls) -> GuiThreadCollector | None:
+        """The application's collector (None before the first pool or without an application)."""
+        app = QtCore.QCoreApplication.instance()
+        inst = cls._instance
+        if app is None:
+            return None
+        if inst is None or not _valid(inst) or inst.parent() is not app:
+            inst = cls._instance = cls(app)
+        return inst
+
+    @classmethod
+    def hold(cls, pool: WorkerPool) -> None:
+        """Keep automatic collection off while ``pool`` lives (call on the GUI thread)."""
+        inst = cls.instance()
+        if inst is None or threading.current_thread() is not threading.main_thread():
+            return
+        inst._pools.add(pool)
+        if inst._was_enabled is None:
+            inst._was_enabled = gc.isenabled()
+            gc.disable()
+            inst._last_full = time.monotonic()
+        inst._timer.start()
+
+    @classmethod
+    def check(cls) -> None:
+        """Restore automatic collection now if no pool holds it any more (e.g. after a window
+        closed; the timer also does this)."""
+        inst = cls._instance
+        if inst is not None and _valid(inst) and threading.current_thread() is threading.main_thread():
+            inst._release_if_unheld()
+
+    @property
+    def armed(self) -> bool:
+        """Whether automatic collection is held off (and this timer collects)."""
+        return self._was_enabled is not None
+
+    def collect_due(self) -> int | None:
+        """Collect the generation whose count passed its threshold, as CPython would (a full
+        collection at most every ``FULL_MIN_S``); returns the generation collected, or None."""
+        counts, thresholds = gc.get_count(), gc.get_threshold()
+        if thresholds[0] <= 0 or counts[0] <= thresholds[0]:
+            return None
+        gen = 0
+        if counts[1] > thresholds[1]:
+            gen = 1
+            if counts[2] > thresholds[2] and time.monotonic() - self._last_full >= self.FULL_MIN_S:
+                gen = 2
+        gc.collect(gen)
+        if gen == 2:
+            self._last_full = time.monotonic()
+        self.collections[gen] += 1
+        return gen
+
+    # ------------------------------------------------------------------ internals
+    def _holders(self) -> list:
+        return [p for p in list(self._pools) if p.running() or (_valid(p) and not p.closed)]
+
+    def _release_if_unheld(self) -> None:
+        if not self.armed or self._holders():
+            return
+        self._timer.stop()
+        gc.collect()  # here, on the GUI thread, before any thread may collect again
+        self._last_full = time.monotonic()
+        if self._was_enabled:
+            gc.enable()
+        self._was_enabled = None
+
+    @QtCore.Slot()
+    def _tick(self) -> None:
+        self._release_if_unheld()
+        if self.armed:
+            self.collect_due()
+
+
+def _valid(obj: QtCore.QObject) -> bool:
+    """Whether ``obj``'s C++ object still exists."""
+    import shiboken6
+
+    return shiboken6.isValid(obj)
 
 
 def _accepted(fn: Callable) -> set[str]:

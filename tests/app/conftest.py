@@ -38,7 +38,10 @@ def _qt_garbage_on_the_gui_thread(request):
 
     What survives the collection is frozen (:func:`gc.freeze`): later collections, here and
     automatic ones, scan only what was made since (a full collection of the ~200 000 objects of
-    the imported libraries took 0.4 s on the 2-core machine; after the freeze, 2 ms)."""
+    the imported libraries took 0.4 s on the 2-core machine; after the freeze, 2 ms). The app
+    itself collects on the GUI thread while a worker pool lives (:class:`app.workers.
+    GuiThreadCollector`); once the test's pools are gone, automatic collection is back for the
+    tests that follow."""
     yield
     if "qtbot" not in request.fixturenames:
         return
@@ -48,3 +51,6 @@ def _qt_garbage_on_the_gui_thread(request):
     gc.collect()
     QtCore.QCoreApplication.sendPostedEvents(None, QtCore.QEvent.Type.DeferredDelete)
     gc.freeze()
+    from app.workers import GuiThreadCollector
+
+    GuiThreadCollector.check()

@@ -1,12 +1,14 @@
 """Worker pool: results on the GUI thread, stale results dropped, errors reported, cancel."""
 
+import gc
 import threading
 import time
+import weakref
 
 import pytest
 from PySide6 import QtCore
 
-from app.workers import WorkerPool
+from app.workers import GuiThreadCollector, WorkerPool
 
 pytestmark = pytest.mark.gui
 
@@ -159,3 +161,67 @@ def test_cancel_every_job_while_one_runs_and_others_wait(qtbot, pool):
     pool.drain()
     assert sorted(ends) == [("cancelled", "run"), ("cancelled", "wait1"), ("cancelled", "wait2")]
     assert busy == [True, False] and not pool.busy and not pool._jobs
+
+
+class _Node:
+    pass
+
+
+def test_garbage_is_collected_on_the_gui_thread_never_in_a_worker(qtbot):
+    """While a pool lives, automatic collection is off and a GUI-thread timer collects (a worker
+    thread that collected a closed window's Qt objects could deadlock with the GUI thread)."""
+    threads = []
+
+    def on_gc(phase, info):
+        if phase == "start":
+            threads.append(threading.current_thread())
+
+    def churn():  # cyclic garbage made in the worker, past every threshold many times
+        for _ in range(50_000):
+            a = []
+            a.append(a)
+        return "done"
+
+    pool = WorkerPool()
+    collector = GuiThreadCollector.instance()
+    gc.callbacks.append(on_gc)
+    try:
+        assert collector.armed and not gc.isenabled()
+        with qtbot.waitSignal(pool.finished, timeout=HUNG_MS):
+            pool.submit("churn", churn)
+        node = _Node()
+        node.me = node
+        ref = weakref.ref(node)
+        del node
+        before = sum(collector.collections)
+        for _ in range(2 * gc.get_threshold()[0]):  # past the generation-0 threshold
+            b = []
+            b.append(b)
+        qtbot.waitUntil(lambda: ref() is None, timeout=HUNG_MS)  # collected by the timer
+        assert sum(collector.collections) > before
+    finally:
+        gc.callbacks.remove(on_gc)
+        pool.shutdown()
+    assert threads and set(threads) == {threading.main_thread()}
+    assert pool not in collector._holders()
+    if not collector._holders():  # no other pool alive: automatic collection is back
+        assert not collector.armed and gc.isenabled()
+
+
+def test_a_closed_pool_holds_automatic_collection_off_until_its_job_ends(qtbot):
+    pool = WorkerPool()
+    collector = GuiThreadCollector.instance()
+    release, started = threading.Event(), threading.Event()
+    pool.submit("hold", lambda: started.set() or release.wait(HUNG_MS / 1000))
+    try:
+        qtbot.waitUntil(started.is_set, timeout=HUNG_MS)
+        pool.shutdown(wait=False)  # as a window's close does: the running job goes on
+        assert pool.running() and pool in collector._holders()
+        assert collector.armed and not gc.isenabled()
+    finally:
+        release.set()
+    qtbot.waitUntil(lambda: not pool.running(), timeout=HUNG_MS)
+    qtbot.waitUntil(lambda: pool not in collector._holders(), timeout=HUNG_MS)
+    GuiThreadCollector.check()
+    if not collector._holders():
+        assert not collector.armed and gc.isenabled()

@@ -15,12 +15,10 @@ def main(argv):
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    from core.synthetic.session import write_calibration_session
+    """The run's shared 384 px calibration session (the wizard walk's; read only)."""
+    from tests.app._calibration_session import calibration_session
 
-    out = tmp_path_factory.mktemp("cal") / "session"
-    write_calibration_session(out, pixels=384, seed=0, n_spiral=11, n_grid=1, n_lattice=1, n_dark=2,
-                              n_flat=3)
-    return out
+    return calibration_session(tmp_path_factory)
 
 
 @pytest.fixture

@@ -138,15 +138,10 @@ def _neg_log(img32: np.ndarray, sigma: float) -> np.ndarray:
     return -(float(sigma) ** 2) * lap
 
 
-def _local_max3(z: np.ndarray) -> np.ndarray:
-    """``ndimage.maximum_filter(z, size=3, mode="nearest")`` of a ``(K, H, W)`` stack: a 3 × 3
-    dilation of each scale, then the maximum over the neighbouring scales."""
+def _plane_max3(z: np.ndarray) -> np.ndarray:
+    """The 3 × 3 maximum of each plane of a ``(K, H, W)`` stack (edges replicated)."""
     k3 = np.ones((3, 3), np.uint8)
-    sp = np.stack([cv2.dilate(zk, k3) for zk in z])
-    out = sp.copy()
-    np.maximum(out[1:], sp[:-1], out=out[1:])
-    np.maximum(out[:-1], sp[1:], out=out[:-1])
-    return out
+    return np.stack([cv2.dilate(zk, k3) for zk in z])
 
 
 def _masked_median(win: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -220,20 +215,26 @@ def detect_beads(image, *, diameter_px: float, polarity: str = "dark", min_snr: 
     sig32 = sig.astype(np.float32)
     resp = np.stack([_neg_log(sig32, s) for s in sigmas])
     valid = _unclipped(img)
-    flat = resp[:, valid][:, ::7]
+    flat = resp.reshape(len(resp), -1)[:, np.flatnonzero(valid)[::7]]
     med = np.median(flat, axis=1)
     noise = 1.4826 * np.median(np.abs(flat - med[:, None]), axis=1)
     noise = np.where(noise > 0, noise, np.finfo(float).tiny)
     z = (resp - med[:, None, None]) / noise[:, None, None]
-    peaks = (z == _local_max3(z)) & (z >= min_snr)
+    # maxima over space and scale (z == ndimage.maximum_filter(z, size=3, mode="nearest")) above
+    # min_snr at the inner scales (the best scale is interpolated between its neighbours): the
+    # 3 x 3 maximum of each scale, then the neighbouring scales' at the few points left
+    zmax = _plane_max3(z)
+    peaks = (z[1:-1] == zmax[1:-1]) & (z[1:-1] >= min_snr)
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
         if m.shape != img.shape:
             raise ValueError(f"mask: expected shape {img.shape}, got {m.shape}")
         peaks &= m[None]
     k, rows, cols = np.nonzero(peaks)
-    inner = (k > 0) & (k < len(sigmas) - 1)
-    k, rows, cols = k[inner], rows[inner], cols[inner]
+    k += 1
+    zc = z[k, rows, cols]
+    top = (zc >= zmax[k - 1, rows, cols]) & (zc >= zmax[k + 1, rows, cols])
+    k, rows, cols = k[top], rows[top], cols[top]
     # parabolic interpolation of the best scale in log σ
     zc, zl, zh = z[k, rows, cols], z[k - 1, rows, cols], z[k + 1, rows, cols]
     den = zl - 2 * zc + zh

@@ -150,6 +150,15 @@ cmd_test() {
     # shellcheck disable=SC2064  # expand now: the path is fixed
     trap "rm -rf '$cache'" EXIT
     export XDG_CACHE_HOME="$cache/xdg" WARP_CACHE_PATH="$cache/warp" TALUS_TEST_CACHE_DIR="$cache"
+    # Warp's compiled kernels are kept between runs beside the virtual environment that built
+    # them (a new venv starts an empty cache; a cache grown past 1 GiB by old kernels is emptied):
+    # the first run compiles them (tests/conftest.py points WARP_CACHE_PATH there)
+    local kernels="${TALUS_TEST_KERNEL_CACHE:-$VENV/talus-test-kernels}"
+    if [ -d "$kernels" ] && [ "$(du -sm "$kernels" | cut -f1)" -gt 1024 ]; then
+        log "emptying the kernel cache $kernels (over 1 GiB)"
+        rm -rf "$kernels"
+    fi
+    export TALUS_TEST_KERNEL_CACHE="$kernels"
     export QT_QPA_PLATFORM=xcb PYTHONDONTWRITEBYTECODE=1
     # one BLAS/OpenMP thread: the tests' many small matrix products and SVDs (200x200) ran 14-40x
     # slower, at 20-50x the CPU time, with a thread per core on a loaded 2-core machine

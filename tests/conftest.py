@@ -2,8 +2,10 @@
 
 * Caches (``XDG_CACHE_HOME``, Warp's kernel cache ``WARP_CACHE_PATH``) go to a temporary folder
   for the whole session: ``$TALUS_TEST_CACHE_DIR`` when set (``installer/dev.sh test`` sets it),
-  otherwise a fresh folder removed at the end. They are set in :func:`pytest_configure`, before
-  any test module imports Warp.
+  otherwise a fresh folder removed at the end. Warp's compiled kernels go to
+  ``$TALUS_TEST_KERNEL_CACHE`` instead when it is set (``installer/dev.sh test`` keeps one beside
+  the virtual environment, so a second run does not compile them again). They are set in
+  :func:`pytest_configure`, before any test module imports Warp.
 * Tests marked ``gui`` are skipped, with a reason, when there is no X display (run them under
   ``xvfb-run``; see README).
 * The ``sample_data`` fixture gives the real-data folder (``../shared/data`` next to the project
@@ -35,7 +37,8 @@ def pytest_configure(config: pytest.Config) -> None:
     )
     os.environ["XDG_CACHE_HOME"] = str(root / "xdg")
     os.environ["TALUS_SETTINGS_DIR"] = str(root / "settings")  # never the user's own settings
-    os.environ["WARP_CACHE_PATH"] = str(root / "warp")
+    # compiled kernels only depend on their source and Warp's version (its own subfolder)
+    os.environ["WARP_CACHE_PATH"] = os.environ.get("TALUS_TEST_KERNEL_CACHE") or str(root / "warp")
     if has_display():
         # VTK's Qt interactor needs X11 (Qt's offscreen/wayland platforms are not reliable)
         os.environ.setdefault("QT_QPA_PLATFORM", "xcb")

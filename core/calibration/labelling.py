@@ -383,8 +383,11 @@ def _batched_dlt(X: np.ndarray, uv: np.ndarray) -> np.ndarray:
     A[:, 1::2, 4:8] = Xn
     A[:, 1::2, 8:12] = -xn[:, :, 1:] * Xn
     with np.errstate(all="ignore"):
-        Vt = np.linalg.svd(A, full_matrices=True)[2]
-        Pn = Vt[:, -1].reshape(S, 3, 4)
+        # the right singular vector of the smallest singular value is the eigenvector of the
+        # smallest eigenvalue of AᵀA (12 x 12): eigh of many small symmetric matrices takes about
+        # 2/3 of the time of their SVD, and hypotheses need no more than its accuracy (the labels'
+        # camera is then fitted by dlt_batch)
+        Pn = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)[1][:, :, 0].reshape(S, 3, 4)
         P = np.linalg.solve(T2, Pn) @ T3
     return np.where(np.isfinite(P), P, 0.0)
 

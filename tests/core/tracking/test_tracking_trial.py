@@ -107,8 +107,10 @@ def test_bad_frames_are_flagged_and_tracking_goes_on(walking_talus):
 
 def test_a_score_drop_of_the_image_is_confirmed_not_flagged(walking_talus):
     """Frame 2 of the right pose in noisier images (2 % multiplicative noise) scores below 0.85 x
-    the median of the frames before: the wider retries and the restarts end at the same pose, so
-    the drop is the image's — noted, not flagged (the wrong images of the test above stay flagged)."""
+    the median of the frames before: the wider retries and the restart end at the same pose, so
+    the drop is the image's — noted, not flagged (the wrong images of the test above stay flagged).
+    The tracker's own registration options (a local search; its retries' global CMA-ES stage)
+    and one restart: the confirmation needs one, and the CMA-ES levels of FAST cost twice the CPU."""
     from core.tracking.trial import FrameResult
 
     w = walking_talus
@@ -122,14 +124,14 @@ def test_a_score_drop_of_the_image_is_confirmed_not_flagged(walking_talus):
         return [(im * (1 + 0.02 * g.standard_normal(im.shape))).astype(np.float32) for im in imgs]
 
     done = {f: FrameResult("talus", f, sc.poses(f)[0], 1.0, 1, 0.0, True) for f in (0, 1)}
-    o = TrackingOptions(registration=FAST.registration, confidence=False, verify_restarts=2)
+    o = TrackingOptions(confidence=False, verify_restarts=1)
     res = track(w["renderer"], [w["model"]], frames, [0, 1, 2], keyframes={"talus": {0: sc.poses(0)[0]}},
                 skip={"talus": done}, options=o)
     fr = res.results[("talus", 2)]
     assert fr.retried and not fr.flags and fr.converged, fr.flags
     assert fr.score < 0.85 and "confirmed the optimum" in fr.notes[0], fr.notes
     dt, dr = _err(fr.pose, sc.poses(2)[0], w["model"].centroid)
-    assert dt < 0.3 and dr < 1.2, (dt, dr)  # measured 0.17 mm, 0.86 deg (the noise's)
+    assert dt < 0.3 and dr < 1.2, (dt, dr)  # measured 0.18 mm, 0.70 deg (the noise's)
 
 
 def test_confidence_is_reported(walking_talus):

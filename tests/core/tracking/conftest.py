@@ -31,6 +31,19 @@ def talus_scene():
 
 
 @pytest.fixture(scope="session")
+def demo_walk_48(tmp_path_factory):
+    """A demo study built once per run (read it, or copy it before writing): the 30-frame walk in
+    48² views, 3 mm bone and 6 mm tissue voxels, no calibration session; every bone has its true
+    pose at frame 0 as a keyframe (the bones move little from frame to frame)."""
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("demo_walk_48") / "demo"
+    make_demo_study(out, n_frames=30, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    return out
+
+
+@pytest.fixture(scope="session")
 def rng():
     return np.random.default_rng(1234)
 

@@ -32,13 +32,11 @@ def test_tissue_excess_transfer_is_the_bone_over_soft_tissue():
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    from core.synthetic import make_demo_study
+def demo(demo_walk_48, tmp_path_factory):
+    """A copy of the shared demo study (the tests write reports into it)."""
+    import shutil
 
-    out = tmp_path_factory.mktemp("defaults") / "demo"
-    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
-    return out
+    return shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("defaults") / "demo")
 
 
 def _captured(monkeypatch):

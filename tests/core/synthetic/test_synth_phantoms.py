@@ -134,3 +134,43 @@ def test_soft_tissue_envelope_parts_add_up():
     k_top, k_bot = -1, 2
     assert mu_s[k_top].sum() > 0 and mu_f[k_top].sum() == 0
     assert mu_f[k_bot].sum() > 0 and mu_s[k_bot].sum() == 0
+
+
+def test_metatarsal_is_not_axially_symmetric():
+    """The second metatarsal's shaft is prismoid (taller dorsoplantarly than wide, a plantar ridge),
+    its base a wedge (broad dorsally) and its head flattened on its sides: its rotation about the
+    long axis shows in a radiograph (a round shaft between ellipsoids did not fix it)."""
+    from core.synthetic.phantoms import bone_spec
+
+    shape = bone_spec("metatarsal2").shape
+    base, head = np.array([76.0, 8, -48]), np.array([136.0, 11, -70])
+    d = (head - base) / np.linalg.norm(head - base)
+    v = np.cross([0.0, 0, 1], d)
+    v /= np.linalg.norm(v)
+    w = np.cross(d, v)  # dorsal
+    s = np.linspace(-15, 15, 601)
+
+    def extent(centre, axis):
+        inside = shape(centre + s[:, None] * axis) < 0
+        return s[inside].min(), s[inside].max()
+
+    def width(centre, up):
+        a, b = extent(centre + up * w, v)
+        return b - a
+
+    mid = (base + head) / 2
+    lo_w, hi_w = extent(mid, w)
+    widest = max(width(mid, h) for h in np.linspace(lo_w + 0.5, hi_w - 0.5, 17))
+    assert 7.0 <= hi_w - lo_w <= 12.0 and 5.0 <= widest <= 9.0
+    assert hi_w - lo_w > 1.1 * widest  # taller than wide
+
+    # the shaft narrows plantarward (a triangular section), the base is a wedge, broad dorsally
+    assert width(mid, 2.0) > 1.5 * width(mid, -2.0)
+    assert width(base, 6.0) > 1.4 * width(base, -6.0)
+    # the head is flattened on its sides: taller than wide
+    (lo_hw, hi_hw), (lo_hv, hi_hv) = extent(head, w), extent(head, v)
+    assert (hi_hw - lo_hw) > 1.4 * (hi_hv - lo_hv)
+    # a half turn about the long axis gives a different section (not axially symmetric)
+    q = mid + s[:, None] * w  # a dorsoplantar line through the shaft
+    flipped = 2 * mid - q + 2 * ((q - mid) @ d)[:, None] * d
+    assert np.any((shape(q) < 0) != (shape(flipped) < 0))

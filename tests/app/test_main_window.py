@@ -13,8 +13,8 @@ pytest.importorskip("PySide6", reason="the GUI extra (PySide6) is not installed"
 
 from PySide6 import QtCore, QtGui
 
-from app.main_window import MainWindow
 from app.panes import auto_window_level, to_qimage
+from tests.app._helpers import main_window
 
 # Waits end on the event itself (a signal, a state); the timeout is only the ceiling for an event
 # that never comes, not a time the work is expected to take on a loaded machine.
@@ -37,16 +37,9 @@ def _phantom_radiograph(rows: int, cols: int, shift: float) -> np.ndarray:
 
 @pytest.fixture
 def window(qtbot):
-    win = MainWindow()
-    qtbot.addWidget(win)
-    win.show()
-    qtbot.waitExposed(win)
-    qtbot.waitUntil(lambda: win.scene.plotter is not None, timeout=HUNG_MS)
-    plotter = win.scene.plotter
-    yield win
-    win.close()  # closes the QtInteractor; the next test would crash on a live one
-    assert win.scene.plotter is None
-    assert plotter._closed
+    """A shown window with its 3-D scene, on the default device; closed (interactor too) after."""
+    with main_window(qtbot, scene=True, device=None) as win:
+        yield win
 
 
 def test_to_qimage_window_level_mapping():

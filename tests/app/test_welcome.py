@@ -1,11 +1,20 @@
 """The welcome page of a window started without a study: open the demo, open a study, reopen a
 recent one and import a project, all through clicks; the CUDA check runs in a worker and says
-what the CPU costs. ``TALUS_SCREENSHOTS=DIR`` keeps a screenshot of the page (welcome.png)."""
+what the CPU costs. ``TALUS_SCREENSHOTS=DIR`` keeps a screenshot of the page (welcome.png).
+
+The demo the page writes is the shared test study (``demo_study``, tests/app/conftest.py), copied
+by a stand-in for :func:`core.synthetic.demo.make_demo_study` that takes the page's options and
+reports progress as it does (writing a demo is the core's test; the foot scene alone took ~3-9 s
+here). The start-up check ``talus gui --smoke`` is a test of its own and keeps a process of its
+own (~18 s on the loaded 2-core machine, most of the cost): run in this process under pytest-qt,
+its window's first paint hung in ``glXSwapBuffers`` (the write to the X server never returned).
+"""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +23,7 @@ import pytest
 from PySide6 import QtCore, QtWidgets
 
 from app.device_check import CPU_BENCH, GPU_BENCH, DeviceInfo, cpu_slowdown, describe
+from tests.app._helpers import copy_study
 
 BENCH = Path(__file__).resolve().parents[2] / "resources" / "benchmarks"
 HUNG_MS = 10 * 60_000
@@ -53,8 +63,26 @@ def _window(qtbot):
     return win, page
 
 
+def _demo_stand_in(monkeypatch, study: Path, written: list):
+    """``make_demo_study`` as the page's worker calls it, copying ``study`` instead of rendering."""
+    import core.synthetic.demo as demo_module
+
+    def make_demo_study(out_dir, *, progress=None, cancel=None, **options):
+        written.append(options)
+        assert progress is not None and cancel is not None and not cancel()
+        out = Path(out_dir)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copytree(study, out)
+        n = json.loads((study / "summary.json").read_text(encoding="utf-8"))["n_frames"]
+        for i in range(1, n + 1):  # as the demo reports its frames
+            progress(i, n)
+        return json.loads((out / "summary.json").read_text(encoding="utf-8"))
+
+    monkeypatch.setattr(demo_module, "make_demo_study", make_demo_study)
+
+
 @pytest.mark.gui
-def test_welcome_page_through_clicks(qtbot, tmp_path, monkeypatch):
+def test_welcome_page_through_clicks(qtbot, tmp_path, monkeypatch, demo_study):
     from app import settings
 
     monkeypatch.setenv("TALUS_DEMO_DIR", str(tmp_path / "demo"))
@@ -76,13 +104,17 @@ def test_welcome_page_through_clicks(qtbot, tmp_path, monkeypatch):
         qtbot.wait(200)
         win.grab().save(str(Path(shots) / "welcome.png"))
 
-    # Open the demo: written once in a worker (tiny here), then shown in place of the page
-    page.demo_options = dict(n_frames=2, pixels=64, spacing=4.0, tissue_spacing=8.0, device="cpu",
-                             calibration_session=False)
+    # Open the demo: written once in a worker (with progress), then shown in place of the page
+    written, progress = [], []
+    _demo_stand_in(monkeypatch, demo_study, written)
+    page.pool.progress.connect(lambda key, done, total: progress.append((key, done, total)))
+    page.demo_options = dict(n_frames=2, pixels=64, device="cpu", calibration_session=False)
     _click(qtbot, page.demo_button)
     assert not page.demo_button.isEnabled() and "Writing the demo" in page.status.text()
     qtbot.waitUntil(lambda: win.model is not None, timeout=HUNG_MS)
     assert not page.isVisible() and win.splitter.isVisible()
+    assert written == [page.demo_options] and progress and progress[-1][0] == "demo"
+    assert progress[-1][1] == progress[-1][2] > 0 and page.demo_button.isEnabled()
     demo = tmp_path / "demo"
     assert settings.recent() == [str(demo)]
     win.close()
@@ -106,14 +138,19 @@ def test_welcome_page_through_clicks(qtbot, tmp_path, monkeypatch):
     # Open the demo again: already written, opened at once
     win, page = _window(qtbot)
     _click(qtbot, page.demo_button)
-    assert win.model is not None
+    assert win.model is not None and len(written) == 1
     win.close()
 
-    # an installation's start-up check (the bundle's smoke test runs the same): the window opens
-    # the study and closes itself cleanly
+
+@pytest.mark.gui
+def test_gui_smoke_opens_a_study_and_closes(tmp_path, demo_study):
+    """An installation's start-up check (the bundle's smoke test runs the same, in a process of its
+    own): ``talus gui --smoke --demo DIR`` opens the study and closes the window cleanly."""
+    demo = copy_study(demo_study, tmp_path, "demo")
+    env = dict(os.environ, TALUS_SETTINGS_DIR=str(tmp_path / "settings"))
     cmd = [sys.executable, "-c", "from app.cli import main; raise SystemExit(main())",
            "gui", "--smoke", "--demo", str(demo)]
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env)
     line = [ln for ln in r.stderr.splitlines() if ln.startswith('{"smoke"')]
     assert r.returncode == 0 and line, r.stderr[-3000:]
     report = json.loads(line[-1])

@@ -157,7 +157,7 @@ def test_export_formats_read_back(wrist_study, fmt, tmp_path):
 
 def test_talus_track_runs_on_the_imported_wrist_study(wrist_project, tmp_path, capsys, monkeypatch):
     """The 1.2 .cfg study tracks with the command a user runs: the radius from its .tra pose in
-    frame 0099 to frame 0158, at a quarter of the resolution and without the first frame's
+    frame 0099 to frame 0158, at an eighth of the resolution and without the first frame's
     verifying restarts (the pipeline, not its accuracy: the restarts have their own tests)."""
     import dataclasses
     import json
@@ -175,7 +175,7 @@ def test_talus_track_runs_on_the_imported_wrist_study(wrist_project, tmp_path, c
     d, cfg, talus = wrist_project
     import_project(cfg, tmp_path / "study", tra=d / "wrist.tra").close()
     rc = main(["track", str(tmp_path / "study"), "--trial", "trial", "--bones", "rad_dcm_cropped",
-               "--frames", "2:3", "--scale", "4", "--search", "newton", "--no-confidence", "--quiet"])
+               "--frames", "2:3", "--scale", "8", "--search", "newton", "--no-confidence", "--quiet"])
     out = capsys.readouterr().out
     assert rc == 0, out
     assert json.loads(out)["summary"]["results"] == 1

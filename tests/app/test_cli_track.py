@@ -84,7 +84,7 @@ def test_ctrl_c_during_the_last_frame_exits_130_and_never_reports_complete(demo,
 
     study = Path(shutil.copytree(demo, tmp_path / "study"))
     cmd = [sys.executable, "-m", "app.cli", "track", str(study), "--trial", "walk", "--bones",
-           "talus", "--frames", "1:3", "--device", "cpu", "--no-confidence"]
+           "talus", "--frames", "1:3", "--device", "cpu", "--no-confidence", "--scale", "2"]
     root = Path(__file__).resolve().parents[2]
     proc = subprocess.Popen(cmd, cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)

@@ -9,7 +9,7 @@ tracked (e.g. by :mod:`core.studies.calibration.tracking_comparison`, whose tria
 A foot demo (:func:`core.synthetic.make_demo_study`, the true rig, no calibration session) is
 tracked from the true frame-0 poses (its keyframes) with
 :func:`core.tracking.from_study.track_study` on frames corrected with the generator's own
-flatfield and distortion (:func:`core.studies.calibration.tracking_comparison.true_correction`:
+flatfield and distortion (:func:`core.studies.calibration.truth.true_correction`:
 a trial without a calibration has no correction of its own, and its frames would otherwise only
 be divided by the full scale — still distorted, with the intensifier's roll-off). The joints of
 :func:`core.tracking.jcs.default_joints` (ankle tibia–talus, subtalar talus–calcaneus), with
@@ -101,7 +101,7 @@ def run(*, pixels: int = 128, frames: int = 6, demo_frames: int = 60, bones=("ti
     """Write a demo, track ``bones`` over its first ``frames`` frames and compare joint angles
     (see the module docs). ``correct=False`` tracks the raw frames divided by the full scale
     (what a trial without a correction gets), for comparison only."""
-    from core.studies.calibration.tracking_comparison import true_correction
+    from core.studies.calibration.truth import true_correction
     from core.study import Study
     from core.synthetic import make_demo_study
     from core.tracking.from_study import track_study

@@ -25,8 +25,7 @@ with the tibia) whose attenuations add up to one tissue across the ankle.
 Shapes are simplified but anatomically proportioned (adult dimensions from standard anatomy
 texts: talus ~60 mm long and ~30 mm wide across the trochlea, calcaneus ~80 mm long with a
 posterior tuberosity, distal tibia with a ~24 mm shaft flaring to a ~45 mm plafond and a medial
-malleolus, second metatarsal ~75 mm with a wedge-shaped base, a prismoid shaft ~9 mm tall and ~7 mm
-wide, arched dorsally, and a head flattened on its sides — see :func:`_metatarsal_parts`).
+malleolus, second metatarsal ~75 mm with a 9 mm shaft, a base and a rounded head).
 """
 
 from __future__ import annotations
@@ -134,74 +133,16 @@ def _calcaneus_shape(talus: S.SDF, gap: float = 2.0) -> S.SDF:
     return S.Subtraction(bone, lambda p: talus(p) - gap)
 
 
-def _polygon_sdf(q: np.ndarray, verts: np.ndarray) -> np.ndarray:
-    """Exact signed distance (mm) of 2-D points ``q`` (N, 2) to a convex polygon (counter-clockwise
-    ``verts`` (M, 2))."""
-    d2 = np.full(len(q), np.inf)
-    inside = np.ones(len(q), dtype=bool)
-    for a, b in zip(verts, np.roll(verts, -1, axis=0), strict=True):
-        e, w = b - a, q - a
-        t = np.clip((w @ e) / (e @ e), 0.0, 1.0)
-        d2 = np.minimum(d2, np.sum((w - t[:, None] * e) ** 2, axis=1))
-        inside &= (e[0] * w[:, 1] - e[1] * w[:, 0]) > 0
-    return np.where(inside, -1.0, 1.0) * np.sqrt(d2)
-
-
-@dataclass(frozen=True, eq=False)
-class _Prism:
-    """A rounded convex 2-D section (``verts`` (v, w) mm, counter-clockwise, grown by ``rounding``)
-    swept along local ``u`` from 0 to ``length``, scaled by ``1 - taper·u/length`` and with its
-    centre raised by ``bow·4s(1 - s)`` (``s = u/length``: a longitudinal arch); capped flat at both
-    ends. Local frame ``(u, v, w)``; place it with :func:`~core.synthetic.sdf.transformed`."""
-
-    verts: tuple
-    rounding: float
-    length: float
-    taper: float = 0.0
-    bow: float = 0.0
-
-    def __call__(self, p: np.ndarray) -> np.ndarray:
-        u = p[:, 0]
-        s = np.clip(u / self.length, 0.0, 1.0)
-        scale = 1.0 - self.taper * s
-        q = np.column_stack([p[:, 1], p[:, 2] - self.bow * 4.0 * s * (1.0 - s)]) / scale[:, None]
-        side = scale * _polygon_sdf(q, np.asarray(self.verts, dtype=float)) - self.rounding
-        cap = np.maximum(-u, u - self.length)
-        return np.maximum(side, cap)
-
-
 def _metatarsal_parts() -> tuple[S.SDF, S.SDF]:
-    """Second metatarsal: wedge-shaped base, prismoid (triangular) shaft arched dorsally, head
-    flattened on its sides (Gray's Anatomy, 41st ed., ch. 84 "Ankle and foot": the metatarsal
-    bodies are prismoid, taper distally and are longitudinally concave on the plantar side; the
-    bases are wedge-shaped — broad dorsally, narrow on the plantar side — with flat articular
-    facets; the heads are flattened on their sides, with a pit and tubercle for the collateral
-    ligaments). Adult second-metatarsal midshaft ~9 mm dorsoplantar by ~7 mm mediolateral.
-    These features fix the bone's rotation about its long axis in a radiograph, as they do for
-    the real bone."""
     base, head = np.array([76.0, 8, -48]), np.array([136.0, 11, -70])
-    L = float(np.linalg.norm(head - base))
-    d = (head - base) / L
+    d = (head - base) / np.linalg.norm(head - base)
     y = np.cross([0.0, 0, 1], d)
     y /= np.linalg.norm(y)
-    R = np.column_stack([d, y, np.cross(d, y)])  # local u along the shaft, v mediolateral, w dorsal
-    # shaft: a rounded triangle, broad dorsal surface, medial and lateral surfaces meeting plantarly
-    tri = ((0.0, -3.8), (2.6, 2.6), (-2.6, 2.6))  # counter-clockwise in (v, w)
-    shaft = S.transformed(_Prism(tri, 1.4, L - 12.0, taper=0.15, bow=1.5), rotation=R,
-                          translation=base + 6 * d)
-    # base: a wedge (14 mm wide dorsally, 8 mm on the plantar side, 18 mm tall), flat proximal facet
-    wedge = ((-2.5, -7.5), (2.5, -7.5), (5.5, 7.5), (-5.5, 7.5))
-    b = S.transformed(_Prism(wedge, 1.5, 14.0), rotation=R, translation=base - 7.5 * d)
-    # head: taller than wide, flattened medially and laterally
-    h_round = S.Ellipsoid((0, 0, 0), (7.5, 6.0, 7.0))
-    h = S.transformed(S.Intersection([h_round, S.Box((0, 0, 0), (20, 4.3, 20))]), rotation=R,
-                      translation=head)
-    # marrow canal: the shaft's section shrunk, along the shaft's arch, 14 mm short of either end
-    ctri = tuple((0.35 * v, 0.35 * w) for v, w in tri)
-    canal = S.Intersection([
-        S.transformed(_Prism(ctri, 0.8, L - 12.0, taper=0.15, bow=1.5), rotation=R, translation=base + 6 * d),
-        S.transformed(S.Box((0, 0, 0), (L / 2 - 14.0, 50, 50)), rotation=R, translation=(base + head) / 2),
-    ])
+    R = np.column_stack([d, y, np.cross(d, y)])  # local x along the shaft
+    shaft = S.RoundCone(base + 6 * d, head - 6 * d, 5.0, 4.2)
+    b = S.transformed(S.Ellipsoid((0, 0, 0), (8, 7, 10)), rotation=R, translation=base)
+    h = S.transformed(S.Ellipsoid((0, 0, 0), (7.5, 5.5, 7)), rotation=R, translation=head)
+    canal = S.RoundCone(base + 14 * d, head - 14 * d, 2.0, 1.8)
     return S.SmoothUnion([b, shaft, h], k=5.0), canal
 
 

@@ -38,8 +38,7 @@ frames 2–17, the talus registered from its true pose on flatfield-corrected fr
 the plain transfer left the talus 1.33° RMS off (mean −1.0° about the walking direction, the
 Cramér–Rao bound is 0.21°), the excess transfer 0.86°, and with the tibia, calcaneus and
 metatarsal subtracted at their poses (joint tracking) 0.48° (the plain transfer with
-subtraction: 1.26°, and 0.31 mm instead of 0.10 mm: subtracted DRRs must match the image); measured
-with the demo's earlier, round-shafted second metatarsal).
+subtraction: 1.26°, and 0.31 mm instead of 0.10 mm: subtracted DRRs must match the image)).
 
 Bones (mode)
 ------------

@@ -26,14 +26,10 @@ SETTINGS = TaskSettings(device="cpu", confidence=False, frames=(0, FRAMES), opti
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    """A demo study of 2 trials (the second on the first one's frames) × 2 bones with keyframes.
-    The walk has 30 frames so that the bones move little from frame to frame."""
-    from core.synthetic import make_demo_study
-
-    out = tmp_path_factory.mktemp("batch") / "demo"
-    make_demo_study(out, n_frames=30, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
+def demo(tmp_path_factory, demo_walk_48):
+    """A demo study of 2 trials (the second on the first one's frames) × 2 bones with keyframes:
+    a copy of the 30-frame walk (the bones move little from frame to frame), walk2 added."""
+    out = shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("batch") / "demo")
     with Study.open(out, mode="w") as st:
         walk = st.manifest["trials"]["walk"]
         st.add_trial("walk2", [st.path(v["path"]) for v in walk["views"]], calibration=walk["calibration"],

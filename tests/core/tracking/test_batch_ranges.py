@@ -28,14 +28,10 @@ SETTINGS = TaskSettings(device="cpu", confidence=False, options=(
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory):
-    """A 30-frame demo study (the bones move little from frame to frame) whose talus has
-    keyframes at frames 1 and 3 (the true poses) only."""
-    from core.synthetic import make_demo_study
-
-    out = tmp_path_factory.mktemp("ranges") / "demo"
-    make_demo_study(out, n_frames=30, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
+def demo(tmp_path_factory, demo_walk_48):
+    """A copy of the 30-frame demo walk (the bones move little from frame to frame) whose talus
+    has keyframes at frames 1 and 3 (the true poses) only."""
+    out = shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("ranges") / "demo")
     truth = np.load(out / "poses" / f"{BONE}.npy")
     with Study.open(out, mode="w") as st:
         trial = st.trial("walk")

@@ -151,6 +151,14 @@ class _Live(QtWidgets.QGraphicsItem):
                         painter.drawPolyline(pg.functions.arrayToQPolygonF(x[s:e], y[s:e]))
 
 
+class _FrameAxis(pg.AxisItem):
+    """The frame axis: ticks at whole frames only (no 0.5 between frames on a short trial)."""
+
+    def tickSpacing(self, minVal, maxVal, size):
+        return [(max(1.0, spacing), offset) for spacing, offset in super().tickSpacing(minVal, maxVal, size)
+                if spacing >= 1.0] or [(1.0, 0.0)]
+
+
 class _Grid(QtWidgets.QGraphicsItem):
     """Grid lines of a plot at its axes' major and minor tick values, without text, drawn only
     inside the region being repainted (a new frame's strip: a few short lines). The tick values
@@ -335,7 +343,7 @@ class PlotsDock(QtWidgets.QWidget):
         row = sum(1 for k in self.page_of.values() if k == page)
         # room for each plot's title, axis and a readable band of data (~60 px) on small screens
         canvas.setMinimumHeight(max(120, _MIN_PLOT_PX * (row + 1)))
-        p = canvas.addPlot(row=row, col=0)
+        p = canvas.addPlot(row=row, col=0, axisItems={"bottom": _FrameAxis("bottom")})
         self.page_of[key] = page
         p.setTitle(_legend_title(f"{title} — by frame", names, styles), size="8pt")
         p.setLabel("left", units)

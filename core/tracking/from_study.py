@@ -68,7 +68,7 @@ SOFT_TISSUE_HU = 40.0
 
 
 def tissue_excess_transfer(threshold_hu: float = 200.0, *, soft_tissue_hu: float = SOFT_TISSUE_HU,
-                           mu_water: float = 0.0206) -> HUTransfer:
+                           mu_water: float = HUTransfer.mu_water) -> HUTransfer:
     """HU → μ of a bone DRR for tracking: ``μ(HU) - μ(soft_tissue_hu)`` (the linear model at
     ``mu_water``, 1/mm) for voxels at or above ``threshold_hu``, 0 below (see the module docs)."""
     hi = 3000.0

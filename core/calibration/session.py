@@ -31,6 +31,12 @@ was expected and what can be done; nothing is written anywhere (saving into a st
 ``cancel()`` is polled between frames (:class:`CalibrationCancelled` is raised when it returns
 True).
 
+The module holds the steps and their results; reading the session (errors, the checked frame
+reader, the manifest) is :mod:`core.calibration._session_input`, the per-camera work on frames
+(flatfield, grid, lattice, bead detection) :mod:`core.calibration._session_frames`, and the beads
+step's result with its edits :mod:`core.calibration._session_beads`; their public names are
+importable from here.
+
 Pixels are ``(u, v) = (column, row)``, origin at the centre of the top-left pixel; mm, radians.
 """
 
@@ -43,56 +49,40 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..geometry.camera import Rig
-from ..imaging.distortion_eval import evaluate_lattice
-from ..imaging.flatfield import Flatfield, build_flatfield
-from ..imaging.grid_indexing import index_grid
+from ..imaging.flatfield import Flatfield
 from ..imaging.pipeline import Pipeline
-from ..markers import detect_beads
 from . import _session_grid as grids
-from .bundle import BundleResult, ObjectFrame, bundle_adjust
-from .detection import ObjectDetections, detect_object_beads
+from ._session_beads import BeadsStep, exclude_frames, relabel
+from ._session_frames import (
+    CameraCorrection,  # noqa: F401  (re-exported: SessionCalibration.cameras)
+    _beads,
+    _correction,
+    _distortion,
+    _flatfield,
+    _lattice,
+)
+from ._session_input import (
+    DEFAULTS,
+    CalibrationCancelled,
+    SessionError,
+    _flat_groups,
+    _manifest_T,
+    _pixel_size,
+    _Reader,
+    _target,
+)
+from .bundle import BundleResult, bundle_adjust
 from .dlt import calibrate_dlt
-from .matching import FrameLabels, label_sequence
-from .objects import CalibrationTarget, builtin_target, read_target
+from .matching import label_sequence
+from .objects import CalibrationTarget
 
 __all__ = ["BeadsStep", "CalibrationCancelled", "DistortionStep", "SessionCalibration", "SessionError",
            "SessionSetup", "beads_step", "calibrate_session", "distortion_step", "exclude_frames",
            "flatfield_step", "prepare", "refit_distortion", "relabel", "solve_step"]
 
-#: Defaults when the session manifest does not say (the built-in hole grid, spiral and cube).
-DEFAULTS = {"pitch_mm": 15.0, "hole_diameter_mm": 3.0, "object": "spiral33", "static_object": "cube15",
-            "magnification": (1.1, 1.5, 2.0)}
 MIN_LABELLED_FRAMES = 8
 #: What defines the lab frame (:func:`solve_step`): the static object's frame, or the moving object's first.
 LAB_FRAMES = ("static", "object")
-
-
-class SessionError(ValueError):
-    """A calibration step could not run on the session's input.
-
-    Attributes: ``step`` (``"session"``, ``"flatfield"``, ``"distortion"``, ``"beads"``,
-    ``"bundle"``), ``where`` (file and frame, or camera), ``hint`` (what can be done).
-    """
-
-    def __init__(self, step: str, where: str, what: str, hint: str = ""):
-        msg = f"{step}: {where}: {what}" + (f". {hint}" if hint else "")
-        super().__init__(msg)
-        self.step, self.where, self.what, self.hint = step, where, what, hint
-
-
-class CalibrationCancelled(Exception):
-    """``cancel()`` returned True; nothing was saved."""
-
-
-@dataclass(frozen=True, eq=False)
-class CameraCorrection:
-    """What the session gives one camera: flatfield, distortion fit and the correction pipeline."""
-
-    name: str
-    flatfield: Flatfield
-    grid: grids.GridFit
-    pipeline: Pipeline
-    kv: float | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,206 +122,6 @@ class SessionCalibration:
     def pipelines(self) -> list[Pipeline]:
         return [c.pipeline for c in self.cameras]
 
-
-# ---------------------------------------------------------------------------- input
-def _target(spec, what: str) -> CalibrationTarget:
-    if isinstance(spec, CalibrationTarget):
-        return spec
-    s = str(spec)
-    try:
-        if s.lower().endswith((".csv", ".json")):
-            return read_target(s)
-        return builtin_target(s)
-    except (ValueError, OSError) as exc:
-        raise SessionError("session", what, f"cannot use calibration object {s!r} ({exc})",
-                           "name a built-in object (spiral23, spiral33, cube15) or an object file "
-                           "(.csv/.json)") from None
-
-
-class _Reader:
-    """Frames of the session with checks: a missing group, an unreadable file, a wrong size."""
-
-    def __init__(self, session, cancel):
-        self.s, self.cancel, self.shape = session, cancel, {}
-
-    def refs(self, cam: str, group: str, *, required: bool = True) -> list:
-        try:
-            refs = list(self.s.frames(cam, group))
-        except (KeyError, ValueError, OSError, FileNotFoundError) as exc:
-            refs, why = [], str(exc)
-        else:
-            why = "no frames"
-        if not refs and required:
-            raise SessionError("session", f"camera {cam}, {group!r} frames", f"missing ({why})",
-                               f"record the {group!r} frames of camera {cam} or remove the camera "
-                               "from the session manifest")
-        return refs
-
-    def read(self, cam: str, ref, k: int, step: str) -> np.ndarray:
-        if self.cancel is not None and self.cancel():
-            raise CalibrationCancelled(f"cancelled during {step}")
-        try:
-            img = np.asarray(self.s.read(ref), dtype=np.float32)
-        except (OSError, ValueError) as exc:
-            raise SessionError(step, f"{ref} (frame {k})", f"cannot read the frame ({exc})",
-                               "replace or remove the file") from None
-        if img.ndim != 2:
-            raise SessionError(step, f"{ref} (frame {k})", f"expected a 2-D frame, got shape {img.shape}")
-        want = self.shape.setdefault(cam, (img.shape, ref))
-        if img.shape != want[0]:
-            raise SessionError(step, f"{ref} (frame {k})",
-                               f"frame of {img.shape[1]}x{img.shape[0]} pixels, but {want[1]} of the "
-                               f"same camera has {want[0][1]}x{want[0][0]}",
-                               "every frame of a camera must have one size: re-export the session "
-                               "at the detector's full resolution")
-        return img
-
-
-def _flat_groups(session, cam: str) -> list[tuple[float | None, str]]:
-    """``(kV, group)`` of the camera's empty-field frame sets."""
-    kvs = getattr(session, "kvs", None)
-    if kvs is None:
-        man = getattr(session, "manifest", {}) or {}
-        kvs = man.get("flat_kv") or man.get("kv") or []
-        kvs = [kvs] if isinstance(kvs, int | float) else kvs
-    return [(float(k), f"flat:{float(k):g}") for k in kvs]
-
-
-def _pixel_size(man: dict) -> float | None:
-    px = (man.get("detector") or {}).get("pixel_size_mm", man.get("pixel_size_mm"))
-    try:
-        return float(px) if px is not None and float(px) > 0 else None
-    except (TypeError, ValueError):
-        return None
-
-
-# ---------------------------------------------------------------------------- steps
-def _flatfield(rd: _Reader, cam: str, groups, kv, progress) -> tuple[Flatfield, float | None]:
-    darks = rd.refs(cam, "dark")
-    dark = np.mean([rd.read(cam, r, k, "flatfield") for k, r in enumerate(darks)], axis=0)
-    if not groups:
-        raise SessionError("flatfield", f"camera {cam}", "no empty-field (flat) frames in the session",
-                           "record empty-field frames at the trial's kV")
-    pick = groups[0] if kv is None else min(groups, key=lambda g: abs((g[0] or 0) - kv))
-    refs = rd.refs(cam, pick[1])
-    flats = [rd.read(cam, r, k, "flatfield") for k, r in enumerate(refs)]
-    progress("flatfield", 1, 1)
-    ff = build_flatfield(np.stack(flats), dark=dark, method="max", kernel_size=15, kv=pick[0])
-    bad = ff.n_invalid / ff.gain.size
-    if bad > 0.5:
-        raise SessionError("flatfield", f"camera {cam}, {refs[0]}",
-                           f"{100 * bad:.0f} % of the field has no signal above the dark frames",
-                           "check that the empty-field frames were taken with the beam on")
-    return ff, pick[0]
-
-
-def _distortion(rd: _Reader, cam: str, ff: Flatfield, *, model, pitch, feature_mm, px_mm, progress):
-    refs = rd.refs(cam, "grid")
-    feat = feature_mm / px_mm
-    found = []
-    for k, r in enumerate(refs):
-        img = ff.normalise(rd.read(cam, r, k, "distortion"))
-        c = ((img.shape[1] - 1) / 2, (img.shape[0] - 1) / 2)
-        try:
-            found.append(grids.detect_frame(img, k, pitch_mm=pitch, feature_px=feat, center=c))
-        except grids.GridFrameError as exc:
-            raise SessionError("distortion", f"{r} (grid frame {k} of camera {cam})", str(exc),
-                               "check that the grid lies on the intensifier in this frame, remove the "
-                               f"frame, or give the grid's pitch ({pitch:g} mm) and hole diameter "
-                               f"({feature_mm:g} mm) in the session manifest") from None
-        progress(f"distortion {cam}", k + 1, len(refs))
-    pl = grids.merge_placements(found)
-    try:
-        return grids.fit_view(pl, model=model, pitch_mm=pitch, center=c, n_frames=len(refs)), pl
-    except ValueError as exc:
-        raise SessionError("distortion", f"camera {cam} ({len(refs)} grid frames)", str(exc),
-                           "use a lower-order model (--model poly 4,4) or add grid frames") from None
-
-
-def _lattice(rd: _Reader, cam: str, c: CameraCorrection, man: dict) -> dict | None:
-    """Bead-lattice frames (optional): inter-bead distance and right-angle errors after the
-    view's correction (thesis Tables 3.2-3.3), an independent check of the distortion model."""
-    refs = rd.refs(cam, "lattice", required=False)
-    if not refs:
-        return None
-    lat = man.get("lattice") or {}
-    pitch = float(lat.get("pitch_mm", 20.0))
-    bead_px = float(lat.get("bead_diameter_mm", 2.0)) / c.grid.mm_per_px
-    found, failed = [], []
-    for k, r in enumerate(refs):
-        img = c.flatfield.normalise(rd.read(cam, r, k, "distortion"))
-        try:
-            pts = detect_beads(img, diameter_px=bead_px, polarity="dark", mask=c.flatfield.valid)
-            gi = index_grid(pts.uv, min_points=9)
-            found.append((gi.uv, gi.ij))
-        except ValueError as exc:
-            failed.append(f"{r} (lattice frame {k}): {exc}")
-    out: dict = {"frames": len(refs), "pitch_mm": pitch, "failed": failed}
-    if found:
-        e = evaluate_lattice(c.grid.model, found, pitch_mm=pitch, mm_per_px=c.grid.mm_per_px)
-        out.update(e.to_dict(), beads=int(sum(len(uv) for uv, _ in found)))
-    return out
-
-
-def _detect(img: np.ndarray, target: CalibrationTarget, ppm: float, mask) -> ObjectDetections:
-    # the strongest detections are enough (a few missed or extra beads are labelled around):
-    # the labelling's cost grows with detections x beads x hypotheses
-    return detect_object_beads(img, target.size_classes[0], px_per_mm=ppm, mask=mask,
-                               max_beads=2 * len(target) + 10,
-                               flatten_background=target.body is not None and target.body[0] == "tube")
-
-
-def _field_mask(c: CameraCorrection, margin_px: int = 12) -> np.ndarray:
-    """Corrected-image pixels inside the intensifier's field, ``margin_px`` from its rim."""
-    import cv2
-
-    undist = next(s for s in c.pipeline.steps if getattr(s, "kind", "") == "undistort")
-    inside = undist(c.flatfield.valid.astype(np.float32)) > 0.99
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
-    return cv2.erode(inside.astype(np.uint8), k).astype(bool)
-
-
-def _scale(img: np.ndarray, target: CalibrationTarget, px_mm: float, mask) -> float:
-    """Projected px per bead-mm: the magnification that classifies the most beads of a frame."""
-    best = (-1, 1.5 / px_mm)
-    for mag in DEFAULTS["magnification"]:
-        d = _detect(img, target, mag / px_mm, mask)
-        n = int(np.sum(d.size_class >= 0))
-        if n > best[0]:
-            best = (n, d.px_per_mm if np.isfinite(d.px_per_mm) else mag / px_mm)
-    return best[1]
-
-
-def _beads(rd: _Reader, cams, corr, group: str, target, progress, *, required=True):
-    refs = [rd.refs(c, group, required=required) for c in cams]
-    n = len(refs[0])
-    for c, r in zip(cams, refs, strict=True):
-        if len(r) != n:
-            raise SessionError("beads", f"{group!r} frames", f"camera {cams[0]} has {n} frames but camera "
-                               f"{c} has {len(r)}", "both views of every object pose are needed")
-    ppm = [None] * len(cams)
-    masks = [_field_mask(c) for c in corr]
-    dets = []
-    for k in range(n):
-        pair = []
-        for v, c in enumerate(cams):
-            img = corr[v].pipeline(rd.read(c, refs[v][k], k, "beads"))
-            if ppm[v] is None:
-                ppm[v] = _scale(img, target, corr[v].grid.mm_per_px, masks[v])
-            pair.append(_detect(img, target, ppm[v], masks[v]))
-        dets.append(tuple(pair))
-        progress(f"beads {group}", k + 1, n)
-    return refs, dets
-
-
-def _manifest_T(man: dict) -> np.ndarray | None:
-    T = man.get("T_lab_from_static_object") or man.get("lab_from_cube")
-    if T is None:
-        return None
-    T = np.asarray(T, float)
-    return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
-
-
 # ---------------------------------------------------------------------------- steps, one by one
 @dataclass(eq=False)
 class SessionSetup:
@@ -357,80 +147,6 @@ class DistortionStep:
     cameras: list
     placements: list
     lattice: dict
-
-
-@dataclass(frozen=True, eq=False)
-class BeadsStep:
-    """The object frames: detections and labellings of both views.
-
-    ``frames`` / ``static_frames`` are :class:`~core.calibration.matching.FrameLabels` per frame,
-    ``detections`` / ``static_detections`` the ``(view 1, view 2)`` detections, ``refs`` /
-    ``static_refs`` the frame references per camera, ``excluded`` the frame indices (of ``frames``)
-    left out by hand. :func:`exclude_frames` and :func:`relabel` give edited copies.
-    """
-
-    frames: list
-    detections: list
-    refs: list
-    static_frames: list
-    static_detections: list
-    static_refs: list
-    F: np.ndarray
-    excluded: frozenset = frozenset()
-
-    def rows(self) -> tuple[list, list]:
-        """Per-frame report rows (``group``, ``index``, ``files``, ``ok``, ``reason``, ``labelled``)."""
-        out = []
-        for group, frames, refs in (("spiral", self.frames, self.refs), ("cube", self.static_frames,
-                                                                          self.static_refs)):
-            rows = []
-            for k, fr in enumerate(frames):
-                ex = group == "spiral" and k in self.excluded
-                rows.append({"group": group, "index": k, "files": [str(r[k]) for r in refs],
-                             "ok": bool(fr.ok) and not ex,
-                             "reason": "excluded by hand" if ex else fr.reason,
-                             "labelled": [int(lab.n_labelled) for lab in fr.labellings]})
-                if any(lab.manual for lab in fr.labellings):
-                    rows[-1]["manual"] = True
-            out.append(rows)
-        return out[0], out[1]
-
-    def observations(self, target, static) -> tuple[list, list]:
-        obs = [ObjectFrame(target.centers, np.stack([lab.observed() for lab in fr.labellings]))
-               for k, fr in enumerate(self.frames) if fr.ok and k not in self.excluded]
-        sobs = [ObjectFrame(static.centers, np.stack([lab.observed() for lab in fr.labellings]))
-                for fr in self.static_frames if fr.ok]
-        return obs, sobs
-
-
-def exclude_frames(beads: BeadsStep, frames) -> BeadsStep:
-    """A copy of ``beads`` with the object frames ``frames`` (indices) left out of the solve."""
-    idx = frozenset(int(k) for k in frames)
-    bad = [k for k in idx if not 0 <= k < len(beads.frames)]
-    if bad:
-        raise ValueError(f"frames: indices {sorted(bad)} are not in [0, {len(beads.frames)})")
-    return replace(beads, excluded=idx)
-
-
-def relabel(beads: BeadsStep, frame: int, view: int, detection: int, bead: int,
-            *, min_labelled: int = 6) -> BeadsStep:
-    """A copy of ``beads`` in which detection ``detection`` of view ``view`` of object frame
-    ``frame`` is bead ``bead`` (model index) — :meth:`~core.calibration.labelling.Labelling.assign`,
-    the manual correction of a wrong label. A frame with at least ``min_labelled`` labels in both
-    views counts as labelled after the edit."""
-    if not 0 <= int(frame) < len(beads.frames):
-        raise ValueError(f"frame: expected an index in [0, {len(beads.frames)}), got {frame!r}")
-    fr = beads.frames[int(frame)]
-    if view not in (0, 1):
-        raise ValueError(f"view: expected 0 or 1, got {view!r}")
-    labs = list(fr.labellings)
-    labs[view] = labs[view].assign(detection, bead)
-    ok = all(lab.n_labelled >= min_labelled for lab in labs)
-    new = FrameLabels(tuple(labs), ok, "" if ok else f"fewer than {min_labelled} labelled beads in a view",
-                      fr.distance_px)
-    frames = list(beads.frames)
-    frames[int(frame)] = new
-    return replace(beads, frames=frames)
 
 
 def prepare(session, *, object=None, static_object=None, cancel=None) -> SessionSetup:
@@ -465,11 +181,6 @@ def flatfield_step(setup: SessionSetup, *, kv=None, progress=None) -> list[tuple
         setup.times[f"flatfield {cam}"] = time.perf_counter() - t
     return out
 
-
-def _correction(cam, ff, kv, fit) -> CameraCorrection:
-    pipe = Pipeline.standard(flatfield=ff, dark=ff.dark, distortion=fit.model)
-    pipe.prepare(ff.shape)
-    return CameraCorrection(cam, ff, fit, pipe, kv)
 
 
 def distortion_step(setup: SessionSetup, flatfields, *, model: str = "auto", progress=None) -> DistortionStep:

@@ -35,11 +35,23 @@ iteration. Empty space is skipped *exactly*: a per-voxel chessboard distance map
 nearest non-zero voxel) proves how many of the following samples are zero, and the ray jumps
 over them without fetching (see ``_kernels._zero_run``); results equal those with skipping off
 up to float32 summation order.
+
+On the CPU
+----------
+Warp runs a CPU kernel on one core. With ``cpu_threads`` > 1 (default: the machine's cores,
+``TALUS_CPU_THREADS`` overrides) a launch of several items is split into that many contiguous
+runs of items, each its own recorded launch on views of the same item table and output buffer,
+run in parallel threads (a Warp CPU launch is a ctypes call, which releases the GIL). Every
+pixel is computed by the same code from the same inputs, so the images are bit-identical to
+those of one thread; the output buffer is the same one. CUDA launches are not affected.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -52,7 +64,7 @@ from ..geometry.camera import Camera, Rig
 from . import _kernels
 from .volume import CTVolume, HUTransfer
 
-__all__ = ["DRRBatch", "DRRRenderer", "default_device"]
+__all__ = ["DRRBatch", "DRRRenderer", "default_cpu_threads", "default_device", "run_parallel"]
 
 wp.config.log_level = wp.LOG_WARNING  # keep Warp's start-up banner off stdout (the CLI prints JSON)
 
@@ -62,6 +74,56 @@ def _clip_box_corners(vol: CTVolume) -> np.ndarray:
     n = np.array(vol.shape_ijk, dtype=float)
     c = np.array([[a, b, d] for a in (0, 1) for b in (0, 1) for d in (0, 1)], dtype=float)
     return vol.index_to_physical(c * (n + 1.0) - 1.0)
+
+
+def default_cpu_threads() -> int:
+    """Threads a CPU launch is split over: ``TALUS_CPU_THREADS`` if set, else the machine's cores."""
+    env = os.environ.get("TALUS_CPU_THREADS", "").strip()
+    if env:
+        try:
+            n = int(env)
+        except ValueError:
+            raise ValueError(f"TALUS_CPU_THREADS: expected a whole number >= 1, got {env!r}") from None
+        if n < 1:
+            raise ValueError(f"TALUS_CPU_THREADS: expected a whole number >= 1, got {env!r}")
+        return n
+    return max(1, os.cpu_count() or 1)
+
+
+_POOL_LOCK = threading.Lock()
+_POOL: dict[int, object] = {}
+
+
+def _pool(workers: int):
+    """A process-wide thread pool of ``workers`` threads (created on first use)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with _POOL_LOCK:
+        pool = _POOL.get(workers)
+        if pool is None:
+            pool = _POOL[workers] = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="talus-drr")
+        return pool
+
+
+def run_parallel(cmds: Sequence) -> None:
+    """Launch recorded CPU launches ``cmds`` in parallel: the first in this thread, the others
+    in a process-wide pool; returns when all are done (the first error is raised)."""
+    if len(cmds) == 1:
+        cmds[0].launch()
+        return
+    futures = [_pool(len(cmds) - 1).submit(c.launch) for c in cmds[1:]]
+    err = None
+    try:
+        cmds[0].launch()
+    except BaseException as e:  # wait for the others before raising: they write the same buffer
+        err = e
+    for f in futures:
+        try:
+            f.result()
+        except BaseException as e:
+            err = err or e
+    if err is not None:
+        raise err
 
 
 def default_device() -> str:
@@ -138,6 +200,10 @@ class DRRRenderer:
         In empty space, advance the ray over the samples that a per-voxel chessboard distance
         map proves to be zero, without fetching them (default True); results agree up to
         float32 summation order.
+    cpu_threads : int, optional
+        On the CPU, the threads a launch of several items is split over (module docs; default
+        :func:`default_cpu_threads`; 1 = one thread). Ignored on CUDA. The attribute of the
+        same name may be changed later.
     """
 
     def __init__(
@@ -151,6 +217,7 @@ class DRRRenderer:
         interpolation: str | None = None,
         texture_dtype: str = "uint16",
         empty_space_skipping: bool = True,
+        cpu_threads: int | None = None,
     ) -> None:
         cams = tuple(cameras.cameras if isinstance(cameras, Rig) else cameras)
         if not cams or not all(isinstance(c, Camera) for c in cams):
@@ -204,6 +271,9 @@ class DRRRenderer:
         self._tables: dict[tuple, np.ndarray] = {}
         self._src_h = np.array([[*c.source, 1.0] for c in cams])  # homogeneous sources (n_cams, 4)
         self.block_dim = 128  # CUDA threads per block: two 8x8 tiles (fastest on an H100)
+        if cpu_threads is not None and (int(cpu_threads) != cpu_threads or cpu_threads < 1):
+            raise ValueError(f"cpu_threads: expected a whole number >= 1, got {cpu_threads!r}")
+        self.cpu_threads = default_cpu_threads() if cpu_threads is None else int(cpu_threads)
 
     # ------------------------------------------------------------------ set-up
     def _upload(self, mus: list[np.ndarray]) -> None:
@@ -264,41 +334,48 @@ class DRRRenderer:
 
     def _launch(self, table: np.ndarray, H: int, W: int, scale: float) -> wp.array:
         """Upload the item table (one copy) and launch; buffers and the recorded launch are
-        reused while the batch size and output size stay the same."""
+        reused while the batch size and output size stay the same. On the CPU the items are
+        split over ``cpu_threads`` threads (module docs)."""
         n_items = table.shape[0]
-        key = (n_items, H, W)
+        dev = self.device
+        parts = 1 if dev.is_cuda else max(1, min(int(self.cpu_threads), n_items))
+        key = (n_items, H, W, parts)
         cached = self._launches.pop(key, None)
         if cached is not None:  # most recently used last: the least recently used goes first
             self._launches[key] = cached
         else:
-            dev = self.device
             pinned = dev.is_cuda
             host = wp.empty((n_items, _kernels.ITEM_COLS), dtype=wp.float32, device="cpu", pinned=pinned)
             items = wp.empty((n_items, _kernels.ITEM_COLS), dtype=wp.float32, device=dev)
             out = wp.empty((n_items, H, W), dtype=wp.float32, device=dev)
-            cmd = wp.launch(
-                self._kernel,
-                dim=_kernels.tiled_threads(n_items, H, W),
-                inputs=[self._atlas, self._dist, float(scale), float(self.step_mm),
-                        float(self._value_scale), items,
-                        self._cam_M, self._vol_dims, self._vol_zoff, out],
-                device=dev,
-                block_dim=self.block_dim,
-                record_cmd=True,
-            )
+            bounds = np.linspace(0, n_items, parts + 1).round().astype(int)
+            cmds = []
+            for a, b in itertools.pairwise(bounds):
+                it, o = (items, out) if parts == 1 else (items[int(a):int(b)], out[int(a):int(b)])
+                cmds.append(wp.launch(
+                    self._kernel,
+                    dim=_kernels.tiled_threads(int(b - a), H, W),
+                    inputs=[self._atlas, self._dist, float(scale), float(self.step_mm),
+                            float(self._value_scale), it,
+                            self._cam_M, self._vol_dims, self._vol_zoff, o],
+                    device=dev,
+                    block_dim=self.block_dim,
+                    record_cmd=True,
+                ))
             if len(self._launches) >= 32:  # keep a few shapes (optimiser steps of several bones, display)
                 self._launches.pop(next(iter(self._launches)))
             event = wp.Event(dev) if dev.is_cuda else None
-            cached = self._launches[key] = (host, host.numpy(), items, out, cmd, event)
-        host, host_np, items, out, cmd, event = cached
+            cached = self._launches[key] = (host, host.numpy(), items, out, cmds, event)
+        host, host_np, items, out, cmds, event = cached
         if event is not None:  # the previous upload from this pinned buffer must be done
             wp.synchronize_event(event)
         host_np[...] = table
         wp.copy(items, host)
         if event is not None:
             wp.record_event(event)
-        cmd.set_param_at_index(2, float(scale))
-        cmd.launch()
+        for cmd in cmds:
+            cmd.set_param_at_index(2, float(scale))
+        run_parallel(cmds)
         return out
 
     # ------------------------------------------------------------------ ROIs

@@ -43,13 +43,10 @@ def demo_folder() -> Path:
 
 
 def _demo_complete(folder: Path) -> bool:
-    import json
+    """A complete demo study is in ``folder`` (its calibration session is not needed to open it)."""
+    from .demo_cache import complete_demo
 
-    try:
-        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
-    return summary.get("status") == "complete" and (folder / "study.json").is_file()
+    return complete_demo(folder, calibration_session=False) is not None
 
 
 def _write_demo(folder: str, options: dict, progress=None, cancel=None) -> str:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -84,23 +83,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _cached_demo(out: Path, args: argparse.Namespace) -> dict | None:
-    """The summary of a complete demo study in ``out`` made with the same options, if any."""
-    try:
-        summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    if summary.get("format") != "talus-synthetic-study" or summary.get("status") != "complete":
-        return None
-    if not (out / str(summary.get("study") or "study.json")).is_file():
-        return None  # no study manifest (a demo of an older Talus, or it was removed): rebuild
-    session = summary.get("calibration_session")
-    if not session or not (out / str(session) / "session.json").is_file():
-        return None  # made before demos had a calibration session, or it is gone: rebuild
-    for option, key in (("frames", "n_frames"), ("pixels", "pixels"), ("seed", "seed")):
-        value = getattr(args, option)
-        if value is not None and summary.get(key) != value:
-            return None
-    return summary
+    """The summary of a complete demo study in ``out`` (with its calibration session) made with the
+    same options, if any."""
+    from ..demo_cache import complete_demo
+
+    return complete_demo(out, options={"n_frames": args.frames, "pixels": args.pixels, "seed": args.seed})
 
 
 def _open_demo_gui(out: Path, args: argparse.Namespace) -> int:

@@ -6,9 +6,10 @@ Usage::
                     [--lab-frame static|object] [--report DIR] [--series NAME]
                     [--trials series|all|none|a,b] [--quiet]
 
-Runs :func:`core.calibration.session.calibrate_session` (flatfield → distortion grid → beads →
-DLT start → bundle adjustment) on the session folder (:func:`core.io.read_session`) and saves
-the result into the study as the next version of a calibration series
+Runs :func:`core.study.calibrations.calibrate_study`, as a script does: the session folder
+(:func:`core.io.read_session`) calibrated by :func:`core.calibration.session.calibrate_session`
+(flatfield → distortion grid → beads → DLT start → bundle adjustment) and saved into the study
+as the next version of a calibration series
 (:func:`core.study.calibrations.save_session_calibration`: MayaCam rig, parameter SDs, one
 correction pipeline per camera, the report); the trials of the series (or those named) then use
 it. Nothing is saved when a step fails or on Ctrl-C: the study is unchanged. A progress bar goes
@@ -108,23 +109,19 @@ def run(a: argparse.Namespace) -> int:
         raise CliError(f"--study: no study folder at {folder}")
     model = parse_model(a.model)
     trials = a.trials if a.trials in ("series", "all", "none") else [t for t in a.trials.split(",") if t]
-    from core.calibration.session import CalibrationCancelled, calibrate_session
-    from core.io.calibration_session import read_session
+    from core.calibration.session import CalibrationCancelled
     from core.study import Study
-    from core.study.calibrations import save_session_calibration
+    from core.study.calibrations import calibrate_study
 
     token = CancelToken()
     progress = Progress("calibrate", quiet=a.quiet)
-    session = read_session(session_dir)
     cal = saved = None
     with Study.open(folder, mode="w") as study, sigint_cancels(token, "calibrate"):
         try:
             with stdout_to_stderr():
-                cal = calibrate_session(session, object=a.object, model=model, progress=_Steps(progress),
-                                        cancel=token, lab_frame=a.lab_frame)
-                if not token.is_set():
-                    saved = save_session_calibration(study, cal, series=a.series, trials=trials,
-                                                     session_path=session_dir)
+                saved, cal = calibrate_study(study, session_dir, object=a.object, model=model,
+                                             lab_frame=a.lab_frame, series=a.series, trials=trials,
+                                             progress=_Steps(progress), cancel=token)
         except (CalibrationCancelled, KeyboardInterrupt):
             token.set()
         finally:

@@ -260,12 +260,16 @@ def calibrate_study(study, session, *, object=None, model: str = "auto", lab_fra
 
     Returns ``(saved, calibration)``: the :class:`SavedCalibration` and the
     :class:`~core.calibration.session.SessionCalibration`. Raises what
-    :func:`~core.calibration.session.calibrate_session` raises; nothing is saved then.
+    :func:`~core.calibration.session.calibrate_session` raises; nothing is saved then. ``cancel()``
+    is polled once more before saving (a cancel during the bundle adjustment saves nothing:
+    :class:`~core.calibration.session.CalibrationCancelled`).
     """
-    from ..calibration.session import calibrate_session
+    from ..calibration.session import CalibrationCancelled, calibrate_session
     from ..io.calibration_session import read_session
 
     sess = read_session(session)
     cal = calibrate_session(sess, object=object, model=model, lab_frame=lab_frame, progress=progress,
                             cancel=cancel)
+    if cancel is not None and cancel():
+        raise CalibrationCancelled("cancelled before saving")
     return save_session_calibration(study, cal, series=series, trials=trials, session_path=session), cal

@@ -76,3 +76,22 @@ def test_ctrl_c_leaves_the_study_unchanged(session, study, monkeypatch, capsys):
     assert main([str(session), "--study", str(study), "--quiet"]) == 130
     assert json.loads(capsys.readouterr().out)["status"] == "cancelled"
     assert (study / "study.json").read_bytes() == before
+
+
+def test_ctrl_c_during_the_bundle_adjustment_saves_nothing(session, study, monkeypatch, capsys):
+    """Ctrl-C while the last step runs (it polls no cancel): the calibration comes back, but the
+    command does not save it (calibrate_study polls the cancel once more before saving)."""
+    import core.calibration.session as cs
+
+    def interrupted_late(*a, cancel=None, **k):
+        cancel.set()  # as the first Ctrl-C does (sigint_cancels)
+        return object()  # never saved, never looked at
+
+    monkeypatch.setattr(cs, "calibrate_session", interrupted_late)
+    before = (study / "study.json").read_bytes()
+    assert main([str(session), "--study", str(study), "--quiet"]) == 130
+    captured = capsys.readouterr()
+    assert json.loads(captured.out) == {"status": "cancelled", "saved": None}
+    assert "cancelled; the study is unchanged" in captured.err
+    assert (study / "study.json").read_bytes() == before
+    assert not (study / "calibrations").exists() or not any((study / "calibrations").rglob("*.json"))

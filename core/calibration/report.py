@@ -111,23 +111,18 @@ def session_report(cal, *, notes=(), dlt=(), seconds=None, manifest=None, lattic
 @contextmanager
 def _figure(path: Path, figsize, *, rows: int = 1, cols: int = 1, projection: str | None = None):
     """``(fig, axes)`` of a new Agg figure (``dpi`` 100), laid out tightly and saved to ``path``
-    when the block ends; the figure is closed in any case."""
-    import matplotlib
+    when the block ends. A :class:`matplotlib.figure.Figure` on its own Agg canvas, not pyplot:
+    nothing global (pyplot's figure list, the backend) is touched, so a worker thread of the
+    window (the calibration wizard saves from one) can write the report."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if projection is None:
-        fig, axes = plt.subplots(rows, cols, figsize=figsize, dpi=100)
-    else:
-        fig = plt.figure(figsize=figsize, dpi=100)
-        axes = fig.add_subplot(projection=projection)
-    try:
-        yield fig, axes
-        fig.tight_layout()
-        fig.savefig(path)
-    finally:
-        plt.close(fig)
+    fig = Figure(figsize=figsize, dpi=100)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(rows, cols) if projection is None else fig.add_subplot(projection=projection)
+    yield fig, axes
+    fig.tight_layout()
+    fig.savefig(path)
 
 
 def _grid_figure(cal, path: Path) -> Path:

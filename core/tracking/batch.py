@@ -1,17 +1,32 @@
 """Tracking many trials of many studies as independent tasks, on Dask distributed (``talus batch``).
 
-A *task* is one trial's bone — or one trial's joint bone group (``joint=True``, tracked with
-``mode="joint"``) — of one study (:class:`BatchTask`, from :func:`build_tasks`), over the whole
-trial or, with ``ranges=True``, over one frame range between the bone's keyframes
-(:func:`keyframe_ranges`). A task runs
-:func:`run_task`: it opens its study for writing, which locks only the journals of its bones
-(:meth:`core.study.Study.lock_journal`), and calls :func:`core.tracking.from_study.track_study`
-— what ``talus track`` calls — with ``resume=True``, so every registered frame is in the
-study's journal as soon as it finishes and a task that runs again (after its worker was killed,
-or in a later batch) carries on from the journal: nothing is lost but the frame in flight, and
-the poses are those of an uninterrupted run (each registration is seeded from its frame number).
-Each task writes its own tracking report, ``results/reports/tracking/<trial>.<bone>.json``
-(``<trial>.<bone>.<first>-<last>.json`` for a frame range).
+A *task* is one trial's bone, or one trial's bones tracked together (a joint bone group, tracked
+with ``mode="joint"``), of one study (:class:`BatchTask`, from :func:`build_tasks`), over the
+whole trial or, with ``ranges=True``, over one frame range between the bone's keyframes
+(:func:`keyframe_ranges`). Which of the two follows ``mode``, as ``talus track``'s does:
+
+* ``"auto"`` (the default): a trial whose frames are flatfield-corrected — by the correction
+  pipelines saved with its calibration (``talus calibrate``) or those of the study settings —
+  is one joint task of its bones, any other trial one task per bone
+  (:func:`tracks_jointly`: the test :func:`core.tracking.from_study.track_study` makes for
+  ``TrackingOptions(mode="auto")``, so a batch tracks a trial as ``talus track`` does). Bones
+  that overlap in the views — the foot demo's talus between the tibia and the calcaneus — are
+  then registered with their neighbours' DRRs subtracted, which a task of one bone cannot do
+  (on the 512² foot demo one bone at a time lost the talus: the numbers are in
+  :mod:`core.tracking.trial`'s notes); frames divided by the full scale only do not match the
+  DRRs' intensities, and their bones are tracked one per task, side by side;
+* ``"joint"``: one joint task per trial, whatever its frames;
+* ``"sequential"``: one task per (trial, bone), each bone registered alone.
+
+A task runs :func:`run_task`: it opens its study for writing, which locks only the journals of
+its bones (:meth:`core.study.Study.lock_journal`), and calls
+:func:`core.tracking.from_study.track_study` — what ``talus track`` calls — with
+``resume=True``, so every registered frame is in the study's journal as soon as it finishes and
+a task that runs again (after its worker was killed, or in a later batch) carries on from the
+journal: nothing is lost but the frame in flight, and the poses are those of an uninterrupted
+run (each registration is seeded from its frame number). Each task writes its own tracking
+report, ``results/reports/tracking/<trial>.<bone>.json`` (``<trial>.json`` for a joint task, as
+``talus track`` writes for the trial; ``.<first>-<last>`` before ``.json`` for a frame range).
 
 Frame ranges
 ------------
@@ -52,6 +67,7 @@ from typing import Any
 
 __all__ = [
     "EVENT_TOPIC",
+    "MODES",
     "BatchTask",
     "TaskSettings",
     "build_tasks",
@@ -61,9 +77,12 @@ __all__ = [
     "run_serial",
     "run_task",
     "summarize",
+    "tracks_jointly",
 ]
 
 EVENT_TOPIC = "talus-batch"  # worker events: task start, frame done, task end
+#: How :func:`build_tasks` groups a trial's bones into tasks (see the module notes).
+MODES = ("auto", "joint", "sequential")
 
 
 @dataclass(frozen=True)
@@ -96,9 +115,11 @@ class BatchTask:
 
     @property
     def report_name(self) -> str:
-        """The task's tracking report (``results/reports/tracking/<report_name>.json``)."""
+        """The task's tracking report (``results/reports/tracking/<report_name>.json``):
+        ``<trial>.<bone>`` for one bone, ``<trial>`` for a joint group (the report ``talus track``
+        writes for the trial), ``.<first>-<last>`` added for a frame range."""
         span = "" if self.frames is None else f".{self.frames[0]}-{self.frames[1]}"
-        return f"{self.trial}.{'+'.join(self.bones)}{span}"
+        return f"{self.trial}{'' if len(self.bones) > 1 else '.' + self.bones[0]}{span}"
 
 
 @dataclass(frozen=True)
@@ -148,28 +169,61 @@ def keyframe_ranges(keyframes: Sequence[int], start: int, stop: int) -> list[tup
     return [*out, (ks[-1], stop - 1)]
 
 
-def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | None = None,
-                bones: Sequence[str] | None = None, *, joint: bool = False, ranges: bool = False,
-                frames: tuple[int, int] | None = None) -> list[BatchTask]:
-    """The tasks of ``studies``: every trial (or those named in ``trials``) × every bone of it
-    (or those named in ``bones``), one task per (trial, bone), or per trial with ``joint``; with
-    ``ranges``, one per frame range between the bone's (the group's common) hand-set keyframes
-    in ``frames`` (``[start, stop)``, default all; :func:`keyframe_ranges`).
+def tracks_jointly(study, trial: str) -> bool:
+    """Whether ``mode="auto"`` tracks the bones of ``trial`` (in ``study``, a
+    :class:`core.study.Study`) jointly: its frames are normalised by a flatfield correction — the
+    pipelines saved with the trial's calibration, or the study settings' — rather than divided
+    by the full scale. The test :func:`core.tracking.from_study.track_study` makes: the frame
+    normalisation :func:`core.tracking.from_study.frame_reader` finds (it reads the correction
+    pipelines, a few tens of ms for a 512² calibration).
 
     Raises
     ------
     StudyError
-        A folder that is not a study.
+        A saved correction pipeline that cannot be read (as tracking the trial would).
+    """
+    from .from_study import frame_reader
+
+    _, how = frame_reader(study, study.trial(trial))
+    return not how.startswith("full scale")  # track_study's own test of mode "auto"
+
+
+def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | None = None,
+                bones: Sequence[str] | None = None, *, mode: str = "auto", joint: bool | None = None,
+                ranges: bool = False, frames: tuple[int, int] | None = None) -> list[BatchTask]:
+    """The tasks of ``studies``: every trial (or those named in ``trials``) × every bone of it
+    (or those named in ``bones``), grouped by ``mode`` (:data:`MODES`, see the module notes):
+    ``"auto"`` (the default) one joint task per trial whose frames are flatfield-corrected
+    (:func:`tracks_jointly`) and one task per bone of any other trial, ``"joint"`` one joint task
+    per trial, ``"sequential"`` one task per (trial, bone). ``joint=True`` (``False``) is
+    ``mode="joint"`` (``"sequential"``). With ``ranges``, one task per frame range between the
+    bone's (the group's common) hand-set keyframes in ``frames`` (``[start, stop)``, default
+    all; :func:`keyframe_ranges`).
+
+    Raises
+    ------
+    StudyError
+        A folder that is not a study, or (``mode="auto"``) a trial's saved correction that
+        cannot be read.
     ValueError
-        A trial or bone named in ``trials``/``bones`` that none of the studies has, or no task.
+        An unknown ``mode``, or one ``joint`` contradicts; a trial or bone named in
+        ``trials``/``bones`` that none of the studies has, or no task.
     """
     from ..study import Study
 
+    if mode not in MODES:
+        raise ValueError(f"mode: expected one of {list(MODES)}, got {mode!r}")
+    if joint is not None:
+        wanted = "joint" if joint else "sequential"
+        if mode not in ("auto", wanted):
+            raise ValueError(f"joint: joint={joint} contradicts mode={mode!r}")
+        mode = wanted
     tasks: list[BatchTask] = []
     seen_trials: set[str] = set()
     seen_bones: set[str] = set()
     for folder in studies:
         with Study.open(folder, mode="r", check_files=False) as st:
+            corrected: dict[str, bool] = {}  # by calibration: the trials of one share its correction
             for t in st.trials:
                 if trials is not None and t not in trials:
                     continue
@@ -178,7 +232,13 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
                 seen_bones.update(names)
                 if not names:
                     continue
-                groups = [tuple(names)] if joint else [(b,) for b in names]
+                together = mode == "joint"
+                if mode == "auto" and len(names) > 1:
+                    cal = st.manifest["trials"][t]["calibration"]
+                    if cal not in corrected:
+                        corrected[cal] = tracks_jointly(st, t)
+                    together = corrected[cal]
+                groups = [tuple(names)] if together else [(b,) for b in names]
                 if not ranges:
                     tasks += [BatchTask(str(st.folder), t, g) for g in groups]
                     continue
@@ -282,6 +342,7 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         frames_total=n_frames * len(task.bones),
         frames_tracked=len(marks),  # registered in this run (not those resumed from the journal)
         frames_resumed=len(resumed),
+        mode=(report.get("options") or {}).get("mode"),  # as track_study tracked: joint or sequential
         frames_recorded=int(summary.get("recorded", 0)),
         flagged=int(summary.get("flagged", 0)),
         seconds=seconds,

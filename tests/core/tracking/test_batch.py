@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from core.study import Study
-from core.tracking.batch import BatchTask, TaskSettings, build_tasks, run_serial, summarize
+from core.tracking.batch import BatchTask, TaskSettings, build_tasks, run_serial, summarize, tracks_jointly
 from core.tracking.register import Level, RegistrationOptions
+from tests.core.tracking.batch_helpers import save_flat_calibration
 
 BONES = ("talus", "calcaneus")
 FRAMES = 3  # tracked per task, of the demo's 30 (the worker killed after its first has 2 to go)
@@ -52,12 +53,58 @@ def test_build_tasks(demo):
     assert tasks[0].report_name == "walk.talus"
     joint = build_tasks([demo], trials=["walk2"], joint=True)
     assert [(t.trial, t.bones) for t in joint] == [("walk2", BONES)]
-    assert joint[0].report_name == "walk2.talus+calcaneus"
+    assert joint[0].report_name == "walk2"  # the trial's report, as talus track writes it
     assert len(build_tasks([demo, demo], trials=["walk"])) == 8  # every bone of walk, twice
     with pytest.raises(ValueError, match=r"--trials: \['run'\] not found"):
         build_tasks([demo], trials=["walk", "run"])
     with pytest.raises(ValueError, match=r"--bones: \['ulna'\] not found"):
         build_tasks([demo], bones=["ulna"])
+
+
+@pytest.fixture(scope="module")
+def calibrated(demo, tmp_path_factory):
+    """The demo with walk's frames flatfield-corrected by a saved calibration (walk2's not)."""
+    out = _copy(demo, tmp_path_factory.mktemp("calibrated") / "demo")
+    save_flat_calibration(out, ["walk"])
+    return out
+
+
+def test_build_tasks_mode_auto_tracks_as_talus_track(demo, calibrated):
+    # auto (the default): jointly where the frames are flatfield-corrected, as track_study's mode
+    # "auto" tracks them; one task per bone where they are divided by the full scale only
+    with Study.open(demo) as st:
+        assert not tracks_jointly(st, "walk")
+    with Study.open(calibrated) as st:
+        assert tracks_jointly(st, "walk") and not tracks_jointly(st, "walk2")
+    tasks = build_tasks([calibrated], bones=list(BONES))
+    assert [t.key for t in tasks] == ["demo/walk/talus+calcaneus", "demo/walk2/talus", "demo/walk2/calcaneus"]
+    assert build_tasks([calibrated], bones=["talus"]) == [BatchTask(str(calibrated.absolute()), t, ("talus",))
+                                                          for t in ("walk", "walk2")]
+    # the overrides, and joint=True/False for mode joint/sequential
+    per_bone = [(t.trial, t.bones) for t in build_tasks([calibrated], bones=list(BONES), mode="sequential")]
+    assert per_bone == [(t, (b,)) for t in ("walk", "walk2") for b in BONES]
+    assert [(t.trial, t.bones) for t in build_tasks([calibrated], bones=list(BONES), joint=False)] == per_bone
+    assert [t.bones for t in build_tasks([demo], bones=list(BONES), mode="joint")] == [BONES, BONES]
+    assert build_tasks([demo], bones=list(BONES), joint=True) == build_tasks([demo], bones=list(BONES),
+                                                                             mode="joint")
+    with pytest.raises(ValueError, match="mode: expected one of"):
+        build_tasks([demo], mode="together")
+    with pytest.raises(ValueError, match="joint: joint=True contradicts mode='sequential'"):
+        build_tasks([demo], joint=True, mode="sequential")
+    # frame ranges: the auto joint group splits where both bones have a keyframe (frame 0 only)
+    ranged = build_tasks([calibrated], trials=["walk"], bones=list(BONES), ranges=True, frames=(0, 3))
+    assert [(t.bones, t.frames) for t in ranged] == [(BONES, (0, 2))]
+
+
+def test_an_auto_joint_task_tracks_its_bones_jointly(calibrated, tmp_path):
+    folder = _copy(calibrated, tmp_path / "demo")
+    one = TaskSettings(device="cpu", confidence=False, frames=(0, 1), options=SETTINGS.options)
+    s = run_serial(build_tasks([folder], trials=["walk"], bones=list(BONES)), one)
+    assert s["status"] == "complete" and s["frames_tracked"] == 2, s
+    assert s["task_records"][0]["mode"] == "joint"
+    with Study.open(folder) as st:
+        rep = st.read_report("tracking", "walk")
+    assert rep["options"]["mode"] == "joint" and rep["normalisation"] == "saved with calibration flat.v1"
 
 
 def test_summary_reports_failures():

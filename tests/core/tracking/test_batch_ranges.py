@@ -60,6 +60,7 @@ def test_range_tasks(demo):
     # a joint group splits where every bone has a keyframe: talus {1, 3}, calcaneus {0}: nowhere
     joint = build_tasks([demo], bones=[BONE, "calcaneus"], joint=True, ranges=True, frames=FRAMES)
     assert [(t.bones, t.frames) for t in joint] == [((BONE, "calcaneus"), (0, 3))]
+    assert joint[0].report_name == "walk.0-3" and joint[0].key == "demo/walk/talus+calcaneus:0-3"
     whole = BatchTask("/s", "walk", (BONE,))
     assert whole.order is None and whole.key == "s/walk/talus" and whole.report_name == "walk.talus"
     with pytest.raises(ValueError, match="spline"):

@@ -2,18 +2,23 @@
 
 Usage::
 
-    talus batch STUDY... [--trials a,b] [--bones a,b] [--joint] [--ranges] [--workers N]
-                [--scheduler ADDRESS] [--device cpu|cuda] [--frames START:STOP] [--metric gc]
-                [--no-confidence] [--max-uncertainty MM,DEG] [--out SUMMARY.json] [--quiet]
+    talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
+                [--ranges] [--workers N] [--scheduler ADDRESS] [--device cpu|cuda]
+                [--frames START:STOP] [--metric gc] [--no-confidence] [--max-uncertainty MM,DEG]
+                [--out SUMMARY.json] [--quiet]
 
-Each (trial, bone) — or (trial, bone group) with ``--joint`` — is one task
-(:mod:`core.tracking.batch`); with ``--ranges`` each frame range between the bone's keyframes
-is one, so one long trial spreads over the workers too. Tasks run on a local Dask cluster (one
-worker process per GPU, else per CPU core; ``--workers`` sets how many) or on the cluster of
-``--scheduler``. Each task tracks into its study's journal as ``talus track --resume`` would,
-so a batch that was stopped, or whose worker died, carries on where it was; a failed task is
-retried once and then reported. ``--workers 0`` runs the tasks one after the other in this
-process, without Dask. Progress goes to stderr (the Dask dashboard address first), the JSON summary to stdout.
+Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto``
+(the default) makes one task of each trial whose frames are flatfield-corrected (a calibrated
+study), its bones tracked jointly — each with its neighbours' DRRs subtracted — and one task per
+(trial, bone) of any other trial; ``joint`` (or ``--joint``) one joint task per trial;
+``sequential`` one task per (trial, bone). With ``--ranges`` each frame range between the
+bone's (the joint group's common) keyframes is one, so one long trial spreads over the workers
+too. Tasks run on a local Dask cluster (one worker process per GPU, else per CPU core;
+``--workers`` sets how many) or on the cluster of ``--scheduler``. Each task tracks into its
+study's journal as ``talus track --resume`` would, so a batch that was stopped, or whose worker
+died, carries on where it was; a failed task is retried once and then reported. ``--workers 0``
+runs the tasks one after the other in this process, without Dask. Progress goes to stderr (the
+Dask dashboard address first), the JSON summary to stdout.
 Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
 it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -37,7 +42,10 @@ from ._shared import (
     stdout_to_stderr,
 )
 
-__all__ = ["HELP", "configure", "run"]
+__all__ = ["HELP", "configure", "mode_note", "run"]
+
+#: --mode's choices (core.tracking.batch.MODES; not imported here, to keep --help free of core)
+MODES = ("auto", "joint", "sequential")
 
 HELP = "track many trials and bones of studies on a Dask cluster"
 
@@ -49,15 +57,22 @@ def _names(text: str | None) -> list[str] | None:
 def configure(p: argparse.ArgumentParser) -> None:
     p.description = ("Track the trials and bones of one or more studies as independent tasks on "
                      "Dask distributed: a local cluster (one worker per GPU, else per CPU core) or "
-                     "--scheduler's. Poses go to the studies' journals as with 'talus track "
-                     "--resume': run it again to carry on. JSON summary on stdout.")
+                     "--scheduler's. As talus track does, a trial whose frames are flatfield-"
+                     "corrected (a calibrated study) is one task tracking its bones jointly, any "
+                     "other trial one task per bone (--mode). Poses go to the studies' journals as "
+                     "with 'talus track --resume': run it again to carry on. JSON summary on stdout.")
     p.add_argument("studies", nargs="+", metavar="STUDY", help="study folders (study.json)")
     p.add_argument("--trials", default=None, help="comma-separated trial names (default: all)")
     p.add_argument("--bones", default=None, help="comma-separated bone names (default: each trial's)")
-    p.add_argument("--joint", action="store_true",
-                   help="one task per trial tracking its bones jointly (mode joint) instead of one per bone")
+    p.add_argument("--mode", choices=MODES, default="auto",
+                   help="auto (the default, as talus track): one task per trial tracking its bones "
+                        "jointly, each with the others' DRRs subtracted, when the trial's frames are "
+                        "flatfield-corrected (a calibrated study), else one task per bone; joint: one "
+                        "joint task per trial; sequential: one task per bone, each tracked alone")
+    p.add_argument("--joint", action="store_true", help="the same as --mode joint")
     p.add_argument("--ranges", action="store_true",
-                   help="one task per frame range between each bone's keyframes (from a keyframe "
+                   help="one task per frame range between each bone's keyframes (a joint task's: "
+                        "the keyframes all its bones share; from a keyframe "
                         "back to the first frame, or forward to the frame before the next "
                         "keyframe), so the ranges of one bone run side by side")
     p.add_argument("--workers", type=int, default=None,
@@ -92,6 +107,16 @@ def _frames(text: str | None) -> tuple[int, int] | None:
     return lo, hi
 
 
+def mode_note(tasks, mode: str) -> str:
+    """One line saying how ``mode`` grouped the bones of each trial into ``tasks``."""
+    joint = sorted({t.trial for t in tasks if len(t.bones) > 1})
+    alone = sorted({t.trial for t in tasks if len(t.bones) == 1} - set(joint))
+    parts = ([f"bones tracked jointly in {', '.join(joint)}"] if joint else []) + (
+        [f"one task per bone in {', '.join(alone)}"] if alone else [])
+    why = " (jointly where the frames are flatfield-corrected)" if mode == "auto" else ""
+    return f"mode {mode}{why}: {'; '.join(parts)}"
+
+
 class _Follow:
     """Worker events → progress lines: tasks done of all, and the frame of the task that moved."""
 
@@ -124,6 +149,9 @@ def run(a: argparse.Namespace) -> int:
         raise CliError(f"--workers: expected 0 or more worker processes, got {a.workers}")
     if a.workers == 0 and a.scheduler:
         raise CliError("--workers 0 runs the tasks here; it cannot be combined with --scheduler")
+    if a.joint and a.mode not in ("auto", "joint"):
+        raise CliError(f"--joint: contradicts --mode {a.mode} (--joint is --mode joint)")
+    mode = "joint" if a.joint else a.mode
     from .track import parse_limits
 
     limits = parse_limits(a.max_uncertainty)
@@ -134,13 +162,14 @@ def run(a: argparse.Namespace) -> int:
     from core.tracking.batch import TaskSettings, build_tasks, run_batch, run_serial
 
     tasks = build_tasks([Path(s).expanduser() for s in a.studies], _names(a.trials), _names(a.bones),
-                        joint=a.joint, ranges=a.ranges, frames=frames)
+                        mode=mode, ranges=a.ranges, frames=frames)
     settings = TaskSettings(device=a.device, metric=a.metric, threshold_hu=a.threshold,
                             confidence=not a.no_confidence, max_uncertainty=limits, frames=frames)
     progress = Progress("batch", quiet=a.quiet)
     follow = _Follow(progress, len(tasks))
     progress.note(f"{len(tasks)} tasks: {', '.join(t.key for t in tasks[:6])}"
                   + (" ..." if len(tasks) > 6 else ""))
+    progress.note(mode_note(tasks, mode))
 
     def started(info: dict) -> None:
         progress.note(f"Dask dashboard: {info['dashboard']} (scheduler {info['scheduler']}, "

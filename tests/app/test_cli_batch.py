@@ -77,6 +77,57 @@ def test_batch_without_dask_tracks_journals_and_summarises(demo, capsys, fast_tr
     assert rc == EXIT_OK and s["frames_tracked"] == 0 and s["task_records"][0]["frames_resumed"] == 2
 
 
+@pytest.fixture
+def planned(monkeypatch):
+    """The command's tasks, not run: each --workers 0 run records its tasks and reports them done."""
+    import core.tracking.batch as core_batch
+
+    seen = []
+
+    def run_serial(tasks, settings=None, *, progress=None, cancel=None):
+        seen.append([t.key for t in tasks])
+        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
+                     seconds=0.0) for t in tasks]
+        return core_batch.summarize(tasks, recs, [], wall_s=0.1, workers=0)
+
+    monkeypatch.setattr(core_batch, "run_serial", run_serial)
+    return seen
+
+
+def test_batch_mode_auto_tracks_as_talus_track(demo, tmp_path, capsys, planned):
+    import shutil
+
+    from core.tracking.batch import MODES
+    from tests.core.tracking.batch_helpers import save_flat_calibration
+
+    assert batch.MODES == MODES
+    calibrated = shutil.copytree(demo, tmp_path / "calibrated")
+    save_flat_calibration(calibrated, ["walk"])
+    common = ["--trials", "walk", "--bones", "talus,calcaneus", "--workers", "0", "--quiet"]
+    runs = {  # (study, arguments) -> tasks
+        (calibrated, ()): ["calibrated/walk/talus+calcaneus"],  # the default: as talus track, jointly
+        (calibrated, ("--mode", "sequential")): ["calibrated/walk/talus", "calibrated/walk/calcaneus"],
+        (demo, ()): [f"{demo.name}/walk/talus", f"{demo.name}/walk/calcaneus"],  # no flatfield
+        (demo, ("--mode", "joint")): [f"{demo.name}/walk/talus+calcaneus"],
+        (demo, ("--joint",)): [f"{demo.name}/walk/talus+calcaneus"],
+        (demo, ("--joint", "--mode", "joint")): [f"{demo.name}/walk/talus+calcaneus"],
+    }
+    for (study, args), keys in runs.items():
+        assert talus_batch([str(study), *common, *args]) == EXIT_OK, capsys.readouterr().err
+        assert planned[-1] == keys, args
+        assert [r["key"] for r in json.loads(capsys.readouterr().out)["task_records"]] == keys
+    rc = talus_batch([str(calibrated), "--trials", "walk", "--bones", "talus,calcaneus", "--workers", "0"])
+    assert rc == EXIT_OK
+    err = capsys.readouterr().err
+    assert "mode auto (jointly where the frames are flatfield-corrected): bones tracked jointly in walk" \
+        in err
+    assert talus_batch([str(demo), "--joint", "--mode", "sequential", "--workers", "0"]) == EXIT_ERROR
+    assert "--joint: contradicts --mode sequential" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        talus_batch([str(demo), "--mode", "together"])
+    assert "invalid choice: 'together'" in capsys.readouterr().err
+
+
 def test_batch_bad_input(demo, tmp_path, capsys):
     assert talus_batch([str(tmp_path / "nowhere")]) == EXIT_ERROR
     assert "no study folder" in capsys.readouterr().err

@@ -1,10 +1,14 @@
 """Tracking in batch from the window: a study's tracking handed to Dask, followed in the window.
 
 *Tracking → Track in batch…* opens :class:`BatchDialog`: the study's trials (the window's one
-checked), the bones (the selected one, or all), optionally one task per frame range between the
-keyframes, and where to run — a local Dask cluster of N worker processes on this computer (one
-per GPU, else per CPU core) or an existing scheduler's cluster (``tcp://host:8786``; its workers
-must see the study folder at the same path). *Start* builds the tasks of
+checked), the bones (the selected one, or all), the mode (as ``talus batch --mode``:
+*automatic*, the default or the mode of the window's *Tracking options*, makes one task of a
+trial whose frames are flatfield-corrected, its bones tracked jointly as ``talus track`` and the
+window's own tracking do, and one task per bone of any other trial; *joint* one task per trial;
+*one task per bone*), optionally one task per frame range between the keyframes, and where to
+run — a local Dask cluster of N worker processes on this computer (one per GPU, else per CPU
+core) or an existing scheduler's cluster (``tcp://host:8786``; its workers must see the study
+folder at the same path). *Start* builds the tasks of
 :func:`core.tracking.batch.build_tasks` and runs :func:`core.tracking.batch.run_batch` — what
 ``talus batch`` runs — off the GUI thread (:class:`BatchPanel`):
 
@@ -32,7 +36,12 @@ import traceback
 
 from PySide6 import QtCore, QtWidgets
 
-__all__ = ["BatchDialog", "BatchPanel"]
+__all__ = ["MODES", "BatchDialog", "BatchPanel"]
+
+#: (label, mode of core.tracking.batch.build_tasks) pairs the dialog offers, the default first.
+MODES = (("Automatic (joint where the frames are flatfield-corrected)", "auto"),
+         ("Joint (one task per trial, its bones together)", "joint"),
+         ("One task per bone (each tracked alone)", "sequential"))
 
 
 def default_workers() -> int:
@@ -46,7 +55,7 @@ class BatchDialog(QtWidgets.QDialog):
     """What to track in batch, and where (see the module notes)."""
 
     def __init__(self, parent, *, trials: list[str], current_trial: str, bones: list[str],
-                 selected: list[str], workers: int) -> None:
+                 selected: list[str], workers: int, mode: str = "auto") -> None:
         super().__init__(parent)
         self.setObjectName("batch-dialog")
         self.setWindowTitle("Track in batch")
@@ -55,6 +64,16 @@ class BatchDialog(QtWidgets.QDialog):
         grid = QtWidgets.QFormLayout(what)
         self.trial_boxes = self._boxes(grid, "Trials:", trials, [current_trial])
         self.bone_boxes = self._boxes(grid, "Bones:", bones, selected)
+        self.mode_combo = QtWidgets.QComboBox()
+        self.mode_combo.setObjectName("batch-mode")
+        for label, value in MODES:
+            self.mode_combo.addItem(label, value)
+        self.mode_combo.setCurrentIndex(max(0, self.mode_combo.findData(mode)))
+        self.mode_combo.setToolTip(
+            "As talus track: a trial whose frames are flatfield-corrected by a saved calibration is "
+            "tracked jointly — each bone with its neighbours' DRRs subtracted, which a task of one "
+            "bone cannot do — in one task; the bones of any other trial one task each")
+        grid.addRow("&Mode:", self.mode_combo)
         self.ranges_box = QtWidgets.QCheckBox("One task per frame range between keyframes")
         self.ranges_box.setToolTip("Each bone's frames split at its keyframes: the ranges of one "
                                    "bone are tracked side by side on different workers")
@@ -106,11 +125,13 @@ class BatchDialog(QtWidgets.QDialog):
         return boxes
 
     def choice(self) -> dict:
-        """``trials``, ``bones``, ``ranges``, and ``workers`` or ``scheduler`` (the other None)."""
+        """``trials``, ``bones``, ``mode``, ``ranges``, and ``workers`` or ``scheduler`` (the other
+        None)."""
         local = self.local_radio.isChecked()
         return {
             "trials": [t for t, b in self.trial_boxes.items() if b.isChecked()],
             "bones": [t for t, b in self.bone_boxes.items() if b.isChecked()],
+            "mode": self.mode_combo.currentData(),
             "ranges": self.ranges_box.isChecked(),
             "workers": self.workers_spin.value() if local else None,
             "scheduler": None if local else self.scheduler_edit.text().strip(),
@@ -180,6 +201,7 @@ class BatchPanel(QtCore.QObject):
     def ask(self) -> BatchDialog:
         """Open the dialog (not blocking); its *Start* starts the batch."""
         from .tracking_actions import check_batch_available
+        from .tracking_options import choices_of
 
         check_batch_available()
         session, m = self.window.session, self.window.model
@@ -190,24 +212,27 @@ class BatchPanel(QtCore.QObject):
         selected = [m.layers[m.selected].name] if m.selected >= 0 else [layer.name for layer in m.layers]
         dlg = BatchDialog(self.window, trials=list(session.study.trials), current_trial=session.trial_name,
                           bones=[layer.name for layer in m.layers], selected=selected,
-                          workers=default_workers())
+                          workers=default_workers(), mode=choices_of(self.window.tracking.options)["mode"])
         dlg.accepted.connect(lambda: self.window._guard(lambda: self.start(**dlg.choice())))
         self.dialog = dlg
         dlg.open()
         return dlg
 
     # ------------------------------------------------------------------ run
-    def start(self, *, trials: list[str], bones: list[str], ranges: bool = False,
+    def start(self, *, trials: list[str], bones: list[str], mode: str = "auto", ranges: bool = False,
               workers: int | None = None, scheduler: str | None = None) -> None:
-        """Build the tasks and run them off the GUI thread (see the module notes)."""
+        """Build the tasks (:func:`core.tracking.batch.build_tasks`, ``mode`` and ``ranges``
+        as there) and run them off the GUI thread (see the module notes)."""
         from core.tracking.batch import TaskSettings, build_tasks, run_batch
+
+        from .commands.batch import mode_note
 
         session, m = self.window.session, self.window.model
         if session is None or not session.writable:
             raise ValueError("study: tracking needs a study open for writing")
         if self.running or self.window.tracking.running:
             raise ValueError("tracking: a tracking job is running (cancel it first)")
-        tasks = build_tasks([session.folder], trials, bones, ranges=ranges)
+        tasks = build_tasks([session.folder], trials, bones, mode=mode, ranges=ranges)
         opts = self.window.tracking.options
         options = () if opts is None else tuple(
             (f.name, getattr(opts, f.name)) for f in dataclasses.fields(opts) if f.init and f.name != "mode")
@@ -235,7 +260,7 @@ class BatchPanel(QtCore.QObject):
                 events.put({"kind": "error", "text": "".join(traceback.format_exception(exc)).rstrip()})
 
         where = scheduler or f"a local cluster of {workers or 'default'} workers"
-        self.window.notify(f"Batch: {len(tasks)} tasks on {where}…")
+        self.window.notify(f"Batch: {len(tasks)} tasks on {where}; {mode_note(tasks, mode)}…")
         self._thread = threading.Thread(target=work, name="talus-batch", daemon=True)
         self._thread.start()
         self._timer.start()

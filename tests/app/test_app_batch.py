@@ -18,6 +18,7 @@ from PySide6 import QtCore
 from app.main_window import MainWindow
 from core.study import Study
 from tests.app._helpers import FAST_TRACKING, pause_after_first_frame
+from tests.core.tracking.batch_helpers import save_flat_calibration
 
 pytestmark = pytest.mark.gui
 distributed = pytest.importorskip("distributed")
@@ -91,8 +92,9 @@ def _fill_dialog(window, qtbot, scheduler):
     assert not dlg.start_button.isEnabled() and "address" in dlg.note.text()  # no address yet
     qtbot.keyClicks(dlg.scheduler_edit, scheduler)
     assert dlg.start_button.isEnabled()
-    assert dlg.choice() == {"trials": ["walk", "walk2"], "bones": [BONE], "ranges": False,
-                            "workers": None, "scheduler": scheduler}
+    # the mode of the window's tracking options (FAST_TRACKING's: one bone after another)
+    assert dlg.choice() == {"trials": ["walk", "walk2"], "bones": [BONE], "mode": "sequential",
+                            "ranges": False, "workers": None, "scheduler": scheduler}
     return dlg
 
 
@@ -154,3 +156,84 @@ def test_a_batch_can_be_cancelled(window, qtbot, scheduler, monkeypatch):
     assert not window.model.layers[window.model.index(BONE)].locked
     texts = [window.messages.item(i).text() for i in range(window.messages.count())]
     assert any("Batch cancelled" in t for t in texts)
+
+
+@pytest.fixture
+def calibrated_window(qtbot, demo_folder, tmp_path, monkeypatch):
+    """A window on the demo whose walk has a saved flatfield calibration (walk2 not), with the
+    window's default tracking options; the batch's tasks are recorded, not run."""
+    import core.tracking.batch as core_batch
+
+    folder = shutil.copytree(demo_folder, tmp_path / "study")
+    save_flat_calibration(folder, ["walk"])
+    win = MainWindow(device="cpu", create_scene_on_show=False)
+    qtbot.addWidget(win)
+    win.resize(1100, 760)
+    win.show()
+    win.open_study(folder)
+    win.planned = []
+
+    def run_batch(tasks, settings=None, *, on_event=None, **kw):
+        win.planned.append([t.key for t in tasks])
+        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
+                     seconds=0.0) for t in tasks]
+        return core_batch.summarize(tasks, recs, [], wall_s=0.1, workers=1)
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
+    yield win
+    win.close()
+
+
+def _open_dialog(window, qtbot):
+    window.model.select(BONE)
+    window.tracking.batch_action.trigger()
+    dlg = window.tracking.batch.dialog
+    qtbot.waitExposed(dlg)
+    return dlg
+
+
+def _pick(qtbot, combo, value) -> None:
+    """Choose ``value`` in a combo box from the keyboard, as a user does (arrow keys)."""
+    target = combo.findData(value)
+    assert target >= 0, value
+    while combo.currentIndex() != target:
+        key = QtCore.Qt.Key.Key_Down if combo.currentIndex() < target else QtCore.Qt.Key.Key_Up
+        qtbot.keyClick(combo, key)
+
+
+def _start(window, qtbot, dlg) -> list[str]:
+    panel = window.tracking.batch
+    with qtbot.waitSignal(panel.finished, timeout=HUNG_MS) as done:
+        qtbot.mouseClick(dlg.start_button, LEFT)
+    assert done.args[0]["status"] == "complete", done.args[0]
+    return window.planned[-1]
+
+
+def test_batch_mode_tracks_as_talus_track_by_default(calibrated_window, qtbot):
+    win = calibrated_window
+    dlg = _open_dialog(win, qtbot)
+    # the default, as talus track and the window's own tracking: jointly where the frames are
+    # flatfield-corrected (walk), one task per bone elsewhere (walk2)
+    assert dlg.mode_combo.currentData() == "auto"
+    _click_box(qtbot, dlg.bone_boxes["calcaneus"])
+    _click_box(qtbot, dlg.trial_boxes["walk2"])
+    assert dlg.choice()["mode"] == "auto" and dlg.choice()["bones"] == [BONE, "calcaneus"]
+    _shot(dlg, "batch_dialog_mode.png")
+    assert _start(win, qtbot, dlg) == ["study/walk/talus+calcaneus", "study/walk2/talus",
+                                       "study/walk2/calcaneus"]
+    texts = [win.messages.item(i).text() for i in range(win.messages.count())]
+    assert any("bones tracked jointly in walk; one task per bone in walk2" in t for t in texts)
+    # one task per bone, picked from the list
+    dlg = _open_dialog(win, qtbot)
+    _click_box(qtbot, dlg.bone_boxes["calcaneus"])
+    _pick(qtbot, dlg.mode_combo, "sequential")
+    assert dlg.choice()["mode"] == "sequential"
+    assert _start(win, qtbot, dlg) == ["study/walk/talus", "study/walk/calcaneus"]
+    # the dialog starts from the mode of the window's tracking options
+    from app.tracking_options import options_from_choices
+
+    win.tracking.options = options_from_choices(mode="joint")
+    dlg = _open_dialog(win, qtbot)
+    assert dlg.mode_combo.currentData() == "joint"
+    qtbot.mouseClick(dlg.cancel_button, LEFT)
+    assert not dlg.isVisible() and not win.tracking.batch.running

@@ -53,8 +53,8 @@ stay on the device for the next round of joint tracking in the same frame); at a
 the host prepares them. Smoothing and gradients run on the device. The engine fills the DRR
 item table of its own (rigid) poses itself and launches the renderer's recorded launch.
 :func:`engine_cost` caches one per (renderer, bone, views, scale, terms). A step is one DRR
-launch, one graph launch and one synchronisation; a frame's set-up one more synchronisation
-(the usable pixels counted).
+launch, one graph launch and one synchronisation; a frame's set-up none of its own (the
+usable pixels counted on the device are checked at the first step's synchronisation).
 """
 
 from __future__ import annotations
@@ -62,8 +62,7 @@ from __future__ import annotations
 import math
 import time
 import weakref
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
 import warp as wp
@@ -71,8 +70,14 @@ import warp as wp
 from ..render._kernels import ITEM_COLS
 from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
-from .optimize import OptimizeResult
-from .quadratic import QuadraticFit
+from .engine_frames import stage, staged_shapes
+from .engine_kernels import (
+    N_POSES,
+    fluoro_gradient_kernel,
+    moments_kernel,
+    subtract_kernel,
+)
+from .engine_search import GaussNewtonFit, GaussNewtonStep, gauss_newton_search, moments_to_newton
 
 __all__ = ["ENGINE_KINDS", "GaussNewtonCost", "GaussNewtonFit", "GaussNewtonStep", "engine_cost",
            "gauss_newton_search", "moments_to_newton", "step_design", "supports"]
@@ -82,183 +87,7 @@ ENGINE_KINDS = ("gc", "ncc")
 _MODE = {"ncc": 0, "gc": 1}
 _KIND = {"ncc": K.K_NCC, "gc": K.K_GC}
 _OPTIONS = ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm", "threshold", "dilate", "operator")
-_N = 13  # poses per step: the centre and ±h_k e_k
-
-vec9f = wp.types.vector(length=9, dtype=wp.float32)
-mat99f = wp.types.matrix(shape=(9, 9), dtype=wp.float32)
-
-
-@wp.func
-def _bq(mode: int, img: wp.array3d(dtype=wp.float32), k: int, r: int, c: int, h: int, w: int,
-        ku: wp.mat33f, kv: wp.mat33f) -> float:
-    """The DRR quantity b of item k at (r, c): intensity (mode 0) or gradient magnitude (1)."""
-    out = float(0.0)  # noqa: UP018 (a Warp variable, not a constant)
-    if mode == 0:
-        out = K._val(img, k, r, c)
-    else:
-        out = wp.length(K._grad(img, k, r, c, h, w, ku, kv))
-    return out
-
-
-@wp.kernel
-def moments_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
-                   fgrad: wp.array3d(dtype=wp.vec2f), fmask: wp.array3d(dtype=wp.uint8),
-                   ref_hw: wp.array(dtype=wp.vec2i), fshift: wp.array(dtype=wp.float32), n_refs: int,
-                   thr: float, dil: int, mode: int, ku: wp.mat33f, kv: wp.mat33f, chunk: int,
-                   acc: wp.array2d(dtype=wp.float64)):
-    """acc[v] += Σ_Ω z zᵀ (row-major 9 × 9), z = (1, a, b_0, b_1 - b_2, …, b_11 - b_12) of view v;
-    item j of view v is j · n_refs + v; Ω is that of the centre item (j = 0). dim = (views, chunks)."""
-    v, ch, lane = wp.tid()
-    bd = wp.block_dim()
-    h = ref_hw[v][0]
-    w = ref_hw[v][1]
-    W = drr.shape[2]
-    start = ch * chunk
-    stop = wp.min(drr.shape[1] * W, start + chunk)
-    s = mat99f()
-    for p in range(start + lane, stop, bd):
-        r = p // W
-        c = p - r * W
-        if r < h and c < w:
-            if K._in_omega(drr, fmask, v, v, r, c, h, w, thr, dil):
-                a = float(0.0)  # noqa: UP018
-                if mode == 0:
-                    a = fluoro[v, r, c] - fshift[v]
-                else:
-                    a = wp.length(fgrad[v, r, c])
-                z = vec9f()
-                z[0] = 1.0
-                z[1] = a
-                z[2] = _bq(mode, drr, v, r, c, h, w, ku, kv)
-                for j in range(6):
-                    bp = _bq(mode, drr, (2 * j + 1) * n_refs + v, r, c, h, w, ku, kv)
-                    bm = _bq(mode, drr, (2 * j + 2) * n_refs + v, r, c, h, w, ku, kv)
-                    z[3 + j] = bp - bm
-                s += wp.outer(z, z)
-    t = wp.tile_sum(wp.tile(s, preserve_type=True))
-    if lane == 0:
-        x = t[0]
-        for i in range(9):
-            for j in range(9):
-                wp.atomic_add(acc, v, i * 9 + j, wp.float64(x[i, j]))
-
-
-@wp.kernel
-def subtract_kernel(drr: wp.array3d(dtype=wp.float32), n_bones: int, out: wp.array3d(dtype=wp.float32)):
-    """out[v] -= Σ_n drr[v · n_bones + n] (one pose's items, ordered view, bone). dim = (views, H, W)."""
-    v, r, c = wp.tid()
-    acc = float(0.0)  # noqa: UP018
-    for n in range(n_bones):
-        acc += K._val(drr, v * n_bones + n, r, c)
-    out[v, r, c] = out[v, r, c] - acc
-
-
-@wp.kernel
-def fluoro_gradient_kernel(f: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i),
-                           fmax: wp.array(dtype=wp.float32), ku: wp.mat33f, kv: wp.mat33f,
-                           out: wp.array3d(dtype=wp.vec2f)):
-    """3 × 3 gradient of each fluoroscope ROI (replicated borders), 0 where its length is below
-    ``ZERO_GRADIENT · max(1, max |f|)`` (as :class:`core.similarity.BatchedMetric` prepares it on
-    the host) and outside the ROI. dim = (views, H, W)."""
-    v, r, c = wp.tid()
-    h = ref_hw[v][0]
-    w = ref_hw[v][1]
-    g = wp.vec2f(0.0, 0.0)
-    if r < h and c < w:
-        gu = float(0.0)  # noqa: UP018
-        gv = float(0.0)  # noqa: UP018
-        for a in range(3):
-            rr = wp.clamp(r + a - 1, 0, h - 1)
-            for b in range(3):
-                cc = wp.clamp(c + b - 1, 0, w - 1)
-                x = f[v, rr, cc]
-                gu += ku[a, b] * x
-                gv += kv[a, b] * x
-        g = wp.vec2f(gu, gv)
-        if wp.length(g) <= K.ZERO_GRADIENT * wp.max(1.0, fmax[v]):
-            g = wp.vec2f(0.0, 0.0)
-    out[v, r, c] = g
-
-
-_LANES = 128  # threads per (view, chunk) of fluoro_roi_kernel
-LI_FLOOR = wp.constant(1.0 / 4096.0)  # core.tracking.cost's line-integral floor
-
-
-@wp.kernel
-def fluoro_roi_kernel(src: wp.array3d(dtype=wp.float32), given: wp.array3d(dtype=wp.uint8),
-                      info: wp.array2d(dtype=wp.int32), lo: float, hi: float, p: int, check: int, chunk: int,
-                      raw: wp.array3d(dtype=wp.float32), fmask: wp.array3d(dtype=wp.uint8),
-                      fmax: wp.array(dtype=wp.float32), msum: wp.array2d(dtype=wp.float64)):
-    """Each view's search region in DRR polarity ``-ln clip(I, 1/4096, 1)`` and its usable pixels,
-    as :meth:`core.tracking.cost.FrameImages.region` computes them on the host: ``src[v]`` holds
-    the fluence of the region grown by ``p`` pixels (clipped to the image) and ``given[v]`` the
-    frame's own mask there; ``info[v] = (h, w, oy, ox, hs, ws, has_given, _)`` (the region's size,
-    its offset in ``src``, the staged size). With ``check``, a pixel is usable when every pixel
-    within L1 distance ``p`` inside the image lies in ``(lo, hi)`` (the cross erosion iterated
-    ``p`` times, outside the image counted usable). ``fmax[v]`` = max over the region,
-    ``msum[v] = (usable pixels, Σ usable values)``. dim = (views, chunks, _LANES)."""
-    v, ch, lane = wp.tid()
-    h = info[v, 0]
-    w = info[v, 1]
-    oy = info[v, 2]
-    ox = info[v, 3]
-    hs = info[v, 4]
-    ws = info[v, 5]
-    W = raw.shape[2]
-    start = ch * chunk
-    stop = wp.min(raw.shape[1] * W, start + chunk)
-    n = float(0.0)  # noqa: UP018 (Warp variables, not constants)
-    s = float(0.0)  # noqa: UP018
-    mx = float(0.0)  # noqa: UP018
-    for q in range(start + lane, stop, _LANES):
-        r = q // W
-        c = q - r * W
-        x = float(0.0)  # noqa: UP018
-        ok = int(0)  # noqa: UP018, RUF046
-        if r < h and c < w:
-            rr = r + oy
-            cc = c + ox
-            x = -wp.log(wp.clamp(src[v, rr, cc], LI_FLOOR, 1.0))
-            ok = int(1)  # noqa: UP018, RUF046
-            if check != 0:
-                for dr in range(-p, p + 1):
-                    y = rr + dr
-                    if y >= 0 and y < hs:
-                        a = p - wp.abs(dr)
-                        for dc in range(-a, a + 1):
-                            z = cc + dc
-                            if z >= 0 and z < ws:
-                                u = src[v, y, z]
-                                if not (u > lo and u < hi):
-                                    ok = int(0)  # noqa: UP018, RUF046
-            if info[v, 6] != 0:
-                if given[v, rr, cc] == wp.uint8(0):
-                    ok = int(0)  # noqa: UP018, RUF046
-            mx = wp.max(mx, x)
-            if ok != 0:
-                n += 1.0
-                s += x
-        raw[v, r, c] = x
-        fmask[v, r, c] = wp.uint8(ok)
-    if mx > 0.0:
-        wp.atomic_max(fmax, v, mx)
-    if n > 0.0:
-        wp.atomic_add(msum, v, 0, wp.float64(n))
-        wp.atomic_add(msum, v, 1, wp.float64(s))
-
-
-@wp.kernel
-def fluoro_shift_kernel(msum: wp.array2d(dtype=wp.float64), mode: int, fshift: wp.array(dtype=wp.float32),
-                        count: wp.array(dtype=wp.int32)):
-    """NCC: the mean of each view's usable values (0 for GC); the usable pixels' count. dim = views."""
-    v = wp.tid()
-    n = msum[v, 0]
-    m = float(0.0)  # noqa: UP018
-    if mode == 0 and n > wp.float64(0.0):
-        m = float(msum[v, 1] / n)
-    fshift[v] = m
-    count[v] = int(n)
-
+_N = N_POSES  # poses per step: the centre and ±h_k e_k
 
 def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
     """:func:`core.geometry.transforms.pose_from_params` of ``(mm, degrees)`` rows ``X``."""
@@ -291,60 +120,6 @@ def step_design(x, h) -> np.ndarray:
         X[1 + 2 * k, k] += h[k]
         X[2 + 2 * k, k] -= h[k]
     return X
-
-
-def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(r (n_views,), g (6,), H (6, 6))`` from the moment matrices ``M (n_views, 9, 9)`` of
-    :func:`moments_kernel` and the half-steps ``h (6,)``: each view's correlation, and the
-    gradient and Gauss–Newton Hessian of the cost ``Σ_v w_v (1 - r_v)`` (``weights`` default
-    equal, normalised) in x units (see the module docs). A view without contrast in Ω
-    contributes r = 0 and nothing to g and H."""
-    M = np.asarray(M, dtype=np.float64).reshape(-1, 9, 9)
-    h = np.asarray(h, dtype=float)
-    nv = len(M)
-    w = np.full(nv, 1.0 / nv) if weights is None else np.asarray(weights, float) / np.sum(weights)
-    r_out = np.zeros(nv)
-    g = np.zeros(6)
-    H = np.zeros((6, 6))
-    scale = np.r_[1.0, 1.0, 1.0, 1.0 / (2 * h)]  # z -> (1, a, b, D_1..D_6)
-    for v in range(nv):
-        S = M[v]
-        n = S[0, 0]
-        if n < 2:
-            continue
-        m = S[0] / n
-        C = (S - n * np.outer(m, m)) * np.outer(scale, scale)  # centred sums of (., a, b, D)
-        caa, cbb, cab = C[1, 1], C[2, 2], C[1, 2]
-        if caa <= 0 or cbb <= 0:
-            continue
-        r = cab / math.sqrt(caa * cbb)
-        cad, cbd, cdd = C[1, 3:], C[2, 3:], C[3:, 3:]
-        dr = cad / math.sqrt(caa * cbb) - r * cbd / cbb
-        jtj = (cdd - np.outer(cbd, cbd) / cbb) / cbb
-        r_out[v] = r
-        g -= w[v] * dr
-        H += w[v] * max(r, 0.05) * jtj
-    return r_out, g, 0.5 * (H + H.T)
-
-
-@dataclass(frozen=True, eq=False)
-class GaussNewtonStep:
-    """One step's evaluation at ``x`` with half-steps ``h``: ``costs (13,)`` of the design poses
-    (:func:`step_design`, row 0 = x), ``view_scores (13, n_views)``, the Gauss–Newton gradient
-    ``g`` and Hessian ``H`` of the cost at ``x`` (x units) and the per-view correlations ``r``
-    over the centre's domain."""
-
-    x: np.ndarray
-    h: np.ndarray
-    costs: np.ndarray
-    view_scores: np.ndarray
-    g: np.ndarray
-    H: np.ndarray
-    r: np.ndarray
-
-    @property
-    def cost(self) -> float:
-        return float(self.costs[0])
 
 
 class _Pipeline:
@@ -404,13 +179,22 @@ class _Pipeline:
         if self.gn is not None:
             wp.copy(self.host_gn, self.gn)
 
-    def run(self) -> tuple[np.ndarray, np.ndarray | None]:
+    def launch(self) -> None:
+        """Enqueue the metric (its results are on the host after the next synchronisation)."""
         if self.graph is not None:
             wp.capture_launch(self.graph)
-            wp.synchronize_device(self.images.device)
         else:
             self._enqueue()
+
+    def fetch(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The scores (and moments) once the device has synchronised."""
         return self.host_out.numpy().copy(), None if self.gn is None else self.host_gn.numpy().copy()
+
+    def run(self) -> tuple[np.ndarray, np.ndarray | None]:
+        self.launch()
+        if self.graph is not None:
+            wp.synchronize_device(self.images.device)
+        return self.fetch()
 
 
 class GaussNewtonCost:
@@ -483,11 +267,16 @@ class GaussNewtonCost:
         self._msum = wp.zeros((nv, 2), dtype=wp.float64, device=dev)
         self._count = wp.zeros(nv, dtype=wp.int32, device=dev)
         self._host_count = wp.zeros(nv, dtype=wp.int32, device="cpu", pinned=pinned)
-        self._count_event = wp.Event(dev) if dev.is_cuda else None
         self._stage_src = None
         self._tables: dict = {}  # DRR item tables per (batch, bones) (_render)
         self._staged_last = None  # (the frame, its regions) now on the device
         self.device_frames = True  # full-resolution ROIs prepared on the device (set_frame)
+        self._count_pending = False  # the device's usable-pixel count not checked yet (set_frame)
+        self._pending = None  # the evaluation submitted and not collected yet (submit)
+        self._prepared = None  # (the frame, the inputs) of the regions now prepared (set_frame)
+        self._unsynced = False  # a preparation's copies from pinned memory may still be in flight
+        self._cmds: dict = {}  # recorded launches of the frame preparation (_launch)
+        self._hw_last = self._info_last = None  # the ROI sizes and staging geometry on the device
         self.base = self.center = self.roi = None
 
     @property
@@ -505,14 +294,25 @@ class GaussNewtonCost:
         differentiated on the device; at full resolution (``scale`` 1, the ROIs inside the
         images) the line integrals and usable-pixel masks are computed there too, from the
         fluence uploaded as it is (:attr:`device_frames`). Raises
-        :class:`~core.tracking.cost.OutsideViewError` like :class:`RegistrationCost`."""
+        :class:`~core.tracking.cost.OutsideViewError` like :class:`RegistrationCost` (for the
+        device preparation's count of usable pixels: the next evaluation raises it). The same
+        inputs again (frame, ROIs, pose, centre, neighbours; e.g. the restarts of
+        :func:`core.tracking.verify.verify_start`) keep the regions prepared last time."""
         t0 = time.perf_counter()
         self.base = np.asarray(base_pose, dtype=float)
         self.center = np.asarray(center, dtype=float)
         self.roi = np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)
+        key = (self.roi.tobytes(), self.base.tobytes(), self.center.tobytes(), bool(self.device_frames),
+               None if others is None else (np.asarray(others[0], float).tobytes(), tuple(others[1])))
+        last = self._prepared
+        if last is not None and last[0]() is frame and last[1] == key:
+            return
+        self._prepared = None
+        if self._unsynced and self.device.is_cuda:  # the last preparation's copies from pinned memory
+            wp.synchronize_device(self.device)
         px_mm = self.scale * mm_per_pixel(self.renderer, self.base, self.center, self.views)
         taps, ftaps = self._taps(px_mm)
-        staged = self._staged_shapes(frame) if self.device_frames else None
+        staged = staged_shapes(self, frame) if self.device_frames else None
         if staged is None:
             rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi, scale=self.scale)
             shapes = [r.shape for r in rois]
@@ -532,9 +332,11 @@ class GaussNewtonCost:
         Hc, Wc = self._cap
         nv = self.n_views
         dev = self.device
-        hw = self._host_hw.numpy()
-        hw[:] = np.array(shapes, dtype=np.int32)
-        wp.copy(self._ref_hw, self._host_hw)
+        hw_now = tuple(tuple(int(a) for a in sh) for sh in shapes)
+        if hw_now != self._hw_last:
+            self._host_hw.numpy()[:] = np.array(shapes, dtype=np.int32)
+            wp.copy(self._ref_hw, self._host_hw)
+            self._hw_last = hw_now
         if staged is None:
             if self._host_raw_wp is None:
                 pinned = dev.is_cuda
@@ -559,11 +361,11 @@ class GaussNewtonCost:
             self._fshift.assign(shift)
             self._fmax.assign(fmax)
         else:
-            self._stage(frame, staged)
+            stage(self, frame, staged)
         if others is not None and len(others[1]):  # subtracted on the device, at the fixed output size
             nb = len(others[1])
             images = self._render(np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1]))
-            wp.launch(subtract_kernel, dim=(nv, Hc, Wc), inputs=[images, nb, self._raw], device=dev)
+            self._launch("subtract", subtract_kernel, (nv, Hc, Wc), [images, nb, self._raw])
         if ftaps is not None:
             if self._fblur is None or len(self._fblur) != len(ftaps):
                 self._fblur = wp.array(ftaps, dtype=wp.float32, device=dev)
@@ -572,22 +374,38 @@ class GaussNewtonCost:
                 self._fblur.assign(ftaps)
                 self._fblur_taps = ftaps
             for src, dst, axis in ((self._raw, self._ftmp, 1), (self._ftmp, self._fluoro, 0)):
-                wp.launch(K.blur_kernel, dim=(nv, Hc, Wc), device=dev,
-                          inputs=[src, dst, self._fblur, self._ref_hw, nv, axis])
+                self._launch(f"blur{axis}", K.blur_kernel, (nv, Hc, Wc),
+                             [src, dst, self._fblur, self._ref_hw, nv, axis])
         else:
             wp.copy(self._fluoro, self._raw)
-        wp.launch(fluoro_gradient_kernel, dim=(nv, Hc, Wc), device=dev,
-                  inputs=[self._fluoro, self._ref_hw, self._fmax, self._ku, self._kv, self._fgrad])
-        if staged is not None:  # the usable pixels counted on the device
-            if self._count_event is not None:
-                wp.synchronize_event(self._count_event)
-            else:
-                wp.synchronize_device(dev)
-            for i, n in enumerate(self._host_count.numpy()):
-                if n <= 0:
-                    raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view "
-                                           f"{self.views[i]}")
+        self._launch("gradient", fluoro_gradient_kernel, (nv, Hc, Wc),
+                     [self._fluoro, self._ref_hw, self._fmax, self._ku, self._kv, self._fgrad])
+        # the usable pixels counted on the device are checked at the first evaluation's
+        # synchronisation (no wait of its own)
+        self._count_pending = staged is not None
+        self._prepared = (weakref.ref(frame), key)
+        self._unsynced = True
         self.timer.host += time.perf_counter() - t0
+
+    def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:
+        """Launch ``kernel`` through a recorded launch, kept while its dimensions, arrays and
+        values stay the same (the frame preparation's launches from frame to frame)."""
+        key = (dim, tuple(a.ptr if isinstance(a, wp.array) else a for a in inputs))
+        hit = self._cmds.get(name)
+        if hit is None or hit[0] != key:
+            cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
+            hit = self._cmds[name] = (key, cmd)
+        hit[1].launch()
+
+    def _check_count(self) -> None:
+        """Raise OutsideViewError when the device preparation found no usable pixel in a view
+        (its count copied to the host before the last synchronisation)."""
+        self._count_pending = False
+        for i, n in enumerate(self._host_count.numpy()):
+            if n <= 0:
+                self._prepared = None
+                raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view "
+                                       f"{self.views[i]}")
 
     def _taps(self, px_mm: float):
         """The DRR and fluoroscope blur taps at this pixel size (kept for the next frames)."""
@@ -605,85 +423,6 @@ class GaussNewtonCost:
                 self._taps_cache.pop(next(iter(self._taps_cache)))
             hit = self._taps_cache[key] = (taps, ftaps)
         return hit
-
-    def _staged_shapes(self, frame) -> list | None:
-        """Per view ``(r0, r1, c0, c1, erode)``: the image rows and columns to upload for the device
-        preparation of the ROIs (each grown by the mask's erosion), or None where the host
-        prepares them (a pyramid level, an ROI reaching outside its image, not a
-        :class:`~core.tracking.cost.FrameImages`). Raises OutsideViewError for an empty ROI."""
-        if self.scale != 1.0 or not isinstance(frame, FrameImages):
-            return None
-        p = frame._erode if frame._valid is not None else 0
-        out = []
-        for i, v in enumerate(self.views):
-            u0, v0, w, h = (int(a) for a in self.roi[i])
-            if w <= 0 or h <= 0:
-                raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
-            H, W = frame.shapes[v]
-            if u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
-                return None
-            out.append((max(v0 - p, 0), min(v0 + h + p, H), max(u0 - p, 0), min(u0 + w + p, W), p))
-        return out
-
-    def _stage(self, frame: FrameImages, staged: list) -> None:
-        """Upload each view's region of the fluence (and the frame's own masks) and prepare the
-        line integrals, masks and their statistics on the device (:func:`fluoro_roi_kernel`)."""
-        dev = self.device
-        nv = self.n_views
-        p = staged[0][4]
-        Hc, Wc = self._cap
-        need = (nv, Hc + 2 * p, Wc + 2 * p)
-        given = any(frame._given[v] is not None for v in self.views)
-        key = (tuple(staged), tuple(self.views))
-        last = self._staged_last
-        upload = not (last is not None and last[0]() is frame and last[1] == key)  # else on the device
-        if self._stage_src is None or any(a < b for a, b in zip(self._stage_src.shape, need, strict=True)):
-            # grown only, in 64-pixel steps: pinned host memory is slow to allocate, and the kernel
-            # reads each view's (hs, ws) corner alone
-            need = (nv, *(int(math.ceil(n / 64.0) * 64) for n in need[1:]))
-            if self._stage_src is not None:
-                need = (nv, *(max(a, b) for a, b in zip(self._stage_src.shape[1:], need[1:], strict=True)))
-            upload = True
-            pinned = dev.is_cuda
-            self._host_stage_wp = wp.zeros(need, dtype=wp.float32, device="cpu", pinned=pinned)
-            self._host_stage = self._host_stage_wp.numpy()
-            self._stage_src = wp.zeros(need, dtype=wp.float32, device=dev)
-            self._host_gstage_wp = wp.zeros(need, dtype=wp.uint8, device="cpu", pinned=pinned)
-            self._host_gstage = self._host_gstage_wp.numpy()
-            self._stage_given = wp.zeros(need, dtype=wp.uint8, device=dev)
-        info = self._host_info.numpy()
-        info[:] = 0
-        for i, v in enumerate(self.views):
-            r0, r1, c0, c1, _ = staged[i]
-            u0, v0, w, h = (int(a) for a in self.roi[i])
-            g = frame._given[v]
-            if upload:
-                self._host_stage[i, :r1 - r0, :c1 - c0] = frame._fluence[v][r0:r1, c0:c1]
-                if g is not None:
-                    self._host_gstage[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
-            info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
-        if upload:  # each view's first hs rows (whole rows of the buffer: one contiguous block)
-            _, Hs, Ws = self._stage_src.shape
-            for i in range(nv):
-                n = int(info[i, 4]) * Ws
-                wp.copy(self._stage_src, self._host_stage_wp, i * Hs * Ws, i * Hs * Ws, n)
-                if given:
-                    wp.copy(self._stage_given, self._host_gstage_wp, i * Hs * Ws, i * Hs * Ws, n)
-            self._staged_last = (weakref.ref(frame), key)
-        wp.copy(self._info, self._host_info)
-        self._fmax.zero_()
-        self._msum.zero_()
-        lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
-        chunk = 4096
-        wp.launch(fluoro_roi_kernel, dim=(nv, math.ceil(Hc * Wc / chunk), _LANES), device=dev,
-                  inputs=[self._stage_src, self._stage_given, self._info, float(lo), float(hi), int(p),
-                          int(frame._valid is not None), chunk, self._raw, self._fmask, self._fmax,
-                          self._msum])
-        wp.launch(fluoro_shift_kernel, dim=nv, device=dev,
-                  inputs=[self._msum, self.mode, self._fshift, self._count])
-        wp.copy(self._host_count, self._count)
-        if self._count_event is not None:
-            wp.record_event(self._count_event)
 
     def _allocate(self, cap: tuple[int, int], taps) -> None:
         dev = self.device
@@ -738,7 +477,10 @@ class GaussNewtonCost:
         W = max(Wc, math.ceil(int(self.roi[:, 2].max()) / self.scale))
         return r._launch(table.reshape(B * nv * nb, ITEM_COLS), H, W, self.scale)
 
-    def _evaluate(self, X: np.ndarray):
+    def submit(self, X: np.ndarray) -> None:
+        """Enqueue the evaluation of parameter rows ``X (B, 6)`` (one DRR launch, one metric
+        graph) without waiting for it: :meth:`collect` gives its results once the device has
+        synchronised (:mod:`core.tracking.joint` submits several bones' steps, then waits once)."""
         if self._cap is None:
             raise RuntimeError("set_frame: no frame set")
         t0 = time.perf_counter()
@@ -752,18 +494,48 @@ class GaussNewtonCost:
         pipe = self._pipes.get(B)
         if pipe is None or pipe.images.ptr != images.ptr:
             pipe = self._pipes[B] = _Pipeline(self, images, B)
-        out, gn = pipe.run()
-        t3 = time.perf_counter()
+        pipe.launch()
+        self._pending = (pipe, B)
         tm = self.timer
         tm.host += t1 - t0
         tm.render += t2 - t1
-        tm.metric += t3 - t2
+        tm.metric += time.perf_counter() - t2
+
+    def collect(self):
+        """``(costs (B,), view scores (B, n_views), moments or None)`` of the last
+        :meth:`submit`, after a synchronisation of the device."""
+        t0 = time.perf_counter()
+        pipe, B = self._pending
+        self._pending = None
+        self._unsynced = False
+        out, gn = pipe.fetch()
+        if self._count_pending:
+            self._check_count()
+        tm = self.timer
         tm.calls += 1
         tm.evaluations += B
         self.batches[B] = self.batches.get(B, 0) + 1
         scores = np.nan_to_num(out[:B].astype(np.float64), nan=-1.0)
         views = np.nan_to_num(out[B:].astype(np.float64).reshape(B, self.n_views), nan=-1.0)
+        tm.metric += time.perf_counter() - t0
         return 1.0 - scores, views, gn
+
+    def _evaluate(self, X: np.ndarray):
+        self.submit(X)
+        t0 = time.perf_counter()
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
+        self.timer.metric += time.perf_counter() - t0
+        return self.collect()
+
+    def newton(self, x, h, evaluated) -> GaussNewtonStep:
+        """The :class:`GaussNewtonStep` of the 13-pose design about ``x`` from its evaluation
+        (:meth:`collect`)."""
+        c, v, gn = evaluated
+        t0 = time.perf_counter()
+        r, g, H = moments_to_newton(gn.reshape(self.n_views, 9, 9), h)
+        self.timer.host += time.perf_counter() - t0
+        return GaussNewtonStep(np.asarray(x, dtype=float), np.asarray(h, dtype=float), c, v, g, H, r)
 
     def __call__(self, X) -> np.ndarray:
         """``(B,)`` costs ``1 - score`` (B = 1 or 13 poses per launch are cached; any B works)."""
@@ -779,142 +551,7 @@ class GaussNewtonCost:
         Gauss–Newton Hessian (one DRR launch, one metric graph)."""
         x = np.asarray(x, dtype=float)
         h = np.asarray(h, dtype=float)
-        c, v, gn = self._evaluate(step_design(x, h))
-        t0 = time.perf_counter()
-        r, g, H = moments_to_newton(gn.reshape(self.n_views, 9, 9), h)
-        self.timer.host += time.perf_counter() - t0
-        return GaussNewtonStep(x, h, c, v, g, H, r)
-
-
-_TRACE: list | None = None
-
-
-def gauss_newton_search(cost: GaussNewtonCost, x0, *, step, lower, upper, tol_x: float = 0.02,
-                        tol_noise: float = 0.1, max_generations: int = 8, trust=None, lam: float = 1e-3,
-                        cancel: Callable[[], bool] | None = None) -> OptimizeResult:
-    """Levenberg–Marquardt search of ``cost`` from ``x0`` inside ``[lower, upper]`` (module docs).
-
-    ``step``: the central-difference half-steps ``h`` (6,) (x units); ``trust`` (6,): the largest
-    move per step (default ``8 h``); ``tol_x``: converged when every coordinate of the step from
-    an accepted centre is below it, or ``tol_noise``: when the step's predicted decrease
-    ``½ dᵀHd`` is below ``tol_noise`` × the cost's roughness (a move the data cannot confirm, as
-    in :func:`~core.tracking.quadratic.quadratic_search`); ``max_generations``: launches of 13
-    poses. The Gauss–Newton curvature is rescaled along the way by a secant estimate (the
-    gradient's change along an accepted step of at most ``4 h`` over the model's, within
-    [0.5, 1.5]); a rejected step raises λ to at least 0.5 (about half the Newton step). ``model`` of
-    the result is a :class:`~core.tracking.quadratic.QuadraticFit` with the last accepted step's
-    rescaled Hessian and the cost's roughness (6 residual degrees of freedom).
-    """
-    t_start = time.perf_counter()
-    lo = np.asarray(lower, dtype=float)
-    hi = np.asarray(upper, dtype=float)
-    h = np.broadcast_to(np.asarray(step, dtype=float), (6,)).copy()
-    tr = 8.0 * h if trust is None else np.broadcast_to(np.asarray(trust, dtype=float), (6,)).copy()
-    if np.any(h <= 0) or np.any(tr <= 0):
-        raise ValueError(f"step, trust: expected positive (mm, degrees) values, got {step!r}, {trust!r}")
-    # keep the design inside the box
-    x = np.clip(np.asarray(x0, dtype=float), lo + h, hi - h)
-    best = None  # the accepted step
-    evals = gens = 0
-    reason = "max_generations"
-    final_x = None
-    lam = float(lam)
-    noise = 0.0
-
-    alpha = 1.0  # true curvature / Gauss-Newton curvature along the steps (secant estimate)
-
-    def solve(s: GaussNewtonStep, lam_: float) -> np.ndarray:
-        Hs = alpha * s.H
-        D = np.diag(np.maximum(np.diag(Hs), 1e-12))
-        try:
-            d = np.linalg.solve(Hs + lam_ * D, -s.g)
-        except np.linalg.LinAlgError:
-            d = -s.g / np.diag(D)
-        u = np.max(np.abs(d) / tr)
-        return d / u if u > 1 else d
-
-    while True:
-        if cancel is not None and cancel():
-            reason = "cancelled"
-            break
-        if gens >= max_generations:
-            break
-        s = cost.step(x, h)
-        evals += _N
-        gens += 1
-        if _TRACE is not None:
-            _TRACE.append(("eval", s.x.copy(), s.cost))
-        if best is not None and not s.cost <= best.cost + max(noise, 1e-7):
-            lam = max(10.0 * lam, 0.5)  # worse: a shorter, more gradient-like step from the accepted centre
-            if lam > 1e4:
-                reason = "stalled"
-                break
-            d = solve(best, lam)
-            x = np.clip(best.x + d, lo + h, hi - h)
-            continue
-        if best is not None:  # secant: the gradient's change along the step against the model's
-            dx = s.x - best.x
-            den = float(dx @ best.H @ dx)
-            num = float((s.g - best.g) @ dx)
-            if den > 0 and num > 0 and np.all(np.abs(dx) <= 4 * h):  # a short step: near quadratic
-                alpha = float(np.clip(num / den, 0.5, 1.5))
-        best = s
-        noise = _roughness(s, alpha)
-        lam = max(lam / 10.0, 1e-7)
-        d = solve(s, lam)
-        if _TRACE is not None:
-            _TRACE.append((s.x.copy(), s.cost, noise, d.copy(), alpha))
-        if np.all(np.abs(d) < tol_x) or 0.5 * alpha * d @ s.H @ d < tol_noise * noise:
-            reason = "tol_x"
-            final_x = np.clip(s.x + d, lo, hi)
-            break
-        x = np.clip(s.x + d, lo + h, hi - h)
-    if best is None:
-        return OptimizeResult(np.asarray(x0, float), float("inf"), evals, gens, time.perf_counter() - t_start,
-                              False, reason, "gauss_newton", None)
-    if final_x is None:
-        final_x = best.x
-    fit = _fit(best, noise, alpha)
-    fun = fit.predict(final_x - best.x)
-    return OptimizeResult(final_x, float(fun), evals, gens, time.perf_counter() - t_start, reason == "tol_x",
-                          reason, "gauss_newton", fit)
-
-
-def _residuals(s: GaussNewtonStep, alpha: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares ``(c0, g)`` of the 13 costs with the Hessian fixed (``alpha H``), and the
-    residuals. The design's columns (1, ±h_k at rows 2k+1, 2k+2) are orthogonal: the fit is
-    the mean and the central differences, in closed form."""
-    h = np.asarray(s.h, dtype=float)
-    q = np.zeros(_N)
-    q[1:] = np.repeat(0.5 * alpha * h * h * np.diag(s.H), 2)
-    y = np.asarray(s.costs, dtype=float) - q
-    c0 = y.mean()
-    g = (y[1::2] - y[2::2]) / (2.0 * h)
-    fitted = np.full(_N, c0)
-    fitted[1::2] += h * g
-    fitted[2::2] -= h * g
-    return np.r_[c0, g], y - fitted
-
-
-def _roughness(s: GaussNewtonStep, alpha: float = 1.0) -> float:
-    """RMS residual (6 degrees of freedom) of the 13 costs about the quadratic with the
-    Gauss–Newton Hessian: the cost's roughness at the scale of the step."""
-    _, res = _residuals(s, alpha)
-    return float(np.sqrt(res @ res / 6.0))
-
-
-@dataclass(frozen=True, eq=False)
-class GaussNewtonFit(QuadraticFit):
-    """The :class:`~core.tracking.quadratic.QuadraticFit` of a search's last accepted step, with
-    the per-view similarities at its centre (``view_scores (n_views,)``)."""
-
-    view_scores: np.ndarray | None = None
-
-
-def _fit(s: GaussNewtonStep, noise: float, alpha: float = 1.0) -> GaussNewtonFit:
-    coef, _ = _residuals(s, alpha)
-    return GaussNewtonFit(np.array(s.x), np.array(s.h), float(coef[0]), np.array(s.g), alpha * np.array(s.H),
-                          float(noise), 6, np.array(s.costs), np.array(s.view_scores[0]))
+        return self.newton(x, h, self._evaluate(step_design(x, h)))
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

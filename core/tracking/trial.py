@@ -31,6 +31,11 @@ radiographs it pulled the radius into the hole left where the ulna was subtracte
 :func:`track` does not assume it; :func:`core.tracking.from_study.track_study` tracks the bones of
 flatfield-corrected frames jointly when no options are given, with DRRs of each bone's
 attenuation in excess of the soft tissue (:func:`core.tracking.from_study.tissue_excess_transfer`).
+With the Gauss–Newton search (``registration.search == "newton"``) and ``lockstep`` (the
+default; not with ``contact``) the bones of a round that start from a guess are registered side
+by side (:func:`core.tracking.joint.register_together`: their steps enqueued together, one
+synchronisation per iteration), each with its neighbours subtracted at the poses the round
+started from; a bone's first frame (its global search and restart check) is registered alone.
 On the 512² foot demo (60 frames, its true calibration, one H200,
 ``resources/benchmarks/calibration_tracking_h200.json``) one bone at a time lost the talus
 between the tibia and the calcaneus (6.0 mm / 4.9° RMS with the plain thresholded transfer,
@@ -128,16 +133,18 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry.transforms import params_from_pose, pose_from_params
+from ..geometry.transforms import pose_from_params
+from .attempt import Attempt, confidence_of, register_checked
 from .bones import BoneModel
-from .confidence import confidence_from_fit, curvature_confidence
-from .cost import OutsideViewError, RegistrationCost, prepare_frame, search_roi
-from .register import RegistrationOptions, register
-from .verify import verify_start
+from .checks import SAME_OPTIMUM, pose_delta, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
+from .cost import OutsideViewError, prepare_frame
+from .joint import JointJob, lockstep_applies, register_together
+from .register import RegistrationOptions
+from .results import FrameResult, TrackingResult
 
 __all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs", "predict_pose",
            "register_start", "track"]
@@ -174,6 +181,7 @@ class TrackingOptions:
     contact_weight: float = 0.05
     contact_margin_mm: float = 0.0
     confidence_scale: float = 1.0
+    lockstep: bool = True
 
     def __post_init__(self) -> None:
         if self.guess not in _GUESSES:
@@ -208,118 +216,9 @@ class TrackingOptions:
         return self.first or self.registration.widened(2.0)
 
 
-@dataclass(frozen=True, eq=False)
-class FrameResult:
-    """One bone in one frame: ``pose`` (None when nothing was recorded), ``score``, work done,
-    ``converged`` (passed every check), ``flags`` (reasons for review), ``retried``, the
-    :class:`~core.tracking.confidence.PoseConfidence` as a dict (or None), the time breakdown
-    and ``notes`` (events that needed no review, e.g. a start corrected by restarts). Work and
-    time add up every registration of the bone in the frame (both rounds of joint tracking)."""
-
-    bone: str
-    frame: int
-    pose: np.ndarray | None
-    score: float
-    evaluations: int
-    time_s: float
-    converged: bool
-    flags: tuple[str, ...] = ()
-    retried: bool = False
-    confidence: dict | None = None
-    timing: dict | None = None
-    notes: tuple[str, ...] = ()
-
-    def to_dict(self) -> dict:
-        score = None if not np.isfinite(self.score) else self.score
-        return {"bone": self.bone, "frame": self.frame, "score": score,
-                "evaluations": self.evaluations, "time_s": self.time_s, "converged": self.converged,
-                "flags": list(self.flags), "retried": self.retried, "confidence": self.confidence,
-                "timing": self.timing, "notes": list(self.notes)}
-
-    def journal_fields(self) -> dict:
-        """The review state a journal keeps beside the pose and score (``tracking`` of
-        :meth:`core.study.Trial.record_pose`): everything :meth:`to_dict` holds but bone,
-        frame and score."""
-        d = self.to_dict()
-        for k in ("bone", "frame", "score"):
-            d.pop(k)
-        return d
-
-    @classmethod
-    def from_journal(cls, bone: str, record) -> FrameResult:
-        """Rebuild a tracked frame from a journal record (a :class:`core.study.PoseRecord` with
-        ``tracking``), exactly as it was reported."""
-        t = record.tracking
-        if t is None or record.pose is None:
-            raise ValueError(f"record: frame {record.frame} of {bone!r} is not a tracking result")
-        return cls(bone, int(record.frame), np.asarray(record.pose, float), float(record.score),
-                   int(t.get("evaluations", 0)), float(t.get("time_s", 0.0)), bool(t.get("converged", False)),
-                   tuple(t.get("flags", ())), bool(t.get("retried", False)), t.get("confidence"),
-                   t.get("timing"), tuple(t.get("notes", ())))
-
-
-@dataclass(frozen=True, eq=False)
-class TrackingResult:
-    """All frame results of a :func:`track` run; ``status`` is ``"complete"`` or ``"cancelled"``."""
-
-    bones: tuple[str, ...]
-    frames: tuple[int, ...]
-    results: dict
-    status: str
-    time_s: float
-
-    def poses(self, bone: str) -> np.ndarray:
-        """``(len(frames), 4, 4)`` poses of ``bone`` in ``frames`` order, NaN where none."""
-        out = np.full((len(self.frames), 4, 4), np.nan)
-        for k, f in enumerate(self.frames):
-            r = self.results.get((bone, f))
-            if r is not None and r.pose is not None:
-                out[k] = r.pose
-        return out
-
-    def filtered_poses(self, bone: str, frame_rate_hz: float, *, cutoff_hz: float | None = None,
-                       center=None, order: int = 2) -> tuple[np.ndarray, float]:
-        """Zero-phase low-passed :meth:`poses` of ``bone`` (``frames`` must be consecutive frames
-        at ``frame_rate_hz``) and the cut-off used: ``cutoff_hz`` or, when None, Winter's
-        residual analysis of the path of ``center`` (bone frame, mm; default the origin). Flagged
-        and missing frames are interpolated for the filter and stay NaN."""
-        from .kinematics import filter_poses, residual_cutoff
-
-        P = self.poses(bone)
-        for k, f in enumerate(self.frames):
-            r = self.results.get((bone, f))
-            if r is not None and r.flags:
-                P[k] = np.nan
-        c = np.zeros(3) if center is None else np.asarray(center, float)
-        if cutoff_hz is None:
-            ok = np.all(np.isfinite(P), axis=(1, 2))
-            path = np.full((len(P), 3), np.nan)
-            path[ok] = P[ok, :3, :3] @ c + P[ok, :3, 3]
-            cutoff_hz, _ = residual_cutoff(path, frame_rate_hz, order=order)
-        return filter_poses(P, frame_rate_hz, cutoff_hz, center=c, order=order), float(cutoff_hz)
-
-    @property
-    def flagged(self) -> list[FrameResult]:
-        return [r for r in self.results.values() if r.flags]
-
-    def summary(self) -> dict:
-        rs = list(self.results.values())
-        done = [r for r in rs if r.pose is not None]
-        return {"status": self.status, "bones": list(self.bones), "frames": len(self.frames),
-                "results": len(rs), "recorded": len(done),
-                "converged_fraction": float(np.mean([r.converged for r in rs])) if rs else None,
-                "flagged": len(self.flagged), "evaluations": int(sum(r.evaluations for r in rs)),
-                "time_s": self.time_s,
-                "time_per_frame_s": self.time_s / max(len({r.frame for r in rs}), 1)}
-
-    def report(self) -> dict:
-        """JSON-ready report: summary and every frame result (flags and reasons included)."""
-        return {"summary": self.summary(), "frames": [r.to_dict() for r in self.results.values()]}
-
-
 def _delta(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Parameters (mm, rad) taking pose ``a`` to pose ``b`` about centre ``c``."""
-    return params_from_pose(b, center=c, base=a)
+    return pose_delta(a, b, c)
 
 
 def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, *,
@@ -350,48 +249,7 @@ def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, 
     if f0 == f1:
         return np.asarray(T1, dtype=float)
     d = _delta(np.asarray(T0, float), np.asarray(T1, float), c)
-    return pose_from_params(d * (frame - f1) / (f1 - f0), center=c, base=np.asarray(T1, float))
-
-
-def _failures(res, guess_pose, center, good_scores, o: TrackingOptions, *, start_score=None,
-              jump_factor: float = 1.0) -> list[str]:
-    out = []
-    if not res.converged:
-        out.append(f"not converged ({res.reason})")
-    if good_scores:
-        med = float(np.median(good_scores[-o.history:]))
-        if res.score < o.min_score_ratio * med:
-            out.append(f"score drop ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
-    if start_score is not None and res.score < o.min_start_ratio * start_score:
-        out.append(f"score below the start ({res.score:.3f} < {o.min_start_ratio:g} x first frame "
-                   f"{start_score:.3f})")
-    d = _delta(guess_pose, res.pose, center)
-    dt, dr = float(np.linalg.norm(d[:3])), float(np.degrees(np.linalg.norm(d[3:])))
-    if dt > o.max_jump[0] * jump_factor or dr > o.max_jump[1] * jump_factor:
-        out.append(f"pose jump ({dt:.2f} mm, {dr:.2f} deg from the guess)")
-    return out
-
-
-#: Poses closer than this (mm, degrees) are the same optimum (:func:`_same_optimum`).
-SAME_OPTIMUM = (0.5, 0.5)
-
-
-def _same_optimum(a: np.ndarray, b: np.ndarray, center) -> bool:
-    d = _delta(np.asarray(a, float), np.asarray(b, float), np.asarray(center, float))
-    return bool(np.linalg.norm(d[:3]) <= SAME_OPTIMUM[0]
-                and np.degrees(np.linalg.norm(d[3:])) <= SAME_OPTIMUM[1])
-
-
-def _uncertain(conf: dict | None, limits: tuple[float, float]) -> list[str]:
-    lt, lr = (float(v) for v in limits)
-    if conf is None:
-        return ["uncertain (no confidence could be computed)"]
-    t, r = conf.get("translation_mm"), conf.get("rotation_deg")
-    if not conf.get("well_posed", True) or t is None or r is None:
-        return ["uncertain (the pose is not determined along every axis)"]
-    if t > lt or r > lr:
-        return [f"uncertain (confidence {t:.3f} mm, {r:.3f} deg; limits {lt:g} mm, {lr:g} deg)"]
-    return []
+    return step_pose(d * (frame - f1) / (f1 - f0), np.asarray(T1, float), c)
 
 
 def journal_inputs(states: Mapping, frames: Sequence[int], *, resume: bool = False) -> tuple[dict, dict]:
@@ -452,20 +310,6 @@ class _BoneState:
 
 
 @dataclass
-class _Attempt:
-    """One bone's registration in one frame with its checks (:func:`_register_one`)."""
-
-    result: object  # RegistrationResult | None (outside a view)
-    flags: list
-    retried: bool
-    evaluations: int
-    time_s: float
-    confidence: dict | None
-    timing: dict | None
-    notes: tuple = ()
-
-
-@dataclass
 class _Run:
     """The fixed inputs of a :func:`track` run (``contacts``: the bones'
     :class:`~core.tracking.contact.ContactModel` when joint tracking keeps them apart)."""
@@ -487,14 +331,14 @@ class _Work:
     time_s: float = 0.0
     timing: dict = field(default_factory=dict)
 
-    def add(self, a: _Attempt) -> None:
+    def add(self, a: Attempt) -> None:
         self.evaluations += a.evaluations
         self.time_s += a.time_s
         for k, v in (a.timing or {}).items():
             self.timing[k] = self.timing.get(k, 0) + v
 
 
-def _frame_result(name: str, f: int, a: _Attempt, w: _Work) -> FrameResult:
+def _frame_result(name: str, f: int, a: Attempt, w: _Work) -> FrameResult:
     """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work."""
     res = a.result
     if res is None:
@@ -526,25 +370,45 @@ def _track_frame(run: _Run, f: int, imgs: list, todo: list[int], state: dict[str
                         k: getattr(v, "pose", v) for k, v in skip[b].items()})
     # poses good enough to subtract: tracked bones' guesses, and bones given or registered this frame
     known = {i for i, b in enumerate(names) if hist[b] or (f in skip[b] and i not in todo)}
-    out: dict[int, _Attempt] = {}
+    out: dict[int, Attempt] = {}
     work = {i: _Work() for i in todo}
+    def others_of(i: int):
+        ids = [k for k in range(len(names)) if k != i and k in known]
+        return (np.stack([current[k] for k in ids]), ids) if ids else None
+
+    lockstep = (joint and o.lockstep and run.contacts is None and lockstep_applies(o.registration))
     for rnd in range(o.joint_rounds if joint else 1):
+        pre = {}
+        if lockstep:  # bones tracked from a guess (round 0: not a first frame) side by side
+            side = [i for i in todo if rnd > 0 or hist[names[i]]]
+            if len(side) > 1:
+                if run.cancel():
+                    return None
+                jobs = [JointJob(i, guesses[i] if rnd == 0 else current[i], bones[i].centroid,
+                                 bones[i].outline, others_of(i)) for i in side]
+                t0 = time.perf_counter()
+                got = register_together(run.renderer, frame, jobs, o.registration, profile=o.profile,
+                                        cancel=run.cancel)
+                spent = (time.perf_counter() - t0) / len(side)
+                pre = {i: (r, job.others, spent) for i, r, job in zip(side, got, jobs, strict=True)}
         for i in todo:
             if run.cancel():
                 return None
             b = names[i]
             others = None
-            if joint:
-                ids = [k for k in range(len(names)) if k != i and k in known]
-                others = (np.stack([current[k] for k in ids]), ids) if ids else None
+            if i in pre:
+                others = pre[i][1]
+            elif joint:
+                others = others_of(i)
             first = not hist[b]
             if rnd == 0:
                 opts, start = (o.first_options if first else o.registration), guesses[i]
             else:
                 opts, start = o.registration, current[i]
-            new = _register_one(run.renderer, frame, bones[i], i, start, guesses[i], opts, o, state[b].scores,
-                                others, run.cancel, hist[b], verify=first and rnd == 0,
-                                start_score=state[b].start_score, seed=f)
+            new = register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
+                                   state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
+                                   start_score=state[b].start_score, seed=f,
+                                   pre=(pre[i][0], pre[i][2]) if i in pre else None)
             if run.contacts is not None and new.result is not None and not run.cancel.fired:
                 done = [k for k in range(len(names)) if k != i and k in out and out[k].result is not None]
                 if done:  # neighbours registered in this frame, not mere guesses
@@ -561,7 +425,7 @@ def _track_frame(run: _Run, f: int, imgs: list, todo: list[int], state: dict[str
     return {i: _frame_result(names[i], f, out[i], work[i]) for i in todo}
 
 
-def _keep_apart(run: _Run, frame, i: int, a: _Attempt, others, placed: list,
+def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
                 opts: RegistrationOptions) -> None:
     """Joint tracking with ``contact``: when bone ``i``'s registered pose comes closer than the
     margin to a neighbour registered in this frame (``placed``: (index, pose)), polish it under
@@ -593,17 +457,8 @@ def _keep_apart(run: _Run, frame, i: int, a: _Attempt, others, placed: list,
     if a.timing is not None:
         a.timing["other_s"] = a.timing.get("other_s", 0.0) + dt
     if o.confidence and fit is not None:
-        a.confidence = _confidence(fit, o)
+        a.confidence = confidence_of(fit, o)
     a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm")
-
-
-def _confidence(fit, o: TrackingOptions) -> dict:
-    """The confidence of a quadratic fit about the optimum, σ scaled by ``confidence_scale``."""
-    c = confidence_from_fit(fit)
-    if o.confidence_scale != 1.0:
-        k = float(o.confidence_scale)
-        c = replace(c, sigma=c.sigma * k, covariance=c.covariance * k * k)
-    return c.to_dict()
 
 
 def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence],
@@ -717,119 +572,10 @@ def register_start(renderer, frame, bone: BoneModel, index: int, start, *,
     first-frame options, the failure checks with a wider retry and the restart check of
     :func:`core.tracking.verify.verify_start`. Returns a :class:`FrameResult` (frame -1)."""
     o = options or TrackingOptions()
-    a = _register_one(renderer, frame, bone, index, start, start, o.first_options, o, [], others, cancel, [],
-                      verify=True, seed=seed)
+    a = register_checked(renderer, frame, bone, index, start, start, o.first_options, o, [], others, cancel,
+                         [], verify=True, seed=seed)
     if a.result is None:
         return FrameResult(bone.name, -1, None, np.nan, a.evaluations, a.time_s, False, tuple(a.flags),
                            a.retried, None, a.timing)
     return FrameResult(bone.name, -1, a.result.pose, a.result.score, a.evaluations, a.time_s, not a.flags,
                        tuple(a.flags), a.retried, a.confidence, a.timing, a.notes)
-
-
-def _register_one(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
-                  o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
-                  start_score: float | None = None, seed: int = 0):
-    """Register with failure checks, one wider retry and (first frames, retries) the restart
-    check of :func:`core.tracking.verify.verify_start`.
-
-    Returns an :class:`_Attempt`."""
-    t0 = time.perf_counter()
-    c = bone.centroid
-    cancelled = cancel if cancel is not None else (lambda: False)
-    try:
-        res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
-                       others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
-    except OutsideViewError as exc:
-        return _Attempt(None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None,
-                        None)
-    evals = res.evaluations
-    first = res.pose
-    timing = {k: v for k, v in res.timing.items() if k != "total_s"}
-
-    def add(r) -> None:
-        nonlocal evals
-        evals += r.evaluations
-        for k in timing:
-            timing[k] += r.timing.get(k, 0.0)
-
-    jump = o.retry_factor if verify else 1.0
-    flags = _failures(res, guess, c, good_scores, o, start_score=start_score, jump_factor=jump)
-    retried = False
-    wide = opts.widened(o.retry_factor)
-    if flags and not cancelled():
-        retried = True
-        starts = [guess] + ([history[-1][1]] if history else [])
-        for s in starts:
-            try:
-                r2 = register(renderer, frame, bone=index, initial_pose=s, center=c, options=wide,
-                              others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
-            except OutsideViewError:
-                continue
-            add(r2)
-            f2 = _failures(r2, guess, c, good_scores, o, start_score=start_score,
-                           jump_factor=o.retry_factor * jump)
-            if (len(f2), -r2.score) < (len(flags), -res.score):
-                res, flags = r2, f2
-            if not flags:
-                break
-    notes = []
-    chk = None
-    if (verify or retried) and o.verify_restarts and not cancelled():
-        try:
-            chk = verify_start(renderer, frame, bone=index, result=res, center=c, options=o.registration,
-                               n=o.verify_restarts, spread=o.verify_spread, seed=seed, others=others,
-                               outline=bone.outline, cancel=cancel)
-        except OutsideViewError:
-            chk = None
-        if chk is not None:
-            evals += chk.evaluations
-            if chk.improved:  # the first optimum was false: search wider from the better one
-                best = chk.result
-                try:
-                    r2 = register(renderer, frame, bone=index, initial_pose=best.pose, center=c,
-                                  options=wide, others=others, cancel=cancel, profile=o.profile,
-                                  outline=bone.outline)
-                    add(r2)
-                    if r2.score > best.score:
-                        best = r2
-                except OutsideViewError:
-                    pass
-                res = best
-                flags = _failures(res, guess, c, good_scores, o, start_score=start_score,
-                                  jump_factor=o.retry_factor * jump)
-                notes.append("start corrected by restarts")
-            if chk.ambiguous:
-                far = max(d for d, sc in zip(chk.distances, chk.scores, strict=True)
-                          if abs(sc - chk.result.score) <= 0.01)
-                flags.append(f"ambiguous optimum (a restart {far[0]:.2f} mm, {far[1]:.2f} deg away "
-                             f"scores within 0.01)")
-        if (retried and chk is not None and not chk.improved and not chk.ambiguous and flags
-                and all(f.startswith("score drop") for f in flags) and _same_optimum(first, res.pose, c)):
-            # the image changed, not the registration: the first search, the wider ones and the
-            # restarts all end at the same pose
-            notes.append(f"{flags[0]}: the wider search and {o.verify_restarts} restarts confirmed the "
-                         f"optimum")
-            flags = []
-    conf = None
-    if o.confidence and res.fit is not None:
-        conf = _confidence(res.fit, o)  # the last design about the optimum
-    elif o.confidence:
-        try:
-            roi = search_roi(renderer, res.pose, index, views=tuple(range(frame.n_views)), center=c,
-                             reach_mm=2.0, margin_px=opts.margin_px, points=bone.outline)
-            cost = RegistrationCost(renderer, frame, bone=index, base_pose=res.pose, center=c, roi=roi,
-                                    terms=opts.terms, others=others)
-            conf = curvature_confidence(cost, np.zeros(6), step=o.confidence_step)
-            if o.confidence_scale != 1.0:
-                k = float(o.confidence_scale)
-                conf = replace(conf, sigma=conf.sigma * k, covariance=conf.covariance * k * k)
-            conf = conf.to_dict()
-        except OutsideViewError:
-            conf = None
-        evals += 73 if conf is not None else 0
-    if o.max_uncertainty is not None:
-        flags += _uncertain(conf, o.max_uncertainty)
-    dt = time.perf_counter() - t0
-    # confidence, restarts, set-up
-    timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))
-    return _Attempt(res, flags, retried, evals, dt, conf, timing, tuple(notes))

@@ -266,7 +266,9 @@ def test_device_frame_preparation_is_the_hosts(talus_scene, kind):
         gn = GaussNewtonCost(r, bone=0, views=(0, 1), term=term)
         gn.device_frames = dev
         with pytest.raises(OutsideViewError, match="no usable fluoroscope pixel"):
+            # the device's count is checked at the first evaluation's synchronisation
             gn.set_frame(prepare_frame(bad), base_pose=pose, center=m.centroid, roi=roi)
+            gn(np.zeros((1, 6)))
 
 
 def test_engine_renders_as_the_renderer(talus_scene):

@@ -1,0 +1,170 @@
+"""One bone's registration in one frame with the tracker's checks (:func:`register_checked`).
+
+The registration of :func:`core.tracking.register.register`, its failure checks
+(:mod:`core.tracking.checks`), one wider retry, the restart check of
+:func:`core.tracking.verify.verify_start` on first frames and retries (a false optimum corrected,
+an ambiguous one flagged, a score drop of the image confirmed rather than flagged) and the
+per-frame confidence; see the module docs of :mod:`core.tracking.trial`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .bones import BoneModel
+from .checks import failures as _failures
+from .checks import same_optimum as _same_optimum
+from .checks import uncertain as _uncertain
+from .confidence import confidence_from_fit, curvature_confidence
+from .cost import OutsideViewError, RegistrationCost, search_roi
+from .register import RegistrationOptions, register
+from .verify import verify_start
+
+if TYPE_CHECKING:
+    from .trial import TrackingOptions
+
+__all__ = ["Attempt", "confidence_of", "register_checked"]
+
+
+@dataclass
+class Attempt:
+    """One bone's registration in one frame with its checks (:func:`_register_one`)."""
+
+    result: object  # RegistrationResult | None (outside a view)
+    flags: list
+    retried: bool
+    evaluations: int
+    time_s: float
+    confidence: dict | None
+    timing: dict | None
+    notes: tuple = ()
+
+
+def confidence_of(fit, o: TrackingOptions) -> dict:
+    """The confidence of a quadratic fit about the optimum, σ scaled by ``confidence_scale``."""
+    c = confidence_from_fit(fit)
+    if o.confidence_scale != 1.0:
+        k = float(o.confidence_scale)
+        c = replace(c, sigma=c.sigma * k, covariance=c.covariance * k * k)
+    return c.to_dict()
+
+
+def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
+                  o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
+                  start_score: float | None = None, seed: int = 0, pre=None):
+    """Register with failure checks, one wider retry and (first frames, retries) the restart
+    check of :func:`core.tracking.verify.verify_start`. ``pre``: ``(registration or the
+    OutsideViewError it raised, seconds spent)`` already run with these inputs
+    (:func:`core.tracking.joint.register_together`), in place of the first registration.
+
+    Returns an :class:`Attempt`."""
+    t0 = time.perf_counter()
+    c = bone.centroid
+    cancelled = cancel if cancel is not None else (lambda: False)
+    try:
+        if pre is None:
+            res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
+                           others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
+        else:
+            res, spent = pre
+            t0 -= spent
+            if isinstance(res, OutsideViewError):
+                raise res
+    except OutsideViewError as exc:
+        return Attempt(None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None,
+                        None)
+    evals = res.evaluations
+    first = res.pose
+    timing = {k: v for k, v in res.timing.items() if k != "total_s"}
+
+    def add(r) -> None:
+        nonlocal evals
+        evals += r.evaluations
+        for k in timing:
+            timing[k] += r.timing.get(k, 0.0)
+
+    jump = o.retry_factor if verify else 1.0
+    flags = _failures(res, guess, c, good_scores, o, start_score=start_score, jump_factor=jump)
+    retried = False
+    wide = opts.widened(o.retry_factor)
+    if flags and not cancelled():
+        retried = True
+        starts = [guess] + ([history[-1][1]] if history else [])
+        for s in starts:
+            try:
+                r2 = register(renderer, frame, bone=index, initial_pose=s, center=c, options=wide,
+                              others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
+            except OutsideViewError:
+                continue
+            add(r2)
+            f2 = _failures(r2, guess, c, good_scores, o, start_score=start_score,
+                           jump_factor=o.retry_factor * jump)
+            if (len(f2), -r2.score) < (len(flags), -res.score):
+                res, flags = r2, f2
+            if not flags:
+                break
+    notes = []
+    chk = None
+    if (verify or retried) and o.verify_restarts and not cancelled():
+        try:
+            chk = verify_start(renderer, frame, bone=index, result=res, center=c, options=o.registration,
+                               n=o.verify_restarts, spread=o.verify_spread, seed=seed, others=others,
+                               outline=bone.outline, cancel=cancel)
+        except OutsideViewError:
+            chk = None
+        if chk is not None:
+            evals += chk.evaluations
+            if chk.improved:  # the first optimum was false: search wider from the better one
+                best = chk.result
+                try:
+                    r2 = register(renderer, frame, bone=index, initial_pose=best.pose, center=c,
+                                  options=wide, others=others, cancel=cancel, profile=o.profile,
+                                  outline=bone.outline)
+                    add(r2)
+                    if r2.score > best.score:
+                        best = r2
+                except OutsideViewError:
+                    pass
+                res = best
+                flags = _failures(res, guess, c, good_scores, o, start_score=start_score,
+                                  jump_factor=o.retry_factor * jump)
+                notes.append("start corrected by restarts")
+            if chk.ambiguous:
+                far = max(d for d, sc in zip(chk.distances, chk.scores, strict=True)
+                          if abs(sc - chk.result.score) <= 0.01)
+                flags.append(f"ambiguous optimum (a restart {far[0]:.2f} mm, {far[1]:.2f} deg away "
+                             f"scores within 0.01)")
+        if (retried and chk is not None and not chk.improved and not chk.ambiguous and flags
+                and all(f.startswith("score drop") for f in flags) and _same_optimum(first, res.pose, c)):
+            # the image changed, not the registration: the first search, the wider ones and the
+            # restarts all end at the same pose
+            notes.append(f"{flags[0]}: the wider search and {o.verify_restarts} restarts confirmed the "
+                         f"optimum")
+            flags = []
+    conf = None
+    if o.confidence and res.fit is not None:
+        conf = confidence_of(res.fit, o)  # the last design about the optimum
+    elif o.confidence:
+        try:
+            roi = search_roi(renderer, res.pose, index, views=tuple(range(frame.n_views)), center=c,
+                             reach_mm=2.0, margin_px=opts.margin_px, points=bone.outline)
+            cost = RegistrationCost(renderer, frame, bone=index, base_pose=res.pose, center=c, roi=roi,
+                                    terms=opts.terms, others=others)
+            conf = curvature_confidence(cost, np.zeros(6), step=o.confidence_step)
+            if o.confidence_scale != 1.0:
+                k = float(o.confidence_scale)
+                conf = replace(conf, sigma=conf.sigma * k, covariance=conf.covariance * k * k)
+            conf = conf.to_dict()
+        except OutsideViewError:
+            conf = None
+        evals += 73 if conf is not None else 0
+    if o.max_uncertainty is not None:
+        flags += _uncertain(conf, o.max_uncertainty)
+    dt = time.perf_counter() - t0
+    # confidence, restarts, set-up
+    timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))
+    return Attempt(res, flags, retried, evals, dt, conf, timing, tuple(notes))

@@ -1,0 +1,102 @@
+"""The device preparation of the engine's fluoroscope regions (:mod:`core.tracking.engine`).
+
+At full resolution :meth:`~core.tracking.engine.GaussNewtonCost.set_frame` uploads each view's
+region of the fluence as it is (grown by the usable-pixel mask's erosion; :func:`staged_shapes`)
+and :func:`stage` computes the line integrals, the eroded mask and their statistics on the
+device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`: the values of
+:meth:`core.tracking.cost.FrameImages.region`). A region already on the device (the same frame
+and regions: the next round of joint tracking, the restarts) is not uploaded again.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+
+import numpy as np
+import warp as wp
+
+from .cost import FrameImages, OutsideViewError
+from .engine_kernels import _LANES, fluoro_roi_kernel, fluoro_shift_kernel
+
+__all__ = ["stage", "staged_shapes"]
+
+
+def staged_shapes(self, frame) -> list | None:
+    """Per view of the :class:`~core.tracking.engine.GaussNewtonCost` ``self``:
+    ``(r0, r1, c0, c1, erode)``, the image rows and columns to upload for the device preparation
+    of the ROIs (each grown by the mask's erosion), or None where the host prepares them (a
+    pyramid level, an ROI reaching outside its image, not a
+    :class:`~core.tracking.cost.FrameImages`). Raises OutsideViewError for an empty ROI."""
+    if self.scale != 1.0 or not isinstance(frame, FrameImages):
+        return None
+    p = frame._erode if frame._valid is not None else 0
+    out = []
+    for i, v in enumerate(self.views):
+        u0, v0, w, h = (int(a) for a in self.roi[i])
+        if w <= 0 or h <= 0:
+            raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
+        H, W = frame.shapes[v]
+        if u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
+            return None
+        out.append((max(v0 - p, 0), min(v0 + h + p, H), max(u0 - p, 0), min(u0 + w + p, W), p))
+    return out
+
+def stage(self, frame: FrameImages, staged: list) -> None:
+    """For the :class:`~core.tracking.engine.GaussNewtonCost` ``self``: upload each view's
+    region of the fluence (and the frame's own masks) and prepare the line integrals, masks and
+    their statistics on the device (:func:`fluoro_roi_kernel`)."""
+    dev = self.device
+    nv = self.n_views
+    p = staged[0][4]
+    Hc, Wc = self._cap
+    need = (nv, Hc + 2 * p, Wc + 2 * p)
+    given = any(frame._given[v] is not None for v in self.views)
+    key = (tuple(staged), tuple(self.views))
+    last = self._staged_last
+    upload = not (last is not None and last[0]() is frame and last[1] == key)  # else on the device
+    if self._stage_src is None or any(a < b for a, b in zip(self._stage_src.shape, need, strict=True)):
+        # grown only, in 64-pixel steps: pinned host memory is slow to allocate, and the kernel
+        # reads each view's (hs, ws) corner alone
+        need = (nv, *(int(math.ceil(n / 64.0) * 64) for n in need[1:]))
+        if self._stage_src is not None:
+            need = (nv, *(max(a, b) for a, b in zip(self._stage_src.shape[1:], need[1:], strict=True)))
+        upload = True
+        pinned = dev.is_cuda
+        self._host_stage_wp = wp.zeros(need, dtype=wp.float32, device="cpu", pinned=pinned)
+        self._host_stage = self._host_stage_wp.numpy()
+        self._stage_src = wp.zeros(need, dtype=wp.float32, device=dev)
+        self._host_gstage_wp = wp.zeros(need, dtype=wp.uint8, device="cpu", pinned=pinned)
+        self._host_gstage = self._host_gstage_wp.numpy()
+        self._stage_given = wp.zeros(need, dtype=wp.uint8, device=dev)
+    info = np.zeros((nv, 8), dtype=np.int32)
+    for i, v in enumerate(self.views):
+        r0, r1, c0, c1, _ = staged[i]
+        u0, v0, w, h = (int(a) for a in self.roi[i])
+        g = frame._given[v]
+        if upload:
+            self._host_stage[i, :r1 - r0, :c1 - c0] = frame._fluence[v][r0:r1, c0:c1]
+            if g is not None:
+                self._host_gstage[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
+        info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
+    if upload:  # each view's first hs rows (whole rows of the buffer: one contiguous block)
+        _, Hs, Ws = self._stage_src.shape
+        for i in range(nv):
+            n = int(info[i, 4]) * Ws
+            wp.copy(self._stage_src, self._host_stage_wp, i * Hs * Ws, i * Hs * Ws, n)
+            if given:
+                wp.copy(self._stage_given, self._host_gstage_wp, i * Hs * Ws, i * Hs * Ws, n)
+        self._staged_last = (weakref.ref(frame), key)
+    if self._info_last is None or not np.array_equal(info, self._info_last):
+        self._host_info.numpy()[:] = info
+        wp.copy(self._info, self._host_info)
+        self._info_last = info
+    self._fmax.zero_()
+    self._msum.zero_()
+    lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
+    chunk = 4096
+    self._launch("roi", fluoro_roi_kernel, (nv, math.ceil(Hc * Wc / chunk), _LANES),
+                 [self._stage_src, self._stage_given, self._info, float(lo), float(hi), int(p),
+                  int(frame._valid is not None), chunk, self._raw, self._fmask, self._fmax, self._msum])
+    self._launch("shift", fluoro_shift_kernel, (nv,), [self._msum, self.mode, self._fshift, self._count])
+    wp.copy(self._host_count, self._count)

@@ -1,0 +1,195 @@
+"""Several bones' Gauss–Newton registrations in lockstep (joint tracking's rounds).
+
+In a round of joint tracking (:func:`core.tracking.trial.track`, ``mode="joint"``) every bone is
+registered with its neighbours' DRRs subtracted. With the Gauss–Newton search
+(``search="newton"``) :func:`register_together` runs those registrations side by side: each
+bone's fluoroscope regions are prepared (its neighbours subtracted at the poses the round
+started from), then every bone's 13-pose step (one DRR launch, one metric graph) is enqueued,
+and the host takes the bones' results in turn, each as soon as its own step is done (an event
+recorded after it): its Levenberg–Marquardt state
+(:class:`~core.tracking.engine_search.LevenbergMarquardt`) takes the step and its next step is
+enqueued while the device works on the other bones' steps — the device is kept busy and the
+host's arithmetic overlaps it, where one bone after another left the device idle while the host
+worked and the host idle while the device did. A bone's iterates are those of
+:func:`core.tracking.register.register` with the same inputs (the same search, the same
+engine); only the waits are shared. Where the full-resolution steps do not
+converge, that bone is registered again by :func:`~core.tracking.register.register` (its
+half-resolution fallback).
+
+The bones of a round all start from the estimates the round began with (the previous round's,
+or the guesses), where the one-after-another rounds let a bone see the poses its predecessors
+had just found in the same round; the second round sees every bone's first-round pose either
+way.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .cost import CostTimer, OutsideViewError, search_roi
+from .engine import engine_cost, step_design, supports
+from .engine_search import LevenbergMarquardt
+from .register import RegistrationOptions, RegistrationResult, _snap, default_levels
+
+__all__ = ["JointJob", "lockstep_applies", "register_together"]
+
+
+@dataclass
+class JointJob:
+    """One bone's registration in a round: volume ``bone`` of the renderer from
+    ``initial_pose`` (the search box's centre), rotation ``center``, ``outline`` (bone-frame
+    points for the ROIs) and ``others`` (poses, bones) subtracted."""
+
+    bone: int
+    initial_pose: np.ndarray
+    center: np.ndarray
+    outline: np.ndarray | None = None
+    others: tuple | None = None
+
+
+def lockstep_applies(options: RegistrationOptions) -> bool:
+    """Whether :func:`register_together` runs these options (the automatic ``"newton"`` search of
+    a cost the engine scores, no refinement)."""
+    return (options.search == "newton" and options.levels is None and options.refine is None
+            and supports(options.terms))
+
+
+@dataclass
+class _Lane:
+    job: JointJob
+    cost: object
+    lm: LevenbergMarquardt
+    lo: np.ndarray
+    hi: np.ndarray
+    own_s: float  # the bone's own set-up time
+    x: np.ndarray | None = None
+    event: object = None  # recorded after the bone's step in flight (CUDA)
+
+
+def _submit(ln: _Lane, cancel) -> bool:
+    """Enqueue the next step of a bone's search (and record its event); False when it has ended."""
+    x = ln.lm.ask(cancel)
+    if x is None:
+        return False
+    ln.x = x
+    ln.cost.submit(step_design(x, ln.lm.h))
+    dev = ln.cost.device
+    if dev.is_cuda:
+        if ln.event is None:
+            ln.event = wp.Event(dev)
+        wp.record_event(ln.event)
+    return True
+
+
+def register_together(renderer, frame, jobs: Sequence[JointJob], options: RegistrationOptions, *,
+                      profile: bool = False, cancel: Callable[[], bool] | None = None) -> list:
+    """Register every job in ``frame`` (module docs); per job a
+    :class:`~core.tracking.register.RegistrationResult`, or the
+    :class:`~core.tracking.cost.OutsideViewError` its registration raised."""
+    from .register import register
+
+    if not lockstep_applies(options):
+        raise ValueError("options: register_together runs the automatic 'newton' search of a gc or ncc cost")
+    o = options
+    fs = o.final_scale
+    views = tuple(range(frame.n_views))
+    out: list = [None] * len(jobs)
+    lanes: dict[int, _Lane] = {}
+    queue: list[int] = []
+    for k, job in enumerate(jobs):
+        t0 = time.perf_counter()
+        base = np.asarray(job.initial_pose, dtype=float)
+        center = np.asarray(job.center, dtype=float)
+        # the single Gauss-Newton level of "newton" (default_levels does not depend on the pixel size there)
+        lv = default_levels(1.0, sigma=o.sigma, search="newton")[-1]
+        try:
+            roi = search_roi(renderer, base, job.bone, views=views, center=center,
+                             reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
+                             points=job.outline)
+            roi = _snap(roi, renderer, views)
+            c = engine_cost(renderer, bone=job.bone, views=views, scale=lv.scale * fs, term=o.terms[0])
+            c.timer = CostTimer()
+            c.batches = {}
+            c.profile = profile
+            c.set_frame(frame, base_pose=base, center=center, roi=roi, others=job.others)
+        except OutsideViewError as exc:
+            out[k] = exc
+            continue
+        hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
+        sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
+        lm = LevenbergMarquardt(np.zeros(6), step=sig6, lower=-hi, upper=hi, tol_x=lv.tol_x,
+                                max_generations=lv.max_generations)
+        lanes[k] = ln = _Lane(job, c, lm, -hi, hi, time.perf_counter() - t0)
+        # the bone's first step in flight while the next bone's regions are prepared
+        if _submit(ln, cancel):
+            queue.append(k)
+        ln.own_s = time.perf_counter() - t0
+    t_loop = time.perf_counter()
+    # the host takes each bone's result as soon as its own step is done (its event) and enqueues
+    # its next step while the device works on the other bones' steps
+    while queue:
+        k = queue.pop(0)
+        ln = lanes[k]
+        t0 = time.perf_counter()
+        if ln.event is not None:
+            wp.synchronize_event(ln.event)
+        ln.cost.timer.metric += time.perf_counter() - t0
+        try:
+            ev = ln.cost.collect()
+        except OutsideViewError as exc:
+            out[k] = exc
+            del lanes[k]
+            continue
+        ln.lm.tell(ln.cost.newton(ln.x, ln.lm.h, ev))
+        if _submit(ln, cancel):
+            queue.append(k)
+    share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly
+    for k, ln in lanes.items():
+        r = ln.lm.result()
+        if r.converged or r.reason == "cancelled":
+            out[k] = _result(ln, r, fs, ln.own_s + share)
+        else:  # beyond the full-resolution steps' reach: the one-bone search with its fallback
+            job = ln.job
+            try:
+                out[k] = register(renderer, frame, bone=job.bone, initial_pose=job.initial_pose,
+                                  center=job.center, options=o, others=job.others, cancel=cancel,
+                                  profile=profile, outline=job.outline)
+            except OutsideViewError as exc:
+                out[k] = exc
+    return out
+
+
+def _result(ln: _Lane, r, fs: float, spent: float) -> RegistrationResult:
+    """The :class:`~core.tracking.register.RegistrationResult` that
+    :func:`~core.tracking.register.register` builds from a converged (or cancelled) single
+    Gauss-Newton level; ``spent``: the bone's wall time."""
+    c = ln.cost
+    x = np.asarray(r.x, dtype=float)
+    if r.converged and r.model is not None:
+        score = float(1.0 - r.model.predict(x - r.model.x))
+        view_scores = np.asarray(r.model.view_scores, dtype=float)
+    else:
+        score, view_scores = c.score_and_views(x)
+    converged, reason = r.converged, r.reason
+    if np.any(np.abs(x) >= ln.hi * (1 - 1e-6)):
+        converged, reason = False, "at_bound"
+    timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
+    for k, v in c.timer.to_dict().items():
+        timing[k] += v
+    timing[f"engine_steps_x{fs:g}"] = c.batches.get(13, 0)
+    timing[f"engine_scores_x{fs:g}"] = sum(v for b, v in c.batches.items() if b != 13)
+    t0 = time.perf_counter()
+    pose = c.poses(x[None])[0]
+    total = spent + time.perf_counter() - t0
+    timing["total_s"] = total
+    timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
+    return RegistrationResult(pose=pose, x=x, score=score, view_scores=view_scores,
+                              evaluations=r.evaluations, generations=r.generations, time_s=total,
+                              converged=converged, reason=reason, stages=(r,), timing=timing,
+                              fit=r.model if r.model is not None else None)

@@ -100,7 +100,7 @@ def _fill_dialog(window, qtbot, scheduler):
 
 def test_track_in_batch_from_the_window(window, qtbot, scheduler):
     dlg = _fill_dialog(window, qtbot, scheduler)
-    _shot(dlg, "batch_dialog.png")
+    _shot(dlg, "batch_dialog_scheduler.png")
     panel = window.tracking.batch
     frames = []
     panel.event.connect(lambda e: e["kind"] == "frame" and frames.append(e))
@@ -218,7 +218,7 @@ def test_batch_mode_tracks_as_talus_track_by_default(calibrated_window, qtbot):
     _click_box(qtbot, dlg.bone_boxes["calcaneus"])
     _click_box(qtbot, dlg.trial_boxes["walk2"])
     assert dlg.choice()["mode"] == "auto" and dlg.choice()["bones"] == [BONE, "calcaneus"]
-    _shot(dlg, "batch_dialog_mode.png")
+    _shot(dlg, "batch_dialog.png")  # resources/screenshots/batch_dialog.png
     assert _start(win, qtbot, dlg) == ["study/walk/talus+calcaneus", "study/walk2/talus",
                                        "study/walk2/calcaneus"]
     texts = [win.messages.item(i).text() for i in range(win.messages.count())]

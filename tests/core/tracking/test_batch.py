@@ -96,6 +96,38 @@ def test_build_tasks_mode_auto_tracks_as_talus_track(demo, calibrated):
     assert [(t.bones, t.frames) for t in ranged] == [(BONES, (0, 2))]
 
 
+def test_tracks_jointly_is_track_studys_auto_rule(calibrated, tmp_path, monkeypatch):
+    """What build_tasks(mode="auto") groups, track_study(mode="auto") tracks jointly (its registration
+    stubbed), also for a correction in the study settings (walk2's frames then count as corrected)."""
+    import types
+
+    import core.render
+    from core.imaging.pipeline import Pipeline
+    from core.tracking import from_study
+    from core.tracking.trial import TrackingOptions, TrackingResult
+
+    seen = {}
+    monkeypatch.setattr(core.render, "DRRRenderer", lambda *a, **kw: types.SimpleNamespace())
+
+    def track(renderer, bones, frames, order, *, options=None, **kw):
+        seen["mode"] = options.mode
+        return TrackingResult(tuple(b.name for b in bones), tuple(order), {}, "complete", 0.0)
+
+    monkeypatch.setattr(from_study, "track", track)
+    folder = _copy(calibrated, tmp_path / "demo")
+    for settings in (False, True):
+        if settings:
+            with Study.open(folder, mode="w") as st:
+                st.update_settings(correction={"views": [Pipeline().to_dict()] * 2})
+        for t in ("walk", "walk2"):
+            with Study.open(folder, mode="w") as st:
+                from_study.track_study(st, t, list(BONES), [0], options=TrackingOptions(mode="auto"))
+                joint = tracks_jointly(st, t)
+            assert seen["mode"] == ("joint" if joint else "sequential"), (t, settings)
+            assert joint == (t == "walk" or settings)
+    assert [t.bones for t in build_tasks([folder], bones=list(BONES))] == [BONES, BONES]
+
+
 def test_an_auto_joint_task_tracks_its_bones_jointly(calibrated, tmp_path):
     folder = _copy(calibrated, tmp_path / "demo")
     one = TaskSettings(device="cpu", confidence=False, frames=(0, 1), options=SETTINGS.options)

@@ -42,6 +42,9 @@ from core.studies.tracking.acceptance import _random_offset, pose_errors
 __all__ = ["HardRun", "evaluate", "main", "run"]
 
 MODES = ("sequential", "joint", "joint+contact")
+#: HU → μ of the tracked bones' DRRs: ``"tracker"`` (default) the tracker's
+#: :func:`core.tracking.from_study.tissue_excess_transfer`, ``"scene"`` the generator's own.
+TRANSFERS = ("tracker", "scene")
 PAIRS = (("tibia", "talus"), ("talus", "calcaneus"))
 
 
@@ -49,19 +52,26 @@ class HardRun:
     """The harder trial's frames (cached line integrals), bone models and tracking renderer."""
 
     def __init__(self, *, n_frames: int, pixels: int, spacing: float, seed: int = 0,
-                 device: str | None = None, cache: str | None = None, residual: float = 0.03) -> None:
+                 device: str | None = None, cache: str | None = None, residual: float = 0.03,
+                 transfer: str = "tracker", isolate_mm: float | None = None) -> None:
         from core.render import DRRRenderer
         from core.synthetic import Distortion
         from core.synthetic.hard_foot import make_hard_foot_scene
         from core.tracking.bones import bone_model
+        from core.tracking.from_study import tissue_excess_transfer
 
+        if transfer not in TRANSFERS:
+            raise ValueError(f"transfer: expected one of {TRANSFERS}, got {transfer!r}")
         t0 = time.perf_counter()
         self.trial = make_hard_foot_scene(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed,
                                           phase=(0.0, 0.6 * n_frames / 100.0))
         self.scene = self.trial.scene
         self.names = self.trial.names
-        self.models = [bone_model(v, name=v.name, mesh=False) for v in self.trial.ct]
-        self.renderer = DRRRenderer(self.scene.rig, [m.volume.to_attenuation(self.scene.bone_transfer)
+        self.models = [bone_model(v, name=v.name, mesh=False, isolate_mm=isolate_mm) for v in self.trial.ct]
+        # the tracker's own transfer (that of core.tracking.from_study.track_study), or the one the
+        # generator rendered the frames with
+        self.transfer = tissue_excess_transfer() if transfer == "tracker" else self.scene.bone_transfer
+        self.renderer = DRRRenderer(self.scene.rig, [m.volume.to_attenuation(self.transfer)
                                                      for m in self.models], device=device)
         self.corrections = []
         for m in self.scene.imaging:
@@ -202,16 +212,19 @@ def evaluate(hr: HardRun, res, bounds: dict, contacts=None) -> dict:
 
 def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MODES, seed: int = 0,
         device: str | None = None, cache: str | None = None, start=(2.0, 3.0), options=None,
-        progress=None, n_track: int | None = None) -> dict:
+        progress=None, n_track: int | None = None, transfer: str = "tracker",
+        isolate_mm: float | None = None) -> dict:
     """Track the harder trial in each of ``modes``; returns the JSON-ready results
     (``progress(done, total, FrameResult)`` is passed to :func:`core.tracking.trial.track`);
-    ``n_track`` tracks only the first frames of an ``n_frames`` trial (default all)."""
+    ``n_track`` tracks only the first frames of an ``n_frames`` trial (default all); ``transfer``
+    and ``isolate_mm`` as :class:`HardRun`."""
     from dataclasses import replace
 
     from core.tracking.trial import TrackingOptions, track
 
     t0 = time.perf_counter()
-    hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device, cache=cache)
+    hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device, cache=cache,
+                 transfer=transfer, isolate_mm=isolate_mm)
     nt = n_frames if n_track is None else min(int(n_track), n_frames)
     for f in range(nt):
         hr.frames(f)
@@ -228,7 +241,8 @@ def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MOD
            "processor": platform.processor() or platform.machine(), "device": str(hr.renderer.device),
            "config": {"pixels": pixels, "voxel_mm": spacing, "frames": n_frames, "tracked_frames": nt,
                       "seed": seed, "options": base.registration.to_dict(),
-                      "verify_restarts": base.verify_restarts,
+                      "verify_restarts": base.verify_restarts, "transfer": transfer,
+                      "isolate_mm": isolate_mm,
                       "start_error": f"{start[0]} mm, {start[1]} deg",
                       "pixel_mm_at_isocentre": float(hr.scene.rig[0].pixel_size),
                       "tracked": list(hr.names),
@@ -261,6 +275,10 @@ def main(argv=None) -> int:
     p.add_argument("--modes", default=",".join(MODES))
     p.add_argument("--device", default=None)
     p.add_argument("--cache", default=None, help="folder for the frames' line integrals")
+    p.add_argument("--transfer", choices=TRANSFERS, default="tracker",
+                   help="HU -> mu of the tracked DRRs: the tracker's (default) or the generator's")
+    p.add_argument("--isolate", type=float, default=None,
+                   help="set CT voxels farther than this (mm) from each bone to air (bone_model isolate_mm)")
     p.add_argument("--out", default=None)
     p.add_argument("--verbose", action="store_true", help="print each frame's result to stderr")
     a = p.parse_args(argv)
@@ -275,7 +293,7 @@ def main(argv=None) -> int:
         TrackingOptions(verify_restarts=a.verify_restarts)
     res = run(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, modes=tuple(a.modes.split(",")),
               device=a.device, cache=a.cache, progress=say if a.verbose else None, n_track=a.track,
-              options=opts)
+              options=opts, transfer=a.transfer, isolate_mm=a.isolate)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

@@ -76,3 +76,31 @@ def test_bone_model_rejects_a_ct_without_bone():
         bone_model(ct)
     with pytest.raises(ValueError, match="HU"):
         bone_model(CTVolume(np.ones((3, 3, 3), np.float32), units="1/mm"))
+
+
+def test_bone_model_isolate_keeps_the_bone_and_its_marrow_and_drops_the_tissue_around_it():
+    # a hollow shaft (cortex 900 HU, marrow 20 HU) cut open at one end of the crop, in soft tissue
+    # of 40 HU with 12 HU of CT noise: rendered without a threshold, the noise above 40 HU would
+    # give the DRR support over the whole crop
+    g = np.random.default_rng(3)
+    k, j, i = np.mgrid[0:40, 0:24, 0:24]
+    r = np.hypot(i - 11.5, j - 11.5)
+    data = 40.0 + 12.0 * g.standard_normal(r.shape)
+    shaft = (r <= 7) & (k >= 6)
+    data[shaft] = 900.0
+    data[shaft & (r <= 4)] = 20.0  # the canal, open at the top slice
+    ct = CTVolume(np.rint(data).astype(np.int16), spacing=(0.5, 0.5, 0.5), name="shaft")
+    plain = bone_model(ct, mesh=False, margin_mm=2.0)
+    iso = bone_model(ct, mesh=False, margin_mm=2.0, isolate_mm=1.0)
+    np.testing.assert_array_equal(iso.mask, plain.mask)
+    np.testing.assert_allclose(iso.centroid, plain.centroid)
+    d, dp = iso.volume.data, plain.volume.data
+    kk, jj, ii = np.mgrid[0:d.shape[0], 0:d.shape[1], 0:d.shape[2]]
+    x, y = iso.volume.index_to_physical(np.column_stack([ii.ravel(), jj.ravel(), kk.ravel()]))[:, :2].T
+    rr = np.hypot(x - 11.5 * 0.5, y - 11.5 * 0.5).reshape(d.shape)
+    inside = rr <= 7 * 0.5 + 0.5  # the shaft and its partial-volume rim
+    np.testing.assert_array_equal(d[inside & (kk >= 8)], dp[inside & (kk >= 8)])  # marrow included
+    assert np.all(d[rr > 7 * 0.5 + 1.5] == -1000)  # tissue and noise beyond the rim: air
+    assert np.all(dp[rr > 7 * 0.5 + 1.5] > -1000)
+    with pytest.raises(ValueError, match="isolate_mm"):
+        bone_model(ct, mesh=False, isolate_mm=-1.0)

@@ -455,23 +455,24 @@ class GaussNewtonCost:
         B, nb = P.shape[:2]
         nv = self.n_views
         key = (B, bones)
-        table = self._tables.get(key)
-        if table is None:
+        hit = self._tables.get(key)
+        if hit is None:
             table = np.zeros((B, nv, nb, ITEM_COLS), dtype=np.float32)
             table[..., 0] = np.array(self.views, dtype=np.float32)[None, :, None]
             table[..., 1] = np.array(bones, dtype=np.float32)[None, None, :]
             if len(self._tables) >= 8:
                 self._tables.pop(next(iter(self._tables)))
-            self._tables[key] = table
-        Rt = np.swapaxes(P[..., :3, :3], -1, -2)
-        inv = np.zeros(P.shape)
-        inv[..., :3, :3] = Rt
-        inv[..., :3, 3] = -np.einsum("bnij,bnj->bni", Rt, P[..., :3, 3])
-        inv[..., 3, 3] = 1.0
-        Tidx = np.einsum("nij,bnjk->bnik", r._T_idx[list(bones)], inv)
-        table[..., 2:5] = np.einsum("bnij,vj->bvni", Tidx[..., :3, :], r._src_h[list(self.views)])
-        table[..., 5:14] = Tidx[:, None, :, :3, :3].reshape(B, 1, nb, 9)
-        table[..., 14:18] = self.roi[None, :, None, :]
+            # the table, the bones' index-from-physical transforms, the sources, the ROIs filled in
+            hit = self._tables[key] = [table, r._T_idx[list(bones)], r._src_h[list(self.views)], None]
+        table, T, S, roi_in = hit
+        # index-from-physical ∘ inverse pose, the inverse in closed form: rotation M, translation tt
+        M = T[:, :3, :3] @ np.swapaxes(P[..., :3, :3], -1, -2)  # (B, nb, 3, 3)
+        tt = T[:, :3, 3] - (M @ P[..., :3, 3:4])[..., 0]
+        table[..., 2:5] = (M @ S[:, :3].T).transpose(0, 3, 1, 2) + tt[:, None] * S[None, :, None, 3:4]
+        table[..., 5:14] = M.reshape(B, 1, nb, 9)
+        if roi_in is None or not np.array_equal(roi_in, self.roi):
+            table[..., 14:18] = self.roi[None, :, None, :]
+            hit[3] = self.roi.copy()
         Hc, Wc = self._cap
         H = max(Hc, math.ceil(int(self.roi[:, 3].max()) / self.scale))
         W = max(Wc, math.ceil(int(self.roi[:, 2].max()) / self.scale))

@@ -116,7 +116,8 @@ False optima at the start
 -------------------------
 Every bone's first frame, and every frame that needed a retry, is checked by
 ``verify_restarts`` local restarts from its result displaced by ``verify_spread`` (mm, degrees)
-(:func:`core.tracking.verify.verify_start`). When a restart scores higher, the first result was
+(:func:`core.tracking.verify.verify_start`; Gauss–Newton restarts, half then full resolution, with
+the newton search). When a restart scores higher, the first result was
 a false optimum: a wider registration from the better restart follows and the best is kept
 (noted as ``"start corrected by restarts"``; the frame is not flagged for it). When a restart
 converges to a different pose with an equal score, the frame is flagged ``"ambiguous optimum"``.
@@ -141,7 +142,8 @@ from ..geometry.transforms import pose_from_params
 from .attempt import Attempt, confidence_of, register_checked
 from .bones import BoneModel
 from .checks import SAME_OPTIMUM, pose_delta, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
-from .cost import OutsideViewError, prepare_frame
+from .cost import OutsideViewError
+from .feed import FrameFeed
 from .joint import JointJob, lockstep_applies, register_together
 from .register import RegistrationOptions
 from .results import FrameResult, TrackingResult
@@ -348,15 +350,15 @@ def _frame_result(name: str, f: int, a: Attempt, w: _Work) -> FrameResult:
                        a.retried, a.confidence, w.timing or None, a.notes)
 
 
-def _track_frame(run: _Run, f: int, imgs: list, todo: list[int], state: dict[str, _BoneState],
+def _track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
                  skip: dict) -> dict[int, FrameResult] | None:
-    """Register bones ``todo`` in frame ``f``; their results, or None when cancelled."""
+    """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
+    or None when cancelled."""
     o, names, bones = run.options, run.names, run.bones
     missing = [v for v, im in enumerate(imgs) if im is None]
     if missing:
         why = (f"frame missing in view {', '.join(map(str, missing))}",)
         return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, why) for i in todo}
-    frame = prepare_frame(imgs, valid_range=o.valid_range, erode_px=o.erode_px)
     hist = {b: state[b].history for b in names}
     guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
                                keyframes=run.keyframes.get(names[i])) for i in todo}
@@ -532,36 +534,50 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         if progress is not None:
             progress(done, total, fr)
 
-    for f in order:
-        if run.cancel():
-            status = "cancelled"
-            break
+    def todo_of(f: int) -> tuple[dict, list]:
+        """Frame ``f``'s results taken back as they were, and the bones to register."""
         restored = {i: skip[b][f] for i, b in enumerate(names)
                     if f in skip[b] and isinstance(skip[b][f], FrameResult)}
         todo = [i for i, b in enumerate(names) if f not in skip[b]]
         if joint and todo:
             todo = sorted(todo + list(restored))
             restored = {}
-        for i, b in enumerate(names):
-            if f in skip[b] and i not in restored and i not in todo:  # a pose: a good frame, as given
-                state[b].add_good(f, skip[b][f], None)
-                done += 1
-        new = _track_frame(run, f, list(frames(f)), todo, state, skip) if todo else {}
-        if new is None:
-            status = "cancelled"
-            break
-        for i, b in enumerate(names):
-            fr = restored.get(i) or new.get(i)
-            if fr is None:
-                continue
-            if i in new and fr.pose is not None:
-                if record is not None:
-                    record(b, f, fr.pose, fr.score)
-                if record_result is not None:
-                    record_result(fr)
-            if fr.pose is not None and not fr.flags:
-                state[b].add_good(f, fr.pose, fr.score)
-            finish(fr)
+        return restored, todo
+
+    feed = FrameFeed(frames, o.valid_range, o.erode_px)
+    try:
+        for k, f in enumerate(order):
+            if run.cancel():
+                status = "cancelled"
+                break
+            restored, todo = todo_of(f)
+            for i, b in enumerate(names):
+                if f in skip[b] and i not in restored and i not in todo:  # a pose: a good frame, as given
+                    state[b].add_good(f, skip[b][f], None)
+                    done += 1
+            new = {}
+            if todo:
+                imgs, frame = feed.get(f)
+                if k + 1 < len(order) and todo_of(order[k + 1])[1]:  # prepared while this one registers
+                    feed.prefetch(order[k + 1])
+                new = _track_frame(run, f, imgs, frame, todo, state, skip)
+            if new is None:
+                status = "cancelled"
+                break
+            for i, b in enumerate(names):
+                fr = restored.get(i) or new.get(i)
+                if fr is None:
+                    continue
+                if i in new and fr.pose is not None:
+                    if record is not None:
+                        record(b, f, fr.pose, fr.score)
+                    if record_result is not None:
+                        record_result(fr)
+                if fr.pose is not None and not fr.flags:
+                    state[b].add_good(f, fr.pose, fr.score)
+                finish(fr)
+    finally:
+        feed.close()
     return TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
 
 

@@ -43,7 +43,9 @@ Warp runs a CPU kernel on one core. With ``cpu_threads`` > 1 (default: the machi
 runs of items, each its own recorded launch on views of the same item table and output buffer,
 run in parallel threads (a Warp CPU launch is a ctypes call, which releases the GIL). Every
 pixel is computed by the same code from the same inputs, so the images are bit-identical to
-those of one thread; the output buffer is the same one. CUDA launches are not affected.
+those of one thread; the output buffer is the same one. CUDA launches are not affected. (The
+DRR kernels use no tiles: Warp 1.19 keeps a CPU module's tile scratch memory behind one static,
+not thread-local, pointer, which kernels without tiles never read.)
 """
 
 from __future__ import annotations

@@ -6,13 +6,18 @@ the recorded metric launches of :class:`core.tracking.engine.GaussNewtonCost` (i
 two blur passes, the per-item statistics, the scores, the Gauss–Newton moments) into steps that
 do the same work on up to ``threads`` threads:
 
-* ``blur_kernel`` and ``stats_kernel`` are split into runs of whole items (at multiples of their
-  ``n_refs``, so each item sees the same view data): each run is its own recorded launch on views
-  (slices) of the item arrays. An item's sums are accumulated by one thread in the same order as
-  in one launch, so the results are bit-identical.
+* ``blur_kernel`` is split into runs of whole items (at multiples of its ``n_refs``, so each item
+  sees the same view data), each run its own recorded launch on views (slices) of the item
+  arrays; every pixel is computed as in one launch, so the results are bit-identical.
 * ``moments_kernel`` reads only the smoothed DRRs and writes only its own moments: it runs beside
-  the statistics, not after them.
+  the statistics (``stats_kernel``), not after them. An item's sums are accumulated by one
+  thread in the same order as before, so the results are bit-identical.
 * everything else (``finalize_kernel`` …) runs as recorded, in order.
+
+Tile kernels are never split, and two of them run side by side only when they belong to
+different Warp modules: on the CPU a Warp module keeps its tile scratch memory behind one static
+pointer (Warp 1.19, ``native/tile.h``: not thread-local), so two tile kernels of one module in
+two threads would share it. Kernels that use no tiles never read that pointer.
 
 Kernels are recognised by name; a launch of any other kernel is kept as it is. The DRR launch of
 the renderer is split by :class:`core.render.DRRRenderer` itself (``cpu_threads``).
@@ -30,13 +35,15 @@ from ..render.drr import run_parallel
 
 __all__ = ["split_cpu_launches"]
 
-#: kernel name -> (arguments sliced along the items axis, the argument the split aligns to)
+#: kernels without tiles that may be split: name -> (arguments sliced along the items axis, the
+#: argument the split aligns to)
 ITEM_SPLIT = {
     "blur_kernel": (("src", "dst"), "n_refs"),
-    "stats_kernel": (("drr", "acc"), "n_refs"),
 }
-#: kernels that may run beside the launches before them back to the last blur (they read the
-#: blurred DRRs and write arrays of their own)
+#: the tile kernel the next entry may run beside, and what follows it until then
+STATS = "stats_kernel"
+#: kernels that may run beside the statistics (they read the blurred DRRs and write arrays of
+#: their own)
 BESIDE = ("moments_kernel",)
 
 
@@ -101,16 +108,18 @@ def split_cpu_launches(launches: Sequence, threads: int) -> list:
     while i < len(launches):
         cmd = launches[i]
         name = _name(cmd)
-        if name == "stats_kernel":
-            # the statistics, then what follows up to a kernel that may run beside them
+        if name == STATS:
+            # the statistics and what follows them, with a kernel that may run beside them
             j = i + 1
-            while j < len(launches) and _name(launches[j]) not in (*BESIDE, *ITEM_SPLIT):
+            while j < len(launches) and _name(launches[j]) not in (*BESIDE, *ITEM_SPLIT, STATS):
                 j += 1
             beside = launches[j] if j < len(launches) and _name(launches[j]) in BESIDE else None
-            parts = _split(cmd, threads - (beside is not None))
-            first = [_Parallel(parts + ([beside] if beside is not None else []))]
-            steps.append(_Serial(first + launches[i + 1:j]))
-            i = j + (beside is not None)
+            if beside is None or beside.kernel.module is cmd.kernel.module:  # one tile arena
+                steps.append(cmd)
+                i += 1
+                continue
+            steps.append(_Serial([_Parallel([cmd, beside]), *launches[i + 1:j]]))
+            i = j + 1
         elif name in ITEM_SPLIT:
             parts = _split(cmd, threads)
             steps.append(_Parallel(parts) if len(parts) > 1 else cmd)

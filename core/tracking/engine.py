@@ -277,6 +277,7 @@ class GaussNewtonCost:
         self._unsynced = False  # a preparation's copies from pinned memory may still be in flight
         self._cmds: dict = {}  # recorded launches of the frame preparation (_launch)
         self._hw_last = self._info_last = None  # the ROI sizes and staging geometry on the device
+        self._siblings: dict = {}  # costs sharing this one's prepared regions (sibling)
         self.base = self.center = self.roi = None
 
     @property
@@ -436,6 +437,32 @@ class GaussNewtonCost:
         self._fmask = wp.zeros((nv, *cap), dtype=wp.uint8, device=dev)
         self._blur = None if taps is None else wp.array(taps, dtype=wp.float32, device=dev)
         self._pipes = {}
+
+    def sibling(self, k: int) -> GaussNewtonCost:
+        """The ``k``-th sibling of this cost: its own launches, buffers of results and timer, the
+        regions prepared by this cost's last :meth:`set_frame` (shared, read only), so that
+        several searches of the same bone in the same frame (the restarts of
+        :func:`core.tracking.verify.verify_start`) can have steps in flight together."""
+        import copy
+
+        sib = self._siblings.get(k)
+        if sib is None:
+            sib = copy.copy(self)
+            sib._siblings, sib._pipes, sib._tables, sib._cmds = {}, {}, {}, {}
+            sib._pending, sib._prepared, sib._unsynced = None, None, False
+            self._siblings[k] = sib
+        if self._count_pending:  # the usable pixels of the prepared regions, checked here once
+            if self.device.is_cuda:
+                wp.synchronize_device(self.device)
+            self._check_count()
+        if sib._fluoro is not self._fluoro or sib._blur is not self._blur:  # reallocated: new launches
+            sib._pipes = {}
+        for a in ("base", "center", "roi", "_cap", "_raw", "_fluoro", "_fgrad", "_fmask", "_blur",
+                  "_blur_taps"):
+            setattr(sib, a, getattr(self, a))
+        sib._count_pending = False
+        sib.timer, sib.batches, sib.profile = CostTimer(), {}, self.profile
+        return sib
 
     # ------------------------------------------------------------------ mapping
     def poses(self, X) -> np.ndarray:

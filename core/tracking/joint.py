@@ -16,6 +16,10 @@ engine); only the waits are shared. Where the full-resolution steps do not
 converge, that bone is registered again by :func:`~core.tracking.register.register` (its
 half-resolution fallback).
 
+:func:`restarts_together` runs several searches of one bone in one frame the same way (the
+restarts of :func:`core.tracking.verify.verify_start`), each on a sibling of the engine that
+shares the regions prepared once.
+
 The bones of a round all start from the estimates the round began with (the previous round's,
 or the guesses), where the one-after-another rounds let a bone see the poses its predecessors
 had just found in the same round; the second round sees every bone's first-round pose either
@@ -37,7 +41,7 @@ from .engine import engine_cost, step_design, supports
 from .engine_search import LevenbergMarquardt
 from .register import RegistrationOptions, RegistrationResult, _snap, default_levels
 
-__all__ = ["JointJob", "lockstep_applies", "register_together"]
+__all__ = ["JointJob", "lockstep_applies", "register_together", "restarts_together"]
 
 
 @dataclass
@@ -193,3 +197,135 @@ def _result(ln: _Lane, r, fs: float, spent: float) -> RegistrationResult:
                               evaluations=r.evaluations, generations=r.generations, time_s=total,
                               converged=converged, reason=reason, stages=(r,), timing=timing,
                               fit=r.model if r.model is not None else None)
+
+
+@dataclass
+class _Restart:
+    k: int
+    xs: np.ndarray  # the start of the current level
+    li: int = 0
+    lm: LevenbergMarquardt | None = None
+    cost: object = None
+    x: np.ndarray | None = None
+    event: object = None
+    stages: list | None = None
+    costs: dict | None = None  # scale -> this search's sibling cost
+
+
+def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options: RegistrationOptions,
+                      views: Sequence[int] | None = None, others=None, outline=None, profile: bool = False,
+                      cancel: Callable[[], bool] | None = None) -> list[RegistrationResult]:
+    """Several registrations of one bone in one frame from the same ``base`` (the search box's
+    centre) and the starts ``x0s`` (mm, degrees), ``options.levels`` all Gauss–Newton levels:
+    per start the :class:`~core.tracking.register.RegistrationResult` of
+    :func:`~core.tracking.register.register` ``(..., initial_pose=base, x0=x0)``, the searches
+    in lockstep on siblings of the engine (:meth:`~core.tracking.engine.GaussNewtonCost.sibling`:
+    the regions prepared once per level). Raises OutsideViewError like
+    :func:`~core.tracking.register.register`."""
+    o = options
+    levels = tuple(o.levels or ())
+    if not levels or any(lv.method != "gauss_newton" for lv in levels) or o.refine is not None \
+            or not supports(o.terms):
+        raise ValueError("options: restarts_together runs given Gauss-Newton levels of a gc or ncc cost")
+    t_start = time.perf_counter()
+    base = np.asarray(base, dtype=float)
+    center = np.asarray(center, dtype=float)
+    views = tuple(range(frame.n_views)) if views is None else tuple(views)
+    fs = o.final_scale
+    roi = search_roi(renderer, base, bone, views=views, center=center,
+                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
+                     points=outline)
+    roi = _snap(roi, renderer, views)
+    hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
+    lo = -hi
+    engines: dict = {}
+
+    def engine_at(scale: float):
+        if scale not in engines:  # prepared once for every search
+            c = engine_cost(renderer, bone=bone, views=views, scale=scale, term=o.terms[0])
+            c.timer = CostTimer()
+            c.batches = {}
+            c.profile = profile
+            c.set_frame(frame, base_pose=base, center=center, roi=roi, others=others)
+            engines[scale] = c
+        return engines[scale]
+
+    def start_level(ln: _Restart) -> None:
+        lv = levels[ln.li]
+        ln.cost = ln.costs[lv.scale] = engine_at(lv.scale).sibling(ln.k)
+        sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
+        ln.lm = LevenbergMarquardt(ln.xs, step=sig6, lower=lo, upper=hi, tol_x=lv.tol_x,
+                                   max_generations=lv.max_generations, **dict(lv.options))
+
+    lanes = [_Restart(k, np.clip(np.asarray(x0, dtype=float), lo, hi), stages=[], costs={})
+             for k, x0 in enumerate(x0s)]
+    queue: list[int] = []
+
+    def push(k: int) -> None:
+        """Enqueue lane ``k``'s next step; a search that has ended moves on to the next level."""
+        ln = lanes[k]
+        while True:
+            if _submit(ln, cancel):
+                queue.append(k)
+                return
+            r = ln.lm.result()
+            ln.stages.append(r)
+            ln.xs = np.asarray(r.x, dtype=float)
+            if r.reason == "cancelled" or ln.li == len(levels) - 1:
+                return
+            ln.li += 1
+            start_level(ln)
+
+    for ln in lanes:
+        start_level(ln)
+        push(ln.k)
+    while queue:
+        k = queue.pop(0)
+        ln = lanes[k]
+        t0 = time.perf_counter()
+        if ln.event is not None:
+            wp.synchronize_event(ln.event)
+        ln.cost.timer.metric += time.perf_counter() - t0
+        ev = ln.cost.collect()
+        ln.lm.tell(ln.cost.newton(ln.x, ln.lm.h, ev))
+        push(k)
+    share = (time.perf_counter() - t_start) / max(len(lanes), 1)
+    return [_restart_result(ln, levels, fs, hi, engine_at, share) for ln in lanes]
+
+
+def _restart_result(ln: _Restart, levels, fs: float, hi: np.ndarray, engine_at, spent: float):
+    """What :func:`~core.tracking.register.register` returns for the stages of one restart."""
+    t0 = time.perf_counter()
+    stages = ln.stages
+    last = stages[-1]
+    x = np.asarray(last.x, dtype=float)
+    full = ln.costs.get(fs)
+    if full is None:  # ended before the full-resolution level (cancelled)
+        full = ln.costs[fs] = engine_at(fs).sibling(ln.k)
+    last_gn = levels[-1].scale == fs
+    if last_gn and last.converged and last.model is not None:
+        score = float(1.0 - last.model.predict(x - last.model.x))
+        view_scores = np.asarray(last.model.view_scores, dtype=float)
+    else:
+        score, view_scores = full.score_and_views(x)
+    converged = last.converged and all(s.reason != "cancelled" for s in stages)
+    reason = last.reason
+    if np.any(np.abs(x) >= hi * (1 - 1e-6)):
+        converged, reason = False, "at_bound"
+    timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
+    for c in ln.costs.values():
+        for key, v in c.timer.to_dict().items():
+            timing[key] += v
+    for sc, c in ln.costs.items():
+        timing[f"engine_steps_x{sc:g}"] = c.batches.get(13, 0)
+        timing[f"engine_scores_x{sc:g}"] = sum(v for b, v in c.batches.items() if b != 13)
+    pose = full.poses(x[None])[0]
+    total = spent + time.perf_counter() - t0
+    timing["total_s"] = total
+    timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
+    fit = last.model if (last.model is not None and last_gn) else None
+    return RegistrationResult(pose=pose, x=x, score=score, view_scores=view_scores,
+                              evaluations=sum(s.evaluations for s in stages),
+                              generations=sum(s.generations for s in stages), time_s=total,
+                              converged=converged, reason=reason, stages=tuple(stages), timing=timing,
+                              fit=fit)

@@ -27,10 +27,11 @@ With the Gauss–Newton searches (``options.search`` ``"newton"`` or ``"global_n
 the engine scores) the restarts are Gauss–Newton searches of :mod:`core.tracking.engine` — half
 resolution, then full resolution (the levels of the ``"newton"`` search's second attempt: a
 displacement of ``spread`` is beyond the full-resolution steps' reach) — each started at its
-displacement ``x0`` inside one search box about the checked pose, so the engine's buffers and
-the prepared fluoroscope regions serve every restart; the quadratic-model restarts built a
-cost of their own per restart and level (the first frame of three bones at 1024² spent 1.0 of
-its 1.3 s in them on one H100).
+displacement ``x0`` inside one search box about the checked pose and all side by side
+(:func:`core.tracking.joint.restarts_together`: the fluoroscope regions prepared once per level,
+the restarts' steps in flight together); the quadratic-model restarts built a cost of their own
+per restart and level (the first frame of three bones at 1024² spent 1.0 of its 1.3 s in them
+on one H100).
 """
 
 from __future__ import annotations
@@ -113,7 +114,8 @@ def verify_start(renderer, frame, *, bone: int, result, center, options=None, n:
         raise ValueError(f"score_tol: expected a non-negative score difference, got {score_tol!r}")
     c = np.asarray(center, dtype=float)
     o = options or RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0))
-    newton = o.search in ("newton", "global_newton") and o.levels is None and _engine_supports(o.terms)
+    newton = (o.search in ("newton", "global_newton") and o.levels is None and o.refine is None
+              and _engine_supports(o.terms))
     o = replace(o, search="newton" if newton else "local", levels=None,
                 bounds=(max(o.bounds[0], 2 * spread[0]), max(o.bounds[1], 2 * spread[1])))
     levels = None
@@ -126,20 +128,27 @@ def verify_start(renderer, frame, *, bone: int, result, center, options=None, n:
             mm_per_pixel(renderer, np.asarray(result.pose, float), c, vw) * fs))
     g = np.random.default_rng(seed)
     runs, evals = [], 0
-    for k in range(int(n)):
+    if newton:  # one search box about the checked pose, the restarts side by side from their displacements
+        from .joint import restarts_together
+
+        x0s = []
+        for _ in range(int(n)):
+            t, a = g.normal(size=3), g.normal(size=3)
+            x0s.append(np.r_[t / np.linalg.norm(t) * spread[0], a / np.linalg.norm(a) * spread[1]])
+        if not (cancel is not None and cancel()):
+            runs = restarts_together(renderer, frame, bone=bone, base=result.pose, center=c, x0s=x0s,
+                                     options=replace(o, levels=levels), views=views, others=others,
+                                     outline=outline, cancel=cancel)
+        evals = sum(r.evaluations for r in runs)
+    for k in range(0 if newton else int(n)):
         if cancel is not None and cancel():
             break
         t, a = g.normal(size=3), g.normal(size=3)
-        ok = replace(o, seed=o.seed + 31 * (k + 1), levels=levels)
-        if newton:  # one search box about the checked pose, each restart from its displacement
-            x0 = np.r_[t / np.linalg.norm(t) * spread[0], a / np.linalg.norm(a) * spread[1]]
-            r = register(renderer, frame, bone=bone, initial_pose=result.pose, center=c, options=ok,
-                         views=views, others=others, cancel=cancel, outline=outline, x0=x0)
-        else:
-            p = np.r_[t / np.linalg.norm(t) * spread[0], a / np.linalg.norm(a) * np.radians(spread[1])]
-            start = pose_from_params(p, center=c, base=result.pose)
-            r = register(renderer, frame, bone=bone, initial_pose=start, center=c, options=ok, views=views,
-                         others=others, cancel=cancel, outline=outline)
+        p = np.r_[t / np.linalg.norm(t) * spread[0], a / np.linalg.norm(a) * np.radians(spread[1])]
+        start = pose_from_params(p, center=c, base=result.pose)
+        r = register(renderer, frame, bone=bone, initial_pose=start, center=c,
+                     options=replace(o, seed=o.seed + 31 * (k + 1)), views=views, others=others,
+                     cancel=cancel, outline=outline)
         evals += r.evaluations
         runs.append(r)
     best = result

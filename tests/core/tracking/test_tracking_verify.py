@@ -36,3 +36,35 @@ def test_newton_restarts_correct_a_start_off_the_optimum_and_confirm_the_optimum
     ok = verify_start(r, frame, bone=0, result=good, center=m.centroid, options=o, n=2, seed=1,
                       outline=m.outline)
     assert not ok.improved and not ok.ambiguous and ok.result is good
+
+
+def test_restarts_side_by_side_are_those_of_register(talus_scene):
+    """Each restart of restarts_together (siblings of the engine, steps in flight together) ends
+    where register() ends from the same box and start: the same pose, score, steps and fit."""
+    from dataclasses import replace
+
+    from core.tracking.cost import prepare_frame
+    from core.tracking.joint import restarts_together
+    from core.tracking.register import RegistrationOptions, _newton_fallback, mm_per_pixel, register
+
+    s = talus_scene
+    sc, m, r = s["scene"], s["model"], s["renderer"]
+    truth = sc.poses(3)[0]
+    frame = prepare_frame(s["fluence"](3))
+    d = np.r_[0.3, -0.2, 0.1, np.radians([0.4, 0.2, -0.3])]
+    base = pose_from_params(d, center=m.centroid, base=truth)
+    levels = _newton_fallback(mm_per_pixel(r, base, m.centroid, (0, 1)))
+    o = RegistrationOptions(bounds=(6.0, 6.0), sigma=(1.0, 1.0), search="newton", levels=levels)
+    x0s = [np.r_[2.0, -1.0, 1.5, 2.0, 1.0, -2.0], np.r_[-1.5, 2.0, -1.0, -1.0, 2.5, 1.5]]
+    together = restarts_together(r, frame, bone=0, base=base, center=m.centroid, x0s=x0s, options=o,
+                                 outline=m.outline)
+    for x0, t in zip(x0s, together, strict=True):
+        alone = register(r, frame, bone=0, initial_pose=base, center=m.centroid, options=replace(o),
+                         outline=m.outline, x0=x0)
+        assert t.converged == alone.converged and t.reason == alone.reason
+        assert t.evaluations == alone.evaluations and t.generations == alone.generations
+        np.testing.assert_allclose(t.pose, alone.pose, atol=1e-9)
+        np.testing.assert_allclose(t.score, alone.score, atol=1e-9)
+        assert (t.fit is None) == (alone.fit is None)
+        if t.fit is not None:
+            np.testing.assert_allclose(t.fit.H, alone.fit.H, rtol=1e-9, atol=1e-12)

@@ -54,7 +54,13 @@ the host prepares them. Smoothing and gradients run on the device. The engine fi
 item table of its own (rigid) poses itself and launches the renderer's recorded launch.
 :func:`engine_cost` caches one per (renderer, bone, views, scale, terms). A step is one DRR
 launch, one graph launch and one synchronisation; a frame's set-up none of its own (the
-usable pixels counted on the device are checked at the first step's synchronisation).
+usable pixels counted on the device are checked at the first step's synchronisation), its
+launches recorded once, and the same set-up again (restarts) is kept. :meth:`~GaussNewtonCost.submit`
+and :meth:`~GaussNewtonCost.collect` split an evaluation from its wait, so several bones' steps
+(:mod:`core.tracking.joint`), or several searches of one bone on :meth:`~GaussNewtonCost.sibling`
+costs, are in flight together. Kernels: :mod:`core.tracking.engine_kernels`; the device
+preparation of the regions: :mod:`core.tracking.engine_frames`; the search and the Gauss–Newton
+algebra: :mod:`core.tracking.engine_search`.
 """
 
 from __future__ import annotations
@@ -77,7 +83,13 @@ from .engine_kernels import (
     moments_kernel,
     subtract_kernel,
 )
-from .engine_search import GaussNewtonFit, GaussNewtonStep, gauss_newton_search, moments_to_newton
+from .engine_search import (
+    GaussNewtonFit,
+    GaussNewtonStep,
+    gauss_newton_search,
+    moments_to_newton,
+    step_design,
+)
 
 __all__ = ["ENGINE_KINDS", "GaussNewtonCost", "GaussNewtonFit", "GaussNewtonStep", "engine_cost",
            "gauss_newton_search", "moments_to_newton", "step_design", "supports"]
@@ -109,17 +121,6 @@ def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
     out[:, :3, 3] = c_lab + X[:, :3] - R @ center
     out[:, 3, 3] = 1.0
     return out
-
-
-def step_design(x, h) -> np.ndarray:
-    """``(13, 6)`` poses of a step: ``x``, then ``x + h_k e_k``, ``x - h_k e_k`` for k = 1…6."""
-    x = np.asarray(x, dtype=float)
-    h = np.asarray(h, dtype=float)
-    X = np.repeat(x[None], _N, axis=0)
-    for k in range(6):
-        X[1 + 2 * k, k] += h[k]
-        X[2 + 2 * k, k] -= h[k]
-    return X
 
 
 class _Pipeline:

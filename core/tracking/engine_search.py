@@ -23,7 +23,7 @@ from .optimize import OptimizeResult
 from .quadratic import QuadraticFit
 
 __all__ = ["GaussNewtonFit", "GaussNewtonStep", "LevenbergMarquardt", "gauss_newton_search",
-           "moments_to_newton"]
+           "moments_to_newton", "step_design"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,6 +44,17 @@ class GaussNewtonStep:
     @property
     def cost(self) -> float:
         return float(self.costs[0])
+
+
+def step_design(x, h) -> np.ndarray:
+    """``(13, 6)`` poses of a step: ``x``, then ``x + h_k e_k``, ``x - h_k e_k`` for k = 1…6."""
+    x = np.asarray(x, dtype=float)
+    h = np.asarray(h, dtype=float)
+    X = np.repeat(x[None], _N, axis=0)
+    for k in range(6):
+        X[1 + 2 * k, k] += h[k]
+        X[2 + 2 * k, k] -= h[k]
+    return X
 
 
 def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

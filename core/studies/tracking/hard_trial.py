@@ -7,6 +7,15 @@ navicular rendered but not tracked, and bone CTs that are the truth blurred, res
 :meth:`core.synthetic.ImagingModel.fluoroscope` and are corrected with the true flatfield and a
 slightly wrong distortion inverse (3 %), as in :mod:`core.studies.tracking.acceptance`.
 
+The tracked bones' DRRs use the tracker's own transfer,
+:func:`core.tracking.from_study.tissue_excess_transfer` (μ in excess of 40 HU soft tissue, 0 below
+200 HU), as :func:`core.tracking.from_study.track_study` does (``--transfer scene``: the
+generator's excess transfer without a threshold; ``--isolate MM``: :func:`core.tracking.bones.
+bone_model`'s ``isolate_mm``). The similarity's domain is the DRR's support: without a threshold
+the 12 HU noise of the CTs' soft tissue made it the whole projected crop, and the unmodelled soft
+tissue and fibula there held the tibia 0.5–0.66° off about its long axis (one H200, 1024²);
+``resources/benchmarks/tracking_hard_gpu.json`` holds both.
+
 Every bone starts ``start_error`` (2 mm, 3° in random directions) off the truth at frame 0 and
 each ``mode`` is tracked over all frames (``sequential``, ``joint``, and ``joint`` with the bone
 contact constraint, ``joint+contact``). Per bone and mode:

@@ -52,9 +52,10 @@ def local_cluster(workers: int | None = None, *, device: str | None = None,
             for i in range(n)}
     else:
         n = max(1, int(workers or os.cpu_count() or 1))
-        threads = max(1, (os.cpu_count() or 1) // n)  # cores per worker (numpy, OpenCV)
+        threads = max(1, (os.cpu_count() or 1) // n)  # cores per worker (numpy, OpenCV, Warp's DRRs)
         env = {"CUDA_VISIBLE_DEVICES": "", "OMP_NUM_THREADS": str(threads),
-               "OPENBLAS_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+               "OPENBLAS_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads),
+               "TALUS_CPU_THREADS": str(threads)}
         specs = {f"cpu{i}": {"cls": Nanny, "options": {"nthreads": 1, "env": env}} for i in range(n)}
     for spec in specs.values():  # the workers' own log lines only for errors (progress is ours)
         spec["options"]["silence_logs"] = 40

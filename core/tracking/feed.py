@@ -6,12 +6,17 @@ about 1 ms of host time per frame in a profiled run on the H100 machine, where t
 alone took about 5.4 ms per frame); the next frame is read in the calling thread and prepared in
 a worker thread while the current one registers — numpy's reductions release the GIL, and the
 host otherwise waits on the device there. A frame whose preparation raises raises when its turn
-comes, as it would without the look-ahead.
+comes, as it would without the look-ahead. A ``frames`` callable that refills the same buffer
+for every frame (a video reader's habit) is noticed at the first look-ahead — the next frame's
+images share memory with the current one's — and then the current frame is read again and
+nothing more is read ahead: each frame is read at its turn, as without the look-ahead.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+
+import numpy as np
 
 from .cost import prepare_frame
 
@@ -27,6 +32,8 @@ class FrameFeed:
         self.frames, self.valid_range, self.erode_px = frames, valid_range, erode_px
         self.pool = None
         self.ahead = None  # (frame, images, future of the prepared frame)
+        self.current: tuple[int, list] | None = None  # the frame being registered and its images
+        self.refills = False  # the callable refills one buffer: no look-ahead
 
     def _prepare(self, imgs: list):
         if any(im is None for im in imgs):
@@ -38,18 +45,27 @@ class FrameFeed:
         if self.ahead is not None and self.ahead[0] == f:
             _, imgs, fut = self.ahead
             self.ahead = None
+            self.current = (f, imgs)
             return imgs, fut.result()
         imgs = list(self.frames(f))
+        self.current = (f, imgs)
         return imgs, self._prepare(imgs)
 
     def prefetch(self, f: int) -> None:
-        """Read frame ``f`` now and prepare it in the worker thread."""
+        """Read frame ``f`` now and prepare it in the worker thread (unless the callable refills
+        one buffer: then nothing, and ``f`` is read at its turn)."""
         from concurrent.futures import ThreadPoolExecutor
 
+        if self.refills:
+            return
         try:
             imgs = list(self.frames(f))
         except Exception:  # raised again when the frame's turn comes, as without the look-ahead
             self.ahead = None
+            return
+        if self.current is not None and _share(imgs, self.current[1]):
+            self.refills, self.ahead = True, None
+            self.frames(self.current[0])  # the buffer back to the frame being registered
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="talus-frames")
@@ -58,3 +74,9 @@ class FrameFeed:
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _share(a: Sequence, b: Sequence) -> bool:
+    """Whether an image of ``a`` shares memory with one of ``b``."""
+    return any(isinstance(x, np.ndarray) and isinstance(y, np.ndarray) and np.may_share_memory(x, y)
+               for x in a for y in b)

@@ -477,6 +477,9 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
     ----------
     frames : callable(frame) -> sequence
         Per view the flatfield-normalised image in [0, 1], or None where that view has no frame.
+        Called once per frame, in tracking order, one frame ahead of the registration (frame
+        ``k + 1`` is read before frame ``k`` is registered, :mod:`core.tracking.feed`); a
+        callable that refills one buffer is noticed then, and its frames are read at their turn.
     frame_order : sequence of int
         Frames in tracking order (``range(a, b)`` forward, ``range(b - 1, a - 1, -1)`` backward).
     keyframes : mapping bone name -> {frame: pose}

@@ -36,3 +36,30 @@ def test_frames_are_read_in_order_and_prepared_ahead():
         assert calls == [0, 1, 2, 3, 3]
     finally:
         feed.close()
+
+
+
+def test_a_reader_that_refills_one_buffer_is_read_at_each_frames_turn():
+    from core.tracking.feed import FrameFeed
+
+    buf = [np.zeros((8, 8), np.float32), np.zeros((8, 8), np.float32)]
+    calls = []
+
+    def frames(f):  # a reader that refills the same buffers for every frame
+        calls.append(f)
+        for b in buf:
+            b[:] = 0.1 * (f + 1)
+        return buf
+
+    feed = FrameFeed(frames, (0.02, 0.999), 3)
+    try:
+        im0, _ = feed.get(0)
+        feed.prefetch(1)  # noticed: the buffer is refilled with frame 0 again, no look-ahead
+        assert float(im0[0][0, 0]) == pytest.approx(0.1) and feed.refills
+        im1, _ = feed.get(1)
+        assert float(im1[0][0, 0]) == pytest.approx(0.2)
+        feed.prefetch(2)  # nothing read ahead any more
+        assert float(im1[1][0, 0]) == pytest.approx(0.2)
+        assert calls == [0, 1, 0, 1]
+    finally:
+        feed.close()

@@ -73,11 +73,11 @@ def write_xma_project(path: str | os.PathLike, cameras, trials: Sequence[XMATria
         Calibration frame 0 of every camera (``K``, ``R``, ``t`` in pixels and the lab frame).
     trials : sequence of XMATrialData
         Every trial refers to calibration frame 0.
-    grids : per camera, an :class:`XMAGrid` or None
+    grids : per camera, an :class:`~core.io.xma_project.XMAGrid` or None
         Undistortion grids (written with a blank grid image of the camera's size).
     distortion_coeffs : per camera, OpenCV's 8 lens coefficients or None
 
-    The layout is XMALab's (module docs); the file is written atomically.
+    The layout is XMALab's (:mod:`core.io.xma_project`); the file is written atomically.
     """
     cams = list(cameras)
     n = len(cams)

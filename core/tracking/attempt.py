@@ -32,7 +32,7 @@ __all__ = ["Attempt", "confidence_of", "register_checked"]
 
 @dataclass
 class Attempt:
-    """One bone's registration in one frame with its checks (:func:`_register_one`)."""
+    """One bone's registration in one frame with its checks (:func:`register_checked`)."""
 
     result: object  # RegistrationResult | None (outside a view)
     flags: list
@@ -54,8 +54,8 @@ def confidence_of(fit, o: TrackingOptions) -> dict:
 
 
 def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
-                  o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
-                  start_score: float | None = None, seed: int = 0, pre=None):
+                     o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
+                     start_score: float | None = None, seed: int = 0, pre=None):
     """Register with failure checks, one wider retry and (first frames, retries) the restart
     check of :func:`core.tracking.verify.verify_start`. ``pre``: ``(registration or the
     OutsideViewError it raised, seconds spent)`` already run with these inputs
@@ -76,7 +76,7 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                 raise res
     except OutsideViewError as exc:
         return Attempt(None, [f"outside the field of view: {exc}"], False, 0, time.perf_counter() - t0, None,
-                        None)
+                       None)
     evals = res.evaluations
     first = res.pose
     timing = {k: v for k, v in res.timing.items() if k != "total_s"}

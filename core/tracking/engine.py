@@ -44,23 +44,24 @@ Speed design
 ------------
 :class:`GaussNewtonCost` keeps its device buffers, the DRR output buffer (a fixed output size,
 :meth:`core.render.DRRRenderer.render` ``out_shape``, the ROIs' size rounded up to 32 pixels)
-and, on CUDA, one graph of the metric pipeline (2 blur passes, scores, moments, copies to
-pinned host memory) from frame to frame. At full resolution :meth:`~GaussNewtonCost.set_frame`
-uploads each view's region of the fluence as it is (grown by the usable-pixel mask's erosion)
-and :func:`fluoro_roi_kernel` computes the line integrals, the eroded mask and their statistics
-on the device (the same values as :meth:`core.tracking.cost.FrameImages.region`; the regions
-stay on the device for the next round of joint tracking in the same frame); at a pyramid level
-the host prepares them. Smoothing and gradients run on the device. The engine fills the DRR
-item table of its own (rigid) poses itself and launches the renderer's recorded launch.
-:func:`engine_cost` caches one per (renderer, bone, views, scale, terms). A step is one DRR
-launch, one graph launch and one synchronisation; a frame's set-up none of its own (the
-usable pixels counted on the device are checked at the first step's synchronisation), its
-launches recorded once, and the same set-up again (restarts) is kept. :meth:`~GaussNewtonCost.submit`
-and :meth:`~GaussNewtonCost.collect` split an evaluation from its wait, so several bones' steps
-(:mod:`core.tracking.joint`), or several searches of one bone on :meth:`~GaussNewtonCost.sibling`
-costs, are in flight together. Kernels: :mod:`core.tracking.engine_kernels`; the device
-preparation of the regions: :mod:`core.tracking.engine_frames`; the search and the Gauss–Newton
-algebra: :mod:`core.tracking.engine_search`.
+and, on CUDA, one graph of the metric pipeline (2 blur passes, scores, moments, copies to pinned
+host memory) from frame to frame. At full resolution :meth:`~GaussNewtonCost.set_frame` uploads
+each view's region of the fluence as it is (grown by the usable-pixel mask's erosion) and
+:func:`~core.tracking.engine_kernels.fluoro_roi_kernel` computes the line integrals, the eroded
+mask and their statistics on the device (the same values as
+:meth:`core.tracking.cost.FrameImages.region`; the regions stay on the device for the next round
+of joint tracking in the same frame); at a pyramid level the host prepares them. Smoothing and
+gradients run on the device. The engine fills the DRR item table of its own (rigid) poses itself
+and launches the renderer's recorded launch. :func:`engine_cost` caches one per (renderer, bone,
+views, scale, terms). A step is one DRR launch, one graph launch and one synchronisation; a
+frame's set-up none of its own (the usable pixels counted on the device are checked at the first
+step's synchronisation), its launches recorded once, and the same set-up again (restarts) is
+kept. :meth:`~GaussNewtonCost.submit` and :meth:`~GaussNewtonCost.collect` split an evaluation
+from its wait, so several bones' steps (:mod:`core.tracking.joint`), or several searches of one
+bone on :meth:`~GaussNewtonCost.sibling` costs, are in flight together. Kernels:
+:mod:`core.tracking.engine_kernels`; the device preparation of the regions:
+:mod:`core.tracking.engine_frames`; the search and the Gauss–Newton algebra:
+:mod:`core.tracking.engine_search`.
 """
 
 from __future__ import annotations

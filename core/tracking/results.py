@@ -63,7 +63,8 @@ class FrameResult:
 
 @dataclass(frozen=True, eq=False)
 class TrackingResult:
-    """All frame results of a :func:`track` run; ``status`` is ``"complete"`` or ``"cancelled"``."""
+    """All frame results of a :func:`~core.tracking.trial.track` run; ``status`` is ``"complete"``
+    or ``"cancelled"``."""
 
     bones: tuple[str, ...]
     frames: tuple[int, ...]

@@ -53,6 +53,7 @@ def _captured(monkeypatch):
 
     def fake_track(renderer, bones, frames, order, *, options=None, **kw):
         seen["options"], seen["transfer"], seen["bones"] = options, renderer.transfer, [b.name for b in bones]
+        seen["models"] = list(bones)
         frames(order[0])  # the reader works
         from core.tracking.trial import TrackingResult
 
@@ -101,3 +102,22 @@ def test_track_study_keeps_given_options(demo, monkeypatch):
                     transfer=HUTransfer(threshold=150.0))
     assert seen["options"] is o
     assert seen["transfer"] == HUTransfer(threshold=150.0)
+
+
+def test_track_study_isolates_the_bones_for_a_transfer_without_threshold(demo, monkeypatch):
+    from scipy import ndimage
+
+    seen = _captured(monkeypatch)
+    corr = [lambda raw: np.clip(np.asarray(raw, np.float32) / 4095.0, 0, 1)] * 2
+    with Study.open(demo, mode="w") as st:
+        track_study(st, "walk", ["talus"], [1], correction=corr, device="cpu")
+        plain = seen["models"][0]
+        track_study(st, "walk", ["talus"], [1], correction=corr, device="cpu", transfer=HUTransfer())
+        iso = seen["models"][0]
+    np.testing.assert_array_equal(iso.mask, plain.mask)
+    np.testing.assert_allclose(iso.centroid, plain.centroid)
+    rim = max(from_study.ISOLATE_MM, float(plain.volume.spacing.max()))  # at least one voxel
+    far = ndimage.distance_transform_edt(~plain.mask, sampling=plain.volume.spacing[::-1]) > rim + 1e-6
+    assert far.any() and np.all(iso.volume.data[far] == -1000)  # soft tissue around the bone: air
+    assert np.any(plain.volume.data[far] > -1000)  # with the thresholded default it stays as it is
+    np.testing.assert_array_equal(iso.volume.data[plain.mask], plain.volume.data[plain.mask])

@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.transforms import pose_from_params
-from .checks import pose_delta
+from .checks import _distance
 
 __all__ = ["StartCheck", "verify_start"]
 
@@ -78,11 +78,6 @@ class StartCheck:
         return {"improved": self.improved, "ambiguous": self.ambiguous, "best_score": self.result.score,
                 "scores": list(self.scores), "distances": [list(d) for d in self.distances],
                 "evaluations": self.evaluations}
-
-
-def _distance(a: np.ndarray, b: np.ndarray, center: np.ndarray) -> tuple[float, float]:
-    d = pose_delta(a, b, center)
-    return float(np.linalg.norm(d[:3])), float(np.degrees(np.linalg.norm(d[3:])))
 
 
 def _engine_supports(terms) -> bool:

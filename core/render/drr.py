@@ -96,6 +96,17 @@ _POOL_LOCK = threading.Lock()
 _POOL: dict[int, object] = {}
 
 
+def _forget_pools_after_fork() -> None:
+    """A forked child has none of its parent's threads: it makes pools of its own."""
+    global _POOL_LOCK
+    _POOL_LOCK = threading.Lock()
+    _POOL.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pools_after_fork)
+
+
 def _pool(workers: int):
     """A process-wide thread pool of ``workers`` threads (created on first use)."""
     from concurrent.futures import ThreadPoolExecutor

@@ -108,3 +108,26 @@ def test_cuda_untouched():
     r = DRRRenderer([_camera(0.0), _camera(1.2)], [_volume(5)], device="cuda:0", cpu_threads=4)
     r.render(_poses(3, 1))
     assert all(len(v[4]) == 1 for v in r._launches.values())
+
+
+def _render_in_child(q):
+    r = DRRRenderer([_camera(0.0), _camera(1.2)], [_volume(6)], device="cpu", cpu_threads=2)
+    q.put(float(r.render(_poses(4, 1, seed=2)).numpy().sum()))
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="no fork on this platform")
+def test_a_forked_child_renders_with_threads_of_its_own():
+    import multiprocessing as mp
+
+    r = DRRRenderer([_camera(0.0), _camera(1.2)], [_volume(6)], device="cpu", cpu_threads=2)
+    expected = float(r.render(_poses(4, 1, seed=2)).numpy().sum())  # the parent's pool exists
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+    p = ctx.Process(target=_render_in_child, args=(q,))
+    p.start()
+    p.join(timeout=300)
+    alive = p.is_alive()
+    if alive:
+        p.kill()
+    assert not alive, "the forked child hung on its parent's thread pool"
+    assert p.exitcode == 0 and q.get(timeout=10) == expected

@@ -20,7 +20,8 @@ pointer (Warp 1.19, ``native/tile.h``: not thread-local), so two tile kernels of
 two threads would share it. Kernels that use no tiles never read that pointer.
 
 Kernels are recognised by name; a launch of any other kernel is kept as it is. The DRR launch of
-the renderer is split by :class:`core.render.DRRRenderer` itself (``cpu_threads``).
+the renderer is split by :class:`core.render.DRRRenderer` itself (``cpu_threads``); the engine
+splits its CPU pipelines over the renderer's ``cpu_threads`` when it records them.
 """
 
 from __future__ import annotations

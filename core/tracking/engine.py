@@ -77,6 +77,7 @@ import warp as wp
 from ..render._kernels import ITEM_COLS
 from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
+from .cpu_threads import split_cpu_launches
 from .engine_frames import stage, staged_shapes
 from .engine_kernels import (
     N_POSES,
@@ -165,7 +166,8 @@ class _Pipeline:
                                             device=dev, record_cmd=True,
                                             inputs=[img, c._fluoro, c._fgrad, c._fmask, c._ref_hw, c._fshift,
                                                     *geo, self.gn]))
-        self.launches = launches
+        # on the CPU the blur passes split by items and the moments beside the statistics, on threads
+        self.launches = launches if dev.is_cuda else split_cpu_launches(launches, c.renderer.cpu_threads)
         self.graph = None
         if dev.is_cuda:
             with wp.ScopedCapture(device=dev) as cap:

@@ -22,8 +22,29 @@ def test_split_metric_equals_one_thread(talus_scene, term):
     x = np.r_[0.8, -0.5, 0.4, np.radians([1.0, -0.5, 0.8])]
     start = pose_from_params(x, center=m.centroid, base=truth)
     roi = search_roi(r, start, 0, views=(0, 1), center=m.centroid, reach_mm=7.6, points=m.outline)
-    gn = GaussNewtonCost(r, bone=0, views=(0, 1), scale=1.0, term=term)
-    gn.set_frame(frame, base_pose=start, center=m.centroid, roi=roi)
+    threads0 = r.cpu_threads
+    r.cpu_threads = 1  # the engine records its launches unsplit
+    try:
+        gn = GaussNewtonCost(r, bone=0, views=(0, 1), scale=1.0, term=term)
+        gn.set_frame(frame, base_pose=start, center=m.centroid, roi=roi)
+        _compare(gn)
+    finally:
+        r.cpu_threads = threads0
+    r.cpu_threads = 2  # the engine's own pipelines split on two threads: the same values
+    try:
+        gn2 = GaussNewtonCost(r, bone=0, views=(0, 1), scale=1.0, term=term)
+        gn2.set_frame(frame, base_pose=start, center=m.centroid, roi=roi)
+        e2 = gn2._evaluate(step_design(np.zeros(6), H))
+        assert len(gn2._pipes[13].launches) < len(gn._pipes[13].launches)
+        e1 = gn._evaluate(step_design(np.zeros(6), H))
+        for a1, a2 in zip(e1, e2, strict=True):
+            assert (a1 is None and a2 is None) or np.array_equal(np.asarray(a1), np.asarray(a2),
+                                                                 equal_nan=True)
+    finally:
+        r.cpu_threads = threads0
+
+
+def _compare(gn):
     for B in (13, 1):
         gn._evaluate(step_design(np.zeros(6), H)[:B])  # renders the DRRs, builds the pipeline
         pipe = gn._pipes[B]

@@ -175,7 +175,7 @@ def test_batch_on_two_workers_matches_serial_and_survives_a_killed_worker(demo, 
     def on_event(e):
         events.append(e)
         if e["kind"] == "frame" and not killed:  # a worker dies after its first frame
-            killed.append(e["key"])
+            killed.append((e["key"], e["pid"]))
             os.kill(e["pid"], signal.SIGKILL)
 
     summary = run_batch(build_tasks([batch_dir], bones=list(BONES)), SETTINGS, workers=2,
@@ -184,10 +184,18 @@ def test_batch_on_two_workers_matches_serial_and_survives_a_killed_worker(demo, 
     assert summary["status"] == "complete" and summary["tasks_complete"] == 4, summary
     assert summary["failures"] == [] and summary["workers"] == 2
     rows = {r["key"]: r for r in summary["task_records"]}
-    assert killed and rows[killed[0]]["attempts"] == 2  # run again, from the journal
-    assert rows[killed[0]]["frames_resumed"] >= 1  # the frame done before the kill was kept
-    assert rows[killed[0]]["frames_tracked"] == FRAMES - rows[killed[0]]["frames_resumed"]
-    assert len({r["pid"] for r in rows.values()}) >= 2  # two worker processes (and a restarted one)
+    assert killed
+    key, pid = killed[0]
+    seen = [(r["key"], r["pid"], r["attempts"], r["frames_resumed"], r["frames_tracked"])
+            for r in rows.values()]
+    # run again in another process: the other worker, or the killed one once its nanny has restarted
+    # it. Which of them, and whether the restarted worker gets any task at all, is a race: from the
+    # kill to the restarted worker's first task took 2.5-21 s in 30 runs at load averages of 4-13
+    # on this 2-core machine, about as long as the other worker's 3 remaining tasks (when it takes
+    # them all, every task record has that worker's pid)
+    assert rows[key]["attempts"] == 2 and rows[key]["pid"] != pid, (pid, seen)
+    assert rows[key]["frames_resumed"] >= 1, seen  # the frame done before the kill was kept
+    assert rows[key]["frames_tracked"] == FRAMES - rows[key]["frames_resumed"], seen
     assert {e["kind"] for e in events} == {"start", "frame", "end"}
     with Study.open(serial_dir) as a, Study.open(batch_dir) as b:
         for t in ("walk", "walk2"):

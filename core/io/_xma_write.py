@@ -13,15 +13,11 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
 from .atomic import atomic_write
-
-if TYPE_CHECKING:
-    from .xma_project import XMAGrid
 
 __all__ = ["XMAMarkerData", "XMATrialData", "write_xma_project"]
 
@@ -63,7 +59,7 @@ def _blank_tiff(width: int, height: int) -> bytes:
 
 
 def write_xma_project(path: str | os.PathLike, cameras, trials: Sequence[XMATrialData] = (), *,
-                      grids: Sequence[XMAGrid | None] | None = None,
+                      grids: Sequence | None = None,
                       distortion_coeffs: Sequence[np.ndarray | None] | None = None) -> Path:
     """Write an XMALab project of an external calibration (``CalibrationType="2"``).
 

@@ -25,7 +25,7 @@ from .register import RegistrationOptions, register
 from .verify import verify_start
 
 if TYPE_CHECKING:
-    from .trial import TrackingOptions
+    from .options import TrackingOptions
 
 __all__ = ["Attempt", "confidence_of", "register_checked"]
 

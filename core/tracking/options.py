@@ -1,0 +1,78 @@
+"""The options of :func:`core.tracking.trial.track` (:class:`TrackingOptions`; their meaning is
+in :mod:`core.tracking.trial`'s module docs). Importable from :mod:`core.tracking.trial` as well."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .register import RegistrationOptions
+
+__all__ = ["TrackingOptions"]
+
+_GUESSES = ("previous", "velocity", "spline")
+_MODES = ("sequential", "joint", "auto")
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """Options of :func:`core.tracking.trial.track` (see that module's docs; ``valid_range`` and
+    ``erode_px`` mark the usable fluoroscope pixels, :func:`core.tracking.cost.prepare_frame`)."""
+
+    registration: RegistrationOptions = field(
+        default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
+    first: RegistrationOptions | None = None
+    guess: str = "velocity"
+    mode: str = "sequential"
+    joint_rounds: int = 2
+    min_score_ratio: float = 0.85
+    min_start_ratio: float = 0.7
+    max_jump: tuple[float, float] = (4.0, 6.0)
+    history: int = 10
+    retry_factor: float = 2.0
+    verify_restarts: int = 4
+    verify_spread: tuple[float, float] = (3.0, 3.0)
+    confidence: bool = True
+    confidence_step: tuple[float, float] = (0.25, 0.25)
+    max_uncertainty: tuple[float, float] | None = None
+    valid_range: tuple[float, float] | None = (0.02, 0.999)
+    erode_px: int = 3
+    profile: bool = False
+    contact: bool = False
+    contact_weight: float = 0.05
+    contact_margin_mm: float = 0.0
+    confidence_scale: float = 1.0
+    lockstep: bool = True
+
+    def __post_init__(self) -> None:
+        if self.guess not in _GUESSES:
+            raise ValueError(f"guess: expected one of {_GUESSES}, got {self.guess!r}")
+        if self.mode not in _MODES:
+            raise ValueError(f"mode: expected one of {_MODES}, got {self.mode!r}")
+        if not 0 <= self.min_score_ratio <= 1:
+            raise ValueError(f"min_score_ratio: expected a ratio in [0, 1], got {self.min_score_ratio!r}")
+        if not 0 <= self.min_start_ratio <= 1:
+            raise ValueError(f"min_start_ratio: expected a ratio in [0, 1], got {self.min_start_ratio!r}")
+        if self.retry_factor < 1:
+            raise ValueError(f"retry_factor: expected >= 1, got {self.retry_factor!r}")
+        if isinstance(self.verify_restarts, bool) or int(self.verify_restarts) != self.verify_restarts \
+                or self.verify_restarts < 0:
+            raise ValueError(f"verify_restarts: expected an integer >= 0, got {self.verify_restarts!r}")
+        if self.max_uncertainty is not None:
+            mu = tuple(float(v) for v in self.max_uncertainty)
+            if len(mu) != 2 or not all(np.isfinite(v) and v > 0 for v in mu):
+                raise ValueError(f"max_uncertainty: expected positive (mm, degrees) or None, "
+                                 f"got {self.max_uncertainty!r}")
+            if not self.confidence:
+                raise ValueError("max_uncertainty: needs confidence=True (the limits apply to it)")
+        if not (np.isfinite(self.confidence_scale) and self.confidence_scale > 0):
+            raise ValueError(f"confidence_scale: expected a positive factor, got {self.confidence_scale!r}")
+        if not (np.isfinite(self.contact_weight) and self.contact_weight >= 0):
+            raise ValueError(f"contact_weight: expected a weight >= 0 (per mm²), got {self.contact_weight!r}")
+        if not np.isfinite(self.contact_margin_mm):
+            raise ValueError(f"contact_margin_mm: expected a finite distance, got {self.contact_margin_mm!r}")
+
+    @property
+    def first_options(self) -> RegistrationOptions:
+        return self.first or self.registration.widened(2.0)

@@ -203,13 +203,14 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
     Raises
     ------
     StudyError
-        A folder that is not a study, or (``mode="auto"``) a trial's saved correction that
-        cannot be read.
+        A folder that is not a study. (With ``mode="auto"`` a trial whose saved correction
+        cannot be read gets one joint task, which fails when it runs, naming the file; the
+        other trials' tasks are made as usual.)
     ValueError
         An unknown ``mode``, or one ``joint`` contradicts; a trial or bone named in
         ``trials``/``bones`` that none of the studies has, or no task.
     """
-    from ..study import Study
+    from ..study import Study, StudyError
 
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {list(MODES)}, got {mode!r}")
@@ -236,7 +237,10 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
                 if mode == "auto" and len(names) > 1:
                     cal = st.manifest["trials"][t]["calibration"]
                     if cal not in corrected:
-                        corrected[cal] = tracks_jointly(st, t)
+                        try:
+                            corrected[cal] = tracks_jointly(st, t)
+                        except StudyError:  # its task fails when it runs, saying why; the others run
+                            corrected[cal] = True
                     together = corrected[cal]
                 groups = [tuple(names)] if together else [(b,) for b in names]
                 if not ranges:

@@ -10,7 +10,7 @@ import signal
 import numpy as np
 import pytest
 
-from core.study import Study
+from core.study import Study, StudyError
 from core.tracking.batch import BatchTask, TaskSettings, build_tasks, run_serial, summarize, tracks_jointly
 from core.tracking.register import Level, RegistrationOptions
 from tests.core.tracking.batch_helpers import save_flat_calibration
@@ -94,6 +94,18 @@ def test_build_tasks_mode_auto_tracks_as_talus_track(demo, calibrated):
     # frame ranges: the auto joint group splits where both bones have a keyframe (frame 0 only)
     ranged = build_tasks([calibrated], trials=["walk"], bones=list(BONES), ranges=True, frames=(0, 3))
     assert [(t.bones, t.frames) for t in ranged] == [(BONES, (0, 2))]
+
+
+def test_an_unreadable_correction_fails_its_own_task_only(calibrated, tmp_path):
+    """A trial whose saved correction cannot be read does not stop build_tasks: it gets one joint
+    task (which fails when run, naming the file, as talus track would); the other trials as usual."""
+    out = _copy(calibrated, tmp_path / "demo")
+    for p in (out / "calibrations").rglob("correction_cam1.json"):
+        p.write_text("{ not json", encoding="utf-8")
+    with Study.open(out) as st, pytest.raises(StudyError):
+        tracks_jointly(st, "walk")
+    tasks = build_tasks([out], bones=list(BONES))
+    assert [t.key for t in tasks] == ["demo/walk/talus+calcaneus", "demo/walk2/talus", "demo/walk2/calcaneus"]
 
 
 def test_tracks_jointly_is_track_studys_auto_rule(calibrated, tmp_path, monkeypatch):

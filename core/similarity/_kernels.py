@@ -81,12 +81,17 @@ def _cos2(gd: wp.vec2f, gf: wp.vec2f) -> float:
 def _pair(mode: int, drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=wp.float32),
           fgrad: wp.array3d(dtype=wp.vec2f), fshift: float, k: int, ref: int, r: int, c: int,
           h: int, w: int, ku: wp.mat33f, kv: wp.mat33f) -> wp.vec2f:
-    """(a, b): intensities (mode 0; F shifted by its ROI mean) or gradient magnitudes (mode 1)."""
+    """(a, b): intensities (mode 0; F shifted by its ROI mean), gradient magnitudes (mode 1) or
+    the gradients' u (mode 2) or v (mode 3) components."""
     out = wp.vec2f(0.0, 0.0)
     if mode == 0:
         out = wp.vec2f(_val(drr, k, r, c), fluoro[ref, r, c] - fshift)
-    else:
+    elif mode == 1:
         out = wp.vec2f(wp.length(_grad(drr, k, r, c, h, w, ku, kv)), wp.length(fgrad[ref, r, c]))
+    else:
+        gd = _grad(drr, k, r, c, h, w, ku, kv)
+        gf = fgrad[ref, r, c]
+        out = wp.vec2f(gd[mode - 2], gf[mode - 2])
     return out
 
 
@@ -474,6 +479,9 @@ def entropy_kernel(joint: wp.array(dtype=wp.float32), selfd: wp.array(dtype=wp.f
 
 # kinds of the finalize kernel
 K_NCC, K_SID, K_GC, K_GD, K_GI, K_GO, K_MI, K_NMI = 0, 1, 2, 3, 4, 5, 6, 7
+#: GC of the gradient components: the mean of the Pearson correlations of the u components (sums
+#: in ``stats``, :func:`stats_kernel` mode 2) and of the v components (``extra``, mode 3)
+K_GCC = 8
 
 
 @wp.func
@@ -550,6 +558,8 @@ def finalize_kernel(kind: int, n_per_pose: int, stats: wp.array2d(dtype=wp.float
         s = wp.float64(0.0)
         if kind == K_NCC or kind == K_GC:
             s = _pearson(stats, k)
+        elif kind == K_GCC:
+            s = wp.float64(0.5) * (_pearson(stats, k) + _pearson(extra, k))
         elif kind == K_SID:
             s = _concordance(stats, k, wp.float64(fshift[k % n_refs]))
         elif kind == K_GD:

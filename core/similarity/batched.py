@@ -9,7 +9,8 @@ pose (the weighted mean over its views and bones) and one per item.
 
 Definitions are those of the numpy references (:mod:`core.similarity.intensity`,
 ``information``, ``gradient``; Ω and polarity: :mod:`core.similarity.domain`): ``ncc``, ``sid``,
-``gc``, ``gd``, ``gi``, ``go``, ``mi``, ``nmi``. Agreement with the references (tested on the CPU
+``gc`` (of the gradient magnitudes, or with ``components=True`` of the gradient components),
+``gd``, ``gi``, ``go``, ``mi``, ``nmi``. Agreement with the references (tested on the CPU
 device, stated for any device): float32 pixel arithmetic with float64 accumulation, so NCC, SID,
 GC, GD, GI, MI and NMI agree to ~1e-4 absolute; GO takes its two medians from 1024-bin
 histograms (interpolated within the bin) instead of sorting, which moves a few pixels across the
@@ -146,6 +147,10 @@ class BatchedMetric:
         MI/NMI histogram (see :mod:`core.similarity.information`).
     n_lb_fraction : float
         GO's lower bound on |S| as a fraction of |Ω|.
+    components : bool
+        ``gc`` only: the mean of the correlations of the gradients' u and v components instead of
+        the magnitudes' (:func:`core.similarity.gradient_correlation` ``components``; two
+        statistics passes instead of one).
     weights : (V·nb,) array, optional
         Weights of the items of a pose in its score (default equal).
     block_dim, chunk : int
@@ -158,10 +163,15 @@ class BatchedMetric:
                  threshold: float = 0.0, dilate: int = 0, fluoro_sigma: float = 0.0,
                  drr_sigma: float = 0.0, operator: str = "sobel", bins: int = 32, binning: str = "linear",
                  n_lb_fraction: float = 0.25, weights=None, block_dim: int = 128,
-                 chunk: int = 4096) -> None:
+                 chunk: int = 4096, components: bool = False) -> None:
         if kind not in _KIND_CODES:
             raise ValueError(f"kind: expected one of {BATCHED_KINDS}, got {kind!r}")
+        if not isinstance(components, (bool, np.bool_)):
+            raise ValueError(f"components: expected True or False, got {components!r}")
+        if components and kind != "gc":
+            raise ValueError(f"components: only the gc metric has a component form, not {kind!r}")
         self.kind = kind
+        self.components = bool(components)
         refs, self.n_views, self.n_bones = _as_refs(fluoro_rois, "fluoro_rois")
         self.n_refs = len(refs)
         if fluoro_masks is None:
@@ -284,7 +294,7 @@ class _Plan:
         self.device = dev
         kind = m.kind
         self.stats = wp.zeros((n, 6), dtype=wp.float64, device=dev)
-        self.extra = wp.zeros((n, 5), dtype=wp.float64, device=dev)
+        self.extra = wp.zeros((n, 6), dtype=wp.float64, device=dev)
         self.count = wp.zeros(n, dtype=wp.float64, device=dev)
         self.out = wp.zeros(B * (1 + m.n_refs), dtype=wp.float32, device=dev)
         self.host = wp.zeros(self.out.shape, dtype=wp.float32, device="cpu", pinned=dev.is_cuda)
@@ -307,7 +317,13 @@ class _Plan:
             plain(K.blur_kernel, (n, H, W), [self.tmp, self.blurred, m._blur, m._ref_hw, m.n_refs, 0])
             images = self.blurred
         geo = [m.n_refs, m.threshold, m.dilate]
-        if kind in ("ncc", "sid", "gc", "gd", "gi"):
+        code = _KIND_CODES[kind]
+        if m.components:  # the u components' sums in stats, the v components' in extra
+            code = K.K_GCC
+            for mode, acc in ((2, self.stats), (3, self.extra)):
+                tiled(K.stats_kernel, [images, m._fluoro, m._fgrad, *common, m._fshift, *geo, mode, m._ku,
+                                       m._kv, m.chunk, acc])
+        elif kind in ("ncc", "sid", "gc", "gd", "gi"):
             mode = 0 if kind in ("ncc", "sid") else 1
             tiled(K.stats_kernel, [images, m._fluoro, m._fgrad, *common, m._fshift, *geo, mode, m._ku, m._kv,
                                    m.chunk, self.stats])
@@ -339,7 +355,7 @@ class _Plan:
                                             m.chunk, self.rng, self.joint, self.selfd, self.selff])
                 plain(K.entropy_kernel, n, [self.joint, self.selfd, self.selff, m.bins, self.count,
                                             self.extra])
-        plain(K.finalize_kernel, B, [_KIND_CODES[kind], m.n_refs, self.stats, self.extra, self.count,
+        plain(K.finalize_kernel, B, [code, m.n_refs, self.stats, self.extra, self.count,
                                      m._fshift, m.n_refs, m.n_lb_fraction, m._weights, self.out])
         self.zero = zero
         self.launches = launches

@@ -100,7 +100,8 @@ __all__ = ["ENGINE_KINDS", "GaussNewtonCost", "GaussNewtonFit", "GaussNewtonStep
 ENGINE_KINDS = ("gc", "ncc")
 _MODE = {"ncc": 0, "gc": 1}
 _KIND = {"ncc": K.K_NCC, "gc": K.K_GC}
-_OPTIONS = ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm", "threshold", "dilate", "operator")
+_OPTIONS = ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm", "threshold", "dilate", "operator",
+            "components")
 _N = N_POSES  # poses per step: the centre and ±h_k e_k
 
 def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
@@ -135,12 +136,14 @@ class _Pipeline:
         nv = c.n_views
         self.images = images
         self.stats = wp.zeros((n, 6), dtype=wp.float64, device=dev)
-        self.extra = wp.zeros((n, 5), dtype=wp.float64, device=dev)
+        self.extra = wp.zeros((n, 6), dtype=wp.float64, device=dev)
         self.count = wp.zeros(n, dtype=wp.float64, device=dev)
         self.out = wp.zeros(n_poses * (1 + nv), dtype=wp.float32, device=dev)
         self.host_out = wp.zeros(self.out.shape, dtype=wp.float32, device="cpu", pinned=dev.is_cuda)
-        self.gn = wp.zeros((nv, 81), dtype=wp.float64, device=dev) if n_poses == _N else None
-        self.host_gn = (wp.zeros((nv, 81), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
+        # moments per view; GC of the gradient components: the u components' rows, then the v's
+        nq = 2 if c.components else 1
+        self.gn = wp.zeros((nq * nv, 81), dtype=wp.float64, device=dev) if n_poses == _N else None
+        self.host_gn = (wp.zeros((nq * nv, 81), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
                         if self.gn is not None else None)
         self.zero = [self.stats, self.extra, self.count] + ([self.gn] if self.gn is not None else [])
         launches = []
@@ -152,20 +155,27 @@ class _Pipeline:
                 launches.append(wp.launch(K.blur_kernel, dim=(n, H, W), device=dev, record_cmd=True,
                                           inputs=[src, dst, c._blur, c._ref_hw, nv, axis]))
             img = self.blurred
-        geo = [nv, c.threshold, c.dilate, c.mode, c._ku, c._kv, c.chunk]
         n_chunks = math.ceil(H * W / c.chunk)
-        launches.append(wp.launch_tiled(K.stats_kernel, dim=(n, n_chunks), block_dim=c.block_dim, device=dev,
-                                        inputs=[img, c._fluoro, c._fgrad, c._fmask, c._ref_hw, c._fshift,
-                                                nv, c.threshold, c.dilate, c.mode, c._ku, c._kv, c.chunk,
-                                                self.stats], record_cmd=True))
-        launches.append(wp.launch(K.finalize_kernel, dim=n_poses, device=dev, record_cmd=True,
-                                  inputs=[_KIND[c.kind], nv, self.stats, self.extra, self.count, c._fshift,
-                                          nv, 0.25, c._weights, self.out]))
-        if self.gn is not None:
-            launches.append(wp.launch_tiled(moments_kernel, dim=(nv, n_chunks), block_dim=c.block_dim,
+        # (mode, statistics, moments' first row) per quantity: GC of the components has two
+        quantities = ([(2, self.stats, 0), (3, self.extra, nv)] if c.components
+                      else [(c.mode, self.stats, 0)])
+        for mode, acc, _ in quantities:
+            launches.append(wp.launch_tiled(K.stats_kernel, dim=(n, n_chunks), block_dim=c.block_dim,
                                             device=dev, record_cmd=True,
                                             inputs=[img, c._fluoro, c._fgrad, c._fmask, c._ref_hw, c._fshift,
-                                                    *geo, self.gn]))
+                                                    nv, c.threshold, c.dilate, mode, c._ku, c._kv, c.chunk,
+                                                    acc]))
+        code = K.K_GCC if c.components else _KIND[c.kind]
+        launches.append(wp.launch(K.finalize_kernel, dim=n_poses, device=dev, record_cmd=True,
+                                  inputs=[code, nv, self.stats, self.extra, self.count, c._fshift,
+                                          nv, 0.25, c._weights, self.out]))
+        if self.gn is not None:
+            for mode, _, row in quantities:
+                launches.append(wp.launch_tiled(moments_kernel, dim=(nv, n_chunks), block_dim=c.block_dim,
+                                                device=dev, record_cmd=True,
+                                                inputs=[img, c._fluoro, c._fgrad, c._fmask, c._ref_hw,
+                                                        c._fshift, nv, c.threshold, c.dilate, mode, c._ku,
+                                                        c._kv, c.chunk, self.gn[row:row + nv]]))
         # on the CPU the blur passes split by items and the moments beside the statistics, on threads
         self.launches = launches if dev.is_cuda else split_cpu_launches(launches, c.renderer.cpu_threads)
         self.graph = None
@@ -215,7 +225,9 @@ class GaussNewtonCost:
         Full-resolution pixels per DRR pixel.
     term : MetricTerm
         A single ``gc`` or ``ncc`` term (options as :class:`core.similarity.BatchedMetric`'s
-        domain and smoothing options; ``*_sigma_mm`` in mm at the bone).
+        domain and smoothing options; ``*_sigma_mm`` in mm at the bone; ``components`` for GC of
+        the gradient components: two statistics and two moment passes, each of the correlations
+        ``r_u``, ``r_v`` a least-squares problem of its own, their mean the score).
 
     :meth:`set_frame` must be called before the first evaluation of each frame.
     """
@@ -238,6 +250,9 @@ class GaussNewtonCost:
         self.term = term
         self.kind = term.kind
         self.mode = _MODE[term.kind]
+        self.components = bool(term.options.get("components", False))
+        if self.components and term.kind != "gc":
+            raise ValueError(f"term: only the gc metric has a component form, not {term.kind!r}")
         self.threshold = float(term.options.get("threshold", 0.0))
         self.dilate = int(term.options.get("dilate", 0))
         ku, kv = derivative_kernels(term.options.get("operator", "sobel"))
@@ -565,7 +580,11 @@ class GaussNewtonCost:
         (:meth:`collect`)."""
         c, v, gn = evaluated
         t0 = time.perf_counter()
-        r, g, H = moments_to_newton(gn.reshape(self.n_views, 9, 9), h)
+        # GC of the components: the cost is the mean of the u and v correlations, so its gradient
+        # and Hessian are the means over the 2 · n_views moment matrices (equal weights)
+        r, g, H = moments_to_newton(gn.reshape(-1, 9, 9), h)
+        if self.components:
+            r = r.reshape(2, self.n_views).mean(axis=0)
         self.timer.host += time.perf_counter() - t0
         return GaussNewtonStep(np.asarray(x, dtype=float), np.asarray(h, dtype=float), c, v, g, H, r)
 

@@ -1,7 +1,8 @@
 """Device kernels of the Gauss–Newton engine (:mod:`core.tracking.engine`).
 
 * :func:`moments_kernel` — per view the 9 × 9 moment matrix of ``z = (1, a, b, δ_1 … δ_6)`` of a
-  13-pose step (the engine's module docs);
+  13-pose step (the engine's module docs); the quantity is the intensity (mode 0), the gradient
+  magnitude (1) or one gradient component (2: u, 3: v; GC of the components launches it twice);
 * :func:`subtract_kernel` — the neighbours' DRRs taken from the fluoroscope regions (joint
   tracking);
 * :func:`fluoro_gradient_kernel` — the 3 × 3 gradient of the smoothed fluoroscope regions;
@@ -28,12 +29,15 @@ mat99f = wp.types.matrix(shape=(9, 9), dtype=wp.float32)
 @wp.func
 def _bq(mode: int, img: wp.array3d(dtype=wp.float32), k: int, r: int, c: int, h: int, w: int,
         ku: wp.mat33f, kv: wp.mat33f) -> float:
-    """The DRR quantity b of item k at (r, c): intensity (mode 0) or gradient magnitude (1)."""
+    """The DRR quantity b of item k at (r, c): intensity (mode 0), gradient magnitude (1) or the
+    gradient's u (2) or v (3) component."""
     out = float(0.0)  # noqa: UP018 (a Warp variable, not a constant)
     if mode == 0:
         out = K._val(img, k, r, c)
-    else:
+    elif mode == 1:
         out = wp.length(K._grad(img, k, r, c, h, w, ku, kv))
+    else:
+        out = K._grad(img, k, r, c, h, w, ku, kv)[mode - 2]
     return out
 
 
@@ -61,8 +65,10 @@ def moments_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=w
                 a = float(0.0)  # noqa: UP018
                 if mode == 0:
                     a = fluoro[v, r, c] - fshift[v]
-                else:
+                elif mode == 1:
                     a = wp.length(fgrad[v, r, c])
+                else:
+                    a = fgrad[v, r, c][mode - 2]
                 z = vec9f()
                 z[0] = 1.0
                 z[1] = a

@@ -70,7 +70,9 @@ class MetricTerm:
     """One metric of the cost: ``kind`` (a :data:`core.similarity.BATCHED_KINDS` name), its
     ``weight`` (> 0) and ``options`` for :class:`core.similarity.BatchedMetric` (``fluoro_sigma``,
     ``drr_sigma``, ``dilate``, ``threshold``, ``operator``, ``bins``…; ``fluoro_sigma_mm`` and
-    ``drr_sigma_mm`` give the smoothing in mm at the bone instead of DRR pixels)."""
+    ``drr_sigma_mm`` give the smoothing in mm at the bone instead of DRR pixels; ``gc`` with
+    ``components=True`` correlates the gradient components instead of the magnitudes, also in the
+    Gauss–Newton engine)."""
 
     kind: str
     weight: float = 1.0

@@ -54,6 +54,10 @@ MODES = ("sequential", "joint", "joint+contact")
 #: HU → μ of the tracked bones' DRRs: ``"tracker"`` (default) the tracker's
 #: :func:`core.tracking.from_study.tissue_excess_transfer`, ``"scene"`` the generator's own.
 TRANSFERS = ("tracker", "scene")
+#: the GC term's form (``--metric``): ``"magnitudes"`` (default, the Pearson correlation of the
+#: gradient magnitudes) or ``"components"`` (of the u and v derivative images, their mean:
+#: :func:`core.similarity.gradient_correlation` ``components``)
+METRIC_FORMS = ("magnitudes", "components")
 PAIRS = (("tibia", "talus"), ("talus", "calcaneus"))
 
 
@@ -222,14 +226,19 @@ def evaluate(hr: HardRun, res, bounds: dict, contacts=None) -> dict:
 def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MODES, seed: int = 0,
         device: str | None = None, cache: str | None = None, start=(2.0, 3.0), options=None,
         progress=None, n_track: int | None = None, transfer: str = "tracker",
-        isolate_mm: float | None = None) -> dict:
+        isolate_mm: float | None = None, metric: str = "magnitudes", search: str | None = None) -> dict:
     """Track the harder trial in each of ``modes``; returns the JSON-ready results
     (``progress(done, total, FrameResult)`` is passed to :func:`core.tracking.trial.track`);
     ``n_track`` tracks only the first frames of an ``n_frames`` trial (default all); ``transfer``
-    and ``isolate_mm`` as :class:`HardRun`."""
+    and ``isolate_mm`` as :class:`HardRun`; ``metric`` one of :data:`METRIC_FORMS` (the ``gc``
+    terms of ``options``' registration get ``components=True`` for ``"components"``);
+    ``search`` replaces the registration's search (e.g. ``"newton"``)."""
     from dataclasses import replace
 
     from core.tracking.trial import TrackingOptions, track
+
+    if metric not in METRIC_FORMS:
+        raise ValueError(f"metric: expected one of {METRIC_FORMS}, got {metric!r}")
 
     t0 = time.perf_counter()
     hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device, cache=cache,
@@ -243,6 +252,13 @@ def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MOD
     truth_poses = {n: np.array([hr.truth(f)[b] for f in range(nt)]) for b, n in enumerate(hr.names)}
     truth_js = joint_space(hr, truth_poses, contacts)
     base = options or TrackingOptions()
+    reg = base.registration
+    if search is not None:
+        reg = replace(reg, search=search)
+    if metric == "components":
+        reg = replace(reg, terms=tuple(replace(t, options={**t.options, "components": True})
+                                       if t.kind == "gc" else t for t in reg.terms))
+    base = replace(base, registration=reg)
     g = np.random.default_rng(seed + 7)
     keyframes = {n: {0: pose_from_params(_random_offset(g, *start), center=m.centroid, base=hr.truth(0)[b])}
                  for b, (n, m) in enumerate(zip(hr.names, hr.models, strict=True))}
@@ -251,7 +267,7 @@ def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MOD
            "config": {"pixels": pixels, "voxel_mm": spacing, "frames": n_frames, "tracked_frames": nt,
                       "seed": seed, "options": base.registration.to_dict(),
                       "verify_restarts": base.verify_restarts, "transfer": transfer,
-                      "isolate_mm": isolate_mm,
+                      "isolate_mm": isolate_mm, "metric": metric,
                       "start_error": f"{start[0]} mm, {start[1]} deg",
                       "pixel_mm_at_isocentre": float(hr.scene.rig[0].pixel_size),
                       "tracked": list(hr.names),
@@ -288,6 +304,9 @@ def main(argv=None) -> int:
                    help="HU -> mu of the tracked DRRs: the tracker's (default) or the generator's")
     p.add_argument("--isolate", type=float, default=None,
                    help="set CT voxels farther than this (mm) from each bone to air (bone_model isolate_mm)")
+    p.add_argument("--metric", choices=METRIC_FORMS, default="magnitudes",
+                   help="GC of the gradient magnitudes (default) or of the gradient components")
+    p.add_argument("--search", default=None, help="the registration's search (default the tracker's)")
     p.add_argument("--out", default=None)
     p.add_argument("--verbose", action="store_true", help="print each frame's result to stderr")
     a = p.parse_args(argv)
@@ -302,7 +321,7 @@ def main(argv=None) -> int:
         TrackingOptions(verify_restarts=a.verify_restarts)
     res = run(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, modes=tuple(a.modes.split(",")),
               device=a.device, cache=a.cache, progress=say if a.verbose else None, n_track=a.track,
-              options=opts, transfer=a.transfer, isolate_mm=a.isolate)
+              options=opts, transfer=a.transfer, isolate_mm=a.isolate, metric=a.metric, search=a.search)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

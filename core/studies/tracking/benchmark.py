@@ -211,14 +211,18 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: d
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,
         pixels: int | None = None, cases: str = "both", repeats: int = 3, search: str = "newton",
-        compare: bool = False, voxel: float | None = None, bound: bool = True) -> dict:
+        compare: bool = False, voxel: float | None = None, bound: bool = True,
+        metric: str = "magnitudes") -> dict:
     """Run the cases (``"one"``, ``"three"`` or ``"both"``) with the tracking ``search``
-    (``compare``: ``newton`` and ``local`` both, the second under ``"<case>_local"``); returns
-    the JSON-ready results."""
+    (``compare``: ``newton`` and ``local`` both, the second under ``"<case>_local"``) and the
+    gradient correlation of the gradient ``metric`` (``"magnitudes"``, the default term, or
+    ``"components"``: the gc term's ``components`` option); returns the JSON-ready results."""
     if int(repeats) != repeats or repeats < 1:
         raise ValueError(f"repeats: expected a whole number >= 1, got {repeats!r}")
     if cases not in ("one", "three", "both"):
         raise ValueError(f"cases: expected 'one', 'three' or 'both', got {cases!r}")
+    if metric not in ("magnitudes", "components"):
+        raise ValueError(f"metric: expected 'magnitudes' or 'components', got {metric!r}")
     from dataclasses import replace
 
     import warp as wp
@@ -236,6 +240,11 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
         ts.frames(i)
     synth = time.perf_counter() - t0
     base = TrackingOptions(mode="joint")  # synthetic frames: DRR intensities match the images
+    if metric == "components":
+        reg = base.registration
+        base = replace(base, registration=replace(reg, terms=tuple(
+            replace(t, options={**t.options, "components": True}) if t.kind == "gc" else t
+            for t in reg.terms)))
     o = replace(base, registration=replace(base.registration, search=search))
     t0 = time.perf_counter()
     cr = cramer_rao(ts, range(0, n, max(1, n // 10))) if bound else {}
@@ -249,6 +258,7 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
            "synthesis_s": synth, "repeats": int(repeats), "options": o.registration.to_dict()}
     res["mode"] = o.mode
     res["search"] = search
+    res["metric"] = metric
     res["cramer_rao"] = cr
     res["cramer_rao_s"] = bound_s
     res["threads"] = {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
@@ -280,11 +290,14 @@ def main(argv=None) -> int:
     p.add_argument("--search", choices=("newton", "local"), default="newton",
                    help="tracking search: the Gauss-Newton engine (default) or the quadratic-model search")
     p.add_argument("--compare", action="store_true", help="also run the other search on the same scene")
+    p.add_argument("--metric", choices=("magnitudes", "components"), default="magnitudes",
+                   help="gradient correlation of the gradient magnitudes (default) or components")
     p.add_argument("--no-bound", action="store_true", help="skip the Cramér-Rao bound")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases,
-              repeats=a.repeats, search=a.search, compare=a.compare, voxel=a.voxel, bound=not a.no_bound)
+              repeats=a.repeats, search=a.search, compare=a.compare, voxel=a.voxel, bound=not a.no_bound,
+              metric=a.metric)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

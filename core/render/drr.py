@@ -89,7 +89,10 @@ def default_cpu_threads() -> int:
         if n < 1:
             raise ValueError(f"TALUS_CPU_THREADS: expected a whole number >= 1, got {env!r}")
         return n
-    return max(1, os.cpu_count() or 1)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))  # the cores this process may run on
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
 
 
 _POOL_LOCK = threading.Lock()
@@ -108,13 +111,16 @@ if hasattr(os, "register_at_fork"):
 
 
 def _pool(workers: int):
-    """A process-wide thread pool of ``workers`` threads (created on first use)."""
+    """The process-wide thread pool, of at least ``workers`` threads (created on first use, and
+    replaced by a larger one when more are asked for: one pool, never one per size)."""
     from concurrent.futures import ThreadPoolExecutor
 
     with _POOL_LOCK:
-        pool = _POOL.get(workers)
-        if pool is None:
-            pool = _POOL[workers] = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="talus-drr")
+        pool = _POOL.get(0)
+        if pool is None or pool._max_workers < workers:
+            if pool is not None:
+                pool.shutdown(wait=False)  # work already submitted still runs
+            pool = _POOL[0] = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="talus-drr")
         return pool
 
 
@@ -286,7 +292,9 @@ class DRRRenderer:
         self.block_dim = 128  # CUDA threads per block: two 8x8 tiles (fastest on an H100)
         if cpu_threads is not None and (int(cpu_threads) != cpu_threads or cpu_threads < 1):
             raise ValueError(f"cpu_threads: expected a whole number >= 1, got {cpu_threads!r}")
-        self.cpu_threads = default_cpu_threads() if cpu_threads is None else int(cpu_threads)
+        if cpu_threads is None:  # TALUS_CPU_THREADS is read (and checked) for CPU renderers only
+            cpu_threads = 1 if self.device.is_cuda else default_cpu_threads()
+        self.cpu_threads = int(cpu_threads)
 
     # ------------------------------------------------------------------ set-up
     def _upload(self, mus: list[np.ndarray]) -> None:

@@ -68,7 +68,7 @@ class TrackingActions:
         self.batch_action.triggered.connect(lambda: self.window._guard(self.track_in_batch))
 
     def add_options_action(self, menu) -> None:
-        """Add *Options…* (search, resolution, mode, guess, confidence) to the Tracking menu."""
+        """Add *Options…* (search, resolution, similarity, mode, guess, confidence) to the Tracking menu."""
         action = menu.addAction("Tracking &options…")
         action.setShortcut("Ctrl+Alt+T")
         action.triggered.connect(lambda: self.window._guard(self.edit_options))
@@ -90,7 +90,8 @@ class TrackingActions:
         self.options = options
         c = choices_of(options)
         res = "full" if c["scale"] == 1 else f"1/{c['scale']:g}"
-        self.window.notify(f"Tracking options: {c['search']} search, {res} resolution, {c['mode']}, "
+        gc = ", gradient components" if c["metric"] == "components" else ""
+        self.window.notify(f"Tracking options: {c['search']} search, {res} resolution{gc}, {c['mode']}, "
                            f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}")
 
     def track_in_batch(self):

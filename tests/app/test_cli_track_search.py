@@ -1,4 +1,4 @@
-"""talus track --search and --scale: parsed into the registration options, bad values refused."""
+"""talus track --search, --scale and --metric: parsed into the registration options, bad values refused."""
 
 from __future__ import annotations
 
@@ -29,3 +29,21 @@ def test_search_and_scale_are_parsed():
 def test_a_scale_below_one_is_refused_naming_the_option(tmp_path, capsys, bad):
     assert talus(["track", str(tmp_path), "--trial", "walk", "--scale", bad, "--quiet"]) == 1
     assert "--scale" in capsys.readouterr().err
+
+
+def test_metric_is_parsed_into_the_gc_terms():
+    from core.tracking.cost import DEFAULT_TERMS
+
+    a = _parse(["study", "--trial", "walk"])
+    assert a.metric == "magnitudes" and track.registration_terms(a.metric) == DEFAULT_TERMS
+    a = _parse(["study", "--trial", "walk", "--metric", "components"])
+    terms = track.registration_terms(a.metric)
+    assert [t.kind for t in terms] == [t.kind for t in DEFAULT_TERMS]
+    for t, d in zip(terms, DEFAULT_TERMS, strict=True):
+        assert t.options == ({**d.options, "components": True} if t.kind == "gc" else d.options)
+        assert t.weight == d.weight
+    assert not any("components" in t.options for t in DEFAULT_TERMS)  # the default is unchanged
+    with pytest.raises(SystemExit):
+        _parse(["study", "--trial", "walk", "--metric", "ncc"])
+    with pytest.raises(ValueError, match="metric"):
+        track.registration_terms("ncc")

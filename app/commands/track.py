@@ -43,18 +43,20 @@ METRICS = ("magnitudes", "components")
 
 
 def registration_terms(metric: str = "magnitudes") -> tuple:
-    """The registration's cost terms for ``--metric``: :data:`core.tracking.cost.DEFAULT_TERMS`,
-    with ``components=True`` on its ``gc`` terms for ``"components"``."""
+    """The registration's cost terms for ``--metric``: :data:`core.tracking.cost.DEFAULT_TERMS`
+    for ``"magnitudes"`` (or ``"gc"``, its older name), with ``components=True`` on its ``gc``
+    terms for ``"components"``; any other name is one term of that :mod:`core.similarity` batched
+    kind (e.g. ``"ncc"``), as before."""
     from dataclasses import replace
 
-    from core.tracking.cost import DEFAULT_TERMS
+    from core.tracking.cost import DEFAULT_TERMS, MetricTerm
 
-    if metric not in METRICS:
-        raise ValueError(f"metric: expected one of {METRICS}, got {metric!r}")
-    if metric == "magnitudes":
+    if metric in ("magnitudes", "gc"):
         return DEFAULT_TERMS
-    return tuple(replace(t, options={**t.options, "components": True}) if t.kind == "gc" else t
-                 for t in DEFAULT_TERMS)
+    if metric == "components":
+        return tuple(replace(t, options={**t.options, "components": True}) if t.kind == "gc" else t
+                     for t in DEFAULT_TERMS)
+    return (MetricTerm(metric),)
 
 
 def parse_frames(text: str | None, n_frames: int) -> list[int]:
@@ -105,10 +107,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "intensities that match the radiographs: flatfield-corrected frames and a "
                         "calibrated HU transfer); auto (the default): joint when the trial's frames "
                         "are flatfield-corrected, else sequential")
-    p.add_argument("--metric", choices=METRICS, default="magnitudes",
-                   help="gradient correlation of gradient magnitudes (default) or of the gradient "
-                        "components (Penney's form; better on overlapping bones in our harder trial, "
-                        "slower)")
+    p.add_argument("--metric", default="magnitudes", metavar="magnitudes|components|KIND",
+                   help="gradient correlation of gradient magnitudes (default; also 'gc') or of the "
+                        "gradient components (Penney's form; better on overlapping bones in our harder "
+                        "trial, slower); another core.similarity batched kind (e.g. ncc) as one term")
     p.add_argument("--search", choices=("local", "newton"), default="local",
                    help="search of a tracked frame: local (fitted quadratic models, the default) or newton "
                         "(Gauss-Newton steps: 3-6x faster on a GPU; per-frame errors from 27%% lower to 13%% "

@@ -43,7 +43,8 @@ def test_metric_is_parsed_into_the_gc_terms():
         assert t.options == ({**d.options, "components": True} if t.kind == "gc" else d.options)
         assert t.weight == d.weight
     assert not any("components" in t.options for t in DEFAULT_TERMS)  # the default is unchanged
-    with pytest.raises(SystemExit):
-        _parse(["study", "--trial", "walk", "--metric", "ncc"])
-    with pytest.raises(ValueError, match="metric"):
-        track.registration_terms("ncc")
+    # the older names still work: gc is the default cost, another batched kind is one term of it
+    gc = _parse(["study", "--trial", "walk", "--metric", "gc"]).metric
+    assert track.registration_terms(gc) == DEFAULT_TERMS
+    ncc = track.registration_terms(_parse(["study", "--trial", "walk", "--metric", "ncc"]).metric)
+    assert [(t.kind, t.weight) for t in ncc] == [("ncc", 1.0)]

@@ -79,7 +79,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         c = choices_of(options)
         self.search = _combo(SEARCHES, c["search"])
         self.resolution = _combo(RESOLUTIONS, c["scale"])
-        self.metric = _combo(METRICS, c["metric"])
+        self.similarity = _combo(METRICS, c["metric"])  # not "metric": that would hide QPaintDevice.metric()
         self.mode = _combo(_MODES, c["mode"])
         self.guess = _combo(_GUESSES, c["guess"])
         self.confidence = QtWidgets.QCheckBox("Pose uncertainty of every frame")
@@ -88,12 +88,12 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
                                "always search globally")
         self.resolution.setToolTip("Reduced resolution tracks several times faster (chiefly on a CPU), "
                                    "with a larger error")
-        self.metric.setToolTip("Gradient components (Penney's form): better on overlapping bones in the "
+        self.similarity.setToolTip("Gradient components (Penney's form): better on overlapping bones in the "
                                "harder synthetic trial, slower")
         form = QtWidgets.QFormLayout()
         form.addRow("&Search:", self.search)
         form.addRow("&Resolution:", self.resolution)
-        form.addRow("S&imilarity:", self.metric)
+        form.addRow("S&imilarity:", self.similarity)
         form.addRow("&Mode:", self.mode)
         form.addRow("&Guess:", self.guess)
         form.addRow("", self.confidence)
@@ -110,14 +110,14 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         layout.addWidget(buttons)
 
     def restore_defaults(self) -> None:
-        for box in (self.search, self.resolution, self.metric, self.mode, self.guess):
+        for box in (self.search, self.resolution, self.similarity, self.mode, self.guess):
             box.setCurrentIndex(0)
         self.confidence.setChecked(True)
 
     def choices(self) -> dict:
         return {"search": self.search.currentData(), "scale": float(self.resolution.currentData()),
                 "mode": self.mode.currentData(), "guess": self.guess.currentData(),
-                "confidence": self.confidence.isChecked(), "metric": self.metric.currentData()}
+                "confidence": self.confidence.isChecked(), "metric": self.similarity.currentData()}
 
     def options(self):
         return options_from_choices(**self.choices())

@@ -4,7 +4,7 @@ Usage::
 
     talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
                 [--ranges] [--workers N] [--scheduler ADDRESS] [--device cpu|cuda]
-                [--frames START:STOP] [--metric gc] [--no-confidence] [--max-uncertainty MM,DEG]
+                [--frames START:STOP] [--metric gc|components] [--no-confidence] [--max-uncertainty MM,DEG]
                 [--out SUMMARY.json] [--quiet]
 
 Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto``
@@ -84,7 +84,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None, help="Warp device of every task: cpu or cuda (default: "
                                                   "the worker's GPU when it has one, else cpu)")
     p.add_argument("--frames", default=None, help="START:STOP of every trial (default: all frames)")
-    p.add_argument("--metric", default="gc", help="similarity metric (as talus track)")
+    p.add_argument("--metric", default="gc", metavar="gc|components|KIND",
+                   help="similarity, as talus track --metric: gc (the default: gradient correlation of the "
+                        "gradient magnitudes; also 'magnitudes'), components (of the gradient components) "
+                        "or another core.similarity batched kind as one term")
     p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
     p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",

@@ -43,20 +43,13 @@ METRICS = ("magnitudes", "components")
 
 
 def registration_terms(metric: str = "magnitudes") -> tuple:
-    """The registration's cost terms for ``--metric``: :data:`core.tracking.cost.DEFAULT_TERMS`
-    for ``"magnitudes"`` (or ``"gc"``, its older name), with ``components=True`` on its ``gc``
-    terms for ``"components"``; any other name is one term of that :mod:`core.similarity` batched
-    kind (e.g. ``"ncc"``), as before."""
-    from dataclasses import replace
+    """The registration's cost terms for ``--metric`` (:func:`core.tracking.cost.metric_terms`):
+    :data:`core.tracking.cost.DEFAULT_TERMS` for ``"magnitudes"`` (or ``"gc"``, its older name),
+    with ``components=True`` on its ``gc`` terms for ``"components"``; any other name is one term
+    of that :mod:`core.similarity` batched kind (e.g. ``"ncc"``), as before."""
+    from core.tracking.cost import metric_terms
 
-    from core.tracking.cost import DEFAULT_TERMS, MetricTerm
-
-    if metric in ("magnitudes", "gc"):
-        return DEFAULT_TERMS
-    if metric == "components":
-        return tuple(replace(t, options={**t.options, "components": True}) if t.kind == "gc" else t
-                     for t in DEFAULT_TERMS)
-    return (MetricTerm(metric),)
+    return metric_terms(metric)
 
 
 def parse_frames(text: str | None, n_frames: int) -> list[int]:

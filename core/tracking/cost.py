@@ -58,7 +58,7 @@ import numpy as np
 from ..geometry.transforms import pose_from_params
 
 __all__ = ["DEFAULT_TERMS", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
-           "RegistrationCost", "fluoro_rois", "mm_per_pixel", "prepare_frame", "search_roi"]
+           "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel", "prepare_frame", "search_roi"]
 
 
 class OutsideViewError(ValueError):
@@ -133,6 +133,21 @@ _LI_FLOOR = np.float32(1.0 / 4096)  # core.similarity.line_integral_image's defa
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=np.uint8)
 
 DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3}),)
+
+
+def metric_terms(name: str = "magnitudes") -> tuple[MetricTerm, ...]:
+    """The cost terms of a similarity's name (``talus track``/``talus batch --metric``, the
+    window's Similarity): :data:`DEFAULT_TERMS` for ``"magnitudes"`` (or ``"gc"``, its older
+    name), the same with ``components=True`` on the ``gc`` terms for ``"components"``, and one
+    term of any other :mod:`core.similarity` batched kind (e.g. ``"ncc"``)."""
+    from dataclasses import replace
+
+    if name in ("magnitudes", "gc"):
+        return DEFAULT_TERMS
+    if name == "components":
+        return tuple(replace(t, options={**t.options, "components": True}) if t.kind == "gc" else t
+                     for t in DEFAULT_TERMS)
+    return (MetricTerm(name),)
 
 
 class FrameImages:

@@ -217,3 +217,14 @@ def test_batch_on_two_workers_matches_serial_and_survives_a_killed_worker(demo, 
                 np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-9, err_msg=f"{t}/{bone}")
                 rep = b.read_report("tracking", f"{t}.{bone}")
                 assert rep["summary"]["status"] == "complete"
+
+
+def test_task_settings_metric_names_as_talus_track():
+    from core.tracking.cost import DEFAULT_TERMS, metric_terms
+
+    assert TaskSettings().tracking_options(joint=False).registration.terms == DEFAULT_TERMS
+    comp = TaskSettings(metric="components").tracking_options(joint=True).registration.terms
+    assert comp == metric_terms("components") and comp[0].options["components"] is True
+    assert metric_terms("magnitudes") == metric_terms("gc") == DEFAULT_TERMS
+    ncc = TaskSettings(metric="ncc").tracking_options(joint=False).registration.terms
+    assert [t.kind for t in ncc] == ["ncc"]

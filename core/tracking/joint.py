@@ -39,7 +39,7 @@ import warp as wp
 from .cost import CostTimer, OutsideViewError, search_roi
 from .engine import engine_cost, step_design, supports
 from .engine_search import LevenbergMarquardt
-from .register import RegistrationOptions, RegistrationResult, _snap, default_levels
+from .register import RegistrationOptions, RegistrationResult, _snap, default_levels, result_of
 
 __all__ = ["JointJob", "lockstep_applies", "register_together", "restarts_together"]
 
@@ -173,30 +173,8 @@ def _result(ln: _Lane, r, fs: float, spent: float) -> RegistrationResult:
     """The :class:`~core.tracking.register.RegistrationResult` that
     :func:`~core.tracking.register.register` builds from a converged (or cancelled) single
     Gauss-Newton level; ``spent``: the bone's wall time."""
-    c = ln.cost
-    x = np.asarray(r.x, dtype=float)
-    if r.converged and r.model is not None:
-        score = float(1.0 - r.model.predict(x - r.model.x))
-        view_scores = np.asarray(r.model.view_scores, dtype=float)
-    else:
-        score, view_scores = c.score_and_views(x)
-    converged, reason = r.converged, r.reason
-    if np.any(np.abs(x) >= ln.hi * (1 - 1e-6)):
-        converged, reason = False, "at_bound"
-    timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
-    for k, v in c.timer.to_dict().items():
-        timing[k] += v
-    timing[f"engine_steps_x{fs:g}"] = c.batches.get(13, 0)
-    timing[f"engine_scores_x{fs:g}"] = sum(v for b, v in c.batches.items() if b != 13)
-    t0 = time.perf_counter()
-    pose = c.poses(x[None])[0]
-    total = spent + time.perf_counter() - t0
-    timing["total_s"] = total
-    timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
-    return RegistrationResult(pose=pose, x=x, score=score, view_scores=view_scores,
-                              evaluations=r.evaluations, generations=r.generations, time_s=total,
-                              converged=converged, reason=reason, stages=(r,), timing=timing,
-                              fit=r.model if r.model is not None else None)
+    return result_of((r,), r.x, ln.cost, ln.hi, model_score=True, timers=(ln.cost,),
+                     engines={fs: ln.cost}, fit=r.model, t_start=time.perf_counter() - spent)
 
 
 @dataclass
@@ -295,37 +273,12 @@ def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options:
 
 def _restart_result(ln: _Restart, levels, fs: float, hi: np.ndarray, engine_at, spent: float):
     """What :func:`~core.tracking.register.register` returns for the stages of one restart."""
-    t0 = time.perf_counter()
-    stages = ln.stages
-    last = stages[-1]
-    x = np.asarray(last.x, dtype=float)
+    t_start = time.perf_counter() - spent
+    last = ln.stages[-1]
     full = ln.costs.get(fs)
     if full is None:  # ended before the full-resolution level (cancelled)
         full = ln.costs[fs] = engine_at(fs).sibling(ln.k)
     last_gn = levels[-1].scale == fs
-    if last_gn and last.converged and last.model is not None:
-        score = float(1.0 - last.model.predict(x - last.model.x))
-        view_scores = np.asarray(last.model.view_scores, dtype=float)
-    else:
-        score, view_scores = full.score_and_views(x)
-    converged = last.converged and all(s.reason != "cancelled" for s in stages)
-    reason = last.reason
-    if np.any(np.abs(x) >= hi * (1 - 1e-6)):
-        converged, reason = False, "at_bound"
-    timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
-    for c in ln.costs.values():
-        for key, v in c.timer.to_dict().items():
-            timing[key] += v
-    for sc, c in ln.costs.items():
-        timing[f"engine_steps_x{sc:g}"] = c.batches.get(13, 0)
-        timing[f"engine_scores_x{sc:g}"] = sum(v for b, v in c.batches.items() if b != 13)
-    pose = full.poses(x[None])[0]
-    total = spent + time.perf_counter() - t0
-    timing["total_s"] = total
-    timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
-    fit = last.model if (last.model is not None and last_gn) else None
-    return RegistrationResult(pose=pose, x=x, score=score, view_scores=view_scores,
-                              evaluations=sum(s.evaluations for s in stages),
-                              generations=sum(s.generations for s in stages), time_s=total,
-                              converged=converged, reason=reason, stages=tuple(stages), timing=timing,
-                              fit=fit)
+    return result_of(ln.stages, last.x, full, hi, model_score=last_gn, timers=ln.costs.values(),
+                     engines=ln.costs, fit=last.model if (last.model is not None and last_gn) else None,
+                     t_start=t_start)

@@ -447,9 +447,27 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         if r.fun <= full(x[None])[0]:
             x = r.x
     last = stages[-1]
-    if last_gn and not o.refine and last.converged and last.model is not None:
-        # the model's similarity at its minimum (the last step's centre is within tol_x of it) and
-        # the per-view similarities at that centre: no launch of its own
+    fit = last.model if (last.method in ("quadratic", "gauss_newton") and last.model is not None
+                         and (o.refine == "quadratic" or levels[-1].scale == fs)) else None
+    return result_of(stages, x, full, hi, model_score=last_gn and not o.refine,
+                     timers=(*costs.values(), *engines.values()), engines=engines, fit=fit,
+                     t_start=t_start)
+
+
+def result_of(stages, x, full, hi, *, model_score: bool, timers, engines, fit,
+              t_start: float) -> RegistrationResult:
+    """The :class:`RegistrationResult` of a registration's ``stages`` ending at ``x`` (scored
+    on ``full``, the full-resolution cost; ``hi`` the search box's half-widths): with
+    ``model_score`` and a converged last stage with a fitted model, the model's similarity at its
+    minimum (the last step's centre is within tol_x of it) and the per-view similarities at that
+    centre, without a launch of its own; otherwise ``full`` scores ``x``. ``timers``: every cost
+    used (their timers are summed), ``engines``: the Gauss–Newton engines by scale (their
+    launches counted), ``t_start``: when the registration started (``time.perf_counter``).
+    :func:`register` and the side-by-side searches of :mod:`core.tracking.joint` build their
+    results here."""
+    last = stages[-1]
+    x = np.asarray(x, dtype=float)
+    if model_score and last.converged and last.model is not None:
         score = float(1.0 - last.model.predict(x - last.model.x))
         view_scores = np.asarray(last.model.view_scores, dtype=float)
     else:
@@ -459,19 +477,17 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     if np.any(np.abs(x) >= hi * (1 - 1e-6)):
         converged, reason = False, "at_bound"
     timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
-    for c in (*costs.values(), *engines.values()):
+    for c in timers:
         for k, v in c.timer.to_dict().items():
             timing[k] += v
     for sc, c in engines.items():  # launches of the engine per scale (13-pose steps, 1-pose scores)
         timing[f"engine_steps_x{sc:g}"] = c.batches.get(13, 0)
         timing[f"engine_scores_x{sc:g}"] = sum(v for b, v in c.batches.items() if b != 13)
+    pose = full.poses(x[None])[0]
     total = time.perf_counter() - t_start
     timing["total_s"] = total
     timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"], 0.0)
-    fit = last.model if (last.method in ("quadratic", "gauss_newton") and last.model is not None
-                         and (o.refine == "quadratic" or levels[-1].scale == fs)) else None
     return RegistrationResult(
-        pose=full.poses(x[None])[0], x=np.asarray(x, float), score=score,
-        view_scores=view_scores, evaluations=sum(s.evaluations for s in stages),
-        generations=sum(s.generations for s in stages), time_s=total, converged=converged,
-        reason=reason, stages=tuple(stages), timing=timing, fit=fit)
+        pose=pose, x=x, score=score, view_scores=view_scores,
+        evaluations=sum(s.evaluations for s in stages), generations=sum(s.generations for s in stages),
+        time_s=total, converged=converged, reason=reason, stages=tuple(stages), timing=timing, fit=fit)

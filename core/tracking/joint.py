@@ -140,12 +140,8 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
     while queue:
         k = queue.pop(0)
         ln = lanes[k]
-        t0 = time.perf_counter()
-        if ln.event is not None:
-            wp.synchronize_event(ln.event)
-        ln.cost.timer.metric += time.perf_counter() - t0
         try:
-            ev = ln.cost.collect()
+            ev = _collect(ln)
         except OutsideViewError as exc:
             out[k] = exc
             del lanes[k]
@@ -167,6 +163,16 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
             except OutsideViewError as exc:
                 out[k] = exc
     return out
+
+
+def _collect(ln):
+    """The evaluation of a lane's (or restart's) step in flight, once its event has completed (the
+    wait counted as metric time)."""
+    t0 = time.perf_counter()
+    if ln.event is not None:
+        wp.synchronize_event(ln.event)
+    ln.cost.timer.metric += time.perf_counter() - t0
+    return ln.cost.collect()
 
 
 def _result(ln: _Lane, r, fs: float, spent: float) -> RegistrationResult:
@@ -260,11 +266,7 @@ def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options:
     while queue:
         k = queue.pop(0)
         ln = lanes[k]
-        t0 = time.perf_counter()
-        if ln.event is not None:
-            wp.synchronize_event(ln.event)
-        ln.cost.timer.metric += time.perf_counter() - t0
-        ev = ln.cost.collect()
+        ev = _collect(ln)
         ln.lm.tell(ln.cost.newton(ln.x, ln.lm.h, ev))
         push(k)
     share = (time.perf_counter() - t_start) / max(len(lanes), 1)

@@ -1,5 +1,7 @@
 """Is this folder a complete demo study? The one check behind ``talus demo`` (which reuses a demo
-made with the same options) and the welcome page's "Open the demo" (which writes it only once).
+made with the same options) and the welcome page's "Open the demo" (which writes it only once),
+and :func:`write_demo`, the one place both write it (the demo is synthetic by design: the only
+user-facing path that imports :mod:`core.synthetic`).
 
 A complete demo is what :func:`core.synthetic.demo.make_demo_study` leaves when it finishes: a
 ``summary.json`` of format ``talus-synthetic-study`` with status ``complete``, the study manifest
@@ -13,7 +15,7 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
-__all__ = ["DEMO_FORMAT", "complete_demo"]
+__all__ = ["DEMO_FORMAT", "complete_demo", "write_demo"]
 
 #: The ``format`` of a demo study's ``summary.json``.
 DEMO_FORMAT = "talus-synthetic-study"
@@ -54,3 +56,19 @@ def complete_demo(folder: str | os.PathLike, *, calibration_session: bool = True
         if value is not None and summary.get(key) != value:
             return None
     return summary
+
+
+def write_demo(folder: str | os.PathLike, *, progress=None, cancel=None, **options) -> dict:
+    """Write the built-in synthetic demo study into ``folder``
+    (:func:`core.synthetic.demo.make_demo_study` with ``options``; those left out take its
+    defaults) and return its summary. ``progress(done, total, *stage)`` and ``cancel()`` as there.
+
+    Raises
+    ------
+    CliError
+        The generator cannot be imported (the missing module named).
+    """
+    from .commands._shared import load
+
+    make_demo_study = load("core.synthetic.demo:make_demo_study", needed_for="the demo study")
+    return make_demo_study(folder, **options, progress=progress, cancel=cancel)

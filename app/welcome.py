@@ -50,13 +50,13 @@ def _demo_complete(folder: Path) -> bool:
 
 
 def _write_demo(folder: str, options: dict, progress=None, cancel=None) -> str:
-    from core.synthetic.demo import make_demo_study  # the demo is synthetic by design
+    from .demo_cache import write_demo
 
     def report(done, total, *_stage) -> None:  # the calibration session's steps add a stage name
         if progress is not None:
             progress(done, total)
 
-    make_demo_study(folder, **options, progress=report, cancel=cancel)
+    write_demo(folder, **options, progress=report, cancel=cancel)
     return folder
 
 

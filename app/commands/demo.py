@@ -47,7 +47,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    make_demo_study = load("core.synthetic.demo:make_demo_study", needed_for="'talus demo'")
+    from ..demo_cache import write_demo
+
     out = Path(args.out).expanduser()
     cached = None if args.regenerate else _cached_demo(out, args)
     if cached is not None:
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
                      "device": args.device}
             options = {k: v for k, v in given.items() if v is not None}
             with stdout_to_stderr():
-                result = make_demo_study(out, **options, progress=progress, cancel=token)
+                result = write_demo(out, **options, progress=progress, cancel=token)
         except KeyboardInterrupt:
             token.set()
             result = None

@@ -59,7 +59,8 @@ step's synchronisation), its launches recorded once, and the same set-up again (
 kept. :meth:`~GaussNewtonCost.submit` and :meth:`~GaussNewtonCost.collect` split an evaluation
 from its wait, so several bones' steps (:mod:`core.tracking.joint`), or several searches of one
 bone on :meth:`~GaussNewtonCost.sibling` costs, are in flight together. Kernels:
-:mod:`core.tracking.engine_kernels`; the device preparation of the regions:
+:mod:`core.tracking.engine_kernels`; the metric pipeline: :mod:`core.tracking.engine_pipeline`;
+the device preparation of the regions:
 :mod:`core.tracking.engine_frames`; the search and the Gauss–Newton algebra:
 :mod:`core.tracking.engine_search`.
 """
@@ -77,14 +78,13 @@ import warp as wp
 from ..render._kernels import ITEM_COLS
 from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
-from .cpu_threads import split_cpu_launches
 from .engine_frames import stage, staged_shapes
 from .engine_kernels import (
     N_POSES,
     fluoro_gradient_kernel,
-    moments_kernel,
     subtract_kernel,
 )
+from .engine_pipeline import _Pipeline
 from .engine_search import (
     GaussNewtonFit,
     GaussNewtonStep,
@@ -99,7 +99,6 @@ __all__ = ["ENGINE_KINDS", "GaussNewtonCost", "GaussNewtonFit", "GaussNewtonStep
 #: Similarity kinds the engine handles (Pearson correlations of a per-pixel quantity).
 ENGINE_KINDS = ("gc", "ncc")
 _MODE = {"ncc": 0, "gc": 1}
-_KIND = {"ncc": K.K_NCC, "gc": K.K_GC}
 _OPTIONS = ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm", "threshold", "dilate", "operator",
             "components")
 _N = N_POSES  # poses per step: the centre and ±h_k e_k
@@ -124,91 +123,6 @@ def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
     out[:, :3, 3] = c_lab + X[:, :3] - R @ center
     out[:, 3, 3] = 1.0
     return out
-
-
-class _Pipeline:
-    """Device buffers and recorded launches of the metric for one DRR buffer (``n_poses``
-    poses × views items of a fixed size); a CUDA graph on the GPU."""
-
-    def __init__(self, c: GaussNewtonCost, images: wp.array, n_poses: int) -> None:
-        dev = c.device
-        n, H, W = images.shape
-        nv = c.n_views
-        self.images = images
-        self.stats = wp.zeros((n, 6), dtype=wp.float64, device=dev)
-        self.extra = wp.zeros((n, 6), dtype=wp.float64, device=dev)
-        self.count = wp.zeros(n, dtype=wp.float64, device=dev)
-        self.out = wp.zeros(n_poses * (1 + nv), dtype=wp.float32, device=dev)
-        self.host_out = wp.zeros(self.out.shape, dtype=wp.float32, device="cpu", pinned=dev.is_cuda)
-        # moments per view; GC of the gradient components: the u components' rows, then the v's
-        nq = 2 if c.components else 1
-        self.gn = wp.zeros((nq * nv, 81), dtype=wp.float64, device=dev) if n_poses == _N else None
-        self.host_gn = (wp.zeros((nq * nv, 81), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
-                        if self.gn is not None else None)
-        self.zero = [self.stats, self.extra, self.count] + ([self.gn] if self.gn is not None else [])
-        launches = []
-        img = images
-        if c._blur is not None:
-            self.tmp = wp.zeros(images.shape, dtype=wp.float32, device=dev)
-            self.blurred = wp.zeros(images.shape, dtype=wp.float32, device=dev)
-            for src, dst, axis in ((images, self.tmp, 1), (self.tmp, self.blurred, 0)):
-                launches.append(wp.launch(K.blur_kernel, dim=(n, H, W), device=dev, record_cmd=True,
-                                          inputs=[src, dst, c._blur, c._ref_hw, nv, axis]))
-            img = self.blurred
-        n_chunks = math.ceil(H * W / c.chunk)
-        # (mode, statistics, moments' first row) per quantity: GC of the components has two
-        quantities = ([(2, self.stats, 0), (3, self.extra, nv)] if c.components
-                      else [(c.mode, self.stats, 0)])
-        for mode, acc, _ in quantities:
-            launches.append(wp.launch_tiled(K.stats_kernel, dim=(n, n_chunks), block_dim=c.block_dim,
-                                            device=dev, record_cmd=True,
-                                            inputs=[img, c._fluoro, c._fgrad, c._fmask, c._ref_hw, c._fshift,
-                                                    nv, c.threshold, c.dilate, mode, c._ku, c._kv, c.chunk,
-                                                    acc]))
-        code = K.K_GCC if c.components else _KIND[c.kind]
-        launches.append(wp.launch(K.finalize_kernel, dim=n_poses, device=dev, record_cmd=True,
-                                  inputs=[code, nv, self.stats, self.extra, self.count, c._fshift,
-                                          nv, 0.25, c._weights, self.out]))
-        if self.gn is not None:
-            for mode, _, row in quantities:
-                launches.append(wp.launch_tiled(moments_kernel, dim=(nv, n_chunks), block_dim=c.block_dim,
-                                                device=dev, record_cmd=True,
-                                                inputs=[img, c._fluoro, c._fgrad, c._fmask, c._ref_hw,
-                                                        c._fshift, nv, c.threshold, c.dilate, mode, c._ku,
-                                                        c._kv, c.chunk, self.gn[row:row + nv]]))
-        # on the CPU the blur passes split by items and the moments beside the statistics, on threads
-        self.launches = launches if dev.is_cuda else split_cpu_launches(launches, c.renderer.cpu_threads)
-        self.graph = None
-        if dev.is_cuda:
-            with wp.ScopedCapture(device=dev) as cap:
-                self._enqueue()
-            self.graph = cap.graph
-
-    def _enqueue(self) -> None:
-        for a in self.zero:
-            a.zero_()
-        for cmd in self.launches:
-            cmd.launch()
-        wp.copy(self.host_out, self.out)
-        if self.gn is not None:
-            wp.copy(self.host_gn, self.gn)
-
-    def launch(self) -> None:
-        """Enqueue the metric (its results are on the host after the next synchronisation)."""
-        if self.graph is not None:
-            wp.capture_launch(self.graph)
-        else:
-            self._enqueue()
-
-    def fetch(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """The scores (and moments) once the device has synchronised."""
-        return self.host_out.numpy().copy(), None if self.gn is None else self.host_gn.numpy().copy()
-
-    def run(self) -> tuple[np.ndarray, np.ndarray | None]:
-        self.launch()
-        if self.graph is not None:
-            wp.synchronize_device(self.images.device)
-        return self.fetch()
 
 
 class GaussNewtonCost:

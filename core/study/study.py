@@ -25,6 +25,9 @@ for writing (e.g. ``talus batch`` tracking different trials or bones of it side 
 Read-only opens need no lock (every write is an atomic rename or a checksummed append, so
 readers never see half-written files).
 
+The editing methods (and the merge of concurrent edits) live in :mod:`core.study.study_edit`, the
+reports in :mod:`core.study.study_reports`; :class:`Study` inherits both.
+
 Example
 -------
 >>> with Study.create("subject07") as st:                       # doctest: +SKIP
@@ -39,23 +42,22 @@ from __future__ import annotations
 
 import copy
 import os
-import re
-from collections.abc import Sequence
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from ..io.atomic import FileLock, atomic_write, atomic_write_json, remove_stale_temporaries
+from ..io.atomic import FileLock, atomic_write, remove_stale_temporaries
 from .errors import StudyError
-from .manifest import new_manifest, read_manifest, resolve_path, store_path, write_manifest
-from .schema import MANIFEST_NAME, NAME_RE
+from .manifest import new_manifest, read_manifest, resolve_path, write_manifest
+from .schema import MANIFEST_NAME
+from .study_edit import StudyEdits
+from .study_reports import StudyReports
 
 __all__ = ["Study"]
 
 LOCK_NAME = ".talus.lock"  # the manifest's
 MANIFEST_LOCK_S = 30.0  # how long a manifest update waits for another process's update
 STALE_TEMP_S = 600.0  # temporaries of crashed writes older than this are removed on a write open
-_TIFF = (".tif", ".tiff")
 
 
 def _check_no_escape(folder: Path) -> None:
@@ -80,43 +82,7 @@ def _check_no_escape(folder: Path) -> None:
             todo.extend(p.iterdir())
 
 
-_SECTIONS = ("calibrations", "volumes", "bones", "trials", "settings")
-
-
-def _merge(base: dict, mine: dict, theirs: dict) -> dict:
-    """``theirs`` (the manifest on disk now) with the changes from ``base`` to ``mine`` (this
-    handle's edits) applied entry by entry: an added, replaced or removed calibration, volume,
-    bone, trial or setting, or a changed top-level value. Another process's edits of other
-    entries are kept; for one entry edited by both, the later save wins."""
-    out = copy.deepcopy(theirs)
-    for key in set(base) | set(mine):
-        if key == "modified":
-            continue
-        b, m = base.get(key), mine.get(key)
-        if key in _SECTIONS and isinstance(m, dict) and isinstance(out.get(key), dict):
-            b = b if isinstance(b, dict) else {}
-            for k in set(b) | set(m):
-                if k not in m:
-                    out[key].pop(k, None)
-                elif k not in b or b[k] != m[k]:
-                    out[key][k] = copy.deepcopy(m[k])
-        elif key not in mine:
-            out.pop(key, None)
-        elif key not in base or b != m:
-            out[key] = copy.deepcopy(m)
-    return out
-
-
-def _check_name(name: str, what: str) -> str:
-    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
-        raise ValueError(
-            f"{what}: expected 1-64 letters, digits, '_', '-', '.' starting with a letter or digit, "
-            f"got {name!r}"
-        )
-    return name
-
-
-class Study:
+class Study(StudyEdits, StudyReports):
     """A study folder opened read-only (``mode="r"``) or for writing (``mode="w"``).
 
     Use :meth:`create` or :meth:`open`; close it (or use ``with``) to release the journal locks
@@ -344,179 +310,6 @@ class Study:
             out += [(f"trials[{n!r}].views[{i}].path", v["path"]) for i, v in enumerate(t["views"])]
         return [(w, self.path(p)) for w, p in out if not self.path(p).exists()]
 
-    def relocate(self, missing: str | os.PathLike, new_path: str | os.PathLike) -> int:
-        """Point every reference to the file ``missing`` (as reported by
-        :meth:`missing_files`) at ``new_path`` instead (which must exist); returns how many
-        references changed. The manifest is saved atomically."""
-        self._require_write()
-        old = Path(missing).expanduser().absolute()
-        new = self._existing(new_path, "new_path")
-        doc = copy.deepcopy(self._doc)
-        count = 0
-
-        def swap(stored: str) -> str:
-            nonlocal count
-            if self.path(stored).absolute() == old:
-                count += 1
-                return new
-            return stored
-
-        for c in doc["calibrations"].values():
-            c["cameras"] = [swap(p) for p in c["cameras"]]
-        for v in doc["volumes"].values():
-            v["path"] = swap(v["path"])
-            if v.get("labels"):
-                v["labels"] = swap(v["labels"])
-        for t in doc["trials"].values():
-            for view in t["views"]:
-                view["path"] = swap(view["path"])
-        if count == 0:
-            raise StudyError(f"missing: {old} is not referenced by this study")
-        self._commit(doc)
-        self._volume_cache.clear()
-        return count
-
-    # ------------------------------------------------------------------ editing
-    def _require_write(self) -> None:
-        if self._mode != "w":
-            state = "read-only" if self._mode == "r" else "no more"
-            raise StudyError(f'{self._folder}: study is open {state}; open it with mode="w" to change it')
-
-    def _commit(self, doc: dict) -> None:
-        """Save ``doc`` (this handle's manifest with its edits) as one read-modify-write under
-        the manifest's short lock: the edits are merged into the manifest on disk, which other
-        processes may have changed since (:func:`_merge`)."""
-        with self._manifest_lock(self._folder):
-            theirs, _ = read_manifest(self._folder)
-            merged = _merge(self._doc, doc, theirs)
-            write_manifest(self._folder, merged)
-        self._doc = merged
-
-    def _existing(self, path, what: str) -> str:
-        p = Path(path).expanduser()
-        if not p.is_absolute():
-            p = Path.cwd() / p
-        if not p.exists():
-            raise StudyError(f"{what}: referenced file {p} does not exist")
-        return store_path(self._folder, p)
-
-    def add_calibration(
-        self, name: str, cameras: Sequence[str | os.PathLike], *, pixel_size_mm: float | None = None
-    ) -> None:
-        """Reference one MayaCam (1.0/2.0) file per camera under ``name`` (files are read to check them)."""
-        from ..geometry.mayacam import read_mayacam
-
-        self._require_write()
-        _check_name(name, "name")
-        if isinstance(cameras, str | os.PathLike) or len(cameras) < 1:
-            raise ValueError(f"cameras: expected a sequence of camera file paths, got {cameras!r}")
-        stored = [self._existing(p, f"cameras[{i}]") for i, p in enumerate(cameras)]
-        for s in stored:
-            read_mayacam(self.path(s), pixel_size=pixel_size_mm)
-        doc = copy.deepcopy(self._doc)
-        doc["calibrations"][name] = {"format": "mayacam", "cameras": stored, "pixel_size_mm": pixel_size_mm}
-        self._commit(doc)
-
-    def add_volume(
-        self,
-        name: str,
-        path: str | os.PathLike,
-        *,
-        voxel_size_mm: Sequence[float] | None = None,
-        hu_offset: float = 0.0,
-        labels: str | os.PathLike | None = None,
-    ) -> None:
-        """Reference a CT (DICOM folder, NIfTI, NRRD, MHA, or TIFF stack + ``voxel_size_mm``)."""
-        self._require_write()
-        _check_name(name, "name")
-        stored = self._existing(path, "path")
-        if Path(stored).suffix.lower() in _TIFF and voxel_size_mm is None:
-            raise ValueError(
-                f"voxel_size_mm: required for the TIFF volume {path} (TIFF stores no voxel size)"
-            )
-        entry = {
-            "path": stored,
-            "voxel_size_mm": None if voxel_size_mm is None else [float(v) for v in voxel_size_mm],
-            "hu_offset": float(hu_offset),
-            "labels": None if labels is None else self._existing(labels, "labels"),
-        }
-        doc = copy.deepcopy(self._doc)
-        doc["volumes"][name] = entry
-        self._commit(doc)
-
-    def add_bone(self, name: str, *, volume: str, label: int | None = None, margin_mm: float = 5.0) -> None:
-        """A bone: the whole ``volume`` (``label=None``) or its label-map region plus ``margin_mm``."""
-        self._require_write()
-        _check_name(name, "name")
-        vol = self._doc["volumes"].get(volume)
-        if vol is None:
-            raise StudyError(f"volume: no volume named {volume!r} (have {list(self._doc['volumes'])})")
-        if label is not None and not vol.get("labels"):
-            raise StudyError(f"label: volume {volume!r} has no label map; add it with labels=...")
-        doc = copy.deepcopy(self._doc)
-        doc["bones"][name] = {"volume": volume, "label": label, "margin_mm": float(margin_mm)}
-        self._commit(doc)
-        self._volume_cache.pop(name, None)
-
-    def add_trial(
-        self,
-        name: str,
-        views: Sequence[str | os.PathLike],
-        *,
-        calibration: str,
-        frame_offset: int = 0,
-        bones: Sequence[str] = (),
-        bit_depth: int | None = None,
-    ) -> None:
-        """Reference one fluoro sequence per camera of ``calibration``.
-
-        The sequences are opened to check them: each must be readable, match its camera's image
-        size, and the views must hold the same number of frames (see
-        :class:`core.io.TwoViewSequence`).
-        """
-        from ..io.paired import TwoViewSequence
-        from ..io.sequences import open_sequence
-
-        self._require_write()
-        _check_name(name, "name")
-        cal = self._calibration_entry(calibration)
-        if isinstance(views, str | os.PathLike) or len(views) != len(cal["cameras"]):
-            n = len(cal["cameras"])
-            raise ValueError(f"views: expected {n} sequence paths (one per camera), got {views!r}")
-        for b in bones:
-            if b not in self._doc["bones"]:
-                raise StudyError(f"bones: no bone named {b!r} (have {list(self.bones)})")
-        stored = [self._existing(p, f"views[{i}]") for i, p in enumerate(views)]
-        rig = self.rig(calibration)
-        seqs = [open_sequence(self.path(s), bit_depth=bit_depth) for s in stored]
-        try:
-            for i, (seq, cam) in enumerate(zip(seqs, rig, strict=True)):
-                if seq.frame_shape != cam.image_shape:
-                    raise StudyError(
-                        f"views[{i}]: {seq.path} has frames of {seq.frame_shape[1]}x{seq.frame_shape[0]} "
-                        f"pixels but camera {cam.name!r} expects {cam.width}x{cam.height}"
-                    )
-            if len(seqs) == 2:
-                TwoViewSequence(seqs[0], seqs[1], offset=frame_offset)
-        finally:
-            for s in seqs:
-                s.close()
-        doc = copy.deepcopy(self._doc)
-        doc["trials"][name] = {
-            "calibration": calibration,
-            "views": [{"path": s, "bit_depth": bit_depth} for s in stored],
-            "frame_offset": int(frame_offset),
-            "bones": list(bones),
-        }
-        self._commit(doc)
-
-    def update_settings(self, **values: Any) -> None:
-        """Merge ``values`` (JSON-serialisable) into the settings object."""
-        self._require_write()
-        doc = copy.deepcopy(self._doc)
-        doc["settings"].update(values)
-        self._commit(doc)
-
     # ------------------------------------------------------------------ loading
     def _calibration_entry(self, calibration: str) -> dict:
         cal = self._doc["calibrations"].get(calibration)
@@ -567,51 +360,3 @@ class Study:
         from .repair import repair_study
 
         return repair_study(self, dry_run=dry_run)
-
-    # ------------------------------------------------------------------ reports
-    def _report_path(self, kind: str, name: str) -> Path:
-        _check_name(kind, "kind")
-        _check_name(name, "name")
-        p = self._folder / "results" / "reports" / kind / f"{name}.json"
-        return self.inside(p)
-
-    def inside(self, path: str | os.PathLike) -> Path:
-        """``path`` if it (following any symbolic links) lies inside the study folder, else
-        :class:`StudyError`; writers of study files check their destination with it."""
-        p = Path(path)
-        p = p if p.is_absolute() else self._folder / p
-        root = self._folder.resolve()
-        if not p.resolve().is_relative_to(root):
-            raise StudyError(
-                f"{p}: leads to {p.resolve()}, outside the study folder {root} (a symbolic link?); "
-                "expected a path inside the study", path=p, expected="a path inside the study",
-            )
-        return p
-
-    def write_report(self, kind: str, name: str, data: dict) -> Path:
-        """Save a JSON report (e.g. ``kind="calibration"``) atomically; NaN must be given as None."""
-        self._require_write()
-        if not isinstance(data, dict):
-            raise ValueError(f"data: expected a dict, got {type(data).__name__}")
-        p = self._report_path(kind, name)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        lock = FileLock(p.with_name(f".{name}.lock"), purpose=f"report {p}")
-        with lock.acquire(timeout=MANIFEST_LOCK_S):
-            atomic_write_json(p, data)
-        return p
-
-    def read_report(self, kind: str, name: str) -> dict:
-        """A report written by :meth:`write_report`."""
-        import json
-
-        p = self._report_path(kind, name)
-        if not p.is_file():
-            raise StudyError(f"{p}: no {kind!r} report named {name!r}")
-        try:
-            return json.loads(p.read_text(encoding="utf-8"))
-        except (ValueError, UnicodeDecodeError) as exc:
-            raise StudyError(f"{p}: expected a JSON report ({exc})") from None
-
-    def report_names(self, kind: str) -> tuple[str, ...]:
-        folder = self._folder / "results" / "reports" / _check_name(kind, "kind")
-        return tuple(sorted(p.stem for p in folder.glob("*.json") if not re.match(r"^\.", p.name)))

@@ -26,6 +26,9 @@ field (so the flatfield is the trial's: :meth:`ImagingModel.flatfield`).
 The session is written into a temporary folder beside ``out`` and renamed into place when
 complete, so a crash or a cancel never leaves a partial session (an earlier one stays intact
 until the new one is complete).
+
+The spiral's poses and the session's scene are built in :mod:`core.synthetic.session_poses`, the
+frames' line integrals in :mod:`core.synthetic.session_render`.
 """
 
 from __future__ import annotations
@@ -36,27 +39,18 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import tifffile
 
-from ..geometry.camera import Camera, Rig
+from ..geometry.camera import Camera
 from ..io.atomic import fsync_dir
-from .analytic import attenuation_per_mm, slab_line_integrals
-from .calib_objects import (
-    CalibrationObject,
-    bead_lattice,
-    calibration_cube,
-    distortion_grid,
-    face_frame,
-    helical_spiral,
-)
-from .calibration import object_line_integrals, plate_line_integrals
-from .imaging import ImagingModel
-from .rig import FLOOR_Z_MM, foot_rig
+from .analytic import slab_line_integrals
+from .calib_objects import bead_lattice, calibration_cube, distortion_grid, helical_spiral
+from .calibration import object_line_integrals
+from .session_poses import _default_setup, _inside_field, spiral_poses
+from .session_render import _at_kv, _dark, _ObjectRenderer, _plate, _uv
 
 __all__ = ["SESSION_FORMAT", "SESSION_VERSION", "spiral_poses", "write_calibration_session"]
 
@@ -94,256 +88,6 @@ def _npz(arrays: dict) -> bytes:
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     return buf.getvalue()
-
-
-# ---------------------------------------------------------------------------- scene parts
-def _default_setup(pixels: int, seed: int, energy_kev: float):
-    """The rig, image chains and walkway of ``make_foot_scene(pixels=pixels, seed=seed)``
-    (same sub-seeds) without building its bones."""
-    ss = np.random.SeedSequence(int(seed)).spawn(4)
-    g_rig, g_img = np.random.default_rng(ss[0]), np.random.default_rng(ss[3])
-    rig = foot_rig(seed=g_rig, pixels=pixels)
-    models = tuple(ImagingModel.fluoroscope(c, rng=g_img, aperture_radius=1.0) for c in rig)
-    floor = (FLOOR_Z_MM, 5.0, attenuation_per_mm("carbon", energy_kev))
-    return rig, models, floor
-
-
-def _inside_field(cam: Camera, model: ImagingModel, X: np.ndarray, margin_px: float) -> bool:
-    """All lab points ``X`` project in front of the source, inside the image and the round field
-    (after the view's distortion), ``margin_px`` clear of their borders."""
-    uv, depth = cam.project(X, return_depth=True)
-    if np.any(depth <= 0):
-        return False
-    if model.distortion is not None:
-        uv = model.distortion.forward(uv)
-    lo, hi = margin_px - 0.5, np.array([cam.width, cam.height]) - 0.5 - margin_px
-    if np.any(uv < lo) or np.any(uv > hi):
-        return False
-    if model.aperture_radius is not None:
-        c = (model.distortion.center if model.distortion is not None
-             else ((cam.width - 1) / 2, (cam.height - 1) / 2))
-        r = model.aperture_radius * min(cam.width, cam.height) / 2 - margin_px
-        if np.any(np.hypot(uv[:, 0] - c[0], uv[:, 1] - c[1]) > r):
-            return False
-    return True
-
-
-def _capture_centre(rig: Rig) -> np.ndarray:
-    """Lab point (mm) closest to every principal ray: the middle of the capture volume."""
-    A, b = np.zeros((3, 3)), np.zeros(3)
-    for c in rig:
-        P = np.eye(3) - np.outer(c.principal_ray, c.principal_ray)
-        A += P
-        b += P @ c.source
-    return np.linalg.solve(A, b)
-
-
-def _random_rotation(g: np.random.Generator) -> np.ndarray:
-    q = g.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def _tube_bottom(obj: CalibrationObject, T: np.ndarray) -> float:
-    """Lowest lab z (mm) of a tube body (or of the beads when the object has none)."""
-    if obj.body is None or obj.body[0] != "tube":
-        return float((obj.centers_lab(T)[:, 2] - obj.diameters / 2).min())
-    radius, half = obj.body[1], obj.body[2]
-    a = T[:3, 2]
-    ends = T[:3, 3][None] + np.outer([-half, half], a)
-    return float(ends[:, 2].min() - radius * np.sqrt(max(0.0, 1 - a[2] ** 2)))
-
-
-def spiral_poses(rig: Rig, imaging: Sequence[ImagingModel], n: int, *, obj: CalibrationObject | None = None,
-                 rng=0, floor_z_mm: float | None = FLOOR_Z_MM, spread_mm: float = 50.0,
-                 margin_px: float | None = None, pool: int = 10, max_tries: int = 200_000) -> np.ndarray:
-    """``(n, 4, 4)`` poses ``T_lab_from_object`` of a hand-held object moved through the capture
-    volume (the part of the lab both round X-ray fields see).
-
-    Candidates: a position uniform in a cube of half-side ``spread_mm`` about the point closest
-    to both principal rays and a uniformly random orientation; a candidate is kept when every
-    bead lies inside both images and round fields (``margin_px`` clear, default one large bead
-    diameter in pixels) and the object's body stays above the walkway (``floor_z_mm``; None = no
-    walkway). From ``pool × n`` kept candidates, ``n`` are chosen by farthest-point sampling on
-    their bead clouds (centre and orientation together), so the poses spread over the whole
-    volume and over orientations.
-    """
-    if int(n) != n or n < 1:
-        raise ValueError(f"n: expected a positive integer, got {n!r}")
-    obj = obj or helical_spiral(33)
-    g = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    cams = tuple(rig)
-    c0 = _capture_centre(rig)
-    if margin_px is None:
-        margin_px = float(obj.diameters.max()) / min(c.pixel_size for c in cams) + 2.0
-    kept = []
-    want = int(pool) * int(n)
-    for _ in range(int(max_tries)):
-        if len(kept) >= want:
-            break
-        T = np.eye(4)
-        T[:3, :3] = _random_rotation(g)
-        T[:3, 3] = c0 + g.uniform(-spread_mm, spread_mm, 3)
-        if floor_z_mm is not None and _tube_bottom(obj, T) < floor_z_mm + 2.0:
-            continue
-        X = obj.centers_lab(T)
-        if all(_inside_field(c, m, X, margin_px) for c, m in zip(cams, imaging, strict=True)):
-            kept.append(T)
-    if len(kept) < n:
-        raise ValueError(f"n: only {len(kept)} of {n} poses of {obj.name} fit inside both fields "
-                         f"after {max_tries} tries; lower n or margin_px")
-    clouds = np.stack([obj.centers_lab(T) for T in kept]).reshape(len(kept), -1)
-    chosen = [int(np.argmin(np.linalg.norm(np.stack([T[:3, 3] for T in kept]) - c0, axis=1)))]
-    d = np.linalg.norm(clouds - clouds[chosen[0]], axis=1)
-    for _ in range(int(n) - 1):
-        k = int(np.argmax(d))
-        chosen.append(k)
-        d = np.minimum(d, np.linalg.norm(clouds - clouds[k], axis=1))
-    return np.stack([kept[k] for k in chosen])
-
-
-def _ray_map(cam: Camera) -> np.ndarray:
-    """``M`` with ``M @ (u, v, 1)`` along the lab ray through pixel ``(u, v)`` (unnormalised)."""
-    return cam.R.T @ np.linalg.inv(cam.K)
-
-
-def _unit_rays(M: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``(n, 3)`` unit lab directions through pixels ``(u, v)`` (elementwise: BLAS threads for
-    (n, 3) @ (3, 3) products cost more than they save on a busy machine)."""
-    d = u[:, None] * M[:, 0] + v[:, None] * M[:, 1] + M[:, 2]
-    return d / np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
-
-
-class _ObjectRenderer:
-    """Line integrals of a tube-bodied object (the spiral) in one view, many poses.
-
-    The body (foam core and polycarbonate wall: low contrast, smooth) is sampled with exact
-    chords through its two cylinders at every pixel centre, or on images of 512 pixels and more
-    at the centres of 2 × 2 pixel blocks interpolated (bilinear) to full resolution; the steel
-    beads are rendered exactly as :func:`~core.synthetic.analytic.bead_line_integrals` with
-    fluence averaging over 4 × 4 rays per pixel does (as
-    :func:`~core.synthetic.calibration.object_line_integrals` calls it), without its (n, 3) @
-    (3, 3) products, which OpenBLAS threads slow 30-fold on a busy 2-core machine.
-    """
-
-    def __init__(self, cam: Camera, obj: CalibrationObject, *, supersample: int = 4) -> None:
-        if obj.body is None or obj.body[0] != "tube":
-            raise ValueError(f"obj: expected an object with a tube body, got {obj.name}")
-        self.cam, self.obj, self.ss = cam, obj, int(supersample)
-        self.M, self.src = _ray_map(cam), cam.source
-        b = self.block = 2 if min(cam.image_shape) >= 512 else 1
-        hb, wb = -(-cam.height // b), -(-cam.width // b)
-        v, u = np.mgrid[0:hb, 0:wb].astype(np.float64) * b + (b - 1) / 2
-        self.coarse = (hb, wb)
-        self.dirs = _unit_rays(self.M, u.ravel(), v.ravel())
-
-    def _chords(self, T: np.ndarray, radius: float, half: float) -> np.ndarray:
-        R, t = T[:3, :3], T[:3, 3]
-        o = (self.src - t) @ R
-        d = np.einsum("ni,ij->nj", self.dirs, R)
-        a = d[:, 0] ** 2 + d[:, 1] ** 2
-        b = o[0] * d[:, 0] + o[1] * d[:, 1]
-        c = o[0] ** 2 + o[1] ** 2 - radius * radius
-        disc = b * b - a * c
-        with np.errstate(divide="ignore", invalid="ignore"):
-            sq = np.sqrt(np.maximum(disc, 0.0))
-            r0 = np.where(disc > 0, (-b - sq) / a, np.inf)
-            r1 = np.where(disc > 0, (-b + sq) / a, -np.inf)
-            za, zb = (-half - o[2]) / d[:, 2], (half - o[2]) / d[:, 2]
-        flat = np.abs(d[:, 2]) < 1e-12
-        z0 = np.where(flat, np.where(abs(o[2]) <= half, -np.inf, np.inf), np.minimum(za, zb))
-        z1 = np.where(flat, np.where(abs(o[2]) <= half, np.inf, -np.inf), np.maximum(za, zb))
-        lo = np.maximum(np.maximum(r0, z0), 0.0)
-        return np.maximum(np.minimum(r1, z1) - lo, 0.0)
-
-    def body(self, T: np.ndarray) -> np.ndarray:
-        """``(H, W)`` line integrals of the body at pose ``T``."""
-        _, radius, half, mu_core, wall, mu_wall = self.obj.body
-        L = (mu_wall * self._chords(T, radius, half)
-             + (mu_core - mu_wall) * self._chords(T, radius - wall, half)).reshape(self.coarse)
-        if self.block == 1:
-            return L
-        # coarse sample k sits at pixel b k + (b - 1) / 2: cv2.resize's half-pixel alignment
-        h, w = self.cam.image_shape
-        b = self.block
-        full = cv2.resize(L, (b * self.coarse[1], b * self.coarse[0]), interpolation=cv2.INTER_LINEAR)
-        return full[:h, :w]
-
-    def beads(self, T: np.ndarray) -> np.ndarray:
-        """``(H, W)`` effective line integrals of the beads (μ above the foam core) at ``T``."""
-        cam, ss = self.cam, self.ss
-        C = self.obj.centers_lab(T)
-        r = self.obj.diameters / 2
-        mu = np.full(len(C), self.obj.bead_mu - self.obj.body[3])
-        cube = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], dtype=float)
-        uv, z = cam.project(C[:, None, :] + r[:, None, None] * cube[None], return_depth=True)
-        lo = np.maximum(np.floor(uv.min(axis=1)).astype(np.int64) - 1, 0)
-        hi = np.minimum(np.ceil(uv.max(axis=1)).astype(np.int64) + 2, [cam.width, cam.height])
-        keep = np.nonzero(np.all(z > 0, axis=1) & np.all(hi > lo, axis=1))[0]
-        out = np.zeros(cam.image_shape)
-        if len(keep) == 0:
-            return out
-        bw, bh = hi[keep, 0] - lo[keep, 0], hi[keep, 1] - lo[keep, 1]
-        npx = bw * bh
-        obj = np.repeat(np.arange(len(keep)), npx)
-        local = np.arange(len(obj)) - np.repeat(np.cumsum(npx) - npx, npx)
-        pu = lo[keep, 0][obj] + local % bw[obj]
-        pv = lo[keep, 1][obj] + local // bw[obj]
-        off = (np.arange(ss) + 0.5) / ss - 0.5
-        ou, ov = (a.ravel() for a in np.meshgrid(off, off))
-        su = (pu[:, None] + ou[None]).ravel()
-        sv = (pv[:, None] + ov[None]).ravel()
-        d = _unit_rays(self.M, su, sv)
-        k = np.repeat(keep[obj], ss * ss)
-        w = C[k] - self.src
-        t = np.einsum("ij,ij->i", w, d)
-        d2 = np.einsum("ij,ij->i", w, w) - t * t
-        chord = np.where(t > 0, 2.0 * np.sqrt(np.maximum(r[k] ** 2 - d2, 0.0)), 0.0)
-        val = -np.log(np.mean(np.exp(-(chord * mu[k]).reshape(-1, ss * ss)), axis=1))
-        np.add.at(out, (pv, pu), val)
-        return out
-
-    def __call__(self, T: np.ndarray) -> np.ndarray:
-        return np.maximum(self.body(T) + self.beads(T), 0.0).astype(np.float32)
-
-
-def _at_kv(model: ImagingModel, kv: float, kv_ref: float) -> ImagingModel:
-    """The chain at another tube voltage: fluence and gain scale as (kV / kV_ref)²."""
-    if kv == kv_ref:
-        return model
-    s = (kv / kv_ref) ** 2
-    if model.dark_dn + model.gain_dn * s > 2**model.bits - 1:
-        raise ValueError(f"kvs: {kv:g} kV saturates the {model.bits}-bit camera (gain scales as kV²)")
-    photons = None if model.photons_per_pixel is None else model.photons_per_pixel * s
-    return replace(model, gain_dn=model.gain_dn * s, photons_per_pixel=photons)
-
-
-def _dark(model: ImagingModel, shape, g: np.random.Generator) -> np.ndarray:
-    dn = np.full(shape, float(model.dark_dn))
-    if model.read_noise_dn > 0:
-        dn = dn + g.normal(0.0, model.read_noise_dn, size=shape)
-    return np.clip(np.rint(dn), 0, 2**model.bits - 1).astype(np.uint16)
-
-
-def _plate(cam: Camera, model: ImagingModel, plate, *, gap_mm: float, offset_mm, angle_rad: float):
-    """Line integrals of a face plate on ``cam``'s intensifier, its pose and its features'
-    ideal / distorted pixels and lab points (features inside the image only)."""
-    T = face_frame(cam, gap_mm=gap_mm, thickness_mm=plate.thickness, offset_mm=offset_mm,
-                   angle_rad=angle_rad)
-    L = plate_line_integrals(cam, plate, T)
-    pts = plate.points @ T[:3, :3].T + T[:3, 3]
-    ideal = cam.project(pts)
-    inside = np.all((ideal > -0.5) & (ideal < [cam.width - 0.5, cam.height - 0.5]), axis=1)
-    ideal, pts = ideal[inside], pts[inside]
-    dist = ideal.copy() if model.distortion is None else model.distortion.forward(ideal)
-    return L, T, ideal, dist, pts
-
-
-def _uv(cam: Camera, model: ImagingModel, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    ideal = cam.project(X)
-    return ideal, ideal.copy() if model.distortion is None else model.distortion.forward(ideal)
 
 
 def _camera_truth(cam: Camera, name: str) -> dict:

@@ -103,6 +103,21 @@ def print_json(result: Any, out: str | os.PathLike | None = None) -> None:
     sys.stdout.flush()
 
 
+def study_folder(path: str | os.PathLike, what: str = "STUDY") -> Path:
+    """``path`` (``~`` expanded) when it is a folder, else a :class:`CliError` naming the
+    argument ``what``: the first check of every command that takes a study."""
+    folder = Path(path).expanduser()
+    if not folder.is_dir():
+        raise CliError(f"{what}: no study folder at {folder}")
+    return folder
+
+
+def text_bar(done: int, total: int, width: int = 20) -> str:
+    """``[####......]``: ``width`` characters, ``#`` in proportion to ``done / total``."""
+    k = int(width * done / max(total, 1))
+    return f"[{'#' * k}{'.' * (width - k)}]"
+
+
 @contextlib.contextmanager
 def stdout_to_stderr() -> Iterator[None]:
     """Keep stdout pure JSON while library code runs (Warp prints its banner on stdout)."""

@@ -40,6 +40,8 @@ from ._shared import (
     Progress,
     print_json,
     stdout_to_stderr,
+    study_folder,
+    text_bar,
 )
 
 __all__ = ["HELP", "configure", "mode_note", "run"]
@@ -132,11 +134,9 @@ class _Follow:
             self.progress.note(f"{key}: started on {e.get('host')} (pid {e.get('pid')}, "
                                f"device {e.get('device')})")
         elif kind == "frame":
-            w = 20
-            k = int(w * e["done"] / max(e["total"], 1))
             score = e.get("score")
             self.progress(self.done, self.n_tasks,
-                          f"tasks | {key} [{'#' * k}{'.' * (w - k)}] frame {e['done']}/{e['total']}"
+                          f"tasks | {key} {text_bar(e['done'], e['total'])} frame {e['done']}/{e['total']}"
                           + ("" if score is None else f" score {score:.3f}"))
         elif kind == "end":
             self.done += 1
@@ -146,8 +146,7 @@ class _Follow:
 
 def run(a: argparse.Namespace) -> int:
     for s in a.studies:
-        if not Path(s).expanduser().is_dir():
-            raise CliError(f"STUDY: no study folder at {Path(s).expanduser()}")
+        study_folder(s)
     if a.workers is not None and a.workers < 0:
         raise CliError(f"--workers: expected 0 or more worker processes, got {a.workers}")
     if a.workers == 0 and a.scheduler:

@@ -37,6 +37,8 @@ from ._shared import (
     print_json,
     sigint_cancels,
     stdout_to_stderr,
+    study_folder,
+    text_bar,
 )
 
 __all__ = ["HELP", "configure", "parse_model", "run"]
@@ -95,18 +97,14 @@ class _Steps:
         self.progress = progress
 
     def __call__(self, step: str, done: int, total: int) -> None:
-        w = 20
-        k = int(w * done / max(total, 1))
-        self.progress(done, total, f"[{'#' * k}{'.' * (w - k)}] {step}")
+        self.progress(done, total, f"{text_bar(done, total)} {step}")
 
 
 def run(a: argparse.Namespace) -> int:
     session_dir = Path(a.session).expanduser()
-    folder = Path(a.study).expanduser()
     if not session_dir.is_dir():
         raise CliError(f"SESSION: no calibration session folder at {session_dir}")
-    if not folder.is_dir():
-        raise CliError(f"--study: no study folder at {folder}")
+    folder = study_folder(a.study, "--study")
     model = parse_model(a.model)
     trials = a.trials if a.trials in ("series", "all", "none") else [t for t in a.trials.split(",") if t]
     from core.calibration.session import CalibrationCancelled

@@ -20,7 +20,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._shared import EXIT_OK, PROG, CliError, print_json
+from ._shared import EXIT_OK, PROG, print_json, study_folder
 
 __all__ = ["HELP", "configure", "run"]
 
@@ -48,9 +48,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
-    folder = Path(a.study).expanduser()
-    if not folder.is_dir():
-        raise CliError(f"STUDY: no study folder at {folder}")
+    folder = study_folder(a.study)
     from core.study import Study
     from core.study.export_trial import default_out, export_trial
 

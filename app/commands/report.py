@@ -18,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._shared import EXIT_OK, PROG, CliError, print_json, stdout_to_stderr
+from ._shared import EXIT_OK, PROG, CliError, print_json, stdout_to_stderr, study_folder
 
 __all__ = ["HELP", "configure", "run"]
 
@@ -37,9 +37,7 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(a: argparse.Namespace) -> int:
-    folder = Path(a.study).expanduser()
-    if not folder.is_dir():
-        raise CliError(f"STUDY: no study folder at {folder}")
+    folder = study_folder(a.study)
     out = Path(a.out).expanduser() if a.out else folder / "results" / "reports" / f"{a.trial}.html"
     if out.suffix.lower() not in (".html", ".htm", ".pdf"):
         raise CliError(f"--out: expected a .html or .pdf file, got {a.out!r}")

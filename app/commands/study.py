@@ -13,7 +13,7 @@ import inspect
 import sys
 from pathlib import Path
 
-from ._shared import EXIT_OK, PROG, CliError, print_json, stdout_to_stderr
+from ._shared import EXIT_OK, PROG, CliError, print_json, stdout_to_stderr, study_folder
 
 HELP = "look after a study folder (repair damaged pose journals)"
 
@@ -56,9 +56,7 @@ def _salvage(folder: Path, dry_run: bool) -> dict:
 
 
 def run_repair(args: argparse.Namespace) -> int:
-    folder = Path(args.study).expanduser()
-    if not folder.is_dir():
-        raise CliError(f"STUDY: no study folder at {folder}")
+    folder = study_folder(args.study)
     with stdout_to_stderr():
         result = _salvage(folder.absolute(), bool(args.dry_run))
     print_json(result)

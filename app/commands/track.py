@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from ._shared import (
     EXIT_CANCELLED,
@@ -31,6 +30,8 @@ from ._shared import (
     print_json,
     sigint_cancels,
     stdout_to_stderr,
+    study_folder,
+    text_bar,
 )
 
 __all__ = ["HELP", "METRICS", "configure", "parse_frames", "registration_terms", "run"]
@@ -128,18 +129,13 @@ class _Bar:
         self.progress = progress
 
     def __call__(self, done: int, total: int, fr) -> None:
-        w = 30
-        k = int(w * done / max(total, 1))
-        self.progress(done, total, f"[{'#' * k}{'.' * (w - k)}] {fr.bone}@{fr.frame} "
-                                   f"score {fr.score:.3f}")
+        self.progress(done, total, f"{text_bar(done, total, 30)} {fr.bone}@{fr.frame} score {fr.score:.3f}")
         if fr.flags:
             self.progress.note(f"flagged {fr.bone}@{fr.frame}: {', '.join(map(str, fr.flags))}")
 
 
 def run(a: argparse.Namespace) -> int:
-    folder = Path(a.study).expanduser()
-    if not folder.is_dir():
-        raise CliError(f"STUDY: no study folder at {folder}")
+    folder = study_folder(a.study)
     limits = parse_limits(a.max_uncertainty)
     if not (a.scale >= 1 and a.scale == a.scale and a.scale < float("inf")):
         raise CliError(f"--scale: expected a number >= 1 (detector pixels per DRR pixel), got {a.scale!r}")

@@ -21,21 +21,12 @@ CT numbers stored as HU + 1024, as in Autoscoper's sample data) converts them.
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 
 from .errors import StudyError
+from .study_edit import entry_name
 
 __all__ = ["import_autoscoper", "import_project"]
-
-
-def _name(stem: str, taken: set[str]) -> str:
-    base = re.sub(r"[^A-Za-z0-9_.-]", "_", stem).lstrip("_.-")[:60] or "volume"
-    name, k = base, 2
-    while name in taken:
-        name, k = f"{base}-{k}", k + 1
-    taken.add(name)
-    return name
 
 
 def import_autoscoper(
@@ -77,7 +68,7 @@ def import_autoscoper(
         taken: set[str] = set()
         bones = []
         for v in t.volumes:
-            b = _name(Path(v.path).stem, taken)
+            b = entry_name(Path(v.path).stem, taken, fallback="volume")
             study.add_volume(b, v.path, voxel_size_mm=v.voxel_size, hu_offset=hu_offset)
             study.add_bone(b, volume=b)
             bones.append(b)

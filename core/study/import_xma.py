@@ -57,20 +57,12 @@ import numpy as np
 
 from ..errors import FileError
 from .errors import StudyError
+from .study_edit import entry_name
 
 __all__ = ["import_xma", "xma_distortion_model", "xma_markers"]
 
 SERIES = "xmalab"
 _VIDEO = (".avi", ".cine", ".mp4", ".mov", ".mkv", ".m4v", ".tif", ".tiff")
-
-
-def _name(stem: str, taken: set[str]) -> str:
-    base = re.sub(r"[^A-Za-z0-9_.-]", "_", stem).lstrip("_.-")[:60] or "item"
-    name, k = base, 2
-    while name in taken:
-        name, k = f"{base}-{k}", k + 1
-    taken.add(name)
-    return name
 
 
 def _opencv_distort(uv: np.ndarray, K: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -288,7 +280,7 @@ def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
                 taken_cams: set[str] = set()
                 cam_files, corr_files = [], []
                 for xc, cam in zip([prj.cameras[i] for i in xray], rig, strict=True):
-                    stem = _name(xc.name, taken_cams)
+                    stem = entry_name(xc.name, taken_cams, fallback="item")
                     write_mayacam(cam, folder / f"{stem}.txt", version=2)
                     cam_files.append(folder / f"{stem}.txt")
                     try:
@@ -322,7 +314,7 @@ def _import_xma(src: Path, out: Path, *, name, search, n_neighbours):
                                       "reference_frame": ref}
                 study.update_settings(calibration_files=files_entries)
                 cal_of_ref[ref] = cal
-            tname = _name(t.name, taken_trials)
+            tname = entry_name(t.name, taken_trials, fallback="item")
             names.append(tname)
             study.add_trial(tname, views[t.name], calibration=cal_of_ref[ref])
             study.write_report("markers", tname, xma_markers(prj, t.name))

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -49,6 +50,18 @@ def _check_name(name: str, what: str) -> str:
             f"{what}: expected 1-64 letters, digits, '_', '-', '.' starting with a letter or digit, "
             f"got {name!r}"
         )
+    return name
+
+
+def entry_name(text: str, taken: set[str], *, fallback: str) -> str:
+    """A valid entry name made of ``text`` (other characters become ``_``, at most 60 kept;
+    ``fallback`` when nothing is left), with ``-2``, ``-3``, ... appended until it is not in
+    ``taken``; it is added to ``taken``. Importers name what they find with it."""
+    base = re.sub(r"[^A-Za-z0-9_.-]", "_", text).lstrip("_.-")[:60] or fallback
+    name, k = base, 2
+    while name in taken:
+        name, k = f"{base}-{k}", k + 1
+    taken.add(name)
     return name
 
 

@@ -169,6 +169,18 @@ def _normaliser(pts: np.ndarray) -> np.ndarray:
     return T
 
 
+def _design(Xn: np.ndarray, xn: np.ndarray) -> np.ndarray:
+    """The DLT's homogeneous system ``A p = 0``, ``(B, 2N, 12)``, of normalised object points
+    ``Xn`` (homogeneous, ``(N, 4)`` shared or ``(B, N, 4)``) and image points ``xn (B, N, 2)``."""
+    B, n = xn.shape[:2]
+    A = np.zeros((B, 2 * n, 12))
+    A[:, 0::2, 0:4] = Xn
+    A[:, 0::2, 8:12] = -xn[:, :, :1] * Xn
+    A[:, 1::2, 4:8] = Xn
+    A[:, 1::2, 8:12] = -xn[:, :, 1:] * Xn
+    return A
+
+
 def dlt_batch(points, uv) -> np.ndarray:
     """Normalised DLT for many image point sets of the same object points.
 
@@ -196,11 +208,7 @@ def dlt_batch(points, uv) -> np.ndarray:
     Xn = np.column_stack([X, np.ones(n)]) @ T3.T
     T2 = _normaliser(x)
     xn = np.einsum("bij,bnj->bni", T2[:, :2, :2], x) + T2[:, None, :2, 2]
-    A = np.zeros((B, 2 * n, 12))
-    A[:, 0::2, 0:4] = Xn
-    A[:, 0::2, 8:12] = -xn[:, :, :1] * Xn
-    A[:, 1::2, 4:8] = Xn
-    A[:, 1::2, 8:12] = -xn[:, :, 1:] * Xn
+    A = _design(Xn, xn)
     _, _, Vt = np.linalg.svd(A, full_matrices=False)
     Pn = Vt[:, -1].reshape(B, 3, 4)
     P = np.linalg.solve(T2, Pn) @ T3

@@ -371,17 +371,13 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
 def _batched_dlt(X: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """DLT per sample with its own object points: ``X (S, k, 3)``, ``uv (S, k, 2)``."""
     S, k = X.shape[:2]
-    from .dlt import _normaliser
+    from .dlt import _design, _normaliser
 
     T3, T2 = _normaliser(X), _normaliser(uv)
     Xn = np.einsum("sij,skj->ski", T3[:, :3, :3], X) + T3[:, None, :3, 3]
     Xn = np.concatenate([Xn, np.ones((S, k, 1))], axis=2)
     xn = np.einsum("sij,skj->ski", T2[:, :2, :2], uv) + T2[:, None, :2, 2]
-    A = np.zeros((S, 2 * k, 12))
-    A[:, 0::2, 0:4] = Xn
-    A[:, 0::2, 8:12] = -xn[:, :, :1] * Xn
-    A[:, 1::2, 4:8] = Xn
-    A[:, 1::2, 8:12] = -xn[:, :, 1:] * Xn
+    A = _design(Xn, xn)
     with np.errstate(all="ignore"):
         # the right singular vector of the smallest singular value is the eigenvector of the
         # smallest eigenvalue of AᵀA (12 x 12): eigh of many small symmetric matrices takes about

@@ -49,8 +49,9 @@ from . import sdf as S
 from .phantoms import (
     AIR_HU,
     BoneSpec,
-    _envelope_shape,
+    _envelope_grid,
     _extent,
+    _foot_and_shank,
     _occupancy,
     _smoothstep,
     hu_from_sdf,
@@ -263,21 +264,13 @@ def layered_tissue(*, spacing: float = 3.0, fat_mm: float = 5.0, fat_hu: float =
     inside, the Achilles tendon behind the ankle), float32 HU; the parts split the attenuation as
     :func:`~core.synthetic.phantoms.soft_tissue_envelope` does."""
     spacing = positive(spacing, "spacing")
-    shape = _envelope_shape()
-    lo, hi = _extent(shape, ((-110, -70, -90), (190, 70, top_z_mm)), 2.0, step=4.0)
-    hi[2] = min(hi[2], top_z_mm)
-    origin, pts, _ = voxel_grid(lo, hi, spacing)
+    shape, origin, pts = _envelope_grid(spacing, top_z_mm)
     d = S.sample_sdf(shape, pts)
     occ = _occupancy(d, spacing)
     inner = _occupancy(d + fat_mm, spacing)
     achilles = _occupancy(S.sample_sdf(S.RoundCone((-46, -2, -40), (-36, 0, 110), 4.0, 6.0), pts), spacing)
     hu = fat_hu + (muscle_hu - fat_hu) * inner + (tendon_hu - muscle_hu) * achilles * inner
-    w_shank = _smoothstep((pts[..., 2] - split_z_mm) / blend_mm + 0.5)
-    vols = []
-    for nm, w in (("soft_foot", 1.0 - w_shank), ("soft_shank", w_shank)):
-        data = (AIR_HU + w * occ * (hu - AIR_HU)).astype(np.float32)
-        vols.append(CTVolume(data, spacing=np.full(3, spacing), origin=origin, units="HU", name=nm))
-    return vols[0], vols[1]
+    return _foot_and_shank(occ, hu - AIR_HU, pts, origin, spacing, split_z_mm, blend_mm)
 
 
 @dataclass(frozen=True, eq=False)

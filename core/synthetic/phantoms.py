@@ -308,15 +308,29 @@ def soft_tissue_envelope(
     ``"soft_shank"``.
     """
     spacing = positive(spacing, "spacing")
+    shape, origin, pts = _envelope_grid(spacing, top_z_mm)
+    occ = _occupancy(S.sample_sdf(shape, pts), spacing)
+    return _foot_and_shank(occ, 1000.0 + hu, pts, origin, spacing, split_z_mm, blend_mm)
+
+
+def _envelope_grid(spacing: float, top_z_mm: float):
+    """The envelope's SDF and the grid around it up to ``top_z_mm``: ``(shape, origin, voxel
+    centres)``."""
     shape = _envelope_shape()
     lo, hi = _extent(shape, ((-110, -70, -90), (190, 70, top_z_mm)), 2.0, step=4.0)
     hi[2] = min(hi[2], top_z_mm)
     origin, pts, _ = voxel_grid(lo, hi, spacing)
-    occ = _occupancy(S.sample_sdf(shape, pts), spacing)
+    return shape, origin, pts
+
+
+def _foot_and_shank(occ, contrast, pts, origin, spacing: float, split_z_mm: float,
+                    blend_mm: float) -> tuple[CTVolume, CTVolume]:
+    """The foot and shank parts of soft tissue of occupancy ``occ`` and ``contrast`` (HU above
+    air): ``HU = -1000 + w·occ·contrast``, ``w`` blending over ``blend_mm`` about ``split_z_mm``."""
     w_shank = _smoothstep((pts[..., 2] - split_z_mm) / blend_mm + 0.5)
     vols = []
     for nm, w in (("soft_foot", 1.0 - w_shank), ("soft_shank", w_shank)):
-        data = (AIR_HU + w * occ * (1000.0 + hu)).astype(np.float32)
+        data = (AIR_HU + w * occ * contrast).astype(np.float32)
         vols.append(CTVolume(data, spacing=np.full(3, spacing), origin=origin, units="HU", name=nm))
     return vols[0], vols[1]
 

@@ -71,6 +71,7 @@ import math
 import time
 import weakref
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
@@ -123,6 +124,29 @@ def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
     out[:, :3, 3] = c_lab + X[:, :3] - R @ center
     out[:, 3, 3] = 1.0
     return out
+
+
+#: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`GaussNewtonCost._allocate`).
+_BUFFER_SETS = 3
+
+
+@dataclass(eq=False)
+class _Buffers:
+    """The fluoroscope buffers of one output size of an engine, the pipelines recorded on them
+    (its own by batch size, and its siblings') and the host preparation's pinned buffers."""
+
+    cap: tuple
+    raw: object
+    ftmp: object
+    fluoro: object
+    fgrad: object
+    fmask: object
+    blur: object
+    blur_taps: object
+    pipes: dict = field(default_factory=dict)
+    sibling_pipes: dict = field(default_factory=dict)
+    host_raw_wp: object = None
+    host_mask_wp: object = None
 
 
 class GaussNewtonCost:
@@ -183,6 +207,8 @@ class GaussNewtonCost:
         self._blur = None
         self._blur_taps: np.ndarray | None = None
         self._pipes: dict[int, _Pipeline] = {}
+        self._bufs: _Buffers | None = None  # the buffers in use (one of _buf_sets)
+        self._buf_sets: dict = {}  # (output size, blur taps) -> _Buffers, least recently used first
         dev = self.device
         nv = self.n_views
         self._weights = wp.array(np.full(nv, 1.0, np.float32), dtype=wp.float32, device=dev)
@@ -260,9 +286,9 @@ class GaussNewtonCost:
         new = tuple(int(math.ceil(n / 32.0) * 32) for n in need)
         if new != self._cap or not same_taps:
             self._allocate(new, taps)
-        elif taps is not None and not np.array_equal(taps, self._blur_taps):
+        if taps is not None and not np.array_equal(taps, self._blur_taps):
             self._blur.assign(taps)
-        self._blur_taps = taps
+        self._blur_taps = self._bufs.blur_taps = taps
         Hc, Wc = self._cap
         nv = self.n_views
         dev = self.device
@@ -324,12 +350,15 @@ class GaussNewtonCost:
     def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:
         """Launch ``kernel`` through a recorded launch, kept while its dimensions, arrays and
         values stay the same (the frame preparation's launches from frame to frame)."""
-        key = (dim, tuple(a.ptr if isinstance(a, wp.array) else a for a in inputs))
-        hit = self._cmds.get(name)
-        if hit is None or hit[0] != key:
+        key = (name, dim, tuple((a.ptr, a.shape) if isinstance(a, wp.array)
+                                else a if isinstance(a, (int, float)) else id(a) for a in inputs))
+        cmd = self._cmds.get(key)
+        if cmd is None:  # kept per buffer set too (the arrays' addresses are in the key)
             cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
-            hit = self._cmds[name] = (key, cmd)
-        hit[1].launch()
+            if len(self._cmds) >= 8 * _BUFFER_SETS:
+                self._cmds.pop(next(iter(self._cmds)))
+            self._cmds[key] = cmd
+        cmd.launch()
 
     def _check_count(self) -> None:
         """Raise OutsideViewError when the device preparation found no usable pixel in a view
@@ -359,17 +388,35 @@ class GaussNewtonCost:
         return hit
 
     def _allocate(self, cap: tuple[int, int], taps) -> None:
-        dev = self.device
-        nv = self.n_views
+        """Take the buffers of this output size (and number of blur taps): those kept from an
+        earlier frame (with their pipelines and CUDA graphs), else new ones. The first frame's
+        wider search regions, the restarts' and the tracking frames' alternate between a few
+        sizes; each change cost new pipelines (a graph capture each)."""
+        if self._bufs is not None:  # keep the current ones with what was recorded on them
+            self._bufs.host_raw_wp, self._bufs.host_mask_wp = self._host_raw_wp, self._host_mask_wp
+        key = (cap, None if taps is None else len(taps))
+        b = self._buf_sets.pop(key, None)
+        if b is None:
+            dev = self.device
+            nv = self.n_views
+            b = _Buffers(
+                cap=cap, raw=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                ftmp=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                fluoro=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                fgrad=wp.zeros((nv, *cap), dtype=wp.vec2f, device=dev),
+                fmask=wp.zeros((nv, *cap), dtype=wp.uint8, device=dev),
+                blur=None if taps is None else wp.array(taps, dtype=wp.float32, device=dev),
+                blur_taps=None if taps is None else np.array(taps))
+            while len(self._buf_sets) >= _BUFFER_SETS:  # the least recently used goes first
+                self._buf_sets.pop(next(iter(self._buf_sets)))
+        self._buf_sets[key] = b  # most recently used last
+        self._bufs = b
         self._cap = cap
-        self._host_raw_wp = self._host_mask_wp = None  # the host preparation's (allocated when used)
-        self._raw = wp.zeros((nv, *cap), dtype=wp.float32, device=dev)
-        self._ftmp = wp.zeros((nv, *cap), dtype=wp.float32, device=dev)
-        self._fluoro = wp.zeros((nv, *cap), dtype=wp.float32, device=dev)
-        self._fgrad = wp.zeros((nv, *cap), dtype=wp.vec2f, device=dev)
-        self._fmask = wp.zeros((nv, *cap), dtype=wp.uint8, device=dev)
-        self._blur = None if taps is None else wp.array(taps, dtype=wp.float32, device=dev)
-        self._pipes = {}
+        self._host_raw_wp, self._host_mask_wp = b.host_raw_wp, b.host_mask_wp  # the host preparation's
+        self._raw, self._ftmp, self._fluoro = b.raw, b.ftmp, b.fluoro
+        self._fgrad, self._fmask = b.fgrad, b.fmask
+        self._blur, self._blur_taps = b.blur, b.blur_taps
+        self._pipes = b.pipes
 
     def sibling(self, k: int) -> GaussNewtonCost:
         """The ``k``-th sibling of this cost: its own launches, buffers of results and timer, the
@@ -382,14 +429,15 @@ class GaussNewtonCost:
         if sib is None:
             sib = copy.copy(self)
             sib._siblings, sib._pipes, sib._tables, sib._cmds = {}, {}, {}, {}
+            sib._buf_sets, sib._bufs = {}, None
             sib._pending, sib._prepared, sib._unsynced = None, None, False
             self._siblings[k] = sib
         if self._count_pending:  # the usable pixels of the prepared regions, checked here once
             if self.device.is_cuda:
                 wp.synchronize_device(self.device)
             self._check_count()
-        if sib._fluoro is not self._fluoro or sib._blur is not self._blur:  # reallocated: new launches
-            sib._pipes = {}
+        # the sibling's pipelines read this cost's buffers: kept with them (new buffers, new launches)
+        sib._pipes = self._bufs.sibling_pipes.setdefault(k, {})
         for a in ("base", "center", "roi", "_cap", "_raw", "_fluoro", "_fgrad", "_fmask", "_blur",
                   "_blur_taps"):
             setattr(sib, a, getattr(self, a))

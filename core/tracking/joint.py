@@ -13,8 +13,10 @@ host's arithmetic overlaps it, where one bone after another left the device idle
 worked and the host idle while the device did. A bone's iterates are those of
 :func:`core.tracking.register.register` with the same inputs (the same search, the same
 engine); only the waits are shared. Where the full-resolution steps do not
-converge, that bone is registered again by :func:`~core.tracking.register.register` (its
-half-resolution fallback).
+converge, that bone goes on with the half-resolution fallback of
+:func:`~core.tracking.register.register` (``tried``: the full-resolution steps already taken are
+not taken again). A job's search regions are filled in (:attr:`JointJob.roi`), so that the
+round after keeps them.
 
 :func:`restarts_together` runs several searches of one bone in one frame the same way (the
 restarts of :func:`core.tracking.verify.verify_start`), each on a sibling of the engine that
@@ -31,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import warp as wp
@@ -48,13 +50,18 @@ __all__ = ["JointJob", "lockstep_applies", "register_together", "restarts_togeth
 class JointJob:
     """One bone's registration in a round: volume ``bone`` of the renderer from
     ``initial_pose`` (the search box's centre), rotation ``center``, ``outline`` (bone-frame
-    points for the ROIs) and ``others`` (poses, bones) subtracted."""
+    points for the ROIs) and ``others`` (poses, bones) subtracted. ``roi``: the search regions
+    (full-resolution ``(u0, v0, w, h)`` per view); None: computed about ``initial_pose`` as
+    :func:`~core.tracking.register.register` computes them, and filled in here (joint tracking's
+    second round keeps the first round's: the bone moved little, and its neighbours' poses are
+    what changed)."""
 
     bone: int
     initial_pose: np.ndarray
     center: np.ndarray
     outline: np.ndarray | None = None
     others: tuple | None = None
+    roi: np.ndarray | None = None
 
 
 def lockstep_applies(options: RegistrationOptions) -> bool:
@@ -65,19 +72,26 @@ def lockstep_applies(options: RegistrationOptions) -> bool:
 
 
 @dataclass
-class _Lane:
-    job: JointJob
-    cost: object
-    lm: LevenbergMarquardt
-    lo: np.ndarray
-    hi: np.ndarray
-    own_s: float  # the bone's own set-up time
+class _Search:
+    """One Levenberg–Marquardt search of a bone's lane (:func:`register_together`) or of a restart
+    (:func:`restarts_together`), level after level: the current level ``li`` of ``levels``, its
+    state ``lm`` and cost, the start ``xs`` of the level, the stages done and the cost per scale."""
+
+    k: int
+    xs: np.ndarray
+    levels: tuple = ()
+    li: int = 0
+    lm: LevenbergMarquardt | None = None
+    cost: object = None
     x: np.ndarray | None = None
-    event: object = None  # recorded after the bone's step in flight (CUDA)
+    event: object = None  # recorded after the step in flight (CUDA)
+    stages: list = field(default_factory=list)
+    costs: dict = field(default_factory=dict)  # scale -> this search's cost
+    own_s: float = 0.0  # a lane's own set-up time
 
 
-def _submit(ln: _Lane, cancel) -> bool:
-    """Enqueue the next step of a bone's search (and record its event); False when it has ended."""
+def _submit(ln: _Search, cancel) -> bool:
+    """Enqueue the next step of a search (and record its event); False when it has ended."""
     x = ln.lm.ask(cancel)
     if x is None:
         return False
@@ -91,83 +105,9 @@ def _submit(ln: _Lane, cancel) -> bool:
     return True
 
 
-def register_together(renderer, frame, jobs: Sequence[JointJob], options: RegistrationOptions, *,
-                      profile: bool = False, cancel: Callable[[], bool] | None = None) -> list:
-    """Register every job in ``frame`` (module docs); per job a
-    :class:`~core.tracking.register.RegistrationResult`, or the
-    :class:`~core.tracking.cost.OutsideViewError` its registration raised."""
-    from .register import register
-
-    if not lockstep_applies(options):
-        raise ValueError("options: register_together runs the automatic 'newton' search of a gc or ncc cost")
-    o = options
-    fs = o.final_scale
-    views = tuple(range(frame.n_views))
-    out: list = [None] * len(jobs)
-    lanes: dict[int, _Lane] = {}
-    queue: list[int] = []
-    for k, job in enumerate(jobs):
-        t0 = time.perf_counter()
-        base = np.asarray(job.initial_pose, dtype=float)
-        center = np.asarray(job.center, dtype=float)
-        # the single Gauss-Newton level of "newton" (default_levels does not depend on the pixel size there)
-        lv = default_levels(1.0, sigma=o.sigma, search="newton")[-1]
-        try:
-            roi = search_roi(renderer, base, job.bone, views=views, center=center,
-                             reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
-                             points=job.outline)
-            roi = _snap(roi, renderer, views)
-            c = engine_cost(renderer, bone=job.bone, views=views, scale=lv.scale * fs, term=o.terms[0])
-            c.timer = CostTimer()
-            c.batches = {}
-            c.profile = profile
-            c.set_frame(frame, base_pose=base, center=center, roi=roi, others=job.others)
-        except OutsideViewError as exc:
-            out[k] = exc
-            continue
-        hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
-        sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
-        lm = LevenbergMarquardt(np.zeros(6), step=sig6, lower=-hi, upper=hi, tol_x=lv.tol_x,
-                                max_generations=lv.max_generations)
-        lanes[k] = ln = _Lane(job, c, lm, -hi, hi, time.perf_counter() - t0)
-        # the bone's first step in flight while the next bone's regions are prepared
-        if _submit(ln, cancel):
-            queue.append(k)
-        ln.own_s = time.perf_counter() - t0
-    t_loop = time.perf_counter()
-    # the host takes each bone's result as soon as its own step is done (its event) and enqueues
-    # its next step while the device works on the other bones' steps
-    while queue:
-        k = queue.pop(0)
-        ln = lanes[k]
-        try:
-            ev = _collect(ln)
-        except OutsideViewError as exc:
-            out[k] = exc
-            del lanes[k]
-            continue
-        ln.lm.tell(ln.cost.newton(ln.x, ln.lm.h, ev))
-        if _submit(ln, cancel):
-            queue.append(k)
-    share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly
-    for k, ln in lanes.items():
-        r = ln.lm.result()
-        if r.converged or r.reason == "cancelled":
-            out[k] = _result(ln, r, fs, ln.own_s + share)
-        else:  # beyond the full-resolution steps' reach: the one-bone search with its fallback
-            job = ln.job
-            try:
-                out[k] = register(renderer, frame, bone=job.bone, initial_pose=job.initial_pose,
-                                  center=job.center, options=o, others=job.others, cancel=cancel,
-                                  profile=profile, outline=job.outline)
-            except OutsideViewError as exc:
-                out[k] = exc
-    return out
-
-
-def _collect(ln):
-    """The evaluation of a lane's (or restart's) step in flight, once its event has completed (the
-    wait counted as metric time)."""
+def _collect(ln: _Search):
+    """The evaluation of a search's step in flight, once its event has completed (the wait
+    counted as metric time)."""
     t0 = time.perf_counter()
     if ln.event is not None:
         wp.synchronize_event(ln.event)
@@ -175,25 +115,106 @@ def _collect(ln):
     return ln.cost.collect()
 
 
-def _result(ln: _Lane, r, fs: float, spent: float) -> RegistrationResult:
-    """The :class:`~core.tracking.register.RegistrationResult` that
-    :func:`~core.tracking.register.register` builds from a converged (or cancelled) single
-    Gauss-Newton level; ``spent``: the bone's wall time."""
-    return result_of((r,), r.x, ln.cost, ln.hi, model_score=True, timers=(ln.cost,),
-                     engines={fs: ln.cost}, fit=r.model, t_start=time.perf_counter() - spent)
+def _drive(searches, queue: list, push: Callable[[int], None], errors: dict | None = None) -> None:
+    """The host's loop: take each search's step as soon as its own step is done (its event),
+    tell it, and ``push`` it on (its next step enqueued while the device works on the other
+    searches' steps). With ``errors``, a search whose step raised OutsideViewError ends there
+    (the error kept under its key); otherwise the error propagates."""
+    while queue:
+        k = queue.pop(0)
+        ln = searches[k]
+        try:
+            ev = _collect(ln)
+        except OutsideViewError as exc:
+            if errors is None:
+                raise
+            errors[k] = exc
+            continue
+        ln.lm.tell(ln.cost.newton(ln.x, ln.lm.h, ev))
+        push(k)
 
 
-@dataclass
-class _Restart:
-    k: int
-    xs: np.ndarray  # the start of the current level
-    li: int = 0
-    lm: LevenbergMarquardt | None = None
-    cost: object = None
-    x: np.ndarray | None = None
-    event: object = None
-    stages: list | None = None
-    costs: dict | None = None  # scale -> this search's sibling cost
+def _result(ln: _Search, fs: float, hi: np.ndarray, full, spent: float) -> RegistrationResult:
+    """What :func:`~core.tracking.register.register` returns for the stages of a search (``full``:
+    its full-resolution cost; ``spent``: its wall time)."""
+    last = ln.stages[-1]
+    last_gn = ln.levels[-1].scale == fs
+    return result_of(ln.stages, last.x, full, hi, model_score=last_gn, timers=ln.costs.values(),
+                     engines=ln.costs, fit=last.model if (last.model is not None and last_gn) else None,
+                     t_start=time.perf_counter() - spent)
+
+
+def register_together(renderer, frame, jobs: Sequence[JointJob], options: RegistrationOptions, *,
+                      profile: bool = False, cancel: Callable[[], bool] | None = None) -> list:
+    """Register every job in ``frame`` (module docs); per job a
+    :class:`~core.tracking.register.RegistrationResult`, or the
+    :class:`~core.tracking.cost.OutsideViewError` its registration raised. Jobs without
+    ``roi`` get theirs filled in."""
+    from .register import register
+
+    if not lockstep_applies(options):
+        raise ValueError("options: register_together runs the automatic 'newton' search of a gc or ncc cost")
+    o = options
+    fs = o.final_scale
+    views = tuple(range(frame.n_views))
+    # the single Gauss-Newton level of "newton" (default_levels does not depend on the pixel size there)
+    lv = replace(default_levels(1.0, sigma=o.sigma, search="newton")[-1], scale=fs)
+    hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
+    sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
+    out: list = [None] * len(jobs)
+    lanes: dict[int, _Search] = {}
+    queue: list[int] = []
+
+    def push(k: int) -> None:
+        if _submit(lanes[k], cancel):
+            queue.append(k)
+
+    for k, job in enumerate(jobs):
+        t0 = time.perf_counter()
+        base = np.asarray(job.initial_pose, dtype=float)
+        center = np.asarray(job.center, dtype=float)
+        try:
+            if job.roi is None:
+                job.roi = _snap(search_roi(renderer, base, job.bone, views=views, center=center,
+                                           reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0,
+                                           margin_px=o.margin_px, points=job.outline), renderer, views)
+            c = engine_cost(renderer, bone=job.bone, views=views, scale=fs, term=o.terms[0])
+            c.timer = CostTimer()
+            c.batches = {}
+            c.profile = profile
+            c.set_frame(frame, base_pose=base, center=center, roi=job.roi, others=job.others)
+        except OutsideViewError as exc:
+            out[k] = exc
+            continue
+        lm = LevenbergMarquardt(np.zeros(6), step=sig6, lower=-hi, upper=hi, tol_x=lv.tol_x,
+                                max_generations=lv.max_generations)
+        lanes[k] = _Search(k, np.zeros(6), (lv,), lm=lm, cost=c, costs={fs: c})
+        push(k)  # the bone's first step in flight while the next bone's regions are prepared
+        lanes[k].own_s = time.perf_counter() - t0
+    t_loop = time.perf_counter()
+    errors: dict = {}
+    _drive(lanes, queue, push, errors)
+    share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly
+    for k, ln in lanes.items():
+        if k in errors:
+            out[k] = errors[k]
+            continue
+        r = ln.lm.result()
+        ln.stages.append(r)
+        if r.converged or r.reason == "cancelled":
+            out[k] = _result(ln, fs, hi, ln.cost, ln.own_s + share)
+            continue
+        # beyond the full-resolution steps' reach: the one-bone search's half-resolution fallback,
+        # from these full-resolution steps (not taken again)
+        job = jobs[k]
+        try:
+            out[k] = register(renderer, frame, bone=job.bone, initial_pose=job.initial_pose,
+                              center=job.center, options=o, others=job.others, cancel=cancel,
+                              profile=profile, outline=job.outline, roi=job.roi,
+                              tried=(r, ln.cost, ln.own_s + share))
+        except OutsideViewError as exc:
+            out[k] = exc
+    return out
 
 
 def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options: RegistrationOptions,
@@ -234,20 +255,19 @@ def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options:
             engines[scale] = c
         return engines[scale]
 
-    def start_level(ln: _Restart) -> None:
+    def start_level(ln: _Search) -> None:
         lv = levels[ln.li]
         ln.cost = ln.costs[lv.scale] = engine_at(lv.scale).sibling(ln.k)
         sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
         ln.lm = LevenbergMarquardt(ln.xs, step=sig6, lower=lo, upper=hi, tol_x=lv.tol_x,
                                    max_generations=lv.max_generations, **dict(lv.options))
 
-    lanes = [_Restart(k, np.clip(np.asarray(x0, dtype=float), lo, hi), stages=[], costs={})
-             for k, x0 in enumerate(x0s)]
+    searches = [_Search(k, np.clip(np.asarray(x0, dtype=float), lo, hi), levels) for k, x0 in enumerate(x0s)]
     queue: list[int] = []
 
     def push(k: int) -> None:
-        """Enqueue lane ``k``'s next step; a search that has ended moves on to the next level."""
-        ln = lanes[k]
+        """Enqueue search ``k``'s next step; a search that has ended moves on to the next level."""
+        ln = searches[k]
         while True:
             if _submit(ln, cancel):
                 queue.append(k)
@@ -260,27 +280,15 @@ def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options:
             ln.li += 1
             start_level(ln)
 
-    for ln in lanes:
+    for ln in searches:
         start_level(ln)
         push(ln.k)
-    while queue:
-        k = queue.pop(0)
-        ln = lanes[k]
-        ev = _collect(ln)
-        ln.lm.tell(ln.cost.newton(ln.x, ln.lm.h, ev))
-        push(k)
-    share = (time.perf_counter() - t_start) / max(len(lanes), 1)
-    return [_restart_result(ln, levels, fs, hi, engine_at, share) for ln in lanes]
-
-
-def _restart_result(ln: _Restart, levels, fs: float, hi: np.ndarray, engine_at, spent: float):
-    """What :func:`~core.tracking.register.register` returns for the stages of one restart."""
-    t_start = time.perf_counter() - spent
-    last = ln.stages[-1]
-    full = ln.costs.get(fs)
-    if full is None:  # ended before the full-resolution level (cancelled)
-        full = ln.costs[fs] = engine_at(fs).sibling(ln.k)
-    last_gn = levels[-1].scale == fs
-    return result_of(ln.stages, last.x, full, hi, model_score=last_gn, timers=ln.costs.values(),
-                     engines=ln.costs, fit=last.model if (last.model is not None and last_gn) else None,
-                     t_start=t_start)
+    _drive(searches, queue, push)
+    share = (time.perf_counter() - t_start) / max(len(searches), 1)
+    out = []
+    for ln in searches:
+        full = ln.costs.get(fs)
+        if full is None:  # ended before the full-resolution level (cancelled)
+            full = ln.costs[fs] = engine_at(fs).sibling(ln.k)
+        out.append(_result(ln, fs, hi, full, share))
+    return out

@@ -325,7 +325,7 @@ def _snap(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:
 def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
              options: RegistrationOptions | None = None, views: Sequence[int] | None = None,
              others=None, cancel: Callable[[], bool] | None = None, profile: bool = False,
-             x0=None, outline=None) -> RegistrationResult:
+             x0=None, outline=None, roi=None, tried=None) -> RegistrationResult:
     """Register bone ``bone`` of ``renderer`` to ``frame`` starting from ``initial_pose``.
 
     Parameters
@@ -352,6 +352,14 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     outline : (n, 3) array, optional
         Bone-frame points bounding the bone (:attr:`core.tracking.bones.BoneModel.outline`):
         tighter search ROIs than the volume's box (fewer pixels per DRR).
+    roi : (n_views, 4) array, optional
+        The search regions (full-resolution ``(u0, v0, w, h)``) in place of those computed about
+        ``initial_pose`` (:func:`core.tracking.cost.search_roi`; the second round of joint
+        tracking keeps the first round's).
+    tried : (OptimizeResult, GaussNewtonCost, float), optional
+        The ``"newton"`` search's full-resolution stage already run with these inputs that did not
+        converge, its engine and the seconds it took (:func:`core.tracking.joint.register_together`):
+        the registration goes on with its half-resolution fallback instead of repeating it.
 
     Raises
     ------
@@ -374,15 +382,24 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         replace(lv, scale=lv.scale * fs)
         for lv in default_levels(mm_per_pixel(renderer, base, center, views) * fs, sigma=o.sigma,
                                  search=search))
-    roi = search_roi(renderer, base, bone, views=views, center=center,
-                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
-                     points=outline)
-    if all(lv.method == "gauss_newton" for lv in levels):
-        roi = _snap(roi, renderer, views)
+    if roi is None:
+        roi = search_roi(renderer, base, bone, views=views, center=center,
+                         reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
+                         points=outline)
+        if all(lv.method == "gauss_newton" for lv in levels):
+            roi = _snap(roi, renderer, views)
+    else:
+        roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
     hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
     lo = -hi
     x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
     stages, costs, engines = [], {}, {}
+    if tried is not None:  # the full-resolution steps were taken (side by side): on to the fallback
+        if not (o.levels is None and search == "newton" and len(levels) == 1):
+            raise ValueError("tried: only the automatic 'newton' search's full-resolution stage")
+        r_tried, engines[levels[0].scale], spent = tried
+        stages.append(r_tried)
+        t_start -= spent
 
     def cost_at(scale: float) -> RegistrationCost:
         if scale not in costs:
@@ -418,7 +435,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
                      seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
         return r
 
-    for i, lv in enumerate(levels):
+    for i, lv in enumerate(levels if tried is None else ()):
         r = run_level(i, lv, x)
         stages.append(r)
         x = r.x

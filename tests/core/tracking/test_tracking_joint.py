@@ -96,3 +96,26 @@ def test_closed_form_pose_differences_are_the_transforms():
     b = pose_from_params(np.r_[0.4, 0, 0, np.radians([0.3, 0, 0])], center=c, base=a)
     assert same_optimum(a, b, c)
     assert not same_optimum(a, pose_from_params(np.r_[0, 0, 0, np.radians([0.6, 0, 0])], center=c, base=a), c)
+
+
+def test_fallback_goes_on_from_the_steps_taken(two_bones):
+    """register(..., tried=(full-resolution stage, engine, s)) goes on with the half-resolution
+    fallback: the registration of register() from the same start, without repeating its first
+    stage (register_together's lanes that did not converge)."""
+    from core.tracking.engine import engine_cost
+    from core.tracking.register import RegistrationOptions, register
+
+    sc, models, r, frame = two_bones
+    o = RegistrationOptions(bounds=(10.0, 10.0), sigma=(1.0, 1.0), search="newton")
+    m = models[0]
+    start = pose_from_params(np.r_[4.0, -3.5, 3.0, np.radians([5.0, -4.0, 4.5])], center=m.centroid,
+                             base=sc.poses(1)[0])
+    alone = register(r, frame, bone=0, initial_pose=start, center=m.centroid, options=o, outline=m.outline)
+    assert len(alone.stages) == 3 and not alone.stages[0].converged  # full, then half and full resolution
+    c = engine_cost(r, bone=0, views=(0, 1), scale=1.0, term=o.terms[0])
+    n13 = alone.timing["engine_steps_x1"]
+    went_on = register(r, frame, bone=0, initial_pose=start, center=m.centroid, options=o, outline=m.outline,
+                       tried=(alone.stages[0], c, 0.5))
+    np.testing.assert_allclose(went_on.pose, alone.pose, atol=1e-9)
+    assert went_on.evaluations == alone.evaluations and went_on.reason == alone.reason
+    assert went_on.time_s >= 0.5

@@ -1,7 +1,8 @@
 """Joint angles of the tracked demo against those of its ground-truth poses (Grood–Suntay JCS).
 
 ``python -m core.studies.tracking.jcs_check [--pixels 128] [--frames 6] [--demo-frames 60]
-[--spacing 1] [--bones tibia,talus,calcaneus] [--fast] [--device cpu] [--out JSON]``, or
+[--spacing 1] [--bones tibia,talus,calcaneus] [--fast] [--search local|newton] [--device cpu]
+[--out JSON]``, or
 ``python -m core.studies.tracking.jcs_check --demo DIR [--trial walk]`` for a demo folder already
 tracked (e.g. by :mod:`core.studies.calibration.tracking_comparison`, whose trials ``walk`` and
 ``walk_truth`` it reads back from the journal).
@@ -29,6 +30,7 @@ import platform
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -97,10 +99,11 @@ def check_tracked(demo, *, trial: str = "walk", bones=None, frames=None, lost_mm
 
 def run(*, pixels: int = 128, frames: int = 6, demo_frames: int = 60, bones=("tibia", "talus", "calcaneus"),
         fast: bool = False, device: str = "cpu", lost_mm: float = 2.0, folder=None, spacing: float = 1.0,
-        correct: bool = True, options=None, progress=None) -> dict:
+        correct: bool = True, options=None, search: str | None = None, progress=None) -> dict:
     """Write a demo, track ``bones`` over its first ``frames`` frames and compare joint angles
     (see the module docs). ``correct=False`` tracks the raw frames divided by the full scale
-    (what a trial without a correction gets), for comparison only."""
+    (what a trial without a correction gets), for comparison only. ``search`` replaces the
+    tracking search of the options (default: the tracker's, ``TrackingOptions().registration.search``)."""
     from core.studies.calibration.truth import true_correction
     from core.study import Study
     from core.synthetic import make_demo_study
@@ -121,6 +124,10 @@ def run(*, pixels: int = 128, frames: int = 6, demo_frames: int = 60, bones=("ti
         if fast:  # the GUI tests' options: a narrower local search, no confidence
             options = TrackingOptions(registration=RegistrationOptions(bounds=(4.0, 4.0), sigma=(1.0, 1.0),
                                                                        refine=None), confidence=False)
+        label = "fast (GUI tests')" if fast else ("given" if options else "default")
+        if search is not None:  # track_study's default options (mode "auto") with this search
+            o = options or TrackingOptions(mode="auto")
+            options = replace(o, registration=replace(o.registration, search=search))
         with Study.open(out, mode="w") as st:
             trial = st.trial("walk")
             corr = true_correction(out, [c.name for c in trial.rig()]) if correct else None
@@ -137,7 +144,8 @@ def run(*, pixels: int = 128, frames: int = 6, demo_frames: int = 60, bones=("ti
                                            "calibration": "true rig",
                                            "correction": ("the generator's flatfield and distortion"
                                                           if correct else "none (full scale)")},
-            "bones": bones, "options": "fast (GUI tests')" if fast else ("given" if options else "default"),
+            "bones": bones, "options": label,
+            "search": (options or TrackingOptions()).registration.search,
             "device": device, "seconds": {"demo": t_demo, "tracking": t_track},
             "normalisation": report.get("normalisation"),
             "tracking_summary": report.get("summary"), "lost_mm": lost_mm, **checked,
@@ -157,6 +165,8 @@ def main(argv=None) -> int:
     ap.add_argument("--spacing", type=float, default=1.0, help="bone voxel size of the demo, mm")
     ap.add_argument("--bones", default="tibia,talus,calcaneus")
     ap.add_argument("--fast", action="store_true", help="the GUI tests' faster tracking options")
+    ap.add_argument("--search", choices=("local", "newton"), default=None,
+                    help="search of a tracked frame (default the tracker's)")
     ap.add_argument("--uncorrected", action="store_true",
                     help="track the frames divided by the full scale only (no flatfield, still distorted)")
     ap.add_argument("--device", default="cpu")
@@ -174,7 +184,7 @@ def main(argv=None) -> int:
         ap.error("--frames: at least 2; --pixels: at least 32")
     res = run(pixels=a.pixels, frames=a.frames, demo_frames=a.demo_frames, bones=a.bones.split(","),
               fast=a.fast, device=a.device, lost_mm=a.lost_mm, spacing=a.spacing, correct=not a.uncorrected,
-              folder=a.folder,
+              folder=a.folder, search=a.search,
               progress=lambda m: print(f"[jcs check] {m}", file=sys.stderr, flush=True))
     print_json(res, a.out)
     return 0

@@ -1,6 +1,7 @@
 """Real-data check: track the radius and ulna of the Autoscoper wrist sample over its three frames.
 
-``python -m core.studies.tracking.wrist_check [--data DIR] [--device cuda:0] [--out JSON] [--figure PNG]``
+``python -m core.studies.tracking.wrist_check [--data DIR] [--device cuda:0] [--search global|global_newton]
+[--out JSON] [--figure PNG]``
 
 The sample (:mod:`core.samples`) has no ground truth, so the check reports what can be judged:
 the final similarity per bone, frame and view, how far registration moved each bone from its
@@ -62,18 +63,20 @@ ORDER = (1, 2, 0)  # frame indices: 0099 (the start), 0158, 0002
 BONES = ("radius", "ulna")
 
 
-def _options(final_scale: float, first_widen: float = 1.0):
+def _options(final_scale: float, first_widen: float = 1.0, search: str = "global"):
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions
 
-    reg = RegistrationOptions(bounds=(10.0, 10.0), sigma=(2.0, 2.0), search="global", final_scale=final_scale)
+    reg = RegistrationOptions(bounds=(10.0, 10.0), sigma=(2.0, 2.0), search=search, final_scale=final_scale)
     return TrackingOptions(registration=reg, first=reg.widened(first_widen), guess="previous",
                            mode="sequential", max_jump=(15.0, 20.0), valid_range=(0.12, 0.995), erode_px=5)
 
 
 def run(data_dir: str | Path, *, device: str | None = None, final_scale: float = 2.0,
-        figure: str | None = None, first_widen: float = 1.0) -> dict:
-    """Track radius and ulna over the sample's frames; returns the JSON-ready report."""
+        figure: str | None = None, first_widen: float = 1.0, search: str = "global") -> dict:
+    """Track radius and ulna over the sample's frames; returns the JSON-ready report. ``search``:
+    ``"global"`` (CMA-ES, then quadratic-model searches) or ``"global_newton"`` (CMA-ES, then
+    Gauss–Newton steps) in every frame."""
     from core.geometry.transforms import params_from_pose
     from core.render import DRRRenderer, HUTransfer
     from core.samples import WRIST_RADIUS_POSE, load_wrist_sample
@@ -92,7 +95,7 @@ def run(data_dir: str | Path, *, device: str | None = None, final_scale: float =
     def fluence(i: int):
         return [sample.frame(v, i).astype(np.float32) / 255.0 for v in range(n_views)]
 
-    o = _options(final_scale, first_widen)
+    o = _options(final_scale, first_widen, search)
     res = track(renderer, models, fluence, list(ORDER), keyframes={b: {ORDER[0]: starts[b]} for b in BONES},
                 options=o)
 
@@ -188,10 +191,13 @@ def main(argv=None) -> int:
     p.add_argument("--final-scale", type=float, default=2.0, help="full-resolution pixels per DRR pixel")
     p.add_argument("--first-widen", type=float, default=1.0,
                    help="first-frame search box and steps relative to the tracking ones (10 mm, 10 deg)")
+    p.add_argument("--search", choices=("global", "global_newton"), default="global",
+                   help="every frame's search: CMA-ES, then quadratic models (global) or Gauss-Newton steps")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save the overlays as a PNG")
     a = p.parse_args(argv)
-    res = run(a.data, device=a.device, final_scale=a.final_scale, figure=a.figure, first_widen=a.first_widen)
+    res = run(a.data, device=a.device, final_scale=a.final_scale, figure=a.figure, first_widen=a.first_widen,
+              search=a.search)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

@@ -138,7 +138,7 @@ def _result(ln: _Search, fs: float, hi: np.ndarray, full, spent: float) -> Regis
     """What :func:`~core.tracking.register.register` returns for the stages of a search (``full``:
     its full-resolution cost; ``spent``: its wall time)."""
     last = ln.stages[-1]
-    last_gn = ln.levels[-1].scale == fs
+    last_gn = ln.levels[ln.li].scale == fs  # the level of the last stage
     return result_of(ln.stages, last.x, full, hi, model_score=last_gn, timers=ln.costs.values(),
                      engines=ln.costs, fit=last.model if (last.model is not None and last_gn) else None,
                      t_start=time.perf_counter() - spent)
@@ -219,14 +219,21 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
 
 def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options: RegistrationOptions,
                       views: Sequence[int] | None = None, others=None, outline=None, profile: bool = False,
-                      cancel: Callable[[], bool] | None = None) -> list[RegistrationResult]:
+                      cancel: Callable[[], bool] | None = None,
+                      settle: tuple[float, float] | None = None) -> list[RegistrationResult]:
     """Several registrations of one bone in one frame from the same ``base`` (the search box's
     centre) and the starts ``x0s`` (mm, degrees), ``options.levels`` all Gauss–Newton levels:
     per start the :class:`~core.tracking.register.RegistrationResult` of
     :func:`~core.tracking.register.register` ``(..., initial_pose=base, x0=x0)``, the searches
     in lockstep on siblings of the engine (:meth:`~core.tracking.engine.GaussNewtonCost.sibling`:
     the regions prepared once per level). Raises OutsideViewError like
-    :func:`~core.tracking.register.register`."""
+    :func:`~core.tracking.register.register`.
+
+    ``settle`` (mm, degrees): a search whose level before the last converges within it of
+    ``base`` stops there (the restarts of :func:`core.tracking.verify.verify_start`: one that
+    came back to the checked pose would end on the checked optimum at full resolution too; the
+    check needs only its score, which the full-resolution cost gives at the point where it
+    stopped, one launch instead of its full-resolution steps)."""
     o = options
     levels = tuple(o.levels or ())
     if not levels or any(lv.method != "gauss_newton" for lv in levels) or o.refine is not None \
@@ -277,6 +284,9 @@ def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options:
             ln.xs = np.asarray(r.x, dtype=float)
             if r.reason == "cancelled" or ln.li == len(levels) - 1:
                 return
+            if (settle is not None and r.converged and np.linalg.norm(ln.xs[:3]) <= settle[0]
+                    and np.linalg.norm(ln.xs[3:]) <= settle[1]):
+                return  # back at the checked pose
             ln.li += 1
             start_level(ln)
 
@@ -288,7 +298,7 @@ def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options:
     out = []
     for ln in searches:
         full = ln.costs.get(fs)
-        if full is None:  # ended before the full-resolution level (cancelled)
+        if full is None:  # ended before the full-resolution level (settled, cancelled)
             full = ln.costs[fs] = engine_at(fs).sibling(ln.k)
         out.append(_result(ln, fs, hi, full, share))
     return out

@@ -19,7 +19,8 @@ Default levels (:func:`default_levels`)
 * ``search="newton"`` (tracking from a predicted pose): Levenberg–Marquardt steps of the
   Gauss–Newton engine (:mod:`core.tracking.engine`: the cost's gradient and 6 × 6 curvature from
   13 poses per launch) at full resolution. The engine keeps its device buffers from frame to
-  frame; only ``gc`` and ``ncc`` single-term costs.
+  frame; only ``gc`` and ``ncc`` single-term costs. Its widened form ``"global_newton"`` (first
+  frames, retries) scores the CMA-ES populations on the engine too.
 
 The full-resolution quadratic fit of the last level is returned (``fit``): its Hessian and
 residual give the pose uncertainty without another launch.
@@ -394,6 +395,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     lo = -hi
     x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
     stages, costs, engines = [], {}, {}
+    engine_global = search == "global_newton" and o.levels is None
     if tried is not None:  # the full-resolution steps were taken (side by side): on to the fallback
         if not (o.levels is None and search == "newton" and len(levels) == 1):
             raise ValueError("tried: only the automatic 'newton' search's full-resolution stage")
@@ -431,7 +433,11 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             r = gauss_newton_search(engine_at(lv.scale), x, step=sig6, lower=lo, upper=hi, tol_x=lv.tol_x,
                                     max_generations=lv.max_generations, cancel=cancel, **kw)
         else:
-            r = _run(lv.method, cost_at(lv.scale), x, sigma6=sig6, lo=lo, hi=hi, level=lv, tol=lv.tol_x,
+            # the CMA-ES stage of "global_newton" scores its populations on the engine (the same
+            # scores; buffers, pipeline and graph kept from frame to frame, where a RegistrationCost
+            # was built per registration)
+            fun = engine_at(lv.scale) if (lv.method == "cmaes" and engine_global) else cost_at(lv.scale)
+            r = _run(lv.method, fun, x, sigma6=sig6, lo=lo, hi=hi, level=lv, tol=lv.tol_x,
                      seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
         return r
 

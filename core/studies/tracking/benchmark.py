@@ -23,7 +23,11 @@ truth) is reported alongside, per frame and after the Butterworth low-pass of th
 (``filtered_*``, at the acceptance study's frame rate).
 
 Per bone, the per-frame RMS errors are divided by the Cramér–Rao bound of the same trial
-(:func:`core.studies.tracking.acceptance.cramer_rao`, every tenth frame; ``bound_ratio``).
+(:func:`core.studies.tracking.acceptance.cramer_rao`, every tenth frame; ``bound_ratio``);
+``flagged`` / ``flagged_frames`` count the frames flagged for review, ``over_4x_bound`` the
+frames whose translation or rotation error exceeds 4× that per-frame bound (RMS over those
+frames) and ``silent_failures`` / ``silent_failure_frames`` those of them not flagged (the
+issue's acceptance asks for none).
 
 Physical floor (``floor``, Gauss–Newton engine only): the time of the device work alone — the DRR
 launches and the metric graphs of the evaluations the tracker used per frame (its 13-pose steps
@@ -152,12 +156,21 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: d
                   "rms_error_deg": float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))),
                   "max_error_deg": float(np.max(np.linalg.norm(e[:, 3:], axis=1))),
                   "flagged": sum(bool(x.flags) for x in rs if x.bone == m.name),
+                  "flagged_frames": sorted(x.frame for x in rs if x.bone == m.name and x.flags),
                   "retried": sum(bool(x.retried) for x in rs if x.bone == m.name)}
             cb = (bound or {}).get(ts.names[b])
             if cb:
                 pb["bound_mm"], pb["bound_deg"] = cb["rms_mm"], cb["rms_deg"]
                 pb["bound_ratio"] = {"mm": pb["rms_error_mm"] / cb["rms_mm"],
                                      "deg": pb["rms_error_deg"] / cb["rms_deg"]}
+                # frames off by more than 4x the per-frame bound, and those of them not flagged
+                mine = [x for x in rs if x.bone == m.name and x.pose is not None]
+                over = ((np.linalg.norm(e[:, :3], axis=1) > 4 * cb["rms_mm"])
+                        | (np.linalg.norm(e[:, 3:], axis=1) > 4 * cb["rms_deg"]))
+                pb["over_4x_bound"] = int(over.sum())
+                silent = sorted(x.frame for x, o in zip(mine, over, strict=True) if o and not x.flags)
+                pb["silent_failures"] = len(silent)
+                pb["silent_failure_frames"] = silent
             sig = [x.confidence for x in rs if x.bone == m.name and x.pose is not None and x.confidence]
             if sig and len(sig) == len(e) and all(c.get("sigma") and None not in c["sigma"] for c in sig):
                 S = np.array([c["sigma"] for c in sig])

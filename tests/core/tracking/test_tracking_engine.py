@@ -179,6 +179,7 @@ def test_widened_newton_options_search_globally_then_by_gauss_newton(talus_scene
     res = register(sc["renderer"], prepare_frame(sc["fluence"](4)), bone=0, initial_pose=start,
                    center=m.centroid, options=w, outline=m.outline)
     assert res.converged and [s.method for s in res.stages] == ["cmaes", "gauss_newton"]
+    assert res.timing["engine_scores_x1"] > 0  # the CMA-ES populations scored on the engine
     err = pose_errors(res.pose, truth, m.centroid)
     assert np.linalg.norm(err[:3]) < 0.05 and np.linalg.norm(err[3:]) < 0.1, err
 

@@ -233,6 +233,10 @@ def test_benchmark_smoke_reports_one_bone_with_breakdown():
     assert "three_bones" not in res and res["mode"] == "joint"
     ee = res["one_bone"]["end_to_end"]
     assert len(ee["runs_wall_s"]) == 2 and ee["wall_s"] == pytest.approx(sum(ee["runs_wall_s"]) / 2)
+    pb = ee["per_bone"]["talus"]
+    assert pb["flagged"] == len(pb["flagged_frames"])
+    if "bound_ratio" in pb:  # silent failures: over 4x the per-frame bound and not flagged
+        assert pb["silent_failures"] == len(pb["silent_failure_frames"]) <= pb["over_4x_bound"] <= 2
     e = res["one_bone"]["profiled"]
     assert e["frames_per_second"] > 0 and set(e["breakdown_ms_per_frame"]) == {
         "drr", "metric_and_sync", "cost_host", "optimizer", "other"}

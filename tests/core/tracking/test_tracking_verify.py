@@ -68,3 +68,29 @@ def test_restarts_side_by_side_are_those_of_register(talus_scene):
         assert (t.fit is None) == (alone.fit is None)
         if t.fit is not None:
             np.testing.assert_allclose(t.fit.H, alone.fit.H, rtol=1e-9, atol=1e-12)
+
+
+def test_a_restart_that_comes_back_settles_at_half_resolution(talus_scene):
+    """restarts_together(..., settle=): a restart whose half-resolution search ends within
+    ``settle`` of the base stops there, scored at full resolution where it stopped: no better
+    than the full-resolution search from the same start, and at the same optimum."""
+    from core.tracking.cost import prepare_frame
+    from core.tracking.joint import restarts_together
+    from core.tracking.register import RegistrationOptions, _newton_fallback, mm_per_pixel, register
+
+    s = talus_scene
+    sc, m, r = s["scene"], s["model"], s["renderer"]
+    base = sc.poses(3)[0]
+    frame = prepare_frame(s["fluence"](3))
+    o = RegistrationOptions(bounds=(6.0, 6.0), sigma=(1.0, 1.0), search="newton",
+                            levels=_newton_fallback(mm_per_pixel(r, base, m.centroid, (0, 1))))
+    x0 = np.r_[2.0, -1.0, 1.5, 2.0, 1.0, -2.0]
+    t, = restarts_together(r, frame, bone=0, base=base, center=m.centroid, x0s=[x0], options=o,
+                           outline=m.outline, settle=(0.5, 0.5))
+    alone = register(r, frame, bone=0, initial_pose=base, center=m.centroid, options=o, outline=m.outline,
+                     x0=x0)
+    assert len(t.stages) == 1 and t.converged and len(alone.stages) == 2
+    assert np.linalg.norm(t.x[:3]) <= 0.5 and np.linalg.norm(t.x[3:]) <= 0.5
+    assert t.evaluations < alone.evaluations and t.score <= alone.score + 1e-3
+    e = params_from_pose(t.pose, center=m.centroid, base=alone.pose)
+    assert np.linalg.norm(e[:3]) < 0.5 and np.degrees(np.linalg.norm(e[3:])) < 0.5

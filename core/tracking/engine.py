@@ -50,7 +50,8 @@ each view's region of the fluence as it is (grown by the usable-pixel mask's ero
 :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` computes the line integrals, the eroded
 mask and their statistics on the device (the same values as
 :meth:`core.tracking.cost.FrameImages.region`; the regions stay on the device for the next round
-of joint tracking in the same frame); at a pyramid level the host prepares them. Smoothing and
+of joint tracking in the same frame); at a pyramid level the host prepares them
+(:func:`~core.tracking.engine_frames.pyramid_rois`). Smoothing and
 gradients run on the device. The engine fills the DRR item table of its own (rigid) poses itself
 and launches the renderer's recorded launch. :func:`engine_cost` caches one per (renderer, bone,
 views, scale, terms). A step is one DRR launch, one graph launch and one synchronisation; a
@@ -79,7 +80,7 @@ import warp as wp
 from ..render._kernels import ITEM_COLS
 from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
-from .engine_frames import stage, staged_shapes
+from .engine_frames import pyramid_rois, stage, staged_shapes
 from .engine_kernels import (
     N_POSES,
     fluoro_gradient_kernel,
@@ -274,7 +275,11 @@ class GaussNewtonCost:
         taps, ftaps = self._taps(px_mm)
         staged = staged_shapes(self, frame) if self.device_frames else None
         if staged is None:
-            rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi, scale=self.scale)
+            if self.scale > 1 and isinstance(frame, FrameImages):  # a pyramid level
+                rois, masks = pyramid_rois(frame, self.views, self.roi, self.scale)
+            else:
+                rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi,
+                                          scale=self.scale)
             shapes = [r.shape for r in rois]
         else:
             shapes = [(int(r[3]), int(r[2])) for r in self.roi]

@@ -30,8 +30,9 @@ displacement of ``spread`` is beyond the full-resolution steps' reach) — each 
 displacement ``x0`` inside one search box about the checked pose and all side by side
 (:func:`core.tracking.joint.restarts_together`: the fluoroscope regions prepared once per level,
 the restarts' steps in flight together; a restart whose half-resolution search comes back within
-:data:`~core.tracking.checks.SAME_OPTIMUM` of the checked pose is scored there at full
-resolution instead of taking full-resolution steps back to the checked optimum); the
+half of ``pose_tol`` of the checked pose is scored there at full resolution instead of taking
+full-resolution steps back to the checked optimum: it can be neither better by ``score_tol`` nor
+a distinct optimum); the
 quadratic-model restarts built a cost of their own
 per restart and level (the first frame of three bones at 1024² spent 1.0 of its 1.3 s in them
 on one H100).
@@ -45,7 +46,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.transforms import pose_from_params
-from .checks import SAME_OPTIMUM, _distance
+from .checks import _distance
 
 __all__ = ["StartCheck", "verify_start"]
 
@@ -136,7 +137,8 @@ def verify_start(renderer, frame, *, bone: int, result, center, options=None, n:
         if not (cancel is not None and cancel()):
             runs = restarts_together(renderer, frame, bone=bone, base=result.pose, center=c, x0s=x0s,
                                      options=replace(o, levels=levels), views=views, others=others,
-                                     outline=outline, cancel=cancel, settle=SAME_OPTIMUM)
+                                     outline=outline, cancel=cancel,
+                                     settle=(pose_tol[0] / 2, pose_tol[1] / 2))
         evals = sum(r.evaluations for r in runs)
     for k in range(0 if newton else int(n)):
         if cancel is not None and cancel():

@@ -286,3 +286,27 @@ def test_engine_renders_as_the_renderer(talus_scene):
                                 out_shape=gn._cap).images.numpy()
     assert mine.shape == ref.shape and np.abs(ref).max() > 0
     np.testing.assert_allclose(mine, ref, rtol=1e-5, atol=1e-5 * np.abs(ref).max())
+
+
+def test_pyramid_regions_are_those_of_the_cost_and_score_alike(talus_scene):
+    """The engine's pyramid preparation (OpenCV's Gaussian) gives cost.fluoro_rois's regions
+    within float32 rounding, the same masks, and the same scores as RegistrationCost at scale 2."""
+    from core.tracking.cost import fluoro_rois
+    from core.tracking.engine_frames import pyramid_rois
+
+    sc = talus_scene
+    m, r = sc["model"], sc["renderer"]
+    frame = prepare_frame(sc["fluence"](2))
+    _, start = _start(sc["scene"], 2, m.centroid, [1.0, -0.8, 0.6, 1.0, -1.0, 1.5])
+    roi = search_roi(r, start, 0, views=(0, 1), center=m.centroid, reach_mm=7.6, points=m.outline)
+    for s in (2.0, 4.0):
+        a, am = pyramid_rois(frame, (0, 1), roi, s)
+        b, bm = fluoro_rois(r, frame, views=(0, 1), roi=roi, scale=s)
+        for x, y, xm, ym in zip(a, b, am, bm, strict=True):
+            np.testing.assert_allclose(x, y, atol=2e-6 * max(1.0, float(np.abs(y).max())))
+            np.testing.assert_array_equal(xm, ym)
+    gn = GaussNewtonCost(r, bone=0, views=(0, 1), scale=2.0, term=DEFAULT_TERMS[0])
+    gn.set_frame(frame, base_pose=start, center=m.centroid, roi=roi)
+    rc = RegistrationCost(r, frame, bone=0, base_pose=start, center=m.centroid, roi=roi, scale=2.0)
+    X = step_design(np.zeros(6), 2 * H)
+    np.testing.assert_allclose(gn(X), rc(X), atol=1e-5)

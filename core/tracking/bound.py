@@ -76,38 +76,8 @@ def _per_view(value, n: int, name: str) -> list[float]:
     return [float(v) for v in vals]
 
 
-def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.ndarray],
-               quanta_per_pixel, views: Sequence[int] | None = None, step=(0.1, 0.1),
-               margin_px: int = 6) -> PoseBound:
-    """Cramér–Rao bound of ``bone``'s pose in one frame (see the module docstring).
-
-    Parameters
-    ----------
-    renderer : core.render.DRRRenderer
-        Holds the bone's attenuation volume (index ``bone``) and the cameras.
-    pose : (4, 4) array
-        The true ``T_lab_from_bone``.
-    center : (3,) array
-        Rotation centre in the bone's CT frame (its centroid), mm.
-    line_integral : sequence of (H, W) arrays
-        Total line integral ``L`` of each camera's image (all of ``renderer.cameras``) at this
-        frame: what sets the quanta behind each pixel.
-    quanta_per_pixel : float or sequence of float
-        Detected quanta per pixel at full fluence (``L = 0``), per view or one for all.
-    views : sequence of int, optional
-        Views used (default all).
-    step : (mm, degrees)
-        Central-difference steps.
-    margin_px : int
-        Pixels around the bone's projected box that are included.
-
-    Raises
-    ------
-    core.tracking.cost.OutsideViewError
-        The bone projects outside every used view.
-    ValueError
-        Bad shapes or values (named in the message).
-    """
+def _derivatives(renderer, bone, pose, center, *, line_integral, quanta_per_pixel, views, step, margin_px):
+    """``(views, N, [(view, roi, dL/dθ (6, h, w), L (h, w)), …])`` of the views the bone is seen in."""
     from .cost import OutsideViewError, search_roi
 
     views = tuple(range(len(renderer.cameras))) if views is None else tuple(int(v) for v in views)
@@ -142,8 +112,7 @@ def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.
     vsel = [views[i] for i in used]
     batch = renderer.render(P[:, None], views=vsel, bones=[bone], roi=roi[used][None, :, None, :])
     img = batch.numpy()[:, :, 0]  # (12, n_used, H, W)
-    J = np.zeros((6, 6))
-    pixels = 0
+    out = []
     for j, i in enumerate(used):
         v = views[i]
         u0, v0, w, hh = (int(a) for a in roi[i])
@@ -152,10 +121,51 @@ def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.
             raise ValueError(f"line_integral[{v}]: expected shape {tuple(renderer.cameras[v].image_shape)}, "
                              f"got {Lv.shape}")
         D = (img[:6, j, :hh, :w] - img[6:, j, :hh, :w]).astype(float) / (2 * h[:, None, None])  # (6, h, w)
-        q = N[v] * np.exp(-Lv[v0:v0 + hh, u0:u0 + w])
-        G = D.reshape(6, -1)
+        out.append((v, (u0, v0, w, hh), D, Lv[v0:v0 + hh, u0:u0 + w]))
+    return views, N, out
+
+
+def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.ndarray],
+               quanta_per_pixel, views: Sequence[int] | None = None, step=(0.1, 0.1),
+               margin_px: int = 6) -> PoseBound:
+    """Cramér–Rao bound of ``bone``'s pose in one frame (see the module docstring).
+
+    Parameters
+    ----------
+    renderer : core.render.DRRRenderer
+        Holds the bone's attenuation volume (index ``bone``) and the cameras.
+    pose : (4, 4) array
+        The true ``T_lab_from_bone``.
+    center : (3,) array
+        Rotation centre in the bone's CT frame (its centroid), mm.
+    line_integral : sequence of (H, W) arrays
+        Total line integral ``L`` of each camera's image (all of ``renderer.cameras``) at this
+        frame: what sets the quanta behind each pixel.
+    quanta_per_pixel : float or sequence of float
+        Detected quanta per pixel at full fluence (``L = 0``), per view or one for all.
+    views : sequence of int, optional
+        Views used (default all).
+    step : (mm, degrees)
+        Central-difference steps.
+    margin_px : int
+        Pixels around the bone's projected box that are included.
+
+    Raises
+    ------
+    core.tracking.cost.OutsideViewError
+        The bone projects outside every used view.
+    ValueError
+        Bad shapes or values (named in the message).
+    """
+    views, N, D = _derivatives(renderer, bone, pose, center, line_integral=line_integral,
+                               quanta_per_pixel=quanta_per_pixel, views=views, step=step, margin_px=margin_px)
+    J = np.zeros((6, 6))
+    pixels = 0
+    for v, _, Dv, Lv in D:
+        q = N[v] * np.exp(-Lv)
+        G = Dv.reshape(6, -1)
         J += (G * q.ravel()) @ G.T
-        pixels += int(np.count_nonzero(np.any(D != 0, axis=0)))
+        pixels += int(np.count_nonzero(np.any(Dv != 0, axis=0)))
     w, V = np.linalg.eigh(0.5 * (J + J.T))
     if np.all(np.isfinite(w)) and w.max() > 0 and w.min() > 1e-12 * w.max():
         C = (V / w) @ V.T  # symmetric positive definite by construction
@@ -164,3 +174,78 @@ def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.
     sig = np.sqrt(np.diag(C))
     return PoseBound(information=J, covariance=C, sigma=sig, rms_mm=float(np.sqrt(np.trace(C[:3, :3]))),
                      rms_deg=float(np.sqrt(np.trace(C[3:, 3:]))), pixels=pixels)
+
+
+def chain_information(renderer, bone: int, pose, center, *, line_integral: Sequence[np.ndarray],
+                      quanta_per_pixel, psf, added_noise, contrast=1.0, views: Sequence[int] | None = None,
+                      step=(0.1, 0.1), margin_px: int | None = None, tol: float = 1e-8,
+                      max_iter: int = 2000) -> np.ndarray:
+    """``(6, 6)`` Fisher information of ``bone``'s pose when the quanta are blurred and then
+    meet noise that the blur did not shape (read noise, quantisation): what a frame holds after
+    the whole chain, not only at the quantum stage (:func:`pose_bound`).
+
+    Per view the detected image, in quanta, is ``y = K q + e``: ``q ~ Poisson(λ)``, ``λ = N
+    e^{-L}``, ``K`` the PSF (``psf``: one normalised odd kernel, or one per view), carrying the
+    fraction ``contrast`` of the light (the rest spread far, e.g. veiling glare: it is left out,
+    so the information is that of ``contrast · K q``), and ``e`` white noise of σ ``added_noise``
+    (quanta at full fluence, one per view or one for all). In the Gaussian approximation
+    ``J = Gᵀ C⁻¹ G`` with ``G = K (λ ∂L/∂θ)`` and ``C = K Λ Kᵀ + (σ/contrast)² I``; ``C⁻¹ G`` by
+    preconditioned conjugate gradients over the bone's region (grown by the kernel's radius). With
+    ``K`` = identity and ``σ`` = 0 this is :func:`pose_bound`'s information. Gaussian kernels
+    attenuate high spatial frequencies; the added noise then hides them, which is why a blurred,
+    read-out frame holds less than the quantum stage alone.
+    """
+    import cv2
+
+    n_cam = len(renderer.cameras)
+    ks = list(psf) if (isinstance(psf, (list, tuple)) or np.ndim(psf) == 3) else [psf] * n_cam
+    if len(ks) != n_cam:
+        raise ValueError(f"psf: expected one kernel or one per camera ({n_cam})")
+    ks = [np.asarray(k, np.float64) / np.sum(k) for k in ks]
+    for k in ks:
+        if k.ndim != 2 or k.shape[0] % 2 == 0 or k.shape[1] % 2 == 0:
+            raise ValueError(f"psf: expected odd-sized 2-D kernels, got shape {k.shape}")
+    sig = np.broadcast_to(np.asarray(added_noise, dtype=float), (n_cam,))
+    con = np.broadcast_to(np.asarray(contrast, dtype=float), (n_cam,))
+    if np.any(sig < 0) or np.any(con <= 0):
+        raise ValueError("added_noise, contrast: expected added_noise >= 0 and contrast > 0")
+    if margin_px is None:
+        margin_px = 6 + max(k.shape[0] for k in ks) // 2
+    views, N, D = _derivatives(renderer, bone, pose, center, line_integral=line_integral,
+                               quanta_per_pixel=quanta_per_pixel, views=views, step=step, margin_px=margin_px)
+    J = np.zeros((6, 6))
+    for v, _, Dv, Lv in D:
+        k = ks[v]
+
+        def conv(a, k=k):
+            return cv2.filter2D(a, -1, k[::-1, ::-1], borderType=cv2.BORDER_CONSTANT)
+
+        lam = N[v] * np.exp(-Lv)
+        s2 = float(sig[v] / con[v]) ** 2
+        G = np.stack([conv(lam * Dv[i]) for i in range(6)])
+        pre = 1.0 / (cv2.filter2D(lam, -1, (k * k)[::-1, ::-1], borderType=cv2.BORDER_CONSTANT) + s2)
+
+        def C(x, k=k, lam=lam, s2=s2, conv=conv):
+            return conv(lam * conv(x)) + s2 * x
+
+        for i in range(6):  # preconditioned conjugate gradients, one right-hand side at a time
+            b = G[i]
+            x = b * pre
+            r = b - C(x)
+            z = r * pre
+            p = z.copy()
+            rz = float(np.sum(r * z))
+            bb = float(np.sum(b * b * pre))
+            for _ in range(max_iter):
+                Cp = C(p)
+                a = rz / float(np.sum(p * Cp))
+                x += a * p
+                r -= a * Cp
+                z = r * pre
+                rz_new = float(np.sum(r * z))
+                if rz_new <= tol * bb:
+                    break
+                p = z + (rz_new / rz) * p
+                rz = rz_new
+            J[i] += np.einsum("kij,ij->k", G, x)
+    return 0.5 * (J + J.T)

@@ -125,3 +125,25 @@ def test_acceptance_bounds_per_bone_and_frames_without_a_bound_are_skipped(monke
     monkeypatch.setattr(ts, "truth", moved)
     out = acceptance.cramer_rao(ts, [0, 1])
     assert out["talus"]["frames"] == [0] and out["tibia"]["frames"] == [0, 1]
+
+
+def test_chain_information_reduces_to_the_quantum_bound_and_loses_to_blur_and_read_noise(talus_scene):
+    from core.imaging.psf import gaussian_psf
+    from core.tracking.bound import chain_information
+
+    r, model = talus_scene["renderer"], talus_scene["model"]
+    truth = talus_scene["scene"].poses(2)[0]
+    L = [_background(cam.image_shape) for cam in r.cameras]
+    kw = {"line_integral": L, "quanta_per_pixel": 5000.0}
+    J0 = pose_bound(r, 0, truth, model.centroid, margin_px=8, **kw).information
+    kw["margin_px"] = 8
+    Jid = chain_information(r, 0, truth, model.centroid, psf=np.ones((1, 1)), added_noise=0.0, **kw)
+    np.testing.assert_allclose(Jid, J0, rtol=1e-6)  # identity kernel, no added noise: the same information
+    Jb = chain_information(r, 0, truth, model.centroid, psf=gaussian_psf(1.2), added_noise=0.0, **kw)
+    Jbn = chain_information(r, 0, truth, model.centroid, psf=gaussian_psf(1.2), added_noise=3.0, **kw)
+    # an invertible blur alone keeps (almost: the region's border) all of it; noise after the blur loses some
+    assert np.trace(np.linalg.inv(Jb)) == pytest.approx(np.trace(np.linalg.inv(J0)), rel=0.1)
+    assert np.all(np.linalg.eigvalsh(Jb - Jbn) > -1e-6 * np.abs(Jb).max())
+    assert np.trace(np.linalg.inv(Jbn)) > 1.05 * np.trace(np.linalg.inv(J0))
+    with pytest.raises(ValueError, match="psf"):
+        chain_information(r, 0, truth, model.centroid, psf=np.ones((2, 2)), added_noise=0.0, **kw)

@@ -1,0 +1,52 @@
+"""LikelihoodCost (weighted least squares on the line-integral image): against the numpy
+reference, and recovering a known pose by its Gauss–Newton refinement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.geometry.transforms import params_from_pose, pose_from_params
+from core.similarity.likelihood import expected_counts, highpass, wls_chi2
+from core.tracking.cost import LikelihoodCost, prepare_frame, search_roi
+
+
+def _setup(talus_scene, frame: int, offset, **kw):
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(frame)[0]
+    off = np.r_[offset[:3], np.radians(offset[3:])]
+    start = pose_from_params(off, center=model.centroid, base=truth)
+    fr = prepare_frame(talus_scene["fluence"](frame), valid_range=None)  # ideal frames: air reads exactly 1
+    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
+    cost = LikelihoodCost(r, fr, bone=0, base_pose=start, center=model.centroid, roi=roi, **kw)
+    return cost, truth, model
+
+
+def test_cost_equals_the_numpy_reference(talus_scene):
+    cost, _, _ = _setup(talus_scene, 2, [0.3, 0, 0, 0, 0.4, 0], background=0, highpass_px=2.0)
+    X = np.array([[0.0] * 6, [0.1, -0.2, 0.0, 0.3, 0.0, -0.1]])
+    D = cost._render(X)
+    ref = 0.5 * wls_chi2(D, cost.fluoro_rois, cost.weights, background=0, highpass_px=2.0)
+    np.testing.assert_allclose(cost(X), ref, rtol=1e-10)
+    # the fluoroscope regions are the frame's line integrals, high-passed, and weigh by their fluence
+    li = -np.log(np.clip(talus_scene["fluence"](2)[0], 1 / 4096, 1))
+    u0, v0, w, h = cost.roi[0]
+    np.testing.assert_allclose(cost.fluoro_rois[0], highpass(li[v0:v0 + h, u0:u0 + w], 2.0), atol=1e-5)
+    np.testing.assert_allclose(cost.weights[0], expected_counts(li[v0:v0 + h, u0:u0 + w]), rtol=1e-5)
+
+
+@pytest.mark.parametrize("kw", [{"background": 1}, {"background": 0, "highpass_px": 3.0}])
+def test_refine_recovers_a_known_pose(talus_scene, kw):
+    cost, truth, model = _setup(talus_scene, 3, [0.4, -0.3, 0.2, 0.5, -0.4, 0.3], **kw)
+    out = cost.refine(iters=6)
+    e = params_from_pose(cost.poses(out["x"][None])[0], center=model.centroid, base=truth)
+    assert np.linalg.norm(e[:3]) < 0.01 and np.degrees(np.linalg.norm(e[3:])) < 0.02, e
+    assert out["cost"] < float(cost(np.zeros((1, 6)))[0])
+    assert out["covariance"].shape == (6, 6) and np.all(np.isfinite(out["covariance"]))
+
+
+def test_bad_options(talus_scene):
+    with pytest.raises(ValueError, match="psf"):
+        _setup(talus_scene, 1, [0] * 6, psf=np.ones((4, 4)))
+    with pytest.raises(ValueError, match="background"):
+        _setup(talus_scene, 1, [0] * 6, background=3)

@@ -29,7 +29,41 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["main", "refine_frame", "run"]
+__all__ = ["main", "refine_frame", "run", "synthesise"]
+
+
+def _chain_frame(args):
+    """One frame through the trial's image chain (the body of TrackingScene.frames)."""
+    ts, i, L = _POOL_SCENE[0], args[0], args[1]
+    sc = ts.scene
+    return i, [c.unwarp(m.to_float(m.apply(L[v], rng=sc.frame_rng(i, v))))
+               for v, (m, c) in enumerate(zip(sc.imaging, ts.corrections, strict=True))]
+
+
+_POOL_SCENE: list = []
+
+
+def synthesise(ts, frames, workers: int = 0) -> None:
+    """Fill ``ts``'s frame cache (the same frames as :meth:`TrackingScene.frames`): line
+    integrals on the scene's renderer, the image chain (noise, blur, distortion, flatfield,
+    unwarp) in ``workers`` forked processes (0: in this process)."""
+    todo = [i for i in frames if i not in ts._cache]
+    if workers <= 1:
+        for i in todo:
+            ts.frames(i)
+        return
+    import multiprocessing as mp
+
+    _POOL_SCENE[:] = [ts]
+    with mp.get_context("fork").Pool(workers) as pool:
+        jobs = []
+        for i in todo:
+            L = ts.scene.line_integrals(i, renderer=ts._scene_renderer)
+            jobs.append(pool.apply_async(_chain_frame, ((i, L),)))
+        for j in jobs:
+            i, imgs = j.get()
+            ts._cache[i] = imgs
+    _POOL_SCENE.clear()
 
 
 def refine_frame(renderer, frame, models, poses, *, highpass_px: float, passes: int = 2, psf=None,
@@ -87,7 +121,7 @@ def _summary(E, bound, cov=None) -> dict:
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None, variants=("8",),
         passes: int = 2, cases=("one", "three"), chain_frames=(0, 40, 80), refine_every: int = 1,
-        psf=None) -> dict:
+        psf=None, workers: int = 0, checkpoint=None) -> dict:
     """Run the study (module docs); returns the JSON-ready results. ``variants``: refinements
     ``"<high-pass σ px>"`` or ``"<σ>+psf"`` (the DRRs blurred by ``psf``, a kernel estimated
     from calibration frames); ``refine_every``: refine every k-th frame only (the tracker's
@@ -104,8 +138,7 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=max(n, 2), pixels=px, spacing=vox, phase=(0.0, 0.6 * max(n, 2) / 100.0),
                        device=device)
-    for i in range(n):
-        ts.frames(i)
+    synthesise(ts, range(n), workers)
     out = {"study": "core.studies.tracking.ml_cost", "machine": platform.machine(),
            "device": str(ts.renderer.device),
            "pixels": px, "voxel_mm": vox, "frames": n, "variants": list(variants), "passes": passes,
@@ -178,6 +211,8 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
             c[f"refined_{var}"] = {"s_per_frame": dt / len(fr_ref),
                                       **{nm: _summary(Er[nm], bound.get(nm), covs[nm]) for nm in names}}
         out[case] = c
+        if checkpoint:
+            checkpoint(out)
     return out
 
 
@@ -190,17 +225,27 @@ def main(argv=None) -> int:
     p.add_argument("--variants", default="8", help="refinements: high-pass σ (px), '+psf' with --psf")
     p.add_argument("--psf", default=None, help=".npy kernel estimated from calibration frames")
     p.add_argument("--refine-every", type=int, default=1)
+    p.add_argument("--workers", type=int, default=0, help="processes for the frames' image chain")
     p.add_argument("--passes", type=int, default=2)
     p.add_argument("--cases", default="one,three")
     p.add_argument("--chain-frames", default="0,40,80", help="frames of the chain bound ('' = none)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    res = run(quick=a.quick, device=a.device, frames=a.frames, variants=a.variants.split(","),
+    from core.io.atomic import print_json
+
+    def checkpoint(res):  # each case's results on disk as soon as they are measured
+        if a.out:
+            import json
+
+            from core.io.atomic import atomic_write
+
+            atomic_write(a.out, json.dumps(res, indent=2) + "\n")
+
+    res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint,
+              device=a.device, frames=a.frames, variants=a.variants.split(","),
               passes=a.passes, cases=a.cases.split(","), refine_every=a.refine_every,
               psf=None if a.psf is None else np.load(a.psf),
               chain_frames=[int(x) for x in a.chain_frames.split(",") if x])
-    from core.io.atomic import print_json
-
     print_json(res, a.out)
     return 0
 

@@ -1,8 +1,9 @@
 """The tracker's checks of a registration: failure reasons, same optimum, uncertainty.
 
 :func:`failures` lists why a registration of :func:`core.tracking.trial.track` fails (not
-converged, a score drop against the bone's recent good frames or below its first frame, a jump
-from the initial guess); :func:`same_optimum` tells whether two poses are the same optimum
+converged, a score drop against the bone's recent good frames or below its first frame, a collapse
+of the score, a jump from the initial guess; :func:`confirmable` tells which of them a confirmed
+optimum clears); :func:`same_optimum` tells whether two poses are the same optimum
 (:data:`SAME_OPTIMUM`); :func:`uncertain` flags a confidence beyond the user's limits. See the
 module docs of :mod:`core.tracking.trial` for how the tracker uses them.
 
@@ -18,7 +19,8 @@ import numpy as np
 
 from ..geometry.transforms import params_from_pose, pose_from_params
 
-__all__ = ["SAME_OPTIMUM", "failures", "pose_delta", "same_optimum", "step_pose", "uncertain"]
+__all__ = ["COLLAPSE_RATIO", "SAME_OPTIMUM", "SCORE_DROP", "confirmable", "failures", "pose_delta",
+           "same_optimum", "step_pose", "uncertain"]
 
 #: Poses closer than this (mm, degrees) are the same optimum (:func:`same_optimum`).
 SAME_OPTIMUM = (0.5, 0.5)
@@ -78,26 +80,84 @@ def _distance(a, b, c) -> tuple[float, float]:
     return float(np.linalg.norm(d[:3])), float(np.degrees(np.linalg.norm(d[3:])))
 
 
+#: A score below this fraction of the median of the bone's recent good scores fails outright: a
+#: collapse that no wider search or restart check clears (:func:`failures`).
+COLLAPSE_RATIO = 0.6
+#: Flags that start with this are score drops the tracker may confirm rather than flag
+#: (:func:`confirmable`).
+SCORE_DROP = "score drop"
+
+
 def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
              jump_factor: float = 1.0) -> list[str]:
     """Why registration ``res`` fails under the tracking options ``o`` (module docs of
-    :mod:`core.tracking.trial`): ``good_scores`` are the bone's good scores so far,
-    ``start_score`` its first frame's; the jump limit is ``o.max_jump`` × ``jump_factor``."""
+    :mod:`core.tracking.trial`): ``good_scores`` are the bone's good scores so far (in tracking
+    order), ``start_score`` its first frame's; the jump limit from ``guess_pose`` is
+    ``o.max_jump``, × ``jump_factor`` only for a bone without good scores yet (its first frame,
+    from a hand-placed pose): a tracking frame's wider retry keeps ``o.max_jump``, as the module
+    docs of :mod:`core.tracking.trial` say.
+
+    Scores
+    ------
+    A bone's score follows the image as well as the registration: on the foot demo the talus of a
+    correct registration falls from 0.56-0.58 at frame 0 to 0.34-0.44 in the late stance (one
+    H200, 512², ``resources/benchmarks/calibration_tracking_h200.json``), below any fixed fraction
+    of the first frame's score that a false optimum would also cross. So a score is judged
+    against the recent frames, and a drop is verified before it is flagged:
+
+    * ``"score drop"`` — below ``o.min_score_ratio`` × the median of the last ``o.history`` good
+      scores;
+    * ``"score drop below the start"`` — below ``o.min_start_ratio`` × ``start_score`` (the floor
+      a slow drift into a false optimum crosses) while every recent good score is above that
+      floor: the first frame to cross it is verified; once a verified frame below the floor is
+      among the recent good scores, the floor has been re-based by the image and later frames are
+      judged by the recent median alone (until the recent scores are all above the floor again);
+    * ``"score collapse"`` — below :data:`COLLAPSE_RATIO` × the recent median: flagged whatever a
+      verification finds.
+
+    The first two are *confirmable* (:func:`confirmable`): the tracker retries the frame wider
+    and checks the result with restarts (:func:`core.tracking.verify.verify_start`), and when the
+    searches agree on the optimum and no restart scores better or equally well elsewhere, the
+    image changed, not the registration, and the frame is noted instead of flagged.
+
+    Measured against the truth (:mod:`core.studies.tracking.flag_study`, one H100,
+    ``resources/benchmarks/tracking_flags_h100.json``): on the talus tracked alone over the
+    demo's stance (256², 60 frames), which is lost in the late stance, the fixed floor flagged
+    frames 42-59 and this check 44-59 — every frame over 1 mm or 2° flagged either way (15 of
+    15), frames 42-43 (0.12-0.18 mm, 0.64-0.79°) confirmed instead of flagged; the frames of the
+    late stance were flagged by the verification, not by a score level. Injected failures: the
+    two views' images exchanged were flagged in 20 of 20 frames (a collapse every time), a start
+    5 mm / 5° off was corrected in 19 of 20 and flagged in the other; the images of a frame 10
+    frames later went unflagged in 10 of 20 (9 before) — a valid image of the bone elsewhere,
+    which only the jump from the guess (``o.max_jump``) can tell.
+    """
     out = []
     if not res.converged:
         out.append(f"not converged ({res.reason})")
-    if good_scores:
-        recent = good_scores[-o.history:]
-        med = float(np.median(recent))
-        if res.score < o.min_score_ratio * med:
-            out.append(f"score drop ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
-    if start_score is not None and res.score < o.min_start_ratio * start_score:
-        out.append(f"score below the start ({res.score:.3f} < {o.min_start_ratio:g} x first frame "
-                   f"{start_score:.3f})")
+    recent = [float(v) for v in (good_scores or [])[-o.history:] if v is not None and np.isfinite(v)]
+    med = float(np.median(recent)) if recent else None
+    if med is not None and res.score < o.min_score_ratio * med:
+        out.append(f"{SCORE_DROP} ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
+    if start_score is not None and np.isfinite(start_score):
+        floor = o.min_start_ratio * float(start_score)
+        if res.score < floor and (not recent or min(recent) >= floor):
+            out.append(f"{SCORE_DROP} below the start ({res.score:.3f} < {o.min_start_ratio:g} x first frame "
+                       f"{start_score:.3f})")
+    if med is not None and res.score < COLLAPSE_RATIO * med:
+        out.append(f"score collapse ({res.score:.3f} < {COLLAPSE_RATIO:g} x recent median {med:.3f})")
+    # a bone with good frames has a guess predicted from them: its retries search wider, but the
+    # pose they may end at stays within max_jump of that guess (a valid image of the bone in
+    # another frame, e.g. frames out of order, is found again by the wider search)
+    k = float(jump_factor) if not good_scores else 1.0
     dt, dr = _distance(guess_pose, res.pose, center)
-    if dt > o.max_jump[0] * jump_factor or dr > o.max_jump[1] * jump_factor:
+    if dt > o.max_jump[0] * k or dr > o.max_jump[1] * k:
         out.append(f"pose jump ({dt:.2f} mm, {dr:.2f} deg from the guess)")
     return out
+
+
+def confirmable(flag: str) -> bool:
+    """Whether ``flag`` (of :func:`failures`) is a score drop that a confirmed optimum clears."""
+    return flag.startswith(SCORE_DROP)
 
 
 def same_optimum(a: np.ndarray, b: np.ndarray, center) -> bool:

@@ -149,15 +149,18 @@ def _patched(check):
     return ctx()
 
 
-def _track(tr: _Trial, o, frames, keyframes, check, bounds, *, large) -> tuple[dict, dict]:
+def _track(tr: _Trial, o, frames, keyframes, check, bounds, tracked, *, large) -> tuple[dict, dict]:
     from core.tracking.trial import track
 
+    skip = {n: {f: tr.truth(f)[b] for f in frames} for b, n in enumerate(tr.names) if n not in tracked}
     with _patched(check):
         t0 = time.perf_counter()
-        res = track(tr.renderer, tr.models, tr.frames, frames, keyframes=keyframes, options=o)
+        res = track(tr.renderer, tr.models, tr.frames, frames, keyframes=keyframes, options=o, skip=skip)
         wall = time.perf_counter() - t0
     per = {}
     for b, (n, m) in enumerate(zip(tr.names, tr.models, strict=True)):
+        if n not in tracked:
+            continue
         rows = []
         for f in frames:
             fr = res.results[(n, f)]
@@ -190,7 +193,8 @@ def _track(tr: _Trial, o, frames, keyframes, check, bounds, *, large) -> tuple[d
     return per, {"wall_s": wall, "summary": res.summary(), "result": res}
 
 
-def _inject(tr: _Trial, o, res, frames, check, injections, at, *, large, offset: int, seed: int) -> list:
+def _inject(tr: _Trial, o, res, frames, check, injections, at, tracked, *, large, offset: int,
+            seed: int) -> list:
     """Injected failures at frames ``at`` of the tracked run ``res`` (see the module docs)."""
     from core.tracking.attempt import register_checked
     from core.tracking.cost import prepare_frame
@@ -200,7 +204,11 @@ def _inject(tr: _Trial, o, res, frames, check, injections, at, *, large, offset:
     g = np.random.default_rng(seed + 101)
     order = list(frames)
     for b, (n, m) in enumerate(zip(tr.names, tr.models, strict=True)):
+        if n not in tracked:
+            continue
+        ids = [i for i, nn in enumerate(tr.names) if nn not in tracked]  # subtracted at the truth
         for f in at:
+            others = (np.stack([tr.truth(f)[i] for i in ids]), ids) if ids else None
             k = order.index(f)
             good = [(g_f, res.results[(n, g_f)]) for g_f in order[:k]
                     if res.results[(n, g_f)].pose is not None and not res.results[(n, g_f)].flags]
@@ -223,7 +231,7 @@ def _inject(tr: _Trial, o, res, frames, check, injections, at, *, large, offset:
                 with _patched(check):
                     a = register_checked(tr.renderer, prepare_frame(imgs, valid_range=o.valid_range,
                                                                     erode_px=o.erode_px),
-                                         m, b, start, start, o.registration, o, scores, None, None, history,
+                                         m, b, start, start, o.registration, o, scores, others, None, history,
                                          start_score=scores[0], seed=f)
                 if a.result is None:
                     out.append({"bone": n, "frame": int(f), "kind": kind, "outcome": "flagged",
@@ -243,20 +251,28 @@ def _inject(tr: _Trial, o, res, frames, check, injections, at, *, large, offset:
 def run(*, scene: str = "demo", pixels: int = 256, spacing: float = 1.0, n_frames: int = 60,
         bones=("talus",), mode: str = "sequential", search: str = "newton", seed: int = 0,
         device: str | None = None, checks=("before", "after"), injections=INJECTIONS, inject_every: int = 10,
-        offset: int = 10, large=(1.0, 2.0), start=(0.0, 0.0), progress=None) -> dict:
-    """Track and inject under each check; returns the JSON-ready counts (module docs)."""
+        offset: int = 10, large=(1.0, 2.0), start=(0.0, 0.0), others_at_truth: bool = False,
+        progress=None) -> dict:
+    """Track and inject under each check; returns the JSON-ready counts (module docs).
+    ``others_at_truth``: the scene's other bones are given at their true poses and subtracted
+    (joint mode), so ``bones`` are tracked as joint tracking does once its neighbours are right."""
     from core.tracking.checks import failures
     from core.tracking.trial import TrackingOptions
 
     t0 = time.perf_counter()
-    tr = _Trial(scene, pixels=pixels, spacing=spacing, n_frames=n_frames, seed=seed, bones=bones,
-                device=device)
+    tr = _Trial(scene, pixels=pixels, spacing=spacing, n_frames=n_frames, seed=seed,
+                bones=None if others_at_truth else bones, device=device)
+    tracked = tuple(bones or tr.names)
+    if others_at_truth:
+        mode = "joint"
     frames = list(range(n_frames))
     for f in frames:
         tr.frames(f)
     bounds = {n: {} for n in tr.names}
     for f in frames:
         for b, n in enumerate(tr.names):
+            if n not in tracked:
+                continue
             bd = tr.bound(f, b)
             if bd is not None:
                 bounds[n][f] = bd
@@ -265,18 +281,19 @@ def run(*, scene: str = "demo", pixels: int = 256, spacing: float = 1.0, n_frame
     g = np.random.default_rng(seed + 7)
     keyframes = {n: {0: pose_from_params(_random_offset(g, *start), center=m.centroid, base=tr.truth(0)[b])
                      if start[0] or start[1] else tr.truth(0)[b]}
-                 for b, (n, m) in enumerate(zip(tr.names, tr.models, strict=True))}
+                 for b, (n, m) in enumerate(zip(tr.names, tr.models, strict=True)) if n in tracked}
     out = {"study": "core.studies.tracking.flag_study", "machine": platform.machine(),
            "device": str(tr.renderer.device),
            "config": {"scene": scene, "pixels": pixels, "voxel_mm": spacing, "frames": n_frames, "seed": seed,
-                      "bones": list(tr.names), "mode": mode, "search": search, "large": list(large),
+                      "bones": list(tracked), "others_at_truth": others_at_truth, "mode": mode,
+                      "search": search, "large": list(large),
                       "start_error": list(start), "inject_every": inject_every, "offset": offset},
            "setup_s": setup, "checks": {}}
     variants = {"before": legacy_failures, "after": failures}
     at = frames[inject_every::inject_every] if inject_every else []
     for name in checks:
-        per, info = _track(tr, o, frames, keyframes, variants[name], bounds, large=large)
-        inj = _inject(tr, o, info.pop("result"), frames, variants[name], injections, at, large=large,
+        per, info = _track(tr, o, frames, keyframes, variants[name], bounds, tracked, large=large)
+        inj = _inject(tr, o, info.pop("result"), frames, variants[name], injections, at, tracked, large=large,
                       offset=offset, seed=seed) if at and injections else []
         counts = {k: {"n": sum(1 for r in inj if r["kind"] == k),
                       **{oc: sum(1 for r in inj if r["kind"] == k and r["outcome"] == oc)
@@ -305,6 +322,8 @@ def main(argv=None) -> int:
     p.add_argument("--injections", default=",".join(INJECTIONS))
     p.add_argument("--offset", type=int, default=10,
                    help="other_frame: the images of the frame this much later")
+    p.add_argument("--others-at-truth", action="store_true",
+                   help="give the other bones at their true poses and subtract them (joint mode)")
     p.add_argument("--start", default="0,0", help="frame-0 start error 'mm,deg' (default the truth)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
@@ -323,7 +342,7 @@ def main(argv=None) -> int:
 
     res = run(scene=a.scene, pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, bones=bones, mode=a.mode,
               search=a.search, seed=a.seed, device=a.device, checks=tuple(a.checks.split(",")),
-              injections=inj, inject_every=a.inject_every, offset=a.offset,
+              injections=inj, inject_every=a.inject_every, offset=a.offset, others_at_truth=a.others_at_truth,
               start=tuple(float(v) for v in a.start.split(",")), progress=partial)
     from core.io.atomic import print_json
 

@@ -205,7 +205,7 @@ def write_calibration_session(
                   for _ in cams]
     T_cube = np.eye(4)
     for c, m in zip(cams, models, strict=True):
-        if not _inside_field(c, m, cube.centers_lab(T_cube), 4.0):
+        if not _inside_field(c, m, cube.centers_lab(T_cube)[None], 4.0)[0]:
             raise ValueError(f"scene: the cube at the lab origin does not fit inside {c.name}'s field")
 
     total = (int(n_dark) + int(n_flat) * len(kv_list) + int(n_grid) + int(n_lattice) + 1

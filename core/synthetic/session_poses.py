@@ -29,24 +29,24 @@ def _default_setup(pixels: int, seed: int, energy_kev: float):
     return rig, models, floor
 
 
-def _inside_field(cam: Camera, model: ImagingModel, X: np.ndarray, margin_px: float) -> bool:
-    """All lab points ``X`` project in front of the source, inside the image and the round field
-    (after the view's distortion), ``margin_px`` clear of their borders."""
-    uv, depth = cam.project(X, return_depth=True)
-    if np.any(depth <= 0):
-        return False
+def _inside_field(cam: Camera, model: ImagingModel, X: np.ndarray, margin_px: float) -> np.ndarray:
+    """Per candidate: all its lab points ``X (m, k, 3)`` project in front of the source, inside
+    the image and the round field (after the view's distortion), ``margin_px`` clear of their
+    borders; ``(m,)`` bool."""
+    m, k = X.shape[:2]
+    uv, depth = cam.project(X.reshape(-1, 3), return_depth=True)
+    ok = np.all(depth.reshape(m, k) > 0, axis=1)
     if model.distortion is not None:
-        uv = model.distortion.forward(uv)
+        with np.errstate(all="ignore"):  # points behind the source: refused above
+            uv = model.distortion.forward(uv)
     lo, hi = margin_px - 0.5, np.array([cam.width, cam.height]) - 0.5 - margin_px
-    if np.any(uv < lo) or np.any(uv > hi):
-        return False
+    ok &= ~np.any(((uv < lo) | (uv > hi)).reshape(m, -1), axis=1)
     if model.aperture_radius is not None:
         c = (model.distortion.center if model.distortion is not None
              else ((cam.width - 1) / 2, (cam.height - 1) / 2))
         r = model.aperture_radius * min(cam.width, cam.height) / 2 - margin_px
-        if np.any(np.hypot(uv[:, 0] - c[0], uv[:, 1] - c[1]) > r):
-            return False
-    return True
+        ok &= ~np.any((np.hypot(uv[:, 0] - c[0], uv[:, 1] - c[1]) > r).reshape(m, k), axis=1)
+    return ok
 
 
 def _capture_centre(rig: Rig) -> np.ndarray:
@@ -59,22 +59,39 @@ def _capture_centre(rig: Rig) -> np.ndarray:
     return np.linalg.solve(A, b)
 
 
-def _random_rotation(g: np.random.Generator) -> np.ndarray:
-    q = g.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+def _rotations(q: np.ndarray, qq: np.ndarray) -> np.ndarray:
+    """``(m, 3, 3)`` rotations of the quaternions ``q (m, 4)`` (``qq``: their ``q·q``), uniform on
+    SO(3) for normal ``q``."""
+    w, x, y, z = (q / np.sqrt(qq)[:, None]).T
+    R = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+                  2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+                  2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1)
+    return R.reshape(-1, 3, 3)
 
 
-def _tube_bottom(obj: CalibrationObject, T: np.ndarray) -> float:
-    """Lowest lab z (mm) of a tube body (or of the beads when the object has none)."""
+def _tube_bottom(obj: CalibrationObject, T: np.ndarray) -> np.ndarray:
+    """Lowest lab z (mm) of a tube body (or of the beads when the object has none) at the poses
+    ``T (m, 4, 4)``."""
     if obj.body is None or obj.body[0] != "tube":
-        return float((obj.centers_lab(T)[:, 2] - obj.diameters / 2).min())
+        return np.array([(obj.centers_lab(t)[:, 2] - obj.diameters / 2).min() for t in T])
     radius, half = obj.body[1], obj.body[2]
-    a = T[:3, 2]
-    ends = T[:3, 3][None] + np.outer([-half, half], a)
-    return float(ends[:, 2].min() - radius * np.sqrt(max(0.0, 1 - a[2] ** 2)))
+    az, tz = T[:, 2, 2], T[:, 2, 3]
+    return np.minimum(tz + -half * az, tz + half * az) - radius * np.sqrt(np.maximum(0.0, 1 - az ** 2))
+
+
+def _candidates(g: np.random.Generator, m: int, c0: np.ndarray, spread_mm: float) -> np.ndarray:
+    """``m`` candidate poses ``(m, 4, 4)``, drawn one after the other from ``g`` (a random
+    orientation, then a position in the cube of half-side ``spread_mm`` about ``c0``)."""
+    q, qq, t = np.empty((m, 4)), np.empty(m), np.empty((m, 3))
+    for i in range(m):
+        q[i] = g.normal(size=4)
+        qq[i] = q[i].dot(q[i])
+        t[i] = g.uniform(-spread_mm, spread_mm, 3)
+    T = np.zeros((m, 4, 4))
+    T[:, :3, :3] = _rotations(q, qq)
+    T[:, :3, 3] = c0 + t
+    T[:, 3, 3] = 1.0
+    return T
 
 
 def spiral_poses(rig: Rig, imaging: Sequence[ImagingModel], n: int, *, obj: CalibrationObject | None = None,
@@ -99,19 +116,25 @@ def spiral_poses(rig: Rig, imaging: Sequence[ImagingModel], n: int, *, obj: Cali
     c0 = _capture_centre(rig)
     if margin_px is None:
         margin_px = float(obj.diameters.max()) / min(c.pixel_size for c in cams) + 2.0
-    kept = []
+    kept: list[np.ndarray] = []
     want = int(pool) * int(n)
-    for _ in range(int(max_tries)):
-        if len(kept) >= want:
-            break
-        T = np.eye(4)
-        T[:3, :3] = _random_rotation(g)
-        T[:3, 3] = c0 + g.uniform(-spread_mm, spread_mm, 3)
-        if floor_z_mm is not None and _tube_bottom(obj, T) < floor_z_mm + 2.0:
-            continue
-        X = obj.centers_lab(T)
-        if all(_inside_field(c, m, X, margin_px) for c, m in zip(cams, imaging, strict=True)):
-            kept.append(T)
+    tries = 0
+    # candidates are drawn in batches and checked together; the generator is left where drawing
+    # them one at a time, until enough were kept, would leave it
+    while tries < int(max_tries) and len(kept) < want:
+        m = min(512, int(max_tries) - tries)
+        state = g.bit_generator.state
+        T = _candidates(g, m, c0, spread_mm)
+        ok = np.ones(m, bool) if floor_z_mm is None else ~(_tube_bottom(obj, T) < floor_z_mm + 2.0)
+        X = obj.centers @ T[:, :3, :3].transpose(0, 2, 1) + T[:, None, :3, 3]
+        for c, model in zip(cams, imaging, strict=True):
+            ok &= _inside_field(c, model, X, margin_px)
+        idx = np.flatnonzero(ok)[: want - len(kept)]
+        kept.extend(T[idx])
+        tries += m
+        if len(kept) >= want and idx[-1] + 1 < m:  # draw again up to the last one kept only
+            g.bit_generator.state = state
+            _candidates(g, int(idx[-1]) + 1, c0, spread_mm)
     if len(kept) < n:
         raise ValueError(f"n: only {len(kept)} of {n} poses of {obj.name} fit inside both fields "
                          f"after {max_tries} tries; lower n or margin_px")

@@ -126,31 +126,10 @@ def read_c3d(path: str | os.PathLike) -> C3DBones:
 def _read(path: Path) -> C3DBones:
     if not path.is_file():
         raise FileError(f"{path}: no such file", path=path)
-    # ezc3d crashes the process (segmentation fault) on some damaged files: read in a child
-    a = _in_subprocess(
-        "import sys, dataclasses, numpy as np; from core.io.c3d import _read_here;"
-        " d = dataclasses.asdict(_read_here(sys.argv[2]));"
-        " np.savez(sys.argv[1] + '/out.npz', **{k: np.asarray(v) for k, v in d.items()})",
-        str(path.absolute()), dummy=np.zeros(0))
+    # ezc3d crashes the process (segmentation fault) on some damaged files: read in a child, which
+    # runs _c3d_read.py by its path (numpy and ezc3d only, not the core.io package)
+    script = Path(__file__).with_name("_c3d_read.py")
+    a = _in_subprocess(f"import runpy; runpy.run_path({str(script)!r}, run_name='__main__')",
+                       str(path.absolute()), dummy=np.zeros(0))
     return C3DBones(tuple(str(b) for b in a["bones"]), a["poses"], float(a["rate"]),
                     tuple(str(b) for b in a["point_labels"]), a["points"], str(a["units"]))
-
-
-def _read_here(path: str) -> C3DBones:
-    """The read itself (run in a child process by :func:`read_c3d`)."""
-    ezc3d = _ezc3d()
-    c = ezc3d.c3d(str(path))
-    params = c["parameters"]
-    rate = float(params["POINT"]["RATE"]["value"][0])
-    units = str(params["POINT"].get("UNITS", {}).get("value", ["mm"])[0] or "mm")
-    plabels = tuple(params["POINT"]["LABELS"]["value"])
-    pts = np.asarray(c["data"]["points"], dtype=float)
-    points = pts[:3].transpose(2, 1, 0) if pts.size else np.zeros((0, len(plabels), 3))
-    rot = np.asarray(c["data"].get("rotations", np.zeros((4, 4, 0, 0))), dtype=float)
-    labels = tuple(params.get("ROTATION", {}).get("LABELS", {}).get("value", ()))
-    if rot.ndim != 4 or rot.shape[:2] != (4, 4):
-        raise ValueError(f"rotation data of shape {rot.shape}, expected 4 x 4 x bones x frames")
-    if len(labels) != rot.shape[2]:
-        labels = tuple(f"rotation{k + 1}" for k in range(rot.shape[2]))
-    poses = rot.transpose(3, 2, 0, 1)
-    return C3DBones(labels, poses, rate, plabels, points, units)

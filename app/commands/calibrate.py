@@ -100,6 +100,22 @@ class _Steps:
         self.progress(done, total, f"{text_bar(done, total)} {step}")
 
 
+def _copy_report(src: Path, dest: Path) -> dict:
+    """The report saved with the calibration (``report.json`` and its figures, as
+    :func:`core.calibration.report.write_report` wrote them into ``src``) copied into ``dest``,
+    each file atomically; the paths as ``write_report`` returns them."""
+    import json
+
+    from core.io.atomic import atomic_write
+
+    figures = json.loads((src / "report.json").read_text(encoding="utf-8"))["figures"]
+    dest.mkdir(parents=True, exist_ok=True)
+    out = {"report": dest / "report.json", **{k: dest / name for k, name in figures.items()}}
+    for p in out.values():
+        atomic_write(p, (src / p.name).read_bytes())
+    return out
+
+
 def run(a: argparse.Namespace) -> int:
     session_dir = Path(a.session).expanduser()
     if not session_dir.is_dir():
@@ -130,9 +146,8 @@ def run(a: argparse.Namespace) -> int:
         return EXIT_CANCELLED
     report_files = None
     if a.report:
-        from core.calibration.report import write_report
-
-        report_files = {k: str(p) for k, p in write_report(cal, Path(a.report).expanduser()).items()}
+        report_files = {k: str(p) for k, p in _copy_report(saved.folder / "report",
+                                                           Path(a.report).expanduser()).items()}
     rep = cal.report
     for w in rep.get("warnings", []):
         print(f"{PROG} calibrate: WARNING: {w}", file=sys.stderr)

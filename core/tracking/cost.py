@@ -647,13 +647,22 @@ class LikelihoodCost:
         views (:func:`core.similarity.likelihood.wls_gauss_newton_step`); stops when a step is
         below ``tol`` or the cost stops falling. Returns ``{"x", "cost", "iterations",
         "covariance"}``: ``covariance`` is ``s² (JᵀJ)⁻¹`` (mm², deg²) with ``s²`` the residual
-        variance per weight unit (``χ²/dof``), the curvature's confidence of the estimate."""
-        from ..similarity.likelihood import blur, highpass, wls_gauss_newton_step
-
+        variance per weight unit (``χ²/dof``), the curvature's confidence of the estimate (it
+        treats pixels as independent: blurred frames' correlated noise makes it too small)."""
         if any(o is not None for o in self.others):
             raise ValueError("refine: fits the bone's gain only; build the cost with others_gain=False "
                              "(the neighbours' DRRs subtracted at gain 1)")
         x = np.zeros(6) if x0 is None else np.asarray(x0, float).copy()
+        x, best, n_it = self._gauss_newton(x, self.weights, iters, step, tol)
+        _, chi2, JJ, dof = best
+        cov = (chi2 / max(dof, 1)) * np.linalg.inv(JJ)
+        self.timer.calls += n_it
+        self.timer.evaluations += 13 * n_it
+        return {"x": x, "cost": 0.5 * chi2, "iterations": n_it, "covariance": cov}
+
+    def _gauss_newton(self, x, weights, iters, step, tol):
+        from ..similarity.likelihood import blur, highpass, wls_gauss_newton_step
+
         hv = np.array([step[0]] * 3 + [step[1]] * 3)
         X = np.concatenate([np.zeros((1, 6)), np.diag(hv), -np.diag(hv)])
         best = None
@@ -669,7 +678,7 @@ class LikelihoodCost:
                 if self.highpass_px:
                     Dv = highpass(Dv, self.highpass_px)
                 dD = (Dv[1:7] - Dv[7:13]) / (2 * hv[:, None, None])
-                a, b, c, d = wls_gauss_newton_step(Dv[0], dD, self.fluoro_rois[v], self.weights[v],
+                a, b, c, d = wls_gauss_newton_step(Dv[0], dD, self.fluoro_rois[v], weights[v],
                                                    background=self.background)
                 JJ, Jr, chi2, dof = JJ + a, Jr + b, chi2 + c, dof + d
             if best is not None and chi2 > best[1]:  # the last step went uphill: keep the previous pose
@@ -680,8 +689,4 @@ class LikelihoodCost:
             x = x + delta
             if np.all(np.abs(delta) < np.asarray([tol[0]] * 3 + [tol[1]] * 3)):
                 break
-        _, chi2, JJ, dof = best
-        cov = (chi2 / max(dof, 1)) * np.linalg.inv(JJ)
-        self.timer.calls += n_it
-        self.timer.evaluations += 13 * n_it
-        return {"x": x, "cost": 0.5 * chi2, "iterations": n_it, "covariance": cov}
+        return x, best, n_it

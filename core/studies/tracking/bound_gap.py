@@ -138,6 +138,65 @@ def _chain_terms(ts) -> dict:
             "contrast": [1 - m.glare_fraction for m in ms]}
 
 
+# ---------------------------------------------------------------------- predicted spread
+def wls_spread(renderer, bone: int, pose, center, *, line_integral, quanta_per_pixel: float,
+               highpass_px=(None, 4.0, 8.0), psf=None, model_psf=None, margin_px: int = 24) -> dict:
+    """Linearised covariance of the weighted least-squares estimate (:class:`core.tracking.cost.
+    LikelihoodCost`: gain and offset fitted, weights the fluence, the line integrals high-passed
+    by σ = ``highpass_px``, None = not; the DRR blurred by ``model_psf`` or not) when the only
+    error is the quanta's noise and the frame is blurred by ``psf`` (None = not): with ``G`` the
+    model's pose derivatives (high-passed, gain and offset directions projected out), ``A = Gᵀ W
+    G``, ``B`` the covariance of ``Gᵀ W H δy`` and ``M = A⁻¹ Gᵀ W H ∂y/∂θ`` the estimate's
+    response to a true pose change (``I`` when the model's blur is the frame's), the covariance
+    of the estimate rescaled to unit response is ``M⁻¹ A⁻¹ B A⁻¹ M⁻ᵀ``. Without high-pass and blur
+    it equals the Cramér–Rao bound up to the gain and offset it does not know. Returns
+    ``{label: (rms_mm, rms_deg)}``."""
+    import cv2
+
+    from core.similarity.likelihood import highpass
+    from core.tracking.bound import _derivatives
+
+    _, N, D = _derivatives(renderer, bone, pose, center, line_integral=line_integral,
+                           quanta_per_pixel=quanta_per_pixel, views=None, step=(0.05, 0.05),
+                           margin_px=margin_px)
+
+    def conv(k):
+        if k is None:
+            return lambda a: a
+        k = np.asarray(k, np.float64) / np.sum(k)
+        return lambda a: cv2.filter2D(a, -1, k[::-1, ::-1], borderType=cv2.BORDER_REPLICATE)
+
+    K, Km = conv(psf), conv(model_psf)
+    out = {}
+    for hp in highpass_px:
+        def H(a, hp=hp):
+            return a if hp is None else highpass(a, hp).astype(np.float64)
+
+        A, B, R_ = np.zeros((6, 6)), np.zeros((6, 6)), np.zeros((6, 6))
+        for v, (u0, v0, wd, h), Dv, Lv in D:
+            roi = np.array([[u0, v0, wd, h]])
+            D0 = renderer.render(np.asarray(pose, float)[None, None], views=[v], bones=[bone],
+                                 roi=roi[None, :, None, :]).numpy()[0, 0, 0, :h, :wd].astype(np.float64)
+            F = np.exp(-Lv)
+            KF = K(F)
+            w = KF.ravel()
+            R = np.stack([H(Km(D0)), np.ones_like(D0)]).reshape(2, -1)  # gain and offset regressors
+            G = np.stack([H(Km(Dv[i])) for i in range(6)]).reshape(6, -1)
+            coef = np.linalg.solve((R * w) @ R.T, (R * w) @ G.T)  # W-projection off the regressors
+            G = G - coef.T @ R
+            A += (G * w) @ G.T
+            dy = np.stack([H(K(F * Dv[i]) / KF) for i in range(6)]).reshape(6, -1)  # the frame's response
+            R_ += (G * w) @ dy.T
+            T = np.stack([K(H((w * G[i]).reshape(Dv.shape[1:])) / KF) for i in range(6)]).reshape(6, -1)
+            B += (T * (F.ravel() / N[v])) @ T.T
+        Ai = np.linalg.inv(A)
+        Mi = np.linalg.inv(Ai @ R_)
+        C = Mi @ Ai @ B @ Ai @ Mi.T
+        out["none" if hp is None else f"hp{hp:g}"] = (float(np.sqrt(np.trace(C[:3, :3]))),
+                                                      float(np.sqrt(np.trace(C[3:, 3:]))))
+    return out
+
+
 # ---------------------------------------------------------------------- costs
 def _wls_options(name: str, pixels: int, psf) -> dict:
     """LikelihoodCost options of a cost name ``wls[_psf]_hp<σ>``: ``σ`` the high-pass σ in pixels of

@@ -14,16 +14,10 @@ def export_pages(path: str, canvases: dict, shown: str, drawn, show_page) -> lis
     page with its curves drawn and returns its canvas; ``show_page(shown)`` restores the page
     shown at the end. Every file is written to a temporary name and renamed into place. Returns
     the paths written."""
-    from pathlib import Path
+    from core.io.atomic import atomic_path, output_file
 
-    from core.io.atomic import atomic_path
-
-    p = Path(path)
+    p = output_file(path, (".png", ".svg", ".pdf"), "a .png, .svg or .pdf file")
     suffix = p.suffix.lower()
-    if suffix not in (".png", ".svg", ".pdf"):
-        raise ValueError(f"path: expected a .png, .svg or .pdf file, got {str(path)!r}")
-    if not p.parent.is_dir():
-        raise ValueError(f"path: the folder {p.parent} does not exist")
     written = []
     cache = QtWidgets.QGraphicsItem.CacheMode
     cached = [item for canvas in canvases.values() for item in canvas.scene().items()

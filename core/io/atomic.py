@@ -33,7 +33,7 @@ import re
 import socket
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -48,6 +48,7 @@ __all__ = [
     "atomic_write",
     "atomic_write_json",
     "fsync_dir",
+    "output_file",
     "print_json",
     "remove_stale_temporaries",
 ]
@@ -122,6 +123,18 @@ def atomic_open(
             os.unlink(tmp)
         raise
     fsync_dir(folder)
+
+
+def output_file(path: str | os.PathLike, suffixes: Sequence[str], expected: str, name: str = "path") -> Path:
+    """``path`` when its suffix (in any case) is one of ``suffixes`` and its folder exists, else a
+    ``ValueError`` naming the argument ``name`` and the ``expected`` files ("a .png file"): what a
+    writer checks before it starts."""
+    p = Path(path)
+    if p.suffix.lower() not in suffixes:
+        raise ValueError(f"{name}: expected {expected}, got {str(path)!r}")
+    if not p.parent.is_dir():
+        raise ValueError(f"{name}: the folder {p.parent} does not exist")
+    return p
 
 
 @contextlib.contextmanager

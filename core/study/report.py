@@ -205,14 +205,10 @@ h2{{font-size:14px;margin-bottom:2px}}</style></head><body>
 
 def write_report(study, trial_name: str, path: str | os.PathLike) -> Path:
     """Write the trial report to ``path`` (``.html`` or ``.pdf``) atomically; returns the path."""
-    from ..io.atomic import atomic_path, atomic_write
+    from ..io.atomic import atomic_path, atomic_write, output_file
 
-    p = Path(path)
+    p = output_file(path, (".html", ".htm", ".pdf"), "an .html or .pdf file")
     suffix = p.suffix.lower()
-    if suffix not in (".html", ".htm", ".pdf"):
-        raise ValueError(f"path: expected an .html or .pdf file, got {str(path)!r}")
-    if not p.parent.is_dir():
-        raise ValueError(f"path: the folder {p.parent} does not exist")
     summary = trial_summary(study, trial_name)
     fig = _figure(summary)
     if suffix != ".pdf":

@@ -127,8 +127,10 @@ def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
     return out
 
 
-#: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`GaussNewtonCost._allocate`).
-_BUFFER_SETS = 3
+#: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`GaussNewtonCost._allocate`):
+#: over the 100-frame walking trial at 1024² the tracking frames' search regions take 2-4 sizes per
+#: bone (32-pixel steps), the first frame and its restarts two more.
+_BUFFER_SETS = 6
 
 
 @dataclass(eq=False)

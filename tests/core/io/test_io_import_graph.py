@@ -81,6 +81,12 @@ def _circles(edges: dict[str, set[str]]) -> list[list[str]]:
     return out
 
 
+@pytest.fixture(scope="module")
+def core_graph() -> dict[str, set[str]]:
+    """The import graph of ``core``, parsed once for the tests of this module (they only read it)."""
+    return _graph(CORE)
+
+
 def test_the_checker_finds_a_circle(tmp_path):
     pkg = tmp_path / "pkg"
     pkg.mkdir()
@@ -93,12 +99,12 @@ def test_the_checker_finds_a_circle(tmp_path):
 
 @pytest.mark.parametrize("pair", [("geometry.camera", "geometry.mayacam"), ("io.cine", "io.sequences"),
                                   ("study.study", "study.trial")])
-def test_untied_circles(pair):
-    edges = _graph(CORE)
+def test_untied_circles(pair, core_graph):
+    edges = core_graph
     a, b = (f"core.{p}" for p in pair)
     assert not (b in edges[a] and a in edges[b]), f"{a} and {b} import each other"
 
 
-def test_no_import_circle_in_core():
-    circles = _circles(_graph(CORE))
+def test_no_import_circle_in_core(core_graph):
+    circles = _circles(core_graph)
     assert circles == [], f"import circles: {circles}"

@@ -27,8 +27,10 @@ the demo's stance (256², 60 frames) is lost in the late stance; the fixed floor
 demo-like trial (512², 60 frames) and the harder trial (512², 12 frames) never crossed the floor:
 same flags, same poses. Exchanged views were flagged in 20 of 20 injections, 5 mm / 5° starts
 corrected in 19 of 20, and the images of a frame 10 later went unflagged in 10 of 20 (9 with the
-fixed floor): images of the bone 2–7 mm away, four of them over the 4 mm jump limit that the
-tracker's retry doubled then (:func:`core.tracking.checks.failures` now keeps it).
+fixed floor): images of the bone 2–7 mm away, four of them over the 4 mm jump limit, which the
+tracker's retry doubles. Keeping the limit on retries (tried on this 2-core CPU, the talus with
+its neighbours at the truth, ``--others-at-truth``) flagged those but also both starts 5 mm off
+that the retry had corrected: see :func:`core.tracking.checks.failures`.
 """
 
 from __future__ import annotations

@@ -121,7 +121,8 @@ def _summary(E, bound, cov=None) -> dict:
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None, variants=("8",),
         passes: int = 2, cases=("one", "three"), chain_frames=(0, 40, 80), refine_every: int = 1,
-        psf=None, workers: int = 0, checkpoint=None) -> dict:
+        psf=None, workers: int = 0, checkpoint=None, pixels: int | None = None,
+        voxel: float | None = None) -> dict:
     """Run the study (module docs); returns the JSON-ready results. ``variants``: refinements
     ``"<high-pass σ px>"`` or ``"<σ>+psf"`` (the DRRs blurred by ``psf``, a kernel estimated
     from calibration frames); ``refine_every``: refine every k-th frame only (the tracker's
@@ -135,6 +136,7 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
 
     n = frames or (8 if quick else 100)
     px, vox = (192, 1.0) if quick else (1024, 0.5)
+    px, vox = pixels or px, voxel or vox
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=max(n, 2), pixels=px, spacing=vox, phase=(0.0, 0.6 * max(n, 2) / 100.0),
                        device=device)
@@ -222,6 +224,8 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="192² views, 1 mm voxels, 8 frames (CPU)")
     p.add_argument("--device", default=None)
     p.add_argument("--frames", type=int, default=None)
+    p.add_argument("--pixels", type=int, default=None, help="override the views' size")
+    p.add_argument("--voxel", type=float, default=None, help="override the voxel size (mm)")
     p.add_argument("--variants", default="8", help="refinements: high-pass σ (px), '+psf' with --psf")
     p.add_argument("--psf", default=None, help=".npy kernel estimated from calibration frames")
     p.add_argument("--refine-every", type=int, default=1)
@@ -241,7 +245,7 @@ def main(argv=None) -> int:
 
             atomic_write(a.out, json.dumps(res, indent=2) + "\n")
 
-    res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint,
+    res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,
               device=a.device, frames=a.frames, variants=a.variants.split(","),
               passes=a.passes, cases=a.cases.split(","), refine_every=a.refine_every,
               psf=None if a.psf is None else np.load(a.psf),

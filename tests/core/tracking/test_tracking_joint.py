@@ -113,7 +113,6 @@ def test_fallback_goes_on_from_the_steps_taken(two_bones):
     alone = register(r, frame, bone=0, initial_pose=start, center=m.centroid, options=o, outline=m.outline)
     assert len(alone.stages) == 3 and not alone.stages[0].converged  # full, then half and full resolution
     c = engine_cost(r, bone=0, views=(0, 1), scale=1.0, term=o.terms[0])
-    n13 = alone.timing["engine_steps_x1"]
     went_on = register(r, frame, bone=0, initial_pose=start, center=m.centroid, options=o, outline=m.outline,
                        tried=(alone.stages[0], c, 0.5))
     np.testing.assert_allclose(went_on.pose, alone.pose, atol=1e-9)

@@ -127,7 +127,7 @@ def test_acceptance_bounds_per_bone_and_frames_without_a_bound_are_skipped(monke
     assert out["talus"]["frames"] == [0] and out["tibia"]["frames"] == [0, 1]
 
 
-def test_chain_information_reduces_to_the_quantum_bound_and_loses_to_blur_and_read_noise(talus_scene):
+def test_chain_information_reduces_to_the_quantum_bound_and_loses_to_noise_after_the_blur(talus_scene):
     from core.imaging.psf import gaussian_psf
     from core.tracking.bound import chain_information
 
@@ -139,11 +139,11 @@ def test_chain_information_reduces_to_the_quantum_bound_and_loses_to_blur_and_re
     kw["margin_px"] = 8
     Jid = chain_information(r, 0, truth, model.centroid, psf=np.ones((1, 1)), added_noise=0.0, **kw)
     np.testing.assert_allclose(Jid, J0, rtol=1e-6)  # identity kernel, no added noise: the same information
-    Jb = chain_information(r, 0, truth, model.centroid, psf=gaussian_psf(1.2), added_noise=0.0, **kw)
-    Jbn = chain_information(r, 0, truth, model.centroid, psf=gaussian_psf(1.2), added_noise=3.0, **kw)
-    # an invertible blur alone keeps (almost: the region's border) all of it; noise after the blur loses some
-    assert np.trace(np.linalg.inv(Jb)) == pytest.approx(np.trace(np.linalg.inv(J0)), rel=0.1)
-    assert np.all(np.linalg.eigvalsh(Jb - Jbn) > -1e-6 * np.abs(Jb).max())
-    assert np.trace(np.linalg.inv(Jbn)) > 1.05 * np.trace(np.linalg.inv(J0))
+    Jb3 = chain_information(r, 0, truth, model.centroid, psf=gaussian_psf(1.2), added_noise=3.0, **kw)
+    Jb6 = chain_information(r, 0, truth, model.centroid, psf=gaussian_psf(1.2), added_noise=6.0, **kw)
+    # noise after the blur hides what the blur attenuated: less information, the more noise the less
+    tol = 1e-6 * np.abs(J0).max()
+    assert np.all(np.linalg.eigvalsh(J0 - Jb3) > -tol) and np.all(np.linalg.eigvalsh(Jb3 - Jb6) > -tol)
+    assert np.trace(np.linalg.inv(Jb3)) > 1.05 * np.trace(np.linalg.inv(J0))
     with pytest.raises(ValueError, match="psf"):
         chain_information(r, 0, truth, model.centroid, psf=np.ones((2, 2)), added_noise=0.0, **kw)

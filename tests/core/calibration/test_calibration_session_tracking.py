@@ -9,13 +9,18 @@ SCRIPT = textwrap.dedent("""
     import json, sys
     from core.study import Study
     from core.tracking.from_study import frame_reader, track_study
+    from core.tracking.register import Level, RegistrationOptions
     from core.tracking.trial import TrackingOptions
 
     with Study.open(sys.argv[1], mode="w") as st:
         read, how = frame_reader(st, st.trial("walk"))
         assert read(0)[0] is not None
-        opts = TrackingOptions(verify_restarts=0, confidence=False)
-        result, report = track_study(st, "walk", ["talus"], [0, 1], options=opts, device="cpu")
+        # frame 0 only, one short CMA-ES level: what is imported, not how well it tracks, is the
+        # point (the default search took about 5 s of CPU per 64² frame, and both frames were flagged)
+        fast = RegistrationOptions(bounds=(5.0, 5.0), refine="pattern", levels=(
+            Level(1.0, "cmaes", (1.0, 1.0), popsize=10, max_generations=20, tol_x=0.05),))
+        opts = TrackingOptions(registration=fast, first=fast, verify_restarts=0, confidence=False)
+        result, report = track_study(st, "walk", ["talus"], [0], options=opts, device="cpu")
     print(json.dumps({"synthetic": sorted(m for m in sys.modules if m.startswith("core.synthetic")),
                       "studies": sorted(m for m in sys.modules if m.startswith("core.studies")),
                       "normalisation": how, "summary": report.get("summary")}))

@@ -44,6 +44,12 @@ Results (``resources/benchmarks/tracking_bound_gap_cpu.json``, this 2-core CPU m
   standard trial (talus alone, every 4th frame, one H200) refining the tracker's poses so
   lowered the error from 2.01 / 2.14× to 1.59 / 1.57× the bound (4 px) or 1.69 / 1.81× (8 px);
   blurring the DRR by the estimated PSF did not help (1.84 / 1.97×).
+* the ceiling (study-only: the tissue's true line integral subtracted, quadratic background): the
+  same fit is unbiased and at 0.86–1.16× the bound on quanta-only frames, but through the trial's
+  chain two more biases appear — veiling glare (5 %) compresses contrast where the fluence is low
+  and moves the log-domain fit by 0.18–0.30 mm / 0.14–0.91° (talus, calcaneus); the residual
+  distortion (the 3 %-wrong inverse) moves any cost by up to ~0.06 mm / 0.1° (GC: up to 0.037 mm
+  for the tibia, whose bound is 0.018 mm). Neither is in the bound.
 
 JSON on stdout (``--out``: also to a file).
 """

@@ -16,7 +16,7 @@ from core.tracking.register import Level, RegistrationOptions
 from tests.core.tracking.batch_helpers import save_flat_calibration
 
 BONES = ("talus", "calcaneus")
-FRAMES = 3  # tracked per task, of the demo's 30 (the worker killed after its first has 2 to go)
+FRAMES = 2  # tracked per task, of the demo's 30 (the worker killed after its first has 1 to go)
 # one short CMA-ES level per frame, the first-frame verification restarts left out: a small,
 # quick batch (a frame of these 48² views costs 0.2-1 s of CPU; with the default options, and
 # the 2-frame walk this test had before, every frame was retried, about 2.5 s each)

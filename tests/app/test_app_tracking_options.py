@@ -38,6 +38,9 @@ def test_options_match_the_command_line_defaults():
     opts = options_from_choices()
     assert choices_of(opts) == choices_of(None)
     assert (opts.registration.search, opts.registration.final_scale) == ("local", 1.0)
+    from core.tracking.trial import TrackingOptions
+
+    assert TrackingOptions().registration.search == opts.registration.search  # the tracker's own default
     assert opts.registration.bounds == (5.0, 5.0) and opts.registration.sigma == (1.0, 1.0)
     assert not any(t.options.get("components") for t in opts.registration.terms)
     with pytest.raises(ValueError, match="final_scale"):

@@ -32,6 +32,13 @@ relative fluence (the radiographs are not flatfield-corrected) with pixels below
 the field) or above 0.995 (saturated air) and 5 px around them masked, bone above 300 HU,
 0.5 mm ray steps, and ``final_scale`` 2 (0.29 mm DRR pixels at the bones; the radiographs'
 0.15 mm pixels carry more noise than detail).
+
+``--search global_newton`` runs the global search's Gauss–Newton form (CMA-ES, then Gauss–Newton
+steps) in every frame instead. On one NVIDIA H100, same call as the quadratic form
+(``resources/benchmarks/tracking_search_default_h100.json``): 1.9 s against 2.8 s of tracking, the
+ulna within 0.11 mm / 0.62° of the quadratic form's poses in 0099 and 0158, but the radius in 0158
+17 mm away at a much lower score (0.283 against 0.402) and unflagged (its frame 0099, flagged as not
+converged, gave the score checks no history).
 """
 
 from __future__ import annotations

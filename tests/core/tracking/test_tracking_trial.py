@@ -75,11 +75,11 @@ def test_track_backward_cancel_and_resume(walking_talus):
         journal[f] = P
 
     order = range(6, 2, -1)
-    res = track(w["renderer"], [w["model"]], w["frames"], order, keyframes=kf, options=FAST, record=record,
+    res = track(w["renderer"], [w["model"]], w["frames"], order, keyframes=kf, options=QUICK, record=record,
                 cancel=cancel)
     assert res.status == "cancelled" and sorted(journal) == [5, 6]
     seen = []
-    res2 = track(w["renderer"], [w["model"]], w["frames"], order, keyframes=kf, options=FAST,
+    res2 = track(w["renderer"], [w["model"]], w["frames"], order, keyframes=kf, options=QUICK,
                  record=lambda b, f, P, s: seen.append(f), skip={"talus": dict(journal)})
     assert seen == [4, 3] and res2.status == "complete"
     c = w["model"].centroid
@@ -146,7 +146,7 @@ def test_a_score_drop_of_the_image_is_confirmed_not_flagged(walking_talus):
 def test_confidence_is_reported(walking_talus):
     w = walking_talus
     sc = w["scene"]
-    o = TrackingOptions(registration=FAST.registration, confidence=True)
+    o = TrackingOptions(registration=FAST.registration, confidence=True, verify_restarts=0)
     res = track(w["renderer"], [w["model"]], w["frames"], [0], keyframes={"talus": {0: sc.poses(0)[0]}},
                 options=o)
     conf = res.results[("talus", 0)].confidence

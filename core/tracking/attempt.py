@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .bones import BoneModel
+from .checks import confirmable as _confirmable
 from .checks import failures as _failures
 from .checks import same_optimum as _same_optimum
 from .checks import uncertain as _uncertain
@@ -139,7 +140,7 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                 flags.append(f"ambiguous optimum (a restart {far[0]:.2f} mm, {far[1]:.2f} deg away "
                              f"scores within 0.01)")
         if (retried and chk is not None and not chk.improved and not chk.ambiguous and flags
-                and all(f.startswith("score drop") for f in flags) and _same_optimum(first, res.pose, c)):
+                and all(_confirmable(f) for f in flags) and _same_optimum(first, res.pose, c)):
             # the image changed, not the registration: the first search, the wider ones and the
             # restarts all end at the same pose
             notes.append(f"{flags[0]}: the wider search and {o.verify_restarts} restarts confirmed the "

@@ -70,26 +70,28 @@ centroid path unless given: the kinematics users analyse.
 Failure detection and review flags
 ----------------------------------
 A registration fails when it did not converge (or hit the search box), when its score falls below
-``min_score_ratio`` × the median of the bone's last ``history`` good scores or below
-``min_start_ratio`` × the score of its verified first frame (an absolute floor that a slow drift
-into a false optimum cannot move), or when it jumps more than ``max_jump`` (mm, degrees) from the
-initial guess (``retry_factor`` × that on a bone's first frame, which starts from a hand-placed
-pose). A failed frame is retried once with ``retry_factor``× wider bounds and steps and a global
-first stage (from the guess and from the last good pose); the best retry is kept, and if it
-still fails the frame is recorded *flagged for review* with its reasons and is not used for later
-guesses. A frame whose only failure is the relative score drop is not flagged when the best
-retry ends within :data:`SAME_OPTIMUM` of its first registration and the ``verify_restarts``
-restarts from it (:func:`core.tracking.verify.verify_start`) find no better score: the image
-changed (a bone moving behind its neighbours, out of the beam's centre), not the registration,
-and the frame is noted, kept for the guesses and its score refills the history. Without that,
-one lasting drop flagged every later frame and the guesses came from ever older frames (the
-talus of the 512² foot demo from frame 45 of 60 on, one H200). The absolute floor below the
-first frame's score always flags. A bone outside a view's field or a frame missing in a view
-is flagged with that reason, nothing is recorded, and tracking continues. With
-``max_uncertainty = (mm, degrees)`` a frame whose per-frame confidence (the length of its σ
-vector in translation or rotation) exceeds either limit, or is not well posed, is flagged
-``"uncertain"`` as well (recorded, not retried): registrations in the noise's tail are then sent
-for review instead of passing silently.
+``min_score_ratio`` × the median of the bone's last ``history`` good scores, or below
+``min_start_ratio`` × the score of its verified first frame while every recent good score is above
+that floor (a floor that a slow drift into a false optimum cannot move), when it collapses below
+:data:`~core.tracking.checks.COLLAPSE_RATIO` × the recent median, or when it jumps more than
+``max_jump`` (mm, degrees) from the initial guess (``retry_factor`` × that on a bone's first frame,
+which starts from a hand-placed pose). A failed frame is retried once with ``retry_factor``× wider
+bounds and steps and a global first stage (from the guess and from the last good pose); the best
+retry is kept, and if it still fails the frame is recorded *flagged for review* with its reasons and
+is not used for later guesses. A frame whose only failure is the relative score drop is not flagged
+when the best retry ends within :data:`SAME_OPTIMUM` of its first registration and the
+``verify_restarts`` restarts from it (:func:`core.tracking.verify.verify_start`) find no better
+score: the image changed (a bone moving behind its neighbours, out of the beam's centre), not the
+registration, and the frame is noted, kept for the guesses and its score refills the history.
+Without that, one lasting drop flagged every later frame and the guesses came from ever older frames
+(the talus of the 512² foot demo from frame 45 of 60 on, one H200). A score below the first frame's
+floor is verified the same way (the demo's late-stance talus scores fall below it while the bone is
+within 0.5 mm); a collapse always flags (:mod:`core.tracking.checks`). A bone outside a view's field
+or a frame missing in a view is flagged with that reason, nothing is recorded, and tracking
+continues. With ``max_uncertainty = (mm, degrees)`` a frame whose per-frame confidence (the length
+of its σ vector in translation or rotation) exceeds either limit, or is not well posed, is flagged
+``"uncertain"`` as well (recorded, not retried): registrations in the noise's tail are then sent for
+review instead of passing silently.
 
 ``confidence_scale`` multiplies every frame's confidence σ: the curvature construction is a
 scale, not a calibrated standard error, and a factor measured on a trial with ground truth
@@ -124,10 +126,10 @@ converges to a different pose with an equal score, the frame is flagged ``"ambig
 
 Speed
 -----
-Tracking frames use the quadratic-model local search (``registration.search == "local"``, see
-:mod:`core.tracking.register`), and the per-frame confidence comes from its last full-resolution
-fit, so a frame costs a few batched launches; only first frames, retries and restarts run the
-global CMA-ES stage.
+Tracking frames use the quadratic-model local search by default (``registration.search ==
+"local"``, see :mod:`core.tracking.register`; ``"newton"`` runs the Gauss–Newton engine), and the
+per-frame confidence comes from its last full-resolution fit, so a frame costs a few batched
+launches; only first frames, retries and restarts run the global CMA-ES stage.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@
 * Likelihood-like cost (:mod:`core.similarity.likelihood`, numpy): weighted least squares of a
   bone's DRR against the line-integral image, weights the expected counts, gain and background
   fitted linearly per pose, optional high-pass and PSF; used by
-  :class:`core.tracking.cost.LikelihoodCost` for an opt-in final refinement.
+  :class:`core.tracking.likelihood_cost.LikelihoodCost` for an opt-in final refinement.
 * Studies: :mod:`core.studies.similarity.cases` (synthetic and wrist registration cases),
   :mod:`core.studies.similarity.study` (response to noise, translation and rotation; its docstring holds
   the results and the recommended default cost: ``1 - GC`` on the fluoroscope ROI smoothed with

@@ -17,7 +17,7 @@ are synthesised through image chains that switch the degradations on one after t
 Each chain is rendered without noise (the optimum there is the cost's *bias*) and with
 ``--seeds`` noise draws (the spread about it is its *variance*). Costs: ``gc`` (the tracker's
 default: gradient correlation of the gradient magnitudes, both images smoothed by 0.3 mm),
-``gc_components`` (Penney's form) and ``wls[_psf]_hp<σ>`` (:class:`core.tracking.cost.
+``gc_components`` (Penney's form) and ``wls[_psf]_hp<σ>`` (:class:`core.tracking.likelihood_cost.
 LikelihoodCost`: weighted least squares on the line-integral image, weights the expected counts,
 gain and offset fitted linearly, the neighbours subtracted; both images high-passed by σ pixels
 of a 256² view, scaled with the size, ``hp0`` = a plane background instead; ``_psf``: the DRR
@@ -164,7 +164,7 @@ def _chain_terms(ts) -> dict:
 # ---------------------------------------------------------------------- predicted spread
 def wls_spread(renderer, bone: int, pose, center, *, line_integral, quanta_per_pixel: float,
                highpass_px=(None, 4.0, 8.0), psf=None, model_psf=None, margin_px: int = 24) -> dict:
-    """Linearised covariance of the weighted least-squares estimate (:class:`core.tracking.cost.
+    """Linearised covariance of the weighted least-squares estimate (:class:`core.tracking.likelihood_cost.
     LikelihoodCost`: gain and offset fitted, weights the fluence, the line integrals high-passed
     by σ = ``highpass_px``, None = not; the DRR blurred by ``model_psf`` or not) when the only
     error is the quanta's noise and the frame is blurred by ``psf`` (None = not): with ``G`` the
@@ -248,7 +248,8 @@ def run(*, pixels: int = 512, voxel: float = 0.5, frames=(10, 40, 70), bones=(1,
     """Run the study (module docs); returns the JSON-ready results."""
     from core.studies.tracking.acceptance import TrackingScene, pose_errors
     from core.tracking.bound import chain_information, pose_bound
-    from core.tracking.cost import LikelihoodCost, prepare_frame, search_roi
+    from core.tracking.cost import prepare_frame, search_roi
+    from core.tracking.likelihood_cost import LikelihoodCost
 
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, phase=(0.0, 0.6), device="cpu")

@@ -4,7 +4,7 @@ standard synthetic walking trial (``python -m core.studies.tracking.ml_cost``).
 The trial of :mod:`core.studies.tracking.benchmark` (1024² views, 0.5 mm voxels, 100 frames; frame
 0 from the true pose) is tracked by :func:`core.tracking.trial.track` with the Gauss–Newton search
 and the default cost, one bone (the talus, alone in the renderer) and three bones jointly. Each
-frame's tracked pose is then refined by :meth:`core.tracking.cost.LikelihoodCost.refine`: the
+frame's tracked pose is then refined by :meth:`core.tracking.likelihood_cost.LikelihoodCost.refine`: the
 bone's DRR against the fluoroscope's line integrals, both high-passed by a Gaussian of
 ``--highpass`` pixels (the soft tissue's and the walkway's smooth structure taken out), weighted
 by the expected counts, gain and offset fitted linearly, and, in joint mode, the other bones'
@@ -71,7 +71,8 @@ def refine_frame(renderer, frame, models, poses, *, highpass_px: float, passes: 
     """Refine the poses ``(n_bones, 4, 4)`` of ``models`` (volume ``i`` of ``renderer`` = bone
     ``i``) in one frame: each bone in turn with the others at their current poses subtracted,
     ``passes`` rounds. Returns the refined poses and each bone's last refinement output."""
-    from core.tracking.cost import LikelihoodCost, OutsideViewError, search_roi
+    from core.tracking.cost import OutsideViewError, search_roi
+    from core.tracking.likelihood_cost import LikelihoodCost
 
     P = np.array(poses, dtype=float)
     outs: list[dict] = [{} for _ in models]

@@ -8,7 +8,8 @@ import pytest
 
 from core.geometry.transforms import params_from_pose, pose_from_params
 from core.similarity.likelihood import expected_counts, highpass, wls_chi2
-from core.tracking.cost import LikelihoodCost, prepare_frame, search_roi
+from core.tracking.cost import prepare_frame, search_roi
+from core.tracking.likelihood_cost import LikelihoodCost
 
 
 def _setup(talus_scene, frame: int, offset, **kw):

@@ -348,6 +348,24 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
     return out
 
 
+def padded_region(frame: FrameImages, view: int, roi_row, scale: float):
+    """The fluoroscope region of ``view`` around the full-resolution ``roi_row`` ``(u0, v0, w, h)``,
+    padded for a pyramid level of ``scale`` (a multiple of 8 pixels, the same region at scales 1
+    and 2: one read) and clipped to the image: ``(region, usable mask or None, (u0, v0, w, h)
+    within the region)``. Raises :class:`OutsideViewError` when the region is empty or outside."""
+    u0, v0, w, h = (int(a) for a in roi_row)
+    if w <= 0 or h <= 0:
+        raise OutsideViewError(f"roi: the search region of view {view} is empty (outside the image)")
+    H_img, W_img = frame.shapes[view]
+    pad = 8 * math.ceil((math.ceil(2 * float(scale)) + 2) / 8)
+    ys, xs = max(v0 - pad, 0), max(u0 - pad, 0)
+    ye, xe = min(v0 + h + pad, H_img), min(u0 + w + pad, W_img)
+    if ye <= ys or xe <= xs:
+        raise OutsideViewError(f"roi: the search region of view {view} lies outside its image")
+    sub, m = frame.region(view, slice(ys, ye), slice(xs, xe))
+    return sub, m, np.array([u0 - xs, v0 - ys, w, h])
+
+
 def fluoro_rois(renderer, frame: FrameImages, *, views: Sequence[int], roi, scale: float = 1.0,
                 others=None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The fluoroscope's search regions of ``views`` in DRR polarity at pyramid ``scale``, as the
@@ -363,19 +381,10 @@ def fluoro_rois(renderer, frame: FrameImages, *, views: Sequence[int], roi, scal
     roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
     rois, masks = [], []
     for i, v in enumerate(views):
-        u0, v0, w, h = (int(a) for a in roi[i])
-        if w <= 0 or h <= 0:
-            raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
-        H_img, W_img = frame.shapes[v]
-        pad = 8 * math.ceil((math.ceil(2 * s) + 2) / 8)  # the same region at scales 1 and 2: one read
-        ys, xs = max(v0 - pad, 0), max(u0 - pad, 0)
-        ye, xe = min(v0 + h + pad, H_img), min(u0 + w + pad, W_img)
-        if ye <= ys or xe <= xs:
-            raise OutsideViewError(f"roi: the search region of view {v} lies outside its image")
-        sub, m = frame.region(v, slice(ys, ye), slice(xs, xe))
+        sub, m, r = padded_region(frame, v, roi[i], s)
+        w, h = int(r[2]), int(r[3])
         if s > 1:
             sub = ndimage.gaussian_filter(sub, 0.5 * s, mode="nearest")
-        r = np.array([u0 - xs, v0 - ys, w, h])
         if s == 1 and r[0] + w <= sub.shape[1] and r[1] + h <= sub.shape[0]:
             rois.append(np.ascontiguousarray(sub[r[1]:r[1] + h, r[0]:r[0] + w], dtype=np.float32))
             mm = None if m is None else m[r[1]:r[1] + h, r[0]:r[0] + w]

@@ -17,7 +17,7 @@ import weakref
 import numpy as np
 import warp as wp
 
-from .cost import FrameImages, OutsideViewError
+from .cost import FrameImages, OutsideViewError, padded_region
 from .engine_kernels import _LANES, fluoro_roi_kernel, fluoro_shift_kernel
 
 __all__ = ["pyramid_rois", "stage", "staged_shapes"]
@@ -42,18 +42,8 @@ def pyramid_rois(frame: FrameImages, views, roi, scale: float) -> tuple[list, li
     k = 2 * int(4.0 * sig + 0.5) + 1
     rois, masks = [], []
     for i, v in enumerate(views):
-        u0, v0, w, h = (int(a) for a in roi[i])
-        if w <= 0 or h <= 0:
-            raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
-        H_img, W_img = frame.shapes[v]
-        pad = 8 * math.ceil((math.ceil(2 * s) + 2) / 8)  # as fluoro_rois: the same region at scales 1 and 2
-        ys, xs = max(v0 - pad, 0), max(u0 - pad, 0)
-        ye, xe = min(v0 + h + pad, H_img), min(u0 + w + pad, W_img)
-        if ye <= ys or xe <= xs:
-            raise OutsideViewError(f"roi: the search region of view {v} lies outside its image")
-        sub, m = frame.region(v, slice(ys, ye), slice(xs, xe))
+        sub, m, r = padded_region(frame, v, roi[i], s)  # the region fluoro_rois reads
         sub = cv2.GaussianBlur(sub, (k, k), sig, sigmaY=sig, borderType=cv2.BORDER_REPLICATE)
-        r = np.array([u0 - xs, v0 - ys, w, h])
         rois.append(sample_roi(sub, r, scale=s))
         mm = None if m is None else sample_roi(m.astype(np.float32), r, scale=s) > 0.999
         masks.append(np.ones(rois[-1].shape, bool) if mm is None else np.ascontiguousarray(mm))

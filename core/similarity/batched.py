@@ -284,7 +284,41 @@ class BatchedMetric:
         return self.evaluate(images).pose
 
 
-class _Plan:
+class RecordedWork:
+    """Buffers to zero, recorded launches and device-to-host copies (``zero``, ``launches``,
+    ``copies`` as ``(host, device)`` pairs), replayed as one CUDA graph on a CUDA device
+    (:meth:`capture`, then :meth:`replay`); shared by the batched metric's plans and the
+    tracking engine's pipelines."""
+
+    zero: list
+    launches: list
+    copies: list
+    graph = None
+
+    def capture(self, device) -> None:
+        self.graph = None
+        if device.is_cuda:
+            with wp.ScopedCapture(device=device) as cap:
+                self._enqueue()
+            self.graph = cap.graph
+
+    def _enqueue(self) -> None:
+        for a in self.zero:
+            a.zero_()
+        for cmd in self.launches:
+            cmd.launch()
+        for host, dev_arr in self.copies:
+            wp.copy(host, dev_arr)
+
+    def replay(self) -> None:
+        """Enqueue the work: the graph where captured, the launches one by one otherwise."""
+        if self.graph is not None:
+            wp.capture_launch(self.graph)
+        else:
+            self._enqueue()
+
+
+class _Plan(RecordedWork):
     """Buffers and recorded launches for one input array (pointer and shape)."""
 
     def __init__(self, m: BatchedMetric, images: wp.array) -> None:
@@ -359,23 +393,11 @@ class _Plan:
                                      m._fshift, m.n_refs, m.n_lb_fraction, m._weights, self.out])
         self.zero = zero
         self.launches = launches
-        self.graph = None
-        if dev.is_cuda:
-            with wp.ScopedCapture(device=dev) as cap:
-                self._enqueue()
-            self.graph = cap.graph
-
-    def _enqueue(self) -> None:
-        for a in self.zero:
-            a.zero_()
-        for cmd in self.launches:
-            cmd.launch()
-        wp.copy(self.host, self.out)
+        self.copies = [(self.host, self.out)]
+        self.capture(dev)
 
     def run(self) -> np.ndarray:
+        self.replay()
         if self.graph is not None:
-            wp.capture_launch(self.graph)
             wp.synchronize_device(self.device)
-        else:
-            self._enqueue()
         return self.host.numpy().copy()

@@ -13,13 +13,14 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
+from ..similarity.batched import RecordedWork
 from .cpu_threads import split_cpu_launches
 from .engine_kernels import N_POSES, moments_kernel
 
 _KIND = {"ncc": K.K_NCC, "gc": K.K_GC}
 
 
-class _Pipeline:
+class _Pipeline(RecordedWork):
     """Device buffers and recorded launches of the metric for one DRR buffer (``n_poses``
     poses × views items of a fixed size) of the engine ``c`` (a
     :class:`~core.tracking.engine.GaussNewtonCost`); a CUDA graph on the GPU."""
@@ -72,27 +73,12 @@ class _Pipeline:
                                                         c._kv, c.chunk, self.gn[row:row + nv]]))
         # on the CPU the blur passes split by items and the moments beside the statistics, on threads
         self.launches = launches if dev.is_cuda else split_cpu_launches(launches, c.renderer.cpu_threads)
-        self.graph = None
-        if dev.is_cuda:
-            with wp.ScopedCapture(device=dev) as cap:
-                self._enqueue()
-            self.graph = cap.graph
-
-    def _enqueue(self) -> None:
-        for a in self.zero:
-            a.zero_()
-        for cmd in self.launches:
-            cmd.launch()
-        wp.copy(self.host_out, self.out)
-        if self.gn is not None:
-            wp.copy(self.host_gn, self.gn)
+        self.copies = [(self.host_out, self.out)] + ([(self.host_gn, self.gn)] if self.gn is not None else [])
+        self.capture(dev)
 
     def launch(self) -> None:
         """Enqueue the metric (its results are on the host after the next synchronisation)."""
-        if self.graph is not None:
-            wp.capture_launch(self.graph)
-        else:
-            self._enqueue()
+        self.replay()
 
     def fetch(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The scores (and moments) once the device has synchronised."""

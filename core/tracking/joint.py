@@ -30,7 +30,6 @@ way.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -38,10 +37,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import warp as wp
 
-from .cost import CostTimer, OutsideViewError, search_roi
+from .cost import CostTimer, OutsideViewError
 from .engine import engine_cost, step_design, supports
 from .engine_search import LevenbergMarquardt
-from .register import RegistrationOptions, RegistrationResult, _snap, default_levels, result_of
+from .register import RegistrationOptions, RegistrationResult, default_levels, result_of, search_region
 
 __all__ = ["JointJob", "lockstep_applies", "register_together", "restarts_together"]
 
@@ -175,9 +174,8 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
         center = np.asarray(job.center, dtype=float)
         try:
             if job.roi is None:
-                job.roi = _snap(search_roi(renderer, base, job.bone, views=views, center=center,
-                                           reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0,
-                                           margin_px=o.margin_px, points=job.outline), renderer, views)
+                job.roi = search_region(renderer, base, job.bone, views=views, center=center, options=o,
+                                        outline=job.outline)
             c = engine_cost(renderer, bone=job.bone, views=views, scale=fs, term=o.terms[0])
             c.timer = CostTimer()
             c.batches = {}
@@ -244,10 +242,7 @@ def restarts_together(renderer, frame, *, bone: int, base, center, x0s, options:
     center = np.asarray(center, dtype=float)
     views = tuple(range(frame.n_views)) if views is None else tuple(views)
     fs = o.final_scale
-    roi = search_roi(renderer, base, bone, views=views, center=center,
-                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
-                     points=outline)
-    roi = _snap(roi, renderer, views)
+    roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline)
     hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
     lo = -hi
     engines: dict = {}

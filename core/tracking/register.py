@@ -323,6 +323,18 @@ def _snap(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:
     return out
 
 
+def search_region(renderer, pose, bone: int, *, views, center, options: RegistrationOptions, outline=None,
+                  snap: bool = True) -> np.ndarray:
+    """The full-resolution search regions ``(n_views, 4)`` of a registration of ``bone`` about
+    ``pose`` (:func:`core.tracking.cost.search_roi` reaching the option's bounds; with ``snap``, on
+    the 16-pixel grid the Gauss–Newton engine's buffers keep from frame to frame)."""
+    o = options
+    roi = search_roi(renderer, pose, bone, views=views, center=center,
+                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
+                     points=outline)
+    return _snap(roi, renderer, views) if snap else roi
+
+
 def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
              options: RegistrationOptions | None = None, views: Sequence[int] | None = None,
              others=None, cancel: Callable[[], bool] | None = None, profile: bool = False,
@@ -384,11 +396,8 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         for lv in default_levels(mm_per_pixel(renderer, base, center, views) * fs, sigma=o.sigma,
                                  search=search))
     if roi is None:
-        roi = search_roi(renderer, base, bone, views=views, center=center,
-                         reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
-                         points=outline)
-        if all(lv.method == "gauss_newton" for lv in levels):
-            roi = _snap(roi, renderer, views)
+        roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline,
+                            snap=all(lv.method == "gauss_newton" for lv in levels))
     else:
         roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
     hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)

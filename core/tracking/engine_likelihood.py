@@ -1,0 +1,529 @@
+"""Weighted least squares of the DRR against the line-integral image on the device: a final
+refinement of a registered pose, and its confidence with correlated noise.
+
+The model and the weights are those of :mod:`core.similarity.likelihood` (the numpy reference) and
+:class:`core.tracking.likelihood_cost.LikelihoodCost` (its host refinement): per view, the search
+region's line integrals ``y`` (the neighbours' DRRs at their current poses subtracted), both ``y``
+and the bone's DRRs ``D`` high-passed by a Gaussian of ``highpass_px`` pixels (``D`` blurred by a
+PSF first when one is given — estimated from calibration images, never the generator's), the
+model ``a · D(x) + c₀ [+ c_u u + c_v v]`` with the gain and the background fitted linearly at every
+pose (variable projection), the pixels weighted by their expected counts ``w`` (computed once per
+frame from the unsubtracted line integrals, :func:`~core.similarity.likelihood.expected_counts`).
+
+One Gauss–Newton step (:meth:`LikelihoodEngine.step`)
+-----------------------------------------------------
+One DRR launch renders the 13 poses ``x``, ``x ± h_k e_k`` (the engine's design,
+:func:`core.tracking.engine_search.step_design`); two blur passes give their low-passed images;
+one pass over each view's region accumulates the weighted products table
+``M = Σ w z zᵀ`` of ``z = (y, D(x), δ_1 … δ_6, 1, u, v)`` (11 × 11, ``δ_k`` the central
+differences of the high-passed DRRs). On the host, in float64, with ``A = (D, 1[, u, v])``::
+
+    coef = (AᵀWA)⁻¹ AᵀWy        χ² = yᵀWy - coefᵀ AᵀWy        D_k = δ_k / 2h_k
+    β_k  = (AᵀWA)⁻¹ AᵀW D_k     JᵀWJ = a² (D_kᵀWD_l - D_kᵀWA β_l)     JᵀWr = a (D_kᵀWy - D_kᵀWA coef)
+
+(``a = coef₀``; the Jacobian of the residual with the linear parameters projected out, Golub–
+Pereyra) and the step ``δ = (JᵀWJ)⁻¹ JᵀWr`` summed over views — the same arithmetic as
+:func:`core.similarity.likelihood.wls_gauss_newton_step` without the pixels on the host.
+
+Confidence (:meth:`LikelihoodEngine.sandwich`)
+----------------------------------------------
+``χ²/dof · (JᵀWJ)⁻¹`` treats the pixels as independent; the high-pass, the PSF and what the
+model leaves out (soft tissue, glare) make the residuals correlated, and it is then too small
+(36-42 % of frames within 2σ measured before). The sandwich covariance is
+
+    Cov(δ) = H⁻¹ (Σ_ij J̃_i J̃_jᵀ C(i - j)) H⁻¹         H = JᵀWJ,  J̃ = √w J,  e = √w r
+
+with ``C(Δ)`` the autocovariance of the weighted residual ``e`` estimated from the image itself
+over lags ``|Δ_u|, |Δ_v| <= lag_px`` (pairs of usable pixels, a Bartlett taper keeps the estimate
+positive semi-definite). Per view three device passes at the final pose: the weighted residual
+and projected Jacobian images, the residual's autocovariance, and the "meat" sum.
+
+The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
+its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
+one by one (no CUDA graph): 4-5 launches and one synchronisation per step.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import weakref
+from collections.abc import Sequence
+
+import numpy as np
+import warp as wp
+
+from ..similarity import _kernels as K
+from .cost import CostTimer, FrameImages, fluoro_rois
+from .engine import GaussNewtonCost
+from .engine_search import step_design
+
+__all__ = ["LikelihoodEngine", "likelihood_engine", "solve_moments"]
+
+NZ = 11  # z = (y, D, δ_1..δ_6, 1, u, v)
+vec11f = wp.types.vector(length=NZ, dtype=wp.float32)
+mat11f = wp.types.matrix(shape=(NZ, NZ), dtype=wp.float32)
+vec6f = wp.types.vector(length=6, dtype=wp.float32)
+mat66f = wp.types.matrix(shape=(6, 6), dtype=wp.float32)
+vec2d = wp.types.vector(length=2, dtype=wp.float64)
+
+
+@wp.func
+def _hp(img: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, k: int, r: int,
+        c: int) -> float:
+    """The high-passed value of item k at (r, c): img - hp · low (hp 0: the image as it is)."""
+    return K._val(img, k, r, c) - hp * low[k, r, c]
+
+
+@wp.kernel
+def psf_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
+               psf: wp.array2d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int):
+    """dst = psf ∗ src within each item's (h, w) region (a convolution, borders replicated, NaN
+    read as 0; 0 outside). dim = items, H, W."""
+    k, r, c = wp.tid()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    acc = float(0.0)  # noqa: UP018 (a Warp variable, not a constant)
+    if r < h and c < w:
+        ry = (psf.shape[0] - 1) // 2
+        rx = (psf.shape[1] - 1) // 2
+        for a in range(psf.shape[0]):
+            rr = wp.clamp(r - (a - ry), 0, h - 1)
+            for b in range(psf.shape[1]):
+                acc += psf[a, b] * K._val(src, k, rr, wp.clamp(c - (b - rx), 0, w - 1))
+    dst[k, r, c] = acc
+
+
+@wp.kernel
+def highpass_kernel(y: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
+                    out: wp.array3d(dtype=wp.float32)):
+    """out = y - hp · low. dim = items, H, W."""
+    k, r, c = wp.tid()
+    out[k, r, c] = y[k, r, c] - hp * low[k, r, c]
+
+
+@wp.kernel
+def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
+                       y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
+                       ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, chunk: int,
+                       acc: wp.array2d(dtype=wp.float64)):
+    """acc[v] += Σ w z zᵀ (row-major 11 × 11), z = (y, D_0, D_1 - D_2, …, D_11 - D_12, 1, u, v) of
+    view v (item j of view v is j · n_refs + v; D high-passed). dim = (views, chunks)."""
+    v, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    h = ref_hw[v][0]
+    w = ref_hw[v][1]
+    W = y.shape[2]
+    start = ch * chunk
+    stop = wp.min(y.shape[1] * W, start + chunk)
+    su = 2.0 / float(wp.max(w - 1, 1))
+    sv = 2.0 / float(wp.max(h - 1, 1))
+    s = mat11f()
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        if r < h and c < w:
+            wt = wgt[v, r, c]
+            if wt > 0.0:
+                z = vec11f()
+                z[0] = y[v, r, c]
+                z[1] = _hp(drr, low, hp, v, r, c)
+                for j in range(6):
+                    z[2 + j] = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
+                                - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
+                z[8] = 1.0
+                z[9] = float(c) * su - 1.0
+                z[10] = float(r) * sv - 1.0
+                s += wt * wp.outer(z, z)
+    t = wp.tile_sum(wp.tile(s, preserve_type=True))
+    if lane == 0:
+        x = t[0]
+        for i in range(NZ):
+            for j in range(NZ):
+                wp.atomic_add(acc, v, i * NZ + j, wp.float64(x[i, j]))
+
+
+@wp.kernel
+def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
+                    y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
+                    ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, lin: wp.array2d(dtype=wp.float32),
+                    e: wp.array3d(dtype=wp.float32), jt: wp.array3d(dtype=vec6f)):
+    """The weighted residual e = √w (y - A coef) and projected Jacobian J̃_k = √w a (D_k - A β_k)
+    of view v at the centre pose; ``lin[v]`` = (coef (4), a, 1/2h (6), β (4 × 6)) with A =
+    (D, 1, u, v) (unused background terms with coefficients 0). dim = (views, H, W)."""
+    v, r, c = wp.tid()
+    h = ref_hw[v][0]
+    w = ref_hw[v][1]
+    ev = float(0.0)  # noqa: UP018
+    jv = vec6f()
+    if r < h and c < w:
+        wt = wgt[v, r, c]
+        if wt > 0.0:
+            sw = wp.sqrt(wt)
+            a = vec11f()  # (D, 1, u, v) in its first four places
+            a[0] = _hp(drr, low, hp, v, r, c)
+            a[1] = 1.0
+            a[2] = float(c) * 2.0 / float(wp.max(w - 1, 1)) - 1.0
+            a[3] = float(r) * 2.0 / float(wp.max(h - 1, 1)) - 1.0
+            fit = float(0.0)  # noqa: UP018
+            for q in range(4):
+                fit += lin[v, q] * a[q]
+            ev = sw * (y[v, r, c] - fit)
+            for k in range(6):
+                dk = (_hp(drr, low, hp, (2 * k + 1) * n_refs + v, r, c)
+                      - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, 5 + k]
+                proj = float(0.0)  # noqa: UP018
+                for q in range(4):
+                    proj += lin[v, 11 + q * 6 + k] * a[q]
+                jv[k] = sw * lin[v, 4] * (dk - proj)
+    e[v, r, c] = ev
+    jt[v, r, c] = jv
+
+
+@wp.kernel
+def autocov_kernel(e: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
+                   ref_hw: wp.array(dtype=wp.vec2i), lag: int, chunk: int, acc: wp.array3d(dtype=wp.float64)):
+    """acc[v, l] += (Σ e_i e_{i+Δ_l}, pairs) over the pairs of usable pixels at lag
+    Δ_l = (l // (2 lag + 1) - lag, l % (2 lag + 1) - lag) (rows, columns). dim = (views, lags, chunks)."""
+    v, li, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    h = ref_hw[v][0]
+    w = ref_hw[v][1]
+    n = 2 * lag + 1
+    dr = li // n - lag
+    dc = li - (li // n) * n - lag
+    W = e.shape[2]
+    start = ch * chunk
+    stop = wp.min(e.shape[1] * W, start + chunk)
+    s = vec2d()
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        rr = r + dr
+        cc = c + dc
+        if r < h and c < w and rr >= 0 and rr < h and cc >= 0 and cc < w:
+            if wgt[v, r, c] > 0.0 and wgt[v, rr, cc] > 0.0:
+                s += vec2d(wp.float64(e[v, r, c] * e[v, rr, cc]), wp.float64(1.0))
+    t = wp.tile_sum(wp.tile(s, preserve_type=True))
+    if lane == 0:
+        x = t[0]
+        wp.atomic_add(acc, v, li, 0, x[0])
+        wp.atomic_add(acc, v, li, 1, x[1])
+
+
+@wp.kernel
+def meat_kernel(jt: wp.array3d(dtype=vec6f), cw: wp.array2d(dtype=wp.float32),
+                ref_hw: wp.array(dtype=wp.vec2i), lag: int, chunk: int, acc: wp.array2d(dtype=wp.float64)):
+    """acc[v] += Σ_i J̃_i (Σ_Δ C(Δ) J̃_{i+Δ})ᵀ (row-major 6 × 6; ``cw[v]`` the tapered
+    autocovariance per lag). dim = (views, chunks)."""
+    v, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    h = ref_hw[v][0]
+    w = ref_hw[v][1]
+    n = 2 * lag + 1
+    W = jt.shape[2]
+    start = ch * chunk
+    stop = wp.min(jt.shape[1] * W, start + chunk)
+    s = mat66f()
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        if r < h and c < w:
+            ji = jt[v, r, c]
+            if wp.length_sq(ji) > 0.0:
+                u = vec6f()
+                for a in range(n):
+                    rr = r + a - lag
+                    if rr >= 0 and rr < h:
+                        for b in range(n):
+                            cc = c + b - lag
+                            if cc >= 0 and cc < w:
+                                u += cw[v, a * n + b] * jt[v, rr, cc]
+                s += wp.outer(ji, u)
+    t = wp.tile_sum(wp.tile(s, preserve_type=True))
+    if lane == 0:
+        x = t[0]
+        for i in range(6):
+            for j in range(6):
+                wp.atomic_add(acc, v, i * 6 + j, wp.float64(x[i, j]))
+
+
+def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0) -> dict:
+    """The variable-projection Gauss–Newton quantities of the moment tables ``M (views, 11, 11)``
+    (module docs) with half-steps ``h (6,)``: ``{"JJ", "Jr", "chi2"}`` summed over views and, per
+    view, ``lin (views, 35)`` (the linear fit and projections :func:`residual_kernel` reads)."""
+    M = np.asarray(M, dtype=np.float64).reshape(-1, NZ, NZ)
+    bg = [8] if background == 0 else [8, 9, 10]
+    ai = [1, *bg]
+    di = list(range(2, 8))
+    s = 1.0 / (2.0 * np.asarray(h, dtype=float))
+    JJ, Jr, chi2 = np.zeros((6, 6)), np.zeros(6), 0.0
+    lin = np.zeros((len(M), 35))
+    for v, Mv in enumerate(M):
+        G = Mv[np.ix_(ai, ai)]
+        b = Mv[ai, 0]
+        coef = np.linalg.solve(G, b)
+        chi2 += float(Mv[0, 0] - coef @ b)
+        MDA = s[:, None] * Mv[np.ix_(di, ai)]
+        MDD = s[:, None] * Mv[np.ix_(di, di)] * s[None, :]
+        MDy = s * Mv[di, 0]
+        beta = np.linalg.solve(G, MDA.T)  # (p, 6)
+        a = coef[0]
+        JJ += a * a * (MDD - MDA @ beta)
+        Jr += a * (MDy - MDA @ coef)
+        full = np.zeros(4)
+        full[: len(ai)] = coef
+        bf = np.zeros((4, 6))
+        bf[: len(ai)] = beta
+        lin[v] = np.r_[full, a, s, bf.ravel()]
+    return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
+
+
+class LikelihoodEngine:
+    """The weighted least-squares refinement of one bone on the device (module docs), reusable from
+    frame to frame (:func:`likelihood_engine` keeps one per renderer, bone and settings).
+
+    ``highpass_px``: σ of the high-pass (pixels; None or 0: none, then a background of order
+    ``background`` 0 or 1 carries the smooth structure); ``psf``: an odd 2-D kernel estimated from
+    calibration images, or None; ``weight_sigma_px``: smoothing of the expected counts;
+    ``lag_px``: the autocovariance's lag window of :meth:`sandwich` (default ``2 · highpass_px``
+    plus the PSF's radius, at least 2).
+    """
+
+    _render = GaussNewtonCost._render
+    poses = GaussNewtonCost.poses
+
+    def __init__(self, renderer, *, bone: int, views: Sequence[int], highpass_px: float | None = 4.0,
+                 psf=None, background: int = 0, weight_sigma_px: float = 2.0, lag_px: int | None = None,
+                 block_dim: int = 128, chunk: int = 4096) -> None:
+        from ..similarity.batched import gaussian_weights
+
+        if int(background) not in (0, 1):
+            raise ValueError(f"background: expected a polynomial order 0 or 1, got {background!r}")
+        self.psf = None if psf is None else np.asarray(psf, dtype=np.float64)
+        if self.psf is not None and (self.psf.ndim != 2 or self.psf.shape[0] % 2 == 0
+                                     or self.psf.shape[1] % 2 == 0 or self.psf.sum() <= 0):
+            raise ValueError(f"psf: expected an odd-sized 2-D kernel with a positive sum, "
+                             f"got {self.psf.shape}")
+        self._renderer_ref = weakref.ref(renderer)
+        self.device = renderer.device
+        self.bone = int(bone)
+        self.views = tuple(int(v) for v in views)
+        self.n_views = len(self.views)
+        self.scale = 1.0
+        self.background = int(background)
+        self.highpass_px = float(highpass_px) if highpass_px else 0.0
+        self.weight_sigma_px = float(weight_sigma_px)
+        rad = 0 if self.psf is None else max(self.psf.shape) // 2
+        self.lag_px = int(lag_px) if lag_px is not None else max(2, round(2 * self.highpass_px) + rad)
+        self.block_dim, self.chunk = int(block_dim), int(chunk)
+        dev = self.device
+        self._taps = (wp.array(gaussian_weights(self.highpass_px, truncate=4.0), dtype=wp.float32, device=dev)
+                      if self.highpass_px else None)
+        self._psf = (None if self.psf is None else
+                     wp.array((self.psf / self.psf.sum()).astype(np.float32), dtype=wp.float32, device=dev))
+        self._ref_hw = wp.zeros(self.n_views, dtype=wp.vec2i, device=dev)
+        self._acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device=dev)
+        self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
+        self._tables: dict = {}
+        self._bufs: dict = {}
+        self._cap = None
+        self.timer = CostTimer()
+        self.base = self.center = self.roi = None
+
+    @property
+    def renderer(self):
+        r = self._renderer_ref()
+        if r is None:
+            raise RuntimeError("renderer: the renderer of this engine no longer exists")
+        return r
+
+    def _buffer(self, name: str, shape: tuple, dtype=wp.float32):
+        b = self._bufs.get(name)
+        if b is None or b.shape != shape:
+            b = self._bufs[name] = wp.zeros(shape, dtype=dtype, device=self.device)
+        return b
+
+    # ------------------------------------------------------------------ per frame
+    def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None) -> None:
+        """The regions ``roi (views, 4)`` of ``frame`` (line integrals, usable pixels, weights on
+        the host; the DRRs of ``others = (poses, bones)`` at their poses subtracted), high-passed
+        on the device, and the parameterisation ``base_pose``, ``center`` of the next steps.
+        Raises :class:`~core.tracking.cost.OutsideViewError` for a region without usable pixels."""
+        from ..similarity.likelihood import blur, expected_counts
+
+        t0 = time.perf_counter()
+        r = self.renderer
+        self.base = np.asarray(base_pose, dtype=float)
+        self.center = np.asarray(center, dtype=float)
+        self.roi = np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)
+        rois, masks = fluoro_rois(r, frame, views=self.views, roi=self.roi)
+        w = [expected_counts(y, sigma_px=self.weight_sigma_px, mask=m)
+             for y, m in zip(rois, masks, strict=True)]
+        y = [np.asarray(v, np.float32) for v in rois]
+        if others is not None and len(others[1]):
+            P = np.asarray(others[0], dtype=float)
+            img = r.render(P[None], views=self.views, bones=list(others[1]), roi=self.roi[None, :, None, :])
+            bg = img.numpy()[0].sum(axis=1)
+            for i, yi in enumerate(y):
+                o = bg[i, : yi.shape[0], : yi.shape[1]]
+                y[i] = yi - (o if self.psf is None else blur(o, self.psf))
+        shapes = [v.shape for v in y]
+        self._cap = tuple(int(math.ceil(max(s[k] for s in shapes) / 32.0) * 32) for k in (0, 1))
+        nv, (Hc, Wc) = self.n_views, self._cap
+        hy = np.zeros((2, nv, Hc, Wc), np.float32)
+        top = max(max(float(wi.max()) for wi in w), 1e-30)  # one scale for every view
+        for i, (yi, wi) in enumerate(zip(y, w, strict=True)):
+            hy[0, i, : yi.shape[0], : yi.shape[1]] = yi
+            hy[1, i, : yi.shape[0], : yi.shape[1]] = wi / top
+        self.n_pixels = int(sum(np.count_nonzero(wi) for wi in w))
+        self._ref_hw.assign(np.array(shapes, dtype=np.int32))
+        dev = self.device
+        self._y_raw = self._buffer("y_raw", (nv, Hc, Wc))
+        self._y_raw.assign(hy[0])
+        self._w = self._buffer("w", (nv, Hc, Wc))
+        self._w.assign(hy[1])
+        self._y = self._buffer("y", (nv, Hc, Wc))
+        if self.highpass_px:
+            low = self._blurred("y", self._y_raw, nv)
+            wp.launch(highpass_kernel, dim=(nv, Hc, Wc), inputs=[self._y_raw, low, 1.0, self._y], device=dev)
+        else:
+            wp.copy(self._y, self._y_raw)
+        self.timer.host += time.perf_counter() - t0
+
+    def _blurred(self, tag: str, src, n_refs: int):
+        """The Gaussian low-pass of ``src`` (two passes of the separable blur)."""
+        tmp = self._buffer(tag + "_tmp", src.shape)
+        low = self._buffer(tag + "_low", src.shape)
+        for a, b, axis in ((src, tmp, 1), (tmp, low, 0)):
+            wp.launch(K.blur_kernel, dim=src.shape, inputs=[a, b, self._taps, self._ref_hw, n_refs, axis],
+                      device=self.device)
+        return low
+
+    # ------------------------------------------------------------------ steps
+    def _images(self, X: np.ndarray):
+        """Render the poses ``X (13, 6)``; their (PSF-blurred) images and low-passed images."""
+        t0 = time.perf_counter()
+        img = self._render(self.poses(X)[:, None], (self.bone,))
+        t1 = time.perf_counter()
+        if self._psf is not None:
+            out = self._buffer("psf", img.shape)
+            wp.launch(psf_kernel, dim=img.shape, inputs=[img, out, self._psf, self._ref_hw, self.n_views],
+                      device=self.device)
+            img = out
+        low = self._blurred("d", img, self.n_views) if self.highpass_px else img
+        self.timer.host += t1 - t0
+        self.timer.render += time.perf_counter() - t1
+        return img, low
+
+    def step(self, x, h) -> dict:
+        """The weighted products table of the 13-pose design about ``x`` (half-steps ``h``,
+        mm and degrees) and :func:`solve_moments` of it (one DRR launch, 4-5 kernels, one
+        synchronisation)."""
+        x = np.asarray(x, dtype=float)
+        h = np.asarray(h, dtype=float)
+        img, low = self._images(step_design(x, h))
+        t0 = time.perf_counter()
+        nv, (Hc, Wc) = self.n_views, self._cap
+        self._acc.zero_()
+        n_chunks = math.ceil(Hc * Wc / self.chunk)
+        hp = 1.0 if self.highpass_px else 0.0
+        wp.launch_tiled(wls_moments_kernel, dim=(nv, n_chunks), block_dim=self.block_dim, device=self.device,
+                        inputs=[img, low, hp, self._y, self._w, self._ref_hw, nv, self.chunk, self._acc])
+        wp.copy(self._host_acc, self._acc)
+        wp.synchronize_device(self.device)
+        M = self._host_acc.numpy().reshape(nv, NZ, NZ).copy()
+        self._last = (img, low, x, h)
+        self.timer.metric += time.perf_counter() - t0
+        self.timer.calls += 1
+        self.timer.evaluations += 13
+        t1 = time.perf_counter()
+        out = solve_moments(M, h, self.background)
+        out["M"] = M
+        self.timer.host += time.perf_counter() - t1
+        return out
+
+    def refine(self, x0=None, *, iters: int = 5, step=(0.05, 0.05), tol=(1e-3, 1e-3),
+               sandwich: bool = True) -> dict:
+        """Gauss–Newton minimisation of χ² from ``x0`` (default 0: the base pose), as
+        :meth:`core.tracking.likelihood_cost.LikelihoodCost.refine` (stops when a step is below
+        ``tol`` or χ² rises, keeping the pose before). Returns ``{"x", "chi2", "iterations",
+        "covariance", "covariance_independent"}`` (mm, degrees): the sandwich covariance of
+        :meth:`sandwich` about the last design (with ``sandwich``) and ``χ²/N · (JᵀWJ)⁻¹``."""
+        hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
+        tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
+        x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
+        best, n_it = None, 0
+        for it in range(1, int(iters) + 1):
+            n_it = it
+            s = self.step(x, hv)
+            if not np.isfinite(s["chi2"]) or (best is not None and s["chi2"] > best[1]["chi2"]):
+                x = best[0] if best is not None else x  # uphill: the previous pose stands
+                break
+            best = (x.copy(), s)
+            delta = np.linalg.solve(s["JJ"], s["Jr"])
+            x = x + delta
+            if np.all(np.abs(delta) < tv):
+                break
+        out = {"x": x, "chi2": best[1]["chi2"] if best else np.nan, "iterations": n_it}
+        nan = np.full((6, 6), np.nan)
+        if best is None:  # not even the start could be fitted
+            return {**out, "covariance": nan, "covariance_independent": nan}
+        try:  # the last design rendered (its images are on the device)
+            Hinv = np.linalg.inv(s["JJ"])
+        except np.linalg.LinAlgError:
+            return {**out, "covariance": nan, "covariance_independent": nan}
+        out["covariance_independent"] = Hinv * s["chi2"] / max(self.n_pixels, 1)
+        out["covariance"] = self.sandwich(s, Hinv) if sandwich else out["covariance_independent"]
+        return out
+
+    def sandwich(self, s: dict, Hinv: np.ndarray) -> np.ndarray:
+        """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`)."""
+        t0 = time.perf_counter()
+        img, low, _, _ = self._last
+        nv, (Hc, Wc) = self.n_views, self._cap
+        dev = self.device
+        hp = 1.0 if self.highpass_px else 0.0
+        lin = wp.array(s["lin"].astype(np.float32), dtype=wp.float32, device=dev)
+        e = self._buffer("e", (nv, Hc, Wc))
+        jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
+        wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=dev,
+                  inputs=[img, low, hp, self._y, self._w, self._ref_hw, nv, lin, e, jt])
+        L = self.lag_px
+        nl = (2 * L + 1) ** 2
+        cov = wp.zeros((nv, nl, 2), dtype=wp.float64, device=dev)
+        n_chunks = math.ceil(Hc * Wc / self.chunk)
+        wp.launch_tiled(autocov_kernel, dim=(nv, nl, n_chunks), block_dim=self.block_dim, device=dev,
+                        inputs=[e, self._w, self._ref_hw, L, self.chunk, cov])
+        C = cov.numpy()
+        c = C[..., 0] / np.maximum(C[..., 1], 1.0)
+        d = np.arange(-L, L + 1)
+        taper = np.outer(1 - np.abs(d) / (L + 1), 1 - np.abs(d) / (L + 1)).ravel()
+        cw = wp.array((c * taper[None]).astype(np.float32), dtype=wp.float32, device=dev)
+        acc = wp.zeros((nv, 36), dtype=wp.float64, device=dev)
+        wp.launch_tiled(meat_kernel, dim=(nv, n_chunks), block_dim=self.block_dim, device=dev,
+                        inputs=[jt, cw, self._ref_hw, L, self.chunk, acc])
+        meat = acc.numpy().reshape(nv, 6, 6).sum(axis=0)
+        meat = 0.5 * (meat + meat.T)
+        self.timer.metric += time.perf_counter() - t0
+        rho = c / np.maximum(c[:, nl // 2: nl // 2 + 1], 1e-30)
+        self.autocorrelation = rho.reshape(nv, 2 * L + 1, 2 * L + 1)  # per view, lag 0 at the centre
+        return Hinv @ meat @ Hinv
+
+
+_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def likelihood_engine(renderer, *, bone: int, views: Sequence[int], highpass_px: float | None = 4.0,
+                      psf=None, background: int = 0, lag_px: int | None = None) -> LikelihoodEngine:
+    """The :class:`LikelihoodEngine` of ``renderer`` for this bone, views and settings, kept for the
+    renderer's lifetime."""
+    per = _CACHE.setdefault(renderer, {})
+    key = (int(bone), tuple(int(v) for v in views), float(highpass_px or 0.0),
+           None if psf is None else np.asarray(psf, np.float64).tobytes(), int(background), lag_px)
+    e = per.get(key)
+    if e is None:
+        e = per[key] = LikelihoodEngine(renderer, bone=bone, views=views, highpass_px=highpass_px, psf=psf,
+                                        background=background, lag_px=lag_px)
+    return e

@@ -1,0 +1,74 @@
+"""The device weighted least-squares refinement (core.tracking.engine_likelihood): its Gauss–Newton
+quantities against the host reference, a known pose recovered, the sandwich covariance."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core.geometry.transforms import params_from_pose, pose_from_params
+from core.similarity.likelihood import highpass, wls_gauss_newton_step
+from core.tracking.cost import prepare_frame, search_roi
+from core.tracking.engine_likelihood import LikelihoodEngine, solve_moments
+from core.tracking.engine_search import step_design
+
+
+def _setup(talus_scene, frame: int, offset, **kw):
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(frame)[0]
+    off = np.r_[offset[:3], np.radians(offset[3:])]
+    start = pose_from_params(off, center=model.centroid, base=truth)
+    fr = prepare_frame(talus_scene["fluence"](frame), valid_range=None)
+    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
+    eng = LikelihoodEngine(r, bone=0, views=(0, 1), **kw)
+    eng.set_frame(fr, base_pose=start, center=model.centroid, roi=roi)
+    return eng, truth, model
+
+
+def test_step_equals_the_host_reference(talus_scene):
+    eng, _, _ = _setup(talus_scene, 2, [0.3, 0, 0, 0, 0.4, 0], highpass_px=2.0)
+    h = np.full(6, 0.05)
+    x = np.array([0.05, -0.1, 0.0, 0.1, 0.0, -0.05])
+    s = eng.step(x, h)
+    img = eng._render(eng.poses(step_design(x, h))[:, None], (0,)).numpy()
+    y, w = eng._y_raw.numpy(), eng._w.numpy()
+    JJ, Jr, chi2 = np.zeros((6, 6)), np.zeros(6), 0.0
+    for v, (hh, ww) in enumerate(eng._ref_hw.numpy()):
+        D = highpass(np.nan_to_num(img[v::2, :hh, :ww]), 2.0)
+        dD = (D[1:13:2] - D[2:13:2]) / (2 * h[:, None, None])
+        a, b, c, _ = wls_gauss_newton_step(D[0], dD, highpass(y[v, :hh, :ww], 2.0), w[v, :hh, :ww])
+        JJ, Jr, chi2 = JJ + a, Jr - b, chi2 + c
+    # the device's Gaussian (4σ taps) and float32 sums against OpenCV's and float64
+    np.testing.assert_allclose(s["chi2"], chi2, rtol=2e-2)
+    np.testing.assert_allclose(s["JJ"], JJ, rtol=2e-2, atol=2e-2 * np.abs(JJ).max())
+    np.testing.assert_allclose(s["Jr"], Jr, rtol=5e-2, atol=5e-2 * np.abs(Jr).max())
+
+
+def test_refine_recovers_a_known_pose_with_a_covariance(talus_scene):
+    eng, truth, model = _setup(talus_scene, 3, [0.4, -0.3, 0.2, 0.5, -0.4, 0.3], highpass_px=3.0)
+    out = eng.refine(iters=6)
+    e = params_from_pose(eng.poses(out["x"][None])[0], center=model.centroid, base=truth)
+    assert np.linalg.norm(e[:3]) < 0.01 and np.degrees(np.linalg.norm(e[3:])) < 0.02, e
+    for k in ("covariance", "covariance_independent"):
+        C = out[k]
+        assert C.shape == (6, 6) and np.all(np.isfinite(C)) and np.all(np.linalg.eigvalsh(C) > 0), k
+    # the autocorrelation of the residual is 1 at lag 0
+    assert np.allclose(eng.autocorrelation[:, eng.lag_px, eng.lag_px], 1.0)
+
+
+def test_sandwich_without_lags_is_the_independent_covariance(talus_scene):
+    eng, _, _ = _setup(talus_scene, 1, [0.2, 0, 0, 0, 0, 0.2], highpass_px=2.0, lag_px=0)
+    s = eng.step(np.zeros(6), np.full(6, 0.05))
+    Hinv = np.linalg.inv(s["JJ"])
+    C = eng.sandwich(s, Hinv)
+    # one lag: meat = c(0) JᵀWJ with c(0) the weighted residual's mean square (float32 projections)
+    c0 = s["chi2"] / eng.n_pixels
+    np.testing.assert_allclose(C, c0 * Hinv, rtol=3e-2, atol=3e-2 * np.abs(c0 * Hinv).max())
+
+
+def test_solve_moments_background_one():
+    rng = np.random.default_rng(0)
+    Z = rng.normal(size=(500, 11))
+    Z[:, 8] = 1.0
+    M = (Z.T @ Z)[None]
+    s = solve_moments(M, np.full(6, 0.1), background=1)
+    assert s["JJ"].shape == (6, 6) and s["lin"].shape == (1, 35) and s["chi2"] >= 0

@@ -12,13 +12,14 @@ Runs :func:`core.study.calibrations.calibrate_study`, as a script does: the sess
 as the next version of a calibration series
 (:func:`core.study.calibrations.save_session_calibration`: MayaCam rig, parameter SDs, one
 correction pipeline per camera, the report); the trials of the series (or those named) then use
-it. Nothing is saved when a step fails or on Ctrl-C: the study is unchanged. A progress bar goes
-to stderr, the JSON summary to stdout. The lab frame is the static cube's: a cube frame that
-cannot be labelled is an error unless ``--lab-frame object`` asks for the spiral's first frame;
-whenever the lab frame is not the cube's a warning goes to stderr and into the summary's
-``warnings``. Exit status: 0 done, 1 bad input (the message names the
-step, the file and frame, and what can be done), 3 study locked by another writer,
-130 interrupted.
+it. With lead-disc (``glare``) frames in the session the veiling glare is measured and undone
+in the pipelines; the summary's ``glare`` gives its fraction and width per camera. Nothing is
+saved when a step fails or on Ctrl-C: the study is unchanged. A progress bar goes to stderr,
+the JSON summary to stdout. The lab frame is the static cube's: a cube frame that cannot be
+labelled is an error unless ``--lab-frame object`` asks for the spiral's first frame; whenever
+the lab frame is not the cube's a warning goes to stderr and into the summary's ``warnings``.
+Exit status: 0 done, 1 bad input (the message names the step, the file and frame, and what can
+be done), 3 study locked by another writer, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -159,6 +160,9 @@ def run(a: argparse.Namespace) -> int:
            "distortion": {c["name"]: {"model": c["distortion"]["model"],
                                       "grid_residual_rms_mm": c["distortion"]["residuals"]["mm"]["rms"],
                                       "lattice_check": c.get("lattice_check")} for c in rep["cameras"]},
+           "glare": {c["name"]: None if not c.get("glare") else
+                     {k: c["glare"].get(k) for k in ("fraction", "fraction_sd", "sigma_px", "sigma_mm",
+                                                     "sigma_mm_sd")} for c in rep["cameras"]},
            "error_volume_rms_mm": rep["error_volume"].get("rms_mm"), "lab_frame": rep.get("lab_frame"),
            "warnings": rep.get("warnings", []), "notes": rep["notes"],
            "report": report_files}

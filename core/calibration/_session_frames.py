@@ -1,18 +1,20 @@
 """The per-camera work of :mod:`core.calibration.session` on the session's frames: flatfield,
-distortion grid, bead-lattice check, the correction pipeline, and bead detection on corrected
-object frames.
+distortion grid, bead-lattice check, veiling glare (the optional lead-disc frames), the correction
+pipeline, and bead detection on corrected object frames.
 
 Pixels are ``(u, v) = (column, row)``, origin at the centre of the top-left pixel; mm.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..imaging.distortion_eval import evaluate_lattice
+from ..imaging.distortion_maps import undistort_image
 from ..imaging.flatfield import Flatfield, build_flatfield
+from ..imaging.glare import GlareEstimate, estimate_glare
 from ..imaging.grid_indexing import index_grid
 from ..imaging.pipeline import Pipeline
 from ..markers import detect_beads
@@ -24,18 +26,48 @@ from .objects import CalibrationTarget
 
 @dataclass(frozen=True, eq=False)
 class CameraCorrection:
-    """What the session gives one camera: flatfield, distortion fit and the correction pipeline."""
+    """What the session gives one camera: flatfield, distortion fit, veiling glare (None without
+    glare frames) and the correction pipeline."""
 
     name: str
     flatfield: Flatfield
     grid: grids.GridFit
     pipeline: Pipeline
     kv: float | None
+    glare: GlareEstimate | None = None
 
-def _correction(cam, ff, kv, fit) -> CameraCorrection:
-    pipe = Pipeline.standard(flatfield=ff, dark=ff.dark, distortion=fit.model)
+def _correction(cam, ff, kv, fit, glare=None) -> CameraCorrection:
+    pipe = Pipeline.standard(flatfield=ff, dark=ff.dark, glare=glare, distortion=fit.model)
     pipe.prepare(ff.shape)
-    return CameraCorrection(cam, ff, fit, pipe, kv)
+    return CameraCorrection(cam, ff, fit, pipe, kv, glare)
+
+
+def _glare(rd: _Reader, cam: str, ff: Flatfield, flat_group: str, fit, progress) -> GlareEstimate | None:
+    """Veiling glare from the camera's lead-disc frames (None when the session has none): their
+    mean over the mean empty field (dark subtracted, not smoothed or clipped: the smoothed
+    fluence surface would bias the glare's faint profile), undistorted by the fitted model,
+    measured by :func:`core.imaging.glare.estimate_glare` inside the field."""
+    import cv2
+
+    refs = rd.refs(cam, "glare", required=False)
+    if not refs:
+        return None
+    dark = np.asarray(ff.dark, np.float64)
+    disc = np.mean([rd.read(cam, r, k, "glare") for k, r in enumerate(refs)], axis=0) - dark
+    flats = rd.refs(cam, flat_group)
+    flat = np.mean([rd.read(cam, r, k, "glare") for k, r in enumerate(flats)], axis=0) - dark
+    field = ff.valid & (ff.gain > 0.5 * np.percentile(ff.gain[ff.valid], 99)) & (flat > 0)
+    img = np.where(field, disc / np.where(field, flat, 1.0), 0.0).astype(np.float32)
+    img = undistort_image(img, fit.model)
+    inside = undistort_image(field.astype(np.float32), fit.model) > 0.99
+    inside = cv2.erode(inside.astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)
+    progress(f"glare {cam}", 1, 1)
+    try:
+        return replace(estimate_glare(img, mask=inside), n_frames=len(refs))
+    except ValueError as exc:
+        raise SessionError("glare", f"{refs[0]} (camera {cam}, {len(refs)} disc frames)", str(exc),
+                           "record the lead disc whole and inside the field, or remove the 'glare' "
+                           "frames from the session") from None
 
 
 def _flatfield(rd: _Reader, cam: str, groups, kv, progress) -> tuple[Flatfield, float | None]:

@@ -2,7 +2,8 @@
 
 * :func:`session_report` — the JSON-ready dict kept in :attr:`SessionCalibration.report`:
   per camera the flatfield, the distortion model table (cross-validated error of every candidate),
-  the grid residuals (px and mm); per frame and per bead the reprojection error; the rig with its
+  the grid residuals (px and mm), the veiling glare measured from the lead-disc frames (or None);
+  per frame and per bead the reprojection error; the rig with its
   parameter standard deviations; the predicted 3-D reconstruction error over the capture volume
   (beads localised with the adjustment's own reprojection error, triangulated by the rig:
   :func:`core.calibration.errormap.capture_lattice`); notes and the time of every step.
@@ -74,6 +75,8 @@ def session_report(cal, *, notes=(), dlt=(), seconds=None, manifest=None, lattic
                                      for r in g.table],
                            "notes": list(g.notes)},
             "lattice_check": (lattice or {}).get(c.name),
+            "glare": (None if getattr(c, "glare", None) is None
+                      else c.glare.to_dict(pixel_mm=g.mm_per_px)),
         })
     err = ba.errors_px
     per_bead = {}

@@ -7,7 +7,9 @@ start of a collection day (thesis Ch. 3 and 5):
    kV into the fluence surface (:func:`core.imaging.flatfield.build_flatfield`);
 2. **distortion** — every grid frame detected and indexed, frames of one placement merged, the
    ideal grid refined, the model chosen by cross-validation (``model="auto"``) or as given, and
-   its residuals (:mod:`core.calibration._session_grid`);
+   its residuals (:mod:`core.calibration._session_grid`); with ``"glare"`` frames (a lead disc on
+   the intensifier) the veiling glare is measured too (:func:`core.imaging.glare.estimate_glare`)
+   and undone in the pipeline (``dark → flatfield → glare → undistort``);
 3. **beads** — spiral and cube frames corrected by ``dark → flatfield → undistort``
    (:class:`core.imaging.pipeline.Pipeline`), beads detected, sized
    (:func:`core.calibration.detection.detect_object_beads`) and labelled in both views with the
@@ -22,7 +24,7 @@ start of a collection day (thesis Ch. 3 and 5):
 
 A *session* is anything with the reading interface of
 :class:`core.io.calibration_session.CalibrationSession`: ``cameras``, ``manifest``,
-``frames(camera, group)`` (the frame references of ``"dark"``, ``"flat:<kV>"``, ``"grid"``,
+``frames(camera, group)`` (the frame references of ``"dark"``, ``"flat:<kV>"``, ``"grid"``, ``"glare"``,
 ``"cube"``, ``"spiral"``) and ``read(ref)`` (float32 raw counts).
 
 Every step raises :class:`SessionError` on bad input, naming the step, the file and frame, what
@@ -59,6 +61,7 @@ from ._session_frames import (
     _correction,
     _distortion,
     _flatfield,
+    _glare,
     _lattice,
 )
 from ._session_input import (
@@ -192,7 +195,13 @@ def distortion_step(setup: SessionSetup, flatfields, *, model: str = "auto", pro
         fit, pl = _distortion(rd, cam, ff, model=model, pitch=setup.pitch_mm, feature_mm=setup.feature_mm,
                               px_mm=px, progress=_say(progress))
         setup.times[f"distortion {cam}"] = time.perf_counter() - t
-        corr.append(_correction(cam, ff, used_kv, fit))
+        groups = _flat_groups(setup.session, cam)
+        flat_group = next((g for k, g in groups if k == used_kv), groups[0][1])
+        t = time.perf_counter()
+        glare = _glare(rd, cam, ff, flat_group, fit, _say(progress))
+        if glare is not None:
+            setup.times[f"glare {cam}"] = time.perf_counter() - t
+        corr.append(_correction(cam, ff, used_kv, fit, glare))
         placements.append(pl)
         lattice[cam] = _lattice(rd, cam, corr[-1], setup.manifest)
     return DistortionStep(corr, placements, lattice)
@@ -212,7 +221,7 @@ def refit_distortion(setup: SessionSetup, dist: DistortionStep, camera: int, mod
     if not fit.table and c.grid.table:
         fit = replace(fit, table=c.grid.table)
     cams = list(dist.cameras)
-    cams[camera] = _correction(c.name, c.flatfield, c.kv, fit)
+    cams[camera] = _correction(c.name, c.flatfield, c.kv, fit, c.glare)
     lattice = dict(dist.lattice)
     lattice[c.name] = _lattice(setup.reader, c.name, cams[camera], setup.manifest)
     return DistortionStep(cams, dist.placements, lattice)

@@ -1,4 +1,4 @@
-"""A composable, serialisable correction chain: dark → flatfield → deblur → undistort.
+"""A composable, serialisable correction chain: dark → flatfield → glare → deblur → undistort.
 
 Each step is a small frozen dataclass with ``__call__(frame) -> frame``; a :class:`Pipeline` is a
 tuple of steps applied in order (the thesis's order by default, :meth:`Pipeline.standard`).
@@ -17,6 +17,10 @@ same chain.
 
 Conventions: raw frames are camera DN; after :class:`FlatfieldStep` frames are float32 ``I/I0`` in
 [0, 1]; pixels ``(u, v) = (column, row)``, origin at the centre of the top-left pixel.
+
+Order: veiling glare (:class:`GlareStep`, :mod:`core.imaging.glare`) spreads the fluence before
+the intensifier's distortion and the log, and the empty field carries it uniformly, so it is undone
+right after the flatfield division, on the linear fluence, before deblurring and undistortion.
 """
 
 from __future__ import annotations
@@ -32,12 +36,14 @@ from .deconvolution import richardson_lucy, richardson_lucy_varying
 from .distortion_maps import remap_tables, undistort_image
 from .distortion_models import DistortionModel
 from .flatfield import Flatfield
+from .glare import remove_glare
 from .psf import PSFGrid, normalise_psf
 from .serialize import decode_array, encode_array
 
-__all__ = ["DarkStep", "DeblurStep", "FlatfieldStep", "Pipeline", "PipelineRun", "UndistortStep"]
+__all__ = ["DarkStep", "DeblurStep", "FlatfieldStep", "GlareStep", "Pipeline", "PipelineRun", "UndistortStep"]
 
-PIPELINE_VERSION = 1
+#: 2: the glare step (chains without one are still written as version 1)
+PIPELINE_VERSION = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,6 +84,48 @@ class FlatfieldStep:
     @classmethod
     def from_dict(cls, d: dict, *, array_decoder=decode_array) -> FlatfieldStep:
         return cls(Flatfield.from_dict(d["flatfield"], array_decoder=array_decoder))
+
+
+@dataclass(frozen=True, eq=False)
+class GlareStep:
+    """Undo veiling glare of ``fraction`` and Gaussian width ``sigma_px`` on flatfield-normalised
+    frames (:func:`core.imaging.glare.remove_glare`: FFT on a downsampled grid); build it from a
+    measured :class:`~core.imaging.glare.GlareEstimate` with :meth:`from_estimate`."""
+
+    fraction: float
+    sigma_px: float
+    downsample: int | None = None
+    clip: tuple[float, float] | None = (0.0, 1.0)
+
+    kind = "glare"
+
+    def __post_init__(self) -> None:
+        if not 0 <= float(self.fraction) < 1:
+            raise ValueError(f"fraction: expected a glare fraction in [0, 1), got {self.fraction!r}")
+        if not float(self.sigma_px) > 0:
+            raise ValueError(f"sigma_px: expected a width > 0 in pixels, got {self.sigma_px!r}")
+        if self.downsample is not None and (int(self.downsample) != self.downsample or self.downsample < 1):
+            raise ValueError(f"downsample: expected an integer >= 1 or None, got {self.downsample!r}")
+
+    @classmethod
+    def from_estimate(cls, estimate, **kw) -> GlareStep:
+        """The step of a :class:`~core.imaging.glare.GlareEstimate` (or anything with ``fraction``
+        and ``sigma_px``)."""
+        return cls(float(estimate.fraction), float(estimate.sigma_px), **kw)
+
+    def __call__(self, frame) -> np.ndarray:
+        return remove_glare(frame, self.fraction, self.sigma_px, downsample=self.downsample, clip=self.clip)
+
+    def to_dict(self, *, array_encoder=encode_array) -> dict:
+        return {"kind": self.kind, "fraction": float(self.fraction), "sigma_px": float(self.sigma_px),
+                "downsample": None if self.downsample is None else int(self.downsample),
+                "clip": None if self.clip is None else [float(c) for c in self.clip]}
+
+    @classmethod
+    def from_dict(cls, d: dict, *, array_decoder=decode_array) -> GlareStep:
+        clip = None if d.get("clip") is None else tuple(float(c) for c in d["clip"])
+        ds = d.get("downsample")
+        return cls(float(d["fraction"]), float(d["sigma_px"]), None if ds is None else int(ds), clip)
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,7 +201,7 @@ class UndistortStep:
                    float(d["border_value"]), int(d["step"]))
 
 
-STEP_TYPES = {c.kind: c for c in (DarkStep, FlatfieldStep, DeblurStep, UndistortStep)}
+STEP_TYPES = {c.kind: c for c in (DarkStep, FlatfieldStep, GlareStep, DeblurStep, UndistortStep)}
 
 
 @dataclass(frozen=True)
@@ -175,8 +223,8 @@ class Pipeline:
         steps = tuple(self.steps)
         for i, s in enumerate(steps):
             if type(s) not in STEP_TYPES.values():
-                raise ValueError(f"steps[{i}]: expected DarkStep, FlatfieldStep, DeblurStep or "
-                                 f"UndistortStep, got {type(s).__name__}")
+                raise ValueError(f"steps[{i}]: expected DarkStep, FlatfieldStep, GlareStep, DeblurStep "
+                                 f"or UndistortStep, got {type(s).__name__}")
             if isinstance(s, FlatfieldStep) and np.any(np.asarray(s.flatfield.dark) != 0) \
                     and not any(isinstance(p, DarkStep) for p in steps[:i]):
                 raise ValueError(f"steps[{i}]: the flatfield was built with a dark level; put a DarkStep "
@@ -184,13 +232,14 @@ class Pipeline:
         object.__setattr__(self, "steps", steps)
 
     @classmethod
-    def standard(cls, *, flatfield: Flatfield | None = None, dark=None, psf=None,
+    def standard(cls, *, flatfield: Flatfield | None = None, dark=None, glare=None, psf=None,
                  iterations: int = 10,
                  damping: float = 0.0, photons_per_unit: float | None = None,
                  distortion: DistortionModel | None = None, interpolation: str = "linear") -> Pipeline:
-        """dark → flatfield → deblur → undistort, each included when its input is given.
+        """dark → flatfield → glare → deblur → undistort, each included when its input is given.
 
-        ``dark`` defaults to the flatfield's own dark level.
+        ``dark`` defaults to the flatfield's own dark level; ``glare`` is a
+        :class:`~core.imaging.glare.GlareEstimate` (or a :class:`GlareStep`).
         """
         steps: list = []
         dk = dark if dark is not None else (flatfield.dark if flatfield is not None else None)
@@ -198,6 +247,8 @@ class Pipeline:
             steps.append(DarkStep(dk))
         if flatfield is not None:
             steps.append(FlatfieldStep(flatfield))
+        if glare is not None:
+            steps.append(glare if isinstance(glare, GlareStep) else GlareStep.from_estimate(glare))
         if psf is not None:
             steps.append(DeblurStep(psf, iterations, damping, photons_per_unit))
         if distortion is not None:
@@ -290,7 +341,8 @@ class Pipeline:
 
     def to_dict(self, *, array_encoder=encode_array) -> dict:
         """Plain-JSON parameters of every step (arrays via ``array_encoder``)."""
-        return {"type": "imaging_pipeline", "version": PIPELINE_VERSION,
+        version = PIPELINE_VERSION if any(isinstance(s, GlareStep) for s in self.steps) else 1
+        return {"type": "imaging_pipeline", "version": version,
                 "steps": [s.to_dict(array_encoder=array_encoder) for s in self.steps]}
 
     @classmethod

@@ -19,7 +19,8 @@ writes one for the demo)::
 
 Groups: ``"dark"`` (X-rays off), ``"flat"`` (empty field, one folder per tube voltage, keyed by
 kV), ``"grid"`` (distortion grid on the intensifier), ``"lattice"`` (optional bead lattice on
-the intensifier, an independent check of the distortion correction), ``"cube"`` and
+the intensifier, an independent check of the distortion correction), ``"glare"`` (optional:
+an opaque lead disc on the intensifier, the veiling-glare measurement), ``"cube"`` and
 ``"spiral"`` (calibration objects). Optional manifest fields: ``"n_frames"`` (frames per group
 folder, checked), ``"kv"`` (voltage of the non-flat frames), ``"lattice"``, ``"detector"``.
 Other fields are kept in :attr:`CalibrationSession.manifest`.
@@ -50,7 +51,7 @@ __all__ = ["GROUPS", "SESSION_FORMAT", "CalibrationSession", "read_session"]
 SESSION_FORMAT = "talus-calibration-session"
 SUPPORTED_VERSIONS = (1,)
 #: Group names a session may list (``"flat"`` maps kV -> folder).
-GROUPS = ("dark", "flat", "grid", "lattice", "cube", "spiral")
+GROUPS = ("dark", "flat", "grid", "lattice", "glare", "cube", "spiral")
 #: Groups whose frame i is one exposure in every view.
 SIMULTANEOUS = ("cube", "spiral")
 _SUFFIXES = (".tif", ".tiff")

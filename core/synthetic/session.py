@@ -10,6 +10,8 @@ Layout of the session folder (read it with :func:`core.io.read_session`)::
     <cam>/grid/*.tif             hole grid lying on the intensifier face, one static placement
     <cam>/lattice/*.tif          bead lattice on the intensifier face, one placement per frame
                                  (an independent check of the distortion correction)
+    <cam>/glare/*.tif            a 60 mm, 2 mm lead disc in the middle of the intensifier face,
+                                 nothing else in the beam: the veiling glare measurement
     <cam>/cube/0000.tif          the 15-bead cube, static; it defines the lab frame
     <cam>/spiral/0000.tif ...    the 33-bead spiral moved through the capture volume; frame i of
                                  every camera is one exposure
@@ -46,8 +48,9 @@ import tifffile
 
 from ..geometry.camera import Camera
 from ..io.atomic import fsync_dir
-from .analytic import slab_line_integrals
-from .calib_objects import bead_lattice, calibration_cube, distortion_grid, helical_spiral
+from ..render.attenuation import attenuation_per_mm
+from .analytic import cylinder_line_integrals, slab_line_integrals
+from .calib_objects import bead_lattice, calibration_cube, distortion_grid, face_frame, helical_spiral
 from .calibration import object_line_integrals
 from .session_poses import _default_setup, _inside_field, spiral_poses
 from .session_render import _at_kv, _dark, _ObjectRenderer, _plate, _uv
@@ -56,7 +59,9 @@ __all__ = ["SESSION_FORMAT", "SESSION_VERSION", "spiral_poses", "write_calibrati
 
 SESSION_FORMAT = "talus-calibration-session"
 SESSION_VERSION = 1
-_GROUP_TAG = {"dark": 1, "flat": 2, "grid": 3, "lattice": 4, "cube": 5, "spiral": 6}
+_GROUP_TAG = {"dark": 1, "flat": 2, "grid": 3, "lattice": 4, "cube": 5, "spiral": 6, "glare": 7}
+#: the glare disc: lead, diameter and thickness (mm)
+GLARE_DISC_MM = (60.0, 2.0)
 _LATTICE_OFFSETS_MM = ((0.0, 0.0), (60.0, 0.0), (0.0, 60.0), (-60.0, 0.0), (0.0, -60.0))
 
 
@@ -108,6 +113,7 @@ def write_calibration_session(
     n_lattice: int = 5,
     n_dark: int = 5,
     n_flat: int = 10,
+    n_glare: int = 2,
     kvs: Sequence[float] = (70.0,),
     cameras: Sequence[str] = ("cam1", "cam2"),
     energy_kev: float = 60.0,
@@ -132,6 +138,8 @@ def write_calibration_session(
         Frames per camera of the moving 33-bead spiral (≥ 1), of the static hole grid, of the
         bead lattice (one placement each, at most 5; 0 = none), dark frames and empty-field
         frames per kV. The cube has one static frame.
+    n_glare : int
+        Frames per camera of the lead disc that measures veiling glare (0 = none).
     kvs : sequence of float
         Tube voltages with empty-field frames; the first is the voltage of every other frame
         (the trial's). Fluence and gain scale as kV² from it.
@@ -167,6 +175,8 @@ def write_calibration_session(
     for nm, v in (("n_spiral", n_spiral), ("n_grid", n_grid), ("n_dark", n_dark), ("n_flat", n_flat)):
         if int(v) != v or v < 1:
             raise ValueError(f"{nm}: expected a positive integer, got {v!r}")
+    if int(n_glare) != n_glare or n_glare < 0:
+        raise ValueError(f"n_glare: expected an integer >= 0, got {n_glare!r}")
     if int(n_lattice) != n_lattice or not 0 <= n_lattice <= len(_LATTICE_OFFSETS_MM):
         raise ValueError(f"n_lattice: expected an integer in 0..{len(_LATTICE_OFFSETS_MM)}, "
                          f"got {n_lattice!r}")
@@ -188,6 +198,8 @@ def write_calibration_session(
     groups = {"dark": "dark", "flat": flat_dirs, "grid": "grid", "cube": "cube", "spiral": "spiral"}
     if n_lattice:
         groups["lattice"] = "lattice"
+    if n_glare:
+        groups["glare"] = "glare"
     cube, spiral = calibration_cube(energy_kev=energy_kev), helical_spiral(33, energy_kev=energy_kev)
     grid_plate = distortion_grid(field_diameter_mm=shape[1] * cams[0].pixel_size, energy_kev=energy_kev)
     lattice = bead_lattice(energy_kev=energy_kev)
@@ -209,7 +221,7 @@ def write_calibration_session(
             raise ValueError(f"scene: the cube at the lab origin does not fit inside {c.name}'s field")
 
     total = (int(n_dark) + int(n_flat) * len(kv_list) + int(n_grid) + int(n_lattice) + 1
-             + int(n_spiral))
+             + int(n_spiral) + int(n_glare))
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp"))
     done = 0
@@ -254,6 +266,15 @@ def write_calibration_session(
                 save(v, "grid", i, m.apply(grid_L[v], rng=rng("grid", i, v)))
             step()
         del grid_L
+        disc_mm, lead_mm = GLARE_DISC_MM
+        disc_L = [cylinder_line_integrals(c, face_frame(c, thickness_mm=lead_mm), disc_mm / 2, lead_mm / 2,
+                                          attenuation_per_mm("lead", energy_kev), supersample=3,
+                                          average="fluence") for c in cams] if n_glare else []
+        for i in range(int(n_glare)):
+            for v, m in enumerate(models):
+                save(v, "glare", i, m.apply(disc_L[v], rng=rng("glare", i, v)))
+            step()
+        del disc_L
         for i in range(int(n_lattice)):
             for v, (c, m) in enumerate(zip(cams, models, strict=True)):
                 L, T, ideal, dist, pts = _plate(c, m, lattice, gap_mm=0.0,
@@ -291,6 +312,8 @@ def write_calibration_session(
                     "grid": int(n_grid), "cube": 1, "spiral": int(n_spiral)}
         if n_lattice:
             n_frames["lattice"] = int(n_lattice)
+        if n_glare:
+            n_frames["glare"] = int(n_glare)
         manifest = {
             "format": SESSION_FORMAT, "version": SESSION_VERSION, "cameras": names,
             "bit_depth": int(bits), "frame_size": [int(shape[0]), int(shape[1])],
@@ -312,6 +335,11 @@ def write_calibration_session(
                       "(moved through the capture volume) stand above the walkway plate, which "
                       "stays in the beam. Frame i of every camera in a group is one exposure."),
         }
+        if n_glare:
+            manifest["glare"] = {
+                "kind": "disc", "diameter_mm": GLARE_DISC_MM[0], "thickness_mm": GLARE_DISC_MM[1],
+                "material": "lead", "placement": "in the middle of the intensifier face, nothing else in "
+                                                 "the beam (the walkway out, as for the empty field)"}
         if n_lattice:
             manifest["lattice"] = {
                 "kind": "bead", "pitch_mm": 20.0, "shape": [6, 6],

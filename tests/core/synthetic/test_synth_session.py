@@ -31,16 +31,16 @@ def test_layout_and_manifest_round_trip(small):
     assert manifest["frame_size"] == [128, 128]
     assert manifest["groups"] == {"dark": "dark", "flat": {"70": "flat_70kV", "75": "flat_75kV"},
                                   "grid": "grid", "cube": "cube", "spiral": "spiral",
-                                  "lattice": "lattice"}
+                                  "lattice": "lattice", "glare": "glare"}
     assert manifest["grid"]["kind"] == "hole" and manifest["grid"]["pitch_mm"] == 15.0
     assert manifest["objects"] == {"cube": "cube15", "spiral": "spiral33"}
     s = read_session(out)
     assert s.cameras == ("cam1", "cam2") and s.frame_size == (128, 128) and s.kvs == (70.0, 75.0)
     for cam in s.cameras:
         counts = {g: len(s.frames(cam, g)) for g in ("dark", "flat:70", "flat:75", "grid", "lattice",
-                                                     "cube", "spiral")}
-        assert counts == {"dark": 2, "flat:70": 3, "flat:75": 3, "grid": 2, "lattice": 1, "cube": 1,
-                          "spiral": 4}
+                                                     "glare", "cube", "spiral")}
+        assert counts == {"dark": 2, "flat:70": 3, "flat:75": 3, "grid": 2, "lattice": 1, "glare": 2,
+                          "cube": 1, "spiral": 4}
         p = s.frames(cam, "spiral")[2]
         assert p == out / cam / "spiral" / "0002.tif"
         raw = tifffile.imread(p)
@@ -141,7 +141,7 @@ def test_same_rig_and_chain_as_the_demo_scene(tmp_path):
 
 def test_cancel_keeps_the_earlier_session(tmp_path):
     out = tmp_path / "s"
-    opts = dict(pixels=64, n_spiral=2, n_grid=1, n_lattice=0, n_dark=1, n_flat=1)
+    opts = dict(pixels=64, n_spiral=2, n_grid=1, n_lattice=0, n_dark=1, n_flat=1, n_glare=0)
     write_calibration_session(out, seed=0, **opts)
     before = (out / "session.json").read_bytes()
     calls = []

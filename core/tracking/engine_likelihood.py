@@ -49,6 +49,7 @@ import math
 import time
 import weakref
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -58,7 +59,7 @@ from .cost import CostTimer, FrameImages, fluoro_rois
 from .engine import GaussNewtonCost
 from .engine_search import step_design
 
-__all__ = ["LikelihoodEngine", "likelihood_engine", "solve_moments"]
+__all__ = ["LikelihoodEngine", "LikelihoodFit", "likelihood_engine", "solve_moments"]
 
 NZ = 11  # z = (y, D, δ_1..δ_6, 1, u, v)
 vec11f = wp.types.vector(length=NZ, dtype=wp.float32)
@@ -278,6 +279,29 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0) -> dict:
         bf[: len(ai)] = beta
         lin[v] = np.r_[full, a, s, bf.ravel()]
     return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
+
+
+@dataclass(frozen=True, eq=False)
+class LikelihoodFit:
+    """The refinement's confidence in the form :func:`core.tracking.confidence.confidence_from_fit`
+    reads (``Σ = 2 · noise · H⁻¹``): ``H = 2 Σ⁻¹`` and ``noise = 1`` give back ``covariance``, the
+    sandwich covariance (mm, degrees) of :meth:`LikelihoodEngine.refine`; ``x`` the refined
+    parameters, ``chi2`` the weighted residual, ``covariance_independent`` the covariance that
+    treats the pixels as independent (for comparison)."""
+
+    H: np.ndarray
+    noise: float
+    covariance: np.ndarray
+    x: np.ndarray
+    chi2: float
+    covariance_independent: np.ndarray
+    method: str = "likelihood"
+
+    @classmethod
+    def of(cls, covariance, *, x, chi2: float, covariance_independent) -> LikelihoodFit:
+        C = np.asarray(covariance, dtype=float)
+        return cls(2.0 * np.linalg.inv(C), 1.0, C, np.asarray(x, dtype=float), float(chi2),
+                   np.asarray(covariance_independent, dtype=float))
 
 
 class LikelihoodEngine:

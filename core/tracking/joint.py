@@ -149,6 +149,7 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
     :class:`~core.tracking.register.RegistrationResult`, or the
     :class:`~core.tracking.cost.OutsideViewError` its registration raised. Jobs without
     ``roi`` get theirs filled in."""
+    from .final_stage import final_stage
     from .register import register
 
     if not lockstep_applies(options):
@@ -200,7 +201,10 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
         r = ln.lm.result()
         ln.stages.append(r)
         if r.converged or r.reason == "cancelled":
-            out[k] = _result(ln, fs, hi, ln.cost, ln.own_s + share)
+            job = jobs[k]  # with the option's final stage (neighbours at this round's poses)
+            out[k] = final_stage(renderer, frame, _result(ln, fs, hi, ln.cost, ln.own_s + share),
+                                 bone=job.bone, initial_pose=job.initial_pose, center=job.center, options=o,
+                                 views=views, others=job.others)
             continue
         # beyond the full-resolution steps' reach: the one-bone search's half-resolution fallback,
         # from these full-resolution steps (not taken again)

@@ -3,7 +3,7 @@ in :mod:`core.tracking.trial`'s module docs). Importable from :mod:`core.trackin
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -18,7 +18,13 @@ _MODES = ("sequential", "joint", "auto")
 @dataclass(frozen=True)
 class TrackingOptions:
     """Options of :func:`core.tracking.trial.track` (see that module's docs; ``valid_range`` and
-    ``erode_px`` mark the usable fluoroscope pixels, :func:`core.tracking.cost.prepare_frame`)."""
+    ``erode_px`` mark the usable fluoroscope pixels, :func:`core.tracking.cost.prepare_frame`).
+
+    ``refine_likelihood``: every registration (``registration`` and ``first``) ends with the
+    weighted least-squares refinement on the device (``final="likelihood"`` of
+    :class:`~core.tracking.register.RegistrationOptions`, :mod:`core.tracking.final_stage`): the
+    frame's pose and its confidence are the refinement's. Opt-in (it adds a few milliseconds per
+    bone and frame on a GPU)."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
@@ -44,8 +50,15 @@ class TrackingOptions:
     contact_margin_mm: float = 0.0
     confidence_scale: float = 1.0
     lockstep: bool = True
+    refine_likelihood: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.refine_likelihood, bool):
+            raise ValueError(f"refine_likelihood: expected True or False, got {self.refine_likelihood!r}")
+        if self.refine_likelihood:  # the registrations' own option
+            object.__setattr__(self, "registration", replace(self.registration, final="likelihood"))
+            if self.first is not None:
+                object.__setattr__(self, "first", replace(self.first, final="likelihood"))
         if self.guess not in _GUESSES:
             raise ValueError(f"guess: expected one of {_GUESSES}, got {self.guess!r}")
         if self.mode not in _MODES:

@@ -27,6 +27,22 @@ residual give the pose uncertainty without another launch.
 
 The result is converged when the last stage stopped on a convergence rule and the optimum is
 not on the search box (a point on the box means the true pose may lie beyond it).
+
+Final stage (``final="likelihood"``, opt-in)
+--------------------------------------------
+:func:`core.tracking.final_stage.final_stage` refines the registered pose by weighted least
+squares of the bone's DRR against the line-integral image on the device
+(:mod:`core.tracking.engine_likelihood`: both high-passed by ``final_highpass_px``, the pixels
+weighted by their expected counts, the gain and an offset fitted linearly, the neighbours of
+``others`` subtracted at their poses), a few Gauss–Newton steps from the similarity's optimum,
+in the bone's volume box grown by 1 mm.
+The result's ``fit`` is then a :class:`~core.tracking.engine_likelihood.LikelihoodFit` whose
+confidence (:func:`core.tracking.confidence.confidence_from_fit`) is the sandwich covariance of
+the refinement (the residual's autocorrelation accounted for); ``score`` stays the similarity's.
+A refinement that moves the pose more than ``final_reach`` (mm, degrees) or fails is not taken
+(``timing["likelihood_taken"]`` 0; ``timing["likelihood_s"]``, ``["likelihood_steps"]``: its
+cost). Joint tracking's side-by-side searches (:func:`core.tracking.joint.register_together`)
+end with the same stage.
 """
 
 from __future__ import annotations
@@ -55,6 +71,7 @@ __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels
 
 _METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell", "gauss_newton")
 _SEARCHES = ("global", "local", "newton", "global_newton")
+_FINALS = (None, "likelihood")
 #: Design half-widths (mm, degrees) of the full-resolution quadratic fits.
 FINAL_STEP = (0.25, 0.5)
 
@@ -163,7 +180,10 @@ class RegistrationOptions:
     (mm, degrees). ``margin_px``: extra ROI margin. ``final_scale``: the pyramid scale that
     counts as full resolution — the finest automatic level, the final score, the refinement and
     the confidence fit (2 for detectors much finer than the bone needs, e.g. 1760² views of a
-    wrist at 0.15 mm per pixel).
+    wrist at 0.15 mm per pixel). ``final``: ``"likelihood"`` ends the registration with the
+    weighted least-squares refinement of :func:`core.tracking.final_stage.final_stage`
+    (high-pass σ ``final_highpass_px`` pixels, at most ``final_iters`` steps, taken when it
+    moves the pose by at most ``final_reach`` (mm, degrees)), or None.
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
@@ -177,6 +197,10 @@ class RegistrationOptions:
     refine_tol: float = 0.005
     margin_px: int = 4
     seed: int = 0
+    final: str | None = None
+    final_highpass_px: float = 4.0
+    final_iters: int = 5
+    final_reach: tuple[float, float] = (1.0, 2.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", tuple(self.terms))
@@ -193,6 +217,15 @@ class RegistrationOptions:
             raise ValueError(f"search: expected one of {_SEARCHES}, got {self.search!r}")
         if not (np.isfinite(self.final_scale) and self.final_scale >= 1):
             raise ValueError(f"final_scale: expected a pyramid scale >= 1, got {self.final_scale!r}")
+        if self.final not in _FINALS:
+            raise ValueError(f"final: expected one of {_FINALS}, got {self.final!r}")
+        if not (np.isfinite(self.final_highpass_px) and self.final_highpass_px >= 0):
+            raise ValueError(f"final_highpass_px: expected a σ >= 0 (pixels), got {self.final_highpass_px!r}")
+        fi = self.final_iters
+        if isinstance(fi, bool) or int(fi) != fi or fi < 1:
+            raise ValueError(f"final_iters: expected an integer >= 1, got {self.final_iters!r}")
+        if len(self.final_reach) != 2 or not all(np.isfinite(v) and v > 0 for v in self.final_reach):
+            raise ValueError(f"final_reach: expected (mm, degrees) > 0, got {self.final_reach!r}")
 
     def widened(self, factor: float = 2.0) -> RegistrationOptions:
         """The same options with ``factor``× larger bounds and first steps, twice the
@@ -216,7 +249,9 @@ class RegistrationOptions:
                 "final_scale": self.final_scale,
                 "refine": self.refine,
                 "refine_step": list(self.refine_step), "refine_tol": self.refine_tol,
-                "margin_px": self.margin_px, "seed": self.seed}
+                "margin_px": self.margin_px, "seed": self.seed, "final": self.final,
+                "final_highpass_px": self.final_highpass_px, "final_iters": self.final_iters,
+                "final_reach": list(self.final_reach)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -481,9 +516,15 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     last = stages[-1]
     fit = last.model if (last.method in ("quadratic", "gauss_newton") and last.model is not None
                          and (o.refine == "quadratic" or levels[-1].scale == fs)) else None
-    return result_of(stages, x, full, hi, model_score=last_gn and not o.refine,
-                     timers=(*costs.values(), *engines.values()), engines=engines, fit=fit,
-                     t_start=t_start)
+    res = result_of(stages, x, full, hi, model_score=last_gn and not o.refine,
+                    timers=(*costs.values(), *engines.values()), engines=engines, fit=fit,
+                    t_start=t_start)
+    if o.final is None:
+        return res
+    from .final_stage import final_stage
+
+    return final_stage(renderer, frame, res, bone=bone, initial_pose=base, center=center, options=o,
+                       views=views, others=others)
 
 
 def result_of(stages, x, full, hi, *, model_score: bool, timers, engines, fit,

@@ -72,3 +72,34 @@ def test_solve_moments_background_one():
     M = (Z.T @ Z)[None]
     s = solve_moments(M, np.full(6, 0.1), background=1)
     assert s["JJ"].shape == (6, 6) and s["lin"].shape == (1, 35) and s["chi2"] >= 0
+
+
+def test_register_with_the_final_stage(talus_scene):
+    import pytest
+
+    from core.tracking.confidence import confidence_from_fit
+    from core.tracking.engine_likelihood import LikelihoodFit
+    from core.tracking.options import TrackingOptions
+    from core.tracking.register import RegistrationOptions, register
+
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(2)[0]
+    start = pose_from_params(np.r_[0.5, -0.4, 0.3, np.radians([0.6, -0.5, 0.4])], center=model.centroid,
+                             base=truth)
+    fr = prepare_frame(talus_scene["fluence"](2), valid_range=None)
+    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=2.0)
+    res = register(r, fr, bone=0, initial_pose=start, center=model.centroid, options=o)
+    e = params_from_pose(res.pose, center=model.centroid, base=truth)
+    assert np.linalg.norm(e[:3]) < 0.02 and np.degrees(np.linalg.norm(e[3:])) < 0.05, e
+    assert res.timing["likelihood_taken"] == 1 and res.timing["likelihood_steps"] >= 1
+    assert isinstance(res.fit, LikelihoodFit)
+    np.testing.assert_allclose(confidence_from_fit(res.fit).covariance, res.fit.covariance, rtol=1e-8)
+    # x is relative to the initial pose, as the pose
+    back = pose_from_params(np.r_[res.x[:3], np.radians(res.x[3:])], center=model.centroid, base=start)
+    np.testing.assert_allclose(back, res.pose, atol=1e-9)
+    t = TrackingOptions(refine_likelihood=True)
+    assert t.registration.final == "likelihood" and t.first_options.final == "likelihood"
+    with pytest.raises(ValueError, match="final"):
+        RegistrationOptions(final="ml")
+    with pytest.raises(ValueError, match="refine_likelihood"):
+        TrackingOptions(refine_likelihood=1)

@@ -1,0 +1,62 @@
+"""The opt-in final stage of a registration (:class:`core.tracking.register.RegistrationOptions`
+``final``; the register module's docs): the similarity's optimum refined by weighted least
+squares on the device (:mod:`core.tracking.engine_likelihood`), its confidence the refinement's
+sandwich covariance."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from ..geometry.transforms import params_from_pose
+from .cost import CostTimer, FrameImages, OutsideViewError, search_roi
+from .engine_likelihood import LikelihoodFit, likelihood_engine
+from .register import RegistrationOptions, RegistrationResult, _snap
+
+__all__ = ["final_stage"]
+
+
+def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: int, initial_pose, center,
+                options: RegistrationOptions, views: Sequence[int], others=None) -> RegistrationResult:
+    """``res`` refined by the option's final stage (module docs; ``res`` itself without one, or
+    after a cancelled stage). ``initial_pose``: the registration's (``x`` is relative to it)."""
+    o = options
+    if o.final is None or any(s.reason == "cancelled" for s in res.stages):
+        return res
+    t0 = time.perf_counter()
+    timing = dict(res.timing)
+    views = tuple(views)
+    center = np.asarray(center, dtype=float)
+    try:
+        roi = _snap(search_roi(renderer, res.pose, bone, views=views, center=center, reach_mm=1.0,
+                               margin_px=o.margin_px), renderer, views)
+        eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=o.final_highpass_px)
+        eng.timer = CostTimer()
+        eng.set_frame(frame, base_pose=res.pose, center=center, roi=roi, others=others)
+        out = eng.refine(iters=o.final_iters)
+    except (OutsideViewError, np.linalg.LinAlgError):  # the similarity's pose stands
+        timing["likelihood_s"] = time.perf_counter() - t0
+        timing["likelihood_taken"] = 0
+        return replace(res, timing=timing)
+    d = np.asarray(out["x"], dtype=float)
+    cov = np.asarray(out["covariance"], dtype=float)
+    reach = np.array([o.final_reach[0]] * 3 + [o.final_reach[1]] * 3)
+    dt = time.perf_counter() - t0
+    timing["likelihood_s"] = dt
+    timing["likelihood_steps"] = int(out["iterations"])
+    timing["total_s"] = timing.get("total_s", 0.0) + dt
+    evals = res.evaluations + 13 * int(out["iterations"])
+    if not (np.all(np.isfinite(d)) and np.all(np.abs(d) <= reach) and np.all(np.isfinite(cov))):
+        timing["likelihood_taken"] = 0
+        return replace(res, timing=timing, evaluations=evals, time_s=res.time_s + dt)
+    pose = eng.poses(d[None])[0]
+    p = params_from_pose(pose, center=center, base=np.asarray(initial_pose, dtype=float))
+    x = np.r_[p[:3], np.degrees(p[3:])]
+    timing["likelihood_taken"] = 1
+    fit = LikelihoodFit.of(cov, x=x, chi2=float(out["chi2"]),
+                           covariance_independent=out["covariance_independent"])
+    return replace(res, pose=pose, x=x, fit=fit, timing=timing, evaluations=evals, time_s=res.time_s + dt,
+                   generations=res.generations + int(out["iterations"]))

@@ -49,6 +49,8 @@ def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: 
     timing["likelihood_steps"] = int(out["iterations"])
     timing["total_s"] = timing.get("total_s", 0.0) + dt
     evals = res.evaluations + 13 * int(out["iterations"])
+    timing["likelihood_move_mm"] = float(np.linalg.norm(d[:3]))  # NaN when the steps failed
+    timing["likelihood_move_deg"] = float(np.linalg.norm(d[3:]))
     if not (np.all(np.isfinite(d)) and np.all(np.abs(d) <= reach) and np.all(np.isfinite(cov))):
         timing["likelihood_taken"] = 0
         return replace(res, timing=timing, evaluations=evals, time_s=res.time_s + dt)

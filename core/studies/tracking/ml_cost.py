@@ -18,6 +18,12 @@ bone-frame. ``chain_bound``: the bound with the PSF, glare and read noise after 
 stage (:func:`core.tracking.bound.chain_information`) on ``--chain-frames``.
 
 ``--quick``: 192² views, 1 mm voxels, 8 frames (this machine's CPU). JSON on stdout.
+
+``--final`` (:func:`run_final`): the trial tracked twice in one process, as today and with the
+device refinement as the registrations' final stage (``TrackingOptions.refine_likelihood``,
+:mod:`core.tracking.final_stage`; three bones: after each joint round, the neighbours at that
+round's poses): error / bound ratios, time per frame and the stage's share, and the 2σ coverage
+of each run's own confidence.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["main", "refine_frame", "run", "synthesise"]
+__all__ = ["main", "refine_frame", "run", "run_final", "synthesise"]
 
 
 def _chain_frame(args):
@@ -219,6 +225,100 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     return out
 
 
+def _sigmas(res, nm, frames) -> list:
+    """Per frame the confidence σ (6,) of the tracked pose (NaN where there is none)."""
+    out = []
+    for f in frames:
+        c = res.results[(nm, f)].confidence
+        sg = None if not c else c.get("sigma")
+        out.append(np.full(6, np.nan) if sg is None else np.array([np.nan if v is None else v for v in sg]))
+    return out
+
+
+def _coverage(E, S) -> dict:
+    """Fractions within 2σ: per axis, and of frames with all six axes within."""
+    E, S = np.asarray(E), np.asarray(S)
+    ok = np.all(np.isfinite(E), axis=1) & np.all(np.isfinite(S), axis=1)
+    if not ok.any():
+        return {"axes": None, "frames": None, "frames_with_sigma": 0}
+    inside = np.abs(E[ok]) <= 2 * S[ok]
+    return {"axes": float(inside.mean()), "frames": float(inside.all(axis=1).mean()),
+            "translation_axes": float(inside[:, :3].mean()), "rotation_axes": float(inside[:, 3:].mean()),
+            "frames_with_sigma": int(ok.sum())}
+
+
+def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
+              pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
+              checkpoint=None) -> dict:
+    """The trial tracked twice per case in the same process: as today (``search="newton"``) and
+    with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
+    high-pass ``highpass_px``): error / bound ratios, time per frame, the time the stage adds per
+    bone-frame, how often its move was taken, 2σ coverage of each run's confidence."""
+    from core.render import DRRRenderer
+    from core.studies.tracking.acceptance import TrackingScene, cramer_rao
+    from core.tracking.trial import TrackingOptions, track
+
+    n = frames or 100
+    t0 = time.perf_counter()
+    ts = TrackingScene(n_frames=max(n, 2), pixels=pixels, spacing=voxel,
+                       phase=(0.0, 0.6 * max(n, 2) / 100.0), device=device)
+    synthesise(ts, range(n), workers)
+    out = {"study": "core.studies.tracking.ml_cost (final stage)", "machine": platform.machine(),
+           "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "frames": n,
+           "highpass_px": highpass_px, "synthesis_s": time.perf_counter() - t0}
+    try:
+        import warp as wp
+
+        out["device_name"] = wp.get_device(str(ts.renderer.device)).name
+    except Exception:  # a name only
+        pass
+    t0 = time.perf_counter()
+    bound = cramer_rao(ts, range(0, n, max(1, n // 10)))
+    out["cramer_rao"] = {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for k, v in bound.items()}
+    out["bound_s"] = time.perf_counter() - t0
+    base = TrackingOptions(mode="joint")
+    plain = replace(base, registration=replace(base.registration, search="newton"))
+    final = replace(plain, registration=replace(plain.registration, final_highpass_px=highpass_px),
+                    refine_likelihood=True)
+    for case in cases:
+        bones = [1] if case == "one" else [0, 1, 2]
+        models = [ts.models[b] for b in bones]
+        names = [ts.names[b] for b in bones]
+        r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
+                        device=ts.device)
+        kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
+        c = {}
+        for label, o in (("warm_up", plain), ("tracker", plain), ("final", final)):
+            if label == "warm_up":  # the kernels compiled, the engines' buffers made (not timed)
+                track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=o)
+                track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=final)
+                continue
+            t0 = time.perf_counter()
+            res = track(r, models, ts.frames, range(n), keyframes=kf, options=o)
+            dt = time.perf_counter() - t0
+            poses = {(nm, f): res.results[(nm, f)].pose for nm in names for f in range(n)}
+            tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(n)]
+            d = {"track_s": dt, "s_per_frame": dt / n,
+                 "likelihood_s_per_bone_frame": float(np.mean([t.get("likelihood_s", 0.0) for t in tim])),
+                 "likelihood_steps_per_bone_frame": float(np.mean([t.get("likelihood_steps", 0)
+                                                                   for t in tim])),
+                 "likelihood_taken": int(sum(t.get("likelihood_taken", 0) for t in tim)),
+                 "likelihood_tried": int(sum("likelihood_s" in t for t in tim)),
+                 "likelihood_move_median": [float(np.nanmedian([t.get(k, np.nan) for t in tim] or [np.nan]))
+                                            for k in ("likelihood_move_mm", "likelihood_move_deg")],
+                 "flagged": int(sum(bool(res.results[k].flags) for k in poses))}
+            for nm in names:
+                E = np.array(_pose_errs(ts, nm, poses, range(n)))
+                S = _sigmas(res, nm, range(n))
+                d[nm] = {**_summary(E, bound.get(nm)), "within_2_sigma": _coverage(E, S),
+                         "median_sigma": np.nanmedian(np.array(S), axis=0).round(4).tolist()}
+            c[label] = d
+        out[case] = c
+        if checkpoint:
+            checkpoint(out)
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.ml_cost",
                                 description=__doc__.split("\n")[0])
@@ -234,6 +334,9 @@ def main(argv=None) -> int:
     p.add_argument("--passes", type=int, default=2)
     p.add_argument("--cases", default="one,three")
     p.add_argument("--chain-frames", default="0,40,80", help="frames of the chain bound ('' = none)")
+    p.add_argument("--final", action="store_true",
+                   help="track with and without the final stage (TrackingOptions.refine_likelihood)")
+    p.add_argument("--highpass", type=float, default=4.0, help="--final: the stage's high-pass σ (px)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json
@@ -246,6 +349,12 @@ def main(argv=None) -> int:
 
             atomic_write(a.out, json.dumps(res, indent=2) + "\n")
 
+    if a.final:
+        res = run_final(device=a.device, frames=a.frames, cases=a.cases.split(","),
+                        pixels=a.pixels or 1024, voxel=a.voxel or 0.5, highpass_px=a.highpass,
+                        workers=a.workers, checkpoint=checkpoint)
+        print_json(res, a.out)
+        return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,
               device=a.device, frames=a.frames, variants=a.variants.split(","),
               passes=a.passes, cases=a.cases.split(","), refine_every=a.refine_every,

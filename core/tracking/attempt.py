@@ -19,6 +19,7 @@ from .bones import BoneModel
 from .checks import confirmable as _confirmable
 from .checks import failures as _failures
 from .checks import same_optimum as _same_optimum
+from .checks import sigma_check as _sigma_check
 from .checks import uncertain as _uncertain
 from .confidence import confidence_from_fit, curvature_confidence
 from .cost import OutsideViewError, RegistrationCost, search_roi
@@ -56,11 +57,17 @@ def confidence_of(fit, o: TrackingOptions) -> dict:
 
 def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
                      o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
-                     start_score: float | None = None, seed: int = 0, pre=None):
+                     start_score: float | None = None, seed: int = 0, pre=None,
+                     frame_number: int | None = None, good_sigmas=None, reference: float | None = None):
     """Register with failure checks, one wider retry and (first frames, retries) the restart
     check of :func:`core.tracking.verify.verify_start`. ``pre``: ``(registration or the
     OutsideViewError it raised, seconds spent)`` already run with these inputs
     (:func:`core.tracking.joint.register_together`), in place of the first registration.
+    ``history`` (the bone's good ``(frame, pose)``) and ``frame_number`` give the motion check
+    (:func:`core.tracking.checks.motion_check`), ``good_sigmas`` (the good frames' confidence
+    lengths, mm and degrees) the relative ``"uncertain"`` check
+    (:func:`core.tracking.checks.sigma_check`), ``reference`` the score of a flagged first frame
+    that later frames are compared with while the bone has no good score.
 
     Returns an :class:`Attempt`."""
     t0 = time.perf_counter()
@@ -89,7 +96,9 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
             timing[k] += r.timing.get(k, 0.0)
 
     jump = o.retry_factor if verify else 1.0
-    flags = _failures(res, guess, c, good_scores, o, start_score=start_score, jump_factor=jump)
+    more = {"history": history, "frame": frame_number, "reference": reference} if frame_number is not None \
+        else {"reference": reference}
+    flags = _failures(res, guess, c, good_scores, o, start_score=start_score, jump_factor=jump, **more)
     retried = False
     wide = opts.widened(o.retry_factor)
     if flags and not cancelled():
@@ -103,7 +112,7 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                 continue
             add(r2)
             f2 = _failures(r2, guess, c, good_scores, o, start_score=start_score,
-                           jump_factor=o.retry_factor * jump)
+                           jump_factor=o.retry_factor * jump, **more)
             if (len(f2), -r2.score) < (len(flags), -res.score):
                 res, flags = r2, f2
             if not flags:
@@ -132,7 +141,7 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                     pass
                 res = best
                 flags = _failures(res, guess, c, good_scores, o, start_score=start_score,
-                                  jump_factor=o.retry_factor * jump)
+                                  jump_factor=o.retry_factor * jump, **more)
                 notes.append("start corrected by restarts")
             if chk.ambiguous:
                 far = max(d for d, sc in zip(chk.distances, chk.scores, strict=True)
@@ -165,6 +174,8 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
         evals += 73 if conf is not None else 0
     if o.max_uncertainty is not None:
         flags += _uncertain(conf, o.max_uncertainty)
+    if good_sigmas is not None and not any(f.startswith("uncertain") for f in flags):
+        flags += _sigma_check(conf, good_sigmas, n=o.history)
     dt = time.perf_counter() - t0
     # confidence, restarts, set-up
     timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))

@@ -19,8 +19,9 @@ import numpy as np
 
 from ..geometry.transforms import params_from_pose, pose_from_params
 
-__all__ = ["COLLAPSE_RATIO", "SAME_OPTIMUM", "SCORE_DROP", "confirmable", "failures", "pose_delta",
-           "same_optimum", "step_pose", "uncertain"]
+__all__ = ["COLLAPSE_RATIO", "MOTION_FLOOR", "MOTION_LIMIT", "SAME_OPTIMUM", "SCORE_DROP", "SIGMA_LIMIT",
+           "confirmable", "failures", "motion_check", "motion_miss", "pose_delta", "same_optimum",
+           "sigma_check", "step_pose", "uncertain"]
 
 #: Poses closer than this (mm, degrees) are the same optimum (:func:`same_optimum`).
 SAME_OPTIMUM = (0.5, 0.5)
@@ -89,7 +90,8 @@ SCORE_DROP = "score drop"
 
 
 def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
-             jump_factor: float = 1.0) -> list[str]:
+             jump_factor: float = 1.0, history=None, frame: int | None = None,
+             reference: float | None = None) -> list[str]:
     """Why registration ``res`` fails under the tracking options ``o`` (module docs of
     :mod:`core.tracking.trial`): ``good_scores`` are the bone's good scores so far (in tracking
     order), ``start_score`` its first frame's; the jump limit from ``guess_pose`` is
@@ -140,6 +142,10 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     if not res.converged:
         out.append(f"not converged ({res.reason})")
     recent = [float(v) for v in (good_scores or [])[-o.history:] if v is not None and np.isfinite(v)]
+    if not recent and reference is not None and np.isfinite(reference) \
+            and res.score < o.min_score_ratio * float(reference):
+        out.append(f"low score against the flagged first frame ({res.score:.3f} < {o.min_score_ratio:g} x "
+                   f"{float(reference):.3f}; no verified frame to compare with)")
     med = float(np.median(recent)) if recent else None
     if med is not None and res.score < o.min_score_ratio * med:
         out.append(f"{SCORE_DROP} ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
@@ -153,7 +159,113 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     dt, dr = _distance(guess_pose, res.pose, center)
     if dt > o.max_jump[0] * jump_factor or dr > o.max_jump[1] * jump_factor:
         out.append(f"pose jump ({dt:.2f} mm, {dr:.2f} deg from the guess)")
+    if history is not None and frame is not None:
+        out += motion_check(res.pose, history, frame, center, n=o.history)
     return out
+
+
+#: :func:`motion_check`: a pose farther from the motion prediction than this many times the median
+#: of the bone's recent prediction residuals (mm and degrees apart) is flagged ...
+MOTION_LIMIT = 6.0
+#: ... and never closer than this (mm, degrees) for one frame of constant acceleration
+MOTION_FLOOR = (1.0, 2.0)
+
+
+def _predict(f0, T0, f1, T1, f, c) -> np.ndarray:
+    """Constant-velocity prediction at frame ``f`` from poses at frames ``f0``, ``f1`` (as
+    :func:`core.tracking.trial.predict_pose` ``"velocity"``)."""
+    if f1 == f0:
+        return np.asarray(T1, float)
+    d = pose_delta(np.asarray(T0, float), np.asarray(T1, float), c)
+    return step_pose(d * (f - f1) / (f1 - f0), np.asarray(T1, float), c)
+
+
+def _reach(f0, f1, f) -> float:
+    """How a constant acceleration's miss of the velocity prediction grows with the frame gaps
+    (1 for consecutive frames): ``|f - f1| (|f - f1| + |f1 - f0|) / 2``."""
+    g, g0 = abs(f - f1), abs(f1 - f0)
+    return max(g * (g + g0) / 2.0, 1.0)
+
+
+def motion_check(pose, history, frame: int, center, *, n: int = 10, limit: float = MOTION_LIMIT,
+                 floor=MOTION_FLOOR, min_residuals: int = 3) -> list[str]:
+    """The ``"unexpected motion"`` flag: ``pose`` (frame ``frame``) against the constant-velocity
+    prediction from the bone's last two good poses, judged by the bone's own recent motion.
+
+    ``history`` holds the bone's good ``(frame, pose)`` (tracking order). For each of its last
+    ``n`` poses with two good predecessors, the miss of their prediction (mm and degrees apart,
+    divided by :func:`_reach` of the gaps) is a sample of how unpredictable the bone's motion and
+    its registrations are; with at least ``min_residuals`` of them the limit is ``limit`` × their
+    median, at least ``floor``, times the reach of this frame's gaps. Without enough history
+    nothing is flagged. A registration of a valid image of the bone at another pose (a frame out
+    of order, a view's frames shifted) is a true optimum that restarts confirm and the score checks
+    pass; only the motion tells it from the bone's track. Unlike a fixed jump limit from the
+    start, a start far off (a stale guess) that the retry corrected is not flagged: the
+    prediction comes from the good poses, not from the start.
+    """
+    got = motion_miss(pose, history, frame, center, n=n, limit=limit, floor=floor,
+                      min_residuals=min_residuals)
+    if got is None:
+        return []
+    dt, dr, lim_t, lim_r, m = got
+    if dt > lim_t or dr > lim_r:
+        return [f"unexpected motion ({dt:.2f} mm, {dr:.2f} deg from the motion prediction; limits "
+                f"{lim_t:.2f} mm, {lim_r:.2f} deg from the bone's last {m} frames)"]
+    return []
+
+
+def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float = MOTION_LIMIT,
+                floor=MOTION_FLOOR, min_residuals: int = 3) -> tuple | None:
+    """``(mm, degrees from the prediction, limit mm, limit degrees, residuals used)`` of
+    :func:`motion_check`, or None without enough history."""
+    h = list(history or [])
+    if len(h) < min_residuals + 2:
+        return None
+    c = np.asarray(center, dtype=float)
+    miss = []
+    for j in range(max(2, len(h) - int(n)), len(h)):
+        (f0, T0), (f1, T1), (fj, Tj) = h[j - 2], h[j - 1], h[j]
+        dt, dr = _distance(_predict(f0, T0, f1, T1, fj, c), Tj, c)
+        k = _reach(f0, f1, fj)
+        miss.append((dt / k, dr / k))
+    if len(miss) < min_residuals:
+        return None
+    med = np.median(np.asarray(miss), axis=0)
+    (f0, T0), (f1, T1) = h[-2], h[-1]
+    k = _reach(f0, f1, frame)
+    lim_t = max(limit * float(med[0]), float(floor[0])) * k
+    lim_r = max(limit * float(med[1]), float(floor[1])) * k
+    dt, dr = _distance(_predict(f0, T0, f1, T1, frame, c), pose, c)
+    return dt, dr, lim_t, lim_r, len(miss)
+
+
+#: :func:`sigma_check`: a confidence σ longer than this many times the median of the bone's recent
+#: good frames' σ (translation or rotation) is flagged
+SIGMA_LIMIT = 3.0
+
+
+def sigma_check(conf: dict | None, good_sigmas, *, n: int = 10, limit: float = SIGMA_LIMIT,
+                min_frames: int = 5) -> list[str]:
+    """The ``"uncertain"`` flag of a frame whose confidence σ (lengths of the translation and
+    rotation σ vectors, :class:`~core.tracking.confidence.PoseConfidence`) exceeds ``limit`` ×
+    the median of the bone's last ``n`` good frames' (``good_sigmas``: ``(mm, degrees)`` pairs,
+    tracking order), given at least ``min_frames`` of them, or that is not well posed while they
+    were: the cost's curvature about this optimum is much flatter than the bone's own."""
+    if conf is None:
+        return []
+    recent = [(float(t), float(r)) for t, r in list(good_sigmas or [])[-int(n):]
+              if t is not None and r is not None and np.isfinite(t) and np.isfinite(r)]
+    if len(recent) < min_frames:
+        return []
+    mt, mr = (float(v) for v in np.median(np.asarray(recent), axis=0))
+    t, r = conf.get("translation_mm"), conf.get("rotation_deg")
+    if not conf.get("well_posed", True) or t is None or r is None:
+        return [f"uncertain (the pose is not determined along every axis; the bone's last {len(recent)} "
+                f"frames were)"]
+    if t > limit * mt or r > limit * mr:
+        return [f"uncertain (confidence {t:.3f} mm, {r:.3f} deg; over {limit:g} x the bone's recent "
+                f"{mt:.3f} mm, {mr:.3f} deg)"]
+    return []
 
 
 def confirmable(flag: str) -> bool:

@@ -93,6 +93,18 @@ of its σ vector in translation or rotation) exceeds either limit, or is not wel
 ``"uncertain"`` as well (recorded, not retried): registrations in the noise's tail are then sent for
 review instead of passing silently.
 
+Three checks judge a frame by the bone's own track (:mod:`core.tracking.checks`): ``"unexpected
+motion"`` — the pose farther from the constant-velocity prediction of the bone's last two good
+poses than :data:`~core.tracking.checks.MOTION_LIMIT` × the median miss of that prediction over
+its last ``history`` good frames (at least :data:`~core.tracking.checks.MOTION_FLOOR`, grown with
+the frame gaps; not confirmable: a frame's image of the bone at another pose is a true optimum
+that restarts confirm), judged from the good poses, not from the start, so a wrong start that the
+retry corrected is not flagged; ``"uncertain"`` (relative) — a confidence σ over
+:data:`~core.tracking.checks.SIGMA_LIMIT` × the median of the bone's last good frames', or not well
+posed where they were (recorded, not retried); and, while a bone has no good frame yet (its first
+frame flagged), a score below ``min_score_ratio`` × the first flagged frame's is flagged ``"low
+score against the flagged first frame"`` instead of passing unjudged.
+
 ``confidence_scale`` multiplies every frame's confidence σ: the curvature construction is a
 scale, not a calibrated standard error, and a factor measured on a trial with ground truth
 (:mod:`core.studies.tracking.hard_trial`) makes 2σ cover the error as often as it should.
@@ -240,13 +252,24 @@ class _BoneState:
     history: list = field(default_factory=list)
     scores: list = field(default_factory=list)
     start_score: float | None = None
+    sigmas: list = field(default_factory=list)
+    reference: float | None = None
 
-    def add_good(self, frame: int, pose, score: float | None) -> None:
+    def add_good(self, frame: int, pose, score: float | None, confidence: dict | None = None) -> None:
         self.history.append((frame, np.asarray(pose, float)))
         if score is not None:
             self.scores.append(score)
             if self.start_score is None:
                 self.start_score = score
+        t, r = (confidence or {}).get("translation_mm"), (confidence or {}).get("rotation_deg")
+        if t is not None and r is not None:
+            self.sigmas.append((t, r))
+
+    def add_flagged(self, score: float) -> None:
+        """A flagged frame with a pose: while the bone has no good score, the first one's score is
+        the reference later frames are compared with (:func:`core.tracking.checks.failures`)."""
+        if self.start_score is None and self.reference is None and np.isfinite(score):
+            self.reference = float(score)
 
 
 @dataclass
@@ -359,7 +382,8 @@ def _track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: d
             new = register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
                                    state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
                                    start_score=state[b].start_score, seed=f,
-                                   pre=(pre[i][0], pre[i][2]) if i in pre else None)
+                                   pre=(pre[i][0], pre[i][2]) if i in pre else None, frame_number=f,
+                                   good_sigmas=state[b].sigmas, reference=state[b].reference)
             if run.contacts is not None and new.result is not None and not run.cancel.fired:
                 done = [k for k in range(len(names)) if k != i and k in out and out[k].result is not None]
                 if done:  # neighbours registered in this frame, not mere guesses
@@ -526,7 +550,9 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                     if record_result is not None:
                         record_result(fr)
                 if fr.pose is not None and not fr.flags:
-                    state[b].add_good(f, fr.pose, fr.score)
+                    state[b].add_good(f, fr.pose, fr.score, fr.confidence)
+                elif fr.pose is not None:
+                    state[b].add_flagged(fr.score)
                 finish(fr)
     finally:
         feed.close()

@@ -45,13 +45,14 @@ import numpy as np
 from core.geometry.transforms import pose_from_params
 from core.studies.tracking.acceptance import _random_offset, pose_errors
 
-__all__ = ["INJECTIONS", "classify", "legacy_failures", "main", "run"]
+__all__ = ["FEATURES", "INJECTIONS", "classify", "legacy_failures", "main", "previous_failures", "run",
+           "separation"]
 
 INJECTIONS = ("wrong_start", "swapped_views", "other_frame")
 
 
 def legacy_failures(res, guess_pose, center, good_scores, o, *, start_score=None,
-                    jump_factor: float = 1.0) -> list[str]:
+                    jump_factor: float = 1.0, **_later) -> list[str]:
     """The failure check before the score history floor: a score below ``min_start_ratio`` × the
     bone's first good score always flags (kept here for the comparison)."""
     from core.tracking.checks import _distance
@@ -83,6 +84,62 @@ def classify(err_mm: float, err_deg: float, bound=None, *, large=(1.0, 2.0)) -> 
     return "good"
 
 
+#: Per-frame quantities a user has (:func:`_features`), each oriented so that larger is more suspect
+FEATURES = ("score_drop", "sigma_mm", "sigma_deg", "sigma_mm_rel", "sigma_deg_rel", "motion_rel")
+
+
+def _features(rows: list, center, n: int) -> None:
+    """Add to each row (tracking order) what a user could judge it by, from the run's own
+    unflagged frames before it: ``score_drop`` (1 − score / median of the last ``n`` good scores),
+    ``sigma_mm``/``sigma_deg`` (lengths of the confidence σ), ``*_rel`` (over the median of the
+    last ``n`` good frames'), ``motion_rel`` (miss of the motion prediction over the limit of
+    :func:`core.tracking.checks.motion_check`, the larger of mm and degrees)."""
+    from core.tracking.checks import motion_miss
+
+    hist, scores, sig = [], [], []
+    for r in rows:
+        st = sr = None
+        if r["sigma"] is not None and None not in r["sigma"]:
+            st, sr = float(np.linalg.norm(r["sigma"][:3])), float(np.linalg.norm(r["sigma"][3:]))
+        med_s = float(np.median(scores[-n:])) if scores else None
+        med_sig = np.median(np.asarray(sig[-n:]), axis=0) if len(sig) >= 3 else None
+        pose = None
+        if r["pose"] is not None:
+            pose = np.eye(4)
+            pose[:3] = np.asarray(r["pose"], float).reshape(3, 4)
+        mm = motion_miss(pose, hist, r["frame"], center, n=n) if pose is not None else None
+        r["features"] = {
+            "score_drop": None if med_s is None else round(1.0 - r["score"] / med_s, 4),
+            "sigma_mm": st, "sigma_deg": sr,
+            "sigma_mm_rel": None if med_sig is None or st is None else round(st / med_sig[0], 3),
+            "sigma_deg_rel": None if med_sig is None or sr is None else round(sr / med_sig[1], 3),
+            "motion_rel": None if mm is None else round(max(mm[0] / mm[2], mm[1] / mm[3]), 3)}
+        if pose is not None and not r["flags"]:
+            hist.append((r["frame"], pose))
+            scores.append(r["score"])
+            if st is not None and sr is not None:
+                sig.append((st, sr))
+
+
+def separation(rows: list) -> dict:
+    """Per feature of :func:`_features`: the area under the ROC curve separating the frames over
+    4× the bound or large from the good ones (0.5: no better than chance), and the fraction of
+    good frames at or above the feature's smallest value among those failures (the false-flag
+    rate of a limit that would catch them all)."""
+    out = {}
+    for k in FEATURES:
+        bad = [r["features"][k] for r in rows if r["kind"] != "good" and r["features"].get(k) is not None]
+        good = [r["features"][k] for r in rows if r["kind"] == "good" and r["features"].get(k) is not None]
+        if not bad or not good:
+            out[k] = None
+            continue
+        b, g = np.asarray(bad, float), np.asarray(good, float)
+        auc = float(np.mean((b[:, None] > g[None, :]) + 0.5 * (b[:, None] == g[None, :])))
+        out[k] = {"auc": round(auc, 3), "failures": len(b), "good": len(g),
+                  "good_flagged_to_catch_all": round(float(np.mean(g >= b.min())), 3)}
+    return out
+
+
 class _Trial:
     """A trial's frames, truth, bone models and tracking renderer (``bones``: the tracked ones)."""
 
@@ -90,10 +147,11 @@ class _Trial:
                  device: str | None) -> None:
         from core.render import DRRRenderer
 
-        if scene == "demo":
+        if scene in ("demo", "walk"):
             from core.studies.tracking.acceptance import TrackingScene
 
-            ts = TrackingScene(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, phase=(0.0, 0.9),
+            phase = (0.0, 0.9) if scene == "demo" else (0.0, 0.6 * max(n_frames, 2) / 100.0)
+            ts = TrackingScene(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, phase=phase,
                                device=device)
             self.names_all, models, transfer = ts.names, ts.models, ts.scene.bone_transfer
             self.frames, self._truth = ts.frames, ts.truth
@@ -110,7 +168,7 @@ class _Trial:
             self.quanta = [m.photons_per_pixel for m in hr.scene.imaging]
             self.rig = hr.scene.rig
         else:
-            raise ValueError(f"scene: expected 'demo' or 'hard', got {scene!r}")
+            raise ValueError(f"scene: expected 'demo', 'walk' or 'hard', got {scene!r}")
         self.names = tuple(bones or self.names_all)
         self.index = [self.names_all.index(n) for n in self.names]
         self.models = [models[i] for i in self.index]
@@ -134,20 +192,35 @@ class _Trial:
         return (pb.rms_mm, pb.rms_deg)
 
 
+def previous_failures(res, guess_pose, center, good_scores, o, *, start_score=None,
+                      jump_factor: float = 1.0, **_later) -> list[str]:
+    """:func:`core.tracking.checks.failures` without the bone's track: no motion check, no
+    flagged first frame's reference (the check before them, kept for the comparison; with it the
+    relative ``"uncertain"`` check is off too, :func:`_patched`)."""
+    from core.tracking.checks import failures
+
+    return failures(res, guess_pose, center, good_scores, o, start_score=start_score,
+                    jump_factor=jump_factor)
+
+
 def _patched(check):
-    """Context: the tracker's attempts use ``check`` as their failure check."""
+    """Context: the tracker's attempts use ``check`` as their failure check (and no relative
+    ``"uncertain"`` check unless it is the tracker's own)."""
     import contextlib
 
     import core.tracking.attempt as attempt
+    from core.tracking.checks import failures
 
     @contextlib.contextmanager
     def ctx():
-        old = attempt._failures
+        old, old_sig = attempt._failures, attempt._sigma_check
         attempt._failures = check
+        if check is not failures:
+            attempt._sigma_check = lambda *a, **k: []
         try:
             yield
         finally:
-            attempt._failures = old
+            attempt._failures, attempt._sigma_check = old, old_sig
     return ctx()
 
 
@@ -179,13 +252,21 @@ def _track(tr: _Trial, o, frames, keyframes, check, bounds, tracked, *, large) -
                          "error_deg": round(er, 4),
                          "bound": None if bd is None else [round(v, 4) for v in bd],
                          "kind": kind, "flags": list(fr.flags), "notes": list(fr.notes), "sigma": sig,
-                         "within_2_sigma": inside, "time_s": round(fr.time_s, 2)})
+                         "within_2_sigma": inside, "time_s": round(fr.time_s, 2),
+                         "pose": None if fr.pose is None else [round(float(v), 5)
+                                                               for v in fr.pose[:3].ravel()]})
+        _features(rows, m.centroid, o.history)
         bad = [r["frame"] for r in rows if r["kind"] != "good"]
+        n_good = sum(1 for r in rows if r["kind"] == "good")
         per[n] = {"failures": bad,
                   "large": [r["frame"] for r in rows if r["kind"] == "large"],
                   "silent": [r["frame"] for r in rows if r["kind"] != "good" and not r["flags"]],
                   "silent_large": [r["frame"] for r in rows if r["kind"] == "large" and not r["flags"]],
                   "false_flags": [r["frame"] for r in rows if r["kind"] == "good" and r["flags"]],
+                  "good_frames": n_good,
+                  "false_flag_rate": (sum(1 for r in rows if r["kind"] == "good" and r["flags"]) / n_good
+                                      if n_good else None),
+                  "separation": separation(rows),
                   "flagged": [r["frame"] for r in rows if r["flags"]],
                   "within_2_sigma": float(np.mean([r["within_2_sigma"] for r in rows
                                                    if r["within_2_sigma"] is not None] or [np.nan])),
@@ -218,6 +299,9 @@ def _inject(tr: _Trial, o, res, frames, check, injections, at, tracked, *, large
                 continue
             history = [(g_f, r.pose) for g_f, r in good]
             scores = [r.score for _, r in good]
+            sigmas = [(r.confidence["translation_mm"], r.confidence["rotation_deg"]) for _, r in good
+                      if r.confidence and r.confidence.get("translation_mm") is not None
+                      and r.confidence.get("rotation_deg") is not None]
             guess = predict_pose(history, f, m.centroid, guess=o.guess)
             for kind in injections:
                 imgs = tr.frames(f)
@@ -234,7 +318,7 @@ def _inject(tr: _Trial, o, res, frames, check, injections, at, tracked, *, large
                     a = register_checked(tr.renderer, prepare_frame(imgs, valid_range=o.valid_range,
                                                                     erode_px=o.erode_px),
                                          m, b, start, start, o.registration, o, scores, others, None, history,
-                                         start_score=scores[0], seed=f)
+                                         start_score=scores[0], seed=f, frame_number=f, good_sigmas=sigmas)
                 if a.result is None:
                     out.append({"bone": n, "frame": int(f), "kind": kind, "outcome": "flagged",
                                 "flags": list(a.flags)})
@@ -291,7 +375,7 @@ def run(*, scene: str = "demo", pixels: int = 256, spacing: float = 1.0, n_frame
                       "search": search, "large": list(large),
                       "start_error": list(start), "inject_every": inject_every, "offset": offset},
            "setup_s": setup, "checks": {}}
-    variants = {"before": legacy_failures, "after": failures}
+    variants = {"before": legacy_failures, "previous": previous_failures, "after": failures}
     at = frames[inject_every::inject_every] if inject_every else []
     for name in checks:
         per, info = _track(tr, o, frames, keyframes, variants[name], bounds, tracked, large=large)
@@ -310,7 +394,7 @@ def run(*, scene: str = "demo", pixels: int = 256, spacing: float = 1.0, n_frame
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.flag_study",
                                 description=__doc__.split("\n")[0])
-    p.add_argument("--scene", choices=("demo", "hard"), default="demo")
+    p.add_argument("--scene", choices=("demo", "walk", "hard"), default="demo")
     p.add_argument("--pixels", type=int, default=256)
     p.add_argument("--voxel", type=float, default=1.0)
     p.add_argument("--frames", type=int, default=60)

@@ -1,0 +1,103 @@
+"""The motion, relative-σ and flagged-first-frame checks of core.tracking.checks (no tracking)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from core.geometry.transforms import pose_from_params
+from core.tracking.checks import MOTION_FLOOR, confirmable, failures, motion_check, sigma_check
+from core.tracking.options import TrackingOptions
+from core.tracking.trial import _BoneState
+
+O = TrackingOptions()
+C = np.array([10.0, -5.0, 30.0])
+
+
+def _pose(p):
+    return pose_from_params(np.r_[p[:3], np.radians(p[3:])], center=C, base=np.eye(4))
+
+
+def _walk(n, noise=0.02, seed=0):
+    """A bone accelerating smoothly (0.8 mm and 0.6 deg per frame, growing), registered with noise."""
+    g = np.random.default_rng(seed)
+    out = []
+    for f in range(n):
+        p = np.array([0.8 * f + 0.01 * f * f, 0.3 * f, -0.2 * f, 0.6 * f, 0.1 * f, 0.005 * f * f])
+        out.append((f, _pose(p + g.normal(scale=noise, size=6))))
+    return out, lambda f: _pose(np.array([0.8 * f + 0.01 * f * f, 0.3 * f, -0.2 * f, 0.6 * f, 0.1 * f,
+                                          0.005 * f * f]))
+
+
+def _res(pose, score=0.5):
+    return SimpleNamespace(score=score, converged=True, reason="", pose=pose)
+
+
+def test_motion_check_passes_the_track_and_flags_a_pose_off_it():
+    hist, truth = _walk(12)
+    assert motion_check(truth(12), hist, 12, C) == []
+    # a valid image of the bone 2.5 mm and 2 deg along its path later: within max_jump, off the motion
+    off = truth(12) @ np.linalg.inv(truth(0)) @ _pose(np.array([2.5, 0, 0, 0, 0, 0])) @ truth(0)
+    f = motion_check(off, hist, 12, C)
+    assert len(f) == 1 and f[0].startswith("unexpected motion") and not confirmable(f[0]), f
+    # the same pose through failures(), with the history and the frame number
+    f = failures(_res(off), truth(12), C, [0.5] * 12, O, start_score=0.5, history=hist, frame=12)
+    assert any(x.startswith("unexpected motion") for x in f), f
+    # too little history: not judged
+    assert motion_check(off, hist[:4], 4, C) == []
+
+
+def test_the_motion_limit_has_a_floor_and_grows_with_the_frame_gap():
+    hist, truth = _walk(12, noise=0.0)  # residuals ~0: the floor sets the limit
+    p = truth(12).copy()
+    p[0, 3] += 0.8 * MOTION_FLOOR[0]
+    assert motion_check(p, hist, 12, C) == []
+    p[0, 3] += 0.4 * MOTION_FLOOR[0]
+    assert motion_check(p, hist, 12, C)
+    # three frames on (the frames between flagged): the reach of a constant acceleration, 6x
+    q = truth(14).copy()
+    q[0, 3] += 3.0 * MOTION_FLOOR[0]
+    assert motion_check(q, hist, 14, C) == []
+
+
+def test_a_corrected_wrong_start_is_not_flagged_by_the_motion():
+    hist, truth = _walk(12)
+    start = truth(12).copy()
+    start[:3, 3] += [4.0, -3.0, 1.0]  # the search started 5 mm off (a stale guess)
+    f = failures(_res(truth(12)), start, C, [0.5] * 12, O, start_score=0.5, jump_factor=O.retry_factor,
+                 history=hist, frame=12)
+    assert f == [], f
+
+
+def test_sigma_check_is_relative_to_the_bone_and_needs_history():
+    good = [(0.15, 0.9)] * 8
+    conf = {"translation_mm": 0.2, "rotation_deg": 1.2, "well_posed": True}
+    assert sigma_check(conf, good) == []
+    wide = {"translation_mm": 0.2, "rotation_deg": 3.5, "well_posed": True}
+    f = sigma_check(wide, good)
+    assert len(f) == 1 and f[0].startswith("uncertain") and "recent" in f[0], f
+    assert sigma_check(wide, good[:3]) == []  # too few frames to judge
+    flat = {"translation_mm": None, "rotation_deg": None, "well_posed": False}
+    assert sigma_check(flat, good)[0].startswith("uncertain (the pose is not determined")
+    assert sigma_check(None, good) == []
+
+
+def test_a_flagged_first_frame_is_the_reference_until_a_good_score():
+    # the wrist radius with the Gauss-Newton global search (one H100): frame 0099 flagged (not
+    # converged) at 0.391, frame 0158 17 mm away at 0.283, which nothing compared with
+    f = failures(_res(np.eye(4), 0.283), np.eye(4), C, [], O, reference=0.391)
+    assert len(f) == 1 and f[0].startswith("low score against the flagged first frame"), f
+    assert not confirmable(f[0])
+    assert failures(_res(np.eye(4), 0.40), np.eye(4), C, [], O, reference=0.391) == []
+    assert failures(_res(np.eye(4), 0.283), np.eye(4), C, [0.30] * 3, O, reference=0.391) == []
+    st = _BoneState()
+    st.add_flagged(0.391)
+    st.add_flagged(0.2)
+    assert st.reference == 0.391
+    st.add_good(5, np.eye(4), 0.40, {"translation_mm": 0.1, "rotation_deg": 0.5})
+    assert st.sigmas == [(0.1, 0.5)] and st.start_score == 0.40
+    st2 = _BoneState()
+    st2.add_good(0, np.eye(4), 0.5)
+    st2.add_flagged(0.1)
+    assert st2.reference is None

@@ -44,6 +44,8 @@ def test_calibrate_saves_a_version(session, study, tmp_path, capsys):
     assert rc == 0, out.err
     doc = json.loads(out.out)
     assert doc["saved"]["calibration"] == "session.v1" and doc["reprojection_rms_px"] < 0.3
+    # the session's lead-disc frames: the veiling glare measured (the generator's is 5 %, 20 mm)
+    assert all(0.04 < g["fraction"] < 0.06 and 17 < g["sigma_mm"] < 23 for g in doc["glare"].values())
     assert (tmp_path / "rep" / "report.json").is_file()
     assert (tmp_path / "rep" / "grid_residuals.png").is_file()
     assert "bundle adjustment" in out.err  # the progress bar names the steps

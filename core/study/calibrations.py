@@ -6,7 +6,7 @@ A session calibration (:func:`core.calibration.session.calibrate_session`) is sa
     calibrations/<series>/v<N>/
         <camera>.txt                 MayaCam 2.0, one per camera (the rig, corrected pixels)
         calibration.json             Talus calibration file: cameras, parameter SDs, quality
-        correction_<camera>.json     imaging pipeline (dark → flatfield → undistort), arrays in
+        correction_<camera>.json     imaging pipeline (dark → flatfield → [glare →] undistort), arrays in
         correction_<camera>_<k>.npy  .npy files beside it
         report/report.json, *.png    the calibration report
         version.json                 what was saved, from which session, when

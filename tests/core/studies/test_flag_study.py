@@ -33,3 +33,38 @@ def test_the_fixed_floor_flags_what_the_history_check_verifies():
 def test_main_rejects_an_unknown_scene():
     with pytest.raises(SystemExit):
         main(["--scene", "knee"])
+
+
+def test_features_and_separation_from_rows():
+    from core.studies.tracking.flag_study import _features, separation
+
+    rows = []
+    for f in range(12):
+        pose = np.eye(4)
+        pose[0, 3] = 0.5 * f + (3.0 if f == 11 else 0.0)  # frame 11: 3 mm off a steady motion
+        rows.append({"frame": f, "score": 0.5, "sigma": [0.1, 0.1, 0.1, 0.5, 0.5, 0.5], "flags": [],
+                     "kind": "large" if f == 11 else "good",
+                     "pose": [float(v) for v in pose[:3].ravel()]})
+    _features(rows, np.zeros(3), 10)
+    assert rows[11]["features"]["motion_rel"] > 1 and rows[10]["features"]["motion_rel"] < 0.5
+    assert rows[11]["features"]["score_drop"] == 0.0
+    sep = separation(rows)
+    assert sep["motion_rel"]["auc"] == 1.0 and sep["motion_rel"]["good_flagged_to_catch_all"] == 0.0
+    assert sep["sigma_deg"]["auc"] == 0.5
+
+
+def test_the_previous_check_has_no_motion_check():
+    from core.studies.tracking.flag_study import previous_failures
+
+    o = TrackingOptions()
+    hist = []
+    for f in range(10):
+        p = np.eye(4)
+        p[0, 3] = 0.5 * f
+        hist.append((f, p))
+    off = np.eye(4)
+    off[0, 3] = 0.5 * 10 + 3.0
+    res = SimpleNamespace(score=0.5, converged=True, reason="", pose=off)
+    kw = {"start_score": 0.5, "history": hist, "frame": 10}
+    assert previous_failures(res, off, np.zeros(3), [0.5] * 10, o, **kw) == []
+    assert failures(res, off, np.zeros(3), [0.5] * 10, o, **kw)

@@ -26,7 +26,9 @@ where ``D(r; R, s)`` is a disc of radius ``R`` blurred by a Gaussian of ``s`` ev
 radius ``r`` (the non-central χ² distribution with 2 degrees of freedom), ``σ_p`` the compact
 PSF (a nuisance), ``a`` the open-field level, and ``f = c / (b + c)``, the disc's transmission
 ``1 - (b + c) / a``. ``a, b, c`` are solved linearly for every ``(σ_p, σ, R)``; pixels weigh by
-their Poisson variance. The fit's standard deviations come from its Jacobian.
+their Poisson variance. A second pass leaves the edge out (``|r - R|`` within ``max(2, 4 σ_p)``
+pixels, where the compact blur and the disc's exact outline dominate and any misfit would pull
+σ) and refits σ with ``R`` and ``σ_p`` kept. The standard deviations come from the Jacobian.
 
 Undo (:func:`remove_glare`, :class:`core.imaging.pipeline.GlareStep`)
 ---------------------------------------------------------------------
@@ -207,33 +209,41 @@ def estimate_glare(images, *, mask=None, max_radius_px: float | None = None,
         res = least_squares(lambda p: solve(p)[1], p0, x_scale=[0.3, 0.3, 0.5], bounds=bounds)
         if best is None or res.cost < best.cost:
             best = res
-    wt = np.sqrt(n / np.maximum(design(best.x) @ solve(best.x)[0], 0.01))
-    p = least_squares(lambda p: solve(p)[1], best.x, x_scale=[0.3, 0.3, 0.5], bounds=bounds).x
+    # second pass: the edge itself (where the compact blur and the disc's exact outline dominate)
+    # left out, σ refitted with the edge's radius and blur kept; weights from the first fit
+    sp, R = best.x[0], best.x[2]
+    band = max(2.0, 4 * float(np.exp(sp)))
+    wt = np.where(np.abs(r - R) > band, np.sqrt(n / np.maximum(design(best.x) @ solve(best.x)[0], 0.01)), 0.0)
+    res = least_squares(lambda q: solve([sp, q[0], R])[1], best.x[1:2], x_scale=[0.3],
+                        bounds=([bounds[0][1]], [bounds[1][1]]))
+    p = np.array([sp, res.x[0], R])
     coef, resid = solve(p)
-    # covariance of all six parameters (a, b, c, log σ_p, log σ, R) from the Jacobian
-    full = np.r_[coef, p]
+    # covariance of (a, b, c, log σ) from the Jacobian
+    full = np.r_[coef, p[1]]
 
-    def model6(q):
-        return (design(q[3:]) @ q[:3] - y) * wt
+    def model4(q):
+        return (design([sp, q[3], R]) @ q[:3] - y) * wt
 
-    J = np.empty((len(y), 6))
-    for i in range(6):
+    J = np.empty((len(y), 4))
+    for i in range(4):
         hstep = 1e-5 * max(abs(full[i]), 1.0)
-        e = np.zeros(6)
+        e = np.zeros(4)
         e[i] = hstep
-        J[:, i] = (model6(full + e) - model6(full - e)) / (2 * hstep)
-    s2 = float(resid @ resid) / max(len(y) - 6, 1)
+        J[:, i] = (model4(full + e) - model4(full - e)) / (2 * hstep)
+    s2 = float(resid @ resid) / max(int(np.count_nonzero(wt)) - 4, 1)
     C = s2 * np.linalg.pinv(J.T @ J)
     av, b, c = coef
     f = c / (b + c)
-    gf = np.array([0.0, -c / (b + c) ** 2, b / (b + c) ** 2, 0, 0, 0])
+    gf = np.array([0.0, -c / (b + c) ** 2, b / (b + c) ** 2, 0])
     sg = float(np.exp(p[1]))
     fit = design(p) @ coef
+    keep = wt > 0
     return GlareEstimate(
         fraction=float(f), sigma_px=sg, fraction_sd=float(np.sqrt(gf @ C @ gf)),
-        sigma_px_sd=float(sg * np.sqrt(C[4, 4])), psf_sigma_px=float(np.exp(p[0])),
+        sigma_px_sd=float(sg * np.sqrt(C[3, 3])), psf_sigma_px=float(np.exp(p[0])),
         transmission=float(1 - (b + c) / av), scale=float(av), center_uv=(cu, cv), radius_px=float(p[2]),
-        rms=float(np.sqrt(np.sum(n * (fit - y) ** 2) / n.sum())), n_frames=int(a.shape[0]), n_pixels=n_px)
+        rms=float(np.sqrt(np.sum((n * (fit - y) ** 2)[keep]) / n[keep].sum())), n_frames=int(a.shape[0]),
+        n_pixels=n_px)
 
 
 # ---------------------------------------------------------------------------- undo

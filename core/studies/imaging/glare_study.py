@@ -27,15 +27,15 @@ tissue is what else biases such a cost, and it would hide the glare's share). Fr
 Results (``resources/benchmarks/glare_cpu.json``, this 2-core CPU machine, 256², 1 mm voxels,
 frames 10/40/70; RMS over the frames, mm / degrees):
 
-* the glare measured from 4 disc frames per view: fraction 0.0495 and 0.0505 (true 0.05, fit SD
-  0.0012), σ 16.6 and 16.7 px (true 17.1 px, fit SD 0.27 px: 2.4-3.0 % small);
+* the glare measured from 4 disc frames per view: fraction 0.0497 and 0.0499 (true 0.05, fit SD
+  0.0003), σ 17.04 and 17.10 px (true 17.07 px, fit SD 0.07-0.08 px);
 * glare alone moves the optimum 0.21 / 0.45 (talus), 0.20 / 0.18 (calcaneus), 0.036 / 0.17
-  (tibia); with the measured glare removed 0.0071 / 0.017, 0.0083 / 0.0073, 0.0029 / 0.013
-  (96-97 % of the translation bias gone, 92-96 % of the rotation's); with the true values removed
-  ≤ 0.0024 / 0.0042; without glare ≤ 0.0013 / 0.0011;
-* through the whole chain 0.21 / 0.45, 0.26 / 0.22, 0.049 / 0.21 become 0.020 / 0.064, 0.040 /
-  0.040, 0.051 / 0.048: what is left is mostly the residual distortion of the 3 %-wrong inverse
-  (~0.06 mm on the tibia in :mod:`core.studies.tracking.bound_gap`).
+  (tibia); with the measured glare removed 0.0022 / 0.0032, 0.0018 / 0.0013, 0.0005 / 0.0016
+  (99 % of the bias gone; the same as with the generator's values, ≤ 0.0024 / 0.0042); without
+  glare ≤ 0.0013 / 0.0011;
+* through the whole chain 0.21 / 0.45, 0.26 / 0.22, 0.049 / 0.21 become 0.017 / 0.060, 0.034 /
+  0.038, 0.054 / 0.042: what is left is the unmodelled PSF and the residual distortion of the
+  3 %-wrong inverse (~0.06 mm on the tibia in :mod:`core.studies.tracking.bound_gap`).
 
 JSON on stdout (``--out``: also to a file).
 """

@@ -265,7 +265,7 @@ def remove_glare(image, fraction: float, sigma_px: float, *, downsample: int | N
     ``downsample``: grid factor of the smooth part (default ``max(1, σ // 4)``). Pixels at 0 (outside
     the field) stay 0 and do not count as dark scene. ``clip``: output range (None = none).
     """
-    y = np.asarray(image, dtype=np.float64)
+    y = np.asarray(image, dtype=np.float32)
     if y.ndim != 2:
         raise ValueError(f"image: expected a 2-D frame, got shape {y.shape}")
     f = float(fraction)
@@ -273,16 +273,16 @@ def remove_glare(image, fraction: float, sigma_px: float, *, downsample: int | N
         raise ValueError(f"fraction: expected a glare fraction in [0, 1), got {fraction!r}")
     s = positive(sigma_px, "sigma_px")
     if f == 0:
-        out = y
+        out = y.copy()
     else:
         d = max(1, int(s // 4)) if downsample is None else int(downsample)
         if d < 1:
             raise ValueError(f"downsample: expected an integer >= 1, got {downsample!r}")
         h, w = y.shape
-        inside = (y > 0).astype(np.float64)
+        inside = y > 0
         hs, ws = max(1, round(h / d)), max(1, round(w / d))
-        num = cv2.resize(y * inside, (ws, hs), interpolation=cv2.INTER_AREA)
-        den = cv2.resize(inside, (ws, hs), interpolation=cv2.INTER_AREA)
+        num = cv2.resize(np.maximum(y, 0.0), (ws, hs), interpolation=cv2.INTER_AREA).astype(np.float64)
+        den = cv2.resize(inside.astype(np.float32), (ws, hs), interpolation=cv2.INTER_AREA).astype(np.float64)
         ok = den > 0.25
         small = _fill_outside(np.where(ok, num / np.where(ok, den, 1.0), 0.0), ok)
         sy, sx = s * hs / h, s * ws / w
@@ -292,9 +292,10 @@ def remove_glare(image, fraction: float, sigma_px: float, *, downsample: int | N
         fx = np.fft.rfftfreq(big.shape[1])[None, :]
         G = np.exp(-2 * np.pi**2 * ((sy * fy) ** 2 + (sx * fx) ** 2))
         smooth = np.fft.irfft2(np.fft.rfft2(big) * (G / ((1 - f) + f * G)), s=big.shape)
-        smooth = smooth[pad:pad + hs, pad:pad + ws]
+        smooth = np.ascontiguousarray(smooth[pad:pad + hs, pad:pad + ws], dtype=np.float32)
         glare = cv2.resize(smooth, (w, h), interpolation=cv2.INTER_LINEAR)
-        out = np.where(inside > 0, (y - f * glare) / (1 - f), 0.0)
+        out = (y - np.float32(f) * glare) * np.float32(1 / (1 - f))
+        out[~inside] = 0.0
     if clip is not None:
-        out = np.clip(out, clip[0], clip[1])
-    return out.astype(np.float32)
+        np.clip(out, clip[0], clip[1], out=out)
+    return out

@@ -33,8 +33,8 @@ frames 10/40/70; RMS over the frames, mm / degrees):
   (tibia); with the measured glare removed 0.0022 / 0.0032, 0.0018 / 0.0013, 0.0005 / 0.0016
   (99 % of the bias gone; the same as with the generator's values, ≤ 0.0024 / 0.0042); without
   glare ≤ 0.0013 / 0.0011;
-* through the whole chain 0.21 / 0.45, 0.26 / 0.22, 0.049 / 0.21 become 0.017 / 0.060, 0.034 /
-  0.038, 0.054 / 0.042: what is left is the unmodelled PSF and the residual distortion of the
+* through the whole chain 0.21 / 0.45, 0.26 / 0.22, 0.049 / 0.21 become 0.017 / 0.060, 0.035 /
+  0.039, 0.054 / 0.042: what is left is the unmodelled PSF and the residual distortion of the
   3 %-wrong inverse (~0.06 mm on the tibia in :mod:`core.studies.tracking.bound_gap`).
 
 JSON on stdout (``--out``: also to a file).

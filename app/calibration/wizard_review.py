@@ -75,9 +75,13 @@ class StepReview:
         if not any(row[3] for row in rows):
             rows.append([g.spec.label, "(given)", "", "chosen"])
         _fill(self.model_table, rows)
+        gl = c.glare
+        glare = (f"\nVeiling glare (lead-disc frames): {100 * gl.fraction:.2f} ± {100 * gl.fraction_sd:.2f} "
+                 f"% over σ {gl.sigma_px * g.mm_per_px:.1f} mm, undone after the flatfield." if gl is not None
+                 else "\nNo lead-disc frames: veiling glare not measured.")
         self.dist_info.setText(f"{c.name}: {g.spec.label}; grid residual RMS {st['rms']:.4f} mm (max "
                                f"{st['max']:.4f} mm) over {len(g.ideal_uv)} points of {g.n_placements} "
-                               f"placement(s)." + "".join(f"\n{n}" for n in g.notes))
+                               f"placement(s)." + "".join(f"\n{n}" for n in g.notes) + glare)
 
     def refit(self) -> None:
         """Fit the chosen model to the current camera's grid points (later steps are redone)."""

@@ -102,7 +102,7 @@ def test_walk_the_wizard_and_track_with_its_calibration(qtbot, folders, capsys):
     assert w.model_table.rowCount() >= 2 and len(w.grid_view.points) > 25
     w.model_combo.setCurrentText("poly(4,4)")
     _step(qtbot, w, "refit", lambda: _click(qtbot, w.refit_button))
-    assert "poly(4,4)" in w.dist_info.text()
+    assert "poly(4,4)" in w.dist_info.text() and "Veiling glare" in w.dist_info.text()
     assert w.results["distortion"]["dist"].cameras[0].grid.spec.label == "poly(4,4)"
     _shot(w, "3_distortion")
     # object frames: the first try is cancelled, going back is instant, then it runs again

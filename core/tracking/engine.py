@@ -43,21 +43,23 @@ uncertainty as it does for the quadratic-model search's fit.
 Speed design
 ------------
 :class:`GaussNewtonCost` keeps its device buffers, the DRR output buffer (a fixed output size,
-:meth:`core.render.DRRRenderer.render` ``out_shape``, the ROIs' size rounded up to 32 pixels)
-and, on CUDA, one graph of the metric pipeline (2 blur passes, scores, moments, copies to pinned
-host memory) from frame to frame. At full resolution :meth:`~GaussNewtonCost.set_frame` uploads
-each view's region of the fluence as it is (grown by the usable-pixel mask's erosion) and
+the ROIs' size rounded up to 32 pixels) and, on CUDA, one graph per batch size from frame to
+frame: the copy of the parameter rows from pinned memory, their DRR item table computed on the
+device (:mod:`core.tracking.engine_render`), the DRR launch, the metric (2 blur passes, scores,
+moments) and the copies of the results to pinned host memory — a step is one graph launch and
+one synchronisation, its host part the 6 × 6 arithmetic. At full resolution
+:meth:`~GaussNewtonCost.set_frame` uploads each view's region of the fluence as it is (grown by
+the usable-pixel mask's erosion) and
 :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` computes the line integrals, the eroded
 mask and their statistics on the device (the same values as
-:meth:`core.tracking.cost.FrameImages.region`; the regions stay on the device for the next round
-of joint tracking in the same frame); at a pyramid level the host prepares them
-(:func:`~core.tracking.engine_frames.pyramid_rois`). Smoothing and
-gradients run on the device. The engine fills the DRR item table of its own (rigid) poses itself
-and launches the renderer's recorded launch. :func:`engine_cost` caches one per (renderer, bone,
-views, scale, terms). A step is one DRR launch, one graph launch and one synchronisation; a
-frame's set-up none of its own (the usable pixels counted on the device are checked at the first
-step's synchronisation), its launches recorded once, and the same set-up again (restarts) is
-kept. :meth:`~GaussNewtonCost.submit` and :meth:`~GaussNewtonCost.collect` split an evaluation
+:meth:`core.tracking.cost.FrameImages.region`); they stay there, and the same regions of the same
+frame again (the next round of joint tracking, which subtracts the neighbours at new poses) are
+neither uploaded nor prepared again. At a pyramid level the host prepares them
+(:func:`~core.tracking.engine_frames.pyramid_rois`). Smoothing and gradients run on the device.
+:func:`engine_cost` caches one per (renderer, bone, views, scale, terms). A frame's set-up has no
+wait of its own (the usable pixels counted on the device are checked at the first step's
+synchronisation), its launches recorded once, and the same set-up again (restarts) is kept.
+:meth:`~GaussNewtonCost.submit` and :meth:`~GaussNewtonCost.collect` split an evaluation
 from its wait, so several bones' steps (:mod:`core.tracking.joint`), or several searches of one
 bone on :meth:`~GaussNewtonCost.sibling` costs, are in flight together. Kernels:
 :mod:`core.tracking.engine_kernels`; the metric pipeline: :mod:`core.tracking.engine_pipeline`;
@@ -68,6 +70,7 @@ the device preparation of the regions:
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 import weakref
@@ -77,16 +80,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from ..render._kernels import ITEM_COLS
 from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
-from .engine_frames import pyramid_rois, stage, staged_shapes
+from .engine_frames import host_stage, pyramid_rois, stage, staged_shapes
 from .engine_kernels import (
     N_POSES,
     fluoro_gradient_kernel,
     subtract_kernel,
 )
 from .engine_pipeline import _Pipeline
+from .engine_render import DeviceRender, host_poses, render_items
 from .engine_search import (
     GaussNewtonFit,
     GaussNewtonStep,
@@ -105,32 +108,13 @@ _OPTIONS = ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm", "thr
             "components")
 _N = N_POSES  # poses per step: the centre and ±h_k e_k
 
-def _poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
-    """:func:`core.geometry.transforms.pose_from_params` of ``(mm, degrees)`` rows ``X``."""
-    r = np.radians(X[:, 3:])
-    th = np.linalg.norm(r, axis=1)
-    small = th < 1e-8
-    k = r / np.where(small, 1.0, th)[:, None]
-    Kx = np.zeros((len(X), 3, 3))
-    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    Kx[:, 1, 0], Kx[:, 2, 0], Kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
-    s, c = np.sin(th)[:, None, None], (1.0 - np.cos(th))[:, None, None]
-    Rd = np.eye(3) + s * Kx + c * (Kx @ Kx)
-    Rd[small] = np.eye(3)
-    Rb, tb = base[:3, :3], base[:3, 3]
-    c_lab = Rb @ center + tb
-    R = Rd @ Rb
-    out = np.zeros((len(X), 4, 4))
-    out[:, :3, :3] = R
-    out[:, :3, 3] = c_lab + X[:, :3] - R @ center
-    out[:, 3, 3] = 1.0
-    return out
-
-
 #: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`GaussNewtonCost._allocate`):
 #: over the 100-frame walking trial at 1024² the tracking frames' search regions take 2-4 sizes per
 #: bone (32-pixel steps), the first frame and its restarts two more.
 _BUFFER_SETS = 6
+
+
+_SERIAL = itertools.count()
 
 
 @dataclass(eq=False)
@@ -139,6 +123,7 @@ class _Buffers:
     (its own by batch size, and its siblings') and the host preparation's pinned buffers."""
 
     cap: tuple
+    raw0: object
     raw: object
     ftmp: object
     fluoro: object
@@ -146,6 +131,7 @@ class _Buffers:
     fmask: object
     blur: object
     blur_taps: object
+    serial: int = field(default_factory=lambda: next(_SERIAL))  # which buffers (stage)
     pipes: dict = field(default_factory=dict)
     sibling_pipes: dict = field(default_factory=dict)
     host_raw_wp: object = None
@@ -174,7 +160,7 @@ class GaussNewtonCost:
     """
 
     def __init__(self, renderer, *, bone: int, views: Sequence[int], scale: float = 1.0,
-                 term: MetricTerm, block_dim: int = 128, chunk: int = 4096) -> None:
+                 term: MetricTerm, block_dim: int = 128, chunk: int | None = None) -> None:
         if term.kind not in ENGINE_KINDS:
             raise ValueError(f"term: the Gauss-Newton engine handles {ENGINE_KINDS}, got {term.kind!r}")
         bad = set(term.options) - set(_OPTIONS)
@@ -202,7 +188,10 @@ class GaussNewtonCost:
         self._ku_np, self._kv_np = ku, kv
         self._ku = wp.mat33f(*ku.astype(np.float32).ravel())
         self._kv = wp.mat33f(*kv.astype(np.float32).ravel())
-        self.block_dim, self.chunk = int(block_dim), int(chunk)
+        # pixels per block of the statistics and moments passes: on the H100, 1024 (2-4 times the
+        # blocks of 4096) took the talus' moments pass from 0.19 to 0.09 ms per 13-pose step
+        self.block_dim = int(block_dim)
+        self.chunk = int(chunk) if chunk is not None else (1024 if renderer.device.is_cuda else 4096)
         self.timer = CostTimer()
         self.profile = False  # synchronise after each render (time DRR and metric apart)
         self.batches: dict[int, int] = {}  # launches per batch size since the timer was reset
@@ -230,6 +219,9 @@ class GaussNewtonCost:
         self._count = wp.zeros(nv, dtype=wp.int32, device=dev)
         self._host_count = wp.zeros(nv, dtype=wp.int32, device="cpu", pinned=pinned)
         self._stage_src = None
+        self._stage_done = None  # (the frame, the inputs) of the regions and statistics on the device (stage)
+        self._stage_checked = False  # their usable pixels counted and found
+        self._pinned: dict = {}  # pinned buffers of small uploads (_put)
         self._tables: dict = {}  # DRR item tables per (batch, bones) (_render)
         self._staged_last = None  # (the frame, its regions) now on the device
         self.device_frames = True  # full-resolution ROIs prepared on the device (set_frame)
@@ -240,6 +232,8 @@ class GaussNewtonCost:
         self._cmds: dict = {}  # recorded launches of the frame preparation (_launch)
         self._hw_last = self._info_last = None  # the ROI sizes and staging geometry on the device
         self._siblings: dict = {}  # costs sharing this one's prepared regions (sibling)
+        # CUDA: the poses' item tables on the device, each step one graph (engine_render)
+        self._dev_render = DeviceRender(self) if dev.is_cuda else None
         self.base = self.center = self.roi = None
 
     @property
@@ -273,6 +267,8 @@ class GaussNewtonCost:
         self._prepared = None
         if self._unsynced and self.device.is_cuda:  # the last preparation's copies from pinned memory
             wp.synchronize_device(self.device)
+        if self._dev_render is not None:
+            self._dev_render.upload(self.base, self.center, self.roi)
         px_mm = self.scale * mm_per_pixel(self.renderer, self.base, self.center, self.views)
         taps, ftaps = self._taps(px_mm)
         staged = staged_shapes(self, frame) if self.device_frames else None
@@ -294,7 +290,7 @@ class GaussNewtonCost:
         if new != self._cap or not same_taps:
             self._allocate(new, taps)
         if taps is not None and not np.array_equal(taps, self._blur_taps):
-            self._blur.assign(taps)
+            self._put("blur", self._blur, taps)
         self._blur_taps = self._bufs.blur_taps = taps
         Hc, Wc = self._cap
         nv = self.n_views
@@ -305,51 +301,33 @@ class GaussNewtonCost:
             wp.copy(self._ref_hw, self._host_hw)
             self._hw_last = hw_now
         if staged is None:
-            if self._host_raw_wp is None:
-                pinned = dev.is_cuda
-                self._host_raw_wp = wp.zeros((nv, Hc, Wc), dtype=wp.float32, device="cpu", pinned=pinned)
-                self._host_mask_wp = wp.zeros((nv, Hc, Wc), dtype=wp.uint8, device="cpu", pinned=pinned)
-            raw, fm = self._host_raw_wp.numpy(), self._host_mask_wp.numpy()
-            shift = np.zeros(nv, np.float32)
-            fmax = np.zeros(nv, np.float32)
-            for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
-                h, w = f.shape
-                raw[i, :h, :w] = f
-                raw[i, h:] = 0.0
-                raw[i, :h, w:] = 0.0
-                fm[i, :h, :w] = m
-                fm[i, h:] = 0
-                fm[i, :h, w:] = 0
-                if self.mode == 0:  # the intensities' mean (the Pearson scores do not depend on it)
-                    shift[i] = float(f[m].mean()) if m.any() else 0.0
-                fmax[i] = max(float(f.max()), -float(f.min()))
-            wp.copy(self._raw, self._host_raw_wp)
-            wp.copy(self._fmask, self._host_mask_wp)
-            self._fshift.assign(shift)
-            self._fmax.assign(fmax)
+            host_stage(self, rois, masks)
+            ran = False
         else:
-            stage(self, frame, staged)
+            ran = stage(self, frame, staged)
+        src = self._raw0  # the regions' line integrals as prepared
         if others is not None and len(others[1]):  # subtracted on the device, at the fixed output size
             nb = len(others[1])
             images = self._render(np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1]))
-            self._launch("subtract", subtract_kernel, (nv, Hc, Wc), [images, nb, self._raw])
+            self._launch("subtract", subtract_kernel, (nv, Hc, Wc), [self._raw0, images, nb, self._raw])
+            src = self._raw
         if ftaps is not None:
             if self._fblur is None or len(self._fblur) != len(ftaps):
                 self._fblur = wp.array(ftaps, dtype=wp.float32, device=dev)
                 self._fblur_taps = ftaps
             elif not np.array_equal(ftaps, self._fblur_taps):
-                self._fblur.assign(ftaps)
+                self._put("fblur", self._fblur, ftaps)
                 self._fblur_taps = ftaps
-            for src, dst, axis in ((self._raw, self._ftmp, 1), (self._ftmp, self._fluoro, 0)):
+            for a, dst, axis in ((src, self._ftmp, 1), (self._ftmp, self._fluoro, 0)):
                 self._launch(f"blur{axis}", K.blur_kernel, (nv, Hc, Wc),
-                             [src, dst, self._fblur, self._ref_hw, nv, axis])
+                             [a, dst, self._fblur, self._ref_hw, nv, axis])
         else:
-            wp.copy(self._fluoro, self._raw)
+            wp.copy(self._fluoro, src)
         self._launch("gradient", fluoro_gradient_kernel, (nv, Hc, Wc),
                      [self._fluoro, self._ref_hw, self._fmax, self._ku, self._kv, self._fgrad])
         # the usable pixels counted on the device are checked at the first evaluation's
         # synchronisation (no wait of its own)
-        self._count_pending = staged is not None
+        self._count_pending = ran
         self._prepared = (weakref.ref(frame), key)
         self._unsynced = True
         self.timer.host += time.perf_counter() - t0
@@ -367,6 +345,16 @@ class GaussNewtonCost:
             self._cmds[key] = cmd
         cmd.launch()
 
+    def _put(self, name: str, dst: wp.array, values: np.ndarray) -> None:
+        """Copy ``values`` into the device array ``dst`` through a pinned buffer of this cost's
+        (no allocation; :meth:`set_frame` synchronises before it writes a pinned buffer again)."""
+        buf = self._pinned.get(name)
+        if buf is None or buf.shape != dst.shape:
+            buf = self._pinned[name] = wp.zeros(dst.shape, dtype=dst.dtype, device="cpu",
+                                                pinned=self.device.is_cuda)
+        buf.numpy()[:] = values
+        wp.copy(dst, buf)
+
     def _check_count(self) -> None:
         """Raise OutsideViewError when the device preparation found no usable pixel in a view
         (its count copied to the host before the last synchronisation)."""
@@ -374,8 +362,10 @@ class GaussNewtonCost:
         for i, n in enumerate(self._host_count.numpy()):
             if n <= 0:
                 self._prepared = None
+                self._stage_done = None
                 raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view "
                                        f"{self.views[i]}")
+        self._stage_checked = True  # the regions now on the device may be kept (stage)
 
     def _taps(self, px_mm: float):
         """The DRR and fluoroscope blur taps at this pixel size (kept for the next frames)."""
@@ -407,7 +397,8 @@ class GaussNewtonCost:
             dev = self.device
             nv = self.n_views
             b = _Buffers(
-                cap=cap, raw=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                cap=cap, raw0=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                raw=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
                 ftmp=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
                 fluoro=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
                 fgrad=wp.zeros((nv, *cap), dtype=wp.vec2f, device=dev),
@@ -420,7 +411,7 @@ class GaussNewtonCost:
         self._bufs = b
         self._cap = cap
         self._host_raw_wp, self._host_mask_wp = b.host_raw_wp, b.host_mask_wp  # the host preparation's
-        self._raw, self._ftmp, self._fluoro = b.raw, b.ftmp, b.fluoro
+        self._raw0, self._raw, self._ftmp, self._fluoro = b.raw0, b.raw, b.ftmp, b.fluoro
         self._fgrad, self._fmask = b.fgrad, b.fmask
         self._blur, self._blur_taps = b.blur, b.blur_taps
         self._pipes = b.pipes
@@ -458,59 +449,41 @@ class GaussNewtonCost:
         :func:`core.geometry.transforms.pose_from_params` (Rodrigues' formula here, without its
         checks: the optimiser's own parameters)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
-        return _poses(X, self.base, self.center)
+        return host_poses(X, self.base, self.center)
 
     # ------------------------------------------------------------------ evaluation
-    def _render(self, P: np.ndarray, bones: tuple) -> wp.array:
-        """The DRRs of ``bones`` at poses ``P (B, n_bones, 4, 4)`` in this cost's views and ROIs
-        at its output size: the images of :meth:`core.render.DRRRenderer.render` (item
-        ``(b · n_views + v) · n_bones + n``), its item table filled here without the checks of
-        poses the engine made rigid itself (the inverse in closed form), one launch."""
-        r = self.renderer
-        B, nb = P.shape[:2]
-        nv = self.n_views
-        key = (B, bones)
-        hit = self._tables.get(key)
-        if hit is None:
-            table = np.zeros((B, nv, nb, ITEM_COLS), dtype=np.float32)
-            table[..., 0] = np.array(self.views, dtype=np.float32)[None, :, None]
-            table[..., 1] = np.array(bones, dtype=np.float32)[None, None, :]
-            if len(self._tables) >= 8:
-                self._tables.pop(next(iter(self._tables)))
-            # the table, the bones' index-from-physical transforms, the sources, the ROIs filled in
-            hit = self._tables[key] = [table, r._T_idx[list(bones)], r._src_h[list(self.views)], None]
-        table, T, S, roi_in = hit
-        # index-from-physical ∘ inverse pose, the inverse in closed form: rotation M, translation tt
-        M = T[:, :3, :3] @ np.swapaxes(P[..., :3, :3], -1, -2)  # (B, nb, 3, 3)
-        tt = T[:, :3, 3] - (M @ P[..., :3, 3:4])[..., 0]
-        table[..., 2:5] = (M @ S[:, :3].T).transpose(0, 3, 1, 2) + tt[:, None] * S[None, :, None, 3:4]
-        table[..., 5:14] = M.reshape(B, 1, nb, 9)
-        if roi_in is None or not np.array_equal(roi_in, self.roi):
-            table[..., 14:18] = self.roi[None, :, None, :]
-            hit[3] = self.roi.copy()
-        Hc, Wc = self._cap
-        H = max(Hc, math.ceil(int(self.roi[:, 3].max()) / self.scale))
-        W = max(Wc, math.ceil(int(self.roi[:, 2].max()) / self.scale))
-        return r._launch(table.reshape(B * nv * nb, ITEM_COLS), H, W, self.scale)
+    _render = render_items  # the DRRs of given poses (the neighbours subtracted; the CPU's steps)
 
     def submit(self, X: np.ndarray) -> None:
         """Enqueue the evaluation of parameter rows ``X (B, 6)`` (one DRR launch, one metric
-        graph) without waiting for it: :meth:`collect` gives its results once the device has
-        synchronised (:mod:`core.tracking.joint` submits several bones' steps, then waits once)."""
+        graph; on CUDA one graph for both, the poses' table computed on the device) without
+        waiting for it: :meth:`collect` gives its results once the device has synchronised
+        (:mod:`core.tracking.joint` submits several bones' steps, then waits once)."""
         if self._cap is None:
             raise RuntimeError("set_frame: no frame set")
         t0 = time.perf_counter()
-        P = self.poses(X)
-        t1 = time.perf_counter()
-        images = self._render(P[:, None], (self.bone,))
-        if self.profile:
-            wp.synchronize_device(self.device)
-        t2 = time.perf_counter()
-        B = len(P)
+        B = len(X)
         pipe = self._pipes.get(B)
-        if pipe is None or pipe.images.ptr != images.ptr:
-            pipe = self._pipes[B] = _Pipeline(self, images, B)
-        pipe.launch()
+        if self._dev_render is not None:
+            if pipe is None:
+                pipe = self._pipes[B] = _Pipeline(self, None, B, render=self._dev_render)
+            pipe.x_np[:] = X
+            t1 = t2 = time.perf_counter()
+            if self.profile:  # the DRRs timed apart
+                pipe.enqueue_render()
+                wp.synchronize_device(self.device)
+                t2 = time.perf_counter()
+                pipe.enqueue_metric()
+            else:
+                pipe.launch()
+        else:
+            P = self.poses(X)
+            t1 = time.perf_counter()
+            images = self._render(P[:, None], (self.bone,))
+            t2 = time.perf_counter()
+            if pipe is None or pipe.images.ptr != images.ptr:
+                pipe = self._pipes[B] = _Pipeline(self, images, B)
+            pipe.launch()
         self._pending = (pipe, B)
         tm = self.timer
         tm.host += t1 - t0
@@ -531,8 +504,11 @@ class GaussNewtonCost:
         tm.calls += 1
         tm.evaluations += B
         self.batches[B] = self.batches.get(B, 0) + 1
-        scores = np.nan_to_num(out[:B].astype(np.float64), nan=-1.0)
-        views = np.nan_to_num(out[B:].astype(np.float64).reshape(B, self.n_views), nan=-1.0)
+        out = out.astype(np.float64)
+        if not np.isfinite(out).all():
+            out = np.nan_to_num(out, nan=-1.0)
+        scores = out[:B]
+        views = out[B:].reshape(B, self.n_views)
         tm.metric += time.perf_counter() - t0
         return 1.0 - scores, views, gn
 

@@ -8,7 +8,11 @@
 * :func:`fluoro_gradient_kernel` — the 3 × 3 gradient of the smoothed fluoroscope regions;
 * :func:`fluoro_roi_kernel`, :func:`fluoro_shift_kernel` — the device preparation of the
   full-resolution fluoroscope regions (line integrals, usable pixels, their statistics) from
-  the fluence uploaded as it is.
+  the fluence uploaded as it is;
+* :func:`pose_table_kernel` — the DRR item table of the engine's poses from their parameters
+  (the arithmetic of :func:`core.tracking.engine_render.host_poses` and
+  :func:`~core.tracking.engine_render.render_items`, in float64), so that a step's poses, DRRs
+  and metric are one CUDA graph.
 """
 
 from __future__ import annotations
@@ -17,8 +21,8 @@ import warp as wp
 
 from ..similarity import _kernels as K
 
-__all__ = ["LI_FLOOR", "N_POSES", "fluoro_gradient_kernel", "fluoro_roi_kernel", "fluoro_shift_kernel",
-           "moments_kernel", "subtract_kernel"]
+__all__ = ["GEO_LEN", "LI_FLOOR", "N_POSES", "fluoro_gradient_kernel", "fluoro_roi_kernel",
+           "fluoro_shift_kernel", "moments_kernel", "pose_table_kernel", "subtract_kernel"]
 
 N_POSES = 13  # poses per step: the centre and ±h_k e_k
 
@@ -87,13 +91,15 @@ def moments_kernel(drr: wp.array3d(dtype=wp.float32), fluoro: wp.array3d(dtype=w
 
 
 @wp.kernel
-def subtract_kernel(drr: wp.array3d(dtype=wp.float32), n_bones: int, out: wp.array3d(dtype=wp.float32)):
-    """out[v] -= Σ_n drr[v · n_bones + n] (one pose's items, ordered view, bone). dim = (views, H, W)."""
+def subtract_kernel(src: wp.array3d(dtype=wp.float32), drr: wp.array3d(dtype=wp.float32), n_bones: int,
+                    out: wp.array3d(dtype=wp.float32)):
+    """out[v] = src[v] - Σ_n drr[v · n_bones + n] (one pose's items, ordered view, bone).
+    dim = (views, H, W)."""
     v, r, c = wp.tid()
     acc = float(0.0)  # noqa: UP018
     for n in range(n_bones):
         acc += K._val(drr, v * n_bones + n, r, c)
-    out[v, r, c] = out[v, r, c] - acc
+    out[v, r, c] = src[v, r, c] - acc
 
 
 @wp.kernel
@@ -201,3 +207,53 @@ def fluoro_shift_kernel(msum: wp.array2d(dtype=wp.float64), mode: int, fshift: w
         m = float(msum[v, 1] / n)
     fshift[v] = m
     count[v] = int(n)
+
+
+GEO_LEN = 27  # pose_table_kernel's geometry: base rotation (9), translation (3), centre (3), index rows (12)
+_DEG = wp.constant(wp.float64(0.017453292519943295))  # numpy.radians' factor, pi / 180
+
+
+@wp.kernel
+def pose_table_kernel(X: wp.array2d(dtype=wp.float64), geo: wp.array(dtype=wp.float64),
+                      src: wp.array2d(dtype=wp.float64), roi: wp.array2d(dtype=wp.int32),
+                      view_ids: wp.array(dtype=wp.int32), bone: int, items: wp.array2d(dtype=wp.float32)):
+    """Row ``b · n_views + v`` of the DRR item table (:data:`core.render._kernels.ITEM_COLS`
+    columns: view, bone, the source in index coordinates, index-from-physical ∘ inverse pose,
+    the ROI) of pose ``b``: ``x = X[b]`` (mm, degrees about the centre, relative to the base
+    pose; Rodrigues' formula) in view ``v`` (``src[v]``: its homogeneous source). ``geo``: the base
+    pose's rotation (row-major) and translation, the centre, the bone's index-from-physical rows
+    (3 × 4, row-major). dim = (poses, views)."""
+    b, v = wp.tid()
+    nv = src.shape[0]
+    r0 = X[b, 3] * _DEG
+    r1 = X[b, 4] * _DEG
+    r2 = X[b, 5] * _DEG
+    th = wp.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    one = wp.float64(1.0)
+    zero = wp.float64(0.0)
+    Rd = wp.mat33d(one, zero, zero, zero, one, zero, zero, zero, one)
+    if th >= wp.float64(1.0e-8):
+        k0 = r0 / th
+        k1 = r1 / th
+        k2 = r2 / th
+        Kx = wp.mat33d(zero, -k2, k1, k2, zero, -k0, -k1, k0, zero)
+        Rd = Rd + wp.sin(th) * Kx + (one - wp.cos(th)) * (Kx @ Kx)
+    Rb = wp.mat33d(geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6], geo[7], geo[8])
+    tb = wp.vec3d(geo[9], geo[10], geo[11])
+    ce = wp.vec3d(geo[12], geo[13], geo[14])
+    R = Rd @ Rb
+    t = (Rb @ ce + tb) + wp.vec3d(X[b, 0], X[b, 1], X[b, 2]) - R @ ce
+    T = wp.mat33d(geo[15], geo[16], geo[17], geo[19], geo[20], geo[21], geo[23], geo[24], geo[25])
+    Tt = wp.vec3d(geo[18], geo[22], geo[26])
+    M = T @ wp.transpose(R)
+    tt = Tt - M @ t
+    p = M @ wp.vec3d(src[v, 0], src[v, 1], src[v, 2]) + tt * src[v, 3]
+    i = b * nv + v
+    items[i, 0] = wp.float32(view_ids[v])
+    items[i, 1] = wp.float32(bone)
+    for a in range(3):
+        items[i, 2 + a] = wp.float32(p[a])
+        for c in range(3):
+            items[i, 5 + 3 * a + c] = wp.float32(M[a, c])
+    for a in range(4):
+        items[i, 14 + a] = wp.float32(roi[v, a])

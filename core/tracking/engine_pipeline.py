@@ -3,7 +3,9 @@
 its device buffers and the recorded launches of the metric — two blur passes, per-item
 statistics, the scores, the Gauss–Newton moments and the copies to (pinned) host memory —
 replayed as one CUDA graph on the GPU, split over threads on the CPU
-(:mod:`core.tracking.cpu_threads`)."""
+(:mod:`core.tracking.cpu_threads`). With ``render`` (a CUDA device,
+:class:`core.tracking.engine_render.DeviceRender`) the pipeline renders its own DRRs: the copy of
+the parameter rows, the item table and the DRR launch come first in the same graph."""
 
 from __future__ import annotations
 
@@ -25,10 +27,16 @@ class _Pipeline(RecordedWork):
     poses × views items of a fixed size) of the engine ``c`` (a
     :class:`~core.tracking.engine.GaussNewtonCost`); a CUDA graph on the GPU."""
 
-    def __init__(self, c, images: wp.array, n_poses: int) -> None:
+    def __init__(self, c, images: wp.array | None, n_poses: int, render=None) -> None:
         dev = c.device
-        n, H, W = images.shape
         nv = c.n_views
+        self.x_host = self.x_dev = None
+        self.render: list = []
+        if render is not None:  # the poses' item table and the DRRs in the graph too
+            Hc, Wc = c._cap
+            self.x_host, self.x_dev, images, self.render = render.record(c, n_poses, Hc, Wc)
+            self.x_np = self.x_host.numpy()
+        n, H, W = images.shape
         self.images = images
         self.stats = wp.zeros((n, 6), dtype=wp.float64, device=dev)
         self.extra = wp.zeros((n, 6), dtype=wp.float64, device=dev)
@@ -76,8 +84,24 @@ class _Pipeline(RecordedWork):
         self.copies = [(self.host_out, self.out)] + ([(self.host_gn, self.gn)] if self.gn is not None else [])
         self.capture(dev)
 
+    def _enqueue(self) -> None:
+        if self.render:
+            self.enqueue_render()
+        super()._enqueue()
+
+    def enqueue_render(self) -> None:
+        """Enqueue the copy of the parameter rows (:attr:`x_np`), the item table and the DRRs."""
+        wp.copy(self.x_dev, self.x_host)
+        for cmd in self.render:
+            cmd.launch()
+
+    def enqueue_metric(self) -> None:
+        """Enqueue the metric alone, launch by launch (after :meth:`enqueue_render`: the DRR and
+        metric times apart)."""
+        super()._enqueue()
+
     def launch(self) -> None:
-        """Enqueue the metric (its results are on the host after the next synchronisation)."""
+        """Enqueue the work (its results are on the host after the next synchronisation)."""
         self.replay()
 
     def fetch(self) -> tuple[np.ndarray, np.ndarray | None]:

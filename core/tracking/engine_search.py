@@ -57,35 +57,50 @@ def step_design(x, h) -> np.ndarray:
     return X
 
 
+_SCALES: dict = {}  # h -> the outer product of the moments' scales (moments_to_newton)
+
+
+def _scale2(h: np.ndarray) -> np.ndarray:
+    key = h.tobytes()
+    s2 = _SCALES.get(key)
+    if s2 is None:
+        sc = np.concatenate([np.ones(3), 1.0 / (2 * h)])  # z -> (1, a, b, D_1..D_6)
+        if len(_SCALES) >= 64:
+            _SCALES.clear()
+        s2 = _SCALES[key] = np.outer(sc, sc)
+    return s2
+
+
 def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(r (n_views,), g (6,), H (6, 6))`` from the moment matrices ``M (n_views, 9, 9)`` of
     :func:`~core.tracking.engine_kernels.moments_kernel` and the half-steps ``h (6,)``: each
     view's correlation, and the gradient and Gauss–Newton Hessian of the cost
     ``Σ_v w_v (1 - r_v)`` (``weights`` default equal, normalised) in x units (see the module
     docs of :mod:`core.tracking.engine`). A view without contrast in Ω
-    contributes r = 0 and nothing to g and H."""
+    contributes r = 0 and nothing to g and H. (The views' centred sums in one pass; the same
+    arithmetic, element by element, as one view at a time.)"""
     M = np.asarray(M, dtype=np.float64).reshape(-1, 9, 9)
     h = np.asarray(h, dtype=float)
     nv = len(M)
-    w = np.full(nv, 1.0 / nv) if weights is None else np.asarray(weights, float) / np.sum(weights)
+    w = [1.0 / nv] * nv if weights is None else list(np.asarray(weights, float) / np.sum(weights))
     r_out = np.zeros(nv)
     g = np.zeros(6)
     H = np.zeros((6, 6))
-    scale = np.r_[1.0, 1.0, 1.0, 1.0 / (2 * h)]  # z -> (1, a, b, D_1..D_6)
+    n = M[:, 0, 0]
+    ok = n >= 2
+    m = M[:, 0] / np.where(ok, n, 1.0)[:, None]
+    # centred sums of (., a, b, D): S - n m mᵀ, scaled
+    C = (M - n[:, None, None] * (m[:, :, None] * m[:, None, :])) * _scale2(h)
+    caa, cbb, cab = C[:, 1, 1], C[:, 2, 2], C[:, 1, 2]
+    ok &= (caa > 0) & (cbb > 0)
     for v in range(nv):
-        S = M[v]
-        n = S[0, 0]
-        if n < 2:
+        if not ok[v]:
             continue
-        m = S[0] / n
-        C = (S - n * np.outer(m, m)) * np.outer(scale, scale)  # centred sums of (., a, b, D)
-        caa, cbb, cab = C[1, 1], C[2, 2], C[1, 2]
-        if caa <= 0 or cbb <= 0:
-            continue
-        r = cab / math.sqrt(caa * cbb)
-        cad, cbd, cdd = C[1, 3:], C[2, 3:], C[3:, 3:]
-        dr = cad / math.sqrt(caa * cbb) - r * cbd / cbb
-        jtj = (cdd - np.outer(cbd, cbd) / cbb) / cbb
+        sq = math.sqrt(caa[v] * cbb[v])
+        r = cab[v] / sq
+        cbd = C[v, 2, 3:]
+        dr = C[v, 1, 3:] / sq - r * cbd / cbb[v]
+        jtj = (C[v, 3:, 3:] - np.outer(cbd, cbd) / cbb[v]) / cbb[v]
         r_out[v] = r
         g -= w[v] * dr
         H += w[v] * max(r, 0.05) * jtj
@@ -93,6 +108,9 @@ def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 _TRACE: list | None = None
+
+
+_DIAG = np.diag_indices(6)
 
 
 class LevenbergMarquardt:
@@ -103,17 +121,19 @@ class LevenbergMarquardt:
         self.t_start = time.perf_counter()
         self.lo = np.asarray(lower, dtype=float)
         self.hi = np.asarray(upper, dtype=float)
-        self.h = np.broadcast_to(np.asarray(step, dtype=float), (6,)).copy()
-        tr = 8.0 * self.h if trust is None else np.broadcast_to(np.asarray(trust, dtype=float), (6,))
-        self.tr = np.array(tr, dtype=float)
-        if np.any(self.h <= 0) or np.any(self.tr <= 0):
+        self.h = np.array(np.broadcast_to(np.asarray(step, dtype=float), (6,)))
+        self.tr = (8.0 * self.h if trust is None
+                   else np.array(np.broadcast_to(np.asarray(trust, dtype=float), (6,))))
+        if not (self.h.min() > 0 and self.tr.min() > 0):
             raise ValueError(f"step, trust: expected positive (mm, degrees) values, got {step!r}, {trust!r}")
         self.x0 = np.asarray(x0, dtype=float)
         # keep the design inside the box
-        self.x = np.clip(self.x0, self.lo + self.h, self.hi - self.h)
+        self._lo_in, self._hi_in = self.lo + self.h, self.hi - self.h
+        self.x = np.clip(self.x0, self._lo_in, self._hi_in)
         self.tol_x, self.tol_noise = float(tol_x), float(tol_noise)
         self.max_generations = int(max_generations)
         self.best = None  # the accepted step
+        self._coef = None  # the accepted step's fitted (c0, g) with its roughness (_residuals)
         self.evals = self.gens = 0
         self.reason = "max_generations"
         self.final_x = None
@@ -123,13 +143,15 @@ class LevenbergMarquardt:
         self.done = False
 
     def _solve(self, s, lam_: float) -> np.ndarray:
-        Hs = self.alpha * s.H
-        D = np.diag(np.maximum(np.diag(Hs), 1e-12))
+        A = self.alpha * s.H
+        # (αH + λ diag(max(diag αH, 1e-12))): the damping on the diagonal alone
+        dg = np.maximum(A.diagonal(), 1e-12)
+        A[_DIAG] += lam_ * dg
         try:
-            d = np.linalg.solve(Hs + lam_ * D, -s.g)
+            d = np.linalg.solve(A, -s.g)
         except np.linalg.LinAlgError:
-            d = -s.g / np.diag(D)
-        u = np.max(np.abs(d) / self.tr)
+            d = -s.g / dg
+        u = (np.abs(d) / self.tr).max()
         return d / u if u > 1 else d
 
     def ask(self, cancel: Callable[[], bool] | None = None) -> np.ndarray | None:
@@ -147,38 +169,40 @@ class LevenbergMarquardt:
 
     def tell(self, s) -> None:
         """Take the step evaluated at the centre :meth:`ask` gave."""
-        lo, hi, h = self.lo, self.hi, self.h
+        h = self.h
         self.evals += _N
         self.gens += 1
         if _TRACE is not None:
             _TRACE.append(("eval", s.x.copy(), s.cost))
         best = self.best
-        if best is not None and not s.cost <= best.cost + max(self.noise, 1e-7):
+        cost = s.cost
+        if best is not None and not cost <= best.cost + max(self.noise, 1e-7):
             # worse: a shorter, more gradient-like step from the accepted centre
             self.lam = max(10.0 * self.lam, 0.5)
             if self.lam > 1e4:
                 self.reason, self.done = "stalled", True
                 return
             d = self._solve(best, self.lam)
-            self.x = np.clip(best.x + d, lo + h, hi - h)
+            self.x = np.clip(best.x + d, self._lo_in, self._hi_in)
             return
         if best is not None:  # secant: the gradient's change along the step against the model's
             dx = s.x - best.x
             den = float(dx @ best.H @ dx)
             num = float((s.g - best.g) @ dx)
-            if den > 0 and num > 0 and np.all(np.abs(dx) <= 4 * h):  # a short step: near quadratic
-                self.alpha = float(np.clip(num / den, 0.5, 1.5))
+            if den > 0 and num > 0 and (np.abs(dx) <= 4 * h).all():  # a short step: near quadratic
+                self.alpha = float(min(max(num / den, 0.5), 1.5))
         self.best = s
-        self.noise = _roughness(s, self.alpha)
+        self._coef, res = _residuals(s, self.alpha)
+        self.noise = float(np.sqrt(res @ res / 6.0))
         self.lam = max(self.lam / 10.0, 1e-7)
         d = self._solve(s, self.lam)
         if _TRACE is not None:
             _TRACE.append((s.x.copy(), s.cost, self.noise, d.copy(), self.alpha))
-        if np.all(np.abs(d) < self.tol_x) or 0.5 * self.alpha * d @ s.H @ d < self.tol_noise * self.noise:
+        if (np.abs(d) < self.tol_x).all() or 0.5 * self.alpha * d @ s.H @ d < self.tol_noise * self.noise:
             self.reason, self.done = "tol_x", True
-            self.final_x = np.clip(s.x + d, lo, hi)
+            self.final_x = np.clip(s.x + d, self.lo, self.hi)
             return
-        self.x = np.clip(s.x + d, lo + h, hi - h)
+        self.x = np.clip(s.x + d, self._lo_in, self._hi_in)
 
     def result(self) -> OptimizeResult:
         """The outcome once :meth:`ask` has returned None."""
@@ -187,7 +211,7 @@ class LevenbergMarquardt:
             return OptimizeResult(self.x0.copy(), float("inf"), self.evals, self.gens, t, False, self.reason,
                                   "gauss_newton", None)
         final_x = self.best.x if self.final_x is None else self.final_x
-        fit = _fit(self.best, self.noise, self.alpha)
+        fit = _fit(self.best, self.noise, self.alpha, self._coef)
         fun = fit.predict(final_x - self.best.x)
         return OptimizeResult(final_x, float(fun), self.evals, self.gens, t, self.reason == "tol_x",
                               self.reason, "gauss_newton", fit)
@@ -222,15 +246,20 @@ def _residuals(s: GaussNewtonStep, alpha: float = 1.0) -> tuple[np.ndarray, np.n
     residuals. The design's columns (1, ±h_k at rows 2k+1, 2k+2) are orthogonal: the fit is
     the mean and the central differences, in closed form."""
     h = np.asarray(s.h, dtype=float)
-    q = np.zeros(_N)
-    q[1:] = np.repeat(0.5 * alpha * h * h * np.diag(s.H), 2)
-    y = np.asarray(s.costs, dtype=float) - q
-    c0 = y.mean()
+    q = 0.5 * alpha * h * h * s.H.diagonal()
+    y = np.array(s.costs, dtype=float)
+    y[1::2] -= q
+    y[2::2] -= q
+    c0 = np.add.reduce(y) / _N  # the mean
     g = (y[1::2] - y[2::2]) / (2.0 * h)
-    fitted = np.full(_N, c0)
-    fitted[1::2] += h * g
-    fitted[2::2] -= h * g
-    return np.r_[c0, g], y - fitted
+    hg = h * g
+    res = y - c0
+    res[1::2] = y[1::2] - (c0 + hg)
+    res[2::2] = y[2::2] - (c0 - hg)
+    coef = np.empty(7)
+    coef[0] = c0
+    coef[1:] = g
+    return coef, res
 
 
 def _roughness(s: GaussNewtonStep, alpha: float = 1.0) -> float:
@@ -248,7 +277,8 @@ class GaussNewtonFit(QuadraticFit):
     view_scores: np.ndarray | None = None
 
 
-def _fit(s: GaussNewtonStep, noise: float, alpha: float = 1.0) -> GaussNewtonFit:
-    coef, _ = _residuals(s, alpha)
+def _fit(s: GaussNewtonStep, noise: float, alpha: float = 1.0, coef=None) -> GaussNewtonFit:
+    if coef is None:
+        coef, _ = _residuals(s, alpha)
     return GaussNewtonFit(np.array(s.x), np.array(s.h), float(coef[0]), np.array(s.g), alpha * np.array(s.H),
                           float(noise), 6, np.array(s.costs), np.array(s.view_scores[0]))

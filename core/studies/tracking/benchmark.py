@@ -83,9 +83,12 @@ def _floor(r, frames: int, results, bone_names) -> dict | None:
             pipe = c._pipes[B]
             reps = 50
 
-            def once(P=P, c=c, pipe=pipe, Hc=Hc, Wc=Wc):
-                r.render(P[:, None], views=c.views, bones=[c.bone], roi=c.roi[None, :, None, :],
-                         scale=c.scale, out_shape=(Hc, Wc))
+            def once(P=P, X=X, c=c, pipe=pipe, Hc=Hc, Wc=Wc):
+                if getattr(pipe, "render", None):  # the poses' table and the DRRs in the graph
+                    pipe.x_np[:] = X
+                else:
+                    r.render(P[:, None], views=c.views, bones=[c.bone], roi=c.roi[None, :, None, :],
+                             scale=c.scale, out_shape=(Hc, Wc))
                 if pipe.graph is not None:
                     wp.capture_launch(pipe.graph)
                 else:

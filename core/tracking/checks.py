@@ -214,6 +214,23 @@ def motion_check(pose, history, frame: int, center, *, n: int = 10, limit: float
     return []
 
 
+_MISSES: dict = {}  # the history's prediction misses by their poses and frames (_miss)
+
+
+def _miss(f0, T0, f1, T1, fj, Tj, c) -> tuple[float, float]:
+    """The miss of the prediction of pose ``Tj`` from ``T0``, ``T1`` over :func:`_reach` (mm,
+    degrees), kept for the next frames (the same history poses each frame)."""
+    key = (*(np.asarray(T, dtype=float).tobytes() for T in (T0, T1, Tj)), f0, f1, fj, c.tobytes())
+    hit = _MISSES.get(key)
+    if hit is None:
+        dt, dr = _distance(_predict(f0, T0, f1, T1, fj, c), Tj, c)
+        k = _reach(f0, f1, fj)
+        if len(_MISSES) >= 1024:
+            _MISSES.clear()
+        hit = _MISSES[key] = (dt / k, dr / k)
+    return hit
+
+
 def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float = MOTION_LIMIT,
                 floor=MOTION_FLOOR, min_residuals: int = 3) -> tuple | None:
     """``(mm, degrees from the prediction, limit mm, limit degrees, residuals used)`` of
@@ -222,12 +239,7 @@ def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float 
     if len(h) < min_residuals + 2:
         return None
     c = np.asarray(center, dtype=float)
-    miss = []
-    for j in range(max(2, len(h) - int(n)), len(h)):
-        (f0, T0), (f1, T1), (fj, Tj) = h[j - 2], h[j - 1], h[j]
-        dt, dr = _distance(_predict(f0, T0, f1, T1, fj, c), Tj, c)
-        k = _reach(f0, f1, fj)
-        miss.append((dt / k, dr / k))
+    miss = [_miss(*h[j - 2], *h[j - 1], *h[j], c) for j in range(max(2, len(h) - int(n)), len(h))]
     if len(miss) < min_residuals:
         return None
     med = np.median(np.asarray(miss), axis=0)

@@ -321,15 +321,17 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
         P = _hull_points(points)
         lab = P @ pose[:3, :3].T + pose[:3, 3]
         box = np.zeros((len(views), 4), dtype=np.int64)
-        for i, v in enumerate(views):
+        for i, v in enumerate(views):  # (Python numbers: a few per view, on every registration's path)
             cam = renderer.cameras[v]
             uv, z = _project(cam, lab)
-            if np.any(z <= 0):
-                lo, hi = np.zeros(2), np.array([cam.width, cam.height], float)
+            W, H = cam.width, cam.height
+            if (z <= 0).any():
+                lo, hi = (0, 0), (W, H)
             else:
-                lo = np.clip(np.floor(uv.min(axis=0)), 0, [cam.width, cam.height])
-                hi = np.clip(np.ceil(uv.max(axis=0)) + 1, 0, [cam.width, cam.height])
-            box[i, :2], box[i, 2:] = lo, np.maximum(hi - lo, 0)
+                a, b = uv.min(axis=0).tolist(), uv.max(axis=0).tolist()
+                lo = tuple(min(max(math.floor(a[k]), 0), n) for k, n in ((0, W), (1, H)))
+                hi = tuple(min(max(math.ceil(b[k]) + 1, 0), n) for k, n in ((0, W), (1, H)))
+            box[i] = (lo[0], lo[1], max(hi[0] - lo[0], 0), max(hi[1] - lo[1], 0))
     c_lab = pose[:3, :3] @ center + pose[:3, 3]
     out = np.zeros((len(views), 4), dtype=np.int64)
     for i, v in enumerate(views):
@@ -337,14 +339,14 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
         depth = float(cam.R[2] @ c_lab + cam.t[2])  # the depth of Camera.project
         grow = margin_px + (math.ceil(reach_mm * max(cam.fx, cam.fy) / max(depth, 1e-6))
                             if depth > 0 else 0)
-        _, _, w0, h0 = box[i]
+        u0, v0, w0, h0 = (int(a) for a in box[i])
         if w0 <= 0 or h0 <= 0:
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
-        lo = np.maximum(box[i, :2] - grow, 0)
-        hi = np.minimum(box[i, :2] + box[i, 2:] + grow, [cam.width, cam.height])
-        if np.any(hi <= lo):
+        lo = (max(u0 - grow, 0), max(v0 - grow, 0))
+        hi = (min(u0 + w0 + grow, cam.width), min(v0 + h0 + grow, cam.height))
+        if hi[0] <= lo[0] or hi[1] <= lo[1]:
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
-        out[i, :2], out[i, 2:] = lo, hi - lo
+        out[i] = (lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1])
     return out
 
 

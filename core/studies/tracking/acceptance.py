@@ -64,7 +64,8 @@ class TrackingScene:
     """A synthetic trial with its frames (rendered on demand, cached), bone models and renderer."""
 
     def __init__(self, *, n_frames: int, pixels: int, spacing: float, seed: int = 0, names=BONES,
-                 phase=(0.0, 0.6), residual: float = 0.03, device: str | None = None) -> None:
+                 phase=(0.0, 0.6), residual: float = 0.03, device: str | None = None,
+                 glare: bool = False) -> None:
         from core.render import DRRRenderer
         from core.synthetic import Distortion, make_foot_scene
         from core.tracking.bones import bone_model
@@ -82,6 +83,16 @@ class TrackingScene:
             d = m.distortion
             self.corrections.append(Distortion(d.center, d.scale_px, d.k1 * (1 + residual), d.k2,
                                                d.twist_rad * (1 + residual), d.twist_power))
+        #: per view, the veiling glare measured from rendered lead-disc calibration frames
+        #: (:func:`core.studies.imaging.glare_study.measure_glare`, the calibration's measurement)
+        #: and undone after the flatfield division as the correction pipeline's glare step does;
+        #: empty when ``glare`` is False (the frames keep their glare)
+        self.glare = []
+        if glare:
+            from core.studies.imaging.glare_study import measure_glare
+
+            views = zip(self.scene.rig, self.scene.imaging, self.corrections, strict=True)
+            self.glare = [measure_glare(cam, m, c.unwarp, seed=seed) for cam, m, c in views]
         self._cache: dict[int, list[np.ndarray]] = {}
 
     def truth(self, frame: int) -> np.ndarray:
@@ -89,11 +100,19 @@ class TrackingScene:
         return self.scene.poses(frame)
 
     def frames(self, i: int) -> list[np.ndarray]:
-        """Flatfield-normalised, approximately undistorted fluence images of frame ``i``."""
+        """Flatfield-normalised, approximately undistorted fluence images of frame ``i`` (with the
+        measured glare undone when the scene was made with ``glare``)."""
         if i not in self._cache:
+            from core.imaging.glare import remove_glare
+
             raw = self.scene.render_frame(i, renderer=self._scene_renderer)
-            self._cache[i] = [c.unwarp(m.to_float(f)) for m, f, c in
-                              zip(self.scene.imaging, raw, self.corrections, strict=True)]
+            out = []
+            for v, (m, f, c) in enumerate(zip(self.scene.imaging, raw, self.corrections, strict=True)):
+                x = m.to_float(f)
+                if self.glare:
+                    x = remove_glare(x, self.glare[v].fraction, self.glare[v].sigma_px)
+                out.append(c.unwarp(x))
+            self._cache[i] = out
         return self._cache[i]
 
     def residual_distortion_mm(self) -> float:
@@ -112,12 +131,13 @@ class TrackingScene:
 
 
 def tracking_scene(*, quick: bool, device: str | None = None, seed: int = 0, n_frames: int | None = None,
-                   pixels: int | None = None, names=BONES) -> TrackingScene:
-    """The study's scene at quick (256², 1 mm, 20 frames) or full (1024², 0.5 mm, 100 frames) size."""
+                   pixels: int | None = None, names=BONES, glare: bool = False) -> TrackingScene:
+    """The study's scene at quick (256², 1 mm, 20 frames) or full (1024², 0.5 mm, 100 frames) size;
+    ``glare``: undo the veiling glare measured from calibration disc frames (:class:`TrackingScene`)."""
     n = n_frames or (20 if quick else 100)
     px = pixels or (256 if quick else 1024)
     return TrackingScene(n_frames=n, pixels=px, spacing=1.0 if quick else 0.5, seed=seed, names=names,
-                         phase=(0.0, 0.6 * n / 100.0), device=device)
+                         phase=(0.0, 0.6 * n / 100.0), device=device, glare=glare)
 
 
 def pose_errors(pose: np.ndarray, truth: np.ndarray, center: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ their results is an empirical repeatability. Costs ``n`` registrations.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,14 +76,13 @@ class PoseConfidence:
         return float(np.linalg.norm(self.sigma[3:]))
 
     def to_dict(self) -> dict:
-        def clean(a):
-            return [None if not np.isfinite(v) else float(v) for v in np.ravel(a)]
+        def clean(v: float):
+            return float(v) if math.isfinite(v) else None
 
-        return {"method": self.method, "sigma": clean(self.sigma),
-                "translation_mm": self.translation_mm if np.isfinite(self.translation_mm) else None,
-                "rotation_deg": self.rotation_deg if np.isfinite(self.rotation_deg) else None,
-                "cost_noise": None if not np.isfinite(self.cost_noise) else self.cost_noise,
-                "well_posed": self.well_posed}
+        t, r = self.translation_mm, self.rotation_deg
+        return {"method": self.method, "sigma": [clean(v) for v in np.ravel(self.sigma).tolist()],
+                "translation_mm": clean(t), "rotation_deg": clean(r),
+                "cost_noise": clean(float(self.cost_noise)), "well_posed": self.well_posed}
 
 
 def stencil(n: int = 6) -> np.ndarray:

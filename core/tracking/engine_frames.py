@@ -143,13 +143,12 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
             if g is not None:
                 self._host_gstage[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
         info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
-    if upload:  # each view's first hs rows (whole rows of the buffer: one contiguous block)
+    if upload:  # up to the last view's first hs rows (whole rows of the buffer: one contiguous block)
         _, Hs, Ws = self._stage_src.shape
-        for i in range(nv):
-            n = int(info[i, 4]) * Ws
-            wp.copy(self._stage_src, self._host_stage_wp, i * Hs * Ws, i * Hs * Ws, n)
-            if given:
-                wp.copy(self._stage_given, self._host_gstage_wp, i * Hs * Ws, i * Hs * Ws, n)
+        n = (nv - 1) * Hs * Ws + int(info[nv - 1, 4]) * Ws
+        wp.copy(self._stage_src, self._host_stage_wp, 0, 0, n)
+        if given:
+            wp.copy(self._stage_given, self._host_gstage_wp, 0, 0, n)
         self._staged_last = (weakref.ref(frame), key)
     lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
     done = (key, self._bufs.serial, float(lo), float(hi), int(p), frame._valid is not None)

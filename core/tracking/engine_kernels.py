@@ -209,20 +209,22 @@ def fluoro_shift_kernel(msum: wp.array2d(dtype=wp.float64), mode: int, fshift: w
     count[v] = int(n)
 
 
-GEO_LEN = 27  # pose_table_kernel's geometry: base rotation (9), translation (3), centre (3), index rows (12)
+#: pose_table_kernel's geometry: base rotation (9), translation (3), centre (3), index rows (12);
+#: the ROIs follow
+GEO_LEN = wp.constant(27)
 _DEG = wp.constant(wp.float64(0.017453292519943295))  # numpy.radians' factor, pi / 180
 
 
 @wp.kernel
 def pose_table_kernel(X: wp.array2d(dtype=wp.float64), geo: wp.array(dtype=wp.float64),
-                      src: wp.array2d(dtype=wp.float64), roi: wp.array2d(dtype=wp.int32),
-                      view_ids: wp.array(dtype=wp.int32), bone: int, items: wp.array2d(dtype=wp.float32)):
+                      src: wp.array2d(dtype=wp.float64), view_ids: wp.array(dtype=wp.int32), bone: int,
+                      items: wp.array2d(dtype=wp.float32)):
     """Row ``b · n_views + v`` of the DRR item table (:data:`core.render._kernels.ITEM_COLS`
     columns: view, bone, the source in index coordinates, index-from-physical ∘ inverse pose,
     the ROI) of pose ``b``: ``x = X[b]`` (mm, degrees about the centre, relative to the base
     pose; Rodrigues' formula) in view ``v`` (``src[v]``: its homogeneous source). ``geo``: the base
     pose's rotation (row-major) and translation, the centre, the bone's index-from-physical rows
-    (3 × 4, row-major). dim = (poses, views)."""
+    (3 × 4, row-major), then each view's ROI ``(u0, v0, w, h)``. dim = (poses, views)."""
     b, v = wp.tid()
     nv = src.shape[0]
     r0 = X[b, 3] * _DEG
@@ -256,4 +258,4 @@ def pose_table_kernel(X: wp.array2d(dtype=wp.float64), geo: wp.array(dtype=wp.fl
         for c in range(3):
             items[i, 5 + 3 * a + c] = wp.float32(M[a, c])
     for a in range(4):
-        items[i, 14 + a] = wp.float32(roi[v, a])
+        items[i, 14 + a] = wp.float32(geo[GEO_LEN + 4 * v + a])

@@ -86,22 +86,22 @@ def render_items(self, P: np.ndarray, bones: tuple) -> wp.array:
 class DeviceRender:
     """The device geometry of one engine (its bone and views): the base pose, centre and the
     bone's index-from-physical rows (``geo``, :data:`~core.tracking.engine_kernels.GEO_LEN`
-    float64), the ROIs, the views' sources; uploaded from pinned memory when they change."""
+    float64) and the ROIs after them, the views' sources; uploaded from pinned memory (one copy) when
+    they change."""
 
     def __init__(self, c) -> None:
         r = c.renderer
         dev = c.device
         nv = c.n_views
         self.device = dev
-        self._host_geo = wp.zeros(GEO_LEN, dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
-        self._host_roi = wp.zeros((nv, 4), dtype=wp.int32, device="cpu", pinned=dev.is_cuda)
-        self.geo = wp.zeros(GEO_LEN, dtype=wp.float64, device=dev)
-        self.roi = wp.zeros((nv, 4), dtype=wp.int32, device=dev)
+        n = int(GEO_LEN) + 4 * nv  # the ROIs after the poses' geometry: one copy
+        self._host_geo = wp.zeros(n, dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
+        self.geo = wp.zeros(n, dtype=wp.float64, device=dev)
         self.src = wp.array(np.ascontiguousarray(r._src_h[list(c.views)], dtype=np.float64), dtype=wp.float64,
                             device=dev)
         self.view_ids = wp.array(np.array(c.views, dtype=np.int32), dtype=wp.int32, device=dev)
         self._geo_np = self._host_geo.numpy()
-        self._geo_np[15:] = np.asarray(r._T_idx[c.bone], dtype=np.float64)[:3].ravel()
+        self._geo_np[15:27] = np.asarray(r._T_idx[c.bone], dtype=np.float64)[:3].ravel()
         self._last = None
 
     def upload(self, base: np.ndarray, center: np.ndarray, roi: np.ndarray) -> bool:
@@ -114,9 +114,8 @@ class DeviceRender:
         g[0:9] = base[:3, :3].ravel()
         g[9:12] = base[:3, 3]
         g[12:15] = center
-        self._host_roi.numpy()[:] = roi
+        g[27:] = roi.ravel()
         wp.copy(self.geo, self._host_geo)
-        wp.copy(self.roi, self._host_roi)
         self._last = key
         return True
 
@@ -132,7 +131,7 @@ class DeviceRender:
         items = wp.zeros((B * nv, ITEM_COLS), dtype=wp.float32, device=dev)
         images = wp.zeros((B * nv, H, W), dtype=wp.float32, device=dev)
         table = wp.launch(pose_table_kernel, dim=(B, nv), device=dev, record_cmd=True,
-                          inputs=[x_dev, self.geo, self.src, self.roi, self.view_ids, int(c.bone), items])
+                          inputs=[x_dev, self.geo, self.src, self.view_ids, int(c.bone), items])
         drr = wp.launch(r._kernel, dim=RK.tiled_threads(B * nv, H, W), device=dev, block_dim=r.block_dim,
                         record_cmd=True,
                         inputs=[r._atlas, r._dist, float(c.scale), float(r.step_mm), float(r._value_scale),

@@ -46,15 +46,14 @@ class GaussNewtonStep:
         return float(self.costs[0])
 
 
+_DESIGN = np.zeros((_N, 6))  # the unit design: 0, +e_k, -e_k
+for _k in range(6):
+    _DESIGN[1 + 2 * _k, _k], _DESIGN[2 + 2 * _k, _k] = 1.0, -1.0
+
+
 def step_design(x, h) -> np.ndarray:
     """``(13, 6)`` poses of a step: ``x``, then ``x + h_k e_k``, ``x - h_k e_k`` for k = 1…6."""
-    x = np.asarray(x, dtype=float)
-    h = np.asarray(h, dtype=float)
-    X = np.repeat(x[None], _N, axis=0)
-    for k in range(6):
-        X[1 + 2 * k, k] += h[k]
-        X[2 + 2 * k, k] -= h[k]
-    return X
+    return np.asarray(x, dtype=float) + _DESIGN * np.asarray(h, dtype=float)  # x ± h_k exactly, x + 0 = x
 
 
 _SCALES: dict = {}  # h -> the outer product of the moments' scales (moments_to_newton)

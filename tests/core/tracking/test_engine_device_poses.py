@@ -38,7 +38,7 @@ def test_device_table_is_the_hosts(talus_scene):
     d = gn._dev_render
     table = wp.zeros((len(X) * 2, ITEM_COLS), dtype=wp.float32, device="cpu")
     wp.launch(pose_table_kernel, dim=(len(X), 2), device="cpu",
-              inputs=[wp.array(X, dtype=wp.float64, device="cpu"), d.geo, d.src, d.roi, d.view_ids, 0, table])
+              inputs=[wp.array(X, dtype=wp.float64, device="cpu"), d.geo, d.src, d.view_ids, 0, table])
     gn._render(host_poses(X, gn.base, gn.center)[:, None], (0,))  # the host path's table
     ref = gn._tables[(len(X), (0,))][0].reshape(len(X) * 2, ITEM_COLS)
     np.testing.assert_allclose(table.numpy(), ref, rtol=2e-7, atol=1e-6)

@@ -2,9 +2,11 @@
 
 :func:`failures` lists why a registration of :func:`core.tracking.trial.track` fails (not
 converged, a score drop against the bone's recent good frames or below its first frame, a collapse
-of the score, a jump from the initial guess; :func:`confirmable` tells which of them a confirmed
-optimum clears); :func:`same_optimum` tells whether two poses are the same optimum
-(:data:`SAME_OPTIMUM`); :func:`uncertain` flags a confidence beyond the user's limits. See the
+of the score, a jump from the initial guess, a pose off the bone's own motion
+(:func:`motion_check`), a low score against a flagged first frame; :func:`confirmable` tells
+which of them a confirmed optimum clears); :func:`same_optimum` tells whether two poses are the
+same optimum (:data:`SAME_OPTIMUM`); :func:`uncertain` flags a confidence beyond the user's limits,
+:func:`sigma_check` one far beyond the bone's own. See the
 module docs of :mod:`core.tracking.trial` for how the tracker uses them.
 
 Pose differences are taken in closed form (:func:`pose_delta`, :func:`step_pose`): the same
@@ -134,9 +136,20 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     retry's limit (twice ``o.max_jump``) lets through. Keeping ``o.max_jump`` on retries catches
     those over 4 mm (4 of the 10; measured on this 2-core CPU, 3 of 6) but flagged every start
     5 mm off that the retry had corrected (8 of 8 there, ``tracking_flags_cpu.json``), and a bone
-    whose guesses go stale after flagged frames would stay flagged: a jump limit from the bone's
-    own recent motion is the better test (it needs the good poses, which this function is not
-    given).
+    whose guesses go stale after flagged frames would stay flagged. Given the bone's good poses
+    (``history``) and the ``frame`` number, :func:`motion_check` judges the pose against the
+    bone's own recent motion instead: on the acceptance trial (1024², joint, one H200,
+    ``resources/benchmarks/tracking_flags2_h200.json``) the frames out of order went from 4 of 12
+    silent to 0 (the other 8 within 1 mm / 2°), corrected starts stayed unflagged (11 of 12, the
+    12th flagged either way) and no tracked frame was flagged (0 of 292 good frames).
+
+    ``reference``: the score of the bone's first flagged frame while it has no good score (the
+    tracker's :class:`~core.tracking.trial._BoneState`); a score below ``o.min_score_ratio`` × it
+    is flagged ``"low score against the flagged first frame"`` — not confirmable, there is no
+    verified frame to confirm against. The wrist radius with the Gauss–Newton global search (one
+    H200): frame 0099 flagged (not converged) at 0.391, frame 0158 at 0.283 16 mm from the
+    quadratic form's pose, unflagged before; now flagged, retried wider to 0.397 within 0.5 mm /
+    0.9° of that pose, and flagged ambiguous by the restart check.
     """
     out = []
     if not res.converged:

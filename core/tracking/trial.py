@@ -90,20 +90,24 @@ within 0.5 mm); a collapse always flags (:mod:`core.tracking.checks`). A bone ou
 or a frame missing in a view is flagged with that reason, nothing is recorded, and tracking
 continues. With ``max_uncertainty = (mm, degrees)`` a frame whose per-frame confidence (the length
 of its σ vector in translation or rotation) exceeds either limit, or is not well posed, is flagged
-``"uncertain"`` as well (recorded, not retried): registrations in the noise's tail are then sent for
-review instead of passing silently.
+``"uncertain"`` as well (recorded, not retried, still used for the guesses): registrations in the
+noise's tail are then sent for review instead of passing silently.
 
 Three checks judge a frame by the bone's own track (:mod:`core.tracking.checks`): ``"unexpected
-motion"`` — the pose farther from the constant-velocity prediction of the bone's last two good
-poses than :data:`~core.tracking.checks.MOTION_LIMIT` × the median miss of that prediction over
-its last ``history`` good frames (at least :data:`~core.tracking.checks.MOTION_FLOOR`, grown with
-the frame gaps; not confirmable: a frame's image of the bone at another pose is a true optimum
-that restarts confirm), judged from the good poses, not from the start, so a wrong start that the
-retry corrected is not flagged; ``"uncertain"`` (relative) — a confidence σ over
+motion"`` — the pose farther from the constant-velocity prediction of the bone's last two good poses
+than :data:`~core.tracking.checks.MOTION_LIMIT` × the median miss of that prediction over its last
+``history`` good frames (at least :data:`~core.tracking.checks.MOTION_FLOOR`, grown with the frame
+gaps; not confirmable: a frame's image of the bone at another pose is a true optimum that restarts
+confirm), judged from the good poses, not from the start, so a wrong start that the retry corrected
+is not flagged; ``"uncertain"`` (relative) — a confidence σ over
 :data:`~core.tracking.checks.SIGMA_LIMIT` × the median of the bone's last good frames', or not well
-posed where they were (recorded, not retried); and, while a bone has no good frame yet (its first
-frame flagged), a score below ``min_score_ratio`` × the first flagged frame's is flagged ``"low
-score against the flagged first frame"`` instead of passing unjudged.
+posed where they were (recorded, not retried; like every frame flagged only ``"uncertain"``, it
+still feeds the guesses and the score and motion histories, not the σ history: on the 512² foot
+demo, one H200, with the metatarsal2's frames 35-37 flagged, two of them only ``"uncertain"``, and
+left out, the velocity guesses extrapolated over the gap, 12-36° off in frames 38-45, and the bone
+was lost from frame 46); and, while a bone has no good frame yet (its first frame flagged), a score
+below ``min_score_ratio`` × the first flagged frame's is flagged ``"low score against the flagged
+first frame"`` instead of passing unjudged.
 
 ``confidence_scale`` multiplies every frame's confidence σ: the curvature construction is a
 scale, not a calibrated standard error, and a factor measured on a trial with ground truth
@@ -264,6 +268,19 @@ class _BoneState:
         t, r = (confidence or {}).get("translation_mm"), (confidence or {}).get("rotation_deg")
         if t is not None and r is not None:
             self.sigmas.append((t, r))
+
+    def add(self, frame: int, fr: FrameResult) -> None:
+        """A frame's result: a good one, or one flagged only ``"uncertain"`` (poorly determined,
+        not wrong: it still feeds the guesses and the score history, not the σ history), or a
+        flagged one (:meth:`add_flagged`)."""
+        if fr.pose is None:
+            return
+        if not fr.flags:
+            self.add_good(frame, fr.pose, fr.score, fr.confidence)
+        elif all(x.startswith("uncertain") for x in fr.flags):
+            self.add_good(frame, fr.pose, fr.score)
+        else:
+            self.add_flagged(fr.score)
 
     def add_flagged(self, score: float) -> None:
         """A flagged frame with a pose: while the bone has no good score, the first one's score is
@@ -549,10 +566,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                         record(b, f, fr.pose, fr.score)
                     if record_result is not None:
                         record_result(fr)
-                if fr.pose is not None and not fr.flags:
-                    state[b].add_good(f, fr.pose, fr.score, fr.confidence)
-                elif fr.pose is not None:
-                    state[b].add_flagged(fr.score)
+                state[b].add(f, fr)
                 finish(fr)
     finally:
         feed.close()

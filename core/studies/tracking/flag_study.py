@@ -18,8 +18,22 @@ images exchanged) and ``other_frame`` (the images of a frame ``offset`` later). 
 ``corrected`` (error within ``large``), ``flagged`` or ``silent``.
 
 Scenes: ``demo`` — :class:`core.studies.tracking.acceptance.TrackingScene` over the whole stance
-the foot demo spans (``phase`` 0–0.9: the late stance in which the talus' score falls); ``hard`` —
-:class:`core.studies.tracking.hard_trial.HardRun`. Sizes are the CPU's by default (256², 1 mm).
+the foot demo spans (``phase`` 0–0.9: the late stance in which the talus' score falls); ``walk`` —
+the same scene over the benchmark's phases (:mod:`core.studies.tracking.benchmark`, 0.6 of the
+stance per 100 frames); ``hard`` — :class:`core.studies.tracking.hard_trial.HardRun`. Sizes are
+the CPU's by default (256², 1 mm); ``--bound-every k`` evaluates the bound on every k-th frame and
+judges every frame by their RMS (the benchmark's bound).
+
+Checks (``--checks``): ``before`` (:func:`legacy_failures`), ``previous`` (the score-history
+check without the bone's track, :func:`previous_failures`) and ``after`` (the tracker's checks).
+Each tracked frame also gets what a user could judge it by (:func:`_features`) and, per bone,
+how well each separates the failures from the good frames (:func:`separation`).
+
+On the acceptance trial (1024², joint, 100 frames, one H200,
+``resources/benchmarks/tracking_flags2_h200.json``) the frames over 4× the bound (tibia 7,
+calcaneus 1, within 0.07 mm / 0.55°) are silent under every check and no feature separates them
+(AUC 0.37–0.76; catching all seven tibia frames would flag 55–100 % of its good frames); the
+motion check took the frames out of order from 4 of 12 silent to 0, with no false flag.
 
 Result (one H100, ``resources/benchmarks/tracking_flags_h100.json``): the talus tracked alone over
 the demo's stance (256², 60 frames) is lost in the late stance; the fixed floor flagged frames

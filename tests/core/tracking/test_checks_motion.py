@@ -101,3 +101,17 @@ def test_a_flagged_first_frame_is_the_reference_until_a_good_score():
     st2.add_good(0, np.eye(4), 0.5)
     st2.add_flagged(0.1)
     assert st2.reference is None
+
+
+def test_a_frame_flagged_only_uncertain_still_feeds_the_guesses():
+    from core.tracking.results import FrameResult
+
+    st = _BoneState()
+    conf = {"translation_mm": 0.1, "rotation_deg": 0.5}
+    st.add(0, FrameResult("b", 0, np.eye(4), 0.5, 1, 0.0, True, (), False, conf))
+    st.add(1, FrameResult("b", 1, np.eye(4), 0.45, 1, 0.0, False, ("uncertain (confidence)",), False, conf))
+    assert [f for f, _ in st.history] == [0, 1] and st.scores == [0.5, 0.45] and st.sigmas == [(0.1, 0.5)]
+    st.add(2, FrameResult("b", 2, np.eye(4), 0.2, 1, 0.0, False, ("score collapse", "uncertain (x)"), False,
+                          conf))
+    st.add(3, FrameResult("b", 3, None, float("nan"), 0, 0.0, False, ("outside the field of view",)))
+    assert [f for f, _ in st.history] == [0, 1] and st.reference is None

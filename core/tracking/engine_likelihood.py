@@ -97,6 +97,18 @@ def psf_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float
 
 
 @wp.kernel
+def weights_kernel(low: wp.array3d(dtype=wp.float32), mask: wp.array3d(dtype=wp.float32),
+                   out: wp.array3d(dtype=wp.float32)):
+    """The expected counts exp(-low) where mask, else 0 (low: the smoothed line integrals). dim =
+    items, H, W."""
+    k, r, c = wp.tid()
+    w = float(0.0)  # noqa: UP018
+    if mask[k, r, c] > 0.0:
+        w = wp.exp(-low[k, r, c])
+    out[k, r, c] = w
+
+
+@wp.kernel
 def highpass_kernel(y: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
                     out: wp.array3d(dtype=wp.float32)):
     """out = y - hp · low. dim = items, H, W."""
@@ -345,6 +357,8 @@ class LikelihoodEngine:
         dev = self.device
         self._taps = (wp.array(gaussian_weights(self.highpass_px, truncate=4.0), dtype=wp.float32, device=dev)
                       if self.highpass_px else None)
+        self._wtaps = (wp.array(gaussian_weights(self.weight_sigma_px, truncate=4.0), dtype=wp.float32,
+                                device=dev) if self.weight_sigma_px > 0 else None)
         self._psf = (None if self.psf is None else
                      wp.array((self.psf / self.psf.sum()).astype(np.float32), dtype=wp.float32, device=dev))
         self._ref_hw = wp.zeros(self.n_views, dtype=wp.vec2i, device=dev)
@@ -375,7 +389,7 @@ class LikelihoodEngine:
         the host; the DRRs of ``others = (poses, bones)`` at their poses subtracted), high-passed
         on the device, and the parameterisation ``base_pose``, ``center`` of the next steps.
         Raises :class:`~core.tracking.cost.OutsideViewError` for a region without usable pixels."""
-        from ..similarity.likelihood import blur, expected_counts
+        from ..similarity.likelihood import blur
 
         t0 = time.perf_counter()
         r = self.renderer
@@ -383,8 +397,6 @@ class LikelihoodEngine:
         self.center = np.asarray(center, dtype=float)
         self.roi = np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)
         rois, masks = fluoro_rois(r, frame, views=self.views, roi=self.roi)
-        w = [expected_counts(y, sigma_px=self.weight_sigma_px, mask=m)
-             for y, m in zip(rois, masks, strict=True)]
         y = [np.asarray(v, np.float32) for v in rois]
         if others is not None and len(others[1]):
             P = np.asarray(others[0], dtype=float)
@@ -396,18 +408,23 @@ class LikelihoodEngine:
         shapes = [v.shape for v in y]
         self._cap = tuple(int(math.ceil(max(s[k] for s in shapes) / 32.0) * 32) for k in (0, 1))
         nv, (Hc, Wc) = self.n_views, self._cap
-        hy = np.zeros((2, nv, Hc, Wc), np.float32)
-        top = max(max(float(wi.max()) for wi in w), 1e-30)  # one scale for every view
-        for i, (yi, wi) in enumerate(zip(y, w, strict=True)):
-            hy[0, i, : yi.shape[0], : yi.shape[1]] = yi
-            hy[1, i, : yi.shape[0], : yi.shape[1]] = wi / top
-        self.n_pixels = int(sum(np.count_nonzero(wi) for wi in w))
+        # the line integrals (for the weights), those with the neighbours subtracted, the usable pixels
+        hy = np.zeros((3, nv, Hc, Wc), np.float32)
+        for i, (li, yi, m) in enumerate(zip(rois, y, masks, strict=True)):
+            hy[0, i, : yi.shape[0], : yi.shape[1]] = li
+            hy[1, i, : yi.shape[0], : yi.shape[1]] = yi
+            hy[2, i, : yi.shape[0], : yi.shape[1]] = m
+        self.n_pixels = int(sum(np.count_nonzero(m) for m in masks))
         self._ref_hw.assign(np.array(shapes, dtype=np.int32))
         dev = self.device
-        self._y_raw = self._buffer("y_raw", (nv, Hc, Wc))
-        self._y_raw.assign(hy[0])
+        up = self._buffer("up", (3, nv, Hc, Wc))
+        up.assign(hy)
+        li, self._y_raw, mask = up[0], up[1], up[2]
+        # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
+        # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))
-        self._w.assign(hy[1])
+        low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
+        wp.launch(weights_kernel, dim=(nv, Hc, Wc), inputs=[low, mask, self._w], device=dev)
         self._y = self._buffer("y", (nv, Hc, Wc))
         if self.highpass_px:
             low = self._blurred("y", self._y_raw, nv)
@@ -416,12 +433,14 @@ class LikelihoodEngine:
             wp.copy(self._y, self._y_raw)
         self.timer.host += time.perf_counter() - t0
 
-    def _blurred(self, tag: str, src, n_refs: int):
-        """The Gaussian low-pass of ``src`` (two passes of the separable blur)."""
+    def _blurred(self, tag: str, src, n_refs: int, taps=None):
+        """The Gaussian low-pass of ``src`` (two passes of the separable blur; ``taps`` default the
+        high-pass's)."""
         tmp = self._buffer(tag + "_tmp", src.shape)
         low = self._buffer(tag + "_low", src.shape)
+        taps = self._taps if taps is None else taps
         for a, b, axis in ((src, tmp, 1), (tmp, low, 0)):
-            wp.launch(K.blur_kernel, dim=src.shape, inputs=[a, b, self._taps, self._ref_hw, n_refs, axis],
+            wp.launch(K.blur_kernel, dim=src.shape, inputs=[a, b, taps, self._ref_hw, n_refs, axis],
                       device=self.device)
         return low
 

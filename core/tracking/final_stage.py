@@ -33,9 +33,11 @@ def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: 
     try:
         roi = _snap(search_roi(renderer, res.pose, bone, views=views, center=center, reach_mm=1.0,
                                margin_px=o.margin_px), renderer, views)
-        eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=o.final_highpass_px)
+        eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=o.final_highpass_px,
+                                lag_px=o.final_lag_px)
         eng.timer = CostTimer()
         eng.set_frame(frame, base_pose=res.pose, center=center, roi=roi, others=others)
+        timing["likelihood_setup_s"] = time.perf_counter() - t0
         out = eng.refine(iters=o.final_iters)
     except (OutsideViewError, np.linalg.LinAlgError):  # the similarity's pose stands
         timing["likelihood_s"] = time.perf_counter() - t0

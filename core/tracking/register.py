@@ -183,7 +183,8 @@ class RegistrationOptions:
     wrist at 0.15 mm per pixel). ``final``: ``"likelihood"`` ends the registration with the
     weighted least-squares refinement of :func:`core.tracking.final_stage.final_stage`
     (high-pass σ ``final_highpass_px`` pixels, at most ``final_iters`` steps, taken when it
-    moves the pose by at most ``final_reach`` (mm, degrees)), or None.
+    moves the pose by at most ``final_reach`` (mm, degrees); ``final_lag_px``: the lag window
+    of its covariance, None for the engine's default), or None.
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
@@ -201,6 +202,7 @@ class RegistrationOptions:
     final_highpass_px: float = 4.0
     final_iters: int = 5
     final_reach: tuple[float, float] = (1.0, 2.0)
+    final_lag_px: int | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", tuple(self.terms))
@@ -226,6 +228,9 @@ class RegistrationOptions:
             raise ValueError(f"final_iters: expected an integer >= 1, got {self.final_iters!r}")
         if len(self.final_reach) != 2 or not all(np.isfinite(v) and v > 0 for v in self.final_reach):
             raise ValueError(f"final_reach: expected (mm, degrees) > 0, got {self.final_reach!r}")
+        lag = self.final_lag_px
+        if lag is not None and (isinstance(lag, bool) or int(lag) != lag or lag < 0):
+            raise ValueError(f"final_lag_px: expected an integer >= 0 or None, got {lag!r}")
 
     def widened(self, factor: float = 2.0) -> RegistrationOptions:
         """The same options with ``factor``× larger bounds and first steps, twice the
@@ -251,7 +256,7 @@ class RegistrationOptions:
                 "refine_step": list(self.refine_step), "refine_tol": self.refine_tol,
                 "margin_px": self.margin_px, "seed": self.seed, "final": self.final,
                 "final_highpass_px": self.final_highpass_px, "final_iters": self.final_iters,
-                "final_reach": list(self.final_reach)}
+                "final_reach": list(self.final_reach), "final_lag_px": self.final_lag_px}
 
 
 @dataclass(frozen=True, eq=False)

@@ -249,11 +249,13 @@ def _coverage(E, S) -> dict:
 
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
-              checkpoint=None) -> dict:
+              checkpoint=None, variants=((None, None),)) -> dict:
     """The trial tracked twice per case in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
     high-pass ``highpass_px``): error / bound ratios, time per frame, the time the stage adds per
-    bone-frame, how often its move was taken, 2σ coverage of each run's confidence."""
+    bone-frame, how often its move was taken, 2σ coverage of each run's confidence. ``variants``:
+    further final stages of the one-bone case, ``(high-pass σ px or None, lag window px or
+    None)`` (None: the default), each tracked in full as ``final_<σ>_<lag>``."""
     from core.render import DRRRenderer
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
     from core.tracking.trial import TrackingOptions, track
@@ -288,7 +290,14 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                         device=ts.device)
         kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
         c = {}
-        for label, o in (("warm_up", plain), ("tracker", plain), ("final", final)):
+        runs = [("warm_up", plain), ("tracker", plain), ("final", final)]
+        if case == "one":
+            for hp, lag in variants:
+                if (hp, lag) != (None, None):
+                    reg = replace(final.registration, final_lag_px=lag,
+                                  final_highpass_px=highpass_px if hp is None else float(hp))
+                    runs.append((f"final_{hp}_{lag}", replace(final, registration=reg)))
+        for label, o in runs:
             if label == "warm_up":  # the kernels compiled, the engines' buffers made (not timed)
                 track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=o)
                 track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=final)
@@ -300,6 +309,8 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
             tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(n)]
             d = {"track_s": dt, "s_per_frame": dt / n,
                  "likelihood_s_per_bone_frame": float(np.mean([t.get("likelihood_s", 0.0) for t in tim])),
+                 "likelihood_setup_s_per_bone_frame": float(np.mean([t.get("likelihood_setup_s", 0.0)
+                                                                     for t in tim])),
                  "likelihood_steps_per_bone_frame": float(np.mean([t.get("likelihood_steps", 0)
                                                                    for t in tim])),
                  "likelihood_taken": int(sum(t.get("likelihood_taken", 0) for t in tim)),
@@ -317,6 +328,12 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
         if checkpoint:
             checkpoint(out)
     return out
+
+
+def _variant(text: str) -> tuple:
+    """``"σ:lag"`` of ``--final-variants`` ("-" for a default)."""
+    hp, lag = text.split(":")
+    return None if hp == "-" else float(hp), None if lag == "-" else int(lag)
 
 
 def main(argv=None) -> int:
@@ -337,6 +354,8 @@ def main(argv=None) -> int:
     p.add_argument("--final", action="store_true",
                    help="track with and without the final stage (TrackingOptions.refine_likelihood)")
     p.add_argument("--highpass", type=float, default=4.0, help="--final: the stage's high-pass σ (px)")
+    p.add_argument("--final-variants", default="",
+                   help="--final: more one-bone stages 'σ:lag,…' ('-': the default)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json
@@ -352,7 +371,8 @@ def main(argv=None) -> int:
     if a.final:
         res = run_final(device=a.device, frames=a.frames, cases=a.cases.split(","),
                         pixels=a.pixels or 1024, voxel=a.voxel or 0.5, highpass_px=a.highpass,
-                        workers=a.workers, checkpoint=checkpoint)
+                        workers=a.workers, checkpoint=checkpoint,
+                        variants=[_variant(v) for v in a.final_variants.split(",") if v])
         print_json(res, a.out)
         return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,

@@ -75,7 +75,8 @@ A registration fails when it did not converge (or hit the search box), when its 
 that floor (a floor that a slow drift into a false optimum cannot move), when it collapses below
 :data:`~core.tracking.checks.COLLAPSE_RATIO` × the recent median, or when it jumps more than
 ``max_jump`` (mm, degrees) from the initial guess (``retry_factor`` × that on a bone's first frame,
-which starts from a hand-placed pose). A failed frame is retried once with ``retry_factor``× wider
+which starts from a hand-placed pose; times the good poses' spacings a guess extrapolates over
+after flagged frames). A failed frame is retried once with ``retry_factor``× wider
 bounds and steps and a global first stage (from the guess and from the last good pose); the best
 retry is kept, and if it still fails the frame is recorded *flagged for review* with its reasons and
 is not used for later guesses. A frame whose only failure is the relative score drop is not flagged

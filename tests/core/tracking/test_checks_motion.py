@@ -115,3 +115,13 @@ def test_a_frame_flagged_only_uncertain_still_feeds_the_guesses():
                           conf))
     st.add(3, FrameResult("b", 3, None, float("nan"), 0, 0.0, False, ("outside the field of view",)))
     assert [f for f, _ in st.history] == [0, 1] and st.reference is None
+
+
+def test_the_jump_limit_grows_with_a_stale_guess():
+    hist, truth = _walk(12, noise=0.0)
+    far = truth(11).copy()
+    far[0, 3] += 6.0  # 6 mm from the guess: over max_jump (4 mm) one frame on
+    kw = {"start_score": 0.5, "history": hist[:11], "frame": 11}
+    assert any(x.startswith("pose jump") for x in failures(_res(far), truth(11), C, [0.5] * 11, O, **kw))
+    kw = {"start_score": 0.5, "history": hist[:9], "frame": 11}  # two frames flagged: the guess 3 steps on
+    assert not any(x.startswith("pose jump") for x in failures(_res(far), truth(11), C, [0.5] * 9, O, **kw))

@@ -44,7 +44,10 @@ def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: 
         timing["likelihood_taken"] = 0
         return replace(res, timing=timing)
     d = np.asarray(out["x"], dtype=float)
-    cov = np.asarray(out["covariance"], dtype=float)
+    cov = np.asarray(out["covariance_independent" if o.final_confidence == "independent" else "covariance"],
+                     dtype=float)
+    if o.final_confidence == "sandwich+move":  # the two costs' disagreement: a systematic part neither sees
+        cov = cov + np.outer(d, d)
     reach = np.array([o.final_reach[0]] * 3 + [o.final_reach[1]] * 3)
     dt = time.perf_counter() - t0
     timing["likelihood_s"] = dt

@@ -72,6 +72,7 @@ __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels
 _METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell", "gauss_newton")
 _SEARCHES = ("global", "local", "newton", "global_newton")
 _FINALS = (None, "likelihood")
+_FINAL_CONFIDENCES = ("sandwich", "sandwich+move", "independent")
 #: Design half-widths (mm, degrees) of the full-resolution quadratic fits.
 FINAL_STEP = (0.25, 0.5)
 
@@ -184,7 +185,10 @@ class RegistrationOptions:
     weighted least-squares refinement of :func:`core.tracking.final_stage.final_stage`
     (high-pass σ ``final_highpass_px`` pixels, at most ``final_iters`` steps, taken when it
     moves the pose by at most ``final_reach`` (mm, degrees); ``final_lag_px``: the lag window
-    of its covariance, None for the engine's default), or None.
+    of its covariance, None for the engine's default; ``final_confidence``: the frame's
+    covariance — ``"sandwich"`` (the residual's autocorrelation accounted for),
+    ``"sandwich+move"`` (plus the outer product of the stage's move from the similarity's
+    optimum: the two costs' disagreement as a systematic part) or ``"independent"``), or None.
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
@@ -203,6 +207,7 @@ class RegistrationOptions:
     final_iters: int = 5
     final_reach: tuple[float, float] = (1.0, 2.0)
     final_lag_px: int | None = None
+    final_confidence: str = "sandwich"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", tuple(self.terms))
@@ -231,6 +236,9 @@ class RegistrationOptions:
         lag = self.final_lag_px
         if lag is not None and (isinstance(lag, bool) or int(lag) != lag or lag < 0):
             raise ValueError(f"final_lag_px: expected an integer >= 0 or None, got {lag!r}")
+        if self.final_confidence not in _FINAL_CONFIDENCES:
+            raise ValueError(f"final_confidence: expected one of {_FINAL_CONFIDENCES}, "
+                             f"got {self.final_confidence!r}")
 
     def widened(self, factor: float = 2.0) -> RegistrationOptions:
         """The same options with ``factor``× larger bounds and first steps, twice the
@@ -256,7 +264,8 @@ class RegistrationOptions:
                 "refine_step": list(self.refine_step), "refine_tol": self.refine_tol,
                 "margin_px": self.margin_px, "seed": self.seed, "final": self.final,
                 "final_highpass_px": self.final_highpass_px, "final_iters": self.final_iters,
-                "final_reach": list(self.final_reach), "final_lag_px": self.final_lag_px}
+                "final_reach": list(self.final_reach), "final_lag_px": self.final_lag_px,
+                "final_confidence": self.final_confidence}
 
 
 @dataclass(frozen=True, eq=False)

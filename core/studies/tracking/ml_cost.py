@@ -249,13 +249,14 @@ def _coverage(E, S) -> dict:
 
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
-              checkpoint=None, variants=((None, None),)) -> dict:
+              checkpoint=None, variants=((None, None, None),)) -> dict:
     """The trial tracked twice per case in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
     high-pass ``highpass_px``): error / bound ratios, time per frame, the time the stage adds per
     bone-frame, how often its move was taken, 2σ coverage of each run's confidence. ``variants``:
-    further final stages of the one-bone case, ``(high-pass σ px or None, lag window px or
-    None)`` (None: the default), each tracked in full as ``final_<σ>_<lag>``."""
+    further final stages of every case, ``(high-pass σ px, lag window px, confidence)``
+    (None: the default), each tracked in full as ``final_<σ>_<lag>_<confidence>``. Per frame
+    (``per_frame``): the errors and σ of the runs ``tracker`` and ``final``."""
     from core.render import DRRRenderer
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
     from core.tracking.trial import TrackingOptions, track
@@ -291,12 +292,13 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
         kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
         c = {}
         runs = [("warm_up", plain), ("tracker", plain), ("final", final)]
-        if case == "one":
-            for hp, lag in variants:
-                if (hp, lag) != (None, None):
+        if variants:
+            for hp, lag, conf in variants:
+                if (hp, lag, conf) != (None, None, None):
                     reg = replace(final.registration, final_lag_px=lag,
-                                  final_highpass_px=highpass_px if hp is None else float(hp))
-                    runs.append((f"final_{hp}_{lag}", replace(final, registration=reg)))
+                                  final_highpass_px=highpass_px if hp is None else float(hp),
+                                  final_confidence=conf or final.registration.final_confidence)
+                    runs.append((f"final_{hp}_{lag}_{conf}", replace(final, registration=reg)))
         for label, o in runs:
             if label == "warm_up":  # the kernels compiled, the engines' buffers made (not timed)
                 track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=o)
@@ -323,6 +325,9 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                 S = _sigmas(res, nm, range(n))
                 d[nm] = {**_summary(E, bound.get(nm)), "within_2_sigma": _coverage(E, S),
                          "median_sigma": np.nanmedian(np.array(S), axis=0).round(4).tolist()}
+                if label in ("tracker", "final"):
+                    c.setdefault("per_frame", {})[f"{label}_{nm}"] = {
+                        "error": np.round(E, 5).tolist(), "sigma": np.round(np.array(S), 5).tolist()}
             c[label] = d
         out[case] = c
         if checkpoint:
@@ -331,9 +336,9 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
 
 
 def _variant(text: str) -> tuple:
-    """``"σ:lag"`` of ``--final-variants`` ("-" for a default)."""
-    hp, lag = text.split(":")
-    return None if hp == "-" else float(hp), None if lag == "-" else int(lag)
+    """``"σ:lag[:confidence]"`` of ``--final-variants`` ("-" for a default)."""
+    hp, lag, *conf = text.split(":")
+    return None if hp == "-" else float(hp), None if lag == "-" else int(lag), conf[0] if conf else None
 
 
 def main(argv=None) -> int:
@@ -355,7 +360,7 @@ def main(argv=None) -> int:
                    help="track with and without the final stage (TrackingOptions.refine_likelihood)")
     p.add_argument("--highpass", type=float, default=4.0, help="--final: the stage's high-pass σ (px)")
     p.add_argument("--final-variants", default="",
-                   help="--final: more one-bone stages 'σ:lag,…' ('-': the default)")
+                   help="--final: more stages 'σ:lag[:confidence],…' ('-': the default)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json

@@ -52,3 +52,28 @@ def test_device_poses_step_scores_as_the_host_path(talus_scene):
     np.testing.assert_allclose(a.g, b.g, rtol=1e-4, atol=1e-6 * np.abs(b.g).max())
     np.testing.assert_allclose(a.H, b.H, rtol=1e-4, atol=1e-6 * np.abs(b.H).max())
     np.testing.assert_allclose(dev(x[None]), host(x[None]), atol=1e-6)  # a single pose: its own pipeline
+
+
+def test_second_round_keeps_the_regions_and_prepares_as_afresh(talus_scene):
+    """The same frame and regions again with the neighbours at new poses (joint tracking's second
+    round): the kept line integrals and masks are not prepared again, and the regions the engine
+    scores are those a fresh engine prepares."""
+    sc = talus_scene
+    r, m = sc["renderer"], sc["model"]
+    frame = prepare_frame(sc["fluence"](2))
+    truth = sc["scene"].poses(2)[0]
+    start = pose_from_params(np.r_[0.5, -0.3, 0.2, np.radians([0.5, -0.5, 0.8])], center=m.centroid,
+                             base=truth)
+    roi = search_roi(r, start, 0, views=(0, 1), center=m.centroid, reach_mm=7.6, points=m.outline)
+    away = pose_from_params(np.r_[30.0, 0.0, 0.0, 0.0, 0.0, 0.0], center=m.centroid, base=truth)
+    kept = GaussNewtonCost(r, bone=0, views=(0, 1), scale=1.0, term=DEFAULT_TERMS[0])
+    kept.set_frame(frame, base_pose=start, center=m.centroid, roi=roi, others=(away[None], [0]))
+    kept.step(np.zeros(6), H)  # the usable pixels counted and found
+    kept.set_frame(frame, base_pose=truth, center=m.centroid, roi=roi, others=(away[None], [0]))
+    assert not kept._count_pending  # nothing prepared again
+    fresh = GaussNewtonCost(r, bone=0, views=(0, 1), scale=1.0, term=DEFAULT_TERMS[0])
+    fresh.set_frame(frame, base_pose=truth, center=m.centroid, roi=roi, others=(away[None], [0]))
+    for a in ("_raw", "_fluoro", "_fgrad", "_fmask"):
+        np.testing.assert_array_equal(getattr(kept, a).numpy(), getattr(fresh, a).numpy())
+    x = np.array([0.2, -0.1, 0.1, 0.3, -0.2, 0.1])
+    np.testing.assert_array_equal(kept.step(x, H).costs, fresh.step(x, H).costs)

@@ -11,7 +11,6 @@ cost's gradient and Gauss–Newton Hessian.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -92,17 +91,20 @@ def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.nd
     C = (M - n[:, None, None] * (m[:, :, None] * m[:, None, :])) * _scale2(h)
     caa, cbb, cab = C[:, 1, 1], C[:, 2, 2], C[:, 1, 2]
     ok &= (caa > 0) & (cbb > 0)
+    if not ok.any():
+        return r_out, g, H
+    cb = np.where(ok, cbb, 1.0)  # the views without contrast are left out below
+    sq = np.sqrt(np.where(ok, caa, 1.0) * cb)
+    r = cab / sq
+    cbd = C[:, 2, 3:]
+    dr = C[:, 1, 3:] / sq[:, None] - r[:, None] * cbd / cb[:, None]
+    jtj = (C[:, 3:, 3:] - cbd[:, :, None] * cbd[:, None, :] / cb[:, None, None]) / cb[:, None, None]
     for v in range(nv):
-        if not ok[v]:
-            continue
-        sq = math.sqrt(caa[v] * cbb[v])
-        r = cab[v] / sq
-        cbd = C[v, 2, 3:]
-        dr = C[v, 1, 3:] / sq - r * cbd / cbb[v]
-        jtj = (C[v, 3:, 3:] - np.outer(cbd, cbd) / cbb[v]) / cbb[v]
-        r_out[v] = r
-        g -= w[v] * dr
-        H += w[v] * max(r, 0.05) * jtj
+        if ok[v]:
+            rv = float(r[v])
+            r_out[v] = rv
+            g -= w[v] * dr[v]
+            H += w[v] * max(rv, 0.05) * jtj[v]
     return r_out, g, 0.5 * (H + H.T)
 
 

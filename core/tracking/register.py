@@ -187,8 +187,10 @@ class RegistrationOptions:
     moves the pose by at most ``final_reach`` (mm, degrees); ``final_lag_px``: the lag window
     of its covariance, None for the engine's default; ``final_confidence``: the frame's
     covariance — ``"sandwich"`` (the residual's autocorrelation accounted for),
-    ``"sandwich+move"`` (plus the outer product of the stage's move from the similarity's
-    optimum: the two costs' disagreement as a systematic part) or ``"independent"``), or None.
+    ``"sandwich+move"`` (the default: plus the outer product of the stage's move from the
+    similarity's optimum, the two costs' disagreement as a systematic part; on the 1024² trial,
+    one H200, the talus's errors were within 2σ on 94 % of the axes, against 85-86 % with the
+    sandwich alone) or ``"independent"``), or None.
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
@@ -207,7 +209,7 @@ class RegistrationOptions:
     final_iters: int = 5
     final_reach: tuple[float, float] = (1.0, 2.0)
     final_lag_px: int | None = None
-    final_confidence: str = "sandwich"
+    final_confidence: str = "sandwich+move"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", tuple(self.terms))

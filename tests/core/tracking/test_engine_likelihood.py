@@ -103,3 +103,18 @@ def test_register_with_the_final_stage(talus_scene):
         RegistrationOptions(final="ml")
     with pytest.raises(ValueError, match="refine_likelihood"):
         TrackingOptions(refine_likelihood=1)
+
+
+def test_final_stage_options():
+    import pytest
+
+    from core.tracking.register import RegistrationOptions
+
+    o = RegistrationOptions(final="likelihood")
+    assert o.final_confidence == "sandwich+move" and o.to_dict()["final"] == "likelihood"
+    for kw, msg in (({"final_confidence": "both"}, "final_confidence"),
+                    ({"final_lag_px": -1}, "final_lag_px"),
+                    ({"final_iters": 0}, "final_iters"), ({"final_reach": (1.0, 0.0)}, "final_reach"),
+                    ({"final_highpass_px": float("nan")}, "final_highpass_px")):
+        with pytest.raises(ValueError, match=msg):
+            RegistrationOptions(final="likelihood", **kw)

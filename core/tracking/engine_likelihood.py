@@ -61,7 +61,6 @@ import math
 import time
 import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -71,11 +70,13 @@ from .cost import CostTimer, FrameImages, fluoro_rois
 from .engine import GaussNewtonCost
 from .engine_search import step_design
 
-__all__ = ["LikelihoodEngine", "LikelihoodFit", "likelihood_engine", "solve_moments"]
+__all__ = ["LikelihoodEngine", "likelihood_engine", "solve_moments"]
 
-NZ = 11  # z = (y, D, δ_1..δ_6, 1, u, v)
-vec11f = wp.types.vector(length=NZ, dtype=wp.float32)
-mat11f = wp.types.matrix(shape=(NZ, NZ), dtype=wp.float32)
+NZ = 12  # z = (y, D, δ_1..δ_6, 1, u, v, O)
+NA = 5  # A = (D, 1, u, v, O): the linear terms residual_kernel reads
+vec12f = wp.types.vector(length=NZ, dtype=wp.float32)
+mat12f = wp.types.matrix(shape=(NZ, NZ), dtype=wp.float32)
+vec5f = wp.types.vector(length=NA, dtype=wp.float32)
 vec6f = wp.types.vector(length=6, dtype=wp.float32)
 mat66f = wp.types.matrix(shape=(6, 6), dtype=wp.float32)
 vec2d = wp.types.vector(length=2, dtype=wp.float64)
@@ -131,10 +132,11 @@ def highpass_kernel(y: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.fl
 @wp.kernel
 def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
                        y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
-                       ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, chunk: int,
-                       acc: wp.array2d(dtype=wp.float64)):
-    """acc[v] += Σ w z zᵀ (row-major 11 × 11), z = (y, D_0, D_1 - D_2, …, D_11 - D_12, 1, u, v) of
-    view v (item j of view v is j · n_refs + v; D high-passed). dim = (views, chunks)."""
+                       oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+                       chunk: int, acc: wp.array2d(dtype=wp.float64)):
+    """acc[v] += Σ w z zᵀ (row-major 12 × 12), z = (y, D_0, D_1 - D_2, …, D_11 - D_12, 1, u, v, O)
+    of view v (item j of view v is j · n_refs + v; D high-passed; O the neighbours' high-passed
+    DRRs, 0 without). dim = (views, chunks)."""
     v, ch, lane = wp.tid()
     bd = wp.block_dim()
     h = ref_hw[v][0]
@@ -144,14 +146,14 @@ def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=
     stop = wp.min(y.shape[1] * W, start + chunk)
     su = 2.0 / float(wp.max(w - 1, 1))
     sv = 2.0 / float(wp.max(h - 1, 1))
-    s = mat11f()
+    s = mat12f()
     for p in range(start + lane, stop, bd):
         r = p // W
         c = p - r * W
         if r < h and c < w:
             wt = wgt[v, r, c]
             if wt > 0.0:
-                z = vec11f()
+                z = vec12f()
                 z[0] = y[v, r, c]
                 z[1] = _hp(drr, low, hp, v, r, c)
                 for j in range(6):
@@ -160,6 +162,7 @@ def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=
                 z[8] = 1.0
                 z[9] = float(c) * su - 1.0
                 z[10] = float(r) * sv - 1.0
+                z[11] = oth[v, r, c]
                 s += wt * wp.outer(z, z)
     t = wp.tile_sum(wp.tile(s, preserve_type=True))
     if lane == 0:
@@ -172,11 +175,12 @@ def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=
 @wp.kernel
 def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
                     y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
-                    ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, lin: wp.array2d(dtype=wp.float32),
-                    e: wp.array3d(dtype=wp.float32), jt: wp.array3d(dtype=vec6f)):
+                    oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+                    lin: wp.array2d(dtype=wp.float32), e: wp.array3d(dtype=wp.float32),
+                    jt: wp.array3d(dtype=vec6f)):
     """The weighted residual e = √w (y - A coef) and projected Jacobian J̃_k = √w a (D_k - A β_k)
-    of view v at the centre pose; ``lin[v]`` = (coef (4), a, 1/2h (6), β (4 × 6)) with A =
-    (D, 1, u, v) (unused background terms with coefficients 0). dim = (views, H, W)."""
+    of view v at the centre pose; ``lin[v]`` = (coef (5), a, 1/2h (6), β (5 × 6)) with A =
+    (D, 1, u, v, O) (unused terms with coefficients 0). dim = (views, H, W)."""
     v, r, c = wp.tid()
     h = ref_hw[v][0]
     w = ref_hw[v][1]
@@ -186,22 +190,23 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
         wt = wgt[v, r, c]
         if wt > 0.0:
             sw = wp.sqrt(wt)
-            a = vec11f()  # (D, 1, u, v) in its first four places
+            a = vec5f()  # (D, 1, u, v, O)
             a[0] = _hp(drr, low, hp, v, r, c)
             a[1] = 1.0
             a[2] = float(c) * 2.0 / float(wp.max(w - 1, 1)) - 1.0
             a[3] = float(r) * 2.0 / float(wp.max(h - 1, 1)) - 1.0
+            a[4] = oth[v, r, c]
             fit = float(0.0)  # noqa: UP018
-            for q in range(4):
+            for q in range(NA):
                 fit += lin[v, q] * a[q]
             ev = sw * (y[v, r, c] - fit)
             for k in range(6):
                 dk = (_hp(drr, low, hp, (2 * k + 1) * n_refs + v, r, c)
-                      - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, 5 + k]
+                      - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, NA + 1 + k]
                 proj = float(0.0)  # noqa: UP018
-                for q in range(4):
-                    proj += lin[v, 11 + q * 6 + k] * a[q]
-                jv[k] = sw * lin[v, 4] * (dk - proj)
+                for q in range(NA):
+                    proj += lin[v, NA + 7 + q * 6 + k] * a[q]
+                jv[k] = sw * lin[v, NA] * (dk - proj)
     e[v, r, c] = ev
     jt[v, r, c] = jv
 
@@ -274,17 +279,19 @@ def meat_kernel(jt: wp.array3d(dtype=vec6f), cw: wp.array2d(dtype=wp.float32),
                 wp.atomic_add(acc, v, i * 6 + j, wp.float64(x[i, j]))
 
 
-def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0) -> dict:
-    """The variable-projection Gauss–Newton quantities of the moment tables ``M (views, 11, 11)``
+def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False) -> dict:
+    """The variable-projection Gauss–Newton quantities of the moment tables ``M (views, 12, 12)``
     (module docs) with half-steps ``h (6,)``: ``{"JJ", "Jr", "chi2"}`` summed over views and, per
-    view, ``lin (views, 35)`` (the linear fit and projections :func:`residual_kernel` reads)."""
+    view, ``lin (views, 42)`` (the linear fit and projections :func:`residual_kernel` reads).
+    ``others``: the neighbours' DRRs a regressor with a gain of their own."""
     M = np.asarray(M, dtype=np.float64).reshape(-1, NZ, NZ)
     bg = [8] if background == 0 else [8, 9, 10]
-    ai = [1, *bg]
+    ai = [1, *bg, *([11] if others else [])]
+    slot = [0, *range(1, len(bg) + 1), *([4] if others else [])]  # their places in A = (D, 1, u, v, O)
     di = list(range(2, 8))
     s = 1.0 / (2.0 * np.asarray(h, dtype=float))
     JJ, Jr, chi2 = np.zeros((6, 6)), np.zeros(6), 0.0
-    lin = np.zeros((len(M), 35))
+    lin = np.zeros((len(M), NA + 7 + 6 * NA))
     for v, Mv in enumerate(M):
         G = Mv[np.ix_(ai, ai)]
         b = Mv[ai, 0]
@@ -297,35 +304,12 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0) -> dict:
         a = coef[0]
         JJ += a * a * (MDD - MDA @ beta)
         Jr += a * (MDy - MDA @ coef)
-        full = np.zeros(4)
-        full[: len(ai)] = coef
-        bf = np.zeros((4, 6))
-        bf[: len(ai)] = beta
+        full = np.zeros(NA)
+        full[slot] = coef
+        bf = np.zeros((NA, 6))
+        bf[slot] = beta
         lin[v] = np.r_[full, a, s, bf.ravel()]
     return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
-
-
-@dataclass(frozen=True, eq=False)
-class LikelihoodFit:
-    """The refinement's confidence in the form :func:`core.tracking.confidence.confidence_from_fit`
-    reads (``Σ = 2 · noise · H⁻¹``): ``H = 2 Σ⁻¹`` and ``noise = 1`` give back ``covariance``, the
-    sandwich covariance (mm, degrees) of :meth:`LikelihoodEngine.refine`; ``x`` the refined
-    parameters, ``chi2`` the weighted residual, ``covariance_independent`` the covariance that
-    treats the pixels as independent (for comparison)."""
-
-    H: np.ndarray
-    noise: float
-    covariance: np.ndarray
-    x: np.ndarray
-    chi2: float
-    covariance_independent: np.ndarray
-    method: str = "likelihood"
-
-    @classmethod
-    def of(cls, covariance, *, x, chi2: float, covariance_independent) -> LikelihoodFit:
-        C = np.asarray(covariance, dtype=float)
-        return cls(2.0 * np.linalg.inv(C), 1.0, C, np.asarray(x, dtype=float), float(chi2),
-                   np.asarray(covariance_independent, dtype=float))
 
 
 class LikelihoodEngine:
@@ -335,6 +319,8 @@ class LikelihoodEngine:
     ``highpass_px``: σ of the high-pass (pixels; None or 0: none, then a background of order
     ``background`` 0 or 1 carries the smooth structure); ``psf``: an odd 2-D kernel estimated from
     calibration images, or None; ``weight_sigma_px``: smoothing of the expected counts;
+    ``others_gain``: the neighbours' DRRs (``others`` of :meth:`set_frame`) a regressor with a gain
+    of their own (fitted at every pose like the bone's) instead of subtracted as they are;
     ``lag_px``: the autocovariance's lag window of :meth:`sandwich` (default ``2 · highpass_px``
     plus the PSF's radius, at least 2).
     """
@@ -344,7 +330,7 @@ class LikelihoodEngine:
 
     def __init__(self, renderer, *, bone: int, views: Sequence[int], highpass_px: float | None = 4.0,
                  psf=None, background: int = 0, weight_sigma_px: float = 2.0, lag_px: int | None = None,
-                 block_dim: int = 128, chunk: int = 4096) -> None:
+                 others_gain: bool = False, block_dim: int = 128, chunk: int = 4096) -> None:
         from ..similarity.batched import gaussian_weights
 
         if int(background) not in (0, 1):
@@ -361,6 +347,8 @@ class LikelihoodEngine:
         self.n_views = len(self.views)
         self.scale = 1.0
         self.background = int(background)
+        self.others_gain = bool(others_gain)
+        self._with_o = False  # the neighbours' DRRs a regressor in this frame (set_frame)
         self.highpass_px = float(highpass_px) if highpass_px else 0.0
         self.weight_sigma_px = float(weight_sigma_px)
         rad = 0 if self.psf is None else max(self.psf.shape) // 2
@@ -410,39 +398,48 @@ class LikelihoodEngine:
         self.roi = np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)
         rois, masks = fluoro_rois(r, frame, views=self.views, roi=self.roi)
         y = [np.asarray(v, np.float32) for v in rois]
+        oth = [np.zeros_like(v) for v in y]
+        self._with_o = bool(others is not None and len(others[1]) and self.others_gain)
         if others is not None and len(others[1]):
             P = np.asarray(others[0], dtype=float)
             img = r.render(P[None], views=self.views, bones=list(others[1]), roi=self.roi[None, :, None, :])
             bg = img.numpy()[0].sum(axis=1)
             for i, yi in enumerate(y):
-                o = bg[i, : yi.shape[0], : yi.shape[1]]
-                y[i] = yi - (o if self.psf is None else blur(o, self.psf))
+                o = np.nan_to_num(bg[i, : yi.shape[0], : yi.shape[1]])
+                o = o if self.psf is None else blur(o, self.psf)
+                if self._with_o:  # a regressor with its own gain
+                    oth[i] = o
+                else:  # subtracted as it is (gain 1)
+                    y[i] = yi - o
         shapes = [v.shape for v in y]
         self._cap = tuple(int(math.ceil(max(s[k] for s in shapes) / 32.0) * 32) for k in (0, 1))
         nv, (Hc, Wc) = self.n_views, self._cap
         # the line integrals (for the weights), those with the neighbours subtracted, the usable pixels
-        hy = np.zeros((3, nv, Hc, Wc), np.float32)
-        for i, (li, yi, m) in enumerate(zip(rois, y, masks, strict=True)):
+        hy = np.zeros((4, nv, Hc, Wc), np.float32)
+        for i, (li, yi, m, o) in enumerate(zip(rois, y, masks, oth, strict=True)):
             hy[0, i, : yi.shape[0], : yi.shape[1]] = li
             hy[1, i, : yi.shape[0], : yi.shape[1]] = yi
             hy[2, i, : yi.shape[0], : yi.shape[1]] = m
+            hy[3, i, : yi.shape[0], : yi.shape[1]] = o
         self.n_pixels = int(sum(np.count_nonzero(m) for m in masks))
         self._ref_hw.assign(np.array(shapes, dtype=np.int32))
         dev = self.device
-        up = self._buffer("up", (3, nv, Hc, Wc))
+        up = self._buffer("up", (4, nv, Hc, Wc))
         up.assign(hy)
-        li, self._y_raw, mask = up[0], up[1], up[2]
+        li, self._y_raw, mask, o_raw = up[0], up[1], up[2], up[3]
         # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
         # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))
         low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
         wp.launch(weights_kernel, dim=(nv, Hc, Wc), inputs=[low, mask, self._w], device=dev)
         self._y = self._buffer("y", (nv, Hc, Wc))
-        if self.highpass_px:
-            low = self._blurred("y", self._y_raw, nv)
-            wp.launch(highpass_kernel, dim=(nv, Hc, Wc), inputs=[self._y_raw, low, 1.0, self._y], device=dev)
-        else:
-            wp.copy(self._y, self._y_raw)
+        self._o = self._buffer("o", (nv, Hc, Wc))
+        for src, dst in ((self._y_raw, self._y), (o_raw, self._o)):
+            if self.highpass_px:
+                low = self._blurred("y", src, nv)
+                wp.launch(highpass_kernel, dim=(nv, Hc, Wc), inputs=[src, low, 1.0, dst], device=dev)
+            else:
+                wp.copy(dst, src)
         self.timer.host += time.perf_counter() - t0
 
     def _blurred(self, tag: str, src, n_refs: int, taps=None):
@@ -485,7 +482,8 @@ class LikelihoodEngine:
         n_chunks = math.ceil(Hc * Wc / self.chunk)
         hp = 1.0 if self.highpass_px else 0.0
         wp.launch_tiled(wls_moments_kernel, dim=(nv, n_chunks), block_dim=self.block_dim, device=self.device,
-                        inputs=[img, low, hp, self._y, self._w, self._ref_hw, nv, self.chunk, self._acc])
+                        inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, self.chunk,
+                                self._acc])
         wp.copy(self._host_acc, self._acc)
         wp.synchronize_device(self.device)
         M = self._host_acc.numpy().reshape(nv, NZ, NZ).copy()
@@ -494,7 +492,7 @@ class LikelihoodEngine:
         self.timer.calls += 1
         self.timer.evaluations += 13
         t1 = time.perf_counter()
-        out = solve_moments(M, h, self.background)
+        out = solve_moments(M, h, self.background, self._with_o)
         out["M"] = M
         self.timer.host += time.perf_counter() - t1
         return out
@@ -544,7 +542,7 @@ class LikelihoodEngine:
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
         wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=dev,
-                  inputs=[img, low, hp, self._y, self._w, self._ref_hw, nv, lin, e, jt])
+                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt])
         L = self.lag_px
         nl = (2 * L + 1) ** 2
         cov = wp.zeros((nv, nl, 2), dtype=wp.float64, device=dev)
@@ -571,14 +569,16 @@ _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def likelihood_engine(renderer, *, bone: int, views: Sequence[int], highpass_px: float | None = 4.0,
-                      psf=None, background: int = 0, lag_px: int | None = None) -> LikelihoodEngine:
+                      psf=None, background: int = 0, lag_px: int | None = None,
+                      others_gain: bool = False) -> LikelihoodEngine:
     """The :class:`LikelihoodEngine` of ``renderer`` for this bone, views and settings, kept for the
     renderer's lifetime."""
     per = _CACHE.setdefault(renderer, {})
     key = (int(bone), tuple(int(v) for v in views), float(highpass_px or 0.0),
-           None if psf is None else np.asarray(psf, np.float64).tobytes(), int(background), lag_px)
+           None if psf is None else np.asarray(psf, np.float64).tobytes(), int(background), lag_px,
+           bool(others_gain))
     e = per.get(key)
     if e is None:
         e = per[key] = LikelihoodEngine(renderer, bone=bone, views=views, highpass_px=highpass_px, psf=psf,
-                                        background=background, lag_px=lag_px)
+                                        background=background, lag_px=lag_px, others_gain=others_gain)
     return e

@@ -7,16 +7,40 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi
-from .engine_likelihood import LikelihoodFit, likelihood_engine
+from .engine_likelihood import likelihood_engine
 from .register import RegistrationOptions, RegistrationResult, _snap
 
-__all__ = ["final_stage"]
+__all__ = ["LikelihoodFit", "final_stage"]
+
+
+@dataclass(frozen=True, eq=False)
+class LikelihoodFit:
+    """The refinement's confidence in the form :func:`core.tracking.confidence.confidence_from_fit`
+    reads (``Σ = 2 · noise · H⁻¹``): ``H = 2 Σ⁻¹`` and ``noise = 1`` give back ``covariance``, the
+    stage's covariance (mm, degrees; ``final_confidence`` of the options, from
+    :meth:`core.tracking.engine_likelihood.LikelihoodEngine.refine`); ``x`` the refined
+    parameters, ``chi2`` the weighted residual, ``covariance_independent`` the covariance that
+    treats the pixels as independent (for comparison)."""
+
+    H: np.ndarray
+    noise: float
+    covariance: np.ndarray
+    x: np.ndarray
+    chi2: float
+    covariance_independent: np.ndarray
+    method: str = "likelihood"
+
+    @classmethod
+    def of(cls, covariance, *, x, chi2: float, covariance_independent) -> LikelihoodFit:
+        C = np.asarray(covariance, dtype=float)
+        return cls(2.0 * np.linalg.inv(C), 1.0, C, np.asarray(x, dtype=float), float(chi2),
+                   np.asarray(covariance_independent, dtype=float))
 
 
 def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: int, initial_pose, center,
@@ -34,7 +58,7 @@ def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: 
         roi = _snap(search_roi(renderer, res.pose, bone, views=views, center=center, reach_mm=1.0,
                                margin_px=o.margin_px), renderer, views)
         eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=o.final_highpass_px,
-                                lag_px=o.final_lag_px)
+                                lag_px=o.final_lag_px, others_gain=o.final_others_gain)
         eng.timer = CostTimer()
         eng.set_frame(frame, base_pose=res.pose, center=center, roi=roi, others=others)
         timing["likelihood_setup_s"] = time.perf_counter() - t0

@@ -36,7 +36,7 @@ squares of the bone's DRR against the line-integral image on the device
 weighted by their expected counts, the gain and an offset fitted linearly, the neighbours of
 ``others`` subtracted at their poses), a few Gauss–Newton steps from the similarity's optimum,
 in the bone's volume box grown by 1 mm.
-The result's ``fit`` is then a :class:`~core.tracking.engine_likelihood.LikelihoodFit` whose
+The result's ``fit`` is then a :class:`~core.tracking.final_stage.LikelihoodFit` whose
 confidence (:func:`core.tracking.confidence.confidence_from_fit`) is the sandwich covariance of
 the refinement (the residual's autocorrelation accounted for); ``score`` stays the similarity's.
 A refinement that moves the pose more than ``final_reach`` (mm, degrees) or fails is not taken
@@ -190,7 +190,8 @@ class RegistrationOptions:
     ``"sandwich+move"`` (the default: plus the outer product of the stage's move from the
     similarity's optimum, the two costs' disagreement as a systematic part; on the 1024² trial,
     one H200, the talus's errors were within 2σ on 94 % of the axes, against 85-86 % with the
-    sandwich alone) or ``"independent"``), or None.
+    sandwich alone) or ``"independent"``; ``final_others_gain``: the neighbours' DRRs fitted with
+    a gain of their own instead of subtracted as they are), or None.
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
@@ -210,6 +211,7 @@ class RegistrationOptions:
     final_reach: tuple[float, float] = (1.0, 2.0)
     final_lag_px: int | None = None
     final_confidence: str = "sandwich+move"
+    final_others_gain: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "terms", tuple(self.terms))
@@ -238,6 +240,8 @@ class RegistrationOptions:
         lag = self.final_lag_px
         if lag is not None and (isinstance(lag, bool) or int(lag) != lag or lag < 0):
             raise ValueError(f"final_lag_px: expected an integer >= 0 or None, got {lag!r}")
+        if not isinstance(self.final_others_gain, bool):
+            raise ValueError(f"final_others_gain: expected True or False, got {self.final_others_gain!r}")
         if self.final_confidence not in _FINAL_CONFIDENCES:
             raise ValueError(f"final_confidence: expected one of {_FINAL_CONFIDENCES}, "
                              f"got {self.final_confidence!r}")
@@ -267,7 +271,7 @@ class RegistrationOptions:
                 "margin_px": self.margin_px, "seed": self.seed, "final": self.final,
                 "final_highpass_px": self.final_highpass_px, "final_iters": self.final_iters,
                 "final_reach": list(self.final_reach), "final_lag_px": self.final_lag_px,
-                "final_confidence": self.final_confidence}
+                "final_confidence": self.final_confidence, "final_others_gain": self.final_others_gain}
 
 
 @dataclass(frozen=True, eq=False)

@@ -249,12 +249,14 @@ def _coverage(E, S) -> dict:
 
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
-              checkpoint=None, variants=((None, None, None),)) -> dict:
-    """The trial tracked twice per case in the same process: as today (``search="newton"``) and
+              checkpoint=None, variants=((None, None, None, False),)) -> dict:
+    """The trial tracked twice per case (``one``: the talus alone, ``three``: three bones jointly,
+    or a bone's name: that bone alone) in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
     high-pass ``highpass_px``): error / bound ratios, time per frame, the time the stage adds per
     bone-frame, how often its move was taken, 2σ coverage of each run's confidence. ``variants``:
-    further final stages of every case, ``(high-pass σ px, lag window px, confidence)``
+    further final stages of every case, ``(high-pass σ px, lag window px, confidence, the
+    neighbours' own gain)``
     (None: the default), each tracked in full as ``final_<σ>_<lag>_<confidence>``. Per frame
     (``per_frame``): the errors and σ of the runs ``tracker`` and ``final``."""
     from core.render import DRRRenderer
@@ -284,7 +286,7 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
     final = replace(plain, registration=replace(plain.registration, final_highpass_px=highpass_px),
                     refine_likelihood=True)
     for case in cases:
-        bones = [1] if case == "one" else [0, 1, 2]
+        bones = {"one": [1], "three": [0, 1, 2]}.get(case) or [ts.names.index(case)]  # or a bone alone
         models = [ts.models[b] for b in bones]
         names = [ts.names[b] for b in bones]
         r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
@@ -293,12 +295,14 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
         c = {}
         runs = [("warm_up", plain), ("tracker", plain), ("final", final)]
         if variants:
-            for hp, lag, conf in variants:
-                if (hp, lag, conf) != (None, None, None):
+            for hp, lag, conf, gain in variants:
+                if (hp, lag, conf, gain) != (None, None, None, False):
                     reg = replace(final.registration, final_lag_px=lag,
                                   final_highpass_px=highpass_px if hp is None else float(hp),
-                                  final_confidence=conf or final.registration.final_confidence)
-                    runs.append((f"final_{hp}_{lag}_{conf}", replace(final, registration=reg)))
+                                  final_confidence=conf or final.registration.final_confidence,
+                                  final_others_gain=bool(gain))
+                    label = f"final_{hp}_{lag}_{conf}" + ("_others_gain" if gain else "")
+                    runs.append((label, replace(final, registration=reg)))
         for label, o in runs:
             if label == "warm_up":  # the kernels compiled, the engines' buffers made (not timed)
                 track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=o)
@@ -336,9 +340,12 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
 
 
 def _variant(text: str) -> tuple:
-    """``"σ:lag[:confidence]"`` of ``--final-variants`` ("-" for a default)."""
-    hp, lag, *conf = text.split(":")
-    return None if hp == "-" else float(hp), None if lag == "-" else int(lag), conf[0] if conf else None
+    """``"σ:lag[:confidence[:gain]]"`` of ``--final-variants`` ("-" for a default; ``gain``: the
+    neighbours' DRRs with a gain of their own)."""
+    hp, lag, *rest = [*text.split(":"), "-", "-"]
+    conf, gain = rest[0], rest[1]
+    return (None if hp == "-" else float(hp), None if lag == "-" else int(lag), None if conf == "-" else conf,
+            gain == "gain")
 
 
 def main(argv=None) -> int:

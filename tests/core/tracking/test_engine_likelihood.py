@@ -67,18 +67,20 @@ def test_sandwich_without_lags_is_the_independent_covariance(talus_scene):
 
 def test_solve_moments_background_one():
     rng = np.random.default_rng(0)
-    Z = rng.normal(size=(500, 11))
+    Z = rng.normal(size=(500, 12))
     Z[:, 8] = 1.0
     M = (Z.T @ Z)[None]
     s = solve_moments(M, np.full(6, 0.1), background=1)
-    assert s["JJ"].shape == (6, 6) and s["lin"].shape == (1, 35) and s["chi2"] >= 0
+    assert s["JJ"].shape == (6, 6) and s["lin"].shape == (1, 42) and s["chi2"] >= 0
+    more = solve_moments(M, np.full(6, 0.1), background=1, others=True)  # one regressor more
+    assert more["chi2"] <= s["chi2"] + 1e-9 * M[0, 0, 0]
 
 
 def test_register_with_the_final_stage(talus_scene):
     import pytest
 
     from core.tracking.confidence import confidence_from_fit
-    from core.tracking.engine_likelihood import LikelihoodFit
+    from core.tracking.final_stage import LikelihoodFit
     from core.tracking.options import TrackingOptions
     from core.tracking.register import RegistrationOptions, register
 
@@ -118,3 +120,23 @@ def test_final_stage_options():
                     ({"final_highpass_px": float("nan")}, "final_highpass_px")):
         with pytest.raises(ValueError, match=msg):
             RegistrationOptions(final="likelihood", **kw)
+
+
+def test_neighbours_with_a_gain_of_their_own(talus_scene):
+    # the talus's own DRR at a known offset as the "neighbour": with its own gain the fit explains
+    # it away (the refinement still converges, its covariance finite)
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(3)[0]
+    start = pose_from_params(np.r_[0.3, -0.2, 0.1, np.radians([0.3, -0.2, 0.2])], center=model.centroid,
+                             base=truth)
+    fr = prepare_frame(talus_scene["fluence"](3), valid_range=None)
+    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
+    far = truth.copy()
+    far[:3, 3] += [40.0, 0.0, 0.0]  # mostly outside the region: a faint, fixed structure
+    eng = LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=3.0, others_gain=True)
+    eng.set_frame(fr, base_pose=start, center=model.centroid, roi=roi, others=(far[None], [0]))
+    assert eng._with_o
+    out = eng.refine(iters=6)
+    e = params_from_pose(eng.poses(out["x"][None])[0], center=model.centroid, base=truth)
+    assert np.linalg.norm(e[:3]) < 0.02 and np.degrees(np.linalg.norm(e[3:])) < 0.05, e
+    assert np.all(np.isfinite(out["covariance"]))

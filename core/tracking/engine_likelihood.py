@@ -45,10 +45,11 @@ As the registrations' final stage (:mod:`core.tracking.final_stage`, high-pass 4
 alone goes from 2.21/2.15× the Cramér–Rao bound (mm/degrees) to 1.47/1.46×, for 11.6 ms per
 bone-frame (3.6 ms of host set-up, 4.6 steps, the sandwich); three bones jointly: talus
 1.78/1.58× → 1.37/1.30×, rotation better for the tibia (2.01 → 1.69×) and the calcaneus (1.54 →
-1.40×), translation worse for both (tibia 2.21 → 4.34×, calcaneus 1.45 → 1.89×: errors smooth
-from frame to frame, the trial's residual distortion). The sandwich's σ covers 85-86 % of the
-talus's axes within 2σ (the independent-pixel σ 36-42 % before); with the stage's move added
-(``final_confidence="sandwich+move"``) 94 %, and 100 % of the tibia's and calcaneus's.
+1.40×), translation worse for both (tibia 2.21 → 4.34×, calcaneus 1.45 → 1.89×; alone 4.26×,
+1.80×: errors smooth from frame to frame, the trial's residual distortion). The sandwich's σ
+covers 85-86 % of the talus's axes within 2σ (the independent-pixel σ 36-42 % before); with the
+stage's move added (``final_confidence="sandwich+move"``) 94 %, and 100 % of the tibia's and
+calcaneus's.
 
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
 its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched

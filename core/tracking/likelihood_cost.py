@@ -4,7 +4,8 @@
 the fluoroscope's line integrals (:mod:`core.similarity.likelihood`), with the same parameters as
 :class:`core.tracking.cost.RegistrationCost`; :meth:`LikelihoodCost.refine` minimises it by
 Gauss–Newton steps. What it was measured to gain and why: :mod:`core.studies.tracking.bound_gap`,
-:mod:`core.studies.tracking.ml_cost`.
+:mod:`core.studies.tracking.ml_cost`. The same refinement on the device, the registrations' opt-in
+final stage: :mod:`core.tracking.engine_likelihood`, :mod:`core.tracking.final_stage`.
 """
 
 from __future__ import annotations

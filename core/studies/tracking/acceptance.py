@@ -103,17 +103,19 @@ class TrackingScene:
         """Flatfield-normalised, approximately undistorted fluence images of frame ``i`` (with the
         measured glare undone when the scene was made with ``glare``)."""
         if i not in self._cache:
-            from core.imaging.glare import remove_glare
-
             raw = self.scene.render_frame(i, renderer=self._scene_renderer)
-            out = []
-            for v, (m, f, c) in enumerate(zip(self.scene.imaging, raw, self.corrections, strict=True)):
-                x = m.to_float(f)
-                if self.glare:
-                    x = remove_glare(x, self.glare[v].fraction, self.glare[v].sigma_px)
-                out.append(c.unwarp(x))
-            self._cache[i] = out
+            self._cache[i] = [self.correct(v, f) for v, f in enumerate(raw)]
         return self._cache[i]
+
+    def correct(self, view: int, raw) -> np.ndarray:
+        """View ``view``'s raw frame (DN) corrected as the trial's frames are: flatfield division,
+        the measured glare undone (``glare``), the distortion undone by the trial's inverse."""
+        from core.imaging.glare import remove_glare
+
+        x = self.scene.imaging[view].to_float(raw)
+        if self.glare:
+            x = remove_glare(x, self.glare[view].fraction, self.glare[view].sigma_px)
+        return self.corrections[view].unwarp(x)
 
     def residual_distortion_mm(self) -> float:
         """RMS over the image (within the round field) of the residual distortion, mm at the

@@ -42,8 +42,7 @@ def _chain_frame(args):
     """One frame through the trial's image chain (the body of TrackingScene.frames)."""
     ts, i, L = _POOL_SCENE[0], args[0], args[1]
     sc = ts.scene
-    return i, [c.unwarp(m.to_float(m.apply(L[v], rng=sc.frame_rng(i, v))))
-               for v, (m, c) in enumerate(zip(sc.imaging, ts.corrections, strict=True))]
+    return i, [ts.correct(v, m.apply(L[v], rng=sc.frame_rng(i, v))) for v, m in enumerate(sc.imaging)]
 
 
 _POOL_SCENE: list = []
@@ -249,7 +248,7 @@ def _coverage(E, S) -> dict:
 
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
-              checkpoint=None, variants=((None, None, None, False),)) -> dict:
+              checkpoint=None, variants=((None, None, None, False),), glare: bool = False) -> dict:
     """The trial tracked twice per case (``one``: the talus alone, ``three``: three bones jointly,
     or a bone's name: that bone alone) in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
@@ -266,11 +265,12 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
     n = frames or 100
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=max(n, 2), pixels=pixels, spacing=voxel,
-                       phase=(0.0, 0.6 * max(n, 2) / 100.0), device=device)
+                       phase=(0.0, 0.6 * max(n, 2) / 100.0), device=device, glare=glare)
     synthesise(ts, range(n), workers)
     out = {"study": "core.studies.tracking.ml_cost (final stage)", "machine": platform.machine(),
            "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "frames": n,
-           "highpass_px": highpass_px, "synthesis_s": time.perf_counter() - t0}
+           "highpass_px": highpass_px, "synthesis_s": time.perf_counter() - t0,
+           "glare": [g.to_dict() for g in ts.glare] or None}
     try:
         import warp as wp
 
@@ -368,6 +368,8 @@ def main(argv=None) -> int:
     p.add_argument("--highpass", type=float, default=4.0, help="--final: the stage's high-pass σ (px)")
     p.add_argument("--final-variants", default="",
                    help="--final: more stages 'σ:lag[:confidence],…' ('-': the default)")
+    p.add_argument("--glare", action="store_true",
+                   help="--final: undo the veiling glare measured from calibration disc frames")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json
@@ -384,7 +386,7 @@ def main(argv=None) -> int:
         res = run_final(device=a.device, frames=a.frames, cases=a.cases.split(","),
                         pixels=a.pixels or 1024, voxel=a.voxel or 0.5, highpass_px=a.highpass,
                         workers=a.workers, checkpoint=checkpoint,
-                        variants=[_variant(v) for v in a.final_variants.split(",") if v])
+                        variants=[_variant(v) for v in a.final_variants.split(",") if v], glare=a.glare)
         print_json(res, a.out)
         return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,

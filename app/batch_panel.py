@@ -226,6 +226,7 @@ class BatchPanel(QtCore.QObject):
         from core.tracking.batch import TaskSettings, build_tasks, run_batch
 
         from .commands.batch import mode_note
+        from .commands.track import final_stage_problem
 
         session, m = self.window.session, self.window.model
         if session is None or not session.writable:
@@ -234,6 +235,11 @@ class BatchPanel(QtCore.QObject):
             raise ValueError("tracking: a tracking job is running (cancel it first)")
         tasks = build_tasks([session.folder], trials, bones, mode=mode, ranges=ranges)
         opts = self.window.tracking.options
+        if opts is not None and opts.refine_likelihood:  # as talus batch --final likelihood
+            problems = [p for t in sorted({k.trial for k in tasks})
+                        if (p := final_stage_problem(session.study, t))]
+            if problems:
+                raise ValueError("Final stage (Tracking options): " + "; ".join(problems))
         options = () if opts is None else tuple(
             (f.name, getattr(opts, f.name)) for f in dataclasses.fields(opts) if f.init and f.name != "mode")
         settings = TaskSettings(device=self.window.device, options=options)

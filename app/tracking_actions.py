@@ -91,8 +91,9 @@ class TrackingActions:
         c = choices_of(options)
         res = "full" if c["scale"] == 1 else f"1/{c['scale']:g}"
         gc = ", gradient components" if c["metric"] == "components" else ""
+        final = ", likelihood final stage" if c["final"] == "likelihood" else ""
         self.window.notify(f"Tracking options: {c['search']} search, {res} resolution{gc}, {c['mode']}, "
-                           f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}")
+                           f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}")
 
     def track_in_batch(self):
         """Open the batch dialog (:mod:`app.batch_panel`); returns it."""
@@ -125,6 +126,12 @@ class TrackingActions:
             raise ValueError("tracking: a tracking job is already running (cancel it first)")
         if self.batch is not None and self.batch.running:
             raise ValueError("tracking: a batch is tracking this study (cancel it first)")
+        if self.options is not None and self.options.refine_likelihood:
+            from .commands.track import final_stage_problem
+
+            problem = final_stage_problem(session.study, session.trial_name)
+            if problem:
+                raise ValueError(f"Final stage (Tracking options): {problem}")
         from core.tracking.from_study import track_study
 
         m = self.window.model

@@ -4,8 +4,8 @@ Usage::
 
     talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
                 [--ranges] [--workers N] [--scheduler ADDRESS] [--device cpu|cuda]
-                [--frames START:STOP] [--metric gc|components] [--no-confidence] [--max-uncertainty MM,DEG]
-                [--out SUMMARY.json] [--quiet]
+                [--frames START:STOP] [--metric gc|components] [--final none|likelihood]
+                [--no-confidence] [--max-uncertainty MM,DEG] [--out SUMMARY.json] [--quiet]
 
 Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto``
 (the default) makes one task of each trial whose frames are flatfield-corrected (a calibrated
@@ -19,6 +19,9 @@ study's journal as ``talus track --resume`` would, so a batch that was stopped, 
 died, carries on where it was; a failed task is retried once and then reported. ``--workers 0``
 runs the tasks one after the other in this process, without Dask. Progress goes to stderr (the
 Dask dashboard address first), the JSON summary to stdout.
+``--final likelihood`` ends every registration with the weighted least-squares refinement, as
+``talus track --final likelihood`` does; every trial of the batch must have flatfield-corrected
+frames (the trials without are named, and nothing is tracked).
 Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
 it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -44,7 +47,7 @@ from ._shared import (
     text_bar,
 )
 
-__all__ = ["HELP", "configure", "mode_note", "run"]
+__all__ = ["HELP", "configure", "final_stage_problems", "mode_note", "run"]
 
 #: --mode's choices (core.tracking.batch.MODES; not imported here, to keep --help free of core)
 MODES = ("auto", "joint", "sequential")
@@ -90,6 +93,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="similarity, as talus track --metric: gc (the default: gradient correlation of the "
                         "gradient magnitudes; also 'magnitudes'), components (of the gradient components) "
                         "or another core.similarity batched kind as one term")
+    p.add_argument("--final", choices=("none", "likelihood"), default="none",
+                   help="as talus track --final: likelihood ends every registration with a weighted "
+                        "least-squares refinement against the line-integral image (better talus and "
+                        "rotation accuracy on the synthetic trial, worse tibia and calcaneus translation "
+                        "jointly, slower; needs flatfield-corrected frames in every trial). Default none")
     p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
     p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",
@@ -110,6 +118,23 @@ def _frames(text: str | None) -> tuple[int, int] | None:
     if not 0 <= lo < hi:
         raise ValueError(f"--frames: {text!r} is not a non-empty range START:STOP with 0 <= START")
     return lo, hi
+
+
+def final_stage_problems(tasks) -> list[str]:
+    """Why the likelihood final stage cannot run on the trials of ``tasks``
+    (:func:`app.commands.track.final_stage_problem`, one line per trial; empty: it can)."""
+    from core.study import Study
+
+    from .track import final_stage_problem
+
+    out = []
+    for folder in sorted({t.study for t in tasks}):
+        with Study.open(folder) as study:
+            for trial in sorted({t.trial for t in tasks if t.study == folder}):
+                problem = final_stage_problem(study, trial)
+                if problem:
+                    out.append(f"{folder}: {problem}")
+    return out
 
 
 def mode_note(tasks, mode: str) -> str:
@@ -165,8 +190,13 @@ def run(a: argparse.Namespace) -> int:
 
     tasks = build_tasks([Path(s).expanduser() for s in a.studies], _names(a.trials), _names(a.bones),
                         mode=mode, ranges=a.ranges, frames=frames)
+    if a.final == "likelihood":
+        problems = final_stage_problems(tasks)
+        if problems:
+            raise CliError("--final likelihood: " + "; ".join(problems))
     settings = TaskSettings(device=a.device, metric=a.metric, threshold_hu=a.threshold,
-                            confidence=not a.no_confidence, max_uncertainty=limits, frames=frames)
+                            confidence=not a.no_confidence, max_uncertainty=limits, frames=frames,
+                            options=(("refine_likelihood", True),) if a.final == "likelihood" else ())
     progress = Progress("batch", quiet=a.quiet)
     follow = _Follow(progress, len(tasks))
     progress.note(f"{len(tasks)} tasks: {', '.join(t.key for t in tasks[:6])}"

@@ -1,5 +1,5 @@
 """Tracking > Tracking options…: the window offers what ``talus track`` offers (search, resolution,
-similarity, mode, guess, confidence), chosen with real clicks and keys."""
+similarity, mode, guess, final stage, confidence), chosen with real clicks and keys."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ pytest.importorskip("PySide6", reason="the GUI extra (PySide6) is not installed"
 
 from PySide6 import QtCore, QtWidgets
 
-from app.tracking_options import TrackingOptionsDialog, choices_of, options_from_choices
-from tests.app._helpers import main_window
+from app.tracking_options import FINALS, TrackingOptionsDialog, choices_of, options_from_choices
+from tests.app._helpers import copy_study, job_ends, main_window
 
 HUNG_MS = 30 * 60_000  # ceiling for an event that never comes, not a time budget
 
@@ -72,16 +72,21 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     _pick(qtbot, dialog.resolution, 2.0)
     _pick(qtbot, dialog.mode, "joint")
     _pick(qtbot, dialog.similarity, "components")
+    assert dialog.final.currentData() == "none"  # the default, as talus track --final
+    _pick(qtbot, dialog.final, "likelihood")
     qtbot.mouseClick(dialog.confidence, QtCore.Qt.MouseButton.LeftButton)
     with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
         qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
                          QtCore.Qt.MouseButton.LeftButton)
     opts = window.tracking.options
     assert choices_of(opts) == {"search": "newton", "scale": 2.0, "mode": "joint", "guess": "velocity",
-                                "confidence": False, "metric": "components"}
+                                "confidence": False, "metric": "components", "final": "likelihood"}
     assert any(t.kind == "gc" and t.options.get("components") for t in opts.registration.terms)
+    assert opts.refine_likelihood and opts.registration.final == "likelihood"
+    assert opts.first_options.final == "likelihood"  # first frames and retries end with it too
     last = window.messages.item(window.messages.count() - 1).text()
     assert "newton search, 1/2 resolution, gradient components, joint" in last and "no confidence" in last
+    assert "likelihood final stage" in last
 
     # re-opened, the dialog shows the current choices; Restore defaults then Cancel changes nothing
     dialog = window.tracking.edit_options()
@@ -108,5 +113,31 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
         qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
                          QtCore.Qt.MouseButton.LeftButton)
     assert choices_of(window.tracking.options) == choices_of(None)
+    assert window.tracking.options.registration.final is None
     last = window.messages.item(window.messages.count() - 1).text()
-    assert "gradient" not in last and "components" not in last
+    assert "gradient" not in last and "components" not in last and "likelihood" not in last
+
+
+def test_the_final_stage_choice_is_talus_track_final():
+    from app.commands import track
+
+    assert [v for _, v in FINALS] == list(track.FINALS)
+    opts = options_from_choices(final="likelihood")
+    assert opts.refine_likelihood and opts.registration.final == "likelihood"
+    assert choices_of(opts)["final"] == "likelihood" and options_from_choices(**choices_of(opts)) == opts
+    assert options_from_choices().registration.final is None  # off by default
+    with pytest.raises(ValueError, match="final"):
+        options_from_choices(final="ml")
+
+
+@pytest.mark.gui
+def test_tracking_with_the_final_stage_is_refused_on_frames_without_flatfield(qtbot, demo_study, tmp_path):
+    """The demo study has no flatfield correction: the window names the trial and tracks nothing."""
+    with main_window(qtbot) as win:
+        with job_ends(qtbot, win.pool, "overlay"):
+            win.open_study(copy_study(demo_study, tmp_path))
+        win.tracking.options = options_from_choices(final="likelihood")
+        m = win.model
+        with pytest.raises(ValueError, match=r"trial 'walk'.*not flatfield-corrected"):
+            win.tracking.start(["talus"])
+        assert not win.tracking.running and not m.layers[m.index("talus")].locked

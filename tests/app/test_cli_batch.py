@@ -142,6 +142,31 @@ def test_batch_bad_input(demo, tmp_path, capsys):
         a.run(a)
 
 
+def test_batch_final_likelihood(demo, capsys, monkeypatch):
+    """--final likelihood: refused naming the trial on frames without flatfield (the demo's), else
+    every task's options end with the final stage (the tasks are not run here)."""
+    assert talus_batch([str(demo), "--workers", "0", "--final", "likelihood", "--quiet"]) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert "--final likelihood" in err and "trial 'walk'" in err and "not flatfield-corrected" in err
+    import core.tracking.batch as core_batch
+
+    seen = []
+
+    def fake_run_serial(tasks, settings, progress=None):
+        seen.append(settings)
+        return {"status": "complete", "failures": []}
+
+    monkeypatch.setattr(core_batch, "run_serial", fake_run_serial)
+    monkeypatch.setattr(batch, "final_stage_problems", lambda tasks: [])  # as flatfield trials
+    assert talus_batch([str(demo), "--workers", "0", "--quiet"]) == EXIT_OK
+    assert talus_batch([str(demo), "--workers", "0", "--final", "likelihood", "--quiet"]) == EXIT_OK
+    capsys.readouterr()
+    plain, final = (s.tracking_options(joint=False) for s in seen)
+    assert plain.registration.final is None and not plain.refine_likelihood
+    assert final.refine_likelihood and final.registration.final == "likelihood"
+    assert final.first_options.final == "likelihood"
+
+
 def test_talus_batch_is_registered(tmp_path, capsys):
     from app.cli import main
 

@@ -72,6 +72,51 @@ def test_track_command_bad_input(demo, capsys):
         assert "max_uncertainty" in capsys.readouterr().err.replace("-", "_")
 
 
+def test_final_likelihood_is_refused_on_frames_without_flatfield(demo, capsys):
+    """The demo's frames are divided by the full scale: --final likelihood names the trial, exit 1,
+    before any tracking."""
+    journal = demo / "results" / "walk" / "poses" / "talus.jsonl"
+    before = journal.read_bytes() if journal.exists() else None
+    rc = main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--device", "cpu",
+               "--final", "likelihood", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert "--final likelihood: trial 'walk'" in err and "not flatfield-corrected" in err
+    assert (journal.read_bytes() if journal.exists() else None) == before  # nothing tracked
+
+
+def test_final_reaches_the_tracking_options(demo, capsys, monkeypatch):
+    """--final likelihood sets TrackingOptions.refine_likelihood (the registrations' final stage);
+    without it the options are those the command always built. The tracker is not run."""
+    import core.tracking.from_study as from_study
+    from app.commands import track
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions
+
+    seen = []
+
+    def fake_track_study(study, trial, bones, frames, *, options, **kw):
+        seen.append(options)
+        return None, {"summary": {"status": "stopped"}}
+
+    monkeypatch.setattr(from_study, "track_study", fake_track_study)
+    monkeypatch.setattr(track, "final_stage_problem", lambda study, trial: None)  # as a flatfield trial
+    args = [str(demo), "--trial", "walk", "--frames", "0:1", "--quiet", "--search", "newton", "--scale", "2",
+            "--metric", "components", "--guess", "spline", "--max-uncertainty", "0.3,0.6"]
+    assert main(args) == EXIT_NOTHING_DONE
+    assert main([*args, "--final", "likelihood"]) == EXIT_NOTHING_DONE
+    capsys.readouterr()
+    plain, final = seen
+    reg = RegistrationOptions(terms=track.registration_terms("components"), bounds=(5.0, 5.0),
+                              sigma=(1.0, 1.0), search="newton", final_scale=2.0)
+    assert plain == TrackingOptions(registration=reg, guess="spline", mode="auto", confidence=True,
+                                    max_uncertainty=(0.3, 0.6))  # as the command built them before --final
+    assert plain.registration.final is None and not plain.refine_likelihood
+    assert final.refine_likelihood and final.registration.final == "likelihood"
+    assert final.first_options.final == "likelihood"
+    assert track.choices_of(final) == {**track.choices_of(plain), "final": "likelihood"}
+
+
 def test_ctrl_c_during_the_last_frame_exits_130_and_never_reports_complete(demo, tmp_path):
     """A real ``talus track`` process gets SIGINT while it registers its last frame."""
     import shutil

@@ -1,4 +1,5 @@
-"""talus track --search, --scale and --metric: parsed into the registration options, bad values refused."""
+"""talus track --search, --scale, --metric and --final: parsed into the registration options, bad
+values refused."""
 
 from __future__ import annotations
 
@@ -54,3 +55,26 @@ def test_metric_is_parsed_into_the_gc_terms():
     assert track.registration_terms(gc) == DEFAULT_TERMS
     ncc = track.registration_terms(_parse(["study", "--trial", "walk", "--metric", "ncc"]).metric)
     assert [(t.kind, t.weight) for t in ncc] == [("ncc", 1.0)]
+
+
+def test_final_is_parsed_and_maps_to_the_registrations_final_stage():
+    a = _parse(["study", "--trial", "walk"])
+    assert a.final == "none"
+    assert track.options_from_choices(final=a.final).registration.final is None
+    a = _parse(["study", "--trial", "walk", "--final", "likelihood"])
+    opts = track.options_from_choices(final=a.final)
+    assert opts.refine_likelihood and opts.registration.final == "likelihood"
+    with pytest.raises(SystemExit):
+        _parse(["study", "--trial", "walk", "--final", "ml"])
+    with pytest.raises(ValueError, match="final"):
+        track.options_from_choices(final="ml")
+
+
+def test_final_help_states_the_trade_off(capsys):
+    p = argparse.ArgumentParser()
+    track.configure(p)
+    with pytest.raises(SystemExit):
+        p.parse_args(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--final {none,likelihood}" in text
+    assert "NVIDIA H200" in text and "4.34x" in text and "flatfield-corrected" in text

@@ -58,7 +58,8 @@ def confidence_of(fit, o: TrackingOptions) -> dict:
 def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
                      o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
                      start_score: float | None = None, seed: int = 0, pre=None,
-                     frame_number: int | None = None, good_sigmas=None, reference: float | None = None):
+                     frame_number: int | None = None, good_sigmas=None, reference: float | None = None,
+                     host_only: bool = False):
     """Register with failure checks, one wider retry and (first frames, retries) the restart
     check of :func:`core.tracking.verify.verify_start`. ``pre``: ``(registration or the
     OutsideViewError it raised, seconds spent)`` already run with these inputs
@@ -69,7 +70,8 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     (:func:`core.tracking.checks.sigma_check`), ``reference`` the score of a flagged first frame
     that later frames are compared with while the bone has no good score.
 
-    Returns an :class:`Attempt`."""
+    Returns an :class:`Attempt`; with ``host_only``, None where the checks would use the device
+    (a retry, the restart check, a confidence of a cost of its own: the caller runs them later)."""
     t0 = time.perf_counter()
     c = bone.centroid
     cancelled = cancel if cancel is not None else (lambda: False)
@@ -99,6 +101,8 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     more = {"history": history, "frame": frame_number, "reference": reference} if frame_number is not None \
         else {"reference": reference}
     flags = _failures(res, guess, c, good_scores, o, start_score=start_score, jump_factor=jump, **more)
+    if host_only and ((flags and not cancelled()) or verify or (o.confidence and res.fit is None)):
+        return None
     retried = False
     wide = opts.widened(o.retry_factor)
     if flags and not cancelled():

@@ -114,12 +114,16 @@ def _collect(ln: _Search):
     return ln.cost.collect()
 
 
-def _drive(searches, queue: list, push: Callable[[int], None], errors: dict | None = None) -> None:
+def _drive(searches, queue: list, push: Callable[[int], None], errors: dict | None = None,
+           idle: Callable[[], None] | None = None) -> None:
     """The host's loop: take each search's step as soon as its own step is done (its event),
     tell it, and ``push`` it on (its next step enqueued while the device works on the other
     searches' steps). With ``errors``, a search whose step raised OutsideViewError ends there
-    (the error kept under its key); otherwise the error propagates."""
+    (the error kept under its key); otherwise the error propagates. ``idle``: host work of the
+    caller's, called before each wait (while the device works on the steps in flight)."""
     while queue:
+        if idle is not None:
+            idle()
         k = queue.pop(0)
         ln = searches[k]
         try:
@@ -144,11 +148,14 @@ def _result(ln: _Search, fs: float, hi: np.ndarray, full, spent: float) -> Regis
 
 
 def register_together(renderer, frame, jobs: Sequence[JointJob], options: RegistrationOptions, *,
-                      profile: bool = False, cancel: Callable[[], bool] | None = None) -> list:
+                      profile: bool = False, cancel: Callable[[], bool] | None = None,
+                      idle: Callable[[], None] | None = None) -> list:
     """Register every job in ``frame`` (module docs); per job a
     :class:`~core.tracking.register.RegistrationResult`, or the
     :class:`~core.tracking.cost.OutsideViewError` its registration raised. Jobs without
-    ``roi`` get theirs filled in."""
+    ``roi`` get theirs filled in. ``idle``: host work of the caller's that uses neither the
+    device nor these bones' engines, called before each wait for a step (a piece at a time: the
+    previous round's checks, :mod:`core.tracking.frame_step`)."""
     from .final_stage import final_stage
     from .register import register
 
@@ -192,7 +199,7 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
         lanes[k].own_s = time.perf_counter() - t0
     t_loop = time.perf_counter()
     errors: dict = {}
-    _drive(lanes, queue, push, errors)
+    _drive(lanes, queue, push, errors, idle)
     share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly
     for k, ln in lanes.items():
         if k in errors:

@@ -158,14 +158,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry.transforms import pose_from_params
-from .attempt import Attempt, confidence_of, register_checked
+from .attempt import register_checked
 from .bones import BoneModel
 from .checks import SAME_OPTIMUM, pose_delta, same_optimum, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
-from .cost import OutsideViewError
 from .feed import FrameFeed
-from .joint import JointJob, lockstep_applies, register_together
+from .frame_step import track_frame
 from .options import TrackingOptions
-from .register import RegistrationOptions
 from .results import FrameResult, TrackingResult
 
 __all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs", "predict_pose",
@@ -304,156 +302,6 @@ class _Run:
     contacts: list | None = None
 
 
-@dataclass
-class _Work:
-    """Work spent on one bone in one frame, every round and registration added up."""
-
-    evaluations: int = 0
-    time_s: float = 0.0
-    timing: dict = field(default_factory=dict)
-
-    def add(self, a: Attempt) -> None:
-        self.evaluations += a.evaluations
-        self.time_s += a.time_s
-        for k, v in (a.timing or {}).items():
-            self.timing[k] = self.timing.get(k, 0) + v
-
-
-def _frame_result(name: str, f: int, a: Attempt, w: _Work) -> FrameResult:
-    """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work."""
-    res = a.result
-    if res is None:
-        return FrameResult(name, f, None, np.nan, w.evaluations, w.time_s, False, tuple(a.flags), a.retried,
-                           None, w.timing or None)
-    return FrameResult(name, f, res.pose, res.score, w.evaluations, w.time_s, not a.flags, tuple(a.flags),
-                       a.retried, a.confidence, w.timing or None, a.notes)
-
-
-def _track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
-                 skip: dict) -> dict[int, FrameResult] | None:
-    """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
-    or None when cancelled."""
-    o, names, bones = run.options, run.names, run.bones
-    missing = [v for v, im in enumerate(imgs) if im is None]
-    if missing:
-        why = (f"frame missing in view {', '.join(map(str, missing))}",)
-        return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, why) for i in todo}
-    hist = {b: state[b].history for b in names}
-    guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
-                               keyframes=run.keyframes.get(names[i])) for i in todo}
-    joint = o.mode == "joint" and len(names) > 1
-    current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
-    if joint:
-        for i, b in enumerate(names):
-            if i not in current:  # skipped: given as a pose (see track)
-                current[i] = hist[b][-1][1] if hist[b] else predict_pose(
-                    [], f, bones[i].centroid, keyframes=run.keyframes.get(b) or {
-                        k: getattr(v, "pose", v) for k, v in skip[b].items()})
-    # poses good enough to subtract: tracked bones' guesses, and bones given or registered this frame
-    known = {i for i, b in enumerate(names) if hist[b] or (f in skip[b] and i not in todo)}
-    out: dict[int, Attempt] = {}
-    work = {i: _Work() for i in todo}
-    def others_of(i: int):
-        ids = [k for k in range(len(names)) if k != i and k in known]
-        return (np.stack([current[k] for k in ids]), ids) if ids else None
-
-    lockstep = (joint and o.lockstep and run.contacts is None and lockstep_applies(o.registration))
-    # lockstep: each bone's search regions and the pose they were computed about, kept for the next
-    # round when the bone's start moved within SAME_OPTIMUM of it (the regions reach 5 mm and 5°
-    # beyond the search box; a search region costs 0.3 ms of host time)
-    rois: dict[int, tuple] = {}
-
-    def roi_of(i: int, start):
-        hit = rois.get(i)
-        return hit[1] if hit is not None and same_optimum(hit[0], start, bones[i].centroid) else None
-
-    for rnd in range(o.joint_rounds if joint else 1):
-        pre = {}
-        if lockstep:  # bones tracked from a guess (round 0: not a first frame) side by side
-            side = [i for i in todo if rnd > 0 or hist[names[i]]]
-            if len(side) > 1:
-                if run.cancel():
-                    return None
-                starts = {i: guesses[i] if rnd == 0 else current[i] for i in side}
-                jobs = [JointJob(i, starts[i], bones[i].centroid, bones[i].outline, others_of(i),
-                                 roi_of(i, starts[i])) for i in side]
-                t0 = time.perf_counter()
-                got = register_together(run.renderer, frame, jobs, o.registration, profile=o.profile,
-                                        cancel=run.cancel)
-                spent = (time.perf_counter() - t0) / len(side)
-                pre = {i: (r, job.others, spent) for i, r, job in zip(side, got, jobs, strict=True)}
-                rois.update((job.bone, (job.initial_pose, job.roi)) for job in jobs if job.roi is not None)
-        for i in todo:
-            if run.cancel():
-                return None
-            b = names[i]
-            others = None
-            if i in pre:
-                others = pre[i][1]
-            elif joint:
-                others = others_of(i)
-            first = not hist[b]
-            if rnd == 0:
-                opts, start = (o.first_options if first else o.registration), guesses[i]
-            else:
-                opts, start = o.registration, current[i]
-            new = register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
-                                   state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
-                                   start_score=state[b].start_score, seed=f,
-                                   pre=(pre[i][0], pre[i][2]) if i in pre else None, frame_number=f,
-                                   good_sigmas=state[b].sigmas, reference=state[b].reference)
-            if run.contacts is not None and new.result is not None and not run.cancel.fired:
-                done = [k for k in range(len(names)) if k != i and k in out and out[k].result is not None]
-                if done:  # neighbours registered in this frame, not mere guesses
-                    _keep_apart(run, frame, i, new, others, [(k, current[k]) for k in done], opts)
-            if run.cancel.fired:  # the registration was cut short: nothing of this frame stands
-                return None
-            work[i].add(new)
-            if new.result is None and i in out and out[i].result is not None:
-                continue  # a later round lost the bone (outside a view): the earlier pose stands
-            out[i] = new
-            if new.result is not None:
-                current[i] = new.result.pose
-                known.add(i)
-    return {i: _frame_result(names[i], f, out[i], work[i]) for i in todo}
-
-
-def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
-                opts: RegistrationOptions) -> None:
-    """Joint tracking with ``contact``: when bone ``i``'s registered pose comes closer than the
-    margin to a neighbour registered in this frame (``placed``: (index, pose)), polish it under
-    the interpenetration penalty of :mod:`core.tracking.contact` (``a`` is updated in place: pose,
-    score, confidence, work, a note with the depth resolved)."""
-    from dataclasses import replace as _replace
-
-    from .contact import penetration_depths, polish_with_contact
-
-    o = run.options
-    neighbours = [(run.contacts[k], P) for k, P in placed]
-    me = run.contacts[i]
-    depth = float(penetration_depths(me, a.result.pose[None], neighbours, margin=o.contact_margin_mm)[0])
-    if depth <= 0:
-        return
-    t0 = time.perf_counter()
-    bone = run.bones[i]
-    try:
-        P, score, fit, evals, left = polish_with_contact(
-            run.renderer, frame, bone=i, pose=a.result.pose, center=bone.centroid, contact=me,
-            neighbours=neighbours, terms=opts.terms, others=others, outline=bone.outline,
-            weight=o.contact_weight, margin=o.contact_margin_mm, margin_px=opts.margin_px, cancel=run.cancel)
-    except OutsideViewError:
-        return
-    a.result = _replace(a.result, pose=P, score=score, fit=fit)
-    a.evaluations += evals
-    dt = time.perf_counter() - t0
-    a.time_s += dt
-    if a.timing is not None:
-        a.timing["other_s"] = a.timing.get("other_s", 0.0) + dt
-    if o.confidence and fit is not None:
-        a.confidence = confidence_of(fit, o)
-    a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm")
-
-
 def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence],
           frame_order: Sequence[int], *,
           keyframes: Mapping[str, Mapping[int, np.ndarray]], options: TrackingOptions | None = None,
@@ -554,7 +402,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                 imgs, frame = feed.get(f)
                 if k + 1 < len(order) and todo_of(order[k + 1])[1]:  # prepared while this one registers
                     feed.prefetch(order[k + 1])
-                new = _track_frame(run, f, imgs, frame, todo, state, skip)
+                new = track_frame(run, f, imgs, frame, todo, state, skip)
             if new is None:
                 status = "cancelled"
                 break

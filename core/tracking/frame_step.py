@@ -1,0 +1,247 @@
+"""One frame of :func:`core.tracking.trial.track`: every bone's registrations, rounds and checks.
+
+:func:`track_frame` registers the bones of one frame — one bone at a time, or jointly in
+``joint_rounds`` rounds (each bone with its neighbours subtracted at their latest estimates) —
+each registration with the checks of :func:`core.tracking.attempt.register_checked`, and returns
+a :class:`~core.tracking.results.FrameResult` per bone.
+
+Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
+round's poses, which its checks may still change (a flagged registration is retried wider). The
+checks seldom change a pose, and they are host work, while the next round is device work: so the
+next round is started from the poses the checks would leave when they pass (the same jobs the
+tracker builds after them: the same starts, neighbours and search regions), and the checks run
+on the host while the device works on its steps
+(``idle`` of :func:`~core.tracking.joint.register_together`). A check that would need the device
+(a retry, the restart check, a confidence from a cost of its own) is left for after the round and
+run as before; the round started ahead is used only where the jobs built after every check are
+those it was started with (the same bytes), otherwise it is dropped and run again from the
+checked poses. The results are those of checking first (:data:`AHEAD` False).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .attempt import Attempt, confidence_of, register_checked
+from .checks import same_optimum
+from .cost import OutsideViewError
+from .joint import JointJob, lockstep_applies, register_together
+from .register import RegistrationOptions
+from .results import FrameResult
+
+if TYPE_CHECKING:
+    from .trial import _BoneState, _Run
+
+__all__ = ["AHEAD", "track_frame"]
+
+#: Start joint tracking's next lockstep round before this round's checks (module docs).
+AHEAD = True
+
+
+@dataclass
+class _Work:
+    """Work spent on one bone in one frame, every round and registration added up."""
+
+    evaluations: int = 0
+    time_s: float = 0.0
+    timing: dict = field(default_factory=dict)
+
+    def add(self, a: Attempt) -> None:
+        self.evaluations += a.evaluations
+        self.time_s += a.time_s
+        for k, v in (a.timing or {}).items():
+            self.timing[k] = self.timing.get(k, 0) + v
+
+
+def _frame_result(name: str, f: int, a: Attempt, w: _Work) -> FrameResult:
+    """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work."""
+    res = a.result
+    if res is None:
+        return FrameResult(name, f, None, np.nan, w.evaluations, w.time_s, False, tuple(a.flags), a.retried,
+                           None, w.timing or None)
+    return FrameResult(name, f, res.pose, res.score, w.evaluations, w.time_s, not a.flags, tuple(a.flags),
+                       a.retried, a.confidence, w.timing or None, a.notes)
+
+
+def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
+                 skip: dict) -> dict[int, FrameResult] | None:
+    """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
+    or None when cancelled."""
+    from .trial import predict_pose
+
+    o, names, bones = run.options, run.names, run.bones
+    missing = [v for v, im in enumerate(imgs) if im is None]
+    if missing:
+        why = (f"frame missing in view {', '.join(map(str, missing))}",)
+        return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, why) for i in todo}
+    hist = {b: state[b].history for b in names}
+    guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
+                               keyframes=run.keyframes.get(names[i])) for i in todo}
+    joint = o.mode == "joint" and len(names) > 1
+    current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
+    if joint:
+        for i, b in enumerate(names):
+            if i not in current:  # skipped: given as a pose (see track)
+                current[i] = hist[b][-1][1] if hist[b] else predict_pose(
+                    [], f, bones[i].centroid, keyframes=run.keyframes.get(b) or {
+                        k: getattr(v, "pose", v) for k, v in skip[b].items()})
+    # poses good enough to subtract: tracked bones' guesses, and bones given or registered this frame
+    known = {i for i, b in enumerate(names) if hist[b] or (f in skip[b] and i not in todo)}
+    out: dict[int, Attempt] = {}
+    work = {i: _Work() for i in todo}
+
+    def others_of(i: int, cur: dict, kn: set):
+        ids = [k for k in range(len(names)) if k != i and k in kn]
+        return (np.stack([cur[k] for k in ids]), ids) if ids else None
+
+    lockstep = (joint and o.lockstep and run.contacts is None and lockstep_applies(o.registration))
+    # lockstep: each bone's search regions and the pose they were computed about, kept for the next
+    # round when the bone's start moved within SAME_OPTIMUM of it (the regions reach 5 mm and 5°
+    # beyond the search box; a search region costs 0.3 ms of host time)
+    rois: dict[int, tuple] = {}
+
+    def roi_of(i: int, start):
+        hit = rois.get(i)
+        return hit[1] if hit is not None and same_optimum(hit[0], start, bones[i].centroid) else None
+
+    def side_of(rnd: int) -> list[int]:  # bones tracked from a guess (round 0: not a first frame)
+        return [i for i in todo if rnd > 0 or hist[names[i]]]
+
+    def jobs_of(rnd: int, side: list[int], cur: dict, kn: set) -> list[JointJob]:
+        starts = {i: guesses[i] if rnd == 0 else cur[i] for i in side}
+        return [JointJob(i, starts[i], bones[i].centroid, bones[i].outline, others_of(i, cur, kn),
+                         roi_of(i, starts[i])) for i in side]
+
+    def together(jobs: list[JointJob], idle=None) -> tuple[list, float]:
+        t0 = time.perf_counter()
+        got = register_together(run.renderer, frame, jobs, o.registration, profile=o.profile,
+                                cancel=run.cancel, idle=idle)
+        return got, (time.perf_counter() - t0) / len(jobs)
+
+    def check(i: int, rnd: int, others, pre, host_only: bool = False):
+        b = names[i]
+        first = not hist[b]
+        if rnd == 0:
+            opts, start = (o.first_options if first else o.registration), guesses[i]
+        else:
+            opts, start = o.registration, current[i]
+        return register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
+                                state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
+                                start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
+                                good_sigmas=state[b].sigmas, reference=state[b].reference,
+                                host_only=host_only)
+
+    rounds = o.joint_rounds if joint else 1
+    ahead = None  # (signature, jobs, results, seconds per job) of a round started before the checks
+    for rnd in range(rounds):
+        pre = {}
+        checked: dict = {}
+        if lockstep:
+            side = side_of(rnd)
+            if len(side) > 1:
+                if run.cancel():
+                    return None
+                jobs = jobs_of(rnd, side, current, known)
+                if ahead is not None and ahead[0] == _signature(jobs):
+                    _, jobs, got, spent = ahead  # started with these very jobs
+                else:
+                    got, spent = together(jobs)
+                ahead = None
+                pre = {i: (r, job.others, spent) for i, r, job in zip(side, got, jobs, strict=True)}
+                rois.update((job.bone, (job.initial_pose, job.roi)) for job in jobs if job.roi is not None)
+                if AHEAD and rnd + 1 < rounds and len(side) == len(todo):
+                    # the next round from the poses these checks leave when they pass (every bone's
+                    # result, or its estimate where it fell outside a view), the checks meanwhile
+                    cur, kn = dict(current), set(known)
+                    for i in todo:
+                        if not isinstance(pre[i][0], OutsideViewError):
+                            cur[i] = pre[i][0].pose
+                            kn.add(i)
+                    nxt = jobs_of(rnd + 1, side_of(rnd + 1), cur, kn)
+                    tasks = list(todo)
+
+                    def idle(rnd=rnd, pre=pre, tasks=tasks, checked=checked) -> None:
+                        if tasks:
+                            i = tasks.pop(0)
+                            checked[i] = check(i, rnd, pre[i][1], (pre[i][0], pre[i][2]), host_only=True)
+
+                    sig = _signature(nxt)
+                    got, spent = together(nxt, idle)
+                    while tasks:
+                        idle()
+                    ahead = (sig, nxt, got, spent)
+        for i in todo:
+            if run.cancel():
+                return None
+            others = None
+            if i in pre:
+                others = pre[i][1]
+            elif joint:
+                others = others_of(i, current, known)
+            new = checked.get(i)
+            if new is None:
+                new = check(i, rnd, others, (pre[i][0], pre[i][2]) if i in pre else None)
+            if run.contacts is not None and new.result is not None and not run.cancel.fired:
+                done = [k for k in range(len(names)) if k != i and k in out and out[k].result is not None]
+                if done:  # neighbours registered in this frame, not mere guesses
+                    opts = o.first_options if (rnd == 0 and not hist[names[i]]) else o.registration
+                    _keep_apart(run, frame, i, new, others, [(k, current[k]) for k in done], opts)
+            if run.cancel.fired:  # the registration was cut short: nothing of this frame stands
+                return None
+            work[i].add(new)
+            if new.result is None and i in out and out[i].result is not None:
+                continue  # a later round lost the bone (outside a view): the earlier pose stands
+            out[i] = new
+            if new.result is not None:
+                current[i] = new.result.pose
+                known.add(i)
+    return {i: _frame_result(names[i], f, out[i], work[i]) for i in todo}
+
+
+def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
+                opts: RegistrationOptions) -> None:
+    """Joint tracking with ``contact``: when bone ``i``'s registered pose comes closer than the
+    margin to a neighbour registered in this frame (``placed``: (index, pose)), polish it under
+    the interpenetration penalty of :mod:`core.tracking.contact` (``a`` is updated in place: pose,
+    score, confidence, work, a note with the depth resolved)."""
+    from dataclasses import replace as _replace
+
+    from .contact import penetration_depths, polish_with_contact
+
+    o = run.options
+    neighbours = [(run.contacts[k], P) for k, P in placed]
+    me = run.contacts[i]
+    depth = float(penetration_depths(me, a.result.pose[None], neighbours, margin=o.contact_margin_mm)[0])
+    if depth <= 0:
+        return
+    t0 = time.perf_counter()
+    bone = run.bones[i]
+    try:
+        P, score, fit, evals, left = polish_with_contact(
+            run.renderer, frame, bone=i, pose=a.result.pose, center=bone.centroid, contact=me,
+            neighbours=neighbours, terms=opts.terms, others=others, outline=bone.outline,
+            weight=o.contact_weight, margin=o.contact_margin_mm, margin_px=opts.margin_px, cancel=run.cancel)
+    except OutsideViewError:
+        return
+    a.result = _replace(a.result, pose=P, score=score, fit=fit)
+    a.evaluations += evals
+    dt = time.perf_counter() - t0
+    a.time_s += dt
+    if a.timing is not None:
+        a.timing["other_s"] = a.timing.get("other_s", 0.0) + dt
+    if o.confidence and fit is not None:
+        a.confidence = confidence_of(fit, o)
+    a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm")
+
+
+def _signature(jobs: list[JointJob]) -> tuple:
+    """What a lockstep round's registrations depend on, per job (before it fills in its regions):
+    the bone, its start, its neighbours' poses and the kept search regions, as bytes."""
+    return tuple((j.bone, np.asarray(j.initial_pose, dtype=float).tobytes(),
+                  None if j.others is None else (np.asarray(j.others[0], dtype=float).tobytes(),
+                                                 tuple(j.others[1])),
+                  None if j.roi is None else np.asarray(j.roi).tobytes()) for j in jobs)

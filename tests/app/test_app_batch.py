@@ -237,3 +237,34 @@ def test_batch_mode_tracks_as_talus_track_by_default(calibrated_window, qtbot):
     assert dlg.mode_combo.currentData() == "joint"
     qtbot.mouseClick(dlg.cancel_button, LEFT)
     assert not dlg.isVisible() and not win.tracking.batch.running
+
+
+def test_batch_with_the_final_stage_needs_flatfield_corrected_trials(calibrated_window, qtbot, monkeypatch):
+    """The window's Tracking options with the likelihood final stage: a batch over a trial without
+    a flatfield correction (walk2) is refused naming it, nothing handed over; over the calibrated
+    walk every task's options end with the stage (the tasks are recorded, not run)."""
+    import core.tracking.batch as core_batch
+    from app.tracking_options import options_from_choices
+
+    win = calibrated_window
+    errors = []
+    monkeypatch.setattr(win, "show_error", lambda title, text: errors.append(text))
+    recorded, settings = core_batch.run_batch, []
+
+    def run_batch(tasks, s=None, **kw):
+        settings.append(s)
+        return recorded(tasks, s, **kw)
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
+    win.tracking.options = options_from_choices(final="likelihood")
+    dlg = _open_dialog(win, qtbot)
+    _click_box(qtbot, dlg.trial_boxes["walk2"])
+    qtbot.mouseClick(dlg.start_button, LEFT)
+    assert errors and "trial 'walk2'" in errors[-1] and "not flatfield-corrected" in errors[-1]
+    assert "'walk'" not in errors[-1]
+    assert not win.tracking.batch.running and not win.model.layers[win.model.index(BONE)].locked
+    assert win.planned == []
+    dlg = _open_dialog(win, qtbot)
+    assert _start(win, qtbot, dlg) == [f"study/walk/{BONE}"]
+    opts = settings[-1].tracking_options(joint=False)
+    assert opts.refine_likelihood and opts.registration.final == "likelihood"

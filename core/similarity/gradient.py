@@ -7,6 +7,13 @@ taken modulo π (bone dark on bright in one image and bright on dark in the othe
 the angle ``Δ ∈ [0, π/2]`` between the two orientations is ``acos(|g_D · g_F| / (|g_D| |g_F|))``.
 Gradients with ``|g| <= 1e-6 · max(1, max|image|)`` (rounding noise on a flat image) count as
 zero; pixels where either gradient is zero have no orientation and weight 0.
+
+Noise in the fluoroscope adds to its gradient *magnitudes* on average (``E|g + n|² = |g|² +
+E|n|²``), more where fewer photons arrive (behind dense bone), so a correlation of magnitudes
+favours poses that put the DRR's edges there. :func:`gradient_correlation`'s ``noise_energy``
+takes that share out (debiased magnitudes); :func:`noise_gradient_energy` measures it from two
+flat frames (the photon transfer of the chain, detector blur included) and
+:func:`quantum_noise_energy` maps it over a frame (quantum noise: ``var(-ln F) ≈ 1/(N F)``).
 """
 
 from __future__ import annotations
@@ -20,10 +27,14 @@ from .intensity import concordance, pearson
 __all__ = [
     "GO_RANDOM_WEIGHT",
     "GRADIENT_OPERATORS",
+    "debiased_magnitude",
     "gradient_correlation",
     "gradient_difference",
     "gradient_information",
     "gradient_orientation",
+    "noise_gradient_energy",
+    "quantum_noise_energy",
+    "white_noise_gradient_gain",
 ]
 
 #: mean of De Silva's weight (2 - ln(1 + Δ)) / 2 for Δ uniform on [0, π/2] (unrelated orientations)
@@ -50,6 +61,85 @@ def _gradients(drr, fluoro, operator: str, domain_options: dict):
     return out[0], out[1]
 
 
+def _smoothed_gradient(img: np.ndarray, sigma: float, operator: str) -> tuple[np.ndarray, np.ndarray]:
+    from scipy import ndimage
+
+    img = np.asarray(img, dtype=np.float64)
+    if sigma > 0:
+        img = ndimage.gaussian_filter(img, sigma, mode="nearest")
+    return gradient(img, operator=operator)
+
+
+def white_noise_gradient_gain(*, fluoro_sigma: float = 0.0, operator: str = "sobel") -> float:
+    """``E|g_n|² / var(n)`` for white noise ``n`` of variance ``var(n)``: the energy of the
+    derivative filter (Gaussian of ``fluoro_sigma`` px, then ``operator``), ``Σ h_u² + h_v²``.
+
+    With quantum noise alone (no detector blur) and ``N`` quanta per pixel at full fluence, the
+    line-integral image's noise has ``var ≈ 1/(N F)``: ``gain / N`` is the noise energy of a
+    flat frame (:func:`quantum_noise_energy`'s ``flat_energy``)."""
+    if operator not in GRADIENT_OPERATORS:
+        raise ValueError(f"operator: expected one of {GRADIENT_OPERATORS}, got {operator!r}")
+    s = float(fluoro_sigma)
+    if not (np.isfinite(s) and s >= 0):
+        raise ValueError(f"fluoro_sigma: expected a non-negative number, got {fluoro_sigma!r}")
+    n = 2 * (int(4 * s + 0.5) + 3) + 1
+    delta = np.zeros((n, n))
+    delta[n // 2, n // 2] = 1.0
+    gu, gv = _smoothed_gradient(delta, s, operator)
+    return float(np.sum(gu * gu + gv * gv))
+
+
+def noise_gradient_energy(flat_a, flat_b, *, fluoro_sigma: float = 0.0, operator: str = "sobel",
+                          mask=None, margin: int = 8) -> float:
+    """Expected squared gradient magnitude ``E|g_n|²`` of a fluoroscope's noise at full fluence,
+    measured from two uniform frames of the same dose — a calibration's photon transfer.
+
+    Both are flatfield-normalised fluence (after the same corrections as the tracked frames),
+    unclipped; an empty field clipped to 1 loses half its noise, so take them through a uniform
+    attenuator (e.g. a plate: fluence ~0.5). Their line integrals' difference holds twice the
+    noise and none of the (shared) structure: ``E|g_n|² = F̄ · mean |∇(G_σ ∗ (y_a - y_b))|² / 2``
+    over ``mask`` (default where both frames exceed 0.05, ``margin`` px from the border and the
+    mask's edge), with the smoothing and operator of the metric, scaled by their mean fluence
+    ``F̄`` to full fluence (quantum noise: ``var(-ln F) ∝ 1/F``). It includes the detector's
+    blur (correlated noise), which a per-pixel variance would miss."""
+    from scipy import ndimage
+
+    a, b = (np.asarray(x, dtype=np.float64) for x in (flat_a, flat_b))
+    if a.ndim != 2 or a.shape != b.shape:
+        raise ValueError(f"flat_a, flat_b: expected two 2-D frames of one shape, got {a.shape}, {b.shape}")
+    ok = (a > 0.05) & (b > 0.05) if mask is None else np.asarray(mask, dtype=bool)
+    if ok.shape != a.shape:
+        raise ValueError(f"mask: expected shape {a.shape}, got {ok.shape}")
+    m = int(margin)
+    if m > 0:
+        ok = ndimage.binary_erosion(ok, iterations=m, border_value=0)
+    if not ok.any():
+        raise ValueError("flat_a, flat_b: no usable pixels (fluence above 0.05, inside the margin)")
+    la, lb = np.log(np.clip(a, 1e-6, None)), np.log(np.clip(b, 1e-6, None))
+    gu, gv = _smoothed_gradient(lb - la, float(fluoro_sigma), operator)
+    fbar = float(np.mean(0.5 * (a + b)[ok]))
+    return fbar * float(np.mean((gu * gu + gv * gv)[ok])) / 2.0
+
+
+def quantum_noise_energy(fluoro, flat_energy: float, *, smooth_px: float = 2.0) -> np.ndarray:
+    """Per-pixel ``E|g_n|²`` of quantum noise over a frame: ``flat_energy / F``, ``F`` the
+    frame's relative fluence smoothed by ``smooth_px`` (so a pixel's own noise does not set its
+    correction), ``flat_energy`` the energy at full fluence (:func:`noise_gradient_energy` from
+    flat frames, or :func:`white_noise_gradient_gain` / quanta per pixel).
+
+    ``fluoro`` is the frame's flatfield-normalised fluence in [0, 1] (from a line integral ``y``:
+    ``np.exp(-y)``); pixels of less fluence than ``1/4096`` get that floor's energy."""
+    from scipy import ndimage
+
+    f = np.asarray(fluoro, dtype=np.float64)
+    e = float(flat_energy)
+    if not (np.isfinite(e) and e >= 0):
+        raise ValueError(f"flat_energy: expected a non-negative number, got {flat_energy!r}")
+    if smooth_px > 0:
+        f = ndimage.gaussian_filter(f, float(smooth_px), mode="nearest")
+    return e / np.clip(f, 1.0 / 4096, None)
+
+
 def _cos2(gd, gf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(|g_D|, |g_F|, cos²Δ)`` with cos²Δ = 0 where either gradient vanishes."""
     md, mf = np.hypot(*gd), np.hypot(*gf)
@@ -69,19 +159,51 @@ def gradient_difference(drr, fluoro, *, operator: str = "sobel", **domain_option
     return concordance(np.hypot(*gd), np.hypot(*gf))
 
 
+def debiased_magnitude(gu, gv, noise_energy) -> np.ndarray:
+    """``sqrt(max(|g|² - E|g_n|², 0))``: a noisy gradient's magnitude with the noise's expected
+    share taken out (``noise_energy`` a scalar or an array broadcasting with ``gu``)."""
+    return np.sqrt(np.maximum(gu * gu + gv * gv - noise_energy, 0.0))
+
+
+def _noise_map(noise_energy, shape) -> np.ndarray:
+    e = np.asarray(noise_energy, dtype=np.float64)
+    if e.ndim not in (0, 2) or (e.ndim == 2 and e.shape != shape):
+        raise ValueError(f"noise_energy: expected a number or an array of the fluoroscope's shape {shape}, "
+                         f"got shape {e.shape}")
+    if not np.all(np.isfinite(e)) or np.any(e < 0):
+        raise ValueError("noise_energy: expected finite, non-negative expected squared gradients")
+    return e
+
+
 def gradient_correlation(drr, fluoro, *, operator: str = "sobel", components: bool = False,
-                         **domain_options) -> float:
+                         noise_energy=None, **domain_options) -> float:
     """Gradient correlation (eq. 6.11): NCC of the gradient magnitudes over Ω. Range [-1, 1].
 
     With ``components=True``, Penney's form instead: the mean of the NCCs of the u and of the v
     derivative images over Ω, ``(r(E_u^D, E_u^F) + r(E_v^D, E_v^F)) / 2``. Zero-mean noise in the
     fluoroscope adds to its components without bias, whereas it inflates every magnitude (more
     where the signal is weak); the components keep the gradients' signs.
+
+    ``noise_energy`` (magnitudes only): the expected squared gradient magnitude ``E|g_n|²`` that
+    the fluoroscope's noise adds at each pixel (a number, or an array of the fluoroscope's shape;
+    with this ``operator`` and after the ``fluoro_sigma`` smoothing: :func:`quantum_noise_energy`
+    from a calibration's :func:`noise_gradient_energy`). The fluoroscope's magnitudes become
+    :func:`debiased_magnitude`, ``sqrt(max(|g_F|² - E|g_n|², 0))``; the DRR's are left as they are.
     """
-    gd, gf = _gradients(drr, fluoro, operator, domain_options)
+    if noise_energy is None:
+        gd, gf = _gradients(drr, fluoro, operator, domain_options)
+        if components:
+            return 0.5 * (pearson(gd[0], gf[0]) + pearson(gd[1], gf[1]))
+        return pearson(np.hypot(*gd), np.hypot(*gf))
     if components:
-        return 0.5 * (pearson(gd[0], gf[0]) + pearson(gd[1], gf[1]))
-    return pearson(np.hypot(*gd), np.hypot(*gf))
+        raise ValueError("noise_energy: the components' form has no noise share to take out (give one or "
+                         "the other)")
+    e = _noise_map(noise_energy, np.shape(fluoro))
+    gd, gf = _gradients(drr, fluoro, operator, domain_options)
+    if e.ndim == 2:
+        _, _, om = prepare(drr, fluoro, **domain_options)
+        e = e[om]
+    return pearson(np.hypot(*gd), debiased_magnitude(gf[0], gf[1], e))
 
 
 def gradient_information(drr, fluoro, *, operator: str = "sobel", **domain_options) -> float:

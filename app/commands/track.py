@@ -17,7 +17,9 @@ registration in flight (``--resume`` continues later). Exit status: 0 done, 1 ba
 pose against the line-integral image (:mod:`core.tracking.final_stage`). It compares DRRs with
 ``-log`` of the flatfield-normalised fluence, so it needs flatfield-corrected frames: a trial whose
 frames are only divided by the full scale is refused (exit 1) before any tracking, naming it.
-The options come from :func:`options_from_choices`, which the window's *Tracking options* dialog
+The JSON summary then says in how many bone-frames the refinement was kept (``"final_stage"``: a
+refinement that moves the pose too far, or fails, leaves the similarity's pose). The options come
+from :func:`options_from_choices`, which the window's *Tracking options* dialog
 (:mod:`app.tracking_options`) uses too.
 """
 
@@ -194,8 +196,13 @@ class _Bar:
 
     def __init__(self, progress: Progress) -> None:
         self.progress = progress
+        self.final = [0, 0]  # bone-frames the final stage ran on, and of those, took
 
     def __call__(self, done: int, total: int, fr) -> None:
+        taken = (fr.timing or {}).get("likelihood_taken")
+        if taken is not None:
+            self.final[0] += 1
+            self.final[1] += int(taken)
         self.progress(done, total, f"{text_bar(done, total, 30)} {fr.bone}@{fr.frame} score {fr.score:.3f}")
         if fr.flags:
             self.progress.note(f"flagged {fr.bone}@{fr.frame}: {', '.join(map(str, fr.flags))}")
@@ -211,6 +218,7 @@ def run(a: argparse.Namespace) -> int:
 
     token = CancelToken()
     progress = Progress("track", quiet=a.quiet)
+    bar = None
     with Study.open(folder, mode="w") as study, sigint_cancels(token, "track"):
         try:
             trial = study.trial(a.trial)
@@ -225,10 +233,11 @@ def run(a: argparse.Namespace) -> int:
                 problem = final_stage_problem(study, a.trial)
                 if problem:
                     raise CliError(f"--final likelihood: {problem}")
+            bar = _Bar(progress)
             with stdout_to_stderr():
                 result, report = track_study(study, a.trial, bones, frames, options=opts,
                                              device=a.device, resume=a.resume,
-                                             threshold_hu=a.threshold, progress=_Bar(progress),
+                                             threshold_hu=a.threshold, progress=bar,
                                              cancel=token)
         except KeyboardInterrupt:  # a second Ctrl-C: stop at once (the journal stays valid)
             token.set()
@@ -242,6 +251,12 @@ def run(a: argparse.Namespace) -> int:
     out = {"trial": a.trial, "summary": summary, "stopped": report.get("stopped"),
            "flagged": [(f["bone"], f["frame"], f["flags"]) for f in report.get("flagged", [])],
            "normalisation": report.get("normalisation")}
+    if a.final == "likelihood" and bar is not None:
+        ran, took = bar.final  # a refinement that moves the pose beyond final_reach, or fails, is not kept
+        out["final_stage"] = {"method": "likelihood", "bone_frames": ran, "refined": took}
+        if ran > took:
+            print(f"{PROG} track: the likelihood refinement was kept in {took} of {ran} bone-frames; the "
+                  "others keep the similarity's pose (it moved them too far or failed)", file=sys.stderr)
     print_json(out)
     if cancelled:
         print(f"{PROG} track: cancelled; the poses finished so far are saved "

@@ -91,12 +91,17 @@ def test_final_reaches_the_tracking_options(demo, capsys, monkeypatch):
     import core.tracking.from_study as from_study
     from app.commands import track
     from core.tracking.register import RegistrationOptions
+    from core.tracking.results import FrameResult
     from core.tracking.trial import TrackingOptions
 
     seen = []
 
-    def fake_track_study(study, trial, bones, frames, *, options, **kw):
+    def fake_track_study(study, trial, bones, frames, *, options, progress, **kw):
         seen.append(options)
+        if options.refine_likelihood:  # one bone-frame refined, one left at the similarity's pose
+            for k, taken in enumerate((1, 0)):
+                progress(k + 1, 2, FrameResult("talus", k, np.eye(4), 0.9, 10, 0.1, True,
+                                               timing={"likelihood_taken": taken}))
         return None, {"summary": {"status": "stopped"}}
 
     monkeypatch.setattr(from_study, "track_study", fake_track_study)
@@ -104,8 +109,11 @@ def test_final_reaches_the_tracking_options(demo, capsys, monkeypatch):
     args = [str(demo), "--trial", "walk", "--frames", "0:1", "--quiet", "--search", "newton", "--scale", "2",
             "--metric", "components", "--guess", "spline", "--max-uncertainty", "0.3,0.6"]
     assert main(args) == EXIT_NOTHING_DONE
+    assert "final_stage" not in json.loads(capsys.readouterr().out)
     assert main([*args, "--final", "likelihood"]) == EXIT_NOTHING_DONE
-    capsys.readouterr()
+    out = capsys.readouterr()
+    assert json.loads(out.out)["final_stage"] == {"method": "likelihood", "bone_frames": 2, "refined": 1}
+    assert "kept in 1 of 2 bone-frames" in out.err
     plain, final = seen
     reg = RegistrationOptions(terms=track.registration_terms("components"), bounds=(5.0, 5.0),
                               sigma=(1.0, 1.0), search="newton", final_scale=2.0)

@@ -100,18 +100,11 @@ def choices_of(options) -> dict:
 
 def final_stage_problem(study, trial: str) -> str | None:
     """Why the likelihood final stage cannot run on ``trial`` of ``study`` (an open
-    :class:`core.study.Study`), or None. The stage fits DRRs to the line integrals ``-log`` of the
-    flatfield-normalised fluence (its weights are the expected counts): frames that are only
-    divided by the full scale — no flatfield correction saved with the trial's calibration or in
-    the study settings (:func:`core.tracking.from_study.frame_reader`) — do not give them."""
-    from core.tracking.batch import tracks_jointly
+    :class:`core.study.Study`), or None: :func:`core.tracking.from_study.final_stage_problem`, the
+    test :func:`~core.tracking.from_study.track_study` makes, asked before any work starts."""
+    from core.tracking.from_study import final_stage_problem as problem
 
-    if tracks_jointly(study, trial):  # the frames are flatfield-corrected
-        return None
-    return (f"trial {trial!r}: its frames are not flatfield-corrected (divided by the full scale only), "
-            "and the likelihood final stage compares DRRs with the line integrals of flatfield-normalised "
-            "frames; calibrate the trial (the calibration wizard or talus calibrate), add a flatfield "
-            "correction to the study settings, or track without the final stage")
+    return problem(study, trial)
 
 
 def parse_frames(text: str | None, n_frames: int) -> list[int]:

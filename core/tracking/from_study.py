@@ -69,7 +69,7 @@ from ..render import HUTransfer
 from .bones import bone_model
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
-__all__ = ["frame_reader", "tissue_excess_transfer", "track_study"]
+__all__ = ["final_stage_problem", "frame_reader", "tissue_excess_transfer", "track_study"]
 
 #: CT number of the soft tissue around bones (muscle, tendon, fat-free tissue: 40 HU).
 SOFT_TISSUE_HU = 40.0
@@ -122,6 +122,27 @@ def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) 
                 for fn, r in zip(fns, raw, strict=True)]
 
     return read, how
+
+
+def _final_stage_note(trial_name: str, how: str) -> str | None:
+    if not how.startswith("full scale"):
+        return None
+    return (f"trial {trial_name!r}: its frames are not flatfield-corrected (divided by the full scale only), "
+            "and the likelihood final stage compares DRRs with the line integrals of flatfield-normalised "
+            "frames; calibrate the trial (the calibration wizard or talus calibrate), add a flatfield "
+            "correction to the study settings, or track without the final stage")
+
+
+def final_stage_problem(study, trial_name: str, *,
+                        correction: Sequence[Callable] | None = None) -> str | None:
+    """Why the likelihood final stage (``TrackingOptions.refine_likelihood``) cannot run on trial
+    ``trial_name`` of ``study``, or None. The stage fits DRRs to the line integrals ``-log`` of the
+    flatfield-normalised fluence (its weights are the expected counts): frames that are only
+    divided by the full scale — no flatfield correction saved with the trial's calibration or in
+    the study settings (:func:`frame_reader`) — do not give them. :func:`track_study` refuses such
+    a trial with this message."""
+    _, how = frame_reader(study, study.trial(trial_name), correction=correction)
+    return _final_stage_note(trial_name, how)
 
 
 def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
@@ -181,6 +202,10 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     read, how = frame_reader(study, trial, correction=correction)
     if options is None:
         options = TrackingOptions(mode="auto")
+    if "likelihood" in (options.registration.final, getattr(options.first, "final", None)):
+        problem = _final_stage_note(trial_name, how)
+        if problem:
+            raise ValueError(problem)
     if options.mode == "auto":  # flatfield-corrected frames: subtract the neighbours
         joint = len(models) > 1 and not how.startswith("full scale")
         options = replace(options, mode="joint" if joint else "sequential")

@@ -163,3 +163,19 @@ def test_ctrl_c_during_the_last_frame_exits_130_and_never_reports_complete(demo,
         P = st.trial("walk").poses("talus")
     assert np.all(np.isfinite(P[1]))  # the finished frame is saved
     assert np.all(np.isnan(P[2]))  # the cancelled one is not: --resume will track it
+
+
+def test_track_study_itself_refuses_the_final_stage_without_flatfield(demo):
+    """Python's track_study makes the same test: the likelihood final stage on frames divided by the
+    full scale raises, naming the trial, before any frame is registered."""
+    import pytest
+
+    from core.study import Study
+    from core.tracking.from_study import final_stage_problem, track_study
+    from core.tracking.options import TrackingOptions
+
+    with Study.open(demo, mode="w") as study:
+        assert "'walk'" in final_stage_problem(study, "walk")
+        with pytest.raises(ValueError, match=r"'walk'.*not flatfield-corrected"):
+            track_study(study, "walk", ["talus"], [1], options=TrackingOptions(refine_likelihood=True),
+                        device="cpu")

@@ -29,7 +29,7 @@ from .verify import verify_start
 if TYPE_CHECKING:
     from .options import TrackingOptions
 
-__all__ = ["Attempt", "confidence_of", "register_checked"]
+__all__ = ["Attempt", "confidence_of", "register_checked", "settle"]
 
 
 @dataclass
@@ -44,6 +44,29 @@ class Attempt:
     confidence: dict | None
     timing: dict | None
     notes: tuple = ()
+    #: the confidence and its checks left to :func:`settle` (``(fit, options, good sigmas)``)
+    pending: tuple | None = None
+
+
+def settle(a: Attempt) -> Attempt:
+    """Compute the confidence that :func:`register_checked` left pending (``defer_confidence``) and
+    add its flags, as it would have: the same values and flags, in the same order."""
+    if a.pending is not None:
+        fit, o, good_sigmas = a.pending
+        a.pending = None
+        a.confidence = confidence_of(fit, o)
+        a.flags = a.flags + _conf_flags(a.confidence, a.flags, o, good_sigmas)
+    return a
+
+
+def _conf_flags(conf, flags, o: TrackingOptions, good_sigmas) -> list:
+    """The flags of a confidence (the user's limits, the bone's own σ)."""
+    out = []
+    if o.max_uncertainty is not None:
+        out += _uncertain(conf, o.max_uncertainty)
+    if good_sigmas is not None and not any(f.startswith("uncertain") for f in (*flags, *out)):
+        out += _sigma_check(conf, good_sigmas, n=o.history)
+    return out
 
 
 def confidence_of(fit, o: TrackingOptions) -> dict:
@@ -59,7 +82,7 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                      o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
                      start_score: float | None = None, seed: int = 0, pre=None,
                      frame_number: int | None = None, good_sigmas=None, reference: float | None = None,
-                     host_only: bool = False):
+                     host_only: bool = False, defer_confidence: bool = False):
     """Register with failure checks, one wider retry and (first frames, retries) the restart
     check of :func:`core.tracking.verify.verify_start`. ``pre``: ``(registration or the
     OutsideViewError it raised, seconds spent)`` already run with these inputs
@@ -71,7 +94,9 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     that later frames are compared with while the bone has no good score.
 
     Returns an :class:`Attempt`; with ``host_only``, None where the checks would use the device
-    (a retry, the restart check, a confidence of a cost of its own: the caller runs them later)."""
+    (a retry, the restart check, a confidence of a cost of its own: the caller runs them later).
+    ``defer_confidence``: a confidence from the search's own fit is left to :func:`settle` (joint
+    tracking's rounds before the last: their results are mostly replaced by the next round's)."""
     t0 = time.perf_counter()
     c = bone.centroid
     cancelled = cancel if cancel is not None else (lambda: False)
@@ -160,7 +185,10 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                          f"optimum")
             flags = []
     conf = None
-    if o.confidence and res.fit is not None:
+    pending = None
+    if o.confidence and res.fit is not None and defer_confidence:
+        pending = (res.fit, o, good_sigmas)
+    elif o.confidence and res.fit is not None:
         conf = confidence_of(res.fit, o)  # the last design about the optimum
     elif o.confidence:
         try:
@@ -176,11 +204,9 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
         except OutsideViewError:
             conf = None
         evals += 73 if conf is not None else 0
-    if o.max_uncertainty is not None:
-        flags += _uncertain(conf, o.max_uncertainty)
-    if good_sigmas is not None and not any(f.startswith("uncertain") for f in flags):
-        flags += _sigma_check(conf, good_sigmas, n=o.history)
+    if pending is None:
+        flags += _conf_flags(conf, flags, o, good_sigmas)
     dt = time.perf_counter() - t0
     # confidence, restarts, set-up
     timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))
-    return Attempt(res, flags, retried, evals, dt, conf, timing, tuple(notes))
+    return Attempt(res, flags, retried, evals, dt, conf, timing, tuple(notes), pending)

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .attempt import Attempt, confidence_of, register_checked
+from .attempt import Attempt, confidence_of, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
 from .joint import JointJob, lockstep_applies, register_together
@@ -124,6 +124,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
     def check(i: int, rnd: int, others, pre, host_only: bool = False):
         b = names[i]
+        defer = defer_from <= rnd < rounds - 1
         first = not hist[b]
         if rnd == 0:
             opts, start = (o.first_options if first else o.registration), guesses[i]
@@ -133,9 +134,12 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                                 state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
                                 start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
                                 good_sigmas=state[b].sigmas, reference=state[b].reference,
-                                host_only=host_only)
+                                host_only=host_only, defer_confidence=defer)
 
     rounds = o.joint_rounds if joint else 1
+    # the confidence of a round before the last, mostly replaced by the next round's, when it is kept
+    defer_from = rounds if run.contacts is not None else 0
+
     ahead = None  # (signature, jobs, results, seconds per job) of a round started before the checks
     for rnd in range(rounds):
         pre = {}
@@ -199,7 +203,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             if new.result is not None:
                 current[i] = new.result.pose
                 known.add(i)
-    return {i: _frame_result(names[i], f, out[i], work[i]) for i in todo}
+    return {i: _frame_result(names[i], f, settle(out[i]), work[i]) for i in todo}
 
 
 def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,

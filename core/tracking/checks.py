@@ -52,7 +52,7 @@ def pose_delta(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     if rv is None or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
         return params_from_pose(b, center=c, base=a)
     disp = Rb @ c + b[:3, 3] - Ra @ c - a[:3, 3]
-    return np.r_[disp, rv]
+    return np.concatenate((disp, rv))
 
 
 def step_pose(p: np.ndarray, base: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -257,14 +257,40 @@ def _miss(f0, T0, f1, T1, fj, Tj, c) -> tuple[float, float]:
     return hit
 
 
+_BOUNDS: dict = {}  # motion_miss: per history list, its prediction and limits for a frame
+
+
 def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float = MOTION_LIMIT,
                 floor=MOTION_FLOOR, min_residuals: int = 3) -> tuple | None:
     """``(mm, degrees from the prediction, limit mm, limit degrees, residuals used)`` of
-    :func:`motion_check`, or None without enough history."""
+    :func:`motion_check`, or None without enough history. The prediction and limits of a
+    history list are kept for the next call with the same list, unchanged (its length and last
+    pose the same objects), the same frame and options: the tracker checks each bone's
+    registrations of a frame — joint tracking's rounds, retries — against its one history."""
+    c = np.asarray(center, dtype=float)
+    key = (int(frame), c.tobytes(), int(n), float(limit), tuple(floor), int(min_residuals))
+    hit = _BOUNDS.get(id(history))
+    if (hit is not None and hit[0] is history and hit[1] == len(history) and hit[1]
+            and hit[2] is history[-1][1] and hit[3] == key):
+        got = hit[4]
+    else:
+        got = _bounds(history, frame, c, n, limit, floor, min_residuals)
+        if isinstance(history, list):
+            if len(_BOUNDS) >= 64:
+                _BOUNDS.clear()
+            _BOUNDS[id(history)] = (history, len(history), history[-1][1] if history else None, key, got)
+    if got is None:
+        return None
+    pred, lim_t, lim_r, m = got
+    dt, dr = _distance(pred, pose, c)
+    return dt, dr, lim_t, lim_r, m
+
+
+def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min_residuals: int):
+    """:func:`motion_miss`'s prediction and limits: ``(pose, mm, degrees, residuals)`` or None."""
     h = list(history or [])
     if len(h) < min_residuals + 2:
         return None
-    c = np.asarray(center, dtype=float)
     miss = [_miss(*h[j - 2], *h[j - 1], *h[j], c) for j in range(max(2, len(h) - int(n)), len(h))]
     if len(miss) < min_residuals:
         return None
@@ -273,8 +299,7 @@ def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float 
     k = _reach(f0, f1, frame)
     lim_t = max(limit * float(med[0]), float(floor[0])) * k
     lim_r = max(limit * float(med[1]), float(floor[1])) * k
-    dt, dr = _distance(_predict(f0, T0, f1, T1, frame, c), pose, c)
-    return dt, dr, lim_t, lim_r, len(miss)
+    return _predict(f0, T0, f1, T1, frame, c), lim_t, lim_r, len(miss)
 
 
 #: :func:`sigma_check`: a confidence σ longer than this many times the median of the bone's recent

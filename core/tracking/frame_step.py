@@ -15,7 +15,14 @@ on the host while the device works on its steps
 (a retry, the restart check, a confidence from a cost of its own) is left for after the round and
 run as before; the round started ahead is used only where the jobs built after every check are
 those it was started with (the same bytes), otherwise it is dropped and run again from the
-checked poses. The results are those of checking first (:data:`AHEAD` False).
+checked poses. The results are those of checking first.
+
+Off by default (:data:`AHEAD`): on one NVIDIA H100 (1024², 100 frames, three bones jointly,
+``resources/benchmarks/tracking_newton_h100_margin.json``) it gave 13.89 ms per frame after the
+first where checking first gave 13.87 ms. The lockstep loop is host-bound — the device waits for
+each lane's host arithmetic more than the host waits for the device — so the checks run in the
+loop move host time rather than hide it, and a dropped round (a check that moves a pose) costs a
+whole round. It pays once the host's share of a step falls below the device's.
 """
 
 from __future__ import annotations
@@ -38,8 +45,9 @@ if TYPE_CHECKING:
 
 __all__ = ["AHEAD", "track_frame"]
 
-#: Start joint tracking's next lockstep round before this round's checks (module docs).
-AHEAD = True
+#: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
+#: faster on one H100 while the loop is host-bound).
+AHEAD = False
 
 
 @dataclass

@@ -159,7 +159,7 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
             and res.score < o.min_score_ratio * float(reference):
         out.append(f"low score against the flagged first frame ({res.score:.3f} < {o.min_score_ratio:g} x "
                    f"{float(reference):.3f}; no verified frame to compare with)")
-    med = float(np.median(recent)) if recent else None
+    med = _median(recent) if recent else None
     if med is not None and res.score < o.min_score_ratio * med:
         out.append(f"{SCORE_DROP} ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
     if start_score is not None and np.isfinite(start_score):
@@ -176,6 +176,14 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     if history is not None and frame is not None:
         out += motion_check(res.pose, history, frame, center, n=o.history)
     return out
+
+
+def _median(values: list) -> float:
+    """``float(np.median(values))`` of a few finite numbers without numpy's machinery (the same
+    value: the middle one, or the two middle ones' sum halved)."""
+    v = sorted(values)
+    m = len(v) // 2
+    return float(v[m]) if len(v) % 2 else float((v[m - 1] + v[m]) / 2)
 
 
 def _stale(history, frame) -> float:
@@ -320,7 +328,7 @@ def sigma_check(conf: dict | None, good_sigmas, *, n: int = 10, limit: float = S
               if t is not None and r is not None and np.isfinite(t) and np.isfinite(r)]
     if len(recent) < min_frames:
         return []
-    mt, mr = (float(v) for v in np.median(np.asarray(recent), axis=0))
+    mt, mr = _median([t for t, _ in recent]), _median([r for _, r in recent])
     t, r = conf.get("translation_mm"), conf.get("rotation_deg")
     if not conf.get("well_posed", True) or t is None or r is None:
         return [f"uncertain (the pose is not determined along every axis; the bone's last {len(recent)} "

@@ -40,7 +40,7 @@ import warp as wp
 from ..imaging.edges import derivative_kernels
 from . import _kernels as K
 from .domain import _nonneg_float, _nonneg_int
-from .gradient import GO_RANDOM_WEIGHT, ZERO_GRADIENT
+from .gradient import GO_RANDOM_WEIGHT, ZERO_GRADIENT, debiased_magnitude, noise_per_ref
 
 __all__ = ["BATCHED_KINDS", "BatchedMetric", "BatchedScores"]
 
@@ -151,6 +151,12 @@ class BatchedMetric:
         ``gc`` only: the mean of the correlations of the gradients' u and v components instead of
         the magnitudes' (:func:`core.similarity.gradient_correlation` ``components``; two
         statistics passes instead of one).
+    noise_energy : sequence, optional
+        ``gc`` of the magnitudes only: per fluoroscope ROI (nested like ``fluoro_rois``; arrays of
+        its shape or numbers) the expected squared gradient magnitude of its noise after the
+        ``fluoro_sigma`` smoothing (:func:`core.similarity.gradient_correlation`
+        ``noise_energy``): the ROI's gradients are shortened to the debiased magnitude
+        ``sqrt(max(|g|² - E, 0))`` on the host, the device metric is unchanged.
     weights : (V·nb,) array, optional
         Weights of the items of a pose in its score (default equal).
     block_dim, chunk : int
@@ -163,16 +169,20 @@ class BatchedMetric:
                  threshold: float = 0.0, dilate: int = 0, fluoro_sigma: float = 0.0,
                  drr_sigma: float = 0.0, operator: str = "sobel", bins: int = 32, binning: str = "linear",
                  n_lb_fraction: float = 0.25, weights=None, block_dim: int = 128,
-                 chunk: int = 4096, components: bool = False) -> None:
+                 chunk: int = 4096, components: bool = False, noise_energy=None) -> None:
         if kind not in _KIND_CODES:
             raise ValueError(f"kind: expected one of {BATCHED_KINDS}, got {kind!r}")
         if not isinstance(components, (bool, np.bool_)):
             raise ValueError(f"components: expected True or False, got {components!r}")
         if components and kind != "gc":
             raise ValueError(f"components: only the gc metric has a component form, not {kind!r}")
+        if noise_energy is not None and (kind != "gc" or components):
+            raise ValueError("noise_energy: only the gc metric of the gradient magnitudes takes it")
         self.kind = kind
         self.components = bool(components)
         refs, self.n_views, self.n_bones = _as_refs(fluoro_rois, "fluoro_rois")
+        shapes = [r.shape for r in refs]
+        noise = [None] * len(refs) if noise_energy is None else noise_per_ref(noise_energy, shapes)
         self.n_refs = len(refs)
         if fluoro_masks is None:
             masks = [np.ones(r.shape, bool) for r in refs]
@@ -218,8 +228,12 @@ class BatchedMetric:
         self.device = wp.get_device(device or default_device())
         # host preparation, once: smoothing, shift, gradients (as the numpy references do)
         prepared, grads, shifts = [], [], []
-        for f, m in zip(refs, masks, strict=True):
+        for f, m, e in zip(refs, masks, noise, strict=True):
             f, gu, gv = _smooth_and_gradient(f, sigma, ku, kv)
+            if e is not None:  # debiased magnitudes: the same direction, the shorter length
+                mag = np.hypot(gu, gv)
+                k = np.divide(debiased_magnitude(gu, gv, e), mag, out=np.zeros_like(mag), where=mag > 0)
+                gu, gv = gu * k, gv * k
             flat = np.hypot(gu, gv) <= ZERO_GRADIENT * max(1.0, float(np.abs(f).max()))
             grads.append(np.stack([np.where(flat, 0, gu), np.where(flat, 0, gv)], axis=-1))
             shifts.append(float(f[m].mean()) if m.any() else 0.0)

@@ -175,6 +175,18 @@ def _noise_map(noise_energy, shape) -> np.ndarray:
     return e
 
 
+def noise_per_ref(noise_energy, shapes) -> list[np.ndarray]:
+    """``noise_energy`` given per view (or per view, a list per bone), as one checked map (or
+    number) per ROI of ``shapes`` (:class:`core.similarity.BatchedMetric`'s ``noise_energy``)."""
+    items = []
+    for v in noise_energy:
+        items.extend(v if isinstance(v, (list, tuple)) else [v])
+    if len(items) != len(shapes):
+        raise ValueError(f"noise_energy: expected one entry per fluoroscope ROI ({len(shapes)}), "
+                         f"got {len(items)}")
+    return [_noise_map(e, tuple(s)) for e, s in zip(items, shapes, strict=True)]
+
+
 def gradient_correlation(drr, fluoro, *, operator: str = "sobel", components: bool = False,
                          noise_energy=None, **domain_options) -> float:
     """Gradient correlation (eq. 6.11): NCC of the gradient magnitudes over Ω. Range [-1, 1].

@@ -77,3 +77,31 @@ def test_flat_frames_measure_the_white_quantum_energy():
     fl = np.full((N, N), 0.25)
     np.testing.assert_allclose(quantum_noise_energy(fl, want), 4 * want)
     assert white_noise_gradient_gain() == pytest.approx(0.375)  # Sobel, gain-normalised
+
+
+@pytest.mark.parametrize("opts", [{}, dict(threshold=0.02, fluoro_sigma=1.0)])
+def test_device_scores_match_the_reference(talus_case, opts):
+    from core.imaging.edges import gradient
+    from core.similarity import similarity
+    from core.similarity.batched import BatchedMetric
+
+    c = talus_case
+    rng = np.random.default_rng(0)
+    poses = c.perturb(rng.normal(0, 2.0, (3, 3)), rng.normal(0, np.deg2rad(2), (3, 3)))
+    batch, drrs = c.render(poses), c.drrs(poses)
+    energy = []
+    for f in c.fluoro:  # a share of the fluoroscope's squared magnitudes, larger where it is darker
+        g2 = np.sum(np.square(gradient(ndimage.gaussian_filter(f, opts.get("fluoro_sigma", 0.0)))), axis=0)
+        w = np.exp(f - f.mean())
+        energy.append(0.3 * np.median(g2) * w / w.mean())
+    bm = BatchedMetric("gc", list(c.fluoro), device="cpu", noise_energy=energy, **opts)
+    got = bm.evaluate(batch)
+    ref = np.array([[similarity("gc", drrs[v][b], c.fluoro[v], noise_energy=energy[v], **opts)
+                     for v in range(2)] for b in range(3)])
+    np.testing.assert_allclose(got.item[:, :, 0], ref, atol=1e-4, rtol=0)
+    plain = BatchedMetric("gc", list(c.fluoro), device="cpu", **opts).evaluate(batch).pose
+    assert np.max(np.abs(plain - got.pose)) > 1e-3
+    with pytest.raises(ValueError, match="noise_energy"):
+        BatchedMetric("gc", list(c.fluoro), device="cpu", components=True, noise_energy=energy)
+    with pytest.raises(ValueError, match="noise_energy"):
+        BatchedMetric("ncc", list(c.fluoro), device="cpu", noise_energy=energy)

@@ -3,7 +3,9 @@
 :func:`track_frame` registers the bones of one frame — one bone at a time, or jointly in
 ``joint_rounds`` rounds (each bone with its neighbours subtracted at their latest estimates) —
 each registration with the checks of :func:`core.tracking.attempt.register_checked`, and returns
-a :class:`~core.tracking.results.FrameResult` per bone.
+a :class:`~core.tracking.results.FrameResult` per bone. In joint rounds before the last, a
+registration's confidence (and its ``"uncertain"`` checks) is computed only where its attempt is
+the one kept (:func:`~core.tracking.attempt.settle`; the next round's replaces it otherwise).
 
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The

@@ -144,7 +144,7 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     12th flagged either way) and no tracked frame was flagged (0 of 292 good frames).
 
     ``reference``: the score of the bone's first flagged frame while it has no good score (the
-    tracker's :class:`~core.tracking.trial._BoneState`); a score below ``o.min_score_ratio`` × it
+    tracker's :class:`~core.tracking.frame_state._BoneState`); a score below ``o.min_score_ratio`` × it
     is flagged ``"low score against the flagged first frame"`` — not confirmable, there is no
     verified frame to confirm against. The wrist radius with the Gauss–Newton global search (one
     H200): frame 0099 flagged (not converged) at 0.391, frame 0158 at 0.283 16 mm from the

@@ -58,7 +58,8 @@ import numpy as np
 from ..geometry.transforms import pose_from_params
 
 __all__ = ["DEFAULT_TERMS", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
-           "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel", "prepare_frame", "search_roi"]
+           "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel", "prepare_frame", "search_roi",
+           "snap_roi"]
 
 
 class OutsideViewError(ValueError):
@@ -560,3 +561,17 @@ class RegistrationCost:
         tot = float(1.0 - np.nan_to_num((1.0 - s[0]) @ self._w, nan=2.0))
         return tot, np.nan_to_num(v[0].T @ self._w, nan=-1.0)
 
+
+def snap_roi(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:
+    """ROIs grown outwards to a ``grid``-pixel lattice (inside the image): a bone that moves
+    little keeps its region from round to round and frame to frame (the frame's line integrals
+    of a region are computed once, :meth:`core.tracking.cost.FrameImages.region`)."""
+    out = np.array(roi, dtype=np.int64)
+    for i, v in enumerate(views):
+        cam = renderer.cameras[v]
+        u0, v0, w, h = out[i]
+        a0, b0 = (u0 // grid) * grid, (v0 // grid) * grid
+        a1 = min(-(-(u0 + w) // grid) * grid, cam.width)
+        b1 = min(-(-(v0 + h) // grid) * grid, cam.height)
+        out[i] = (a0, b0, a1 - a0, b1 - b0)
+    return out

@@ -12,9 +12,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..geometry.transforms import params_from_pose
-from .cost import CostTimer, FrameImages, OutsideViewError, search_roi
+from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
 from .engine_likelihood import likelihood_engine
-from .register import RegistrationOptions, RegistrationResult, _snap
 
 __all__ = ["LikelihoodFit", "final_stage"]
 
@@ -43,10 +42,13 @@ class LikelihoodFit:
                    np.asarray(covariance_independent, dtype=float))
 
 
-def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: int, initial_pose, center,
-                options: RegistrationOptions, views: Sequence[int], others=None) -> RegistrationResult:
-    """``res`` refined by the option's final stage (module docs; ``res`` itself without one, or
-    after a cancelled stage). ``initial_pose``: the registration's (``x`` is relative to it)."""
+def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, center, options,
+                views: Sequence[int], others=None):
+    """``res`` (a :class:`core.tracking.register.RegistrationResult`) refined by the final stage of
+    ``options`` (its :class:`~core.tracking.register.RegistrationOptions`; module docs): a
+    registration result, ``res`` itself without a stage or after a cancelled one.
+    ``initial_pose``: the registration's (``x`` is relative to it). This module does not import
+    :mod:`core.tracking.register`, which calls it."""
     o = options
     if o.final is None or any(s.reason == "cancelled" for s in res.stages):
         return res
@@ -55,7 +57,7 @@ def final_stage(renderer, frame: FrameImages, res: RegistrationResult, *, bone: 
     views = tuple(views)
     center = np.asarray(center, dtype=float)
     try:
-        roi = _snap(search_roi(renderer, res.pose, bone, views=views, center=center, reach_mm=1.0,
+        roi = snap_roi(search_roi(renderer, res.pose, bone, views=views, center=center, reach_mm=1.0,
                                margin_px=o.margin_px), renderer, views)
         eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=o.final_highpass_px,
                                 lag_px=o.final_lag_px, others_gain=o.final_others_gain)

@@ -43,7 +43,7 @@ from .register import RegistrationOptions
 from .results import FrameResult
 
 if TYPE_CHECKING:
-    from .trial import _BoneState, _Run
+    from .frame_state import _BoneState, _Run
 
 __all__ = ["AHEAD", "track_frame"]
 
@@ -81,7 +81,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                  skip: dict) -> dict[int, FrameResult] | None:
     """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
     or None when cancelled."""
-    from .trial import predict_pose
+    from .frame_state import predict_pose
 
     o, names, bones = run.options, run.names, run.bones
     missing = [v for v, im in enumerate(imgs) if im is None]

@@ -63,6 +63,7 @@ from .cost import (
     RegistrationCost,
     mm_per_pixel,
     search_roi,
+    snap_roi,
 )
 from .quadratic import quadratic_search
 
@@ -363,19 +364,6 @@ def _newton_fallback(mm_per_px: float, coarsest_mm: float = 1.2) -> tuple[Level,
     return first, Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02)
 
 
-def _snap(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:
-    """ROIs grown outwards to a ``grid``-pixel lattice (inside the image): a bone that moves
-    little keeps its region from round to round and frame to frame (the frame's line integrals
-    of a region are computed once, :meth:`core.tracking.cost.FrameImages.region`)."""
-    out = np.array(roi, dtype=np.int64)
-    for i, v in enumerate(views):
-        cam = renderer.cameras[v]
-        u0, v0, w, h = out[i]
-        a0, b0 = (u0 // grid) * grid, (v0 // grid) * grid
-        a1 = min(-(-(u0 + w) // grid) * grid, cam.width)
-        b1 = min(-(-(v0 + h) // grid) * grid, cam.height)
-        out[i] = (a0, b0, a1 - a0, b1 - b0)
-    return out
 
 
 def search_region(renderer, pose, bone: int, *, views, center, options: RegistrationOptions, outline=None,
@@ -387,7 +375,7 @@ def search_region(renderer, pose, bone: int, *, views, center, options: Registra
     roi = search_roi(renderer, pose, bone, views=views, center=center,
                      reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
                      points=outline)
-    return _snap(roi, renderer, views) if snap else roi
+    return snap_roi(roi, renderer, views) if snap else roi
 
 
 def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,

@@ -153,15 +153,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry.transforms import pose_from_params
 from .attempt import register_checked
 from .bones import BoneModel
 from .checks import SAME_OPTIMUM, pose_delta, same_optimum, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
 from .feed import FrameFeed
+from .frame_state import _BoneState, _Cancel, _Run, predict_pose
 from .frame_step import track_frame
 from .options import TrackingOptions
 from .results import FrameResult, TrackingResult
@@ -169,42 +168,6 @@ from .results import FrameResult, TrackingResult
 __all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs", "predict_pose",
            "register_start", "track"]
 
-
-
-def _delta(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Parameters (mm, rad) taking pose ``a`` to pose ``b`` about centre ``c``."""
-    return pose_delta(a, b, c)
-
-
-def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, *,
-                 guess: str = "velocity",
-                 keyframes: Mapping[int, np.ndarray] | None = None) -> np.ndarray:
-    """Initial guess for ``frame`` from the bone's good ``(frame, pose)`` history (in tracking
-    order, last = most recent) and its ``keyframes`` (see the module docs)."""
-    c = np.asarray(center, dtype=float)
-    kf = dict(keyframes or {})
-    if guess == "spline" and len(kf) >= 2:
-        ks = sorted(kf)
-        if ks[0] <= frame <= ks[-1]:
-            from scipy.interpolate import CubicSpline
-
-            base = np.asarray(kf[ks[0]], float)
-            P = np.array([_delta(base, np.asarray(kf[k], float), c) for k in ks])
-            bc = "not-a-knot" if len(ks) > 2 else "clamped"
-            return pose_from_params(CubicSpline(ks, P, axis=0, bc_type=bc)(frame), center=c, base=base)
-    if not history:
-        if not kf:
-            raise ValueError(f"keyframes: no pose to start frame {frame} from")
-        near = min(kf, key=lambda k: (abs(k - frame), k))
-        return np.asarray(kf[near], dtype=float)
-    f1, T1 = history[-1]
-    if guess == "previous" or len(history) < 2 or f1 == frame:
-        return np.asarray(T1, dtype=float)
-    f0, T0 = history[-2]
-    if f0 == f1:
-        return np.asarray(T1, dtype=float)
-    d = _delta(np.asarray(T0, float), np.asarray(T1, float), c)
-    return step_pose(d * (frame - f1) / (f1 - f0), np.asarray(T1, float), c)
 
 
 def journal_inputs(states: Mapping, frames: Sequence[int], *, resume: bool = False) -> tuple[dict, dict]:
@@ -233,73 +196,6 @@ def journal_inputs(states: Mapping, frames: Sequence[int], *, resume: bool = Fal
                     done[f] = FrameResult.from_journal(b, r) if r.kind == "tracked" else r.pose
         skip[b] = done
     return keyframes, skip
-
-
-class _Cancel:
-    """A cancel token that stays fired once it has fired (a poll that said "stop" is never lost)."""
-
-    def __init__(self, fn: Callable[[], bool] | None) -> None:
-        self.fn, self.fired = fn, False
-
-    def __call__(self) -> bool:
-        if not self.fired and self.fn is not None and self.fn():
-            self.fired = True
-        return self.fired
-
-
-@dataclass
-class _BoneState:
-    """What a bone's next frames are registered from: its good ``(frame, pose)`` history (for
-    the guesses), its good scores (the score-drop check) and its first good score."""
-
-    history: list = field(default_factory=list)
-    scores: list = field(default_factory=list)
-    start_score: float | None = None
-    sigmas: list = field(default_factory=list)
-    reference: float | None = None
-
-    def add_good(self, frame: int, pose, score: float | None, confidence: dict | None = None) -> None:
-        self.history.append((frame, np.asarray(pose, float)))
-        if score is not None:
-            self.scores.append(score)
-            if self.start_score is None:
-                self.start_score = score
-        t, r = (confidence or {}).get("translation_mm"), (confidence or {}).get("rotation_deg")
-        if t is not None and r is not None:
-            self.sigmas.append((t, r))
-
-    def add(self, frame: int, fr: FrameResult) -> None:
-        """A frame's result: a good one, or one flagged only ``"uncertain"`` (poorly determined,
-        not wrong: it still feeds the guesses and the score history, not the σ history), or a
-        flagged one (:meth:`add_flagged`)."""
-        if fr.pose is None:
-            return
-        if not fr.flags:
-            self.add_good(frame, fr.pose, fr.score, fr.confidence)
-        elif all(x.startswith("uncertain") for x in fr.flags):
-            self.add_good(frame, fr.pose, fr.score)
-        else:
-            self.add_flagged(fr.score)
-
-    def add_flagged(self, score: float) -> None:
-        """A flagged frame with a pose: while the bone has no good score, the first one's score is
-        the reference later frames are compared with (:func:`core.tracking.checks.failures`)."""
-        if self.start_score is None and self.reference is None and np.isfinite(score):
-            self.reference = float(score)
-
-
-@dataclass
-class _Run:
-    """The fixed inputs of a :func:`track` run (``contacts``: the bones'
-    :class:`~core.tracking.contact.ContactModel` when joint tracking keeps them apart)."""
-
-    renderer: object
-    bones: Sequence[BoneModel]
-    names: tuple
-    keyframes: Mapping
-    options: TrackingOptions
-    cancel: _Cancel
-    contacts: list | None = None
 
 
 def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence],

@@ -84,12 +84,12 @@ class TrackingScene:
             self.corrections.append(Distortion(d.center, d.scale_px, d.k1 * (1 + residual), d.k2,
                                                d.twist_rad * (1 + residual), d.twist_power))
         #: per view, the veiling glare measured from rendered lead-disc calibration frames
-        #: (:func:`core.studies.imaging.glare_study.measure_glare`, the calibration's measurement)
+        #: (:func:`core.studies.imaging.glare_frames.measure_glare`, the calibration's measurement)
         #: and undone after the flatfield division as the correction pipeline's glare step does;
         #: empty when ``glare`` is False (the frames keep their glare)
         self.glare = []
         if glare:
-            from core.studies.imaging.glare_study import measure_glare
+            from core.studies.imaging.glare_frames import measure_glare
 
             views = zip(self.scene.rig, self.scene.imaging, self.corrections, strict=True)
             self.glare = [measure_glare(cam, m, c.unwarp, seed=seed) for cam, m, c in views]

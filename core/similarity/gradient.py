@@ -14,6 +14,10 @@ favours poses that put the DRR's edges there. :func:`gradient_correlation`'s ``n
 takes that share out (debiased magnitudes); :func:`noise_gradient_energy` measures it from two
 flat frames (the photon transfer of the chain, detector blur included) and
 :func:`quantum_noise_energy` maps it over a frame (quantum noise: ``var(-ln F) ≈ 1/(N F)``).
+On the harder acceptance trial this pedestal is what moves the optimum under noise, and the
+debiased magnitudes take out about 60 % (tibia) to all (talus) of its mean shift at 512²
+(:mod:`core.studies.tracking.gc_noise_bias`); ``sqrt(max(m² - E, 0))`` still leaves about a
+third of a pure-noise pixel's pedestal.
 """
 
 from __future__ import annotations
@@ -95,9 +99,10 @@ def noise_gradient_energy(flat_a, flat_b, *, fluoro_sigma: float = 0.0, operator
     measured from two uniform frames of the same dose — a calibration's photon transfer.
 
     Both are flatfield-normalised fluence (after the same corrections as the tracked frames),
-    unclipped; an empty field clipped to 1 loses half its noise, so take them through a uniform
-    attenuator (e.g. a plate: fluence ~0.5). Their line integrals' difference holds twice the
-    noise and none of the (shared) structure: ``E|g_n|² = F̄ · mean |∇(G_σ ∗ (y_a - y_b))|² / 2``
+    unclipped: two of the flatfield's empty-field frames as ``(DN - dark) / G`` without the clip
+    at 1 (clipped, they lose half their noise), or two frames through a uniform plate. Their
+    line integrals' difference holds twice the noise and none of the (shared) structure:
+    ``E|g_n|² = F̄ · mean |∇(G_σ ∗ (y_a - y_b))|² / 2``
     over ``mask`` (default where both frames exceed 0.05, ``margin`` px from the border and the
     mask's edge), with the smoothing and operator of the metric, scaled by their mean fluence
     ``F̄`` to full fluence (quantum noise: ``var(-ln F) ∝ 1/F``). It includes the detector's

@@ -104,7 +104,7 @@ def test_demo_study_files_and_ground_truth(tmp_path):
     out = tmp_path / "study"
     assert s["status"] == "complete" and s["frames_written"] == 2 and calls[:2] == [(1, 2), (2, 2)]
     # then the calibration session beside the trial, of the same rig and image chains
-    assert calls[-1] == (66, 66, "calibration session") and len(calls) == 2 + 66
+    assert calls[-1] == (68, 68, "calibration session") and len(calls) == 2 + 68  # 2 of them the glare disc's
     assert s["calibration_session"] == "calibration_session"
     from core.io import read_session
 

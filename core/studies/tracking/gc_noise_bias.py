@@ -37,7 +37,9 @@ full-resolution level is used (its smoothing and sampling are what the calibrati
 The ``np_`` forms score every DRR with a numpy copy of the device GC (``np_magnitudes`` gives the
 device's optimum to the digit): ``np_debiased_var`` also takes the noise out of the fluoroscope's
 second moment (``Σ(|g_F|² - E)`` in the variance), ``np_components_var`` the components' form with
-``E/2`` taken out of each component's second moment. :func:`check_energy` compares the
+``E/2`` taken out of each component's second moment, ``np_energy`` correlates squared
+magnitudes, the fluoroscope's as ``|g_F|² - E`` with its second moment corrected too (for
+Gaussian gradient noise every sum is then unbiased). :func:`check_energy` compares the
 calibration's ``E₁/F`` with the noise's real gradient energy (noisy minus noise-free frames).
 
 Measured on this 2-core CPU machine (shared: load average 3.0-8.9; 512², 1 mm voxels,
@@ -141,7 +143,7 @@ def _pearson_sums(a, b, b2=None) -> float:
 
 
 #: forms scored by the study's numpy copy of the device metric (``np_`` forms, see :func:`_hooks`)
-NUMPY_FORMS = ("np_magnitudes", "np_debiased", "np_debiased_var", "np_components_var")
+NUMPY_FORMS = ("np_magnitudes", "np_debiased", "np_debiased_var", "np_components_var", "np_energy")
 
 
 def _numpy_score(form: str, m, ref: int, d: np.ndarray, noise: np.ndarray) -> float:
@@ -164,8 +166,11 @@ def _numpy_score(form: str, m, ref: int, d: np.ndarray, noise: np.ndarray) -> fl
     du, dv, e = du[om], dv[om], noise[:h, :w][om]
     if form == "np_components_var":
         return 0.5 * (_pearson_sums(du, fu, fu * fu - e / 2) + _pearson_sums(dv, fv, fv * fv - e / 2))
-    a = np.hypot(du, dv)
     m2 = fu * fu + fv * fv
+    if form == "np_energy":  # E[m2 - e] = |g|², E[b² - 2be - e²] = |g|⁴ (Gaussian gradient noise)
+        b = m2 - e
+        return _pearson_sums(du * du + dv * dv, b, b * b - 2 * b * e - e * e)
+    a = np.hypot(du, dv)
     if form == "np_magnitudes":
         return _pearson_sums(a, np.sqrt(m2))
     b = np.sqrt(np.maximum(m2 - e, 0.0))
@@ -333,7 +338,7 @@ def run(*, pixels: int = 512, spacing: float = 1.0, n_frames: int = 12, frames=(
         truth = hr.truth(f)
         for draw in [None, *range(draws)]:
             imgs = prepare_frame(_frames(hr, f, draw))
-            fs = ([x for x in forms if x not in ("debiased", "np_debiased", "np_debiased_var")]
+            fs = ([x for x in forms if x not in ("debiased", "np_debiased", "np_debiased_var", "np_energy")]
                   + (["inflated"] if "debiased" in forms else []) if draw is None else list(forms))
             for form in fs:
                 for name in bones:

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
+from core.calibration import labelling
 from core.calibration.detection import ObjectDetections, classify_sizes, detect_object_beads
-from core.calibration.labelling import fit_labels, label_ransac, label_view, propagate_labels
+from core.calibration.labelling import fit_labels, label_ransac, label_view, near_symmetries, propagate_labels
 from core.calibration.matching import label_sequence
 from core.calibration.objects import cube_target, spiral_target
 from core.geometry.transforms import make_rigid
@@ -108,6 +109,34 @@ def test_cube_by_ransac_on_a_rendered_frame():
         o = lab.observed()
         k = np.all(np.isfinite(o), axis=1)
         assert np.max(np.linalg.norm(o[k] - fr.ideal_uv[v][k], axis=1)) < 0.5
+
+
+def test_cube_near_symmetries_are_its_squares_turned_about_the_axis():
+    tg = cube_target()
+    maps = near_symmetries(tg)
+    assert len(maps) == 3  # 90, 180, 270 degrees: the corners map onto corners, the fifth beads nowhere
+    for p in maps:
+        assert np.array_equal(np.flatnonzero(p < 0), [4, 9, 14])
+        k = p >= 0
+        assert np.array_equal(tg.diameters[p[k]], tg.diameters[k]) and len(set(p[k])) == 12
+
+
+def test_cube_labelling_turned_by_90_degrees_is_corrected(rig, monkeypatch):
+    """A RANSAC hypothesis that is the right labelling with the squares turned by 90° explains the
+    corners and sometimes spurious detections: the fifth beads of the planes decide."""
+    from scipy.spatial.transform import Rotation
+
+    tg = cube_target()
+    T = make_rigid(Rotation.from_rotvec([0.3, 0.5, 0.2]).as_matrix(), capture_centre(rig))
+    g = np.random.default_rng(4)
+    det, keep = _fake(rig, 0, tg, T, g)
+    turn = near_symmetries(tg)[0]
+    wrong = fit_labels(tg, det, np.where(turn[keep] >= 0, turn[keep], -1))
+    assert wrong.ok and wrong.n_labelled >= 10 and not _correct(wrong.labels, keep, tg)
+    monkeypatch.setattr(labelling, "_refine", lambda *a, **k: [wrong])
+    lab = label_ransac(tg, det, samples=100, rounds=1)
+    assert lab.ok and lab.n_explained == 15 and lab.n_labelled > wrong.n_labelled
+    assert _correct(lab.labels, keep, tg)
 
 
 def test_manual_correction_api(rig):

@@ -31,6 +31,9 @@ if TYPE_CHECKING:
 
 __all__ = ["Attempt", "confidence_of", "register_checked", "settle"]
 
+#: timings that are parts of another timing of the same registration (not added to the sum)
+_PARTS = frozenset({"likelihood_setup_s"})
+
 
 @dataclass
 class Attempt:
@@ -207,6 +210,6 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     if pending is None:
         flags += _conf_flags(conf, flags, o, good_sigmas)
     dt = time.perf_counter() - t0
-    # confidence, restarts, set-up
-    timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s"))
+    # confidence, restarts, set-up (the final stage's set-up is a part of its likelihood_s)
+    timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s") and k not in _PARTS)
     return Attempt(res, flags, retried, evals, dt, conf, timing, tuple(notes), pending)

@@ -140,3 +140,23 @@ def test_neighbours_with_a_gain_of_their_own(talus_scene):
     e = params_from_pose(eng.poses(out["x"][None])[0], center=model.centroid, base=truth)
     assert np.linalg.norm(e[:3]) < 0.02 and np.degrees(np.linalg.norm(e[3:])) < 0.05, e
     assert np.all(np.isfinite(out["covariance"]))
+
+
+def test_final_stage_set_up_time_is_counted_once(talus_scene):
+    """The attempt's per-frame breakdown: the final stage's set-up is a part of its likelihood_s,
+    so "other" (the rest of the attempt's wall time) is not pushed negative by counting it twice."""
+    from core.tracking.attempt import register_checked
+    from core.tracking.options import TrackingOptions
+    from core.tracking.register import RegistrationOptions
+
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(2)[0]
+    fr = prepare_frame(talus_scene["fluence"](2), valid_range=None)
+    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=2.0)
+    a = register_checked(r, fr, model, 0, truth, truth, o, TrackingOptions(confidence=False), [], None,
+                         lambda: False, [])
+    t = a.timing
+    assert t["likelihood_setup_s"] > 0 and t["likelihood_s"] >= t["likelihood_setup_s"]
+    assert t["other_s"] >= 0, t
+    parts = sum(v for k, v in t.items() if k.endswith("_s") and k != "likelihood_setup_s")
+    assert abs(parts - a.time_s) < 1e-6 * max(1.0, a.time_s), (parts, a.time_s)

@@ -13,10 +13,8 @@ Only the *seeds* differ:
   do not matter). Each consistent run seeds a DLT; the seed that explains most detections wins.
 * **Cube and other objects** (:func:`label_ransac`): RANSAC over correspondences — random
   6-tuples (two per size class where possible) labelled with random beads of the same class give
-  batched DLTs; every other round draws them from the size classes least crowded by spurious
-  detections. The hypotheses whose projections agree with most detections (projection
-  consistency) seed the fit; the few best distinct ones are refined, the one that explains most
-  detections wins.
+  batched DLTs; the one whose projections agree with most detections (projection consistency)
+  seeds the fit.
 
 A helix is (nearly) invariant under a screw motion that moves every bead two places along it, so
 a view in which the end beads are missing can fit two labellings equally well. Such a
@@ -330,7 +328,7 @@ def label_spiral(target: CalibrationTarget, det: ObjectDetections, *, run: int =
 
 
 def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: int = 20000,
-                 rounds: int = 3, rng=0, gate_px: float | None = None, keep: int = 4) -> Labelling:
+                 rounds: int = 3, rng=0, gate_px: float | None = None) -> Labelling:
     """Label any object by RANSAC over size-consistent correspondences (the cube)."""
     n, m = len(target), len(det)
     if m < 6:
@@ -348,14 +346,10 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
         per[grow[0]] += 1
     scale = det.px_per_mm if np.isfinite(det.px_per_mm) else 1.0
     gate = max(2.0, 0.6 * sizes[0] * scale) if gate_px is None else float(gate_px)
-    # rounds alternate between the allocation above and the one most likely to draw only right
-    # correspondences when the crowded classes' extra detections are spurious
-    allocs = [per, _likely_allocation(per, [len(c) for c in by_cls], [len(b) for b in beads_of], target,
-                                      beads_of)]
-    top_score, top_seed = [], []
-    for r in range(rounds):
+    best_seed, best_score = None, -1
+    for _ in range(rounds):
         dets, beads = [], []
-        for k, q in enumerate(allocs[r % 2]):
+        for k, q in enumerate(per):
             if q == 0:
                 continue  # random q detections of class k, labelled with random q beads of class k
             dets.append(by_cls[k][np.argsort(g.random((samples, len(by_cls[k]))), axis=1)[:, :q]])
@@ -363,18 +357,16 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
         D, B = np.concatenate(dets, axis=1), np.concatenate(beads, axis=1)  # (S, 6+)
         P = _batched_dlt(target.centers[B], det.uv[D])
         score = _score(P, target, det, gate)
-        for h in np.argsort(-score, kind="stable")[: 4 * keep]:
-            seed = np.full(m, -1)
-            seed[D[h]] = B[h]
-            top_score.append(int(score[h]))
-            top_seed.append(seed)
-        if max(top_score) >= len(use):
+        h = int(np.argmax(score))
+        if score[h] > best_score:
+            best_score = int(score[h])
+            best_seed = np.full(m, -1)
+            best_seed[D[h]] = B[h]
+        if best_score >= len(use):
             break
-    if not top_score or max(top_score) < 6:
+    if best_seed is None or best_score < 6:
         return _empty(det.uv, n, "no correspondence hypothesis explains at least 6 detections")
-    # the best random hypothesis may fit spurious detections by chance and refine to a labelling
-    # that explains few: the best distinct ones are refined, the one explaining most wins
-    results = _refine(target, det, np.asarray(top_seed), gate, keep=keep)
+    results = _refine(target, det, best_seed[None], gate, keep=1)
     # the hypothesis may be a near-symmetric image of the right labelling (the cube's squares
     # turned by 90°): every image is fitted too, and the one that explains most detections (the
     # beads off the symmetry, e.g. each plane's fifth bead) wins; images that explain as many
@@ -386,34 +378,6 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
             if lab.ok:
                 results.append(lab)
     return _choose(results, det.uv, target)
-
-
-def _likely_allocation(per, n_det, n_bead, target, beads_of) -> list[int]:
-    """Correspondences per size class (as many as ``per`` in all) that maximise the chance that a
-    random sample is all right, if each class's detections beyond its bead count are spurious,
-    among those that do not put more than four points on one plane of beads (one class's beads
-    may lie on a plane: the cube's); ``per`` when none is."""
-    from itertools import product
-
-    best, best_p, flat = list(per), -1.0, {}
-    lim = [min(d, b) for d, b in zip(n_det, n_bead, strict=True)]
-    for q in product(*[range(min(x, sum(per)) + 1) for x in lim]):
-        if sum(q) != sum(per):
-            continue
-        used = tuple(k for k in range(len(q)) if q[k])
-        for c in [used] + [(k,) for k in used]:
-            if c not in flat:
-                flat[c] = planarity(target.centers[np.concatenate([beads_of[k] for k in c])]) < 1e-3
-        # a DLT needs 11 independent equations; points on one plane give at most 8
-        if flat[used] or sum(min(2 * q[k], 8) if flat[(k,)] else 2 * q[k] for k in used) < 2 * sum(q):
-            continue
-        p = 1.0
-        for k, qk in enumerate(q):
-            for i in range(qk):
-                p *= (lim[k] - i) / (n_det[k] - i) / (n_bead[k] - i)
-        if p > best_p:
-            best, best_p = list(q), p
-    return best
 
 
 def near_symmetries(target: CalibrationTarget, *, min_fraction: float = 0.6, tol_mm: float | None = None,

@@ -139,28 +139,6 @@ def test_cube_labelling_turned_by_90_degrees_is_corrected(rig, monkeypatch):
     assert _correct(lab.labels, keep, tg)
 
 
-
-def test_cube_labelling_among_spurious_detections(rig):
-    """Ten spurious detections of the smallest bead size and fifteen of no size around the cube:
-    random samples from the crowded class are rarely all right, the rounds that draw from the
-    clean classes find the labelling (the old sampling found it for none of these three seeds)."""
-    from scipy.spatial.transform import Rotation
-
-    tg = cube_target()
-    T = make_rigid(Rotation.from_rotvec(np.random.default_rng(0).normal(0, 0.4, 3)).as_matrix(),
-                   capture_centre(rig))
-    g = np.random.default_rng(10)
-    det, keep = _fake(rig, 0, tg, T, g)
-    lo, hi = det.uv.min(axis=0) - 5, det.uv.max(axis=0) + 5
-    uv = np.concatenate([det.uv, lo + g.random((25, 2)) * (hi - lo)])
-    cls = np.concatenate([det.size_class, np.zeros(10, int), np.full(15, -1)])
-    m = len(uv)
-    det = ObjectDetections(uv, np.zeros((m, 2)), np.ones(m), cls, det.px_per_mm, det.nominal_mm, np.ones(m))
-    for seed in range(3):
-        lab = label_ransac(tg, det, rng=seed, samples=3000, rounds=2)
-        assert lab.ok and lab.n_labelled >= 14 and not np.any(lab.labels[15:] >= 0)
-        assert _correct(lab.labels[:15], keep, tg)
-
 def test_manual_correction_api(rig):
     tg = spiral_target(23)
     T = capture_poses(rig, tg, 1, rng=3)[0]

@@ -125,33 +125,19 @@ def _summary(E, bound, cov=None) -> dict:
     return s
 
 
-def run(*, quick: bool = False, device: str | None = None, frames: int | None = None, variants=("8",),
-        passes: int = 2, cases=("one", "three"), chain_frames=(0, 40, 80), refine_every: int = 1,
-        psf=None, workers: int = 0, checkpoint=None, pixels: int | None = None,
-        voxel: float | None = None) -> dict:
-    """Run the study (module docs); returns the JSON-ready results. ``variants``: refinements
-    ``"<high-pass σ px>"`` or ``"<σ>+psf"`` (the DRRs blurred by ``psf``, a kernel estimated
-    from calibration frames); ``refine_every``: refine every k-th frame only (the tracker's
-    errors are reported over all frames and over those)."""
-    from core.render import DRRRenderer
+def _scene(n: int, pixels: int, voxel: float, device, workers: int, header: dict, *, glare: bool = False):
+    """``(ts, out, bound)``: the trial's scene of ``n`` frames with its frames synthesised, and the
+    results' head — ``header``, the machine and device, sizes, synthesis time and the Cramér–Rao
+    bound of every tenth frame (``cramer_rao``, ``bound_s``; ``bound`` in full, per bone)."""
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
-    from core.studies.tracking.bound_gap import _chain_terms
-    from core.tracking.bound import chain_information
-    from core.tracking.cost import prepare_frame
-    from core.tracking.trial import TrackingOptions, track
 
-    n = frames or (8 if quick else 100)
-    px, vox = (192, 1.0) if quick else (1024, 0.5)
-    px, vox = pixels or px, voxel or vox
     t0 = time.perf_counter()
-    ts = TrackingScene(n_frames=max(n, 2), pixels=px, spacing=vox, phase=(0.0, 0.6 * max(n, 2) / 100.0),
-                       device=device)
+    ts = TrackingScene(n_frames=max(n, 2), pixels=pixels, spacing=voxel, phase=(0.0, 0.6 * max(n, 2) / 100.0),
+                       device=device, glare=glare)
     synthesise(ts, range(n), workers)
-    out = {"study": "core.studies.tracking.ml_cost", "machine": platform.machine(),
-           "device": str(ts.renderer.device),
-           "pixels": px, "voxel_mm": vox, "frames": n, "variants": list(variants), "passes": passes,
-           "refined_frames": list(range(0, n, refine_every)),
-           "synthesis_s": time.perf_counter() - t0}
+    out = {**header, "machine": platform.machine(), "device": str(ts.renderer.device), "pixels": pixels,
+           "voxel_mm": voxel, "frames": n}
+    out["synthesis_s"] = time.perf_counter() - t0
     try:
         import warp as wp
 
@@ -162,6 +148,29 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     bound = cramer_rao(ts, range(0, n, max(1, n // 10)))
     out["cramer_rao"] = {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for k, v in bound.items()}
     out["bound_s"] = time.perf_counter() - t0
+    return ts, out, bound
+
+
+def run(*, quick: bool = False, device: str | None = None, frames: int | None = None, variants=("8",),
+        passes: int = 2, cases=("one", "three"), chain_frames=(0, 40, 80), refine_every: int = 1,
+        psf=None, workers: int = 0, checkpoint=None, pixels: int | None = None,
+        voxel: float | None = None) -> dict:
+    """Run the study (module docs); returns the JSON-ready results. ``variants``: refinements
+    ``"<high-pass σ px>"`` or ``"<σ>+psf"`` (the DRRs blurred by ``psf``, a kernel estimated
+    from calibration frames); ``refine_every``: refine every k-th frame only (the tracker's
+    errors are reported over all frames and over those)."""
+    from core.render import DRRRenderer
+    from core.studies.tracking.bound_gap import _chain_terms
+    from core.tracking.bound import chain_information
+    from core.tracking.cost import prepare_frame
+    from core.tracking.trial import TrackingOptions, track
+
+    n = frames or (8 if quick else 100)
+    px, vox = (192, 1.0) if quick else (1024, 0.5)
+    px, vox = pixels or px, voxel or vox
+    ts, out, bound = _scene(n, px, vox, device, workers, {
+        "study": "core.studies.tracking.ml_cost", "variants": list(variants), "passes": passes,
+        "refined_frames": list(range(0, n, refine_every))})
     if chain_frames:
         t0 = time.perf_counter()
         N = [m.photons_per_pixel for m in ts.scene.imaging]
@@ -259,28 +268,13 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
     (None: the default), each tracked in full as ``final_<σ>_<lag>_<confidence>``. Per frame
     (``per_frame``): the errors and σ of the runs ``tracker`` and ``final``."""
     from core.render import DRRRenderer
-    from core.studies.tracking.acceptance import TrackingScene, cramer_rao
     from core.tracking.trial import TrackingOptions, track
 
     n = frames or 100
-    t0 = time.perf_counter()
-    ts = TrackingScene(n_frames=max(n, 2), pixels=pixels, spacing=voxel,
-                       phase=(0.0, 0.6 * max(n, 2) / 100.0), device=device, glare=glare)
-    synthesise(ts, range(n), workers)
-    out = {"study": "core.studies.tracking.ml_cost (final stage)", "machine": platform.machine(),
-           "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "frames": n,
-           "highpass_px": highpass_px, "synthesis_s": time.perf_counter() - t0,
-           "glare": [g.to_dict() for g in ts.glare] or None}
-    try:
-        import warp as wp
-
-        out["device_name"] = wp.get_device(str(ts.renderer.device)).name
-    except Exception:  # a name only
-        pass
-    t0 = time.perf_counter()
-    bound = cramer_rao(ts, range(0, n, max(1, n // 10)))
-    out["cramer_rao"] = {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for k, v in bound.items()}
-    out["bound_s"] = time.perf_counter() - t0
+    ts, out, bound = _scene(n, pixels, voxel, device, workers,
+                     {"study": "core.studies.tracking.ml_cost (final stage)", "highpass_px": highpass_px},
+                     glare=glare)
+    out["glare"] = [g.to_dict() for g in ts.glare] or None
     base = TrackingOptions(mode="joint")
     plain = replace(base, registration=replace(base.registration, search="newton"))
     final = replace(plain, registration=replace(plain.registration, final_highpass_px=highpass_px),

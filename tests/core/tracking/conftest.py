@@ -31,6 +31,22 @@ def talus_scene():
 
 
 @pytest.fixture(scope="session")
+def talus_calcaneus_128():
+    """``(scene, models, renderer, frames)``: ideal 128² views of the talus and calcaneus, 1.5 mm
+    voxels, frames 0 and 1 (fluence images, ``frames[i]``), bone models and a CPU renderer."""
+    from core.render import DRRRenderer
+    from core.synthetic import make_foot_scene
+    from core.tracking.bones import bone_model
+
+    sc = make_foot_scene(n_frames=2, pixels=128, spacing=1.5, names=("talus", "calcaneus"), beads_per_bone=0,
+                         phase=(0.0, 0.03), soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
+    models = [bone_model(b, mesh=False) for b in sc.bones]
+    r = DRRRenderer(sc.rig, [b.to_attenuation(sc.bone_transfer) for b in sc.bones], device="cpu")
+    frames = {i: [m.to_float(f) for m, f in zip(sc.imaging, sc.render_frame(i), strict=True)] for i in (0, 1)}
+    return sc, models, r, frames
+
+
+@pytest.fixture(scope="session")
 def demo_walk_48(tmp_path_factory):
     """A demo study built once per run (read it, or copy it before writing): the 30-frame walk in
     48² views, 3 mm bone and 6 mm tissue voxels, no calibration session; every bone has its true

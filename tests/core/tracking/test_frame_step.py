@@ -12,17 +12,8 @@ import pytest
 
 
 @pytest.fixture(scope="module")
-def two_bones():
-    from core.render import DRRRenderer
-    from core.synthetic import make_foot_scene
-    from core.tracking.bones import bone_model
-
-    sc = make_foot_scene(n_frames=2, pixels=128, spacing=1.5, names=("talus", "calcaneus"), beads_per_bone=0,
-                         phase=(0.0, 0.03), soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
-    models = [bone_model(b, mesh=False) for b in sc.bones]
-    r = DRRRenderer(sc.rig, [b.to_attenuation(sc.bone_transfer) for b in sc.bones], device="cpu")
-    frames = {i: [m.to_float(f) for m, f in zip(sc.imaging, sc.render_frame(i), strict=True)] for i in (0, 1)}
-    return sc, models, r, frames
+def two_bones(talus_calcaneus_128):
+    return talus_calcaneus_128
 
 
 def _run(two_bones, monkeypatch, ahead: bool, **opts):

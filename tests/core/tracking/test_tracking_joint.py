@@ -10,18 +10,11 @@ from core.geometry.transforms import params_from_pose, pose_from_params
 
 
 @pytest.fixture(scope="module")
-def two_bones():
-    from core.render import DRRRenderer
-    from core.synthetic import make_foot_scene
-    from core.tracking.bones import bone_model
+def two_bones(talus_calcaneus_128):
     from core.tracking.cost import prepare_frame
 
-    sc = make_foot_scene(n_frames=2, pixels=128, spacing=1.5, names=("talus", "calcaneus"), beads_per_bone=0,
-                         phase=(0.0, 0.03), soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
-    models = [bone_model(b, mesh=False) for b in sc.bones]
-    r = DRRRenderer(sc.rig, [b.to_attenuation(sc.bone_transfer) for b in sc.bones], device="cpu")
-    frame = prepare_frame([m.to_float(f) for m, f in zip(sc.imaging, sc.render_frame(1), strict=True)])
-    return sc, models, r, frame
+    sc, models, r, frames = talus_calcaneus_128
+    return sc, models, r, prepare_frame(frames[1])
 
 
 def test_lockstep_registrations_are_those_of_register(two_bones):

@@ -68,7 +68,7 @@ def _conf_flags(conf, flags, o: TrackingOptions, good_sigmas) -> list:
     if o.max_uncertainty is not None:
         out += _uncertain(conf, o.max_uncertainty)
     if good_sigmas is not None and not any(f.startswith("uncertain") for f in (*flags, *out)):
-        out += _sigma_check(conf, good_sigmas, n=o.history)
+        out += _sigma_check(conf, good_sigmas, n=o.history, limit=o.sigma_limit)
     return out
 
 

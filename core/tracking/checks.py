@@ -9,6 +9,11 @@ same optimum (:data:`SAME_OPTIMUM`); :func:`uncertain` flags a confidence beyond
 :func:`sigma_check` one far beyond the bone's own. See the
 module docs of :mod:`core.tracking.trial` for how the tracker uses them.
 
+The thresholds :data:`COLLAPSE_RATIO`, :data:`MOTION_LIMIT`, :data:`MOTION_FLOOR` and
+:data:`SIGMA_LIMIT` are the defaults of the :class:`~core.tracking.options.TrackingOptions`
+fields ``collapse_ratio``, ``motion_limit``, ``motion_floor`` and ``sigma_limit``, which the
+tracker passes here (:func:`failures` reads the first three from its options ``o``).
+
 Pose differences are taken in closed form (:func:`pose_delta`, :func:`step_pose`): the same
 values as :func:`core.geometry.transforms.params_from_pose` and
 :func:`~core.geometry.transforms.pose_from_params` (to rounding), without their input checks
@@ -84,7 +89,8 @@ def _distance(a, b, c) -> tuple[float, float]:
 
 
 #: A score below this fraction of the median of the bone's recent good scores fails outright: a
-#: collapse that no wider search or restart check clears (:func:`failures`).
+#: collapse that no wider search or restart check clears (:func:`failures`; the default of
+#: ``TrackingOptions.collapse_ratio``).
 COLLAPSE_RATIO = 0.6
 #: Flags that start with this are score drops the tracker may confirm rather than flag
 #: (:func:`confirmable`).
@@ -114,8 +120,8 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
       floor: the first frame to cross it is verified; once a verified frame below the floor is
       among the recent good scores, the floor has been re-based by the image and later frames are
       judged by the recent median alone (until the recent scores are all above the floor again);
-    * ``"score collapse"`` — below :data:`COLLAPSE_RATIO` × the recent median: flagged whatever a
-      verification finds.
+    * ``"score collapse"`` — below ``o.collapse_ratio`` (default :data:`COLLAPSE_RATIO`) × the
+      recent median: flagged whatever a verification finds.
 
     The first two are *confirmable* (:func:`confirmable`): the tracker retries the frame wider
     and checks the result with restarts (:func:`core.tracking.verify.verify_start`), and when the
@@ -138,10 +144,11 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     5 mm off that the retry had corrected (8 of 8 there, ``tracking_flags_cpu.json``), and a bone
     whose guesses go stale after flagged frames would stay flagged. Given the bone's good poses
     (``history``) and the ``frame`` number, :func:`motion_check` judges the pose against the
-    bone's own recent motion instead: on the acceptance trial (1024², joint, one H200,
-    ``resources/benchmarks/tracking_flags2_h200.json``) the frames out of order went from 4 of 12
-    silent to 0 (the other 8 within 1 mm / 2°), corrected starts stayed unflagged (11 of 12, the
-    12th flagged either way) and no tracked frame was flagged (0 of 292 good frames).
+    bone's own recent motion instead (limits ``o.motion_limit``, ``o.motion_floor``): on the
+    acceptance trial (1024², joint, one H200, ``resources/benchmarks/tracking_flags2_h200.json``)
+    the frames out of order went from 4 of 12 silent to 0 (the other 8 within 1 mm / 2°),
+    corrected starts stayed unflagged (11 of 12, the 12th flagged either way) and no tracked frame
+    was flagged (0 of 292 good frames).
 
     ``reference``: the score of the bone's first flagged frame while it has no good score (the
     tracker's :class:`~core.tracking.frame_state._BoneState`); a score below ``o.min_score_ratio`` × it
@@ -167,14 +174,17 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
         if res.score < floor and (not recent or min(recent) >= floor):
             out.append(f"{SCORE_DROP} below the start ({res.score:.3f} < {o.min_start_ratio:g} x first frame "
                        f"{start_score:.3f})")
-    if med is not None and res.score < COLLAPSE_RATIO * med:
-        out.append(f"score collapse ({res.score:.3f} < {COLLAPSE_RATIO:g} x recent median {med:.3f})")
+    collapse = getattr(o, "collapse_ratio", COLLAPSE_RATIO)
+    if med is not None and res.score < collapse * med:
+        out.append(f"score collapse ({res.score:.3f} < {collapse:g} x recent median {med:.3f})")
     dt, dr = _distance(guess_pose, res.pose, center)
     stale = _stale(history, frame)
     if dt > o.max_jump[0] * jump_factor * stale or dr > o.max_jump[1] * jump_factor * stale:
         out.append(f"pose jump ({dt:.2f} mm, {dr:.2f} deg from the guess)")
     if history is not None and frame is not None:
-        out += motion_check(res.pose, history, frame, center, n=o.history)
+        out += motion_check(res.pose, history, frame, center, n=o.history,
+                            limit=getattr(o, "motion_limit", MOTION_LIMIT),
+                            floor=getattr(o, "motion_floor", MOTION_FLOOR))
     return out
 
 
@@ -200,8 +210,10 @@ def _stale(history, frame) -> float:
 
 #: :func:`motion_check`: a pose farther from the motion prediction than this many times the median
 #: of the bone's recent prediction residuals (mm and degrees apart) is flagged ...
+#: (the default of ``TrackingOptions.motion_limit``)
 MOTION_LIMIT = 6.0
-#: ... and never closer than this (mm, degrees) for one frame of constant acceleration
+#: ... and never closer than this (mm, degrees) for one frame of constant acceleration (the default
+#: of ``TrackingOptions.motion_floor``)
 MOTION_FLOOR = (1.0, 2.0)
 
 
@@ -311,7 +323,8 @@ def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min
 
 
 #: :func:`sigma_check`: a confidence σ longer than this many times the median of the bone's recent
-#: good frames' σ (translation or rotation) is flagged
+#: good frames' σ (translation or rotation) is flagged (the default of
+#: ``TrackingOptions.sigma_limit``, which the tracker passes as ``limit``)
 SIGMA_LIMIT = 3.0
 
 

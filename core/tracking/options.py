@@ -7,9 +7,22 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .checks import COLLAPSE_RATIO, MOTION_FLOOR, MOTION_LIMIT, SIGMA_LIMIT
 from .register import RegistrationOptions
 
-__all__ = ["TrackingOptions"]
+__all__ = ["CHECK_FIELDS", "TrackingOptions"]
+
+#: The thresholds of the tracker's failure checks (:mod:`core.tracking.checks`) that are options:
+#: field name -> (what it is, its unit). Their defaults are the module constants of that name.
+CHECK_FIELDS = {
+    "collapse_ratio": ("a score below this fraction of the bone's recent median score always flags "
+                       "(\"score collapse\")", "ratio"),
+    "motion_limit": ("a pose farther from the motion prediction than this many times the bone's recent "
+                     "median miss flags (\"unexpected motion\")", "times the median miss"),
+    "motion_floor": ("the motion limit is never below this for consecutive frames", "mm, degrees"),
+    "sigma_limit": ("a confidence sigma longer than this many times the bone's recent median flags "
+                    "(\"uncertain\")", "times the median sigma"),
+}
 
 _GUESSES = ("previous", "velocity", "spline")
 _MODES = ("sequential", "joint", "auto")
@@ -24,7 +37,15 @@ class TrackingOptions:
     weighted least-squares refinement on the device (``final="likelihood"`` of
     :class:`~core.tracking.register.RegistrationOptions`, :mod:`core.tracking.final_stage`): the
     frame's pose and its confidence are the refinement's. Opt-in (it adds a few milliseconds per
-    bone and frame on a GPU)."""
+    bone and frame on a GPU).
+
+    The failure checks' thresholds (:mod:`core.tracking.checks`, :data:`CHECK_FIELDS`; defaults the
+    module constants of the same name): ``collapse_ratio`` (in [0, 1]; a score below it × the
+    bone's recent median score is a ``"score collapse"``, always flagged), ``motion_limit`` (≥ 1;
+    the ``"unexpected motion"`` limit in multiples of the bone's recent median miss of the motion
+    prediction), ``motion_floor`` (mm, degrees, ≥ 0; the least that limit is for consecutive
+    frames) and ``sigma_limit`` (≥ 1; the relative ``"uncertain"`` limit in multiples of the
+    bone's recent median confidence σ). Lower values flag more frames for review."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
@@ -51,6 +72,10 @@ class TrackingOptions:
     confidence_scale: float = 1.0
     lockstep: bool = True
     refine_likelihood: bool = False
+    collapse_ratio: float = COLLAPSE_RATIO
+    motion_limit: float = MOTION_LIMIT
+    motion_floor: tuple[float, float] = MOTION_FLOOR
+    sigma_limit: float = SIGMA_LIMIT
 
     def __post_init__(self) -> None:
         if not isinstance(self.refine_likelihood, bool):
@@ -85,6 +110,33 @@ class TrackingOptions:
             raise ValueError(f"contact_weight: expected a weight >= 0 (per mm²), got {self.contact_weight!r}")
         if not np.isfinite(self.contact_margin_mm):
             raise ValueError(f"contact_margin_mm: expected a finite distance, got {self.contact_margin_mm!r}")
+        self._check_thresholds()
+
+    def _check_thresholds(self) -> None:
+        """The failure checks' thresholds (:data:`CHECK_FIELDS`): numbers in their ranges."""
+        def number(name, v) -> float:
+            if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating) \
+                    or not np.isfinite(v):
+                raise ValueError(f"{name}: expected a finite number, got {v!r}")
+            return float(v)
+
+        if not 0 <= number("collapse_ratio", self.collapse_ratio) <= 1:
+            raise ValueError(f"collapse_ratio: expected a ratio in [0, 1] (of the bone's recent median "
+                             f"score), got {self.collapse_ratio!r}")
+        for name, what in (("motion_limit", "median miss of the motion prediction"),
+                           ("sigma_limit", "median confidence sigma")):
+            v = getattr(self, name)
+            if number(name, v) < 1:
+                raise ValueError(f"{name}: expected a factor >= 1 (times the bone's recent {what}), "
+                                 f"got {v!r}")
+        try:
+            floor = tuple(self.motion_floor)
+        except TypeError:
+            floor = ()
+        if len(floor) != 2 or not all(number("motion_floor", v) >= 0 for v in floor):
+            raise ValueError(f"motion_floor: expected (mm, degrees), each a number >= 0, "
+                             f"got {self.motion_floor!r}")
+        object.__setattr__(self, "motion_floor", tuple(float(v) for v in floor))
 
     @property
     def first_options(self) -> RegistrationOptions:

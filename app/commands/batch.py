@@ -5,7 +5,8 @@ Usage::
     talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
                 [--ranges] [--workers N] [--scheduler ADDRESS] [--device cpu|cuda]
                 [--frames START:STOP] [--metric gc|components] [--final none|likelihood]
-                [--no-confidence] [--max-uncertainty MM,DEG] [--out SUMMARY.json] [--quiet]
+                [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R] [--motion-limit K]
+                [--motion-floor MM,DEG] [--sigma-limit K] [--out SUMMARY.json] [--quiet]
 
 Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto``
 (the default) makes one task of each trial whose frames are flatfield-corrected (a calibrated
@@ -21,7 +22,10 @@ runs the tasks one after the other in this process, without Dask. Progress goes 
 Dask dashboard address first), the JSON summary to stdout.
 ``--final likelihood`` ends every registration with the weighted least-squares refinement, as
 ``talus track --final likelihood`` does; every trial of the batch must have flatfield-corrected
-frames (the trials without are named, and nothing is tracked).
+frames (the trials without are named, and nothing is tracked). The failure checks' thresholds
+(``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``) are
+``talus track``'s (:data:`app.commands.track.CHECKS`), for every task; out-of-range values are
+refused naming the option before any task starts.
 Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
 it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -46,6 +50,7 @@ from ._shared import (
     study_folder,
     text_bar,
 )
+from .track import add_check_arguments
 
 __all__ = ["HELP", "configure", "final_stage_problems", "mode_note", "run"]
 
@@ -104,6 +109,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="flag frames whose confidence exceeds MM or DEG for review (as talus track)")
     p.add_argument("--out", default=None, help="also write the JSON summary to this file")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_check_arguments(p)  # as talus track
     p.set_defaults(run=run)
 
 
@@ -179,9 +185,17 @@ def run(a: argparse.Namespace) -> int:
     if a.joint and a.mode not in ("auto", "joint"):
         raise CliError(f"--joint: contradicts --mode {a.mode} (--joint is --mode joint)")
     mode = "joint" if a.joint else a.mode
-    from .track import parse_limits
+    from .track import check_choices_of_args, check_error, parse_limits
 
     limits = parse_limits(a.max_uncertainty)
+    checks = check_choices_of_args(a)
+    if checks:  # refused here, naming the option, rather than in every task
+        from core.tracking.options import TrackingOptions
+
+        try:
+            TrackingOptions(**checks)
+        except ValueError as exc:
+            raise (check_error(exc) or exc) from None
     frames = _frames(a.frames)
     if a.workers != 0 and importlib.util.find_spec("distributed") is None:
         raise CliError(f"{PROG} batch needs Dask distributed, which is not installed: "
@@ -196,7 +210,8 @@ def run(a: argparse.Namespace) -> int:
             raise CliError("--final likelihood: " + "; ".join(problems))
     settings = TaskSettings(device=a.device, metric=a.metric, threshold_hu=a.threshold,
                             confidence=not a.no_confidence, max_uncertainty=limits, frames=frames,
-                            options=(("refine_likelihood", True),) if a.final == "likelihood" else ())
+                            options=((("refine_likelihood", True),) if a.final == "likelihood" else ())
+                            + tuple(checks.items()))
     progress = Progress("batch", quiet=a.quiet)
     follow = _Follow(progress, len(tasks))
     progress.note(f"{len(tasks)} tasks: {', '.join(t.key for t in tasks[:6])}"

@@ -5,7 +5,9 @@ Usage::
     talus track STUDY --trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0]
                 [--resume] [--guess velocity|previous|spline] [--mode auto|sequential|joint]
                 [--metric magnitudes|components] [--search local|newton] [--scale S]
-                [--final none|likelihood] [--max-uncertainty MM,DEG] [--no-confidence] [--quiet]
+                [--final none|likelihood] [--max-uncertainty MM,DEG] [--no-confidence]
+                [--collapse-ratio R] [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]
+                [--quiet]
 
 Every registered frame is saved to the study's pose journal as it finishes; the tracking report
 (``results/reports/tracking/<trial>.json``) lists per-frame scores and the frames flagged for
@@ -16,11 +18,23 @@ registration in flight (``--resume`` continues later). Exit status: 0 done, 1 ba
 ``--final likelihood`` ends every registration with the weighted least-squares refinement of the
 pose against the line-integral image (:mod:`core.tracking.final_stage`). It compares DRRs with
 ``-log`` of the flatfield-normalised fluence, so it needs flatfield-corrected frames: a trial whose
-frames are only divided by the full scale is refused (exit 1) before any tracking, naming it.
+frames are only divided by the full scale is refused (exit 1) before any tracking, naming it
+(:class:`core.tracking.from_study.FinalStageError`: the trial's correction is read once, by the
+tracker).
 The JSON summary then says in how many bone-frames the refinement was kept (``"final_stage"``: a
 refinement that moves the pose too far, or fails, leaves the similarity's pose). The options come
 from :func:`options_from_choices`, which the window's *Tracking options* dialog
 (:mod:`app.tracking_options`) uses too.
+
+Failure checks (:data:`CHECKS`; the fields of :class:`core.tracking.options.TrackingOptions` of
+the same names, :mod:`core.tracking.checks`): ``--collapse-ratio R`` — a score below R × the
+bone's recent median score is a *score collapse*, always flagged (default 0.6, in [0, 1]);
+``--motion-limit K`` — a pose farther from the constant-velocity prediction than K × the bone's
+recent median miss of it is *unexpected motion* (default 6, ≥ 1); ``--motion-floor MM,DEG`` — that
+limit is never below MM and DEG for consecutive frames (default 1,2; ≥ 0); ``--sigma-limit K`` — a
+confidence σ over K × the bone's recent median σ is *uncertain* (default 3, ≥ 1). A lower limit
+or floor, or a higher ratio, sends more frames for review; out-of-range values are refused naming
+the option (exit 1).
 """
 
 from __future__ import annotations
@@ -43,8 +57,9 @@ from ._shared import (
     text_bar,
 )
 
-__all__ = ["FINALS", "HELP", "METRICS", "choices_of", "configure", "final_stage_problem",
-           "options_from_choices", "parse_frames", "registration_terms", "run"]
+__all__ = ["CHECKS", "FINALS", "HELP", "METRICS", "add_check_arguments", "check_choices", "choices_of",
+           "configure", "final_stage_problem", "options_from_choices", "parse_frames", "registration_terms",
+           "run"]
 
 HELP = "track bones of a study trial, saving each pose as it finishes"
 
@@ -53,6 +68,26 @@ HELP = "track bones of a study trial, saving each pose as it finishes"
 METRICS = ("magnitudes", "components")
 #: ``--final``: no final stage (the default) or the weighted least-squares refinement.
 FINALS = ("none", "likelihood")
+#: The failure checks' thresholds: ``TrackingOptions`` field -> (command-line option, default,
+#: help). The defaults are :mod:`core.tracking.checks`' constants (a test keeps them equal; they
+#: are repeated here so that ``--help`` needs no numerical import).
+CHECKS = {
+    "collapse_ratio": ("--collapse-ratio", 0.6,
+                       "flag a frame whose score falls below R times the bone's recent median score "
+                       "('score collapse', never cleared by a confirmed optimum); a ratio in [0, 1], "
+                       "default 0.6"),
+    "motion_limit": ("--motion-limit", 6.0,
+                     "flag a pose farther from the constant-velocity prediction of the bone's last good "
+                     "poses than K times the bone's recent median miss of that prediction ('unexpected "
+                     "motion'); a factor >= 1, default 6"),
+    "motion_floor": ("--motion-floor", (1.0, 2.0),
+                     "the motion limit is never below MM millimetres and DEG degrees for consecutive "
+                     "frames (grown with the frame gaps); each >= 0, default 1,2"),
+    "sigma_limit": ("--sigma-limit", 3.0,
+                    "flag a frame whose confidence sigma (mm or degrees) exceeds K times the bone's recent "
+                    "median ('uncertain'); a factor >= 1, default 3"),
+}
+_METAVARS = {"collapse_ratio": "R", "motion_limit": "K", "motion_floor": "MM,DEG", "sigma_limit": "K"}
 
 
 def registration_terms(metric: str = "magnitudes") -> tuple:
@@ -67,11 +102,17 @@ def registration_terms(metric: str = "magnitudes") -> tuple:
 
 def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = "auto",
                          guess: str = "velocity", confidence: bool = True, metric: str = "magnitudes",
-                         final: str = "none", max_uncertainty: tuple[float, float] | None = None):
+                         final: str = "none", max_uncertainty: tuple[float, float] | None = None,
+                         collapse_ratio: float = CHECKS["collapse_ratio"][1],
+                         motion_limit: float = CHECKS["motion_limit"][1],
+                         motion_floor: tuple[float, float] = CHECKS["motion_floor"][1],
+                         sigma_limit: float = CHECKS["sigma_limit"][1]):
     """The :class:`core.tracking.trial.TrackingOptions` of ``talus track --search S --scale X --mode M
-    --guess G --metric C --final F [--no-confidence] [--max-uncertainty MM,DEG]`` — the one mapping
-    of these choices, shared by the command and the window's *Tracking options* dialog. ``final``:
-    ``"none"`` or ``"likelihood"`` (``TrackingOptions.refine_likelihood``)."""
+    --guess G --metric C --final F [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R]
+    [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]`` — the one mapping of these
+    choices, shared by the command and the window's *Tracking options* dialog. ``final``:
+    ``"none"`` or ``"likelihood"`` (``TrackingOptions.refine_likelihood``); the last four are the
+    failure checks' thresholds (:data:`CHECKS`), checked by ``TrackingOptions``."""
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions
 
@@ -80,7 +121,17 @@ def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = 
     reg = RegistrationOptions(terms=registration_terms(metric), bounds=(5.0, 5.0), sigma=(1.0, 1.0),
                               search=search, final_scale=float(scale))
     return TrackingOptions(registration=reg, guess=guess, mode=mode, confidence=bool(confidence),
-                           max_uncertainty=max_uncertainty, refine_likelihood=final == "likelihood")
+                           max_uncertainty=max_uncertainty, refine_likelihood=final == "likelihood",
+                           collapse_ratio=collapse_ratio, motion_limit=motion_limit,
+                           motion_floor=motion_floor, sigma_limit=sigma_limit)
+
+
+def check_choices(options) -> dict:
+    """The failure checks' thresholds of ``options`` (:data:`CHECKS`; None: the defaults)."""
+    if options is None:
+        return {k: v for k, (_, v, _) in CHECKS.items()}
+    return {k: (tuple(float(x) for x in getattr(options, k)) if k == "motion_floor"
+                else float(getattr(options, k))) for k in CHECKS}
 
 
 def choices_of(options) -> dict:
@@ -88,14 +139,14 @@ def choices_of(options) -> dict:
     ``max_uncertainty`` is left out)."""
     if options is None:
         return {"search": "local", "scale": 1.0, "mode": "auto", "guess": "velocity",
-                "confidence": True, "metric": "magnitudes", "final": "none"}
+                "confidence": True, "metric": "magnitudes", "final": "none", **check_choices(None)}
     reg = options.registration
     components = any(t.kind == "gc" and t.options.get("components") for t in reg.terms)
     likelihood = bool(getattr(options, "refine_likelihood", False)) or reg.final == "likelihood"
     return {"search": reg.search, "scale": float(reg.final_scale), "mode": options.mode,
             "guess": options.guess, "confidence": bool(options.confidence),
             "metric": "components" if components else "magnitudes",
-            "final": "likelihood" if likelihood else "none"}
+            "final": "likelihood" if likelihood else "none", **check_choices(options)}
 
 
 def final_stage_problem(study, trial: str) -> str | None:
@@ -126,15 +177,46 @@ def parse_frames(text: str | None, n_frames: int) -> list[int]:
     return list(range(lo, hi))
 
 
-def parse_limits(text: str | None) -> tuple[float, float] | None:
-    """``--max-uncertainty MM,DEG`` → ``(mm, deg)``; the range is checked by the library."""
+def parse_limits(text: str | None, option: str = "--max-uncertainty") -> tuple[float, float] | None:
+    """``--max-uncertainty MM,DEG`` (or ``option``'s) → ``(mm, deg)``; the range is checked by the
+    library."""
     if text is None:
         return None
     try:
         mm, deg = (float(v) for v in text.split(","))
     except ValueError:
-        raise ValueError(f"--max-uncertainty: expected MM,DEG (two numbers), got {text!r}") from None
+        raise ValueError(f"{option}: expected MM,DEG (two numbers), got {text!r}") from None
     return mm, deg
+
+
+def add_check_arguments(p: argparse.ArgumentParser) -> None:
+    """The failure checks' options (:data:`CHECKS`), shared by ``talus track`` and ``talus batch``."""
+    g = p.add_argument_group("failure checks", "thresholds of the checks that flag frames for review (a "
+                                               "lower limit or floor, or a higher ratio, flags more frames)")
+    for field, (flag, _default, text) in CHECKS.items():
+        g.add_argument(flag, dest=field, default=None, metavar=_METAVARS[field],
+                       type=None if field == "motion_floor" else float, help=text)
+
+
+def check_choices_of_args(a: argparse.Namespace) -> dict:
+    """The thresholds given on the command line (:func:`add_check_arguments`), as
+    :func:`options_from_choices` keywords; the others keep their defaults."""
+    out = {}
+    for field, (flag, _default, _text) in CHECKS.items():
+        v = getattr(a, field, None)
+        if v is not None:
+            out[field] = parse_limits(v, flag) if field == "motion_floor" else v
+    return out
+
+
+def check_error(exc: ValueError) -> CliError | None:
+    """A :class:`CliError` naming the command-line option for a ``TrackingOptions`` error about one
+    of the failure checks' thresholds (its message starts with the field name), else None."""
+    text = str(exc)
+    for field, (flag, _default, _text) in CHECKS.items():
+        if text.startswith(field + ":"):
+            return CliError(flag + text[len(field):])
+    return None
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -181,6 +263,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="flag frames for review whose confidence (length of the sigma vector) exceeds "
                         "MM in translation or DEG in rotation, e.g. 0.3,0.6")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_check_arguments(p)
     p.set_defaults(run=run)
 
 
@@ -207,8 +290,14 @@ def run(a: argparse.Namespace) -> int:
     if not (a.scale >= 1 and a.scale == a.scale and a.scale < float("inf")):
         raise CliError(f"--scale: expected a number >= 1 (detector pixels per DRR pixel), got {a.scale!r}")
     from core.study import Study
-    from core.tracking.from_study import track_study
+    from core.tracking.from_study import FinalStageError, track_study
 
+    try:
+        opts = options_from_choices(search=a.search, scale=a.scale, mode=a.mode, guess=a.guess,
+                                    confidence=not a.no_confidence, metric=a.metric, final=a.final,
+                                    max_uncertainty=limits, **check_choices_of_args(a))
+    except ValueError as exc:
+        raise (check_error(exc) or exc) from None
     token = CancelToken()
     progress = Progress("track", quiet=a.quiet)
     bar = None
@@ -219,19 +308,14 @@ def run(a: argparse.Namespace) -> int:
             if a.backward:
                 frames = frames[::-1]
             bones = a.bones.split(",") if a.bones else None
-            opts = options_from_choices(search=a.search, scale=a.scale, mode=a.mode, guess=a.guess,
-                                        confidence=not a.no_confidence, metric=a.metric, final=a.final,
-                                        max_uncertainty=limits)
-            if opts.refine_likelihood:
-                problem = final_stage_problem(study, a.trial)
-                if problem:
-                    raise CliError(f"--final likelihood: {problem}")
             bar = _Bar(progress)
             with stdout_to_stderr():
                 result, report = track_study(study, a.trial, bones, frames, options=opts,
                                              device=a.device, resume=a.resume,
                                              threshold_hu=a.threshold, progress=bar,
                                              cancel=token)
+        except FinalStageError as exc:  # track_study's refusal, before any work
+            raise CliError(f"--final likelihood: {exc}") from None
         except KeyboardInterrupt:  # a second Ctrl-C: stop at once (the journal stays valid)
             token.set()
             result, report = None, {}

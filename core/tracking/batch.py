@@ -173,8 +173,9 @@ def tracks_jointly(study, trial: str) -> bool:
     """Whether ``mode="auto"`` tracks the bones of ``trial`` (in ``study``, a
     :class:`core.study.Study`) jointly: its frames are normalised by a flatfield correction — the
     pipelines saved with the trial's calibration, or the study settings' — rather than divided
-    by the full scale. The test :func:`core.tracking.from_study.track_study` makes: the frame
-    normalisation :func:`core.tracking.from_study.frame_reader` finds (it reads the correction
+    by the full scale. The test :func:`core.tracking.from_study.track_study` makes
+    (:func:`~core.tracking.from_study.flatfield_corrected`) of the frame normalisation
+    :func:`core.tracking.from_study.frame_reader` finds (it reads the correction
     pipelines, a few tens of ms for a 512² calibration).
 
     Raises
@@ -182,10 +183,10 @@ def tracks_jointly(study, trial: str) -> bool:
     StudyError
         A saved correction pipeline that cannot be read (as tracking the trial would).
     """
-    from .from_study import frame_reader
+    from .from_study import flatfield_corrected, frame_reader
 
     _, how = frame_reader(study, study.trial(trial))
-    return not how.startswith("full scale")  # track_study's own test of mode "auto"
+    return flatfield_corrected(how)  # track_study's own test of mode "auto"
 
 
 def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | None = None,

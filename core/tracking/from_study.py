@@ -22,6 +22,11 @@ Frame normalisation, in order of precedence
 4. otherwise frames are divided by the full scale ``2**bits - 1`` (no flatfield: noted in the
    report).
 
+:func:`flatfield_corrected` tells from :func:`frame_reader`'s description which it was (cases 1–3
+or 4): the one test of joint tracking in mode ``"auto"``, of the likelihood final stage
+(:func:`final_stage_problem`) and of ``talus batch``'s task grouping
+(:func:`core.tracking.batch.tracks_jointly`).
+
 The rig is the trial's calibration (:meth:`core.study.Trial.rig`), so a trial calibrated by
 ``talus calibrate`` is tracked with the saved rig and its saved correction.
 
@@ -69,10 +74,13 @@ from ..render import HUTransfer
 from .bones import bone_model
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
-__all__ = ["final_stage_problem", "frame_reader", "tissue_excess_transfer", "track_study"]
+__all__ = ["FULL_SCALE", "FinalStageError", "final_stage_problem", "flatfield_corrected", "frame_reader",
+           "tissue_excess_transfer", "track_study"]
 
 #: CT number of the soft tissue around bones (muscle, tendon, fat-free tissue: 40 HU).
 SOFT_TISSUE_HU = 40.0
+#: :func:`frame_reader`'s description of frames divided by the full scale only (no flatfield).
+FULL_SCALE = "full scale (no flatfield)"
 #: Rim (mm) kept around each bone (:func:`core.tracking.bones.bone_model`'s ``isolate_mm``) when
 #: the transfer has no threshold.
 ISOLATE_MM = 1.0
@@ -107,7 +115,7 @@ def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) 
     if fns is None:
         bits = [v.get("bit_depth") or 16 for v in study.manifest["trials"][trial.name]["views"]]
         fns = [lambda raw, b=b: np.clip(np.asarray(raw, np.float32) / (2**b - 1), 0, 1) for b in bits]
-        how = "full scale (no flatfield)"
+        how = FULL_SCALE
     if len(fns) != len(rig):
         raise ValueError(f"correction: expected {len(rig)} per-view corrections, got {len(fns)}")
 
@@ -124,8 +132,21 @@ def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) 
     return read, how
 
 
+def flatfield_corrected(how: str) -> bool:
+    """Whether :func:`frame_reader`'s description ``how`` (also the tracking report's
+    ``"normalisation"``) is of frames normalised by a flatfield correction — a given correction,
+    the pipelines saved with the trial's calibration or the study settings' — rather than divided
+    by the full scale only (:data:`FULL_SCALE`)."""
+    return how != FULL_SCALE
+
+
+class FinalStageError(ValueError):
+    """The likelihood final stage asked for on a trial whose frames are not flatfield-corrected
+    (:func:`final_stage_problem`'s message); raised by :func:`track_study` before any work."""
+
+
 def _final_stage_note(trial_name: str, how: str) -> str | None:
-    if not how.startswith("full scale"):
+    if flatfield_corrected(how):
         return None
     return (f"trial {trial_name!r}: its frames are not flatfield-corrected (divided by the full scale only), "
             "and the likelihood final stage compares DRRs with the line integrals of flatfield-normalised "
@@ -140,7 +161,7 @@ def final_stage_problem(study, trial_name: str, *,
     flatfield-normalised fluence (its weights are the expected counts): frames that are only
     divided by the full scale — no flatfield correction saved with the trial's calibration or in
     the study settings (:func:`frame_reader`) — do not give them. :func:`track_study` refuses such
-    a trial with this message."""
+    a trial with this message (:class:`FinalStageError`) before it locks or reads anything else."""
     _, how = frame_reader(study, study.trial(trial_name), correction=correction)
     return _final_stage_note(trial_name, how)
 
@@ -165,7 +186,9 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     a transfer that has no threshold, voxels farther than :data:`ISOLATE_MM` from each bone are set to
     air (the module docs say why).
 
-    The bones' journals are locked first (:meth:`core.study.Study.lock_journal`): a bone
+    The likelihood final stage (``options.refine_likelihood``) on frames that are not
+    flatfield-corrected raises :class:`FinalStageError` (:func:`final_stage_problem`'s message)
+    first. The bones' journals are locked next (:meth:`core.study.Study.lock_journal`): a bone
     another process is tracking raises :class:`~core.io.atomic.LockedError` before any work.
     The report is ``results/reports/tracking/<report_name>.json`` (default: the trial's name;
     ``talus batch`` gives each (trial, bone) task its own).
@@ -177,6 +200,13 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     for b in names:
         if b not in trial.bones:
             raise ValueError(f"bones: trial {trial_name!r} has no bone {b!r} (has {list(trial.bones)})")
+    read, how = frame_reader(study, trial, correction=correction)  # read once: the refusal and the mode
+    if options is None:
+        options = TrackingOptions(mode="auto")
+    if "likelihood" in (options.registration.final, getattr(options.first, "final", None)):
+        problem = _final_stage_note(trial_name, how)
+        if problem:
+            raise FinalStageError(problem)
     for b in names:
         study.lock_journal(trial_name, b)
     report_name = trial_name if report_name is None else report_name
@@ -199,15 +229,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
         if not (existing[m.name] or skip[m.name]):
             stopped[m.name] = "no keyframe: record a starting pose for this bone first"
             models.remove(m)
-    read, how = frame_reader(study, trial, correction=correction)
-    if options is None:
-        options = TrackingOptions(mode="auto")
-    if "likelihood" in (options.registration.final, getattr(options.first, "final", None)):
-        problem = _final_stage_note(trial_name, how)
-        if problem:
-            raise ValueError(problem)
     if options.mode == "auto":  # flatfield-corrected frames: subtract the neighbours
-        joint = len(models) > 1 and not how.startswith("full scale")
+        joint = len(models) > 1 and flatfield_corrected(how)
         options = replace(options, mode="joint" if joint else "sequential")
     report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
               "normalisation": how,

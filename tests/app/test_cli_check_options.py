@@ -1,0 +1,115 @@
+"""``talus track`` and ``talus batch``: the failure checks' thresholds (--collapse-ratio,
+--motion-limit, --motion-floor, --sigma-limit) parsed, checked and handed to the tracker (which is
+not run here), and the likelihood final stage refused after one read of the trial's correction."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.cli import EXIT_NOTHING_DONE, EXIT_OK
+from app.cli import main as talus
+from app.commands import track
+from core.tracking.options import CHECK_FIELDS, TrackingOptions
+from tests.app._helpers import copy_study
+
+FLAGS = ["--collapse-ratio", "0.5", "--motion-limit", "4", "--motion-floor", "0.5,1.5",
+         "--sigma-limit", "2.5"]
+GIVEN = {"collapse_ratio": 0.5, "motion_limit": 4.0, "motion_floor": (0.5, 1.5), "sigma_limit": 2.5}
+
+
+@pytest.fixture
+def study(demo_study, tmp_path):
+    return copy_study(demo_study, tmp_path)
+
+
+@pytest.fixture
+def tracker(monkeypatch):
+    """track_study replaced: the options of each call, nothing tracked."""
+    import core.tracking.from_study as from_study
+
+    seen = []
+
+    def fake_track_study(study, trial, bones, frames, *, options, **kw):
+        seen.append(options)
+        return None, {"summary": {"status": "stopped"}}
+
+    monkeypatch.setattr(from_study, "track_study", fake_track_study)
+    return seen
+
+
+def test_the_command_line_defaults_are_the_trackers():
+    o = TrackingOptions()
+    assert set(track.CHECKS) == set(CHECK_FIELDS)
+    assert {k: d for k, (_, d, _) in track.CHECKS.items()} == {k: getattr(o, k) for k in CHECK_FIELDS}
+    assert track.check_choices(track.options_from_choices()) == track.check_choices(None)
+    custom = track.options_from_choices(collapse_ratio=0.5, motion_floor=(0.5, 1.5))
+    c = track.choices_of(custom)
+    assert c["collapse_ratio"] == 0.5 and c["motion_floor"] == (0.5, 1.5)
+    assert track.options_from_choices(**c) == custom  # the choices round-trip
+
+
+def test_talus_track_hands_the_thresholds_to_the_tracker(study, tracker, capsys):
+    args = ["track", str(study), "--trial", "walk", "--frames", "0:1", "--quiet"]
+    assert talus(args) == EXIT_NOTHING_DONE
+    assert talus([*args, *FLAGS]) == EXIT_NOTHING_DONE
+    capsys.readouterr()
+    plain, custom = tracker
+    defaults = {k: getattr(TrackingOptions(), k) for k in CHECK_FIELDS}
+    assert {k: getattr(plain, k) for k in CHECK_FIELDS} == defaults
+    assert {k: getattr(custom, k) for k in CHECK_FIELDS} == GIVEN
+    from dataclasses import replace
+
+    assert replace(custom, **defaults) == plain  # nothing else changed
+
+
+@pytest.mark.parametrize(("flag", "value", "expected"), [
+    ("--collapse-ratio", "1.2", "--collapse-ratio: expected a ratio in [0, 1]"),
+    ("--motion-limit", "0.5", "--motion-limit: expected a factor >= 1"),
+    ("--motion-floor", "1", "--motion-floor: expected MM,DEG"),
+    ("--motion-floor", "1,-2", "--motion-floor: expected (mm, degrees), each a number >= 0"),
+    ("--sigma-limit", "nan", "--sigma-limit: expected a finite number"),
+])
+def test_bad_thresholds_are_refused_naming_the_option(study, tracker, capsys, flag, value, expected):
+    for command in ("track", "batch"):
+        extra = ["--trial", "walk"] if command == "track" else ["--workers", "0"]
+        assert talus([command, str(study), *extra, "--quiet", flag, value]) == 1
+        err = capsys.readouterr().err
+        assert expected in err, err
+    assert tracker == []  # nothing started
+
+
+def test_talus_batch_hands_the_thresholds_to_every_task(study, monkeypatch, capsys):
+    import core.tracking.batch as core_batch
+
+    seen = []
+
+    def fake_run_serial(tasks, settings, progress=None):
+        seen.append(settings)
+        return {"status": "complete", "failures": []}
+
+    monkeypatch.setattr(core_batch, "run_serial", fake_run_serial)
+    assert talus(["batch", str(study), "--workers", "0", "--quiet"]) == EXIT_OK
+    assert talus(["batch", str(study), "--workers", "0", "--quiet", *FLAGS]) == EXIT_OK
+    capsys.readouterr()
+    plain, custom = seen
+    defaults = {k: getattr(TrackingOptions(), k) for k in CHECK_FIELDS}
+    for joint in (False, True):
+        assert {k: getattr(plain.tracking_options(joint=joint), k) for k in CHECK_FIELDS} == defaults
+        assert {k: getattr(custom.tracking_options(joint=joint), k) for k in CHECK_FIELDS} == GIVEN
+
+
+def test_the_final_stage_refusal_reads_the_correction_once(study, monkeypatch, capsys):
+    """The demo's frames are divided by the full scale: track_study refuses --final likelihood
+    (FinalStageError, exit 1, the trial named) after one frame_reader call, before the bones'
+    journals are locked or their models built."""
+    import core.tracking.from_study as from_study
+
+    calls = []
+    real = from_study.frame_reader
+    monkeypatch.setattr(from_study, "frame_reader", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(from_study, "bone_model", lambda *a, **k: pytest.fail("a bone model was built"))
+    rc = talus(["track", str(study), "--trial", "walk", "--bones", "talus", "--frames", "1:2",
+                "--device", "cpu", "--final", "likelihood", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "--final likelihood: trial 'walk'" in err and "not flatfield-corrected" in err
+    assert len(calls) == 1 and "Traceback" not in err

@@ -7,6 +7,13 @@ a :class:`~core.tracking.results.FrameResult` per bone. In joint rounds before t
 registration's confidence (and its ``"uncertain"`` checks) is computed only where its attempt is
 the one kept (:func:`~core.tracking.attempt.settle`; the next round's replaces it otherwise).
 
+The registrations' final stage (``final`` of the registration options, ``TrackingOptions.
+refine_likelihood``; :mod:`core.tracking.final_stage`) runs in the last round only: a round before
+it only gives the next round its start and the neighbours' poses to subtract, which the similarity's
+optimum does as well, so each bone is refined once per frame (with its neighbours at the poses of
+the round before), in joint as in sequential mode. A bone that a later round loses (outside a view)
+keeps the earlier round's pose, without the stage. Without a final stage nothing changes.
+
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The
 checks seldom change a pose, and they are host work, while the next round is device work: so the
@@ -31,6 +38,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from dataclasses import replace as _replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -126,9 +134,9 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         return [JointJob(i, starts[i], bones[i].centroid, bones[i].outline, others_of(i, cur, kn),
                          roi_of(i, starts[i])) for i in side]
 
-    def together(jobs: list[JointJob], idle=None) -> tuple[list, float]:
+    def together(rnd: int, jobs: list[JointJob], idle=None) -> tuple[list, float]:
         t0 = time.perf_counter()
-        got = register_together(run.renderer, frame, jobs, o.registration, profile=o.profile,
+        got = register_together(run.renderer, frame, jobs, staged(rnd, o.registration), profile=o.profile,
                                 cancel=run.cancel, idle=idle)
         return got, (time.perf_counter() - t0) / len(jobs)
 
@@ -140,6 +148,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             opts, start = (o.first_options if first else o.registration), guesses[i]
         else:
             opts, start = o.registration, current[i]
+        opts = staged(rnd, opts)
         return register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
                                 state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
                                 start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
@@ -147,6 +156,11 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                                 host_only=host_only, defer_confidence=defer)
 
     rounds = o.joint_rounds if joint else 1
+
+    def staged(rnd: int, opts: RegistrationOptions) -> RegistrationOptions:
+        """The registration options of round ``rnd``: the final stage only in the last round."""
+        return opts if opts.final is None or rnd == rounds - 1 else _replace(opts, final=None)
+
     # the confidence of a round before the last, mostly replaced by the next round's, when it is kept
     defer_from = rounds if run.contacts is not None else 0
 
@@ -163,7 +177,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                 if ahead is not None and ahead[0] == _signature(jobs):
                     _, jobs, got, spent = ahead  # started with these very jobs
                 else:
-                    got, spent = together(jobs)
+                    got, spent = together(rnd, jobs)
                 ahead = None
                 pre = {i: (r, job.others, spent) for i, r, job in zip(side, got, jobs, strict=True)}
                 rois.update((job.bone, (job.initial_pose, job.roi)) for job in jobs if job.roi is not None)
@@ -184,7 +198,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                             checked[i] = check(i, rnd, pre[i][1], (pre[i][0], pre[i][2]), host_only=True)
 
                     sig = _signature(nxt)
-                    got, spent = together(nxt, idle)
+                    got, spent = together(rnd + 1, nxt, idle)
                     while tasks:
                         idle()
                     ahead = (sig, nxt, got, spent)
@@ -222,8 +236,6 @@ def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
     margin to a neighbour registered in this frame (``placed``: (index, pose)), polish it under
     the interpenetration penalty of :mod:`core.tracking.contact` (``a`` is updated in place: pose,
     score, confidence, work, a note with the depth resolved)."""
-    from dataclasses import replace as _replace
-
     from .contact import penetration_depths, polish_with_contact
 
     o = run.options

@@ -85,6 +85,7 @@ class TrackingActions:
         return dialog
 
     def _set_options(self, options) -> None:
+        from .commands.track import check_choices
         from .tracking_options import choices_of
 
         self.options = options
@@ -92,8 +93,11 @@ class TrackingActions:
         res = "full" if c["scale"] == 1 else f"1/{c['scale']:g}"
         gc = ", gradient components" if c["metric"] == "components" else ""
         final = ", likelihood final stage" if c["final"] == "likelihood" else ""
+        checks = "" if c == {**c, **check_choices(None)} else (
+            f", checks: collapse {c['collapse_ratio']:g}, motion {c['motion_limit']:g}x (floor "
+            f"{c['motion_floor'][0]:g} mm, {c['motion_floor'][1]:g} deg), sigma {c['sigma_limit']:g}x")
         self.window.notify(f"Tracking options: {c['search']} search, {res} resolution{gc}, {c['mode']}, "
-                           f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}")
+                           f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}{checks}")
 
     def track_in_batch(self):
         """Open the batch dialog (:mod:`app.batch_panel`); returns it."""

@@ -23,17 +23,24 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   worsened the tibia's and calcaneus's translation in joint mode, for +11.6 ms per bone-frame
   (+107 ms per joint frame). It needs flatfield-corrected frames: a trial without a flatfield
   correction is refused when the job starts (:func:`app.commands.track.final_stage_problem`);
-* **Confidence** — the pose uncertainty of every frame (costs a few renders per frame).
+* **Confidence** — the pose uncertainty of every frame (costs a few renders per frame);
+* **Advanced checks** — the thresholds of the checks that flag frames for review
+  (``talus track --collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``;
+  :data:`app.commands.track.CHECKS`): a score below the *collapse* ratio × the bone's recent median
+  score, a pose farther from the motion prediction than the *motion limit* × the bone's recent
+  median miss (never below the *motion floor*, mm and degrees) and a confidence σ over the *σ
+  limit* × the bone's recent median σ are flagged. The spin boxes hold each to its valid range;
+  an invalid value set from code is refused on *OK* with the option and its range named.
 """
 
 from __future__ import annotations
 
 from PySide6 import QtWidgets
 
-from .commands.track import choices_of, options_from_choices
+from .commands.track import CHECKS, check_choices, choices_of, options_from_choices
 
-__all__ = ["FINALS", "METRICS", "RESOLUTIONS", "SEARCHES", "TrackingOptionsDialog", "choices_of",
-           "options_from_choices"]
+__all__ = ["CHECK_RANGES", "FINALS", "METRICS", "RESOLUTIONS", "SEARCHES", "TrackingOptionsDialog",
+           "choices_of", "options_from_choices"]
 
 #: (label, search) pairs shown in the dialog.
 SEARCHES = (("Local (quadratic models)", "local"), ("Gauss–Newton (faster)", "newton"))
@@ -46,6 +53,27 @@ _MODES = (("Automatic (joint on flatfield-corrected frames)", "auto"),
 _GUESSES = (("Velocity", "velocity"), ("Previous pose", "previous"), ("Spline", "spline"))
 #: (label, ``talus track --final``) pairs shown in the dialog.
 FINALS = (("None", "none"), ("Likelihood refinement (flatfield-corrected frames)", "likelihood"))
+#: The *Advanced checks* spin boxes: name -> (minimum, maximum, step, decimals, suffix); the ranges
+#: are ``TrackingOptions``' (the upper bounds of the factors and the floor are the dialog's own).
+CHECK_RANGES = {
+    "collapse_ratio": (0.0, 1.0, 0.05, 2, " × recent median score"),
+    "motion_limit": (1.0, 100.0, 0.5, 1, " × recent median miss"),
+    "floor_mm": (0.0, 50.0, 0.25, 2, " mm"),
+    "floor_deg": (0.0, 90.0, 0.25, 2, " °"),
+    "sigma_limit": (1.0, 100.0, 0.5, 1, " × recent median σ"),
+}
+
+
+def _spin(name: str, value: float, tip: str) -> QtWidgets.QDoubleSpinBox:
+    lo, hi, step, decimals, suffix = CHECK_RANGES[name]
+    box = QtWidgets.QDoubleSpinBox()
+    box.setRange(lo, hi)
+    box.setDecimals(decimals)
+    box.setSingleStep(step)
+    box.setSuffix(suffix)
+    box.setValue(float(value))
+    box.setToolTip(tip)
+    return box
 
 
 def _combo(pairs, value) -> QtWidgets.QComboBox:
@@ -58,8 +86,8 @@ def _combo(pairs, value) -> QtWidgets.QComboBox:
 
 
 class TrackingOptionsDialog(QtWidgets.QDialog):
-    """Choose search, resolution, similarity, mode, guess, final stage and confidence; :meth:`options`
-    gives the result."""
+    """Choose search, resolution, similarity, mode, guess, final stage, confidence and the failure
+    checks' thresholds; :meth:`options` gives the result."""
 
     def __init__(self, options=None, parent=None) -> None:
         super().__init__(parent)
@@ -93,6 +121,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         form.addRow("&Guess:", self.guess)
         form.addRow("&Final stage:", self.final)
         form.addRow("", self.confidence)
+        checks = self._checks_group(c)
         buttons = QtWidgets.QDialogButtonBox(
             QtWidgets.QDialogButtonBox.StandardButton.Ok | QtWidgets.QDialogButtonBox.StandardButton.Cancel
             | QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults)
@@ -103,18 +132,64 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.buttons = buttons
         layout = QtWidgets.QVBoxLayout(self)
         layout.addLayout(form)
+        layout.addWidget(checks)
         layout.addWidget(buttons)
+
+    def _checks_group(self, c: dict) -> QtWidgets.QGroupBox:
+        """The *Advanced checks* group: the failure checks' thresholds (``talus track``'s options)."""
+        tip = {k: f"{flag}: {text}" for k, (flag, _default, text) in CHECKS.items()}
+        self.collapse_ratio = _spin("collapse_ratio", c["collapse_ratio"], tip["collapse_ratio"])
+        self.motion_limit = _spin("motion_limit", c["motion_limit"], tip["motion_limit"])
+        self.floor_mm = _spin("floor_mm", c["motion_floor"][0], tip["motion_floor"])
+        self.floor_deg = _spin("floor_deg", c["motion_floor"][1], tip["motion_floor"])
+        self.sigma_limit = _spin("sigma_limit", c["sigma_limit"], tip["sigma_limit"])
+        floor = QtWidgets.QHBoxLayout()
+        floor.setContentsMargins(0, 0, 0, 0)
+        floor.addWidget(self.floor_mm)
+        floor.addWidget(self.floor_deg)
+        group = QtWidgets.QGroupBox("Advanced checks")
+        group.setToolTip("Thresholds of the checks that flag frames for review: a lower limit or floor, or a "
+                         "higher collapse ratio, flags more frames")
+        form = QtWidgets.QFormLayout(group)
+        form.addRow("Score &collapse below:", self.collapse_ratio)
+        form.addRow("Motion &limit:", self.motion_limit)
+        form.addRow("Motion fl&oor:", floor)
+        form.labelForField(floor).setBuddy(self.floor_mm)
+        form.addRow("&Uncertain above:", self.sigma_limit)
+        self.checks_group = group
+        return group
 
     def restore_defaults(self) -> None:
         for box in (self.search, self.resolution, self.similarity, self.mode, self.guess, self.final):
             box.setCurrentIndex(0)
         self.confidence.setChecked(True)
+        self._set_checks(check_choices(None))
+
+    def _set_checks(self, c: dict) -> None:
+        self.collapse_ratio.setValue(c["collapse_ratio"])
+        self.motion_limit.setValue(c["motion_limit"])
+        self.floor_mm.setValue(c["motion_floor"][0])
+        self.floor_deg.setValue(c["motion_floor"][1])
+        self.sigma_limit.setValue(c["sigma_limit"])
 
     def choices(self) -> dict:
         return {"search": self.search.currentData(), "scale": float(self.resolution.currentData()),
                 "mode": self.mode.currentData(), "guess": self.guess.currentData(),
                 "confidence": self.confidence.isChecked(), "metric": self.similarity.currentData(),
-                "final": self.final.currentData()}
+                "final": self.final.currentData(), "collapse_ratio": self.collapse_ratio.value(),
+                "motion_limit": self.motion_limit.value(),
+                "motion_floor": (self.floor_mm.value(), self.floor_deg.value()),
+                "sigma_limit": self.sigma_limit.value()}
 
     def options(self):
         return options_from_choices(**self.choices())
+
+    def accept(self) -> None:
+        """OK: the options must be valid (the error names the option and its range), else the
+        dialog stays open."""
+        try:
+            self.options()
+        except ValueError as exc:
+            QtWidgets.QMessageBox.warning(self, "Tracking options", str(exc))
+            return
+        super().accept()

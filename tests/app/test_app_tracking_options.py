@@ -1,5 +1,6 @@
 """Tracking > Tracking options…: the window offers what ``talus track`` offers (search, resolution,
-similarity, mode, guess, final stage, confidence), chosen with real clicks and keys."""
+similarity, mode, guess, final stage, confidence, the failure checks' thresholds), chosen with real
+clicks and keys."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ pytest.importorskip("PySide6", reason="the GUI extra (PySide6) is not installed"
 
 from PySide6 import QtCore, QtWidgets
 
+from app.commands.track import check_choices
 from app.tracking_options import FINALS, TrackingOptionsDialog, choices_of, options_from_choices
 from tests.app._helpers import copy_study, job_ends, main_window
 
@@ -80,13 +82,14 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
                          QtCore.Qt.MouseButton.LeftButton)
     opts = window.tracking.options
     assert choices_of(opts) == {"search": "newton", "scale": 2.0, "mode": "joint", "guess": "velocity",
-                                "confidence": False, "metric": "components", "final": "likelihood"}
+                                "confidence": False, "metric": "components", "final": "likelihood",
+                                **check_choices(None)}
     assert any(t.kind == "gc" and t.options.get("components") for t in opts.registration.terms)
     assert opts.refine_likelihood and opts.registration.final == "likelihood"
     assert opts.first_options.final == "likelihood"  # first frames and retries end with it too
     last = window.messages.item(window.messages.count() - 1).text()
     assert "newton search, 1/2 resolution, gradient components, joint" in last and "no confidence" in last
-    assert "likelihood final stage" in last
+    assert "likelihood final stage" in last and "checks" not in last  # the default checks: not listed
 
     # re-opened, the dialog shows the current choices; Restore defaults then Cancel changes nothing
     dialog = window.tracking.edit_options()
@@ -141,3 +144,71 @@ def test_tracking_with_the_final_stage_is_refused_on_frames_without_flatfield(qt
         with pytest.raises(ValueError, match=r"trial 'walk'.*not flatfield-corrected"):
             win.tracking.start(["talus"])
         assert not win.tracking.running and not m.layers[m.index("talus")].locked
+
+
+def _type(qtbot, box: QtWidgets.QDoubleSpinBox, text: str) -> None:
+    """Replace the spin box's number by typing, as a user would (the suffix stays), then Tab."""
+    box.setFocus()
+    box.selectAll()
+    qtbot.keyClicks(box, text)
+    qtbot.keyClick(box, QtCore.Qt.Key.Key_Tab)
+
+
+def test_advanced_checks_set_the_thresholds_with_keys_and_clicks(qtbot, window):
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    assert dialog.checks_group.title() == "Advanced checks"
+    defaults = check_choices(None)
+    assert (dialog.collapse_ratio.value(), dialog.motion_limit.value(), dialog.sigma_limit.value()) == (
+        defaults["collapse_ratio"], defaults["motion_limit"], defaults["sigma_limit"])
+    assert (dialog.floor_mm.value(), dialog.floor_deg.value()) == defaults["motion_floor"]
+    _type(qtbot, dialog.motion_limit, "4")
+    _type(qtbot, dialog.sigma_limit, "2.5")
+    dialog.collapse_ratio.setFocus()
+    for _ in range(2):  # two steps of 0.05 down
+        qtbot.keyClick(dialog.collapse_ratio, QtCore.Qt.Key.Key_Down)
+    dialog.activateWindow()
+    qtbot.waitUntil(dialog.isActiveWindow, timeout=HUNG_MS)
+    qtbot.keyClick(dialog.collapse_ratio, QtCore.Qt.Key.Key_O,
+                   QtCore.Qt.KeyboardModifier.AltModifier)  # the label's mnemonic: Motion fl&oor
+    assert dialog.floor_mm.hasFocus()
+    _type(qtbot, dialog.floor_mm, "0.5")
+    _type(qtbot, dialog.floor_deg, "1.5")
+    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
+        qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
+                         QtCore.Qt.MouseButton.LeftButton)
+    opts = window.tracking.options
+    assert (opts.collapse_ratio, opts.motion_limit, opts.motion_floor, opts.sigma_limit) == (
+        pytest.approx(0.5), 4.0, (0.5, 1.5), 2.5)
+    assert options_from_choices(**choices_of(opts)) == opts
+    last = window.messages.item(window.messages.count() - 1).text()
+    assert "checks: collapse 0.5, motion 4x (floor 0.5 mm, 1.5 deg), sigma 2.5x" in last
+
+    # re-opened it shows them; Restore defaults brings back the tracker's
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    assert dialog.choices() == choices_of(opts)
+    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults),
+                     QtCore.Qt.MouseButton.LeftButton)
+    assert dialog.choices() == choices_of(None)
+    with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
+        qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)
+
+
+def test_advanced_checks_hold_their_ranges_and_ok_refuses_an_invalid_value(qtbot, monkeypatch):
+    dialog = TrackingOptionsDialog()
+    qtbot.addWidget(dialog)
+    dialog.show()
+    qtbot.waitExposed(dialog)
+    _type(qtbot, dialog.motion_limit, "0.5")  # below the range: the box keeps a valid value
+    assert dialog.motion_limit.value() >= 1
+    _type(qtbot, dialog.collapse_ratio, "7")
+    assert dialog.collapse_ratio.value() <= 1
+    warned = []
+    monkeypatch.setattr(QtWidgets.QMessageBox, "warning", lambda parent, title, text: warned.append(text))
+    dialog.sigma_limit.setMinimum(0.0)  # a value out of the tracker's range, set from code
+    dialog.sigma_limit.setValue(0.5)
+    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
+                     QtCore.Qt.MouseButton.LeftButton)
+    assert dialog.isVisible() and dialog.result() == 0  # not accepted
+    assert len(warned) == 1 and warned[0].startswith("sigma_limit: expected a factor >= 1"), warned

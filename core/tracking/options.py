@@ -45,7 +45,8 @@ class TrackingOptions:
     the ``"unexpected motion"`` limit in multiples of the bone's recent median miss of the motion
     prediction), ``motion_floor`` (mm, degrees, ≥ 0; the least that limit is for consecutive
     frames) and ``sigma_limit`` (≥ 1; the relative ``"uncertain"`` limit in multiples of the
-    bone's recent median confidence σ). Lower values flag more frames for review."""
+    bone's recent median confidence σ). A lower limit or floor, or a higher ratio, flags more
+    frames for review."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))

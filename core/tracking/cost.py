@@ -57,9 +57,9 @@ import numpy as np
 
 from ..geometry.transforms import pose_from_params
 
-__all__ = ["DEFAULT_TERMS", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
-           "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel", "prepare_frame", "search_roi",
-           "snap_roi"]
+__all__ = ["DEFAULT_TERMS", "NOISE_OPTION", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
+           "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel", "noise_maps", "prepare_frame",
+           "search_roi", "snap_roi"]
 
 
 class OutsideViewError(ValueError):
@@ -73,7 +73,8 @@ class MetricTerm:
     ``drr_sigma``, ``dilate``, ``threshold``, ``operator``, ``bins``…; ``fluoro_sigma_mm`` and
     ``drr_sigma_mm`` give the smoothing in mm at the bone instead of DRR pixels; ``gc`` with
     ``components=True`` correlates the gradient components instead of the magnitudes, also in the
-    Gauss–Newton engine)."""
+    Gauss–Newton engine; ``gc`` of the magnitudes with ``noise_correction=True`` takes the frame's
+    quantum noise out of the fluoroscope's magnitudes at full resolution, :func:`noise_maps`)."""
 
     kind: str
     weight: float = 1.0
@@ -135,6 +136,28 @@ _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=np.uint8)
 
 DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3}),)
 
+#: the ``gc`` term's option of the noise correction (:func:`noise_maps`; set by
+#: :class:`core.tracking.register.RegistrationOptions`'s ``noise_correction``)
+NOISE_OPTION = "noise_correction"
+
+
+def noise_maps(frame: FrameImages, views, regions, fluoro_sigma: float, operator: str = "sobel") -> list:
+    """Per view the expected squared gradient magnitude of the noise over a full-resolution search
+    region, ``E₁ / F_s``: ``E₁`` estimated from the frame (:meth:`FrameImages.noise_energy`),
+    ``F_s = exp(-G_σ ∗ y)`` the fluence of the region's line integrals ``y`` (``regions``, before
+    any neighbour is subtracted) smoothed as the metric smooths the fluoroscope (``fluoro_sigma``
+    px, truncated at 4σ, borders replicated). The Gauss–Newton engine computes the same on the
+    device (:func:`core.tracking.engine_kernels.fluoro_gradient_kernel`)."""
+    from ..similarity.batched import _smooth_and_gradient
+
+    out = []
+    z = np.zeros((3, 3))
+    for v, y in zip(views, regions, strict=True):
+        e1 = frame.noise_energy(v, fluoro_sigma, operator)
+        ys = _smooth_and_gradient(np.asarray(y, np.float64), fluoro_sigma, z, z)[0]
+        out.append(e1 * np.exp(ys))
+    return out
+
 
 def metric_terms(name: str = "magnitudes") -> tuple[MetricTerm, ...]:
     """The cost terms of a similarity's name (``talus track``/``talus batch --metric``, the
@@ -175,6 +198,7 @@ class FrameImages:
         self._erode = int(erode_px)
         self._whole: tuple | None = None
         self._regions: dict = {}  # the last few regions asked for (pyramid levels, rounds of joint tracking)
+        self._noise: dict = {}  # noise energies estimated (noise_energy)
 
     @property
     def n_views(self) -> int:
@@ -229,6 +253,22 @@ class FrameImages:
             g = given[r0:r1, c0:c1]
             mask = g if mask is None else mask & g
         return li, mask
+
+    def noise_energy(self, view: int, fluoro_sigma: float = 0.0, operator: str = "sobel") -> float:
+        """``E₁`` of ``view``: the expected squared gradient magnitude of its quantum noise at full
+        fluence after the metric's smoothing (``fluoro_sigma`` px) and ``operator``, estimated from
+        this frame (:func:`core.similarity.gradient.frame_noise_energy`, over the usable pixels);
+        kept per view, operator and σ (to 1 %) for the frame's later registrations."""
+        from ..similarity.gradient import frame_noise_energy
+
+        s = float(fluoro_sigma)
+        key = (int(view), operator, round(math.log(s) / 0.01) if s > 0 else None)
+        hit = self._noise.get(key)
+        if hit is None:
+            hit = self._noise[key] = frame_noise_energy(
+                self._fluence[view], fluoro_sigma=s, operator=operator, mask=self._given[view],
+                valid_range=self._valid, erode_px=self._erode)
+        return hit
 
     def _all(self) -> tuple:
         if self._whole is None:
@@ -491,9 +531,18 @@ class RegistrationCost:
         px_mm = None
         if any(k in t.options for t in self.terms for k in _MM_KEYS):
             px_mm = s * mm_per_pixel(renderer, self.base, self.center, self.views)
-        self.metrics = [BatchedMetric(t.kind, list(self.fluoro_rois), device=dev,
-                                      fluoro_masks=list(self.fluoro_masks), **_in_pixels(t.options, px_mm))
-                        for t in self.terms]
+        self.metrics = []
+        raw = None
+        for t in self.terms:
+            opts = _in_pixels(t.options, px_mm)
+            if opts.pop(NOISE_OPTION, False) and s == 1.0 and isinstance(frame, FrameImages):
+                if raw is None:  # the regions before the neighbours are subtracted: their fluence
+                    raw = rois if others is None else fluoro_rois(renderer, frame, views=self.views,
+                                                                  roi=self.roi, scale=s)[0]
+                sig = float(opts.get("fluoro_sigma", 0.0))
+                opts["noise_energy"] = noise_maps(frame, self.views, raw, sig, opts.get("operator", "sobel"))
+            self.metrics.append(BatchedMetric(t.kind, list(self.fluoro_rois), device=dev,
+                                              fluoro_masks=list(self.fluoro_masks), **opts))
         w = np.array([t.weight for t in self.terms], dtype=float)
         self._w = w / w.sum()
         self._roi_arg = self.roi[None, :, None, :]

@@ -25,6 +25,19 @@ gradient ``g = -Σ w_v ∂r_v/∂x`` and the Gauss–Newton Hessian ``H = Σ w_v
 launch also scores the 13 poses with the ordinary cost (per-pose Ω, as
 :class:`~core.tracking.cost.RegistrationCost` scores them), so a step needs no other launch.
 
+Noise correction (the ``gc`` term's ``noise_correction`` option, set by
+:class:`core.tracking.register.RegistrationOptions`): quantum noise adds its expected squared
+gradient ``E = E₁ / F`` to the fluoroscope's squared gradient magnitudes, more where fewer photons
+arrive, and the correlation of magnitudes follows that pedestal
+(:mod:`core.studies.tracking.gc_noise_bias`). At full resolution the fluoroscope's gradients are
+shortened on the device to ``sqrt(max(|g|² - E, 0))``
+(:func:`~core.tracking.engine_kernels.fluoro_gradient_kernel`), ``E₁`` per view estimated from
+the frame itself (:meth:`core.tracking.cost.FrameImages.noise_energy`), ``F`` the fluence of the
+smoothed region before any neighbour is subtracted (joint tracking: two more blur passes at the
+frame's set-up). The moments and scores are unchanged; the same values as
+:func:`core.similarity.gradient_correlation` with ``noise_energy`` and the host cost's
+(:func:`core.tracking.cost.noise_maps`). Pyramid levels are left as they are.
+
 Search (:func:`gauss_newton_search`)
 ------------------------------------
 Levenberg–Marquardt: the step ``d = -(H + λ diag H)⁻¹ g`` (clipped to a trust box and the
@@ -81,7 +94,16 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
-from .cost import CostTimer, FrameImages, MetricTerm, OutsideViewError, _in_pixels, fluoro_rois, mm_per_pixel
+from .cost import (
+    NOISE_OPTION,
+    CostTimer,
+    FrameImages,
+    MetricTerm,
+    OutsideViewError,
+    _in_pixels,
+    fluoro_rois,
+    mm_per_pixel,
+)
 from .engine_frames import host_stage, pyramid_rois, stage, staged_shapes
 from .engine_kernels import (
     N_POSES,
@@ -105,7 +127,7 @@ __all__ = ["ENGINE_KINDS", "GaussNewtonCost", "GaussNewtonFit", "GaussNewtonStep
 ENGINE_KINDS = ("gc", "ncc")
 _MODE = {"ncc": 0, "gc": 1}
 _OPTIONS = ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm", "threshold", "dilate", "operator",
-            "components")
+            "components", NOISE_OPTION)
 _N = N_POSES  # poses per step: the centre and ±h_k e_k
 
 #: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`GaussNewtonCost._allocate`):
@@ -131,6 +153,7 @@ class _Buffers:
     fmask: object
     blur: object
     blur_taps: object
+    ys: object = None  # the noise correction's smoothed, unsubtracted line integrals (joint tracking)
     serial: int = field(default_factory=lambda: next(_SERIAL))  # which buffers (stage)
     pipes: dict = field(default_factory=dict)
     sibling_pipes: dict = field(default_factory=dict)
@@ -180,6 +203,9 @@ class GaussNewtonCost:
         self.components = bool(term.options.get("components", False))
         if self.components and term.kind != "gc":
             raise ValueError(f"term: only the gc metric has a component form, not {term.kind!r}")
+        self.noise = bool(term.options.get(NOISE_OPTION, False))
+        if self.noise and (term.kind != "gc" or self.components):
+            raise ValueError(f"term: the {NOISE_OPTION} option is the gc metric's of the gradient magnitudes")
         self.threshold = float(term.options.get("threshold", 0.0))
         self.dilate = int(term.options.get("dilate", 0))
         ku, kv = derivative_kernels(term.options.get("operator", "sobel"))
@@ -207,6 +233,9 @@ class GaussNewtonCost:
         self._ref_hw = wp.zeros(nv, dtype=wp.vec2i, device=dev)
         self._fshift = wp.zeros(nv, dtype=wp.float32, device=dev)
         self._fmax = wp.zeros(nv, dtype=wp.float32, device=dev)
+        self._e1 = wp.zeros(nv, dtype=wp.float32, device=dev)  # the noise correction's E1 per view
+        self._e1_last: np.ndarray | None = None
+        self._f_sig = 0.0  # the fluoroscope's smoothing at this frame's pixel size (px)
         self._fblur = None
         self._fblur_taps: np.ndarray | None = None
         self._taps_cache: dict = {}
@@ -323,14 +352,44 @@ class GaussNewtonCost:
                              [a, dst, self._fblur, self._ref_hw, nv, axis])
         else:
             wp.copy(self._fluoro, src)
+        ys = self._fluoro
+        noise = int(self.noise and self.scale == 1.0 and isinstance(frame, FrameImages))
+        if noise:
+            ys = self._noise_setup(frame, ftaps, src)
         self._launch("gradient", fluoro_gradient_kernel, (nv, Hc, Wc),
-                     [self._fluoro, self._ref_hw, self._fmax, self._ku, self._kv, self._fgrad])
+                     [self._fluoro, self._ref_hw, self._fmax, self._ku, self._kv, noise, self._e1, ys,
+                      self._fgrad])
         # the usable pixels counted on the device are checked at the first evaluation's
         # synchronisation (no wait of its own)
         self._count_pending = ran
         self._prepared = (weakref.ref(frame), key)
         self._unsynced = True
         self.timer.host += time.perf_counter() - t0
+
+    def _noise_setup(self, frame: FrameImages, ftaps, src) -> wp.array:
+        """The noise correction's inputs of this frame (full resolution): each view's ``E₁``
+        estimated from the frame (:meth:`~core.tracking.cost.FrameImages.noise_energy`) uploaded,
+        and the smoothed line integrals before the neighbours are subtracted — the smoothed
+        fluoroscope itself when none are, else the unsubtracted regions smoothed alike."""
+        op = self.term.options.get("operator", "sobel")
+        e1 = np.array([frame.noise_energy(v, self._f_sig, op) for v in self.views], np.float32)
+        if self._e1_last is None or not np.array_equal(e1, self._e1_last):
+            self._put("e1", self._e1, e1)
+            self._e1_last = e1
+        if src is self._raw0:
+            return self._fluoro
+        nv = self.n_views
+        Hc, Wc = self._cap
+        b = self._bufs
+        if b.ys is None:
+            b.ys = wp.zeros((nv, Hc, Wc), dtype=wp.float32, device=self.device)
+        if ftaps is None:
+            wp.copy(b.ys, self._raw0)
+        else:
+            for a, dst, axis in ((self._raw0, self._ftmp, 1), (self._ftmp, b.ys, 0)):
+                self._launch(f"noise_blur{axis}", K.blur_kernel, (nv, Hc, Wc),
+                             [a, dst, self._fblur, self._ref_hw, nv, axis])
+        return b.ys
 
     def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:
         """Launch ``kernel`` through a recorded launch, kept while its dimensions, arrays and
@@ -374,6 +433,7 @@ class GaussNewtonCost:
         opts = _in_pixels({k: v for k, v in self.term.options.items()
                            if k in ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm")}, px_mm)
         key = (float(opts.get("fluoro_sigma", 0.0)), float(opts.get("drr_sigma", 0.0)))
+        self._f_sig = key[0]
         hit = self._taps_cache.get(key)
         if hit is None:
             f_sig, d_sig = key

@@ -105,10 +105,15 @@ def subtract_kernel(src: wp.array3d(dtype=wp.float32), drr: wp.array3d(dtype=wp.
 @wp.kernel
 def fluoro_gradient_kernel(f: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i),
                            fmax: wp.array(dtype=wp.float32), ku: wp.mat33f, kv: wp.mat33f,
+                           noise: int, e1: wp.array(dtype=wp.float32), ys: wp.array3d(dtype=wp.float32),
                            out: wp.array3d(dtype=wp.vec2f)):
     """3 × 3 gradient of each fluoroscope ROI (replicated borders), 0 where its length is below
     ``ZERO_GRADIENT · max(1, max |f|)`` (as :class:`core.similarity.BatchedMetric` prepares it on
-    the host) and outside the ROI. dim = (views, H, W)."""
+    the host) and outside the ROI. With ``noise`` the gradient is shortened to the debiased
+    magnitude ``sqrt(max(|g|² - E, 0))`` (:func:`core.similarity.gradient.debiased_magnitude`),
+    ``E = e1[v] · exp(ys[v, r, c])``: the noise's expected squared gradient at full fluence over
+    the fluence of the smoothed, unsubtracted line integrals ``ys``
+    (:func:`core.tracking.cost.noise_maps`). dim = (views, H, W)."""
     v, r, c = wp.tid()
     h = ref_hw[v][0]
     w = ref_hw[v][1]
@@ -126,6 +131,10 @@ def fluoro_gradient_kernel(f: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dty
         g = wp.vec2f(gu, gv)
         if wp.length(g) <= K.ZERO_GRADIENT * wp.max(1.0, fmax[v]):
             g = wp.vec2f(0.0, 0.0)
+        elif noise != 0:
+            m2 = wp.length_sq(g)
+            e = e1[v] * wp.exp(ys[v, r, c])
+            g = g * wp.sqrt(wp.max(m2 - e, 0.0) / m2)
     out[v, r, c] = g
 
 

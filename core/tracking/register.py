@@ -57,6 +57,7 @@ import numpy as np
 from . import optimize as opt
 from .cost import (
     DEFAULT_TERMS,
+    NOISE_OPTION,
     CostTimer,
     FrameImages,
     MetricTerm,
@@ -192,7 +193,13 @@ class RegistrationOptions:
     similarity's optimum, the two costs' disagreement as a systematic part; on the 1024² trial,
     one H200, the talus's errors were within 2σ on 94 % of the axes, against 85-86 % with the
     sandwich alone) or ``"independent"``; ``final_others_gain``: the neighbours' DRRs fitted with
-    a gain of their own instead of subtracted as they are), or None.
+    a gain of their own instead of subtracted as they are), or None. ``noise_correction``: the
+    gradient correlation of the magnitudes takes the quantum noise's expected share out of the
+    fluoroscope's squared gradients at full resolution (debiased magnitudes
+    ``sqrt(max(|g|² - E₁/F, 0))``, ``E₁`` estimated from each frame:
+    :meth:`core.tracking.cost.FrameImages.noise_energy`), on the Gauss–Newton engine and the host
+    cost alike; it sets the ``gc`` terms' ``noise_correction`` option (not those of the
+    components' form, which noise does not bias this way).
     """
 
     terms: tuple[MetricTerm, ...] = DEFAULT_TERMS
@@ -213,9 +220,23 @@ class RegistrationOptions:
     final_lag_px: int | None = None
     final_confidence: str = "sandwich+move"
     final_others_gain: bool = False
+    noise_correction: bool = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "terms", tuple(self.terms))
+        if not isinstance(self.noise_correction, bool):
+            raise ValueError(f"noise_correction: expected True or False, got {self.noise_correction!r}")
+        # the gc terms of the magnitudes carry the correction's option (the costs and the engine
+        # read it there); this flag sets or clears it
+        terms = []
+        for t in self.terms:
+            if t.kind == "gc" and not t.options.get("components", False):
+                opts = {k: v for k, v in t.options.items() if k != NOISE_OPTION}
+                if self.noise_correction:
+                    opts[NOISE_OPTION] = True
+                if opts != dict(t.options):
+                    t = replace(t, options=opts)
+            terms.append(t)
+        object.__setattr__(self, "terms", tuple(terms))
         if self.levels is not None:
             object.__setattr__(self, "levels", tuple(self.levels))
             if not self.levels or not all(isinstance(lv, Level) for lv in self.levels):
@@ -272,7 +293,8 @@ class RegistrationOptions:
                 "margin_px": self.margin_px, "seed": self.seed, "final": self.final,
                 "final_highpass_px": self.final_highpass_px, "final_iters": self.final_iters,
                 "final_reach": list(self.final_reach), "final_lag_px": self.final_lag_px,
-                "final_confidence": self.final_confidence, "final_others_gain": self.final_others_gain}
+                "final_confidence": self.final_confidence, "final_others_gain": self.final_others_gain,
+                "noise_correction": self.noise_correction}
 
 
 @dataclass(frozen=True, eq=False)

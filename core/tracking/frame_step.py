@@ -53,11 +53,14 @@ from .results import FrameResult
 if TYPE_CHECKING:
     from .frame_state import _BoneState, _Run
 
-__all__ = ["AHEAD", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
 AHEAD = False
+#: Run the registrations' final stage after every joint round, not only the last (as before; kept
+#: for comparison by :mod:`core.studies.tracking.ml_cost`).
+FINAL_EVERY_ROUND = False
 
 
 @dataclass
@@ -159,7 +162,9 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
     def staged(rnd: int, opts: RegistrationOptions) -> RegistrationOptions:
         """The registration options of round ``rnd``: the final stage only in the last round."""
-        return opts if opts.final is None or rnd == rounds - 1 else _replace(opts, final=None)
+        if opts.final is None or rnd == rounds - 1 or FINAL_EVERY_ROUND:
+            return opts
+        return _replace(opts, final=None)
 
     # the confidence of a round before the last, mostly replaced by the next round's, when it is kept
     defer_from = rounds if run.contacts is not None else 0

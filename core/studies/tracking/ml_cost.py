@@ -23,7 +23,11 @@ stage (:func:`core.tracking.bound.chain_information`) on ``--chain-frames``.
 device refinement as the registrations' final stage (``TrackingOptions.refine_likelihood``,
 :mod:`core.tracking.final_stage`; three bones: after each joint round, the neighbours at that
 round's poses): error / bound ratios, time per frame and the stage's share, and the 2σ coverage
-of each run's own confidence.
+of each run's own confidence. The stage runs after the last joint round only
+(:mod:`core.tracking.frame_step`); ``--every-round`` adds a run with it after every round, as
+before. Per bone: frames over 4× their bound and how many of them went unflagged
+(:func:`silent_failures`); per frame the stage's move, covariances, χ² and residual
+autocorrelation (:class:`_StageProbe`), the material for a flag from the stage's information.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["main", "refine_frame", "run", "run_final", "synthesise"]
+__all__ = ["main", "refine_frame", "run", "run_final", "silent_failures", "synthesise"]
 
 
 def _chain_frame(args):
@@ -255,9 +259,107 @@ def _coverage(E, S) -> dict:
             "frames_with_sigma": int(ok.sum())}
 
 
+class _StageProbe:
+    """While installed (``with``), per (bone index, frame) the final stage's runs of a tracking run:
+    the pose it returned and what its refinement saw — the move ``x`` (mm, degrees), the sandwich
+    and the independent-pixel covariances, χ², steps, usable pixels and the weighted residual's
+    autocorrelation at 1 px and over the lag window (mean over the views). Study instrumentation
+    only: it wraps :func:`core.tracking.trial.track_frame` (the frame number),
+    :func:`core.tracking.final_stage.final_stage` and
+    :meth:`core.tracking.engine_likelihood.LikelihoodEngine.refine`."""
+
+    def __init__(self) -> None:
+        self.frame = None
+        self.calls: dict = {}
+        self._last = None
+
+    def __enter__(self) -> _StageProbe:
+        import core.tracking.final_stage as fst
+        import core.tracking.trial as trial
+        from core.tracking.engine_likelihood import LikelihoodEngine
+
+        self._saved = (trial.track_frame, fst.final_stage, LikelihoodEngine.refine)
+        real_tf, real_fs, real_refine = self._saved
+        probe = self
+
+        def track_frame(run, f, *a, **k):
+            probe.frame = int(f)
+            return real_tf(run, f, *a, **k)
+
+        def refine(eng, *a, **k):
+            out = real_refine(eng, *a, **k)
+            rho = getattr(eng, "autocorrelation", None)
+            d = {"x": np.asarray(out["x"], float), "covariance": np.asarray(out["covariance"], float),
+                 "covariance_independent": np.asarray(out["covariance_independent"], float),
+                 "chi2": float(out["chi2"]), "iterations": int(out["iterations"]),
+                 "pixels": int(eng.n_pixels)}
+            if rho is not None:
+                c = rho.shape[1] // 2
+                d["rho_1px"] = float(np.mean([rho[:, c, c - 1], rho[:, c, c + 1], rho[:, c - 1, c],
+                                              rho[:, c + 1, c]]))
+                d["rho_mean"] = float(np.mean(rho))
+            probe._last = d
+            return out
+
+        def final_stage(renderer, frame, res, **k):
+            probe._last = None
+            got = real_fs(renderer, frame, res, **k)
+            if probe._last is not None:
+                probe.calls.setdefault((int(k["bone"]), probe.frame), []).append(
+                    (np.asarray(got.pose, float).tobytes(), probe._last))
+            return got
+
+        trial.track_frame, fst.final_stage, LikelihoodEngine.refine = track_frame, final_stage, refine
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import core.tracking.final_stage as fst
+        import core.tracking.trial as trial
+        from core.tracking.engine_likelihood import LikelihoodEngine
+
+        trial.track_frame, fst.final_stage, LikelihoodEngine.refine = self._saved
+
+    def of(self, bone: int, fr) -> dict | None:
+        """The stage's record behind result ``fr`` (a FrameResult of volume ``bone``): its last run
+        in that frame that returned the pose ``fr`` holds, or None."""
+        if fr is None or fr.pose is None:
+            return None
+        key = np.asarray(fr.pose, float).tobytes()
+        hits = [d for p, d in self.calls.get((bone, fr.frame), []) if p == key]
+        return hits[-1] if hits else None
+
+
+def _stage_record(d: dict | None) -> dict | None:
+    """A probe record as JSON: the move, the diagonals of both covariances and the χ²."""
+    if d is None:
+        return None
+    return {"move": np.round(d["x"], 5).tolist(), "var_sandwich": d["covariance"].diagonal().tolist(),
+            "var_independent": d["covariance_independent"].diagonal().tolist(),
+            "covariance": np.round(d["covariance"], 9).tolist(),
+            "covariance_independent": np.round(d["covariance_independent"], 9).tolist(),
+            **{k: d[k] for k in ("chi2", "iterations", "pixels", "rho_1px", "rho_mean") if k in d}}
+
+
+def silent_failures(E, flagged, bound: dict, factor: float = 4.0) -> dict:
+    """Frames whose translation or rotation error exceeds ``factor`` × the per-frame bound
+    (``bound``: ``rms_mm``, ``rms_deg``; the benchmark's test), those of them not flagged
+    (``silent``) and the flagged frames within it (``false_flags``); ``E`` (frames, 6), ``flagged``
+    (frames,) bools. Frames without a pose count as flagged failures."""
+    E = np.asarray(E, float)
+    flagged = np.asarray(flagged, bool)
+    ok = np.all(np.isfinite(E), axis=1)
+    over = ~ok | (np.linalg.norm(np.nan_to_num(E[:, :3]), axis=1) > factor * bound["rms_mm"]) \
+        | (np.linalg.norm(np.nan_to_num(E[:, 3:]), axis=1) > factor * bound["rms_deg"])
+    return {"over": int(over.sum()), "over_frames": np.flatnonzero(over).tolist(),
+            "flagged": int(flagged.sum()), "silent": int((over & ~flagged).sum()),
+            "silent_frames": np.flatnonzero(over & ~flagged).tolist(),
+            "false_flags": int((flagged & ~over).sum()), "good": int((~over).sum())}
+
+
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
-              checkpoint=None, variants=((None, None, None, False),), glare: bool = False) -> dict:
+              checkpoint=None, variants=((None, None, None, False),), glare: bool = False,
+              every_round: bool = False) -> dict:
     """The trial tracked twice per case (``one``: the talus alone, ``three``: three bones jointly,
     or a bone's name: that bone alone) in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
@@ -265,8 +367,13 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
     bone-frame, how often its move was taken, 2σ coverage of each run's confidence. ``variants``:
     further final stages of every case, ``(high-pass σ px, lag window px, confidence, the
     neighbours' own gain)``
-    (None: the default), each tracked in full as ``final_<σ>_<lag>_<confidence>``. Per frame
-    (``per_frame``): the errors and σ of the runs ``tracker`` and ``final``."""
+    (None: the default), each tracked in full as ``final_<σ>_<lag>_<confidence>``; ``every_round``:
+    three bones once more with the stage after every joint round (``final_every_round``,
+    :data:`core.tracking.frame_step.FINAL_EVERY_ROUND`, as before it ran after the last only).
+    Per bone and run: ``over_4x_bound`` (:func:`silent_failures`) and the flags per frame. Per frame
+    (``per_frame``): the errors, σ and scores of the runs ``tracker``, ``final`` (and
+    ``final_every_round``), and for the final stages what the stage saw (:class:`_StageProbe`)."""
+    import core.tracking.frame_step as fs
     from core.render import DRRRenderer
     from core.tracking.trial import TrackingOptions, track
 
@@ -288,6 +395,8 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
         kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
         c = {}
         runs = [("warm_up", plain), ("tracker", plain), ("final", final)]
+        if every_round and len(bones) > 1:
+            runs.append(("final_every_round", final))
         if variants:
             for hp, lag, conf, gain in variants:
                 if (hp, lag, conf, gain) != (None, None, None, False):
@@ -302,12 +411,24 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                 track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=o)
                 track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=final)
                 continue
-            t0 = time.perf_counter()
-            res = track(r, models, ts.frames, range(n), keyframes=kf, options=o)
-            dt = time.perf_counter() - t0
+            ends: dict = {}
+
+            def progress(done, total, fr, ends=ends):
+                ends[fr.frame] = time.perf_counter()
+
+            fs.FINAL_EVERY_ROUND = label == "final_every_round"
+            try:
+                with _StageProbe() as probe:
+                    t0 = time.perf_counter()
+                    res = track(r, models, ts.frames, range(n), keyframes=kf, options=o, progress=progress)
+                    dt = time.perf_counter() - t0
+            finally:
+                fs.FINAL_EVERY_ROUND = False
             poses = {(nm, f): res.results[(nm, f)].pose for nm in names for f in range(n)}
             tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(n)]
-            d = {"track_s": dt, "s_per_frame": dt / n,
+            after = (ends[n - 1] - ends[0]) / (n - 1) if n > 1 and 0 in ends and n - 1 in ends else None
+            d = {"track_s": dt, "s_per_frame": dt / n, "ms_per_frame_after_first": None if after is None
+                 else 1e3 * after,
                  "likelihood_s_per_bone_frame": float(np.mean([t.get("likelihood_s", 0.0) for t in tim])),
                  "likelihood_setup_s_per_bone_frame": float(np.mean([t.get("likelihood_setup_s", 0.0)
                                                                      for t in tim])),
@@ -318,14 +439,21 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                  "likelihood_move_median": [float(np.nanmedian([t.get(k, np.nan) for t in tim] or [np.nan]))
                                             for k in ("likelihood_move_mm", "likelihood_move_deg")],
                  "flagged": int(sum(bool(res.results[k].flags) for k in poses))}
-            for nm in names:
+            for i, nm in enumerate(names):
                 E = np.array(_pose_errs(ts, nm, poses, range(n)))
                 S = _sigmas(res, nm, range(n))
+                frs = [res.results[(nm, f)] for f in range(n)]
                 d[nm] = {**_summary(E, bound.get(nm)), "within_2_sigma": _coverage(E, S),
                          "median_sigma": np.nanmedian(np.array(S), axis=0).round(4).tolist()}
-                if label in ("tracker", "final"):
-                    c.setdefault("per_frame", {})[f"{label}_{nm}"] = {
-                        "error": np.round(E, 5).tolist(), "sigma": np.round(np.array(S), 5).tolist()}
+                if bound.get(nm):
+                    d[nm]["over_4x_bound"] = silent_failures(E, [bool(x.flags) for x in frs], bound[nm])
+                d[nm]["flags"] = {str(x.frame): list(x.flags) for x in frs if x.flags}
+                if label in ("tracker", "final", "final_every_round"):
+                    pf = {"error": np.round(E, 5).tolist(), "sigma": np.round(np.array(S), 5).tolist(),
+                          "score": [float(x.score) for x in frs]}
+                    if label != "tracker":
+                        pf["stage"] = [_stage_record(probe.of(i, x)) for x in frs]
+                    c.setdefault("per_frame", {})[f"{label}_{nm}"] = pf
             c[label] = d
         out[case] = c
         if checkpoint:
@@ -364,6 +492,8 @@ def main(argv=None) -> int:
                    help="--final: more stages 'σ:lag[:confidence],…' ('-': the default)")
     p.add_argument("--glare", action="store_true",
                    help="--final: undo the veiling glare measured from calibration disc frames")
+    p.add_argument("--every-round", action="store_true",
+                   help="--final: three bones also with the stage after every joint round (as before)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json
@@ -380,7 +510,8 @@ def main(argv=None) -> int:
         res = run_final(device=a.device, frames=a.frames, cases=a.cases.split(","),
                         pixels=a.pixels or 1024, voxel=a.voxel or 0.5, highpass_px=a.highpass,
                         workers=a.workers, checkpoint=checkpoint,
-                        variants=[_variant(v) for v in a.final_variants.split(",") if v], glare=a.glare)
+                        variants=[_variant(v) for v in a.final_variants.split(",") if v], glare=a.glare,
+                        every_round=a.every_round)
         print_json(res, a.out)
         return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,

@@ -22,6 +22,8 @@ third of a pure-noise pixel's pedestal.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..imaging.edges import FIRST_DERIVATIVE_OPERATORS, gradient
@@ -37,7 +39,9 @@ __all__ = [
     "gradient_difference",
     "gradient_information",
     "gradient_orientation",
+    "noise_energy_of_samples",
     "noise_gradient_energy",
+    "noise_samples",
     "quantum_noise_energy",
     "white_noise_gradient_gain",
 ]
@@ -127,17 +131,127 @@ def noise_gradient_energy(flat_a, flat_b, *, fluoro_sigma: float = 0.0, operator
     return fbar * float(np.mean((gu * gu + gv * gv)[ok])) / 2.0
 
 
-#: :func:`frame_noise_energy`'s defaults: the brightest quarter of the usable pixels, their median
-#: of ``|g|² F``, every 4th strip of 32 rows
+#: :func:`frame_noise_energy`'s defaults: the brightest quarter of the usable points of a lattice of
+#: about 16 384 points (8-pixel steps in a 1024² view, 1-8 pixels), their median of ``|g|² F``, at
+#: most 2048 of them
 NOISE_BRIGHT_FRACTION = 0.25
 NOISE_QUANTILE = 0.5
-NOISE_STRIPS = (32, 4)
+NOISE_LATTICE = 16384
+NOISE_SAMPLES = 2048
+
+
+def _patch_radius(fluoro_sigma: float) -> int:
+    """Half-width of the patch that holds the smoothing (4σ) and the 3 × 3 operator."""
+    return (int(4.0 * float(fluoro_sigma) + 0.5) if fluoro_sigma > 0 else 0) + 1
+
+
+def noise_samples(fluence, *, radius: int, mask=None, valid_range: tuple[float, float] | None = (0.02, 0.999),
+                  bright_fraction: float = NOISE_BRIGHT_FRACTION, step: int | None = None,
+                  max_samples: int = NOISE_SAMPLES) -> np.ndarray:
+    """``(n, (2 radius + 1)²)`` float32: the line integrals ``-ln F`` of square patches about the
+    brightest ``bright_fraction`` of the usable points of a ``step``-pixel lattice (default: about
+    :data:`NOISE_LATTICE` points, 1-8 pixels apart; at most ``max_samples``, evenly thinned):
+    points ``radius`` pixels inside the frame, inside ``mask``, whose whole patch lies inside
+    ``valid_range`` (clipped or black pixels have lost their noise).
+    :func:`noise_energy_of_samples` turns them into ``E₁`` at any smoothing that fits the patch."""
+    f = np.asarray(fluence, dtype=np.float32)
+    if f.ndim != 2:
+        raise ValueError(f"fluence: expected a 2-D flatfield-normalised frame, got shape {f.shape}")
+    if not 0 < bright_fraction <= 1:
+        raise ValueError(f"bright_fraction: expected a fraction in (0, 1], got {bright_fraction!r}")
+    R = int(radius)
+    H, W = f.shape
+    k = 2 * R + 1
+    empty = np.zeros((0, k * k), np.float32)
+    if H < k or W < k:
+        return empty
+    st = int(step) if step is not None else int(min(8, max(1, math.isqrt(H * W // NOISE_LATTICE))))
+    grid = f[R:H - R:st, R:W - R:st]
+    gw = grid.shape[1]
+    F = grid.ravel()
+    ok = np.isfinite(F)
+    if valid_range is not None:
+        ok &= (F > valid_range[0]) & (F < valid_range[1])
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != f.shape:
+            raise ValueError(f"mask: expected shape {f.shape}, got {m.shape}")
+        ok &= m[R:H - R:st, R:W - R:st].ravel()
+    pts = np.flatnonzero(ok)
+    if not len(pts):
+        return empty
+    n = max(round(bright_fraction * len(pts)), 1)
+    if n < len(pts):
+        pts = np.sort(pts[np.argpartition(-F[pts], n - 1)[:n]])
+    if len(pts) > max_samples:  # evenly thinned over the frame
+        pts = pts[np.linspace(0, len(pts) - 1, int(max_samples)).astype(np.int64)]
+    # the patch about lattice point (i, j) starts at pixel (i·st, j·st)
+    win = np.lib.stride_tricks.sliding_window_view(f, (k, k))
+    P = win[(pts // gw) * st, (pts % gw) * st].reshape(len(pts), k * k)
+    if valid_range is not None:
+        P = P[np.all((P > valid_range[0]) & (P < valid_range[1]), axis=1)]
+    return -np.log(np.clip(P, 1.0 / 4096, 1.0))
+
+
+_KERNELS: dict = {}
+
+
+def _patch_kernels(fluoro_sigma: float, operator: str, radius: int) -> np.ndarray:
+    """``(k², 3)``: the weights of a ``(2 radius + 1)²`` patch (row-major) giving the smoothed value
+    and the two components of the smoothed gradient at its centre (the correlation of the Gaussian
+    of ``fluoro_sigma`` px, truncated at 4σ, and ``operator``)."""
+    key = (round(float(fluoro_sigma), 6), operator, int(radius))
+    hit = _KERNELS.get(key)
+    if hit is None:
+        k = 2 * int(radius) + 1
+        delta = np.zeros((k, k))
+        delta[radius, radius] = 1.0
+        ys, gu, gv = (np.asarray(a, np.float64) for a in _smoothed_gradient_full(delta, float(fluoro_sigma),
+                                                                                 operator))
+        # a correlation filter applied to a delta is the flipped weights
+        hit = np.stack([a[::-1, ::-1].ravel() for a in (ys, gu, gv)], axis=1)
+        if len(_KERNELS) >= 64:
+            _KERNELS.pop(next(iter(_KERNELS)))
+        _KERNELS[key] = hit
+    return hit
+
+
+def _smoothed_gradient_full(img, sigma: float, operator: str):
+    from scipy import ndimage
+
+    img = np.asarray(img, dtype=np.float64)
+    if sigma > 0:
+        img = ndimage.gaussian_filter(img, sigma, mode="constant", truncate=4.0)
+    gu, gv = gradient(img, operator=operator)
+    return img, gu, gv
+
+
+def noise_energy_of_samples(samples, *, fluoro_sigma: float = 0.0, operator: str = "sobel",
+                            quantile: float = NOISE_QUANTILE) -> float:
+    """``E₁`` from :func:`noise_samples`' patches: the ``quantile`` of ``q = |g|² F_s`` at their
+    centres (``g`` the gradient after the smoothing of ``fluoro_sigma`` px and ``operator``,
+    ``F_s = exp(-G_σ ∗ y)``) over that quantile of the unit exponential, ``-ln(1 - quantile)``
+    (:func:`frame_noise_energy`). 0.0 for fewer than 100 patches."""
+    if operator not in GRADIENT_OPERATORS:
+        raise ValueError(f"operator: expected one of {GRADIENT_OPERATORS}, got {operator!r}")
+    if not 0 < quantile < 1:
+        raise ValueError(f"quantile: expected a fraction in (0, 1), got {quantile!r}")
+    P = np.asarray(samples, dtype=np.float32)
+    if P.ndim != 2 or len(P) < 100:
+        return 0.0
+    R = (math.isqrt(P.shape[1]) - 1) // 2
+    if _patch_radius(fluoro_sigma) > R:
+        raise ValueError(f"samples: patches of radius {R} are too small for fluoro_sigma {fluoro_sigma!r}")
+    K = _patch_kernels(fluoro_sigma, operator, R).astype(np.float32)
+    Z = P @ K
+    q = (Z[:, 1] ** 2 + Z[:, 2] ** 2) * np.exp(-Z[:, 0])
+    return float(np.quantile(q, quantile) / -np.log1p(-quantile))
 
 
 def frame_noise_energy(fluence, *, fluoro_sigma: float = 0.0, operator: str = "sobel", mask=None,
-                       valid_range: tuple[float, float] | None = (0.02, 0.999), erode_px: int = 3,
+                       valid_range: tuple[float, float] | None = (0.02, 0.999),
                        bright_fraction: float = NOISE_BRIGHT_FRACTION, quantile: float = NOISE_QUANTILE,
-                       strips: tuple[int, int] | None = NOISE_STRIPS) -> float:
+                       step: int | None = None, max_samples: int = NOISE_SAMPLES) -> float:
     """``E₁``, the expected squared gradient magnitude of a frame's quantum noise at full fluence
     (``E|g_n|² = E₁ / F``), estimated from the frame itself.
 
@@ -146,92 +260,26 @@ def frame_noise_energy(fluence, *, fluoro_sigma: float = 0.0, operator: str = "s
     noise's, ``q = |g|² F_s`` (``F_s = exp(-G_σ ∗ y)``) is ``E₁`` times a unit exponential
     variable (isotropic noise: two independent gradient components of equal variance), and
     anatomy only makes ``q`` larger. The estimate is the ``quantile`` (the median) of ``q`` over the
-    brightest ``bright_fraction`` (a quarter) of the usable pixels, divided by that quantile of the
-    unit exponential, ``-ln(1 - quantile)``: soft tissue, where the anatomy's gradients are the
-    weakest and the counts highest. Inside bones the texture's gradients dominate: in the bones'
-    search regions of the harder acceptance trial (512², 1 mm voxels, frames 1 and 6) a low quantile
-    over all pixels gave 2-3 times the calibration's ``E₁`` (two plate frames,
-    :func:`noise_gradient_energy`), the brightest quarter of the whole frame 0.92-1.08 times it
-    (mean 0.99 over 16 frames, views and doses; median or 10 % or 25 % quantile alike; half the
-    frame's pixels instead of a quarter: 1.15-1.7). A low quantile is hurt most by gradients of the
-    anatomy present everywhere (a ramp of soft tissue), the median least.
-
-    ``fluence``: the flatfield-normalised frame (1 = full fluence). Usable pixels: inside
-    ``valid_range`` (open interval; clipped or black pixels have lost their noise), ``erode_px``
-    pixels away from any that is not, and inside ``mask`` (True = usable) when given.
-    ``strips = (rows, step)``: only every ``step``-th band of ``rows`` rows is filtered (a quarter
-    of a frame by default: about 60 000 usable pixels of a 1024² view, a few milliseconds; every
-    row when the strips hold fewer than 20 000 usable pixels); None filters the whole frame.
-    Returns 0.0 when fewer than 200 pixels are usable.
+    brightest ``bright_fraction`` (a quarter) of the usable points of a ``step``-pixel lattice (8
+    pixels at 1024², at most ``max_samples``; :func:`noise_samples`), divided by that quantile of
+    the unit exponential, ``-ln(1 - quantile)``: soft tissue, where the anatomy's gradients are the
+    weakest and the counts highest; ``q`` is computed at those points alone (a patch each,
+    :func:`noise_energy_of_samples`), about a millisecond for a 1024² view. Inside bones the
+    texture's gradients dominate: in the bones' search regions of the harder acceptance trial
+    (512², 1 mm voxels, frames 1 and 6) a low quantile over all pixels gave 2-3 times the
+    calibration's ``E₁`` (two plate frames, :func:`noise_gradient_energy`), the brightest quarter of
+    the whole frame 0.92-1.08 times it (mean 0.99 over 16 frames, views and doses; median or 10 %
+    or 25 % quantile alike; half the frame's pixels instead of a quarter: 1.15-1.7). A low quantile
+    is hurt most by gradients of the anatomy present everywhere (a ramp of soft tissue), the
+    median least. Usable: inside ``valid_range`` (open interval) over the whole patch and inside
+    ``mask`` (True = usable) when given. Returns 0.0 when fewer than 100 points are usable.
     """
-    import cv2
-
-    f = np.asarray(fluence, dtype=np.float32)
-    if f.ndim != 2:
-        raise ValueError(f"fluence: expected a 2-D flatfield-normalised frame, got shape {f.shape}")
-    if operator not in GRADIENT_OPERATORS:
-        raise ValueError(f"operator: expected one of {GRADIENT_OPERATORS}, got {operator!r}")
     s = float(fluoro_sigma)
     if not (np.isfinite(s) and s >= 0):
         raise ValueError(f"fluoro_sigma: expected a non-negative number, got {fluoro_sigma!r}")
-    if not 0 < bright_fraction <= 1:
-        raise ValueError(f"bright_fraction: expected a fraction in (0, 1], got {bright_fraction!r}")
-    if not 0 < quantile < 1:
-        raise ValueError(f"quantile: expected a fraction in (0, 1), got {quantile!r}")
-    given = None if mask is None else np.asarray(mask, dtype=bool)
-    if given is not None and given.shape != f.shape:
-        raise ValueError(f"mask: expected shape {f.shape}, got {given.shape}")
-    from ..imaging.edges import derivative_kernels
-
-    ku, kv = (np.asarray(k, np.float32) for k in derivative_kernels(operator))
-    rad = int(4.0 * s + 0.5) if s > 0 else 0
-    taps = None
-    if s > 0:
-        x = np.arange(-rad, rad + 1, dtype=np.float64)
-        taps = np.exp(-0.5 * (x / s) ** 2)
-        taps = (taps / taps.sum()).astype(np.float32)
-    e = int(erode_px)
-    pad = rad + 1 + e
-    H = f.shape[0]
-    if strips is None:
-        bands = [(0, H)]
-    else:
-        rows, step = (int(a) for a in strips)
-        bands = [(r0, min(r0 + rows, H)) for r0 in range(0, H, rows * step)]
-    cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
-    qs, fs = [], []
-    for r0, r1 in bands:
-        a0, a1 = max(r0 - pad, 0), min(r1 + pad, H)
-        sub = f[a0:a1]
-        y = -np.log(np.clip(sub, 1.0 / 4096, 1.0))
-        if taps is not None:
-            y = cv2.sepFilter2D(y, cv2.CV_32F, taps, taps, borderType=cv2.BORDER_REPLICATE)
-        gu = cv2.filter2D(y, cv2.CV_32F, ku, borderType=cv2.BORDER_REPLICATE)
-        gv = cv2.filter2D(y, cv2.CV_32F, kv, borderType=cv2.BORDER_REPLICATE)
-        ok = np.ones(sub.shape, bool)
-        if valid_range is not None:
-            lo, hi = valid_range
-            ok = (sub > lo) & (sub < hi)
-            if e and not ok.all():
-                ok = cv2.erode(ok.view(np.uint8), cross, iterations=e, borderType=cv2.BORDER_CONSTANT,
-                               borderValue=1).view(bool)
-        if given is not None:
-            ok &= given[a0:a1]
-        keep = slice(r0 - a0, r0 - a0 + (r1 - r0))
-        ok = ok[keep]
-        fs.append(np.exp(-y[keep][ok]))
-        qs.append((gu[keep] * gu[keep] + gv[keep] * gv[keep])[ok] * fs[-1])
-    q = np.concatenate(qs)
-    F = np.concatenate(fs)
-    if strips is not None and len(bands) > 1 and q.size < 20000:  # too few in the strips: every row
-        return frame_noise_energy(f, fluoro_sigma=s, operator=operator, mask=given, valid_range=valid_range,
-                                  erode_px=e, bright_fraction=bright_fraction, quantile=quantile, strips=None)
-    if q.size < 200:
-        return 0.0
-    k = max(round(bright_fraction * F.size), 1)
-    if k < F.size:
-        q = q[np.argpartition(-F, k - 1)[:k]]
-    return float(np.quantile(q, quantile) / -np.log1p(-quantile))
+    P = noise_samples(fluence, radius=_patch_radius(s), mask=mask, valid_range=valid_range,
+                      bright_fraction=bright_fraction, step=step, max_samples=max_samples)
+    return noise_energy_of_samples(P, fluoro_sigma=s, operator=operator, quantile=quantile)
 
 
 def quantum_noise_energy(fluoro, flat_energy: float, *, smooth_px: float = 2.0) -> np.ndarray:

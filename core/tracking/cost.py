@@ -257,17 +257,21 @@ class FrameImages:
     def noise_energy(self, view: int, fluoro_sigma: float = 0.0, operator: str = "sobel") -> float:
         """``E₁`` of ``view``: the expected squared gradient magnitude of its quantum noise at full
         fluence after the metric's smoothing (``fluoro_sigma`` px) and ``operator``, estimated from
-        this frame (:func:`core.similarity.gradient.frame_noise_energy`, over the usable pixels);
+        this frame (:func:`core.similarity.gradient.frame_noise_energy`: patches about the
+        brightest points of a lattice of the usable pixels, sampled once per view and patch size);
         kept per view, operator and σ (to 1 %) for the frame's later registrations."""
-        from ..similarity.gradient import frame_noise_energy
+        from ..similarity.gradient import _patch_radius, noise_energy_of_samples, noise_samples
 
         s = float(fluoro_sigma)
         key = (int(view), operator, round(math.log(s) / 0.01) if s > 0 else None)
         hit = self._noise.get(key)
         if hit is None:
-            hit = self._noise[key] = frame_noise_energy(
-                self._fluence[view], fluoro_sigma=s, operator=operator, mask=self._given[view],
-                valid_range=self._valid, erode_px=self._erode)
+            R = _patch_radius(s)
+            P = self._noise.get((int(view), R))
+            if P is None:
+                P = self._noise[(int(view), R)] = noise_samples(
+                    self._fluence[view], radius=R, mask=self._given[view], valid_range=self._valid)
+            hit = self._noise[key] = noise_energy_of_samples(P, fluoro_sigma=s, operator=operator)
         return hit
 
     def _all(self) -> tuple:

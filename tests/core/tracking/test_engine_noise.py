@@ -12,7 +12,12 @@ from scipy import ndimage
 
 from core.geometry.transforms import pose_from_params
 from core.similarity.batched import gaussian_weights
-from core.similarity.gradient import frame_noise_energy, gradient_correlation, noise_gradient_energy
+from core.similarity.gradient import (
+    frame_noise_energy,
+    gradient_correlation,
+    noise_energy_of_samples,
+    noise_gradient_energy,
+)
 from core.tracking.cost import (
     DEFAULT_TERMS,
     NOISE_OPTION,
@@ -60,7 +65,7 @@ def test_frame_estimate_recovers_the_noise_of_poisson_frames(quanta):
     assert np.allclose(est, truth, rtol=0.1), (est, truth)
     # inside the bone alone the texture's gradients dominate: the reason for the brightest pixels
     inner = frame_noise_energy(_poisson_frame(F0, quanta, psf, 0)[96:160, 80:176], fluoro_sigma=sig,
-                               bright_fraction=1.0, strips=None)
+                               bright_fraction=1.0)
     assert inner > 1.5 * truth
 
 
@@ -70,6 +75,22 @@ def test_frame_estimate_checks_its_arguments():
     with pytest.raises(ValueError, match="bright_fraction"):
         frame_noise_energy(np.ones((8, 8)), bright_fraction=0)
     assert frame_noise_energy(np.ones((8, 8))) == 0.0  # no usable pixel (saturated)
+    with pytest.raises(ValueError, match="too small"):
+        noise_energy_of_samples(np.zeros((200, 9)), fluoro_sigma=1.0)
+
+
+def test_patch_estimate_is_the_filtered_frames():
+    """The smoothed value and gradient from a patch's weights equal the filtered frame's there."""
+    from core.imaging.edges import derivative_kernels
+    from core.similarity.batched import _smooth_and_gradient
+    from core.similarity.gradient import _patch_kernels, _patch_radius
+
+    img = np.random.default_rng(0).random((40, 40))
+    for sig in (0.0, 0.6, 1.1):
+        R = _patch_radius(sig)
+        ys, gu, gv = _smooth_and_gradient(img, sig, *derivative_kernels("sobel"))
+        z = img[20 - R:21 + R, 17 - R:18 + R].ravel() @ _patch_kernels(sig, "sobel", R)
+        np.testing.assert_allclose(z, [ys[20, 17], gu[20, 17], gv[20, 17]], rtol=1e-10, atol=1e-12)
 
 
 def test_options_set_the_terms_option():

@@ -6,8 +6,9 @@ the study's CT (a bone whose CT has no voxel above the threshold is reported and
 others are tracked), starts from the poses already in the trial's journal (keyframes), records
 every registered frame with :meth:`core.study.Trial.record_pose` as it finishes, and keeps the
 report ``results/reports/tracking/<trial>.json`` (summary, per-frame scores, evaluations,
-confidence and review flags) up to date — written when a frame is flagged, at least every
-``report_every_s`` seconds, and at the end. ``resume=True`` carries on an interrupted run from
+confidence and review flags; under ``"options"`` the mode and the failure checks' thresholds,
+:data:`core.tracking.options.CHECK_FIELDS`) up to date — written when a frame is flagged, at least
+every ``report_every_s`` seconds, and at the end. ``resume=True`` carries on an interrupted run from
 the journal: the frames done keep their review state and enter the report as they were
 (:func:`core.tracking.trial.journal_inputs`).
 
@@ -72,6 +73,7 @@ import numpy as np
 
 from ..render import HUTransfer
 from .bones import bone_model
+from .options import CHECK_FIELDS
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
 __all__ = ["FULL_SCALE", "FinalStageError", "final_stage_problem", "flatfield_corrected", "frame_reader",
@@ -235,7 +237,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
               "normalisation": how,
               "stopped": stopped, "options": {"resume": resume,
-                                              "mode": options.mode}}
+                                              "mode": options.mode,
+                                              "checks": {k: getattr(options, k) for k in CHECK_FIELDS}}}
     if not models:
         report["summary"] = {"status": "stopped", "message": "no bone to track"}
         study.write_report("tracking", report_name, report)

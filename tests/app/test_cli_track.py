@@ -48,6 +48,8 @@ def test_track_command_records_reports_and_resumes(demo, capsys):
         rep = st.read_report("tracking", "walk")
         assert rep["summary"]["results"] == 1 and len(rep["frames_done"]) == 1
         assert rep["normalisation"] == doc["normalisation"]  # how the frames were corrected
+        assert rep["options"]["checks"] == {"collapse_ratio": 0.6, "motion_limit": 6.0,
+                                            "motion_floor": [1.0, 2.0], "sigma_limit": 3.0}  # the defaults
     journal = demo / "results" / "walk" / "poses" / "talus.jsonl"
     before = journal.read_bytes()
     rc = main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--device", "cpu",

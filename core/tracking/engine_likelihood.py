@@ -123,6 +123,14 @@ def weights_kernel(low: wp.array3d(dtype=wp.float32), mask: wp.array3d(dtype=wp.
 
 
 @wp.kernel
+def _times_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32),
+                  out: wp.array3d(dtype=wp.float32)):
+    """out = a · b. dim = items, H, W."""
+    k, r, c = wp.tid()
+    out[k, r, c] = a[k, r, c] * b[k, r, c]
+
+
+@wp.kernel
 def highpass_kernel(y: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
                     out: wp.array3d(dtype=wp.float32)):
     """out = y - hp · low. dim = items, H, W."""
@@ -370,6 +378,7 @@ class LikelihoodEngine:
         self._cap = None
         self.timer = CostTimer()
         self.base = self.center = self.roi = None
+        self._w0_set = False
 
     @property
     def renderer(self):
@@ -431,6 +440,7 @@ class LikelihoodEngine:
         # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
         # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))
+        self._w0_set = False  # the expected counts as computed below (scale_weights keeps a copy)
         low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
         wp.launch(weights_kernel, dim=(nv, Hc, Wc), inputs=[low, mask, self._w], device=dev)
         self._y = self._buffer("y", (nv, Hc, Wc))
@@ -531,6 +541,47 @@ class LikelihoodEngine:
         out["covariance_independent"] = Hinv * s["chi2"] / max(self.n_pixels, 1)
         out["covariance"] = self.sandwich(s, Hinv) if sandwich else out["covariance_independent"]
         return out
+
+    # ------------------------------------------------------------------ weights of the region
+    def reset_weights(self) -> None:
+        """The weights back to the expected counts of :meth:`set_frame` (no factors)."""
+        if self._w0_set:
+            wp.copy(self._w, self._w0)
+
+    def scale_weights(self, factor: np.ndarray) -> None:
+        """The expected counts of :meth:`set_frame` times ``factor (views, H, W)`` (per pixel, on
+        the host; the regions' padded layout of :meth:`residual`) from now on."""
+        nv, (Hc, Wc) = self.n_views, self._cap
+        if not self._w0_set:
+            self._w0 = self._buffer("w0", (nv, Hc, Wc))
+            wp.copy(self._w0, self._w)
+            self._w0_set = True
+        f = self._buffer("wf", (nv, Hc, Wc))
+        f.assign(np.asarray(factor, dtype=np.float32).reshape(nv, Hc, Wc))
+        wp.launch(_times_kernel, dim=(nv, Hc, Wc), inputs=[self._w0, f, self._w], device=self.device)
+
+    def support(self, x=None) -> np.ndarray:
+        """``(views, H, W)`` the bone's DRR at ``x`` (default the base pose) in the regions'
+        padded layout, on the host (0 outside each view's region)."""
+        x = np.zeros((1, 6)) if x is None else np.asarray(x, dtype=float).reshape(1, 6)
+        img = self._render(self.poses(x)[:, None], (self.bone,)).numpy()[: self.n_views]
+        out = np.zeros((self.n_views, *self._cap), np.float32)
+        for v, (h, w) in enumerate(self._ref_hw.numpy()):
+            out[v, :h, :w] = np.nan_to_num(img[v, :h, :w])
+        return out
+
+    def residual(self, s: dict) -> np.ndarray:
+        """``(views, H, W)`` the weighted residual ``e = √w (y - A coef)`` at the centre of the last
+        step's design (``s``: that :meth:`step`'s result), on the host (0 where unused)."""
+        img, low, _, _ = self._last
+        nv, (Hc, Wc) = self.n_views, self._cap
+        hp = 1.0 if self.highpass_px else 0.0
+        lin = wp.array(s["lin"].astype(np.float32), dtype=wp.float32, device=self.device)
+        e = self._buffer("e", (nv, Hc, Wc))
+        jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
+        wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=self.device,
+                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt])
+        return e.numpy()
 
     def sandwich(self, s: dict, Hinv: np.ndarray) -> np.ndarray:
         """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`)."""

@@ -79,6 +79,8 @@ class _BoneState:
     start_score: float | None = None
     sigmas: list = field(default_factory=list)
     reference: float | None = None
+    #: the good frames' final-stage moves (mm; :func:`core.tracking.frame_step.stage_move_check`)
+    moves: list = field(default_factory=list)
 
     def add_good(self, frame: int, pose, score: float | None, confidence: dict | None = None) -> None:
         self.history.append((frame, np.asarray(pose, float)))
@@ -92,12 +94,15 @@ class _BoneState:
 
     def add(self, frame: int, fr: FrameResult) -> None:
         """A frame's result: a good one, or one flagged only ``"uncertain"`` (poorly determined,
-        not wrong: it still feeds the guesses and the score history, not the σ history), or a
-        flagged one (:meth:`add_flagged`)."""
+        not wrong: it still feeds the guesses and the score history, not the σ history or the final
+        stage's moves), or a flagged one (:meth:`add_flagged`)."""
         if fr.pose is None:
             return
         if not fr.flags:
             self.add_good(frame, fr.pose, fr.score, fr.confidence)
+            t = fr.timing or {}
+            if t.get("likelihood_taken") and t.get("likelihood_move_mm") is not None:
+                self.moves.append(float(t["likelihood_move_mm"]))
         elif all(x.startswith("uncertain") for x in fr.flags):
             self.add_good(frame, fr.pose, fr.score)
         else:

@@ -12,7 +12,26 @@ refine_likelihood``; :mod:`core.tracking.final_stage`) runs in the last round on
 it only gives the next round its start and the neighbours' poses to subtract, which the similarity's
 optimum does as well, so each bone is refined once per frame (with its neighbours at the poses of
 the round before), in joint as in sequential mode. A bone that a later round loses (outside a view)
-keeps the earlier round's pose, without the stage. Without a final stage nothing changes.
+keeps the earlier round's pose, without the stage. Without a final stage nothing changes. On one
+NVIDIA H200 (1024², 100 frames, three bones jointly, the same call,
+``resources/benchmarks/tracking_final_rounds_h200.json``) the stage after the last round took
+93.1 ms per frame after the first where after every round it took 161.1 ms (the tracker without it
+14.7 ms; the stage 24.8 ms per bone-frame, 14.0 ms of it host set-up), with the same errors (tibia,
+talus, calcaneus 4.34/1.69, 1.36/1.28, 1.90/1.41 × the Cramér–Rao bound in mm/degrees, against
+4.34/1.69, 1.37/1.30, 1.89/1.40).
+
+With the final stage, a frame whose stage moved the pose (translation) more than
+:data:`STAGE_MOVE_LIMIT` × the median move of the bone's last good frames, and more than half its
+own translation σ, is flagged ``"uncertain"`` (:func:`stage_move_check`; recorded, not retried,
+still used for the guesses): the similarity's optimum and the weighted least-squares fit disagree
+far more than they do on that bone's other frames. On that trial the stage moved the tibia
+0.08-0.24 mm in frames 72-89 (its good frames' median 0.01-0.02 mm) and its error there was the
+move: 19 tibia frames were over 4× their bound with the stage, all unflagged (7 tibia and 1
+calcaneus frame without it). The check, applied to that run's per-frame moves and σ, flags 17 of
+the 19 and none of the 281 bone-frames within 4× their bound (limits 3-6 the same; 2 flags 15
+talus frames); the two left (frames 55 and 91, 0.065 and 0.071 mm against 0.060 mm) moved no more
+than usual. Rotation moves do not separate them (good frames' rotation moves reached 5.5× their
+recent median), so only translation is checked.
 
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The
@@ -36,6 +55,7 @@ whole round. It pays once the host's share of a step falls below the device's.
 
 from __future__ import annotations
 
+import statistics
 import time
 from dataclasses import dataclass, field
 from dataclasses import replace as _replace
@@ -53,7 +73,7 @@ from .results import FrameResult
 if TYPE_CHECKING:
     from .frame_state import _BoneState, _Run
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "STAGE_MOVE_LIMIT", "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -61,6 +81,13 @@ AHEAD = False
 #: Run the registrations' final stage after every joint round, not only the last (as before; kept
 #: for comparison by :mod:`core.studies.tracking.ml_cost`).
 FINAL_EVERY_ROUND = False
+#: A final stage that moves a bone's pose (translation) more than this multiple of the median move of
+#: the bone's last good frames flags the frame ``"uncertain"`` (:func:`stage_move_check`).
+STAGE_MOVE_LIMIT = 4.0
+#: Stage moves 1/this of the frame's own translation σ or less are never flagged.
+STAGE_MOVE_SIGMAS = 0.5
+#: The bone's good frames with a stage move needed before the check applies.
+STAGE_MOVE_FRAMES = 5
 
 
 @dataclass
@@ -78,14 +105,48 @@ class _Work:
             self.timing[k] = self.timing.get(k, 0) + v
 
 
+#: The final stage's outcome in a registration's timing (:mod:`core.tracking.final_stage`): of the
+#: registration kept, not summed over a frame's registrations like the times.
+_STAGE_KEYS = ("likelihood_taken", "likelihood_move_mm", "likelihood_move_deg")
+
+
 def _frame_result(name: str, f: int, a: Attempt, w: _Work) -> FrameResult:
-    """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work."""
+    """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work (the
+    times summed; the final stage's outcome, ``_STAGE_KEYS``, that of the registration kept)."""
     res = a.result
     if res is None:
         return FrameResult(name, f, None, np.nan, w.evaluations, w.time_s, False, tuple(a.flags), a.retried,
                            None, w.timing or None)
+    timing = w.timing
+    if any(k in timing for k in _STAGE_KEYS):
+        timing = {k: v for k, v in timing.items() if k not in _STAGE_KEYS}
+        timing.update((k, res.timing[k]) for k in _STAGE_KEYS if k in (res.timing or {}))
     return FrameResult(name, f, res.pose, res.score, w.evaluations, w.time_s, not a.flags, tuple(a.flags),
-                       a.retried, a.confidence, w.timing or None, a.notes)
+                       a.retried, a.confidence, timing or None, a.notes)
+
+
+def stage_move_check(timing: dict | None, confidence: dict | None, moves, *, n: int = 10,
+                     limit: float = STAGE_MOVE_LIMIT, sigmas: float = STAGE_MOVE_SIGMAS,
+                     min_frames: int = STAGE_MOVE_FRAMES) -> list[str]:
+    """The ``"uncertain"`` flag of a frame whose final stage (``timing`` of its registration: the
+    stage taken, its move) moved the pose more than ``limit`` × the median translation move of the
+    bone's last ``n`` good frames (``moves``, mm, tracking order; at least ``min_frames`` of them)
+    and more than ``sigmas`` × the frame's own translation σ (``confidence``; when it has one): the
+    similarity's optimum and the weighted least-squares fit disagree far more than they do on this
+    bone's frames. Module docs: what it caught on the acceptance trial."""
+    t = timing or {}
+    mm = t.get("likelihood_move_mm")
+    if not t.get("likelihood_taken") or mm is None or not np.isfinite(mm):
+        return []
+    recent = [float(v) for v in list(moves or [])[-int(n):] if v is not None and np.isfinite(v)]
+    if len(recent) < min_frames:
+        return []
+    med = statistics.median(recent)
+    st = (confidence or {}).get("translation_mm")
+    if mm <= limit * med or (st is not None and np.isfinite(st) and mm <= sigmas * st):
+        return []
+    return [f"uncertain (the final stage moved the pose {mm:.3f} mm from the similarity's optimum; over "
+            f"{limit:g} x the bone's recent {med:.3f} mm)"]
 
 
 def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
@@ -232,7 +293,14 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             if new.result is not None:
                 current[i] = new.result.pose
                 known.add(i)
-    return {i: _frame_result(names[i], f, settle(out[i]), work[i]) for i in todo}
+    done = {}
+    for i in todo:
+        a = settle(out[i])
+        if a.result is not None and o.registration.final is not None:  # the stage's move against the bone's
+            a.flags = a.flags + stage_move_check(a.result.timing, a.confidence, state[names[i]].moves,
+                                                 n=o.history)
+        done[i] = _frame_result(names[i], f, a, work[i])
+    return done
 
 
 def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,

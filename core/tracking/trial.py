@@ -92,7 +92,10 @@ or a frame missing in a view is flagged with that reason, nothing is recorded, a
 continues. With ``max_uncertainty = (mm, degrees)`` a frame whose per-frame confidence (the length
 of its σ vector in translation or rotation) exceeds either limit, or is not well posed, is flagged
 ``"uncertain"`` as well (recorded, not retried, still used for the guesses): registrations in the
-noise's tail are then sent for review instead of passing silently.
+noise's tail are then sent for review instead of passing silently. With the final stage
+(``refine_likelihood``) a frame whose stage moved the pose far more than it moved the bone's recent
+good frames is flagged ``"uncertain"`` too (the similarity and the weighted least-squares fit
+disagree; :func:`core.tracking.frame_step.stage_move_check`, whose module docs give what it caught).
 
 Three checks judge a frame by the bone's own track (:mod:`core.tracking.checks`): ``"unexpected
 motion"`` — the pose farther from the constant-velocity prediction of the bone's last two good poses

@@ -330,13 +330,12 @@ class _StageProbe:
 
 
 def _stage_record(d: dict | None) -> dict | None:
-    """A probe record as JSON: the move, the diagonals of both covariances and the χ²."""
+    """A probe record as JSON: the move, the diagonals of both covariances, the χ², steps, pixels
+    and autocorrelations."""
     if d is None:
         return None
     return {"move": np.round(d["x"], 5).tolist(), "var_sandwich": d["covariance"].diagonal().tolist(),
             "var_independent": d["covariance_independent"].diagonal().tolist(),
-            "covariance": np.round(d["covariance"], 9).tolist(),
-            "covariance_independent": np.round(d["covariance_independent"], 9).tolist(),
             **{k: d[k] for k in ("chi2", "iterations", "pixels", "rho_1px", "rho_mean") if k in d}}
 
 

@@ -59,3 +59,49 @@ def test_sequential_runs_the_final_stage_once_per_bone(two_bones, monkeypatch):
     res, runs = _track(two_bones, monkeypatch, mode="sequential")
     assert sorted(runs) == [0, 1]
     _sane(res, 2)
+
+
+def test_a_frame_keeps_the_stage_outcome_of_its_kept_registration(two_bones, monkeypatch):
+    """The final stage's outcome in a frame's timing is that of the registration kept, not a sum
+    over the frame's registrations (here the stage after both rounds, as before)."""
+    import core.tracking.frame_step as fs
+
+    monkeypatch.setattr(fs, "FINAL_EVERY_ROUND", True)
+    res, runs = _track(two_bones, monkeypatch, mode="joint", rounds=2)
+    assert sorted(runs) == [0, 0, 1, 1]
+    for fr in res.results.values():
+        if fr.frame == 1:
+            assert fr.timing["likelihood_taken"] in (0, 1)
+            assert np.isfinite(fr.timing["likelihood_move_mm"])
+
+
+def test_stage_move_check():
+    """A final-stage move far beyond the bone's recent ones flags the frame "uncertain"; not before
+    the bone has enough good frames, not for a move within the frame's own σ, not where the stage
+    was not taken."""
+    from core.tracking.frame_step import stage_move_check
+
+    moves = [0.01, 0.02, 0.015, 0.012, 0.018]
+    far = {"likelihood_taken": 1, "likelihood_move_mm": 0.1}
+    got = stage_move_check(far, {"translation_mm": 0.12}, moves)
+    assert len(got) == 1 and got[0].startswith("uncertain (the final stage moved the pose 0.100 mm")
+    assert stage_move_check(far, None, moves) == got  # without a confidence: the move alone
+    assert stage_move_check(far, {"translation_mm": 0.12}, moves[:4]) == []  # too few good frames
+    assert stage_move_check(far, {"translation_mm": 0.25}, moves) == []  # within half the frame's σ
+    assert stage_move_check({**far, "likelihood_taken": 0}, None, moves) == []  # the similarity's pose
+    assert stage_move_check({"likelihood_taken": 1, "likelihood_move_mm": 0.05}, None, moves) == []  # < 4x
+    assert stage_move_check(far, None, [*moves, 0.2, 0.2, 0.2, 0.2, 0.2, 0.2], n=10) == []  # recent ones
+
+
+def test_bone_state_keeps_the_good_frames_stage_moves():
+    from core.tracking.frame_state import _BoneState
+    from core.tracking.results import FrameResult
+
+    st = _BoneState()
+    pose = np.eye(4)
+    t = {"likelihood_taken": 1, "likelihood_move_mm": 0.02}
+    st.add(0, FrameResult("b", 0, pose, 0.9, 1, 0.0, True, timing=t))
+    st.add(1, FrameResult("b", 1, pose, 0.9, 1, 0.0, False, ("uncertain (test)",), timing=t))
+    st.add(2, FrameResult("b", 2, pose, 0.9, 1, 0.0, True, timing={**t, "likelihood_taken": 0}))
+    st.add(3, FrameResult("b", 3, pose, 0.9, 1, 0.0, True))
+    assert st.moves == [0.02] and len(st.history) == 4

@@ -21,13 +21,14 @@ stage (:func:`core.tracking.bound.chain_information`) on ``--chain-frames``.
 
 ``--final`` (:func:`run_final`): the trial tracked twice in one process, as today and with the
 device refinement as the registrations' final stage (``TrackingOptions.refine_likelihood``,
-:mod:`core.tracking.final_stage`; three bones: after each joint round, the neighbours at that
-round's poses): error / bound ratios, time per frame and the stage's share, and the 2σ coverage
-of each run's own confidence. The stage runs after the last joint round only
-(:mod:`core.tracking.frame_step`); ``--every-round`` adds a run with it after every round, as
-before. Per bone: frames over 4× their bound and how many of them went unflagged
-(:func:`silent_failures`); per frame the stage's move, covariances, χ² and residual
-autocorrelation (:class:`_StageProbe`), the material for a flag from the stage's information.
+:mod:`core.tracking.final_stage`; three bones: after the last joint round, the neighbours at
+the poses of the round before, :mod:`core.tracking.frame_step`): error / bound ratios, time per
+frame and the stage's share, and the 2σ coverage of each run's own confidence; ``--every-round``
+adds a three-bone run with the stage after every round, as before. Per bone: frames over 4× their
+bound and how many of them went unflagged (:func:`silent_failures`; the flags include the final
+stage's move check, :func:`core.tracking.frame_step.stage_move_check`); per frame the stage's move,
+the diagonals of its sandwich and independent-pixel covariances, χ² and residual autocorrelation
+(:class:`_StageProbe`). Measured: ``resources/benchmarks/tracking_final_rounds_h200.json``.
 """
 
 from __future__ import annotations

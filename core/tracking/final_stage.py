@@ -23,18 +23,20 @@ neighbours in sequential tracking, soft-tissue edges) overlaps the bone:
   noise alone.
 
 Measured on the harder acceptance trial (:mod:`core.studies.tracking.hard_trial`, 1024², 0.5 mm,
-20 frames, one NVIDIA H200; ``resources/benchmarks/tracking_hard_final_h200.json``), the stage
-against the GC optimum (components form, joint mode): tibia 0.038 → 0.046 mm, 0.111 → 0.098°
-(plain) → 0.042 mm, 0.082° (``robust=2.5``); talus 0.039 → 0.039 → 0.037 mm, 0.149 → 0.140 →
-0.134°; calcaneus 0.035 → 0.054 → 0.034 mm, 0.091 → 0.087 → 0.081°. The robust sandwich alone
-put 5 % (tibia) and 35 % (calcaneus) of frames within 2σ on all six axes, the tibia 0.03 mm off
-in y in every frame (the trial's 3 % wrong distortion inverse), a bias no noise model sees; the
-plain sandwich 100 %. ``support_px=6`` changed nothing measurable over ``robust`` alone. On the
-acceptance trial's first 30 frames (same call): talus alone 1.47/1.35 → 1.50/1.36× its bound
-(mm/°), three bones jointly tibia 2.50/1.75 → 2.39/1.47×, talus 1.42/1.46 → 1.46/1.50×,
-calcaneus 2.01/1.33 → 2.01/1.32×. The stage's default (:data:`MODEL`) is ``robust=2.5``; it costs
-a second refinement (8.0-8.4 steps instead of 3.8-4.2; 78-92 ms per bone-frame instead of 17-27
-ms in these runs, which shared the GPU with the acceptance trial's).
+20 frames, one NVIDIA H200; ``resources/benchmarks/tracking_hard_final_h200.json``), GC of the
+gradient components, sequential/joint, RMS: the GC optimum alone (no stage) tibia 0.129/0.111°,
+talus 0.177/0.149°, calcaneus 0.114/0.091°; the plain stage (``robust=None``) tibia 0.094/0.098°,
+talus 0.161/0.140°, calcaneus 0.089/0.087° but 0.052/0.054 mm (0.038/0.035 without); with
+``robust=2.5`` tibia 0.077/0.082° (0.042 mm), talus 0.159/0.135° (0.042/0.037 mm), calcaneus
+0.082/0.081° (0.035/0.034 mm). The robust refinement's own sandwich put 5 % (tibia) and 30-70 %
+(calcaneus) of frames within 2σ on all six axes: the tibia is 0.03 mm off in y in every frame
+(the trial's 3 % wrong distortion inverse), a bias no noise model sees; with the first
+refinement's sandwich (+ move) 100 %, the talus 80 % (96 % of its single axes). ``support_px=6``
+changed nothing measurable over ``robust`` alone. On the acceptance trial's first 30 frames (same
+calls): talus alone 1.47/1.35 → 1.50/1.36× its bound (mm/°), three bones jointly tibia 2.50/1.75 →
+2.39/1.47×, talus 1.42/1.46 → 1.46/1.50×, calcaneus 2.01/1.33 → 2.01/1.32×. The stage's default
+(:data:`MODEL`) is ``robust=2.5``; it costs a second refinement (8.0-8.5 steps instead of
+3.8-4.2; 72-94 ms per bone-frame instead of 17-27 ms in those runs, which shared the GPU).
 
 :func:`final_model` sets :data:`MODEL` for a block (studies compare models in one process).
 """

@@ -436,8 +436,8 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                                                                    for t in tim])),
                  "likelihood_taken": int(sum(t.get("likelihood_taken", 0) for t in tim)),
                  "likelihood_tried": int(sum("likelihood_s" in t for t in tim)),
-                 "likelihood_move_median": [float(np.nanmedian([t.get(k, np.nan) for t in tim] or [np.nan]))
-                                            for k in ("likelihood_move_mm", "likelihood_move_deg")],
+                 "likelihood_move_median": [float(np.median(v)) if (v := [t[k] for t in tim if np.isfinite(
+                     t.get(k, np.nan))]) else None for k in ("likelihood_move_mm", "likelihood_move_deg")],
                  "flagged": int(sum(bool(res.results[k].flags) for k in poses))}
             for i, nm in enumerate(names):
                 E = np.array(_pose_errs(ts, nm, poses, range(n)))

@@ -54,7 +54,7 @@ from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
 from .engine_likelihood import likelihood_engine
 
-__all__ = ["MODEL", "FinalModel", "LikelihoodFit", "final_model", "final_stage", "robust_factors"]
+__all__ = ["MODEL", "FinalModel", "LikelihoodFit", "final_model", "final_stage", "rejected", "robust_factors"]
 
 
 @dataclass(frozen=True)
@@ -179,7 +179,8 @@ class LikelihoodFit:
     stage's covariance (mm, degrees; ``final_confidence`` of the options, from
     :meth:`core.tracking.engine_likelihood.LikelihoodEngine.refine`); ``x`` the refined
     parameters, ``chi2`` the weighted residual, ``covariance_independent`` the covariance that
-    treats the pixels as independent (for comparison)."""
+    treats the pixels as independent (for comparison); ``similarity`` the registration result the
+    stage started from (the similarity's optimum), which :func:`rejected` gives back."""
 
     H: np.ndarray
     noise: float
@@ -188,12 +189,29 @@ class LikelihoodFit:
     chi2: float
     covariance_independent: np.ndarray
     method: str = "likelihood"
+    similarity: object = None
 
     @classmethod
-    def of(cls, covariance, *, x, chi2: float, covariance_independent) -> LikelihoodFit:
+    def of(cls, covariance, *, x, chi2: float, covariance_independent, similarity=None) -> LikelihoodFit:
         C = np.asarray(covariance, dtype=float)
         return cls(2.0 * np.linalg.inv(C), 1.0, C, np.asarray(x, dtype=float), float(chi2),
-                   np.asarray(covariance_independent, dtype=float))
+                   np.asarray(covariance_independent, dtype=float), similarity=similarity)
+
+
+def rejected(res):
+    """``res`` (a registration result whose pose is the final stage's) with the similarity's pose
+    back — the stage's move rejected — or None where its pose is not the stage's (not taken, or
+    changed since). Pose, ``x``, score and view scores are the similarity's; the work, the time and
+    the stage's outcome in ``timing`` stay (``likelihood_taken`` 0, ``likelihood_rejected`` 1, its
+    move kept), and so does the fit: the stage's covariance plus its move (``"sandwich+move"``)
+    spans the two poses, so the confidence computed from it still holds."""
+    fit = getattr(res, "fit", None)
+    prior = getattr(fit, "similarity", None)
+    if prior is None or not (res.timing or {}).get("likelihood_taken"):
+        return None
+    timing = {**res.timing, "likelihood_taken": 0, "likelihood_rejected": 1}
+    return replace(res, pose=prior.pose, x=prior.x, score=prior.score, view_scores=prior.view_scores,
+                   timing=timing)
 
 
 def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, center, options,
@@ -244,6 +262,6 @@ def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, c
     x = np.r_[p[:3], np.degrees(p[3:])]
     timing["likelihood_taken"] = 1
     fit = LikelihoodFit.of(cov, x=x, chi2=float(out["chi2"]),
-                           covariance_independent=out["covariance_independent"])
+                           covariance_independent=out["covariance_independent"], similarity=res)
     return replace(res, pose=pose, x=x, fit=fit, timing=timing, evaluations=evals, time_s=res.time_s + dt,
                    generations=res.generations + int(out["iterations"]))

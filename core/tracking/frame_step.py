@@ -23,8 +23,13 @@ talus, calcaneus 4.34/1.69, 1.36/1.28, 1.90/1.41 × the Cramér–Rao bound in m
 With the final stage, a frame whose stage moved the pose (translation) more than
 :data:`STAGE_MOVE_LIMIT` × the median move of the bone's last good frames, and more than half its
 own translation σ, is flagged ``"uncertain"`` (:func:`stage_move_check`; recorded, not retried,
-still used for the guesses): the similarity's optimum and the weighted least-squares fit disagree
-far more than they do on that bone's other frames. On that trial the stage moved the tibia
+still used for the guesses; the thresholds are ``TrackingOptions.stage_move_limit``,
+``stage_move_sigmas`` and ``stage_move_frames``): the similarity's optimum and the weighted
+least-squares fit disagree far more than they do on that bone's other frames. Such a frame keeps
+the similarity's pose — the stage's move is rejected (``stage_move_reject``, the default;
+:func:`core.tracking.final_stage.rejected`; the flag says so, ``timing["likelihood_rejected"]``
+is 1 and ``likelihood_taken`` 0) — and its confidence stays the stage's (its sandwich plus the
+move, which spans both poses). On that trial the stage moved the tibia
 0.08-0.24 mm in frames 72-89 (its good frames' median 0.01-0.02 mm) and its error there was the
 move: 19 tibia frames were over 4× their bound with the stage, all unflagged (7 tibia and 1
 calcaneus frame without it). The check, applied to that run's per-frame moves and σ, flags 17 of
@@ -67,13 +72,15 @@ from .attempt import Attempt, confidence_of, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
 from .joint import JointJob, lockstep_applies, register_together
+from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
 if TYPE_CHECKING:
     from .frame_state import _BoneState, _Run
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "STAGE_MOVE_LIMIT", "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
+           "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -81,13 +88,6 @@ AHEAD = False
 #: Run the registrations' final stage after every joint round, not only the last (as before; kept
 #: for comparison by :mod:`core.studies.tracking.ml_cost`).
 FINAL_EVERY_ROUND = False
-#: A final stage that moves a bone's pose (translation) more than this multiple of the median move of
-#: the bone's last good frames flags the frame ``"uncertain"`` (:func:`stage_move_check`).
-STAGE_MOVE_LIMIT = 4.0
-#: Stage moves 1/this of the frame's own translation σ or less are never flagged.
-STAGE_MOVE_SIGMAS = 0.5
-#: The bone's good frames with a stage move needed before the check applies.
-STAGE_MOVE_FRAMES = 5
 
 
 @dataclass
@@ -107,7 +107,7 @@ class _Work:
 
 #: The final stage's outcome in a registration's timing (:mod:`core.tracking.final_stage`): of the
 #: registration kept, not summed over a frame's registrations like the times.
-_STAGE_KEYS = ("likelihood_taken", "likelihood_move_mm", "likelihood_move_deg")
+_STAGE_KEYS = ("likelihood_taken", "likelihood_move_mm", "likelihood_move_deg", "likelihood_rejected")
 
 
 def _frame_result(name: str, f: int, a: Attempt, w: _Work) -> FrameResult:
@@ -297,8 +297,18 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     for i in todo:
         a = settle(out[i])
         if a.result is not None and o.registration.final is not None:  # the stage's move against the bone's
-            a.flags = a.flags + stage_move_check(a.result.timing, a.confidence, state[names[i]].moves,
-                                                 n=o.history)
+            moved = stage_move_check(a.result.timing, a.confidence, state[names[i]].moves, n=o.history,
+                                     limit=o.stage_move_limit, sigmas=o.stage_move_sigmas,
+                                     min_frames=o.stage_move_frames)
+            back = None
+            if moved and o.stage_move_reject:
+                from .final_stage import rejected
+
+                back = rejected(a.result)
+            if back is not None:  # the similarity's optimum stands (module docs)
+                a.result = back
+                moved = [f"{moved[0][:-1]}; final stage rejected: the similarity's pose kept)"]
+            a.flags = a.flags + moved
         done[i] = _frame_result(names[i], f, a, work[i])
     return done
 

@@ -10,7 +10,16 @@ import numpy as np
 from .checks import COLLAPSE_RATIO, MOTION_FLOOR, MOTION_LIMIT, SIGMA_LIMIT
 from .register import RegistrationOptions
 
-__all__ = ["CHECK_FIELDS", "TrackingOptions"]
+__all__ = ["CHECK_FIELDS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "TrackingOptions"]
+
+#: With the final stage: a stage that moves a bone's pose (translation) more than this multiple of
+#: the median move of the bone's last good frames flags the frame ``"uncertain"``
+#: (:func:`core.tracking.frame_step.stage_move_check`; ``TrackingOptions.stage_move_limit``).
+STAGE_MOVE_LIMIT = 4.0
+#: Stage moves of this fraction of the frame's own translation σ or less are never flagged.
+STAGE_MOVE_SIGMAS = 0.5
+#: The bone's good frames with a stage move needed before the check applies.
+STAGE_MOVE_FRAMES = 5
 
 #: The thresholds of the tracker's failure checks (:mod:`core.tracking.checks`) that are options:
 #: field name -> (what it is, its unit). Their defaults are the module constants of that name.
@@ -46,7 +55,15 @@ class TrackingOptions:
     prediction), ``motion_floor`` (mm, degrees, ≥ 0; the least that limit is for consecutive
     frames) and ``sigma_limit`` (≥ 1; the relative ``"uncertain"`` limit in multiples of the
     bone's recent median confidence σ). A lower limit or floor, or a higher ratio, flags more
-    frames for review."""
+    frames for review.
+
+    The final stage's move check (:func:`core.tracking.frame_step.stage_move_check`; with
+    ``refine_likelihood`` only; defaults the module constants :data:`STAGE_MOVE_LIMIT`,
+    :data:`STAGE_MOVE_SIGMAS`, :data:`STAGE_MOVE_FRAMES`): a frame whose stage moved the pose
+    (translation) more than ``stage_move_limit`` (≥ 1) × the median move of the bone's last good
+    frames and more than ``stage_move_sigmas`` (≥ 0) × its own translation σ is flagged
+    ``"uncertain"``, once the bone has ``stage_move_frames`` (an integer ≥ 1) good frames with a
+    move; with ``stage_move_reject`` (the default) such a frame keeps the similarity's pose."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
@@ -77,6 +94,10 @@ class TrackingOptions:
     motion_limit: float = MOTION_LIMIT
     motion_floor: tuple[float, float] = MOTION_FLOOR
     sigma_limit: float = SIGMA_LIMIT
+    stage_move_limit: float = STAGE_MOVE_LIMIT
+    stage_move_sigmas: float = STAGE_MOVE_SIGMAS
+    stage_move_frames: int = STAGE_MOVE_FRAMES
+    stage_move_reject: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.refine_likelihood, bool):
@@ -138,6 +159,17 @@ class TrackingOptions:
             raise ValueError(f"motion_floor: expected (mm, degrees), each a number >= 0, "
                              f"got {self.motion_floor!r}")
         object.__setattr__(self, "motion_floor", tuple(float(v) for v in floor))
+        if number("stage_move_limit", self.stage_move_limit) < 1:
+            raise ValueError(f"stage_move_limit: expected a factor >= 1 (times the bone's recent median "
+                             f"final-stage move), got {self.stage_move_limit!r}")
+        if number("stage_move_sigmas", self.stage_move_sigmas) < 0:
+            raise ValueError(f"stage_move_sigmas: expected a factor >= 0 (of the frame's translation "
+                             f"sigma), got {self.stage_move_sigmas!r}")
+        n = self.stage_move_frames
+        if number("stage_move_frames", n) != int(n) or n < 1:
+            raise ValueError(f"stage_move_frames: expected an integer >= 1 (good frames), got {n!r}")
+        if not isinstance(self.stage_move_reject, bool):
+            raise ValueError(f"stage_move_reject: expected True or False, got {self.stage_move_reject!r}")
 
     @property
     def first_options(self) -> RegistrationOptions:

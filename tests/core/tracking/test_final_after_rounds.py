@@ -105,3 +105,75 @@ def test_bone_state_keeps_the_good_frames_stage_moves():
     st.add(2, FrameResult("b", 2, pose, 0.9, 1, 0.0, True, timing={**t, "likelihood_taken": 0}))
     st.add(3, FrameResult("b", 3, pose, 0.9, 1, 0.0, True))
     assert st.moves == [0.02] and len(st.history) == 4
+
+
+def test_a_flagged_stage_move_is_rejected(two_bones, monkeypatch):
+    """A frame whose stage move the check flags keeps the similarity's pose (the pose the stage
+    started from) and says so; a frame it does not flag keeps the stage's pose. Here every move
+    after the bone's first good one flags (limit 1 of a single frame's move, no σ allowance; frame 2
+    is frame 0's image)."""
+    import core.tracking.final_stage as fst
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions, track
+
+    sc, models, r, frames = two_bones
+    seen = {}
+    real = fst.final_stage
+
+    def kept(renderer, frame, res, **k):
+        out = real(renderer, frame, res, **k)
+        seen.setdefault(k["bone"], []).append((res.pose.copy(), out.pose.copy()))
+        return out
+
+    monkeypatch.setattr(fst, "final_stage", kept)
+    skip = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton", final_highpass_px=2.0)
+    o = TrackingOptions(mode="sequential", verify_restarts=0, registration=reg, refine_likelihood=True,
+                        stage_move_limit=1.0, stage_move_sigmas=0.0, stage_move_frames=1)
+    res = track(r, models, lambda f: frames[f % 2], [0, 1, 2], keyframes=skip, skip=skip, options=o)
+    nm = models[0].name
+    f1, f2 = res.results[(nm, 1)], res.results[(nm, 2)]
+    (_, st1), (sim2, st2) = seen[0][-2:]
+    assert not f1.flags and f1.timing["likelihood_taken"] == 1 and np.array_equal(f1.pose, st1)
+    assert f2.timing["likelihood_move_mm"] > f1.timing["likelihood_move_mm"]  # > 1x the median of [f1]
+    assert len(f2.flags) == 1 and f2.flags[0].startswith("uncertain (the final stage moved the pose")
+    assert "final stage rejected" in f2.flags[0]
+    assert np.array_equal(f2.pose, sim2) and not np.array_equal(sim2, st2)
+    assert f2.timing["likelihood_taken"] == 0 and f2.timing["likelihood_rejected"] == 1
+    assert np.all(np.isfinite(f2.confidence["sigma"]))
+
+
+def test_rejected_gives_back_the_similarity_result():
+    from core.tracking.final_stage import LikelihoodFit, rejected
+    from core.tracking.register import RegistrationResult
+
+    def result(t, timing, fit=None):
+        P = np.eye(4)
+        P[:3, 3] = t
+        return RegistrationResult(P, np.r_[t, 0, 0, 0], 0.5, np.array([0.5, 0.5]), 10, 2, 0.1, True, "tol",
+                                  (), timing, fit)
+
+    sim = result([1.0, 0, 0], {"total_s": 0.1})
+    fit = LikelihoodFit.of(np.eye(6) * 0.01, x=np.zeros(6), chi2=1.0, covariance_independent=np.eye(6),
+                           similarity=sim)
+    staged = result([1.1, 0, 0], {"total_s": 0.2, "likelihood_taken": 1, "likelihood_move_mm": 0.1}, fit)
+    back = rejected(staged)
+    assert np.array_equal(back.pose, sim.pose) and np.array_equal(back.x, sim.x) and back.fit is fit
+    assert back.timing == {"total_s": 0.2, "likelihood_taken": 0, "likelihood_move_mm": 0.1,
+                           "likelihood_rejected": 1}
+    assert rejected(back) is None  # not the stage's pose any more
+    assert rejected(result([1.0, 0, 0], {"likelihood_taken": 1}, None)) is None  # no similarity kept
+
+
+def test_stage_move_options():
+    from core.tracking.options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS, TrackingOptions
+
+    o = TrackingOptions()
+    assert (o.stage_move_limit, o.stage_move_sigmas, o.stage_move_frames, o.stage_move_reject) == (
+        STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS, STAGE_MOVE_FRAMES, True) == (4.0, 0.5, 5, True)
+    for bad in ({"stage_move_limit": 0.5}, {"stage_move_limit": float("nan")}, {"stage_move_sigmas": -1.0},
+                {"stage_move_frames": 0}, {"stage_move_frames": 2.5}, {"stage_move_frames": True},
+                {"stage_move_reject": 1}):
+        name = next(iter(bad))
+        with pytest.raises(ValueError, match=name):
+            TrackingOptions(**bad)

@@ -46,6 +46,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -54,7 +55,8 @@ from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
 from .engine_likelihood import likelihood_engine
 
-__all__ = ["MODEL", "FinalModel", "LikelihoodFit", "final_model", "final_stage", "rejected", "robust_factors"]
+__all__ = ["MODEL", "FinalModel", "LikelihoodFit", "final_model", "final_stage", "rejected", "robust_factors",
+           "stage_neighbours"]
 
 
 @dataclass(frozen=True)
@@ -100,6 +102,23 @@ def final_model(model: FinalModel | None = None, **kw):
         yield MODEL
     finally:
         MODEL = old
+
+
+#: the neighbours (``(poses, bones)``) a final stage subtracts where its registration gives none
+_NEIGHBOURS: ContextVar = ContextVar("final_stage_neighbours", default=None)
+
+
+@contextmanager
+def stage_neighbours(others):
+    """Inside the block, a final stage whose registration has no neighbours (``others`` None)
+    subtracts ``others = (poses, bones)`` (sequential tracking: the bones registered in the frame
+    and the others' predicted poses, :mod:`core.tracking.frame_step`); the similarity's search is
+    not changed. ``others`` None: nothing changes."""
+    token = _NEIGHBOURS.set(others)
+    try:
+        yield
+    finally:
+        _NEIGHBOURS.reset(token)
 
 
 def robust_factors(e: np.ndarray, used: np.ndarray, k: float, *, sigma_px: float = 2.0,
@@ -224,6 +243,8 @@ def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, c
     o = options
     if o.final is None or any(s.reason == "cancelled" for s in res.stages):
         return res
+    if others is None:
+        others = _NEIGHBOURS.get()
     t0 = time.perf_counter()
     timing = dict(res.timing)
     views = tuple(views)

@@ -38,6 +38,12 @@ talus frames); the two left (frames 55 and 91, 0.065 and 0.071 mm against 0.060 
 than usual. Rotation moves do not separate them (good frames' rotation moves reached 5.5× their
 recent median), so only translation is checked.
 
+In sequential tracking of several bones the final stage subtracts the neighbours too, as joint
+tracking's does (:data:`SEQUENTIAL_NEIGHBOURS`): the bones registered earlier in the frame at
+their registered poses, the others at their guesses (the constant-velocity prediction, or the given
+pose of a bone not tracked in the frame); the similarity's search is not changed (no neighbours, as
+before; :func:`core.tracking.final_stage.stage_neighbours`).
+
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The
 checks seldom change a pose, and they are host work, while the next round is device work: so the
@@ -62,6 +68,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from dataclasses import replace as _replace
 from typing import TYPE_CHECKING
@@ -79,8 +86,8 @@ from .results import FrameResult
 if TYPE_CHECKING:
     from .frame_state import _BoneState, _Run
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
-           "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
+           "STAGE_MOVE_SIGMAS", "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -88,6 +95,9 @@ AHEAD = False
 #: Run the registrations' final stage after every joint round, not only the last (as before; kept
 #: for comparison by :mod:`core.studies.tracking.ml_cost`).
 FINAL_EVERY_ROUND = False
+#: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
+#: others at their guesses; off: none, as before; kept for comparison by studies).
+SEQUENTIAL_NEIGHBOURS = True
 
 
 @dataclass
@@ -164,8 +174,11 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
                                keyframes=run.keyframes.get(names[i])) for i in todo}
     joint = o.mode == "joint" and len(names) > 1
+    # sequential tracking with the final stage: the stage subtracts the neighbours as joint tracking
+    # does (the bones registered in this frame, the others at their guesses; module docs)
+    seq_stage = (not joint and len(names) > 1 and o.registration.final is not None and SEQUENTIAL_NEIGHBOURS)
     current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
-    if joint:
+    if joint or seq_stage:
         for i, b in enumerate(names):
             if i not in current:  # skipped: given as a pose (see track)
                 current[i] = hist[b][-1][1] if hist[b] else predict_pose(
@@ -213,11 +226,17 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         else:
             opts, start = o.registration, current[i]
         opts = staged(rnd, opts)
-        return register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
-                                state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
-                                start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
-                                good_sigmas=state[b].sigmas, reference=state[b].reference,
-                                host_only=host_only, defer_confidence=defer)
+        near = nullcontext()
+        if seq_stage:
+            from .final_stage import stage_neighbours
+
+            near = stage_neighbours(others_of(i, current, known))
+        with near:
+            return register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
+                                    state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
+                                    start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
+                                    good_sigmas=state[b].sigmas, reference=state[b].reference,
+                                    host_only=host_only, defer_confidence=defer)
 
     rounds = o.joint_rounds if joint else 1
 

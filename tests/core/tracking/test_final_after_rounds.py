@@ -177,3 +177,33 @@ def test_stage_move_options():
         name = next(iter(bad))
         with pytest.raises(ValueError, match=name):
             TrackingOptions(**bad)
+
+
+def test_sequential_stage_subtracts_the_neighbours(two_bones, monkeypatch):
+    """Sequential tracking's final stage subtracts the bones already registered in the frame (at
+    their registered poses) and the others at their guesses, as joint tracking's does; the
+    similarity's search gets no neighbours, as before."""
+    import core.tracking.final_stage as fst
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions, track
+
+    sc, models, r, frames = two_bones
+    got = []
+    real = fst.final_stage
+
+    def seen(renderer, frame, res, **k):
+        out = real(renderer, frame, res, **k)
+        got.append((k["bone"], k["others"], fst._NEIGHBOURS.get(), out.pose.copy()))
+        return out
+
+    monkeypatch.setattr(fst, "final_stage", seen)
+    skip = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton", final_highpass_px=2.0)
+    o = TrackingOptions(mode="sequential", verify_restarts=0, registration=reg, refine_likelihood=True)
+    res = track(r, models, frames.__getitem__, [0, 1], keyframes=skip, skip=skip, options=o)
+    assert [g[0] for g in got] == [0, 1] and all(g[1] is None for g in got)  # the search: none
+    (_, _, n0, p0), (_, _, n1, _) = got
+    assert list(n0[1]) == [1] and np.allclose(n0[0][0], sc.poses(0)[1])  # the calcaneus at its guess
+    assert list(n1[1]) == [0] and np.array_equal(n1[0][0], p0)  # the talus as registered in the frame
+    assert np.array_equal(res.results[(models[0].name, 1)].pose, p0)
+    assert fst._NEIGHBOURS.get() is None

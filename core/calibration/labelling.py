@@ -14,7 +14,9 @@ Only the *seeds* differ:
 * **Cube and other objects** (:func:`label_ransac`): RANSAC over correspondences — random
   6-tuples (two per size class where possible) labelled with random beads of the same class give
   batched DLTs; the one whose projections agree with most detections (projection consistency)
-  seeds the fit.
+  seeds the fit. When its labelling leaves a bead's detection unexplained (among many spurious
+  detections of one bead size, random samples are rarely all right), further rounds draw from
+  the size classes least crowded by them, and the labelling that explains most detections wins.
 
 A helix is (nearly) invariant under a screw motion that moves every bead two places along it, so
 a view in which the end beads are missing can fit two labellings equally well. Such a
@@ -328,8 +330,19 @@ def label_spiral(target: CalibrationTarget, det: ObjectDetections, *, run: int =
 
 
 def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: int = 20000,
-                 rounds: int = 3, rng=0, gate_px: float | None = None) -> Labelling:
-    """Label any object by RANSAC over size-consistent correspondences (the cube)."""
+                 rounds: int = 3, rng=0, gate_px: float | None = None, extra_rounds: int = 4,
+                 keep: int = 4) -> Labelling:
+    """Label any object by RANSAC over size-consistent correspondences (the cube).
+
+    ``rounds`` rounds of ``samples`` random 6-tuples (two correspondences per size class where
+    possible); the best hypothesis is refined. When its labelling does not explain a detection
+    for every bead the view can hold (``min(beads, detections)``), up to ``extra_rounds`` more
+    rounds draw from the size classes least crowded by spurious detections (every other round;
+    the rounds between use other sets of classes in turn: :func:`_likely_allocations`), and
+    their ``keep`` best distinct hypotheses are refined too; the labelling that explains most
+    detections wins, so a labelling the first rounds find is never lost (the extra rounds
+    continue the same random stream).
+    """
     n, m = len(target), len(det)
     if m < 6:
         return _empty(det.uv, n, f"only {m} detection(s) in this view, at least 6 are needed")
@@ -348,14 +361,8 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
     gate = max(2.0, 0.6 * sizes[0] * scale) if gate_px is None else float(gate_px)
     best_seed, best_score = None, -1
     for _ in range(rounds):
-        dets, beads = [], []
-        for k, q in enumerate(per):
-            if q == 0:
-                continue  # random q detections of class k, labelled with random q beads of class k
-            dets.append(by_cls[k][np.argsort(g.random((samples, len(by_cls[k]))), axis=1)[:, :q]])
-            beads.append(beads_of[k][np.argsort(g.random((samples, len(beads_of[k]))), axis=1)[:, :q]])
-        D, B = np.concatenate(dets, axis=1), np.concatenate(beads, axis=1)  # (S, 6+)
-        P = _batched_dlt(target.centers[B], det.uv[D])
+        D, B = _draw(g, by_cls, beads_of, per, samples)  # (S, 6+)
+        P = _batched_dlt(target.centers[B], det.uv[D], fast=FAST_DLT)
         score = _score(P, target, det, gate)
         h = int(np.argmax(score))
         if score[h] > best_score:
@@ -364,20 +371,111 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
             best_seed[D[h]] = B[h]
         if best_score >= len(use):
             break
-    if best_seed is None or best_score < 6:
+    results = [] if best_seed is None or best_score < 6 else \
+        _with_near_images(target, det, _refine(target, det, best_seed[None], gate, keep=1), gate)
+    # among many spurious detections of one bead size (a walkway plate's, noise) random samples
+    # are rarely all right: a weak result (some bead's detection unexplained) is searched again
+    # from the classes least crowded by them
+    full = min(n, m)
+    if extra_rounds > 0 and max((r.n_explained for r in results), default=0) < full:
+        allocs = _likely_allocations(per, [len(c) for c in by_cls], beads_of, target)
+        # the likeliest allocation every other round, the others in turn between them
+        order = [allocs[0] if r % 2 == 0 or len(allocs) == 1 else allocs[1 + (r // 2) % (len(allocs) - 1)]
+                 for r in range(extra_rounds)]
+        for alloc in order:
+            D, B = _draw(g, by_cls, beads_of, alloc, samples)
+            score = _score(_batched_dlt(target.centers[B], det.uv[D], fast=FAST_DLT), target, det, gate)
+            top = np.argsort(-score, kind="stable")[: 4 * keep]
+            seeds = np.full((len(top), m), -1)
+            seeds[np.arange(len(top))[:, None], D[top]] = B[top]
+            results += _with_near_images(target, det, _refine(target, det, seeds, gate, keep=keep), gate)
+            if max((r.n_explained for r in results), default=0) >= full:
+                break
+    if not results:
         return _empty(det.uv, n, "no correspondence hypothesis explains at least 6 detections")
-    results = _refine(target, det, best_seed[None], gate, keep=1)
-    # the hypothesis may be a near-symmetric image of the right labelling (the cube's squares
-    # turned by 90°): every image is fitted too, and the one that explains most detections (the
-    # beads off the symmetry, e.g. each plane's fifth bead) wins; images that explain as many
-    # stay as alternatives for the other view to resolve
-    for r in list(results):
+    return _choose(_distinct(results), det.uv, target)
+
+
+def _distinct(results: list[Labelling]) -> list[Labelling]:
+    """``results`` without a labelling that agrees with a better one (more detections explained,
+    then more labelled, then lower RMS) on every detection both label: refinements of two
+    hypotheses of the same labelling may differ by a bead left out, and are no rival of it."""
+    out = []
+    for r in sorted(results, key=lambda r: (-r.n_explained, -r.n_labelled, r.rms_px)):
+        same = False
+        for q in out:
+            both = (r.labels >= 0) & (q.labels >= 0)
+            if both.sum() >= 6 and np.array_equal(r.labels[both], q.labels[both]):
+                same = True
+                break
+        if not same:
+            out.append(r)
+    return out
+
+
+def _draw(g: np.random.Generator, by_cls, beads_of, per, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """``samples`` random tuples of ``per[k]`` detections of each size class ``k``, labelled with
+    as many random beads of that class: detection indices and bead indices, both (S, sum(per))."""
+    dets, beads = [], []
+    for k, q in enumerate(per):
+        if q == 0:
+            continue
+        dets.append(by_cls[k][np.argsort(g.random((samples, len(by_cls[k]))), axis=1)[:, :q]])
+        beads.append(beads_of[k][np.argsort(g.random((samples, len(beads_of[k]))), axis=1)[:, :q]])
+    return np.concatenate(dets, axis=1), np.concatenate(beads, axis=1)
+
+
+def _with_near_images(target, det, results: list[Labelling], gate: float) -> list[Labelling]:
+    """``results`` and the refined images of each under the target's near symmetries.
+
+    A hypothesis may be a near-symmetric image of the right labelling (the cube's squares turned
+    by 90°): every image is fitted too, and the one that explains most detections (the beads off
+    the symmetry, e.g. each plane's fifth bead) wins; images that explain as many stay as
+    alternatives for the other view to resolve."""
+    out = list(results)
+    for r in results:
         for p in near_symmetries(target):
             lab = fit_labels(target, det, np.where(r.labels >= 0, p[np.maximum(r.labels, 0)], -1),
                              gate_px=gate)
             if lab.ok:
-                results.append(lab)
-    return _choose(results, det.uv, target)
+                out.append(lab)
+    return out
+
+
+def _likely_allocations(per, n_det, beads_of, target: CalibrationTarget) -> list[list[int]]:
+    """Correspondences per size class (as many as ``per`` in all), most likely first to give a
+    random sample that is all right if each class's detections beyond its bead count are spurious,
+    among those that do not put more than four points on one plane of beads (one class's beads
+    may lie on a plane: the cube's; a DLT needs 11 independent equations, a plane gives at most
+    8). After the first, each allocation is the likeliest that uses another set of classes than
+    the ones before it (the prior cannot see beads detected with the wrong size or none, which
+    leave a class as crowded as one with spurious detections); ``[per]`` when none is allowed."""
+    from itertools import product
+
+    n_bead = [len(b) for b in beads_of]
+    flat, ranked = {}, []
+    lim = [min(d, b) for d, b in zip(n_det, n_bead, strict=True)]
+    for q in product(*[range(min(x, sum(per)) + 1) for x in lim]):
+        if sum(q) != sum(per):
+            continue
+        used = tuple(k for k in range(len(q)) if q[k])
+        for c in [used] + [(k,) for k in used]:
+            if c not in flat:
+                flat[c] = planarity(target.centers[np.concatenate([beads_of[k] for k in c])]) < 1e-3
+        if flat[used] or sum(min(2 * q[k], 8) if flat[(k,)] else 2 * q[k] for k in used) < 2 * sum(q):
+            continue
+        p = 1.0
+        for k, qk in enumerate(q):
+            for i in range(qk):
+                p *= (lim[k] - i) / (n_det[k] - i) / (n_bead[k] - i)
+        ranked.append((-p, q, used))
+    ranked.sort()
+    out, supports = [], set()
+    for _, q, used in ranked:
+        if used not in supports:
+            supports.add(used)
+            out.append(list(q))
+    return out or [list(per)]
 
 
 def near_symmetries(target: CalibrationTarget, *, min_fraction: float = 0.6, tol_mm: float | None = None,
@@ -400,6 +498,7 @@ def near_symmetries(target: CalibrationTarget, *, min_fraction: float = 0.6, tol
 
 
 _NEAR_SYM: dict = {}
+FAST_DLT = True
 
 
 def _frame3(p: np.ndarray, sign: float) -> np.ndarray:
@@ -446,8 +545,13 @@ def _near_symmetries(target, min_fraction, tol_mm, max_class) -> tuple[np.ndarra
     return tuple(out.values())
 
 
-def _batched_dlt(X: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """DLT per sample with its own object points: ``X (S, k, 3)``, ``uv (S, k, 2)``."""
+def _batched_dlt(X: np.ndarray, uv: np.ndarray, *, fast: bool = False) -> np.ndarray:
+    """DLT per sample with its own object points: ``X (S, k, 3)``, ``uv (S, k, 2)``.
+
+    ``fast``: the camera with its last element 1 (in normalised coordinates, where that element is
+    the depth of the points' centroid, far from 0), from the 11 x 11 normal equations: a tenth of
+    the time of the eigenvector, for RANSAC's hypotheses (the labels' camera is fitted by
+    dlt_batch)."""
     S, k = X.shape[:2]
     from .dlt import _design, _normaliser
 
@@ -457,6 +561,16 @@ def _batched_dlt(X: np.ndarray, uv: np.ndarray) -> np.ndarray:
     xn = np.einsum("sij,skj->ski", T2[:, :2, :2], uv) + T2[:, None, :2, 2]
     A = _design(Xn, xn)
     with np.errstate(all="ignore"):
+        if fast:
+            M = np.swapaxes(A, 1, 2) @ A
+            try:
+                p = np.linalg.solve(M[:, :11, :11], -M[:, :11, 11:])[..., 0]
+            except np.linalg.LinAlgError:  # a degenerate sample (points on a plane, a line)
+                p = None
+            if p is not None:
+                Pn = np.concatenate([p, np.ones((S, 1))], axis=1).reshape(S, 3, 4)
+                P = np.linalg.solve(T2, Pn) @ T3
+                return np.where(np.isfinite(P), P, 0.0)
         # the right singular vector of the smallest singular value is the eigenvector of the
         # smallest eigenvalue of AᵀA (12 x 12): eigh of many small symmetric matrices takes about
         # 2/3 of the time of their SVD, and hypotheses need no more than its accuracy (the labels'

@@ -71,7 +71,7 @@ from .cost import CostTimer, FrameImages, fluoro_rois
 from .engine import GaussNewtonCost
 from .engine_search import step_design
 
-__all__ = ["LikelihoodEngine", "likelihood_engine", "solve_moments"]
+__all__ = ["LikelihoodEngine", "gaussian_taps", "likelihood_engine", "robust_factors_device", "solve_moments"]
 
 NZ = 12  # z = (y, D, δ_1..δ_6, 1, u, v, O)
 NA = 5  # A = (D, 1, u, v, O): the linear terms residual_kernel reads
@@ -128,6 +128,124 @@ def _times_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float3
     """out = a · b. dim = items, H, W."""
     k, r, c = wp.tid()
     out[k, r, c] = a[k, r, c] * b[k, r, c]
+
+
+@wp.kernel
+def _robust_sq_kernel(e: wp.array3d(dtype=wp.float32), w: wp.array3d(dtype=wp.float32),
+                      a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32)):
+    """a = e² and b = 1 where the pixel is used (w > 0), 0 elsewhere. dim = items, H, W."""
+    k, r, c = wp.tid()
+    if w[k, r, c] > 0.0:
+        a[k, r, c] = e[k, r, c] * e[k, r, c]
+        b[k, r, c] = 1.0
+    else:
+        a[k, r, c] = 0.0
+        b[k, r, c] = 0.0
+
+
+@wp.kernel
+def _blur_pair_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32),
+                      g: wp.array(dtype=wp.float32), axis: int, oa: wp.array3d(dtype=wp.float32),
+                      ob: wp.array3d(dtype=wp.float32)):
+    """oa, ob = a, b filtered by the kernel ``g`` (odd length, centred) along ``axis`` (1: rows, 2:
+    columns), zero beyond the array (scipy.ndimage's mode="constant"). dim = items, H, W."""
+    k, r, c = wp.tid()
+    rad = (g.shape[0] - 1) // 2
+    n = a.shape[2]
+    if axis == 1:
+        n = a.shape[1]
+    sa = float(0.0)  # noqa: UP018
+    sb = float(0.0)  # noqa: UP018
+    for j in range(g.shape[0]):
+        rr = r
+        cc = c
+        if axis == 1:
+            rr = r + j - rad
+        else:
+            cc = c + j - rad
+        i = rr if axis == 1 else cc
+        if i >= 0 and i < n:
+            sa += g[j] * a[k, rr, cc]
+            sb += g[j] * b[k, rr, cc]
+    oa[k, r, c] = sa
+    ob[k, r, c] = sb
+
+
+@wp.kernel
+def _local_rms_kernel(num: wp.array3d(dtype=wp.float32), den: wp.array3d(dtype=wp.float32),
+                      w: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.float32)):
+    """out = sqrt(num / max(den, 1e-6)) where the pixel is used, -1 elsewhere. dim = items, H, W."""
+    k, r, c = wp.tid()
+    if w[k, r, c] > 0.0:
+        out[k, r, c] = wp.sqrt(num[k, r, c] / wp.max(den[k, r, c], 1e-6))
+    else:
+        out[k, r, c] = -1.0
+
+
+@wp.kernel
+def _robust_weight_kernel(local: wp.array3d(dtype=wp.float32), scale: wp.array(dtype=wp.float32),
+                          k_: float, cauchy: int, out: wp.array3d(dtype=wp.float32)):
+    """out = the robust factor of local / scale[item] (Cauchy or Huber, threshold ``k_``) where
+    used (local >= 0), 0 elsewhere; a view with no scale (<= 0) keeps factor 1. dim = items, H, W."""
+    k, r, c = wp.tid()
+    x = local[k, r, c]
+    f = float(0.0)  # noqa: UP018
+    if x >= 0.0:
+        s = scale[k]
+        if s > 0.0:
+            u = x / s
+            if cauchy == 1:
+                f = 1.0 / (1.0 + (u / k_) * (u / k_))
+            else:
+                f = wp.min(1.0, k_ / wp.max(u, 1e-12))
+        else:
+            f = 1.0
+    out[k, r, c] = f
+
+
+def gaussian_taps(sigma_px: float, truncate: float = 4.0) -> np.ndarray:
+    """scipy.ndimage.gaussian_filter's 1-D kernel for ``sigma_px`` (radius ``int(truncate σ + 0.5)``)."""
+    rad = int(truncate * float(sigma_px) + 0.5)
+    x = np.arange(-rad, rad + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (x / float(sigma_px)) ** 2)
+    return (g / g.sum()).astype(np.float32)
+
+
+def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
+                          device=None, bufs: dict | None = None):
+    """:func:`core.tracking.final_stage.robust_factors` on the device: ``e``, ``w`` ``(views, H, W)``
+    Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
+    factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
+    same Gaussian as the host's), only its per-view median is taken on the host."""
+    device = device if device is not None else e.device
+    bufs = {} if bufs is None else bufs
+    shape = tuple(e.shape)
+
+    def buf(name):
+        b = bufs.get(name)
+        if b is None or tuple(b.shape) != shape:
+            b = bufs[name] = wp.zeros(shape, dtype=wp.float32, device=device)
+        return b
+
+    a, b, ta, tb = buf("rf_a"), buf("rf_b"), buf("rf_ta"), buf("rf_tb")
+    g = wp.array(gaussian_taps(sigma_px), dtype=wp.float32, device=device)
+    wp.launch(_robust_sq_kernel, dim=shape, inputs=[e, w, a, b], device=device)
+    wp.launch(_blur_pair_kernel, dim=shape, inputs=[a, b, g, 1, ta, tb], device=device)
+    wp.launch(_blur_pair_kernel, dim=shape, inputs=[ta, tb, g, 2, a, b], device=device)
+    local = buf("rf_local")
+    wp.launch(_local_rms_kernel, dim=shape, inputs=[a, b, w, local], device=device)
+    L = local.numpy()
+    scale = np.zeros(shape[0], np.float32)
+    for v in range(shape[0]):
+        x = L[v][L[v] >= 0]
+        if x.size:
+            m = float(np.median(x))
+            scale[v] = m if np.isfinite(m) and m > 0 else 0.0
+    out = buf("rf_out")
+    wp.launch(_robust_weight_kernel, dim=shape, device=device,
+              inputs=[local, wp.array(scale, dtype=wp.float32, device=device), float(k),
+                      1 if kind == "cauchy" else 0, out])
+    return out
 
 
 @wp.kernel
@@ -550,15 +668,34 @@ class LikelihoodEngine:
 
     def scale_weights(self, factor: np.ndarray) -> None:
         """The expected counts of :meth:`set_frame` times ``factor (views, H, W)`` (per pixel, on
-        the host; the regions' padded layout of :meth:`residual`) from now on."""
+        the host or a Warp array on the device; the regions' padded layout of :meth:`residual`) from
+        now on."""
         nv, (Hc, Wc) = self.n_views, self._cap
         if not self._w0_set:
             self._w0 = self._buffer("w0", (nv, Hc, Wc))
             wp.copy(self._w0, self._w)
             self._w0_set = True
-        f = self._buffer("wf", (nv, Hc, Wc))
-        f.assign(np.asarray(factor, dtype=np.float32).reshape(nv, Hc, Wc))
+        if isinstance(factor, wp.array):  # already on the device (robust_weights)
+            f = factor
+        else:
+            f = self._buffer("wf", (nv, Hc, Wc))
+            f.assign(np.asarray(factor, dtype=np.float32).reshape(nv, Hc, Wc))
         wp.launch(_times_kernel, dim=(nv, Hc, Wc), inputs=[self._w0, f, self._w], device=self.device)
+
+    def robust_weights(self, s: dict, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy"):
+        """The robust factors of the weighted residual at the centre of the last step's design
+        (``s``: that :meth:`step`'s result) and the current weights' usable pixels, on the device
+        (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
+        img, low, _, _ = self._last
+        nv, (Hc, Wc) = self.n_views, self._cap
+        hp = 1.0 if self.highpass_px else 0.0
+        lin = wp.array(s["lin"].astype(np.float32), dtype=wp.float32, device=self.device)
+        e = self._buffer("e", (nv, Hc, Wc))
+        jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
+        wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=self.device,
+                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt])
+        return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
+                                     bufs=self._bufs)
 
     def support(self, x=None) -> np.ndarray:
         """``(views, H, W)`` the bone's DRR at ``x`` (default the base pose) in the regions'

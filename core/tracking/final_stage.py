@@ -90,6 +90,9 @@ class FinalModel:
 
 #: the final stage's model of the region's pixels (:class:`FinalModel`)
 MODEL = FinalModel()
+#: the robust factors filtered on the device (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.
+#: robust_weights`; off: :func:`robust_factors` on the host, as first measured)
+ROBUST_ON_DEVICE = True
 
 
 @contextmanager
@@ -177,10 +180,16 @@ def _refine(eng, o, model: FinalModel) -> dict:
         # factors within the support
         eng.reset_weights()
         s = eng.step(out["x"], np.full(6, 0.05))
-        e = eng.residual(s)
-        used = eng._w.numpy() > 0
-        f = robust_factors(e, used, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
-        eng.scale_weights(f if mask is None else f * mask)
+        if ROBUST_ON_DEVICE:
+            f = eng.robust_weights(s, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
+            if mask is not None:
+                f = f.numpy() * mask
+        else:
+            e = eng.residual(s)
+            used = eng._w.numpy() > 0
+            f = robust_factors(e, used, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
+            f = f if mask is None else f * mask
+        eng.scale_weights(f)
         out = eng.refine(out["x"], iters=o.final_iters)
         n_it += 1 + int(out["iterations"])
     out["iterations"] = n_it

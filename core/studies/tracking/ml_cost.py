@@ -28,7 +28,10 @@ adds a three-bone run with the stage after every round, as before. Per bone: fra
 bound and how many of them went unflagged (:func:`silent_failures`; the flags include the final
 stage's move check, :func:`core.tracking.frame_step.stage_move_check`); per frame the stage's move,
 the diagonals of its sandwich and independent-pixel covariances, χ² and residual autocorrelation
-(:class:`_StageProbe`). Measured: ``resources/benchmarks/tracking_final_rounds_h200.json``.
+(:class:`_StageProbe`); ``rejected_frames``: the frames whose stage move the check rejected (the
+similarity's pose kept; they count among ``false_flags`` when that left them within 4× the
+bound). Measured: ``resources/benchmarks/tracking_final_rounds_h200.json`` (before the rejection),
+``resources/benchmarks/tracking_final_reject_h200.json``.
 """
 
 from __future__ import annotations
@@ -359,7 +362,7 @@ def silent_failures(E, flagged, bound: dict, factor: float = 4.0) -> dict:
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
               checkpoint=None, variants=((None, None, None, False),), glare: bool = False,
-              every_round: bool = False) -> dict:
+              every_round: bool = False, keep_moves: bool = False) -> dict:
     """The trial tracked twice per case (``one``: the talus alone, ``three``: three bones jointly,
     or a bone's name: that bone alone) in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
@@ -369,7 +372,9 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
     neighbours' own gain)``
     (None: the default), each tracked in full as ``final_<σ>_<lag>_<confidence>``; ``every_round``:
     three bones once more with the stage after every joint round (``final_every_round``,
-    :data:`core.tracking.frame_step.FINAL_EVERY_ROUND`, as before it ran after the last only).
+    :data:`core.tracking.frame_step.FINAL_EVERY_ROUND`, as before it ran after the last only);
+    ``keep_moves``: once more with the flagged stage moves kept (``final_kept_moves``,
+    ``TrackingOptions.stage_move_reject=False``, as before the rejection).
     Per bone and run: ``over_4x_bound`` (:func:`silent_failures`) and the flags per frame. Per frame
     (``per_frame``): the errors, σ and scores of the runs ``tracker``, ``final`` (and
     ``final_every_round``), and for the final stages what the stage saw (:class:`_StageProbe`)."""
@@ -397,6 +402,8 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
         runs = [("warm_up", plain), ("tracker", plain), ("final", final)]
         if every_round and len(bones) > 1:
             runs.append(("final_every_round", final))
+        if keep_moves:  # the stage's flagged moves kept, as before the rejection
+            runs.append(("final_kept_moves", replace(final, stage_move_reject=False)))
         if variants:
             for hp, lag, conf, gain in variants:
                 if (hp, lag, conf, gain) != (None, None, None, False):
@@ -436,6 +443,7 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                                                                    for t in tim])),
                  "likelihood_taken": int(sum(t.get("likelihood_taken", 0) for t in tim)),
                  "likelihood_tried": int(sum("likelihood_s" in t for t in tim)),
+                 "likelihood_rejected": int(sum(t.get("likelihood_rejected", 0) for t in tim)),
                  "likelihood_move_median": [float(np.median(v)) if (v := [t[k] for t in tim if np.isfinite(
                      t.get(k, np.nan))]) else None for k in ("likelihood_move_mm", "likelihood_move_deg")],
                  "flagged": int(sum(bool(res.results[k].flags) for k in poses))}
@@ -448,7 +456,9 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                 if bound.get(nm):
                     d[nm]["over_4x_bound"] = silent_failures(E, [bool(x.flags) for x in frs], bound[nm])
                 d[nm]["flags"] = {str(x.frame): list(x.flags) for x in frs if x.flags}
-                if label in ("tracker", "final", "final_every_round"):
+                d[nm]["rejected_frames"] = [x.frame for x in frs
+                                            if (x.timing or {}).get("likelihood_rejected")]
+                if label in ("tracker", "final", "final_every_round", "final_kept_moves"):
                     pf = {"error": np.round(E, 5).tolist(), "sigma": np.round(np.array(S), 5).tolist(),
                           "score": [float(x.score) for x in frs]}
                     if label != "tracker":
@@ -494,6 +504,8 @@ def main(argv=None) -> int:
                    help="--final: undo the veiling glare measured from calibration disc frames")
     p.add_argument("--every-round", action="store_true",
                    help="--final: three bones also with the stage after every joint round (as before)")
+    p.add_argument("--keep-moves", action="store_true",
+                   help="--final: also with the flagged stage moves kept (stage_move_reject=False)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json
@@ -511,7 +523,7 @@ def main(argv=None) -> int:
                         pixels=a.pixels or 1024, voxel=a.voxel or 0.5, highpass_px=a.highpass,
                         workers=a.workers, checkpoint=checkpoint,
                         variants=[_variant(v) for v in a.final_variants.split(",") if v], glare=a.glare,
-                        every_round=a.every_round)
+                        every_round=a.every_round, keep_moves=a.keep_moves)
         print_json(res, a.out)
         return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,

@@ -498,6 +498,8 @@ def near_symmetries(target: CalibrationTarget, *, min_fraction: float = 0.6, tol
 
 
 _NEAR_SYM: dict = {}
+#: RANSAC's hypotheses from the normal equations (:func:`_batched_dlt` ``fast``); False: the
+#: eigenvector, as before (studies compare the two)
 FAST_DLT = True
 
 

@@ -186,3 +186,7 @@ def main(argv=None) -> int:
     if a.out:
         a.out.write_text(json.dumps(doc, indent=1))
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -185,12 +185,17 @@ def noise_samples(fluence, *, radius: int, mask=None, valid_range: tuple[float, 
         pts = np.sort(pts[np.argpartition(-F[pts], n - 1)[:n]])
     if len(pts) > max_samples:  # evenly thinned over the frame
         pts = pts[np.linspace(0, len(pts) - 1, int(max_samples)).astype(np.int64)]
-    # the patch about lattice point (i, j) starts at pixel (i·st, j·st)
-    win = np.lib.stride_tricks.sliding_window_view(f, (k, k))
-    P = win[(pts // gw) * st, (pts % gw) * st].reshape(len(pts), k * k)
-    if valid_range is not None:
-        P = P[np.all((P > valid_range[0]) & (P < valid_range[1]), axis=1)]
-    return -np.log(np.clip(P, 1.0 / 4096, 1.0))
+    # the patch about lattice point (i, j) starts at pixel (i·st, j·st): one flat gather of the
+    # patches' pixels (a tenth of the time of indexing a sliding-window view)
+    off = (np.arange(k, dtype=np.intp)[:, None] * W + np.arange(k, dtype=np.intp)[None, :]).ravel()
+    start = (pts // gw) * (st * W) + (pts % gw) * st
+    P = np.ascontiguousarray(f).ravel().take(start[:, None] + off[None, :])
+    if valid_range is not None:  # every pixel of the patch inside the open interval
+        P = P[(P.min(axis=1) > valid_range[0]) & (P.max(axis=1) < valid_range[1])]
+    np.clip(P, 1.0 / 4096, 1.0, out=P)
+    np.log(P, out=P)
+    np.negative(P, out=P)
+    return P
 
 
 _KERNELS: dict = {}

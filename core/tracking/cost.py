@@ -260,19 +260,38 @@ class FrameImages:
         this frame (:func:`core.similarity.gradient.frame_noise_energy`: patches about the
         brightest points of a lattice of the usable pixels, sampled once per view and patch size);
         kept per view, operator and σ (to 1 %) for the frame's later registrations."""
-        from ..similarity.gradient import _patch_radius, noise_energy_of_samples, noise_samples
+        from ..similarity.gradient import _patch_radius, noise_energy_of_samples
 
         s = float(fluoro_sigma)
         key = (int(view), operator, round(math.log(s) / 0.01) if s > 0 else None)
         hit = self._noise.get(key)
         if hit is None:
-            R = _patch_radius(s)
-            P = self._noise.get((int(view), R))
-            if P is None:
-                P = self._noise[(int(view), R)] = noise_samples(
-                    self._fluence[view], radius=R, mask=self._given[view], valid_range=self._valid)
-            hit = self._noise[key] = noise_energy_of_samples(P, fluoro_sigma=s, operator=operator)
+            hit = self._noise[key] = noise_energy_of_samples(self._noise_samples(int(view), _patch_radius(s)),
+                                                             fluoro_sigma=s, operator=operator)
         return hit
+
+    def _noise_samples(self, view: int, radius: int) -> np.ndarray:
+        from ..similarity.gradient import noise_samples
+
+        P = self._noise.get((view, radius))
+        if P is None:
+            P = self._noise[(view, radius)] = noise_samples(self._fluence[view], radius=radius,
+                                                            mask=self._given[view], valid_range=self._valid)
+        return P
+
+    @property
+    def noise_sample_keys(self) -> tuple[tuple[int, int], ...]:
+        """The ``(view, patch radius)`` of the noise samples drawn so far (:meth:`noise_energy`)."""
+        return tuple(k for k in list(self._noise) if len(k) == 2)
+
+    def prepare_noise(self, keys) -> None:
+        """Draw the noise samples of these ``(view, patch radius)`` now (those a frame before this
+        one used: :class:`core.tracking.feed.FrameFeed` draws them in its worker thread while
+        that frame registers), so that :meth:`noise_energy` finds them; the same values as when
+        drawn at its call."""
+        for v, r in keys:
+            if 0 <= int(v) < self.n_views and int(r) >= 1:
+                self._noise_samples(int(v), int(r))
 
     def _all(self) -> tuple:
         if self._whole is None:

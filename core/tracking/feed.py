@@ -10,6 +10,12 @@ comes, as it would without the look-ahead. A ``frames`` callable that refills th
 for every frame (a video reader's habit) is noticed at the first look-ahead — the next frame's
 images share memory with the current one's — and then the current frame is read again and
 nothing more is read ahead: each frame is read at its turn, as without the look-ahead.
+
+The worker also draws the next frame's noise samples (the noise correction's ``E₁`` estimate,
+:meth:`~core.tracking.cost.FrameImages.prepare_noise`) for the views and patch sizes the frames
+before it drew them for — one set per view and patch radius, about a millisecond per 1024² view
+on the H200 machine's host, two radii per view when three bones are tracked jointly — so the
+registration finds them drawn; the values are those it would draw itself.
 """
 
 from __future__ import annotations
@@ -34,22 +40,43 @@ class FrameFeed:
         self.ahead = None  # (frame, images, future of the prepared frame)
         self.current: tuple[int, list] | None = None  # the frame being registered and its images
         self.refills = False  # the callable refills one buffer: no look-ahead
+        # the prepared frames handed out last: the noise samples they drew are drawn for the next
+        # frame in the worker thread (FrameImages.prepare_noise)
+        self.current_frame = self.previous_frame = None
 
-    def _prepare(self, imgs: list):
+    def _prepare(self, imgs: list, noise=()):
         if any(im is None for im in imgs):
             return None
-        return prepare_frame(imgs, valid_range=self.valid_range, erode_px=self.erode_px)
+        frame = prepare_frame(imgs, valid_range=self.valid_range, erode_px=self.erode_px)
+        if noise:
+            try:
+                frame.prepare_noise(noise)
+            except Exception:  # drawn again, and raised there, when the cost asks for them
+                pass
+        return frame
 
     def get(self, f: int) -> tuple[list, object]:
         """``(images, prepared frame or None where a view has no frame)`` of frame ``f``."""
+        if self.current_frame is not None:
+            self.previous_frame = self.current_frame
         if self.ahead is not None and self.ahead[0] == f:
             _, imgs, fut = self.ahead
             self.ahead = None
             self.current = (f, imgs)
-            return imgs, fut.result()
+            self.current_frame = fut.result()
+            return imgs, self.current_frame
         imgs = list(self.frames(f))
         self.current = (f, imgs)
-        return imgs, self._prepare(imgs)
+        self.current_frame = self._prepare(imgs)
+        return imgs, self.current_frame
+
+    def _noise_keys(self) -> tuple:
+        """The noise samples (view, patch radius) the frames handed out last have drawn."""
+        keys: set = set()
+        for fr in (self.previous_frame, self.current_frame):
+            if fr is not None:
+                keys.update(fr.noise_sample_keys)
+        return tuple(sorted(keys))
 
     def prefetch(self, f: int) -> None:
         """Read frame ``f`` now and prepare it in the worker thread (unless the callable refills
@@ -69,7 +96,7 @@ class FrameFeed:
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="talus-frames")
-        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs))
+        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys()))
 
     def close(self) -> None:
         if self.pool is not None:

@@ -80,9 +80,11 @@ def hard(*, n_frames: int = 12, pixels: int = 1024, spacing: float = 0.5, seed: 
     return out
 
 
-def acceptance(*, n_frames: int = 20, pixels: int = 1024, spacing: float = 0.5, repeats: int = 3) -> dict:
+def acceptance(*, n_frames: int = 20, pixels: int = 1024, spacing: float = 0.5, repeats: int = 3,
+               bound: bool = True) -> dict:
     """The walking trial's benchmark cases (:func:`core.studies.tracking.benchmark._case`) with
-    the correction off and on, and the estimate's time per view."""
+    the correction off and on, and the estimate's time per view (``bound=False``: without the
+    Cramér–Rao bound, the speed alone)."""
     from core.similarity.gradient import _patch_radius, noise_energy_of_samples, noise_samples
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
     from core.studies.tracking.benchmark import _case
@@ -93,7 +95,7 @@ def acceptance(*, n_frames: int = 20, pixels: int = 1024, spacing: float = 0.5, 
     ts = TrackingScene(n_frames=n, pixels=pixels, spacing=spacing, phase=(0.0, 0.6 * n / 100.0), device=None)
     for i in range(n):
         ts.frames(i)
-    bound = cramer_rao(ts, range(0, n, 4))
+    bound = cramer_rao(ts, range(0, n, 4)) if bound else None
     sig = 0.3 / float(ts.scene.rig[0].pixel_size)
     times, energies = [], []
     for i in range(n):
@@ -125,6 +127,7 @@ def main(argv=None) -> int:
     p.add_argument("--voxel", type=float, default=0.5, help="voxel size, mm")
     p.add_argument("--hard-frames", type=int, default=12)
     p.add_argument("--acceptance-frames", type=int, default=20)
+    p.add_argument("--no-bound", action="store_true", help="acceptance: speed alone (no Cramér–Rao bound)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json
@@ -134,7 +137,8 @@ def main(argv=None) -> int:
     if "hard" in parts:
         res["hard"] = hard(n_frames=a.hard_frames, pixels=a.pixels, spacing=a.voxel)
     if "acceptance" in parts:
-        res["acceptance"] = acceptance(n_frames=a.acceptance_frames, pixels=a.pixels, spacing=a.voxel)
+        res["acceptance"] = acceptance(n_frames=a.acceptance_frames, pixels=a.pixels, spacing=a.voxel,
+                                       bound=not a.no_bound)
     print_json(res, a.out)
     return 0
 

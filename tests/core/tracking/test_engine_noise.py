@@ -171,3 +171,55 @@ def test_engine_with_neighbours_subtracted_equals_the_host_cost(talus_calcaneus_
                           others=others)
     X = step_design(np.zeros(6), H)
     np.testing.assert_allclose(gn(X), rc(X), atol=2e-5)
+    # the next round of joint tracking: the neighbour moved, the same regions (not smoothed again
+    # for the noise) give the host cost's values at the new subtraction
+    others2 = (pose_from_params(np.r_[0.5, 0.0, -0.4, np.radians([1.0, 0.0, 0.5])], center=models[1].centroid,
+                                base=truth[1])[None], [1])
+    gn.set_frame(frame, base_pose=start, center=m.centroid, roi=roi, others=others2)
+    rc2 = RegistrationCost(r, frame, bone=0, base_pose=start, center=m.centroid, roi=roi, terms=(TERM,),
+                           others=others2)
+    np.testing.assert_allclose(gn(X), rc2(X), atol=2e-5)
+    assert np.max(np.abs(rc2(X) - rc(X))) > 1e-5  # the neighbour's move changed the cost
+
+
+def test_noise_samples_are_the_frames_patches():
+    """The patches drawn are the frame's line integrals about the lattice points kept (a patch
+    wholly inside the valid range), as a sliding window cuts them."""
+    from core.similarity.gradient import noise_samples
+
+    g = np.random.default_rng(3)
+    F = np.clip(_anatomy(96) * np.exp(0.05 * g.normal(size=(96, 96))), 0.0, 1.0).astype(np.float32)
+    F[10:14, 30:60] = 1.0  # saturated: patches over them are dropped
+    for R, step, mask in ((2, 3, None), (4, 5, F > 0.2)):
+        P = noise_samples(F, radius=R, step=step, mask=mask, max_samples=50, bright_fraction=0.5)
+        k = 2 * R + 1
+        win = np.lib.stride_tricks.sliding_window_view(F, (k, k)).reshape(-1, k * k)
+        ref = -np.log(np.clip(win, 1.0 / 4096, 1.0))
+        assert len(P) > 20 and P.shape[1] == k * k
+        hit = (ref[None, :, :] == P[:, None, :]).all(axis=2)  # each patch is one window
+        assert hit.any(axis=1).all()
+
+
+def test_feed_draws_the_last_frames_noise_samples_ahead():
+    """The frame look-ahead draws the noise samples the frames before it drew (in its worker
+    thread): the next frame's estimate finds them, with the values drawn at the estimate."""
+    from core.tracking.feed import FrameFeed
+
+    g = np.random.default_rng(5)
+    frames = {i: [_poisson_frame(0.8 * _anatomy(128), 300.0, 0.7, 10 * i + v) for v in range(2)]
+              for i in range(4)}
+    feed = FrameFeed(lambda i: frames[i], (0.02, 0.999), 3)
+    try:
+        e = []
+        for i in range(4):
+            _, fr = feed.get(i)
+            if i + 1 < 4:
+                feed.prefetch(i + 1)
+            if i >= 2:  # drawn ahead: the previous frames asked for these
+                assert set(fr.noise_sample_keys) == {(0, 5), (1, 5)}
+            e.append([fr.noise_energy(v, 1.0 + 0.1 * g.random()) for v in range(2)])  # patch radius 5
+            fresh = prepare_frame(frames[i])
+            for v in range(2):
+                np.testing.assert_array_equal(fr._noise[(v, 5)], fresh._noise_samples(v, 5))
+    finally:
+        feed.close()

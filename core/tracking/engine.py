@@ -34,7 +34,7 @@ shortened on the device to ``sqrt(max(|g|² - E, 0))``
 (:func:`~core.tracking.engine_kernels.fluoro_gradient_kernel`), ``E₁`` per view estimated from
 the frame itself (:meth:`core.tracking.cost.FrameImages.noise_energy`), ``F`` the fluence of the
 smoothed region before any neighbour is subtracted (joint tracking: two more blur passes at the
-frame's set-up, not repeated in its later rounds, whose regions are the same). The moments and
+frame's set-up; each round's, since the smoothing follows the pose's pixel size). The moments and
 scores are unchanged; the same values as :func:`core.similarity.gradient_correlation` with
 ``noise_energy`` and the host cost's (:func:`core.tracking.cost.noise_maps`). Pyramid levels are
 left as they are.
@@ -155,7 +155,6 @@ class _Buffers:
     blur: object
     blur_taps: object
     ys: object = None  # the noise correction's smoothed, unsubtracted line integrals (joint tracking)
-    ys_key: tuple | None = None  # (the preparation, the blur taps and sizes) ys was smoothed from
     serial: int = field(default_factory=lambda: next(_SERIAL))  # which buffers (stage)
     pipes: dict = field(default_factory=dict)
     sibling_pipes: dict = field(default_factory=dict)
@@ -385,19 +384,12 @@ class GaussNewtonCost:
         b = self._bufs
         if b.ys is None:
             b.ys = wp.zeros((nv, Hc, Wc), dtype=wp.float32, device=self.device)
-        # the unsubtracted regions are the same in joint tracking's later rounds (stage kept them:
-        # the same preparation) and so are their smoothed values: not smoothed again
-        key = (None if ftaps is None else ftaps.tobytes(), self._hw_last)
-        done = self._stage_done
-        if done is not None and b.ys_key is not None and b.ys_key[0] is done and b.ys_key[1] == key:
-            return b.ys
         if ftaps is None:
             wp.copy(b.ys, self._raw0)
         else:
             for a, dst, axis in ((self._raw0, self._ftmp, 1), (self._ftmp, b.ys, 0)):
                 self._launch(f"noise_blur{axis}", K.blur_kernel, (nv, Hc, Wc),
                              [a, dst, self._fblur, self._ref_hw, nv, axis])
-        b.ys_key = None if done is None else (done, key)
         return b.ys
 
     def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:

@@ -36,7 +36,19 @@ changed nothing measurable over ``robust`` alone. On the acceptance trial's firs
 calls): talus alone 1.47/1.35 → 1.50/1.36× its bound (mm/°), three bones jointly tibia 2.50/1.75 →
 2.39/1.47×, talus 1.42/1.46 → 1.46/1.50×, calcaneus 2.01/1.33 → 2.01/1.32×. The stage's default
 (:data:`MODEL`) is ``robust=2.5``; it costs a second refinement (8.0-8.5 steps instead of
-3.8-4.2; 72-94 ms per bone-frame instead of 17-27 ms in those runs, which shared the GPU).
+3.8-4.2; 72-94 ms per bone-frame instead of 17-27 ms in those runs, which shared the GPU, with
+the robust factors filtered on the host). The factors are now filtered on the device
+(:data:`ROBUST_ON_DEVICE`; :func:`robust_factors` took ~240 ms for two 640² regions on a 2-core
+CPU): on one NVIDIA H200 alone (``resources/benchmarks/tracking_final_reject_h200.json``) the
+stage took 44-46 ms per bone-frame on the harder trial (8.2-8.3 steps) and, on the acceptance
+trial (1024², 100 frames), 40.9 ms jointly (12.0 ms set-up, 8.6 steps; the plain stage 20.1 ms,
+4.4 steps) and 26.0 ms for the talus alone.
+
+The stage's result keeps the similarity's (:class:`LikelihoodFit` ``similarity``), so that a
+frame whose stage move is out of line with the bone's other frames keeps the similarity's pose
+(:func:`rejected`, :func:`core.tracking.frame_step.stage_move_check`). In sequential tracking the
+frame step gives the stage the bones registered in the frame and the others' guesses to subtract
+(:func:`stage_neighbours`).
 
 :func:`final_model` sets :data:`MODEL` for a block (studies compare models in one process).
 """

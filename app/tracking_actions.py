@@ -85,7 +85,7 @@ class TrackingActions:
         return dialog
 
     def _set_options(self, options) -> None:
-        from .commands.track import check_choices
+        from .commands.track import STAGE_MOVES, check_choices
         from .tracking_options import choices_of
 
         self.options = options
@@ -93,9 +93,15 @@ class TrackingActions:
         res = "full" if c["scale"] == 1 else f"1/{c['scale']:g}"
         gc = ", gradient components" if c["metric"] == "components" else ""
         final = ", likelihood final stage" if c["final"] == "likelihood" else ""
-        checks = "" if c == {**c, **check_choices(None)} else (
+        default = check_choices(None)
+        failure = ("collapse_ratio", "motion_limit", "motion_floor", "sigma_limit")
+        checks = "" if all(c[k] == default[k] for k in failure) else (
             f", checks: collapse {c['collapse_ratio']:g}, motion {c['motion_limit']:g}x (floor "
             f"{c['motion_floor'][0]:g} mm, {c['motion_floor'][1]:g} deg), sigma {c['sigma_limit']:g}x")
+        if c["final"] == "likelihood" and any(c[k] != default[k] for k in STAGE_MOVES):  # its move check
+            checks += (f", stage move check {c['stage_move_limit']:g}x (at least "
+                       f"{c['stage_move_sigmas']:g} sigma, after {c['stage_move_frames']} frames)"
+                       f"{', moves kept' if not c['stage_move_reject'] else ''}")
         self.window.notify(f"Tracking options: {c['search']} search, {res} resolution{gc}, {c['mode']}, "
                            f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}{checks}")
 

@@ -18,10 +18,11 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
 * **Guess** — the next frame's start: velocity, previous pose or a spline through the track;
 * **Final stage** — none (the default) or *likelihood*: every registration ends with a weighted
   least-squares refinement of the pose against the line-integral image
-  (``TrackingOptions.refine_likelihood``). On the synthetic 1024² walking trial (one NVIDIA H200)
-  it brought the talus closer to its Cramér–Rao bound and improved every bone's rotation, but
-  worsened the tibia's and calcaneus's translation in joint mode, for +11.6 ms per bone-frame
-  (+107 ms per joint frame). It needs flatfield-corrected frames: a trial without a flatfield
+  (``TrackingOptions.refine_likelihood``; robust pixel weights). On the synthetic 1024² walking
+  trial (one NVIDIA H200) it brought the talus closer to its Cramér–Rao bound (alone 2.21/2.15× →
+  1.48/1.47×, mm/°) and improved every bone's rotation, but worsened the calcaneus's translation
+  in joint mode (1.45 → 1.90×), at 3.7 → 31.0 ms per frame for the talus alone and 18.3 → 142 ms
+  for three bones jointly. It needs flatfield-corrected frames: a trial without a flatfield
   correction is refused when the job starts (:func:`app.commands.track.final_stage_problem`);
 * **Confidence** — the pose uncertainty of every frame (costs a few renders per frame);
 * **Advanced checks** — the thresholds of the checks that flag frames for review
@@ -29,8 +30,14 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   :data:`app.commands.track.CHECKS`): a score below the *collapse* ratio × the bone's recent median
   score, a pose farther from the motion prediction than the *motion limit* × the bone's recent
   median miss (never below the *motion floor*, mm and degrees) and a confidence σ over the *σ
-  limit* × the bone's recent median σ are flagged. The spin boxes hold each to its valid range;
-  an invalid value set from code is refused on *OK* with the option and its range named.
+  limit* × the bone's recent median σ are flagged. With the likelihood final stage only (the
+  boxes are enabled when it is chosen): its *move check* (``--stage-move-limit``,
+  ``--stage-move-sigmas``, ``--stage-move-frames``, ``--keep-stage-moves``) flags a frame whose
+  stage moved the pose more than the *stage move limit* × the median move of the bone's last good
+  frames and more than the given fraction of its own translation σ, once the bone has that many
+  good frames; such a frame keeps the similarity's pose unless *Keep flagged stage moves* is
+  ticked. The spin boxes hold each to its valid range; an invalid value set from code is refused
+  on *OK* with the option and its range named.
 """
 
 from __future__ import annotations
@@ -61,17 +68,25 @@ CHECK_RANGES = {
     "floor_mm": (0.0, 50.0, 0.25, 2, " mm"),
     "floor_deg": (0.0, 90.0, 0.25, 2, " °"),
     "sigma_limit": (1.0, 100.0, 0.5, 1, " × recent median σ"),
+    "stage_move_limit": (1.0, 100.0, 0.5, 1, " × recent median move"),
+    "stage_move_sigmas": (0.0, 10.0, 0.1, 2, " × the frame's σ"),
+    "stage_move_frames": (1, 1000, 1, 0, " good frames"),  # an integer: a QSpinBox
 }
 
 
-def _spin(name: str, value: float, tip: str) -> QtWidgets.QDoubleSpinBox:
+def _spin(name: str, value: float, tip: str) -> QtWidgets.QDoubleSpinBox | QtWidgets.QSpinBox:
     lo, hi, step, decimals, suffix = CHECK_RANGES[name]
-    box = QtWidgets.QDoubleSpinBox()
-    box.setRange(lo, hi)
-    box.setDecimals(decimals)
+    if decimals == 0:
+        box = QtWidgets.QSpinBox()
+        box.setRange(int(lo), int(hi))
+        box.setValue(int(value))
+    else:
+        box = QtWidgets.QDoubleSpinBox()
+        box.setRange(lo, hi)
+        box.setDecimals(decimals)
+        box.setValue(float(value))
     box.setSingleStep(step)
     box.setSuffix(suffix)
-    box.setValue(float(value))
     box.setToolTip(tip)
     return box
 
@@ -108,11 +123,11 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.similarity.setToolTip("Gradient components (Penney's form): better on overlapping bones in the "
                                "harder synthetic trial, slower")
         self.final.setToolTip(
-            "Likelihood: every registration ends with a weighted least-squares refinement against the "
-            "line-integral image. On the synthetic 1024² trial (one NVIDIA H200): talus alone 2.21/2.15× → "
-            "1.47/1.46× its Cramér–Rao bound (mm/°), +11.6 ms per bone-frame; jointly better rotation for "
-            "every bone, but tibia and calcaneus translation worse (2.21 → 4.34×, 1.45 → 1.89×), "
-            "+107 ms per frame. Needs flatfield-corrected frames.")
+            "Likelihood: every registration ends with a robustly weighted least-squares refinement against "
+            "the line-integral image. On the synthetic 1024² trial (one NVIDIA H200): talus alone 2.21/2.15× "
+            "→ 1.48/1.47× its Cramér–Rao bound (mm/°), 3.7 → 31.0 ms per frame; jointly better rotation for "
+            "every bone, calcaneus translation worse (1.45 → 1.90×), 18.3 → 142 ms per frame. Needs "
+            "flatfield-corrected frames.")
         form = QtWidgets.QFormLayout()
         form.addRow("&Search:", self.search)
         form.addRow("&Resolution:", self.resolution)
@@ -156,8 +171,29 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         form.addRow("Motion fl&oor:", floor)
         form.labelForField(floor).setBuddy(self.floor_mm)
         form.addRow("&Uncertain above:", self.sigma_limit)
+        self.stage_move_limit = _spin("stage_move_limit", c["stage_move_limit"], tip["stage_move_limit"])
+        self.stage_move_sigmas = _spin("stage_move_sigmas", c["stage_move_sigmas"], tip["stage_move_sigmas"])
+        self.stage_move_frames = _spin("stage_move_frames", c["stage_move_frames"], tip["stage_move_frames"])
+        self.keep_stage_moves = QtWidgets.QCheckBox("&Keep flagged stage moves")
+        self.keep_stage_moves.setChecked(not c["stage_move_reject"])
+        self.keep_stage_moves.setToolTip(tip["stage_move_reject"])
+        form.addRow("Stage mo&ve limit:", self.stage_move_limit)
+        form.addRow("Stage move &at least:", self.stage_move_sigmas)
+        form.addRow("Move check &needs:", self.stage_move_frames)
+        form.addRow("", self.keep_stage_moves)
+        self.final.currentIndexChanged.connect(self._enable_stage_moves)
+        self._enable_stage_moves()
         self.checks_group = group
         return group
+
+    def _stage_move_widgets(self) -> tuple:
+        return (self.stage_move_limit, self.stage_move_sigmas, self.stage_move_frames, self.keep_stage_moves)
+
+    def _enable_stage_moves(self, *_args) -> None:
+        """The final stage's move check is enabled with the likelihood final stage only."""
+        on = self.final.currentData() == "likelihood"
+        for w in self._stage_move_widgets():
+            w.setEnabled(on)
 
     def restore_defaults(self) -> None:
         for box in (self.search, self.resolution, self.similarity, self.mode, self.guess, self.final):
@@ -171,6 +207,10 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.floor_mm.setValue(c["motion_floor"][0])
         self.floor_deg.setValue(c["motion_floor"][1])
         self.sigma_limit.setValue(c["sigma_limit"])
+        self.stage_move_limit.setValue(c["stage_move_limit"])
+        self.stage_move_sigmas.setValue(c["stage_move_sigmas"])
+        self.stage_move_frames.setValue(c["stage_move_frames"])
+        self.keep_stage_moves.setChecked(not c["stage_move_reject"])
 
     def choices(self) -> dict:
         return {"search": self.search.currentData(), "scale": float(self.resolution.currentData()),
@@ -179,7 +219,10 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
                 "final": self.final.currentData(), "collapse_ratio": self.collapse_ratio.value(),
                 "motion_limit": self.motion_limit.value(),
                 "motion_floor": (self.floor_mm.value(), self.floor_deg.value()),
-                "sigma_limit": self.sigma_limit.value()}
+                "sigma_limit": self.sigma_limit.value(), "stage_move_limit": self.stage_move_limit.value(),
+                "stage_move_sigmas": self.stage_move_sigmas.value(),
+                "stage_move_frames": self.stage_move_frames.value(),
+                "stage_move_reject": not self.keep_stage_moves.isChecked()}
 
     def options(self):
         return options_from_choices(**self.choices())

@@ -6,7 +6,9 @@ Usage::
                 [--ranges] [--workers N] [--scheduler ADDRESS] [--device cpu|cuda]
                 [--frames START:STOP] [--metric gc|components] [--final none|likelihood]
                 [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R] [--motion-limit K]
-                [--motion-floor MM,DEG] [--sigma-limit K] [--out SUMMARY.json] [--quiet]
+                [--motion-floor MM,DEG] [--sigma-limit K] [--stage-move-limit K]
+                [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves]
+                [--out SUMMARY.json] [--quiet]
 
 Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto``
 (the default) makes one task of each trial whose frames are flatfield-corrected (a calibrated
@@ -23,9 +25,11 @@ Dask dashboard address first), the JSON summary to stdout.
 ``--final likelihood`` ends every registration with the weighted least-squares refinement, as
 ``talus track --final likelihood`` does; every trial of the batch must have flatfield-corrected
 frames (the trials without are named, and nothing is tracked). The failure checks' thresholds
-(``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``) are
-``talus track``'s (:data:`app.commands.track.CHECKS`), for every task; out-of-range values are
-refused naming the option before any task starts.
+(``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``) and the final
+stage's move check (``--stage-move-limit``, ``--stage-move-sigmas``, ``--stage-move-frames``,
+``--keep-stage-moves``; with ``--final likelihood`` only) are ``talus track``'s
+(:data:`app.commands.track.CHECKS`), for every task; out-of-range values are refused naming the
+option before any task starts.
 Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
 it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -101,8 +105,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--final", choices=("none", "likelihood"), default="none",
                    help="as talus track --final: likelihood ends every registration with a weighted "
                         "least-squares refinement against the line-integral image (better talus and "
-                        "rotation accuracy on the synthetic trial, worse tibia and calcaneus translation "
-                        "jointly, slower; needs flatfield-corrected frames in every trial). Default none")
+                        "rotation accuracy on the synthetic trial, worse calcaneus translation jointly, "
+                        "several times slower; needs flatfield-corrected frames in every trial). Default "
+                        "none")
     p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
     p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",
@@ -185,7 +190,7 @@ def run(a: argparse.Namespace) -> int:
     if a.joint and a.mode not in ("auto", "joint"):
         raise CliError(f"--joint: contradicts --mode {a.mode} (--joint is --mode joint)")
     mode = "joint" if a.joint else a.mode
-    from .track import check_choices_of_args, check_error, parse_limits
+    from .track import check_choices_of_args, check_error, parse_limits, stage_move_note
 
     limits = parse_limits(a.max_uncertainty)
     checks = check_choices_of_args(a)
@@ -196,6 +201,9 @@ def run(a: argparse.Namespace) -> int:
             TrackingOptions(**checks)
         except ValueError as exc:
             raise (check_error(exc) or exc) from None
+        note = stage_move_note(checks, a.final)
+        if note:
+            print(f"{PROG} batch: {note}", file=sys.stderr)
     frames = _frames(a.frames)
     if a.workers != 0 and importlib.util.find_spec("distributed") is None:
         raise CliError(f"{PROG} batch needs Dask distributed, which is not installed: "

@@ -7,7 +7,8 @@ Usage::
                 [--metric magnitudes|components] [--search local|newton] [--scale S]
                 [--final none|likelihood] [--max-uncertainty MM,DEG] [--no-confidence]
                 [--collapse-ratio R] [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]
-                [--quiet]
+                [--stage-move-limit K] [--stage-move-sigmas S] [--stage-move-frames N]
+                [--keep-stage-moves] [--quiet]
 
 Every registered frame is saved to the study's pose journal as it finishes; the tracking report
 (``results/reports/tracking/<trial>.json``) lists per-frame scores and the frames flagged for
@@ -35,6 +36,15 @@ limit is never below MM and DEG for consecutive frames (default 1,2; ≥ 0); ``-
 confidence σ over K × the bone's recent median σ is *uncertain* (default 3, ≥ 1). A lower limit
 or floor, or a higher ratio, sends more frames for review; out-of-range values are refused naming
 the option (exit 1).
+
+The final stage's move check (the same table; with ``--final likelihood`` only, ignored with a
+note otherwise; :func:`core.tracking.frame_step.stage_move_check`): a frame whose stage moved the
+pose (translation) more than ``--stage-move-limit K`` × the median move of the bone's last good
+frames (default 4, ≥ 1) and more than ``--stage-move-sigmas S`` × its own translation σ (default
+0.5, ≥ 0) is flagged *uncertain*, once the bone has ``--stage-move-frames N`` good frames with a
+move (default 5, an integer ≥ 1); such a frame keeps the similarity's pose unless
+``--keep-stage-moves`` is given (``TrackingOptions.stage_move_reject=False``: the stage's pose is
+kept, still flagged).
 """
 
 from __future__ import annotations
@@ -57,9 +67,9 @@ from ._shared import (
     text_bar,
 )
 
-__all__ = ["CHECKS", "FINALS", "HELP", "METRICS", "add_check_arguments", "check_choices", "choices_of",
-           "configure", "final_stage_problem", "options_from_choices", "parse_frames", "registration_terms",
-           "run"]
+__all__ = ["CHECKS", "FINALS", "HELP", "METRICS", "STAGE_MOVES", "add_check_arguments", "check_choices",
+           "choices_of", "configure", "final_stage_problem", "options_from_choices", "parse_frames",
+           "registration_terms", "run", "stage_move_note"]
 
 HELP = "track bones of a study trial, saving each pose as it finishes"
 
@@ -69,8 +79,9 @@ METRICS = ("magnitudes", "components")
 #: ``--final``: no final stage (the default) or the weighted least-squares refinement.
 FINALS = ("none", "likelihood")
 #: The failure checks' thresholds: ``TrackingOptions`` field -> (command-line option, default,
-#: help). The defaults are :mod:`core.tracking.checks`' constants (a test keeps them equal; they
-#: are repeated here so that ``--help`` needs no numerical import).
+#: help). The defaults are :mod:`core.tracking.checks`' and :mod:`core.tracking.options`' constants
+#: (a test keeps them equal; they are repeated here so that ``--help`` needs no numerical import).
+#: The ``stage_move_*`` entries (:data:`STAGE_MOVES`) are the likelihood final stage's move check.
 CHECKS = {
     "collapse_ratio": ("--collapse-ratio", 0.6,
                        "flag a frame whose score falls below R times the bone's recent median score "
@@ -86,8 +97,26 @@ CHECKS = {
     "sigma_limit": ("--sigma-limit", 3.0,
                     "flag a frame whose confidence sigma (mm or degrees) exceeds K times the bone's recent "
                     "median ('uncertain'); a factor >= 1, default 3"),
+    "stage_move_limit": ("--stage-move-limit", 4.0,
+                         "with --final likelihood only: flag a frame whose final stage moved the pose "
+                         "(translation) more than K times the median move of the bone's last good frames "
+                         "('uncertain'; such a frame keeps the similarity's pose); a factor >= 1, default 4"),
+    "stage_move_sigmas": ("--stage-move-sigmas", 0.5,
+                          "with --final likelihood only: never flag a final-stage move of S times the "
+                          "frame's own translation sigma or less; a factor >= 0, default 0.5"),
+    "stage_move_frames": ("--stage-move-frames", 5,
+                          "with --final likelihood only: the move check applies once the bone has N good "
+                          "frames with a final-stage move; an integer >= 1, default 5"),
+    "stage_move_reject": ("--keep-stage-moves", True,
+                          "with --final likelihood only: keep the final stage's pose in a frame whose move "
+                          "the check flags (still flagged); default: such a frame keeps the similarity's "
+                          "pose"),
 }
-_METAVARS = {"collapse_ratio": "R", "motion_limit": "K", "motion_floor": "MM,DEG", "sigma_limit": "K"}
+#: The :data:`CHECKS` entries of the likelihood final stage's move check (meaningful with ``--final
+#: likelihood`` only).
+STAGE_MOVES = ("stage_move_limit", "stage_move_sigmas", "stage_move_frames", "stage_move_reject")
+_METAVARS = {"collapse_ratio": "R", "motion_limit": "K", "motion_floor": "MM,DEG", "sigma_limit": "K",
+             "stage_move_limit": "K", "stage_move_sigmas": "S", "stage_move_frames": "N"}
 
 
 def registration_terms(metric: str = "magnitudes") -> tuple:
@@ -106,13 +135,19 @@ def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = 
                          collapse_ratio: float = CHECKS["collapse_ratio"][1],
                          motion_limit: float = CHECKS["motion_limit"][1],
                          motion_floor: tuple[float, float] = CHECKS["motion_floor"][1],
-                         sigma_limit: float = CHECKS["sigma_limit"][1]):
+                         sigma_limit: float = CHECKS["sigma_limit"][1],
+                         stage_move_limit: float = CHECKS["stage_move_limit"][1],
+                         stage_move_sigmas: float = CHECKS["stage_move_sigmas"][1],
+                         stage_move_frames: int = CHECKS["stage_move_frames"][1],
+                         stage_move_reject: bool = CHECKS["stage_move_reject"][1]):
     """The :class:`core.tracking.trial.TrackingOptions` of ``talus track --search S --scale X --mode M
     --guess G --metric C --final F [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R]
-    [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]`` — the one mapping of these
+    [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K] [--stage-move-limit K]
+    [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves]`` — the one mapping of these
     choices, shared by the command and the window's *Tracking options* dialog. ``final``:
-    ``"none"`` or ``"likelihood"`` (``TrackingOptions.refine_likelihood``); the last four are the
-    failure checks' thresholds (:data:`CHECKS`), checked by ``TrackingOptions``."""
+    ``"none"`` or ``"likelihood"`` (``TrackingOptions.refine_likelihood``); the last eight are the
+    failure checks' thresholds and the final stage's move check (:data:`CHECKS`), checked by
+    ``TrackingOptions``."""
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions
 
@@ -123,15 +158,28 @@ def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = 
     return TrackingOptions(registration=reg, guess=guess, mode=mode, confidence=bool(confidence),
                            max_uncertainty=max_uncertainty, refine_likelihood=final == "likelihood",
                            collapse_ratio=collapse_ratio, motion_limit=motion_limit,
-                           motion_floor=motion_floor, sigma_limit=sigma_limit)
+                           motion_floor=motion_floor, sigma_limit=sigma_limit,
+                           stage_move_limit=stage_move_limit, stage_move_sigmas=stage_move_sigmas,
+                           stage_move_frames=stage_move_frames, stage_move_reject=stage_move_reject)
+
+
+def _choice(field: str, v):
+    """A threshold as :data:`CHECKS` holds it: (mm, deg) floats, an int, a bool or a float."""
+    if field == "motion_floor":
+        return tuple(float(x) for x in v)
+    if field == "stage_move_frames":
+        return int(v)
+    if field == "stage_move_reject":
+        return bool(v)
+    return float(v)
 
 
 def check_choices(options) -> dict:
-    """The failure checks' thresholds of ``options`` (:data:`CHECKS`; None: the defaults)."""
+    """The failure checks' thresholds and the final stage's move check of ``options``
+    (:data:`CHECKS`; None: the defaults)."""
     if options is None:
         return {k: v for k, (_, v, _) in CHECKS.items()}
-    return {k: (tuple(float(x) for x in getattr(options, k)) if k == "motion_floor"
-                else float(getattr(options, k))) for k in CHECKS}
+    return {k: _choice(k, getattr(options, k)) for k in CHECKS}
 
 
 def choices_of(options) -> dict:
@@ -193,9 +241,16 @@ def add_check_arguments(p: argparse.ArgumentParser) -> None:
     """The failure checks' options (:data:`CHECKS`), shared by ``talus track`` and ``talus batch``."""
     g = p.add_argument_group("failure checks", "thresholds of the checks that flag frames for review (a "
                                                "lower limit or floor, or a higher ratio, flags more frames)")
+    s = p.add_argument_group("final stage move check", "with --final likelihood only: a frame whose "
+                                                       "likelihood refinement moved the pose far more than "
+                                                       "on the bone's other frames is flagged")
     for field, (flag, _default, text) in CHECKS.items():
-        g.add_argument(flag, dest=field, default=None, metavar=_METAVARS[field],
-                       type=None if field == "motion_floor" else float, help=text)
+        group = s if field in STAGE_MOVES else g
+        if field == "stage_move_reject":
+            group.add_argument(flag, dest=field, action="store_const", const=False, default=None, help=text)
+        else:
+            group.add_argument(flag, dest=field, default=None, metavar=_METAVARS[field],
+                               type=None if field == "motion_floor" else float, help=text)
 
 
 def check_choices_of_args(a: argparse.Namespace) -> dict:
@@ -204,9 +259,23 @@ def check_choices_of_args(a: argparse.Namespace) -> dict:
     out = {}
     for field, (flag, _default, _text) in CHECKS.items():
         v = getattr(a, field, None)
-        if v is not None:
-            out[field] = parse_limits(v, flag) if field == "motion_floor" else v
+        if v is None:
+            continue
+        if field == "motion_floor":
+            v = parse_limits(v, flag)
+        elif field == "stage_move_frames" and v == v and abs(v) < float("inf") and v == int(v):
+            v = int(v)  # a fraction stays one, refused by TrackingOptions naming the option
+        out[field] = v
     return out
+
+
+def stage_move_note(checks: dict, final: str) -> str | None:
+    """The note for move-check options given without ``--final likelihood`` (they do nothing), or
+    None."""
+    given = [CHECKS[k][0] for k in STAGE_MOVES if k in checks]
+    if not given or final == "likelihood":
+        return None
+    return f"{', '.join(given)}: no effect without --final likelihood (the move check is the final stage's)"
 
 
 def check_error(exc: ValueError) -> CliError | None:
@@ -250,13 +319,15 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="track at reduced resolution: S detector pixels per DRR pixel (1 = full "
                         "resolution, 2 = half: about 4x less work per evaluation, e.g. without a GPU)")
     p.add_argument("--final", choices=FINALS, default="none",
-                   help="likelihood: end every registration with a weighted least-squares refinement of "
-                        "the pose against the line-integral image. On the synthetic 1024² walking trial "
-                        "(one NVIDIA H200) the talus tracked alone went from 2.21/2.15x to 1.47/1.46x its "
-                        "Cramér-Rao bound (mm/deg) for +11.6 ms per bone and frame; jointly rotation "
-                        "improved for every bone but tibia and calcaneus translation worsened (2.21 -> "
-                        "4.34x, 1.45 -> 1.89x), +107 ms per frame. Needs flatfield-corrected frames "
-                        "(a trial without is refused). Default none")
+                   help="likelihood: end every registration with a robustly weighted least-squares "
+                        "refinement of the pose against the line-integral image; a frame whose refinement "
+                        "moves the pose far more than on the bone's other frames is flagged and keeps the "
+                        "similarity's pose (the move check below). On the synthetic 1024² walking trial "
+                        "(one NVIDIA H200) the talus tracked alone went from 2.21/2.15x to 1.48/1.47x its "
+                        "Cramér-Rao bound (mm/deg), 3.7 -> 31.0 ms per frame; three bones jointly: tibia "
+                        "2.21/2.01 -> 2.16/1.46x, talus 1.77/1.58 -> 1.38/1.31x, calcaneus 1.45/1.54 -> "
+                        "1.90/1.40x, 18.3 -> 142 ms per frame. Needs flatfield-corrected frames (a trial "
+                        "without is refused). Default none")
     p.add_argument("--threshold", type=float, default=200.0, help="bone threshold, HU")
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
     p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",
@@ -292,12 +363,16 @@ def run(a: argparse.Namespace) -> int:
     from core.study import Study
     from core.tracking.from_study import FinalStageError, track_study
 
+    checks = check_choices_of_args(a)
     try:
         opts = options_from_choices(search=a.search, scale=a.scale, mode=a.mode, guess=a.guess,
                                     confidence=not a.no_confidence, metric=a.metric, final=a.final,
-                                    max_uncertainty=limits, **check_choices_of_args(a))
+                                    max_uncertainty=limits, **checks)
     except ValueError as exc:
         raise (check_error(exc) or exc) from None
+    note = stage_move_note(checks, a.final)
+    if note:
+        print(f"{PROG} track: {note}", file=sys.stderr)
     token = CancelToken()
     progress = Progress("track", quiet=a.quiet)
     bar = None

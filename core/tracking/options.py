@@ -10,7 +10,8 @@ import numpy as np
 from .checks import COLLAPSE_RATIO, MOTION_FLOOR, MOTION_LIMIT, SIGMA_LIMIT
 from .register import RegistrationOptions
 
-__all__ = ["CHECK_FIELDS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "TrackingOptions"]
+__all__ = ["CHECK_FIELDS", "STAGE_MOVE_FIELDS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
+           "TrackingOptions"]
 
 #: With the final stage: a stage that moves a bone's pose (translation) more than this multiple of
 #: the median move of the bone's last good frames flags the frame ``"uncertain"``
@@ -31,6 +32,18 @@ CHECK_FIELDS = {
     "motion_floor": ("the motion limit is never below this for consecutive frames", "mm, degrees"),
     "sigma_limit": ("a confidence sigma longer than this many times the bone's recent median flags "
                     "(\"uncertain\")", "times the median sigma"),
+}
+
+#: The final stage's move check (with ``refine_likelihood`` only): field name -> (what it is, its
+#: unit), as :data:`CHECK_FIELDS`.
+STAGE_MOVE_FIELDS = {
+    "stage_move_limit": ("a final-stage move (translation) over this many times the median move of the "
+                         "bone's last good frames flags (\"uncertain\")", "times the median move"),
+    "stage_move_sigmas": ("moves of this fraction of the frame's translation sigma or less never flag",
+                          "times the sigma"),
+    "stage_move_frames": ("the bone's good frames with a stage move needed before the check applies",
+                          "frames"),
+    "stage_move_reject": ("a flagged frame keeps the similarity's pose", "True or False"),
 }
 
 _GUESSES = ("previous", "velocity", "spline")

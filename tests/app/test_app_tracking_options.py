@@ -1,6 +1,6 @@
 """Tracking > Tracking options…: the window offers what ``talus track`` offers (search, resolution,
-similarity, mode, guess, final stage, confidence, the failure checks' thresholds), chosen with real
-clicks and keys."""
+similarity, mode, guess, final stage, confidence, the failure checks' thresholds, the final stage's
+move check), chosen with real clicks and keys."""
 
 from __future__ import annotations
 
@@ -212,3 +212,46 @@ def test_advanced_checks_hold_their_ranges_and_ok_refuses_an_invalid_value(qtbot
                      QtCore.Qt.MouseButton.LeftButton)
     assert dialog.isVisible() and dialog.result() == 0  # not accepted
     assert len(warned) == 1 and warned[0].startswith("sigma_limit: expected a factor >= 1"), warned
+
+
+def test_the_final_stage_move_check_is_set_with_the_likelihood_stage_only(qtbot, window):
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    boxes = (dialog.stage_move_limit, dialog.stage_move_sigmas, dialog.stage_move_frames,
+             dialog.keep_stage_moves)
+    defaults = check_choices(None)
+    assert (dialog.stage_move_limit.value(), dialog.stage_move_sigmas.value(),
+            dialog.stage_move_frames.value()) == (defaults["stage_move_limit"], defaults["stage_move_sigmas"],
+                                                  defaults["stage_move_frames"])
+    assert not dialog.keep_stage_moves.isChecked() and defaults["stage_move_reject"]
+    assert not any(b.isEnabled() for b in boxes)  # no final stage: nothing to check
+    assert "--stage-move-limit" in dialog.stage_move_limit.toolTip()
+    _pick(qtbot, dialog.final, "likelihood")
+    assert all(b.isEnabled() for b in boxes)
+    _type(qtbot, dialog.stage_move_limit, "3")
+    _type(qtbot, dialog.stage_move_sigmas, "0.25")
+    _type(qtbot, dialog.stage_move_frames, "8")
+    qtbot.mouseClick(dialog.keep_stage_moves, QtCore.Qt.MouseButton.LeftButton)
+    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
+        qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
+                         QtCore.Qt.MouseButton.LeftButton)
+    opts = window.tracking.options
+    assert opts.refine_likelihood
+    assert (opts.stage_move_limit, opts.stage_move_sigmas, opts.stage_move_frames,
+            opts.stage_move_reject) == (3.0, 0.25, 8, False)
+    assert options_from_choices(**choices_of(opts)) == opts
+    last = window.messages.item(window.messages.count() - 1).text()
+    assert "stage move check 3x (at least 0.25 sigma, after 8 frames), moves kept" in last
+    assert "checks: collapse" not in last  # the failure checks are the defaults
+
+    # re-opened it shows them; back to no final stage they are disabled; Restore defaults resets them
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    assert dialog.choices() == choices_of(opts) and dialog.stage_move_frames.isEnabled()
+    _pick(qtbot, dialog.final, "none")
+    assert not dialog.stage_move_limit.isEnabled() and not dialog.keep_stage_moves.isEnabled()
+    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults),
+                     QtCore.Qt.MouseButton.LeftButton)
+    assert dialog.choices() == choices_of(None)
+    with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
+        qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)

@@ -1,6 +1,8 @@
 """``talus track`` and ``talus batch``: the failure checks' thresholds (--collapse-ratio,
---motion-limit, --motion-floor, --sigma-limit) parsed, checked and handed to the tracker (which is
-not run here), and the likelihood final stage refused after one read of the trial's correction."""
+--motion-limit, --motion-floor, --sigma-limit) and the final stage's move check (--stage-move-limit,
+--stage-move-sigmas, --stage-move-frames, --keep-stage-moves) parsed, checked and handed to the
+tracker (which is not run here), and the likelihood final stage refused after one read of the
+trial's correction."""
 
 from __future__ import annotations
 
@@ -9,12 +11,16 @@ import pytest
 from app.cli import EXIT_NOTHING_DONE, EXIT_OK
 from app.cli import main as talus
 from app.commands import track
-from core.tracking.options import CHECK_FIELDS, TrackingOptions
+from core.tracking.options import CHECK_FIELDS, STAGE_MOVE_FIELDS, TrackingOptions
 from tests.app._helpers import copy_study
 
 FLAGS = ["--collapse-ratio", "0.5", "--motion-limit", "4", "--motion-floor", "0.5,1.5",
          "--sigma-limit", "2.5"]
 GIVEN = {"collapse_ratio": 0.5, "motion_limit": 4.0, "motion_floor": (0.5, 1.5), "sigma_limit": 2.5}
+STAGE_FLAGS = ["--final", "likelihood", "--stage-move-limit", "3", "--stage-move-sigmas", "0.25",
+               "--stage-move-frames", "8", "--keep-stage-moves"]
+STAGE_GIVEN = {"stage_move_limit": 3.0, "stage_move_sigmas": 0.25, "stage_move_frames": 8,
+               "stage_move_reject": False}
 
 
 @pytest.fixture
@@ -39,13 +45,29 @@ def tracker(monkeypatch):
 
 def test_the_command_line_defaults_are_the_trackers():
     o = TrackingOptions()
-    assert set(track.CHECKS) == set(CHECK_FIELDS)
-    assert {k: d for k, (_, d, _) in track.CHECKS.items()} == {k: getattr(o, k) for k in CHECK_FIELDS}
+    fields = {**CHECK_FIELDS, **STAGE_MOVE_FIELDS}
+    assert set(track.CHECKS) == set(fields) and set(track.STAGE_MOVES) == set(STAGE_MOVE_FIELDS)
+    assert {k: d for k, (_, d, _) in track.CHECKS.items()} == {k: getattr(o, k) for k in fields}
     assert track.check_choices(track.options_from_choices()) == track.check_choices(None)
     custom = track.options_from_choices(collapse_ratio=0.5, motion_floor=(0.5, 1.5))
     c = track.choices_of(custom)
     assert c["collapse_ratio"] == 0.5 and c["motion_floor"] == (0.5, 1.5)
     assert track.options_from_choices(**c) == custom  # the choices round-trip
+    staged = track.options_from_choices(final="likelihood", **STAGE_GIVEN)
+    c = track.choices_of(staged)
+    assert {k: c[k] for k in STAGE_GIVEN} == STAGE_GIVEN and type(c["stage_move_frames"]) is int
+    assert track.options_from_choices(**c) == staged
+
+
+def test_help_names_the_move_check_and_its_final_stage(capsys):
+    with pytest.raises(SystemExit):
+        talus(["track", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for flag in ("--stage-move-limit K", "--stage-move-sigmas S", "--stage-move-frames N",
+                 "--keep-stage-moves"):
+        assert flag in text
+    assert "final stage move check" in text and text.count("with --final likelihood only") >= 4
+    assert "default 4" in text and "default 0.5" in text and "default 5" in text
 
 
 def test_talus_track_hands_the_thresholds_to_the_tracker(study, tracker, capsys):
@@ -62,12 +84,29 @@ def test_talus_track_hands_the_thresholds_to_the_tracker(study, tracker, capsys)
     assert replace(custom, **defaults) == plain  # nothing else changed
 
 
+def test_talus_track_hands_the_move_check_to_the_tracker(study, tracker, capsys):
+    args = ["track", str(study), "--trial", "walk", "--frames", "0:1", "--quiet"]
+    assert talus([*args, *STAGE_FLAGS]) == EXIT_NOTHING_DONE
+    assert "no effect" not in capsys.readouterr().err
+    assert talus([*args, "--stage-move-limit", "3"]) == EXIT_NOTHING_DONE  # without the stage: a note
+    err = capsys.readouterr().err
+    assert "--stage-move-limit: no effect without --final likelihood" in err
+    staged, plain = tracker
+    assert staged.refine_likelihood and {k: getattr(staged, k) for k in STAGE_GIVEN} == STAGE_GIVEN
+    assert type(staged.stage_move_frames) is int
+    assert not plain.refine_likelihood and plain.stage_move_limit == 3.0
+
+
 @pytest.mark.parametrize(("flag", "value", "expected"), [
     ("--collapse-ratio", "1.2", "--collapse-ratio: expected a ratio in [0, 1]"),
     ("--motion-limit", "0.5", "--motion-limit: expected a factor >= 1"),
     ("--motion-floor", "1", "--motion-floor: expected MM,DEG"),
     ("--motion-floor", "1,-2", "--motion-floor: expected (mm, degrees), each a number >= 0"),
     ("--sigma-limit", "nan", "--sigma-limit: expected a finite number"),
+    ("--stage-move-limit", "0.5", "--stage-move-limit: expected a factor >= 1"),
+    ("--stage-move-sigmas", "-1", "--stage-move-sigmas: expected a factor >= 0"),
+    ("--stage-move-frames", "2.5", "--stage-move-frames: expected an integer >= 1"),
+    ("--stage-move-frames", "0", "--stage-move-frames: expected an integer >= 1"),
 ])
 def test_bad_thresholds_are_refused_naming_the_option(study, tracker, capsys, flag, value, expected):
     for command in ("track", "batch"):
@@ -80,6 +119,7 @@ def test_bad_thresholds_are_refused_naming_the_option(study, tracker, capsys, fl
 
 def test_talus_batch_hands_the_thresholds_to_every_task(study, monkeypatch, capsys):
     import core.tracking.batch as core_batch
+    from app.commands import batch as batch_command
 
     seen = []
 
@@ -91,11 +131,21 @@ def test_talus_batch_hands_the_thresholds_to_every_task(study, monkeypatch, caps
     assert talus(["batch", str(study), "--workers", "0", "--quiet"]) == EXIT_OK
     assert talus(["batch", str(study), "--workers", "0", "--quiet", *FLAGS]) == EXIT_OK
     capsys.readouterr()
-    plain, custom = seen
+    plain, custom = seen[:2]
     defaults = {k: getattr(TrackingOptions(), k) for k in CHECK_FIELDS}
     for joint in (False, True):
         assert {k: getattr(plain.tracking_options(joint=joint), k) for k in CHECK_FIELDS} == defaults
         assert {k: getattr(custom.tracking_options(joint=joint), k) for k in CHECK_FIELDS} == GIVEN
+    # the move check, with the final stage (every trial must be flatfield-corrected: asked of none here)
+    monkeypatch.setattr(batch_command, "final_stage_problems", lambda tasks: [])
+    assert talus(["batch", str(study), "--workers", "0", "--quiet", *STAGE_FLAGS]) == EXIT_OK
+    assert "no effect" not in capsys.readouterr().err
+    for joint in (False, True):
+        o = seen[2].tracking_options(joint=joint)
+        assert o.refine_likelihood and {k: getattr(o, k) for k in STAGE_GIVEN} == STAGE_GIVEN
+    assert talus(["batch", str(study), "--workers", "0", "--quiet", "--keep-stage-moves"]) == EXIT_OK
+    assert "--keep-stage-moves: no effect without --final likelihood" in capsys.readouterr().err
+    assert seen[3].tracking_options(joint=False).stage_move_reject is False
 
 
 def test_the_final_stage_refusal_reads_the_correction_once(study, monkeypatch, capsys):

@@ -35,7 +35,13 @@ squares of the bone's DRR against the line-integral image on the device
 (:mod:`core.tracking.engine_likelihood`: both high-passed by ``final_highpass_px``, the pixels
 weighted by their expected counts, the gain and an offset fitted linearly, the neighbours of
 ``others`` subtracted at their poses), a few Gauss–Newton steps from the similarity's optimum,
-in the bone's volume box grown by 1 mm.
+in the bone's volume box grown by 1 mm. By default the pixels are weighted robustly
+(:class:`~core.tracking.final_stage.FinalModel`, ``robust=2.5``, the module's ``MODEL``): after
+a first refinement each pixel's weight falls (Cauchy) where the local residual RMS is over 2.5 ×
+its view's median — structure the model lacks — and the pose is refined again; ``robust=None`` is
+the plain stage. The similarity search before it may take the quantum noise's share out of the
+gradient magnitudes (``noise_correction``, opt-in, below); the stage itself weights pixels by
+their expected counts either way.
 The result's ``fit`` is then a :class:`~core.tracking.final_stage.LikelihoodFit` whose
 confidence (:func:`core.tracking.confidence.confidence_from_fit`) is the sandwich covariance of
 the refinement (the residual's autocorrelation accounted for); ``score`` stays the similarity's.

@@ -226,7 +226,17 @@ def _smoothed_gradient_full(img, sigma: float, operator: str):
 
     img = np.asarray(img, dtype=np.float64)
     if sigma > 0:
-        img = ndimage.gaussian_filter(img, sigma, mode="constant", truncate=4.0)
+        k = img.shape[0]
+        c = k // 2
+        if img.shape == (k, k) and k % 2 and img[c, c] == 1.0 and np.count_nonzero(img) == 1:
+            # a centred delta (_patch_kernels): the two passes' product of the 1-D weights, as
+            # gaussian_filter gives it, without its 2-D passes
+            d = np.zeros(k)
+            d[c] = 1.0
+            g = ndimage.gaussian_filter1d(d, sigma, mode="constant", truncate=4.0)
+            img = np.outer(g, g)
+        else:
+            img = ndimage.gaussian_filter(img, sigma, mode="constant", truncate=4.0)
     gu, gv = gradient(img, operator=operator)
     return img, gu, gv
 

@@ -43,14 +43,23 @@ class FrameFeed:
         # the prepared frames handed out last: the noise samples they drew are drawn for the next
         # frame in the worker thread (FrameImages.prepare_noise)
         self.current_frame = self.previous_frame = None
+        self.noise_pool = None
 
     def _prepare(self, imgs: list, noise=()):
         if any(im is None for im in imgs):
             return None
         frame = prepare_frame(imgs, valid_range=self.valid_range, erode_px=self.erode_px)
         if noise:
-            try:
-                frame.prepare_noise(noise)
+            try:  # a thread per view and radius (numpy releases the GIL in their large steps)
+                if len(noise) > 1:
+                    if self.noise_pool is None:
+                        from concurrent.futures import ThreadPoolExecutor
+
+                        self.noise_pool = ThreadPoolExecutor(4, thread_name_prefix="talus-noise")
+                    for fut in [self.noise_pool.submit(frame.prepare_noise, [k]) for k in noise]:
+                        fut.result()
+                else:
+                    frame.prepare_noise(noise)
             except Exception:  # drawn again, and raised there, when the cost asks for them
                 pass
         return frame
@@ -101,6 +110,8 @@ class FrameFeed:
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
+        if self.noise_pool is not None:
+            self.noise_pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _share(a: Sequence, b: Sequence) -> bool:

@@ -81,10 +81,11 @@ def hard(*, n_frames: int = 12, pixels: int = 1024, spacing: float = 0.5, seed: 
 
 
 def acceptance(*, n_frames: int = 20, pixels: int = 1024, spacing: float = 0.5, repeats: int = 3,
-               bound: bool = True) -> dict:
+               bound: bool = True, inline: bool = False) -> dict:
     """The walking trial's benchmark cases (:func:`core.studies.tracking.benchmark._case`) with
     the correction off and on, and the estimate's time per view (``bound=False``: without the
-    Cramér–Rao bound, the speed alone)."""
+    Cramér–Rao bound, the speed alone; ``inline``: also ``corrected_inline``, the correction with
+    the noise samples drawn in the registering thread, as before the frame look-ahead drew them)."""
     from core.similarity.gradient import _patch_radius, noise_energy_of_samples, noise_samples
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
     from core.studies.tracking.benchmark import _case
@@ -108,14 +109,23 @@ def acceptance(*, n_frames: int = 20, pixels: int = 1024, spacing: float = 0.5, 
     out: dict = {"bound": bound, "estimate": {"sigma_px": sig, "E1": energies,
                                               "ms_per_view_median": 1e3 * float(np.median(times)),
                                               "ms_per_view_max": 1e3 * float(np.max(times))}, "runs": {}}
+    from core.tracking.feed import FrameFeed
+
     base = TrackingOptions(mode="joint")
-    for nc in (False, True):
+    keys = FrameFeed._noise_keys
+    for label in ("plain", "corrected") + (("corrected_inline",) if inline else ()):
+        nc = label != "plain"
         o = replace(base, registration=replace(base.registration, search="newton", noise_correction=nc))
-        for case, bones in (("one_bone", [1]), ("three_bones", [0, 1, 2])):
-            r = _case(ts, bones, o, n, int(repeats), bound)
-            out["runs"][f"{'corrected' if nc else 'plain'}/{case}"] = r
-            ms = r["end_to_end"]["ms_per_frame_after_first"]
-            _log(t0, "corrected" if nc else "plain", case, round(ms, 2), "ms per frame")
+        if label == "corrected_inline":  # nothing drawn ahead
+            FrameFeed._noise_keys = lambda self: ()
+        try:
+            for case, bones in (("one_bone", [1]), ("three_bones", [0, 1, 2])):
+                r = _case(ts, bones, o, n, int(repeats), bound)
+                out["runs"][f"{label}/{case}"] = r
+                ms = r["end_to_end"]["ms_per_frame_after_first"]
+                _log(t0, label, case, round(ms, 2), "ms per frame")
+        finally:
+            FrameFeed._noise_keys = keys
     return out
 
 
@@ -128,6 +138,8 @@ def main(argv=None) -> int:
     p.add_argument("--hard-frames", type=int, default=12)
     p.add_argument("--acceptance-frames", type=int, default=20)
     p.add_argument("--no-bound", action="store_true", help="acceptance: speed alone (no Cramér–Rao bound)")
+    p.add_argument("--inline", action="store_true",
+                   help="acceptance: also the correction with the noise drawn in the registering thread")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import print_json
@@ -138,7 +150,7 @@ def main(argv=None) -> int:
         res["hard"] = hard(n_frames=a.hard_frames, pixels=a.pixels, spacing=a.voxel)
     if "acceptance" in parts:
         res["acceptance"] = acceptance(n_frames=a.acceptance_frames, pixels=a.pixels, spacing=a.voxel,
-                                       bound=not a.no_bound)
+                                       bound=not a.no_bound, inline=a.inline)
     print_json(res, a.out)
     return 0
 

@@ -93,9 +93,13 @@ continues. With ``max_uncertainty = (mm, degrees)`` a frame whose per-frame conf
 of its σ vector in translation or rotation) exceeds either limit, or is not well posed, is flagged
 ``"uncertain"`` as well (recorded, not retried, still used for the guesses): registrations in the
 noise's tail are then sent for review instead of passing silently. With the final stage
-(``refine_likelihood``) a frame whose stage moved the pose far more than it moved the bone's recent
-good frames is flagged ``"uncertain"`` too (the similarity and the weighted least-squares fit
-disagree; :func:`core.tracking.frame_step.stage_move_check`, whose module docs give what it caught).
+(``refine_likelihood``) a frame whose stage moved the pose (translation) more than
+``stage_move_limit`` × the median move of the bone's last good frames, and more than
+``stage_move_sigmas`` × its own translation σ, is flagged ``"uncertain"`` too, once the bone has
+``stage_move_frames`` such frames (the similarity and the weighted least-squares fit disagree;
+:func:`core.tracking.frame_step.stage_move_check`, whose module docs give what it caught); with
+``stage_move_reject`` (the default) that frame keeps the similarity's pose — the stage's move is
+rejected and the flag says so.
 
 Three checks judge a frame by the bone's own track (:mod:`core.tracking.checks`): ``"unexpected
 motion"`` — the pose farther from the constant-velocity prediction of the bone's last two good poses
@@ -112,6 +116,13 @@ left out, the velocity guesses extrapolated over the gap, 12-36° off in frames 
 was lost from frame 46); and, while a bone has no good frame yet (its first frame flagged), a score
 below ``min_score_ratio`` × the first flagged frame's is flagged ``"low score against the flagged
 first frame"`` instead of passing unjudged.
+
+The thresholds are :class:`TrackingOptions` fields, defaulting to the module constants named
+above: ``collapse_ratio`` (:data:`~core.tracking.checks.COLLAPSE_RATIO`), ``motion_limit``,
+``motion_floor`` (mm, degrees), ``sigma_limit`` (:data:`~core.tracking.options.CHECK_FIELDS`) and
+the final stage's ``stage_move_limit``, ``stage_move_sigmas``, ``stage_move_frames``,
+``stage_move_reject`` (:data:`~core.tracking.options.STAGE_MOVE_FIELDS`); ``talus track`` and
+the window's *Tracking options* dialog set them.
 
 ``confidence_scale`` multiplies every frame's confidence σ: the curvature construction is a
 scale, not a calibrated standard error, and a factor measured on a trial with ground truth

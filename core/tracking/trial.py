@@ -96,10 +96,10 @@ noise's tail are then sent for review instead of passing silently. With the fina
 (``refine_likelihood``) a frame whose stage moved the pose (translation) more than
 ``stage_move_limit`` × the median move of the bone's last good frames, and more than
 ``stage_move_sigmas`` × its own translation σ, is flagged ``"uncertain"`` too, once the bone has
-``stage_move_frames`` such frames (the similarity and the weighted least-squares fit disagree;
-:func:`core.tracking.frame_step.stage_move_check`, whose module docs give what it caught); with
-``stage_move_reject`` (the default) that frame keeps the similarity's pose — the stage's move is
-rejected and the flag says so.
+``stage_move_frames`` good frames with a move (the similarity and the weighted least-squares fit
+disagree; :func:`core.tracking.frame_step.stage_move_check`, whose module docs give what it
+caught); with ``stage_move_reject`` (the default) that frame keeps the similarity's pose — the
+stage's move is rejected and the flag says so.
 
 Three checks judge a frame by the bone's own track (:mod:`core.tracking.checks`): ``"unexpected
 motion"`` — the pose farther from the constant-velocity prediction of the bone's last two good poses

@@ -73,7 +73,7 @@ import numpy as np
 
 from ..render import HUTransfer
 from .bones import bone_model
-from .options import CHECK_FIELDS
+from .options import CHECK_FIELDS, STAGE_MOVE_FIELDS
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
 __all__ = ["FULL_SCALE", "FinalStageError", "final_stage_problem", "flatfield_corrected", "frame_reader",
@@ -239,6 +239,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
               "stopped": stopped, "options": {"resume": resume,
                                               "mode": options.mode,
                                               "checks": {k: getattr(options, k) for k in CHECK_FIELDS}}}
+    if options.refine_likelihood:  # the final stage's move check flagged (or rejected) with these
+        report["options"]["stage_move_check"] = {k: getattr(options, k) for k in STAGE_MOVE_FIELDS}
     if not models:
         report["summary"] = {"status": "stopped", "message": "no bone to track"}
         study.write_report("tracking", report_name, report)

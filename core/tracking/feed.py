@@ -13,9 +13,13 @@ nothing more is read ahead: each frame is read at its turn, as without the look-
 
 The worker also draws the next frame's noise samples (the noise correction's ``E₁`` estimate,
 :meth:`~core.tracking.cost.FrameImages.prepare_noise`) for the views and patch sizes the frames
-before it drew them for — one set per view and patch radius, about a millisecond per 1024² view
-on the H200 machine's host, two radii per view when three bones are tracked jointly — so the
-registration finds them drawn; the values are those it would draw itself.
+before it drew them for, each in a thread of its own — one set per view and patch radius (1.2 ms
+per 1024² view on the H200 machine's host, 2.0 ms on the H100 machines'; two radii per view when
+three bones are tracked jointly) — so the registration finds them drawn; the values are those it
+would draw itself. On one H100 (1024², 20 frames) that took three bones jointly from 22.8 to
+19.7 ms per frame with the correction (13.5 without); one bone stayed at 9.0-9.5 ms (3.8-5.1
+without): the threads' numpy work still slows the registering thread (the GIL), and the worker
+does not finish within a 5 ms registration (``resources/benchmarks/tracking_noise_speed_h100.json``).
 """
 
 from __future__ import annotations

@@ -17,7 +17,9 @@ other defaults):
   estimate per view.
 
 Results: ``resources/benchmarks/tracking_noise_energy_h200.json`` (one NVIDIA H200, 1024², 0.5 mm
-voxels; 12 hard frames, 20 acceptance frames). JSON on stdout (and ``--out``).
+voxels; 12 hard frames, 20 acceptance frames); the speed with the noise samples drawn by the frame
+look-ahead (``--parts acceptance --no-bound --inline``): ``tracking_noise_speed_h100.json`` (one
+NVIDIA H100). JSON on stdout (and ``--out``).
 """
 
 from __future__ import annotations

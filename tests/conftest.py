@@ -10,10 +10,18 @@
   ``xvfb-run``; see README).
 * The ``sample_data`` fixture gives the real-data folder (``../shared/data`` next to the project
   or ``$TALUS_SAMPLE_DATA``) and skips the test when it is absent.
+* With pytest-xdist (``-n 2 --dist loadgroup``, as CI's ``.ci/run`` runs the suite) the tests are
+  sent to the workers in groups (:func:`pytest_xdist_make_scheduler`): a file's tests stay
+  together (its module fixtures are built once), files that share an expensive session fixture
+  share a group (the fixture is built by one worker only), and every GUI test (marked ``gui`` or
+  using pytest-qt) is in one group, so windows never open on the shared X display from two
+  processes at once. Each worker has its own XDG cache and settings folders; Warp's kernel cache is
+  shared (Warp builds a module in a folder of its own process and renames it into place).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import sys
@@ -35,13 +43,17 @@ def pytest_configure(config: pytest.Config) -> None:
     _session_cache.update(
         root=root, owned=owned, saved={k: os.environ.get(k) for k in _CACHE_VARS}
     )
-    os.environ["XDG_CACHE_HOME"] = str(root / "xdg")
-    os.environ["TALUS_SETTINGS_DIR"] = str(root / "settings")  # never the user's own settings
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")  # "gw0", "gw1"... under pytest-xdist
+    own = root / worker if worker else root
+    os.environ["XDG_CACHE_HOME"] = str(own / "xdg")
+    os.environ["TALUS_SETTINGS_DIR"] = str(own / "settings")  # never the user's own settings
     # compiled kernels only depend on their source and Warp's version (its own subfolder)
     os.environ["WARP_CACHE_PATH"] = os.environ.get("TALUS_TEST_KERNEL_CACHE") or str(root / "warp")
     if has_display():
         # VTK's Qt interactor needs X11 (Qt's offscreen/wayland platforms are not reliable)
         os.environ.setdefault("QT_QPA_PLATFORM", "xcb")
+    if not worker and getattr(config.option, "dist", "no") == "loadgroup":  # xdist's controller
+        os.environ[_GROUPS_FILE] = str(root / "xdist_groups.json")  # its workers inherit this
     if "warp" in sys.modules:  # imported by a plugin before us: point its config there too
         sys.modules["warp"].config.kernel_cache_dir = os.environ["WARP_CACHE_PATH"]
 
@@ -74,7 +86,7 @@ def _gui_skip_reason() -> str | None:
     return None
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+def _skip_gui_without_display(items: list[pytest.Item]) -> None:
     reason = _gui_skip_reason()
     if reason is None:
         return
@@ -82,6 +94,73 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if "gui" in item.keywords:
             item.add_marker(skip)
+
+
+# The tests' own session fixtures cheap enough to build in every worker: they do not tie files to one
+# xdist group (plugins' session fixtures, such as pytest-qt's qapp, never do).
+_CHEAP_SESSION_FIXTURES = frozenset({"sample_data", "wrist", "rng", "rig", "sizes", "smooth_pair"})
+_GROUPS_FILE = "TALUS_XDIST_GROUPS"  # where the workers write the groups for the controller
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    _skip_gui_without_display(items)
+    path = os.environ.get(_GROUPS_FILE)
+    if path and os.environ.get("PYTEST_XDIST_WORKER"):
+        groups = json.dumps(_xdist_groups(items), indent=0, sort_keys=True)
+        tmp = Path(f"{path}.{os.environ['PYTEST_XDIST_WORKER']}")
+        tmp.write_text(groups)
+        os.replace(tmp, path)  # every worker collects the same tests, so writes the same groups
+
+
+def _xdist_groups(items: list[pytest.Item]) -> dict[str, str]:
+    """``{test file: group}``: a file's tests form one group, merged with the files that share one
+    of its expensive session fixtures, and one group holds every GUI test (see the module doc)."""
+    parent: dict[str, str] = {}
+
+    def find(x: str) -> str:
+        while parent.setdefault(x, x) != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    def union(a: str, b: str) -> None:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+
+    for item in items:
+        file = item.nodeid.split("::")[0]
+        find(file)
+        if item.get_closest_marker("gui") or {"qtbot", "qapp"} & set(getattr(item, "fixturenames", ())):
+            union(file, "gui")
+        info = getattr(item, "_fixtureinfo", None)
+        for name, defs in (info.name2fixturedefs.items() if info else ()):
+            own = defs and defs[-1].baseid.startswith("tests")  # defined in a conftest.py here
+            if own and defs[-1].scope == "session" and name not in _CHEAP_SESSION_FIXTURES:
+                union(file, f"fixture {defs[-1].baseid}::{name}")
+    return {file: find(file) for file in list(parent) if file.endswith(".py")}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``--dist loadgroup``: xdist's scheduling by scope, a scope being a group of
+    :func:`_xdist_groups` (xdist's own ``xdist_group`` marks do not reach the controller with
+    pytest 9, whose node ids it can no longer change)."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GroupScheduling(LoadScopeScheduling):
+        groups: dict[str, str] | None = None
+
+        def _split_scope(self, nodeid: str) -> str:
+            file = nodeid.split("::")[0]
+            if self.groups is None:  # written by the workers before they sent their collection
+                groups_file = Path(os.environ[_GROUPS_FILE])
+                self.groups = json.loads(groups_file.read_text()) if groups_file.is_file() else {}
+            return self.groups.get(file, file)
+
+    return GroupScheduling(config, log)
 
 
 def sample_data_dir() -> Path:

@@ -56,15 +56,21 @@ class FrameFeed:
         if noise:
             try:  # a thread per view and radius (numpy releases the GIL in their large steps)
                 if len(noise) > 1:
+                    from concurrent.futures import wait
+
                     if self.noise_pool is None:
                         from concurrent.futures import ThreadPoolExecutor
 
                         self.noise_pool = ThreadPoolExecutor(4, thread_name_prefix="talus-noise")
-                    for fut in [self.noise_pool.submit(frame.prepare_noise, [k]) for k in noise]:
+                    futs = [self.noise_pool.submit(frame.prepare_noise, [k]) for k in noise]
+                    # every draw finished, failed or not, before the frame is handed over: the
+                    # registering thread then fills its noise dict alone
+                    wait(futs)
+                    for fut in futs:
                         fut.result()
                 else:
                     frame.prepare_noise(noise)
-            except Exception:  # drawn again, and raised there, when the cost asks for them
+            except Exception:  # a failed draw is drawn again, and raised there, when the cost asks for it
                 pass
         return frame
 

@@ -63,3 +63,30 @@ def test_a_reader_that_refills_one_buffer_is_read_at_each_frames_turn():
         assert calls == [0, 1, 0, 1]
     finally:
         feed.close()
+
+
+def test_noise_draws_all_finish_before_the_frame_is_handed_over(monkeypatch):
+    """A failed noise draw (view, radius) does not hand the frame over while another view's draw
+    still writes its noise samples from a worker thread."""
+    import threading
+    import time
+
+    from core.tracking.cost import FrameImages
+    from core.tracking.feed import FrameFeed
+
+    done = threading.Event()
+
+    def prepare_noise(self, keys):
+        (v, _r), = keys
+        if v == 0:
+            raise RuntimeError("draw failed")
+        time.sleep(0.2)
+        done.set()
+
+    monkeypatch.setattr(FrameImages, "prepare_noise", prepare_noise)
+    feed = FrameFeed(lambda f: [np.full((8, 8), 0.5, np.float32)] * 2, (0.02, 0.999), 0)
+    try:
+        frame = feed._prepare(feed.frames(0), ((0, 2), (1, 2)))
+        assert isinstance(frame, FrameImages) and done.is_set()
+    finally:
+        feed.close()

@@ -82,8 +82,8 @@ def test_wizard_session_cube_frame_is_labelled_in_both_views():
 def test_demo_session_crowded_cube_view_is_labelled():
     """The 512² demo session's cube frame, view 2: 40 detections, 9 of the smallest bead size of
     which 4 are beads. The session's sampling (rng 0) used to end on a wrong labelling (7 labelled,
-    2 right; only the transfer from view 1 rescued the frame); the extra rounds label it right."""
+    2 right; only the transfer from view 1 rescued the frame: resources/benchmarks/
+    calibration_labelling_cube_seeds.json); the extra rounds label it right."""
     tg, dets, _, truth = _cube_frame(DEMO_CUBE)
-    assert not _right(label_ransac(tg, dets[1], extra_rounds=0), truth[1])
     lab = label_ransac(tg, dets[1])
     assert _right(lab, truth[1]) and lab.n_labelled >= 14

@@ -23,7 +23,8 @@ frames are only divided by the full scale is refused (exit 1) before any trackin
 (:class:`core.tracking.from_study.FinalStageError`: the trial's correction is read once, by the
 tracker).
 The JSON summary then says in how many bone-frames the refinement was kept (``"final_stage"``: a
-refinement that moves the pose too far, or fails, leaves the similarity's pose). The options come
+refinement that moves the pose too far, or fails, leaves the similarity's pose; ``"rejected"``
+counts those the move check below sent back to it). The options come
 from :func:`options_from_choices`, which the window's *Tracking options* dialog
 (:mod:`app.tracking_options`) uses too.
 
@@ -344,13 +345,14 @@ class _Bar:
 
     def __init__(self, progress: Progress) -> None:
         self.progress = progress
-        self.final = [0, 0]  # bone-frames the final stage ran on, and of those, took
+        self.final = [0, 0, 0]  # bone-frames the final stage ran on, of those took, and rejected
 
     def __call__(self, done: int, total: int, fr) -> None:
         taken = (fr.timing or {}).get("likelihood_taken")
         if taken is not None:
             self.final[0] += 1
             self.final[1] += int(taken)
+            self.final[2] += int(bool((fr.timing or {}).get("likelihood_rejected")))
         self.progress(done, total, f"{text_bar(done, total, 30)} {fr.bone}@{fr.frame} score {fr.score:.3f}")
         if fr.flags:
             self.progress.note(f"flagged {fr.bone}@{fr.frame}: {', '.join(map(str, fr.flags))}")
@@ -405,11 +407,17 @@ def run(a: argparse.Namespace) -> int:
            "flagged": [(f["bone"], f["frame"], f["flags"]) for f in report.get("flagged", [])],
            "normalisation": report.get("normalisation")}
     if a.final == "likelihood" and bar is not None:
-        ran, took = bar.final  # a refinement that moves the pose beyond final_reach, or fails, is not kept
-        out["final_stage"] = {"method": "likelihood", "bone_frames": ran, "refined": took}
+        # a refinement that moves the pose beyond final_reach, or fails, is not kept, nor one the move
+        # check rejected (stage_move_reject)
+        ran, took, rejected = bar.final
+        out["final_stage"] = {"method": "likelihood", "bone_frames": ran, "refined": took,
+                              "rejected": rejected}
         if ran > took:
+            why = "it moved them too far or failed"
+            if rejected:
+                why += f"; the move check rejected it in {rejected}"
             print(f"{PROG} track: the likelihood refinement was kept in {took} of {ran} bone-frames; the "
-                  "others keep the similarity's pose (it moved them too far or failed)", file=sys.stderr)
+                  f"others keep the similarity's pose ({why})", file=sys.stderr)
     print_json(out)
     if cancelled:
         print(f"{PROG} track: cancelled; the poses finished so far are saved "

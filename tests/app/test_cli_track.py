@@ -100,10 +100,11 @@ def test_final_reaches_the_tracking_options(demo, capsys, monkeypatch):
 
     def fake_track_study(study, trial, bones, frames, *, options, progress, **kw):
         seen.append(options)
-        if options.refine_likelihood:  # one bone-frame refined, one left at the similarity's pose
-            for k, taken in enumerate((1, 0)):
-                progress(k + 1, 2, FrameResult("talus", k, np.eye(4), 0.9, 10, 0.1, True,
-                                               timing={"likelihood_taken": taken}))
+        if options.refine_likelihood:  # one bone-frame refined, one left at the similarity's pose, one
+            # whose move the move check rejected
+            for k, (taken, rej) in enumerate(((1, 0), (0, 0), (0, 1))):
+                timing = {"likelihood_taken": taken, "likelihood_rejected": rej}
+                progress(k + 1, 3, FrameResult("talus", k, np.eye(4), 0.9, 10, 0.1, True, timing=timing))
         return None, {"summary": {"status": "stopped"}}
 
     monkeypatch.setattr(from_study, "track_study", fake_track_study)
@@ -114,8 +115,9 @@ def test_final_reaches_the_tracking_options(demo, capsys, monkeypatch):
     assert "final_stage" not in json.loads(capsys.readouterr().out)
     assert main([*args, "--final", "likelihood"]) == EXIT_NOTHING_DONE
     out = capsys.readouterr()
-    assert json.loads(out.out)["final_stage"] == {"method": "likelihood", "bone_frames": 2, "refined": 1}
-    assert "kept in 1 of 2 bone-frames" in out.err
+    assert json.loads(out.out)["final_stage"] == {"method": "likelihood", "bone_frames": 3, "refined": 1,
+                                                  "rejected": 1}
+    assert "kept in 1 of 3 bone-frames" in out.err and "the move check rejected it in 1" in out.err
     plain, final = seen
     reg = RegistrationOptions(terms=track.registration_terms("components"), bounds=(5.0, 5.0),
                               sigma=(1.0, 1.0), search="newton", final_scale=2.0)

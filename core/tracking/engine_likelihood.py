@@ -686,6 +686,14 @@ class LikelihoodEngine:
         """The robust factors of the weighted residual at the centre of the last step's design
         (``s``: that :meth:`step`'s result) and the current weights' usable pixels, on the device
         (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
+        e, _ = self._residual_device(s)
+        return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
+                                     bufs=self._bufs)
+
+    def _residual_device(self, s: dict) -> tuple:
+        """``(e, jt)`` on the device: the weighted residual ``e = √w (y - A coef)`` and its
+        projections at the centre of the last step's design (``s``: that :meth:`step`'s result;
+        :func:`residual_kernel`), in the engine's buffers ``"e"`` and ``"jt"``."""
         img, low, _, _ = self._last
         nv, (Hc, Wc) = self.n_views, self._cap
         hp = 1.0 if self.highpass_px else 0.0
@@ -694,8 +702,7 @@ class LikelihoodEngine:
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
         wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=self.device,
                   inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt])
-        return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
-                                     bufs=self._bufs)
+        return e, jt
 
     def support(self, x=None) -> np.ndarray:
         """``(views, H, W)`` the bone's DRR at ``x`` (default the base pose) in the regions'
@@ -710,28 +717,14 @@ class LikelihoodEngine:
     def residual(self, s: dict) -> np.ndarray:
         """``(views, H, W)`` the weighted residual ``e = √w (y - A coef)`` at the centre of the last
         step's design (``s``: that :meth:`step`'s result), on the host (0 where unused)."""
-        img, low, _, _ = self._last
-        nv, (Hc, Wc) = self.n_views, self._cap
-        hp = 1.0 if self.highpass_px else 0.0
-        lin = wp.array(s["lin"].astype(np.float32), dtype=wp.float32, device=self.device)
-        e = self._buffer("e", (nv, Hc, Wc))
-        jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
-        wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=self.device,
-                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt])
-        return e.numpy()
+        return self._residual_device(s)[0].numpy()
 
     def sandwich(self, s: dict, Hinv: np.ndarray) -> np.ndarray:
         """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`)."""
         t0 = time.perf_counter()
-        img, low, _, _ = self._last
         nv, (Hc, Wc) = self.n_views, self._cap
         dev = self.device
-        hp = 1.0 if self.highpass_px else 0.0
-        lin = wp.array(s["lin"].astype(np.float32), dtype=wp.float32, device=dev)
-        e = self._buffer("e", (nv, Hc, Wc))
-        jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
-        wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=dev,
-                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt])
+        e, jt = self._residual_device(s)
         L = self.lag_px
         nl = (2 * L + 1) ** 2
         cov = wp.zeros((nv, nl, 2), dtype=wp.float64, device=dev)

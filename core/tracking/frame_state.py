@@ -101,7 +101,10 @@ class _BoneState:
         if not fr.flags:
             self.add_good(frame, fr.pose, fr.score, fr.confidence)
             t = fr.timing or {}
-            if t.get("likelihood_taken") and t.get("likelihood_move_mm") is not None:
+            # one stage taken: a frame's timing holds its kept registration's outcome; results
+            # written before it did (resumed) summed the stage's moves over a frame's
+            # registrations (joint rounds, retries), a taken count above 1, and are left out
+            if t.get("likelihood_taken") == 1 and t.get("likelihood_move_mm") is not None:
                 self.moves.append(float(t["likelihood_move_mm"]))
         elif all(x.startswith("uncertain") for x in fr.flags):
             self.add_good(frame, fr.pose, fr.score)

@@ -351,7 +351,7 @@ class _Bar:
         taken = (fr.timing or {}).get("likelihood_taken")
         if taken is not None:
             self.final[0] += 1
-            self.final[1] += int(taken)
+            self.final[1] += int(bool(taken))  # older results: summed over registrations
             self.final[2] += int(bool((fr.timing or {}).get("likelihood_rejected")))
         self.progress(done, total, f"{text_bar(done, total, 30)} {fr.bone}@{fr.frame} score {fr.score:.3f}")
         if fr.flags:

@@ -205,7 +205,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     read, how = frame_reader(study, trial, correction=correction)  # read once: the refusal and the mode
     if options is None:
         options = TrackingOptions(mode="auto")
-    if "likelihood" in (options.registration.final, getattr(options.first, "final", None)):
+    likelihood = "likelihood" in (options.registration.final, getattr(options.first, "final", None))
+    if likelihood:
         problem = _final_stage_note(trial_name, how)
         if problem:
             raise FinalStageError(problem)
@@ -239,7 +240,7 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
               "stopped": stopped, "options": {"resume": resume,
                                               "mode": options.mode,
                                               "checks": {k: getattr(options, k) for k in CHECK_FIELDS}}}
-    if options.refine_likelihood:  # the final stage's move check flagged (or rejected) with these
+    if likelihood:  # the final stage's move check flagged (or rejected) with these
         report["options"]["stage_move_check"] = {k: getattr(options, k) for k in STAGE_MOVE_FIELDS}
     if not models:
         report["summary"] = {"status": "stopped", "message": "no bone to track"}

@@ -54,6 +54,11 @@ def pytest_configure(config: pytest.Config) -> None:
         os.environ.setdefault("QT_QPA_PLATFORM", "xcb")
     if not worker and getattr(config.option, "dist", "no") == "loadgroup":  # xdist's controller
         os.environ[_GROUPS_FILE] = str(root / "xdist_groups.json")  # its workers inherit this
+        if sys.flags.utf8_mode:
+            # as this process: Python started in the C locale reads and writes text as UTF-8 even
+            # after a library sets the C locale again (a worker, started in the C.UTF-8 locale
+            # this process chose, decoded a child's UTF-8 help text as ASCII)
+            os.environ.setdefault("PYTHONUTF8", "1")
     if "warp" in sys.modules:  # imported by a plugin before us: point its config there too
         sys.modules["warp"].config.kernel_cache_dir = os.environ["WARP_CACHE_PATH"]
 

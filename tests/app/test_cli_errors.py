@@ -21,7 +21,7 @@ def _imports_after(code: str) -> list[str]:
     """Heavy modules in ``sys.modules`` after running ``code`` in a fresh interpreter."""
     probe = (f"import sys\n{code}\n"
              f"print([m for m in {HEAVY!r} if m in sys.modules])\n")
-    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, encoding="utf-8",
                           timeout=120, cwd=ROOT)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1].replace("'", '"'))
@@ -101,7 +101,7 @@ def test_a_locked_bone_from_a_second_process(demo):
         st.lock_journal("walk", "talus")
         done = subprocess.run([sys.executable, "-m", "app.cli", "track", str(demo), "--trial",
                                "walk", "--bones", "talus", "--quiet"],
-                              capture_output=True, text=True, timeout=120, cwd=ROOT)
+                              capture_output=True, encoding="utf-8", timeout=120, cwd=ROOT)
     assert done.returncode == EXIT_LOCKED, done.stderr
     assert "Traceback" not in done.stderr and str(demo) in done.stderr
     assert f"process {os.getpid()}" in done.stderr

@@ -3,7 +3,8 @@
 #
 #   bash installer/dev.sh demo [talus demo options]   venv + GUI extra, then `talus demo --out demo_out`
 #   bash installer/dev.sh test [pytest options]       system packages, venv + test extra, ruff,
-#                                                     import contracts, pytest under Xvfb
+#                                                     import contracts, pytest under Xvfb (no
+#                                                     options: two worker processes, see cmd_test)
 #   bash installer/dev.sh gui  [talus gui options]    venv + GUI extra, then open the window
 #   bash installer/dev.sh bundle                      venv + GUI extra, then the standalone folder
 #                                                     dist/talus (installer/build.sh bundle)
@@ -170,6 +171,13 @@ cmd_test() {
     log "lint-imports (import contracts in pyproject.toml)"
     "$VENV/bin/lint-imports" || status=$?
 
+    # with no pytest options the tests run in $TALUS_TEST_WORKERS processes (pytest-xdist, default
+    # 2; 1 = one process): tests/conftest.py keeps a file's tests, the files sharing an expensive
+    # session fixture, and every GUI test (one X display) in one worker
+    local workers="${TALUS_TEST_WORKERS:-2}"
+    if [ "$#" -eq 0 ] && [ "$workers" -gt 1 ]; then
+        set -- -n "$workers" --dist loadgroup
+    fi
     log "pytest $*"
     local pytest_status=0
     if command -v xvfb-run >/dev/null 2>&1; then

@@ -10,7 +10,7 @@
   ``xvfb-run``; see README).
 * The ``sample_data`` fixture gives the real-data folder (``../shared/data`` next to the project
   or ``$TALUS_SAMPLE_DATA``) and skips the test when it is absent.
-* With pytest-xdist (``-n 2 --dist loadgroup``, as CI's ``.ci/run`` runs the suite) the tests are
+* With pytest-xdist (``-n 2 --dist loadgroup``, as ``installer/dev.sh test`` and so CI's ``.ci/run`` run the suite) the tests are
   sent to the workers in groups (:func:`pytest_xdist_make_scheduler`): a file's tests stay
   together (its module fixtures are built once), files that share an expensive session fixture
   share a group (the fixture is built by one worker only), and every GUI test (marked ``gui`` or

@@ -10,13 +10,14 @@
   ``xvfb-run``; see README).
 * The ``sample_data`` fixture gives the real-data folder (``../shared/data`` next to the project
   or ``$TALUS_SAMPLE_DATA``) and skips the test when it is absent.
-* With pytest-xdist (``-n 2 --dist loadgroup``, as ``installer/dev.sh test`` and so CI's ``.ci/run`` run the suite) the tests are
-  sent to the workers in groups (:func:`pytest_xdist_make_scheduler`): a file's tests stay
-  together (its module fixtures are built once), files that share an expensive session fixture
-  share a group (the fixture is built by one worker only), and every GUI test (marked ``gui`` or
-  using pytest-qt) is in one group, so windows never open on the shared X display from two
-  processes at once. Each worker has its own XDG cache and settings folders; Warp's kernel cache is
-  shared (Warp builds a module in a folder of its own process and renames it into place).
+* With pytest-xdist (``-n 2 --dist loadgroup``, as ``installer/dev.sh test`` and so CI's
+  ``.ci/run`` run the suite) the tests are sent to the workers in groups
+  (:func:`pytest_xdist_make_scheduler`): a file's tests stay together (its module fixtures are
+  built once), files that share an expensive session fixture share a group (the fixture is built
+  by one worker only), and every GUI test (marked ``gui`` or using pytest-qt) is in one group, so
+  windows never open on the shared X display from two processes at once. Each worker has its own
+  XDG cache and settings folders; Warp's kernel cache is shared (Warp builds a module in a folder
+  of its own process and renames it into place).
 """
 
 from __future__ import annotations

@@ -44,9 +44,11 @@ class FrameFeed:
         self.ahead = None  # (frame, images, future of the prepared frame)
         self.current: tuple[int, list] | None = None  # the frame being registered and its images
         self.refills = False  # the callable refills one buffer: no look-ahead
-        # the prepared frames handed out last: the noise samples they drew are drawn for the next
-        # frame in the worker thread (FrameImages.prepare_noise)
-        self.current_frame = self.previous_frame = None
+        # the prepared frame handed out last and the noise samples the one before it drew: those
+        # are drawn for the next frame in the worker thread (FrameImages.prepare_noise); only the
+        # keys of the one before are kept, not the frame
+        self.current_frame = None
+        self.previous_keys: tuple = ()
         self.noise_pool = None
 
     def _prepare(self, imgs: list, noise=()):
@@ -76,8 +78,8 @@ class FrameFeed:
 
     def get(self, f: int) -> tuple[list, object]:
         """``(images, prepared frame or None where a view has no frame)`` of frame ``f``."""
-        if self.current_frame is not None:
-            self.previous_frame = self.current_frame
+        if self.current_frame is not None:  # its registrations are done: what they drew is final
+            self.previous_keys = tuple(self.current_frame.noise_sample_keys)
         if self.ahead is not None and self.ahead[0] == f:
             _, imgs, fut = self.ahead
             self.ahead = None
@@ -91,10 +93,9 @@ class FrameFeed:
 
     def _noise_keys(self) -> tuple:
         """The noise samples (view, patch radius) the frames handed out last have drawn."""
-        keys: set = set()
-        for fr in (self.previous_frame, self.current_frame):
-            if fr is not None:
-                keys.update(fr.noise_sample_keys)
+        keys = set(self.previous_keys)
+        if self.current_frame is not None:
+            keys.update(self.current_frame.noise_sample_keys)
         return tuple(sorted(keys))
 
     def prefetch(self, f: int) -> None:

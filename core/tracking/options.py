@@ -181,6 +181,7 @@ class TrackingOptions:
         n = self.stage_move_frames
         if number("stage_move_frames", n) != int(n) or n < 1:
             raise ValueError(f"stage_move_frames: expected an integer >= 1 (good frames), got {n!r}")
+        object.__setattr__(self, "stage_move_frames", int(n))  # 5.0 is kept (and reported) as 5
         if not isinstance(self.stage_move_reject, bool):
             raise ValueError(f"stage_move_reject: expected True or False, got {self.stage_move_reject!r}")
 

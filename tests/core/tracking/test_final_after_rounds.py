@@ -171,6 +171,8 @@ def test_stage_move_options():
     o = TrackingOptions()
     assert (o.stage_move_limit, o.stage_move_sigmas, o.stage_move_frames, o.stage_move_reject) == (
         STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS, STAGE_MOVE_FRAMES, True) == (4.0, 0.5, 5, True)
+    n = TrackingOptions(stage_move_frames=5.0).stage_move_frames  # a whole float is kept as an integer
+    assert n == 5 and type(n) is int
     for bad in ({"stage_move_limit": 0.5}, {"stage_move_limit": float("nan")}, {"stage_move_sigmas": -1.0},
                 {"stage_move_frames": 0}, {"stage_move_frames": 2.5}, {"stage_move_frames": True},
                 {"stage_move_reject": 1}):

@@ -364,6 +364,17 @@ def refine_residual_warp(renderer, bones, frames: Callable[[int], Sequence], res
     Good results only (unflagged, with a pose) of every ``every``-th frame enter the estimate;
     ``kw`` goes to :func:`estimate_residual_warp`."""
     names = [b.name for b in bones]
+    keyframes = {}
+    if retrack:  # each bone's first pose in the run: checked before the (long) estimate
+        for nm in names:
+            for f in result.frames:
+                r = result.results.get((nm, f))
+                if r is not None and r.pose is not None:
+                    keyframes[nm] = {f: r.pose}
+                    break
+            else:
+                raise ValueError(f"refine_residual_warp: bone {nm!r} has no pose in the tracking result "
+                                 "to track the trial again from (pass the bones that were tracked)")
     poses = {}
     for (nm, f), r in result.results.items():
         if nm in names and r.pose is not None and not r.flags and np.all(np.isfinite(r.pose)):
@@ -374,13 +385,6 @@ def refine_residual_warp(renderer, bones, frames: Callable[[int], Sequence], res
         return est, None
     from .trial import track
 
-    keyframes = {}
-    for nm in names:
-        for f in result.frames:
-            r = result.results.get((nm, f))
-            if r is not None and r.pose is not None:
-                keyframes[nm] = {f: r.pose}
-                break
     new = track(renderer, bones, est.warp.frames(frames), list(result.frames), keyframes=keyframes,
                 options=options)
     return est, new

@@ -71,3 +71,19 @@ def test_known_warp_recovered_from_true_poses(warped_trial):
     E = np.array([params_from_pose(est.poses[(m.name, f)], center=m.centroid, base=sc.poses(f)[b])
                   for b, m in enumerate(models) for f in range(2)])
     assert np.sqrt(np.mean(np.sum(E[:, :3] ** 2, 1))) < 0.06
+
+
+def test_refine_refuses_a_bone_without_a_pose_before_estimating(monkeypatch):
+    """A bone with no pose in the run cannot be tracked again: refused, naming it, before the
+    estimate's work."""
+    from types import SimpleNamespace
+
+    import core.tracking.residual_warp as rw
+
+    monkeypatch.setattr(rw, "estimate_residual_warp", lambda *a, **k: pytest.fail("estimated"))
+    ok, lost = SimpleNamespace(pose=np.eye(4), flags=[]), SimpleNamespace(pose=None, flags=["lost"])
+    runs = {("talus", 0): ok, ("talus", 1): ok, ("calcaneus", 0): lost}
+    result = SimpleNamespace(frames=[0, 1], results=runs)
+    bones = [SimpleNamespace(name="talus"), SimpleNamespace(name="calcaneus")]
+    with pytest.raises(ValueError, match="'calcaneus' has no pose"):
+        rw.refine_residual_warp(None, bones, lambda f: [], result)

@@ -71,7 +71,7 @@ from .cost import CostTimer, FrameImages, fluoro_rois
 from .engine import GaussNewtonCost
 from .engine_search import step_design
 
-__all__ = ["LikelihoodEngine", "gaussian_taps", "likelihood_engine", "robust_factors_device", "solve_moments"]
+__all__ = ["LikelihoodEngine", "likelihood_engine", "robust_factors_device", "solve_moments"]
 
 NZ = 12  # z = (y, D, δ_1..δ_6, 1, u, v, O)
 NA = 5  # A = (D, 1, u, v, O): the linear terms residual_kernel reads
@@ -203,20 +203,14 @@ def _robust_weight_kernel(local: wp.array3d(dtype=wp.float32), scale: wp.array(d
     out[k, r, c] = f
 
 
-def gaussian_taps(sigma_px: float, truncate: float = 4.0) -> np.ndarray:
-    """scipy.ndimage.gaussian_filter's 1-D kernel for ``sigma_px`` (radius ``int(truncate σ + 0.5)``)."""
-    rad = int(truncate * float(sigma_px) + 0.5)
-    x = np.arange(-rad, rad + 1, dtype=np.float64)
-    g = np.exp(-0.5 * (x / float(sigma_px)) ** 2)
-    return (g / g.sum()).astype(np.float32)
-
-
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
                           device=None, bufs: dict | None = None):
     """:func:`core.tracking.final_stage.robust_factors` on the device: ``e``, ``w`` ``(views, H, W)``
     Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
     factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
     same Gaussian as the host's), only its per-view median is taken on the host."""
+    from ..similarity.batched import gaussian_weights  # scipy's gaussian_filter taps (truncate 4)
+
     device = device if device is not None else e.device
     bufs = {} if bufs is None else bufs
     shape = tuple(e.shape)
@@ -228,7 +222,7 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
         return b
 
     a, b, ta, tb = buf("rf_a"), buf("rf_b"), buf("rf_ta"), buf("rf_tb")
-    g = wp.array(gaussian_taps(sigma_px), dtype=wp.float32, device=device)
+    g = wp.array(gaussian_weights(sigma_px, truncate=4.0), dtype=wp.float32, device=device)
     wp.launch(_robust_sq_kernel, dim=shape, inputs=[e, w, a, b], device=device)
     wp.launch(_blur_pair_kernel, dim=shape, inputs=[a, b, g, 1, ta, tb], device=device)
     wp.launch(_blur_pair_kernel, dim=shape, inputs=[ta, tb, g, 2, a, b], device=device)

@@ -36,6 +36,18 @@ def _pick(qtbot, box: QtWidgets.QComboBox, data) -> None:
         qtbot.keyClick(box, key)
 
 
+def _click(qtbot, dialog, button: str) -> None:
+    """Click the dialog's standard button ``button`` (``"Ok"``, ``"RestoreDefaults"``...)."""
+    qtbot.mouseClick(dialog.buttons.button(getattr(QtWidgets.QDialogButtonBox.StandardButton, button)),
+                     QtCore.Qt.MouseButton.LeftButton)
+
+
+def _accept(qtbot, dialog) -> None:
+    """Click *OK* and wait for the dialog to accept."""
+    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
+        _click(qtbot, dialog, "Ok")
+
+
 def test_options_match_the_command_line_defaults():
     opts = options_from_choices()
     assert choices_of(opts) == choices_of(None)
@@ -77,9 +89,7 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     assert dialog.final.currentData() == "none"  # the default, as talus track --final
     _pick(qtbot, dialog.final, "likelihood")
     qtbot.mouseClick(dialog.confidence, QtCore.Qt.MouseButton.LeftButton)
-    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
-        qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
-                         QtCore.Qt.MouseButton.LeftButton)
+    _accept(qtbot, dialog)
     opts = window.tracking.options
     assert choices_of(opts) == {"search": "newton", "scale": 2.0, "mode": "joint", "guess": "velocity",
                                 "confidence": False, "metric": "components", "final": "likelihood",
@@ -100,8 +110,7 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     out = os.environ.get("TALUS_SCREENSHOT_DIR")
     if out:
         shot.save(f"{out}/tracking_options.png")
-    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults),
-                     QtCore.Qt.MouseButton.LeftButton)
+    _click(qtbot, dialog, "RestoreDefaults")
     assert dialog.choices() == choices_of(None)
     with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
         qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)
@@ -110,11 +119,8 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     # the defaults accepted: the summary does not mention the similarity
     dialog = window.tracking.edit_options()
     qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
-    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults),
-                     QtCore.Qt.MouseButton.LeftButton)
-    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
-        qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
-                         QtCore.Qt.MouseButton.LeftButton)
+    _click(qtbot, dialog, "RestoreDefaults")
+    _accept(qtbot, dialog)
     assert choices_of(window.tracking.options) == choices_of(None)
     assert window.tracking.options.registration.final is None
     last = window.messages.item(window.messages.count() - 1).text()
@@ -174,9 +180,7 @@ def test_advanced_checks_set_the_thresholds_with_keys_and_clicks(qtbot, window):
     assert dialog.floor_mm.hasFocus()
     _type(qtbot, dialog.floor_mm, "0.5")
     _type(qtbot, dialog.floor_deg, "1.5")
-    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
-        qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
-                         QtCore.Qt.MouseButton.LeftButton)
+    _accept(qtbot, dialog)
     opts = window.tracking.options
     assert (opts.collapse_ratio, opts.motion_limit, opts.motion_floor, opts.sigma_limit) == (
         pytest.approx(0.5), 4.0, (0.5, 1.5), 2.5)
@@ -188,8 +192,7 @@ def test_advanced_checks_set_the_thresholds_with_keys_and_clicks(qtbot, window):
     dialog = window.tracking.edit_options()
     qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
     assert dialog.choices() == choices_of(opts)
-    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults),
-                     QtCore.Qt.MouseButton.LeftButton)
+    _click(qtbot, dialog, "RestoreDefaults")
     assert dialog.choices() == choices_of(None)
     with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
         qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)
@@ -208,8 +211,7 @@ def test_advanced_checks_hold_their_ranges_and_ok_refuses_an_invalid_value(qtbot
     monkeypatch.setattr(QtWidgets.QMessageBox, "warning", lambda parent, title, text: warned.append(text))
     dialog.sigma_limit.setMinimum(0.0)  # a value out of the tracker's range, set from code
     dialog.sigma_limit.setValue(0.5)
-    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
-                     QtCore.Qt.MouseButton.LeftButton)
+    _click(qtbot, dialog, "Ok")
     assert dialog.isVisible() and dialog.result() == 0  # not accepted
     assert len(warned) == 1 and warned[0].startswith("sigma_limit: expected a factor >= 1"), warned
 
@@ -232,9 +234,7 @@ def test_the_final_stage_move_check_is_set_with_the_likelihood_stage_only(qtbot,
     _type(qtbot, dialog.stage_move_sigmas, "0.25")
     _type(qtbot, dialog.stage_move_frames, "8")
     qtbot.mouseClick(dialog.keep_stage_moves, QtCore.Qt.MouseButton.LeftButton)
-    with qtbot.waitSignal(dialog.accepted, timeout=HUNG_MS):
-        qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.Ok),
-                         QtCore.Qt.MouseButton.LeftButton)
+    _accept(qtbot, dialog)
     opts = window.tracking.options
     assert opts.refine_likelihood
     assert (opts.stage_move_limit, opts.stage_move_sigmas, opts.stage_move_frames,
@@ -250,8 +250,7 @@ def test_the_final_stage_move_check_is_set_with_the_likelihood_stage_only(qtbot,
     assert dialog.choices() == choices_of(opts) and dialog.stage_move_frames.isEnabled()
     _pick(qtbot, dialog.final, "none")
     assert not dialog.stage_move_limit.isEnabled() and not dialog.keep_stage_moves.isEnabled()
-    qtbot.mouseClick(dialog.buttons.button(QtWidgets.QDialogButtonBox.StandardButton.RestoreDefaults),
-                     QtCore.Qt.MouseButton.LeftButton)
+    _click(qtbot, dialog, "RestoreDefaults")
     assert dialog.choices() == choices_of(None)
     with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
         qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)

@@ -82,11 +82,9 @@ def _as_refs(value, name: str, *, masks: bool = False) -> tuple[list[np.ndarray]
     return refs, len(per_view), nb
 
 
-def _smooth_and_gradient(f: np.ndarray, sigma: float, ku: np.ndarray, kv: np.ndarray):
-    """``(smoothed, E_u, E_v)`` (float64) of a fluoroscope ROI: the Gaussian of
-    :func:`scipy.ndimage.gaussian_filter` (``mode="nearest"``, truncated at 4σ) and the 3 × 3
-    correlation gradient of :func:`core.imaging.edges.gradient`, computed with OpenCV (the same
-    kernels and replicated borders, several times faster; this runs for every search region)."""
+def _smooth(f: np.ndarray, sigma: float) -> np.ndarray:
+    """The smoothing of :func:`_smooth_and_gradient` alone (float64; the noise correction's
+    fluence, :func:`core.tracking.cost.noise_maps`)."""
     import cv2
 
     f = np.ascontiguousarray(f, dtype=np.float64)
@@ -96,6 +94,17 @@ def _smooth_and_gradient(f: np.ndarray, sigma: float, ku: np.ndarray, kv: np.nda
         g = np.exp(-0.5 * (x / sigma) ** 2)
         g /= g.sum()
         f = cv2.sepFilter2D(f, cv2.CV_64F, g, g, borderType=cv2.BORDER_REPLICATE)
+    return f
+
+
+def _smooth_and_gradient(f: np.ndarray, sigma: float, ku: np.ndarray, kv: np.ndarray):
+    """``(smoothed, E_u, E_v)`` (float64) of a fluoroscope ROI: the Gaussian of
+    :func:`scipy.ndimage.gaussian_filter` (``mode="nearest"``, truncated at 4σ) and the 3 × 3
+    correlation gradient of :func:`core.imaging.edges.gradient`, computed with OpenCV (the same
+    kernels and replicated borders, several times faster; this runs for every search region)."""
+    import cv2
+
+    f = _smooth(f, sigma)
     gu = cv2.filter2D(f, cv2.CV_64F, np.asarray(ku, np.float64), borderType=cv2.BORDER_REPLICATE)
     gv = cv2.filter2D(f, cv2.CV_64F, np.asarray(kv, np.float64), borderType=cv2.BORDER_REPLICATE)
     return f, gu, gv

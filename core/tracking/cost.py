@@ -148,13 +148,12 @@ def noise_maps(frame: FrameImages, views, regions, fluoro_sigma: float, operator
     any neighbour is subtracted) smoothed as the metric smooths the fluoroscope (``fluoro_sigma``
     px, truncated at 4σ, borders replicated). The Gauss–Newton engine computes the same on the
     device (:func:`core.tracking.engine_kernels.fluoro_gradient_kernel`)."""
-    from ..similarity.batched import _smooth_and_gradient
+    from ..similarity.batched import _smooth
 
     out = []
-    z = np.zeros((3, 3))
     for v, y in zip(views, regions, strict=True):
         e1 = frame.noise_energy(v, fluoro_sigma, operator)
-        ys = _smooth_and_gradient(np.asarray(y, np.float64), fluoro_sigma, z, z)[0]
+        ys = _smooth(y, fluoro_sigma)
         out.append(e1 * np.exp(ys))
     return out
 

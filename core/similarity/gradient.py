@@ -209,10 +209,7 @@ def _patch_kernels(fluoro_sigma: float, operator: str, radius: int) -> np.ndarra
     hit = _KERNELS.get(key)
     if hit is None:
         k = 2 * int(radius) + 1
-        delta = np.zeros((k, k))
-        delta[radius, radius] = 1.0
-        ys, gu, gv = (np.asarray(a, np.float64) for a in _smoothed_gradient_full(delta, float(fluoro_sigma),
-                                                                                 operator))
+        ys, gu, gv = _smoothed_delta(k, float(fluoro_sigma), operator)
         # a correlation filter applied to a delta is the flipped weights
         hit = np.stack([a[::-1, ::-1].ravel() for a in (ys, gu, gv)], axis=1)
         if len(_KERNELS) >= 64:
@@ -221,22 +218,22 @@ def _patch_kernels(fluoro_sigma: float, operator: str, radius: int) -> np.ndarra
     return hit
 
 
-def _smoothed_gradient_full(img, sigma: float, operator: str):
+def _smoothed_delta(k: int, sigma: float, operator: str):
+    """``(G_σ ∗ δ, its u and v gradients)`` of a centred delta in a ``k × k`` patch: the Gaussian
+    (truncated at 4σ, zero outside) as the outer product of its 1-D weights, which is what
+    :func:`scipy.ndimage.gaussian_filter` (``mode="constant"``) gives for a delta, without its
+    2-D passes."""
     from scipy import ndimage
 
-    img = np.asarray(img, dtype=np.float64)
+    c = k // 2
     if sigma > 0:
-        k = img.shape[0]
-        c = k // 2
-        if img.shape == (k, k) and k % 2 and img[c, c] == 1.0 and np.count_nonzero(img) == 1:
-            # a centred delta (_patch_kernels): the two passes' product of the 1-D weights, as
-            # gaussian_filter gives it, without its 2-D passes
-            d = np.zeros(k)
-            d[c] = 1.0
-            g = ndimage.gaussian_filter1d(d, sigma, mode="constant", truncate=4.0)
-            img = np.outer(g, g)
-        else:
-            img = ndimage.gaussian_filter(img, sigma, mode="constant", truncate=4.0)
+        d = np.zeros(k)
+        d[c] = 1.0
+        g = ndimage.gaussian_filter1d(d, sigma, mode="constant", truncate=4.0)
+        img = np.outer(g, g)
+    else:
+        img = np.zeros((k, k))
+        img[c, c] = 1.0
     gu, gv = gradient(img, operator=operator)
     return img, gu, gv
 

@@ -57,7 +57,7 @@ ZERO_GRADIENT = 1e-6
 GRADIENT_OPERATORS = tuple(op for op in FIRST_DERIVATIVE_OPERATORS if op != "gaussian")
 
 
-def _gradients(drr, fluoro, operator: str, domain_options: dict):
+def _gradients(drr, fluoro, operator: str, domain_options: dict, *, omega: bool = False):
     if operator not in GRADIENT_OPERATORS:
         raise ValueError(f"operator: expected one of {GRADIENT_OPERATORS}, got {operator!r}")
     d, f, om = prepare(drr, fluoro, **domain_options)
@@ -67,7 +67,7 @@ def _gradients(drr, fluoro, operator: str, domain_options: dict):
         gu, gv = gu[om], gv[om]
         flat = np.hypot(gu, gv) <= ZERO_GRADIENT * max(1.0, float(np.abs(img).max()))
         out.append((np.where(flat, 0.0, gu), np.where(flat, 0.0, gv)))
-    return out[0], out[1]
+    return (out[0], out[1], om) if omega else (out[0], out[1])
 
 
 def _smoothed_gradient(img: np.ndarray, sigma: float, operator: str) -> tuple[np.ndarray, np.ndarray]:
@@ -384,9 +384,8 @@ def gradient_correlation(drr, fluoro, *, operator: str = "sobel", components: bo
         raise ValueError("noise_energy: the components' form has no noise share to take out (give one or "
                          "the other)")
     e = _noise_map(noise_energy, np.shape(fluoro))
-    gd, gf = _gradients(drr, fluoro, operator, domain_options)
+    gd, gf, om = _gradients(drr, fluoro, operator, domain_options, omega=True)
     if e.ndim == 2:
-        _, _, om = prepare(drr, fluoro, **domain_options)
         e = e[om]
     return pearson(np.hypot(*gd), debiased_magnitude(gf[0], gf[1], e))
 

@@ -174,8 +174,6 @@ def _support_mask(eng, px: float) -> np.ndarray:
 
 def _refine(eng, o, model: FinalModel) -> dict:
     """The engine's refinement with ``model``'s region and weights (module docs)."""
-    if model.support_px is None and model.robust is None:
-        return eng.refine(iters=o.final_iters)
     mask = None
     if model.support_px is not None:
         mask = _support_mask(eng, model.support_px)

@@ -21,11 +21,6 @@ from .results import FrameResult
 __all__ = ["predict_pose"]
 
 
-def _delta(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Parameters (mm, rad) taking pose ``a`` to pose ``b`` about centre ``c``."""
-    return pose_delta(a, b, c)
-
-
 def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, *,
                  guess: str = "velocity",
                  keyframes: Mapping[int, np.ndarray] | None = None) -> np.ndarray:
@@ -39,7 +34,7 @@ def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, 
             from scipy.interpolate import CubicSpline
 
             base = np.asarray(kf[ks[0]], float)
-            P = np.array([_delta(base, np.asarray(kf[k], float), c) for k in ks])
+            P = np.array([pose_delta(base, np.asarray(kf[k], float), c) for k in ks])
             bc = "not-a-knot" if len(ks) > 2 else "clamped"
             return pose_from_params(CubicSpline(ks, P, axis=0, bc_type=bc)(frame), center=c, base=base)
     if not history:
@@ -53,7 +48,7 @@ def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, 
     f0, T0 = history[-2]
     if f0 == f1:
         return np.asarray(T1, dtype=float)
-    d = _delta(np.asarray(T0, float), np.asarray(T1, float), c)
+    d = pose_delta(np.asarray(T0, float), np.asarray(T1, float), c)
     return step_pose(d * (frame - f1) / (f1 - f0), np.asarray(T1, float), c)
 
 

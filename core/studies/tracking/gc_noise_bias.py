@@ -328,7 +328,7 @@ def run(*, pixels: int = 512, spacing: float = 1.0, n_frames: int = 12, frames=(
     """Errors (mm, degrees; :func:`pose_errors`) of each bone registered from its true pose per
     frame, noise draw and GC form; see the module docs. ``dose`` scales the quanta per pixel
     (0.25 at 512² gives each pixel the noise of the 1024² trial's)."""
-    from core.tracking.cost import DEFAULT_TERMS, prepare_frame
+    from core.tracking.cost import DEFAULT_TERMS, metric_terms, prepare_frame
     from core.tracking.register import FINAL_STEP, Level, RegistrationOptions, register
 
     t0 = time.perf_counter()
@@ -337,8 +337,7 @@ def run(*, pixels: int = 512, spacing: float = 1.0, n_frames: int = 12, frames=(
     level = Level(scale=1.0, method="quadratic", sigma=(0.5, 1.0), max_generations=8, tol_x=0.02,
                   options={"min_step": FINAL_STEP})
     opts = {"magnitudes": RegistrationOptions(levels=(level,), search="local", bounds=(5.0, 5.0))}
-    comp = tuple(replace(t, options={**t.options, "components": True}) for t in DEFAULT_TERMS)
-    opts["components"] = replace(opts["magnitudes"], terms=comp)
+    opts["components"] = replace(opts["magnitudes"], terms=metric_terms("components"))
     for f in ("debiased", "inflated", *NUMPY_FORMS):
         opts[f] = opts["magnitudes"]
     results: dict = {}

@@ -88,7 +88,7 @@ def acceptance(*, n_frames: int = 20, pixels: int = 1024, spacing: float = 0.5, 
     the correction off and on, and the estimate's time per view (``bound=False``: without the
     Cramér–Rao bound, the speed alone; ``inline``: also ``corrected_inline``, the correction with
     the noise samples drawn in the registering thread, as before the frame look-ahead drew them)."""
-    from core.similarity.gradient import _patch_radius, noise_energy_of_samples, noise_samples
+    from core.similarity.gradient import frame_noise_energy
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
     from core.studies.tracking.benchmark import _case
     from core.tracking.trial import TrackingOptions
@@ -105,8 +105,7 @@ def acceptance(*, n_frames: int = 20, pixels: int = 1024, spacing: float = 0.5, 
         for v in range(2):
             fl = np.asarray(ts.frames(i)[v], np.float32)
             t = time.perf_counter()
-            P = noise_samples(fl, radius=_patch_radius(sig))
-            energies.append(noise_energy_of_samples(P, fluoro_sigma=sig))
+            energies.append(frame_noise_energy(fl, fluoro_sigma=sig))
             times.append(time.perf_counter() - t)
     out: dict = {"bound": bound, "estimate": {"sigma_px": sig, "E1": energies,
                                               "ms_per_view_median": 1e3 * float(np.median(times)),

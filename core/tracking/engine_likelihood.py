@@ -53,7 +53,8 @@ calcaneus's.
 
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
 its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
-one by one (no CUDA graph): 4-5 launches and one synchronisation per step.
+one by one (no CUDA graph): 4-5 launches and one synchronisation per step. The kernels live in
+:mod:`core.tracking.likelihood_kernels` (re-exported here).
 """
 
 from __future__ import annotations
@@ -70,334 +71,32 @@ from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages, fluoro_rois
 from .engine import GaussNewtonCost
 from .engine_search import step_design
+from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names as before)
+    NA,
+    NZ,
+    _blur_pair_kernel,
+    _hp,
+    _local_rms_kernel,
+    _robust_sq_kernel,
+    _robust_weight_kernel,
+    _times_kernel,
+    autocov_kernel,
+    highpass_kernel,
+    mat12f,
+    mat66f,
+    meat_kernel,
+    psf_kernel,
+    residual_kernel,
+    robust_factors_device,
+    vec2d,
+    vec5f,
+    vec6f,
+    vec12f,
+    weights_kernel,
+    wls_moments_kernel,
+)
 
 __all__ = ["LikelihoodEngine", "likelihood_engine", "robust_factors_device", "solve_moments"]
-
-NZ = 12  # z = (y, D, δ_1..δ_6, 1, u, v, O)
-NA = 5  # A = (D, 1, u, v, O): the linear terms residual_kernel reads
-vec12f = wp.types.vector(length=NZ, dtype=wp.float32)
-mat12f = wp.types.matrix(shape=(NZ, NZ), dtype=wp.float32)
-vec5f = wp.types.vector(length=NA, dtype=wp.float32)
-vec6f = wp.types.vector(length=6, dtype=wp.float32)
-mat66f = wp.types.matrix(shape=(6, 6), dtype=wp.float32)
-vec2d = wp.types.vector(length=2, dtype=wp.float64)
-
-
-@wp.func
-def _hp(img: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, k: int, r: int,
-        c: int) -> float:
-    """The high-passed value of item k at (r, c): img - hp · low (hp 0: the image as it is)."""
-    return K._val(img, k, r, c) - hp * low[k, r, c]
-
-
-@wp.kernel
-def psf_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
-               psf: wp.array2d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int):
-    """dst = psf ∗ src within each item's (h, w) region (a convolution, borders replicated, NaN
-    read as 0; 0 outside). dim = items, H, W."""
-    k, r, c = wp.tid()
-    ref = k % n_refs
-    h = ref_hw[ref][0]
-    w = ref_hw[ref][1]
-    acc = float(0.0)  # noqa: UP018 (a Warp variable, not a constant)
-    if r < h and c < w:
-        ry = (psf.shape[0] - 1) // 2
-        rx = (psf.shape[1] - 1) // 2
-        for a in range(psf.shape[0]):
-            rr = wp.clamp(r - (a - ry), 0, h - 1)
-            for b in range(psf.shape[1]):
-                acc += psf[a, b] * K._val(src, k, rr, wp.clamp(c - (b - rx), 0, w - 1))
-    dst[k, r, c] = acc
-
-
-@wp.kernel
-def weights_kernel(low: wp.array3d(dtype=wp.float32), mask: wp.array3d(dtype=wp.float32),
-                   out: wp.array3d(dtype=wp.float32)):
-    """The expected counts exp(-low) where mask, else 0 (low: the smoothed line integrals). dim =
-    items, H, W."""
-    k, r, c = wp.tid()
-    w = float(0.0)  # noqa: UP018
-    if mask[k, r, c] > 0.0:
-        w = wp.exp(-low[k, r, c])
-    out[k, r, c] = w
-
-
-@wp.kernel
-def _times_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32),
-                  out: wp.array3d(dtype=wp.float32)):
-    """out = a · b. dim = items, H, W."""
-    k, r, c = wp.tid()
-    out[k, r, c] = a[k, r, c] * b[k, r, c]
-
-
-@wp.kernel
-def _robust_sq_kernel(e: wp.array3d(dtype=wp.float32), w: wp.array3d(dtype=wp.float32),
-                      a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32)):
-    """a = e² and b = 1 where the pixel is used (w > 0), 0 elsewhere. dim = items, H, W."""
-    k, r, c = wp.tid()
-    if w[k, r, c] > 0.0:
-        a[k, r, c] = e[k, r, c] * e[k, r, c]
-        b[k, r, c] = 1.0
-    else:
-        a[k, r, c] = 0.0
-        b[k, r, c] = 0.0
-
-
-@wp.kernel
-def _blur_pair_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32),
-                      g: wp.array(dtype=wp.float32), axis: int, oa: wp.array3d(dtype=wp.float32),
-                      ob: wp.array3d(dtype=wp.float32)):
-    """oa, ob = a, b filtered by the kernel ``g`` (odd length, centred) along ``axis`` (1: rows, 2:
-    columns), zero beyond the array (scipy.ndimage's mode="constant"). dim = items, H, W."""
-    k, r, c = wp.tid()
-    rad = (g.shape[0] - 1) // 2
-    n = a.shape[2]
-    if axis == 1:
-        n = a.shape[1]
-    sa = float(0.0)  # noqa: UP018
-    sb = float(0.0)  # noqa: UP018
-    for j in range(g.shape[0]):
-        rr = r
-        cc = c
-        if axis == 1:
-            rr = r + j - rad
-        else:
-            cc = c + j - rad
-        i = rr if axis == 1 else cc
-        if i >= 0 and i < n:
-            sa += g[j] * a[k, rr, cc]
-            sb += g[j] * b[k, rr, cc]
-    oa[k, r, c] = sa
-    ob[k, r, c] = sb
-
-
-@wp.kernel
-def _local_rms_kernel(num: wp.array3d(dtype=wp.float32), den: wp.array3d(dtype=wp.float32),
-                      w: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.float32)):
-    """out = sqrt(num / max(den, 1e-6)) where the pixel is used, -1 elsewhere. dim = items, H, W."""
-    k, r, c = wp.tid()
-    if w[k, r, c] > 0.0:
-        out[k, r, c] = wp.sqrt(num[k, r, c] / wp.max(den[k, r, c], 1e-6))
-    else:
-        out[k, r, c] = -1.0
-
-
-@wp.kernel
-def _robust_weight_kernel(local: wp.array3d(dtype=wp.float32), scale: wp.array(dtype=wp.float32),
-                          k_: float, cauchy: int, out: wp.array3d(dtype=wp.float32)):
-    """out = the robust factor of local / scale[item] (Cauchy or Huber, threshold ``k_``) where
-    used (local >= 0), 0 elsewhere; a view with no scale (<= 0) keeps factor 1. dim = items, H, W."""
-    k, r, c = wp.tid()
-    x = local[k, r, c]
-    f = float(0.0)  # noqa: UP018
-    if x >= 0.0:
-        s = scale[k]
-        if s > 0.0:
-            u = x / s
-            if cauchy == 1:
-                f = 1.0 / (1.0 + (u / k_) * (u / k_))
-            else:
-                f = wp.min(1.0, k_ / wp.max(u, 1e-12))
-        else:
-            f = 1.0
-    out[k, r, c] = f
-
-
-def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
-                          device=None, bufs: dict | None = None):
-    """:func:`core.tracking.final_stage.robust_factors` on the device: ``e``, ``w`` ``(views, H, W)``
-    Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
-    factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
-    same Gaussian as the host's), only its per-view median is taken on the host."""
-    from ..similarity.batched import gaussian_weights  # scipy's gaussian_filter taps (truncate 4)
-
-    device = device if device is not None else e.device
-    bufs = {} if bufs is None else bufs
-    shape = tuple(e.shape)
-
-    def buf(name):
-        b = bufs.get(name)
-        if b is None or tuple(b.shape) != shape:
-            b = bufs[name] = wp.zeros(shape, dtype=wp.float32, device=device)
-        return b
-
-    a, b, ta, tb = buf("rf_a"), buf("rf_b"), buf("rf_ta"), buf("rf_tb")
-    g = wp.array(gaussian_weights(sigma_px, truncate=4.0), dtype=wp.float32, device=device)
-    wp.launch(_robust_sq_kernel, dim=shape, inputs=[e, w, a, b], device=device)
-    wp.launch(_blur_pair_kernel, dim=shape, inputs=[a, b, g, 1, ta, tb], device=device)
-    wp.launch(_blur_pair_kernel, dim=shape, inputs=[ta, tb, g, 2, a, b], device=device)
-    local = buf("rf_local")
-    wp.launch(_local_rms_kernel, dim=shape, inputs=[a, b, w, local], device=device)
-    L = local.numpy()
-    scale = np.zeros(shape[0], np.float32)
-    for v in range(shape[0]):
-        x = L[v][L[v] >= 0]
-        if x.size:
-            m = float(np.median(x))
-            scale[v] = m if np.isfinite(m) and m > 0 else 0.0
-    out = buf("rf_out")
-    wp.launch(_robust_weight_kernel, dim=shape, device=device,
-              inputs=[local, wp.array(scale, dtype=wp.float32, device=device), float(k),
-                      1 if kind == "cauchy" else 0, out])
-    return out
-
-
-@wp.kernel
-def highpass_kernel(y: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
-                    out: wp.array3d(dtype=wp.float32)):
-    """out = y - hp · low. dim = items, H, W."""
-    k, r, c = wp.tid()
-    out[k, r, c] = y[k, r, c] - hp * low[k, r, c]
-
-
-@wp.kernel
-def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
-                       y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
-                       oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
-                       chunk: int, acc: wp.array2d(dtype=wp.float64)):
-    """acc[v] += Σ w z zᵀ (row-major 12 × 12), z = (y, D_0, D_1 - D_2, …, D_11 - D_12, 1, u, v, O)
-    of view v (item j of view v is j · n_refs + v; D high-passed; O the neighbours' high-passed
-    DRRs, 0 without). dim = (views, chunks)."""
-    v, ch, lane = wp.tid()
-    bd = wp.block_dim()
-    h = ref_hw[v][0]
-    w = ref_hw[v][1]
-    W = y.shape[2]
-    start = ch * chunk
-    stop = wp.min(y.shape[1] * W, start + chunk)
-    su = 2.0 / float(wp.max(w - 1, 1))
-    sv = 2.0 / float(wp.max(h - 1, 1))
-    s = mat12f()
-    for p in range(start + lane, stop, bd):
-        r = p // W
-        c = p - r * W
-        if r < h and c < w:
-            wt = wgt[v, r, c]
-            if wt > 0.0:
-                z = vec12f()
-                z[0] = y[v, r, c]
-                z[1] = _hp(drr, low, hp, v, r, c)
-                for j in range(6):
-                    z[2 + j] = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
-                                - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
-                z[8] = 1.0
-                z[9] = float(c) * su - 1.0
-                z[10] = float(r) * sv - 1.0
-                z[11] = oth[v, r, c]
-                s += wt * wp.outer(z, z)
-    t = wp.tile_sum(wp.tile(s, preserve_type=True))
-    if lane == 0:
-        x = t[0]
-        for i in range(NZ):
-            for j in range(NZ):
-                wp.atomic_add(acc, v, i * NZ + j, wp.float64(x[i, j]))
-
-
-@wp.kernel
-def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
-                    y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
-                    oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
-                    lin: wp.array2d(dtype=wp.float32), e: wp.array3d(dtype=wp.float32),
-                    jt: wp.array3d(dtype=vec6f)):
-    """The weighted residual e = √w (y - A coef) and projected Jacobian J̃_k = √w a (D_k - A β_k)
-    of view v at the centre pose; ``lin[v]`` = (coef (5), a, 1/2h (6), β (5 × 6)) with A =
-    (D, 1, u, v, O) (unused terms with coefficients 0). dim = (views, H, W)."""
-    v, r, c = wp.tid()
-    h = ref_hw[v][0]
-    w = ref_hw[v][1]
-    ev = float(0.0)  # noqa: UP018
-    jv = vec6f()
-    if r < h and c < w:
-        wt = wgt[v, r, c]
-        if wt > 0.0:
-            sw = wp.sqrt(wt)
-            a = vec5f()  # (D, 1, u, v, O)
-            a[0] = _hp(drr, low, hp, v, r, c)
-            a[1] = 1.0
-            a[2] = float(c) * 2.0 / float(wp.max(w - 1, 1)) - 1.0
-            a[3] = float(r) * 2.0 / float(wp.max(h - 1, 1)) - 1.0
-            a[4] = oth[v, r, c]
-            fit = float(0.0)  # noqa: UP018
-            for q in range(NA):
-                fit += lin[v, q] * a[q]
-            ev = sw * (y[v, r, c] - fit)
-            for k in range(6):
-                dk = (_hp(drr, low, hp, (2 * k + 1) * n_refs + v, r, c)
-                      - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, NA + 1 + k]
-                proj = float(0.0)  # noqa: UP018
-                for q in range(NA):
-                    proj += lin[v, NA + 7 + q * 6 + k] * a[q]
-                jv[k] = sw * lin[v, NA] * (dk - proj)
-    e[v, r, c] = ev
-    jt[v, r, c] = jv
-
-
-@wp.kernel
-def autocov_kernel(e: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
-                   ref_hw: wp.array(dtype=wp.vec2i), lag: int, chunk: int, acc: wp.array3d(dtype=wp.float64)):
-    """acc[v, l] += (Σ e_i e_{i+Δ_l}, pairs) over the pairs of usable pixels at lag
-    Δ_l = (l // (2 lag + 1) - lag, l % (2 lag + 1) - lag) (rows, columns). dim = (views, lags, chunks)."""
-    v, li, ch, lane = wp.tid()
-    bd = wp.block_dim()
-    h = ref_hw[v][0]
-    w = ref_hw[v][1]
-    n = 2 * lag + 1
-    dr = li // n - lag
-    dc = li - (li // n) * n - lag
-    W = e.shape[2]
-    start = ch * chunk
-    stop = wp.min(e.shape[1] * W, start + chunk)
-    s = vec2d()
-    for p in range(start + lane, stop, bd):
-        r = p // W
-        c = p - r * W
-        rr = r + dr
-        cc = c + dc
-        if r < h and c < w and rr >= 0 and rr < h and cc >= 0 and cc < w:
-            if wgt[v, r, c] > 0.0 and wgt[v, rr, cc] > 0.0:
-                s += vec2d(wp.float64(e[v, r, c] * e[v, rr, cc]), wp.float64(1.0))
-    t = wp.tile_sum(wp.tile(s, preserve_type=True))
-    if lane == 0:
-        x = t[0]
-        wp.atomic_add(acc, v, li, 0, x[0])
-        wp.atomic_add(acc, v, li, 1, x[1])
-
-
-@wp.kernel
-def meat_kernel(jt: wp.array3d(dtype=vec6f), cw: wp.array2d(dtype=wp.float32),
-                ref_hw: wp.array(dtype=wp.vec2i), lag: int, chunk: int, acc: wp.array2d(dtype=wp.float64)):
-    """acc[v] += Σ_i J̃_i (Σ_Δ C(Δ) J̃_{i+Δ})ᵀ (row-major 6 × 6; ``cw[v]`` the tapered
-    autocovariance per lag). dim = (views, chunks)."""
-    v, ch, lane = wp.tid()
-    bd = wp.block_dim()
-    h = ref_hw[v][0]
-    w = ref_hw[v][1]
-    n = 2 * lag + 1
-    W = jt.shape[2]
-    start = ch * chunk
-    stop = wp.min(jt.shape[1] * W, start + chunk)
-    s = mat66f()
-    for p in range(start + lane, stop, bd):
-        r = p // W
-        c = p - r * W
-        if r < h and c < w:
-            ji = jt[v, r, c]
-            if wp.length_sq(ji) > 0.0:
-                u = vec6f()
-                for a in range(n):
-                    rr = r + a - lag
-                    if rr >= 0 and rr < h:
-                        for b in range(n):
-                            cc = c + b - lag
-                            if cc >= 0 and cc < w:
-                                u += cw[v, a * n + b] * jt[v, rr, cc]
-                s += wp.outer(ji, u)
-    t = wp.tile_sum(wp.tile(s, preserve_type=True))
-    if lane == 0:
-        x = t[0]
-        for i in range(6):
-            for j in range(6):
-                wp.atomic_add(acc, v, i * 6 + j, wp.float64(x[i, j]))
 
 
 def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False) -> dict:

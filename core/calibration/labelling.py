@@ -363,7 +363,7 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
     best_seed, best_score = None, -1
     for _ in range(rounds):
         D, B = _draw(g, by_cls, beads_of, per, samples)  # (S, 6+)
-        P = _batched_dlt(target.centers[B], det.uv[D], fast=FAST_DLT)
+        P = _batched_dlt(target.centers[B], det.uv[D], fast=True)
         score = _score(P, target, det, gate)
         h = int(np.argmax(score))
         if score[h] > best_score:
@@ -385,7 +385,7 @@ def label_ransac(target: CalibrationTarget, det: ObjectDetections, *, samples: i
                  for r in range(extra_rounds)]
         for alloc in order:
             D, B = _draw(g, by_cls, beads_of, alloc, samples)
-            score = _score(_batched_dlt(target.centers[B], det.uv[D], fast=FAST_DLT), target, det, gate)
+            score = _score(_batched_dlt(target.centers[B], det.uv[D], fast=True), target, det, gate)
             top = np.argsort(-score, kind="stable")[: 4 * keep]
             seeds = np.full((len(top), m), -1)
             seeds[np.arange(len(top))[:, None], D[top]] = B[top]
@@ -477,11 +477,6 @@ def _likely_allocations(per, n_det, beads_of, target: CalibrationTarget) -> list
             supports.add(used)
             out.append(list(q))
     return out or [list(per)]
-
-
-#: RANSAC's hypotheses from the normal equations (:func:`_batched_dlt` ``fast``); False: the
-#: eigenvector, as before (studies compare the two)
-FAST_DLT = True
 
 
 def _batched_dlt(X: np.ndarray, uv: np.ndarray, *, fast: bool = False) -> np.ndarray:

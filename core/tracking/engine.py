@@ -379,17 +379,16 @@ class GaussNewtonCost:
             self._e1_last = e1
         if src is self._raw0:
             return self._fluoro
+        if ftaps is None:  # no smoothing: the unsubtracted regions themselves
+            return self._raw0
         nv = self.n_views
         Hc, Wc = self._cap
         b = self._bufs
         if b.ys is None:
             b.ys = wp.zeros((nv, Hc, Wc), dtype=wp.float32, device=self.device)
-        if ftaps is None:
-            wp.copy(b.ys, self._raw0)
-        else:
-            for a, dst, axis in ((self._raw0, self._ftmp, 1), (self._ftmp, b.ys, 0)):
-                self._launch(f"noise_blur{axis}", K.blur_kernel, (nv, Hc, Wc),
-                             [a, dst, self._fblur, self._ref_hw, nv, axis])
+        for a, dst, axis in ((self._raw0, self._ftmp, 1), (self._ftmp, b.ys, 0)):
+            self._launch(f"noise_blur{axis}", K.blur_kernel, (nv, Hc, Wc),
+                         [a, dst, self._fblur, self._ref_hw, nv, axis])
         return b.ys
 
     def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:

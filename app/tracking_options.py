@@ -73,6 +73,14 @@ CHECK_RANGES = {
     "stage_move_frames": (1, 1000, 1, 0, " good frames"),  # an integer: a QSpinBox
 }
 
+#: The *Advanced checks* rows, in order: (:data:`CHECKS` field, label); ``motion_floor`` is two spin
+#: boxes (``floor_mm``, ``floor_deg``), every other field one spin box named as the field.
+_CHECK_ROWS = (("collapse_ratio", "Score &collapse below:"), ("motion_limit", "Motion &limit:"),
+               ("motion_floor", "Motion fl&oor:"), ("sigma_limit", "&Uncertain above:"),
+               ("stage_move_limit", "Stage mo&ve limit:"), ("stage_move_sigmas", "Stage move &at least:"),
+               ("stage_move_frames", "Move check &needs:"))
+_SPIN_FIELDS = tuple(name for name, _label in _CHECK_ROWS if name != "motion_floor")
+
 
 def _spin(name: str, value: float, tip: str) -> QtWidgets.QDoubleSpinBox | QtWidgets.QSpinBox:
     lo, hi, step, decimals, suffix = CHECK_RANGES[name]
@@ -153,11 +161,8 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
     def _checks_group(self, c: dict) -> QtWidgets.QGroupBox:
         """The *Advanced checks* group: the failure checks' thresholds (``talus track``'s options)."""
         tip = {k: f"{flag}: {text}" for k, (flag, _default, text) in CHECKS.items()}
-        self.collapse_ratio = _spin("collapse_ratio", c["collapse_ratio"], tip["collapse_ratio"])
-        self.motion_limit = _spin("motion_limit", c["motion_limit"], tip["motion_limit"])
         self.floor_mm = _spin("floor_mm", c["motion_floor"][0], tip["motion_floor"])
         self.floor_deg = _spin("floor_deg", c["motion_floor"][1], tip["motion_floor"])
-        self.sigma_limit = _spin("sigma_limit", c["sigma_limit"], tip["sigma_limit"])
         floor = QtWidgets.QHBoxLayout()
         floor.setContentsMargins(0, 0, 0, 0)
         floor.addWidget(self.floor_mm)
@@ -166,20 +171,16 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         group.setToolTip("Thresholds of the checks that flag frames for review: a lower limit or floor, or a "
                          "higher collapse ratio, flags more frames")
         form = QtWidgets.QFormLayout(group)
-        form.addRow("Score &collapse below:", self.collapse_ratio)
-        form.addRow("Motion &limit:", self.motion_limit)
-        form.addRow("Motion fl&oor:", floor)
-        form.labelForField(floor).setBuddy(self.floor_mm)
-        form.addRow("&Uncertain above:", self.sigma_limit)
-        self.stage_move_limit = _spin("stage_move_limit", c["stage_move_limit"], tip["stage_move_limit"])
-        self.stage_move_sigmas = _spin("stage_move_sigmas", c["stage_move_sigmas"], tip["stage_move_sigmas"])
-        self.stage_move_frames = _spin("stage_move_frames", c["stage_move_frames"], tip["stage_move_frames"])
+        for name, label in _CHECK_ROWS:
+            if name == "motion_floor":
+                form.addRow(label, floor)
+                form.labelForField(floor).setBuddy(self.floor_mm)
+            else:  # a spin box named as the option
+                setattr(self, name, _spin(name, c[name], tip[name]))
+                form.addRow(label, getattr(self, name))
         self.keep_stage_moves = QtWidgets.QCheckBox("&Keep flagged stage moves")
         self.keep_stage_moves.setChecked(not c["stage_move_reject"])
         self.keep_stage_moves.setToolTip(tip["stage_move_reject"])
-        form.addRow("Stage mo&ve limit:", self.stage_move_limit)
-        form.addRow("Stage move &at least:", self.stage_move_sigmas)
-        form.addRow("Move check &needs:", self.stage_move_frames)
         form.addRow("", self.keep_stage_moves)
         self.final.currentIndexChanged.connect(self._enable_stage_moves)
         self._enable_stage_moves()
@@ -202,26 +203,18 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self._set_checks(check_choices(None))
 
     def _set_checks(self, c: dict) -> None:
-        self.collapse_ratio.setValue(c["collapse_ratio"])
-        self.motion_limit.setValue(c["motion_limit"])
+        for name in _SPIN_FIELDS:
+            getattr(self, name).setValue(c[name])
         self.floor_mm.setValue(c["motion_floor"][0])
         self.floor_deg.setValue(c["motion_floor"][1])
-        self.sigma_limit.setValue(c["sigma_limit"])
-        self.stage_move_limit.setValue(c["stage_move_limit"])
-        self.stage_move_sigmas.setValue(c["stage_move_sigmas"])
-        self.stage_move_frames.setValue(c["stage_move_frames"])
         self.keep_stage_moves.setChecked(not c["stage_move_reject"])
 
     def choices(self) -> dict:
         return {"search": self.search.currentData(), "scale": float(self.resolution.currentData()),
                 "mode": self.mode.currentData(), "guess": self.guess.currentData(),
                 "confidence": self.confidence.isChecked(), "metric": self.similarity.currentData(),
-                "final": self.final.currentData(), "collapse_ratio": self.collapse_ratio.value(),
-                "motion_limit": self.motion_limit.value(),
+                "final": self.final.currentData(), **{k: getattr(self, k).value() for k in _SPIN_FIELDS},
                 "motion_floor": (self.floor_mm.value(), self.floor_deg.value()),
-                "sigma_limit": self.sigma_limit.value(), "stage_move_limit": self.stage_move_limit.value(),
-                "stage_move_sigmas": self.stage_move_sigmas.value(),
-                "stage_move_frames": self.stage_move_frames.value(),
                 "stage_move_reject": not self.keep_stage_moves.isChecked()}
 
     def options(self):

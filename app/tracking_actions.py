@@ -85,7 +85,7 @@ class TrackingActions:
         return dialog
 
     def _set_options(self, options) -> None:
-        from .commands.track import STAGE_MOVES, check_choices
+        from .commands.track import CHECKS, STAGE_MOVES, check_choices
         from .tracking_options import choices_of
 
         self.options = options
@@ -94,7 +94,7 @@ class TrackingActions:
         gc = ", gradient components" if c["metric"] == "components" else ""
         final = ", likelihood final stage" if c["final"] == "likelihood" else ""
         default = check_choices(None)
-        failure = ("collapse_ratio", "motion_limit", "motion_floor", "sigma_limit")
+        failure = [k for k in CHECKS if k not in STAGE_MOVES]  # the failure checks' thresholds
         checks = "" if all(c[k] == default[k] for k in failure) else (
             f", checks: collapse {c['collapse_ratio']:g}, motion {c['motion_limit']:g}x (floor "
             f"{c['motion_floor'][0]:g} mm, {c['motion_floor'][1]:g} deg), sigma {c['sigma_limit']:g}x")

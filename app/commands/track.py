@@ -264,7 +264,7 @@ def check_choices_of_args(a: argparse.Namespace) -> dict:
             continue
         if field == "motion_floor":
             v = parse_limits(v, flag)
-        elif field == "stage_move_frames" and v == v and abs(v) < float("inf") and v == int(v):
+        elif field == "stage_move_frames" and v.is_integer():  # argparse gives a float
             v = int(v)  # a fraction stays one, refused by TrackingOptions naming the option
         out[field] = v
     return out

@@ -392,8 +392,6 @@ def _newton_fallback(mm_per_px: float, coarsest_mm: float = 1.2) -> tuple[Level,
     return first, Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02)
 
 
-
-
 def search_region(renderer, pose, bone: int, *, views, center, options: RegistrationOptions, outline=None,
                   snap: bool = True) -> np.ndarray:
     """The full-resolution search regions ``(n_views, 4)`` of a registration of ``bone`` about

@@ -80,20 +80,17 @@ import time
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from dataclasses import replace as _replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .attempt import Attempt, confidence_of, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
+from .frame_state import _BoneState, _Run, predict_pose
 from .joint import JointJob, lockstep_applies, register_together
 from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
-
-if TYPE_CHECKING:
-    from .frame_state import _BoneState, _Run
 
 __all__ = ["AHEAD", "FINAL_EVERY_ROUND", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
            "STAGE_MOVE_SIGMAS", "stage_move_check", "track_frame"]
@@ -172,8 +169,6 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                  skip: dict) -> dict[int, FrameResult] | None:
     """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
     or None when cancelled."""
-    from .frame_state import predict_pose
-
     o, names, bones = run.options, run.names, run.bones
     missing = [v for v, im in enumerate(imgs) if im is None]
     if missing:

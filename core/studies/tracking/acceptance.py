@@ -9,7 +9,8 @@ cycles/mm blur, 5 % veiling glare, 35 % edge roll-off, pincushion + S distortion
 Frames are flatfield-normalised with the true flatfield and undistorted with a *slightly wrong*
 inverse (``k1`` and the twist off by ``residual`` = 3 %), which leaves a residual distortion of
 the size a fitted global polynomial leaves (thesis Table 3.1: ~0.1 mm); its RMS over the image is
-reported.
+reported. ``--correction grid`` undoes it instead with the model a calibration session fits to
+grid frames of each view (:mod:`core.studies.tracking.grid_correction`).
 
 Measurements
 ------------
@@ -52,24 +53,52 @@ import numpy as np
 
 from core.geometry.transforms import params_from_pose, pose_from_params
 
-__all__ = ["FRAME_RATE_HZ", "TrackingScene", "capture_range", "cramer_rao", "main", "mean_tre", "pose_errors",
-           "run", "surface_points", "tracking_scene"]
+__all__ = ["CORRECTIONS", "FRAME_RATE_HZ", "TrackingScene", "capture_range", "cramer_rao", "main", "mean_tre",
+           "model_corrections", "pose_errors", "run", "surface_points", "tracking_scene"]
 
 BONES = ("tibia", "talus", "calcaneus")
 STANCE_S = 0.6
 FRAME_RATE_HZ = 100 / (0.6 * STANCE_S)
 
 
+#: The trial's distortion corrections (:class:`TrackingScene` ``correction``).
+CORRECTIONS = ("model", "grid")
+
+
+def model_corrections(scene, residual: float = 0.03) -> list:
+    """Per view of ``scene`` its true distortion with ``k1`` and the twist scaled by ``1 + residual``
+    (the trial's default correction: an assumed calibration error)."""
+    from core.synthetic import Distortion
+
+    out = []
+    for m in scene.imaging:
+        d = m.distortion
+        out.append(Distortion(d.center, d.scale_px, d.k1 * (1 + residual), d.k2, d.twist_rad * (1 + residual),
+                              d.twist_power))
+    return out
+
+
 class TrackingScene:
-    """A synthetic trial with its frames (rendered on demand, cached), bone models and renderer."""
+    """A synthetic trial with its frames (rendered on demand, cached), bone models and renderer.
+
+    ``correction``: how the frames' distortion is undone — ``"model"`` (default): the view's true
+    distortion model with ``k1`` and the twist ``residual`` off; ``"grid"``: the model a calibration
+    session fits to grid frames of the same view's imaging chain, chosen by cross-validation
+    (:func:`core.studies.tracking.grid_correction.grid_corrections`: 5 grid, 5 dark and 10
+    empty-field frames per view, the session's own flatfield and distortion steps; composed with
+    the similarity that stands for the rig calibration in the corrected frame). ``residual`` is
+    used by ``"model"`` only.
+    """
 
     def __init__(self, *, n_frames: int, pixels: int, spacing: float, seed: int = 0, names=BONES,
                  phase=(0.0, 0.6), residual: float = 0.03, device: str | None = None,
-                 glare: bool = False) -> None:
+                 glare: bool = False, correction: str = "model") -> None:
         from core.render import DRRRenderer
-        from core.synthetic import Distortion, make_foot_scene
+        from core.synthetic import make_foot_scene
         from core.tracking.bones import bone_model
 
+        if correction not in CORRECTIONS:
+            raise ValueError(f"correction: expected one of {CORRECTIONS}, got {correction!r}")
         self.scene = make_foot_scene(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed,
                                      names=tuple(names), beads_per_bone=0, phase=phase, tissue_spacing=3.0)
         self.names = tuple(names)
@@ -78,11 +107,16 @@ class TrackingScene:
         self.renderer = DRRRenderer(self.scene.rig, [m.volume.to_attenuation(self.scene.bone_transfer)
                                                      for m in self.models], device=device)
         self._scene_renderer = self.scene.renderer(device=device)
-        self.corrections = []
-        for m in self.scene.imaging:
-            d = m.distortion
-            self.corrections.append(Distortion(d.center, d.scale_px, d.k1 * (1 + residual), d.k2,
-                                               d.twist_rad * (1 + residual), d.twist_power))
+        #: how the frames' distortion is undone: ``"model"`` (the true model, ``k1`` and the twist
+        #: ``residual`` off) or ``"grid"`` (estimated from the calibration session's grid frames)
+        self.correction = correction
+        if correction == "grid":
+            from core.studies.tracking.grid_correction import grid_corrections
+
+            #: per view: Distortion (``"model"``) or GridCorrection (``"grid"``): forward, inverse, unwarp
+            self.corrections = grid_corrections(self.scene, seed=seed)
+        else:
+            self.corrections = model_corrections(self.scene, residual)
         #: per view, the veiling glare measured from rendered lead-disc calibration frames
         #: (:func:`core.studies.imaging.glare_frames.measure_glare`, the calibration's measurement)
         #: and undone after the flatfield division as the correction pipeline's glare step does;
@@ -133,13 +167,15 @@ class TrackingScene:
 
 
 def tracking_scene(*, quick: bool, device: str | None = None, seed: int = 0, n_frames: int | None = None,
-                   pixels: int | None = None, names=BONES, glare: bool = False) -> TrackingScene:
+                   pixels: int | None = None, names=BONES, glare: bool = False,
+                   correction: str = "model") -> TrackingScene:
     """The study's scene at quick (256², 1 mm, 20 frames) or full (1024², 0.5 mm, 100 frames) size;
-    ``glare``: undo the veiling glare measured from calibration disc frames (:class:`TrackingScene`)."""
+    ``glare``: undo the veiling glare measured from calibration disc frames; ``correction``: the
+    distortion correction, ``"model"`` or ``"grid"`` (:class:`TrackingScene`)."""
     n = n_frames or (20 if quick else 100)
     px = pixels or (256 if quick else 1024)
     return TrackingScene(n_frames=n, pixels=px, spacing=1.0 if quick else 0.5, seed=seed, names=names,
-                         phase=(0.0, 0.6 * n / 100.0), device=device, glare=glare)
+                         phase=(0.0, 0.6 * n / 100.0), device=device, glare=glare, correction=correction)
 
 
 def pose_errors(pose: np.ndarray, truth: np.ndarray, center: np.ndarray) -> np.ndarray:
@@ -248,12 +284,12 @@ def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1
 
 def run(*, quick: bool = True, device: str | None = None, capture_trials: int | None = None,
         mode: str = "joint", figure: str | None = None, seed: int = 0,
-        n_frames: int | None = None) -> dict:
+        n_frames: int | None = None, correction: str = "model") -> dict:
     """Run the acceptance study; returns the JSON-ready results."""
     from core.tracking.trial import TrackingOptions, track
 
     t0 = time.perf_counter()
-    ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames)
+    ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames, correction=correction)
     o = TrackingOptions(mode=mode)
     g = np.random.default_rng(seed + 7)
     keyframes = {n: {0: pose_from_params(_random_offset(g, 5.0, 5.0), center=m.centroid, base=ts.truth(0)[b])}
@@ -317,7 +353,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
                                         "deg": E[:, 3:].std(0).round(4).tolist()}
         per_bone[n]["per_frame_error"] = E.round(5).tolist()
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
-           "frames": ts.scene.n_frames, "mode": mode, "start_error": "5 mm, 5 deg",
+           "frames": ts.scene.n_frames, "mode": mode, "start_error": "5 mm, 5 deg", "correction": correction,
            "residual_distortion_rms_mm": ts.residual_distortion_mm(), "frame_rate_hz": FRAME_RATE_HZ,
            "pixel_mm_at_isocentre": float(ts.scene.rig[0].pixel_size)}
     out = {"study": "core.studies.tracking.acceptance", "quick": quick, "machine": platform.machine(),
@@ -373,11 +409,14 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=None, help="number of frames (default 20 quick / 100)")
     p.add_argument("--capture-trials", type=int, default=None, help="capture-range trials per bone")
     p.add_argument("--mode", choices=("sequential", "joint"), default="joint")
+    p.add_argument("--correction", choices=CORRECTIONS, default="model",
+                   help="distortion correction: the true model 3 %% off (model) or fitted to grid "
+                   "frames (grid)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save per-frame errors as a PNG")
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, capture_trials=a.capture_trials, mode=a.mode, figure=a.figure,
-              n_frames=a.frames)
+              n_frames=a.frames, correction=a.correction)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

@@ -133,7 +133,8 @@ def _summary(E, bound, cov=None) -> dict:
     return s
 
 
-def _scene(n: int, pixels: int, voxel: float, device, workers: int, header: dict, *, glare: bool = False):
+def _scene(n: int, pixels: int, voxel: float, device, workers: int, header: dict, *, glare: bool = False,
+           correction: str = "model"):
     """``(ts, out, bound)``: the trial's scene of ``n`` frames with its frames synthesised, and the
     results' head — ``header``, the machine and device, sizes, synthesis time and the Cramér–Rao
     bound of every tenth frame (``cramer_rao``, ``bound_s``; ``bound`` in full, per bone)."""
@@ -141,7 +142,7 @@ def _scene(n: int, pixels: int, voxel: float, device, workers: int, header: dict
 
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=max(n, 2), pixels=pixels, spacing=voxel, phase=(0.0, 0.6 * max(n, 2) / 100.0),
-                       device=device, glare=glare)
+                       device=device, glare=glare, correction=correction)
     synthesise(ts, range(n), workers)
     out = {**header, "machine": platform.machine(), "device": str(ts.renderer.device), "pixels": pixels,
            "voxel_mm": voxel, "frames": n}
@@ -362,7 +363,7 @@ def silent_failures(E, flagged, bound: dict, factor: float = 4.0) -> dict:
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
               checkpoint=None, variants=((None, None, None, False),), glare: bool = False,
-              every_round: bool = False, keep_moves: bool = False) -> dict:
+              every_round: bool = False, keep_moves: bool = False, correction: str = "model") -> dict:
     """The trial tracked twice per case (``one``: the talus alone, ``three``: three bones jointly,
     or a bone's name: that bone alone) in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
@@ -384,8 +385,8 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
 
     n = frames or 100
     ts, out, bound = _scene(n, pixels, voxel, device, workers,
-                     {"study": "core.studies.tracking.ml_cost (final stage)", "highpass_px": highpass_px},
-                     glare=glare)
+                     {"study": "core.studies.tracking.ml_cost (final stage)", "highpass_px": highpass_px,
+                      "correction": correction}, glare=glare, correction=correction)
     out["glare"] = [g.to_dict() for g in ts.glare] or None
     base = TrackingOptions(mode="joint")
     plain = replace(base, registration=replace(base.registration, search="newton"))
@@ -502,6 +503,8 @@ def main(argv=None) -> int:
                    help="--final: more stages 'σ:lag[:confidence],…' ('-': the default)")
     p.add_argument("--glare", action="store_true",
                    help="--final: undo the veiling glare measured from calibration disc frames")
+    p.add_argument("--correction", choices=("model", "grid"), default="model",
+                   help="--final: the frames' distortion correction (TrackingScene correction)")
     p.add_argument("--every-round", action="store_true",
                    help="--final: three bones also with the stage after every joint round (as before)")
     p.add_argument("--keep-moves", action="store_true",
@@ -523,7 +526,7 @@ def main(argv=None) -> int:
                         pixels=a.pixels or 1024, voxel=a.voxel or 0.5, highpass_px=a.highpass,
                         workers=a.workers, checkpoint=checkpoint,
                         variants=[_variant(v) for v in a.final_variants.split(",") if v], glare=a.glare,
-                        every_round=a.every_round, keep_moves=a.keep_moves)
+                        every_round=a.every_round, keep_moves=a.keep_moves, correction=a.correction)
         print_json(res, a.out)
         return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,

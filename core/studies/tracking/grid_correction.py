@@ -291,11 +291,14 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=1024, help="views' size (the trial's: 1024)")
     p.add_argument("--grids", default="1,5", help="numbers of grid frames per camera to compare")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--machine-name", default=None, help="the machine in words (written into the JSON)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
     from core.io.atomic import print_json
 
     res = run(pixels=a.pixels, n_grids=[int(x) for x in a.grids.split(",") if x], seed=a.seed)
+    if a.machine_name:
+        res["machine_name"] = a.machine_name
     print_json(res, a.out)
     return 0
 

@@ -274,7 +274,8 @@ class GaussNewtonCost:
         return r
 
     # ------------------------------------------------------------------ per frame
-    def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None) -> None:
+    def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None,
+                  px_mm: float | None = None) -> None:
         """Take the fluoroscope ROIs ``roi (n_views, 4)`` of ``frame`` (the DRRs of ``others``
         subtracted, see :func:`core.tracking.cost.fluoro_rois`) and the parameterisation
         ``base_pose``, ``center`` for the next evaluations. The ROIs are smoothed and
@@ -284,7 +285,10 @@ class GaussNewtonCost:
         :class:`~core.tracking.cost.OutsideViewError` like :class:`RegistrationCost` (for the
         device preparation's count of usable pixels: the next evaluation raises it). The same
         inputs again (frame, ROIs, pose, centre, neighbours; e.g. the restarts of
-        :func:`core.tracking.verify.verify_start`) keep the regions prepared last time."""
+        :func:`core.tracking.verify.verify_start`) keep the regions prepared last time.
+        ``px_mm``: :func:`~core.tracking.cost.mm_per_pixel` of ``base_pose``, ``center`` and this
+        cost's views when the caller has it (:func:`core.tracking.register.register`), else
+        computed here."""
         t0 = time.perf_counter()
         self.base = np.asarray(base_pose, dtype=float)
         self.center = np.asarray(center, dtype=float)
@@ -299,7 +303,9 @@ class GaussNewtonCost:
             wp.synchronize_device(self.device)
         if self._dev_render is not None:
             self._dev_render.upload(self.base, self.center, self.roi)
-        px_mm = self.scale * mm_per_pixel(self.renderer, self.base, self.center, self.views)
+        if px_mm is None:
+            px_mm = mm_per_pixel(self.renderer, self.base, self.center, self.views)
+        px_mm = self.scale * px_mm
         taps, ftaps = self._taps(px_mm)
         staged = staged_shapes(self, frame) if self.device_frames else None
         if staged is None:

@@ -28,22 +28,32 @@ from .engine_kernels import GEO_LEN, pose_table_kernel
 __all__ = ["DeviceRender", "host_poses", "render_items"]
 
 
+_EYE3 = np.eye(3)
+
+
 def host_poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarray:
     """:func:`core.geometry.transforms.pose_from_params` of ``(mm, degrees)`` rows ``X``."""
+    B = len(X)
     r = np.radians(X[:, 3:])
     th = np.linalg.norm(r, axis=1)
     small = th < 1e-8
     k = r / np.where(small, 1.0, th)[:, None]
-    z = np.zeros(len(X))
-    Kx = np.stack([z, -k[:, 2], k[:, 1], k[:, 2], z, -k[:, 0], -k[:, 1], k[:, 0], z], axis=1)
-    Kx = Kx.reshape(-1, 3, 3)
+    # the cross-product matrices of the axes, filled in place (the values np.stack gave)
+    Kx = np.zeros((B, 3, 3))
+    Kx[:, 0, 1] = -k[:, 2]
+    Kx[:, 0, 2] = k[:, 1]
+    Kx[:, 1, 0] = k[:, 2]
+    Kx[:, 1, 2] = -k[:, 0]
+    Kx[:, 2, 0] = -k[:, 1]
+    Kx[:, 2, 1] = k[:, 0]
     s, c = np.sin(th)[:, None, None], (1.0 - np.cos(th))[:, None, None]
-    Rd = np.eye(3) + s * Kx + c * (Kx @ Kx)
-    Rd[small] = np.eye(3)
+    Rd = _EYE3 + s * Kx + c * (Kx @ Kx)
+    if small.any():
+        Rd[small] = _EYE3
     Rb, tb = base[:3, :3], base[:3, 3]
     c_lab = Rb @ center + tb
     R = Rd @ Rb
-    out = np.zeros((len(X), 4, 4))
+    out = np.zeros((B, 4, 4))
     out[:, :3, :3] = R
     out[:, :3, 3] = c_lab + X[:, :3] - R @ center
     out[:, 3, 3] = 1.0

@@ -381,6 +381,29 @@ def _run(level_method: str, fun, x0, *, sigma6, lo, hi, level: Level | None, tol
     return opt.powell(fun, x0, lower=lo, upper=hi, tol_x=tol, cancel=cancel, **extra)
 
 
+_LEVELS: dict = {}  # (levels function, sigma, final scale) -> the "newton" levels (_automatic_levels)
+
+
+def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:
+    """:func:`default_levels` at ``mm_px`` (mm per DRR pixel at the final scale ``fs``), scaled by
+    ``fs``. The ``"newton"`` search's levels do not depend on the pixel size (Gauss–Newton steps at
+    full resolution): they are made once per (sigma, fs) and kept (the same frozen levels; checked
+    as default_levels checks its arguments)."""
+    if search != "newton":
+        return tuple(replace(lv, scale=lv.scale * fs)
+                     for lv in default_levels(mm_px, sigma=sigma, search=search))
+    if not (np.isfinite(mm_px) and mm_px > 0):
+        raise ValueError(f"mm_per_px: expected a positive pixel size, got {mm_px!r}")
+    key = (default_levels, tuple(float(a) for a in sigma), float(fs))  # (the function: a test may patch it)
+    hit = _LEVELS.get(key)
+    if hit is None:
+        if len(_LEVELS) >= 16:
+            _LEVELS.clear()
+        hit = _LEVELS[key] = tuple(replace(lv, scale=lv.scale * fs)
+                                   for lv in default_levels(mm_px, sigma=sigma, search=search))
+    return hit
+
+
 def _newton_fallback(mm_per_px: float, coarsest_mm: float = 1.2) -> tuple[Level, ...]:
     """The levels of the ``"newton"`` search's second attempt: Gauss–Newton steps at the
     second-finest pyramid scale (half-steps and trust twice as wide), then at full resolution; at
@@ -460,10 +483,11 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
 
         if not supports(o.terms):  # the engine scores gc and ncc only: the quadratic-model searches
             search = "local" if search == "newton" else "global"
-    levels = o.levels or tuple(
-        replace(lv, scale=lv.scale * fs)
-        for lv in default_levels(mm_per_pixel(renderer, base, center, views) * fs, sigma=o.sigma,
-                                 search=search))
+    px_mm = None  # the full-resolution pixel size at the bone (the engine's smoothing takes it too)
+    levels = o.levels
+    if levels is None:
+        px_mm = mm_per_pixel(renderer, base, center, views)
+        levels = _automatic_levels(px_mm * fs, fs, o.sigma, search)
     if roi is None:
         roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline,
                             snap=all(lv.method == "gauss_newton" for lv in levels))
@@ -498,7 +522,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             c.timer = CostTimer()
             c.batches = {}
             c.profile = profile
-            c.set_frame(frame, base_pose=base, center=center, roi=roi, others=others)
+            c.set_frame(frame, base_pose=base, center=center, roi=roi, others=others, px_mm=px_mm)
             engines[scale] = c
         return engines[scale]
 

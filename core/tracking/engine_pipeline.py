@@ -82,6 +82,9 @@ class _Pipeline(RecordedWork):
         # on the CPU the blur passes split by items and the moments beside the statistics, on threads
         self.launches = launches if dev.is_cuda else split_cpu_launches(launches, c.renderer.cpu_threads)
         self.copies = [(self.host_out, self.out)] + ([(self.host_gn, self.gn)] if self.gn is not None else [])
+        # the host buffers' numpy views, made once (a view per fetch cost more than the copy)
+        self.host_out_np = self.host_out.numpy()
+        self.host_gn_np = None if self.gn is None else self.host_gn.numpy()
         self.capture(dev)
 
     def _enqueue(self) -> None:
@@ -106,7 +109,7 @@ class _Pipeline(RecordedWork):
 
     def fetch(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The scores (and moments) once the device has synchronised."""
-        return self.host_out.numpy().copy(), None if self.gn is None else self.host_gn.numpy().copy()
+        return self.host_out_np.copy(), None if self.gn is None else self.host_gn_np.copy()
 
     def run(self) -> tuple[np.ndarray, np.ndarray | None]:
         self.launch()

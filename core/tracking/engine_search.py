@@ -76,35 +76,51 @@ def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.nd
     ``Σ_v w_v (1 - r_v)`` (``weights`` default equal, normalised) in x units (see the module
     docs of :mod:`core.tracking.engine`). A view without contrast in Ω
     contributes r = 0 and nothing to g and H. (The views' centred sums in one pass; the same
-    arithmetic, element by element, as one view at a time.)"""
+    arithmetic, element by element, as one view at a time. Where every view has contrast —
+    every step of a tracked bone — the views left out are not masked: the same values with
+    fewer array operations on the step's critical path.)"""
     M = np.asarray(M, dtype=np.float64).reshape(-1, 9, 9)
     h = np.asarray(h, dtype=float)
     nv = len(M)
     w = [1.0 / nv] * nv if weights is None else list(np.asarray(weights, float) / np.sum(weights))
-    r_out = np.zeros(nv)
-    g = np.zeros(6)
-    H = np.zeros((6, 6))
     n = M[:, 0, 0]
     ok = n >= 2
-    m = M[:, 0] / np.where(ok, n, 1.0)[:, None]
+    every = bool(ok.all())
+    m = M[:, 0] / (n if every else np.where(ok, n, 1.0))[:, None]
     # centred sums of (., a, b, D): S - n m mᵀ, scaled
     C = (M - n[:, None, None] * (m[:, :, None] * m[:, None, :])) * _scale2(h)
     caa, cbb, cab = C[:, 1, 1], C[:, 2, 2], C[:, 1, 2]
     ok &= (caa > 0) & (cbb > 0)
-    if not ok.any():
-        return r_out, g, H
-    cb = np.where(ok, cbb, 1.0)  # the views without contrast are left out below
-    sq = np.sqrt(np.where(ok, caa, 1.0) * cb)
+    if every and bool(ok.all()):  # every view has contrast: nothing to leave out
+        cb = cbb
+        sq = np.sqrt(caa * cbb)
+    elif not ok.any():
+        return np.zeros(nv), np.zeros(6), np.zeros((6, 6))
+    else:
+        every = False
+        cb = np.where(ok, cbb, 1.0)  # the views without contrast are left out below
+        sq = np.sqrt(np.where(ok, caa, 1.0) * cb)
     r = cab / sq
     cbd = C[:, 2, 3:]
     dr = C[:, 1, 3:] / sq[:, None] - r[:, None] * cbd / cb[:, None]
-    jtj = (C[:, 3:, 3:] - cbd[:, :, None] * cbd[:, None, :] / cb[:, None, None]) / cb[:, None, None]
-    for v in range(nv):
-        if ok[v]:
-            rv = float(r[v])
-            r_out[v] = rv
+    cb3 = cb[:, None, None]
+    jtj = (C[:, 3:, 3:] - cbd[:, :, None] * cbd[:, None, :] / cb3) / cb3
+    g = np.zeros(6)
+    H = np.zeros((6, 6))
+    rl = r.tolist()
+    if every:
+        r_out = r
+        for v in range(nv):
             g -= w[v] * dr[v]
-            H += w[v] * max(rv, 0.05) * jtj[v]
+            H += w[v] * max(rl[v], 0.05) * jtj[v]
+    else:
+        r_out = np.zeros(nv)
+        for v in range(nv):
+            if ok[v]:
+                rv = rl[v]
+                r_out[v] = rv
+                g -= w[v] * dr[v]
+                H += w[v] * max(rv, 0.05) * jtj[v]
     return r_out, g, 0.5 * (H + H.T)
 
 

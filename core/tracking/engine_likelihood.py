@@ -25,6 +25,17 @@ differences of the high-passed DRRs). On the host, in float64, with ``A = (D, 1[
 Pereyra) and the step ``δ = (JᵀWJ)⁻¹ JᵀWr`` summed over views — the same arithmetic as
 :func:`core.similarity.likelihood.wls_gauss_newton_step` without the pixels on the host.
 
+Set-up (:meth:`LikelihoodEngine.set_frame`)
+-------------------------------------------
+Per frame each view's region of line integrals and usable pixels is cut on the host
+(:meth:`~core.tracking.cost.FrameImages.region`: numpy's float32 logarithm, as first measured;
+:data:`DEVICE_REGIONS`) and uploaded from pinned buffers (a float32 and a byte plane per view); the
+neighbours' DRRs are rendered with the steps' launch, summed and subtracted on the device
+(:func:`others_kernel`), and the weights and high-passes made there: no synchronisation, nothing
+read back. Before, the neighbours' DRRs were read back and subtracted on the host and four float32
+planes uploaded from pageable memory: 10.4 ms per bone-frame of the stage's set-up with three
+bones jointly (4.6 ms for the talus alone) on one NVIDIA H200 (1024², the acceptance trial).
+
 Confidence (:meth:`LikelihoodEngine.sandwich`)
 ----------------------------------------------
 ``χ²/dof · (JᵀWJ)⁻¹`` treats the pixels as independent; the high-pass, the PSF and what the
@@ -68,8 +79,9 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
-from .cost import CostTimer, FrameImages, fluoro_rois
+from .cost import CostTimer, FrameImages, OutsideViewError, fluoro_rois, padded_region
 from .engine import GaussNewtonCost
+from .engine_kernels import _LANES, fluoro_roi_kernel
 from .engine_search import step_design
 from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names as before)
     NA,
@@ -85,6 +97,7 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     mat12f,
     mat66f,
     meat_kernel,
+    others_kernel,
     psf_kernel,
     residual_kernel,
     robust_factors_device,
@@ -96,7 +109,15 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     wls_moments_kernel,
 )
 
-__all__ = ["LikelihoodEngine", "likelihood_engine", "robust_factors_device", "solve_moments"]
+__all__ = ["DEVICE_REGIONS", "LikelihoodEngine", "likelihood_engine", "robust_factors_device",
+           "solve_moments"]
+
+#: The regions' line integrals and usable pixels made on the device from the fluence
+#: (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as the tracker's engine makes them)
+#: instead of on the host (:meth:`~core.tracking.cost.FrameImages.region`). Off: the device's
+#: logarithm differs from numpy's float32 one in the last bit of 13-19 % of the pixels, and that
+#: moved the stage's poses by up to 0.015 mm on 192² CPU tests (module docs: Set-up).
+DEVICE_REGIONS = False
 
 
 def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False) -> dict:
@@ -182,6 +203,20 @@ class LikelihoodEngine:
         self._psf = (None if self.psf is None else
                      wp.array((self.psf / self.psf.sum()).astype(np.float32), dtype=wp.float32, device=dev))
         self._ref_hw = wp.zeros(self.n_views, dtype=wp.vec2i, device=dev)
+        pinned = dev.is_cuda
+        self._host_hw = wp.zeros(self.n_views, dtype=wp.vec2i, device="cpu", pinned=pinned)
+        self._hw_last = None
+        # the device's preparation of the regions (_stage): its item table, the usable pixels
+        # counted per view (and their sum, the regions' maxima: fluoro_roi_kernel's outputs)
+        self._info = wp.zeros((self.n_views, 8), dtype=wp.int32, device=dev)
+        self._host_info = wp.zeros((self.n_views, 8), dtype=wp.int32, device="cpu", pinned=pinned)
+        self._msum = wp.zeros((self.n_views, 2), dtype=wp.float64, device=dev)
+        self._host_msum = wp.zeros((self.n_views, 2), dtype=wp.float64, device="cpu", pinned=pinned)
+        self._fmax = wp.zeros(self.n_views, dtype=wp.float32, device=dev)
+        self._count_pending = False
+        self._host: dict = {}  # pinned host buffers (_pinned)
+        self._up_event = None  # recorded after the last uploads from them
+        self._y_raw = self._o_raw = None
         self._acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device=dev)
         self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
         self._tables: dict = {}
@@ -206,48 +241,40 @@ class LikelihoodEngine:
 
     # ------------------------------------------------------------------ per frame
     def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None) -> None:
-        """The regions ``roi (views, 4)`` of ``frame`` (line integrals, usable pixels, weights on
-        the host; the DRRs of ``others = (poses, bones)`` at their poses subtracted), high-passed
-        on the device, and the parameterisation ``base_pose``, ``center`` of the next steps.
-        Raises :class:`~core.tracking.cost.OutsideViewError` for a region without usable pixels."""
-        from ..similarity.likelihood import blur
-
+        """The regions ``roi (views, 4)`` of ``frame`` (line integrals, usable pixels, weights; the
+        DRRs of ``others = (poses, bones)`` at their poses subtracted), high-passed on the device,
+        and the parameterisation ``base_pose``, ``center`` of the next steps (module docs: Set-up).
+        Raises :class:`~core.tracking.cost.OutsideViewError` for a region without usable pixels
+        (on the device path at the next :meth:`step`'s synchronisation)."""
         t0 = time.perf_counter()
-        r = self.renderer
         self.base = np.asarray(base_pose, dtype=float)
         self.center = np.asarray(center, dtype=float)
         self.roi = np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)
-        rois, masks = fluoro_rois(r, frame, views=self.views, roi=self.roi)
-        y = [np.asarray(v, np.float32) for v in rois]
-        oth = [np.zeros_like(v) for v in y]
-        self._with_o = bool(others is not None and len(others[1]) and self.others_gain)
-        if others is not None and len(others[1]):
-            P = np.asarray(others[0], dtype=float)
-            img = r.render(P[None], views=self.views, bones=list(others[1]), roi=self.roi[None, :, None, :])
-            bg = img.numpy()[0].sum(axis=1)
-            for i, yi in enumerate(y):
-                o = np.nan_to_num(bg[i, : yi.shape[0], : yi.shape[1]])
-                o = o if self.psf is None else blur(o, self.psf)
-                if self._with_o:  # a regressor with its own gain
-                    oth[i] = o
-                else:  # subtracted as it is (gain 1)
-                    y[i] = yi - o
-        shapes = [v.shape for v in y]
-        self._cap = tuple(int(math.ceil(max(s[k] for s in shapes) / 32.0) * 32) for k in (0, 1))
-        nv, (Hc, Wc) = self.n_views, self._cap
-        # the line integrals (for the weights), those with the neighbours subtracted, the usable pixels
-        hy = np.zeros((4, nv, Hc, Wc), np.float32)
-        for i, (li, yi, m, o) in enumerate(zip(rois, y, masks, oth, strict=True)):
-            hy[0, i, : yi.shape[0], : yi.shape[1]] = li
-            hy[1, i, : yi.shape[0], : yi.shape[1]] = yi
-            hy[2, i, : yi.shape[0], : yi.shape[1]] = m
-            hy[3, i, : yi.shape[0], : yi.shape[1]] = o
-        self.n_pixels = int(sum(np.count_nonzero(m) for m in masks))
-        self._ref_hw.assign(np.array(shapes, dtype=np.int32))
+        nv = self.n_views
+        if self._up_event is not None:  # the pinned buffers are written again after their last copies
+            wp.synchronize_event(self._up_event)
+        staged = self._staged(frame) if DEVICE_REGIONS else None
+        if staged is None:  # the host's regions (those of fluoro_rois), uploaded
+            rois, masks = self._regions(frame)
+            shapes = [v.shape for v in rois]
+        else:
+            shapes = [(int(h), int(w)) for _, _, w, h in self.roi]
+        self._cap = tuple(int(math.ceil(max(sh[k] for sh in shapes) / 32.0) * 32) for k in (0, 1))
+        Hc, Wc = self._cap
+        hw = np.array(shapes, dtype=np.int32)
+        if self._hw_last is None or not np.array_equal(hw, self._hw_last):
+            self._host_hw.numpy()[:] = hw
+            wp.copy(self._ref_hw, self._host_hw)
+            self._hw_last = hw
+        li = self._buffer("li", (nv, Hc, Wc))
+        mask = self._buffer("mask", (nv, Hc, Wc), wp.uint8)
+        if staged is None:
+            self._host_upload(rois, masks, li, mask)
+        else:
+            self._stage(frame, staged, li, mask)
+        self._uploaded()
+        self._frame_others(others, li)
         dev = self.device
-        up = self._buffer("up", (4, nv, Hc, Wc))
-        up.assign(hy)
-        li, self._y_raw, mask, o_raw = up[0], up[1], up[2], up[3]
         # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
         # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))
@@ -256,13 +283,181 @@ class LikelihoodEngine:
         wp.launch(weights_kernel, dim=(nv, Hc, Wc), inputs=[low, mask, self._w], device=dev)
         self._y = self._buffer("y", (nv, Hc, Wc))
         self._o = self._buffer("o", (nv, Hc, Wc))
-        for src, dst in ((self._y_raw, self._y), (o_raw, self._o)):
+        pairs = ((self._y_raw, self._y), (self._o_raw, self._o)) if self._o_raw is not None else \
+            ((self._y_raw, self._y),)
+        if self._o_raw is None:  # no neighbours' regressor: its high-pass is 0
+            self._o.zero_()
+        for src, dst in pairs:
             if self.highpass_px:
                 low = self._blurred("y", src, nv)
                 wp.launch(highpass_kernel, dim=(nv, Hc, Wc), inputs=[src, low, 1.0, dst], device=dev)
             else:
                 wp.copy(dst, src)
         self.timer.host += time.perf_counter() - t0
+
+    def _staged(self, frame) -> list | None:
+        """Per view ``(r0, r1, c0, c1)``, the image rows and columns to upload for the device's
+        preparation of the regions (each grown by the mask's erosion), or None where the host
+        prepares them (not a :class:`~core.tracking.cost.FrameImages`, a region reaching outside
+        its image: :func:`~core.tracking.cost.fluoro_rois`)."""
+        if not isinstance(frame, FrameImages):
+            return None
+        p = frame._erode if frame._valid is not None else 0
+        out = []
+        for i, v in enumerate(self.views):
+            u0, v0, w, h = (int(a) for a in self.roi[i])
+            H, W = frame.shapes[v]
+            if w <= 0 or h <= 0 or u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
+                return None
+            out.append((max(v0 - p, 0), min(v0 + h + p, H), max(u0 - p, 0), min(u0 + w + p, W)))
+        return out
+
+    def _pinned(self, name: str, shape: tuple, dtype=wp.float32, *, exact: bool = False):
+        """A pinned host buffer of this engine's of at least ``shape`` (grown only, in 64-pixel
+        steps: pinned memory is slow to allocate; ``exact``: of that shape)."""
+        b = self._host.get(name)
+        if b is None or (tuple(b.shape) != tuple(shape) if exact else
+                         any(a < n for a, n in zip(b.shape, shape, strict=True))):
+            grown = tuple(shape)
+            if not exact:
+                grown = grown[:1] + tuple(int(math.ceil(n / 64.0) * 64) for n in grown[1:])
+                if b is not None:
+                    grown = tuple(max(a, n) for a, n in zip(b.shape, grown, strict=True))
+            b = self._host[name] = wp.zeros(grown, dtype=dtype, device="cpu", pinned=self.device.is_cuda)
+        return b
+
+    def _uploaded(self) -> None:
+        """Mark the uploads enqueued so far: the pinned buffers are written again after them."""
+        if self.device.is_cuda:
+            if self._up_event is None:
+                self._up_event = wp.Event(self.device)
+            wp.record_event(self._up_event)
+
+    def _stage(self, frame: FrameImages, staged: list, li, mask) -> None:
+        """Each view's region of the fluence uploaded as it is and its line integrals and usable
+        pixels made on the device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, the
+        values of :meth:`~core.tracking.cost.FrameImages.region`); the usable pixels counted there,
+        taken at the next step's synchronisation."""
+        nv = self.n_views
+        Hc, Wc = self._cap
+        p = frame._erode if frame._valid is not None else 0
+        Hs = max(r1 - r0 for r0, r1, _, _ in staged)
+        Ws = max(c1 - c0 for _, _, c0, c1 in staged)
+        given = any(frame._given[v] is not None for v in self.views)
+        host = self._pinned("stage", (nv, Hs, Ws))
+        hg = self._pinned("stage_given", (nv, Hs, Ws), wp.uint8) if given else None
+        src = self._buffer("stage", tuple(host.shape))
+        gsrc = self._buffer("stage_given", tuple(host.shape), wp.uint8) if given else \
+            self._buffer("stage_given", (nv, 1, 1), wp.uint8)
+        hn = host.numpy()
+        gn = None if hg is None else hg.numpy()
+        info = self._host_info.numpy()
+        info[:] = 0
+        for i, v in enumerate(self.views):
+            r0, r1, c0, c1 = staged[i]
+            u0, v0, w, h = (int(a) for a in self.roi[i])
+            hn[i, :r1 - r0, :c1 - c0] = frame._fluence[v][r0:r1, c0:c1]
+            g = frame._given[v]
+            if g is not None:
+                gn[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
+            info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
+        Ws_ = host.shape[2]
+        n = (nv - 1) * host.shape[1] * Ws_ + (staged[-1][1] - staged[-1][0]) * Ws_
+        dev = self.device
+        wp.copy(src, host, 0, 0, n)
+        if given:
+            wp.copy(gsrc, hg, 0, 0, n)
+        wp.copy(self._info, self._host_info)
+        self._msum.zero_()
+        lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
+        wp.launch(fluoro_roi_kernel, dim=(nv, math.ceil(Hc * Wc / self.chunk), _LANES), device=dev,
+                  inputs=[src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
+                          self.chunk, li, mask, self._fmax, self._msum])
+        wp.copy(self._host_msum, self._msum)
+        self._count_pending = True
+
+    def _regions(self, frame) -> tuple[list, list]:
+        """Per view the region's line integrals and usable pixels (views into the frame's cached
+        regions where they can be, else copies: the values of
+        :func:`~core.tracking.cost.fluoro_rois`); their usable pixels counted (``n_pixels``).
+        Raises OutsideViewError like it."""
+        rois, masks = [], []
+        if not isinstance(frame, FrameImages):
+            rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi)
+        else:
+            for i, v in enumerate(self.views):
+                sub, m, r = padded_region(frame, v, self.roi[i], 1.0)
+                x0, y0, w, h = (int(a) for a in r)
+                if x0 + w > sub.shape[1] or y0 + h > sub.shape[0]:  # (not at full resolution)
+                    rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi)
+                    break
+                rois.append(sub[y0:y0 + h, x0:x0 + w])
+                masks.append(None if m is None else m[y0:y0 + h, x0:x0 + w])
+                if masks[-1] is not None and not masks[-1].any():
+                    raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of "
+                                           f"view {v}")
+        self.n_pixels = int(sum(f.size if m is None else np.count_nonzero(m)
+                                for f, m in zip(rois, masks, strict=True)))
+        return rois, masks
+
+    def _host_upload(self, rois: list, masks: list, li, mask) -> None:
+        """The host's regions and usable pixels into the device's ``li`` and ``mask`` (padded
+        layout, 0 beyond each view's region), through pinned buffers."""
+        hl = self._pinned("li", tuple(li.shape), exact=True)
+        hm = self._pinned("mask", tuple(mask.shape), wp.uint8, exact=True)
+        a, m_ = hl.numpy(), hm.numpy()
+        for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
+            h, w = f.shape
+            a[i, :h, :w] = f
+            a[i, h:] = 0.0
+            a[i, :h, w:] = 0.0
+            m_[i, :h, :w] = 1 if m is None else m
+            m_[i, h:] = 0
+            m_[i, :h, w:] = 0
+        wp.copy(li, hl)
+        wp.copy(mask, hm)
+        self._count_pending = False
+
+    def _frame_others(self, others, li) -> None:
+        """The neighbours ``others = (poses, bones)`` rendered at their poses on the device (the
+        PSF's blur after their sum, as the bone's DRRs): taken from the line integrals ``li`` into
+        ``_y_raw``, or their own regressor ``_o_raw`` (``others_gain``); without neighbours
+        ``_y_raw`` is ``li`` itself."""
+        nv = self.n_views
+        Hc, Wc = self._cap
+        dev = self.device
+        n = 0 if others is None else len(others[1])
+        self._with_o = bool(n and self.others_gain)
+        self._o_raw = None
+        if not n:
+            self._y_raw = li
+            return
+        img = self._render(np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1]))
+        y = self._y_raw = self._buffer("y_raw", (nv, Hc, Wc))
+        o = self._buffer("o_raw", (nv, Hc, Wc))
+        gain = self._with_o or self._psf is not None  # the PSF's blur before the subtraction
+        wp.launch(others_kernel, dim=(nv, Hc, Wc), inputs=[img, n, li, self._ref_hw, int(gain), y, o],
+                  device=dev)
+        if self._psf is not None:
+            ob = self._buffer("o_psf", (nv, Hc, Wc))
+            wp.launch(psf_kernel, dim=(nv, Hc, Wc), inputs=[o, ob, self._psf, self._ref_hw, nv], device=dev)
+            if self._with_o:
+                o = ob
+            else:  # y = li - psf ∗ others
+                wp.launch(highpass_kernel, dim=(nv, Hc, Wc), inputs=[li, ob, 1.0, y], device=dev)
+        if self._with_o:
+            self._o_raw = o
+
+    def _take_count(self) -> None:
+        """The usable pixels the device's preparation counted (copied before the last
+        synchronisation); raises OutsideViewError for a view without any."""
+        self._count_pending = False
+        n = self._host_msum.numpy()[:, 0]
+        self.n_pixels = round(float(n.sum()))
+        for i, k in enumerate(n):
+            if k <= 0:
+                v = self.views[i]
+                raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
 
     def _blurred(self, tag: str, src, n_refs: int, taps=None):
         """The Gaussian low-pass of ``src`` (two passes of the separable blur; ``taps`` default the
@@ -308,6 +503,8 @@ class LikelihoodEngine:
                                 self._acc])
         wp.copy(self._host_acc, self._acc)
         wp.synchronize_device(self.device)
+        if self._count_pending:  # the regions prepared on the device: their usable pixels
+            self._take_count()
         M = self._host_acc.numpy().reshape(nv, NZ, NZ).copy()
         self._last = (img, low, x, h)
         self.timer.metric += time.perf_counter() - t0

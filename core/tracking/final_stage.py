@@ -278,6 +278,7 @@ def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, c
         timing["likelihood_setup_s"] = time.perf_counter() - t0
         out = _refine(eng, o, MODEL)
     except (OutsideViewError, np.linalg.LinAlgError):  # the similarity's pose stands
+        timing.pop("likelihood_setup_s", None)  # (a region without usable pixels: seen at the first step)
         timing["likelihood_s"] = time.perf_counter() - t0
         timing["likelihood_taken"] = 0
         return replace(res, timing=timing)

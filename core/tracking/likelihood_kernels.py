@@ -51,15 +51,43 @@ def psf_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float
 
 
 @wp.kernel
-def weights_kernel(low: wp.array3d(dtype=wp.float32), mask: wp.array3d(dtype=wp.float32),
+def weights_kernel(low: wp.array3d(dtype=wp.float32), mask: wp.array3d(dtype=wp.uint8),
                    out: wp.array3d(dtype=wp.float32)):
     """The expected counts exp(-low) where mask, else 0 (low: the smoothed line integrals). dim =
     items, H, W."""
     k, r, c = wp.tid()
     w = float(0.0)  # noqa: UP018
-    if mask[k, r, c] > 0.0:
+    if mask[k, r, c] != wp.uint8(0):
         w = wp.exp(-low[k, r, c])
     out[k, r, c] = w
+
+
+@wp.kernel
+def others_kernel(img: wp.array3d(dtype=wp.float32), n_bones: int, li: wp.array3d(dtype=wp.float32),
+                  ref_hw: wp.array(dtype=wp.vec2i), gain: int, y: wp.array3d(dtype=wp.float32),
+                  o: wp.array3d(dtype=wp.float32)):
+    """The neighbours' DRRs ``img`` (one pose's items, ordered view, bone) summed in bone order and
+    made finite as the host did (``np.nan_to_num`` of the sum: NaN 0, ±inf ±float32 max): with
+    ``gain`` kept apart (``o``; ``y`` = the line integrals ``li``), else taken from them (``y = li
+    - sum``, ``o`` = 0); 0 outside view v's (h, w) region. dim = (views, H, W)."""
+    v, r, c = wp.tid()
+    yv = float(0.0)  # noqa: UP018
+    ov = float(0.0)  # noqa: UP018
+    if r < ref_hw[v][0] and c < ref_hw[v][1]:
+        s = img[v * n_bones, r, c]
+        for n in range(1, n_bones):
+            s = s + img[v * n_bones + n, r, c]
+        if wp.isnan(s):
+            s = 0.0
+        elif wp.isinf(s):
+            s = wp.sign(s) * 3.4028234663852886e38
+        if gain != 0:
+            yv = li[v, r, c]
+            ov = s
+        else:
+            yv = li[v, r, c] - s
+    y[v, r, c] = yv
+    o[v, r, c] = ov
 
 
 @wp.kernel

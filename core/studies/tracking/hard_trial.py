@@ -132,8 +132,9 @@ import numpy as np
 from core.geometry.transforms import pose_from_params
 from core.studies.tracking.acceptance import _random_offset, pose_errors
 
-__all__ = ["ABLATIONS", "GOALS", "HardRun", "bias_ablation", "coverage", "error_structure", "evaluate",
-           "goals", "main", "merge_runs", "paired_comparison", "parse_final", "run"]
+__all__ = ["ABLATIONS", "BOUND_DERIVATIVES", "GOALS", "HardRun", "bias_ablation", "coverage",
+           "error_structure", "evaluate", "goals", "main", "merge_runs", "paired_comparison", "parse_final",
+           "run", "truth_bounds"]
 
 MODES = ("sequential", "joint", "joint+contact")
 #: HU → μ of the tracked bones' DRRs: ``"tracker"`` (default) the tracker's
@@ -216,23 +217,57 @@ class HardRun:
                                for v, (m, c) in pairs]
         return self._frames[f]
 
-    def bounds(self, frames) -> dict:
-        """Per bone, per frame: the Cramér–Rao bound's ``(rms_mm, rms_deg)`` (NaN where none)."""
-        from core.tracking.bound import pose_bound
-        from core.tracking.cost import OutsideViewError
+    def bounds(self, frames, *, derivatives: str = "truth") -> dict:
+        """Per bone, per frame: the Cramér–Rao bound's ``(rms_mm, rms_deg)`` (NaN where none), from
+        :func:`truth_bounds` (``derivatives="truth"``: the pose derivatives of the volumes the frames
+        were rendered from) or, as first computed, from the tracker's own CT and transfer
+        (``"tracker"``: :attr:`renderer`; a bound too large by 1.3-1.7× on this trial,
+        :mod:`core.studies.tracking.hard_bound_check`)."""
+        if derivatives not in BOUND_DERIVATIVES:
+            raise ValueError(f"derivatives: expected one of {BOUND_DERIVATIVES}, got {derivatives!r}")
+        renderer = None if derivatives == "truth" else self.renderer
+        return truth_bounds(self.scene, self.names, [m.centroid for m in self.models], self.truth,
+                            self.line_integrals, frames, renderer=renderer, device=self.device)
 
-        N = [m.photons_per_pixel for m in self.scene.imaging]
-        out = {n: [] for n in self.names}
-        for f in frames:
-            L = self.line_integrals(f)
-            for b, (n, m) in enumerate(zip(self.names, self.models, strict=True)):
-                try:
-                    pb = pose_bound(self.renderer, b, self.truth(f)[b], m.centroid, line_integral=L,
-                                    quanta_per_pixel=N)
-                    out[n].append((pb.rms_mm, pb.rms_deg))
-                except OutsideViewError:
-                    out[n].append((np.nan, np.nan))
-        return {n: np.array(v) for n, v in out.items()}
+
+#: where :meth:`HardRun.bounds` takes the bone's pose derivatives from
+BOUND_DERIVATIVES = ("truth", "tracker")
+
+
+def truth_bounds(scene, names, centers, truth, line_integrals, frames, *, renderer=None,
+                 device: str | None = None) -> dict:
+    """Per tracked bone (``names``: the scene's first bones), per frame: the Cramér–Rao bound's
+    ``(rms_mm, rms_deg)`` (:func:`core.tracking.bound.pose_bound`; NaN where the bone leaves every
+    view) at ``truth(f)`` from the frame's total ``line_integrals(f)`` and each view's quanta.
+
+    The pose derivatives are those of the renderer that synthesised the frames — the scene's own
+    bone volumes under its transfer (``scene.bones``, ``scene.bone_transfer``), as the bound's
+    derivation asks — not of the tracker's model: the tracker's CT is the truth blurred, resampled
+    and noisy, its DRR changes less with the pose than the frames do, and the bound from it was
+    1.6-1.7× the truth's at 192², 1 mm (0.6-0.75× the information's square root) — an oracle
+    maximum-likelihood fit on the trial's quanta spread 0.54-0.58× that bound
+    (:mod:`core.studies.tracking.hard_bound_check`). ``renderer`` replaces the truth's (index =
+    tracked bone) for comparison; ``centers`` are the rotation centres (the tracker's centroids)."""
+    from core.render import DRRRenderer
+    from core.tracking.bound import pose_bound
+    from core.tracking.cost import OutsideViewError
+
+    names = tuple(names)
+    if renderer is None:
+        vols = [v.to_attenuation(scene.bone_transfer) for v in scene.bones[:len(names)]]
+        renderer = DRRRenderer(scene.rig, vols, device=device)
+    N = [m.photons_per_pixel for m in scene.imaging]
+    out = {n: [] for n in names}
+    for f in frames:
+        L = line_integrals(f)
+        T = truth(f)
+        for b, (n, c) in enumerate(zip(names, centers, strict=True)):
+            try:
+                pb = pose_bound(renderer, b, T[b], c, line_integral=L, quanta_per_pixel=N)
+                out[n].append((pb.rms_mm, pb.rms_deg))
+            except OutsideViewError:
+                out[n].append((np.nan, np.nan))
+    return {n: np.array(v) for n, v in out.items()}
 
 
 def _contacts(hr: HardRun):

@@ -101,6 +101,7 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     psf_kernel,
     residual_kernel,
     robust_factors_device,
+    taper_kernel,
     vec2d,
     vec5f,
     vec6f,
@@ -217,6 +218,7 @@ class LikelihoodEngine:
         self._host: dict = {}  # pinned host buffers (_pinned)
         self._up_event = None  # recorded after the last uploads from them
         self._y_raw = self._o_raw = None
+        self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
         self._acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device=dev)
         self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
         self._tables: dict = {}
@@ -610,31 +612,51 @@ class LikelihoodEngine:
         return self._residual_device(s)[0].numpy()
 
     def sandwich(self, s: dict, Hinv: np.ndarray) -> np.ndarray:
-        """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`)."""
+        """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`): the
+        residual's autocovariance, its taper and the meat on the device, one synchronisation."""
         t0 = time.perf_counter()
         nv, (Hc, Wc) = self.n_views, self._cap
         dev = self.device
         e, jt = self._residual_device(s)
         L = self.lag_px
         nl = (2 * L + 1) ** 2
-        cov = wp.zeros((nv, nl, 2), dtype=wp.float64, device=dev)
+        cov = self._buffer("cov", (nv, nl, 2), wp.float64)
+        cov.zero_()
         n_chunks = math.ceil(Hc * Wc / self.chunk)
         wp.launch_tiled(autocov_kernel, dim=(nv, nl, n_chunks), block_dim=self.block_dim, device=dev,
                         inputs=[e, self._w, self._ref_hw, L, self.chunk, cov])
-        C = cov.numpy()
-        c = C[..., 0] / np.maximum(C[..., 1], 1.0)
-        d = np.arange(-L, L + 1)
-        taper = np.outer(1 - np.abs(d) / (L + 1), 1 - np.abs(d) / (L + 1)).ravel()
-        cw = wp.array((c * taper[None]).astype(np.float32), dtype=wp.float32, device=dev)
-        acc = wp.zeros((nv, 36), dtype=wp.float64, device=dev)
+        taper = self._bufs.get(("taper", L))
+        if taper is None:  # Bartlett's, per lag (rows, columns)
+            d = np.arange(-L, L + 1)
+            t = np.outer(1 - np.abs(d) / (L + 1), 1 - np.abs(d) / (L + 1)).ravel()
+            taper = self._bufs[("taper", L)] = wp.array(t, dtype=wp.float64, device=dev)
+        cw = self._buffer("cw", (nv, nl))
+        wp.launch(taper_kernel, dim=(nv, nl), inputs=[cov, taper, cw], device=dev)
+        acc = self._buffer("meat", (nv, 36), wp.float64)
+        acc.zero_()
         wp.launch_tiled(meat_kernel, dim=(nv, n_chunks), block_dim=self.block_dim, device=dev,
                         inputs=[jt, cw, self._ref_hw, L, self.chunk, acc])
-        meat = acc.numpy().reshape(nv, 6, 6).sum(axis=0)
+        host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
+        wp.copy(host, acc)
+        self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
+        wp.copy(self._cov_host, cov)  # for autocorrelation
+        wp.synchronize_device(dev)
+        meat = host.numpy().reshape(nv, 6, 6).sum(axis=0)
         meat = 0.5 * (meat + meat.T)
         self.timer.metric += time.perf_counter() - t0
-        rho = c / np.maximum(c[:, nl // 2: nl // 2 + 1], 1e-30)
-        self.autocorrelation = rho.reshape(nv, 2 * L + 1, 2 * L + 1)  # per view, lag 0 at the centre
         return Hinv @ meat @ Hinv
+
+    @property
+    def autocorrelation(self) -> np.ndarray | None:
+        """Per view the weighted residual's autocorrelation over the lag window of the last
+        :meth:`sandwich` (lag 0 at the centre), or None before one."""
+        if self._cov_host is None:
+            return None
+        C = self._cov_host.numpy()
+        c = C[..., 0] / np.maximum(C[..., 1], 1.0)
+        nl, n = c.shape[1], 2 * self.lag_px + 1
+        rho = c / np.maximum(c[:, nl // 2: nl // 2 + 1], 1e-30)
+        return rho.reshape(-1, n, n)
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

@@ -171,42 +171,85 @@ def _robust_weight_kernel(local: wp.array3d(dtype=wp.float32), scale: wp.array(d
     out[k, r, c] = f
 
 
+@wp.kernel
+def _median_keys_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtype=wp.float32),
+                        count: wp.array(dtype=wp.int32)):
+    """keys[v · H · W + r · W + c] = the local RMS where the pixel is used (local >= 0; NaN is not),
+    +inf elsewhere (sorted last); count[v] += the used pixels. dim = items, H, W."""
+    v, r, c = wp.tid()
+    x = local[v, r, c]
+    i = (v * local.shape[1] + r) * local.shape[2] + c
+    if x >= 0.0:
+        keys[i] = x
+        wp.atomic_add(count, v, 1)
+    else:
+        keys[i] = wp.inf
+
+
+@wp.kernel
+def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.int32), n: int,
+                   scale: wp.array(dtype=wp.float32)):
+    """scale[v] = the median of view v's used values (its segment of ``n`` sorted keys, the
+    ``count[v]`` used ones first), as ``np.median`` takes it in float32 (the mean of the two middle
+    values for an even count); 0 where there are none or it is not finite and positive. dim =
+    items."""
+    v = wp.tid()
+    m = count[v]
+    s = float(0.0)  # noqa: UP018
+    if m > 0:
+        x = (keys[v * n + (m - 1) // 2] + keys[v * n + m // 2]) * 0.5
+        if wp.isfinite(x) and x > 0.0:
+            s = x
+    scale[v] = s
+
+
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
                           device=None, bufs: dict | None = None):
     """:func:`core.tracking.final_stage.robust_factors` on the device: ``e``, ``w`` ``(views, H, W)``
     Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
     factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
-    same Gaussian as the host's), only its per-view median is taken on the host."""
+    same Gaussian as the host's) and its per-view median taken there too (the views' used values
+    sorted, :func:`warp.utils.segmented_sort_pairs`; the value of ``np.median``): no
+    synchronisation. ``bufs``: the caller's buffers, reused from call to call."""
     from ..similarity.batched import gaussian_weights  # scipy's gaussian_filter taps (truncate 4)
 
     device = device if device is not None else e.device
     bufs = {} if bufs is None else bufs
     shape = tuple(e.shape)
 
-    def buf(name):
+    def buf(name, shp=shape, dtype=wp.float32):
         b = bufs.get(name)
-        if b is None or tuple(b.shape) != shape:
-            b = bufs[name] = wp.zeros(shape, dtype=wp.float32, device=device)
+        if b is None or tuple(b.shape) != tuple(shp):
+            b = bufs[name] = wp.zeros(shp, dtype=dtype, device=device)
         return b
 
     a, b, ta, tb = buf("rf_a"), buf("rf_b"), buf("rf_ta"), buf("rf_tb")
-    g = wp.array(gaussian_weights(sigma_px, truncate=4.0), dtype=wp.float32, device=device)
+    g = bufs.get(("rf_taps", float(sigma_px)))
+    if g is None:
+        g = bufs[("rf_taps", float(sigma_px))] = wp.array(gaussian_weights(sigma_px, truncate=4.0),
+                                                          dtype=wp.float32, device=device)
     wp.launch(_robust_sq_kernel, dim=shape, inputs=[e, w, a, b], device=device)
     wp.launch(_blur_pair_kernel, dim=shape, inputs=[a, b, g, 1, ta, tb], device=device)
     wp.launch(_blur_pair_kernel, dim=shape, inputs=[ta, tb, g, 2, a, b], device=device)
     local = buf("rf_local")
     wp.launch(_local_rms_kernel, dim=shape, inputs=[a, b, w, local], device=device)
-    L = local.numpy()
-    scale = np.zeros(shape[0], np.float32)
-    for v in range(shape[0]):
-        x = L[v][L[v] >= 0]
-        if x.size:
-            m = float(np.median(x))
-            scale[v] = m if np.isfinite(m) and m > 0 else 0.0
+    nv, n = shape[0], shape[1] * shape[2]
+    keys = buf("rf_keys", (2 * nv * n,))
+    vals = buf("rf_vals", (2 * nv * n,), wp.int32)
+    count = buf("rf_count", (nv,), wp.int32)
+    seg = bufs.get(("rf_seg", nv, n))
+    if seg is None:
+        starts = np.arange(nv + 1, dtype=np.int32) * n  # the views' segments of the keys
+        seg = bufs[("rf_seg", nv, n)] = (wp.array(starts[:-1], dtype=wp.int32, device=device),
+                                         wp.array(starts[1:], dtype=wp.int32, device=device))
+    count.zero_()
+    wp.launch(_median_keys_kernel, dim=shape, inputs=[local, keys, count], device=device)
+    wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
+    scale = buf("rf_scale", (nv,))
+    wp.launch(_median_kernel, dim=nv, inputs=[keys, count, n, scale], device=device)
     out = buf("rf_out")
     wp.launch(_robust_weight_kernel, dim=shape, device=device,
-              inputs=[local, wp.array(scale, dtype=wp.float32, device=device), float(k),
-                      1 if kind == "cauchy" else 0, out])
+              inputs=[local, scale, float(k), 1 if kind == "cauchy" else 0, out])
     return out
 
 
@@ -329,6 +372,16 @@ def autocov_kernel(e: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.flo
         x = t[0]
         wp.atomic_add(acc, v, li, 0, x[0])
         wp.atomic_add(acc, v, li, 1, x[1])
+
+
+@wp.kernel
+def taper_kernel(acc: wp.array3d(dtype=wp.float64), taper: wp.array(dtype=wp.float64),
+                 cw: wp.array2d(dtype=wp.float32)):
+    """cw[v, l] = the tapered autocovariance at lag l: the mean product ``acc[v, l, 0] / max(pairs,
+    1)`` times ``taper[l]`` (in float64, as the host took it, then float32). dim = (views, lags)."""
+    v, li = wp.tid()
+    c = acc[v, li, 0] / wp.max(acc[v, li, 1], wp.float64(1.0))
+    cw[v, li] = wp.float32(c * taper[li])
 
 
 @wp.kernel

@@ -53,3 +53,25 @@ def test_stage_pose_the_same_with_device_factors(talus_scene):
         poses.append(res.pose)
     assert np.allclose(poses[0][:3, 3], poses[1][:3, 3], atol=1e-4)  # mm
     assert np.allclose(poses[0][:3, :3], poses[1][:3, :3], atol=1e-6)
+
+
+def test_device_median_is_numpys():
+    """The per-view scale of the robust factors (the median of the local RMS over the used
+    pixels) taken on the device equals np.median's, for odd and even counts of used pixels."""
+    import warp as wp
+
+    from core.tracking.engine_likelihood import robust_factors_device
+
+    g = np.random.default_rng(2)
+    e = g.normal(0.0, 1.0, (3, 33, 17))
+    w = g.uniform(0.5, 2.0, e.shape)
+    w[0, :, 9:] = 0.0  # 33 · 9 used (odd)
+    w[1, 4:8, 2:12] = 0.0  # 561 - 40 (odd)
+    w[2, 0, :] = 0.0  # 544 (even)
+    bufs: dict = {}
+    f = robust_factors_device(wp.array(e.astype(np.float32), dtype=wp.float32, device="cpu"),
+                              wp.array(w.astype(np.float32), dtype=wp.float32, device="cpu"), 2.5, bufs=bufs)
+    local = bufs["rf_local"].numpy()
+    want = np.array([np.median(x[x >= 0]) for x in local], dtype=np.float32)
+    np.testing.assert_array_equal(bufs["rf_scale"].numpy(), want)
+    assert np.all(f.numpy()[w == 0] == 0)

@@ -242,16 +242,19 @@ class GaussNewtonCost:
         self._taps_cache: dict = {}
         pinned = dev.is_cuda
         self._host_hw = wp.zeros(nv, dtype=wp.vec2i, device="cpu", pinned=pinned)
+        self._host_hw_np = self._host_hw.numpy()  # the pinned buffers' numpy views, made once
         # device preparation of the fluoroscope ROIs (set_frame): per-view geometry, sums, counts
         self._host_info = wp.zeros((nv, 8), dtype=wp.int32, device="cpu", pinned=pinned)
+        self._host_info_np = self._host_info.numpy()
         self._info = wp.zeros((nv, 8), dtype=wp.int32, device=dev)
         self._msum = wp.zeros((nv, 2), dtype=wp.float64, device=dev)
         self._count = wp.zeros(nv, dtype=wp.int32, device=dev)
         self._host_count = wp.zeros(nv, dtype=wp.int32, device="cpu", pinned=pinned)
+        self._host_count_np = self._host_count.numpy()
         self._stage_src = None
         self._stage_done = None  # (the frame, the inputs) of the regions and statistics on the device (stage)
         self._stage_checked = False  # their usable pixels counted and found
-        self._pinned: dict = {}  # pinned buffers of small uploads (_put)
+        self._pinned: dict = {}  # pinned buffers of small uploads and their numpy views (_put)
         self._tables: dict = {}  # DRR item tables per (batch, bones) (_render)
         self._staged_last = None  # (the frame, its regions) now on the device
         self.device_frames = True  # full-resolution ROIs prepared on the device (set_frame)
@@ -333,7 +336,7 @@ class GaussNewtonCost:
         dev = self.device
         hw_now = tuple(tuple(int(a) for a in sh) for sh in shapes)
         if hw_now != self._hw_last:
-            self._host_hw.numpy()[:] = np.array(shapes, dtype=np.int32)
+            self._host_hw_np[:] = np.array(shapes, dtype=np.int32)
             wp.copy(self._ref_hw, self._host_hw)
             self._hw_last = hw_now
         if staged is None:
@@ -400,8 +403,8 @@ class GaussNewtonCost:
     def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:
         """Launch ``kernel`` through a recorded launch, kept while its dimensions, arrays and
         values stay the same (the frame preparation's launches from frame to frame)."""
-        key = (name, dim, tuple((a.ptr, a.shape) if isinstance(a, wp.array)
-                                else a if isinstance(a, (int, float)) else id(a) for a in inputs))
+        key = (name, dim, tuple([(a.ptr, a.shape) if isinstance(a, wp.array)
+                                 else a if isinstance(a, (int, float)) else id(a) for a in inputs]))
         cmd = self._cmds.get(key)
         if cmd is None:  # kept per buffer set too (the arrays' addresses are in the key)
             cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
@@ -413,18 +416,18 @@ class GaussNewtonCost:
     def _put(self, name: str, dst: wp.array, values: np.ndarray) -> None:
         """Copy ``values`` into the device array ``dst`` through a pinned buffer of this cost's
         (no allocation; :meth:`set_frame` synchronises before it writes a pinned buffer again)."""
-        buf = self._pinned.get(name)
-        if buf is None or buf.shape != dst.shape:
-            buf = self._pinned[name] = wp.zeros(dst.shape, dtype=dst.dtype, device="cpu",
-                                                pinned=self.device.is_cuda)
-        buf.numpy()[:] = values
-        wp.copy(dst, buf)
+        hit = self._pinned.get(name)
+        if hit is None or hit[0].shape != dst.shape:
+            buf = wp.zeros(dst.shape, dtype=dst.dtype, device="cpu", pinned=self.device.is_cuda)
+            hit = self._pinned[name] = (buf, buf.numpy())
+        hit[1][:] = values
+        wp.copy(dst, hit[0])
 
     def _check_count(self) -> None:
         """Raise OutsideViewError when the device preparation found no usable pixel in a view
         (its count copied to the host before the last synchronisation)."""
         self._count_pending = False
-        for i, n in enumerate(self._host_count.numpy()):
+        for i, n in enumerate(self._host_count_np):
             if n <= 0:
                 self._prepared = None
                 self._stage_done = None

@@ -156,7 +156,7 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
     if not upload and self._stage_checked and last is not None and last[0]() is frame and last[1] == done:
         return False  # raw0, the masks and the statistics on the device are these regions'
     if self._info_last is None or not np.array_equal(info, self._info_last):
-        self._host_info.numpy()[:] = info
+        self._host_info_np[:] = info
         wp.copy(self._info, self._host_info)
         self._info_last = info
     self._fmax.zero_()

@@ -11,6 +11,7 @@ cost's gradient and Gauss–Newton Hessian.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -127,9 +128,6 @@ def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.nd
 _TRACE: list | None = None
 
 
-_DIAG = np.diag_indices(6)
-
-
 class LevenbergMarquardt:
     """The state of one Levenberg–Marquardt search (arguments as :func:`gauss_newton_search`)."""
 
@@ -160,10 +158,10 @@ class LevenbergMarquardt:
         self.done = False
 
     def _solve(self, s, lam_: float) -> np.ndarray:
-        A = self.alpha * s.H
-        # (αH + λ diag(max(diag αH, 1e-12))): the damping on the diagonal alone
+        A = np.multiply(self.alpha, s.H, order="C")
+        # (αH + λ diag(max(diag αH, 1e-12))): the damping on the diagonal alone (a strided view of it)
         dg = np.maximum(A.diagonal(), 1e-12)
-        A[_DIAG] += lam_ * dg
+        A.reshape(36)[::7] += lam_ * dg
         try:
             d = np.linalg.solve(A, -s.g)
         except np.linalg.LinAlgError:
@@ -210,7 +208,7 @@ class LevenbergMarquardt:
                 self.alpha = float(min(max(num / den, 0.5), 1.5))
         self.best = s
         self._coef, res = _residuals(s, self.alpha)
-        self.noise = float(np.sqrt(res @ res / 6.0))
+        self.noise = math.sqrt(float(res @ res) / 6.0)  # (np.sqrt's value: both correctly rounded)
         self.lam = max(self.lam / 10.0, 1e-7)
         d = self._solve(s, self.lam)
         if _TRACE is not None:

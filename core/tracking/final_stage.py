@@ -42,7 +42,18 @@ the robust factors filtered on the host). The factors are now filtered on the de
 CPU): on one NVIDIA H200 alone (``resources/benchmarks/tracking_final_reject_h200.json``) the
 stage took 44-46 ms per bone-frame on the harder trial (8.2-8.3 steps) and, on the acceptance
 trial (1024², 100 frames), 40.9 ms jointly (12.0 ms set-up, 8.6 steps; the plain stage 20.1 ms,
-4.4 steps) and 26.0 ms for the talus alone.
+4.4 steps) and 26.0 ms for the talus alone. Where it went (20 frames of that trial, one NVIDIA
+H200, each function timed with a synchronisation around it; per bone-frame, three bones jointly /
+the talus alone; ``resources/benchmarks/tracking_final_speed_h200.json``): the set-up 10.4 / 4.6 ms
+(the host regions 2.5 / 1.7 ms, the rest host arrays uploaded from pageable memory and the
+neighbours' DRRs read back), the steps 15.7 / 11.7 ms (1.8 / 1.4 ms each: DRRs 0.56, blur 0.45,
+the host's solve 0.29), the robust factors 6.3 / 4.4 ms (their median on the host) and two
+sandwiches 6.2 / 4.6 ms. Since then the set-up runs on the device without reading back
+(:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame`), the median is taken on the
+device, a sandwich synchronises once, the solve takes the views at once and the robust
+refinement's own sandwich is skipped (:data:`ROBUST_SANDWICH`), with the same poses, σ, steps
+and flags (on a 192² CPU trial, three bones jointly and sequentially and the talus alone: poses
+within 5e-15, the solve's rounding).
 
 The stage's result keeps the similarity's (:class:`LikelihoodFit` ``similarity``), so that a
 frame whose stage move is out of line with the bone's other frames keeps the similarity's pose
@@ -105,6 +116,11 @@ MODEL = FinalModel()
 #: the robust factors filtered on the device (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.
 #: robust_weights`; off: :func:`robust_factors` on the host, as first measured)
 ROBUST_ON_DEVICE = True
+#: the robust refinement's own sandwich covariance computed (``covariance_robust`` of
+#: :func:`_refine`, for studies); off, the stage's result is the same (its confidence is the first
+#: refinement's) and ``covariance_robust`` is the robust refinement's independent-pixel covariance,
+#: one sandwich (its residual's autocovariance and meat on the device) fewer per bone-frame
+ROBUST_SANDWICH = False
 
 
 @contextmanager
@@ -200,7 +216,8 @@ def _refine(eng, o, model: FinalModel) -> dict:
             f = robust_factors(e, used, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
             f = f if mask is None else f * mask
         eng.scale_weights(f)
-        out = eng.refine(out["x"], iters=o.final_iters)
+        own = ROBUST_SANDWICH or not np.all(np.isfinite(first["covariance"]))  # (then the stage's)
+        out = eng.refine(out["x"], iters=o.final_iters, sandwich=own)
         n_it += 1 + int(out["iterations"])
     out["iterations"] = n_it
     out["covariance_robust"] = out["covariance"]

@@ -221,6 +221,7 @@ class LikelihoodEngine:
         self._up_event = None  # recorded after the last uploads from them
         self._y_raw = self._o_raw = None
         self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
+        self._last = None  # the last step's (images, low-passed images, x, h)
         self._acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device=dev)
         self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
         self._tables: dict = {}
@@ -490,13 +491,20 @@ class LikelihoodEngine:
         self.timer.render += time.perf_counter() - t1
         return img, low
 
-    def step(self, x, h) -> dict:
+    def step(self, x, h, *, reuse: bool = False) -> dict:
         """The weighted products table of the 13-pose design about ``x`` (half-steps ``h``,
         mm and degrees) and :func:`solve_moments` of it (one DRR launch, 4-5 kernels, one
-        synchronisation)."""
+        synchronisation). ``reuse``: the last step's images where its design was the same (the
+        caller knows nothing rendered into the renderer's buffer since), the weights those of now:
+        no DRR launch."""
         x = np.asarray(x, dtype=float)
         h = np.asarray(h, dtype=float)
-        img, low = self._images(step_design(x, h))
+        last = self._last
+        if reuse and last is not None and np.array_equal(last[2], x) and np.array_equal(last[3], h):
+            img, low = last[0], last[1]
+        else:
+            img, low = self._images(step_design(x, h))
+            self.timer.evaluations += 13
         t0 = time.perf_counter()
         nv, (Hc, Wc) = self.n_views, self._cap
         self._acc.zero_()
@@ -513,7 +521,6 @@ class LikelihoodEngine:
         self._last = (img, low, x, h)
         self.timer.metric += time.perf_counter() - t0
         self.timer.calls += 1
-        self.timer.evaluations += 13
         t1 = time.perf_counter()
         out = solve_moments(M, h, self.background, self._with_o)
         out["M"] = M
@@ -521,19 +528,21 @@ class LikelihoodEngine:
         return out
 
     def refine(self, x0=None, *, iters: int = 5, step=(0.05, 0.05), tol=(1e-3, 1e-3),
-               sandwich: bool = True) -> dict:
+               sandwich: bool = True, reuse: bool = False) -> dict:
         """Gauss–Newton minimisation of χ² from ``x0`` (default 0: the base pose), as
         :meth:`core.tracking.likelihood_cost.LikelihoodCost.refine` (stops when a step is below
         ``tol`` or χ² rises, keeping the pose before). Returns ``{"x", "chi2", "iterations",
         "covariance", "covariance_independent"}`` (mm, degrees): the sandwich covariance of
-        :meth:`sandwich` about the last design (with ``sandwich``) and ``χ²/N · (JᵀWJ)⁻¹``."""
+        :meth:`sandwich` about the last design (with ``sandwich``) and ``χ²/N · (JᵀWJ)⁻¹``.
+        ``reuse``: the first step takes the last step's images where its design is the same
+        (:meth:`step`)."""
         hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         best, n_it = None, 0
         for it in range(1, int(iters) + 1):
             n_it = it
-            s = self.step(x, hv)
+            s = self.step(x, hv, reuse=reuse and it == 1)
             if not np.isfinite(s["chi2"]) or (best is not None and s["chi2"] > best[1]["chi2"]):
                 x = best[0] if best is not None else x  # uphill: the previous pose stands
                 break

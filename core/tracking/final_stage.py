@@ -205,7 +205,7 @@ def _refine(eng, o, model: FinalModel) -> dict:
         # the residual over the whole region (its typical pixel the noise's scale), then the
         # factors within the support
         eng.reset_weights()
-        s = eng.step(out["x"], np.full(6, 0.05))
+        s = eng.step(out["x"], np.full(6, 0.05))  # (refine's design: its first step takes these images)
         if ROBUST_ON_DEVICE:
             f = eng.robust_weights(s, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
             if mask is not None:
@@ -217,7 +217,7 @@ def _refine(eng, o, model: FinalModel) -> dict:
             f = f if mask is None else f * mask
         eng.scale_weights(f)
         own = ROBUST_SANDWICH or not np.all(np.isfinite(first["covariance"]))  # (then the stage's)
-        out = eng.refine(out["x"], iters=o.final_iters, sandwich=own)
+        out = eng.refine(out["x"], iters=o.final_iters, sandwich=own, reuse=True)
         n_it += 1 + int(out["iterations"])
     out["iterations"] = n_it
     out["covariance_robust"] = out["covariance"]

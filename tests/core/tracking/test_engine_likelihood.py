@@ -160,3 +160,30 @@ def test_final_stage_set_up_time_is_counted_once(talus_scene):
     assert t["other_s"] >= 0, t
     parts = sum(v for k, v in t.items() if k.endswith("_s") and k != "likelihood_setup_s")
     assert abs(parts - a.time_s) < 1e-6 * max(1.0, a.time_s), (parts, a.time_s)
+
+
+def test_set_up_on_the_device_equals_the_hosts_regions(talus_scene):
+    """set_frame's line integrals, usable pixels and neighbour-subtracted regions (the neighbours'
+    DRRs rendered and subtracted on the device) equal fluoro_rois' on the host, bit for bit."""
+    from core.tracking.cost import fluoro_rois
+
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(3)[0]
+    fr = prepare_frame(talus_scene["fluence"](3), valid_range=None)
+    roi = search_roi(r, truth, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
+    near = truth.copy()
+    near[:3, 3] += [6.0, 0.0, 0.0]  # overlapping the region
+    others = (near[None], [0])
+    eng = LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
+    eng.set_frame(fr, base_pose=truth, center=model.centroid, roi=roi, others=others)
+    plain, masks = fluoro_rois(r, fr, views=(0, 1), roi=roi)
+    sub, _ = fluoro_rois(r, fr, views=(0, 1), roi=roi, others=others)
+    li, m, y = eng._bufs["li"].numpy(), eng._bufs["mask"].numpy(), eng._y_raw.numpy()
+    for v in range(2):
+        h, w = plain[v].shape
+        np.testing.assert_array_equal(li[v, :h, :w], plain[v])
+        np.testing.assert_array_equal(m[v, :h, :w] > 0, masks[v])
+        np.testing.assert_array_equal(y[v, :h, :w], sub[v])
+        assert not np.any(m[v, h:]) and not np.any(m[v, :, w:])
+    assert not np.array_equal(plain[0], sub[0])  # the neighbour was in the region
+    assert eng.n_pixels == sum(int(k.sum()) for k in masks)

@@ -29,6 +29,13 @@ edges; even with robust weights its poses from the truth are 0.9-1.5× the bound
 H200) and its field fits that mismatch: 0.22-0.26 px off over the bones against a true field of
 0.17-0.21 px, and re-tracking on it did not lower the tibia's error.
 
+What a perfect correction would give at 1024² (``oracle_final``'s frames, measured by
+:mod:`core.studies.tracking.stage_limits`, one NVIDIA H200, 100 frames, three bones jointly with
+the final stage): tibia 2.16/1.46 → 1.52/1.39× its bound (mm/°), talus 1.39/1.31 → 1.38/1.29,
+calcaneus 1.90/1.40 → 1.19/1.33, the tibia's two silent frames gone. The distortion fitted to grid
+frames (``TrackingScene(correction="grid")``, ``tracking_grid_correction_h200.json``: 1.50/1.42,
+1.38/1.31, 1.20/1.36) is within 0.03 of it: there is nothing left for a self-calibration to take.
+
 Sizes: ``--pixels`` / ``--voxel`` / ``--frames`` (default 256², 1 mm, 20 frames: this 2-core CPU).
 JSON to stdout and ``--out`` (rewritten after each case).
 """

@@ -23,7 +23,13 @@ left out. Both choices make ``J`` larger, so the bound stays a *lower* bound —
 The other bones are taken as known (joint tracking), which is optimistic too.
 
 ``∂L/∂θ`` is the bone's DRR (:class:`core.render.DRRRenderer`, the renderer that synthesises the
-study's frames) differentiated by central differences.
+study's frames) differentiated by central differences. It must be the volume the frames were
+rendered from, under the transfer they were rendered with — not a tracker's model of it: a CT that
+is the truth blurred, resampled and noisy changes less with the pose, so its bound is too large. On
+the harder trial (:mod:`core.studies.tracking.hard_trial`, 192², 1 mm, this 2-core CPU machine)
+the tracker's CT gave a talus bound 1.6× the truth's, which an oracle maximum-likelihood fit on
+Poisson frames beat (0.59 / 0.57× it; 0.94 / 0.92× the truth's):
+:mod:`core.studies.tracking.hard_bound_check`.
 """
 
 from __future__ import annotations
@@ -133,7 +139,8 @@ def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.
     Parameters
     ----------
     renderer : core.render.DRRRenderer
-        Holds the bone's attenuation volume (index ``bone``) and the cameras.
+        Holds the bone's attenuation volume (index ``bone``) and the cameras: the volume and
+        transfer the frames were rendered from (module docs), not the tracker's CT.
     pose : (4, 4) array
         The true ``T_lab_from_bone``.
     center : (3,) array

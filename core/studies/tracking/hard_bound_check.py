@@ -39,13 +39,15 @@ import argparse
 import platform
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 from core.geometry.transforms import pose_from_params
 from core.studies.tracking.acceptance import pose_errors
 
-__all__ = ["bounds_at", "main", "noise_check", "oracle_ml", "response", "run", "spread", "trial_options"]
+__all__ = ["bound_ratio", "bounds_at", "main", "noise_check", "oracle_ml", "response", "run", "spread",
+           "trial_options"]
 
 
 def trial_options(final: bool = True):
@@ -313,6 +315,42 @@ def response(hr, f: int, bone: str = "talus", *, delta=(0.1, 0.3), device: str |
             "similarity_M_diagonal": np.diag(Msim).round(3).tolist()}
 
 
+def bound_ratio(*, pixels: int = 1024, spacing: float = 0.5, n_frames: int = 40, seed: int = 0,
+                frames=(0, 20), device: str | None = "cpu", cache: str | None = None,
+                reference: str | None = None) -> dict:
+    """The trial's bound from the tracker's CT against the truth's (:meth:`HardRun.bounds`
+    ``derivatives``) on ``frames`` of the trial as tracked (the H200's size by default: the same
+    seeded frames as ``n_frames`` there), per bone; ``reference`` a ``hard_trial`` JSON (or one
+    with ``seeds``) whose ``per_frame_bound`` of those frames the CT's bound should reproduce."""
+    from core.studies.tracking.hard_trial import HardRun
+
+    t0 = time.perf_counter()
+    hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device, cache=cache)
+    frames = [int(f) for f in frames]
+    old = hr.bounds(frames, derivatives="tracker")
+    new = hr.bounds(frames)
+    ref = None
+    if reference:
+        import json
+
+        d = json.loads(Path(reference).read_text(encoding="utf-8"))
+        d = d["seeds"][str(seed)] if "seeds" in d else d
+        ref = next(iter(d["runs"].values()))["bones"]
+    out = {"pixels": pixels, "voxel_mm": spacing, "n_frames": n_frames, "seed": seed, "frames": frames,
+           "bones": {}}
+    for n in hr.names:
+        o, t = np.asarray(old[n]), np.asarray(new[n])
+        e = {"tracker_ct": o.round(5).tolist(), "truth": t.round(5).tolist(),
+             "truth_over_tracker_ct": (t / o).round(4).tolist(),
+             "rms_truth_over_rms_tracker_ct":
+                 np.sqrt(np.mean(t**2, axis=0) / np.mean(o**2, axis=0)).round(4).tolist()}
+        if ref is not None:
+            e["reference_per_frame_bound"] = [ref[n]["per_frame_bound"][f] for f in frames]
+        out["bones"][n] = e
+    out["s"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
 def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 4, frame: int = 1, seed: int = 0,
         bone: str = "talus", draws: int = 24, tracker_draws: int | None = None, noise_draws: int = 64,
         far_draws: int = 8, with_response: bool = True, device: str | None = "cpu", cache: str | None = None,
@@ -351,6 +389,9 @@ def main(argv=None) -> int:
     p.add_argument("--noise-draws", type=int, default=64)
     p.add_argument("--far-draws", type=int, default=8)
     p.add_argument("--no-response", action="store_true")
+    p.add_argument("--bound-ratio", default=None, metavar="FRAMES",
+                   help="instead: the CT's bound against the truth's on these comma-separated frames")
+    p.add_argument("--reference", default=None, help="with --bound-ratio: a hard_trial JSON to compare with")
     p.add_argument("--device", default="cpu")
     p.add_argument("--cache", default=None)
     p.add_argument("--machine-name", default=None)
@@ -360,6 +401,14 @@ def main(argv=None) -> int:
 
     from core.io.atomic import print_json
 
+    if a.bound_ratio:
+        res = bound_ratio(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, seed=a.seed, device=a.device,
+                          cache=a.cache, frames=[int(x) for x in a.bound_ratio.split(",")],
+                          reference=a.reference)
+        if a.machine_name:
+            res["machine_name"] = a.machine_name
+        print_json(res, a.out)
+        return 0
     res = run(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, frame=a.frame, seed=a.seed, bone=a.bone,
               draws=a.draws, tracker_draws=a.tracker_draws, noise_draws=a.noise_draws, far_draws=a.far_draws,
               with_response=not a.no_response, device=a.device, cache=a.cache,

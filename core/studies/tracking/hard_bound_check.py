@@ -30,6 +30,26 @@ at reduced size, on the CPU:
   along each axis, started at the unmoved truth: ``M = dθ̂/dθ`` (``I`` for an estimator that is
   locally unbiased; a smaller response would shrink the spread below the bound).
 
+``--bound-ratio FRAMES`` (:func:`bound_ratio`): only the CT's bound against the truth's, on frames
+of the trial at any size (the H200's 1024², 0.5 mm by default), beside a run's JSON.
+
+Results (``resources/benchmarks/tracking_hard_bound_check_cpu.json``, this 2-core CPU machine)
+-----------------------------------------------------------------------------------------------
+The bound was mis-computed: the CT's derivatives gave a bound 1.3-1.7× the truth's — at 192², 1 mm
+(seed 0, frame 1) talus 0.0378 mm / 0.140° against 0.0238 mm / 0.0863°; at 1024², 0.5 mm on the
+H200 run's frames 0.61-0.62× (mm) and 0.60× (°) for the talus, 0.75-0.76 / 0.66-0.68 the tibia,
+0.60-0.61 / 0.58-0.59 the calcaneus, steady from frame to frame. The CT's blur, resampling and
+noise do it; the tracker's transfer does not (the truth's volume under it: within 1 % of the
+truth's bound). At 192²: the oracle fit on quanta-only frames spreads 0.94 / 0.92× the truth's
+bound (64 draws) and 0.59 / 0.57× the CT's; on the trial's frames 1.20 / 1.15× the truth's
+(1.11 / 1.07× the chain's, whose read noise matters at 192²'s 12,200 quanta per pixel). The
+frames' noise is the bound's: quanta-only draws 0.99-1.02× ``exp(-L) / N`` per pixel, the trial's
+frames 0.40× per pixel and 0.90-0.92× in 8×8 sums (the glare's ``(1 - 0.05)²``). The tracker from
+the truth spreads 1.75 / 1.36× the truth's bound (stage; the similarity 1.92 / 1.58×), 1.10 /
+0.84× the CT's — the H200's "below the bound" at small size; its response ``M`` has a diagonal of
+0.97-1.18 and a start 1 mm / 1.5° off moves its result by 0.003 mm / 0.009° RMS (6 draws): no
+shrinkage toward the start or the prediction.
+
 JSON on stdout (``--out``: also to a file).
 """
 

@@ -318,16 +318,16 @@ class LikelihoodEngine:
         return out
 
     def _pinned(self, name: str, shape: tuple, dtype=wp.float32, *, exact: bool = False):
-        """A pinned host buffer of this engine's of at least ``shape`` (grown only, in 64-pixel
-        steps: pinned memory is slow to allocate; ``exact``: of that shape)."""
+        """A pinned host buffer of this engine's of at least ``shape`` (grown only: pinned memory
+        is slow to allocate; 2-D and 3-D in 64-pixel steps; ``exact``: of that shape)."""
         b = self._host.get(name)
         if b is None or (tuple(b.shape) != tuple(shape) if exact else
                          any(a < n for a, n in zip(b.shape, shape, strict=True))):
             grown = tuple(shape)
-            if not exact:
+            if not exact and len(grown) > 1:
                 grown = grown[:1] + tuple(int(math.ceil(n / 64.0) * 64) for n in grown[1:])
-                if b is not None:
-                    grown = tuple(max(a, n) for a, n in zip(b.shape, grown, strict=True))
+            if b is not None and not exact:
+                grown = tuple(max(a, n) for a, n in zip(b.shape, grown, strict=True))
             b = self._host[name] = wp.zeros(grown, dtype=dtype, device="cpu", pinned=self.device.is_cuda)
         return b
 
@@ -407,10 +407,12 @@ class LikelihoodEngine:
 
     def _host_upload(self, rois: list, masks: list, li, mask) -> None:
         """The host's regions and usable pixels into the device's ``li`` and ``mask`` (padded
-        layout, 0 beyond each view's region), through pinned buffers."""
-        hl = self._pinned("li", tuple(li.shape), exact=True)
-        hm = self._pinned("mask", tuple(mask.shape), wp.uint8, exact=True)
-        a, m_ = hl.numpy(), hm.numpy()
+        layout, 0 beyond each view's region), through pinned buffers (flat, grown only: the
+        regions' size changes from frame to frame and pinned memory is slow to allocate)."""
+        n = li.size
+        hl = self._pinned("li", (math.ceil(n / 65536.0) * 65536,))
+        hm = self._pinned("mask", (math.ceil(n / 65536.0) * 65536,), wp.uint8)
+        a, m_ = hl.numpy()[:n].reshape(li.shape), hm.numpy()[:n].reshape(li.shape)
         for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
             h, w = f.shape
             a[i, :h, :w] = f
@@ -419,8 +421,8 @@ class LikelihoodEngine:
             m_[i, :h, :w] = 1 if m is None else m
             m_[i, h:] = 0
             m_[i, :h, w:] = 0
-        wp.copy(li, hl)
-        wp.copy(mask, hm)
+        wp.copy(li, hl, 0, 0, n)
+        wp.copy(mask, hm, 0, 0, n)
         self._count_pending = False
 
     def _frame_others(self, others, li) -> None:

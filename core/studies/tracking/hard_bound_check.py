@@ -40,15 +40,16 @@ The bound was mis-computed: the CT's derivatives gave a bound 1.3-1.7× the trut
 H200 run's frames 0.61-0.62× (mm) and 0.60× (°) for the talus, 0.75-0.76 / 0.66-0.68 the tibia,
 0.60-0.61 / 0.58-0.59 the calcaneus, steady from frame to frame. The CT's blur, resampling and
 noise do it; the tracker's transfer does not (the truth's volume under it: within 1 % of the
-truth's bound). At 192²: the oracle fit on quanta-only frames spreads 0.94 / 0.92× the truth's
-bound (64 draws) and 0.59 / 0.57× the CT's; on the trial's frames 1.20 / 1.15× the truth's
-(1.11 / 1.07× the chain's, whose read noise matters at 192²'s 12,200 quanta per pixel). The
-frames' noise is the bound's: quanta-only draws 0.99-1.02× ``exp(-L) / N`` per pixel, the trial's
-frames 0.40× per pixel and 0.90-0.92× in 8×8 sums (the glare's ``(1 - 0.05)²``). The tracker from
-the truth spreads 1.75 / 1.36× the truth's bound (stage; the similarity 1.92 / 1.58×), 1.10 /
-0.84× the CT's — the H200's "below the bound" at small size; its response ``M`` has a diagonal of
-0.97-1.18 and a start 1 mm / 1.5° off moves its result by 0.003 mm / 0.009° RMS (6 draws): no
-shrinkage toward the start or the prediction.
+truth's bound at 192², 4-5 % below it at 1024²). The chain after the quanta (``truth_chain``)
+raises the truth's bound by 1-6 % at 1024² (frame 0), 7-8 % at 192². At 192²: the oracle fit on
+quanta-only frames spreads 0.94 / 0.92× the truth's bound (64 draws) and 0.59 / 0.57× the CT's; on
+the trial's frames 1.20 / 1.15× the truth's (1.11 / 1.07× the chain's, whose read noise matters at
+192²'s 12,200 quanta per pixel). The frames' noise is the bound's: quanta-only draws 0.99-1.02×
+``exp(-L) / N`` per pixel, the trial's frames 0.40× per pixel and 0.90-0.92× in 8×8 sums (the
+glare's ``(1 - 0.05)²``). The tracker from the truth spreads 1.75 / 1.36× the truth's bound (stage;
+the similarity 1.92 / 1.58×), 1.10 / 0.84× the CT's — the H200's "below the bound" at small size;
+its response ``M`` has a diagonal of 0.97-1.18 and a start 1 mm / 1.5° off moves its result by
+0.003 mm / 0.009° RMS (6 draws): no shrinkage toward the start or the prediction.
 
 JSON on stdout (``--out``: also to a file).
 """

@@ -181,6 +181,7 @@ class _Trial:
             self.frames, self._truth, self.line_integrals = hr.frames, hr.truth, hr.line_integrals
             self.quanta = [m.photons_per_pixel for m in hr.scene.imaging]
             self.rig = hr.scene.rig
+            truth_volumes = hr.scene.bones, hr.scene.bone_transfer
         else:
             raise ValueError(f"scene: expected 'demo', 'walk' or 'hard', got {scene!r}")
         self.names = tuple(bones or self.names_all)
@@ -188,6 +189,14 @@ class _Trial:
         self.models = [models[i] for i in self.index]
         self.renderer = DRRRenderer(self.rig, [m.volume.to_attenuation(transfer) for m in self.models],
                                     device=device)
+        #: the bound's derivatives come from the volumes the frames were rendered from: on the hard
+        #: scene the tracker's CT is the truth blurred and resampled, and its bound 1.3-1.7x too large
+        #: (:func:`core.studies.tracking.hard_trial.truth_bounds`)
+        self.bound_renderer = self.renderer
+        if scene == "hard":
+            vols, tr = truth_volumes
+            self.bound_renderer = DRRRenderer(self.rig, [vols[i].to_attenuation(tr) for i in self.index],
+                                              device=device)
 
     def truth(self, f: int) -> np.ndarray:
         return self._truth(f)[self.index]
@@ -199,7 +208,7 @@ class _Trial:
         if any(q is None for q in self.quanta):
             return None
         try:
-            pb = pose_bound(self.renderer, b, self.truth(f)[b], self.models[b].centroid,
+            pb = pose_bound(self.bound_renderer, b, self.truth(f)[b], self.models[b].centroid,
                             line_integral=self.line_integrals(f), quanta_per_pixel=self.quanta)
         except OutsideViewError:
             return None

@@ -636,8 +636,8 @@ class LikelihoodEngine:
         cov = self._buffer("cov", (nv, nl, 2), wp.float64)
         cov.zero_()
         n_chunks = math.ceil(Hc * Wc / self.chunk)
-        wp.launch_tiled(autocov_kernel, dim=(nv, nl, n_chunks), block_dim=self.block_dim, device=dev,
-                        inputs=[e, self._w, self._ref_hw, L, self.chunk, cov])
+        wp.launch_tiled(autocov_kernel, dim=(nv, nl // 2 + 1, n_chunks), block_dim=self.block_dim, device=dev,
+                        inputs=[e, self._w, self._ref_hw, L, self.chunk, cov])  # (the rest mirrored)
         taper = self._bufs.get(("taper", L))
         if taper is None:  # Bartlett's, per lag (rows, columns)
             d = np.arange(-L, L + 1)

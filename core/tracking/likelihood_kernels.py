@@ -347,7 +347,9 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
 def autocov_kernel(e: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
                    ref_hw: wp.array(dtype=wp.vec2i), lag: int, chunk: int, acc: wp.array3d(dtype=wp.float64)):
     """acc[v, l] += (Σ e_i e_{i+Δ_l}, pairs) over the pairs of usable pixels at lag
-    Δ_l = (l // (2 lag + 1) - lag, l % (2 lag + 1) - lag) (rows, columns). dim = (views, lags, chunks)."""
+    Δ_l = (l // (2 lag + 1) - lag, l % (2 lag + 1) - lag) (rows, columns). dim = (views, lags, chunks):
+    the first (2 lag + 1)² // 2 + 1 lags suffice (lag -Δ has the same pairs: :func:`taper_kernel`
+    mirrors them)."""
     v, li, ch, lane = wp.tid()
     bd = wp.block_dim()
     h = ref_hw[v][0]
@@ -378,9 +380,17 @@ def autocov_kernel(e: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.flo
 def taper_kernel(acc: wp.array3d(dtype=wp.float64), taper: wp.array(dtype=wp.float64),
                  cw: wp.array2d(dtype=wp.float32)):
     """cw[v, l] = the tapered autocovariance at lag l: the mean product ``acc[v, l, 0] / max(pairs,
-    1)`` times ``taper[l]`` (in float64, as the host took it, then float32). dim = (views, lags)."""
+    1)`` times ``taper[l]`` (in float64, as the host took it, then float32). ``acc`` holds the first
+    half of the lags (and lag 0; :func:`autocov_kernel`): lag l beyond it is lag nl - 1 - l's
+    mirror, written into ``acc`` here too. dim = (views, lags)."""
     v, li = wp.tid()
-    c = acc[v, li, 0] / wp.max(acc[v, li, 1], wp.float64(1.0))
+    nl = cw.shape[1]
+    k = li
+    if li > nl // 2:
+        k = nl - 1 - li
+        acc[v, li, 0] = acc[v, k, 0]
+        acc[v, li, 1] = acc[v, k, 1]
+    c = acc[v, k, 0] / wp.max(acc[v, k, 1], wp.float64(1.0))
     cw[v, li] = wp.float32(c * taper[li])
 
 

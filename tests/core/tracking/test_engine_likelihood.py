@@ -187,3 +187,23 @@ def test_set_up_on_the_device_equals_the_hosts_regions(talus_scene):
         assert not np.any(m[v, h:]) and not np.any(m[v, :, w:])
     assert not np.array_equal(plain[0], sub[0])  # the neighbour was in the region
     assert eng.n_pixels == sum(int(k.sum()) for k in masks)
+
+
+def test_autocorrelation_equals_numpys(talus_scene):
+    """The sandwich's residual autocorrelation (half the lags summed on the device, the others
+    their mirror) equals the pairs' mean products computed with numpy over every lag."""
+    eng, _, _ = _setup(talus_scene, 2, [0.2, 0, 0, 0, 0.3, 0], highpass_px=2.0, lag_px=3)
+    s = eng.step(np.zeros(6), np.full(6, 0.05))
+    eng.sandwich(s, np.linalg.inv(s["JJ"]))
+    e = eng.residual(s).astype(np.float64)
+    used = eng._w.numpy() > 0
+    L, (H, W) = 3, e.shape[1:]
+    for v in range(2):
+        c = np.zeros((2 * L + 1, 2 * L + 1))
+        for a in range(-L, L + 1):
+            for b in range(-L, L + 1):
+                p = (slice(max(0, -a), H - max(0, a)), slice(max(0, -b), W - max(0, b)))
+                q = (slice(max(0, a), H - max(0, -a)), slice(max(0, b), W - max(0, -b)))
+                both = used[v][p] & used[v][q]
+                c[a + L, b + L] = np.sum((e[v][p] * e[v][q])[both]) / max(both.sum(), 1)
+        np.testing.assert_allclose(eng.autocorrelation[v], c / c[L, L], rtol=1e-5, atol=1e-7)

@@ -591,14 +591,15 @@ class LikelihoodEngine:
         """The robust factors of the weighted residual at the centre of the last step's design
         (``s``: that :meth:`step`'s result) and the current weights' usable pixels, on the device
         (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
-        e, _ = self._residual_device(s)
+        e, _ = self._residual_device(s, jacobian=False)
         return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
                                      bufs=self._bufs)
 
-    def _residual_device(self, s: dict) -> tuple:
+    def _residual_device(self, s: dict, jacobian: bool = True) -> tuple:
         """``(e, jt)`` on the device: the weighted residual ``e = √w (y - A coef)`` and its
         projections at the centre of the last step's design (``s``: that :meth:`step`'s result;
-        :func:`residual_kernel`), in the engine's buffers ``"e"`` and ``"jt"``."""
+        :func:`residual_kernel`), in the engine's buffers ``"e"`` and ``"jt"`` (``jacobian``
+        False: ``jt`` not computed)."""
         img, low, _, _ = self._last
         nv, (Hc, Wc) = self.n_views, self._cap
         hp = 1.0 if self.highpass_px else 0.0
@@ -606,7 +607,8 @@ class LikelihoodEngine:
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
         wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=self.device,
-                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt])
+                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt,
+                          int(jacobian)])
         return e, jt
 
     def support(self, x=None) -> np.ndarray:
@@ -622,7 +624,7 @@ class LikelihoodEngine:
     def residual(self, s: dict) -> np.ndarray:
         """``(views, H, W)`` the weighted residual ``e = √w (y - A coef)`` at the centre of the last
         step's design (``s``: that :meth:`step`'s result), on the host (0 where unused)."""
-        return self._residual_device(s)[0].numpy()
+        return self._residual_device(s, jacobian=False)[0].numpy()
 
     def sandwich(self, s: dict, Hinv: np.ndarray) -> np.ndarray:
         """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`): the

@@ -309,10 +309,11 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
                     y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
                     oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
                     lin: wp.array2d(dtype=wp.float32), e: wp.array3d(dtype=wp.float32),
-                    jt: wp.array3d(dtype=vec6f)):
+                    jt: wp.array3d(dtype=vec6f), with_jt: int):
     """The weighted residual e = √w (y - A coef) and projected Jacobian J̃_k = √w a (D_k - A β_k)
     of view v at the centre pose; ``lin[v]`` = (coef (5), a, 1/2h (6), β (5 × 6)) with A =
-    (D, 1, u, v, O) (unused terms with coefficients 0). dim = (views, H, W)."""
+    (D, 1, u, v, O) (unused terms with coefficients 0); ``with_jt`` 0: ``e`` alone (``jt`` not
+    written). dim = (views, H, W)."""
     v, r, c = wp.tid()
     h = ref_hw[v][0]
     w = ref_hw[v][1]
@@ -332,7 +333,7 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
             for q in range(NA):
                 fit += lin[v, q] * a[q]
             ev = sw * (y[v, r, c] - fit)
-            for k in range(6):
+            for k in range(6 * with_jt):
                 dk = (_hp(drr, low, hp, (2 * k + 1) * n_refs + v, r, c)
                       - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, NA + 1 + k]
                 proj = float(0.0)  # noqa: UP018
@@ -340,7 +341,8 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
                     proj += lin[v, NA + 7 + q * 6 + k] * a[q]
                 jv[k] = sw * lin[v, NA] * (dk - proj)
     e[v, r, c] = ev
-    jt[v, r, c] = jv
+    if with_jt != 0:
+        jt[v, r, c] = jv
 
 
 @wp.kernel

@@ -50,10 +50,11 @@ neighbours' DRRs read back), the steps 15.7 / 11.7 ms (1.8 / 1.4 ms each: DRRs 0
 the host's solve 0.29), the robust factors 6.3 / 4.4 ms (their median on the host) and two
 sandwiches 6.2 / 4.6 ms. Since then the set-up runs on the device without reading back
 (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame`), the median is taken on the
-device, a sandwich synchronises once, the solve takes the views at once and the robust
-refinement's own sandwich is skipped (:data:`ROBUST_SANDWICH`), with the same poses, σ, steps
-and flags (on a 192² CPU trial, three bones jointly and sequentially and the talus alone: poses
-within 5e-15, the solve's rounding).
+device, a sandwich synchronises once and sums half the lags, the solve takes the views at once,
+the robust refinement's own sandwich is skipped (:data:`ROBUST_SANDWICH`) and its first step
+reuses the robust factors' images, with the same poses, σ, steps and flags (on a 192² CPU trial,
+three bones jointly and sequentially and the talus alone: poses within 5e-15, the solve's
+rounding).
 
 The stage's result keeps the similarity's (:class:`LikelihoodFit` ``similarity``), so that a
 frame whose stage move is out of line with the bone's other frames keeps the similarity's pose

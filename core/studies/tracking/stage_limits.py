@@ -53,7 +53,11 @@ optimum sets the error. That spread is what the 4 px high-pass costs: the linear
 spread of the same estimator (:func:`core.studies.tracking.bound_gap.wls_spread`,
 ``tracking_bound_gap_cpu.json``, 1024², frame blurred) is tibia 1.41/1.36×, talus 1.30/1.25×,
 calcaneus 1.19/1.21× the bound at 4 px (1.16/1.21, 1.17/1.13, 1.10/1.10 at 8 px) against the
-measured 1.52/1.39, 1.38/1.27, 1.18/1.30.
+measured 1.52/1.39, 1.38/1.27, 1.18/1.30. A wider high-pass lets the soft tissue in: on
+noise-free 512² frames of bones, tissue and walkway through the blur and glare (this 2-core CPU
+machine, frames 10 and 50, the JSON's ``cpu_highpass_bias_512``) the talus's bias from the true
+pose is 0.003-0.013 mm at σ 2 px (4 px at 1024²), 0.013-0.031 at 3, 0.026-0.059 at 4 and up to
+0.25 mm / 1.3° at 8 px; the calcaneus's 0.002-0.034 mm, the tibia's ≤ 0.011 mm.
 
 JSON to ``--out`` (rewritten after each part).
 """
@@ -74,7 +78,8 @@ __all__ = ["COMPONENTS", "VARIANTS", "Variant", "bone_stats", "component_frames"
 VARIANTS: dict[str, dict] = {
     "default": {}, "plain": {"robust": None},
     "noothers": {"noothers": True}, "gain": {"gain": True},
-    "hp2": {"hp": 2.0}, "hp3": {"hp": 3.0}, "hp6": {"hp": 6.0}, "hp8": {"hp": 8.0},
+    "hp2": {"hp": 2.0}, "hp3": {"hp": 3.0}, "hp4": {"hp": 4.0}, "hp6": {"hp": 6.0}, "hp8": {"hp": 8.0},
+    "hp12": {"hp": 12.0}, "hp16": {"hp": 16.0},
     "r1.5": {"robust": 1.5}, "r2": {"robust": 2.0}, "r4": {"robust": 4.0},
     "huber": {"kind": "huber"}, "rounds2": {"rounds": 2}, "rsig1": {"rsig": 1.0}, "rsig4": {"rsig": 4.0},
     "support2": {"support": 2.0}, "support6": {"support": 6.0},

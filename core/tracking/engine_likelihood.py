@@ -535,7 +535,8 @@ class LikelihoodEngine:
         :meth:`core.tracking.likelihood_cost.LikelihoodCost.refine` (stops when a step is below
         ``tol`` or χ² rises, keeping the pose before). Returns ``{"x", "chi2", "iterations",
         "covariance", "covariance_independent"}`` (mm, degrees): the sandwich covariance of
-        :meth:`sandwich` about the last design (with ``sandwich``) and ``χ²/N · (JᵀWJ)⁻¹``.
+        :meth:`sandwich` about the last design (``sandwich`` False: NaN, not computed, and
+        :attr:`autocorrelation` None) and ``χ²/N · (JᵀWJ)⁻¹``.
         ``reuse``: the first step takes the last step's images where its design is the same
         (:meth:`step`)."""
         hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
@@ -562,7 +563,11 @@ class LikelihoodEngine:
         except np.linalg.LinAlgError:
             return {**out, "covariance": nan, "covariance_independent": nan}
         out["covariance_independent"] = Hinv * s["chi2"] / max(self.n_pixels, 1)
-        out["covariance"] = self.sandwich(s, Hinv) if sandwich else out["covariance_independent"]
+        if sandwich:
+            out["covariance"] = self.sandwich(s, Hinv)
+        else:  # not computed (nor the autocorrelation: a study reading either sees none)
+            out["covariance"] = nan
+            self._cov_host = None
         return out
 
     # ------------------------------------------------------------------ weights of the region

@@ -119,8 +119,8 @@ MODEL = FinalModel()
 ROBUST_ON_DEVICE = True
 #: the robust refinement's own sandwich covariance computed (``covariance_robust`` of
 #: :func:`_refine`, for studies); off, the stage's result is the same (its confidence is the first
-#: refinement's) and ``covariance_robust`` is the robust refinement's independent-pixel covariance,
-#: one sandwich (its residual's autocovariance and meat on the device) fewer per bone-frame
+#: refinement's), ``covariance_robust`` is NaN and the engine's autocorrelation None after it: one
+#: sandwich (its residual's autocovariance and meat on the device) fewer per bone-frame
 ROBUST_SANDWICH = False
 
 

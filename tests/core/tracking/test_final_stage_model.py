@@ -75,7 +75,8 @@ def test_robust_weights_resist_a_structure_the_model_lacks(talus_scene, model):
     assert robust[0] < 0.01 and robust[1] < 0.03, robust
 
 
-def test_robust_confidence_is_the_first_refinements(talus_scene):
+def test_robust_confidence_is_the_first_refinements(talus_scene, monkeypatch):
+    import core.tracking.final_stage as fst
     from core.tracking.cost import search_roi
     from core.tracking.engine_likelihood import LikelihoodEngine
     from core.tracking.final_stage import _refine
@@ -90,12 +91,20 @@ def test_robust_confidence_is_the_first_refinements(talus_scene):
     eng = LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
     eng.set_frame(fr, base_pose=truth, center=bone.centroid, roi=roi)
     plain = eng.refine(iters=5)
-    eng.set_frame(fr, base_pose=truth, center=bone.centroid, roi=roi)  # the weights as set_frame makes them
-    out = _refine(eng, RegistrationOptions(final="likelihood"), FinalModel(robust=2.5))
+    outs, autos = [], []
+    for own in (False, True):  # the robust refinement's own sandwich skipped (default), computed
+        monkeypatch.setattr(fst, "ROBUST_SANDWICH", own)
+        eng.set_frame(fr, base_pose=truth, center=bone.centroid, roi=roi)  # the weights of set_frame
+        outs.append(_refine(eng, RegistrationOptions(final="likelihood"), FinalModel(robust=2.5)))
+        autos.append(eng.autocorrelation)
+    skipped, out = outs
     np.testing.assert_allclose(out["covariance"], plain["covariance"], rtol=1e-6)
     assert np.all(np.isfinite(out["covariance_robust"]))
     assert not np.allclose(out["covariance_robust"], out["covariance"])
     assert out["iterations"] > plain["iterations"]
+    assert np.all(np.isnan(skipped["covariance_robust"])) and autos[0] is None and autos[1] is not None
+    for k in ("x", "covariance", "covariance_independent"):  # the stage's result the same
+        np.testing.assert_array_equal(skipped[k], out[k])
 
 
 def test_hard_trial_final_specs_and_goals():

@@ -22,6 +22,8 @@ and scipy's rotation objects — the tracker's own rigid poses, a few per frame.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..geometry.transforms import params_from_pose, pose_from_params
@@ -34,10 +36,21 @@ __all__ = ["COLLAPSE_RATIO", "MOTION_FLOOR", "MOTION_LIMIT", "SAME_OPTIMUM", "SC
 SAME_OPTIMUM = (0.5, 0.5)
 
 
+def _norm(x: np.ndarray) -> float:
+    """``float(np.linalg.norm(x))`` of a float64 vector: the same square root of ``x.dot(x)``
+    without its argument handling."""
+    return math.sqrt(float(x.dot(x)))
+
+
+def _finite(*arrays) -> bool:
+    """Whether every element of the arrays is finite."""
+    return all(np.isfinite(a).all() for a in arrays)
+
+
 def _rotvec(R: np.ndarray) -> np.ndarray | None:
     """Rotation vector (rad) of a rotation matrix, or None near a half turn (left to scipy)."""
     w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    s = 0.5 * float(np.linalg.norm(w))  # sin(angle)
+    s = 0.5 * _norm(w)  # sin(angle)
     c = 0.5 * (float(np.trace(R)) - 1.0)  # cos(angle)
     th = float(np.arctan2(s, c))
     if th > 3.0:  # near pi the antisymmetric part loses the axis
@@ -54,7 +67,7 @@ def pose_delta(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     c = np.asarray(c, dtype=float)
     Ra, Rb = a[:3, :3], b[:3, :3]
     rv = _rotvec(Rb @ Ra.T)
-    if rv is None or not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+    if rv is None or not _finite(a, b):
         return params_from_pose(b, center=c, base=a)
     disp = Rb @ c + b[:3, 3] - Ra @ c - a[:3, 3]
     return np.concatenate((disp, rv))
@@ -66,10 +79,10 @@ def step_pose(p: np.ndarray, base: np.ndarray, c: np.ndarray) -> np.ndarray:
     p = np.asarray(p, dtype=float)
     base = np.asarray(base, dtype=float)
     c = np.asarray(c, dtype=float)
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(base))):
+    if not _finite(p, base):
         return pose_from_params(p, center=c, base=base)
     r = p[3:]
-    th = float(np.linalg.norm(r))
+    th = _norm(r)
     Rd = np.eye(3)
     if th > 0:
         k = r / th
@@ -83,9 +96,28 @@ def step_pose(p: np.ndarray, base: np.ndarray, c: np.ndarray) -> np.ndarray:
     return out
 
 
+_DISTANCES: dict = {}  # _distance of the tracker's (4, 4) poses by their bytes
+
+
 def _distance(a, b, c) -> tuple[float, float]:
-    d = pose_delta(a, b, c)
-    return float(np.linalg.norm(d[:3])), float(np.degrees(np.linalg.norm(d[3:])))
+    """``(mm, degrees)`` of :func:`pose_delta` ``(a, b, c)``; kept by the poses' bytes for the next
+    call with the same poses (a frame's checks measure the registration from the guess and from the
+    motion prediction, which is the guess when the tracker guessed by velocity)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    c = np.asarray(c, dtype=float)
+    key = None
+    if a.shape == b.shape == (4, 4) and c.shape == (3,):
+        key = (a.tobytes(), b.tobytes(), c.tobytes())
+    hit = _DISTANCES.get(key) if key is not None else None
+    if hit is None:
+        d = pose_delta(a, b, c)
+        hit = (_norm(d[:3]), float(np.degrees(_norm(d[3:]))))
+        if key is not None:
+            if len(_DISTANCES) >= 256:
+                _DISTANCES.clear()
+            _DISTANCES[key] = hit
+    return hit
 
 
 #: A score below this fraction of the median of the bone's recent good scores fails outright: a
@@ -161,15 +193,15 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     out = []
     if not res.converged:
         out.append(f"not converged ({res.reason})")
-    recent = [float(v) for v in (good_scores or [])[-o.history:] if v is not None and np.isfinite(v)]
-    if not recent and reference is not None and np.isfinite(reference) \
+    recent = [float(v) for v in (good_scores or [])[-o.history:] if v is not None and math.isfinite(v)]
+    if not recent and reference is not None and math.isfinite(reference) \
             and res.score < o.min_score_ratio * float(reference):
         out.append(f"low score against the flagged first frame ({res.score:.3f} < {o.min_score_ratio:g} x "
                    f"{float(reference):.3f}; no verified frame to compare with)")
     med = _median(recent) if recent else None
     if med is not None and res.score < o.min_score_ratio * med:
         out.append(f"{SCORE_DROP} ({res.score:.3f} < {o.min_score_ratio:g} x recent median {med:.3f})")
-    if start_score is not None and np.isfinite(start_score):
+    if start_score is not None and math.isfinite(start_score):
         floor = o.min_start_ratio * float(start_score)
         if res.score < floor and (not recent or min(recent) >= floor):
             out.append(f"{SCORE_DROP} below the start ({res.score:.3f} < {o.min_start_ratio:g} x first frame "
@@ -217,13 +249,29 @@ MOTION_LIMIT = 6.0
 MOTION_FLOOR = (1.0, 2.0)
 
 
+_PREDICTED: dict = {}  # _predict by its poses' bytes and frames
+
+
 def _predict(f0, T0, f1, T1, f, c) -> np.ndarray:
     """Constant-velocity prediction at frame ``f`` from poses at frames ``f0``, ``f1`` (as
-    :func:`core.tracking.trial.predict_pose` ``"velocity"``)."""
+    :func:`core.tracking.trial.predict_pose` ``"velocity"``, which computes it here). Kept (read-only)
+    by the poses' bytes and the frames for the next call: the tracker's guess of a frame is the
+    prediction its motion check judges the registration against."""
+    T1 = np.asarray(T1, float)
     if f1 == f0:
-        return np.asarray(T1, float)
-    d = pose_delta(np.asarray(T0, float), np.asarray(T1, float), c)
-    return step_pose(d * (f - f1) / (f1 - f0), np.asarray(T1, float), c)
+        return T1
+    T0 = np.asarray(T0, float)
+    c = np.asarray(c, dtype=float)
+    key = (T0.tobytes(), T1.tobytes(), T0.shape, T1.shape, f0, f1, f, c.tobytes(), c.shape)
+    hit = _PREDICTED.get(key)
+    if hit is None:
+        d = pose_delta(T0, T1, c)
+        hit = step_pose(d * (f - f1) / (f1 - f0), T1, c)
+        hit.setflags(write=False)
+        if len(_PREDICTED) >= 256:
+            _PREDICTED.clear()
+        _PREDICTED[key] = hit
+    return hit
 
 
 def _reach(f0, f1, f) -> float:
@@ -314,7 +362,10 @@ def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min
     miss = [_miss(*h[j - 2], *h[j - 1], *h[j], c) for j in range(max(2, len(h) - int(n)), len(h))]
     if len(miss) < min_residuals:
         return None
-    med = np.median(np.asarray(miss), axis=0)
+    if any(x != x for m in miss for x in m):  # NaN: numpy's median (NaN)
+        med = np.median(np.asarray(miss), axis=0)
+    else:  # the same values (_median)
+        med = (_median([m[0] for m in miss]), _median([m[1] for m in miss]))
     (f0, T0), (f1, T1) = h[-2], h[-1]
     k = _reach(f0, f1, frame)
     lim_t = max(limit * float(med[0]), float(floor[0])) * k
@@ -338,7 +389,7 @@ def sigma_check(conf: dict | None, good_sigmas, *, n: int = 10, limit: float = S
     if conf is None:
         return []
     recent = [(float(t), float(r)) for t, r in list(good_sigmas or [])[-int(n):]
-              if t is not None and r is not None and np.isfinite(t) and np.isfinite(r)]
+              if t is not None and r is not None and math.isfinite(t) and math.isfinite(r)]
     if len(recent) < min_frames:
         return []
     mt, mr = _median([t for t, _ in recent]), _median([r for _, r in recent])

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..geometry.transforms import pose_from_params
 from .bones import BoneModel
-from .checks import pose_delta, step_pose
+from .checks import _predict, pose_delta
 from .options import TrackingOptions
 from .results import FrameResult
 
@@ -48,8 +48,9 @@ def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, 
     f0, T0 = history[-2]
     if f0 == f1:
         return np.asarray(T1, dtype=float)
-    d = pose_delta(np.asarray(T0, float), np.asarray(T1, float), c)
-    return step_pose(d * (frame - f1) / (f1 - f0), np.asarray(T1, float), c)
+    # the constant-velocity step (checks._predict: kept for the motion check of this frame, which
+    # judges the registration against the same prediction)
+    return _predict(f0, T0, f1, T1, frame, c).copy()
 
 
 class _Cancel:

@@ -125,3 +125,23 @@ def test_the_jump_limit_grows_with_a_stale_guess():
     assert any(x.startswith("pose jump") for x in failures(_res(far), truth(11), C, [0.5] * 11, O, **kw))
     kw = {"start_score": 0.5, "history": hist[:9], "frame": 11}  # two frames flagged: the guess 3 steps on
     assert not any(x.startswith("pose jump") for x in failures(_res(far), truth(11), C, [0.5] * 9, O, **kw))
+
+
+def test_the_guess_is_the_motion_checks_prediction_and_limits_are_the_recent_medians():
+    """predict_pose's velocity guess is the prediction motion_miss judges a pose against (computed
+    once; the guess handed out is the caller's own array), and the limits are limit x the median of
+    the recent misses (numpy's median)."""
+    from core.tracking.checks import _distance, _miss, _reach, motion_miss, pose_delta, step_pose
+    from core.tracking.frame_state import predict_pose
+
+    hist, truth = _walk(9, seed=3)
+    (f0, T0), (f1, T1) = hist[-2], hist[-1]
+    want = step_pose(pose_delta(T0, T1, C) * (9 - f1) / (f1 - f0), T1, C)
+    g = predict_pose(hist, 9, C)
+    assert g.tobytes() == want.tobytes() and g.flags.writeable
+    g[0, 3] += 100.0  # the caller's array: the next guess and the check are unchanged
+    assert predict_pose(hist, 9, C).tobytes() == want.tobytes()
+    dt, dr, lim_t, lim_r, m = motion_miss(truth(9), hist, 9, C, n=5, limit=6.0, floor=(0.0, 0.0))
+    assert (dt, dr) == _distance(want, truth(9), C)
+    med = np.median([_miss(*hist[j - 2], *hist[j - 1], *hist[j], C) for j in range(4, 9)], axis=0)
+    assert m == 5 and (lim_t, lim_r) == (6.0 * med[0] * _reach(f0, f1, 9), 6.0 * med[1] * _reach(f0, f1, 9))

@@ -132,9 +132,9 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     if host_only and ((flags and not cancelled()) or verify or (o.confidence and res.fit is None)):
         return None
     retried = False
-    wide = opts.widened(o.retry_factor)
     if flags and not cancelled():
         retried = True
+        wide = opts.widened(o.retry_factor)  # (only for a retry: a new options object each call)
         starts = [guess] + ([history[-1][1]] if history else [])
         for s in starts:
             try:
@@ -164,8 +164,8 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                 best = chk.result
                 try:
                     r2 = register(renderer, frame, bone=index, initial_pose=best.pose, center=c,
-                                  options=wide, others=others, cancel=cancel, profile=o.profile,
-                                  outline=bone.outline)
+                                  options=opts.widened(o.retry_factor), others=others, cancel=cancel,
+                                  profile=o.profile, outline=bone.outline)
                     add(r2)
                     if r2.score > best.score:
                         best = r2

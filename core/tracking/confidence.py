@@ -68,12 +68,12 @@ class PoseConfidence:
     @property
     def translation_mm(self) -> float:
         """Length of the translation sigma vector, mm."""
-        return float(np.linalg.norm(self.sigma[:3]))
+        return _norm(self.sigma[:3])
 
     @property
     def rotation_deg(self) -> float:
         """Length of the rotation sigma vector, degrees."""
-        return float(np.linalg.norm(self.sigma[3:]))
+        return _norm(self.sigma[3:])
 
     def to_dict(self) -> dict:
         def clean(v: float):
@@ -93,13 +93,29 @@ def stencil(n: int = 6) -> np.ndarray:
     return design(n, "full")
 
 
+def _norm(x) -> float:
+    """``float(np.linalg.norm(x))`` of a float vector (the same square root of ``x.dot(x)``)."""
+    x = np.asarray(x, dtype=float).ravel()
+    return math.sqrt(float(x.dot(x)))
+
+
+def _any_flat(w: np.ndarray) -> bool:
+    """Whether an eigenvalue of ``w`` is zero up to round-off (``w <= 1e-9 max |w|``), on Python
+    numbers (NaN: numpy's comparison)."""
+    v = w.tolist()
+    if any(x != x for x in v):
+        return bool((w <= 1e-9 * max(float(np.abs(w).max()), 1e-300)).any())
+    lim = 1e-9 * max(max(abs(x) for x in v), 1e-300)
+    return any(x <= lim for x in v)
+
+
 def _from_hessian(H: np.ndarray, noise: float, method: str) -> PoseConfidence:
     H = 0.5 * (np.asarray(H, dtype=float) + np.asarray(H, dtype=float).T)
     w, V = np.linalg.eigh(H)
     # a floor on the noise: float32 metric arithmetic cannot resolve cost differences below ~1e-6
     noise_eff = max(float(noise), 1e-6)
-    flat = w <= 1e-9 * max(float(np.abs(w).max()), 1e-300)  # zero up to round-off
-    if flat.any():
+    if _any_flat(w):
+        flat = w <= 1e-9 * max(float(np.abs(w).max()), 1e-300)  # zero up to round-off
         cov = np.full((6, 6), np.inf)
         sig = np.sqrt(np.abs(np.diag(2 * noise_eff * np.linalg.pinv(H))))
         # coordinates touched by a non-positive direction are unbounded

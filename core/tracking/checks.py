@@ -49,9 +49,10 @@ def _finite(*arrays) -> bool:
 
 def _rotvec(R: np.ndarray) -> np.ndarray | None:
     """Rotation vector (rad) of a rotation matrix, or None near a half turn (left to scipy)."""
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()  # (Python numbers: the same values)
+    w = np.array([r21 - r12, r02 - r20, r10 - r01])
     s = 0.5 * _norm(w)  # sin(angle)
-    c = 0.5 * (float(np.trace(R)) - 1.0)  # cos(angle)
+    c = 0.5 * ((r00 + r11 + r22) - 1.0)  # cos(angle); np.trace's order of the sum
     th = float(np.arctan2(s, c))
     if th > 3.0:  # near pi the antisymmetric part loses the axis
         return None
@@ -85,8 +86,8 @@ def step_pose(p: np.ndarray, base: np.ndarray, c: np.ndarray) -> np.ndarray:
     th = _norm(r)
     Rd = np.eye(3)
     if th > 0:
-        k = r / th
-        K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        k0, k1, k2 = (r / th).tolist()
+        K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
         Rd = Rd + np.sin(th) * K + (1.0 - np.cos(th)) * (K @ K)
     Rb, tb = base[:3, :3], base[:3, 3]
     R = Rd @ Rb

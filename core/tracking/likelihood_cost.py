@@ -17,7 +17,86 @@ import numpy as np
 
 from .cost import CostTimer, FrameImages, RegistrationCost, fluoro_rois
 
-__all__ = ["LikelihoodCost"]
+__all__ = ["BASES", "LikelihoodCost", "background_basis"]
+
+#: the smooth background's bases (:func:`background_basis`)
+BASES = ("monomial", "legendre", "bspline")
+
+
+def background_basis(shape, order: int, basis: str = "monomial") -> np.ndarray:
+    """``(n_terms, h, w)`` regressors of a smooth background over a region of ``shape``, the
+    coordinates scaled to [-1, 1]: ``"monomial"`` — 1, u, v (and u², uv, v² for order 2: the
+    numpy reference's, :mod:`core.similarity.likelihood`); ``"legendre"`` — the products
+    ``P_i(u) P_j(v)`` of Legendre polynomials with ``i + j <= order`` (``(order+1)(order+2)/2``
+    terms, well conditioned at high orders); ``"bspline"`` — the tensor products of cubic
+    B-splines on ``order`` equal intervals per axis (``(order+3)²`` terms, a partition of unity)."""
+    h, w = (int(x) for x in shape)
+    order = int(order)
+    if basis == "monomial":
+        from ..similarity.likelihood import _background
+
+        return _background((h, w), order)
+    v, u = np.linspace(-1, 1, h), np.linspace(-1, 1, w)
+    if basis == "legendre":
+        from numpy.polynomial import legendre
+
+        Pu = np.stack([legendre.legval(u, np.eye(order + 1)[i]) for i in range(order + 1)])
+        Pv = np.stack([legendre.legval(v, np.eye(order + 1)[i]) for i in range(order + 1)])
+        return np.stack([Pv[j][:, None] * Pu[i][None, :] for i in range(order + 1)
+                         for j in range(order + 1 - i)])
+    if basis == "bspline":
+        Bu, Bv = _bspline_1d(u, order), _bspline_1d(v, order)
+        return np.einsum("jy,ix->ijyx", Bv, Bu).reshape(-1, h, w)
+    raise ValueError(f"basis: expected one of {BASES}, got {basis!r}")
+
+
+def _bspline_1d(x: np.ndarray, n: int) -> np.ndarray:
+    """``(n + 3, len(x))`` cubic B-splines on ``n`` equal intervals of [-1, 1] at ``x``."""
+    t = (np.asarray(x, float) + 1) / 2 * n  # knot units, 0 … n
+    out = np.zeros((n + 3, len(t)))
+    for k in range(n + 3):  # spline k centred on knot k - 1
+        d = np.abs(t - (k - 1))
+        out[k] = np.where(d < 1, (4 - 6 * d**2 + 3 * d**3) / 6, np.where(d < 2, (2 - d) ** 3 / 6, 0.0))
+    return out
+
+
+def _step_general(drr0, ddrr, fluoro, weights, R, Qb=None):
+    """:func:`core.similarity.likelihood.wls_gauss_newton_step` with any fixed background
+    regressors ``R (q, h, w)``; also returns the weighted residual image ``√w r`` (0 where unused).
+    ``Qb``: an orthonormal basis of the weighted regressors over the used pixels (:func:`_basis_q`;
+    made here when None)."""
+    y = np.asarray(fluoro, np.float64)
+    W = np.asarray(weights, np.float64)
+    sel = W.ravel() > 0
+    sw = np.sqrt(W.ravel()[sel])
+    if Qb is None:
+        Qb = _basis_q(R, W)
+
+    def off(a):  # the part of a (…, n) orthogonal to the background
+        return a - (a @ Qb) @ Qb.T
+
+    d0 = off(np.asarray(drr0, np.float64).ravel()[sel] * sw)
+    yw = off(y.ravel()[sel] * sw)
+    dd = float(d0 @ d0)
+    gain = float(d0 @ yw) / dd
+    q0 = d0 / np.sqrt(dd)
+    r = yw - q0 * float(q0 @ yw)
+    dD = off(np.asarray(ddrr, np.float64).reshape(6, -1)[:, sel] * sw) * gain  # (6, n)
+    Jm = -(dD - np.outer(dD @ q0, q0))  # projected: the linear parameters re-fit along every direction
+    e = np.zeros(y.size)
+    e[sel] = r
+    return Jm @ Jm.T, Jm @ r, float(r @ r), int(sel.sum() - Qb.shape[1] - 1), e.reshape(y.shape)
+
+
+def _basis_q(R, weights) -> np.ndarray:
+    """``(n, q')`` orthonormal basis of the regressors ``R (q, h, w)`` times ``√w`` over the pixels
+    with a positive weight (directions the region cannot tell apart dropped)."""
+    W = np.asarray(weights, np.float64).ravel()
+    sel = W > 0
+    B = (np.asarray(R, np.float64).reshape(len(R), -1)[:, sel] * np.sqrt(W[sel])).T
+    Q, T = np.linalg.qr(B)
+    d = np.abs(np.diag(T))
+    return Q[:, d > 1e-9 * max(d.max(), 1e-300)]
 
 
 class LikelihoodCost:
@@ -27,11 +106,12 @@ class LikelihoodCost:
 
     Per view, the model of the search region is the bone's DRR (blurred by ``psf`` when given)
     times a gain, plus the other bones' DRRs (``others``, at fixed poses, blurred alike) times
-    their own gain, plus a smooth background (``background``: polynomial order), all fitted
-    linearly at every pose; pixels weigh by their expected counts (the smoothed relative
-    fluence) over the usable pixels of the region — or, with ``dilate`` (pixels), only over the
-    bone's footprint at the base pose grown by that much. ``psf`` must come from calibration
-    images (e.g. :func:`core.imaging.psf.psf_from_pinholes`), never from a generator's truth.
+    their own gain, plus a smooth background (``background``: polynomial order, or intervals per
+    axis of a B-spline; ``basis``: :func:`background_basis`), all fitted linearly at every pose;
+    pixels weigh by their expected counts (the smoothed relative fluence) over the usable pixels
+    of the region — or, with ``dilate`` (pixels), only over the bone's footprint at the base pose
+    grown by that much. ``psf`` must come from calibration images (e.g.
+    :func:`core.imaging.psf.psf_from_pinholes`), never from a generator's truth.
 
     Same mapping of parameters as :class:`RegistrationCost` (:meth:`poses`, :meth:`params`).
     Larger = worse; the value is not bounded (χ²/2, not 1 - score).
@@ -40,7 +120,7 @@ class LikelihoodCost:
     def __init__(self, renderer, frame: FrameImages, *, bone: int, base_pose, center, roi,
                  views: Sequence[int] | None = None, others=None, psf=None, background: int = 1,
                  dilate: int | None = None, weight_sigma_px: float = 2.0, highpass_px: float | None = None,
-                 others_gain: bool = True) -> None:
+                 others_gain: bool = True, basis: str = "monomial") -> None:
         from scipy import ndimage
 
         from ..similarity.likelihood import expected_counts, highpass
@@ -57,9 +137,16 @@ class LikelihoodCost:
                                      or self.psf.shape[1] % 2 == 0 or self.psf.sum() <= 0):
             raise ValueError(f"psf: expected an odd-sized 2-D kernel with a positive sum, "
                              f"got {self.psf.shape}")
-        if int(background) not in (0, 1, 2):
+        if basis not in BASES:
+            raise ValueError(f"basis: expected one of {BASES}, got {basis!r}")
+        if basis == "monomial" and int(background) not in (0, 1, 2):
             raise ValueError(f"background: expected a polynomial order 0, 1 or 2, got {background!r}")
+        if basis != "monomial" and not 0 <= int(background) <= 32:
+            raise ValueError(f"background: expected an order (intervals) 0 to 32, got {background!r}")
+        if basis == "bspline" and int(background) < 1:
+            raise ValueError(f"background: a B-spline needs at least 1 interval, got {background!r}")
         self.background = int(background)
+        self.basis = basis
         self.timer = CostTimer()
         rois, masks = fluoro_rois(renderer, frame, views=self.views, roi=self.roi)
         self.fluoro_rois = tuple(rois)
@@ -101,8 +188,11 @@ class LikelihoodCost:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         D = self._render(X)
         t1 = time.perf_counter()
-        c = 0.5 * wls_chi2(D, self.fluoro_rois, self.weights, others=self.others, psf=self.psf,
-                           background=self.background, highpass_px=self.highpass_px)
+        if self.basis == "monomial":
+            c = 0.5 * wls_chi2(D, self.fluoro_rois, self.weights, others=self.others, psf=self.psf,
+                               background=self.background, highpass_px=self.highpass_px)
+        else:
+            c = 0.5 * self._chi2_general(D)
         t2 = time.perf_counter()
         self.timer.render += t1 - t0
         self.timer.metric += t2 - t1
@@ -110,7 +200,50 @@ class LikelihoodCost:
         self.timer.evaluations += len(X)
         return np.where(np.isfinite(c), c, np.inf)
 
-    def refine(self, x0=None, *, iters: int = 4, step=(0.05, 0.05), tol=(1e-3, 1e-3)) -> dict:
+    def _regressors(self, v: int) -> np.ndarray:
+        """View ``v``'s fixed background regressors ``(q, h, w)`` (made once)."""
+        cache = self.__dict__.setdefault("_basis_cache", {})
+        if v not in cache:
+            cache[v] = background_basis(self.fluoro_rois[v].shape, self.background, self.basis)
+        return cache[v]
+
+    def _q(self, v: int, w) -> np.ndarray:
+        """:func:`_basis_q` of view ``v``'s regressors under the weights ``w`` (the last one kept)."""
+        cache = self.__dict__.setdefault("_q_cache", {})
+        if v not in cache or cache[v][0] is not w:
+            cache[v] = (w, _basis_q(self._regressors(v), w))
+        return cache[v][1]
+
+    def _chi2_general(self, D) -> np.ndarray:
+        """χ² of each pose with the background of :attr:`basis` (the neighbours a regressor)."""
+        from ..similarity.likelihood import blur, highpass
+
+        total = 0.0
+        for v, Dv in enumerate(D):
+            Dv, o = np.asarray(Dv, np.float32), self.others[v]
+            if self.psf is not None:
+                Dv, o = blur(Dv, self.psf), (None if o is None else blur(o, self.psf))
+            if self.highpass_px:
+                Dv, o = highpass(Dv, self.highpass_px), (None if o is None else highpass(o, self.highpass_px))
+            W = self.weights[v].ravel()
+            sel = W > 0
+            sw = np.sqrt(W[sel])
+            R = self._regressors(v).reshape(-1, W.size)
+            if o is not None:
+                R = np.concatenate([np.asarray(o, np.float64).reshape(1, -1), R])
+            F = (R[:, sel] * sw).T
+            yw = np.asarray(self.fluoro_rois[v], np.float64).ravel()[sel] * sw
+            c = np.empty(len(Dv))
+            for i, d in enumerate(Dv):
+                A = np.column_stack([np.asarray(d, np.float64).ravel()[sel] * sw, F])
+                r = yw - A @ np.linalg.lstsq(A, yw, rcond=None)[0]
+                c[i] = r @ r
+            total = total + c
+        return np.asarray(total, float)
+
+    def refine(self, x0=None, *, iters: int = 4, step=(0.05, 0.05), tol=(1e-3, 1e-3),
+               robust: float | None = None, robust_sigma_px: float = 2.0,
+               robust_kind: str = "cauchy") -> dict:
         """Gauss–Newton minimisation of the cost from ``x0`` (default the base pose): each
         iteration renders the pose and its 12 central-difference neighbours (``step`` mm,
         degrees) in one launch and solves the variable-projection normal equations summed over
@@ -118,17 +251,37 @@ class LikelihoodCost:
         below ``tol`` or the cost stops falling. Returns ``{"x", "cost", "iterations",
         "covariance"}``: ``covariance`` is ``s² (JᵀJ)⁻¹`` (mm², deg²) with ``s²`` the residual
         variance per weight unit (``χ²/dof``), the curvature's confidence of the estimate (it
-        treats pixels as independent: blurred frames' correlated noise makes it too small)."""
+        treats pixels as independent: blurred frames' correlated noise makes it too small).
+
+        ``robust``: then each pixel's weight is multiplied by the device stage's robust factor of
+        the residual at that pose (:func:`core.tracking.final_stage.robust_factors`: threshold
+        ``robust``, window ``robust_sigma_px``, ``robust_kind``) and the pose refined again from
+        there; the result is the second refinement's, with ``"first"`` the first's pose."""
         if any(o is not None for o in self.others):
             raise ValueError("refine: fits the bone's gain only; build the cost with others_gain=False "
                              "(the neighbours' DRRs subtracted at gain 1)")
         x = np.zeros(6) if x0 is None else np.asarray(x0, float).copy()
         x, best, n_it = self._gauss_newton(x, self.weights, iters, step, tol)
+        first = x.copy()
+        if robust is not None:
+            from .final_stage import robust_factors
+
+            e = self.residual(x)
+            used = np.zeros(e.shape, bool)
+            for v, w in enumerate(self.weights):
+                used[v, : w.shape[0], : w.shape[1]] = w > 0
+            f = robust_factors(e, used, float(robust), sigma_px=robust_sigma_px, kind=robust_kind)
+            wr = [w * f[v, : w.shape[0], : w.shape[1]] for v, w in enumerate(self.weights)]
+            x, best, n2 = self._gauss_newton(x, wr, iters, step, tol)
+            n_it += n2
         _, chi2, JJ, dof = best
         cov = (chi2 / max(dof, 1)) * np.linalg.inv(JJ)
         self.timer.calls += n_it
         self.timer.evaluations += 13 * n_it
-        return {"x": x, "cost": 0.5 * chi2, "iterations": n_it, "covariance": cov}
+        out = {"x": x, "cost": 0.5 * chi2, "iterations": n_it, "covariance": cov}
+        if robust is not None:
+            out["first"] = first
+        return out
 
     def _gauss_newton(self, x, weights, iters, step, tol):
         from ..similarity.likelihood import blur, highpass, wls_gauss_newton_step
@@ -148,8 +301,12 @@ class LikelihoodCost:
                 if self.highpass_px:
                     Dv = highpass(Dv, self.highpass_px)
                 dD = (Dv[1:7] - Dv[7:13]) / (2 * hv[:, None, None])
-                a, b, c, d = wls_gauss_newton_step(Dv[0], dD, self.fluoro_rois[v], weights[v],
-                                                   background=self.background)
+                if self.basis == "monomial":
+                    a, b, c, d = wls_gauss_newton_step(Dv[0], dD, self.fluoro_rois[v], weights[v],
+                                                       background=self.background)
+                else:
+                    a, b, c, d, _ = _step_general(Dv[0], dD, self.fluoro_rois[v], weights[v],
+                                                  self._regressors(v), self._q(v, weights[v]))
                 JJ, Jr, chi2, dof = JJ + a, Jr + b, chi2 + c, dof + d
             if best is not None and chi2 > best[1]:  # the last step went uphill: keep the previous pose
                 x = best[0]
@@ -160,3 +317,24 @@ class LikelihoodCost:
             if np.all(np.abs(delta) < np.asarray([tol[0]] * 3 + [tol[1]] * 3)):
                 break
         return x, best, n_it
+
+    def residual(self, x, weights=None) -> np.ndarray:
+        """``(views, H, W)`` weighted residual images ``√w (y - model)`` at parameters ``x`` after
+        the linear fit (zero-padded to the largest region; 0 where a pixel is unused)."""
+        from ..similarity.likelihood import blur, highpass
+
+        weights = self.weights if weights is None else weights
+        D = self._render(np.asarray(x, float)[None])
+        res = []
+        for v, Dv in enumerate(D):
+            Dv = Dv.astype(np.float32)
+            if self.psf is not None:
+                Dv = blur(Dv, self.psf)
+            if self.highpass_px:
+                Dv = highpass(Dv, self.highpass_px)
+            res.append(_step_general(Dv[0], np.zeros((6, *Dv.shape[1:])), self.fluoro_rois[v], weights[v],
+                                     self._regressors(v), self._q(v, weights[v]))[4])
+        out = np.zeros((len(res), max(r.shape[0] for r in res), max(r.shape[1] for r in res)))
+        for v, r in enumerate(res):
+            out[v, : r.shape[0], : r.shape[1]] = r
+        return out

@@ -51,3 +51,36 @@ def test_bad_options(talus_scene):
         _setup(talus_scene, 1, [0] * 6, psf=np.ones((4, 4)))
     with pytest.raises(ValueError, match="background"):
         _setup(talus_scene, 1, [0] * 6, background=3)
+
+
+def test_background_bases():
+    from core.tracking.likelihood_cost import background_basis
+
+    for k in (0, 2, 5):
+        assert background_basis((9, 12), k, "legendre").shape == ((k + 1) * (k + 2) // 2, 9, 12)
+    B = background_basis((20, 30), 4, "bspline")
+    assert B.shape == (49, 20, 30) and np.allclose(B.sum(axis=0), 1.0)  # a partition of unity
+    # the Legendre basis of order 2 spans the monomials of order 2
+    L2 = background_basis((15, 17), 2, "legendre").reshape(6, -1).T
+    M2 = background_basis((15, 17), 2, "monomial").reshape(6, -1).T
+    assert np.allclose(L2 @ np.linalg.lstsq(L2, M2, rcond=None)[0], M2)
+    with pytest.raises(ValueError, match="basis"):
+        background_basis((5, 5), 1, "fourier")
+
+
+def test_general_background_refines_as_the_monomial_one(talus_scene):
+    mono, truth, model = _setup(talus_scene, 3, [0.3, -0.2, 0.1, 0.4, -0.3, 0.2], background=2)
+    leg, _, _ = _setup(talus_scene, 3, [0.3, -0.2, 0.1, 0.4, -0.3, 0.2], background=2, basis="legendre")
+    a, b = mono.refine(iters=3), leg.refine(iters=3)
+    np.testing.assert_allclose(a["x"], b["x"], atol=1e-6)
+    assert a["cost"] == pytest.approx(b["cost"], rel=1e-6)
+    X = np.array([[0.0] * 6, [0.1, 0.0, -0.1, 0.2, 0.0, 0.1]])
+    np.testing.assert_allclose(mono(X), leg(X), rtol=1e-6)
+    # a B-spline background and the robust second refinement still find the pose of a clean frame
+    bs, _, _ = _setup(talus_scene, 3, [0.3, -0.2, 0.1, 0.4, -0.3, 0.2], background=3, basis="bspline")
+    out = bs.refine(iters=6, robust=2.5)
+    e = params_from_pose(bs.poses(out["x"][None])[0], center=model.centroid, base=truth)
+    assert np.linalg.norm(e[:3]) < 0.01 and np.degrees(np.linalg.norm(e[3:])) < 0.02, e
+    assert out["first"].shape == (6,) and bs.residual(out["x"]).shape[0] == 2
+    with pytest.raises(ValueError, match="background"):
+        _setup(talus_scene, 1, [0] * 6, background=0, basis="bspline")

@@ -1,0 +1,247 @@
+"""A smooth background fitted instead of the final stage's high-pass (``python -m
+core.studies.tracking.background_fit``).
+
+The likelihood final stage (:mod:`core.tracking.final_stage`) high-passes the DRRs and the line
+integrals by 4 px (1024²) to take out the smooth soft-tissue background; that throws away the
+bone's low-frequency information and leaves its spread 1.1–1.7× the Cramér–Rao bound
+(:mod:`core.studies.tracking.stage_limits`). Here the same weighted least-squares refinement
+(:class:`core.tracking.likelihood_cost.LikelihoodCost`: gain fitted, the neighbours at their poses
+subtracted, weights the expected counts, Gauss–Newton, optionally the stage's robust factors and a
+second refinement) runs WITHOUT the high-pass and fits instead a smooth background per view over
+the region — a Legendre polynomial of total order ``k`` (``leg<k>``) or a tensor cubic B-spline on
+``n`` intervals per axis (``bs<n>``) — against the high-pass form (``hp<σ>``: σ in pixels of a
+1024² view, scaled with the size; background a constant) on the same frames.
+
+Frames (the acceptance trial, :class:`core.studies.tracking.acceptance.TrackingScene`, with the
+veiling glare measured from lead-disc calibration frames and undone as the correction pipeline
+does — never the generator's glare):
+
+* ``true``: the trial's 3 %-wrong inverse, then the TRUE residual warp removed
+  (:class:`core.studies.tracking.self_calibration.TrueWarp`; study-only oracle);
+* ``grid``: the distortion correction fitted to grid frames (``correction="grid"``, the user's
+  path, :mod:`core.studies.tracking.grid_correction`);
+* ``true_glare``: as ``true`` with the glare left in (how much the log-domain fit needs it undone).
+
+Each frame is synthesised from its line integrals without noise (the estimate's error there is
+its *bias*) and with ``--seeds`` noise draws of the trial's chain (the deviations from the
+noise-free estimate are its *spread*); every refinement starts from the true pose with the other
+bones at their true poses (the bound's assumption). Per frame set, method and bone: the RMS over
+frames of the bias, the mean error per axis, the spread and the RMS error of the noisy estimates
+(mm, degrees), each over the trial's Cramér–Rao bound
+(:func:`core.studies.tracking.acceptance.cramer_rao`, averaged over the frames). Only this study
+reads the truth.
+
+JSON on stdout (``--out``: also to a file, rewritten after each frame).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from dataclasses import replace
+
+import numpy as np
+
+__all__ = ["FRAME_SETS", "METHODS", "frame_images", "method", "run", "summarise"]
+
+#: frame sets (module docs)
+FRAME_SETS = ("true", "grid", "true_glare")
+
+#: methods: ``hp<σ>`` the high-pass form (σ px at 1024², scaled; constant background),
+#: ``leg<k>`` a Legendre background of total order k, ``bs<n>`` a cubic B-spline on n intervals
+#: per axis, no high-pass; ``+r`` the stage's robust factors (Cauchy 2.5, 2 px) and a second
+#: refinement; ``+r<k>`` with threshold k
+METHODS = ("hp4+r", "hp4", "leg2+r", "leg4+r", "leg6+r", "leg4", "bs3+r")
+
+
+def method(name: str, pixels: int) -> tuple[dict, dict]:
+    """``(LikelihoodCost options, refine options)`` of a method name (:data:`METHODS`)."""
+    base, _, rob = name.partition("+")
+    dil = None
+    if "d" in base.lstrip("bs"):  # a support: the bone's footprint grown by <px> at 1024², scaled
+        base, _, d = base.rpartition("d")
+        dil = max(1, round(float(d) * pixels / 1024))
+    refine = {}
+    if rob:
+        refine["robust"] = float(rob[1:]) if len(rob) > 1 else 2.5
+    if base.startswith("hp"):
+        cost = {"highpass_px": float(base[2:]) * pixels / 1024, "background": 0}
+    elif base.startswith("leg"):
+        cost = {"background": int(base[3:]), "basis": "legendre"}
+    elif base.startswith("bs"):
+        cost = {"background": int(base[2:]), "basis": "bspline"}
+    else:
+        raise ValueError(f"method: expected hp<σ>, leg<k> or bs<n> (d<px>) (+r), got {name!r}")
+    if dil is not None:
+        cost["dilate"] = dil
+    return cost, refine
+
+
+class _Sources:
+    """The frame sets' scenes (built on demand) and their frames from the line integrals."""
+
+    def __init__(self, pixels: int, voxel: float, n_frames: int, seed: int, device) -> None:
+        self.kw = {"n_frames": n_frames, "pixels": pixels, "spacing": voxel, "seed": seed,
+                   "phase": (0.0, 0.6 * n_frames / 100.0), "device": device}
+        self._scenes: dict = {}
+        self._warp: dict = {}
+
+    def scene(self, name: str):
+        from core.studies.tracking.acceptance import TrackingScene
+
+        key = {"true": ("model", True), "grid": ("grid", True), "true_glare": ("model", False)}[name]
+        if key not in self._scenes:
+            self._scenes[key] = TrackingScene(correction=key[0], glare=key[1], **self.kw)
+        return self._scenes[key]
+
+    def warp(self, name: str):
+        from core.studies.tracking.self_calibration import TrueWarp
+
+        ts = self.scene(name)
+        if id(ts) not in self._warp:
+            self._warp[id(ts)] = TrueWarp(ts)
+        return self._warp[id(ts)]
+
+
+def frame_images(src: _Sources, name: str, L, seed: int | None) -> list[np.ndarray]:
+    """Frame set ``name``'s corrected fluence images of line integrals ``L`` (views, H, W);
+    ``seed`` None = noise-free (no quanta, no read noise)."""
+    ts = src.scene(name)
+    out = []
+    for v, m in enumerate(ts.scene.imaging):
+        mm = m if seed is not None else replace(m, photons_per_pixel=None, read_noise_dn=0.0)
+        raw = mm.apply(L[v], rng=None if seed is None else np.random.default_rng([seed, v, 2027]))
+        out.append(ts.correct(v, raw))
+    if name.startswith("true"):
+        out = src.warp(name).frames(lambda i, out=out: out)(0)
+    return out
+
+
+def _fit(ts, frame, f: int, b: int, name: str, pixels: int, margin_px: int) -> np.ndarray:
+    from core.studies.tracking.acceptance import pose_errors
+    from core.tracking.cost import search_roi, snap_roi
+    from core.tracking.likelihood_cost import LikelihoodCost
+
+    P = ts.truth(f)
+    m = ts.models[b]
+    views = tuple(range(len(ts.scene.rig)))
+    roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=m.centroid, reach_mm=1.0,
+                              margin_px=margin_px), ts.renderer, views)
+    oth = [k for k in range(len(ts.names)) if k != b]
+    co, ro = method(name, pixels)
+    cost = LikelihoodCost(ts.renderer, frame, bone=b, base_pose=P[b], center=m.centroid, roi=roi,
+                          others=(P[oth], oth) if oth else None, others_gain=False, **co)
+    r = cost.refine(iters=6, **ro)
+    return pose_errors(cost.poses(np.asarray(r["x"])[None])[0], P[b], m.centroid)
+
+
+def summarise(free, noisy, bound: dict | None) -> dict:
+    """Statistics of the noise-free errors ``free (frames, 6)`` and the noisy ones ``noisy
+    (frames, seeds, 6)`` (mm, degrees; module docs), over ``bound`` (``rms_mm``, ``rms_deg``,
+    ``sigma``) when given."""
+    E0 = np.asarray(free, float)
+    En = np.asarray(noisy, float)
+    dev = (En - E0[:, None]).reshape(-1, 6)
+    tot = En.reshape(-1, 6)
+
+    def rms3(X):
+        return float(np.sqrt(np.mean(np.sum(X**2, axis=1))))
+
+    s = {"bias_mm": rms3(E0[:, :3]), "bias_deg": rms3(E0[:, 3:]),
+         "mean_error": E0.mean(axis=0).round(5).tolist(),
+         "spread_mm": rms3(dev[:, :3]), "spread_deg": rms3(dev[:, 3:]),
+         "rms_mm": rms3(tot[:, :3]), "rms_deg": rms3(tot[:, 3:]),
+         "spread_axis": np.sqrt(np.mean(dev**2, axis=0)).round(5).tolist()}
+    if bound:
+        for k in ("bias", "spread", "rms"):
+            s[f"{k}_over_bound"] = [round(s[f"{k}_mm"] / bound["rms_mm"], 3),
+                                    round(s[f"{k}_deg"] / bound["rms_deg"], 3)]
+        ratio = np.asarray(s["spread_axis"]) / np.asarray(bound["sigma"])
+        s["spread_axis_over_sigma"] = ratio.round(3).tolist()
+    return s
+
+
+def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=range(0, 20, 2), seeds: int = 2,
+        sets=("true", "grid"), methods=METHODS, bones=None, seed: int = 0, device: str | None = "cpu",
+        checkpoint=None) -> dict:
+    """Run the study (module docs); returns the JSON-ready results."""
+    from core.studies.tracking.acceptance import cramer_rao
+    from core.tracking.cost import prepare_frame
+    from core.tracking.register import RegistrationOptions
+
+    t0 = time.perf_counter()
+    frames = [int(f) for f in frames]
+    src = _Sources(pixels, voxel, n_frames, seed, device)
+    ts0 = src.scene(sets[0])
+    names = ts0.names
+    bones = list(range(len(names))) if bones is None else [int(b) for b in bones]
+    margin = RegistrationOptions().margin_px
+    out = {"study": "core.studies.tracking.background_fit", "machine": platform.machine(),
+           "pixels": pixels, "voxel_mm": voxel, "frames": frames, "seeds": seeds, "sets": list(sets),
+           "methods": {m: dict(zip(("cost", "refine"), method(m, pixels), strict=True)) for m in methods},
+           "glare_measured": [{"fraction": g.fraction, "sigma_px": g.sigma_px}
+                              for g in src.scene(sets[0]).glare],
+           "generator_glare_fraction": [m.glare_fraction for m in ts0.scene.imaging]}
+    bound = cramer_rao(ts0, frames)
+    out["bound"] = bound
+    out["setup_s"] = time.perf_counter() - t0
+    errs: dict = {}
+    for f in frames:
+        L = ts0.scene.line_integrals(f, renderer=ts0._scene_renderer)
+        for st in sets:
+            ts = src.scene(st)
+            for s in [None, *range(seeds)]:
+                frame = prepare_frame(frame_images(src, st, L, None if s is None else 1000 * f + s))
+                for mth in methods:
+                    for b in bones:
+                        e = _fit(ts, frame, f, b, mth, pixels, margin)
+                        d = errs.setdefault(st, {}).setdefault(mth, {}).setdefault(names[b], {"free": [],
+                                                                                             "noisy": []})
+                        if s is None:
+                            d["free"].append(e)
+                            d["noisy"].append([])
+                        else:
+                            d["noisy"][-1].append(e)
+        out["results"] = {st: {mth: {nm: summarise(d["free"], d["noisy"], bound.get(nm))
+                                     for nm, d in bm.items()} for mth, bm in sm.items()}
+                          for st, sm in errs.items()}
+        out["frames_done"] = frames[: frames.index(f) + 1]
+        out["total_s"] = time.perf_counter() - t0
+        print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
+        if checkpoint:
+            checkpoint(out)
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.background_fit",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--pixels", type=int, default=256)
+    p.add_argument("--voxel", type=float, default=1.0)
+    p.add_argument("--n-frames", type=int, default=20, help="the trial's length (its phase scales with it)")
+    p.add_argument("--frames", default="0,2,4,6,8,10,12,14,16,18")
+    p.add_argument("--seeds", type=int, default=2)
+    p.add_argument("--sets", default="true,grid")
+    p.add_argument("--methods", default=",".join(METHODS))
+    p.add_argument("--bones", default="", help="bone indices (default all)")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    import json
+
+    from core.io.atomic import atomic_write, print_json
+
+    def checkpoint(res):
+        if a.out:
+            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+
+    res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames,
+              frames=[int(x) for x in a.frames.split(",") if x], seeds=a.seeds,
+              sets=[x for x in a.sets.split(",") if x], methods=[x for x in a.methods.split(",") if x],
+              bones=[int(x) for x in a.bones.split(",") if x] or None, checkpoint=checkpoint)
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

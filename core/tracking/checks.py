@@ -312,10 +312,13 @@ def motion_check(pose, history, frame: int, center, *, n: int = 10, limit: float
 _MISSES: dict = {}  # the history's prediction misses by their poses and frames (_miss)
 
 
-def _miss(f0, T0, f1, T1, fj, Tj, c) -> tuple[float, float]:
+def _miss(f0, T0, f1, T1, fj, Tj, c, data=None) -> tuple[float, float]:
     """The miss of the prediction of pose ``Tj`` from ``T0``, ``T1`` over :func:`_reach` (mm,
-    degrees), kept for the next frames (the same history poses each frame)."""
-    key = (*(np.asarray(T, dtype=float).tobytes() for T in (T0, T1, Tj)), f0, f1, fj, c.tobytes())
+    degrees), kept for the next frames (the same history poses each frame). ``data``: the bytes
+    of ``T0``, ``T1``, ``Tj`` and ``c`` when the caller has them."""
+    if data is None:
+        data = (*(np.asarray(T, dtype=float).tobytes() for T in (T0, T1, Tj)), c.tobytes())
+    key = (*data[:3], f0, f1, fj, data[3])
     hit = _MISSES.get(key)
     if hit is None:
         dt, dr = _distance(_predict(f0, T0, f1, T1, fj, c), Tj, c)
@@ -360,7 +363,10 @@ def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min
     h = list(history or [])
     if len(h) < min_residuals + 2:
         return None
-    miss = [_miss(*h[j - 2], *h[j - 1], *h[j], c) for j in range(max(2, len(h) - int(n)), len(h))]
+    lo = max(2, len(h) - int(n))
+    cb = c.tobytes()
+    data = [np.asarray(T, dtype=float).tobytes() for _, T in h[lo - 2:]]  # (each pose's once)
+    miss = [_miss(*h[j - 2], *h[j - 1], *h[j], c, (*data[j - lo:j - lo + 3], cb)) for j in range(lo, len(h))]
     if len(miss) < min_residuals:
         return None
     if any(x != x for m in miss for x in m):  # NaN: numpy's median (NaN)

@@ -64,7 +64,9 @@ calcaneus's.
 
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
 its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
-one by one (no CUDA graph): 4-5 launches and one synchronisation per step. The kernels live in
+one by one (no CUDA graph): 4-5 launches and one wait per step, for the engine's own work only (an
+event recorded after the table's copy): :meth:`LikelihoodEngine.refine_steps` yields there, so that
+several bones' refinements run side by side (:func:`run_side_by_side`). The kernels live in
 :mod:`core.tracking.likelihood_kernels` (re-exported here).
 """
 
@@ -110,8 +112,8 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     wls_moments_kernel,
 )
 
-__all__ = ["DEVICE_REGIONS", "LikelihoodEngine", "likelihood_engine", "robust_factors_device",
-           "solve_moments"]
+__all__ = ["DEVICE_REGIONS", "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device",
+           "run_side_by_side", "run_steps", "solve_moments"]
 
 #: The regions' line integrals and usable pixels made on the device from the fluence
 #: (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as the tracker's engine makes them)
@@ -222,6 +224,11 @@ class LikelihoodEngine:
         self._y_raw = self._o_raw = None
         self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
         self._last = None  # the last step's (images, low-passed images, x, h)
+        self._pending = None  # the half-steps of the step launched and not yet taken (step_result)
+        self._done = None  # an event recorded after the last work a result waits for (_record)
+        #: the rendered images copied into the engine's own buffer (refinements side by side:
+        #: other engines render into the renderer's between this one's launches)
+        self.own_images = False
         self._acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device=dev)
         self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
         self._tables: dict = {}
@@ -483,6 +490,10 @@ class LikelihoodEngine:
         t0 = time.perf_counter()
         img = self._render(self.poses(X)[:, None], (self.bone,))
         t1 = time.perf_counter()
+        if self.own_images and self._psf is None:  # (the PSF's output is the engine's own)
+            own = self._buffer("img", img.shape)
+            wp.copy(own, img)
+            img = own
         if self._psf is not None:
             out = self._buffer("psf", img.shape)
             wp.launch(psf_kernel, dim=img.shape, inputs=[img, out, self._psf, self._ref_hw, self.n_views],
@@ -499,6 +510,12 @@ class LikelihoodEngine:
         synchronisation). ``reuse``: the last step's images where its design was the same (the
         caller knows nothing rendered into the renderer's buffer since), the weights those of now:
         no DRR launch."""
+        self.step_launch(x, h, reuse=reuse)
+        return self.step_result()
+
+    def step_launch(self, x, h, *, reuse: bool = False) -> None:
+        """The first half of :meth:`step`: its launches and the table's copy to the host enqueued,
+        nothing waited for (:meth:`step_result` takes it)."""
         x = np.asarray(x, dtype=float)
         h = np.asarray(h, dtype=float)
         last = self._last
@@ -516,11 +533,36 @@ class LikelihoodEngine:
                         inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, self.chunk,
                                 self._acc])
         wp.copy(self._host_acc, self._acc)
-        wp.synchronize_device(self.device)
+        self._record()
+        self._last = (img, low, x, h)
+        self._pending = h
+        self.timer.metric += time.perf_counter() - t0
+
+    def _record(self) -> None:
+        """Mark the work enqueued so far (:meth:`_wait` waits for it and nothing after)."""
+        if self.device.is_cuda:
+            if self._done is None:
+                self._done = wp.Event(self.device)
+            wp.record_event(self._done)
+
+    def _wait(self) -> None:
+        """Wait for the work enqueued up to the last :meth:`_record` (other engines' work enqueued
+        since runs on)."""
+        if self._done is not None:
+            wp.synchronize_event(self._done)
+        else:
+            wp.synchronize_device(self.device)
+
+    def step_result(self) -> dict:
+        """The second half of :meth:`step`: waits for the table of the last :meth:`step_launch`
+        and solves it."""
+        t0 = time.perf_counter()
+        h, self._pending = self._pending, None
+        nv = self.n_views
+        self._wait()
         if self._count_pending:  # the regions prepared on the device: their usable pixels
             self._take_count()
         M = self._host_acc.numpy().reshape(nv, NZ, NZ).copy()
-        self._last = (img, low, x, h)
         self.timer.metric += time.perf_counter() - t0
         self.timer.calls += 1
         t1 = time.perf_counter()
@@ -539,13 +581,25 @@ class LikelihoodEngine:
         :attr:`autocorrelation` None) and ``χ²/N · (JᵀWJ)⁻¹``.
         ``reuse``: the first step takes the last step's images where its design is the same
         (:meth:`step`)."""
+        return run_steps(self.refine_steps(x0, iters=iters, step=step, tol=tol, sandwich=sandwich,
+                                           reuse=reuse))
+
+    def refine_steps(self, x0=None, *, iters: int = 5, step=(0.05, 0.05), tol=(1e-3, 1e-3),
+                     sandwich: bool = True, reuse: bool = False):
+        """:meth:`refine` as a generator (its value the result): it yields where it would wait for
+        the device, its work enqueued, so that a caller can run several engines' refinements side
+        by side (:func:`run_side_by_side`); each one's iterates are those of :meth:`refine`. The
+        renderer's output buffer is shared: between yields other engines render into it, so the
+        engine keeps its own copy of the images (:attr:`own_images`) while side by side."""
         hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         best, n_it = None, 0
         for it in range(1, int(iters) + 1):
             n_it = it
-            s = self.step(x, hv, reuse=reuse and it == 1)
+            self.step_launch(x, hv, reuse=reuse and it == 1)
+            yield
+            s = self.step_result()
             if not np.isfinite(s["chi2"]) or (best is not None and s["chi2"] > best[1]["chi2"]):
                 x = best[0] if best is not None else x  # uphill: the previous pose stands
                 break
@@ -564,7 +618,9 @@ class LikelihoodEngine:
             return {**out, "covariance": nan, "covariance_independent": nan}
         out["covariance_independent"] = Hinv * s["chi2"] / max(self.n_pixels, 1)
         if sandwich:
-            out["covariance"] = self.sandwich(s, Hinv)
+            self.sandwich_launch(s)
+            yield
+            out["covariance"] = self.sandwich_result(Hinv)
         else:  # not computed (nor the autocorrelation: a study reading either sees none)
             out["covariance"] = nan
             self._cov_host = None
@@ -608,7 +664,10 @@ class LikelihoodEngine:
         img, low, _, _ = self._last
         nv, (Hc, Wc) = self.n_views, self._cap
         hp = 1.0 if self.highpass_px else 0.0
-        lin = wp.array(s["lin"].astype(np.float32), dtype=wp.float32, device=self.device)
+        lin_h = self._pinned("lin", s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
+        lin_h.numpy()[...] = s["lin"]
+        lin = self._buffer("lin", s["lin"].shape)
+        wp.copy(lin, lin_h)
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
         wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=self.device,
@@ -634,6 +693,11 @@ class LikelihoodEngine:
     def sandwich(self, s: dict, Hinv: np.ndarray) -> np.ndarray:
         """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`): the
         residual's autocovariance, its taper and the meat on the device, one synchronisation."""
+        self.sandwich_launch(s)
+        return self.sandwich_result(Hinv)
+
+    def sandwich_launch(self, s: dict) -> None:
+        """The first half of :meth:`sandwich`: its kernels and copies enqueued (no wait)."""
         t0 = time.perf_counter()
         nv, (Hc, Wc) = self.n_views, self._cap
         dev = self.device
@@ -660,8 +724,15 @@ class LikelihoodEngine:
         wp.copy(host, acc)
         self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
         wp.copy(self._cov_host, cov)  # for autocorrelation
-        wp.synchronize_device(dev)
-        meat = host.numpy().reshape(nv, 6, 6).sum(axis=0)
+        self._record()
+        self.timer.metric += time.perf_counter() - t0
+
+    def sandwich_result(self, Hinv: np.ndarray) -> np.ndarray:
+        """The second half of :meth:`sandwich`: waits for the meat of the last
+        :meth:`sandwich_launch`."""
+        t0 = time.perf_counter()
+        self._wait()
+        meat = self._host["meat"].numpy().reshape(self.n_views, 6, 6).sum(axis=0)
         meat = 0.5 * (meat + meat.T)
         self.timer.metric += time.perf_counter() - t0
         return Hinv @ meat @ Hinv
@@ -677,6 +748,58 @@ class LikelihoodEngine:
         nl, n = c.shape[1], 2 * self.lag_px + 1
         rho = c / np.maximum(c[:, nl // 2: nl // 2 + 1], 1e-30)
         return rho.reshape(-1, n, n)
+
+
+def run_steps(steps):
+    """The value of a generator of :meth:`LikelihoodEngine.refine_steps`' kind run to its end."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+
+
+class StepClock:
+    """The time a generator of :func:`run_side_by_side` ran (its own host work and its waits):
+    :meth:`seconds` so far. Started at creation; without the driver it counts the wall time."""
+
+    def __init__(self) -> None:
+        self.spent = 0.0
+        self.t = time.perf_counter()
+
+    def seconds(self) -> float:
+        return self.spent + time.perf_counter() - self.t
+
+
+def run_side_by_side(steps: Sequence, clocks: Sequence[StepClock] | None = None) -> list:
+    """The values of generators of :meth:`LikelihoodEngine.refine_steps`' kind run side by side:
+    each runs until it would wait for the device (its work enqueued), then the next; the first to
+    have enqueued is the first resumed, so that one's host work (taking its result, solving,
+    enqueuing its next step) runs while the device works through the others'. ``clocks``: each
+    generator's :class:`StepClock`, advanced by the time it ran (the loop's wall time split among
+    them)."""
+    n = len(steps)
+    out: list = [None] * n
+    live = list(range(n))
+    for c in clocks or ():
+        c.spent = 0.0
+    while live:
+        nxt = []
+        for k in live:
+            t = time.perf_counter()
+            if clocks is not None:
+                clocks[k].t = t
+            try:
+                next(steps[k])
+                nxt.append(k)
+            except StopIteration as stop:
+                out[k] = stop.value
+            finally:
+                if clocks is not None:
+                    clocks[k].spent += time.perf_counter() - t
+                    clocks[k].t = time.perf_counter()
+        live = nxt
+    return out
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

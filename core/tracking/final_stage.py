@@ -60,14 +60,17 @@ The stage's result keeps the similarity's (:class:`LikelihoodFit` ``similarity``
 frame whose stage move is out of line with the bone's other frames keeps the similarity's pose
 (:func:`rejected`, :func:`core.tracking.frame_step.stage_move_check`). In sequential tracking the
 frame step gives the stage the bones registered in the frame and the others' guesses to subtract
-(:func:`stage_neighbours`).
+(:func:`stage_neighbours`). In joint registration (:func:`core.tracking.joint.register_together`)
+the bones' stages run side by side (:func:`final_stages`): every bone's step is enqueued and the
+host takes each one's result as soon as it is ready, so one bone's host work (the solve, the next
+design and its DRR table) overlaps the device's work on the others'; each bone's iterates, steps
+and result are those of its own stage (identical on a 192² CPU trial, three bones jointly).
 
 :func:`final_model` sets :data:`MODEL` for a block (studies compare models in one process).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -77,10 +80,10 @@ import numpy as np
 
 from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
-from .engine_likelihood import likelihood_engine
+from .engine_likelihood import LikelihoodEngine, StepClock, likelihood_engine, run_side_by_side, run_steps
 
-__all__ = ["MODEL", "FinalModel", "LikelihoodFit", "final_model", "final_stage", "rejected", "robust_factors",
-           "stage_neighbours"]
+__all__ = ["MODEL", "FinalModel", "LikelihoodFit", "final_model", "final_stage", "final_stage_steps",
+           "final_stages", "rejected", "robust_factors", "stage_neighbours"]
 
 
 @dataclass(frozen=True)
@@ -135,6 +138,8 @@ def final_model(model: FinalModel | None = None, **kw):
     finally:
         MODEL = old
 
+
+_PLAIN_REFINE = LikelihoodEngine.refine  # (a study may wrap it: _engine_refine)
 
 #: the neighbours (``(poses, bones)``) a final stage subtracts where its registration gives none
 _NEIGHBOURS: ContextVar = ContextVar("final_stage_neighbours", default=None)
@@ -191,13 +196,27 @@ def _support_mask(eng, px: float) -> np.ndarray:
 
 def _refine(eng, o, model: FinalModel) -> dict:
     """The engine's refinement with ``model``'s region and weights (module docs)."""
+    return run_steps(_refine_steps(eng, o, model))
+
+
+def _engine_refine(eng, *a, **k):
+    """The engine's :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps`, or, where
+    a study wrapped its ``refine`` (a probe of what each refinement saw), that, run to its end."""
+    if type(eng).refine is not _PLAIN_REFINE:
+        return eng.refine(*a, **k)
+    return (yield from eng.refine_steps(*a, **k))
+
+
+def _refine_steps(eng, o, model: FinalModel):
+    """:func:`_refine` as a generator (its value the result) that yields where it would wait for
+    the device (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps`)."""
     mask = None
     if model.support_px is not None:
         mask = _support_mask(eng, model.support_px)
         eng.scale_weights(mask)
     if model.robust is None:
-        return eng.refine(iters=o.final_iters)
-    out = eng.refine(iters=o.final_iters)
+        return (yield from _engine_refine(eng, iters=o.final_iters))
+    out = yield from _engine_refine(eng, iters=o.final_iters)
     first = out  # its sandwich is the stage's confidence (module docs)
     n_it = int(out["iterations"])
     for _ in range(int(model.rounds)):
@@ -206,7 +225,9 @@ def _refine(eng, o, model: FinalModel) -> dict:
         # the residual over the whole region (its typical pixel the noise's scale), then the
         # factors within the support
         eng.reset_weights()
-        s = eng.step(out["x"], np.full(6, 0.05))  # (refine's design: its first step takes these images)
+        eng.step_launch(out["x"], np.full(6, 0.05))  # (refine's design: its first step takes these images)
+        yield
+        s = eng.step_result()
         if ROBUST_ON_DEVICE:
             f = eng.robust_weights(s, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
             if mask is not None:
@@ -218,7 +239,7 @@ def _refine(eng, o, model: FinalModel) -> dict:
             f = f if mask is None else f * mask
         eng.scale_weights(f)
         own = ROBUST_SANDWICH or not np.all(np.isfinite(first["covariance"]))  # (then the stage's)
-        out = eng.refine(out["x"], iters=o.final_iters, sandwich=own, reuse=True)
+        out = yield from _engine_refine(eng, out["x"], iters=o.final_iters, sandwich=own, reuse=True)
         n_it += 1 + int(out["iterations"])
     out["iterations"] = n_it
     out["covariance_robust"] = out["covariance"]
@@ -277,12 +298,45 @@ def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, c
     registration result, ``res`` itself without a stage or after a cancelled one.
     ``initial_pose``: the registration's (``x`` is relative to it). This module does not import
     :mod:`core.tracking.register`, which calls it."""
+    return run_steps(final_stage_steps(renderer, frame, res, bone=bone, initial_pose=initial_pose,
+                                       center=center, options=options, views=views, others=others))
+
+
+def final_stages(renderer, frame: FrameImages, calls: Sequence[tuple]) -> list:
+    """:func:`final_stage` of several bones in one frame side by side (joint registration,
+    :func:`core.tracking.joint.register_together`): ``calls`` per bone ``(res, kwargs)`` of
+    :func:`final_stage`; their results in that order, each the one :func:`final_stage` gives (the
+    same iterates: each bone's refinement on its own engine, which keeps its own copy of the
+    rendered images meanwhile). Each bone's steps are enqueued and the host takes each one's
+    result as it comes (:func:`~core.tracking.engine_likelihood.run_side_by_side`), so one bone's
+    host work overlaps the others' device work; each bone's ``likelihood_s`` is the time spent on
+    its own (set-up, host work and waits: together the stages' wall time)."""
+    bones = [int(kw["bone"]) for _, kw in calls]
+    if len(calls) < 2 or len(set(bones)) < len(bones) or final_stage is not _PLAIN_FINAL_STAGE:
+        # (one bone; a bone twice: one engine; a study's wrapper of final_stage: it sees every call)
+        return [final_stage(renderer, frame, res, **kw) for res, kw in calls]
+    clocks = [StepClock() for _ in calls]
+    gens = [final_stage_steps(renderer, frame, res, **kw, clock=c, side_by_side=True)
+            for (res, kw), c in zip(calls, clocks, strict=True)]
+    return run_side_by_side(gens, clocks)
+
+
+_PLAIN_FINAL_STAGE = final_stage  # (final_stages: a study may wrap the module's final_stage)
+
+
+def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_pose, center, options,
+                      views: Sequence[int], others=None, clock: StepClock | None = None,
+                      side_by_side: bool = False):
+    """:func:`final_stage` as a generator (its value the result) that yields where it would wait
+    for the device (:func:`final_stages`); ``clock`` its :class:`~core.tracking.engine_likelihood.
+    StepClock` (default: the wall time from the start); ``side_by_side``: the engine keeps its
+    own copy of the rendered images (other bones render between its steps)."""
     o = options
     if o.final is None or any(s.reason == "cancelled" for s in res.stages):
         return res
     if others is None:
         others = _NEIGHBOURS.get()
-    t0 = time.perf_counter()
+    clock = StepClock() if clock is None else clock
     timing = dict(res.timing)
     views = tuple(views)
     center = np.asarray(center, dtype=float)
@@ -292,12 +346,13 @@ def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, c
         eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=o.final_highpass_px,
                                 lag_px=o.final_lag_px, others_gain=o.final_others_gain)
         eng.timer = CostTimer()
+        eng.own_images = bool(side_by_side)
         eng.set_frame(frame, base_pose=res.pose, center=center, roi=roi, others=others)
-        timing["likelihood_setup_s"] = time.perf_counter() - t0
-        out = _refine(eng, o, MODEL)
+        timing["likelihood_setup_s"] = clock.seconds()
+        out = yield from _refine_steps(eng, o, MODEL)
     except (OutsideViewError, np.linalg.LinAlgError):  # the similarity's pose stands
         timing.pop("likelihood_setup_s", None)  # (a region without usable pixels: seen at the first step)
-        timing["likelihood_s"] = time.perf_counter() - t0
+        timing["likelihood_s"] = clock.seconds()
         timing["likelihood_taken"] = 0
         return replace(res, timing=timing)
     d = np.asarray(out["x"], dtype=float)
@@ -306,7 +361,7 @@ def final_stage(renderer, frame: FrameImages, res, *, bone: int, initial_pose, c
     if o.final_confidence == "sandwich+move":  # the two costs' disagreement: a systematic part neither sees
         cov = cov + np.outer(d, d)
     reach = np.array([o.final_reach[0]] * 3 + [o.final_reach[1]] * 3)
-    dt = time.perf_counter() - t0
+    dt = clock.seconds()
     timing["likelihood_s"] = dt
     timing["likelihood_steps"] = int(out["iterations"])
     timing["total_s"] = timing.get("total_s", 0.0) + dt

@@ -156,7 +156,7 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
     ``roi`` get theirs filled in. ``idle``: host work of the caller's that uses neither the
     device nor these bones' engines, called before each wait for a step (a piece at a time: the
     previous round's checks, :mod:`core.tracking.frame_step`)."""
-    from .final_stage import final_stage
+    from .final_stage import final_stages
     from .register import register
 
     if not lockstep_applies(options):
@@ -201,6 +201,7 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
     errors: dict = {}
     _drive(lanes, queue, push, errors, idle)
     share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly
+    staged: list = []  # the converged bones' final stages, run side by side (final_stages)
     for k, ln in lanes.items():
         if k in errors:
             out[k] = errors[k]
@@ -209,9 +210,9 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
         ln.stages.append(r)
         if r.converged or r.reason == "cancelled":
             job = jobs[k]  # with the option's final stage (neighbours at this round's poses)
-            out[k] = final_stage(renderer, frame, _result(ln, fs, hi, ln.cost, ln.own_s + share),
-                                 bone=job.bone, initial_pose=job.initial_pose, center=job.center, options=o,
-                                 views=views, others=job.others)
+            staged.append((k, (_result(ln, fs, hi, ln.cost, ln.own_s + share),
+                               {"bone": job.bone, "initial_pose": job.initial_pose, "center": job.center,
+                                "options": o, "views": views, "others": job.others})))
             continue
         # beyond the full-resolution steps' reach: the one-bone search's half-resolution fallback,
         # from these full-resolution steps (not taken again)
@@ -223,6 +224,8 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
                               tried=(r, ln.cost, ln.own_s + share))
         except OutsideViewError as exc:
             out[k] = exc
+    for (k, _), res in zip(staged, final_stages(renderer, frame, [c for _, c in staged]), strict=True):
+        out[k] = res
     return out
 
 

@@ -417,13 +417,16 @@ def meat_kernel(jt: wp.array3d(dtype=vec6f), cw: wp.array2d(dtype=wp.float32),
             ji = jt[v, r, c]
             if wp.length_sq(ji) > 0.0:
                 u = vec6f()
-                for a in range(n):
+                # the lags whose pixel is in the region (rows a0..a1, columns b0..b1; the terms and
+                # their order those of testing every lag)
+                a0 = wp.max(0, lag - r)
+                a1 = wp.min(n, h - r + lag)
+                b0 = wp.max(0, lag - c)
+                b1 = wp.min(n, w - c + lag)
+                for a in range(a0, a1):
                     rr = r + a - lag
-                    if rr >= 0 and rr < h:
-                        for b in range(n):
-                            cc = c + b - lag
-                            if cc >= 0 and cc < w:
-                                u += cw[v, a * n + b] * jt[v, rr, cc]
+                    for b in range(b0, b1):
+                        u += cw[v, a * n + b] * jt[v, rr, c + b - lag]
                 s += wp.outer(ji, u)
     t = wp.tile_sum(wp.tile(s, preserve_type=True))
     if lane == 0:

@@ -107,7 +107,9 @@ class LikelihoodCost:
     Per view, the model of the search region is the bone's DRR (blurred by ``psf`` when given)
     times a gain, plus the other bones' DRRs (``others``, at fixed poses, blurred alike) times
     their own gain, plus a smooth background (``background``: polynomial order, or intervals per
-    axis of a B-spline; ``basis``: :func:`background_basis`), all fitted linearly at every pose;
+    axis of a B-spline; ``basis``: :func:`background_basis`; ``regressors``: per view more fixed
+    images over the region, e.g. a soft-tissue DRR, each with its own coefficient), all fitted
+    linearly at every pose;
     pixels weigh by their expected counts (the smoothed relative fluence) over the usable pixels
     of the region — or, with ``dilate`` (pixels), only over the bone's footprint at the base pose
     grown by that much. ``psf`` must come from calibration images (e.g.
@@ -120,7 +122,7 @@ class LikelihoodCost:
     def __init__(self, renderer, frame: FrameImages, *, bone: int, base_pose, center, roi,
                  views: Sequence[int] | None = None, others=None, psf=None, background: int = 1,
                  dilate: int | None = None, weight_sigma_px: float = 2.0, highpass_px: float | None = None,
-                 others_gain: bool = True, basis: str = "monomial") -> None:
+                 others_gain: bool = True, basis: str = "monomial", regressors=None) -> None:
         from scipy import ndimage
 
         from ..similarity.likelihood import expected_counts, highpass
@@ -147,6 +149,11 @@ class LikelihoodCost:
             raise ValueError(f"background: a B-spline needs at least 1 interval, got {background!r}")
         self.background = int(background)
         self.basis = basis
+        #: per view, extra fixed regressors ``(k, h, w)`` over the region (or None)
+        self.regressors = None if regressors is None else [
+            None if r is None else np.asarray(r, np.float64).reshape(-1, *np.shape(r)[-2:])
+            for r in regressors]
+        self._general = basis != "monomial" or self.regressors is not None
         self.timer = CostTimer()
         rois, masks = fluoro_rois(renderer, frame, views=self.views, roi=self.roi)
         self.fluoro_rois = tuple(rois)
@@ -188,7 +195,7 @@ class LikelihoodCost:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         D = self._render(X)
         t1 = time.perf_counter()
-        if self.basis == "monomial":
+        if not self._general:
             c = 0.5 * wls_chi2(D, self.fluoro_rois, self.weights, others=self.others, psf=self.psf,
                                background=self.background, highpass_px=self.highpass_px)
         else:
@@ -204,7 +211,14 @@ class LikelihoodCost:
         """View ``v``'s fixed background regressors ``(q, h, w)`` (made once)."""
         cache = self.__dict__.setdefault("_basis_cache", {})
         if v not in cache:
-            cache[v] = background_basis(self.fluoro_rois[v].shape, self.background, self.basis)
+            R = background_basis(self.fluoro_rois[v].shape, self.background, self.basis)
+            extra = None if self.regressors is None else self.regressors[v]
+            if extra is not None:
+                if extra.shape[1:] != R.shape[1:]:
+                    raise ValueError(f"regressors: view {v} expected (k, {R.shape[1]}, {R.shape[2]}), "
+                                     f"got {extra.shape}")
+                R = np.concatenate([R, extra])
+            cache[v] = R
         return cache[v]
 
     def _q(self, v: int, w) -> np.ndarray:
@@ -301,7 +315,7 @@ class LikelihoodCost:
                 if self.highpass_px:
                     Dv = highpass(Dv, self.highpass_px)
                 dD = (Dv[1:7] - Dv[7:13]) / (2 * hv[:, None, None])
-                if self.basis == "monomial":
+                if not self._general:
                     a, b, c, d = wls_gauss_newton_step(Dv[0], dD, self.fluoro_rois[v], weights[v],
                                                        background=self.background)
                 else:

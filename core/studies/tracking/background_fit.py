@@ -51,13 +51,18 @@ FRAME_SETS = ("true", "grid", "true_glare")
 #: methods: ``hp<σ>`` the high-pass form (σ px at 1024², scaled; constant background),
 #: ``leg<k>`` a Legendre background of total order k, ``bs<n>`` a cubic B-spline on n intervals
 #: per axis, no high-pass; ``+r`` the stage's robust factors (Cauchy 2.5, 2 px) and a second
-#: refinement; ``+r<k>`` with threshold k
-METHODS = ("hp4+r", "hp4", "leg2+r", "leg4+r", "leg6+r", "leg4", "bs3+r")
+#: refinement; ``+r<k>`` with threshold k; ``d<px>`` after the base: only the bone's footprint
+#: grown by px (at 1024², scaled); ``t`` after the base: the soft tissue's true line integral a
+#: regressor with its own coefficient (study probe, :func:`tissue_images`); ``p``: the DRRs
+#: blurred by the PSF estimated from pinhole calibration frames (:func:`estimated_psf`)
+METHODS = ("hp4+r", "hp4", "hp8+r", "leg2+r", "leg4+r", "leg6+r", "bs8+r", "bs16+r")
 
 
 def method(name: str, pixels: int) -> tuple[dict, dict]:
     """``(LikelihoodCost options, refine options)`` of a method name (:data:`METHODS`)."""
     base, _, rob = name.partition("+")
+    flags = base[len(base.rstrip("tp")):]
+    base = base.rstrip("tp")
     dil = None
     if "d" in base.lstrip("bs"):  # a support: the bone's footprint grown by <px> at 1024², scaled
         base, _, d = base.rpartition("d")
@@ -75,6 +80,10 @@ def method(name: str, pixels: int) -> tuple[dict, dict]:
         raise ValueError(f"method: expected hp<σ>, leg<k> or bs<n> (d<px>) (+r), got {name!r}")
     if dil is not None:
         cost["dilate"] = dil
+    if "t" in flags:
+        cost["tissue"] = True
+    if "p" in flags:
+        cost["psf"] = True
     return cost, refine
 
 
@@ -118,7 +127,40 @@ def frame_images(src: _Sources, name: str, L, seed: int | None) -> list[np.ndarr
     return out
 
 
-def _fit(ts, frame, f: int, b: int, name: str, pixels: int, margin_px: int) -> np.ndarray:
+def tissue_images(ts, f: int) -> np.ndarray:
+    """``(views, H, W)`` the soft tissue's line integrals of frame ``f`` at its true poses as the
+    frame shows them (through the generator's PSF in the fluence domain): the study probe of a
+    known tissue shape (method suffix ``t``; the generator's truth, never a user's)."""
+    from core.similarity.likelihood import blur
+    from core.studies.tracking.stage_limits import _psf
+
+    sc = ts.scene
+    P = sc.poses(f)[list(sc.tissue_bones)]
+    Lt = ts._scene_renderer._tissue.render(P[None], roi="full").numpy()[0].sum(axis=1)
+    return np.stack([-np.log(np.maximum(blur(np.exp(-x), _psf(ts, v)), 1e-12)) for v, x in enumerate(Lt)])
+
+
+def _crop(img: np.ndarray, roi) -> np.ndarray:
+    u0, v0, w, h = (int(x) for x in roi)
+    p = max(0, -u0, -v0, u0 + w - img.shape[1], v0 + h - img.shape[0])
+    a = np.pad(img, p, mode="edge") if p else img
+    return a[v0 + p:v0 + p + h, u0 + p:u0 + p + w]
+
+
+_PSF: dict = {}
+
+
+def estimated_psf(ts) -> np.ndarray:
+    """The PSF estimated from synthetic pinhole calibration frames of view 0's chain (what a lab
+    measures, :func:`core.studies.tracking.bound_gap.estimated_psf`; method suffix ``p``)."""
+    if id(ts.scene) not in _PSF:
+        from core.studies.tracking.bound_gap import estimated_psf as est
+
+        _PSF[id(ts.scene)] = est(ts)[0]
+    return _PSF[id(ts.scene)]
+
+
+def _fit(ts, frame, f: int, b: int, name: str, pixels: int, margin_px: int, tissue=None) -> np.ndarray:
     from core.studies.tracking.acceptance import pose_errors
     from core.tracking.cost import search_roi, snap_roi
     from core.tracking.likelihood_cost import LikelihoodCost
@@ -130,10 +172,65 @@ def _fit(ts, frame, f: int, b: int, name: str, pixels: int, margin_px: int) -> n
                               margin_px=margin_px), ts.renderer, views)
     oth = [k for k in range(len(ts.names)) if k != b]
     co, ro = method(name, pixels)
+    if co.pop("psf", False):
+        co["psf"] = estimated_psf(ts)
+    if co.pop("tissue", False):
+        co["regressors"] = [_crop(tissue[v], roi[i]) for i, v in enumerate(views)]
     cost = LikelihoodCost(ts.renderer, frame, bone=b, base_pose=P[b], center=m.centroid, roi=roi,
                           others=(P[oth], oth) if oth else None, others_gain=False, **co)
     r = cost.refine(iters=6, **ro)
     return pose_errors(cost.poses(np.asarray(r["x"])[None])[0], P[b], m.centroid)
+
+
+def tissue_residual(ts, f: int, fits=(("legendre", 2), ("legendre", 4), ("legendre", 6), ("bspline", 8),
+                                       ("bspline", 16))) -> dict:
+    """Why a smooth background is not enough: per bone and view, the RMS over the stage's region
+    of the soft tissue's line integral (frame ``f``, true poses; noise-free, no blur) and of what
+    is left of it after an unweighted least-squares fit of each background in ``fits``
+    (``(basis, order)``), against the bone's largest line integral there."""
+    from core.tracking.cost import search_roi, snap_roi
+    from core.tracking.likelihood_cost import background_basis
+
+    sc = ts.scene
+    P = sc.poses(f)
+    Lt = ts._scene_renderer._tissue.render(P[list(sc.tissue_bones)][None], roi="full").numpy()[0].sum(axis=1)
+    Lb = ts._scene_renderer._bones.render(P[None], roi="full").numpy()[0]
+    views = tuple(range(len(sc.rig)))
+    out = {}
+    for b, nm in enumerate(ts.names):
+        roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=ts.models[b].centroid,
+                                  reach_mm=1.0, margin_px=4), ts.renderer, views)
+        rows = []
+        for i, v in enumerate(views):
+            T = _crop(Lt[v].astype(np.float64), roi[i])
+            r = {"region_px": [int(roi[i][2]), int(roi[i][3])], "tissue_max": float(T.max()),
+                 "tissue_rms_about_mean": float(T.std()),
+                 "bone_max": float(_crop(Lb[v, b].astype(np.float64), roi[i]).max())}
+            for basis, k in fits:
+                R = background_basis(T.shape, k, basis).reshape(-1, T.size).T
+                res = T.ravel() - R @ np.linalg.lstsq(R, T.ravel(), rcond=None)[0]
+                r[f"{basis}{k}_residual_rms"] = float(np.sqrt(np.mean(res**2)))
+            rows.append(r)
+        out[nm] = rows
+    return out
+
+
+def component_bias(ts, f: int, methods, pixels: int, margin_px: int = 4,
+                   configs=("bones+tissue", "bones+floor", "all")) -> dict:
+    """Per image part (:func:`core.studies.tracking.stage_limits.component_frames`, noise-free)
+    and method, each bone's error ``(6,)`` (mm, degrees) from the true pose: which part biases it."""
+    from core.studies.tracking.stage_limits import component_frames
+    from core.tracking.cost import prepare_frame
+
+    tissue = tissue_images(ts, f) if any(method(m, pixels)[0].get("tissue") for m in methods) else None
+    out: dict = {}
+    for cfg, imgs in component_frames(ts, f, configs).items():
+        fr = prepare_frame(imgs)
+        for m in methods:
+            out.setdefault(cfg, {})[m] = {
+                nm: np.round(_fit(ts, fr, f, b, m, pixels, margin_px, tissue), 5).tolist()
+                for b, nm in enumerate(ts.names)}
+    return out
 
 
 def summarise(free, noisy, bound: dict | None) -> dict:
@@ -164,8 +261,10 @@ def summarise(free, noisy, bound: dict | None) -> dict:
 
 def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=range(0, 20, 2), seeds: int = 2,
         sets=("true", "grid"), methods=METHODS, bones=None, seed: int = 0, device: str | None = "cpu",
+        components_frames=(), component_methods=("hp4+r", "leg0", "leg2", "leg4", "leg4t+r"),
         checkpoint=None) -> dict:
-    """Run the study (module docs); returns the JSON-ready results."""
+    """Run the study (module docs); returns the JSON-ready results. ``components_frames``: also
+    :func:`tissue_residual` and :func:`component_bias` (``component_methods``) of those frames."""
     from core.studies.tracking.acceptance import cramer_rao
     from core.tracking.cost import prepare_frame
     from core.tracking.register import RegistrationOptions
@@ -187,15 +286,16 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
     out["bound"] = bound
     out["setup_s"] = time.perf_counter() - t0
     errs: dict = {}
-    for f in frames:
+    for f in frames:  # (no frames: only the parts' test)
         L = ts0.scene.line_integrals(f, renderer=ts0._scene_renderer)
+        tissue = tissue_images(ts0, f) if any(method(m, pixels)[0].get("tissue") for m in methods) else None
         for st in sets:
             ts = src.scene(st)
             for s in [None, *range(seeds)]:
                 frame = prepare_frame(frame_images(src, st, L, None if s is None else 1000 * f + s))
                 for mth in methods:
                     for b in bones:
-                        e = _fit(ts, frame, f, b, mth, pixels, margin)
+                        e = _fit(ts, frame, f, b, mth, pixels, margin, tissue)
                         d = errs.setdefault(st, {}).setdefault(mth, {}).setdefault(names[b], {"free": [],
                                                                                              "noisy": []})
                         if s is None:
@@ -209,6 +309,12 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
         out["frames_done"] = frames[: frames.index(f) + 1]
         out["total_s"] = time.perf_counter() - t0
         print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
+        if checkpoint:
+            checkpoint(out)
+    for f in components_frames:
+        out.setdefault("tissue_residual", {})[str(f)] = tissue_residual(ts0, f)
+        out.setdefault("components", {})[str(f)] = component_bias(ts0, f, component_methods, pixels, margin)
+        out["total_s"] = time.perf_counter() - t0
         if checkpoint:
             checkpoint(out)
     return out
@@ -225,6 +331,8 @@ def main(argv=None) -> int:
     p.add_argument("--sets", default="true,grid")
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--bones", default="", help="bone indices (default all)")
+    p.add_argument("--components-frames", default="", help="frames of the noise-free parts' test")
+    p.add_argument("--component-methods", default="hp4+r,leg0,leg2,leg4,leg4t+r")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     import json
@@ -238,7 +346,9 @@ def main(argv=None) -> int:
     res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames,
               frames=[int(x) for x in a.frames.split(",") if x], seeds=a.seeds,
               sets=[x for x in a.sets.split(",") if x], methods=[x for x in a.methods.split(",") if x],
-              bones=[int(x) for x in a.bones.split(",") if x] or None, checkpoint=checkpoint)
+              bones=[int(x) for x in a.bones.split(",") if x] or None,
+              components_frames=[int(x) for x in a.components_frames.split(",") if x],
+              component_methods=[x for x in a.component_methods.split(",") if x], checkpoint=checkpoint)
     print_json(res, a.out)
     return 0
 

@@ -11,6 +11,9 @@ def test_methods_parse():
     assert bf.method("leg4", 512) == ({"background": 4, "basis": "legendre"}, {})
     assert bf.method("bs8d16+r2", 256) == ({"background": 8, "basis": "bspline", "dilate": 4},
                                            {"robust": 2.0})
+    assert bf.method("leg4tp+r", 256) == ({"background": 4, "basis": "legendre", "tissue": True, "psf": True},
+                                          {"robust": 2.5})
+    assert all(bf.method(m, 256) for m in bf.METHODS)
     with pytest.raises(ValueError, match="method"):
         bf.method("poly4", 256)
 

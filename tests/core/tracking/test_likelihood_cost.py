@@ -84,3 +84,22 @@ def test_general_background_refines_as_the_monomial_one(talus_scene):
     assert out["first"].shape == (6,) and bs.residual(out["x"]).shape[0] == 2
     with pytest.raises(ValueError, match="background"):
         _setup(talus_scene, 1, [0] * 6, background=0, basis="bspline")
+
+
+def test_extra_regressor_takes_a_known_structure_out(talus_scene):
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(3)[0]
+    start = pose_from_params(np.r_[0.3, -0.2, 0.1, np.radians([0.4, -0.3, 0.2])], center=model.centroid,
+                             base=truth)
+    yy, xx = np.mgrid[0:128, 0:128]
+    T = 0.8 * (np.hypot(xx - 60, yy - 70) < 25)  # a sharp "skin" disc over the bone, known in shape
+    fr = prepare_frame([f * np.exp(-T) for f in talus_scene["fluence"](3)], valid_range=None)
+    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
+    regs = [T[v0:v0 + h, u0:u0 + w] for u0, v0, w, h in np.asarray(roi).reshape(2, 4)]
+    errs = []
+    for kw in ({"background": 1}, {"background": 1, "regressors": regs}):
+        cost = LikelihoodCost(r, fr, bone=0, base_pose=start, center=model.centroid, roi=roi, **kw)
+        out = cost.refine(iters=6)
+        e = params_from_pose(cost.poses(out["x"][None])[0], center=model.centroid, base=truth)
+        errs.append(np.linalg.norm(e[:3]))
+    assert errs[1] < 0.01 < errs[0], errs

@@ -233,6 +233,7 @@ class LikelihoodEngine:
         self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
         self._tables: dict = {}
         self._bufs: dict = {}
+        self._cmds: dict = {}  # recorded launches by name (_launch)
         self._cap = None
         self.timer = CostTimer()
         self.base = self.center = self.roi = None
@@ -480,9 +481,25 @@ class LikelihoodEngine:
         low = self._buffer(tag + "_low", src.shape)
         taps = self._taps if taps is None else taps
         for a, b, axis in ((src, tmp, 1), (tmp, low, 0)):
-            wp.launch(K.blur_kernel, dim=src.shape, inputs=[a, b, taps, self._ref_hw, n_refs, axis],
-                      device=self.device)
+            self._launch((tag, axis), K.blur_kernel, src.shape, [a, b, taps, self._ref_hw, n_refs, axis])
         return low
+
+    def _launch(self, name, kernel, dim: tuple, inputs: list, block_dim: int | None = None) -> None:
+        """``kernel`` launched on ``inputs`` (``block_dim``: tiled), the launch recorded under
+        ``name`` and launched again as recorded while its arguments (arrays by address, shape and
+        strides; numbers by value) stay the same: the same kernel on the same arguments, without
+        building the launch's parameters each time."""
+        key = (tuple(dim), block_dim, *((a.ptr, a.shape, a.strides, a.dtype) if isinstance(a, wp.array) else a
+                                        for a in inputs))
+        hit = self._cmds.get(name)
+        if hit is None or hit[0] != key:
+            if block_dim is None:
+                cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
+            else:
+                cmd = wp.launch_tiled(kernel, dim=dim, block_dim=block_dim, inputs=inputs, device=self.device,
+                                      record_cmd=True)
+            hit = self._cmds[name] = (key, cmd)
+        hit[1].launch()
 
     # ------------------------------------------------------------------ steps
     def _images(self, X: np.ndarray):
@@ -529,9 +546,9 @@ class LikelihoodEngine:
         self._acc.zero_()
         n_chunks = math.ceil(Hc * Wc / self.chunk)
         hp = 1.0 if self.highpass_px else 0.0
-        wp.launch_tiled(wls_moments_kernel, dim=(nv, n_chunks), block_dim=self.block_dim, device=self.device,
-                        inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, self.chunk,
-                                self._acc])
+        self._launch("moments", wls_moments_kernel, (nv, n_chunks),
+                     [img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, self.chunk, self._acc],
+                     self.block_dim)
         wp.copy(self._host_acc, self._acc)
         self._record()
         self._last = (img, low, x, h)

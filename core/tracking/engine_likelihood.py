@@ -64,7 +64,8 @@ calcaneus's.
 
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
 its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
-one by one (no CUDA graph): 4-5 launches and one wait per step, for the engine's own work only (an
+one by one (no CUDA graph; each from a recorded launch while its arguments stay the same,
+:meth:`LikelihoodEngine._launch`): 4-5 launches and one wait per step, for the engine's own work only (an
 event recorded after the table's copy): :meth:`LikelihoodEngine.refine_steps` yields there, so that
 several bones' refinements run side by side (:func:`run_side_by_side`). The kernels live in
 :mod:`core.tracking.likelihood_kernels` (re-exported here).
@@ -287,23 +288,22 @@ class LikelihoodEngine:
             self._stage(frame, staged, li, mask)
         self._uploaded()
         self._frame_others(others, li)
-        dev = self.device
         # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
         # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))
         self._w0_set = False  # the expected counts as computed below (scale_weights keeps a copy)
         low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
-        wp.launch(weights_kernel, dim=(nv, Hc, Wc), inputs=[low, mask, self._w], device=dev)
+        self._launch("weights", weights_kernel, (nv, Hc, Wc), [low, mask, self._w])
         self._y = self._buffer("y", (nv, Hc, Wc))
         self._o = self._buffer("o", (nv, Hc, Wc))
         pairs = ((self._y_raw, self._y), (self._o_raw, self._o)) if self._o_raw is not None else \
             ((self._y_raw, self._y),)
         if self._o_raw is None:  # no neighbours' regressor: its high-pass is 0
             self._o.zero_()
-        for src, dst in pairs:
+        for i, (src, dst) in enumerate(pairs):
             if self.highpass_px:
                 low = self._blurred("y", src, nv)
-                wp.launch(highpass_kernel, dim=(nv, Hc, Wc), inputs=[src, low, 1.0, dst], device=dev)
+                self._launch(("highpass", i), highpass_kernel, (nv, Hc, Wc), [src, low, 1.0, dst])
             else:
                 wp.copy(dst, src)
         self.timer.host += time.perf_counter() - t0
@@ -451,8 +451,7 @@ class LikelihoodEngine:
         y = self._y_raw = self._buffer("y_raw", (nv, Hc, Wc))
         o = self._buffer("o_raw", (nv, Hc, Wc))
         gain = self._with_o or self._psf is not None  # the PSF's blur before the subtraction
-        wp.launch(others_kernel, dim=(nv, Hc, Wc), inputs=[img, n, li, self._ref_hw, int(gain), y, o],
-                  device=dev)
+        self._launch("others", others_kernel, (nv, Hc, Wc), [img, n, li, self._ref_hw, int(gain), y, o])
         if self._psf is not None:
             ob = self._buffer("o_psf", (nv, Hc, Wc))
             wp.launch(psf_kernel, dim=(nv, Hc, Wc), inputs=[o, ob, self._psf, self._ref_hw, nv], device=dev)
@@ -663,7 +662,7 @@ class LikelihoodEngine:
         else:
             f = self._buffer("wf", (nv, Hc, Wc))
             f.assign(np.asarray(factor, dtype=np.float32).reshape(nv, Hc, Wc))
-        wp.launch(_times_kernel, dim=(nv, Hc, Wc), inputs=[self._w0, f, self._w], device=self.device)
+        self._launch("times", _times_kernel, (nv, Hc, Wc), [self._w0, f, self._w])
 
     def robust_weights(self, s: dict, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy"):
         """The robust factors of the weighted residual at the centre of the last step's design
@@ -687,9 +686,8 @@ class LikelihoodEngine:
         wp.copy(lin, lin_h)
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
-        wp.launch(residual_kernel, dim=(nv, Hc, Wc), device=self.device,
-                  inputs=[img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt,
-                          int(jacobian)])
+        self._launch(("residual", bool(jacobian)), residual_kernel, (nv, Hc, Wc),
+                     [img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt, int(jacobian)])
         return e, jt
 
     def support(self, x=None) -> np.ndarray:
@@ -724,19 +722,19 @@ class LikelihoodEngine:
         cov = self._buffer("cov", (nv, nl, 2), wp.float64)
         cov.zero_()
         n_chunks = math.ceil(Hc * Wc / self.chunk)
-        wp.launch_tiled(autocov_kernel, dim=(nv, nl // 2 + 1, n_chunks), block_dim=self.block_dim, device=dev,
-                        inputs=[e, self._w, self._ref_hw, L, self.chunk, cov])  # (the rest mirrored)
+        self._launch("autocov", autocov_kernel, (nv, nl // 2 + 1, n_chunks),
+                     [e, self._w, self._ref_hw, L, self.chunk, cov], self.block_dim)  # (the rest mirrored)
         taper = self._bufs.get(("taper", L))
         if taper is None:  # Bartlett's, per lag (rows, columns)
             d = np.arange(-L, L + 1)
             t = np.outer(1 - np.abs(d) / (L + 1), 1 - np.abs(d) / (L + 1)).ravel()
             taper = self._bufs[("taper", L)] = wp.array(t, dtype=wp.float64, device=dev)
         cw = self._buffer("cw", (nv, nl))
-        wp.launch(taper_kernel, dim=(nv, nl), inputs=[cov, taper, cw], device=dev)
+        self._launch("taper", taper_kernel, (nv, nl), [cov, taper, cw])
         acc = self._buffer("meat", (nv, 36), wp.float64)
         acc.zero_()
-        wp.launch_tiled(meat_kernel, dim=(nv, n_chunks), block_dim=self.block_dim, device=dev,
-                        inputs=[jt, cw, self._ref_hw, L, self.chunk, acc])
+        self._launch("meat", meat_kernel, (nv, n_chunks), [jt, cw, self._ref_hw, L, self.chunk, acc],
+                     self.block_dim)
         host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
         wp.copy(host, acc)
         self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)

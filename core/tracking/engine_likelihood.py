@@ -606,7 +606,10 @@ class LikelihoodEngine:
         the device, its work enqueued, so that a caller can run several engines' refinements side
         by side (:func:`run_side_by_side`); each one's iterates are those of :meth:`refine`. The
         renderer's output buffer is shared: between yields other engines render into it, so the
-        engine keeps its own copy of the images (:attr:`own_images`) while side by side."""
+        engine keeps its own copy of the images (:attr:`own_images`) while side by side.
+        ``sandwich="later"``: the sandwich launched and not waited for, ``covariance`` None and
+        ``sandwich`` the H⁻¹ that :meth:`sandwich_result` takes (after more work of the engine's
+        enqueued: it reads the sandwich's result when the device has got to it)."""
         hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
@@ -633,7 +636,11 @@ class LikelihoodEngine:
         except np.linalg.LinAlgError:
             return {**out, "covariance": nan, "covariance_independent": nan}
         out["covariance_independent"] = Hinv * s["chi2"] / max(self.n_pixels, 1)
-        if sandwich:
+        if sandwich == "later":  # launched; the caller takes it (sandwich_result(out["sandwich"]))
+            self.sandwich_launch(s)
+            out["covariance"] = None
+            out["sandwich"] = Hinv
+        elif sandwich:
             self.sandwich_launch(s)
             yield
             out["covariance"] = self.sandwich_result(Hinv)

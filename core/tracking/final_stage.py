@@ -216,8 +216,11 @@ def _refine_steps(eng, o, model: FinalModel):
         eng.scale_weights(mask)
     if model.robust is None:
         return (yield from _engine_refine(eng, iters=o.final_iters))
-    out = yield from _engine_refine(eng, iters=o.final_iters)
+    # the first refinement's sandwich launched, taken after the robust factors' step (no wait of its own)
+    later = "later" if type(eng).refine is _PLAIN_REFINE else True
+    out = yield from _engine_refine(eng, iters=o.final_iters, sandwich=later)
     first = out  # its sandwich is the stage's confidence (module docs)
+    hinv = out.pop("sandwich", None)
     n_it = int(out["iterations"])
     for _ in range(int(model.rounds)):
         if not np.all(np.isfinite(out["x"])):
@@ -228,6 +231,8 @@ def _refine_steps(eng, o, model: FinalModel):
         eng.step_launch(out["x"], np.full(6, 0.05))  # (refine's design: its first step takes these images)
         yield
         s = eng.step_result()
+        if hinv is not None:  # (the device has done it: it came before this step)
+            first["covariance"], hinv = eng.sandwich_result(hinv), None
         if ROBUST_ON_DEVICE:
             f = eng.robust_weights(s, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
             if mask is not None:
@@ -241,6 +246,9 @@ def _refine_steps(eng, o, model: FinalModel):
         own = ROBUST_SANDWICH or not np.all(np.isfinite(first["covariance"]))  # (then the stage's)
         out = yield from _engine_refine(eng, out["x"], iters=o.final_iters, sandwich=own, reuse=True)
         n_it += 1 + int(out["iterations"])
+    if hinv is not None:  # (no robust round)
+        yield
+        first["covariance"] = eng.sandwich_result(hinv)
     out["iterations"] = n_it
     out["covariance_robust"] = out["covariance"]
     if np.all(np.isfinite(first["covariance"])):

@@ -52,16 +52,19 @@ replaces the high-pass.
 * Grid-corrected frames (``grid``, the user's path): ``hp4+r`` 3.29/1.28, 1.67/1.57, 2.30/1.39;
   ``bs16+r`` 2.97/3.26, 2.59/1.99, 1.90/2.18; the polynomials as on ``true``.
 * The ceiling of an explicit tissue model (probe ``leg4t+r``: the tissue's TRUE line integral a
-  regressor with its own gain, order-4 background, no high-pass): spread 1.53/1.00, 1.27/1.13,
-  1.37/1.08 (per axis 0.8-1.7x the bound's σ) against the high-pass's 2.48/1.24, 1.54/1.82,
-  1.60/1.44, RMS 2.36/0.99, 1.31/1.21, 1.69/1.10 on ``true``, and on ``grid`` 3.40/1.24,
-  1.33/1.23, 2.39/1.31 (the tibia and calcaneus biased 1.5-2.7x in translation: without the
-  high-pass the grid correction's residual distortion and the unblurred neighbours weigh more;
-  the estimated PSF on the DRR, ``leg4tp+r``, 2.96/1.28, 1.46/1.20, 2.41/1.08). What the high-pass
-  costs is real (the talus 1.63/1.62 -> 1.31/1.21 with the tissue known), but only a model of the
-  tissue's shape buys it back, not a smooth basis.
-* Veiling glare was undone from disc frames (measured fraction 0.0497/0.0498, σ 17.0 px; the
-  generator's 0.05).
+  regressor with its own gain, order-4 background, no high-pass), against ``hp4+r`` on the same
+  frames with 4 draws (``four_draws``, 16 samples per bone): on ``true`` spread 1.61/0.89,
+  1.08/1.00, 1.31/1.22 against 2.14/1.20, 1.61/1.63, 1.90/1.82, RMS 2.38/0.92, 1.13/1.04,
+  1.56/1.22 against 2.50/1.30, 1.68/1.50, 1.99/1.83; on ``grid`` RMS 3.64/1.18, 1.20/1.08,
+  2.31/1.32 against 2.97/1.36, 1.66/1.43, 2.33/1.80 (the tibia and calcaneus biased 1.5-2.7x in
+  translation there: without the high-pass the grid correction's residual distortion and the
+  unblurred neighbours weigh more; the estimated PSF on the DRR, ``leg4tp+r``, changes little).
+  What the high-pass costs is real — the talus's spread falls to the bound with the tissue known —
+  but only a model of the tissue's shape buys it back, not a smooth basis.
+* Veiling glare must be undone for it: measured from disc frames (fraction 0.0497/0.0498, σ 17.0
+  px; the generator's 0.05) and undone in ``true`` and ``grid``; left in (``true_glare``) the
+  probe's bias grows to 1.7/0.5, 1.5/1.0, 2.5/2.1x while ``hp4+r`` does not move (0.7/0.3,
+  0.4/0.4, 0.4/0.3x).
 
 JSON on stdout (``--out``: also to a file, rewritten after each frame).
 """

@@ -66,6 +66,16 @@ replaces the high-pass.
   probe's bias grows to 1.7/0.5, 1.5/1.0, 2.5/2.1x while ``hp4+r`` does not move (0.7/0.3,
   0.4/0.4, 0.4/0.3x).
 
+What the device stage (:mod:`core.tracking.engine_likelihood`) would need for ``q`` background
+regressors a view (not recommended for the smooth bases): its per-pixel table ``Σ w z zᵀ`` of
+``z = (y, D, δ_1…δ_6, 1, u, v, O)`` (12 × 12 in each thread's registers) grows to ``8 + q + 1``
+entries; the products among ``(y, O, b_1…b_q)`` do not move with the pose and could be summed
+once per frame and per set of weights, leaving ``7 · (9 + q)`` per step (D and the six δ against
+everything), and :func:`~core.tracking.engine_likelihood.solve_moments` a ``(1 + q [+ 1])``-square
+solve per view; the two blur passes of the high-pass would go. Order-4 Legendre: q = 15; a
+tissue regressor: one more entry (like ``O``), rendered per frame at the neighbours' poses or,
+for the bones the tissue follows (calcaneus, tibia), with the step's 13 poses.
+
 JSON on stdout (``--out``: also to a file, rewritten after each frame).
 """
 

@@ -6,6 +6,14 @@ the fluoroscope's line integrals (:mod:`core.similarity.likelihood`), with the s
 Gauss–Newton steps. What it was measured to gain and why: :mod:`core.studies.tracking.bound_gap`,
 :mod:`core.studies.tracking.ml_cost`. The same refinement on the device, the registrations' opt-in
 final stage: :mod:`core.tracking.engine_likelihood`, :mod:`core.tracking.final_stage`.
+
+Backgrounds beyond the plane and quadratic of the numpy reference (``basis="legendre"`` or
+``"bspline"``, :func:`background_basis`) and extra fixed regressors (``regressors``, e.g. a
+soft-tissue DRR) take a general path: the weighted background is orthonormalised once per set of
+weights and the DRR, its derivatives and the line integrals are projected off it, then the gain
+as before. Whether such a background can replace the stage's high-pass:
+:mod:`core.studies.tracking.background_fit` (it cannot: the soft-tissue envelope varies on the
+bone's own scale within the region).
 """
 
 from __future__ import annotations

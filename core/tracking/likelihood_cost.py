@@ -236,17 +236,25 @@ class LikelihoodCost:
             cache[v] = (w, _basis_q(self._regressors(v), w))
         return cache[v][1]
 
-    def _chi2_general(self, D) -> np.ndarray:
-        """χ² of each pose with the background of :attr:`basis` (the neighbours a regressor)."""
+    def _filtered(self, img, *, cast: bool = True) -> np.ndarray:
+        """``img`` as the model sees it: float32 (``cast``), blurred by :attr:`psf` and high-passed
+        by :attr:`highpass_px` where set."""
         from ..similarity.likelihood import blur, highpass
 
+        if cast:
+            img = np.asarray(img, np.float32)
+        if self.psf is not None:
+            img = blur(img, self.psf)
+        if self.highpass_px:
+            img = highpass(img, self.highpass_px)
+        return img
+
+    def _chi2_general(self, D) -> np.ndarray:
+        """χ² of each pose with the background of :attr:`basis` (the neighbours a regressor)."""
         total = 0.0
         for v, Dv in enumerate(D):
-            Dv, o = np.asarray(Dv, np.float32), self.others[v]
-            if self.psf is not None:
-                Dv, o = blur(Dv, self.psf), (None if o is None else blur(o, self.psf))
-            if self.highpass_px:
-                Dv, o = highpass(Dv, self.highpass_px), (None if o is None else highpass(o, self.highpass_px))
+            Dv, o = self._filtered(Dv), self.others[v]
+            o = None if o is None else self._filtered(o, cast=False)
             W = self.weights[v].ravel()
             sel = W > 0
             sw = np.sqrt(W[sel])
@@ -306,7 +314,7 @@ class LikelihoodCost:
         return out
 
     def _gauss_newton(self, x, weights, iters, step, tol):
-        from ..similarity.likelihood import blur, highpass, wls_gauss_newton_step
+        from ..similarity.likelihood import wls_gauss_newton_step
 
         hv = np.array([step[0]] * 3 + [step[1]] * 3)
         X = np.concatenate([np.zeros((1, 6)), np.diag(hv), -np.diag(hv)])
@@ -317,11 +325,7 @@ class LikelihoodCost:
             D = self._render(x + X)
             JJ, Jr, chi2, dof = np.zeros((6, 6)), np.zeros(6), 0.0, 0
             for v, Dv in enumerate(D):
-                Dv = Dv.astype(np.float32)
-                if self.psf is not None:
-                    Dv = blur(Dv, self.psf)
-                if self.highpass_px:
-                    Dv = highpass(Dv, self.highpass_px)
+                Dv = self._filtered(Dv)
                 dD = (Dv[1:7] - Dv[7:13]) / (2 * hv[:, None, None])
                 if not self._general:
                     a, b, c, d = wls_gauss_newton_step(Dv[0], dD, self.fluoro_rois[v], weights[v],
@@ -343,17 +347,11 @@ class LikelihoodCost:
     def residual(self, x, weights=None) -> np.ndarray:
         """``(views, H, W)`` weighted residual images ``√w (y - model)`` at parameters ``x`` after
         the linear fit (zero-padded to the largest region; 0 where a pixel is unused)."""
-        from ..similarity.likelihood import blur, highpass
-
         weights = self.weights if weights is None else weights
         D = self._render(np.asarray(x, float)[None])
         res = []
         for v, Dv in enumerate(D):
-            Dv = Dv.astype(np.float32)
-            if self.psf is not None:
-                Dv = blur(Dv, self.psf)
-            if self.highpass_px:
-                Dv = highpass(Dv, self.highpass_px)
+            Dv = self._filtered(Dv)
             res.append(_step_general(Dv[0], np.zeros((6, *Dv.shape[1:])), self.fluoro_rois[v], weights[v],
                                      self._regressors(v), self._q(v, weights[v]))[4])
         out = np.zeros((len(res), max(r.shape[0] for r in res), max(r.shape[1] for r in res)))

@@ -52,30 +52,18 @@ import time
 import numpy as np
 
 from core.geometry.transforms import params_from_pose, pose_from_params
+from core.studies.tracking.grid_correction import TRIAL_BONES, grid_corrections, model_corrections
 
 __all__ = ["CORRECTIONS", "FRAME_RATE_HZ", "TrackingScene", "capture_range", "cramer_rao", "main", "mean_tre",
            "model_corrections", "pose_errors", "run", "surface_points", "tracking_scene"]
 
-BONES = ("tibia", "talus", "calcaneus")
+BONES = TRIAL_BONES
 STANCE_S = 0.6
 FRAME_RATE_HZ = 100 / (0.6 * STANCE_S)
 
 
 #: The trial's distortion corrections (:class:`TrackingScene` ``correction``).
 CORRECTIONS = ("model", "grid")
-
-
-def model_corrections(scene, residual: float = 0.03) -> list:
-    """Per view of ``scene`` its true distortion with ``k1`` and the twist scaled by ``1 + residual``
-    (the trial's default correction: an assumed calibration error)."""
-    from core.synthetic import Distortion
-
-    out = []
-    for m in scene.imaging:
-        d = m.distortion
-        out.append(Distortion(d.center, d.scale_px, d.k1 * (1 + residual), d.k2, d.twist_rad * (1 + residual),
-                              d.twist_power))
-    return out
 
 
 class TrackingScene:
@@ -111,8 +99,6 @@ class TrackingScene:
         #: ``residual`` off) or ``"grid"`` (estimated from the calibration session's grid frames)
         self.correction = correction
         if correction == "grid":
-            from core.studies.tracking.grid_correction import grid_corrections
-
             #: per view: Distortion (``"model"``) or GridCorrection (``"grid"``): forward, inverse, unwarp
             self.corrections = grid_corrections(self.scene, seed=seed)
         else:

@@ -55,7 +55,10 @@ from itertools import pairwise
 import numpy as np
 
 __all__ = ["GridCorrection", "bone_points", "bone_residuals", "estimate_corrections", "field_points",
-           "grid_corrections", "grid_session", "main", "residuals", "run"]
+           "grid_corrections", "grid_session", "main", "model_corrections", "residuals", "run"]
+
+#: The acceptance trial's bones (:data:`core.studies.tracking.acceptance.BONES` is this tuple).
+TRIAL_BONES = ("tibia", "talus", "calcaneus")
 
 #: Frames per camera of the synthetic calibration session (write_calibration_session's defaults).
 SESSION_FRAMES = {"grid": 5, "dark": 5, "flat": 10}
@@ -306,15 +309,27 @@ def _pooled(rows: list[dict]) -> dict:
     return out
 
 
+def model_corrections(scene, residual: float = 0.03) -> list:
+    """Per view of ``scene`` its true distortion with ``k1`` and the twist scaled by ``1 + residual``
+    (the acceptance trial's default correction: an assumed calibration error)."""
+    from core.synthetic import Distortion
+
+    out = []
+    for m in scene.imaging:
+        d = m.distortion
+        out.append(Distortion(d.center, d.scale_px, d.k1 * (1 + residual), d.k2, d.twist_rad * (1 + residual),
+                              d.twist_power))
+    return out
+
+
 def run(*, pixels: int = 1024, spacing: float = 0.5, n_grids=(1, 5), seed: int = 0,
         residual: float = 0.03) -> dict:
     """The study (module docs): the trial's scene at ``pixels`` (its rig and image chains; its bones
     at frames 0, 10, …, 90 for the residual over each bone's image, ``bones``)."""
-    from core.studies.tracking.acceptance import BONES, model_corrections
     from core.synthetic import make_foot_scene
 
     t0 = time.perf_counter()
-    scene = make_foot_scene(n_frames=100, pixels=pixels, spacing=spacing, seed=seed, names=BONES,
+    scene = make_foot_scene(n_frames=100, pixels=pixels, spacing=spacing, seed=seed, names=TRIAL_BONES,
                             beads_per_bone=0, phase=(0.0, 0.6), tissue_spacing=3.0)
     out = {"study": "core.studies.tracking.grid_correction", "machine": platform.machine(),
            "pixels": pixels, "seed": seed,

@@ -1,0 +1,185 @@
+"""The likelihood final stage's frame set-up (:class:`core.tracking.engine_likelihood.LikelihoodEngine`'s
+regions): which rows of the fluence go up for the device's preparation, the pinned host buffers,
+the device's or the host's regions of line integrals and usable pixels, and the neighbours' DRRs
+taken from them. A mixin of the engine's; the engine's module docs (Set-up) say what each costs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from .cost import FrameImages, OutsideViewError, fluoro_rois, padded_region
+from .engine_kernels import _LANES, fluoro_roi_kernel
+from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
+
+
+class _FrameRegions:
+    """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s frame set-up steps (its
+    attributes: ``views``, ``roi``, ``renderer``, ``device``, buffers)."""
+
+    def _staged(self, frame) -> list | None:
+        """Per view ``(r0, r1, c0, c1)``, the image rows and columns to upload for the device's
+        preparation of the regions (each grown by the mask's erosion), or None where the host
+        prepares them (not a :class:`~core.tracking.cost.FrameImages`, a region reaching outside
+        its image: :func:`~core.tracking.cost.fluoro_rois`)."""
+        if not isinstance(frame, FrameImages):
+            return None
+        p = frame._erode if frame._valid is not None else 0
+        out = []
+        for i, v in enumerate(self.views):
+            u0, v0, w, h = (int(a) for a in self.roi[i])
+            H, W = frame.shapes[v]
+            if w <= 0 or h <= 0 or u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
+                return None
+            out.append((max(v0 - p, 0), min(v0 + h + p, H), max(u0 - p, 0), min(u0 + w + p, W)))
+        return out
+
+    def _pinned(self, name: str, shape: tuple, dtype=wp.float32, *, exact: bool = False):
+        """A pinned host buffer of this engine's of at least ``shape`` (grown only: pinned memory
+        is slow to allocate; 2-D and 3-D in 64-pixel steps; ``exact``: of that shape)."""
+        b = self._host.get(name)
+        if b is None or (tuple(b.shape) != tuple(shape) if exact else
+                         any(a < n for a, n in zip(b.shape, shape, strict=True))):
+            grown = tuple(shape)
+            if not exact and len(grown) > 1:
+                grown = grown[:1] + tuple(int(math.ceil(n / 64.0) * 64) for n in grown[1:])
+            if b is not None and not exact:
+                grown = tuple(max(a, n) for a, n in zip(b.shape, grown, strict=True))
+            b = self._host[name] = wp.zeros(grown, dtype=dtype, device="cpu", pinned=self.device.is_cuda)
+        return b
+
+    def _uploaded(self) -> None:
+        """Mark the uploads enqueued so far: the pinned buffers are written again after them."""
+        if self.device.is_cuda:
+            if self._up_event is None:
+                self._up_event = wp.Event(self.device)
+            wp.record_event(self._up_event)
+
+    def _stage(self, frame: FrameImages, staged: list, li, mask) -> None:
+        """Each view's region of the fluence uploaded as it is and its line integrals and usable
+        pixels made on the device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, the
+        values of :meth:`~core.tracking.cost.FrameImages.region`); the usable pixels counted there,
+        taken at the next step's synchronisation."""
+        nv = self.n_views
+        Hc, Wc = self._cap
+        p = frame._erode if frame._valid is not None else 0
+        Hs = max(r1 - r0 for r0, r1, _, _ in staged)
+        Ws = max(c1 - c0 for _, _, c0, c1 in staged)
+        given = any(frame._given[v] is not None for v in self.views)
+        host = self._pinned("stage", (nv, Hs, Ws))
+        hg = self._pinned("stage_given", (nv, Hs, Ws), wp.uint8) if given else None
+        src = self._buffer("stage", tuple(host.shape))
+        gsrc = self._buffer("stage_given", tuple(host.shape), wp.uint8) if given else \
+            self._buffer("stage_given", (nv, 1, 1), wp.uint8)
+        hn = host.numpy()
+        gn = None if hg is None else hg.numpy()
+        info = self._host_info.numpy()
+        info[:] = 0
+        for i, v in enumerate(self.views):
+            r0, r1, c0, c1 = staged[i]
+            u0, v0, w, h = (int(a) for a in self.roi[i])
+            hn[i, :r1 - r0, :c1 - c0] = frame._fluence[v][r0:r1, c0:c1]
+            g = frame._given[v]
+            if g is not None:
+                gn[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
+            info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
+        Ws_ = host.shape[2]
+        n = (nv - 1) * host.shape[1] * Ws_ + (staged[-1][1] - staged[-1][0]) * Ws_
+        dev = self.device
+        wp.copy(src, host, 0, 0, n)
+        if given:
+            wp.copy(gsrc, hg, 0, 0, n)
+        wp.copy(self._info, self._host_info)
+        self._msum.zero_()
+        lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
+        wp.launch(fluoro_roi_kernel, dim=(nv, math.ceil(Hc * Wc / self.chunk), _LANES), device=dev,
+                  inputs=[src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
+                          self.chunk, li, mask, self._fmax, self._msum])
+        wp.copy(self._host_msum, self._msum)
+        self._count_pending = True
+
+    def _regions(self, frame) -> tuple[list, list]:
+        """Per view the region's line integrals and usable pixels (views into the frame's cached
+        regions where they can be, else copies: the values of
+        :func:`~core.tracking.cost.fluoro_rois`); their usable pixels counted (``n_pixels``).
+        Raises OutsideViewError like it."""
+        rois, masks = [], []
+        if not isinstance(frame, FrameImages):
+            rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi)
+        else:
+            for i, v in enumerate(self.views):
+                sub, m, r = padded_region(frame, v, self.roi[i], 1.0)
+                x0, y0, w, h = (int(a) for a in r)
+                if x0 + w > sub.shape[1] or y0 + h > sub.shape[0]:  # (not at full resolution)
+                    rois, masks = fluoro_rois(self.renderer, frame, views=self.views, roi=self.roi)
+                    break
+                rois.append(sub[y0:y0 + h, x0:x0 + w])
+                masks.append(None if m is None else m[y0:y0 + h, x0:x0 + w])
+                if masks[-1] is not None and not masks[-1].any():
+                    raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of "
+                                           f"view {v}")
+        self.n_pixels = int(sum(f.size if m is None else np.count_nonzero(m)
+                                for f, m in zip(rois, masks, strict=True)))
+        return rois, masks
+
+    def _host_upload(self, rois: list, masks: list, li, mask) -> None:
+        """The host's regions and usable pixels into the device's ``li`` and ``mask`` (padded
+        layout, 0 beyond each view's region), through pinned buffers (flat, grown only: the
+        regions' size changes from frame to frame and pinned memory is slow to allocate)."""
+        n = li.size
+        hl = self._pinned("li", (math.ceil(n / 65536.0) * 65536,))
+        hm = self._pinned("mask", (math.ceil(n / 65536.0) * 65536,), wp.uint8)
+        a, m_ = hl.numpy()[:n].reshape(li.shape), hm.numpy()[:n].reshape(li.shape)
+        for i, (f, m) in enumerate(zip(rois, masks, strict=True)):
+            h, w = f.shape
+            a[i, :h, :w] = f
+            a[i, h:] = 0.0
+            a[i, :h, w:] = 0.0
+            m_[i, :h, :w] = 1 if m is None else m
+            m_[i, h:] = 0
+            m_[i, :h, w:] = 0
+        wp.copy(li, hl, 0, 0, n)
+        wp.copy(mask, hm, 0, 0, n)
+        self._count_pending = False
+
+    def _frame_others(self, others, li) -> None:
+        """The neighbours ``others = (poses, bones)`` rendered at their poses on the device (the
+        PSF's blur after their sum, as the bone's DRRs): taken from the line integrals ``li`` into
+        ``_y_raw``, or their own regressor ``_o_raw`` (``others_gain``); without neighbours
+        ``_y_raw`` is ``li`` itself."""
+        nv = self.n_views
+        Hc, Wc = self._cap
+        dev = self.device
+        n = 0 if others is None else len(others[1])
+        self._with_o = bool(n and self.others_gain)
+        self._o_raw = None
+        if not n:
+            self._y_raw = li
+            return
+        img = self._render(np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1]))
+        y = self._y_raw = self._buffer("y_raw", (nv, Hc, Wc))
+        o = self._buffer("o_raw", (nv, Hc, Wc))
+        gain = self._with_o or self._psf is not None  # the PSF's blur before the subtraction
+        self._launch("others", others_kernel, (nv, Hc, Wc), [img, n, li, self._ref_hw, int(gain), y, o])
+        if self._psf is not None:
+            ob = self._buffer("o_psf", (nv, Hc, Wc))
+            wp.launch(psf_kernel, dim=(nv, Hc, Wc), inputs=[o, ob, self._psf, self._ref_hw, nv], device=dev)
+            if self._with_o:
+                o = ob
+            else:  # y = li - psf ∗ others
+                wp.launch(highpass_kernel, dim=(nv, Hc, Wc), inputs=[li, ob, 1.0, y], device=dev)
+        if self._with_o:
+            self._o_raw = o
+
+    def _take_count(self) -> None:
+        """The usable pixels the device's preparation counted (copied before the last
+        synchronisation); raises OutsideViewError for a view without any."""
+        self._count_pending = False
+        n = self._host_msum.numpy()[:, 0]
+        self.n_pixels = round(float(n.sum()))
+        for i, k in enumerate(n):
+            if k <= 0:
+                v = self.views[i]
+                raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")

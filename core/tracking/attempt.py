@@ -85,7 +85,7 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                      o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
                      start_score: float | None = None, seed: int = 0, pre=None,
                      frame_number: int | None = None, good_sigmas=None, reference: float | None = None,
-                     host_only: bool = False, defer_confidence: bool = False):
+                     host_only: bool = False, defer_confidence: bool = False, prediction=None):
     """Register with failure checks, one wider retry and (first frames, retries) the restart
     check of :func:`core.tracking.verify.verify_start`. ``pre``: ``(registration or the
     OutsideViewError it raised, seconds spent)`` already run with these inputs
@@ -94,7 +94,9 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     (:func:`core.tracking.checks.motion_check`), ``good_sigmas`` (the good frames' confidence
     lengths, mm and degrees) the relative ``"uncertain"`` check
     (:func:`core.tracking.checks.sigma_check`), ``reference`` the score of a flagged first frame
-    that later frames are compared with while the bone has no good score.
+    that later frames are compared with while the bone has no good score, ``prediction`` the
+    frame's constant-velocity prediction from ``history`` for the motion check
+    (:func:`core.tracking.frame_state.motion_prediction`; None: the check computes it).
 
     Returns an :class:`Attempt`; with ``host_only``, None where the checks would use the device
     (a retry, the restart check, a confidence of a cost of its own: the caller runs them later).
@@ -126,8 +128,8 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
             timing[k] += r.timing.get(k, 0.0)
 
     jump = o.retry_factor if verify else 1.0
-    more = {"history": history, "frame": frame_number, "reference": reference} if frame_number is not None \
-        else {"reference": reference}
+    more = {"history": history, "frame": frame_number, "reference": reference, "prediction": prediction} \
+        if frame_number is not None else {"reference": reference}
     flags = _failures(res, guess, c, good_scores, o, start_score=start_score, jump_factor=jump, **more)
     if host_only and ((flags and not cancelled()) or verify or (o.confidence and res.fit is None)):
         return None

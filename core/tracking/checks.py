@@ -132,7 +132,7 @@ SCORE_DROP = "score drop"
 
 def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
              jump_factor: float = 1.0, history=None, frame: int | None = None,
-             reference: float | None = None) -> list[str]:
+             reference: float | None = None, prediction=None) -> list[str]:
     """Why registration ``res`` fails under the tracking options ``o`` (module docs of
     :mod:`core.tracking.trial`): ``good_scores`` are the bone's good scores so far (in tracking
     order), ``start_score`` its first frame's; the jump limit from ``guess_pose`` is
@@ -181,7 +181,10 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     acceptance trial (1024², joint, one H200, ``resources/benchmarks/tracking_flags2_h200.json``)
     the frames out of order went from 4 of 12 silent to 0 (the other 8 within 1 mm / 2°),
     corrected starts stayed unflagged (11 of 12, the 12th flagged either way) and no tracked frame
-    was flagged (0 of 292 good frames).
+    was flagged (0 of 292 good frames). ``prediction``: the frame's constant-velocity prediction
+    from ``history`` when the caller has it (the tracker's frame step computes it once for the
+    guess and every check of the frame, :func:`core.tracking.frame_state.motion_prediction`);
+    None computes it.
 
     ``reference``: the score of the bone's first flagged frame while it has no good score (the
     tracker's :class:`~core.tracking.frame_state._BoneState`); a score below ``o.min_score_ratio`` × it
@@ -217,7 +220,7 @@ def failures(res, guess_pose, center, good_scores, o, *, start_score=None,
     if history is not None and frame is not None:
         out += motion_check(res.pose, history, frame, center, n=o.history,
                             limit=getattr(o, "motion_limit", MOTION_LIMIT),
-                            floor=getattr(o, "motion_floor", MOTION_FLOOR))
+                            floor=getattr(o, "motion_floor", MOTION_FLOOR), prediction=prediction)
     return out
 
 
@@ -250,29 +253,16 @@ MOTION_LIMIT = 6.0
 MOTION_FLOOR = (1.0, 2.0)
 
 
-_PREDICTED: dict = {}  # _predict by its poses' bytes and frames
-
-
 def _predict(f0, T0, f1, T1, f, c) -> np.ndarray:
     """Constant-velocity prediction at frame ``f`` from poses at frames ``f0``, ``f1`` (as
-    :func:`core.tracking.trial.predict_pose` ``"velocity"``, which computes it here). Kept (read-only)
-    by the poses' bytes and the frames for the next call: the tracker's guess of a frame is the
-    prediction its motion check judges the registration against."""
+    :func:`core.tracking.trial.predict_pose` ``"velocity"``; the tracker computes a frame's once,
+    :func:`core.tracking.frame_state.motion_prediction`, and hands it to :func:`failures`)."""
     T1 = np.asarray(T1, float)
     if f1 == f0:
         return T1
     T0 = np.asarray(T0, float)
     c = np.asarray(c, dtype=float)
-    key = (T0.tobytes(), T1.tobytes(), T0.shape, T1.shape, f0, f1, f, c.tobytes(), c.shape)
-    hit = _PREDICTED.get(key)
-    if hit is None:
-        d = pose_delta(T0, T1, c)
-        hit = step_pose(d * (f - f1) / (f1 - f0), T1, c)
-        hit.setflags(write=False)
-        if len(_PREDICTED) >= 256:
-            _PREDICTED.clear()
-        _PREDICTED[key] = hit
-    return hit
+    return step_pose(pose_delta(T0, T1, c) * (f - f1) / (f1 - f0), T1, c)
 
 
 def _reach(f0, f1, f) -> float:
@@ -283,7 +273,7 @@ def _reach(f0, f1, f) -> float:
 
 
 def motion_check(pose, history, frame: int, center, *, n: int = 10, limit: float = MOTION_LIMIT,
-                 floor=MOTION_FLOOR, min_residuals: int = 3) -> list[str]:
+                 floor=MOTION_FLOOR, min_residuals: int = 3, prediction=None) -> list[str]:
     """The ``"unexpected motion"`` flag: ``pose`` (frame ``frame``) against the constant-velocity
     prediction from the bone's last two good poses, judged by the bone's own recent motion.
 
@@ -296,10 +286,11 @@ def motion_check(pose, history, frame: int, center, *, n: int = 10, limit: float
     of order, a view's frames shifted) is a true optimum that restarts confirm and the score checks
     pass; only the motion tells it from the bone's track. Unlike a fixed jump limit from the
     start, a start far off (a stale guess) that the retry corrected is not flagged: the
-    prediction comes from the good poses, not from the start.
+    prediction comes from the good poses, not from the start. ``prediction``: that prediction when
+    the caller has it (:func:`failures`); None computes it.
     """
     got = motion_miss(pose, history, frame, center, n=n, limit=limit, floor=floor,
-                      min_residuals=min_residuals)
+                      min_residuals=min_residuals, prediction=prediction)
     if got is None:
         return []
     dt, dr, lim_t, lim_r, m = got
@@ -333,12 +324,13 @@ _BOUNDS: dict = {}  # motion_miss: per history list, its prediction and limits f
 
 
 def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float = MOTION_LIMIT,
-                floor=MOTION_FLOOR, min_residuals: int = 3) -> tuple | None:
+                floor=MOTION_FLOOR, min_residuals: int = 3, prediction=None) -> tuple | None:
     """``(mm, degrees from the prediction, limit mm, limit degrees, residuals used)`` of
-    :func:`motion_check`, or None without enough history. The prediction and limits of a
-    history list are kept for the next call with the same list, unchanged (its length and last
-    pose the same objects), the same frame and options: the tracker checks each bone's
-    registrations of a frame — joint tracking's rounds, retries — against its one history."""
+    :func:`motion_check`, or None without enough history. The limits of a history list (and the
+    prediction, unless the caller passes it as ``prediction``) are kept for the next call with the
+    same list, unchanged (its length and last pose the same objects), the same frame and options:
+    the tracker checks each bone's registrations of a frame — joint tracking's rounds, retries —
+    against its one history."""
     c = np.asarray(center, dtype=float)
     key = (int(frame), c.tobytes(), int(n), float(limit), tuple(floor), int(min_residuals))
     hit = _BOUNDS.get(id(history))
@@ -346,7 +338,7 @@ def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float 
             and hit[2] is history[-1][1] and hit[3] == key):
         got = hit[4]
     else:
-        got = _bounds(history, frame, c, n, limit, floor, min_residuals)
+        got = _bounds(history, frame, c, n, limit, floor, min_residuals, prediction)
         if isinstance(history, list):
             if len(_BOUNDS) >= 64:
                 _BOUNDS.clear()
@@ -354,12 +346,20 @@ def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float 
     if got is None:
         return None
     pred, lim_t, lim_r, m = got
+    if prediction is not None:
+        pred = prediction
+    elif pred is None:  # (kept from a call that was given the prediction)
+        (f0, T0), (f1, T1) = history[-2], history[-1]
+        pred = _predict(f0, T0, f1, T1, frame, c)
     dt, dr = _distance(pred, pose, c)
     return dt, dr, lim_t, lim_r, m
 
 
-def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min_residuals: int):
-    """:func:`motion_miss`'s prediction and limits: ``(pose, mm, degrees, residuals)`` or None."""
+def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min_residuals: int,
+            prediction=None):
+    """:func:`motion_miss`'s prediction and limits: ``(pose, mm, degrees, residuals)`` or None
+    (the pose None when the caller has the ``prediction``: not computed, and the caller's array
+    not kept)."""
     h = list(history or [])
     if len(h) < min_residuals + 2:
         return None
@@ -377,7 +377,8 @@ def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min
     k = _reach(f0, f1, frame)
     lim_t = max(limit * float(med[0]), float(floor[0])) * k
     lim_r = max(limit * float(med[1]), float(floor[1])) * k
-    return _predict(f0, T0, f1, T1, frame, c), lim_t, lim_r, len(miss)
+    pred = _predict(f0, T0, f1, T1, frame, c) if prediction is None else None
+    return pred, lim_t, lim_r, len(miss)
 
 
 #: :func:`sigma_check`: a confidence σ longer than this many times the median of the bone's recent

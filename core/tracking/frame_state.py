@@ -1,8 +1,9 @@
 """The records a :func:`core.tracking.trial.track` run keeps between frames — a bone's good
 history and scores (:class:`_BoneState`), the run's fixed inputs (:class:`_Run`), the sticky cancel
 token — and the initial guess of a frame from that history (:func:`predict_pose`, also exported by
-:mod:`core.tracking.trial`, whose module docs describe the guesses). Shared by
-:mod:`core.tracking.trial` and :mod:`core.tracking.frame_step`.
+:mod:`core.tracking.trial`, whose module docs describe the guesses) with the constant-velocity
+prediction the frame's motion check judges the registrations against (:func:`motion_prediction`).
+Shared by :mod:`core.tracking.trial` and :mod:`core.tracking.frame_step`.
 """
 
 from __future__ import annotations
@@ -18,14 +19,28 @@ from .checks import _predict, pose_delta
 from .options import TrackingOptions
 from .results import FrameResult
 
-__all__ = ["predict_pose"]
+__all__ = ["motion_prediction", "predict_pose"]
+
+
+def motion_prediction(history: Sequence[tuple[int, np.ndarray]], frame: int, center) -> np.ndarray | None:
+    """The constant-velocity prediction of ``frame`` from the bone's last two good poses
+    (``history``, tracking order), or None with fewer than two: the velocity guess of
+    :func:`predict_pose` and the pose :func:`core.tracking.checks.motion_check` judges the frame's
+    registrations against. The frame step computes it once per bone and frame and hands it to both
+    (``prediction``)."""
+    if len(history) < 2:
+        return None
+    (f0, T0), (f1, T1) = history[-2], history[-1]
+    return _predict(f0, T0, f1, T1, frame, np.asarray(center, dtype=float))
 
 
 def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, *,
                  guess: str = "velocity",
-                 keyframes: Mapping[int, np.ndarray] | None = None) -> np.ndarray:
+                 keyframes: Mapping[int, np.ndarray] | None = None, prediction=None) -> np.ndarray:
     """Initial guess for ``frame`` from the bone's good ``(frame, pose)`` history (in tracking
-    order, last = most recent) and its ``keyframes`` (see the module docs)."""
+    order, last = most recent) and its ``keyframes`` (see the module docs). ``prediction``: the
+    frame's :func:`motion_prediction` when the caller has it (the velocity guess is then a copy
+    of it); None computes it."""
     c = np.asarray(center, dtype=float)
     kf = dict(keyframes or {})
     if guess == "spline" and len(kf) >= 2:
@@ -48,9 +63,11 @@ def predict_pose(history: Sequence[tuple[int, np.ndarray]], frame: int, center, 
     f0, T0 = history[-2]
     if f0 == f1:
         return np.asarray(T1, dtype=float)
-    # the constant-velocity step (checks._predict: kept for the motion check of this frame, which
-    # judges the registration against the same prediction)
-    return _predict(f0, T0, f1, T1, frame, c).copy()
+    # the constant-velocity step (motion_prediction: the frame step hands the same one to the motion
+    # check of this frame); a copy, the caller's own
+    if prediction is None:
+        prediction = _predict(f0, T0, f1, T1, frame, c)
+    return np.array(prediction, dtype=float)
 
 
 class _Cancel:

@@ -86,7 +86,7 @@ import numpy as np
 from .attempt import Attempt, confidence_of, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
-from .frame_state import _BoneState, _Run, predict_pose
+from .frame_state import _BoneState, _Run, motion_prediction, predict_pose
 from .joint import JointJob, lockstep_applies, register_together
 from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
@@ -175,8 +175,11 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         why = (f"frame missing in view {', '.join(map(str, missing))}",)
         return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, why) for i in todo}
     hist = {b: state[b].history for b in names}
+    # each bone's constant-velocity prediction: the velocity guess and what the motion check judges
+    # every registration of the frame against (computed once here)
+    predicted = {i: motion_prediction(hist[names[i]], f, bones[i].centroid) for i in todo}
     guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
-                               keyframes=run.keyframes.get(names[i])) for i in todo}
+                               keyframes=run.keyframes.get(names[i]), prediction=predicted[i]) for i in todo}
     joint = o.mode == "joint" and len(names) > 1
     # sequential tracking with the final stage: the stage subtracts the neighbours as joint tracking
     # does (the bones registered in this frame, the others at their guesses; module docs)
@@ -240,7 +243,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                                     state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
                                     start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
                                     good_sigmas=state[b].sigmas, reference=state[b].reference,
-                                    host_only=host_only, defer_confidence=defer)
+                                    host_only=host_only, defer_confidence=defer, prediction=predicted[i])
 
     rounds = o.joint_rounds if joint else 1
 

@@ -128,8 +128,8 @@ def test_the_jump_limit_grows_with_a_stale_guess():
 
 
 def test_the_guess_is_the_motion_checks_prediction_and_limits_are_the_recent_medians():
-    """predict_pose's velocity guess is the prediction motion_miss judges a pose against (computed
-    once; the guess handed out is the caller's own array), and the limits are limit x the median of
+    """predict_pose's velocity guess is the prediction motion_miss judges a pose against (the same
+    bytes; the guess handed out is the caller's own array), and the limits are limit x the median of
     the recent misses (numpy's median)."""
     from core.tracking.checks import _distance, _miss, _reach, motion_miss, pose_delta, step_pose
     from core.tracking.frame_state import predict_pose
@@ -145,3 +145,24 @@ def test_the_guess_is_the_motion_checks_prediction_and_limits_are_the_recent_med
     assert (dt, dr) == _distance(want, truth(9), C)
     med = np.median([_miss(*hist[j - 2], *hist[j - 1], *hist[j], C) for j in range(4, 9)], axis=0)
     assert m == 5 and (lim_t, lim_r) == (6.0 * med[0] * _reach(f0, f1, 9), 6.0 * med[1] * _reach(f0, f1, 9))
+
+
+def test_a_prediction_passed_in_is_the_one_judged_against():
+    """The frame step hands the check its frame's prediction (motion_prediction, also the velocity
+    guess): the same flags as computing it; a different prediction moves the measured miss."""
+    from core.tracking.checks import _distance, motion_miss
+    from core.tracking.frame_state import motion_prediction, predict_pose
+
+    hist, truth = _walk(12, seed=4)
+    pred = motion_prediction(hist, 12, C)
+    g = predict_pose(hist, 12, C, prediction=pred)
+    assert g.tobytes() == predict_pose(hist, 12, C).tobytes() and g is not pred
+    assert motion_prediction(hist[:1], 12, C) is None
+    off = _pose(np.array([10.4, 3.6, -2.4, 7.2, 1.2, 0.72]) + np.r_[2.0, 0, 0, 0, 0, 0])
+    for pose in (truth(12), off):
+        assert motion_check(pose, hist, 12, C, prediction=pred) == motion_check(pose, list(hist), 12, C)
+    moved = pred.copy()
+    moved[0, 3] += 1.0
+    got = motion_miss(truth(12), hist, 12, C, prediction=moved)
+    assert got[:2] == _distance(moved, truth(12), C)
+    assert motion_miss(truth(12), hist, 12, C)[:2] == _distance(pred, truth(12), C)  # kept limits, own pose

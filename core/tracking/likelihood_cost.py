@@ -116,8 +116,9 @@ class LikelihoodCost:
     times a gain, plus the other bones' DRRs (``others``, at fixed poses, blurred alike) times
     their own gain, plus a smooth background (``background``: polynomial order, or intervals per
     axis of a B-spline; ``basis``: :func:`background_basis`; ``regressors``: per view more fixed
-    images over the region, e.g. a soft-tissue DRR, each with its own coefficient), all fitted
-    linearly at every pose;
+    images over the region, e.g. a soft-tissue DRR, each with its own coefficient: given as the
+    frame shows them, high-passed by ``highpass_px`` like the frame but not blurred by ``psf``), all
+    fitted linearly at every pose;
     pixels weigh by their expected counts (the smoothed relative fluence) over the usable pixels
     of the region — or, with ``dilate`` (pixels), only over the bone's footprint at the base pose
     grown by that much. ``psf`` must come from calibration images (e.g.
@@ -178,8 +179,10 @@ class LikelihoodCost:
                      for m, d in zip(masks, base, strict=True)]
         self.weights = tuple(expected_counts(r, sigma_px=weight_sigma_px, mask=m)
                              for r, m in zip(rois, masks, strict=True))
-        if not others_gain:  # the neighbours' DRRs subtracted as they are (gain 1), not fitted
-            self.fluoro_rois = tuple(r if o is None else r - o
+        if not others_gain:  # the neighbours' DRRs subtracted at gain 1 (blurred by psf alike), not fitted
+            from ..similarity.likelihood import blur
+
+            self.fluoro_rois = tuple(r if o is None else r - (o if self.psf is None else blur(o, self.psf))
                                      for r, o in zip(self.fluoro_rois, self.others, strict=True))
             self.others = [None] * len(self.views)
         self.highpass_px = None if not highpass_px else float(highpass_px)
@@ -221,6 +224,10 @@ class LikelihoodCost:
         if v not in cache:
             R = background_basis(self.fluoro_rois[v].shape, self.background, self.basis)
             extra = None if self.regressors is None else self.regressors[v]
+            if extra is not None and self.highpass_px:  # high-passed as the frame is (not blurred)
+                from ..similarity.likelihood import highpass
+
+                extra = highpass(extra, self.highpass_px).astype(np.float64)
             if extra is not None:
                 if extra.shape[1:] != R.shape[1:]:
                     raise ValueError(f"regressors: view {v} expected (k, {R.shape[1]}, {R.shape[2]}), "

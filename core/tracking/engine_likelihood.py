@@ -96,12 +96,15 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     _robust_weight_kernel,
     _times_kernel,
     autocov_kernel,
+    fluence_psf_kernel,
     highpass_kernel,
     mat12f,
     mat66f,
     meat_kernel,
     others_kernel,
     psf_kernel,
+    regressor_kernels,
+    regressor_sum_kernel,
     residual_kernel,
     robust_factors_device,
     taper_kernel,
@@ -125,18 +128,24 @@ __all__ = ["DEVICE_REGIONS", "LikelihoodEngine", "StepClock", "likelihood_engine
 DEVICE_REGIONS = False
 
 
-def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False) -> dict:
-    """The variable-projection Gauss–Newton quantities of the moment tables ``M (views, 12, 12)``
-    (module docs) with half-steps ``h (6,)``: ``{"JJ", "Jr", "chi2"}`` summed over views and, per
-    view, ``lin (views, 42)`` (the linear fit and projections :func:`residual_kernel` reads).
-    ``others``: the neighbours' DRRs a regressor with a gain of their own. The views at once
-    (stacked solves and products; the same values to 4e-16, in half the time of a loop over the
-    views)."""
-    M = np.asarray(M, dtype=np.float64).reshape(-1, NZ, NZ)
+def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False,
+                  extra: int = 0) -> dict:
+    """The variable-projection Gauss–Newton quantities of the moment tables ``M (views, 12 + extra,
+    12 + extra)`` (module docs) with half-steps ``h (6,)``: ``{"JJ", "Jr", "chi2"}`` summed over
+    views and, per view, ``lin (views, 42)`` (``(views, na + 7 + 6 na)``, ``na = 5 + extra``: the
+    linear fit and projections :func:`residual_kernel` reads). ``others``: the neighbours' DRRs a
+    regressor with a gain of their own; ``extra``: the tables' extra regressors (entries 12 … of
+    ``z``, :func:`~core.tracking.likelihood_kernels.regressor_kernels`), each with its own
+    coefficient. The views at once (stacked solves and products; the same values to 4e-16, in half
+    the time of a loop over the views)."""
+    extra = int(extra)
+    nz, na = NZ + extra, NA + extra
+    M = np.asarray(M, dtype=np.float64).reshape(-1, nz, nz)
     n = len(M)
     bg = [8] if background == 0 else [8, 9, 10]
-    ai = np.array([1, *bg, *([11] if others else [])])
-    slot = [0, *range(1, len(bg) + 1), *([4] if others else [])]  # their places in A = (D, 1, u, v, O)
+    ai = np.array([1, *bg, *([11] if others else []), *range(NZ, nz)])
+    # their places in A = (D, 1, u, v, O, T_1 … T_extra)
+    slot = [0, *range(1, len(bg) + 1), *([4] if others else []), *range(NA, na)]
     di = np.arange(2, 8)
     s = 1.0 / (2.0 * np.asarray(h, dtype=float))
     G = M[:, ai[:, None], ai[None, :]]  # (views, p, p)
@@ -150,13 +159,13 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: boo
     a = coef[:, 0]
     JJ = ((a * a)[:, None, None] * (MDD - MDA @ beta)).sum(axis=0)
     Jr = (a[:, None] * (MDy - (MDA @ coef[..., None])[..., 0])).sum(axis=0)
-    lin = np.zeros((n, NA + 7 + 6 * NA))
+    lin = np.zeros((n, na + 7 + 6 * na))
     lin[:, slot] = coef
-    lin[:, NA] = a
-    lin[:, NA + 1:NA + 7] = s
-    bf = np.zeros((n, NA, 6))
+    lin[:, na] = a
+    lin[:, na + 1:na + 7] = s
+    bf = np.zeros((n, na, 6))
     bf[:, slot] = beta
-    lin[:, NA + 7:] = bf.reshape(n, -1)
+    lin[:, na + 7:] = bf.reshape(n, -1)
     return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
 
 
@@ -197,6 +206,8 @@ class LikelihoodEngine(_FrameRegions):
         self.background = int(background)
         self.others_gain = bool(others_gain)
         self._with_o = False  # the neighbours' DRRs a regressor in this frame (set_frame)
+        self._q = 0  # the frame's extra regressors a view (set_frame's regressors, set_tissue)
+        self._t = None  # their images (q · views, H, W) as the model sees them
         self.highpass_px = float(highpass_px) if highpass_px else 0.0
         self.weight_sigma_px = float(weight_sigma_px)
         rad = 0 if self.psf is None else max(self.psf.shape) // 2
@@ -255,10 +266,15 @@ class LikelihoodEngine(_FrameRegions):
         return b
 
     # ------------------------------------------------------------------ per frame
-    def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None) -> None:
+    def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None, regressors=None) -> None:
         """The regions ``roi (views, 4)`` of ``frame`` (line integrals, usable pixels, weights; the
         DRRs of ``others = (poses, bones)`` at their poses subtracted), high-passed on the device,
         and the parameterisation ``base_pose``, ``center`` of the next steps (module docs: Set-up).
+        ``regressors``: per view ``(q, h, w)`` (or ``(h, w)``) fixed images over the region as the
+        frame shows them, each with its own coefficient fitted at every pose, high-passed like the
+        frame (not blurred by the PSF: the ``regressors`` of
+        :class:`~core.tracking.likelihood_cost.LikelihoodCost`); without them the frame has none
+        (:meth:`set_tissue` renders them).
         Raises :class:`~core.tracking.cost.OutsideViewError` for a region without usable pixels
         (on the device path at the next :meth:`step`'s synchronisation)."""
         t0 = time.perf_counter()
@@ -307,7 +323,75 @@ class LikelihoodEngine(_FrameRegions):
                 self._launch(("highpass", i), highpass_kernel, (nv, Hc, Wc), [src, low, 1.0, dst])
             else:
                 wp.copy(dst, src)
+        self._q, self._t = 0, None
+        if regressors is not None:
+            R = [np.asarray(r, np.float32).reshape(-1, *np.shape(r)[-2:]) for r in regressors]
+            q = len(R[0])
+            if len(R) != nv or any(len(r) != q or r.shape[1:] != tuple(hw[v]) for v, r in enumerate(R)):
+                raise ValueError(f"regressors: expected per view (q, h, w) images of the regions "
+                                 f"{[tuple(x) for x in hw]}, got {[r.shape for r in R]}")
+            host = np.zeros((q * nv, Hc, Wc), np.float32)
+            for v, r in enumerate(R):
+                host[v::nv, : r.shape[1], : r.shape[2]] = r
+            raw = self._buffer("t_raw", host.shape)
+            raw.assign(host)
+            self._filter_regressors(raw, q)
         self.timer.host += time.perf_counter() - t0
+
+    def _filter_regressors(self, raw, q: int) -> None:
+        """The frame's ``q`` regressors a view from ``raw`` (``(q · views, H, W)``, as the frame
+        shows them): high-passed like the frame."""
+        t = self._buffer("t", raw.shape)
+        if self.highpass_px:
+            low = self._blurred("t", raw, self.n_views)
+            self._launch("highpass_t", highpass_kernel, raw.shape, [raw, low, 1.0, t])
+        else:
+            wp.copy(t, raw)
+        self._t, self._q = t, int(q)
+
+    def set_tissue(self, renderer, poses, *, volumes=None, each: bool = False, psf=None) -> None:
+        """The frame's extra regressors (after :meth:`set_frame`): the DRRs of ``renderer``'s
+        volumes ``volumes`` (default all; e.g. soft-tissue parts; the same cameras as the engine's
+        renderer) at ``poses (n, 4, 4)`` in this frame's regions, rendered on the device, as the
+        frame shows them — their line integrals summed (or, ``each``, each volume its own
+        regressor) and, with ``psf`` (an odd 2-D kernel estimated from calibration images), blurred
+        as fluence, ``-log(psf ∗ exp(-L))`` — then high-passed like the frame (set_frame's
+        ``regressors``); each with its own coefficient fitted at every pose. Nothing is read
+        back."""
+        t0 = time.perf_counter()
+        P = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
+        n, nv, (Hc, Wc) = len(P), self.n_views, self._cap
+        vols = list(range(n)) if volumes is None else [int(k) for k in volumes]
+        batch = renderer.render(P[None], views=self.views, bones=vols,
+                                roi=self.roi[None, :, None, :].repeat(n, axis=2))
+        q = n if each else 1
+        raw = self._buffer("t_raw", (q * nv, Hc, Wc))
+        wp.launch(regressor_sum_kernel, dim=(nv, Hc, Wc), device=self.device,
+                  inputs=[batch.images, n, self._ref_hw, int(each), raw])
+        if psf is not None:
+            k = np.asarray(psf, dtype=np.float64)
+            if k.ndim != 2 or k.shape[0] % 2 == 0 or k.shape[1] % 2 == 0 or k.sum() <= 0:
+                raise ValueError(f"psf: expected an odd-sized 2-D kernel with a positive sum, got {k.shape}")
+            key = ("t_psf_taps", k.tobytes(), k.shape)
+            taps = self._bufs.get(key)
+            if taps is None:
+                taps = self._bufs[key] = wp.array((k / k.sum()).astype(np.float32), dtype=wp.float32,
+                                                  device=self.device)
+            out = self._buffer("t_psf", raw.shape)
+            wp.launch(fluence_psf_kernel, dim=raw.shape, inputs=[raw, out, taps, self._ref_hw, nv],
+                      device=self.device)
+            raw = out
+        self._filter_regressors(raw, q)
+        self.timer.host += time.perf_counter() - t0
+
+    def _tables_q(self) -> tuple:
+        """The moments table on the device and its pinned host copy for this frame's regressors."""
+        if not self._q:
+            return self._acc, self._host_acc
+        nz = NZ + self._q
+        acc = self._buffer(("acc", self._q), (self.n_views, nz * nz), wp.float64)
+        host = self._pinned(("acc", self._q), (self.n_views, nz * nz), wp.float64, exact=True)
+        return acc, host
 
     def _blurred(self, tag: str, src, n_refs: int, taps=None):
         """The Gaussian low-pass of ``src`` (two passes of the separable blur; ``taps`` default the
@@ -378,13 +462,15 @@ class LikelihoodEngine(_FrameRegions):
             self.timer.evaluations += 13
         t0 = time.perf_counter()
         nv, (Hc, Wc) = self.n_views, self._cap
-        self._acc.zero_()
+        acc, host = self._tables_q()
+        acc.zero_()
         n_chunks = math.ceil(Hc * Wc / self.chunk)
         hp = 1.0 if self.highpass_px else 0.0
-        self._launch("moments", wls_moments_kernel, (nv, n_chunks),
-                     [img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, self.chunk, self._acc],
+        reg = [self._t] if self._q else []
+        self._launch(("moments", self._q), regressor_kernels(self._q)[0], (nv, n_chunks),
+                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, self.chunk, acc],
                      self.block_dim)
-        wp.copy(self._host_acc, self._acc)
+        wp.copy(host, acc)
         self._record()
         self._last = (img, low, x, h)
         self._pending = h
@@ -414,11 +500,12 @@ class LikelihoodEngine(_FrameRegions):
         self._wait()
         if self._count_pending:  # the regions prepared on the device: their usable pixels
             self._take_count()
-        M = self._host_acc.numpy().reshape(nv, NZ, NZ).copy()
+        nz = NZ + self._q
+        M = self._tables_q()[1].numpy().reshape(nv, nz, nz).copy()
         self.timer.metric += time.perf_counter() - t0
         self.timer.calls += 1
         t1 = time.perf_counter()
-        out = solve_moments(M, h, self.background, self._with_o)
+        out = solve_moments(M, h, self.background, self._with_o, self._q)
         out["M"] = M
         self.timer.host += time.perf_counter() - t1
         return out
@@ -529,8 +616,10 @@ class LikelihoodEngine(_FrameRegions):
         wp.copy(lin, lin_h)
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
-        self._launch(("residual", bool(jacobian)), residual_kernel, (nv, Hc, Wc),
-                     [img, low, hp, self._y, self._w, self._o, self._ref_hw, nv, lin, e, jt, int(jacobian)])
+        reg = [self._t] if self._q else []
+        self._launch(("residual", bool(jacobian), self._q), regressor_kernels(self._q)[1], (nv, Hc, Wc),
+                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, lin, e, jt,
+                      int(jacobian)])
         return e, jt
 
     def support(self, x=None) -> np.ndarray:

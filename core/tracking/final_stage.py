@@ -71,10 +71,11 @@ and result are those of its own stage (identical on a 192² CPU trial, three bon
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -97,6 +98,18 @@ class FinalModel:
     robust_sigma_px: float = 2.0
     robust_kind: str = "cauchy"
     rounds: int = 1
+    #: soft-tissue volumes ``(CTVolume, bone)`` (HU or 1/mm), each following the pose of bone
+    #: ``bone`` of the registration's renderer: rendered at the current estimate of that pose and
+    #: filtered as the bone's DRRs, an extra regressor with a gain of its own (module docs: Soft tissue)
+    tissue: tuple = field(default=(), compare=False)
+    #: each tissue volume its own regressor (gain) instead of their sum one
+    tissue_each: bool = False
+    #: the PSF (an odd 2-D kernel estimated from calibration images, never a generator's) the
+    #: tissue's line integrals are blurred by as fluence, ``-log(psf ∗ exp(-L))``; None: none
+    tissue_psf: object = field(default=None, compare=False)
+    #: the tissue rendered again at the first refinement's poses before the robust rounds (the
+    #: stage's own bone moved; the neighbours' poses stay those it was given)
+    tissue_again: bool = False
 
     def __post_init__(self) -> None:
         if self.support_px is not None and not (np.isfinite(self.support_px) and self.support_px >= 0):
@@ -109,10 +122,23 @@ class FinalModel:
             raise ValueError(f"robust_sigma_px: expected a σ > 0 (pixels), got {self.robust_sigma_px!r}")
         if int(self.rounds) != self.rounds or self.rounds < 1:
             raise ValueError(f"rounds: expected an integer >= 1, got {self.rounds!r}")
+        from ..render.volume import CTVolume
+
+        t = tuple((v, int(b)) for v, b in self.tissue)
+        if not all(isinstance(v, CTVolume) and b >= 0 for v, b in t):
+            raise ValueError("tissue: expected (CTVolume, bone index >= 0) pairs")
+        object.__setattr__(self, "tissue", t)
 
     def to_dict(self) -> dict:
-        return {"support_px": self.support_px, "robust": self.robust, "robust_sigma_px": self.robust_sigma_px,
-                "robust_kind": self.robust_kind, "rounds": self.rounds}
+        d = {"support_px": self.support_px, "robust": self.robust, "robust_sigma_px": self.robust_sigma_px,
+             "robust_kind": self.robust_kind, "rounds": self.rounds}
+        if self.tissue:
+            d["tissue"] = [{"name": v.name, "bone": b, "spacing_mm": v.spacing.tolist()}
+                           for v, b in self.tissue]
+            d["tissue_each"] = self.tissue_each
+            d["tissue_psf"] = None if self.tissue_psf is None else list(np.shape(self.tissue_psf))
+            d["tissue_again"] = self.tissue_again
+        return d
 
 
 #: the final stage's model of the region's pixels (:class:`FinalModel`)
@@ -140,6 +166,51 @@ def final_model(model: FinalModel | None = None, **kw):
 
 
 _PLAIN_REFINE = LikelihoodEngine.refine  # (a study may wrap it: _engine_refine)
+
+_TISSUE_RENDERERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def tissue_renderer(renderer, tissue: Sequence) -> object:
+    """A :class:`~core.render.DRRRenderer` of the volumes of ``tissue`` (``(CTVolume, bone)``
+    pairs; volumes in HU through the default transfer) with ``renderer``'s cameras and device,
+    kept for ``renderer``'s lifetime."""
+    from ..render import DRRRenderer
+
+    per = _TISSUE_RENDERERS.setdefault(renderer, {})
+    key = tuple(id(v) for v, _ in tissue)
+    hit = per.get(key)
+    if hit is None:
+        vols = [v if v.units != "HU" else v.to_attenuation() for v, _ in tissue]
+        hit = per[key] = (DRRRenderer(renderer.cameras, vols, device=str(renderer.device)),
+                          tuple(v for v, _ in tissue))  # (the volumes kept: their ids are the key)
+    return hit[0]
+
+
+def _set_tissue(eng, renderer, model: FinalModel, bone: int, pose, others):
+    """The engine's tissue regressor of this frame (:attr:`FinalModel.tissue`): each volume at the
+    current estimate of its bone's pose — the stage's own bone at the similarity's pose ``pose``,
+    a neighbour at its pose in ``others`` — those of bones with neither left out. Returns the
+    callable that renders it again at the first refinement's ``x`` (``tissue_again`` and a volume
+    following the stage's bone), else None."""
+    if not model.tissue:
+        return None
+    known = {int(bone): np.asarray(pose, dtype=float)}
+    if others is not None:
+        for P, b in zip(np.asarray(others[0], dtype=float).reshape(-1, 4, 4), others[1], strict=True):
+            known.setdefault(int(b), P)
+    use = [k for k, (_, b) in enumerate(model.tissue) if b in known]
+    if not use:
+        return None
+    tr = tissue_renderer(renderer, model.tissue)
+    follows = [model.tissue[k][1] for k in use]
+
+    def render(x=None) -> None:
+        own = known[int(bone)] if x is None else eng.poses(np.asarray(x, dtype=float)[None])[0]
+        P = np.stack([own if b == int(bone) else known[b] for b in follows])
+        eng.set_tissue(tr, P, volumes=use, each=model.tissue_each, psf=model.tissue_psf)
+
+    render()
+    return render if model.tissue_again and int(bone) in follows else None
 
 #: the neighbours (``(poses, bones)``) a final stage subtracts where its registration gives none
 _NEIGHBOURS: ContextVar = ContextVar("final_stage_neighbours", default=None)
@@ -194,9 +265,9 @@ def _support_mask(eng, px: float) -> np.ndarray:
     return np.stack([ndimage.maximum_filter(d > 0, size=2 * r + 1) if r else d > 0 for d in D])
 
 
-def _refine(eng, o, model: FinalModel) -> dict:
+def _refine(eng, o, model: FinalModel, tissue=None) -> dict:
     """The engine's refinement with ``model``'s region and weights (module docs)."""
-    return run_steps(_refine_steps(eng, o, model))
+    return run_steps(_refine_steps(eng, o, model, tissue))
 
 
 def _engine_refine(eng, *a, **k):
@@ -207,9 +278,11 @@ def _engine_refine(eng, *a, **k):
     return (yield from eng.refine_steps(*a, **k))
 
 
-def _refine_steps(eng, o, model: FinalModel):
+def _refine_steps(eng, o, model: FinalModel, tissue=None):
     """:func:`_refine` as a generator (its value the result) that yields where it would wait for
-    the device (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps`)."""
+    the device (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps`).
+    ``tissue``: called with the first refinement's ``x`` before the robust rounds (the tissue
+    rendered again there, :attr:`FinalModel.tissue_again`)."""
     mask = None
     if model.support_px is not None:
         mask = _support_mask(eng, model.support_px)
@@ -225,6 +298,9 @@ def _refine_steps(eng, o, model: FinalModel):
     for _ in range(int(model.rounds)):
         if not np.all(np.isfinite(out["x"])):
             break
+        if tissue is not None:
+            tissue(out["x"])
+            tissue = None
         # the residual over the whole region (its typical pixel the noise's scale), then the
         # factors within the support
         eng.reset_weights()
@@ -356,8 +432,9 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
         eng.timer = CostTimer()
         eng.own_images = bool(side_by_side)
         eng.set_frame(frame, base_pose=res.pose, center=center, roi=roi, others=others)
+        again = _set_tissue(eng, renderer, MODEL, bone, res.pose, others)
         timing["likelihood_setup_s"] = clock.seconds()
-        out = yield from _refine_steps(eng, o, MODEL)
+        out = yield from _refine_steps(eng, o, MODEL, again)
     except (OutsideViewError, np.linalg.LinAlgError):  # the similarity's pose stands
         timing.pop("likelihood_setup_s", None)  # (a region without usable pixels: seen at the first step)
         timing["likelihood_s"] = clock.seconds()

@@ -11,7 +11,7 @@ import warp as wp
 
 from ..similarity import _kernels as K
 
-__all__ = ["robust_factors_device"]
+__all__ = ["regressor_kernels", "robust_factors_device"]
 
 NZ = 12  # z = (y, D, δ_1..δ_6, 1, u, v, O)
 NA = 5  # A = (D, 1, u, v, O): the linear terms residual_kernel reads
@@ -434,3 +434,154 @@ def meat_kernel(jt: wp.array3d(dtype=vec6f), cw: wp.array2d(dtype=wp.float32),
         for i in range(6):
             for j in range(6):
                 wp.atomic_add(acc, v, i * 6 + j, wp.float64(x[i, j]))
+
+
+@wp.kernel
+def regressor_sum_kernel(img: wp.array3d(dtype=wp.float32), n_bones: int, ref_hw: wp.array(dtype=wp.vec2i),
+                         each: int, out: wp.array3d(dtype=wp.float32)):
+    """The extra regressors' images from ``img`` (one pose's items of ``n_bones`` volumes, ordered
+    view, volume; NaN read as 0): their sum into ``out[v]`` (``each`` 0) or volume n's into
+    ``out[n · views + v]`` (``each`` 1); 0 outside view v's (h, w) region. dim = (views, H, W)."""
+    v, r, c = wp.tid()
+    nv = ref_hw.shape[0]
+    inside = r < ref_hw[v][0] and c < ref_hw[v][1]
+    s = float(0.0)  # noqa: UP018
+    for n in range(n_bones):
+        x = float(0.0)  # noqa: UP018
+        if inside:
+            x = img[v * n_bones + n, r, c]
+            if not wp.isfinite(x):
+                x = 0.0
+        if each != 0:
+            out[n * nv + v, r, c] = x
+        else:
+            s += x
+    if each == 0:
+        out[v, r, c] = s
+
+
+@wp.kernel
+def fluence_psf_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
+                       psf: wp.array2d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int):
+    """dst = -log(psf ∗ exp(-src)) within each item's (h, w) region (the line integrals ``src``
+    blurred as fluence: borders replicated; 0 outside). dim = items, H, W."""
+    k, r, c = wp.tid()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    out = float(0.0)  # noqa: UP018
+    if r < h and c < w:
+        ry = (psf.shape[0] - 1) // 2
+        rx = (psf.shape[1] - 1) // 2
+        acc = float(0.0)  # noqa: UP018
+        for a in range(psf.shape[0]):
+            rr = wp.clamp(r - (a - ry), 0, h - 1)
+            for b in range(psf.shape[1]):
+                acc += psf[a, b] * wp.exp(-src[k, rr, wp.clamp(c - (b - rx), 0, w - 1)])
+        out = -wp.log(wp.max(acc, 1e-12))
+    dst[k, r, c] = out
+
+
+_REGRESSOR_KERNELS: dict = {}
+
+
+def regressor_kernels(q: int) -> tuple:
+    """``(moments, residual)``: :func:`wls_moments_kernel` and :func:`residual_kernel` with ``q``
+    extra regressors a view (``q`` 0: those two themselves). The table's ``z`` gains
+    ``T_1 … T_q`` after ``O`` (``12 + q`` entries) and ``A = (D, 1, u, v, O, T_1 … T_q)`` (``lin``:
+    ``coef (5 + q), a, 1/2h (6), β ((5 + q) × 6)``); both take ``reg`` (``q · views`` items,
+    item ``j · views + v`` regressor j of view v, as given: :meth:`~core.tracking.engine_likelihood.
+    LikelihoodEngine.set_frame`) after ``oth``. The other terms and their sums are those of the
+    plain kernels."""
+    q = int(q)
+    if q == 0:
+        return wls_moments_kernel, residual_kernel
+    hit = _REGRESSOR_KERNELS.get(q)
+    if hit is not None:
+        return hit
+    nz, na = NZ + q, NA + q
+    vz = wp.types.vector(length=nz, dtype=wp.float32)
+    mz = wp.types.matrix(shape=(nz, nz), dtype=wp.float32)
+    va = wp.types.vector(length=na, dtype=wp.float32)
+
+    @wp.kernel(module="unique")
+    def moments(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
+                y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
+                oth: wp.array3d(dtype=wp.float32), reg: wp.array3d(dtype=wp.float32),
+                ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, chunk: int, acc: wp.array2d(dtype=wp.float64)):
+        v, ch, lane = wp.tid()
+        bd = wp.block_dim()
+        h = ref_hw[v][0]
+        w = ref_hw[v][1]
+        W = y.shape[2]
+        start = ch * chunk
+        stop = wp.min(y.shape[1] * W, start + chunk)
+        su = 2.0 / float(wp.max(w - 1, 1))
+        sv = 2.0 / float(wp.max(h - 1, 1))
+        s = mz()
+        for p in range(start + lane, stop, bd):
+            r = p // W
+            c = p - r * W
+            if r < h and c < w:
+                wt = wgt[v, r, c]
+                if wt > 0.0:
+                    z = vz()
+                    z[0] = y[v, r, c]
+                    z[1] = _hp(drr, low, hp, v, r, c)
+                    for j in range(6):
+                        z[2 + j] = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
+                                    - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
+                    z[8] = 1.0
+                    z[9] = float(c) * su - 1.0
+                    z[10] = float(r) * sv - 1.0
+                    z[11] = oth[v, r, c]
+                    for j in range(q):
+                        z[12 + j] = reg[j * n_refs + v, r, c]
+                    s += wt * wp.outer(z, z)
+        t = wp.tile_sum(wp.tile(s, preserve_type=True))
+        if lane == 0:
+            x = t[0]
+            for i in range(nz):
+                for j in range(nz):
+                    wp.atomic_add(acc, v, i * nz + j, wp.float64(x[i, j]))
+
+    @wp.kernel(module="unique")
+    def residual(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
+                 y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
+                 oth: wp.array3d(dtype=wp.float32), reg: wp.array3d(dtype=wp.float32),
+                 ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, lin: wp.array2d(dtype=wp.float32),
+                 e: wp.array3d(dtype=wp.float32), jt: wp.array3d(dtype=vec6f), with_jt: int):
+        v, r, c = wp.tid()
+        h = ref_hw[v][0]
+        w = ref_hw[v][1]
+        ev = float(0.0)  # noqa: UP018
+        jv = vec6f()
+        if r < h and c < w:
+            wt = wgt[v, r, c]
+            if wt > 0.0:
+                sw = wp.sqrt(wt)
+                a = va()  # (D, 1, u, v, O, T_1 … T_q)
+                a[0] = _hp(drr, low, hp, v, r, c)
+                a[1] = 1.0
+                a[2] = float(c) * 2.0 / float(wp.max(w - 1, 1)) - 1.0
+                a[3] = float(r) * 2.0 / float(wp.max(h - 1, 1)) - 1.0
+                a[4] = oth[v, r, c]
+                for j in range(q):
+                    a[5 + j] = reg[j * n_refs + v, r, c]
+                fit = float(0.0)  # noqa: UP018
+                for k in range(na):
+                    fit += lin[v, k] * a[k]
+                ev = sw * (y[v, r, c] - fit)
+                for k in range(6 * with_jt):
+                    dk = (_hp(drr, low, hp, (2 * k + 1) * n_refs + v, r, c)
+                          - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, na + 1 + k]
+                    proj = float(0.0)  # noqa: UP018
+                    for m in range(na):
+                        proj += lin[v, na + 7 + m * 6 + k] * a[m]
+                    jv[k] = sw * lin[v, na] * (dk - proj)
+        e[v, r, c] = ev
+        if with_jt != 0:
+            jt[v, r, c] = jv
+
+    hit = _REGRESSOR_KERNELS[q] = (moments, residual)
+    return hit

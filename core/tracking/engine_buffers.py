@@ -1,0 +1,151 @@
+"""The Gauss–Newton engine's device buffers (:class:`core.tracking.engine.GaussNewtonCost`): one set
+per output size with the pipelines recorded on it (:class:`_Buffers`, at most :data:`_BUFFER_SETS`
+kept), the recorded launches of a frame's preparation, the pinned uploads, the blur taps per pixel
+size, and the siblings that share a cost's prepared regions: :class:`_EngineBuffers`, a mixin of the
+engine's cost.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Self
+
+import numpy as np
+import warp as wp
+
+from .cost import CostTimer, _in_pixels
+
+#: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`_EngineBuffers._allocate`):
+#: over the 100-frame walking trial at 1024² the tracking frames' search regions take 2-4 sizes per
+#: bone (32-pixel steps), the first frame and its restarts two more.
+_BUFFER_SETS = 6
+
+
+_SERIAL = itertools.count()
+
+
+@dataclass(eq=False)
+class _Buffers:
+    """The fluoroscope buffers of one output size of an engine, the pipelines recorded on them
+    (its own by batch size, and its siblings') and the host preparation's pinned buffers."""
+
+    cap: tuple
+    raw0: object
+    raw: object
+    ftmp: object
+    fluoro: object
+    fgrad: object
+    fmask: object
+    blur: object
+    blur_taps: object
+    ys: object = None  # the noise correction's smoothed, unsubtracted line integrals (joint tracking)
+    serial: int = field(default_factory=lambda: next(_SERIAL))  # which buffers (stage)
+    pipes: dict = field(default_factory=dict)
+    sibling_pipes: dict = field(default_factory=dict)
+    host_raw_wp: object = None
+    host_mask_wp: object = None
+
+
+class _EngineBuffers:
+    """The buffer handling of :class:`core.tracking.engine.GaussNewtonCost` (module docs)."""
+
+    def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:
+        """Launch ``kernel`` through a recorded launch, kept while its dimensions, arrays and
+        values stay the same (the frame preparation's launches from frame to frame)."""
+        key = (name, dim, tuple([(a.ptr, a.shape) if isinstance(a, wp.array)
+                                 else a if isinstance(a, (int, float)) else id(a) for a in inputs]))
+        cmd = self._cmds.get(key)
+        if cmd is None:  # kept per buffer set too (the arrays' addresses are in the key)
+            cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
+            if len(self._cmds) >= 8 * _BUFFER_SETS:
+                self._cmds.pop(next(iter(self._cmds)))
+            self._cmds[key] = cmd
+        cmd.launch()
+
+    def _put(self, name: str, dst: wp.array, values: np.ndarray) -> None:
+        """Copy ``values`` into the device array ``dst`` through a pinned buffer of this cost's
+        (no allocation; :meth:`set_frame` synchronises before it writes a pinned buffer again)."""
+        hit = self._pinned.get(name)
+        if hit is None or hit[0].shape != dst.shape:
+            buf = wp.zeros(dst.shape, dtype=dst.dtype, device="cpu", pinned=self.device.is_cuda)
+            hit = self._pinned[name] = (buf, buf.numpy())
+        hit[1][:] = values
+        wp.copy(dst, hit[0])
+
+    def _taps(self, px_mm: float):
+        """The DRR and fluoroscope blur taps at this pixel size (kept for the next frames)."""
+        from ..similarity.batched import gaussian_weights
+
+        opts = _in_pixels({k: v for k, v in self.term.options.items()
+                           if k in ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm")}, px_mm)
+        key = (float(opts.get("fluoro_sigma", 0.0)), float(opts.get("drr_sigma", 0.0)))
+        self._f_sig = key[0]
+        hit = self._taps_cache.get(key)
+        if hit is None:
+            f_sig, d_sig = key
+            taps = gaussian_weights(d_sig) if d_sig > 0 else None
+            ftaps = gaussian_weights(f_sig, truncate=4.0) if f_sig > 0 else None  # as the host preparation
+            if len(self._taps_cache) >= 64:
+                self._taps_cache.pop(next(iter(self._taps_cache)))
+            hit = self._taps_cache[key] = (taps, ftaps)
+        return hit
+
+    def _allocate(self, cap: tuple[int, int], taps) -> None:
+        """Take the buffers of this output size (and number of blur taps): those kept from an
+        earlier frame (with their pipelines and CUDA graphs), else new ones. The first frame's
+        wider search regions, the restarts' and the tracking frames' alternate between a few
+        sizes; each change cost new pipelines (a graph capture each)."""
+        if self._bufs is not None:  # keep the current ones with what was recorded on them
+            self._bufs.host_raw_wp, self._bufs.host_mask_wp = self._host_raw_wp, self._host_mask_wp
+        key = (cap, None if taps is None else len(taps))
+        b = self._buf_sets.pop(key, None)
+        if b is None:
+            dev = self.device
+            nv = self.n_views
+            b = _Buffers(
+                cap=cap, raw0=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                raw=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                ftmp=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                fluoro=wp.zeros((nv, *cap), dtype=wp.float32, device=dev),
+                fgrad=wp.zeros((nv, *cap), dtype=wp.vec2f, device=dev),
+                fmask=wp.zeros((nv, *cap), dtype=wp.uint8, device=dev),
+                blur=None if taps is None else wp.array(taps, dtype=wp.float32, device=dev),
+                blur_taps=None if taps is None else np.array(taps))
+            while len(self._buf_sets) >= _BUFFER_SETS:  # the least recently used goes first
+                self._buf_sets.pop(next(iter(self._buf_sets)))
+        self._buf_sets[key] = b  # most recently used last
+        self._bufs = b
+        self._cap = cap
+        self._host_raw_wp, self._host_mask_wp = b.host_raw_wp, b.host_mask_wp  # the host preparation's
+        self._raw0, self._raw, self._ftmp, self._fluoro = b.raw0, b.raw, b.ftmp, b.fluoro
+        self._fgrad, self._fmask = b.fgrad, b.fmask
+        self._blur, self._blur_taps = b.blur, b.blur_taps
+        self._pipes = b.pipes
+
+    def sibling(self, k: int) -> Self:
+        """The ``k``-th sibling of this cost: its own launches, buffers of results and timer, the
+        regions prepared by this cost's last :meth:`set_frame` (shared, read only), so that
+        several searches of the same bone in the same frame (the restarts of
+        :func:`core.tracking.verify.verify_start`) can have steps in flight together."""
+        import copy
+
+        sib = self._siblings.get(k)
+        if sib is None:
+            sib = copy.copy(self)
+            sib._siblings, sib._pipes, sib._tables, sib._cmds = {}, {}, {}, {}
+            sib._buf_sets, sib._bufs = {}, None
+            sib._pending, sib._prepared, sib._unsynced = None, None, False
+            self._siblings[k] = sib
+        if self._count_pending:  # the usable pixels of the prepared regions, checked here once
+            if self.device.is_cuda:
+                wp.synchronize_device(self.device)
+            self._check_count()
+        # the sibling's pipelines read this cost's buffers: kept with them (new buffers, new launches)
+        sib._pipes = self._bufs.sibling_pipes.setdefault(k, {})
+        for a in ("base", "center", "roi", "_cap", "_raw", "_fluoro", "_fgrad", "_fmask", "_blur",
+                  "_blur_taps"):
+            setattr(sib, a, getattr(self, a))
+        sib._count_pending = False
+        sib.timer, sib.batches, sib.profile = CostTimer(), {}, self.profile
+        return sib

@@ -147,6 +147,9 @@ def _scene(n: int, pixels: int, voxel: float, device, workers: int, header: dict
     out = {**header, "machine": platform.machine(), "device": str(ts.renderer.device), "pixels": pixels,
            "voxel_mm": voxel, "frames": n}
     out["synthesis_s"] = time.perf_counter() - t0
+    out["residual_distortion_rms_mm"] = ts.residual_distortion_mm()
+    if correction == "grid":  # the fitted models, cross-validation tables and alignments
+        out["correction_fits"] = [c.summary() for c in ts.corrections]
     try:
         import warp as wp
 

@@ -1,6 +1,6 @@
 """The acceptance trial's distortion correction estimated from calibration grid frames
-(core.studies.tracking.grid_correction; TrackingScene(correction="grid")), and the default that stays
-the true model 3 % off."""
+(core.studies.tracking.grid_correction; TrackingScene(correction="grid")): the acceptance study's
+default, while TrackingScene (the other studies' trial) keeps the true model 3 % off."""
 
 from types import SimpleNamespace
 
@@ -57,3 +57,20 @@ def test_default_correction_is_the_true_model_three_percent_off():
     with pytest.raises(ValueError, match="correction"):
         acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",),
                                  correction="truth")
+
+
+def test_the_acceptance_study_defaults_to_the_grid_correction(monkeypatch):
+    import inspect
+
+    import core.io.atomic
+
+    assert acceptance.DEFAULT_CORRECTION == "grid"
+    for f in (acceptance.run, acceptance.tracking_scene):
+        assert inspect.signature(f).parameters["correction"].default == "grid"
+    seen = {}
+    monkeypatch.setattr(acceptance, "run", lambda **kw: seen.update(kw) or {})
+    monkeypatch.setattr(core.io.atomic, "print_json", lambda *a, **k: None)
+    acceptance.main(["--quick"])
+    assert seen["correction"] == "grid"
+    acceptance.main(["--quick", "--correction", "model"])
+    assert seen["correction"] == "model"

@@ -41,7 +41,13 @@ the bones' images tibia 0.0075 / talus 0.0056 / calcaneus 0.0068 mm against 0.03
 at the rim of one view, is 0.14 mm against 0.13 mm. The trial tracked with it on one NVIDIA H200
 (``resources/benchmarks/tracking_grid_correction_h200.json``, three bones jointly): final stage
 tibia 1.50 / 1.42×, talus 1.38 / 1.31×, calcaneus 1.20 / 1.36× its bound (mm / degrees), against
-2.16 / 1.46, 1.38 / 1.31, 1.90 / 1.40 with the 3 % model; no frame over 4× its bound.
+2.16 / 1.46, 1.38 / 1.31, 1.90 / 1.40 with the 3 % model; no frame over 4× its bound. Each bone
+tracked alone with the stage (``ml_cost --final --correction grid --cases talus,tibia,calcaneus``,
+``resources/benchmarks/tracking_grid_stage_modes_h200.json``, one NVIDIA H200): tibia 1.48 / 1.53×,
+talus 1.50 / 1.50×, calcaneus 1.19 / 1.33×, no frame over 4× (the tracker alone: 11, 9 and 1 frames
+over 4×, all silent); the same call repeated the joint numbers above. The acceptance study undoes
+its frames' distortion with this correction by default
+(:data:`core.studies.tracking.acceptance.DEFAULT_CORRECTION`).
 """
 
 from __future__ import annotations

@@ -30,8 +30,15 @@ stage's move check, :func:`core.tracking.frame_step.stage_move_check`); per fram
 the diagonals of its sandwich and independent-pixel covariances, χ² and residual autocorrelation
 (:class:`_StageProbe`); ``rejected_frames``: the frames whose stage move the check rejected (the
 similarity's pose kept; they count among ``false_flags`` when that left them within 4× the
-bound). Measured: ``resources/benchmarks/tracking_final_rounds_h200.json`` (before the rejection),
-``resources/benchmarks/tracking_final_reject_h200.json``.
+bound). ``--correction grid``: the frames undistorted with the grid fit
+(:mod:`core.studies.tracking.grid_correction`; the JSON records the scene's residual distortion and
+the fits). Measured: ``resources/benchmarks/tracking_final_rounds_h200.json`` (before the
+rejection), ``resources/benchmarks/tracking_final_reject_h200.json``, with the grid correction
+``tracking_grid_correction_h200.json`` (three jointly) and ``tracking_grid_stage_modes_h200.json``
+(``--cases three,talus,tibia,calcaneus --final-variants 6:-``: each bone alone and three jointly, the
+stage at 4 and 6 px; one NVIDIA H200, × the bound mm / °, alone tibia 1.48 / 1.53, talus
+1.50 / 1.50, calcaneus 1.19 / 1.33 at 4 px, 1.60 / 1.56, 1.61 / 1.55, 1.11 / 1.32 at 6 px; jointly
+1.50 / 1.42, 1.38 / 1.31, 1.20 / 1.36 at 4 px, 1.52 / 1.42, 1.27 / 1.26, 1.15 / 1.35 at 6 px).
 """
 
 from __future__ import annotations

@@ -59,6 +59,13 @@ machine, frames 10 and 50, the JSON's ``cpu_highpass_bias_512``) the talus's bia
 pose is 0.003-0.013 mm at σ 2 px (4 px at 1024²), 0.013-0.031 at 3, 0.026-0.059 at 4 and up to
 0.25 mm / 1.3° at 8 px; the calcaneus's 0.002-0.034 mm, the tibia's ≤ 0.011 mm.
 
+On the trial's grid-corrected frames (``ml_cost --final --correction grid --final-variants 6:-``,
+``resources/benchmarks/tracking_grid_stage_modes_h200.json``, one NVIDIA H200, 100 frames) the
+6 px high-pass repeats this jointly (tibia 1.52/1.42, talus 1.27/1.26, calcaneus 1.15/1.35 against
+1.50/1.42, 1.38/1.31, 1.20/1.36 at 4 px) but not for a bone tracked alone: tibia 1.60/1.56 against
+1.48/1.53, talus 1.61/1.55 against 1.50/1.50 (one frame over 4× its bound, silent), calcaneus
+1.11/1.32 against 1.19/1.33.
+
 JSON to ``--out`` (rewritten after each part).
 """
 

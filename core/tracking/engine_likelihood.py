@@ -25,6 +25,12 @@ differences of the high-passed DRRs). On the host, in float64, with ``A = (D, 1[
 Pereyra) and the step ``δ = (JᵀWJ)⁻¹ JᵀWr`` summed over views — the same arithmetic as
 :func:`core.similarity.likelihood.wls_gauss_newton_step` without the pixels on the host.
 
+Extra regressors (a frame's soft tissue: :meth:`LikelihoodEngine.set_tissue`, or given images:
+``set_frame(regressors=)``, the semantics of :class:`~core.tracking.likelihood_cost.LikelihoodCost`'s
+``regressors``) append ``T_1 … T_q`` to ``z`` (``12 + q`` entries,
+:func:`~core.tracking.likelihood_kernels.regressor_kernels`) and to ``A = (D, 1[, u, v], O, T)``,
+each with its own coefficient; without them the kernels and the numbers are the plain ones.
+
 Set-up (:meth:`LikelihoodEngine.set_frame`)
 -------------------------------------------
 Per frame each view's region of line integrals and usable pixels is cut on the host

@@ -56,6 +56,22 @@ reuses the robust factors' images, with the same poses, σ, steps and flags (on 
 three bones jointly and sequentially and the talus alone: poses within 5e-15, the solve's
 rounding).
 
+Soft tissue (:attr:`FinalModel.tissue`)
+---------------------------------------
+The high-pass takes the soft tissue's smooth line integral out, and with it the bone's own
+low-frequency information. A lab that has a CT of the whole foot can give the stage its soft
+tissue instead: ``FinalModel(tissue=[(CTVolume, bone), ...])``, each volume following the pose of
+one of the registration's bones (the foot's soft tissue the calcaneus, the shank's the tibia). Per
+bone-frame the stage renders the volumes on the device at the current estimate of those poses —
+its own bone at the similarity's pose, the neighbours at the poses it is given (joint rounds: the
+round's; sequential tracking: :func:`stage_neighbours`) — as the frame shows them (through
+``tissue_psf``, a PSF estimated from calibration images, as fluence), high-passed like the frame,
+and fits it with a gain of its own per view at every pose (one more entry of the engine's moments
+table, :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_tissue`; ``tissue_each``: each
+volume its own gain; ``tissue_again``: rendered again at the first refinement's pose). A volume
+whose bone has no estimate in the registration (a bone not tracked) is left out; without volumes
+the stage is the one measured above, to the bit.
+
 The stage's result keeps the similarity's (:class:`LikelihoodFit` ``similarity``), so that a
 frame whose stage move is out of line with the bone's other frames keeps the similarity's pose
 (:func:`rejected`, :func:`core.tracking.frame_step.stage_move_check`). In sequential tracking the

@@ -57,7 +57,9 @@ def tissue_model(ts, *, kind: str = "coarse", coarse_mm: float = 4.0, psf: bool 
     from core.studies.tracking.tissue_regressor import user_tissue
 
     base = fst.MODEL if base is None else base
-    vols = user_tissue(ts.scene, kind, coarse_mm=coarse_mm)
+    # (through the scene's HU transfer, as the tracker's bone volumes are given theirs)
+    vols = [v.to_attenuation(ts.scene.tissue_transfer)
+            for v in user_tissue(ts.scene, kind, coarse_mm=coarse_mm)]
     k = None
     if psf:
         from core.studies.tracking.background_fit import estimated_psf

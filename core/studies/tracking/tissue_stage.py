@@ -101,8 +101,11 @@ def _record(ts, res, names, n, dt, ends, bound) -> dict:
 def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, voxel: float = 0.5,
         workers: int = 0, highpass=(4.0, 2.0), cases=("three", "sequential"), kind: str = "coarse",
         coarse_mm: float = 4.0, tissue_psf: bool = True, each: bool = False, again: bool = False,
-        glare: bool = True, correction: str = "grid", warm_frames: int = 3, checkpoint=None) -> dict:
-    """Run the study (module docs); returns the JSON-ready results."""
+        glare: bool = True, correction: str = "grid", warm_frames: int = 3, variants=("",),
+        tracker: bool = True, checkpoint=None) -> dict:
+    """Run the study (module docs); returns the JSON-ready results. ``variants``: the tissue runs
+    per high-pass, each ``""`` (``each`` and ``again`` as given) or ``"+"``-joined flags ``each``,
+    ``again`` (run ``hp<σ>_tissue_<flags>``); ``tracker``: also the run without a stage."""
     import core.tracking.final_stage as fst
     from core.render import DRRRenderer
     from core.studies.tracking.ml_cost import _scene
@@ -118,7 +121,14 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
     tm = tissue_model(ts, kind=kind, coarse_mm=coarse_mm, psf=tissue_psf, each=each, again=again,
                       base=plain_model)
     out["stage_model"] = plain_model.to_dict()
-    out["tissue_model"] = {**tm.to_dict(), "kind": kind, "coarse_mm": coarse_mm,
+    models_t = {"": tm}
+    for v in variants:
+        if v:
+            fl = set(v.split("+"))
+            if not fl <= {"each", "again"}:
+                raise ValueError(f"variants: expected flags each, again joined by '+', got {v!r}")
+            models_t[v] = replace(tm, tissue_each="each" in fl, tissue_again="again" in fl)
+    out["tissue_model"] = {**tm.to_dict(), "kind": kind, "coarse_mm": coarse_mm, "variants": list(variants),
                            "generator_tissue_spacing_mm": [v.spacing.tolist() for v in ts.scene.tissue]}
     out["setup_s"] = time.perf_counter() - t0
     bones = [0, 1, 2]
@@ -131,11 +141,12 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
         mode = {"three": "joint", "sequential": "sequential"}[case]
         base = TrackingOptions(mode=mode)
         plain = replace(base, registration=replace(base.registration, search="newton"))
-        runs = [("tracker", plain, plain_model)]
+        runs = [("tracker", plain, plain_model)] if tracker else []
         for hp in highpass:
             o = replace(plain, registration=replace(plain.registration, final_highpass_px=float(hp)),
                         refine_likelihood=True)
-            runs += [(f"hp{hp:g}", o, plain_model), (f"hp{hp:g}_tissue", o, tm)]
+            runs += [(f"hp{hp:g}", o, plain_model)]
+            runs += [(f"hp{hp:g}_tissue" + (f"_{v}" if v else ""), o, models_t[v]) for v in variants]
         c: dict = {"mode": mode}
         for _, o, m in runs:  # warm-up: the kernels compiled, the engines' buffers made (not timed)
             with fst.final_model(m):
@@ -200,6 +211,8 @@ def main(argv=None) -> int:
     p.add_argument("--no-tissue-psf", action="store_true", help="the tissue not blurred by the estimated PSF")
     p.add_argument("--each", action="store_true", help="the tissue's parts as two regressors")
     p.add_argument("--again", action="store_true", help="the tissue rendered again after the first step")
+    p.add_argument("--variants", default="", help="tissue runs per high-pass: '', each, again, each+again, …")
+    p.add_argument("--no-tracker", action="store_true", help="no run without the stage")
     p.add_argument("--no-glare", action="store_true", help="the frames' veiling glare left in")
     p.add_argument("--correction", choices=("model", "grid"), default="grid")
     p.add_argument("--warm-frames", type=int, default=3)
@@ -220,6 +233,7 @@ def main(argv=None) -> int:
               highpass=[float(x) for x in a.highpass.split(",") if x],
               cases=[x for x in a.cases.split(",") if x], kind=a.tissue, coarse_mm=a.coarse_mm,
               tissue_psf=not a.no_tissue_psf, each=a.each, again=a.again, glare=not a.no_glare,
+              variants=a.variants.split(",") if a.variants else ("",), tracker=not a.no_tracker,
               correction=a.correction, warm_frames=a.warm_frames, checkpoint=checkpoint)
     if a.machine_name:
         res["machine_name"] = a.machine_name

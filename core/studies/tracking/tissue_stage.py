@@ -31,6 +31,16 @@ silent_failures`), the 2σ coverage of the run's confidence; the stage's time pe
 first. Only this study reads the truth. Reuses :mod:`core.studies.tracking.ml_cost`'s scene,
 summaries and failure counts.
 
+Measured (``resources/benchmarks/tracking_tissue_stage_h200.json``, one NVIDIA H200, the defaults
+with ``--highpass 4,8 --variants ",again,each+again"``; over the bound mm/°, tibia, talus,
+calcaneus, three bones jointly): no stage 1.72/1.95, 1.83/1.59, 1.31/1.53 (5 tibia frames over
+4× the bound, none flagged); high-pass 4 px 1.56/1.42, 1.38/1.29, 1.21/1.38, with the tissue
+1.64/1.47, 1.36/1.28, 1.21/1.37; high-pass 8 px 1.72/1.46, 1.31/1.31, 1.15/1.42, with the tissue
+1.92/1.66, 1.17/1.18, 1.15/1.34 (the talus within 1.25×, the tibia 0.2× worse); the tissue
+rendered again after the first refinement, or a gain per part, within 0.03 of these. Sequential
+alike. The stage 15.3 / 16.8 / 21.9 / 22.9 ms per bone-frame (three jointly; sequentially 19.5 /
+20.9 / 26.5 / 28.0 ms).
+
 JSON on stdout (``--out``: also to a file, rewritten after each run).
 """
 

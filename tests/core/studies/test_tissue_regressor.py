@@ -32,6 +32,7 @@ def test_user_tissue_volumes():
     assert np.allclose(coarse[0].spacing, 4.0)
     for a, b in zip(exact, coarse, strict=True):  # the same anatomy, resampled
         assert _mass(b) == pytest.approx(_mass(a), rel=0.1)
+    assert np.allclose(tr.user_tissue(sc, "fine")[0].spacing, 2.0)
     big = tr.user_tissue(sc, "scale+2")
     assert np.allclose(big[0].spacing, 4.08)
     assert _mass(big[0]) == pytest.approx(_mass(coarse[0]) * 1.02**3, rel=1e-6)

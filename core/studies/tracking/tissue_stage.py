@@ -41,6 +41,13 @@ rendered again after the first refinement, or a gain per part, within 0.03 of th
 alike. The stage 15.3 / 16.8 / 21.9 / 22.9 ms per bone-frame (three jointly; sequentially 19.5 /
 20.9 / 26.5 / 28.0 ms).
 
+``--probe`` (:func:`probe`, ``resources/benchmarks/tracking_tissue_stage_probe_cpu.json``, this
+2-core CPU machine, 256², grid-corrected noisy frames 0-18 step 2, from the TRUE poses, 10 samples
+a bone: ±20-25 %): at the 8 px high-pass (2 px here) the talus 1.54/1.85 → 1.56/1.69 with the
+4 mm tissue and 1.41/1.53 with the generator's exact volume; the tibia 1.74/0.86 → 1.42/1.03
+(4 mm) and 2.28/1.44 (exact: its rotation about the long axis −0.055 → −0.139° on average). The
+tibia's loss is not the user's coarser volume: the exact tissue at the true poses moves it more.
+
 JSON on stdout (``--out``: also to a file, rewritten after each run).
 """
 
@@ -183,6 +190,79 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
     return out
 
 
+def probe(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=range(0, 20, 2),
+          highpass=(1.0, 2.0), kinds=("none", "coarse", "exact"), coarse_mm: float = 4.0,
+          tissue_psf: bool = True, correction: str = "grid", glare: bool = True, device: str | None = "cpu",
+          checkpoint=None) -> dict:
+    """What the tissue model itself does to each bone (``--probe``; study only): the stage's
+    refinement (:class:`~core.tracking.engine_likelihood.LikelihoodEngine`, its plain Gauss–Newton
+    steps) started from the TRUE pose, the neighbours subtracted at their true poses and the tissue
+    (``kinds``: ``none``, or a volume of :func:`~core.studies.tracking.tissue_regressor.user_tissue`)
+    rendered at the true poses of its bones, per high-pass σ (px at this size) — no tracker, no
+    pose estimate: the error is the model's (and the frame's noise). Per bone, σ and tissue: RMS
+    error, its ratio to the bound of these frames, the mean error per axis."""
+    from core.render import DRRRenderer
+    from core.studies.tracking.acceptance import TrackingScene, cramer_rao, pose_errors
+    from core.studies.tracking.tissue_regressor import user_tissue
+    from core.tracking.cost import prepare_frame, search_roi, snap_roi
+    from core.tracking.engine_likelihood import LikelihoodEngine
+
+    t0 = time.perf_counter()
+    frames = [int(f) for f in frames]
+    ts = TrackingScene(n_frames=n_frames, pixels=pixels, spacing=voxel, phase=(0.0, 0.6 * n_frames / 100.0),
+                       device=device, glare=glare, correction=correction)
+    sc = ts.scene
+    k_psf = None
+    if tissue_psf:
+        from core.studies.tracking.background_fit import estimated_psf
+
+        k_psf = np.asarray(estimated_psf(ts), dtype=np.float64)
+    trs = {k: DRRRenderer(sc.rig, [v.to_attenuation(sc.tissue_transfer)
+                                   for v in user_tissue(sc, k, coarse_mm=coarse_mm)], device=device)
+           for k in kinds if k != "none"}
+    bound = cramer_rao(ts, frames)
+    out = {"study": "core.studies.tracking.tissue_stage --probe", "pixels": pixels, "voxel_mm": voxel,
+           "frames": frames, "highpass_px": list(highpass), "kinds": list(kinds), "coarse_mm": coarse_mm,
+           "tissue_psf": tissue_psf, "correction": correction, "glare_undone": glare,
+           "bound": {nm: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for nm, v in bound.items()}}
+    errs: dict = {}
+    views = tuple(range(len(sc.rig)))
+    for f in frames:
+        fr = prepare_frame(ts.frames(f))
+        P = ts.truth(f)
+        Pt = P[list(sc.tissue_bones)]
+        for b, (nm, m) in enumerate(zip(ts.names, ts.models, strict=True)):
+            roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=m.centroid, reach_mm=1.0,
+                                      margin_px=4), ts.renderer, views)
+            oth = [k for k in range(len(ts.names)) if k != b]
+            for hp in highpass:
+                for kind in kinds:
+                    eng = LikelihoodEngine(ts.renderer, bone=b, views=views, highpass_px=hp)
+                    eng.set_frame(fr, base_pose=P[b], center=m.centroid, roi=roi, others=(P[oth], oth))
+                    if kind != "none":
+                        eng.set_tissue(trs[kind], Pt, psf=k_psf)
+                    o = eng.refine(iters=6, sandwich=False)
+                    e = pose_errors(eng.poses(np.asarray(o["x"])[None])[0], P[b], m.centroid)
+                    errs.setdefault(nm, {}).setdefault(f"hp{hp:g}_{kind}", []).append(e)
+        res = {}
+        for nm, d in errs.items():
+            for key, E in d.items():
+                E = np.asarray(E)
+                rm, rd = (float(np.sqrt(np.mean(np.sum(E[:, k] ** 2, axis=1))))
+                          for k in (slice(0, 3), slice(3, 6)))
+                res.setdefault(nm, {})[key] = {"rms_mm": rm, "rms_deg": rd,
+                                               "over_bound": [round(rm / bound[nm]["rms_mm"], 3),
+                                                              round(rd / bound[nm]["rms_deg"], 3)],
+                                               "mean_error": E.mean(axis=0).round(5).tolist()}
+        out["results"] = res
+        out["frames_done"] = frames[: frames.index(f) + 1]
+        out["total_s"] = time.perf_counter() - t0
+        print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
+        if checkpoint:
+            checkpoint(out)
+    return out
+
+
 def table(res: dict) -> list[str]:
     """One line per case and run: each bone's RMS over the bound (mm/deg), frames over 4× (silent),
     the stage's ms per bone-frame."""
@@ -227,6 +307,9 @@ def main(argv=None) -> int:
     p.add_argument("--correction", choices=("model", "grid"), default="grid")
     p.add_argument("--warm-frames", type=int, default=3)
     p.add_argument("--machine-name", default=None, help="the machine's name for the JSON (e.g. the GPU)")
+    p.add_argument("--probe", action="store_true",
+                   help="the tissue model's own effect: the stage from the true poses (probe(); CPU sizes)")
+    p.add_argument("--probe-frames", default="0,2,4,6,8,10,12,14,16,18")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     import json
@@ -239,6 +322,16 @@ def main(argv=None) -> int:
         if a.out:
             atomic_write(a.out, json.dumps(res, indent=1) + "\n")
 
+    if a.probe:
+        res = probe(pixels=a.pixels, voxel=a.voxel, n_frames=a.frames,
+                    frames=[int(x) for x in a.probe_frames.split(",") if x],
+                    highpass=[float(x) for x in a.highpass.split(",") if x], coarse_mm=a.coarse_mm,
+                    tissue_psf=not a.no_tissue_psf, correction=a.correction, glare=not a.no_glare,
+                    device=a.device or "cpu", checkpoint=checkpoint)
+        if a.machine_name:
+            res["machine_name"] = a.machine_name
+        print_json(res, a.out)
+        return 0
     res = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel, workers=a.workers,
               highpass=[float(x) for x in a.highpass.split(",") if x],
               cases=[x for x in a.cases.split(",") if x], kind=a.tissue, coarse_mm=a.coarse_mm,

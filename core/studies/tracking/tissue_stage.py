@@ -45,8 +45,11 @@ alike. The stage 15.3 / 16.8 / 21.9 / 22.9 ms per bone-frame (three jointly; seq
 2-core CPU machine, 256², grid-corrected noisy frames 0-18 step 2, from the TRUE poses, 10 samples
 a bone: ±20-25 %): at the 8 px high-pass (2 px here) the talus 1.54/1.85 → 1.56/1.69 with the
 4 mm tissue and 1.41/1.53 with the generator's exact volume; the tibia 1.74/0.86 → 1.42/1.03
-(4 mm) and 2.28/1.44 (exact: its rotation about the long axis −0.055 → −0.139° on average). The
-tibia's loss is not the user's coarser volume: the exact tissue at the true poses moves it more.
+(4 mm) and 2.28/1.44 (exact: its rotation about the long axis −0.055 → −0.139° on average).
+From the true poses the 4 mm tissue does not cost the tibia what it costs in tracking (1.72/1.46
+→ 1.92/1.66 on the H200): that loss comes with the estimated poses the tissue is rendered at or
+with the robust rounds (the probe has neither; not separated yet), and the exact volume's own
+bias is a second, unexplained effect.
 
 JSON on stdout (``--out``: also to a file, rewritten after each run).
 """

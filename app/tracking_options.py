@@ -5,8 +5,8 @@ through :func:`options_from_choices` — defined in :mod:`app.commands.track` an
 track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--guess``, ``--final`` and
 ``--no-confidence``, so the two cannot drift:
 
-* **Search** — *local* (fitted quadratic models, the default) or *Gauss–Newton* (the faster
-  engine: pose derivatives from one launch per iteration);
+* **Search** — *Gauss–Newton* (the default: the faster engine, pose derivatives from one launch
+  per iteration) or *local* (fitted quadratic models, the default before; ``talus track --search``);
 * **Resolution** — full, ½ or ¼: the pyramid scale of a tracked frame's last level (detector
   pixels per DRR pixel). Reduced resolution is several times faster, chiefly without a GPU;
 * **Similarity** — the gradient correlation of the gradient magnitudes (the default) or of the
@@ -50,7 +50,7 @@ __all__ = ["CHECK_RANGES", "FINALS", "METRICS", "RESOLUTIONS", "SEARCHES", "Trac
            "choices_of", "options_from_choices"]
 
 #: (label, search) pairs shown in the dialog.
-SEARCHES = (("Local (quadratic models)", "local"), ("Gauss–Newton (faster)", "newton"))
+SEARCHES = (("Gauss–Newton (faster)", "newton"), ("Local (quadratic models)", "local"))
 #: (label, final pyramid scale) pairs shown in the dialog.
 RESOLUTIONS = (("Full", 1.0), ("½ (4× fewer pixels)", 2.0), ("¼ (16× fewer pixels)", 4.0))
 #: (label, ``talus track --metric``) pairs shown in the dialog.
@@ -124,8 +124,8 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.final = _combo(FINALS, c["final"])
         self.confidence = QtWidgets.QCheckBox("Pose uncertainty of every frame")
         self.confidence.setChecked(c["confidence"])
-        self.search.setToolTip("Gauss–Newton needs fewer renders per frame; first frames and retries "
-                               "always search globally")
+        self.search.setToolTip("Gauss–Newton (the default) needs fewer renders per frame; local fits "
+                               "quadratic models; first frames and retries always search globally")
         self.resolution.setToolTip("Reduced resolution tracks several times faster (chiefly on a CPU), "
                                    "with a larger error")
         self.similarity.setToolTip("Gradient components (Penney's form): better on overlapping bones in the "

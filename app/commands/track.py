@@ -4,7 +4,7 @@ Usage::
 
     talus track STUDY --trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0]
                 [--resume] [--guess velocity|previous|spline] [--mode auto|sequential|joint]
-                [--metric magnitudes|components] [--search local|newton] [--scale S]
+                [--metric magnitudes|components] [--search newton|local] [--scale S]
                 [--final none|likelihood] [--max-uncertainty MM,DEG] [--no-confidence]
                 [--collapse-ratio R] [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]
                 [--stage-move-limit K] [--stage-move-sigmas S] [--stage-move-frames N]
@@ -68,9 +68,9 @@ from ._shared import (
     text_bar,
 )
 
-__all__ = ["CHECKS", "FINALS", "HELP", "METRICS", "STAGE_MOVES", "add_check_arguments", "check_choices",
-           "choices_of", "configure", "final_stage_problem", "options_from_choices", "parse_frames",
-           "registration_terms", "run", "stage_move_note"]
+__all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "SEARCHES", "STAGE_MOVES",
+           "add_check_arguments", "check_choices", "choices_of", "configure", "final_stage_problem",
+           "options_from_choices", "parse_frames", "registration_terms", "run", "stage_move_note"]
 
 HELP = "track bones of a study trial, saving each pose as it finishes"
 
@@ -79,6 +79,11 @@ HELP = "track bones of a study trial, saving each pose as it finishes"
 METRICS = ("magnitudes", "components")
 #: ``--final``: no final stage (the default) or the weighted least-squares refinement.
 FINALS = ("none", "likelihood")
+#: ``--search``: the Gauss–Newton engine (the default, :data:`core.tracking.options.DEFAULT_SEARCH`;
+#: repeated here so that ``--help`` needs no numerical import, a test keeps them equal) or the
+#: quadratic-model search.
+SEARCHES = ("newton", "local")
+DEFAULT_SEARCH = "newton"
 #: The failure checks' thresholds: ``TrackingOptions`` field -> (command-line option, default,
 #: help). The defaults are :mod:`core.tracking.checks`' and :mod:`core.tracking.options`' constants
 #: (a test keeps them equal; they are repeated here so that ``--help`` needs no numerical import).
@@ -130,7 +135,7 @@ def registration_terms(metric: str = "magnitudes") -> tuple:
     return metric_terms(metric)
 
 
-def options_from_choices(search: str = "local", scale: float = 1.0, mode: str = "auto",
+def options_from_choices(search: str = DEFAULT_SEARCH, scale: float = 1.0, mode: str = "auto",
                          guess: str = "velocity", confidence: bool = True, metric: str = "magnitudes",
                          final: str = "none", max_uncertainty: tuple[float, float] | None = None,
                          collapse_ratio: float = CHECKS["collapse_ratio"][1],
@@ -187,7 +192,7 @@ def choices_of(options) -> dict:
     """The choices of :func:`options_from_choices` that give ``options`` (None: the defaults;
     ``max_uncertainty`` is left out)."""
     if options is None:
-        return {"search": "local", "scale": 1.0, "mode": "auto", "guess": "velocity",
+        return {"search": DEFAULT_SEARCH, "scale": 1.0, "mode": "auto", "guess": "velocity",
                 "confidence": True, "metric": "magnitudes", "final": "none", **check_choices(None)}
     reg = options.registration
     components = any(t.kind == "gc" and t.options.get("components") for t in reg.terms)
@@ -311,11 +316,13 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="gradient correlation of gradient magnitudes (default; also 'gc') or of the "
                         "gradient components (Penney's form; better on overlapping bones in our harder "
                         "trial, slower); another core.similarity batched kind (e.g. ncc) as one term")
-    p.add_argument("--search", choices=("local", "newton"), default="local",
-                   help="search of a tracked frame: local (fitted quadratic models, the default) or newton "
-                        "(Gauss-Newton steps: 3-6x faster on a GPU; per-frame errors from 27%% lower to 13%% "
-                        "higher than local's on the synthetic trial); first frames and retries search "
-                        "globally")
+    p.add_argument("--search", choices=SEARCHES, default=DEFAULT_SEARCH,
+                   help="search of a tracked frame: newton (Gauss-Newton steps, the default) or local "
+                        "(fitted quadratic models, the default before). On the synthetic 1024^2 walking "
+                        "trial (one NVIDIA H200, three bones jointly) newton took 22.5 against 326 ms per "
+                        "frame, left 5 frames over 4x their Cramer-Rao bound against 15 and captured first "
+                        "frames from 10 mm / 10 deg in 30 of 30 starts against 29; the talus's translation "
+                        "was 1.80x its bound against 1.59x. First frames and retries search globally")
     p.add_argument("--scale", type=float, default=1.0, metavar="S",
                    help="track at reduced resolution: S detector pixels per DRR pixel (1 = full "
                         "resolution, 2 = half: about 4x less work per evaluation, e.g. without a GPU)")

@@ -138,11 +138,12 @@ class TaskSettings:
     def tracking_options(self, joint: bool):
         """The :class:`~core.tracking.trial.TrackingOptions` ``talus track`` builds."""
         from .cost import metric_terms
+        from .options import DEFAULT_SEARCH
         from .register import RegistrationOptions
         from .trial import TrackingOptions
 
         reg = RegistrationOptions(terms=metric_terms(self.metric), bounds=(5.0, 5.0), sigma=(1.0, 1.0),
-                                  search="local")
+                                  search=DEFAULT_SEARCH)
         kw = dict(registration=reg, guess=self.guess, confidence=self.confidence,
                   max_uncertainty=self.max_uncertainty)
         kw.update(dict(self.options))  # e.g. the window's own registration options

@@ -10,8 +10,8 @@ import numpy as np
 from .checks import COLLAPSE_RATIO, MOTION_FLOOR, MOTION_LIMIT, SIGMA_LIMIT
 from .register import RegistrationOptions
 
-__all__ = ["CHECK_FIELDS", "STAGE_MOVE_FIELDS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
-           "TrackingOptions"]
+__all__ = ["CHECK_FIELDS", "DEFAULT_SEARCH", "STAGE_MOVE_FIELDS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
+           "STAGE_MOVE_SIGMAS", "TrackingOptions"]
 
 #: With the final stage: a stage that moves a bone's pose (translation) more than this multiple of
 #: the median move of the bone's last good frames flags the frame ``"uncertain"``
@@ -46,6 +46,12 @@ STAGE_MOVE_FIELDS = {
     "stage_move_reject": ("a flagged frame keeps the similarity's pose", "True or False"),
 }
 
+#: The registration search of a tracked frame by default (``TrackingOptions().registration.search``):
+#: the Gauss–Newton engine. ``"local"`` (the quadratic-model search, the default before) stays
+#: selectable (``talus track --search local``, the window's Tracking options). Chosen on
+#: ``resources/benchmarks/tracking_search_default_h200.json`` (README, "Which search tracks by default").
+DEFAULT_SEARCH = "newton"
+
 _GUESSES = ("previous", "velocity", "spline")
 _MODES = ("sequential", "joint", "auto")
 
@@ -54,6 +60,11 @@ _MODES = ("sequential", "joint", "auto")
 class TrackingOptions:
     """Options of :func:`core.tracking.trial.track` (see that module's docs; ``valid_range`` and
     ``erode_px`` mark the usable fluoroscope pixels, :func:`core.tracking.cost.prepare_frame`).
+
+    ``registration`` searches a tracked frame with the Gauss–Newton engine by default
+    (``search="newton"``; first frames and retries: CMA-ES, then Gauss–Newton steps,
+    :meth:`~core.tracking.register.RegistrationOptions.widened`); ``search="local"`` keeps the
+    quadratic-model search (:data:`DEFAULT_SEARCH`).
 
     ``refine_likelihood``: every registration (``registration`` and ``first``) ends with the
     weighted least-squares refinement on the device (``final="likelihood"`` of
@@ -79,7 +90,8 @@ class TrackingOptions:
     move; with ``stage_move_reject`` (the default) such a frame keeps the similarity's pose."""
 
     registration: RegistrationOptions = field(
-        default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="local"))
+        default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0),
+                                                    search=DEFAULT_SEARCH))
     first: RegistrationOptions | None = None
     guess: str = "velocity"
     mode: str = "sequential"

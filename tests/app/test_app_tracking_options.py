@@ -51,7 +51,7 @@ def _accept(qtbot, dialog) -> None:
 def test_options_match_the_command_line_defaults():
     opts = options_from_choices()
     assert choices_of(opts) == choices_of(None)
-    assert (opts.registration.search, opts.registration.final_scale) == ("local", 1.0)
+    assert (opts.registration.search, opts.registration.final_scale) == ("newton", 1.0)
     from core.tracking.trial import TrackingOptions
 
     assert TrackingOptions().registration.search == opts.registration.search  # the tracker's own default
@@ -82,7 +82,8 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
     assert dialog.mode.currentData() == "auto"  # as talus track: joint on flatfield-corrected frames
     assert dialog.similarity.currentData() == "magnitudes"
-    _pick(qtbot, dialog.search, "newton")
+    assert dialog.search.currentData() == "newton"  # the default, as talus track --search
+    _pick(qtbot, dialog.search, "local")  # the quadratic-model search stays selectable
     _pick(qtbot, dialog.resolution, 2.0)
     _pick(qtbot, dialog.mode, "joint")
     _pick(qtbot, dialog.similarity, "components")
@@ -91,14 +92,14 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     qtbot.mouseClick(dialog.confidence, QtCore.Qt.MouseButton.LeftButton)
     _accept(qtbot, dialog)
     opts = window.tracking.options
-    assert choices_of(opts) == {"search": "newton", "scale": 2.0, "mode": "joint", "guess": "velocity",
+    assert choices_of(opts) == {"search": "local", "scale": 2.0, "mode": "joint", "guess": "velocity",
                                 "confidence": False, "metric": "components", "final": "likelihood",
                                 **check_choices(None)}
     assert any(t.kind == "gc" and t.options.get("components") for t in opts.registration.terms)
     assert opts.refine_likelihood and opts.registration.final == "likelihood"
     assert opts.first_options.final == "likelihood"  # first frames and retries end with it too
     last = window.messages.item(window.messages.count() - 1).text()
-    assert "newton search, 1/2 resolution, gradient components, joint" in last and "no confidence" in last
+    assert "local search, 1/2 resolution, gradient components, joint" in last and "no confidence" in last
     assert "likelihood final stage" in last and "checks" not in last  # the default checks: not listed
 
     # re-opened, the dialog shows the current choices; Restore defaults then Cancel changes nothing

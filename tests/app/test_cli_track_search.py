@@ -19,15 +19,18 @@ def _parse(argv):
 
 def test_search_and_scale_are_parsed():
     from core.tracking.batch import TaskSettings
+    from core.tracking.options import DEFAULT_SEARCH
     from core.tracking.trial import TrackingOptions
 
     a = _parse(["study", "--trial", "walk"])
-    assert a.search == "local" and a.scale == 1.0
+    assert a.search == "newton" and a.scale == 1.0
     # talus track, talus batch and the tracker itself default to the same search
-    assert TrackingOptions().registration.search == a.search
+    assert TrackingOptions().registration.search == a.search == DEFAULT_SEARCH == track.DEFAULT_SEARCH
     assert TaskSettings().tracking_options(joint=True).registration.search == a.search
-    a = _parse(["study", "--trial", "walk", "--search", "newton", "--scale", "2"])
-    assert a.search == "newton" and a.scale == 2.0
+    assert track.options_from_choices().registration.search == a.search
+    a = _parse(["study", "--trial", "walk", "--search", "local", "--scale", "2"])
+    assert a.search == "local" and a.scale == 2.0  # the quadratic-model search stays selectable
+    assert track.options_from_choices(search=a.search).registration.search == "local"
     with pytest.raises(SystemExit):
         _parse(["study", "--trial", "walk", "--search", "cmaes"])
 

@@ -21,7 +21,8 @@ Why ``grid`` is the default (one NVIDIA H200, 1024², 100 frames, both correctio
 searches in one call; ``resources/benchmarks/tracking_acceptance_grid_h200.json``): it is what a
 user's calibration gives, and the 3 % model's error, growing as r³ towards the rim, was the largest
 part of the tibia's error. Per-frame RMS over the Cramér–Rao bound (mm / degrees), grid against
-model: default search tibia 2.57 / 1.84 against 3.04 / 1.84, talus 1.59 / 1.65 against 1.57 / 1.62,
+model: ``--search local`` (the tracking default until the Gauss–Newton search replaced it) tibia
+2.57 / 1.84 against 3.04 / 1.84, talus 1.59 / 1.65 against 1.57 / 1.62,
 calcaneus 1.45 / 1.51 against 1.35 / 1.53, frames over 4× the bound 13 / 1 / 1 against 18 / 1 / 1;
 ``--search newton`` tibia 1.73 / 1.85 against 2.21 / 2.01, talus 1.80 / 1.57 against 1.77 / 1.58,
 calcaneus 1.31 / 1.52 against 1.45 / 1.54, over 4× 5 / 0 / 0 against 7 / 0 / 1. The model run
@@ -292,7 +293,8 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         mode: str = "joint", figure: str | None = None, seed: int = 0,
         n_frames: int | None = None, correction: str = DEFAULT_CORRECTION, search: str | None = None) -> dict:
     """Run the acceptance study; returns the JSON-ready results. ``search`` overrides the tracking
-    options' registration search (``"local"`` by default, ``"newton"`` the Gauss–Newton engine)."""
+    options' registration search (``"newton"``, the Gauss–Newton engine, by default; ``"local"`` the
+    quadratic-model search)."""
     from dataclasses import replace
 
     from core.tracking.trial import TrackingOptions, track
@@ -441,7 +443,7 @@ def main(argv=None) -> int:
                    help="distortion correction: fitted to calibration grid frames (grid, the default) or "
                    "the true model 3 %% off (model)")
     p.add_argument("--search", choices=("local", "newton"), default=None,
-                   help="registration search (default the tracking options': local)")
+                   help="registration search (default the tracking options': newton)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save per-frame errors as a PNG")
     a = p.parse_args(argv)

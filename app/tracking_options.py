@@ -125,7 +125,8 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.confidence = QtWidgets.QCheckBox("Pose uncertainty of every frame")
         self.confidence.setChecked(c["confidence"])
         self.search.setToolTip("Gauss–Newton (the default) needs fewer renders per frame; local fits "
-                               "quadratic models; first frames and retries always search globally")
+                               "quadratic models and was the more accurate on a CPU at coarse views; "
+                               "first frames and retries always search globally")
         self.resolution.setToolTip("Reduced resolution tracks several times faster (chiefly on a CPU), "
                                    "with a larger error")
         self.similarity.setToolTip("Gradient components (Penney's form): better on overlapping bones in the "

@@ -26,10 +26,8 @@ Pereyra) and the step ``δ = (JᵀWJ)⁻¹ JᵀWr`` summed over views — the sa
 :func:`core.similarity.likelihood.wls_gauss_newton_step` without the pixels on the host.
 
 Extra regressors (a frame's soft tissue: :meth:`LikelihoodEngine.set_tissue`, or given images:
-``set_frame(regressors=)``, the semantics of :class:`~core.tracking.likelihood_cost.LikelihoodCost`'s
-``regressors``) append ``T_1 … T_q`` to ``z`` (``12 + q`` entries,
-:func:`~core.tracking.likelihood_kernels.regressor_kernels`) and to ``A = (D, 1[, u, v], O, T)``,
-each with its own coefficient; without them the kernels and the numbers are the plain ones.
+``set_frame(regressors=)``) widen ``z`` and ``A``, each with its own coefficient:
+:mod:`core.tracking.likelihood_tissue`.
 
 Set-up (:meth:`LikelihoodEngine.set_frame`)
 -------------------------------------------
@@ -44,16 +42,9 @@ bones jointly (4.6 ms for the talus alone) on one NVIDIA H200 (1024², the accep
 
 Confidence (:meth:`LikelihoodEngine.sandwich`)
 ----------------------------------------------
-``χ²/dof · (JᵀWJ)⁻¹`` treats the pixels as independent; the high-pass, the PSF and what the
-model leaves out (soft tissue, glare) make the residuals correlated, and it is then too small
-(36-42 % of frames within 2σ measured before). The sandwich covariance is
-
-    Cov(δ) = H⁻¹ (Σ_ij J̃_i J̃_jᵀ C(i - j)) H⁻¹         H = JᵀWJ,  J̃ = √w J,  e = √w r
-
-with ``C(Δ)`` the autocovariance of the weighted residual ``e`` estimated from the image itself
-over lags ``|Δ_u|, |Δ_v| <= lag_px`` (pairs of usable pixels, a Bartlett taper keeps the estimate
-positive semi-definite). Per view three device passes at the final pose: the weighted residual
-and projected Jacobian images, the residual's autocovariance, and the "meat" sum.
+``χ²/dof · (JᵀWJ)⁻¹`` treats the pixels as independent and is too small with correlated
+residuals; the sandwich covariance ``H⁻¹ meat H⁻¹`` estimates their autocovariance from the image
+itself: :mod:`core.tracking.likelihood_confidence`.
 
 Measured (``python -m core.studies.tracking.ml_cost --final``, the 100-frame walking trial of
 ``talus bench track`` at 1024², one NVIDIA H200; resources/benchmarks/tracking_likelihood_h200.json)
@@ -91,6 +82,7 @@ from ..similarity import _kernels as K
 from .cost import CostTimer, FrameImages
 from .engine import GaussNewtonCost
 from .engine_search import step_design
+from .likelihood_confidence import _Confidence
 from .likelihood_frames import _FrameRegions
 from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names as before)
     NA,
@@ -122,6 +114,7 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     wls_moments_kernel,
 )
 from .likelihood_steps import StepClock, run_side_by_side, run_steps
+from .likelihood_tissue import _TissueRegressors
 
 __all__ = ["DEVICE_REGIONS", "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device",
            "run_side_by_side", "run_steps", "solve_moments"]
@@ -175,7 +168,7 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: boo
     return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
 
 
-class LikelihoodEngine(_FrameRegions):
+class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
     """The weighted least-squares refinement of one bone on the device (module docs), reusable from
     frame to frame (:func:`likelihood_engine` keeps one per renderer, bone and settings).
 
@@ -329,75 +322,8 @@ class LikelihoodEngine(_FrameRegions):
                 self._launch(("highpass", i), highpass_kernel, (nv, Hc, Wc), [src, low, 1.0, dst])
             else:
                 wp.copy(dst, src)
-        self._q, self._t = 0, None
-        if regressors is not None:
-            R = [np.asarray(r, np.float32).reshape(-1, *np.shape(r)[-2:]) for r in regressors]
-            q = len(R[0])
-            if len(R) != nv or any(len(r) != q or r.shape[1:] != tuple(hw[v]) for v, r in enumerate(R)):
-                raise ValueError(f"regressors: expected per view (q, h, w) images of the regions "
-                                 f"{[tuple(x) for x in hw]}, got {[r.shape for r in R]}")
-            host = np.zeros((q * nv, Hc, Wc), np.float32)
-            for v, r in enumerate(R):
-                host[v::nv, : r.shape[1], : r.shape[2]] = r
-            raw = self._buffer("t_raw", host.shape)
-            raw.assign(host)
-            self._filter_regressors(raw, q)
+        self._frame_regressors(regressors, hw)
         self.timer.host += time.perf_counter() - t0
-
-    def _filter_regressors(self, raw, q: int) -> None:
-        """The frame's ``q`` regressors a view from ``raw`` (``(q · views, H, W)``, as the frame
-        shows them): high-passed like the frame."""
-        t = self._buffer("t", raw.shape)
-        if self.highpass_px:
-            low = self._blurred("t", raw, self.n_views)
-            self._launch("highpass_t", highpass_kernel, raw.shape, [raw, low, 1.0, t])
-        else:
-            wp.copy(t, raw)
-        self._t, self._q = t, int(q)
-
-    def set_tissue(self, renderer, poses, *, volumes=None, each: bool = False, psf=None) -> None:
-        """The frame's extra regressors (after :meth:`set_frame`): the DRRs of ``renderer``'s
-        volumes ``volumes`` (default all; e.g. soft-tissue parts; the same cameras as the engine's
-        renderer) at ``poses (n, 4, 4)`` in this frame's regions, rendered on the device, as the
-        frame shows them — their line integrals summed (or, ``each``, each volume its own
-        regressor) and, with ``psf`` (an odd 2-D kernel estimated from calibration images), blurred
-        as fluence, ``-log(psf ∗ exp(-L))`` — then high-passed like the frame (set_frame's
-        ``regressors``); each with its own coefficient fitted at every pose. Nothing is read
-        back."""
-        t0 = time.perf_counter()
-        P = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
-        n, nv, (Hc, Wc) = len(P), self.n_views, self._cap
-        vols = list(range(n)) if volumes is None else [int(k) for k in volumes]
-        batch = renderer.render(P[None], views=self.views, bones=vols,
-                                roi=self.roi[None, :, None, :].repeat(n, axis=2))
-        q = n if each else 1
-        raw = self._buffer("t_raw", (q * nv, Hc, Wc))
-        wp.launch(regressor_sum_kernel, dim=(nv, Hc, Wc), device=self.device,
-                  inputs=[batch.images, n, self._ref_hw, int(each), raw])
-        if psf is not None:
-            k = np.asarray(psf, dtype=np.float64)
-            if k.ndim != 2 or k.shape[0] % 2 == 0 or k.shape[1] % 2 == 0 or k.sum() <= 0:
-                raise ValueError(f"psf: expected an odd-sized 2-D kernel with a positive sum, got {k.shape}")
-            key = ("t_psf_taps", k.tobytes(), k.shape)
-            taps = self._bufs.get(key)
-            if taps is None:
-                taps = self._bufs[key] = wp.array((k / k.sum()).astype(np.float32), dtype=wp.float32,
-                                                  device=self.device)
-            out = self._buffer("t_psf", raw.shape)
-            wp.launch(fluence_psf_kernel, dim=raw.shape, inputs=[raw, out, taps, self._ref_hw, nv],
-                      device=self.device)
-            raw = out
-        self._filter_regressors(raw, q)
-        self.timer.host += time.perf_counter() - t0
-
-    def _tables_q(self) -> tuple:
-        """The moments table on the device and its pinned host copy for this frame's regressors."""
-        if not self._q:
-            return self._acc, self._host_acc
-        nz = NZ + self._q
-        acc = self._buffer(("acc", self._q), (self.n_views, nz * nz), wp.float64)
-        host = self._pinned(("acc", self._q), (self.n_views, nz * nz), wp.float64, exact=True)
-        return acc, host
 
     def _blurred(self, tag: str, src, n_refs: int, taps=None):
         """The Gaussian low-pass of ``src`` (two passes of the separable blur; ``taps`` default the
@@ -608,26 +534,6 @@ class LikelihoodEngine(_FrameRegions):
         return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
                                      bufs=self._bufs)
 
-    def _residual_device(self, s: dict, jacobian: bool = True) -> tuple:
-        """``(e, jt)`` on the device: the weighted residual ``e = √w (y - A coef)`` and its
-        projections at the centre of the last step's design (``s``: that :meth:`step`'s result;
-        :func:`residual_kernel`), in the engine's buffers ``"e"`` and ``"jt"`` (``jacobian``
-        False: ``jt`` not computed)."""
-        img, low, _, _ = self._last
-        nv, (Hc, Wc) = self.n_views, self._cap
-        hp = 1.0 if self.highpass_px else 0.0
-        lin_h = self._pinned("lin", s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
-        lin_h.numpy()[...] = s["lin"]
-        lin = self._buffer("lin", s["lin"].shape)
-        wp.copy(lin, lin_h)
-        e = self._buffer("e", (nv, Hc, Wc))
-        jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
-        reg = [self._t] if self._q else []
-        self._launch(("residual", bool(jacobian), self._q), regressor_kernels(self._q)[1], (nv, Hc, Wc),
-                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, lin, e, jt,
-                      int(jacobian)])
-        return e, jt
-
     def support(self, x=None) -> np.ndarray:
         """``(views, H, W)`` the bone's DRR at ``x`` (default the base pose) in the regions'
         padded layout, on the host (0 outside each view's region)."""
@@ -637,70 +543,6 @@ class LikelihoodEngine(_FrameRegions):
         for v, (h, w) in enumerate(self._ref_hw.numpy()):
             out[v, :h, :w] = np.nan_to_num(img[v, :h, :w])
         return out
-
-    def residual(self, s: dict) -> np.ndarray:
-        """``(views, H, W)`` the weighted residual ``e = √w (y - A coef)`` at the centre of the last
-        step's design (``s``: that :meth:`step`'s result), on the host (0 where unused)."""
-        return self._residual_device(s, jacobian=False)[0].numpy()
-
-    def sandwich(self, s: dict, Hinv: np.ndarray) -> np.ndarray:
-        """``H⁻¹ meat H⁻¹`` (module docs) at the last step's design (``s``: its :meth:`step`): the
-        residual's autocovariance, its taper and the meat on the device, one synchronisation."""
-        self.sandwich_launch(s)
-        return self.sandwich_result(Hinv)
-
-    def sandwich_launch(self, s: dict) -> None:
-        """The first half of :meth:`sandwich`: its kernels and copies enqueued (no wait)."""
-        t0 = time.perf_counter()
-        nv, (Hc, Wc) = self.n_views, self._cap
-        dev = self.device
-        e, jt = self._residual_device(s)
-        L = self.lag_px
-        nl = (2 * L + 1) ** 2
-        cov = self._buffer("cov", (nv, nl, 2), wp.float64)
-        cov.zero_()
-        n_chunks = math.ceil(Hc * Wc / self.chunk)
-        self._launch("autocov", autocov_kernel, (nv, nl // 2 + 1, n_chunks),
-                     [e, self._w, self._ref_hw, L, self.chunk, cov], self.block_dim)  # (the rest mirrored)
-        taper = self._bufs.get(("taper", L))
-        if taper is None:  # Bartlett's, per lag (rows, columns)
-            d = np.arange(-L, L + 1)
-            t = np.outer(1 - np.abs(d) / (L + 1), 1 - np.abs(d) / (L + 1)).ravel()
-            taper = self._bufs[("taper", L)] = wp.array(t, dtype=wp.float64, device=dev)
-        cw = self._buffer("cw", (nv, nl))
-        self._launch("taper", taper_kernel, (nv, nl), [cov, taper, cw])
-        acc = self._buffer("meat", (nv, 36), wp.float64)
-        acc.zero_()
-        self._launch("meat", meat_kernel, (nv, n_chunks), [jt, cw, self._ref_hw, L, self.chunk, acc],
-                     self.block_dim)
-        host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
-        wp.copy(host, acc)
-        self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
-        wp.copy(self._cov_host, cov)  # for autocorrelation
-        self._record()
-        self.timer.metric += time.perf_counter() - t0
-
-    def sandwich_result(self, Hinv: np.ndarray) -> np.ndarray:
-        """The second half of :meth:`sandwich`: waits for the meat of the last
-        :meth:`sandwich_launch`."""
-        t0 = time.perf_counter()
-        self._wait()
-        meat = self._host["meat"].numpy().reshape(self.n_views, 6, 6).sum(axis=0)
-        meat = 0.5 * (meat + meat.T)
-        self.timer.metric += time.perf_counter() - t0
-        return Hinv @ meat @ Hinv
-
-    @property
-    def autocorrelation(self) -> np.ndarray | None:
-        """Per view the weighted residual's autocorrelation over the lag window of the last
-        :meth:`sandwich` (lag 0 at the centre), or None before one."""
-        if self._cov_host is None:
-            return None
-        C = self._cov_host.numpy()
-        c = C[..., 0] / np.maximum(C[..., 1], 1.0)
-        nl, n = c.shape[1], 2 * self.lag_px + 1
-        rho = c / np.maximum(c[:, nl // 2: nl // 2 + 1], 1e-30)
-        return rho.reshape(-1, n, n)
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

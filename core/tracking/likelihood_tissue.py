@@ -1,0 +1,98 @@
+"""The likelihood final stage's extra regressors (:class:`core.tracking.engine_likelihood.LikelihoodEngine`'s
+frame's soft tissue, :meth:`~_TissueRegressors.set_tissue`, or given images, ``set_frame(regressors=)``):
+uploaded or rendered on the device, high-passed like the frame, and the moments tables they widen. A
+mixin of the engine's.
+
+The semantics are those of :class:`~core.tracking.likelihood_cost.LikelihoodCost`'s ``regressors``:
+the frame's ``q`` regressors a view ``T_1 … T_q`` are appended to the moments' ``z`` (``12 + q``
+entries, :func:`~core.tracking.likelihood_kernels.regressor_kernels`) and to ``A = (D, 1[, u, v], O,
+T)``, each with its own coefficient fitted at every pose; without them the kernels and the numbers
+are the plain ones.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from .likelihood_kernels import NZ, fluence_psf_kernel, highpass_kernel, regressor_sum_kernel
+
+
+class _TissueRegressors:
+    """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s extra regressors (its attributes:
+    ``n_views``, ``views``, ``roi``, ``_cap``, ``_ref_hw``, buffers, launches)."""
+
+    def _frame_regressors(self, regressors, hw) -> None:
+        """``set_frame``'s ``regressors`` (per view ``(q, h, w)`` or ``(h, w)`` images of the regions
+        ``hw``), or none: uploaded and high-passed like the frame."""
+        nv, (Hc, Wc) = self.n_views, self._cap
+        self._q, self._t = 0, None
+        if regressors is not None:
+            R = [np.asarray(r, np.float32).reshape(-1, *np.shape(r)[-2:]) for r in regressors]
+            q = len(R[0])
+            if len(R) != nv or any(len(r) != q or r.shape[1:] != tuple(hw[v]) for v, r in enumerate(R)):
+                raise ValueError(f"regressors: expected per view (q, h, w) images of the regions "
+                                 f"{[tuple(x) for x in hw]}, got {[r.shape for r in R]}")
+            host = np.zeros((q * nv, Hc, Wc), np.float32)
+            for v, r in enumerate(R):
+                host[v::nv, : r.shape[1], : r.shape[2]] = r
+            raw = self._buffer("t_raw", host.shape)
+            raw.assign(host)
+            self._filter_regressors(raw, q)
+
+    def _filter_regressors(self, raw, q: int) -> None:
+        """The frame's ``q`` regressors a view from ``raw`` (``(q · views, H, W)``, as the frame
+        shows them): high-passed like the frame."""
+        t = self._buffer("t", raw.shape)
+        if self.highpass_px:
+            low = self._blurred("t", raw, self.n_views)
+            self._launch("highpass_t", highpass_kernel, raw.shape, [raw, low, 1.0, t])
+        else:
+            wp.copy(t, raw)
+        self._t, self._q = t, int(q)
+
+    def set_tissue(self, renderer, poses, *, volumes=None, each: bool = False, psf=None) -> None:
+        """The frame's extra regressors (after :meth:`set_frame`): the DRRs of ``renderer``'s
+        volumes ``volumes`` (default all; e.g. soft-tissue parts; the same cameras as the engine's
+        renderer) at ``poses (n, 4, 4)`` in this frame's regions, rendered on the device, as the
+        frame shows them — their line integrals summed (or, ``each``, each volume its own
+        regressor) and, with ``psf`` (an odd 2-D kernel estimated from calibration images), blurred
+        as fluence, ``-log(psf ∗ exp(-L))`` — then high-passed like the frame (set_frame's
+        ``regressors``); each with its own coefficient fitted at every pose. Nothing is read
+        back."""
+        t0 = time.perf_counter()
+        P = np.asarray(poses, dtype=float).reshape(-1, 4, 4)
+        n, nv, (Hc, Wc) = len(P), self.n_views, self._cap
+        vols = list(range(n)) if volumes is None else [int(k) for k in volumes]
+        batch = renderer.render(P[None], views=self.views, bones=vols,
+                                roi=self.roi[None, :, None, :].repeat(n, axis=2))
+        q = n if each else 1
+        raw = self._buffer("t_raw", (q * nv, Hc, Wc))
+        wp.launch(regressor_sum_kernel, dim=(nv, Hc, Wc), device=self.device,
+                  inputs=[batch.images, n, self._ref_hw, int(each), raw])
+        if psf is not None:
+            k = np.asarray(psf, dtype=np.float64)
+            if k.ndim != 2 or k.shape[0] % 2 == 0 or k.shape[1] % 2 == 0 or k.sum() <= 0:
+                raise ValueError(f"psf: expected an odd-sized 2-D kernel with a positive sum, got {k.shape}")
+            key = ("t_psf_taps", k.tobytes(), k.shape)
+            taps = self._bufs.get(key)
+            if taps is None:
+                taps = self._bufs[key] = wp.array((k / k.sum()).astype(np.float32), dtype=wp.float32,
+                                                  device=self.device)
+            out = self._buffer("t_psf", raw.shape)
+            wp.launch(fluence_psf_kernel, dim=raw.shape, inputs=[raw, out, taps, self._ref_hw, nv],
+                      device=self.device)
+            raw = out
+        self._filter_regressors(raw, q)
+        self.timer.host += time.perf_counter() - t0
+
+    def _tables_q(self) -> tuple:
+        """The moments table on the device and its pinned host copy for this frame's regressors."""
+        if not self._q:
+            return self._acc, self._host_acc
+        nz = NZ + self._q
+        acc = self._buffer(("acc", self._q), (self.n_views, nz * nz), wp.float64)
+        host = self._pinned(("acc", self._q), (self.n_views, nz * nz), wp.float64, exact=True)
+        return acc, host

@@ -107,7 +107,7 @@ import numpy as np
 __all__ = ["TISSUES", "estimated_poses", "regressor_images", "run", "user_tissue"]
 
 #: tissue volumes (module docs); ``:2`` after one: the two parts as two regressors; ``:g``: with
-#: their gradients along u and v (:func:`regressor_images`)
+#: their gradients along u and v, ``:l`` with their Laplacians (:func:`regressor_images`)
 TISSUES = ("exact", "fine", "coarse", "scale+2", "scale-2", "shift1")
 
 _SHIFT_DIR = np.array([1.0, -1.0, 1.0]) / np.sqrt(3.0)
@@ -186,11 +186,12 @@ class _TissueRender:
         return self.renderer.render(np.asarray(P_parts)[None], roi="full").numpy()[0].astype(np.float64)
 
 
-def regressor_images(Lt, psf, parts: bool, gradients: bool = False) -> np.ndarray:
+def regressor_images(Lt, psf, parts: bool, gradients: bool = False, laplacian: bool = False) -> np.ndarray:
     """Per view ``(k, H, W)`` regressors from the parts' line integrals ``Lt (views, parts, H, W)``:
     ``-log(psf ∗ exp(-L))`` of their sum (k = 1) or of each part (k = parts, ``parts``); with
     ``gradients`` also each one's derivatives along u and v (a shift of the tissue's image by a
-    fraction of a pixel taken up linearly; k × 3)."""
+    fraction of a pixel taken up linearly; k × 3); with ``laplacian`` also each one's Laplacian (a
+    blur unlike the frame's taken up linearly)."""
     from core.similarity.likelihood import blur
 
     def through(x):
@@ -200,10 +201,15 @@ def regressor_images(Lt, psf, parts: bool, gradients: bool = False) -> np.ndarra
         R = np.stack([np.stack([through(p) for p in v]) for v in Lt])
     else:
         R = np.stack([through(v.sum(axis=0))[None] for v in Lt])
+    extra = []
     if gradients:
         gv, gu = np.gradient(R, axis=(2, 3))
-        R = np.concatenate([R, gu, gv], axis=1)
-    return R
+        extra += [gu, gv]
+    if laplacian:
+        from scipy.ndimage import laplace
+
+        extra.append(np.stack([np.stack([laplace(r, mode="nearest") for r in v]) for v in R]))
+    return np.concatenate([R, *extra], axis=1) if extra else R
 
 
 def _fit(ts, frame, f: int, b: int, name: str, pixels: int, margin_px: int, P_est, tissue, psf,
@@ -280,8 +286,8 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
         L = ts0.scene.line_integrals(f, renderer=ts0._scene_renderer)
         P_est = estimated_poses(ts0, f, pose_error, seed)
         Pt = P_est[list(ts0.scene.tissue_bones)]
-        regs = {k: regressor_images(renders[k](Pt), psf, "2" in k.partition(":")[2],
-                                    "g" in k.partition(":")[2]) for k in tissues}
+        regs = {k: regressor_images(renders[k](Pt), psf, *(c in k.partition(":")[2] for c in "2gl"))
+                for k in tissues}
         for st in sets:
             ts = src.scene(st)
             for s in [None, *range(seeds)]:

@@ -61,3 +61,6 @@ def test_regressor_images_through_the_psf():
     np.testing.assert_allclose(one[:, 0], Lt.sum(axis=1), atol=1e-5)
     two = tr.regressor_images(Lt, np.ones((3, 3)), parts=True)
     assert two.shape == (2, 2, 12, 10) and two[0, 0].std() < Lt[0, 0].std()
+    more = tr.regressor_images(Lt, delta, parts=False, gradients=True, laplacian=True)
+    assert more.shape == (2, 4, 12, 10)  # the sum, its u and v derivatives and its Laplacian
+    np.testing.assert_allclose(more[:, 1], np.gradient(one[:, 0], axis=2), atol=1e-12)

@@ -137,7 +137,7 @@ import numpy as np
 
 from core.geometry.transforms import pose_from_params
 from core.studies.tracking.acceptance import _random_offset, pose_errors
-from core.studies.tracking.hard_trial_bias import ABLATIONS, bias_ablation
+from core.studies.tracking.hard_trial_bias import ABLATIONS, ablate_bias
 from core.studies.tracking.hard_trial_stats import (
     CHI2_6_2SIGMA,
     GOALS,
@@ -488,6 +488,17 @@ def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, modes=MOD
         out["modes"] = {k.rpartition("/")[2]: v for k, v in out["runs"].items()}
     out["total_s"] = time.perf_counter() - t0
     return out
+
+
+def bias_ablation(*, seed: int = 2, pixels: int = 384, spacing: float = 0.5, n_frames: int = 12,
+                  frames=(0, 4), bone: str = "tibia", device: str | None = None, cache: str | None = None,
+                  variants=ABLATIONS) -> dict:
+    """Where a bone's bias comes from (``--ablation BONE``): the trial of ``seed`` built
+    (:class:`HardRun`, ``n_frames`` at ``pixels``, ``spacing``; ``cache``) and
+    :func:`core.studies.tracking.hard_trial_bias.ablate_bias` on it."""
+    hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device, cache=cache)
+    return ablate_bias(hr, seed=seed, pixels=pixels, spacing=spacing, frames=frames, bone=bone, device=device,
+                       variants=variants)
 
 
 def main(argv=None) -> int:

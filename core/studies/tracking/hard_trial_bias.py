@@ -1,5 +1,5 @@
 """Where a bone's bias in the harder trial comes from (:mod:`core.studies.tracking.hard_trial`,
-``--ablation BONE``; :func:`bias_ablation`).
+``--ablation BONE``; :func:`ablate_bias`).
 
 The bone registered from its true pose with one cause removed at a time. Seed 2's tibia, 0.13–0.14
 mm off in every frame with either GC form on one H100 (8× its bound, ``tracking_hard_gpu.json``),
@@ -22,32 +22,31 @@ import numpy as np
 
 from core.studies.tracking.acceptance import pose_errors
 
-__all__ = ["ABLATIONS", "bias_ablation"]
+__all__ = ["ABLATIONS", "ablate_bias"]
 
 ABLATIONS = ("as_is", "exact_distortion", "no_fibula", "exact_distortion_no_fibula", "truth_volume",
              "ct_top_slice_air")
 
 
-def bias_ablation(*, seed: int = 2, pixels: int = 384, spacing: float = 0.5, n_frames: int = 12,
-                  frames=(0, 4), bone: str = "tibia", device: str | None = None, cache: str | None = None,
-                  variants=ABLATIONS) -> dict:
-    """Where a bone's bias comes from: ``bone`` registered from its true pose (``search="newton"``,
-    the default GC) in ``frames`` of the trial (``as_is``), of frames corrected with the exact
-    distortion inverse instead of the 3 % wrong one (``exact_distortion``), of frames without the
-    untracked fibula (``no_fibula``), both, and with the truth's volume in place of the CT
-    (``truth_volume``: the CT's PSF, resampling and noise), and with the CT's top slice set to air
-    (``ct_top_slice_air``: a bone the volume cuts ends 0.55 voxel below the truth's cut instead
-    of 0.45 above it, :func:`core.synthetic.hard_foot.ct_of`'s offset). Errors are :func:`pose_errors` (mm,
+def ablate_bias(hr, *, seed: int, pixels: int, spacing: float, frames=(0, 4), bone: str = "tibia",
+                device: str | None = None, variants=ABLATIONS) -> dict:
+    """Where a bone's bias comes from, on the trial ``hr`` (a
+    :class:`~core.studies.tracking.hard_trial.HardRun` of ``seed``, ``pixels``, ``spacing``;
+    :func:`core.studies.tracking.hard_trial.bias_ablation` builds it): ``bone`` registered from its true
+    pose (``search="newton"``, the default GC) in ``frames`` of the trial (``as_is``), of frames
+    corrected with the exact distortion inverse instead of the 3 % wrong one (``exact_distortion``), of
+    frames without the untracked fibula (``no_fibula``), both, and with the truth's volume in place of
+    the CT (``truth_volume``: the CT's PSF, resampling and noise), and with the CT's top slice set to air
+    (``ct_top_slice_air``: a bone the volume cuts ends 0.55 voxel below the truth's cut instead of 0.45
+    above it, :func:`core.synthetic.hard_foot.ct_of`'s offset). Errors are :func:`pose_errors` (mm,
     degrees); per view also the bone's projected extent (pixels, and its largest radius over the
     distortion's scale: beyond 1 it leaves the round field) and its overlap with the fibula."""
     from core.render import DRRRenderer
-    from core.studies.tracking.hard_trial import HardRun
     from core.tracking.bones import bone_model
     from core.tracking.cost import prepare_frame
     from core.tracking.register import register
     from core.tracking.trial import TrackingOptions
 
-    hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device, cache=cache)
     b = hr.names.index(bone)
     fib = hr.scene.names.index("fibula")
     reg = TrackingOptions().registration

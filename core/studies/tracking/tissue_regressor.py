@@ -54,18 +54,22 @@ the user's ``coarse`` volume at poses 0.05 mm / 0.05° off):
 * Joint, today's stage form ``hp4+r`` (no tissue): 3.22/1.50, 1.28/1.59, 2.38/1.56. With the
   regressor ``hp4t+r`` 2.79/1.46, 1.32/1.59, 2.25/1.55; the regressor pays more the wider the
   high-pass: ``hp8+r`` 2.63/1.50, 1.23/1.77, 2.23/2.00 against ``hp8t+r`` 2.04/1.39, 1.08/1.51,
-  1.82/1.73 (without the robust factors ``hp8t`` 1.68/1.49, 1.06/1.49, 1.82/1.66); ``hp16t+r``
+  1.82/1.73 (without the robust factors ``hp8t`` 1.68/1.49, 1.06/1.49, 1.82/1.66; with ``scale-2``
+  1.89/1.65, 1.04/1.51, 1.98/1.85, with ``shift1`` 1.86/1.44, 1.17/1.48, 1.97/1.84); ``hp16t+r``
   2.53/1.70, 1.12/1.70, 1.44/1.95. Wrong volumes with ``hp8t+r``: ``scale+2`` 1.90/1.39,
   1.08/1.50, 1.92/1.62; ``scale-2`` 2.27/1.52, 1.03/1.51, 1.99/1.97; ``shift1`` 2.27/1.40,
   1.21/1.50, 1.98/1.93.
 * A sharper volume is worse for the tibia and calcaneus under ``hp8t+r``: ``fine`` (2 mm) 3.13/1.48,
   1.03/1.51, 2.11/1.75; the generator's ``exact`` tissue at the TRUE poses (probe) 3.44/1.54,
   1.01/1.51, 2.14/1.61 (tibia bias 2.92 against 1.44 with ``coarse``; the regressor's u/v
-  gradients as three more coefficients, ``exact:g``, leave it at 2.90); ``coarse`` at
+  gradients as three more coefficients, ``exact:g``, leave it at 2.90, its Laplacian, ``exact:l``,
+  at 2.88: not a shift or blur of the tissue's image; unexplained); ``coarse`` at
   the true poses 2.02/1.38, 1.09/1.50, 1.81/1.75 — the poses' 0.05 mm / 0.05° costs nothing seen.
   Without high-pass, the exact tissue at the true poses (``leg4t+r``) gives the talus 1.05/1.22
   but the tibia 3.29/1.62 and calcaneus 3.29/2.15; ``fine`` at estimated poses 3.65/2.44,
   1.36/1.40, 3.85/2.45.
+* One coefficient a view is enough: the two parts as two regressors (``coarse:2``) 2.02/1.37,
+  1.06/1.54, 1.82/1.74; with the Laplacian (``coarse:l``) 2.04/1.38, 1.08/1.51, 1.81/1.73.
 * The talus alone (nothing subtracted): ``hp4+r`` 1.28/1.69, ``hp4t+r`` 1.31/1.68, ``hp8t+r``
   1.42/1.53, ``hp16t+r`` 2.15/2.11 (the unsubtracted neighbours' low frequencies); without
   high-pass 50/35 even with the exact tissue.

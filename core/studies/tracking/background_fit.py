@@ -57,10 +57,14 @@ replaces the high-pass.
   1.08/1.00, 1.31/1.22 against 2.14/1.20, 1.61/1.63, 1.90/1.82, RMS 2.38/0.92, 1.13/1.04,
   1.56/1.22 against 2.50/1.30, 1.68/1.50, 1.99/1.83; on ``grid`` RMS 3.64/1.18, 1.20/1.08,
   2.31/1.32 against 2.97/1.36, 1.66/1.43, 2.33/1.80 (the tibia and calcaneus biased 1.5-2.7x in
-  translation there: without the high-pass the grid correction's residual distortion and the
-  unblurred neighbours weigh more; the estimated PSF on the DRR, ``leg4tp+r``, changes little).
+  translation there; the estimated PSF on the DRR, ``leg4tp+r``, changes little). What biases
+  them (:mod:`core.studies.tracking.tissue_regressor`): not the neighbours subtracted unblurred
+  (the PSF is 0.3 px at 256²; they are now blurred when a PSF is given), but the grid's leftover
+  distortion (the tibia's bias doubles from oracle to grid frames in every form) and, without
+  high-pass, the calcaneus's bone and skin edges, biased on oracle frames too.
   What the high-pass costs is real — the talus's spread falls to the bound with the tissue known —
-  but only a model of the tissue's shape buys it back, not a smooth basis.
+  but only a model of the tissue's shape buys it back, not a smooth basis; a user's tissue volume
+  at estimated poses does so only under a (wider, 8 px) high-pass (tissue_regressor).
 * Veiling glare must be undone for it: measured from disc frames (fraction 0.0497/0.0498, σ 17.0
   px; the generator's 0.05) and undone in ``true`` and ``grid``; left in (``true_glare``) the
   probe's bias grows to 1.7/0.5, 1.5/1.0, 2.5/2.1x while ``hp4+r`` does not move (0.7/0.3,

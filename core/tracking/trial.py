@@ -157,10 +157,11 @@ converges to a different pose with an equal score, the frame is flagged ``"ambig
 
 Speed
 -----
-Tracking frames use the quadratic-model local search by default (``registration.search ==
-"local"``, see :mod:`core.tracking.register`; ``"newton"`` runs the Gauss–Newton engine), and the
-per-frame confidence comes from its last full-resolution fit, so a frame costs a few batched
-launches; only first frames, retries and restarts run the global CMA-ES stage.
+Tracking frames use the Gauss–Newton engine by default (``registration.search == "newton"``,
+:data:`core.tracking.options.DEFAULT_SEARCH`; ``"local"`` runs the quadratic-model local search,
+see :mod:`core.tracking.register`), and the per-frame confidence comes from its last
+full-resolution fit, so a frame costs a few batched launches; only first frames, retries and
+restarts run the global CMA-ES stage.
 """
 
 from __future__ import annotations

@@ -87,6 +87,18 @@ every ratio by 0.03 or less. From the true poses (:func:`core.studies.tracking.t
 this 2-core CPU machine, 256²) the same tissue does not cost the tibia this. The regressor stays
 opt-in.
 
+Per-bone settings (:attr:`FinalModel.bones`)
+--------------------------------------------
+``FinalModel(bones={2: BoneStage(highpass_px=4.0, tissue=False)})``: bone 2's stage (bone indices
+of the registration's renderer, as the tissue's) with its own high-pass σ instead of the
+registration options' ``final_highpass_px``, and without the tissue regressor (the volumes still
+follow that bone's pose in the other bones' stages) — e.g. the 8 px high-pass with the tissue for
+the talus and the calcaneus, 4 px without it for the tibia (the measurements above). A bone
+without an entry, and a model without ``bones``, give the stage as before, to the bit. The model
+is the module's :data:`MODEL` (set by :func:`final_model`), not a field of
+:class:`~core.tracking.trial.TrackingOptions`: ``talus track --final likelihood`` runs the default
+model; :meth:`FinalModel.to_dict` records the overrides (``"bones"``) only where there are any.
+
 The stage's result keeps the similarity's (:class:`LikelihoodFit` ``similarity``), so that a
 frame whose stage move is out of line with the bone's other frames keeps the similarity's pose
 (:func:`rejected`, :func:`core.tracking.frame_step.stage_move_check`). In sequential tracking the
@@ -114,8 +126,33 @@ from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
 from .engine_likelihood import LikelihoodEngine, StepClock, likelihood_engine, run_side_by_side, run_steps
 
-__all__ = ["MODEL", "FinalModel", "LikelihoodFit", "final_model", "final_stage", "final_stage_steps",
-           "final_stages", "rejected", "robust_factors", "stage_neighbours"]
+__all__ = ["MODEL", "BoneStage", "FinalModel", "LikelihoodFit", "final_model", "final_stage",
+           "final_stage_steps", "final_stages", "rejected", "robust_factors", "stage_neighbours"]
+
+
+@dataclass(frozen=True)
+class BoneStage:
+    """One bone's overrides of the stage's settings (:attr:`FinalModel.bones`): ``highpass_px``
+    the high-pass σ of that bone's stage (pixels; 0: none) instead of the registration options'
+    ``final_highpass_px`` (None: theirs); ``tissue`` False: that bone's stage fits no tissue
+    regressor (the model's :attr:`~FinalModel.tissue` volumes still follow the bone's pose in the
+    other bones' stages)."""
+
+    highpass_px: float | None = None
+    tissue: bool = True
+
+    def __post_init__(self) -> None:
+        hp = self.highpass_px
+        if hp is not None and not (np.isfinite(hp) and hp >= 0):
+            raise ValueError(f"highpass_px: expected None or a σ >= 0 (pixels), got {hp!r}")
+        if not isinstance(self.tissue, bool | np.bool_):
+            raise ValueError(f"tissue: expected True or False, got {self.tissue!r}")
+        object.__setattr__(self, "tissue", bool(self.tissue))
+        if hp is not None:
+            object.__setattr__(self, "highpass_px", float(hp))
+
+    def to_dict(self) -> dict:
+        return {"highpass_px": self.highpass_px, "tissue": self.tissue}
 
 
 @dataclass(frozen=True)
@@ -141,6 +178,10 @@ class FinalModel:
     #: the tissue rendered again at the first refinement's poses before the robust rounds (the
     #: stage's own bone moved; the neighbours' poses stay those it was given)
     tissue_again: bool = False
+    #: per-bone overrides ``{bone: BoneStage}`` (bone indices of the registration's renderer, as
+    #: :attr:`tissue`'s; a dict of ``BoneStage`` or of its keyword dicts; kept as sorted pairs):
+    #: that bone's high-pass σ and whether its stage fits the tissue (:meth:`for_bone`)
+    bones: tuple = ()
 
     def __post_init__(self) -> None:
         if self.support_px is not None and not (np.isfinite(self.support_px) and self.support_px >= 0):
@@ -159,6 +200,28 @@ class FinalModel:
         if not all(isinstance(v, CTVolume) and b >= 0 for v, b in t):
             raise ValueError("tissue: expected (CTVolume, bone index >= 0) pairs")
         object.__setattr__(self, "tissue", t)
+        items = self.bones.items() if isinstance(self.bones, dict) else self.bones
+        per = {}
+        for b, st in items:
+            if int(b) != b or b < 0:
+                raise ValueError(f"bones: expected bone indices >= 0, got {b!r}")
+            if isinstance(st, dict):
+                st = BoneStage(**st)
+            if not isinstance(st, BoneStage):
+                raise ValueError(f"bones: expected BoneStage (or its keyword dict) per bone, got {st!r}")
+            per[int(b)] = st
+        object.__setattr__(self, "bones", tuple(sorted(per.items())))
+
+    def for_bone(self, bone: int, highpass_px: float) -> tuple[FinalModel, float]:
+        """``(model, highpass_px)`` of bone ``bone``'s stage: this model without its tissue where
+        the bone's :class:`BoneStage` turns it off, and its high-pass σ (``highpass_px``, the
+        registration options', where it gives none). A bone without overrides: ``(self,
+        highpass_px)`` unchanged."""
+        st = dict(self.bones).get(int(bone))
+        if st is None:
+            return self, highpass_px
+        m = self if st.tissue or not self.tissue else replace(self, tissue=())
+        return m, (highpass_px if st.highpass_px is None else st.highpass_px)
 
     def to_dict(self) -> dict:
         d = {"support_px": self.support_px, "robust": self.robust, "robust_sigma_px": self.robust_sigma_px,
@@ -169,6 +232,8 @@ class FinalModel:
             d["tissue_each"] = self.tissue_each
             d["tissue_psf"] = None if self.tissue_psf is None else list(np.shape(self.tissue_psf))
             d["tissue_again"] = self.tissue_again
+        if self.bones:
+            d["bones"] = {str(b): st.to_dict() for b, st in self.bones}
         return d
 
 
@@ -458,14 +523,15 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
     try:
         roi = snap_roi(search_roi(renderer, res.pose, bone, views=views, center=center, reach_mm=1.0,
                                margin_px=o.margin_px), renderer, views)
-        eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=o.final_highpass_px,
+        model, hp = MODEL.for_bone(bone, o.final_highpass_px)
+        eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=hp,
                                 lag_px=o.final_lag_px, others_gain=o.final_others_gain)
         eng.timer = CostTimer()
         eng.own_images = bool(side_by_side)
         eng.set_frame(frame, base_pose=res.pose, center=center, roi=roi, others=others)
-        again = _set_tissue(eng, renderer, MODEL, bone, res.pose, others)
+        again = _set_tissue(eng, renderer, model, bone, res.pose, others)
         timing["likelihood_setup_s"] = clock.seconds()
-        out = yield from _refine_steps(eng, o, MODEL, again)
+        out = yield from _refine_steps(eng, o, model, again)
     except (OutsideViewError, np.linalg.LinAlgError):  # the similarity's pose stands
         timing.pop("likelihood_setup_s", None)  # (a region without usable pixels: seen at the first step)
         timing["likelihood_s"] = clock.seconds()

@@ -79,8 +79,9 @@ STANCE_S = 0.6
 FRAME_RATE_HZ = 100 / (0.6 * STANCE_S)
 
 
-#: The trial's distortion corrections (:class:`TrackingScene` ``correction``).
-CORRECTIONS = ("model", "grid")
+#: The trial's distortion corrections (:class:`TrackingScene` ``correction``; ``"exact"``: the true
+#: model, a study-only oracle).
+CORRECTIONS = ("model", "grid", "exact")
 
 #: The acceptance study's correction (:func:`run`, ``--correction``; module docs): the grid fit, as a
 #: lab's. :class:`TrackingScene` itself keeps ``"model"``, the trial of the other studies and benchmarks.
@@ -95,19 +96,19 @@ class TrackingScene:
     session fits to grid frames of the same view's imaging chain, chosen by cross-validation
     (:func:`core.studies.tracking.grid_correction.grid_corrections`: 5 grid, 5 dark and 10
     empty-field frames per view, the session's own flatfield and distortion steps; composed with
-    the similarity that stands for the rig calibration in the corrected frame). ``residual`` is
-    used by ``"model"`` only.
+    the similarity that stands for the rig calibration in the corrected frame); ``"exact"``: the
+    view's true distortion model (no distortion error left: a study-only oracle, what the tracking
+    reaches without any calibration error). ``residual`` is used by ``"model"`` only.
     """
 
     def __init__(self, *, n_frames: int, pixels: int, spacing: float, seed: int = 0, names=BONES,
                  phase=(0.0, 0.6), residual: float = 0.03, device: str | None = None,
-                 glare: bool = False, correction: str = "model") -> None:
+                 glare: bool = False, correction: str = "model", keep_raw: bool = False) -> None:
         from core.render import DRRRenderer
         from core.synthetic import make_foot_scene
         from core.tracking.bones import bone_model
 
-        if correction not in CORRECTIONS:
-            raise ValueError(f"correction: expected one of {CORRECTIONS}, got {correction!r}")
+        _check_correction(correction)
         self.scene = make_foot_scene(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed,
                                      names=tuple(names), beads_per_bone=0, phase=phase, tissue_spacing=3.0)
         self.names = tuple(names)
@@ -119,11 +120,10 @@ class TrackingScene:
         #: how the frames' distortion is undone: ``"model"`` (the true model, ``k1`` and the twist
         #: ``residual`` off) or ``"grid"`` (estimated from the calibration session's grid frames)
         self.correction = correction
-        if correction == "grid":
-            #: per view: Distortion (``"model"``) or GridCorrection (``"grid"``): forward, inverse, unwarp
-            self.corrections = grid_corrections(self.scene, seed=seed)
-        else:
-            self.corrections = model_corrections(self.scene, residual)
+        self._seed = seed
+        #: per view: Distortion (``"model"``, ``"exact"``) or GridCorrection (``"grid"``): forward,
+        #: inverse, unwarp
+        self.corrections = self._corrections(correction, residual)
         #: per view, the veiling glare measured from rendered lead-disc calibration frames
         #: (:func:`core.studies.imaging.glare_frames.measure_glare`, the calibration's measurement)
         #: and undone after the flatfield division as the correction pipeline's glare step does;
@@ -135,6 +135,27 @@ class TrackingScene:
             views = zip(self.scene.rig, self.scene.imaging, self.corrections, strict=True)
             self.glare = [measure_glare(cam, m, c.unwarp, seed=seed) for cam, m, c in views]
         self._cache: dict[int, list[np.ndarray]] = {}
+        #: the raw camera frames (uint16, per frame ``(n_views, H, W)``) of the frames made, kept when
+        #: ``keep_raw`` (:meth:`use_correction` then corrects them again instead of rendering them)
+        self.raw: dict[int, np.ndarray] | None = {} if keep_raw else None
+
+    def _corrections(self, correction: str, residual: float) -> list:
+        if correction == "grid":
+            return grid_corrections(self.scene, seed=self._seed)
+        return model_corrections(self.scene, 0.0 if correction == "exact" else residual)
+
+    def use_correction(self, correction: str, *, residual: float = 0.03) -> None:
+        """Undo the frames' distortion with ``correction`` from now on (as the constructor's
+        ``correction``): the frames made so far are corrected again from their kept raw frames
+        (``keep_raw``), or dropped (made again on demand). Not with ``glare`` (measured through
+        the correction)."""
+        _check_correction(correction)
+        if self.glare:
+            raise ValueError("use_correction: the glare was measured through the scene's first correction")
+        self.correction = correction
+        self.corrections = self._corrections(correction, residual)
+        raw = self.raw or {}
+        self._cache = {i: [self.correct(v, f) for v, f in enumerate(raw[i])] for i in self._cache if i in raw}
 
     def truth(self, frame: int) -> np.ndarray:
         """(n_bones, 4, 4) true poses of the bone models (same CT frame as the scene's bones)."""
@@ -145,6 +166,8 @@ class TrackingScene:
         measured glare undone when the scene was made with ``glare``)."""
         if i not in self._cache:
             raw = self.scene.render_frame(i, renderer=self._scene_renderer)
+            if self.raw is not None:
+                self.raw[i] = raw
             self._cache[i] = [self.correct(v, f) for v, f in enumerate(raw)]
         return self._cache[i]
 
@@ -173,12 +196,17 @@ class TrackingScene:
         return float(np.sqrt(np.mean(np.concatenate(out) ** 2)))
 
 
+def _check_correction(correction: str) -> None:
+    if correction not in CORRECTIONS:
+        raise ValueError(f"correction: expected one of {CORRECTIONS}, got {correction!r}")
+
+
 def tracking_scene(*, quick: bool, device: str | None = None, seed: int = 0, n_frames: int | None = None,
                    pixels: int | None = None, names=BONES, glare: bool = False,
                    correction: str = DEFAULT_CORRECTION) -> TrackingScene:
     """The study's scene at quick (256², 1 mm, 20 frames) or full (1024², 0.5 mm, 100 frames) size;
     ``glare``: undo the veiling glare measured from calibration disc frames; ``correction``: the
-    distortion correction, ``"model"`` or ``"grid"`` (:class:`TrackingScene`)."""
+    distortion correction, ``"model"``, ``"grid"`` or ``"exact"`` (:class:`TrackingScene`)."""
     n = n_frames or (20 if quick else 100)
     px = pixels or (256 if quick else 1024)
     return TrackingScene(n_frames=n, pixels=px, spacing=1.0 if quick else 0.5, seed=seed, names=names,
@@ -440,8 +468,8 @@ def main(argv=None) -> int:
     p.add_argument("--capture-trials", type=int, default=None, help="capture-range trials per bone")
     p.add_argument("--mode", choices=("sequential", "joint"), default="joint")
     p.add_argument("--correction", choices=CORRECTIONS, default=DEFAULT_CORRECTION,
-                   help="distortion correction: fitted to calibration grid frames (grid, the default) or "
-                   "the true model 3 %% off (model)")
+                   help="distortion correction: fitted to calibration grid frames (grid, the default), "
+                   "the true model 3 %% off (model) or the true model (exact: a study-only oracle)")
     p.add_argument("--search", choices=("local", "newton"), default=None,
                    help="registration search (default the tracking options': newton)")
     p.add_argument("--out", default=None, help="also write the JSON here")

@@ -54,10 +54,12 @@ __all__ = ["main", "refine_frame", "run", "run_final", "silent_failures", "synth
 
 
 def _chain_frame(args):
-    """One frame through the trial's image chain (the body of TrackingScene.frames)."""
+    """One frame through the trial's image chain (the body of TrackingScene.frames): the raw frames
+    (when the scene keeps them) and the corrected ones."""
     ts, i, L = _POOL_SCENE[0], args[0], args[1]
     sc = ts.scene
-    return i, [ts.correct(v, m.apply(L[v], rng=sc.frame_rng(i, v))) for v, m in enumerate(sc.imaging)]
+    raw = np.stack([m.apply(L[v], rng=sc.frame_rng(i, v)) for v, m in enumerate(sc.imaging)])
+    return i, (raw if ts.raw is not None else None), [ts.correct(v, f) for v, f in enumerate(raw)]
 
 
 _POOL_SCENE: list = []
@@ -81,8 +83,10 @@ def synthesise(ts, frames, workers: int = 0) -> None:
             L = ts.scene.line_integrals(i, renderer=ts._scene_renderer)
             jobs.append(pool.apply_async(_chain_frame, ((i, L),)))
         for j in jobs:
-            i, imgs = j.get()
+            i, raw, imgs = j.get()
             ts._cache[i] = imgs
+            if raw is not None:
+                ts.raw[i] = raw
     _POOL_SCENE.clear()
 
 
@@ -141,15 +145,16 @@ def _summary(E, bound, cov=None) -> dict:
 
 
 def _scene(n: int, pixels: int, voxel: float, device, workers: int, header: dict, *, glare: bool = False,
-           correction: str = "model"):
-    """``(ts, out, bound)``: the trial's scene of ``n`` frames with its frames synthesised, and the
-    results' head — ``header``, the machine and device, sizes, synthesis time and the Cramér–Rao
-    bound of every tenth frame (``cramer_rao``, ``bound_s``; ``bound`` in full, per bone)."""
+           correction: str = "model", keep_raw: bool = False):
+    """``(ts, out, bound)``: the trial's scene of ``n`` frames with its frames synthesised (the raw
+    frames kept when ``keep_raw``), and the results' head — ``header``, the machine and device,
+    sizes, synthesis time and the Cramér–Rao bound of every tenth frame (``cramer_rao``,
+    ``bound_s``; ``bound`` in full, per bone)."""
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
 
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=max(n, 2), pixels=pixels, spacing=voxel, phase=(0.0, 0.6 * max(n, 2) / 100.0),
-                       device=device, glare=glare, correction=correction)
+                       device=device, glare=glare, correction=correction, keep_raw=keep_raw)
     synthesise(ts, range(n), workers)
     out = {**header, "machine": platform.machine(), "device": str(ts.renderer.device), "pixels": pixels,
            "voxel_mm": voxel, "frames": n}
@@ -373,7 +378,7 @@ def silent_failures(E, flagged, bound: dict, factor: float = 4.0) -> dict:
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
               checkpoint=None, variants=((None, None, None, False),), glare: bool = False,
-              every_round: bool = False, keep_moves: bool = False, correction: str = "model") -> dict:
+              every_round: bool = False, keep_moves: bool = False, correction="model") -> dict:
     """The trial tracked twice per case (``one``: the talus alone, ``three``: three bones jointly,
     or a bone's name: that bone alone) in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
@@ -388,98 +393,121 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
     ``TrackingOptions.stage_move_reject=False``, as before the rejection).
     Per bone and run: ``over_4x_bound`` (:func:`silent_failures`) and the flags per frame. Per frame
     (``per_frame``): the errors, σ and scores of the runs ``tracker``, ``final`` (and
-    ``final_every_round``), and for the final stages what the stage saw (:class:`_StageProbe`)."""
-    import core.tracking.frame_step as fs
-    from core.render import DRRRenderer
-    from core.tracking.trial import TrackingOptions, track
+    ``final_every_round``), and for the final stages what the stage saw (:class:`_StageProbe`).
+    ``correction``: the frames' distortion correction
+    (:class:`~core.studies.tracking.acceptance.TrackingScene`), or several in turn on the same raw
+    frames and bound (each in ``by_correction[<correction>]``:
+    its residual distortion and the cases; ``"exact"``: the true model, an oracle)."""
+    from core.tracking.trial import TrackingOptions
 
     n = frames or 100
+    corrs = [correction] if isinstance(correction, str) else list(correction)
     ts, out, bound = _scene(n, pixels, voxel, device, workers,
                      {"study": "core.studies.tracking.ml_cost (final stage)", "highpass_px": highpass_px,
-                      "correction": correction}, glare=glare, correction=correction)
+                      "correction": correction if isinstance(correction, str) else corrs}, glare=glare,
+                     correction=corrs[0], keep_raw=len(corrs) > 1)
     out["glare"] = [g.to_dict() for g in ts.glare] or None
     base = TrackingOptions(mode="joint")
     plain = replace(base, registration=replace(base.registration, search="newton"))
     final = replace(plain, registration=replace(plain.registration, final_highpass_px=highpass_px),
                     refine_likelihood=True)
-    for case in cases:
-        bones = {"one": [1], "three": [0, 1, 2]}.get(case) or [ts.names.index(case)]  # or a bone alone
-        models = [ts.models[b] for b in bones]
-        names = [ts.names[b] for b in bones]
-        r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
-                        device=ts.device)
-        kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
-        c = {}
-        runs = [("warm_up", plain), ("tracker", plain), ("final", final)]
-        if every_round and len(bones) > 1:
-            runs.append(("final_every_round", final))
-        if keep_moves:  # the stage's flagged moves kept, as before the rejection
-            runs.append(("final_kept_moves", replace(final, stage_move_reject=False)))
-        if variants:
-            for hp, lag, conf, gain in variants:
-                if (hp, lag, conf, gain) != (None, None, None, False):
-                    reg = replace(final.registration, final_lag_px=lag,
-                                  final_highpass_px=highpass_px if hp is None else float(hp),
-                                  final_confidence=conf or final.registration.final_confidence,
-                                  final_others_gain=bool(gain))
-                    label = f"final_{hp}_{lag}_{conf}" + ("_others_gain" if gain else "")
-                    runs.append((label, replace(final, registration=reg)))
-        for label, o in runs:
-            if label == "warm_up":  # the kernels compiled, the engines' buffers made (not timed)
-                track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=o)
-                track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=final)
-                continue
-            ends: dict = {}
-
-            def progress(done, total, fr, ends=ends):
-                ends[fr.frame] = time.perf_counter()
-
-            fs.FINAL_EVERY_ROUND = label == "final_every_round"
-            try:
-                with _StageProbe() as probe:
-                    t0 = time.perf_counter()
-                    res = track(r, models, ts.frames, range(n), keyframes=kf, options=o, progress=progress)
-                    dt = time.perf_counter() - t0
-            finally:
-                fs.FINAL_EVERY_ROUND = False
-            poses = {(nm, f): res.results[(nm, f)].pose for nm in names for f in range(n)}
-            tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(n)]
-            after = (ends[n - 1] - ends[0]) / (n - 1) if n > 1 and 0 in ends and n - 1 in ends else None
-            d = {"track_s": dt, "s_per_frame": dt / n, "ms_per_frame_after_first": None if after is None
-                 else 1e3 * after,
-                 "likelihood_s_per_bone_frame": float(np.mean([t.get("likelihood_s", 0.0) for t in tim])),
-                 "likelihood_setup_s_per_bone_frame": float(np.mean([t.get("likelihood_setup_s", 0.0)
-                                                                     for t in tim])),
-                 "likelihood_steps_per_bone_frame": float(np.mean([t.get("likelihood_steps", 0)
-                                                                   for t in tim])),
-                 "likelihood_taken": int(sum(t.get("likelihood_taken", 0) for t in tim)),
-                 "likelihood_tried": int(sum("likelihood_s" in t for t in tim)),
-                 "likelihood_rejected": int(sum(t.get("likelihood_rejected", 0) for t in tim)),
-                 "likelihood_move_median": [float(np.median(v)) if (v := [t[k] for t in tim if np.isfinite(
-                     t.get(k, np.nan))]) else None for k in ("likelihood_move_mm", "likelihood_move_deg")],
-                 "flagged": int(sum(bool(res.results[k].flags) for k in poses))}
-            for i, nm in enumerate(names):
-                E = np.array(_pose_errs(ts, nm, poses, range(n)))
-                S = _sigmas(res, nm, range(n))
-                frs = [res.results[(nm, f)] for f in range(n)]
-                d[nm] = {**_summary(E, bound.get(nm)), "within_2_sigma": _coverage(E, S),
-                         "median_sigma": np.nanmedian(np.array(S), axis=0).round(4).tolist()}
-                if bound.get(nm):
-                    d[nm]["over_4x_bound"] = silent_failures(E, [bool(x.flags) for x in frs], bound[nm])
-                d[nm]["flags"] = {str(x.frame): list(x.flags) for x in frs if x.flags}
-                d[nm]["rejected_frames"] = [x.frame for x in frs
-                                            if (x.timing or {}).get("likelihood_rejected")]
-                if label in ("tracker", "final", "final_every_round", "final_kept_moves"):
-                    pf = {"error": np.round(E, 5).tolist(), "sigma": np.round(np.array(S), 5).tolist(),
-                          "score": [float(x.score) for x in frs]}
-                    if label != "tracker":
-                        pf["stage"] = [_stage_record(probe.of(i, x)) for x in frs]
-                    c.setdefault("per_frame", {})[f"{label}_{nm}"] = pf
-            c[label] = d
-        out[case] = c
-        if checkpoint:
-            checkpoint(out)
+    for k, corr in enumerate(corrs):
+        dest = out
+        if len(corrs) > 1:
+            if k:
+                ts.use_correction(corr)
+            dest = out.setdefault("by_correction", {}).setdefault(corr, {})
+            dest["residual_distortion_rms_mm"] = ts.residual_distortion_mm()
+            if corr == "grid":
+                dest["correction_fits"] = [c.summary() for c in ts.corrections]
+        for case in cases:
+            dest[case] = _final_case(ts, bound, n, case, plain, final, variants=variants,
+                                     every_round=every_round, keep_moves=keep_moves, highpass_px=highpass_px)
+            if checkpoint:
+                checkpoint(out)
     return out
+
+
+def _final_case(ts, bound: dict, n: int, case: str, plain, final, *, variants, every_round: bool,
+                keep_moves: bool, highpass_px: float) -> dict:
+    """One case of :func:`run_final` on ``ts``'s frames: its runs (tracker, final stage, variants)."""
+    import core.tracking.frame_step as fs
+    from core.render import DRRRenderer
+    from core.tracking.trial import track
+    bones = {"one": [1], "three": [0, 1, 2]}.get(case) or [ts.names.index(case)]  # or a bone alone
+    models = [ts.models[b] for b in bones]
+    names = [ts.names[b] for b in bones]
+    r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
+                    device=ts.device)
+    kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
+    c = {}
+    runs = [("warm_up", plain), ("tracker", plain), ("final", final)]
+    if every_round and len(bones) > 1:
+        runs.append(("final_every_round", final))
+    if keep_moves:  # the stage's flagged moves kept, as before the rejection
+        runs.append(("final_kept_moves", replace(final, stage_move_reject=False)))
+    if variants:
+        for hp, lag, conf, gain in variants:
+            if (hp, lag, conf, gain) != (None, None, None, False):
+                reg = replace(final.registration, final_lag_px=lag,
+                              final_highpass_px=highpass_px if hp is None else float(hp),
+                              final_confidence=conf or final.registration.final_confidence,
+                              final_others_gain=bool(gain))
+                label = f"final_{hp}_{lag}_{conf}" + ("_others_gain" if gain else "")
+                runs.append((label, replace(final, registration=reg)))
+    for label, o in runs:
+        if label == "warm_up":  # the kernels compiled, the engines' buffers made (not timed)
+            track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=o)
+            track(r, models, ts.frames, range(min(n, 3)), keyframes=kf, options=final)
+            continue
+        ends: dict = {}
+
+        def progress(done, total, fr, ends=ends):
+            ends[fr.frame] = time.perf_counter()
+
+        fs.FINAL_EVERY_ROUND = label == "final_every_round"
+        try:
+            with _StageProbe() as probe:
+                t0 = time.perf_counter()
+                res = track(r, models, ts.frames, range(n), keyframes=kf, options=o, progress=progress)
+                dt = time.perf_counter() - t0
+        finally:
+            fs.FINAL_EVERY_ROUND = False
+        poses = {(nm, f): res.results[(nm, f)].pose for nm in names for f in range(n)}
+        tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(n)]
+        after = (ends[n - 1] - ends[0]) / (n - 1) if n > 1 and 0 in ends and n - 1 in ends else None
+        d = {"track_s": dt, "s_per_frame": dt / n, "ms_per_frame_after_first": None if after is None
+             else 1e3 * after,
+             "likelihood_s_per_bone_frame": float(np.mean([t.get("likelihood_s", 0.0) for t in tim])),
+             "likelihood_setup_s_per_bone_frame": float(np.mean([t.get("likelihood_setup_s", 0.0)
+                                                                 for t in tim])),
+             "likelihood_steps_per_bone_frame": float(np.mean([t.get("likelihood_steps", 0)
+                                                               for t in tim])),
+             "likelihood_taken": int(sum(t.get("likelihood_taken", 0) for t in tim)),
+             "likelihood_tried": int(sum("likelihood_s" in t for t in tim)),
+             "likelihood_rejected": int(sum(t.get("likelihood_rejected", 0) for t in tim)),
+             "likelihood_move_median": [float(np.median(v)) if (v := [t[k] for t in tim if np.isfinite(
+                 t.get(k, np.nan))]) else None for k in ("likelihood_move_mm", "likelihood_move_deg")],
+             "flagged": int(sum(bool(res.results[k].flags) for k in poses))}
+        for i, nm in enumerate(names):
+            E = np.array(_pose_errs(ts, nm, poses, range(n)))
+            S = _sigmas(res, nm, range(n))
+            frs = [res.results[(nm, f)] for f in range(n)]
+            d[nm] = {**_summary(E, bound.get(nm)), "within_2_sigma": _coverage(E, S),
+                     "median_sigma": np.nanmedian(np.array(S), axis=0).round(4).tolist()}
+            if bound.get(nm):
+                d[nm]["over_4x_bound"] = silent_failures(E, [bool(x.flags) for x in frs], bound[nm])
+            d[nm]["flags"] = {str(x.frame): list(x.flags) for x in frs if x.flags}
+            d[nm]["rejected_frames"] = [x.frame for x in frs
+                                        if (x.timing or {}).get("likelihood_rejected")]
+            if label in ("tracker", "final", "final_every_round", "final_kept_moves"):
+                pf = {"error": np.round(E, 5).tolist(), "sigma": np.round(np.array(S), 5).tolist(),
+                      "score": [float(x.score) for x in frs]}
+                if label != "tracker":
+                    pf["stage"] = [_stage_record(probe.of(i, x)) for x in frs]
+                c.setdefault("per_frame", {})[f"{label}_{nm}"] = pf
+        c[label] = d
+    return c
 
 
 def _variant(text: str) -> tuple:
@@ -489,6 +517,18 @@ def _variant(text: str) -> tuple:
     conf, gain = rest[0], rest[1]
     return (None if hp == "-" else float(hp), None if lag == "-" else int(lag), None if conf == "-" else conf,
             gain == "gain")
+
+
+def _corrections(text: str) -> tuple[str, ...]:
+    """``--correction``: one or more of :data:`core.studies.tracking.acceptance.CORRECTIONS`,
+    comma-separated, each once."""
+    from core.studies.tracking.acceptance import CORRECTIONS
+
+    got = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [t for t in got if t not in CORRECTIONS]
+    if not got or bad or len(set(got)) != len(got):
+        raise argparse.ArgumentTypeError(f"expected distinct ones of {', '.join(CORRECTIONS)}, got {text!r}")
+    return got
 
 
 def main(argv=None) -> int:
@@ -513,8 +553,9 @@ def main(argv=None) -> int:
                    help="--final: more stages 'σ:lag[:confidence],…' ('-': the default)")
     p.add_argument("--glare", action="store_true",
                    help="--final: undo the veiling glare measured from calibration disc frames")
-    p.add_argument("--correction", choices=("model", "grid"), default="model",
-                   help="--final: the frames' distortion correction (TrackingScene correction)")
+    p.add_argument("--correction", type=_corrections, default="model",
+                   help="--final: the frames' distortion correction (TrackingScene correction: model, grid, "
+                   "exact), or several in turn on the same frames, e.g. 'grid,exact'")
     p.add_argument("--every-round", action="store_true",
                    help="--final: three bones also with the stage after every joint round (as before)")
     p.add_argument("--keep-moves", action="store_true",
@@ -536,7 +577,8 @@ def main(argv=None) -> int:
                         pixels=a.pixels or 1024, voxel=a.voxel or 0.5, highpass_px=a.highpass,
                         workers=a.workers, checkpoint=checkpoint,
                         variants=[_variant(v) for v in a.final_variants.split(",") if v], glare=a.glare,
-                        every_round=a.every_round, keep_moves=a.keep_moves, correction=a.correction)
+                        every_round=a.every_round, keep_moves=a.keep_moves,
+                        correction=a.correction[0] if len(a.correction) == 1 else a.correction)
         print_json(res, a.out)
         return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,

@@ -46,7 +46,8 @@ def test_grid_correction_leaves_a_small_residual(noisy):
 
 
 def test_default_correction_is_the_true_model_three_percent_off():
-    ts = acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",))
+    ts = acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",),
+                                  keep_raw=True)
     assert ts.correction == "model"
     frame = ts.scene.render_frame(1, renderer=ts._scene_renderer)
     for v, (m, c) in enumerate(zip(ts.scene.imaging, ts.corrections, strict=True)):
@@ -54,6 +55,15 @@ def test_default_correction_is_the_true_model_three_percent_off():
         assert (c.k1, c.twist_rad) == (d.k1 * 1.03, d.twist_rad * 1.03)
         assert (c.center, c.scale_px, c.k2, c.twist_power) == (d.center, d.scale_px, d.k2, d.twist_power)
         assert np.array_equal(ts.frames(1)[v], c.unwarp(m.to_float(frame[v])))
+    assert np.array_equal(ts.raw[1], frame) and ts.residual_distortion_mm() > 0.0
+    # the exact correction (study-only oracle): the true model, the kept raw frames corrected again
+    ts.use_correction("exact")
+    assert ts.correction == "exact" and list(ts._cache) == [1] and ts.residual_distortion_mm() < 1e-9
+    for v, (m, c) in enumerate(zip(ts.scene.imaging, ts.corrections, strict=True)):
+        assert c.to_dict() == m.distortion.to_dict()
+        assert np.array_equal(ts.frames(1)[v], c.unwarp(m.to_float(frame[v])))
+    with pytest.raises(ValueError, match="correction"):
+        ts.use_correction("truth")
     with pytest.raises(ValueError, match="correction"):
         acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",),
                                  correction="truth")

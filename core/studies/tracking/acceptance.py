@@ -12,7 +12,9 @@ Frames are flatfield-normalised with the true flatfield and undistorted as a lab
 chain (:mod:`core.studies.tracking.grid_correction`; 0.014 mm RMS residual over the field at
 1024²). ``--correction model`` undoes it instead with a *slightly wrong* true inverse (``k1`` and
 the twist off by ``residual`` = 3 %, 0.058 mm RMS at 1024²: the size a fitted global polynomial
-leaves, thesis Table 3.1), the study's default until the grid correction was measured. The
+leaves, thesis Table 3.1), the study's default until the grid correction was measured;
+``--correction exact`` with the true model (no distortion error: a study-only oracle; it leaves
+the final stage's tibia where the grid correction does, ``tracking_exact_correction_h200.json``). The
 residual's RMS over the image is reported (``config``). At the quick size (256², 1.17 mm pixels)
 the session's fit is coarser: 0.16 mm RMS (thin-plate splines chosen), against the 3 % model's
 0.058 mm (this 2-core CPU machine).

@@ -47,7 +47,12 @@ tracked alone with the stage (``ml_cost --final --correction grid --cases talus,
 talus 1.50 / 1.50×, calcaneus 1.19 / 1.33×, no frame over 4× (the tracker alone: 11, 9 and 1 frames
 over 4×, all silent); the same call repeated the joint numbers above. The acceptance study undoes
 its frames' distortion with this correction by default
-(:data:`core.studies.tracking.acceptance.DEFAULT_CORRECTION`).
+(:data:`core.studies.tracking.acceptance.DEFAULT_CORRECTION`). The exact correction (the true
+model, ``TrackingScene(correction="exact")``, a study-only oracle) on the same raw frames gives the
+stage's tibia 1.47 / 1.54× alone and 1.51 / 1.37× jointly against this correction's 1.48 / 1.53 and
+1.50 / 1.42 (``ml_cost --final --correction grid,exact``,
+``resources/benchmarks/tracking_exact_correction_h200.json``, one NVIDIA H200): the leftover
+distortion is not what holds the tibia at ~1.5× its bound.
 """
 
 from __future__ import annotations

@@ -1,0 +1,181 @@
+"""What the undistorted frames' border costs a bone under the likelihood final stage
+(``python -m core.studies.tracking.border_frames``).
+
+The acceptance trial (:class:`core.studies.tracking.acceptance.TrackingScene`) undoes each view's
+pincushion distortion by resampling the raw frame at ``forward(p)``; near the image's corners and
+edges ``forward(p)`` lies outside the detector (6.6-6.7 % of a 1024² view), and the trial fills
+those pixels by replicating the raw frame's border (``cv2.BORDER_REPLICATE``), so that the tracker
+and the stage take the smeared border as image. A lab's correction pipeline
+(:class:`core.imaging.pipeline.UndistortStep`, ``border="constant"``) leaves them black, and
+:func:`core.tracking.cost.prepare_frame` marks black pixels (and 3 px around them) unusable. The
+tibia is the bone that reaches there (its image leaves view 1 on average by 8.7 % of its voxels
+and 1.2 % lie in the region sampled from outside the detector; talus and calcaneus never).
+
+Here one bone's final stage (:func:`core.tracking.final_stage._refine` with the trial's stage
+model, the other bones at their TRUE poses subtracted) starts from the TRUE pose of frames
+``--frames`` on the same raw frames (same noise draws) corrected three ways, with the exact
+distortion model (no calibration error):
+
+* ``replicate`` — the trial's frames (border replicated);
+* ``black`` — the border black (constant 0), as a lab's pipeline gives them;
+* ``undistorted`` — the same chain with no distortion at all (nothing resampled), the reference.
+
+Per kind and high-pass σ: the RMS error over the frames' Cramér–Rao bound
+(:func:`core.studies.tracking.acceptance.cramer_rao` of the same frames), mean error, and the
+stage's sandwich σ over the bound (its confidence: large where the residual is structured).
+``--noise-free``: the same on noise-free frames (the stage's bias from the border alone).
+Study only: it reads the truth. JSON on stdout (and ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from dataclasses import replace
+
+import numpy as np
+
+__all__ = ["KINDS", "frame_images", "main", "run"]
+
+#: How the frames are made (module docs).
+KINDS = ("replicate", "black", "undistorted")
+
+
+def frame_images(ts, f: int, kind: str, *, noise: bool = True, L=None) -> list[np.ndarray]:
+    """Frame ``f`` of ``ts`` (flatfield-normalised, per view) made as ``kind`` (:data:`KINDS`) with
+    the exact distortion model; ``noise``: the trial's draws (``scene.frame_rng``), else none."""
+    import cv2
+
+    from core.synthetic import Distortion
+
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+    sc = ts.scene
+    L = sc.line_integrals(f, renderer=ts._scene_renderer) if L is None else L
+    out = []
+    for v, m in enumerate(sc.imaging):
+        if not noise:
+            m = replace(m, photons_per_pixel=None, read_noise_dn=0.0)
+        if kind == "undistorted":
+            m = replace(m, distortion=None)
+        raw = m.apply(L[v], rng=sc.frame_rng(f, v) if noise else None)
+        x = m.to_float(raw)
+        if kind != "undistorted":
+            d = m.distortion
+            assert isinstance(d, Distortion)
+            x = d.unwarp(x, border=cv2.BORDER_REPLICATE if kind == "replicate" else cv2.BORDER_CONSTANT)
+        out.append(x)
+    return out
+
+
+def _stage(ts, frame, f: int, b: int, highpass_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bone ``b``'s final stage from its true pose in frame ``f`` (the neighbours at theirs
+    subtracted): its error (6,) (mm, degrees) and its sandwich covariance's σ (6,) (mm, degrees)."""
+    import core.tracking.final_stage as fst
+    from core.studies.tracking.acceptance import pose_errors
+    from core.studies.tracking.stage_limits import Variant
+    from core.tracking.cost import search_roi, snap_roi
+
+    P = ts.truth(f)
+    m = ts.models[b]
+    with Variant({"hp": float(highpass_px)}, ts) as var:
+        o = var.options.registration
+        views = tuple(range(len(ts.scene.rig)))
+        roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=m.centroid, reach_mm=1.0,
+                                  margin_px=o.margin_px), ts.renderer, views)
+        oth = [k for k in range(len(ts.names)) if k != b]
+        eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=o.final_highpass_px,
+                                    others_gain=o.final_others_gain)
+        eng.set_frame(frame, base_pose=P[b], center=m.centroid, roi=roi,
+                      others=(P[oth], oth) if oth else None)
+        r = fst._refine(eng, o, fst.MODEL)
+    e = pose_errors(eng.poses(np.asarray(r["x"])[None])[0], P[b], m.centroid)
+    C = np.asarray(r.get("covariance", np.full((6, 6), np.nan)), float)
+    return e, np.sqrt(np.abs(np.diag(C)))  # (the stage's parameters: mm, degrees)
+
+
+def run(*, pixels: int = 512, voxel: float = 1.0, frames=(0, 20, 40, 60, 80), bones=("tibia",),
+        highpass=(2.0, 4.0), kinds=KINDS, noise: bool = True, device: str | None = "cpu",
+        checkpoint=None) -> dict:
+    """The study (module docs); ``highpass``: the stage's σ in px at ``pixels`` (2 and 4 px at 512²
+    are the trial's 4 and 8 px at 1024²)."""
+    from core.studies.tracking.acceptance import TrackingScene, cramer_rao
+    from core.tracking.cost import prepare_frame
+
+    t0 = time.perf_counter()
+    ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, device=device, correction="exact")
+    frames = [int(f) for f in frames]
+    bound = cramer_rao(ts, frames)
+    out = {"study": "core.studies.tracking.border_frames", "machine": platform.machine(), "pixels": pixels,
+           "voxel_mm": voxel, "frames": frames, "noise": noise, "highpass_px": list(highpass),
+           "cramer_rao": {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for k, v in bound.items()},
+           "setup_s": time.perf_counter() - t0}
+    rec: dict = {}
+    for f in frames:
+        L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+        for kind in kinds:
+            frame = prepare_frame(frame_images(ts, f, kind, noise=noise, L=L))
+            for hp in highpass:
+                for nm in bones:
+                    e, s = _stage(ts, frame, f, ts.names.index(nm), hp)
+                    rec.setdefault((kind, hp, nm), []).append((e, s))
+        out["seconds"] = time.perf_counter() - t0
+        out["results"] = _summaries(rec, bound)
+        out["frames_done"] = f
+        if checkpoint:
+            checkpoint(out)
+    return out
+
+
+def _summaries(rec: dict, bound: dict) -> dict:
+    out: dict = {}
+    for (kind, hp, nm), rows in rec.items():
+        E = np.array([r[0] for r in rows])
+        S = np.array([r[1] for r in rows])
+        b = bound[nm]
+        rt, rr = np.sqrt(np.mean(np.sum(E[:, :3] ** 2, 1))), np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, 1)))
+        st = np.sqrt(np.nanmean(np.sum(S[:, :3] ** 2, 1)))
+        sr = np.sqrt(np.nanmean(np.sum(S[:, 3:] ** 2, 1)))
+        out.setdefault(kind, {}).setdefault(f"hp{hp:g}", {})[nm] = {
+            "over_bound": [round(rt / b["rms_mm"], 3), round(rr / b["rms_deg"], 3)],
+            "sandwich_sigma_over_bound": [round(st / b["rms_mm"], 3), round(sr / b["rms_deg"], 3)],
+            "mean_error": E.mean(0).round(5).tolist(), "per_frame_error": E.round(5).tolist(), "n": len(E)}
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.border_frames",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--pixels", type=int, default=512)
+    p.add_argument("--voxel", type=float, default=1.0)
+    p.add_argument("--frames", default="0,20,40,60,80")
+    p.add_argument("--bones", default="tibia")
+    p.add_argument("--highpass", default="2,4", help="the stage's high-pass σ (px at --pixels)")
+    p.add_argument("--kinds", default=",".join(KINDS))
+    p.add_argument("--noise-free", action="store_true")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    from core.io.atomic import print_json
+
+    def checkpoint(res):
+        if a.out:
+            import json
+
+            from core.io.atomic import atomic_write
+
+            atomic_write(a.out, json.dumps(res, indent=2) + "\n")
+
+    kinds = tuple(k for k in a.kinds.split(",") if k)
+    if any(k not in KINDS for k in kinds):
+        p.error(f"--kinds: expected some of {', '.join(KINDS)}")
+    res = run(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in a.frames.split(",") if x],
+              bones=tuple(a.bones.split(",")), highpass=[float(x) for x in a.highpass.split(",") if x],
+              kinds=kinds, noise=not a.noise_free, device=a.device, checkpoint=checkpoint)
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

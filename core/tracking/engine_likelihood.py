@@ -94,6 +94,9 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     _robust_weight_kernel,
     _times_kernel,
     autocov_kernel,
+    blur_block_dim,
+    blur_block_kernel,
+    design_diff_kernel,
     fluence_psf_kernel,
     highpass_kernel,
     mat12f,
@@ -116,8 +119,8 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
 from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 
-__all__ = ["DEVICE_REGIONS", "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device",
-           "run_side_by_side", "run_steps", "solve_moments"]
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "LikelihoodEngine", "StepClock",
+           "likelihood_engine", "robust_factors_device", "run_side_by_side", "run_steps", "solve_moments"]
 
 #: The regions' line integrals and usable pixels made on the device from the fluence
 #: (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as the tracker's engine makes them)
@@ -125,6 +128,15 @@ __all__ = ["DEVICE_REGIONS", "LikelihoodEngine", "StepClock", "likelihood_engine
 #: logarithm differs from numpy's float32 one in the last bit of 13-19 % of the pixels, and that
 #: moved the stage's poses by up to 0.015 mm on 192² CPU tests (module docs: Set-up).
 DEVICE_REGIONS = False
+#: A step's 13 images taken as the design's centre and its six central differences before the
+#: high-pass's low-pass (:func:`~core.tracking.likelihood_kernels.design_diff_kernel`: 7 images a
+#: view blurred instead of 13; the high-pass is linear, the moments the same up to float32
+#: rounding). Off: every pose's image low-passed, as first measured.
+DIFF_IMAGES = False
+#: The separable blurs of the high-pass and the weights with several outputs a thread
+#: (:func:`~core.tracking.likelihood_kernels.blur_block_kernel`; the same values). Off: one
+#: output a thread (:func:`core.similarity._kernels.blur_kernel`), as first measured.
+BLOCK_BLUR = False
 
 
 def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False,
@@ -236,6 +248,7 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
         self._y_raw = self._o_raw = None
         self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
         self._last = None  # the last step's (images, low-passed images, x, h)
+        self._diff = 0  # its images in design_diff_kernel's layout (DIFF_IMAGES)
         self._pending = None  # the half-steps of the step launched and not yet taken (step_result)
         self._done = None  # an event recorded after the last work a result waits for (_record)
         #: the rendered images copied into the engine's own buffer (refinements side by side:
@@ -332,7 +345,11 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
         low = self._buffer(tag + "_low", src.shape)
         taps = self._taps if taps is None else taps
         for a, b, axis in ((src, tmp, 1), (tmp, low, 0)):
-            self._launch((tag, axis), K.blur_kernel, src.shape, [a, b, taps, self._ref_hw, n_refs, axis])
+            if BLOCK_BLUR:
+                self._launch((tag, axis), blur_block_kernel, blur_block_dim(src.shape, axis),
+                             [a, b, taps, self._ref_hw, n_refs, axis])
+            else:
+                self._launch((tag, axis), K.blur_kernel, src.shape, [a, b, taps, self._ref_hw, n_refs, axis])
         return low
 
     def _launch(self, name, kernel, dim: tuple, inputs: list, block_dim: int | None = None) -> None:
@@ -354,11 +371,13 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
 
     # ------------------------------------------------------------------ steps
     def _images(self, X: np.ndarray):
-        """Render the poses ``X (13, 6)``; their (PSF-blurred) images and low-passed images."""
+        """Render the poses ``X (13, 6)``; their (PSF-blurred) images and low-passed images
+        (:data:`DIFF_IMAGES`: the centre's and the six differences', :attr:`_diff` 1)."""
         t0 = time.perf_counter()
         img = self._render(self.poses(X)[:, None], (self.bone,))
         t1 = time.perf_counter()
-        if self.own_images and self._psf is None:  # (the PSF's output is the engine's own)
+        diff = DIFF_IMAGES
+        if self.own_images and self._psf is None and not diff:  # (the PSF's output is the engine's own)
             own = self._buffer("img", img.shape)
             wp.copy(own, img)
             img = own
@@ -367,6 +386,11 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
             wp.launch(psf_kernel, dim=img.shape, inputs=[img, out, self._psf, self._ref_hw, self.n_views],
                       device=self.device)
             img = out
+        if diff:  # (the engine's own buffer)
+            dd = self._buffer("dd", (7 * self.n_views, *img.shape[1:]))
+            self._launch("diff", design_diff_kernel, dd.shape, [img, self.n_views, self._ref_hw, dd])
+            img = dd
+        self._diff = int(diff)
         low = self._blurred("d", img, self.n_views) if self.highpass_px else img
         self.timer.host += t1 - t0
         self.timer.render += time.perf_counter() - t1
@@ -400,8 +424,8 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
         hp = 1.0 if self.highpass_px else 0.0
         reg = [self._t] if self._q else []
         self._launch(("moments", self._q), regressor_kernels(self._q)[0], (nv, n_chunks),
-                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, self.chunk, acc],
-                     self.block_dim)
+                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, self.chunk, acc,
+                      self._diff], self.block_dim)
         wp.copy(host, acc)
         self._record()
         self._last = (img, low, x, h)

@@ -47,7 +47,7 @@ class _Confidence:
         reg = [self._t] if self._q else []
         self._launch(("residual", bool(jacobian), self._q), regressor_kernels(self._q)[1], (nv, Hc, Wc),
                      [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, lin, e, jt,
-                      int(jacobian)])
+                      int(jacobian), self._diff])
         return e, jt
 
     def residual(self, s: dict) -> np.ndarray:

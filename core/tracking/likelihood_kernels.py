@@ -30,6 +30,111 @@ def _hp(img: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp
     return K._val(img, k, r, c) - hp * low[k, r, c]
 
 
+@wp.func
+def _centre(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, v: int, r: int,
+            c: int) -> float:
+    """The high-passed DRR of view v at the design's centre (item v in either layout)."""
+    return _hp(drr, low, hp, v, r, c)
+
+
+@wp.func
+def _delta(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, j: int,
+           n_refs: int, v: int, r: int, c: int, diff: int) -> float:
+    """The high-passed central difference δ_j of view v: of items 2j+1 and 2j+2 (the 13 poses'
+    images, ``diff`` 0), or item j+1 itself (``diff`` 1: :func:`design_diff_kernel`'s layout)."""
+    out = float(0.0)  # noqa: UP018
+    if diff != 0:
+        out = _hp(drr, low, hp, (j + 1) * n_refs + v, r, c)
+    else:
+        out = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
+               - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
+    return out
+
+
+BLUR_BLOCK = wp.constant(8)  # outputs a thread of blur_block_kernel computes along the blurred axis
+vec8f = wp.types.vector(length=8, dtype=wp.float32)
+
+
+@wp.kernel
+def blur_block_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
+                      weights: wp.array(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+                      axis: int):
+    """:func:`core.similarity._kernels.blur_kernel` (one pass of the separable blur within each
+    item's (h, w) region, borders replicated, NaN read as 0, 0 outside) with :data:`BLUR_BLOCK`
+    outputs a thread along ``axis``: each input read once for all of them instead of once a tap
+    and output. Every output sums the same products in the same order (tap 0 first), so the
+    values are those of ``blur_kernel``. dim = (items, ⌈H / BLUR_BLOCK⌉, W) for ``axis`` 0 (rows),
+    (items, H, ⌈W / BLUR_BLOCK⌉) for ``axis`` 1 (columns)."""
+    k, a, b = wp.tid()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    r0 = a
+    c0 = b
+    n = w
+    if axis == 0:
+        r0 = a * BLUR_BLOCK
+        n = h
+    else:
+        c0 = b * BLUR_BLOCK
+    acc = vec8f()
+    taps = weights.shape[0]
+    rad = (taps - 1) // 2
+    if r0 < h and c0 < w:
+        p0 = c0
+        if axis == 0:
+            p0 = r0
+        for t in range(taps + BLUR_BLOCK - 1):
+            p = wp.clamp(p0 + t - rad, 0, n - 1)
+            x = float(0.0)  # noqa: UP018
+            if axis == 0:
+                x = K._val(src, k, p, c0)
+            else:
+                x = K._val(src, k, r0, p)
+            for m in range(BLUR_BLOCK):
+                j = t - m
+                if j >= 0 and j < taps:
+                    acc[m] = acc[m] + weights[j] * x
+    for m in range(BLUR_BLOCK):
+        r = r0
+        c = c0
+        if axis == 0:
+            r = r0 + m
+        else:
+            c = c0 + m
+        if r < dst.shape[1] and c < dst.shape[2]:
+            v = float(0.0)  # noqa: UP018
+            if r < h and c < w:
+                v = acc[m]
+            dst[k, r, c] = v
+
+
+def blur_block_dim(shape: tuple, axis: int) -> tuple:
+    """The launch dimensions of :func:`blur_block_kernel` over arrays of ``shape`` (items, H, W)."""
+    n, H, W = (int(x) for x in shape)
+    B = int(BLUR_BLOCK)
+    return (n, -(-H // B), W) if axis == 0 else (n, H, -(-W // B))
+
+
+@wp.kernel
+def design_diff_kernel(img: wp.array3d(dtype=wp.float32), n_refs: int, ref_hw: wp.array(dtype=wp.vec2i),
+                       out: wp.array3d(dtype=wp.float32)):
+    """The 13-pose design's images ``img`` (item ``b · n_refs + v``) as the centre and the six
+    central differences (NaN read as 0): item v the centre's, item ``(j + 1) · n_refs + v`` the
+    difference of poses 2j+1 and 2j+2; 0 outside view v's (h, w) region. The high-pass is linear,
+    so the moments need only these seven images a view low-passed. dim = (7 · n_refs, H, W)."""
+    k, r, c = wp.tid()
+    v = k % n_refs
+    j = k // n_refs
+    x = float(0.0)  # noqa: UP018
+    if r < ref_hw[v][0] and c < ref_hw[v][1]:
+        if j == 0:
+            x = K._val(img, v, r, c)
+        else:
+            x = K._val(img, (2 * j - 1) * n_refs + v, r, c) - K._val(img, 2 * j * n_refs + v, r, c)
+    out[k, r, c] = x
+
+
 @wp.kernel
 def psf_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
                psf: wp.array2d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int):
@@ -187,6 +292,41 @@ def _median_keys_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtyp
 
 
 @wp.kernel
+def _median_keys_only_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtype=wp.float32)):
+    """:func:`_median_keys_kernel` without the count (:func:`_median_sorted_kernel` finds it in the
+    sorted keys: no atomic a pixel). dim = items, H, W."""
+    v, r, c = wp.tid()
+    x = local[v, r, c]
+    i = (v * local.shape[1] + r) * local.shape[2] + c
+    if x >= 0.0:
+        keys[i] = x
+    else:
+        keys[i] = wp.inf
+
+
+@wp.kernel
+def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, scale: wp.array(dtype=wp.float32)):
+    """:func:`_median_kernel` with view v's count of used values found in its sorted segment (the
+    keys before the first +inf, by bisection). dim = items."""
+    v = wp.tid()
+    lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
+    hi = int(n)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if keys[v * n + mid] < wp.inf:
+            lo = mid + 1
+        else:
+            hi = mid
+    m = lo
+    s = float(0.0)  # noqa: UP018
+    if m > 0:
+        x = (keys[v * n + (m - 1) // 2] + keys[v * n + m // 2]) * 0.5
+        if wp.isfinite(x) and x > 0.0:
+            s = x
+    scale[v] = s
+
+
+@wp.kernel
 def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.int32), n: int,
                    scale: wp.array(dtype=wp.float32)):
     """scale[v] = the median of view v's used values (its segment of ``n`` sorted keys, the
@@ -201,6 +341,11 @@ def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.in
         if wp.isfinite(x) and x > 0.0:
             s = x
     scale[v] = s
+
+
+#: :func:`robust_factors_device` counts each view's used pixels in its sorted keys (no atomic a
+#: pixel; the same median); off: counted as the keys are written, as first measured
+MEDIAN_BISECT = False
 
 
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
@@ -242,11 +387,16 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
         starts = np.arange(nv + 1, dtype=np.int32) * n  # the views' segments of the keys
         seg = bufs[("rf_seg", nv, n)] = (wp.array(starts[:-1], dtype=wp.int32, device=device),
                                          wp.array(starts[1:], dtype=wp.int32, device=device))
-    count.zero_()
-    wp.launch(_median_keys_kernel, dim=shape, inputs=[local, keys, count], device=device)
-    wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
     scale = buf("rf_scale", (nv,))
-    wp.launch(_median_kernel, dim=nv, inputs=[keys, count, n, scale], device=device)
+    if MEDIAN_BISECT:
+        wp.launch(_median_keys_only_kernel, dim=shape, inputs=[local, keys], device=device)
+        wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
+        wp.launch(_median_sorted_kernel, dim=nv, inputs=[keys, n, scale], device=device)
+    else:
+        count.zero_()
+        wp.launch(_median_keys_kernel, dim=shape, inputs=[local, keys, count], device=device)
+        wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
+        wp.launch(_median_kernel, dim=nv, inputs=[keys, count, n, scale], device=device)
     out = buf("rf_out")
     wp.launch(_robust_weight_kernel, dim=shape, device=device,
               inputs=[local, scale, float(k), 1 if kind == "cauchy" else 0, out])
@@ -265,10 +415,11 @@ def highpass_kernel(y: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.fl
 def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
                        y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
                        oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
-                       chunk: int, acc: wp.array2d(dtype=wp.float64)):
+                       chunk: int, acc: wp.array2d(dtype=wp.float64), diff: int):
     """acc[v] += Σ w z zᵀ (row-major 12 × 12), z = (y, D_0, D_1 - D_2, …, D_11 - D_12, 1, u, v, O)
     of view v (item j of view v is j · n_refs + v; D high-passed; O the neighbours' high-passed
-    DRRs, 0 without). dim = (views, chunks)."""
+    DRRs, 0 without; ``diff`` 1: the images in :func:`design_diff_kernel`'s layout). dim = (views,
+    chunks)."""
     v, ch, lane = wp.tid()
     bd = wp.block_dim()
     h = ref_hw[v][0]
@@ -287,10 +438,9 @@ def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=
             if wt > 0.0:
                 z = vec12f()
                 z[0] = y[v, r, c]
-                z[1] = _hp(drr, low, hp, v, r, c)
+                z[1] = _centre(drr, low, hp, v, r, c)
                 for j in range(6):
-                    z[2 + j] = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
-                                - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
+                    z[2 + j] = _delta(drr, low, hp, j, n_refs, v, r, c, diff)
                 z[8] = 1.0
                 z[9] = float(c) * su - 1.0
                 z[10] = float(r) * sv - 1.0
@@ -309,11 +459,11 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
                     y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
                     oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
                     lin: wp.array2d(dtype=wp.float32), e: wp.array3d(dtype=wp.float32),
-                    jt: wp.array3d(dtype=vec6f), with_jt: int):
+                    jt: wp.array3d(dtype=vec6f), with_jt: int, diff: int):
     """The weighted residual e = √w (y - A coef) and projected Jacobian J̃_k = √w a (D_k - A β_k)
     of view v at the centre pose; ``lin[v]`` = (coef (5), a, 1/2h (6), β (5 × 6)) with A =
     (D, 1, u, v, O) (unused terms with coefficients 0); ``with_jt`` 0: ``e`` alone (``jt`` not
-    written). dim = (views, H, W)."""
+    written; ``diff``: as :func:`wls_moments_kernel`'s). dim = (views, H, W)."""
     v, r, c = wp.tid()
     h = ref_hw[v][0]
     w = ref_hw[v][1]
@@ -324,7 +474,7 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
         if wt > 0.0:
             sw = wp.sqrt(wt)
             a = vec5f()  # (D, 1, u, v, O)
-            a[0] = _hp(drr, low, hp, v, r, c)
+            a[0] = _centre(drr, low, hp, v, r, c)
             a[1] = 1.0
             a[2] = float(c) * 2.0 / float(wp.max(w - 1, 1)) - 1.0
             a[3] = float(r) * 2.0 / float(wp.max(h - 1, 1)) - 1.0
@@ -334,8 +484,7 @@ def residual_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.
                 fit += lin[v, q] * a[q]
             ev = sw * (y[v, r, c] - fit)
             for k in range(6 * with_jt):
-                dk = (_hp(drr, low, hp, (2 * k + 1) * n_refs + v, r, c)
-                      - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, NA + 1 + k]
+                dk = _delta(drr, low, hp, k, n_refs, v, r, c, diff) * lin[v, NA + 1 + k]
                 proj = float(0.0)  # noqa: UP018
                 for q in range(NA):
                     proj += lin[v, NA + 7 + q * 6 + k] * a[q]
@@ -491,8 +640,8 @@ def regressor_kernels(q: int) -> tuple:
     ``T_1 … T_q`` after ``O`` (``12 + q`` entries) and ``A = (D, 1, u, v, O, T_1 … T_q)`` (``lin``:
     ``coef (5 + q), a, 1/2h (6), β ((5 + q) × 6)``); both take ``reg`` (``q · views`` items,
     item ``j · views + v`` regressor j of view v, as given: :meth:`~core.tracking.engine_likelihood.
-    LikelihoodEngine.set_frame`) after ``oth``. The other terms and their sums are those of the
-    plain kernels."""
+    LikelihoodEngine.set_frame`) after ``oth``, and ``diff`` last. The other terms and their sums are
+    those of the plain kernels."""
     q = int(q)
     if q == 0:
         return wls_moments_kernel, residual_kernel
@@ -508,7 +657,8 @@ def regressor_kernels(q: int) -> tuple:
     def moments(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
                 y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
                 oth: wp.array3d(dtype=wp.float32), reg: wp.array3d(dtype=wp.float32),
-                ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, chunk: int, acc: wp.array2d(dtype=wp.float64)):
+                ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, chunk: int, acc: wp.array2d(dtype=wp.float64),
+                diff: int):
         v, ch, lane = wp.tid()
         bd = wp.block_dim()
         h = ref_hw[v][0]
@@ -527,10 +677,9 @@ def regressor_kernels(q: int) -> tuple:
                 if wt > 0.0:
                     z = vz()
                     z[0] = y[v, r, c]
-                    z[1] = _hp(drr, low, hp, v, r, c)
+                    z[1] = _centre(drr, low, hp, v, r, c)
                     for j in range(6):
-                        z[2 + j] = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
-                                    - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
+                        z[2 + j] = _delta(drr, low, hp, j, n_refs, v, r, c, diff)
                     z[8] = 1.0
                     z[9] = float(c) * su - 1.0
                     z[10] = float(r) * sv - 1.0
@@ -550,7 +699,7 @@ def regressor_kernels(q: int) -> tuple:
                  y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
                  oth: wp.array3d(dtype=wp.float32), reg: wp.array3d(dtype=wp.float32),
                  ref_hw: wp.array(dtype=wp.vec2i), n_refs: int, lin: wp.array2d(dtype=wp.float32),
-                 e: wp.array3d(dtype=wp.float32), jt: wp.array3d(dtype=vec6f), with_jt: int):
+                 e: wp.array3d(dtype=wp.float32), jt: wp.array3d(dtype=vec6f), with_jt: int, diff: int):
         v, r, c = wp.tid()
         h = ref_hw[v][0]
         w = ref_hw[v][1]
@@ -561,7 +710,7 @@ def regressor_kernels(q: int) -> tuple:
             if wt > 0.0:
                 sw = wp.sqrt(wt)
                 a = va()  # (D, 1, u, v, O, T_1 … T_q)
-                a[0] = _hp(drr, low, hp, v, r, c)
+                a[0] = _centre(drr, low, hp, v, r, c)
                 a[1] = 1.0
                 a[2] = float(c) * 2.0 / float(wp.max(w - 1, 1)) - 1.0
                 a[3] = float(r) * 2.0 / float(wp.max(h - 1, 1)) - 1.0
@@ -573,8 +722,7 @@ def regressor_kernels(q: int) -> tuple:
                     fit += lin[v, k] * a[k]
                 ev = sw * (y[v, r, c] - fit)
                 for k in range(6 * with_jt):
-                    dk = (_hp(drr, low, hp, (2 * k + 1) * n_refs + v, r, c)
-                          - _hp(drr, low, hp, (2 * k + 2) * n_refs + v, r, c)) * lin[v, na + 1 + k]
+                    dk = _delta(drr, low, hp, k, n_refs, v, r, c, diff) * lin[v, na + 1 + k]
                     proj = float(0.0)  # noqa: UP018
                     for m in range(na):
                         proj += lin[v, na + 7 + m * 6 + k] * a[m]

@@ -1,0 +1,354 @@
+"""Where the likelihood final stage's time goes, and the stage's variants against each other on the
+same frames (``python -m core.studies.tracking.stage_speed``).
+
+The acceptance trial (:class:`core.studies.tracking.acceptance.TrackingScene`, by default 1024²,
+0.5 mm voxels, ``--frames`` frames; the grid-estimated distortion correction, measured glare
+undone — the frames of :mod:`core.studies.tracking.tissue_stage`) is tracked by
+:func:`core.tracking.trial.track` (Gauss–Newton search, three bones jointly) with the
+registrations' final likelihood stage (:mod:`core.tracking.final_stage`) at each high-pass σ of
+``--highpass``, once per stage variant (:data:`VARIANTS`) and repeat, the variants alternated.
+Per run: the stage's time per bone-frame (``likelihood_s`` of the registrations: set-up, steps,
+robust factors and sandwich, each bone's share of the side-by-side stages' wall time), its set-up
+and steps, the frame's wall time, and per bone the RMS error over the Cramér–Rao bound of the
+same frames (every tenth) and frames over 4× it; and the largest difference of every variant's
+poses from the first variant's (mm, degrees).
+
+``--profile-frames N`` (the first ``N`` frames, once per variant and σ, not timed as above):
+``kernels`` — the device's time per activity inside the stages (Warp's CUDA activity timing,
+:func:`warp.timing_begin`, around :func:`~core.tracking.final_stage.final_stages`: each kernel,
+copy and memset by name, total and count per bone-frame), against the stages' wall time there;
+``parts`` — the engine's methods each timed with a device synchronisation before and after (the
+stages then run one after another: a serial breakdown, not the overlapped wall time).
+Only this study reads the truth. JSON on stdout (``--out``: also to a file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import defaultdict
+from contextlib import ExitStack, contextmanager
+from dataclasses import replace
+
+import numpy as np
+
+__all__ = ["VARIANTS", "main", "run"]
+
+
+@contextmanager
+def _base():
+    yield
+
+
+@contextmanager
+def _flag(module: str, name: str, value):
+    import importlib
+
+    with _patched(importlib.import_module(module), name, value):
+        yield
+
+
+#: the stage's variants by name: a context manager factory each (the module flags they set)
+VARIANTS: dict = {
+    "base": _base,
+    # the 13 images as centre and differences before the low-pass (engine_likelihood.DIFF_IMAGES)
+    "diff": lambda: _flag("core.tracking.engine_likelihood", "DIFF_IMAGES", True),
+    "nodiff": lambda: _flag("core.tracking.engine_likelihood", "DIFF_IMAGES", False),
+    # the changes that keep every value: blocked blurs, the median's count by bisection
+    "exact": lambda: _flags(BLOCK_BLUR=True, MEDIAN_BISECT=True, DIFF_IMAGES=False),
+    # those and the differences' images
+    "fast": lambda: _flags(BLOCK_BLUR=True, MEDIAN_BISECT=True, DIFF_IMAGES=True),
+    # every flag off (the stage as first measured)
+    "plain": lambda: _flags(BLOCK_BLUR=False, MEDIAN_BISECT=False, DIFF_IMAGES=False),
+}
+_FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
+              "DIFF_IMAGES": "core.tracking.engine_likelihood",
+              "MEDIAN_BISECT": "core.tracking.likelihood_kernels"}
+
+
+@contextmanager
+def _flags(**kw):
+    with ExitStack() as st:
+        for k, v in kw.items():
+            st.enter_context(_flag(_FLAG_HOME[k], k, v))
+        yield
+
+
+@contextmanager
+def _patched(obj, name: str, new):
+    old = getattr(obj, name)
+    setattr(obj, name, new)
+    try:
+        yield
+    finally:
+        setattr(obj, name, old)
+
+
+def _kernel_profile(n_bone_frames_box: list, acc: dict):
+    """A wrapper of :func:`~core.tracking.final_stage.final_stages` that times the device's
+    activities inside it (``acc`` name -> [ms, count]; ``n_bone_frames_box[0]`` counts the bones,
+    ``[1]`` the wall time in s)."""
+    import warp as wp
+
+    import core.tracking.final_stage as fst
+
+    plain = fst.final_stages
+
+    def wrapped(renderer, frame, calls):
+        wp.timing_begin(cuda_filter=wp.TIMING_ALL)
+        t = time.perf_counter()
+        try:
+            return plain(renderer, frame, calls)
+        finally:
+            res = wp.timing_end()
+            n_bone_frames_box[1] += time.perf_counter() - t
+            n_bone_frames_box[0] += len(calls)
+            for x in res:
+                a = acc.setdefault(x.name, [0.0, 0])
+                a[0] += x.elapsed
+                a[1] += 1
+
+    return _patched(fst, "final_stages", wrapped)
+
+
+_PARTS = ("set_frame", "set_tissue", "step_launch", "step_result", "robust_weights", "sandwich_launch",
+          "sandwich_result", "scale_weights", "reset_weights")
+
+
+def _parts_profile(acc: dict):
+    """The engine's methods (:data:`_PARTS`) and :func:`~core.tracking.engine_likelihood.solve_moments`
+    each timed with a synchronisation before and after (``acc`` name -> [s, count])."""
+    import warp as wp
+
+    import core.tracking.engine_likelihood as el
+
+    stack = ExitStack()
+
+    def timed(name, f):
+        def g(*a, **k):
+            wp.synchronize()
+            t = time.perf_counter()
+            try:
+                return f(*a, **k)
+            finally:
+                wp.synchronize()
+                x = acc.setdefault(name, [0.0, 0])
+                x[0] += time.perf_counter() - t
+                x[1] += 1
+        return g
+
+    E = el.LikelihoodEngine
+    for name in _PARTS:
+        stack.enter_context(_patched(E, name, timed(name, getattr(E, name))))
+    stack.enter_context(_patched(el, "solve_moments", timed("solve_moments (host)", el.solve_moments)))
+    return stack
+
+
+def _pose_diff(a: dict, b: dict) -> dict:
+    """The largest difference between two runs' poses (mm of the translation, degrees of the
+    rotation), over their common bone-frames."""
+    from core.geometry.transforms import matrix_to_rotvec
+
+    mm, deg, ent = 0.0, 0.0, 0.0
+    for k in a.keys() & b.keys():
+        mm = max(mm, float(np.linalg.norm(a[k][:3, 3] - b[k][:3, 3])))
+        deg = max(deg, float(np.degrees(np.linalg.norm(matrix_to_rotvec(a[k][:3, :3] @ b[k][:3, :3].T)))))
+        ent = max(ent, float(np.max(np.abs(a[k] - b[k]))))
+    return {"max_mm": mm, "max_deg": deg, "max_entry": ent}
+
+
+@contextmanager
+def _frame_cache(folder):
+    """The trial's frames kept in ``folder`` (``.npy``, by size, length and frame) and taken from
+    there when present (processes measuring different trees on the same frames)."""
+    if not folder:
+        yield
+        return
+    import pathlib
+
+    from core.studies.tracking import acceptance as A
+
+    plain = A.TrackingScene.frames
+
+    def frames(self, i):
+        if i not in self._cache:
+            f = pathlib.Path(folder) / f"{self.scene.rig[0].width}_{self.scene.n_frames}_{i}.npy"
+            if f.exists():
+                self._cache[i] = list(np.load(f))
+            else:
+                v = plain(self, i)
+                f.parent.mkdir(parents=True, exist_ok=True)
+                np.save(f, np.stack(v))
+                return v
+        return self._cache[i]
+
+    with _patched(A.TrackingScene, "frames", frames):
+        yield
+
+
+def run(*, device: str | None = None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5,
+        highpass=(4.0, 8.0), variants=("base",), repeats: int = 2, profile_frames: int = 20,
+        correction: str = "grid", glare: bool = True, warm_frames: int = 3, checkpoint=None,
+        frame_cache=None, poses_out=None) -> dict:
+    """Run the study (module docs); returns the JSON-ready results. ``frame_cache``: a folder the
+    frames are kept in (:func:`_frame_cache`); ``poses_out``: an ``.npz`` file every run's poses
+    are written to (``<variant>/hp<σ>/<bone>``: ``(frames, 4, 4)``, the first repeat's)."""
+    with _frame_cache(frame_cache):
+        return _run(device=device, frames=frames, pixels=pixels, voxel=voxel, highpass=highpass,
+                    variants=variants, repeats=repeats, profile_frames=profile_frames, correction=correction,
+                    glare=glare, warm_frames=warm_frames, checkpoint=checkpoint, poses_out=poses_out)
+
+
+def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_frames, correction, glare,
+         warm_frames, checkpoint, poses_out) -> dict:
+    import core.tracking.final_stage as fst
+    from core.render import DRRRenderer
+    from core.studies.tracking.ml_cost import _scene
+    from core.studies.tracking.tissue_stage import _record
+    from core.tracking.trial import TrackingOptions, track
+
+    n = int(frames)
+    t0 = time.perf_counter()
+    ts, out, bound = _scene(n, pixels, voxel, device, 0,
+                            {"study": "core.studies.tracking.stage_speed", "highpass_px": list(highpass),
+                             "variants": list(variants), "repeats": repeats, "correction": correction,
+                             "glare_undone": glare, "stage_model": fst.MODEL.to_dict()},
+                            glare=glare, correction=correction)
+    out["setup_s"] = time.perf_counter() - t0
+    bones = [0, 1, 2]
+    models = [ts.models[b] for b in bones]
+    names = [ts.names[b] for b in bones]
+    r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
+                    device=ts.device)
+    kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
+    base = TrackingOptions(mode="joint")
+    plain = replace(base, registration=replace(base.registration, search="newton"))
+    opts = {hp: replace(plain, registration=replace(plain.registration, final_highpass_px=float(hp)),
+                        refine_likelihood=True) for hp in highpass}
+    for v in variants:  # warm-up: kernels compiled, buffers made
+        for hp in highpass:
+            with VARIANTS[v]():
+                track(r, models, ts.frames, range(min(n, warm_frames)), keyframes=kf, options=opts[hp])
+    runs: dict = defaultdict(list)
+    poses: dict = {}
+    for rep in range(int(repeats)):
+        order = list(variants) if rep % 2 == 0 else list(variants)[::-1]
+        for v in order:
+            for hp in highpass:
+                ends: dict = {}
+
+                def progress(done, total, fr, ends=ends):
+                    ends[fr.frame] = time.perf_counter()
+
+                with VARIANTS[v]():
+                    t1 = time.perf_counter()
+                    res = track(r, models, ts.frames, range(n), keyframes=kf, options=opts[hp],
+                                progress=progress)
+                    dt = time.perf_counter() - t1
+                d = _record(ts, res, names, n, dt, ends, bound)
+                for nm in names:
+                    d[nm].pop("error", None)
+                d["repeat"] = rep
+                runs[f"{v}/hp{hp:g}"].append(d)
+                poses.setdefault(f"{v}/hp{hp:g}", {(nm, f): res.results[(nm, f)].pose
+                                                   for nm in names for f in range(n)})
+                ob = {nm: d[nm].get("over_bound", {}) for nm in names}
+                print(f"{v} hp{hp:g} rep {rep}: {dt:.2f} s, stage {d['likelihood_ms_per_bone_frame']:.2f} ms "
+                      f"per bone-frame ({d['likelihood_steps_per_bone_frame']:.2f} steps) " + " ".join(
+                          f"{nm} {ob[nm].get('mm', np.nan):.3f}/{ob[nm].get('deg', np.nan):.3f}"
+                          for nm in names),
+                      flush=True)
+                out["runs"] = runs
+                if checkpoint:
+                    checkpoint(out)
+    out["summary"] = {k: {"likelihood_ms_per_bone_frame": [x["likelihood_ms_per_bone_frame"] for x in v],
+                          "median_ms": float(np.median([x["likelihood_ms_per_bone_frame"] for x in v])),
+                          "ms_per_frame": [x["ms_per_frame"] for x in v],
+                          "steps": v[0]["likelihood_steps_per_bone_frame"],
+                          "over_bound": {nm: v[0][nm].get("over_bound") for nm in names}}
+                      for k, v in runs.items()}
+    if poses_out:
+        np.savez(poses_out, **{f"{k}/{nm}": np.stack([p[(nm, f)] for f in range(n)])
+                               for k, p in poses.items() for nm in names})
+    first = variants[0]
+    out["pose_difference_from_" + first] = {k: _pose_diff(poses[f"{first}/hp{k.split('/hp')[1]}"], p)
+                                            for k, p in poses.items() if not k.startswith(first + "/")}
+    if profile_frames:
+        prof: dict = {}
+        m = min(n, int(profile_frames))
+        for v in variants:
+            for hp in highpass:
+                acc: dict = {}
+                box = [0, 0.0]
+                with VARIANTS[v](), _kernel_profile(box, acc):
+                    track(r, models, ts.frames, range(m), keyframes=kf, options=opts[hp])
+                nb = max(box[0], 1)
+                kern = {k: {"ms_per_bone_frame": a[0] / nb, "per_bone_frame": a[1] / nb}
+                        for k, a in sorted(acc.items(), key=lambda kv: -kv[1][0])}
+                parts: dict = {}
+                with VARIANTS[v](), _parts_profile(parts):
+                    res = track(r, models, ts.frames, range(m), keyframes=kf, options=opts[hp])
+                tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(m)]
+                nbf = len(tim)
+                prof[f"{v}/hp{hp:g}"] = {
+                    "bone_frames": box[0],
+                    "stage_wall_ms_per_bone_frame": 1e3 * box[1] / nb,
+                    "device_ms_per_bone_frame": sum(a[0] for a in acc.values()) / nb,
+                    "kernels": kern,
+                    "serial_parts": {k: {"ms_per_bone_frame": 1e3 * a[0] / nbf, "per_bone_frame": a[1] / nbf}
+                                     for k, a in sorted(parts.items(), key=lambda kv: -kv[1][0])},
+                    "serial_stage_ms_per_bone_frame": 1e3 * float(np.mean([t.get("likelihood_s", 0.0)
+                                                                             for t in tim])),
+                }
+                pr = prof[f"{v}/hp{hp:g}"]
+                print(f"profile {v} hp{hp:g}: wall {pr['stage_wall_ms_per_bone_frame']:.2f}"
+                      f" device {pr['device_ms_per_bone_frame']:.2f} ms per bone-frame; "
+                      + ", ".join(f"{k} {a['ms_per_bone_frame']:.3f}" for k, a in list(kern.items())[:8]),
+                      flush=True)
+                out["profile"] = prof
+                if checkpoint:
+                    checkpoint(out)
+    out["total_s"] = time.perf_counter() - t0
+    return out
+
+
+def main(argv=None) -> int:
+    import json
+    import pathlib
+
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.stage_speed",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--device", default=None)
+    p.add_argument("--frames", type=int, default=40)
+    p.add_argument("--pixels", type=int, default=1024)
+    p.add_argument("--voxel", type=float, default=0.5)
+    p.add_argument("--highpass", default="4,8", help="high-pass σ values, comma-separated (pixels)")
+    p.add_argument("--variants", default="base", help=f"comma-separated, of {sorted(VARIANTS)}")
+    p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--profile-frames", type=int, default=20)
+    p.add_argument("--warm-frames", type=int, default=3)
+    p.add_argument("--correction", default="grid", choices=("grid", "model"))
+    p.add_argument("--out", default=None)
+    p.add_argument("--frame-cache", default=None, help="a folder the trial's frames are kept in")
+    p.add_argument("--poses-out", default=None, help="an .npz file for every run's poses")
+    a = p.parse_args(argv)
+    variants = tuple(a.variants.split(","))
+    for v in variants:
+        if v not in VARIANTS:
+            p.error(f"--variants: {v!r} is not one of {sorted(VARIANTS)}")
+
+    def save(d):
+        if a.out:
+            pathlib.Path(a.out).write_text(json.dumps(d, indent=1, default=float))
+
+    out = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel,
+              highpass=tuple(float(x) for x in a.highpass.split(",")), variants=variants, repeats=a.repeats,
+              profile_frames=a.profile_frames, correction=a.correction, warm_frames=a.warm_frames,
+              checkpoint=save, frame_cache=a.frame_cache, poses_out=a.poses_out)
+    save(out)
+    print(json.dumps({k: v for k, v in out.items() if k not in ("runs",)}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

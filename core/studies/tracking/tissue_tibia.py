@@ -1,0 +1,354 @@
+"""Why the soft-tissue regressor costs the tibia in tracking (``python -m
+core.studies.tracking.tissue_tibia``).
+
+The likelihood final stage's tissue regressor (:attr:`core.tracking.final_stage.FinalModel.tissue`;
+:mod:`core.studies.tracking.tissue_stage`) took the talus to 1.17/1.18× its Cramér–Rao bound at the
+8 px high-pass but the tibia from 1.72/1.46 to 1.92/1.66 (one NVIDIA H200, 1024², three bones
+jointly). Hypotheses: (a) the tissue is rendered at the tracker's estimate of the tibia's pose and
+its own pose derivative is left out of the step, so a wrong pose pulls the estimate; (b) the 4 mm
+resampling is too coarse for the shank's skin; (c) the tissue's gain, nearly collinear with the
+tibia, is poorly determined; (d) something specific to the size.
+
+:func:`bias` (``--bias``, CPU): the first-order bias of each bone's stage (a Gauss–Newton step of
+the stage's model — gain, constant and the tissue's free gain fitted linearly, the neighbours
+subtracted at gain 1, weights the expected counts, high-pass σ ``highpass`` px at 1024² scaled —
+from the TRUE pose: ``(JᵀJ)⁻¹ Jᵀ r``) on NOISE-FREE grid-corrected frames of the 100-frame
+acceptance trial (so frame ``f`` is the same phase of stance as the GPU trial's), without a tissue
+regressor (``none``) and with each volume of :func:`~core.studies.tracking.tissue_regressor.
+user_tissue` (``exact`` the generator's 3 mm volume, ``fine`` 2 mm, ``coarse`` 4 mm), rendered at
+the true poses through the estimated PSF. For the bones a tissue part follows (tibia, calcaneus)
+also: ``<kind>_deriv`` — the tissue's own pose derivative (the parts following the bone rendered at
+the step's 13 poses) added to the bone's in the step (hypothesis a's remedy); ``<kind>_est`` — the
+tissue rendered at the TRACKER's poses of that frame (``est_errors``: the per-frame errors of the
+tracker run of ``resources/benchmarks/tracking_tissue_stage_h200.json``, three bones jointly, the
+poses the device stage renders it at). On the first two frames of the tibia a full refinement
+(:class:`~core.tracking.likelihood_cost.LikelihoodCost`, 6 steps) agreed with this first-order bias
+within 4 µm.
+
+:func:`run` (GPU): the acceptance trial tracked with the stage at the 8 px high-pass, three bones
+jointly (``three``) and the tibia alone (``tibia``: only the shank part follows a tracked bone),
+per-bone stage settings (:attr:`~core.tracking.final_stage.FinalModel.bones`): no tissue, the 4 mm
+tissue for every bone, the tissue for every bone but the tibia (``BoneStage(tissue=False)``), that
+with the tibia's own 4 px high-pass, the 2 mm tissue for every bone. Per run as
+:mod:`core.studies.tracking.tissue_stage` (its ``_record``).
+
+Measured (this 2-core CPU machine, :func:`bias`, 256², 1 mm voxels, frames 0, 10, …, 90;
+``resources/benchmarks/tracking_tissue_tibia_cpu.json``), RMS over the frames of the bias, µm /
+millidegrees:
+
+* The tibia's bias is not the tissue's: ``none`` 37.8 / 68.7, ``exact`` 37.7 / 55.4, ``fine``
+  37.2 / 63.7 — the generator's own tissue volume at the true poses takes nothing off it (it is the
+  grid correction's leftover distortion, :mod:`core.studies.tracking.tissue_regressor`). The 4 mm
+  volume adds its own error: ``coarse`` 46.0 / 87.1; the change against ``none`` follows the phase
+  of stance (x −17 µm at frame 0, +25 at frame 50, as the H200's tracking −11 and +18: the tissue
+  worsened the tibia there by a pose-dependent offset that a 5th-order polynomial in the frame index
+  explains to R² 0.91 in x and y, the tracker's own errors to 0.3). The coarse volume differs from
+  the frame's tissue by 0.008 RMS in the high-passed band — a third of the tibia's own high-passed
+  signal — along the shaft's edges and around the malleoli (a 12 mm moiré of the 3 and 4 mm grids,
+  and smoothed skin); its fitted gain is 1.22-1.27 per view against 1.01 for ``exact``, yet held at
+  1 it gives the same bias (f0/f50: x 1.4/62.1 against −2.1/67.0 µm): not hypothesis (c). Rendering
+  it with a 0.5 mm ray step or smoothing it by 2-8 px changed the tibia's bias by less than 10 %.
+* Not the estimated poses (a): rendered at the H200 tracker's poses of the same frames, ``coarse``
+  gives [EST]; the tissue's own pose derivative in the step makes it worse in every volume
+  (``coarse_deriv`` 56.6 / 208.1, ``exact_deriv`` 44.0 / 85.7): the step then takes pose
+  information from the tissue's skin edges, where the user's volume is least exact.
+* The talus's bias is the tissue's: ``none`` 43.1 / 224.8, ``exact`` 16.1 / 66.7, ``fine`` 16.8 /
+  73.8, ``coarse`` 23.9 / 110.2. Calcaneus: [CALC].
+* 512² (0.5 mm voxels, tibia): ``none`` 93.9 / 117.4, ``exact`` 93.7 / 104.8, ``fine`` 93.9 / 110.3,
+  ``coarse`` 95.3 / 131.9 — the same picture (frames 70-90 carry a large grid bias there).
+
+So the tibia gains nothing from a tissue model and the user's 4 mm volume costs it; the talus gains
+much. The remedy is per bone — the tissue regressor off for the tibia
+(``FinalModel(tissue=…, bones={tibia: BoneStage(tissue=False)})``) — or a finer (2 mm) volume.
+
+JSON on stdout (``--out``: also to a file, rewritten as it goes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from dataclasses import replace
+
+import numpy as np
+
+__all__ = ["bias", "main", "run"]
+
+#: the tracker's per-frame errors :func:`bias` renders the tissue at (``_est`` variants)
+EST_JSON = "resources/benchmarks/tracking_tissue_stage_h200.json"
+
+
+def _est_errors(path: str = EST_JSON) -> dict:
+    """Per bone name the ``(frames, 6)`` errors (mm, degrees) of the tracker run (no stage, three
+    bones jointly) of ``path``, or {} where it is missing."""
+    try:
+        with open(path) as fh:
+            d = json.load(fh)
+    except OSError:
+        return {}
+    t = d.get("three", {}).get("tracker", {})
+    return {nm: np.asarray(v["error"], float) for nm, v in t.items() if isinstance(v, dict) and "error" in v}
+
+
+def _moved(P: np.ndarray, e: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """``P`` moved by the error ``e`` (mm at ``center``, degrees): the pose whose
+    :func:`~core.studies.tracking.acceptance.pose_errors` against ``P`` is ``e``."""
+    from core.geometry.transforms import pose_from_params
+
+    p = np.r_[e[:3], np.radians(e[3:])]
+    return pose_from_params(p[None], center=center, base=P)[0]
+
+
+def _view_terms(cost, D, T, v: int, roi, hp: float, h: float):
+    """One view's projected Jacobians and residual at the true pose: ``(JD, JT, r)`` (``JT`` None
+    without a tissue; ``T`` the tissue regressor images of the 13 poses (or one), as the frame shows
+    them, full frame)."""
+    from core.similarity.likelihood import highpass
+    from core.studies.tracking.background_fit import _crop
+
+    Dv = cost._filtered(D[v]).astype(float)
+    dD = (Dv[1:7] - Dv[7:13]) / (2 * h)
+    W = cost.weights[v]
+    sel = W > 0
+    sw = np.sqrt(W[sel])
+    cols = [Dv[0][sel], np.ones(sel.sum())]
+    Tc = None
+    if T is not None:
+        Tc = np.stack([highpass(_crop(t, roi).astype(np.float64), hp).astype(float) for t in T])
+        cols.append(Tc[0][sel])
+    A = np.column_stack(cols) * sw[:, None]
+    Q, _ = np.linalg.qr(A)
+    y = cost.fluoro_rois[v][sel] * sw
+    coef = np.linalg.lstsq(A, y, rcond=None)[0]
+    r = y - Q @ (Q.T @ y)
+    JD = dD[:, sel] * sw * coef[0]
+    JD = JD - (JD @ Q) @ Q.T
+    JT = None
+    if Tc is not None and len(Tc) == 13:
+        JT = (Tc[1:7] - Tc[7:13])[:, sel] / (2 * h) * sw * coef[2]
+        JT = JT - (JT @ Q) @ Q.T
+    return JD, JT, r, coef
+
+
+def bias(*, pixels: int = 256, voxel: float = 1.0, frames=range(0, 100, 10), bones=(0, 1, 2),
+         kinds=("exact", "fine", "coarse"), highpass: float = 8.0, device: str | None = "cpu",
+         est_json: str = EST_JSON, checkpoint=None) -> dict:
+    """The first-order bias of each bone's stage from the true pose on noise-free grid frames, per
+    tissue volume (module docs; study only: reads the truth). Per bone and variant: the bias per
+    frame (µm, millidegrees), its RMS over the frames, the fitted tissue gains; ``pull`` (bones a
+    tissue part follows): the mean over the frames of ``M`` — a tissue rendered at the bone's pose
+    off by ``d`` moves the estimate by ``-M d`` to first order."""
+    from core.render import DRRRenderer
+    from core.studies.tracking.background_fit import _Sources, estimated_psf, frame_images
+    from core.studies.tracking.tissue_regressor import regressor_images, user_tissue
+    from core.tracking.cost import prepare_frame, search_roi, snap_roi
+    from core.tracking.likelihood_cost import LikelihoodCost
+
+    t0 = time.perf_counter()
+    frames = [int(f) for f in frames]
+    src = _Sources(pixels, voxel, 100, 0, device)
+    ts = src.scene("grid")
+    sc = ts.scene
+    psf = np.asarray(estimated_psf(ts), float)
+    hp = highpass * pixels / 1024
+    views = tuple(range(len(sc.rig)))
+    tb = list(sc.tissue_bones)
+    est = _est_errors(est_json)
+    rend = {k: DRRRenderer(sc.rig, [v.to_attenuation(sc.tissue_transfer) for v in user_tissue(sc, k)],
+                           device=device) for k in kinds}
+    out = {"study": "core.studies.tracking.tissue_tibia --bias", "machine": platform.machine(),
+           "pixels": pixels, "voxel_mm": voxel, "frames": frames, "highpass_px_at_1024": highpass,
+           "kinds": list(kinds),
+           "est_json": est_json if est else None, "setup_s": time.perf_counter() - t0}
+    h = 0.05
+    X = np.concatenate([np.zeros((1, 6)), np.eye(6) * h, -np.eye(6) * h])
+    B: dict = {}
+    gains: dict = {}
+    pulls: dict = {}
+    for fi, f in enumerate(frames):
+        L = sc.line_integrals(f, renderer=ts._scene_renderer)
+        fr = prepare_frame(frame_images(src, "grid", L, None))
+        P = ts.truth(f)
+        Pt = P[tb]
+        for b in bones:
+            nm, m = ts.names[b], ts.models[b]
+            oth = [k for k in range(len(ts.names)) if k != b]
+            roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=m.centroid, reach_mm=1.0,
+                                      margin_px=4), ts.renderer, views)
+            cost = LikelihoodCost(ts.renderer, fr, bone=b, base_pose=P[b], center=m.centroid, roi=roi,
+                                  others=(P[oth], oth), others_gain=False, highpass_px=hp, background=0)
+            D = cost._render(X)
+            Pb = cost.poses(X)
+            follows = b in tb
+
+            def solve(terms, key, nm=nm):
+                JJ = sum(J @ J.T for J, _ in terms)
+                Jr = sum(J @ r for J, r in terms)
+                B.setdefault(nm, {}).setdefault(key, []).append(1000 * np.linalg.solve(JJ, Jr))
+
+            solve([_view_terms(cost, D, None, v, roi[i], hp, h)[::2] for i, v in enumerate(views)], "none")
+            for k in kinds:
+                if follows:
+                    Pk = np.stack([np.stack([Pb[i] if tb[j] == b else Pt[j] for j in range(len(tb))])
+                                   for i in range(13)])
+                else:
+                    Pk = Pt[None]
+                Lt = rend[k].render(Pk, roi="full").numpy().astype(np.float64)  # (poses, views, parts, H, W)
+                terms = [_view_terms(cost, D, [regressor_images(Lt[j, v:v + 1], psf, False)[0, 0]
+                                               for j in range(len(Pk))], v, roi[i], hp, h)
+                         for i, v in enumerate(views)]
+                solve([(JD, r) for JD, _, r, _ in terms], k)
+                gains.setdefault(nm, {}).setdefault(k, []).append([round(float(c[2]), 4) for *_, c in terms])
+                if not follows:
+                    continue
+                solve([(JD + JT, r) for JD, JT, r, _ in terms], k + "_deriv")
+                JJ = sum(JD @ JD.T for JD, *_ in terms)
+                pulls.setdefault(nm, {}).setdefault(k, []).append(
+                    np.linalg.solve(JJ, sum(JD @ JT.T for JD, JT, *_ in terms)))
+                if est and all(ts.names[tb[j]] in est for j in range(len(tb))):
+                    Pe = np.stack([_moved(P[tb[j]], est[ts.names[tb[j]]][f], ts.models[tb[j]].centroid)
+                                   for j in range(len(tb))])
+                    Le = rend[k].render(Pe[None], roi="full").numpy().astype(np.float64)
+                    terms = [_view_terms(cost, D, [regressor_images(Le[0, v:v + 1], psf, False)[0, 0]], v,
+                                         roi[i], hp, h) for i, v in enumerate(views)]
+                    solve([(JD, r) for JD, _, r, _ in terms], k + "_est")
+        res = {}
+        for nm, d in B.items():
+            res[nm] = {}
+            for key, E in d.items():
+                E = np.asarray(E)
+                res[nm][key] = {"rms_um": round(float(np.sqrt(np.mean(np.sum(E[:, :3] ** 2, 1)))), 2),
+                                "rms_mdeg": round(float(np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, 1)))), 2),
+                                "mean": E.mean(0).round(2).tolist(), "per_frame": E.round(2).tolist()}
+                g = gains.get(nm, {}).get(key)
+                if g:
+                    res[nm][key]["tissue_gain_per_view"] = g
+            for k, M in pulls.get(nm, {}).items():
+                res[nm].setdefault("pull", {})[k] = {"mean": np.mean(M, axis=0).round(4).tolist(),
+                                                     "max_abs": round(float(np.max(np.abs(M))), 4)}
+        out["results"] = res
+        out["frames_done"] = frames[: fi + 1]
+        out["total_s"] = time.perf_counter() - t0
+        print(f"frame {f} done {out['total_s']:.0f}s: " + "; ".join(
+            f"{nm} " + " ".join(f"{k} {v['rms_um']:.1f}/{v['rms_mdeg']:.1f}"
+                                for k, v in d.items() if "rms_um" in v)
+            for nm, d in res.items()), flush=True)
+        if checkpoint:
+            checkpoint(out)
+    return out
+
+
+def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, voxel: float = 0.5,
+        workers: int = 0, cases=("three", "tibia"), correction: str = "grid", warm_frames: int = 3,
+        checkpoint=None) -> dict:
+    """The trial tracked with the stage's per-bone tissue settings (module docs); JSON-ready."""
+    import core.tracking.final_stage as fst
+    from core.render import DRRRenderer
+    from core.studies.tracking.ml_cost import _scene
+    from core.studies.tracking.tissue_stage import _record, table, tissue_model
+    from core.tracking.final_stage import BoneStage
+    from core.tracking.trial import TrackingOptions, track
+
+    n = int(frames)
+    t0 = time.perf_counter()
+    ts, out, bound = _scene(n, pixels, voxel, device, workers,
+                            {"study": "core.studies.tracking.tissue_tibia", "correction": correction,
+                             "glare_undone": True}, glare=True, correction=correction)
+    plain = fst.MODEL
+    coarse = tissue_model(ts, kind="coarse", base=plain)
+    fine = tissue_model(ts, kind="fine", base=plain)
+    tib = ts.names.index("tibia")
+    models = {"hp8": plain, "hp8_tissue": coarse,
+              "hp8_tissue_not_tibia": replace(coarse, bones={tib: BoneStage(tissue=False)}),
+              "hp8_tissue_not_tibia_tibia_hp4": replace(coarse, bones={tib: BoneStage(highpass_px=4.0,
+                                                                                      tissue=False)}),
+              "hp8_tissue_fine": fine}
+    out["models"] = {k: m.to_dict() for k, m in models.items()}
+    out["setup_s"] = time.perf_counter() - t0
+    for case in cases:
+        bones = [0, 1, 2] if case == "three" else [tib]
+        names = [ts.names[b] for b in bones]
+        ms = [ts.models[b] for b in bones]
+        r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in ms],
+                        device=ts.device)
+        kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(ms, bones, strict=True)}
+        base = TrackingOptions(mode="joint" if case == "three" else "sequential")
+        o = replace(base, registration=replace(base.registration, search="newton", final_highpass_px=8.0),
+                    refine_likelihood=True)
+        runs = [(k, m) for k, m in models.items()
+                if case == "three" or k in ("hp8", "hp8_tissue", "hp8_tissue_fine")]
+        if case == "tibia":
+            runs.append(("hp4", replace(plain)))
+        c: dict = {"mode": base.mode, "bones": names}
+        hp4 = replace(o, registration=replace(o.registration, final_highpass_px=4.0))
+        for label, m in runs:  # warm-up (compilation, buffers), not timed
+            oo = hp4 if label == "hp4" else o
+            with fst.final_model(m):
+                track(r, ms, ts.frames, range(min(n, warm_frames)), keyframes=kf, options=oo)
+        for label, m in runs:
+            oo = hp4 if label == "hp4" else o
+            ends: dict = {}
+
+            def progress(done, total, fr, ends=ends):
+                ends[fr.frame] = time.perf_counter()
+
+            with fst.final_model(m):
+                t1 = time.perf_counter()
+                res = track(r, ms, ts.frames, range(n), keyframes=kf, options=oo, progress=progress)
+                dt = time.perf_counter() - t1
+            c[label] = _record(ts, res, names, n, dt, ends, bound)
+            out[case] = c
+            out["total_s"] = time.perf_counter() - t0
+            print(f"{case} {label}: {dt:.1f} s " + " ".join(
+                f"{nm} {c[label][nm].get('over_bound', {}).get('mm', np.nan):.2f}/"
+                f"{c[label][nm].get('over_bound', {}).get('deg', np.nan):.2f}" for nm in names), flush=True)
+            if checkpoint:
+                checkpoint(out)
+    out["table"] = [ln.replace("sequential", "tibia") for ln in table({"three": out.get("three"),
+                                                                      "sequential": out.get("tibia")})]
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.tissue_tibia",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--bias", action="store_true", help="the CPU bias study (bias())")
+    p.add_argument("--device", default=None)
+    p.add_argument("--frames", default=None,
+                   help="--bias: frame indices (default 0,10,…,90); else a count (100)")
+    p.add_argument("--pixels", type=int, default=None, help="default 256 (--bias) or 1024")
+    p.add_argument("--voxel", type=float, default=None, help="default 1.0 (--bias) or 0.5")
+    p.add_argument("--bones", default="0,1,2", help="--bias: bone indices")
+    p.add_argument("--kinds", default="exact,fine,coarse", help="--bias: tissue volumes")
+    p.add_argument("--highpass", type=float, default=8.0, help="--bias: σ px at 1024² (scaled)")
+    p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--cases", default="three,tibia")
+    p.add_argument("--machine-name", default=None, help="the machine's name for the JSON (e.g. the GPU)")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    from core.io.atomic import atomic_write, print_json
+
+    def checkpoint(res):
+        if a.machine_name:
+            res["machine_name"] = a.machine_name
+        if a.out:
+            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+
+    if a.bias:
+        fr = a.frames or ",".join(map(str, range(0, 100, 10)))
+        res = bias(pixels=a.pixels or 256, voxel=a.voxel or 1.0, frames=[int(x) for x in fr.split(",") if x],
+                   bones=[int(x) for x in a.bones.split(",") if x],
+                   kinds=[x for x in a.kinds.split(",") if x],
+                   highpass=a.highpass, device=a.device or "cpu", checkpoint=checkpoint)
+    else:
+        res = run(device=a.device, frames=int(a.frames or 100), pixels=a.pixels or 1024, voxel=a.voxel or 0.5,
+                  workers=a.workers, cases=[x for x in a.cases.split(",") if x], checkpoint=checkpoint)
+    checkpoint(res)
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -36,10 +36,12 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["KINDS", "frame_images", "main", "run"]
+__all__ = ["KINDS", "PREPS", "field_bound", "frame_images", "main", "prepared", "run"]
 
 #: How the frames are made (module docs).
 KINDS = ("replicate", "black", "undistorted")
+#: How the frames are prepared for the tracker (:func:`prepared`).
+PREPS = ("trial", "fill", "erode")
 
 
 def frame_images(ts, f: int, kind: str, *, noise: bool = True, L=None) -> list[np.ndarray]:
@@ -66,6 +68,69 @@ def frame_images(ts, f: int, kind: str, *, noise: bool = True, L=None) -> list[n
             assert isinstance(d, Distortion)
             x = d.unwarp(x, border=cv2.BORDER_REPLICATE if kind == "replicate" else cv2.BORDER_CONSTANT)
         out.append(x)
+    return out
+
+
+def prepared(images, prep: str, highpass_px: float):
+    """:func:`core.tracking.cost.prepare_frame` of ``images`` as ``prep`` (:data:`PREPS`): ``trial``
+    as the tracker does it (black and saturated pixels and 3 px around them unusable); ``fill``
+    the same usable pixels, but the unusable ones given the nearest usable pixel's value first
+    (no step at the field's rim for the stage's high-pass to spread); ``erode`` the unusable
+    pixels grown by 3 σ of the stage's high-pass (``highpass_px``) instead of 3 px."""
+    from scipy import ndimage
+
+    from core.tracking.cost import prepare_frame
+
+    if prep not in PREPS:
+        raise ValueError(f"prep: expected one of {PREPS}, got {prep!r}")
+    if prep == "trial":
+        return prepare_frame(images)
+    if prep == "erode":
+        return prepare_frame(images, erode_px=int(np.ceil(3 * highpass_px)))
+    out, masks = [], []
+    for img in images:
+        x = np.asarray(img, np.float32)
+        ok = (x > 0.02) & (x < 0.999)
+        masks.append(ndimage.binary_erosion(ok, iterations=3, border_value=1))
+        idx = ndimage.distance_transform_edt(~masks[-1], return_distances=False, return_indices=True)
+        out.append(x[idx[0], idx[1]])
+    return prepare_frame(out, masks=masks, valid_range=None)
+
+
+def field_bound(ts, frames, images) -> dict:
+    """Per bone the Cramér–Rao bound (mean covariance over ``frames``, as
+    :func:`core.studies.tracking.acceptance.cramer_rao`) over all pixels of the bone's region
+    (``all``: what the trial's bound counts) and over the usable pixels of the frame only
+    (``field``: ``images(f)`` prepared as the tracker does; the pixels outside the intensifier's
+    round field hold no quanta), and their ratio."""
+    from core.tracking.bound import _derivatives
+
+    N = [m.photons_per_pixel for m in ts.scene.imaging]
+    acc: dict = {}
+    for f in frames:
+        L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+        frame = prepared(images(f, L), "trial", 0.0)
+        for b, nm in enumerate(ts.names):
+            _, Nv, D = _derivatives(ts.renderer, b, ts.truth(f)[b], ts.models[b].centroid, line_integral=L,
+                                    quanta_per_pixel=N, views=None, step=(0.1, 0.1), margin_px=6)
+            J = {"all": np.zeros((6, 6)), "field": np.zeros((6, 6))}
+            for v, (u0, v0, w, h), Dv, Lv in D:
+                q = Nv[v] * np.exp(-Lv)
+                _, m = frame.region(v, slice(v0, v0 + h), slice(u0, u0 + w))
+                G = Dv.reshape(6, -1)
+                J["all"] += (G * q.ravel()) @ G.T
+                J["field"] += (G * (q * (np.ones_like(q, bool) if m is None else m)).ravel()) @ G.T
+            for k, Jk in J.items():
+                acc.setdefault(nm, {}).setdefault(k, []).append(np.linalg.inv(Jk))
+    out = {}
+    for nm, d in acc.items():
+        row = {}
+        for k, cs in d.items():
+            C = np.mean(cs, axis=0)
+            row[k] = {"rms_mm": float(np.sqrt(np.trace(C[:3, :3]))),
+                      "rms_deg": float(np.sqrt(np.trace(C[3:, 3:])))}
+        row["field_over_all"] = [round(row["field"][u] / row["all"][u], 4) for u in ("rms_mm", "rms_deg")]
+        out[nm] = row
     return out
 
 
@@ -96,12 +161,11 @@ def _stage(ts, frame, f: int, b: int, highpass_px: float) -> tuple[np.ndarray, n
 
 
 def run(*, pixels: int = 512, voxel: float = 1.0, frames=(0, 20, 40, 60, 80), bones=("tibia",),
-        highpass=(2.0, 4.0), kinds=KINDS, noise: bool = True, device: str | None = "cpu",
-        checkpoint=None) -> dict:
+        highpass=(2.0, 4.0), kinds=("replicate",), preps=PREPS, noise: bool = True,
+        device: str | None = "cpu", checkpoint=None) -> dict:
     """The study (module docs); ``highpass``: the stage's σ in px at ``pixels`` (2 and 4 px at 512²
     are the trial's 4 and 8 px at 1024²)."""
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
-    from core.tracking.cost import prepare_frame
 
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, device=device, correction="exact")
@@ -110,16 +174,22 @@ def run(*, pixels: int = 512, voxel: float = 1.0, frames=(0, 20, 40, 60, 80), bo
     out = {"study": "core.studies.tracking.border_frames", "machine": platform.machine(), "pixels": pixels,
            "voxel_mm": voxel, "frames": frames, "noise": noise, "highpass_px": list(highpass),
            "cramer_rao": {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for k, v in bound.items()},
+           "field_bound": field_bound(ts, frames,
+                                      lambda f, L: frame_images(ts, f, "replicate", noise=False, L=L)),
            "setup_s": time.perf_counter() - t0}
+    if checkpoint:
+        checkpoint(out)
     rec: dict = {}
     for f in frames:
         L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
         for kind in kinds:
-            frame = prepare_frame(frame_images(ts, f, kind, noise=noise, L=L))
+            imgs = frame_images(ts, f, kind, noise=noise, L=L)
             for hp in highpass:
-                for nm in bones:
-                    e, s = _stage(ts, frame, f, ts.names.index(nm), hp)
-                    rec.setdefault((kind, hp, nm), []).append((e, s))
+                for prep in preps:
+                    frame = prepared(imgs, prep, hp)
+                    for nm in bones:
+                        e, sg = _stage(ts, frame, f, ts.names.index(nm), hp)
+                        rec.setdefault((f"{kind}/{prep}", hp, nm), []).append((e, sg))
         out["seconds"] = time.perf_counter() - t0
         out["results"] = _summaries(rec, bound)
         out["frames_done"] = f
@@ -152,7 +222,8 @@ def main(argv=None) -> int:
     p.add_argument("--frames", default="0,20,40,60,80")
     p.add_argument("--bones", default="tibia")
     p.add_argument("--highpass", default="2,4", help="the stage's high-pass σ (px at --pixels)")
-    p.add_argument("--kinds", default=",".join(KINDS))
+    p.add_argument("--kinds", default="replicate", help=f"frames made as: {', '.join(KINDS)}")
+    p.add_argument("--preps", default=",".join(PREPS), help=f"frames prepared as: {', '.join(PREPS)}")
     p.add_argument("--noise-free", action="store_true")
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", default=None)
@@ -168,11 +239,12 @@ def main(argv=None) -> int:
             atomic_write(a.out, json.dumps(res, indent=2) + "\n")
 
     kinds = tuple(k for k in a.kinds.split(",") if k)
-    if any(k not in KINDS for k in kinds):
-        p.error(f"--kinds: expected some of {', '.join(KINDS)}")
+    preps = tuple(k for k in a.preps.split(",") if k)
+    if any(k not in KINDS for k in kinds) or any(k not in PREPS for k in preps):
+        p.error(f"--kinds, --preps: expected some of {', '.join(KINDS)} and of {', '.join(PREPS)}")
     res = run(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in a.frames.split(",") if x],
               bones=tuple(a.bones.split(",")), highpass=[float(x) for x in a.highpass.split(",") if x],
-              kinds=kinds, noise=not a.noise_free, device=a.device, checkpoint=checkpoint)
+              kinds=kinds, preps=preps, noise=not a.noise_free, device=a.device, checkpoint=checkpoint)
     print_json(res, a.out)
     return 0
 

@@ -41,3 +41,19 @@ def test_frame_kinds_differ_only_where_the_correction_leaves_the_detector():
         assert np.array_equal(und[v], plain.to_float(plain.apply(L[v])))
     with pytest.raises(ValueError, match="kind"):
         border_frames.frame_images(ts, 1, "reflect", L=L)
+
+
+def test_fill_keeps_the_usable_pixels_and_removes_the_rim_step():
+    yy, xx = np.mgrid[0:64, 0:64]
+    img = np.where(np.hypot(xx - 32, yy - 32) < 28, 0.3 + 0.001 * xx, 0.0).astype(np.float32)
+    trial = border_frames.prepared([img], "trial", 2.0)
+    fill = border_frames.prepared([img], "fill", 2.0)
+    wide = border_frames.prepared([img], "erode", 2.0)
+    li_t, m_t = trial.region(0, slice(0, 64), slice(0, 64))
+    li_f, m_f = fill.region(0, slice(0, 64), slice(0, 64))
+    _, m_w = wide.region(0, slice(0, 64), slice(0, 64))
+    assert np.array_equal(m_t, m_f) and m_t.sum() > m_w.sum() > 0 and not np.any(m_w & ~m_t)
+    assert np.allclose(li_f[m_t], li_t[m_t])
+    assert li_t.max() > 8.0 and li_f.max() < 1.3  # no -log(floor) step outside the field
+    with pytest.raises(ValueError, match="prep"):
+        border_frames.prepared([img], "inpaint", 2.0)

@@ -390,7 +390,8 @@ def silent_failures(E, flagged, bound: dict, factor: float = 4.0) -> dict:
 def run_final(*, device: str | None = None, frames: int | None = None, cases=("one", "three"),
               pixels: int = 1024, voxel: float = 0.5, highpass_px: float = 4.0, workers: int = 0,
               checkpoint=None, variants=((None, None, None, False),), glare: bool = False,
-              every_round: bool = False, keep_moves: bool = False, correction="model") -> dict:
+              every_round: bool = False, keep_moves: bool = False, correction="model",
+              erode_px: int | None = None) -> dict:
     """The trial tracked twice per case (``one``: the talus alone, ``three``: three bones jointly,
     or a bone's name: that bone alone) in the same process: as today (``search="newton"``) and
     with the final stage ``TrackingOptions.refine_likelihood`` (:mod:`core.tracking.final_stage`,
@@ -409,7 +410,8 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
     ``correction``: the frames' distortion correction
     (:class:`~core.studies.tracking.acceptance.TrackingScene`), or several in turn on the same raw
     frames and bound (each in ``by_correction[<correction>]``:
-    its residual distortion and the cases; ``"exact"``: the true model, an oracle)."""
+    its residual distortion and the cases; ``"exact"``: the true model, an oracle). ``erode_px``:
+    the unusable pixels' band (``TrackingOptions.erode_px``, default 3) of every run."""
     from core.tracking.trial import TrackingOptions
 
     n = frames or 100
@@ -420,6 +422,9 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
                      correction=corrs[0], keep_raw=len(corrs) > 1)
     out["glare"] = [g.to_dict() for g in ts.glare] or None
     base = TrackingOptions(mode="joint")
+    if erode_px is not None:
+        out["erode_px"] = int(erode_px)
+        base = replace(base, erode_px=int(erode_px))
     plain = replace(base, registration=replace(base.registration, search="newton"))
     final = replace(plain, registration=replace(plain.registration, final_highpass_px=highpass_px),
                     refine_likelihood=True)
@@ -568,6 +573,8 @@ def main(argv=None) -> int:
     p.add_argument("--correction", type=_corrections, default="model",
                    help="--final: the frames' distortion correction (TrackingScene correction: model, grid, "
                    "exact), or several in turn on the same frames, e.g. 'grid,exact'")
+    p.add_argument("--erode-px", type=int, default=None,
+                   help="--final: unusable band around black pixels (TrackingOptions.erode_px, 3)")
     p.add_argument("--every-round", action="store_true",
                    help="--final: three bones also with the stage after every joint round (as before)")
     p.add_argument("--keep-moves", action="store_true",
@@ -590,7 +597,8 @@ def main(argv=None) -> int:
                         workers=a.workers, checkpoint=checkpoint,
                         variants=[_variant(v) for v in a.final_variants.split(",") if v], glare=a.glare,
                         every_round=a.every_round, keep_moves=a.keep_moves,
-                        correction=a.correction[0] if len(a.correction) == 1 else a.correction)
+                        correction=a.correction[0] if len(a.correction) == 1 else a.correction,
+                        erode_px=a.erode_px)
         print_json(res, a.out)
         return 0
     res = run(quick=a.quick, workers=a.workers, checkpoint=checkpoint, pixels=a.pixels, voxel=a.voxel,

@@ -26,5 +26,8 @@ def test_main_passes_one_correction_as_a_name_and_several_as_a_tuple(monkeypatch
     assert seen["correction"] == "exact"
     ml_cost.main(["--final", "--correction", "grid,exact", "--cases", "tibia,three"])
     assert seen["correction"] == ("grid", "exact") and seen["cases"] == ["tibia", "three"]
+    assert seen["erode_px"] is None
+    ml_cost.main(["--final", "--erode-px", "12"])
+    assert seen["erode_px"] == 12
     with pytest.raises(SystemExit):
         ml_cost.main(["--final", "--correction", "truth"])

@@ -59,6 +59,9 @@ covers 85-86 % of the talus's axes within 2σ (the independent-pixel σ 36-42 % 
 stage's move added (``final_confidence="sandwich+move"``) 94 %, and 100 % of the tibia's and
 calcaneus's.
 
+Speed: :mod:`core.tracking.likelihood_fast` (where the stage's time goes on one NVIDIA H100 and what
+:data:`DIFF_IMAGES`, :data:`BLOCK_BLUR` change).
+
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
 its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
 one by one (no CUDA graph; each from a recorded launch while its arguments stay the same,
@@ -83,6 +86,7 @@ from .cost import CostTimer, FrameImages
 from .engine import GaussNewtonCost
 from .engine_search import step_design
 from .likelihood_confidence import _Confidence
+from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel
 from .likelihood_frames import _FrameRegions
 from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names as before)
     NA,
@@ -94,9 +98,6 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     _robust_weight_kernel,
     _times_kernel,
     autocov_kernel,
-    blur_block_dim,
-    blur_block_kernel,
-    design_diff_kernel,
     fluence_psf_kernel,
     highpass_kernel,
     mat12f,
@@ -129,12 +130,12 @@ __all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "LikelihoodEngine", "S
 #: moved the stage's poses by up to 0.015 mm on 192² CPU tests (module docs: Set-up).
 DEVICE_REGIONS = False
 #: A step's 13 images taken as the design's centre and its six central differences before the
-#: high-pass's low-pass (:func:`~core.tracking.likelihood_kernels.design_diff_kernel`: 7 images a
+#: high-pass's low-pass (:func:`~core.tracking.likelihood_fast.design_diff_kernel`: 7 images a
 #: view blurred instead of 13; the high-pass is linear, the moments the same up to float32
-#: rounding). Off: every pose's image low-passed, as first measured.
-DIFF_IMAGES = False
+#: rounding; module docs: Speed). Off: every pose's image low-passed, as first measured.
+DIFF_IMAGES = True
 #: The separable blurs of the high-pass and the weights with several outputs a thread
-#: (:func:`~core.tracking.likelihood_kernels.blur_block_kernel`; the same values). Off: one
+#: (:func:`~core.tracking.likelihood_fast.blur_block_kernel`; the same values). Off: one
 #: output a thread (:func:`core.similarity._kernels.blur_kernel`), as first measured.
 BLOCK_BLUR = False
 

@@ -10,6 +10,7 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
+from .likelihood_fast import _centre, _delta, _hp, _median_keys_only_kernel, _median_sorted_kernel  # noqa: F401
 
 __all__ = ["regressor_kernels", "robust_factors_device"]
 
@@ -21,118 +22,6 @@ vec5f = wp.types.vector(length=NA, dtype=wp.float32)
 vec6f = wp.types.vector(length=6, dtype=wp.float32)
 mat66f = wp.types.matrix(shape=(6, 6), dtype=wp.float32)
 vec2d = wp.types.vector(length=2, dtype=wp.float64)
-
-
-@wp.func
-def _hp(img: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, k: int, r: int,
-        c: int) -> float:
-    """The high-passed value of item k at (r, c): img - hp · low (hp 0: the image as it is)."""
-    return K._val(img, k, r, c) - hp * low[k, r, c]
-
-
-@wp.func
-def _centre(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, v: int, r: int,
-            c: int) -> float:
-    """The high-passed DRR of view v at the design's centre (item v in either layout)."""
-    return _hp(drr, low, hp, v, r, c)
-
-
-@wp.func
-def _delta(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, j: int,
-           n_refs: int, v: int, r: int, c: int, diff: int) -> float:
-    """The high-passed central difference δ_j of view v: of items 2j+1 and 2j+2 (the 13 poses'
-    images, ``diff`` 0), or item j+1 itself (``diff`` 1: :func:`design_diff_kernel`'s layout)."""
-    out = float(0.0)  # noqa: UP018
-    if diff != 0:
-        out = _hp(drr, low, hp, (j + 1) * n_refs + v, r, c)
-    else:
-        out = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
-               - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
-    return out
-
-
-BLUR_BLOCK = wp.constant(8)  # outputs a thread of blur_block_kernel computes along the blurred axis
-vec8f = wp.types.vector(length=8, dtype=wp.float32)
-
-
-@wp.kernel
-def blur_block_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
-                      weights: wp.array(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
-                      axis: int):
-    """:func:`core.similarity._kernels.blur_kernel` (one pass of the separable blur within each
-    item's (h, w) region, borders replicated, NaN read as 0, 0 outside) with :data:`BLUR_BLOCK`
-    outputs a thread along ``axis``: each input read once for all of them instead of once a tap
-    and output. Every output sums the same products in the same order (tap 0 first), so the
-    values are those of ``blur_kernel``. dim = (items, ⌈H / BLUR_BLOCK⌉, W) for ``axis`` 0 (rows),
-    (items, H, ⌈W / BLUR_BLOCK⌉) for ``axis`` 1 (columns)."""
-    k, a, b = wp.tid()
-    ref = k % n_refs
-    h = ref_hw[ref][0]
-    w = ref_hw[ref][1]
-    r0 = a
-    c0 = b
-    n = w
-    if axis == 0:
-        r0 = a * BLUR_BLOCK
-        n = h
-    else:
-        c0 = b * BLUR_BLOCK
-    acc = vec8f()
-    taps = weights.shape[0]
-    rad = (taps - 1) // 2
-    if r0 < h and c0 < w:
-        p0 = c0
-        if axis == 0:
-            p0 = r0
-        for t in range(taps + BLUR_BLOCK - 1):
-            p = wp.clamp(p0 + t - rad, 0, n - 1)
-            x = float(0.0)  # noqa: UP018
-            if axis == 0:
-                x = K._val(src, k, p, c0)
-            else:
-                x = K._val(src, k, r0, p)
-            for m in range(BLUR_BLOCK):
-                j = t - m
-                if j >= 0 and j < taps:
-                    acc[m] = acc[m] + weights[j] * x
-    for m in range(BLUR_BLOCK):
-        r = r0
-        c = c0
-        if axis == 0:
-            r = r0 + m
-        else:
-            c = c0 + m
-        if r < dst.shape[1] and c < dst.shape[2]:
-            v = float(0.0)  # noqa: UP018
-            if r < h and c < w:
-                v = acc[m]
-            dst[k, r, c] = v
-
-
-def blur_block_dim(shape: tuple, axis: int) -> tuple:
-    """The launch dimensions of :func:`blur_block_kernel` over arrays of ``shape`` (items, H, W)."""
-    n, H, W = (int(x) for x in shape)
-    B = int(BLUR_BLOCK)
-    return (n, -(-H // B), W) if axis == 0 else (n, H, -(-W // B))
-
-
-@wp.kernel
-def design_diff_kernel(img: wp.array3d(dtype=wp.float32), n_refs: int, ref_hw: wp.array(dtype=wp.vec2i),
-                       out: wp.array3d(dtype=wp.float32)):
-    """The 13-pose design's images ``img`` (item ``b · n_refs + v``) as the centre and the six
-    central differences (NaN read as 0): item v the centre's, item ``(j + 1) · n_refs + v`` the
-    difference of poses 2j+1 and 2j+2; 0 outside view v's (h, w) region. The high-pass is linear,
-    so the moments need only these seven images a view low-passed. dim = (7 · n_refs, H, W)."""
-    k, r, c = wp.tid()
-    v = k % n_refs
-    j = k // n_refs
-    x = float(0.0)  # noqa: UP018
-    if r < ref_hw[v][0] and c < ref_hw[v][1]:
-        if j == 0:
-            x = K._val(img, v, r, c)
-        else:
-            x = K._val(img, (2 * j - 1) * n_refs + v, r, c) - K._val(img, 2 * j * n_refs + v, r, c)
-    out[k, r, c] = x
 
 
 @wp.kernel
@@ -292,41 +181,6 @@ def _median_keys_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtyp
 
 
 @wp.kernel
-def _median_keys_only_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtype=wp.float32)):
-    """:func:`_median_keys_kernel` without the count (:func:`_median_sorted_kernel` finds it in the
-    sorted keys: no atomic a pixel). dim = items, H, W."""
-    v, r, c = wp.tid()
-    x = local[v, r, c]
-    i = (v * local.shape[1] + r) * local.shape[2] + c
-    if x >= 0.0:
-        keys[i] = x
-    else:
-        keys[i] = wp.inf
-
-
-@wp.kernel
-def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, scale: wp.array(dtype=wp.float32)):
-    """:func:`_median_kernel` with view v's count of used values found in its sorted segment (the
-    keys before the first +inf, by bisection). dim = items."""
-    v = wp.tid()
-    lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
-    hi = int(n)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if keys[v * n + mid] < wp.inf:
-            lo = mid + 1
-        else:
-            hi = mid
-    m = lo
-    s = float(0.0)  # noqa: UP018
-    if m > 0:
-        x = (keys[v * n + (m - 1) // 2] + keys[v * n + m // 2]) * 0.5
-        if wp.isfinite(x) and x > 0.0:
-            s = x
-    scale[v] = s
-
-
-@wp.kernel
 def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.int32), n: int,
                    scale: wp.array(dtype=wp.float32)):
     """scale[v] = the median of view v's used values (its segment of ``n`` sorted keys, the
@@ -418,8 +272,8 @@ def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=
                        chunk: int, acc: wp.array2d(dtype=wp.float64), diff: int):
     """acc[v] += Σ w z zᵀ (row-major 12 × 12), z = (y, D_0, D_1 - D_2, …, D_11 - D_12, 1, u, v, O)
     of view v (item j of view v is j · n_refs + v; D high-passed; O the neighbours' high-passed
-    DRRs, 0 without; ``diff`` 1: the images in :func:`design_diff_kernel`'s layout). dim = (views,
-    chunks)."""
+    DRRs, 0 without; ``diff`` 1: the images in :func:`~core.tracking.likelihood_fast.
+    design_diff_kernel`'s layout). dim = (views, chunks)."""
     v, ch, lane = wp.tid()
     bd = wp.block_dim()
     h = ref_hw[v][0]

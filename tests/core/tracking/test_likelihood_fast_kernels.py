@@ -13,7 +13,7 @@ import warp as wp
 def test_blocked_blur_is_the_plain_blur_to_the_bit(sigma):
     from core.similarity import _kernels as K
     from core.similarity.batched import gaussian_weights
-    from core.tracking.likelihood_kernels import blur_block_dim, blur_block_kernel
+    from core.tracking.likelihood_fast import blur_block_dim, blur_block_kernel
 
     g = np.random.default_rng(1)
     x = g.normal(size=(6, 37, 45)).astype(np.float32)

@@ -1,0 +1,188 @@
+"""Kernels that make the likelihood final stage's steps cheaper (:mod:`core.tracking.engine_likelihood`,
+its flags ``DIFF_IMAGES`` and ``BLOCK_BLUR``; :data:`core.tracking.likelihood_kernels.MEDIAN_BISECT`).
+
+Where the stage's time went (:mod:`core.studies.tracking.stage_speed`, one NVIDIA H100, the
+acceptance trial at 1024², 30 frames, three bones jointly, the default model with its robust round;
+``resources/benchmarks/tracking_stage_speed_h100.json``): 15.8 ms per bone-frame at a 4 px
+high-pass, 23.5 ms at 8 px (8.6-8.7 steps). The device's share (Warp's CUDA activity timing over 12
+frames, per bone-frame, 4 / 8 px): 10.8 / 17.3 ms — the high-pass's blurs 3.86 / 6.81 ms (their taps
+grow with σ, 33 / 65), the DRRs 3.32 / 3.41 (13 poses a step), the moments 1.32 / 1.37, the
+sandwich's meat 0.73 / 2.70 and autocovariance 0.52 / 1.88 (its lag window is 2σ: the lags grow with
+σ²), the robust median's keys 0.35 (an atomic a pixel), copies and memsets ~0.45. The rest of the wall
+time the device waits for the host: the set-up (the regions cut on the host; 3.3 ms with a
+synchronisation around it), the solves (0.16 ms a step), the launches.
+
+* :func:`design_diff_kernel`: the high-pass is linear, so the moments need the low-pass of the
+  design's centre and of its six central differences only — 7 images a view blurred instead of 13
+  (``DIFF_IMAGES``, the default). Same call: 13.9 ms at 4 px and 18.6 ms at 8 px per bone-frame
+  (device 8.9 / 14.4 ms; blurs 2.13 / 3.88 ms). The moments differ by float32 rounding; through the
+  tracking that moved poses by up to 0.018 mm / 0.037° on those 30 frames, and the errors over the
+  Cramér–Rao bound by at most 0.03 either way (tibia, talus, calcaneus mm/°, 4 px: 1.68/1.46,
+  1.46/1.39, 1.38/1.30 before, 1.70/1.46, 1.45/1.38, 1.37/1.29 after; 8 px: 1.71/1.49, 1.35/1.45,
+  1.31/1.19 before, 1.71/1.52, 1.35/1.44, 1.31/1.18 after; the same tibia frame over 4× its bound,
+  unflagged, in both; 2σ coverage within 0.03).
+* :func:`blur_block_kernel`: the separable blur with 8 outputs a thread along the blurred axis, each
+  input read once for all of them (``BLOCK_BLUR``); every output the same sum in the same order.
+* :func:`_median_keys_only_kernel` and :func:`_median_sorted_kernel`: the robust factors' median
+  with each view's count of used pixels found in its sorted keys by bisection instead of an atomic
+  a pixel (``MEDIAN_BISECT``).
+
+The last two keep every value (on this 2-core CPU machine's Warp device, to the bit: the stage's
+poses and covariances on a 128² trial) and are off until measured on a GPU (the study's variants
+``exact`` and ``fast``).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..similarity import _kernels as K
+
+__all__ = ["blur_block_dim", "blur_block_kernel", "design_diff_kernel"]
+
+
+@wp.func
+def _hp(img: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, k: int, r: int,
+        c: int) -> float:
+    """The high-passed value of item k at (r, c): img - hp · low (hp 0: the image as it is)."""
+    return K._val(img, k, r, c) - hp * low[k, r, c]
+
+
+@wp.func
+def _centre(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, v: int, r: int,
+            c: int) -> float:
+    """The high-passed DRR of view v at the design's centre (item v in either layout)."""
+    return _hp(drr, low, hp, v, r, c)
+
+
+@wp.func
+def _delta(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float, j: int,
+           n_refs: int, v: int, r: int, c: int, diff: int) -> float:
+    """The high-passed central difference δ_j of view v: of items 2j+1 and 2j+2 (the 13 poses'
+    images, ``diff`` 0), or item j+1 itself (``diff`` 1: :func:`design_diff_kernel`'s layout)."""
+    out = float(0.0)  # noqa: UP018
+    if diff != 0:
+        out = _hp(drr, low, hp, (j + 1) * n_refs + v, r, c)
+    else:
+        out = (_hp(drr, low, hp, (2 * j + 1) * n_refs + v, r, c)
+               - _hp(drr, low, hp, (2 * j + 2) * n_refs + v, r, c))
+    return out
+
+
+BLUR_BLOCK = wp.constant(8)  # outputs a thread of blur_block_kernel computes along the blurred axis
+vec8f = wp.types.vector(length=8, dtype=wp.float32)
+
+
+@wp.kernel
+def blur_block_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
+                      weights: wp.array(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+                      axis: int):
+    """:func:`core.similarity._kernels.blur_kernel` (one pass of the separable blur within each
+    item's (h, w) region, borders replicated, NaN read as 0, 0 outside) with :data:`BLUR_BLOCK`
+    outputs a thread along ``axis``: each input read once for all of them instead of once a tap
+    and output. Every output sums the same products in the same order (tap 0 first), so the
+    values are those of ``blur_kernel``. dim = (items, ⌈H / BLUR_BLOCK⌉, W) for ``axis`` 0 (rows),
+    (items, H, ⌈W / BLUR_BLOCK⌉) for ``axis`` 1 (columns)."""
+    k, a, b = wp.tid()
+    ref = k % n_refs
+    h = ref_hw[ref][0]
+    w = ref_hw[ref][1]
+    r0 = a
+    c0 = b
+    n = w
+    if axis == 0:
+        r0 = a * BLUR_BLOCK
+        n = h
+    else:
+        c0 = b * BLUR_BLOCK
+    acc = vec8f()
+    taps = weights.shape[0]
+    rad = (taps - 1) // 2
+    if r0 < h and c0 < w:
+        p0 = c0
+        if axis == 0:
+            p0 = r0
+        for t in range(taps + BLUR_BLOCK - 1):
+            p = wp.clamp(p0 + t - rad, 0, n - 1)
+            x = float(0.0)  # noqa: UP018
+            if axis == 0:
+                x = K._val(src, k, p, c0)
+            else:
+                x = K._val(src, k, r0, p)
+            for m in range(BLUR_BLOCK):
+                j = t - m
+                if j >= 0 and j < taps:
+                    acc[m] = acc[m] + weights[j] * x
+    for m in range(BLUR_BLOCK):
+        r = r0
+        c = c0
+        if axis == 0:
+            r = r0 + m
+        else:
+            c = c0 + m
+        if r < dst.shape[1] and c < dst.shape[2]:
+            v = float(0.0)  # noqa: UP018
+            if r < h and c < w:
+                v = acc[m]
+            dst[k, r, c] = v
+
+
+def blur_block_dim(shape: tuple, axis: int) -> tuple:
+    """The launch dimensions of :func:`blur_block_kernel` over arrays of ``shape`` (items, H, W)."""
+    n, H, W = (int(x) for x in shape)
+    B = int(BLUR_BLOCK)
+    return (n, -(-H // B), W) if axis == 0 else (n, H, -(-W // B))
+
+
+@wp.kernel
+def design_diff_kernel(img: wp.array3d(dtype=wp.float32), n_refs: int, ref_hw: wp.array(dtype=wp.vec2i),
+                       out: wp.array3d(dtype=wp.float32)):
+    """The 13-pose design's images ``img`` (item ``b · n_refs + v``) as the centre and the six
+    central differences (NaN read as 0): item v the centre's, item ``(j + 1) · n_refs + v`` the
+    difference of poses 2j+1 and 2j+2; 0 outside view v's (h, w) region. The high-pass is linear,
+    so the moments need only these seven images a view low-passed. dim = (7 · n_refs, H, W)."""
+    k, r, c = wp.tid()
+    v = k % n_refs
+    j = k // n_refs
+    x = float(0.0)  # noqa: UP018
+    if r < ref_hw[v][0] and c < ref_hw[v][1]:
+        if j == 0:
+            x = K._val(img, v, r, c)
+        else:
+            x = K._val(img, (2 * j - 1) * n_refs + v, r, c) - K._val(img, 2 * j * n_refs + v, r, c)
+    out[k, r, c] = x
+
+
+@wp.kernel
+def _median_keys_only_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtype=wp.float32)):
+    """:func:`_median_keys_kernel` without the count (:func:`_median_sorted_kernel` finds it in the
+    sorted keys: no atomic a pixel). dim = items, H, W."""
+    v, r, c = wp.tid()
+    x = local[v, r, c]
+    i = (v * local.shape[1] + r) * local.shape[2] + c
+    if x >= 0.0:
+        keys[i] = x
+    else:
+        keys[i] = wp.inf
+
+
+@wp.kernel
+def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, scale: wp.array(dtype=wp.float32)):
+    """:func:`_median_kernel` with view v's count of used values found in its sorted segment (the
+    keys before the first +inf, by bisection). dim = items."""
+    v = wp.tid()
+    lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
+    hi = int(n)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if keys[v * n + mid] < wp.inf:
+            lo = mid + 1
+        else:
+            hi = mid
+    m = lo
+    s = float(0.0)  # noqa: UP018
+    if m > 0:
+        x = (keys[v * n + (m - 1) // 2] + keys[v * n + m // 2]) * 0.5
+        if wp.isfinite(x) and x > 0.0:
+            s = x
+    scale[v] = s

@@ -16,6 +16,7 @@ import numpy as np
 from ..geometry.transforms import pose_from_params
 from .bones import BoneModel
 from .checks import _predict, pose_delta
+from .flags_post import FLAG as TRAJECTORY_FLAG
 from .options import TrackingOptions
 from .results import FrameResult
 
@@ -119,7 +120,7 @@ class _BoneState:
             # registrations (joint rounds, retries), a taken count above 1, and are left out
             if t.get("likelihood_taken") == 1 and t.get("likelihood_move_mm") is not None:
                 self.moves.append(float(t["likelihood_move_mm"]))
-        elif all(x.startswith("uncertain") for x in fr.flags):
+        elif all(x.startswith(("uncertain", TRAJECTORY_FLAG)) for x in fr.flags):
             self.add_good(frame, fr.pose, fr.score)
         else:
             self.add_flagged(fr.score)

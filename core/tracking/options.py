@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .checks import COLLAPSE_RATIO, MOTION_FLOOR, MOTION_LIMIT, SIGMA_LIMIT
+from .flags_post import LIMIT as TRAJECTORY_LIMIT
 from .register import RegistrationOptions
 
 __all__ = ["CHECK_FIELDS", "DEFAULT_SEARCH", "STAGE_MOVE_FIELDS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
@@ -87,7 +88,11 @@ class TrackingOptions:
     (translation) more than ``stage_move_limit`` (≥ 1) × the median move of the bone's last good
     frames and more than ``stage_move_sigmas`` (≥ 0) × its own translation σ is flagged
     ``"uncertain"``, once the bone has ``stage_move_frames`` (an integer ≥ 1) good frames with a
-    move; with ``stage_move_reject`` (the default) such a frame keeps the similarity's pose."""
+    move; with ``stage_move_reject`` (the default) such a frame keeps the similarity's pose.
+
+    ``trajectory_limit`` (≥ 1, or None: off): once a run is complete, frames whose pose stands off
+    the local fit through their neighbours by more than this many times the bone's median are
+    flagged ``"off the trajectory"`` (:mod:`core.tracking.flags_post`, default its ``LIMIT``)."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0),
@@ -123,6 +128,7 @@ class TrackingOptions:
     stage_move_sigmas: float = STAGE_MOVE_SIGMAS
     stage_move_frames: int = STAGE_MOVE_FRAMES
     stage_move_reject: bool = True
+    trajectory_limit: float | None = TRAJECTORY_LIMIT
 
     def __post_init__(self) -> None:
         if not isinstance(self.refine_likelihood, bool):
@@ -196,6 +202,9 @@ class TrackingOptions:
         object.__setattr__(self, "stage_move_frames", int(n))  # 5.0 is kept (and reported) as 5
         if not isinstance(self.stage_move_reject, bool):
             raise ValueError(f"stage_move_reject: expected True or False, got {self.stage_move_reject!r}")
+        if self.trajectory_limit is not None and number("trajectory_limit", self.trajectory_limit) < 1:
+            raise ValueError(f"trajectory_limit: expected a factor >= 1 (times the bone's median residual) "
+                             f"or None, got {self.trajectory_limit!r}")
 
     @property
     def first_options(self) -> RegistrationOptions:

@@ -117,6 +117,13 @@ was lost from frame 46); and, while a bone has no good frame yet (its first fram
 below ``min_score_ratio`` × the first flagged frame's is flagged ``"low score against the flagged
 first frame"`` instead of passing unjudged.
 
+Once every frame is tracked (a complete run), the trajectory post-pass of
+:mod:`core.tracking.flags_post` flags ``"off the trajectory"`` the good frames whose pose stands off
+the local fit through their neighbours by more than ``trajectory_limit`` (None: off) × the bone's
+median residual — frames a few Cramér–Rao bound-widths off that converged and scored as usual, which
+no check of a single frame tells apart (that module's docs give what it caught); those frames are
+handed to ``record_result`` again with the flag.
+
 The thresholds are :class:`TrackingOptions` fields, defaulting to the module constants named
 above: ``collapse_ratio`` (:data:`~core.tracking.checks.COLLAPSE_RATIO`), ``motion_limit``,
 ``motion_floor`` (mm, degrees), ``sigma_limit`` (:data:`~core.tracking.options.CHECK_FIELDS`) and
@@ -175,6 +182,7 @@ from .attempt import register_checked
 from .bones import BoneModel
 from .checks import SAME_OPTIMUM, pose_delta, same_optimum, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
 from .feed import FrameFeed
+from .flags_post import apply_trajectory_flags
 from .frame_state import _BoneState, _Cancel, _Run, predict_pose
 from .frame_step import track_frame
 from .options import TrackingOptions
@@ -330,7 +338,14 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                 finish(fr)
     finally:
         feed.close()
-    return TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
+    out = TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
+    if status == "complete" and o.trajectory_limit is not None:  # review flags from the whole track
+        centers = {b.name: b.centroid for b in bones}
+        out, changed = apply_trajectory_flags(out, centers, limit=o.trajectory_limit)
+        for fr in changed:  # journaled again with the flag (the review panel reads the journal)
+            if record_result is not None and fr.pose is not None:
+                record_result(fr)
+    return out
 
 
 def register_start(renderer, frame, bone: BoneModel, index: int, start, *,

@@ -1,0 +1,107 @@
+"""The trajectory post-pass (core.tracking.flags_post): a frame off its neighbours' fit is flagged
+once the trial is tracked, good frames of a smooth noisy track are not, and track() journals it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.geometry.transforms import pose_from_params
+from core.tracking import flags_post
+from core.tracking.flags_post import FLAG, apply_trajectory_flags, trajectory_flags, trajectory_residuals
+from core.tracking.results import FrameResult, TrackingResult
+
+C = np.array([5.0, -3.0, 40.0])
+
+
+def _track(n=40, noise=(0.01, 0.05), seed=1, off=None):
+    """Poses of a bone in walking-like smooth motion (mm, degrees per frame) with registration noise;
+    ``off``: (frame, mm, degrees) added to one frame."""
+    g = np.random.default_rng(seed)
+    t = np.arange(n) / n
+    P = []
+    for k in range(n):
+        p = np.r_[20 * t[k] + 5 * t[k] ** 2, 3 * np.sin(2 * t[k]), -4 * t[k],
+                  np.radians([10 * t[k], -6 * t[k] ** 2, 4 * np.sin(3 * t[k])])]
+        p[:3] += g.normal(0, noise[0], 3)
+        p[3:] += np.radians(g.normal(0, noise[1], 3))
+        if off is not None and k == off[0]:
+            p[0] += off[1]
+            p[5] += np.radians(off[2])
+        P.append(pose_from_params(p, center=C, base=np.eye(4)))
+    return np.array(P)
+
+
+def _result(P, flags=None, name="tibia"):
+    res = {(name, k): FrameResult(name, k, P[k], 0.8, 10, 0.0, True, tuple((flags or {}).get(k, ())))
+           for k in range(len(P))}
+    return TrackingResult((name,), tuple(range(len(P))), res, "complete", 1.0)
+
+
+def test_a_frame_off_the_track_is_flagged_and_the_smooth_noisy_track_is_not():
+    P = _track()
+    assert trajectory_flags(np.arange(len(P)), P, C) == {}
+    bad = _track(off=(17, 0.0, 0.5))  # 0.5 deg in one frame: 10x the per-axis noise
+    got = trajectory_flags(np.arange(len(bad)), bad, C)
+    assert list(got) == [17]
+    assert got[17].startswith(FLAG) and "deg" in got[17]
+    shifted = _track(off=(30, 0.12, 0.0))  # 0.12 mm: 12x the translation noise
+    assert list(trajectory_flags(np.arange(len(shifted)), shifted, C)) == [30]
+
+
+def test_noise_free_tracks_and_short_trials_are_not_judged():
+    P = _track(noise=(0.0, 0.0))
+    R = trajectory_residuals(np.arange(len(P)), P, C)
+    # a parabola through ±4 frames follows the motion to well within the floor
+    assert np.nanmax(R[:, 0]) < flags_post.FLOOR[0] / 5 and np.nanmax(R[:, 1]) < flags_post.FLOOR[1] / 5
+    assert trajectory_flags(np.arange(len(P)), P, C) == {}  # below the floor
+    short = _track(n=flags_post.MIN_FRAMES - 1, off=(3, 0.0, 2.0))
+    assert trajectory_flags(np.arange(len(short)), short, C) == {}
+
+
+def test_apply_flags_good_frames_only_keeps_converged_and_is_idempotent():
+    P = _track(off=(17, 0.0, 0.5))
+    P2 = P.copy()
+    P2[25] = np.nan  # a frame without a pose: left out of the fits
+    res = _result(P2, flags={9: ("score drop (0.5 < 0.85 x recent median 0.8)",)})
+    out, changed = apply_trajectory_flags(res, {"tibia": C})
+    assert [fr.frame for fr in changed] == [17]
+    fr = out.results[("tibia", 17)]
+    assert fr.flags[-1].startswith(FLAG) and fr.converged  # the registration's outcome stays
+    assert out.results[("tibia", 9)].flags == res.results[("tibia", 9)].flags  # judged by its own check
+    assert [r.frame for r in out.flagged] == [9, 17]
+    again, changed2 = apply_trajectory_flags(out, {"tibia": C})
+    assert changed2 == [] and again.results[("tibia", 17)].flags == fr.flags
+    # a stricter limit afterwards takes the earlier post-pass flag off
+    none, changed3 = apply_trajectory_flags(out, {"tibia": C}, limit=100.0)
+    assert [r.frame for r in changed3] == [17] and not none.results[("tibia", 17)].flags
+
+
+def test_track_flags_after_the_run_and_journals_the_frame_again(monkeypatch):
+    from core.tracking import trial
+    from core.tracking.options import TrackingOptions
+
+    P = _track(n=20, off=(11, 0.0, 0.5))
+
+    class _Bone:
+        name, centroid = "tibia", C
+
+    class _Renderer:
+        volumes = [None]
+
+    def frame(run, f, imgs, frame_, todo, state, skip):
+        return {0: FrameResult("tibia", f, P[f], 0.8, 10, 0.0, True)}
+
+    monkeypatch.setattr(trial, "track_frame", frame)
+    seen = []
+    res = trial.track(_Renderer(), [_Bone()], lambda f: [np.zeros((4, 4))], range(20),
+                      keyframes={"tibia": {0: P[0]}}, record_result=seen.append)
+    assert [(r.frame, bool(r.flags)) for r in seen[20:]] == [(11, True)]
+    assert [r.frame for r in res.flagged] == [11] and res.results[("tibia", 11)].flags[0].startswith(FLAG)
+    seen.clear()
+    off = trial.track(_Renderer(), [_Bone()], lambda f: [np.zeros((4, 4))], range(20),
+                      keyframes={"tibia": {0: P[0]}}, record_result=seen.append,
+                      options=TrackingOptions(trajectory_limit=None))
+    assert not off.flagged and len(seen) == 20
+    with pytest.raises(ValueError, match="trajectory_limit"):
+        TrackingOptions(trajectory_limit=0.5)

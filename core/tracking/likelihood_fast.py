@@ -30,6 +30,21 @@ synchronisation around it), the solves (0.16 ms a step), the launches.
 The last two keep every value (on this 2-core CPU machine's Warp device, to the bit: the stage's
 poses and covariances on a 128² trial) and are off until measured on a GPU (the study's variants
 ``exact`` and ``fast``).
+
+What the stage would need to fit the speed goal (≤ 5 ms a frame for one bone, ≤ 20 ms for three jointly,
+tracker included; the tracker alone took 4.3 ms and 13-17 ms on one H100,
+``tracking_newton_h100_endcheck.json``): about 0.7 ms per bone-frame for one bone and 1-2 ms for three —
+8-20× less than the 13.9 ms measured at 4 px. The device's floor of today's stage is ~0.8 ms a step
+(13-pose DRRs 0.38, blurs 0.25, moments 0.13, differences 0.04 ms) plus per bone-frame the sandwich (1.2
+ms at 4 px, 4.6 at 8 px), the robust factors (0.4 ms of Warp kernels and a sort not timed) and the
+set-up; 8.3-8.7 steps. So it would need all of: one or two steps from the tracker's optimum instead of
+two refinements (or its last design's images taken over: the tracker renders the same kind of 13-pose
+design at its optimum), fewer poses a step (forward differences, 7 poses; or the DRR's pose derivatives
+from one differentiable launch), a confidence that is not a full sandwich every frame (its lag window
+grows as σ²: FFT-based autocovariance and meat would make it σ-independent, or computed every k-th
+frame), the set-up on the device (``DEVICE_REGIONS``; 3.3 ms with a synchronisation around it) and a
+step captured as one CUDA graph (the device waits for the host ~5 ms per bone-frame today) — or the
+stage run only on the frames the tracker's checks single out.
 """
 
 from __future__ import annotations

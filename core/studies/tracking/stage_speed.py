@@ -216,6 +216,7 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                              "glare_undone": glare, "stage_model": fst.MODEL.to_dict()},
                             glare=glare, correction=correction)
     out["setup_s"] = time.perf_counter() - t0
+    print(f"scene: {out['setup_s']:.1f} s", flush=True)
     bones = [0, 1, 2]
     models = [ts.models[b] for b in bones]
     names = [ts.names[b] for b in bones]
@@ -230,6 +231,7 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
         for hp in highpass:
             with VARIANTS[v]():
                 track(r, models, ts.frames, range(min(n, warm_frames)), keyframes=kf, options=opts[hp])
+        print(f"warm-up {v}: {time.perf_counter() - t0:.1f} s", flush=True)
     runs: dict = defaultdict(list)
     poses: dict = {}
     for rep in range(int(repeats)):

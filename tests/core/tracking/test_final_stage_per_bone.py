@@ -50,7 +50,7 @@ def _blob(model):
 
 def test_per_bone_high_pass_and_tissue_equal_the_models_that_say_so(talus_scene):
     from core.tracking.engine_likelihood import likelihood_engine
-    from core.tracking.final_stage import tissue_renderer
+    from core.tracking.final_stage import final_stage, tissue_renderer
     from core.tracking.register import RegistrationOptions, register
 
     sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
@@ -63,11 +63,14 @@ def test_per_bone_high_pass_and_tissue_equal_the_models_that_say_so(talus_scene)
                                                                              strict=True)], valid_range=None)
     start = pose_from_params(np.r_[0.3, -0.2, 0.2, np.radians([0.4, -0.3, 0.2])], center=model.centroid,
                              base=truth)
-    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=2.0)
+    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final_highpass_px=2.0)
+    sim = register(r, fr, bone=0, initial_pose=start, center=model.centroid, options=o)  # (no stage)
+    o = replace(o, final="likelihood")
 
     def run(m, opts=o):
         with final_model(m):
-            res = register(r, fr, bone=0, initial_pose=start, center=model.centroid, options=opts)
+            res = final_stage(r, fr, sim, bone=0, initial_pose=start, center=model.centroid, options=opts,
+                              views=(0, 1))
         assert res.timing["likelihood_taken"] == 1
         return res
 

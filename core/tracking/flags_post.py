@@ -64,8 +64,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from .checks import pose_delta
-
 __all__ = ["DEGREE", "FLAG", "FLOOR", "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "apply_trajectory_flags",
            "trajectory_flags", "trajectory_residuals"]
 
@@ -90,43 +88,113 @@ FLOOR = (0.005, 0.02)
 MIN_FRAMES = 8
 
 
-def _residual(fr: np.ndarray, P: np.ndarray, use: np.ndarray, i: int, c: np.ndarray, half_window: int,
-              degree: int) -> tuple[float, float]:
-    """Frame ``i``'s normalised residual (mm, degrees) against the fit through the frames ``use``
-    within ``half_window`` of it (NaN with fewer than ``degree + 2``)."""
-    near = [j for j in np.flatnonzero(use) if j != i and abs(fr[j] - fr[i]) <= half_window]
-    if len(near) < degree + 2:
-        return math.nan, math.nan
-    A = np.vander((fr[near] - fr[i]).astype(float), degree + 1)
-    Y = np.array([pose_delta(P[i], P[j], c) for j in near])
-    coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
-    r = coef[-1]  # the fit at f, about f's own pose: the residual (sign aside)
-    a0 = np.zeros(degree + 1)
-    a0[-1] = 1.0
-    try:
-        lev = float(a0 @ np.linalg.solve(A.T @ A, a0))
-    except np.linalg.LinAlgError:
-        return math.nan, math.nan
-    k = math.sqrt(1.0 + lev)
-    return math.sqrt(float(r[:3] @ r[:3])) / k, math.degrees(math.sqrt(float(r[3:] @ r[3:]))) / k
+def _deltas(A: np.ndarray, B: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``(n, 6)`` :func:`~core.tracking.checks.pose_delta` of rigid poses ``A[k]`` to ``B[k]`` about
+    ``c`` (mm, rotation vector in rad), batched; the rotations between neighbouring frames are far from
+    a half turn."""
+    Ra, Rb = A[:, :3, :3], B[:, :3, :3]
+    R = Rb @ np.swapaxes(Ra, 1, 2)
+    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    sn = 0.5 * np.linalg.norm(w, axis=1)
+    cs = 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0)
+    th = np.arctan2(sn, cs)
+    k = np.where(sn < 1e-12, 0.5, th / (2.0 * np.maximum(sn, 1e-300)))
+    disp = Rb @ c + B[:, :3, 3] - Ra @ c - A[:, :3, 3]
+    return np.concatenate((disp, k[:, None] * w), axis=1)
+
+
+class _Table:
+    """The poses' parameters about each frame of its neighbours within ``half_window`` (frames sorted
+    by number), and each frame's normalised residual given the frames in use (module docs)."""
+
+    def __init__(self, fr: np.ndarray, P: np.ndarray, ok: np.ndarray, c: np.ndarray, half_window: int,
+                 degree: int) -> None:
+        n, h = len(fr), int(half_window)
+        self.fr, self.ok, self.degree = fr, ok, int(degree)
+        self.offsets = np.array([d for d in range(-h, h + 1) if d != 0], dtype=int)
+        self.Y = np.full((n, len(self.offsets), 6), np.nan)
+        self.near = np.zeros((n, len(self.offsets)), dtype=bool)
+        idx = np.arange(n)
+        for m, d in enumerate(self.offsets):  # distinct frame numbers: neighbours lie within h places
+            j = idx + d
+            inside = (j >= 0) & (j < n)
+            a, b = idx[inside], j[inside]
+            good = ok[a] & ok[b] & (np.abs(fr[b] - fr[a]) <= h)
+            a, b = a[good], b[good]
+            if len(a):
+                self.Y[a, m] = _deltas(P[a], P[b], c)
+                self.near[a, m] = True
+        self._solve: dict = {}
+
+    def residuals(self, use: np.ndarray) -> np.ndarray:
+        """``(n, 2)`` :meth:`residual` of every frame in ``use``, frames with the same neighbours'
+        offsets batched (most have all of them)."""
+        n = len(use)
+        j = np.arange(n)[:, None] + self.offsets
+        sel = self.near & use[np.clip(j, 0, n - 1)]
+        out = np.full((n, 2), np.nan)
+        todo = np.flatnonzero(use)
+        steps = self.fr[np.clip(j[todo], 0, n - 1)] - self.fr[todo, None]
+        full = todo[sel[todo].all(axis=1) & (steps == self.offsets).all(axis=1)]  # consecutive frames
+        if len(full):
+            hit = self._weights(self.offsets.astype(float))
+            if hit is not None:
+                row, k = hit
+                r = np.einsum("m,nmk->nk", row, self.Y[full])
+                out[full, 0] = np.linalg.norm(r[:, :3], axis=1) / k
+                out[full, 1] = np.degrees(np.linalg.norm(r[:, 3:], axis=1)) / k
+        for i in np.setdiff1d(todo, full):
+            out[i] = self.residual(int(i), use)
+        return out
+
+    def _weights(self, x: np.ndarray):
+        """The fit's value at the frame as weights on neighbours at offsets ``x``, and
+        ``sqrt(1 + leverage)``; None when the fit is singular."""
+        key = x.tobytes()
+        if key not in self._solve:
+            A = np.vander(x, self.degree + 1)
+            AtA = A.T @ A
+            if abs(np.linalg.det(AtA)) < 1e-12:
+                self._solve[key] = None
+            else:
+                self._solve[key] = (np.linalg.solve(AtA, A.T)[-1],
+                                    math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1])))
+        return self._solve[key]
+
+    def residual(self, i: int, use: np.ndarray) -> tuple[float, float]:
+        """Frame ``i``'s normalised residual (mm, degrees) against the fit through its neighbours in
+        ``use`` (NaN with fewer than ``degree + 2``)."""
+        j = i + self.offsets
+        sel = self.near[i] & use[np.minimum(np.maximum(j, 0), len(use) - 1)]
+        if sel.sum() < self.degree + 2:
+            return math.nan, math.nan
+        hit = self._weights((self.fr[j[sel]] - self.fr[i]).astype(float))
+        if hit is None:
+            return math.nan, math.nan
+        row, k = hit
+        r = row @ self.Y[i, sel]
+        return math.sqrt(float(r[:3] @ r[:3])) / k, math.degrees(math.sqrt(float(r[3:] @ r[3:]))) / k
 
 
 def _inputs(frames, poses, center):
+    """Frame numbers, poses (sorted by frame), which have a pose, the centre, and the sorting order."""
     fr = np.asarray(frames, dtype=int)
     P = np.asarray(poses, dtype=float).reshape(len(fr), 4, 4)
+    order = np.argsort(fr, kind="stable")
+    fr, P = fr[order], P[order]
     ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1)
-    return fr, P, ok, np.asarray(center, dtype=float)
+    return fr, P, ok, np.asarray(center, dtype=float), order
 
 
 def trajectory_residuals(frames, poses, center, *, half_window: int = HALF_WINDOW,
                          degree: int = DEGREE) -> np.ndarray:
     """``(n, 2)`` normalised residuals (mm, degrees) of each pose against the local fit of the others
     (module docs); NaN where a frame has too few neighbours (``degree + 2`` at least) or no pose.
-    ``frames``: the frame numbers of ``poses`` (``(n, 4, 4)``, NaN where none)."""
-    fr, P, ok, c = _inputs(frames, poses, center)
+    ``frames``: the frame numbers of ``poses`` (``(n, 4, 4)``, NaN where none; distinct)."""
+    fr, P, ok, c, order = _inputs(frames, poses, center)
+    t = _Table(fr, P, ok, c, half_window, degree)
     out = np.full((len(P), 2), np.nan)
-    for i in np.flatnonzero(ok):
-        out[i] = _residual(fr, P, ok, i, c, half_window, degree)
+    out[order] = t.residuals(ok)
     return out
 
 
@@ -137,10 +205,9 @@ def trajectory_flags(frames, poses, center, *, limit: float = LIMIT, half_window
     the bone's median (module docs). The worst frame over the limit is flagged first and left out
     of its neighbours' fits before they are judged again, one frame at a time: a frame far off
     would otherwise pull its neighbours' fits and flag them too."""
-    fr, P, ok, c = _inputs(frames, poses, center)
-    R = np.full((len(P), 2), np.nan)
-    for i in np.flatnonzero(ok):
-        R[i] = _residual(fr, P, ok, i, c, half_window, degree)
+    fr, P, ok, c, _ = _inputs(frames, poses, center)
+    t = _Table(fr, P, ok, c, half_window, degree)
+    R = t.residuals(ok)
     have = np.all(np.isfinite(R), axis=1)
     if have.sum() < min_frames:
         return {}
@@ -153,14 +220,14 @@ def trajectory_flags(frames, poses, center, *, limit: float = LIMIT, half_window
         i = int(np.argmax(z))
         if not z[i] > 1.0:
             return out
-        t, r = R[i]
-        out[int(fr[i])] = (f"{FLAG} ({t:.3f} mm, {r:.3f} deg from the fit through its neighbours; "
+        tm, rd = R[i]
+        out[int(fr[i])] = (f"{FLAG} ({tm:.3f} mm, {rd:.3f} deg from the fit through its neighbours; "
                            f"limits {lim[0]:.3f} mm, {lim[1]:.3f} deg, {float(limit):g} x the bone's "
                            f"median {med[0]:.3f} mm, {med[1]:.3f} deg)")
         use[i] = False
-        for j in np.flatnonzero(use):  # its neighbours judged again without it
-            if abs(fr[j] - fr[i]) <= half_window:
-                R[j] = _residual(fr, P, use, j, c, half_window, degree)
+        for j in range(max(0, i - half_window), min(len(fr), i + half_window + 1)):
+            if use[j]:  # its neighbours judged again without it
+                R[j] = t.residual(j, use)
 
 
 def apply_trajectory_flags(result, centers, *, limit: float = LIMIT, **kw):

@@ -45,6 +45,10 @@ def test_a_frame_off_the_track_is_flagged_and_the_smooth_noisy_track_is_not():
     got = trajectory_flags(np.arange(len(bad)), bad, C)
     assert list(got) == [17]
     assert got[17].startswith(FLAG) and "deg" in got[17]
+    order = np.random.default_rng(0).permutation(len(bad))  # frames in any order (a backward run)
+    assert trajectory_flags(order, bad[order], C) == got
+    R = trajectory_residuals(np.arange(len(bad)), bad, C)
+    np.testing.assert_allclose(trajectory_residuals(order, bad[order], C), R[order])
     shifted = _track(off=(30, 0.12, 0.0))  # 0.12 mm: 12x the translation noise
     assert list(trajectory_flags(np.arange(len(shifted)), shifted, C)) == [30]
 
@@ -87,7 +91,7 @@ def test_track_flags_after_the_run_and_journals_the_frame_again(monkeypatch):
         name, centroid = "tibia", C
 
     class _Renderer:
-        volumes = [None]
+        volumes = (None,)
 
     def frame(run, f, imgs, frame_, todo, state, skip):
         return {0: FrameResult("tibia", f, P[f], 0.8, 10, 0.0, True)}

@@ -24,8 +24,10 @@ synchronisation around it), the solves (0.16 ms a step), the launches.
 * :func:`blur_block_kernel`: the separable blur with 8 outputs a thread along the blurred axis, each
   input read once for all of them (``BLOCK_BLUR``); every output the same sum in the same order.
 * :func:`_median_keys_only_kernel` and :func:`_median_sorted_kernel`: the robust factors' median
-  with each view's count of used pixels found in its sorted keys by bisection instead of an atomic
-  a pixel (``MEDIAN_BISECT``).
+  with each view's keys sorted on their own (a device-wide radix sort each, instead of one
+  segmented sort, which gives each view's 10⁵ keys to one thread block) and its count of used
+  pixels found in them by bisection instead of an atomic a pixel (``MEDIAN_BISECT``; the same
+  sorted values, so the same median).
 
 The last two keep every value (on this 2-core CPU machine's Warp device, to the bit: the stage's
 poses and covariances on a 128² trial) and are off until measured on a GPU (the study's variants
@@ -169,12 +171,14 @@ def design_diff_kernel(img: wp.array3d(dtype=wp.float32), n_refs: int, ref_hw: w
 
 
 @wp.kernel
-def _median_keys_only_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtype=wp.float32)):
-    """:func:`_median_keys_kernel` without the count (:func:`_median_sorted_kernel` finds it in the
-    sorted keys: no atomic a pixel). dim = items, H, W."""
+def _median_keys_only_kernel(local: wp.array3d(dtype=wp.float32), stride: int,
+                             keys: wp.array(dtype=wp.float32)):
+    """The keys of :func:`~core.tracking.likelihood_kernels._median_keys_kernel` without the count
+    (:func:`_median_sorted_kernel` finds it in the sorted keys: no atomic a pixel), view v's at
+    ``v · stride`` (each view sorted on its own, with its scratch after it). dim = items, H, W."""
     v, r, c = wp.tid()
     x = local[v, r, c]
-    i = (v * local.shape[1] + r) * local.shape[2] + c
+    i = v * stride + r * local.shape[2] + c
     if x >= 0.0:
         keys[i] = x
     else:
@@ -182,22 +186,25 @@ def _median_keys_only_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array
 
 
 @wp.kernel
-def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, scale: wp.array(dtype=wp.float32)):
-    """:func:`_median_kernel` with view v's count of used values found in its sorted segment (the
-    keys before the first +inf, by bisection). dim = items."""
+def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, stride: int,
+                          scale: wp.array(dtype=wp.float32)):
+    """:func:`~core.tracking.likelihood_kernels._median_kernel` with view v's count of used values
+    found in its ``n`` sorted keys at ``v · stride`` (the keys before the first +inf, by bisection).
+    dim = items."""
     v = wp.tid()
+    o = v * stride
     lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
     hi = int(n)
     while lo < hi:
         mid = (lo + hi) // 2
-        if keys[v * n + mid] < wp.inf:
+        if keys[o + mid] < wp.inf:
             lo = mid + 1
         else:
             hi = mid
     m = lo
     s = float(0.0)  # noqa: UP018
     if m > 0:
-        x = (keys[v * n + (m - 1) // 2] + keys[v * n + m // 2]) * 0.5
+        x = (keys[o + (m - 1) // 2] + keys[o + m // 2]) * 0.5
         if wp.isfinite(x) and x > 0.0:
             s = x
     scale[v] = s

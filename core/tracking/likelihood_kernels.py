@@ -197,8 +197,9 @@ def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.in
     scale[v] = s
 
 
-#: :func:`robust_factors_device` counts each view's used pixels in its sorted keys (no atomic a
-#: pixel; the same median); off: counted as the keys are written, as first measured
+#: :func:`robust_factors_device` sorts each view's keys on its own and counts its used pixels in
+#: them (no segmented sort, no atomic a pixel; the same median: :mod:`core.tracking.likelihood_fast`);
+#: off: one segmented sort, the count taken as the keys are written, as first measured
 MEDIAN_BISECT = False
 
 
@@ -242,10 +243,11 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
         seg = bufs[("rf_seg", nv, n)] = (wp.array(starts[:-1], dtype=wp.int32, device=device),
                                          wp.array(starts[1:], dtype=wp.int32, device=device))
     scale = buf("rf_scale", (nv,))
-    if MEDIAN_BISECT:
-        wp.launch(_median_keys_only_kernel, dim=shape, inputs=[local, keys], device=device)
-        wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
-        wp.launch(_median_sorted_kernel, dim=nv, inputs=[keys, n, scale], device=device)
+    if MEDIAN_BISECT:  # each view's n keys at 2n·v, sorted on their own (their scratch after them)
+        wp.launch(_median_keys_only_kernel, dim=shape, inputs=[local, 2 * n, keys], device=device)
+        for v in range(nv):
+            wp.utils.radix_sort_pairs(keys[2 * n * v:2 * n * (v + 1)], vals[2 * n * v:2 * n * (v + 1)], n)
+        wp.launch(_median_sorted_kernel, dim=nv, inputs=[keys, n, 2 * n, scale], device=device)
     else:
         count.zero_()
         wp.launch(_median_keys_kernel, dim=shape, inputs=[local, keys, count], device=device)

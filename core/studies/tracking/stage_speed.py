@@ -20,6 +20,13 @@ copy and memset by name, total and count per bone-frame), against the stages' wa
 ``parts`` — the engine's methods each timed with a device synchronisation before and after (the
 stages then run one after another: a serial breakdown, not the overlapped wall time).
 Only this study reads the truth. JSON on stdout (``--out``: also to a file).
+
+Variants: ``base`` the modules' defaults; ``plain`` every speed flag off (the stage as first
+measured); ``exact`` the blocked blur and the median by per-view sorts (values unchanged);
+``fast`` those and the design's differences (:mod:`core.tracking.likelihood_fast`). Measured:
+``resources/benchmarks/tracking_stage_speed_h100.json`` (one NVIDIA H100, 30 frames; its ``base``
+is today's ``plain``, its ``diff`` today's default; the numbers in :mod:`core.tracking.likelihood_fast`).
+``exact`` and ``fast`` are not measured on a GPU yet.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from .engine_kernels import N_POSES as _N
 from .optimize import OptimizeResult
 from .quadratic import QuadraticFit
 
-__all__ = ["GaussNewtonFit", "GaussNewtonStep", "LevenbergMarquardt", "gauss_newton_search",
+__all__ = ["GRADIENTS", "GaussNewtonFit", "GaussNewtonStep", "LevenbergMarquardt", "gauss_newton_search",
            "moments_to_newton", "step_design"]
 
 
@@ -127,12 +127,20 @@ def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.nd
 
 _TRACE: list | None = None
 
+#: Where a search takes the cost's gradient from (``gradient`` of :func:`gauss_newton_search`).
+GRADIENTS = ("moments", "corrected")
+
 
 class LevenbergMarquardt:
     """The state of one Levenberg–Marquardt search (arguments as :func:`gauss_newton_search`)."""
 
     def __init__(self, x0, *, step, lower, upper, tol_x: float = 0.02, tol_noise: float = 0.1,
-                 max_generations: int = 8, trust=None, lam: float = 1e-3) -> None:
+                 max_generations: int = 8, trust=None, lam: float = 1e-3, gradient: str = "moments") -> None:
+        if gradient not in GRADIENTS:
+            raise ValueError(f"gradient: expected one of {GRADIENTS}, got {gradient!r}")
+        self.gradient = gradient
+        # gradient="corrected": the scores' gradient less the moments' and its variance, summed over steps
+        self._dsum, self._dvar, self._dn = np.zeros(6), np.zeros(6), 0
         self.t_start = time.perf_counter()
         self.lo = np.asarray(lower, dtype=float)
         self.hi = np.asarray(upper, dtype=float)
@@ -169,6 +177,20 @@ class LevenbergMarquardt:
         u = (np.abs(d) / self.tr).max()
         return d / u if u > 1 else d
 
+    def _correction(self, s) -> np.ndarray:
+        """``gradient="corrected"``: the mean over the steps so far of the scores' central differences
+        less the moments' gradient, each coordinate shrunk toward 0 by its noise (positive-part
+        James–Stein, ``max(0, 1 - var / mean²)``; one step's differences have the variance
+        ``σ_c² / 2h_k²``, σ_c the step's roughness about its quadratic, :func:`_residuals`)."""
+        h = s.h
+        self._dsum += (s.costs[1::2] - s.costs[2::2]) / (2.0 * h) - s.g
+        _, res = _residuals(s, self.alpha)
+        self._dvar += float(res @ res) / 6.0 / (2.0 * h * h)
+        self._dn += 1
+        mean = self._dsum / self._dn
+        var = self._dvar / (self._dn * self._dn)
+        return mean * np.maximum(0.0, 1.0 - var / np.maximum(mean * mean, 1e-300))
+
     def ask(self, cancel: Callable[[], bool] | None = None) -> np.ndarray | None:
         """The centre of the next 13-pose step (half-steps :attr:`h`), or None when the search
         has ended."""
@@ -187,6 +209,8 @@ class LevenbergMarquardt:
         h = self.h
         self.evals += _N
         self.gens += 1
+        if self.gradient == "corrected":
+            s = replace(s, g=s.g + self._correction(s))
         if _TRACE is not None:
             _TRACE.append(("eval", s.x.copy(), s.cost))
         best = self.best
@@ -234,7 +258,8 @@ class LevenbergMarquardt:
 
 def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
                         tol_noise: float = 0.1, max_generations: int = 8, trust=None, lam: float = 1e-3,
-                        cancel: Callable[[], bool] | None = None) -> OptimizeResult:
+                        cancel: Callable[[], bool] | None = None,
+                        gradient: str = "moments") -> OptimizeResult:
     """Levenberg–Marquardt search of ``cost`` (a :class:`~core.tracking.engine.GaussNewtonCost`)
     from ``x0`` inside ``[lower, upper]`` (module docs of :mod:`core.tracking.engine`).
 
@@ -248,9 +273,18 @@ def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
     [0.5, 1.5]); a rejected step raises λ to at least 0.5 (about half the Newton step). ``model`` of
     the result is a :class:`~core.tracking.quadratic.QuadraticFit` with the last accepted step's
     rescaled Hessian and the cost's roughness (6 residual degrees of freedom).
+
+    ``gradient``: ``"moments"`` (default) the step's gradient from its moments, over the centre
+    DRR's domain Ω held fixed; ``"corrected"`` that plus the mean, over the search's steps so far,
+    of the 13 scores' central differences ``(c(x + h_k e_k) - c(x - h_k e_k)) / 2h_k`` less the
+    moments' gradient — the share of the gradient from Ω's change with the pose, which each pose's
+    score has (its own Ω) and the moments miss; large on coarse pixels
+    (:func:`~core.tracking.register_options.newton_step`), where the search then stops at the
+    scores' minimum rather than the fixed domain's. Averaged because a single step's differences
+    are as rough as the cost; the difference changes slowly with the pose.
     """
     lm = LevenbergMarquardt(x0, step=step, lower=lower, upper=upper, tol_x=tol_x, tol_noise=tol_noise,
-                            max_generations=max_generations, trust=trust, lam=lam)
+                            max_generations=max_generations, trust=trust, lam=lam, gradient=gradient)
     while (x := lm.ask(cancel)) is not None:
         lm.tell(cost.step(x, lm.h))
     return lm.result()

@@ -66,7 +66,7 @@ import numpy as np
 from . import optimize as opt
 from .cost import CostTimer, FrameImages, RegistrationCost, mm_per_pixel, search_roi, snap_roi
 from .quadratic import quadratic_search
-from .register_options import FINAL_STEP, Level, RegistrationOptions, default_levels
+from .register_options import FINAL_STEP, Level, RegistrationOptions, default_levels, newton_step  # noqa: F401
 
 __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels", "mm_per_pixel",
            "register"]
@@ -154,15 +154,18 @@ _LEVELS: dict = {}  # (levels function, sigma, final scale) -> the "newton" leve
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:
     """:func:`default_levels` at ``mm_px`` (mm per DRR pixel at the final scale ``fs``), scaled by
-    ``fs``. The ``"newton"`` search's levels do not depend on the pixel size (Gauss–Newton steps at
-    full resolution): they are made once per (sigma, fs) and kept (the same frozen levels; checked
-    as default_levels checks its arguments)."""
+    ``fs``. The ``"newton"`` search's levels depend on the pixel size only through
+    :func:`~core.tracking.register_options.newton_step` (Gauss–Newton steps at full resolution):
+    they are made once per (sigma, fs, half-steps) and kept (the same frozen levels; checked as
+    default_levels checks its arguments)."""
     if search != "newton":
         return tuple(replace(lv, scale=lv.scale * fs)
                      for lv in default_levels(mm_px, sigma=sigma, search=search))
     if not (np.isfinite(mm_px) and mm_px > 0):
         raise ValueError(f"mm_per_px: expected a positive pixel size, got {mm_px!r}")
-    key = (default_levels, tuple(float(a) for a in sigma), float(fs))  # (the function: a test may patch it)
+    # (the function: a test may patch it; the half-steps and options: coarse pixels', newton_step)
+    step, extra = newton_step(mm_px)
+    key = (default_levels, tuple(float(a) for a in sigma), float(fs), step, tuple(sorted(extra.items())))
     hit = _LEVELS.get(key)
     if hit is None:
         if len(_LEVELS) >= 16:
@@ -175,12 +178,14 @@ def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Leve
 def _newton_fallback(mm_per_px: float, coarsest_mm: float = 1.2) -> tuple[Level, ...]:
     """The levels of the ``"newton"`` search's second attempt: Gauss–Newton steps at the
     second-finest pyramid scale (half-steps and trust twice as wide), then at full resolution; at
-    a single scale, full resolution with twice the half-steps first."""
-    fin = FINAL_STEP
+    a single scale, full resolution with twice the half-steps first (on coarse pixels twice
+    :func:`~core.tracking.register_options.newton_step`'s, with its scores' gradient)."""
+    fin, extra = newton_step(mm_per_px)
     s = 2.0 if 2.0 * mm_per_px <= coarsest_mm else 1.0
     first = Level(scale=s, method="gauss_newton", sigma=(2 * fin[0], 2 * fin[1]), max_generations=6,
-                  tol_x=0.05)
-    return first, Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02)
+                  tol_x=0.05, options=extra if s == 1.0 else {})
+    return first, Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02,
+                        options=extra)
 
 
 def search_region(renderer, pose, bone: int, *, views, center, options: RegistrationOptions, outline=None,

@@ -13,7 +13,8 @@ import numpy as np
 
 from .cost import DEFAULT_TERMS, NOISE_OPTION, MetricTerm
 
-__all__ = ["FINAL_STEP", "Level", "RegistrationOptions", "default_levels"]
+__all__ = ["COARSE_NEWTON_MM", "COARSE_NEWTON_STEP_PX", "FINAL_STEP", "Level", "RegistrationOptions",
+           "default_levels", "newton_step"]
 
 _METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell", "gauss_newton")
 _SEARCHES = ("global", "local", "newton", "global_newton")
@@ -21,6 +22,41 @@ _FINALS = (None, "likelihood")
 _FINAL_CONFIDENCES = ("sandwich", "sandwich+move", "independent")
 #: Design half-widths (mm, degrees) of the full-resolution quadratic fits.
 FINAL_STEP = (0.25, 0.5)
+#: Full-resolution pixels coarser than this (mm at the bone) are *coarse* for the Gauss–Newton
+#: search (:func:`newton_step`): 256² views of a foot (about 0.8 mm at the bone) and coarser, not
+#: 512² (0.4 mm) or 1024² (0.2 mm).
+COARSE_NEWTON_MM = 0.6
+#: The Gauss–Newton search's translation half-step on coarse pixels, in pixels (rotation: twice
+#: that in degrees, the ratio of :data:`FINAL_STEP`).
+COARSE_NEWTON_STEP_PX = 0.45
+
+
+def newton_step(mm_per_px: float) -> tuple[tuple[float, float], dict]:
+    """The Gauss–Newton search's central-difference half-steps (mm, degrees) and search options
+    (:func:`~core.tracking.engine_search.gauss_newton_search`) at full-resolution pixels of
+    ``mm_per_px`` (mm at the bone).
+
+    Up to :data:`COARSE_NEWTON_MM`: :data:`FINAL_STEP` and no options (the moments' gradient,
+    over the centre DRR's domain). Coarser: half-steps of :data:`COARSE_NEWTON_STEP_PX` pixels
+    (at least :data:`FINAL_STEP`; rounded to 0.01 mm) and ``gradient="corrected"`` — the moments'
+    gradient plus the mean, over the search's steps, of the 13 scores' central differences less
+    it (each pose scored over its own domain, as the cost is). On coarse pixels the domain's
+    edge (the DRR's support, in whole pixels) is a large share of its pixels, and the moments'
+    gradient, which holds the centre's domain fixed, misses its change: on the harder trial at
+    192² (talus, frame 2, from 0.5 mm / 1° off; this 2-core CPU machine) the moments' search
+    stopped at cost 0.7037, 0.27 mm / 0.62° off the truth, where the scores' differences still
+    pointed to the quadratic-model search's 0.6974 (0.03 mm / 0.22°); their difference from the
+    moments' gradient was about the same at half-steps of 0.25, 0.5 and 1 mm and along the way.
+    The scores' differences alone are too noisy at a quarter-pixel and biased by the cost's
+    asymmetry at wider half-steps (ideal 128² views: 0.05-0.13 mm, 0.08-0.21° off at 0.6 pixel,
+    against 0.001 mm with the moments).
+    """
+    if not (np.isfinite(mm_per_px) and mm_per_px > 0):
+        raise ValueError(f"mm_per_px: expected a positive pixel size, got {mm_per_px!r}")
+    if mm_per_px <= COARSE_NEWTON_MM:
+        return FINAL_STEP, {}
+    t = max(FINAL_STEP[0], round(COARSE_NEWTON_STEP_PX * mm_per_px, 2))
+    return (t, round(t * FINAL_STEP[1] / FINAL_STEP[0], 2)), {"gradient": "corrected"}
 
 
 @dataclass(frozen=True)
@@ -74,7 +110,9 @@ def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
       :data:`FINAL_STEP`, at most 8, stopping below 0.02 or when the predicted decrease is
       below a tenth of the cost's roughness); when they do not converge (a move beyond their
       reach), :func:`~core.tracking.register.register` starts again at half resolution with twice
-      the half-steps.
+      the half-steps. On pixels coarser than :data:`COARSE_NEWTON_MM` the full-resolution
+      Gauss–Newton levels (here and in ``"global_newton"``) take :func:`newton_step`'s wider
+      half-steps and the scores' gradient.
 
     The full-resolution search ends with designs of :data:`FINAL_STEP` half-widths and a Newton
     step below 0.02 (mm, degrees).
@@ -97,14 +135,17 @@ def default_levels(mm_per_px: float, *, sigma: tuple[float, float] = (1.5, 1.5),
         return Level(scale=s, method="quadratic", sigma=mid, max_generations=6, tol_x=0.1,
                      options={"min_step": mid})
 
+    gn_step, gn_options = newton_step(mm_per_px)
     if search == "newton":  # a coarse level first made it slower, not more accurate (1024² trial)
-        return (Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02),)
+        return (Level(scale=1.0, method="gauss_newton", sigma=gn_step, max_generations=8, tol_x=0.02,
+                      options=gn_options),)
     if search == "global_newton":  # CMA-ES at the coarsest scale, then Gauss-Newton steps
         out = [Level(scale=scales[0], method="cmaes", sigma=tuple(sigma), popsize=24,
                      max_generations=40, tol_x=0.05)]
         out += [Level(scale=s, method="gauss_newton", sigma=(fin[0] * s, fin[1] * s), max_generations=6,
                       tol_x=0.05) for s in scales[1:-1]]
-        out.append(Level(scale=1.0, method="gauss_newton", sigma=fin, max_generations=8, tol_x=0.02))
+        out.append(Level(scale=1.0, method="gauss_newton", sigma=gn_step, max_generations=8, tol_x=0.02,
+                         options=gn_options))
         return tuple(out)
     if search == "global":
         out = [Level(scale=scales[0], method="cmaes", sigma=tuple(sigma), popsize=24,

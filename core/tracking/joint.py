@@ -37,7 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import warp as wp
 
-from .cost import CostTimer, OutsideViewError
+from .cost import CostTimer, OutsideViewError, mm_per_pixel
 from .engine import engine_cost, step_design, supports
 from .engine_search import LevenbergMarquardt
 from .register import RegistrationOptions, RegistrationResult, default_levels, result_of, search_region
@@ -164,10 +164,7 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
     o = options
     fs = o.final_scale
     views = tuple(range(frame.n_views))
-    # the single Gauss-Newton level of "newton" (default_levels does not depend on the pixel size there)
-    lv = replace(default_levels(1.0, sigma=o.sigma, search="newton")[-1], scale=fs)
     hi = np.array([o.bounds[0]] * 3 + [o.bounds[1]] * 3, dtype=float)
-    sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
     out: list = [None] * len(jobs)
     lanes: dict[int, _Search] = {}
     queue: list[int] = []
@@ -188,12 +185,16 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
             c.timer = CostTimer()
             c.batches = {}
             c.profile = profile
-            c.set_frame(frame, base_pose=base, center=center, roi=job.roi, others=job.others)
+            px = mm_per_pixel(renderer, base, center, views)
+            c.set_frame(frame, base_pose=base, center=center, roi=job.roi, others=job.others, px_mm=px)
         except OutsideViewError as exc:
             out[k] = exc
             continue
+        # the single Gauss-Newton level of "newton" (wider half-steps on coarse pixels, newton_step)
+        lv = replace(default_levels(px * fs, sigma=o.sigma, search="newton")[-1], scale=fs)
+        sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
         lm = LevenbergMarquardt(np.zeros(6), step=sig6, lower=-hi, upper=hi, tol_x=lv.tol_x,
-                                max_generations=lv.max_generations)
+                                max_generations=lv.max_generations, **dict(lv.options))
         lanes[k] = _Search(k, np.zeros(6), (lv,), lm=lm, cost=c, costs={fs: c})
         push(k)  # the bone's first step in flight while the next bone's regions are prepared
         lanes[k].own_s = time.perf_counter() - t0

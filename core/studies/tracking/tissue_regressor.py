@@ -97,6 +97,12 @@ talus 1.28 → 1.08, calcaneus 2.38 → 1.82× here — and leaves the rotations
 alone keeps the 4 px high-pass. The 1.25× goal needs the bone's low frequencies, which only an
 exact tissue and image model would give back.
 
+In tracking (:mod:`core.studies.tracking.tissue_tibia`, one NVIDIA H200, 1024², three bones jointly,
+the stage at 8 px) the 2 mm volume is the better one for every bone — tibia 1.54/1.36, talus
+1.15/1.19, calcaneus 1.12/1.30 against 1.92/1.66, 1.17/1.18, 1.15/1.35 with the 4 mm one — unlike
+the ``fine`` rows above (256², two noise draws a frame, eight frames): the 4 mm volume's own error
+is what cost the tibia there.
+
 JSON on stdout (``--out``: also to a file, rewritten after each frame).
 """
 

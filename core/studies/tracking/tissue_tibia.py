@@ -45,10 +45,12 @@ Measured (this 2-core CPU machine, :func:`bias`, 256², 1 mm voxels, frames 0, 1
   1024²) −11, −8, 6, 16, 17, 18, 15, 8, 8, 1 µm. The degradation in tracking is this
   pose-dependent offset, reproduced from the true poses at a quarter of the size (so not
   hypothesis d): over the 100 tracked frames a 5th-order polynomial in the frame index explains
-  91 % of its variance in x and y, the tracker's own errors 29-32 %. The 4 mm volume differs from
-  the frame's tissue by 0.008 RMS in the high-passed band (frame 50) — a third of the tibia's own
-  high-passed signal (0.024-0.028) — in stripes from the resampling of the 3 mm grid and at the
-  smoothed skin, and where these cross the shaft's edges and the malleoli they move the tibia.
+  91 % of its variance in x and y, the tracker's own errors 29-32 %. The 4 mm volume's line integral
+  differs from the generator's volume's by 0.006-0.008 RMS in the high-passed band over the
+  tibia's two regions (frame 50) — a quarter to a third of the tibia's own high-passed DRR there
+  (0.024-0.028) — in stripes from the resampling of the 3 mm grid and at the smoothed skin and
+  the cut top of the shank; where these cross the shaft's edges and the malleoli they move the
+  tibia (each pixel's share of the bias, ``(JᵀJ)⁻¹ Jᵀ``, is largest along the shaft's edges).
 * Not the gain (c): the 4 mm volume's fitted gain is 1.22-1.26 per view (``exact`` 1.01-1.02, the
   high-passed band of a smoother volume is weaker), yet held at 1 a full refinement (6 steps,
   :class:`~core.tracking.likelihood_cost.LikelihoodCost`) gives the same (x at frames 0 / 50: 1.4

@@ -62,9 +62,10 @@ Measured (this 2-core CPU machine, :func:`bias`, 256², 1 mm voxels, frames 0, 1
   derivative in the step makes every volume worse (``coarse_deriv`` 56.6 / 208.1, ``exact_deriv``
   44.0 / 85.7; the calcaneus 288-357 µm): the step then takes pose information from the tissue's
   skin, which no user's volume has exactly.
-* Not the ray step: the 4 mm volume rendered with a 0.5 mm step instead of its 4 mm (side check,
-  same frames) 48.0 / 84.2; smoothing it by 2 / 4 / 8 px (at 1024²) 46.4 / 44.5 / 40.7 µm — towards
-  ``none`` as its high-passed band fades.
+* Not the ray step: in a side check (same frames; the tissue projected out after the fit, where
+  ``coarse`` gave 47.0 / 88.7 and ``none`` 37.8 / 68.7) the 4 mm volume rendered with a 0.5 mm
+  step instead of its 4 mm gave 48.0 / 84.2; smoothed by 2 / 4 / 8 px (at 1024²) 46.4 / 44.5 /
+  40.7 µm — towards ``none`` as its high-passed band fades.
 * The talus's bias is the tissue's: ``none`` 43.1 / 224.8, ``exact`` 16.1 / 66.2, ``fine`` 16.9 /
   72.8, ``coarse`` 24.0 / 107.6 (bound 48 µm / 211 mdeg); the calcaneus ``none`` 37.5 / 75.1,
   ``exact`` 36.8 / 45.2, ``fine`` 33.0 / 49.5, ``coarse`` 33.2 / 59.7.
@@ -73,8 +74,8 @@ Measured (this 2-core CPU machine, :func:`bias`, 256², 1 mm voxels, frames 0, 1
   (frames 70-90 carry a grid bias of 60-200 µm there; over frames 0-60 ``none`` 26.8 / 65.7,
   ``exact`` 21.8 / 48.4, ``fine`` 24.1 / 49.3, ``coarse`` 30.3 / 74.4: at this size some of the
   tibia's bias is the tissue's, and still the 4 mm volume adds more than it takes); the talus
-  ``none`` 18.5 / 111.0, ``exact`` 8.2 / 21.0, ``fine`` 6.1 / 22.9, ``coarse`` 7.8 / 38.6;
-  ``coarse_est`` 92.1 / 126.8 against ``coarse`` 92.2 / 127.0.
+  ``none`` 18.5 / 111.0, ``exact`` 8.2 / 21.0, ``fine`` 6.1 / 22.9, ``coarse`` 7.8 / 38.6; the
+  tibia's ``coarse_est`` 92.1 / 126.8 against ``coarse`` 92.2 / 127.0.
 
 So the tibia gains little from a tissue model and the user's 4 mm volume costs it more than that,
 while the talus (and the calcaneus's rotation) gain much: the remedy is a finer (2 mm) volume,

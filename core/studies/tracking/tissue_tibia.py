@@ -44,8 +44,11 @@ Measured (this 2-core CPU machine, :func:`bias`, 256², 1 mm voxels, frames 0, 1
   6, 12, 17, 18, 17, 11, 9, 2 µm — the H200's tracking (``hp8_tissue`` − ``hp8``, same frames,
   1024²) −11, −8, 6, 16, 17, 18, 15, 8, 8, 1 µm. The degradation in tracking is this
   pose-dependent offset, reproduced from the true poses at a quarter of the size (so not
-  hypothesis d): over the 100 tracked frames a 5th-order polynomial in the frame index explains
-  91 % of its variance in x and y, the tracker's own errors 29-32 %. The 4 mm volume's line integral
+  hypothesis d). :func:`core.studies.tracking.tissue_stage.probe` missed it because its 20-frame
+  trial spans only the first 11 % of stance (this trial's frames 0-19), where the offset is
+  negative and cancelled the tibia's positive bias (its mean x error 20 → 7 µm with the tissue).
+  Over the 100 tracked frames a 5th-order polynomial in the frame index explains 91 % of the
+  offset's variance in x and y, the tracker's own errors 29-32 %. The 4 mm volume's line integral
   differs from the generator's volume's by 0.006-0.008 RMS in the high-passed band over the
   tibia's two regions (frame 50) — a quarter to a third of the tibia's own high-passed DRR there
   (0.024-0.028) — in stripes from the resampling of the 3 mm grid and at the smoothed skin and

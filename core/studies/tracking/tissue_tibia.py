@@ -294,8 +294,11 @@ def bias(*, pixels: int = 256, voxel: float = 1.0, frames=range(0, 100, 10), bon
 
 def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, voxel: float = 0.5,
         workers: int = 0, cases=("three", "tibia"), correction: str = "grid", warm_frames: int = 3,
-        checkpoint=None) -> dict:
-    """The trial tracked with the stage's per-bone tissue settings (module docs); JSON-ready."""
+        labels=None, checkpoint=None) -> dict:
+    """The trial tracked with the stage's per-bone tissue settings (module docs); JSON-ready.
+    ``labels``: the runs (default: those of the module docs; also ``hp8_tissue_fine_tibia_hp4``,
+    ``hp8_tissue_fine_not_tibia_tibia_hp4``: the 2 mm tissue with the tibia's own 4 px high-pass,
+    with and without the tissue in its stage)."""
     import core.tracking.final_stage as fst
     from core.render import DRRRenderer
     from core.studies.tracking.ml_cost import _scene
@@ -316,7 +319,14 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
               "hp8_tissue_not_tibia": replace(coarse, bones={tib: BoneStage(tissue=False)}),
               "hp8_tissue_not_tibia_tibia_hp4": replace(coarse, bones={tib: BoneStage(highpass_px=4.0,
                                                                                       tissue=False)}),
-              "hp8_tissue_fine": fine}
+              "hp8_tissue_fine": fine,
+              "hp8_tissue_fine_tibia_hp4": replace(fine, bones={tib: BoneStage(highpass_px=4.0)}),
+              "hp8_tissue_fine_not_tibia_tibia_hp4": replace(fine, bones={tib: BoneStage(highpass_px=4.0,
+                                                                                         tissue=False)})}
+    default = ("hp8", "hp8_tissue", "hp8_tissue_not_tibia", "hp8_tissue_not_tibia_tibia_hp4",
+               "hp8_tissue_fine")
+    labels = default if labels is None else tuple(labels)
+    models = {k: models[k] for k in labels}
     out["models"] = {k: m.to_dict() for k, m in models.items()}
     out["setup_s"] = time.perf_counter() - t0
     for case in cases:
@@ -331,7 +341,7 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
                     refine_likelihood=True)
         runs = [(k, m) for k, m in models.items()
                 if case == "three" or k in ("hp8", "hp8_tissue", "hp8_tissue_fine")]
-        if case == "tibia":
+        if case == "tibia" and labels == default:
             runs.append(("hp4", replace(plain)))
         c: dict = {"mode": base.mode, "bones": names}
         hp4 = replace(o, registration=replace(o.registration, final_highpass_px=4.0))
@@ -377,6 +387,7 @@ def main(argv=None) -> int:
     p.add_argument("--highpass", type=float, default=8.0, help="--bias: σ px at 1024² (scaled)")
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--cases", default="three,tibia")
+    p.add_argument("--labels", default="", help="the runs (run(); default those of the module docs)")
     p.add_argument("--machine-name", default=None, help="the machine's name for the JSON (e.g. the GPU)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
@@ -396,7 +407,8 @@ def main(argv=None) -> int:
                    highpass=a.highpass, device=a.device or "cpu", checkpoint=checkpoint)
     else:
         res = run(device=a.device, frames=int(a.frames or 100), pixels=a.pixels or 1024, voxel=a.voxel or 0.5,
-                  workers=a.workers, cases=[x for x in a.cases.split(",") if x], checkpoint=checkpoint)
+                  workers=a.workers, cases=[x for x in a.cases.split(",") if x],
+                  labels=[x for x in a.labels.split(",") if x] or None, checkpoint=checkpoint)
     checkpoint(res)
     print_json(res, a.out)
     return 0

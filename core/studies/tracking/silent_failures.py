@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-__all__ = ["analyse", "count", "dump_run", "main"]
+__all__ = ["analyse", "cost_line", "count", "dump_run", "main"]
 
 #: The issue's failure: an error over this many times the bone's Cramér–Rao bound (RMS of its
 #: per-frame bounds), translation or rotation (:func:`core.studies.tracking.acceptance._over_bound`).
@@ -179,6 +179,43 @@ def analyse(path: str, **post) -> dict:
     return got
 
 
+def cost_line(ts, path: str, frames, *, bone: int = 0, joint: bool = True,
+              steps=(-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)) -> dict:
+    """The similarity cost of bone ``bone`` in ``frames`` along the line from the dumped estimate
+    (``path``, :func:`main` ``--dump`` of scene ``ts``) to the truth, at the fractions ``steps``
+    (0: the estimate, 1: the truth; lower is better): whether the truth is a better optimum the search
+    missed (the cost falls towards it) or the cost's own optimum is off (it rises). Host cost at full
+    resolution (:class:`~core.tracking.cost.RegistrationCost`, the tracking options' terms), with the
+    other bones subtracted at their estimates when ``joint``, as in the tracker's last joint round."""
+    from core.geometry.transforms import params_from_pose
+    from core.tracking.cost import RegistrationCost, prepare_frame
+    from core.tracking.options import TrackingOptions
+    from core.tracking.roi import search_roi
+
+    z = np.load(path)
+    o = TrackingOptions()
+    m = ts.models[bone]
+    c = m.centroid
+    t = np.asarray(steps, dtype=float)
+    out = {}
+    for f in frames:
+        frame = prepare_frame(ts.frames(f), valid_range=o.valid_range, erode_px=o.erode_px)
+        est = [z[f"{n}.pose"][f] for n in ts.names]
+        ids = [k for k in range(len(est)) if k != bone]
+        others = (np.stack([est[k] for k in ids]), ids) if joint and ids else None
+        roi = search_roi(ts.renderer, est[bone], bone, views=tuple(range(frame.n_views)), center=c,
+                         reach_mm=2.0, points=m.outline)
+        cost = RegistrationCost(ts.renderer, frame, bone=bone, base_pose=est[bone], center=c, roi=roi,
+                                terms=o.registration.terms, others=others)
+        d = params_from_pose(ts.truth(f)[bone], center=c, base=est[bone])
+        d = np.r_[d[:3], np.degrees(d[3:])]
+        v = np.asarray(cost(t[:, None] * d[None, :]), float)
+        out[int(f)] = {"to_truth": d.round(4).tolist(), "cost": v.round(6).tolist(),
+                       "truth_minus_estimate": round(float(v[t == 1.0][0] - v[t == 0.0][0]), 6),
+                       "best_step": float(t[int(np.argmin(v))])}
+    return {"steps": t.tolist(), "frames": out}
+
+
 def main(argv=None) -> int:
     from core.studies.tracking.acceptance import cramer_rao, tracking_scene
     from core.tracking.flags_post import FLAG
@@ -197,7 +234,20 @@ def main(argv=None) -> int:
     p.add_argument("--analyse", nargs="+", default=None, metavar="NPZ",
                    help="no tracking: count the dumps' frames before and after the post-pass (CPU)")
     p.add_argument("--limit", type=float, default=None, help="the post-pass's limit (--analyse)")
+    p.add_argument("--line", default=None, metavar="NPZ",
+                   help="no tracking: the tibia's cost from the dump's estimate to the truth in "
+                   "--line-frames (the dump's scene: --seeds, one; joint unless its name says sequential)")
+    p.add_argument("--line-frames", default="", help="frames for --line, comma-separated")
     a = p.parse_args(argv)
+    if a.line:
+        from core.io.atomic import print_json
+
+        ts = tracking_scene(quick=a.pixels <= 256, device=a.device, seed=int(a.seeds.split(",")[0]),
+                            n_frames=a.frames, pixels=a.pixels)
+        frames = [int(f) for f in a.line_frames.split(",")]
+        got = cost_line(ts, a.line, frames, joint="sequential" not in a.line)
+        print_json({"study": "core.studies.tracking.silent_failures", "line": a.line, **got}, a.out)
+        return 0
     if a.analyse:
         from core.io.atomic import print_json
 

@@ -98,14 +98,20 @@ in brackets where any):
   no frame over 4×; the 2 mm tissue for every bone 1.54/1.36 (1), 1.15/1.19, 1.12/1.30 — the
   best of all for every bone, the tibia too. The stage 18.6 / 19.6 / 19.2 / 17.1 / 19.5 ms per
   bone-frame.
+* a second call (``second_call`` in the JSON; the stage of 0bd08eb, with its blurred design
+  differences): the 2 mm tissue again 1.54/1.36 (1), 1.15/1.19, 1.12/1.30; with the tibia's own
+  4 px high-pass 1.54/1.41, 1.15/1.20, 1.11/1.29 and no frame over 4×; that without the tissue in
+  the tibia's stage 1.56/1.42, 1.15/1.19, 1.11/1.29. The stage 19.4 / 17.2 / 17.0 ms.
 * the tibia alone (its shank tissue only): no tissue 1.87/1.67 (3), the 4 mm tissue 2.02/1.74
   (3), the 2 mm tissue 1.70/1.62 (3), the 4 px high-pass without tissue 1.51/1.53 (none).
 * the talus's confidence covers less with any tissue: 2σ holds in 79 % (4 mm) and 76 % (2 mm) of
   its frames against 93 % without.
 
 What to use: a tissue volume of 2 mm (``tissue_regressor.user_tissue("fine")``: the lab's soft
-tissue at 2 mm, not 4), for every bone; with only a 4 mm volume, the tissue off in the tibia's
-stage (``BoneStage(tissue=False)``, best with ``highpass_px=4.0``). Nothing in the stage's tissue
+tissue at 2 mm, not 4), for every bone, the tibia's stage at 4 px (``BoneStage(highpass_px=4.0)``:
+the same ratios within 0.05, no frame over 4×); with only a 4 mm volume, the tissue off in the
+tibia's stage (``BoneStage(highpass_px=4.0, tissue=False)``). The tibia stays at 1.5× its bound
+in translation with any of them, the rotations at 1.2-1.4×. Nothing in the stage's tissue
 path (:mod:`core.tracking.likelihood_tissue`) was wrong: the regressor is rendered and fitted as
 intended, and the error is the volume's.
 

@@ -51,7 +51,7 @@ So the tibia sits at ~1.5× in tracking at 4 px because that high-pass's noise-o
 correction; the wider high-pass that would lower the spread lets the rim's step in. The exact
 correction leaves it where the grid correction does (``ml_cost --correction grid,exact``).
 ``ml_cost --final --erode-px`` measures the tracked trial with the wider unusable band
-(``TrackingOptions.erode_px``; 15 px for 4 px, 27 px for 8 px); not yet run on a GPU.
+(``TrackingOptions.erode_px``: 12 px for 4 px, 24 px for 8 px at 1024², as ``erode``); not yet run on a GPU.
 """
 
 from __future__ import annotations

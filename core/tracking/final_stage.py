@@ -127,6 +127,7 @@ import numpy as np
 from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
 from .engine_likelihood import LikelihoodEngine, StepClock, likelihood_engine, run_side_by_side, run_steps
+from .likelihood_rim import apply_rim
 
 __all__ = ["MODEL", "BoneStage", "FinalModel", "LikelihoodFit", "final_model", "final_stage",
            "final_stage_steps", "final_stages", "rejected", "robust_factors", "stage_neighbours"]
@@ -184,6 +185,9 @@ class FinalModel:
     #: :attr:`tissue`'s; a dict of ``BoneStage`` or of its keyword dicts; kept as sorted pairs):
     #: that bone's high-pass σ and whether its stage fits the tissue (:meth:`for_bone`)
     bones: tuple = ()
+    #: usable pixels within ``rim_sigmas`` σ of the stage's high-pass of an unusable one (the
+    #: round field's rim) weighted 0 (:mod:`core.tracking.likelihood_rim`); None: none
+    rim_sigmas: float | None = None
 
     def __post_init__(self) -> None:
         if self.support_px is not None and not (np.isfinite(self.support_px) and self.support_px >= 0):
@@ -194,6 +198,8 @@ class FinalModel:
             raise ValueError(f"robust_kind: expected 'cauchy' or 'huber', got {self.robust_kind!r}")
         if not (np.isfinite(self.robust_sigma_px) and self.robust_sigma_px > 0):
             raise ValueError(f"robust_sigma_px: expected a σ > 0 (pixels), got {self.robust_sigma_px!r}")
+        if self.rim_sigmas is not None and not (np.isfinite(self.rim_sigmas) and self.rim_sigmas > 0):
+            raise ValueError(f"rim_sigmas: expected None or a width > 0 (σ), got {self.rim_sigmas!r}")
         if int(self.rounds) != self.rounds or self.rounds < 1:
             raise ValueError(f"rounds: expected an integer >= 1, got {self.rounds!r}")
         from ..render.volume import CTVolume
@@ -236,6 +242,8 @@ class FinalModel:
             d["tissue_again"] = self.tissue_again
         if self.bones:
             d["bones"] = {str(b): st.to_dict() for b, st in self.bones}
+        if self.rim_sigmas is not None:
+            d["rim_sigmas"] = self.rim_sigmas
         return d
 
 
@@ -531,6 +539,8 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
         eng.timer = CostTimer()
         eng.own_images = bool(side_by_side)
         eng.set_frame(frame, base_pose=res.pose, center=center, roi=roi, others=others)
+        if model.rim_sigmas is not None and hp:
+            apply_rim(eng, frame, model.rim_sigmas * hp)
         again = _set_tissue(eng, renderer, model, bone, res.pose, others)
         timing["likelihood_setup_s"] = clock.seconds()
         out = yield from _refine_steps(eng, o, model, again)

@@ -27,7 +27,8 @@ def test_rim_keep_is_the_band_within_the_radius():
     assert rim_keep(fr, (0,), np.array([[24, 24, 16, 16]]), 6.0, (16, 16)) is None  # far from the rim
     with pytest.raises(ValueError, match="rim_sigmas"):
         FinalModel(rim_sigmas=0)
-    assert "rim_sigmas" not in FinalModel().to_dict() and FinalModel(rim_sigmas=3.0).to_dict()["rim_sigmas"] == 3
+    assert "rim_sigmas" not in FinalModel().to_dict()
+    assert FinalModel(rim_sigmas=3.0).to_dict()["rim_sigmas"] == 3
 
 
 def _field(talus_scene, frame: int, off: float):

@@ -180,15 +180,19 @@ class LevenbergMarquardt:
     def _correction(self, s) -> np.ndarray:
         """``gradient="corrected"``: the mean over the steps so far of the scores' central differences
         less the moments' gradient, each coordinate shrunk toward 0 by its noise (positive-part
-        James–Stein, ``max(0, 1 - var / mean²)``; one step's differences have the variance
-        ``σ_c² / 2h_k²``, σ_c the step's roughness about its quadratic, :func:`_residuals`)."""
+        James–Stein, ``max(0, 1 - var / mean²)``). One step's differences have the variance
+        ``σ_c² / 2h_k²``, σ_c the step's roughness about its quadratic (:func:`_residuals`); the
+        roughness is the cost's own at nearby poses, not independent from step to step, so ``var``
+        is the steps' mean variance, not divided by their number (divided, the tibia's rotation
+        about its long axis on the acceptance trial at 256² was 0.57° RMS against 0.42°, moments
+        0.36°, over 10 registrations; the talus 0.60° against 0.61°, moments 0.74°)."""
         h = s.h
         self._dsum += (s.costs[1::2] - s.costs[2::2]) / (2.0 * h) - s.g
         _, res = _residuals(s, self.alpha)
         self._dvar += float(res @ res) / 6.0 / (2.0 * h * h)
         self._dn += 1
         mean = self._dsum / self._dn
-        var = self._dvar / (self._dn * self._dn)
+        var = self._dvar / self._dn
         return mean * np.maximum(0.0, 1.0 - var / np.maximum(mean * mean, 1e-300))
 
     def ask(self, cancel: Callable[[], bool] | None = None) -> np.ndarray | None:

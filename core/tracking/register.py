@@ -19,8 +19,11 @@ Default levels (:func:`default_levels`)
 * ``search="newton"`` (tracking from a predicted pose): Levenberg–Marquardt steps of the
   Gauss–Newton engine (:mod:`core.tracking.engine`: the cost's gradient and 6 × 6 curvature from
   13 poses per launch) at full resolution. The engine keeps its device buffers from frame to
-  frame; only ``gc`` and ``ncc`` single-term costs. Its widened form ``"global_newton"`` (first
-  frames, retries) scores the CMA-ES populations on the engine too.
+  frame; only ``gc`` and ``ncc`` single-term costs. On pixels coarser than 0.6 mm at the bone
+  (256² views of a foot and coarser) wider half-steps and a gradient corrected for the metric
+  domain's change with the pose (:func:`~core.tracking.register_options.newton_step`). Its
+  widened form ``"global_newton"`` (first frames, retries) scores the CMA-ES populations on the
+  engine too.
 
 The full-resolution quadratic fit of the last level is returned (``fit``): its Hessian and
 residual give the pose uncertainty without another launch.

@@ -12,7 +12,20 @@ all to one compressed ``.npz`` per run (the analysis reads it back without a GPU
 stdout counts, per configuration and bone, the frames over ``4×`` the bound, those left unflagged
 (*silent*) and the good frames flagged, before and after the trajectory post-pass of
 :mod:`core.tracking.flags_post` (the tracker's own result holds both: the post-pass flags carry
-its flag name).
+its flag name). ``--line`` evaluates a bone's cost from a dumped estimate to the truth
+(:func:`cost_line`): whether a silent frame's truth is an optimum the search missed.
+
+Measured (``resources/benchmarks/tracking_silent_failures_h100.json``; tracked on one NVIDIA H100,
+the rest on this 2-core CPU machine): the post-pass and what it caught are in
+:mod:`core.tracking.flags_post`'s docs. No per-frame quantity the tracker keeps separated the
+frames over 4× the bound from the others (rank AUC 0.42-0.59). The runs it leaves silent (the tibia
+off about its long axis for several frames) are the cost's own optima: in the seed-1 joint runs
+(frames 5-8, 10, 38, 39) the cost at the truth is 0.00017-0.0024 worse than at the estimate, its
+best along the line within a quarter of the way (frame 38 halfway), so neither a wider search nor
+restarts would find or flag them. Where the line falls towards the truth (seed 0 jointly, frames
+41, 50, 81, 89; 4 of 5 sequential failures) it is the host cost's own roughness: moving every
+frame's axial rotation to the host cost's one-dimensional minimum leaves the tibia's RMS 0.173 →
+0.178° (4 of its 5 failures fixed, 3 new), halfway between the two minima 0.155°.
 """
 
 from __future__ import annotations

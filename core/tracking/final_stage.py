@@ -83,9 +83,14 @@ with the tissue 1.64/1.47, 1.36/1.28, 1.21/1.37 (stage 15.3 → 16.8 ms per bone
 1.17/1.19, 1.14/1.33). The regressor lets the wider high-pass keep the talus's low frequencies —
 the talus is within 1.25× its bound only so — but it costs the tibia 0.2×; rendering the tissue
 again after the first refinement (``tissue_again``) or a gain per part (``tissue_each``) changed
-every ratio by 0.03 or less. From the true poses (:func:`core.studies.tracking.tissue_stage.probe`,
-this 2-core CPU machine, 256²) the same tissue does not cost the tibia this. The regressor stays
-opt-in.
+every ratio by 0.03 or less. The tibia's loss is the 4 mm volume's error, not the stage's
+(:mod:`core.studies.tracking.tissue_tibia`: its resampling stripes, smoothed skin and cut shank
+top cross the tibia's edges; the first-order bias from the true poses over the 100 frames has the
+tracked offset's shape): with a 2 mm volume for every bone (``tissue_regressor.user_tissue("fine")``,
+``resources/benchmarks/tracking_tissue_tibia_h200.json``, 8 px, three jointly) 1.54/1.36,
+1.15/1.19, 1.12/1.30 — every bone better than without tissue. Use a 2 mm tissue volume; with only
+a 4 mm one, ``bones={tibia: BoneStage(highpass_px=4.0, tissue=False)}`` (1.56/1.42, 1.17/1.19,
+1.15/1.34). The regressor stays opt-in (the lab must have the CT).
 
 Per-bone settings (:attr:`FinalModel.bones`)
 --------------------------------------------

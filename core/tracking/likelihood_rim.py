@@ -14,8 +14,10 @@ farther than ``rim_sigmas · σ`` (Euclidean) from every unusable pixel of the f
 rounds and the support keep the band). A region that no unusable pixel comes near (the talus and
 the calcaneus of the acceptance trial; the tibia reaches the rim) costs a comparison of its window
 and nothing else; a view whose whole region would be in the band keeps its weights (its steps would
-have nothing to go by). The distance is computed on the host (OpenCV's precise Euclidean distance
-transform over the region grown by the band), only where the window has an unusable pixel.
+have nothing to go by). The distance is computed on the host (OpenCV's 5×5 Euclidean distance
+transform, within 0.8 px of the exact one near a round field's rim, over the region grown by the
+band), only where the window has an unusable pixel: on this 2-core CPU machine 1.3 ms for a
+448 × 528 window (the exact transform 5.8 ms), 0.5 ms for two regions far from the rim.
 """
 
 from __future__ import annotations
@@ -67,7 +69,7 @@ def rim_keep(frame, views, roi, radius_px: float, cap: tuple[int, int]) -> np.nd
         ok = _usable(frame, v, R0, R1, C0, C1)
         if ok is None:
             continue
-        d = cv2.distanceTransform(ok.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)  # (outside: far)
+        d = cv2.distanceTransform(ok.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)  # (outside: far)
         keep = d[v0 - R0:v0 - R0 + h, u0 - C0:u0 - C0 + w] > radius_px
         if keep.all() or not keep.any():
             continue

@@ -304,7 +304,9 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
     """The trial tracked with the stage's per-bone tissue settings (module docs); JSON-ready.
     ``labels``: the runs (default: those of the module docs; also ``hp8_tissue_fine_tibia_hp4``,
     ``hp8_tissue_fine_not_tibia_tibia_hp4``: the 2 mm tissue with the tibia's own 4 px high-pass,
-    with and without the tissue in its stage)."""
+    with and without the tissue in its stage; each label with ``_rim`` appended: the same with
+    ``FinalModel(rim_sigmas=3.0)``, the band at the round field's rim). Given ``labels``, the
+    tibia alone runs each of them too."""
     import core.tracking.final_stage as fst
     from core.render import DRRRenderer
     from core.studies.tracking.ml_cost import _scene
@@ -329,6 +331,8 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
               "hp8_tissue_fine_tibia_hp4": replace(fine, bones={tib: BoneStage(highpass_px=4.0)}),
               "hp8_tissue_fine_not_tibia_tibia_hp4": replace(fine, bones={tib: BoneStage(highpass_px=4.0,
                                                                                          tissue=False)})}
+    for k in list(models):  # the same with the stage's band at the round field's rim (FinalModel.rim_sigmas)
+        models[k + "_rim"] = replace(models[k], rim_sigmas=3.0)
     default = ("hp8", "hp8_tissue", "hp8_tissue_not_tibia", "hp8_tissue_not_tibia_tibia_hp4",
                "hp8_tissue_fine")
     labels = default if labels is None else tuple(labels)
@@ -346,7 +350,7 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
         o = replace(base, registration=replace(base.registration, search="newton", final_highpass_px=8.0),
                     refine_likelihood=True)
         runs = [(k, m) for k, m in models.items()
-                if case == "three" or k in ("hp8", "hp8_tissue", "hp8_tissue_fine")]
+                if case == "three" or labels != default or k in ("hp8", "hp8_tissue", "hp8_tissue_fine")]
         if case == "tibia" and labels == default:
             runs.append(("hp4", replace(plain)))
         c: dict = {"mode": base.mode, "bones": names}

@@ -7,17 +7,17 @@ line integrals stay in the region, and the black field's ``-log(floor)`` (8.3 ag
 tissue's 1-3) is a step that the stage's high-pass (a Gaussian of σ ``highpass_px``, truncated at
 4 σ) spreads into the usable pixels over about 3 σ — hundreds of times a bone's own high-passed
 signal (:mod:`core.studies.tracking.border_frames`). :func:`rim_keep` gives the region's pixels
-farther than ``rim_sigmas · σ`` (Euclidean) from every unusable pixel of the frame, and
-:func:`apply_rim` multiplies the stage's weights by it right after
-:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame` (the weights that
+farther than ``rim_sigmas · σ`` (Euclidean) from every black pixel of the frame (at or below the
+valid range's low end: outside the round field, the collimator; not the saturated ones, whose line
+integral is the air's, no step), and :func:`apply_rim` sets the stage's weights 0 elsewhere right
+after :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame` (in the weights that
 :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.reset_weights` goes back to, so the robust
-rounds and the support keep the band). A region that no unusable pixel comes near (the talus and
-the calcaneus of the acceptance trial; the tibia reaches the rim) costs a comparison of its window
-and nothing else; a view whose whole region would be in the band keeps its weights (its steps would
-have nothing to go by). The distance is computed on the host (OpenCV's 5×5 Euclidean distance
-transform, within 0.8 px of the exact one near a round field's rim, over the region grown by the
-band), only where the window has an unusable pixel: on this 2-core CPU machine 1.3 ms for a
-448 × 528 window (the exact transform 5.8 ms), 0.5 ms for two regions far from the rim.
+rounds and the support keep the band). A region that no black pixel comes near (the talus and the
+calcaneus of the acceptance trial; the tibia reaches the rim) costs a comparison of its window and
+is left as it is, to the bit; a view whose whole region would be in the band keeps its weights
+(its steps would have nothing to go by). The distance is computed on the host (OpenCV's 5×5
+Euclidean distance transform, within 0.8 px of the exact one near a round field's rim) over the
+black pixels' bounding box grown by the band, the band uploaded from a pinned buffer without a wait.
 """
 
 from __future__ import annotations
@@ -28,31 +28,37 @@ import numpy as np
 import warp as wp
 
 from .cost import FrameImages
-from .likelihood_kernels import _times_kernel
 
 __all__ = ["apply_rim", "rim_keep"]
 
 
-def _usable(frame: FrameImages, view: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray | None:
-    """The frame's usable pixels of ``view`` over rows ``r0:r1`` and columns ``c0:c1`` before the
-    erosion of :func:`~core.tracking.cost.prepare_frame` (its valid range and given mask), or None
-    where every pixel is."""
-    ok = None
-    if frame._valid is not None:
-        lo, hi = frame._valid
-        sub = frame._fluence[view][r0:r1, c0:c1]
-        ok = (sub > lo) & (sub < hi)
-    g = frame._given[view]
-    if g is not None:
-        ok = g[r0:r1, c0:c1] if ok is None else ok & g[r0:r1, c0:c1]
-    return None if ok is None or ok.all() else ok
+#: the relative fluence at or below which an unusable pixel is black (its line integral near
+#: ``-log(floor)``: the step the high-pass spreads) where the frame gives no valid range
+DARK = 0.02
+
+
+@wp.kernel
+def _keep_kernel(w: wp.array3d(dtype=wp.float32), keep: wp.array3d(dtype=wp.uint8)):
+    """w = 0 where keep is 0. dim = items, H, W."""
+    k, r, c = wp.tid()
+    if keep[k, r, c] == wp.uint8(0):
+        w[k, r, c] = 0.0
+
+
+def _dark(frame: FrameImages, view: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray | None:
+    """The frame's black pixels of ``view`` over rows ``r0:r1`` and columns ``c0:c1`` (relative
+    fluence at or below the valid range's low end, :data:`DARK` without one; outside the
+    intensifier's round field, the collimator), or None where there are none."""
+    lo = frame._valid[0] if frame._valid is not None else DARK
+    dark = frame._fluence[view][r0:r1, c0:c1] <= lo
+    return dark if dark.any() else None
 
 
 def rim_keep(frame, views, roi, radius_px: float, cap: tuple[int, int]) -> np.ndarray | None:
-    """``(views, *cap)`` float32: 1 where a pixel of view ``views[i]``'s region ``roi[i] = (u0, v0, w,
+    """``(views, *cap)`` uint8: 1 where a pixel of view ``views[i]``'s region ``roi[i] = (u0, v0, w,
     h)`` (the padded layout of the engine, region at the top left) lies farther than ``radius_px``
-    from every unusable pixel of ``frame``, 0 where it lies within; None where no region has such a
-    pixel within ``radius_px`` (nothing to change), ``frame`` is not a
+    from every black pixel of ``frame`` (:func:`_dark`), 0 where it lies within; None where no
+    region has such a pixel within ``radius_px`` (nothing to change), ``frame`` is not a
     :class:`~core.tracking.cost.FrameImages` or a region is not inside its image."""
     import cv2
 
@@ -66,30 +72,42 @@ def rim_keep(frame, views, roi, radius_px: float, cap: tuple[int, int]) -> np.nd
         if w <= 0 or h <= 0 or u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
             return None
         R0, R1, C0, C1 = max(v0 - r, 0), min(v0 + h + r, H), max(u0 - r, 0), min(u0 + w + r, W)
-        ok = _usable(frame, v, R0, R1, C0, C1)
-        if ok is None:
+        dark = _dark(frame, v, R0, R1, C0, C1)
+        if dark is None:
             continue
-        d = cv2.distanceTransform(ok.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)  # (outside: far)
-        keep = d[v0 - R0:v0 - R0 + h, u0 - C0:u0 - C0 + w] > radius_px
+        # the distance over the black pixels' bounding box grown by the band (none beyond it)
+        rows, cols = np.flatnonzero(dark.any(axis=1)), np.flatnonzero(dark.any(axis=0))
+        b0, b1 = max(rows[0] - r, 0), min(rows[-1] + r + 1, R1 - R0)
+        a0, a1 = max(cols[0] - r, 0), min(cols[-1] + r + 1, C1 - C0)
+        d = cv2.distanceTransform((~dark[b0:b1, a0:a1]).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+        keep = np.ones((h, w), bool)
+        y0, x0 = v0 - R0, u0 - C0  # (the region in the window)
+        sy0, sy1, sx0, sx1 = max(b0, y0), min(b1, y0 + h), max(a0, x0), min(a1, x0 + w)
+        if sy0 < sy1 and sx0 < sx1:
+            keep[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = d[sy0 - b0:sy1 - b0, sx0 - a0:sx1 - a0] > radius_px
         if keep.all() or not keep.any():
             continue
         if out is None:
-            out = np.ones((len(views), *cap), np.float32)
+            out = np.ones((len(views), *cap), np.uint8)
         out[i, :h, :w] = keep
     return out
 
 
 def apply_rim(eng, frame, radius_px: float) -> bool:
     """The weights of ``eng`` (a :class:`~core.tracking.engine_likelihood.LikelihoodEngine` after its
-    :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame` of ``frame``) times
-    :func:`rim_keep` of its regions, the expected counts its later weights start from; True where
-    any weight changed."""
+    :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame` of ``frame``) 0 where
+    :func:`rim_keep` of its regions is, in the expected counts its later weights start from (uploaded
+    from a pinned buffer, no wait); True where any weight changed."""
     keep = rim_keep(frame, eng.views, eng.roi, radius_px, eng._cap)
     if keep is None:
         return False
     nv, (Hc, Wc) = eng.n_views, eng._cap
-    f = eng._buffer("rim", (nv, Hc, Wc))
-    f.assign(keep)
+    n = nv * Hc * Wc
+    host = eng._pinned("rim", (math.ceil(n / 65536.0) * 65536,), wp.uint8)
+    host.numpy()[:n] = keep.ravel()
+    f = eng._buffer("rim", (nv, Hc, Wc), wp.uint8)
+    wp.copy(f, host, 0, 0, n)
+    eng._uploaded()  # (set_frame waits for this copy before writing the pinned buffers again)
     for w in (eng._w, eng._w0) if eng._w0_set else (eng._w,):
-        wp.launch(_times_kernel, dim=(nv, Hc, Wc), inputs=[w, f, w], device=eng.device)
+        wp.launch(_keep_kernel, dim=(nv, Hc, Wc), inputs=[w, f], device=eng.device)
     return True

@@ -25,6 +25,9 @@ def test_rim_keep_is_the_band_within_the_radius():
     assert np.all(keep[1] == 1)  # view 1 has no unusable pixel
     assert rim_keep(fr, (1,), roi[1:], 6.0, (64, 64)) is None
     assert rim_keep(fr, (0,), np.array([[24, 24, 16, 16]]), 6.0, (16, 16)) is None  # far from the rim
+    air = np.full((64, 64), 0.5, np.float32)
+    air[:, :20] = 1.0  # saturated (unusable, but the line integral of air: no step)
+    assert rim_keep(prepare_frame([air]), (0,), roi[:1], 6.0, (64, 64)) is None
     with pytest.raises(ValueError, match="rim_sigmas"):
         FinalModel(rim_sigmas=0)
     assert "rim_sigmas" not in FinalModel().to_dict()

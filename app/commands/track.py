@@ -322,9 +322,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "trial (one NVIDIA H200, three bones jointly) newton took 22.5 against 326 ms per "
                         "frame, left 5 frames over 4x their Cramer-Rao bound against 15 and captured first "
                         "frames from 10 mm / 10 deg in 30 of 30 starts against 29; the talus's translation "
-                        "was 1.80x its bound against 1.59x. On a CPU at coarse views local was the more "
-                        "accurate (harder trial at 192^2: talus 0.055 against 0.198 mm RMS, at 2.9x the "
-                        "time). First frames and retries search globally")
+                        "was 1.80x its bound against 1.59x. On a CPU at coarse views local was still the "
+                        "more accurate in places (harder trial at 192^2: talus 0.055 against 0.130 mm RMS; "
+                        "acceptance trial at 256^2: the tibia's rotation 0.29 against 0.76 deg), at 3-6x "
+                        "the renders. First frames and retries search globally")
     p.add_argument("--scale", type=float, default=1.0, metavar="S",
                    help="track at reduced resolution: S detector pixels per DRR pixel (1 = full "
                         "resolution, 2 = half: about 4x less work per evaluation, e.g. without a GPU)")

@@ -144,10 +144,12 @@ class BoneStage:
     the high-pass σ of that bone's stage (pixels; 0: none) instead of the registration options'
     ``final_highpass_px`` (None: theirs); ``tissue`` False: that bone's stage fits no tissue
     regressor (the model's :attr:`~FinalModel.tissue` volumes still follow the bone's pose in the
-    other bones' stages)."""
+    other bones' stages); ``rim_sigmas`` that bone's band at the round field's rim instead of the
+    model's :attr:`~FinalModel.rim_sigmas` (None: the model's; 0: none)."""
 
     highpass_px: float | None = None
     tissue: bool = True
+    rim_sigmas: float | None = None
 
     def __post_init__(self) -> None:
         hp = self.highpass_px
@@ -158,9 +160,17 @@ class BoneStage:
         object.__setattr__(self, "tissue", bool(self.tissue))
         if hp is not None:
             object.__setattr__(self, "highpass_px", float(hp))
+        rs = self.rim_sigmas
+        if rs is not None:
+            if not (np.isfinite(rs) and rs >= 0):
+                raise ValueError(f"rim_sigmas: expected None or a width >= 0 (σ), got {rs!r}")
+            object.__setattr__(self, "rim_sigmas", float(rs))
 
     def to_dict(self) -> dict:
-        return {"highpass_px": self.highpass_px, "tissue": self.tissue}
+        d = {"highpass_px": self.highpass_px, "tissue": self.tissue}
+        if self.rim_sigmas is not None:
+            d["rim_sigmas"] = self.rim_sigmas
+        return d
 
 
 @dataclass(frozen=True)
@@ -227,13 +237,15 @@ class FinalModel:
 
     def for_bone(self, bone: int, highpass_px: float) -> tuple[FinalModel, float]:
         """``(model, highpass_px)`` of bone ``bone``'s stage: this model without its tissue where
-        the bone's :class:`BoneStage` turns it off, and its high-pass σ (``highpass_px``, the
-        registration options', where it gives none). A bone without overrides: ``(self,
-        highpass_px)`` unchanged."""
+        the bone's :class:`BoneStage` turns it off, with its band at the rim, and its high-pass σ
+        (``highpass_px``, the registration options', where it gives none). A bone without
+        overrides: ``(self, highpass_px)`` unchanged."""
         st = dict(self.bones).get(int(bone))
         if st is None:
             return self, highpass_px
         m = self if st.tissue or not self.tissue else replace(self, tissue=())
+        if st.rim_sigmas is not None and (st.rim_sigmas or None) != m.rim_sigmas:
+            m = replace(m, rim_sigmas=st.rim_sigmas or None)
         return m, (highpass_px if st.highpass_px is None else st.highpass_px)
 
     def to_dict(self) -> dict:

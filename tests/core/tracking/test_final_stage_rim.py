@@ -28,10 +28,25 @@ def test_rim_keep_is_the_band_within_the_radius():
     air = np.full((64, 64), 0.5, np.float32)
     air[:, :20] = 1.0  # saturated (unusable, but the line integral of air: no step)
     assert rim_keep(prepare_frame([air]), (0,), roi[:1], 6.0, (64, 64)) is None
+    air[:, :20] = 0.015  # dense (unusable, just below the valid range: no step either)
+    assert rim_keep(prepare_frame([air]), (0,), roi[:1], 6.0, (64, 64)) is None
     with pytest.raises(ValueError, match="rim_sigmas"):
         FinalModel(rim_sigmas=0)
     assert "rim_sigmas" not in FinalModel().to_dict()
     assert FinalModel(rim_sigmas=3.0).to_dict()["rim_sigmas"] == 3
+
+
+def test_per_bone_rim():
+    from core.tracking.final_stage import BoneStage
+
+    m = FinalModel(bones={0: BoneStage(rim_sigmas=3.0), 1: BoneStage(highpass_px=4.0)})
+    assert m.for_bone(0, 8.0) == (FinalModel(rim_sigmas=3.0, bones=m.bones), 8.0)
+    assert m.for_bone(1, 8.0)[0] is m and m.for_bone(2, 8.0)[0] is m
+    off = FinalModel(rim_sigmas=3.0, bones={2: BoneStage(rim_sigmas=0)})
+    assert off.for_bone(2, 8.0)[0].rim_sigmas is None and off.for_bone(0, 8.0)[0] is off
+    assert m.to_dict()["bones"]["0"]["rim_sigmas"] == 3.0 and "rim_sigmas" not in m.to_dict()["bones"]["1"]
+    with pytest.raises(ValueError, match="rim_sigmas"):
+        BoneStage(rim_sigmas=-1)
 
 
 def _field(talus_scene, frame: int, off: float):

@@ -113,6 +113,7 @@ def test_a_flagged_stage_move_is_rejected(two_bones, monkeypatch):
     after the bone's first good one flags (limit 1 of a single frame's move, no σ allowance; frame 2
     is frame 0's image)."""
     import core.tracking.final_stage as fst
+    import core.tracking.register_options as ro
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions, track
 
@@ -126,6 +127,9 @@ def test_a_flagged_stage_move_is_rejected(two_bones, monkeypatch):
         return out
 
     monkeypatch.setattr(fst, "final_stage", kept)
+    # the moments' Gauss-Newton search at these coarse views too (the similarity poses this test's
+    # frame 2 moves from more than frame 1: register_options.newton_step)
+    monkeypatch.setattr(ro, "COARSE_NEWTON_MM", 100.0)
     skip = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton", final_highpass_px=2.0)
     o = TrackingOptions(mode="sequential", verify_restarts=0, registration=reg, refine_likelihood=True,

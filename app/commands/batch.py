@@ -27,9 +27,10 @@ Dask dashboard address first), the JSON summary to stdout.
 frames (the trials without are named, and nothing is tracked). The failure checks' thresholds
 (``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``) and the final
 stage's move check (``--stage-move-limit``, ``--stage-move-sigmas``, ``--stage-move-frames``,
-``--keep-stage-moves``; with ``--final likelihood`` only) are ``talus track``'s
-(:data:`app.commands.track.CHECKS`), for every task; out-of-range values are refused naming the
-option before any task starts.
+``--keep-stage-moves``; with ``--final likelihood`` only) and the trajectory check run once a
+task's run is complete (``--trajectory-limit K|off``, ``--no-trajectory-check``) are ``talus
+track``'s (:data:`app.commands.track.CHECKS`), for every task; out-of-range values are refused
+naming the option before any task starts.
 Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
 it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """

@@ -1,6 +1,7 @@
 """``talus track`` and ``talus batch``: the failure checks' thresholds (--collapse-ratio,
---motion-limit, --motion-floor, --sigma-limit) and the final stage's move check (--stage-move-limit,
---stage-move-sigmas, --stage-move-frames, --keep-stage-moves) parsed, checked and handed to the
+--motion-limit, --motion-floor, --sigma-limit), the final stage's move check (--stage-move-limit,
+--stage-move-sigmas, --stage-move-frames, --keep-stage-moves) and the trajectory check
+(--trajectory-limit K|off, --no-trajectory-check) parsed, checked and handed to the
 tracker (which is not run here), and the likelihood final stage refused after one read of the
 trial's correction."""
 
@@ -45,7 +46,7 @@ def tracker(monkeypatch):
 
 def test_the_command_line_defaults_are_the_trackers():
     o = TrackingOptions()
-    fields = {**CHECK_FIELDS, **STAGE_MOVE_FIELDS}
+    fields = {**CHECK_FIELDS, **STAGE_MOVE_FIELDS, "trajectory_limit": None}
     assert set(track.CHECKS) == set(fields) and set(track.STAGE_MOVES) == set(STAGE_MOVE_FIELDS)
     assert {k: d for k, (_, d, _) in track.CHECKS.items()} == {k: getattr(o, k) for k in fields}
     assert track.check_choices(track.options_from_choices()) == track.check_choices(None)
@@ -57,6 +58,37 @@ def test_the_command_line_defaults_are_the_trackers():
     c = track.choices_of(staged)
     assert {k: c[k] for k in STAGE_GIVEN} == STAGE_GIVEN and type(c["stage_move_frames"]) is int
     assert track.options_from_choices(**c) == staged
+    off = track.options_from_choices(trajectory_limit=None)
+    assert off.trajectory_limit is None and track.choices_of(off)["trajectory_limit"] is None
+    assert track.options_from_choices(**track.choices_of(off)) == off
+
+
+@pytest.mark.parametrize(("flags", "expected"), [
+    ([], 2.5), (["--trajectory-limit", "3.5"], 3.5), (["--trajectory-limit", "off"], None),
+    (["--no-trajectory-check"], None)])
+def test_the_trajectory_check_reaches_track_and_batch(study, tracker, monkeypatch, capsys, flags, expected):
+    import core.tracking.batch as core_batch
+
+    settings = []
+    monkeypatch.setattr(core_batch, "run_serial",
+                        lambda tasks, s, progress=None: settings.append(s) or {"status": "complete",
+                                                                               "failures": []})
+    assert talus(["track", str(study), "--trial", "walk", "--frames", "0:1", "--quiet", *flags]) \
+        == EXIT_NOTHING_DONE
+    assert talus(["batch", str(study), "--workers", "0", "--quiet", *flags]) == EXIT_OK
+    capsys.readouterr()
+    assert tracker[0].trajectory_limit == expected
+    for joint in (False, True):
+        assert settings[0].tracking_options(joint=joint).trajectory_limit == expected
+
+
+def test_help_names_the_trajectory_check_and_its_effect(capsys):
+    with pytest.raises(SystemExit):
+        talus(["track", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--trajectory-limit K|off" in text and "--no-trajectory-check" in text
+    assert "off the trajectory" in text and "from 5 to 1" in text and "14 of 295" in text
+    assert "1.50/1.42" in text and "13.9 ms per bone-frame" in text  # --final's current numbers
 
 
 def test_help_names_the_move_check_and_its_final_stage(capsys):
@@ -107,6 +139,7 @@ def test_talus_track_hands_the_move_check_to_the_tracker(study, tracker, capsys)
     ("--stage-move-sigmas", "-1", "--stage-move-sigmas: expected a factor >= 0"),
     ("--stage-move-frames", "2.5", "--stage-move-frames: expected an integer >= 1"),
     ("--stage-move-frames", "0", "--stage-move-frames: expected an integer >= 1"),
+    ("--trajectory-limit", "0.5", "--trajectory-limit: expected a factor >= 1"),
 ])
 def test_bad_thresholds_are_refused_naming_the_option(study, tracker, capsys, flag, value, expected):
     for command in ("track", "batch"):

@@ -94,7 +94,7 @@ class TrackingActions:
         gc = ", gradient components" if c["metric"] == "components" else ""
         final = ", likelihood final stage" if c["final"] == "likelihood" else ""
         default = check_choices(None)
-        failure = [k for k in CHECKS if k not in STAGE_MOVES]  # the failure checks' thresholds
+        failure = [k for k in CHECKS if k not in STAGE_MOVES and k != "trajectory_limit"]  # thresholds
         checks = "" if all(c[k] == default[k] for k in failure) else (
             f", checks: collapse {c['collapse_ratio']:g}, motion {c['motion_limit']:g}x (floor "
             f"{c['motion_floor'][0]:g} mm, {c['motion_floor'][1]:g} deg), sigma {c['sigma_limit']:g}x")
@@ -102,6 +102,9 @@ class TrackingActions:
             checks += (f", stage move check {c['stage_move_limit']:g}x (at least "
                        f"{c['stage_move_sigmas']:g} sigma, after {c['stage_move_frames']} frames)"
                        f"{', moves kept' if not c['stage_move_reject'] else ''}")
+        if c["trajectory_limit"] != default["trajectory_limit"]:  # the post-pass over the trajectory
+            checks += (", trajectory check off" if c["trajectory_limit"] is None
+                       else f", trajectory check {c['trajectory_limit']:g}x")
         self.window.notify(f"Tracking options: {c['search']} search, {res} resolution{gc}, {c['mode']}, "
                            f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}{checks}")
 

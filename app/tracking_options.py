@@ -36,7 +36,11 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   stage moved the pose more than the *stage move limit* × the median move of the bone's last good
   frames and more than the given fraction of its own translation σ, once the bone has that many
   good frames; such a frame keeps the similarity's pose unless *Keep flagged stage moves* is
-  ticked. The spin boxes hold each to its valid range; an invalid value set from code is refused
+  ticked. *Trajectory limit* (``--trajectory-limit``, :mod:`core.tracking.flags_post`): once a
+  run is complete, a frame whose pose stands off the local fit through its neighbours' poses by
+  more than this × the bone's median residual is flagged *off the trajectory*; its lowest step,
+  *Off*, turns the check off (``TrackingOptions.trajectory_limit=None``). The spin boxes hold each
+  to its valid range; an invalid value set from code is refused
   on *OK* with the option and its range named.
 """
 
@@ -46,8 +50,8 @@ from PySide6 import QtWidgets
 
 from .commands.track import CHECKS, check_choices, choices_of, options_from_choices
 
-__all__ = ["CHECK_RANGES", "FINALS", "METRICS", "RESOLUTIONS", "SEARCHES", "TrackingOptionsDialog",
-           "choices_of", "options_from_choices"]
+__all__ = ["CHECK_RANGES", "FINALS", "METRICS", "OFF_FIELDS", "RESOLUTIONS", "SEARCHES",
+           "TrackingOptionsDialog", "choices_of", "options_from_choices"]
 
 #: (label, search) pairs shown in the dialog.
 SEARCHES = (("Gauss–Newton (faster)", "newton"), ("Local (quadratic models)", "local"))
@@ -71,19 +75,25 @@ CHECK_RANGES = {
     "stage_move_limit": (1.0, 100.0, 0.5, 1, " × recent median move"),
     "stage_move_sigmas": (0.0, 10.0, 0.1, 2, " × the frame's σ"),
     "stage_move_frames": (1, 1000, 1, 0, " good frames"),  # an integer: a QSpinBox
+    # its minimum, a step below the tracker's 1, reads "Off" (any value below 1: None)
+    "trajectory_limit": (1.0 - 0.25, 100.0, 0.25, 2, " × median residual"),
 }
+#: The *Advanced checks* spin boxes whose minimum means the check is off (the choice None).
+OFF_FIELDS = ("trajectory_limit",)
 
 #: The *Advanced checks* rows, in order: (:data:`CHECKS` field, label); ``motion_floor`` is two spin
 #: boxes (``floor_mm``, ``floor_deg``), every other field one spin box named as the field.
 _CHECK_ROWS = (("collapse_ratio", "Score &collapse below:"), ("motion_limit", "Motion &limit:"),
                ("motion_floor", "Motion fl&oor:"), ("sigma_limit", "&Uncertain above:"),
-               ("stage_move_limit", "Stage mo&ve limit:"), ("stage_move_sigmas", "Stage move &at least:"),
-               ("stage_move_frames", "Move check &needs:"))
+               ("trajectory_limit", "&Trajectory limit:"), ("stage_move_limit", "Stage mo&ve limit:"),
+               ("stage_move_sigmas", "Stage move &at least:"), ("stage_move_frames", "Move check &needs:"))
 _SPIN_FIELDS = tuple(name for name, _label in _CHECK_ROWS if name != "motion_floor")
 
 
-def _spin(name: str, value: float, tip: str) -> QtWidgets.QDoubleSpinBox | QtWidgets.QSpinBox:
+def _spin(name: str, value: float | None, tip: str) -> QtWidgets.QDoubleSpinBox | QtWidgets.QSpinBox:
     lo, hi, step, decimals, suffix = CHECK_RANGES[name]
+    if value is None:  # an OFF_FIELDS check turned off: the box's minimum
+        value = lo
     if decimals == 0:
         box = QtWidgets.QSpinBox()
         box.setRange(int(lo), int(hi))
@@ -96,7 +106,15 @@ def _spin(name: str, value: float, tip: str) -> QtWidgets.QDoubleSpinBox | QtWid
     box.setSingleStep(step)
     box.setSuffix(suffix)
     box.setToolTip(tip)
+    if name in OFF_FIELDS:
+        box.setSpecialValueText("Off")
     return box
+
+
+def _spin_value(name: str, box):
+    """The choice a spin box holds: its value, or None for an :data:`OFF_FIELDS` box below 1."""
+    v = box.value()
+    return None if name in OFF_FIELDS and v < 1.0 else v
 
 
 def _combo(pairs, value) -> QtWidgets.QComboBox:
@@ -205,7 +223,8 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
 
     def _set_checks(self, c: dict) -> None:
         for name in _SPIN_FIELDS:
-            getattr(self, name).setValue(c[name])
+            box = getattr(self, name)
+            box.setValue(box.minimum() if c[name] is None else c[name])
         self.floor_mm.setValue(c["motion_floor"][0])
         self.floor_deg.setValue(c["motion_floor"][1])
         self.keep_stage_moves.setChecked(not c["stage_move_reject"])
@@ -214,7 +233,8 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         return {"search": self.search.currentData(), "scale": float(self.resolution.currentData()),
                 "mode": self.mode.currentData(), "guess": self.guess.currentData(),
                 "confidence": self.confidence.isChecked(), "metric": self.similarity.currentData(),
-                "final": self.final.currentData(), **{k: getattr(self, k).value() for k in _SPIN_FIELDS},
+                "final": self.final.currentData(),
+                **{k: _spin_value(k, getattr(self, k)) for k in _SPIN_FIELDS},
                 "motion_floor": (self.floor_mm.value(), self.floor_deg.value()),
                 "stage_move_reject": not self.keep_stage_moves.isChecked()}
 

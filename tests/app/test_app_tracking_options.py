@@ -1,6 +1,6 @@
 """Tracking > Tracking options…: the window offers what ``talus track`` offers (search, resolution,
 similarity, mode, guess, final stage, confidence, the failure checks' thresholds, the final stage's
-move check), chosen with real clicks and keys."""
+move check, the trajectory check), chosen with real clicks and keys."""
 
 from __future__ import annotations
 
@@ -253,5 +253,42 @@ def test_the_final_stage_move_check_is_set_with_the_likelihood_stage_only(qtbot,
     assert not dialog.stage_move_limit.isEnabled() and not dialog.keep_stage_moves.isEnabled()
     _click(qtbot, dialog, "RestoreDefaults")
     assert dialog.choices() == choices_of(None)
+    with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
+        qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)
+
+
+def test_the_trajectory_check_is_set_or_turned_off_in_advanced_checks(qtbot, window):
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    box = dialog.trajectory_limit
+    assert box.value() == check_choices(None)["trajectory_limit"] == 2.5 and box.isEnabled()
+    assert "--trajectory-limit" in box.toolTip() and "off the trajectory" in box.toolTip()
+    _type(qtbot, box, "3.5")
+    _accept(qtbot, dialog)
+    opts = window.tracking.options
+    assert opts.trajectory_limit == 3.5 and options_from_choices(**choices_of(opts)) == opts
+    last = window.messages.item(window.messages.count() - 1).text()
+    assert "trajectory check 3.5x" in last and "checks: collapse" not in last
+
+    # its lowest step is "Off": the tracker's None
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    box = dialog.trajectory_limit
+    assert box.value() == 3.5
+    _type(qtbot, box, "1")
+    box.setFocus()
+    qtbot.keyClick(box, QtCore.Qt.Key.Key_Down)
+    assert box.text() == "Off"
+    _accept(qtbot, dialog)
+    opts = window.tracking.options
+    assert opts.trajectory_limit is None and options_from_choices(**choices_of(opts)) == opts
+    assert "trajectory check off" in window.messages.item(window.messages.count() - 1).text()
+
+    # re-opened it shows "Off"; Restore defaults brings back the tracker's limit
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    assert dialog.trajectory_limit.text() == "Off" and dialog.choices() == choices_of(opts)
+    _click(qtbot, dialog, "RestoreDefaults")
+    assert dialog.trajectory_limit.value() == 2.5 and dialog.choices() == choices_of(None)
     with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
         qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)

@@ -80,4 +80,4 @@ def test_final_help_states_the_trade_off(capsys):
         p.parse_args(["--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "--final {none,likelihood}" in text
-    assert "NVIDIA H200" in text and "4.34x" in text and "flatfield-corrected" in text
+    assert "NVIDIA H200" in text and "1.50/1.42" in text and "flatfield-corrected" in text

@@ -1,0 +1,129 @@
+"""The final stage's band at the round field's rim from the true poses, every bone (``python -m
+core.studies.tracking.rim_band``).
+
+:mod:`core.studies.tracking.border_frames`' set-up (its frames: the trial's, the exact distortion
+model, noisy by default; the tracker's preparation; the other bones at their TRUE poses
+subtracted; the stage's model of the trial) with the band of the user's path
+(:func:`core.tracking.likelihood_rim.apply_rim`, ``FinalModel.rim_sigmas``) off and on, per bone:
+the RMS error over the frames' Cramér–Rao bound, the stage's sandwich σ over the bound, and the
+region's pixels the band takes (0 where no black pixel is near: the stage is then the same to the
+bit). Study only: it reads the truth. JSON on stdout (and ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import numpy as np
+
+__all__ = ["main", "run"]
+
+
+def _stage(ts, frame, f: int, b: int, highpass_px: float, rim: float | None):
+    """Bone ``b``'s final stage from its true pose in frame ``f`` (border_frames' ``_stage``) with
+    the band of ``rim`` σ (None: none): its error (6,), sandwich σ (6,) and the pixels banded."""
+    import core.tracking.final_stage as fst
+    from core.studies.tracking.acceptance import pose_errors
+    from core.studies.tracking.stage_limits import Variant
+    from core.tracking.cost import search_roi, snap_roi
+    from core.tracking.likelihood_rim import apply_rim, rim_keep
+
+    P = ts.truth(f)
+    m = ts.models[b]
+    with Variant({"hp": float(highpass_px)}, ts) as var:
+        o = var.options.registration
+        views = tuple(range(len(ts.scene.rig)))
+        roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=m.centroid, reach_mm=1.0,
+                                  margin_px=o.margin_px), ts.renderer, views)
+        oth = [k for k in range(len(ts.names)) if k != b]
+        eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=o.final_highpass_px,
+                                    others_gain=o.final_others_gain)
+        eng.set_frame(frame, base_pose=P[b], center=m.centroid, roi=roi,
+                      others=(P[oth], oth) if oth else None)
+        cut = 0
+        if rim:
+            keep = rim_keep(frame, views, roi, rim * highpass_px, eng._cap)
+            cut = 0 if keep is None else int(np.count_nonzero((keep == 0) & (eng._w.numpy() > 0)))
+            apply_rim(eng, frame, rim * highpass_px)
+        r = fst._refine(eng, o, fst.MODEL)
+    e = pose_errors(eng.poses(np.asarray(r["x"])[None])[0], P[b], m.centroid)
+    C = np.asarray(r.get("covariance", np.full((6, 6), np.nan)), float)
+    return e, np.sqrt(np.abs(np.diag(C))), cut
+
+
+def run(*, pixels: int = 512, voxel: float = 1.0, frames=(0, 20, 40, 60, 80),
+        bones=("tibia", "talus", "calcaneus"), highpass: float = 4.0, rims=(None, 3.0), noise: bool = True,
+        device: str | None = "cpu", checkpoint=None) -> dict:
+    """The study (module docs); ``highpass``: the stage's σ in px at ``pixels`` (4 px at 512² is the
+    trial's 8 px at 1024²)."""
+    from core.studies.tracking.acceptance import TrackingScene, cramer_rao
+    from core.studies.tracking.border_frames import frame_images, prepared
+
+    t0 = time.perf_counter()
+    ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, device=device, correction="exact")
+    frames = [int(f) for f in frames]
+    bound = cramer_rao(ts, frames)
+    out = {"study": "core.studies.tracking.rim_band", "machine": platform.machine(), "pixels": pixels,
+           "voxel_mm": voxel, "frames": frames, "noise": noise, "highpass_px": highpass,
+           "rims": list(rims), "cramer_rao": {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]}
+                                              for k, v in bound.items()}}
+    rec: dict = {}
+    for f in frames:
+        frame = prepared(frame_images(ts, f, "replicate", noise=noise), "trial", highpass)
+        for nm in bones:
+            for rim in rims:
+                rec.setdefault((nm, rim), []).append(_stage(ts, frame, f, ts.names.index(nm), highpass, rim))
+        res: dict = {}
+        for (nm, rim), rows in rec.items():
+            E = np.array([x[0] for x in rows])
+            S = np.array([x[1] for x in rows])
+            b = bound[nm]
+            res.setdefault(nm, {})["off" if rim is None else f"rim{rim:g}"] = {
+                "over_bound": [round(float(np.sqrt(np.mean(np.sum(E[:, :3] ** 2, 1)))) / b["rms_mm"], 3),
+                               round(float(np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, 1)))) / b["rms_deg"], 3)],
+                "sandwich_sigma_over_bound": [
+                    round(float(np.sqrt(np.nanmean(np.sum(S[:, :3] ** 2, 1)))) / b["rms_mm"], 3),
+                    round(float(np.sqrt(np.nanmean(np.sum(S[:, 3:] ** 2, 1)))) / b["rms_deg"], 3)],
+                "pixels_banded": [x[2] for x in rows], "per_frame_error": E.round(5).tolist()}
+        out["results"] = res
+        out["frames_done"] = f
+        out["seconds"] = time.perf_counter() - t0
+        print(f"frame {f} {out['seconds']:.0f} s: " + "; ".join(
+            f"{nm} " + " ".join(f"{k} {v['over_bound'][0]:.2f}/{v['over_bound'][1]:.2f}"
+                                for k, v in d.items()) for nm, d in res.items()), flush=True)
+        if checkpoint:
+            checkpoint(out)
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.rim_band",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--pixels", type=int, default=512)
+    p.add_argument("--voxel", type=float, default=1.0)
+    p.add_argument("--frames", default="0,20,40,60,80")
+    p.add_argument("--bones", default="tibia,talus,calcaneus")
+    p.add_argument("--highpass", type=float, default=4.0, help="the stage's high-pass σ (px at --pixels)")
+    p.add_argument("--noise-free", action="store_true")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    import json
+
+    from core.io.atomic import atomic_write, print_json
+
+    def checkpoint(res):
+        if a.out:
+            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+
+    res = run(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in a.frames.split(",") if x],
+              bones=tuple(a.bones.split(",")), highpass=a.highpass, noise=not a.noise_free, device=a.device,
+              checkpoint=checkpoint)
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -92,6 +92,10 @@ tracked offset's shape): with a 2 mm volume for every bone (``tissue_regressor.u
 a 4 mm one, ``bones={tibia: BoneStage(highpass_px=4.0, tissue=False)}`` (1.56/1.42, 1.17/1.19,
 1.15/1.34). The regressor stays opt-in (the lab must have the CT).
 
+The round field's rim (:attr:`FinalModel.rim_sigmas`): usable pixels within that many σ of the
+high-pass of a black one weighted 0 (the field's ``-log(floor)`` step, spread by the high-pass,
+biased the tibia at 8 px); measured and why opt-in: :mod:`core.tracking.likelihood_rim`.
+
 Per-bone settings (:attr:`FinalModel.bones`)
 --------------------------------------------
 ``FinalModel(bones={2: BoneStage(highpass_px=4.0, tissue=False)})``: bone 2's stage (bone indices

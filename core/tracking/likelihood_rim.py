@@ -19,6 +19,29 @@ keeps its weights (its steps would have nothing to go by). The distance is compu
 (OpenCV's 5×5 Euclidean distance transform, within 0.8 px of the exact one near a round field's
 rim) over the black pixels' bounding box grown by the band, the band uploaded from a pinned buffer
 without a wait: 2.7 ms for two 400 × 480 regions at a 1024² rim on this 2-core CPU machine.
+
+Measured
+--------
+From the true poses (:mod:`core.studies.tracking.rim_band`, this 2-core CPU machine, 512², 1 mm
+voxels, 5 noisy frames 0-80, the stage at 4 px — the trial's 8 px —, ``rim_sigmas=3``;
+``resources/benchmarks/tracking_rim_band_cpu.json``; × the bound mm/°): the tibia 1.96/1.28 →
+1.67/1.21, its sandwich σ 13.3/7.5 → 2.8/1.8× the bound; the calcaneus's region reaches the rim
+too (below the heel): 1.09/0.80 → 1.08/0.79, σ 10.8/10.5 → 1.9/1.8×; the talus's region has no
+black pixel near: the same to the bit.
+
+Tracked (:mod:`core.studies.tracking.tissue_tibia`'s ``_rim`` runs, one NVIDIA H200, the acceptance
+trial at 1024², 100 frames, grid correction, the 2 mm tissue for every bone, 8 px;
+``resources/benchmarks/tracking_rim_band_h200.json``), with a band that ALSO grew 24 px around
+the dense overlap just below the valid range inside the field of view 1 (fixed since:
+:data:`BLACK_FRACTION`; not re-measured on the GPU): three bones jointly tibia 1.54/1.36 →
+1.43/1.34 (frames over 4× the bound, silent: 1 → 0), talus 1.15/1.19 → 1.21/1.21, calcaneus
+1.12/1.30 → 1.15/1.34; the tibia alone 1.70/1.62 → 1.44/1.66 (3 silent → 1); with the tibia's
+stage at 4 px no change (1.54/1.41 → 1.55/1.42; alone 1.47/1.53 → 1.46/1.53). The 2σ coverage
+falls where the band takes the step out of the residual (tibia jointly 100 → 61 % of frames, 92 %
+of its axes; calcaneus 100 → 59 %, 91 %): the step had widened the sandwich σ over the tibia's
+bias. The stage 20.2 → 22.8 ms per bone-frame jointly (set-up 4.6 → 8.3 ms), the tibia alone
+30.8 → 35.4 ms. Opt-in until measured again on the GPU (``FinalModel(rim_sigmas=3.0)``, or for
+the tibia alone ``bones={tibia: BoneStage(rim_sigmas=3.0)}``).
 """
 
 from __future__ import annotations

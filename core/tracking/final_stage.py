@@ -230,6 +230,8 @@ class FinalModel:
         items = self.bones.items() if isinstance(self.bones, dict) else self.bones
         per = {}
         for b, st in items:
+            if isinstance(b, str) and b.isdigit():  # to_dict's keys
+                b = int(b)
             if int(b) != b or b < 0:
                 raise ValueError(f"bones: expected bone indices >= 0, got {b!r}")
             if isinstance(st, dict):

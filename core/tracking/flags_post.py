@@ -23,9 +23,14 @@ The worst frame over the limit is flagged first and left out of its neighbours' 
 then judged again (a frame far off pulls its neighbours' fits). The message gives the residual and
 the scale, so the review panel says how far off the frame is.
 Frames already flagged are neither judged nor used as neighbours. A bone with fewer than
-:data:`MIN_FRAMES` good frames is not judged. :func:`core.tracking.trial.track` runs it at the end of
-a complete run (``TrackingOptions.trajectory_limit``, default :data:`LIMIT`; None: off) and hands the
-frames it flagged to ``record_result`` again, so the journal and the review panel carry the flag.
+:data:`MIN_FRAMES` frames that have a residual is not judged. The pass sees the frames of the run
+only: a frame range (``--frames``, a batch task's range, a re-track between keyframes in the
+window) is judged on its own — a range of fewer than :data:`MIN_FRAMES` good frames not at all, the
+frames at its ends against fits extrapolated from one side — and frames outside it keep the flags
+(or none) an earlier run gave them, as do all frames when the check is turned off.
+:func:`core.tracking.trial.track` runs it at the end of a complete run
+(``TrackingOptions.trajectory_limit``, default :data:`LIMIT`; None: off) and hands the frames it
+flagged to ``record_result`` again, so the journal and the review panel carry the flag.
 
 What it caught (:mod:`core.studies.tracking.silent_failures`; the acceptance trial, 1024², 100
 frames, grid-corrected, Gauss–Newton search, tracked on one NVIDIA H100, the pass applied to the
@@ -69,7 +74,8 @@ __all__ = ["DEGREE", "FLAG", "FLOOR", "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "app
 
 #: The flag's name (the message starts with it).
 FLAG = "off the trajectory"
-#: Neighbours on each side of a frame used for its fit (frames, by frame number). With
+#: Neighbours on each side of a frame used for its fit (tracked frames: frame numbers within this
+#: many times the frames' median spacing, so that every k-th frame tracked is judged alike). With
 #: :data:`DEGREE` 2 and :data:`LIMIT` 2.5, over the four runs of the module docs: ±3 frames caught
 #: 15 of the 55 failures and flagged 56 good bone-frames, ±4 22 and 68, ±5 24 and 107.
 HALF_WINDOW = 4
@@ -111,6 +117,8 @@ class _Table:
                  degree: int) -> None:
         n, h = len(fr), int(half_window)
         self.fr, self.ok, self.degree = fr, ok, int(degree)
+        # every k-th frame tracked: the window counts tracked frames (k the frames' median spacing)
+        self.step = max(1, int(np.median(np.diff(fr)))) if n > 1 else 1
         self.offsets = np.array([d for d in range(-h, h + 1) if d != 0], dtype=int)
         self.Y = np.full((n, len(self.offsets), 6), np.nan)
         self.near = np.zeros((n, len(self.offsets)), dtype=bool)
@@ -119,7 +127,7 @@ class _Table:
             j = idx + d
             inside = (j >= 0) & (j < n)
             a, b = idx[inside], j[inside]
-            good = ok[a] & ok[b] & (np.abs(fr[b] - fr[a]) <= h)
+            good = ok[a] & ok[b] & (np.abs(fr[b] - fr[a]) <= h * self.step)
             a, b = a[good], b[good]
             if len(a):
                 self.Y[a, m] = _deltas(P[a], P[b], c)
@@ -135,9 +143,9 @@ class _Table:
         out = np.full((n, 2), np.nan)
         todo = np.flatnonzero(use)
         steps = self.fr[np.clip(j[todo], 0, n - 1)] - self.fr[todo, None]
-        full = todo[sel[todo].all(axis=1) & (steps == self.offsets).all(axis=1)]  # consecutive frames
+        full = todo[sel[todo].all(axis=1) & (steps == self.offsets * self.step).all(axis=1)]  # evenly spaced
         if len(full):
-            hit = self._weights(self.offsets.astype(float))
+            hit = self._weights((self.offsets * self.step).astype(float))
             if hit is not None:
                 row, k = hit
                 r = np.einsum("m,nmk->nk", row, self.Y[full])

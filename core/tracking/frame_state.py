@@ -112,7 +112,10 @@ class _BoneState:
         stage's moves), or a flagged one (:meth:`add_flagged`)."""
         if fr.pose is None:
             return
-        if not fr.flags:
+        # the trajectory post-pass's flag (core.tracking.flags_post) came after the run that made
+        # the frame: a restored frame feeds the guesses as that run's did
+        flags = tuple(x for x in fr.flags if not x.startswith(TRAJECTORY_FLAG))
+        if not flags:
             self.add_good(frame, fr.pose, fr.score, fr.confidence)
             t = fr.timing or {}
             # one stage taken: a frame's timing holds its kept registration's outcome; results
@@ -120,7 +123,7 @@ class _BoneState:
             # registrations (joint rounds, retries), a taken count above 1, and are left out
             if t.get("likelihood_taken") == 1 and t.get("likelihood_move_mm") is not None:
                 self.moves.append(float(t["likelihood_move_mm"]))
-        elif all(x.startswith(("uncertain", TRAJECTORY_FLAG)) for x in fr.flags):
+        elif all(x.startswith("uncertain") for x in flags):
             self.add_good(frame, fr.pose, fr.score)
         else:
             self.add_flagged(fr.score)

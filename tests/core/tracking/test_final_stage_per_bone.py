@@ -30,6 +30,7 @@ def test_bone_stage_validation_and_serialisation():
     assert m == FinalModel(bones=((2, BoneStage(highpass_px=8.0)), (0, BoneStage(tissue=False))))
     assert m.to_dict()["bones"] == {"0": {"highpass_px": None, "tissue": False},
                                     "2": {"highpass_px": 8.0, "tissue": True}}
+    assert FinalModel(bones=m.to_dict()["bones"]) == m  # the record reads back
     assert m.for_bone(2, 4.0) == (m, 8.0) and m.for_bone(1, 4.0) == (m, 4.0)
     assert m.for_bone(0, 4.0) == (m, 4.0)  # (no tissue to turn off)
     t = replace(m, tissue=((_blob(None), 1),))

@@ -109,3 +109,33 @@ def test_track_flags_after_the_run_and_journals_the_frame_again(monkeypatch):
     assert not off.flagged and len(seen) == 20
     with pytest.raises(ValueError, match="trajectory_limit"):
         TrackingOptions(trajectory_limit=0.5)
+
+
+@pytest.mark.parametrize("k", [2, 3, 5])
+def test_every_kth_frame_tracked_is_judged_alike(k):
+    """Tracking every k-th frame: the window counts tracked frames, so the check still judges them."""
+    bad = _track(n=40 * k, off=(17 * k, 0.0, 0.5))
+    sel = np.arange(0, len(bad), k)
+    R = trajectory_residuals(sel, bad[sel], C)
+    assert np.isfinite(R).all(axis=1).sum() >= len(sel) - 2
+    assert list(trajectory_flags(sel, bad[sel], C)) == [17 * k]
+
+
+def test_a_restored_frame_flagged_only_off_the_trajectory_feeds_as_a_good_one():
+    """Resumed runs: the post-pass's flag came after the run that made the frame, so the restored
+    frame feeds the σ history as it did in that run (an "uncertain" one does not)."""
+    from core.tracking.frame_state import _BoneState
+
+    P = _track(n=3)
+    conf = {"translation_mm": 0.01, "rotation_deg": 0.05}
+    states = {}
+    cases = (("good", ()), ("trajectory", (f"{FLAG} (test)",)), ("uncertain", ("uncertain (test)",)))
+    for label, flag in cases:
+        st = _BoneState()
+        for k in range(3):
+            fl = flag if k == 1 else ()
+            st.add(k, FrameResult("tibia", k, P[k], 0.8, 10, 0.0, True, fl, confidence=conf))
+        states[label] = st
+    assert len(states["good"].sigmas) == len(states["trajectory"].sigmas) == 3
+    assert len(states["uncertain"].sigmas) == 2
+    assert len(states["trajectory"].history) == 3

@@ -239,7 +239,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
               "normalisation": how,
               "stopped": stopped, "options": {"resume": resume,
                                               "mode": options.mode,
-                                              "checks": {k: getattr(options, k) for k in CHECK_FIELDS}}}
+                                              "checks": {k: getattr(options, k) for k in CHECK_FIELDS},
+                                              "trajectory_limit": options.trajectory_limit}}
     if likelihood:  # the final stage's move check flagged (or rejected) with these
         report["options"]["stage_move_check"] = {k: getattr(options, k) for k in STAGE_MOVE_FIELDS}
     if not models:
@@ -271,5 +272,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                    skip=skip, progress=on_progress, cancel=cancel)
     report["summary"] = result.summary()
     report["flagged"] = [r.to_dict() for r in result.flagged]
-    write(state["frames"], report["summary"])
+    # the frames as the run left them: the trajectory post-pass flags after the progress events
+    done = [result.results[k].to_dict() if (k := (d.get("bone"), d.get("frame"))) in result.results else d
+            for d in state["frames"]]
+    write(done, report["summary"])
     return result, report

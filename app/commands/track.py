@@ -289,11 +289,12 @@ def add_check_arguments(p: argparse.ArgumentParser) -> None:
                                                  "their neighbours' trajectory are flagged")
     for field, (flag, _default, text) in CHECKS.items():
         group = s if field in STAGE_MOVES else t if field == "trajectory_limit" else g
-        if field == "trajectory_limit":
-            group.add_argument(flag, dest=field, default=None, metavar=_METAVARS[field], type=_limit_or_off,
-                               help=text)
-            group.add_argument("--no-trajectory-check", dest=field, action="store_const",
-                               const=TRAJECTORY_OFF, help=f"no trajectory check (as {flag} off)")
+        if field == "trajectory_limit":  # the two spellings refused together (argparse names both)
+            one = group.add_mutually_exclusive_group()
+            one.add_argument(flag, dest=field, default=None, metavar=_METAVARS[field], type=_limit_or_off,
+                             help=text)
+            one.add_argument("--no-trajectory-check", dest=field, action="store_const",
+                             const=TRAJECTORY_OFF, help=f"no trajectory check (as {flag} off)")
         elif field == "stage_move_reject":
             group.add_argument(flag, dest=field, action="store_const", const=False, default=None, help=text)
         else:

@@ -196,3 +196,11 @@ def test_the_final_stage_refusal_reads_the_correction_once(study, monkeypatch, c
     err = capsys.readouterr().err
     assert rc == 1 and "--final likelihood: trial 'walk'" in err and "not flatfield-corrected" in err
     assert len(calls) == 1 and "Traceback" not in err
+
+
+def test_a_limit_and_no_trajectory_check_together_are_refused(study, capsys):
+    with pytest.raises(SystemExit) as e:
+        talus(["track", str(study), "--trial", "walk", "--trajectory-limit", "3", "--no-trajectory-check"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--no-trajectory-check" in err and "--trajectory-limit" in err and "not allowed" in err

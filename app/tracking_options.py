@@ -112,9 +112,10 @@ def _spin(name: str, value: float | None, tip: str) -> QtWidgets.QDoubleSpinBox 
 
 
 def _spin_value(name: str, box):
-    """The choice a spin box holds: its value, or None for an :data:`OFF_FIELDS` box below 1."""
+    """The choice a spin box holds: its value, or None for an :data:`OFF_FIELDS` box at its minimum
+    (*Off*); a typed value between *Off* and the range's 1 is refused on *OK*, naming the option."""
     v = box.value()
-    return None if name in OFF_FIELDS and v < 1.0 else v
+    return None if name in OFF_FIELDS and v <= box.minimum() else v
 
 
 def _combo(pairs, value) -> QtWidgets.QComboBox:

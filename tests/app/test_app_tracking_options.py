@@ -215,6 +215,11 @@ def test_advanced_checks_hold_their_ranges_and_ok_refuses_an_invalid_value(qtbot
     _click(qtbot, dialog, "Ok")
     assert dialog.isVisible() and dialog.result() == 0  # not accepted
     assert len(warned) == 1 and warned[0].startswith("sigma_limit: expected a factor >= 1"), warned
+    dialog.sigma_limit.setValue(3.0)
+    _type(qtbot, dialog.trajectory_limit, "0.9")  # between Off and the range's 1: refused, not Off
+    _click(qtbot, dialog, "Ok")
+    assert dialog.isVisible() and dialog.result() == 0
+    assert len(warned) == 2 and warned[1].startswith("trajectory_limit: expected a factor >= 1"), warned
 
 
 def test_the_final_stage_move_check_is_set_with_the_likelihood_stage_only(qtbot, window):

@@ -98,7 +98,8 @@ def tissue_model(ts, *, kind: str = "coarse", coarse_mm: float = 4.0, psf: bool 
 
 def _record(ts, res, names, n, dt, ends, bound) -> dict:
     """One run's numbers (module docs), with ml_cost's summaries."""
-    from core.studies.tracking.ml_cost import _coverage, _pose_errs, _sigmas, _summary, silent_failures
+    from core.studies.tracking.ml_cost import _pose_errs, _summary
+    from core.studies.tracking.ml_cost_final import _coverage, _sigmas, silent_failures
 
     poses = {(nm, f): res.results[(nm, f)].pose for nm in names for f in range(n)}
     tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(n)]

@@ -126,6 +126,29 @@ def _record(ts, res, names, n, dt, ends, bound) -> dict:
     return d
 
 
+def timed_run(ts, renderer, models, keyframes, options, model, n: int, names, bound, label: str) -> dict:
+    """Frames ``0 … n-1`` of ``ts`` tracked with the stage model ``model`` (timed, the frames' end
+    times kept), as :func:`_record` holds it; prints ``label`` with the bones' ratios to the bound."""
+    import core.tracking.final_stage as fst
+    from core.tracking.trial import track
+
+    ends: dict = {}
+
+    def progress(done, total, fr):
+        ends[fr.frame] = time.perf_counter()
+
+    with fst.final_model(model):
+        t1 = time.perf_counter()
+        res = track(renderer, models, ts.frames, range(n), keyframes=keyframes, options=options,
+                    progress=progress)
+        dt = time.perf_counter() - t1
+    rec = _record(ts, res, names, n, dt, ends, bound)
+    print(f"{label}: {dt:.1f} s " + " ".join(
+        f"{nm} {rec[nm].get('over_bound', {}).get('mm', np.nan):.2f}/"
+        f"{rec[nm].get('over_bound', {}).get('deg', np.nan):.2f}" for nm in names), flush=True)
+    return rec
+
+
 def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, voxel: float = 0.5,
         workers: int = 0, highpass=(4.0, 2.0), cases=("three", "sequential"), kind: str = "coarse",
         coarse_mm: float = 4.0, tissue_psf: bool = True, each: bool = False, again: bool = False,
@@ -180,21 +203,9 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
             with fst.final_model(m):
                 track(r, models, ts.frames, range(min(n, warm_frames)), keyframes=kf, options=o)
         for label, o, m in runs:
-            ends: dict = {}
-
-            def progress(done, total, fr, ends=ends):
-                ends[fr.frame] = time.perf_counter()
-
-            with fst.final_model(m):
-                t1 = time.perf_counter()
-                res = track(r, models, ts.frames, range(n), keyframes=kf, options=o, progress=progress)
-                dt = time.perf_counter() - t1
-            c[label] = _record(ts, res, names, n, dt, ends, bound)
+            c[label] = timed_run(ts, r, models, kf, o, m, n, names, bound, f"{case} {label}")
             out[case] = c
             out["total_s"] = time.perf_counter() - t0
-            print(f"{case} {label}: {dt:.1f} s " + " ".join(
-                f"{nm} {c[label][nm].get('over_bound', {}).get('mm', np.nan):.2f}/"
-                f"{c[label][nm].get('over_bound', {}).get('deg', np.nan):.2f}" for nm in names), flush=True)
             if checkpoint:
                 checkpoint(out)
     out["table"] = table(out)

@@ -317,7 +317,7 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
     import core.tracking.final_stage as fst
     from core.render import DRRRenderer
     from core.studies.tracking.ml_cost import _scene
-    from core.studies.tracking.tissue_stage import _record, table, tissue_model
+    from core.studies.tracking.tissue_stage import table, timed_run, tissue_model
     from core.tracking.final_stage import BoneStage
     from core.tracking.trial import TrackingOptions, track
 
@@ -368,21 +368,9 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
                 track(r, ms, ts.frames, range(min(n, warm_frames)), keyframes=kf, options=oo)
         for label, m in runs:
             oo = hp4 if label == "hp4" else o
-            ends: dict = {}
-
-            def progress(done, total, fr, ends=ends):
-                ends[fr.frame] = time.perf_counter()
-
-            with fst.final_model(m):
-                t1 = time.perf_counter()
-                res = track(r, ms, ts.frames, range(n), keyframes=kf, options=oo, progress=progress)
-                dt = time.perf_counter() - t1
-            c[label] = _record(ts, res, names, n, dt, ends, bound)
+            c[label] = timed_run(ts, r, ms, kf, oo, m, n, names, bound, f"{case} {label}")
             out[case] = c
             out["total_s"] = time.perf_counter() - t0
-            print(f"{case} {label}: {dt:.1f} s " + " ".join(
-                f"{nm} {c[label][nm].get('over_bound', {}).get('mm', np.nan):.2f}/"
-                f"{c[label][nm].get('over_bound', {}).get('deg', np.nan):.2f}" for nm in names), flush=True)
             if checkpoint:
                 checkpoint(out)
     out["table"] = [ln.replace("sequential", "tibia") for ln in table({"three": out.get("three"),

@@ -57,52 +57,15 @@ it is 7× the bound (17× at 8 px; the talus's 1.4×): a structured residual.
 from __future__ import annotations
 
 import argparse
-import platform
 import time
 from dataclasses import replace
 
 import numpy as np
 
 from core.studies.tracking.ml_cost_final import _corrections, _variant, run_final, silent_failures
+from core.studies.tracking.ml_cost_scene import _pose_errs, _scene, _summary, synthesise
 
 __all__ = ["main", "refine_frame", "run", "run_final", "silent_failures", "synthesise"]
-
-
-def _chain_frame(args):
-    """One frame through the trial's image chain (the body of TrackingScene.frames): the raw frames
-    (when the scene keeps them) and the corrected ones."""
-    ts, i, L = _POOL_SCENE[0], args[0], args[1]
-    sc = ts.scene
-    raw = np.stack([m.apply(L[v], rng=sc.frame_rng(i, v)) for v, m in enumerate(sc.imaging)])
-    return i, (raw if ts.raw is not None else None), [ts.correct(v, f) for v, f in enumerate(raw)]
-
-
-_POOL_SCENE: list = []
-
-
-def synthesise(ts, frames, workers: int = 0) -> None:
-    """Fill ``ts``'s frame cache (the same frames as :meth:`TrackingScene.frames`): line
-    integrals on the scene's renderer, the image chain (noise, blur, distortion, flatfield,
-    unwarp) in ``workers`` forked processes (0: in this process)."""
-    todo = [i for i in frames if i not in ts._cache]
-    if workers <= 1:
-        for i in todo:
-            ts.frames(i)
-        return
-    import multiprocessing as mp
-
-    _POOL_SCENE[:] = [ts]
-    with mp.get_context("fork").Pool(workers) as pool:
-        jobs = []
-        for i in todo:
-            L = ts.scene.line_integrals(i, renderer=ts._scene_renderer)
-            jobs.append(pool.apply_async(_chain_frame, ((i, L),)))
-        for j in jobs:
-            i, raw, imgs = j.get()
-            ts._cache[i] = imgs
-            if raw is not None:
-                ts.raw[i] = raw
-    _POOL_SCENE.clear()
 
 
 def refine_frame(renderer, frame, models, poses, *, highpass_px: float, passes: int = 2, psf=None,
@@ -133,61 +96,6 @@ def refine_frame(renderer, frame, models, poses, *, highpass_px: float, passes: 
             P[i] = cost.poses(out["x"][None])[0]
             outs[i] = out
     return P, outs
-
-
-def _pose_errs(ts, nm, poses, frames):
-    from core.studies.tracking.acceptance import pose_errors
-
-    b = ts.names.index(nm)
-    return [np.full(6, np.nan) if poses[(nm, f)] is None else
-            pose_errors(poses[(nm, f)], ts.truth(f)[b], ts.models[b].centroid) for f in frames]
-
-
-def _summary(E, bound, cov=None) -> dict:
-    ok = np.all(np.isfinite(E), axis=1)
-    E = E[ok]
-    cov = None if cov is None else [c for c, k in zip(cov, ok, strict=True) if k]
-    et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
-    s = {"rms_mm": float(np.sqrt(np.mean(et**2))), "rms_deg": float(np.sqrt(np.mean(er**2))),
-         "mean_error": E.mean(0).round(4).tolist(), "std_error": E.std(0).round(4).tolist(),
-         "max_mm": float(et.max()), "max_deg": float(er.max()), "missing": int((~ok).sum())}
-    if bound:
-        s["over_bound"] = {"mm": s["rms_mm"] / bound["rms_mm"], "deg": s["rms_deg"] / bound["rms_deg"]}
-    if cov is not None:
-        sig = np.sqrt(np.array([np.diag(c) for c in cov]))
-        s["within_2_sigma"] = float(np.mean(np.abs(E) <= 2 * sig))
-    return s
-
-
-def _scene(n: int, pixels: int, voxel: float, device, workers: int, header: dict, *, glare: bool = False,
-           correction: str = "model", keep_raw: bool = False):
-    """``(ts, out, bound)``: the trial's scene of ``n`` frames with its frames synthesised (the raw
-    frames kept when ``keep_raw``), and the results' head — ``header``, the machine and device,
-    sizes, synthesis time and the Cramér–Rao bound of every tenth frame (``cramer_rao``,
-    ``bound_s``; ``bound`` in full, per bone)."""
-    from core.studies.tracking.acceptance import TrackingScene, cramer_rao
-
-    t0 = time.perf_counter()
-    ts = TrackingScene(n_frames=max(n, 2), pixels=pixels, spacing=voxel, phase=(0.0, 0.6 * max(n, 2) / 100.0),
-                       device=device, glare=glare, correction=correction, keep_raw=keep_raw)
-    synthesise(ts, range(n), workers)
-    out = {**header, "machine": platform.machine(), "device": str(ts.renderer.device), "pixels": pixels,
-           "voxel_mm": voxel, "frames": n}
-    out["synthesis_s"] = time.perf_counter() - t0
-    out["residual_distortion_rms_mm"] = ts.residual_distortion_mm()
-    if correction == "grid":  # the fitted models, cross-validation tables and alignments
-        out["correction_fits"] = [c.summary() for c in ts.corrections]
-    try:
-        import warp as wp
-
-        out["device_name"] = wp.get_device(str(ts.renderer.device)).name
-    except Exception:  # a name only
-        pass
-    t0 = time.perf_counter()
-    bound = cramer_rao(ts, range(0, n, max(1, n // 10)))
-    out["cramer_rao"] = {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for k, v in bound.items()}
-    out["bound_s"] = time.perf_counter() - t0
-    return ts, out, bound
 
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None, variants=("8",),

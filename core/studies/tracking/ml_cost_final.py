@@ -161,7 +161,7 @@ def run_final(*, device: str | None = None, frames: int | None = None, cases=("o
 
     n = frames or 100
     corrs = [correction] if isinstance(correction, str) else list(correction)
-    from core.studies.tracking.ml_cost import _scene
+    from core.studies.tracking.ml_cost_scene import _scene
 
     ts, out, bound = _scene(n, pixels, voxel, device, workers,
                      {"study": "core.studies.tracking.ml_cost (final stage)", "highpass_px": highpass_px,
@@ -197,7 +197,7 @@ def _final_case(ts, bound: dict, n: int, case: str, plain, final, *, variants, e
     """One case of :func:`run_final` on ``ts``'s frames: its runs (tracker, final stage, variants)."""
     import core.tracking.frame_step as fs
     from core.render import DRRRenderer
-    from core.studies.tracking.ml_cost import _pose_errs, _summary
+    from core.studies.tracking.ml_cost_scene import _pose_errs, _summary
     from core.tracking.trial import track
     bones = {"one": [1], "three": [0, 1, 2]}.get(case) or [ts.names.index(case)]  # or a bone alone
     models = [ts.models[b] for b in bones]

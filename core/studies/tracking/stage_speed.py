@@ -10,8 +10,10 @@ registrations' final likelihood stage (:mod:`core.tracking.final_stage`) at each
 Per run: the stage's time per bone-frame (``likelihood_s`` of the registrations: set-up, steps,
 robust factors and sandwich, each bone's share of the side-by-side stages' wall time), its set-up
 and steps, the frame's wall time, and per bone the RMS error over the Cramér–Rao bound of the
-same frames (every tenth) and frames over 4× it; and the largest difference of every variant's
-poses from the first variant's (mm, degrees).
+same frames (every tenth) and frames over 4× it; the largest difference of every variant's
+poses from the first variant's (mm, degrees); and every pair of variants (``variant_pairs``, the
+first repeats): poses, the confidences' σ (largest relative difference) and whether both are equal
+to the bit.
 
 ``--profile-frames N`` (the first ``N`` frames, once per variant and σ, not timed as above):
 ``kernels`` — the device's time per activity inside the stages (Warp's CUDA activity timing,
@@ -165,6 +167,25 @@ def _pose_diff(a: dict, b: dict) -> dict:
     return {"max_mm": mm, "max_deg": deg, "max_entry": ent}
 
 
+def _run_diff(a: tuple, b: tuple) -> dict:
+    """Two runs (poses, confidences by bone-frame) against each other: :func:`_pose_diff`, the
+    largest relative difference of the confidences' σ (``sigma_max_rel``) and whether poses and
+    σ are equal to the bit (``identical``)."""
+    d = _pose_diff(a[0], b[0])
+    rel, same = 0.0, all(np.array_equal(a[0][k], b[0][k]) for k in a[0].keys() & b[0].keys())
+    for k in a[1].keys() & b[1].keys():
+        sa = np.asarray((a[1][k] or {}).get("sigma") or [], float)
+        sb = np.asarray((b[1][k] or {}).get("sigma") or [], float)
+        if sa.shape != sb.shape:
+            same, rel = False, np.inf
+            continue
+        same = same and np.array_equal(sa, sb, equal_nan=True)
+        ok = np.isfinite(sa) & np.isfinite(sb) & (sa > 0)
+        if ok.any():
+            rel = max(rel, float(np.max(np.abs(sb[ok] - sa[ok]) / sa[ok])))
+    return {**d, "sigma_max_rel": rel, "identical": bool(same)}
+
+
 @contextmanager
 def _frame_cache(folder):
     """The trial's frames kept in ``folder`` (``.npy``, by size, length and frame) and taken from
@@ -241,6 +262,7 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
         print(f"warm-up {v}: {time.perf_counter() - t0:.1f} s", flush=True)
     runs: dict = defaultdict(list)
     poses: dict = {}
+    confs: dict = {}
     for rep in range(int(repeats)):
         order = list(variants) if rep % 2 == 0 else list(variants)[::-1]
         for v in order:
@@ -261,6 +283,8 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                 d["repeat"] = rep
                 runs[f"{v}/hp{hp:g}"].append(d)
                 poses.setdefault(f"{v}/hp{hp:g}", {(nm, f): res.results[(nm, f)].pose
+                                                   for nm in names for f in range(n)})
+                confs.setdefault(f"{v}/hp{hp:g}", {(nm, f): res.results[(nm, f)].confidence
                                                    for nm in names for f in range(n)})
                 ob = {nm: d[nm].get("over_bound", {}) for nm in names}
                 print(f"{v} hp{hp:g} rep {rep}: {dt:.2f} s, stage {d['likelihood_ms_per_bone_frame']:.2f} ms "
@@ -283,6 +307,13 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
     first = variants[0]
     out["pose_difference_from_" + first] = {k: _pose_diff(poses[f"{first}/hp{k.split('/hp')[1]}"], p)
                                             for k, p in poses.items() if not k.startswith(first + "/")}
+    # every pair of variants at each σ: poses, confidences' σ, equal to the bit or not (first repeats)
+    out["variant_pairs"] = {f"{a}~{b}/hp{hp:g}": _run_diff((poses[f"{a}/hp{hp:g}"], confs[f"{a}/hp{hp:g}"]),
+                                                         (poses[f"{b}/hp{hp:g}"], confs[f"{b}/hp{hp:g}"]))
+                            for i, a in enumerate(variants) for b in variants[i + 1:] for hp in highpass}
+    for k, x in out["variant_pairs"].items():
+        print(f"{k}: {'identical' if x['identical'] else 'differ'}; poses {x['max_mm']:.2g} mm "
+              f"{x['max_deg']:.2g} deg, sigma {x['sigma_max_rel']:.2g} relative", flush=True)
     if profile_frames:
         prof: dict = {}
         m = min(n, int(profile_frames))

@@ -170,9 +170,13 @@ def _run_batch(tasks, settings, workers, scheduler, on_event, on_start, cancel, 
         client.unsubscribe_topic(EVENT_TOPIC)
         with contextlib.suppress(Exception):  # an existing scheduler keeps no stale stop event
             stop.clear()
-        return summarize(tasks, records, failures, wall_s=time.perf_counter() - t0,
-                         workers=n_workers, attempts=attempts, dashboard=info["dashboard"],
-                         scheduler=None if cluster is not None else scheduler, startup_s=startup_s)
+        from .batch import trajectory_pass
+
+        passes = trajectory_pass(tasks, records, settings)  # ranges' flags judged together
+        summary = summarize(tasks, records, failures, wall_s=time.perf_counter() - t0,
+                            workers=n_workers, attempts=attempts, dashboard=info["dashboard"],
+                            scheduler=None if cluster is not None else scheduler, startup_s=startup_s)
+        return dict(summary, trajectory_pass=passes)
     finally:
         client.close()
         if cluster is not None:

@@ -73,6 +73,7 @@ import numpy as np
 
 from ..render import HUTransfer
 from .bones import bone_model
+from .flags_post import journal_neighbours
 from .options import CHECK_FIELDS, STAGE_MOVE_FIELDS
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
@@ -227,7 +228,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                                      isolate_mm=isolate))
         except ValueError as exc:
             stopped[b] = str(exc)
-    existing, skip = journal_inputs({m.name: trial.results(m.name) for m in models}, order, resume=resume)
+    states = {m.name: trial.results(m.name) for m in models}
+    existing, skip = journal_inputs(states, order, resume=resume)
     for m in list(models):
         if not (existing[m.name] or skip[m.name]):
             stopped[m.name] = "no keyframe: record a starting pose for this bone first"
@@ -269,7 +271,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     result = track(renderer, models, read, order, keyframes=existing, options=options,
                    record_result=lambda fr: trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score,
                                                               tracking=fr.journal_fields()),
-                   skip=skip, progress=on_progress, cancel=cancel)
+                   skip=skip, progress=on_progress, cancel=cancel,
+                   neighbours=journal_neighbours(states, order))  # the trajectory check's, outside the range
     report["summary"] = result.summary()
     report["flagged"] = [r.to_dict() for r in result.flagged]
     # the frames as the run left them: the trajectory post-pass flags after the progress events

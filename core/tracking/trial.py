@@ -122,7 +122,8 @@ Once every frame is tracked (a complete run), the trajectory post-pass of
 the local fit through their neighbours by more than ``trajectory_limit`` (None: off) × the bone's
 median residual — frames a few Cramér–Rao bound-widths off that converged and scored as usual, which
 no check of a single frame tells apart (that module's docs give what it caught); those frames are
-handed to ``record_result`` again with the flag.
+handed to ``record_result`` again with the flag. A range's fits run through ``neighbours``, good
+poses outside it (the journal's), which are never flagged by it.
 
 The thresholds are :class:`TrackingOptions` fields, defaulting to the module constants named
 above: ``collapse_ratio`` (:data:`~core.tracking.checks.COLLAPSE_RATIO`), ``motion_limit``,
@@ -228,7 +229,8 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
           record_result: Callable[[FrameResult], None] | None = None,
           skip: Mapping[str, Mapping[int, np.ndarray | FrameResult]] | None = None,
           progress: Callable[[int, int, FrameResult], None] | None = None,
-          cancel: Callable[[], bool] | None = None) -> TrackingResult:
+          cancel: Callable[[], bool] | None = None,
+          neighbours: Mapping[str, Mapping[int, np.ndarray]] | None = None) -> TrackingResult:
     """Track ``bones`` (volume ``i`` of ``renderer`` is ``bones[i]``) over ``frame_order``.
 
     Parameters
@@ -262,6 +264,10 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         True the frame in flight is dropped whole (nothing of it is recorded or reported) and
         the result says ``"cancelled"``; a cancel that comes after the last frame is recorded
         leaves the run ``"complete"``.
+    neighbours : mapping bone name -> {frame: pose}, optional
+        Good poses of frames outside ``frame_order`` (the journal's,
+        :func:`core.tracking.flags_post.journal_neighbours`): the trajectory post-pass fits through
+        them, and through ``skip``'s poses, but flags only this run's frames.
 
     Frames are registered from their inputs only (the seeds depend on the frame, not on what
     ran before), so a run resumed from its journal gives the results of an uninterrupted run.
@@ -341,7 +347,9 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
     out = TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
     if status == "complete" and o.trajectory_limit is not None:  # review flags from the whole track
         centers = {b.name: b.centroid for b in bones}
-        out, changed = apply_trajectory_flags(out, centers, limit=o.trajectory_limit)
+        near = {b: {**(neighbours or {}).get(b, {}),
+                    **{f: p for f, p in skip[b].items() if not isinstance(p, FrameResult)}} for b in names}
+        out, changed = apply_trajectory_flags(out, centers, limit=o.trajectory_limit, neighbours=near)
         for fr in changed:  # journaled again with the flag (the review panel reads the journal)
             if record_result is not None and fr.pose is not None:
                 record_result(fr)

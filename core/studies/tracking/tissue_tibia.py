@@ -305,6 +305,20 @@ def bias(*, pixels: int = 256, voxel: float = 1.0, frames=range(0, 100, 10), bon
     return out
 
 
+def _rim_stats(renderer) -> dict:
+    """The band caches' counts (:class:`core.tracking.likelihood_rim.RimCache`) summed over the
+    stage's engines of ``renderer``."""
+    from core.tracking.engine_likelihood import _CACHE
+    from core.tracking.likelihood_rim import _CACHES
+
+    tot = {"hits": 0, "patched": 0, "built": 0}
+    for eng in _CACHE.get(renderer, {}).values():
+        c = _CACHES.get(eng)
+        for k, v in ({} if c is None else c.stats()).items():
+            tot[k] += v
+    return tot
+
+
 def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, voxel: float = 0.5,
         workers: int = 0, cases=("three", "tibia"), correction: str = "grid", warm_frames: int = 3,
         labels=None, checkpoint=None) -> dict:
@@ -368,7 +382,10 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
                 track(r, ms, ts.frames, range(min(n, warm_frames)), keyframes=kf, options=oo)
         for label, m in runs:
             oo = hp4 if label == "hp4" else o
+            before = _rim_stats(r)
             c[label] = timed_run(ts, r, ms, kf, oo, m, n, names, bound, f"{case} {label}")
+            if label.endswith("_rim"):  # the band's regions of the timed run: from its cache, updated, built
+                c[label]["rim_cache"] = {k: v - before[k] for k, v in _rim_stats(r).items()}
             out[case] = c
             out["total_s"] = time.perf_counter() - t0
             if checkpoint:

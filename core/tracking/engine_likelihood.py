@@ -137,7 +137,7 @@ DIFF_IMAGES = True
 #: The separable blurs of the high-pass and the weights with several outputs a thread
 #: (:func:`~core.tracking.likelihood_fast.blur_block_kernel`; the same values). Off: one
 #: output a thread (:func:`core.similarity._kernels.blur_kernel`), as first measured.
-BLOCK_BLUR = False
+BLOCK_BLUR = True
 
 
 def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False,

@@ -30,13 +30,26 @@ synchronisation around it), the solves (0.16 ms a step), the launches.
   sorted values, so the same median).
 
 The last two keep every value (on this 2-core CPU machine's Warp device, to the bit: the stage's
-poses and covariances on a 128² trial) and are off until measured on a GPU (the study's variants
-``exact`` and ``fast``).
+poses and covariances on a 128² trial) and are on by default since measured on one NVIDIA H100
+(the study's variants, same trial and call, two repeats alternated, median, 4 / 8 px;
+``resources/benchmarks/tracking_stage_speed_fast_h100.json``): every flag off (``plain``) 15.7 / 21.2
+ms per bone-frame; ``BLOCK_BLUR`` and ``MEDIAN_BISECT`` (``exact``) 12.5 / 17.5 ms; with
+``DIFF_IMAGES`` too (``fast``, the default) 11.1 / 16.0 ms, where ``DIFF_IMAGES`` alone had measured
+13.9 / 18.6 ms on another H100. The blurs took 3.96 → 2.83 ms and 6.66 → 4.71 ms a bone-frame of the
+device's time (1.63 / 2.80 ms with the differences); the robust factors, timed serially, 2.37 → 0.84
+ms (the keys' atomic kernel 0.35 ms, the rest the segmented sort, which Warp's timing does not see).
+``exact`` against ``plain``: poses within 10⁻¹² mm and degrees, the confidences' σ within 4 · 10⁻¹⁴
+relative (unlike on the CPU, not equal to the last bit; not traced); ``fast`` against ``plain``
+moved poses by the very amounts ``DIFF_IMAGES`` alone had (0.018 mm / 0.031° at 4 px, 0.009 mm /
+0.037° at 8 px) and the σ by up to 11 % / 8 % relative on the worst of the 90 bone-frames' six axes;
+errors over the bound as above.
+The device now spends per bone-frame 8.1 / 12.8 ms (DRRs 3.3, blurs 1.6 / 2.8, moments 1.1, meat and
+autocovariance 1.2 / 4.6 ms), the stage's wall 11.8 / 18.4 ms over those 8 frames.
 
 What the stage would need to fit the speed goal (≤ 5 ms a frame for one bone, ≤ 20 ms for three jointly,
 tracker included; the tracker alone took 4.3 ms and 13-17 ms on one H100,
 ``tracking_newton_h100_endcheck.json``): about 0.7 ms per bone-frame for one bone and 1-2 ms for three —
-8-20× less than the 13.9 ms measured at 4 px. The device's floor of today's stage is ~0.8 ms a step
+6-16× less than the 11.1 ms measured at 4 px. The device's floor of today's stage is ~0.8 ms a step
 (13-pose DRRs 0.38, blurs 0.25, moments 0.13, differences 0.04 ms) plus per bone-frame the sandwich (1.2
 ms at 4 px, 4.6 at 8 px), the robust factors (0.4 ms of Warp kernels and a sort not timed) and the
 set-up; 8.3-8.7 steps. So it would need all of: one or two steps from the tracker's optimum instead of

@@ -200,7 +200,7 @@ def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.in
 #: :func:`robust_factors_device` sorts each view's keys on its own and counts its used pixels in
 #: them (no segmented sort, no atomic a pixel; the same median: :mod:`core.tracking.likelihood_fast`);
 #: off: one segmented sort, the count taken as the keys are written, as first measured
-MEDIAN_BISECT = False
+MEDIAN_BISECT = True
 
 
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",

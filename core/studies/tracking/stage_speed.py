@@ -27,8 +27,9 @@ Variants: ``base`` the modules' defaults; ``plain`` every speed flag off (the st
 measured); ``exact`` the blocked blur and the median by per-view sorts (values unchanged);
 ``fast`` those and the design's differences (:mod:`core.tracking.likelihood_fast`). Measured:
 ``resources/benchmarks/tracking_stage_speed_h100.json`` (one NVIDIA H100, 30 frames; its ``base``
-is today's ``plain``, its ``diff`` today's default; the numbers in :mod:`core.tracking.likelihood_fast`).
-``exact`` and ``fast`` are not measured on a GPU yet.
+is today's ``plain``, its ``diff`` ``DIFF_IMAGES`` alone) and ``tracking_stage_speed_fast_h100.json``
+(``plain``, ``exact``, ``fast``; ``fast`` is today's default; the numbers in
+:mod:`core.tracking.likelihood_fast`).
 """
 
 from __future__ import annotations

@@ -19,24 +19,22 @@ residual's RMS over the image is reported (``config``). At the quick size (256²
 the session's fit is coarser: 0.16 mm RMS (thin-plate splines chosen), against the 3 % model's
 0.058 mm (this 2-core CPU machine).
 
-Why ``grid`` is the default (one NVIDIA H200, 1024², 100 frames, both corrections and both
-searches in one call; ``resources/benchmarks/tracking_acceptance_grid_h200.json``): it is what a
-user's calibration gives, and the 3 % model's error, growing as r³ towards the rim, was the largest
-part of the tibia's error. Per-frame RMS over the Cramér–Rao bound (mm / degrees), grid against
-model: ``--search local`` (the tracking default until the Gauss–Newton search replaced it) tibia
-2.57 / 1.84 against 3.04 / 1.84, talus 1.59 / 1.65 against 1.57 / 1.62,
-calcaneus 1.45 / 1.51 against 1.35 / 1.53, frames over 4× the bound 13 / 1 / 1 against 18 / 1 / 1;
-``--search newton`` tibia 1.73 / 1.85 against 2.21 / 2.01, talus 1.80 / 1.57 against 1.77 / 1.58,
-calcaneus 1.31 / 1.52 against 1.45 / 1.54, over 4× 5 / 0 / 0 against 7 / 0 / 1. The model run
-repeats ``tracking_acceptance_h100.json`` (one H100) frame for frame.
+Why ``grid`` is the default: it is what a user's calibration gives, and the 3 % model's error,
+growing as r³ towards the rim, was the largest part of the tibia's error (one NVIDIA H200, 1024²,
+100 frames, Gauss–Newton search, × the bound mm / °, grid against model: tibia 1.73 / 1.85 against
+2.21 / 2.01, calcaneus 1.31 / 1.52 against 1.45 / 1.54, the talus within 2 %;
+``resources/benchmarks/tracking_acceptance_grid_h200.json``, which has the local search's too).
 
 Measurements
 ------------
 * **tracking** — frame 0 starts from the truth moved by ``start_error`` (5 mm, 5° in random
   directions), every frame is tracked (:func:`core.tracking.trial.track`); per bone the RMS of the
   centroid position error (mm) and of the rotation error angle (degrees) over all frames, the
-  converged fraction, flagged frames, and *silent failures* (unflagged frames with an error above
-  0.5 mm or 0.5°);
+  converged fraction, flagged frames as the run returned them (the failure checks' and the
+  trajectory post-pass's, :mod:`core.tracking.flags_post`, on by default; those the post-pass alone
+  flagged apart: ``flagged_off_trajectory_only``), frames over 4× the bone's bound flagged or
+  silent (``over_4x_bound``), and *silent failures* (unflagged frames with an error above 0.5 mm
+  or 0.5°);
 * **filtered trajectories** — the same errors after the zero-phase Butterworth low-pass of
   :meth:`core.tracking.trial.TrackingResult.filtered_poses` (cut-off by Winter's residual
   analysis per bone) at the scene's frame rate: 100 frames span 0.6 of a 0.6 s stance,
@@ -54,16 +52,24 @@ Measurements
   RMS errors divided by it (``rms_over_bound``): how close the tracker gets to what the images
   allow, and whether a per-frame target is reachable at all (``filtered_deg`` compares the
   low-passed trajectory, which pools neighbouring frames, with the same per-frame bound: it can
-  and should fall below 1).
+  and should fall below 1);
+* **goals** — issue 20's per bone, measured and met or not (``goals``,
+  :func:`core.studies.tracking.acceptance_goals.goals`: ≤ 1.25× the bound in mm and °, ≥ 99 %
+  converged, no silent frame over 4× the bound, ≥ 90 % of axes within 2σ); with
+  ``--mode joint,sequential`` (both modes in turn on the same frames) ``joint_vs_sequential``;
+* **joint space** — the smallest signed surface distance of tibia–talus and talus–calcaneus over
+  the trial at the tracked poses against the truth's (``joint_space``).
 
 ``--quick`` (CPU, this machine) uses 256² views, 1 mm voxels, 20 frames and 5 capture trials per
 bone; the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). The JSON goes
-to stdout (and ``--out``); ``--figure`` saves per-frame errors as a PNG.
+to stdout (and ``--out``); ``--figure`` saves per-frame errors as a PNG; ``--workers`` makes the
+frames' image chain in that many processes (:mod:`core.studies.tracking.trial_frames`).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import time
 
@@ -321,32 +327,38 @@ def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1
 
 def run(*, quick: bool = True, device: str | None = None, capture_trials: int | None = None,
         mode: str = "joint", figure: str | None = None, seed: int = 0,
-        n_frames: int | None = None, correction: str = DEFAULT_CORRECTION, search: str | None = None) -> dict:
+        n_frames: int | None = None, correction: str = DEFAULT_CORRECTION, search: str | None = None,
+        workers: int = 0, ts: TrackingScene | None = None) -> dict:
     """Run the acceptance study; returns the JSON-ready results. ``search`` overrides the tracking
     options' registration search (``"newton"``, the Gauss–Newton engine, by default; ``"local"`` the
-    quadratic-model search)."""
+    quadratic-model search). ``workers``: processes for the frames' image chain (0: this one);
+    ``ts``: a scene made already (:func:`tracking_scene`, its frames kept: several modes on the
+    same frames; ``quick``, ``seed``, ``n_frames`` and ``correction`` are then the scene's)."""
     from dataclasses import replace
 
+    from core.studies.tracking.acceptance_goals import flag_counts, goals, joint_space
+    from core.studies.tracking.trial_frames import synthesise
     from core.tracking.trial import TrackingOptions, track
 
     t0 = time.perf_counter()
-    ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames, correction=correction)
+    if ts is None:
+        ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames, correction=correction)
+    seed, correction = ts._seed, ts.correction
     o = TrackingOptions(mode=mode)
     if search is not None:
         o = replace(o, registration=replace(o.registration, search=search))
     g = np.random.default_rng(seed + 7)
     keyframes = {n: {0: pose_from_params(_random_offset(g, 5.0, 5.0), center=m.centroid, base=ts.truth(0)[b])}
                  for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True))}
-    for i in range(ts.scene.n_frames):  # synthesise the images first: not part of tracking time
-        ts.frames(i)
+    synthesise(ts, range(ts.scene.n_frames), workers)  # the images first: not part of tracking time
     setup = time.perf_counter() - t0
     res = track(ts.renderer, ts.models, ts.frames, range(ts.scene.n_frames), keyframes=keyframes, options=o)
     per_bone, all_err, all_filt, frames_with_pose = {}, {}, {}, {}
     for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
         F, cutoff = res.filtered_poses(n, FRAME_RATE_HZ, center=m.centroid)
-        Ef = np.array([pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in range(ts.scene.n_frames)
-                       if np.all(np.isfinite(F[f]))])
-        all_filt[n] = Ef
+        ff = [f for f in range(ts.scene.n_frames) if np.all(np.isfinite(F[f]))]
+        Ef = np.array([pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in ff])
+        all_filt[n] = (ff, Ef)
         rows, inside, silent, conv, sig = [], [], 0, 0, []
         frames_with_pose[n] = []
         for f in range(ts.scene.n_frames):
@@ -378,7 +390,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
             "mean_error": {"mm": E[:, :3].mean(0).round(4).tolist(),
                            "deg": E[:, 3:].mean(0).round(4).tolist()},
             "converged_fraction": conv / ts.scene.n_frames,
-            "flagged_frames": sorted(f for (bn, f), r in res.results.items() if bn == n and r.flags),
+            **flag_counts(res, n),
             "silent_failures": silent,
             "within_2_sigma_fraction": float(np.mean(inside)) if inside else None,
             "motion_per_frame_mm": {"median": float(np.median(motion)), "max": float(np.max(motion))},
@@ -400,18 +412,22 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         per_bone[n]["per_frame_error"] = E.round(5).tolist()
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
            "frames": ts.scene.n_frames, "mode": mode, "search": o.registration.search,
+           "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact),
            "start_error": "5 mm, 5 deg", "correction": correction,
            "residual_distortion_rms_mm": ts.residual_distortion_mm(), "frame_rate_hz": FRAME_RATE_HZ,
-           "pixel_mm_at_isocentre": float(ts.scene.rig[0].pixel_size)}
+           "pixel_mm_at_isocentre": float(ts.scene.rig[0].pixel_size), "workers": workers}
     out = {"study": "core.studies.tracking.acceptance", "quick": quick, "machine": platform.machine(),
            "processor": platform.processor() or platform.machine(), "device": str(ts.renderer.device),
            "config": cfg, "tracking": per_bone, "summary": res.summary(), "setup_s": setup}
+    out["joint_space"] = joint_space(ts, res)
+    out["goals"] = goals(per_bone)
     trials = capture_trials if capture_trials is not None else (5 if quick else 50)
     if trials:
         out["capture_range"] = capture_range(ts, trials=trials, options=o, seed=seed + 1)
     out["total_s"] = time.perf_counter() - t0
     if figure:
-        _figure(all_err, all_filt, figure, cfg, bound)
+        _figure({n: (frames_with_pose[n], E) for n, E in all_err.items()}, all_filt, figure, cfg, bound,
+                {n: t["flagged_frames"] for n, t in per_bone.items()})
     return out
 
 
@@ -427,7 +443,10 @@ def _over_bound(res, name: str, E: np.ndarray, frames: list, bound: dict, k: flo
             "false_flags": len(good_flagged)}
 
 
-def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | None = None) -> None:
+def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | None = None,
+            flagged: dict | None = None) -> None:
+    """Per-frame and filtered errors (``errors``, ``filtered``: bone -> (frames, (n, 6) errors)),
+    the flagged frames of the per-frame row marked (``flagged``: bone -> frames)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -435,11 +454,14 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
 
     fig, ax = plt.subplots(2, 2, figsize=(10, 6.4), sharex=True)
     for row, (errs, what) in enumerate(((errors, "per frame"), (filtered, "filtered"))):
-        for k, (n, E) in enumerate(errs.items()):
+        for k, (n, (fr, E)) in enumerate(errs.items()):
             c = f"C{k}"
             et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
-            ax[row, 0].plot(et, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(et ** 2)):.3f} mm)")
-            ax[row, 1].plot(er, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(er ** 2)):.3f}°)")
+            ax[row, 0].plot(fr, et, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(et ** 2)):.3f} mm)")
+            ax[row, 1].plot(fr, er, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(er ** 2)):.3f}°)")
+            marked = [i for i, f in enumerate(fr) if row == 0 and f in set((flagged or {}).get(n, ()))]
+            for col, y in ((0, et), (1, er)):  # flagged frames (the checks' or the trajectory pass's)
+                ax[row, col].plot(np.asarray(fr)[marked], y[marked], "x", color=c, ms=6)
             if bound and n in bound:  # the least RMS error of any unbiased per-frame estimate
                 ax[row, 0].axhline(bound[n]["rms_mm"], color=c, lw=1.2, ls=":")
                 ax[row, 1].axhline(bound[n]["rms_deg"], color=c, lw=1.2, ls=":")
@@ -452,13 +474,18 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
     for a in ax[1]:
         a.set(xlabel="frame")
     fig.suptitle(f"Synthetic walking trial, {cfg['pixels']}² views, {cfg['voxel_mm']} mm voxels, "
-                 f"{cfg['mode']} tracking, start 5 mm / 5° off, distortion correction: {cfg['correction']}"
-                 f"\nlower row: Butterworth low-pass at "
+                 f"{cfg['mode']} tracking ({cfg['search']} search), start 5 mm / 5° off, "
+                 f"distortion correction: {cfg['correction']}\nlower row: Butterworth low-pass at "
                  f"{cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: 0.15 target; dotted: Cramér–Rao bound "
-                 f"of a per-frame estimate)", fontsize=9)
+                 f"of a per-frame estimate; x: flagged)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _mode_path(path: str, mode: str) -> str:
+    stem, dot, ext = path.rpartition(".")
+    return f"{stem}_{mode}.{ext}" if dot else f"{path}_{mode}"
 
 
 def main(argv=None) -> int:
@@ -468,20 +495,41 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--frames", type=int, default=None, help="number of frames (default 20 quick / 100)")
     p.add_argument("--capture-trials", type=int, default=None, help="capture-range trials per bone")
-    p.add_argument("--mode", choices=("sequential", "joint"), default="joint")
+    p.add_argument("--mode", default="joint",
+                   help="joint (default), sequential, or both in turn on the same frames (joint,sequential: "
+                   "one JSON with runs per mode, the capture range measured once, figures named _<mode>)")
     p.add_argument("--correction", choices=CORRECTIONS, default=DEFAULT_CORRECTION,
                    help="distortion correction: fitted to calibration grid frames (grid, the default), "
                    "the true model 3 %% off (model) or the true model (exact: a study-only oracle)")
     p.add_argument("--search", choices=("local", "newton"), default=None,
                    help="registration search (default the tracking options': newton)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="processes for the frames' image chain (default 0: this one)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save per-frame errors as a PNG")
     a = p.parse_args(argv)
-    res = run(quick=a.quick, device=a.device, capture_trials=a.capture_trials, mode=a.mode, figure=a.figure,
-              n_frames=a.frames, correction=a.correction, search=a.search)
-    from core.io.atomic import print_json
+    modes = [m.strip() for m in a.mode.split(",") if m.strip()]
+    if not modes or any(m not in ("sequential", "joint") for m in modes) or len(set(modes)) < len(modes):
+        p.error(f"--mode: expected joint, sequential or joint,sequential, got {a.mode!r}")
+    from core.io.atomic import atomic_write, print_json
+    from core.studies.tracking.acceptance_goals import compare_modes
 
-    print_json(res, a.out)
+    kw = {"quick": a.quick, "device": a.device, "n_frames": a.frames, "correction": a.correction,
+          "search": a.search, "workers": a.workers}
+    if len(modes) == 1:
+        print_json(run(capture_trials=a.capture_trials, mode=modes[0], figure=a.figure, **kw), a.out)
+        return 0
+    t0 = time.perf_counter()
+    ts = tracking_scene(quick=a.quick, device=a.device, n_frames=a.frames, correction=a.correction)
+    out = {"study": "core.studies.tracking.acceptance", "modes": modes, "scene_s": time.perf_counter() - t0,
+           "runs": {}}
+    for k, m in enumerate(modes):  # the capture range registers each bone alone: once
+        out["runs"][m] = run(capture_trials=a.capture_trials if k == 0 else 0, mode=m, ts=ts,
+                             figure=_mode_path(a.figure, m) if a.figure else None, **kw)
+        out["joint_vs_sequential"] = compare_modes(out["runs"])
+        if a.out and k + 1 < len(modes):  # each mode kept as soon as it is done
+            atomic_write(a.out, json.dumps(out, indent=2) + "\n")
+    print_json(out, a.out)
     return 0
 
 

@@ -1,0 +1,107 @@
+"""The acceptance study's goal table, flag counts, joint space and both modes on one scene
+(core.studies.tracking.acceptance_goals, acceptance.main --mode joint,sequential), and the frames
+made in worker processes (core.studies.tracking.trial_frames)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from core.studies.tracking import acceptance
+from core.studies.tracking.acceptance_goals import compare_modes, flag_counts, goals, joint_space
+from core.studies.tracking.trial_frames import synthesise
+
+
+def _bone(mm, deg, conv=1.0, silent=0, inside=0.95):
+    return {"rms_error_mm": mm, "rms_error_deg": deg, "converged_fraction": conv,
+            "rms_over_bound": {"mm": mm / 0.01, "deg": deg / 0.1}, "over_4x_bound": {"silent": silent},
+            "within_2_sigma_fraction": inside}
+
+
+def test_goals_say_per_bone_what_is_met():
+    g = goals({"talus": _bone(0.012, 0.13, conv=0.98, silent=1, inside=0.85),
+               "tibia": _bone(0.0125, 0.1, inside=None)})
+    t = g["talus"]
+    assert t["rms_over_bound_mm"] == [pytest.approx(1.2), True]
+    assert t["rms_over_bound_deg"] == [pytest.approx(1.3), False]
+    assert t["converged_fraction"] == [0.98, False] and t["silent_over_4x"] == [1, False]
+    assert t["within_2_sigma"] == [0.85, False]
+    assert g["tibia"]["rms_over_bound_mm"][1] and g["tibia"]["silent_over_4x"] == [0, True]
+    assert g["tibia"]["within_2_sigma"] == [None, False]
+
+
+def test_compare_modes_needs_both_and_gives_joint_over_sequential():
+    runs = {"joint": {"tracking": {"talus": {"rms_error_mm": 0.02, "rms_error_deg": 0.3}}}}
+    assert compare_modes(runs) == {}
+    runs["sequential"] = {"tracking": {"talus": {"rms_error_mm": 0.04, "rms_error_deg": 0.2}}}
+    c = compare_modes(runs)["talus"]
+    assert c["mm"] == {"joint": 0.02, "sequential": 0.04, "ratio": 0.5}
+    assert c["deg"]["ratio"] == pytest.approx(1.5)
+
+
+def test_flag_counts_are_the_returned_flags_with_the_trajectory_pass_apart():
+    from core.tracking.flags_post import FLAG
+
+    flags = {0: (), 1: ("score drop",), 2: (f"{FLAG}: 0.05 mm",), 3: ("jump", f"{FLAG}: 0.3 deg")}
+    res = SimpleNamespace(results={("talus", f): SimpleNamespace(flags=v) for f, v in flags.items()}
+                          | {("tibia", 0): SimpleNamespace(flags=("lost",))})
+    out = flag_counts(res, "talus")
+    assert out == {"flagged_frames": [1, 2, 3], "flagged_off_trajectory_only": [2]}
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return acceptance.TrackingScene(n_frames=3, pixels=64, spacing=2.0, device="cpu")
+
+
+def test_joint_space_of_the_true_poses_is_the_truths(scene):
+    res = SimpleNamespace(results={(n, f): SimpleNamespace(pose=scene.truth(f)[b])
+                                   for b, n in enumerate(scene.names) for f in range(3)})
+    res.results[("talus", 1)] = SimpleNamespace(pose=None)
+    js = joint_space(scene, res)
+    assert set(js) == {"tibia-talus", "talus-calcaneus"}
+    for v in js.values():
+        assert v["rms_diff_mm"] == 0.0 and v["max_abs_diff_mm"] == 0.0
+        assert np.isfinite(v["truth_min_mm"]) and v["truth_min_mm"] < 10.0
+        assert v["min_frame"] != 1
+    shifted = dict(res.results)
+    for f in (0, 2):  # the talus moved 1 mm away from the tibia's centroid: a wider joint space
+        T = scene.truth(f)
+        c = [T[b][:3, :3] @ scene.models[b].centroid + T[b][:3, 3] for b in (0, 1)]
+        P = T[1].copy()
+        P[:3, 3] += (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])
+        shifted[("talus", f)] = SimpleNamespace(pose=P)
+    js2 = joint_space(scene, SimpleNamespace(results=shifted))
+    assert js2["tibia-talus"]["max_abs_diff_mm"] > 0.2
+
+
+def test_frames_made_in_workers_are_the_frames_made_here():
+    ts = acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",))
+    here = [np.array(x) for x in ts.frames(1)]
+    ts._cache.clear()
+    synthesise(ts, range(2), workers=2)
+    assert sorted(ts._cache) == [0, 1]
+    for a, b in zip(here, ts._cache[1], strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_main_runs_both_modes_on_one_scene(monkeypatch, tmp_path):
+    import json
+
+    import core.io.atomic
+
+    calls = []
+    monkeypatch.setattr(acceptance, "tracking_scene", lambda **kw: "scene")
+    monkeypatch.setattr(acceptance, "run", lambda **kw: calls.append(kw) or {"tracking": {}})
+    monkeypatch.setattr(core.io.atomic, "print_json", lambda obj, out=None: out and
+                        (tmp_path / "o.json").write_text(json.dumps(obj)))
+    acceptance.main(["--quick", "--mode", "joint,sequential", "--figure", "f.png", "--workers", "4",
+                     "--out", str(tmp_path / "o.json")])
+    assert [c["mode"] for c in calls] == ["joint", "sequential"]
+    assert [c["ts"] for c in calls] == ["scene", "scene"] and calls[0]["workers"] == 4
+    assert calls[0]["capture_trials"] is None and calls[1]["capture_trials"] == 0
+    assert [c["figure"] for c in calls] == ["f_joint.png", "f_sequential.png"]
+    out = json.loads((tmp_path / "o.json").read_text())
+    assert list(out["runs"]) == ["joint", "sequential"] and out["joint_vs_sequential"] == {}
+    with pytest.raises(SystemExit):
+        acceptance.main(["--mode", "joint,both"])

@@ -44,7 +44,10 @@ when another writer holds the bone for good (``talus track``, or the window). On
 results as knots. Each range task's trajectory check (:mod:`core.tracking.flags_post`) fits
 through the poses other ranges had journaled when it started; once every range of a trial's bone
 (group) is complete, :func:`trajectory_pass` judges all of their frames again in one pass, so the
-review flags — the keyframe two ranges share included — do not depend on the order the tasks ran.
+review flags — the keyframe two ranges share included — do not depend on the order the tasks ran;
+the journal, the ranges' reports and the summary's task records then give the flags after that
+pass (:mod:`core.tracking.batch_pass`; the summary's ``trajectory_pass`` lists what it judged and
+changed).
 
 :func:`run_batch` submits the tasks to a Dask cluster — a local one by default
 (:func:`local_cluster`: one worker process per GPU, its ``CUDA_VISIBLE_DEVICES`` set to that GPU
@@ -67,6 +70,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from .batch_pass import final_records
 
 __all__ = [
     "EVENT_TOPIC",
@@ -386,6 +391,7 @@ def run_serial(tasks: Sequence[BatchTask], settings: TaskSettings | None = None,
         except Exception as exc:  # reported in the summary, the batch goes on
             failures.append({"key": task.key, "error": f"{type(exc).__name__}: {exc}", "attempts": 1})
     passes = trajectory_pass(tasks, records, settings)
+    records = final_records(records, passes)  # range tasks' flagged counts after the pass
     summary = summarize(tasks, records, failures, wall_s=time.perf_counter() - t0, workers=0)
     return dict(summary, trajectory_pass=passes)
 
@@ -395,62 +401,17 @@ def trajectory_pass(tasks: Sequence[BatchTask], records: Sequence[dict],
     """The trajectory check (:func:`core.tracking.flags_post.apply_trajectory_flags`) over the
     frame ranges of each (study, trial, bones) once all of its range tasks are complete
     (``records``: the tasks' records): the ranges' frames judged together from the journal, the
-    journal's other good poses as neighbours, and the frames whose flag changed journaled again
-    (see the module notes). Returns one entry per such group — ``key``, ``judged`` (bone-frames),
-    ``flagged``, ``changed`` frames, ``seconds``, or ``error`` (e.g. another writer holds the
-    bone; the ranges' own flags then stay) — the batch summary's ``"trajectory_pass"``."""
-    settings = settings or TaskSettings()
-    done = {r.get("key") for r in records if r.get("status") == "complete"}
-    groups: dict[tuple, list[BatchTask]] = {}
-    for t in tasks:
-        if t.frames is not None:
-            groups.setdefault((t.study, t.trial, t.bones), []).append(t)
-    out = []
-    for (study, trial, bones), ts in groups.items():
-        if not all(t.key in done for t in ts):
-            continue
-        key = f"{Path(study).name}/{trial}/{'+'.join(bones)}"
-        frames = sorted({f for t in ts for f in t.order})
-        try:
-            out.append(dict(key=key, **_trial_pass(study, trial, bones, frames, settings)))
-        except Exception as exc:  # reported; the ranges' own flags stay in the journal
-            out.append({"key": key, "error": f"{type(exc).__name__}: {exc}"})
-    return out
+    journal's other good poses as neighbours, the frames whose flag changed journaled again and
+    the group's range reports rewritten with the flags as the pass left them
+    (:mod:`core.tracking.batch_pass`). Returns one entry per group — ``key``, ``ranges`` (task
+    keys), ``judged`` (bone-frames), ``flagged`` (off the trajectory), ``review_flagged`` (bone ->
+    frames with any review flag), ``changed`` ([bone, frame]) and ``changes`` (with the flags
+    after the pass), ``tasks_flagged`` (task key -> its frames flagged), ``reports`` (rewritten),
+    ``seconds``; or ``skipped`` (a range not complete) or ``error`` (e.g. another writer holds the
+    bone), the ranges' own flags then staying — the batch summary's ``"trajectory_pass"``."""
+    from .batch_pass import run_pass
 
-
-def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Sequence[int],
-                settings: TaskSettings) -> dict:
-    """:func:`trajectory_pass` of one group: its journal read, judged and the changes recorded."""
-    from ..study import Study
-    from .batch_journal import SharedJournals
-    from .bones import bone_model
-    from .flags_post import FLAG, apply_trajectory_flags, journal_neighbours
-    from .results import FrameResult, TrackingResult
-
-    t0 = time.perf_counter()
-    limit = settings.tracking_options(joint=len(bones) > 1).trajectory_limit
-    if limit is None:
-        return {"judged": 0, "flagged": 0, "changed": [], "seconds": 0.0, "off": True}
-    with Study.open(study, mode="w", check_files=False) as st:
-        shared = SharedJournals(st)
-        for b in bones:  # refused while another writer (talus track, the window) holds the bone
-            shared.lock_journal(trial_name, b)
-        trial = shared.trial(trial_name)
-        states = {b: trial.results(b) for b in bones}
-        results = {(b, f): FrameResult.from_journal(b, r) for b in bones for f in frames
-                   if (r := states[b].records.get(f)) is not None and r.kind == "tracked"}
-        # the centre track_study's bone model gives (the mask's centroid at the threshold)
-        centers = {b: bone_model(st.bone_volume(b), name=b, threshold=settings.threshold_hu,
-                                 mesh=False).centroid for b in bones}
-        res = TrackingResult(tuple(bones), tuple(frames), results, "complete", 0.0)
-        # every other good pose of the journal a neighbour: outside the ranges, hand fixes in them
-        near = journal_neighbours(states)
-        out, changed = apply_trajectory_flags(res, centers, limit=limit, neighbours=near)
-        for fr in changed:
-            trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score, tracking=fr.journal_fields())
-    flagged = sum(any(s.startswith(FLAG) for s in fr.flags) for fr in out.results.values())
-    return {"judged": len(results), "flagged": int(flagged),
-            "changed": [[fr.bone, int(fr.frame)] for fr in changed], "seconds": time.perf_counter() - t0}
+    return run_pass(tasks, records, settings or TaskSettings())
 
 
 def _cancelled(task: BatchTask) -> dict:

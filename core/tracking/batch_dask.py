@@ -16,8 +16,6 @@ from .batch import EVENT_TOPIC, BatchTask, TaskSettings, _cancelled, run_task, s
 __all__ = ["gpu_count", "local_cluster", "run_batch", "stop_flag"]
 
 
-
-
 def gpu_count() -> int:
     """CUDA devices Warp sees here (0 without a GPU or a driver)."""
     try:
@@ -171,8 +169,10 @@ def _run_batch(tasks, settings, workers, scheduler, on_event, on_start, cancel, 
         with contextlib.suppress(Exception):  # an existing scheduler keeps no stale stop event
             stop.clear()
         from .batch import trajectory_pass
+        from .batch_pass import final_records
 
         passes = trajectory_pass(tasks, records, settings)  # ranges' flags judged together
+        records = final_records(records, passes)  # range tasks' flagged counts after the pass
         summary = summarize(tasks, records, failures, wall_s=time.perf_counter() - t0,
                             workers=n_workers, attempts=attempts, dashboard=info["dashboard"],
                             scheduler=None if cluster is not None else scheduler, startup_s=startup_s)

@@ -1,0 +1,185 @@
+"""The trajectory check over a trial's frame ranges once a batch's range tasks are all done
+(:func:`core.tracking.batch.trajectory_pass`, run by ``run_serial`` and ``run_batch``), and
+what it leaves: the journal, the range reports and the batch summary's records in line.
+
+Each range task of ``talus batch --ranges`` ran the trajectory check
+(:mod:`core.tracking.flags_post`) over its own frames, fitting through the poses other ranges
+had journaled when it started; its report (``<trial>.<bone>.<first>-<last>.json``) and its
+record's ``flagged`` say what that pass found. Once every range of a (study, trial, bones) group
+is complete, :func:`run_pass` judges all of the group's frames again in one pass (the journal's
+other good poses as neighbours) and
+
+* journals the frames whose flags changed (the review state the window shows);
+* rewrites every range report of the group (atomically, as every report is written): each
+  frame's entry in ``frames_done`` and ``flagged`` as the pass left it, ``summary.flagged``
+  counted again, and a ``trajectory_pass`` section (the group, its ranges, the frames of this
+  range the pass changed) — the rest of the report, and its layout, as the task wrote it;
+* returns one entry per group — the batch summary's ``"trajectory_pass"`` — from which
+  :func:`final_records` sets each range task's record's ``flagged`` to the count after the pass
+  (``flagged_before_pass``: the task's own).
+
+A group some of whose ranges did not complete (failed, stopped, cancelled) is not judged: its
+entry says so under ``skipped`` and the ranges keep their own flags. :func:`pass_messages` words
+an entry for ``talus batch`` and the window.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+__all__ = ["final_records", "pass_messages", "run_pass"]
+
+#: Changed frames named one by one in :func:`pass_messages` (the rest counted), as the window
+#: names a single run's flagged frames.
+MAX_NAMED = 10
+
+
+def run_pass(tasks: Sequence, records: Sequence[dict], settings) -> list[dict]:
+    """:func:`core.tracking.batch.trajectory_pass` (see there and the module notes): ``tasks``
+    are :class:`~core.tracking.batch.BatchTask`, ``settings`` a
+    :class:`~core.tracking.batch.TaskSettings`."""
+    done = {r.get("key") for r in records if r.get("status") == "complete"}
+    groups: dict[tuple, list] = {}
+    for t in tasks:
+        if t.frames is not None:
+            groups.setdefault((t.study, t.trial, t.bones), []).append(t)
+    out = []
+    for (study, trial, bones), ts in groups.items():
+        key = f"{Path(study).name}/{trial}/{'+'.join(bones)}"
+        head = {"key": key, "ranges": [t.key for t in ts]}
+        missing = [t.key for t in ts if t.key not in done]
+        if missing:
+            out.append(dict(head, skipped=f"{len(missing)} of {len(ts)} ranges not complete "
+                                          f"({', '.join(missing[:3])}{' ...' if len(missing) > 3 else ''})"))
+            continue
+        frames = sorted({f for t in ts for f in t.order})
+        try:
+            out.append(dict(head, **_trial_pass(study, trial, bones, frames, ts, settings)))
+        except Exception as exc:  # reported; the ranges' own flags stay in the journal
+            out.append(dict(head, error=f"{type(exc).__name__}: {exc}"))
+    return out
+
+
+def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Sequence[int],
+                tasks: Sequence, settings) -> dict:
+    """:func:`run_pass` of one group: its journal read, judged, the changes recorded and its
+    range reports rewritten."""
+    from ..study import Study
+    from .batch_journal import SharedJournals
+    from .bones import bone_model
+    from .flags_post import FLAG, apply_trajectory_flags, journal_neighbours
+    from .results import FrameResult, TrackingResult
+
+    t0 = time.perf_counter()
+    limit = settings.tracking_options(joint=len(bones) > 1).trajectory_limit
+    if limit is None:
+        return {"judged": 0, "flagged": 0, "changed": [], "seconds": 0.0, "off": True}
+    with Study.open(study, mode="w", check_files=False) as st:
+        shared = SharedJournals(st)
+        for b in bones:  # refused while another writer (talus track, the window) holds the bone
+            shared.lock_journal(trial_name, b)
+        trial = shared.trial(trial_name)
+        states = {b: trial.results(b) for b in bones}
+        results = {(b, f): FrameResult.from_journal(b, r) for b in bones for f in frames
+                   if (r := states[b].records.get(f)) is not None and r.kind == "tracked"}
+        # the centre track_study's bone model gives (the mask's centroid at the threshold)
+        centers = {b: bone_model(st.bone_volume(b), name=b, threshold=settings.threshold_hu,
+                                 mesh=False).centroid for b in bones}
+        res = TrackingResult(tuple(bones), tuple(frames), results, "complete", 0.0)
+        # every other good pose of the journal a neighbour: outside the ranges, hand fixes in them
+        near = journal_neighbours(states)
+        out, changed = apply_trajectory_flags(res, centers, limit=limit, neighbours=near)
+        for fr in changed:
+            trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score, tracking=fr.journal_fields())
+        final = out.results
+        moved = {(fr.bone, int(fr.frame)) for fr in changed}
+        names = [t.report_name for t in tasks]
+        per_task, rewritten, unreadable = {}, [], []
+        for t in tasks:
+            mine = [(b, f) for f in t.order for b in bones if (b, f) in final]
+            per_task[t.key] = sum(bool(final[k].flags) for k in mine)
+            try:
+                old = st.read_report("tracking", t.report_name)
+            except Exception as exc:  # e.g. removed by hand: the journal and the summary still say it
+                unreadable.append(f"{t.report_name}: {exc}")
+                continue
+            section = {"group": f"{Path(study).name}/{trial_name}/{'+'.join(bones)}", "ranges": names,
+                       "judged": len(results), "limit": limit,
+                       "changed": [[b, int(f)] for b, f in mine if (b, f) in moved]}
+            new = _final_report(old, [final[k] for k in mine], section)
+            if new != old:
+                st.write_report("tracking", t.report_name, new)
+                rewritten.append(t.report_name)
+    flagged = sum(any(s.startswith(FLAG) for s in fr.flags) for fr in final.values())
+    review = {b: sum(bool(fr.flags) for (bb, _), fr in final.items() if bb == b) for b in bones}
+    return {"judged": len(results), "flagged": int(flagged), "review_flagged": review,
+            "changed": [[fr.bone, int(fr.frame)] for fr in changed],
+            "changes": [{"bone": fr.bone, "frame": int(fr.frame), "flags": list(fr.flags)} for fr in changed],
+            "tasks_flagged": per_task, "reports": rewritten, "reports_unreadable": unreadable,
+            "seconds": time.perf_counter() - t0}
+
+
+def _final_report(report: dict, final: Sequence, section: dict) -> dict:
+    """``report`` (a range task's tracking report) with the frames of ``final`` (its frames as the
+    pass left them, in tracking order) in ``frames_done`` and ``flagged``, ``summary.flagged``
+    counted again and ``section`` as ``trajectory_pass``."""
+    by_key = {(fr.bone, int(fr.frame)): fr.to_dict() for fr in final}
+    new = dict(report)
+    if isinstance(report.get("frames_done"), list):
+        new["frames_done"] = [by_key.get((d.get("bone"), d.get("frame")), d) if isinstance(d, dict) else d
+                              for d in report["frames_done"]]
+    # the task's flagged frames the pass did not judge (none, for a complete range) stay listed
+    kept = [d for d in report.get("flagged") or []
+            if isinstance(d, dict) and (d.get("bone"), d.get("frame")) not in by_key]
+    new["flagged"] = kept + [d for d in by_key.values() if d["flags"]]
+    if isinstance(report.get("summary"), dict):
+        new["summary"] = dict(report["summary"], flagged=len(new["flagged"]))
+    new["trajectory_pass"] = section
+    return new
+
+
+def final_records(records: Sequence[dict], passes: Sequence[dict]) -> list[dict]:
+    """``records`` (the tasks') with each judged range task's ``flagged`` the count after the
+    pass (``passes``: :func:`run_pass`'s entries) and ``flagged_before_pass`` its own; the
+    other records as they are."""
+    after = {k: n for p in passes for k, n in (p.get("tasks_flagged") or {}).items()}
+    return [dict(r, flagged=int(after[r["key"]]), flagged_before_pass=int(r.get("flagged", 0)))
+            if r.get("key") in after else r for r in records]
+
+
+def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
+    """Lines telling one :func:`run_pass` entry: what was judged and the counts after the pass,
+    then the frames the pass changed — the first ``limit`` named with their flags (or that the
+    flag came off), one line counting the rest; a group not judged says why its ranges keep
+    their own flags."""
+    from .flags_post import FLAG
+
+    key = entry.get("key", "?")
+    n = len(entry.get("ranges") or ())
+    if entry.get("error"):
+        return [f"{key}: the trajectory check over its {n} ranges failed ({entry['error']}); "
+                "each range keeps its own flags"]
+    if entry.get("skipped"):
+        return [f"{key}: the trajectory check over its {n} ranges did not run ({entry['skipped']}); "
+                "each range keeps its own flags"]
+    if entry.get("off"):
+        return [f"{key}: trajectory check off"]
+    review = entry.get("review_flagged") or {}
+    total = sum(review.values())
+    per_bone = f" ({', '.join(f'{b} {c}' for b, c in review.items())})" if len(review) > 1 else ""
+    changes = entry.get("changes") or []
+    lines = [f"{key}: trajectory check over its {n} ranges together: {entry.get('judged', 0)} bone-frames "
+             f"judged, {entry.get('flagged', 0)} off the trajectory; {total} flagged for review"
+             f"{per_bone}; {len(changes)} changed by the check"]
+    for c in changes[:limit]:
+        flags = list(c.get("flags") or ())
+        what = ("; ".join(flags) if any(s.startswith(FLAG) for s in flags) else
+                f"no longer off the trajectory (still flagged: {'; '.join(flags)})" if flags else
+                "no longer flagged")
+        lines.append(f"{key}: {c['bone']} frame {int(c['frame'])}: {what}")
+    if len(changes) > limit:
+        lines.append(f"{key}: ... and {len(changes) - limit} more frames changed by the check: "
+                     "the review panel lists the flagged ones")
+    return lines

@@ -1,0 +1,129 @@
+"""``talus batch --ranges``: after the trajectory check over a trial's ranges (core.tracking.batch_pass)
+the journal, every range report and the summary's task records give the flags that pass left, and
+its entry words what it judged and changed. Synthetic poses (the registration is replaced): no
+rendering."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from core.study import Study
+from core.tracking import batch, trial
+from core.tracking.batch_pass import pass_messages
+from core.tracking.flags_post import FLAG
+from core.tracking.results import FrameResult
+from tests.core.tracking.test_flags_post import _track
+
+BONE = "talus"
+SETTINGS = batch.TaskSettings(device="cpu", confidence=False)  # the registration itself is replaced
+
+
+@pytest.fixture(scope="module")
+def keyed(tmp_path_factory, demo_walk_48):
+    """The demo walk whose talus has one hand-set keyframe, frame 12: ranges 12-0 and 12-29."""
+    out = shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("pass") / "demo")
+    truth = np.load(out / "poses" / f"{BONE}.npy")
+    with Study.open(out, mode="w") as st:
+        t = st.trial("walk")
+        t.clear_pose(BONE, 0)
+        t.record_pose(BONE, 12, truth[12])
+    return out
+
+
+def _journal_flags(folder) -> dict[int, list[str]]:
+    with Study.open(folder) as st:
+        recs = st.trial("walk").results(BONE).records
+    return {int(f): list(r.tracking["flags"]) for f, r in recs.items() if r.tracking}
+
+
+def test_range_reports_and_records_give_the_flags_after_the_trials_pass(keyed, tmp_path, monkeypatch):
+    # frame 10, 0.2 deg off: the range 12-0, run first, judges it without 13-29 and does not flag
+    # it; judged with the whole trial it is off the trajectory
+    P = _track(n=30, off=(10, 0.0, 0.2))
+    monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
+        0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)})
+    folder = shutil.copytree(keyed, tmp_path / "demo")
+    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    s = batch.run_serial(tasks, SETTINGS)
+    assert s["status"] == "complete"
+    (entry,) = s["trajectory_pass"]
+    a, b = "demo/walk/talus:12-0", "demo/walk/talus:12-29"
+    assert entry["key"] == "demo/walk/talus" and entry["ranges"] == [a, b]
+    assert entry["judged"] == 30 and entry["flagged"] == 1 and entry["review_flagged"] == {BONE: 1}
+    assert entry["changed"] == [[BONE, 10]]
+    (change,) = entry["changes"]
+    assert change["frame"] == 10 and change["flags"][0].startswith(FLAG)
+    assert entry["tasks_flagged"] == {a: 1, b: 0}
+    assert entry["reports"] == ["walk.talus.12-0", "walk.talus.12-29"] and entry["reports_unreadable"] == []
+    # the records: the count after the pass, and the task's own
+    rec = {r["key"]: r for r in s["task_records"]}
+    assert (rec[a]["flagged_before_pass"], rec[a]["flagged"]) == (0, 1)
+    assert (rec[b]["flagged_before_pass"], rec[b]["flagged"]) == (0, 0)
+    # every range report agrees with the journal, frame by frame
+    journal = _journal_flags(folder)
+    assert sorted(f for f, fl in journal.items() if fl) == [10]
+    with Study.open(folder) as st:
+        for t, changed in zip(tasks, ([[BONE, 10]], []), strict=True):
+            rep = st.read_report("tracking", t.report_name)
+            assert sorted(d["frame"] for d in rep["frames_done"]) == sorted(t.order)
+            assert all(d["flags"] == journal[d["frame"]] for d in rep["frames_done"])
+            assert [d["frame"] for d in rep["flagged"]] == [f for f in t.order if journal[f]]
+            assert rep["summary"]["flagged"] == len(rep["flagged"]) and rep["summary"]["status"] == "complete"
+            assert rep["trajectory_pass"]["changed"] == changed and rep["trajectory_pass"]["judged"] == 30
+            assert rep["trajectory_pass"]["ranges"] == ["walk.talus.12-0", "walk.talus.12-29"]
+            assert rep["options"]["mode"] == "sequential" and rep["trial"] == "walk"  # the rest as written
+    lines = pass_messages(entry)
+    assert lines[0] == ("demo/walk/talus: trajectory check over its 2 ranges together: 30 bone-frames "
+                        "judged, 1 off the trajectory; 1 flagged for review; 1 changed by the check")
+    assert lines[1].startswith("demo/walk/talus: talus frame 10: off the trajectory") and len(lines) == 2
+    # once more: no flag changes; only the report whose range the first pass changed is written
+    # again (its trajectory_pass section tells the latest pass)
+    records = [{"key": t.key, "status": "complete"} for t in tasks]
+    (again,) = batch.trajectory_pass(tasks, records, SETTINGS)
+    assert again["changed"] == [] and again["reports"] == ["walk.talus.12-0"]
+    assert _journal_flags(folder) == journal
+    with Study.open(folder) as st:
+        rep = st.read_report("tracking", "walk.talus.12-0")
+    assert rep["trajectory_pass"]["changed"] == [] and [d["frame"] for d in rep["flagged"]] == [10]
+
+
+def test_a_trial_whose_ranges_are_not_all_complete_is_not_judged_and_says_so():
+    tasks = [batch.BatchTask("/s/demo", "walk", (BONE,), r) for r in ((12, 0), (12, 29))]
+    records = [{"key": tasks[0].key, "status": "complete"}, {"key": tasks[1].key, "status": "cancelled"}]
+    (entry,) = batch.trajectory_pass(tasks, records, SETTINGS)  # the study is never opened
+    assert entry["key"] == "demo/walk/talus"
+    assert "1 of 2 ranges not complete (demo/walk/talus:12-29)" in entry["skipped"]
+    assert "tasks_flagged" not in entry
+    (line,) = pass_messages(entry)
+    assert "did not run" in line and "each range keeps its own flags" in line
+    assert batch.trajectory_pass([batch.BatchTask("/s/demo", "walk", (BONE,))], records, SETTINGS) == []
+    # the records of ranges not judged keep their own counts
+    from core.tracking.batch_pass import final_records
+
+    assert final_records([dict(records[0], flagged=2)], [entry]) == [dict(records[0], flagged=2)]
+
+
+def test_pass_messages_name_ten_changed_frames_and_count_the_rest():
+    changes = [{"bone": "calcaneus" if f % 2 else BONE, "frame": f,
+                "flags": [f"{FLAG} (3.1 x the median residual)"]} for f in range(11)]
+    changes += [{"bone": BONE, "frame": 20, "flags": []},
+                {"bone": BONE, "frame": 21, "flags": ["score drop (0.4 of the median)"]}]
+    entry = {"key": "demo/walk/talus+calcaneus", "ranges": ["a", "b", "c"], "judged": 90, "flagged": 11,
+             "review_flagged": {BONE: 7, "calcaneus": 5}, "changes": changes}
+    lines = pass_messages(entry)
+    assert lines[0].endswith("90 bone-frames judged, 11 off the trajectory; 12 flagged for review "
+                             "(talus 7, calcaneus 5); 13 changed by the check")
+    key = "demo/walk/talus+calcaneus"
+    assert len(lines) == 12 and lines[1] == f"{key}: talus frame 0: {FLAG} (3.1 x the median residual)"
+    assert lines[2].startswith("demo/walk/talus+calcaneus: calcaneus frame 1: ")
+    assert lines[-1] == (f"{key}: ... and 3 more frames changed by the check: the review panel lists "
+                         "the flagged ones")
+    more = pass_messages(entry, limit=20)
+    assert more[-2].endswith("talus frame 20: no longer flagged")
+    assert more[-1].endswith("talus frame 21: no longer off the trajectory (still flagged: score drop "
+                             "(0.4 of the median))")
+    assert pass_messages({"key": "k", "ranges": ["a"], "error": "LockedError: held"})[0].startswith(
+        "k: the trajectory check over its 1 ranges failed (LockedError: held)")

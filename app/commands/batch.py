@@ -21,7 +21,11 @@ too. Tasks run on a local Dask cluster (one worker process per GPU, else per CPU
 study's journal as ``talus track --resume`` would, so a batch that was stopped, or whose worker
 died, carries on where it was; a failed task is retried once and then reported. ``--workers 0``
 runs the tasks one after the other in this process, without Dask. Progress goes to stderr (the
-Dask dashboard address first), the JSON summary to stdout.
+Dask dashboard address first), the JSON summary to stdout. With ``--ranges``, once all the ranges
+of a trial's bone are done the trajectory check judges their frames together
+(:mod:`core.tracking.batch_pass`): the journal, the range reports and the summary's task records
+give the flags after it, and stderr gets a line per trial's bone(s) — bone-frames judged, frames
+off the trajectory and flagged for review, frames the check changed (the first 10 named).
 ``--final likelihood`` ends every registration with the weighted least-squares refinement, as
 ``talus track --final likelihood`` does; every trial of the batch must have flatfield-corrected
 frames (the trials without are named, and nothing is tracked). The failure checks' thresholds
@@ -246,6 +250,12 @@ def run(a: argparse.Namespace) -> int:
     finally:
         progress.close()
     print_json(summary, a.out)
+    if summary.get("trajectory_pass"):
+        from core.tracking.batch_pass import pass_messages
+
+        for entry in summary["trajectory_pass"]:  # per trial's bone(s): judged, flagged, changed
+            for line in pass_messages(entry):
+                print(f"{PROG} batch: {line}", file=sys.stderr)
     for f in summary["failures"]:
         print(f"{PROG} batch: task {f['key']} failed after {f['attempts']} attempts: {f['error']}",
               file=sys.stderr)

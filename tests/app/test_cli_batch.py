@@ -172,3 +172,35 @@ def test_talus_batch_is_registered(tmp_path, capsys):
 
     assert main(["batch", str(tmp_path / "nowhere")]) == EXIT_ERROR
     assert "talus batch: error: STUDY: no study folder" in capsys.readouterr().err
+
+
+def test_batch_ranges_print_the_trajectory_check_over_each_trials_ranges(demo, tmp_path, capsys, monkeypatch):
+    """--ranges: the summary's task records and stderr give the flags after the check that judges a
+    trial's ranges together (the registration replaced by smooth poses, frame 10 0.2 deg off: the
+    range 12-0 alone does not flag it, the whole trial does)."""
+    import shutil
+
+    from core.study import Study
+    from core.tracking import trial
+    from core.tracking.results import FrameResult
+    from tests.core.tracking.test_flags_post import _track
+
+    folder = shutil.copytree(demo, tmp_path / "keyed")
+    with Study.open(folder, mode="w") as st:
+        t = st.trial("walk")
+        for f in list(t.results("talus").records):
+            t.clear_pose("talus", f)
+        t.record_pose("talus", 12, np.load(folder / "poses" / "talus.npy")[12])
+    P = _track(n=30, off=(10, 0.0, 0.2))
+    monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
+        0: FrameResult("talus", f, P[f], 0.8, 10, 0.0, True)})
+    rc = talus_batch([str(folder), "--bones", "talus", "--ranges", "--workers", "0", "--device", "cpu",
+                      "--no-confidence", "--quiet"])
+    out = capsys.readouterr()
+    assert rc == EXIT_OK, out.err
+    s = json.loads(out.out)
+    assert [(r["key"], r["flagged_before_pass"], r["flagged"]) for r in s["task_records"]] == [
+        ("keyed/walk/talus:12-0", 0, 1), ("keyed/walk/talus:12-29", 0, 0)]
+    assert ("talus batch: keyed/walk/talus: trajectory check over its 2 ranges together: 30 bone-frames "
+            "judged, 1 off the trajectory; 1 flagged for review; 1 changed by the check") in out.err
+    assert "talus batch: keyed/walk/talus: talus frame 10: off the trajectory" in out.err

@@ -107,12 +107,14 @@ in brackets where any):
 * the talus's confidence covers less with any tissue: 2σ holds in 79 % (4 mm) and 76 % (2 mm) of
   its frames against 93 % without.
 
-* with the stage's band at the round field's rim (``_rim`` labels, ``FinalModel(rim_sigmas=3.0)``;
-  ``resources/benchmarks/tracking_rim_band_h200.json``, the 2 mm tissue): three jointly tibia
-  1.54/1.36 → 1.43/1.34 (no frame over 4×), talus 1.15/1.19 → 1.21/1.21, calcaneus 1.12/1.30 →
-  1.15/1.34; the tibia alone 1.70/1.62 → 1.44/1.66; at the tibia's 4 px no change
-  (:mod:`core.tracking.likelihood_rim`: that run's band also took the pixels around a dense
-  overlap inside the field, fixed since).
+* with the stage's band at the round field's rim (``_rim`` labels, ``FinalModel(rim_sigmas=3.0)``,
+  the 2 mm tissue; measured again after its fix on one NVIDIA H100,
+  ``resources/benchmarks/tracking_rim_band_fixed_h100.json``): three jointly tibia 1.54/1.36 (1) →
+  1.41/1.34, talus 1.15/1.19 unchanged, calcaneus 1.12/1.30 → 1.11/1.31; the tibia alone 1.70/1.62
+  (3) → 1.45/1.68 (1); with the tibia's stage at 4 px jointly 1.54/1.41 → 1.53/1.40, alone
+  1.47/1.53 → 1.47/1.50 — opt-in, and why: :mod:`core.tracking.likelihood_rim` (the first run,
+  ``tracking_rim_band_h200.json``, had also banded a dense overlap inside the field). A ``_rim``
+  run records its band caches' counts (``rim_cache``).
 
 What to use: a tissue volume of 2 mm (``tissue_regressor.user_tissue("fine")``: the lab's soft
 tissue at 2 mm, not 4), for every bone, the tibia's stage at 4 px (``BoneStage(highpass_px=4.0)``:

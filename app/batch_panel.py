@@ -20,7 +20,11 @@ folder at the same path). *Start* builds the tasks of
   the summary, go to the messages;
 * *Cancel* (in the dock, or *Tracking → Cancel tracking*) stops the batch: tasks not started are
   dropped, running ones stop at their next registration; every frame finished is in the journal;
-* at the end the window reloads the poses and review state of its trial from the journals.
+* at the end the window reloads the poses and review state of its trial from the journals, and
+  the messages give each task's flagged frames — for the frame ranges of a trial's bone, the
+  counts after the trajectory check that judges them together once all are done, and the frames
+  that check changed (the first 10 named with their flags, the rest counted), as a single run
+  names its flagged frames.
 
 Worker events reach the GUI thread through a queue drained by a timer (no Qt call from the
 batch's thread).
@@ -385,6 +389,10 @@ class BatchPanel(QtCore.QObject):
             self.event.emit(e)
 
     def _finish(self, e: dict) -> None:
+        from core.tracking.batch_pass import pass_messages
+
+        from .tracking_actions import MAX_FLAG_MESSAGES
+
         self._timer.stop()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
@@ -401,14 +409,19 @@ class BatchPanel(QtCore.QObject):
             self.finished.emit({"error": e["text"]})
             return
         s = self.summary = e["summary"]
+        passes = s.get("trajectory_pass") or []
+        judged = {k for p in passes for k in (p.get("tasks_flagged") or {})}  # told per trial below
         for r in s["task_records"]:
             row = self._rows.get(r["key"])
-            if row is not None:
+            if row is not None:  # a range's count after the trial's trajectory check
                 self.table.item(row, 1).setText(
                     r["status"] + (f", {r['flagged']} flagged" if r.get("flagged") else "")
                     + (f" ({r['attempts']} attempts)" if r.get("attempts", 1) > 1 else ""))
-            if r.get("flagged"):
+            if r.get("flagged") and r["key"] not in judged:
                 self.window.notify(f"Batch: {r['key']}: {r['flagged']} frames flagged for review")
+        for p in passes:  # the final counts of each trial's bone(s) over its ranges, and what changed
+            for line in pass_messages(p, limit=MAX_FLAG_MESSAGES):
+                self.window.notify(f"Batch: {line}", error=bool(p.get("error")))
         for f in s["failures"]:
             self.window.notify(f"Batch: {f['key']} failed after {f['attempts']} attempts: {f['error']}",
                                error=True)

@@ -170,9 +170,9 @@ def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
     total = sum(review.values())
     per_bone = f" ({', '.join(f'{b} {c}' for b, c in review.items())})" if len(review) > 1 else ""
     changes = entry.get("changes") or []
-    lines = [f"{key}: trajectory check over its {n} ranges together: {entry.get('judged', 0)} bone-frames "
-             f"judged, {entry.get('flagged', 0)} off the trajectory; {total} flagged for review"
-             f"{per_bone}; {len(changes)} changed by the check"]
+    lines = [f"{key}: {total} flagged for review{per_bone} after the trajectory check over its {n} ranges "
+             f"together ({entry.get('judged', 0)} bone-frames judged, {entry.get('flagged', 0)} off the "
+             f"trajectory, {len(changes)} changed by the check)"]
     for c in changes[:limit]:
         flags = list(c.get("flags") or ())
         what = ("; ".join(flags) if any(s.startswith(FLAG) for s in flags) else

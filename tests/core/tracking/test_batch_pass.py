@@ -76,8 +76,8 @@ def test_range_reports_and_records_give_the_flags_after_the_trials_pass(keyed, t
             assert rep["trajectory_pass"]["ranges"] == ["walk.talus.12-0", "walk.talus.12-29"]
             assert rep["options"]["mode"] == "sequential" and rep["trial"] == "walk"  # the rest as written
     lines = pass_messages(entry)
-    assert lines[0] == ("demo/walk/talus: trajectory check over its 2 ranges together: 30 bone-frames "
-                        "judged, 1 off the trajectory; 1 flagged for review; 1 changed by the check")
+    assert lines[0] == ("demo/walk/talus: 1 flagged for review after the trajectory check over its 2 ranges "
+                        "together (30 bone-frames judged, 1 off the trajectory, 1 changed by the check)")
     assert lines[1].startswith("demo/walk/talus: talus frame 10: off the trajectory") and len(lines) == 2
     # once more: no flag changes; only the report whose range the first pass changed is written
     # again (its trajectory_pass section tells the latest pass)
@@ -114,8 +114,9 @@ def test_pass_messages_name_ten_changed_frames_and_count_the_rest():
     entry = {"key": "demo/walk/talus+calcaneus", "ranges": ["a", "b", "c"], "judged": 90, "flagged": 11,
              "review_flagged": {BONE: 7, "calcaneus": 5}, "changes": changes}
     lines = pass_messages(entry)
-    assert lines[0].endswith("90 bone-frames judged, 11 off the trajectory; 12 flagged for review "
-                             "(talus 7, calcaneus 5); 13 changed by the check")
+    assert lines[0] == ("demo/walk/talus+calcaneus: 12 flagged for review (talus 7, calcaneus 5) after the "
+                        "trajectory check over its 3 ranges together (90 bone-frames judged, 11 off the "
+                        "trajectory, 13 changed by the check)")
     key = "demo/walk/talus+calcaneus"
     assert len(lines) == 12 and lines[1] == f"{key}: talus frame 0: {FLAG} (3.1 x the median residual)"
     assert lines[2].startswith("demo/walk/talus+calcaneus: calcaneus frame 1: ")

@@ -1,0 +1,159 @@
+"""A batch of frame ranges from the window (Tracking → Track in batch…, one task per range): once
+every range of a trial's bone is done the trajectory check judges them together, and the window's
+Batch dock and messages give the flags after it — the counts per trial's bone, and the frames it
+changed (the first 10 named, the rest counted) — as its own tracking names a run's flagged frames.
+The registration is replaced by smooth synthetic poses (no rendering); the scheduler is an
+in-process Dask cluster of one thread worker.
+
+Set ``TALUS_SCREENSHOTS=DIR`` to keep a screenshot of the messages after the batch."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PySide6 import QtCore
+
+from app.main_window import MainWindow
+from app.tracking_actions import MAX_FLAG_MESSAGES
+from core.study import Study
+from tests.app._helpers import FAST_TRACKING
+
+pytestmark = pytest.mark.gui
+distributed = pytest.importorskip("distributed")
+
+HUNG_MS = 20 * 60_000  # the ceiling for a batch that never ends, not a time it is expected to take
+BONE = "talus"
+LEFT = QtCore.Qt.MouseButton.LeftButton
+
+
+@pytest.fixture(scope="module")
+def keyed_folder(tmp_path_factory):
+    """A 30-frame 48-px demo study whose talus has one hand-set keyframe, frame 12: two ranges."""
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("batchpass") / "study"
+    make_demo_study(out, n_frames=30, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    with Study.open(out, mode="w") as st:
+        t = st.trial("walk")
+        t.clear_pose(BONE, 0)
+        t.record_pose(BONE, 12, np.load(out / "poses" / f"{BONE}.npy")[12])
+    return out
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=":0") as cluster:
+        yield cluster.scheduler_address
+
+
+@pytest.fixture
+def window(qtbot, keyed_folder, tmp_path):
+    folder = shutil.copytree(keyed_folder, tmp_path / "study")
+    win = MainWindow(device="cpu", create_scene_on_show=False)
+    qtbot.addWidget(win)
+    win.resize(1100, 760)
+    win.show()
+    win.open_study(folder)
+    win.tracking.options = FAST_TRACKING
+    yield win
+    win.close()
+
+
+def _texts(window) -> list[str]:
+    return [window.messages.item(i).text() for i in range(window.messages.count())]
+
+
+def _click_box(qtbot, box) -> None:
+    qtbot.mouseClick(box, LEFT, pos=QtCore.QPoint(8, box.height() // 2))
+
+
+def test_the_window_gives_the_flags_after_the_trajectory_check_over_the_ranges(window, qtbot, scheduler,
+                                                                                monkeypatch):
+    from core.tracking import trial
+    from core.tracking.results import FrameResult
+    from tests.core.tracking.test_flags_post import _track
+
+    # frame 10 0.2 deg off: the range 12-0, run first, does not flag it alone; the trial does
+    P = _track(n=30, off=(10, 0.0, 0.2))
+    monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
+        0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)})
+    window.model.select(BONE)
+    window.tracking.batch_action.trigger()
+    dlg = window.tracking.batch.dialog
+    qtbot.waitExposed(dlg)
+    _click_box(qtbot, dlg.ranges_box)
+    _click_box(qtbot, dlg.scheduler_radio)
+    qtbot.keyClicks(dlg.scheduler_edit, scheduler)
+    assert dlg.choice()["ranges"] and dlg.choice()["bones"] == [BONE] and dlg.choice()["trials"] == ["walk"]
+    panel = window.tracking.batch
+    with qtbot.waitSignal(panel.finished, timeout=HUNG_MS) as done:
+        qtbot.mouseClick(dlg.start_button, LEFT)
+    s = done.args[0]
+    assert s.get("status") == "complete", s
+    (entry,) = s["trajectory_pass"]
+    assert entry["changed"] == [[BONE, 10]]
+    # the dock: each range's count after the check (12-0's own check flagged nothing)
+    assert panel.task_state("study/walk/talus:12-0")[0] == "complete, 1 flagged"
+    assert panel.task_state("study/walk/talus:12-29")[0] == "complete"
+    texts = _texts(window)
+    assert ("Batch: study/walk/talus: 1 flagged for review after the trajectory check over its 2 ranges "
+            "together (30 bone-frames judged, 1 off the trajectory, 1 changed by the check)") in texts
+    assert any(t.startswith("Batch: study/walk/talus: talus frame 10: off the trajectory") for t in texts)
+    assert not any("frames flagged for review" in t for t in texts)  # no per-range count: the trial's
+    # the review state shown is the journal's after the check
+    assert [f for _, f in window.review.data.flagged()] == [10]
+    with Study.open(window.session.folder) as st:
+        assert [d["frame"] for d in st.read_report("tracking", "walk.talus.12-0")["flagged"]] == [10]
+    folder = os.environ.get("TALUS_SCREENSHOTS")
+    if folder:
+        window.resize(1500, 800)
+        window.messages_dock.raise_()
+        window.resizeDocks([window.messages_dock], [900], QtCore.Qt.Orientation.Horizontal)
+        qtbot.wait(100)
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        assert window.grab().save(str(Path(folder) / "batch_trajectory_pass.png"))
+
+
+def test_the_window_names_ten_changed_frames_and_counts_the_rest(window, qtbot, monkeypatch):
+    """A long trial's check changes many frames: the first 10 named, the rest counted; a range
+    task the check did not judge keeps its own count (the batch is recorded, not run)."""
+    import core.tracking.batch as core_batch
+    from core.tracking.flags_post import FLAG
+
+    def run_batch(tasks, settings=None, *, on_event=None, **kw):
+        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
+                     seconds=0.0, flagged=4) for t in tasks]
+        ranges = [t.key for t in tasks if t.bones == (BONE,)]
+        entry = {"key": "study/walk/talus", "ranges": ranges, "judged": 30, "flagged": 13,
+                 "review_flagged": {BONE: 14},
+                 "changes": [{"bone": BONE, "frame": f, "flags": [f"{FLAG} (test)"]} for f in range(13)],
+                 "tasks_flagged": dict.fromkeys(ranges, 7)}
+        return dict(core_batch.summarize(tasks, core_batch.final_records(recs, [entry]), [], wall_s=0.1,
+                                         workers=1), trajectory_pass=[entry])
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
+    window.model.select(BONE)
+    window.tracking.batch_action.trigger()
+    dlg, panel = window.tracking.batch.dialog, window.tracking.batch
+    qtbot.waitExposed(dlg)
+    _click_box(qtbot, dlg.ranges_box)
+    _click_box(qtbot, dlg.bone_boxes["calcaneus"])
+    assert dlg.choice()["mode"] == "sequential" and dlg.choice()["bones"] == [BONE, "calcaneus"]
+    with qtbot.waitSignal(panel.finished, timeout=HUNG_MS):
+        qtbot.mouseClick(dlg.start_button, LEFT)
+    assert panel.task_state("study/walk/talus:12-0")[0] == "complete, 7 flagged"
+    texts = [t for t in _texts(window) if "flagged" in t or "frame" in t or "changed" in t]
+    named = [t for t in texts if t.startswith("Batch: study/walk/talus: talus frame ")]
+    assert len(named) == MAX_FLAG_MESSAGES and named[0].endswith(f"frame 0: {FLAG} (test)")
+    assert ("Batch: study/walk/talus: ... and 3 more frames changed by the check: the review panel "
+            "lists the flagged ones") in texts
+    assert any(t.startswith("Batch: study/walk/talus: 14 flagged for review after") and "13 changed" in t
+               for t in texts)
+    assert "Batch: study/walk/calcaneus:0-29: 4 frames flagged for review" in texts  # not judged here
+    assert not any(t.startswith("Batch: study/walk/talus:12-") and "flagged for review" in t for t in texts)

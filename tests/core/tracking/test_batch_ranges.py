@@ -123,8 +123,13 @@ def test_ranges_on_two_workers_match_a_serial_run_and_resume(demo, tmp_path):
         assert np.isfinite(pb[:4]).all() and np.isnan(pb[4:]).all()
         np.testing.assert_allclose(pb, pa, rtol=0, atol=1e-9)
         assert sorted(b.trial("walk").results(BONE).keyframes) == [1, 3]  # still the hand-set ones
-        for t in tasks:
-            assert b.read_report("tracking", t.report_name)["summary"]["status"] == "complete"
+        for t in tasks:  # each range's report as the trajectory check over the ranges left it
+            rep = b.read_report("tracking", t.report_name)
+            assert rep["summary"]["status"] == "complete" and rep["trajectory_pass"]["judged"] == 4
+            assert rep["summary"]["flagged"] == rows[t.key]["flagged"] == len(rep["flagged"])
+    (entry,) = summary["trajectory_pass"]  # run by run_batch once the ranges were done
+    assert entry["judged"] == 4 and sorted(entry["reports"]) == sorted(t.report_name for t in tasks)
+    assert all("flagged_before_pass" in r for r in rows.values())
 
     again = run_serial(build_tasks([batch_dir], bones=[BONE], ranges=True, frames=FRAMES), SETTINGS)
     assert again["status"] == "complete" and again["frames_tracked"] == 0

@@ -10,44 +10,9 @@ import time
 
 import numpy as np
 
+from core.studies.tracking.trial_frames import synthesise  # the trial's frames in worker processes
+
 __all__ = ["synthesise"]
-
-
-def _chain_frame(args):
-    """One frame through the trial's image chain (the body of TrackingScene.frames): the raw frames
-    (when the scene keeps them) and the corrected ones."""
-    ts, i, L = _POOL_SCENE[0], args[0], args[1]
-    sc = ts.scene
-    raw = np.stack([m.apply(L[v], rng=sc.frame_rng(i, v)) for v, m in enumerate(sc.imaging)])
-    return i, (raw if ts.raw is not None else None), [ts.correct(v, f) for v, f in enumerate(raw)]
-
-
-_POOL_SCENE: list = []
-
-
-def synthesise(ts, frames, workers: int = 0) -> None:
-    """Fill ``ts``'s frame cache (the same frames as :meth:`TrackingScene.frames`): line
-    integrals on the scene's renderer, the image chain (noise, blur, distortion, flatfield,
-    unwarp) in ``workers`` forked processes (0: in this process)."""
-    todo = [i for i in frames if i not in ts._cache]
-    if workers <= 1:
-        for i in todo:
-            ts.frames(i)
-        return
-    import multiprocessing as mp
-
-    _POOL_SCENE[:] = [ts]
-    with mp.get_context("fork").Pool(workers) as pool:
-        jobs = []
-        for i in todo:
-            L = ts.scene.line_integrals(i, renderer=ts._scene_renderer)
-            jobs.append(pool.apply_async(_chain_frame, ((i, L),)))
-        for j in jobs:
-            i, raw, imgs = j.get()
-            ts._cache[i] = imgs
-            if raw is not None:
-                ts.raw[i] = raw
-    _POOL_SCENE.clear()
 
 
 def _pose_errs(ts, nm, poses, frames):

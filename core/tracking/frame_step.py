@@ -92,8 +92,8 @@ from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
-           "STAGE_MOVE_SIGMAS", "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SEARCH_NEIGHBOURS",
+           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -104,6 +104,10 @@ FINAL_EVERY_ROUND = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
+#: Sequential tracking's search subtracts the neighbours too (the bones registered in the frame at
+#: their registered poses, the others at their guesses), where by default each bone is searched
+#: against the whole image (:mod:`core.studies.tracking.sequential_drift`).
+SEQUENTIAL_SEARCH_NEIGHBOURS = False
 
 
 @dataclass
@@ -184,8 +188,9 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     # sequential tracking with the final stage: the stage subtracts the neighbours as joint tracking
     # does (the bones registered in this frame, the others at their guesses; module docs)
     seq_stage = (not joint and len(names) > 1 and o.registration.final is not None and SEQUENTIAL_NEIGHBOURS)
+    seq_search = not joint and len(names) > 1 and SEQUENTIAL_SEARCH_NEIGHBOURS
     current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
-    if joint or seq_stage:
+    if joint or seq_stage or seq_search:
         for i, b in enumerate(names):
             if i not in current:  # skipped: given as a pose (see track)
                 current[i] = hist[b][-1][1] if hist[b] else predict_pose(
@@ -300,7 +305,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             others = None
             if i in pre:
                 others = pre[i][1]
-            elif joint:
+            elif joint or seq_search:
                 others = others_of(i, current, known)
             new = checked.get(i)
             if new is None:

@@ -1,0 +1,301 @@
+"""Sequential tracking's silent failures on the acceptance trial: the tibia's drift about its long
+axis over frames 54-70 (``python -m core.studies.tracking.sequential_drift``).
+
+The acceptance study (:mod:`core.studies.tracking.acceptance`, ``--mode joint,sequential``,
+``resources/benchmarks/tracking_acceptance_modes_h100.json``) left sequential tracking with 9 silent
+tibia frames over 4× the Cramér–Rao bound (54, 63-70; a smooth rotation about the long axis up to
+~0.6°, which the trajectory post-pass cannot see) and 7 talus frames, where joint tracking left 1/0.
+This study tracks the same trial sequentially (:func:`core.tracking.trial.track`, the acceptance
+options: Gauss–Newton search, trajectory post-pass) and probes the frames ``--probe-frames``
+(default 50-72) of ``--bones`` (default tibia, talus):
+
+* **cost** — the similarity the search maximises (the Gauss–Newton engine's, full resolution, on
+  the search regions about the truth) at the truth and at the tracker's estimate, and along the
+  line from the truth to the estimate (``scan``: fractions -0.5 … 1.5 of the way), with the other
+  bones' images left in the frames (``alone``: what a sequential search sees) and with their DRRs
+  subtracted at their true poses (``truth``) and at the poses the run tracked (``tracked``);
+* **restart** — the registration (the tracking options' search) restarted from the truth, alone
+  and with the neighbours subtracted at their true poses: back to the estimate (the cost's optimum
+  is off the truth: a bias) or staying at the truth (the search stuck in the previous frame's
+  basin);
+* **neighbours** — what the other bones' images are in the bone's search regions at that moment:
+  in sequential tracking without the final stage they are neither rendered nor subtracted; the
+  study gives their share of the regions' pixels (a neighbour's line integral over 5 % of its
+  largest) and of the squared gradient (the gradient correlation's evidence) of the bones' summed
+  DRR, per view.
+
+Then the fix candidate is tracked on the same frames: the sequential search with the neighbours
+subtracted (:data:`core.tracking.frame_step.SEQUENTIAL_SEARCH_NEIGHBOURS`: the bones registered
+earlier in the frame at their registered poses, the others at their constant-velocity guesses),
+and, for reference, joint tracking (``--joint``). Per run and bone: RMS × the bound (the bound of
+the acceptance JSON's same scene, or computed with ``--bound compute``), frames over 4× it, silent
+(unflagged) ones, flagged frames; and the per-frame rotation difference between the two
+sequential runs (what a check comparing them would see).
+
+Findings
+--------
+(filled in from the measured run; see the JSON ``resources/benchmarks/sequential_drift_h100.json``)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+
+import numpy as np
+
+__all__ = ["main", "neighbour_share", "probe", "run", "summarise"]
+
+ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_modes_h100.json"
+
+
+def _bounds_from(path: str) -> dict:
+    """Per bone ``{"rms_mm", "rms_deg"}`` of the acceptance run's Cramér–Rao bound (same scene)."""
+    with open(path) as fh:
+        d = json.load(fh)
+    runs = d.get("runs") or {"joint": d}
+    t = next(iter(runs.values()))["tracking"]
+    return {n: {"rms_mm": v["cramer_rao"]["rms_mm"], "rms_deg": v["cramer_rao"]["rms_deg"]}
+            for n, v in t.items() if "cramer_rao" in v}
+
+
+def summarise(ts, res, bound: dict, k: float = 4.0) -> dict:
+    """Per bone of ``res`` (a :class:`~core.tracking.results.TrackingResult` of ``ts``): RMS errors
+    and × the bound, frames over ``k`` × the bound, the silent (unflagged) ones, flagged frames,
+    and the per-frame errors (mm ×3, degrees ×3)."""
+    from core.studies.tracking.acceptance import pose_errors
+
+    out = {}
+    for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
+        frames, E, flagged = [], [], []
+        for f in range(ts.scene.n_frames):
+            fr = res.results.get((n, f))
+            if fr is None or fr.pose is None:
+                continue
+            frames.append(f)
+            E.append(pose_errors(fr.pose, ts.truth(f)[b], m.centroid))
+            if fr.flags:
+                flagged.append(f)
+        E = np.array(E)
+        et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
+        row = {"rms_mm": float(np.sqrt(np.mean(et ** 2))), "rms_deg": float(np.sqrt(np.mean(er ** 2))),
+               "mean_error_deg": E[:, 3:].mean(0).round(4).tolist(), "flagged_frames": flagged,
+               "per_frame_error": E.round(5).tolist(), "frames": frames}
+        cb = bound.get(n)
+        if cb:
+            over = (et > k * cb["rms_mm"]) | (er > k * cb["rms_deg"])
+            bad = [f for f, o in zip(frames, over, strict=True) if o]
+            ratio = {"mm": row["rms_mm"] / cb["rms_mm"], "deg": row["rms_deg"] / cb["rms_deg"]}
+            row.update({"over_bound": ratio, f"over_{k:g}x_frames": bad,
+                        "silent_frames": [f for f in bad if f not in flagged],
+                        "silent": sum(f not in flagged for f in bad)})
+        out[n] = row
+    return out
+
+
+def _engine_at(ts, b: int, frame, pose, others, o):
+    """The Gauss–Newton engine's cost of bone ``b`` on ``frame`` about ``pose`` (its search regions
+    and parameterisation, ``others`` subtracted), as :func:`core.tracking.register.register` sets it."""
+    from core.tracking.engine import engine_cost
+    from core.tracking.register import mm_per_pixel, search_region
+
+    m, views = ts.models[b], tuple(range(len(ts.renderer.cameras)))
+    roi = search_region(ts.renderer, pose, b, views=views, center=m.centroid, options=o.registration,
+                        outline=m.outline)
+    c = engine_cost(ts.renderer, bone=b, views=views, scale=1.0, term=o.registration.terms[0])
+    c.set_frame(frame, base_pose=pose, center=m.centroid, roi=roi, others=others,
+                px_mm=mm_per_pixel(ts.renderer, pose, m.centroid, views))
+    return c, roi
+
+
+def neighbour_share(ts, b: int, poses: np.ndarray, roi: np.ndarray) -> list[dict]:
+    """Per view, the other bones' share of bone ``b``'s search region ``roi`` (full resolution) at
+    ``poses`` (every bone's): pixels where a neighbour's line integral is over 5 % of its largest,
+    and the neighbours' share of the squared gradient of the bones' summed DRR."""
+    views = tuple(range(len(ts.renderer.cameras)))
+    n = len(ts.names)
+    img = ts.renderer.render(np.asarray(poses, float)[None], views=views, bones=list(range(n)),
+                             roi=np.asarray(roi)[None, :, None, :], scale=1.0).numpy()[0]  # view, bone, H, W
+    out = []
+    for v in range(len(views)):
+        h, w = int(roi[v][3]), int(roi[v][2])
+        own = img[v, b, :h, :w].astype(float)
+        rest = sum(img[v, k, :h, :w].astype(float) for k in range(n) if k != b)
+        g_own = sum(x ** 2 for x in np.gradient(own))
+        g_rest = sum(x ** 2 for x in np.gradient(rest))
+        thr = 0.05 * max(float(rest.max()), 1e-12)
+        out.append({"view": v, "pixels_share": round(float(np.mean(rest > thr)), 4),
+                    "gradient_share": round(float(g_rest.sum() / max(g_own.sum() + g_rest.sum(), 1e-30)), 4),
+                    "overlap_with_bone_share": round(float(np.mean((rest > thr) & (own > 0.05 * own.max()))),
+                                                     4)})
+    return out
+
+
+def probe(ts, res, b: int, frames, o) -> list[dict]:
+    """The cost at the truth and the estimate, a scan between them, restarts from the truth, and
+    the neighbours' share of the search regions, for bone ``b`` in ``frames`` of ``res``."""
+    from core.studies.tracking.acceptance import pose_errors
+    from core.tracking.cost import OutsideViewError, prepare_frame
+    from core.tracking.register import register
+
+    n, m = ts.names[b], ts.models[b]
+    others_ids = [k for k in range(len(ts.names)) if k != b]
+    fractions = [-0.5, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5]
+    rows = []
+    for f in frames:
+        T = ts.truth(f)
+        fr = res.results.get((n, f))
+        if fr is None or fr.pose is None:
+            continue
+        frame = prepare_frame(ts.frames(f), valid_range=o.valid_range, erode_px=o.erode_px)
+        got = [res.results[(ts.names[k], f)].pose for k in range(len(ts.names))]
+        tracked = np.array([T[k] if p is None else p for k, p in enumerate(got)])
+        subtract = {"alone": None, "truth": (T[others_ids], others_ids),
+                    "tracked": (tracked[others_ids], others_ids)}
+        row = {"frame": f, "error": pose_errors(fr.pose, T[b], m.centroid).round(4).tolist(),
+               "flags": list(fr.flags), "cost": {}, "restart_from_truth": {}}
+        try:
+            for key, oth in subtract.items():
+                c, roi = _engine_at(ts, b, frame, T[b], oth, o)
+                x_est = _params(fr.pose, T[b], m.centroid)
+                X = np.array([t * x_est for t in fractions])
+                s = 1.0 - np.asarray(c(X), float)
+                row["cost"][key] = {"score_truth": float(s[1]), "score_estimate": float(s[5]),
+                                    "estimate_better": bool(s[5] > s[1]),
+                                    "scan": {f"{t:g}": round(float(v), 7)
+                                             for t, v in zip(fractions, s, strict=True)},
+                                    "scan_best_fraction": fractions[int(np.argmax(s))]}
+            row["neighbours"] = neighbour_share(ts, b, T, roi)
+            for key in ("alone", "truth"):
+                r = register(ts.renderer, frame, bone=b, initial_pose=T[b], center=m.centroid,
+                             options=o.registration, others=subtract[key], outline=m.outline)
+                e = pose_errors(r.pose, T[b], m.centroid)
+                d = pose_errors(r.pose, fr.pose, m.centroid)
+                row["restart_from_truth"][key] = {"error": e.round(4).tolist(), "score": float(r.score),
+                                                  "converged": bool(r.converged),
+                                                  "to_estimate_deg": float(np.linalg.norm(d[3:])),
+                                                  "to_estimate_mm": float(np.linalg.norm(d[:3]))}
+        except OutsideViewError as exc:
+            row["outside"] = str(exc)
+        rows.append(row)
+    return rows
+
+
+def _params(pose, base, center) -> np.ndarray:
+    from core.geometry.transforms import params_from_pose
+
+    p = params_from_pose(np.asarray(pose, float), center=center, base=base)
+    return np.concatenate([p[:3], np.degrees(p[3:])])
+
+
+def _track(ts, keyframes, mode: str, subtract: bool):
+    import core.tracking.frame_step as fs
+    from core.tracking.trial import TrackingOptions, track
+
+    o = TrackingOptions(mode=mode)
+    was = fs.SEQUENTIAL_SEARCH_NEIGHBOURS
+    fs.SEQUENTIAL_SEARCH_NEIGHBOURS = subtract
+    try:
+        t0 = time.perf_counter()
+        res = track(ts.renderer, ts.models, ts.frames, range(ts.scene.n_frames), keyframes=keyframes,
+                    options=o)
+        return res, o, time.perf_counter() - t0
+    finally:
+        fs.SEQUENTIAL_SEARCH_NEIGHBOURS = was
+
+
+def _pair_diff(ts, a, b) -> dict:
+    """Per bone, the per-frame rotation (degrees) and translation (mm) between two runs' poses."""
+    from core.studies.tracking.acceptance import pose_errors
+
+    out = {}
+    for n, m in zip(ts.names, ts.models, strict=True):
+        deg, mm = [], []
+        for f in range(ts.scene.n_frames):
+            p, q = a.results[(n, f)].pose, b.results[(n, f)].pose
+            if p is None or q is None:
+                deg.append(None)
+                mm.append(None)
+                continue
+            e = pose_errors(p, q, m.centroid)
+            deg.append(round(float(np.linalg.norm(e[3:])), 4))
+            mm.append(round(float(np.linalg.norm(e[:3])), 4))
+        out[n] = {"deg": deg, "mm": mm}
+    return out
+
+
+def run(*, quick: bool = False, device: str | None = None, n_frames: int | None = None, workers: int = 0,
+        bones=("tibia", "talus"), probe_frames=None, bound: str = ACCEPTANCE_JSON,
+        joint: bool = False) -> dict:
+    """The study (module docs); returns the JSON-ready results."""
+    from core.geometry.transforms import pose_from_params
+    from core.studies.tracking.acceptance import _random_offset, cramer_rao, tracking_scene
+    from core.studies.tracking.trial_frames import synthesise
+
+    t0 = time.perf_counter()
+    ts = tracking_scene(quick=quick, device=device, n_frames=n_frames)
+    g = np.random.default_rng(ts._seed + 7)  # the acceptance study's start (5 mm, 5 deg off)
+    keyframes = {n: {0: pose_from_params(_random_offset(g, 5.0, 5.0), center=m.centroid, base=ts.truth(0)[b])}
+                 for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True))}
+    synthesise(ts, range(ts.scene.n_frames), workers)
+    t_scene = time.perf_counter() - t0
+    if bound == "compute":
+        cb = cramer_rao(ts, range(0, ts.scene.n_frames, max(1, ts.scene.n_frames // 10)))
+        bounds = {n: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for n, v in cb.items()}
+    else:
+        bounds = _bounds_from(bound)
+    nf = ts.scene.n_frames
+    pf = [f for f in (probe_frames if probe_frames is not None else range(50, 73)) if 0 <= f < nf]
+    out = {"study": "core.studies.tracking.sequential_drift", "quick": quick, "machine": platform.machine(),
+           "device": str(ts.renderer.device), "frames": nf, "pixels": ts.scene.rig[0].width,
+           "bound": {"source": bound, **bounds}, "probe_frames": pf, "scene_s": t_scene, "runs": {},
+           "timing_s": {}}
+    seq, o, dt = _track(ts, keyframes, "sequential", False)
+    out["runs"]["sequential"] = summarise(ts, seq, bounds)
+    out["timing_s"]["sequential"] = dt
+    t1 = time.perf_counter()
+    out["probes"] = {n: probe(ts, seq, ts.names.index(n), pf, o) for n in bones if n in ts.names}
+    out["timing_s"]["probes"] = time.perf_counter() - t1
+    sub, _, dt = _track(ts, keyframes, "sequential", True)
+    out["runs"]["sequential_subtracted"] = summarise(ts, sub, bounds)
+    out["timing_s"]["sequential_subtracted"] = dt
+    out["alone_vs_subtracted"] = _pair_diff(ts, seq, sub)
+    if joint:
+        jt, _, dt = _track(ts, keyframes, "joint", False)
+        out["runs"]["joint"] = summarise(ts, jt, bounds)
+        out["timing_s"]["joint"] = dt
+    out["total_s"] = time.perf_counter() - t0
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.sequential_drift",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--quick", action="store_true", help="256² views, 1 mm voxels, 20 frames (CPU check)")
+    p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
+    p.add_argument("--frames", type=int, default=None, help="number of frames (default 20 quick / 100)")
+    p.add_argument("--workers", type=int, default=0, help="processes for the frames' image chain")
+    p.add_argument("--bones", default="tibia,talus", help="bones probed (comma-separated)")
+    p.add_argument("--probe-frames", default="50-72", help="frames probed: a-b (inclusive) or a,b,c")
+    p.add_argument("--bound", default=ACCEPTANCE_JSON,
+                   help="the bound: an acceptance JSON of the same scene, or 'compute'")
+    p.add_argument("--joint", action="store_true", help="track jointly too (reference)")
+    p.add_argument("--out", default=None, help="also write the JSON here")
+    a = p.parse_args(argv)
+    if "-" in a.probe_frames:
+        lo, hi = (int(v) for v in a.probe_frames.split("-"))
+        pf = list(range(lo, hi + 1))
+    else:
+        pf = [int(v) for v in a.probe_frames.split(",") if v.strip()]
+    from core.io.atomic import print_json
+
+    print_json(run(quick=a.quick, device=a.device, n_frames=a.frames, workers=a.workers,
+                   bones=tuple(b.strip() for b in a.bones.split(",") if b.strip()), probe_frames=pf,
+                   bound=a.bound, joint=a.joint), a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -156,6 +156,7 @@ class LevenbergMarquardt:
         self.tol_x, self.tol_noise = float(tol_x), float(tol_noise)
         self.max_generations = int(max_generations)
         self.best = None  # the accepted step
+        self._best_g = None  # its moments' gradient (without the correction)
         self._coef = None  # the accepted step's fitted (c0, g) with its roughness (_residuals)
         self.evals = self.gens = 0
         self.reason = "max_generations"
@@ -179,13 +180,25 @@ class LevenbergMarquardt:
 
     def _correction(self, s) -> np.ndarray:
         """``gradient="corrected"``: the mean over the steps so far of the scores' central differences
-        less the moments' gradient, each coordinate shrunk toward 0 by its noise (positive-part
-        James–Stein, ``max(0, 1 - var / mean²)``). One step's differences have the variance
-        ``σ_c² / 2h_k²``, σ_c the step's roughness about its quadratic (:func:`_residuals`); the
-        roughness is the cost's own at nearby poses, not independent from step to step, so ``var``
-        is the steps' mean variance, not divided by their number (divided, the tibia's rotation
-        about its long axis on the acceptance trial at 256² was 0.57° RMS against 0.42°, moments
-        0.36°, over 10 registrations; the talus 0.60° against 0.61°, moments 0.74°)."""
+        less the moments' gradient, shrunk toward 0 by its noise (positive-part James–Stein,
+        ``max(0, 1 - var / mean²)``) along each eigenvector of the step's Gauss–Newton Hessian.
+        One step's differences have the variance ``σ_c² / 2h_k²``, σ_c the step's roughness about
+        its quadratic (:func:`_residuals`), independent between coordinates (their poses differ);
+        the roughness is the cost's own at nearby poses, not independent from step to step, so
+        ``var`` is the steps' mean variance, not divided by their number (divided, the tibia's
+        rotation about its long axis on the acceptance trial at 256² was 0.57° RMS against 0.42°,
+        moments 0.36°, over 10 registrations; the talus 0.60° against 0.61°, moments 0.74°).
+
+        Shrunk along the eigenvectors, not the coordinates: the correction moves the pose by
+        ``(αH)⁻¹`` times it, most along H's weakest direction, so that is where its noise must be
+        judged. Shrunk by coordinates, the tibia's correction on the acceptance trial at 256²
+        (tracked every second frame, this 2-core CPU machine) was significant in rx and y, but its
+        part along the weakest direction (rotation about the long axis, an eigenvalue ~25× below
+        the next) was 0.0004-0.0007 per degree against a noise of ~0.002, and it moved the
+        Newton step from the truth 0.2-0.3° further along that direction in frames 10-16 than the
+        moments' did; the velocity guess carried it on (up to 1.44° off, moments 0.82°). Shrunk
+        along the eigenvectors: 0.43° RMS over the 10 frames against 0.76° (moments 0.40°), the
+        talus 0.553° against 0.567° (moments 0.739°)."""
         h = s.h
         self._dsum += (s.costs[1::2] - s.costs[2::2]) / (2.0 * h) - s.g
         _, res = _residuals(s, self.alpha)
@@ -193,7 +206,13 @@ class LevenbergMarquardt:
         self._dn += 1
         mean = self._dsum / self._dn
         var = self._dvar / self._dn
-        return mean * np.maximum(0.0, 1.0 - var / np.maximum(mean * mean, 1e-300))
+        try:
+            _, U = np.linalg.eigh(s.H)
+        except np.linalg.LinAlgError:
+            U = np.eye(6)
+        m = U.T @ mean
+        v = (U * U).T @ var  # the variance of each eigenvector's part (independent coordinates)
+        return U @ (m * np.maximum(0.0, 1.0 - v / np.maximum(m * m, 1e-300)))
 
     def ask(self, cancel: Callable[[], bool] | None = None) -> np.ndarray | None:
         """The centre of the next 13-pose step (half-steps :attr:`h`), or None when the search
@@ -213,6 +232,7 @@ class LevenbergMarquardt:
         h = self.h
         self.evals += _N
         self.gens += 1
+        g_moments = s.g
         if self.gradient == "corrected":
             s = replace(s, g=s.g + self._correction(s))
         if _TRACE is not None:
@@ -229,12 +249,13 @@ class LevenbergMarquardt:
             self.x = np.clip(best.x + d, self._lo_in, self._hi_in)
             return
         if best is not None:  # secant: the gradient's change along the step against the model's
+            # (the moments' gradients: the correction held fixed, its own change is no curvature)
             dx = s.x - best.x
             den = float(dx @ best.H @ dx)
-            num = float((s.g - best.g) @ dx)
+            num = float((g_moments - self._best_g) @ dx)
             if den > 0 and num > 0 and (np.abs(dx) <= 4 * h).all():  # a short step: near quadratic
                 self.alpha = float(min(max(num / den, 0.5), 1.5))
-        self.best = s
+        self.best, self._best_g = s, g_moments
         self._coef, res = _residuals(s, self.alpha)
         self.noise = math.sqrt(float(res @ res) / 6.0)  # (np.sqrt's value: both correctly rounded)
         self.lam = max(self.lam / 10.0, 1e-7)
@@ -273,7 +294,7 @@ def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
     ``½ dᵀHd`` is below ``tol_noise`` × the cost's roughness (a move the data cannot confirm, as
     in :func:`~core.tracking.quadratic.quadratic_search`); ``max_generations``: launches of 13
     poses. The Gauss–Newton curvature is rescaled along the way by a secant estimate (the
-    gradient's change along an accepted step of at most ``4 h`` over the model's, within
+    moments' gradient's change along an accepted step of at most ``4 h`` over the model's, within
     [0.5, 1.5]); a rejected step raises λ to at least 0.5 (about half the Newton step). ``model`` of
     the result is a :class:`~core.tracking.quadratic.QuadraticFit` with the last accepted step's
     rescaled Hessian and the cost's roughness (6 residual degrees of freedom).
@@ -285,7 +306,9 @@ def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
     score has (its own Ω) and the moments miss; large on coarse pixels
     (:func:`~core.tracking.register_options.newton_step`), where the search then stops at the
     scores' minimum rather than the fixed domain's. Averaged because a single step's differences
-    are as rough as the cost; the difference changes slowly with the pose.
+    are as rough as the cost; the difference changes slowly with the pose. Shrunk by its noise
+    along the Hessian's eigenvectors (:meth:`LevenbergMarquardt._correction`); held fixed in the
+    secant estimate (the correction's change between steps is its estimate's, not curvature).
     """
     lm = LevenbergMarquardt(x0, step=step, lower=lower, upper=upper, tol_x=tol_x, tol_noise=tol_noise,
                             max_generations=max_generations, trust=trust, lam=lam, gradient=gradient)

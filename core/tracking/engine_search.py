@@ -194,7 +194,7 @@ class LevenbergMarquardt:
         judged. Shrunk by coordinates, the tibia's correction on the acceptance trial at 256²
         (tracked every second frame, this 2-core CPU machine) was significant in rx and y, but its
         part along the weakest direction (rotation about the long axis, an eigenvalue ~25× below
-        the next) was 0.0004-0.0007 per degree against a noise of ~0.002, and it moved the
+        the next) was 0.0002-0.0007 per degree against a noise of 0.0013-0.0044, and it moved the
         Newton step from the truth 0.2-0.3° further along that direction in frames 10-16 than the
         moments' did; the velocity guess carried it on (up to 1.44° off, moments 0.82°). Shrunk
         along the eigenvectors: 0.43° RMS over the 10 frames against 0.76° (moments 0.40°), the

@@ -226,9 +226,11 @@ def run(*, bone: str = "tibia", stride: int = 2, gradient: str = "default", devi
 
 
 def singles(*, pixels: int = 256, frames=range(0, 20, 2), starts: int = 2, mm: float = 0.5, deg: float = 1.0,
-            gradient: str = "default", device: str = "cpu", seed: int = 0, names=None) -> dict:
+            gradient: str = "default", device: str = "cpu", seed: int = 0, names=None,
+            correction: str = "grid") -> dict:
     """One :func:`~core.tracking.register.register` (``search="newton"``) per bone, frame and start
-    on the acceptance trial (:func:`~core.studies.tracking.acceptance.tracking_scene`, ``pixels``),
+    on the acceptance trial (:func:`~core.studies.tracking.acceptance.tracking_scene`, ``pixels``;
+    ``correction`` its distortion correction: the grid fit finds no grid below 192²),
     from the truth moved exactly ``mm`` / ``deg`` in random directions (the same draws for every
     ``gradient``); per bone the RMS errors (mm, degrees) and the poses evaluated."""
     from dataclasses import replace
@@ -238,7 +240,8 @@ def singles(*, pixels: int = 256, frames=range(0, 20, 2), starts: int = 2, mm: f
     from core.tracking.cost import prepare_frame
     from core.tracking.register import RegistrationOptions, register
 
-    ts = acc.tracking_scene(quick=True, device=device, seed=seed, n_frames=max(frames) + 1, pixels=pixels)
+    ts = acc.tracking_scene(quick=True, device=device, seed=seed, n_frames=max(frames) + 1, pixels=pixels,
+                            correction=correction)
     opts = replace(RegistrationOptions(), search="newton")
     g = np.random.default_rng(seed + 11)
     draws = [[acc._random_offset(g, mm, deg) for _ in range(starts)] for _ in frames]

@@ -53,6 +53,18 @@ before; :func:`core.tracking.final_stage.stage_neighbours`). On the harder trial
 talus went from 0.159° to 0.132° RMS sequentially (jointly 0.134°), the tibia and calcaneus
 stayed within 0.001° of their joint values (0.082°, 0.081°).
 
+Sequential tracking searches each bone against the whole image, its neighbours' projections in it;
+with ``TrackingOptions.sequential_subtract`` the search subtracts them as the stage does (the bones
+registered earlier in the frame at their registered poses, the others at their guesses; one pass,
+no rounds). On the acceptance trial (one NVIDIA H100, 1024², 100 frames, Gauss–Newton search,
+``resources/benchmarks/sequential_drift_h100.json``) the whole image biased the tibia about its long
+axis (over frames 50-72 the estimate scored higher than the truth in 21 of 23 frames, and a search
+restarted from the truth went back towards it) and the talus: 9 / 7 / 0 silent frames over 4× the
+Cramér–Rao bound (tibia, talus, calcaneus), × the bound 1.79 / 2.46, 2.23 / 2.17, 1.59 / 1.43 (mm /
+°); subtracted, 0 / 0 / 0 and 1.71 / 1.79, 1.78 / 1.58, 1.29 / 1.50 (joint tracking 1 / 0 / 0;
+:mod:`core.studies.tracking.sequential_drift`). Off by default: sequential tracking is the mode for
+frames whose DRR intensities are not matched to the images, where subtraction does harm.
+
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The
 checks seldom change a pose, and they are host work, while the next round is device work: so the
@@ -92,8 +104,8 @@ from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SEARCH_NEIGHBOURS",
-           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
+           "STAGE_MOVE_SIGMAS", "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -104,10 +116,6 @@ FINAL_EVERY_ROUND = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
-#: Sequential tracking's search subtracts the neighbours too (the bones registered in the frame at
-#: their registered poses, the others at their guesses), where by default each bone is searched
-#: against the whole image (:mod:`core.studies.tracking.sequential_drift`).
-SEQUENTIAL_SEARCH_NEIGHBOURS = False
 
 
 @dataclass
@@ -188,7 +196,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     # sequential tracking with the final stage: the stage subtracts the neighbours as joint tracking
     # does (the bones registered in this frame, the others at their guesses; module docs)
     seq_stage = (not joint and len(names) > 1 and o.registration.final is not None and SEQUENTIAL_NEIGHBOURS)
-    seq_search = not joint and len(names) > 1 and SEQUENTIAL_SEARCH_NEIGHBOURS
+    # sequential_subtract: the search subtracts them as well (module docs)
+    seq_search = not joint and len(names) > 1 and o.sequential_subtract
     current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
     if joint or seq_stage or seq_search:
         for i, b in enumerate(names):

@@ -90,6 +90,11 @@ class TrackingOptions:
     ``"uncertain"``, once the bone has ``stage_move_frames`` (an integer ≥ 1) good frames with a
     move; with ``stage_move_reject`` (the default) such a frame keeps the similarity's pose.
 
+    ``sequential_subtract``: in sequential mode each bone's search subtracts the other bones' DRRs
+    (those registered earlier in the frame at their registered poses, the others at their guesses),
+    as joint tracking's rounds do; off (the default), each bone is searched against the whole image
+    (:mod:`core.tracking.frame_step`). For flatfield-corrected frames only (DRR intensities matched).
+
     ``trajectory_limit`` (≥ 1, or None: off): once a run is complete, frames whose pose stands off
     the local fit through their neighbours by more than this many times the bone's median are
     flagged ``"off the trajectory"`` (:mod:`core.tracking.flags_post`, default its ``LIMIT``)."""
@@ -119,6 +124,7 @@ class TrackingOptions:
     contact_margin_mm: float = 0.0
     confidence_scale: float = 1.0
     lockstep: bool = True
+    sequential_subtract: bool = False
     refine_likelihood: bool = False
     collapse_ratio: float = COLLAPSE_RATIO
     motion_limit: float = MOTION_LIMIT
@@ -137,6 +143,8 @@ class TrackingOptions:
             object.__setattr__(self, "registration", replace(self.registration, final="likelihood"))
             if self.first is not None:
                 object.__setattr__(self, "first", replace(self.first, final="likelihood"))
+        if not isinstance(self.sequential_subtract, bool):
+            raise ValueError(f"sequential_subtract: expected True or False, got {self.sequential_subtract!r}")
         if self.guess not in _GUESSES:
             raise ValueError(f"guess: expected one of {_GUESSES}, got {self.guess!r}")
         if self.mode not in _MODES:

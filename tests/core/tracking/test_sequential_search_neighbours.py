@@ -1,5 +1,5 @@
 """Sequential tracking's search with the neighbours subtracted
-(core.tracking.frame_step.SEQUENTIAL_SEARCH_NEIGHBOURS): each bone is searched with the bones
+(TrackingOptions.sequential_subtract, core.tracking.frame_step): each bone is searched with the bones
 registered earlier in the frame subtracted at their registered poses and the others at their
 guesses; off, each bone is searched against the whole image; joint tracking is the same either way
 (ideal 128² views of the talus and calcaneus, Warp's CPU device)."""
@@ -25,10 +25,10 @@ def _run(scene, monkeypatch, *, mode: str, subtract: bool):
         return got
 
     monkeypatch.setattr(fs, "register_checked", spy)
-    monkeypatch.setattr(fs, "SEQUENTIAL_SEARCH_NEIGHBOURS", subtract)
     skip = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
-    o = TrackingOptions(mode=mode, verify_restarts=0, registration=reg, trajectory_limit=None)
+    o = TrackingOptions(mode=mode, verify_restarts=0, registration=reg, trajectory_limit=None,
+                        sequential_subtract=subtract)
     res = track(r, models, frames.__getitem__, [0, 1], keyframes=skip, skip=skip, options=o)
     return res, seen
 
@@ -52,6 +52,16 @@ def test_sequential_search_subtracts_registered_and_guessed_neighbours(talus_cal
         fr = res.results[(m.name, 1)]
         d = fr.pose[:3, 3] - sc.poses(1)[k][:3, 3]
         assert np.linalg.norm(d) < 1.0  # still registered (ideal 128² views, 1.5 mm voxels)
+
+
+def test_the_option_is_a_bool():
+    import pytest
+
+    from core.tracking.trial import TrackingOptions
+
+    assert TrackingOptions().sequential_subtract is False
+    with pytest.raises(ValueError, match="sequential_subtract"):
+        TrackingOptions(sequential_subtract=1)
 
 
 def test_joint_tracking_unchanged_by_the_switch(talus_calcaneus_128, monkeypatch):

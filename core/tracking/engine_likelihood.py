@@ -120,7 +120,7 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
 from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 
-__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "LikelihoodEngine", "StepClock",
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "UPHILL_RESOLVED", "LikelihoodEngine", "StepClock",
            "likelihood_engine", "robust_factors_device", "run_side_by_side", "run_steps", "solve_moments"]
 
 #: The regions' line integrals and usable pixels made on the device from the fluence
@@ -138,6 +138,12 @@ DIFF_IMAGES = True
 #: (:func:`~core.tracking.likelihood_fast.blur_block_kernel`; the same values). Off: one
 #: output a thread (:func:`core.similarity._kernels.blur_kernel`), as first measured.
 BLOCK_BLUR = True
+#: :meth:`LikelihoodEngine.refine`'s uphill test (χ² rose: the pose before kept) is for steps the
+#: data resolve: one whose predicted decrease of χ² (``Jrᵀδ``) is below this many pixels' shares of
+#: χ² (χ²/N: 4, within two independent-pixel σ) stands whatever χ² did, and a rise after it ends
+#: the refinement as converged; there χ²'s comparison is within its rounding and chose whether a
+#: whole step stood (:mod:`~core.tracking.likelihood_fast`: Rounding). 0: every rise, as first measured.
+UPHILL_RESOLVED = 4.0
 
 
 def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False,
@@ -471,8 +477,8 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
                sandwich: bool = True, reuse: bool = False) -> dict:
         """Gauss–Newton minimisation of χ² from ``x0`` (default 0: the base pose), as
         :meth:`core.tracking.likelihood_cost.LikelihoodCost.refine` (stops when a step is below
-        ``tol`` or χ² rises, keeping the pose before). Returns ``{"x", "chi2", "iterations",
-        "covariance", "covariance_independent"}`` (mm, degrees): the sandwich covariance of
+        ``tol`` or χ² rises, keeping the pose before; :data:`UPHILL_RESOLVED`). Returns ``{"x", "chi2",
+        "iterations", "covariance", "covariance_independent"}`` (mm, degrees): the sandwich covariance of
         :meth:`sandwich` about the last design (``sandwich`` False: NaN, not computed, and
         :attr:`autocorrelation` None) and ``χ²/N · (JᵀWJ)⁻¹``.
         ``reuse``: the first step takes the last step's images where its design is the same
@@ -493,19 +499,22 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
         hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
-        best, n_it = None, 0
+        best, n_it, pred = None, 0, 0.0
         for it in range(1, int(iters) + 1):
             n_it = it
             self.step_launch(x, hv, reuse=reuse and it == 1)
             yield
             s = self.step_result()
-            if not np.isfinite(s["chi2"]) or (best is not None and s["chi2"] > best[1]["chi2"]):
+            rose = best is not None and s["chi2"] > best[1]["chi2"]
+            if not np.isfinite(s["chi2"]) or (rose and pred >= UPHILL_RESOLVED * best[1]["chi2"]
+                                              / max(self.n_pixels, 1)):
                 x = best[0] if best is not None else x  # uphill: the previous pose stands
                 break
             best = (x.copy(), s)
             delta = np.linalg.solve(s["JJ"], s["Jr"])
+            pred = float(s["Jr"] @ delta)  # the step's predicted decrease of χ²
             x = x + delta
-            if np.all(np.abs(delta) < tv):
+            if rose or np.all(np.abs(delta) < tv):  # (risen after a step the data do not resolve: converged)
                 break
         out = {"x": x, "chi2": best[1]["chi2"] if best else np.nan, "iterations": n_it}
         nan = np.full((6, 6), np.nan)

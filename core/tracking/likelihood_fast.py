@@ -15,8 +15,10 @@ synchronisation around it), the solves (0.16 ms a step), the launches.
 * :func:`design_diff_kernel`: the high-pass is linear, so the moments need the low-pass of the
   design's centre and of its six central differences only — 7 images a view blurred instead of 13
   (``DIFF_IMAGES``, the default). Same call: 13.9 ms at 4 px and 18.6 ms at 8 px per bone-frame
-  (device 8.9 / 14.4 ms; blurs 2.13 / 3.88 ms). The moments differ by float32 rounding; through the
-  tracking that moved poses by up to 0.018 mm / 0.037° on those 30 frames, and the errors over the
+  (device 8.9 / 14.4 ms; blurs 2.13 / 3.88 ms). The moments differ by float32 rounding (the
+  differences' the more accurate: Rounding, below); through the tracking that moved poses by up to
+  0.018 mm / 0.037° on those 30 frames (the refinements' uphill test tipped by it, since changed:
+  Rounding), and the errors over the
   Cramér–Rao bound by at most 0.03 either way (tibia, talus, calcaneus mm/°, 4 px: 1.68/1.46,
   1.46/1.39, 1.38/1.30 before, 1.70/1.46, 1.45/1.38, 1.37/1.29 after; 8 px: 1.71/1.49, 1.35/1.45,
   1.31/1.19 before, 1.71/1.52, 1.35/1.44, 1.31/1.18 after; the same tibia frame over 4× its bound,
@@ -42,9 +44,53 @@ ms (the keys' atomic kernel 0.35 ms, the rest the segmented sort, which Warp's t
 relative (unlike on the CPU, not equal to the last bit; not traced); ``fast`` against ``plain``
 moved poses by the very amounts ``DIFF_IMAGES`` alone had (0.018 mm / 0.031° at 4 px, 0.009 mm /
 0.037° at 8 px) and the σ by up to 11 % / 8 % relative on the worst of the 90 bone-frames' six axes;
-errors over the bound as above.
+errors over the bound as above (why, and what changed since: Rounding).
 The device now spends per bone-frame 8.1 / 12.8 ms (DRRs 3.3, blurs 1.6 / 2.8, moments 1.1, meat and
 autocovariance 1.2 / 4.6 ms), the stage's wall 11.8 / 18.4 ms over those 8 frames.
+
+Rounding: why ``DIFF_IMAGES`` moved the confidences' σ by up to 10 %
+--------------------------------------------------------------------
+Not through its own rounding. At one design the two paths agree to float32 rounding (Warp's CPU
+device, the talus in 128² fluoroscope views, 1.5 mm voxels, 4 px): the sandwich's and the
+independent-pixel σ within 6 · 10⁻⁶ relative, χ² equal to the bit (the centre's image is blurred
+alike). The differences are the more accurate: against the same rendered images high-passed in
+float64, their δ_k are within 3-5 · 10⁻⁸ of their RMS, the plain path's within 5 · 10⁻⁶-6 · 10⁻⁵ (two
+float32 high-passes subtracted, each rounded on the scale of the image, not of the difference).
+
+What moved σ was :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine`'s uphill test
+(χ² rose: the pose before kept). The stage starts at the tracker's optimum, and most of its steps
+are shorter than the independent-pixel σ (their predicted decrease of χ², ``Jrᵀδ``, below χ²/N, N
+the used pixels), where χ² cannot tell the poses apart: poses 10⁻⁵ mm and degrees apart (a true
+change ~10⁻⁵ χ²/N) gave χ² differing by 0.03-0.09 χ²/N rms at 128² and 0.15-0.35 at 256² (1 mm
+voxels; the robust round's weights) — the float32 images (rendered, blurred) more than the table's
+float32 sums (summed in float64 on the host: 0.06 instead of 0.08-0.13) — and Gauss–Newton steps
+differing by 1-2 % of the independent σ. So rounding decided whether χ² "rose", and that decided whether a
+whole step stood: on one 128² frame the robust refinement's first step (0.017°) was kept by one
+path and rejected by the other. With the confidence the sandwich plus the stage's move
+(``sandwich+move``), a pose change of a fraction of σ moves σ as much: 0.018 mm against σ of a
+few hundredths of a mm at 1024².
+
+Since then the uphill test is for steps the data resolve
+(:data:`~core.tracking.engine_likelihood.UPHILL_RESOLVED`): a step whose predicted decrease is below
+4 χ²/N (two independent-pixel σ) stands whatever χ² did, and a rise after it ends the refinement as
+converged (that step's Gauss–Newton estimate taken, as for a step below ``tol``; the same number
+of steps but for the paths that then differ). The largest difference from the plain path (pose
+over σ / σ relative, over frames and axes; Warp's CPU device, the talus alone registered from the
+truth with the stage's default model: 128² 1.5 mm voxels, frames 1-5, 2 and 4 px; 256² 1 mm, frames
+1-3, 4 px), every rise tested → now:
+
+* ``DIFF_IMAGES``: 128² 4.0e-3 / 9.4e-4 → 1.1e-3 / 8.8e-4; 256² 7.2e-2 / 3.1e-2 → 1.2e-2 / 6.1e-3;
+* the plain path with its first refinement started 10⁻⁶ off (rounding's size): 128² 1.8e-2 /
+  1.4e-3 → 1.4e-3 / 1.3e-3; 256² 1.6e-2 / 1.4e-2 → 1.8e-2 / 9.3e-3.
+
+So the differences now move the stage no more than any perturbation of rounding's size does. What
+remains is the stage's own floor: the Gauss–Newton step as a function of the pose is noisy at the
+images' rounding (the step moved by 1-2 % of the independent σ for 10⁻⁵ moves at 256², whether
+the table was summed in float32 on the device or in float64 on the host), 10⁻³ σ at 128² and 10⁻²
+σ at 256². The steps per stage 6.7-6.9 → 6.9-7.0 (128²), 6.25 → 6.42 (256²). Not measured at
+1024² since: :mod:`core.studies.tracking.stage_speed`'s variants ``plain``, ``fast`` and
+``plain+jitter`` (``+strict``: every rise tested, as before) give both the differences and that
+floor on the acceptance trial, where the tracker also carries each frame's pose into the next.
 
 What the stage would need to fit the speed goal (≤ 5 ms a frame for one bone, ≤ 20 ms for three jointly,
 tracker included; the tracker alone took 4.3 ms and 13-17 ms on one H100,

@@ -25,7 +25,11 @@ Only this study reads the truth. JSON on stdout (``--out``: also to a file).
 
 Variants: ``base`` the modules' defaults; ``plain`` every speed flag off (the stage as first
 measured); ``exact`` the blocked blur and the median by per-view sorts (values unchanged);
-``fast`` those and the design's differences (:mod:`core.tracking.likelihood_fast`). Measured:
+``fast`` those and the design's differences (:mod:`core.tracking.likelihood_fast`); ``strict`` the
+refinements' uphill test on every rise of χ² (as first measured; now on resolved steps only);
+``jitter`` the stage's first refinement started 10⁻⁶ mm and degrees off (the stage's own spread
+under a perturbation of rounding's size: what ``variant_pairs`` of the others compare with);
+``a+b`` both (e.g. ``plain+jitter``, ``fast+strict``). Measured:
 ``resources/benchmarks/tracking_stage_speed_h100.json`` (one NVIDIA H100, 30 frames; its ``base``
 is today's ``plain``, its ``diff`` ``DIFF_IMAGES`` alone) and ``tracking_stage_speed_fast_h100.json``
 (``plain``, ``exact``, ``fast``; ``fast`` is today's default; the numbers in
@@ -70,10 +74,36 @@ VARIANTS: dict = {
     "fast": lambda: _flags(BLOCK_BLUR=True, MEDIAN_BISECT=True, DIFF_IMAGES=True),
     # every flag off (the stage as first measured)
     "plain": lambda: _flags(BLOCK_BLUR=False, MEDIAN_BISECT=False, DIFF_IMAGES=False),
+    # the refinements' uphill test on any rise of χ² (engine_likelihood.UPHILL_RESOLVED 0, as first measured)
+    "strict": lambda: _flag("core.tracking.engine_likelihood", "UPHILL_RESOLVED", 0.0),
+    # the stage's first refinement from 1e-6 mm and degrees off its start: the stage's own spread
+    # under a perturbation of rounding's size (a variant "a+b" combines two)
+    "jitter": lambda: _jitter(1e-6),
 }
 _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
               "DIFF_IMAGES": "core.tracking.engine_likelihood",
               "MEDIAN_BISECT": "core.tracking.likelihood_kernels"}
+
+
+@contextmanager
+def _jitter(eps: float):
+    import core.tracking.engine_likelihood as el
+
+    plain = el.LikelihoodEngine.refine_steps
+
+    def shifted(self, x0=None, **kw):
+        return plain(self, np.full(6, float(eps)) if x0 is None else x0, **kw)
+
+    with _patched(el.LikelihoodEngine, "refine_steps", shifted):
+        yield
+
+
+def _variant(name: str):
+    """The context of variant ``name`` (``"a+b"``: both of :data:`VARIANTS`'s, in that order)."""
+    st = ExitStack()
+    for part in name.split("+"):
+        st.enter_context(VARIANTS[part]())
+    return st
 
 
 @contextmanager
@@ -258,7 +288,7 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                         refine_likelihood=True) for hp in highpass}
     for v in variants:  # warm-up: kernels compiled, buffers made
         for hp in highpass:
-            with VARIANTS[v]():
+            with _variant(v):
                 track(r, models, ts.frames, range(min(n, warm_frames)), keyframes=kf, options=opts[hp])
         print(f"warm-up {v}: {time.perf_counter() - t0:.1f} s", flush=True)
     runs: dict = defaultdict(list)
@@ -273,7 +303,7 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                 def progress(done, total, fr, ends=ends):
                     ends[fr.frame] = time.perf_counter()
 
-                with VARIANTS[v]():
+                with _variant(v):
                     t1 = time.perf_counter()
                     res = track(r, models, ts.frames, range(n), keyframes=kf, options=opts[hp],
                                 progress=progress)
@@ -322,13 +352,13 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
             for hp in highpass:
                 acc: dict = {}
                 box = [0, 0.0]
-                with VARIANTS[v](), _kernel_profile(box, acc):
+                with _variant(v), _kernel_profile(box, acc):
                     track(r, models, ts.frames, range(m), keyframes=kf, options=opts[hp])
                 nb = max(box[0], 1)
                 kern = {k: {"ms_per_bone_frame": a[0] / nb, "per_bone_frame": a[1] / nb}
                         for k, a in sorted(acc.items(), key=lambda kv: -kv[1][0])}
                 parts: dict = {}
-                with VARIANTS[v](), _parts_profile(parts):
+                with _variant(v), _parts_profile(parts):
                     res = track(r, models, ts.frames, range(m), keyframes=kf, options=opts[hp])
                 tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(m)]
                 nbf = len(tim)
@@ -376,7 +406,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     variants = tuple(a.variants.split(","))
     for v in variants:
-        if v not in VARIANTS:
+        if any(x not in VARIANTS for x in v.split("+")):
             p.error(f"--variants: {v!r} is not one of {sorted(VARIANTS)}")
 
     def save(d):

@@ -227,10 +227,11 @@ def run(*, bone: str = "tibia", stride: int = 2, gradient: str = "default", devi
 
 def singles(*, pixels: int = 256, frames=range(0, 20, 2), starts: int = 2, mm: float = 0.5, deg: float = 1.0,
             gradient: str = "default", device: str = "cpu", seed: int = 0, names=None,
-            correction: str = "grid") -> dict:
+            correction: str = "grid", trial: str = "acceptance", voxel: float = 1.0) -> dict:
     """One :func:`~core.tracking.register.register` (``search="newton"``) per bone, frame and start
     on the acceptance trial (:func:`~core.studies.tracking.acceptance.tracking_scene`, ``pixels``;
-    ``correction`` its distortion correction: the grid fit finds no grid below 192²),
+    ``correction`` its distortion correction: the grid fit finds no grid below 192²; ``trial="hard"``:
+    the harder trial of :mod:`core.studies.tracking.hard_trial` instead, ``voxel`` mm),
     from the truth moved exactly ``mm`` / ``deg`` in random directions (the same draws for every
     ``gradient``); per bone the RMS errors (mm, degrees) and the poses evaluated."""
     from dataclasses import replace
@@ -240,8 +241,13 @@ def singles(*, pixels: int = 256, frames=range(0, 20, 2), starts: int = 2, mm: f
     from core.tracking.cost import prepare_frame
     from core.tracking.register import RegistrationOptions, register
 
-    ts = acc.tracking_scene(quick=True, device=device, seed=seed, n_frames=max(frames) + 1, pixels=pixels,
-                            correction=correction)
+    if trial == "hard":
+        from core.studies.tracking.hard_trial import HardRun
+
+        ts = HardRun(n_frames=max(frames) + 1, pixels=pixels, spacing=voxel, seed=seed, device=device)
+    else:
+        ts = acc.tracking_scene(quick=True, device=device, seed=seed, n_frames=max(frames) + 1,
+                                pixels=pixels, correction=correction)
     opts = replace(RegistrationOptions(), search="newton")
     g = np.random.default_rng(seed + 11)
     draws = [[acc._random_offset(g, mm, deg) for _ in range(starts)] for _ in frames]
@@ -267,7 +273,7 @@ def singles(*, pixels: int = 256, frames=range(0, 20, 2), starts: int = 2, mm: f
                       "rms_deg": round(float(np.sqrt(np.mean(er ** 2))), 4),
                       "evaluations": int(sum(r[3] for r in rows)),
                       "per_registration": [[r[0], round(r[1], 4), round(r[2], 4)] for r in rows]}
-    return {"pixels": pixels, "frames": list(frames), "starts": starts, "offset": [mm, deg],
+    return {"trial": trial, "pixels": pixels, "frames": list(frames), "starts": starts, "offset": [mm, deg],
             "gradient": gradient,
             "wall_s": round(time.perf_counter() - t0, 1), "bones": out}
 

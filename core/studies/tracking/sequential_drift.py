@@ -30,7 +30,8 @@ earlier in the frame at their registered poses, the others at their constant-vel
 and, for reference, joint tracking (``--joint``). Per run and bone: RMS × the bound (the bound of
 the acceptance JSON's same scene, or computed with ``--bound compute``), frames over 4× it, silent
 (unflagged) ones, flagged frames; and the per-frame rotation difference between the two
-sequential runs (what a check comparing them would see).
+sequential runs (what a check comparing them would see). ``--seed`` tracks another synthesis of
+the trial (its noise, start error and grid frames; its bound computed, ``--bound compute``).
 
 Findings
 --------
@@ -256,14 +257,14 @@ def _pair_diff(ts, a, b) -> dict:
 
 def run(*, quick: bool = False, device: str | None = None, n_frames: int | None = None, workers: int = 0,
         bones=("tibia", "talus"), probe_frames=None, bound: str = ACCEPTANCE_JSON,
-        joint: bool = False) -> dict:
+        joint: bool = False, seed: int = 0) -> dict:
     """The study (module docs); returns the JSON-ready results."""
     from core.geometry.transforms import pose_from_params
     from core.studies.tracking.acceptance import _random_offset, cramer_rao, tracking_scene
     from core.studies.tracking.trial_frames import synthesise
 
     t0 = time.perf_counter()
-    ts = tracking_scene(quick=quick, device=device, n_frames=n_frames)
+    ts = tracking_scene(quick=quick, device=device, n_frames=n_frames, seed=seed)
     g = np.random.default_rng(ts._seed + 7)  # the acceptance study's start (5 mm, 5 deg off)
     keyframes = {n: {0: pose_from_params(_random_offset(g, 5.0, 5.0), center=m.centroid, base=ts.truth(0)[b])}
                  for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True))}
@@ -276,7 +277,8 @@ def run(*, quick: bool = False, device: str | None = None, n_frames: int | None 
         bounds = _bounds_from(bound)
     nf = ts.scene.n_frames
     pf = [f for f in (probe_frames if probe_frames is not None else range(50, 73)) if 0 <= f < nf]
-    out = {"study": "core.studies.tracking.sequential_drift", "quick": quick, "machine": platform.machine(),
+    out = {"study": "core.studies.tracking.sequential_drift", "quick": quick, "seed": seed,
+           "machine": platform.machine(),
            "device": str(ts.renderer.device), "frames": nf, "pixels": ts.scene.rig[0].width,
            "bound": {"source": bound, **bounds}, "probe_frames": pf, "scene_s": t_scene, "runs": {},
            "timing_s": {}}
@@ -310,8 +312,12 @@ def main(argv=None) -> int:
     p.add_argument("--bound", default=ACCEPTANCE_JSON,
                    help="the bound: an acceptance JSON of the same scene, or 'compute'")
     p.add_argument("--joint", action="store_true", help="track jointly too (reference)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="the trial's seed (default 0, the acceptance study's; another needs --bound compute)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
+    if a.seed != 0 and a.bound != "compute":
+        p.error("--seed: another trial's bound is not the acceptance JSON's (use --bound compute)")
     if "-" in a.probe_frames:
         lo, hi = (int(v) for v in a.probe_frames.split("-"))
         pf = list(range(lo, hi + 1))
@@ -321,7 +327,7 @@ def main(argv=None) -> int:
 
     print_json(run(quick=a.quick, device=a.device, n_frames=a.frames, workers=a.workers,
                    bones=tuple(b.strip() for b in a.bones.split(",") if b.strip()), probe_frames=pf,
-                   bound=a.bound, joint=a.joint), a.out)
+                   bound=a.bound, joint=a.joint, seed=a.seed), a.out)
     return 0
 
 

@@ -61,14 +61,14 @@ What moved σ was :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refin
 (χ² rose: the pose before kept). The stage starts at the tracker's optimum, and most of its steps
 are shorter than the independent-pixel σ (their predicted decrease of χ², ``Jrᵀδ``, below χ²/N, N
 the used pixels), where χ² cannot tell the poses apart: poses 10⁻⁵ mm and degrees apart (a true
-change ~10⁻⁵ χ²/N) gave χ² differing by 0.03-0.09 χ²/N rms at 128² and 0.15-0.35 at 256² (1 mm
-voxels; the robust round's weights) — the float32 images (rendered, blurred) more than the table's
-float32 sums (summed in float64 on the host: 0.06 instead of 0.08-0.13) — and Gauss–Newton steps
-differing by 1-2 % of the independent σ. So rounding decided whether χ² "rose", and that decided whether a
-whole step stood: on one 128² frame the robust refinement's first step (0.017°) was kept by one
-path and rejected by the other. With the confidence the sandwich plus the stage's move
-(``sandwich+move``), a pose change of a fraction of σ moves σ as much: 0.018 mm against σ of a
-few hundredths of a mm at 1024².
+change ~10⁻⁵ χ²/N) gave χ² differing by 0.03-0.09 χ²/N rms at 128², 0.08-0.2 at 256² (1 mm voxels)
+and 0.12-0.2 at 512² (0.5 mm; at most 0.36) — the float32 images (rendered, blurred) more than the
+table's float32 sums (summed in float64 on the host: 0.06 instead of 0.08-0.13 at 256²) — and
+Gauss–Newton steps differing by 1-3 % of the independent σ. So rounding decided whether χ² "rose",
+and that decided whether a whole step stood: on one 128² frame the robust refinement's first step
+(0.017°) was kept by one path and rejected by the other. With the confidence the sandwich plus the
+stage's move (``sandwich+move``), a pose change of a fraction of σ moves σ as much: 0.018 mm against
+σ of a few hundredths of a mm at 1024².
 
 Since then the uphill test is for steps the data resolve
 (:data:`~core.tracking.engine_likelihood.UPHILL_RESOLVED`): a step whose predicted decrease is below
@@ -76,21 +76,25 @@ Since then the uphill test is for steps the data resolve
 converged (that step's Gauss–Newton estimate taken, as for a step below ``tol``; the same number
 of steps but for the paths that then differ). The largest difference from the plain path (pose
 over σ / σ relative, over frames and axes; Warp's CPU device, the talus alone registered from the
-truth with the stage's default model: 128² 1.5 mm voxels, frames 1-5, 2 and 4 px; 256² 1 mm, frames
-1-3, 4 px), every rise tested → now:
+truth with the stage's default model: 128² 1.5 mm voxels, frames 1-5, 2 and 4 px; 256² 1 mm and 512²
+0.5 mm, frames 1-3, 4 px), every rise tested → now:
 
 * ``DIFF_IMAGES``: 128² 4.0e-3 / 9.4e-4 → 1.1e-3 / 8.8e-4; 256² 7.2e-2 / 3.1e-2 → 1.2e-2 / 6.1e-3;
+  512² 3.5e-2 / 2.3e-2 → 1.2e-2 / 8.5e-3;
 * the plain path with its first refinement started 10⁻⁶ off (rounding's size): 128² 1.8e-2 /
-  1.4e-3 → 1.4e-3 / 1.3e-3; 256² 1.6e-2 / 1.4e-2 → 1.8e-2 / 9.3e-3.
+  1.4e-3 → 1.4e-3 / 1.3e-3; 256² 1.6e-2 / 1.4e-2 → 1.8e-2 / 9.3e-3; 512² 3.8e-1 / 2.2e-1 → 2.0e-2 /
+  1.4e-2.
 
 So the differences now move the stage no more than any perturbation of rounding's size does. What
 remains is the stage's own floor: the Gauss–Newton step as a function of the pose is noisy at the
-images' rounding (the step moved by 1-2 % of the independent σ for 10⁻⁵ moves at 256², whether
-the table was summed in float32 on the device or in float64 on the host), 10⁻³ σ at 128² and 10⁻²
-σ at 256². The steps per stage 6.7-6.9 → 6.9-7.0 (128²), 6.25 → 6.42 (256²). Not measured at
-1024² since: :mod:`core.studies.tracking.stage_speed`'s variants ``plain``, ``fast`` and
-``plain+jitter`` (``+strict``: every rise tested, as before) give both the differences and that
-floor on the acceptance trial, where the tracker also carries each frame's pose into the next.
+images' rounding (it moved by 1-3 % of the independent σ for 10⁻⁵ moves at 256² and 512²; at 256²
+as much with the table summed in float64 on the host; not traced further: the renderer's rays
+start at the source, 1600-2100 voxels of 0.5 mm from the bone, in float32), 10⁻³ σ at 128² and 1-2 ·
+10⁻² σ at 256²-512². The steps per stage 6.7-6.9 → 6.9-7.0 (128²), 6.25 → 6.42 (256²), 7.17 → 7.33
+(512²). Not measured at 1024² since: :mod:`core.studies.tracking.stage_speed`'s variants ``plain``,
+``fast`` and ``plain+jitter`` (``+strict``: every rise tested, as before) give both the differences
+and that floor on the acceptance trial, where the tracker also carries each frame's pose into the
+next.
 
 What the stage would need to fit the speed goal (≤ 5 ms a frame for one bone, ≤ 20 ms for three jointly,
 tracker included; the tracker alone took 4.3 ms and 13-17 ms on one H100,

@@ -62,7 +62,9 @@ axis (over frames 50-72 the estimate scored higher than the truth in 21 of 23 fr
 restarted from the truth went back towards it) and the talus: 9 / 7 / 0 silent frames over 4× the
 Cramér–Rao bound (tibia, talus, calcaneus), × the bound 1.79 / 2.46, 2.23 / 2.17, 1.59 / 1.43 (mm /
 °); subtracted, 0 / 0 / 0 and 1.71 / 1.79, 1.78 / 1.58, 1.29 / 1.50 (joint tracking 1 / 0 / 0;
-:mod:`core.studies.tracking.sequential_drift`). Off by default: sequential tracking is the mode for
+:mod:`core.studies.tracking.sequential_drift`). On two more syntheses of the trial it tracked as
+joint tracking does (silent 8 / 0 / 0 and 2 / 0 / 0, jointly 7 / 0 / 0 and 2 / 0 / 0, alone 9 / 0 / 0
+and 4 / 1 / 0; ``sequential_drift_seeds_h100.json``). Off by default: sequential tracking is the mode for
 frames whose DRR intensities are not matched to the images, where subtraction does harm.
 
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous

@@ -90,14 +90,18 @@ truth with the stage's default model: 128² 1.5 mm voxels, frames 1-5, 2 and 4 p
 
 So the differences now move the stage no more than any perturbation of rounding's size does. What
 remains is the stage's own floor: the Gauss–Newton step as a function of the pose is noisy at the
-images' rounding (it moved by 1-3 % of the independent σ for 10⁻⁵ moves at 256² and 512²; at 256²
-as much with the table summed in float64 on the host; not traced further: the renderer's rays
-start at the source, 1600-2100 voxels of 0.5 mm from the bone, in float32), 10⁻³ σ at 128² and 1-2 ·
-10⁻² σ at 256²-512². The steps per stage 6.7-6.9 → 6.9-7.0 (128²), 6.25 → 6.42 (256²), 7.17 → 7.33
-(512²). Not measured at 1024² since: :mod:`core.studies.tracking.stage_speed`'s variants ``plain``,
-``fast`` and ``plain+jitter`` (``+strict``: every rise tested, as before) give both the differences
-and that floor on the acceptance trial, where the tracker also carries each frame's pose into the
-next.
+images' rounding (it moved by 1-3 % of the independent σ for 10⁻⁵ moves at 256² and 512²; at 256² as
+much with the table summed in float64 on the host), 10⁻³ σ at 128² and 1-2 · 10⁻² σ at 256²-512². It
+is the DRR's: a 10⁻⁵ mm or degree move changed a 256² DRR (1 mm voxels) by 2-28× its linear change
+(~10⁻⁶ rms where the gradient is, 100× float32's rounding of the values) or, for some translations,
+not at all (the source's position in the volume's indices, ~1000 voxels away, the same float32
+number) — the renderer's rays start at the source in float32 (its samples ``org + t · d`` at ~10³
+from it: ~10⁻⁴ voxel of rounding), which blurs the pose by ~3 · 10⁻⁵ mm and ~2 · 10⁻⁴° there (each
+ray's entry point in float64 would take most of that away; not tried). The steps per stage 6.7-6.9 →
+6.9-7.0 (128²), 6.25 → 6.42 (256²), 7.17 → 7.33 (512²). Not measured at 1024² since:
+:mod:`core.studies.tracking.stage_speed`'s variants ``plain``, ``fast`` and ``plain+jitter``
+(``+strict``: every rise tested, as before) give both the differences and that floor on the
+acceptance trial, where the tracker also carries each frame's pose into the next.
 
 What the stage would need to fit the speed goal (≤ 5 ms a frame for one bone, ≤ 20 ms for three jointly,
 tracker included; the tracker alone took 4.3 ms and 13-17 ms on one H100,

@@ -406,7 +406,8 @@ def trajectory_pass(tasks: Sequence[BatchTask], records: Sequence[dict],
     (:mod:`core.tracking.batch_pass`). Returns one entry per group — ``key``, ``ranges`` (task
     keys), ``judged`` (bone-frames), ``flagged`` (off the trajectory), ``review_flagged`` (bone ->
     frames with any review flag), ``changed`` ([bone, frame]) and ``changes`` (with the flags
-    after the pass), ``tasks_flagged`` (task key -> its frames flagged), ``reports`` (rewritten),
+    after the pass), ``tasks_flagged`` (task key -> its frames flagged, as its rewritten report
+    counts them: frames flagged without a pose, which no journal holds, included), ``reports`` (rewritten),
     ``seconds``; or ``skipped`` (a range not complete) or ``error`` (e.g. another writer holds the
     bone), the ranges' own flags then staying — the batch summary's ``"trajectory_pass"``."""
     from .batch_pass import run_pass

@@ -97,6 +97,7 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
         moved = {(fr.bone, int(fr.frame)) for fr in changed}
         names = [t.report_name for t in tasks]
         per_task, rewritten, unreadable = {}, [], []
+        unjudged: set[tuple[str, int]] = set()  # flagged in a report, not judged: e.g. no pose
         for t in tasks:
             mine = [(b, f) for f in t.order for b in bones if (b, f) in final]
             per_task[t.key] = sum(bool(final[k].flags) for k in mine)
@@ -109,11 +110,17 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
                        "judged": len(results), "limit": limit,
                        "changed": [[b, int(f)] for b, f in mine if (b, f) in moved]}
             new = _final_report(old, [final[k] for k in mine], section)
+            # the task's count as its report's: frames flagged without a pose (a view's frame
+            # missing, outside a view) are in no journal, so the pass neither judged nor counted them
+            per_task[t.key] = len(new["flagged"])
+            unjudged.update((d.get("bone"), d.get("frame")) for d in new["flagged"]
+                            if (d.get("bone"), d.get("frame")) not in final)
             if new != old:
                 st.write_report("tracking", t.report_name, new)
                 rewritten.append(t.report_name)
     flagged = sum(any(s.startswith(FLAG) for s in fr.flags) for fr in final.values())
-    review = {b: sum(bool(fr.flags) for (bb, _), fr in final.items() if bb == b) for b in bones}
+    review = {b: sum(bool(fr.flags) for (bb, _), fr in final.items() if bb == b)
+              + sum(bb == b for bb, _ in unjudged) for b in bones}
     return {"judged": len(results), "flagged": int(flagged), "review_flagged": review,
             "changed": [[fr.bone, int(fr.frame)] for fr in changed],
             "changes": [{"bone": fr.bone, "frame": int(fr.frame), "flags": list(fr.flags)} for fr in changed],
@@ -130,7 +137,8 @@ def _final_report(report: dict, final: Sequence, section: dict) -> dict:
     if isinstance(report.get("frames_done"), list):
         new["frames_done"] = [by_key.get((d.get("bone"), d.get("frame")), d) if isinstance(d, dict) else d
                               for d in report["frames_done"]]
-    # the task's flagged frames the pass did not judge (none, for a complete range) stay listed
+    # the task's flagged frames the pass did not judge (no pose: a view's frame missing, outside a
+    # view; no longer a tracking result in the journal) stay listed
     kept = [d for d in report.get("flagged") or []
             if isinstance(d, dict) and (d.get("bone"), d.get("frame")) not in by_key]
     new["flagged"] = kept + [d for d in by_key.values() if d["flags"]]

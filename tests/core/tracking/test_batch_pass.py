@@ -128,3 +128,30 @@ def test_pass_messages_name_ten_changed_frames_and_count_the_rest():
                              "(0.4 of the median))")
     assert pass_messages({"key": "k", "ranges": ["a"], "error": "LockedError: held"})[0].startswith(
         "k: the trajectory check over its 1 ranges failed (LockedError: held)")
+
+
+def test_a_flagged_frame_without_a_pose_stays_counted_after_the_pass(keyed, tmp_path, monkeypatch):
+    # frame 5 missing in a view: flagged, no pose, so never journaled; the range's report and
+    # record counted it before the pass and must still after it (frame 10 flagged by the pass)
+    P = _track(n=30, off=(10, 0.0, 0.2))
+    missing = ("frame missing in view 1",)
+
+    def step(run, f, imgs, fr, todo, state, skip):
+        if f == 5:
+            return {0: FrameResult(BONE, f, None, np.nan, 0, 0.0, False, missing)}
+        return {0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)}
+
+    monkeypatch.setattr(trial, "track_frame", step)
+    folder = shutil.copytree(keyed, tmp_path / "demo")
+    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    s = batch.run_serial(tasks, SETTINGS)
+    (entry,) = s["trajectory_pass"]
+    a, b = "demo/walk/talus:12-0", "demo/walk/talus:12-29"
+    rec = {r["key"]: r for r in s["task_records"]}
+    assert rec[a]["flagged_before_pass"] == 1
+    with Study.open(folder) as st:
+        rep = st.read_report("tracking", tasks[0].report_name)
+    assert sorted(d["frame"] for d in rep["flagged"]) == [5, 10] and rep["summary"]["flagged"] == 2
+    assert rec[a]["flagged"] == rep["summary"]["flagged"] == entry["tasks_flagged"][a]
+    assert entry["tasks_flagged"][b] == rec[b]["flagged"] == 0
+    assert entry["review_flagged"] == {BONE: 2}

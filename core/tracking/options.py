@@ -92,8 +92,12 @@ class TrackingOptions:
 
     ``sequential_subtract``: in sequential mode each bone's search subtracts the other bones' DRRs
     (those registered earlier in the frame at their registered poses, the others at their guesses),
-    as joint tracking's rounds do; off (the default), each bone is searched against the whole image
+    as joint tracking's rounds do; off, each bone is searched against the whole image
     (:mod:`core.tracking.frame_step`). For flatfield-corrected frames only (DRR intensities matched).
+    None (the default, "auto"): :func:`core.tracking.from_study.track_study` turns it on for
+    sequential tracking of frames it finds flatfield-corrected (the test mode ``"auto"`` makes) and
+    off otherwise; :func:`~core.tracking.trial.track` alone cannot tell and keeps it off. True or
+    False is used as given. Joint tracking is the same whatever it holds.
 
     ``trajectory_limit`` (≥ 1, or None: off): once a run is complete, frames whose pose stands off
     the local fit through their neighbours by more than this many times the bone's median are
@@ -124,7 +128,7 @@ class TrackingOptions:
     contact_margin_mm: float = 0.0
     confidence_scale: float = 1.0
     lockstep: bool = True
-    sequential_subtract: bool = False
+    sequential_subtract: bool | None = None  # None: auto (track_study decides, track() alone: off)
     refine_likelihood: bool = False
     collapse_ratio: float = COLLAPSE_RATIO
     motion_limit: float = MOTION_LIMIT
@@ -143,8 +147,9 @@ class TrackingOptions:
             object.__setattr__(self, "registration", replace(self.registration, final="likelihood"))
             if self.first is not None:
                 object.__setattr__(self, "first", replace(self.first, final="likelihood"))
-        if not isinstance(self.sequential_subtract, bool):
-            raise ValueError(f"sequential_subtract: expected True or False, got {self.sequential_subtract!r}")
+        if self.sequential_subtract is not None and not isinstance(self.sequential_subtract, bool):
+            raise ValueError(f"sequential_subtract: expected True, False or None (auto), "
+                             f"got {self.sequential_subtract!r}")
         if self.guess not in _GUESSES:
             raise ValueError(f"guess: expected one of {_GUESSES}, got {self.guess!r}")
         if self.mode not in _MODES:

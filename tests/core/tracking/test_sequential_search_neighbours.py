@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def _run(scene, monkeypatch, *, mode: str, subtract: bool):
+def _run(scene, monkeypatch, *, mode: str, subtract: bool | None):
     import core.tracking.frame_step as fs
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions, track
@@ -54,14 +54,22 @@ def test_sequential_search_subtracts_registered_and_guessed_neighbours(talus_cal
         assert np.linalg.norm(d) < 1.0  # still registered (ideal 128² views, 1.5 mm voxels)
 
 
-def test_the_option_is_a_bool():
+def test_the_option_is_a_bool_or_auto():
     import pytest
 
     from core.tracking.trial import TrackingOptions
 
-    assert TrackingOptions().sequential_subtract is False
-    with pytest.raises(ValueError, match="sequential_subtract"):
-        TrackingOptions(sequential_subtract=1)
+    assert TrackingOptions().sequential_subtract is None  # auto: track_study decides, track() alone: off
+    for bad in (1, "on", 0.0):
+        with pytest.raises(ValueError, match="sequential_subtract"):
+            TrackingOptions(sequential_subtract=bad)
+
+
+def test_track_alone_keeps_auto_off(talus_calcaneus_128, monkeypatch):
+    """track() cannot tell whether the frames are flatfield-corrected: None searches alone."""
+    _, seen = _run(talus_calcaneus_128, monkeypatch, mode="sequential", subtract=None)
+    assert [s[0] for s in seen] == [0, 1]
+    assert all(s[1] is None for s in seen)
 
 
 def test_joint_tracking_unchanged_by_the_switch(talus_calcaneus_128, monkeypatch):

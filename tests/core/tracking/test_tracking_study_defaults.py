@@ -1,6 +1,7 @@
 """Defaults of tracking a study (core.tracking.from_study): the bone DRRs render a bone's
 attenuation in excess of the soft tissue around it, and flatfield-corrected frames of several
-bones are tracked jointly (each bone with its neighbours' DRRs subtracted)."""
+bones are tracked jointly (each bone with its neighbours' DRRs subtracted), and tracked sequentially
+they are searched with their neighbours subtracted (``sequential_subtract`` auto)."""
 
 from __future__ import annotations
 
@@ -91,17 +92,42 @@ def test_auto_mode_follows_the_normalisation(demo, monkeypatch, corrected):
     assert seen["options"].confidence is False
 
 
-def test_track_study_keeps_given_options(demo, monkeypatch):
+@pytest.mark.parametrize("subtract", [True, False])
+def test_track_study_keeps_given_options(demo, monkeypatch, subtract):
     from core.tracking.trial import TrackingOptions
 
     seen = _captured(monkeypatch)
-    o = TrackingOptions(mode="sequential", confidence=False)
+    o = TrackingOptions(mode="sequential", confidence=False, sequential_subtract=subtract)
     corr = [lambda raw: np.clip(np.asarray(raw, np.float32) / 4095.0, 0, 1)] * 2
     with Study.open(demo, mode="w") as st:
-        track_study(st, "walk", ["tibia", "talus"], [1], correction=corr, options=o, device="cpu",
-                    transfer=HUTransfer(threshold=150.0))
-    assert seen["options"] is o
+        _, rep = track_study(st, "walk", ["tibia", "talus"], [1], correction=None if subtract else corr,
+                             options=o, device="cpu", transfer=HUTransfer(threshold=150.0))
+    assert seen["options"] is o  # an explicit choice wins over what the frames say
+    assert rep["options"]["sequential_subtract"] is subtract
     assert seen["transfer"] == HUTransfer(threshold=150.0)
+
+
+@pytest.mark.parametrize(("mode", "corrected"), [("sequential", True), ("sequential", False),
+                                                  ("auto", False), ("auto", True), ("joint", False)])
+def test_sequential_subtract_auto_follows_the_normalisation(demo, monkeypatch, mode, corrected):
+    """``sequential_subtract`` None (the default): on for sequential tracking of flatfield-corrected
+    frames, off for frames divided by the full scale; joint tracking's options are left as they are."""
+    from core.tracking.trial import TrackingOptions
+
+    seen = _captured(monkeypatch)
+    o = TrackingOptions(mode=mode, confidence=False)
+    assert o.sequential_subtract is None
+    corr = [lambda raw: np.clip(np.asarray(raw, np.float32) / 4095.0, 0, 1)] * 2 if corrected else None
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", ["tibia", "talus"], [1], correction=corr, options=o, device="cpu")
+    got = seen["options"]
+    if got.mode == "joint":  # auto on corrected frames, or joint as given: untouched
+        assert (mode, corrected) in (("auto", True), ("joint", False))
+        assert got.sequential_subtract is None and "sequential_subtract" not in rep["options"]
+        return
+    assert got.sequential_subtract is corrected
+    assert rep["options"]["sequential_subtract"] is corrected
+    assert got.confidence is False and got.guess == o.guess  # the rest as given
 
 
 def test_track_study_isolates_the_bones_for_a_transfer_without_threshold(demo, monkeypatch):

@@ -492,8 +492,11 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
 
 
 def _mode_path(path: str, mode: str) -> str:
-    stem, dot, ext = path.rpartition(".")
-    return f"{stem}_{mode}.{ext}" if dot else f"{path}_{mode}"
+    """``path`` with ``_<mode>`` before its extension (a dot in a folder's name is not one)."""
+    import os.path
+
+    stem, ext = os.path.splitext(path)
+    return f"{stem}_{mode}{ext}"
 
 
 def main(argv=None) -> int:

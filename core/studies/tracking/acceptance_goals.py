@@ -19,7 +19,7 @@ def joint_space(ts, res) -> dict:
     smallest joint space over the trial (signed surface distance,
     :func:`core.tracking.contact.surface_gap`; negative: the bones interpenetrate) at the tracked
     poses and at the true ones, with its frame, and the tracked-minus-true gap per frame (RMS and
-    largest magnitude, frames where both bones have a pose)."""
+    largest magnitude, frames where both bones have a pose; None where no frame has both)."""
     from core.tracking.contact import ContactModel, surface_gap
 
     cm = {n: ContactModel.from_bone(m) for n, m in zip(ts.names, ts.models, strict=True)}
@@ -37,10 +37,12 @@ def joint_space(ts, res) -> dict:
             got.append(surface_gap(cm[a], ra.pose, cm[b], rb.pose) if ok else np.nan)
         got, true = np.array(got), np.array(true)
         d = (got - true)[np.isfinite(got)]
-        k, kt = int(np.nanargmin(got)), int(np.argmin(true))
-        out[f"{a}-{b}"] = {"min_mm": float(got[k]), "min_frame": k, "truth_min_mm": float(true[kt]),
-                           "truth_min_frame": kt, "rms_diff_mm": float(np.sqrt(np.mean(d**2))),
-                           "max_abs_diff_mm": float(np.abs(d).max())}
+        kt = int(np.argmin(true))
+        k = int(np.nanargmin(got)) if d.size else None  # None: no frame with both bones' poses
+        out[f"{a}-{b}"] = {"min_mm": None if k is None else float(got[k]), "min_frame": k,
+                           "truth_min_mm": float(true[kt]), "truth_min_frame": kt,
+                           "rms_diff_mm": float(np.sqrt(np.mean(d**2))) if d.size else None,
+                           "max_abs_diff_mm": float(np.abs(d).max()) if d.size else None}
     return out
 
 

@@ -105,3 +105,21 @@ def test_main_runs_both_modes_on_one_scene(monkeypatch, tmp_path):
     assert list(out["runs"]) == ["joint", "sequential"] and out["joint_vs_sequential"] == {}
     with pytest.raises(SystemExit):
         acceptance.main(["--mode", "joint,both"])
+
+
+def test_mode_figures_are_named_before_the_extension_only():
+    from core.studies.tracking.acceptance import _mode_path
+
+    assert _mode_path("out/errors.png", "joint") == "out/errors_joint.png"
+    assert _mode_path("runs.v2/errors", "sequential") == "runs.v2/errors_sequential"
+    assert _mode_path("runs.v2/errors.png", "joint") == "runs.v2/errors_joint.png"
+
+
+def test_joint_space_of_a_bone_never_tracked_is_none_not_a_crash(scene):
+    """A bone lost in every frame: its pairs say so (the study's other results are kept)."""
+    res = SimpleNamespace(results={(n, f): SimpleNamespace(pose=None if n == "talus" else scene.truth(f)[b])
+                                   for b, n in enumerate(scene.names) for f in range(3)})
+    js = joint_space(scene, res)
+    for v in js.values():
+        assert v["min_mm"] is None and v["min_frame"] is None and v["rms_diff_mm"] is None
+        assert v["max_abs_diff_mm"] is None and np.isfinite(v["truth_min_mm"])

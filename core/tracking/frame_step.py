@@ -203,7 +203,10 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
     if joint or seq_stage or seq_search:
         for i, b in enumerate(names):
-            if i not in current:  # skipped: given as a pose (see track)
+            done = getattr(skip[b].get(f), "pose", None)  # a result of this frame taken back (resume)
+            if i not in current and done is not None and np.all(np.isfinite(done)):
+                current[i] = np.asarray(done, dtype=float)  # (track adds it to the history after)
+            elif i not in current:  # skipped: given as a pose (see track)
                 current[i] = hist[b][-1][1] if hist[b] else predict_pose(
                     [], f, bones[i].centroid, keyframes=run.keyframes.get(b) or {
                         k: getattr(v, "pose", v) for k, v in skip[b].items()})

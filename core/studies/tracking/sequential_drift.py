@@ -19,10 +19,10 @@ options: Gauss–Newton search, trajectory post-pass) and probes the frames ``--
   is off the truth: a bias) or staying at the truth (the search stuck in the previous frame's
   basin);
 * **neighbours** — what the other bones' images are in the bone's search regions at that moment:
-  in sequential tracking without the final stage they are neither rendered nor subtracted; the
-  study gives their share of the regions' pixels (a neighbour's line integral over 5 % of its
-  largest) and of the squared gradient (the gradient correlation's evidence) of the bones' summed
-  DRR, per view.
+  in sequential tracking without the final stage and without ``sequential_subtract`` (this run's
+  first) they are neither rendered nor subtracted; the study gives their share of the regions'
+  pixels (a neighbour's line integral over 5 % of its largest) and of the squared gradient (the
+  gradient correlation's evidence) of the bones' summed DRR, per view.
 
 Then the fix candidate is tracked on the same frames: the sequential search with the neighbours
 subtracted (``TrackingOptions(sequential_subtract=True)``: the bones registered
@@ -39,11 +39,12 @@ One NVIDIA H100, 1024², 100 frames, grid correction, Gauss–Newton search, tra
 (``resources/benchmarks/sequential_drift_h100.json``; the sequential and joint runs' per-frame errors
 equal ``tracking_acceptance_modes_h100.json``'s in all 300 bone-frames):
 
-* **What the other bones are**: in sequential tracking (without the opt-in final stage) they are
-  neither rendered nor subtracted — each bone is searched against the whole image. The talus and
-  calcaneus cover 25.5 / 16.6 % of the tibia's search-region pixels (views 0 / 1, frames 50-72) and
-  carry 26 / 25 % of the squared gradient of the bones' summed DRR there; around the talus the tibia
-  and calcaneus cover 66 / 48 % and carry 76 / 67 %.
+* **What the other bones are**: in sequential tracking (without the opt-in final stage, and as it was
+  before ``sequential_subtract``) they are neither rendered nor subtracted — each bone is searched
+  against the whole image. The talus and calcaneus cover 25.5 / 16.6 % of the tibia's
+  search-region pixels (views 0 / 1, frames 50-72) and carry 26 / 25 % of the squared gradient of
+  the bones' summed DRR there; around the talus the tibia and calcaneus cover 66 / 48 % and carry
+  76 / 67 %.
 * **A bias of the cost, not a search stuck in the previous frame's basin**: against the whole image
   the tracker's estimate scores higher than the truth in 21 of 23 tibia frames (talus 20 of 23), and
   along the line from the truth to the estimate the cost peaks 0.25-1.5 of the way (median 0.75).
@@ -71,15 +72,17 @@ equal ``tracking_acceptance_modes_h100.json``'s in all 300 bone-frames):
   2.11 and 2.40 / 1.90 → 2.14 / 1.57. On the three seeds the subtracted sequential search tracks as
   joint tracking does (silent counts within 1, ratios within 0.06, mean rotation errors within
   0.004°): the neighbours' bias is the whole difference between the modes. What is left is shared:
-  on seed 1 the tibia is 0.35-0.43° off about its long axis in frames 6-7 and 37-39 jointly too
-  (4.5-5.6× its rotation bound, unflagged) — not the neighbours.
-* **Why it stays opt-in** (``sequential_subtract=False`` by default): sequential tracking is the
-  mode for frames whose DRR intensities are not matched to the images (``mode="auto"`` of
-  :func:`core.tracking.from_study.track_study` picks it where the frames are not
+  on seed 1 the tibia is 0.33-0.43° off about its long axis (0.37-0.46° in all) in frames 6-7 and
+  37-39 jointly too (4.5-5.6× its rotation bound, unflagged) — not the neighbours.
+* **Where it is on** (``sequential_subtract``, None — "auto" — by default since this study):
+  :func:`core.tracking.from_study.track_study` (``talus track``, ``talus batch``, the window)
+  subtracts the neighbours in sequential tracking of flatfield-corrected frames and searches
+  against the whole image otherwise: sequential tracking is also the mode for frames whose DRR
+  intensities are not matched to the images (``mode="auto"`` picks it where the frames are not
   flatfield-corrected; on the wrist sample's 8-bit radiographs a subtraction pulled the radius into
   the hole left where the ulna was subtracted, :mod:`core.studies.tracking.wrist_check`), where the
-  subtraction is the harm. On flatfield-corrected frames ``"auto"`` tracks jointly, which removes
-  the bias the same way.
+  subtraction is the harm. :func:`core.tracking.trial.track` alone, which cannot tell, keeps it off
+  unless told (this study's runs set it explicitly).
 """
 
 from __future__ import annotations

@@ -45,7 +45,8 @@ The pass took 2-7 ms per bone over 100 frames on this 2-core x86_64 machine (sha
 What it caught (:mod:`core.studies.tracking.silent_failures`; the acceptance trial, 1024², 100
 frames, grid-corrected, Gauss–Newton search, tracked on one NVIDIA H100, the pass applied to the
 returned poses on this 2-core CPU; ``resources/benchmarks/tracking_silent_failures_h100.json``).
-These are runs over the whole trial, which have no neighbours outside them: the pass judges them
+These are runs over the whole trial, which have no neighbours outside them (a resumed run's hand
+fixes inside it, ``track``'s ``skip`` poses, are neighbours too): the pass judges them
 as it did before ranges took the journal's poses (on 200 synthetic tracks of 5-120 frames, with
 frames shifted, flagged and missing, the same flags as the pass before that change).
 Frames over 4× the Cramér–Rao bound, tibia / talus / calcaneus, silent before → after, and the

@@ -64,8 +64,12 @@ Cramér–Rao bound (tibia, talus, calcaneus), × the bound 1.79 / 2.46, 2.23 / 
 °); subtracted, 0 / 0 / 0 and 1.71 / 1.79, 1.78 / 1.58, 1.29 / 1.50 (joint tracking 1 / 0 / 0;
 :mod:`core.studies.tracking.sequential_drift`). On two more syntheses of the trial it tracked as
 joint tracking does (silent 8 / 0 / 0 and 2 / 0 / 0, jointly 7 / 0 / 0 and 2 / 0 / 0, alone 9 / 0 / 0
-and 4 / 1 / 0; ``sequential_drift_seeds_h100.json``). Off by default: sequential tracking is the mode for
-frames whose DRR intensities are not matched to the images, where subtraction does harm.
+and 4 / 1 / 0; ``sequential_drift_seeds_h100.json``). None by default ("auto"):
+:func:`core.tracking.from_study.track_study` turns it on where it finds the frames
+flatfield-corrected and off for frames divided by the full scale, whose DRR intensities are not
+matched to the images and where subtraction does harm; :func:`core.tracking.trial.track` alone
+cannot tell and keeps it off. A bone whose result of the frame is taken back from the journal
+(resume) is subtracted at that pose, as the run that registered it did.
 
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The

@@ -22,7 +22,8 @@ Bones (``mode``)
 ``"sequential"`` (the default) registers each bone alone, against the whole image (its neighbours'
 projections left in: on the acceptance trial they biased the tibia about its long axis, up to 0.6°,
 and the talus; ``sequential_subtract`` subtracts the neighbours' DRRs in the search, for matched
-intensities only, see :mod:`core.tracking.frame_step`); ``"auto"`` is joint where
+intensities only: True, or None where :func:`core.tracking.from_study.track_study` finds the frames
+flatfield-corrected, see :mod:`core.tracking.frame_step`); ``"auto"`` is joint where
 :func:`core.tracking.from_study.track_study` finds the frames flatfield-corrected and sequential
 otherwise (:func:`track` itself, which cannot tell, takes it as sequential); ``"joint"`` runs
 ``joint_rounds`` rounds

@@ -60,6 +60,23 @@ def demo_walk_48(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def keyed(tmp_path_factory, demo_walk_48):
+    """The demo walk whose talus has one hand-set keyframe, frame 12 (frame 0's cleared): two
+    ranges, 12 back to 0 and 12 on to 29, both tracking frame 12 (copy it before writing)."""
+    import shutil
+
+    from core.study import Study
+
+    out = shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("keyed") / "demo")
+    truth = np.load(out / "poses" / "talus.npy")
+    with Study.open(out, mode="w") as st:
+        t = st.trial("walk")
+        t.clear_pose("talus", 0)
+        t.record_pose("talus", 12, truth[12])
+    return out
+
+
+@pytest.fixture(scope="session")
 def rng():
     return np.random.default_rng(1234)
 

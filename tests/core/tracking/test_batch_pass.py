@@ -8,7 +8,6 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
-import pytest
 
 from core.study import Study
 from core.tracking import batch, trial
@@ -19,18 +18,6 @@ from tests.core.tracking.test_flags_post import _track
 
 BONE = "talus"
 SETTINGS = batch.TaskSettings(device="cpu", confidence=False)  # the registration itself is replaced
-
-
-@pytest.fixture(scope="module")
-def keyed(tmp_path_factory, demo_walk_48):
-    """The demo walk whose talus has one hand-set keyframe, frame 12: ranges 12-0 and 12-29."""
-    out = shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("pass") / "demo")
-    truth = np.load(out / "poses" / f"{BONE}.npy")
-    with Study.open(out, mode="w") as st:
-        t = st.trial("walk")
-        t.clear_pose(BONE, 0)
-        t.record_pose(BONE, 12, truth[12])
-    return out
 
 
 def _journal_flags(folder) -> dict[int, list[str]]:

@@ -8,7 +8,6 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
-import pytest
 
 from core.study.results import append_pose, read_journal
 from core.tracking import trial
@@ -98,21 +97,6 @@ def _fake_registration(P):
     def frame(run, f, imgs, fr, todo, state, skip):
         return {0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)}
     return frame
-
-
-@pytest.fixture(scope="module")
-def keyed(tmp_path_factory, demo_walk_48):
-    """The demo walk whose talus has one hand-set keyframe, frame 12: two ranges, 12 back to 0 and
-    12 on to 29, both tracking frame 12."""
-    from core.study import Study
-
-    out = shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("keyed") / "demo")
-    truth = np.load(out / "poses" / f"{BONE}.npy")
-    with Study.open(out, mode="w") as st:
-        t = st.trial("walk")
-        t.clear_pose(BONE, 0)
-        t.record_pose(BONE, 12, truth[12])
-    return out
 
 
 def test_batch_ranges_are_judged_together_whatever_their_order(keyed, tmp_path, monkeypatch):

@@ -451,6 +451,10 @@ def _over_bound(res, name: str, E: np.ndarray, frames: list, bound: dict, k: flo
             "false_flags": len(good_flagged)}
 
 
+#: the share of each panel's data range added above it for the legend (:func:`_figure`)
+LEGEND_HEADROOM = 0.45
+
+
 def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | None = None,
             flagged: dict | None = None) -> None:
     """Per-frame and filtered errors (``errors``, ``filtered``: bone -> (frames, (n, 6) errors)),
@@ -478,6 +482,8 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
     for a in ax.ravel():
         a.axhline(0.15, color="k", lw=0.8, ls="--")
         a.grid(alpha=0.3)
+        lo, hi = a.get_ylim()  # headroom above the curves: the legend covers none of them
+        a.set_ylim(lo, hi + LEGEND_HEADROOM * (hi - lo))
         a.legend(fontsize=7, loc="upper right")
     for a in ax[1]:
         a.set(xlabel="frame")

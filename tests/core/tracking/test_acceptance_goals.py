@@ -123,3 +123,29 @@ def test_joint_space_of_a_bone_never_tracked_is_none_not_a_crash(scene):
     for v in js.values():
         assert v["min_mm"] is None and v["min_frame"] is None and v["rms_diff_mm"] is None
         assert v["max_abs_diff_mm"] is None and np.isfinite(v["truth_min_mm"])
+
+
+def test_the_figures_legends_cover_no_curve(tmp_path, monkeypatch):
+    """Errors largest at the trial's end, where the legends sit: each legend lies above every curve."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    fr = list(range(20))
+    ramp = np.linspace(0.01, 1.0, 20)[:, None] * np.array([0.1, 0.05, 0.02, 0.3, 0.2, 0.4])
+    errs = {n: (fr, ramp * (1 + 0.2 * k)) for k, n in enumerate(("tibia", "talus", "calcaneus"))}
+    cfg = {"pixels": 64, "voxel_mm": 2.0, "mode": "joint", "search": "newton", "correction": "grid",
+           "frame_rate_hz": 278.0}
+    acceptance._figure(errs, errs, str(tmp_path / "f.png"), cfg, flagged={"talus": [19]})
+    (fig,) = kept
+    fig.canvas.draw()
+    for a in fig.axes:
+        box = a.get_legend().get_window_extent().transformed(a.transData.inverted())
+        for line in a.get_lines():
+            x, y = (np.asarray(v, float) for v in line.get_data())
+            under = (x >= box.x0) & (x <= box.x1) & (y > box.y0)
+            if len(x) > 2:  # the curves (the bound's and target's lines span the axis)
+                assert not under.any(), (a.get_ylabel(), line.get_label())

@@ -101,10 +101,17 @@ not at all (the source's position in the volume's indices, ~1000 voxels away, th
 number) — the renderer's rays start at the source in float32 (its samples ``org + t · d`` at ~10³
 from it: ~10⁻⁴ voxel of rounding), which blurs the pose by ~3 · 10⁻⁵ mm and ~2 · 10⁻⁴° there (each
 ray's entry point in float64 would take most of that away; not tried). The steps per stage 6.7-6.9 →
-6.9-7.0 (128²), 6.25 → 6.42 (256²), 7.17 → 7.33 (512²). Not measured at 1024² since:
-:mod:`core.studies.tracking.stage_speed`'s variants ``plain``, ``fast`` and ``plain+jitter``
-(``+strict``: every rise tested, as before) give both the differences and that floor on the
-acceptance trial, where the tracker also carries each frame's pose into the next.
+6.9-7.0 (128²), 6.25 → 6.42 (256²), 7.17 → 7.33 (512²). At 1024² (one NVIDIA H100, the acceptance
+trial, 30 frames, three bones jointly, 4 px, :mod:`core.studies.tracking.stage_speed` variants ``plain``,
+``fast``, ``plain+jitter`` and, every rise tested as before, ``+strict``; the tracker carries each
+frame's pose into the next; ``resources/benchmarks/tracking_stage_uphill_h100.json``), the worst pose
+difference and σ relative over the 90 bone-frames' axes: ``fast`` against ``plain`` 0.014 mm / 0.025° /
+7.6 %, ``plain+jitter`` against ``plain`` 0.011 mm / 0.031° / 8.5 % (the floor), the old rule's
+``fast+strict`` against ``plain+strict`` 0.018 mm / 0.031° / 10.5 % (the earlier 10-11 %, reproduced).
+So through the tracking the default kernels move the stage no more than a start 10⁻⁶ off does; the
+floor of ~8 % in σ is the stage's sensitivity carried from frame to frame. Errors over the bound
+(tibia, talus, calcaneus mm/°): ``plain`` 1.67/1.44, 1.47/1.39, 1.38/1.30; ``fast`` 1.67/1.43, 1.46/1.38,
+1.38/1.31; 16.3 against 12.5 ms per bone-frame, 8.5 steps (one repeat).
 
 What the stage would need to fit the speed goal (≤ 5 ms a frame for one bone, ≤ 20 ms for three jointly,
 tracker included; the tracker alone took 4.3 ms and 13-17 ms on one H100,

@@ -15,7 +15,9 @@ rotation about z through the truth, and at the truth the moments' gradient, the 
 differences and the Newton steps with and without the correction (:func:`_probe`).
 
 ``--singles P``: instead, one registration per bone, frame (0-18, every second) and start (two,
-0.5 mm / 1° off the truth) at P² (:func:`singles`). The JSON goes to stdout (and ``--out``);
+0.5 mm / 1° off the truth) at P² (:func:`singles`; ``--correction model`` below 192², where the
+grid fit finds no grid; ``--trial hard --voxel V``: the harder trial's frames 0-4, four starts
+each). The JSON goes to stdout (and ``--out``);
 ``resources/benchmarks/tracking_newton_coarse_eigen_cpu.json`` has what it measured.
 """
 
@@ -289,10 +291,18 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("--deep", default="", help="comma-separated frames probed deeply at their search's end")
     p.add_argument("--singles", type=int, default=0, help="single registrations at these pixels instead")
+    p.add_argument("--correction", choices=("grid", "model", "exact"), default="grid",
+                   help="--singles: the acceptance trial's distortion correction (the grid fit finds no "
+                   "grid below 192²: model there)")
+    p.add_argument("--trial", choices=("acceptance", "hard"), default="acceptance",
+                   help="--singles: the acceptance trial, or the harder trial (frames 0-4, 4 starts)")
+    p.add_argument("--voxel", type=float, default=1.0, help="--singles --trial hard: voxel size, mm")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     if a.singles:
-        print_json(singles(pixels=a.singles, gradient=a.gradient, device=a.device), a.out)
+        kw = ({"trial": "hard", "voxel": a.voxel, "frames": range(5), "starts": 4} if a.trial == "hard"
+              else {"correction": a.correction})
+        print_json(singles(pixels=a.singles, gradient=a.gradient, device=a.device, **kw), a.out)
         return 0
     res = run(bone=a.bone, stride=a.stride, gradient=a.gradient, device=a.device,
               deep=tuple(int(f) for f in a.deep.split(",") if f))

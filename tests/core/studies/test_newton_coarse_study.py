@@ -38,3 +38,18 @@ def test_traced_records_each_step_and_restores_the_search():
     assert later and all(abs(row["secant_moments"] - 1.0) < 1e-3 for row in later)
     assert np.allclose(rec[0]["correction"], [0.2, 0, 0, 0, 0, -0.1], atol=1e-4)
     np.testing.assert_allclose(r.x, xs, atol=1e-3)
+
+
+def test_singles_from_the_command_line_take_the_correction_and_the_trial(monkeypatch, capsys):
+    """--singles 128 needs --correction model (no grid is found at 128²); --trial hard as measured."""
+    from core.studies.tracking import newton_coarse
+
+    calls = []
+    monkeypatch.setattr(newton_coarse, "singles", lambda **kw: calls.append(kw) or {})
+    assert newton_coarse.main(["--singles", "128", "--correction", "model"]) == 0
+    assert calls[-1]["pixels"] == 128 and calls[-1]["correction"] == "model"
+    assert newton_coarse.main(["--singles", "192", "--trial", "hard"]) == 0
+    k = calls[-1]
+    assert k["trial"] == "hard" and k["voxel"] == 1.0 and k["starts"] == 4
+    assert list(k["frames"]) == [0, 1, 2, 3, 4]
+    capsys.readouterr()

@@ -407,7 +407,9 @@ def trajectory_pass(tasks: Sequence[BatchTask], records: Sequence[dict],
     keys), ``judged`` (bone-frames), ``flagged`` (off the trajectory), ``review_flagged`` (bone ->
     frames with any review flag), ``changed`` ([bone, frame]) and ``changes`` (with the flags
     after the pass), ``tasks_flagged`` (task key -> its frames flagged, as its rewritten report
-    counts them: frames flagged without a pose, which no journal holds, included), ``reports`` (rewritten),
+    counts them: frames flagged without a pose, which no journal holds, included), ``reports``
+    (rewritten; ``reports_unreadable`` and ``reports_unwritten`` name those it could not read or
+    write, with the error: the journal holds the flags after the pass all the same),
     ``seconds``; or ``skipped`` (a range not complete) or ``error`` (e.g. another writer holds the
     bone), the ranges' own flags then staying — the batch summary's ``"trajectory_pass"``."""
     from .batch_pass import run_pass

@@ -18,9 +18,11 @@ other good poses as neighbours) and
   :func:`final_records` sets each range task's record's ``flagged`` to the count after the pass
   (``flagged_before_pass``: the task's own).
 
-A group some of whose ranges did not complete (failed, stopped, cancelled) is not judged: its
-entry says so under ``skipped`` and the ranges keep their own flags. :func:`pass_messages` words
-an entry for ``talus batch`` and the window.
+A report that cannot be read or written (removed by hand, its lock held) is named in the entry
+(``reports_unreadable``, ``reports_unwritten``) and keeps the task's flags; the journal and the
+records hold the pass's. A group some of whose ranges did not complete (failed, stopped,
+cancelled) is not judged: its entry says so under ``skipped`` and the ranges keep their own flags.
+:func:`pass_messages` words an entry for ``talus batch`` and the window.
 """
 
 from __future__ import annotations
@@ -96,7 +98,7 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
         final = out.results
         moved = {(fr.bone, int(fr.frame)) for fr in changed}
         names = [t.report_name for t in tasks]
-        per_task, rewritten, unreadable = {}, [], []
+        per_task, rewritten, unreadable, unwritten = {}, [], [], []
         unjudged: set[tuple[str, int]] = set()  # flagged in a report, not judged: e.g. no pose
         for t in tasks:
             mine = [(b, f) for f in t.order for b in bones if (b, f) in final]
@@ -116,7 +118,11 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
             unjudged.update((d.get("bone"), d.get("frame")) for d in new["flagged"]
                             if (d.get("bone"), d.get("frame")) not in final)
             if new != old:
-                st.write_report("tracking", t.report_name, new)
+                try:
+                    st.write_report("tracking", t.report_name, new)
+                except Exception as exc:  # the journal has the flags already: said, not an error
+                    unwritten.append(f"{t.report_name}: {type(exc).__name__}: {exc}")
+                    continue
                 rewritten.append(t.report_name)
     flagged = sum(any(s.startswith(FLAG) for s in fr.flags) for fr in final.values())
     review = {b: sum(bool(fr.flags) for (bb, _), fr in final.items() if bb == b)
@@ -125,6 +131,7 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
             "changed": [[fr.bone, int(fr.frame)] for fr in changed],
             "changes": [{"bone": fr.bone, "frame": int(fr.frame), "flags": list(fr.flags)} for fr in changed],
             "tasks_flagged": per_task, "reports": rewritten, "reports_unreadable": unreadable,
+            "reports_unwritten": unwritten,
             "seconds": time.perf_counter() - t0}
 
 
@@ -190,4 +197,8 @@ def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
     if len(changes) > limit:
         lines.append(f"{key}: ... and {len(changes) - limit} more frames changed by the check: "
                      "the review panel lists the flagged ones")
+    missed = list(entry.get("reports_unwritten") or ()) + list(entry.get("reports_unreadable") or ())
+    if missed:
+        lines.append(f"{key}: {len(missed)} range report{'s' if len(missed) > 1 else ''} not rewritten with "
+                     f"the flags after the check ({'; '.join(missed)})")
     return lines

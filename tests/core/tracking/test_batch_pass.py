@@ -142,3 +142,35 @@ def test_a_flagged_frame_without_a_pose_stays_counted_after_the_pass(keyed, tmp_
     assert rec[a]["flagged"] == rep["summary"]["flagged"] == entry["tasks_flagged"][a]
     assert entry["tasks_flagged"][b] == rec[b]["flagged"] == 0
     assert entry["review_flagged"] == {BONE: 2}
+
+
+def test_a_report_that_cannot_be_written_leaves_the_pass_told(keyed, tmp_path, monkeypatch):
+    # the journal takes the pass's flags before the reports are rewritten: a report whose write
+    # fails (its lock held, the disk full) is named, and the entry still says what the journal holds
+    from core.study.study_reports import StudyReports
+
+    P = _track(n=30, off=(10, 0.0, 0.2))
+    monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
+        0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)})
+    folder = shutil.copytree(keyed, tmp_path / "demo")
+    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    real = StudyReports.write_report
+
+    def write(self, kind, name, data):
+        if "trajectory_pass" in data and name == "walk.talus.12-0":
+            raise TimeoutError("report lock held")
+        return real(self, kind, name, data)
+
+    monkeypatch.setattr(StudyReports, "write_report", write)
+    s = batch.run_serial(tasks, SETTINGS)
+    (entry,) = s["trajectory_pass"]
+    assert "error" not in entry and entry["changed"] == [[BONE, 10]]
+    assert sorted(f for f, fl in _journal_flags(folder).items() if fl) == [10]
+    assert entry["reports"] == ["walk.talus.12-29"]
+    assert entry["reports_unwritten"] == ["walk.talus.12-0: TimeoutError: report lock held"]
+    rec = {r["key"]: r for r in s["task_records"]}
+    assert rec["demo/walk/talus:12-0"]["flagged"] == 1  # as the journal holds it
+    lines = pass_messages(entry)
+    assert "each range keeps its own flags" not in lines[0]
+    assert lines[-1] == ("demo/walk/talus: 1 range report not rewritten with the flags after the check "
+                         "(walk.talus.12-0: TimeoutError: report lock held)")

@@ -96,6 +96,8 @@ class TrackingActions:
         res = "full" if c["scale"] == 1 else f"1/{c['scale']:g}"
         gc = ", gradient components" if c["metric"] == "components" else ""
         final = ", likelihood final stage" if c["final"] == "likelihood" else ""
+        if c["sequential_subtract"] != "auto" and c["mode"] != "joint":  # --sequential-subtract on|off
+            final += f", neighbours {'' if c['sequential_subtract'] == 'on' else 'not '}subtracted"
         default = check_choices(None)
         failure = [k for k in CHECKS if k not in STAGE_MOVES and k != "trajectory_limit"]  # thresholds
         checks = "" if all(c[k] == default[k] for k in failure) else (

@@ -3,8 +3,9 @@
 Usage::
 
     talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
-                [--ranges] [--workers N] [--scheduler ADDRESS] [--device cpu|cuda]
-                [--frames START:STOP] [--metric gc|components] [--final none|likelihood]
+                [--sequential-subtract auto|on|off] [--ranges] [--workers N] [--scheduler ADDRESS]
+                [--device cpu|cuda] [--frames START:STOP] [--metric gc|components]
+                [--final none|likelihood]
                 [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R] [--motion-limit K]
                 [--motion-floor MM,DEG] [--sigma-limit K] [--stage-move-limit K]
                 [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves]
@@ -34,7 +35,9 @@ stage's move check (``--stage-move-limit``, ``--stage-move-sigmas``, ``--stage-m
 ``--keep-stage-moves``; with ``--final likelihood`` only) and the trajectory check run once a
 task's run is complete (``--trajectory-limit K|off``, ``--no-trajectory-check``) are ``talus
 track``'s (:data:`app.commands.track.CHECKS`), for every task; out-of-range values are refused
-naming the option before any task starts.
+naming the option before any task starts. ``--sequential-subtract auto|on|off`` is ``talus
+track``'s and goes to every task; a sequential task tracks one bone, so there is no neighbour to
+subtract in it (``on`` is noted on stderr: track the trial with ``talus track --mode sequential``).
 Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
 it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -89,6 +92,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "flatfield-corrected (a calibrated study), else one task per bone; joint: one "
                         "joint task per trial; sequential: one task per bone, each tracked alone")
     p.add_argument("--joint", action="store_true", help="the same as --mode joint")
+    p.add_argument("--sequential-subtract", choices=("auto", "on", "off"), default="auto",
+                   help="as talus track --sequential-subtract, for every task; a batch's sequential task "
+                        "tracks one bone, so there is nothing to subtract in it (talus track --mode "
+                        "sequential subtracts the trial's other bones). Default auto")
     p.add_argument("--ranges", action="store_true",
                    help="one task per frame range between each bone's keyframes (a joint task's: "
                         "the keyframes all its bones share; from a keyframe "
@@ -209,6 +216,11 @@ def run(a: argparse.Namespace) -> int:
         note = stage_move_note(checks, a.final)
         if note:
             print(f"{PROG} batch: {note}", file=sys.stderr)
+    subtract = getattr(a, "sequential_subtract", "auto")
+    if subtract == "on":
+        print(f"{PROG} batch: --sequential-subtract on: no effect on a batch's sequential tasks, each of "
+              f"one bone (talus track --mode sequential --sequential-subtract on subtracts a trial's other "
+              f"bones)", file=sys.stderr)
     frames = _frames(a.frames)
     if a.workers != 0 and importlib.util.find_spec("distributed") is None:
         raise CliError(f"{PROG} batch needs Dask distributed, which is not installed: "
@@ -224,6 +236,7 @@ def run(a: argparse.Namespace) -> int:
     settings = TaskSettings(device=a.device, metric=a.metric, threshold_hu=a.threshold,
                             confidence=not a.no_confidence, max_uncertainty=limits, frames=frames,
                             options=((("refine_likelihood", True),) if a.final == "likelihood" else ())
+                            + ((("sequential_subtract", subtract == "on"),) if subtract != "auto" else ())
                             + tuple(checks.items()))
     progress = Progress("batch", quiet=a.quiet)
     follow = _Follow(progress, len(tasks))

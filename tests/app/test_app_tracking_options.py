@@ -1,6 +1,7 @@
 """Tracking > Tracking options…: the window offers what ``talus track`` offers (search, resolution,
-similarity, mode, guess, final stage, confidence, the failure checks' thresholds, the final stage's
-move check, the trajectory check), chosen with real clicks and keys."""
+similarity, mode, the neighbours' subtraction in sequential tracking, guess, final stage,
+confidence, the failure checks' thresholds, the final stage's move check, the trajectory check),
+chosen with real clicks and keys."""
 
 from __future__ import annotations
 
@@ -85,22 +86,24 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     assert dialog.search.currentData() == "newton"  # the default, as talus track --search
     _pick(qtbot, dialog.search, "local")  # the quadratic-model search stays selectable
     _pick(qtbot, dialog.resolution, 2.0)
-    _pick(qtbot, dialog.mode, "joint")
+    _pick(qtbot, dialog.mode, "sequential")
+    _pick(qtbot, dialog.subtract, "on")  # the neighbours subtracted whatever the frames (the screenshot)
     _pick(qtbot, dialog.similarity, "components")
     assert dialog.final.currentData() == "none"  # the default, as talus track --final
     _pick(qtbot, dialog.final, "likelihood")
     qtbot.mouseClick(dialog.confidence, QtCore.Qt.MouseButton.LeftButton)
     _accept(qtbot, dialog)
     opts = window.tracking.options
-    assert choices_of(opts) == {"search": "local", "scale": 2.0, "mode": "joint", "guess": "velocity",
+    assert choices_of(opts) == {"search": "local", "scale": 2.0, "mode": "sequential", "guess": "velocity",
                                 "confidence": False, "metric": "components", "final": "likelihood",
-                                **check_choices(None)}
+                                "sequential_subtract": "on", **check_choices(None)}
     assert any(t.kind == "gc" and t.options.get("components") for t in opts.registration.terms)
     assert opts.refine_likelihood and opts.registration.final == "likelihood"
     assert opts.first_options.final == "likelihood"  # first frames and retries end with it too
     last = window.messages.item(window.messages.count() - 1).text()
-    assert "local search, 1/2 resolution, gradient components, joint" in last and "no confidence" in last
-    assert "likelihood final stage" in last and "checks" not in last  # the default checks: not listed
+    assert "local search, 1/2 resolution, gradient components, sequential" in last and "no confidence" in last
+    assert "likelihood final stage, neighbours subtracted" in last
+    assert "checks" not in last  # the default checks: not listed
 
     # re-opened, the dialog shows the current choices; Restore defaults then Cancel changes nothing
     dialog = window.tracking.edit_options()
@@ -297,3 +300,48 @@ def test_the_trajectory_check_is_set_or_turned_off_in_advanced_checks(qtbot, win
     assert dialog.trajectory_limit.value() == 2.5 and dialog.choices() == choices_of(None)
     with qtbot.waitSignal(dialog.rejected, timeout=HUNG_MS):
         qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)
+
+
+def test_subtract_neighbours_is_chosen_next_to_the_mode(qtbot, window):
+    """*Subtract neighbours* (``talus track --sequential-subtract``): the row after *Mode*, automatic
+    by default, disabled in the joint mode (which always subtracts), reached by its mnemonic."""
+    from app.tracking_options import SUBTRACTS
+
+    assert [v for _, v in SUBTRACTS] == ["auto", "on", "off"]
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    form = dialog.layout().itemAt(0).layout()
+    assert form.getWidgetPosition(dialog.subtract)[0] == form.getWidgetPosition(dialog.mode)[0] + 1
+    assert form.labelForField(dialog.subtract).text() == "Su&btract neighbours:"
+    assert dialog.subtract.currentData() == "auto" and dialog.subtract.isEnabled()
+    assert "flatfield-corrected" in dialog.subtract.toolTip()
+    _pick(qtbot, dialog.mode, "joint")
+    assert not dialog.subtract.isEnabled()
+    _pick(qtbot, dialog.mode, "sequential")
+    assert dialog.subtract.isEnabled()
+    dialog.activateWindow()
+    qtbot.waitUntil(dialog.isActiveWindow, timeout=HUNG_MS)
+    qtbot.keyClick(dialog.mode, QtCore.Qt.Key.Key_B, QtCore.Qt.KeyboardModifier.AltModifier)
+    assert dialog.subtract.hasFocus()
+    _pick(qtbot, dialog.subtract, "on")
+    _accept(qtbot, dialog)
+    opts = window.tracking.options
+    assert (opts.mode, opts.sequential_subtract) == ("sequential", True)
+    assert options_from_choices(**choices_of(opts)) == opts
+    assert "neighbours subtracted" in window.messages.item(window.messages.count() - 1).text()
+
+    # re-opened it shows the choice; Off is the tracker's False; Restore defaults brings back auto
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    assert dialog.choices() == choices_of(opts) and dialog.subtract.currentData() == "on"
+    _pick(qtbot, dialog.subtract, "off")
+    _accept(qtbot, dialog)
+    assert window.tracking.options.sequential_subtract is False
+    assert "neighbours not subtracted" in window.messages.item(window.messages.count() - 1).text()
+    dialog = window.tracking.edit_options()
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    _click(qtbot, dialog, "RestoreDefaults")
+    assert dialog.subtract.currentData() == "auto" and dialog.choices() == choices_of(None)
+    _accept(qtbot, dialog)
+    assert window.tracking.options.sequential_subtract is None
+    assert "neighbours" not in window.messages.item(window.messages.count() - 1).text()

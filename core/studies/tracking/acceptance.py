@@ -31,7 +31,12 @@ jointly tibia 1.73 / 1.85, talus 1.80 / 1.57, calcaneus 1.31 / 1.52 (the H200 ru
 sequentially 1.79 / 2.46, 2.23 / 2.17, 1.59 / 1.43; 100 % converged; silent frames over 4× the
 bound 1 / 0 / 0 jointly (the post-pass flagged 18 bone-frames), 9 / 7 / 0 sequentially; 98.8–100 %
 of axes within 2σ; the smallest tibia–talus joint space 0.030 mm jointly, 0.130 mm sequentially,
-the truth's 0.144 mm.
+the truth's 0.144 mm. That sequential run searched each bone against the whole image; sequential
+tracking of flatfield-corrected frames, such as this trial's, now subtracts the other bones in the
+search (``TrackingOptions.sequential_subtract``, "auto" resolved as
+:func:`core.tracking.from_study.track_study` does; ``--sequential-subtract``): on the same frames
+(``sequential_drift_h100.json``) silent 0 / 0 / 0 and × the bound 1.71 / 1.79, 1.78 / 1.58,
+1.29 / 1.50.
 
 Measurements
 ------------
@@ -336,25 +341,22 @@ def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1
 def run(*, quick: bool = True, device: str | None = None, capture_trials: int | None = None,
         mode: str = "joint", figure: str | None = None, seed: int = 0,
         n_frames: int | None = None, correction: str = DEFAULT_CORRECTION, search: str | None = None,
-        workers: int = 0, ts: TrackingScene | None = None) -> dict:
+        workers: int = 0, ts: TrackingScene | None = None, sequential_subtract: bool | None = None) -> dict:
     """Run the acceptance study; returns the JSON-ready results. ``search`` overrides the tracking
     options' registration search (``"newton"``, the Gauss–Newton engine, by default; ``"local"`` the
-    quadratic-model search). ``workers``: processes for the frames' image chain (0: this one);
-    ``ts``: a scene made already (:func:`tracking_scene`, its frames kept: several modes on the
-    same frames; ``quick``, ``seed``, ``n_frames`` and ``correction`` are then the scene's)."""
-    from dataclasses import replace
-
+    quadratic-model search); ``sequential_subtract``: see :func:`study_options`. ``workers``:
+    processes for the frames' image chain (0: this one); ``ts``: a scene made already
+    (:func:`tracking_scene`, its frames kept: several modes on the same frames; ``quick``,
+    ``seed``, ``n_frames`` and ``correction`` are then the scene's)."""
     from core.studies.tracking.acceptance_goals import flag_counts, goals, joint_space
     from core.studies.tracking.trial_frames import synthesise
-    from core.tracking.trial import TrackingOptions, track
+    from core.tracking.trial import track
 
     t0 = time.perf_counter()
     if ts is None:
         ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames, correction=correction)
     seed, correction = ts._seed, ts.correction
-    o = TrackingOptions(mode=mode)
-    if search is not None:
-        o = replace(o, registration=replace(o.registration, search=search))
+    o = study_options(mode, search, sequential_subtract)
     g = np.random.default_rng(seed + 7)
     keyframes = {n: {0: pose_from_params(_random_offset(g, 5.0, 5.0), center=m.centroid, base=ts.truth(0)[b])}
                  for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True))}
@@ -421,6 +423,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
            "frames": ts.scene.n_frames, "mode": mode, "search": o.registration.search,
            "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact),
+           "sequential_subtract": o.sequential_subtract,
            "start_error": "5 mm, 5 deg", "correction": correction,
            "residual_distortion_rms_mm": ts.residual_distortion_mm(), "frame_rate_hz": FRAME_RATE_HZ,
            "pixel_mm_at_isocentre": float(ts.scene.rig[0].pixel_size), "workers": workers}
@@ -437,6 +440,24 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         _figure({n: (frames_with_pose[n], E) for n, E in all_err.items()}, all_filt, figure, cfg, bound,
                 {n: t["flagged_frames"] for n, t in per_bone.items()})
     return out
+
+
+def study_options(mode: str, search: str | None = None, sequential_subtract: bool | None = None):
+    """The tracker's default :class:`~core.tracking.trial.TrackingOptions` in ``mode``, as ``talus
+    track`` uses them on this trial: ``search`` the registration search (None: the default);
+    ``sequential_subtract`` True or False as given, None ("auto") resolved as
+    :func:`core.tracking.from_study.track_study` resolves it for flatfield-corrected frames, which
+    the trial's are: on in sequential tracking (joint options untouched)."""
+    from dataclasses import replace
+
+    from core.tracking.trial import TrackingOptions
+
+    o = TrackingOptions(mode=mode, sequential_subtract=sequential_subtract)
+    if search is not None:
+        o = replace(o, registration=replace(o.registration, search=search))
+    if o.mode == "sequential" and o.sequential_subtract is None:
+        o = replace(o, sequential_subtract=True)
+    return o
 
 
 def _over_bound(res, name: str, E: np.ndarray, frames: list, bound: dict, k: float = 4.0) -> dict:
@@ -522,6 +543,9 @@ def main(argv=None) -> int:
                    help="registration search (default the tracking options': newton)")
     p.add_argument("--workers", type=int, default=0,
                    help="processes for the frames' image chain (default 0: this one)")
+    p.add_argument("--sequential-subtract", choices=("auto", "on", "off"), default="auto",
+                   help="sequential mode: subtract the other bones in each bone's search (auto, the "
+                   "default: on, as talus track does for flatfield-corrected frames)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save per-frame errors as a PNG")
     a = p.parse_args(argv)
@@ -532,7 +556,8 @@ def main(argv=None) -> int:
     from core.studies.tracking.acceptance_goals import compare_modes
 
     kw = {"quick": a.quick, "device": a.device, "n_frames": a.frames, "correction": a.correction,
-          "search": a.search, "workers": a.workers}
+          "search": a.search, "workers": a.workers,
+          "sequential_subtract": {"auto": None, "on": True, "off": False}[a.sequential_subtract]}
     if len(modes) == 1:
         print_json(run(capture_trials=a.capture_trials, mode=modes[0], figure=a.figure, **kw), a.out)
         return 0

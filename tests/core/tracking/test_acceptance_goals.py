@@ -149,3 +149,23 @@ def test_the_figures_legends_cover_no_curve(tmp_path, monkeypatch):
             under = (x >= box.x0) & (x <= box.x1) & (y > box.y0)
             if len(x) > 2:  # the curves (the bound's and target's lines span the axis)
                 assert not under.any(), (a.get_ylabel(), line.get_label())
+
+
+def test_the_study_tracks_sequentially_as_talus_track_does_on_its_flatfield_corrected_frames(monkeypatch):
+    """Sequential mode subtracts the other bones in the search by default, as track_study's auto
+    does for flatfield-corrected frames; on/off as given; joint options untouched."""
+    from core.tracking.trial import TrackingOptions
+
+    assert acceptance.study_options("sequential").sequential_subtract is True
+    assert acceptance.study_options("sequential", sequential_subtract=False).sequential_subtract is False
+    assert acceptance.study_options("joint") == TrackingOptions(mode="joint")
+    assert acceptance.study_options("sequential", "local").registration.search == "local"
+    calls = []
+    monkeypatch.setattr(acceptance, "run", lambda **kw: calls.append(kw) or {})
+    monkeypatch.setattr(acceptance, "tracking_scene", lambda **kw: "scene")
+    import core.io.atomic
+
+    monkeypatch.setattr(core.io.atomic, "print_json", lambda obj, out=None: None)
+    acceptance.main(["--quick", "--mode", "sequential"])
+    acceptance.main(["--quick", "--mode", "sequential", "--sequential-subtract", "off"])
+    assert [c["sequential_subtract"] for c in calls] == [None, False]

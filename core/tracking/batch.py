@@ -411,7 +411,8 @@ def trajectory_pass(tasks: Sequence[BatchTask], records: Sequence[dict],
     (rewritten; ``reports_unreadable`` and ``reports_unwritten`` name those it could not read or
     write, with the error: the journal holds the flags after the pass all the same),
     ``seconds``; or ``skipped`` (a range not complete) or ``error`` (e.g. another writer holds the
-    bone), the ranges' own flags then staying — the batch summary's ``"trajectory_pass"``."""
+    bone), the ranges' own flags then staying but in the frames named under ``journaled`` (those
+    journaled before it failed, of ``changed_total``) — the batch summary's ``"trajectory_pass"``."""
     from .batch_pass import run_pass
 
     return run_pass(tasks, records, settings or TaskSettings())

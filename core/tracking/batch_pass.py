@@ -18,11 +18,14 @@ other good poses as neighbours) and
   :func:`final_records` sets each range task's record's ``flagged`` to the count after the pass
   (``flagged_before_pass``: the task's own).
 
-A report that cannot be read or written (removed by hand, its lock held) is named in the entry
-(``reports_unreadable``, ``reports_unwritten``) and keeps the task's flags; the journal and the
-records hold the pass's. A group some of whose ranges did not complete (failed, stopped,
-cancelled) is not judged: its entry says so under ``skipped`` and the ranges keep their own flags.
-:func:`pass_messages` words an entry for ``talus batch`` and the window.
+A pass that fails while journaling its changes (another writer took the bone) names in its
+``error`` entry the frames it journaled before (``journaled``), which carry its flags; the
+reports and records keep the ranges' own. A report that cannot be read or written (removed by
+hand, its lock held) is named in the entry (``reports_unreadable``, ``reports_unwritten``) and
+keeps the task's flags; the journal and the records hold the pass's. A group some of whose ranges
+did not complete (failed, stopped, cancelled) is not judged: its entry says so under ``skipped``
+and the ranges keep their own flags. :func:`pass_messages` words an entry for ``talus batch`` and
+the window.
 """
 
 from __future__ import annotations
@@ -59,9 +62,21 @@ def run_pass(tasks: Sequence, records: Sequence[dict], settings) -> list[dict]:
         frames = sorted({f for t in ts for f in t.order})
         try:
             out.append(dict(head, **_trial_pass(study, trial, bones, frames, ts, settings)))
+        except _PartlyJournaled as exc:  # some changed frames journaled: named
+            cause = exc.__cause__
+            out.append(dict(head, error=f"{type(cause).__name__}: {cause}", journaled=exc.done,
+                            changed_total=exc.total))
         except Exception as exc:  # reported; the ranges' own flags stay in the journal
             out.append(dict(head, error=f"{type(exc).__name__}: {exc}"))
     return out
+
+
+class _PartlyJournaled(Exception):
+    """The pass failed while journaling its changes, after ``done`` ([bone, frame]) of ``total``."""
+
+    def __init__(self, done: list, total: int) -> None:
+        super().__init__(f"{len(done)} of {total} changed frames journaled")
+        self.done, self.total = done, total
 
 
 def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Sequence[int],
@@ -93,8 +108,15 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
         # every other good pose of the journal a neighbour: outside the ranges, hand fixes in them
         near = journal_neighbours(states)
         out, changed = apply_trajectory_flags(res, centers, limit=limit, neighbours=near)
-        for fr in changed:
-            trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score, tracking=fr.journal_fields())
+        done = []
+        try:
+            for fr in changed:
+                trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score, tracking=fr.journal_fields())
+                done.append([fr.bone, int(fr.frame)])
+        except Exception as exc:  # (e.g. another writer took the bone): those journaled are named
+            if not done:
+                raise
+            raise _PartlyJournaled(done, len(changed)) from exc
         final = out.results
         moved = {(fr.bone, int(fr.frame)) for fr in changed}
         names = [t.report_name for t in tasks]
@@ -173,6 +195,13 @@ def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
 
     key = entry.get("key", "?")
     n = len(entry.get("ranges") or ())
+    if entry.get("error") and entry.get("journaled"):
+        done = entry["journaled"]
+        named = ", ".join(f"{b} frame {int(f)}" for b, f in done[:limit])
+        named += " ..." if len(done) > limit else ""
+        return [f"{key}: the trajectory check over its {n} ranges failed ({entry['error']}) after journaling "
+                f"{len(done)} of {entry.get('changed_total', '?')} changed frames ({named}): those carry its "
+                "flags, the ranges' reports and records their own"]
     if entry.get("error"):
         return [f"{key}: the trajectory check over its {n} ranges failed ({entry['error']}); "
                 "each range keeps its own flags"]

@@ -174,3 +174,34 @@ def test_a_report_that_cannot_be_written_leaves_the_pass_told(keyed, tmp_path, m
     assert "each range keeps its own flags" not in lines[0]
     assert lines[-1] == ("demo/walk/talus: 1 range report not rewritten with the flags after the check "
                          "(walk.talus.12-0: TimeoutError: report lock held)")
+
+
+def test_a_pass_cut_off_while_journaling_says_which_frames_it_journaled(keyed, tmp_path, monkeypatch):
+    # the second of two changed frames cannot be journaled (another writer took the bone): the
+    # entry is an error that names the frame journaled before, which carries the pass's flag
+    import core.tracking.flags_post as fp
+    from core.tracking.batch_journal import _SharedTrial
+
+    truth = np.load(keyed / "poses" / f"{BONE}.npy")
+    flagged = (f"{FLAG} (test)",)
+    changes = [FrameResult(BONE, f, truth[f], 0.8, 10, 0.0, True, flagged) for f in (3, 4)]
+    monkeypatch.setattr(fp, "apply_trajectory_flags", lambda res, centers, **kw: (res, changes))
+    real, calls = _SharedTrial.record_pose, []
+
+    def record(self, bone, frame, pose, **kw):
+        calls.append(frame)
+        if len(calls) > 1:
+            raise TimeoutError("bone held by the window")
+        return real(self, bone, frame, pose, **kw)
+
+    monkeypatch.setattr(_SharedTrial, "record_pose", record)
+    folder = shutil.copytree(keyed, tmp_path / "demo")
+    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    (entry,) = batch.trajectory_pass(tasks, [{"key": t.key, "status": "complete"} for t in tasks], SETTINGS)
+    assert entry["error"] == "TimeoutError: bone held by the window"
+    assert entry["journaled"] == [[BONE, 3]]
+    assert _journal_flags(folder)[3] == list(flagged)
+    (line,) = pass_messages(entry)
+    assert line == ("demo/walk/talus: the trajectory check over its 2 ranges failed (TimeoutError: bone held "
+                    "by the window) after journaling 1 of 2 changed frames (talus frame 3): those carry "
+                    "its flags, the ranges' reports and records their own")

@@ -12,6 +12,9 @@ __all__ = ["synthesise"]
 
 _POOL_SCENE: list = []
 
+#: Seconds a frame may take in a worker before :func:`synthesise` gives up (``multiprocessing.TimeoutError``).
+WORKER_TIMEOUT_S = 900.0
+
 
 def _chain_frame(args):
     """One frame through the trial's image chain (the body of ``TrackingScene.frames``): the raw
@@ -40,8 +43,8 @@ def synthesise(ts, frames, workers: int = 0) -> None:
             for i in todo:
                 L = ts.scene.line_integrals(i, renderer=ts._scene_renderer)
                 jobs.append(pool.apply_async(_chain_frame, ((i, L),)))
-            for j in jobs:
-                i, raw, imgs = j.get()
+            for j in jobs:  # a forked worker stuck on a lock copied from a busy thread: an error, not a hang
+                i, raw, imgs = j.get(timeout=WORKER_TIMEOUT_S)
                 ts._cache[i] = imgs
                 if raw is not None:
                     ts.raw[i] = raw

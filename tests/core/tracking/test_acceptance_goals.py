@@ -9,7 +9,6 @@ import pytest
 
 from core.studies.tracking import acceptance
 from core.studies.tracking.acceptance_goals import compare_modes, flag_counts, goals, joint_space
-from core.studies.tracking.trial_frames import synthesise
 
 
 def _bone(mm, deg, conv=1.0, silent=0, inside=0.95):
@@ -75,14 +74,33 @@ def test_joint_space_of_the_true_poses_is_the_truths(scene):
     assert js2["tibia-talus"]["max_abs_diff_mm"] > 0.2
 
 
-def test_frames_made_in_workers_are_the_frames_made_here():
-    ts = acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",))
-    here = [np.array(x) for x in ts.frames(1)]
-    ts._cache.clear()
-    synthesise(ts, range(2), workers=2)
-    assert sorted(ts._cache) == [0, 1]
-    for a, b in zip(here, ts._cache[1], strict=True):
-        assert np.array_equal(a, b)
+_IN_WORKERS = """
+import numpy as np
+from core.studies.tracking import acceptance
+from core.studies.tracking.trial_frames import synthesise
+ts = acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",))
+here = [np.array(x) for x in ts.frames(1)]
+ts._cache.clear()
+synthesise(ts, range(2), workers=2)
+assert sorted(ts._cache) == [0, 1]
+for a, b in zip(here, ts._cache[1], strict=True):
+    assert np.array_equal(a, b)
+print("same frames")
+"""
+
+
+def test_frames_made_in_workers_are_the_frames_made_here(tmp_path):
+    # in a fresh process: the workers are forked, and a fork of this test process (other tests'
+    # threads — a Dask cluster's, OpenCV's — may hold locks at that moment) can hang in OpenCV
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path), "WARP_CACHE_PATH": str(tmp_path / "warp")}
+    out = subprocess.run([sys.executable, "-c", _IN_WORKERS], capture_output=True, text=True, timeout=600,
+                         env=env, cwd=os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
+                             os.path.abspath(__file__))))))
+    assert out.returncode == 0 and "same frames" in out.stdout, out.stderr[-2000:]
 
 
 def test_main_runs_both_modes_on_one_scene(monkeypatch, tmp_path):
@@ -169,3 +187,29 @@ def test_the_study_tracks_sequentially_as_talus_track_does_on_its_flatfield_corr
     acceptance.main(["--quick", "--mode", "sequential"])
     acceptance.main(["--quick", "--mode", "sequential", "--sequential-subtract", "off"])
     assert [c["sequential_subtract"] for c in calls] == [None, False]
+
+
+def test_a_bone_flagged_in_every_frame_keeps_the_runs_results(tmp_path, monkeypatch):
+    """run() to its JSON and figure when the filter has no frame of a bone (all flagged: NaN for the
+    low-pass): its filtered errors are None, the others' as usual (the tracker replaced by the true
+    poses, 0.01 mm off; 64² views)."""
+    import core.tracking.trial as trial_mod
+    from core.tracking.results import FrameResult, TrackingResult
+
+    ts = acceptance.TrackingScene(n_frames=12, pixels=64, spacing=2.0, device="cpu")
+
+    def track(renderer, models, frames, order, keyframes=None, options=None):
+        res = {}
+        for f in order:
+            for b, n in enumerate(ts.names):
+                P = ts.truth(f)[b].copy()
+                P[0, 3] += 0.01
+                res[(n, f)] = FrameResult(n, f, P, 0.9, 1, 0.0, True, flags=("test",) if n == "talus" else ())
+        return TrackingResult(tuple(ts.names), tuple(order), res, "complete", 0.0)
+
+    monkeypatch.setattr(trial_mod, "track", track)
+    out = acceptance.run(ts=ts, mode="joint", capture_trials=0, figure=str(tmp_path / "f.png"))
+    assert out["tracking"]["talus"]["filtered"]["rms_error_mm"] is None
+    assert out["tracking"]["talus"]["rms_over_bound"]["filtered_deg"] is None
+    assert out["tracking"]["tibia"]["filtered"]["rms_error_mm"] == pytest.approx(0.01, abs=1e-6)
+    assert (tmp_path / "f.png").stat().st_size > 0

@@ -28,9 +28,12 @@ Frames already flagged are neither judged nor used as neighbours. A bone with fe
 A run over a frame range (``--frames``, a batch task's range, a re-track between keyframes in the
 window) is judged with the journal's good poses outside the range as *neighbours*
 (:func:`journal_neighbours`: each frame's latest record, when it has a pose and no review flag —
-frames tracked before, hand-set poses): they enter the fits and the bone's scale like the run's own
-frames, so the frames at the range's ends get two-sided fits and a range of fewer than
-:data:`MIN_FRAMES` frames is judged, but they are never flagged by a run that did not track them
+frames tracked before, hand-set poses): they enter the fits like the run's own frames, so the
+frames at the range's ends get two-sided fits, and a range of fewer than :data:`MIN_FRAMES` frames
+is judged, the neighbours' residuals then giving the bone's scale too (a longer range is scaled by
+its own frames: poses that are not the tracker's — an imported, filtered trajectory, poses set by
+hand — are smooth, and in the median they took the limit down to :data:`FLOOR`, flagging 8 of 10
+good frames of a range in the tests), but they are never flagged by a run that did not track them
 (a neighbour over the limit is only left out of the others' fits) and keep the flags (or none) their
 own run gave them, as do all frames when the check is turned off. :func:`core.tracking.trial.track`
 runs the pass at the end of a complete run (``TrackingOptions.trajectory_limit``, default
@@ -228,8 +231,9 @@ def trajectory_flags(frames, poses, center, *, limit: float = LIMIT, half_window
     the bone's median (module docs). The worst frame over the limit is flagged first and left out
     of its neighbours' fits before they are judged again, one frame at a time: a frame far off
     would otherwise pull its neighbours' fits and flag them too. ``judged`` (``(n,)`` bool, default
-    all): the frames that may be flagged; the others are neighbours only — in the fits and the
-    median, left out of the fits when over the limit, never flagged."""
+    all): the frames that may be flagged; the others are neighbours only — in the fits (left out
+    when over the limit) and, when fewer than ``min_frames`` judged frames have a residual, in the
+    median; never flagged."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
     judge = np.ones(len(fr), dtype=bool) if judged is None else np.asarray(judged, dtype=bool)[order]
     if not (judge & ok).any():
@@ -239,7 +243,9 @@ def trajectory_flags(frames, poses, center, *, limit: float = LIMIT, half_window
     have = np.all(np.isfinite(R), axis=1)
     if have.sum() < min_frames:
         return {}
-    med = np.median(R[have], axis=0)
+    # the scale from the judged frames when they are enough (module docs: smooth neighbours)
+    own = have & judge
+    med = np.median(R[own if own.sum() >= min_frames else have], axis=0)
     lim = np.maximum(float(limit) * med, np.asarray(floor, dtype=float))
     use = ok.copy()
     out = {}

@@ -87,6 +87,23 @@ def test_a_short_range_is_judged_thanks_to_its_neighbours(monkeypatch, tmp_path)
     assert not res.flagged and ("tibia", 22) not in res.results
 
 
+def test_smooth_neighbours_do_not_shrink_a_ranges_scale(monkeypatch):
+    # poses outside the range that are not this tracker's (an imported, filtered trajectory; poses
+    # set by hand) are smooth: in the bone's median they took the limit down to the floor, and 8
+    # of 10 good frames of the range were flagged; a range of MIN_FRAMES frames or more is scaled
+    # by its own frames' residuals (the fits still run through the neighbours)
+    P = _track(n=100, seed=3)
+    smooth = _track(n=100, noise=(0.0, 0.0), seed=3)
+    rng = list(range(40, 50))
+    near = {"tibia": {f: smooth[f] for f in range(100) if f not in rng}}
+    res, _ = _run(monkeypatch, P, rng, neighbours=near)
+    assert not res.flagged
+    Q = P.copy()
+    Q[45] = _track(n=100, seed=3, off=(45, 0.0, 0.5))[45]  # a frame 10x its noise off: still caught
+    res, _ = _run(monkeypatch, Q, rng, neighbours=near)
+    assert [r.frame for r in res.flagged] == [45]
+
+
 BONE = "talus"
 SETTINGS = TaskSettings(device="cpu", confidence=False)  # the registration itself is replaced
 

@@ -365,9 +365,12 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     res = track(ts.renderer, ts.models, ts.frames, range(ts.scene.n_frames), keyframes=keyframes, options=o)
     per_bone, all_err, all_filt, frames_with_pose = {}, {}, {}, {}
     for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
-        F, cutoff = res.filtered_poses(n, FRAME_RATE_HZ, center=m.centroid)
+        if any(r.pose is not None and not r.flags for (bn, _), r in res.results.items() if bn == n):
+            F, cutoff = res.filtered_poses(n, FRAME_RATE_HZ, center=m.centroid)
+        else:  # every frame flagged or missing: the low-pass has nothing to go through
+            F, cutoff = np.full((ts.scene.n_frames, 4, 4), np.nan), None
         ff = [f for f in range(ts.scene.n_frames) if np.all(np.isfinite(F[f]))]
-        Ef = np.array([pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in ff])
+        Ef = np.array([pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in ff]).reshape(-1, 6)
         all_filt[n] = (ff, Ef)
         rows, inside, silent, conv, sig = [], [], 0, 0, []
         frames_with_pose[n] = []
@@ -392,11 +395,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         per_bone[n] = {
             "rms_error_mm": float(np.sqrt(np.mean(et**2))), "rms_error_deg": float(np.sqrt(np.mean(er**2))),
             "max_error_mm": float(et.max()), "max_error_deg": float(er.max()),
-            "filtered": {"cutoff_hz": cutoff,
-                         "rms_error_mm": float(np.sqrt(np.mean(np.sum(Ef[:, :3] ** 2, axis=1)))),
-                         "rms_error_deg": float(np.sqrt(np.mean(np.sum(Ef[:, 3:] ** 2, axis=1)))),
-                         "max_error_mm": float(np.linalg.norm(Ef[:, :3], axis=1).max()),
-                         "max_error_deg": float(np.linalg.norm(Ef[:, 3:], axis=1).max())},
+            "filtered": _filtered_stats(Ef, cutoff),
             "mean_error": {"mm": E[:, :3].mean(0).round(4).tolist(),
                            "deg": E[:, 3:].mean(0).round(4).tolist()},
             "converged_fraction": conv / ts.scene.n_frames,
@@ -414,8 +413,8 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
             per_bone[n]["cramer_rao"] = cb
             per_bone[n]["rms_over_bound"] = {"mm": per_bone[n]["rms_error_mm"] / cb["rms_mm"],
                                              "deg": per_bone[n]["rms_error_deg"] / cb["rms_deg"],
-                                             "filtered_deg": per_bone[n]["filtered"]["rms_error_deg"]
-                                             / cb["rms_deg"]}
+                                             "filtered_deg": None if not len(all_filt[n][1]) else
+                                             per_bone[n]["filtered"]["rms_error_deg"] / cb["rms_deg"]}
             per_bone[n]["std_error"] = {"mm": E[:, :3].std(0).round(4).tolist(),
                                         "deg": E[:, 3:].std(0).round(4).tolist()}
             per_bone[n]["over_4x_bound"] = _over_bound(res, n, E, frames_with_pose[n], cb)
@@ -440,6 +439,18 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         _figure({n: (frames_with_pose[n], E) for n, E in all_err.items()}, all_filt, figure, cfg, bound,
                 {n: t["flagged_frames"] for n, t in per_bone.items()})
     return out
+
+
+def _filtered_stats(Ef: np.ndarray, cutoff: float) -> dict:
+    """RMS and largest errors of the filtered trajectory (``Ef``: its frames' (n, 6) errors); None
+    where it has no frame (every frame flagged or missing: the filter keeps them NaN)."""
+    if not len(Ef):
+        return {"cutoff_hz": cutoff, "rms_error_mm": None, "rms_error_deg": None, "max_error_mm": None,
+                "max_error_deg": None, "frames": 0}
+    et, er = np.linalg.norm(Ef[:, :3], axis=1), np.linalg.norm(Ef[:, 3:], axis=1)
+    return {"cutoff_hz": cutoff, "rms_error_mm": float(np.sqrt(np.mean(et ** 2))),
+            "rms_error_deg": float(np.sqrt(np.mean(er ** 2))), "max_error_mm": float(et.max()),
+            "max_error_deg": float(er.max()), "frames": len(Ef)}
 
 
 def study_options(mode: str, search: str | None = None, sequential_subtract: bool | None = None):
@@ -490,8 +501,10 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
         for k, (n, (fr, E)) in enumerate(errs.items()):
             c = f"C{k}"
             et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
-            ax[row, 0].plot(fr, et, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(et ** 2)):.3f} mm)")
-            ax[row, 1].plot(fr, er, color=c, lw=1, label=f"{n} (RMS {np.sqrt(np.mean(er ** 2)):.3f}°)")
+            rms = [f"RMS {np.sqrt(np.mean(v ** 2)):.3f}{u}" if len(v) else "no frame"
+                   for v, u in ((et, " mm"), (er, "°"))]
+            ax[row, 0].plot(fr, et, color=c, lw=1, label=f"{n} ({rms[0]})")
+            ax[row, 1].plot(fr, er, color=c, lw=1, label=f"{n} ({rms[1]})")
             marked = [i for i, f in enumerate(fr) if row == 0 and f in set((flagged or {}).get(n, ()))]
             for col, y in ((0, et), (1, er)):  # flagged frames (the checks' or the trajectory pass's)
                 ax[row, col].plot(np.asarray(fr)[marked], y[marked], "x", color=c, ms=6)

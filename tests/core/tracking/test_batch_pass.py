@@ -26,14 +26,22 @@ def _journal_flags(folder) -> dict[int, list[str]]:
     return {int(f): list(r.tracking["flags"]) for f, r in recs.items() if r.tracking}
 
 
+def _batch(keyed, tmp_path, monkeypatch, step=None):
+    """The keyed walk copied and its talus's ranges 12-0 and 12-29 as tasks, for ``run_serial``, the
+    registration replaced by ``step`` (default: frame 10 0.2 deg off a smooth walk — the range
+    12-0, run first, judges it without 13-29 and does not flag it; judged with the whole trial it
+    is off the trajectory): (folder, tasks)."""
+    P = _track(n=30, off=(10, 0.0, 0.2))
+    monkeypatch.setattr(trial, "track_frame", step or (lambda run, f, imgs, fr, todo, state, skip: {
+        0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)}))
+    folder = shutil.copytree(keyed, tmp_path / "demo")
+    return folder, batch.build_tasks([folder], bones=[BONE], ranges=True)
+
+
 def test_range_reports_and_records_give_the_flags_after_the_trials_pass(keyed, tmp_path, monkeypatch):
     # frame 10, 0.2 deg off: the range 12-0, run first, judges it without 13-29 and does not flag
     # it; judged with the whole trial it is off the trajectory
-    P = _track(n=30, off=(10, 0.0, 0.2))
-    monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
-        0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)})
-    folder = shutil.copytree(keyed, tmp_path / "demo")
-    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    folder, tasks = _batch(keyed, tmp_path, monkeypatch)
     s = batch.run_serial(tasks, SETTINGS)
     assert s["status"] == "complete"
     (entry,) = s["trajectory_pass"]
@@ -128,9 +136,7 @@ def test_a_flagged_frame_without_a_pose_stays_counted_after_the_pass(keyed, tmp_
             return {0: FrameResult(BONE, f, None, np.nan, 0, 0.0, False, missing)}
         return {0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)}
 
-    monkeypatch.setattr(trial, "track_frame", step)
-    folder = shutil.copytree(keyed, tmp_path / "demo")
-    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    folder, tasks = _batch(keyed, tmp_path, monkeypatch, step)
     s = batch.run_serial(tasks, SETTINGS)
     (entry,) = s["trajectory_pass"]
     a, b = "demo/walk/talus:12-0", "demo/walk/talus:12-29"
@@ -149,11 +155,7 @@ def test_a_report_that_cannot_be_written_leaves_the_pass_told(keyed, tmp_path, m
     # fails (its lock held, the disk full) is named, and the entry still says what the journal holds
     from core.study.study_reports import StudyReports
 
-    P = _track(n=30, off=(10, 0.0, 0.2))
-    monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
-        0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)})
-    folder = shutil.copytree(keyed, tmp_path / "demo")
-    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    folder, tasks = _batch(keyed, tmp_path, monkeypatch)
     real = StudyReports.write_report
 
     def write(self, kind, name, data):

@@ -387,17 +387,14 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
             silent += bool(bad and not fr.flags)
             if fr.confidence and all(s is not None for s in fr.confidence["sigma"]):
                 inside.append(np.abs(e) <= 2 * np.array(fr.confidence["sigma"]))
-        E = np.array(rows)
+        E = np.array(rows).reshape(-1, 6)  # no row: the bone has no pose in any frame
         all_err[n] = E
-        et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
         motion = [np.linalg.norm(pose_errors(ts.truth(f + 1)[b], ts.truth(f)[b], m.centroid)[:3])
                   for f in range(ts.scene.n_frames - 1)]
         per_bone[n] = {
-            "rms_error_mm": float(np.sqrt(np.mean(et**2))), "rms_error_deg": float(np.sqrt(np.mean(er**2))),
-            "max_error_mm": float(et.max()), "max_error_deg": float(er.max()),
-            "filtered": _filtered_stats(Ef, cutoff),
+            **_error_stats(E), "filtered": {"cutoff_hz": cutoff, **_error_stats(Ef), "frames": len(Ef)},
             "mean_error": {"mm": E[:, :3].mean(0).round(4).tolist(),
-                           "deg": E[:, 3:].mean(0).round(4).tolist()},
+                           "deg": E[:, 3:].mean(0).round(4).tolist()} if len(E) else None,
             "converged_fraction": conv / ts.scene.n_frames,
             **flag_counts(res, n),
             "silent_failures": silent,
@@ -411,12 +408,12 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         if n in bound:
             cb = bound[n]
             per_bone[n]["cramer_rao"] = cb
-            per_bone[n]["rms_over_bound"] = {"mm": per_bone[n]["rms_error_mm"] / cb["rms_mm"],
-                                             "deg": per_bone[n]["rms_error_deg"] / cb["rms_deg"],
-                                             "filtered_deg": None if not len(all_filt[n][1]) else
-                                             per_bone[n]["filtered"]["rms_error_deg"] / cb["rms_deg"]}
-            per_bone[n]["std_error"] = {"mm": E[:, :3].std(0).round(4).tolist(),
-                                        "deg": E[:, 3:].std(0).round(4).tolist()}
+            t = per_bone[n]  # None over the bound where the bone has no (filtered) frame
+            t["rms_over_bound"] = {k: None if v is None else v / cb[f"rms_{u}"] for k, v, u in (
+                ("mm", t["rms_error_mm"], "mm"), ("deg", t["rms_error_deg"], "deg"),
+                ("filtered_deg", t["filtered"]["rms_error_deg"], "deg"))}
+            t["std_error"] = {"mm": E[:, :3].std(0).round(4).tolist(),
+                              "deg": E[:, 3:].std(0).round(4).tolist()} if len(E) else None
             per_bone[n]["over_4x_bound"] = _over_bound(res, n, E, frames_with_pose[n], cb)
         per_bone[n]["per_frame_error"] = E.round(5).tolist()
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
@@ -441,16 +438,16 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     return out
 
 
-def _filtered_stats(Ef: np.ndarray, cutoff: float) -> dict:
-    """RMS and largest errors of the filtered trajectory (``Ef``: its frames' (n, 6) errors); None
-    where it has no frame (every frame flagged or missing: the filter keeps them NaN)."""
-    if not len(Ef):
-        return {"cutoff_hz": cutoff, "rms_error_mm": None, "rms_error_deg": None, "max_error_mm": None,
-                "max_error_deg": None, "frames": 0}
-    et, er = np.linalg.norm(Ef[:, :3], axis=1), np.linalg.norm(Ef[:, 3:], axis=1)
-    return {"cutoff_hz": cutoff, "rms_error_mm": float(np.sqrt(np.mean(et ** 2))),
+def _error_stats(E: np.ndarray) -> dict:
+    """RMS and largest translation/rotation errors of ``E`` (frames' (n, 6) errors, per frame or
+    filtered); None where it has no frame (no pose in any frame; for the filter, every frame flagged
+    or missing: it keeps them NaN)."""
+    if not len(E):
+        return {"rms_error_mm": None, "rms_error_deg": None, "max_error_mm": None, "max_error_deg": None}
+    et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
+    return {"rms_error_mm": float(np.sqrt(np.mean(et ** 2))),
             "rms_error_deg": float(np.sqrt(np.mean(er ** 2))), "max_error_mm": float(et.max()),
-            "max_error_deg": float(er.max()), "frames": len(Ef)}
+            "max_error_deg": float(er.max())}
 
 
 def study_options(mode: str, search: str | None = None, sequential_subtract: bool | None = None):

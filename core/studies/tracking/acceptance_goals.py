@@ -70,7 +70,7 @@ def goals(per_bone: dict) -> dict:
         if "rms_over_bound" in t:
             for k in ("mm", "deg"):
                 r = t["rms_over_bound"][k]
-                g[f"rms_over_bound_{k}"] = [r, r <= GOALS["max_rms_over_bound"]]
+                g[f"rms_over_bound_{k}"] = [r, r is not None and r <= GOALS["max_rms_over_bound"]]
             s = t["over_4x_bound"]["silent"]
             g["silent_over_4x"] = [s, s <= GOALS["max_silent_over_4x"]]
         w = t["within_2_sigma_fraction"]
@@ -90,5 +90,6 @@ def compare_modes(runs: dict) -> dict:
         if s is None:
             continue
         out[n] = {k: {"joint": j[f"rms_error_{k}"], "sequential": s[f"rms_error_{k}"],
-                      "ratio": j[f"rms_error_{k}"] / s[f"rms_error_{k}"]} for k in ("mm", "deg")}
+                      "ratio": None if None in (j[f"rms_error_{k}"], s[f"rms_error_{k}"])  # no pose
+                      else j[f"rms_error_{k}"] / s[f"rms_error_{k}"]} for k in ("mm", "deg")}
     return out

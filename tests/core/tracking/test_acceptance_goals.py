@@ -189,10 +189,14 @@ def test_the_study_tracks_sequentially_as_talus_track_does_on_its_flatfield_corr
     assert [c["sequential_subtract"] for c in calls] == [None, False]
 
 
-def test_a_bone_flagged_in_every_frame_keeps_the_runs_results(tmp_path, monkeypatch):
+@pytest.mark.parametrize("talus", ["flagged", "no pose"])
+def test_a_bone_flagged_or_without_a_pose_in_every_frame_keeps_the_runs_results(tmp_path, monkeypatch, talus):
     """run() to its JSON and figure when the filter has no frame of a bone (all flagged: NaN for the
-    low-pass): its filtered errors are None, the others' as usual (the tracker replaced by the true
-    poses, 0.01 mm off; 64² views, 12 frames)."""
+    low-pass) or the bone has no pose at all (its per-frame errors empty: IndexError before): its
+    filtered (and for no pose its per-frame) errors are None, the others' as usual (the tracker
+    replaced by the true poses, 0.01 mm off; 64² views, 12 frames)."""
+    import json
+
     import core.tracking.trial as trial_mod
     from core.tracking.results import FrameResult, TrackingResult
 
@@ -204,13 +208,27 @@ def test_a_bone_flagged_in_every_frame_keeps_the_runs_results(tmp_path, monkeypa
             for b, n in enumerate(ts.names):
                 P = ts.truth(f)[b].copy()
                 P[0, 3] += 0.01
-                res[(n, f)] = FrameResult(n, f, P, 0.9, 1, 0.0, True, flags=("test",) if n == "talus" else ())
+                if n == "talus" and talus == "no pose":
+                    P = None
+                res[(n, f)] = FrameResult(n, f, P, 0.9, 1, 0.0, P is not None,
+                                          flags=("test",) if n == "talus" else ())
         return TrackingResult(tuple(ts.names), tuple(order), res, "complete", 0.0)
 
     monkeypatch.setattr(trial_mod, "track", track)
     out = acceptance.run(ts=ts, mode="joint", capture_trials=0, figure=str(tmp_path / "f.png"))
-    assert out["tracking"]["talus"]["filtered"]["rms_error_mm"] is None
-    assert out["tracking"]["talus"]["rms_over_bound"]["filtered_deg"] is None
+    t = out["tracking"]["talus"]
+    assert t["filtered"]["rms_error_mm"] is None and t["filtered"]["frames"] == 0
+    assert t["rms_over_bound"]["filtered_deg"] is None
+    if talus == "no pose":
+        assert t["rms_error_mm"] is t["max_error_deg"] is t["mean_error"] is t["std_error"] is None
+        assert t["rms_over_bound"]["mm"] is None and t["per_frame_error"] == []
+        assert t["over_4x_bound"]["frames"] == []
+        assert out["goals"]["talus"]["rms_over_bound_mm"] == [None, False]
+        one = {"tracking": {"talus": t}}
+        assert compare_modes({"joint": one, "sequential": one})["talus"]["mm"]["ratio"] is None
+    else:
+        assert t["rms_error_mm"] == pytest.approx(0.01, abs=1e-6)
     assert np.isfinite(out["tracking"]["tibia"]["filtered"]["rms_error_mm"])
     assert out["tracking"]["tibia"]["rms_error_mm"] == pytest.approx(0.01, abs=1e-6)
+    json.dumps(out, allow_nan=False)  # the run's JSON: no NaN for a bone without frames
     assert (tmp_path / "f.png").stat().st_size > 0

@@ -35,7 +35,9 @@ registered earlier in the frame at their poses, the others at their guesses). ``
 default): on where the trial's frames are flatfield-corrected — the test ``--mode auto`` makes, so
 it matters with ``--mode sequential`` — and off on frames divided by the full scale only, whose
 intensities the DRRs do not match; ``on`` and ``off`` are used as given. The JSON summary says
-which was used (``"sequential_subtract"``, sequential runs only).
+which was used (``"sequential_subtract"``, sequential runs only; false when one bone is tracked),
+and ``"sequential_subtract_note"`` (also on stderr) why where it is not the plain choice: one bone
+tracked, or ``--resume`` keeping the choice the run being resumed recorded (auto).
 
 Failure checks (:data:`CHECKS`; the fields of :class:`core.tracking.options.TrackingOptions` of
 the same names, :mod:`core.tracking.checks`): ``--collapse-ratio R`` — a score below R × the
@@ -502,6 +504,10 @@ def run(a: argparse.Namespace) -> int:
     used = (report.get("options") or {}).get("sequential_subtract")
     if used is not None:  # sequential runs: the neighbours subtracted in each bone's search or not
         out["sequential_subtract"] = used
+    why = (report.get("options") or {}).get("sequential_subtract_note")
+    if why:  # one bone (nothing to subtract), or resumed with the recorded choice
+        out["sequential_subtract_note"] = why
+        print(f"{PROG} track: {why}", file=sys.stderr)
     if a.final == "likelihood" and bar is not None:
         # a refinement that moves the pose beyond final_reach, or fails, is not kept, nor one the move
         # check rejected (stage_move_reject)

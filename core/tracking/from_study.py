@@ -72,7 +72,15 @@ silent frames over 4× the bound (tibia/talus/calcaneus) from 9/7/0 to 0/0/0 on 
 8/0/0 and 4/1/0 to 2/0/0 on seeds 1 and 2 (joint tracking: 1/0/0, 7/0/0, 2/0/0). Frames divided
 by the full scale are searched against the whole image (on the wrist sample's 8-bit radiographs
 subtraction pulled the radius into the ulna's hole); True or False is used as given. The report's
-``"options"`` say which (``"sequential_subtract"``, sequential runs only).
+``"options"`` say what the searches did (``"sequential_subtract"``, sequential runs only): false
+where one bone is tracked (``talus batch``'s sequential tasks), whose search has nothing to
+subtract, with ``"sequential_subtract_note"`` saying so when the choice was on.
+
+On resume (``resume=True`` with tracking results of the range in the journal) auto keeps the
+choice the run being resumed recorded in its report (``"options"``), and off where it recorded
+none — a run from before the neighbours were subtracted by default — so that one trial is not
+tracked by two methods; ``"sequential_subtract_note"`` says so. A joint run's report, or nothing
+tracked yet, leaves auto as for a new run; True or False still win.
 """
 
 from __future__ import annotations
@@ -87,6 +95,7 @@ from ..render import HUTransfer
 from .bones import bone_model
 from .flags_post import journal_neighbours
 from .options import CHECK_FIELDS, STAGE_MOVE_FIELDS
+from .results import FrameResult
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
 __all__ = ["FULL_SCALE", "FinalStageError", "final_stage_problem", "flatfield_corrected", "frame_reader",
@@ -181,6 +190,32 @@ def final_stage_problem(study, trial_name: str, *,
     return _final_stage_note(trial_name, how)
 
 
+def _resumed_subtract(study, report_name: str, skip: dict) -> tuple[bool | None, str | None]:
+    """``sequential_subtract`` auto on resume: ``(choice, note)`` — the choice the run being resumed
+    recorded (its report's ``"options"``), so that a trial is not tracked by two methods; off where
+    it recorded none (a run from before the neighbours were subtracted by default). ``(None,
+    None)``: nothing tracked to carry on (no tracking result of the range in the journal) or a joint
+    run's report (the user changed the mode): auto decides as for a new run."""
+    if not any(isinstance(r, FrameResult) for done in skip.values() for r in done.values()):
+        return None, None
+    from ..study.errors import StudyError
+
+    try:
+        old = study.read_report("tracking", report_name)
+    except StudyError:  # none, or unreadable
+        old = {}
+    opts = old.get("options") if isinstance(old, dict) else None
+    opts = opts if isinstance(opts, dict) else {}
+    if opts.get("mode") == "joint":
+        return None, None
+    got = opts.get("sequential_subtract")
+    if isinstance(got, bool):
+        return got, (f"resumed: neighbours {'' if got else 'not '}subtracted, as the run being resumed "
+                     f"recorded (auto)")
+    return False, ("resumed: neighbours not subtracted (auto): the run being resumed recorded no choice "
+                   "(tracked before they were subtracted by default)")
+
+
 def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                 frames: Sequence[int] | None = None, *, options: TrackingOptions | None = None,
                 device: str | None = None, resume: bool = False,
@@ -197,7 +232,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     Bones are tracked jointly when ``options`` is None (or its mode ``"auto"``) and the frames
     are flatfield-corrected, else as ``options`` say; tracked sequentially, each bone's search
     subtracts its neighbours when the frames are flatfield-corrected and
-    ``options.sequential_subtract`` is None (auto), as given otherwise (see the module docs and
+    ``options.sequential_subtract`` is None (auto; on resume the choice the run being resumed
+    recorded), as given otherwise (see the module docs and
     :mod:`core.tracking.trial`: joint tracking needs DRR intensities matched to the
     radiographs). ``transfer`` defaults to :func:`tissue_excess_transfer` at ``threshold_hu``; with
     a transfer that has no threshold, voxels farther than :data:`ISOLATE_MM` from each bone are set to
@@ -251,8 +287,10 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     if options.mode == "auto":  # flatfield-corrected frames: subtract the neighbours
         joint = len(models) > 1 and flatfield_corrected(how)
         options = replace(options, mode="joint" if joint else "sequential")
+    subtract_note = None
     if options.mode == "sequential" and options.sequential_subtract is None:  # auto: the same test
-        options = replace(options, sequential_subtract=flatfield_corrected(how))
+        kept, subtract_note = _resumed_subtract(study, report_name, skip) if resume else (None, None)
+        options = replace(options, sequential_subtract=flatfield_corrected(how) if kept is None else kept)
     report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
               "normalisation": how,
               "stopped": stopped, "options": {"resume": resume,
@@ -260,7 +298,12 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                                               "checks": {k: getattr(options, k) for k in CHECK_FIELDS},
                                               "trajectory_limit": options.trajectory_limit}}
     if options.mode == "sequential":  # whether each bone's search subtracted its neighbours
-        report["options"]["sequential_subtract"] = bool(options.sequential_subtract)
+        # (one bone tracked: nothing to subtract, whatever the choice)
+        report["options"]["sequential_subtract"] = bool(options.sequential_subtract) and len(models) > 1
+        if options.sequential_subtract and len(models) < 2:
+            subtract_note = "on, but no other bone tracked: nothing to subtract"
+        if subtract_note:
+            report["options"]["sequential_subtract_note"] = subtract_note
     if likelihood:  # the final stage's move check flagged (or rejected) with these
         report["options"]["stage_move_check"] = {k: getattr(options, k) for k in STAGE_MOVE_FIELDS}
     if not models:

@@ -195,28 +195,29 @@ def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
 
     key = entry.get("key", "?")
     n = len(entry.get("ranges") or ())
+    its, each, ranges = ((f"its {n} ranges", "each range keeps", "the ranges'") if n != 1 else
+                         ("its 1 range", "the range keeps", "the range's"))  # not 'its 1 ranges'
     if entry.get("error") and entry.get("journaled"):
         done = entry["journaled"]
         named = ", ".join(f"{b} frame {int(f)}" for b, f in done[:limit])
         named += " ..." if len(done) > limit else ""
-        return [f"{key}: the trajectory check over its {n} ranges failed ({entry['error']}) after journaling "
+        return [f"{key}: the trajectory check over {its} failed ({entry['error']}) after journaling "
                 f"{len(done)} of {entry.get('changed_total', '?')} changed frames ({named}): those carry its "
-                "flags, the ranges' reports and records their own"]
+                f"flags, {ranges} reports and records their own"]
     if entry.get("error"):
-        return [f"{key}: the trajectory check over its {n} ranges failed ({entry['error']}); "
-                "each range keeps its own flags"]
+        return [f"{key}: the trajectory check over {its} failed ({entry['error']}); {each} its own flags"]
     if entry.get("skipped"):
-        return [f"{key}: the trajectory check over its {n} ranges did not run ({entry['skipped']}); "
-                "each range keeps its own flags"]
+        return [f"{key}: the trajectory check over {its} did not run ({entry['skipped']}); "
+                f"{each} its own flags"]
     if entry.get("off"):
         return [f"{key}: trajectory check off"]
     review = entry.get("review_flagged") or {}
     total = sum(review.values())
     per_bone = f" ({', '.join(f'{b} {c}' for b, c in review.items())})" if len(review) > 1 else ""
     changes = entry.get("changes") or []
-    lines = [f"{key}: {total} flagged for review{per_bone} after the trajectory check over its {n} ranges "
-             f"together ({entry.get('judged', 0)} bone-frames judged, {entry.get('flagged', 0)} off the "
-             f"trajectory, {len(changes)} changed by the check)"]
+    lines = [f"{key}: {total} flagged for review{per_bone} after the trajectory check over {its}"
+             f"{' together' if n != 1 else ''} ({entry.get('judged', 0)} bone-frames judged, "
+             f"{entry.get('flagged', 0)} off the trajectory, {len(changes)} changed by the check)"]
     for c in changes[:limit]:
         flags = list(c.get("flags") or ())
         what = ("; ".join(flags) if any(s.startswith(FLAG) for s in flags) else

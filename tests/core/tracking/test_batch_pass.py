@@ -121,8 +121,22 @@ def test_pass_messages_name_ten_changed_frames_and_count_the_rest():
     assert more[-2].endswith("talus frame 20: no longer flagged")
     assert more[-1].endswith("talus frame 21: no longer off the trajectory (still flagged: score drop "
                              "(0.4 of the median))")
-    assert pass_messages({"key": "k", "ranges": ["a"], "error": "LockedError: held"})[0].startswith(
-        "k: the trajectory check over its 1 ranges failed (LockedError: held)")
+
+
+def test_pass_messages_say_range_for_one_range():
+    """One range: 'its 1 range', not 'its 1 ranges'; no 'together'; the range keeps its flags."""
+    assert pass_messages({"key": "k", "ranges": ["a"], "error": "LockedError: held"}) == [
+        "k: the trajectory check over its 1 range failed (LockedError: held); the range keeps its own flags"]
+    assert pass_messages({"key": "k", "ranges": ["a"], "skipped": "not complete"}) == [
+        "k: the trajectory check over its 1 range did not run (not complete); the range keeps its own flags"]
+    (line,) = pass_messages({"key": "k", "ranges": ["a"], "error": "E", "journaled": [["talus", 3]],
+                             "changed_total": 2})
+    assert "over its 1 range failed (E) after journaling 1 of 2 changed frames (talus frame 3)" in line
+    assert line.endswith("the range's reports and records their own")
+    one = {"key": "k", "ranges": ["a"], "judged": 30, "flagged": 1, "review_flagged": {"talus": 1}}
+    assert pass_messages(one)[0] == (
+        "k: 1 flagged for review after the trajectory check over its 1 range (30 bone-frames judged, 1 off "
+        "the trajectory, 0 changed by the check)")
 
 
 def test_a_flagged_frame_without_a_pose_stays_counted_after_the_pass(keyed, tmp_path, monkeypatch):

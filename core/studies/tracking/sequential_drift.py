@@ -267,14 +267,26 @@ def _pair_diff(ts, a, b) -> dict:
     return out
 
 
+def _bound_error(seed: int, bound: str) -> str | None:
+    """Why ``bound`` cannot be trial ``seed``'s (None where it can): an acceptance JSON is seed 0's."""
+    if seed != 0 and bound != "compute":
+        return (f"seed {seed}: another trial's bound is not the acceptance JSON's ({bound}); "
+                "use bound 'compute' (--bound compute)")
+    return None
+
+
 def run(*, quick: bool = False, device: str | None = None, n_frames: int | None = None, workers: int = 0,
         bones=("tibia", "talus"), probe_frames=None, bound: str = ACCEPTANCE_JSON,
         joint: bool = False, seed: int = 0) -> dict:
-    """The study (module docs); returns the JSON-ready results."""
+    """The study (module docs); returns the JSON-ready results. ``bound``: an acceptance JSON of the
+    same scene (the default: seed 0's) or ``"compute"``; another ``seed`` needs ``"compute"``
+    (ValueError before any work otherwise: seed 0's bound would divide another trial's errors)."""
     from core.geometry.transforms import pose_from_params
     from core.studies.tracking.acceptance import _random_offset, cramer_rao, tracking_scene
     from core.studies.tracking.trial_frames import synthesise
 
+    if (why := _bound_error(seed, bound)) is not None:
+        raise ValueError(why)
     t0 = time.perf_counter()
     ts = tracking_scene(quick=quick, device=device, n_frames=n_frames, seed=seed)
     g = np.random.default_rng(ts._seed + 7)  # the acceptance study's start (5 mm, 5 deg off)
@@ -328,8 +340,8 @@ def main(argv=None) -> int:
                    help="the trial's seed (default 0, the acceptance study's; another needs --bound compute)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
-    if a.seed != 0 and a.bound != "compute":
-        p.error("--seed: another trial's bound is not the acceptance JSON's (use --bound compute)")
+    if (why := _bound_error(a.seed, a.bound)) is not None:
+        p.error(f"--seed: {why}")
     if "-" in a.probe_frames:
         lo, hi = (int(v) for v in a.probe_frames.split("-"))
         pf = list(range(lo, hi + 1))

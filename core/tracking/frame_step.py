@@ -69,7 +69,12 @@ and 4 / 1 / 0; ``sequential_drift_seeds_h100.json``). None by default ("auto"):
 flatfield-corrected and off for frames divided by the full scale, whose DRR intensities are not
 matched to the images and where subtraction does harm; :func:`core.tracking.trial.track` alone
 cannot tell and keeps it off. A bone whose result of the frame is taken back from the journal
-(resume) is subtracted at that pose, as the run that registered it did.
+(resume) is subtracted at that pose, as the run that registered it did. A bone with a keyframe in
+the frame (a hand-set pose, the user's pose of it there) is subtracted at it until it is registered
+in the frame, in the search and the final stage: without, in the first frame of a run started from
+keyframes the first bone had nothing subtracted (no other bone had a tracked pose yet), and a
+keyframe later in the range gave way to the constant-velocity guess. Joint tracking is unchanged
+(its first round in a first frame subtracts only the bones registered before it).
 
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The
@@ -216,6 +221,13 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                         k: getattr(v, "pose", v) for k, v in skip[b].items()})
     # poses good enough to subtract: tracked bones' guesses, and bones given or registered this frame
     known = {i for i, b in enumerate(names) if hist[b] or (f in skip[b] and i not in todo)}
+    if seq_stage or seq_search:  # sequential: a keyframe of this frame stands for the bone's guess
+        for i in todo:
+            kf = (run.keyframes.get(names[i]) or {}).get(f)
+            kf = getattr(kf, "pose", kf)
+            if kf is not None and np.all(np.isfinite(kf)):
+                current[i] = np.asarray(kf, dtype=float)
+                known.add(i)
     out: dict[int, Attempt] = {}
     work = {i: _Work() for i in todo}
 

@@ -64,12 +64,12 @@ divided by the full scale only are not matched to the DRRs' intensities, so they
 bone at a time. ``mode="sequential"`` or ``"joint"`` is used as given.
 
 Sequential tracking subtracts the neighbours in each bone's search
-(``TrackingOptions.sequential_subtract``; the bones registered earlier in the frame at their
-poses, the others at their guesses) when the frames are flatfield-corrected and the option is
-None ("auto", the default): the same test. On the synthetic 1024² acceptance trial (one NVIDIA
-H100, 100 frames; :mod:`core.studies.tracking.sequential_drift`) it took the sequential run's
-silent frames over 4× the bound (tibia/talus/calcaneus) from 9/7/0 to 0/0/0 on seed 0, 9/0/0 to
-8/0/0 and 4/1/0 to 2/0/0 on seeds 1 and 2 (joint tracking: 1/0/0, 7/0/0, 2/0/0). Frames divided
+(``TrackingOptions.sequential_subtract``; the bones registered earlier in the frame at their poses,
+the others at their keyframes of the frame or their guesses) when the frames are flatfield-corrected
+and the option is None ("auto", the default): the same test. On the synthetic 1024² acceptance trial
+(one NVIDIA H100, 100 frames; :mod:`core.studies.tracking.sequential_drift`) it took the sequential
+run's silent frames over 4× the bound (tibia/talus/calcaneus) from 9/7/0 to 0/0/0 on seed 0, 9/0/0
+to 8/0/0 and 4/1/0 to 2/0/0 on seeds 1 and 2 (joint tracking: 1/0/0, 7/0/0, 2/0/0). Frames divided
 by the full scale are searched against the whole image (on the wrist sample's 8-bit radiographs
 subtraction pulled the radius into the ulna's hole); True or False is used as given. The report's
 ``"options"`` say what the searches did (``"sequential_subtract"``, sequential runs only): false

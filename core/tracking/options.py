@@ -91,13 +91,16 @@ class TrackingOptions:
     move; with ``stage_move_reject`` (the default) such a frame keeps the similarity's pose.
 
     ``sequential_subtract``: in sequential mode each bone's search subtracts the other bones' DRRs
-    (those registered earlier in the frame at their registered poses, the others at their guesses),
-    as joint tracking's rounds do; off, each bone is searched against the whole image
-    (:mod:`core.tracking.frame_step`). For flatfield-corrected frames only (DRR intensities matched).
-    None (the default, "auto"): :func:`core.tracking.from_study.track_study` turns it on for
-    sequential tracking of frames it finds flatfield-corrected (the test mode ``"auto"`` makes) and
-    off otherwise; :func:`~core.tracking.trial.track` alone cannot tell and keeps it off. True or
-    False is used as given. Joint tracking is the same whatever it holds.
+    (those registered earlier in the frame at their registered poses, the others at their keyframe
+    of the frame where they have one, else at their guesses), as joint tracking's rounds do; off,
+    each bone is searched against the whole image (:mod:`core.tracking.frame_step`). For
+    flatfield-corrected frames only (DRR intensities matched). None (the default, "auto"):
+    :func:`core.tracking.from_study.track_study` turns it on for sequential tracking of frames it
+    finds flatfield-corrected (the test mode ``"auto"`` makes) and off otherwise — on resume, the
+    choice the run being resumed recorded (off where it recorded none);
+    :func:`~core.tracking.trial.track` alone cannot tell and keeps it off. True or False is used as
+    given. One bone tracked has nothing to subtract (the report says false). Joint tracking is the
+    same whatever it holds.
 
     ``trajectory_limit`` (≥ 1, or None: off): once a run is complete, frames whose pose stands off
     the local fit through their neighbours by more than this many times the bone's median are

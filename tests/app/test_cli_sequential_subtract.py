@@ -107,9 +107,9 @@ def studies_128(tmp_path_factory):
 def test_auto_subtracts_on_flatfield_corrected_frames_only(studies_128, tmp_path, capsys, monkeypatch,
                                                            corrected):
     """``talus track --mode sequential`` (``--sequential-subtract`` auto) on 128² frames, Warp's CPU
-    device, frame 0 tracked from the keyframes: the talus is searched first (no neighbour known yet:
-    the calcaneus has no tracked pose), then the calcaneus — with the talus just registered subtracted
-    where the frames are flatfield-corrected, against the whole image where they are divided by the
+    device, frame 0 tracked from the keyframes: the talus is searched first, then the calcaneus — where
+    the frames are flatfield-corrected the talus with the calcaneus at its keyframe subtracted and the
+    calcaneus with the talus just registered, against the whole image where they are divided by the
     full scale. The frames are the same in both studies; only the normalisation found differs."""
     import core.tracking.frame_step as fs
     from app.cli import main as talus
@@ -131,8 +131,8 @@ def test_auto_subtracts_on_flatfield_corrected_frames_only(studies_128, tmp_path
     assert out["sequential_subtract"] is corrected
     assert (out["normalisation"] != "full scale (no flatfield)") is corrected
     assert [b for b, _ in searched][:2] == [0, 1]  # the talus, then the calcaneus (a retry may follow)
-    if corrected:  # every search of the calcaneus with the talus subtracted
-        assert all(others == [0] for b, others in searched if b == 1)
+    if corrected:  # every search with the other bone subtracted (the talus's: the calcaneus's keyframe)
+        assert all(others == [1 - b] for b, others in searched)
     else:  # no search with a neighbour subtracted
         assert all(others is None for _, others in searched)
     report = json.loads((folder / "results" / "reports" / "tracking" / "walk.json").read_text())

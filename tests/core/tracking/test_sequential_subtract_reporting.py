@@ -157,8 +157,8 @@ def test_cli_summary_gives_the_note(demo, monkeypatch, capsys):
         "mode": "sequential", "sequential_subtract": False,
         "sequential_subtract_note": "on, but no other bone tracked: nothing to subtract"}}
     monkeypatch.setattr(from_study, "track_study", lambda *a, **k: (None, rep))
-    talus(["track", str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--mode", "sequential",
-           "--sequential-subtract", "on", "--device", "cpu", "--quiet"])
+    talus(["track", str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2",
+           "--mode", "sequential", "--sequential-subtract", "on", "--device", "cpu", "--quiet"])
     cap = capsys.readouterr()
     out = json.loads(cap.out)
     assert out["sequential_subtract"] is False

@@ -289,7 +289,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
         options = replace(options, mode="joint" if joint else "sequential")
     subtract_note = None
     if options.mode == "sequential" and options.sequential_subtract is None:  # auto: the same test
-        kept, subtract_note = _resumed_subtract(study, report_name, skip) if resume else (None, None)
+        resumed = resume and len(models) > 1  # one bone: nothing to subtract, nothing to keep
+        kept, subtract_note = _resumed_subtract(study, report_name, skip) if resumed else (None, None)
         options = replace(options, sequential_subtract=flatfield_corrected(how) if kept is None else kept)
     report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
               "normalisation": how,

@@ -111,6 +111,17 @@ def test_resume_keeps_the_recorded_choice(demo, seen, recorded):
     assert "recorded no choice" not in rep["options"]["sequential_subtract_note"]
 
 
+def test_resume_of_one_bone_says_nothing_subtracted(demo, seen):
+    """One bone resumed (a ``talus batch`` task, always resumed): nothing to subtract or keep."""
+    _tracked_frame_1(demo, ("talus",))
+    _old_report(demo, {"mode": "sequential"})
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", ["talus"], [1, 2], correction=CORRECTED, options=_opts(),
+                             device="cpu", resume=True)
+    assert rep["options"]["sequential_subtract"] is False
+    assert "no other bone tracked" in rep["options"]["sequential_subtract_note"]
+
+
 @pytest.mark.parametrize("subtract", [True, False])
 def test_resume_explicit_choice_wins(demo, seen, subtract):
     _tracked_frame_1(demo)

@@ -103,8 +103,10 @@ def _skip_gui_without_display(items: list[pytest.Item]) -> None:
 
 
 # The tests' own session fixtures cheap enough to build in every worker: they do not tie files to one
-# xdist group (plugins' session fixtures, such as pytest-qt's qapp, never do).
-_CHEAP_SESSION_FIXTURES = frozenset({"sample_data", "wrist", "rng", "rig", "sizes", "smooth_pair"})
+# xdist group (plugins' session fixtures, such as pytest-qt's qapp, never do). demo_walk_48 and
+# keyed: the demo walk built once per process (tests/core/tracking/demo_walk.py, ~1 s), or a copy.
+_CHEAP_SESSION_FIXTURES = frozenset({"sample_data", "wrist", "rng", "rig", "sizes", "smooth_pair",
+                                     "demo_walk_48", "keyed"})
 _GROUPS_FILE = "TALUS_XDIST_GROUPS"  # where the workers write the groups for the controller
 
 

@@ -13,7 +13,6 @@ import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 from PySide6 import QtCore
 
@@ -32,17 +31,11 @@ LEFT = QtCore.Qt.MouseButton.LeftButton
 
 @pytest.fixture(scope="module")
 def keyed_folder(tmp_path_factory):
-    """A 30-frame 48-px demo study whose talus has one hand-set keyframe, frame 12: two ranges."""
-    from core.synthetic import make_demo_study
+    """A 30-frame 48-px demo study whose talus has one hand-set keyframe, frame 12: two ranges (a
+    copy of the one the process built, :func:`tests.core.tracking.demo_walk.copy_keyed`)."""
+    from tests.core.tracking.demo_walk import copy_keyed
 
-    out = tmp_path_factory.mktemp("batchpass") / "study"
-    make_demo_study(out, n_frames=30, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
-    with Study.open(out, mode="w") as st:
-        t = st.trial("walk")
-        t.clear_pose(BONE, 0)
-        t.record_pose(BONE, 12, np.load(out / "poses" / f"{BONE}.npy")[12])
-    return out
+    return copy_keyed(tmp_path_factory, tmp_path_factory.mktemp("batchpass") / "study", BONE)
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,13 +26,13 @@ def talus_batch(argv: list[str]) -> int:
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    """A 30-frame demo walk (the bones move little from frame to frame; 2 are tracked)."""
-    from core.synthetic import make_demo_study
+    """A 30-frame demo walk (the bones move little from frame to frame; 2 are tracked): this
+    module's copy of the one the process built (:func:`tests.core.tracking.demo_walk.built`)."""
+    import shutil
 
-    out = tmp_path_factory.mktemp("demo")
-    make_demo_study(out, n_frames=30, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
-    return out
+    from tests.core.tracking.demo_walk import built
+
+    return Path(shutil.copytree(built(tmp_path_factory), tmp_path_factory.mktemp("demo") / "demo"))
 
 
 @pytest.fixture

@@ -48,32 +48,22 @@ def talus_calcaneus_128():
 
 @pytest.fixture(scope="session")
 def demo_walk_48(tmp_path_factory):
-    """A demo study built once per run (read it, or copy it before writing): the 30-frame walk in
-    48² views, 3 mm bone and 6 mm tissue voxels, no calibration session; every bone has its true
-    pose at frame 0 as a keyframe (the bones move little from frame to frame)."""
-    from core.synthetic import make_demo_study
+    """A demo study built once per process (read it, or copy it before writing): the 30-frame walk
+    in 48² views, 3 mm bone and 6 mm tissue voxels, no calibration session; every bone has its true
+    pose at frame 0 as a keyframe (:func:`tests.core.tracking.demo_walk.built`, which the app's
+    batch tests share)."""
+    from tests.core.tracking.demo_walk import built
 
-    out = tmp_path_factory.mktemp("demo_walk_48") / "demo"
-    make_demo_study(out, n_frames=30, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
-    return out
+    return built(tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
-def keyed(tmp_path_factory, demo_walk_48):
+def keyed(tmp_path_factory):
     """The demo walk whose talus has one hand-set keyframe, frame 12 (frame 0's cleared): two
     ranges, 12 back to 0 and 12 on to 29, both tracking frame 12 (copy it before writing)."""
-    import shutil
+    from tests.core.tracking.demo_walk import copy_keyed
 
-    from core.study import Study
-
-    out = shutil.copytree(demo_walk_48, tmp_path_factory.mktemp("keyed") / "demo")
-    truth = np.load(out / "poses" / "talus.npy")
-    with Study.open(out, mode="w") as st:
-        t = st.trial("walk")
-        t.clear_pose("talus", 0)
-        t.record_pose("talus", 12, truth[12])
-    return out
+    return copy_keyed(tmp_path_factory, tmp_path_factory.mktemp("keyed") / "demo")
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def _run(scene, monkeypatch, *, mode: str, subtract: bool | None):
+def _run(scene, monkeypatch, *, mode: str, subtract: bool | None, skip: bool = True):
+    """Track frames 0-1 from keyframes at frame 0 (``skip``: frame 0 taken as registered, not searched),
+    every registration's bone, subtracted neighbours and result recorded."""
     import core.tracking.frame_step as fs
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions, track
@@ -25,11 +27,12 @@ def _run(scene, monkeypatch, *, mode: str, subtract: bool | None):
         return got
 
     monkeypatch.setattr(fs, "register_checked", spy)
-    skip = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    keyframes = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode=mode, verify_restarts=0, registration=reg, trajectory_limit=None,
                         sequential_subtract=subtract)
-    res = track(r, models, frames.__getitem__, [0, 1], keyframes=skip, skip=skip, options=o)
+    res = track(r, models, frames.__getitem__, [0, 1], keyframes=keyframes, skip=keyframes if skip else None,
+                options=o)
     return res, seen
 
 

@@ -8,29 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from tests.core.tracking.test_sequential_search_neighbours import _run as _run_from_keyframes
+
 
 def _run(scene, monkeypatch, *, mode: str, subtract: bool):
-    import core.tracking.frame_step as fs
-    from core.tracking.register import RegistrationOptions
-    from core.tracking.trial import TrackingOptions, track
-
-    sc, models, r, frames = scene
-    seen = []
-    real = fs.register_checked
-
-    def spy(*a, **k):
-        got = real(*a, **k)
-        others = a[9]
-        seen.append((a[3], None if others is None else (np.array(others[0]), list(others[1])), got))
-        return got
-
-    monkeypatch.setattr(fs, "register_checked", spy)
-    keyframes = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}  # frame 0 registered too
-    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
-    o = TrackingOptions(mode=mode, verify_restarts=0, registration=reg, trajectory_limit=None,
-                        sequential_subtract=subtract)
-    res = track(r, models, frames.__getitem__, [0, 1], keyframes=keyframes, options=o)
-    return res, seen
+    # frame 0 registered too (not skipped): the keyframes are where the searches start
+    return _run_from_keyframes(scene, monkeypatch, mode=mode, subtract=subtract, skip=False)
 
 
 def test_keyframe_neighbour_subtracted_in_the_first_frame(talus_calcaneus_128, monkeypatch):

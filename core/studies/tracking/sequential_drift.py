@@ -267,6 +267,14 @@ def _pair_diff(ts, a, b) -> dict:
     return out
 
 
+def _default_bound(quick: bool, bound: str | None) -> str:
+    """``bound`` as given; None: the acceptance JSON (seed 0's, 1024²), or ``"compute"`` with ``quick``
+    (256² views, 1 mm voxels: the JSON's bound is another scene's)."""
+    if bound is not None:
+        return bound
+    return "compute" if quick else ACCEPTANCE_JSON
+
+
 def _bound_error(seed: int, bound: str) -> str | None:
     """Why ``bound`` cannot be trial ``seed``'s (None where it can): an acceptance JSON is seed 0's."""
     if seed != 0 and bound != "compute":
@@ -276,11 +284,13 @@ def _bound_error(seed: int, bound: str) -> str | None:
 
 
 def run(*, quick: bool = False, device: str | None = None, n_frames: int | None = None, workers: int = 0,
-        bones=("tibia", "talus"), probe_frames=None, bound: str = ACCEPTANCE_JSON,
+        bones=("tibia", "talus"), probe_frames=None, bound: str | None = None,
         joint: bool = False, seed: int = 0) -> dict:
     """The study (module docs); returns the JSON-ready results. ``bound``: an acceptance JSON of the
-    same scene (the default: seed 0's) or ``"compute"``; another ``seed`` needs ``"compute"``
-    (ValueError before any work otherwise: seed 0's bound would divide another trial's errors)."""
+    same scene (None: seed 0's at full size; ``"compute"`` with ``quick``, whose smaller scene the JSON's
+    bound is not) or ``"compute"``; another ``seed`` needs ``"compute"`` (ValueError before any work
+    otherwise: seed 0's bound would divide another trial's errors)."""
+    bound = _default_bound(quick, bound)
     from core.geometry.transforms import pose_from_params
     from core.studies.tracking.acceptance import _random_offset, cramer_rao, tracking_scene
     from core.studies.tracking.trial_frames import synthesise
@@ -333,13 +343,15 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=0, help="processes for the frames' image chain")
     p.add_argument("--bones", default="tibia,talus", help="bones probed (comma-separated)")
     p.add_argument("--probe-frames", default="50-72", help="frames probed: a-b (inclusive) or a,b,c")
-    p.add_argument("--bound", default=ACCEPTANCE_JSON,
-                   help="the bound: an acceptance JSON of the same scene, or 'compute'")
+    p.add_argument("--bound", default=None,
+                   help="the bound: an acceptance JSON of the same scene, or 'compute' (default: the "
+                        "acceptance JSON at full size, computed with --quick, whose scene is another)")
     p.add_argument("--joint", action="store_true", help="track jointly too (reference)")
     p.add_argument("--seed", type=int, default=0,
                    help="the trial's seed (default 0, the acceptance study's; another needs --bound compute)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
+    a.bound = _default_bound(a.quick, a.bound)
     if (why := _bound_error(a.seed, a.bound)) is not None:
         p.error(f"--seed: {why}")
     if "-" in a.probe_frames:

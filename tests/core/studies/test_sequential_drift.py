@@ -32,3 +32,13 @@ def test_the_command_line_refuses_it_too(monkeypatch, capsys):
     assert e.value.code == 2 and "--bound compute" in capsys.readouterr().err
     with pytest.raises(_Built):
         sequential_drift.main(["--seed", "1", "--bound", "compute"])
+
+
+def test_quick_computes_its_own_bound(monkeypatch):
+    # --quick's 256² scene is not the acceptance JSON's: its bound is computed unless one is given
+    assert sequential_drift._default_bound(True, None) == "compute"
+    assert sequential_drift._default_bound(False, None) == sequential_drift.ACCEPTANCE_JSON
+    assert sequential_drift._default_bound(True, "x.json") == "x.json"
+    monkeypatch.setattr(acceptance, "tracking_scene", _no_scene)
+    with pytest.raises(_Built):  # a quick run of another seed needs no --bound
+        sequential_drift.run(quick=True, seed=1)

@@ -28,9 +28,9 @@ Then the fix candidate is tracked on the same frames: the sequential search with
 subtracted (``TrackingOptions(sequential_subtract=True)``: the bones registered
 earlier in the frame at their registered poses, the others at their constant-velocity guesses),
 and, for reference, joint tracking (``--joint``). Per run and bone: RMS × the bound (the bound of
-the acceptance JSON's same scene, or computed: ``--bound compute``, the default with ``--quick``), frames
-over 4× it, silent
-(unflagged) ones, flagged frames; and the per-frame rotation difference between the two
+the acceptance JSON's same scene, or computed: ``--bound compute``, the default with ``--quick``),
+frames over 4× it, silent (unflagged) ones, flagged frames; and the per-frame rotation difference
+between the two
 sequential runs (what a check comparing them would see). ``--seed`` tracks another synthesis of
 the trial (its noise, start error and grid frames; its bound computed, ``--bound compute``).
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from tests.core.tracking.test_sequential_search_neighbours import _run as _run_from_keyframes
+from tests.core.tracking.test_sequential_search_neighbours import assert_same_results
 
 
 def _run(scene, monkeypatch, *, mode: str, subtract: bool):
@@ -46,8 +47,4 @@ def test_joint_tracking_from_keyframes_unchanged(talus_calcaneus_128, monkeypatc
     off, seen = _run(talus_calcaneus_128, monkeypatch, mode="joint", subtract=False)
     assert seen[0][0] == 0 and seen[0][1] is None  # frame 0, round 0: the talus alone, as before
     on, _ = _run(talus_calcaneus_128, monkeypatch, mode="joint", subtract=True)
-    assert off.results.keys() == on.results.keys()
-    for key, a in off.results.items():
-        b = on.results[key]
-        assert np.asarray(a.pose).tobytes() == np.asarray(b.pose).tobytes(), key
-        assert (a.score, a.flags) == (b.score, b.flags), key
+    assert_same_results(off, on)

@@ -161,13 +161,17 @@ def field_bound(ts, frames, images) -> dict:
     return out
 
 
-def _stage(ts, frame, f: int, b: int, highpass_px: float) -> tuple[np.ndarray, np.ndarray]:
+def _stage(ts, frame, f: int, b: int, highpass_px: float,
+           rim: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Bone ``b``'s final stage from its true pose in frame ``f`` (the neighbours at theirs
-    subtracted): its error (6,) (mm, degrees) and its sandwich covariance's σ (6,) (mm, degrees)."""
+    subtracted), with the band at the round field's rim of ``rim`` σ (None: none;
+    :mod:`core.studies.tracking.rim_band`): its error (6,) (mm, degrees), its sandwich covariance's
+    σ (6,) (mm, degrees) and the usable pixels the band took."""
     import core.tracking.final_stage as fst
     from core.studies.tracking.acceptance import pose_errors
     from core.studies.tracking.stage_limits import Variant
     from core.tracking.cost import search_roi, snap_roi
+    from core.tracking.likelihood_rim import apply_rim, rim_keep
 
     P = ts.truth(f)
     m = ts.models[b]
@@ -181,10 +185,15 @@ def _stage(ts, frame, f: int, b: int, highpass_px: float) -> tuple[np.ndarray, n
                                     others_gain=o.final_others_gain)
         eng.set_frame(frame, base_pose=P[b], center=m.centroid, roi=roi,
                       others=(P[oth], oth) if oth else None)
+        cut = 0
+        if rim:
+            keep = rim_keep(frame, views, roi, rim * highpass_px, eng._cap)
+            cut = 0 if keep is None else int(np.count_nonzero((keep == 0) & (eng._w.numpy() > 0)))
+            apply_rim(eng, frame, rim * highpass_px)
         r = fst._refine(eng, o, fst.MODEL)
     e = pose_errors(eng.poses(np.asarray(r["x"])[None])[0], P[b], m.centroid)
     C = np.asarray(r.get("covariance", np.full((6, 6), np.nan)), float)
-    return e, np.sqrt(np.abs(np.diag(C)))  # (the stage's parameters: mm, degrees)
+    return e, np.sqrt(np.abs(np.diag(C))), cut  # (the stage's parameters: mm, degrees)
 
 
 def run(*, pixels: int = 512, voxel: float = 1.0, frames=(0, 20, 40, 60, 80), bones=("tibia",),
@@ -215,7 +224,7 @@ def run(*, pixels: int = 512, voxel: float = 1.0, frames=(0, 20, 40, 60, 80), bo
                 for prep in preps:
                     frame = prepared(imgs, prep, hp)
                     for nm in bones:
-                        e, sg = _stage(ts, frame, f, ts.names.index(nm), hp)
+                        e, sg, _ = _stage(ts, frame, f, ts.names.index(nm), hp)
                         rec.setdefault((f"{kind}/{prep}", hp, nm), []).append((e, sg))
         out["seconds"] = time.perf_counter() - t0
         out["results"] = _summaries(rec, bound)

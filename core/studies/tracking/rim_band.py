@@ -21,45 +21,13 @@ import numpy as np
 __all__ = ["main", "run"]
 
 
-def _stage(ts, frame, f: int, b: int, highpass_px: float, rim: float | None):
-    """Bone ``b``'s final stage from its true pose in frame ``f`` (border_frames' ``_stage``) with
-    the band of ``rim`` σ (None: none): its error (6,), sandwich σ (6,) and the pixels banded."""
-    import core.tracking.final_stage as fst
-    from core.studies.tracking.acceptance import pose_errors
-    from core.studies.tracking.stage_limits import Variant
-    from core.tracking.cost import search_roi, snap_roi
-    from core.tracking.likelihood_rim import apply_rim, rim_keep
-
-    P = ts.truth(f)
-    m = ts.models[b]
-    with Variant({"hp": float(highpass_px)}, ts) as var:
-        o = var.options.registration
-        views = tuple(range(len(ts.scene.rig)))
-        roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=m.centroid, reach_mm=1.0,
-                                  margin_px=o.margin_px), ts.renderer, views)
-        oth = [k for k in range(len(ts.names)) if k != b]
-        eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=o.final_highpass_px,
-                                    others_gain=o.final_others_gain)
-        eng.set_frame(frame, base_pose=P[b], center=m.centroid, roi=roi,
-                      others=(P[oth], oth) if oth else None)
-        cut = 0
-        if rim:
-            keep = rim_keep(frame, views, roi, rim * highpass_px, eng._cap)
-            cut = 0 if keep is None else int(np.count_nonzero((keep == 0) & (eng._w.numpy() > 0)))
-            apply_rim(eng, frame, rim * highpass_px)
-        r = fst._refine(eng, o, fst.MODEL)
-    e = pose_errors(eng.poses(np.asarray(r["x"])[None])[0], P[b], m.centroid)
-    C = np.asarray(r.get("covariance", np.full((6, 6), np.nan)), float)
-    return e, np.sqrt(np.abs(np.diag(C))), cut
-
-
 def run(*, pixels: int = 512, voxel: float = 1.0, frames=(0, 20, 40, 60, 80),
         bones=("tibia", "talus", "calcaneus"), highpass: float = 4.0, rims=(None, 3.0), noise: bool = True,
         device: str | None = "cpu", checkpoint=None) -> dict:
     """The study (module docs); ``highpass``: the stage's σ in px at ``pixels`` (4 px at 512² is the
     trial's 8 px at 1024²)."""
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao
-    from core.studies.tracking.border_frames import frame_images, prepared
+    from core.studies.tracking.border_frames import _stage, frame_images, prepared
 
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, device=device, correction="exact")

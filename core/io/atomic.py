@@ -33,7 +33,7 @@ import re
 import socket
 import sys
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -48,6 +48,7 @@ __all__ = [
     "atomic_write",
     "atomic_write_json",
     "fsync_dir",
+    "json_checkpoint",
     "output_file",
     "print_json",
     "remove_stale_temporaries",
@@ -227,6 +228,22 @@ def print_json(obj: Any, out: str | os.PathLike | None = None, *, indent: int = 
     if out:
         atomic_write(out, text + "\n")
     sys.stdout.write(text + "\n")
+
+
+def json_checkpoint(out: str | os.PathLike | None, *, indent: int = 2,
+                    **fields: Any) -> Callable[[dict], None]:
+    """A long study's checkpoint: ``checkpoint(res)`` sets in ``res`` the ``fields`` that have a
+    value (a machine's name, say) and writes it to ``out`` atomically as JSON (NaN allowed, as
+    :func:`print_json` writes it; ``out`` None: not written), so a run stopped part-way keeps what
+    it measured."""
+    given = {k: v for k, v in fields.items() if v}
+
+    def checkpoint(res: dict) -> None:
+        res.update(given)
+        if out:
+            atomic_write(out, json.dumps(res, indent=indent) + "\n")
+
+    return checkpoint
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> None:

@@ -384,13 +384,9 @@ def main(argv=None) -> int:
     p.add_argument("--component-methods", default="hp4+r,leg0,leg2,leg4,leg4t+r")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    import json
+    from core.io.atomic import json_checkpoint, print_json
 
-    from core.io.atomic import atomic_write, print_json
-
-    def checkpoint(res):
-        if a.out:
-            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=1)
 
     res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames,
               frames=[int(x) for x in a.frames.split(",") if x], seeds=a.seeds,

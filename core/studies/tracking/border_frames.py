@@ -264,15 +264,9 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    from core.io.atomic import print_json
+    from core.io.atomic import json_checkpoint, print_json
 
-    def checkpoint(res):
-        if a.out:
-            import json
-
-            from core.io.atomic import atomic_write
-
-            atomic_write(a.out, json.dumps(res, indent=2) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=2)
 
     kinds = tuple(k for k in a.kinds.split(",") if k)
     preps = tuple(k for k in a.preps.split(",") if k)

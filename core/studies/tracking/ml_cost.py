@@ -214,15 +214,9 @@ def main(argv=None) -> int:
                    help="--final: also with the flagged stage moves kept (stage_move_reject=False)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    from core.io.atomic import print_json
+    from core.io.atomic import json_checkpoint, print_json
 
-    def checkpoint(res):  # each case's results on disk as soon as they are measured
-        if a.out:
-            import json
-
-            from core.io.atomic import atomic_write
-
-            atomic_write(a.out, json.dumps(res, indent=2) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=2)
 
     if a.final:
         res = run_final(device=a.device, frames=a.frames, cases=a.cases.split(","),

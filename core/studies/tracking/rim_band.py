@@ -78,13 +78,9 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    import json
+    from core.io.atomic import json_checkpoint, print_json
 
-    from core.io.atomic import atomic_write, print_json
-
-    def checkpoint(res):
-        if a.out:
-            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=1)
 
     res = run(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in a.frames.split(",") if x],
               bones=tuple(a.bones.split(",")), highpass=a.highpass, noise=not a.noise_free, device=a.device,

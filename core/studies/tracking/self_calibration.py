@@ -336,13 +336,9 @@ def main(argv=None) -> int:
     p.add_argument("--recompare", default=None, metavar="JSON",
                    help="only redo the field comparisons of this results file (round field, over the bones)")
     a = p.parse_args(argv)
-    import json
+    from core.io.atomic import json_checkpoint, print_json
 
-    from core.io.atomic import atomic_write, print_json
-
-    def checkpoint(res):
-        if a.out:
-            atomic_write(a.out, json.dumps(res, indent=2) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=2)
 
     if a.recompare:
         print_json(recompare(a.recompare, a.device), a.out)

@@ -346,16 +346,12 @@ def main(argv=None) -> int:
     p.add_argument("--components-frames", default="", help="frames of the noise-free component test")
     p.add_argument("--out", default=None, help="also write the JSON here (after each part)")
     a = p.parse_args(argv)
-    import json
-
-    from core.io.atomic import atomic_write, print_json
+    from core.io.atomic import json_checkpoint, print_json
 
     def ints(s):
         return [int(x) for x in s.split(",") if x]
 
-    def checkpoint(res):
-        if a.out:
-            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=1)
 
     res = run(pixels=a.pixels, voxel=a.voxel, frames=a.frames, device=a.device, workers=a.workers,
               track=[tuple(x.split("=", 1)) for x in a.track.split(",") if x],

@@ -357,18 +357,12 @@ def main(argv=None) -> int:
     p.add_argument("--machine-name", default=None, help="a name for the machine, written into the JSON")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    import json
-
-    from core.io.atomic import atomic_write, print_json
+    from core.io.atomic import json_checkpoint, print_json
 
     def lst(s):
         return [x for x in s.split(",") if x]
 
-    def checkpoint(res):
-        if a.machine_name:
-            res["machine_name"] = a.machine_name
-        if a.out:
-            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
 
     res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames, frames=[int(x) for x in lst(a.frames)],
               seeds=a.seeds, sets=lst(a.sets), methods=lst(a.methods), tissues=lst(a.tissues),

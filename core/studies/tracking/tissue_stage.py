@@ -355,15 +355,9 @@ def main(argv=None) -> int:
     p.add_argument("--probe-kinds", default="none,coarse,exact")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    import json
+    from core.io.atomic import json_checkpoint, print_json
 
-    from core.io.atomic import atomic_write, print_json
-
-    def checkpoint(res):
-        if a.machine_name:
-            res["machine_name"] = a.machine_name
-        if a.out:
-            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
 
     if a.probe:
         res = probe(pixels=a.pixels, voxel=a.voxel, n_frames=a.frames,

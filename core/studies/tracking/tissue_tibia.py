@@ -415,13 +415,9 @@ def main(argv=None) -> int:
     p.add_argument("--machine-name", default=None, help="the machine's name for the JSON (e.g. the GPU)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    from core.io.atomic import atomic_write, print_json
+    from core.io.atomic import json_checkpoint, print_json
 
-    def checkpoint(res):
-        if a.machine_name:
-            res["machine_name"] = a.machine_name
-        if a.out:
-            atomic_write(a.out, json.dumps(res, indent=1) + "\n")
+    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
 
     if a.bias:
         fr = a.frames or ",".join(map(str, range(0, 100, 10)))

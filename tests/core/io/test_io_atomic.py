@@ -139,3 +139,21 @@ def test_remove_stale_temporaries(tmp_path):
     assert fresh.exists() and all(p.exists() for p in others)
     assert (outside / ".a.json.12345678.tmp").exists()
     assert atomic.remove_stale_temporaries(tmp_path, older_than_s=0) == [fresh]
+
+
+def test_json_checkpoint_writes_each_partial_result_with_its_fields(tmp_path):
+    out = tmp_path / "study.json"
+    checkpoint = atomic.json_checkpoint(out, indent=1, machine_name="one GPU", empty=None)
+    res = {"frames_done": 1, "rms": float("nan")}
+    checkpoint(res)
+    assert res["machine_name"] == "one GPU" and "empty" not in res  # fields with a value only
+    text = out.read_text()
+    assert text.endswith("\n") and text == json.dumps(res, indent=1) + "\n"  # NaN kept, as studies write
+    assert math.isnan(json.loads(text)["rms"])
+    res["frames_done"] = 2
+    checkpoint(res)
+    assert json.loads(out.read_text())["frames_done"] == 2
+    nowhere = {"a": 1}
+    atomic.json_checkpoint(None, machine_name="x")(nowhere)  # no file: the fields still set
+    assert nowhere == {"a": 1, "machine_name": "x"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["study.json"]

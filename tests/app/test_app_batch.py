@@ -17,7 +17,7 @@ from PySide6 import QtCore
 
 from app.main_window import MainWindow
 from core.study import Study
-from tests.app._helpers import FAST_TRACKING, pause_after_first_frame
+from tests.app._helpers import FAST_TRACKING, copy_study, main_window, pause_after_first_frame
 from tests.core.tracking.batch_helpers import save_flat_calibration
 
 pytestmark = pytest.mark.gui
@@ -64,15 +64,10 @@ def scheduler():
 
 @pytest.fixture
 def window(qtbot, demo_folder, tmp_path):
-    folder = shutil.copytree(demo_folder, tmp_path / "study")
-    win = MainWindow(device="cpu", create_scene_on_show=False)
-    qtbot.addWidget(win)
-    win.resize(1100, 760)
-    win.show()
-    win.open_study(folder)
-    win.tracking.options = FAST_TRACKING  # the batch's plumbing is tested, not the tracker
-    yield win
-    win.close()
+    with main_window(qtbot, size=(1100, 760)) as win:
+        win.open_study(copy_study(demo_folder, tmp_path))
+        win.tracking.options = FAST_TRACKING  # the batch's plumbing is tested, not the tracker
+        yield win
 
 
 def _click_box(qtbot, box) -> None:

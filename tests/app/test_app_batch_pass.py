@@ -10,16 +10,14 @@ Set ``TALUS_SCREENSHOTS=DIR`` to keep a screenshot of the messages after the bat
 from __future__ import annotations
 
 import os
-import shutil
 from pathlib import Path
 
 import pytest
 from PySide6 import QtCore
 
-from app.main_window import MainWindow
 from app.tracking_actions import MAX_FLAG_MESSAGES
 from core.study import Study
-from tests.app._helpers import FAST_TRACKING
+from tests.app._helpers import FAST_TRACKING, copy_study, main_window
 
 pytestmark = pytest.mark.gui
 distributed = pytest.importorskip("distributed")
@@ -47,15 +45,10 @@ def scheduler():
 
 @pytest.fixture
 def window(qtbot, keyed_folder, tmp_path):
-    folder = shutil.copytree(keyed_folder, tmp_path / "study")
-    win = MainWindow(device="cpu", create_scene_on_show=False)
-    qtbot.addWidget(win)
-    win.resize(1100, 760)
-    win.show()
-    win.open_study(folder)
-    win.tracking.options = FAST_TRACKING
-    yield win
-    win.close()
+    with main_window(qtbot, size=(1100, 760)) as win:
+        win.open_study(copy_study(keyed_folder, tmp_path))
+        win.tracking.options = FAST_TRACKING
+        yield win
 
 
 def _texts(window) -> list[str]:

@@ -68,8 +68,11 @@ Measurements
   and should fall below 1);
 * **goals** — issue 20's per bone, measured and met or not (``goals``,
   :func:`core.studies.tracking.acceptance_goals.goals`: ≤ 1.25× the bound in mm and °, ≥ 99 %
-  converged, no silent frame over 4× the bound, ≥ 90 % of axes within 2σ); with
-  ``--mode joint,sequential`` (both modes in turn on the same frames) ``joint_vs_sequential``;
+  converged, no silent frame over 4× the bound, ≥ 90 % of the translation and of the rotation axes
+  within 2σ); with ``--mode joint,sequential`` (both modes in turn on the same frames)
+  ``joint_vs_sequential``, decided on the paired per-frame errors with a margin of 0.125× the bound
+  (:func:`~core.studies.tracking.acceptance_goals.compare_modes`; ``python -m
+  core.studies.tracking.acceptance_goals --regoal FILE`` recomputes a stored result's goals);
 * **joint space** — the smallest signed surface distance of tibia–talus and talus–calcaneus over
   the trial at the tracked poses against the truth's (``joint_space``).
 
@@ -416,6 +419,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
                               "deg": E[:, 3:].std(0).round(4).tolist()} if len(E) else None
             per_bone[n]["over_4x_bound"] = _over_bound(res, n, E, frames_with_pose[n], cb)
         per_bone[n]["per_frame_error"] = E.round(5).tolist()
+        per_bone[n]["frames_with_pose"] = frames_with_pose[n]  # per_frame_error's, per_frame_sigma's
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
            "frames": ts.scene.n_frames, "mode": mode, "search": o.registration.search,
            "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact),

@@ -232,3 +232,157 @@ def test_a_bone_flagged_or_without_a_pose_in_every_frame_keeps_the_runs_results(
     assert out["tracking"]["tibia"]["rms_error_mm"] == pytest.approx(0.01, abs=1e-6)
     json.dumps(out, allow_nan=False)  # the run's JSON: no NaN for a bone without frames
     assert (tmp_path / "f.png").stat().st_size > 0
+
+
+# joint against sequential on the paired per-frame errors, the σ coverage per axis, --regoal
+
+def _run(E, sigma=None, bound=(0.04, 0.16), frames=None):
+    """An acceptance run of one bone (talus) with per-frame errors ``E`` ((n, 6): mm, degrees)."""
+    E = np.asarray(E, dtype=float)
+    et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
+    t = {"rms_error_mm": float(np.sqrt(np.mean(et ** 2))), "rms_error_deg": float(np.sqrt(np.mean(er ** 2))),
+         "cramer_rao": {"rms_mm": bound[0], "rms_deg": bound[1]}, "per_frame_error": E.tolist()}
+    if sigma is not None:
+        t["per_frame_sigma"] = sigma
+    if frames is not None:
+        t["frames_with_pose"] = frames
+    return {"config": {"frames": len(E) if frames is None else 1 + max(frames)}, "tracking": {"talus": t}}
+
+
+def _errors(n=60, seed=0, scale=(0.03, 0.2)):
+    g = np.random.default_rng(seed)
+    return np.column_stack([g.normal(0, scale[0], (n, 3)), g.normal(0, scale[1], (n, 3))])
+
+
+def test_equal_modes_are_at_least_as_good_on_the_paired_errors():
+    E = _errors()
+    c = compare_modes({"joint": _run(E), "sequential": _run(E)})["talus"]
+    assert c["decided_on"] == "paired" and c["at_least_as_good"]
+    for u, m in (("mm", 0.125 * 0.04), ("deg", 0.125 * 0.16)):
+        p = c[u]["paired"]
+        assert p["interval95"] == [0.0, 0.0] and p["verdict"] == "not resolved"
+        assert p["margin"] == pytest.approx(m) and c[u]["ratio"] == pytest.approx(1.0)
+
+
+def test_joint_clearly_worse_is_not_met():
+    E = _errors()
+    J = E * np.r_[1.5, 1.5, 1.5, 1.0, 1.0, 1.0]  # 50 % more translation error, the same rotations
+    c = compare_modes({"joint": _run(J), "sequential": _run(E)})["talus"]
+    assert c["mm"]["paired"]["verdict"] == "worse" and not c["mm"]["paired"]["at_least_as_good"]
+    assert c["deg"]["paired"]["at_least_as_good"] and not c["at_least_as_good"]
+    assert c["mm"]["ratio"] == pytest.approx(1.5)
+
+
+@pytest.mark.parametrize(("excess", "met"), [(0.99, True), (1.01, False)])
+def test_the_margin_is_an_eighth_of_the_bound(excess, met):
+    """Constant errors: the bootstrap interval is the difference itself, just inside or outside
+    0.1 × 1.25 × the bound (0.005 mm of 0.04 mm)."""
+    n, a = 40, 0.03
+    seq = np.tile([a, 0, 0, 0.1, 0, 0], (n, 1))
+    joint = np.tile([a + excess * 0.125 * 0.04, 0, 0, 0.1, 0, 0], (n, 1))
+    c = compare_modes({"joint": _run(joint), "sequential": _run(seq)})["talus"]
+    lo, hi = c["mm"]["paired"]["interval95"]
+    assert lo == pytest.approx(hi, abs=1e-9) and hi == pytest.approx(excess * 0.005, abs=1e-6)
+    assert c["mm"]["paired"]["verdict"] == "worse" and c["at_least_as_good"] is met
+
+
+def test_frames_are_paired_by_their_number_and_without_a_bound_the_rms_decide():
+    E = _errors(10)
+    J = E.copy()
+    J[3] *= 10  # frame 3 of joint is bad, but sequential has no pose there
+    js = _run(np.delete(E, 3, axis=0), frames=[f for f in range(10) if f != 3])
+    c = compare_modes({"joint": _run(J, frames=list(range(10))), "sequential": js})["talus"]
+    assert c["mm"]["paired"]["n_frames"] == 9 and c["mm"]["paired"]["rms_difference"] == 0.0
+    unplaced = _run(np.delete(E, 3, axis=0))
+    unplaced["config"]["frames"] = 10  # 9 errors of 10 frames and no frame numbers: not paired
+    c = compare_modes({"joint": _run(E), "sequential": unplaced})["talus"]
+    assert c["decided_on"] == "rms" and "paired" not in c["mm"]
+    one = _run(E)
+    del one["tracking"]["talus"]["cramer_rao"]
+    c = compare_modes({"joint": one, "sequential": one})["talus"]
+    assert c["decided_on"] == "rms" and c["at_least_as_good"]
+
+
+def test_sigma_coverage_is_checked_per_axis_on_the_stored_frames():
+    E = _errors(200, seed=3, scale=(0.03, 0.2))
+    sig = [[0.03] * 3 + [0.05] * 3 for _ in E]  # right for translation, 4× too small for rotation
+    sig[0] = None  # a frame without σ: infinite, as the harder trial counts it
+    t = {**_bone(0.05, 0.3), **_run(E, sigma=sig)["tracking"]["talus"]}
+    g = goals({"talus": t})["talus"]
+    tr, rot = g["within_2_sigma_translation"], g["within_2_sigma_rotation"]
+    assert 0.9 < tr[0] < 1.0 and tr[1] and rot[0] < 0.6 and not rot[1]
+    cov = g["sigma_coverage"]
+    assert cov["per_axis"]["expected"] == pytest.approx(0.9545) and cov["frames_without_sigma"] == 1
+    assert cov["z_rms"]["tx"] == pytest.approx(1.0, abs=0.15) and cov["z_rms"]["rx"] > 3
+    assert "within_2_sigma" not in g
+
+
+def _drift(seed):
+    E = _errors(30, seed)
+    runs = {m: {"talus": {"rms_mm": 0.03, "rms_deg": 0.2, "per_frame_error": (E * f).tolist(),
+                          "frames": list(range(30))}}
+            for m, f in (("sequential", 2.0), ("sequential_subtracted", 1.0), ("joint", 1.0))}
+    return {"study": "core.studies.tracking.sequential_drift", "frames": 30, "seed": seed,
+            "bound": {"source": "compute", "talus": {"rms_mm": 0.04, "rms_deg": 0.16}}, "runs": runs}
+
+
+def test_regoal_rewrites_the_goals_of_a_stored_file_and_keeps_the_rest(tmp_path):
+    import json
+
+    from core.studies.tracking.acceptance_goals import main
+
+    E = _errors()
+    runs = {m: _run(E * f, sigma=[[0.05] * 6] * len(E)) for m, f in (("joint", 1.0), ("sequential", 1.01))}
+    for r in runs.values():
+        r["tracking"]["talus"].update(_bone(0.05, 0.3))
+        r["goals"] = {"talus": {"within_2_sigma": [0.95, True]}}
+    d = {"study": "core.studies.tracking.acceptance", "commit": "abc", "modes": ["joint", "sequential"],
+         "runs": runs, "joint_vs_sequential": {"talus": {"mm": {"ratio": 1.0}}}}
+    f = tmp_path / "r.json"
+    f.write_text(json.dumps(d, indent=1))
+    assert main(["--regoal", str(f)]) == 0
+    text = f.read_text()
+    out = json.loads(text)
+    assert text.startswith('{\n "study"') and not text.endswith("\n")  # written as it was stored
+    assert out["commit"] == "abc" and out["runs"]["joint"]["tracking"] == d["runs"]["joint"]["tracking"]
+    assert "within_2_sigma_rotation" in out["runs"]["sequential"]["goals"]["talus"]
+    assert out["joint_vs_sequential"]["talus"]["at_least_as_good"]
+    assert out["regoal"]["rewritten"] == ["runs.joint.goals", "runs.sequential.goals", "joint_vs_sequential"]
+    assert out["regoal"]["command"].endswith(f"--regoal {f}") and out["regoal"]["commit"]
+    # a one-mode file paired with the other mode's run of the same trial
+    seq = {"study": "core.studies.tracking.acceptance", **runs["sequential"],
+           "config": {"mode": "sequential", "frames": len(E), "pixels": 64}}
+    jf = tmp_path / "j.json"
+    joint = {**runs["joint"], "config": {"mode": "joint", "frames": len(E), "pixels": 64}}
+    jf.write_text(json.dumps({"runs": {"joint": joint}}))
+    sf = tmp_path / "s.json"
+    sf.write_text(json.dumps(seq, indent=2) + "\n")
+    assert main(["--regoal", str(sf), "--joint-from", str(jf), "--out", str(tmp_path / "o.json")]) == 0
+    o = json.loads((tmp_path / "o.json").read_text())
+    assert o["joint_vs_sequential"]["talus"]["decided_on"] == "paired"
+    assert o["regoal"]["joint_from"] == str(jf)
+    assert json.loads(sf.read_text()) == seq  # --out: the stored file untouched
+    jf.write_text(json.dumps({"runs": {"joint": {**joint, "config": {"mode": "joint", "frames": 7}}}}))
+    with pytest.raises(ValueError, match="same trial"):
+        main(["--regoal", str(sf), "--joint-from", str(jf), "--out", str(tmp_path / "o.json")])
+
+
+def test_regoal_of_sequential_drift_seeds_compares_per_seed_and_pooled(tmp_path):
+    import json
+
+    from core.studies.tracking.acceptance_goals import main
+
+    d = {"study": "core.studies.tracking.sequential_drift",
+         "runs": {"seed_1": _drift(1), "seed_2": _drift(2)}}
+    f = tmp_path / "d.json"
+    f.write_text(json.dumps(d, indent=1))
+    main(["--regoal", str(f)])
+    out = json.loads(f.read_text())
+    for k in ("seed_1", "seed_2"):
+        c = out["runs"][k]["joint_vs_sequential"]
+        assert c["subtracted"]["talus"]["at_least_as_good"] and c["subtracted"]["talus"]["mm"]["ratio"] == 1.0
+        assert c["whole_image"]["talus"]["mm"]["paired"]["verdict"] == "better"
+    pooled = out["joint_vs_sequential"]["seeds_pooled"]
+    assert pooled["subtracted"]["talus"]["mm"]["n_frames"] == 60
+    assert pooled["subtracted"]["talus"]["seeds"] == 2
+    assert pooled["whole_image"]["talus"]["at_least_as_good"]

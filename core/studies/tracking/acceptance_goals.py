@@ -242,6 +242,8 @@ def pool_drift(results) -> dict:
                  for u in ("mm", "deg")}
             p = paired_units(np.concatenate([q[1] for q in parts]), np.concatenate([q[2] for q in parts]),
                              joint_margin({"rms_mm": b["mm"], "rms_deg": b["deg"]}))
+            for u in ("mm", "deg"):  # joint / sequential, as compare_modes's ratio
+                p[u]["ratio"] = p[u]["rms_joint"] / p[u]["rms_sequential"] if p[u]["rms_sequential"] else None
             ok = bool(p["mm"]["at_least_as_good"] and p["deg"]["at_least_as_good"])
             out[name][n] = {**p, "bound_rms": b, "seeds": len(results), "decided_on": "paired",
                             "at_least_as_good": ok}

@@ -386,3 +386,4 @@ def test_regoal_of_sequential_drift_seeds_compares_per_seed_and_pooled(tmp_path)
     assert pooled["subtracted"]["talus"]["mm"]["n_frames"] == 60
     assert pooled["subtracted"]["talus"]["seeds"] == 2
     assert pooled["whole_image"]["talus"]["at_least_as_good"]
+    assert pooled["whole_image"]["talus"]["mm"]["ratio"] == pytest.approx(0.5, rel=1e-3)  # of 5-digit RMS

@@ -1,7 +1,12 @@
 """Issue 20's goals on the acceptance trial (:mod:`core.studies.tracking.acceptance`): per bone the
-goals met or not (:func:`goals`), the flagged frames as the run returned them (:func:`flag_counts`),
-joint against sequential tracking (:func:`compare_modes`) and the smallest joint space against the
-truth's (:func:`joint_space`)."""
+goals met or not (:func:`goals`; the 2σ coverage per axis, :func:`sigma_coverage`), the flagged
+frames as the run returned them (:func:`flag_counts`), joint against sequential tracking on the
+paired per-frame errors (:func:`compare_modes`, as the harder trial's goal is decided:
+:func:`core.studies.tracking.hard_trial_stats.paired_comparison`, margin :func:`joint_margin`) and
+the smallest joint space against the truth's (:func:`joint_space`).
+
+``python -m core.studies.tracking.acceptance_goals --regoal FILE [--joint-from FILE] [--out FILE]``
+recomputes the goals of a stored result without tracking (:func:`regoal`, :func:`main`)."""
 
 from __future__ import annotations
 

@@ -61,16 +61,16 @@ def _capture():
 
 def dump_run(ts, *, mode: str, search: str, seed: int, post: bool = True) -> dict:
     """Track scene ``ts`` (a :class:`~core.studies.tracking.acceptance.TrackingScene`) with
-    ``mode`` and ``search`` from the acceptance study's starts; per bone, arrays over the frames."""
+    ``mode`` and ``search`` from the acceptance study's starts and options
+    (:func:`~core.studies.tracking.acceptance.study_options`); per bone, arrays over the frames."""
     from dataclasses import replace
 
     from core.geometry.transforms import pose_from_params
-    from core.studies.tracking.acceptance import _random_offset, pose_errors
+    from core.studies.tracking.acceptance import _random_offset, pose_errors, study_options
     from core.tracking.checks import _distance, _predict
-    from core.tracking.trial import TrackingOptions, track
+    from core.tracking.trial import track
 
-    o = TrackingOptions(mode=mode)
-    o = replace(o, registration=replace(o.registration, search=search))
+    o = study_options(mode, search)  # as the acceptance study (sequential: the neighbours subtracted)
     if not post and hasattr(o, "trajectory_limit"):
         o = replace(o, trajectory_limit=None)
     g = np.random.default_rng(seed + 7)
@@ -123,6 +123,28 @@ def dump_run(ts, *, mode: str, search: str, seed: int, post: bool = True) -> dic
             rec["pred_deg"].append(pd)
         rec["center"] = [np.asarray(c, float)]
         out["bones"][n] = rec
+    return out
+
+
+def frame_bounds(ts, frames) -> dict:
+    """Per bone, ``(n_frames, 6, 6)`` Cramér–Rao covariances (:func:`core.tracking.bound.pose_bound`
+    at the true pose, mm and degrees) in ``frames``, NaN elsewhere: the bound of each frame itself
+    rather than the bone's RMS over every tenth frame."""
+    from core.tracking.bound import pose_bound
+    from core.tracking.cost import OutsideViewError
+
+    N = [m.photons_per_pixel for m in ts.scene.imaging]
+    out = {n: np.full((ts.scene.n_frames, 6, 6), np.nan) for n in ts.names}
+    if any(v is None for v in N):
+        return out
+    for f in sorted({int(f) for f in frames}):
+        L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+        for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
+            try:
+                out[n][f] = pose_bound(ts.renderer, b, ts.truth(f)[b], m.centroid, line_integral=L,
+                                       quanta_per_pixel=N).covariance
+            except OutsideViewError:
+                pass
     return out
 
 
@@ -241,6 +263,9 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=1024)
     p.add_argument("--voxel", type=float, default=0.5)
     p.add_argument("--device", default=None)
+    p.add_argument("--workers", type=int, default=0, help="processes for the frames' image chain")
+    p.add_argument("--frame-bounds", type=int, default=0, metavar="K",
+                   help="dump each frame's own bound on every K-th frame and the frames over 4x (0: none)")
     p.add_argument("--no-post", action="store_true", help="track without the trajectory post-pass")
     p.add_argument("--dump", default=None, help="write <dump>_<seed>_<mode>_<search>.npz")
     p.add_argument("--out", default=None, help="also write the JSON here")
@@ -268,6 +293,8 @@ def main(argv=None) -> int:
         print_json({"study": "core.studies.tracking.silent_failures", "post": post,
                     "runs": {path: analyse(path, **post) for path in a.analyse}}, a.out)
         return 0
+    from core.studies.tracking.trial_frames import synthesise
+
     out = {"study": "core.studies.tracking.silent_failures", "machine": platform.machine(), "runs": {}}
     for seed in (int(s) for s in a.seeds.split(",")):
         t0 = time.perf_counter()
@@ -275,11 +302,11 @@ def main(argv=None) -> int:
         ts = tracking_scene(quick=quick, device=a.device, seed=seed, n_frames=a.frames, pixels=a.pixels)
         if a.voxel != (1.0 if quick else 0.5):
             raise SystemExit("--voxel: the acceptance scene's voxels are 1 mm at 256² and below, else 0.5 mm")
-        for i in range(ts.scene.n_frames):
-            ts.frames(i)
+        synthesise(ts, range(ts.scene.n_frames), a.workers)
         setup = time.perf_counter() - t0
         bound = cramer_rao(ts, range(0, ts.scene.n_frames, max(1, ts.scene.n_frames // 10)))
         out["device"] = str(ts.renderer.device)
+        dumps = {}
         for cfg in a.configs.split(","):
             mode, search = cfg.split(":")
             got = dump_run(ts, mode=mode, search=search, seed=seed, post=not a.no_post)
@@ -296,9 +323,21 @@ def main(argv=None) -> int:
                         arrays[f"{n}.{k}"] = np.asarray(v, float)
                 arrays[f"{n}.bound"] = np.array(json.dumps(bound[n]))
             out["runs"][key] = run
-            if a.dump:
-                np.savez_compressed(f"{a.dump}_{seed}_{mode}_{search}.npz", **arrays)
+            dumps[(mode, search)] = arrays
             print(json.dumps({key: run}), flush=True)
+        if a.frame_bounds:  # every k-th frame and every frame over 4x in any configuration
+            t1 = time.perf_counter()
+            fs = set(range(0, ts.scene.n_frames, a.frame_bounds))
+            for key in out["runs"]:
+                if key.startswith(f"{seed}:"):
+                    fs |= {f for c in out["runs"][key]["bones"].values() for f in c["over"]}
+            fb = frame_bounds(ts, fs)
+            for arrays in dumps.values():
+                arrays.update({f"{n}.frame_bound": C for n, C in fb.items()})
+            out.setdefault("frame_bounds_s", {})[str(seed)] = time.perf_counter() - t1
+        if a.dump:
+            for (mode, search), arrays in dumps.items():
+                np.savez_compressed(f"{a.dump}_{seed}_{mode}_{search}.npz", **arrays)
     from core.io.atomic import print_json
 
     print_json(out, a.out)

@@ -1,0 +1,55 @@
+"""The silent-failure candidate checks' residuals (core.studies.tracking.silent_checks): a short run
+of frames off together hides from the fit through its nearest neighbours and shows once they are
+left out of it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core.geometry.transforms import pose_from_params
+from core.studies.tracking.silent_checks import _axis_scale, _norm_scale, auc, block_residuals
+
+C = np.array([5.0, -3.0, 40.0])
+
+
+def _track(n=40, noise=(0.01, 0.05), seed=1, run=(), deg=0.0):
+    g = np.random.default_rng(seed)
+    t = np.arange(n) / n
+    P = []
+    for k in range(n):
+        p = np.r_[20 * t[k] + 5 * t[k] ** 2, 3 * np.sin(2 * t[k]), -4 * t[k],
+                  np.radians([10 * t[k], -6 * t[k] ** 2, 4 * np.sin(3 * t[k])])]
+        p[:3] += g.normal(0, noise[0], 3)
+        p[3:] += np.radians(g.normal(0, noise[1], 3))
+        if k in run:
+            p[5] += np.radians(deg)
+        P.append(pose_from_params(p, center=C, base=np.eye(4)))
+    return np.array(P)
+
+
+def test_a_three_frame_run_shows_once_its_neighbours_leave_the_fit():
+    P = _track(run=(20, 21, 22), deg=0.4)
+    use = np.ones(len(P), dtype=bool)
+    near = _norm_scale(block_residuals(P, use, C, gap=0), use)
+    wide = _norm_scale(block_residuals(P, use, C, gap=2), use)
+    assert wide[21] > 4 and wide[21] > 1.5 * near[21]
+    # the residual is signed per axis, in degrees: the run's middle frame about z
+    R = block_residuals(P, use, C, gap=2)
+    assert R[21, 5] > 0.2 and abs(R[21, 3]) < 0.1
+    assert np.argmax(_axis_scale(R, use)) in (20, 21, 22)
+
+
+def test_noise_free_tracks_fit_and_the_ends_are_extrapolated():
+    P = _track(noise=(0.0, 0.0))
+    use = np.ones(len(P), dtype=bool)
+    R = block_residuals(P, use, C, gap=2)
+    assert np.all(np.isfinite(R))  # the first and last frames from one side
+    assert np.abs(R).max() < 0.02 and np.abs(R[8:-8]).max() < 0.002
+    use[10] = False
+    assert np.isnan(block_residuals(P, use, C)[10]).all()
+
+
+def test_auc():
+    assert auc(np.array([2.0, 3.0]), np.array([0.0, 1.0])) == 1.0
+    assert auc(np.array([1.0]), np.array([1.0])) == 0.5
+    assert np.isnan(auc(np.array([]), np.array([1.0])))

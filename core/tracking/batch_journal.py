@@ -7,11 +7,19 @@ checks that no other writer (``talus track``, the window) holds it for good, and
 the journal's lock — the study layout's ``results/<trial>/poses/.<bone>.lock``, the one
 :meth:`core.study.Study.lock_journal` holds — for its append only, after cutting off a record torn
 by a writer that was killed mid-append.
+
+:meth:`SharedJournals.holding` holds the locks of a trial's bones across a read-modify-write — the
+trajectory pass over a trial's ranges (:mod:`core.tracking.batch_pass`) reads the journals, judges
+the frames and journals the flags it changed under them — so a hand fix (a pose recorded by the
+window or another process, which takes the same lock) cannot land between the read and the write
+and be overtaken: it waits for the pass, or the pass for it, and the pass then reads it.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["JOURNAL_START_WAIT_S", "JOURNAL_WAIT_S", "SharedJournals"]
@@ -34,8 +42,8 @@ def _journal_lock(folder: Path, trial: str, bone: str, wait_s: float):
 class _SharedTrial:
     """A trial whose :meth:`record_pose` takes the bone journal's lock for one append."""
 
-    def __init__(self, trial, folder: Path, wait_s: float) -> None:
-        self._trial, self._folder, self._wait_s = trial, folder, wait_s
+    def __init__(self, trial, folder: Path, wait_s: float, held: frozenset | set = frozenset()) -> None:
+        self._trial, self._folder, self._wait_s, self._held = trial, folder, wait_s, held
 
     def __getattr__(self, name):
         return getattr(self._trial, name)
@@ -44,7 +52,8 @@ class _SharedTrial:
         from ..study.results import append_pose, repair_tail
 
         path = self._folder / "results" / self._trial.name / "poses" / f"{bone}.jsonl"
-        lock = _journal_lock(self._folder, self._trial.name, bone, self._wait_s)
+        held = (self._trial.name, bone) in self._held  # SharedJournals.holding: the lock is ours already
+        lock = None if held else _journal_lock(self._folder, self._trial.name, bone, self._wait_s)
         try:
             if path.exists() and path.stat().st_size:  # a torn last record (a writer killed
                 with open(path, "rb") as fh:  # mid-append) is cut off first, as Trial does
@@ -53,7 +62,8 @@ class _SharedTrial:
                         repair_tail(path)
             append_pose(path, int(frame), pose, score=score, tracking=tracking)
         finally:
-            lock.release()
+            if lock is not None:
+                lock.release()
 
 
 class SharedJournals:
@@ -62,6 +72,7 @@ class SharedJournals:
 
     def __init__(self, study, wait_s: float = JOURNAL_WAIT_S) -> None:
         self._study, self._wait_s = study, wait_s
+        self._held: set[tuple[str, str]] = set()  # (trial, bone) whose lock holding() holds
 
     def __getattr__(self, name):
         return getattr(self._study, name)
@@ -71,4 +82,25 @@ class SharedJournals:
         _journal_lock(self._study.folder, trial, bone, JOURNAL_START_WAIT_S).release()
 
     def trial(self, name: str) -> _SharedTrial:
-        return _SharedTrial(self._study.trial(name), self._study.folder, self._wait_s)
+        return _SharedTrial(self._study.trial(name), self._study.folder, self._wait_s, self._held)
+
+    @contextmanager
+    def holding(self, trial: str, bones: Sequence[str],
+                wait_s: float = JOURNAL_START_WAIT_S) -> Iterator[None]:
+        """Hold the journal locks of ``bones`` of ``trial`` (taken in name order, each within
+        ``wait_s`` seconds: another writer's append is waited for, a writer that holds the bone
+        for good refuses with :class:`~core.io.atomic.LockedError`) for a read-modify-write: reads
+        in the block see every record appended before it, and this object's
+        :meth:`_SharedTrial.record_pose` appends without taking them again (module notes)."""
+        self._study.trial(trial).bones  # noqa: B018 (an unknown trial raises here)
+        locks = []
+        try:
+            for b in sorted(set(bones)):
+                locks.append(_journal_lock(self._study.folder, trial, b, wait_s))
+                self._held.add((trial, b))
+            yield
+        finally:
+            for b in sorted(set(bones)):
+                self._held.discard((trial, b))
+            for lock in locks:
+                lock.release()

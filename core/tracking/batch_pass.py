@@ -18,7 +18,14 @@ other good poses as neighbours) and
   :func:`final_records` sets each range task's record's ``flagged`` to the count after the pass
   (``flagged_before_pass``: the task's own).
 
-A pass that fails while journaling its changes (another writer took the bone) names in its
+The pass reads the group's journals, judges them and journals its changes holding the bones'
+journal locks (:meth:`core.tracking.batch_journal.SharedJournals.holding`), so a hand fix — a pose
+the window or another process records, under the same lock — lands before the read (the pass
+waits up to :data:`~core.tracking.batch_journal.JOURNAL_START_WAIT_S` for an append in flight,
+then reads it: a hand-set pose is not judged) or is refused until the write is done; it is never
+overtaken by the frame's tracked pose journaled again with a new flag. A writer that holds a bone
+for good (``talus track``, the window) makes the pass an ``error`` entry.
+A pass that fails while journaling its changes (e.g. a full disk) names in its
 ``error`` entry the frames it journaled before (``journaled``), which carry its flags; the
 reports and records keep the ranges' own. A report that cannot be read or written (removed by
 hand, its lock held) is named in the entry (``reports_unreadable``, ``reports_unwritten``) and
@@ -95,28 +102,33 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
         return {"judged": 0, "flagged": 0, "changed": [], "seconds": 0.0, "off": True}
     with Study.open(study, mode="w", check_files=False) as st:
         shared = SharedJournals(st)
-        for b in bones:  # refused while another writer (talus track, the window) holds the bone
-            shared.lock_journal(trial_name, b)
-        trial = shared.trial(trial_name)
-        states = {b: trial.results(b) for b in bones}
-        results = {(b, f): FrameResult.from_journal(b, r) for b in bones for f in frames
-                   if (r := states[b].records.get(f)) is not None and r.kind == "tracked"}
-        # the centre track_study's bone model gives (the mask's centroid at the threshold)
+        # the centre track_study's bone model gives (the mask's centroid at the threshold), before
+        # the journals are locked (the model takes a moment)
         centers = {b: bone_model(st.bone_volume(b), name=b, threshold=settings.threshold_hu,
                                  mesh=False).centroid for b in bones}
-        res = TrackingResult(tuple(bones), tuple(frames), results, "complete", 0.0)
-        # every other good pose of the journal a neighbour: outside the ranges, hand fixes in them
-        near = journal_neighbours(states)
-        out, changed = apply_trajectory_flags(res, centers, limit=limit, neighbours=near)
-        done = []
-        try:
-            for fr in changed:
-                trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score, tracking=fr.journal_fields())
-                done.append([fr.bone, int(fr.frame)])
-        except Exception as exc:  # (e.g. another writer took the bone): those journaled are named
-            if not done:
-                raise
-            raise _PartlyJournaled(done, len(changed)) from exc
+        # read, judge and journal the changes under the bones' journal locks: a hand fix (the window,
+        # another process) lands before the read or after the write, never between (then it would
+        # be overtaken by the frame's old pose with its new flag). Refused while another writer
+        # (talus track, the window) holds a bone for good.
+        with shared.holding(trial_name, bones):
+            trial = shared.trial(trial_name)
+            states = {b: trial.results(b) for b in bones}
+            results = {(b, f): FrameResult.from_journal(b, r) for b in bones for f in frames
+                       if (r := states[b].records.get(f)) is not None and r.kind == "tracked"}
+            res = TrackingResult(tuple(bones), tuple(frames), results, "complete", 0.0)
+            # every other good pose of the journal a neighbour: outside the ranges, hand fixes in them
+            near = journal_neighbours(states)
+            out, changed = apply_trajectory_flags(res, centers, limit=limit, neighbours=near)
+            done = []
+            try:
+                for fr in changed:
+                    trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score,
+                                      tracking=fr.journal_fields())
+                    done.append([fr.bone, int(fr.frame)])
+            except Exception as exc:  # (e.g. the disk full): those journaled are named
+                if not done:
+                    raise
+                raise _PartlyJournaled(done, len(changed)) from exc
         final = out.results
         moved = {(fr.bone, int(fr.frame)) for fr in changed}
         names = [t.report_name for t in tasks]

@@ -221,3 +221,73 @@ def test_a_pass_cut_off_while_journaling_says_which_frames_it_journaled(keyed, t
     assert line == ("demo/walk/talus: the trajectory check over its 2 ranges failed (TimeoutError: bone held "
                     "by the window) after journaling 1 of 2 changed frames (talus frame 3): those carry "
                     "its flags, the ranges' reports and records their own")
+
+
+def _ranges_done(keyed, tmp_path, monkeypatch):
+    """The keyed walk's talus ranges tracked (frame 10 off the trajectory), the pass not yet run:
+    (folder, tasks, records)."""
+    folder, tasks = _batch(keyed, tmp_path, monkeypatch)
+    return folder, tasks, [batch.run_task(t, SETTINGS) for t in tasks]
+
+
+def test_a_hand_fix_cannot_land_between_the_pass_reading_and_writing_the_journal(keyed, tmp_path,
+                                                                                 monkeypatch):
+    """While the pass judges (between its read of the journal and its write of the changed flags) it
+    holds the bone's journal lock: a hand fix of frame 10 from another study handle, as the window
+    records one, is refused then, and recorded after the pass it stays the frame's pose."""
+    import core.tracking.flags_post as fp
+    from core.io.atomic import LockedError
+
+    folder, tasks, records = _ranges_done(keyed, tmp_path, monkeypatch)
+    truth = np.load(keyed / "poses" / f"{BONE}.npy")
+    real, tried = fp.apply_trajectory_flags, []
+
+    def judge(*a, **kw):  # between the read and the write: a hand fix tries to land
+        with Study.open(folder, mode="w") as other:
+            try:
+                other.trial("walk").record_pose(BONE, 10, truth[10])
+            except LockedError as exc:
+                tried.append(exc)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(fp, "apply_trajectory_flags", judge)
+    (entry,) = batch.trajectory_pass(tasks, records, SETTINGS)
+    assert len(tried) == 1 and "talus" in str(tried[0])  # refused: the pass held the bone
+    assert entry["changed"] == [[BONE, 10]] and "error" not in entry
+    with Study.open(folder, mode="w") as st:  # the fix, after the pass: the frame's pose
+        st.trial("walk").record_pose(BONE, 10, truth[10])
+    with Study.open(folder) as st:
+        rec = st.trial("walk").results(BONE).records[10]
+    assert rec.kind == "hand" and np.array_equal(rec.pose, truth[10])
+
+
+def test_the_pass_waits_for_a_writer_and_reads_its_hand_fix(keyed, tmp_path, monkeypatch):
+    """A writer holds the talus's journal lock (appending a hand fix of frame 10) when the pass starts:
+    the pass waits for it, then reads the fix — a hand-set pose, not judged, not journaled again —
+    so the fix is not overtaken by the tracked pose with the off-the-trajectory flag."""
+    import threading
+    import time
+
+    from core.io.atomic import FileLock
+    from core.study.results import append_pose
+
+    folder, tasks, records = _ranges_done(keyed, tmp_path, monkeypatch)
+    truth = np.load(keyed / "poses" / f"{BONE}.npy")
+    poses = folder / "results" / "walk" / "poses"
+    lock = FileLock(poses / f".{BONE}.lock", purpose="the test's hand fix").acquire()
+    got = []
+    try:
+        th = threading.Thread(target=lambda: got.append(batch.trajectory_pass(tasks, records, SETTINGS)))
+        th.start()
+        time.sleep(1.0)
+        assert th.is_alive() and not got  # waiting for the lock (up to JOURNAL_START_WAIT_S)
+        append_pose(poses / f"{BONE}.jsonl", 10, truth[10])  # the hand fix, under the lock
+    finally:
+        lock.release()
+    th.join(timeout=60)
+    (entry,) = got[0]
+    assert "error" not in entry, entry
+    assert entry["changed"] == [] and entry["judged"] == 29  # frame 10 is a hand-set pose now
+    with Study.open(folder) as st:
+        rec = st.trial("walk").results(BONE).records[10]
+    assert rec.kind == "hand" and np.array_equal(rec.pose, truth[10])

@@ -88,7 +88,7 @@ from ._shared import (
 __all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "SEARCHES", "STAGE_MOVES", "SUBTRACTS",
            "SUBTRACT_HELP", "TRAJECTORY_OFF", "add_check_arguments", "check_choices", "choices_of",
            "configure", "final_stage_problem", "options_from_choices", "parse_frames", "registration_terms",
-           "run", "stage_move_note", "subtract_choice"]
+           "run", "stage_move_note", "stopped_lines", "subtract_choice"]
 
 HELP = "track bones of a study trial, saving each pose as it finishes"
 
@@ -288,7 +288,8 @@ def parse_frames(text: str | None, n_frames: int) -> list[int]:
     except ValueError:
         raise ValueError(f"--frames: expected START:STOP or a frame number, got {text!r}") from None
     if not 0 <= lo < hi <= n_frames:
-        raise ValueError(f"--frames: {text!r} is not a non-empty range inside 0:{n_frames}")
+        raise ValueError(f"--frames: {text!r} is not a non-empty range of the trial's {n_frames} frames "
+                         f"(0:{n_frames}, STOP exclusive)")
     return list(range(lo, hi))
 
 
@@ -521,8 +522,28 @@ def run(a: argparse.Namespace) -> int:
             print(f"{PROG} track: the likelihood refinement was kept in {took} of {ran} bone-frames; the "
                   f"others keep the similarity's pose ({why})", file=sys.stderr)
     print_json(out)
+    for line in stopped_lines(report.get("stopped"), tracked=result is not None or cancelled):
+        print(f"{PROG} track: {line}", file=sys.stderr)
     if cancelled:
         print(f"{PROG} track: cancelled; the poses finished so far are saved "
               f"('{PROG} track ... --resume' carries on)", file=sys.stderr)
         return EXIT_CANCELLED
     return EXIT_NOTHING_DONE if result is None else EXIT_OK
+
+
+#: What to do about a bone without a keyframe, after the library's reason.
+KEYFRAME_HINT = ("pose it at a frame and mark a keyframe in the window (drag it, then Review > Mark "
+                 "keyframe, K), or from Python: Trial.record_pose(bone, frame, T_lab_from_bone)")
+
+
+def stopped_lines(stopped: dict | None, *, tracked: bool) -> list[str]:
+    """The lines on stderr for the bones that were not tracked (``report["stopped"]``: bone ->
+    reason), with what to do about a missing keyframe; and, when nothing was tracked, a last
+    line saying so (the exit status is then 4)."""
+    lines = []
+    for bone, why in (stopped or {}).items():
+        hint = f"; {KEYFRAME_HINT}" if "no keyframe" in str(why) else ""
+        lines.append(f"{bone} not tracked: {why}{hint}")
+    if not tracked:
+        lines.append("nothing was tracked (exit status 4)")
+    return lines

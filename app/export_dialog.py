@@ -127,13 +127,13 @@ class ExportDialog(QtWidgets.QDialog):
 
     def _default_path(self) -> Path:
         kind, fmt, suffix, folder, _ = self.choice
-        base = Path(self.window.session.study.folder) / "exports"
-        stem = self.trial.name
-        if kind == "poses":
-            stem = f"{stem}_{fmt}"
-        elif kind in ("plots", "report"):
-            stem = f"{stem}_{kind}"
-        return base / (stem if folder else f"{stem}{suffix}")
+        study_folder = Path(self.window.session.study.folder)
+        if kind == "poses":  # the name talus export writes without --out
+            from core.study.exports import default_path
+
+            return default_path(study_folder, self.trial.name, fmt)
+        stem = f"{self.trial.name}_{kind}"
+        return study_folder / "exports" / (stem if folder else f"{stem}{suffix}")
 
     def _chosen(self, row: int) -> None:
         kind, about = self.choice[0], self.choice[4]

@@ -10,8 +10,11 @@ Formats (see :mod:`core.study.export_trial` and :mod:`core.study.exports`): ``tr
 layout holding Talus's ``T_lab_from_bone`` (the CT's physical frame; what ``Trial.export_tra``
 writes; not for Autoscoper); XMALab / XROMM rigid-body CSV, one Slicer ``.tfm`` per bone (one
 frame), one JointTrack ``.jts`` per bone (a camera's frame), C3D (4x4 rotations), OpenSim
-``.mot`` / ``.trc``, JCS angle CSV; CSV of 4x4 or 6-DOF poses, JSON. Default output:
-``STUDY/exports/<trial>.<ext>`` (a folder for tfm and jts).
+``.mot`` / ``.trc``, JCS angle CSV; CSV of 4x4 or 6-DOF poses, JSON. Default output: what
+*File → Export…* proposes, ``STUDY/exports/<trial>_<format>.<ext>`` (a folder
+``<trial>_<format>`` for tfm and jts; :func:`core.study.exports.default_path`), so no two formats
+write the same file; ``tra`` is named ``tra-autoscoper`` there. An ``--out`` that is an existing
+folder gets that file name inside it (tfm and jts write their files into ``--out``).
 """
 
 from __future__ import annotations
@@ -28,7 +31,6 @@ HELP = "write a trial's poses for other tools (.tra, C3D, .mot...)"
 TRIAL_FORMATS = ("tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs")  # export_trial's names
 POSE_FORMATS = ("tra-talus", "csv", "csv-6dof", "json")  # core.study.exports
 FORMATS = (*TRIAL_FORMATS, "tra-autoscoper", *POSE_FORMATS)
-_OUT = {"tra-talus": "_talus.tra", "csv": ".csv", "csv-6dof": "_6dof.csv", "json": ".json"}
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -38,7 +40,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trial", required=True, help="trial name")
     p.add_argument("--format", required=True, choices=FORMATS, dest="fmt",
                    help="tra = tra-autoscoper (Autoscoper's volume frame); tra-talus: T_lab_from_bone")
-    p.add_argument("--out", default=None, metavar="PATH", help="output file (folder for tfm, jts)")
+    p.add_argument("--out", default=None, metavar="PATH",
+                   help="output file (folder for tfm, jts); an existing folder gets the default name "
+                        "inside it. Default: STUDY/exports/TRIAL_FORMAT.EXT (FORMAT tra-autoscoper for tra)")
     p.add_argument("--bones", default=None, help="comma-separated bones (default: the trial's)")
     p.add_argument("--rate", type=float, default=None,
                    help="frame rate, Hz (default: an imported XMALab trial's recording speed, else 100)")
@@ -50,17 +54,17 @@ def configure(p: argparse.ArgumentParser) -> None:
 def run(a: argparse.Namespace) -> int:
     folder = study_folder(a.study)
     from core.study import Study
-    from core.study.export_trial import default_out, export_trial
+    from core.study.export_trial import export_trial
+    from core.study.exports import default_path
 
     fmt = "tra" if a.fmt == "tra-autoscoper" else a.fmt
     bones = a.bones.split(",") if a.bones else None
-    if a.out:
-        out = Path(a.out).expanduser()
-    elif fmt in POSE_FORMATS:
-        out = folder / "exports" / f"{a.trial}{_OUT[fmt]}"
-    else:
-        out = default_out(folder, a.trial, fmt)
+    # the name the window's dialog proposes; 'tra' here is Autoscoper's frame (tra-talus's alias there)
+    default = default_path(folder, a.trial, "tra-autoscoper" if fmt == "tra" else fmt)
+    out = Path(a.out).expanduser() if a.out else default
     if fmt not in ("tfm", "jts"):
+        if out.is_dir():  # a folder given: the default file name inside it
+            out = out / default.name
         out.parent.mkdir(parents=True, exist_ok=True)
     with Study.open(folder, mode="r") as study:
         if a.rate is None:

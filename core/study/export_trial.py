@@ -27,7 +27,6 @@ import numpy as np
 __all__ = ["FORMATS", "export_trial"]
 
 FORMATS = ("tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs")
-_SUFFIX = {"tra": ".tra", "xromm-csv": ".csv", "c3d": ".c3d", "mot": ".mot", "trc": ".trc", "jcs": ".csv"}
 
 
 def _volume_flip(study, bone: str):
@@ -131,10 +130,3 @@ def export_trial(study, trial: str, fmt: str, out: str | os.PathLike, *, bones=N
     write_jcs_csv(out, table)
     return [out]
 
-
-def default_out(study_folder: Path, trial: str, fmt: str) -> Path:
-    """``<study>/exports/<trial>.<ext>`` (a folder ``<trial>_<fmt>`` for tfm and jts)."""
-    base = Path(study_folder) / "exports"
-    if fmt in ("tfm", "jts"):
-        return base / f"{trial}_{fmt}"
-    return base / f"{trial}{'_jcs' if fmt == 'jcs' else ''}{_SUFFIX[fmt]}"

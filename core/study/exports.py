@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ALIASES", "POSE_FORMATS", "PoseFormat", "available_formats", "export_poses", "recording_rate",
-           "trial_poses"]
+__all__ = ["ALIASES", "POSE_FORMATS", "PoseFormat", "available_formats", "default_path", "export_poses",
+           "recording_rate", "trial_poses"]
 
 
 @dataclass(frozen=True)
@@ -150,6 +150,18 @@ def available_formats() -> dict[str, PoseFormat]:
     first = {k: f for k, f in (("tra-autoscoper", opt.get("tra-autoscoper")),
                                 ("tra-talus", POSE_FORMATS["tra-talus"])) if f is not None}
     return {**first, **POSE_FORMATS, **opt}  # the two .tra side by side, Autoscoper's first
+
+
+def default_path(study_folder: str | os.PathLike, trial: str, fmt: str) -> Path:
+    """Where an export of ``trial`` as ``fmt`` goes unless told otherwise (*File → Export…* and
+    ``talus export``): ``<study>/exports/<trial>_<fmt><suffix>``, a folder ``<trial>_<fmt>`` for the
+    formats written one file per bone. The format's name is in the file's, so two formats (the
+    4x4 CSV and XMALab's CSV, the two ``.tra``) never write the same file."""
+    formats = available_formats()
+    fmt = ALIASES.get(fmt, fmt)
+    if fmt not in formats:
+        raise ValueError(f"fmt: expected one of {sorted(formats)}, got {fmt!r}")
+    return Path(study_folder) / "exports" / f"{trial}_{fmt}{formats[fmt].suffix}"
 
 
 def recording_rate(study, trial: str, default: float = 100.0) -> float:

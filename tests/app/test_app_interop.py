@@ -315,4 +315,4 @@ def test_cli_export_names_both_tra_frames(demo_folder, tmp_path, capsys):
         want = np.stack([tr.poses(b) for b in tr.bones], axis=1)
     np.testing.assert_allclose(read_tra(tmp_path / "tra-talus.out", n_volumes=want.shape[1]), want, atol=0)
     assert main(["export", str(folder), "--trial", "walk", "--format", "csv"]) == 0
-    assert (folder / "exports" / "walk.csv").is_file()
+    assert (folder / "exports" / "walk_csv.csv").is_file()  # the dialog's name (test_cli_walk.py)

@@ -49,3 +49,32 @@ def test_track_without_keyframes_says_why_and_what_to_do_on_stderr(study, capsys
 def test_frames_outside_the_trial_name_its_length(study, capsys):
     assert talus(["track", str(study), "--trial", "walk", "--frames", "5:9", "--quiet"]) == 1
     assert "'5:9' is not a non-empty range of the trial's 2 frames (0:2" in capsys.readouterr().err
+
+
+def test_export_default_names_never_collide_and_match_the_dialog(study, tmp_path, capsys):
+    """'csv' and 'xromm-csv' both wrote exports/walk.csv: the second silently replaced the first.
+    Every format now has its own default name, the one File > Export... proposes."""
+    from core.study.exports import available_formats, default_path
+
+    written = {}
+    for fmt in ("csv", "xromm-csv", "tra", "tra-talus", "csv-6dof", "json", "mot", "trc", "tfm"):
+        assert talus(["export", str(study), "--trial", "walk", "--format", fmt]) == 0
+        written[fmt] = json.loads(capsys.readouterr().out)["files"]
+    assert written["csv"] == [str(study / "exports" / "walk_csv.csv")]
+    assert written["xromm-csv"] == [str(study / "exports" / "walk_xromm-csv.csv")]
+    assert written["tra"] == [str(study / "exports" / "walk_tra-autoscoper.tra")]  # Autoscoper's frame
+    assert written["tfm"][0].startswith(str(study / "exports" / "walk_tfm") + "/")
+    files = [f for fs in written.values() for f in fs]
+    assert len(set(files)) == len(files)
+    assert (study / "exports" / "walk_csv.csv").read_text().startswith("frame,")  # not XMALab's
+    assert default_path(study, "walk", "xromm-csv") == study / "exports" / "walk_xromm-csv.csv"
+    assert len({default_path(study, "walk", f) for f in available_formats()}) == len(available_formats())
+
+
+def test_export_to_an_existing_folder_puts_the_default_name_inside(study, tmp_path, capsys):
+    """--out DIR (a folder) failed with '[Errno 21] Is a directory' naming a temporary file."""
+    (tmp_path / "out").mkdir()
+    assert talus(["export", str(study), "--trial", "walk", "--format", "csv-6dof",
+                  "--out", str(tmp_path / "out")]) == 0
+    assert json.loads(capsys.readouterr().out)["files"] == [str(tmp_path / "out" / "walk_csv-6dof.csv")]
+    assert (tmp_path / "out" / "walk_csv-6dof.csv").is_file()

@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{PROG} demo: using the demo study already in {out} (--regenerate to rebuild)",
               file=sys.stderr)
         print_json(cached)
+        _say_calibration(cached, out)
         return _open_demo_gui(out, args)
     token = CancelToken()
     progress = Progress("demo", "frame")
@@ -77,10 +78,28 @@ def run(args: argparse.Namespace) -> int:
             progress.close()
     if result is not None:
         print_json(result)  # also after a cancel: the summary says what was written
+        _say_calibration(result, out)
     if token.is_set():
         print(f"{PROG} demo: cancelled; complete frames so far are in {out}", file=sys.stderr)
         return EXIT_CANCELLED
     return _open_demo_gui(out, args)
+
+
+def _say_calibration(summary: dict, out: Path) -> None:
+    """Say on stderr how the demo's trial is calibrated when the summary's ``calibration`` is not a
+    saved one: skipped (images under 256 px) or failed (the error was only in the JSON, and the
+    trial silently kept the generator's rig)."""
+    cal = summary.get("calibration") if isinstance(summary, dict) else None
+    if not isinstance(cal, dict):
+        return
+    if cal.get("error"):
+        session = out / str(summary.get("calibration_session") or "calibration_session")
+        print(f"{PROG} demo: WARNING: the study could not be calibrated from its session, so its "
+              f"trial uses the generator's rig without correction: {cal['error']} (try again with "
+              f"'{PROG} calibrate {session} --study {out}' and the options the message suggests)",
+              file=sys.stderr)
+    elif cal.get("skipped"):
+        print(f"{PROG} demo: not calibrated: {cal['skipped']}", file=sys.stderr)
 
 
 def _cached_demo(out: Path, args: argparse.Namespace) -> dict | None:

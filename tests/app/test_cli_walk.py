@@ -78,3 +78,34 @@ def test_export_to_an_existing_folder_puts_the_default_name_inside(study, tmp_pa
                   "--out", str(tmp_path / "out")]) == 0
     assert json.loads(capsys.readouterr().out)["files"] == [str(tmp_path / "out" / "walk_csv-6dof.csv")]
     assert (tmp_path / "out" / "walk_csv-6dof.csv").is_file()
+
+
+@pytest.mark.parametrize("calibration, expect", [
+    ({"error": "beads: cam1/cube/0000.tif (cube15 frame 0): the static cube15 frame was recorded but "
+               "could not be labelled"},
+     "talus demo: WARNING: the study could not be calibrated from its session, so its trial uses the "
+     "generator's rig without correction: beads: cam1/cube/0000.tif"),
+    ({"skipped": "128-pixel images are too coarse to calibrate"},
+     "talus demo: not calibrated: 128-pixel images are too coarse to calibrate"),
+    ({"calibration": "session.v1", "reprojection_rms_px": 0.05}, None),
+])
+def test_demo_says_on_stderr_when_its_study_is_not_calibrated(monkeypatch, tmp_path, capsys, calibration,
+                                                              expect):
+    """The demo's calibration failure (the 256^2 demo's cube frame) was only in the JSON summary."""
+    import sys
+    import types
+
+    def make_demo_study(out_dir, *, progress, cancel, **options):
+        return {"status": "complete", "calibration_session": "calibration_session",
+                "calibration": calibration}
+
+    fake = types.SimpleNamespace(__name__="core.synthetic.demo", make_demo_study=make_demo_study)
+    monkeypatch.setitem(sys.modules, "core.synthetic.demo", fake)
+    assert talus(["demo", "--out", str(tmp_path), "--frames", "2", "--no-gui"]) == 0
+    err = capsys.readouterr().err
+    if expect is None:
+        assert "calibrat" not in err
+    else:
+        assert expect in err
+        if "WARNING" in expect:
+            assert f"talus calibrate {tmp_path / 'calibration_session'} --study {tmp_path}" in err

@@ -61,9 +61,9 @@ from ..geometry.transforms import pose_from_params
 from .noise import NOISE_OPTION, FrameNoise, noise_maps
 from .roi import OutsideViewError, search_roi, snap_roi
 
-__all__ = ["DEFAULT_TERMS", "NOISE_OPTION", "CostTimer", "FrameImages", "MetricTerm", "OutsideViewError",
-           "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel", "noise_maps", "prepare_frame",
-           "search_roi", "snap_roi"]
+__all__ = ["DEFAULT_TERMS", "NOISE_OPTION", "RIM_OPTION", "CostTimer", "FrameImages", "MetricTerm",
+           "OutsideViewError", "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel",
+           "noise_maps", "prepare_frame", "rim_masks", "rim_radius", "search_roi", "snap_roi"]
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,10 @@ class MetricTerm:
     ``drr_sigma_mm`` give the smoothing in mm at the bone instead of DRR pixels; ``gc`` with
     ``components=True`` correlates the gradient components instead of the magnitudes, also in the
     Gauss–Newton engine; ``gc`` of the magnitudes with ``noise_correction=True`` takes the frame's
-    quantum noise out of the fluoroscope's magnitudes at full resolution, :func:`noise_maps`)."""
+    quantum noise out of the fluoroscope's magnitudes at full resolution, :func:`noise_maps`;
+    ``rim_sigmas`` = k > 0 takes the usable pixels within ``k σ + 2`` px of a black pixel — outside
+    the intensifier's round field — out of the domain at full resolution, σ the fluoroscope's
+    smoothing in pixels, :data:`RIM_OPTION`)."""
 
     kind: str
     weight: float = 1.0
@@ -118,6 +121,56 @@ def _in_pixels(options, px_mm: float | None) -> dict:
                 raise ValueError(f"metric options: give {k} or {k_mm}, not both")
             sig = float(out.pop(k_mm)) / px_mm
             out[k] = sig if sig >= 0.25 else 0.0
+    return out
+
+
+#: The metric term's option of the band at the round field's rim (:class:`MetricTerm`): the usable
+#: pixels within ``rim_sigmas · σ + 2`` px (σ the fluoroscope's smoothing in full-resolution pixels;
+#: the smoothing's reach, the gradient's pixel and one more) of a black pixel leave the domain, so
+#: that the black field's line integral (8.3 against the bones' and tissue's 1-3), which the
+#: smoothing and the gradient spread over the 3 px the usable mask's erosion leaves, is not
+#: correlated with the DRR. Black: at or below a quarter of the valid range's low end
+#: (:data:`core.tracking.likelihood_rim.BLACK_FRACTION`). None or 0: no band.
+RIM_OPTION = "rim_sigmas"
+#: the band's pixels beyond ``rim_sigmas · σ``: the gradient's 3 × 3 stencil and one more
+RIM_EXTRA_PX = 2.0
+_BLACK_FRACTION = 0.25  # = core.tracking.likelihood_rim.BLACK_FRACTION (that module imports this one)
+
+
+def rim_radius(rim_sigmas, fluoro_sigma_px: float, scale: float = 1.0) -> float:
+    """The band's radius in full-resolution pixels (:data:`RIM_OPTION`) for a fluoroscope
+    smoothing of ``fluoro_sigma_px``; 0 (no band) without the option, without smoothing (the
+    gradient's pixel lies within the mask's erosion) or at a pyramid level (``scale`` != 1)."""
+    k = float(rim_sigmas or 0.0)
+    if k <= 0 or scale != 1.0 or fluoro_sigma_px <= 0:
+        return 0.0
+    return k * float(fluoro_sigma_px) + RIM_EXTRA_PX
+
+
+def rim_masks(frame, views, roi, masks: list, radius_px: float) -> list:
+    """``masks`` (the usable pixels of ``views``' full-resolution regions ``roi``, top-left) with the
+    pixels within ``radius_px`` of a black pixel of ``frame`` False (OpenCV's 5×5 Euclidean
+    distance, as :func:`core.tracking.likelihood_rim.rim_keep`); a view with no black pixel that
+    near, or whose every pixel is that near, is left as it is."""
+    import cv2
+
+    if not isinstance(frame, FrameImages) or radius_px <= 0:
+        return masks
+    thr = _BLACK_FRACTION * (frame._valid[0] if frame._valid is not None else 0.02)
+    r = math.ceil(radius_px)
+    out = list(masks)
+    for i, v in enumerate(views):
+        u0, v0, w, h = (int(a) for a in roi[i])
+        H, W = frame.shapes[v]
+        R0, R1, C0, C1 = max(v0 - r, 0), min(v0 + h + r, H), max(u0 - r, 0), min(u0 + w + r, W)
+        dark = frame._fluence[v][R0:R1, C0:C1] <= thr
+        if not dark.any():
+            continue
+        keep = cv2.distanceTransform((~dark).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5) > radius_px
+        keep = keep[v0 - R0:v0 - R0 + h, u0 - C0:u0 - C0 + w]
+        if keep.all() or not keep.any():
+            continue
+        out[i] = np.ascontiguousarray(out[i] & keep[:out[i].shape[0], :out[i].shape[1]])
     return out
 
 
@@ -414,6 +467,9 @@ class RegistrationCost:
         raw = None
         for t in self.terms:
             opts = _in_pixels(t.options, px_mm)
+            rim = rim_radius(opts.pop(RIM_OPTION, None), float(opts.get("fluoro_sigma", 0.0)), s)
+            fm = (rim_masks(frame, self.views, self.roi, list(self.fluoro_masks), rim) if rim > 0
+                  else self.fluoro_masks)
             if opts.pop(NOISE_OPTION, False) and s == 1.0 and isinstance(frame, FrameImages):
                 if raw is None:  # the regions before the neighbours are subtracted: their fluence
                     raw = rois if others is None else fluoro_rois(renderer, frame, views=self.views,
@@ -421,7 +477,7 @@ class RegistrationCost:
                 sig = float(opts.get("fluoro_sigma", 0.0))
                 opts["noise_energy"] = noise_maps(frame, self.views, raw, sig, opts.get("operator", "sobel"))
             self.metrics.append(BatchedMetric(t.kind, list(self.fluoro_rois), device=dev,
-                                              fluoro_masks=list(self.fluoro_masks), **opts))
+                                              fluoro_masks=list(fm), **opts))
         w = np.array([t.weight for t in self.terms], dtype=float)
         self._w = w / w.sum()
         self._roi_arg = self.roi[None, :, None, :]

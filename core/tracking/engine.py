@@ -96,15 +96,17 @@ import warp as wp
 from ..similarity import _kernels as K
 from .cost import (
     NOISE_OPTION,
+    RIM_OPTION,
     CostTimer,
     FrameImages,
     MetricTerm,
     OutsideViewError,
     fluoro_rois,
     mm_per_pixel,
+    rim_radius,
 )
 from .engine_buffers import _BUFFER_SETS, _Buffers, _EngineBuffers  # noqa: F401 (re-exported)
-from .engine_frames import host_stage, pyramid_rois, stage, staged_shapes
+from .engine_frames import apply_rim_band, host_stage, pyramid_rois, stage, staged_shapes
 from .engine_kernels import (
     N_POSES,
     fluoro_gradient_kernel,
@@ -127,7 +129,7 @@ __all__ = ["ENGINE_KINDS", "GaussNewtonCost", "GaussNewtonFit", "GaussNewtonStep
 ENGINE_KINDS = ("gc", "ncc")
 _MODE = {"ncc": 0, "gc": 1}
 _OPTIONS = ("fluoro_sigma", "drr_sigma", "fluoro_sigma_mm", "drr_sigma_mm", "threshold", "dilate", "operator",
-            "components", NOISE_OPTION)
+            "components", NOISE_OPTION, RIM_OPTION)
 _N = N_POSES  # poses per step: the centre and ±h_k e_k
 
 
@@ -176,6 +178,9 @@ class GaussNewtonCost(_EngineBuffers):
         self.noise = bool(term.options.get(NOISE_OPTION, False))
         if self.noise and (term.kind != "gc" or self.components):
             raise ValueError(f"term: the {NOISE_OPTION} option is the gc metric's of the gradient magnitudes")
+        self.rim_sigmas = float(term.options.get(RIM_OPTION) or 0.0)  # the band at the rim (0: none)
+        self._rim_dev = None
+        self._rim_on = 0.0  # the band's radius (px) the usable-pixel masks on the device hold
         self.threshold = float(term.options.get("threshold", 0.0))
         self.dilate = int(term.options.get("dilate", 0))
         ku, kv = derivative_kernels(term.options.get("operator", "sobel"))
@@ -308,11 +313,19 @@ class GaussNewtonCost(_EngineBuffers):
             self._host_hw_np[:] = np.array(shapes, dtype=np.int32)
             wp.copy(self._ref_hw, self._host_hw)
             self._hw_last = hw_now
+        rim = rim_radius(self.rim_sigmas, self._f_sig, self.scale)
         if staged is None:
             host_stage(self, rois, masks)
             ran = False
+            fresh = True
         else:
-            ran = stage(self, frame, staged)
+            if self._rim_on != rim:  # the masks on the device hold another band: prepared again
+                self._stage_done = None
+            ran = fresh = stage(self, frame, staged)
+        if fresh:  # the masks as prepared, then the band at the rim (none where no black pixel is near)
+            if rim > 0:
+                apply_rim_band(self, frame, rim)
+            self._rim_on = rim
         src = self._raw0  # the regions' line integrals as prepared
         if others is not None and len(others[1]):  # subtracted on the device, at the fixed output size
             nb = len(others[1])

@@ -18,9 +18,9 @@ import numpy as np
 import warp as wp
 
 from .cost import FrameImages, OutsideViewError, padded_region
-from .engine_kernels import _LANES, fluoro_roi_kernel, fluoro_shift_kernel
+from .engine_kernels import _LANES, fluoro_roi_kernel, fluoro_shift_kernel, keep_kernel
 
-__all__ = ["host_stage", "pyramid_rois", "stage", "staged_shapes"]
+__all__ = ["apply_rim_band", "host_stage", "pyramid_rois", "stage", "staged_shapes"]
 
 
 def pyramid_rois(frame: FrameImages, views, roi, scale: float) -> tuple[list, list]:
@@ -169,4 +169,25 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
     wp.copy(self._host_count, self._count)
     self._stage_done = (weakref.ref(frame), done)
     self._stage_checked = False
+    return True
+
+
+def apply_rim_band(self, frame, radius_px: float) -> bool:
+    """For the :class:`~core.tracking.engine.GaussNewtonCost` ``self`` (its regions just prepared):
+    the usable pixels within ``radius_px`` of a black pixel of ``frame`` taken out of the domain
+    (:data:`core.tracking.cost.RIM_OPTION`; the band of
+    :func:`core.tracking.likelihood_rim.rim_keep`, kept between frames in the engine's
+    :class:`~core.tracking.likelihood_rim.RimCache`: the round field does not move), uploaded from
+    a pinned buffer without a wait. A region no black pixel comes near is left as it is, to the
+    bit; True where a band was applied."""
+    from .likelihood_rim import rim_cache, rim_keep
+
+    keep = rim_keep(frame, self.views, self.roi, radius_px, self._cap, cache=rim_cache(self))
+    if keep is None:
+        return False
+    nv, (Hc, Wc) = self.n_views, self._cap
+    if self._rim_dev is None or self._rim_dev.shape != (nv, Hc, Wc):
+        self._rim_dev = wp.zeros((nv, Hc, Wc), dtype=wp.uint8, device=self.device)
+    self._put("rim", self._rim_dev, keep)
+    self._launch("rim", keep_kernel, (nv, Hc, Wc), [self._fmask, self._rim_dev])
     return True

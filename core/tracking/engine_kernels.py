@@ -6,6 +6,7 @@
 * :func:`subtract_kernel` — the neighbours' DRRs taken from the fluoroscope regions (joint
   tracking);
 * :func:`fluoro_gradient_kernel` — the 3 × 3 gradient of the smoothed fluoroscope regions;
+* :func:`keep_kernel` — the band at the round field's rim taken out of the usable pixels;
 * :func:`fluoro_roi_kernel`, :func:`fluoro_shift_kernel` — the device preparation of the
   full-resolution fluoroscope regions (line integrals, usable pixels, their statistics) from
   the fluence uploaded as it is;
@@ -22,7 +23,7 @@ import warp as wp
 from ..similarity import _kernels as K
 
 __all__ = ["GEO_LEN", "LI_FLOOR", "N_POSES", "fluoro_gradient_kernel", "fluoro_roi_kernel",
-           "fluoro_shift_kernel", "moments_kernel", "pose_table_kernel", "subtract_kernel"]
+           "fluoro_shift_kernel", "keep_kernel", "moments_kernel", "pose_table_kernel", "subtract_kernel"]
 
 N_POSES = 13  # poses per step: the centre and ±h_k e_k
 
@@ -100,6 +101,15 @@ def subtract_kernel(src: wp.array3d(dtype=wp.float32), drr: wp.array3d(dtype=wp.
     for n in range(n_bones):
         acc += K._val(drr, v * n_bones + n, r, c)
     out[v, r, c] = src[v, r, c] - acc
+
+
+@wp.kernel
+def keep_kernel(mask: wp.array3d(dtype=wp.uint8), keep: wp.array3d(dtype=wp.uint8)):
+    """mask = 0 where keep is 0 (the band at the round field's rim out of the domain). dim = (views,
+    H, W)."""
+    v, r, c = wp.tid()
+    if keep[v, r, c] == wp.uint8(0):
+        mask[v, r, c] = wp.uint8(0)
 
 
 @wp.kernel

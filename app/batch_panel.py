@@ -5,7 +5,10 @@ checked), the bones (the selected one, or all), the mode (as ``talus batch --mod
 *automatic*, the default or the mode of the window's *Tracking options*, makes one task of a
 trial whose frames are flatfield-corrected, its bones tracked jointly as ``talus track`` and the
 window's own tracking do, and one task per bone of any other trial; *joint* one task per trial;
-*one task per bone*), optionally one task per frame range between the keyframes, and where to
+*sequential* one task per trial, its bones tracked one after another with the others' DRRs
+subtracted, as ``talus track --mode sequential``; *one task per bone*, ``--split-bones``: each
+bone searched alone, nothing subtracted), optionally one task per frame range between the
+keyframes, and where to
 run — a local Dask cluster of N worker processes on this computer (one per GPU, else per CPU
 core) or an existing scheduler's cluster (``tcp://host:8786``; its workers must see the study
 folder at the same path). *Start* builds the tasks of
@@ -15,9 +18,12 @@ folder at the same path). *Start* builds the tasks of
 * the window lets go of the journals of the handed bones of its trial
   (:meth:`core.study.Study.unlock_journal`) and locks those bones against edits, so the workers
   can write them; when the batch ends it takes them back;
-* the **Batch** dock lists every task with its state, a progress bar of its frames and its last
-  score; the status bar shows the tasks and frames done of all; each task's start and end, and
-  the summary, go to the messages;
+* the **Batch** dock lists every task with its state, a progress bar of its frames, its last
+  score and what its searches did with the other bones (*Neighbours*: joint, sequential, one
+  bone while it runs; once it ends, from its record, e.g. *sequential, subtracted* — the
+  ``sequential_subtract`` choice that ran, auto resolved — its tooltip the record's note, such as
+  a task of one bone having nothing to subtract); the status bar shows the tasks and frames done
+  of all; each task's start and end, and the summary, go to the messages;
 * *Cancel* (in the dock, or *Tracking → Cancel tracking*) stops the batch: tasks not started are
   dropped, running ones stop at their next registration; every frame finished is in the journal;
 * at the end the window reloads the poses and review state of its trial from the journals, and
@@ -42,10 +48,37 @@ from PySide6 import QtCore, QtWidgets
 
 __all__ = ["MODES", "BatchDialog", "BatchPanel"]
 
-#: (label, mode of core.tracking.batch.build_tasks) pairs the dialog offers, the default first.
+#: (label, mode of core.tracking.batch.build_tasks) pairs the dialog offers, the default first;
+#: ``"split"`` is mode ``"sequential"`` with ``split_bones`` (``talus batch --split-bones``).
 MODES = (("Automatic (joint where the frames are flatfield-corrected)", "auto"),
          ("Joint (one task per trial, its bones together)", "joint"),
-         ("One task per bone (each tracked alone)", "sequential"))
+         ("Sequential (one task per trial, each bone with the others subtracted)", "sequential"),
+         ("One task per bone (each searched alone, nothing subtracted)", "split"))
+
+#: The Batch dock's columns; :data:`NEIGHBOURS` is what a task's searches did with the other bones.
+COLUMNS = ("Task", "State", "Frames", "Score", "Neighbours")
+NEIGHBOURS = COLUMNS.index("Neighbours")
+
+
+def neighbours_text(task, record: dict | None = None) -> tuple[str, str]:
+    """``(text, tooltip)`` of a task's *Neighbours* cell: from its record (or end event) once it
+    ran — the mode and the ``sequential_subtract`` choice that ran, the record's note as the
+    tooltip — else what the task will do (joint, sequential, one bone)."""
+    if record is not None and record.get("mode") is not None:
+        if record["mode"] == "joint":
+            return "joint, subtracted", "Tracked jointly: each bone with its neighbours' DRRs subtracted"
+        used = record.get("sequential_subtract")
+        if used is not None:
+            tip = record.get("sequential_subtract_note") or (
+                "Each bone searched with the other bones' DRRs subtracted" if used else
+                "Each bone searched against the whole image (its neighbours' projections in it)")
+            return f"sequential, {'subtracted' if used else 'not subtracted'}", tip
+    if len(task.bones) == 1:
+        return "one bone", "A task of one bone: no neighbour to subtract"
+    if task.tracking_mode == "joint":
+        return "joint", "Tracked jointly: each bone with its neighbours' DRRs subtracted"
+    return "sequential", ("One bone after another; whether the others are subtracted "
+                          "(Tracking options) is decided when the task runs")
 
 
 def default_workers() -> int:
@@ -76,7 +109,9 @@ class BatchDialog(QtWidgets.QDialog):
         self.mode_combo.setToolTip(
             "As talus track: a trial whose frames are flatfield-corrected by a saved calibration is "
             "tracked jointly — each bone with its neighbours' DRRs subtracted, which a task of one "
-            "bone cannot do — in one task; the bones of any other trial one task each")
+            "bone cannot do — in one task; the bones of any other trial one task each. Sequential: "
+            "a trial's bones one after another in one task, the others subtracted; one task per bone "
+            "spreads a trial over more workers but subtracts nothing")
         grid.addRow("&Mode:", self.mode_combo)
         self.ranges_box = QtWidgets.QCheckBox("One task per frame range between keyframes")
         self.ranges_box.setToolTip("Each bone's frames split at its keyframes: the ranges of one "
@@ -129,13 +164,15 @@ class BatchDialog(QtWidgets.QDialog):
         return boxes
 
     def choice(self) -> dict:
-        """``trials``, ``bones``, ``mode``, ``ranges``, and ``workers`` or ``scheduler`` (the other
-        None)."""
+        """``trials``, ``bones``, ``mode``, ``split_bones``, ``ranges``, and ``workers`` or
+        ``scheduler`` (the other None)."""
         local = self.local_radio.isChecked()
+        mode = self.mode_combo.currentData()
         return {
             "trials": [t for t, b in self.trial_boxes.items() if b.isChecked()],
             "bones": [t for t, b in self.bone_boxes.items() if b.isChecked()],
-            "mode": self.mode_combo.currentData(),
+            "mode": "sequential" if mode == "split" else mode,
+            "split_bones": mode == "split",
             "ranges": self.ranges_box.isChecked(),
             "workers": self.workers_spin.value() if local else None,
             "scheduler": None if local else self.scheduler_edit.text().strip(),
@@ -224,9 +261,9 @@ class BatchPanel(QtCore.QObject):
 
     # ------------------------------------------------------------------ run
     def start(self, *, trials: list[str], bones: list[str], mode: str = "auto", ranges: bool = False,
-              workers: int | None = None, scheduler: str | None = None) -> None:
-        """Build the tasks (:func:`core.tracking.batch.build_tasks`, ``mode`` and ``ranges``
-        as there) and run them off the GUI thread (see the module notes)."""
+              workers: int | None = None, scheduler: str | None = None, split_bones: bool = False) -> None:
+        """Build the tasks (:func:`core.tracking.batch.build_tasks`, ``mode``, ``split_bones`` and
+        ``ranges`` as there) and run them off the GUI thread (see the module notes)."""
         from core.tracking.batch import TaskSettings, build_tasks, run_batch
 
         from .commands.batch import mode_note
@@ -237,8 +274,10 @@ class BatchPanel(QtCore.QObject):
             raise ValueError("study: tracking needs a study open for writing")
         if self.running or self.window.tracking.running:
             raise ValueError("tracking: a tracking job is running (cancel it first)")
-        tasks = build_tasks([session.folder], trials, bones, mode=mode, ranges=ranges)
         opts = self.window.tracking.options
+        tasks = build_tasks([session.folder], trials, bones, mode=mode, ranges=ranges,
+                            split_bones=split_bones,
+                            subtract=None if opts is None else opts.sequential_subtract)
         if opts is not None and opts.refine_likelihood:  # as talus batch --final likelihood
             problems = [p for t in sorted({k.trial for k in tasks})
                         if (p := final_stage_problem(session.study, t))]
@@ -290,14 +329,14 @@ class BatchPanel(QtCore.QObject):
             body = QtWidgets.QWidget()
             lay = QtWidgets.QVBoxLayout(body)
             lay.setContentsMargins(4, 4, 4, 4)
-            self.table = QtWidgets.QTableWidget(0, 4)
+            self.table = QtWidgets.QTableWidget(0, len(COLUMNS))
             self.table.setObjectName("batch-tasks")
-            self.table.setHorizontalHeaderLabels(["Task", "State", "Frames", "Score"])
+            self.table.setHorizontalHeaderLabels(list(COLUMNS))
             self.table.verticalHeader().hide()
             self.table.setEditTriggers(QtWidgets.QAbstractItemView.EditTrigger.NoEditTriggers)
             header = self.table.horizontalHeader()
             header.setSectionResizeMode(0, QtWidgets.QHeaderView.ResizeMode.Stretch)
-            for c, w in ((1, 150), (2, 140), (3, 60)):
+            for c, w in ((1, 150), (2, 140), (3, 60), (NEIGHBOURS, 190)):
                 header.resizeSection(c, w)
             lay.addWidget(self.table)
             row = QtWidgets.QHBoxLayout()
@@ -329,6 +368,8 @@ class BatchPanel(QtCore.QObject):
             bar.setFormat(f"0/{totals[t.key]}")
             self.table.setCellWidget(i, 2, bar)
             self.table.setItem(i, 3, QtWidgets.QTableWidgetItem(""))
+            self.table.setItem(i, NEIGHBOURS, QtWidgets.QTableWidgetItem())
+            self._show_neighbours(t.key)
         for w in (self.status, self.bar):
             w.show()
         self._overall()
@@ -337,6 +378,17 @@ class BatchPanel(QtCore.QObject):
         """``(state, frames text)`` of a task's row (for tests and scripts)."""
         i = self._rows[key]
         return self.table.item(i, 1).text(), self.table.cellWidget(i, 2).text()
+
+    def task_neighbours(self, key: str) -> tuple[str, str]:
+        """``(text, tooltip)`` of a task's *Neighbours* cell (for tests and scripts)."""
+        item = self.table.item(self._rows[key], NEIGHBOURS)
+        return item.text(), item.toolTip()
+
+    def _show_neighbours(self, key: str, record: dict | None = None) -> None:
+        text, tip = neighbours_text(self._tasks[key], record)
+        item = self.table.item(self._rows[key], NEIGHBOURS)
+        item.setText(text)
+        item.setToolTip(tip)
 
     def _overall(self) -> None:
         done = sum(d for d, _ in self._frames.values())
@@ -377,6 +429,7 @@ class BatchPanel(QtCore.QObject):
             elif kind == "end" and row is not None:
                 self._ended.add(key)
                 self.table.item(row, 1).setText(str(e.get("status")))
+                self._show_neighbours(key, e)  # what its searches did (the sequential_subtract that ran)
                 self.window.notify(f"Batch: {key} {e.get('status')} in {e.get('seconds', 0.0):.1f} s")
                 self._overall()
                 task, session = self._tasks[key], self.window.session
@@ -414,6 +467,7 @@ class BatchPanel(QtCore.QObject):
         for r in s["task_records"]:
             row = self._rows.get(r["key"])
             if row is not None:  # a range's count after the trial's trajectory check
+                self._show_neighbours(r["key"], r)
                 self.table.item(row, 1).setText(
                     r["status"] + (f", {r['flagged']} flagged" if r.get("flagged") else "")
                     + (f" ({r['attempts']} attempts)" if r.get("attempts", 1) > 1 else ""))

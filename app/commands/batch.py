@@ -3,7 +3,8 @@
 Usage::
 
     talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
-                [--sequential-subtract auto|on|off] [--ranges] [--workers N] [--scheduler ADDRESS]
+                [--split-bones] [--sequential-subtract auto|on|off] [--ranges] [--workers N]
+                [--scheduler ADDRESS]
                 [--device cpu|cuda] [--frames START:STOP] [--metric gc|components]
                 [--final none|likelihood]
                 [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R] [--motion-limit K]
@@ -11,35 +12,41 @@ Usage::
                 [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves]
                 [--out SUMMARY.json] [--quiet]
 
-Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto``
-(the default) makes one task of each trial whose frames are flatfield-corrected (a calibrated
-study), its bones tracked jointly — each with its neighbours' DRRs subtracted — and one task per
-(trial, bone) of any other trial; ``joint`` (or ``--joint``) one joint task per trial;
-``sequential`` one task per (trial, bone). With ``--ranges`` each frame range between the
-bone's (the joint group's common) keyframes is one, so one long trial spreads over the workers
-too. Tasks run on a local Dask cluster (one worker process per GPU, else per CPU core;
-``--workers`` sets how many) or on the cluster of ``--scheduler``. Each task tracks into its
-study's journal as ``talus track --resume`` would, so a batch that was stopped, or whose worker
-died, carries on where it was; a failed task is retried once and then reported. ``--workers 0``
-runs the tasks one after the other in this process, without Dask. Progress goes to stderr (the
-Dask dashboard address first), the JSON summary to stdout. With ``--ranges``, once all the ranges
-of a trial's bone are done the trajectory check judges their frames together
-(:mod:`core.tracking.batch_pass`): the journal, the range reports and the summary's task records
-give the flags after it, and stderr gets a line per trial's bone(s) — bone-frames judged, frames
-off the trajectory and flagged for review, frames the check changed (the first 10 named).
-``--final likelihood`` ends every registration with the weighted least-squares refinement, as
-``talus track --final likelihood`` does; every trial of the batch must have flatfield-corrected
-frames (the trials without are named, and nothing is tracked). The failure checks' thresholds
-(``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``) and the final
-stage's move check (``--stage-move-limit``, ``--stage-move-sigmas``, ``--stage-move-frames``,
-``--keep-stage-moves``; with ``--final likelihood`` only) and the trajectory check run once a
-task's run is complete (``--trajectory-limit K|off``, ``--no-trajectory-check``) are ``talus
-track``'s (:data:`app.commands.track.CHECKS`), for every task; out-of-range values are refused
-naming the option before any task starts. ``--sequential-subtract auto|on|off`` is ``talus
-track``'s and goes to every task; a sequential task tracks one bone, so there is no neighbour to
-subtract in it (``on`` is noted on stderr: track the trial with ``talus track --mode sequential``).
-Exit status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing
-it could track, 130 interrupted (the frames finished so far are saved; run it again to go on).
+Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto`` (the
+default) makes one task of each trial whose frames are flatfield-corrected (a calibrated study), its
+bones tracked jointly — each with its neighbours' DRRs subtracted — and one task per (trial, bone)
+of any other trial (whose bones are searched alone, independent of each other; one task of the
+trial's bones with ``--sequential-subtract on``); ``joint`` (or ``--joint``) one joint task per
+trial; ``sequential`` one task per trial, its bones tracked one after another with the others' DRRs
+subtracted, as ``talus track --mode sequential`` tracks them (the same poses). ``--split-bones``
+(with ``--mode sequential``) makes one task per (trial, bone) instead, to spread a trial over more
+workers: a task of one bone has no neighbour to subtract, so each bone is searched against the whole
+image — less accurate where bones overlap — and stderr says so. With ``--ranges`` each frame range
+between the bone's (the group's common) keyframes is one, so one long trial spreads over the workers
+too. Tasks run on a local Dask cluster (one worker process per GPU, else per CPU core; ``--workers``
+sets how many) or on the cluster of ``--scheduler``. Each task tracks into its study's journal as
+``talus track --resume`` would, so a batch that was stopped, or whose worker died, carries on where
+it was; a failed task is retried once and then reported. ``--workers 0`` runs the tasks one after
+the other in this process, without Dask. Progress goes to stderr (the Dask dashboard address first),
+the JSON summary to stdout. With ``--ranges``, once all the ranges of a trial's bone are done the
+trajectory check judges their frames together (:mod:`core.tracking.batch_pass`): the journal, the
+range reports and the summary's task records give the flags after it, and stderr gets a line per
+trial's bone(s) — bone-frames judged, frames off the trajectory and flagged for review, frames the
+check changed (the first 10 named). ``--final likelihood`` ends every registration with the weighted
+least-squares refinement, as ``talus track --final likelihood`` does; every trial of the batch must
+have flatfield-corrected frames (the trials without are named, and nothing is tracked). The failure
+checks' thresholds (``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``)
+and the final stage's move check (``--stage-move-limit``, ``--stage-move-sigmas``,
+``--stage-move-frames``, ``--keep-stage-moves``; with ``--final likelihood`` only) and the
+trajectory check run once a task's run is complete (``--trajectory-limit K|off``,
+``--no-trajectory-check``) are ``talus track``'s (:data:`app.commands.track.CHECKS`), for every
+task; out-of-range values are refused naming the option before any task starts.
+``--sequential-subtract auto|on|off`` is ``talus track``'s and goes to every task; what each
+sequential task's searches did — the neighbours subtracted or not, auto resolved, and kept on resume
+as its report recorded — is in its record (``sequential_subtract``, with
+``sequential_subtract_note`` where it is not the plain choice) and gets a line on stderr. Exit
+status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing it could
+track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
 
 from __future__ import annotations
@@ -64,7 +71,7 @@ from ._shared import (
 )
 from .track import add_check_arguments
 
-__all__ = ["HELP", "configure", "final_stage_problems", "mode_note", "run"]
+__all__ = ["HELP", "configure", "final_stage_problems", "mode_note", "run", "subtract_messages"]
 
 #: --mode's choices (core.tracking.batch.MODES; not imported here, to keep --help free of core)
 MODES = ("auto", "joint", "sequential")
@@ -90,12 +97,17 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="auto (the default, as talus track): one task per trial tracking its bones "
                         "jointly, each with the others' DRRs subtracted, when the trial's frames are "
                         "flatfield-corrected (a calibrated study), else one task per bone; joint: one "
-                        "joint task per trial; sequential: one task per bone, each tracked alone")
+                        "joint task per trial; sequential: one task per trial, its bones tracked one after "
+                        "another with the others' DRRs subtracted, as talus track --mode sequential")
     p.add_argument("--joint", action="store_true", help="the same as --mode joint")
+    p.add_argument("--split-bones", action="store_true",
+                   help="with --mode sequential: one task per (trial, bone) instead of per trial, to spread "
+                        "a trial over more workers; a task of one bone has no neighbour to subtract, so "
+                        "each bone is searched against the whole image (less accurate where bones overlap)")
     p.add_argument("--sequential-subtract", choices=("auto", "on", "off"), default="auto",
-                   help="as talus track --sequential-subtract, for every task; a batch's sequential task "
-                        "tracks one bone, so there is nothing to subtract in it (talus track --mode "
-                        "sequential subtracts the trial's other bones). Default auto")
+                   help="as talus track --sequential-subtract, for every task: whether a sequential task "
+                        "searches each bone with the trial's other bones' DRRs subtracted (auto: where the "
+                        "frames are flatfield-corrected). Default auto")
     p.add_argument("--ranges", action="store_true",
                    help="one task per frame range between each bone's keyframes (a joint task's: "
                         "the keyframes all its bones share; from a keyframe "
@@ -162,12 +174,39 @@ def final_stage_problems(tasks) -> list[str]:
 
 def mode_note(tasks, mode: str) -> str:
     """One line saying how ``mode`` grouped the bones of each trial into ``tasks``."""
-    joint = sorted({t.trial for t in tasks if len(t.bones) > 1})
-    alone = sorted({t.trial for t in tasks if len(t.bones) == 1} - set(joint))
+    groups = [t for t in tasks if len(t.bones) > 1]
+    joint = sorted({t.trial for t in groups if t.tracking_mode == "joint"})
+    seq = sorted({t.trial for t in groups if t.tracking_mode == "sequential"} - set(joint))
+    alone = sorted({t.trial for t in tasks if len(t.bones) == 1} - set(joint) - set(seq))
     parts = ([f"bones tracked jointly in {', '.join(joint)}"] if joint else []) + (
+        [f"bones tracked one after another in {', '.join(seq)}"] if seq else []) + (
         [f"one task per bone in {', '.join(alone)}"] if alone else [])
     why = " (jointly where the frames are flatfield-corrected)" if mode == "auto" else ""
     return f"mode {mode}{why}: {'; '.join(parts)}"
+
+
+def subtract_text(record: dict) -> str | None:
+    """What a task's searches did with the other bones (its record's ``mode`` and
+    ``sequential_subtract``), e.g. ``"sequential, neighbours subtracted"``; None for a task that did
+    not say (failed, cancelled before it started)."""
+    if record.get("mode") == "joint":
+        return "joint, neighbours subtracted"
+    used = record.get("sequential_subtract")
+    if used is None:
+        return None
+    return f"sequential, neighbours {'subtracted' if used else 'not subtracted'}"
+
+
+def subtract_messages(records) -> list[str]:
+    """One line per sequential task record: whether its searches subtracted the neighbours (auto
+    resolved, or kept on resume), and why where the record says (a task of one bone, a resumed run)."""
+    out = []
+    for r in records:
+        if r.get("mode") != "sequential" or r.get("sequential_subtract") is None:
+            continue
+        note = r.get("sequential_subtract_note")
+        out.append(f"{r['key']}: {subtract_text(r)}" + (f" ({note})" if note else ""))
+    return out
 
 
 class _Follow:
@@ -217,10 +256,15 @@ def run(a: argparse.Namespace) -> int:
         if note:
             print(f"{PROG} batch: {note}", file=sys.stderr)
     subtract = getattr(a, "sequential_subtract", "auto")
-    if subtract == "on":
-        print(f"{PROG} batch: --sequential-subtract on: no effect on a batch's sequential tasks, each of "
-              f"one bone (talus track --mode sequential --sequential-subtract on subtracts a trial's other "
-              f"bones)", file=sys.stderr)
+    split = bool(getattr(a, "split_bones", False))
+    if split and mode != "sequential":
+        raise CliError(f"--split-bones: one task per bone is a choice of --mode sequential, "
+                       f"not --mode {mode}")
+    if split:
+        print(f"{PROG} batch: --split-bones: one task per bone, each searched against the whole image: a "
+              f"task of one bone has no neighbour to subtract (without --split-bones a trial's bones are one "
+              f"task, each searched with the others subtracted, as talus track --mode sequential)",
+              file=sys.stderr)
     frames = _frames(a.frames)
     if a.workers != 0 and importlib.util.find_spec("distributed") is None:
         raise CliError(f"{PROG} batch needs Dask distributed, which is not installed: "
@@ -228,7 +272,8 @@ def run(a: argparse.Namespace) -> int:
     from core.tracking.batch import TaskSettings, build_tasks, run_batch, run_serial
 
     tasks = build_tasks([Path(s).expanduser() for s in a.studies], _names(a.trials), _names(a.bones),
-                        mode=mode, ranges=a.ranges, frames=frames)
+                        mode=mode, ranges=a.ranges, frames=frames, split_bones=split,
+                        subtract={"on": True, "off": False}.get(subtract))
     if a.final == "likelihood":
         problems = final_stage_problems(tasks)
         if problems:
@@ -263,6 +308,8 @@ def run(a: argparse.Namespace) -> int:
     finally:
         progress.close()
     print_json(summary, a.out)
+    for line in subtract_messages(summary.get("task_records") or ()):  # the choice each task ran
+        print(f"{PROG} batch: {line}", file=sys.stderr)
     if summary.get("trajectory_pass"):
         from core.tracking.batch_pass import pass_messages
 

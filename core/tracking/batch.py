@@ -1,9 +1,10 @@
 """Tracking many trials of many studies as independent tasks, on Dask distributed (``talus batch``).
 
-A *task* is one trial's bone, or one trial's bones tracked together (a joint bone group, tracked
-with ``mode="joint"``), of one study (:class:`BatchTask`, from :func:`build_tasks`), over the
-whole trial or, with ``ranges=True``, over one frame range between the bone's keyframes
-(:func:`keyframe_ranges`). Which of the two follows ``mode``, as ``talus track``'s does:
+A *task* is one trial's bone, or one trial's bones tracked together — jointly (``mode="joint"``)
+or one after another in each frame, each with the others' DRRs subtracted (``mode="sequential"``)
+— of one study (:class:`BatchTask`, from :func:`build_tasks`), over the whole trial or, with
+``ranges=True``, over one frame range between the bone's keyframes (:func:`keyframe_ranges`).
+Which follows ``mode``, so that a batch tracks a trial as ``talus track --mode`` does:
 
 * ``"auto"`` (the default): a trial whose frames are flatfield-corrected — by the correction
   pipelines saved with its calibration (``talus calibrate``) or those of the study settings —
@@ -14,9 +15,28 @@ whole trial or, with ``ranges=True``, over one frame range between the bone's ke
   then registered with their neighbours' DRRs subtracted, which a task of one bone cannot do
   (on the 512² foot demo one bone at a time lost the talus: the numbers are in
   :mod:`core.tracking.trial`'s notes); frames divided by the full scale only do not match the
-  DRRs' intensities, and their bones are tracked one per task, side by side;
+  DRRs' intensities: their bones are searched alone (``sequential_subtract`` auto is off there)
+  and do not depend on each other, so they are tracked one per task, side by side — unless
+  ``subtract=True`` (``--sequential-subtract on``) asks for the neighbours subtracted, which
+  makes one sequential task of the trial's bones, as ``talus track`` tracks them;
 * ``"joint"``: one joint task per trial, whatever its frames;
-* ``"sequential"``: one task per (trial, bone), each bone registered alone.
+* ``"sequential"``: one task per trial, its bones tracked one after another in each frame with
+  the others' DRRs subtracted (``TrackingOptions.sequential_subtract``, auto: on for
+  flatfield-corrected frames) — what ``talus track --mode sequential`` does, with its poses. With
+  ``split_bones=True`` (``--split-bones``) one task per (trial, bone) instead: more tasks to
+  spread over the workers, but a task of one bone has no neighbour to subtract, so each bone is
+  searched against the whole image (its record and report say so). Grouped is the default because
+  a user who asks for sequential tracking expects the trial tracked as ``talus track`` tracks it:
+  on the acceptance trial searching each bone against the whole image left 16 of 21 frames over
+  4× the Cramér–Rao bound unflagged, with the neighbours subtracted 3, all flagged (README,
+  *Tracking: accuracy and speed*); trials, and frame ranges (``ranges=True``), still spread a
+  batch over the workers.
+
+Each task's record says what its searches did: ``mode`` (joint or sequential) and, for a
+sequential task, ``sequential_subtract`` — the choice that ran, auto resolved to True or False
+(False for a task of one bone, ``sequential_subtract_note`` then saying why where the choice was
+on) — as its tracking report's ``"options"`` do. A task run again (resume) keeps the choice its
+report recorded (:func:`core.tracking.from_study.track_study`).
 
 A task runs :func:`run_task`: it opens its study for writing, which locks only the journals of
 its bones (:meth:`core.study.Study.lock_journal`), and calls
@@ -25,8 +45,8 @@ its bones (:meth:`core.study.Study.lock_journal`), and calls
 a task that runs again (after its worker was killed, or in a later batch) carries on from the
 journal: nothing is lost but the frame in flight, and the poses are those of an uninterrupted
 run (each registration is seeded from its frame number). Each task writes its own tracking
-report, ``results/reports/tracking/<trial>.<bone>.json`` (``<trial>.json`` for a joint task, as
-``talus track`` writes for the trial; ``.<first>-<last>`` before ``.json`` for a frame range).
+report, ``results/reports/tracking/<trial>.<bone>.json`` (``<trial>.json`` for a task of several
+bones, as ``talus track`` writes for the trial; ``.<first>-<last>`` before ``.json`` for a frame range).
 
 Frame ranges
 ------------
@@ -98,14 +118,27 @@ MODES = ("auto", "joint", "sequential")
 class BatchTask:
     """One unit of work: ``bones`` of ``trial`` in the study at ``study`` (an absolute folder).
 
-    More than one bone is a joint bone group (tracked together with ``mode="joint"``).
-    ``frames`` is ``(first, last)``, both tracked, in tracking order (``first > last``:
-    backward) for a frame range; None for the batch's frames (:attr:`TaskSettings.frames`)."""
+    More than one bone is a bone group, tracked as ``mode`` says: ``"joint"`` (None, the default,
+    for a group) or ``"sequential"`` (one bone after another in each frame, the others' DRRs
+    subtracted as ``TrackingOptions.sequential_subtract`` says); one bone is tracked alone
+    (:attr:`tracking_mode`). ``frames`` is ``(first, last)``, both tracked, in tracking order
+    (``first > last``: backward) for a frame range; None for the batch's frames
+    (:attr:`TaskSettings.frames`)."""
 
     study: str
     trial: str
     bones: tuple[str, ...]
     frames: tuple[int, int] | None = None
+    mode: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in (None, "joint", "sequential"):
+            raise ValueError(f"mode: expected None, 'joint' or 'sequential', got {self.mode!r}")
+
+    @property
+    def tracking_mode(self) -> str:
+        """``"joint"`` or ``"sequential"``: the ``TrackingOptions.mode`` the task tracks with."""
+        return self.mode or ("joint" if len(self.bones) > 1 else "sequential")
 
     @property
     def order(self) -> list[int] | None:
@@ -125,8 +158,8 @@ class BatchTask:
     @property
     def report_name(self) -> str:
         """The task's tracking report (``results/reports/tracking/<report_name>.json``):
-        ``<trial>.<bone>`` for one bone, ``<trial>`` for a joint group (the report ``talus track``
-        writes for the trial), ``.<first>-<last>`` added for a frame range."""
+        ``<trial>.<bone>`` for one bone, ``<trial>`` for a group, joint or sequential (the report
+        ``talus track`` writes for the trial), ``.<first>-<last>`` added for a frame range."""
         span = "" if self.frames is None else f".{self.frames[0]}-{self.frames[1]}"
         return f"{self.trial}{'' if len(self.bones) > 1 else '.' + self.bones[0]}{span}"
 
@@ -145,7 +178,8 @@ class TaskSettings:
     options: tuple[tuple[str, Any], ...] = ()  # other TrackingOptions fields, as (name, value)
 
     def tracking_options(self, joint: bool):
-        """The :class:`~core.tracking.trial.TrackingOptions` ``talus track`` builds."""
+        """The :class:`~core.tracking.trial.TrackingOptions` ``talus track --mode joint`` (``joint``)
+        or ``--mode sequential`` builds."""
         from .cost import metric_terms
         from .options import DEFAULT_SEARCH
         from .register import RegistrationOptions
@@ -201,15 +235,18 @@ def tracks_jointly(study, trial: str) -> bool:
 
 def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | None = None,
                 bones: Sequence[str] | None = None, *, mode: str = "auto", joint: bool | None = None,
-                ranges: bool = False, frames: tuple[int, int] | None = None) -> list[BatchTask]:
+                ranges: bool = False, frames: tuple[int, int] | None = None, split_bones: bool = False,
+                subtract: bool | None = None) -> list[BatchTask]:
     """The tasks of ``studies``: every trial (or those named in ``trials``) × every bone of it
     (or those named in ``bones``), grouped by ``mode`` (:data:`MODES`, see the module notes):
     ``"auto"`` (the default) one joint task per trial whose frames are flatfield-corrected
-    (:func:`tracks_jointly`) and one task per bone of any other trial, ``"joint"`` one joint task
-    per trial, ``"sequential"`` one task per (trial, bone). ``joint=True`` (``False``) is
-    ``mode="joint"`` (``"sequential"``). With ``ranges``, one task per frame range between the
-    bone's (the group's common) hand-set keyframes in ``frames`` (``[start, stop)``, default
-    all; :func:`keyframe_ranges`).
+    (:func:`tracks_jointly`) and one task per bone of any other trial (one sequential task of its
+    bones with ``subtract=True``, the ``sequential_subtract`` the tasks will run with), ``"joint"``
+    one joint task per trial, ``"sequential"`` one sequential task per trial (its bones one after
+    another, the others subtracted), or one task per (trial, bone) with ``split_bones``.
+    ``joint=True`` (``False``) is ``mode="joint"`` (``"sequential"``). With ``ranges``, one task
+    per frame range between the bone's (the group's common) hand-set keyframes in ``frames``
+    (``[start, stop)``, default all; :func:`keyframe_ranges`).
 
     Raises
     ------
@@ -218,8 +255,9 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
         cannot be read gets one joint task, which fails when it runs, naming the file; the
         other trials' tasks are made as usual.)
     ValueError
-        An unknown ``mode``, or one ``joint`` contradicts; a trial or bone named in
-        ``trials``/``bones`` that none of the studies has, or no task.
+        An unknown ``mode``, or one ``joint`` contradicts; ``split_bones`` with a mode other
+        than ``"sequential"``; a trial or bone named in ``trials``/``bones`` that none of the
+        studies has, or no task.
     """
     from ..study import Study, StudyError
 
@@ -230,6 +268,8 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
         if mode not in ("auto", wanted):
             raise ValueError(f"joint: joint={joint} contradicts mode={mode!r}")
         mode = wanted
+    if split_bones and mode != "sequential":
+        raise ValueError(f"split_bones: one task per bone is a choice of mode 'sequential', not {mode!r}")
     tasks: list[BatchTask] = []
     seen_trials: set[str] = set()
     seen_bones: set[str] = set()
@@ -245,6 +285,7 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
                 if not names:
                     continue
                 together = mode == "joint"
+                sequential = mode == "sequential" and not split_bones and len(names) > 1
                 if mode == "auto" and len(names) > 1:
                     cal = st.manifest["trials"][t]["calibration"]
                     if cal not in corrected:
@@ -253,9 +294,11 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
                         except StudyError:  # its task fails when it runs, saying why; the others run
                             corrected[cal] = True
                     together = corrected[cal]
-                groups = [tuple(names)] if together else [(b,) for b in names]
+                    sequential = not together and subtract is True  # as talus track --sequential-subtract on
+                how = "sequential" if sequential else None
+                groups = [tuple(names)] if together or sequential else [(b,) for b in names]
                 if not ranges:
-                    tasks += [BatchTask(str(st.folder), t, g) for g in groups]
+                    tasks += [BatchTask(str(st.folder), t, g, mode=how) for g in groups]
                     continue
                 trial = st.trial(t)
                 lo, hi = frames if frames is not None else (0, trial.n_frames)
@@ -265,7 +308,8 @@ def build_tasks(studies: Sequence[str | os.PathLike], trials: Sequence[str] | No
                 keys = {b: set(trial.results(b).keyframes) for b in names}
                 for g in groups:
                     common = set.intersection(*(keys[b] for b in g))
-                    tasks += [BatchTask(str(st.folder), t, g, r) for r in keyframe_ranges(common, lo, hi)]
+                    tasks += [BatchTask(str(st.folder), t, g, r, mode=how)
+                              for r in keyframe_ranges(common, lo, hi)]
     for what, asked, seen in (("--trials", trials, seen_trials), ("--bones", bones, seen_bones)):
         missing = [x for x in (asked or ()) if x not in seen]
         if missing:
@@ -291,13 +335,15 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
              cancel: Callable[[], bool] | None = None, stop_event: str | None = None) -> dict:
     """Track ``task`` into its study's journal (resuming what is there) and return its record:
     ``key``, ``status`` (``"complete"``, ``"stopped"`` — nothing could be tracked, the reason in
-    ``stopped`` — or ``"cancelled"``), frame counts, ``seconds`` (wall), ``load_s`` (opening the
+    ``stopped`` — or ``"cancelled"``), frame counts, ``mode`` and ``sequential_subtract`` (with
+    ``sequential_subtract_note``; the module notes), ``seconds`` (wall), ``load_s`` (opening the
     study, reading the bones' CTs, opening the views, reading the journals), ``first_frame_s``
     (after loading, until the first frame is registered: bone models, renderer and Warp kernels,
     and the first frame's widened search and its check), ``frame_s`` (median of the later
     frames), host and process. ``progress(event)`` (and, on a Dask worker, the client) gets an
-    event per frame. ``cancel()`` (or, on a Dask worker, the Dask event named ``stop_event``)
-    stops the task between registrations: the frames done stay in the journal."""
+    event per frame (its end event carries ``mode`` and ``sequential_subtract``). ``cancel()``
+    (or, on a Dask worker, the Dask event named ``stop_event``) stops the task between
+    registrations: the frames done stay in the journal."""
     from ..study import Study
     from .batch_journal import SharedJournals
     from .from_study import track_study
@@ -343,12 +389,13 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         load_s = time.perf_counter() - t0
         result, report = track_study(
             st if task.frames is None else SharedJournals(st), task.trial, list(task.bones), frames,
-            options=settings.tracking_options(joint=len(task.bones) > 1), device=device,
+            options=settings.tracking_options(joint=task.tracking_mode == "joint"), device=device,
             resume=True, threshold_hu=settings.threshold_hu, progress=on_frame,
             report_name=task.report_name, cancel=stop)
         n_frames = len(order)
     seconds = time.perf_counter() - t0
     summary = dict(report.get("summary") or {})
+    used = report.get("options") or {}
     steps = [b - a for a, b in itertools.pairwise(marks)]
     frame_s = sorted(steps)[len(steps) // 2] if steps else None
     record = dict(
@@ -357,7 +404,11 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         frames_total=n_frames * len(task.bones),
         frames_tracked=len(marks),  # registered in this run (not those resumed from the journal)
         frames_resumed=len(resumed),
-        mode=(report.get("options") or {}).get("mode"),  # as track_study tracked: joint or sequential
+        mode=used.get("mode"),  # as track_study tracked: joint or sequential
+        # a sequential task's searches: the neighbours subtracted or not (auto resolved; resume keeps
+        # the choice its report recorded), and why where it is not the plain choice; None: joint
+        sequential_subtract=used.get("sequential_subtract"),
+        sequential_subtract_note=used.get("sequential_subtract_note"),
         frames_recorded=int(summary.get("recorded", 0)),
         flagged=int(summary.get("flagged", 0)),
         seconds=seconds,
@@ -366,7 +417,9 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         frame_s=frame_s,
         stopped=report.get("stopped") or {},
     )
-    end = dict(base, kind="end", status=record["status"], seconds=seconds)
+    end = dict(base, kind="end", status=record["status"], seconds=seconds, mode=record["mode"],
+               sequential_subtract=record["sequential_subtract"],
+               sequential_subtract_note=record["sequential_subtract_note"])
     _emit(end)
     if progress is not None:
         progress(end)

@@ -89,7 +89,7 @@ def _fill_dialog(window, qtbot, scheduler):
     assert dlg.start_button.isEnabled()
     # the mode of the window's tracking options (FAST_TRACKING's: one bone after another)
     assert dlg.choice() == {"trials": ["walk", "walk2"], "bones": [BONE], "mode": "sequential",
-                            "ranges": False, "workers": None, "scheduler": scheduler}
+                            "split_bones": False, "ranges": False, "workers": None, "scheduler": scheduler}
     return dlg
 
 
@@ -218,12 +218,20 @@ def test_batch_mode_tracks_as_talus_track_by_default(calibrated_window, qtbot):
                                        "study/walk2/calcaneus"]
     texts = [win.messages.item(i).text() for i in range(win.messages.count())]
     assert any("bones tracked jointly in walk; one task per bone in walk2" in t for t in texts)
-    # one task per bone, picked from the list
+    # sequential, picked from the list: the trial's bones one after another in one task, as talus
+    # track --mode sequential; one task per bone (--split-bones) the entry after it
     dlg = _open_dialog(win, qtbot)
     _click_box(qtbot, dlg.bone_boxes["calcaneus"])
     _pick(qtbot, dlg.mode_combo, "sequential")
-    assert dlg.choice()["mode"] == "sequential"
+    assert dlg.choice()["mode"] == "sequential" and not dlg.choice()["split_bones"]
+    assert _start(win, qtbot, dlg) == ["study/walk/talus+calcaneus"]
+    assert win.tracking.batch.task_neighbours("study/walk/talus+calcaneus")[0] == "sequential"
+    dlg = _open_dialog(win, qtbot)
+    _click_box(qtbot, dlg.bone_boxes["calcaneus"])
+    _pick(qtbot, dlg.mode_combo, "split")
+    assert dlg.choice()["mode"] == "sequential" and dlg.choice()["split_bones"]
     assert _start(win, qtbot, dlg) == ["study/walk/talus", "study/walk/calcaneus"]
+    assert win.tracking.batch.task_neighbours("study/walk/talus")[0] == "one bone"
     # the dialog starts from the mode of the window's tracking options
     from app.tracking_options import options_from_choices
 
@@ -263,3 +271,42 @@ def test_batch_with_the_final_stage_needs_flatfield_corrected_trials(calibrated_
     assert _start(win, qtbot, dlg) == [f"study/walk/{BONE}"]
     opts = settings[-1].tracking_options(joint=False)
     assert opts.refine_likelihood and opts.registration.final == "likelihood"
+
+
+def test_the_batch_dock_shows_what_each_task_subtracted(qtbot, demo_folder, scheduler, tmp_path):
+    """A calibrated study (walk's frames flatfield-corrected), the talus and calcaneus handed to a
+    batch by clicks: *Sequential* is one task whose searches subtracted the other bone (auto resolved
+    on), which its row's Neighbours cell says once it ends; *One task per bone* says of each task that
+    it searched alone, its tooltip why (nothing to subtract in a task of one bone)."""
+    folder = copy_study(demo_folder, tmp_path)
+    save_flat_calibration(folder, ["walk"])
+    with main_window(qtbot, size=(1100, 760)) as win:
+        win.open_study(folder)
+        win.tracking.options = FAST_TRACKING  # sequential, sequential_subtract auto
+        for mode, keys in (("sequential", ["study/walk/talus+calcaneus"]),
+                           ("split", ["study/walk/talus", "study/walk/calcaneus"])):
+            dlg = _open_dialog(win, qtbot)
+            _click_box(qtbot, dlg.bone_boxes["calcaneus"])
+            _pick(qtbot, dlg.mode_combo, mode)
+            _click_box(qtbot, dlg.scheduler_radio)
+            qtbot.keyClicks(dlg.scheduler_edit, scheduler)
+            panel = win.tracking.batch
+            with qtbot.waitSignal(panel.finished, timeout=HUNG_MS) as done:
+                qtbot.mouseClick(dlg.start_button, LEFT)
+                planned = "sequential" if mode == "sequential" else "one bone"
+                assert [panel.task_neighbours(k)[0] for k in keys] == [planned] * len(keys)
+            s = done.args[0]
+            assert s.get("status") == "complete", s
+            assert [r["key"] for r in s["task_records"]] == keys
+            if mode == "sequential":
+                (rec,) = s["task_records"]
+                assert rec["sequential_subtract"] is True and rec["frames_tracked"] == 4
+                assert panel.task_neighbours(keys[0]) == (
+                    "sequential, subtracted", "Each bone searched with the other bones' DRRs subtracted")
+                _shot(win, "batch_sequential_subtract.png")  # resources/screenshots/
+            else:  # the frames are in the journal already (resumed); each task of one bone says why
+                for k in keys:
+                    assert panel.task_neighbours(k) == (
+                        "sequential, not subtracted", "on, but no other bone tracked: nothing to subtract")
+        texts = [win.messages.item(i).text() for i in range(win.messages.count())]
+        assert any("bones tracked one after another in walk" in t for t in texts)

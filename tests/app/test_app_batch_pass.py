@@ -130,7 +130,12 @@ def test_the_window_names_ten_changed_frames_and_counts_the_rest(window, qtbot, 
     qtbot.waitExposed(dlg)
     _click_box(qtbot, dlg.ranges_box)
     _click_box(qtbot, dlg.bone_boxes["calcaneus"])
-    assert dlg.choice()["mode"] == "sequential" and dlg.choice()["bones"] == [BONE, "calcaneus"]
+    # one task per bone (the talus's ranges judged together, the calcaneus's range alone)
+    dlg.mode_combo.setFocus()
+    while dlg.mode_combo.currentData() != "split":
+        qtbot.keyClick(dlg.mode_combo, QtCore.Qt.Key.Key_Down)
+    assert dlg.choice()["mode"] == "sequential" and dlg.choice()["split_bones"]
+    assert dlg.choice()["bones"] == [BONE, "calcaneus"]
     with qtbot.waitSignal(panel.finished, timeout=HUNG_MS):
         qtbot.mouseClick(dlg.start_button, LEFT)
     assert panel.task_state("study/walk/talus:12-0")[0] == "complete, 7 flagged"

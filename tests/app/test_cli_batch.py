@@ -107,8 +107,13 @@ def test_batch_mode_auto_tracks_as_talus_track(demo, tmp_path, capsys, planned):
     common = ["--trials", "walk", "--bones", "talus,calcaneus", "--workers", "0", "--quiet"]
     runs = {  # (study, arguments) -> tasks
         (calibrated, ()): ["calibrated/walk/talus+calcaneus"],  # the default: as talus track, jointly
-        (calibrated, ("--mode", "sequential")): ["calibrated/walk/talus", "calibrated/walk/calcaneus"],
+        # sequential: the trial's bones one after another in one task, as talus track --mode sequential
+        (calibrated, ("--mode", "sequential")): ["calibrated/walk/talus+calcaneus"],
+        (calibrated, ("--mode", "sequential", "--split-bones")): ["calibrated/walk/talus",
+                                                                  "calibrated/walk/calcaneus"],
         (demo, ()): [f"{demo.name}/walk/talus", f"{demo.name}/walk/calcaneus"],  # no flatfield
+        # no flatfield, the neighbours asked subtracted: one sequential task, as talus track does
+        (demo, ("--sequential-subtract", "on")): [f"{demo.name}/walk/talus+calcaneus"],
         (demo, ("--mode", "joint")): [f"{demo.name}/walk/talus+calcaneus"],
         (demo, ("--joint",)): [f"{demo.name}/walk/talus+calcaneus"],
         (demo, ("--joint", "--mode", "joint")): [f"{demo.name}/walk/talus+calcaneus"],
@@ -206,3 +211,48 @@ def test_batch_ranges_print_the_trajectory_check_over_each_trials_ranges(demo, t
             "ranges together (30 bone-frames judged, 1 off the trajectory, 1 changed by the check)")
     assert line in out.err
     assert "talus batch: keyed/walk/talus: talus frame 10: off the trajectory" in out.err
+
+
+def test_sequential_mode_is_one_task_per_trial_and_says_what_it_subtracted(tmp_path_factory, capsys,
+                                                                           fast_tracking, monkeypatch,
+                                                                           tmp_path):
+    """--mode sequential: a trial's bones in one task, tracked one after another as talus track --mode
+    sequential (on these frames, divided by the full scale, auto subtracts nothing: said on stderr and
+    in the record); --split-bones: a task per bone, and stderr says it cannot subtract; refused
+    outside --mode sequential."""
+    import shutil
+
+    from tests.core.tracking.demo_walk import built
+
+    folder = shutil.copytree(built(tmp_path_factory), tmp_path / "demo")  # nothing tracked yet
+    rc = talus_batch([str(folder), "--trials", "walk", "--bones", "talus,calcaneus", "--frames", "0:1",
+                      "--workers", "0", "--device", "cpu", "--no-confidence", "--quiet",
+                      "--mode", "sequential"])
+    out = capsys.readouterr()
+    assert rc == EXIT_OK, out.err
+    (rec,) = json.loads(out.out)["task_records"]
+    assert rec["key"] == "demo/walk/talus+calcaneus" and rec["mode"] == "sequential"
+    assert rec["sequential_subtract"] is False and rec["frames_tracked"] == 2
+    assert "talus batch: demo/walk/talus+calcaneus: sequential, neighbours not subtracted" in out.err
+    import core.tracking.batch as core_batch
+
+    seen = []
+
+    def fake_run_serial(tasks, settings, progress=None):
+        seen.append(tasks)
+        note = "on, but no other bone tracked: nothing to subtract"
+        return {"status": "complete", "failures": [], "task_records": [
+            {"key": t.key, "mode": "sequential", "sequential_subtract": False,
+             "sequential_subtract_note": note} for t in tasks]}
+
+    monkeypatch.setattr(core_batch, "run_serial", fake_run_serial)
+    rc = talus_batch([str(folder), "--bones", "talus,calcaneus", "--workers", "0", "--mode", "sequential",
+                      "--split-bones", "--trials", "walk"])
+    err = capsys.readouterr().err
+    assert rc == EXIT_OK and [t.bones for t in seen[0]] == [("talus",), ("calcaneus",)]
+    assert "--split-bones: one task per bone, each searched against the whole image" in err
+    assert ("demo/walk/calcaneus: sequential, neighbours not subtracted (on, but no other bone tracked: "
+            "nothing to subtract)") in err
+    assert talus_batch([str(folder), "--workers", "0", "--split-bones"]) == EXIT_ERROR
+    assert "--split-bones: one task per bone is a choice of --mode sequential, not --mode auto" in (
+        capsys.readouterr().err)

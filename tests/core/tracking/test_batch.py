@@ -80,10 +80,16 @@ def test_build_tasks_mode_auto_tracks_as_talus_track(demo, calibrated):
     assert [t.key for t in tasks] == ["demo/walk/talus+calcaneus", "demo/walk2/talus", "demo/walk2/calcaneus"]
     assert build_tasks([calibrated], bones=["talus"]) == [BatchTask(str(calibrated.absolute()), t, ("talus",))
                                                           for t in ("walk", "walk2")]
-    # the overrides, and joint=True/False for mode joint/sequential
-    per_bone = [(t.trial, t.bones) for t in build_tasks([calibrated], bones=list(BONES), mode="sequential")]
+    # the overrides, and joint=True/False for mode joint/sequential (a trial's bones in one task,
+    # tracked one after another as talus track --mode sequential; split_bones: a task per bone)
+    seq = [(t.trial, t.bones, t.tracking_mode) for t in build_tasks([calibrated], bones=list(BONES),
+                                                                    mode="sequential")]
+    assert seq == [(t, BONES, "sequential") for t in ("walk", "walk2")]
+    assert [(t.trial, t.bones, t.tracking_mode) for t in build_tasks([calibrated], bones=list(BONES),
+                                                                     joint=False)] == seq
+    per_bone = [(t.trial, t.bones) for t in build_tasks([calibrated], bones=list(BONES), mode="sequential",
+                                                        split_bones=True)]
     assert per_bone == [(t, (b,)) for t in ("walk", "walk2") for b in BONES]
-    assert [(t.trial, t.bones) for t in build_tasks([calibrated], bones=list(BONES), joint=False)] == per_bone
     assert [t.bones for t in build_tasks([demo], bones=list(BONES), mode="joint")] == [BONES, BONES]
     assert build_tasks([demo], bones=list(BONES), joint=True) == build_tasks([demo], bones=list(BONES),
                                                                              mode="joint")

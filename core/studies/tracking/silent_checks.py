@@ -10,7 +10,15 @@ false flags*), over all the dumps given. A candidate reads only what a user's ru
 scores, confidence σ, the tracker's flags — except ``bound_*``, which read each frame's own bound at
 the true pose (the dump's ``frame_bound``; a user would compute it at the tracked pose): what a
 per-frame bound could add if it were built. ``modes`` needs both a joint and a sequential dump of
-the seed (a user running both).
+the seed (a user running both). ``--keep-per-frame`` keeps the dumps' state in the JSON
+(``per_frame``), which :func:`load` reads back as ``FILE.json#RUN``.
+
+Measured (seeds 0-2, joint and sequential, tracked on one NVIDIA H100 at ea76c8b, judged on this
+2-core CPU; ``resources/benchmarks/tracking_silent_checks_h100.json``, the per-frame state in
+``tracking_silent_checks_per_frame_h100.json``): 20 silent tibia frames against 1672 unflagged good
+bone-frames; no candidate separates them (AUC 0.44-0.87; at 1 % of the good frames flagged none
+catches more than 3, at 5 % 9); what the tracker's check now adds is in
+:mod:`core.tracking.flags_post` (*next to a flagged frame*: 3 caught, 11 more good frames flagged).
 """
 
 from __future__ import annotations
@@ -18,36 +26,76 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 
 import numpy as np
 
-__all__ = ["CANDIDATES", "auc", "block_residuals", "evaluate", "load", "main"]
+__all__ = ["CANDIDATES", "auc", "block_residuals", "evaluate", "load", "main", "per_frame",
+           "trajectory_counts"]
 
 
 def load(path: str) -> dict:
-    """Per bone of a dump: ``frames``, ``pose``, ``err``, ``sigma``, ``score``, ``flags`` (the tracker's,
-    post-pass included), ``own`` (without the post-pass's), ``center``, ``bound`` (the bone's RMS
-    bound), ``frame_bound`` (``(n, 6, 6)`` or None), ``over`` and ``good``."""
+    """Per bone of a dump (``.npz``, or ``FILE.json#RUN``: a run's :func:`per_frame` kept in a
+    benchmark JSON's ``per_frame``): ``frames``, ``pose``, ``err``, ``sigma``, ``score``, ``flags``
+    (the tracker's, post-pass included), ``own`` (without the post-pass's), ``center``, ``bound``
+    (the bone's RMS bound), ``frame_sigma`` (``(n, 6)`` each frame's own bound's σ, NaN where not
+    computed, or None), ``over`` and ``good``."""
     from core.studies.tracking.silent_failures import OVER, _center
     from core.tracking.flags_post import FLAG
 
-    z = np.load(path)
-    names = sorted({k.split(".")[0] for k in z.files}, key=lambda n: z.files.index(f"{n}.pose"))
+    if "#" in path:
+        file, run = path.rsplit("#", 1)
+        with open(file) as fh:
+            src = json.load(fh)["per_frame"][run]
+        names = list(src)
+        get = {n: {k: (v if k in ("flags", "bound") or v is None else np.array(v, dtype=float))
+                   for k, v in d.items()} for n, d in src.items()}
+        for g in get.values():
+            top = g["pose"].reshape(-1, 3, 4)
+            g["pose"] = np.concatenate([top, np.tile([[[0.0, 0.0, 0.0, 1.0]]], (len(top), 1, 1))], axis=1)
+    else:
+        z = np.load(path)
+        names = sorted({k.split(".")[0] for k in z.files}, key=lambda n: z.files.index(f"{n}.pose"))
+        get = {}
+        for n in names:
+            fb = z[f"{n}.frame_bound"] if f"{n}.frame_bound" in z.files else None
+            fs = None if fb is None else np.sqrt(np.abs(np.diagonal(fb, axis1=1, axis2=2)))
+            get[n] = {"err": z[f"{n}.err"], "bound": json.loads(str(z[f"{n}.bound"])),
+                      "flags": json.loads(str(z[f"{n}.flags"])), "pose": z[f"{n}.pose"],
+                      "sigma": z[f"{n}.sigma"], "score": z[f"{n}.score"], "center": _center(z, n),
+                      "frame_sigma": fs}
     out = {}
     for n in names:
-        E = np.asarray(z[f"{n}.err"], float)
-        b = json.loads(str(z[f"{n}.bound"]))
-        fl = json.loads(str(z[f"{n}.flags"]))
+        g = get[n]
+        E, b, fl = np.asarray(g["err"], float), g["bound"], g["flags"]
         ok = np.all(np.isfinite(E), axis=1)
         q = np.maximum(np.linalg.norm(E[:, :3], axis=1) / b["rms_mm"],
                        np.linalg.norm(E[:, 3:], axis=1) / b["rms_deg"])
-        fb = z[f"{n}.frame_bound"] if f"{n}.frame_bound" in z.files else None
-        out[n] = {"frames": np.arange(len(E)), "pose": np.asarray(z[f"{n}.pose"], float), "err": E,
-                  "sigma": np.asarray(z[f"{n}.sigma"], float), "score": np.asarray(z[f"{n}.score"], float),
+        out[n] = {"frames": np.arange(len(E)), "pose": np.asarray(g["pose"], float), "err": E,
+                  "sigma": np.asarray(g["sigma"], float), "score": np.asarray(g["score"], float),
                   "flags": np.array([bool(f) for f in fl]),
                   "own": np.array([any(not s.startswith(FLAG) for s in f) for f in fl]),
-                  "center": _center(z, n), "bound": b, "frame_bound": fb, "ratio": q,
-                  "over": ok & (q > OVER), "good": ok & ~(q > OVER)}
+                  "center": np.asarray(g["center"], float).reshape(3), "bound": b,
+                  "frame_sigma": g.get("frame_sigma"), "ratio": q, "over": ok & (q > OVER),
+                  "good": ok & ~(q > OVER)}
+    return out
+
+
+def per_frame(path: str) -> dict:
+    """A ``.npz`` dump's per-bone state as JSON lists (:func:`load` reads it back from a benchmark
+    JSON): the poses' top 3 rows, errors, σ, scores, flags, the rotation centre, the bone's bound and
+    each frame's own bound's σ (None where not computed)."""
+    def rows(a, d):
+        return [[None if not np.isfinite(v) else round(float(v), d) for v in np.ravel(r)] for r in a]
+
+    z = np.load(path)
+    out = {}
+    for n, b in load(path).items():
+        out[n] = {"pose": rows(b["pose"][:, :3, :], 7), "err": rows(b["err"], 5),
+                  "sigma": rows(b["sigma"], 5), "score": [round(float(v), 6) for v in b["score"]],
+                  "flags": json.loads(str(z[f"{n}.flags"])),
+                  "center": np.round(b["center"], 5).tolist(), "bound": b["bound"],
+                  "frame_sigma": None if b["frame_sigma"] is None else rows(b["frame_sigma"], 6)}
     return out
 
 
@@ -58,31 +106,31 @@ def _deltas(P0: np.ndarray, P: np.ndarray, c: np.ndarray) -> np.ndarray:
 
 
 def block_residuals(poses: np.ndarray, use: np.ndarray, center, *, gap: int = 0, half_window: int = 4,
-                    degree: int = 2) -> np.ndarray:
-    """``(n, 6)`` residual of each frame's pose (mm, degrees; frames consecutive) against a polynomial
-    of ``degree`` through the poses in ``use`` at offsets ``gap < |d| <= gap + half_window`` (its
-    ``2 gap`` nearest neighbours left out: a short run of frames off together does not pull its own
-    fit), divided by ``sqrt(1 + leverage)``; NaN where fewer than ``degree + 2`` neighbours."""
+                    degree: int = 2, reach: int = 3) -> np.ndarray:
+    """``(n, 6)`` residual of each frame's pose (mm, degrees; frames consecutive) from a polynomial of
+    ``degree`` through the poses of its ``half_window`` nearest frames in ``use`` on each side beyond
+    its ``gap`` nearest (left out: a short run of frames off together does not pull its own fit),
+    within ``reach × half_window + gap`` frames, divided by ``sqrt(1 + leverage)``; NaN where fewer
+    than ``degree + 2`` neighbours."""
     n = len(poses)
     c = np.asarray(center, float)
     out = np.full((n, 6), np.nan)
-    offs = np.array([d for d in range(-gap - half_window, gap + half_window + 1) if abs(d) > gap])
-    for i in range(n):
-        j = i + offs
-        m = (j >= 0) & (j < n)
-        m[m] &= use[j[m]]
-        if m.sum() < degree + 2 or not use[i]:
+    far = reach * half_window + gap
+    good = np.flatnonzero(use)
+    for i in np.flatnonzero(use):
+        left = good[(good < i - gap) & (good >= i - far)][-half_window:]
+        right = good[(good > i + gap) & (good <= i + far)][:half_window]
+        j = np.r_[left, right].astype(int)
+        if len(j) < degree + 2:
             continue
-        x = offs[m].astype(float)
-        # with neighbours on one side only, an extrapolation: the leverage grows
+        x = (j - i).astype(float)
         A = np.vander(x, degree + 1)
         AtA = A.T @ A
         if abs(np.linalg.det(AtA)) < 1e-9:
             continue
         row = np.linalg.solve(AtA, A.T)[-1]
-        k = math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1]))
-        Y = _deltas(poses[i], poses[j[m]], c)
-        r = -(row @ Y)  # the frame's pose about the fit's value there
+        k = math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1]))  # an extrapolation's grows
+        r = -(row @ _deltas(poses[i], poses[j], c))  # the frame's pose about the fit's value there
         out[i] = np.r_[r[:3], np.degrees(r[3:])] / k
     return out
 
@@ -121,32 +169,34 @@ def _mahal(R: np.ndarray, use: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("ni,ij,nj->n", D, np.linalg.inv(C), D))
 
 
-def _sigma_bound(b: dict) -> np.ndarray:
-    """Worst axis of the frame's confidence σ over its own bound's σ (frames without a bound:
-    interpolated over the frames that have one, the bound being smooth in the frame)."""
-    fb = b["frame_bound"]
-    if fb is None:
-        return np.zeros(len(b["pose"]))
-    sb = np.sqrt(np.abs(np.diagonal(fb, axis1=1, axis2=2)))
+def _frame_sigma(b: dict):
+    """``(n, 6)`` each frame's own bound's σ, interpolated over the frames without one (the bound is
+    smooth in the frame); None without."""
+    sb = b["frame_sigma"]
+    if sb is None:
+        return None
     have = np.all(np.isfinite(sb), axis=1)
     f = b["frames"]
-    sb = np.stack([np.interp(f, f[have], sb[have, k]) for k in range(6)], axis=1)
+    return np.stack([np.interp(f, f[have], sb[have, k]) for k in range(6)], axis=1)
+
+
+def _sigma_bound(b: dict) -> np.ndarray:
+    """Worst axis of the frame's confidence σ over its own bound's σ, against the bone's median."""
+    sb = _frame_sigma(b)
+    if sb is None:
+        return np.zeros(len(b["pose"]))
     r = b["sigma"] / sb
-    med = np.nanmedian(r, axis=0)
-    return np.nan_to_num(r / med).max(axis=1)
+    return np.nan_to_num(r / np.nanmedian(r, axis=0)).max(axis=1)
 
 
 def _bound_size(b: dict) -> np.ndarray:
     """The frame's own bound (RMS mm and deg) over the bone's, the larger: frames the image
     determines worse than the bone's usual frame."""
-    fb = b["frame_bound"]
-    if fb is None:
+    sb = _frame_sigma(b)
+    if sb is None:
         return np.zeros(len(b["pose"]))
-    d = np.abs(np.diagonal(fb, axis1=1, axis2=2))
-    t, r = np.sqrt(d[:, :3].sum(1)) / b["bound"]["rms_mm"], np.sqrt(d[:, 3:].sum(1)) / b["bound"]["rms_deg"]
-    have = np.isfinite(t) & np.isfinite(r)
-    f = b["frames"]
-    return np.maximum(np.interp(f, f[have], t[have]), np.interp(f, f[have], r[have]))
+    return np.maximum(np.sqrt((sb[:, :3] ** 2).sum(1)) / b["bound"]["rms_mm"],
+                      np.sqrt((sb[:, 3:] ** 2).sum(1)) / b["bound"]["rms_deg"])
 
 
 def _scores(b: dict, other: dict | None) -> dict:
@@ -194,6 +244,42 @@ def auc(pos: np.ndarray, neg: np.ndarray) -> float:
     return float(hits / (len(pos) * len(neg)))
 
 
+def _other_mode(path: str) -> str:
+    return re.sub(r"joint|sequential", "X", path.rsplit("/", 1)[-1])
+
+
+def trajectory_counts(paths, **post) -> dict:
+    """Per dump and bone, the frames over 4× left silent and the good frames flagged by the tracker's
+    per-frame checks with :func:`core.tracking.flags_post.apply_trajectory_flags` (``post``: its
+    keywords, e.g. ``limit``, ``near``) run afresh on the dump's poses, and the totals."""
+    from core.tracking.flags_post import apply_trajectory_flags
+    from core.tracking.results import FrameResult, TrackingResult
+
+    out, tot = {}, {"over": 0, "silent": 0, "good": 0, "good_flagged": 0}
+    for p in paths:
+        bones = load(p)
+        res = {}
+        for n, b in bones.items():
+            for f in b["frames"]:
+                own = ("own",) if b["own"][f] else ()
+                pose = b["pose"][f] if np.all(np.isfinite(b["pose"][f])) else None
+                res[(n, int(f))] = FrameResult(n, int(f), pose, float(b["score"][f]), 0, 0.0, not own, own)
+        frames = tuple(int(f) for f in next(iter(bones.values()))["frames"])
+        got, _ = apply_trajectory_flags(TrackingResult(tuple(bones), frames, res, "complete", 0.0),
+                                        {n: b["center"] for n, b in bones.items()}, **post)
+        out[p] = {}
+        for n, b in bones.items():
+            fl = np.array([bool(got.results[(n, int(f))].flags) for f in b["frames"]])
+            silent, good = np.flatnonzero(b["over"] & ~fl), np.flatnonzero(b["good"] & fl)
+            out[p][n] = {"over": np.flatnonzero(b["over"]).tolist(), "silent": silent.tolist(),
+                         "good_flagged": good.tolist(), "good": int(b["good"].sum())}
+            tot["over"] += int(b["over"].sum())
+            tot["silent"] += len(silent)
+            tot["good"] += int(b["good"].sum())
+            tot["good_flagged"] += len(good)
+    return {"runs": out, "total": tot}
+
+
 def evaluate(paths, *, fractions=(0.01, 0.02, 0.03, 0.05, 0.10)) -> dict:
     """Per candidate over all ``paths`` (the dumps): the silent frames (over 4×, no flag), the AUC of
     the score on silent against unflagged good frames, and at thresholds that flag the given
@@ -204,11 +290,10 @@ def evaluate(paths, *, fractions=(0.01, 0.02, 0.03, 0.05, 0.10)) -> dict:
         runs[p] = load(p)
     by_seed = {}
     for p in paths:
-        key = p.replace("_joint_", "_X_").replace("_sequential_", "_X_")
-        by_seed.setdefault(key, []).append(p)
+        by_seed.setdefault(_other_mode(p), []).append(p)
     rows = []  # (run, bone, frame, silent?, good-unflagged?, scores)
     for p, bones in runs.items():
-        pair = [q for q in by_seed[p.replace("_joint_", "_X_").replace("_sequential_", "_X_")] if q != p]
+        pair = [q for q in by_seed[_other_mode(p)] if q != p]
         for n, b in bones.items():
             other = runs[pair[0]][n] if pair else None
             sc = _scores(b, other)
@@ -240,10 +325,19 @@ def main(argv=None) -> int:
 
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.silent_checks",
                                 description=__doc__.split("\n")[0])
-    p.add_argument("dumps", nargs="+", help="silent_failures --dump files")
+    p.add_argument("dumps", nargs="+", help="silent_failures --dump files (.npz), or FILE.json#RUN")
+    p.add_argument("--near", default="off,0.5,0.6,0.7,0.8",
+                   help="the trajectory check's near values to count (off: None), comma-separated")
+    p.add_argument("--keep-per-frame", action="store_true", help="write the .npz dumps' state as per_frame")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    print_json({"study": "core.studies.tracking.silent_checks", "dumps": a.dumps, **evaluate(a.dumps)}, a.out)
+    nears = [None if v == "off" else float(v) for v in a.near.split(",") if v]
+    out = {"study": "core.studies.tracking.silent_checks", "dumps": a.dumps, **evaluate(a.dumps),
+           "trajectory_check": {str(v): trajectory_counts(a.dumps, near=v) for v in nears}}
+    if a.keep_per_frame:
+        out["per_frame"] = {re.sub(r"^[^_]*_|_newton$", "", d.rsplit("/", 1)[-1][:-4]): per_frame(d)
+                            for d in a.dumps if d.endswith(".npz")}  # d_0_joint_newton.npz: 0_joint
+    print_json(out, a.out)
     return 0
 
 

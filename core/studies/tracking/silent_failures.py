@@ -12,10 +12,19 @@ all to one compressed ``.npz`` per run (the analysis reads it back without a GPU
 stdout counts, per configuration and bone, the frames over ``4×`` the bound, those left unflagged
 (*silent*) and the good frames flagged, before and after the trajectory post-pass of
 :mod:`core.tracking.flags_post` (the tracker's own result holds both: the post-pass flags carry
-its flag name). ``--line`` evaluates a bone's cost from a dumped estimate to the truth
+its flag name). The configurations track with the acceptance study's options
+(:func:`~core.studies.tracking.acceptance.study_options`: sequentially with the neighbours
+subtracted); ``--workers`` synthesises the frames in processes; ``--frame-bounds K`` also dumps each
+frame's own bound (:func:`frame_bounds`, at the true pose) on every K-th frame and the frames over
+4×. :mod:`core.studies.tracking.silent_checks` judges candidate checks on the dumps.
+``--line`` evaluates a bone's cost from a dumped estimate to the truth
 (:func:`cost_line`): whether a silent frame's truth is an optimum the search missed.
 
-Measured (``resources/benchmarks/tracking_silent_failures_h100.json``; tracked on one NVIDIA H100,
+Seeds 0-2, joint and sequential, at ea76c8b (one NVIDIA H100;
+``resources/benchmarks/tracking_silent_checks_h100.json``): 39 bone-frames over 4×, 20 silent after
+the trajectory check as it was, 17 with its *next to a flagged frame* rule (:mod:`core.tracking.flags_post`).
+
+Earlier (``resources/benchmarks/tracking_silent_failures_h100.json``; tracked on one NVIDIA H100,
 the rest on this 2-core CPU machine): the post-pass and what it caught are in
 :mod:`core.tracking.flags_post`'s docs. No per-frame quantity the tracker keeps separated the
 frames over 4× the bound from the others (rank AUC 0.42-0.59). The runs it leaves silent (the tibia

@@ -53,3 +53,22 @@ def test_auc():
     assert auc(np.array([2.0, 3.0]), np.array([0.0, 1.0])) == 1.0
     assert auc(np.array([1.0]), np.array([1.0])) == 0.5
     assert np.isnan(auc(np.array([]), np.array([1.0])))
+
+
+def test_the_kept_runs_read_back_and_the_near_rule_flags_frame_81():
+    """The benchmark's per-frame state (seed 0, joint: the acceptance trial) read back from its JSON:
+    the trajectory check left tibia frame 81 (4.45x its bound) silent; with its rule for frames next
+    to flagged ones it flags it."""
+    from pathlib import Path
+
+    from core.studies.tracking.silent_checks import load, trajectory_counts
+
+    path = str(Path(__file__).resolve().parents[3] / "resources" / "benchmarks"
+               / "tracking_silent_checks_per_frame_h100.json") + "#0_joint"
+    tibia = load(path)["tibia"]
+    assert np.flatnonzero(tibia["over"]).tolist() == [41, 50, 79, 81, 89]
+    assert np.flatnonzero(tibia["over"] & ~tibia["flags"]).tolist() == [81]  # as the tracker left it
+    before = trajectory_counts([path], near=None)["runs"][path]
+    after = trajectory_counts([path])["runs"][path]
+    assert before["tibia"]["silent"] == [81] and after["tibia"]["silent"] == []
+    assert len(after["tibia"]["good_flagged"]) - len(before["tibia"]["good_flagged"]) == 1

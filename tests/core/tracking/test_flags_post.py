@@ -118,7 +118,38 @@ def test_every_kth_frame_tracked_is_judged_alike(k):
     sel = np.arange(0, len(bad), k)
     R = trajectory_residuals(sel, bad[sel], C)
     assert np.isfinite(R).all(axis=1).sum() >= len(sel) - 2
-    assert list(trajectory_flags(sel, bad[sel], C)) == [17 * k]
+    assert list(trajectory_flags(sel, bad[sel], C, near=None)) == [17 * k]
+    got = trajectory_flags(sel, bad[sel], C)  # frames next to it that stand off too (k = 2: three)
+    assert next(iter(got)) == 17 * k and "next to" not in got[17 * k]
+    assert all("next to flagged frames" in m and abs(f - 17 * k) <= 4 * k for f, m in list(got.items())[1:])
+
+
+def _rotated(P, f, deg):
+    """``P`` with frame ``f`` turned by ``deg`` more about z (through C)."""
+    from core.geometry.transforms import params_from_pose
+
+    Q = P.copy()
+    p = params_from_pose(P[f], center=C, base=np.eye(4))
+    p[5] += np.radians(deg)
+    Q[f] = pose_from_params(p, center=C, base=np.eye(4))
+    return Q
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_frame_off_beside_a_flagged_one_is_flagged_with_near(seed):
+    """A frame 0.15 deg off (3x the noise) two frames from one 0.5 deg off the other way: within the
+    limit once the far one leaves its fit, over it with the far one in; flagged as next to flagged
+    frames (the acceptance trial's tibia frame 81 beside frame 79), not without ``near``; the far one
+    alone flags only itself."""
+    P = _track(seed=seed)
+    fr = np.arange(len(P))
+    spike = _rotated(P, 20, 0.5)
+    assert list(trajectory_flags(fr, spike, C)) == [20]
+    pair = _rotated(spike, 22, -0.15)
+    got = trajectory_flags(fr, pair, C)
+    assert list(got) == [20, 22] and got[22].startswith(f"{FLAG} next to flagged frames")
+    assert list(trajectory_flags(fr, pair, C, near=None)) == [20]
+    assert list(trajectory_flags(fr, pair, C, near=2.0)) == [20]  # without them it is within 2x the limit
 
 
 def test_a_restored_frame_flagged_only_off_the_trajectory_feeds_as_a_good_one():

@@ -73,7 +73,7 @@ to 8/0/0 and 4/1/0 to 2/0/0 on seeds 1 and 2 (joint tracking: 1/0/0, 7/0/0, 2/0/
 by the full scale are searched against the whole image (on the wrist sample's 8-bit radiographs
 subtraction pulled the radius into the ulna's hole); True or False is used as given. The report's
 ``"options"`` say what the searches did (``"sequential_subtract"``, sequential runs only): false
-where one bone is tracked (``talus batch``'s sequential tasks), whose search has nothing to
+where one bone is tracked (``talus batch --split-bones`` tasks), whose search has nothing to
 subtract, with ``"sequential_subtract_note"`` saying so when the choice was on.
 
 On resume (``resume=True`` with tracking results of the range in the journal) auto keeps the

@@ -104,7 +104,9 @@ class TrackingOptions:
 
     ``trajectory_limit`` (≥ 1, or None: off): once a run is complete, frames whose pose stands off
     the local fit through their neighbours by more than this many times the bone's median are
-    flagged ``"off the trajectory"`` (:mod:`core.tracking.flags_post`, default its ``LIMIT``)."""
+    flagged ``"off the trajectory"`` (:mod:`core.tracking.flags_post`, default its ``LIMIT``), and
+    frames next to flagged ones that stand off it by more than this with them in the fit and by more
+    than ``flags_post.NEAR`` × this without them."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0),

@@ -69,8 +69,9 @@ def _fresh(study: Path, dest: Path) -> Path:
 def _run(study: Path, settings: TaskSettings, workers: int, bones=BONES) -> dict:
     # one (trial, bone) task each, as the module notes say: the demo's frames are divided by the full
     # scale (no flatfield correction), which mode "auto" also tracks one bone per task; pinned so the
-    # measured tasks stay the same if the demo gains a correction
-    tasks = build_tasks([study], bones=list(bones), mode="sequential")
+    # measured tasks stay the same if the demo gains a correction (split_bones: mode "sequential"
+    # alone makes one task of a trial's bones)
+    tasks = build_tasks([study], bones=list(bones), mode="sequential", split_bones=True)
     load0 = os.getloadavg()[0]
     if workers == 0:
         s = run_serial(tasks, settings)

@@ -42,7 +42,7 @@ from ._shared import (
     text_bar,
 )
 
-__all__ = ["HELP", "configure", "parse_model", "run"]
+__all__ = ["HELP", "configure", "parse_model", "run", "unused_note"]
 
 HELP = "calibrate a study's rig and image correction from a session"
 
@@ -117,6 +117,17 @@ def _copy_report(src: Path, dest: Path) -> dict:
     return out
 
 
+def unused_note(saved, in_use: dict[str, str], folder: Path) -> str | None:
+    """A line for a saved calibration no trial uses (``--trials series`` on a study whose trials are
+    on no earlier version of the series, e.g. the first calibration of an imported study): the
+    trials' calibrations and how to point them at it without calibrating again."""
+    if saved.trials or not in_use:
+        return None
+    uses = ", ".join(f"{t} uses {c}" for t, c in in_use.items())
+    return (f"no trial uses {saved.name} yet ({uses}); point them at it with '{PROG} study "
+            f"use-calibration {folder} {saved.name}' (--trials a,b for some)")
+
+
 def run(a: argparse.Namespace) -> int:
     session_dir = Path(a.session).expanduser()
     if not session_dir.is_dir():
@@ -132,6 +143,11 @@ def run(a: argparse.Namespace) -> int:
     progress = Progress("calibrate", quiet=a.quiet)
     cal = saved = None
     with Study.open(folder, mode="w") as study, sigint_cancels(token, "calibrate"):
+        unknown = [t for t in trials if t not in study.trials] if isinstance(trials, list) else []
+        if unknown:  # before minutes of calibrating, not after
+            raise CliError(f"--trials: the study has no trial {', '.join(map(repr, unknown))} "
+                           f"(has {', '.join(study.trials) or 'none'}; or give series, all or none)")
+        in_use = {t: study.trial(t).calibration for t in study.trials}
         try:
             with stdout_to_stderr():
                 saved, cal = calibrate_study(study, session_dir, object=a.object, model=model,
@@ -152,6 +168,9 @@ def run(a: argparse.Namespace) -> int:
     rep = cal.report
     for w in rep.get("warnings", []):
         print(f"{PROG} calibrate: WARNING: {w}", file=sys.stderr)
+    note = unused_note(saved, in_use, folder)
+    if note:
+        print(f"{PROG} calibrate: {note}", file=sys.stderr)
     out = {"status": "complete", "saved": {"calibration": saved.name, "folder": str(saved.folder),
                                            "trials": list(saved.trials)},
            "rig": [{k: c[k] for k in ("name", "fx_px", "sid_mm", "source_mm", "std")} for c in rep["rig"]],

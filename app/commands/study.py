@@ -4,6 +4,11 @@
 every record whose checksum holds is kept, the rest are reported (and, without ``--dry-run``,
 set aside by the library so the study opens again). The JSON report says what was kept and
 what was dropped, per journal.
+
+``talus study use-calibration STUDY NAME [--trials a,b]`` points trials (default: all) at a saved
+calibration version such as ``session.v2`` (:func:`core.study.calibrations.use_calibration`):
+what ``talus calibrate --trials`` (and the wizard's *Trials using it*) does at the end of a
+calibration, without calibrating again. The JSON says each trial's calibration before and after.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ from pathlib import Path
 
 from ._shared import EXIT_OK, PROG, CliError, print_json, stdout_to_stderr, study_folder
 
-HELP = "look after a study folder (repair damaged pose journals)"
+HELP = "repair pose journals, choose trials' calibration"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +33,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
     repair.add_argument("--dry-run", action="store_true",
                         help="report what would be kept and dropped; change nothing")
     repair.set_defaults(run=run_repair)
+    use = sub.add_parser(
+        "use-calibration", help="point trials at a saved calibration version (e.g. session.v2)",
+        description="Point trials of the study (default: all) at a calibration the study holds, e.g. "
+        "a version 'talus calibrate' saved. Tracking then reads their frames through its correction "
+        "and rig.")
+    use.add_argument("study", metavar="STUDY", help="study folder (study.json)")
+    use.add_argument("calibration", metavar="NAME", help="calibration name, e.g. session.v2")
+    use.add_argument("--trials", default=None, help="comma-separated trial names (default: all)")
+    use.set_defaults(run=run_use_calibration)
 
 
 def _salvage(folder: Path, dry_run: bool) -> dict:
@@ -62,4 +76,27 @@ def run_repair(args: argparse.Namespace) -> int:
     print_json(result)
     if not args.dry_run:
         print(f"{PROG} study repair: done ({folder})", file=sys.stderr)
+    return EXIT_OK
+
+
+def run_use_calibration(args: argparse.Namespace) -> int:
+    folder = study_folder(args.study)
+    from core.study import Study
+    from core.study.calibrations import use_calibration
+
+    with Study.open(folder, mode="w") as study:
+        names = [t for t in args.trials.split(",") if t] if args.trials else list(study.trials)
+        unknown = [t for t in names if t not in study.trials]
+        if not names:
+            raise CliError(f"STUDY: {folder} has no trial to point at a calibration")
+        if unknown:
+            raise CliError(f"--trials: the study has no trial {', '.join(map(repr, unknown))} "
+                           f"(has {', '.join(study.trials)})")
+        before = {t: study.trial(t).calibration for t in names}
+        for t in names:
+            use_calibration(study, t, args.calibration)
+        after = {t: study.trial(t).calibration for t in names}
+    print_json({"study": str(folder), "calibration": args.calibration,
+                "trials": {t: {"before": before[t], "after": after[t]} for t in names}})
+    print(f"{PROG} study use-calibration: {', '.join(names)} now use {args.calibration}", file=sys.stderr)
     return EXIT_OK

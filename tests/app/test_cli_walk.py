@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 
@@ -109,3 +110,90 @@ def test_demo_says_on_stderr_when_its_study_is_not_calibrated(monkeypatch, tmp_p
         assert expect in err
         if "WARNING" in expect:
             assert f"talus calibrate {tmp_path / 'calibration_session'} --study {tmp_path}" in err
+
+
+def test_calibrate_refuses_unknown_trials_before_calibrating(study, tmp_path, capsys, monkeypatch):
+    """--trials with a misspelt name was refused only after the whole calibration (minutes)."""
+    import core.study.calibrations as calibrations
+
+    def never(*a, **k):
+        raise AssertionError("calibrated before checking --trials")
+
+    monkeypatch.setattr(calibrations, "calibrate_study", never)
+    (tmp_path / "session").mkdir()
+    argv = ["calibrate", str(tmp_path / "session"), "--study", str(study), "--trials", "walk,wlak"]
+    assert talus(argv) == 1
+    assert "--trials: the study has no trial 'wlak' (has walk" in capsys.readouterr().err
+
+
+def test_a_calibration_no_trial_uses_says_how_to_use_it(study, capsys):
+    """talus calibrate's default (--trials series) leaves an imported study's trials on their rig:
+    the JSON said trials: [] and nothing else. The note names the command that points them at it,
+    and that command does."""
+    from types import SimpleNamespace
+
+    from app.commands.calibrate import unused_note
+    from core.study import Study
+
+    saved = SimpleNamespace(name="rig", trials=())
+    note = unused_note(saved, {"walk": "rig"}, study)
+    assert note == (f"no trial uses rig yet (walk uses rig); point them at it with 'talus study "
+                    f"use-calibration {study} rig' (--trials a,b for some)")
+    assert unused_note(SimpleNamespace(name="session.v1", trials=("walk",)), {"walk": "rig"}, study) is None
+    with Study.open(study, mode="w") as st:
+        folder = st.folder
+        st.add_calibration("other", [folder / "rig" / "cam01.txt", folder / "rig" / "cam02.txt"])
+    assert talus(["study", "use-calibration", str(study), "other"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["trials"] == {"walk": {"before": "rig", "after": "other"}}
+    assert "walk now use other" in out.err
+    with Study.open(study) as st:
+        assert st.trial("walk").calibration == "other"
+    assert talus(["study", "use-calibration", str(study), "nope"]) == 1
+    assert "no calibration named 'nope'" in capsys.readouterr().err
+    assert talus(["study", "use-calibration", str(study), "rig", "--trials", "run"]) == 1
+    assert "--trials: the study has no trial 'run' (has walk)" in capsys.readouterr().err
+
+
+@pytest.fixture
+def lab(demo, tmp_path):
+    """A collection folder as a lab has it: two frame folders, two MayaCam files, one CT per bone."""
+    lab = tmp_path / "lab"
+    for cam in ("cam01", "cam02"):
+        shutil.copytree(demo / "frames" / cam, lab / cam)
+        (lab / "cams").mkdir(exist_ok=True)
+        shutil.copy(demo / "rig" / f"{cam}.txt", lab / "cams")
+    (lab / "ct").mkdir()
+    for bone in ("talus", "calcaneus"):
+        shutil.copy(demo / "volumes" / f"{bone}.mha", lab / "ct")
+    return lab
+
+
+def test_import_bones_named_as_their_files_keep_their_files(lab, tmp_path, capsys):
+    """--bones talus,calcaneus over ct/calcaneus.mha and ct/talus.mha (scanned alphabetically) gave
+    the talus the calcaneus's CT and the calcaneus the talus's."""
+    from core.study import Study
+
+    assert talus(["import", str(lab), "--out", str(tmp_path / "s1"), "--bones", "talus,calcaneus"]) == 0
+    err = capsys.readouterr().err
+    assert f"bone talus from {lab / 'ct' / 'talus.mha'}" in err
+    with Study.open(tmp_path / "s1") as st:
+        doc = st._doc
+    files = {b: Path(doc["volumes"][doc["bones"][b]["volume"]]["path"]).name for b in doc["bones"]}
+    assert files == {"talus": "talus.mha", "calcaneus": "calcaneus.mha"}
+    # other names: in the scan's (file) order, and said so
+    assert talus(["import", str(lab), "--out", str(tmp_path / "s2"), "--bones", "a,b"]) == 0
+    err = capsys.readouterr().err
+    assert f"bone a from {lab / 'ct' / 'calcaneus.mha'}" in err
+    assert f"bone b from {lab / 'ct' / 'talus.mha'}" in err
+
+
+def test_import_names_a_file_of_the_wrong_kind(demo, tmp_path, capsys):
+    """A file that is no project was 'no folder at FILE (or an Autoscoper .cfg file)'."""
+    assert talus(["import", str(demo / "rig" / "cam01.txt"), "--out", str(tmp_path / "s")]) == 1
+    err = capsys.readouterr().err
+    assert "cam01.txt is a file; expected a collection folder, an Autoscoper .cfg or an XMALab .xma" in err
+    assert talus(["import", str(demo / "study.json"), "--out", str(tmp_path / "s")]) == 1
+    assert "study.json is a Talus study's manifest: the study exists already" in capsys.readouterr().err
+    assert talus(["import", str(tmp_path / "nowhere")]) == 1
+    assert "no folder at" in capsys.readouterr().err and not (tmp_path / "s").exists()

@@ -24,9 +24,9 @@ from pathlib import Path
 
 from ._shared import EXIT_OK, PROG, CliError, print_json
 
-__all__ = ["HELP", "configure", "run"]
+__all__ = ["HELP", "bones_by_name", "configure", "run"]
 
-HELP = "make a study from a lab folder or an Autoscoper project (.cfg)"
+HELP = "make a study from a lab folder or a .cfg/.xma project"
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -56,6 +56,16 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.set_defaults(run=run)
 
 
+def bones_by_name(names: list[str], default: dict) -> dict:
+    """``--bones`` names -> the scan's bones (``default``: file-name bones of per-bone CTs, or
+    ``bone<label>`` -> label), in the scan's order. Names that are the default names in another
+    order are matched by name: ``--bones talus,calcaneus`` over ``calcaneus.mha`` and ``talus.mha``
+    (listed alphabetically) gave the talus the calcaneus's CT. Other names go in order."""
+    if sorted(names) == sorted(default) and len(set(names)) == len(names):
+        return dict(default)
+    return dict(zip(names, default.values(), strict=True))
+
+
 def run(a: argparse.Namespace) -> int:
     src = Path(a.source).expanduser()
     if src.is_file() and src.suffix.lower() in (".cfg", ".xma"):
@@ -65,8 +75,13 @@ def run(a: argparse.Namespace) -> int:
             raise CliError("--out: required for an Autoscoper or XMALab project")
         a.project, a.trial = str(src), a.trial or "trial"
         return import_project.run(a)
+    if src.is_file():
+        what = ("a Talus study's manifest: the study exists already (track it, or open it with "
+                f"'{PROG} gui --demo {src.parent}')" if src.name == "study.json" else "a file")
+        raise CliError(f"FOLDER: {src} is {what}; expected a collection folder, an Autoscoper .cfg "
+                       "or an XMALab .xma")
     if not src.is_dir():
-        raise CliError(f"FOLDER: no folder at {src} (or an Autoscoper .cfg file)")
+        raise CliError(f"FOLDER: no folder at {src} (nor an Autoscoper .cfg or XMALab .xma file)")
     from core.study.import_folder import ImportFolderError, make_study_from_folder, scan_folder
 
     scan = scan_folder(src, bit_depth=a.bit_depth)
@@ -91,7 +106,12 @@ def run(a: argparse.Namespace) -> int:
         default = scan.bones()
         if len(names) != len(default):
             raise CliError(f"--bones: expected {len(default)} names (for {list(default)}), got {names}")
-        bones = dict(zip(names, default.values(), strict=True))
+        bones = bones_by_name(names, default)
+        sources = (list(scan.bone_volumes.values()) if scan.bone_volumes else
+                   [f"label {v} of {scan.labels}" if scan.labels is not None else scan.ct
+                    for v in default.values()])
+        for name, source in zip(bones, sources, strict=True):
+            print(f"{PROG} import: bone {name} from {source}", file=sys.stderr)
     out = Path(a.out).expanduser() if a.out else src / "study"
     try:
         made = make_study_from_folder(scan, out, bit_depth=a.bit_depth, bones=bones,

@@ -256,3 +256,13 @@ def test_sequential_mode_is_one_task_per_trial_and_says_what_it_subtracted(tmp_p
     assert talus_batch([str(folder), "--workers", "0", "--split-bones"]) == EXIT_ERROR
     assert "--split-bones: one task per bone is a choice of --mode sequential, not --mode auto" in (
         capsys.readouterr().err)
+
+
+def test_a_batch_tracks_with_talus_tracks_options():
+    """The default task settings give the TrackingOptions of talus track --mode sequential (joint), so
+    a sequential task, which calls the same track_study, gives its poses."""
+    from app.commands.track import options_from_choices
+    from core.tracking.batch import TaskSettings
+
+    for joint, mode in ((False, "sequential"), (True, "joint")):
+        assert TaskSettings().tracking_options(joint=joint) == options_from_choices(mode=mode)

@@ -177,7 +177,7 @@ def rim_masks(frame, views, roi, masks: list, radius_px: float) -> list:
 _LI_FLOOR = np.float32(1.0 / 4096)  # core.similarity.line_integral_image's default floor
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], dtype=np.uint8)
 
-DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3}),)
+DEFAULT_TERMS = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3, RIM_OPTION: 4.0}),)
 
 def metric_terms(name: str = "magnitudes") -> tuple[MetricTerm, ...]:
     """The cost terms of a similarity's name (``talus track``/``talus batch --metric``, the

@@ -104,9 +104,12 @@ def print_json(result: Any, out: str | os.PathLike | None = None) -> None:
 
 
 def study_folder(path: str | os.PathLike, what: str = "STUDY") -> Path:
-    """``path`` (``~`` expanded) when it is a folder, else a :class:`CliError` naming the
-    argument ``what``: the first check of every command that takes a study."""
+    """``path`` (``~`` expanded) when it is a folder (its ``study.json`` given stands for it), else a
+    :class:`CliError` naming the argument ``what``: the first check of every command that takes a
+    study."""
     folder = Path(path).expanduser()
+    if folder.name == "study.json" and folder.is_file():
+        folder = folder.parent
     if not folder.is_dir():
         raise CliError(f"{what}: no study folder at {folder}")
     return folder

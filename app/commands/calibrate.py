@@ -130,6 +130,8 @@ def unused_note(saved, in_use: dict[str, str], folder: Path) -> str | None:
 
 def run(a: argparse.Namespace) -> int:
     session_dir = Path(a.session).expanduser()
+    if session_dir.name == "session.json" and session_dir.is_file():  # the manifest stands for its folder
+        session_dir = session_dir.parent
     if not session_dir.is_dir():
         raise CliError(f"SESSION: no calibration session folder at {session_dir}")
     folder = study_folder(a.study, "--study")

@@ -80,7 +80,7 @@ def _check(image, diameter_px, size_range, min_snr, min_circularity, polarity) -
                          f"{img.dtype} array of shape {img.shape}")
     d = float(diameter_px)
     if not (np.isfinite(d) and 2.0 <= d <= 200.0):
-        raise ValueError(f"diameter_px: expected an expected bead diameter of 2–200 px, got {diameter_px!r}")
+        raise ValueError(f"diameter_px: expected a bead diameter of 2–200 px, got {diameter_px!r}")
     lo, hi = (float(x) for x in size_range)
     if not 0 < lo < 1 < hi:
         raise ValueError(f"size_range: expected (lo, hi) with 0 < lo < 1 < hi, got {size_range!r}")

@@ -197,3 +197,23 @@ def test_import_names_a_file_of_the_wrong_kind(demo, tmp_path, capsys):
     assert "study.json is a Talus study's manifest: the study exists already" in capsys.readouterr().err
     assert talus(["import", str(tmp_path / "nowhere")]) == 1
     assert "no folder at" in capsys.readouterr().err and not (tmp_path / "s").exists()
+
+
+def test_a_study_or_session_manifest_stands_for_its_folder(study, tmp_path, capsys, monkeypatch):
+    """'talus export STUDY/study.json' was 'no study folder at .../study.json'."""
+    import core.study.calibrations as calibrations
+
+    assert talus(["export", str(study / "study.json"), "--trial", "walk", "--format", "json"]) == 0
+    assert json.loads(capsys.readouterr().out)["files"] == [str(study / "exports" / "walk_json.json")]
+    seen = []
+
+    def calibrate_study(st, session, **options):
+        seen.append(session)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(calibrations, "calibrate_study", calibrate_study)
+    (tmp_path / "session").mkdir()
+    (tmp_path / "session" / "session.json").write_text("{}")
+    assert talus(["calibrate", str(tmp_path / "session" / "session.json"), "--study", str(study),
+                  "--quiet"]) == 1
+    assert seen == [tmp_path / "session"] and "stop here" in capsys.readouterr().err

@@ -36,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
     demo = None
     if args.demo is not None:
         demo = Path(args.demo).expanduser()
+        if demo.name == "study.json" and demo.is_file():  # the manifest stands for its folder
+            demo = demo.parent
         if not demo.is_dir():
             raise CliError(f"--demo: expected a study folder, '{demo}' is not a directory")
     check_display()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -20,16 +21,26 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "radiographs), render the radius at a hand-found pose in both cameras and save a PNG "
         "(radiograph | DRR | overlay per camera).",
     )
-    wrist.add_argument("--data", default="../shared/data/autoscoper_wrist", metavar="DIR",
-                       help="the autoscoper_wrist folder (default ../shared/data/autoscoper_wrist)")
+    wrist.add_argument("--data", default=None, metavar="DIR",
+                       help="the autoscoper_wrist folder (default: $TALUS_SAMPLE_DATA/autoscoper_wrist, "
+                            "else shared/data/autoscoper_wrist beside the Talus source folder)")
     wrist.add_argument("--out", default="wrist_radius.png", metavar="PNG", help="output image")
     wrist.add_argument("--device", choices=["cpu", "cuda"], default=None,
                        help="Warp device (default: cuda when present)")
     wrist.set_defaults(run=run_wrist)
 
 
+def default_wrist_folder() -> Path:
+    """``$TALUS_SAMPLE_DATA/autoscoper_wrist``, else ``shared/data/autoscoper_wrist`` beside the
+    folder Talus runs from (``../shared/data`` of the source tree, wherever the command is run:
+    the default was relative to the working folder)."""
+    env = os.environ.get("TALUS_SAMPLE_DATA")
+    base = Path(env).expanduser() if env else Path(__file__).resolve().parents[3] / "shared" / "data"
+    return base / "autoscoper_wrist"
+
+
 def run_wrist(args: argparse.Namespace) -> int:
-    data = Path(args.data).expanduser()
+    data = Path(args.data).expanduser() if args.data else default_wrist_folder()
     if not data.is_dir():
         raise CliError(
             f"--data: expected the autoscoper_wrist sample folder, '{data}' is not a directory"

@@ -217,3 +217,28 @@ def test_a_study_or_session_manifest_stands_for_its_folder(study, tmp_path, caps
     assert talus(["calibrate", str(tmp_path / "session" / "session.json"), "--study", str(study),
                   "--quiet"]) == 1
     assert seen == [tmp_path / "session"] and "stop here" in capsys.readouterr().err
+
+
+def test_gui_takes_a_study_manifest_for_its_folder(study, monkeypatch):
+    import sys
+    import types
+
+    shown = []
+    fake = types.SimpleNamespace(__name__="app.main_window", run_gui=lambda demo: shown.append(demo) or 0)
+    monkeypatch.setitem(sys.modules, "app.main_window", fake)
+    monkeypatch.setenv("QT_QPA_PLATFORM", "offscreen")
+    assert talus(["gui", "--demo", str(study / "study.json")]) == 0
+    assert shown == [study]
+
+
+def test_sample_wrist_finds_the_shared_data_from_any_working_folder(tmp_path, monkeypatch):
+    """The default --data was '../shared/data/autoscoper_wrist' of the working folder: from
+    anywhere but the source folder, 'talus sample wrist' said the sample was missing."""
+    from app.commands.sample import default_wrist_folder
+
+    monkeypatch.delenv("TALUS_SAMPLE_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)
+    root = Path(__file__).resolve().parents[2]  # the source folder
+    assert default_wrist_folder() == root.parent / "shared" / "data" / "autoscoper_wrist"
+    monkeypatch.setenv("TALUS_SAMPLE_DATA", str(tmp_path / "data"))
+    assert default_wrist_folder() == tmp_path / "data" / "autoscoper_wrist"

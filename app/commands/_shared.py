@@ -160,6 +160,7 @@ class Progress:
         # a job in stages (the demo's trial, then its calibration session) counts each stage's
         # steps afresh: the ETA runs from the stage's start (the previous stage's last step)
         self._count, self._stage_start, self._last = None, self.start, self.start
+        self._skipped = 0  # steps of the stage done before (resumed work): not timed
 
     def eta(self, fraction: float) -> float | None:
         """Seconds left at ``fraction`` done of the current stage (None before the first step)."""
@@ -167,6 +168,15 @@ class Progress:
             return None
         elapsed = time.perf_counter() - self._stage_start
         return elapsed * (1.0 - fraction) / fraction
+
+    def resumed(self, steps: int, *, restart: bool = True) -> None:
+        """The first ``steps`` of the current count were done before (a resumed run's frames
+        taken back from its journal in no time): the ETA counts only the steps after them, timed
+        from now (``restart=False``: from when it was last restarted). Without it a resumed
+        ``talus track`` said 'ETA 0.8 s' before a minute-long frame."""
+        self._skipped = int(steps)
+        if restart:
+            self._stage_start = time.perf_counter()
 
     def __call__(self, *args: Any, **kwargs: Any) -> None:
         if self.quiet:
@@ -179,12 +189,14 @@ class Progress:
             count = (int(values[0]), int(values[1]))
             if self._count is not None and (count[1] != self._count[1] or count[0] < self._count[0]):
                 self._stage_start = self._last  # the count restarted: a new stage
+                self._skipped = 0
             self._count = count
         self._last = time.perf_counter()
         if len(values) >= 2:
             done, total = int(values[0]), int(values[1])
             status = f"{self.unit} {done}/{total}".strip()
-            fraction = done / total if total > 0 else None
+            timed = total - self._skipped  # the steps this run does
+            fraction = (done - self._skipped) / timed if timed > 0 and done > self._skipped else None
         elif len(values) == 1:
             fraction = float(values[0])
             status = f"{100.0 * fraction:.0f}%"

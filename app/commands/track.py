@@ -88,7 +88,7 @@ from ._shared import (
 __all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "SEARCHES", "STAGE_MOVES", "SUBTRACTS",
            "SUBTRACT_HELP", "TRAJECTORY_OFF", "add_check_arguments", "check_choices", "choices_of",
            "configure", "final_stage_problem", "options_from_choices", "parse_frames", "registration_terms",
-           "run", "stage_move_note", "stopped_lines", "subtract_choice"]
+           "resumed_frames", "run", "stage_move_note", "stopped_lines", "subtract_choice"]
 
 HELP = "track bones of a study trial, saving each pose as it finishes"
 
@@ -438,11 +438,17 @@ def configure(p: argparse.ArgumentParser) -> None:
 class _Bar:
     """The tracking progress callback ``(done, total, frame_result)``: a bar with the score."""
 
-    def __init__(self, progress: Progress) -> None:
+    def __init__(self, progress: Progress, resumed=frozenset()) -> None:
         self.progress = progress
         self.final = [0, 0, 0]  # bone-frames the final stage ran on, of those took, and rejected
+        self.resumed, self.worked = resumed, 0  # (bone, frame) done before (--resume); new ones
 
     def __call__(self, done: int, total: int, fr) -> None:
+        if (fr.bone, fr.frame) in self.resumed:  # taken back from the journal: the ETA starts after it
+            self.progress.resumed(done)
+        else:  # the steps not reported (poses set by hand) are not this run's work either
+            self.worked += 1
+            self.progress.resumed(done - self.worked, restart=False)
         taken = (fr.timing or {}).get("likelihood_taken")
         if taken is not None:
             self.final[0] += 1
@@ -482,7 +488,7 @@ def run(a: argparse.Namespace) -> int:
             if a.backward:
                 frames = frames[::-1]
             bones = a.bones.split(",") if a.bones else None
-            bar = _Bar(progress)
+            bar = _Bar(progress, resumed_frames(trial, bones, frames) if a.resume else frozenset())
             with stdout_to_stderr():
                 result, report = track_study(study, a.trial, bones, frames, options=opts,
                                              device=a.device, resume=a.resume,
@@ -529,6 +535,13 @@ def run(a: argparse.Namespace) -> int:
               f"('{PROG} track ... --resume' carries on)", file=sys.stderr)
         return EXIT_CANCELLED
     return EXIT_NOTHING_DONE if result is None else EXIT_OK
+
+
+def resumed_frames(trial, bones, frames) -> frozenset:
+    """``(bone, frame)`` of ``frames`` that ``--resume`` takes back from the bones' journals."""
+    rng = set(frames)
+    return frozenset((b, f) for b in (bones or trial.bones) if b in trial.bones
+                     for f in trial.results(b).done if f in rng)
 
 
 #: What to do about a bone without a keyframe, after the library's reason.

@@ -242,3 +242,31 @@ def test_sample_wrist_finds_the_shared_data_from_any_working_folder(tmp_path, mo
     assert default_wrist_folder() == root.parent / "shared" / "data" / "autoscoper_wrist"
     monkeypatch.setenv("TALUS_SAMPLE_DATA", str(tmp_path / "data"))
     assert default_wrist_folder() == tmp_path / "data" / "autoscoper_wrist"
+
+
+def test_a_resumed_track_times_its_eta_from_the_new_frames(monkeypatch):
+    """'talus track --resume' over 0:2 with frame 0 done said 'ETA 0.8 s' at 1/2 before a frame of
+    a minute: the frame taken back from the journal counted as work done in 0.8 s."""
+    import io
+    from types import SimpleNamespace
+
+    from app.commands import _shared
+    from app.commands._shared import Progress
+    from app.commands.track import _Bar
+
+    clock = [0.0]
+    monkeypatch.setattr(_shared.time, "perf_counter", lambda: clock[0])
+    out = io.StringIO()
+    bar = _Bar(Progress("track", stream=out, in_place=False), resumed=frozenset({("talus", 0), ("talus", 1)}))
+    fr = lambda f: SimpleNamespace(bone="talus", frame=f, score=0.5, flags=(), timing=None)  # noqa: E731
+    clock[0] = 0.8
+    bar(1, 6, fr(0))  # taken back: no ETA
+    bar(2, 6, fr(1))
+    clock[0] += 60.0
+    bar(3, 6, fr(2))  # the first new frame: a minute
+    clock[0] += 60.0
+    bar(5, 6, fr(4))  # frame 3 was a hand-set pose (not reported): not this run's work
+    lines = out.getvalue().splitlines()
+    assert "ETA" not in lines[0] and "ETA" not in lines[1]
+    assert "3/6" in lines[2] and "ETA 3 min 00 s" in lines[2]  # 3 frames left at a minute each
+    assert "5/6" in lines[3] and "ETA 1 min 00 s" in lines[3]

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 from PySide6 import QtWidgets
 
-__all__ = ["add_file_actions"]
+__all__ = ["add_file_actions", "default_session"]
 
 
 def _study_folder(window):
@@ -42,11 +45,33 @@ def new_from_folder(window):
     return dlg
 
 
+def default_session(study_folder) -> Path | None:
+    """The calibration session the wizard starts with for the open study: the one its newest saved
+    calibration was made from, else the study's own ``calibration_session`` folder (the demo's),
+    when it still holds a ``session.json``; None otherwise (the field was always empty, though the
+    demo study holds its session)."""
+    if study_folder is None:
+        return None
+    folder = Path(study_folder)
+    try:
+        doc = json.loads((folder / "study.json").read_text(encoding="utf-8"))
+        saved = doc.get("settings", {}).get("calibration_files", {}).values()
+        newest = max(saved, key=lambda e: e.get("created") or "", default={})
+    except (OSError, ValueError, AttributeError):
+        newest = {}
+    for candidate in (newest.get("session"), folder / "calibration_session"):
+        if candidate and (Path(candidate) / "session.json").is_file():
+            return Path(candidate)
+    return None
+
+
 def calibrate(window):
-    """Open the calibration wizard, saving into the open study by default."""
+    """Open the calibration wizard, saving into the open study by default, on the study's session
+    (:func:`default_session`) when it has one."""
     from .wizard import CalibrationWizard
 
-    w = CalibrationWizard(window, study_folder=_study_folder(window))
+    folder = _study_folder(window)
+    w = CalibrationWizard(window, study_folder=folder, session_folder=default_session(folder))
     w.saved_calibration.connect(lambda s: window.notify(
         f"Calibration {s.name} saved in {s.folder}; trials using it: {', '.join(s.trials) or 'none'}"))
     w.show()

@@ -98,7 +98,7 @@ class PlotsDock(QtWidgets.QWidget):
         self.curves: dict = {}  # plot key -> its _Live curves; "<key>:band", "<key>:filtered" (Pose)
         self._live: dict[str, list[_Live]] = {}  # plot key -> its _Live items (curves, bands)
         self._series: dict[int, tuple] = {}  # bone -> (reference frame, its centroid, rotation, t, r)
-        self._flagged = np.zeros(review.n_frames, bool)
+        self._flagged: dict[str, np.ndarray] = {}  # plot key -> the flagged frames it shades
         self._x = np.arange(review.n_frames, dtype=float)
         self._y_range: dict[str, tuple[float, float]] = {}
         self._cutoff: dict[int, tuple[int, float]] = {}  # bone -> (recorded frames, cut-off)
@@ -111,7 +111,7 @@ class PlotsDock(QtWidgets.QWidget):
         self._lowpass_timer.setInterval(20)
         self._lowpass_timer.timeout.connect(self._poll_lowpass)
         self._cursors: list[pg.InfiniteLine] = []
-        self._shading: list[_Live] = []  # per plot: its flagged frames
+        self._shading: dict[str, _Live] = {}  # plot key -> its shading of flagged frames
         self._make_plots()
         # page -> bone -> frames changed since the page was drawn (None: all of them)
         self._dirty: dict[str, dict[int, set[int] | None]] = {page: self._everything()
@@ -177,7 +177,7 @@ class PlotsDock(QtWidgets.QWidget):
                                                            for k in range(len(names))]))
         shade = self._add_live(key, _Live(self.review.n_frames, shade=(220, 70, 60, 45)))
         shade.setZValue(-10)
-        self._shading.append(shade)
+        self._shading[key] = shade
         cursor = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen((40, 40, 40), width=1))
         p.addItem(cursor, ignoreBounds=True)
         self._cursors.append(cursor)
@@ -415,16 +415,29 @@ class PlotsDock(QtWidgets.QWidget):
             else:
                 _set(curve, self._x, series[0 if key == "translation" else 1][:, k])
 
+    def shaded_bones(self, key: str) -> list[int]:
+        """The bones (indices of the review's) whose flagged frames plot ``key`` shades: the bone
+        shown on the Pose page, a joint's two bones on its JCS plot, the joints' bones on the other
+        pages. (Every bone's flags shaded every plot: the tibia's pose showed the talus's flagged
+        frames.)"""
+        d = self.review
+        if self.page_of.get(key) == "Pose":
+            return [max(self.bone_combo.currentIndex(), 0)] if d.bones else []
+        joints = [j for j in self.joints if key == f"jcs:{j.name}"] or self.joints
+        names = {n for j in joints for n in (j.proximal, j.distal)}
+        return [i for i, b in enumerate(d.bones) if b in names]
+
     def _shade(self) -> None:
-        """Shade the flagged frames (one item per plot, repainted only at the frames whose flag
-        changed)."""
-        mask = (self.review.status == FLAGGED).any(axis=0)
-        if np.array_equal(mask, self._flagged):
-            return
-        self._flagged = mask
-        values = np.where(mask, 1.0, np.nan)
-        for item in self._shading:
-            item.set_data(values)
+        """Shade the flagged frames of each plot's bones (:meth:`shaded_bones`; one item per plot,
+        repainted only at the frames whose flag changed)."""
+        flagged = self.review.status == FLAGGED
+        for key, item in self._shading.items():
+            bones = self.shaded_bones(key)
+            mask = flagged[bones].any(axis=0) if bones else np.zeros(self.review.n_frames, bool)
+            if key in self._flagged and np.array_equal(mask, self._flagged[key]):
+                continue
+            self._flagged[key] = mask
+            item.set_data(np.where(mask, 1.0, np.nan))
 
     def set_joint_space(self, distances: dict[str, np.ndarray]) -> None:
         self.joint_space.update({k: np.asarray(v, float) for k, v in distances.items()})

@@ -54,3 +54,36 @@ def test_calibrate_starts_on_the_session_of_the_newest_saved_calibration(demo_st
     assert default_session(folder) == tmp_path / "new"
     (tmp_path / "new" / "session.json").unlink()  # moved away: the study's own, else nothing
     assert default_session(folder) is None
+
+
+def test_plots_shade_the_flagged_frames_of_their_own_bones(qtbot, demo_study, tmp_path):
+    """The tibia's pose plot was shaded at the talus's flagged frame (every bone's flags shaded
+    every plot): the technician looked for a problem the tibia did not have."""
+    import numpy as np
+
+    from app.review import FLAGGED
+
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:
+        with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
+            win.open_demo_study(folder)
+        rv, trial = win.review, win.session.study.trial("walk")
+        pose = trial.poses("talus")[0]
+        trial.record_pose("talus", 1, pose, score=0.4, tracking={"flags": ["score drop"], "converged": False})
+        rv.data.reload_bone(trial, "talus")
+        talus = rv.data.bones.index("talus")
+        assert rv.data.status[talus, 1] == FLAGGED
+        plots = rv.plots
+        plots.show_page("Pose")
+        shaded = lambda key: np.flatnonzero(np.isfinite(plots._shading[key].series(0))).tolist()  # noqa: E731
+        qtbot.keyClicks(plots.bone_combo, "tibia")  # the user picks the bone
+        plots.refresh()
+        assert plots.bone_combo.currentText() == "tibia" and shaded("translation") == []
+        plots.bone_combo.setCurrentIndex(talus)
+        plots.refresh()
+        assert shaded("translation") == [1] and shaded("rotation") == [1]
+        joints = [k for k in plots._shading if k.startswith("jcs:")]  # ankle, subtalar: both hold the talus
+        assert joints and all("talus" in [rv.data.bones[i] for i in plots.shaded_bones(k)] for k in joints)
+        plots.show_page("Joint angles")
+        plots.refresh()
+        assert all(shaded(k) == [1] for k in joints)

@@ -1,7 +1,8 @@
 """The Warp kernels of :mod:`core.tracking.engine_likelihood` (its module docs describe the
 quantities: the expected-count weights, the weighted moment tables, the residual and its
 projections, the residual's autocovariance and the sandwich's meat) and the robust weight factors
-of :mod:`core.tracking.final_stage` filtered on the device (:func:`robust_factors_device`).
+of :mod:`core.tracking.final_stage` filtered on the device (:func:`robust_factors_device`; its
+kernels in :mod:`core.tracking.likelihood_robust_kernels`, re-exported here).
 :mod:`core.tracking.engine_likelihood` re-exports every name."""
 
 from __future__ import annotations
@@ -11,6 +12,14 @@ import warp as wp
 
 from ..similarity import _kernels as K
 from .likelihood_fast import _centre, _delta, _hp, _median_keys_only_kernel, _median_sorted_kernel  # noqa: F401
+from .likelihood_robust_kernels import (  # (their names here as before)
+    _blur_pair_kernel,
+    _local_rms_kernel,
+    _median_kernel,
+    _median_keys_kernel,
+    _robust_sq_kernel,
+    _robust_weight_kernel,
+)
 
 __all__ = ["regressor_kernels", "robust_factors_device"]
 
@@ -90,111 +99,6 @@ def _times_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float3
     """out = a · b. dim = items, H, W."""
     k, r, c = wp.tid()
     out[k, r, c] = a[k, r, c] * b[k, r, c]
-
-
-@wp.kernel
-def _robust_sq_kernel(e: wp.array3d(dtype=wp.float32), w: wp.array3d(dtype=wp.float32),
-                      a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32)):
-    """a = e² and b = 1 where the pixel is used (w > 0), 0 elsewhere. dim = items, H, W."""
-    k, r, c = wp.tid()
-    if w[k, r, c] > 0.0:
-        a[k, r, c] = e[k, r, c] * e[k, r, c]
-        b[k, r, c] = 1.0
-    else:
-        a[k, r, c] = 0.0
-        b[k, r, c] = 0.0
-
-
-@wp.kernel
-def _blur_pair_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float32),
-                      g: wp.array(dtype=wp.float32), axis: int, oa: wp.array3d(dtype=wp.float32),
-                      ob: wp.array3d(dtype=wp.float32)):
-    """oa, ob = a, b filtered by the kernel ``g`` (odd length, centred) along ``axis`` (1: rows, 2:
-    columns), zero beyond the array (scipy.ndimage's mode="constant"). dim = items, H, W."""
-    k, r, c = wp.tid()
-    rad = (g.shape[0] - 1) // 2
-    n = a.shape[2]
-    if axis == 1:
-        n = a.shape[1]
-    sa = float(0.0)  # noqa: UP018
-    sb = float(0.0)  # noqa: UP018
-    for j in range(g.shape[0]):
-        rr = r
-        cc = c
-        if axis == 1:
-            rr = r + j - rad
-        else:
-            cc = c + j - rad
-        i = rr if axis == 1 else cc
-        if i >= 0 and i < n:
-            sa += g[j] * a[k, rr, cc]
-            sb += g[j] * b[k, rr, cc]
-    oa[k, r, c] = sa
-    ob[k, r, c] = sb
-
-
-@wp.kernel
-def _local_rms_kernel(num: wp.array3d(dtype=wp.float32), den: wp.array3d(dtype=wp.float32),
-                      w: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.float32)):
-    """out = sqrt(num / max(den, 1e-6)) where the pixel is used, -1 elsewhere. dim = items, H, W."""
-    k, r, c = wp.tid()
-    if w[k, r, c] > 0.0:
-        out[k, r, c] = wp.sqrt(num[k, r, c] / wp.max(den[k, r, c], 1e-6))
-    else:
-        out[k, r, c] = -1.0
-
-
-@wp.kernel
-def _robust_weight_kernel(local: wp.array3d(dtype=wp.float32), scale: wp.array(dtype=wp.float32),
-                          k_: float, cauchy: int, out: wp.array3d(dtype=wp.float32)):
-    """out = the robust factor of local / scale[item] (Cauchy or Huber, threshold ``k_``) where
-    used (local >= 0), 0 elsewhere; a view with no scale (<= 0) keeps factor 1. dim = items, H, W."""
-    k, r, c = wp.tid()
-    x = local[k, r, c]
-    f = float(0.0)  # noqa: UP018
-    if x >= 0.0:
-        s = scale[k]
-        if s > 0.0:
-            u = x / s
-            if cauchy == 1:
-                f = 1.0 / (1.0 + (u / k_) * (u / k_))
-            else:
-                f = wp.min(1.0, k_ / wp.max(u, 1e-12))
-        else:
-            f = 1.0
-    out[k, r, c] = f
-
-
-@wp.kernel
-def _median_keys_kernel(local: wp.array3d(dtype=wp.float32), keys: wp.array(dtype=wp.float32),
-                        count: wp.array(dtype=wp.int32)):
-    """keys[v · H · W + r · W + c] = the local RMS where the pixel is used (local >= 0; NaN is not),
-    +inf elsewhere (sorted last); count[v] += the used pixels. dim = items, H, W."""
-    v, r, c = wp.tid()
-    x = local[v, r, c]
-    i = (v * local.shape[1] + r) * local.shape[2] + c
-    if x >= 0.0:
-        keys[i] = x
-        wp.atomic_add(count, v, 1)
-    else:
-        keys[i] = wp.inf
-
-
-@wp.kernel
-def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.int32), n: int,
-                   scale: wp.array(dtype=wp.float32)):
-    """scale[v] = the median of view v's used values (its segment of ``n`` sorted keys, the
-    ``count[v]`` used ones first), as ``np.median`` takes it in float32 (the mean of the two middle
-    values for an even count); 0 where there are none or it is not finite and positive. dim =
-    items."""
-    v = wp.tid()
-    m = count[v]
-    s = float(0.0)  # noqa: UP018
-    if m > 0:
-        x = (keys[v * n + (m - 1) // 2] + keys[v * n + m // 2]) * 0.5
-        if wp.isfinite(x) and x > 0.0:
-            s = x
-    scale[v] = s
 
 
 #: :func:`robust_factors_device` sorts each view's keys on its own and counts its used pixels in

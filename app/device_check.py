@@ -17,9 +17,9 @@ __all__ = ["CPU_BENCH", "GPU_BENCH", "DeviceInfo", "cpu_slowdown", "describe", "
 
 # One bone tracked end to end (tracking benchmark, 'one_bone.end_to_end.ms_per_frame').
 CPU_BENCH = {"file": "tracking_cpu_quick.json", "ms_per_frame": 1888.417995375221, "pixels": 192,
-             "device_name": "CPU"}
+             "voxel_mm": 1.0, "device_name": "CPU"}
 GPU_BENCH = {"file": "tracking_h100.json", "ms_per_frame": 37.84877778000009, "pixels": 1024,
-             "device_name": "NVIDIA H100 80GB HBM3"}
+             "voxel_mm": 0.5, "device_name": "NVIDIA H100 80GB HBM3"}
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,9 @@ def describe(info: DeviceInfo) -> tuple[str, str]:
     gpu_ms = GPU_BENCH["ms_per_frame"]
     return "cpu", (
         f"No CUDA GPU found: DRRs and tracking will run on the CPU. Tracking on the CPU is about "
-        f"{slow:.0f}× slower: one bone took {cpu_s:.1f} s per frame of {CPU_BENCH['pixels']} px on a "
-        f"CPU, against {gpu_ms:.0f} ms per frame of {GPU_BENCH['pixels']} px on an NVIDIA H100. "
-        "Viewing, editing poses and exporting are not affected. With an NVIDIA GPU and its "
-        "driver installed, Talus uses it on the next start.")
+        f"{slow:.0f}× slower: one bone took {cpu_s:.1f} s per frame of {CPU_BENCH['pixels']} px "
+        f"({CPU_BENCH['voxel_mm']:g} mm voxels) on a CPU, against {gpu_ms:.0f} ms per frame of "
+        f"{GPU_BENCH['pixels']} px ({GPU_BENCH['voxel_mm']:g} mm voxels) on an NVIDIA H100; finer CT "
+        "voxels, larger views and a first frame take longer. Viewing, editing poses and exporting "
+        "are not affected. With an NVIDIA GPU and its driver installed, Talus uses it on the next "
+        "start.")

@@ -34,6 +34,7 @@ def test_quoted_speeds_are_the_measured_ones():
         data = json.loads((BENCH / quoted["file"]).read_text(encoding="utf-8"))
         assert data["one_bone"]["end_to_end"]["ms_per_frame"] == quoted["ms_per_frame"]
         assert data["sizes"]["pixels"] == quoted["pixels"]
+        assert data["sizes"]["voxel_mm"] == quoted["voxel_mm"]  # the CPU's were twice as coarse
         assert data["device_name"] == quoted["device_name"]
     assert 40 < cpu_slowdown() < 60
 
@@ -42,6 +43,7 @@ def test_describe_says_which_device_and_what_the_cpu_costs():
     level, text = describe(DeviceInfo())
     assert level == "cpu" and "run on the CPU" in text and f"{cpu_slowdown():.0f}× slower" in text
     assert "1.9 s per frame" in text and "38 ms per frame" in text
+    assert "192 px (1 mm voxels)" in text and "1024 px (0.5 mm voxels)" in text
     level, text = describe(DeviceInfo(cuda_devices=("NVIDIA H100 80GB HBM3",)))
     assert level == "gpu" and "NVIDIA H100" in text and "CPU" not in text
     level, text = describe(DeviceInfo(error="OSError: warp.so not found"))

@@ -270,3 +270,32 @@ def test_a_resumed_track_times_its_eta_from_the_new_frames(monkeypatch):
     assert "ETA" not in lines[0] and "ETA" not in lines[1]
     assert "3/6" in lines[2] and "ETA 3 min 00 s" in lines[2]  # 3 frames left at a minute each
     assert "5/6" in lines[3] and "ETA 1 min 00 s" in lines[3]
+
+
+def test_demo_says_it_builds_the_scene_and_times_its_eta_from_the_first_frame(monkeypatch, tmp_path,
+                                                                              capsys):
+    """37 s of silence before 'frame 1/3' at 128 px on the 2-core CPU, then 'ETA 1 min 14 s' for
+    two frames that took no time: the scene's set-up was counted as the first frame's."""
+    import sys
+    import types
+
+    from app.commands import _shared
+
+    clock = [0.0]
+    monkeypatch.setattr(_shared.time, "perf_counter", lambda: clock[0])
+
+    def make_demo_study(out_dir, *, n_frames, progress, cancel, **options):
+        clock[0] += 37.0  # the scene
+        for i in range(n_frames):
+            clock[0] += 1.0
+            progress(i + 1, n_frames)
+        return {"status": "complete"}
+
+    fake = types.SimpleNamespace(__name__="core.synthetic.demo", make_demo_study=make_demo_study)
+    monkeypatch.setitem(sys.modules, "core.synthetic.demo", fake)
+    assert talus(["demo", "--out", str(tmp_path), "--frames", "4", "--no-gui"]) == 0
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith(f"talus demo: writing the synthetic study to {tmp_path}; building its bones")
+    frames = [ln for ln in lines if "frame " in ln and "/4" in ln]
+    assert "ETA" not in frames[0]
+    assert "frame 2/4" in frames[1] and "ETA 2.0 s" in frames[1]  # 2 frames left at 1 s each

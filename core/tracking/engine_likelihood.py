@@ -16,14 +16,11 @@ One DRR launch renders the 13 poses ``x``, ``x ± h_k e_k`` (the engine's design
 :func:`core.tracking.engine_search.step_design`); two blur passes give their low-passed images;
 one pass over each view's region accumulates the weighted products table
 ``M = Σ w z zᵀ`` of ``z = (y, D(x), δ_1 … δ_6, 1, u, v)`` (11 × 11, ``δ_k`` the central
-differences of the high-passed DRRs). On the host, in float64, with ``A = (D, 1[, u, v])``::
-
-    coef = (AᵀWA)⁻¹ AᵀWy        χ² = yᵀWy - coefᵀ AᵀWy        D_k = δ_k / 2h_k
-    β_k  = (AᵀWA)⁻¹ AᵀW D_k     JᵀWJ = a² (D_kᵀWD_l - D_kᵀWA β_l)     JᵀWr = a (D_kᵀWy - D_kᵀWA coef)
-
-(``a = coef₀``; the Jacobian of the residual with the linear parameters projected out, Golub–
-Pereyra) and the step ``δ = (JᵀWJ)⁻¹ JᵀWr`` summed over views — the same arithmetic as
-:func:`core.similarity.likelihood.wls_gauss_newton_step` without the pixels on the host.
+differences of the high-passed DRRs). The host solves it in float64 with ``A = (D, 1[, u, v])``
+for the step ``δ = (JᵀWJ)⁻¹ JᵀWr`` summed over views, the gain and the background projected out
+(Golub–Pereyra): :func:`~core.tracking.likelihood_solve.solve_moments` (the formulas there) —
+the same arithmetic as :func:`core.similarity.likelihood.wls_gauss_newton_step` without the pixels
+on the host.
 
 Extra regressors (a frame's soft tissue: :meth:`LikelihoodEngine.set_tissue`, or given images:
 ``set_frame(regressors=)``) widen ``z`` and ``A``, each with its own coefficient:
@@ -65,10 +62,12 @@ Speed: :mod:`core.tracking.likelihood_fast` (where the stage's time goes on one 
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
 its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
 one by one (no CUDA graph; each from a recorded launch while its arguments stay the same,
-:meth:`LikelihoodEngine._launch`): 4-5 launches and one wait per step, for the engine's own work only (an
-event recorded after the table's copy): :meth:`LikelihoodEngine.refine_steps` yields there, so that
-several bones' refinements run side by side (:func:`run_side_by_side`). The kernels live in
-:mod:`core.tracking.likelihood_kernels` (re-exported here).
+:meth:`LikelihoodEngine._launch`, :mod:`core.tracking.likelihood_launches`): 4-5 launches and one
+wait per step, for the engine's own work only (an event recorded after the table's copy):
+:meth:`LikelihoodEngine.refine_steps` yields there, so that several bones' refinements run side
+by side (:func:`run_side_by_side`). The kernels live in :mod:`core.tracking.likelihood_kernels`
+(re-exported here), the weights of the region (:meth:`LikelihoodEngine.scale_weights` …) in
+:mod:`core.tracking.likelihood_weights`.
 """
 
 from __future__ import annotations
@@ -117,8 +116,11 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     weights_kernel,
     wls_moments_kernel,
 )
+from .likelihood_launches import _Launches
+from .likelihood_solve import solve_moments
 from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
+from .likelihood_weights import _RegionWeights
 
 __all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "UPHILL_RESOLVED", "LikelihoodEngine", "StepClock",
            "likelihood_engine", "robust_factors_device", "run_side_by_side", "run_steps", "solve_moments"]
@@ -146,48 +148,7 @@ BLOCK_BLUR = True
 UPHILL_RESOLVED = 4.0
 
 
-def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False,
-                  extra: int = 0) -> dict:
-    """The variable-projection Gauss–Newton quantities of the moment tables ``M (views, 12 + extra,
-    12 + extra)`` (module docs) with half-steps ``h (6,)``: ``{"JJ", "Jr", "chi2"}`` summed over
-    views and, per view, ``lin (views, 42)`` (``(views, na + 7 + 6 na)``, ``na = 5 + extra``: the
-    linear fit and projections :func:`residual_kernel` reads). ``others``: the neighbours' DRRs a
-    regressor with a gain of their own; ``extra``: the tables' extra regressors (entries 12 … of
-    ``z``, :func:`~core.tracking.likelihood_kernels.regressor_kernels`), each with its own
-    coefficient. The views at once (stacked solves and products; the same values to 4e-16, in half
-    the time of a loop over the views)."""
-    extra = int(extra)
-    nz, na = NZ + extra, NA + extra
-    M = np.asarray(M, dtype=np.float64).reshape(-1, nz, nz)
-    n = len(M)
-    bg = [8] if background == 0 else [8, 9, 10]
-    ai = np.array([1, *bg, *([11] if others else []), *range(NZ, nz)])
-    # their places in A = (D, 1, u, v, O, T_1 … T_extra)
-    slot = [0, *range(1, len(bg) + 1), *([4] if others else []), *range(NA, na)]
-    di = np.arange(2, 8)
-    s = 1.0 / (2.0 * np.asarray(h, dtype=float))
-    G = M[:, ai[:, None], ai[None, :]]  # (views, p, p)
-    b = M[:, ai, 0]
-    coef = np.linalg.solve(G, b[..., None])[..., 0]  # (views, p)
-    chi2 = float(np.sum(M[:, 0, 0] - np.einsum("vi,vi->v", coef, b)))
-    MDA = s[None, :, None] * M[:, di[:, None], ai[None, :]]  # (views, 6, p)
-    MDD = s[None, :, None] * M[:, di[:, None], di[None, :]] * s[None, None, :]
-    MDy = s[None, :] * M[:, di, 0]
-    beta = np.linalg.solve(G, MDA.transpose(0, 2, 1))  # (views, p, 6)
-    a = coef[:, 0]
-    JJ = ((a * a)[:, None, None] * (MDD - MDA @ beta)).sum(axis=0)
-    Jr = (a[:, None] * (MDy - (MDA @ coef[..., None])[..., 0])).sum(axis=0)
-    lin = np.zeros((n, na + 7 + 6 * na))
-    lin[:, slot] = coef
-    lin[:, na] = a
-    lin[:, na + 1:na + 7] = s
-    bf = np.zeros((n, na, 6))
-    bf[:, slot] = beta
-    lin[:, na + 7:] = bf.reshape(n, -1)
-    return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
-
-
-class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
+class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence, _RegionWeights):
     """The weighted least-squares refinement of one bone on the device (module docs), reusable from
     frame to frame (:func:`likelihood_engine` keeps one per renderer, bone and settings).
 
@@ -278,12 +239,6 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
             raise RuntimeError("renderer: the renderer of this engine no longer exists")
         return r
 
-    def _buffer(self, name: str, shape: tuple, dtype=wp.float32):
-        b = self._bufs.get(name)
-        if b is None or b.shape != shape:
-            b = self._bufs[name] = wp.zeros(shape, dtype=dtype, device=self.device)
-        return b
-
     # ------------------------------------------------------------------ per frame
     def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None, regressors=None) -> None:
         """The regions ``roi (views, 4)`` of ``frame`` (line integrals, usable pixels, weights; the
@@ -359,23 +314,6 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
                 self._launch((tag, axis), K.blur_kernel, src.shape, [a, b, taps, self._ref_hw, n_refs, axis])
         return low
 
-    def _launch(self, name, kernel, dim: tuple, inputs: list, block_dim: int | None = None) -> None:
-        """``kernel`` launched on ``inputs`` (``block_dim``: tiled), the launch recorded under
-        ``name`` and launched again as recorded while its arguments (arrays by address, shape and
-        strides; numbers by value) stay the same: the same kernel on the same arguments, without
-        building the launch's parameters each time."""
-        key = (tuple(dim), block_dim, *((a.ptr, a.shape, a.strides, a.dtype) if isinstance(a, wp.array) else a
-                                        for a in inputs))
-        hit = self._cmds.get(name)
-        if hit is None or hit[0] != key:
-            if block_dim is None:
-                cmd = wp.launch(kernel, dim=dim, inputs=inputs, device=self.device, record_cmd=True)
-            else:
-                cmd = wp.launch_tiled(kernel, dim=dim, block_dim=block_dim, inputs=inputs, device=self.device,
-                                      record_cmd=True)
-            hit = self._cmds[name] = (key, cmd)
-        hit[1].launch()
-
     # ------------------------------------------------------------------ steps
     def _images(self, X: np.ndarray):
         """Render the poses ``X (13, 6)``; their (PSF-blurred) images and low-passed images
@@ -438,21 +376,6 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
         self._last = (img, low, x, h)
         self._pending = h
         self.timer.metric += time.perf_counter() - t0
-
-    def _record(self) -> None:
-        """Mark the work enqueued so far (:meth:`_wait` waits for it and nothing after)."""
-        if self.device.is_cuda:
-            if self._done is None:
-                self._done = wp.Event(self.device)
-            wp.record_event(self._done)
-
-    def _wait(self) -> None:
-        """Wait for the work enqueued up to the last :meth:`_record` (other engines' work enqueued
-        since runs on)."""
-        if self._done is not None:
-            wp.synchronize_event(self._done)
-        else:
-            wp.synchronize_device(self.device)
 
     def step_result(self) -> dict:
         """The second half of :meth:`step`: waits for the table of the last :meth:`step_launch`
@@ -536,46 +459,6 @@ class LikelihoodEngine(_FrameRegions, _TissueRegressors, _Confidence):
         else:  # not computed (nor the autocorrelation: a study reading either sees none)
             out["covariance"] = nan
             self._cov_host = None
-        return out
-
-    # ------------------------------------------------------------------ weights of the region
-    def reset_weights(self) -> None:
-        """The weights back to the expected counts of :meth:`set_frame` (no factors)."""
-        if self._w0_set:
-            wp.copy(self._w, self._w0)
-
-    def scale_weights(self, factor: np.ndarray) -> None:
-        """The expected counts of :meth:`set_frame` times ``factor (views, H, W)`` (per pixel, on
-        the host or a Warp array on the device; the regions' padded layout of :meth:`residual`) from
-        now on."""
-        nv, (Hc, Wc) = self.n_views, self._cap
-        if not self._w0_set:
-            self._w0 = self._buffer("w0", (nv, Hc, Wc))
-            wp.copy(self._w0, self._w)
-            self._w0_set = True
-        if isinstance(factor, wp.array):  # already on the device (robust_weights)
-            f = factor
-        else:
-            f = self._buffer("wf", (nv, Hc, Wc))
-            f.assign(np.asarray(factor, dtype=np.float32).reshape(nv, Hc, Wc))
-        self._launch("times", _times_kernel, (nv, Hc, Wc), [self._w0, f, self._w])
-
-    def robust_weights(self, s: dict, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy"):
-        """The robust factors of the weighted residual at the centre of the last step's design
-        (``s``: that :meth:`step`'s result) and the current weights' usable pixels, on the device
-        (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
-        e, _ = self._residual_device(s, jacobian=False)
-        return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
-                                     bufs=self._bufs)
-
-    def support(self, x=None) -> np.ndarray:
-        """``(views, H, W)`` the bone's DRR at ``x`` (default the base pose) in the regions'
-        padded layout, on the host (0 outside each view's region)."""
-        x = np.zeros((1, 6)) if x is None else np.asarray(x, dtype=float).reshape(1, 6)
-        img = self._render(self.poses(x)[:, None], (self.bone,)).numpy()[: self.n_views]
-        out = np.zeros((self.n_views, *self._cap), np.float32)
-        for v, (h, w) in enumerate(self._ref_hw.numpy()):
-            out[v, :h, :w] = np.nan_to_num(img[v, :h, :w])
         return out
 
 

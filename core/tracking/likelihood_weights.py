@@ -1,0 +1,56 @@
+"""The likelihood final stage's weights of the region (:class:`core.tracking.engine_likelihood.
+LikelihoodEngine`'s): the frame's expected counts scaled per pixel and back (the stage's support
+mask, the robust factors: :mod:`core.tracking.final_stage`), the robust factors made on the device,
+and the bone's DRR support. A mixin of the engine's."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .likelihood_kernels import _times_kernel, robust_factors_device
+
+
+class _RegionWeights:
+    """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s weights of the region (its
+    attributes: ``n_views``, ``bone``, ``device``, ``_w``, ``_cap``, ``_ref_hw``, buffers, launches,
+    the residual of :class:`~core.tracking.likelihood_confidence._Confidence`)."""
+
+    def reset_weights(self) -> None:
+        """The weights back to the expected counts of :meth:`set_frame` (no factors)."""
+        if self._w0_set:
+            wp.copy(self._w, self._w0)
+
+    def scale_weights(self, factor: np.ndarray) -> None:
+        """The expected counts of :meth:`set_frame` times ``factor (views, H, W)`` (per pixel, on
+        the host or a Warp array on the device; the regions' padded layout of :meth:`residual`) from
+        now on."""
+        nv, (Hc, Wc) = self.n_views, self._cap
+        if not self._w0_set:
+            self._w0 = self._buffer("w0", (nv, Hc, Wc))
+            wp.copy(self._w0, self._w)
+            self._w0_set = True
+        if isinstance(factor, wp.array):  # already on the device (robust_weights)
+            f = factor
+        else:
+            f = self._buffer("wf", (nv, Hc, Wc))
+            f.assign(np.asarray(factor, dtype=np.float32).reshape(nv, Hc, Wc))
+        self._launch("times", _times_kernel, (nv, Hc, Wc), [self._w0, f, self._w])
+
+    def robust_weights(self, s: dict, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy"):
+        """The robust factors of the weighted residual at the centre of the last step's design
+        (``s``: that :meth:`step`'s result) and the current weights' usable pixels, on the device
+        (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
+        e, _ = self._residual_device(s, jacobian=False)
+        return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
+                                     bufs=self._bufs)
+
+    def support(self, x=None) -> np.ndarray:
+        """``(views, H, W)`` the bone's DRR at ``x`` (default the base pose) in the regions'
+        padded layout, on the host (0 outside each view's region)."""
+        x = np.zeros((1, 6)) if x is None else np.asarray(x, dtype=float).reshape(1, 6)
+        img = self._render(self.poses(x)[:, None], (self.bone,)).numpy()[: self.n_views]
+        out = np.zeros((self.n_views, *self._cap), np.float32)
+        for v, (h, w) in enumerate(self._ref_hw.numpy()):
+            out[v, :h, :w] = np.nan_to_num(img[v, :h, :w])
+        return out

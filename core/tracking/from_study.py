@@ -76,11 +76,16 @@ subtraction pulled the radius into the ulna's hole); True or False is used as gi
 where one bone is tracked (``talus batch --split-bones`` tasks), whose search has nothing to
 subtract, with ``"sequential_subtract_note"`` saying so when the choice was on.
 
-On resume (``resume=True`` with tracking results of the range in the journal) auto keeps the
-choice the run being resumed recorded in its report (``"options"``), and off where it recorded
-none — a run from before the neighbours were subtracted by default — so that one trial is not
-tracked by two methods; ``"sequential_subtract_note"`` says so. A joint run's report, or nothing
-tracked yet, leaves auto as for a new run; True or False still win.
+On resume (``resume=True`` with tracking results of the range in the journal) auto keeps what the
+searches of the frames already tracked did, so that one trial is not tracked by two methods: the
+choice the run being resumed recorded in its report (``"options"``; written as the run starts), off
+where it recorded none — a run from before the neighbours were subtracted by default. Without that
+report (a ``talus batch --split-bones`` task's or a range's report is named after its bone or frames),
+the trial's other sequential reports of the bones tracked decide where they agree — ``--split-bones``
+tasks tracked each bone alone: off; where they disagree or none exists, auto decides as for a new run
+(the earlier frames' method is unknown). ``"sequential_subtract_note"`` says which and why. A joint
+run's report, or nothing tracked yet, leaves auto as for a new run; True or False still win. The
+report lists the bones tracked (``"bones"``).
 """
 
 from __future__ import annotations
@@ -190,20 +195,56 @@ def final_stage_problem(study, trial_name: str, *,
     return _final_stage_note(trial_name, how)
 
 
-def _resumed_subtract(study, report_name: str, skip: dict) -> tuple[bool | None, str | None]:
-    """``sequential_subtract`` auto on resume: ``(choice, note)`` — the choice the run being resumed
-    recorded (its report's ``"options"``), so that a trial is not tracked by two methods; off where
-    it recorded none (a run from before the neighbours were subtracted by default). ``(None,
-    None)``: nothing tracked to carry on (no tracking result of the range in the journal) or a joint
-    run's report (the user changed the mode): auto decides as for a new run."""
-    if not any(isinstance(r, FrameResult) for done in skip.values() for r in done.values()):
+def _earlier_runs(study, trial_name: str, report_name: str, bones: set) -> list[tuple[str, bool, str]]:
+    """``(report name, subtracted, why not)`` of the trial's other sequential tracking reports of
+    ``bones`` (``<trial>.json``, ``talus batch`` tasks' ``<trial>.<bone>.json`` and range reports):
+    what their searches did — not where the run tracked one bone (``--split-bones`` tasks) or
+    recorded no choice (a run from before the neighbours were subtracted by default). Joint runs'
+    reports and other bones' are left out."""
+    from ..study.errors import StudyError
+
+    out = []
+    for name in study.report_names("tracking"):
+        if name == report_name or not (name == trial_name or name.startswith(trial_name + ".")):
+            continue
+        try:
+            rep = study.read_report("tracking", name)
+        except StudyError:
+            continue
+        opts = rep.get("options") if isinstance(rep, dict) else None
+        if rep.get("trial") != trial_name or not isinstance(opts, dict) or opts.get("mode") == "joint":
+            continue
+        done = rep.get("frames_done") if isinstance(rep.get("frames_done"), list) else []
+        seen = rep.get("bones") if isinstance(rep.get("bones"), list) else [
+            d.get("bone") for d in done if isinstance(d, dict)]
+        if not bones & set(seen):
+            continue
+        got = opts.get("sequential_subtract")
+        why = ("" if got is True else "one bone" if len(set(seen)) == 1
+               else "off" if got is False else "no choice recorded")
+        out.append((name, got is True, why))
+    return out
+
+
+def _resumed_subtract(study, trial_name: str, report_name: str,
+                      skip: dict) -> tuple[bool | None, str | None]:
+    """``sequential_subtract`` auto on resume: ``(choice, note)`` — what the searches of the frames
+    already tracked did, so that a trial is not tracked by two methods: as the run being resumed
+    recorded in its report (``"options"``; off where it recorded none: a run from before the
+    neighbours were subtracted by default); without such a report, as the trial's other tracking
+    reports of the bones tracked say where they agree (:func:`_earlier_runs`). ``(None, why)``:
+    they disagree, or no report says — auto as for a new run, ``why`` for the note. ``(None,
+    None)``: nothing tracked to carry on (no tracking result of the range in the journal) or a
+    joint run's report (the user changed the mode): auto as for a new run, no note."""
+    tracked = {b for b, done in skip.items() if any(isinstance(r, FrameResult) for r in done.values())}
+    if not tracked:
         return None, None
     from ..study.errors import StudyError
 
     try:
         old = study.read_report("tracking", report_name)
     except StudyError:  # none, or unreadable
-        old = {}
+        old = None
     opts = old.get("options") if isinstance(old, dict) else None
     opts = opts if isinstance(opts, dict) else {}
     if opts.get("mode") == "joint":
@@ -212,8 +253,19 @@ def _resumed_subtract(study, report_name: str, skip: dict) -> tuple[bool | None,
     if isinstance(got, bool):
         return got, (f"resumed: neighbours {'' if got else 'not '}subtracted, as the run being resumed "
                      f"recorded (auto)")
-    return False, ("resumed: neighbours not subtracted (auto): the run being resumed recorded no choice "
-                   "(tracked before they were subtracted by default)")
+    if isinstance(old, dict):
+        return False, ("resumed: neighbours not subtracted (auto): the run being resumed recorded no choice "
+                       "(tracked before they were subtracted by default)")
+    runs = _earlier_runs(study, trial_name, report_name, tracked)
+    if not runs:
+        return None, ("no tracking report of the trial says how its frames tracked before were searched "
+                      "(their method is unknown)")
+    said = [f"{n}{f' ({why})' if why else ''}" for n, _, why in runs]
+    if len({c for _, c, _ in runs}) == 2:
+        return None, f"the trial's earlier runs differ: {', '.join(said)}"
+    got = runs[0][1]
+    return got, (f"resumed: neighbours {'' if got else 'not '}subtracted (auto), as the trial's earlier "
+                 f"runs did: {', '.join(said)}")
 
 
 def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
@@ -290,10 +342,15 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     subtract_note = None
     if options.mode == "sequential" and options.sequential_subtract is None:  # auto: the same test
         resumed = resume and len(models) > 1  # one bone: nothing to subtract, nothing to keep
-        kept, subtract_note = _resumed_subtract(study, report_name, skip) if resumed else (None, None)
-        options = replace(options, sequential_subtract=flatfield_corrected(how) if kept is None else kept)
-    report = {"trial": trial_name, "frames": [order[0], order[-1]] if order else [],
-              "normalisation": how,
+        kept, subtract_note = (_resumed_subtract(study, trial_name, report_name, skip) if resumed
+                               else (None, None))
+        auto = flatfield_corrected(how) if kept is None else kept
+        if kept is None and subtract_note:  # resumed, the earlier frames' method not known
+            subtract_note = (f"resumed: neighbours {'' if auto else 'not '}subtracted (auto, as for a new "
+                             f"run): {subtract_note}")
+        options = replace(options, sequential_subtract=auto)
+    report = {"trial": trial_name, "bones": [m.name for m in models],
+              "frames": [order[0], order[-1]] if order else [], "normalisation": how,
               "stopped": stopped, "options": {"resume": resume,
                                               "mode": options.mode,
                                               "checks": {k: getattr(options, k) for k in CHECK_FIELDS},
@@ -330,6 +387,7 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
         if progress is not None:
             progress(done, total, fr)
 
+    write([])  # the choices recorded from the start: a resume reads them (_resumed_subtract)
     result = track(renderer, models, read, order, keyframes=existing, options=options,
                    record_result=lambda fr: trial.record_pose(fr.bone, fr.frame, fr.pose, score=fr.score,
                                                               tracking=fr.journal_fields()),

@@ -1,7 +1,8 @@
 """``talus batch --mode sequential``: one task per trial whose bones are tracked one after another with
 the others' DRRs subtracted — the poses ``talus track --mode sequential`` gives (track_study with the
 same options), bit for bit, on the 48² demo walk on Warp's CPU device; ``split_bones`` one task per
-bone, which says it cannot subtract; the choice that ran in every record, kept on resume."""
+bone, which says it cannot subtract; the choice that ran in every record, kept on resume (also
+where ``--split-bones`` tasks tracked the frames before)."""
 
 from __future__ import annotations
 
@@ -101,3 +102,21 @@ def test_a_resumed_sequential_task_keeps_the_choice_that_ran(calibrated, tmp_pat
     assert again["sequential_subtract"] is False
     assert again["sequential_subtract_note"].startswith("resumed: neighbours not subtracted, as the run "
                                                         "being resumed recorded")
+
+
+def test_a_grouped_task_resuming_split_bones_tasks_searches_each_bone_alone(calibrated, tmp_path):
+    """Frame 0 tracked by ``--split-bones`` tasks (each bone alone: reports walk.talus and
+    walk.calcaneus, no walk.json), then the batch run again grouped over frames 0-1: the task carries
+    on as the earlier frames were searched (not subtracted, where auto alone would subtract on these
+    corrected frames), its record naming the tasks' reports."""
+    folder = shutil.copytree(calibrated, tmp_path / "demo")
+    split = build_tasks([folder], bones=list(BONES), mode="sequential", split_bones=True)
+    first = TaskSettings(device="cpu", confidence=False, frames=(0, 1), options=OPTIONS)
+    assert [r["frames_tracked"] for r in run_serial(split, first)["task_records"]] == [1, 1]
+    grouped = build_tasks([folder], bones=list(BONES), mode="sequential")
+    (again,) = run_serial(grouped, SETTINGS)["task_records"]
+    assert again["status"] == "complete" and again["frames_resumed"] == 2 and again["frames_tracked"] == 2
+    assert again["sequential_subtract"] is False
+    assert again["sequential_subtract_note"] == (
+        "resumed: neighbours not subtracted (auto), as the trial's earlier runs did: "
+        "walk.calcaneus (one bone), walk.talus (one bone)")

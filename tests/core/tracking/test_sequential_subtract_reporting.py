@@ -1,8 +1,10 @@
 """What ``track_study`` reports and keeps of ``TrackingOptions.sequential_subtract``
 (core.tracking.from_study): a one-bone sequential run subtracts nothing and says so (false, with a
 note when the choice was on); on resume, auto keeps the choice the run being resumed recorded in
-its report (off where it recorded none), explicit choices still win, and a run with nothing to
-carry on decides as a new one. The tracker is replaced (the options it gets are checked), on the
+its report (off where it recorded none) or, without that report, what the trial's other reports
+(``talus batch`` tasks', ``--split-bones`` or ranges) say where they agree — else auto as for a new
+run, the note saying why; explicit choices still win, and a run with nothing to carry on decides as
+a new one. The tracker is replaced (the options it gets are checked), on the
 shared 48² demo walk."""
 
 from __future__ import annotations
@@ -149,13 +151,78 @@ def test_resume_with_nothing_tracked_decides_as_a_new_run(demo, seen):
         _, rep = track_study(st, "walk", ["talus", "calcaneus"], [1, 2], correction=CORRECTED,
                              options=_opts(), device="cpu", resume=True)
     assert seen["options"].sequential_subtract is True
-    # without a report at all: off (the journal's run recorded nothing)
+    # without a report at all: the earlier frames' method is unknown, auto as for a new run (on)
     (demo / "results" / "reports" / "tracking" / "walk.json").unlink()
     with Study.open(demo, mode="w") as st:
         _, rep = track_study(st, "walk", ["talus", "calcaneus"], [1, 2], correction=CORRECTED,
                              options=_opts(), device="cpu", resume=True)
+    assert seen["options"].sequential_subtract is True
+    note = rep["options"]["sequential_subtract_note"]
+    assert note.startswith("resumed: neighbours subtracted (auto, as for a new run)")
+    assert "method is unknown" in note
+
+
+def _task_report(study_folder, name: str, bones, options: dict) -> None:
+    """A ``talus batch`` task's report of frame 1 of ``bones`` (``frames_done``, as older reports
+    name their bones)."""
+    with Study.open(study_folder, mode="w") as st:
+        st.write_report("tracking", name, {"trial": "walk", "options": options,
+                                           "frames_done": [{"bone": b, "frame": 1} for b in bones]})
+
+
+ONE_BONE = {"mode": "sequential", "sequential_subtract": False,
+            "sequential_subtract_note": "on, but no other bone tracked: nothing to subtract"}
+
+
+def test_resume_after_split_bones_tasks_keeps_each_bone_alone(demo, seen):
+    """Frames tracked by ``talus batch --split-bones`` tasks (reports walk.talus, walk.calcaneus; no
+    walk.json), resumed as one sequential run: their searches did not subtract, so neither does the
+    rest of the trial, and the note names the tasks' reports."""
+    _tracked_frame_1(demo)
+    for b in ("talus", "calcaneus"):
+        _task_report(demo, f"walk.{b}", [b], ONE_BONE)
+    _task_report(demo, "walk.tibia", ["tibia"], {"mode": "sequential", "sequential_subtract": True})
+    _task_report(demo, "walk.talus.0-9", ["talus", "calcaneus"], {"mode": "joint"})  # left out
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", ["talus", "calcaneus"], [1, 2], correction=CORRECTED,
+                             options=_opts(), device="cpu", resume=True)
     assert seen["options"].sequential_subtract is False
-    assert "recorded no choice" in rep["options"]["sequential_subtract_note"]
+    assert rep["options"]["sequential_subtract"] is False
+    assert rep["options"]["sequential_subtract_note"] == (
+        "resumed: neighbours not subtracted (auto), as the trial's earlier runs did: "
+        "walk.calcaneus (one bone), walk.talus (one bone)")
+    # the report, written as the run starts, records the choice and the bones: resumed again, the same
+    with Study.open(demo) as st:
+        assert st.read_report("tracking", "walk")["bones"] == ["talus", "calcaneus"]
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", ["talus", "calcaneus"], [1, 2], correction=CORRECTED,
+                             options=_opts(), device="cpu", resume=True)
+    assert seen["options"].sequential_subtract is False
+    assert "as the run being resumed recorded" in rep["options"]["sequential_subtract_note"]
+
+
+def test_resume_after_range_tasks_keeps_their_choice_or_decides_when_they_differ(demo, seen):
+    """Sequential range tasks' reports (walk.0-4, walk.5-9) that subtracted: kept by a resumed
+    whole-trial run. One of them searched alone (off): they differ, auto decides (off on frames
+    divided by the full scale), and the note lists both."""
+    _tracked_frame_1(demo)
+    on = {"mode": "sequential", "sequential_subtract": True}
+    _task_report(demo, "walk.0-4", ["talus", "calcaneus"], on)
+    _task_report(demo, "walk.5-9", ["talus", "calcaneus"], on)
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", ["talus", "calcaneus"], [1, 2], options=_opts(), device="cpu",
+                             resume=True)  # frames divided by the full scale: auto alone is off
+    assert seen["options"].sequential_subtract is True
+    assert rep["options"]["sequential_subtract_note"].endswith("earlier runs did: walk.0-4, walk.5-9")
+    (demo / "results" / "reports" / "tracking" / "walk.json").unlink()
+    _task_report(demo, "walk.5-9", ["talus", "calcaneus"], {**on, "sequential_subtract": False})
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", ["talus", "calcaneus"], [1, 2], options=_opts(), device="cpu",
+                             resume=True)
+    assert seen["options"].sequential_subtract is False
+    assert rep["options"]["sequential_subtract_note"] == (
+        "resumed: neighbours not subtracted (auto, as for a new run): the trial's earlier runs differ: "
+        "walk.0-4, walk.5-9 (off)")
 
 
 def test_cli_summary_gives_the_note(demo, monkeypatch, capsys):

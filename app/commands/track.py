@@ -37,7 +37,8 @@ it matters with ``--mode sequential`` — and off on frames divided by the full 
 intensities the DRRs do not match; ``on`` and ``off`` are used as given. The JSON summary says
 which was used (``"sequential_subtract"``, sequential runs only; false when one bone is tracked),
 and ``"sequential_subtract_note"`` (also on stderr) why where it is not the plain choice: one bone
-tracked, or ``--resume`` keeping the choice the run being resumed recorded (auto).
+tracked, or ``--resume`` keeping what the frames tracked before did (auto: the choice the run being
+resumed recorded, else the trial's other runs' where they agree; :mod:`core.tracking.from_study`).
 
 Failure checks (:data:`CHECKS`; the fields of :class:`core.tracking.options.TrackingOptions` of
 the same names, :mod:`core.tracking.checks`): ``--collapse-ratio R`` — a score below R × the
@@ -61,7 +62,9 @@ kept, still flagged).
 The trajectory check (the same table; :mod:`core.tracking.flags_post`, run once the run is
 complete): a frame whose pose stands off the local fit through its neighbours' poses by more than
 ``--trajectory-limit K`` × the bone's median residual is flagged *off the trajectory* (default 2.5,
-≥ 1); ``--trajectory-limit off`` or ``--no-trajectory-check`` turns it off
+≥ 1), and so is a frame next to flagged ones that stands off by more than K × with them in its fit
+and 0.7 K × without (*off the trajectory next to flagged frames*, ``flags_post.NEAR``): K scales both
+rules; ``--trajectory-limit off`` or ``--no-trajectory-check`` turns both off
 (``TrackingOptions.trajectory_limit=None``).
 """
 
@@ -150,11 +153,14 @@ CHECKS = {
     "trajectory_limit": ("--trajectory-limit", 2.5,
                          "once the run is complete, flag every frame whose pose stands off the local fit "
                          "through its neighbours' poses (+-4 frames) by more than K times the bone's median "
-                         "residual ('off the trajectory'); 'off' turns the check off. On the synthetic "
-                         "1024^2 acceptance trial (three bones jointly, tracked on one NVIDIA H100, the "
-                         "pass applied on a CPU) the frames over 4x their Cramer-Rao bound left unflagged "
-                         "went from 5 to 1, and 14 of 295 good bone-frames were flagged; a factor >= 1 or "
-                         "off, default 2.5"),
+                         "residual ('off the trajectory'), and a frame next to flagged ones that stands off "
+                         "by more than K times with them in its fit and 0.7 K times without ('off the "
+                         "trajectory next to flagged frames'): K scales both rules, 'off' turns both off. "
+                         "On the synthetic 1024^2 acceptance trial (three bones jointly, tracked on one "
+                         "NVIDIA H100, the pass applied on a CPU) the frames over 4x their Cramer-Rao bound "
+                         "left unflagged went from 5 to 1 (to 0 with the next-to-flagged rule, which flagged "
+                         "3 more good bone-frames), and 14 of 295 good bone-frames were flagged; a factor "
+                         ">= 1 or off, default 2.5"),
 }
 #: ``--trajectory-limit off`` (and ``--no-trajectory-check``): the trajectory check turned off.
 TRAJECTORY_OFF = "off"
@@ -489,6 +495,8 @@ def run(a: argparse.Namespace) -> int:
                 frames = frames[::-1]
             bones = a.bones.split(",") if a.bones else None
             bar = _Bar(progress, resumed_frames(trial, bones, frames) if a.resume else frozenset())
+            progress.note(f"trial {a.trial}, frames {frames[0]}-{frames[-1]}: loading the bones' CTs, "
+                          "then the first frame (it searches wider: the longest)")
             with stdout_to_stderr():
                 result, report = track_study(study, a.trial, bones, frames, options=opts,
                                              device=a.device, resume=a.resume,

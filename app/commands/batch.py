@@ -38,8 +38,9 @@ have flatfield-corrected frames (the trials without are named, and nothing is tr
 checks' thresholds (``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``)
 and the final stage's move check (``--stage-move-limit``, ``--stage-move-sigmas``,
 ``--stage-move-frames``, ``--keep-stage-moves``; with ``--final likelihood`` only) and the
-trajectory check run once a task's run is complete (``--trajectory-limit K|off``,
-``--no-trajectory-check``) are ``talus track``'s (:data:`app.commands.track.CHECKS`), for every
+trajectory check run once a task's run is complete (``--trajectory-limit K|off``, which scales
+its rule for frames next to flagged ones too and turns both off, ``--no-trajectory-check``) are
+``talus track``'s (:data:`app.commands.track.CHECKS`), for every
 task; out-of-range values are refused naming the option before any task starts.
 ``--sequential-subtract auto|on|off`` is ``talus track``'s and goes to every task; what each
 sequential task's searches did — the neighbours subtracted or not, auto resolved, and kept on resume

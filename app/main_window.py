@@ -303,6 +303,7 @@ class MainWindow(QtWidgets.QMainWindow):
             session = open_study(folder, read_only=read_only)
         except LockedError as exc:  # open elsewhere for writing: show it read-only
             session = open_study(folder, read_only=True)
+            session.read_only_reason = str(exc)
             notes.append(f"{exc} — opened read-only.")
         self.session = session
         try:

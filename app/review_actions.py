@@ -158,8 +158,7 @@ class ReviewActions:
     def mark_keyframe(self) -> None:
         """Record the selected bone's pose at the current frame as a hand-set pose (a keyframe)."""
         m, s, bone = self._selected()
-        if not s.writable:
-            raise ValueError("study: open for writing to set keyframes")
+        s.require_writable("setting a keyframe")
         if m.layers[m.selected].locked:
             raise ValueError(f"bone: {bone} is locked (being tracked)")
         f = m.current_frame
@@ -198,8 +197,7 @@ class ReviewActions:
         """Put back the tracking result that a hand fix of the selected bone at the current frame
         replaced (the journal keeps it; the fix stays in the journal's history too)."""
         m, s, bone = self._selected()
-        if not s.writable:
-            raise ValueError("study: open for writing to undo a fix")
+        s.require_writable("undoing a fix")
         f = m.current_frame
         trial = s.study.trial(s.trial_name)
         recs = trial.results(bone).essential_records().get(f, [])

@@ -57,7 +57,17 @@ class StudySession:
     recovered: bool = False
     writable: bool = True
     recording: bool = True  # False while applying poses read back from the journal
+    read_only_reason: str | None = None  # why a study is open read-only (another writer holds it)
     _closed: bool = field(default=False, repr=False)
+
+    def require_writable(self, what: str) -> None:
+        """Raise ``ValueError`` naming ``what`` needs writing and why the study is read-only (the
+        other program holding it, from the lock it found), so the user knows what to close."""
+        if self.writable:
+            return
+        why = self.read_only_reason or "it was opened read-only"
+        raise ValueError(f"study: {what} needs the study open for writing, but {why.rstrip('.')}. "
+                         "When that is over, open the study again (File → Open recent).")
 
     @property
     def folder(self) -> Path:

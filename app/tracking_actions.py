@@ -138,8 +138,9 @@ class TrackingActions:
     def start(self, bones: list[str], frames=None) -> None:
         """Track ``bones`` over ``frames`` (frame numbers in tracking order; default all, forward)."""
         session = self.window.session
-        if session is None or not session.writable:
+        if session is None:
             raise ValueError("study: tracking needs a study open for writing")
+        session.require_writable("tracking")
         if self.running:
             raise ValueError("tracking: a tracking job is already running (cancel it first)")
         if self.batch is not None and self.batch.running:

@@ -87,3 +87,25 @@ def test_plots_shade_the_flagged_frames_of_their_own_bones(qtbot, demo_study, tm
         plots.show_page("Joint angles")
         plots.refresh()
         assert all(shaded(k) == [1] for k in joints)
+
+
+def test_a_study_another_program_writes_says_who_when_tracking_is_refused(qtbot, demo_study, tmp_path):
+    """With 'talus track' writing the talus, the window opened the study read-only and Track
+    selected bone said only 'tracking needs a study open for writing': not why, nor what to do."""
+    from core.study import Study
+
+    folder = copy_study(demo_study, tmp_path)
+    with Study.open(folder, mode="w") as other, main_window(qtbot) as win:  # another writer of the talus
+        other.lock_journal("walk", "talus")
+        with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
+            win.open_demo_study(folder)
+        assert not win.session.writable
+        shown = []
+        win.show_error = lambda title, text: shown.append(text)  # the dialog _guard shows
+        win.track_action.trigger()  # Tracking → Track selected bone
+        win.review.keyframe_action.trigger()  # K
+        assert len(shown) == 2, shown
+        for text in shown:
+            assert "needs the study open for writing, but bone 'talus' of trial 'walk'" in text
+            assert "locked for writing by process" in text and "open the study again" in text
+        assert "tracking needs" in shown[0] and "setting a keyframe needs" in shown[1]

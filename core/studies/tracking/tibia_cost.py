@@ -34,7 +34,8 @@ tibia's usable pixels (its DRR's support at the true pose within the search regi
 ``band_px`` of a black pixel. Study only: it reads the truth. JSON on stdout (and ``--out``).
 
 ``--acceptance COST`` runs the acceptance study instead (both modes on the same frames, the capture
-range off; ``--seed`` its scene) with ``COST`` for every bone (:func:`acceptance_with`).
+range off; ``--seed`` its scene) with ``COST`` for every bone (:func:`acceptance_with`); ``--speed``
+the tracking speed without and with the band (:func:`speed`).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["COSTS", "VARIANTS", "acceptance_with", "long_axis", "run", "variant_frames"]
+__all__ = ["COSTS", "VARIANTS", "acceptance_with", "long_axis", "run", "speed", "variant_frames"]
 
 VARIANTS = ("trial", "norim", "fill", "band", "notissue", "alone", "exact")
 COSTS = ("gc", "gc45", "gc60", "components", "band")
@@ -296,6 +297,30 @@ def acceptance_with(cost: str, *, modes=("joint", "sequential"), seed: int = 0, 
     return out
 
 
+def speed(costs=("gc", "band", "gc", "band"), cases=((0,), (0, 1, 2)), *, frames: int = 100,
+          repeats: int = 3, workers: int = 0, device: str | None = None) -> dict:
+    """The tracking speed with each cost of ``costs`` in turn (alternating: the host's speed drifts)
+    for each bone set of ``cases`` (joint tracking), on the benchmark's scene (1024², 0.5 mm, the 3 %
+    model correction; :func:`core.studies.tracking.benchmark._case`: end to end, the median of
+    ``repeats``, and a profiled run)."""
+    from core.studies.tracking.acceptance import TrackingScene
+    from core.studies.tracking.benchmark import _case
+    from core.studies.tracking.trial_frames import synthesise
+    from core.tracking.trial import TrackingOptions
+
+    ts = TrackingScene(n_frames=frames, pixels=1024, spacing=0.5, phase=(0.0, 0.6 * frames / 100.0),
+                       device=device)
+    synthesise(ts, range(frames), workers=workers)
+    base = TrackingOptions(mode="joint")
+    out: dict = {"frames": frames, "order": list(costs), "cases": {}}
+    for bones in cases:
+        key = "+".join(ts.names[b] for b in bones)
+        for k, c in enumerate(costs):
+            o = replace(base, registration=replace(base.registration, terms=_options(c).terms))
+            out["cases"].setdefault(key, {})[f"{k}_{c}"] = _case(ts, list(bones), o, frames, repeats)
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.tibia_cost",
                                 description=__doc__.split("\n")[0])
@@ -315,10 +340,17 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0, help="--acceptance: the scene's seed")
     p.add_argument("--quick", action="store_true", help="--acceptance: the quick size (256², 20 frames)")
     p.add_argument("--workers", type=int, default=0, help="--acceptance: processes for the image chain")
+    p.add_argument("--speed", action="store_true", help="instead: tracking speed without and with the band")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import json_checkpoint, print_json
 
+    if a.speed:
+        res = speed(workers=a.workers, device=None if a.device == "auto" else a.device)
+        if a.machine_name:
+            res["machine_name"] = a.machine_name
+        print_json(res, a.out)
+        return 0
     if a.acceptance:
         res = acceptance_with(a.acceptance, seed=a.seed, quick=a.quick, workers=a.workers,
                               device=None if a.device == "auto" else a.device)

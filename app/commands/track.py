@@ -396,7 +396,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None,
                    help="Warp device: cpu, cuda, cuda:1 (default CUDA when present)")
     p.add_argument("--resume", action="store_true", help="skip frames that already have a pose")
-    p.add_argument("--guess", choices=("velocity", "previous", "spline"), default="velocity")
+    p.add_argument("--guess", choices=("velocity", "previous", "spline"), default="velocity",
+                   help="each frame's starting pose: velocity (constant velocity from the last good "
+                        "frames, the default), previous (the last good frame's pose) or spline (a "
+                        "spline through the bone's keyframes, between the first and the last)")
     p.add_argument("--mode", choices=("auto", "sequential", "joint"), default="auto",
                    help="joint: register each bone with the others' DRRs subtracted (needs DRR "
                         "intensities that match the radiographs: flatfield-corrected frames and a "

@@ -309,3 +309,44 @@ def test_track_says_what_it_does_before_the_first_frame(study, capsys):
     first = next(ln for ln in lines if ln.startswith("talus track:"))
     assert first == ("talus track: trial walk, frames 1-1: loading the bones' CTs, then the first frame "
                      "(it searches wider: the longest)")
+
+
+def test_the_readme_synopsis_names_every_option_of_the_commands():
+    """The README's `talus` synopsis had lost options (report and study use-calibration missing,
+    export --frame/--camera, track --threshold, import --hu-offset). Every long option of every
+    command (one of an option's names; talus batch has its own section) must be in its lines."""
+    import argparse
+    import re
+
+    from app.cli import build_parser
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    block = readme.split("## The `talus` command", 1)[1].split("```text", 1)[1].split("```", 1)[0]
+    lines: dict[str, str] = {}
+    command = None
+    for line in block.splitlines():
+        m = re.match(r"talus (\w+)", line)
+        command = m.group(1) if m else command
+        if command:
+            lines[command] = lines.get(command, "") + line + "\n"
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+
+    def options(parser):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for p in a.choices.values():
+                    yield from options(p)
+            elif a.help != argparse.SUPPRESS and any(o.startswith("--") and o != "--help"
+                                                     for o in a.option_strings):
+                yield [o for o in a.option_strings if o.startswith("--")]
+
+    missing = {}
+    for name, parser in sub.choices.items():
+        if name == "batch":
+            continue
+        text = lines.get(name, "")
+        gone = [names[0] for names in options(parser)
+                if not any(re.search(re.escape(o) + r"(?![\w-])", text) for o in names)]
+        if not text or gone:
+            missing[name] = gone or "the command"
+    assert not missing, missing

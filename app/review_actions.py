@@ -10,7 +10,9 @@ With a study open the window shows (and these actions drive):
   bone (every hand-set pose is journalled: a keyframe), or mark its current pose a keyframe
   (``K``); then re-track the selected bone forward (``]``) or backward (``[``) from the frame, or
   between the keyframes around it (``Ctrl+B``), in the background. The journal is append-only:
-  *Undo fix* (``Ctrl+Alt+Z``) puts back the tracking result a hand fix replaced;
+  *Undo fix* (``Ctrl+Alt+Z``) puts back the tracking result a hand fix replaced. A bone locked
+  for a tracking job or a batch says who has it (:meth:`ReviewActions.locked_reason`); a fix of a
+  bone handed to a batch waits briefly for its journal (:meth:`app.session.StudySession.hand_edit`);
 * **export** (*File → Export…*): poses in every format of :func:`core.study.exports.available_formats`,
   the plots as PNG/SVG/PDF and the one-page trial report (:func:`core.study.report.write_report`).
 
@@ -73,6 +75,7 @@ class ReviewActions:
         self.data = ReviewData([layer.name for layer in model.layers], model.n_frames, w)
         if session is not None:
             self.data.load_journal(session.study.trial(session.trial_name))
+            session.notify = lambda text: w.notify(text, error=True)  # a hand edit not saved
         self.table = FrameTableDock(self.data, model)
         bar = QtWidgets.QHBoxLayout()
         buttons = (("Key K", self.keyframe_action), ("Track → ]", self.forward_action),
@@ -155,14 +158,30 @@ class ReviewActions:
             raise ValueError("bone: select a bone first")
         return m, s, m.layers[m.selected].name
 
+    def locked_reason(self, bone: str) -> str:
+        """Why ``bone``'s layer is locked, for a refused fix: handed to the running batch (its
+        tasks track it, then its trajectory check judges its frames; the window takes it back when
+        the batch ends), tracked by the window's tracking job, or locked by hand."""
+        tracking = self.window.tracking
+        batch = tracking.batch
+        if batch is not None and batch.running and bone in getattr(batch, "_bones", ()):
+            return (f"bone: {bone} is being written by the batch (its tasks track it, then its trajectory "
+                    "check judges the frames); the window takes it back when the batch ends: fix it "
+                    "then, or cancel the batch (Tracking → Cancel tracking)")
+        if tracking.running and bone in getattr(tracking, "_bones", ()):
+            return (f"bone: {bone} is being tracked here; fix it when the tracking ends, or cancel it "
+                    "(Tracking → Cancel tracking)")
+        return f"bone: {bone} is locked (Layers: untick Locked to edit it)"
+
     def mark_keyframe(self) -> None:
         """Record the selected bone's pose at the current frame as a hand-set pose (a keyframe)."""
         m, s, bone = self._selected()
         s.require_writable("setting a keyframe")
         if m.layers[m.selected].locked:
-            raise ValueError(f"bone: {bone} is locked (being tracked)")
+            raise ValueError(self.locked_reason(bone))
         f = m.current_frame
-        s.study.trial(s.trial_name).record_pose(bone, f, m.pose(bone, f))
+        pose = m.pose(bone, f)
+        s.hand_edit(bone, lambda: s.study.trial(s.trial_name).record_pose(bone, f, pose))
         m.layers[m.selected].keyframes.add(f)
         self.data.mark_edited(m.selected, f, m.pose(bone, f))
         self.window.notify(f"{bone} frame {f}: keyframe set")
@@ -198,6 +217,8 @@ class ReviewActions:
         replaced (the journal keeps it; the fix stays in the journal's history too)."""
         m, s, bone = self._selected()
         s.require_writable("undoing a fix")
+        if m.layers[m.selected].locked:  # a bone handed to a batch: its journal is not the window's
+            raise ValueError(self.locked_reason(bone))
         f = m.current_frame
         trial = s.study.trial(s.trial_name)
         recs = trial.results(bone).essential_records().get(f, [])
@@ -205,8 +226,12 @@ class ReviewActions:
         if not tracked or recs[-1].kind != "hand":
             raise ValueError(f"frame {f}: {bone} has no hand fix of a tracked frame to undo")
         rec = tracked[-1]
-        trial.clear_pose(bone, f)
-        trial.record_pose(bone, f, rec.pose, score=rec.score, tracking=rec.tracking)
+
+        def restore() -> None:
+            trial.clear_pose(bone, f)
+            trial.record_pose(bone, f, rec.pose, score=rec.score, tracking=rec.tracking)
+
+        s.hand_edit(bone, restore)
         i = m.index(bone)
         s.recording = False
         try:

@@ -9,11 +9,23 @@
 * Frames are read lazily from the trial's sequences and cached.
 * Bones start at their recorded poses; frames without one take the nearest recorded frame's
   pose (or the identity), and recorded frames are the keyframes.
+* The window holds its trial's journals from opening (a second writer is refused), but lets go of
+  the bones it hands to a batch (:mod:`app.batch_panel`) until the batch ends. A hand edit of such
+  a bone (its layer unlocked by hand) takes the journal's lock for its append only
+  (:meth:`StudySession.hand_edit`), waiting up to :data:`HAND_EDIT_WAIT_S` for it — for the
+  batch's trajectory check, which holds a trial's journals while it reads them and rewrites their
+  flags (:mod:`core.tracking.batch_journal`), or a range task's append — so the batch keeps the
+  bone; a writer that still holds it (a task tracking the bone holds it to its end) refuses the
+  edit, and the window's messages say who holds it and that the edit is not saved.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
+import socket
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -27,6 +39,13 @@ from .model import ViewerModel
 __all__ = ["MissingFilesError", "StudySession", "open_study"]
 
 MARKER = ".session-open"
+#: How long a hand edit waits for a bone's journal the window does not hold (handed to a batch):
+#: the trajectory check holds a trial's journals for milliseconds to a fraction of a second (the
+#: pass itself took 2-25 ms per bone in core.tracking.flags_post's timings); the GUI waits meanwhile.
+HAND_EDIT_WAIT_S = 1.0
+#: After a refused hand edit, the bone's next edits for this long (the rest of a drag) are refused
+#: without waiting, and without a new message.
+REFUSED_QUIET_S = 2.0
 
 
 class MissingFilesError(ValueError):
@@ -58,7 +77,65 @@ class StudySession:
     writable: bool = True
     recording: bool = True  # False while applying poses read back from the journal
     read_only_reason: str | None = None  # why a study is open read-only (another writer holds it)
+    #: where a hand edit that could not be saved is said (the window's messages); None: raised
+    notify: Callable[[str], None] | None = None
     _closed: bool = field(default=False, repr=False)
+    _refused: dict = field(default_factory=dict, repr=False)  # bone -> when an edit was last refused
+
+    def hand_edit(self, bone: str, write: Callable[[], None]) -> None:
+        """Run ``write``, a hand edit's append to ``bone``'s journal (see the module notes): at once
+        where the window holds the journal, else under its lock for this append only, waited for
+        up to :data:`HAND_EDIT_WAIT_S` (not again within :data:`REFUSED_QUIET_S` of a refusal).
+
+        Raises
+        ------
+        core.study.LockedError
+            Another writer still holds the journal; the message says who (this window's batch —
+            its trajectory check — or another process) and that the edit is not saved.
+        """
+        from core.study import LockedError
+
+        st, trial = self.study, self.trial_name
+        if st.journal_locked(trial, bone):
+            write()
+            return
+        quiet = time.monotonic() - self._refused.get(bone, -1e9) < REFUSED_QUIET_S
+        try:
+            st.lock_journal(trial, bone, timeout=0.0 if quiet else HAND_EDIT_WAIT_S)
+        except LockedError as exc:
+            self._refused[bone] = time.monotonic()
+            h = exc.holder
+            if h.get("pid") == os.getpid() and h.get("host") == socket.gethostname():
+                who = "this window's batch (its trajectory check, or a task's record)"
+            elif h:
+                who = (f"process {h.get('pid', '?')} on {h.get('host', '?')} since {h.get('since', '?')} "
+                       "(a batch's task tracking the bone, or another program)")
+            else:
+                who = "another writer"
+            waited = 0.0 if quiet else HAND_EDIT_WAIT_S
+            exc.args = (f"{bone}: the edit is not saved: its journal is being written by {who} (waited "
+                        f"{waited:g} s). Edit it again once that is over; a batch gives its bones back to "
+                        "the window when it ends.",)
+            exc.quiet = quiet
+            raise
+        self._refused.pop(bone, None)
+        try:
+            write()
+        finally:
+            st.unlock_journal(trial, bone)  # the batch keeps the bone
+
+    def record_edit(self, bone: str, write: Callable[[], None]) -> None:
+        """:meth:`hand_edit` for the model's pose signals: a refusal goes to :attr:`notify` (once
+        per burst) rather than into the event loop, where it would pass unseen."""
+        from core.study import LockedError
+
+        try:
+            self.hand_edit(bone, write)
+        except LockedError as exc:
+            if self.notify is None:
+                raise
+            if not getattr(exc, "quiet", False):
+                self.notify(str(exc))
 
     def require_writable(self, what: str) -> None:
         """Raise ``ValueError`` naming ``what`` needs writing and why the study is read-only (the
@@ -134,14 +211,19 @@ def open_study(folder: str | Path, *, trial: str | None = None,
             def record(bone: int, frame: int) -> None:
                 if session_ref and not session_ref[0].recording:
                     return
-                tr.record_pose(model.layers[bone].name, int(frame), model.pose(bone, frame))
+                name, pose = model.layers[bone].name, model.pose(bone, frame)
+                session_ref[0].record_edit(name, lambda: tr.record_pose(name, int(frame), pose))
 
             def record_all(bone: int) -> None:
                 if session_ref and not session_ref[0].recording:
                     return
                 layer = model.layers[bone]
-                for f in range(model.n_frames):
-                    tr.record_pose(layer.name, f, layer.poses[f])
+
+                def write() -> None:
+                    for f in range(model.n_frames):
+                        tr.record_pose(layer.name, f, layer.poses[f])
+
+                session_ref[0].record_edit(layer.name, write)
 
             model.pose_changed.connect(record)
             model.trajectory_changed.connect(record_all)

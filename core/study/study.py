@@ -203,10 +203,12 @@ class Study(StudyEdits, StudyReports):
             lock.release()
         self._mode = "closed"
 
-    def lock_journal(self, trial: str, bone: str) -> None:
+    def lock_journal(self, trial: str, bone: str, *, timeout: float = 0.0) -> None:
         """Lock the pose journal of ``bone`` in ``trial`` for this handle until :meth:`close`
         (idempotent). The first write to a journal does it too; trackers call it before they
-        start, so a second writer of that bone is refused at once.
+        start, so a second writer of that bone is refused at once (``timeout``: after waiting that
+        many seconds for it, e.g. for ``talus batch``'s trajectory check, which holds a trial's
+        journals for the moment it reads and rewrites them).
 
         Raises
         ------
@@ -223,7 +225,7 @@ class Study(StudyEdits, StudyReports):
         path.parent.mkdir(parents=True, exist_ok=True)
         lock = FileLock(path.with_name(f".{bone}.lock"),
                         purpose=f"bone {bone!r} of trial {trial!r} in study {self._folder}")
-        self._journal_locks[path] = lock.acquire()
+        self._journal_locks[path] = lock.acquire(timeout=timeout)
 
     def unlock_journal(self, trial: str, bone: str) -> None:
         """Release this handle's lock of ``bone``'s journal in ``trial`` (idempotent), e.g. to

@@ -109,3 +109,23 @@ def test_one_handle_keeps_its_journal_locks_until_closed(folder):
         a.close()
     b.lock_journal("walk01", "talus")  # released by a's close
     b.close()
+
+
+def test_lock_journal_waits_up_to_its_timeout(folder):
+    """``timeout``: a journal held for a moment (talus batch's trajectory check) is waited for; one
+    held past it is refused, as one is at once without it."""
+    import threading
+
+    a, b = Study.open(folder, mode="w"), Study.open(folder, mode="w")
+    try:
+        a.lock_journal("walk01", "talus")
+        with pytest.raises(LockedError, match="bone 'talus' of trial 'walk01'"):
+            b.lock_journal("walk01", "talus", timeout=0.1)
+        threading.Timer(0.2, a.unlock_journal, ("walk01", "talus")).start()
+        b.lock_journal("walk01", "talus", timeout=10.0)
+        assert b.journal_locked("walk01", "talus")
+        with pytest.raises(LockedError):
+            a.lock_journal("walk01", "talus")
+    finally:
+        a.close()
+        b.close()

@@ -65,6 +65,29 @@ def default_session(study_folder) -> Path | None:
     return None
 
 
+def _trials_calibrations(folder) -> dict[str, str]:
+    """Each trial's calibration in the study at ``folder`` (empty without a study)."""
+    try:
+        doc = json.loads((Path(folder) / "study.json").read_text(encoding="utf-8"))
+        return {t: e["calibration"] for t, e in doc["trials"].items()}
+    except (TypeError, OSError, ValueError, KeyError):
+        return {}
+
+
+def _moved_notes(folder, saved, in_use: dict[str, str]) -> list[str]:
+    """:func:`core.study.calibrations.lab_frame_note` of each trial of the study at ``folder`` the
+    save moved (as ``talus calibrate`` warns): its recorded poses are in its earlier calibration's
+    lab frame."""
+    from core.study import Study
+    from core.study.calibrations import lab_frame_note
+
+    moved = [t for t in saved.trials if in_use.get(t) not in (None, saved.name)]
+    if not moved:
+        return []
+    with Study.open(folder) as study:
+        return [n for t in moved if (n := lab_frame_note(study, t, in_use[t], saved.name))]
+
+
 def calibrate(window):
     """Open the calibration wizard, saving into the open study by default, on the study's session
     (:func:`default_session`) when it has one."""
@@ -72,8 +95,15 @@ def calibrate(window):
 
     folder = _study_folder(window)
     w = CalibrationWizard(window, study_folder=folder, session_folder=default_session(folder))
-    w.saved_calibration.connect(lambda s: window.notify(
-        f"Calibration {s.name} saved in {s.folder}; trials using it: {', '.join(s.trials) or 'none'}"))
+    in_use = _trials_calibrations(folder)  # what each trial used before the save
+
+    def saved(s) -> None:
+        window.notify(f"Calibration {s.name} saved in {s.folder}; trials using it: "
+                      f"{', '.join(s.trials) or 'none'}")
+        for note in _moved_notes(folder, s, in_use):
+            window.notify(f"Warning: {note}", error=True)
+
+    w.saved_calibration.connect(saved)
     w.show()
     return w
 

@@ -139,7 +139,7 @@ def run(a: argparse.Namespace) -> int:
     trials = a.trials if a.trials in ("series", "all", "none") else [t for t in a.trials.split(",") if t]
     from core.calibration.session import CalibrationCancelled
     from core.study import Study
-    from core.study.calibrations import calibrate_study
+    from core.study.calibrations import calibrate_study, lab_frame_note
 
     token = CancelToken()
     progress = Progress("calibrate", quiet=a.quiet)
@@ -173,6 +173,13 @@ def run(a: argparse.Namespace) -> int:
     note = unused_note(saved, in_use, folder)
     if note:
         print(f"{PROG} calibrate: {note}", file=sys.stderr)
+    warnings = list(rep.get("warnings", []))
+    with Study.open(folder) as study:
+        for t in saved.trials:
+            moved = lab_frame_note(study, t, in_use[t], saved.name)
+            if moved:
+                print(f"{PROG} calibrate: WARNING: {moved}", file=sys.stderr)
+                warnings.append(moved)
     out = {"status": "complete", "saved": {"calibration": saved.name, "folder": str(saved.folder),
                                            "trials": list(saved.trials)},
            "rig": [{k: c[k] for k in ("name", "fx_px", "sid_mm", "source_mm", "std")} for c in rep["rig"]],
@@ -185,7 +192,7 @@ def run(a: argparse.Namespace) -> int:
                      {k: c["glare"].get(k) for k in ("fraction", "fraction_sd", "sigma_px", "sigma_mm",
                                                      "sigma_mm_sd")} for c in rep["cameras"]},
            "error_volume_rms_mm": rep["error_volume"].get("rms_mm"), "lab_frame": rep.get("lab_frame"),
-           "warnings": rep.get("warnings", []), "notes": rep["notes"],
+           "warnings": warnings, "notes": rep["notes"],
            "report": report_files}
     print_json(out)
     return EXIT_OK

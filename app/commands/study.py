@@ -82,7 +82,7 @@ def run_repair(args: argparse.Namespace) -> int:
 def run_use_calibration(args: argparse.Namespace) -> int:
     folder = study_folder(args.study)
     from core.study import Study
-    from core.study.calibrations import use_calibration
+    from core.study.calibrations import lab_frame_note, use_calibration
 
     with Study.open(folder, mode="w") as study:
         names = [t for t in args.trials.split(",") if t] if args.trials else list(study.trials)
@@ -96,7 +96,12 @@ def run_use_calibration(args: argparse.Namespace) -> int:
         for t in names:
             use_calibration(study, t, args.calibration)
         after = {t: study.trial(t).calibration for t in names}
+        warnings = [w for t in names if (w := lab_frame_note(study, t, before[t], after[t]))]
+    for w in warnings:
+        print(f"{PROG} study use-calibration: WARNING: {w}", file=sys.stderr)
     print_json({"study": str(folder), "calibration": args.calibration,
-                "trials": {t: {"before": before[t], "after": after[t]} for t in names}})
-    print(f"{PROG} study use-calibration: {', '.join(names)} now use {args.calibration}", file=sys.stderr)
+                "trials": {t: {"before": before[t], "after": after[t]} for t in names},
+                "warnings": warnings})
+    verb = "uses" if len(names) == 1 else "use"
+    print(f"{PROG} study use-calibration: {', '.join(names)} now {verb} {args.calibration}", file=sys.stderr)
     return EXIT_OK

@@ -39,8 +39,9 @@ from ..io.atomic import atomic_write_json
 from .errors import StudyError
 from .manifest import store_path
 
-__all__ = ["SavedCalibration", "calibrate_study", "calibration_versions", "load_correction",
-           "save_session_calibration", "trial_correction", "use_calibration"]
+__all__ = ["SavedCalibration", "calibrate_study", "calibration_versions", "lab_frame_note",
+           "load_correction", "save_session_calibration", "source_shift_mm", "trial_correction",
+           "use_calibration"]
 
 FILES_KEY = "calibration_files"
 _SERIES_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,40}$")
@@ -244,6 +245,37 @@ def use_calibration(study, trial: str, calibration: str) -> None:
         raise StudyError(f"calibration: no calibration named {calibration!r} (have {have})")
     doc["trials"][trial]["calibration"] = calibration
     study._commit(doc)
+
+
+def source_shift_mm(study, old: str, new: str) -> list[float] | None:
+    """How far each camera's X-ray source (``C = -Rᵀt``, mm) lies from its place in calibration
+    ``old`` in calibration ``new``, camera by camera; None when their camera counts differ. Both
+    are in their own lab frames: a shift far beyond the calibrations' uncertainty means the lab
+    frame moved (the cube placed elsewhere, or ``lab_frame="object"``) or the rig did."""
+    a, b = study.rig(old), study.rig(new)
+    if len(a) != len(b):
+        return None
+    return [float(np.linalg.norm(ca.source - cb.source)) for ca, cb in zip(a, b, strict=True)]
+
+
+def lab_frame_note(study, trial: str, old: str, new: str, *, tolerance_mm: float = 2.0) -> str | None:
+    """A warning for ``trial`` moved from calibration ``old`` to ``new`` with poses recorded (its
+    keyframes among them) when a camera's source moved more than ``tolerance_mm`` between the two
+    (:func:`source_shift_mm`): those poses are in ``old``'s lab frame and no longer fit the frames
+    seen through ``new`` (the demo's keyframes, after a calibration with the spiral's lab frame,
+    drew the tibia across the image). None when nothing is recorded or the sources stayed."""
+    if old == new:
+        return None
+    tr = study.trial(trial)
+    recorded = sum(r.pose is not None for b in tr.bones for r in tr.results(b).records.values())
+    shift = source_shift_mm(study, old, new)
+    if not recorded or shift is None or max(shift) <= tolerance_mm:
+        return None
+    moved = ", ".join(f"{d:.1f}" for d in shift)
+    return (f"trial {trial!r} moved from calibration {old} to {new}, whose X-ray sources lie {moved} mm "
+            f"from where {old} has them: the lab frame (or the rig) changed, and the trial's "
+            f"{recorded} recorded poses (keyframes among them) are in {old}'s lab frame. Set the "
+            "keyframes again and track anew, or keep the trial on its calibration")
 
 
 def calibrate_study(study, session, *, object=None, model: str = "auto", lab_frame: str = "static",

@@ -109,3 +109,28 @@ def test_a_study_another_program_writes_says_who_when_tracking_is_refused(qtbot,
             assert "needs the study open for writing, but bone 'talus' of trial 'walk'" in text
             assert "locked for writing by process" in text and "open the study again" in text
         assert "tracking needs" in shown[0] and "setting a keyframe needs" in shown[1]
+
+
+def test_a_calibration_saved_in_another_lab_frame_warns_in_the_window(qtbot, demo_study, tmp_path):
+    """The wizard's save moved the trial to a calibration whose sources lie elsewhere (another lab
+    frame): the window said only 'trials using it: walk', and the keyframes were then drawn off."""
+    from core.study import Study
+    from core.study.calibrations import SavedCalibration, use_calibration
+
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:
+        with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
+            win.open_demo_study(folder)
+        win.calibrate_action.trigger()  # File → Calibrate…
+        w = _wizard()
+        win.session.close()  # what the wizard's save does, done here without a session to solve
+        with Study.open(folder, mode="w") as st:
+            st.add_calibration("session.v1", [folder / "rig" / "cam02.txt", folder / "rig" / "cam01.txt"])
+            use_calibration(st, "walk", "session.v1")
+        seen = []
+        win.notify = lambda text, error=False: seen.append((text, error))
+        w.saved_calibration.emit(SavedCalibration("session.v1", "session", 1, folder / "x", ("walk",)))
+        assert seen[0] == (f"Calibration session.v1 saved in {folder / 'x'}; trials using it: walk", False)
+        assert seen[1][1] and seen[1][0].startswith("Warning: trial 'walk' moved from calibration rig to "
+                                                     "session.v1, whose X-ray sources lie")
+        w.close()

@@ -146,7 +146,7 @@ def test_a_calibration_no_trial_uses_says_how_to_use_it(study, capsys):
     assert talus(["study", "use-calibration", str(study), "other"]) == 0
     out = capsys.readouterr()
     assert json.loads(out.out)["trials"] == {"walk": {"before": "rig", "after": "other"}}
-    assert "walk now use other" in out.err
+    assert "walk now uses other" in out.err
     with Study.open(study) as st:
         assert st.trial("walk").calibration == "other"
     assert talus(["study", "use-calibration", str(study), "nope"]) == 1
@@ -350,3 +350,31 @@ def test_the_readme_synopsis_names_every_option_of_the_commands():
         if not text or gone:
             missing[name] = gone or "the command"
     assert not missing, missing
+
+
+def test_moving_a_trial_with_poses_to_a_calibration_in_another_lab_frame_warns(study, capsys):
+    """After 'talus calibrate --lab-frame object --trials all' on the demo, its keyframes (recorded
+    in the generator's lab frame) drew the tibia across the image, and nothing said why."""
+    from core.study import Study
+    from core.study.calibrations import lab_frame_note, source_shift_mm
+
+    with Study.open(study, mode="w") as st:
+        rig = [st.folder / "rig" / "cam01.txt", st.folder / "rig" / "cam02.txt"]
+        st.add_calibration("same", rig)
+        st.add_calibration("swapped", rig[::-1])  # each source elsewhere: as a moved lab frame
+        assert source_shift_mm(st, "rig", "same") == [0.0, 0.0]
+        assert min(source_shift_mm(st, "rig", "swapped")) > 100
+        assert lab_frame_note(st, "walk", "rig", "same") is None
+    assert talus(["study", "use-calibration", str(study), "swapped"]) == 0
+    out = capsys.readouterr()
+    (warning,) = json.loads(out.out)["warnings"]
+    assert warning.startswith("trial 'walk' moved from calibration rig to swapped, whose X-ray sources lie ")
+    assert "4 recorded poses (keyframes among them) are in rig's lab frame" in warning  # frame 0's
+    assert f"talus study use-calibration: WARNING: {warning}" in out.err
+    assert talus(["study", "use-calibration", str(study), "rig"]) == 0  # back: warned again
+    assert "moved from calibration swapped to rig" in capsys.readouterr().err
+    with Study.open(study, mode="w") as st:
+        for bone in st.trial("walk").bones:
+            st.trial("walk").clear_pose(bone, 0)
+    assert talus(["study", "use-calibration", str(study), "swapped"]) == 0  # nothing recorded
+    assert json.loads(capsys.readouterr().out)["warnings"] == []

@@ -3,8 +3,9 @@
 :func:`trial_summary` gathers, from the study alone (nothing of a synthetic generator's truth):
 
 * the **calibration**: the trial's calibration, its saved version's quality (bundle-adjustment
-  reprojection RMS, frames, observations) when :mod:`core.study.calibrations` saved it, and per
-  camera the image size, focal length and source–image distance;
+  reprojection RMS, frames, observations) and its warnings (a lab frame not the static cube's)
+  when :mod:`core.study.calibrations` saved it, and per camera the image size, focal length and
+  source–image distance;
 * the **tracking**: per bone the frames tracked, flagged, keyframes and hand-edited, the median
   score and per-frame confidence σ (mm, °), and the last tracking run's summary (status, time per
   frame) from the study's tracking report;
@@ -49,6 +50,10 @@ def _calibration(study, trial) -> dict:
                 doc = json.loads(cal_file.read_text(encoding="utf-8"))
                 out["quality"] = doc.get("quality")
                 out["created"] = v.get("created")
+                report = study.folder / v["folder"] / "report" / "report.json"
+                if report.is_file():  # e.g. a lab frame not the cube's: every pose is in that frame
+                    saved = json.loads(report.read_text(encoding="utf-8"))
+                    out["warnings"] = list(saved.get("warnings") or [])
     except (OSError, ValueError, KeyError):  # a study without saved versions: the rig is enough
         pass
     cams = []
@@ -156,6 +161,7 @@ def _lines(summary: dict) -> tuple[list[str], list[list[str]], list[str]]:
     for c in cal["cameras"]:
         sid = f", source–image distance {c['sid_mm']:.0f} mm" if c.get("sid_mm") else ""
         cl.append(f"{c['name']}: {c['image_px'][0]}×{c['image_px'][1]} px, focal {c['focal_px']:.1f} px{sid}")
+    cl.extend(f"warning: {w}" for w in cal.get("warnings") or [])
     table = [["bone", "tracked", "flagged", "keyframes", "edited", "median score", "median σ mm",
               "median σ °"]]
     for b in summary["bones"]:

@@ -378,3 +378,27 @@ def test_moving_a_trial_with_poses_to_a_calibration_in_another_lab_frame_warns(s
             st.trial("walk").clear_pose(bone, 0)
     assert talus(["study", "use-calibration", str(study), "swapped"]) == 0  # nothing recorded
     assert json.loads(capsys.readouterr().out)["warnings"] == []
+
+
+def test_the_trial_report_carries_its_calibrations_warnings(study, tmp_path, capsys):
+    """A calibration whose lab frame is the spiral's (not the cube's) warns in talus calibrate and in
+    its saved report; the trial report, made to be shared, said nothing of it."""
+    from core.study import Study
+    from core.study.calibrations import use_calibration
+
+    version = study / "calibrations" / "session" / "v1"
+    (version / "report").mkdir(parents=True)
+    (version / "calibration.json").write_text(json.dumps({"quality": {"method": "bundle adjustment",
+                                                                      "rms_px": 0.05}}))
+    warning = "the lab frame is the spiral33's first labelled frame, not the static cube15's"
+    (version / "report" / "report.json").write_text(json.dumps({"warnings": [warning]}))
+    doc = json.loads((study / "study.json").read_text())
+    doc["settings"]["calibration_files"] = {"session.v1": {"series": "session", "version": 1,
+                                                           "folder": "calibrations/session/v1"}}
+    (study / "study.json").write_text(json.dumps(doc))
+    with Study.open(study, mode="w") as st:
+        st.add_calibration("session.v1", [study / "rig" / "cam01.txt", study / "rig" / "cam02.txt"])
+        use_calibration(st, "walk", "session.v1")
+    assert talus(["report", str(study), "--trial", "walk", "--out", str(tmp_path / "r.html")]) == 0
+    page = (tmp_path / "r.html").read_text(encoding="utf-8")
+    assert "warning: the lab frame is the spiral33&#x27;s first labelled frame" in page

@@ -72,3 +72,24 @@ def test_the_kept_runs_read_back_and_the_near_rule_flags_frame_81():
     after = trajectory_counts([path])["runs"][path]
     assert before["tibia"]["silent"] == [81] and after["tibia"]["silent"] == []
     assert len(after["tibia"]["good_flagged"]) - len(before["tibia"]["good_flagged"]) == 1
+
+
+def test_the_kept_runs_give_the_benchmarks_counts_without_and_with_the_near_rule():
+    """The trajectory check run afresh on the six kept runs (seeds 0-2, joint and sequential) gives
+    the counts tracking_silent_checks_h100.json stores, which the README and flags_post.NEAR quote:
+    frames over 4x left silent 20 -> 17 of 39, good bone-frames flagged 89 -> 100 of 1761."""
+    import json
+    from pathlib import Path
+
+    from core.studies.tracking.silent_checks import trajectory_counts
+
+    bench = Path(__file__).resolve().parents[3] / "resources" / "benchmarks"
+    stored = json.loads((bench / "tracking_silent_checks_h100.json").read_text())["trajectory_check"]
+    kept = str(bench / "tracking_silent_checks_per_frame_h100.json")
+    runs = [f"{kept}#{s}_{m}" for s in range(3) for m in ("joint", "sequential")]
+    for near, total in ((None, (39, 20, 1761, 89)), (0.7, (39, 17, 1761, 100))):
+        got = trajectory_counts(runs, near=near)
+        assert tuple(got["total"][k] for k in ("over", "silent", "good", "good_flagged")) == total
+        assert got["total"] == stored[str(near)]["total"]
+        for r in runs:  # per run and bone, as stored under the dumps' names
+            assert got["runs"][r] == stored[str(near)]["runs"][f"d_{r.rsplit('#', 1)[1]}_newton.npz"]

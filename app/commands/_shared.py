@@ -115,6 +115,12 @@ def study_folder(path: str | os.PathLike, what: str = "STUDY") -> Path:
     return folder
 
 
+def names(text: str | None) -> list[str] | None:
+    """A comma-separated list of names (``--bones talus, calcaneus``, ``--trials``), spaces around
+    each name dropped (' calcaneus' was 'no bone'); None for None."""
+    return None if text is None else [n for n in (t.strip() for t in text.split(",")) if n]
+
+
 def text_bar(done: int, total: int, width: int = 20) -> str:
     """``[####......]``: ``width`` characters, ``#`` in proportion to ``done / total``."""
     k = int(width * done / max(total, 1))

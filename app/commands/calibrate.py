@@ -35,6 +35,7 @@ from ._shared import (
     CancelToken,
     CliError,
     Progress,
+    names,
     print_json,
     sigint_cancels,
     stdout_to_stderr,
@@ -136,7 +137,7 @@ def run(a: argparse.Namespace) -> int:
         raise CliError(f"SESSION: no calibration session folder at {session_dir}")
     folder = study_folder(a.study, "--study")
     model = parse_model(a.model)
-    trials = a.trials if a.trials in ("series", "all", "none") else [t for t in a.trials.split(",") if t]
+    trials = a.trials if a.trials in ("series", "all", "none") else names(a.trials)
     from core.calibration.session import CalibrationCancelled
     from core.study import Study
     from core.study.calibrations import calibrate_study, lab_frame_note

@@ -23,7 +23,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ._shared import EXIT_OK, PROG, print_json, study_folder
+from ._shared import EXIT_OK, PROG, names, print_json, study_folder
 
 __all__ = ["HELP", "configure", "run"]
 
@@ -58,7 +58,7 @@ def run(a: argparse.Namespace) -> int:
     from core.study.exports import default_path
 
     fmt = "tra" if a.fmt == "tra-autoscoper" else a.fmt
-    bones = a.bones.split(",") if a.bones else None
+    bones = names(a.bones) or None
     # the name the window's dialog proposes; 'tra' here is Autoscoper's frame (tra-talus's alias there)
     default = default_path(folder, a.trial, "tra-autoscoper" if fmt == "tra" else fmt)
     out = Path(a.out).expanduser() if a.out else default

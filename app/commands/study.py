@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from ._shared import EXIT_OK, PROG, CliError, print_json, stdout_to_stderr, study_folder
+from ._shared import names as listed
 
 HELP = "repair pose journals, choose trials' calibration"
 
@@ -85,7 +86,7 @@ def run_use_calibration(args: argparse.Namespace) -> int:
     from core.study.calibrations import lab_frame_note, use_calibration
 
     with Study.open(folder, mode="w") as study:
-        names = [t for t in args.trials.split(",") if t] if args.trials else list(study.trials)
+        names = listed(args.trials) if args.trials else list(study.trials)
         unknown = [t for t in names if t not in study.trials]
         if not names:
             raise CliError(f"STUDY: {folder} has no trial to point at a calibration")

@@ -81,6 +81,7 @@ from ._shared import (
     CancelToken,
     CliError,
     Progress,
+    names,
     print_json,
     sigint_cancels,
     stdout_to_stderr,
@@ -496,7 +497,7 @@ def run(a: argparse.Namespace) -> int:
             frames = parse_frames(a.frames, trial.n_frames)
             if a.backward:
                 frames = frames[::-1]
-            bones = a.bones.split(",") if a.bones else None
+            bones = names(a.bones) or None
             bar = _Bar(progress, resumed_frames(trial, bones, frames) if a.resume else frozenset())
             progress.note(f"trial {a.trial}, frames {frames[0]}-{frames[-1]}: loading the bones' CTs, "
                           "then the first frame (it searches wider: the longest)")

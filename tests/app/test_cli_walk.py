@@ -403,3 +403,17 @@ def test_the_trial_report_carries_its_calibrations_warnings(study, tmp_path, cap
     assert talus(["report", str(study), "--trial", "walk", "--out", str(tmp_path / "r.html")]) == 0
     page = (tmp_path / "r.html").read_text(encoding="utf-8")
     assert "warning: the lab frame is the spiral33&#x27;s first labelled frame" in page
+
+
+def test_names_lists_take_spaces_after_the_commas(study, tmp_path, capsys):
+    """--bones 'talus, calcaneus' was refused: "trial 'walk' has no bone ' calcaneus'"."""
+    from app.commands._shared import names
+
+    assert names("talus, calcaneus ,") == ["talus", "calcaneus"] and names(None) is None
+    assert talus(["export", str(study), "--trial", "walk", "--format", "csv-6dof", "--bones",
+                  "talus, calcaneus", "--out", str(tmp_path / "x.csv")]) == 0
+    assert (tmp_path / "x.csv").read_text().splitlines()[0].startswith("frame,talus_tx_mm")
+    capsys.readouterr()
+    assert talus(["track", str(study), "--trial", "walk", "--bones", "talus, calcaneus", "--frames", "1:2",
+                  "--device", "cpu", "--threshold", "99999", "--quiet"]) == EXIT_NOTHING_DONE
+    assert sorted(json.loads(capsys.readouterr().out)["stopped"]) == ["calcaneus", "talus"]

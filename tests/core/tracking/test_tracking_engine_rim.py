@@ -120,3 +120,25 @@ def test_rim_radius():
     assert rim_radius(4.0, 0.0) == 0.0  # no smoothing
     assert rim_radius(4.0, 1.5, scale=2.0) == 0.0  # a pyramid level
     assert rim_radius(4.0, 1.5) == 8.0
+    assert rim_radius(4.0, 1.45) == 8.0 and rim_radius(4.0, 1.51) == 9.0  # whole pixels
+
+
+def test_the_band_is_kept_from_set_up_to_set_up(talus_scene):
+    """Set-ups whose smoothing differs a little (the bone's pixel size from frame to frame) have the
+    same whole-pixel band: the engine's RimCache serves it without building the field again."""
+    from core.tracking.likelihood_rim import rim_cache
+
+    sc = talus_scene
+    flu, pose, roi = _field(sc, 2)
+    frame = prepare_frame(flu)
+    term = MetricTerm("gc", 1.0, {"fluoro_sigma_mm": 1.5, "drr_sigma_mm": 1.5, RIM_OPTION: 4.0})
+    gn = _engine(sc, frame, pose, roi, term, px_mm=1.5)
+    cache = rim_cache(gn)
+    built = cache.built
+    first = gn._fmask.numpy().copy()
+    for k, px_mm in enumerate((1.52, 1.55)):  # σ 0.99, 0.97 px: radius 6 as for 1 px
+        moved = pose.copy()
+        moved[1, 3] += 1e-3 * (k + 1)
+        gn.set_frame(frame, base_pose=moved, center=sc["model"].centroid, roi=roi, px_mm=px_mm)
+        np.testing.assert_array_equal(gn._fmask.numpy(), first)
+    assert cache.built == built and cache.hits >= 2

@@ -87,10 +87,11 @@ def joint_margin(bound: dict | None) -> dict | None:
 
 
 def _sigma_array(per_frame_sigma) -> np.ndarray:
-    """``(n, 6)`` σ of the stored ``per_frame_sigma`` (a frame's list of six, or None), ``inf``
-    where a frame or an axis has none (:func:`~core.studies.tracking.hard_trial_stats.coverage`'s
-    convention)."""
-    return np.array([[np.inf] * 6 if q is None else [np.inf if v is None or v < 0 else v for v in q]
+    """``(n, 6)`` σ of the stored ``per_frame_sigma`` (a frame's list of six, or None): NaN where a
+    frame has none (no confidence computed: left out of the coverage), ``inf`` where an axis has
+    none (unbounded on that axis: covered there, as
+    :func:`~core.studies.tracking.hard_trial_stats.coverage` takes it)."""
+    return np.array([[np.nan] * 6 if q is None else [np.inf if v is None or v < 0 else v for v in q]
                      for q in per_frame_sigma], dtype=float).reshape(-1, 6)
 
 
@@ -99,13 +100,18 @@ def sigma_coverage(t: dict) -> dict | None:
     (``per_frame_error``, ``per_frame_sigma``): the harder trial's measures
     (:func:`core.studies.tracking.hard_trial_stats.coverage`: per axis, the translation and the
     rotation axes each, with what a correct σ gives, 95.4 %; all six of a frame; χ² with a diagonal
-    covariance; ``z_rms``); None where the bone has no frames or no σ."""
+    covariance; ``z_rms``) over the frames that have a σ, ``frames_without_sigma`` counting the
+    others (a frame without one is not counted within 2σ, as the coverage would count it within an
+    infinite σ: a run without confidence would meet the goal); None where the bone has no frames
+    or no frame has a σ."""
     from core.studies.tracking.hard_trial_stats import coverage
 
     E, S = t.get("per_frame_error"), t.get("per_frame_sigma")
-    if not E or S is None or len(S) != len(E):
+    if not E or S is None or len(S) != len(E) or all(q is None for q in S):
         return None
-    return coverage(np.asarray(E, dtype=float).reshape(-1, 6), _sigma_array(S))
+    sig = _sigma_array(S)
+    cov = coverage(np.asarray(E, dtype=float).reshape(-1, 6), sig)
+    return {**cov, "frames_without_sigma": int(np.isnan(sig).all(axis=1).sum())}
 
 
 def goals(per_bone: dict) -> dict:

@@ -306,15 +306,39 @@ def test_frames_are_paired_by_their_number_and_without_a_bound_the_rms_decide():
 def test_sigma_coverage_is_checked_per_axis_on_the_stored_frames():
     E = _errors(200, seed=3, scale=(0.03, 0.2))
     sig = [[0.03] * 3 + [0.05] * 3 for _ in E]  # right for translation, 4× too small for rotation
-    sig[0] = None  # a frame without σ: infinite, as the harder trial counts it
+    sig[0] = None  # a frame without σ (no confidence computed): left out of the coverage, counted
     t = {**_bone(0.05, 0.3), **_run(E, sigma=sig)["tracking"]["talus"]}
     g = goals({"talus": t})["talus"]
     tr, rot = g["within_2_sigma_translation"], g["within_2_sigma_rotation"]
     assert 0.9 < tr[0] < 1.0 and tr[1] and rot[0] < 0.6 and not rot[1]
     cov = g["sigma_coverage"]
     assert cov["per_axis"]["expected"] == pytest.approx(0.9545) and cov["frames_without_sigma"] == 1
+    assert cov["n_frames"] == len(E) - 1 and cov["per_axis"]["translation"]["n"] == 3 * (len(E) - 1)
     assert cov["z_rms"]["tx"] == pytest.approx(1.0, abs=0.15) and cov["z_rms"]["rx"] > 3
     assert "within_2_sigma" not in g
+
+
+def test_frames_without_sigma_do_not_count_as_covered():
+    """A run without confidence (every frame's σ None, e.g. tracked with confidence off) has no
+    coverage to check: the goal is not met (it was 100 % met, each frame counted within an infinite
+    σ). Frames without σ among others are left out, not counted inside: errors 3 σ off in the frames
+    that have one are not covered whatever the frames without."""
+    E = _errors(50, seed=4)
+    none = {**_bone(0.05, 0.3, inside=None), **_run(E, sigma=[None] * len(E))["tracking"]["talus"]}
+    g = goals({"talus": none})["talus"]
+    assert g["within_2_sigma"] == [None, False] and "within_2_sigma_translation" not in g
+    sig = [None] * 40 + [[0.01] * 3 + [0.0666] * 3] * 10  # 10 frames with σ, their errors ~3 σ
+    part = {**_bone(0.05, 0.3), **_run(E, sigma=sig)["tracking"]["talus"]}
+    g = goals({"talus": part})["talus"]
+    assert g["sigma_coverage"]["frames_without_sigma"] == 40 and g["sigma_coverage"]["n_frames"] == 10
+    assert g["within_2_sigma_translation"][0] < 0.9 and not g["within_2_sigma_translation"][1]
+    assert g["within_2_sigma_rotation"][0] < 0.9 and not g["within_2_sigma_rotation"][1]
+    # an axis without σ (None) is unbounded on that axis: covered there, the frame kept
+    one_axis = [[None] + [0.03] * 2 + [0.2] * 3 for _ in E]
+    t = {**_bone(0.05, 0.3), **_run(E, sigma=one_axis)["tracking"]["talus"]}
+    cov = goals({"talus": t})["talus"]["sigma_coverage"]
+    assert cov["n_frames"] == len(E) and cov["frames_without_sigma"] == 0
+    assert cov["per_axis"]["axes"]["tx"] == 1.0
 
 
 def _drift(seed):

@@ -26,6 +26,7 @@ __all__ = ["Controller"]
 
 class Controller(QtCore.QObject):
     overlays_updated = QtCore.Signal(bool)  # preview?
+    frame_failed = QtCore.Signal(str)  # a view's frame could not be read: the reason
 
     def __init__(self, model: ViewerModel, panes: list[FluoroPane], pool: WorkerPool, *,
                  device: str | None = None, idle_ms: int = 200,
@@ -60,8 +61,16 @@ class Controller(QtCore.QObject):
 
     # ------------------------------------------------------------------ frames
     def show_frame(self, *, keep_view: bool = True) -> None:
+        """Show the current frame in each pane; a frame whose file cannot be read leaves its pane
+        saying so, and :attr:`frame_failed` tells the reason (a damaged TIFF raised out of the
+        frame signal, and the pane kept the previous frame as if it were this one)."""
         for view, pane in enumerate(self.panes):
-            img = self.model.frame_image(view)
+            try:
+                img = self.model.frame_image(view)
+            except (OSError, ValueError) as exc:
+                pane.show_unreadable(f"frame {self.model.current_frame} cannot be read")
+                self.frame_failed.emit(f"frame {self.model.current_frame}, view {view + 1}: {exc}")
+                continue
             if img is not None:
                 pane.set_image(img, keep_view=keep_view)
 

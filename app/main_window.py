@@ -234,6 +234,7 @@ class MainWindow(QtWidgets.QMainWindow):
             self._central_layout.addWidget(self.timeline)
             self.controller = Controller(model, self.panes, self.pool, device=self.device,
                                          parent=self)
+            self.controller.frame_failed.connect(lambda text: self.notify(text, error=True))
             self.layers.mode_changed.connect(self.controller.set_mode)
             self.layers.markers_changed.connect(self.controller.set_markers)
             self.layers.cameras_changed.connect(self.scene.set_cameras_visible)

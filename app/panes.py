@@ -343,6 +343,12 @@ class FluoroPane(QtWidgets.QWidget):
         self._note.setPos(20, 20)
         self.view.fit()
 
+    def show_unreadable(self, text: str) -> None:
+        """The placeholder with ``text`` (a frame whose file cannot be read), not the last frame."""
+        self.clear()
+        self._note.setText(text)
+        self._note.setScale(2.0)
+
     # -- overlays
     def set_overlay(self, key, rgba: np.ndarray, roi: tuple[int, int, int, int],
                     scale: float) -> None:

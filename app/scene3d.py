@@ -207,7 +207,10 @@ class ScenePane(QtWidgets.QWidget):
         import pyvista as pv
 
         for k, actor in self._textures.items():
-            img = self.model.frame_image(k)
+            try:
+                img = self.model.frame_image(k)
+            except (OSError, ValueError):  # an unreadable frame: the panes say so
+                continue
             if img is None:
                 continue
             img = np.asarray(img, np.float32)

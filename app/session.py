@@ -188,11 +188,14 @@ def open_study(folder: str | Path, *, trial: str | None = None,
                 st.lock_journal(name, bone)
         rig = tr.rig()
 
-        @lru_cache(maxsize=32)
-        def frames(t: int):
-            return tr.frames(t)
+        @lru_cache(maxsize=64)
+        def frame(view: int, t: int):
+            """One view's image of trial frame ``t``: a damaged file in one view leaves the other's
+            readable (read in pairs, one bad TIFF failed both panes)."""
+            seq = tr.sequences()
+            return seq.views[view][seq.view_frames(t)[view]]
 
-        model = ViewerModel(rig, tr.n_frames, frame_source=lambda view, t: frames(t)[view])
+        model = ViewerModel(rig, tr.n_frames, frame_source=frame)
         for bone in tr.bones:
             poses, recorded = _fill(tr.poses(bone))
             i = model.add_bone(bone, st.bone_volume(bone), poses)

@@ -134,3 +134,25 @@ def test_a_calibration_saved_in_another_lab_frame_warns_in_the_window(qtbot, dem
         assert seen[1][1] and seen[1][0].startswith("Warning: trial 'walk' moved from calibration rig to "
                                                      "session.v1, whose X-ray sources lie")
         w.close()
+
+
+def test_a_frame_that_cannot_be_read_is_said_in_its_pane_and_the_messages(qtbot, demo_study, tmp_path):
+    """Stepping onto a damaged TIFF raised out of the frame signal (a traceback on stderr) and the
+    pane went on showing the previous frame as if it were this one."""
+    folder = copy_study(demo_study, tmp_path)
+    (folder / "frames" / "cam01" / "frame_0001.tif").write_bytes(b"garbage")
+    with main_window(qtbot, scene=True) as win:
+        with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
+            win.open_demo_study(folder)
+        seen = []
+        win.notify = lambda text, error=False: seen.append((text, error))
+        step = {a.text(): a for m in win.menuBar().actions() if m.menu() for a in m.menu().actions()}
+        step["Next frame"].trigger()  # View → Next frame
+        assert win.model.current_frame == 1
+        left, right = win.panes
+        assert left.image is None and left._note.text() == "frame 1 cannot be read"
+        assert right.image is not None  # the other view's frame 1
+        (text, error), = seen
+        assert error and text.startswith("frame 1, view 1: ") and "frame_0001.tif" in text
+        step["Previous frame"].trigger()
+        assert left.image is not None and left._note.text() == ""

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from ._shared import EXIT_OK, PROG, names, print_json, study_folder
 
-__all__ = ["HELP", "configure", "run"]
+__all__ = ["HELP", "configure", "posed_frames", "run"]
 
 HELP = "write a trial's poses for other tools (.tra, C3D, .mot...)"
 TRIAL_FORMATS = ("tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs")  # export_trial's names
@@ -78,6 +78,19 @@ def run(a: argparse.Namespace) -> int:
         else:
             paths = export_trial(study, a.trial, fmt, out, bones=bones, rate=a.rate, frame=a.frame,
                                  camera=a.camera)
-    print(f"{PROG} export: wrote {len(paths)} file(s)", file=sys.stderr)
-    print_json({"format": a.fmt, "files": [str(p) for p in paths]})
+        posed, n = posed_frames(study.trial(a.trial), bones)
+    counts = ", ".join(f"{b} {k}" for b, k in posed.items())
+    print(f"{PROG} export: wrote {len(paths)} file(s); frames with a pose, of {n}: {counts}", file=sys.stderr)
+    if not any(posed.values()):
+        print(f"{PROG} export: WARNING: no bone has a pose in trial {a.trial!r}: the file holds no numbers "
+              "(NaN / empty); track the trial or set keyframes first", file=sys.stderr)
+    print_json({"format": a.fmt, "files": [str(p) for p in paths], "frames": n, "frames_with_pose": posed})
     return EXIT_OK
+
+
+def posed_frames(trial, bones=None) -> tuple[dict[str, int], int]:
+    """``({bone: frames with a pose}, frames)`` of what an export of ``trial`` holds (NaN elsewhere)."""
+    import numpy as np
+
+    n = trial.n_frames
+    return {b: int(np.isfinite(trial.poses(b)).all(axis=(1, 2)).sum()) for b in (bones or trial.bones)}, n

@@ -417,3 +417,23 @@ def test_names_lists_take_spaces_after_the_commas(study, tmp_path, capsys):
     assert talus(["track", str(study), "--trial", "walk", "--bones", "talus, calcaneus", "--frames", "1:2",
                   "--device", "cpu", "--threshold", "99999", "--quiet"]) == EXIT_NOTHING_DONE
     assert sorted(json.loads(capsys.readouterr().out)["stopped"]) == ["calcaneus", "talus"]
+
+
+def test_export_says_how_many_frames_have_a_pose_and_warns_when_none(study, tmp_path, capsys):
+    """An export of a trial without poses wrote a file of NaN and said 'wrote 1 file(s)'."""
+    from core.study import Study
+
+    assert talus(["export", str(study), "--trial", "walk", "--format", "csv-6dof"]) == 0
+    out = capsys.readouterr()
+    doc = json.loads(out.out)
+    assert doc["frames"] == 2 and doc["frames_with_pose"] == {"tibia": 1, "talus": 1, "calcaneus": 1,
+                                                              "metatarsal2": 1}
+    assert "frames with a pose, of 2: tibia 1, talus 1, calcaneus 1, metatarsal2 1" in out.err
+    assert "WARNING" not in out.err
+    with Study.open(study, mode="w") as st:
+        for bone in st.trial("walk").bones:
+            st.trial("walk").clear_pose(bone, 0)
+    assert talus(["export", str(study), "--trial", "walk", "--format", "csv-6dof", "--bones", "talus"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["frames_with_pose"] == {"talus": 0}
+    assert "WARNING: no bone has a pose in trial 'walk'" in out.err

@@ -79,7 +79,7 @@ def _flatfield(rd: _Reader, cam: str, groups, kv, progress) -> tuple[Flatfield, 
     pick = groups[0] if kv is None else min(groups, key=lambda g: abs((g[0] or 0) - kv))
     refs = rd.refs(cam, pick[1])
     flats = [rd.read(cam, r, k, "flatfield") for k, r in enumerate(refs)]
-    progress("flatfield", 1, 1)
+    progress(f"flatfield {cam}", 1, 1)
     ff = build_flatfield(np.stack(flats), dark=dark, method="max", kernel_size=15, kv=pick[0])
     bad = ff.n_invalid / ff.gain.size
     if bad > 0.5:

@@ -121,6 +121,34 @@ def names(text: str | None) -> list[str] | None:
     return None if text is None else [n for n in (t.strip() for t in text.split(",")) if n]
 
 
+def warp_device(device: str | None, option: str = "--device") -> str | None:
+    """``device`` checked before any work: None (the default device), ``cpu``, or ``cuda`` /
+    ``cuda:N`` when Warp finds that GPU; else a :class:`CliError` naming ``option`` and what this
+    machine has. ('--device cuda' without a GPU was 'RuntimeError: "cuda" device requested but
+    CUDA is not supported ...' with a hint to report a bug; '--device gpu' was 'Invalid device
+    identifier: gpu'.)"""
+    if device is None or device == "cpu":
+        return device
+    head, _, index = device.partition(":")
+    if head != "cuda" or (index and not index.isdigit()):
+        raise CliError(f"{option}: expected cpu, cuda or cuda:N (a GPU's number), got {device!r}")
+    try:
+        import warp as wp
+
+        with stdout_to_stderr():
+            wp.config.quiet = True
+            wp.init()
+            count = int(wp.get_cuda_device_count())
+    except Exception as exc:  # Warp cannot start: the command would fail the same way
+        raise CliError(f"{option} {device}: Warp could not start ({exc})") from None
+    if count == 0:
+        raise CliError(f"{option} {device}: no CUDA GPU found on this machine (or its driver is "
+                       "missing); use --device cpu, or leave --device out")
+    if index and int(index) >= count:
+        raise CliError(f"{option} {device}: this machine has {count} CUDA GPU(s), cuda:0 to cuda:{count - 1}")
+    return device
+
+
 def text_bar(done: int, total: int, width: int = 20) -> str:
     """``[####......]``: ``width`` characters, ``#`` in proportion to ``done / total``."""
     k = int(width * done / max(total, 1))

@@ -12,7 +12,7 @@ import inspect
 import sys
 from pathlib import Path
 
-from ._shared import EXIT_OK, PROG, load, print_json, stdout_to_stderr
+from ._shared import EXIT_OK, PROG, load, print_json, stdout_to_stderr, warp_device
 from .types import int_at_least
 
 HELP = "benchmarks that print JSON (machine, sizes, times)"
@@ -72,7 +72,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _devices(choice: str) -> list[str]:
     if choice != "all":
-        return [choice]
+        return [warp_device(choice)]
     devices = ["cpu"]
     try:
         import warp as wp
@@ -99,6 +99,7 @@ def run_drr(args: argparse.Namespace) -> int:
 
 def run_interaction(args: argparse.Namespace) -> int:
     run = load(BENCHMARKS["interaction"], needed_for="'talus bench interaction'")
+    warp_device(args.device)
     with stdout_to_stderr():
         result = run(pixels=args.pixels, device=args.device)
     print_json(result, Path(args.out) if args.out else None)

@@ -18,6 +18,7 @@ from ._shared import (
     print_json,
     sigint_cancels,
     stdout_to_stderr,
+    warp_device,
 )
 from .types import int_at_least
 
@@ -51,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out).expanduser()
     cached = None if args.regenerate else _cached_demo(out, args)
+    if cached is None:
+        warp_device(args.device)
     if cached is not None:
         print(f"{PROG} demo: using the demo study already in {out} (--regenerate to rebuild)",
               file=sys.stderr)

@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from ._shared import EXIT_OK, PROG, CliError, load, print_json, write_atomically
+from ._shared import EXIT_OK, PROG, CliError, load, print_json, warp_device, write_atomically
 
 HELP = "previews of real sample data"
 
@@ -45,6 +45,7 @@ def run_wrist(args: argparse.Namespace) -> int:
         raise CliError(
             f"--data: expected the autoscoper_wrist sample folder, '{data}' is not a directory"
         )
+    warp_device(args.device)
     load_sample = load("core.samples:load_wrist_sample", needed_for="'talus sample wrist'")
     preview = load("core.samples:wrist_preview", needed_for="'talus sample wrist'")
     sample = load_sample(data)

@@ -87,6 +87,7 @@ from ._shared import (
     stdout_to_stderr,
     study_folder,
     text_bar,
+    warp_device,
 )
 
 __all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "SEARCHES", "STAGE_MOVES", "SUBTRACTS",
@@ -477,6 +478,7 @@ def run(a: argparse.Namespace) -> int:
     from core.study import Study
     from core.tracking.from_study import FinalStageError, track_study
 
+    warp_device(a.device)
     checks = check_choices_of_args(a)
     try:
         opts = options_from_choices(search=a.search, scale=a.scale, mode=a.mode, guess=a.guess,

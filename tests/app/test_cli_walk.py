@@ -437,3 +437,26 @@ def test_export_says_how_many_frames_have_a_pose_and_warns_when_none(study, tmp_
     out = capsys.readouterr()
     assert json.loads(out.out)["frames_with_pose"] == {"talus": 0}
     assert "WARNING: no bone has a pose in trial 'walk'" in out.err
+
+
+@pytest.mark.parametrize("gpus, argv, expect", [
+    (0, ["track", "{s}", "--trial", "walk", "--device", "cuda"],
+     "--device cuda: no CUDA GPU found on this machine"),
+    (1, ["track", "{s}", "--trial", "walk", "--device", "cuda:3"],
+     "--device cuda:3: this machine has 1 CUDA GPU(s), cuda:0 to cuda:0"),
+    (0, ["track", "{s}", "--trial", "walk", "--device", "gpu"], "--device: expected cpu, cuda or cuda:N"),
+    (0, ["demo", "--out", "{t}", "--device", "cuda", "--no-gui"], "--device cuda: no CUDA GPU found"),
+    (0, ["bench", "drr", "--quick", "--device", "cuda"], "--device cuda: no CUDA GPU found"),
+])
+def test_a_device_this_machine_lacks_is_named_before_any_work(study, tmp_path, capsys, monkeypatch, gpus,
+                                                             argv, expect):
+    """'--device cuda' without a GPU was 'RuntimeError: "cuda" device requested but CUDA is not
+    supported by the hardware or driver (run talus --debug ... for the traceback)', as for a bug."""
+    import warp as wp
+
+    monkeypatch.setattr(wp, "init", lambda: None)
+    monkeypatch.setattr(wp, "get_cuda_device_count", lambda: gpus)
+    assert talus([a.format(s=study, t=tmp_path / "demo") for a in argv]) == 1
+    err = capsys.readouterr().err
+    assert expect in err and "Traceback" not in err and "--debug" not in err
+    assert not (tmp_path / "demo").exists()

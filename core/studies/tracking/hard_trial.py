@@ -49,7 +49,10 @@ contact constraint, ``joint+contact``). Per bone and mode:
   95.4 %), all six of a frame (75.6 % for independent axes), χ²(6) (``d² = Σ (e_k / σ_k)²``, or
   ``eᵀ Σ⁻¹ e`` with a reported covariance, at the 95.4 % quantile :data:`CHI2_6_2SIGMA` and at
   90 %), and ``z_rms`` (the RMS of ``e_k / σ_k``: 1 for a correct σ); ``within_2_sigma`` (all
-  six), ``per_axis_within_2_sigma`` and ``within_2_sigma_chi2`` as before;
+  six), ``per_axis_within_2_sigma`` and ``within_2_sigma_chi2`` as before — all over the frames
+  that have a σ: a frame without one (confidence off) is left out and counted apart
+  (``frames_without_sigma``, :func:`~core.studies.tracking.hard_trial_stats.has_sigma`), not
+  counted within an infinite σ;
 * ``error_structure`` (:func:`error_structure`) — bias or spread: per axis the mean error, its
   standard deviation and the bias's share of the mean square, and the over-4×-bound frames'
   errors with and without the bone's mean;
@@ -144,6 +147,7 @@ from core.studies.tracking.hard_trial_stats import (
     coverage,
     error_structure,
     goals,
+    has_sigma,
     merge_runs,
     paired_comparison,
 )
@@ -322,7 +326,8 @@ def evaluate(hr: HardRun, res, bounds: dict, contacts=None) -> dict:
             P[f] = fr.pose
             E.append(pose_errors(fr.pose, hr.truth(f)[b], m.centroid))
             s = fr.confidence["sigma"] if fr.confidence else None
-            sig.append(np.array([np.inf if v is None else v for v in s]) if s else np.full(6, np.inf))
+            # no σ (confidence off): NaN, left out of the coverage (hard_trial_stats.has_sigma)
+            sig.append(np.array([np.inf if v is None else v for v in s]) if s else np.full(6, np.nan))
             c = (fr.confidence or {}).get("covariance")
             cov.append(np.asarray(c, dtype=float) if c is not None else None)
             flags.append(bool(fr.flags))
@@ -335,6 +340,7 @@ def evaluate(hr: HardRun, res, bounds: dict, contacts=None) -> dict:
         over = np.where(ok & (np.nanmax(ratios, axis=1) > 4))[0]
         inside = np.all(np.abs(E) <= 2 * sig, axis=1)
         chi2 = np.sum((E / sig) ** 2, axis=1)
+        ok_s = ok & has_sigma(sig)  # the σ measures: over the frames that have one
         bt, br = float(np.sqrt(np.nanmean(bd[:, 0] ** 2))), float(np.sqrt(np.nanmean(bd[:, 1] ** 2)))
         rt, rr = float(np.sqrt(np.nanmean(et ** 2))), float(np.sqrt(np.nanmean(er ** 2)))
         per[n] = {
@@ -344,11 +350,11 @@ def evaluate(hr: HardRun, res, bounds: dict, contacts=None) -> dict:
                            "deg": np.nanmean(E[:, 3:], 0).round(4).tolist()},
             "bound_rms_mm": bt, "bound_rms_deg": br,
             "rms_over_bound": {"mm": rt / bt, "deg": rr / br},
-            "within_2_sigma": float(np.mean(inside[ok])),
-            "per_axis_within_2_sigma": float(np.mean(np.abs(E[ok]) <= 2 * sig[ok])),
-            "within_2_sigma_chi2": float(np.mean(chi2[ok] <= CHI2_6_2SIGMA)),
-            "median_sigma": {"mm": float(np.median(np.linalg.norm(sig[ok, :3], axis=1))),
-                             "deg": float(np.median(np.linalg.norm(sig[ok, 3:], axis=1)))},
+            "within_2_sigma": float(np.mean(inside[ok_s])),
+            "per_axis_within_2_sigma": float(np.mean(np.abs(E[ok_s]) <= 2 * sig[ok_s])),
+            "within_2_sigma_chi2": float(np.mean(chi2[ok_s] <= CHI2_6_2SIGMA)),
+            "median_sigma": {"mm": float(np.median(np.linalg.norm(sig[ok_s, :3], axis=1))),
+                             "deg": float(np.median(np.linalg.norm(sig[ok_s, 3:], axis=1)))},
             "coverage": coverage(E, sig, cov),
             "error_structure": error_structure(E, sig, over),
             "over_4x_bound": over.tolist(),

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["AXES", "CHI2_6_2SIGMA", "CHI2_6_90", "COVERAGE_CHECKED_ON", "GOALS", "JOINT_MARGIN", "TWO_SIGMA",
-           "coverage", "error_structure", "goals", "merge_runs", "paired_comparison"]
+           "coverage", "error_structure", "goals", "has_sigma", "merge_runs", "paired_comparison"]
 
 #: the 95.45 % quantile of χ² with 6 degrees of freedom: what "within 2σ" is for six errors
 #: together (``within_2_sigma_chi2``: Σ (e_k / σ_k)² below it). With a calibrated σ, 95.45 % of
@@ -43,11 +43,23 @@ def _wilson(k: float, n: int, z: float = 1.959964) -> list:
     return [round(float(c - h), 4), round(float(c + h), 4)]
 
 
+def has_sigma(sig) -> np.ndarray:
+    """Per frame of ``sig`` (frames × 6), whether it has a σ: a finite σ on at least one axis. A
+    frame without one (every axis NaN or ``inf``: no confidence computed) is left out of the
+    coverage and counted apart (``frames_without_sigma``), not counted within an infinite σ, which
+    would let a run without confidence meet the goal (as
+    :func:`core.studies.tracking.acceptance_goals.sigma_coverage` does); an axis without σ (``inf``)
+    beside others that have one stays unbounded: covered on that axis."""
+    return np.any(np.isfinite(np.asarray(sig, dtype=float)), axis=1)
+
+
 def coverage(E, sig, cov=None) -> dict:
     """How well the confidence covers the errors ``E`` (frames × 6: mm, degrees) — σ ``sig``
-    (frames × 6; ``inf`` where a frame has none) and, where every frame has one, its 6 × 6
-    covariance ``cov`` (a sequence with None where a frame has none) — each measure with what a
-    correct σ gives (``expected``, errors normal with that σ):
+    (frames × 6; NaN or ``inf`` on every axis where a frame has none, ``inf`` on an axis without
+    one) and, where every frame has one, its 6 × 6 covariance ``cov`` (a sequence with None where a
+    frame has none) — each measure with what a correct σ gives (``expected``, errors normal with
+    that σ), over the frames with an error and a σ (:func:`has_sigma`; ``frames_without_sigma``
+    counts the frames with an error and none):
 
     * ``per_axis`` — of the single errors, ``|e_k| <= 2 σ_k``: all, the translation axes, the
       rotation axes and each axis; expected :data:`TWO_SIGMA` (95.4 %) for every one of them
@@ -68,7 +80,8 @@ def coverage(E, sig, cov=None) -> dict:
     (:data:`COVERAGE_CHECKED_ON`): the translation axes' and the rotation axes' per-axis
     fractions both at least 90 %."""
     E, sig = np.asarray(E, dtype=float), np.asarray(sig, dtype=float)
-    ok = np.all(np.isfinite(E), axis=1) & ~np.any(np.isnan(sig), axis=1)
+    err, has = np.all(np.isfinite(E), axis=1), has_sigma(sig)
+    ok = err & has & ~np.any(np.isnan(sig), axis=1)
     E, sig = E[ok], sig[ok]
     n = int(ok.sum())
     inside = np.abs(E) <= 2 * sig
@@ -90,7 +103,7 @@ def coverage(E, sig, cov=None) -> dict:
           "axes": {a: round(float(np.mean(inside[:, k])), 4) if n else float("nan")
                    for k, a in enumerate(AXES)},
           "expected": round(TWO_SIGMA, 4)}
-    cover = {"n_frames": n, "frames_without_sigma": int(np.sum(np.all(np.isinf(sig), axis=1))),
+    cover = {"n_frames": n, "frames_without_sigma": int(np.sum(err & ~has)),
              "per_axis": pa,
              "all_six": {**frac(np.all(inside, axis=1)), "expected_independent": round(TWO_SIGMA ** 6, 4),
                          "expected_fully_correlated": round(TWO_SIGMA, 4)},
@@ -254,11 +267,12 @@ def merge_runs(results) -> dict:
             parts = [r["runs"][label]["bones"][n] for r in results]
             E = np.concatenate([np.asarray(p["per_frame_error"], dtype=float) for p in parts])
             S = np.concatenate([np.asarray(p["per_frame_sigma"], dtype=float) for p in parts])
-            S = np.where(S < 0, np.inf, S)  # evaluate() writes a missing σ as -1
+            S = np.where(S < 0, np.inf, S)  # evaluate() writes a missing σ as -1 (a frame's: all six)
             B = np.concatenate([np.asarray(p["per_frame_bound"], dtype=float) for p in parts])
             et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
             ok = np.isfinite(et)
             over = np.where(ok & (np.nanmax(np.column_stack([et / B[:, 0], er / B[:, 1]]), axis=1) > 4))[0]
+            ok &= has_sigma(S)  # the σ measures: over the frames that have one (coverage's)
             off, silent = 0, []
             for p in parts:
                 silent += [off + f for f in p["silent_failures"]]

@@ -23,11 +23,42 @@ def test_coverage_of_a_correct_sigma_matches_its_expected_values():
     assert all(v == pytest.approx(1.0, abs=0.03) for v in c["z_rms"].values())
     assert c["mean_d2"] == pytest.approx(6.0, abs=0.1)
     assert c["checked_on"] == "per_axis" and c["met"]
-    # σ half the true spread: the check fails; a missing σ (inf) counts as covering
+    # σ half the true spread: the check fails; a frame without σ (inf or NaN on every axis) is left
+    # out and counted apart
     assert not ht.coverage(E, sig / 2)["met"]
     sig2 = sig.copy()
     sig2[0] = np.inf
-    assert ht.coverage(E, sig2)["frames_without_sigma"] == 1
+    sig2[1] = np.nan
+    c2 = ht.coverage(E, sig2)
+    assert c2["frames_without_sigma"] == 2 and c2["n_frames"] == len(E) - 2
+
+
+def test_frames_without_sigma_are_left_out_not_covered():
+    """As acceptance_goals.sigma_coverage: a run without confidence has no coverage (it met the goal
+    at 100 %, every frame within an infinite σ); frames without σ among others are left out, counted
+    as frames_without_sigma, in coverage and in merge_runs' per-axis fractions; an axis without σ
+    beside others stays covered."""
+    g = np.random.default_rng(6)
+    sig = np.tile([0.01] * 3 + [0.05] * 3, (50, 1))
+    E = 3 * g.choice([-1, 1], size=sig.shape) * sig  # every error 3 σ off
+    none = np.full_like(sig, np.inf)
+    c = ht.coverage(E, none)
+    assert c["n_frames"] == 0 and c["frames_without_sigma"] == 50 and not c["met"]
+    part = sig.copy()
+    part[:40] = np.inf  # 40 frames without σ: they lifted the coverage to 80 %
+    c = ht.coverage(E, part)
+    assert c["frames_without_sigma"] == 40 and c["n_frames"] == 10
+    assert c["per_axis"]["translation"]["observed"] == 0 and not c["met"]
+    axis = sig * 0.1 + np.abs(E)  # covered everywhere ...
+    axis[:, 0] = np.inf  # ... and tx unbounded: the frames are kept, covered on tx
+    c = ht.coverage(E, axis)
+    assert c["n_frames"] == 50 and c["frames_without_sigma"] == 0 and c["per_axis"]["axes"]["tx"] == 1.0
+    stored = np.where(np.isfinite(part), part, -1)  # as hard_trial.evaluate stores them
+    run = {**_run(E, stored), "per_frame_bound": np.tile([0.01, 0.05], (50, 1)).tolist()}
+    merged = ht.merge_runs([{"config": {"seed": 0}, "runs": {"x": {"bones": {"talus": run}}}}])
+    m = merged["x"]["bones"]["talus"]
+    assert m["coverage"]["frames_without_sigma"] == 40 and m["coverage"]["n_frames"] == 10
+    assert m["per_axis_within_2_sigma"] == 0 and m["within_2_sigma"] == 0
 
 
 def test_correlated_errors_need_the_covariance_for_the_chi2_measure():

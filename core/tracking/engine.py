@@ -39,6 +39,15 @@ scores are unchanged; the same values as :func:`core.similarity.gradient_correla
 ``noise_energy`` and the host cost's (:func:`core.tracking.cost.noise_maps`). Pyramid levels are
 left as they are.
 
+Band at the round field's rim (the term's ``rim_sigmas``, :data:`core.tracking.cost.RIM_OPTION`, off
+by default): at full resolution, once the regions are prepared, the usable pixels within
+``⌈rim_sigmas · σ + 2⌉`` px of a black pixel (σ the fluoroscope's smoothing in pixels) are taken out
+of Ω (:func:`~core.tracking.engine_frames.apply_rim_band`: the band of
+:func:`core.tracking.likelihood_rim.rim_keep`, kept between frames in the engine's
+:class:`~core.tracking.likelihood_rim.RimCache`), so that the black field's line integral, which the
+smoothing and the gradient spread past the mask's erosion, is not correlated with the DRR; a region
+no black pixel comes near is left as it is, to the bit (:mod:`core.studies.tracking.tibia_cost`).
+
 Search (:func:`gauss_newton_search`)
 ------------------------------------
 Levenberg–Marquardt: the step ``d = -(H + λ diag H)⁻¹ g`` (clipped to a trust box and the

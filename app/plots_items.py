@@ -105,6 +105,8 @@ class _Live(QtWidgets.QGraphicsItem):
                 for s, e in _finite_runs(np.isfinite(y)):
                     if e - s > 1:
                         painter.drawPolyline(pg.functions.arrayToQPolygonF(x[s:e], y[s:e]))
+                    else:  # a lone value (a keyframe between untracked frames): a dash across its frame
+                        painter.drawLine(QtCore.QPointF(x[s] - 0.3, y[s]), QtCore.QPointF(x[s] + 0.3, y[s]))
 
 
 class _FrameAxis(pg.AxisItem):

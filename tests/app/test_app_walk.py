@@ -156,3 +156,32 @@ def test_a_frame_that_cannot_be_read_is_said_in_its_pane_and_the_messages(qtbot,
         assert error and text.startswith("frame 1, view 1: ") and "frame_0001.tif" in text
         step["Previous frame"].trigger()
         assert left.image is not None and left._note.text() == ""
+
+
+def test_a_lone_pose_is_drawn_in_the_pose_plot(qtbot, demo_study, tmp_path):
+    """The demo's bones have one pose (the frame-0 keyframe) and the Pose plot of each was empty:
+    a curve was drawn only between two consecutive frames with values. (The series are relative to
+    the bone's first pose: zero there.)"""
+    import numpy as np
+    from PySide6 import QtCore
+
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot, size=(1400, 900)) as win:
+        with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
+            win.open_demo_study(folder)
+        plots = win.review.plots
+        win.review.plots_dock.raise_()
+        plots.show_page("Pose")
+        plots.refresh()
+        values = plots.curve_data("translation", 0)
+        assert np.isfinite(values[0]) and not np.isfinite(values[1:]).any()  # the keyframe alone
+        canvas = plots.canvas_of("translation")
+        vb = plots.plots["translation"].getViewBox()
+        at = canvas.mapFromScene(vb.mapViewToScene(QtCore.QPointF(0.0, float(values[0]))))
+        img = canvas.grab().toImage()
+        drawn = 0  # pixels of a curve's pen (x, y, z: reddish, greenish, bluish; z drawn on top)
+        for dx in range(-8, 9):
+            for dy in range(-3, 4):
+                c = img.pixelColor(at.x() + dx, at.y() + dy)
+                drawn += max(c.red(), c.green(), c.blue()) - min(c.red(), c.green(), c.blue()) > 60
+        assert drawn >= 4, drawn

@@ -53,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out).expanduser()
     cached = None if args.regenerate else _cached_demo(out, args)
     if cached is None:
+        check_out(out)
         warp_device(args.device)
     if cached is not None:
         print(f"{PROG} demo: using the demo study already in {out} (--regenerate to rebuild)",
@@ -88,6 +89,29 @@ def run(args: argparse.Namespace) -> int:
         print(f"{PROG} demo: cancelled; complete frames so far are in {out}", file=sys.stderr)
         return EXIT_CANCELLED
     return _open_demo_gui(out, args)
+
+
+def check_out(out: Path) -> None:
+    """Refuse an ``--out`` the demo would damage: a file, or a folder that is not empty and holds no
+    demo (``summary.json`` of ``talus demo``). The generator replaces ``study.json``, ``frames/``,
+    ``volumes/``, ``rig/`` and deletes ``results/`` (the pose journals) of the folder it writes
+    to: 'talus demo --out' a lab's study folder (or the working folder) lost its results."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise CliError(f"--out: {out} is a file; give a folder for the demo study")
+    if not any(out.iterdir()):
+        return
+    summary = out / "summary.json"
+    text = summary.read_text(encoding="utf-8", errors="replace") if summary.is_file() else ""
+    if '"talus-synthetic-study"' in text:
+        return
+    if (out / "study.json").is_file():
+        raise CliError(f"--out: {out} holds a study that is not a demo (study.json without the demo's "
+                       "summary.json): the demo would replace its files and delete its results/ (the pose "
+                       "journals); give a new or empty folder")
+    raise CliError(f"--out: {out} is not empty and holds no demo (no summary.json of 'talus demo'): the "
+                   "demo would replace files there and delete a results/ folder; give a new or empty folder")
 
 
 class _SetUpFirst:

@@ -460,3 +460,33 @@ def test_a_device_this_machine_lacks_is_named_before_any_work(study, tmp_path, c
     err = capsys.readouterr().err
     assert expect in err and "Traceback" not in err and "--debug" not in err
     assert not (tmp_path / "demo").exists()
+
+
+def test_demo_refuses_a_folder_it_would_damage(study, tmp_path, monkeypatch, capsys):
+    """'talus demo --out' a lab's study (or the working folder) replaced its study.json and deleted
+    its results/ (the pose journals)."""
+    import sys
+    import types
+
+    made = []
+    fake = types.SimpleNamespace(__name__="core.synthetic.demo",
+                                 make_demo_study=lambda out, **k: made.append(out) or {"status": "complete"})
+    monkeypatch.setitem(sys.modules, "core.synthetic.demo", fake)
+    journals = sorted((study / "results").rglob("*.jsonl"))
+    (study / "summary.json").unlink()  # a lab's study: no demo summary
+    assert talus(["demo", "--out", str(study), "--no-gui"]) == 1
+    assert "holds a study that is not a demo" in capsys.readouterr().err
+    assert sorted((study / "results").rglob("*.jsonl")) == journals and made == []
+    (tmp_path / "work").mkdir()
+    (tmp_path / "work" / "notes.txt").write_text("mine")
+    assert talus(["demo", "--out", str(tmp_path / "work"), "--no-gui", "--regenerate"]) == 1
+    assert "is not empty and holds no demo" in capsys.readouterr().err and made == []
+    (tmp_path / "file").write_text("x")
+    assert talus(["demo", "--out", str(tmp_path / "file"), "--no-gui"]) == 1
+    (tmp_path / "empty").mkdir()
+    assert talus(["demo", "--out", str(tmp_path / "empty"), "--no-gui"]) == 0  # new or empty: written
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "summary.json").write_text(json.dumps({"format": "talus-synthetic-study",
+                                                               "status": "cancelled"}))
+    assert talus(["demo", "--out", str(tmp_path / "old"), "--no-gui"]) == 0  # an earlier demo: rebuilt
+    assert made == [tmp_path / "empty", tmp_path / "old"]

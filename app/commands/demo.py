@@ -55,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     if cached is None:
         check_out(out)
         warp_device(args.device)
+        if any((out / "results").glob("*/poses/*.jsonl")):  # an earlier demo, tracked
+            why = "--regenerate" if args.regenerate else "made with other options or incomplete"
+            print(f"{PROG} demo: rebuilding the demo study in {out} ({why}): the poses tracked there "
+                  "are replaced", file=sys.stderr)
     if cached is not None:
         print(f"{PROG} demo: using the demo study already in {out} (--regenerate to rebuild)",
               file=sys.stderr)

@@ -490,3 +490,7 @@ def test_demo_refuses_a_folder_it_would_damage(study, tmp_path, monkeypatch, cap
                                                                "status": "cancelled"}))
     assert talus(["demo", "--out", str(tmp_path / "old"), "--no-gui"]) == 0  # an earlier demo: rebuilt
     assert made == [tmp_path / "empty", tmp_path / "old"]
+    (tmp_path / "old" / "results" / "walk" / "poses").mkdir(parents=True)
+    (tmp_path / "old" / "results" / "walk" / "poses" / "talus.jsonl").write_text("")
+    assert talus(["demo", "--out", str(tmp_path / "old"), "--no-gui", "--regenerate"]) == 0
+    assert "rebuilding the demo study in" in capsys.readouterr().err  # its tracked poses go

@@ -15,9 +15,9 @@ folder at the same path). *Start* builds the tasks of
 :func:`core.tracking.batch.build_tasks` and runs :func:`core.tracking.batch.run_batch` — what
 ``talus batch`` runs — off the GUI thread (:class:`BatchPanel`):
 
-* the window lets go of the journals of the handed bones of its trial
-  (:meth:`core.study.Study.unlock_journal`) and locks those bones against edits, so the workers
-  can write them; when the batch ends it takes them back;
+* the window locks the handed bones of its trial against edits — it holds no journal it is not
+  writing (:mod:`app.session`), so the workers can write them; when the batch ends it gives the
+  layers back;
 * the **Batch** dock lists every task with its state, a progress bar of its frames, its last
   score and what its searches did with the other bones (*Neighbours*: joint, sequential, one
   bone while it runs; once it ends, from its record, e.g. *sequential, subtracted* — the
@@ -485,7 +485,8 @@ class BatchPanel(QtCore.QObject):
         self.finished.emit(s)
 
     def _take_back(self) -> None:
-        """Lock the handed bones' journals for the window again and show what the batch wrote."""
+        """Unlock the handed bones' layers (their journals free: checked, not kept) and show what
+        the batch wrote."""
         from core.io.atomic import LockedError
 
         session, m = self.window.session, self.window.model
@@ -494,8 +495,9 @@ class BatchPanel(QtCore.QObject):
             return
         held = []
         for b in bones:
-            try:
+            try:  # the window takes a journal per edit only (app.session): let it go at once
                 session.study.lock_journal(session.trial_name, b)
+                session.study.unlock_journal(session.trial_name, b)
             except LockedError as exc:  # a worker of another cluster still writes it
                 held.append(b)
                 self.window.notify(f"Batch: {b} is still being written elsewhere ({exc}); "

@@ -9,14 +9,22 @@
 * Frames are read lazily from the trial's sequences and cached.
 * Bones start at their recorded poses; frames without one take the nearest recorded frame's
   pose (or the identity), and recorded frames are the keyframes.
-* The window holds its trial's journals from opening (a second writer is refused), but lets go of
-  the bones it hands to a batch (:mod:`app.batch_panel`) until the batch ends. A hand edit of such
-  a bone (its layer unlocked by hand) takes the journal's lock for its append only
-  (:meth:`StudySession.hand_edit`), waiting up to :data:`HAND_EDIT_WAIT_S` for it — for the
-  batch's trajectory check, which holds a trial's journals while it reads them and rewrites their
-  flags (:mod:`core.tracking.batch_journal`), or a range task's append — so the batch keeps the
-  bone; a writer that still holds it (a task tracking the bone holds it to its end) refuses the
-  edit, and the window's messages say who holds it and that the edit is not saved.
+* The window holds no bone's journal it is not writing: a hand edit takes the journal's lock for
+  its append only (:meth:`StudySession.hand_edit`), waiting up to :data:`HAND_EDIT_WAIT_S` for it —
+  for the trajectory check of a batch (the window's, :mod:`app.batch_panel`, or ``talus batch``
+  run beside it), which holds a trial's journals while it reads them and rewrites their flags
+  (:mod:`core.tracking.batch_journal`), or a range task's append — and the window's own tracking
+  job holds its bones' journals while it runs (:meth:`StudySession.let_go` after it). So a
+  ``talus batch`` of range tasks on the trial keeps writing while the window is open: the window
+  held every bone's journal from opening, taken between two of the batch's writes, and the
+  batch's next task waited 60 s for it and failed. A writer that still holds a journal (a task
+  tracking the bone holds it to its end) refuses the edit, and the window's messages say who holds
+  it and that the edit is not saved.
+* At opening the window checks that no other program writes a bone of the trial (each journal's
+  lock taken and let go at once) and takes the trial's window lock
+  (``results/<trial>/.window.lock``, held while it is open): where either is held elsewhere — a
+  ``talus track`` of a bone, or another window editing the trial — it opens the study read-only
+  and says why (:class:`core.study.LockedError`).
 """
 
 from __future__ import annotations
@@ -39,6 +47,7 @@ from .model import ViewerModel
 __all__ = ["MissingFilesError", "StudySession", "open_study"]
 
 MARKER = ".session-open"
+WINDOW_LOCK = ".window.lock"  # results/<trial>/: held by the window that edits the trial
 #: How long a hand edit waits for a bone's journal the window does not hold (handed to a batch):
 #: the trajectory check holds a trial's journals for milliseconds to a fraction of a second (the
 #: pass itself took 2-25 ms per bone in core.tracking.flags_post's timings); the GUI waits meanwhile.
@@ -81,6 +90,12 @@ class StudySession:
     notify: Callable[[str], None] | None = None
     _closed: bool = field(default=False, repr=False)
     _refused: dict = field(default_factory=dict, repr=False)  # bone -> when an edit was last refused
+
+    def let_go(self, bones) -> None:
+        """Release the journals of ``bones`` this window holds but no longer writes (its tracking
+        job's, once it ends): a batch beside it may take them."""
+        for b in bones:
+            self.study.unlock_journal(self.trial_name, b)
 
     def hand_edit(self, bone: str, write: Callable[[], None]) -> None:
         """Run ``write``, a hand edit's append to ``bone``'s journal (see the module notes): at once
@@ -157,7 +172,7 @@ class StudySession:
         if self.writable:
             with contextlib.suppress(OSError):
                 (self.study.folder / "results" / MARKER).unlink()
-        self.study.close()
+        self.study.close()  # and the trial's window lock
 
 
 def open_study(folder: str | Path, *, trial: str | None = None,
@@ -169,7 +184,8 @@ def open_study(folder: str | Path, *, trial: str | None = None,
     MissingFilesError
         When referenced files are missing (the caller can offer to relocate them).
     core.study.LockedError
-        When another process writes a bone of the trial (retry with ``read_only``).
+        When another process writes a bone of the trial, or another window edits it (retry with
+        ``read_only``). No bone's journal stays locked (see the module notes).
     ValueError / core.study.StudyError
         For a folder that is not a valid study.
     """
@@ -183,9 +199,12 @@ def open_study(folder: str | Path, *, trial: str | None = None,
             raise ValueError(f"{folder}: the study has no trial to show")
         name = trial or st.trials[0]
         tr = st.trial(name)
-        if not read_only:  # the window may write any bone of its trial: a second writer is refused
-            for bone in tr.bones:
+        if not read_only:  # another window on the trial, or a writer of one of its bones: read-only
+            st.hold_lock(f"results/{name}/{WINDOW_LOCK}",
+                         purpose=f"trial {name!r} of study {folder} (edited in another window)")
+            for bone in tr.bones:  # free now; not kept: a batch's tasks take it between our edits
                 st.lock_journal(name, bone)
+                st.unlock_journal(name, bone)
         rig = tr.rig()
 
         @lru_cache(maxsize=64)

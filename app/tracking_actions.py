@@ -237,10 +237,12 @@ class TrackingActions:
             review.data.load_journal(trial)
 
     def _restore(self) -> None:
-        m = self.window.model
-        for b in self._bones:
+        m, session = self.window.model, self.window.session
+        bones, self._bones = self._bones, []  # done before the layers change (the Locked box asks)
+        if session is not None:  # the tracker locked their journals: the window keeps none it isn't writing
+            session.let_go(bones)
+        for b in bones:
             m.set_layer_property(b, "locked", self._was_locked.get(b, False))
-        self._bones = []
         self.window.set_feedback(None)
 
     def _on_failed(self) -> None:

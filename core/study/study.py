@@ -96,6 +96,7 @@ class Study(StudyEdits, StudyReports):
         self._mode = mode
         self._lock = lock  # unused (no study-wide lock); kept for the constructor's signature
         self._journal_locks: dict[Path, FileLock] = {}
+        self._held_locks: list[FileLock] = []  # hold_lock's
         self._from_version = from_version
         self._trials: dict[str, Any] = {}
         self._volume_cache: dict[str, Any] = {}
@@ -199,9 +200,26 @@ class Study(StudyEdits, StudyReports):
             t._close()
         self._trials.clear()
         locks, self._journal_locks = self._journal_locks, {}
-        for lock in locks.values():
+        for lock in [*locks.values(), *self._held_locks]:
             lock.release()
+        self._held_locks = []
         self._mode = "closed"
+
+    def hold_lock(self, relpath: str, *, purpose: str) -> None:
+        """Take the lock file ``relpath`` (inside the study folder, e.g. ``results/<trial>/.window.lock``:
+        the window that edits a trial) for this handle until :meth:`close`.
+
+        Raises
+        ------
+        LockedError
+            Another handle or process holds it (the message names ``purpose`` and the holder).
+        StudyError
+            The study is not open for writing.
+        """
+        self._require_write()
+        path = self._folder / relpath
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._held_locks.append(FileLock(path, purpose=purpose).acquire())
 
     def lock_journal(self, trial: str, bone: str, *, timeout: float = 0.0) -> None:
         """Lock the pose journal of ``bone`` in ``trial`` for this handle until :meth:`close`

@@ -117,8 +117,8 @@ def test_track_in_batch_from_the_window(window, qtbot, scheduler):
     assert state.startswith("complete") and shown == "2/2"
     assert "2/2 tasks complete" in panel.where.text()
     _shot(window, "batch_done.png")
-    # the window has its bone back and shows the journal's poses
-    assert window.session.study.journal_locked("walk", BONE)
+    # the window has its bone back (its journal free: taken per edit) and shows the journal's poses
+    assert not window.session.study.journal_locked("walk", BONE)
     assert not window.model.layers[window.model.index(BONE)].locked
     with Study.open(window.session.folder) as st:
         for t in ("walk", "walk2"):
@@ -147,7 +147,7 @@ def test_a_batch_can_be_cancelled(window, qtbot, scheduler, monkeypatch):
     assert s.get("status") == "cancelled", s
     assert [r["key"] for r in s["task_records"]] == ["study/walk/talus:0-1", "study/walk2/talus:0-1"]
     assert [r["status"] for r in s["task_records"]][1] == "cancelled"  # walk2 never started
-    assert not panel.running and window.session.study.journal_locked("walk", BONE)
+    assert not panel.running and not window.session.study.journal_locked("walk", BONE)
     assert not window.model.layers[window.model.index(BONE)].locked
     texts = [window.messages.item(i).text() for i in range(window.messages.count())]
     assert any("Batch cancelled" in t for t in texts)

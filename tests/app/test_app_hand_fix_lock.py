@@ -96,3 +96,42 @@ def test_k_and_undo_fix_on_a_bone_locked_for_the_batch_say_so(qtbot, demo_study,
             assert text.startswith(f"bone: {BONE} is being written by the batch (its tasks track it, then "
                                    "its trajectory check judges the frames); the window takes it back")
         assert len(shown) == 3 and not s.study.journal_locked(s.trial_name, BONE)
+
+
+def test_the_window_holds_no_journal_a_batch_beside_it_wants(qtbot, demo_study, tmp_path):
+    """A 'talus batch' of range tasks on the window's trial (here a second Study handle, as a task's
+    process would open it): the window took every bone's journal at open, between two of the batch's
+    writes, and kept it, so the batch's next task waited 60 s and failed. The window now takes a
+    journal for its edit only: the batch locks every bone while the window is open, a fix waits for
+    it and is refused while the batch keeps it, and once it lets go the fix is saved and the batch can
+    lock the bone again. A second window on the trial still opens read-only (the window lock)."""
+    from core.study import LockedError, Study
+
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:
+        with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
+            win.open_demo_study(folder)
+        s, m = win.session, win.model
+        assert s.writable
+        bones = list(s.study.trial(s.trial_name).bones)
+        assert not any(s.study.journal_locked(s.trial_name, b) for b in bones)
+        m.select(BONE)
+        f = m.current_frame
+        with Study.open(folder, mode="w") as batch:
+            for b in bones:
+                batch.lock_journal("walk", b)  # the batch's task: not refused
+            n = win.messages.count()
+            _action(win, "Move x+").trigger()  # waits HAND_EDIT_WAIT_S, then refused
+            said = [win.messages.item(i).text() for i in range(n, win.messages.count())]
+            assert any(t.startswith(f"{BONE}: the edit is not saved: its journal is being written by "
+                                    "this window's batch") for t in said), said  # this process holds it
+            batch.unlock_journal("walk", BONE)  # the task is done with the talus
+            s._refused.clear()
+            _action(win, "Move x+").trigger()
+            np.testing.assert_allclose(_journaled(s, f), m.pose(BONE))  # saved
+            assert not s.study.journal_locked(s.trial_name, BONE)
+            batch.lock_journal("walk", BONE)  # the batch's next task takes it at once
+        with pytest.raises(LockedError, match="edited in another window"):
+            from app.session import open_study
+
+            open_study(folder)

@@ -129,3 +129,24 @@ def test_lock_journal_waits_up_to_its_timeout(folder):
     finally:
         a.close()
         b.close()
+
+
+def test_hold_lock_keeps_a_further_lock_until_closed(folder):
+    """hold_lock: a lock file of the study (the window's results/<trial>/.window.lock) held by one
+    handle until it is closed; a second handle is refused, naming the lock's purpose and the holder;
+    read-only handles may not take one."""
+    from core.study import StudyError
+
+    a, b = Study.open(folder, mode="w"), Study.open(folder, mode="w")
+    try:
+        what = "trial 'walk01' (edited in another window)"
+        a.hold_lock("results/walk01/.window.lock", purpose=what)
+        with pytest.raises(LockedError, match=r"window\) is locked for writing by process"):
+            b.hold_lock("results/walk01/.window.lock", purpose=what)
+        b.lock_journal("walk01", "talus")  # the journals are not held by it
+    finally:
+        a.close()
+    b.hold_lock("results/walk01/.window.lock", purpose="x")  # released by a's close
+    b.close()
+    with Study.open(folder) as r, pytest.raises(StudyError):
+        r.hold_lock("results/walk01/.window.lock", purpose="x")

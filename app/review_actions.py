@@ -147,6 +147,8 @@ class ReviewActions:
         m = self.window.model
         if self.data is None or (s is not None and not s.recording) or m.layers[bone].locked:
             return
+        if s is not None and s.unsaved(m.layers[bone].name):  # refused (the session's record ran
+            return  # first): the table keeps the journal's status
         self.data.mark_edited(bone, frame, m.pose(bone, frame))
 
     # ------------------------------------------------------------------ the fix loop

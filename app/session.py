@@ -90,12 +90,18 @@ class StudySession:
     notify: Callable[[str], None] | None = None
     _closed: bool = field(default=False, repr=False)
     _refused: dict = field(default_factory=dict, repr=False)  # bone -> when an edit was last refused
+    _unsaved: set = field(default_factory=set, repr=False)  # bones whose last edit was refused
 
     def let_go(self, bones) -> None:
         """Release the journals of ``bones`` this window holds but no longer writes (its tracking
         job's, once it ends): a batch beside it may take them."""
         for b in bones:
             self.study.unlock_journal(self.trial_name, b)
+
+    def unsaved(self, bone: str) -> bool:
+        """Whether ``bone``'s last hand edit was refused (not in the journal): the frame table
+        keeps the journal's status of the frame rather than showing it edited."""
+        return bone in self._unsaved
 
     def hand_edit(self, bone: str, write: Callable[[], None]) -> None:
         """Run ``write``, a hand edit's append to ``bone``'s journal (see the module notes): at once
@@ -147,10 +153,13 @@ class StudySession:
         try:
             self.hand_edit(bone, write)
         except LockedError as exc:
+            self._unsaved.add(bone)
             if self.notify is None:
                 raise
             if not getattr(exc, "quiet", False):
                 self.notify(str(exc))
+        else:
+            self._unsaved.discard(bone)
 
     def require_writable(self, what: str) -> None:
         """Raise ``ValueError`` naming ``what`` needs writing and why the study is read-only (the

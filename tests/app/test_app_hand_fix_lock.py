@@ -98,6 +98,33 @@ def test_k_and_undo_fix_on_a_bone_locked_for_the_batch_say_so(qtbot, demo_study,
         assert len(shown) == 3 and not s.study.journal_locked(s.trial_name, BONE)
 
 
+def test_a_refused_fix_leaves_the_frame_table_as_the_journal_has_it(qtbot, demo_study, tmp_path):
+    """The table showed a refused fix 'edited' (its update ran whatever the journal got); it keeps
+    the frame's journal status (tracked) until a fix is saved."""
+    from app.review import EDITED, TRACKED
+    from core.study import Study
+
+    folder = copy_study(demo_study, tmp_path)
+    with Study.open(folder, mode="w") as st:  # frame 1 tracked
+        tr = st.trial("walk")
+        tr.record_pose(BONE, 1, tr.poses(BONE)[0], score=0.9, tracking={"flags": []})
+    with main_window(qtbot) as win:
+        s, m, lock = _handed(qtbot, win, folder)
+        m.set_frame(1)
+        b = win.review.data.bones.index(BONE)
+        assert win.review.data.status[b, 1] == TRACKED
+        lock.acquire()  # a writer that keeps the journal past the wait
+        try:
+            _action(win, "Move x+").trigger()
+        finally:
+            lock.release()
+        assert win.review.data.status[b, 1] == TRACKED and s.unsaved(BONE)  # not saved: not edited
+        assert s.study.trial(s.trial_name).results(BONE).records[1].kind == "tracked"
+        s._refused.clear()  # past the burst's quiet time
+        _action(win, "Move x+").trigger()  # the journal free: saved, edited
+        assert win.review.data.status[b, 1] == EDITED and not s.unsaved(BONE)
+
+
 def test_the_window_holds_no_journal_a_batch_beside_it_wants(qtbot, demo_study, tmp_path):
     """A 'talus batch' of range tasks on the window's trial (here a second Study handle, as a task's
     process would open it): the window took every bone's journal at open, between two of the batch's

@@ -15,9 +15,10 @@ folder at the same path). *Start* builds the tasks of
 :func:`core.tracking.batch.build_tasks` and runs :func:`core.tracking.batch.run_batch` — what
 ``talus batch`` runs — off the GUI thread (:class:`BatchPanel`):
 
-* the window locks the handed bones of its trial against edits — it holds no journal it is not
-  writing (:mod:`app.session`), so the workers can write them; when the batch ends it gives the
-  layers back;
+* the window locks the handed bones of its trial against edits (their layers' *Locked* box
+  ticked and disabled, its tooltip saying the batch has the bone until it ends or is cancelled) —
+  it holds no journal it is not writing (:mod:`app.session`), so the workers can write them; when
+  the batch ends it gives the layers back;
 * the **Batch** dock lists every task with its state, a progress bar of its frames, its last
   score and what its searches did with the other bones (*Neighbours*: joint, sequential, one
   bone while it runs; once it ends, from its record, e.g. *sequential, subtracted* — the
@@ -506,6 +507,8 @@ class BatchPanel(QtCore.QObject):
         for b in bones:
             if b not in held:
                 m.set_layer_property(b, "locked", self._was_locked.get(b, False))
+        if getattr(self.window, "layers", None) is not None:  # the Locked box: the batch has let go
+            self.window.layers.refresh_locks()
 
     # ------------------------------------------------------------------ window closing
     def eventFilter(self, obj, event) -> bool:

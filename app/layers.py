@@ -44,7 +44,15 @@ def _swatch(color) -> QtGui.QIcon:
 
 
 class LayerList(QtWidgets.QWidget):
-    """Shows the model's bones; edits go back to the model as intents."""
+    """Shows the model's bones; edits go back to the model as intents.
+
+    :attr:`held_reason` (set by the window's review actions) says why a bone's lock may not be
+    lifted — handed to the window's batch, or tracked by its tracking job — or None: while it gives
+    a reason, the *Locked* box of that bone stays ticked and disabled, the reason its tooltip (a
+    fix unlocked by hand could be overwritten by a range task that has not reached that frame).
+    """
+
+    LOCK_TIP = "Lock the selected bone against edits (drags, nudges, keyframes)"
 
     mode_changed = QtCore.Signal(str)
     markers_changed = QtCore.Signal(bool, float)  # shown?, expected bead diameter (px)
@@ -59,6 +67,9 @@ class LayerList(QtWidgets.QWidget):
         self.opacity.setRange(0, 100)
         self.opacity.setToolTip("Overlay opacity of the selected bone")
         self.locked = QtWidgets.QCheckBox("Locked")
+        self.locked.setObjectName("layer-locked")
+        self.locked.setToolTip(self.LOCK_TIP)
+        self.held_reason = None  # callable(bone name) -> str | None (see the class docs)
         self.mode = QtWidgets.QComboBox()
         self.mode.addItems(MODES)
         self.mode.setToolTip("How bones are drawn over the fluoroscope images")
@@ -107,21 +118,34 @@ class LayerList(QtWidgets.QWidget):
                 item.setCheckState(QtCore.Qt.CheckState.Checked if layer.visible
                                    else QtCore.Qt.CheckState.Unchecked)
                 if layer.locked:
-                    item.setToolTip("locked")
+                    item.setToolTip(self._held(layer.name) or "locked")
                 self.list.addItem(item)
             self.list.setCurrentRow(self.model.selected)
             self._show_selected()
         finally:
             self._syncing = False
 
+    def _held(self, bone: str) -> str | None:
+        return None if self.held_reason is None else self.held_reason(bone)
+
     def _show_selected(self) -> None:
         i = self.model.selected
         enabled = i >= 0
+        held = self._held(self.model.layers[i].name) if enabled else None
         self.opacity.setEnabled(enabled)
-        self.locked.setEnabled(enabled)
+        self.locked.setEnabled(enabled and held is None)
+        self.locked.setToolTip(held or self.LOCK_TIP)
         if enabled:
             self.opacity.setValue(round(100 * self.model.layers[i].opacity))
-            self.locked.setChecked(self.model.layers[i].locked)
+            self.locked.setChecked(self.model.layers[i].locked or held is not None)
+
+    def refresh_locks(self) -> None:
+        """Show again whether the selected bone's lock may be lifted (a batch started or ended)."""
+        self._syncing = True
+        try:
+            self._show_selected()
+        finally:
+            self._syncing = False
 
     def _on_selection(self, i: int) -> None:
         self._syncing = True
@@ -148,5 +172,9 @@ class LayerList(QtWidgets.QWidget):
             self.model.set_layer_property(self.model.selected, "opacity", value / 100.0)
 
     def _on_locked(self, checked: bool) -> None:
-        if not self._syncing and self.model.selected >= 0:
-            self.model.set_layer_property(self.model.selected, "locked", bool(checked))
+        if self._syncing or self.model.selected < 0:
+            return
+        if not checked and self._held(self.model.layers[self.model.selected].name):
+            self.refresh_locks()  # refused: stays locked
+            return
+        self.model.set_layer_property(self.model.selected, "locked", bool(checked))

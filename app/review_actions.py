@@ -76,6 +76,8 @@ class ReviewActions:
         if session is not None:
             self.data.load_journal(session.study.trial(session.trial_name))
             session.notify = lambda text: w.notify(text, error=True)  # a hand edit not saved
+        if getattr(w, "layers", None) is not None:  # the Locked box refuses while a batch has the bone
+            w.layers.held_reason = self.held_reason
         self.table = FrameTableDock(self.data, model)
         bar = QtWidgets.QHBoxLayout()
         buttons = (("Key K", self.keyframe_action), ("Track → ]", self.forward_action),
@@ -159,6 +161,20 @@ class ReviewActions:
         if m.selected < 0:
             raise ValueError("bone: select a bone first")
         return m, s, m.layers[m.selected].name
+
+    def held_reason(self, bone: str) -> str | None:
+        """Why ``bone``'s layer may not be unlocked (the Layers dock's *Locked* box), or None:
+        handed to the window's batch — from its start until it ends or is cancelled: a fix could
+        be overwritten by a range task that has not reached that frame — or tracked by the
+        window's tracking job."""
+        tracking = self.window.tracking
+        batch = tracking.batch
+        if batch is not None and bone in getattr(batch, "_bones", ()):
+            return (f"{bone} is being tracked by the batch (Batch dock) until it ends or is cancelled; "
+                    "it cannot be unlocked meanwhile")
+        if tracking.running and bone in getattr(tracking, "_bones", ()):
+            return f"{bone} is being tracked here until the tracking ends or is cancelled"
+        return None
 
     def locked_reason(self, bone: str) -> str:
         """Why ``bone``'s layer is locked, for a refused fix: handed to the running batch (its

@@ -23,8 +23,10 @@ and with the cost changed (``--costs``, on the frames of ``--cost-variants``): `
 ``gc45``, ``gc60`` (both images smoothed by 0.45, 0.6 mm), ``components`` (GC of the gradient
 components), ``band`` (the tracker's band at the rim, the ``gc`` term's option ``rim_sigmas=4``,
 :data:`core.tracking.cost.RIM_OPTION`; ``+band`` adds it to another cost; the others are without
-it, whatever the default). Each frame noise-free (the cost's bias) and noisy (the trial's own
-noise draw).
+it, whatever the default; ``+noise``: the quantum noise's share taken out of the magnitudes,
+``noise_correction``; ``+tight``: the Gauss–Newton steps until a step is below 0.002 mm / ° and
+no stop on the predicted decrease, at most 16). Each frame noise-free (the cost's bias) and noisy
+(the trial's own noise draw).
 
 Per variant, cost and noise: the RMS error (mm, °) over the frames, the rotation about the tibia's
 long axis (its mean and RMS; the first principal axis of its surface, in the lab), and the RMS of
@@ -144,17 +146,24 @@ def _options(cost: str):
     from core.tracking.options import TrackingOptions
 
     o = TrackingOptions().registration
-    band = cost.endswith("+band")
-    base = "gc" if cost == "band" else cost.removesuffix("+band")
+    parts = cost.split("+")
+    band, noise, tight = "band" in parts[1:], "noise" in parts[1:], "tight" in parts[1:]
+    base = "gc" if cost == "band" else parts[0]
     if base in ("gc", "gc45", "gc60", "components"):
         s = 0.3 if base in ("gc", "components") else int(base[2:]) / 100
         t = MetricTerm("gc", 1.0, {"fluoro_sigma_mm": s, "drr_sigma_mm": s,
                                    **({"components": True} if base == "components" else {})})
     else:
-        raise ValueError(f"cost: expected one of {COSTS} (or one with '+band'), got {cost!r}")
+        raise ValueError(f"cost: expected one of {COSTS} (or one with '+band', '+noise'), got {cost!r}")
     if band or cost == "band":
         t = replace(t, options={**t.options, "rim_sigmas": 4.0})
-    return replace(o, terms=(t,))
+    o = replace(o, terms=(t,), noise_correction=noise)  # (the option sets the gc term's flag)
+    if tight:  # the full-resolution Gauss-Newton steps run until a step is below 0.002 (mm, degrees)
+        from core.tracking.register_options import FINAL_STEP, Level
+
+        o = replace(o, levels=(Level(scale=1.0, method="gauss_newton", sigma=FINAL_STEP, max_generations=16,
+                                     tol_x=0.002, options={"tol_noise": 1e-4}),))
+    return o
 
 
 def _rim_pixels(ts, frame_imgs, truth, roi, band_px: float) -> list[int]:
@@ -197,8 +206,11 @@ def _summary(rows: list, ref: list | None, bound: dict) -> dict:
 def run(*, pixels: int = 1024, voxel: float = 1.0, frames=(0, 20, 40, 60, 81), variants=VARIANTS,
         costs=("gc", "gc45", "gc60", "components", "band"), cost_variants=("trial",),
         noises=("free", "noisy"), band_px: float | None = None, device: str | None = "cpu",
-        correction: str = "grid", checkpoint=None) -> dict:
-    """The study (module docs). ``band_px`` None: 4 σ of the default smoothing plus 2 px."""
+        correction: str = "grid", start_deg: float = 0.0, checkpoint=None) -> dict:
+    """The study (module docs). ``band_px`` None: 4 σ of the default smoothing plus 2 px.
+    ``start_deg``: each registration starts from the true pose turned by this much about the
+    tibia's long axis (about its centroid) instead of the true pose (the search's share)."""
+    from core.geometry.transforms import pose_from_params
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao, pose_errors
     from core.studies.tracking.grid_correction import model_corrections
     from core.tracking.cost import mm_per_pixel, rim_radius
@@ -216,7 +228,8 @@ def run(*, pixels: int = 1024, voxel: float = 1.0, frames=(0, 20, 40, 60, 81), v
     bound = cramer_rao(ts, frames).get("tibia", {})
     out = {"study": "core.studies.tracking.tibia_cost", "machine": platform.machine(), "device": str(device),
            "pixels": pixels, "voxel_mm": voxel, "correction": correction, "frames": frames,
-           "px_mm_at_bone": round(px_mm, 5), "band_px": band_px, "long_axis_ct": axis.round(4).tolist(),
+           "px_mm_at_bone": round(px_mm, 5), "band_px": band_px, "start_deg": start_deg,
+           "long_axis_ct": axis.round(4).tolist(),
            "cramer_rao": {k: bound[k] for k in ("rms_mm", "rms_deg", "sigma") if k in bound},
            "rim": {}, "per_frame": {}, "results": {}}
     jobs = [(v, "gc") for v in variants] + [(v, c) for v in cost_variants for c in costs if c != "gc"]
@@ -225,6 +238,8 @@ def run(*, pixels: int = 1024, voxel: float = 1.0, frames=(0, 20, 40, 60, 81), v
         parts = _parts(ts, f)
         truth = ts.truth(f)
         lab_axis = truth[0][:3, :3] @ axis
+        start = pose_from_params(np.r_[0.0, 0.0, 0.0, np.radians(start_deg) * lab_axis], center=m.centroid,
+                                 base=truth[0])
         roi = search_region(ts.renderer, truth[0], 0, views=(0, 1), center=m.centroid,
                             options=_options("gc"), outline=m.outline)
         for noise in noises:
@@ -236,7 +251,7 @@ def run(*, pixels: int = 1024, voxel: float = 1.0, frames=(0, 20, 40, 60, 81), v
                         out["rim"].setdefault(noise, {})[str(f)] = _rim_pixels(
                             ts, [made[v][0]._fluence[k] for k in (0, 1)], truth, roi, band_px)
                 frame, oth = made[v]
-                r = register(ts.renderer, frame, bone=0, initial_pose=truth[0], center=m.centroid,
+                r = register(ts.renderer, frame, bone=0, initial_pose=start, center=m.centroid,
                              options=_options(c), others=(truth[oth], oth) if oth else None,
                              outline=m.outline, roi=roi)
                 e = pose_errors(r.pose, truth[0], m.centroid)
@@ -333,6 +348,8 @@ def main(argv=None) -> int:
     p.add_argument("--noises", default="free,noisy")
     p.add_argument("--band-px", type=float, default=None)
     p.add_argument("--correction", default="grid")
+    p.add_argument("--start-deg", type=float, default=0.0,
+                   help="start each registration turned by this much about the tibia's long axis")
     p.add_argument("--device", default="cpu", help="Warp device (auto: CUDA where present)")
     p.add_argument("--machine-name", default=None)
     p.add_argument("--acceptance", default=None, metavar="COST",
@@ -367,7 +384,7 @@ def main(argv=None) -> int:
     res = run(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in split(a.frames)],
               variants=split(a.variants), costs=split(a.costs), cost_variants=split(a.cost_variants),
               noises=split(a.noises), band_px=a.band_px, device=a.device, correction=a.correction,
-              checkpoint=checkpoint)
+              start_deg=a.start_deg, checkpoint=checkpoint)
     checkpoint(res)
     print_json(res, a.out)
     return 0

@@ -83,7 +83,11 @@ where it recorded none — a run from before the neighbours were subtracted by d
 report (a ``talus batch --split-bones`` task's or a range's report is named after its bone or frames),
 the trial's other sequential reports of the bones tracked decide where they agree — ``--split-bones``
 tasks tracked each bone alone: off; where they disagree or none exists, auto decides as for a new run
-(the earlier frames' method is unknown). ``"sequential_subtract_note"`` says which and why. A joint
+(the earlier frames' method is unknown). ``"sequential_subtract_note"`` says which and why. A range
+whose only tracked frame is the keyframe it starts from, tracked by the range beside it that starts
+there too (a fresh ``talus batch --ranges`` run; that range's report reaches outside this one),
+resumes nothing: auto as for a new run, no note (such a range's record said "resumed … as the
+trial's earlier runs did: walk.1-0"). A joint
 run's report, or nothing tracked yet, leaves auto as for a new run; True or False still win. The
 report lists the bones tracked (``"bones"``).
 """
@@ -195,12 +199,14 @@ def final_stage_problem(study, trial_name: str, *,
     return _final_stage_note(trial_name, how)
 
 
-def _earlier_runs(study, trial_name: str, report_name: str, bones: set) -> list[tuple[str, bool, str]]:
+def _earlier_runs(study, trial_name: str, report_name: str, bones: set,
+                  within: set | None = None) -> list[tuple[str, bool, str]]:
     """``(report name, subtracted, why not)`` of the trial's other sequential tracking reports of
     ``bones`` (``<trial>.json``, ``talus batch`` tasks' ``<trial>.<bone>.json`` and range reports):
     what their searches did — not where the run tracked one bone (``--split-bones`` tasks) or
     recorded no choice (a run from before the neighbours were subtracted by default). Joint runs'
-    reports and other bones' are left out."""
+    reports and other bones' are left out, and with ``within`` (frames) those whose frames reach
+    outside them."""
     from ..study.errors import StudyError
 
     out = []
@@ -219,6 +225,10 @@ def _earlier_runs(study, trial_name: str, report_name: str, bones: set) -> list[
             d.get("bone") for d in done if isinstance(d, dict)]
         if not bones & set(seen):
             continue
+        span = rep.get("frames")
+        if within is not None and not (isinstance(span, list) and len(span) == 2 and all(
+                isinstance(f, int) for f in span) and set(range(min(span), max(span) + 1)) <= within):
+            continue
         got = opts.get("sequential_subtract")
         why = ("" if got is True else "one bone" if len(set(seen)) == 1
                else "off" if got is False else "no choice recorded")
@@ -226,8 +236,8 @@ def _earlier_runs(study, trial_name: str, report_name: str, bones: set) -> list[
     return out
 
 
-def _resumed_subtract(study, trial_name: str, report_name: str,
-                      skip: dict) -> tuple[bool | None, str | None]:
+def _resumed_subtract(study, trial_name: str, report_name: str, skip: dict,
+                      shared: frozenset = frozenset(), frames=()) -> tuple[bool | None, str | None]:
     """``sequential_subtract`` auto on resume: ``(choice, note)`` — what the searches of the frames
     already tracked did, so that a trial is not tracked by two methods: as the run being resumed
     recorded in its report (``"options"``; off where it recorded none: a run from before the
@@ -235,7 +245,11 @@ def _resumed_subtract(study, trial_name: str, report_name: str,
     reports of the bones tracked say where they agree (:func:`_earlier_runs`). ``(None, why)``:
     they disagree, or no report says — auto as for a new run, ``why`` for the note. ``(None,
     None)``: nothing tracked to carry on (no tracking result of the range in the journal) or a
-    joint run's report (the user changed the mode): auto as for a new run, no note."""
+    joint run's report (the user changed the mode): auto as for a new run, no note. ``shared``:
+    ``(bone, frame)`` the range ``frames`` starts from, a keyframe a neighbouring range may start
+    from too — tracked there, by the other range of a fresh ``talus batch --ranges`` run: without the
+    run's own report, where only such frames are tracked, only reports of frames within the range
+    count (an earlier run of it that reached no further); none: auto as for a new run, no note."""
     tracked = {b for b, done in skip.items() if any(isinstance(r, FrameResult) for r in done.values())}
     if not tracked:
         return None, None
@@ -256,7 +270,14 @@ def _resumed_subtract(study, trial_name: str, report_name: str,
     if isinstance(old, dict):
         return False, ("resumed: neighbours not subtracted (auto): the run being resumed recorded no choice "
                        "(tracked before they were subtracted by default)")
-    runs = _earlier_runs(study, trial_name, report_name, tracked)
+    # only the keyframe it starts from tracked: by an earlier run of this range (one that reached no
+    # further, its frames within the range), or by the range beside that starts there too (no resume)
+    start_only = not any(isinstance(r, FrameResult) and (b, f) not in shared
+                         for b, done in skip.items() for f, r in done.items())
+    runs = _earlier_runs(study, trial_name, report_name, tracked,
+                         within={int(f) for f in frames} if start_only else None)
+    if start_only and not runs:
+        return None, None
     if not runs:
         return None, ("no tracking report of the trial says how its frames tracked before were searched "
                       "(their method is unknown)")
@@ -342,8 +363,9 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
     subtract_note = None
     if options.mode == "sequential" and options.sequential_subtract is None:  # auto: the same test
         resumed = resume and len(models) > 1  # one bone: nothing to subtract, nothing to keep
-        kept, subtract_note = (_resumed_subtract(study, trial_name, report_name, skip) if resumed
-                               else (None, None))
+        shared = frozenset((b, order[0]) for b in skip if order and order[0] in states[b].keyframes)
+        kept, subtract_note = (_resumed_subtract(study, trial_name, report_name, skip, shared, order)
+                               if resumed else (None, None))
         auto = flatfield_corrected(how) if kept is None else kept
         if kept is None and subtract_note:  # resumed, the earlier frames' method not known
             subtract_note = (f"resumed: neighbours {'' if auto else 'not '}subtracted (auto, as for a new "

@@ -120,3 +120,23 @@ def test_a_grouped_task_resuming_split_bones_tasks_searches_each_bone_alone(cali
     assert again["sequential_subtract_note"] == (
         "resumed: neighbours not subtracted (auto), as the trial's earlier runs did: "
         "walk.calcaneus (one bone), walk.talus (one bone)")
+
+
+def test_fresh_ranges_sharing_a_keyframe_are_not_resumed(calibrated, tmp_path):
+    """A fresh ``talus batch --ranges`` run whose two ranges share a keyframe (both bones keyed at
+    frame 1: ranges 1-0 and 1-2): the second range finds the keyframe tracked by the first, which is
+    no resume of it; its record said 'resumed … as the trial's earlier runs did: walk.1-0'. Both
+    ranges decide as new runs (auto: subtracted on these corrected frames), without a note."""
+    folder = shutil.copytree(calibrated, tmp_path / "demo")
+    with Study.open(folder, mode="w") as st:
+        tr = st.trial("walk")
+        for b in BONES:  # keyed at frame 1 only
+            tr.clear_pose(b, 0)
+            tr.record_pose(b, 1, np.load(folder / "poses" / f"{b}.npy")[1])
+    tasks = build_tasks([folder], bones=list(BONES), mode="sequential", ranges=True, frames=(0, 3))
+    assert [t.frames for t in tasks] == [(1, 0), (1, 2)]
+    s = run_serial(tasks, TaskSettings(device="cpu", confidence=False, frames=(0, 3), options=OPTIONS))
+    assert s["status"] == "complete", s
+    for r in s["task_records"]:
+        assert r["sequential_subtract"] is True, r
+        assert r["sequential_subtract_note"] is None, r

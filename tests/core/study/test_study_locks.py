@@ -150,3 +150,35 @@ def test_hold_lock_keeps_a_further_lock_until_closed(folder):
     b.close()
     with Study.open(folder) as r, pytest.raises(StudyError):
         r.hold_lock("results/walk01/.window.lock", purpose="x")
+
+
+def test_a_journal_taken_again_is_repaired_only_after_other_appends(folder, monkeypatch):
+    """The window takes a journal per hand fix (lock, append, unlock): the torn-tail repair, which
+    reads the whole journal, runs again only where another writer appended meanwhile (or the tail
+    was torn), not on every move of a drag."""
+    import core.study.trial as trial_mod
+
+    calls = []
+    real = trial_mod.repair_tail
+    monkeypatch.setattr(trial_mod, "repair_tail", lambda p: calls.append(p) or real(p))
+    a, b = Study.open(folder, mode="w"), Study.open(folder, mode="w")
+    try:
+        ta = a.trial("walk01")
+        for f in range(3):  # three edits, each under the lock for its append only
+            ta.record_pose("talus", f, np.eye(4))
+            a.unlock_journal("walk01", "talus")
+        assert len(calls) == 1  # the first
+        b.trial("walk01").record_pose("talus", 5, np.eye(4))  # another writer appends
+        b.unlock_journal("walk01", "talus")
+        ta.record_pose("talus", 3, np.eye(4))
+        assert len(calls) == 3  # b's first write, and a's after b's append
+        a.unlock_journal("walk01", "talus")
+        path = calls[0]
+        with open(path, "ab") as fh:  # a torn record (a writer died mid-append)
+            fh.write(b'{"frame": 7, "po')
+        ta.record_pose("talus", 4, np.eye(4))
+        assert len(calls) == 4
+        assert set(a.trial("walk01").results("talus").records) == {0, 1, 2, 3, 4, 5}
+    finally:
+        a.close()
+        b.close()

@@ -58,12 +58,20 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def bones_by_name(names: list[str], default: dict) -> dict:
     """``--bones`` names -> the scan's bones (``default``: file-name bones of per-bone CTs, or
-    ``bone<label>`` -> label), in the scan's order. Names that are the default names in another
-    order are matched by name: ``--bones talus,calcaneus`` over ``calcaneus.mha`` and ``talus.mha``
-    (listed alphabetically) gave the talus the calcaneus's CT. Other names go in order."""
-    if sorted(names) == sorted(default) and len(set(names)) == len(names):
-        return dict(default)
-    return dict(zip(names, default.values(), strict=True))
+    ``bone<label>`` -> label), in the scan's order. A name that is one of the default names (case
+    aside) takes that bone: ``--bones talus,calcaneus`` over ``calcaneus.mha`` and ``talus.mha``
+    (listed alphabetically) gave the talus the calcaneus's CT, and so did ``--bones talus,tibia``
+    or ``Talus,Calcaneus``. The other names take the remaining bones in order."""
+    keys = list(default)
+    folded = {k.casefold(): k for k in keys}
+    taken: dict[str, str] = {}  # default name -> given name
+    for n in names:
+        k = folded.get(n.casefold())
+        if k is not None and k not in taken:
+            taken[k] = n
+    rest = iter(n for n in names if n not in taken.values())
+    given = {k: taken[k] if k in taken else next(rest) for k in keys}
+    return {given[k]: default[k] for k in keys}
 
 
 def run(a: argparse.Namespace) -> int:
@@ -106,6 +114,8 @@ def run(a: argparse.Namespace) -> int:
         default = scan.bones()
         if len(names) != len(default):
             raise CliError(f"--bones: expected {len(default)} names (for {list(default)}), got {names}")
+        if len(set(names)) != len(names):
+            raise CliError(f"--bones: a name given twice in {names}")
         bones = bones_by_name(names, default)
         sources = (list(scan.bone_volumes.values()) if scan.bone_volumes else
                    [f"label {v} of {scan.labels}" if scan.labels is not None else scan.ct

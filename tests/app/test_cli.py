@@ -81,6 +81,19 @@ def test_track_and_module_benchmarks_take_their_options_without_a_separator(monk
     assert exc.value.code == 2 and "--frobnicate" in capsys.readouterr().err
 
 
+def test_bench_track_help_names_talus_bench_track(capsys):
+    """Its usage said 'python -m core.studies.tracking.benchmark'; the module keeps its own name."""
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "track", "--help"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.startswith("usage: talus bench track [-h]")
+    from core.studies.tracking.benchmark import main as module_main
+
+    with pytest.raises(SystemExit):
+        module_main(["--help"])
+    assert capsys.readouterr().out.startswith("usage: python -m core.studies.tracking.benchmark")
+
+
 def test_no_command_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as exc:
         main([])

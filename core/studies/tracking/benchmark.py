@@ -291,8 +291,9 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     return res
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.benchmark",
+def main(argv=None, *, prog: str = "python -m core.studies.tracking.benchmark") -> int:
+    """The command line; ``prog`` names it in the usage (``talus bench track`` passes its own)."""
+    p = argparse.ArgumentParser(prog=prog,
                                 description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="192² views, 1 mm voxels, 8 frames")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")

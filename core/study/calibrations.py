@@ -40,8 +40,8 @@ from .errors import StudyError
 from .manifest import store_path
 
 __all__ = ["SavedCalibration", "calibrate_study", "calibration_versions", "lab_frame_note",
-           "load_correction", "save_session_calibration", "source_shift_mm", "trial_correction",
-           "use_calibration"]
+           "load_correction", "pose_shift_mm", "save_session_calibration", "source_shift_mm",
+           "trial_correction", "use_calibration"]
 
 FILES_KEY = "calibration_files"
 _SERIES_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,40}$")
@@ -258,24 +258,50 @@ def source_shift_mm(study, old: str, new: str) -> list[float] | None:
     return [float(np.linalg.norm(ca.source - cb.source)) for ca, cb in zip(a, b, strict=True)]
 
 
+def pose_shift_mm(study, old: str, new: str, poses) -> float | None:
+    """How far calibration ``new`` sees the lab poses ``poses`` (``(n, 4, 4)``, mm) from where
+    ``old`` sees them: each pose's origin projected by both calibrations' cameras, the image
+    displacement in mm at the point (pixels × its depth / the focal length, ``old``'s camera), the
+    largest over cameras and poses; None when the camera counts differ or there is no pose. Two
+    calibrations of the same lab frame see a pose within their reprojection errors (a DLT's source
+    lies 2-4 mm rms from the truth, up to 10: ``resources/benchmarks/calibration_study.json``,
+    while its images agree), a moved lab frame (or rig) by the move."""
+    a, b = study.rig(old), study.rig(new)
+    P = np.asarray(poses, dtype=float).reshape(-1, 4, 4)[:, :3, 3]
+    if len(a) != len(b) or not len(P):
+        return None
+    worst = 0.0
+    for ca, cb in zip(a, b, strict=True):
+        ua, depth = ca.project(P, return_depth=True)
+        d = np.linalg.norm(cb.project(P) - ua, axis=-1) * np.abs(depth) / ca.fx
+        worst = max(worst, float(np.nanmax(d)) if np.isfinite(d).any() else np.inf)
+    return worst
+
+
 def lab_frame_note(study, trial: str, old: str, new: str, *, tolerance_mm: float = 2.0) -> str | None:
-    """A warning for ``trial`` moved from calibration ``old`` to ``new`` with poses recorded (its
-    keyframes among them) when a camera's source moved more than ``tolerance_mm`` between the two
-    (:func:`source_shift_mm`): those poses are in ``old``'s lab frame and no longer fit the frames
-    seen through ``new`` (the demo's keyframes, after a calibration with the spiral's lab frame,
-    drew the tibia across the image). None when nothing is recorded or the sources stayed."""
+    """A warning for ``trial`` moved from calibration ``old`` to ``new`` with poses recorded
+    (keyframes or tracked) when ``new``'s cameras see them more than ``tolerance_mm`` (at the bone)
+    from where ``old``'s do (:func:`pose_shift_mm`): those poses are in ``old``'s lab frame and no
+    longer fit the frames seen through ``new`` (the demo's keyframes, after a calibration with the
+    spiral's lab frame, drew the tibia across the image). The sources' shift
+    (:func:`source_shift_mm`) is named too; on its own it is no test: a DLT's sources lie mm from
+    a bundle adjustment's of the same lab frame. None when nothing is recorded or the poses fit."""
     if old == new:
         return None
     tr = study.trial(trial)
-    recorded = sum(r.pose is not None for b in tr.bones for r in tr.results(b).records.values())
-    shift = source_shift_mm(study, old, new)
-    if not recorded or shift is None or max(shift) <= tolerance_mm:
+    states = [tr.results(b) for b in tr.bones]
+    poses = [r.pose for st in states for r in st.records.values() if r.pose is not None]
+    keyframes = sum(len(st.keyframes) for st in states)
+    seen = pose_shift_mm(study, old, new, poses) if poses else None
+    if seen is None or seen <= tolerance_mm:
         return None
+    shift = source_shift_mm(study, old, new) or []
     moved = ", ".join(f"{d:.1f}" for d in shift)
-    return (f"trial {trial!r} moved from calibration {old} to {new}, whose X-ray sources lie {moved} mm "
-            f"from where {old} has them: the lab frame (or the rig) changed, and the trial's "
-            f"{recorded} recorded poses (keyframes among them) are in {old}'s lab frame. Set the "
-            "keyframes again and track anew, or keep the trial on its calibration")
+    return (f"trial {trial!r} moved from calibration {old} to {new}, whose cameras see its recorded poses "
+            f"up to {seen:.1f} mm (at the bone) from where {old}'s do (the X-ray sources lie {moved} mm "
+            f"from where {old} has them): the lab frame (or the rig) changed, and the trial's "
+            f"{len(poses)} recorded poses ({keyframes} of them keyframes) are in {old}'s lab frame. Set "
+            "the keyframes again and track anew, or keep the trial on its calibration")
 
 
 def calibrate_study(study, session, *, object=None, model: str = "auto", lab_frame: str = "static",

@@ -132,7 +132,7 @@ def test_a_calibration_saved_in_another_lab_frame_warns_in_the_window(qtbot, dem
         w.saved_calibration.emit(SavedCalibration("session.v1", "session", 1, folder / "x", ("walk",)))
         assert seen[0] == (f"Calibration session.v1 saved in {folder / 'x'}; trials using it: walk", False)
         assert seen[1][1] and seen[1][0].startswith("Warning: trial 'walk' moved from calibration rig to "
-                                                     "session.v1, whose X-ray sources lie")
+                                                     "session.v1, whose cameras see its recorded poses")
         w.close()
 
 

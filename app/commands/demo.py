@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 from pathlib import Path
@@ -108,7 +109,7 @@ def check_out(out: Path) -> None:
         return
     summary = out / "summary.json"
     text = summary.read_text(encoding="utf-8", errors="replace") if summary.is_file() else ""
-    if '"talus-synthetic-study"' in text:
+    if '"talus-synthetic-study"' in text or _unfinished_demo(out):
         return
     if (out / "study.json").is_file():
         raise CliError(f"--out: {out} holds a study that is not a demo (study.json without the demo's "
@@ -116,6 +117,31 @@ def check_out(out: Path) -> None:
                        "journals); give a new or empty folder")
     raise CliError(f"--out: {out} is not empty and holds no demo (no summary.json of 'talus demo'): the "
                    "demo would replace files there and delete a results/ folder; give a new or empty folder")
+
+
+def _unfinished_demo(out: Path) -> bool:
+    """``out`` holds a demo that stopped before its ``summary.json`` (written last): its study
+    (``study.json`` named ``talus-demo``: a Ctrl-C during the demo's calibration, which raises
+    out of the generator) or, before the study, its rig (``rig/rig.json`` in the demo's lab
+    frame: the process killed while frames were written). Such a folder was refused as 'a study
+    that is not a demo', even with --regenerate, until removed by hand."""
+    study = out / "study.json"
+    if study.is_file():
+        try:
+            doc = json.loads(study.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return False
+        return isinstance(doc, dict) and doc.get("name") == DEMO_STUDY_NAME
+    rig = out / "rig" / "rig.json"
+    try:
+        return rig.is_file() and DEMO_LAB_FRAME in rig.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return False
+
+
+#: the demo study's name (core.synthetic.demo._write_study) and its rig.json's lab frame line
+DEMO_STUDY_NAME = "talus-demo"
+DEMO_LAB_FRAME = '"lab_frame": "x walking direction, y left, z up; mm"'
 
 
 class _SetUpFirst:

@@ -475,7 +475,9 @@ def test_demo_refuses_a_folder_it_would_damage(study, tmp_path, monkeypatch, cap
                                  make_demo_study=lambda out, **k: made.append(out) or {"status": "complete"})
     monkeypatch.setitem(sys.modules, "core.synthetic.demo", fake)
     journals = sorted((study / "results").rglob("*.jsonl"))
-    (study / "summary.json").unlink()  # a lab's study: no demo summary
+    (study / "summary.json").unlink()  # a lab's study: no demo summary, its own name
+    doc = json.loads((study / "study.json").read_text(encoding="utf-8"))
+    (study / "study.json").write_text(json.dumps({**doc, "name": "gait lab"}), encoding="utf-8")
     assert talus(["demo", "--out", str(study), "--no-gui"]) == 1
     assert "holds a study that is not a demo" in capsys.readouterr().err
     assert sorted((study / "results").rglob("*.jsonl")) == journals and made == []
@@ -496,6 +498,30 @@ def test_demo_refuses_a_folder_it_would_damage(study, tmp_path, monkeypatch, cap
     (tmp_path / "old" / "results" / "walk" / "poses" / "talus.jsonl").write_text("")
     assert talus(["demo", "--out", str(tmp_path / "old"), "--no-gui", "--regenerate"]) == 0
     assert "rebuilding the demo study in" in capsys.readouterr().err  # its tracked poses go
+
+
+def test_demo_rebuilds_a_demo_that_stopped_before_its_summary(demo, tmp_path, monkeypatch, capsys):
+    """A Ctrl-C during the demo's calibration raises out of the generator after the study is
+    written and before summary.json (written last); a killed run leaves its rig and frames. Both
+    folders were refused as 'a study that is not a demo' / 'holds no demo', --regenerate too."""
+    import sys
+    import types
+
+    made = []
+    fake = types.SimpleNamespace(__name__="core.synthetic.demo",
+                                 make_demo_study=lambda out, **k: made.append(out) or {"status": "complete"})
+    monkeypatch.setitem(sys.modules, "core.synthetic.demo", fake)
+    stopped = shutil.copytree(demo, tmp_path / "stopped")
+    (stopped / "summary.json").unlink()  # the demo's own study (named talus-demo), no summary
+    assert talus(["demo", "--out", str(stopped), "--no-gui"]) == 0
+    killed = tmp_path / "killed"  # before the study: the demo's rig, imaging, volumes, frames
+    for part in ("rig", "imaging", "frames"):
+        shutil.copytree(demo / part, killed / part)
+    assert talus(["demo", "--out", str(killed), "--no-gui", "--regenerate"]) == 0
+    assert made == [stopped, killed]
+    (killed / "rig" / "rig.json").write_text("{}")  # a lab's rig folder: refused
+    assert talus(["demo", "--out", str(killed), "--no-gui"]) == 1
+    assert "is not empty and holds no demo" in capsys.readouterr().err and len(made) == 2
 
 
 def test_a_calibration_of_the_same_lab_frame_whose_sources_moved_does_not_warn(study, capsys):

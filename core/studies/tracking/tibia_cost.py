@@ -35,6 +35,33 @@ moves); the Cramér–Rao bound of this scene's frames for scale. ``rim``: per f
 tibia's usable pixels (its DRR's support at the true pose within the search region) within
 ``band_px`` of a black pixel. Study only: it reads the truth. JSON on stdout (and ``--out``).
 
+Measured (``resources/benchmarks/tracking_tibia_cost_cpu.json``, this 2-core x86_64 machine, shared;
+1024², 1 mm voxels, grid correction; × this scene's bound 0.018 mm / 0.111°):
+
+* noise-free, frames 0–90 every 15th: the tibia's GC optimum 0.0275 mm / 0.142° off the truth,
+  0.140° RMS about its long axis (mean −0.074°); what moves it (RMS over the frames, mm / °,
+  long axis): the soft tissue 0.026 / 0.137 (0.132; without it 0.022° about the long axis), the rim
+  0.009–0.012 / 0.036–0.049 (``norim``, ``fill``, ``band``), the residual distortion 0.007 / 0.029,
+  the other bones 0.004 / 0.048; GC of the components 0.040 / 0.161 (its long-axis offset 0.047°
+  RMS, +0.031° mean);
+* smoothing by 0.45 / 0.6 mm moves the noise-free optimum by 0.06 / 0.15 mm (frames 81, 20, 50): the
+  rim's step spread further (0.022 / 0.026 mm with the band), the long-axis offset then −0.14 /
+  −0.20°;
+* noisy (the trial's draw, one per frame): the rotation error is mostly the noise's spread (frames
+  81, 20, 50: 0.27° RMS against 0.078° noise-free; frames 0–90: 0.146°); the rim, the band and the
+  distortion move the noisy optimum by ≤ 0.04°, the noise correction by 0.042°, GC of the components
+  by 0.153° (0.169° RMS);
+* the search's share: started 0.3° about the long axis off the truth (``--start-deg ±0.3``), the
+  default Gauss–Newton search ends 0.01–0.12° from where it ends started at the truth, towards the
+  start in 13 of 14 registrations (frames 0–90, noisy; 0.183° RMS from +0.3°, 0.155° from −0.3°,
+  0.146° from the truth): the cost is flat about that axis and the search stops (a step below 0.02,
+  or its predicted decrease below a tenth of the cost's roughness) with part of its start left. Run
+  to a 0.002 step (``+tight``) it ends within 0.008° of the same point from the truth and from +0.3°
+  (0.175 and 0.176° RMS; 0.040° from the default search's end from the truth): the cost's own
+  optimum, 1.6× this scene's bound in rotation on these frames, is what the tibia's
+  rotation error is made of; stopping earlier leaves the start's error in its place, better or
+  worse.
+
 ``--acceptance COST`` runs the acceptance study instead (both modes on the same frames, the capture
 range off; ``--seed`` its scene) with ``COST`` for every bone (:func:`acceptance_with`); ``--speed``
 the tracking speed without and with the band (:func:`speed`).

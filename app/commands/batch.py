@@ -6,9 +6,10 @@ Usage::
                 [--split-bones] [--sequential-subtract auto|on|off] [--ranges] [--workers N]
                 [--scheduler ADDRESS]
                 [--device cpu|cuda] [--frames START:STOP] [--metric gc|components]
-                [--final none|likelihood]
+                [--final none|likelihood] [--threshold HU]
                 [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R] [--motion-limit K]
-                [--motion-floor MM,DEG] [--sigma-limit K] [--stage-move-limit K]
+                [--motion-floor MM,DEG] [--sigma-limit K] [--trajectory-limit K|off]
+                [--no-trajectory-check] [--stage-move-limit K]
                 [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves]
                 [--out SUMMARY.json] [--quiet]
 
@@ -69,6 +70,7 @@ from ._shared import (
     stdout_to_stderr,
     study_folder,
     text_bar,
+    warp_device,
 )
 from .track import add_check_arguments
 
@@ -232,6 +234,20 @@ class _Follow:
                                f"({self.done}/{self.n_tasks} tasks)")
 
 
+def _check_device(device: str | None, scheduler: str | None) -> None:
+    """``--device`` checked before any task, as talus track checks it (``_shared.warp_device``:
+    'gpu' failed every task with 'Invalid device identifier: gpu', 'cuda' without a GPU with a
+    RuntimeError). With ``--scheduler`` the cluster's workers have the GPUs, not this machine:
+    only the form (cpu, cuda, cuda:N) is checked."""
+    if scheduler is None:
+        warp_device(device)
+        return
+    head, _, index = (device or "cpu").partition(":")
+    if (head == "cpu" and not index) or (head == "cuda" and (not index or index.isdigit())):
+        return
+    raise CliError(f"--device: expected cpu, cuda or cuda:N (a GPU's number), got {device!r}")
+
+
 def run(a: argparse.Namespace) -> int:
     for s in a.studies:
         study_folder(s)
@@ -242,6 +258,7 @@ def run(a: argparse.Namespace) -> int:
     if a.joint and a.mode not in ("auto", "joint"):
         raise CliError(f"--joint: contradicts --mode {a.mode} (--joint is --mode joint)")
     mode = "joint" if a.joint else a.mode
+    _check_device(a.device, a.scheduler)
     from .track import check_choices_of_args, check_error, parse_limits, stage_move_note
 
     limits = parse_limits(a.max_uncertainty)

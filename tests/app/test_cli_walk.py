@@ -448,6 +448,10 @@ def test_export_says_how_many_frames_have_a_pose_and_warns_when_none(study, tmp_
     (0, ["track", "{s}", "--trial", "walk", "--device", "gpu"], "--device: expected cpu, cuda or cuda:N"),
     (0, ["demo", "--out", "{t}", "--device", "cuda", "--no-gui"], "--device cuda: no CUDA GPU found"),
     (0, ["bench", "drr", "--quick", "--device", "cuda"], "--device cuda: no CUDA GPU found"),
+    (0, ["batch", "{s}", "--workers", "0", "--device", "cuda"], "--device cuda: no CUDA GPU found"),
+    (0, ["batch", "{s}", "--workers", "0", "--device", "gpu"], "--device: expected cpu, cuda or cuda:N"),
+    (0, ["batch", "{s}", "--scheduler", "tcp://head:8786", "--device", "gpu"],
+     "--device: expected cpu, cuda or cuda:N"),
 ])
 def test_a_device_this_machine_lacks_is_named_before_any_work(study, tmp_path, capsys, monkeypatch, gpus,
                                                              argv, expect):

@@ -62,11 +62,12 @@ def run(a: argparse.Namespace) -> int:
     # the name the window's dialog proposes; 'tra' here is Autoscoper's frame (tra-talus's alias there)
     default = default_path(folder, a.trial, "tra-autoscoper" if fmt == "tra" else fmt)
     out = Path(a.out).expanduser() if a.out else default
-    if fmt not in ("tfm", "jts"):
-        if out.is_dir():  # a folder given: the default file name inside it
-            out = out / default.name
-        out.parent.mkdir(parents=True, exist_ok=True)
+    if fmt not in ("tfm", "jts") and out.is_dir():  # a folder given: the default file name inside it
+        out = out / default.name
     with Study.open(folder, mode="r") as study:
+        study.trial(a.trial)  # a misspelt trial refused before the output's folder is made
+        if fmt not in ("tfm", "jts"):
+            out.parent.mkdir(parents=True, exist_ok=True)
         if a.rate is None:
             from core.study.exports import recording_rate
 

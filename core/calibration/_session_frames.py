@@ -125,7 +125,7 @@ def _lattice(rd: _Reader, cam: str, c: CameraCorrection, man: dict) -> dict | No
     for k, r in enumerate(refs):
         img = c.flatfield.normalise(rd.read(cam, r, k, "distortion"))
         try:
-            pts = detect_beads(img, diameter_px=bead_px, polarity="dark", mask=c.flatfield.valid)
+            pts = detect_beads(img, diameter_px=bead_px, polarity="dark", mask=lit_field(c.flatfield))
             gi = index_grid(pts.uv, min_points=9)
             found.append((gi.uv, gi.ij))
         except ValueError as exc:
@@ -145,12 +145,28 @@ def _detect(img: np.ndarray, target: CalibrationTarget, ppm: float, mask) -> Obj
                                flatten_background=target.body is not None and target.body[0] == "tube")
 
 
+#: The field: where the fluence surface exceeds this fraction of its 99th percentile.
+FIELD_GAIN = 0.2
+
+
+def lit_field(ff: Flatfield) -> np.ndarray:
+    """Raw pixels inside the intensifier's field: a fluence surface above ``FIELD_GAIN`` of its
+    99th percentile. ``Flatfield.valid`` (any positive surface) is not the field: the "max"
+    surface follows the dark noise's upper envelope outside the round field, a positive
+    fraction of a percent of the field's, and the noise normalised there (clipped to [0, 1])
+    is a carpet of dark blobs of every size."""
+    g = ff.gain[ff.valid]
+    if g.size == 0:
+        return ff.valid
+    return ff.valid & (ff.gain > FIELD_GAIN * float(np.percentile(g, 99)))
+
+
 def _field_mask(c: CameraCorrection, margin_px: int = 12) -> np.ndarray:
     """Corrected-image pixels inside the intensifier's field, ``margin_px`` from its rim."""
     import cv2
 
     undist = next(s for s in c.pipeline.steps if getattr(s, "kind", "") == "undistort")
-    inside = undist(c.flatfield.valid.astype(np.float32)) > 0.99
+    inside = undist(lit_field(c.flatfield).astype(np.float32)) > 0.99
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
     return cv2.erode(inside.astype(np.uint8), k).astype(bool)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._session_frames import lit_field
 from .errormap import capture_lattice, reconstruction_errors
 
 __all__ = ["session_report", "write_report"]
@@ -65,8 +66,8 @@ def session_report(cal, *, notes=(), dlt=(), seconds=None, manifest=None, lattic
             "name": c.name, "kv": c.kv,
             "flatfield": {"method": c.flatfield.method, "kernel_px": c.flatfield.kernel_size,
                           "frames": c.flatfield.n_frames, "invalid_pixels": c.flatfield.n_invalid,
-                          "edge_to_centre": _f(np.percentile(c.flatfield.gain[c.flatfield.valid], 2)
-                                               / np.percentile(c.flatfield.gain, 99.5))},
+                          "edge_to_centre": _f(np.percentile(c.flatfield.gain[lit_field(c.flatfield)], 2)
+                                               / np.percentile(c.flatfield.gain, 99.5))},  # in the field
             "distortion": {"model": g.spec.label, "n_params": g.model.n_params,
                            "grid_frames": g.n_frames, "placements": g.n_placements,
                            "points": len(g.ideal_uv), "mm_per_px": g.mm_per_px,

@@ -295,10 +295,16 @@ def lab_frame_note(study, trial: str, old: str, new: str, *, tolerance_mm: float
     states = [tr.results(b) for b in tr.bones]
     poses = [r.pose for st in states for r in st.records.values() if r.pose is not None]
     keyframes = sum(len(st.keyframes) for st in states)
-    seen = pose_shift_mm(study, old, new, poses) if poses else None
+    try:
+        seen = pose_shift_mm(study, old, new, poses) if poses else None
+        moved_far = seen is not None and seen > tolerance_mm
+        shift = (source_shift_mm(study, old, new) or []) if moved_far else []
+    except (OSError, ValueError, KeyError) as e:  # the old calibration's cameras unreadable (removed by hand)
+        return (f"trial {trial!r} moved from calibration {old} to {new} with {len(poses)} recorded poses, "
+                f"but {old}'s cameras cannot be read to check they still fit ({e}): if the lab frame "
+                "changed, set the keyframes again")
     if seen is None or seen <= tolerance_mm:
         return None
-    shift = source_shift_mm(study, old, new) or []
     moved = ", ".join(f"{d:.1f}" for d in shift)
     return (f"trial {trial!r} moved from calibration {old} to {new}, whose cameras see its recorded poses "
             f"up to {seen:.1f} mm (at the bone) from where {old}'s do (the X-ray sources lie {moved} mm "

@@ -71,6 +71,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import re
 import time
 from dataclasses import replace
 
@@ -102,16 +103,26 @@ def _parts(ts, f: int) -> dict:
             "bones": Lb}
 
 
-def _chain(ts, L, noise: bool, f: int, *, aperture: bool = True, corrections=None) -> list[np.ndarray]:
+def _rng(ts, f: int, v: int, draw: int) -> np.random.Generator:
+    """The noise generator of frame ``f``, view ``v``: the trial's own for ``draw`` 0, another
+    independent one per ``draw`` > 0."""
+    if draw == 0:
+        return ts.scene.frame_rng(f, v)
+    return np.random.default_rng([int(ts.scene.seed), 0x5CE4E, int(f), int(v), int(draw)])
+
+
+def _chain(ts, L, noise: bool, f: int, *, aperture: bool = True, corrections=None,
+           draw: int = 0) -> list[np.ndarray]:
     """The trial's chain on line integrals ``L``: flatfield-normalised, undistorted by
-    ``corrections`` (the scene's by default); the trial's noise draw of frame ``f`` or none."""
+    ``corrections`` (the scene's by default); noise draw ``draw`` of frame ``f`` (0: the trial's
+    own, :func:`_rng`) or none."""
     out = []
     for v, m in enumerate(ts.scene.imaging):
         if not noise:
             m = replace(m, photons_per_pixel=None, read_noise_dn=0.0)
         if not aperture:
             m = replace(m, aperture_radius=None)
-        raw = m.apply(L[v], rng=ts.scene.frame_rng(f, v) if noise else None)
+        raw = m.apply(L[v], rng=_rng(ts, f, v, draw) if noise else None)
         out.append((corrections or ts.corrections)[v].unwarp(m.to_float(raw)).astype(np.float32))
     return out
 
@@ -141,23 +152,25 @@ def _filled(images) -> tuple[list, list]:
     return out, masks
 
 
-def variant_frames(ts, f: int, name: str, noise: bool, parts: dict, band_px: float, exact=None):
-    """``(FrameImages, others_bones)`` of frame ``f`` taken apart as ``name`` (:data:`VARIANTS`)."""
+def variant_frames(ts, f: int, name: str, noise: bool, parts: dict, band_px: float, exact=None,
+                   draw: int = 0):
+    """``(FrameImages, others_bones)`` of frame ``f`` taken apart as ``name`` (:data:`VARIANTS`),
+    noise draw ``draw`` where ``noise``."""
     from core.tracking.cost import prepare_frame
 
     L = parts["all"]
     others = [1, 2]
     if name in ("trial", "fill", "band"):
-        imgs = _chain(ts, L, noise, f)
+        imgs = _chain(ts, L, noise, f, draw=draw)
     elif name == "norim":
-        imgs = _chain(ts, L, noise, f, aperture=False)
+        imgs = _chain(ts, L, noise, f, aperture=False, draw=draw)
     elif name == "notissue":
-        imgs = _chain(ts, L - parts["tissue"], noise, f)
+        imgs = _chain(ts, L - parts["tissue"], noise, f, draw=draw)
     elif name == "alone":
-        imgs = _chain(ts, L - parts["bones"][:, 1] - parts["bones"][:, 2], noise, f)
+        imgs = _chain(ts, L - parts["bones"][:, 1] - parts["bones"][:, 2], noise, f, draw=draw)
         others = []
     elif name == "exact":
-        imgs = _chain(ts, L, noise, f, corrections=exact)
+        imgs = _chain(ts, L, noise, f, corrections=exact, draw=draw)
     else:
         raise ValueError(f"variant: expected one of {VARIANTS}, got {name!r}")
     if name == "fill":
@@ -175,19 +188,31 @@ def _options(cost: str):
     o = TrackingOptions().registration
     parts = cost.split("+")
     band, noise, tight = "band" in parts[1:], "noise" in parts[1:], "tight" in parts[1:]
+    quad = "quad" in parts[1:]
     base = "gc" if cost == "band" else parts[0]
+    mixed = re.fullmatch(r"gc(ncc|gd|gi)(\d+)", base)
+    smooth = {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3}
     if base in ("gc", "gc45", "gc60", "components"):
         s = 0.3 if base in ("gc", "components") else int(base[2:]) / 100
-        t = MetricTerm("gc", 1.0, {"fluoro_sigma_mm": s, "drr_sigma_mm": s,
-                                   **({"components": True} if base == "components" else {})})
+        terms = (MetricTerm("gc", 1.0, {"fluoro_sigma_mm": s, "drr_sigma_mm": s,
+                                        **({"components": True} if base == "components" else {})}),)
+    elif base in ("ncc", "gd", "gi"):  # one term of that kind, both images smoothed by 0.3 mm
+        terms = (MetricTerm(base, 1.0, smooth),)
+    elif mixed:  # gc and w = NN/100 times the other kind (both smoothed by 0.3 mm)
+        terms = (MetricTerm("gc", 1.0, smooth), MetricTerm(mixed[1], int(mixed[2]) / 100, smooth))
+        quad = True  # the Gauss-Newton engine takes one term
     else:
-        raise ValueError(f"cost: expected one of {COSTS} (or one with '+band', '+noise'), got {cost!r}")
+        raise ValueError(f"cost: expected one of {COSTS}, 'ncc', 'gd', 'gi' or 'gcnccNN', 'gcgdNN', 'gcgiNN' "
+                         f"(or one with '+band', '+noise', '+tight', '+quad'), got {cost!r}")
     if band or cost == "band":
-        t = replace(t, options={**t.options, "rim_sigmas": 4.0})
-    o = replace(o, terms=(t,), noise_correction=noise)  # (the option sets the gc term's flag)
-    if tight:  # the full-resolution Gauss-Newton steps run until a step is below 0.002 (mm, degrees)
-        from core.tracking.register_options import FINAL_STEP, Level
+        terms = tuple(replace(t, options={**t.options, "rim_sigmas": 4.0}) for t in terms)
+    o = replace(o, terms=terms, noise_correction=noise)  # (the option sets the gc term's flag)
+    from core.tracking.register_options import FINAL_STEP, Level
 
+    if quad:  # the quadratic-model search at full resolution on the (any-term) cost, to a 0.005 step
+        o = replace(o, levels=(Level(scale=1.0, method="quadratic", sigma=FINAL_STEP, max_generations=12,
+                                     tol_x=0.005, options={"tol_noise": 1e-3}),))
+    elif tight:  # the full-resolution Gauss-Newton steps run until a step is below 0.002 (mm, degrees)
         o = replace(o, levels=(Level(scale=1.0, method="gauss_newton", sigma=FINAL_STEP, max_generations=16,
                                      tol_x=0.002, options={"tol_noise": 1e-4}),))
     return o
@@ -218,6 +243,12 @@ def _summary(rows: list, ref: list | None, bound: dict) -> dict:
     out = {"rms_mm": round(_rms(E[:, :3]), 5), "rms_deg": round(_rms(E[:, 3:]), 5),
            "long_axis_mean_deg": round(float(la.mean()), 5),
            "long_axis_rms_deg": round(float(np.sqrt(np.mean(la**2))), 5)}
+    fr = np.array([r["frame"] for r in rows])
+    if len(fr) > len(set(fr.tolist())):  # several noise draws per frame: the spread and the bias
+        mean = {f: la[fr == f].mean() for f in set(fr.tolist())}
+        out["long_axis_spread_deg"] = round(float(np.sqrt(np.mean((la - [mean[f] for f in fr]) ** 2))), 5)
+        out["long_axis_bias_rms_deg"] = round(float(np.sqrt(np.mean(np.square(list(mean.values()))))), 5)
+        out["draws"] = int(len(fr) // len(mean))
     if bound:
         out["over_bound"] = [round(out["rms_mm"] / bound["rms_mm"], 3),
                              round(out["rms_deg"] / bound["rms_deg"], 3)]
@@ -233,10 +264,11 @@ def _summary(rows: list, ref: list | None, bound: dict) -> dict:
 def run(*, pixels: int = 1024, voxel: float = 1.0, frames=(0, 20, 40, 60, 81), variants=VARIANTS,
         costs=("gc", "gc45", "gc60", "components", "band"), cost_variants=("trial",),
         noises=("free", "noisy"), band_px: float | None = None, device: str | None = "cpu",
-        correction: str = "grid", start_deg: float = 0.0, checkpoint=None) -> dict:
+        correction: str = "grid", start_deg: float = 0.0, draws: int = 1, checkpoint=None) -> dict:
     """The study (module docs). ``band_px`` None: 4 σ of the default smoothing plus 2 px.
     ``start_deg``: each registration starts from the true pose turned by this much about the
-    tibia's long axis (about its centroid) instead of the true pose (the search's share)."""
+    tibia's long axis (about its centroid) instead of the true pose (the search's share).
+    ``draws``: noise draws per noisy frame (the trial's own, then independent ones)."""
     from core.geometry.transforms import pose_from_params
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao, pose_errors
     from core.studies.tracking.grid_correction import model_corrections
@@ -269,12 +301,12 @@ def run(*, pixels: int = 1024, voxel: float = 1.0, frames=(0, 20, 40, 60, 81), v
                                  base=truth[0])
         roi = search_region(ts.renderer, truth[0], 0, views=(0, 1), center=m.centroid,
                             options=_options("gc"), outline=m.outline)
-        for noise in noises:
+        for noise, draw in [(n, d) for n in noises for d in (range(draws) if n == "noisy" else (0,))]:
             made: dict = {}
             for v, c in jobs:
                 if v not in made:
-                    made[v] = variant_frames(ts, f, v, noise == "noisy", parts, band_px, exact)
-                    if v == "trial":
+                    made[v] = variant_frames(ts, f, v, noise == "noisy", parts, band_px, exact, draw)
+                    if v == "trial" and draw == 0:
                         out["rim"].setdefault(noise, {})[str(f)] = _rim_pixels(
                             ts, [made[v][0]._fluence[k] for k in (0, 1)], truth, roi, band_px)
                 frame, oth = made[v]
@@ -283,7 +315,7 @@ def run(*, pixels: int = 1024, voxel: float = 1.0, frames=(0, 20, 40, 60, 81), v
                              outline=m.outline, roi=roi)
                 e = pose_errors(r.pose, truth[0], m.centroid)
                 rows.setdefault((v, c, noise), []).append(
-                    {"frame": f, "error": e.round(6).tolist(), "converged": bool(r.converged),
+                    {"frame": f, "draw": draw, "error": e.round(6).tolist(), "converged": bool(r.converged),
                      "long_axis_deg": round(float(e[3:] @ lab_axis), 6)})
         res: dict = {}
         for (v, c, noise), rr in rows.items():
@@ -377,6 +409,7 @@ def main(argv=None) -> int:
     p.add_argument("--correction", default="grid")
     p.add_argument("--start-deg", type=float, default=0.0,
                    help="start each registration turned by this much about the tibia's long axis")
+    p.add_argument("--draws", type=int, default=1, help="noise draws per noisy frame (the trial's own first)")
     p.add_argument("--device", default="cpu", help="Warp device (auto: CUDA where present)")
     p.add_argument("--machine-name", default=None)
     p.add_argument("--acceptance", default=None, metavar="COST",
@@ -411,7 +444,7 @@ def main(argv=None) -> int:
     res = run(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in split(a.frames)],
               variants=split(a.variants), costs=split(a.costs), cost_variants=split(a.cost_variants),
               noises=split(a.noises), band_px=a.band_px, device=a.device, correction=a.correction,
-              start_deg=a.start_deg, checkpoint=checkpoint)
+              start_deg=a.start_deg, draws=a.draws, checkpoint=checkpoint)
     checkpoint(res)
     print_json(res, a.out)
     return 0

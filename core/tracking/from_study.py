@@ -114,6 +114,8 @@ __all__ = ["FULL_SCALE", "FinalStageError", "final_stage_problem", "flatfield_co
 SOFT_TISSUE_HU = 40.0
 #: :func:`frame_reader`'s description of frames divided by the full scale only (no flatfield).
 FULL_SCALE = "full scale (no flatfield)"
+#: How :func:`core.tracking.frame_step.track_frame` flags a frame that a view lacks.
+MISSING_FLAG = "frame missing in view"
 #: Rim (mm) kept around each bone (:func:`core.tracking.bones.bone_model`'s ``isolate_mm``) when
 #: the transfer has no threshold.
 ISOLATE_MM = 1.0
@@ -131,7 +133,10 @@ def tissue_excess_transfer(threshold_hu: float = 200.0, *, soft_tissue_hu: float
 
 def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) -> tuple[Callable, str]:
     """``(read(frame) -> [fluence per view], description)`` for a study trial (see the module
-    docs for how raw frames are normalised). A view whose frame cannot be read gives None."""
+    docs for how raw frames are normalised). A view whose frame cannot be read gives None; each
+    view is read alone (a damaged file in one leaves the other's image), and ``read.unreadable``
+    maps such a frame to why: the view, the file and the reader's error (:func:`track_study`
+    puts it in the frame's flag, which said only 'frame missing in view 0, 1')."""
     rig = trial.rig()
     how = "given"
     fns = list(correction) if correction is not None else None
@@ -152,17 +157,42 @@ def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) 
     if len(fns) != len(rig):
         raise ValueError(f"correction: expected {len(rig)} per-view corrections, got {len(fns)}")
 
+    unreadable: dict[int, str] = {}
+
     def read(t: int):
         try:
-            raw = trial.frames(t)
-        except (ValueError, OSError, IndexError):
-            raw = None
-        if raw is None:
+            seq = trial.sequences()
+            index = seq.view_frames(t)
+        except (ValueError, OSError, IndexError) as exc:
+            unreadable[t] = f"frame {t} of the trial cannot be read: {exc}"
             return [None] * len(rig)
-        return [None if r is None else np.asarray(fn(r), dtype=np.float32)
-                for fn, r in zip(fns, raw, strict=True)]
+        out, why = [], []
+        for v, (fn, view, k) in enumerate(zip(fns, seq.views, index, strict=True)):
+            try:
+                raw = view[k]
+            except (ValueError, OSError, IndexError) as exc:  # a damaged file names itself
+                out.append(None)
+                why.append(f"view {v + 1}: {exc}")
+                continue
+            out.append(None if raw is None else np.asarray(fn(raw), dtype=np.float32))
+        if why:
+            unreadable[t] = "; ".join(why)
+        else:
+            unreadable.pop(t, None)
+        return out
 
+    read.unreadable = unreadable
     return read, how
+
+
+def _with_reason(fr: FrameResult, unreadable: dict[int, str]) -> FrameResult:
+    """``fr`` with its 'frame missing in view ...' flag (:func:`core.tracking.frame_step.track_frame`'s)
+    replaced by why :func:`frame_reader` could not read the frame: the file and the error."""
+    why = unreadable.get(fr.frame)
+    if why is None or fr.pose is not None:
+        return fr
+    flags = tuple(f"frame cannot be read: {why}" if str(f).startswith(MISSING_FLAG) else f for f in fr.flags)
+    return fr if flags == fr.flags else replace(fr, flags=flags)
 
 
 def flatfield_corrected(how: str) -> bool:
@@ -400,7 +430,10 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             rep["summary"] = summary
         study.write_report("tracking", report_name, rep)
 
+    unreadable = getattr(read, "unreadable", {})
+
     def on_progress(done, total, fr):
+        fr = _with_reason(fr, unreadable)
         state["frames"].append(fr.to_dict())
         now = time.monotonic()
         if fr.flags or now - state["last"] > report_every_s:
@@ -415,6 +448,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                                                               tracking=fr.journal_fields()),
                    skip=skip, progress=on_progress, cancel=cancel,
                    neighbours=journal_neighbours(states, order))  # the trajectory check's, outside the range
+    for k, fr in result.results.items():  # the unreadable frames' flags name the file and the error
+        result.results[k] = _with_reason(fr, unreadable)
     report["summary"] = result.summary()
     report["flagged"] = [r.to_dict() for r in result.flagged]
     # the frames as the run left them: the trajectory post-pass flags after the progress events

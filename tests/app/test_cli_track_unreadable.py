@@ -1,0 +1,54 @@
+"""``talus track`` on a trial with a damaged frame file: the frame's flag names the file and the
+reader's error, and the other view's file is still read (it said 'frame missing in view 0, 1',
+naming no file: the frame reader read both views at once and swallowed the error)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from app.cli import main as talus
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    from core.synthetic import make_demo_study
+
+    out = tmp_path_factory.mktemp("demo") / "study"
+    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    return out
+
+
+def test_a_damaged_frame_is_flagged_with_its_file_and_the_reason(demo, tmp_path, capsys):
+    import shutil
+
+    study = shutil.copytree(demo, tmp_path / "study")
+    damaged = sorted((study / "frames").iterdir())[0] / "frame_0001.tif"
+    damaged.write_bytes(b"II*\x00" + b"\x00" * 12)  # a TIFF header, no page
+    talus(["track", str(study), "--trial", "walk", "--bones", "talus", "--frames", "1:2",
+           "--device", "cpu", "--no-confidence"])
+    out = capsys.readouterr()
+    line = next(ln for ln in out.err.splitlines() if "flagged talus@1" in ln)
+    assert f"frame cannot be read: view 1: {damaged}: " in line, line
+    assert "view 2" not in line and "frame missing" not in line
+    flagged = json.loads(out.out)["flagged"]
+    assert any(str(damaged) in " ".join(flags) for _, _, flags in flagged)
+
+
+def test_the_reader_reads_each_view_alone(demo, tmp_path):
+    import shutil
+
+    from core.study import Study
+    from core.tracking.from_study import frame_reader
+
+    study = shutil.copytree(demo, tmp_path / "study")
+    damaged = sorted((study / "frames").iterdir())[1] / "frame_0001.tif"
+    damaged.write_bytes(b"not a TIFF")
+    with Study.open(study) as st:
+        read, _ = frame_reader(st, st.trial("walk"))
+        first, second = read(1)
+        assert first is not None and second is None
+        assert read.unreadable[1].startswith(f"view 2: {damaged}: ")
+        assert all(im is not None for im in read(0)) and 0 not in read.unreadable

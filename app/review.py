@@ -275,9 +275,7 @@ class FrameTableDock(QtWidgets.QWidget):
         self.view.setSelectionMode(QtWidgets.QAbstractItemView.SelectionMode.SingleSelection)
         self.view.verticalHeader().hide()
         self.view.verticalHeader().setDefaultSectionSize(20)
-        self.view.horizontalHeader().setStretchLastSection(True)
-        for col, width in enumerate((52, 90, 100, 58, 52, 52, 50)):  # fixed: no scan of every row
-            self.view.setColumnWidth(col, width)
+        self._layout_columns(data.bones)
         self.view.setAlternatingRowColors(True)
         top = QtWidgets.QHBoxLayout()
         top.addWidget(self.status_filter, 1)
@@ -294,6 +292,51 @@ class FrameTableDock(QtWidgets.QWidget):
         self.view.clicked.connect(lambda index: self._on_row(index, None))
         self.view.selectionModel().currentRowChanged.connect(
             lambda cur, prev: self.view.hasFocus() and self._on_row(cur, prev))
+
+    def _layout_columns(self, bones) -> None:
+        """Column widths from the font (the header's text or the widest value a column can show; no
+        scan of every row), and the Reason column placed after Status with its text elided (the
+        whole reason in the row's tooltip), as wide as the dock leaves it (:meth:`_fit_reason`).
+        It was the last column, past the dock's edge at the window's default sizes: the reason
+        could be read only in the tooltip."""
+        header = self.view.horizontalHeader()
+        fm = self.view.fontMetrics()
+        pad = fm.horizontalAdvance("M") + 8  # the cell's margins; the sort arrow of the sorted column
+        samples = ([str(max(self.table_model.review.n_frames - 1, 0)) + "MM"], list(bones) or [""],
+                   [f"{n}M" for n in STATUS_NAMES],  # and the status's colour square
+                   ["-0.000"], ["0.000"], ["0.000"], ["yes"])
+        for col, values in enumerate(samples):
+            self.view.setColumnWidth(col, max(fm.horizontalAdvance(v) for v in [COLUMNS[col], *values]) + pad)
+        header.setStretchLastSection(False)
+        reason = COLUMNS.index("Reason")
+        header.moveSection(header.visualIndex(reason), COLUMNS.index("Status") + 1)
+        self._reason_min = 10 * fm.averageCharWidth()
+        self.view.setTextElideMode(QtCore.Qt.TextElideMode.ElideRight)
+        self.view.setWordWrap(False)
+        self.view.viewport().installEventFilter(self)
+        self._fit_reason()
+
+    def _fit_reason(self) -> None:
+        """The Reason column's width: what the table's width leaves beside the columns before it
+        and as many of those after it as leave it 20 letters (all of them: it fills the table;
+        the columns left out are scrolled to); at least 10 letters."""
+        reason = COLUMNS.index("Reason")
+        header = self.view.horizontalHeader()
+        order = sorted(range(len(COLUMNS)), key=header.visualIndex)
+        at = order.index(reason)
+        used = sum(self.view.columnWidth(c) for c in order[:at])
+        after = [self.view.columnWidth(c) for c in order[at + 1:]]
+        room = self.view.viewport().width() - used
+        for k in range(len(after), -1, -1):
+            rest = room - sum(after[:k])
+            if rest >= 2 * self._reason_min:
+                break
+        self.view.setColumnWidth(reason, max(rest, self._reason_min))
+
+    def eventFilter(self, obj, event) -> bool:
+        if obj is self.view.viewport() and event.type() == QtCore.QEvent.Type.Resize:
+            self._fit_reason()
+        return super().eventFilter(obj, event)
 
     def set_filter(self, name: str) -> None:
         """Show rows of one filter by its name (``"Flagged"``, ``"All frames"``, …)."""

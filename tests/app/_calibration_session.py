@@ -6,7 +6,8 @@ calibration wizard's walk and ``talus calibrate``'s tests); import
 that size), 11 spiral frames (with one excluded by hand, 8 labelled frames are left for the
 solve), one grid and one bead-lattice frame, 2 dark and 3 empty-field frames per camera. Its
 static cube is labelled in both views, also with poly(4,4) for the first camera's distortion (as
-the wizard walk chooses); with 9 or 10 spiral frames, or at 320 px, it is not (seed 0).
+the wizard walk chooses); since beads are searched inside the intensifier's field only, also with 9
+or 10 spiral frames or at 320 px (seed 0), which it was not.
 
 The folder is read, never written to (a test that changes it takes a copy). Writing it costs
 about 3 s of CPU on the 2-core machine.

@@ -25,8 +25,13 @@ components), ``band`` (the tracker's band at the rim, the ``gc`` term's option `
 :data:`core.tracking.cost.RIM_OPTION`; ``+band`` adds it to another cost; the others are without
 it, whatever the default; ``+noise``: the quantum noise's share taken out of the magnitudes,
 ``noise_correction``; ``+tight``: the Gauss–Newton steps until a step is below 0.002 mm / ° and
-no stop on the predicted decrease, at most 16). Each frame noise-free (the cost's bias) and noisy
-(the trial's own noise draw).
+no stop on the predicted decrease, at most 16); ``ncc``, ``gd``, ``gi`` (that kind alone, both images
+smoothed by 0.3 mm) and ``gcnccNN``, ``gcgdNN``, ``gcgiNN`` (GC and NN/100 times that kind, weights
+normalised): the Gauss–Newton engine takes one term, so the mixtures are searched by the quadratic
+model at full resolution (design half-widths 0.25 mm / 0.5°, to a 0.005 step), ``+quad`` on GC for the
+same search, ``+fine`` with half-widths 0.1 mm / 0.2°. Each frame noise-free (the cost's bias) and
+noisy (the trial's own noise draw; ``--draws N``: N draws per frame, the trial's own then independent
+ones, with the long-axis spread over the draws and the RMS of their per-frame means).
 
 Per variant, cost and noise: the RMS error (mm, °) over the frames, the rotation about the tibia's
 long axis (its mean and RMS; the first principal axis of its surface, in the lab), and the RMS of
@@ -188,7 +193,8 @@ def _options(cost: str):
     o = TrackingOptions().registration
     parts = cost.split("+")
     band, noise, tight = "band" in parts[1:], "noise" in parts[1:], "tight" in parts[1:]
-    quad = "quad" in parts[1:]
+    fine = "fine" in parts[1:]
+    quad = "quad" in parts[1:] or fine
     base = "gc" if cost == "band" else parts[0]
     mixed = re.fullmatch(r"gc(ncc|gd|gi)(\d+)", base)
     smooth = {"fluoro_sigma_mm": 0.3, "drr_sigma_mm": 0.3}
@@ -203,15 +209,16 @@ def _options(cost: str):
         quad = True  # the Gauss-Newton engine takes one term
     else:
         raise ValueError(f"cost: expected one of {COSTS}, 'ncc', 'gd', 'gi' or 'gcnccNN', 'gcgdNN', 'gcgiNN' "
-                         f"(or one with '+band', '+noise', '+tight', '+quad'), got {cost!r}")
+                         f"(or one with '+band', '+noise', '+tight', '+quad', '+fine'), got {cost!r}")
     if band or cost == "band":
         terms = tuple(replace(t, options={**t.options, "rim_sigmas": 4.0}) for t in terms)
     o = replace(o, terms=terms, noise_correction=noise)  # (the option sets the gc term's flag)
     from core.tracking.register_options import FINAL_STEP, Level
 
     if quad:  # the quadratic-model search at full resolution on the (any-term) cost, to a 0.005 step
-        o = replace(o, levels=(Level(scale=1.0, method="quadratic", sigma=FINAL_STEP, max_generations=12,
-                                     tol_x=0.005, options={"tol_noise": 1e-3}),))
+        # ('+fine': design half-widths 0.1 mm / 0.2 deg instead of FINAL_STEP's 0.25 / 0.5)
+        o = replace(o, levels=(Level(scale=1.0, method="quadratic", sigma=(0.1, 0.2) if fine else FINAL_STEP,
+                                     max_generations=12, tol_x=0.005, options={"tol_noise": 1e-3}),))
     elif tight:  # the full-resolution Gauss-Newton steps run until a step is below 0.002 (mm, degrees)
         o = replace(o, levels=(Level(scale=1.0, method="gauss_newton", sigma=FINAL_STEP, max_generations=16,
                                      tol_x=0.002, options={"tol_noise": 1e-4}),))
@@ -246,7 +253,8 @@ def _summary(rows: list, ref: list | None, bound: dict) -> dict:
     fr = np.array([r["frame"] for r in rows])
     if len(fr) > len(set(fr.tolist())):  # several noise draws per frame: the spread and the bias
         mean = {f: la[fr == f].mean() for f in set(fr.tolist())}
-        out["long_axis_spread_deg"] = round(float(np.sqrt(np.mean((la - [mean[f] for f in fr]) ** 2))), 5)
+        dev = la - [mean[f] for f in fr]  # (the standard deviation over the draws, n - 1 per frame)
+        out["long_axis_spread_deg"] = round(float(np.sqrt(np.sum(dev**2) / (len(fr) - len(mean)))), 5)
         out["long_axis_bias_rms_deg"] = round(float(np.sqrt(np.mean(np.square(list(mean.values()))))), 5)
         out["draws"] = int(len(fr) // len(mean))
     if bound:

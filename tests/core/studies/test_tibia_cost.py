@@ -47,6 +47,7 @@ def test_mixed_costs_by_name():
     assert [t.kind for t in tc._options("gcgd10+band").terms] == ["gc", "gd"]
     assert all(RIM_OPTION in t.options for t in tc._options("gcgd10+band").terms)
     assert tc._options("gc+quad").levels[0].method == "quadratic"
+    assert tc._options("gcncc50+fine").levels[0].sigma == (0.1, 0.2)
     (t,) = tc._options("ncc").terms
     assert t.kind == "ncc" and tc._options("ncc").levels is None
     with pytest.raises(ValueError, match="cost"):
@@ -70,6 +71,6 @@ def test_noise_draws_and_spread():
     rows = [{"frame": f, "draw": k, "error": [0.0] * 6, "long_axis_deg": m + s}
             for f, m in ((0, 0.1), (1, -0.3)) for k, s in enumerate((0.2, -0.2))]
     s = tc._summary(rows, None, {})
-    assert s["draws"] == 2 and s["long_axis_spread_deg"] == pytest.approx(0.2, abs=1e-5)
+    assert s["draws"] == 2 and s["long_axis_spread_deg"] == pytest.approx(np.sqrt(0.08), abs=1e-5)
     assert s["long_axis_bias_rms_deg"] == pytest.approx(np.sqrt((0.1**2 + 0.3**2) / 2), abs=1e-5)
     assert "long_axis_spread_deg" not in tc._summary(rows[::2], None, {})

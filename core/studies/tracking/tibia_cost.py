@@ -66,6 +66,11 @@ Measured (``resources/benchmarks/tracking_tibia_cost_cpu.json``, this 2-core x86
   optimum, 1.6× this scene's bound in rotation on these frames, is what the tibia's
   rotation error is made of; stopping earlier leaves the start's error in its place, better or
   worse.
+* mixtures (``resources/benchmarks/tracking_tibia_cost_mix_cpu.json``, 512², frames 20 and 60, four
+  draws each, σ about the long axis 0.110°): GC's default search spreads 0.140° about the long
+  axis (bias 0.006°); on the quadratic search GC 0.194° (bias 0.183°), GC + 0.25 / 0.5 NCC 0.248 /
+  0.196°, GC + 0.25 GD 0.197°: none narrows it. GC + 0.5 NCC on the fine design (frame 20) spreads
+  0.051° but sits 0.24° / 0.10 mm off the truth (the tissue's shading).
 
 ``--acceptance COST`` runs the acceptance study instead (both modes on the same frames, the capture
 range off; ``--seed`` its scene) with ``COST`` for every bone (:func:`acceptance_with`); ``--speed``

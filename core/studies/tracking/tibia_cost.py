@@ -69,8 +69,9 @@ Measured (``resources/benchmarks/tracking_tibia_cost_cpu.json``, this 2-core x86
 * mixtures (``resources/benchmarks/tracking_tibia_cost_mix_cpu.json``, 512², frames 20 and 60, four
   draws each, σ about the long axis 0.110°): GC's default search spreads 0.140° about the long
   axis (bias 0.006°); on the quadratic search GC 0.194° (bias 0.183°), GC + 0.25 / 0.5 NCC 0.248 /
-  0.196°, GC + 0.25 GD 0.197°: none narrows it. GC + 0.5 NCC on the fine design (frame 20) spreads
-  0.051° but sits 0.24° / 0.10 mm off the truth (the tissue's shading).
+  0.196°, GC + 0.25 GD 0.197°: none narrows it; on the fine design GC 0.164°, GC + 0.5 NCC 0.239°
+  (0.051° on frame 20, but 0.24° / 0.10 mm off the truth there: the tissue's shading), GC + 0.25 GD
+  0.271°.
 
 ``--acceptance COST`` runs the acceptance study instead (both modes on the same frames, the capture
 range off; ``--seed`` its scene) with ``COST`` for every bone (:func:`acceptance_with`); ``--speed``

@@ -32,7 +32,7 @@ class Trial:
         self._name = name
         self._seq: TwoViewSequence | None = None
         self._repaired: set[str] = set()
-        self._left_size: dict[str, int] = {}  # bone -> its journal's size after our last append
+        self._left_size: dict[str, tuple] = {}  # bone -> _size(journal) after our last append
 
     def _entry(self) -> dict:
         try:
@@ -123,7 +123,7 @@ class Trial:
         path = self._journal(bone)
         if bone not in self._repaired:
             self._study.lock_journal(self._name, bone)  # held until the study is closed
-            if self._left_size.get(bone) != _size(path):  # appended by others since (or never by us)
+            if self._left_size.get(bone) != _size(path):  # written by others since (or never by us)
                 repair_tail(path)  # safe: we hold the journal's lock
             self._repaired.add(bone)
         return path
@@ -177,8 +177,12 @@ class Trial:
         write_tra(path, poses, **options)
 
 
-def _size(path: Path) -> int:
+def _size(path: Path) -> tuple:
+    """The journal's signature: size, file and modification time. Another writer's appends change
+    the size; a rewrite (a compaction or salvage, atomic: another file) followed by a torn append
+    could leave the size as it was, but not the file or the time."""
     try:
-        return path.stat().st_size
+        st = path.stat()
     except FileNotFoundError:
-        return -1
+        return ()
+    return st.st_size, st.st_ino, st.st_mtime_ns

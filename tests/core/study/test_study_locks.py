@@ -182,3 +182,29 @@ def test_a_journal_taken_again_is_repaired_only_after_other_appends(folder, monk
     finally:
         a.close()
         b.close()
+
+
+def test_a_journal_rewritten_to_its_old_size_with_a_torn_tail_is_repaired(folder):
+    """The repair is skipped where the journal is as this handle left it. Its size alone did not say
+    so: another writer's compaction (an atomic rewrite) followed by a torn append can leave it the
+    size it was; our next record was then glued onto the torn one, both lost. The journal's file and
+    modification time are compared too."""
+    import os
+
+    a = Study.open(folder, mode="w")
+    try:
+        ta = a.trial("walk01")
+        for f in range(3):
+            ta.record_pose("talus", f, np.eye(4))
+        a.unlock_journal("walk01", "talus")
+        path = folder / "results" / "walk01" / "poses" / "talus.jsonl"
+        data = path.read_bytes()
+        tmp = path.with_name("talus.jsonl.tmp")  # the rewrite: frames 0-1 whole, frame 2 torn, same size
+        tmp.write_bytes(data[:-1] + b"x")
+        os.replace(tmp, path)
+        assert path.stat().st_size == len(data)
+        ta.record_pose("talus", 3, np.eye(4))
+        state = a.trial("walk01").results("talus")
+        assert set(state.records) == {0, 1, 3} and not state.torn_bytes
+    finally:
+        a.close()

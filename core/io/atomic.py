@@ -393,10 +393,16 @@ class FileLock:
             "purpose": self.purpose,
         }
         blob = json.dumps(info).encode()
-        os.ftruncate(fd, 0)
-        os.lseek(fd, 0, os.SEEK_SET)
-        os.write(fd, blob)
-        os.fsync(fd)
+        try:
+            os.ftruncate(fd, 0)
+            os.lseek(fd, 0, os.SEEK_SET)
+            os.write(fd, blob)
+            os.fsync(fd)
+        except BaseException:  # e.g. a full disk: let the lock go, or the open fd keeps it taken
+            with contextlib.suppress(OSError):
+                _unlock(fd)
+            os.close(fd)
+            raise
         self._fd = fd
         return self
 

@@ -157,3 +157,18 @@ def test_json_checkpoint_writes_each_partial_result_with_its_fields(tmp_path):
     atomic.json_checkpoint(None, machine_name="x")(nowhere)  # no file: the fields still set
     assert nowhere == {"a": 1, "machine_name": "x"}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["study.json"]
+
+
+def test_a_lock_whose_holder_cannot_be_written_is_not_kept(tmp_path, monkeypatch):
+    """Writing the holder's line failed (e.g. a full disk) after the lock was taken: the error is
+    raised and the lock let go. Its open file kept it taken for the process's life (a window's edits
+    of a bone, and a batch's tasks of it, refused until the window closed)."""
+
+    def full(fd):
+        raise OSError(28, "No space left on device")
+
+    with monkeypatch.context() as m:
+        m.setattr(os, "fsync", full)
+        with pytest.raises(OSError, match="No space left"):
+            FileLock(tmp_path / ".lock", purpose="bone").acquire()
+    FileLock(tmp_path / ".lock", purpose="bone").acquire().release()  # free

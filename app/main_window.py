@@ -138,8 +138,8 @@ class MainWindow(QtWidgets.QMainWindow):
         self.undo_action.setShortcut(QtGui.QKeySequence.StandardKey.Undo)
         self.redo_action = edit.addAction("&Redo")
         self.redo_action.setShortcut(QtGui.QKeySequence("Ctrl+Shift+Z"))
-        self.undo_action.triggered.connect(lambda: self.model and self.model.undo())
-        self.redo_action.triggered.connect(lambda: self.model and self.model.redo())
+        self.undo_action.triggered.connect(lambda: self.model and self._guard(self.model.undo))
+        self.redo_action.triggered.connect(lambda: self.model and self._guard(self.model.redo))
         view = self.menuBar().addMenu("&View")
         for text, keys, slot in (
             ("Next frame", ("Right", "."), lambda: self.model and self.model.step(1)),

@@ -253,9 +253,16 @@ class ViewerModel:
     def can_redo(self) -> bool:
         return bool(self._redo)
 
+    def _check_unlocked(self, e: PoseEdit, what: str) -> None:
+        layer = self.layers[e.bone]
+        if layer.locked:  # a tracking job or a batch writes its journal: the edit would reach it
+            raise ValueError(f"bone: {layer.name} is locked: its edit at frame {e.frame} is not {what}")
+
     def undo(self) -> None:
+        """Undo the last pose edit (refused, ``ValueError``, while its bone is locked)."""
         if not self._undo:
             return
+        self._check_unlocked(self._undo[-1], "undone")
         e = self._undo.pop()
         self._redo.append(e)
         self._merge_key = None
@@ -263,8 +270,10 @@ class ViewerModel:
         self.history_changed.emit()
 
     def redo(self) -> None:
+        """Redo the last undone pose edit (refused, ``ValueError``, while its bone is locked)."""
         if not self._redo:
             return
+        self._check_unlocked(self._redo[-1], "redone")
         e = self._redo.pop()
         self._undo.append(e)
         self._merge_key = None

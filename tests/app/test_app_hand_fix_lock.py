@@ -162,3 +162,36 @@ def test_the_window_holds_no_journal_a_batch_beside_it_wants(qtbot, demo_study, 
             from app.session import open_study
 
             open_study(folder)
+
+
+def test_undo_of_an_edit_of_a_bone_locked_for_a_batch_writes_nothing(qtbot, demo_study, tmp_path):
+    """Edit > Undo (Ctrl+Z) of an edit made before the bone was locked (handed to a batch, or tracked
+    by the window's tracking job) applied it to the locked layer, and the pose signal journaled it
+    as a hand pose between the batch's appends (a keyframe a range task could overwrite). The undo
+    is refused while the bone is locked (said in the window, nothing written), and done once the
+    lock is lifted; Redo likewise."""
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:
+        s, m, _ = _handed(qtbot, win, folder)
+        f = m.current_frame
+        before = m.pose(BONE).copy()
+        _action(win, "Move x+").trigger()
+        moved = m.pose(BONE).copy()
+        journal = folder / "results" / s.trial_name / "poses" / f"{BONE}.jsonl"
+        size = journal.stat().st_size
+        m.set_layer_property(BONE, "locked", True)  # as BatchPanel.start locks a handed bone
+        shown = []
+        win.show_error = lambda title, text: shown.append(text)  # the dialog _guard shows
+        _action(win, "&Undo").trigger()
+        assert shown == [f"bone: {BONE} is locked: its edit at frame {f} is not undone"]
+        np.testing.assert_array_equal(m.pose(BONE), moved)  # the model keeps the edit ...
+        assert journal.stat().st_size == size  # ... nothing written
+        m.set_layer_property(BONE, "locked", False)  # the batch ended
+        _action(win, "&Undo").trigger()
+        np.testing.assert_allclose(m.pose(BONE), before)
+        np.testing.assert_allclose(_journaled(s, f), before)
+        m.set_layer_property(BONE, "locked", True)
+        _action(win, "&Redo").trigger()
+        assert shown[-1] == f"bone: {BONE} is locked: its edit at frame {f} is not redone"
+        np.testing.assert_allclose(_journaled(s, f), before)
+        assert m.can_redo and not s.study.journal_locked(s.trial_name, BONE)

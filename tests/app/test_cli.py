@@ -249,3 +249,18 @@ def test_demo_reuses_a_complete_study_with_the_same_options(monkeypatch, tmp_pat
     (tmp_path / "calibration_session" / "session.json").unlink()  # session gone: rebuilt
     assert main(argv) == 0
     assert len(calls) == 5
+
+
+@pytest.mark.parametrize("name", ["io", "imaging", "markers", "calibration"])
+def test_bench_help_names_talus_bench(name, capsys):
+    """Like 'talus bench track': each module's own name stays for 'python -m'."""
+    import importlib
+
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", name, "--help"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: talus bench {name} [-h]")
+    module_main = importlib.import_module(f"core.studies.{name}.benchmark").main
+    with pytest.raises(SystemExit):
+        module_main(["--help"])
+    assert capsys.readouterr().out.startswith(f"usage: python -m core.studies.{name}.benchmark")

@@ -105,8 +105,8 @@ def run_benchmark(*, quick: bool = False, repeats: int = 3) -> dict:
     return out
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.studies.calibration.benchmark",
+def main(argv=None, *, prog: str = "python -m core.studies.calibration.benchmark") -> int:
+    ap = argparse.ArgumentParser(prog=prog,
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="one repeat, 512-pixel detection frame")
     ap.add_argument("--repeats", type=int, default=3)

@@ -114,8 +114,8 @@ def run(*, quick: bool = False) -> dict:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.studies.imaging.benchmark",
+def main(argv: list[str] | None = None, *, prog: str = "python -m core.studies.imaging.benchmark") -> int:
+    ap = argparse.ArgumentParser(prog=prog,
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="512² frames, fewer repeats (a smoke run)")
     ap.add_argument("--out", help="also write the JSON to this file")

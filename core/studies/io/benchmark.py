@@ -175,8 +175,8 @@ def run(*, quick: bool = False, folder: str | os.PathLike | None = None, keep: b
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.studies.io.benchmark",
+def main(argv: list[str] | None = None, *, prog: str = "python -m core.studies.io.benchmark") -> int:
+    ap = argparse.ArgumentParser(prog=prog,
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="50 frames of 256², a smoke run")
     ap.add_argument("--out", type=Path, help="also write the JSON to this file")

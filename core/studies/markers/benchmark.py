@@ -118,8 +118,8 @@ def run_benchmark(*, n_beads: int = 100, n_frames: int = 1000, repeats: int = 1)
     }
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m core.studies.markers.benchmark",
+def main(argv=None, *, prog: str = "python -m core.studies.markers.benchmark") -> int:
+    ap = argparse.ArgumentParser(prog=prog,
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="100 beads x 50 frames (a smoke run)")
     ap.add_argument("--repeats", type=int, default=None, help="timed runs per case (best is kept)")

@@ -118,11 +118,12 @@ def _copy_report(src: Path, dest: Path) -> dict:
     return out
 
 
-def unused_note(saved, in_use: dict[str, str], folder: Path) -> str | None:
+def unused_note(saved, in_use: dict[str, str], folder: Path, *, trials="series") -> str | None:
     """A line for a saved calibration no trial uses (``--trials series`` on a study whose trials are
     on no earlier version of the series, e.g. the first calibration of an imported study): the
-    trials' calibrations and how to point them at it without calibrating again."""
-    if saved.trials or not in_use:
+    trials' calibrations and how to point them at it without calibrating again. None where
+    ``--trials none`` asked for exactly that."""
+    if saved.trials or not in_use or trials == "none":
         return None
     uses = ", ".join(f"{t} uses {c}" for t, c in in_use.items())
     return (f"no trial uses {saved.name} yet ({uses}); point them at it with '{PROG} study "
@@ -171,7 +172,7 @@ def run(a: argparse.Namespace) -> int:
     rep = cal.report
     for w in rep.get("warnings", []):
         print(f"{PROG} calibrate: WARNING: {w}", file=sys.stderr)
-    note = unused_note(saved, in_use, folder)
+    note = unused_note(saved, in_use, folder, trials=a.trials)
     if note:
         print(f"{PROG} calibrate: {note}", file=sys.stderr)
     warnings = list(rep.get("warnings", []))

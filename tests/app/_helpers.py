@@ -128,3 +128,25 @@ def pause_after_first_frame(monkeypatch, *, until_cancelled: bool = False) -> th
 
     monkeypatch.setattr(from_study, "track_study", paused)
     return go_on
+
+
+def small_demo(out: Path) -> Path:
+    """The 48² two-frame demo study the CLI tests share (CPU, no calibration session)."""
+    from core.synthetic import make_demo_study
+
+    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
+                    calibration_session=False)
+    return out
+
+
+def lab_collection(demo: Path, lab: Path) -> Path:
+    """A collection folder as a lab has it, from a demo study: two frame folders, two MayaCam
+    files, one CT per bone (talus, calcaneus)."""
+    for cam in ("cam01", "cam02"):
+        shutil.copytree(demo / "frames" / cam, lab / cam)
+        (lab / "cams").mkdir(parents=True, exist_ok=True)
+        shutil.copy(demo / "rig" / f"{cam}.txt", lab / "cams")
+    (lab / "ct").mkdir()
+    for bone in ("talus", "calcaneus"):
+        shutil.copy(demo / "volumes" / f"{bone}.mha", lab / "ct")
+    return lab

@@ -3,13 +3,13 @@ bone<label>) by name where they are those names, case aside; the others in the s
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import pytest
 
 from app.cli import main as talus
 from app.commands.import_folder import bones_by_name
+from tests.app._helpers import lab_collection, small_demo
 
 CTS = {"calcaneus": None, "talus": None}  # ct/calcaneus.mha, ct/talus.mha: scanned alphabetically
 
@@ -35,20 +35,8 @@ def test_other_names_go_in_the_scans_order():
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory):
     """A collection folder: two frame folders, two MayaCam files, one CT per bone (48 px demo)."""
-    from core.synthetic import make_demo_study
-
-    demo = tmp_path_factory.mktemp("demo") / "study"
-    make_demo_study(demo, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
-    lab = tmp_path_factory.mktemp("lab") / "lab"
-    for cam in ("cam01", "cam02"):
-        shutil.copytree(demo / "frames" / cam, lab / cam)
-        (lab / "cams").mkdir(exist_ok=True)
-        shutil.copy(demo / "rig" / f"{cam}.txt", lab / "cams")
-    (lab / "ct").mkdir()
-    for bone in ("talus", "calcaneus"):
-        shutil.copy(demo / "volumes" / f"{bone}.mha", lab / "ct")
-    return lab
+    demo = small_demo(tmp_path_factory.mktemp("demo") / "study")
+    return lab_collection(demo, tmp_path_factory.mktemp("lab") / "lab")
 
 
 def _files(study) -> dict:

@@ -9,16 +9,12 @@ import json
 import pytest
 
 from app.cli import main as talus
+from tests.app._helpers import small_demo
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    from core.synthetic import make_demo_study
-
-    out = tmp_path_factory.mktemp("demo") / "study"
-    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
-    return out
+    return small_demo(tmp_path_factory.mktemp("demo") / "study")
 
 
 def test_a_damaged_frame_is_flagged_with_its_file_and_the_reason(demo, tmp_path, capsys):

@@ -12,16 +12,12 @@ import pytest
 
 from app.cli import EXIT_NOTHING_DONE
 from app.cli import main as talus
+from tests.app._helpers import lab_collection, small_demo
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    from core.synthetic import make_demo_study
-
-    out = tmp_path_factory.mktemp("demo") / "study"
-    make_demo_study(out, n_frames=2, pixels=48, spacing=3.0, tissue_spacing=6.0, device="cpu",
-                    calibration_session=False)
-    return out
+    return small_demo(tmp_path_factory.mktemp("demo") / "study")
 
 
 @pytest.fixture
@@ -158,15 +154,7 @@ def test_a_calibration_no_trial_uses_says_how_to_use_it(study, capsys):
 @pytest.fixture
 def lab(demo, tmp_path):
     """A collection folder as a lab has it: two frame folders, two MayaCam files, one CT per bone."""
-    lab = tmp_path / "lab"
-    for cam in ("cam01", "cam02"):
-        shutil.copytree(demo / "frames" / cam, lab / cam)
-        (lab / "cams").mkdir(exist_ok=True)
-        shutil.copy(demo / "rig" / f"{cam}.txt", lab / "cams")
-    (lab / "ct").mkdir()
-    for bone in ("talus", "calcaneus"):
-        shutil.copy(demo / "volumes" / f"{bone}.mha", lab / "ct")
-    return lab
+    return lab_collection(demo, tmp_path / "lab")
 
 
 def test_import_bones_named_as_their_files_keep_their_files(lab, tmp_path, capsys):

@@ -6,25 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.geometry.transforms import pose_from_params
 from core.studies.tracking.silent_checks import _axis_scale, _norm_scale, auc, block_residuals
-
-C = np.array([5.0, -3.0, 40.0])
+from tests.core.tracking.track_helpers import C, walking_track
 
 
 def _track(n=40, noise=(0.01, 0.05), seed=1, run=(), deg=0.0):
-    g = np.random.default_rng(seed)
-    t = np.arange(n) / n
-    P = []
-    for k in range(n):
-        p = np.r_[20 * t[k] + 5 * t[k] ** 2, 3 * np.sin(2 * t[k]), -4 * t[k],
-                  np.radians([10 * t[k], -6 * t[k] ** 2, 4 * np.sin(3 * t[k])])]
-        p[:3] += g.normal(0, noise[0], 3)
-        p[3:] += np.radians(g.normal(0, noise[1], 3))
+    def shift(k, p):
         if k in run:
             p[5] += np.radians(deg)
-        P.append(pose_from_params(p, center=C, base=np.eye(4)))
-    return np.array(P)
+
+    return walking_track(n, noise, seed, shift)
 
 
 def test_a_three_frame_run_shows_once_its_neighbours_leave_the_fit():

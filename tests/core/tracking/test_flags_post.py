@@ -10,26 +10,18 @@ from core.geometry.transforms import pose_from_params
 from core.tracking import flags_post
 from core.tracking.flags_post import FLAG, apply_trajectory_flags, trajectory_flags, trajectory_residuals
 from core.tracking.results import FrameResult, TrackingResult
-
-C = np.array([5.0, -3.0, 40.0])
+from tests.core.tracking.track_helpers import C, walking_track
 
 
 def _track(n=40, noise=(0.01, 0.05), seed=1, off=None):
     """Poses of a bone in walking-like smooth motion (mm, degrees per frame) with registration noise;
     ``off``: (frame, mm, degrees) added to one frame."""
-    g = np.random.default_rng(seed)
-    t = np.arange(n) / n
-    P = []
-    for k in range(n):
-        p = np.r_[20 * t[k] + 5 * t[k] ** 2, 3 * np.sin(2 * t[k]), -4 * t[k],
-                  np.radians([10 * t[k], -6 * t[k] ** 2, 4 * np.sin(3 * t[k])])]
-        p[:3] += g.normal(0, noise[0], 3)
-        p[3:] += np.radians(g.normal(0, noise[1], 3))
+    def shift(k, p):
         if off is not None and k == off[0]:
             p[0] += off[1]
             p[5] += np.radians(off[2])
-        P.append(pose_from_params(p, center=C, base=np.eye(4)))
-    return np.array(P)
+
+    return walking_track(n, noise, seed, shift)
 
 
 def _result(P, flags=None, name="tibia"):

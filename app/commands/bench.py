@@ -107,24 +107,16 @@ def run_interaction(args: argparse.Namespace) -> int:
 
 
 def _module_runner(name: str):
-    """Run ``BENCHMARKS[name]``, a ``main(argv)`` (or a ``main()`` reading ``sys.argv``); a
-    ``main(argv, prog=...)`` is given ``talus bench NAME`` as the name its usage shows."""
+    """Run ``BENCHMARKS[name]``, a ``main(argv)``; a ``main(argv, prog=...)`` is given
+    ``talus bench NAME`` as the name its usage shows."""
 
     def run(args: argparse.Namespace) -> int:
         main_fn = load(BENCHMARKS[name], needed_for=f"'talus bench {name}'")
         argv = [a for a in args.rest if a != "--"]
-        params = inspect.signature(main_fn).parameters
-        if "prog" in params:
+        if "prog" in inspect.signature(main_fn).parameters:
             result = main_fn(argv, prog=f"{PROG} bench {name}")
-        elif params:
-            result = main_fn(argv)
         else:
-            saved = sys.argv
-            sys.argv = [f"{PROG} bench {name}", *argv]
-            try:
-                result = main_fn()
-            finally:
-                sys.argv = saved
+            result = main_fn(argv)
         return int(result or 0)
 
     return run

@@ -264,3 +264,27 @@ def test_bench_help_names_talus_bench(name, capsys):
     with pytest.raises(SystemExit):
         module_main(["--help"])
     assert capsys.readouterr().out.startswith(f"usage: python -m core.studies.{name}.benchmark")
+
+
+def test_bench_metrics_takes_argv_and_prog(monkeypatch, capsys):
+    """'talus bench metrics' hands its options to main(argv, prog=...), not through sys.argv;
+    'python -m core.studies.similarity.benchmark' keeps its own name."""
+    from core.studies.similarity import benchmark
+
+    monkeypatch.setattr(sys, "argv", ["elsewhere", "--quick"])  # must not be read
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "metrics", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: talus bench metrics [-h]")
+    assert "Measured (Warp" not in out  # the docstring's first line, not the whole of it
+    with pytest.raises(SystemExit):
+        benchmark.main(["--help"])
+    assert capsys.readouterr().out.startswith("usage: python -m core.studies.similarity.benchmark")
+
+    seen = {}
+    monkeypatch.setattr(benchmark, "run_similarity_benchmark",
+                        lambda **kw: seen.update(kw) or {"quick": kw["quick"]})
+    assert main(["bench", "metrics", "--kind", "ncc", "--device", "cpu"]) == 0
+    assert seen == {"devices": ["cpu"], "quick": False, "kinds": ("ncc",)}
+    assert json.loads(capsys.readouterr().out) == {"quick": False}

@@ -139,20 +139,22 @@ def run_similarity_benchmark(*, devices: list[str] | None = None, quick: bool = 
     return result
 
 
-def main() -> None:  # pragma: no cover - `python -m core.studies.similarity.benchmark`
+def main(argv: list[str] | None = None, *, prog: str = "python -m core.studies.similarity.benchmark") -> int:
+    """The command line; ``prog`` names it in the usage (``talus bench metrics`` passes its own)."""
     import argparse
 
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--device", action="append", help="Warp device (repeatable); default cpu (+ cuda:0)")
     ap.add_argument("--quick", action="store_true", help="small smoke run")
     ap.add_argument("--kind", action="append", choices=BATCHED_KINDS, help="metric(s) to time; default all")
     ap.add_argument("--out", help="also write the JSON to this file")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     res = run_similarity_benchmark(devices=a.device, quick=a.quick, kinds=tuple(a.kind or BATCHED_KINDS))
     from core.io.atomic import print_json
 
     print_json(res, a.out)
+    return 0
 
 
 if __name__ == "__main__":  # pragma: no cover
-    main()
+    raise SystemExit(main())

@@ -295,10 +295,11 @@ class FrameTableDock(QtWidgets.QWidget):
 
     def _layout_columns(self, bones) -> None:
         """Column widths from the font (the header's text or the widest value a column can show; no
-        scan of every row), and the Reason column placed after Status with its text elided (the
-        whole reason in the row's tooltip), as wide as the dock leaves it (:meth:`_fit_reason`).
-        It was the last column, past the dock's edge at the window's default sizes: the reason
-        could be read only in the tooltip."""
+        scan of every row), and the Reason column placed after Score with its text elided (the
+        whole reason in the row's tooltip), as wide as the dock leaves it (:meth:`_fit_reason`):
+        Frame, Bone, Status and Score stay in view at the dock's default width (340 px at
+        1280x800). The Reason after Status pushed the Score past the dock's edge there; as the
+        last column it was itself past the edge."""
         header = self.view.horizontalHeader()
         fm = self.view.fontMetrics()
         pad = fm.horizontalAdvance("M") + 8  # the cell's margins; the sort arrow of the sorted column
@@ -309,17 +310,21 @@ class FrameTableDock(QtWidgets.QWidget):
             self.view.setColumnWidth(col, max(fm.horizontalAdvance(v) for v in [COLUMNS[col], *values]) + pad)
         header.setStretchLastSection(False)
         reason = COLUMNS.index("Reason")
-        header.moveSection(header.visualIndex(reason), COLUMNS.index("Status") + 1)
-        self._reason_min = 10 * fm.averageCharWidth()
+        header.moveSection(header.visualIndex(reason), COLUMNS.index("Score") + 1)
+        self._reason_min = 3 * fm.averageCharWidth()  # an ellipsis and a letter or two
+        self._reason_wanted = 20 * fm.averageCharWidth()  # before the σ columns come into view
+        header.setMinimumSectionSize(min(header.minimumSectionSize(), self._reason_min))
         self.view.setTextElideMode(QtCore.Qt.TextElideMode.ElideRight)
+        header.setTextElideMode(QtCore.Qt.TextElideMode.ElideRight)  # "R…", not the middle of "Reason"
         self.view.setWordWrap(False)
         self.view.viewport().installEventFilter(self)
         self._fit_reason()
 
     def _fit_reason(self) -> None:
         """The Reason column's width: what the table's width leaves beside the columns before it
-        and as many of those after it as leave it 20 letters (all of them: it fills the table;
-        the columns left out are scrolled to); at least 10 letters."""
+        (Frame to Score) and as many of those after it (σ, Edited) as leave it 20 letters (all of
+        them: it fills the table; the columns left out are scrolled to); at least 3 letters, so
+        that the columns before it keep their room at the dock's default width."""
         reason = COLUMNS.index("Reason")
         header = self.view.horizontalHeader()
         order = sorted(range(len(COLUMNS)), key=header.visualIndex)
@@ -329,7 +334,7 @@ class FrameTableDock(QtWidgets.QWidget):
         room = self.view.viewport().width() - used
         for k in range(len(after), -1, -1):
             rest = room - sum(after[:k])
-            if rest >= 2 * self._reason_min:
+            if rest >= self._reason_wanted:
                 break
         self.view.setColumnWidth(reason, max(rest, self._reason_min))
 

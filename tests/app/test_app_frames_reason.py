@@ -1,16 +1,24 @@
-"""The Frames dock's Reason column: after Status, as wide as the dock leaves it, the reason elided
-with the whole of it in the row's tooltip. It was the last column, past the dock's edge at the
-window's default sizes (340 px at 1280x800): the reason could be read only in the tooltip."""
+"""The Frames dock's columns at the dock's default width (340 px at 1280x800): Frame, Bone, Status
+and Score in view, then the Reason, as wide as the dock leaves it, its text elided with the whole
+of it in the row's tooltip. The Reason after Status pushed the Score past the dock's edge at 340
+px; as the last column the Reason was itself past the edge.
+
+``TALUS_SCREENSHOTS=DIR`` keeps ``frames_reason_column.png`` (the dock at 340 and 480 px)."""
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
+import numpy as np
 import pytest
-from PySide6 import QtCore
+from PySide6 import QtCore, QtGui
 
 pytestmark = pytest.mark.gui
 
 REASON = ("frame cannot be read: view 1: /data/study/frames/cam01/frame_0003.tif: expected a "
           "single-page TIFF frame, got 0 pages")
+IN_VIEW = ("Frame", "Bone", "Status", "Score")
 
 
 class _Viewer:
@@ -21,56 +29,90 @@ class _Viewer:
         pass
 
 
-@pytest.fixture
-def dock(qtbot):
-    from app.review import FLAGGED, TRACKED, FrameTableDock, ReviewData
+def _dock(qtbot, width: int):
+    from app.review import EDITED, FLAGGED, TRACKED, FrameTableDock, ReviewData
 
     data = ReviewData(["tibia", "talus", "calcaneus", "metatarsal2"], 6)
     data.status[:] = TRACKED
-    data.score[:] = 0.5
+    data.score[:] = np.random.default_rng(3).uniform(0.1, 0.8, data.score.shape).round(3)
     data.sigma_mm[:], data.sigma_deg[:] = 0.05, 0.2
-    data.status[2, 3] = FLAGGED
-    data.reasons[(2, 3)] = REASON
+    for (b, f), reason in {(0, 1): "score below 0.6 x the bone's median score", (1, 2):
+                           "off the trajectory (2.4 x the motion limit)", (2, 3): REASON}.items():
+        data.status[b, f] = FLAGGED
+        data.reasons[(b, f)] = reason
+    data.status[3, 4] = EDITED
+    data.reasons[(3, 4)] = "corrected by hand"
     w = FrameTableDock(data, _Viewer())
     qtbot.addWidget(w)
+    w.resize(width, 400)
     w.show()
     qtbot.waitExposed(w)
+    qtbot.wait(20)
     return w
 
 
 def _columns(w):
+    """Column name -> (left, right) in the viewport's coordinates, as the view lays them out."""
     from app.review import COLUMNS
 
     header = w.view.horizontalHeader()
-    return {name: (header.sectionViewportPosition(c), w.view.columnWidth(c))
-            for c, name in enumerate(COLUMNS)}
+    left = {name: header.sectionViewportPosition(c) for c, name in enumerate(COLUMNS)}
+    return {name: (left[name], left[name] + w.view.columnWidth(c)) for c, name in enumerate(COLUMNS)}
+
+
+def _row_of(w, bone: int, frame: int) -> int:
+    return next(r for r in range(w.proxy.rowCount())
+                if w.table_model.locate(w.proxy.mapToSource(w.proxy.index(r, 0)).row()) == (bone, frame))
 
 
 @pytest.mark.parametrize("width", [340, 480])
-def test_the_reason_is_shown_inside_the_dock(dock, qtbot, width):
-    w = dock
-    w.resize(width, 400)
-    qtbot.wait(20)
-    cols = _columns(w)
-    room = w.view.viewport().width()
-    x, wide = cols["Reason"]
-    assert cols["Status"][0] < x  # right after Status
-    assert x + wide <= room + 1 and wide >= 10 * w.view.fontMetrics().averageCharWidth()
-    row = next(r for r in range(w.proxy.rowCount())
-               if w.table_model.locate(w.proxy.mapToSource(w.proxy.index(r, 0)).row()) == (2, 3))
+def test_frame_status_and_score_in_view_then_the_reason_elided(qtbot, width):
     from app.review import COLUMNS
 
-    index = w.proxy.index(row, COLUMNS.index("Reason"))
-    assert index.data(QtCore.Qt.ItemDataRole.ToolTipRole) == REASON
-    assert w.view.textElideMode() == QtCore.Qt.TextElideMode.ElideRight
-    if width == 480:  # room for the score beside 20 letters of reason
-        assert cols["Score"][0] + cols["Score"][1] <= room + 1
-
-
-def test_the_reason_fills_a_wide_dock(dock, qtbot):
-    w = dock
-    w.resize(900, 400)
-    qtbot.wait(20)
+    w = _dock(qtbot, width)
     cols = _columns(w)
-    assert sum(wide for _, wide in cols.values()) == w.view.viewport().width()  # every column shown
-    assert cols["Reason"][1] > 300
+    view = w.view.viewport().rect()
+    row = _row_of(w, 2, 3)
+    for name in IN_VIEW:  # the cells themselves lie inside the viewport
+        cell = w.view.visualRect(w.proxy.index(row, COLUMNS.index(name)))
+        assert view.contains(cell), (name, cell, view)
+    assert [n for n, _ in sorted(cols.items(), key=lambda kv: kv[1][0])][:5] == [*IN_VIEW, "Reason"]
+    left, right = cols["Reason"]
+    assert left == cols["Score"][1] and right <= view.width()  # right after Score, inside the dock
+    index = w.proxy.index(row, COLUMNS.index("Reason"))
+    assert index.data(QtCore.Qt.ItemDataRole.ToolTipRole) == REASON  # the whole reason
+    assert w.view.textElideMode() == QtCore.Qt.TextElideMode.ElideRight
+    if width == 480:  # room for 20 letters of the reason beside the numbers
+        assert right - left >= 20 * w.view.fontMetrics().averageCharWidth()
+
+
+def test_the_reason_fills_a_wide_dock(qtbot):
+    w = _dock(qtbot, 900)
+    cols = _columns(w)
+    assert sum(r - lft for lft, r in cols.values()) == w.view.viewport().width()  # every column shown
+    assert cols["Reason"][1] - cols["Reason"][0] > 300
+
+
+def test_screenshot_at_340_and_480_px(qtbot):
+    """Both widths side by side (kept under ``TALUS_SCREENSHOTS``); the Score's digits are drawn
+    inside the 340-px dock."""
+    shots = [_dock(qtbot, width).grab().toImage() for width in (340, 480)]
+    img = QtGui.QImage(sum(s.width() for s in shots) + 16, max(s.height() for s in shots),
+                       QtGui.QImage.Format.Format_RGB32)
+    img.fill(QtGui.QColor("white"))
+    painter = QtGui.QPainter(img)
+    painter.drawImage(0, 0, shots[0])
+    painter.drawImage(shots[0].width() + 16, 0, shots[1])
+    painter.end()
+    narrow = _dock(qtbot, 340)
+    from app.review import COLUMNS
+
+    cell = narrow.view.visualRect(narrow.proxy.index(0, COLUMNS.index("Score")))
+    pix = narrow.view.viewport().grab(cell.adjusted(2, 2, -2, -2)).toImage()
+    dark = sum(QtGui.QColor(pix.pixel(x, y)).value() < 128
+               for x in range(pix.width()) for y in range(pix.height()))
+    assert dark > 10  # the score's text, not an empty cell
+    folder = os.environ.get("TALUS_SCREENSHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        assert img.save(str(Path(folder) / "frames_reason_column.png"))

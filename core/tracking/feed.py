@@ -11,6 +11,12 @@ for every frame (a video reader's habit) is noticed at the first look-ahead — 
 images share memory with the current one's — and then the current frame is read again and
 nothing more is read ahead: each frame is read at its turn, as without the look-ahead.
 
+A view the callable gives None for has no image; a callable with a ``reason(frame, view)`` method
+(or attribute) says why — asked right after the frame is read, for those views only; a reason
+such as ``"<file>: <error>"``, or None where the view simply has no frame — and :attr:`FrameFeed.why`
+hands the reasons of the frame handed out last to :func:`core.tracking.frame_step.track_frame`,
+which puts them in the frame's flag (:func:`~core.tracking.frame_step.missing_flags`).
+
 The worker also draws the next frame's noise samples (the noise correction's ``E₁`` estimate,
 :meth:`~core.tracking.cost.FrameImages.prepare_noise`) for the views and patch sizes the frames
 before it drew them for, each in a thread of its own — one set per view and patch radius (1.2 ms
@@ -41,7 +47,8 @@ class FrameFeed:
     def __init__(self, frames: Callable[[int], Sequence], valid_range, erode_px: int) -> None:
         self.frames, self.valid_range, self.erode_px = frames, valid_range, erode_px
         self.pool = None
-        self.ahead = None  # (frame, images, future of the prepared frame)
+        self.ahead = None  # (frame, images, reasons, future of the prepared frame)
+        self.why: dict[int, str] = {}  # the frame handed out last: view -> the source's reason it has none
         self.current: tuple[int, list] | None = None  # the frame being registered and its images
         self.refills = False  # the callable refills one buffer: no look-ahead
         # the prepared frame handed out last and the noise samples the one before it drew: those
@@ -76,17 +83,30 @@ class FrameFeed:
                 pass
         return frame
 
+    def _read(self, f: int) -> tuple[list, dict[int, str]]:
+        """Frame ``f``'s images and, per view without one, the source's reason (if it gives one)."""
+        imgs = list(self.frames(f))
+        ask = getattr(self.frames, "reason", None)
+        why = {}
+        if ask is not None:
+            for v, im in enumerate(imgs):
+                if im is None and (r := ask(f, v)):
+                    why[v] = str(r)
+        return imgs, why
+
     def get(self, f: int) -> tuple[list, object]:
-        """``(images, prepared frame or None where a view has no frame)`` of frame ``f``."""
+        """``(images, prepared frame or None where a view has no frame)`` of frame ``f``; why a view
+        has none (the source's reasons) is then :attr:`why`."""
         if self.current_frame is not None:  # its registrations are done: what they drew is final
             self.previous_keys = tuple(self.current_frame.noise_sample_keys)
         if self.ahead is not None and self.ahead[0] == f:
-            _, imgs, fut = self.ahead
+            _, imgs, self.why, fut = self.ahead
             self.ahead = None
             self.current = (f, imgs)
             self.current_frame = fut.result()
             return imgs, self.current_frame
-        imgs = list(self.frames(f))
+        self.why = {}
+        imgs, self.why = self._read(f)
         self.current = (f, imgs)
         self.current_frame = self._prepare(imgs)
         return imgs, self.current_frame
@@ -106,7 +126,7 @@ class FrameFeed:
         if self.refills:
             return
         try:
-            imgs = list(self.frames(f))
+            imgs, why = self._read(f)
         except Exception:  # raised again when the frame's turn comes, as without the look-ahead
             self.ahead = None
             return
@@ -116,7 +136,7 @@ class FrameFeed:
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="talus-frames")
-        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys()))
+        self.ahead = (f, imgs, why, self.pool.submit(self._prepare, imgs, self._noise_keys()))
 
     def close(self) -> None:
         if self.pool is not None:

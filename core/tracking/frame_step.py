@@ -100,6 +100,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Mapping, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from dataclasses import replace as _replace
@@ -115,8 +116,9 @@ from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
-           "STAGE_MOVE_SIGMAS", "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "MISSING_FLAG", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_FRAMES",
+           "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags", "stage_move_check",
+           "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -127,6 +129,10 @@ FINAL_EVERY_ROUND = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
+#: The flag of a frame a view has no image for, its source giving no reason (:func:`missing_flags`).
+MISSING_FLAG = "frame missing in view"
+#: The flag of a frame a view's image could not be read for, with the source's reason.
+UNREADABLE_FLAG = "frame cannot be read"
 
 
 @dataclass
@@ -188,15 +194,42 @@ def stage_move_check(timing: dict | None, confidence: dict | None, moves, *, n: 
             f"{limit:g} x the bone's recent {med:.3f} mm)"]
 
 
-def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
-                 skip: dict) -> dict[int, FrameResult] | None:
-    """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
-    or None when cancelled."""
-    o, names, bones = run.options, run.names, run.bones
+def missing_flags(imgs: Sequence, why: Mapping[int, str] | None = None) -> tuple[str, ...]:
+    """The flags of a frame some view of which has no image (``imgs[v]`` None); ``why`` maps such a
+    view to the reason its frame source gave (:class:`core.tracking.feed.FrameFeed`: the source's
+    ``reason(frame, view)``; a file and the reader's error). Views with a reason are said in one
+    :data:`UNREADABLE_FLAG` flag, counted from 1 as the reasons of
+    :func:`core.tracking.from_study.frame_reader` always were (``"frame cannot be read: view 2:
+    <file>: <error>"``; one reason shared by every view of a frame of several views is said once,
+    without them); views without one in :data:`MISSING_FLAG`'s, counted from 0 as that flag always
+    was (``"frame missing in view 0, 1"``). Empty when every view has its image."""
     missing = [v for v, im in enumerate(imgs) if im is None]
-    if missing:
-        why = (f"frame missing in view {', '.join(map(str, missing))}",)
-        return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, why) for i in todo}
+    said = {v: str(why[v]) for v in missing if why and why.get(v)}
+    out = []
+    if said:
+        reasons: dict[str, list[int]] = {}
+        for v, r in said.items():
+            reasons.setdefault(r, []).append(v + 1)
+        if len(imgs) > 1 and len(said) == len(imgs) and len(reasons) == 1:  # the whole frame, one reason
+            out.append(f"{UNREADABLE_FLAG}: {next(iter(reasons))}")
+        else:
+            out.append(f"{UNREADABLE_FLAG}: " + "; ".join(f"view {', '.join(map(str, vs))}: {r}"
+                                                          for r, vs in reasons.items()))
+    absent = [v for v in missing if v not in said]
+    if absent:
+        out.append(f"{MISSING_FLAG} {', '.join(map(str, absent))}")
+    return tuple(out)
+
+
+def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
+                skip: dict, why: Mapping[int, str] | None = None) -> dict[int, FrameResult] | None:
+    """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
+    or None when cancelled. A view without its image flags every bone of the frame
+    (:func:`missing_flags`, with ``why``: the frame source's reason per such view)."""
+    o, names, bones = run.options, run.names, run.bones
+    flags = missing_flags(imgs, why)
+    if flags:
+        return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, flags) for i in todo}
     hist = {b: state[b].history for b in names}
     # each bone's constant-velocity prediction: the velocity guess and what the motion check judges
     # every registration of the frame against (computed once here)

@@ -114,8 +114,6 @@ __all__ = ["FULL_SCALE", "FinalStageError", "final_stage_problem", "flatfield_co
 SOFT_TISSUE_HU = 40.0
 #: :func:`frame_reader`'s description of frames divided by the full scale only (no flatfield).
 FULL_SCALE = "full scale (no flatfield)"
-#: How :func:`core.tracking.frame_step.track_frame` flags a frame that a view lacks.
-MISSING_FLAG = "frame missing in view"
 #: Rim (mm) kept around each bone (:func:`core.tracking.bones.bone_model`'s ``isolate_mm``) when
 #: the transfer has no threshold.
 ISOLATE_MM = 1.0
@@ -134,9 +132,11 @@ def tissue_excess_transfer(threshold_hu: float = 200.0, *, soft_tissue_hu: float
 def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) -> tuple[Callable, str]:
     """``(read(frame) -> [fluence per view], description)`` for a study trial (see the module
     docs for how raw frames are normalised). A view whose frame cannot be read gives None; each
-    view is read alone (a damaged file in one leaves the other's image), and ``read.unreadable``
-    maps such a frame to why: the view, the file and the reader's error (:func:`track_study`
-    puts it in the frame's flag, which said only 'frame missing in view 0, 1')."""
+    view is read alone (a damaged file in one leaves the other's image). ``read.reason(frame,
+    view)`` says why (the file and the reader's error; the frame source's hook of
+    :func:`core.tracking.trial.track`, whose frame flag then names the view, the file and the
+    error — it said only 'frame missing in view 0, 1'), and ``read.unreadable`` maps such a frame
+    to the same for all its views ("view 2: <file>: <error>")."""
     rig = trial.rig()
     how = "given"
     fns = list(correction) if correction is not None else None
@@ -158,41 +158,35 @@ def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) 
         raise ValueError(f"correction: expected {len(rig)} per-view corrections, got {len(fns)}")
 
     unreadable: dict[int, str] = {}
+    reasons: dict[int, dict[int, str]] = {}  # frame -> view -> why it cannot be read
 
     def read(t: int):
+        reasons.pop(t, None)
+        unreadable.pop(t, None)
         try:
             seq = trial.sequences()
             index = seq.view_frames(t)
-        except (ValueError, OSError, IndexError) as exc:
+        except (ValueError, OSError, IndexError) as exc:  # the whole frame: one reason for every view
             unreadable[t] = f"frame {t} of the trial cannot be read: {exc}"
+            reasons[t] = dict.fromkeys(range(len(rig)), unreadable[t])
             return [None] * len(rig)
-        out, why = [], []
+        out, why = [], {}
         for v, (fn, view, k) in enumerate(zip(fns, seq.views, index, strict=True)):
             try:
                 raw = view[k]
             except (ValueError, OSError, IndexError) as exc:  # a damaged file names itself
                 out.append(None)
-                why.append(f"view {v + 1}: {exc}")
+                why[v] = str(exc)
                 continue
             out.append(None if raw is None else np.asarray(fn(raw), dtype=np.float32))
         if why:
-            unreadable[t] = "; ".join(why)
-        else:
-            unreadable.pop(t, None)
+            reasons[t] = why
+            unreadable[t] = "; ".join(f"view {v + 1}: {r}" for v, r in why.items())
         return out
 
     read.unreadable = unreadable
+    read.reason = lambda t, v: reasons.get(t, {}).get(v)
     return read, how
-
-
-def _with_reason(fr: FrameResult, unreadable: dict[int, str]) -> FrameResult:
-    """``fr`` with its 'frame missing in view ...' flag (:func:`core.tracking.frame_step.track_frame`'s)
-    replaced by why :func:`frame_reader` could not read the frame: the file and the error."""
-    why = unreadable.get(fr.frame)
-    if why is None or fr.pose is not None:
-        return fr
-    flags = tuple(f"frame cannot be read: {why}" if str(f).startswith(MISSING_FLAG) else f for f in fr.flags)
-    return fr if flags == fr.flags else replace(fr, flags=flags)
 
 
 def flatfield_corrected(how: str) -> bool:
@@ -430,10 +424,7 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             rep["summary"] = summary
         study.write_report("tracking", report_name, rep)
 
-    unreadable = getattr(read, "unreadable", {})
-
     def on_progress(done, total, fr):
-        fr = _with_reason(fr, unreadable)
         state["frames"].append(fr.to_dict())
         now = time.monotonic()
         if fr.flags or now - state["last"] > report_every_s:
@@ -448,8 +439,6 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                                                               tracking=fr.journal_fields()),
                    skip=skip, progress=on_progress, cancel=cancel,
                    neighbours=journal_neighbours(states, order))  # the trajectory check's, outside the range
-    for k, fr in result.results.items():  # the unreadable frames' flags name the file and the error
-        result.results[k] = _with_reason(fr, unreadable)
     report["summary"] = result.summary()
     report["flagged"] = [r.to_dict() for r in result.flagged]
     # the frames as the run left them: the trajectory post-pass flags after the progress events

@@ -244,6 +244,9 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         Called once per frame, in tracking order, one frame ahead of the registration (frame
         ``k + 1`` is read before frame ``k`` is registered, :mod:`core.tracking.feed`); a
         callable that refills one buffer is noticed then, and its frames are read at their turn.
+        A callable with a ``reason(frame, view)`` method says why a view has none (e.g. its file
+        and the reader's error): the frame's flag then gives it ("frame cannot be read: view 2:
+        <reason>", views counted from 1) instead of "frame missing in view 1".
     frame_order : sequence of int
         Frames in tracking order (``range(a, b)`` forward, ``range(b - 1, a - 1, -1)`` backward).
     keyframes : mapping bone name -> {frame: pose}
@@ -331,7 +334,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                 imgs, frame = feed.get(f)
                 if k + 1 < len(order) and todo_of(order[k + 1])[1]:  # prepared while this one registers
                     feed.prefetch(order[k + 1])
-                new = track_frame(run, f, imgs, frame, todo, state, skip)
+                new = track_frame(run, f, imgs, frame, todo, state, skip, feed.why)
             if new is None:
                 status = "cancelled"
                 break

@@ -9,6 +9,7 @@ import pyqtgraph as pg
 from PySide6 import QtCore, QtWidgets
 
 _PENS = ((230, 80, 80), (80, 190, 90), (90, 140, 240))
+_DASH = 0.3  # half the width (frames) of the dash drawn for a value without a finite neighbour
 
 
 def _set(curve, x: np.ndarray, y: np.ndarray) -> None:
@@ -34,7 +35,9 @@ def _finite_runs(ok: np.ndarray) -> list[tuple[int, int]]:
 class _Live(QtWidgets.QGraphicsItem):
     """Curves (``pens``: polylines with gaps at NaN), bands (``brushes``: filled between a low
     and a high series) or shading (``shade``: a brush over the whole height of each frame whose
-    value is finite) of one plot over frames ``0..n-1``, repainted only where they changed.
+    value is finite) of one plot over frames ``0..n-1``, repainted only where they changed. A value
+    without a finite neighbour (a keyframe between untracked frames, the pose of a one-frame trial)
+    is a dash across its frame (bands: a bar).
 
     :meth:`set_data` compares the new values with those drawn and asks Qt to repaint only the span
     of frames that differ (with the segments that reach them); :meth:`paint` draws only the frames
@@ -84,7 +87,7 @@ class _Live(QtWidgets.QGraphicsItem):
         r = option.exposedRect
         a = max(int(np.floor(r.left())) - 1, 0)
         b = min(int(np.ceil(r.right())) + 2, self.n)
-        if b - a < 2:
+        if b <= a:  # one frame is enough: a one-frame trial's pose is a lone value
             return
         x = self._x[a:b]
         if self.shade is not None:
@@ -99,6 +102,8 @@ class _Live(QtWidgets.QGraphicsItem):
                     if e - s > 1:
                         painter.drawPolygon(pg.functions.arrayToQPolygonF(
                             np.concatenate([x[s:e], x[s:e][::-1]]), np.concatenate([hi[s:e], lo[s:e][::-1]])))
+                    else:  # a lone frame: a bar as wide as a lone value's dash
+                        painter.drawRect(QtCore.QRectF(x[s] - _DASH, lo[s], 2 * _DASH, hi[s] - lo[s]))
         else:
             for pen, (y,) in zip(self.pens, self.values[:, :, a:b], strict=True):
                 painter.setPen(pen)
@@ -106,7 +111,8 @@ class _Live(QtWidgets.QGraphicsItem):
                     if e - s > 1:
                         painter.drawPolyline(pg.functions.arrayToQPolygonF(x[s:e], y[s:e]))
                     else:  # a lone value (a keyframe between untracked frames): a dash across its frame
-                        painter.drawLine(QtCore.QPointF(x[s] - 0.3, y[s]), QtCore.QPointF(x[s] + 0.3, y[s]))
+                        painter.drawLine(QtCore.QPointF(x[s] - _DASH, y[s]),
+                                         QtCore.QPointF(x[s] + _DASH, y[s]))
 
 
 class _FrameAxis(pg.AxisItem):

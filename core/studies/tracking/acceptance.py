@@ -46,8 +46,8 @@ Measurements
   converged fraction, flagged frames as the run returned them (the failure checks' and the
   trajectory post-pass's, :mod:`core.tracking.flags_post`, on by default; those the post-pass alone
   flagged apart: ``flagged_off_trajectory_only``), frames over 4× the bone's bound flagged or
-  silent (``over_4x_bound``), and *silent failures* (unflagged frames with an error above 0.5 mm
-  or 0.5°);
+  silent (``over_4x_bound``, with what the run showed of each silent one: ``silent_details``), and
+  *silent failures* (unflagged frames with an error above 0.5 mm or 0.5°);
 * **filtered trajectories** — the same errors after the zero-phase Butterworth low-pass of
   :meth:`core.tracking.trial.TrackingResult.filtered_poses` (cut-off by Winter's residual
   analysis per bone) at the scene's frame rate: 100 frames span 0.6 of a 0.6 s stance,
@@ -79,7 +79,10 @@ Measurements
 ``--quick`` (CPU, this machine) uses 256² views, 1 mm voxels, 20 frames and 5 capture trials per
 bone; the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). The JSON goes
 to stdout (and ``--out``); ``--figure`` saves per-frame errors as a PNG; ``--workers`` makes the
-frames' image chain in that many processes (:mod:`core.studies.tracking.trial_frames`).
+frames' image chain in that many processes (:mod:`core.studies.tracking.trial_frames`). ``--seed N``
+(0, the default: the acceptance trial) synthesises another trial of the same design — the rig's
+placement, the bones' texture, the motion's perturbation, the noise, the grid frames and the starts
+(``seed + 7``) drawn afresh — kept in ``config.seed`` (and ``seed`` of a two-mode result).
 """
 
 from __future__ import annotations
@@ -351,7 +354,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     processes for the frames' image chain (0: this one); ``ts``: a scene made already
     (:func:`tracking_scene`, its frames kept: several modes on the same frames; ``quick``,
     ``seed``, ``n_frames`` and ``correction`` are then the scene's)."""
-    from core.studies.tracking.acceptance_goals import flag_counts, goals, joint_space
+    from core.studies.tracking.acceptance_goals import flag_counts, goals, joint_space, silent_details
     from core.studies.tracking.trial_frames import synthesise
     from core.tracking.trial import track
 
@@ -417,14 +420,15 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
                 ("filtered_deg", t["filtered"]["rms_error_deg"], "deg"))}
             t["std_error"] = {"mm": E[:, :3].std(0).round(4).tolist(),
                               "deg": E[:, 3:].std(0).round(4).tolist()} if len(E) else None
-            per_bone[n]["over_4x_bound"] = _over_bound(res, n, E, frames_with_pose[n], cb)
+            ob = per_bone[n]["over_4x_bound"] = _over_bound(res, n, E, frames_with_pose[n], cb)
+            ob["silent_details"] = silent_details(res, n, ts.models[ts.names.index(n)].centroid, dict(
+                zip(frames_with_pose[n], E, strict=True)), cb, ob["silent_frames"])  # what the run showed
         per_bone[n]["per_frame_error"] = E.round(5).tolist()
         per_bone[n]["frames_with_pose"] = frames_with_pose[n]  # per_frame_error's, per_frame_sigma's
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
-           "frames": ts.scene.n_frames, "mode": mode, "search": o.registration.search,
-           "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact),
-           "sequential_subtract": o.sequential_subtract,
-           "start_error": "5 mm, 5 deg", "correction": correction,
+           "frames": ts.scene.n_frames, "seed": seed, "mode": mode, "search": o.registration.search,
+           "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact), "correction": correction,
+           "sequential_subtract": o.sequential_subtract, "start_error": "5 mm, 5 deg",
            "residual_distortion_rms_mm": ts.residual_distortion_mm(), "frame_rate_hz": FRAME_RATE_HZ,
            "pixel_mm_at_isocentre": float(ts.scene.rig[0].pixel_size), "workers": workers}
     out = {"study": "core.studies.tracking.acceptance", "quick": quick, "machine": platform.machine(),
@@ -547,6 +551,7 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--frames", type=int, default=None, help="number of frames (default 20 quick / 100)")
     p.add_argument("--capture-trials", type=int, default=None, help="capture-range trials per bone")
+    p.add_argument("--seed", type=int, default=0, help="scene seed (0, the default: the acceptance trial)")
     p.add_argument("--mode", default="joint",
                    help="joint (default), sequential, or both in turn on the same frames (joint,sequential: "
                    "one JSON with runs per mode, the capture range measured once, figures named _<mode>)")
@@ -570,15 +575,16 @@ def main(argv=None) -> int:
     from core.studies.tracking.acceptance_goals import compare_modes
 
     kw = {"quick": a.quick, "device": a.device, "n_frames": a.frames, "correction": a.correction,
-          "search": a.search, "workers": a.workers,
+          "search": a.search, "workers": a.workers, "seed": a.seed,
           "sequential_subtract": {"auto": None, "on": True, "off": False}[a.sequential_subtract]}
     if len(modes) == 1:
         print_json(run(capture_trials=a.capture_trials, mode=modes[0], figure=a.figure, **kw), a.out)
         return 0
     t0 = time.perf_counter()
-    ts = tracking_scene(quick=a.quick, device=a.device, n_frames=a.frames, correction=a.correction)
-    out = {"study": "core.studies.tracking.acceptance", "modes": modes, "scene_s": time.perf_counter() - t0,
-           "runs": {}}
+    ts = tracking_scene(quick=a.quick, device=a.device, n_frames=a.frames, correction=a.correction,
+                        seed=a.seed)
+    out = {"study": "core.studies.tracking.acceptance", "modes": modes, "seed": a.seed,
+           "scene_s": time.perf_counter() - t0, "runs": {}}
     for k, m in enumerate(modes):  # the capture range registers each bone alone: once
         out["runs"][m] = run(capture_trials=a.capture_trials if k == 0 else 0, mode=m, ts=ts,
                              figure=_mode_path(a.figure, m) if a.figure else None, **kw)

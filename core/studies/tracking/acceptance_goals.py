@@ -3,7 +3,8 @@ goals met or not (:func:`goals`; the 2σ coverage per axis, :func:`sigma_coverag
 frames as the run returned them (:func:`flag_counts`), joint against sequential tracking on the
 paired per-frame errors (:func:`compare_modes`, as the harder trial's goal is decided:
 :func:`core.studies.tracking.hard_trial_stats.paired_comparison`, margin :func:`joint_margin`) and
-the smallest joint space against the truth's (:func:`joint_space`).
+the smallest joint space against the truth's (:func:`joint_space`), and what a user's run showed of
+each silent frame over 4× the bound (:func:`silent_details`).
 
 ``python -m core.studies.tracking.acceptance_goals --regoal FILE [--joint-from FILE] [--out FILE]``
 recomputes the goals of a stored result without tracking (:func:`regoal`, :func:`main`)."""
@@ -14,7 +15,7 @@ import numpy as np
 
 __all__ = ["DRIFT_SEQUENTIAL", "GOALS", "JOINT_MARGIN_OF_GOAL", "PAIRS", "compare_drift", "compare_modes",
            "flag_counts", "goals", "joint_margin", "joint_space", "main", "paired_errors", "paired_units",
-           "pool_drift", "regoal", "sigma_coverage"]
+           "pool_drift", "regoal", "sigma_coverage", "silent_details"]
 
 
 #: Bone pairs that touch in the trial (talocrural, subtalar): :func:`joint_space`.
@@ -61,6 +62,63 @@ def flag_counts(res, name: str) -> dict:
     mine = {f: r.flags for (bn, f), r in res.results.items() if bn == name and r.flags}
     post = [f for f, fl in mine.items() if all(s.startswith(FLAG) for s in fl)]
     return {"flagged_frames": sorted(mine), "flagged_off_trajectory_only": sorted(post)}
+
+
+def _rounded(v: float, digits: int = 3) -> float | None:
+    """``v`` to ``digits`` decimals, None where it is NaN (no residual) or infinite."""
+    return None if not np.isfinite(v) else round(float(v), digits)
+
+
+def silent_details(res, name: str, center, errors: dict, bound: dict, silent) -> list:
+    """Per silent frame of bone ``name`` (``silent``: frames over 4× the bound left unflagged), what
+    the run showed of it: its error (mm, °, and × the bone's bound ``rms_mm`` / ``rms_deg``), score,
+    convergence, confidence σ and notes; the errors × the bound of the frames within ±2 (a run of
+    frames off, or one alone); the flagged frames within the trajectory check's window; and the
+    trajectory check's view of it (:mod:`core.tracking.flags_post`, recomputed on the returned poses):
+    its residual against the fit through its good neighbours — with the frames only the post-pass
+    flagged in the fit (``first``, the pass's first judgement; the bone's median of those is the
+    scale) and without any flagged frame (``last``) — in mm and ° and × the scale, beside the limit
+    (:data:`~core.tracking.flags_post.LIMIT` × the scale) and the next-to-flagged rule's
+    (:data:`~core.tracking.flags_post.NEAR` × the limit). ``errors``: frame -> ``(6,)`` error."""
+    from core.tracking.flags_post import FLAG, HALF_WINDOW, LIMIT, NEAR, trajectory_residuals
+
+    mine = {f: r for (bn, f), r in res.results.items() if bn == name}
+    fs = sorted(f for f, r in mine.items() if r.pose is not None)
+    P = np.array([mine[f].pose for f in fs], dtype=float).reshape(-1, 4, 4)
+    own = np.array([any(not s.startswith(FLAG) for s in mine[f].flags) for f in fs], dtype=bool)
+    anyf = np.array([bool(mine[f].flags) for f in fs], dtype=bool)
+    R = {}
+    for k, drop in (("first", own), ("last", anyf)):
+        Q = P.copy()
+        Q[drop] = np.nan
+        R[k] = trajectory_residuals(fs, Q, center) if len(fs) else np.zeros((0, 2))
+    fin = np.isfinite(R["first"]).all(axis=1)
+    med = np.median(R["first"][fin], axis=0) if fin.any() else np.full(2, np.nan)
+
+    def over(f):
+        e = errors.get(f)
+        return None if e is None else round(float(max(np.linalg.norm(e[:3]) / bound["rms_mm"],
+                                                      np.linalg.norm(e[3:]) / bound["rms_deg"])), 2)
+
+    out = []
+    for f in silent:
+        r, e, i = mine[f], np.asarray(errors[f], dtype=float), fs.index(f)
+        et, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
+        traj = {k: {"mm": _rounded(R[k][i, 0], 4), "deg": _rounded(R[k][i, 1], 4),
+                    "x_median": [_rounded(R[k][i, u] / med[u], 2) for u in (0, 1)]} for k in R}
+        out.append({"frame": int(f), "error_mm": round(et, 4), "error_deg": round(er, 4),
+                    "over_bound": [round(et / bound["rms_mm"], 2), round(er / bound["rms_deg"], 2)],
+                    "error": np.round(e, 4).tolist(), "score": _rounded(r.score, 6),
+                    "converged": bool(r.converged), "retried": bool(r.retried), "notes": list(r.notes),
+                    "sigma": (r.confidence or {}).get("sigma"),
+                    "neighbours_over_bound": {str(g): over(g) for g in range(f - 2, f + 3)
+                                              if g in mine and g != f},
+                    "flagged_within_window": [g for g in sorted(mine)
+                                              if mine[g].flags and 0 < abs(g - f) <= HALF_WINDOW],
+                    "trajectory": {**traj, "median_mm": _rounded(med[0], 4),
+                                   "median_deg": _rounded(med[1], 4), "limit_x_median": LIMIT,
+                                   "near_x_median": round(NEAR * LIMIT, 3)}})
+    return out
 
 
 #: Issue 20's per-frame goals on the acceptance trial (:func:`goals`). ``min_within_2_sigma`` is

@@ -1,0 +1,420 @@
+"""Screen pose estimators by their linearised bias and spread (``python -m
+core.studies.tracking.spread_screen``), instead of tracking whole trials.
+
+Around the true pose ``θ₀`` an M-estimator that minimises ``C(θ; y)`` lands, to first order, at
+``θ₀ - H⁻¹ g(y)`` (``g`` the cost's gradient at ``θ₀``, ``H`` its Hessian there): on the noise-free
+frame that is its *bias*, over noise draws of the frame its *spread*. Per bone and candidate
+(:class:`Candidate`, :func:`parse`) the screen takes this step from the truth on the noise-free
+frame and on ``draws`` noisy frames of the acceptance trial's chain (:class:`~core.studies.tracking.
+acceptance.TrackingScene` with the grid-estimated distortion correction and the measured glare
+undone, as the stage's GPU runs, :mod:`core.studies.tracking.tissue_tibia`), every other bone at
+its true pose and subtracted, and predicts the RMS error over the frames and draws divided by the
+Cramér–Rao bound of the same frames (:func:`~core.studies.tracking.acceptance.cramer_rao`, the
+acceptance study's frames 0, 10, …, 90). No search runs.
+
+* Likelihood-stage candidates (``kind="wls"``): the step is the stage's own Gauss–Newton step
+  (:func:`wls_step`: the formulas of :func:`core.tracking.likelihood_solve.solve_moments`, the
+  gain, offset and regressors fitted linearly and projected out) computed on the host from the
+  13-pose design rendered once per bone-frame; the weights the expected counts of the
+  unsubtracted line integrals (Gaussian 2 px, as :meth:`~core.tracking.engine_likelihood.
+  LikelihoodEngine.set_frame`), the rim band of :func:`core.tracking.likelihood_rim.rim_keep`, the
+  2 mm tissue (:func:`~core.studies.tracking.tissue_regressor.user_tissue` ``"fine"``) through the
+  estimated PSF, and the robust round (:func:`core.tracking.final_stage.robust_factors` of the
+  residual at the truth, then the step again with the factors: the robust refinement's optimum
+  to first order). Costs linear in the image after a fixed filter: the Monte-Carlo over draws is
+  the exact noise covariance's estimate.
+* GC (``kind="gc"``, the tracker's cost, :data:`core.tracking.cost.DEFAULT_TERMS`): the gradient
+  by central differences of the cost (13 poses rendered once, scored against every draw), the
+  Hessian from the 73-pose quadratic design of :func:`~core.studies.tracking.bound_gap.local_newton`
+  on the noise-free frame.
+
+Sizes: the high-pass σ, the DoG's inner σ and the design's steps are given at 1024² and scaled
+with ``pixels``. Results: per bone and candidate ``rms``, ``bias`` and ``spread`` (mm, °) and
+``over_bound`` (mm, °). Measured: the README's paragraph "Screening estimators by their linearised
+spread and bias" and ``resources/benchmarks/tracking_spread_screen_cpu.json``.
+
+JSON on stdout (``--out``: also to a file, rewritten as it goes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+__all__ = ["Candidate", "main", "parse", "screen", "wls_step"]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One estimator (:func:`parse` reads its name). ``kind`` ``"wls"`` (the likelihood stage's
+    model) or ``"gc"`` (the tracker's cost). WLS: ``highpass`` the high-pass σ (px at 1024²; 0:
+    none), ``inner`` a difference of Gaussians' inner σ (px at 1024²; 0: a plain high-pass),
+    ``poly`` Legendre polynomials up to that order fitted as regressors (the projection orthogonal
+    to a low-order subspace; -1: none, only the offset), ``weights`` ``"counts"`` (the stage's),
+    ``"flat"`` or ``"edge"`` (the counts times ``(|∇D|/median)^edge_power`` of the bone's
+    high-passed DRR, clipped to [0.1, 10]), ``tissue`` the 2 mm tissue regressor, ``rim`` the rim
+    band's σ multiple (None: none), ``robust`` the robust round's threshold (None: none),
+    ``binning`` 2: 2×2 pixels averaged (a half-resolution stage)."""
+
+    name: str
+    kind: str = "wls"
+    highpass: float = 4.0
+    inner: float = 0.0
+    poly: int = -1
+    weights: str = "counts"
+    edge_power: float = 1.0
+    tissue: bool = False
+    rim: float | None = None
+    robust: float | None = 2.5
+    binning: int = 1
+
+
+def parse(name: str) -> Candidate:
+    """A candidate from its name, ``+``-separated tokens: ``gc``; ``hp<σ>`` (σ px at 1024²),
+    ``dog<inner>`` (with ``hp<σ>``), ``poly<order>`` (``hp0`` for no high-pass), ``flat``,
+    ``edge<power>``, ``tissue``, ``rim`` / ``rim<k>``, ``norobust``, ``bin2``. E.g.
+    ``hp8+tissue+rim`` (the stage's best measured), ``hp4`` (its default)."""
+    c = Candidate(name)
+    for t in name.split("+"):
+        if t == "gc":
+            c = replace(c, kind="gc")
+        elif t.startswith("hp"):
+            c = replace(c, highpass=float(t[2:]))
+        elif t.startswith("dog"):
+            c = replace(c, inner=float(t[3:]))
+        elif t.startswith("poly"):
+            c = replace(c, poly=int(t[4:]))
+        elif t == "flat":
+            c = replace(c, weights="flat")
+        elif t.startswith("edge"):
+            c = replace(c, weights="edge", edge_power=float(t[4:] or 1.0))
+        elif t == "tissue":
+            c = replace(c, tissue=True)
+        elif t.startswith("rim"):
+            c = replace(c, rim=float(t[3:] or 3.0))
+        elif t == "norobust":
+            c = replace(c, robust=None)
+        elif t.startswith("bin"):
+            c = replace(c, binning=int(t[3:]))
+        else:
+            raise ValueError(f"candidate {name!r}: unknown token {t!r}")
+    if c.binning not in (1, 2):
+        raise ValueError(f"candidate {name!r}: binning 1 or 2, got {c.binning}")
+    return c
+
+
+# ---------------------------------------------------------------------- the WLS step
+def _gauss(a, s):
+    from scipy import ndimage
+
+    return ndimage.gaussian_filter(a, s, mode="nearest", truncate=4.0) if s > 0 else a
+
+
+def _filter(a, c: Candidate, scale: float):
+    """``a (…, h, w)`` through the candidate's filter: ``a - G_σ a`` or ``G_inner a - G_σ a``."""
+    s, si = c.highpass * scale, c.inner * scale
+    if s <= 0:
+        return a
+    lead = a.shape[:-2]
+    A = a.reshape(-1, *a.shape[-2:])
+    out = np.stack([(_gauss(x, si) if si > 0 else x) - _gauss(x, s) for x in A])
+    return out.reshape(*lead, *a.shape[-2:])
+
+
+def _legendre(shape, order: int) -> list:
+    from core.tracking.likelihood_cost import background_basis
+
+    return [] if order < 1 else list(background_basis(shape, order, "legendre")[1:])
+
+
+def wls_step(D, dD, y, w, extra=()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One view's variable-projection Gauss–Newton terms at the design's centre: ``(JJ, Jr, e)``
+    with ``δ = (Σ JJ)⁻¹ Σ Jr`` the step (:func:`core.tracking.likelihood_solve.solve_moments`'s
+    formulas), ``e`` the weighted residual image ``√w (y - A coef)`` (0 where ``w`` is). ``D`` the
+    (filtered) DRR at the centre, ``dD (6, h, w)`` its derivatives, ``y`` the (filtered) line
+    integrals, ``w`` the weights, ``extra`` more regressor images; the offset always fitted."""
+    sel = w.ravel() > 0
+    sw = np.sqrt(w.ravel()[sel])
+    A = np.column_stack([D.ravel()[sel], np.ones(sel.sum()), *[x.ravel()[sel] for x in extra]]) * sw[:, None]
+    Q, T = np.linalg.qr(A)
+    yw = y.ravel()[sel] * sw
+    coef = np.linalg.solve(T, Q.T @ yw)
+    r = yw - Q @ (Q.T @ yw)
+    J = dD.reshape(6, -1)[:, sel] * sw * coef[0]
+    J = J - (J @ Q) @ Q.T
+    e = np.zeros(y.size)
+    e[sel] = r
+    return J @ J.T, J @ r, e.reshape(y.shape)
+
+
+def _bin(a, k: int):
+    """``a (…, h, w)`` averaged over ``k × k`` blocks (the edge cut)."""
+    if k == 1:
+        return a
+    h, w = (a.shape[-2] // k) * k, (a.shape[-1] // k) * k
+    a = a[..., :h, :w]
+    return a.reshape(*a.shape[:-2], h // k, k, w // k, k).mean(axis=(-3, -1))
+
+
+class _ViewData:
+    """One view's region of one bone-frame: the design's DRRs, the neighbours' DRRs, the tissue
+    regressor, the rim band (all fixed over the draws)."""
+
+    def __init__(self, D, others, tissue, keep) -> None:
+        self.D, self.others, self.tissue, self.keep = D, others, tissue, keep
+
+
+def _wls_delta(c: Candidate, views: list, frames_y: list, scale: float, h: float) -> np.ndarray:
+    """The candidate's step from the truth (mm, °) on one frame: ``frames_y`` per view ``(y, mask)``
+    (the region's line integrals, usable pixels)."""
+    from core.tracking.final_stage import robust_factors
+
+    k = c.binning
+    sc = scale / k
+    terms = []
+    for vd, (y0, m) in zip(views, frames_y, strict=True):
+        w = np.exp(-_gauss(y0.astype(np.float64), 2.0)) * m  # the expected counts (set_frame's)
+        kp = vd.keep.get((c.rim, c.highpass)) if c.rim is not None else None
+        if kp is not None:
+            w = w * kp
+        y = y0 - vd.others
+        D = vd.D
+        if k > 1:
+            w, y, D = _bin(w, k) * k * k, _bin(y, k), _bin(D, k)
+            w = w * (_bin(m.astype(float), k) > 0.999)
+        Df = _filter(D, c, sc)
+        yf = _filter(y, c, sc)
+        dD = (Df[1:7] - Df[7:13]) / (2 * h)
+        extra = list(_legendre(y.shape, c.poly))
+        if c.tissue:
+            extra.append(_filter(_bin(vd.tissue, k), c, sc))
+        if c.weights == "flat":
+            w = (w > 0).astype(float)
+        elif c.weights == "edge":
+            gv, gu = np.gradient(_gauss(Df[0], 1.0))
+            g = np.hypot(gu, gv)
+            med = np.median(g[w > 0]) if np.any(w > 0) else 1.0
+            w = w * np.clip((g / max(med, 1e-12)) ** c.edge_power, 0.1, 10.0)
+        terms.append((Df[0], dD, yf, w, extra))
+
+    def solve(ws):
+        out = [wls_step(D0, dD, yf, wv, extra) for (D0, dD, yf, _, extra), wv in zip(terms, ws, strict=True)]
+        JJ, Jr = sum(o[0] for o in out), sum(o[1] for o in out)
+        return np.linalg.solve(JJ, Jr), [o[2] for o in out]
+
+    ws = [t[3] for t in terms]
+    d, es = solve(ws)
+    if c.robust is None:
+        return d
+    ws2 = []
+    for e, wv in zip(es, ws, strict=True):
+        f = robust_factors(e[None], (wv > 0)[None], c.robust, sigma_px=2.0)[0]
+        ws2.append(wv * f)
+    return solve(ws2)[0]
+
+
+# ---------------------------------------------------------------------- GC
+def _design(h: float) -> np.ndarray:
+    """The 73-pose quadratic design (:func:`~core.studies.tracking.bound_gap.local_newton`'s):
+    the centre, ``±h`` on each axis and ``(±h, ±h)`` on each pair."""
+    E = np.eye(6) * h
+    X = [np.zeros(6)] + [E[i] for i in range(6)] + [-E[i] for i in range(6)]
+    for i in range(6):
+        for j in range(i + 1, 6):
+            X += [E[i] + E[j], E[i] - E[j], -E[i] + E[j], -E[i] - E[j]]
+    return np.array(X)
+
+
+def _quadratic(X: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(g, H)`` of the least-squares quadratic through the costs ``c`` of the poses ``X`` (GC's
+    cost is rough on the scale of a voxel: finite differences of three points are not its trend)."""
+    iu = np.triu_indices(6)
+    Q = np.stack([X[:, i] * X[:, j] * (0.5 if i == j else 1.0) for i, j in zip(*iu, strict=True)], axis=1)
+    A = np.column_stack([np.ones(len(X)), X, Q])
+    coef = np.linalg.lstsq(A, c, rcond=None)[0]
+    H = np.zeros((6, 6))
+    H[iu] = coef[7:]
+    H = H + np.triu(H, 1).T
+    return coef[1:7], H
+
+
+# ---------------------------------------------------------------------- the screen
+def _chain(ts, L, f: int, draw: int | None) -> list:
+    """Frame ``f``'s corrected fluence images (the trial's chain, glare undone, grid correction);
+    ``draw`` None: noise-free, else an independent noise draw."""
+    out = []
+    for v, m in enumerate(ts.scene.imaging):
+        mm = m if draw is not None else replace(m, photons_per_pixel=None, read_noise_dn=0.0)
+        rng = None if draw is None else np.random.default_rng([int(ts.scene.seed), 0x5C2EE, f, v, draw])
+        out.append(np.asarray(ts.correct(v, mm.apply(L[v], rng=rng)), np.float32))
+    return out
+
+
+def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float, rims) -> dict:
+    """Per candidate ``(draws + 1, 6)`` steps (the noise-free frame's first) of bone ``b`` at the true
+    poses ``P``; ``T (views, H, W)`` the tissue regressor as the frame shows it."""
+    from core.geometry.transforms import pose_from_params
+    from core.studies.tracking.background_fit import _crop
+    from core.tracking.cost import RegistrationCost, fluoro_rois, prepare_frame, search_roi, snap_roi
+    from core.tracking.likelihood_rim import rim_keep
+
+    views = (0, 1)
+    m = ts.models[b]
+    oth = [k for k in range(len(ts.names)) if k != b]
+    roi = snap_roi(search_roi(ts.renderer, P[b], b, views=views, center=m.centroid, reach_mm=1.0,
+                              margin_px=4), ts.renderer, views)
+    fr = [prepare_frame(im) for im in frames_imgs]
+    X = np.concatenate([np.zeros((1, 6)), np.eye(6) * h, -np.eye(6) * h])
+    out = {}
+    wls = [c for c in cands if c.kind == "wls"]
+    if wls:
+        p = np.concatenate([X[:, :3], np.radians(X[:, 3:])], axis=1)
+        Pd = pose_from_params(p, center=m.centroid, base=P[b])
+        roi_arg = np.asarray(roi)[None, :, None, :]
+        Dall = ts.renderer.render(Pd[:, None], views=views, bones=[b], roi=roi_arg).numpy()[:, :, 0]
+        Oall = ts.renderer.render(P[oth][None], views=views, bones=oth, roi=roi_arg).numpy()[0].sum(axis=1)
+        cap = (max(int(r[3]) for r in roi), max(int(r[2]) for r in roi))
+        keeps = {(k, hp): rim_keep(fr[0], views, roi, k * hp * scale, cap) for k, hp in rims}
+        vds = []
+        for i, _ in enumerate(views):
+            wd, ht = int(roi[i][2]), int(roi[i][3])
+            keep = {key: None if kk is None else kk[i, :ht, :wd].astype(float) for key, kk in keeps.items()}
+            vds.append(_ViewData(Dall[:, i, :ht, :wd].astype(np.float64),
+                                 Oall[i, :ht, :wd].astype(np.float64), _crop(T[i], roi[i]), keep))
+        regions = [[(y.astype(np.float64), mk) for y, mk in zip(*fluoro_rois(ts.renderer, f_, views=views,
+                                                                             roi=roi), strict=True)]
+                   for f_ in fr]
+        for c in wls:
+            out[c.name] = np.array([_wls_delta(c, vds, rg, scale, h) for rg in regions])
+    for c in (c for c in cands if c.kind == "gc"):
+        costs = [RegistrationCost(ts.renderer, f_, bone=b, base_pose=P[b], center=m.centroid, roi=roi,
+                                  others=(P[oth], oth)) for f_ in fr]
+        Xq = _design(2 * h)
+        batch = ts.renderer.render(costs[0].poses(Xq)[:, None], views=views, bones=[b], roi=costs[0]._roi_arg)
+        fits = [_quadratic(Xq, 1.0 - np.asarray(cst.metrics[0].evaluate(batch).pose, float)) for cst in costs]
+        H0 = fits[0][1]
+        out[c.name] = -np.linalg.solve(H0, np.array([g for g, _ in fits]).T).T
+    return out
+
+
+def _summary(D: np.ndarray, bound: dict) -> dict:
+    """``D (frames, draws + 1, 6)``: RMS over the noisy draws, their bias (the per-frame means) and
+    spread about it, and the noise-free frame's step (a robust round's factors on a noise-free
+    frame see the structure alone, so its step is not the noisy frames' bias)."""
+    def rms(E):
+        E = np.asarray(E).reshape(-1, 3)
+        return float(np.sqrt(np.mean(np.sum(E**2, axis=1))))
+
+    noisy, free = D[:, 1:], D[:, 0]
+    n = noisy.shape[1]
+    mean = noisy.mean(1)
+    dev = (noisy - mean[:, None]) * np.sqrt(n / max(n - 1, 1))  # (n - 1 per frame)
+    r = {"rms": [rms(noisy[..., :3]), rms(noisy[..., 3:])], "bias": [rms(mean[:, :3]), rms(mean[:, 3:])],
+         "spread": [rms(dev[..., :3]), rms(dev[..., 3:])],
+         "noise_free": [rms(free[:, :3]), rms(free[:, 3:])]}
+    r["over_bound"] = [r["rms"][0] / bound["rms_mm"], r["rms"][1] / bound["rms_deg"]]
+    r["bias_over_bound"] = [r["bias"][0] / bound["rms_mm"], r["bias"][1] / bound["rms_deg"]]
+    r["spread_over_bound"] = [r["spread"][0] / bound["rms_mm"], r["spread"][1] / bound["rms_deg"]]
+    return {k: [round(float(x), 5) for x in v] for k, v in r.items()}
+
+
+DEFAULT_CANDIDATES = ("gc", "hp4", "hp8", "hp8+tissue", "hp8+tissue+rim")
+
+
+def screen(*, pixels: int = 512, voxel: float = 0.5, frames=range(0, 100, 10), bones=(0, 1, 2),
+           draws: int = 30, candidates=DEFAULT_CANDIDATES, device: str | None = "cpu",
+           checkpoint=None) -> dict:
+    """The screen (module docs); JSON-ready. ``candidates``: names (:func:`parse`)."""
+    from core.render import DRRRenderer
+    from core.studies.tracking.acceptance import cramer_rao
+    from core.studies.tracking.background_fit import _Sources, estimated_psf
+    from core.studies.tracking.tissue_regressor import regressor_images, user_tissue
+
+    t0 = time.perf_counter()
+    cands = [parse(c) for c in candidates]
+    frames = [int(f) for f in frames]
+    src = _Sources(pixels, voxel, 100, 0, device)
+    ts = src.scene("grid")
+    sc = ts.scene
+    psf = np.asarray(estimated_psf(ts), float)
+    scale = pixels / 1024
+    h = 0.05 * 1024 / pixels  # the design's half-steps (mm, °), scaled as the pixel
+    tissue_r = DRRRenderer(sc.rig, [v.to_attenuation(sc.tissue_transfer) for v in user_tissue(sc, "fine")],
+                           device=device)
+    rims = sorted({(c.rim, c.highpass) for c in cands if c.kind == "wls" and c.rim is not None})
+    out = {"study": "core.studies.tracking.spread_screen", "machine": platform.machine(), "device": device,
+           "pixels": pixels, "voxel_mm": voxel, "frames": frames, "draws": draws, "correction": "grid",
+           "glare_undone": True, "candidates": [c.__dict__ for c in cands], "design_step": h}
+    bound = cramer_rao(ts, frames)
+    out["bound"] = {nm: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for nm, v in bound.items()}
+    out["setup_s"] = time.perf_counter() - t0
+    steps: dict = {}
+    for fi, f in enumerate(frames):
+        L = sc.line_integrals(f, renderer=ts._scene_renderer)
+        imgs = [_chain(ts, L, f, d) for d in [None, *range(draws)]]
+        P = ts.truth(f)
+        Lt = tissue_r.render(P[list(sc.tissue_bones)][None], roi="full").numpy()[0].astype(np.float64)
+        T = regressor_images(Lt, psf, False)[:, 0]
+        for b in bones:
+            nm = ts.names[b]
+            res = _bone_frame(ts, P, imgs, b, cands, T=T, scale=scale, h=h, rims=rims)
+            for k, v in res.items():
+                steps.setdefault(nm, {}).setdefault(k, []).append(v)
+        out["frames_done"] = frames[: fi + 1]
+        out["results"] = {nm: {k: _summary(np.array(v), out["bound"][nm]) for k, v in d.items()}
+                          for nm, d in steps.items()}
+        out["steps"] = {nm: {k: np.round(np.array(v)[:, 0], 6).tolist() for k, v in d.items()}
+                        for nm, d in steps.items()}
+        out["total_s"] = time.perf_counter() - t0
+        print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
+        if checkpoint:
+            checkpoint(out)
+    out["table"] = table(out)
+    return out
+
+
+def table(res: dict) -> list[str]:
+    """One line per candidate: each bone's predicted RMS over the bound, mm / °."""
+    names = list(res.get("results", {}))
+    cands = [c["name"] for c in res.get("candidates", [])]
+    lines = []
+    for c in cands:
+        parts = []
+        for nm in names:
+            r = res["results"][nm].get(c)
+            if r:
+                parts.append(f"{nm} {r['over_bound'][0]:.2f}/{r['over_bound'][1]:.2f}")
+        lines.append(f"{c}: " + ", ".join(parts))
+    return lines
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.spread_screen",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--pixels", type=int, default=512)
+    p.add_argument("--voxel", type=float, default=0.5)
+    p.add_argument("--frames", default=",".join(map(str, range(0, 100, 10))))
+    p.add_argument("--bones", default="0,1,2")
+    p.add_argument("--draws", type=int, default=30)
+    p.add_argument("--candidates", default=",".join(DEFAULT_CANDIDATES))
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--machine-name", default=None)
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    from core.io.atomic import json_checkpoint, print_json
+
+    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
+    res = screen(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in a.frames.split(",") if x],
+                 bones=[int(x) for x in a.bones.split(",") if x], draws=a.draws,
+                 candidates=[x for x in a.candidates.split(",") if x], device=a.device, checkpoint=checkpoint)
+    checkpoint(res)
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

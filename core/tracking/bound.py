@@ -20,7 +20,13 @@ The intensifier blur, glare, roll-off and distortion that follow the quantum sta
 invertible linear maps of the detected image: with no noise after them they neither add nor
 remove information. Camera read noise and quantisation (small next to the quantum noise) are
 left out. Both choices make ``J`` larger, so the bound stays a *lower* bound — optimistic.
-The other bones are taken as known (joint tracking), which is optimistic too.
+:func:`pose_bound` takes the other bones as known, which is optimistic too: no tracker knows them,
+in joint or in sequential mode all ``6 n`` parameters of the frame's ``n`` bones are estimated from
+the same images. :func:`joint_bound` gives the bound of that problem: the ``(6 n, 6 n)`` information
+of all the bones' poses (the same sum, ``∂L/∂θ_a · ∂L/∂θ_bᵀ`` for every pair of bones, which is not
+zero where their projections overlap), whose inverse's ``b`` block is bone ``b``'s bound — the
+inverse of the Schur complement ``J_bb − J_bo J_oo⁻¹ J_ob``, never below :func:`pose_bound`'s
+``J_bb⁻¹`` and equal to it where the bone's projection overlaps no other's.
 
 ``∂L/∂θ`` is the bone's DRR (:class:`core.render.DRRRenderer`, the renderer that synthesises the
 study's frames) differentiated by central differences. It must be the volume the frames were
@@ -39,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PoseBound", "pose_bound"]
+__all__ = ["JointBound", "PoseBound", "joint_bound", "pose_bound"]
 
 
 @dataclass(frozen=True)
@@ -173,14 +179,146 @@ def pose_bound(renderer, bone: int, pose, center, *, line_integral: Sequence[np.
         G = Dv.reshape(6, -1)
         J += (G * q.ravel()) @ G.T
         pixels += int(np.count_nonzero(np.any(Dv != 0, axis=0)))
+    return _from_covariance(J, _inverse(J), pixels)
+
+
+def _inverse(J: np.ndarray) -> np.ndarray:
+    """``J⁻¹`` of a symmetric information matrix; all ``inf`` where it is singular."""
     w, V = np.linalg.eigh(0.5 * (J + J.T))
     if np.all(np.isfinite(w)) and w.max() > 0 and w.min() > 1e-12 * w.max():
-        C = (V / w) @ V.T  # symmetric positive definite by construction
-    else:  # some combination of parameters leaves the images unchanged: no finite bound
-        C = np.full((6, 6), np.inf)
+        return (V / w) @ V.T  # symmetric positive definite by construction
+    # some combination of parameters leaves the images unchanged: no finite bound
+    return np.full(J.shape, np.inf)
+
+
+def _from_covariance(J: np.ndarray, C: np.ndarray, pixels: int) -> PoseBound:
     sig = np.sqrt(np.diag(C))
     return PoseBound(information=J, covariance=C, sigma=sig, rms_mm=float(np.sqrt(np.trace(C[:3, :3]))),
                      rms_deg=float(np.sqrt(np.trace(C[3:, 3:]))), pixels=pixels)
+
+
+@dataclass(frozen=True)
+class JointBound:
+    """Cramér–Rao bound of several bones' poses estimated together from one frame
+    (:func:`joint_bound`).
+
+    Attributes
+    ----------
+    bones : tuple of int
+        The bones in the joint problem (volume indices), in the order of the blocks below.
+    information, covariance : (6 n, 6 n) arrays
+        The Fisher information of all the bones' parameters (bone ``k``'s at rows ``6k … 6k+5``,
+        mm then degrees as in :class:`PoseBound`) and its inverse.
+    joint : tuple of PoseBound
+        Per bone, the bound with the other bones unknown: ``covariance`` the bone's block of the
+        joint covariance, ``information`` its inverse (the Schur complement).
+    known : tuple of PoseBound
+        Per bone, the bound with the other bones known (:func:`pose_bound`: its own 6×6 block).
+    missing : tuple of int
+        Bones left out because their projection misses every view (no pixel, no information).
+    """
+
+    bones: tuple[int, ...]
+    information: np.ndarray
+    covariance: np.ndarray
+    joint: tuple[PoseBound, ...]
+    known: tuple[PoseBound, ...]
+    missing: tuple[int, ...] = ()
+
+    def ratio(self) -> np.ndarray:
+        """``(n, 2)``: per bone the joint bound over the known-others bound, mm and degrees."""
+        return np.array([[j.rms_mm / k.rms_mm, j.rms_deg / k.rms_deg] for j, k in zip(self.joint, self.known,
+                                                                                     strict=True)])
+
+    def to_dict(self) -> dict:
+        return {"bones": list(self.bones), "missing": list(self.missing),
+                "joint": [b.to_dict() for b in self.joint], "known": [b.to_dict() for b in self.known]}
+
+
+def joint_bound(renderer, bones: Sequence[int], poses, centers, *, line_integral: Sequence[np.ndarray],
+                quanta_per_pixel, views: Sequence[int] | None = None, step=(0.1, 0.1),
+                margin_px: int = 6) -> JointBound:
+    """Cramér–Rao bound of ``bones``' poses estimated together from one frame (module docs).
+
+    The ``(6 n, 6 n)`` information is :func:`pose_bound`'s sum over every pair of bones and every
+    pixel both bones' regions cover in a view; its diagonal blocks are :func:`pose_bound`'s
+    information exactly. Bones whose projection misses every used view are left out of the problem
+    (``missing``): they add no pixel, so they change no other bone's bound.
+
+    Parameters
+    ----------
+    bones : sequence of int
+        Volume indices of ``renderer`` estimated in the frame.
+    poses : (n, 4, 4) array
+        Their true ``T_lab_from_bone``.
+    centers : (n, 3) array
+        Their rotation centres in their CT frames (centroids), mm.
+    line_integral, quanta_per_pixel, views, step, margin_px
+        As :func:`pose_bound`.
+
+    Raises
+    ------
+    core.tracking.cost.OutsideViewError
+        Every bone projects outside every used view.
+    ValueError
+        Bad shapes or values (named in the message).
+    """
+    from .cost import OutsideViewError
+
+    bones = tuple(int(b) for b in bones)
+    poses = np.asarray(poses, dtype=float)
+    centers = np.asarray(centers, dtype=float)
+    if not bones or poses.shape != (len(bones), 4, 4) or centers.shape != (len(bones), 3):
+        raise ValueError(f"bones, poses, centers: expected n >= 1 bones, (n, 4, 4) and (n, 3), got "
+                         f"{len(bones)}, {poses.shape} and {centers.shape}")
+    if len(set(bones)) != len(bones):
+        raise ValueError(f"bones: expected distinct indices, got {bones}")
+    kept, missing, D = [], [], []
+    for k, b in enumerate(bones):
+        try:
+            _, N, Db = _derivatives(renderer, b, poses[k], centers[k], line_integral=line_integral,
+                                    quanta_per_pixel=quanta_per_pixel, views=views, step=step,
+                                    margin_px=margin_px)
+        except OutsideViewError:
+            missing.append(b)
+            continue
+        kept.append(b)
+        D.append(Db)
+    if not kept:
+        raise OutsideViewError(f"bones {bones}: every projection misses every view")
+    q = {}  # per view, the quanta behind each pixel: N e^{-L}
+    n = len(kept)
+    J = np.zeros((6 * n, 6 * n))
+    for a in range(n):
+        for c in range(a, n):
+            blk = np.zeros((6, 6))
+            for va, (ua, ya, wa, ha), Da, _ in D[a]:
+                for vc, (uc, yc, wc, hc), Dc, _ in D[c]:
+                    if va != vc:
+                        continue
+                    x0, x1 = max(ua, uc), min(ua + wa, uc + wc)
+                    y0, y1 = max(ya, yc), min(ya + ha, yc + hc)
+                    if x1 <= x0 or y1 <= y0:
+                        continue
+                    if va not in q:
+                        q[va] = N[va] * np.exp(-np.asarray(line_integral[va], dtype=float))
+                    Ga = Da[:, y0 - ya:y1 - ya, x0 - ua:x1 - ua].reshape(6, -1)
+                    Gc = Dc[:, y0 - yc:y1 - yc, x0 - uc:x1 - uc].reshape(6, -1)
+                    blk += (Ga * q[va][y0:y1, x0:x1].ravel()) @ Gc.T
+            J[6 * a:6 * a + 6, 6 * c:6 * c + 6] = blk
+            J[6 * c:6 * c + 6, 6 * a:6 * a + 6] = blk.T
+    C = _inverse(J)
+    joint, known = [], []
+    for k in range(n):
+        s = slice(6 * k, 6 * k + 6)
+        pixels = sum(int(np.count_nonzero(np.any(Dv != 0, axis=0))) for _, _, Dv, _ in D[k])
+        Jk = J[s, s]
+        known.append(_from_covariance(Jk, _inverse(Jk), pixels))
+        Ck = C[s, s]
+        Jm = _inverse(Ck) if np.all(np.isfinite(Ck)) else np.zeros((6, 6))  # the Schur complement
+        joint.append(_from_covariance(Jm, Ck, pixels))
+    return JointBound(bones=tuple(kept), information=J, covariance=C, joint=tuple(joint), known=tuple(known),
+                      missing=tuple(missing))
 
 
 def chain_information(renderer, bone: int, pose, center, *, line_integral: Sequence[np.ndarray],

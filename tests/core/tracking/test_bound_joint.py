@@ -1,0 +1,185 @@
+"""The joint Cramér–Rao bound of several bones (:func:`core.tracking.bound.joint_bound`): equal to
+the per-bone bound where the projections do not overlap, above it where they do, and the spread of a
+joint maximum-likelihood fit of both bones on Poisson frames."""
+
+import numpy as np
+import pytest
+
+from core.geometry.transforms import pose_from_params
+from core.studies.tracking.acceptance import pose_errors
+from core.tracking.bound import joint_bound, pose_bound
+from core.tracking.cost import OutsideViewError, search_roi
+
+
+def _ramp(shape):
+    """Tissue line integral in front of the bones: 1 to 3 across the image (photon weights differ)."""
+    h, w = shape
+    return np.broadcast_to(1.0 + 2.0 * np.arange(w) / (w - 1), (h, w)).copy()
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """The talus and the calcaneus of an ideal 96² biplane scene, 1.5 mm voxels, a CPU renderer."""
+    from core.render import DRRRenderer
+    from core.synthetic import make_foot_scene
+    from core.tracking.bones import bone_model
+
+    sc = make_foot_scene(n_frames=1, pixels=96, spacing=1.5, names=("talus", "calcaneus"), beads_per_bone=0,
+                         phase=(0.0, 0.01), soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
+    r = DRRRenderer(sc.rig, [b.to_attenuation(sc.bone_transfer) for b in sc.bones], device="cpu")
+    centers = np.array([bone_model(b, mesh=False).centroid for b in sc.bones])
+    return r, sc.poses(0), centers
+
+
+def _psd(A, scale):
+    return np.linalg.eigvalsh(0.5 * (A + A.T)).min() > -1e-9 * scale
+
+
+def test_bones_that_never_overlap_have_their_own_bound(pair):
+    r, P, c = pair
+    P = P.copy()
+    P[1, :3, 3] += (0.0, -60.0, 0.0)  # the calcaneus moved off the talus in both views, still seen in both
+    for v in range(2):
+        assert search_roi(r, P[1], 1, views=[v], center=c[1], reach_mm=0.0, margin_px=6)[0][2] > 20
+    L = [_ramp(cam.image_shape) for cam in r.cameras]
+    jb = joint_bound(r, [0, 1], P, c, line_integral=L, quanta_per_pixel=3000.0)
+    assert jb.bones == (0, 1) and jb.missing == () and jb.information.shape == (12, 12)
+    assert np.all(jb.information[:6, 6:] == 0)  # no pixel where both projections change
+    for k in range(2):
+        own = pose_bound(r, k, P[k], c[k], line_integral=L, quanta_per_pixel=3000.0)
+        np.testing.assert_allclose(jb.known[k].information, own.information, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(jb.joint[k].covariance, own.covariance, rtol=1e-9)
+        assert jb.joint[k].rms_mm == pytest.approx(own.rms_mm, rel=1e-9)
+        assert jb.joint[k].rms_deg == pytest.approx(own.rms_deg, rel=1e-9)
+        assert jb.joint[k].pixels == own.pixels
+    np.testing.assert_allclose(jb.ratio(), 1.0, rtol=1e-9)
+
+
+def test_overlapping_bones_raise_the_bound_and_missing_bones_are_left_out(pair):
+    r, P, c = pair
+    L = [_ramp(cam.image_shape) for cam in r.cameras]
+    jb = joint_bound(r, [0, 1], P, c, line_integral=L, quanta_per_pixel=3000.0)
+    assert np.abs(jb.information[:6, 6:]).max() > 0  # the talus and calcaneus overlap in the views
+    np.testing.assert_allclose(jb.information, jb.information.T)
+    for k in range(2):
+        own = pose_bound(r, k, P[k], c[k], line_integral=L, quanta_per_pixel=3000.0)
+        np.testing.assert_allclose(jb.known[k].information, own.information, rtol=1e-9)
+        # the other bone unknown: the bone's covariance is at least the known-others one (PSD order)
+        assert _psd(jb.joint[k].covariance - own.covariance, np.abs(own.covariance).max())
+        assert jb.joint[k].rms_mm >= own.rms_mm and jb.joint[k].rms_deg >= own.rms_deg
+        # its information is the Schur complement of the other bone's block
+        o = slice(6 * (1 - k), 6 * (1 - k) + 6)
+        s = slice(6 * k, 6 * k + 6)
+        schur = jb.information[s, s] - jb.information[s, o] @ np.linalg.solve(jb.information[o, o],
+                                                                            jb.information[o, s])
+        np.testing.assert_allclose(jb.joint[k].information, schur, rtol=1e-6, atol=1e-9 * np.abs(schur).max())
+    d = jb.to_dict()
+    assert d["bones"] == [0, 1] and len(d["joint"]) == len(d["known"]) == 2
+    # a bone outside every view is left out: the other's joint bound is then its own
+    away = P.copy()
+    away[1, :3, 3] += 5000.0
+    jm = joint_bound(r, [0, 1], away, c, line_integral=L, quanta_per_pixel=3000.0)
+    assert jm.bones == (0,) and jm.missing == (1,)
+    assert jm.joint[0].rms_mm == pytest.approx(jm.known[0].rms_mm, rel=1e-12)
+    away[0, :3, 3] += 5000.0
+    with pytest.raises(OutsideViewError):
+        joint_bound(r, [0, 1], away, c, line_integral=L, quanta_per_pixel=3000.0)
+    with pytest.raises(ValueError, match="poses"):
+        joint_bound(r, [0, 1], P[:1], c, line_integral=L, quanta_per_pixel=3000.0)
+    with pytest.raises(ValueError, match="distinct"):
+        joint_bound(r, [0, 0], P, c, line_integral=L, quanta_per_pixel=3000.0)
+
+
+def _joint_ml_fit(r, truth, centers, counts, N, roi, bg, *, fit=(0, 1), iterations=5, h=0.03):
+    """Fisher scoring on the Poisson log-likelihood of both bones' line integrals plus the known
+    background, the bones in ``fit`` estimated (the others kept at the truth), every realisation at
+    once; independent of :mod:`core.tracking.bound` (own renders, own steps, a common ROI per view)."""
+    M = len(counts)
+    nb = len(truth)
+    x = np.zeros((M, nb, 6))
+    E = np.concatenate([np.zeros((1, 6)), h * np.eye(6), -h * np.eye(6)])  # (13, 6), mm and degrees
+    for _ in range(iterations):
+        X = x[:, None] + E[None, :, None]  # (M, 13, nb, 6): every bone moved by the same step
+        Xb = [X[:, :, b].reshape(-1, 6) for b in range(nb)]
+        P = np.stack([pose_from_params(np.c_[Xb[b][:, :3], np.radians(Xb[b][:, 3:])], center=centers[b],
+                                       base=truth[b]) for b in range(nb)], axis=1)
+        img = r.render(P, views=[0, 1], bones=list(range(nb)), roi=roi[None, :, None, :]).numpy()
+        img = img.reshape(M, 13, 2, nb, *counts.shape[-2:]).astype(float)  # (M, 13, view, bone, H, W)
+        lam = N * np.exp(-(img[:, 0].sum(axis=2) + bg))  # (M, 2, H, W)
+        dL = (img[:, 1:7] - img[:, 7:]) / (2 * h)  # (M, 6, view, bone, H, W)
+        G = np.concatenate([dL[:, :, :, b] for b in fit], axis=1).reshape(M, 6 * len(fit), -1)
+        lam_f, n_f = lam.reshape(M, -1), counts.reshape(M, -1)
+        info = np.einsum("mip,mp,mjp->mij", G, lam_f, G)
+        score = np.einsum("mip,mp->mi", G, lam_f - n_f)
+        step = np.linalg.solve(info, score[..., None])[..., 0].reshape(M, len(fit), 6)
+        for k, b in enumerate(fit):
+            x[:, b] += step[:, k]
+    return x  # (M, nb, 6): the estimate's parameters from the truth
+
+
+def test_joint_bound_is_the_spread_of_a_joint_maximum_likelihood_fit():
+    """Two copies of the talus 1.5 mm apart: their edges run side by side in both views, as the
+    congruent articular surfaces of neighbouring bones do, so that moving one bone can be mistaken
+    for moving the other (strong overlap). Poisson frames, both bones fitted together from the
+    truth: the fit's spread is the joint bound, well above the bound with the other bone known."""
+    from core.render import DRRRenderer
+    from core.synthetic import make_foot_scene
+    from core.tracking.bones import bone_model
+
+    sc = make_foot_scene(n_frames=1, pixels=80, spacing=1.5, names=("talus",), beads_per_bone=0,
+                         phase=(0.0, 0.01), soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
+    vol = sc.bones[0].to_attenuation(sc.bone_transfer)
+    r = DRRRenderer(sc.rig, [vol, vol], device="cpu")
+    c = bone_model(sc.bones[0], mesh=False).centroid
+    P0 = sc.poses(0)[0]
+    truth = np.stack([P0, pose_from_params(np.array([[1.5, 0, 0, 0, 0, 0]]), center=c, base=P0)[0]])
+    centers = np.stack([c, c])
+    rois = [search_roi(r, truth[b], b, views=(0, 1), center=c, reach_mm=2.0, margin_px=6) for b in range(2)]
+    lo = np.minimum(rois[0][:, :2], rois[1][:, :2])
+    hi = np.maximum(rois[0][:, :2] + rois[0][:, 2:], rois[1][:, :2] + rois[1][:, 2:])
+    roi = np.c_[lo, hi - lo]  # per view the box around both bones
+    H, W = int(roi[:, 3].max()), int(roi[:, 2].max())
+    img = r.render(truth[None], views=[0, 1], bones=[0, 1], roi=roi[None, :, None, :]).numpy()[0]
+    L_true = img.astype(float).sum(axis=1)  # (2, H, W)
+    full, bg = [], np.zeros((2, H, W))
+    valid = np.zeros((2, H, W), bool)
+    for v, cam in enumerate(r.cameras):
+        u0, v0, w, h = roi[v]
+        f = _ramp(cam.image_shape)
+        bg[v, :h, :w] = f[v0:v0 + h, u0:u0 + w]
+        valid[v, :h, :w] = True
+        f[v0:v0 + h, u0:u0 + w] += L_true[v, :h, :w]
+        full.append(f)
+    N = 300000.0  # enough quanta that the fit is in its linear (efficient) regime
+    jb = joint_bound(r, [0, 1], truth, centers, line_integral=full, quanta_per_pixel=N)
+    ratio = jb.ratio()
+    assert np.all(ratio > 1.25)  # strong overlap: the other bone unknown costs a quarter or more
+
+    g = np.random.default_rng(1)
+    M = 64
+    lam = N * np.exp(-(L_true + bg))
+    counts = np.where(valid, g.poisson(np.broadcast_to(lam, (M, 2, H, W))), lam)
+    x = _joint_ml_fit(r, truth, centers, counts, N, roi, bg)
+    e = x.reshape(M, 12)
+    # the parameters are the registration's (centroid displacement, rotation vector in degrees):
+    # the same as acceptance's pose errors to first order
+    p0 = pose_from_params(np.c_[x[:, 0, :3], np.radians(x[:, 0, 3:])], center=c, base=truth[0])
+    np.testing.assert_allclose([pose_errors(p, truth[0], c) for p in p0[:4]], x[:4, 0], atol=1e-3)
+    for k in range(2):
+        emp_mm = np.sqrt(np.mean(np.sum(x[:, k, :3] ** 2, axis=1)))
+        emp_deg = np.sqrt(np.mean(np.sum(x[:, k, 3:] ** 2, axis=1)))
+        # the joint ML estimate is efficient: its spread is the joint bound (64 draws: ±~10-15 %) …
+        assert emp_mm / jb.joint[k].rms_mm == pytest.approx(1.0, abs=0.25)
+        assert emp_deg / jb.joint[k].rms_deg == pytest.approx(1.0, abs=0.25)
+        # … and above the known-others bound, which it cannot reach
+        assert emp_mm > 1.1 * jb.known[k].rms_mm and emp_deg > 1.05 * jb.known[k].rms_deg
+    # the whole 12×12 covariance agrees: E[eᵀ J e] = 12 (chi-square, 12 degrees of freedom)
+    m = np.mean(np.einsum("mi,ij,mj->m", e, jb.information, e))
+    assert 9.0 < m < 15.5
+    # with the other bone known (kept at the truth) the same frames give the known-others bound
+    x1 = _joint_ml_fit(r, truth, centers, counts, N, roi, bg, fit=(0,))
+    for u, s in (("mm", slice(0, 3)), ("deg", slice(3, 6))):
+        known = np.sqrt(np.mean(np.sum(x1[:, 0, s] ** 2, axis=1)))
+        joint = np.sqrt(np.mean(np.sum(x[:, 0, s] ** 2, axis=1)))
+        assert known / getattr(jb.known[0], f"rms_{u}") == pytest.approx(1.0, abs=0.25)
+        assert joint > 1.2 * known  # on the same frames, not knowing the other bone costs precision

@@ -12,10 +12,11 @@ images share memory with the current one's — and then the current frame is rea
 nothing more is read ahead: each frame is read at its turn, as without the look-ahead.
 
 A view the callable gives None for has no image; a callable with a ``reason(frame, view)`` method
-(or attribute) says why — asked right after the frame is read, for those views only; a reason
-such as ``"<file>: <error>"``, or None where the view simply has no frame — and :attr:`FrameFeed.why`
-hands the reasons of the frame handed out last to :func:`core.tracking.frame_step.track_frame`,
-which puts them in the frame's flag (:func:`~core.tracking.frame_step.missing_flags`).
+(or attribute) says why — asked right after the frame is read, for those views only: a reason
+such as ``"<file>: <error>"``, or None where the view simply has no frame. The feed hands such a
+view on as a :class:`MissingView` carrying the reason (a callable may give one itself), and
+:func:`core.tracking.frame_step.track_frame` puts it in the frame's flag
+(:func:`~core.tracking.frame_step.missing_flags`).
 
 The worker also draws the next frame's noise samples (the noise correction's ``E₁`` estimate,
 :meth:`~core.tracking.cost.FrameImages.prepare_noise`) for the views and patch sizes the frames
@@ -31,12 +32,25 @@ does not finish within a 5 ms registration (``resources/benchmarks/tracking_nois
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from .cost import prepare_frame
 
-__all__ = ["FrameFeed"]
+__all__ = ["FrameFeed", "MissingView"]
+
+
+@dataclass(frozen=True)
+class MissingView:
+    """A view of a frame without its image, and why (its file and the reader's error), in place
+    of None: the frame's flag gives the reason (:func:`core.tracking.frame_step.missing_flags`)."""
+
+    reason: str
+
+
+def _missing(im) -> bool:
+    return im is None or isinstance(im, MissingView)
 
 
 class FrameFeed:
@@ -47,8 +61,7 @@ class FrameFeed:
     def __init__(self, frames: Callable[[int], Sequence], valid_range, erode_px: int) -> None:
         self.frames, self.valid_range, self.erode_px = frames, valid_range, erode_px
         self.pool = None
-        self.ahead = None  # (frame, images, reasons, future of the prepared frame)
-        self.why: dict[int, str] = {}  # the frame handed out last: view -> the source's reason it has none
+        self.ahead = None  # (frame, images, future of the prepared frame)
         self.current: tuple[int, list] | None = None  # the frame being registered and its images
         self.refills = False  # the callable refills one buffer: no look-ahead
         # the prepared frame handed out last and the noise samples the one before it drew: those
@@ -59,7 +72,7 @@ class FrameFeed:
         self.noise_pool = None
 
     def _prepare(self, imgs: list, noise=()):
-        if any(im is None for im in imgs):
+        if any(_missing(im) for im in imgs):
             return None
         frame = prepare_frame(imgs, valid_range=self.valid_range, erode_px=self.erode_px)
         if noise:
@@ -83,30 +96,28 @@ class FrameFeed:
                 pass
         return frame
 
-    def _read(self, f: int) -> tuple[list, dict[int, str]]:
-        """Frame ``f``'s images and, per view without one, the source's reason (if it gives one)."""
+    def _read(self, f: int) -> list:
+        """Frame ``f``'s images; a view without one whose source says why is a :class:`MissingView`."""
         imgs = list(self.frames(f))
         ask = getattr(self.frames, "reason", None)
-        why = {}
         if ask is not None:
             for v, im in enumerate(imgs):
                 if im is None and (r := ask(f, v)):
-                    why[v] = str(r)
-        return imgs, why
+                    imgs[v] = MissingView(str(r))
+        return imgs
 
     def get(self, f: int) -> tuple[list, object]:
-        """``(images, prepared frame or None where a view has no frame)`` of frame ``f``; why a view
-        has none (the source's reasons) is then :attr:`why`."""
+        """``(images, prepared frame or None where a view has no frame)`` of frame ``f``; a view
+        without its image is None, or a :class:`MissingView` with the source's reason."""
         if self.current_frame is not None:  # its registrations are done: what they drew is final
             self.previous_keys = tuple(self.current_frame.noise_sample_keys)
         if self.ahead is not None and self.ahead[0] == f:
-            _, imgs, self.why, fut = self.ahead
+            _, imgs, fut = self.ahead
             self.ahead = None
             self.current = (f, imgs)
             self.current_frame = fut.result()
             return imgs, self.current_frame
-        self.why = {}
-        imgs, self.why = self._read(f)
+        imgs = self._read(f)
         self.current = (f, imgs)
         self.current_frame = self._prepare(imgs)
         return imgs, self.current_frame
@@ -126,7 +137,7 @@ class FrameFeed:
         if self.refills:
             return
         try:
-            imgs, why = self._read(f)
+            imgs = self._read(f)
         except Exception:  # raised again when the frame's turn comes, as without the look-ahead
             self.ahead = None
             return
@@ -136,7 +147,7 @@ class FrameFeed:
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="talus-frames")
-        self.ahead = (f, imgs, why, self.pool.submit(self._prepare, imgs, self._noise_keys()))
+        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys()))
 
     def close(self) -> None:
         if self.pool is not None:

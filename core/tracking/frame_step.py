@@ -100,7 +100,7 @@ from __future__ import annotations
 
 import statistics
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from dataclasses import replace as _replace
@@ -110,6 +110,7 @@ import numpy as np
 from .attempt import Attempt, confidence_of, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
+from .feed import MissingView
 from .frame_state import _BoneState, _Run, motion_prediction, predict_pose
 from .joint import JointJob, lockstep_applies, register_together
 from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
@@ -194,17 +195,21 @@ def stage_move_check(timing: dict | None, confidence: dict | None, moves, *, n: 
             f"{limit:g} x the bone's recent {med:.3f} mm)"]
 
 
-def missing_flags(imgs: Sequence, why: Mapping[int, str] | None = None) -> tuple[str, ...]:
-    """The flags of a frame some view of which has no image (``imgs[v]`` None); ``why`` maps such a
-    view to the reason its frame source gave (:class:`core.tracking.feed.FrameFeed`: the source's
-    ``reason(frame, view)``; a file and the reader's error). Views with a reason are said in one
+def missing_flags(imgs: Sequence) -> tuple[str, ...]:
+    """The flags of a frame some view of which has no image: ``imgs[v]`` None, or a
+    :class:`~core.tracking.feed.MissingView` carrying the reason its frame source gave (a file and
+    the reader's error; :class:`core.tracking.feed.FrameFeed`). Views with a reason are said in one
     :data:`UNREADABLE_FLAG` flag, counted from 1 as the reasons of
     :func:`core.tracking.from_study.frame_reader` always were (``"frame cannot be read: view 2:
     <file>: <error>"``; one reason shared by every view of a frame of several views is said once,
     without them); views without one in :data:`MISSING_FLAG`'s, counted from 0 as that flag always
     was (``"frame missing in view 0, 1"``). Empty when every view has its image."""
-    missing = [v for v, im in enumerate(imgs) if im is None]
-    said = {v: str(why[v]) for v in missing if why and why.get(v)}
+    said, absent = {}, []
+    for v, im in enumerate(imgs):
+        if isinstance(im, MissingView) and im.reason:
+            said[v] = im.reason
+        elif im is None or isinstance(im, MissingView):
+            absent.append(v)
     out = []
     if said:
         reasons: dict[str, list[int]] = {}
@@ -215,19 +220,19 @@ def missing_flags(imgs: Sequence, why: Mapping[int, str] | None = None) -> tuple
         else:
             out.append(f"{UNREADABLE_FLAG}: " + "; ".join(f"view {', '.join(map(str, vs))}: {r}"
                                                           for r, vs in reasons.items()))
-    absent = [v for v in missing if v not in said]
     if absent:
         out.append(f"{MISSING_FLAG} {', '.join(map(str, absent))}")
     return tuple(out)
 
 
 def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
-                skip: dict, why: Mapping[int, str] | None = None) -> dict[int, FrameResult] | None:
+                skip: dict) -> dict[int, FrameResult] | None:
     """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
-    or None when cancelled. A view without its image flags every bone of the frame
-    (:func:`missing_flags`, with ``why``: the frame source's reason per such view)."""
+    or None when cancelled. A view without its image (None, or a
+    :class:`~core.tracking.feed.MissingView` with its source's reason) flags every bone of the
+    frame (:func:`missing_flags`)."""
     o, names, bones = run.options, run.names, run.bones
-    flags = missing_flags(imgs, why)
+    flags = missing_flags(imgs)
     if flags:
         return {i: FrameResult(names[i], f, None, np.nan, 0, 0.0, False, flags) for i in todo}
     hist = {b: state[b].history for b in names}

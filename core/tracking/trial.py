@@ -240,7 +240,8 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
     Parameters
     ----------
     frames : callable(frame) -> sequence
-        Per view the flatfield-normalised image in [0, 1], or None where that view has no frame.
+        Per view the flatfield-normalised image in [0, 1], or None where that view has no frame
+        (or a :class:`core.tracking.feed.MissingView` carrying why).
         Called once per frame, in tracking order, one frame ahead of the registration (frame
         ``k + 1`` is read before frame ``k`` is registered, :mod:`core.tracking.feed`); a
         callable that refills one buffer is noticed then, and its frames are read at their turn.
@@ -334,7 +335,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                 imgs, frame = feed.get(f)
                 if k + 1 < len(order) and todo_of(order[k + 1])[1]:  # prepared while this one registers
                     feed.prefetch(order[k + 1])
-                new = track_frame(run, f, imgs, frame, todo, state, skip, feed.why)
+                new = track_frame(run, f, imgs, frame, todo, state, skip)
             if new is None:
                 status = "cancelled"
                 break

@@ -1,5 +1,5 @@
 """A frame source's reason for a view without its image reaches the frame's flag
-(core.tracking.frame_step.missing_flags, core.tracking.feed.FrameFeed.why): any source handed to
+(core.tracking.frame_step.missing_flags, core.tracking.feed.MissingView): any source handed to
 core.tracking.trial.track, not only the study's frame reader, whose reasons were written into the
 flags afterwards by matching the flag's text."""
 
@@ -9,24 +9,24 @@ import numpy as np
 
 
 def test_flags_name_the_views_and_the_reasons():
+    from core.tracking.feed import MissingView as M
     from core.tracking.frame_step import missing_flags
 
     im = np.zeros((4, 4), np.float32)
     assert missing_flags([im, im]) == ()
     assert missing_flags([im, None]) == ("frame missing in view 1",)
-    assert missing_flags([None, None], {}) == ("frame missing in view 0, 1",)
-    assert missing_flags([None, im], {0: "a.tif: no page"}) == (
-        "frame cannot be read: view 1: a.tif: no page",)
-    assert missing_flags([None, None], {0: "a.tif: no page", 1: "b.tif: truncated"}) == (
+    assert missing_flags([None, None]) == ("frame missing in view 0, 1",)
+    assert missing_flags([M("a.tif: no page"), im]) == ("frame cannot be read: view 1: a.tif: no page",)
+    assert missing_flags([M("a.tif: no page"), M("b.tif: truncated")]) == (
         "frame cannot be read: view 1: a.tif: no page; view 2: b.tif: truncated",)
     # one reason for the whole frame is said once; one view of a one-view rig still names it
-    assert missing_flags([None, None], {0: "frame 3 is past the end", 1: "frame 3 is past the end"}) == (
+    assert missing_flags([M("frame 3 is past the end")] * 2) == (
         "frame cannot be read: frame 3 is past the end",)
-    assert missing_flags([None], {0: "a.tif: no page"}) == ("frame cannot be read: view 1: a.tif: no page",)
+    assert missing_flags([M("a.tif: no page")]) == ("frame cannot be read: view 1: a.tif: no page",)
     # a view with a reason and a view without one: both said
-    assert missing_flags([None, None, im], {1: "b.tif: truncated"}) == (
+    assert missing_flags([None, M("b.tif: truncated"), im]) == (
         "frame cannot be read: view 2: b.tif: truncated", "frame missing in view 0")
-    assert missing_flags([None, im], {0: ""}) == ("frame missing in view 0",)  # an empty reason is none
+    assert missing_flags([M(""), im]) == ("frame missing in view 0",)  # an empty reason is none
 
 
 class _Frames:
@@ -49,18 +49,18 @@ class _Frames:
 
 
 def test_the_feed_keeps_each_frames_reasons_through_the_look_ahead():
-    from core.tracking.feed import FrameFeed
+    from core.tracking.feed import FrameFeed, MissingView
 
     src = _Frames(lambda f: [np.full((8, 8), 0.5, np.float32) for _ in range(2)])  # new images each frame
     feed = FrameFeed(src, (0.02, 0.999), 3)
     try:
         feed.get(0)
         feed.prefetch(1)  # frame 1 read (and its reason asked) while frame 0 registers
-        assert feed.why == {} and feed.ahead is not None
-        feed.get(1)
-        assert feed.why == {1: "cam2/frame_0001.tif: checksum mismatch"}
-        feed.get(2)  # no look-ahead: read at its turn
-        assert feed.why == {}
+        assert feed.ahead is not None
+        imgs, fr = feed.get(1)
+        assert imgs[1] == MissingView("cam2/frame_0001.tif: checksum mismatch") and fr is None
+        imgs, fr = feed.get(2)  # no look-ahead: read at its turn; no reason: None
+        assert imgs[0] is None and fr is None
         assert src.asked == [(1, 1), (2, 0)]  # asked only for the views without an image
     finally:
         feed.close()

@@ -117,9 +117,9 @@ from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "MISSING_FLAG", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_FRAMES",
-           "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags", "stage_move_check",
-           "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "MISSING_FLAG", "RESTART_FROM_PREDICTION", "SEQUENTIAL_NEIGHBOURS",
+           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
+           "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -127,6 +127,10 @@ AHEAD = False
 #: Run the registrations' final stage after every joint round, not only the last (as before; kept
 #: for comparison by :mod:`core.studies.tracking.ml_cost`).
 FINAL_EVERY_ROUND = False
+#: Joint tracking's rounds after the first start each bone (one with a history: not a first frame)
+#: from its prediction, as round 0 does, its neighbours subtracted at their previous round's poses;
+#: off (the default): from its previous round's pose. Module docs; :mod:`core.studies.tracking.joint_gap`.
+RESTART_FROM_PREDICTION = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
@@ -286,8 +290,15 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     def side_of(rnd: int) -> list[int]:  # bones tracked from a guess (round 0: not a first frame)
         return [i for i in todo if rnd > 0 or hist[names[i]]]
 
+    def start_of(i: int, rnd: int, cur: dict):
+        """Where bone ``i``'s search starts in round ``rnd``: its guess in round 0 (and in every
+        round with :data:`RESTART_FROM_PREDICTION`, a bone with a history), else its latest estimate."""
+        if rnd == 0 or (RESTART_FROM_PREDICTION and hist[names[i]]):
+            return guesses[i]
+        return cur[i]
+
     def jobs_of(rnd: int, side: list[int], cur: dict, kn: set) -> list[JointJob]:
-        starts = {i: guesses[i] if rnd == 0 else cur[i] for i in side}
+        starts = {i: start_of(i, rnd, cur) for i in side}
         return [JointJob(i, starts[i], bones[i].centroid, bones[i].outline, others_of(i, cur, kn),
                          roi_of(i, starts[i])) for i in side]
 
@@ -304,7 +315,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         if rnd == 0:
             opts, start = (o.first_options if first else o.registration), guesses[i]
         else:
-            opts, start = o.registration, current[i]
+            opts, start = o.registration, start_of(i, rnd, current)
         opts = staged(rnd, opts)
         near = nullcontext()
         if seq_stage:

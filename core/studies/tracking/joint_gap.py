@@ -1,0 +1,292 @@
+"""Why joint tracking is slightly worse than sequential on the acceptance trial (``python -m
+core.studies.tracking.joint_gap``).
+
+Joint tracking (:func:`core.tracking.frame_step.track_frame`, ``mode="joint"``) is not one search
+over 18 parameters: it is ``joint_rounds`` (2) rounds of the bones' own 6-parameter Gauss–Newton
+searches in lockstep (:func:`core.tracking.joint.register_together`), each with its neighbours'
+DRRs subtracted — in round 0 every bone from its prediction with the neighbours at theirs, in
+round 1 every bone from its round-0 pose with the neighbours at their round-0 poses. Each bone's
+cost is its own gradient correlation over its own search regions, the neighbours' DRRs subtracted
+from the frame as in sequential tracking (no pixel is scored twice, no sum of DRRs is scored), and
+the contact penalty is off by default. Sequential tracking (``sequential_subtract``) runs one
+search per bone from its prediction, the bones registered before it in the frame subtracted at
+their poses, the others at their predictions. What the modes differ in is (1) where the last
+search starts — the prediction, or round 0's pose — and (2) the poses the neighbours are
+subtracted at.
+
+``stored`` (no tracking; ``--stored FILE``, the acceptance run with both modes): per bone and axis
+the correlation, over frames, of joint − sequential with the offset of the constant-velocity
+prediction from the sequential estimate (the prediction proxied from the run's own estimates of
+the two frames before); negative: sequential sits nearer its start than joint does.
+
+``probe`` (this machine's CPU): the acceptance scene (:class:`core.studies.tracking.acceptance.
+TrackingScene`, ``--pixels`` views, ``--voxel`` mm voxels, the grid correction), frames
+``--frames``, ``--draws`` noise draws per frame (the trial's own, then independent ones; the same
+draw in every case). The tracker's start is each bone's constant-velocity prediction from the
+true poses of the two frames before with the stored run's per-frame errors applied
+(``--history``: the joint run's errors; the tracker's starts as they were). Per frame and draw,
+every bone registered by the tracker's default options in the cases (start; neighbours
+subtracted at):
+
+* ``S`` — sequential: the prediction; the bones before at their ``S`` poses, the others at their
+  predictions;
+* ``J0``, ``J1`` — joint's rounds in lockstep: the prediction; the predictions — then round 0's
+  pose; round 0's poses (``J1`` is joint tracking's result);
+* ``J1p`` — joint's last round from the prediction: the prediction; round 0's poses (the start
+  candidate: ``J1`` − ``J1p`` is the start's share, ``J1p`` − ``S`` the neighbours');
+* ``opt`` — the same cost as ``J1`` searched to its optimum (Gauss–Newton steps until one is below
+  0.002 mm / ° and no stop on the predicted decrease, at most 16) from the prediction;
+* ``TJ``, ``TS`` — from the TRUE pose: round 0's poses (joint's neighbours), the ``S`` case's
+  neighbours.
+
+Per case and bone: the RMS error (mm, °) over frames and draws, joint's-style paired comparison
+with ``S`` (:func:`core.studies.tracking.hard_trial_stats.paired_comparison`, blocks of one
+registration), and how much of its start the search kept: the least-squares fraction ``k`` of the
+start's offset from ``opt`` left in the result's (rotation, degrees; 0: at the cost's optimum, 1:
+at the start). Study only: it reads the truth. JSON on stdout (and ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+
+import numpy as np
+
+__all__ = ["CASES", "acceptance_restart", "main", "probe", "stored"]
+
+ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
+CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
+
+
+def _per_frame(d: dict, mode: str, bone: str) -> dict[int, np.ndarray]:
+    t = d["runs"][mode]["tracking"][bone]
+    return {int(f): np.asarray(e, float)
+            for f, e in zip(t["frames_with_pose"], t["per_frame_error"], strict=True)}
+
+
+def stored(path: str = ACCEPTANCE_JSON) -> dict:
+    """The ``stored`` analysis (module docs) of an acceptance JSON with both modes."""
+    with open(path) as fh:
+        d = json.load(fh)
+    out = {}
+    for b in d["runs"]["joint"]["tracking"]:
+        J, S = _per_frame(d, "joint", b), _per_frame(d, "sequential", b)
+        fr = [f for f in sorted(J) if f in S and f - 1 in S and f - 2 in S]
+        Jm = np.array([J[f] for f in fr])
+        Sm = np.array([S[f] for f in fr])
+        P = np.array([2 * S[f - 1] - S[f - 2] for f in fr])  # the prediction's error (proxy)
+        D = Jm - Sm
+        rows = []
+        for a in range(6):
+            off = P[:, a] - Sm[:, a]
+            rms = float(np.sqrt(np.mean(D[:, a] ** 2)))
+            rows.append({"axis": a, "rms_joint_minus_sequential": round(rms, 5),
+                         "corr_with_prediction_offset": round(float(np.corrcoef(D[:, a], off)[0, 1]), 3),
+                         # least squares: joint - sequential = -k (prediction - sequential)
+                         "start_share_k": round(float(-(off @ D[:, a]) / max(off @ off, 1e-30)), 4),
+                         "mean_sq_joint_minus_sequential":
+                             round(float(np.mean(Jm[:, a] ** 2 - Sm[:, a] ** 2)), 7)})
+        out[b] = {"frames": len(fr), "axes": rows}
+    return {"source": path, "bones": out}
+
+
+def _pose(err6, truth, center) -> np.ndarray:
+    """The pose whose :func:`~core.studies.tracking.acceptance.pose_errors` against ``truth`` is ``err6``."""
+    from core.geometry.transforms import pose_from_params
+
+    e = np.asarray(err6, float)
+    return pose_from_params(np.r_[e[:3], np.radians(e[3:])], center=center, base=truth)
+
+
+def _tight(reg):
+    from dataclasses import replace
+
+    from core.tracking.register_options import FINAL_STEP, Level
+
+    return replace(reg, levels=(Level(scale=1.0, method="gauss_newton", sigma=FINAL_STEP, max_generations=16,
+                                      tol_x=0.002, options={"tol_noise": 1e-4}),))
+
+
+def _one_frame(ts, f: int, draw: int, starts: list, reg) -> dict:
+    """Every case (module docs) of frame ``f``, noise draw ``draw``: per case the poses of the bones."""
+    from core.studies.tracking.tibia_cost import _chain
+    from core.tracking.cost import prepare_frame
+    from core.tracking.joint import JointJob, register_together
+    from core.tracking.register import register
+
+    L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+    frame = prepare_frame(_chain(ts, L, True, f, draw=draw))
+    n = len(ts.names)
+    T = ts.truth(f)
+    M = ts.models
+
+    def nb(i, poses):
+        ids = [k for k in range(n) if k != i]
+        return np.stack([poses[k] for k in ids]), ids
+
+    def one(i, start, poses, opts=reg):
+        r = register(ts.renderer, frame, bone=i, initial_pose=start, center=M[i].centroid, options=opts,
+                     others=nb(i, poses), outline=M[i].outline)
+        return r.pose
+
+    def together(st, poses, rois=None):
+        jobs = [JointJob(i, st[i], M[i].centroid, M[i].outline, nb(i, poses),
+                         None if rois is None else rois[i]) for i in range(n)]
+        got = register_together(ts.renderer, frame, jobs, reg)
+        for g in got:
+            if isinstance(g, Exception):
+                raise g
+        return [g.pose for g in got], [j.roi for j in jobs]
+
+    out = {}
+    S = list(starts)
+    for i in range(n):
+        S[i] = one(i, starts[i], S)
+    out["S"] = S
+    J0, rois = together(starts, starts)
+    out["J0"] = J0
+    out["J1"], _ = together(J0, J0, rois)
+    out["J1p"], _ = together(starts, J0, rois)
+    tight = _tight(reg)
+    out["opt"] = [one(i, starts[i], J0, tight) for i in range(n)]
+    out["TJ"] = [one(i, T[i], J0) for i in range(n)]
+    seq_nb = [[S[k] if k < i else starts[k] for k in range(n)] for i in range(n)]
+    out["TS"] = [one(i, T[i], seq_nb[i]) for i in range(n)]
+    return out
+
+
+def probe(*, frames=(12, 21, 30, 39, 48, 57, 66, 75, 84, 93), draws: int = 2, pixels: int = 512,
+          voxel: float = 1.0, history: str = ACCEPTANCE_JSON, seed: int = 0, device: str | None = None,
+          progress=None) -> dict:
+    """The ``probe`` (module docs); JSON-ready results. ``progress``: called with each frame and
+    draw's row as it is done."""
+    from core.studies.tracking.acceptance import TrackingScene, pose_errors, study_options
+    from core.studies.tracking.hard_trial_stats import paired_comparison
+    from core.tracking.frame_state import predict_pose
+
+    t0 = time.perf_counter()
+    ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, seed=seed, phase=(0.0, 0.6), device=device,
+                       correction="grid")
+    with open(history) as fh:
+        hist = json.load(fh)
+    errs = {b: _per_frame(hist, "joint", b) for b in ts.names}
+    reg = study_options("joint").registration
+    t_scene = time.perf_counter() - t0
+    rows = []
+    for f in frames:
+        pred = []
+        for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
+            h = [(k, _pose(errs[n][k], ts.truth(k)[b], m.centroid)) for k in (f - 2, f - 1)]
+            pred.append(predict_pose(h, f, m.centroid))
+        for d in range(draws):
+            t1 = time.perf_counter()
+            got = _one_frame(ts, f, d, pred, reg)
+            T = ts.truth(f)
+            row = {"frame": f, "draw": d, "s": round(time.perf_counter() - t1, 1), "errors": {}}
+            for c, P in got.items():
+                row["errors"][c] = [pose_errors(P[b], T[b], m.centroid).round(5).tolist()
+                                    for b, m in enumerate(ts.models)]
+            row["start_errors"] = [pose_errors(pred[b], T[b], m.centroid).round(5).tolist()
+                                   for b, m in enumerate(ts.models)]
+            rows.append(row)
+            if progress is not None:
+                progress(row)
+    summary = {}
+    for b, n in enumerate(ts.names):
+        per = {}
+        E = {c: np.array([r["errors"][c][b] for r in rows]) for c in CASES}
+        st = np.array([r["start_errors"][b] for r in rows])
+        for c in CASES:
+            e = E[c]
+            et, er = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
+            s_t, s_r = np.linalg.norm(E["S"][:, :3], axis=1), np.linalg.norm(E["S"][:, 3:], axis=1)
+            row = {"rms_mm": round(float(np.sqrt(np.mean(et ** 2))), 5),
+                   "rms_deg": round(float(np.sqrt(np.mean(er ** 2))), 5)}
+            if c != "S":
+                row["vs_S_mm"] = _brief(paired_comparison(s_t, et, margin=0.0, block=1))
+                row["vs_S_deg"] = _brief(paired_comparison(s_r, er, margin=0.0, block=1))
+            if c in ("S", "J0", "J1", "J1p"):  # the start's share left: (x - opt) = k (start - opt)
+                a = (st[:, 3:] - E["opt"][:, 3:]).ravel()
+                y = (e[:, 3:] - E["opt"][:, 3:]).ravel()
+                row["start_kept_rotation"] = round(float(a @ y / max(a @ a, 1e-30)), 3)
+            per[c] = row
+        per["start"] = {"rms_mm": round(float(np.sqrt(np.mean(np.sum(st[:, :3] ** 2, 1)))), 5),
+                        "rms_deg": round(float(np.sqrt(np.mean(np.sum(st[:, 3:] ** 2, 1)))), 5)}
+        summary[n] = per
+    return {"study": "core.studies.tracking.joint_gap", "machine": platform.machine(),
+            "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "seed": seed,
+            "frames": list(frames), "draws": draws, "history": history, "scene_s": round(t_scene, 1),
+            "total_s": round(time.perf_counter() - t0, 1), "summary": summary, "rows": rows}
+
+
+def _brief(p: dict) -> dict:
+    return {k: p[k] for k in ("rms_difference", "interval95", "verdict", "frames_joint_worse") if k in p}
+
+
+def acceptance_restart(*, seed: int = 0, quick: bool = False, n_frames: int | None = None, workers: int = 0,
+                       device: str | None = None) -> dict:
+    """The acceptance study (:func:`core.studies.tracking.acceptance.run`, the capture range off) on
+    one scene: joint tracking as it is, joint tracking with its last round from the prediction
+    (:data:`core.tracking.frame_step.RESTART_FROM_PREDICTION`), and sequential tracking, on the
+    same frames; each joint run against the sequential one and against each other
+    (:func:`~core.studies.tracking.acceptance_goals.compare_modes`, the second as ``"joint"``)."""
+    import core.studies.tracking.acceptance as acc
+    import core.tracking.frame_step as fs
+    from core.studies.tracking.acceptance_goals import compare_modes
+
+    t0 = time.perf_counter()
+    ts = acc.tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames)
+    runs = {}
+    for label, mode, restart in (("joint", "joint", False), ("joint_restart", "joint", True),
+                                 ("sequential", "sequential", False)):
+        fs.RESTART_FROM_PREDICTION = restart
+        try:
+            runs[label] = acc.run(capture_trials=0, mode=mode, ts=ts, workers=workers, device=device)
+        finally:
+            fs.RESTART_FROM_PREDICTION = False
+    return {"study": "core.studies.tracking.joint_gap (acceptance)", "seed": seed, "quick": quick,
+            "runs": runs, "total_s": round(time.perf_counter() - t0, 1),
+            "joint_vs_sequential": compare_modes({"joint": runs["joint"], "sequential": runs["sequential"]}),
+            "restart_vs_sequential": compare_modes({"joint": runs["joint_restart"],
+                                                    "sequential": runs["sequential"]}),
+            "restart_vs_joint": compare_modes({"joint": runs["joint_restart"], "sequential": runs["joint"]})}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.joint_gap",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--stored", default=ACCEPTANCE_JSON,
+                   help="acceptance JSON with both modes (the stored analysis; the probe's history)")
+    p.add_argument("--probe", action="store_true", help="also run the CPU probe (module docs)")
+    p.add_argument("--frames", default="12,21,30,39,48,57,66,75,84,93", help="the probe's frames")
+    p.add_argument("--draws", type=int, default=2, help="the probe's noise draws per frame")
+    p.add_argument("--pixels", type=int, default=512)
+    p.add_argument("--voxel", type=float, default=1.0)
+    p.add_argument("--acceptance", action="store_true",
+                   help="run acceptance_restart instead (joint, joint from the prediction, sequential)")
+    p.add_argument("--quick", action="store_true", help="with --acceptance: 256², 1 mm, 20 frames")
+    p.add_argument("--seed", type=int, default=0, help="with --acceptance: the trial's seed")
+    p.add_argument("--workers", type=int, default=0, help="with --acceptance: processes for the chain")
+    p.add_argument("--device", default=None)
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    if a.acceptance:
+        out = acceptance_restart(seed=a.seed, quick=a.quick, workers=a.workers, device=a.device)
+    else:
+        out = {"stored": stored(a.stored)}
+        if a.probe:
+            out["probe"] = probe(frames=tuple(int(v) for v in a.frames.split(",")), draws=a.draws,
+                                 pixels=a.pixels, voxel=a.voxel, history=a.stored, device=a.device,
+                                 progress=lambda r: print(json.dumps(r), file=sys.stderr, flush=True))
+    from core.io.atomic import print_json
+
+    print_json(out, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

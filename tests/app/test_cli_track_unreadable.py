@@ -48,3 +48,30 @@ def test_the_reader_reads_each_view_alone(demo, tmp_path):
         assert first is not None and second is None
         assert read.unreadable[1].startswith(f"view 2: {damaged}: ")
         assert all(im is not None for im in read(0)) and 0 not in read.unreadable
+
+
+def test_the_readers_reason_reaches_the_tracker_with_the_view(demo, tmp_path):
+    """The reader's ``reason(frame, view)``: the frame feed hands the damaged view on as a
+    MissingView carrying its file and error, the readable view as its image; the tracker's flag is
+    built from it (core.tracking.frame_step.missing_flags), not rewritten afterwards."""
+    import shutil
+
+    from core.study import Study
+    from core.tracking.feed import FrameFeed, MissingView
+    from core.tracking.frame_step import missing_flags
+    from core.tracking.from_study import frame_reader
+
+    study = shutil.copytree(demo, tmp_path / "study")
+    damaged = sorted((study / "frames").iterdir())[1] / "frame_0001.tif"
+    damaged.write_bytes(b"not a TIFF")
+    with Study.open(study) as st:
+        read, _ = frame_reader(st, st.trial("walk"))
+        feed = FrameFeed(read, (0.02, 0.999), 3)
+        try:
+            imgs, prepared = feed.get(1)
+        finally:
+            feed.close()
+        assert read.reason(1, 0) is None and read.reason(1, 1).startswith(f"{damaged}: ")
+    assert imgs[0] is not None and isinstance(imgs[1], MissingView) and prepared is None
+    (flag,) = missing_flags(imgs)
+    assert flag.startswith(f"frame cannot be read: view 2: {damaged}: "), flag

@@ -183,3 +183,36 @@ def test_joint_bound_is_the_spread_of_a_joint_maximum_likelihood_fit():
         joint = np.sqrt(np.mean(np.sum(x[:, 0, s] ** 2, axis=1)))
         assert known / getattr(jb.known[0], f"rms_{u}") == pytest.approx(1.0, abs=0.25)
         assert joint > 1.2 * known  # on the same frames, not knowing the other bone costs precision
+
+
+def test_study_bounds_both_ways_and_restates_a_stored_run():
+    from core.studies.tracking import acceptance
+    from core.studies.tracking.joint_bound import bounds, restate
+
+    ts = acceptance.TrackingScene(n_frames=2, pixels=96, spacing=1.5, device="cpu", correction="exact")
+    b = bounds(ts, [0, 1])
+    assert set(b) == set(ts.names)
+    known = acceptance.cramer_rao(ts, [0, 1])  # the acceptance study's bound is the known-others one
+    for n, t in b.items():
+        assert t["frames"] == [0, 1] and set(t["pairs"]) == set(ts.names) - {n}
+        assert t["known"]["rms_mm"] == pytest.approx(known[n]["rms_mm"], rel=1e-9)
+        assert t["known"]["rms_deg"] == pytest.approx(known[n]["rms_deg"], rel=1e-9)
+        assert t["ratio"]["mm"] >= 1 - 1e-12 and t["ratio"]["deg"] >= 1 - 1e-12
+        for p in t["pairs"].values():  # one other bone unknown: between the two bounds
+            assert t["known"]["rms_mm"] * (1 - 1e-9) <= p["rms_mm"] <= t["joint"]["rms_mm"] * (1 + 1e-9)
+    n = ts.names[1]
+    jm = b[n]["joint"]["rms_mm"]
+    E = np.zeros((3, 6))
+    E[0, 0], E[1, 0], E[2, 3] = 0.5 * jm, 5 * jm, 0.01  # frame 11 over 4× the joint bound, not flagged
+    stored = {"runs": {"joint": {"tracking": {n: {
+        "per_frame_error": E.tolist(), "frames_with_pose": [10, 11, 12], "flagged_frames": [12],
+        "cramer_rao": {"rms_mm": 2 * jm, "rms_deg": 1.0}}}}}}
+    r = restate(stored, b, same_size=True)["joint"][n]
+    rms = np.sqrt(np.mean(np.sum(E[:, :3] ** 2, axis=1)))
+    assert r["rms_error"]["mm"] == pytest.approx(rms)
+    assert r["over_joint"]["mm"] == pytest.approx(rms / jm)
+    assert r["over_stored_known"]["mm"] == pytest.approx(rms / (2 * jm))
+    assert r["over_4x_joint"] == {"frames": [11], "silent": [11]}
+    s = restate(stored, b, same_size=False)["joint"][n]
+    assert "over_joint" not in s and "over_known" not in s
+    assert s["over_joint_scaled"]["mm"] == pytest.approx(rms / (2 * jm * b[n]["ratio"]["mm"]))

@@ -1,0 +1,186 @@
+"""The acceptance trial's Cramér–Rao bound with the other bones unknown
+(``python -m core.studies.tracking.joint_bound``).
+
+The acceptance study (:mod:`core.studies.tracking.acceptance`, :func:`~.acceptance.cramer_rao`)
+measures each bone's per-frame error against :func:`core.tracking.bound.pose_bound`: the bound of
+the bone's pose with the other bones *known*. No tracker knows them — in joint mode all the frame's
+``6 n`` parameters are estimated from the same images, in sequential mode too, one bone after the
+other — so the bound of the problem the trackers solve is :func:`core.tracking.bound.joint_bound`'s:
+the bone's block of the inverse of the ``(6 n, 6 n)`` information. This study computes both on the
+frames the acceptance study samples for its bound (every tenth), on the same scene (seed 0, the
+trial's bones, tissue, walkway and photon counts), averaged over the frames as the acceptance study
+averages (mean covariance). Per bone: both bounds (mm, degrees), their ratio, per frame and over the
+frames, and the bound with only one other bone unknown (``pairs``: which neighbour costs what).
+
+The bound uses the scene's true line integrals and the bones' true volumes, not the corrected
+frames, so the distortion correction does not enter: the scene is made with ``"exact"`` (no grid
+fit to make; the poses, volumes and photon counts are those of every correction).
+
+``--stored FILE`` (default the acceptance run ``tracking_acceptance_near_rule_h100.json``, which
+keeps every per-frame error) re-expresses the stored runs' errors against both bounds, per mode:
+the RMS error over the known-others bound (recomputed here; the stored one beside it) and over the
+joint bound, and the frames over 4× each bound (flagged or silent, the stored flags). Where this run's
+views or voxels differ from the stored run's the joint bound is not that run's: the ratios are then
+against the stored known-others bound times this run's joint / known-others ratio (``scaled``).
+
+``--quick``: 256² views, 1 mm voxels (this CPU); the full size 1024², 0.5 mm (a GPU). Both take the
+trial's 100 frames (the poses of the full trial) and bound frames 0, 10, …, 90.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+
+import numpy as np
+
+__all__ = ["bounds", "main", "restate", "run"]
+
+STORED = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
+
+
+def _summary(C: np.ndarray) -> dict:
+    return {"rms_mm": float(np.sqrt(np.trace(C[:3, :3]))), "rms_deg": float(np.sqrt(np.trace(C[3:, 3:]))),
+            "sigma": np.sqrt(np.diag(C)).round(5).tolist()}
+
+
+def bounds(ts, frames) -> dict:
+    """Per bone, the known-others and the joint bound on ``frames`` of the scene ``ts``
+    (:class:`core.studies.tracking.acceptance.TrackingScene`): the mean covariance over the frames
+    the bone is seen in (``known``, ``joint``, each ``rms_mm``, ``rms_deg``, ``sigma``), their
+    ratio, the per-frame values, and ``pairs``: the bound with one other bone unknown (the rest known)."""
+    from core.tracking.bound import joint_bound
+
+    N = [m.photons_per_pixel for m in ts.scene.imaging]
+    if any(n is None for n in N):
+        raise ValueError("the scene's frames are noise-free: no bound")
+    centers = np.array([m.centroid for m in ts.models])
+    names = ts.names
+    known = {n: [] for n in names}
+    joint = {n: [] for n in names}
+    pairs = {n: {o: [] for o in names if o != n} for n in names}
+    per_frame = {n: [] for n in names}
+    for f in frames:
+        L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+        jb = joint_bound(ts.renderer, range(len(names)), ts.truth(f), centers, line_integral=L,
+                         quanta_per_pixel=N)
+        for k, b in enumerate(jb.bones):
+            n = names[b]
+            Ck, Cj = jb.known[k].covariance, jb.joint[k].covariance
+            if not (np.all(np.isfinite(Ck)) and np.all(np.isfinite(Cj))):
+                continue
+            known[n].append(Ck)
+            joint[n].append(Cj)
+            kb, j = jb.known[k], jb.joint[k]
+            per_frame[n].append({"frame": int(f), "known_mm": kb.rms_mm, "known_deg": kb.rms_deg,
+                                 "joint_mm": j.rms_mm, "joint_deg": j.rms_deg, "pixels": kb.pixels})
+            for j, c in enumerate(jb.bones):
+                if c == b:
+                    continue
+                s = np.r_[6 * k:6 * k + 6, 6 * j:6 * j + 6]
+                pairs[n][names[c]].append(np.linalg.inv(jb.information[np.ix_(s, s)])[:6, :6])
+    out = {}
+    for n in names:
+        if not known[n]:
+            continue
+        K, J = _summary(np.mean(known[n], axis=0)), _summary(np.mean(joint[n], axis=0))
+        out[n] = {"known": K, "joint": J, "ratio": {"mm": J["rms_mm"] / K["rms_mm"],
+                                                    "deg": J["rms_deg"] / K["rms_deg"]},
+                  "frames": [p["frame"] for p in per_frame[n]], "per_frame": per_frame[n],
+                  "pairs": {o: {k: v for k, v in _summary(np.mean(cs, axis=0)).items() if k != "sigma"}
+                            for o, cs in pairs[n].items() if cs}}
+    return out
+
+
+def restate(stored: dict, bound: dict, *, same_size: bool) -> dict:
+    """The stored acceptance runs' (``stored["runs"]`` per mode, or one run) errors against both
+    bounds (module docs): per mode and bone the RMS error, × the stored known-others bound, and with
+    ``same_size`` × this run's known-others and joint bounds (else × the stored bound times this
+    run's joint / known-others ratio, ``joint_scaled``), and the frames over 4× each (flagged and
+    silent)."""
+    runs = stored.get("runs") or {stored.get("config", {}).get("mode", "run"): stored}
+    out = {}
+    for mode, r in runs.items():
+        out[mode] = {}
+        for n, t in r["tracking"].items():
+            if n not in bound or not t.get("per_frame_error"):
+                continue
+            E = np.asarray(t["per_frame_error"], dtype=float)
+            frames = t["frames_with_pose"]
+            flagged = set(t.get("flagged_frames", []))
+            em, ed = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
+            rms = {"mm": float(np.sqrt(np.mean(em ** 2))), "deg": float(np.sqrt(np.mean(ed ** 2)))}
+            b = bound[n]
+            sk = t.get("cramer_rao") or {}
+            ref = {"stored_known": {u: sk.get(f"rms_{u}") for u in ("mm", "deg")}}
+            if same_size:  # this run's bounds are the stored run's problem's
+                ref["known"] = {u: b["known"][f"rms_{u}"] for u in ("mm", "deg")}
+                ref["joint"] = {u: b["joint"][f"rms_{u}"] for u in ("mm", "deg")}
+            else:  # the stored run's bound times this run's joint / known-others ratio
+                ref["joint_scaled"] = {u: None if sk.get(f"rms_{u}") is None
+                                       else sk[f"rms_{u}"] * b["ratio"][u] for u in ("mm", "deg")}
+            row = {"rms_error": rms}
+            for k, v in ref.items():
+                if v["mm"] is None:
+                    continue
+                row[f"over_{k}"] = {u: rms[u] / v[u] for u in ("mm", "deg")}
+                over = [f for f, a, d in zip(frames, em, ed, strict=True)
+                        if a > 4 * v["mm"] or d > 4 * v["deg"]]
+                row[f"over_4x_{k}"] = {"frames": over, "silent": [f for f in over if f not in flagged]}
+            out[mode][n] = row
+    return out
+
+
+def run(*, quick: bool, device: str | None = None, every: int = 10, n_frames: int = 100,
+        stored: str | None = STORED, pixels: int | None = None) -> dict:
+    """Both bounds on the acceptance trial and the stored runs re-expressed (module docs)."""
+    from core.studies.tracking.acceptance import tracking_scene
+
+    t0 = time.perf_counter()
+    ts = tracking_scene(quick=quick, device=device, n_frames=n_frames, pixels=pixels, correction="exact")
+    setup = time.perf_counter() - t0
+    frames = list(range(0, n_frames, every))
+    t1 = time.perf_counter()
+    b = bounds(ts, frames)
+    cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
+           "frames": n_frames, "bound_frames": frames, "seed": 0, "bones": list(ts.names)}
+    out = {"study": "core.studies.tracking.joint_bound", "quick": quick, "machine": platform.machine(),
+           "processor": platform.processor() or platform.machine(), "device": str(ts.renderer.device),
+           "config": cfg, "bound": b, "scene_s": setup, "bound_s": time.perf_counter() - t1}
+    if stored:
+        with open(stored) as fh:
+            s = json.load(fh)
+        r0 = next(iter(s["runs"].values())) if "runs" in s else s
+        rc = r0["config"]
+        same = (rc["pixels"] == cfg["pixels"] and abs(rc["voxel_mm"] - cfg["voxel_mm"]) < 1e-9
+                and rc["frames"] == n_frames)
+        out["stored"] = {"file": stored, "commit": s.get("commit"), "card": s.get("card"), "same_size": same,
+                         "runs": restate(s, b, same_size=same)}
+    out["total_s"] = time.perf_counter() - t0
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.joint_bound",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--quick", action="store_true", help="256² views, 1 mm voxels (default 1024², 0.5 mm)")
+    p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
+    p.add_argument("--pixels", type=int, default=None, help="views' size (default 256 quick / 1024)")
+    p.add_argument("--every", type=int, default=10, help="bound every this many frames (default 10)")
+    p.add_argument("--stored", default=STORED, help="acceptance result to re-express ('' for none)")
+    p.add_argument("--machine-name", default=None, help="the machine, in words, for the JSON")
+    p.add_argument("--out", default=None, help="also write the JSON here")
+    a = p.parse_args(argv)
+    from core.io.atomic import print_json
+
+    res = run(quick=a.quick, device=a.device, every=a.every, stored=a.stored or None, pixels=a.pixels)
+    if a.machine_name:
+        res["machine_name"] = a.machine_name
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

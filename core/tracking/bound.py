@@ -26,7 +26,9 @@ the same images. :func:`joint_bound` gives the bound of that problem: the ``(6 n
 of all the bones' poses (the same sum, ``∂L/∂θ_a · ∂L/∂θ_bᵀ`` for every pair of bones, which is not
 zero where their projections overlap), whose inverse's ``b`` block is bone ``b``'s bound — the
 inverse of the Schur complement ``J_bb − J_bo J_oo⁻¹ J_ob``, never below :func:`pose_bound`'s
-``J_bb⁻¹`` and equal to it where the bone's projection overlaps no other's.
+``J_bb⁻¹`` and equal to it where the bone's projection overlaps no other's. On the acceptance trial
+(1024², one NVIDIA H100) the two differ by less than 0.1 % for every bone:
+:mod:`core.studies.tracking.joint_bound`.
 
 ``∂L/∂θ`` is the bone's DRR (:class:`core.render.DRRRenderer`, the renderer that synthesises the
 study's frames) differentiated by central differences. It must be the volume the frames were

@@ -37,7 +37,7 @@ in the third digit, and the same frames are over 4×. The likely reason the cros
 small: a bone's pose derivative image is mostly its own edges; where two projections overlap their
 edges cross rather than run together, except along the joint line, a few pixels of the thousands
 that carry each bone's information. Two copies of the talus 1.5 mm apart, every edge doubled, give
-1.52 / 1.35× at 80² (the bound's test): the bound can move, this trial's bones do not move it.
+1.58 / 1.36× at 80² (the bound's test): the bound can move, this trial's bones do not move it.
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ import time
 
 import numpy as np
 
-__all__ = ["CASES", "acceptance_restart", "main", "probe", "stored"]
+__all__ = ["CASES", "STRETCH_RUNS", "acceptance_restart", "main", "probe", "stored", "track_stretch"]
 
 ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
@@ -227,6 +227,75 @@ def _brief(p: dict) -> dict:
     return {k: p[k] for k in ("rms_difference", "interval95", "verdict", "frames_joint_worse") if k in p}
 
 
+#: :func:`track_stretch`'s runs: (label, mode, joint's rounds after the first from the prediction)
+STRETCH_RUNS = (("joint", "joint", False), ("joint_restart", "joint", True),
+                ("sequential", "sequential", False))
+
+
+def track_stretch(*, first: int = 40, n: int = 16, pixels: int = 512, voxel: float = 1.0, seed: int = 0,
+                  device: str | None = None, runs=STRETCH_RUNS, progress=None) -> dict:
+    """The tracker itself (:func:`core.tracking.trial.track`, the acceptance options of each mode)
+    on frames ``first`` … ``first + n - 1`` of the acceptance scene (as :func:`probe`'s), the two
+    frames before given at their true poses (the history the predictions start from): per run and
+    bone the per-frame errors and evaluations, and each joint run paired with the sequential run
+    and with each other, frame by frame (:func:`~core.studies.tracking.hard_trial_stats.
+    paired_comparison`, circular blocks)."""
+    import core.tracking.frame_step as fs
+    from core.studies.tracking.acceptance import TrackingScene, pose_errors, study_options
+    from core.studies.tracking.hard_trial_stats import paired_comparison
+    from core.tracking.trial import track
+
+    t0 = time.perf_counter()
+    ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, seed=seed, phase=(0.0, 0.6), device=device,
+                       correction="grid")
+    given = {m: {f: ts.truth(f)[b] for f in (first - 2, first - 1)} for b, m in enumerate(ts.names)}
+    frames = list(range(first - 2, first + n))
+    for f in frames:
+        ts.frames(f)
+    out = {"study": "core.studies.tracking.joint_gap (stretch)", "machine": platform.machine(),
+           "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "seed": seed,
+           "frames": frames[2:], "scene_s": round(time.perf_counter() - t0, 1), "runs": {}, "paired": {}}
+    for label, mode, restart in runs:
+        t1 = time.perf_counter()
+        fs.RESTART_FROM_PREDICTION = restart
+        try:
+            res = track(ts.renderer, ts.models, ts.frames, frames, keyframes=given, skip=given,
+                        options=study_options(mode))
+        finally:
+            fs.RESTART_FROM_PREDICTION = False
+        run = {"s": round(time.perf_counter() - t1, 1)}
+        for b, (name, m) in enumerate(zip(ts.names, ts.models, strict=True)):
+            E, ev = [], []
+            for f in frames[2:]:
+                fr = res.results[(name, f)]
+                T = ts.truth(f)[b]
+                E.append([np.nan] * 6 if fr.pose is None else pose_errors(fr.pose, T, m.centroid))
+                ev.append(int(fr.evaluations))
+            E = np.asarray(E, float)
+            run[name] = {"per_frame_error": E.round(5).tolist(), "evaluations": ev,
+                         "rms_mm": round(float(np.sqrt(np.nanmean(np.sum(E[:, :3] ** 2, 1)))), 5),
+                         "rms_deg": round(float(np.sqrt(np.nanmean(np.sum(E[:, 3:] ** 2, 1)))), 5),
+                         "mean_evaluations": round(float(np.mean(ev)), 1)}
+        out["runs"][label] = run
+        if progress is not None:
+            progress({"run": label, "s": run["s"], **{k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]}
+                                                     for k, v in run.items() if k != "s"}})
+    pairs = [(a, b) for a in out["runs"] for b in out["runs"] if a != b and a.startswith("joint")
+             and (b == "sequential" or (a, b) == ("joint_restart", "joint"))]
+    for a, b in pairs:
+        key = f"{a}_vs_{b}"
+        out["paired"][key] = {}
+        for name in ts.names:
+            A = np.asarray(out["runs"][a][name]["per_frame_error"])
+            B = np.asarray(out["runs"][b][name]["per_frame_error"])
+            out["paired"][key][name] = {
+                u: _brief(paired_comparison(np.linalg.norm(B[:, sl], axis=1),
+                                            np.linalg.norm(A[:, sl], axis=1), margin=0.0))
+                for u, sl in (("mm", slice(0, 3)), ("deg", slice(3, 6)))}
+    out["total_s"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
 def acceptance_restart(*, seed: int = 0, quick: bool = False, n_frames: int | None = None, workers: int = 0,
                        device: str | None = None) -> dict:
     """The acceptance study (:func:`core.studies.tracking.acceptance.run`, the capture range off) on
@@ -266,15 +335,21 @@ def main(argv=None) -> int:
     p.add_argument("--draws", type=int, default=2, help="the probe's noise draws per frame")
     p.add_argument("--pixels", type=int, default=512)
     p.add_argument("--voxel", type=float, default=1.0)
+    p.add_argument("--stretch", default=None, metavar="FIRST,N",
+                   help="run track_stretch instead: the tracker on frames FIRST … FIRST+N-1 in each mode")
     p.add_argument("--acceptance", action="store_true",
                    help="run acceptance_restart instead (joint, joint from the prediction, sequential)")
     p.add_argument("--quick", action="store_true", help="with --acceptance: 256², 1 mm, 20 frames")
-    p.add_argument("--seed", type=int, default=0, help="with --acceptance: the trial's seed")
+    p.add_argument("--seed", type=int, default=0, help="with --acceptance, --stretch: the trial's seed")
     p.add_argument("--workers", type=int, default=0, help="with --acceptance: processes for the chain")
     p.add_argument("--device", default=None)
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    if a.acceptance:
+    if a.stretch:
+        first, n = (int(v) for v in a.stretch.split(","))
+        out = track_stretch(first=first, n=n, pixels=a.pixels, voxel=a.voxel, seed=a.seed, device=a.device,
+                            progress=lambda r: print(json.dumps(r), file=sys.stderr, flush=True))
+    elif a.acceptance:
         out = acceptance_restart(seed=a.seed, quick=a.quick, workers=a.workers, device=a.device)
     else:
         out = {"stored": stored(a.stored)}

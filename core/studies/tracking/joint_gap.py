@@ -68,30 +68,52 @@ def _per_frame(d: dict, mode: str, bone: str) -> dict[int, np.ndarray]:
             for f, e in zip(t["frames_with_pose"], t["per_frame_error"], strict=True)}
 
 
-def stored(path: str = ACCEPTANCE_JSON) -> dict:
-    """The ``stored`` analysis (module docs) of an acceptance JSON with both modes."""
+SEEDS_JSON = "resources/benchmarks/sequential_drift_seeds_h100.json"
+
+
+def _compare(J: dict, S: dict) -> dict:
+    """Per axis: joint − sequential (per-frame errors ``J``, ``S``: frame -> (6,)) against the
+    prediction's offset from the sequential estimate (module docs, ``stored``)."""
+    fr = [f for f in sorted(J) if f in S and f - 1 in S and f - 2 in S]
+    Jm = np.array([J[f] for f in fr])
+    Sm = np.array([S[f] for f in fr])
+    P = np.array([2 * S[f - 1] - S[f - 2] for f in fr])  # the prediction's error (proxy)
+    D = Jm - Sm
+    rows = []
+    for a in range(6):
+        off = P[:, a] - Sm[:, a]
+        rms = float(np.sqrt(np.mean(D[:, a] ** 2)))
+        rows.append({"axis": a, "rms_joint_minus_sequential": round(rms, 5),
+                     "corr_with_prediction_offset": round(float(np.corrcoef(D[:, a], off)[0, 1]), 3),
+                     # least squares: joint - sequential = -k (prediction - sequential)
+                     "start_share_k": round(float(-(off @ D[:, a]) / max(off @ off, 1e-30)), 4),
+                     "mean_sq_joint_minus_sequential": round(float(np.mean(Jm[:, a] ** 2 - Sm[:, a] ** 2)),
+                                                             7)})
+    return {"frames": len(fr), "axes": rows}
+
+
+def stored(path: str = ACCEPTANCE_JSON, seeds: str | None = SEEDS_JSON) -> dict:
+    """The ``stored`` analysis (module docs) of an acceptance JSON with both modes, and of the
+    :mod:`~core.studies.tracking.sequential_drift` runs of other syntheses in ``seeds`` (joint
+    against ``sequential_subtracted``; None: not read)."""
     with open(path) as fh:
         d = json.load(fh)
-    out = {}
-    for b in d["runs"]["joint"]["tracking"]:
-        J, S = _per_frame(d, "joint", b), _per_frame(d, "sequential", b)
-        fr = [f for f in sorted(J) if f in S and f - 1 in S and f - 2 in S]
-        Jm = np.array([J[f] for f in fr])
-        Sm = np.array([S[f] for f in fr])
-        P = np.array([2 * S[f - 1] - S[f - 2] for f in fr])  # the prediction's error (proxy)
-        D = Jm - Sm
-        rows = []
-        for a in range(6):
-            off = P[:, a] - Sm[:, a]
-            rms = float(np.sqrt(np.mean(D[:, a] ** 2)))
-            rows.append({"axis": a, "rms_joint_minus_sequential": round(rms, 5),
-                         "corr_with_prediction_offset": round(float(np.corrcoef(D[:, a], off)[0, 1]), 3),
-                         # least squares: joint - sequential = -k (prediction - sequential)
-                         "start_share_k": round(float(-(off @ D[:, a]) / max(off @ off, 1e-30)), 4),
-                         "mean_sq_joint_minus_sequential":
-                             round(float(np.mean(Jm[:, a] ** 2 - Sm[:, a] ** 2)), 7)})
-        out[b] = {"frames": len(fr), "axes": rows}
-    return {"source": path, "bones": out}
+    out = {"source": path, "bones": {b: _compare(_per_frame(d, "joint", b), _per_frame(d, "sequential", b))
+                                     for b in d["runs"]["joint"]["tracking"]}}
+    if seeds:
+        with open(seeds) as fh:
+            ds = json.load(fh)
+        out["seeds_source"] = seeds
+        out["seeds"] = {}
+        for key, r in ds["runs"].items():
+            def pf(mode, b, r=r):
+                t = r["runs"][mode][b]
+                return {int(f): np.asarray(e, float)
+                        for f, e in zip(t["frames"], t["per_frame_error"], strict=True)}
+
+            out["seeds"][key] = {b: _compare(pf("joint", b), pf("sequential_subtracted", b))
+                                 for b in r["runs"]["joint"]}
+    return out
 
 
 def _pose(err6, truth, center) -> np.ndarray:

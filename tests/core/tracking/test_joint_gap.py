@@ -1,0 +1,56 @@
+"""core.studies.tracking.joint_gap: the stored runs' analysis (joint − sequential against the
+prediction's offset) on made-up per-frame errors, and the pose rebuilt from an error."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+
+def _runs(k: float, n: int = 60, seed: int = 0):
+    """Sequential per-frame errors (a smooth walk plus noise) and joint's = sequential's less ``k``
+    times the constant-velocity prediction's offset from it (module docs' model), per bone."""
+    g = np.random.default_rng(seed)
+    S = np.cumsum(g.normal(0, 0.02, (n, 6)), axis=0) + g.normal(0, 0.05, (n, 6))
+    J = S.copy()
+    J[2:] -= k * ((2 * S[1:-1] - S[:-2]) - S[2:])
+    return J, S
+
+
+def test_stored_recovers_the_share_of_the_start(tmp_path):
+    from core.studies.tracking.joint_gap import stored
+
+    J, S = _runs(0.06)
+    frames = list(range(len(S)))
+
+    def acc(E):
+        return {"tracking": {"tibia": {"frames_with_pose": frames, "per_frame_error": E.tolist()}}}
+
+    p = tmp_path / "acc.json"
+    p.write_text(json.dumps({"runs": {"joint": acc(J), "sequential": acc(S)}}))
+    seeds = tmp_path / "seeds.json"
+    J2, S2 = _runs(0.0, seed=1)
+    J2 = J2 + np.random.default_rng(2).normal(0, 0.01, J2.shape)  # unrelated to the prediction
+    seeds.write_text(json.dumps({"runs": {"seed_1": {"runs": {
+        "joint": {"tibia": {"frames": frames, "per_frame_error": J2.tolist()}},
+        "sequential_subtracted": {"tibia": {"frames": frames, "per_frame_error": S2.tolist()}}}}}}))
+    out = stored(str(p), str(seeds))
+    axes = out["bones"]["tibia"]["axes"]
+    assert out["bones"]["tibia"]["frames"] == len(S) - 2
+    for row in axes:
+        assert abs(row["start_share_k"] - 0.06) < 1e-6
+        assert row["corr_with_prediction_offset"] < -0.999
+    for row in out["seeds"]["seed_1"]["tibia"]["axes"]:
+        assert abs(row["start_share_k"]) < 0.05 and abs(row["corr_with_prediction_offset"]) < 0.5
+
+
+def test_pose_from_an_error_is_the_inverse_of_pose_errors():
+    from core.geometry.transforms import pose_from_params
+    from core.studies.tracking.acceptance import pose_errors
+    from core.studies.tracking.joint_gap import _pose
+
+    c = np.array([10.0, -5.0, 30.0])
+    truth = pose_from_params(np.array([1.0, 2.0, 3.0, 0.1, -0.2, 0.3]), center=c)
+    e = np.array([0.05, -0.02, 0.03, 0.2, -0.1, 0.4])
+    np.testing.assert_allclose(pose_errors(_pose(e, truth, c), truth, c), e, atol=1e-9)

@@ -69,6 +69,9 @@ def _per_frame(d: dict, mode: str, bone: str) -> dict[int, np.ndarray]:
 
 
 SEEDS_JSON = "resources/benchmarks/sequential_drift_seeds_h100.json"
+#: Held-out syntheses (scene seeds 3 and 4) with both modes, read by :func:`stored` too.
+HELD_OUT_JSONS = ("resources/benchmarks/tracking_acceptance_seed3_h100.json",
+                  "resources/benchmarks/tracking_acceptance_seed4_h100.json")
 
 
 def _compare(J: dict, S: dict) -> dict:
@@ -92,14 +95,20 @@ def _compare(J: dict, S: dict) -> dict:
     return {"frames": len(fr), "axes": rows}
 
 
-def stored(path: str = ACCEPTANCE_JSON, seeds: str | None = SEEDS_JSON) -> dict:
+def stored(path: str = ACCEPTANCE_JSON, seeds: str | None = SEEDS_JSON, held_out=HELD_OUT_JSONS) -> dict:
     """The ``stored`` analysis (module docs) of an acceptance JSON with both modes, and of the
     :mod:`~core.studies.tracking.sequential_drift` runs of other syntheses in ``seeds`` (joint
-    against ``sequential_subtracted``; None: not read)."""
+    against ``sequential_subtracted``; None: not read) and the acceptance JSONs ``held_out``."""
     with open(path) as fh:
         d = json.load(fh)
     out = {"source": path, "bones": {b: _compare(_per_frame(d, "joint", b), _per_frame(d, "sequential", b))
                                      for b in d["runs"]["joint"]["tracking"]}}
+    for extra in held_out or ():  # more syntheses of the trial, acceptance JSONs with both modes
+        with open(extra) as fh:
+            dx = json.load(fh)
+        out.setdefault("held_out", {})[extra] = {
+            b: _compare(_per_frame(dx, "joint", b), _per_frame(dx, "sequential", b))
+            for b in dx["runs"]["joint"]["tracking"]}
     if seeds:
         with open(seeds) as fh:
             ds = json.load(fh)

@@ -35,7 +35,7 @@ def test_stored_recovers_the_share_of_the_start(tmp_path):
     seeds.write_text(json.dumps({"runs": {"seed_1": {"runs": {
         "joint": {"tibia": {"frames": frames, "per_frame_error": J2.tolist()}},
         "sequential_subtracted": {"tibia": {"frames": frames, "per_frame_error": S2.tolist()}}}}}}))
-    out = stored(str(p), str(seeds))
+    out = stored(str(p), str(seeds), held_out=())
     axes = out["bones"]["tibia"]["axes"]
     assert out["bones"]["tibia"]["frames"] == len(S) - 2
     for row in axes:

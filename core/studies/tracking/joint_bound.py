@@ -49,7 +49,7 @@ import time
 
 import numpy as np
 
-__all__ = ["bounds", "main", "restate", "run"]
+__all__ = ["bounds", "frame_bounds", "hard_bounds", "main", "restate", "run", "run_hard"]
 
 STORED = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 
@@ -59,40 +59,39 @@ def _summary(C: np.ndarray) -> dict:
             "sigma": np.sqrt(np.diag(C)).round(5).tolist()}
 
 
-def bounds(ts, frames) -> dict:
-    """Per bone, the known-others and the joint bound on ``frames`` of the scene ``ts``
-    (:class:`core.studies.tracking.acceptance.TrackingScene`): the mean covariance over the frames
-    the bone is seen in (``known``, ``joint``, each ``rms_mm``, ``rms_deg``, ``sigma``), their
-    ratio, the per-frame values, and ``pairs``: the bound with one other bone unknown (the rest known)."""
+def frame_bounds(renderer, names, centers, truth, line_integrals, quanta, frames) -> dict:
+    """Per bone (``names``: ``renderer``'s first volumes, rotation ``centers``), the known-others
+    and the joint bound on ``frames`` (``truth(f)``: the bones' poses, ``line_integrals(f)``: the
+    frame's total line integrals, ``quanta``: per view at full fluence): the mean covariance over
+    the frames the bone is seen in (``known``, ``joint``, each ``rms_mm``, ``rms_deg``, ``sigma``;
+    its ``rms`` is the RMS of the per-frame bounds), their ratio, the per-frame values, and
+    ``pairs``: the bound with one other bone unknown (the rest known)."""
     from core.tracking.bound import joint_bound
 
-    N = [m.photons_per_pixel for m in ts.scene.imaging]
-    if any(n is None for n in N):
+    if any(n is None for n in quanta):
         raise ValueError("the scene's frames are noise-free: no bound")
-    centers = np.array([m.centroid for m in ts.models])
-    names = ts.names
+    centers = np.asarray(centers, dtype=float)
+    names = tuple(names)
     known = {n: [] for n in names}
     joint = {n: [] for n in names}
     pairs = {n: {o: [] for o in names if o != n} for n in names}
     per_frame = {n: [] for n in names}
     for f in frames:
-        L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
-        jb = joint_bound(ts.renderer, range(len(names)), ts.truth(f), centers, line_integral=L,
-                         quanta_per_pixel=N)
+        jb = joint_bound(renderer, range(len(names)), np.asarray(truth(f))[:len(names)], centers,
+                         line_integral=line_integrals(f), quanta_per_pixel=quanta)
         for k, b in enumerate(jb.bones):
             n = names[b]
-            Ck, Cj = jb.known[k].covariance, jb.joint[k].covariance
-            if not (np.all(np.isfinite(Ck)) and np.all(np.isfinite(Cj))):
+            kb, jm = jb.known[k], jb.joint[k]
+            if not (np.all(np.isfinite(kb.covariance)) and np.all(np.isfinite(jm.covariance))):
                 continue
-            known[n].append(Ck)
-            joint[n].append(Cj)
-            kb, j = jb.known[k], jb.joint[k]
+            known[n].append(kb.covariance)
+            joint[n].append(jm.covariance)
             per_frame[n].append({"frame": int(f), "known_mm": kb.rms_mm, "known_deg": kb.rms_deg,
-                                 "joint_mm": j.rms_mm, "joint_deg": j.rms_deg, "pixels": kb.pixels})
-            for j, c in enumerate(jb.bones):
+                                 "joint_mm": jm.rms_mm, "joint_deg": jm.rms_deg, "pixels": kb.pixels})
+            for i, c in enumerate(jb.bones):
                 if c == b:
                     continue
-                s = np.r_[6 * k:6 * k + 6, 6 * j:6 * j + 6]
+                s = np.r_[6 * k:6 * k + 6, 6 * i:6 * i + 6]
                 pairs[n][names[c]].append(np.linalg.inv(jb.information[np.ix_(s, s)])[:6, :6])
     out = {}
     for n in names:
@@ -105,6 +104,29 @@ def bounds(ts, frames) -> dict:
                   "pairs": {o: {k: v for k, v in _summary(np.mean(cs, axis=0)).items() if k != "sigma"}
                             for o, cs in pairs[n].items() if cs}}
     return out
+
+
+def bounds(ts, frames) -> dict:
+    """:func:`frame_bounds` on the acceptance scene ``ts``
+    (:class:`core.studies.tracking.acceptance.TrackingScene`): its renderer and bone models (the
+    volumes its frames were rendered from), the scene's line integrals and quanta."""
+    return frame_bounds(ts.renderer, ts.names, [m.centroid for m in ts.models], ts.truth,
+                        lambda f: ts.scene.line_integrals(f, renderer=ts._scene_renderer),
+                        [m.photons_per_pixel for m in ts.scene.imaging], frames)
+
+
+def hard_bounds(hr, frames) -> dict:
+    """:func:`frame_bounds` on the harder trial ``hr`` (:class:`core.studies.tracking.hard_trial.
+    HardRun`), from the volumes its frames were rendered from (the scene's bones under its transfer,
+    as :func:`~core.studies.tracking.hard_trial.truth_bounds`; the fibula and navicular, not
+    tracked, are part of the known line integral), the rotation centres the tracker's centroids."""
+    from core.render import DRRRenderer
+
+    sc = hr.scene
+    r = DRRRenderer(sc.rig, [v.to_attenuation(sc.bone_transfer) for v in sc.bones[:len(hr.names)]],
+                    device=hr.device)
+    return frame_bounds(r, hr.names, [m.centroid for m in hr.models], hr.truth, hr.line_integrals,
+                        [m.photons_per_pixel for m in sc.imaging], frames)
 
 
 def restate(stored: dict, bound: dict, *, same_size: bool) -> dict:
@@ -175,20 +197,51 @@ def run(*, quick: bool, device: str | None = None, every: int = 10, n_frames: in
     return out
 
 
+def run_hard(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, every: int = 1,
+             device: str | None = None, seed: int = 0) -> dict:
+    """Both bounds on the harder trial (:class:`core.studies.tracking.hard_trial.HardRun`, its
+    CPU size by default) every ``every``-th of ``n_frames`` frames."""
+    from core.studies.tracking.hard_trial import HardRun
+
+    t0 = time.perf_counter()
+    hr = HardRun(n_frames=n_frames, pixels=pixels, spacing=spacing, seed=seed, device=device)
+    setup = time.perf_counter() - t0
+    frames = list(range(0, n_frames, every))
+    t1 = time.perf_counter()
+    b = hard_bounds(hr, frames)
+    cfg = {"trial": "hard", "pixels": hr.scene.rig[0].width, "voxel_mm": spacing, "frames": n_frames,
+           "bound_frames": frames, "seed": seed, "bones": list(hr.names)}
+    return {"study": "core.studies.tracking.joint_bound", "machine": platform.machine(),
+            "processor": platform.processor() or platform.machine(), "device": str(hr.renderer.device),
+            "config": cfg, "bound": b, "scene_s": setup, "bound_s": time.perf_counter() - t1,
+            "total_s": time.perf_counter() - t0}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.joint_bound",
                                 description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="256² views, 1 mm voxels (default 1024², 0.5 mm)")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
-    p.add_argument("--pixels", type=int, default=None, help="views' size (default 256 quick / 1024)")
-    p.add_argument("--every", type=int, default=10, help="bound every this many frames (default 10)")
+    p.add_argument("--trial", choices=("acceptance", "hard"), default="acceptance",
+                   help="the acceptance trial (default) or the harder one (core.studies.tracking.hard_trial)")
+    p.add_argument("--pixels", type=int, default=None,
+                   help="views' size (default acceptance 256 quick / 1024, hard 192)")
+    p.add_argument("--spacing", type=float, default=1.0, help="hard trial: voxel size, mm (default 1)")
+    p.add_argument("--frames", type=int, default=6, help="hard trial: frames (default 6)")
+    p.add_argument("--every", type=int, default=None,
+                   help="bound every this many frames (default acceptance 10, hard 1)")
     p.add_argument("--stored", default=STORED, help="acceptance result to re-express ('' for none)")
     p.add_argument("--machine-name", default=None, help="the machine, in words, for the JSON")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
     from core.io.atomic import print_json
 
-    res = run(quick=a.quick, device=a.device, every=a.every, stored=a.stored or None, pixels=a.pixels)
+    if a.trial == "hard":
+        res = run_hard(pixels=a.pixels or 192, spacing=a.spacing, n_frames=a.frames, every=a.every or 1,
+                       device=a.device)
+    else:
+        res = run(quick=a.quick, device=a.device, every=a.every or 10, stored=a.stored or None,
+                  pixels=a.pixels)
     if a.machine_name:
         res["machine_name"] = a.machine_name
     print_json(res, a.out)

@@ -216,3 +216,25 @@ def test_study_bounds_both_ways_and_restates_a_stored_run():
     s = restate(stored, b, same_size=False)["joint"][n]
     assert "over_joint" not in s and "over_known" not in s
     assert s["over_joint_scaled"]["mm"] == pytest.approx(rms / (2 * jm * b[n]["ratio"]["mm"]))
+
+
+def test_hard_trial_bounds_use_the_frames_volumes(talus_scene):
+    """On a stand-in for the harder trial (one bone, the frames' volume and the tracker's CT apart)
+    the bounds come from the frames' volume, as the harder trial's own bound (truth_bounds)."""
+    from types import SimpleNamespace
+
+    from core.studies.tracking.hard_trial import truth_bounds
+    from core.studies.tracking.joint_bound import hard_bounds
+
+    sc, model = talus_scene["scene"], talus_scene["model"]
+    scene = SimpleNamespace(rig=sc.rig, bones=sc.bones, bone_transfer=sc.bone_transfer,
+                            imaging=[SimpleNamespace(photons_per_pixel=5000.0)] * len(sc.rig))
+    L = {f: np.stack([_ramp(cam.image_shape) for cam in sc.rig]) for f in (0, 1)}
+    hr = SimpleNamespace(scene=scene, names=("talus",), models=[model], truth=lambda f: sc.poses(f)[:1],
+                         line_integrals=L.__getitem__, renderer=None, device="cpu")
+    got = hard_bounds(hr, [0, 1])["talus"]
+    ref = truth_bounds(scene, hr.names, [model.centroid], hr.truth, hr.line_integrals, [0, 1], device="cpu")
+    rms = np.sqrt(np.mean(ref["talus"] ** 2, axis=0))  # the RMS of the per-frame bounds
+    assert got["known"]["rms_mm"] == pytest.approx(rms[0], rel=1e-9)
+    assert got["joint"]["rms_deg"] == pytest.approx(rms[1], rel=1e-9)  # one bone: nothing else unknown
+    assert got["frames"] == [0, 1] and got["pairs"] == {}

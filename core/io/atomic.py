@@ -282,7 +282,8 @@ class LockedError(RuntimeError):
     path : Path
         The lock file.
     holder : dict
-        What the holder recorded (``pid``, ``host``, ``since``, ``purpose``), possibly empty.
+        What the holder recorded (``pid``, ``host``, ``since``, ``purpose``, and ``by`` where it
+        said what in it holds the lock), possibly empty.
     """
 
     def __init__(self, path: Path, holder: dict[str, Any], what: str = ""):
@@ -290,7 +291,7 @@ class LockedError(RuntimeError):
         self.holder = holder
         who = (
             f"process {holder.get('pid', '?')} on {holder.get('host', '?')} "
-            f"since {holder.get('since', '?')}"
+            f"since {holder.get('since', '?')}" + (f" ({holder['by']})" if holder.get("by") else "")
             if holder
             else "another process"
         )
@@ -339,6 +340,10 @@ class FileLock:
         Lock file (created if missing; left in place on release).
     purpose : str
         Recorded in the lock file and used in the error message (e.g. the study folder).
+    by : str
+        What in the holding process holds it (e.g. ``"talus batch's trajectory check"``), recorded
+        in the lock file beside ``purpose`` where given: a refused writer can name the holder,
+        also one in its own process.
 
     Notes
     -----
@@ -347,9 +352,10 @@ class FileLock:
     The lock is advisory: it protects Talus processes from each other, not against other tools.
     """
 
-    def __init__(self, path: str | os.PathLike, *, purpose: str = ""):
+    def __init__(self, path: str | os.PathLike, *, purpose: str = "", by: str = ""):
         self.path = Path(path)
         self.purpose = str(purpose)
+        self.by = str(by)
         self._fd: int | None = None
 
     @property
@@ -392,6 +398,8 @@ class FileLock:
             "since": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "purpose": self.purpose,
         }
+        if self.by:
+            info["by"] = self.by
         blob = json.dumps(info).encode()
         try:
             os.ftruncate(fd, 0)

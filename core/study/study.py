@@ -221,12 +221,13 @@ class Study(StudyEdits, StudyReports):
         path.parent.mkdir(parents=True, exist_ok=True)
         self._held_locks.append(FileLock(path, purpose=purpose).acquire())
 
-    def lock_journal(self, trial: str, bone: str, *, timeout: float = 0.0) -> None:
+    def lock_journal(self, trial: str, bone: str, *, timeout: float = 0.0, by: str = "") -> None:
         """Lock the pose journal of ``bone`` in ``trial`` for this handle until :meth:`close`
         (idempotent). The first write to a journal does it too; trackers call it before they
         start, so a second writer of that bone is refused at once (``timeout``: after waiting that
         many seconds for it, e.g. for ``talus batch``'s trajectory check, which holds a trial's
-        journals for the moment it reads and rewrites them).
+        journals for the moment it reads and rewrites them; ``by``: what holds it, recorded in the
+        lock file's holder line, e.g. the window's hand edit).
 
         Raises
         ------
@@ -242,7 +243,7 @@ class Study(StudyEdits, StudyReports):
             return
         path.parent.mkdir(parents=True, exist_ok=True)
         lock = FileLock(path.with_name(f".{bone}.lock"),
-                        purpose=f"bone {bone!r} of trial {trial!r} in study {self._folder}")
+                        purpose=f"bone {bone!r} of trial {trial!r} in study {self._folder}", by=by)
         self._journal_locks[path] = lock.acquire(timeout=timeout)
 
     def unlock_journal(self, trial: str, bone: str) -> None:

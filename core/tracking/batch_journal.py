@@ -13,6 +13,10 @@ trajectory pass over a trial's ranges (:mod:`core.tracking.batch_pass`) reads th
 the frames and journals the flags it changed under them — so a hand fix (a pose recorded by the
 window or another process, which takes the same lock) cannot land between the read and the write
 and be overtaken: it waits for the pass, or the pass for it, and the pass then reads it.
+
+The locks' holder lines say which of these holds them (``by``: :data:`TRAJECTORY_CHECK`,
+:data:`RANGE_APPEND`, :data:`RANGE_START`), so a refused hand fix names the holder — also in the
+window's own process, where its batch's trajectory check runs.
 """
 
 from __future__ import annotations
@@ -22,20 +26,26 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["JOURNAL_START_WAIT_S", "JOURNAL_WAIT_S", "SharedJournals"]
+__all__ = ["JOURNAL_START_WAIT_S", "JOURNAL_WAIT_S", "RANGE_APPEND", "RANGE_START", "TRAJECTORY_CHECK",
+           "SharedJournals"]
 
 JOURNAL_WAIT_S = 60.0  # how long a range task's record waits for another range's append
 JOURNAL_START_WAIT_S = 5.0  # how long a range task's start waits for a bone another writer holds
+#: what holds a journal's lock, in its holder line (``by``; module notes)
+TRAJECTORY_CHECK = "talus batch's trajectory check"
+RANGE_APPEND = "a talus batch range task's append"
+RANGE_START = "a talus batch range task's start"
 
 
-def _journal_lock(folder: Path, trial: str, bone: str, wait_s: float):
+def _journal_lock(folder: Path, trial: str, bone: str, wait_s: float, by: str):
     """The lock of a bone's journal (the study layout's ``results/<trial>/poses/.<bone>.lock``,
-    the one :meth:`core.study.Study.lock_journal` holds), taken within ``wait_s`` seconds."""
+    the one :meth:`core.study.Study.lock_journal` holds), taken within ``wait_s`` seconds by
+    ``by``."""
     from ..io.atomic import FileLock
 
     path = folder / "results" / trial / "poses" / f".{bone}.lock"
     path.parent.mkdir(parents=True, exist_ok=True)
-    lock = FileLock(path, purpose=f"bone {bone!r} of trial {trial!r} in study {folder}")
+    lock = FileLock(path, purpose=f"bone {bone!r} of trial {trial!r} in study {folder}", by=by)
     return lock.acquire(timeout=wait_s)
 
 
@@ -53,7 +63,8 @@ class _SharedTrial:
 
         path = self._folder / "results" / self._trial.name / "poses" / f"{bone}.jsonl"
         held = (self._trial.name, bone) in self._held  # SharedJournals.holding: the lock is ours already
-        lock = None if held else _journal_lock(self._folder, self._trial.name, bone, self._wait_s)
+        lock = None if held else _journal_lock(self._folder, self._trial.name, bone, self._wait_s,
+                                                RANGE_APPEND)
         try:
             if path.exists() and path.stat().st_size:  # a torn last record (a writer killed
                 with open(path, "rb") as fh:  # mid-append) is cut off first, as Trial does
@@ -79,7 +90,7 @@ class SharedJournals:
 
     def lock_journal(self, trial: str, bone: str) -> None:
         self._study.trial(trial).bones  # noqa: B018 (an unknown trial raises here)
-        _journal_lock(self._study.folder, trial, bone, JOURNAL_START_WAIT_S).release()
+        _journal_lock(self._study.folder, trial, bone, JOURNAL_START_WAIT_S, RANGE_START).release()
 
     def trial(self, name: str) -> _SharedTrial:
         return _SharedTrial(self._study.trial(name), self._study.folder, self._wait_s, self._held)
@@ -96,7 +107,7 @@ class SharedJournals:
         locks = []
         try:
             for b in sorted(set(bones)):
-                locks.append(_journal_lock(self._study.folder, trial, b, wait_s))
+                locks.append(_journal_lock(self._study.folder, trial, b, wait_s, TRAJECTORY_CHECK))
                 self._held.add((trial, b))
             yield
         finally:

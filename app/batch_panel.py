@@ -275,6 +275,9 @@ class BatchPanel(QtCore.QObject):
             raise ValueError("study: tracking needs a study open for writing")
         if self.running or self.window.tracking.running:
             raise ValueError("tracking: a tracking job is running (cancel it first)")
+        if session.edits.waiting():  # a hand edit journaled once handed over could be overtaken
+            raise ValueError("batch: a hand edit is waiting for its bone's journal (another writer holds "
+                             "it for a moment); start the batch once it is saved or refused")
         opts = self.window.tracking.options
         tasks = build_tasks([session.folder], trials, bones, mode=mode, ranges=ranges,
                             split_bones=split_bones,

@@ -324,8 +324,8 @@ class MainWindow(QtWidgets.QMainWindow):
         for note in notes:
             self.notify(note)
         if session.recovered:
-            self.notify(f"{folder} was not closed cleanly last time; every pose recorded up to "
-                        "then has been restored.")
+            self.notify(f"{folder} (trial {session.trial_name}) was not closed cleanly last time; "
+                        "every pose recorded up to then has been restored.")
         if not session.writable:
             self.notify(f"{folder} is open read-only: pose edits are not saved.")
         settings.add_recent(str(folder))
@@ -440,8 +440,10 @@ class MainWindow(QtWidgets.QMainWindow):
             self._open_checked(folder)
 
     # ------------------------------------------------------------------ jobs
-    def notify(self, text: str, *, error: bool = False) -> None:
+    def notify(self, text: str, *, error: bool = False, tag: str | None = None) -> None:
         """Log a message in the Messages dock; its last line shows in the status bar for 10 s.
+        A ``tag`` equal to the last message's updates that message instead of adding one (a hand
+        edit refused again: :mod:`app.hand_edits`).
 
         The dock is shown on the first message: small, or as a tab beside the plots. It comes to
         the front only for an ``error``: other messages (tracking started or ended, a flagged
@@ -460,8 +462,14 @@ class MainWindow(QtWidgets.QMainWindow):
             for other in self.tabifiedDockWidgets(dock):
                 if other in front:
                     other.raise_()
-        self.messages.addItem(text.splitlines()[-1] if text else "")
-        self.messages.item(self.messages.count() - 1).setToolTip(text)
+        role = QtCore.Qt.ItemDataRole.UserRole
+        last = self.messages.item(self.messages.count() - 1) if self.messages.count() else None
+        if tag is None or last is None or last.data(role) != tag:
+            self.messages.addItem("")
+            last = self.messages.item(self.messages.count() - 1)
+        last.setText(text.splitlines()[-1] if text else "")
+        last.setToolTip(text)
+        last.setData(role, tag)
         self.messages.scrollToBottom()
         self.statusBar().showMessage(text.splitlines()[-1] if text else "", 10000)
 

@@ -12,7 +12,9 @@ With a study open the window shows (and these actions drive):
   between the keyframes around it (``Ctrl+B``), in the background. The journal is append-only:
   *Undo fix* (``Ctrl+Alt+Z``) puts back the tracking result a hand fix replaced. A bone locked
   for a tracking job or a batch says who has it (:meth:`ReviewActions.locked_reason`); a fix of a
-  bone handed to a batch waits briefly for its journal (:meth:`app.session.StudySession.hand_edit`);
+  bone handed to a batch waits briefly for its journal, the window responsive meanwhile
+  (:meth:`app.session.StudySession.hand_edit`, :mod:`app.hand_edits`): the table shows it edited
+  once it is journaled;
 * **export** (*File → Export…*): poses in every format of :func:`core.study.exports.available_formats`,
   the plots as PNG/SVG/PDF and the one-page trial report (:func:`core.study.report.write_report`).
 
@@ -75,7 +77,9 @@ class ReviewActions:
         self.data = ReviewData([layer.name for layer in model.layers], model.n_frames, w)
         if session is not None:
             self.data.load_journal(session.study.trial(session.trial_name))
-            session.notify = lambda text: w.notify(text, error=True)  # a hand edit not saved
+            session.notify = lambda text, tag=None: w.notify(  # a hand edit not saved
+                text, error=True, **({"tag": tag} if tag else {}))
+            session.saved = self._on_saved  # a hand edit journaled (at once, or after a wait)
         if getattr(w, "layers", None) is not None:  # the Locked box refuses while a batch has the bone
             w.layers.held_reason = self.held_reason
         self.table = FrameTableDock(self.data, model)
@@ -149,9 +153,15 @@ class ReviewActions:
         m = self.window.model
         if self.data is None or (s is not None and not s.recording) or m.layers[bone].locked:
             return
-        if s is not None and s.unsaved(m.layers[bone].name):  # refused (the session's record ran
-            return  # first): the table keeps the journal's status
+        if s is not None and s.writable:  # marked once journaled (_on_saved); refused or waiting:
+            return  # the table keeps the journal's status
         self.data.mark_edited(bone, frame, m.pose(bone, frame))
+
+    def _on_saved(self, bone: str, frame: int, pose) -> None:
+        """A hand edit of ``bone`` at ``frame`` journaled (at once, or once its journal came)."""
+        m = self.window.model
+        if self.data is not None and m is not None and bone in self.data.bones:
+            self.data.mark_edited(self.data.bones.index(bone), frame, pose)
 
     # ------------------------------------------------------------------ the fix loop
     def _selected(self):
@@ -197,12 +207,16 @@ class ReviewActions:
         s.require_writable("setting a keyframe")
         if m.layers[m.selected].locked:
             raise ValueError(self.locked_reason(bone))
-        f = m.current_frame
+        f, i = m.current_frame, m.selected
         pose = m.pose(bone, f)
-        s.hand_edit(bone, lambda: s.study.trial(s.trial_name).record_pose(bone, f, pose))
-        m.layers[m.selected].keyframes.add(f)
-        self.data.mark_edited(m.selected, f, m.pose(bone, f))
-        self.window.notify(f"{bone} frame {f}: keyframe set")
+
+        def done() -> None:  # journaled (the bone's journal free, or once it came)
+            m.layers[i].keyframes.add(f)
+            if self.data is not None:
+                self.data.mark_edited(i, f, pose)
+            self.window.notify(f"{bone} frame {f}: keyframe set")
+
+        s.hand_edit(bone, lambda: s.study.trial(s.trial_name).record_pose(bone, f, pose), done=done)
 
     def keyframes(self, bone: str) -> list[int]:
         s = self.window.session
@@ -249,17 +263,20 @@ class ReviewActions:
             trial.clear_pose(bone, f)
             trial.record_pose(bone, f, rec.pose, score=rec.score, tracking=rec.tracking)
 
-        s.hand_edit(bone, restore)
-        i = m.index(bone)
-        s.recording = False
-        try:
-            m.layers[i].poses[f] = rec.pose
-            m.layers[i].keyframes.discard(f)
-            m.pose_changed.emit(i, f)
-        finally:
-            s.recording = True
-        self.data.reload_bone(trial, bone)
-        self.window.notify(f"{bone} frame {f}: fix undone (tracking result restored)")
+        def done() -> None:  # journaled: the model shows the tracked pose again
+            i = m.index(bone)
+            s.recording = False
+            try:
+                m.layers[i].poses[f] = rec.pose
+                m.layers[i].keyframes.discard(f)
+                m.pose_changed.emit(i, f)
+            finally:
+                s.recording = True
+            if self.data is not None:
+                self.data.reload_bone(trial, bone)
+            self.window.notify(f"{bone} frame {f}: fix undone (tracking result restored)")
+
+        s.hand_edit(bone, restore, done=done)
 
     def goto_flagged(self, step: int) -> None:
         m = self.window.model

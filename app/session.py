@@ -3,23 +3,27 @@
 * Every pose edit (drag, nudge, undo, tracking result) is appended to the trial's pose journal
   at once (``Trial.record_pose``: fsync-ed appends), so closing, a crash or a power cut loses
   nothing; there is no separate "save".
-* A marker file ``results/.session-open`` is written while the study is open; finding one at
-  open time means the previous session ended without closing (the window reports that what
-  was recorded up to then has been restored).
+* A marker file ``results/<trial>/.session-open`` is written while a window edits the trial;
+  finding one at open time means the window that last edited the trial ended without closing (the
+  window reports that what was recorded up to then has been restored). It is per trial, as the
+  window lock is: a second window on another trial of the study neither finds the first one's
+  marker nor removes it (a study-wide marker made it report a crash that was not one). The
+  study-wide ``results/.session-open`` of older versions still counts as a crash once (removed).
 * Frames are read lazily from the trial's sequences and cached.
 * Bones start at their recorded poses; frames without one take the nearest recorded frame's
   pose (or the identity), and recorded frames are the keyframes.
 * The window holds no bone's journal it is not writing: a hand edit takes the journal's lock for
-  its append only (:meth:`StudySession.hand_edit`), waiting up to :data:`HAND_EDIT_WAIT_S` for it —
-  for the trajectory check of a batch (the window's, :mod:`app.batch_panel`, or ``talus batch``
-  run beside it), which holds a trial's journals while it reads them and rewrites their flags
-  (:mod:`core.tracking.batch_journal`), or a range task's append — and the window's own tracking
-  job holds its bones' journals while it runs (:meth:`StudySession.let_go` after it). So a
-  ``talus batch`` of range tasks on the trial keeps writing while the window is open: the window
-  held every bone's journal from opening, taken between two of the batch's writes, and the
-  batch's next task waited 60 s for it and failed. A writer that still holds a journal (a task
-  tracking the bone holds it to its end) refuses the edit, and the window's messages say who holds
-  it and that the edit is not saved.
+  its append only (:meth:`StudySession.hand_edit`, :mod:`app.hand_edits`), waiting for it up to
+  :data:`~app.hand_edits.HAND_EDIT_WAIT_S` off the GUI thread's way — for the trajectory check of
+  a batch (the window's, :mod:`app.batch_panel`, or ``talus batch`` run beside it), which holds a
+  trial's journals while it reads them and rewrites their flags (:mod:`core.tracking.batch_journal`),
+  or a range task's append — and the window's own tracking job holds its bones' journals while it
+  runs (:meth:`StudySession.let_go` after it). So a ``talus batch`` of range tasks on the trial
+  keeps writing while the window is open: the window held every bone's journal from opening, taken
+  between two of the batch's writes, and the batch's next task waited 60 s for it and failed. A
+  writer that still holds a journal (a task tracking the bone holds it to its end) refuses the
+  edit, and the window's messages say who holds it (from the lock's holder line) and that the
+  edit is not saved.
 * At opening the window checks that no other program writes a bone of the trial (each journal's
   lock taken and let go at once) and takes the trial's window lock
   (``results/<trial>/.window.lock``, held while it is open): where either is held elsewhere — a
@@ -30,9 +34,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
-import socket
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -42,19 +43,13 @@ import numpy as np
 
 from core.study import Study
 
+from .hand_edits import HAND_EDIT_WAIT_S, REFUSED_QUIET_S, HandEdits
 from .model import ViewerModel
 
-__all__ = ["MissingFilesError", "StudySession", "open_study"]
+__all__ = ["HAND_EDIT_WAIT_S", "REFUSED_QUIET_S", "MissingFilesError", "StudySession", "open_study"]
 
-MARKER = ".session-open"
+MARKER = ".session-open"  # results/<trial>/: a window edits the trial (results/: older versions')
 WINDOW_LOCK = ".window.lock"  # results/<trial>/: held by the window that edits the trial
-#: How long a hand edit waits for a bone's journal the window does not hold (handed to a batch):
-#: the trajectory check holds a trial's journals for milliseconds to a fraction of a second (the
-#: pass itself took 2-25 ms per bone in core.tracking.flags_post's timings); the GUI waits meanwhile.
-HAND_EDIT_WAIT_S = 1.0
-#: After a refused hand edit, the bone's next edits for this long (the rest of a drag) are refused
-#: without waiting, and without a new message.
-REFUSED_QUIET_S = 2.0
 
 
 class MissingFilesError(ValueError):
@@ -86,11 +81,17 @@ class StudySession:
     writable: bool = True
     recording: bool = True  # False while applying poses read back from the journal
     read_only_reason: str | None = None  # why a study is open read-only (another writer holds it)
-    #: where a hand edit that could not be saved is said (the window's messages); None: raised
-    notify: Callable[[str], None] | None = None
+    #: where a hand edit that could not be saved is said (the window's messages: ``notify(text,
+    #: tag)``, a message with the tag of the last one updating it); None: the edit waits blocking,
+    #: and a refusal is raised
+    notify: Callable[[str, str | None], None] | None = None
+    #: called with (bone, frame, pose) once a pose edit of the model is journaled (the frame table)
+    saved: Callable[[str, int, np.ndarray], None] | None = None
     _closed: bool = field(default=False, repr=False)
-    _refused: dict = field(default_factory=dict, repr=False)  # bone -> when an edit was last refused
-    _unsaved: set = field(default_factory=set, repr=False)  # bones whose last edit was refused
+    edits: HandEdits = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.edits = HandEdits(self)
 
     def let_go(self, bones) -> None:
         """Release the journals of ``bones`` this window holds but no longer writes (its tracking
@@ -99,67 +100,26 @@ class StudySession:
             self.study.unlock_journal(self.trial_name, b)
 
     def unsaved(self, bone: str) -> bool:
-        """Whether ``bone``'s last hand edit was refused (not in the journal): the frame table
-        keeps the journal's status of the frame rather than showing it edited."""
-        return bone in self._unsaved
+        """Whether ``bone``'s last hand edit is not in the journal (refused, or waiting for the
+        journal): the frame table keeps the journal's status of the frame rather than showing it
+        edited until :attr:`saved` says it is."""
+        return self.edits.unsaved(bone)
 
-    def hand_edit(self, bone: str, write: Callable[[], None]) -> None:
-        """Run ``write``, a hand edit's append to ``bone``'s journal (see the module notes): at once
-        where the window holds the journal, else under its lock for this append only, waited for
-        up to :data:`HAND_EDIT_WAIT_S` (not again within :data:`REFUSED_QUIET_S` of a refusal).
+    def hand_edit(self, bone: str, write: Callable[[], None], *, key=None,
+                  done: Callable[[], None] | None = None) -> str:
+        """Run ``write``, a hand edit's append to ``bone``'s journal (see the module notes and
+        :mod:`app.hand_edits`): at once where the window holds the journal or it is free, else
+        once its lock comes, within :data:`HAND_EDIT_WAIT_S` (not waited for within
+        :data:`REFUSED_QUIET_S` of a refusal); ``done`` runs once it is written. Returns
+        ``"saved"``, ``"waiting"`` or ``"refused"`` (said through :attr:`notify`).
 
         Raises
         ------
         core.study.LockedError
-            Another writer still holds the journal; the message says who (this window's batch —
-            its trajectory check — or another process) and that the edit is not saved.
+            With no :attr:`notify`: another writer still holds the journal after the wait; the
+            message says who and that the edit is not saved.
         """
-        from core.study import LockedError
-
-        st, trial = self.study, self.trial_name
-        if st.journal_locked(trial, bone):
-            write()
-            return
-        quiet = time.monotonic() - self._refused.get(bone, -1e9) < REFUSED_QUIET_S
-        try:
-            st.lock_journal(trial, bone, timeout=0.0 if quiet else HAND_EDIT_WAIT_S)
-        except LockedError as exc:
-            self._refused[bone] = time.monotonic()
-            h = exc.holder
-            if h.get("pid") == os.getpid() and h.get("host") == socket.gethostname():
-                who = "this window's batch (its trajectory check, or a task's record)"
-            elif h:
-                who = (f"process {h.get('pid', '?')} on {h.get('host', '?')} since {h.get('since', '?')} "
-                       "(a batch's task tracking the bone, or another program)")
-            else:
-                who = "another writer"
-            waited = 0.0 if quiet else HAND_EDIT_WAIT_S
-            exc.args = (f"{bone}: the edit is not saved: its journal is being written by {who} (waited "
-                        f"{waited:g} s). Edit it again once that is over; a batch gives its bones back to "
-                        "the window when it ends.",)
-            exc.quiet = quiet
-            raise
-        self._refused.pop(bone, None)
-        try:
-            write()
-        finally:
-            st.unlock_journal(trial, bone)  # the batch keeps the bone
-
-    def record_edit(self, bone: str, write: Callable[[], None]) -> None:
-        """:meth:`hand_edit` for the model's pose signals: a refusal goes to :attr:`notify` (once
-        per burst) rather than into the event loop, where it would pass unseen."""
-        from core.study import LockedError
-
-        try:
-            self.hand_edit(bone, write)
-        except LockedError as exc:
-            self._unsaved.add(bone)
-            if self.notify is None:
-                raise
-            if not getattr(exc, "quiet", False):
-                self.notify(str(exc))
-        else:
-            self._unsaved.discard(bone)
+        return self.edits.submit(bone, write, key=key, done=done)
 
     def require_writable(self, what: str) -> None:
         """Raise ``ValueError`` naming ``what`` needs writing and why the study is read-only (the
@@ -178,10 +138,13 @@ class StudySession:
         if self._closed:
             return
         self._closed = True
-        if self.writable:
-            with contextlib.suppress(OSError):
-                (self.study.folder / "results" / MARKER).unlink()
-        self.study.close()  # and the trial's window lock
+        try:
+            self.edits.close()  # edits waiting for a journal: journaled, or refused and said
+        finally:
+            if self.writable:
+                with contextlib.suppress(OSError):
+                    (self.study.folder / "results" / self.trial_name / MARKER).unlink()
+            self.study.close()  # and the trial's window lock
 
 
 def open_study(folder: str | Path, *, trial: str | None = None,
@@ -230,11 +193,16 @@ def open_study(folder: str | Path, *, trial: str | None = None,
             model.layers[i].keyframes = recorded
         model.dirty = False
         recovered = False
-        if not read_only:
+        if not read_only:  # the trial's window lock is ours: so is its marker
             results = folder / "results"
-            results.mkdir(exist_ok=True)
-            marker = results / MARKER
+            (results / name).mkdir(parents=True, exist_ok=True)
+            marker = results / name / MARKER
             recovered = marker.exists()
+            legacy = results / MARKER  # an older version's study-wide marker: a crash, said once
+            if legacy.exists():
+                recovered = True
+                with contextlib.suppress(OSError):
+                    legacy.unlink()
             marker.write_text("open\n", encoding="utf-8")
 
             session_ref: list[StudySession] = []
@@ -242,8 +210,14 @@ def open_study(folder: str | Path, *, trial: str | None = None,
             def record(bone: int, frame: int) -> None:
                 if session_ref and not session_ref[0].recording:
                     return
+                s, frame = session_ref[0], int(frame)
                 name, pose = model.layers[bone].name, model.pose(bone, frame)
-                session_ref[0].record_edit(name, lambda: tr.record_pose(name, int(frame), pose))
+
+                def done() -> None:
+                    if s.saved is not None:
+                        s.saved(name, frame, pose)
+
+                s.hand_edit(name, lambda: tr.record_pose(name, frame, pose), key=("pose", frame), done=done)
 
             def record_all(bone: int) -> None:
                 if session_ref and not session_ref[0].recording:
@@ -254,7 +228,7 @@ def open_study(folder: str | Path, *, trial: str | None = None,
                     for f in range(model.n_frames):
                         tr.record_pose(layer.name, f, layer.poses[f])
 
-                session_ref[0].record_edit(layer.name, write)
+                session_ref[0].hand_edit(layer.name, write, key=("all",))
 
             model.pose_changed.connect(record)
             model.trajectory_changed.connect(record_all)

@@ -1,8 +1,9 @@
 """A hand fix of a bone the window has handed to a batch (its layer unlocked by hand), while the
 batch's trajectory check holds the bone's journal: the fix waits for the check (up to
-app.session.HAND_EDIT_WAIT_S) and is journaled under the lock for that append only, so the batch
-keeps the bone; a writer that keeps the journal refuses the fix with a message naming it, once per
-burst, and nothing reaches the event loop. A bone locked for the batch says so on K and Undo fix.
+app.hand_edits.HAND_EDIT_WAIT_S, the window responsive meanwhile) and is journaled under the lock
+for that append only, so the batch keeps the bone; a writer that keeps the journal refuses the fix
+with a message naming it from the lock's holder line — each refusal said, one message updated —
+and nothing reaches the event loop. A bone locked for the batch says so on K and Undo fix.
 Through the window's menu actions, on the 96-px demo study."""
 
 from __future__ import annotations
@@ -14,10 +15,12 @@ import numpy as np
 import pytest
 
 from core.io.atomic import FileLock
+from core.tracking.batch_journal import TRAJECTORY_CHECK
 from tests.app._helpers import HUNG_JOB_MS, copy_study, main_window
 
 pytestmark = pytest.mark.gui
 BONE = "talus"
+WAIT_MS = 5000  # for an edit's wait (1 s) to end, on a loaded machine
 
 
 def _action(win, text: str):
@@ -33,11 +36,18 @@ def _handed(qtbot, win, folder):
     s, m = win.session, win.model
     s.study.unlock_journal(s.trial_name, BONE)
     m.select(BONE)
-    return s, m, FileLock(folder / "results" / s.trial_name / "poses" / f".{BONE}.lock", purpose="pass")
+    return s, m, FileLock(folder / "results" / s.trial_name / "poses" / f".{BONE}.lock", purpose="pass",
+                          by=TRAJECTORY_CHECK)
 
 
 def _journaled(s, frame: int) -> np.ndarray:
     return s.study.trial(s.trial_name).poses(BONE)[frame]
+
+
+def _refused(qtbot, win, s) -> list[str]:
+    """The messages saying an edit is not saved, once the edits' wait is over."""
+    qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
+    return [t for i in range(win.messages.count()) if "not saved" in (t := win.messages.item(i).text())]
 
 
 def test_a_hand_fix_waits_for_the_trajectory_check_and_leaves_the_bone_to_the_batch(qtbot, demo_study,
@@ -50,6 +60,7 @@ def test_a_hand_fix_waits_for_the_trajectory_check_and_leaves_the_bone_to_the_ba
         threading.Timer(0.3, lock.release).start()  # ... for a moment
         _action(win, "Move x+").trigger()  # D
         moved = m.pose(BONE)
+        qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
         np.testing.assert_allclose(_journaled(s, f), moved)  # saved once the check let go
         assert not s.study.journal_locked(s.trial_name, BONE)  # the batch keeps the bone
         assert lock.acquire(timeout=0.0) and lock.release() is None  # nothing else holds it
@@ -65,15 +76,15 @@ def test_a_hand_fix_the_batch_keeps_out_is_said_not_saved(qtbot, demo_study, tmp
         lock.acquire()  # held past the wait (here by this process: as the window's own batch)
         try:
             _action(win, "Move x+").trigger()
-            _action(win, "Move x+").trigger()  # the same burst: refused at once, no second message
+            _action(win, "Move x+").trigger()  # the same wait: joins it
+            said = _refused(qtbot, win, s)
+            assert len(said) == 1 and win.messages.count() == n + 1, said
+            assert said[0].startswith(f"{BONE}: 2 edits are not saved (the last at ")
+            assert said[0].endswith(", after 1 s): its journal is being written by this window's batch (its "
+                                    "trajectory check). Edit it again once that is over; a batch gives its "
+                                    "bones back to the window when it ends.")
         finally:
             lock.release()
-        texts = [win.messages.item(i).text() for i in range(n, win.messages.count())]
-        said = [t for t in texts if "not saved" in t]
-        assert len(said) == 1, texts
-        assert said[0].startswith(f"{BONE}: the edit is not saved: its journal is being written by this "
-                                  "window's batch (its trajectory check")
-        assert "Edit it again once that is over" in said[0]
         np.testing.assert_array_equal(_journaled(s, f), before)
 
 
@@ -116,13 +127,21 @@ def test_a_refused_fix_leaves_the_frame_table_as_the_journal_has_it(qtbot, demo_
         lock.acquire()  # a writer that keeps the journal past the wait
         try:
             _action(win, "Move x+").trigger()
+            assert win.review.data.status[b, 1] == TRACKED and s.unsaved(BONE)  # waiting: not edited
+            _refused(qtbot, win, s)
         finally:
             lock.release()
         assert win.review.data.status[b, 1] == TRACKED and s.unsaved(BONE)  # not saved: not edited
         assert s.study.trial(s.trial_name).results(BONE).records[1].kind == "tracked"
-        s._refused.clear()  # past the burst's quiet time
+        s.edits._refused.clear()  # past the burst's quiet time
         _action(win, "Move x+").trigger()  # the journal free: saved, edited
         assert win.review.data.status[b, 1] == EDITED and not s.unsaved(BONE)
+        lock.acquire()  # held for a moment: edited once the fix is saved
+        threading.Timer(0.3, lock.release).start()
+        _action(win, "Move x+").trigger()
+        win.review.data.status[b, 1] = TRACKED  # (to see it marked again)
+        qtbot.waitUntil(lambda: not s.unsaved(BONE), timeout=WAIT_MS)
+        assert win.review.data.status[b, 1] == EDITED
 
 
 def test_the_window_holds_no_journal_a_batch_beside_it_wants(qtbot, demo_study, tmp_path):
@@ -147,13 +166,13 @@ def test_the_window_holds_no_journal_a_batch_beside_it_wants(qtbot, demo_study, 
         with Study.open(folder, mode="w") as batch:
             for b in bones:
                 batch.lock_journal("walk", b)  # the batch's task: not refused
-            n = win.messages.count()
             _action(win, "Move x+").trigger()  # waits HAND_EDIT_WAIT_S, then refused
-            said = [win.messages.item(i).text() for i in range(n, win.messages.count())]
-            assert any(t.startswith(f"{BONE}: the edit is not saved: its journal is being written by "
-                                    "this window's batch") for t in said), said  # this process holds it
+            said = _refused(qtbot, win, s)  # this process holds it, but not as the window's batch
+            assert said and said[-1].startswith(
+                f"{BONE}: the edit is not saved (waited 1 s): its journal is being written by another handle "
+                "of the study in this program (what it is not recorded), since "), said
             batch.unlock_journal("walk", BONE)  # the task is done with the talus
-            s._refused.clear()
+            s.edits._refused.clear()
             _action(win, "Move x+").trigger()
             np.testing.assert_allclose(_journaled(s, f), m.pose(BONE))  # saved
             assert not s.study.journal_locked(s.trial_name, BONE)

@@ -119,3 +119,109 @@ def test_missing_files_can_be_relocated_from_the_window(folder, tmp_path, qtbot,
     assert win.model is not None and win.panes[1].image is not None
     assert any("now" in win.messages.item(i).text() for i in range(win.messages.count()))
     win.close()
+
+
+def _two_trials(folder):
+    """The demo study with a second trial, walk2 (the same frames), posed at frame 0."""
+    with Study.open(folder, mode="w") as st:
+        st.add_trial("walk2", [folder / "frames" / "cam01", folder / "frames" / "cam02"],
+                     calibration="rig", bones=["talus", "calcaneus"], bit_depth=12)
+        walk = st.trial("walk")
+        for b in ("talus", "calcaneus"):
+            st.trial("walk2").record_pose(b, 0, walk.poses(b)[0])
+    return folder
+
+
+def test_windows_on_two_trials_do_not_warn_a_crash_still_does(folder):
+    """The 'not closed cleanly' marker was one per study and the window lock one per trial: a second
+    window on another trial found the first one's marker and reported a crash. The marker is per
+    trial: neither window warns, each close removes its own, a crash is still reported — for its
+    trial only."""
+    _two_trials(folder)
+    first = open_study(folder, trial="walk")
+    second = open_study(folder, trial="walk2")
+    assert second.writable and not first.recovered and not second.recovered
+    second.close()
+    again = open_study(folder, trial="walk2")  # the first window still open: its marker not ours
+    assert not again.recovered
+    again.close()
+    first.study.close()  # the first window's process dies: its marker stays
+    walk2 = open_study(folder, trial="walk2")
+    try:
+        assert not walk2.recovered
+    finally:
+        walk2.close()
+    walk = open_study(folder, trial="walk")
+    try:
+        assert walk.recovered
+    finally:
+        walk.close()
+    walk = open_study(folder, trial="walk")
+    walk.close()
+    assert not walk.recovered and not list((folder / "results").rglob(".session-open"))
+
+
+WINDOW = """
+import sys
+from PySide6 import QtCore
+app = QtCore.QCoreApplication([])
+from app.session import open_study
+s = open_study(sys.argv[1], trial=sys.argv[2])
+print("recovered" if s.recovered else "clean", flush=True)
+if sys.stdin.readline().strip() == "close":
+    s.close()
+print("closed", flush=True)
+sys.stdin.readline()
+"""
+
+
+def test_two_processes_on_two_trials_and_a_killed_one(folder):
+    """Two processes (as two windows), one per trial: neither warns; the one killed is reported when
+    its trial opens again, the other's trial is not."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    _two_trials(folder)
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+    def window(trial):
+        return subprocess.Popen([sys.executable, "-c", WINDOW, str(folder), trial], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, text=True, env=env)
+
+    a, b = window("walk"), window("walk2")
+    try:
+        assert a.stdout.readline().strip() == "clean"
+        assert b.stdout.readline().strip() == "clean"
+        a.stdin.write("close\n")
+        a.stdin.flush()
+        assert a.stdout.readline().strip() == "closed"
+        b.kill()  # a crash
+        b.wait(timeout=30)
+    finally:
+        for p in (a, b):
+            if p.poll() is None:
+                p.kill()
+            p.wait(timeout=30)
+            for stream in (p.stdin, p.stdout):
+                stream.close()
+    for trial, crashed in (("walk", False), ("walk2", True)):
+        s = open_study(folder, trial=trial)
+        try:
+            assert s.recovered == crashed, trial
+        finally:
+            s.close()
+
+
+def test_an_older_versions_study_wide_marker_counts_once(folder):
+    """results/.session-open, left by an older version that did not close: reported, then gone."""
+    (folder / "results").mkdir(exist_ok=True)
+    (folder / "results" / ".session-open").write_text("open\n", encoding="utf-8")
+    s = open_study(folder)
+    s.close()
+    assert s.recovered and not (folder / "results" / ".session-open").exists()
+    s = open_study(folder)
+    s.close()
+    assert not s.recovered

@@ -36,14 +36,15 @@ talus 0.03796 mm / 0.1644°, calcaneus 0.02672 mm / 0.0887°; per frame at most 
 1.0024× in degrees); the known-others bound is the acceptance run's to every digit. Of the
 neighbours, the talus costs the tibia and the calcaneus most; the talus loses a little more to the
 calcaneus than to the tibia. At 256² (``tracking_joint_bound_cpu.json``, this 2-core x86_64 machine)
-1.001–1.002×; the harder trial at 192², 1 mm, 6 frames 1.0001–1.0006×
-(``tracking_joint_bound_hard_cpu.json``, the same machine). The stored runs' errors are 1.29–1.85×
-either bound in both modes, the ratios moving in the third digit, and the same frames are over 4×.
-The likely reason the cross-information is so small: a bone's pose derivative image is mostly its
-own edges; where two projections overlap their edges cross rather than run together, except along
-the joint line, a few pixels of the thousands that carry each bone's information. Two copies of the
-talus 1.5 mm apart, every edge doubled, give 1.58 / 1.36× at 80² (the bound's test): the bound can
-move, this trial's bones do not move it.
+1.001–1.002×. The harder trial (``--trial hard``): at 1024², 0.5 mm, frames 0, 2, …, 18 of 20,
+1.0001–1.0003× (``tracking_joint_bound_hard_h100.json``, one NVIDIA H100); at 192², 1 mm, 6 frames
+1.0001–1.0006× (``tracking_joint_bound_hard_cpu.json``, this 2-core machine). The stored runs'
+errors are 1.29–1.85× either bound in both modes, the ratios moving in the third digit, and the same
+frames are over 4×. The likely reason the cross-information is so small: a bone's pose derivative
+image is mostly its own edges; where two projections overlap their edges cross rather than run
+together, except along the joint line, a few pixels of the thousands that carry each bone's
+information. Two copies of the talus 1.5 mm apart, every edge doubled, give 1.58 / 1.36× at 80² (the
+bound's test): the bound can move, this trial's bones do not move it.
 """
 
 from __future__ import annotations

@@ -49,16 +49,19 @@ def holder_text(holder: dict) -> str:
     """Who holds a journal, from its lock file's holder line (``pid``, ``host``, ``since``,
     ``by``): this window's batch only where the holder is a batch (its trajectory check, or a
     range task's append) in this very process."""
-    from core.tracking.batch_journal import RANGE_APPEND, RANGE_START, TRAJECTORY_CHECK
+    from core.tracking.batch_journal import BATCH_TASK, RANGE_APPEND, RANGE_START, TRAJECTORY_CHECK
+    from core.tracking.from_study import WINDOW_TRACKING
 
     if not holder:
         return "another writer"
     by, since = holder.get("by") or "", holder.get("since", "?")
     if holder.get("pid") == os.getpid() and holder.get("host") == socket.gethostname():
         batch = {TRAJECTORY_CHECK: "its trajectory check", RANGE_APPEND: "a range task's append",
-                 RANGE_START: "a range task's start"}
+                 RANGE_START: "a range task's start", BATCH_TASK: "a task tracking the bone"}
         if by in batch:
             return f"this window's batch ({batch[by]})"
+        if by == WINDOW_TRACKING:
+            return "this window's tracking job"
         return (f"another handle of the study in this program ({by or 'what it is not recorded'}), "
                 f"since {since}")
     what = by or "a batch's task tracking the bone, or another program"

@@ -145,13 +145,16 @@ class TrackingActions:
             raise ValueError("tracking: a tracking job is already running (cancel it first)")
         if self.batch is not None and self.batch.running:
             raise ValueError("tracking: a batch is tracking this study (cancel it first)")
+        if session.edits.waiting():  # a queued hand edit written beside the tracker's records
+            raise ValueError("tracking: a hand edit is waiting for its bone's journal (another writer "
+                             "holds it for a moment); track once it is saved or refused")
         if self.options is not None and self.options.refine_likelihood:
             from .commands.track import final_stage_problem
 
             problem = final_stage_problem(session.study, session.trial_name)
             if problem:
                 raise ValueError(f"Final stage (Tracking options): {problem}")
-        from core.tracking.from_study import track_study
+        from core.tracking.from_study import WINDOW_TRACKING, track_study
 
         m = self.window.model
         frames = None if frames is None else [int(f) for f in frames]
@@ -171,6 +174,7 @@ class TrackingActions:
 
         def job(progress, cancel):
             return track_study(study, trial, bones, frames, options=options, device=device,
+                               lock_by=WINDOW_TRACKING,
                                resume=False, progress=lambda d, t, fr: on_progress(progress, d, t, fr),
                                cancel=cancel)
 

@@ -345,7 +345,7 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     (or, on a Dask worker, the Dask event named ``stop_event``) stops the task between
     registrations: the frames done stay in the journal."""
     from ..study import Study
-    from .batch_journal import SharedJournals
+    from .batch_journal import BATCH_TASK, SharedJournals
     from .from_study import track_study
     from .trial import journal_inputs
 
@@ -391,7 +391,7 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
             st if task.frames is None else SharedJournals(st), task.trial, list(task.bones), frames,
             options=settings.tracking_options(joint=task.tracking_mode == "joint"), device=device,
             resume=True, threshold_hu=settings.threshold_hu, progress=on_frame,
-            report_name=task.report_name, cancel=stop)
+            report_name=task.report_name, cancel=stop, lock_by=BATCH_TASK)
         n_frames = len(order)
     seconds = time.perf_counter() - t0
     summary = dict(report.get("summary") or {})

@@ -26,8 +26,8 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["JOURNAL_START_WAIT_S", "JOURNAL_WAIT_S", "RANGE_APPEND", "RANGE_START", "TRAJECTORY_CHECK",
-           "SharedJournals"]
+__all__ = ["BATCH_TASK", "JOURNAL_START_WAIT_S", "JOURNAL_WAIT_S", "RANGE_APPEND", "RANGE_START",
+           "TRAJECTORY_CHECK", "SharedJournals"]
 
 JOURNAL_WAIT_S = 60.0  # how long a range task's record waits for another range's append
 JOURNAL_START_WAIT_S = 5.0  # how long a range task's start waits for a bone another writer holds
@@ -35,6 +35,7 @@ JOURNAL_START_WAIT_S = 5.0  # how long a range task's start waits for a bone ano
 TRAJECTORY_CHECK = "talus batch's trajectory check"
 RANGE_APPEND = "a talus batch range task's append"
 RANGE_START = "a talus batch range task's start"
+BATCH_TASK = "a talus batch task tracking the bone"
 
 
 def _journal_lock(folder: Path, trial: str, bone: str, wait_s: float, by: str):
@@ -88,7 +89,8 @@ class SharedJournals:
     def __getattr__(self, name):
         return getattr(self._study, name)
 
-    def lock_journal(self, trial: str, bone: str) -> None:
+    def lock_journal(self, trial: str, bone: str, *, by: str = "") -> None:
+        """Taken and released as a range task's start (``by`` is :data:`RANGE_START`)."""
         self._study.trial(trial).bones  # noqa: B018 (an unknown trial raises here)
         _journal_lock(self._study.folder, trial, bone, JOURNAL_START_WAIT_S, RANGE_START).release()
 

@@ -107,8 +107,8 @@ from .options import CHECK_FIELDS, STAGE_MOVE_FIELDS
 from .results import FrameResult
 from .trial import TrackingOptions, TrackingResult, journal_inputs, track
 
-__all__ = ["FULL_SCALE", "FinalStageError", "final_stage_problem", "flatfield_corrected", "frame_reader",
-           "tissue_excess_transfer", "track_study"]
+__all__ = ["FULL_SCALE", "TRACK_COMMAND", "WINDOW_TRACKING", "FinalStageError", "final_stage_problem",
+           "flatfield_corrected", "frame_reader", "tissue_excess_transfer", "track_study"]
 
 #: CT number of the soft tissue around bones (muscle, tendon, fat-free tissue: 40 HU).
 SOFT_TISSUE_HU = 40.0
@@ -187,6 +187,12 @@ def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) 
     read.unreadable = unreadable
     read.reason = lambda t, v: reasons.get(t, {}).get(v)
     return read, how
+
+
+#: What holds the journals of a ``talus track`` run (``track_study``'s default ``lock_by``).
+TRACK_COMMAND = "talus track"
+#: What holds them while the window's tracking job runs.
+WINDOW_TRACKING = "the window's tracking job"
 
 
 def flatfield_corrected(how: str) -> bool:
@@ -319,7 +325,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
                 threshold_hu: float = 200.0, transfer: HUTransfer | None = None,
                 correction: Sequence[Callable] | None = None, progress=None, cancel=None,
                 report_every_s: float = 5.0,
-                report_name: str | None = None) -> tuple[TrackingResult | None, dict]:
+                report_name: str | None = None,
+                lock_by: str = TRACK_COMMAND) -> tuple[TrackingResult | None, dict]:
     """Track ``bones`` of trial ``trial_name`` over ``frames`` (default all, forward).
 
     ``study`` must be open for writing. Returns ``(result, report)``; ``result`` is None when no
@@ -338,7 +345,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
 
     The likelihood final stage (``options.refine_likelihood``) on frames that are not
     flatfield-corrected raises :class:`FinalStageError` (:func:`final_stage_problem`'s message)
-    first. The bones' journals are locked next (:meth:`core.study.Study.lock_journal`): a bone
+    first. The bones' journals are locked next (:meth:`core.study.Study.lock_journal`, the lock's
+    holder line saying ``lock_by``: what tracks them, named in a refused hand edit's message): a bone
     another process is tracking raises :class:`~core.io.atomic.LockedError` before any work.
     The report is ``results/reports/tracking/<report_name>.json`` (default: the trial's name;
     ``talus batch`` gives each (trial, bone) task its own).
@@ -359,7 +367,7 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
         if problem:
             raise FinalStageError(problem)
     for b in names:
-        study.lock_journal(trial_name, b)
+        study.lock_journal(trial_name, b, by=lock_by)
     report_name = trial_name if report_name is None else report_name
     n = trial.n_frames
     order = list(range(n) if frames is None else frames)

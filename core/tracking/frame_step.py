@@ -206,14 +206,15 @@ def missing_flags(imgs: Sequence) -> tuple[str, ...]:
     :data:`UNREADABLE_FLAG` flag, counted from 1 as the reasons of
     :func:`core.tracking.from_study.frame_reader` always were (``"frame cannot be read: view 2:
     <file>: <error>"``; one reason shared by every view of a frame of several views is said once,
-    without them); views without one in :data:`MISSING_FLAG`'s, counted from 0 as that flag always
-    was (``"frame missing in view 0, 1"``). Empty when every view has its image."""
+    without them); views without one in :data:`MISSING_FLAG`'s, counted from 1 too, as the window
+    and every other message count views (``"frame missing in view 1, 2"``; it counted from 0 before).
+    Empty when every view has its image."""
     said, absent = {}, []
     for v, im in enumerate(imgs):
         if isinstance(im, MissingView) and im.reason:
             said[v] = im.reason
         elif im is None or isinstance(im, MissingView):
-            absent.append(v)
+            absent.append(v + 1)
     out = []
     if said:
         reasons: dict[str, list[int]] = {}

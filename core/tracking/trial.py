@@ -247,7 +247,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         callable that refills one buffer is noticed then, and its frames are read at their turn.
         A callable with a ``reason(frame, view)`` method says why a view has none (e.g. its file
         and the reader's error): the frame's flag then gives it ("frame cannot be read: view 2:
-        <reason>", views counted from 1) instead of "frame missing in view 1".
+        <reason>", views counted from 1) instead of "frame missing in view 2".
     frame_order : sequence of int
         Frames in tracking order (``range(a, b)`` forward, ``range(b - 1, a - 1, -1)`` backward).
     keyframes : mapping bone name -> {frame: pose}

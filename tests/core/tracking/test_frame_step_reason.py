@@ -14,8 +14,8 @@ def test_flags_name_the_views_and_the_reasons():
 
     im = np.zeros((4, 4), np.float32)
     assert missing_flags([im, im]) == ()
-    assert missing_flags([im, None]) == ("frame missing in view 1",)
-    assert missing_flags([None, None]) == ("frame missing in view 0, 1",)
+    assert missing_flags([im, None]) == ("frame missing in view 2",)
+    assert missing_flags([None, None]) == ("frame missing in view 1, 2",)
     assert missing_flags([M("a.tif: no page"), im]) == ("frame cannot be read: view 1: a.tif: no page",)
     assert missing_flags([M("a.tif: no page"), M("b.tif: truncated")]) == (
         "frame cannot be read: view 1: a.tif: no page; view 2: b.tif: truncated",)
@@ -25,8 +25,8 @@ def test_flags_name_the_views_and_the_reasons():
     assert missing_flags([M("a.tif: no page")]) == ("frame cannot be read: view 1: a.tif: no page",)
     # a view with a reason and a view without one: both said
     assert missing_flags([None, M("b.tif: truncated"), im]) == (
-        "frame cannot be read: view 2: b.tif: truncated", "frame missing in view 0")
-    assert missing_flags([M(""), im]) == ("frame missing in view 0",)  # an empty reason is none
+        "frame cannot be read: view 2: b.tif: truncated", "frame missing in view 1")
+    assert missing_flags([M(""), im]) == ("frame missing in view 1",)  # an empty reason is none
 
 
 class _Frames:
@@ -80,6 +80,6 @@ def test_a_plain_sources_reason_reaches_the_result(walking_talus_64):
     r1, r2 = res.results[("talus", 1)], res.results[("talus", 2)]
     assert r1.pose is None
     assert r1.flags == ("frame cannot be read: view 2: cam2/frame_0001.tif: checksum mismatch",)
-    assert r2.pose is None and r2.flags == ("frame missing in view 0",)
+    assert r2.pose is None and r2.flags == ("frame missing in view 1",)
     assert seen == [(1, r1.flags), (2, r2.flags)]  # the progress events (the report's frames) say the same
     assert {r.frame for r in res.flagged} == {1, 2}

@@ -102,7 +102,7 @@ def test_bad_frames_are_flagged_and_tracking_goes_on(walking_talus_64):
     res = track(w["renderer"], [w["model"]], frames, range(4), keyframes={"talus": {0: sc.poses(0)[0]}},
                 options=QUICK, record=lambda *a: recs.append(a[1]))
     r1, r2, r3 = (res.results[("talus", k)] for k in (1, 2, 3))
-    assert r1.pose is None and "missing in view 1" in r1.flags[0]
+    assert r1.pose is None and "missing in view 2" in r1.flags[0]  # views counted from 1
     assert r2.retried and r2.flags and not r2.converged
     assert r3.converged and not r3.flags  # the flagged frame did not spoil the next guess
     assert 1 not in recs and 3 in recs

@@ -56,7 +56,8 @@ import time
 
 import numpy as np
 
-__all__ = ["CASES", "STRETCH_RUNS", "acceptance_restart", "main", "probe", "stored", "track_stretch"]
+__all__ = ["CASES", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main", "probe", "probe_summary", "stored",
+           "track_stretch"]
 
 ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
@@ -196,7 +197,6 @@ def probe(*, frames=(12, 21, 30, 39, 48, 57, 66, 75, 84, 93), draws: int = 2, pi
     """The ``probe`` (module docs); JSON-ready results. ``progress``: called with each frame and
     draw's row as it is done."""
     from core.studies.tracking.acceptance import TrackingScene, pose_errors, study_options
-    from core.studies.tracking.hard_trial_stats import paired_comparison
     from core.tracking.frame_state import predict_pose
 
     t0 = time.perf_counter()
@@ -226,32 +226,51 @@ def probe(*, frames=(12, 21, 30, 39, 48, 57, 66, 75, 84, 93), draws: int = 2, pi
             rows.append(row)
             if progress is not None:
                 progress(row)
+    return {"study": "core.studies.tracking.joint_gap", "machine": platform.machine(),
+            "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "seed": seed,
+            "frames": list(frames), "draws": draws, "history": history, "scene_s": round(t_scene, 1),
+            "total_s": round(time.perf_counter() - t0, 1), "summary": probe_summary(rows, ts.names),
+            "rows": rows}
+
+
+#: :func:`probe_summary`'s pairs beyond each case against ``S``: (case, against, what it measures)
+PAIRS = (("J1", "J1p", "start"), ("J1p", "S", "neighbours"), ("TJ", "TS", "neighbours_from_truth"))
+
+
+def probe_summary(rows: list, names) -> dict:
+    """Per bone of :func:`probe`'s ``rows``: per case the RMS errors, the paired comparison with
+    ``S`` and, for the cases from the prediction, the share of its start kept (module docs); the
+    paired comparisons of :data:`PAIRS`; the RMS error about each rotation axis per case."""
+    from core.studies.tracking.hard_trial_stats import paired_comparison
+
+    def paired(E, a, b, sl):  # a's RMS minus b's, paired by registration
+        return _brief(paired_comparison(np.linalg.norm(E[b][:, sl], axis=1),
+                                        np.linalg.norm(E[a][:, sl], axis=1), margin=0.0, block=1))
+
+    mm, deg = slice(0, 3), slice(3, 6)
     summary = {}
-    for b, n in enumerate(ts.names):
+    for b, n in enumerate(names):
         per = {}
         E = {c: np.array([r["errors"][c][b] for r in rows]) for c in CASES}
         st = np.array([r["start_errors"][b] for r in rows])
         for c in CASES:
             e = E[c]
-            et, er = np.linalg.norm(e[:, :3], axis=1), np.linalg.norm(e[:, 3:], axis=1)
-            s_t, s_r = np.linalg.norm(E["S"][:, :3], axis=1), np.linalg.norm(E["S"][:, 3:], axis=1)
-            row = {"rms_mm": round(float(np.sqrt(np.mean(et ** 2))), 5),
-                   "rms_deg": round(float(np.sqrt(np.mean(er ** 2))), 5)}
+            row = {"rms_mm": round(float(np.sqrt(np.mean(np.sum(e[:, mm] ** 2, 1)))), 5),
+                   "rms_deg": round(float(np.sqrt(np.mean(np.sum(e[:, deg] ** 2, 1)))), 5),
+                   "rms_deg_per_axis": np.sqrt(np.mean(e[:, deg] ** 2, 0)).round(5).tolist()}
             if c != "S":
-                row["vs_S_mm"] = _brief(paired_comparison(s_t, et, margin=0.0, block=1))
-                row["vs_S_deg"] = _brief(paired_comparison(s_r, er, margin=0.0, block=1))
+                row["vs_S_mm"], row["vs_S_deg"] = paired(E, c, "S", mm), paired(E, c, "S", deg)
             if c in ("S", "J0", "J1", "J1p"):  # the start's share left: (x - opt) = k (start - opt)
-                a = (st[:, 3:] - E["opt"][:, 3:]).ravel()
-                y = (e[:, 3:] - E["opt"][:, 3:]).ravel()
+                a = (st[:, deg] - E["opt"][:, deg]).ravel()
+                y = (e[:, deg] - E["opt"][:, deg]).ravel()
                 row["start_kept_rotation"] = round(float(a @ y / max(a @ a, 1e-30)), 3)
             per[c] = row
-        per["start"] = {"rms_mm": round(float(np.sqrt(np.mean(np.sum(st[:, :3] ** 2, 1)))), 5),
-                        "rms_deg": round(float(np.sqrt(np.mean(np.sum(st[:, 3:] ** 2, 1)))), 5)}
+        per["start"] = {"rms_mm": round(float(np.sqrt(np.mean(np.sum(st[:, mm] ** 2, 1)))), 5),
+                        "rms_deg": round(float(np.sqrt(np.mean(np.sum(st[:, deg] ** 2, 1)))), 5)}
+        per["pairs"] = {f"{a}-{c}": {"measures": what, "mm": paired(E, a, c, mm), "deg": paired(E, a, c, deg)}
+                        for a, c, what in PAIRS}
         summary[n] = per
-    return {"study": "core.studies.tracking.joint_gap", "machine": platform.machine(),
-            "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "seed": seed,
-            "frames": list(frames), "draws": draws, "history": history, "scene_s": round(t_scene, 1),
-            "total_s": round(time.perf_counter() - t0, 1), "summary": summary, "rows": rows}
+    return summary
 
 
 def _brief(p: dict) -> dict:

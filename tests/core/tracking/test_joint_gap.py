@@ -54,3 +54,24 @@ def test_pose_from_an_error_is_the_inverse_of_pose_errors():
     truth = pose_from_params(np.array([1.0, 2.0, 3.0, 0.1, -0.2, 0.3]), center=c)
     e = np.array([0.05, -0.02, 0.03, 0.2, -0.1, 0.4])
     np.testing.assert_allclose(pose_errors(_pose(e, truth, c), truth, c), e, atol=1e-9)
+
+
+def test_probe_summary_on_made_up_registrations():
+    """probe_summary: each case's RMS, the pairs, and the start's share kept (a case halfway between
+    the optimum and the start keeps 0.5 of it)."""
+    from core.studies.tracking.joint_gap import CASES, PAIRS, probe_summary
+
+    g = np.random.default_rng(3)
+    rows = []
+    for _ in range(12):
+        opt, start = g.normal(0, 0.1, 6), g.normal(0, 0.3, 6)
+        errs = {c: opt + 0.01 * g.normal(size=6) for c in CASES}
+        errs["opt"] = opt
+        errs["S"] = opt + 0.5 * (start - opt)
+        rows.append({"errors": {c: [e.tolist()] for c, e in errs.items()}, "start_errors": [start.tolist()]})
+    s = probe_summary(rows, ["tibia"])["tibia"]
+    assert s["S"]["start_kept_rotation"] == 0.5
+    assert abs(s["J1"]["start_kept_rotation"]) < 0.1
+    assert s["J1"]["vs_S_deg"]["verdict"] == "better"  # at the (smaller) optimum, not halfway to the start
+    assert set(s["pairs"]) == {f"{a}-{b}" for a, b, _ in PAIRS}
+    assert len(s["opt"]["rms_deg_per_axis"]) == 3

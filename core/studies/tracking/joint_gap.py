@@ -14,10 +14,12 @@ their poses, the others at their predictions. What the modes differ in is (1) wh
 search starts — the prediction, or round 0's pose — and (2) the poses the neighbours are
 subtracted at.
 
-``stored`` (no tracking; ``--stored FILE``, the acceptance run with both modes): per bone and axis
-the correlation, over frames, of joint − sequential with the offset of the constant-velocity
+``stored`` (no tracking; ``--stored FILE``, the acceptance run with both modes, and the other
+syntheses' stored runs, :data:`SEEDS_JSON`, :data:`HELD_OUT_JSONS`): per bone and axis the
+correlation, over frames, of joint − sequential with the offset of the constant-velocity
 prediction from the sequential estimate (the prediction proxied from the run's own estimates of
-the two frames before); negative: sequential sits nearer its start than joint does.
+the two frames before); negative: sequential sits nearer its start than joint does; and ``k``, the
+least-squares share in joint − sequential = −k (prediction − sequential).
 
 ``probe`` (this machine's CPU): the acceptance scene (:class:`core.studies.tracking.acceptance.
 TrackingScene`, ``--pixels`` views, ``--voxel`` mm voxels, the grid correction), frames
@@ -44,6 +46,41 @@ with ``S`` (:func:`core.studies.tracking.hard_trial_stats.paired_comparison`, bl
 registration), and how much of its start the search kept: the least-squares fraction ``k`` of the
 start's offset from ``opt`` left in the result's (rotation, degrees; 0: at the cost's optimum, 1:
 at the start). Study only: it reads the truth. JSON on stdout (and ``--out``).
+
+``--stretch FIRST,N`` (:func:`track_stretch`) runs the tracker itself on N frames, joint, joint
+with :data:`core.tracking.frame_step.RESTART_FROM_PREDICTION` and sequential; ``--acceptance``
+(:func:`acceptance_restart`) the acceptance study with the same three runs (a GPU's work).
+
+Findings
+--------
+* **Stored runs** (1024², one NVIDIA H100; seeds 0–4: ``tracking_acceptance_near_rule_h100.json``,
+  ``sequential_drift_seeds_h100.json``, ``tracking_acceptance_seed3_h100.json``, ``…seed4…``): where
+  joint is worse, joint − sequential is anti-correlated with the prediction's offset from the
+  sequential estimate — the tibia about lab z (its long axis) −0.60, −0.58, −0.72, −0.52, −0.58
+  (k 0.05–0.21; joint's mean-square error there +0.0013 to +0.0068 deg²), the calcaneus about lab x
+  (its long axis) −0.50 to −0.71 (k 0.01–0.03, +0.0004 to +0.0006 deg²); the talus mixed.
+* **Why** (``resources/benchmarks/tracking_joint_gap_cpu.json``, 512², 1 mm voxels, 10 frames × 2
+  draws, this 2-core x86_64 machine, shared): the Gauss–Newton search stops (its next step's
+  predicted decrease under a tenth of the cost's roughness) with part of its start's offset left
+  along the cost's flat directions, the long axes. Sequential's one search keeps 0.157 of the
+  prediction's offset (tibia rotation), joint's second search, from round 0's pose, 0.063 (about
+  k²), from the prediction 0.111. The prediction carries the earlier frames' evidence; keeping part
+  of it is a small, accidental temporal smoothing: the cost's own optimum (``opt``) is worse than
+  either — tibia 0.2615° RMS against sequential's 0.2399° (+0.0217 [+0.0024, +0.0374]), joint
+  0.2514° (+0.0115 [+0.0001, +0.0212]), joint's last round from the prediction 0.2471° (+0.0073
+  [−0.0046, +0.0172]); the calcaneus joint +0.0032° [+0.0004, +0.0056], from the prediction
+  +0.00001° [−0.00005, +0.00007] (the same as sequential). The neighbours' poses (round 0's against
+  sequential's) are not resolved: tibia ``J1p`` − ``S`` above, from the truth ``TJ`` − ``TS``
+  +0.0082° [−0.0033, +0.0167], the calcaneus 0.0000°, the talus −0.002 to −0.003°. Not the cause:
+  an 18-parameter search (there is none), the contact penalty (off in those runs, and no bones
+  interpenetrated), a pixel scored twice (each bone scores its own regions, the others' DRRs
+  subtracted, as sequentially), the prediction (the same in both modes).
+* **The fix, opt-in** (``RESTART_FROM_PREDICTION``; ``tracking_joint_gap_stretch_cpu.json``, the
+  tracker on frames 40–63, 512², same machine): against joint as it is, the tibia −0.0065°
+  [−0.0100, −0.0027], the calcaneus −0.0059° [−0.0110, +0.0003], the talus +0.0017° [−0.0026,
+  +0.0055] (translation within ±0.0001 mm); against sequential −0.0016° [−0.0079, +0.0060],
+  −0.00005°, +0.0036° [−0.0137, +0.0177]; it costs the second round's extra steps: 39 / 48 / 45
+  evaluations per bone-frame (tibia, talus, calcaneus) → 52 / 68 / 63 (sequential 26 / 34 / 31).
 """
 
 from __future__ import annotations

@@ -224,14 +224,26 @@ class HandEdits:
         if not self._waiting and self._timer is not None:
             self._timer.stop()
 
-    def close(self) -> None:
-        """Journal or refuse the edits still waiting (their wait, what is left of it, blocking:
-        the window closes), and stop the timer."""
-        if self._waiting:
+    def settle(self) -> list[str]:
+        """Journal or refuse the edits still waiting, blocking for what is left of their wait (the
+        window closes); returns the bones whose waiting edits were refused (said through
+        ``notify``), so that the window can stay open for the message to be read."""
+        bones = list(self._waiting)
+        if bones:
             self.poll(block=True)
-        if self._timer is not None:
-            self._timer.stop()
-            self._timer = None
+        return [b for b in bones if b in self._unsaved]
+
+    def close(self) -> None:
+        """Journal or refuse the edits still waiting (:meth:`settle`), and stop the timer (also
+        where a refusal is raised: no tick may come after the study is closed)."""
+        try:
+            if self._waiting:
+                self.poll(block=True)
+        finally:
+            self._waiting.clear()
+            if self._timer is not None:
+                self._timer.stop()
+                self._timer = None
 
 
 def _has_app() -> bool:

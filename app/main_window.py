@@ -526,6 +526,13 @@ class MainWindow(QtWidgets.QMainWindow):
         self.move(avail.x() + (avail.width() - w) // 2, avail.y() + (avail.height() - h) // 2)
 
     def closeEvent(self, event: QtGui.QCloseEvent) -> None:
+        s = self.session
+        refused = s.edits.settle() if s is not None and s.writable else []  # hand edits still waiting
+        if refused:  # said in Messages, which closing would take away unread: the window stays
+            event.ignore()
+            self.notify(f"The window stays open: the last edits of {', '.join(refused)} are not saved "
+                        "(the message above says why). Close it again to leave without them.", error=True)
+            return
         settings.set_value("window/geometry", self.saveGeometry())
         if self.controller is not None:
             self.controller.shutdown()

@@ -251,7 +251,11 @@ class ReviewActions:
         s.require_writable("undoing a fix")
         if m.layers[m.selected].locked:  # a bone handed to a batch: its journal is not the window's
             raise ValueError(self.locked_reason(bone))
+        if s.edits.waiting(bone):  # the journal read below lacks them: the fix to undo may be one
+            raise ValueError(f"{bone}: an edit is waiting for its journal (another writer holds it for a "
+                             "moment); undo the fix once it is saved")
         f = m.current_frame
+        fixed = m.pose(bone, f)
         trial = s.study.trial(s.trial_name)
         recs = trial.results(bone).essential_records().get(f, [])
         tracked = [r for r in recs if r.kind == "tracked"]
@@ -265,6 +269,12 @@ class ReviewActions:
 
         def done() -> None:  # journaled: the model shows the tracked pose again
             i = m.index(bone)
+            if (m.pose(i, f) != fixed).any():  # moved while this waited: that edit, journaled after
+                if self.data is not None:  # this one, stays
+                    self.data.reload_bone(trial, bone)
+                self.window.notify(f"{bone} frame {f}: fix undone (tracking result restored), then the "
+                                   "edit made while it waited saved after it")
+                return
             s.recording = False
             try:
                 m.layers[i].poses[f] = rec.pose

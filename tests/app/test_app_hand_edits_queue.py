@@ -1,0 +1,168 @@
+"""Hand edits queued while a bone's journal is held by another writer (a batch's trajectory check):
+what the user does during the wait, through the window's menu actions, on the 96-px demo study.
+
+* *Undo fix* while the bone's edit waits is refused (the journal it reads lacks the edit); an
+  *Undo fix* that waits, then a move of the same frame: the move, journaled after it, stays in the
+  model (the fix's undo put the tracked pose back over it: model and journal disagreed).
+* Edit → Undo of a waiting move: the journal ends as the model.
+* Two bones waiting at once: both journaled once the locks come.
+* Closing the window while an edit waits: saved where the lock is free by then; refused, the
+  window stays open so that the message is read, and closes the second time.
+
+The locks are let go by a Qt timer (not a thread's clock), so the edit waits whatever the load."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PySide6 import QtCore
+
+from core.io.atomic import FileLock
+from core.study import Study
+from core.tracking.batch_journal import TRAJECTORY_CHECK
+from tests.app._helpers import HUNG_JOB_MS, copy_study, main_window
+
+pytestmark = pytest.mark.gui
+BONE = "talus"
+WAIT_MS = 5000  # for an edit's wait (1 s) to end, on a loaded machine
+
+
+def _action(win, text: str):
+    menus = [m.menu() for m in win.menuBar().actions() if m.menu()]
+    return next(a for menu in menus for a in menu.actions() if a.text() == text)
+
+
+def _lock(folder, trial: str, bone: str) -> FileLock:
+    path = folder / "results" / trial / "poses" / f".{bone}.lock"
+    return FileLock(path, purpose="pass", by=TRAJECTORY_CHECK)
+
+
+def _open(qtbot, win, folder, bones=(BONE,)):
+    """The study open, ``bones`` handed to a batch (their journals let go), the first selected."""
+    with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
+        win.open_demo_study(folder)
+    s, m = win.session, win.model
+    for b in bones:
+        s.study.unlock_journal(s.trial_name, b)
+    m.select(bones[0])
+    return s, m
+
+
+def _journal(s, bone: str = BONE):
+    return s.study.trial(s.trial_name).poses(bone)
+
+
+def _fixed_frame_1(folder) -> np.ndarray:
+    """Frame 1 of the talus tracked, then fixed by hand; returns the tracked pose."""
+    with Study.open(folder, mode="w") as st:
+        tr = st.trial("walk")
+        tracked = tr.poses(BONE)[0]
+        tr.record_pose(BONE, 1, tracked, score=0.9, tracking={"flags": []})
+        fix = tracked.copy()
+        fix[0, 3] += 2.0
+        tr.record_pose(BONE, 1, fix)
+    return tracked
+
+
+def test_undo_fix_while_an_edit_waits_is_refused(qtbot, demo_study, tmp_path):
+    folder = copy_study(demo_study, tmp_path)
+    _fixed_frame_1(folder)
+    with main_window(qtbot) as win:
+        s, m = _open(qtbot, win, folder)
+        m.set_frame(1)
+        shown = []
+        win.show_error = lambda title, text: shown.append(text)  # the dialog _guard shows
+        lock = _lock(folder, s.trial_name, BONE).acquire()
+        QtCore.QTimer.singleShot(300, lock.release)
+        _action(win, "Move x+").trigger()
+        moved = m.pose(BONE)
+        assert s.edits.waiting(BONE)
+        win.review.undo_fix_action.trigger()
+        assert shown == [f"{BONE}: an edit is waiting for its journal (another writer holds it for a "
+                         "moment); undo the fix once it is saved"]
+        qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
+        np.testing.assert_allclose(_journal(s)[1], moved)
+
+
+def test_a_move_made_while_undo_fix_waits_stays(qtbot, demo_study, tmp_path):
+    folder = copy_study(demo_study, tmp_path)
+    tracked = _fixed_frame_1(folder)
+    with main_window(qtbot) as win:
+        s, m = _open(qtbot, win, folder)
+        m.set_frame(1)
+        lock = _lock(folder, s.trial_name, BONE).acquire()
+        QtCore.QTimer.singleShot(300, lock.release)
+        win.review.undo_fix_action.trigger()  # waits
+        assert s.edits.waiting(BONE)
+        _action(win, "Move x+").trigger()  # the same frame, behind it
+        moved = m.pose(BONE)
+        qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
+        kinds = [r.kind for r in s.study.trial(s.trial_name).results(BONE).essential_records()[1]]
+        assert kinds[-2:] == ["tracked", "hand"]  # the fix undone, then the move
+        np.testing.assert_allclose(_journal(s)[1], moved)
+        np.testing.assert_allclose(m.pose(BONE, 1), moved)  # not the tracked pose over it
+        assert not np.allclose(moved, tracked)
+        texts = [win.messages.item(i).text() for i in range(win.messages.count())]
+        assert f"{BONE} frame 1: fix undone (tracking result restored), then the edit made while it waited " \
+               "saved after it" in texts
+
+
+def test_edit_undo_of_a_waiting_move_and_two_bones_waiting(qtbot, demo_study, tmp_path):
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:
+        s, m = _open(qtbot, win, folder, bones=(BONE, "calcaneus"))
+        f = m.current_frame
+        before = _journal(s)[f]
+        locks = [_lock(folder, s.trial_name, b).acquire() for b in (BONE, "calcaneus")]
+        QtCore.QTimer.singleShot(300, locks[0].release)
+        QtCore.QTimer.singleShot(400, locks[1].release)
+        _action(win, "Move x+").trigger()
+        win.undo_action.trigger()  # Edit → Undo of the waiting move
+        np.testing.assert_allclose(m.pose(BONE), before)
+        m.select("calcaneus")
+        _action(win, "Move x+").trigger()
+        calcaneus = m.pose("calcaneus")
+        assert s.edits.waiting(BONE) and s.edits.waiting("calcaneus")
+        qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
+        np.testing.assert_allclose(_journal(s)[f], before)  # as the model: the move undone
+        np.testing.assert_allclose(_journal(s, "calcaneus")[f], calcaneus)
+        assert not s.unsaved(BONE) and not s.unsaved("calcaneus")
+        assert not any(s.study.journal_locked(s.trial_name, b) for b in (BONE, "calcaneus"))
+
+
+def test_closing_while_an_edit_waits(qtbot, demo_study, tmp_path):
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:  # the lock comes within the wait: saved at close
+        s, m = _open(qtbot, win, folder)
+        lock = _lock(folder, s.trial_name, BONE).acquire()
+        _action(win, "Move x+").trigger()
+        moved = m.pose(BONE)
+        assert s.edits.waiting(BONE)
+        lock.release()  # no event loop between this and the close: the edit still waits
+        assert s.edits.waiting(BONE)
+        win.close()
+        assert not win.isVisible() and s._closed
+    with Study.open(folder) as st:
+        np.testing.assert_allclose(st.trial("walk").poses(BONE)[m.current_frame], moved)
+
+    folder = copy_study(demo_study, tmp_path / "again")
+    with main_window(qtbot) as win:  # held past the wait: refused, said, the window stays open
+        s, m = _open(qtbot, win, folder)
+        before = _journal(s)[m.current_frame]
+        lock = _lock(folder, s.trial_name, BONE).acquire()
+        try:
+            _action(win, "Move x+").trigger()
+            assert s.edits.waiting(BONE)
+            win.close()
+            assert win.isVisible() and not s._closed and not s.edits.waiting()
+            texts = [win.messages.item(i).text() for i in range(win.messages.count())]
+            assert texts[-2].startswith(f"{BONE}: the edit is not saved (waited 1 s): its journal is being "
+                                        "written by this window's batch (its trajectory check)")
+            assert texts[-1] == (f"The window stays open: the last edits of {BONE} are not saved (the "
+                                 "message above says why). Close it again to leave without them.")
+            win.close()  # the second time: closed
+            assert not win.isVisible() and s._closed
+        finally:
+            lock.release()
+        with Study.open(folder) as st:
+            np.testing.assert_array_equal(st.trial("walk").poses(BONE)[m.current_frame], before)

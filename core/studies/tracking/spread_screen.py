@@ -58,7 +58,9 @@ class Candidate:
     ``"flat"`` or ``"edge"`` (the counts times ``(|∇D|/median)^edge_power`` of the bone's
     high-passed DRR, clipped to [0.1, 10]), ``tissue`` the 2 mm tissue regressor, ``rim`` the rim
     band's σ multiple (None: none), ``robust`` the robust round's threshold (None: none),
-    ``binning`` 2: 2×2 pixels averaged (a half-resolution stage)."""
+    ``binning`` 2: 2×2 pixels averaged (a half-resolution stage); ``nbr``: the neighbours subtracted
+    at the tracker's poses of the frame (:data:`EST_JSON`'s per-frame errors, three bones jointly)
+    instead of the truth — the joint stage's situation, their errors leaking in."""
 
     name: str
     kind: str = "wls"
@@ -71,12 +73,13 @@ class Candidate:
     rim: float | None = None
     robust: float | None = 2.5
     binning: int = 1
+    nbr: bool = False
 
 
 def parse(name: str) -> Candidate:
     """A candidate from its name, ``+``-separated tokens: ``gc``; ``hp<σ>`` (σ px at 1024²),
     ``dog<inner>`` (with ``hp<σ>``), ``poly<order>`` (``hp0`` for no high-pass), ``flat``,
-    ``edge<power>``, ``tissue``, ``rim`` / ``rim<k>``, ``norobust``, ``bin2``. E.g.
+    ``edge<power>``, ``tissue``, ``rim`` / ``rim<k>``, ``norobust``, ``bin2``, ``nbr``. E.g.
     ``hp8+tissue+rim`` (the stage's best measured), ``hp4`` (its default)."""
     c = Candidate(name)
     for t in name.split("+"):
@@ -100,6 +103,8 @@ def parse(name: str) -> Candidate:
             c = replace(c, robust=None)
         elif t.startswith("bin"):
             c = replace(c, binning=int(t[3:]))
+        elif t == "nbr":
+            c = replace(c, nbr=True)
         else:
             raise ValueError(f"candidate {name!r}: unknown token {t!r}")
     if c.binning not in (1, 2):
@@ -164,8 +169,31 @@ class _ViewData:
     """One view's region of one bone-frame: the design's DRRs, the neighbours' DRRs, the tissue
     regressor, the rim band (all fixed over the draws)."""
 
-    def __init__(self, D, others, tissue, keep) -> None:
+    def __init__(self, D, others, tissue, keep, others_est=None) -> None:
         self.D, self.others, self.tissue, self.keep = D, others, tissue, keep
+        self.others_est = others_est  # the neighbours' DRRs at the tracker's poses
+        self.cache: dict = {}  # the candidates' model terms (_model_terms)
+
+
+def _model_terms(vd: _ViewData, c: Candidate, sc: float, h: float) -> tuple:
+    """The candidate's filtered DRR, its derivatives, its extra regressors and edge factor over one
+    view's region (kept in ``vd``: they do not change between the draws)."""
+    key = (c.highpass, c.inner, c.binning, c.poly, c.tissue, c.weights, c.edge_power)
+    hit = vd.cache.get(key)
+    if hit is None:
+        k = c.binning
+        Df = _filter(_bin(vd.D, k), c, sc)
+        dD = (Df[1:7] - Df[7:13]) / (2 * h)
+        extra = list(_legendre(Df.shape[1:], c.poly))
+        if c.tissue:
+            extra.append(_filter(_bin(vd.tissue, k), c, sc))
+        edge = None
+        if c.weights == "edge":  # the bone's edges: the smoothed gradient of its filtered DRR
+            gv, gu = np.gradient(_gauss(Df[0], 1.0))
+            g = np.hypot(gu, gv)
+            edge = np.clip((g / max(float(np.median(g)), 1e-12)) ** c.edge_power, 0.1, 10.0)
+        hit = vd.cache[key] = (Df[0], dD, extra, edge)
+    return hit
 
 
 def _wls_delta(c: Candidate, views: list, frames_y: list, scale: float, h: float) -> np.ndarray:
@@ -181,25 +209,17 @@ def _wls_delta(c: Candidate, views: list, frames_y: list, scale: float, h: float
         kp = vd.keep.get((c.rim, c.highpass)) if c.rim is not None else None
         if kp is not None:
             w = w * kp
-        y = y0 - vd.others
-        D = vd.D
+        y = y0 - (vd.others_est if c.nbr else vd.others)
         if k > 1:
-            w, y, D = _bin(w, k) * k * k, _bin(y, k), _bin(D, k)
+            w, y = _bin(w, k) * k * k, _bin(y, k)
             w = w * (_bin(m.astype(float), k) > 0.999)
-        Df = _filter(D, c, sc)
+        D0, dD, extra, edge = _model_terms(vd, c, sc, h)
         yf = _filter(y, c, sc)
-        dD = (Df[1:7] - Df[7:13]) / (2 * h)
-        extra = list(_legendre(y.shape, c.poly))
-        if c.tissue:
-            extra.append(_filter(_bin(vd.tissue, k), c, sc))
         if c.weights == "flat":
             w = (w > 0).astype(float)
         elif c.weights == "edge":
-            gv, gu = np.gradient(_gauss(Df[0], 1.0))
-            g = np.hypot(gu, gv)
-            med = np.median(g[w > 0]) if np.any(w > 0) else 1.0
-            w = w * np.clip((g / max(med, 1e-12)) ** c.edge_power, 0.1, 10.0)
-        terms.append((Df[0], dD, yf, w, extra))
+            w = w * edge
+        terms.append((D0, dD, yf, w, extra))
 
     def solve(ws):
         out = [wls_step(D0, dD, yf, wv, extra) for (D0, dD, yf, _, extra), wv in zip(terms, ws, strict=True)]
@@ -254,9 +274,10 @@ def _chain(ts, L, f: int, draw: int | None) -> list:
     return out
 
 
-def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float, rims) -> dict:
+def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float, rims, P_est=None) -> dict:
     """Per candidate ``(draws + 1, 6)`` steps (the noise-free frame's first) of bone ``b`` at the true
-    poses ``P``; ``T (views, H, W)`` the tissue regressor as the frame shows it."""
+    poses ``P``; ``T (views, H, W)`` the tissue regressor as the frame shows it; ``P_est`` the
+    tracker's poses (``nbr`` candidates' neighbours)."""
     from core.geometry.transforms import pose_from_params
     from core.studies.tracking.background_fit import _crop
     from core.tracking.cost import RegistrationCost, fluoro_rois, prepare_frame, search_roi, snap_roi
@@ -277,6 +298,8 @@ def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float,
         roi_arg = np.asarray(roi)[None, :, None, :]
         Dall = ts.renderer.render(Pd[:, None], views=views, bones=[b], roi=roi_arg).numpy()[:, :, 0]
         Oall = ts.renderer.render(P[oth][None], views=views, bones=oth, roi=roi_arg).numpy()[0].sum(axis=1)
+        Oest = Oall if P_est is None else ts.renderer.render(P_est[oth][None], views=views, bones=oth,
+                                                             roi=roi_arg).numpy()[0].sum(axis=1)
         cap = (max(int(r[3]) for r in roi), max(int(r[2]) for r in roi))
         keeps = {(k, hp): rim_keep(fr[0], views, roi, k * hp * scale, cap) for k, hp in rims}
         vds = []
@@ -284,7 +307,8 @@ def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float,
             wd, ht = int(roi[i][2]), int(roi[i][3])
             keep = {key: None if kk is None else kk[i, :ht, :wd].astype(float) for key, kk in keeps.items()}
             vds.append(_ViewData(Dall[:, i, :ht, :wd].astype(np.float64),
-                                 Oall[i, :ht, :wd].astype(np.float64), _crop(T[i], roi[i]), keep))
+                                 Oall[i, :ht, :wd].astype(np.float64), _crop(T[i], roi[i]), keep,
+                                 Oest[i, :ht, :wd].astype(np.float64)))
         regions = [[(y.astype(np.float64), mk) for y, mk in zip(*fluoro_rois(ts.renderer, f_, views=views,
                                                                              roi=roi), strict=True)]
                    for f_ in fr]
@@ -292,7 +316,8 @@ def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float,
             out[c.name] = np.array([_wls_delta(c, vds, rg, scale, h) for rg in regions])
     for c in (c for c in cands if c.kind == "gc"):
         costs = [RegistrationCost(ts.renderer, f_, bone=b, base_pose=P[b], center=m.centroid, roi=roi,
-                                  others=(P[oth], oth)) for f_ in fr]
+                                  others=((P if P_est is None or not c.nbr else P_est)[oth], oth))
+                 for f_ in fr]
         Xq = _design(2 * h)
         batch = ts.renderer.render(costs[0].poses(Xq)[:, None], views=views, bones=[b], roi=costs[0]._roi_arg)
         fits = [_quadratic(Xq, 1.0 - np.asarray(cst.metrics[0].evaluate(batch).pose, float)) for cst in costs]
@@ -315,11 +340,32 @@ def _summary(D: np.ndarray, bound: dict) -> dict:
     dev = (noisy - mean[:, None]) * np.sqrt(n / max(n - 1, 1))  # (n - 1 per frame)
     r = {"rms": [rms(noisy[..., :3]), rms(noisy[..., 3:])], "bias": [rms(mean[:, :3]), rms(mean[:, 3:])],
          "spread": [rms(dev[..., :3]), rms(dev[..., 3:])],
-         "noise_free": [rms(free[:, :3]), rms(free[:, 3:])]}
+         "noise_free": [rms(free[:, :3]), rms(free[:, 3:])],
+         "spread_axes": np.sqrt(np.mean(dev.reshape(-1, 6) ** 2, axis=0)).tolist(),
+         "bias_axes": np.sqrt(np.mean(mean**2, axis=0)).tolist()}
     r["over_bound"] = [r["rms"][0] / bound["rms_mm"], r["rms"][1] / bound["rms_deg"]]
     r["bias_over_bound"] = [r["bias"][0] / bound["rms_mm"], r["bias"][1] / bound["rms_deg"]]
     r["spread_over_bound"] = [r["spread"][0] / bound["rms_mm"], r["spread"][1] / bound["rms_deg"]]
-    return {k: [round(float(x), 5) for x in v] for k, v in r.items()}
+    r["bound_axes"] = bound.get("sigma")
+    return {k: None if v is None else [round(float(x), 5) for x in v] for k, v in r.items()}
+
+
+#: the tracker's per-frame errors (three bones jointly, the acceptance trial at 1024², one NVIDIA
+#: H200) that ``nbr`` candidates place the neighbours by
+EST_JSON = "resources/benchmarks/tracking_tissue_stage_h200.json"
+
+
+def _est_errors(path: str) -> dict:
+    from core.studies.tracking.tissue_tibia import _est_errors as est
+
+    return est(path)
+
+
+def _tracked(ts, P, est: dict, f: int) -> np.ndarray:
+    """The bones' poses as the tracker had them in frame ``f`` (its errors ``est`` applied)."""
+    from core.studies.tracking.tissue_tibia import _moved
+
+    return np.stack([_moved(P[b], est[nm][f], ts.models[b].centroid) for b, nm in enumerate(ts.names)])
 
 
 DEFAULT_CANDIDATES = ("gc", "hp4", "hp8", "hp8+tissue", "hp8+tissue+rim")
@@ -346,22 +392,27 @@ def screen(*, pixels: int = 512, voxel: float = 0.5, frames=range(0, 100, 10), b
     tissue_r = DRRRenderer(sc.rig, [v.to_attenuation(sc.tissue_transfer) for v in user_tissue(sc, "fine")],
                            device=device)
     rims = sorted({(c.rim, c.highpass) for c in cands if c.kind == "wls" and c.rim is not None})
+    est = _est_errors(EST_JSON) if any(c.nbr for c in cands) else {}
+    if any(c.nbr for c in cands) and not all(nm in est for nm in ts.names):
+        raise FileNotFoundError(f"nbr: the tracker's errors of {EST_JSON} are missing")
     out = {"study": "core.studies.tracking.spread_screen", "machine": platform.machine(), "device": device,
            "pixels": pixels, "voxel_mm": voxel, "frames": frames, "draws": draws, "correction": "grid",
            "glare_undone": True, "candidates": [c.__dict__ for c in cands], "design_step": h}
     bound = cramer_rao(ts, frames)
-    out["bound"] = {nm: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for nm, v in bound.items()}
+    out["bound"] = {nm: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"], "sigma": v["sigma"]}
+                    for nm, v in bound.items()}
     out["setup_s"] = time.perf_counter() - t0
     steps: dict = {}
     for fi, f in enumerate(frames):
         L = sc.line_integrals(f, renderer=ts._scene_renderer)
         imgs = [_chain(ts, L, f, d) for d in [None, *range(draws)]]
         P = ts.truth(f)
+        P_est = _tracked(ts, P, est, f) if est else None
         Lt = tissue_r.render(P[list(sc.tissue_bones)][None], roi="full").numpy()[0].astype(np.float64)
         T = regressor_images(Lt, psf, False)[:, 0]
         for b in bones:
             nm = ts.names[b]
-            res = _bone_frame(ts, P, imgs, b, cands, T=T, scale=scale, h=h, rims=rims)
+            res = _bone_frame(ts, P, imgs, b, cands, T=T, scale=scale, h=h, rims=rims, P_est=P_est)
             for k, v in res.items():
                 steps.setdefault(nm, {}).setdefault(k, []).append(v)
         out["frames_done"] = frames[: fi + 1]

@@ -104,6 +104,8 @@ def _derivatives(renderer, bone, pose, center, *, line_integral, quanta_per_pixe
     center = np.asarray(center, dtype=float)
     if pose.shape != (4, 4) or center.shape != (3,):
         raise ValueError(f"pose, center: expected (4, 4) and (3,), got {pose.shape} and {center.shape}")
+    if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(center))):
+        raise ValueError(f"pose, center: expected finite values for bone {bone}")
     h_mm, h_deg = (float(s) for s in step)
     if not (h_mm > 0 and h_deg > 0):
         raise ValueError(f"step: expected positive (mm, degrees), got {step!r}")
@@ -134,8 +136,11 @@ def _derivatives(renderer, bone, pose, center, *, line_integral, quanta_per_pixe
         if Lv.shape != tuple(renderer.cameras[v].image_shape):
             raise ValueError(f"line_integral[{v}]: expected shape {tuple(renderer.cameras[v].image_shape)}, "
                              f"got {Lv.shape}")
+        Lr = Lv[v0:v0 + hh, u0:u0 + w]
+        if not np.all(np.isfinite(Lr)):
+            raise ValueError(f"line_integral[{v}]: expected finite values where bone {bone} projects")
         D = (img[:6, j, :hh, :w] - img[6:, j, :hh, :w]).astype(float) / (2 * h[:, None, None])  # (6, h, w)
-        out.append((v, (u0, v0, w, hh), D, Lv[v0:v0 + hh, u0:u0 + w]))
+        out.append((v, (u0, v0, w, hh), D, Lr))
     return views, N, out
 
 
@@ -193,6 +198,32 @@ def _inverse(J: np.ndarray) -> np.ndarray:
     return np.full(J.shape, np.inf)
 
 
+def _blockwise_inverse(J: np.ndarray, n: int) -> np.ndarray:
+    """``J⁻¹`` of ``n`` bones' ``(6 n, 6 n)`` information, inverted per group of bones linked by
+    non-zero cross blocks (bones whose regions meet, directly or through others): a group whose
+    information is singular gets ``inf`` (:func:`_inverse`) without taking the other groups' finite
+    bounds with it; between groups the covariance is zero."""
+    linked = [[c for c in range(n) if c != a and np.any(J[6 * a:6 * a + 6, 6 * c:6 * c + 6] != 0)]
+              for a in range(n)]
+    C = np.zeros_like(J)
+    seen: set[int] = set()
+    for a in range(n):
+        if a in seen:
+            continue
+        group, todo = [], [a]
+        seen.add(a)
+        while todo:
+            k = todo.pop()
+            group.append(k)
+            for c in linked[k]:
+                if c not in seen:
+                    seen.add(c)
+                    todo.append(c)
+        idx = np.concatenate([np.arange(6 * k, 6 * k + 6) for k in sorted(group)])
+        C[np.ix_(idx, idx)] = _inverse(J[np.ix_(idx, idx)])
+    return C
+
+
 def _from_covariance(J: np.ndarray, C: np.ndarray, pixels: int) -> PoseBound:
     sig = np.sqrt(np.diag(C))
     return PoseBound(information=J, covariance=C, sigma=sig, rms_mm=float(np.sqrt(np.trace(C[:3, :3]))),
@@ -210,7 +241,9 @@ class JointBound:
         The bones in the joint problem (volume indices), in the order of the blocks below.
     information, covariance : (6 n, 6 n) arrays
         The Fisher information of all the bones' parameters (bone ``k``'s at rows ``6k … 6k+5``,
-        mm then degrees as in :class:`PoseBound`) and its inverse.
+        mm then degrees as in :class:`PoseBound`) and its inverse, taken per group of bones whose
+        regions meet: ``inf`` over a group whose information is singular (some combination of its
+        parameters leaves the images unchanged), the other groups' blocks finite.
     joint : tuple of PoseBound
         Per bone, the bound with the other bones unknown: ``covariance`` the bone's block of the
         joint covariance, ``information`` its inverse (the Schur complement).
@@ -245,7 +278,9 @@ def joint_bound(renderer, bones: Sequence[int], poses, centers, *, line_integral
     The ``(6 n, 6 n)`` information is :func:`pose_bound`'s sum over every pair of bones and every
     pixel both bones' regions cover in a view; its diagonal blocks are :func:`pose_bound`'s
     information exactly. Bones whose projection misses every used view are left out of the problem
-    (``missing``): they add no pixel, so they change no other bone's bound.
+    (``missing``): they add no pixel, so they change no other bone's bound. A bone with no finite
+    bound (singular information) leaves ``inf`` only to the bones whose regions meet its own
+    (directly or through others); the rest keep theirs.
 
     Parameters
     ----------
@@ -309,7 +344,7 @@ def joint_bound(renderer, bones: Sequence[int], poses, centers, *, line_integral
                     blk += (Ga * q[va][y0:y1, x0:x1].ravel()) @ Gc.T
             J[6 * a:6 * a + 6, 6 * c:6 * c + 6] = blk
             J[6 * c:6 * c + 6, 6 * a:6 * a + 6] = blk.T
-    C = _inverse(J)
+    C = _blockwise_inverse(J, n)
     joint, known = [], []
     for k in range(n):
         s = slice(6 * k, 6 * k + 6)

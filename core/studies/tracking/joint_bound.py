@@ -99,7 +99,9 @@ def frame_bounds(renderer, names, centers, truth, line_integrals, quanta, frames
                 if c == b:
                     continue
                 s = np.r_[6 * k:6 * k + 6, 6 * i:6 * i + 6]
-                pairs[n][names[c]].append(np.linalg.inv(jb.information[np.ix_(s, s)])[:6, :6])
+                Jp = jb.information[np.ix_(s, s)]
+                # regions that never meet: the known-others bound (the other's block may be singular)
+                pairs[n][names[c]].append(np.linalg.inv(Jp)[:6, :6] if np.any(Jp[:6, 6:]) else kb.covariance)
     out = {}
     for n in names:
         if not known[n]:

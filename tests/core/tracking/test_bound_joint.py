@@ -90,6 +90,42 @@ def test_overlapping_bones_raise_the_bound_and_missing_bones_are_left_out(pair):
         joint_bound(r, [0, 0], P, c, line_integral=L, quanta_per_pixel=3000.0)
 
 
+def test_a_bone_without_a_finite_bound_leaves_the_others_theirs(pair):
+    """A bone whose information is singular (an empty volume: its image never changes) makes only
+    the bounds of the bones its region meets infinite: a talus apart from it keeps its own bound, in
+    joint_bound and in the study's frame_bounds (its pair with the empty bone the known-others
+    bound); non-finite poses and line integrals are refused by name."""
+    from dataclasses import replace
+
+    from core.render import DRRRenderer
+    from core.studies.tracking.joint_bound import frame_bounds
+
+    r0, P, c = pair
+    talus = r0.volumes[0]
+    r = DRRRenderer(r0.cameras, [talus, replace(talus, data=np.zeros_like(talus.data))], device="cpu")
+    P = np.stack([P[0], P[0]])
+    P[1, :3, 3] += (0.0, -60.0, 0.0)  # the empty bone apart from the talus, seen in both views
+    C = np.stack([c[0], c[0]])
+    L = [_ramp(cam.image_shape) for cam in r.cameras]
+    jb = joint_bound(r, [0, 1], P, C, line_integral=L, quanta_per_pixel=3000.0)
+    own = pose_bound(r, 0, P[0], C[0], line_integral=L, quanta_per_pixel=3000.0)
+    assert np.all(np.isfinite(jb.joint[0].covariance)) and np.all(np.isinf(jb.joint[1].covariance))
+    np.testing.assert_allclose(jb.joint[0].covariance, own.covariance, rtol=1e-9)
+    np.testing.assert_array_equal(jb.covariance[:6, 6:], 0.0)
+    fb = frame_bounds(r, ("talus", "empty"), C, lambda f: P, lambda f: L, [3000.0, 3000.0], [0])
+    assert set(fb) == {"talus"} and fb["talus"]["ratio"] == {"mm": 1.0, "deg": 1.0}
+    assert fb["talus"]["pairs"]["empty"]["rms_mm"] == pytest.approx(own.rms_mm, rel=1e-12)
+    bad = P.copy()
+    bad[1, 0, 3] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        joint_bound(r, [0, 1], bad, C, line_integral=L, quanta_per_pixel=3000.0)
+    u0, v0 = search_roi(r, P[0], 0, views=[0], center=C[0], reach_mm=0.0, margin_px=6)[0][:2]
+    L_nan = [x.copy() for x in L]
+    L_nan[0][v0 + 2, u0 + 2] = np.nan
+    with pytest.raises(ValueError, match=r"line_integral\[0\]"):
+        pose_bound(r, 0, P[0], C[0], line_integral=L_nan, quanta_per_pixel=3000.0)
+
+
 def _joint_ml_fit(r, truth, centers, counts, N, roi, bg, *, fit=(0, 1), iterations=5, h=0.03):
     """Fisher scoring on the Poisson log-likelihood of both bones' line integrals plus the known
     background, the bones in ``fit`` estimated (the others kept at the truth), every realisation at
@@ -173,9 +209,22 @@ def test_joint_bound_is_the_spread_of_a_joint_maximum_likelihood_fit():
         assert emp_deg / jb.joint[k].rms_deg == pytest.approx(1.0, abs=0.25)
         # … and above the known-others bound, which it cannot reach
         assert emp_mm > 1.1 * jb.known[k].rms_mm and emp_deg > 1.05 * jb.known[k].rms_deg
-    # the whole 12×12 covariance agrees: E[eᵀ J e] = 12 (chi-square, 12 degrees of freedom)
+    # the overall scale: E[eᵀ J e] = 12 (chi-square, 12 degrees of freedom). It does not tell the
+    # two bounds apart: the known-others covariance (J's diagonal blocks inverted) gives 12 too
     m = np.mean(np.einsum("mi,ij,mj->m", e, jb.information, e))
     assert 9.0 < m < 15.5
+    # what does: per bone, eₖᵀ Sₖ eₖ (Sₖ the Schur complement, the joint bound's information) has
+    # mean 6 at the joint covariance, and eₖᵀ Jₖₖ eₖ (the known-others information) has mean
+    # trace(Jₖₖ Cₖₖ), 16.7 here, where it would be 6 at the known-others covariance (64 draws: the
+    # first's mean within ±0.43 × 4 of 6)
+    for k in range(2):
+        s = slice(6 * k, 6 * k + 6)
+        m_joint = np.mean(np.einsum("mi,ij,mj->m", x[:, k], jb.joint[k].information, x[:, k]))
+        m_known = np.mean(np.einsum("mi,ij,mj->m", x[:, k], jb.known[k].information, x[:, k]))
+        expected = np.trace(jb.information[s, s] @ jb.covariance[s, s])
+        assert expected > 12.0  # the overlap is strong: the two bounds' predictions are far apart
+        assert 4.3 < m_joint < 7.7
+        assert m_known == pytest.approx(expected, rel=0.3) and m_known > 10.0
     # with the other bone known (kept at the truth) the same frames give the known-others bound
     x1 = _joint_ml_fit(r, truth, centers, counts, N, roi, bg, fit=(0,))
     for u, s in (("mm", slice(0, 3)), ("deg", slice(3, 6))):

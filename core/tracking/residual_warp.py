@@ -56,6 +56,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from .feed import MissingView
+
 __all__ = ["ResidualWarp", "WarpEstimate", "estimate_residual_warp", "frame_system", "monomials",
            "refine_residual_warp"]
 
@@ -117,16 +119,22 @@ class ResidualWarp:
 
     def apply(self, view: int, image):
         """The frame with the field undone: output ``x`` samples ``image`` at ``x + g(x)``
-        (bilinear, edges replicated). None stays None."""
-        if image is None or not np.any(self.coef[view]):
+        (bilinear, edges replicated). None (or a :class:`core.tracking.feed.MissingView`) stays."""
+        if image is None or isinstance(image, MissingView) or not np.any(self.coef[view]):
             return image
         mx, my = self.maps(view)
         return cv2.remap(np.asarray(image, dtype=np.float32), mx, my, cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_REPLICATE)
 
     def frames(self, frames: Callable[[int], Sequence]) -> Callable[[int], list]:
-        """``frames`` (a tracking frame source) with the field undone in every view."""
-        return lambda i: [self.apply(v, x) for v, x in enumerate(frames(i))]
+        """``frames`` (a tracking frame source) with the field undone in every view; its
+        ``reason(frame, view)`` (why a view has no image, :mod:`core.tracking.feed`) kept."""
+        def warped(i):
+            return [self.apply(v, x) for v, x in enumerate(frames(i))]
+
+        if (why := getattr(frames, "reason", None)) is not None:
+            warped.reason = why
+        return warped
 
     def rms_px(self, view: int, step: int = 8) -> float:
         """RMS of the field over ``view``'s image (every ``step``-th pixel)."""
@@ -300,7 +308,7 @@ def estimate_residual_warp(renderer, bones, frames: Callable[[int], Sequence], p
             bl = np.zeros(nl)
             blocks = []
             for v in range(V):
-                if img[v] is None:
+                if img[v] is None or isinstance(img[v], MissingView):
                     continue
                 base, der = _derivatives(renderer, P, have, [bones[b].centroid for b in have], v, step)
                 XL, XF, r, w = frame_system(warp.apply(v, img[v]), base, der, warp, v, smooth_px=smooth_px,

@@ -80,9 +80,9 @@ Measurements
 bone; the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). The JSON goes
 to stdout (and ``--out``); ``--figure`` saves per-frame errors as a PNG; ``--workers`` makes the
 frames' image chain in that many processes (:mod:`core.studies.tracking.trial_frames`). ``--seed N``
-(0, the default: the acceptance trial) synthesises another trial of the same design — the rig's
-placement, the bones' texture, the motion's perturbation, the noise, the grid frames and the starts
-(``seed + 7``) drawn afresh — kept in ``config.seed`` (and ``seed`` of a two-mode result).
+(0, the default: the acceptance trial) synthesises another trial of the same design — the rig's placement,
+the bones' texture, the motion's perturbation, the noise, the grid frames, the starts (``seed + 7``) and
+the capture range's (``seed + 1``) drawn afresh — kept in ``config.seed`` (a two-mode result's ``seed``).
 """
 
 from __future__ import annotations

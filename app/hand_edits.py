@@ -62,9 +62,11 @@ def holder_text(holder: dict) -> str:
             return f"this window's batch ({batch[by]})"
         if by == WINDOW_TRACKING:
             return "this window's tracking job"
-        return (f"another handle of the study in this program ({by or 'what it is not recorded'}), "
-                f"since {since}")
-    what = by or "a batch's task tracking the bone, or another program"
+        return (f"another handle of the study in this program since {since} "
+                f"({by or 'what holds it is not recorded'})")
+    # another process: a window there is not this one ("the window's ..." read as this window)
+    what = {WINDOW_EDIT: "another window's hand edit", WINDOW_TRACKING: "another window's tracking job"}.get(
+        by, by or "a batch's task tracking the bone, or another program")
     return f"process {holder.get('pid', '?')} on {holder.get('host', '?')} since {since} ({what})"
 
 

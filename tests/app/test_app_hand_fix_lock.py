@@ -170,7 +170,8 @@ def test_the_window_holds_no_journal_a_batch_beside_it_wants(qtbot, demo_study, 
             said = _refused(qtbot, win, s)  # this process holds it, but not as the window's batch
             assert said and said[-1].startswith(
                 f"{BONE}: the edit is not saved (waited 1 s): its journal is being written by another handle "
-                "of the study in this program (what it is not recorded), since "), said
+                "of the study in this program since "), said
+            assert " (what holds it is not recorded). Edit it again" in said[-1]
             batch.unlock_journal("walk", BONE)  # the task is done with the talus
             s.edits._refused.clear()
             _action(win, "Move x+").trigger()

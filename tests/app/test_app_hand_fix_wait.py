@@ -171,5 +171,5 @@ def test_the_refusal_names_the_holder_from_its_lock(qtbot, demo_study, tmp_path)
             _action(win, "Move x+").trigger()
             qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
         assert _last(win).startswith(f"{BONE}: the edit is not saved (waited 1 s): its journal is being "
-                                     "written by another handle of the study in this program (what it is "
-                                     "not recorded), since ")
+                                     "written by another handle of the study in this program since ")
+        assert " (what holds it is not recorded). Edit it again" in _last(win)

@@ -3,7 +3,7 @@
 import os
 import socket
 
-from app.hand_edits import holder_text
+from app.hand_edits import WINDOW_EDIT, holder_text
 from core.tracking.batch_journal import BATCH_TASK, RANGE_APPEND
 from core.tracking.from_study import TRACK_COMMAND, WINDOW_TRACKING
 
@@ -16,13 +16,30 @@ def test_holders_in_this_process_are_named():
     assert holder_text(_here(BATCH_TASK)) == "this window's batch (a task tracking the bone)"
     assert holder_text(_here(RANGE_APPEND)) == "this window's batch (a range task's append)"
     assert holder_text(_here(WINDOW_TRACKING)) == "this window's tracking job"
-    assert "another handle of the study in this program (talus track)" in holder_text(_here(TRACK_COMMAND))
+    assert holder_text(_here(TRACK_COMMAND)) == ("another handle of the study in this program since 12:00:00 "
+                                                 "(talus track)")
+
+
+def test_another_handle_here_that_says_nothing_of_itself():
+    assert holder_text(_here("")) == ("another handle of the study in this program since 12:00:00 "
+                                      "(what holds it is not recorded)")
 
 
 def test_another_process_is_named_by_what_it_records():
     other = {"pid": 1, "host": "lab-pc", "since": "12:00:00", "by": TRACK_COMMAND}
     assert holder_text(other) == "process 1 on lab-pc since 12:00:00 (talus track)"
+    assert holder_text({**other, "by": BATCH_TASK}) == ("process 1 on lab-pc since 12:00:00 (a talus batch "
+                                                        "task tracking the bone)")
     assert "another program" in holder_text({**other, "by": ""})
+    assert holder_text({}) == "another writer"
+
+
+def test_a_window_in_another_process_is_not_this_window():
+    """'the window's hand edit' of another process read as this window's own."""
+    other = {"pid": 1, "host": "lab-pc", "since": "12:00:00"}
+    assert holder_text({**other, "by": WINDOW_EDIT}) == ("process 1 on lab-pc since 12:00:00 (another "
+                                                         "window's hand edit)")
+    assert holder_text({**other, "by": WINDOW_TRACKING}).endswith("(another window's tracking job)")
 
 
 def test_track_study_records_what_holds_the_journal(tmp_path):

@@ -22,6 +22,10 @@ the RMS error over the known-others bound (recomputed here; the stored one besid
 joint bound, and the frames over 4× each bound (flagged or silent, the stored flags). Where this run's
 views or voxels differ from the stored run's the joint bound is not that run's: the ratios are then
 against the stored known-others bound times this run's joint / known-others ratio (``scaled``).
+``--seed N`` bounds another synthesis of the trial (the acceptance study's ``--seed``; the harder
+trial's with ``--trial hard``), with no stored run unless ``--stored`` names one of that seed (e.g.
+``tracking_acceptance_seed3_h100.json``; a run of another seed is refused: its errors are not this
+scene's).
 
 ``--quick``: 256² views, 1 mm voxels (this CPU); the full size 1024², 0.5 mm (a GPU). Both take the
 trial's 100 frames (the poses of the full trial) and bound frames 0, 10, …, 90. ``--trial hard``
@@ -178,26 +182,34 @@ def restate(stored: dict, bound: dict, *, same_size: bool) -> dict:
 
 
 def run(*, quick: bool, device: str | None = None, every: int = 10, n_frames: int = 100,
-        stored: str | None = STORED, pixels: int | None = None) -> dict:
-    """Both bounds on the acceptance trial and the stored runs re-expressed (module docs)."""
+        stored: str | None = STORED, pixels: int | None = None, seed: int = 0) -> dict:
+    """Both bounds on the acceptance trial (``seed``: the acceptance study's ``--seed``, 0 the
+    trial itself) and the stored runs re-expressed (module docs); a stored run of another scene seed
+    is refused (its errors are not this scene's)."""
     from core.studies.tracking.acceptance import tracking_scene
 
+    s = None
+    if stored:  # read first: a run of another synthesis is refused before the bounds are computed
+        with open(stored) as fh:
+            s = json.load(fh)
+        r0 = next(iter(s["runs"].values())) if "runs" in s else s
+        rc = r0["config"]
+        if int(rc.get("seed", 0)) != seed:
+            raise ValueError(f"stored: {stored} is a run of scene seed {rc.get('seed', 0)}, this one bounds "
+                             f"seed {seed} (--seed)")
     t0 = time.perf_counter()
-    ts = tracking_scene(quick=quick, device=device, n_frames=n_frames, pixels=pixels, correction="exact")
+    ts = tracking_scene(quick=quick, device=device, n_frames=n_frames, pixels=pixels, correction="exact",
+                        seed=seed)
     setup = time.perf_counter() - t0
     frames = list(range(0, n_frames, every))
     t1 = time.perf_counter()
     b = bounds(ts, frames)
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
-           "frames": n_frames, "bound_frames": frames, "seed": 0, "bones": list(ts.names)}
+           "frames": n_frames, "bound_frames": frames, "seed": seed, "bones": list(ts.names)}
     out = {"study": "core.studies.tracking.joint_bound", "quick": quick, "machine": platform.machine(),
            "processor": platform.processor() or platform.machine(), "device": str(ts.renderer.device),
            "config": cfg, "bound": b, "scene_s": setup, "bound_s": time.perf_counter() - t1}
-    if stored:
-        with open(stored) as fh:
-            s = json.load(fh)
-        r0 = next(iter(s["runs"].values())) if "runs" in s else s
-        rc = r0["config"]
+    if s is not None:
         same = (rc["pixels"] == cfg["pixels"] and abs(rc["voxel_mm"] - cfg["voxel_mm"]) < 1e-9
                 and rc["frames"] == n_frames)
         out["stored"] = {"file": stored, "commit": s.get("commit"), "card": s.get("card"), "same_size": same,
@@ -239,7 +251,11 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=6, help="hard trial: frames (default 6)")
     p.add_argument("--every", type=int, default=None,
                    help="bound every this many frames (default acceptance 10, hard 1)")
-    p.add_argument("--stored", default=STORED, help="acceptance result to re-express ('' for none)")
+    p.add_argument("--stored", default=None,
+                   help=f"acceptance result to re-express ('' for none; default {STORED} with seed 0, "
+                   "none with another)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="scene seed (the acceptance study's --seed, HardRun's; 0, the default: the trial)")
     p.add_argument("--machine-name", default=None, help="the machine, in words, for the JSON")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
@@ -247,10 +263,11 @@ def main(argv=None) -> int:
 
     if a.trial == "hard":
         res = run_hard(pixels=a.pixels or 192, spacing=a.spacing, n_frames=a.frames, every=a.every or 1,
-                       device=a.device)
+                       device=a.device, seed=a.seed)
     else:
-        res = run(quick=a.quick, device=a.device, every=a.every or 10, stored=a.stored or None,
-                  pixels=a.pixels)
+        stored = a.stored if a.stored is not None else (STORED if a.seed == 0 else None)
+        res = run(quick=a.quick, device=a.device, every=a.every or 10, stored=stored or None,
+                  pixels=a.pixels, seed=a.seed)
     if a.machine_name:
         res["machine_name"] = a.machine_name
     print_json(res, a.out)

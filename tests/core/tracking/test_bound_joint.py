@@ -287,3 +287,25 @@ def test_hard_trial_bounds_use_the_frames_volumes(talus_scene):
     assert got["known"]["rms_mm"] == pytest.approx(rms[0], rel=1e-9)
     assert got["joint"]["rms_deg"] == pytest.approx(rms[1], rel=1e-9)  # one bone: nothing else unknown
     assert got["frames"] == [0, 1] and got["pairs"] == {}
+
+
+def test_study_refuses_a_stored_run_of_another_seed(monkeypatch, tmp_path):
+    """The study's seed (acceptance --seed) and the stored run's must be the same scene: a held-out
+    run is not re-expressed against seed 0's bounds (refused before any bound is computed), and
+    with --seed N the default stored run (seed 0's) is left out."""
+    import json
+
+    from core.studies.tracking import joint_bound
+
+    f = tmp_path / "seed3.json"
+    cfg = {"seed": 3, "pixels": 64, "voxel_mm": 2.0, "frames": 3}
+    f.write_text(json.dumps({"seed": 3, "runs": {"joint": {"config": cfg, "tracking": {}}}}))
+    with pytest.raises(ValueError, match="seed 3"):
+        joint_bound.run(quick=True, device="cpu", stored=str(f))
+    calls = []
+    monkeypatch.setattr(joint_bound, "run", lambda **kw: calls.append(kw) or {})
+    monkeypatch.setattr("core.io.atomic.print_json", lambda obj, out=None: None)
+    joint_bound.main(["--quick", "--seed", "3"])
+    joint_bound.main(["--quick"])
+    joint_bound.main(["--quick", "--seed", "3", "--stored", str(f)])
+    assert [(c["seed"], c["stored"]) for c in calls] == [(3, None), (0, joint_bound.STORED), (3, str(f))]

@@ -8,11 +8,11 @@ Through the window's menu actions, on the 96-px demo study."""
 
 from __future__ import annotations
 
-import threading
 import types
 
 import numpy as np
 import pytest
+from PySide6 import QtCore
 
 from core.io.atomic import FileLock
 from core.tracking.batch_journal import TRAJECTORY_CHECK
@@ -57,9 +57,10 @@ def test_a_hand_fix_waits_for_the_trajectory_check_and_leaves_the_bone_to_the_ba
         s, m, lock = _handed(qtbot, win, folder)
         f = m.current_frame
         lock.acquire()  # the batch's trajectory check reads and rewrites the journal...
-        threading.Timer(0.3, lock.release).start()  # ... for a moment
-        _action(win, "Move x+").trigger()  # D
+        QtCore.QTimer.singleShot(300, lock.release)  # ... for a moment (the event loop lets it go:
+        _action(win, "Move x+").trigger()  # D           never before the edit, whatever the load)
         moved = m.pose(BONE)
+        assert s.edits.waiting(BONE)
         qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
         np.testing.assert_allclose(_journaled(s, f), moved)  # saved once the check let go
         assert not s.study.journal_locked(s.trial_name, BONE)  # the batch keeps the bone
@@ -137,8 +138,9 @@ def test_a_refused_fix_leaves_the_frame_table_as_the_journal_has_it(qtbot, demo_
         _action(win, "Move x+").trigger()  # the journal free: saved, edited
         assert win.review.data.status[b, 1] == EDITED and not s.unsaved(BONE)
         lock.acquire()  # held for a moment: edited once the fix is saved
-        threading.Timer(0.3, lock.release).start()
+        QtCore.QTimer.singleShot(300, lock.release)  # a thread's timer could let go before the edit
         _action(win, "Move x+").trigger()
+        assert s.edits.waiting(BONE)
         win.review.data.status[b, 1] = TRACKED  # (to see it marked again)
         qtbot.waitUntil(lambda: not s.unsaved(BONE), timeout=WAIT_MS)
         assert win.review.data.status[b, 1] == EDITED

@@ -11,7 +11,6 @@ import socket
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +54,7 @@ def _last(win) -> str:
 
 def test_the_window_stays_responsive_while_a_fix_waits_for_the_journal(qtbot, demo_study, tmp_path):
     """The wait (up to 1 s) ran on the GUI thread: the window froze. The edit now waits off it: the
-    trigger returns at once, a timer fires during the wait, the edit is journaled once the lock
+    trigger returns with the edit waiting, a timer fires during the wait, it is journaled once the lock
     comes; K likewise (the keyframe set once it is journaled). A batch is not started meanwhile."""
     folder = copy_study(demo_study, tmp_path)
     with main_window(qtbot) as win:
@@ -66,10 +65,9 @@ def test_the_window_stays_responsive_while_a_fix_waits_for_the_journal(qtbot, de
         lock.acquire()  # the trajectory check, for 0.6 s
         QtCore.QTimer.singleShot(600, lock.release)
         QtCore.QTimer.singleShot(150, lambda: fired.append(s.edits.waiting(BONE)))
-        t0 = time.perf_counter()
         _action(win, "Move x+").trigger()
-        took = time.perf_counter() - t0
-        assert took < 0.3, took  # not the 1 s wait
+        # waiting, not refused: a wait on the GUI thread could not have seen the lock go (the event
+        # loop lets it go) and would have ended refused after 1 s
         assert s.edits.waiting(BONE) and s.unsaved(BONE)
         np.testing.assert_array_equal(_journaled(s, f), before)  # not yet
         from app.batch_panel import BatchPanel

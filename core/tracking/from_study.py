@@ -136,7 +136,8 @@ def frame_reader(study, trial, *, correction: Sequence[Callable] | None = None) 
     view)`` says why (the file and the reader's error; the frame source's hook of
     :func:`core.tracking.trial.track`, whose frame flag then names the view, the file and the
     error — it said only 'frame missing in view 0, 1'), and ``read.unreadable`` maps such a frame
-    to the same for all its views ("view 2: <file>: <error>")."""
+    to the same for all its views ("view 2: <file>: <error>"; a frame the trial's index cannot give:
+    "frame N of the trial cannot be read: <error>", every view's reason)."""
     rig = trial.rig()
     how = "given"
     fns = list(correction) if correction is not None else None

@@ -8,7 +8,8 @@
   window reports that what was recorded up to then has been restored). It is per trial, as the
   window lock is: a second window on another trial of the study neither finds the first one's
   marker nor removes it (a study-wide marker made it report a crash that was not one). The
-  study-wide ``results/.session-open`` of older versions still counts as a crash once (removed).
+  study-wide ``results/.session-open`` of older versions still counts as a crash once (removed),
+  unless an older window is open on another trial (its window lock or journals held elsewhere).
 * Frames are read lazily from the trial's sequences and cached.
 * Bones start at their recorded poses; frames without one take the nearest recorded frame's
   pose (or the identity), and recorded frames are the keyframes.
@@ -147,6 +148,29 @@ class StudySession:
             self.study.close()  # and the trial's window lock
 
 
+def _older_window_open(st: Study, trial: str) -> bool:
+    """Whether another program holds a lock of the study's other trials — their window locks, or
+    (older versions held them while open) their bones' journals: the study-wide marker of an older
+    version may then be that window's, open, not a crash (not reported, left for a later opening;
+    a tracker holding a journal delays the report too, rather than making a false one)."""
+    from core.io.atomic import FileLock
+    from core.study import LockedError
+
+    results = st.folder / "results"
+    for other in st.trials:
+        if other == trial:  # this trial's locks: ours, or checked already
+            continue
+        paths = [results / other / WINDOW_LOCK, *(results / other / "poses").glob(".*.lock")]
+        for path in paths:
+            if not path.is_file():  # never taken: no one holds it (and no file is made here)
+                continue
+            try:
+                FileLock(path).acquire().release()
+            except LockedError:
+                return True
+    return False
+
+
 def open_study(folder: str | Path, *, trial: str | None = None,
                read_only: bool = False) -> StudySession:
     """Open a study folder for the window.
@@ -199,7 +223,7 @@ def open_study(folder: str | Path, *, trial: str | None = None,
             marker = results / name / MARKER
             recovered = marker.exists()
             legacy = results / MARKER  # an older version's study-wide marker: a crash, said once
-            if legacy.exists():
+            if legacy.exists() and not _older_window_open(st, name):
                 recovered = True
                 with contextlib.suppress(OSError):
                     legacy.unlink()

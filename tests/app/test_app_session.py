@@ -225,3 +225,23 @@ def test_an_older_versions_study_wide_marker_counts_once(folder):
     s = open_study(folder)
     s.close()
     assert not s.recovered
+
+
+def test_an_older_window_still_open_on_another_trial_keeps_its_marker(folder):
+    """The study-wide marker of an older version's window open on another trial (its window lock,
+    or an older one's journals, held): not a crash, and not removed under it."""
+    from core.io.atomic import FileLock
+
+    _two_trials(folder)
+    legacy = folder / "results" / ".session-open"
+    legacy.write_text("open\n", encoding="utf-8")
+    for held in (folder / "results" / "walk2" / ".window.lock", folder / "results" / "walk2" / "poses" /
+                 ".talus.lock"):
+        held.parent.mkdir(parents=True, exist_ok=True)
+        with FileLock(held, purpose="an older window on walk2"):
+            s = open_study(folder, trial="walk")
+            s.close()
+            assert not s.recovered and legacy.exists(), held
+    s = open_study(folder, trial="walk")  # that window gone: its marker says it did not close
+    s.close()
+    assert s.recovered and not legacy.exists()

@@ -86,10 +86,11 @@ class HandEdits:
     def __init__(self, session) -> None:
         self._s = session
         self._waiting: dict[str, _Waiting] = {}
-        self._refused: dict[str, tuple[float, int]] = {}  # bone -> (last refusal, edits refused since)
+        #: bone -> (last refusal, edits refused in its burst, the burst's message tag)
+        self._refused: dict[str, tuple[float, int, str]] = {}
         self._unsaved: set[str] = set()  # bones whose last edit was refused
         self._timer = None
-        self._n = 0  # unique keys
+        self._n = 0  # unique keys and message tags
 
     # ------------------------------------------------------------------ queries
     def waiting(self, bone: str | None = None) -> bool:
@@ -122,7 +123,7 @@ class HandEdits:
             return "waiting"
         if st.journal_locked(trial, bone):  # the window's own (its tracking job's)
             return self._write_now(bone, write, done)
-        last, _ = self._refused.get(bone, (-1e9, 0))
+        last = self._refused.get(bone, (-1e9,))[0]
         quiet = time.monotonic() - last < REFUSED_QUIET_S
         background = s.notify is not None and _has_app()
         try:
@@ -155,9 +156,13 @@ class HandEdits:
         """Say that ``n`` edits of ``bone`` are not saved (``again``: within the quiet time of the
         last refusal, whose message is updated), or raise where no one can be told."""
         self._unsaved.add(bone)
-        _, before = self._refused.get(bone, (0.0, 0)) if again else (0.0, 0)
+        if again and bone in self._refused:  # the burst's message, updated
+            _, before, tag = self._refused[bone]
+        else:  # a new burst: a message of its own (the last burst's count stays in the log)
+            self._n += 1
+            before, tag = 0, f"refused:{bone}:{self._n}"
         total = before + n
-        self._refused[bone] = (time.monotonic(), total)
+        self._refused[bone] = (time.monotonic(), total, tag)
         who = holder_text(getattr(exc, "holder", {}) or {})
         if total == 1:
             head, how = "the edit is not saved", f"waited {waited:g} s"
@@ -171,7 +176,7 @@ class HandEdits:
         if self._s.notify is None:
             exc.args = (text,)
             raise exc
-        self._s.notify(text, f"refused:{bone}")
+        self._s.notify(text, tag)
 
     # ------------------------------------------------------------------ the wait
     def _start_timer(self) -> None:

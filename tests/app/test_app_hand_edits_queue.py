@@ -166,3 +166,30 @@ def test_closing_while_an_edit_waits(qtbot, demo_study, tmp_path):
             lock.release()
         with Study.open(folder) as st:
             np.testing.assert_array_equal(st.trial("walk").poses(BONE)[m.current_frame], before)
+
+
+def test_a_new_burst_of_refusals_is_a_new_message(qtbot, demo_study, tmp_path, monkeypatch):
+    """Past the quiet time a refusal (after its wait) overwrote the last burst's message when that
+    was the last one ('2 edits are not saved' gone from the log); it is a message of its own."""
+    import app.hand_edits
+
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:
+        s, _ = _open(qtbot, win, folder)
+        lock = _lock(folder, s.trial_name, BONE).acquire()
+        try:
+            n = win.messages.count()
+            _action(win, "Move x+").trigger()
+            qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
+            _action(win, "Move x+").trigger()  # within the quiet time: the burst's message updated
+            assert win.messages.count() == n + 1
+            monkeypatch.setattr(app.hand_edits, "REFUSED_QUIET_S", 0.0)  # the quiet time over
+            _action(win, "Move x+").trigger()
+            assert s.edits.waiting(BONE)
+            qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
+        finally:
+            lock.release()
+        texts = [win.messages.item(i).text() for i in range(n, win.messages.count())]
+        assert len(texts) == 2, texts
+        assert texts[0].startswith(f"{BONE}: 2 edits are not saved (the last at ")
+        assert texts[1].startswith(f"{BONE}: the edit is not saved (waited 1 s)")

@@ -107,7 +107,7 @@ class HandEdits:
         """Journal a hand edit of ``bone`` (``write``, its append; ``done`` called once it is
         written, at once or later). ``key``: a later edit with the same key while they wait
         replaces this one (a frame's pose). Returns ``"saved"``, ``"waiting"`` or ``"refused"``
-        (said in the window)."""
+        (refused, or its write failed: said in the window)."""
         from core.study import LockedError
 
         s = self._s
@@ -142,7 +142,13 @@ class HandEdits:
             st.unlock_journal(trial, bone)  # the batch keeps the bone
 
     def _write_now(self, bone: str, write, done) -> str:
-        write()
+        try:
+            write()
+        except Exception as exc:  # e.g. a full disk: said (a drag's signal raised into the event loop)
+            if self._s.notify is None:
+                raise
+            self._failed(bone, 1, exc)
+            return "refused"
         self._saved(bone)
         if done is not None:
             done()
@@ -151,6 +157,12 @@ class HandEdits:
     def _saved(self, bone: str) -> None:
         self._refused.pop(bone, None)
         self._unsaved.discard(bone)
+
+    def _failed(self, bone: str, n: int, exc: Exception) -> None:
+        """Say that ``n`` edits of ``bone`` are not saved: their write failed (``exc``)."""
+        self._unsaved.add(bone)
+        head = "the edit is not saved" if n == 1 else f"{n} edits are not saved"
+        self._s.notify(f"{bone}: {head}: {exc}", f"failed:{bone}")
 
     def _refuse(self, bone: str, exc, *, n: int, waited: float, again: bool) -> None:
         """Say that ``n`` edits of ``bone`` are not saved (``again``: within the quiet time of the
@@ -217,11 +229,10 @@ class HandEdits:
                     written.append(done)
                 self._saved(bone)
             except Exception as exc:  # e.g. a full disk: said, the rest not written
-                self._unsaved.add(bone)
                 if s.notify is None:
+                    self._unsaved.add(bone)
                     raise
-                s.notify(f"{bone}: {len(w.writes) - len(written)} edits are not saved: {exc}",
-                         f"failed:{bone}")
+                self._failed(bone, len(w.writes) - len(written), exc)
             finally:
                 if not held:
                     s.study.unlock_journal(s.trial_name, bone)

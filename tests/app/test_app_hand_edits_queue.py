@@ -193,3 +193,28 @@ def test_a_new_burst_of_refusals_is_a_new_message(qtbot, demo_study, tmp_path, m
         assert len(texts) == 2, texts
         assert texts[0].startswith(f"{BONE}: 2 edits are not saved (the last at ")
         assert texts[1].startswith(f"{BONE}: the edit is not saved (waited 1 s)")
+
+
+def test_a_write_that_fails_is_said_not_raised(qtbot, demo_study, tmp_path, monkeypatch):
+    """A move journaled at once whose write failed (a full disk) raised into the event loop from the
+    model's signal, unseen; it is said in Messages, and the bone's edit is not saved."""
+    from core.study.trial import Trial
+
+    folder = copy_study(demo_study, tmp_path)
+    with main_window(qtbot) as win:
+        s, m = _open(qtbot, win, folder)
+        before = _journal(s)[m.current_frame]
+
+        def full(self, *a, **k):
+            raise OSError(28, "No space left on device")
+
+        monkeypatch.setattr(Trial, "record_pose", full)
+        _action(win, "Move x+").trigger()
+        assert win.messages.item(win.messages.count() - 1).text() == (
+            f"{BONE}: the edit is not saved: [Errno 28] No space left on device")
+        assert s.unsaved(BONE) and not s.study.journal_locked(s.trial_name, BONE)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(_journal(s)[m.current_frame], before)
+        _action(win, "Move x+").trigger()  # the disk free again: saved
+        np.testing.assert_allclose(_journal(s)[m.current_frame], m.pose(BONE))
+        assert not s.unsaved(BONE)

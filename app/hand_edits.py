@@ -16,7 +16,13 @@ the holder is this process's batch) — and that they are not saved.
 
 After a refusal the bone's next edits for :data:`REFUSED_QUIET_S` (the rest of a drag) are tried
 once without waiting; each one refused says so again, the same message as the first with a count,
-updating that one message (and the status bar) rather than adding one per move.
+updating that one message (and the status bar) rather than adding one per move (a later burst of
+refusals has a message of its own). A write that fails (a full disk) is said likewise.
+
+While a bone's edits wait, *Undo fix* of it, a tracking job and a batch are refused (each would
+read or write the journal before them). Edits still waiting when the window closes are journaled
+or refused then, blocking for what is left of their wait; where refused, the window stays open
+for the message (:meth:`HandEdits.settle`, ``MainWindow.closeEvent``).
 
 Without a Qt application, or with no one to tell (:attr:`app.session.StudySession.notify` None),
 the wait blocks and a refusal raises :class:`core.study.LockedError`.

@@ -60,7 +60,9 @@ class Candidate:
     band's σ multiple (None: none), ``robust`` the robust round's threshold (None: none),
     ``binning`` 2: 2×2 pixels averaged (a half-resolution stage); ``nbr``: the neighbours subtracted
     at the tracker's poses of the frame (:data:`EST_JSON`'s per-frame errors, three bones jointly)
-    instead of the truth — the joint stage's situation, their errors leaking in."""
+    instead of the truth — the joint stage's situation, their errors leaking in; ``newton``: the
+    step's matrix χ²'s Hessian from a quadratic fit instead of Gauss–Newton's ``JᵀWJ`` (the stage's
+    own; :func:`_wls_steps`)."""
 
     name: str
     kind: str = "wls"
@@ -74,12 +76,13 @@ class Candidate:
     robust: float | None = 2.5
     binning: int = 1
     nbr: bool = False
+    newton: bool = False
 
 
 def parse(name: str) -> Candidate:
     """A candidate from its name, ``+``-separated tokens: ``gc``; ``hp<σ>`` (σ px at 1024²),
     ``dog<inner>`` (with ``hp<σ>``), ``poly<order>`` (``hp0`` for no high-pass), ``flat``,
-    ``edge<power>``, ``tissue``, ``rim`` / ``rim<k>``, ``norobust``, ``bin2``, ``nbr``. E.g.
+    ``edge<power>``, ``tissue``, ``rim`` / ``rim<k>``, ``norobust``, ``bin2``, ``nbr``, ``newton``. E.g.
     ``hp8+tissue+rim`` (the stage's best measured), ``hp4`` (its default)."""
     c = Candidate(name)
     for t in name.split("+"):
@@ -105,6 +108,8 @@ def parse(name: str) -> Candidate:
             c = replace(c, binning=int(t[3:]))
         elif t == "nbr":
             c = replace(c, nbr=True)
+        elif t == "newton":
+            c = replace(c, newton=True)
         else:
             raise ValueError(f"candidate {name!r}: unknown token {t!r}")
     if c.binning not in (1, 2):
@@ -169,8 +174,9 @@ class _ViewData:
     """One view's region of one bone-frame: the design's DRRs, the neighbours' DRRs, the tissue
     regressor, the rim band (all fixed over the draws)."""
 
-    def __init__(self, D, others, tissue, keep, others_est=None) -> None:
+    def __init__(self, D, others, tissue, keep, others_est=None, Dq=None) -> None:
         self.D, self.others, self.tissue, self.keep = D, others, tissue, keep
+        self.Dq = Dq  # the DRRs of the 73-pose quadratic design (_design)
         self.others_est = others_est  # the neighbours' DRRs at the tracker's poses
         self.cache: dict = {}  # the candidates' model terms (_model_terms)
 
@@ -196,9 +202,10 @@ def _model_terms(vd: _ViewData, c: Candidate, sc: float, h: float) -> tuple:
     return hit
 
 
-def _wls_delta(c: Candidate, views: list, frames_y: list, scale: float, h: float) -> np.ndarray:
-    """The candidate's step from the truth (mm, °) on one frame: ``frames_y`` per view ``(y, mask)``
-    (the region's line integrals, usable pixels)."""
+def _wls_round(c: Candidate, views: list, frames_y: list, scale: float, h: float) -> tuple:
+    """The candidate's terms on one frame (``frames_y`` per view ``(y, mask)``: the region's line
+    integrals, usable pixels) after its robust round: per view ``(D0, dD, y, w, extra)`` and the
+    summed ``(JJ, Jr)`` of :func:`wls_step` (``-2 Jr`` the gradient of χ² at the truth)."""
     from core.tracking.final_stage import robust_factors
 
     k = c.binning
@@ -214,27 +221,56 @@ def _wls_delta(c: Candidate, views: list, frames_y: list, scale: float, h: float
             w, y = _bin(w, k) * k * k, _bin(y, k)
             w = w * (_bin(m.astype(float), k) > 0.999)
         D0, dD, extra, edge = _model_terms(vd, c, sc, h)
-        yf = _filter(y, c, sc)
         if c.weights == "flat":
             w = (w > 0).astype(float)
         elif c.weights == "edge":
             w = w * edge
-        terms.append((D0, dD, yf, w, extra))
+        terms.append([D0, dD, _filter(y, c, sc), w, extra])
+    out = [wls_step(D0, dD, yf, w, extra) for D0, dD, yf, w, extra in terms]
+    if c.robust is not None:  # the robust round: factors of the residual at the truth, the step again
+        for t, o in zip(terms, out, strict=True):
+            t[3] = t[3] * robust_factors(o[2][None], (t[3] > 0)[None], c.robust, sigma_px=2.0)[0]
+        out = [wls_step(D0, dD, yf, w, extra) for D0, dD, yf, w, extra in terms]
+    return terms, sum(o[0] for o in out), sum(o[1] for o in out)
 
-    def solve(ws):
-        out = [wls_step(D0, dD, yf, wv, extra) for (D0, dD, yf, _, extra), wv in zip(terms, ws, strict=True)]
-        JJ, Jr = sum(o[0] for o in out), sum(o[1] for o in out)
-        return np.linalg.solve(JJ, Jr), [o[2] for o in out]
 
-    ws = [t[3] for t in terms]
-    d, es = solve(ws)
-    if c.robust is None:
-        return d
-    ws2 = []
-    for e, wv in zip(es, ws, strict=True):
-        f = robust_factors(e[None], (wv > 0)[None], c.robust, sigma_px=2.0)[0]
-        ws2.append(wv * f)
-    return solve(ws2)[0]
+def _chi2_design(c: Candidate, views: list, terms: list, scale: float) -> np.ndarray:
+    """χ² (gain and regressors fitted) of the design's poses (:attr:`_ViewData.Dq`) on ``terms``'
+    line integrals and weights, summed over the views."""
+    k = c.binning
+    tot = 0.0
+    for vd, (_, _, yf, w, extra) in zip(views, terms, strict=True):
+        key = ("q", c.highpass, c.inner, k)
+        Dq = vd.cache.get(key)
+        if Dq is None:
+            Dq = vd.cache[key] = _filter(_bin(vd.Dq, k), c, scale / k)
+        sel = w.ravel() > 0
+        sw = np.sqrt(w.ravel()[sel])
+        F = np.column_stack([np.ones(sel.sum()), *[x.ravel()[sel] for x in extra]]) * sw[:, None]
+        Q = np.linalg.qr(F)[0]
+        yP = yf.ravel()[sel] * sw
+        yP = yP - Q @ (Q.T @ yP)
+        DP = Dq.reshape(len(Dq), -1)[:, sel] * sw
+        DP = DP - (DP @ Q) @ Q.T
+        tot = tot + float(yP @ yP) - (DP @ yP) ** 2 / np.sum(DP**2, axis=1)
+    return np.asarray(tot)
+
+
+def _wls_steps(c: Candidate, views: list, regions: list, scale: float, h: float, Xq) -> np.ndarray:
+    """``(len(regions), 6)`` the candidate's linearised estimate's offsets from the truth (mm, °),
+    one per frame of ``regions`` (the noise-free one first): ``-H⁻¹ g`` with ``g = -2 Jr`` the exact
+    gradient of χ² (variable projection) on that frame and ``H`` the Hessian of χ² from the
+    least-squares quadratic through the design ``Xq`` on the noise-free frame, weighted as the
+    first noisy draw (its robust factors) where the candidate's ``newton``, else Gauss–Newton's
+    ``2 JᵀWJ`` (the stage's own step matrix: :func:`wls_step`)."""
+    rounds = [_wls_round(c, views, rg, scale, h) for rg in regions]
+    if not c.newton:
+        return np.array([np.linalg.solve(JJ, Jr) for _, JJ, Jr in rounds])
+    free = rounds[0][0]
+    ws = rounds[min(1, len(rounds) - 1)][0]
+    terms = [(D0, dD, yf, t[3], extra) for (D0, dD, yf, _, extra), t in zip(free, ws, strict=True)]
+    _, H = _quadratic(np.asarray(Xq), _chi2_design(c, views, terms, scale))
+    return np.array([np.linalg.solve(H / 2, Jr) for _, _, Jr in rounds])
 
 
 # ---------------------------------------------------------------------- GC
@@ -297,6 +333,12 @@ def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float,
         Pd = pose_from_params(p, center=m.centroid, base=P[b])
         roi_arg = np.asarray(roi)[None, :, None, :]
         Dall = ts.renderer.render(Pd[:, None], views=views, bones=[b], roi=roi_arg).numpy()[:, :, 0]
+        Xq = _design(2 * h)
+        Dq = None
+        if any(c.newton for c in wls):
+            pq = np.concatenate([Xq[:, :3], np.radians(Xq[:, 3:])], axis=1)
+            Dq = ts.renderer.render(pose_from_params(pq, center=m.centroid, base=P[b])[:, None], views=views,
+                                    bones=[b], roi=roi_arg).numpy()[:, :, 0]
         Oall = ts.renderer.render(P[oth][None], views=views, bones=oth, roi=roi_arg).numpy()[0].sum(axis=1)
         Oest = Oall if P_est is None else ts.renderer.render(P_est[oth][None], views=views, bones=oth,
                                                              roi=roi_arg).numpy()[0].sum(axis=1)
@@ -308,12 +350,13 @@ def _bone_frame(ts, P, frames_imgs, b: int, cands, *, T, scale: float, h: float,
             keep = {key: None if kk is None else kk[i, :ht, :wd].astype(float) for key, kk in keeps.items()}
             vds.append(_ViewData(Dall[:, i, :ht, :wd].astype(np.float64),
                                  Oall[i, :ht, :wd].astype(np.float64), _crop(T[i], roi[i]), keep,
-                                 Oest[i, :ht, :wd].astype(np.float64)))
+                                 Oest[i, :ht, :wd].astype(np.float64),
+                                 None if Dq is None else Dq[:, i, :ht, :wd].astype(np.float64)))
         regions = [[(y.astype(np.float64), mk) for y, mk in zip(*fluoro_rois(ts.renderer, f_, views=views,
                                                                              roi=roi), strict=True)]
                    for f_ in fr]
         for c in wls:
-            out[c.name] = np.array([_wls_delta(c, vds, rg, scale, h) for rg in regions])
+            out[c.name] = _wls_steps(c, vds, regions, scale, h, Xq)
     for c in (c for c in cands if c.kind == "gc"):
         costs = [RegistrationCost(ts.renderer, f_, bone=b, base_pose=P[b], center=m.centroid, roi=roi,
                                   others=((P if P_est is None or not c.nbr else P_est)[oth], oth))

@@ -69,6 +69,20 @@ def test_filters_and_binning():
     np.testing.assert_allclose(ss._filter(a, c, 1.0), 0.0, atol=1e-12)  # a constant is high-passed away
     d = ss.parse("hp4+dog1")
     x = np.random.default_rng(1).normal(size=(20, 24))
-    assert np.std(ss._filter(x, d, 1.0)) < np.std(ss._filter(x, c, 1.0))  # the inner blur takes the pixel noise
+    assert np.std(ss._filter(x, d, 1.0)) < np.std(ss._filter(x, c, 1.0))  # (the inner blur: less noise)
     b = ss._bin(np.arange(4 * 6, dtype=float).reshape(4, 6), 2)
     np.testing.assert_allclose(b, [[3.5, 5.5, 7.5], [15.5, 17.5, 19.5]])
+
+
+def test_summary_splits_bias_and_spread():
+    rng = np.random.default_rng(3)
+    bias = np.array([0.02, 0.0, 0.0, 0.0, 0.1, 0.0])
+    D = bias + rng.normal(0.0, 0.01, size=(4, 2001, 6))
+    D[:, 0] = bias  # the noise-free frame's step
+    bound = {"rms_mm": 0.02, "rms_deg": 0.1}
+    r = ss._summary(D, bound)
+    assert r["bias"][0] == pytest.approx(0.02, rel=0.05)
+    assert r["spread"][0] == pytest.approx(0.01 * np.sqrt(3), rel=0.05)
+    assert r["over_bound"][0] == pytest.approx(np.hypot(0.02, 0.01 * np.sqrt(3)) / 0.02, rel=0.05)
+    assert r["noise_free"][1] == pytest.approx(0.1)
+    assert r["bound_axes"] is None

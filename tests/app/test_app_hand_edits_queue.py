@@ -142,6 +142,7 @@ def test_closing_while_an_edit_waits(qtbot, demo_study, tmp_path):
         assert s.edits.waiting(BONE)
         win.close()
         assert not win.isVisible() and s._closed
+        assert s.edits._timer is None  # no tick after the study is closed
     with Study.open(folder) as st:
         np.testing.assert_allclose(st.trial("walk").poses(BONE)[m.current_frame], moved)
 

@@ -1,0 +1,227 @@
+"""Where the held-out seed 4's runs of biased frames come from
+(``python -m core.studies.tracking.seed_bias``).
+
+On the held-out synthesis of the acceptance trial with scene seed 4 (one NVIDIA H100, 1024², both
+modes; ``resources/benchmarks/tracking_acceptance_seed4_h100.json``) the tracker holds the talus
+off about x over frames 0-20 and the tibia about z over frames 75-93, runs of frames biased
+together that the trajectory check does not single out. This study takes such frames of the same
+scene (:class:`~core.studies.tracking.acceptance.TrackingScene` with ``seed``, the grid
+correction, at a CPU's size) and asks where the bias comes from, with the tracker's registration
+(:func:`core.tracking.register.register` with the acceptance study's joint options: its search,
+then the final likelihood stage that sets a frame's pose) run for one bone at a time, the other
+bones at their true poses:
+
+* ``noise_free`` — from the true pose on the frame made without quantum or read noise, the other
+  bones subtracted as joint tracking does: the cost's own optimum. Off by the run's bias: the
+  cost, not the search, sets it;
+* ``noisy`` — the same on the trial's own noisy frame (the run's noise draw): what noise adds;
+* ``alone`` — the noisy frame made without the other bones (their line integrals taken out before
+  the image chain): what the neighbours and their subtraction add; ``noise_free_alone`` the same
+  without noise;
+* ``from_run`` (with ``--stored``) — from the stored run's pose at that frame (the truth moved by
+  its per-frame error) on the noisy frame: back to ``noisy``'s optimum, the optimum is unique and
+  the search is not at fault; staying, the cost is flat there; ``noise_free_from_run`` the same on
+  the noise-free frame;
+* ``undistorted`` — the noise-free frame made without the intensifier's distortion (so none to
+  undo: the correction's residual out), inside the round field; ``open_field`` — the same without
+  the round field (signal out to the image's corners): what the field's rim adds;
+* ``rim`` — where the bone lies in each view's round field: the largest radius of its projected
+  surface points over the field's radius, and the share of them beyond 0.9 of it.
+
+Every error is the stage's estimate against the truth (mm, degrees about lab axes through the
+bone's centroid), with the stored run's error at the same frame beside it (``run``) and the
+Cramér–Rao bound of the frames at this size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+
+import numpy as np
+
+__all__ = ["field_rim", "main", "run"]
+
+#: Frames per bone (module docs): seed 4's runs of biased frames and two unbiased controls.
+DEFAULT_FRAMES = {"talus": (0, 5, 10, 15, 20, 50, 60), "tibia": (75, 80, 85, 90, 93, 40, 50)}
+CONDITIONS = ("noise_free", "noise_free_from_run", "noisy", "from_run", "alone", "noise_free_alone",
+              "undistorted", "open_field")
+
+
+def field_rim(ts, f: int, b: int, max_points: int = 1500) -> list[dict]:
+    """Per view: the largest radius of bone ``b``'s projected surface points at frame ``f`` over
+    the round field's radius (distortion scale), and the share of them beyond 0.9 of it."""
+    from core.studies.tracking.acceptance import surface_points
+
+    P = surface_points(ts.models[b], max_points)
+    T = ts.truth(f)[b]
+    X = P @ T[:3, :3].T + T[:3, 3]
+    out = []
+    for cam, m in zip(ts.scene.rig, ts.scene.imaging, strict=True):
+        uv = cam.project(X)
+        r = np.hypot(uv[:, 0] - m.distortion.center[0], uv[:, 1] - m.distortion.center[1])
+        r = r / float(m.distortion.scale_px)
+        out.append({"max_r": round(float(r.max()), 3), "beyond_0.9": round(float(np.mean(r > 0.9)), 3)})
+    return out
+
+
+def _without(ts, f: int, L: np.ndarray, b: int) -> np.ndarray:
+    """Line integrals ``L`` of frame ``f`` with the bones other than ``b`` taken out."""
+    R = ts._scene_renderer._bones.render(ts.truth(f)[None], roi="full").numpy()[0]  # (views, bones, H, W)
+    keep = [k for k in range(len(ts.names)) if k != b]
+    return (L - R[:, keep].sum(axis=1)).astype(L.dtype)
+
+
+def _chain(ts, f: int, L: np.ndarray, noise: bool, field: str = "trial") -> list[np.ndarray]:
+    """The frame through the trial's image chain (noise: the run's draw) and the trial's correction;
+    ``field`` ``"undistorted"``: without the distortion (and no correction), ``"open"``: nor the
+    round field."""
+    from dataclasses import replace
+
+    out = []
+    for v, m in enumerate(ts.scene.imaging):
+        if not noise:
+            m = replace(m, photons_per_pixel=None, read_noise_dn=0.0)
+        if field != "trial":
+            m = replace(m, distortion=None, aperture_radius=None if field == "open" else m.aperture_radius)
+        raw = m.apply(L[v], rng=ts.scene.frame_rng(f, v) if noise else None)
+        out.append(ts.correct(v, raw) if field == "trial" else m.to_float(raw).astype(np.float32))
+    return out
+
+
+def _register_from(ts, frame, f: int, b: int, start: np.ndarray | None, others: bool) -> np.ndarray:
+    """Bone ``b`` registered in ``frame`` from ``start`` (None: the truth) as the acceptance study's
+    joint tracking registers it (:func:`core.tracking.register.register`: its search, then the final
+    likelihood stage), the other bones at their true poses and subtracted (``others``); its error
+    against the truth (mm, degrees)."""
+    from core.studies.tracking.acceptance import pose_errors, study_options
+    from core.tracking.register import register
+
+    P = ts.truth(f)
+    m = ts.models[b]
+    oth = [k for k in range(len(ts.names)) if k != b] if others else []
+    res = register(ts.renderer, frame, bone=b, initial_pose=P[b] if start is None else start,
+                   center=m.centroid, options=study_options("joint").registration,
+                   others=(P[oth], oth) if oth else None)
+    return pose_errors(res.pose, P[b], m.centroid)
+
+
+def _stored_errors(path: str | None, mode: str) -> dict:
+    if not path:
+        return {}
+    with open(path) as fh:
+        d = json.load(fh)
+    t = d["runs"][mode]["tracking"] if "runs" in d else d["tracking"]
+    return {nm: np.asarray(t[nm]["per_frame_error"], float) for nm in t}
+
+
+def run(*, seed: int = 4, pixels: int = 256, voxel: float = 1.0, frames=None, conditions=CONDITIONS,
+        stored: str | None = None, mode: str = "joint", device: str | None = "cpu", correction: str = "grid",
+        n_frames: int = 100, ts=None, checkpoint=None) -> dict:
+    """The study (module docs); ``frames``: ``{bone: frames}`` (default :data:`DEFAULT_FRAMES`);
+    ``ts``: the scene, made already (else from ``seed``, ``pixels``, ``voxel``, ``correction``,
+    ``n_frames``)."""
+    from core.geometry.transforms import pose_from_params
+    from core.studies.tracking.acceptance import TrackingScene, cramer_rao
+    from core.tracking.cost import prepare_frame
+
+    t0 = time.perf_counter()
+    frames = {k: tuple(int(f) for f in v) for k, v in (frames or DEFAULT_FRAMES).items()}
+    if ts is None:
+        ts = TrackingScene(n_frames=n_frames, pixels=pixels, spacing=voxel, seed=seed, device=device,
+                           correction=correction, phase=(0.0, 0.6 * n_frames / 100.0))
+    run_err = _stored_errors(stored, mode)
+    all_frames = sorted({f for v in frames.values() for f in v})
+    bound = cramer_rao(ts, all_frames[::3])
+    out = {"study": "core.studies.tracking.seed_bias", "machine": platform.machine(), "seed": seed,
+           "pixels": pixels, "voxel_mm": voxel, "frames": {k: list(v) for k, v in frames.items()},
+           "stored": stored, "mode": mode,
+           "cramer_rao": {k: {"rms_mm": v["rms_mm"], "rms_deg": v["rms_deg"]} for k, v in bound.items()},
+           "setup_s": time.perf_counter() - t0, "rows": []}
+    for nm, fs in frames.items():
+        b = ts.names.index(nm)
+        for f in fs:
+            L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+            row = {"bone": nm, "frame": f, "rim": field_rim(ts, f, b)}
+            if nm in run_err:
+                row["run"] = run_err[nm][f].round(4).tolist()
+            noisy = None
+            for c in conditions:
+                t1 = time.perf_counter()
+                if c == "noise_free":
+                    e = _register_from(ts, prepare_frame(_chain(ts, f, L, False)), f, b, None, True)
+                elif c == "noisy":
+                    noisy = noisy or prepare_frame(_chain(ts, f, L, True))
+                    e = _register_from(ts, noisy, f, b, None, True)
+                elif c in ("alone", "noise_free_alone"):
+                    e = _register_from(ts, prepare_frame(_chain(ts, f, _without(ts, f, L, b), c == "alone")),
+                                       f, b, None, False)
+                elif c in ("undistorted", "open_field"):
+                    fr = _chain(ts, f, L, False, "undistorted" if c == "undistorted" else "open")
+                    e = _register_from(ts, prepare_frame(fr), f, b, None, True)
+                elif c in ("from_run", "noise_free_from_run"):
+                    if nm not in run_err:
+                        continue
+                    er = run_err[nm][f]
+                    start = pose_from_params(np.r_[er[:3], np.radians(er[3:])], center=ts.models[b].centroid,
+                                             base=ts.truth(f)[b])
+                    if c == "from_run":
+                        noisy = noisy or prepare_frame(_chain(ts, f, L, True))
+                        e = _register_from(ts, noisy, f, b, start, True)
+                    else:
+                        e = _register_from(ts, prepare_frame(_chain(ts, f, L, False)), f, b, start, True)
+                else:
+                    raise ValueError(f"conditions: expected some of {CONDITIONS}, got {c!r}")
+                row[c] = np.asarray(e).round(4).tolist()
+                row[f"{c}_s"] = round(time.perf_counter() - t1, 1)
+            out["rows"].append(row)
+            out["seconds"] = time.perf_counter() - t0
+            if checkpoint:
+                checkpoint(out)
+    out["summary"] = summary(out["rows"])
+    return out
+
+
+def summary(rows: list) -> dict:
+    """Per bone and condition: the mean error (6,) over the bone's frames and over its frames in
+    the run's biased stretch (the first five of :data:`DEFAULT_FRAMES`)."""
+    out: dict = {}
+    for nm in sorted({r["bone"] for r in rows}):
+        mine = [r for r in rows if r["bone"] == nm]
+        for c in (*CONDITIONS, "run"):
+            E = np.array([r[c] for r in mine if c in r])
+            if len(E):
+                out.setdefault(nm, {})[c] = {"mean": E.mean(0).round(4).tolist(), "n": len(E)}
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.seed_bias",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--seed", type=int, default=4)
+    p.add_argument("--pixels", type=int, default=256)
+    p.add_argument("--voxel", type=float, default=1.0)
+    p.add_argument("--talus", default=",".join(map(str, DEFAULT_FRAMES["talus"])))
+    p.add_argument("--tibia", default=",".join(map(str, DEFAULT_FRAMES["tibia"])))
+    p.add_argument("--conditions", default=",".join(CONDITIONS))
+    p.add_argument("--stored", default=None,
+                   help="a stored acceptance run of the same seed (its per-frame errors)")
+    p.add_argument("--mode", default="joint")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    from core.io.atomic import json_checkpoint, print_json
+
+    frames = {k: [int(x) for x in v.split(",") if x] for k, v in (("talus", a.talus), ("tibia", a.tibia))}
+    frames = {k: v for k, v in frames.items() if v}
+    res = run(seed=a.seed, pixels=a.pixels, voxel=a.voxel, frames=frames, stored=a.stored, mode=a.mode,
+              conditions=tuple(c for c in a.conditions.split(",") if c), device=a.device,
+              checkpoint=json_checkpoint(a.out, indent=2))
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

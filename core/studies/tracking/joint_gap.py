@@ -93,8 +93,8 @@ import time
 
 import numpy as np
 
-__all__ = ["CASES", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main", "probe", "probe_summary", "stored",
-           "track_stretch"]
+__all__ = ["CASES", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main", "pool_stretches", "probe",
+           "probe_summary", "stored", "track_stretch"]
 
 ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
@@ -380,6 +380,31 @@ def track_stretch(*, first: int = 40, n: int = 16, pixels: int = 512, voxel: flo
                                             np.linalg.norm(A[:, sl], axis=1), margin=0.0))
                 for u, sl in (("mm", slice(0, 3)), ("deg", slice(3, 6)))}
     out["total_s"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
+def pool_stretches(results) -> dict:
+    """:func:`track_stretch` results of several stretches (same runs) joined: per pair of runs (as
+    ``paired``) and bone the frames of every stretch paired together, and each run's RMS errors."""
+    from core.studies.tracking.hard_trial_stats import paired_comparison
+
+    results = list(results)
+    runs = list(results[0]["runs"])
+    names = [k for k in results[0]["runs"][runs[0]] if k != "s"]
+
+    def errors(run, name):
+        return np.concatenate([np.asarray(r["runs"][run][name]["per_frame_error"], float) for r in results])
+
+    out = {"frames": sum(len(r["frames"]) for r in results), "rms": {}, "paired": {}}
+    for run in runs:
+        out["rms"][run] = {n: {u: round(float(np.sqrt(np.nanmean(np.sum(errors(run, n)[:, sl] ** 2, 1)))), 5)
+                               for u, sl in (("mm", slice(0, 3)), ("deg", slice(3, 6)))} for n in names}
+    for key in results[0]["paired"]:
+        a, b = key.split("_vs_")
+        out["paired"][key] = {n: {u: _brief(paired_comparison(np.linalg.norm(errors(b, n)[:, sl], axis=1),
+                                                              np.linalg.norm(errors(a, n)[:, sl], axis=1),
+                                                              margin=0.0))
+                                  for u, sl in (("mm", slice(0, 3)), ("deg", slice(3, 6)))} for n in names}
     return out
 
 

@@ -75,3 +75,21 @@ def test_probe_summary_on_made_up_registrations():
     assert s["J1"]["vs_S_deg"]["verdict"] == "better"  # at the (smaller) optimum, not halfway to the start
     assert set(s["pairs"]) == {f"{a}-{b}" for a, b, _ in PAIRS}
     assert len(s["opt"]["rms_deg_per_axis"]) == 3
+
+
+def test_pool_stretches_pairs_every_stretch_frame():
+    from core.studies.tracking.joint_gap import pool_stretches
+
+    g = np.random.default_rng(4)
+
+    def one(n):
+        S = g.normal(0, 0.1, (n, 6))
+        runs = {"joint": S * 1.1, "sequential": S}
+        return {"frames": list(range(n)), "paired": {"joint_vs_sequential": {}},
+                "runs": {k: {"s": 1.0, "tibia": {"per_frame_error": E.tolist()}} for k, E in runs.items()}}
+
+    out = pool_stretches([one(8), one(12)])
+    assert out["frames"] == 20
+    p = out["paired"]["joint_vs_sequential"]["tibia"]["deg"]
+    assert p["verdict"] == "worse" and p["rms_difference"] > 0
+    assert abs(out["rms"]["joint"]["tibia"]["deg"] / out["rms"]["sequential"]["tibia"]["deg"] - 1.1) < 1e-3

@@ -129,7 +129,10 @@ AHEAD = False
 FINAL_EVERY_ROUND = False
 #: Joint tracking's rounds after the first start each bone (one with a history: not a first frame)
 #: from its prediction, as round 0 does, its neighbours subtracted at their previous round's poses;
-#: off (the default): from its previous round's pose. Module docs; :mod:`core.studies.tracking.joint_gap`.
+#: off (the default): from its previous round's pose, a second search that keeps less of the
+#: prediction along the cost's flat directions than sequential tracking's one search does
+#: (:mod:`core.studies.tracking.joint_gap`: on at 512², joint's rotation errors were sequential's,
+#: at about 1.4× the evaluations per bone-frame; not yet measured at 1024²).
 RESTART_FROM_PREDICTION = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).

@@ -96,8 +96,8 @@ import time
 
 import numpy as np
 
-__all__ = ["CASES", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main", "pool_stretches", "probe",
-           "probe_summary", "stored", "track_stretch"]
+__all__ = ["CASES", "EXTRA_RUNS", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main", "pool_stretches",
+           "probe", "probe_summary", "stored", "track_stretch"]
 
 ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
@@ -320,6 +320,9 @@ def _brief(p: dict) -> dict:
 #: :func:`track_stretch`'s runs: (label, mode, joint's rounds after the first from the prediction)
 STRETCH_RUNS = (("joint", "joint", False), ("joint_restart", "joint", True),
                 ("sequential", "sequential", False))
+#: More runs :func:`track_stretch` knows (``--runs``): joint tracking with one round (``joint_rounds=1``:
+#: every bone from its prediction, the neighbours at theirs; round 0 alone)
+EXTRA_RUNS = {"joint_one_round": ("joint", False, 1)}
 
 
 def track_stretch(*, first: int = 40, n: int = 16, pixels: int = 512, voxel: float = 1.0, seed: int = 0,
@@ -330,6 +333,8 @@ def track_stretch(*, first: int = 40, n: int = 16, pixels: int = 512, voxel: flo
     bone the per-frame errors and evaluations, and each joint run paired with the sequential run
     and with each other, frame by frame (:func:`~core.studies.tracking.hard_trial_stats.
     paired_comparison`, circular blocks)."""
+    from dataclasses import replace
+
     import core.tracking.frame_step as fs
     from core.studies.tracking.acceptance import TrackingScene, pose_errors, study_options
     from core.studies.tracking.hard_trial_stats import paired_comparison
@@ -345,12 +350,14 @@ def track_stretch(*, first: int = 40, n: int = 16, pixels: int = 512, voxel: flo
     out = {"study": "core.studies.tracking.joint_gap (stretch)", "machine": platform.machine(),
            "device": str(ts.renderer.device), "pixels": pixels, "voxel_mm": voxel, "seed": seed,
            "frames": frames[2:], "scene_s": round(time.perf_counter() - t0, 1), "runs": {}, "paired": {}}
-    for label, mode, restart in runs:
+    for label, mode, restart, *rounds in runs:
         t1 = time.perf_counter()
         fs.RESTART_FROM_PREDICTION = restart
+        o = study_options(mode)
+        if rounds:
+            o = replace(o, joint_rounds=int(rounds[0]))
         try:
-            res = track(ts.renderer, ts.models, ts.frames, frames, keyframes=given, skip=given,
-                        options=study_options(mode))
+            res = track(ts.renderer, ts.models, ts.frames, frames, keyframes=given, skip=given, options=o)
         finally:
             fs.RESTART_FROM_PREDICTION = False
         run = {"s": round(time.perf_counter() - t1, 1)}
@@ -452,6 +459,9 @@ def main(argv=None) -> int:
     p.add_argument("--voxel", type=float, default=1.0)
     p.add_argument("--stretch", default=None, metavar="FIRST,N",
                    help="run track_stretch instead: the tracker on frames FIRST … FIRST+N-1 in each mode")
+    p.add_argument("--runs", default=None,
+                   help="with --stretch: the runs, comma-separated (default joint,joint_restart,sequential; "
+                        "also joint_one_round)")
     p.add_argument("--acceptance", action="store_true",
                    help="run acceptance_restart instead (joint, joint from the prediction, sequential)")
     p.add_argument("--quick", action="store_true", help="with --acceptance: 256², 1 mm, 20 frames")
@@ -462,8 +472,10 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.stretch:
         first, n = (int(v) for v in a.stretch.split(","))
+        known = {r[0]: r for r in STRETCH_RUNS} | {k: (k, *v) for k, v in EXTRA_RUNS.items()}
+        runs = STRETCH_RUNS if not a.runs else tuple(known[k.strip()] for k in a.runs.split(","))
         out = track_stretch(first=first, n=n, pixels=a.pixels, voxel=a.voxel, seed=a.seed, device=a.device,
-                            progress=lambda r: print(json.dumps(r), file=sys.stderr, flush=True))
+                            runs=runs, progress=lambda r: print(json.dumps(r), file=sys.stderr, flush=True))
     elif a.acceptance:
         out = acceptance_restart(seed=a.seed, quick=a.quick, workers=a.workers, device=a.device)
     else:

@@ -24,7 +24,10 @@ bones at their true poses:
   the noise-free frame;
 * ``undistorted`` — the noise-free frame made without the intensifier's distortion (so none to
   undo: the correction's residual out), inside the round field; ``open_field`` — the same without
-  the round field (signal out to the image's corners): what the field's rim adds;
+  the round field (signal out to the image's corners): what the field's rim adds; ``sharp`` —
+  undistorted and without the point-spread function, the glare and the edge roll-off;
+  ``bones_only`` — undistorted, of the bones' line integrals only (no soft tissue, no walkway);
+  ``sharp_bones_only`` both: the frame as the tracker's model renders it, noise-free;
 * ``rim`` — where the bone lies in each view's round field: the largest radius of its projected
   surface points over the field's radius, and the share of them beyond 0.9 of it.
 
@@ -47,7 +50,7 @@ __all__ = ["field_rim", "main", "run"]
 #: Frames per bone (module docs): seed 4's runs of biased frames and two unbiased controls.
 DEFAULT_FRAMES = {"talus": (0, 5, 10, 15, 20, 50, 60), "tibia": (75, 80, 85, 90, 93, 40, 50)}
 CONDITIONS = ("noise_free", "noise_free_from_run", "noisy", "from_run", "alone", "noise_free_alone",
-              "undistorted", "open_field")
+              "undistorted", "open_field", "sharp", "bones_only", "sharp_bones_only")
 
 
 def field_rim(ts, f: int, b: int, max_points: int = 1500) -> list[dict]:
@@ -74,10 +77,16 @@ def _without(ts, f: int, L: np.ndarray, b: int) -> np.ndarray:
     return (L - R[:, keep].sum(axis=1)).astype(L.dtype)
 
 
+def _bones_only(ts, f: int) -> np.ndarray:
+    """Frame ``f``'s line integrals of the bones alone (no soft tissue, no walkway)."""
+    R = ts._scene_renderer._bones.render(ts.truth(f)[None], roi="full").numpy()[0]
+    return R.sum(axis=1).astype(np.float64)
+
+
 def _chain(ts, f: int, L: np.ndarray, noise: bool, field: str = "trial") -> list[np.ndarray]:
     """The frame through the trial's image chain (noise: the run's draw) and the trial's correction;
     ``field`` ``"undistorted"``: without the distortion (and no correction), ``"open"``: nor the
-    round field."""
+    round field, ``"sharp"``: undistorted, without the blur, the glare and the roll-off."""
     from dataclasses import replace
 
     out = []
@@ -86,6 +95,8 @@ def _chain(ts, f: int, L: np.ndarray, noise: bool, field: str = "trial") -> list
             m = replace(m, photons_per_pixel=None, read_noise_dn=0.0)
         if field != "trial":
             m = replace(m, distortion=None, aperture_radius=None if field == "open" else m.aperture_radius)
+        if field == "sharp":
+            m = replace(m, psf_sigma_px=0.0, psf_kernel=None, glare_fraction=0.0, rolloff_edge=1.0)
         raw = m.apply(L[v], rng=ts.scene.frame_rng(f, v) if noise else None)
         out.append(ts.correct(v, raw) if field == "trial" else m.to_float(raw).astype(np.float32))
     return out
@@ -160,6 +171,10 @@ def run(*, seed: int = 4, pixels: int = 256, voxel: float = 1.0, frames=None, co
                                        f, b, None, False)
                 elif c in ("undistorted", "open_field"):
                     fr = _chain(ts, f, L, False, "undistorted" if c == "undistorted" else "open")
+                    e = _register_from(ts, prepare_frame(fr), f, b, None, True)
+                elif c in ("sharp", "bones_only", "sharp_bones_only"):
+                    Lc = _bones_only(ts, f) if c != "sharp" else L
+                    fr = _chain(ts, f, Lc, False, "undistorted" if c == "bones_only" else "sharp")
                     e = _register_from(ts, prepare_frame(fr), f, b, None, True)
                 elif c in ("from_run", "noise_free_from_run"):
                     if nm not in run_err:

@@ -96,8 +96,8 @@ import time
 
 import numpy as np
 
-__all__ = ["CASES", "EXTRA_RUNS", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main", "pool_stretches",
-           "probe", "probe_summary", "stored", "track_stretch"]
+__all__ = ["ACCEPTANCE_RUNS", "CASES", "EXTRA_RUNS", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main",
+           "pool_stretches", "probe", "probe_summary", "stored", "track_stretch"]
 
 ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
@@ -418,33 +418,47 @@ def pool_stretches(results) -> dict:
     return out
 
 
+#: :func:`acceptance_restart`'s runs: (label, mode, RESTART_FROM_PREDICTION, joint_rounds or None)
+ACCEPTANCE_RUNS = (("joint", "joint", False, None), ("joint_restart", "joint", True, None),
+                   ("joint_one_round", "joint", False, 1), ("sequential", "sequential", False, None))
+
+
 def acceptance_restart(*, seed: int = 0, quick: bool = False, n_frames: int | None = None, workers: int = 0,
-                       device: str | None = None) -> dict:
+                       device: str | None = None, runs=ACCEPTANCE_RUNS) -> dict:
     """The acceptance study (:func:`core.studies.tracking.acceptance.run`, the capture range off) on
-    one scene: joint tracking as it is, joint tracking with its last round from the prediction
-    (:data:`core.tracking.frame_step.RESTART_FROM_PREDICTION`), and sequential tracking, on the
-    same frames; each joint run against the sequential one and against each other
-    (:func:`~core.studies.tracking.acceptance_goals.compare_modes`, the second as ``"joint"``)."""
+    one scene, the runs of ``runs`` on the same frames: joint tracking as it is, with its last round
+    from the prediction (:data:`core.tracking.frame_step.RESTART_FROM_PREDICTION`), with one round
+    (``joint_rounds=1``), and sequential tracking; each joint run against the sequential one and
+    the others against joint as it is (:func:`~core.studies.tracking.acceptance_goals.compare_modes`,
+    the run compared as ``"joint"``)."""
+    from dataclasses import replace
+
     import core.studies.tracking.acceptance as acc
     import core.tracking.frame_step as fs
     from core.studies.tracking.acceptance_goals import compare_modes
 
     t0 = time.perf_counter()
     ts = acc.tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames)
-    runs = {}
-    for label, mode, restart in (("joint", "joint", False), ("joint_restart", "joint", True),
-                                 ("sequential", "sequential", False)):
+    out = {"study": "core.studies.tracking.joint_gap (acceptance)", "seed": seed, "quick": quick, "runs": {}}
+    base = acc.study_options
+    for label, mode, restart, rounds in runs:
         fs.RESTART_FROM_PREDICTION = restart
+        if rounds is not None:
+            acc.study_options = lambda *a, r=rounds, **k: replace(base(*a, **k), joint_rounds=r)
         try:
-            runs[label] = acc.run(capture_trials=0, mode=mode, ts=ts, workers=workers, device=device)
+            out["runs"][label] = acc.run(capture_trials=0, mode=mode, ts=ts, workers=workers, device=device)
         finally:
             fs.RESTART_FROM_PREDICTION = False
-    return {"study": "core.studies.tracking.joint_gap (acceptance)", "seed": seed, "quick": quick,
-            "runs": runs, "total_s": round(time.perf_counter() - t0, 1),
-            "joint_vs_sequential": compare_modes({"joint": runs["joint"], "sequential": runs["sequential"]}),
-            "restart_vs_sequential": compare_modes({"joint": runs["joint_restart"],
-                                                    "sequential": runs["sequential"]}),
-            "restart_vs_joint": compare_modes({"joint": runs["joint_restart"], "sequential": runs["joint"]})}
+            acc.study_options = base
+    got = out["runs"]
+    for label in got:
+        if label.startswith("joint") and "sequential" in got:
+            out[f"{label}_vs_sequential"] = compare_modes({"joint": got[label],
+                                                           "sequential": got["sequential"]})
+        if label != "joint" and label.startswith("joint") and "joint" in got:
+            out[f"{label}_vs_joint"] = compare_modes({"joint": got[label], "sequential": got["joint"]})
+    out["total_s"] = round(time.perf_counter() - t0, 1)
+    return out
 
 
 def main(argv=None) -> int:
@@ -463,7 +477,7 @@ def main(argv=None) -> int:
                    help="with --stretch: the runs, comma-separated (default joint,joint_restart,sequential; "
                         "also joint_one_round)")
     p.add_argument("--acceptance", action="store_true",
-                   help="run acceptance_restart instead (joint, joint from the prediction, sequential)")
+                   help="run acceptance_restart instead (joint, from the prediction, one round; sequential)")
     p.add_argument("--quick", action="store_true", help="with --acceptance: 256², 1 mm, 20 frames")
     p.add_argument("--seed", type=int, default=0, help="with --acceptance, --stretch: the trial's seed")
     p.add_argument("--workers", type=int, default=0, help="with --acceptance: processes for the chain")

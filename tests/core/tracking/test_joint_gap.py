@@ -93,3 +93,28 @@ def test_pool_stretches_pairs_every_stretch_frame():
     p = out["paired"]["joint_vs_sequential"]["tibia"]["deg"]
     assert p["verdict"] == "worse" and p["rms_difference"] > 0
     assert abs(out["rms"]["joint"]["tibia"]["deg"] / out["rms"]["sequential"]["tibia"]["deg"] - 1.1) < 1e-3
+
+
+def test_acceptance_restart_runs_each_variant_on_one_scene(monkeypatch):
+    """acceptance_restart: every run on the same scene, with its switch and rounds (both restored
+    after), and the comparisons named after the runs (the study itself replaced: a GPU's work)."""
+    import core.studies.tracking.acceptance as acc
+    import core.tracking.frame_step as fs
+    from core.studies.tracking.joint_gap import acceptance_restart
+
+    scene = object()
+    seen = []
+
+    def fake_run(*, mode, ts, **k):
+        o = acc.study_options(mode)
+        seen.append((mode, ts is scene, fs.RESTART_FROM_PREDICTION, o.joint_rounds))
+        return {"config": {"frames": 1}, "tracking": {}}
+
+    monkeypatch.setattr(acc, "tracking_scene", lambda **k: scene)
+    monkeypatch.setattr(acc, "run", fake_run)
+    out = acceptance_restart()
+    assert seen == [("joint", True, False, 2), ("joint", True, True, 2), ("joint", True, False, 1),
+                    ("sequential", True, False, 2)]
+    assert not fs.RESTART_FROM_PREDICTION and acc.study_options("joint").joint_rounds == 2
+    assert set(out) >= {"joint_vs_sequential", "joint_restart_vs_sequential", "joint_restart_vs_joint",
+                        "joint_one_round_vs_sequential", "joint_one_round_vs_joint"}

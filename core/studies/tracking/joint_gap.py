@@ -48,8 +48,9 @@ start's offset from ``opt`` left in the result's (rotation, degrees; 0: at the c
 at the start). Study only: it reads the truth. JSON on stdout (and ``--out``).
 
 ``--stretch FIRST,N`` (:func:`track_stretch`) runs the tracker itself on N frames, joint, joint
-with :data:`core.tracking.frame_step.RESTART_FROM_PREDICTION` and sequential; ``--acceptance``
-(:func:`acceptance_restart`) the acceptance study with the same three runs (a GPU's work).
+with :data:`core.tracking.frame_step.RESTART_FROM_PREDICTION` and sequential (``--runs``: also
+joint with one round); ``--acceptance`` (:func:`acceptance_restart`) the acceptance study with those
+four runs (a GPU's work).
 
 Findings
 --------
@@ -84,6 +85,10 @@ Findings
   modes still differ in, the calcaneus subtracted at its round-0 pose rather than its prediction.
   It costs the second round's steps: 38 / 48 / 46 evaluations per bone-frame (tibia, talus,
   calcaneus) → 50 / 69 / 65 (sequential 25 / 34 / 33).
+* **One round** (``joint_rounds=1``, same frames): against sequential −0.0008° [−0.0021, +0.0003]
+  (tibia), +0.0006° (talus; −0.00002 mm), −0.0004° (calcaneus) at 25 / 34 / 32 evaluations;
+  against joint as it is the calcaneus −0.0061° [−0.0132, −0.0002]. What the second round is for
+  (poor neighbour predictions, first frames) these stretches from true poses do not test.
 """
 
 from __future__ import annotations

@@ -55,11 +55,13 @@ four runs (a GPU's work).
 Findings
 --------
 * **Stored runs** (1024², one NVIDIA H100; seeds 0–4: ``tracking_acceptance_near_rule_h100.json``,
-  ``sequential_drift_seeds_h100.json``, ``tracking_acceptance_seed3_h100.json``, ``…seed4…``): where
-  joint is worse, joint − sequential is anti-correlated with the prediction's offset from the
-  sequential estimate — the tibia about lab z (its long axis) −0.60, −0.58, −0.72, −0.52, −0.58
-  (k 0.05–0.21; joint's mean-square error there +0.0013 to +0.0068 deg²), the calcaneus about lab x
-  (its long axis) −0.50 to −0.71 (k 0.01–0.03, +0.0004 to +0.0006 deg²); the talus mixed.
+  ``sequential_drift_seeds_h100.json``, ``tracking_acceptance_seed3_h100.json``, ``…seed4…``, seed
+  4's run redone on the synthesis that keeps touching bones apart): joint − sequential is
+  anti-correlated with the prediction's offset from the sequential estimate — the tibia about lab z
+  (its long axis) −0.60, −0.58, −0.73, −0.52, −0.57 (k 0.05–0.18; joint's mean-square error there
+  +0.0013 to +0.0046 deg² on seeds 0–3, −0.0067 deg² on seed 4: keeping part of the prediction
+  helps only where it is the better estimate), the calcaneus about lab x (its long axis) −0.26 to
+  −0.71 (k 0.006–0.027, +0.0003 to +0.0005 deg², joint worse on all five); the talus mixed.
 * **Why** (``resources/benchmarks/tracking_joint_gap_cpu.json``, 512², 1 mm voxels, 10 frames × 2
   draws, this 2-core x86_64 machine, shared): the Gauss–Newton search stops (its next step's
   predicted decrease under a tenth of the cost's roughness) with part of its start's offset left

@@ -131,8 +131,8 @@ FINAL_EVERY_ROUND = False
 #: from its prediction, as round 0 does, its neighbours subtracted at their previous round's poses;
 #: off (the default): from its previous round's pose, a second search that keeps less of the
 #: prediction along the cost's flat directions than sequential tracking's one search does
-#: (:mod:`core.studies.tracking.joint_gap`: on at 512², joint's rotation errors were sequential's,
-#: at about 1.4× the evaluations per bone-frame; not yet measured at 1024²).
+#: (:mod:`core.studies.tracking.joint_gap`). The user's option is ``TrackingOptions.joint_restart``
+#: (``talus track --joint-restart``); this switch, kept for the studies, turns it on for every run.
 RESTART_FROM_PREDICTION = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
@@ -296,8 +296,9 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
     def start_of(i: int, rnd: int, cur: dict):
         """Where bone ``i``'s search starts in round ``rnd``: its guess in round 0 (and in every
-        round with :data:`RESTART_FROM_PREDICTION`, a bone with a history), else its latest estimate."""
-        if rnd == 0 or (RESTART_FROM_PREDICTION and hist[names[i]]):
+        round with ``joint_restart`` or :data:`RESTART_FROM_PREDICTION`, a bone with a history), else
+        its latest estimate."""
+        if rnd == 0 or ((o.joint_restart or RESTART_FROM_PREDICTION) and hist[names[i]]):
             return guesses[i]
         return cur[i]
 

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 
-def _track(two, monkeypatch, *, restart: bool, lockstep: bool):
+def _track(two, monkeypatch, *, restart: bool, lockstep: bool, option: bool = False):
     """Frame 1 tracked jointly (two rounds) from the true poses of frame 0; per round the bones'
-    starts and the neighbours' poses given to their searches."""
+    starts and the neighbours' poses given to their searches. ``restart`` sets the module switch,
+    ``option`` ``TrackingOptions.joint_restart``."""
     import core.tracking.frame_step as fs
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions, track
@@ -43,7 +44,8 @@ def _track(two, monkeypatch, *, restart: bool, lockstep: bool):
         monkeypatch.setattr(fs, "register_checked", spy)
     skip = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
-    o = TrackingOptions(mode="joint", joint_rounds=2, lockstep=lockstep, verify_restarts=0, registration=reg)
+    o = TrackingOptions(mode="joint", joint_rounds=2, lockstep=lockstep, verify_restarts=0, registration=reg,
+                        joint_restart=option)
     res = track(r, models, frames.__getitem__, [0, 1], keyframes=skip, skip=skip, options=o)
     return res, calls
 
@@ -77,3 +79,28 @@ def test_second_round_starts_from_the_prediction(talus_calcaneus_128, monkeypatc
             e = pose_errors(fr.pose, sc.poses(1)[k], m.centroid)
             # ideal views: within 0.004-0.012 mm / 0.008-0.018 deg measured either way
             assert np.linalg.norm(e[:3]) < 0.05 and np.linalg.norm(e[3:]) < 0.1, (restart, m.name, e)
+
+
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "one_by_one"])
+def test_option_is_the_switch(talus_calcaneus_128, monkeypatch, lockstep):
+    """``TrackingOptions.joint_restart`` starts the rounds where the module switch does: the same
+    starts and bit-equal poses."""
+    from core.tracking.trial import TrackingOptions
+
+    switch, by_switch = _track(talus_calcaneus_128, monkeypatch, restart=True, lockstep=lockstep)
+    monkeypatch.undo()  # the spies off (the second run's would call the first's)
+    option, by_option = _track(talus_calcaneus_128, monkeypatch, restart=False, lockstep=lockstep,
+                               option=True)
+    assert len(by_switch) == 2
+    for a, b in zip(by_switch, by_option, strict=True):
+        assert sorted(a) == sorted(b)
+        for i in a:
+            for x, y in zip(a[i], b[i], strict=True):
+                np.testing.assert_array_equal(x, y)
+    assert switch.results.keys() == option.results.keys()
+    for k, fr in switch.results.items():
+        np.testing.assert_array_equal(fr.pose, option.results[k].pose)
+        assert fr.flags == option.results[k].flags
+    assert not TrackingOptions().joint_restart
+    with pytest.raises(ValueError, match="joint_restart"):
+        TrackingOptions(joint_restart=1)

@@ -73,7 +73,7 @@ import time
 
 import numpy as np
 
-__all__ = ["field_rim", "main", "run"]
+__all__ = ["field_rim", "main", "run", "stage_run", "stage_summary"]
 
 #: Frames per bone (module docs): seed 4's runs of biased frames and two unbiased controls.
 DEFAULT_FRAMES = {"talus": (0, 5, 10, 15, 20, 50, 60), "tibia": (75, 80, 85, 90, 93, 40, 50)}
@@ -240,6 +240,117 @@ def summary(rows: list) -> dict:
     return out
 
 
+#: The likelihood stage after the registration (:func:`stage_run`): label -> (high-pass σ at 1024²
+#: pixels, tissue volume of :func:`~core.studies.tracking.tissue_regressor.user_tissue` or None,
+#: the band at the round field's rim in σ or None) — the stage's variants that
+#: :mod:`core.studies.tracking.tissue_tibia`'s labels name (``gc``: no stage).
+STAGE_VARIANTS = {"gc": None, "hp4": (4.0, None, None), "hp8": (8.0, None, None),
+                  "hp8_tissue_fine": (8.0, "fine", None), "hp8_tissue_fine_rim": (8.0, "fine", 3.0),
+                  "hp4_tissue_fine": (4.0, "fine", None)}
+#: the held-out run's biased stretches (module docs); a bone's other frames are its controls
+STRETCH = {"talus": (0, 20), "tibia": (75, 93)}
+
+
+def _draw(ts, f: int, L: np.ndarray, draw: int) -> list[np.ndarray]:
+    """Frame ``f`` through the trial's image chain with noise draw ``draw`` (0: the run's own, as
+    :func:`_chain`; others their own generator) and the trial's correction."""
+    if draw == 0:
+        return _chain(ts, f, L, True)
+    return [ts.correct(v, m.apply(L[v], rng=np.random.default_rng([int(ts.scene.seed), 0x5CE4E, f, v, draw])))
+            for v, m in enumerate(ts.scene.imaging)]
+
+
+def stage_run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, frames=None, draws=(None, 0),
+              variants=tuple(STAGE_VARIANTS), device: str | None = "cpu", correction: str = "grid",
+              n_frames: int = 100, ts=None, checkpoint=None) -> dict:
+    """Does the likelihood stage, with the tissue regressor, take the bias off? Per bone-frame and
+    frame (``draws``: None the noise-free frame, 0 the run's noise draw, k > 0 another), bone ``b``
+    registered from the truth as :func:`_register_from` (``gc``: the similarity's optimum), then
+    the final likelihood stage from that result per variant of :data:`STAGE_VARIANTS` (high-pass
+    scaled from 1024² to ``pixels``; the model's other settings the default
+    :data:`core.tracking.final_stage.MODEL`'s), the other bones at their true poses and subtracted;
+    errors (mm, degrees) against the truth and whether the stage's move was taken."""
+    from dataclasses import replace
+
+    import core.tracking.final_stage as fst
+    from core.studies.tracking.acceptance import TrackingScene, pose_errors, study_options
+    from core.studies.tracking.tissue_stage import tissue_model
+    from core.tracking.cost import prepare_frame
+    from core.tracking.register import register
+
+    t0 = time.perf_counter()
+    frames = {k: tuple(int(f) for f in v) for k, v in (frames or DEFAULT_FRAMES).items()}
+    if ts is None:
+        ts = TrackingScene(n_frames=n_frames, pixels=pixels, spacing=voxel, seed=seed, device=device,
+                           correction=correction, phase=(0.0, 0.6 * n_frames / 100.0))
+    px = int(ts.scene.rig[0].width)  # (the scene given: its size)
+    o = study_options("joint").registration
+    models, opts = {}, {}
+    kinds = {STAGE_VARIANTS[v][1] for v in variants if STAGE_VARIANTS[v] and STAGE_VARIANTS[v][1]}
+    tissues = {k: tissue_model(ts, kind=k, base=fst.MODEL) for k in kinds}
+    for v in variants:
+        if STAGE_VARIANTS[v] is None:
+            continue
+        hp, kind, rim = STAGE_VARIANTS[v]
+        m = tissues[kind] if kind else fst.MODEL
+        models[v] = replace(m, rim_sigmas=rim) if rim else m
+        opts[v] = replace(o, final="likelihood", final_highpass_px=hp * px / 1024)
+    out = {"study": "core.studies.tracking.seed_bias --stage", "machine": platform.machine(), "seed": seed,
+           "pixels": px, "voxel_mm": voxel, "frames": {k: list(v) for k, v in frames.items()},
+           "draws": [d for d in draws], "variants": {v: STAGE_VARIANTS[v] for v in variants},
+           "highpass_px": {v: oo.final_highpass_px for v, oo in opts.items()},
+           "models": {v: m.to_dict() for v, m in models.items()}, "setup_s": time.perf_counter() - t0,
+           "rows": []}
+    for nm, fs in frames.items():
+        b = ts.names.index(nm)
+        m = ts.models[b]
+        oth = [k for k in range(len(ts.names)) if k != b]
+        for f in fs:
+            L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
+            P = ts.truth(f)
+            kw = {"bone": b, "initial_pose": P[b], "center": m.centroid, "others": (P[oth], oth)}
+            for d in draws:
+                t1 = time.perf_counter()
+                frame = prepare_frame(_chain(ts, f, L, False) if d is None else _draw(ts, f, L, d))
+                res = register(ts.renderer, frame, options=o, **kw)
+                e = pose_errors(res.pose, P[b], m.centroid)
+                row = {"bone": nm, "frame": f, "draw": d, "gc": np.asarray(e).round(4).tolist()}
+                for v, oo in opts.items():
+                    with fst.final_model(models[v]):
+                        r = fst.final_stage(ts.renderer, frame, res, options=oo,
+                                            views=tuple(range(frame.n_views)), **kw)
+                    row[v] = np.asarray(pose_errors(r.pose, P[b], m.centroid)).round(4).tolist()
+                    row[f"{v}_taken"] = int(r.timing.get("likelihood_taken", 0))
+                row["s"] = round(time.perf_counter() - t1, 1)
+                out["rows"].append(row)
+                out["seconds"] = time.perf_counter() - t0
+                if checkpoint:
+                    checkpoint(out)
+    out["summary"] = stage_summary(out["rows"], variants)
+    return out
+
+
+def stage_summary(rows: list, variants=tuple(STAGE_VARIANTS)) -> dict:
+    """Per bone, frame kind (``noise_free``, ``noisy``: every noise draw) and variant: the mean
+    error (6,) over the bone's frames in its biased stretch (:data:`STRETCH`) and over its
+    controls, with their frame counts."""
+    out: dict = {}
+    for r in rows:
+        lo, hi = STRETCH.get(r["bone"], (0, -1))
+        part = "stretch" if lo <= r["frame"] <= hi else "control"
+        kind = "noise_free" if r["draw"] is None else "noisy"
+        for v in variants:
+            if v in r:
+                per = out.setdefault(r["bone"], {}).setdefault(kind, {}).setdefault(v, {})
+                per.setdefault(part, []).append(r[v])
+    for d in out.values():
+        for k in d.values():
+            for v in k.values():
+                for part, E in v.items():
+                    v[part] = {"mean": np.mean(E, axis=0).round(4).tolist(), "n": len(E)}
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.seed_bias",
                                 description=__doc__.split("\n")[0])
@@ -253,12 +364,22 @@ def main(argv=None) -> int:
                    help="a stored acceptance run of the same seed (its per-frame errors)")
     p.add_argument("--mode", default="joint")
     p.add_argument("--device", default="cpu")
+    p.add_argument("--stage", action="store_true", help="the likelihood stage's variants (stage_run)")
+    p.add_argument("--variants", default=",".join(STAGE_VARIANTS), help="--stage: of STAGE_VARIANTS")
+    p.add_argument("--draws", default="none,0", help="--stage: none (noise-free), 0 (the run's draw), k > 0")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from core.io.atomic import json_checkpoint, print_json
 
     frames = {k: [int(x) for x in v.split(",") if x] for k, v in (("talus", a.talus), ("tibia", a.tibia))}
     frames = {k: v for k, v in frames.items() if v}
+    if a.stage:
+        res = stage_run(seed=a.seed, pixels=a.pixels, voxel=a.voxel, frames=frames, device=a.device,
+                        draws=[None if x == "none" else int(x) for x in a.draws.split(",") if x],
+                        variants=tuple(x for x in a.variants.split(",") if x),
+                        checkpoint=json_checkpoint(a.out, indent=2))
+        print_json(res, a.out)
+        return 0
     res = run(seed=a.seed, pixels=a.pixels, voxel=a.voxel, frames=frames, stored=a.stored, mode=a.mode,
               conditions=tuple(c for c in a.conditions.split(",") if c), device=a.device,
               checkpoint=json_checkpoint(a.out, indent=2))

@@ -47,3 +47,18 @@ def test_run_and_summary(scene, tmp_path):
     np.testing.assert_allclose(row["from_run"], row["noisy"], atol=2e-3)
     assert out["summary"]["talus"]["noisy"]["n"] == 1
     assert set(out["cramer_rao"]) == {"tibia", "talus", "calcaneus"}
+
+
+def test_stage_run_and_summary(scene):
+    out = sb.stage_run(ts=scene, frames={"talus": (1,)}, draws=(None, 1),
+                       variants=("gc", "hp4", "hp8"))
+    assert [r["draw"] for r in out["rows"]] == [None, 1]
+    for r in out["rows"]:
+        assert {"gc", "hp4", "hp8"} <= set(r) and len(r["hp4"]) == 6
+        assert r["hp4_taken"] in (0, 1)
+    assert out["highpass_px"] == {"hp4": 4.0 * 64 / 1024, "hp8": 8.0 * 64 / 1024}
+    s = out["summary"]["talus"]
+    assert s["noise_free"]["hp4"]["stretch"]["n"] == 1 and s["noisy"]["gc"]["stretch"]["n"] == 1  # (frame 1)
+    # another noise draw differs from the run's own
+    L = scene.scene.line_integrals(1, renderer=scene._scene_renderer)
+    assert not np.array_equal(sb._draw(scene, 1, L, 1)[0], sb._draw(scene, 1, L, 0)[0])

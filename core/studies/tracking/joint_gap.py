@@ -42,8 +42,8 @@ subtracted at):
   neighbours.
 
 Per case and bone: the RMS error (mm, °) over frames and draws, joint's-style paired comparison
-with ``S`` (:func:`core.studies.tracking.hard_trial_stats.paired_comparison`, blocks of one
-registration), and how much of its start the search kept: the least-squares fraction ``k`` of the
+with ``S`` (:func:`paired_by_frame`: the RMS difference with a bootstrap over frames, a frame's
+draws resampled together), and how much of its start the search kept: the least-squares fraction ``k`` of the
 start's offset from ``opt`` left in the result's (rotation, degrees; 0: at the cost's optimum, 1:
 at the start). Study only: it reads the truth. JSON on stdout (and ``--out``).
 
@@ -60,21 +60,26 @@ Findings
   anti-correlated with the prediction's offset from the sequential estimate — the tibia about lab z
   (its long axis) −0.60, −0.58, −0.73, −0.52, −0.57 (k 0.05–0.18; joint's mean-square error there
   +0.0013 to +0.0046 deg² on seeds 0–3, −0.0067 deg² on seed 4: keeping part of the prediction
-  helps only where it is the better estimate), the calcaneus about lab x (its long axis) −0.26 to
+  helps only where it is the better estimate; these are over frames 2–99, the frames with two
+  before — over all 100 seed 4's is +0.0102 deg², its frame 0 alone, where no prediction is made,
+  jointly −1.17° against sequentially +0.21°), the calcaneus about lab x (its long axis) −0.26 to
   −0.71 (k 0.006–0.027, +0.0003 to +0.0005 deg², joint worse on all five); the talus mixed.
 * **Why** (``resources/benchmarks/tracking_joint_gap_cpu.json``, 512², 1 mm voxels, 10 frames × 2
   draws, this 2-core x86_64 machine, shared): the Gauss–Newton search stops (its next step's
   predicted decrease under a tenth of the cost's roughness) with part of its start's offset left
   along the cost's flat directions, the long axes. Sequential's one search keeps 0.157 of the
-  prediction's offset (tibia rotation), joint's second search, from round 0's pose, 0.063 (about
-  k²), from the prediction 0.111. The prediction carries the earlier frames' evidence; keeping part
+  prediction's offset (tibia rotation), joint's second search, from round 0's pose, 0.063, from
+  the prediction 0.111. The prediction carries the earlier frames' evidence; keeping part
   of it is a small, accidental temporal smoothing: the cost's own optimum (``opt``) is worse than
-  either — tibia 0.2615° RMS against sequential's 0.2399° (+0.0217 [+0.0024, +0.0374]), joint
-  0.2514° (+0.0115 [+0.0001, +0.0212]), joint's last round from the prediction 0.2471° (+0.0073
-  [−0.0046, +0.0172]); the calcaneus joint +0.0032° [+0.0004, +0.0056], from the prediction
-  +0.00001° [−0.00005, +0.00007] (the same as sequential). The neighbours' poses (round 0's against
-  sequential's) are not resolved: tibia ``J1p`` − ``S`` above, from the truth ``TJ`` − ``TS``
-  +0.0082° [−0.0033, +0.0167], the calcaneus 0.0000°, the talus −0.002 to −0.003°. Not the cause:
+  either — tibia 0.2615° RMS against sequential's 0.2399° (+0.0217 [+0.0011, +0.0370]), joint
+  0.2514° (+0.0115 [−0.0017, +0.0217], not resolved over 10 frames), joint's last round from the
+  prediction 0.2471° (+0.0073 [−0.0064, +0.0179]); the calcaneus joint +0.0032° [+0.0001,
+  +0.0064], from the prediction +0.00001° [−0.00007, +0.00008] (the same as sequential). The
+  neighbours' poses (round 0's against sequential's) are not resolved: tibia ``J1p`` − ``S`` above,
+  from the truth ``TJ`` − ``TS`` +0.0082° [−0.0038, +0.0172], the calcaneus 0.0000°, the talus
+  −0.002 to −0.003°. (Intervals resample frames with both their draws, which share the start and
+  the scene; resampled as 20 independent registrations joint's tibia read +0.0115° [+0.0001,
+  +0.0212], resolved.) Not the cause:
   an 18-parameter search (there is none), the contact penalty (off in those runs, and no bones
   interpenetrated), a pixel scored twice (each bone scores its own regions, the others' DRRs
   subtracted, as sequentially), the prediction (the same in both modes).
@@ -104,7 +109,7 @@ import time
 import numpy as np
 
 __all__ = ["ACCEPTANCE_RUNS", "CASES", "EXTRA_RUNS", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main",
-           "pool_stretches", "probe", "probe_summary", "stored", "track_stretch"]
+           "paired_by_frame", "pool_stretches", "probe", "probe_summary", "stored", "track_stretch"]
 
 ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
@@ -287,12 +292,13 @@ PAIRS = (("J1", "J1p", "start"), ("J1p", "S", "neighbours"), ("TJ", "TS", "neigh
 def probe_summary(rows: list, names) -> dict:
     """Per bone of :func:`probe`'s ``rows``: per case the RMS errors, the paired comparison with
     ``S`` and, for the cases from the prediction, the share of its start kept (module docs); the
-    paired comparisons of :data:`PAIRS`; the RMS error about each rotation axis per case."""
-    from core.studies.tracking.hard_trial_stats import paired_comparison
+    paired comparisons of :data:`PAIRS` (:func:`paired_by_frame`: the draws of a frame share its
+    start and scene, so they are resampled together); the RMS error about each rotation axis per case."""
+    groups = np.array([r.get("frame", k) for k, r in enumerate(rows)])
 
-    def paired(E, a, b, sl):  # a's RMS minus b's, paired by registration
-        return _brief(paired_comparison(np.linalg.norm(E[b][:, sl], axis=1),
-                                        np.linalg.norm(E[a][:, sl], axis=1), margin=0.0, block=1))
+    def paired(E, a, b, sl):  # a's RMS minus b's, paired by registration, a frame's draws resampled together
+        return paired_by_frame(np.linalg.norm(E[b][:, sl], axis=1), np.linalg.norm(E[a][:, sl], axis=1),
+                               groups)
 
     mm, deg = slice(0, 3), slice(3, 6)
     summary = {}
@@ -318,6 +324,28 @@ def probe_summary(rows: list, names) -> dict:
                         for a, c, what in PAIRS}
         summary[n] = per
     return summary
+
+
+def paired_by_frame(seq, joint, groups, *, n_boot: int = 4000, seed: int = 0) -> dict:
+    """``joint``'s RMS minus ``seq``'s (per-registration error lengths, paired) with a 95 % bootstrap
+    interval that resamples the ``groups`` (frames) with all their registrations (noise draws):
+    registrations of one frame share its start and scene and are not independent. The fields of
+    :func:`~core.studies.tracking.hard_trial_stats.paired_comparison` that :func:`probe_summary` keeps."""
+    a, b, groups = np.asarray(seq, float), np.asarray(joint, float), np.asarray(groups)
+    ok = np.isfinite(a) & np.isfinite(b)
+    members = [np.flatnonzero(ok & (groups == k)) for k in np.unique(groups[ok])]
+    if not members:
+        return {"n_frames": 0, "verdict": "no frames"}
+    sa, sb = (np.array([np.sum(x[m] ** 2) for m in members]) for x in (a, b))
+    cnt = np.array([len(m) for m in members])
+    pick = np.random.default_rng(seed).integers(0, len(members), (n_boot, len(members)))
+    drms = np.sqrt(sb[pick].sum(1) / cnt[pick].sum(1)) - np.sqrt(sa[pick].sum(1) / cnt[pick].sum(1))
+    lo, hi = np.quantile(drms, [0.025, 0.975])
+    return {"n_frames": len(members), "rms_difference": round(float(np.sqrt(np.mean(b[ok] ** 2))
+                                                                  - np.sqrt(np.mean(a[ok] ** 2))), 5),
+            "interval95": [round(float(lo), 5), round(float(hi), 5)],
+            "verdict": "worse" if lo > 0 else "better" if hi < 0 else "not resolved",
+            "frames_joint_worse": round(float(np.mean(b[ok] > a[ok])), 3)}
 
 
 def _brief(p: dict) -> dict:
@@ -453,7 +481,8 @@ def acceptance_restart(*, seed: int = 0, quick: bool = False, n_frames: int | No
         if rounds is not None:
             acc.study_options = lambda *a, r=rounds, **k: replace(base(*a, **k), joint_rounds=r)
         try:
-            out["runs"][label] = acc.run(capture_trials=0, mode=mode, ts=ts, workers=workers, device=device)
+            out["runs"][label] = acc.run(quick=quick, capture_trials=0, mode=mode, ts=ts, workers=workers,
+                                         device=device)
         finally:
             fs.RESTART_FROM_PREDICTION = False
             acc.study_options = base

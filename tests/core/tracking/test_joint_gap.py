@@ -105,16 +105,46 @@ def test_acceptance_restart_runs_each_variant_on_one_scene(monkeypatch):
     scene = object()
     seen = []
 
-    def fake_run(*, mode, ts, **k):
+    def fake_run(*, mode, ts, quick=True, **k):
         o = acc.study_options(mode)
         seen.append((mode, ts is scene, fs.RESTART_FROM_PREDICTION, o.joint_rounds))
+        assert quick is False  # the runs say the scene's size (acc.run's own default is quick)
         return {"config": {"frames": 1}, "tracking": {}}
 
     monkeypatch.setattr(acc, "tracking_scene", lambda **k: scene)
     monkeypatch.setattr(acc, "run", fake_run)
-    out = acceptance_restart()
+    out = acceptance_restart(quick=False)
     assert seen == [("joint", True, False, 2), ("joint", True, True, 2), ("joint", True, False, 1),
                     ("sequential", True, False, 2)]
     assert not fs.RESTART_FROM_PREDICTION and acc.study_options("joint").joint_rounds == 2
     assert set(out) >= {"joint_vs_sequential", "joint_restart_vs_sequential", "joint_restart_vs_joint",
                         "joint_one_round_vs_sequential", "joint_one_round_vs_joint"}
+
+
+def test_paired_by_frame_resamples_a_frames_draws_together():
+    """Two draws of each frame that share the frame's offset (its start and scene): resampled as
+    independent registrations the interval is too narrow; by frame it is that of the frames' means."""
+    from core.studies.tracking.hard_trial_stats import paired_comparison
+    from core.studies.tracking.joint_gap import paired_by_frame
+
+    g = np.random.default_rng(5)
+    n = 10
+    seq = np.abs(g.normal(1.0, 0.1, 2 * n))
+    shared = np.repeat(g.normal(0.0, 0.05, n), 2)  # joint - sequential, the same for both draws
+    joint = seq + 0.01 + shared
+    frames = np.repeat(np.arange(n), 2)
+    by_frame = paired_by_frame(seq, joint, frames)
+    alone = paired_by_frame(seq, joint, np.arange(2 * n))
+    assert by_frame["n_frames"] == n and alone["n_frames"] == 2 * n
+    assert by_frame["rms_difference"] == alone["rms_difference"]
+    w = np.diff(by_frame["interval95"])[0]
+    assert w > 1.25 * np.diff(alone["interval95"])[0]
+    # one registration a frame: the frames' bootstrap is paired_comparison's with blocks of one
+    one = paired_comparison(seq[::2], joint[::2], margin=0.0, block=1)
+    mine = paired_by_frame(seq[::2], joint[::2], np.arange(n))
+    assert mine["rms_difference"] == one["rms_difference"]
+    assert np.allclose(mine["interval95"], one["interval95"], atol=0.3 * np.diff(one["interval95"])[0])
+    # a NaN registration is left out with its pair
+    j = joint.copy()
+    j[0] = np.nan
+    assert paired_by_frame(seq, j, frames)["n_frames"] == n

@@ -74,6 +74,8 @@ def test_no_pair_interpenetrates_over_seeds(meshes):
             # exact surfaces: at least the minimum at the 101 fractions it is kept at, and never
             # below zero between them
             assert js[key].min() > 0.0, (seed, key)
+            on_grid = js[key][::2]  # frames 0, 2, ... of 41 lie on keep_apart's 101 fractions
+            assert on_grid.min() >= MIN_SPACE_MM - 0.002 - 1e-6, (seed, key, on_grid.min())
             ok = js_free[key] >= MIN_SPACE_MM
             np.testing.assert_array_equal(kept[TRIAL.index(a), ok & (js_free[key] > 1.0)],
                                           free[TRIAL.index(a), ok & (js_free[key] > 1.0)])
@@ -97,6 +99,11 @@ def test_correction_is_smooth_and_independent_of_sampling():
     a = _trial(4, 100, (0.0, 0.6))
     b = _trial(4, 34, (0.0, 0.6))  # every third frame of the same stance fractions
     np.testing.assert_allclose(b, a[:, ::3], rtol=0, atol=1e-9)
+    # another part of the stance: the same poses at the same fractions (the correction is measured
+    # over the whole stance whatever the phase)
+    whole = _trial(4, 101, (0.0, 1.0))
+    np.testing.assert_allclose(_trial(4, 51, (0.5, 1.0)), whole[:, 50:], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(_trial(4, 21, (0.1, 0.3)), whole[:, 10:31], rtol=0, atol=1e-9)
     n = 301
     d = _trial(4, n, (0.0, 1.0))[0, :, :3, 3] - _trial(4, n, (0.0, 1.0), min_space_mm=None)[0, :, :3, 3]
     assert 1.5 < np.linalg.norm(d, axis=1).max() < 2.5  # the tibia lifted off the talus, mm
@@ -113,3 +120,20 @@ def test_bones_with_their_own_shapes_are_left_alone():
     sub = stance_trajectories(20, names=["tibia"], seed=_motion_rng(4), phase=(0.0, 0.6))
     np.testing.assert_array_equal(sub, stance_trajectories(20, names=["tibia"], seed=_motion_rng(4),
                                                            phase=(0.0, 0.6), min_space_mm=None))
+
+
+def test_both_pairs_kept_apart_at_once():
+    # twice the trial's jitter: seed 4 drives the tibia and the calcaneus into the talus (free
+    # spaces -1.41 and -1.21 mm); both are moved off it, the talus is not, rotations stay
+    kw = dict(names=TRIAL, seed=4, phase=(0.0, 1.0), jitter_mm=2.0)
+    kept = stance_trajectories(61, **kw)
+    free = stance_trajectories(61, min_space_mm=None, **kw)
+    js_free, js = joint_spaces(free, TRIAL), joint_spaces(kept, TRIAL)
+    assert js_free["tibia-talus"].min() < -1.0 and js_free["calcaneus-talus"].min() < -1.0
+    np.testing.assert_array_equal(kept[:, :, :3, :3], free[:, :, :3, :3])
+    np.testing.assert_array_equal(kept[1], free[1])  # the talus
+    moved = np.linalg.norm(kept[:, :, :3, 3] - free[:, :, :3, 3], axis=2).max(axis=1)
+    assert moved[0] > 1.0 and moved[2] > 1.0
+    for key in ("tibia-talus", "calcaneus-talus"):
+        assert js[key].min() > 0.0, key
+        assert js[key][::3].min() >= MIN_SPACE_MM - 0.002 - 1e-6, key  # frames on the 101 fractions

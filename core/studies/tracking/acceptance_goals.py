@@ -10,7 +10,9 @@ each silent frame over 4× the bound (:func:`silent_details`).
 recomputes the goals of a stored result without tracking (:func:`regoal`, :func:`main`).
 
 Held out (``acceptance --seed 3`` and ``--seed 4``, syntheses never used for tuning, both modes, one
-NVIDIA H100; ``resources/benchmarks/tracking_acceptance_seed3_h100.json``, ``..._seed4_h100.json``):
+NVIDIA H100 at 56350ae; ``resources/benchmarks/tracking_acceptance_seed3_h100.json``,
+``..._seed4_interpenetrating_h100.json``; seed 4 again on the synthesis that keeps bones apart,
+``..._seed4_h100.json``: 1.80–3.73×, 31 / 9 / 2 silent, joint as good for 2 of 3):
 ≤ 1.25× the bound not met (1.50–2.39×, 1.77–3.10×); converged met; zero silent frames not met
 (jointly 5 / 2 / 0 and 24 / 12 / 3 tibia / talus / calcaneus frames over 4× unflagged: runs of frames
 biased together, 0.05–3.3× the bone's median trajectory residual, per :func:`silent_details`); joint

@@ -3,7 +3,7 @@
 Usage::
 
     talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
-                [--split-bones] [--sequential-subtract auto|on|off] [--ranges] [--workers N]
+                [--split-bones] [--sequential-subtract auto|on|off] [--joint-restart] [--ranges] [--workers N]
                 [--scheduler ADDRESS]
                 [--device cpu|cuda] [--frames START:STOP] [--metric gc|components]
                 [--final none|likelihood] [--threshold HU]
@@ -46,7 +46,10 @@ task; out-of-range values are refused naming the option before any task starts.
 ``--sequential-subtract auto|on|off`` is ``talus track``'s and goes to every task; what each
 sequential task's searches did — the neighbours subtracted or not, auto resolved, and kept on resume
 as its report recorded — is in its record (``sequential_subtract``, with
-``sequential_subtract_note`` where it is not the plain choice) and gets a line on stderr. Exit
+``sequential_subtract_note`` where it is not the plain choice) and gets a line on stderr.
+``--joint-restart`` is ``talus track``'s (off by default) and goes to every task; a joint task's record
+says whether its rounds after the first started from the prediction (``joint_restart``; a task run
+again keeps it, ``joint_restart_note`` saying when the frames it resumes ran with the other choice). Exit
 status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing it could
 track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -72,7 +75,7 @@ from ._shared import (
     text_bar,
     warp_device,
 )
-from .track import add_check_arguments
+from .track import RESTART_HELP, add_check_arguments
 
 __all__ = ["HELP", "configure", "final_stage_problems", "mode_note", "run", "subtract_messages"]
 
@@ -111,6 +114,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="as talus track --sequential-subtract, for every task: whether a sequential task "
                         "searches each bone with the trial's other bones' DRRs subtracted (auto: where the "
                         "frames are flatfield-corrected). Default auto")
+    p.add_argument("--joint-restart", action="store_true",
+                   help="as talus track --joint-restart, for every joint task: " + RESTART_HELP)
     p.add_argument("--ranges", action="store_true",
                    help="one task per frame range between each bone's keyframes (a joint task's: "
                         "the keyframes all its bones share; from a keyframe "
@@ -300,6 +305,7 @@ def run(a: argparse.Namespace) -> int:
                             confidence=not a.no_confidence, max_uncertainty=limits, frames=frames,
                             options=((("refine_likelihood", True),) if a.final == "likelihood" else ())
                             + ((("sequential_subtract", subtract == "on"),) if subtract != "auto" else ())
+                            + ((("joint_restart", True),) if getattr(a, "joint_restart", False) else ())
                             + tuple(checks.items()))
     progress = Progress("batch", quiet=a.quiet)
     follow = _Follow(progress, len(tasks))
@@ -328,6 +334,9 @@ def run(a: argparse.Namespace) -> int:
     print_json(summary, a.out)
     for line in subtract_messages(summary.get("task_records") or ()):  # the choice each task ran
         print(f"{PROG} batch: {line}", file=sys.stderr)
+    for r in summary.get("task_records") or ():  # a joint task run again with the other --joint-restart
+        if r.get("joint_restart_note"):
+            print(f"{PROG} batch: {r['key']}: {r['joint_restart_note']}", file=sys.stderr)
     if summary.get("trajectory_pass"):
         from core.tracking.batch_pass import pass_messages
 

@@ -4,7 +4,7 @@ Usage::
 
     talus track STUDY --trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0]
                 [--resume] [--guess velocity|previous|spline] [--mode auto|sequential|joint]
-                [--sequential-subtract auto|on|off] [--metric magnitudes|components]
+                [--sequential-subtract auto|on|off] [--joint-restart] [--metric magnitudes|components]
                 [--search newton|local] [--scale S] [--final none|likelihood]
                 [--max-uncertainty MM,DEG] [--no-confidence]
                 [--collapse-ratio R] [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]
@@ -39,6 +39,11 @@ which was used (``"sequential_subtract"``, sequential runs only; false when one 
 and ``"sequential_subtract_note"`` (also on stderr) why where it is not the plain choice: one bone
 tracked, or ``--resume`` keeping what the frames tracked before did (auto: the choice the run being
 resumed recorded, else the trial's other runs' where they agree; :mod:`core.tracking.from_study`).
+
+``--joint-restart`` (:data:`RESTART_HELP`; ``TrackingOptions.joint_restart``): joint tracking's rounds
+after the first start each bone from its prediction, not its previous round's pose; off by default.
+The report's ``"options"`` and the JSON summary record it for joint runs (``"joint_restart"``, with
+``"joint_restart_note"`` where ``--resume`` uses the other choice than the run being resumed did).
 
 Failure checks (:data:`CHECKS`; the fields of :class:`core.tracking.options.TrackingOptions` of
 the same names, :mod:`core.tracking.checks`): ``--collapse-ratio R`` — a score below R × the
@@ -90,7 +95,8 @@ from ._shared import (
     warp_device,
 )
 
-__all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "SEARCHES", "STAGE_MOVES", "SUBTRACTS",
+__all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "RESTART_HELP", "SEARCHES", "STAGE_MOVES",
+           "SUBTRACTS",
            "SUBTRACT_HELP", "TRAJECTORY_OFF", "add_check_arguments", "check_choices", "choices_of",
            "configure", "final_stage_problem", "options_from_choices", "parse_frames", "registration_terms",
            "resumed_frames", "run", "stage_move_note", "stopped_lines", "subtract_choice"]
@@ -119,6 +125,14 @@ SUBTRACT_HELP = ("sequential tracking: search each bone with its neighbours' DRR
                  "NVIDIA H100, 100 frames, three bones) it took the frames over 4x their Cramer-Rao bound "
                  "left unflagged (tibia/talus/calcaneus) from 9/7/0 to 0/0/0 on seed 0, 9/0/0 to 8/0/0 "
                  "and 4/1/0 to 2/0/0 on seeds 1 and 2, as joint tracking does (1/0/0, 7/0/0, 2/0/0)")
+#: ``--joint-restart`` (``TrackingOptions.joint_restart``), shared by ``talus batch`` and the window.
+RESTART_HELP = ("joint tracking: start each bone's rounds after the first from its prediction, not from "
+                "its previous round's pose. On the synthetic 1024^2 acceptance trial (one NVIDIA H100, seed "
+                "0) joint tracking's errors came to sequential's, no difference resolved (x the Cramer-Rao "
+                "bound, mm/deg: tibia 1.73/1.85 -> 1.72/1.79, talus 1.80/1.57 -> 1.79/1.58, calcaneus "
+                "1.31/1.52 -> 1.29/1.50) at 141 -> 182 evaluations a frame (three bones: 78.6 -> 64.7 "
+                "frames/s). Off by default: one seed measured, and on held-out seed 4 joint tracking was "
+                "better than sequential for the tibia, where the restart may lose")
 #: The failure checks' thresholds: ``TrackingOptions`` field -> (command-line option, default,
 #: help). The defaults are :mod:`core.tracking.checks`' and :mod:`core.tracking.options`' constants
 #: (a test keeps them equal; they are repeated here so that ``--help`` needs no numerical import).
@@ -197,7 +211,7 @@ def options_from_choices(search: str = DEFAULT_SEARCH, scale: float = 1.0, mode:
                          stage_move_frames: int = CHECKS["stage_move_frames"][1],
                          stage_move_reject: bool = CHECKS["stage_move_reject"][1],
                          trajectory_limit: float | None = CHECKS["trajectory_limit"][1],
-                         sequential_subtract: str = "auto"):
+                         sequential_subtract: str = "auto", joint_restart: bool = False):
     """The :class:`core.tracking.trial.TrackingOptions` of ``talus track --search S --scale X --mode M
     --guess G --metric C --final F [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R]
     [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K] [--stage-move-limit K]
@@ -206,7 +220,8 @@ def options_from_choices(search: str = DEFAULT_SEARCH, scale: float = 1.0, mode:
     dialog. ``final``: ``"none"`` or ``"likelihood"`` (``TrackingOptions.refine_likelihood``); the
     last nine are the failure checks' thresholds, the final stage's move check and the trajectory
     check (:data:`CHECKS`; ``trajectory_limit`` None: off), checked by ``TrackingOptions``;
-    ``sequential_subtract``: ``"auto"``, ``"on"`` or ``"off"`` (:data:`SUBTRACTS`)."""
+    ``sequential_subtract``: ``"auto"``, ``"on"`` or ``"off"`` (:data:`SUBTRACTS`); ``joint_restart``:
+    ``--joint-restart``."""
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions
 
@@ -224,7 +239,7 @@ def options_from_choices(search: str = DEFAULT_SEARCH, scale: float = 1.0, mode:
                            stage_move_limit=stage_move_limit, stage_move_sigmas=stage_move_sigmas,
                            stage_move_frames=stage_move_frames, stage_move_reject=stage_move_reject,
                            trajectory_limit=trajectory_limit,
-                           sequential_subtract=SUBTRACTS[sequential_subtract])
+                           sequential_subtract=SUBTRACTS[sequential_subtract], joint_restart=joint_restart)
 
 
 def subtract_choice(value) -> str:
@@ -260,7 +275,7 @@ def choices_of(options) -> dict:
     if options is None:
         return {"search": DEFAULT_SEARCH, "scale": 1.0, "mode": "auto", "guess": "velocity",
                 "confidence": True, "metric": "magnitudes", "final": "none", "sequential_subtract": "auto",
-                **check_choices(None)}
+                "joint_restart": False, **check_choices(None)}
     reg = options.registration
     components = any(t.kind == "gc" and t.options.get("components") for t in reg.terms)
     likelihood = bool(getattr(options, "refine_likelihood", False)) or reg.final == "likelihood"
@@ -269,7 +284,7 @@ def choices_of(options) -> dict:
             "metric": "components" if components else "magnitudes",
             "final": "likelihood" if likelihood else "none",
             "sequential_subtract": subtract_choice(getattr(options, "sequential_subtract", None)),
-            **check_choices(options)}
+            "joint_restart": bool(getattr(options, "joint_restart", False)), **check_choices(options)}
 
 
 def final_stage_problem(study, trial: str) -> str | None:
@@ -408,6 +423,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "calibrated HU transfer); auto (the default): joint when the trial's frames "
                         "are flatfield-corrected, else sequential")
     p.add_argument("--sequential-subtract", choices=tuple(SUBTRACTS), default="auto", help=SUBTRACT_HELP)
+    p.add_argument("--joint-restart", action="store_true", help=RESTART_HELP)
     p.add_argument("--metric", default="magnitudes", metavar="magnitudes|components|KIND",
                    help="gradient correlation of gradient magnitudes (default; also 'gc') or of the "
                         "gradient components (Penney's form; better on overlapping bones in our harder "
@@ -484,7 +500,7 @@ def run(a: argparse.Namespace) -> int:
         opts = options_from_choices(search=a.search, scale=a.scale, mode=a.mode, guess=a.guess,
                                     confidence=not a.no_confidence, metric=a.metric, final=a.final,
                                     max_uncertainty=limits, sequential_subtract=a.sequential_subtract,
-                                    **checks)
+                                    joint_restart=a.joint_restart, **checks)
     except ValueError as exc:
         raise (check_error(exc) or exc) from None
     note = stage_move_note(checks, a.final)
@@ -529,6 +545,11 @@ def run(a: argparse.Namespace) -> int:
     if why:  # one bone (nothing to subtract), or resumed with the recorded choice
         out["sequential_subtract_note"] = why
         print(f"{PROG} track: {why}", file=sys.stderr)
+    for k in ("joint_restart", "joint_restart_note"):  # joint runs: the rounds' starts (--joint-restart)
+        if k in (report.get("options") or {}):
+            out[k] = report["options"][k]
+    if out.get("joint_restart_note"):
+        print(f"{PROG} track: {out['joint_restart_note']}", file=sys.stderr)
     if a.final == "likelihood" and bar is not None:
         # a refinement that moves the pose beyond final_reach, or fails, is not kept, nor one the move
         # check rejected (stage_move_reject)

@@ -36,7 +36,10 @@ Each task's record says what its searches did: ``mode`` (joint or sequential) an
 sequential task, ``sequential_subtract`` — the choice that ran, auto resolved to True or False
 (False for a task of one bone, ``sequential_subtract_note`` then saying why where the choice was
 on) — as its tracking report's ``"options"`` do. A task run again (resume) keeps the choice its
-report recorded (:func:`core.tracking.from_study.track_study`).
+report recorded (:func:`core.tracking.from_study.track_study`). A joint task's record says whether its
+rounds after the first started from the prediction (``joint_restart``, ``TrackingOptions.joint_restart``
+given in :attr:`TaskSettings.options`, as given on resume; ``joint_restart_note`` where the frames it
+resumes ran with the other choice).
 
 A task runs :func:`run_task`: it opens its study for writing, which locks only the journals of
 its bones (:meth:`core.study.Study.lock_journal`), and calls
@@ -409,6 +412,10 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         # the choice its report recorded), and why where it is not the plain choice; None: joint
         sequential_subtract=used.get("sequential_subtract"),
         sequential_subtract_note=used.get("sequential_subtract_note"),
+        # a joint task's rounds after the first from the prediction (TrackingOptions.joint_restart), and
+        # the note of a task run again with the other choice; None: sequential
+        joint_restart=used.get("joint_restart"),
+        joint_restart_note=used.get("joint_restart_note"),
         frames_recorded=int(summary.get("recorded", 0)),
         flagged=int(summary.get("flagged", 0)),
         seconds=seconds,

@@ -89,7 +89,9 @@ there too (a fresh ``talus batch --ranges`` run; that range's report reaches out
 resumes nothing: auto as for a new run, no note (such a range's record said "resumed … as the
 trial's earlier runs did: walk.1-0"). A joint
 run's report, or nothing tracked yet, leaves auto as for a new run; True or False still win. The
-report lists the bones tracked (``"bones"``).
+report lists the bones tracked (``"bones"``). A joint run's ``"options"`` record ``"joint_restart"``
+(``TrackingOptions.joint_restart``, used as given), with ``"joint_restart_note"`` where a resumed run
+uses the other choice than the run being resumed recorded.
 """
 
 from __future__ import annotations
@@ -267,6 +269,28 @@ def _earlier_runs(study, trial_name: str, report_name: str, bones: set,
     return out
 
 
+def _resumed_restart(study, report_name: str, restart: bool, skip: dict) -> str | None:
+    """The note of a joint run resumed with another ``joint_restart`` than the joint run being
+    resumed recorded in its report (off where it recorded none), else None (also with no tracking
+    result in the journal, ``skip``): its frames were tracked by the other choice (the option is
+    used as given)."""
+    from ..study.errors import StudyError
+
+    if not any(isinstance(r, FrameResult) for done in skip.values() for r in done.values()):
+        return None
+
+    try:
+        old = study.read_report("tracking", report_name)
+    except StudyError:  # none, or unreadable
+        return None
+    opts = old.get("options") if isinstance(old, dict) else None
+    if not isinstance(opts, dict) or opts.get("mode") != "joint" \
+            or bool(opts.get("joint_restart")) == restart:
+        return None
+    return (f"resumed with joint restart {'on' if restart else 'off'}: the frames tracked before ran with it "
+            f"{'off' if restart else 'on'}")
+
+
 def _resumed_subtract(study, trial_name: str, report_name: str, skip: dict,
                       shared: frozenset = frozenset(), frames=()) -> tuple[bool | None, str | None]:
     """``sequential_subtract`` auto on resume: ``(choice, note)`` — what the searches of the frames
@@ -417,6 +441,11 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             subtract_note = "on, but no other bone tracked: nothing to subtract"
         if subtract_note:
             report["options"]["sequential_subtract_note"] = subtract_note
+    if options.mode == "joint":  # the rounds after the first from the prediction (joint_restart)
+        report["options"]["joint_restart"] = bool(options.joint_restart)
+        note = _resumed_restart(study, report_name, options.joint_restart, skip) if resume else None
+        if note:
+            report["options"]["joint_restart_note"] = note
     if likelihood:  # the final stage's move check flagged (or rejected) with these
         report["options"]["stage_move_check"] = {k: getattr(options, k) for k in STAGE_MOVE_FIELDS}
     if not models:

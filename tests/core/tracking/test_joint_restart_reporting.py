@@ -1,0 +1,94 @@
+"""What ``track_study`` and a ``talus batch`` task record of ``TrackingOptions.joint_restart``
+(core.tracking.from_study, core.tracking.batch): a joint run's report and a joint task's record say
+whether its rounds after the first started from the prediction; the option reaches the tracker as
+given, on resume too, with a note where the run being resumed recorded the other choice; a sequential
+run records nothing of it. The tracker is replaced (the options it gets are checked), on the shared
+48² demo walk."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from core.study import Study
+from core.tracking.from_study import track_study
+from tests.core.tracking.test_sequential_subtract_reporting import (
+    CORRECTED,
+    _old_report,
+    _tracked_frame_1,
+)
+from tests.core.tracking.test_sequential_subtract_reporting import seen as seen
+
+
+@pytest.fixture
+def demo(demo_walk_48, tmp_path):
+    return shutil.copytree(demo_walk_48, tmp_path / "demo")
+
+
+def _opts(mode="joint", restart=False):
+    from core.tracking.trial import TrackingOptions
+
+    return TrackingOptions(mode=mode, confidence=False, joint_restart=restart)
+
+
+def _run(demo, opts, **kw):
+    with Study.open(demo, mode="w") as st:
+        _, rep = track_study(st, "walk", ["talus", "calcaneus"], [1, 2], correction=CORRECTED, options=opts,
+                             device="cpu", **kw)
+    return rep
+
+
+@pytest.mark.parametrize("restart", [False, True])
+def test_joint_report_records_the_choice(demo, seen, restart):
+    rep = _run(demo, _opts(restart=restart))
+    assert seen["options"].joint_restart is restart
+    assert rep["options"]["mode"] == "joint" and rep["options"]["joint_restart"] is restart
+    assert "joint_restart_note" not in rep["options"]
+    rep = _run(demo, _opts("sequential", restart))  # sequential tracking: nothing to record
+    assert "joint_restart" not in rep["options"]
+
+
+@pytest.mark.parametrize(("recorded", "restart"), [(True, True), (None, False), (True, False), (None, True)])
+def test_resume_keeps_the_choice_and_notes_another(demo, seen, recorded, restart):
+    """Resumed, the option is used as given and recorded; where the run being resumed recorded the
+    other choice (none recorded: off, a run from before the option) the note says so."""
+    _tracked_frame_1(demo)
+    old = {"mode": "joint", "resume": False}
+    if recorded is not None:
+        old["joint_restart"] = recorded
+    _old_report(demo, old)
+    rep = _run(demo, _opts(restart=restart), resume=True)
+    assert seen["options"].joint_restart is restart
+    assert rep["options"]["joint_restart"] is restart
+    note = rep["options"].get("joint_restart_note")
+    if bool(recorded) == restart:
+        assert note is None
+    else:
+        assert note.startswith(f"resumed with joint restart {'on' if restart else 'off'}"), note
+    # the report now records this run's choice: resumed again with it, no note
+    assert "joint_restart_note" not in _run(demo, _opts(restart=restart), resume=True)["options"]
+
+
+def test_resume_with_nothing_tracked_has_no_note(demo, seen):
+    _old_report(demo, {"mode": "joint", "joint_restart": True})
+    rep = _run(demo, _opts(), resume=True)
+    assert rep["options"]["joint_restart"] is False and "joint_restart_note" not in rep["options"]
+
+
+@pytest.mark.parametrize("restart", [False, True])
+def test_batch_task_records_the_choice(demo, seen, restart):
+    """A joint task gets the option through its settings and records it; run again (resume), the
+    same; a task of one bone (sequential) records None."""
+    from core.tracking.batch import BatchTask, TaskSettings, run_task
+
+    settings = TaskSettings(device="cpu", confidence=False, options=(("joint_restart", restart),))
+    assert settings.tracking_options(joint=True).joint_restart is restart
+    task = BatchTask(str(demo), "walk", ("talus", "calcaneus"), (1, 2))
+    for _ in range(2):
+        rec = run_task(task, settings)
+        assert seen["options"].joint_restart is restart
+        assert rec["mode"] == "joint" and rec["joint_restart"] is restart
+        assert rec["joint_restart_note"] is None
+    rec = run_task(BatchTask(str(demo), "walk", ("talus",), (1, 2)), settings)
+    assert rec["mode"] == "sequential" and rec["joint_restart"] is None

@@ -20,6 +20,11 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   with the other bones' DRRs subtracted: automatic (the default: on where the trial's frames are
   flatfield-corrected, off on frames divided by the full scale, whose intensities the DRRs do not
   match), on or off. Disabled with the joint mode, which always subtracts them;
+* **Restart joint rounds from the prediction** (under the mode; ``talus track --joint-restart``,
+  ``TrackingOptions.joint_restart``, off by default) — joint tracking's rounds after the first start
+  each bone from its prediction, not its previous round's pose; its tooltip gives the measured gain
+  and cost (:data:`app.commands.track.RESTART_HELP`). Disabled with the sequential mode, which has
+  one round;
 * **Guess** — the next frame's start: velocity, previous pose or a spline through the track;
 * **Final stage** — none (the default) or *likelihood*: every registration ends with a weighted
   least-squares refinement of the pose against the line-integral image
@@ -55,7 +60,7 @@ from __future__ import annotations
 
 from PySide6 import QtWidgets
 
-from .commands.track import CHECKS, check_choices, choices_of, options_from_choices
+from .commands.track import CHECKS, RESTART_HELP, check_choices, choices_of, options_from_choices
 
 __all__ = ["CHECK_RANGES", "FINALS", "METRICS", "OFF_FIELDS", "RESOLUTIONS", "SEARCHES", "SUBTRACTS",
            "TrackingOptionsDialog", "choices_of", "options_from_choices"]
@@ -137,7 +142,8 @@ def _combo(pairs, value) -> QtWidgets.QComboBox:
 
 
 class TrackingOptionsDialog(QtWidgets.QDialog):
-    """Choose search, resolution, similarity, mode, the neighbours' subtraction, guess, final stage,
+    """Choose search, resolution, similarity, mode, the neighbours' subtraction, the joint rounds'
+    restart, guess, final stage,
     confidence and the failure checks' thresholds; :meth:`options` gives the result."""
 
     def __init__(self, options=None, parent=None) -> None:
@@ -151,6 +157,11 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.subtract = _combo(SUBTRACTS, c["sequential_subtract"])
         self.guess = _combo(_GUESSES, c["guess"])
         self.final = _combo(FINALS, c["final"])
+        self.joint_restart = QtWidgets.QCheckBox("Restart joint rounds from the &prediction")
+        self.joint_restart.setChecked(c["joint_restart"])
+        self.joint_restart.setToolTip(RESTART_HELP.replace("1024^2", "1024²").replace("x the Cramer-Rao",
+                                                                                       "× the Cramér–Rao")
+                                      .replace("->", "→").replace("mm/deg", "mm/°") + ".")
         self.confidence = QtWidgets.QCheckBox("Pose uncertainty of every frame")
         self.confidence.setChecked(c["confidence"])
         self.search.setToolTip("Gauss–Newton (the default) needs fewer renders per frame; local fits "
@@ -179,6 +190,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         form.addRow("S&imilarity:", self.similarity)
         form.addRow("&Mode:", self.mode)
         form.addRow("Su&btract neighbours:", self.subtract)
+        form.addRow("", self.joint_restart)
         form.addRow("&Guess:", self.guess)
         form.addRow("&Final stage:", self.final)
         form.addRow("", self.confidence)
@@ -237,14 +249,17 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
             w.setEnabled(on)
 
     def _enable_subtract(self, *_args) -> None:
-        """The neighbours' subtraction is a choice of sequential tracking: disabled in the joint mode."""
+        """The neighbours' subtraction is a choice of sequential tracking: disabled in the joint mode;
+        the joint rounds' restart one of joint tracking: disabled in the sequential mode."""
         self.subtract.setEnabled(self.mode.currentData() != "joint")
+        self.joint_restart.setEnabled(self.mode.currentData() != "sequential")
 
     def restore_defaults(self) -> None:
         for box in (self.search, self.resolution, self.similarity, self.mode, self.subtract, self.guess,
                     self.final):
             box.setCurrentIndex(0)
         self.confidence.setChecked(True)
+        self.joint_restart.setChecked(False)
         self._set_checks(check_choices(None))
 
     def _set_checks(self, c: dict) -> None:
@@ -260,6 +275,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
                 "mode": self.mode.currentData(), "guess": self.guess.currentData(),
                 "confidence": self.confidence.isChecked(), "metric": self.similarity.currentData(),
                 "final": self.final.currentData(), "sequential_subtract": self.subtract.currentData(),
+                "joint_restart": self.joint_restart.isChecked(),
                 **{k: _spin_value(k, getattr(self, k)) for k in _SPIN_FIELDS},
                 "motion_floor": (self.floor_mm.value(), self.floor_deg.value()),
                 "stage_move_reject": not self.keep_stage_moves.isChecked()}

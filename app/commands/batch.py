@@ -279,6 +279,8 @@ def run(a: argparse.Namespace) -> int:
         if note:
             print(f"{PROG} batch: {note}", file=sys.stderr)
     subtract = getattr(a, "sequential_subtract", "auto")
+    if getattr(a, "joint_restart", False) and mode == "sequential":
+        print(f"{PROG} batch: --joint-restart: no effect with --mode sequential", file=sys.stderr)
     split = bool(getattr(a, "split_bones", False))
     if split and mode != "sequential":
         raise CliError(f"--split-bones: one task per bone is a choice of --mode sequential, "

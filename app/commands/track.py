@@ -506,6 +506,8 @@ def run(a: argparse.Namespace) -> int:
     note = stage_move_note(checks, a.final)
     if note:
         print(f"{PROG} track: {note}", file=sys.stderr)
+    if a.joint_restart and a.mode == "sequential":
+        print(f"{PROG} track: --joint-restart: no effect with --mode sequential", file=sys.stderr)
     token = CancelToken()
     progress = Progress("track", quiet=a.quiet)
     bar = None
@@ -545,9 +547,8 @@ def run(a: argparse.Namespace) -> int:
     if why:  # one bone (nothing to subtract), or resumed with the recorded choice
         out["sequential_subtract_note"] = why
         print(f"{PROG} track: {why}", file=sys.stderr)
-    for k in ("joint_restart", "joint_restart_note"):  # joint runs: the rounds' starts (--joint-restart)
-        if k in (report.get("options") or {}):
-            out[k] = report["options"][k]
+    # joint runs: the rounds' starts (--joint-restart), and the note of a resume with the other choice
+    out.update((k, v) for k, v in (report.get("options") or {}).items() if k.startswith("joint_restart"))
     if out.get("joint_restart_note"):
         print(f"{PROG} track: {out['joint_restart_note']}", file=sys.stderr)
     if a.final == "likelihood" and bar is not None:

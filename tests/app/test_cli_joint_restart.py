@@ -78,6 +78,10 @@ def test_batch_passes_the_flag_to_every_task(demo_study, capsys, monkeypatch):
         assert talus_batch(argv) == EXIT_OK
         err = capsys.readouterr().err
     assert "demo/walk/talus+calcaneus: resumed with joint restart on" in err
+    argv = [str(demo_study), "--workers", "0", "--quiet", "--mode", "sequential", "--joint-restart"]
+    assert talus_batch(argv) == EXIT_OK
+    assert "--joint-restart: no effect with --mode sequential" in capsys.readouterr().err
+    seen.pop()
     off, on = (s.tracking_options(joint=True).joint_restart for s in seen)
     assert (off, on) == (False, True)
 
@@ -105,3 +109,6 @@ def test_track_summary_gives_the_record(demo_study, monkeypatch, capsys):
     assert got["options"].joint_restart is True
     assert out["joint_restart"] is True and out["joint_restart_note"] == rep["options"]["joint_restart_note"]
     assert "resumed with joint restart on" in cap.err
+    talus(["track", str(demo_study), "--trial", "walk", "--mode", "sequential", "--joint-restart", "--device",
+           "cpu", "--quiet"])
+    assert "--joint-restart: no effect with --mode sequential" in capsys.readouterr().err

@@ -321,3 +321,24 @@ def test_the_batch_dock_shows_what_each_task_subtracted(qtbot, demo_folder, sche
                         "sequential, not subtracted", "on, but no other bone tracked: nothing to subtract")
         texts = [win.messages.item(i).text() for i in range(win.messages.count())]
         assert any("bones tracked one after another in walk" in t for t in texts)
+
+
+def test_batch_tasks_get_the_joint_restart(calibrated_window, qtbot, monkeypatch):
+    """The window's Tracking options with *Restart joint rounds from the prediction*: the joint task
+    of the calibrated walk gets ``joint_restart`` (as talus batch --joint-restart; recorded, not run)."""
+    import core.tracking.batch as core_batch
+    from app.tracking_options import options_from_choices
+
+    win = calibrated_window
+    recorded, settings = core_batch.run_batch, []
+
+    def run_batch(tasks, s=None, **kw):
+        settings.append(s)
+        return recorded(tasks, s, **kw)
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
+    win.tracking.options = options_from_choices(joint_restart=True)
+    dlg = _open_dialog(win, qtbot)
+    _click_box(qtbot, dlg.bone_boxes["calcaneus"])
+    assert _start(win, qtbot, dlg) == ["study/walk/talus+calcaneus"]
+    assert settings[-1].tracking_options(joint=True).joint_restart is True

@@ -131,8 +131,8 @@ RESTART_HELP = ("joint tracking: start each bone's rounds after the first from i
                 "0) joint tracking's errors came to sequential's, no difference resolved (x the Cramer-Rao "
                 "bound, mm/deg: tibia 1.73/1.85 -> 1.72/1.79, talus 1.80/1.57 -> 1.79/1.58, calcaneus "
                 "1.31/1.52 -> 1.29/1.50) at 141 -> 182 evaluations a frame (three bones: 78.6 -> 64.7 "
-                "frames/s). Off by default: one seed measured, and on held-out seed 4 joint tracking was "
-                "better than sequential for the tibia, where the restart may lose")
+                "frames/s). Off by default: one synthesis measured (on held-out seed 4 joint tracking as it "
+                "is was the better about the tibia's long axis after the first frame)")
 #: The failure checks' thresholds: ``TrackingOptions`` field -> (command-line option, default,
 #: help). The defaults are :mod:`core.tracking.checks`' and :mod:`core.tracking.options`' constants
 #: (a test keeps them equal; they are repeated here so that ``--help`` needs no numerical import).

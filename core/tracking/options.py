@@ -108,9 +108,9 @@ class TrackingOptions:
     (:mod:`core.tracking.frame_step`, :mod:`core.studies.tracking.joint_gap`). On the synthetic
     1024² acceptance trial (one NVIDIA H100, seed 0) joint tracking's errors came to sequential's, no
     difference resolved (× the Cramér–Rao bound, mm/°: tibia 1.73/1.85 → 1.72/1.79), at 141 → 182
-    evaluations a frame (78.6 → 64.7 frames/s, three bones); off by default: one seed measured, and
-    on held-out seed 4 joint tracking was better than sequential for the tibia. Sequential tracking
-    ignores it.
+    evaluations a frame (78.6 → 64.7 frames/s, three bones); off by default: one synthesis measured
+    (on held-out seed 4 joint tracking as it is was the better about the tibia's long axis after the
+    first frame, though not over the whole run). Sequential tracking ignores it.
 
     ``trajectory_limit`` (≥ 1, or None: off): once a run is complete, frames whose pose stands off
     the local fit through their neighbours by more than this many times the bone's median are

@@ -8,8 +8,8 @@ together that the trajectory check does not single out. This study takes such fr
 scene (:class:`~core.studies.tracking.acceptance.TrackingScene` with ``seed``, the grid
 correction, at a CPU's size) and asks where the bias comes from, with the tracker's registration
 (:func:`core.tracking.register.register` with the acceptance study's joint options: its search,
-then the final likelihood stage that sets a frame's pose) run for one bone at a time, the other
-bones at their true poses:
+without the opt-in likelihood final stage, as the held-out run tracked) run for one bone at a time,
+the other bones at their true poses:
 
 * ``noise_free`` — from the true pose on the frame made without quantum or read noise, the other
   bones subtracted as joint tracking does: the cost's own optimum. Off by the run's bias: the
@@ -62,6 +62,22 @@ was not measured. The interpenetrating truth was not their cause (the re-run at 
 run's 0.5 mm voxels (512², frames 10 / 50 and 85 / 50) the pattern holds, smaller: noise-free
 talus +0.61° / +0.29°, tibia −0.29° / −0.02°; bones only through the blur +0.08° / −0.03° and
 +0.03° / 0.00°. Single noise draws.
+
+``--stage`` (:func:`stage_run`): the likelihood final stage after that registration (from its
+result, the other bones subtracted at their true poses) in the variants of
+:data:`STAGE_VARIANTS` — those :mod:`core.studies.tracking.tissue_tibia`'s labels name: the default
+4 px high-pass, 8 px, 8 px with the 2 mm tissue regressor (``user_tissue("fine")`` through the
+estimated PSF), that with the band at the round field's rim, 4 px with the 2 mm tissue; σ in
+pixels at 1024², scaled to the scene's size. Measured (this 2-core x86_64 machine, shared; 512²,
+1 mm voxels; talus 0, 10, 20 against 50, 60, tibia 75, 85, 93 against 40, 50;
+``resources/benchmarks/tracking_seed_bias_stage_cpu.json``), noise-free, mean over the stretch
+(controls), talus about x / tibia about z: the similarity's optimum +0.62° (+0.49°) / −0.58°
+(−0.12°); the stage at 4 px +0.14° (+0.05°) / +0.01° (+0.05°); 8 px +0.18° (+0.19°) / −0.01°
+(+0.10°); 8 px with the 2 mm tissue +0.16° (+0.06°) / −0.02° (−0.04°); with the rim band +0.16°
+(+0.06°) / +0.00° (−0.01°); 4 px with the tissue +0.12° (+0.04°) / −0.00° (+0.02°). The stage, not
+its tissue regressor, takes the bias off: all of the tibia's, the talus's but ~0.1° over its
+controls; the regressor adds 0.01–0.02°, the rim band nothing for the talus. On the run's noise
+draw the same pattern.
 """
 
 from __future__ import annotations

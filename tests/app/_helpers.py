@@ -150,3 +150,18 @@ def lab_collection(demo: Path, lab: Path) -> Path:
     for bone in ("talus", "calcaneus"):
         shutil.copy(demo / "volumes" / f"{bone}.mha", lab / "ct")
     return lab
+
+
+def menu_action(win, text: str):
+    """The window's menu action titled ``text`` (as a user finds it in the menu bar)."""
+    menus = [m.menu() for m in win.menuBar().actions() if m.menu()]
+    return next(a for menu in menus for a in menu.actions() if a.text() == text)
+
+
+def parse_command(argv, command):
+    """``argv`` parsed by ``talus COMMAND``'s own argument parser (``app.commands.<command>``)."""
+    import argparse
+
+    p = argparse.ArgumentParser()
+    command.configure(p)
+    return p.parse_args(argv)

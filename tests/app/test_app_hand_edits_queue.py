@@ -21,15 +21,11 @@ from core.io.atomic import FileLock
 from core.study import Study
 from core.tracking.batch_journal import TRAJECTORY_CHECK
 from tests.app._helpers import HUNG_JOB_MS, copy_study, main_window
+from tests.app._helpers import menu_action as _action
 
 pytestmark = pytest.mark.gui
 BONE = "talus"
 WAIT_MS = 5000  # for an edit's wait (1 s) to end, on a loaded machine
-
-
-def _action(win, text: str):
-    menus = [m.menu() for m in win.menuBar().actions() if m.menu()]
-    return next(a for menu in menus for a in menu.actions() if a.text() == text)
 
 
 def _lock(folder, trial: str, bone: str) -> FileLock:

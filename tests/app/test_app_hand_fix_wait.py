@@ -20,16 +20,12 @@ from PySide6 import QtCore
 from core.io.atomic import FileLock
 from core.tracking.batch_journal import RANGE_APPEND, TRAJECTORY_CHECK
 from tests.app._helpers import HUNG_JOB_MS, copy_study, main_window
+from tests.app._helpers import menu_action as _action
 
 pytestmark = pytest.mark.gui
 BONE = "talus"
 WAIT_MS = 5000  # for an edit's wait (1 s) to end, on a loaded machine
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _action(win, text: str):
-    menus = [m.menu() for m in win.menuBar().actions() if m.menu()]
-    return next(a for menu in menus for a in menu.actions() if a.text() == text)
 
 
 def _handed(qtbot, win, folder, by: str = TRAJECTORY_CHECK):

@@ -16,14 +16,13 @@ import pytest
 
 from app.commands import batch, track
 from app.commands._shared import EXIT_OK, report_error
+from tests.app._helpers import parse_command
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
 
 def _parse(argv, command=track):
-    p = argparse.ArgumentParser()
-    command.configure(p)
-    return p.parse_args(argv)
+    return parse_command(argv, command)
 
 
 def test_track_parses_the_choice_into_the_option():

@@ -23,8 +23,10 @@ folder at the same path). *Start* builds the tasks of
   score and what its searches did with the other bones (*Neighbours*: joint, sequential, one
   bone while it runs; once it ends, from its record, e.g. *sequential, subtracted* — the
   ``sequential_subtract`` choice that ran, auto resolved — its tooltip the record's note, such as
-  a task of one bone having nothing to subtract); the status bar shows the tasks and frames done
-  of all; each task's start and end, and the summary, go to the messages;
+  a task of one bone having nothing to subtract; *joint, restart* where a joint task's rounds
+  after the first start from the prediction, the *Tracking options*' ``joint_restart``); the
+  status bar shows the tasks and frames done of all; each task's start and end, and the
+  summary, go to the messages;
 * *Cancel* (in the dock, or *Tracking → Cancel tracking*) stops the batch: tasks not started are
   dropped, running ones stop at their next registration; every frame finished is in the journal;
 * at the end the window reloads the poses and review state of its trial from the journals, and
@@ -61,13 +63,28 @@ COLUMNS = ("Task", "State", "Frames", "Score", "Neighbours")
 NEIGHBOURS = COLUMNS.index("Neighbours")
 
 
-def neighbours_text(task, record: dict | None = None) -> tuple[str, str]:
+#: The *Neighbours* tooltip's words of a joint task whose rounds after the first start from the
+#: prediction (``TrackingOptions.joint_restart``, *Restart joint rounds from the prediction*).
+RESTART_TIP = "Rounds after the first start each bone from its prediction (Tracking options)"
+
+
+def neighbours_text(task, record: dict | None = None, *, restart: bool = False) -> tuple[str, str]:
     """``(text, tooltip)`` of a task's *Neighbours* cell: from its record (or end event) once it
     ran — the mode and the ``sequential_subtract`` choice that ran, the record's note as the
-    tooltip — else what the task will do (joint, sequential, one bone)."""
+    tooltip — else what the task will do (joint, sequential, one bone). A joint task's cell says
+    ``restart`` where its rounds after the first start from the prediction (``joint_restart``: the
+    record's once it has one, else ``restart``, the choice the batch was given), the record's
+    ``joint_restart_note`` (a task resumed with the other choice) in the tooltip."""
+    joint_tip = "Tracked jointly: each bone with its neighbours' DRRs subtracted"
+    if record is not None and record.get("joint_restart") is not None:
+        restart = bool(record["joint_restart"])
+    if restart:
+        joint_tip += ". " + RESTART_TIP
+    if record is not None and record.get("joint_restart_note"):
+        joint_tip += f" ({record['joint_restart_note']})"
     if record is not None and record.get("mode") is not None:
         if record["mode"] == "joint":
-            return "joint, subtracted", "Tracked jointly: each bone with its neighbours' DRRs subtracted"
+            return "joint, subtracted" + (", restart" if restart else ""), joint_tip
         used = record.get("sequential_subtract")
         if used is not None:
             tip = record.get("sequential_subtract_note") or (
@@ -77,7 +94,7 @@ def neighbours_text(task, record: dict | None = None) -> tuple[str, str]:
     if len(task.bones) == 1:
         return "one bone", "A task of one bone: no neighbour to subtract"
     if task.tracking_mode == "joint":
-        return "joint", "Tracked jointly: each bone with its neighbours' DRRs subtracted"
+        return "joint" + (", restart" if restart else ""), joint_tip
     return "sequential", ("One bone after another; whether the others are subtracted "
                           "(Tracking options) is decided when the task runs")
 
@@ -219,6 +236,7 @@ class BatchPanel(QtCore.QObject):
         self._thread: threading.Thread | None = None
         self._rows: dict[str, int] = {}
         self._tasks: dict = {}
+        self._restart = False  # the batch's joint_restart (its joint tasks' rounds from the prediction)
         self._frames: dict[str, tuple[int, int]] = {}
         self._ended: set[str] = set()
         self._bones: list[str] = []  # the window's trial's bones handed to the batch
@@ -290,6 +308,7 @@ class BatchPanel(QtCore.QObject):
         options = () if opts is None else tuple(
             (f.name, getattr(opts, f.name)) for f in dataclasses.fields(opts) if f.init and f.name != "mode")
         settings = TaskSettings(device=self.window.device, options=options)
+        self._restart = bool(opts is not None and opts.joint_restart)
         trial = session.trial_name
         self._bones = [b for b in bones if b in session.study.trial(trial).bones] if trial in trials else []
         for b in self._bones:  # the workers write these journals: no edits here meanwhile
@@ -389,7 +408,7 @@ class BatchPanel(QtCore.QObject):
         return item.text(), item.toolTip()
 
     def _show_neighbours(self, key: str, record: dict | None = None) -> None:
-        text, tip = neighbours_text(self._tasks[key], record)
+        text, tip = neighbours_text(self._tasks[key], record, restart=self._restart)
         item = self.table.item(self._rows[key], NEIGHBOURS)
         item.setText(text)
         item.setToolTip(tip)

@@ -342,3 +342,47 @@ def test_batch_tasks_get_the_joint_restart(calibrated_window, qtbot, monkeypatch
     _click_box(qtbot, dlg.bone_boxes["calcaneus"])
     assert _start(win, qtbot, dlg) == ["study/walk/talus+calcaneus"]
     assert settings[-1].tracking_options(joint=True).joint_restart is True
+    # the Batch dock's row says so (planned: nothing ran in this recorded batch)
+    key = "study/walk/talus+calcaneus"
+    text, tip = win.tracking.batch.task_neighbours(key)
+    assert text == "joint, restart" and "from its prediction" in tip
+
+
+def test_the_batch_dock_shows_the_joint_restart(calibrated_window, qtbot, monkeypatch):
+    """A joint task's *Neighbours* cell says whether its rounds after the first started from the
+    prediction: the task's end event (as run_task's: no joint_restart) keeps the batch's choice, its
+    record (the summary's) says what ran, the note of a task resumed with the other choice in the
+    tooltip; without the option the cell is plain *joint*."""
+    import core.tracking.batch as core_batch
+    from app.tracking_options import options_from_choices
+
+    win = calibrated_window
+    recorded = core_batch.run_batch
+    key = "study/walk/talus+calcaneus"
+    note = "frames 0-1 resumed from a run without joint_restart"
+
+    def run_batch(tasks, s=None, *, on_event=None, **kw):
+        on_event({"kind": "end", "key": key, "status": "complete", "seconds": 0.0, "mode": "joint",
+                  "sequential_subtract": None, "sequential_subtract_note": None})
+        summary = recorded(tasks, s, on_event=on_event, **kw)
+        restart = s.tracking_options(joint=True).joint_restart
+        for r in summary["task_records"]:
+            r.update(mode="joint", joint_restart=restart, joint_restart_note=note if restart else None)
+        return summary
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
+    seen = []
+    for restart, text in ((True, "joint, subtracted, restart"), (False, "joint, subtracted")):
+        win.tracking.options = options_from_choices(joint_restart=restart)
+        dlg = _open_dialog(win, qtbot)
+        panel = win.tracking.batch  # made with the first dialog
+        if not seen:
+            panel.event.connect(lambda e, p=panel: seen.append(p.task_neighbours(key))
+                                if e.get("kind") == "end" else None)
+            seen.append(None)
+        _click_box(qtbot, dlg.bone_boxes["calcaneus"])
+        assert _start(win, qtbot, dlg) == [key]
+        assert seen[-1][0] == text  # from the end event
+        shown, tip = panel.task_neighbours(key)  # from the record
+        assert shown == text and (("from its prediction" in tip and note in tip) if restart
+                                  else "prediction" not in tip)

@@ -209,8 +209,10 @@ def run_review_benchmark(*, frames: int = 300, folder: str | Path | None = None,
                         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="talus bench review", description=__doc__.split("\n\n")[0])
+def main(argv: list[str] | None = None, *, prog: str = "python -m app.benchmark_review") -> int:
+    """Parse ``argv`` and run; ``prog`` is the name the usage shows (``talus bench review`` passes
+    its own)."""
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=300, help="trial length (default 300)")
     ap.add_argument("--refresh-every", type=int, default=1,
                     help="redraw the plots every N frames (default 1: the worst case)")

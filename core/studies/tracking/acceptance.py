@@ -83,6 +83,9 @@ frames' image chain in that many processes (:mod:`core.studies.tracking.trial_fr
 (0, the default: the acceptance trial) synthesises another trial of the same design — the rig's placement,
 the bones' texture, the motion's perturbation, the noise, the grid frames, the starts (``seed + 7``) and
 the capture range's (``seed + 1``) drawn afresh — kept in ``config.seed`` (a two-mode result's ``seed``).
+``--final likelihood`` ends every registration (the capture range's too) with the likelihood final
+stage (``TrackingOptions.refine_likelihood``; ``--final-highpass PX``, its σ in pixels of the views,
+default 4); ``--glare`` undoes the measured veiling glare; both kept in ``config`` (default: neither).
 """
 
 from __future__ import annotations
@@ -348,22 +351,26 @@ def capture_range(ts: TrackingScene, *, trials: int, options=None, seed: int = 1
 def run(*, quick: bool = True, device: str | None = None, capture_trials: int | None = None,
         mode: str = "joint", figure: str | None = None, seed: int = 0,
         n_frames: int | None = None, correction: str = DEFAULT_CORRECTION, search: str | None = None,
-        workers: int = 0, ts: TrackingScene | None = None, sequential_subtract: bool | None = None) -> dict:
+        workers: int = 0, ts: TrackingScene | None = None, sequential_subtract: bool | None = None,
+        final: str | None = None, final_highpass_px: float | None = None, glare: bool = False) -> dict:
     """Run the acceptance study; returns the JSON-ready results. ``search`` overrides the tracking
     options' registration search (``"newton"``, the Gauss–Newton engine, by default; ``"local"`` the
-    quadratic-model search); ``sequential_subtract``: see :func:`study_options`. ``workers``:
+    quadratic-model search); ``sequential_subtract``, ``final``, ``final_highpass_px``: see
+    :func:`study_options`; ``glare``: the frames' veiling glare measured and undone
+    (:class:`TrackingScene`). ``workers``:
     processes for the frames' image chain (0: this one); ``ts``: a scene made already
     (:func:`tracking_scene`, its frames kept: several modes on the same frames; ``quick``,
-    ``seed``, ``n_frames`` and ``correction`` are then the scene's)."""
+    ``seed``, ``n_frames``, ``correction`` and ``glare`` are then the scene's)."""
     from core.studies.tracking.acceptance_goals import flag_counts, goals, joint_space, silent_details
     from core.studies.tracking.trial_frames import synthesise
     from core.tracking.trial import track
 
     t0 = time.perf_counter()
     if ts is None:
-        ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames, correction=correction)
+        ts = tracking_scene(quick=quick, device=device, seed=seed, n_frames=n_frames, correction=correction,
+                            glare=glare)
     seed, correction = ts._seed, ts.correction
-    o = study_options(mode, search, sequential_subtract)
+    o = study_options(mode, search, sequential_subtract, final=final, final_highpass_px=final_highpass_px)
     g = np.random.default_rng(seed + 7)
     keyframes = {n: {0: pose_from_params(_random_offset(g, 5.0, 5.0), center=m.centroid, base=ts.truth(0)[b])}
                  for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True))}
@@ -430,8 +437,14 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
            "frames": ts.scene.n_frames, "seed": seed, "mode": mode, "search": o.registration.search,
            "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact), "correction": correction,
            "sequential_subtract": o.sequential_subtract, "start_error": "5 mm, 5 deg",
+           "final": o.registration.final or "none", "glare_undone": bool(ts.glare),
+           "final_highpass_px": o.registration.final_highpass_px if o.refine_likelihood else None,
            "residual_distortion_rms_mm": ts.residual_distortion_mm(), "frame_rate_hz": FRAME_RATE_HZ,
            "pixel_mm_at_isocentre": float(ts.scene.rig[0].pixel_size), "workers": workers}
+    if o.refine_likelihood:  # the stage's model (core.tracking.final_stage.MODEL: tissue, per-bone settings)
+        from core.tracking.final_stage import MODEL
+
+        cfg["final_model"] = MODEL.to_dict()
     out = {"study": "core.studies.tracking.acceptance", "quick": quick, "machine": platform.machine(),
            "processor": platform.processor() or platform.machine(), "device": str(ts.renderer.device),
            "config": cfg, "tracking": per_bone, "summary": res.summary(), "setup_s": setup}
@@ -459,19 +472,32 @@ def _error_stats(E: np.ndarray) -> dict:
             "max_error_deg": float(er.max())}
 
 
-def study_options(mode: str, search: str | None = None, sequential_subtract: bool | None = None):
+def study_options(mode: str, search: str | None = None, sequential_subtract: bool | None = None, *,
+                  final: str | None = None, final_highpass_px: float | None = None):
     """The tracker's default :class:`~core.tracking.trial.TrackingOptions` in ``mode``, as ``talus
     track`` uses them on this trial: ``search`` the registration search (None: the default);
     ``sequential_subtract`` True or False as given, None ("auto") resolved as
     :func:`core.tracking.from_study.track_study` resolves it for flatfield-corrected frames, which
-    the trial's are: on in sequential tracking (joint options untouched)."""
+    the trial's are: on in sequential tracking (joint options untouched). ``final``:
+    ``"likelihood"`` ends every registration with the likelihood final stage
+    (``TrackingOptions.refine_likelihood``, as :mod:`core.studies.tracking.ml_cost` ``--final``
+    sets it), its high-pass σ ``final_highpass_px`` pixels of the trial's views (None: the
+    options' default, 4 px); None or ``"none"`` (the default): no stage, the options as before."""
     from dataclasses import replace
 
     from core.tracking.trial import TrackingOptions
 
+    if final not in (None, "none", "likelihood"):
+        raise ValueError(f"final: expected none or likelihood, got {final!r}")
+    if final != "likelihood" and final_highpass_px is not None:
+        raise ValueError("final_highpass_px: with final='likelihood' only")
     o = TrackingOptions(mode=mode, sequential_subtract=sequential_subtract)
     if search is not None:
         o = replace(o, registration=replace(o.registration, search=search))
+    if final == "likelihood":
+        reg = o.registration if final_highpass_px is None else replace(
+            o.registration, final_highpass_px=float(final_highpass_px))
+        o = replace(o, registration=reg, refine_likelihood=True)
     if o.mode == "sequential" and o.sequential_subtract is None:
         o = replace(o, sequential_subtract=True)
     return o
@@ -518,24 +544,34 @@ def main(argv=None) -> int:
     p.add_argument("--sequential-subtract", choices=("auto", "on", "off"), default="auto",
                    help="sequential mode: subtract the other bones in each bone's search (auto, the "
                    "default: on, as talus track does for flatfield-corrected frames)")
+    p.add_argument("--final", choices=("none", "likelihood"), default="none",
+                   help="final stage of every registration: none (default) or likelihood "
+                   "(TrackingOptions.refine_likelihood)")
+    p.add_argument("--final-highpass", type=float, default=None,
+                   help="--final likelihood: the stage's high-pass σ in pixels of the views (default 4)")
+    p.add_argument("--glare", action="store_true",
+                   help="undo the veiling glare measured from calibration disc frames")
     p.add_argument("--out", default=None, help="also write the JSON here")
     p.add_argument("--figure", default=None, help="save per-frame errors as a PNG")
     a = p.parse_args(argv)
     modes = [m.strip() for m in a.mode.split(",") if m.strip()]
     if not modes or any(m not in ("sequential", "joint") for m in modes) or len(set(modes)) < len(modes):
         p.error(f"--mode: expected joint, sequential or joint,sequential, got {a.mode!r}")
+    if a.final_highpass is not None and a.final != "likelihood":
+        p.error("--final-highpass: with --final likelihood only")
     from core.io.atomic import atomic_write, print_json
     from core.studies.tracking.acceptance_goals import compare_modes
 
     kw = {"quick": a.quick, "device": a.device, "n_frames": a.frames, "correction": a.correction,
-          "search": a.search, "workers": a.workers, "seed": a.seed,
+          "search": a.search, "workers": a.workers, "seed": a.seed, "glare": a.glare,
+          "final": None if a.final == "none" else a.final, "final_highpass_px": a.final_highpass,
           "sequential_subtract": {"auto": None, "on": True, "off": False}[a.sequential_subtract]}
     if len(modes) == 1:
         print_json(run(capture_trials=a.capture_trials, mode=modes[0], figure=a.figure, **kw), a.out)
         return 0
     t0 = time.perf_counter()
     ts = tracking_scene(quick=a.quick, device=a.device, n_frames=a.frames, correction=a.correction,
-                        seed=a.seed)
+                        seed=a.seed, glare=a.glare)
     out = {"study": "core.studies.tracking.acceptance", "modes": modes, "seed": a.seed,
            "scene_s": time.perf_counter() - t0, "runs": {}}
     for k, m in enumerate(modes):  # the capture range registers each bone alone: once

@@ -1,0 +1,63 @@
+"""The acceptance study's ``--final likelihood`` (the likelihood final stage in the tracking options,
+``TrackingOptions.refine_likelihood``), ``--final-highpass`` and ``--glare``; the default the runs as
+before (no stage)."""
+
+import numpy as np
+import pytest
+
+from core.studies.tracking import acceptance
+
+
+def test_main_hands_the_stage_options_to_the_run(monkeypatch):
+    import core.io.atomic
+
+    calls = []
+    monkeypatch.setattr(acceptance, "run", lambda **kw: calls.append(kw) or {})
+    monkeypatch.setattr(core.io.atomic, "print_json", lambda *a, **k: None)
+    acceptance.main(["--quick"])
+    acceptance.main(["--quick", "--final", "likelihood"])
+    acceptance.main(["--quick", "--final", "likelihood", "--final-highpass", "2", "--glare"])
+    assert [(c["final"], c["final_highpass_px"], c["glare"]) for c in calls] == [
+        (None, None, False), ("likelihood", None, False), ("likelihood", 2.0, True)]
+    with pytest.raises(SystemExit):  # a high-pass without the stage
+        acceptance.main(["--quick", "--final-highpass", "2"])
+    with pytest.raises(SystemExit):
+        acceptance.main(["--quick", "--final", "gc"])
+
+
+def test_study_options_with_the_stage_and_without():
+    from core.tracking.trial import TrackingOptions
+
+    for mode in ("joint", "sequential"):  # the default: the options as before
+        assert acceptance.study_options(mode) == acceptance.study_options(mode, final="none")
+    assert acceptance.study_options("joint") == TrackingOptions(mode="joint")
+    o = acceptance.study_options("joint", final="likelihood")
+    assert o.refine_likelihood and o.registration.final == "likelihood"
+    assert o.registration.final_highpass_px == TrackingOptions().registration.final_highpass_px == 4.0
+    assert o.registration.search == "newton"
+    o = acceptance.study_options("sequential", "local", final="likelihood", final_highpass_px=2)
+    assert o.registration.final_highpass_px == 2.0 and o.registration.search == "local"
+    assert o.sequential_subtract is True
+    with pytest.raises(ValueError, match="final"):
+        acceptance.study_options("joint", final="gc")
+    with pytest.raises(ValueError, match="final_highpass_px"):
+        acceptance.study_options("joint", final_highpass_px=2.0)
+
+
+def test_the_stage_reaches_the_tracking_and_is_recorded(monkeypatch):
+    """A ten-frame 64² trial of the talus (the low-pass needs ten): the config records the stage,
+    and the stage moves the tracked poses (the errors differ from the run without it, which
+    records none)."""
+    monkeypatch.setattr(acceptance, "cramer_rao", lambda ts, frames: {})  # not what is tested here
+    ts = acceptance.TrackingScene(n_frames=10, pixels=64, spacing=2.0, device="cpu", names=("talus",),
+                                  phase=(0.0, 0.06))
+    plain = acceptance.run(ts=ts, capture_trials=0)
+    staged = acceptance.run(ts=ts, capture_trials=0, final="likelihood", final_highpass_px=1.0)
+    assert plain["config"]["final"] == "none" and plain["config"]["final_highpass_px"] is None
+    assert "final_model" not in plain["config"] and plain["config"]["glare_undone"] is False
+    cfg = staged["config"]
+    assert cfg["final"] == "likelihood" and cfg["final_highpass_px"] == 1.0 and "final_model" in cfg
+    a = np.array(plain["tracking"]["talus"]["per_frame_error"])
+    b = np.array(staged["tracking"]["talus"]["per_frame_error"])
+    assert a.shape == b.shape == (10, 6) and np.all(np.isfinite(b))
+    assert np.max(np.abs(a - b)) > 1e-4  # some frame's pose moved by the stage

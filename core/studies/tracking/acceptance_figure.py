@@ -49,9 +49,16 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
         a.set(xlabel="frame")
     fig.suptitle(f"Synthetic walking trial, {cfg['pixels']}² views, {cfg['voxel_mm']} mm voxels, "
                  f"{cfg['mode']} tracking ({cfg['search']} search), start 5 mm / 5° off, "
-                 f"distortion correction: {cfg['correction']}\nlower row: Butterworth low-pass at "
-                 f"{cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: 0.15 target; dotted: Cramér–Rao bound "
-                 f"of a per-frame estimate; x: flagged)", fontsize=9)
+                 f"distortion correction: {cfg['correction']}{_stage(cfg)}\nlower row: Butterworth "
+                 f"low-pass at {cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: 0.15 target; dotted: "
+                 f"Cramér–Rao bound of a per-frame estimate; x: flagged)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _stage(cfg: dict) -> str:
+    """The title's words for the likelihood final stage, when the run had it (``config.final``)."""
+    if cfg.get("final") in (None, "none"):
+        return ""
+    return f", final stage: {cfg['final']} at {cfg.get('final_highpass_px')} px"

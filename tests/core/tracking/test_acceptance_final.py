@@ -61,3 +61,10 @@ def test_the_stage_reaches_the_tracking_and_is_recorded(monkeypatch):
     b = np.array(staged["tracking"]["talus"]["per_frame_error"])
     assert a.shape == b.shape == (10, 6) and np.all(np.isfinite(b))
     assert np.max(np.abs(a - b)) > 1e-4  # some frame's pose moved by the stage
+
+
+def test_the_figures_title_names_the_stage_only_when_run():
+    from core.studies.tracking.acceptance_figure import _stage
+
+    assert _stage({}) == _stage({"final": "none"}) == ""  # results of before the option, the default
+    assert _stage({"final": "likelihood", "final_highpass_px": 4.0}) == ", final stage: likelihood at 4.0 px"

@@ -54,16 +54,21 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   (``TrackingOptions.trajectory_limit=None``); its tooltip is the option's help. The spin boxes
   hold each to its valid range; an invalid value set from code is refused on *OK* with the option
   and its range named.
+
+Every tooltip of the dialog is one paragraph of rich text (:func:`wrapped_tip`), which Qt wraps
+to a readable width; the words are those of the plain text.
 """
 
 from __future__ import annotations
 
-from PySide6 import QtWidgets
+import html
+
+from PySide6 import QtGui, QtWidgets
 
 from .commands.track import CHECKS, RESTART_HELP, check_choices, choices_of, options_from_choices
 
 __all__ = ["CHECK_RANGES", "FINALS", "METRICS", "OFF_FIELDS", "RESOLUTIONS", "SEARCHES", "SUBTRACTS",
-           "TrackingOptionsDialog", "choices_of", "options_from_choices"]
+           "TrackingOptionsDialog", "choices_of", "options_from_choices", "wrapped_tip"]
 
 #: (label, search) pairs shown in the dialog.
 SEARCHES = (("Gauss–Newton (faster)", "newton"), ("Local (quadratic models)", "local"))
@@ -102,6 +107,14 @@ _CHECK_ROWS = (("collapse_ratio", "Score &collapse below:"), ("motion_limit", "M
                ("trajectory_limit", "&Trajectory limit:"), ("stage_move_limit", "Stage mo&ve limit:"),
                ("stage_move_sigmas", "Stage move &at least:"), ("stage_move_frames", "Move check &needs:"))
 _SPIN_FIELDS = tuple(name for name, _label in _CHECK_ROWS if name != "motion_floor")
+
+
+def wrapped_tip(text: str) -> str:
+    """``text`` as a rich-text paragraph (Qt word-wraps rich-text tooltips; a plain one is a single
+    line as wide as the screen); text that already is rich text is kept."""
+    if not text or QtGui.Qt.mightBeRichText(text):
+        return text
+    return f"<p>{html.escape(text, quote=False)}</p>"
 
 
 def _spin(name: str, value: float | None, tip: str) -> QtWidgets.QDoubleSpinBox | QtWidgets.QSpinBox:
@@ -209,6 +222,8 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         layout.addLayout(form)
         layout.addWidget(checks)
         layout.addWidget(buttons)
+        for w in (self, *self.findChildren(QtWidgets.QWidget)):  # the long tooltips wrapped
+            w.setToolTip(wrapped_tip(w.toolTip()))
 
     def _checks_group(self, c: dict) -> QtWidgets.QGroupBox:
         """The *Advanced checks* group: the failure checks' thresholds (``talus track``'s options)."""

@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("PySide6", reason="the GUI extra (PySide6) is not installed")
 
-from PySide6 import QtCore, QtWidgets
+from PySide6 import QtCore, QtGui, QtWidgets
 
 from app.commands.track import check_choices
 from app.tracking_options import FINALS, TrackingOptionsDialog, choices_of, options_from_choices
@@ -345,3 +345,37 @@ def test_subtract_neighbours_is_chosen_next_to_the_mode(qtbot, window):
     _accept(qtbot, dialog)
     assert window.tracking.options.sequential_subtract is None
     assert "neighbours" not in window.messages.item(window.messages.count() - 1).text()
+
+
+def test_the_tooltips_are_wrapped_paragraphs_of_the_same_words(qtbot, window):
+    """Every tooltip of the dialog is rich text, which Qt word-wraps: shown over the subtraction
+    box, the tip is a wrapped label narrower than its words on one line; its words are unchanged."""
+    from app.commands.track import CHECKS
+    from app.tracking_options import wrapped_tip
+
+    window.tracking.options_action.trigger()
+    dialog = window.findChild(TrackingOptionsDialog)
+    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
+    tips = [w.toolTip() for w in dialog.findChildren(QtWidgets.QWidget) if w.toolTip()]
+    assert len(tips) >= 15 and all(QtGui.Qt.mightBeRichText(t) and t.startswith("<p>") for t in tips)
+
+    def words(tip: str) -> str:
+        doc = QtGui.QTextDocument()
+        doc.setHtml(tip)
+        return doc.toPlainText()
+
+    flag, _default, text = CHECKS["motion_limit"]
+    assert words(dialog.motion_limit.toolTip()) == f"{flag}: {text}"  # '>=' and all, as written
+    assert "previous round's pose" in words(dialog.joint_restart.toolTip())
+    plain = words(dialog.subtract.toolTip())
+    assert plain.startswith("Bones tracked one after the other") and plain.endswith("always subtracts them.")
+    assert wrapped_tip(dialog.subtract.toolTip()) == dialog.subtract.toolTip()  # wrapped once only
+
+    box = dialog.subtract
+    QtWidgets.QToolTip.showText(box.mapToGlobal(box.rect().center()), box.toolTip(), box)
+    label = next(w for w in QtWidgets.QApplication.topLevelWidgets()
+                 if w.objectName() == "qtooltip_label" and w.isVisible())
+    assert label.wordWrap()
+    assert label.width() < label.fontMetrics().horizontalAdvance(plain) / 3  # several lines
+    assert label.width() < dialog.screen().availableGeometry().width()
+    QtWidgets.QToolTip.hideText()

@@ -6,6 +6,7 @@ import pytest
 from core.studies.tracking import spread_screen as ss
 from core.tracking.likelihood_kernels import NZ
 from core.tracking.likelihood_solve import solve_moments
+from tests.core.studies._blobs import blobs as _blobs
 
 
 def test_parse_reads_every_token():
@@ -18,17 +19,6 @@ def test_parse_reads_every_token():
     assert ss.parse("hp4").robust == 2.5
     with pytest.raises(ValueError, match="unknown token"):
         ss.parse("hp4+what")
-
-
-def _blobs(p, shape=(40, 48)):
-    """Six Gaussian blobs, blob k shifted along u (k even) or v (k odd) by p[k] pixels."""
-    v, u = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
-    out = np.zeros(shape)
-    for k in range(6):
-        cu, cv = 8 + 16 * (k % 3), 12 + 16 * (k // 3)
-        du, dv = (p[k], 0.0) if k % 2 == 0 else (0.0, p[k])
-        out += np.exp(-((u - cu - du) ** 2 + (v - cv - dv) ** 2) / (2 * 2.5**2))
-    return out
 
 
 def test_wls_step_recovers_an_offset_and_matches_the_stage_solve():

@@ -8,6 +8,7 @@ import pytest
 from core.geometry.transforms import pose_from_params
 from core.studies.tracking import tissue_tibia as tt
 from core.studies.tracking.acceptance import pose_errors
+from tests.core.studies._blobs import blobs as _blobs
 
 
 def test_moved_pose_has_the_given_error():
@@ -15,17 +16,6 @@ def test_moved_pose_has_the_given_error():
     P = pose_from_params(np.array([[1.0, 2.0, -3.0, 0.1, -0.2, 0.3]]), center=c, base=np.eye(4))[0]
     e = np.array([0.02, -0.01, 0.03, 0.05, -0.04, 0.2])
     np.testing.assert_allclose(pose_errors(tt._moved(P, e, c), P, c), e, atol=1e-9)
-
-
-def _blobs(p, shape=(40, 48)):
-    """Six Gaussian blobs, blob k shifted along u (k even) or v (k odd) by p[k] pixels."""
-    v, u = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
-    out = np.zeros(shape)
-    for k in range(6):
-        cu, cv = 8 + 16 * (k % 3), 12 + 16 * (k // 3)
-        du, dv = (p[k], 0.0) if k % 2 == 0 else (0.0, p[k])
-        out += np.exp(-((u - cu - du) ** 2 + (v - cv - dv) ** 2) / (2 * 2.5**2))
-    return out
 
 
 @pytest.mark.parametrize("tissue", [False, True])

@@ -165,3 +165,15 @@ def parse_command(argv, command):
     p = argparse.ArgumentParser()
     command.configure(p)
     return p.parse_args(argv)
+
+
+def run_command(argv, command, name: str) -> int:
+    """``talus NAME argv`` run in this process as the CLI runs it: its exit code, an error reported
+    (``app.commands._shared.report_error``) as the CLI reports it."""
+    from app.commands._shared import report_error
+
+    a = parse_command(argv, command)
+    try:
+        return a.run(a)
+    except Exception as exc:
+        return report_error(exc, name)

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from app.commands import batch, track
-from app.commands._shared import EXIT_OK, report_error
-from tests.app._helpers import parse_command
+from app.commands._shared import EXIT_OK
+from tests.app._helpers import parse_command, run_command
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -66,11 +66,7 @@ def test_batch_passes_the_flag_to_every_task(demo_study, capsys, monkeypatch):
     monkeypatch.setattr(core_batch, "run_serial", fake_run_serial)
 
     def talus_batch(argv):
-        a = _parse(argv, batch)
-        try:
-            return a.run(a)
-        except Exception as exc:
-            return report_error(exc, "batch")
+        return run_command(argv, batch, "batch")
 
     for extra in ([], ["--joint-restart"]):
         argv = [str(demo_study), "--workers", "0", "--quiet", "--mode", "joint", *extra]

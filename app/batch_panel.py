@@ -452,7 +452,7 @@ class BatchPanel(QtCore.QObject):
             elif kind == "end" and row is not None:
                 self._ended.add(key)
                 self.table.item(row, 1).setText(str(e.get("status")))
-                self._show_neighbours(key, e)  # what its searches did (the sequential_subtract that ran)
+                self._show_neighbours(key, e)  # what ran: sequential_subtract, joint_restart
                 self.window.notify(f"Batch: {key} {e.get('status')} in {e.get('seconds', 0.0):.1f} s")
                 self._overall()
                 task, session = self._tasks[key], self.window.session

@@ -344,7 +344,8 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     (after loading, until the first frame is registered: bone models, renderer and Warp kernels,
     and the first frame's widened search and its check), ``frame_s`` (median of the later
     frames), host and process. ``progress(event)`` (and, on a Dask worker, the client) gets an
-    event per frame (its end event carries ``mode`` and ``sequential_subtract``). ``cancel()``
+    event per frame (its end event carries ``mode``, ``sequential_subtract`` and ``joint_restart``,
+    with their notes). ``cancel()``
     (or, on a Dask worker, the Dask event named ``stop_event``) stops the task between
     registrations: the frames done stay in the journal."""
     from ..study import Study
@@ -426,7 +427,8 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     )
     end = dict(base, kind="end", status=record["status"], seconds=seconds, mode=record["mode"],
                sequential_subtract=record["sequential_subtract"],
-               sequential_subtract_note=record["sequential_subtract_note"])
+               sequential_subtract_note=record["sequential_subtract_note"],
+               joint_restart=record["joint_restart"], joint_restart_note=record["joint_restart_note"])
     _emit(end)
     if progress is not None:
         progress(end)

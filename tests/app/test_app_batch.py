@@ -350,9 +350,9 @@ def test_batch_tasks_get_the_joint_restart(calibrated_window, qtbot, monkeypatch
 
 def test_the_batch_dock_shows_the_joint_restart(calibrated_window, qtbot, monkeypatch):
     """A joint task's *Neighbours* cell says whether its rounds after the first started from the
-    prediction: the task's end event (as run_task's: no joint_restart) keeps the batch's choice, its
-    record (the summary's) says what ran, the note of a task resumed with the other choice in the
-    tooltip; without the option the cell is plain *joint*."""
+    prediction: the task's end event (as run_task's: its joint_restart and note) says what ran as soon
+    as the task ends, the note of a task resumed with the other choice in the tooltip; its record (the
+    summary's) then says the same; without the option the cell is plain *joint*."""
     import core.tracking.batch as core_batch
     from app.tracking_options import options_from_choices
 
@@ -362,10 +362,11 @@ def test_the_batch_dock_shows_the_joint_restart(calibrated_window, qtbot, monkey
     note = "frames 0-1 resumed from a run without joint_restart"
 
     def run_batch(tasks, s=None, *, on_event=None, **kw):
-        on_event({"kind": "end", "key": key, "status": "complete", "seconds": 0.0, "mode": "joint",
-                  "sequential_subtract": None, "sequential_subtract_note": None})
-        summary = recorded(tasks, s, on_event=on_event, **kw)
         restart = s.tracking_options(joint=True).joint_restart
+        on_event({"kind": "end", "key": key, "status": "complete", "seconds": 0.0, "mode": "joint",
+                  "sequential_subtract": None, "sequential_subtract_note": None,
+                  "joint_restart": restart, "joint_restart_note": note if restart else None})
+        summary = recorded(tasks, s, on_event=on_event, **kw)
         for r in summary["task_records"]:
             r.update(mode="joint", joint_restart=restart, joint_restart_note=note if restart else None)
         return summary
@@ -382,7 +383,8 @@ def test_the_batch_dock_shows_the_joint_restart(calibrated_window, qtbot, monkey
             seen.append(None)
         _click_box(qtbot, dlg.bone_boxes["calcaneus"])
         assert _start(win, qtbot, dlg) == [key]
-        assert seen[-1][0] == text  # from the end event
+        assert seen[-1][0] == text  # from the end event, its note too (the batch's choice has none)
+        assert (note in seen[-1][1]) is restart
         shown, tip = panel.task_neighbours(key)  # from the record
         assert shown == text and (("from its prediction" in tip and note in tip) if restart
                                   else "prediction" not in tip)

@@ -78,17 +78,21 @@ def test_resume_with_nothing_tracked_has_no_note(demo, seen):
 
 @pytest.mark.parametrize("restart", [False, True])
 def test_batch_task_records_the_choice(demo, seen, restart):
-    """A joint task gets the option through its settings and records it; run again (resume), the
-    same; a task of one bone (sequential) records None."""
+    """A joint task gets the option through its settings and records it, in its record and its end
+    event; run again (resume), the same; a task of one bone (sequential) records None."""
     from core.tracking.batch import BatchTask, TaskSettings, run_task
 
     settings = TaskSettings(device="cpu", confidence=False, options=(("joint_restart", restart),))
     assert settings.tracking_options(joint=True).joint_restart is restart
     task = BatchTask(str(demo), "walk", ("talus", "calcaneus"), (1, 2))
+    ends = []
     for _ in range(2):
-        rec = run_task(task, settings)
+        rec = run_task(task, settings, progress=lambda e: ends.append(e) if e["kind"] == "end" else None)
         assert seen["options"].joint_restart is restart
         assert rec["mode"] == "joint" and rec["joint_restart"] is restart
         assert rec["joint_restart_note"] is None
-    rec = run_task(BatchTask(str(demo), "walk", ("talus",), (1, 2)), settings)
+        # the end event says it too (the window's Batch dock shows it before the records come)
+        assert (ends[-1]["joint_restart"], ends[-1]["joint_restart_note"]) == (restart, None)
+    rec = run_task(BatchTask(str(demo), "walk", ("talus",), (1, 2)), settings, progress=ends.append)
     assert rec["mode"] == "sequential" and rec["joint_restart"] is None
+    assert ends[-1]["kind"] == "end" and ends[-1]["joint_restart"] is None

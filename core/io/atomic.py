@@ -392,6 +392,31 @@ class FileLock:
                 raise LockedError(self.path, self.read_holder(), self.purpose)
             time.sleep(min(delay, max(0.0, deadline - time.monotonic())))
             delay = min(delay * 2, 0.05)
+        try:
+            self._write_holder(fd)
+        except BaseException:  # e.g. a full disk: let the lock go, or the open fd keeps it taken
+            with contextlib.suppress(OSError):
+                _unlock(fd)
+            os.close(fd)
+            raise
+        self._fd = fd
+        return self
+
+    def relabel(self, by: str) -> None:
+        """Name ``by`` as what holds the lock now (e.g. a tracker taking over a journal its handle
+        already locked): the holder line is rewritten with ``since`` now, the lock kept throughout.
+
+        Raises
+        ------
+        ValueError
+            This object does not hold the lock.
+        """
+        if self._fd is None:
+            raise ValueError(f"{self.path}: relabel needs the lock held (acquire it first)")
+        self.by = str(by)
+        self._write_holder(self._fd)
+
+    def _write_holder(self, fd: int) -> None:
         info = {
             "pid": os.getpid(),
             "host": socket.gethostname(),
@@ -400,19 +425,10 @@ class FileLock:
         }
         if self.by:
             info["by"] = self.by
-        blob = json.dumps(info).encode()
-        try:
-            os.ftruncate(fd, 0)
-            os.lseek(fd, 0, os.SEEK_SET)
-            os.write(fd, blob)
-            os.fsync(fd)
-        except BaseException:  # e.g. a full disk: let the lock go, or the open fd keeps it taken
-            with contextlib.suppress(OSError):
-                _unlock(fd)
-            os.close(fd)
-            raise
-        self._fd = fd
-        return self
+        os.ftruncate(fd, 0)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, json.dumps(info).encode())
+        os.fsync(fd)
 
     def release(self) -> None:
         """Release the lock (idempotent)."""

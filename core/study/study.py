@@ -229,6 +229,12 @@ class Study(StudyEdits, StudyReports):
         journals for the moment it reads and rewrites them; ``by``: what holds it, recorded in the
         lock file's holder line, e.g. the window's hand edit).
 
+        On a handle that already holds the lock, a ``by`` other than the recorded one names the
+        current holder: the holder line is rewritten (``since`` now; the lock is kept), so a writer
+        refused later names what writes the bone now — e.g. ``talus track`` after a script's first
+        :meth:`~core.study.Trial.record_pose` took the lock unnamed — not what took it first. An empty ``by``
+        (a write taking the lock on its own) keeps the recorded name.
+
         Raises
         ------
         LockedError
@@ -239,7 +245,10 @@ class Study(StudyEdits, StudyReports):
         """
         self._require_write()
         path = self.trial(trial)._journal(bone)
-        if path in self._journal_locks:
+        held = self._journal_locks.get(path)
+        if held is not None:
+            if by and by != held.by:
+                held.relabel(by)
             return
         path.parent.mkdir(parents=True, exist_ok=True)
         lock = FileLock(path.with_name(f".{bone}.lock"),

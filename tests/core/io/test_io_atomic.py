@@ -91,6 +91,19 @@ def test_lock_is_exclusive_and_names_the_holder(tmp_path):
     assert not other.locked
 
 
+def test_a_held_lock_relabelled_names_its_new_holder(tmp_path):
+    """relabel: the holder line names what holds the lock now; the lock is never let go."""
+    lock = FileLock(tmp_path / ".lock", purpose="study X", by="a script").acquire()
+    other = FileLock(tmp_path / ".lock", purpose="study X")
+    lock.relabel("talus track")
+    assert lock.locked and lock.read_holder()["by"] == "talus track"
+    with pytest.raises(LockedError, match=r"\(talus track\)"):
+        other.acquire()
+    lock.release()
+    with pytest.raises(ValueError, match="relabel needs the lock held"):
+        lock.relabel("talus track")
+
+
 @pytest.fixture(params=[0o022, 0o077, 0o002])
 def umask(request):
     old = os.umask(request.param)

@@ -208,3 +208,35 @@ def test_a_journal_rewritten_to_its_old_size_with_a_torn_tail_is_repaired(folder
         assert set(state.records) == {0, 1, 3} and not state.torn_bytes
     finally:
         a.close()
+
+
+def test_a_journal_locked_again_names_its_current_holder(folder):
+    """A handle that holds a bone's journal and locks it again with another ``by`` (a tracker
+    starting after a script's first write took the lock unnamed; the window's tracking job after a
+    hand edit) records that holder: a writer refused then names what writes the bone now. The lock
+    is kept throughout; an empty ``by`` (a write locking on its own) keeps the name."""
+    a, b = Study.open(folder, mode="w"), Study.open(folder, mode="w")
+    try:
+        a.trial("walk01").record_pose("talus", 0, np.eye(4))  # locked, nothing named
+        with pytest.raises(LockedError) as refused:
+            b.lock_journal("walk01", "talus")
+        assert "by" not in refused.value.holder
+        for by in ("talus track", "the window's tracking job"):
+            a.lock_journal("walk01", "talus", by=by)
+            assert a.journal_locked("walk01", "talus")
+            with pytest.raises(LockedError, match=f"bone 'talus' of trial 'walk01'.*\\({by}\\)") as refused:
+                b.lock_journal("walk01", "talus")
+            assert refused.value.holder["by"] == by
+        a.trial("walk01").record_pose("talus", 1, np.eye(4))  # a write: the name stays
+        a.lock_journal("walk01", "talus")
+        with pytest.raises(LockedError) as refused:
+            b.lock_journal("walk01", "talus")
+        assert refused.value.holder["by"] == "the window's tracking job"
+        a.unlock_journal("walk01", "talus")
+        b.lock_journal("walk01", "talus", by="talus batch")  # a lock taken anew names its own holder
+        with pytest.raises(LockedError) as refused:
+            a.lock_journal("walk01", "talus")
+        assert refused.value.holder["by"] == "talus batch"
+    finally:
+        a.close()
+        b.close()

@@ -26,7 +26,9 @@ TrackingScene`, ``--pixels`` views, ``--voxel`` mm voxels, the grid correction),
 ``--frames``, ``--draws`` noise draws per frame (the trial's own, then independent ones; the same
 draw in every case). The tracker's start is each bone's constant-velocity prediction from the
 true poses of the two frames before with the stored run's per-frame errors applied
-(``--history``: the joint run's errors; the tracker's starts as they were). Per frame and draw,
+(``--stored``: the joint run's errors, the tracker's starts as they were; by default the stored
+run of the same scene ``--seed``, :data:`HISTORY_BY_SEED` — seed 3's is of 56350ae's synthesis,
+whose tibia differs in frames 91–99 from today's; another seed's run is refused). Per frame and draw,
 every bone registered by the tracker's default options in the cases (start; neighbours
 subtracted at):
 
@@ -108,8 +110,9 @@ import time
 
 import numpy as np
 
-__all__ = ["ACCEPTANCE_RUNS", "CASES", "EXTRA_RUNS", "PAIRS", "STRETCH_RUNS", "acceptance_restart", "main",
-           "paired_by_frame", "pool_stretches", "probe", "probe_summary", "stored", "track_stretch"]
+__all__ = ["ACCEPTANCE_RUNS", "CASES", "EXTRA_RUNS", "HISTORY_BY_SEED", "PAIRS", "STRETCH_RUNS",
+           "acceptance_restart", "history_for", "main", "paired_by_frame", "pool_stretches", "probe",
+           "probe_summary", "stored", "track_stretch"]
 
 ACCEPTANCE_JSON = "resources/benchmarks/tracking_acceptance_near_rule_h100.json"
 CASES = ("S", "J0", "J1", "J1p", "opt", "TJ", "TS")
@@ -243,14 +246,36 @@ def _one_frame(ts, f: int, draw: int, starts: list, reg) -> dict:
     return out
 
 
+#: The stored joint run of each synthesis the probe can start from (``--stored``): seed 0's
+#: acceptance run and the held-out seeds' (:data:`HELD_OUT_JSONS`).
+HISTORY_BY_SEED = {0: ACCEPTANCE_JSON, 3: HELD_OUT_JSONS[0], 4: HELD_OUT_JSONS[1]}
+
+
+def history_for(seed: int, history: str | None = None) -> str:
+    """The stored run whose errors give the probe's starts on scene ``seed``: ``history`` where
+    given, else :data:`HISTORY_BY_SEED`'s. A run of another seed's trial would start every bone
+    from that trial's errors: ValueError where ``history`` is a known run of another seed, or no
+    run of ``seed`` is known."""
+    known = {v: k for k, v in HISTORY_BY_SEED.items()}
+    if history is None:
+        if seed not in HISTORY_BY_SEED:
+            raise ValueError(f"seed {seed}: no stored run known (HISTORY_BY_SEED); give its history")
+        return HISTORY_BY_SEED[seed]
+    if known.get(history, seed) != seed:
+        raise ValueError(f"history {history} is seed {known[history]}'s run, not seed {seed}'s")
+    return history
+
+
 def probe(*, frames=(12, 21, 30, 39, 48, 57, 66, 75, 84, 93), draws: int = 2, pixels: int = 512,
-          voxel: float = 1.0, history: str = ACCEPTANCE_JSON, seed: int = 0, device: str | None = None,
+          voxel: float = 1.0, history: str | None = None, seed: int = 0, device: str | None = None,
           progress=None) -> dict:
-    """The ``probe`` (module docs); JSON-ready results. ``progress``: called with each frame and
+    """The ``probe`` (module docs); JSON-ready results. ``history``: the stored joint run of the
+    same scene seed (default :func:`history_for`'s). ``progress``: called with each frame and
     draw's row as it is done."""
     from core.studies.tracking.acceptance import TrackingScene, pose_errors, study_options
     from core.tracking.frame_state import predict_pose
 
+    history = history_for(seed, history)
     t0 = time.perf_counter()
     ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, seed=seed, phase=(0.0, 0.6), device=device,
                        correction="grid")
@@ -501,8 +526,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.joint_gap",
                                 description="Why joint tracking is slightly worse than sequential on the "
                                             "acceptance trial (module docs).")
-    p.add_argument("--stored", default=ACCEPTANCE_JSON,
-                   help="acceptance JSON with both modes (the stored analysis; the probe's history)")
+    p.add_argument("--stored", default=None,
+                   help="acceptance JSON with both modes (the stored analysis; the probe's history; "
+                        "default the run of --seed, HISTORY_BY_SEED)")
     p.add_argument("--probe", action="store_true", help="also run the CPU probe (module docs)")
     p.add_argument("--frames", default="12,21,30,39,48,57,66,75,84,93", help="the probe's frames")
     p.add_argument("--draws", type=int, default=2, help="the probe's noise draws per frame")
@@ -516,7 +542,8 @@ def main(argv=None) -> int:
     p.add_argument("--acceptance", action="store_true",
                    help="run acceptance_restart instead (joint, from the prediction, one round; sequential)")
     p.add_argument("--quick", action="store_true", help="with --acceptance: 256², 1 mm, 20 frames")
-    p.add_argument("--seed", type=int, default=0, help="with --acceptance, --stretch: the trial's seed")
+    p.add_argument("--seed", type=int, default=0,
+                   help="the trial's seed (--acceptance, --stretch, --probe; the stored run's by default)")
     p.add_argument("--workers", type=int, default=0, help="with --acceptance: processes for the chain")
     p.add_argument("--device", default=None)
     p.add_argument("--out", default=None)
@@ -530,10 +557,15 @@ def main(argv=None) -> int:
     elif a.acceptance:
         out = acceptance_restart(seed=a.seed, quick=a.quick, workers=a.workers, device=a.device)
     else:
-        out = {"stored": stored(a.stored)}
+        try:
+            history = history_for(a.seed, a.stored)
+        except ValueError as e:
+            p.error(str(e))
+        out = {"stored": stored(history)}
         if a.probe:
             out["probe"] = probe(frames=tuple(int(v) for v in a.frames.split(",")), draws=a.draws,
-                                 pixels=a.pixels, voxel=a.voxel, history=a.stored, device=a.device,
+                                 pixels=a.pixels, voxel=a.voxel, history=history, seed=a.seed,
+                                 device=a.device,
                                  progress=lambda r: print(json.dumps(r), file=sys.stderr, flush=True))
     from core.io.atomic import print_json
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 
 def _runs(k: float, n: int = 60, seed: int = 0):
@@ -148,3 +149,19 @@ def test_paired_by_frame_resamples_a_frames_draws_together():
     j = joint.copy()
     j[0] = np.nan
     assert paired_by_frame(seq, j, frames)["n_frames"] == n
+
+
+def test_probe_history_is_the_seeds_own_run():
+    """The probe starts from the stored run of its own scene seed: seed 3 and 4 no longer from
+    seed 0's history; another seed's known run is refused (main too)."""
+    from core.studies.tracking import joint_gap as jg
+
+    assert jg.history_for(0) == jg.ACCEPTANCE_JSON
+    assert jg.history_for(3) == jg.HELD_OUT_JSONS[0] and jg.history_for(4) == jg.HELD_OUT_JSONS[1]
+    assert jg.history_for(4, "mine.json") == "mine.json"  # an unknown file: the caller's word
+    with pytest.raises(ValueError, match="seed 0's run"):
+        jg.history_for(3, jg.ACCEPTANCE_JSON)
+    with pytest.raises(ValueError, match="no stored run"):
+        jg.history_for(7)
+    with pytest.raises(SystemExit):
+        jg.main(["--seed", "4", "--stored", jg.ACCEPTANCE_JSON])

@@ -165,8 +165,9 @@ class FrameTableModel(QtCore.QAbstractTableModel):
         return 0 if parent.isValid() else len(COLUMNS)
 
     def headerData(self, section, orientation, role=QtCore.Qt.ItemDataRole.DisplayRole):
-        if role == QtCore.Qt.ItemDataRole.DisplayRole and orientation == QtCore.Qt.Orientation.Horizontal:
-            return COLUMNS[section]
+        R = QtCore.Qt.ItemDataRole
+        if role in (R.DisplayRole, R.ToolTipRole) and orientation == QtCore.Qt.Orientation.Horizontal:
+            return COLUMNS[section]  # the tooltip: the name of a header elided in a narrow dock
         return None
 
     def locate(self, row: int) -> tuple[int, int]:
@@ -248,6 +249,19 @@ class _Filter(QtCore.QSortFilterProxyModel):
         return self.statuses is None or int(src.review.status[b, f]) in self.statuses
 
 
+class _StatusDelegate(QtWidgets.QStyledItemDelegate):
+    """The Status cell: the status's colour square and name, or the square alone while
+    :attr:`compact` (a narrow dock; the name in the row's tooltip and the colour's legend)."""
+
+    compact = False
+
+    def initStyleOption(self, option, index) -> None:
+        super().initStyleOption(option, index)
+        if self.compact:
+            option.text = ""
+            option.features &= ~QtWidgets.QStyleOptionViewItem.ViewItemFeature.HasDisplay
+
+
 class FrameTableDock(QtWidgets.QWidget):
     """The frame table with its filters; selecting a row moves the window to that frame and bone."""
 
@@ -275,8 +289,16 @@ class FrameTableDock(QtWidgets.QWidget):
         self.view.setSelectionMode(QtWidgets.QAbstractItemView.SelectionMode.SingleSelection)
         self.view.verticalHeader().hide()
         self.view.verticalHeader().setDefaultSectionSize(20)
+        self._status_delegate = _StatusDelegate(self.view)
+        self.view.setItemDelegateForColumn(COLUMNS.index("Status"), self._status_delegate)
         self._layout_columns(data.bones)
         self.view.setAlternatingRowColors(True)
+        # the current row's whole reason, word-wrapped under the table (hidden for a row without one)
+        self.reason_label = QtWidgets.QLabel()
+        self.reason_label.setObjectName("frames-reason")
+        self.reason_label.setWordWrap(True)
+        self.reason_label.setTextInteractionFlags(QtCore.Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.reason_label.hide()
         top = QtWidgets.QHBoxLayout()
         top.addWidget(self.status_filter, 1)
         top.addWidget(self.bone_filter, 1)
@@ -284,6 +306,7 @@ class FrameTableDock(QtWidgets.QWidget):
         layout.setContentsMargins(2, 2, 2, 2)
         layout.addLayout(top)
         layout.addWidget(self.view, 1)
+        layout.addWidget(self.reason_label)
         self.status_filter.currentIndexChanged.connect(self._refilter)
         self.bone_filter.currentIndexChanged.connect(self._refilter)
         # go to a row's frame when the user picks it (a click, or the keys while the table has the
@@ -292,22 +315,32 @@ class FrameTableDock(QtWidgets.QWidget):
         self.view.clicked.connect(lambda index: self._on_row(index, None))
         self.view.selectionModel().currentRowChanged.connect(
             lambda cur, prev: self.view.hasFocus() and self._on_row(cur, prev))
+        self.view.selectionModel().currentRowChanged.connect(lambda cur, prev: self._show_reason())
+        self.table_model.dataChanged.connect(lambda *a: self._show_reason())
+        self.table_model.modelReset.connect(self._show_reason)
 
     def _layout_columns(self, bones) -> None:
         """Column widths from the font (the header's text or the widest value a column can show; no
         scan of every row), and the Reason column placed after Score with its text elided (the
-        whole reason in the row's tooltip), as wide as the dock leaves it (:meth:`_fit_reason`):
-        Frame, Bone, Status and Score stay in view at the dock's default width (340 px at
-        1280x800). The Reason after Status pushed the Score past the dock's edge there; as the
-        last column it was itself past the edge."""
+        whole reason in the row's tooltip and, for the current row, word-wrapped under the table),
+        as wide as the dock leaves it (:meth:`_fit_reason`): Frame, Bone, Status and Score stay in
+        view at the dock's default width (340 px at 1280x800), and where they would leave the
+        Reason fewer than 20 letters the Status shows its colour square alone and the Bone is
+        elided (to 6 letters at least), so that the Reason gets 20 letters at 340 px (it had 3,
+        readable only from the tooltip). The Reason after Status pushed the Score past the dock's
+        edge there; as the last column it was itself past the edge."""
         header = self.view.horizontalHeader()
         fm = self.view.fontMetrics()
         pad = fm.horizontalAdvance("M") + 8  # the cell's margins; the sort arrow of the sorted column
         samples = ([str(max(self.table_model.review.n_frames - 1, 0)) + "MM"], list(bones) or [""],
                    [f"{n}M" for n in STATUS_NAMES],  # and the status's colour square
                    ["-0.000"], ["0.000"], ["0.000"], ["yes"])
-        for col, values in enumerate(samples):
-            self.view.setColumnWidth(col, max(fm.horizontalAdvance(v) for v in [COLUMNS[col], *values]) + pad)
+        self._widths = [max(fm.horizontalAdvance(v) for v in [COLUMNS[col], *values]) + pad
+                        for col, values in enumerate(samples)]
+        for col, width in enumerate(self._widths):
+            self.view.setColumnWidth(col, width)
+        self._status_square = fm.height() + 12  # the colour square and the cell's margins
+        self._bone_min = min(self._widths[1], 6 * fm.averageCharWidth() + fm.horizontalAdvance("…") + 8)
         header.setStretchLastSection(False)
         reason = COLUMNS.index("Reason")
         header.moveSection(header.visualIndex(reason), COLUMNS.index("Score") + 1)
@@ -322,14 +355,29 @@ class FrameTableDock(QtWidgets.QWidget):
 
     def _fit_reason(self) -> None:
         """The Reason column's width: what the table's width leaves beside the columns before it
-        (Frame to Score) and as many of those after it (σ, Edited) as leave it 20 letters (all of
-        them: it fills the table; the columns left out are scrolled to); at least 3 letters, so
-        that the columns before it keep their room at the dock's default width."""
-        reason = COLUMNS.index("Reason")
+        (Frame to Score; narrowed, Status to its square and Bone elided, where at their widths
+        they would leave it fewer than 20 letters) and as many of those after it (σ, Edited) as
+        leave it 20 letters (all of them: it fills the table; the columns left out are scrolled
+        to); at least 3 letters, so that the columns before it keep their room in a narrower dock."""
+        reason, status, bone = (COLUMNS.index(n) for n in ("Reason", "Status", "Bone"))
         header = self.view.horizontalHeader()
         order = sorted(range(len(COLUMNS)), key=header.visualIndex)
         at = order.index(reason)
-        used = sum(self.view.columnWidth(c) for c in order[:at])
+        widths = {c: self._widths[c] for c in order[:at]}
+        short = self._reason_wanted - (self.view.viewport().width() - sum(widths.values()))
+        compact = short > 0 and status in widths
+        if compact:  # the status's name goes (its colour stays), then letters of the bone's name
+            short -= widths[status] - self._status_square
+            widths[status] = self._status_square
+            if short > 0 and bone in widths:
+                widths[bone] = max(self._bone_min, widths[bone] - short)
+        if compact != self._status_delegate.compact:
+            self._status_delegate.compact = compact
+            self.view.viewport().update()
+        for c, width in widths.items():
+            if self.view.columnWidth(c) != width:
+                self.view.setColumnWidth(c, width)
+        used = sum(widths.values())
         after = [self.view.columnWidth(c) for c in order[at + 1:]]
         room = self.view.viewport().width() - used
         for k in range(len(after), -1, -1):
@@ -342,6 +390,22 @@ class FrameTableDock(QtWidgets.QWidget):
         if obj is self.view.viewport() and event.type() == QtCore.QEvent.Type.Resize:
             self._fit_reason()
         return super().eventFilter(obj, event)
+
+    def _show_reason(self) -> None:
+        """The current row's reason, whole and word-wrapped under the table (hidden without one)."""
+        current = self.view.currentIndex()
+        text = ""
+        if current.isValid():
+            b, f = self.table_model.locate(self.proxy.mapToSource(current).row())
+            reason = self.table_model.review.reasons.get((b, f))
+            if reason:
+                text = f"Frame {f}, {self.table_model.review.bones[b]}: {reason}"
+        self.reason_label.setText(text)
+        self.reason_label.setToolTip(text)
+        if bool(text) != self.reason_label.isVisibleTo(self):
+            self.reason_label.setVisible(bool(text))
+            if text:  # the table shrinks under it: keep the row in view once it is laid out
+                QtCore.QTimer.singleShot(0, self, lambda: self.view.scrollTo(self.view.currentIndex()))
 
     def set_filter(self, name: str) -> None:
         """Show rows of one filter by its name (``"Flagged"``, ``"All frames"``, …)."""
@@ -366,6 +430,7 @@ class FrameTableDock(QtWidgets.QWidget):
         """Select a shown row and go to its frame and bone (as a click does)."""
         self.view.selectRow(row)
         self.view.setCurrentIndex(self.proxy.index(row, 0))
+        self.view.scrollTo(self.proxy.index(row, 0))
         self._on_row(self.proxy.index(row, 0), None)
 
     def _on_row(self, current, _previous) -> None:

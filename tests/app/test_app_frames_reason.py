@@ -1,7 +1,9 @@
 """The Frames dock's columns at the dock's default width (340 px at 1280x800): Frame, Bone, Status
 and Score in view, then the Reason, as wide as the dock leaves it, its text elided with the whole
-of it in the row's tooltip. The Reason after Status pushed the Score past the dock's edge at 340
-px; as the last column the Reason was itself past the edge.
+of it in the row's tooltip and, for the row clicked, word-wrapped under the table. At 340 px the
+Status shows its colour square alone and the Bone is elided, so that the Reason gets 20 letters (it
+had 3). The Reason after Status pushed the Score past the dock's edge at 340 px; as the last column
+the Reason was itself past the edge.
 
 ``TALUS_SCREENSHOTS=DIR`` keeps ``frames_reason_column.png`` (the dock at 340 and 480 px)."""
 
@@ -82,8 +84,36 @@ def test_frame_status_and_score_in_view_then_the_reason_elided(qtbot, width):
     index = w.proxy.index(row, COLUMNS.index("Reason"))
     assert index.data(QtCore.Qt.ItemDataRole.ToolTipRole) == REASON  # the whole reason
     assert w.view.textElideMode() == QtCore.Qt.TextElideMode.ElideRight
-    if width == 480:  # room for 20 letters of the reason beside the numbers
-        assert right - left >= 20 * w.view.fontMetrics().averageCharWidth()
+    # room for 20 letters of the reason beside the numbers; at 340 px the status's name goes (its
+    # colour square stays) and the bone's name is elided to make it
+    assert right - left >= 20 * w.view.fontMetrics().averageCharWidth()
+    status = w.view.visualRect(w.proxy.index(row, COLUMNS.index("Status")))
+    assert (status.width() < 3 * w.view.fontMetrics().height()) is (width == 340)
+    assert (cols["Bone"][1] - cols["Bone"][0] >= w.view.fontMetrics().horizontalAdvance("metatarsal2")) is (
+        width == 480)
+    square = w.view.viewport().grab(status).toImage()
+    red = sum(QtGui.QColor(square.pixel(x, y)).red() > 180 and QtGui.QColor(square.pixel(x, y)).green() < 110
+              for x in range(square.width()) for y in range(square.height()))
+    assert red > 20  # the flagged row's red square is drawn at either width
+
+
+def test_the_row_clicked_shows_its_whole_reason_under_the_table(qtbot):
+    from app.review import COLUMNS
+
+    w = _dock(qtbot, 340)
+    assert not w.reason_label.isVisible()
+    row = _row_of(w, 2, 3)
+    w.view.scrollTo(w.proxy.index(row, 0))
+    cell = w.view.visualRect(w.proxy.index(row, COLUMNS.index("Score")))
+    qtbot.mouseClick(w.view.viewport(), QtCore.Qt.MouseButton.LeftButton, pos=cell.center())
+    qtbot.waitUntil(w.reason_label.isVisible)
+    assert w.reason_label.text() == f"Frame 3, calcaneus: {REASON}"
+    assert w.reason_label.wordWrap() and w.reason_label.width() <= 340
+    # the table shrank under the label: the row clicked is scrolled back into view
+    qtbot.waitUntil(lambda: w.view.viewport().rect().contains(w.view.visualRect(w.proxy.index(row, 0))))
+    other = w.view.visualRect(w.proxy.index(_row_of(w, 0, 3), COLUMNS.index("Score")))  # no reason
+    qtbot.mouseClick(w.view.viewport(), QtCore.Qt.MouseButton.LeftButton, pos=other.center())
+    qtbot.waitUntil(lambda: not w.reason_label.isVisible())
 
 
 def test_the_reason_fills_a_wide_dock(qtbot):
@@ -96,7 +126,11 @@ def test_the_reason_fills_a_wide_dock(qtbot):
 def test_screenshot_at_340_and_480_px(qtbot):
     """Both widths side by side (kept under ``TALUS_SCREENSHOTS``); the Score's digits are drawn
     inside the 340-px dock."""
-    shots = [_dock(qtbot, width).grab().toImage() for width in (340, 480)]
+    docks = [_dock(qtbot, width) for width in (340, 480)]
+    for w in docks:  # a flagged row chosen: its whole reason under the table
+        w.select_row(_row_of(w, 2, 3))
+        qtbot.waitUntil(w.reason_label.isVisible)
+    shots = [w.grab().toImage() for w in docks]
     img = QtGui.QImage(sum(s.width() for s in shots) + 16, max(s.height() for s in shots),
                        QtGui.QImage.Format.Format_RGB32)
     img.fill(QtGui.QColor("white"))

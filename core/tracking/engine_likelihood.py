@@ -122,8 +122,9 @@ from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 from .likelihood_weights import _RegionWeights
 
-__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "UPHILL_RESOLVED", "LikelihoodEngine", "StepClock",
-           "likelihood_engine", "robust_factors_device", "run_side_by_side", "run_steps", "solve_moments"]
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "STOP_PRED", "UPHILL_RESOLVED", "LikelihoodEngine",
+           "StepClock", "likelihood_engine", "robust_factors_device", "run_side_by_side", "run_steps",
+           "solve_moments"]
 
 #: The regions' line integrals and usable pixels made on the device from the fluence
 #: (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as the tracker's engine makes them)
@@ -146,6 +147,12 @@ BLOCK_BLUR = True
 #: the refinement as converged; there χ²'s comparison is within its rounding and chose whether a
 #: whole step stood (:mod:`~core.tracking.likelihood_fast`: Rounding). 0: every rise, as first measured.
 UPHILL_RESOLVED = 4.0
+#: :meth:`LikelihoodEngine.refine` ends after a step whose predicted decrease of χ² (``Jrᵀδ``) is
+#: below this many pixels' shares of χ² (χ²/N: the step's Mahalanobis length in independent-pixel
+#: σ, squared), that step taken without rendering its pose to verify it (Gauss–Newton from the
+#: tracker's optimum: the next step is 1-10 % of this one's length; module docs: Fewer steps).
+#: 0: only ``tol`` (1e-3 mm and degrees, far below σ) or an uphill step ends it, as first measured.
+STOP_PRED = 0.0
 
 
 class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence, _RegionWeights):
@@ -422,24 +429,27 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
         hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
-        best, n_it, pred = None, 0, 0.0
+        best, n_it, pred, last = None, 0, 0.0, None
         for it in range(1, int(iters) + 1):
             n_it = it
             self.step_launch(x, hv, reuse=reuse and it == 1)
             yield
             s = self.step_result()
+            share = s["chi2"] / max(self.n_pixels, 1)  # (χ²/N)
             rose = best is not None and s["chi2"] > best[1]["chi2"]
             if not np.isfinite(s["chi2"]) or (rose and pred >= UPHILL_RESOLVED * best[1]["chi2"]
                                               / max(self.n_pixels, 1)):
                 x = best[0] if best is not None else x  # uphill: the previous pose stands
+                last = None
                 break
-            best = (x.copy(), s)
+            best = last = (x.copy(), s)
             delta = np.linalg.solve(s["JJ"], s["Jr"])
             pred = float(s["Jr"] @ delta)  # the step's predicted decrease of χ²
             x = x + delta
-            if rose or np.all(np.abs(delta) < tv):  # (risen after a step the data do not resolve: converged)
-                break
-        out = {"x": x, "chi2": best[1]["chi2"] if best else np.nan, "iterations": n_it}
+            if rose or np.all(np.abs(delta) < tv) or pred < STOP_PRED * share:
+                break  # (risen after a step the data do not resolve, or a step below STOP_PRED: converged)
+        out = {"x": x, "chi2": best[1]["chi2"] if best else np.nan, "iterations": n_it,
+               "design": last}  # (the last design's centre and its step, where the result stepped from it)
         nan = np.full((6, 6), np.nan)
         if best is None:  # not even the start could be fitted
             return {**out, "covariance": nan, "covariance_independent": nan}

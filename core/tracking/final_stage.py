@@ -155,6 +155,12 @@ ROBUST_ON_DEVICE = True
 #: refinement's), ``covariance_robust`` is NaN and the engine's autocorrelation None after it: one
 #: sandwich (its residual's autocovariance and meat on the device) fewer per bone-frame
 ROBUST_SANDWICH = False
+#: the robust round from the first refinement's last design (its centre and step: the images on the
+#: device, the weights the same), without a step of its own there: the robust factors from that
+#: step's residual, the robust refinement started at that centre with its images (no render where
+#: it stops at once, :data:`~core.tracking.engine_likelihood.STOP_PRED`). Off: a step at the first
+#: refinement's result (rendered) for the factors, as first measured; module docs: Fewer steps.
+ROBUST_FROM_LAST = False
 
 
 @contextmanager
@@ -302,17 +308,25 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
     for _ in range(int(model.rounds)):
         if not np.all(np.isfinite(out["x"])):
             break
+        last = out.get("design") if out is first and tissue is None and mask is None else None
         if tissue is not None:
             tissue(out["x"])
             tissue = None
-        # the residual over the whole region (its typical pixel the noise's scale), then the
-        # factors within the support
-        eng.reset_weights()
-        eng.step_launch(out["x"], np.full(6, 0.05))  # (refine's design: its first step takes these images)
-        yield
-        s = eng.step_result()
-        if hinv is not None:  # (the device has done it: it came before this step)
-            first["covariance"], hinv = eng.sandwich_result(hinv), None
+        if (ROBUST_FROM_LAST and last is not None and eng._last is not None
+                and np.array_equal(eng._last[2], last[0])):
+            # the factors from the last design's step (the same weights and images), the robust
+            # refinement from its centre (ROBUST_FROM_LAST); the sandwich taken at the end
+            (start, s), factor_step = last, 0
+        else:
+            # the residual over the whole region (its typical pixel the noise's scale), then the
+            # factors within the support
+            start, factor_step = out["x"], 1
+            eng.reset_weights()
+            eng.step_launch(start, np.full(6, 0.05))  # (refine's design: its first step takes these images)
+            yield
+            s = eng.step_result()
+            if hinv is not None:  # (the device has done it: it came before this step)
+                first["covariance"], hinv = eng.sandwich_result(hinv), None
         if ROBUST_ON_DEVICE:
             f = eng.robust_weights(s, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
             if mask is not None:
@@ -323,12 +337,24 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
             f = robust_factors(e, used, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
             f = f if mask is None else f * mask
         eng.scale_weights(f)
-        own = ROBUST_SANDWICH or not np.all(np.isfinite(first["covariance"]))  # (then the stage's)
-        out = yield from _engine_refine(eng, out["x"], iters=o.final_iters, sandwich=own, reuse=True)
-        n_it += 1 + int(out["iterations"])
-    if hinv is not None:  # (no robust round)
+        # (the robust refinement's own sandwich where the first's is known to have failed)
+        own = ROBUST_SANDWICH or (hinv is None and not np.all(np.isfinite(first["covariance"])))
+        out = yield from _engine_refine(eng, start, iters=o.final_iters, sandwich=own, reuse=True)
+        n_it += factor_step + int(out["iterations"])
+    if hinv is not None:  # (no robust round, or one from the last design: the device has done it since)
         yield
         first["covariance"] = eng.sandwich_result(hinv)
+        d = out.get("design")
+        if (not np.all(np.isfinite(first["covariance"])) and out is not first and d is not None
+                and not np.all(np.isfinite(out["covariance"]))):  # (then the robust refinement's own)
+            try:
+                hr = np.linalg.inv(d[1]["JJ"])
+            except np.linalg.LinAlgError:
+                hr = None
+            if hr is not None:
+                eng.sandwich_launch(d[1])
+                yield
+                out["covariance"] = eng.sandwich_result(hr)
     out["iterations"] = n_it
     out["covariance_robust"] = out["covariance"]
     if np.all(np.isfinite(first["covariance"])):

@@ -30,15 +30,16 @@ class _Confidence:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s sandwich covariance (its
     attributes: the last step's images ``_last``, the frame's buffers, ``lag_px``, launches)."""
 
-    def _residual_device(self, s: dict, jacobian: bool = True) -> tuple:
+    def _residual_device(self, s: dict, jacobian: bool = True, pin: str = "lin") -> tuple:
         """``(e, jt)`` on the device: the weighted residual ``e = √w (y - A coef)`` and its
         projections at the centre of the last step's design (``s``: that :meth:`step`'s result;
         :func:`~core.tracking.likelihood_kernels.residual_kernel`), in the engine's buffers ``"e"`` and
-        ``"jt"`` (``jacobian`` False: ``jt`` not computed)."""
+        ``"jt"`` (``jacobian`` False: ``jt`` not computed). ``pin``: the pinned host buffer the fit's
+        coefficients go up from (another than an upload still pending from the last one's)."""
         img, low, _, _ = self._last
         nv, (Hc, Wc) = self.n_views, self._cap
         hp = 1.0 if self.highpass_px else 0.0
-        lin_h = self._pinned("lin", s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
+        lin_h = self._pinned(pin, s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
         lin_h.numpy()[...] = s["lin"]
         lin = self._buffer("lin", s["lin"].shape)
         wp.copy(lin, lin_h)

@@ -41,7 +41,7 @@ class _RegionWeights:
         """The robust factors of the weighted residual at the centre of the last step's design
         (``s``: that :meth:`step`'s result) and the current weights' usable pixels, on the device
         (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
-        e, _ = self._residual_device(s, jacobian=False)
+        e, _ = self._residual_device(s, jacobian=False, pin="lin_robust")  # (a sandwich's may be pending)
         return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
                                      bufs=self._bufs)
 

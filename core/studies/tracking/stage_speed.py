@@ -79,6 +79,11 @@ VARIANTS: dict = {
     # the stage's first refinement from 1e-6 mm and degrees off its start: the stage's own spread
     # under a perturbation of rounding's size (a variant "a+b" combines two)
     "jitter": lambda: _jitter(1e-6),
+    # the robust round from the first refinement's last design (final_stage.ROBUST_FROM_LAST)
+    "last": lambda: _flag("core.tracking.final_stage", "ROBUST_FROM_LAST", True),
+    # the regions' line integrals made on the device (engine_likelihood.DEVICE_REGIONS)
+    "devreg": lambda: _flag("core.tracking.engine_likelihood", "DEVICE_REGIONS", True),
+    # (and "stop<c>": a refinement ends after a step below c χ²/N, engine_likelihood.STOP_PRED = c)
 }
 _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
               "DIFF_IMAGES": "core.tracking.engine_likelihood",
@@ -102,8 +107,21 @@ def _variant(name: str):
     """The context of variant ``name`` (``"a+b"``: both of :data:`VARIANTS`'s, in that order)."""
     st = ExitStack()
     for part in name.split("+"):
-        st.enter_context(VARIANTS[part]())
+        if part.startswith("stop") and part not in VARIANTS:
+            st.enter_context(_flag("core.tracking.engine_likelihood", "STOP_PRED", float(part[4:])))
+        else:
+            st.enter_context(VARIANTS[part]())
     return st
+
+
+def _known(part: str) -> bool:
+    """Whether ``part`` names a variant (:data:`VARIANTS`, or ``stop<c>``)."""
+    if part in VARIANTS:
+        return True
+    try:
+        return part.startswith("stop") and float(part[4:]) >= 0
+    except ValueError:
+        return False
 
 
 @contextmanager
@@ -406,8 +424,8 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     variants = tuple(a.variants.split(","))
     for v in variants:
-        if any(x not in VARIANTS for x in v.split("+")):
-            p.error(f"--variants: {v!r} is not one of {sorted(VARIANTS)}")
+        if not all(_known(x) for x in v.split("+")):
+            p.error(f"--variants: {v!r} is not one of {sorted(VARIANTS)} or stop<c>")
 
     def save(d):
         if a.out:

@@ -1,0 +1,75 @@
+"""The likelihood final stage with fewer steps (engine_likelihood.STOP_PRED: a refinement ends after a
+step the data barely resolve, taken without rendering it; final_stage.ROBUST_FROM_LAST: the robust
+round from the first refinement's last design, no step of its own) on Warp's CPU device: fewer steps,
+poses and σ close to the converged stage's, and bones side by side as each alone, to the bit."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from core.geometry.transforms import pose_from_params
+from tests.core.tracking.test_likelihood_fast_kernels import noisy_talus  # noqa: F401 (a fixture)
+
+
+def _fewer(monkeypatch, stop: float = 4.0, last: bool = True) -> None:
+    import core.tracking.engine_likelihood as el
+    import core.tracking.final_stage as fst
+
+    monkeypatch.setattr(el, "STOP_PRED", stop)
+    monkeypatch.setattr(fst, "ROBUST_FROM_LAST", last)
+
+
+@pytest.mark.parametrize("frame", [1, 3])
+def test_fewer_steps_near_the_converged_stage(noisy_talus, monkeypatch, frame):  # noqa: F811
+    """Measured (128², 1.5 mm, 4 px, frames 1-3): 6-8 steps → 2-3, poses within 4e-3 σ and σ within
+    6e-3 relative of the converged stage's (256², 1 mm, frames 1-2: 0.045 σ, 0.019)."""
+    from core.tracking.register import RegistrationOptions, register
+
+    sc, model, r = noisy_talus["scene"], noisy_talus["model"], noisy_talus["renderer"]
+    truth = sc.poses(frame)[0]
+    fr = noisy_talus["frame"](frame)
+    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=4.0)
+    out = []
+    for fewer in (False, True):
+        if fewer:
+            _fewer(monkeypatch)
+        res = register(r, fr, bone=0, initial_pose=truth, center=model.centroid, options=o)
+        assert res.timing["likelihood_taken"] == 1
+        out.append((np.asarray(res.x, float), np.sqrt(np.diag(res.fit.covariance)),
+                    res.timing["likelihood_steps"]))
+    (x0, s0, n0), (x1, s1, n1) = out
+    assert np.all(np.isfinite(s0)) and np.all(s0 > 0)
+    assert n1 <= 3 < n0
+    assert np.max(np.abs(x1 - x0) / s0) < 2e-2
+    assert np.max(np.abs(s1 - s0) / s0) < 2e-2
+
+
+def test_fewer_steps_side_by_side_are_each_bones_own(talus_calcaneus_128, monkeypatch):
+    from core.tracking.cost import prepare_frame
+    from core.tracking.final_stage import final_stage, final_stages
+    from core.tracking.joint import JointJob, register_together
+    from core.tracking.register import RegistrationOptions
+
+    _fewer(monkeypatch)
+    sc, models, r, frames = talus_calcaneus_128
+    frame = prepare_frame(frames[1])
+    o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    truth = sc.poses(1)
+    offs = [np.r_[0.6, -0.4, 0.3, np.radians([0.8, -0.5, 0.6])],
+            np.r_[-0.5, 0.3, 0.4, np.radians([-0.6, 0.7, 0.4])]]
+    jobs = [JointJob(k, pose_from_params(d, center=m.centroid, base=truth[k]), m.centroid, m.outline,
+                     (truth[[1 - k]], [1 - k])) for k, (d, m) in enumerate(zip(offs, models, strict=True))]
+    regs = register_together(r, frame, jobs, o)
+    of = replace(o, final="likelihood", final_highpass_px=2.0)
+    calls = [(regs[k], {"bone": k, "initial_pose": job.initial_pose, "center": job.center, "options": of,
+                        "views": (0, 1), "others": job.others}) for k, job in enumerate(jobs)]
+    alone = [final_stage(r, frame, res, **kw) for res, kw in calls]
+    together = final_stages(r, frame, calls)
+    for a, t in zip(alone, together, strict=True):
+        assert a.timing["likelihood_taken"] == t.timing["likelihood_taken"] == 1
+        assert a.timing["likelihood_steps"] == t.timing["likelihood_steps"] > 0
+        np.testing.assert_array_equal(a.pose, t.pose)
+        np.testing.assert_array_equal(a.fit.covariance, t.fit.covariance)

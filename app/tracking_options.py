@@ -304,6 +304,9 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         try:
             self.options()
         except ValueError as exc:
-            QtWidgets.QMessageBox.warning(self, "Tracking options", str(exc))
+            from . import errors
+
+            if not errors.report_elsewhere("Tracking options", str(exc)):
+                QtWidgets.QMessageBox.warning(self, "Tracking options", str(exc))
             return
         super().accept()

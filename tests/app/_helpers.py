@@ -29,6 +29,12 @@ def _fast_tracking():
 # 37 s for 3 frames of one bone on the loaded 2-core machine, against 1.6 s with these.)
 FAST_TRACKING = _fast_tracking()
 
+class ErrorShown(RuntimeError):
+    """The window reported an error the test did not expect, where users get a modal box
+    (``tests/app/conftest.py``: raised by the test's wait). Not an AssertionError: ``qtbot.waitUntil``
+    takes those from its callback as "not yet"."""
+
+
 # The tests wait for the job's own end signal (finished, failed or cancelled), however long a
 # loaded machine takes to get there (Warp compiles its kernels in the first render). This is only
 # the ceiling for a job that never ends, not a time the work is expected to take.

@@ -5,6 +5,10 @@
   (:func:`tests.app._helpers.copy_study`); the folder itself is never written to.
 * After every test the Qt objects it left behind are deleted on the GUI thread (see
   :func:`_qt_garbage_on_the_gui_thread`).
+* An error the window would show in a modal box (:mod:`app.errors`) fails a pytest-qt test at
+  once instead (:func:`_errors_fail_the_test`): the box would wait for a click for ever. A test
+  that expects such errors takes ``shown_errors`` (the ``(title, text)`` pairs, nothing raised);
+  one that looks at the box itself takes ``modal_errors`` (the box, as users see it).
 """
 
 from __future__ import annotations
@@ -12,6 +16,30 @@ from __future__ import annotations
 import gc
 
 import pytest
+
+
+class _ErrorState:
+    def __init__(self) -> None:
+        self.expected: list | None = None  # shown_errors' list: recorded, nothing raised
+        self.pending: list[Exception] = []  # ErrorShown reported, not yet raised in the test
+        self.raised: list[Exception] = []
+        self.loops: list = []  # the event loops of pytest-qt's waits now running, innermost last
+
+    def report(self, title: str, text: str) -> None:
+        if self.expected is not None:
+            self.expected.append((title, text))
+            return
+        from tests.app._helpers import ErrorShown
+
+        self.pending.append(ErrorShown(f"the window showed an error: {title} {text}"))
+        for loop in self.loops:  # end the test's wait now; it raises the error (_exec)
+            loop.quit()
+
+    def raise_pending(self) -> None:
+        if self.pending:
+            exc = self.pending.pop(0)
+            self.raised.append(exc)
+            raise exc
 
 
 @pytest.fixture(scope="session")
@@ -54,3 +82,57 @@ def _qt_garbage_on_the_gui_thread(request):
     from app.workers import GuiThreadCollector
 
     GuiThreadCollector.check()
+
+
+@pytest.fixture(autouse=True)
+def _errors_fail_the_test(request, monkeypatch):
+    """For a test that uses pytest-qt: :data:`app.errors.HOOK` records the window's error messages
+    instead of a modal box, and pytest-qt's waits (``waitUntil``, ``waitSignal``, ``wait``… all run
+    an event loop through ``qt_api.exec``) end at once and raise
+    :class:`tests.app._helpers.ErrorShown` — one running when the error comes, or the next one —
+    so a test whose action failed fails then, not at its wait's timeout; an error no wait saw fails
+    the test at its end. ``shown_errors`` and ``modal_errors`` change that (module notes)."""
+    if "qtbot" not in request.fixturenames or "modal_errors" in request.fixturenames:
+        yield
+        return
+    from pytestqt.qt_compat import qt_api
+
+    import app.errors
+
+    state = _ErrorState()
+    exec_ = qt_api.exec
+
+    def _exec(obj, *args, **kwargs):
+        __tracebackhide__ = True
+        state.raise_pending()
+        state.loops.append(obj)
+        try:
+            result = exec_(obj, *args, **kwargs)
+        finally:
+            state.loops.remove(obj)
+        state.raise_pending()
+        return result
+
+    monkeypatch.setattr(app.errors, "HOOK", state.report)
+    monkeypatch.setattr(qt_api, "exec", _exec)
+    request.node.talus_errors = state
+    yield
+    if state.pending:
+        pytest.fail(f"{state.pending[0]} (not seen by any wait of the test)", pytrace=False)
+
+
+@pytest.fixture
+def shown_errors(request, qtbot, _errors_fail_the_test) -> list[tuple[str, str]]:
+    """The ``(title, text)`` of each error the window reported in this test (expected ones:
+    nothing is raised)."""
+    state = request.node.talus_errors
+    state.expected = []
+    return state.expected
+
+
+@pytest.fixture
+def modal_errors(monkeypatch):
+    """The window's error messages in their modal box, as users see them (the test closes it)."""
+    import app.errors
+
+    monkeypatch.setattr(app.errors, "HOOK", None)

@@ -38,7 +38,7 @@ def damaged_study(demo_folder, tmp_path):
 
 
 @pytest.fixture
-def window(qtbot, monkeypatch):
+def window(qtbot, monkeypatch, modal_errors):  # the error box itself, as users see it
     monkeypatch.setenv("XDG_CONFIG_HOME", os.environ.get("XDG_CACHE_HOME", "/tmp"))
     win = MainWindow(device="cpu", create_scene_on_show=False)
     qtbot.addWidget(win)

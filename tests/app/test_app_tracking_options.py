@@ -202,7 +202,7 @@ def test_advanced_checks_set_the_thresholds_with_keys_and_clicks(qtbot, window):
         qtbot.keyClick(dialog, QtCore.Qt.Key.Key_Escape)
 
 
-def test_advanced_checks_hold_their_ranges_and_ok_refuses_an_invalid_value(qtbot, monkeypatch):
+def test_advanced_checks_hold_their_ranges_and_ok_refuses_an_invalid_value(qtbot, shown_errors):
     dialog = TrackingOptionsDialog()
     qtbot.addWidget(dialog)
     dialog.show()
@@ -211,18 +211,17 @@ def test_advanced_checks_hold_their_ranges_and_ok_refuses_an_invalid_value(qtbot
     assert dialog.motion_limit.value() >= 1
     _type(qtbot, dialog.collapse_ratio, "7")
     assert dialog.collapse_ratio.value() <= 1
-    warned = []
-    monkeypatch.setattr(QtWidgets.QMessageBox, "warning", lambda parent, title, text: warned.append(text))
+    warned = shown_errors  # (title, text) of each refusal, where users get a warning box
     dialog.sigma_limit.setMinimum(0.0)  # a value out of the tracker's range, set from code
     dialog.sigma_limit.setValue(0.5)
     _click(qtbot, dialog, "Ok")
     assert dialog.isVisible() and dialog.result() == 0  # not accepted
-    assert len(warned) == 1 and warned[0].startswith("sigma_limit: expected a factor >= 1"), warned
+    assert len(warned) == 1 and warned[0][1].startswith("sigma_limit: expected a factor >= 1"), warned
     dialog.sigma_limit.setValue(3.0)
     _type(qtbot, dialog.trajectory_limit, "0.9")  # between Off and the range's 1: refused, not Off
     _click(qtbot, dialog, "Ok")
     assert dialog.isVisible() and dialog.result() == 0
-    assert len(warned) == 2 and warned[1].startswith("trajectory_limit: expected a factor >= 1"), warned
+    assert len(warned) == 2 and warned[1][1].startswith("trajectory_limit: expected a factor >= 1"), warned
 
 
 def test_the_final_stage_move_check_is_set_with_the_likelihood_stage_only(qtbot, window):

@@ -31,9 +31,10 @@ jointly tibia 1.73 / 1.85, talus 1.80 / 1.57, calcaneus 1.31 / 1.52 (the H200 ru
 sequentially 1.79 / 2.46, 2.23 / 2.17, 1.59 / 1.43; 100 % converged; silent frames over 4× the
 bound 1 / 0 / 0 jointly (the post-pass flagged 18 bone-frames), 9 / 7 / 0 sequentially; 98.8–100 %
 of axes within 2σ; the smallest tibia–talus joint space 0.030 mm jointly, 0.130 mm sequentially,
-the truth's 0.144 mm. That sequential run searched each bone against the whole image; sequential
-tracking of flatfield-corrected frames, such as this trial's, now subtracts the other bones in the
-search (``TrackingOptions.sequential_subtract``, "auto" resolved as
+the truth's 0.144 mm (the voxel-mask measure of then; 0.426 mm on the exact surfaces). That
+sequential run searched each bone against the whole image; sequential tracking of
+flatfield-corrected frames, such as this trial's, now subtracts the other bones in the search
+(``TrackingOptions.sequential_subtract``, "auto" resolved as
 :func:`core.tracking.from_study.track_study` does; ``--sequential-subtract``): on the same frames
 (``sequential_drift_h100.json``) silent 0 / 0 / 0 and × the bound 1.71 / 1.79, 1.78 / 1.58,
 1.29 / 1.50.
@@ -74,7 +75,9 @@ Measurements
   (:func:`~core.studies.tracking.acceptance_goals.compare_modes`; ``python -m
   core.studies.tracking.acceptance_goals --regoal FILE`` recomputes a stored result's goals);
 * **joint space** — the smallest signed surface distance of tibia–talus and talus–calcaneus over
-  the trial at the tracked poses against the truth's (``joint_space``).
+  the trial at the tracked poses against the truth's (``joint_space``), on the phantoms' exact
+  surfaces; stored runs before it (``"surfaces"`` absent) measured it on the voxel masks, which
+  read up to ~0.3 mm low at 0.5 mm voxels (seed 0's truth 0.144 against 0.426 mm).
 
 ``--quick`` (CPU, this machine) uses 256² views, 1 mm voxels, 20 frames and 5 capture trials per
 bone; the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). The JSON goes

@@ -64,14 +64,45 @@ def test_joint_space_of_the_true_poses_is_the_truths(scene):
         assert np.isfinite(v["truth_min_mm"]) and v["truth_min_mm"] < 10.0
         assert v["min_frame"] != 1
     shifted = dict(res.results)
-    for f in (0, 2):  # the talus moved 1 mm away from the tibia's centroid: a wider joint space
+    for f in (0, 2):  # the talus moved 1 mm away from the tibia's centroid: the joint space changes
         T = scene.truth(f)
         c = [T[b][:3, :3] @ scene.models[b].centroid + T[b][:3, 3] for b in (0, 1)]
         P = T[1].copy()
         P[:3, 3] += (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])
         shifted[("talus", f)] = SimpleNamespace(pose=P)
     js2 = joint_space(scene, SimpleNamespace(results=shifted))
-    assert js2["tibia-talus"]["max_abs_diff_mm"] > 0.2
+    # by ~0.12 mm on the exact surfaces: their nearest points are the malleolus beside the talus
+    # (contact normal along lab y), which a move along the long axis changes little
+    assert js2["tibia-talus"]["max_abs_diff_mm"] > 0.1
+
+
+def test_joint_space_is_measured_on_the_exact_surfaces(scene):
+    """The joint space is the phantoms' exact surface distance whatever the models' voxels: the
+    tibia moved along the contact normal by +-0.3 mm opens or closes it by 0.3 mm (into the talus:
+    negative allowed), where the voxel-mask measure at this scene's 2 mm voxels reads mm low."""
+    from core.synthetic.motion import _pair, _spaces
+
+    T = np.stack([scene.truth(f) for f in range(3)])
+    res = SimpleNamespace(results={(n, f): SimpleNamespace(pose=T[f, b])
+                                   for b, n in enumerate(scene.names) for f in range(3)})
+    exact, n = _spaces(_pair("tibia", "talus"), T[:, 0], T[:, 1])
+    js = joint_space(scene, res)["tibia-talus"]
+    k = int(np.argmin(exact))
+    assert js["surfaces"] == "exact" and js["truth_min_frame"] == k
+    assert js["truth_min_mm"] == pytest.approx(exact[k], abs=1e-12) and 0.3 < js["truth_min_mm"] < 0.7
+    mask = joint_space(scene, res, surfaces="mask")["tibia-talus"]
+    assert mask["truth_min_mm"] < js["truth_min_mm"] - 1.0  # the old measure, 2 mm shell voxels
+    for delta in (0.3, -0.6):
+        moved = dict(res.results)
+        for f in range(3):
+            P = T[f, 0].copy()
+            P[:3, 3] += delta * n[f]
+            moved[("tibia", f)] = SimpleNamespace(pose=P)
+        got = joint_space(scene, SimpleNamespace(results=moved))["tibia-talus"]
+        assert got["min_frame"] == k
+        assert got["min_mm"] - js["truth_min_mm"] == pytest.approx(delta, abs=0.03)
+    with pytest.raises(ValueError, match="surfaces"):
+        joint_space(scene, res, surfaces="mesh")
 
 
 _IN_WORKERS = """

@@ -293,9 +293,14 @@ class BatchPanel(QtCore.QObject):
             raise ValueError("study: tracking needs a study open for writing")
         if self.running or self.window.tracking.running:
             raise ValueError("tracking: a tracking job is running (cancel it first)")
-        if session.edits.waiting():  # a hand edit journaled once handed over could be overtaken
-            raise ValueError("batch: a hand edit is waiting for its bone's journal (another writer holds "
-                             "it for a moment); start the batch once it is saved or refused")
+        # a hand edit journaled once handed over could be overtaken: start once it is saved
+        again = dict(trials=trials, bones=bones, mode=mode, ranges=ranges, workers=workers,
+                     scheduler=scheduler, split_bones=split_bones)
+        if session.edits.after_waiting("batch", lambda: self.window._guard(lambda: self.start(**again))):
+            self.window.statusBar().showMessage(
+                "The batch starts once the hand edits waiting for their journals are saved (another writer "
+                "holds one for a moment)…", 10_000)
+            return
         opts = self.window.tracking.options
         tasks = build_tasks([session.folder], trials, bones, mode=mode, ranges=ranges,
                             split_bones=split_bones,

@@ -19,10 +19,12 @@ once without waiting; each one refused says so again, the same message as the fi
 updating that one message (and the status bar) rather than adding one per move (a later burst of
 refusals has a message of its own). A write that fails (a full disk) is said likewise.
 
-While a bone's edits wait, *Undo fix* of it, a tracking job and a batch are refused (each would
-read or write the journal before them). Edits still waiting when the window closes are journaled
-or refused then, blocking for what is left of their wait; where refused, the window stays open
-for the message (:meth:`HandEdits.settle`, ``MainWindow.closeEvent``).
+While a bone's edits wait, *Undo fix* of it, a tracking job and a batch wait for them (each would
+read or write the journal before them: :meth:`HandEdits.after_waiting`): the status bar says so,
+and they go ahead once the edits are journaled or refused — within :data:`HAND_EDIT_WAIT_S`; they
+were refused, to be asked again. Edits still waiting when the window closes are journaled
+or refused then, blocking for what is left of their wait (what waited for them is dropped); where
+refused, the window stays open for the message (:meth:`HandEdits.settle`, ``MainWindow.closeEvent``).
 
 Without a Qt application, or with no one to tell (:attr:`app.session.StudySession.notify` None),
 the wait blocks and a refusal raises :class:`core.study.LockedError`.
@@ -97,6 +99,7 @@ class HandEdits:
         self._unsaved: set[str] = set()  # bones whose last edit was refused
         self._timer = None
         self._n = 0  # unique keys and message tags
+        self._after: dict[str, tuple[str | None, Callable[[], None]]] = {}  # key -> (bone, action)
 
     # ------------------------------------------------------------------ queries
     def waiting(self, bone: str | None = None) -> bool:
@@ -106,6 +109,23 @@ class HandEdits:
     def unsaved(self, bone: str) -> bool:
         """Whether ``bone``'s last edit is not in the journal: refused, or still waiting."""
         return bone in self._unsaved or bone in self._waiting
+
+    def after_waiting(self, key: str, action: Callable[[], None], bone: str | None = None) -> bool:
+        """Where edits of ``bone`` (None: of any bone) wait for their journal, run ``action`` once
+        they are journaled or refused — at most :data:`HAND_EDIT_WAIT_S` later, from the wait's
+        timer — and return True; where none waits, return False (the caller goes on now).
+        ``action`` must not raise (the window's actions go through its ``_guard``). A later call
+        with the same ``key`` replaces the action waiting; closing the window drops them."""
+        if not self.waiting(bone):
+            return False
+        self._after.pop(key, None)
+        self._after[key] = (bone, action)
+        return True
+
+    def _run_after(self) -> None:
+        for key in [k for k, (bone, _) in self._after.items() if not self.waiting(bone)]:
+            _, action = self._after.pop(key)
+            action()
 
     # ------------------------------------------------------------------ edits
     def submit(self, bone: str, write: Callable[[], None], *, key=None,
@@ -247,11 +267,15 @@ class HandEdits:
                     done()
         if not self._waiting and self._timer is not None:
             self._timer.stop()
+        if not block:
+            self._run_after()
 
     def settle(self) -> list[str]:
         """Journal or refuse the edits still waiting, blocking for what is left of their wait (the
-        window closes); returns the bones whose waiting edits were refused (said through
-        ``notify``), so that the window can stay open for the message to be read."""
+        window closes; what waited for them is dropped); returns the bones whose waiting edits were
+        refused (said through ``notify``), so that the window can stay open for the message to be
+        read."""
+        self._after.clear()
         bones = list(self._waiting)
         if bones:
             self.poll(block=True)
@@ -260,6 +284,7 @@ class HandEdits:
     def close(self) -> None:
         """Journal or refuse the edits still waiting (:meth:`settle`), and stop the timer (also
         where a refusal is raised: no tick may come after the study is closed)."""
+        self._after.clear()
         try:
             if self._waiting:
                 self.poll(block=True)

@@ -244,17 +244,24 @@ class ReviewActions:
         frames = self.frames_for(direction, bone, m.current_frame, m.n_frames)
         self.window.tracking.start([bone], frames)
 
-    def undo_fix(self) -> None:
+    def undo_fix(self, bone: str | None = None, frame: int | None = None) -> None:
         """Put back the tracking result that a hand fix of the selected bone at the current frame
-        replaced (the journal keeps it; the fix stays in the journal's history too)."""
-        m, s, bone = self._selected()
+        (``bone`` at ``frame`` where given) replaced (the journal keeps it; the fix stays in the
+        journal's history too). While an edit of the bone waits for its journal, this waits for it
+        (the journal it reads would lack it: the fix to undo may be that edit), the status bar
+        saying so."""
+        m, s, selected = self._selected()
+        bone = selected if bone is None else bone
+        f = m.current_frame if frame is None else int(frame)
         s.require_writable("undoing a fix")
-        if m.layers[m.selected].locked:  # a bone handed to a batch: its journal is not the window's
+        if m.layers[m.index(bone)].locked:  # a bone handed to a batch: its journal is not the window's
             raise ValueError(self.locked_reason(bone))
-        if s.edits.waiting(bone):  # the journal read below lacks them: the fix to undo may be one
-            raise ValueError(f"{bone}: an edit is waiting for its journal (another writer holds it for a "
-                             "moment); undo the fix once it is saved")
-        f = m.current_frame
+        if s.edits.after_waiting("undo fix", lambda: self.window._guard(lambda: self.undo_fix(bone, f)),
+                                 bone=bone):
+            self.window.statusBar().showMessage(
+                f"Undo fix of {bone} at frame {f}: waiting for its edit to be saved (another writer holds "
+                "its journal for a moment)…", 10_000)
+            return
         fixed = m.pose(bone, f)
         trial = s.study.trial(s.trial_name)
         recs = trial.results(bone).essential_records().get(f, [])

@@ -147,9 +147,15 @@ class TrackingActions:
             raise ValueError("tracking: a tracking job is already running (cancel it first)")
         if self.batch is not None and self.batch.running:
             raise ValueError("tracking: a batch is tracking this study (cancel it first)")
-        if session.edits.waiting():  # a queued hand edit written beside the tracker's records
-            raise ValueError("tracking: a hand edit is waiting for its bone's journal (another writer "
-                             "holds it for a moment); track once it is saved or refused")
+
+        def again() -> None:  # a queued hand edit would be written beside the tracker's records
+            self.window._guard(lambda: self.start(bones, frames))
+
+        if session.edits.after_waiting("tracking", again):  # so start once it is saved (<= 1 s)
+            self.window.statusBar().showMessage(
+                "Tracking starts once the hand edits waiting for their journals are saved (another writer "
+                "holds one for a moment)…", 10_000)
+            return
         if self.options is not None and self.options.refine_likelihood:
             from .commands.track import final_stage_problem
 

@@ -1,9 +1,12 @@
 """Hand edits queued while a bone's journal is held by another writer (a batch's trajectory check):
 what the user does during the wait, through the window's menu actions, on the 96-px demo study.
 
-* *Undo fix* while the bone's edit waits is refused (the journal it reads lacks the edit); an
-  *Undo fix* that waits, then a move of the same frame: the move, journaled after it, stays in the
-  model (the fix's undo put the tracked pose back over it: model and journal disagreed).
+* *Undo fix* while the bone's edit waits waits for it (the journal it reads would lack the edit;
+  it was refused, to be asked again), the status bar saying so, and undoes the fix of the frame it
+  was asked at once the edit is journaled; *Track all bones* likewise starts the tracking job once
+  the edit is journaled. An *Undo fix* that waits, then a move of the same frame: the move,
+  journaled after it, stays in the model (the fix's undo put the tracked pose back over it: model
+  and journal disagreed).
 * Edit → Undo of a waiting move: the journal ends as the model.
 * Two bones waiting at once: both journaled once the locks come.
 * Closing the window while an edit waits: saved where the lock is free by then; refused, the
@@ -20,7 +23,7 @@ from PySide6 import QtCore
 from core.io.atomic import FileLock
 from core.study import Study
 from core.tracking.batch_journal import TRAJECTORY_CHECK
-from tests.app._helpers import HUNG_JOB_MS, copy_study, main_window
+from tests.app._helpers import HUNG_JOB_MS, copy_study, job_ends, main_window
 from tests.app._helpers import menu_action as _action
 
 pytestmark = pytest.mark.gui
@@ -60,24 +63,59 @@ def _fixed_frame_1(folder) -> np.ndarray:
     return tracked
 
 
-def test_undo_fix_while_an_edit_waits_is_refused(qtbot, demo_study, tmp_path):
+def _texts(win) -> list[str]:
+    return [win.messages.item(i).text() for i in range(win.messages.count())]
+
+
+def test_undo_fix_while_an_edit_waits_waits_for_it(qtbot, demo_study, tmp_path, shown_errors):
     folder = copy_study(demo_study, tmp_path)
-    _fixed_frame_1(folder)
+    tracked = _fixed_frame_1(folder)
     with main_window(qtbot) as win:
         s, m = _open(qtbot, win, folder)
         m.set_frame(1)
-        shown = []
-        win.show_error = lambda title, text: shown.append(text)  # the dialog _guard shows
+        lock = _lock(folder, s.trial_name, BONE).acquire()
+        QtCore.QTimer.singleShot(300, lock.release)
+        _action(win, "Move x+").trigger()
+        assert s.edits.waiting(BONE)
+        win.review.undo_fix_action.trigger()
+        assert win.statusBar().currentMessage().startswith(
+            f"Undo fix of {BONE} at frame 1: waiting for its edit to be saved")
+        m.set_frame(0)  # moving on meanwhile: the undo is of the frame it was asked at
+        done = f"{BONE} frame 1: fix undone (tracking result restored)"
+        qtbot.waitUntil(lambda: done in _texts(win), timeout=WAIT_MS)
+        assert not shown_errors and not s.edits.waiting()
+        recs = s.study.trial(s.trial_name).results(BONE).essential_records()[1]
+        assert recs[-1].kind == "tracked"  # the move journaled, then the fix (the move) undone
+        np.testing.assert_allclose(_journal(s)[1], tracked)
+        np.testing.assert_allclose(m.pose(BONE, 1), tracked)
+
+
+def test_tracking_started_while_an_edit_waits_starts_once_it_is_saved(qtbot, demo_study, tmp_path,
+                                                                       monkeypatch):
+    import core.tracking.from_study as from_study
+
+    folder = copy_study(demo_study, tmp_path)
+    seen = []
+
+    def fake_track_study(study, trial, bones, frames, **kw):  # the journal as the tracker finds it
+        seen.append((list(bones), study.trial(trial).poses(BONE)[f].copy()))
+        return None, {"summary": {"status": "complete", "results": 0}, "stopped": {}, "flagged": []}
+
+    monkeypatch.setattr(from_study, "track_study", fake_track_study)
+    with main_window(qtbot) as win:
+        s, m = _open(qtbot, win, folder)
+        f = m.current_frame
         lock = _lock(folder, s.trial_name, BONE).acquire()
         QtCore.QTimer.singleShot(300, lock.release)
         _action(win, "Move x+").trigger()
         moved = m.pose(BONE)
-        assert s.edits.waiting(BONE)
-        win.review.undo_fix_action.trigger()
-        assert shown == [f"{BONE}: an edit is waiting for its journal (another writer holds it for a "
-                         "moment); undo the fix once it is saved"]
-        qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
-        np.testing.assert_allclose(_journal(s)[1], moved)
+        with job_ends(qtbot, win.pool, "tracking"):
+            _action(win, "Track &all bones").trigger()
+            assert s.edits.waiting(BONE) and not seen  # not started yet
+            assert win.statusBar().currentMessage().startswith(
+                "Tracking starts once the hand edits waiting for their journals are saved")
+        assert [b for b, _ in seen] == [[layer.name for layer in m.layers]]
+        np.testing.assert_allclose(seen[0][1], moved)  # the edit journaled before the tracker started
 
 
 def test_a_move_made_while_undo_fix_waits_stays(qtbot, demo_study, tmp_path):

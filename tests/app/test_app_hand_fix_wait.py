@@ -48,11 +48,24 @@ def _last(win) -> str:
     return win.messages.item(win.messages.count() - 1).text()
 
 
-def test_the_window_stays_responsive_while_a_fix_waits_for_the_journal(qtbot, demo_study, tmp_path):
+def test_the_window_stays_responsive_while_a_fix_waits_for_the_journal(qtbot, demo_study, tmp_path,
+                                                                        monkeypatch):
     """The wait (up to 1 s) ran on the GUI thread: the window froze. The edit now waits off it: the
     trigger returns with the edit waiting, a timer fires during the wait, it is journaled once the lock
-    comes; K likewise (the keyframe set once it is journaled). A batch is not started meanwhile."""
+    comes; K likewise (the keyframe set once it is journaled). A batch asked for meanwhile starts
+    once the edit is journaled (the status bar saying it waits)."""
+    import core.tracking.batch as core_batch
+
     folder = copy_study(demo_study, tmp_path)
+    batches = []
+
+    def run_batch(tasks, settings=None, **kw):  # recorded, not run: the journal as the batch finds it
+        batches.append((tasks, _journaled(s, f)))
+        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
+                     seconds=0.0) for t in tasks]
+        return core_batch.summarize(tasks, recs, [], wall_s=0.0, workers=0)
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
     with main_window(qtbot) as win:
         s, m, lock = _handed(qtbot, win, folder)
         f = m.current_frame
@@ -68,10 +81,15 @@ def test_the_window_stays_responsive_while_a_fix_waits_for_the_journal(qtbot, de
         np.testing.assert_array_equal(_journaled(s, f), before)  # not yet
         from app.batch_panel import BatchPanel
 
-        with pytest.raises(ValueError, match="a hand edit is waiting for its bone's journal"):
-            BatchPanel(win).start(trials=[s.trial_name], bones=[BONE])  # it could overtake the batch
-        qtbot.waitUntil(lambda: not s.edits.waiting(), timeout=WAIT_MS)
+        panel = BatchPanel(win)
+        panel.start(trials=[s.trial_name], bones=[BONE])  # it could overtake the batch: it waits
+        assert not batches and win.statusBar().currentMessage().startswith(
+            "The batch starts once the hand edits waiting for their journals are saved")
+        with qtbot.waitSignal(panel.finished, timeout=WAIT_MS):
+            pass
         assert fired == [True]  # the event loop ran while the edit waited
+        assert [t.key for t in batches[0][0]] == [f"study/{s.trial_name}/{BONE}"]
+        np.testing.assert_allclose(batches[0][1], m.pose(BONE))  # journaled before the batch began
         np.testing.assert_allclose(_journaled(s, f), m.pose(BONE))
         assert not s.unsaved(BONE) and not s.study.journal_locked(s.trial_name, BONE)
         m.set_frame(f + 1)  # K on a frame with no record, while the check holds the journal

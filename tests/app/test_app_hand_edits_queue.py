@@ -12,9 +12,13 @@ what the user does during the wait, through the window's menu actions, on the 96
 * Closing the window while an edit waits: saved where the lock is free by then; refused, the
   window stays open so that the message is read, and closes the second time.
 
-The locks are let go by a Qt timer (not a thread's clock), so the edit waits whatever the load."""
+The locks are let go by a Qt timer (not a thread's clock), so the edit waits whatever the load.
+``TALUS_SCREENSHOTS=DIR`` keeps ``undo_fix_waits.png`` (the status bar while Undo fix waits)."""
 
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -80,6 +84,10 @@ def test_undo_fix_while_an_edit_waits_waits_for_it(qtbot, demo_study, tmp_path, 
         win.review.undo_fix_action.trigger()
         assert win.statusBar().currentMessage().startswith(
             f"Undo fix of {BONE} at frame 1: waiting for its edit to be saved")
+        folder_shots = os.environ.get("TALUS_SCREENSHOTS")
+        if folder_shots:  # the status bar while it waits
+            Path(folder_shots).mkdir(parents=True, exist_ok=True)
+            assert win.statusBar().grab().save(str(Path(folder_shots) / "undo_fix_waits.png"))
         m.set_frame(0)  # moving on meanwhile: the undo is of the frame it was asked at
         done = f"{BONE} frame 1: fix undone (tracking result restored)"
         qtbot.waitUntil(lambda: done in _texts(win), timeout=WAIT_MS)

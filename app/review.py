@@ -363,7 +363,10 @@ class FrameTableDock(QtWidgets.QWidget):
         header = self.view.horizontalHeader()
         order = sorted(range(len(COLUMNS)), key=header.visualIndex)
         at = order.index(reason)
-        widths = {c: self._widths[c] for c in order[:at]}
+        narrowed = (status, bone) if self._status_delegate.compact else ()
+        # the columns before it as they are (a user may have widened one), Status and Bone at their
+        # full widths where they are narrowed now
+        widths = {c: self._widths[c] if c in narrowed else self.view.columnWidth(c) for c in order[:at]}
         short = self._reason_wanted - (self.view.viewport().width() - sum(widths.values()))
         compact = short > 0 and status in widths
         if compact:  # the status's name goes (its colour stays), then letters of the bone's name
@@ -374,9 +377,9 @@ class FrameTableDock(QtWidgets.QWidget):
         if compact != self._status_delegate.compact:
             self._status_delegate.compact = compact
             self.view.viewport().update()
-        for c, width in widths.items():
-            if self.view.columnWidth(c) != width:
-                self.view.setColumnWidth(c, width)
+        for c in (status, bone):
+            if c in widths and self.view.columnWidth(c) != widths[c]:
+                self.view.setColumnWidth(c, widths[c])
         used = sum(widths.values())
         after = [self.view.columnWidth(c) for c in order[at + 1:]]
         room = self.view.viewport().width() - used

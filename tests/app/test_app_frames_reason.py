@@ -150,3 +150,26 @@ def test_screenshot_at_340_and_480_px(qtbot):
     if folder:
         Path(folder).mkdir(parents=True, exist_ok=True)
         assert img.save(str(Path(folder) / "frames_reason_column.png"))
+
+
+def test_the_narrow_layout_comes_and_goes_with_the_width(qtbot):
+    """Widened from 340 to 480 px, the Status shows its name again at its full width and the Bone
+    its whole name; a column the user widened (the header's drag sets its width) keeps its width
+    when the dock is resized."""
+    from app.review import COLUMNS
+
+    w = _dock(qtbot, 340)
+    status, bone, score = (COLUMNS.index(n) for n in ("Status", "Bone", "Score"))
+    narrow = w.view.columnWidth(status), w.view.columnWidth(bone)
+    w.resize(480, 400)
+    qtbot.waitUntil(lambda: w.view.columnWidth(status) > narrow[0])
+    assert not w._status_delegate.compact and w.view.columnWidth(bone) > narrow[1]
+    assert w.view.columnWidth(bone) >= w.view.fontMetrics().horizontalAdvance("metatarsal2")
+    wider = w.view.columnWidth(score) + 15
+    w.view.setColumnWidth(score, wider)
+    w.resize(700, 400)
+    qtbot.waitUntil(lambda: w.view.viewport().width() > 600)
+    assert w.view.columnWidth(score) == wider
+    w.resize(340, 400)
+    qtbot.waitUntil(lambda: w._status_delegate.compact)
+    assert w.view.columnWidth(status) == narrow[0]

@@ -163,13 +163,26 @@ def _register_from(ts, frame, f: int, b: int, start: np.ndarray | None, others: 
     return pose_errors(res.pose, P[b], m.centroid)
 
 
-def _stored_errors(path: str | None, mode: str) -> dict:
+def _stored_errors(path: str | None, mode: str, n_frames: int | None = None) -> dict:
+    """``{bone: {frame: (6,) error}}`` of a stored acceptance run (``mode``'s where it has runs per
+    mode), by frame number (``frames_with_pose``: a frame without a pose has no error, so the
+    errors' positions are not their frames; without it, frames ``0..n-1`` where all ``n`` of the
+    run's ``config.frames``, else ``n_frames``, have one)."""
+    from core.studies.tracking.acceptance_goals import _by_frame
+
     if not path:
         return {}
     with open(path) as fh:
         d = json.load(fh)
-    t = d["runs"][mode]["tracking"] if "runs" in d else d["tracking"]
-    return {nm: np.asarray(t[nm]["per_frame_error"], float) for nm in t}
+    r = d["runs"][mode] if "runs" in d else d
+    n = r.get("config", {}).get("frames", n_frames)
+    out = {}
+    for nm, tb in r["tracking"].items():
+        e = _by_frame(tb, n)
+        if e is None:
+            raise ValueError(f"{path}: {nm}'s per-frame errors name no frames (frames_with_pose)")
+        out[nm] = e
+    return out
 
 
 def run(*, seed: int = 4, pixels: int = 256, voxel: float = 1.0, frames=None, conditions=CONDITIONS,
@@ -187,7 +200,7 @@ def run(*, seed: int = 4, pixels: int = 256, voxel: float = 1.0, frames=None, co
     if ts is None:
         ts = TrackingScene(n_frames=n_frames, pixels=pixels, spacing=voxel, seed=seed, device=device,
                            correction=correction, phase=(0.0, 0.6 * n_frames / 100.0))
-    run_err = _stored_errors(stored, mode)
+    run_err = _stored_errors(stored, mode, ts.scene.n_frames)
     all_frames = sorted({f for v in frames.values() for f in v})
     bound = cramer_rao(ts, all_frames[::3])
     out = {"study": "core.studies.tracking.seed_bias", "machine": platform.machine(), "seed": seed,
@@ -200,7 +213,7 @@ def run(*, seed: int = 4, pixels: int = 256, voxel: float = 1.0, frames=None, co
         for f in fs:
             L = ts.scene.line_integrals(f, renderer=ts._scene_renderer)
             row = {"bone": nm, "frame": f, "rim": field_rim(ts, f, b)}
-            if nm in run_err:
+            if f in run_err.get(nm, {}):
                 row["run"] = run_err[nm][f].round(4).tolist()
             noisy = None
             for c in conditions:
@@ -221,7 +234,7 @@ def run(*, seed: int = 4, pixels: int = 256, voxel: float = 1.0, frames=None, co
                     fr = _chain(ts, f, Lc, False, "undistorted" if c == "bones_only" else "sharp")
                     e = _register_from(ts, prepare_frame(fr), f, b, None, True)
                 elif c in ("from_run", "noise_free_from_run"):
-                    if nm not in run_err:
+                    if f not in run_err.get(nm, {}):
                         continue
                     er = run_err[nm][f]
                     start = pose_from_params(np.r_[er[:3], np.radians(er[3:])], center=ts.models[b].centroid,

@@ -62,3 +62,25 @@ def test_stage_run_and_summary(scene):
     # another noise draw differs from the run's own
     L = scene.scene.line_integrals(1, renderer=scene._scene_renderer)
     assert not np.array_equal(sb._draw(scene, 1, L, 1)[0], sb._draw(scene, 1, L, 0)[0])
+
+
+def test_stored_errors_are_by_frame_number(tmp_path):
+    """A stored run's per-frame errors are placed by frames_with_pose: a frame without a pose (2)
+    shifts the later errors' positions, not their frames."""
+    E = [[0.1 * k] * 6 for k in (0, 1, 3, 4)]
+    run = {"config": {"frames": 5},
+           "tracking": {"talus": {"per_frame_error": E, "frames_with_pose": [0, 1, 3, 4]}}}
+    p = tmp_path / "run.json"
+    p.write_text(json.dumps({"runs": {"joint": run}}))
+    got = sb._stored_errors(str(p), "joint")["talus"]
+    assert sorted(got) == [0, 1, 3, 4]
+    np.testing.assert_allclose(got[3], [0.3] * 6)
+    assert sb._stored_errors(None, "joint") == {}
+    # without frames_with_pose, the errors are frames 0..n-1 only when every frame has one
+    del run["tracking"]["talus"]["frames_with_pose"]
+    p.write_text(json.dumps(run))
+    with pytest.raises(ValueError, match="name no frames"):
+        sb._stored_errors(str(p), "joint")
+    run["config"]["frames"] = 4
+    p.write_text(json.dumps(run))
+    np.testing.assert_allclose(sb._stored_errors(str(p), "joint")["talus"][3], [0.4] * 6)

@@ -28,9 +28,9 @@ Extra regressors (a frame's soft tissue: :meth:`LikelihoodEngine.set_tissue`, or
 
 Set-up (:meth:`LikelihoodEngine.set_frame`)
 -------------------------------------------
-Per frame each view's region of line integrals and usable pixels is cut on the host
-(:meth:`~core.tracking.cost.FrameImages.region`: numpy's float32 logarithm, as first measured;
-:data:`DEVICE_REGIONS`) and uploaded from pinned buffers (a float32 and a byte plane per view); the
+Per frame each view's region of the fluence is uploaded and its line integrals and usable pixels
+made on the device (:data:`DEVICE_REGIONS`; off: cut on the host, numpy's float32 logarithm, as
+first measured, and uploaded from pinned buffers, a float32 and a byte plane per view); the
 neighbours' DRRs are rendered with the steps' launch, summed and subtracted on the device
 (:func:`others_kernel`), and the weights and high-passes made there: no synchronisation, nothing
 read back. Before, the neighbours' DRRs were read back and subtracted on the host and four float32
@@ -58,6 +58,28 @@ calcaneus's.
 
 Speed: :mod:`core.tracking.likelihood_fast` (where the stage's time goes on one NVIDIA H100 and what
 :data:`DIFF_IMAGES`, :data:`BLOCK_BLUR` change).
+
+Fewer steps (:data:`STOP_PRED`, :data:`~core.tracking.final_stage.ROBUST_FROM_LAST`, :data:`DEVICE_REGIONS`)
+------------------------------------------------------------------------------------------------
+The stage starts at the tracker's optimum, and Gauss–Newton from there converges at once: on Warp's
+CPU device (the talus, 256², 1 mm, 4 px) the first step's predicted decrease ``Jrᵀδ`` was 4-9 χ²/N,
+the second's 0.05-0.08, the third's below 0.005 — yet the refinements ran on to ``tol`` (10⁻³ mm
+and degrees) or five steps, 8.5 a bone-frame with the robust round. Now a refinement ends after a
+step below ``STOP_PRED`` = 4 χ²/N (two independent-pixel σ), that step taken without rendering its
+pose; the robust round takes its factors from the first refinement's last step (same weights, same
+images) and starts its refinement there on those images, so it renders only where its step is
+resolved; and the regions are made on the device (whose logarithm's last bit moved poses, before
+the uphill rule of :data:`UPHILL_RESOLVED`, by 0.015 mm on 192² CPU tests; now 0.010 mm / 0.026° at
+1024², within the stage's floor of 0.011 mm / 0.031°). Measured on one NVIDIA H100 (the acceptance
+trial at 1024², 30 frames, three bones jointly, old and new alternated in one call, three repeats;
+``resources/benchmarks/tracking_stage_fewer_steps_h100.json``): 10.97 → 4.99 ms per bone-frame at 4
+px and 15.58 → 8.55 ms at 8 px, 8.54 → 3.23 steps (moment tables; 2.2 renders), the device's time
+8.30 → 4.19 ms (4 px), the frame 53 → 35 ms; errors over the Cramér–Rao bound (tibia, talus,
+calcaneus mm/°, 4 px) 1.670/1.435, 1.465/1.385, 1.380/1.308 → 1.633/1.476, 1.469/1.397, 1.343/1.285,
+no frame over 4× its bound unflagged; poses moved by up to 0.033 mm / 0.068° (over 90 bone-frames,
+the tracker carrying each pose into the next frame), σ by up to 16 %. A single step (no verification
+at all) took 6.1 ms but the tibia's rotation to 1.57×; forward differences (:data:`FORWARD_DESIGN`,
+7 poses) moved poses by ~1 σ on a 256² CPU trial (the derivatives' O(h) error biases the fixed point).
 
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
 its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
@@ -128,10 +150,12 @@ __all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "STOP_PRED", "UPHILL_R
 
 #: The regions' line integrals and usable pixels made on the device from the fluence
 #: (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as the tracker's engine makes them)
-#: instead of on the host (:meth:`~core.tracking.cost.FrameImages.region`). Off: the device's
-#: logarithm differs from numpy's float32 one in the last bit of 13-19 % of the pixels, and that
-#: moved the stage's poses by up to 0.015 mm on 192² CPU tests (module docs: Set-up).
-DEVICE_REGIONS = False
+#: instead of on the host (:meth:`~core.tracking.cost.FrameImages.region`; off, as first measured:
+#: 3.2 → 1.5 ms of set-up per bone-frame on one NVIDIA H100, three bones jointly at 1024²). The
+#: device's logarithm differs from numpy's float32 one in the last bit of 13-19 % of the pixels;
+#: that moved the stage's poses by up to 0.015 mm on 192² CPU tests before :data:`UPHILL_RESOLVED`,
+#: by 0.010 mm / 0.026° at 1024² since, the stage's floor (module docs: Fewer steps).
+DEVICE_REGIONS = True
 #: A step's 13 images taken as the design's centre and its six central differences before the
 #: high-pass's low-pass (:func:`~core.tracking.likelihood_fast.design_diff_kernel`: 7 images a
 #: view blurred instead of 13; the high-pass is linear, the moments the same up to float32
@@ -147,12 +171,20 @@ BLOCK_BLUR = True
 #: the refinement as converged; there χ²'s comparison is within its rounding and chose whether a
 #: whole step stood (:mod:`~core.tracking.likelihood_fast`: Rounding). 0: every rise, as first measured.
 UPHILL_RESOLVED = 4.0
+#: A step's design the 7 poses ``x``, ``x + h_k e_k`` (forward differences, twice each taken as the
+#: central one: the DRR launch renders 7 poses instead of 13; the derivatives' error O(h) instead of
+#: O(h²)); implies :data:`DIFF_IMAGES`. Off: the 13-pose central design, as first measured.
+FORWARD_DESIGN = False
+_FORWARD = [0, 1, 3, 5, 7, 9, 11]  # step_design's x and x + h_k e_k
+#: pixels a thread block of a step's moments kernel sums (None: the engine's ``chunk``, 4096, as
+#: first measured; smaller: more blocks, the same terms summed in another order, float32 rounding)
+MOMENTS_CHUNK: int | None = None
 #: :meth:`LikelihoodEngine.refine` ends after a step whose predicted decrease of χ² (``Jrᵀδ``) is
 #: below this many pixels' shares of χ² (χ²/N: the step's Mahalanobis length in independent-pixel
 #: σ, squared), that step taken without rendering its pose to verify it (Gauss–Newton from the
 #: tracker's optimum: the next step is 1-10 % of this one's length; module docs: Fewer steps).
 #: 0: only ``tol`` (1e-3 mm and degrees, far below σ) or an uphill step ends it, as first measured.
-STOP_PRED = 0.0
+STOP_PRED = 4.0
 
 
 class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence, _RegionWeights):
@@ -328,7 +360,8 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
         t0 = time.perf_counter()
         img = self._render(self.poses(X)[:, None], (self.bone,))
         t1 = time.perf_counter()
-        diff = DIFF_IMAGES
+        fwd = int(len(X) == 7)  # (the forward design: FORWARD_DESIGN)
+        diff = DIFF_IMAGES or bool(fwd)
         if self.own_images and self._psf is None and not diff:  # (the PSF's output is the engine's own)
             own = self._buffer("img", img.shape)
             wp.copy(own, img)
@@ -340,7 +373,7 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
             img = out
         if diff:  # (the engine's own buffer)
             dd = self._buffer("dd", (7 * self.n_views, *img.shape[1:]))
-            self._launch("diff", design_diff_kernel, dd.shape, [img, self.n_views, self._ref_hw, dd])
+            self._launch("diff", design_diff_kernel, dd.shape, [img, self.n_views, self._ref_hw, dd, fwd])
             img = dd
         self._diff = int(diff)
         low = self._blurred("d", img, self.n_views) if self.highpass_px else img
@@ -366,17 +399,20 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
         if reuse and last is not None and np.array_equal(last[2], x) and np.array_equal(last[3], h):
             img, low = last[0], last[1]
         else:
-            img, low = self._images(step_design(x, h))
-            self.timer.evaluations += 13
+            X = step_design(x, h)
+            X = X[_FORWARD] if FORWARD_DESIGN else X
+            img, low = self._images(X)
+            self.timer.evaluations += len(X)
         t0 = time.perf_counter()
         nv, (Hc, Wc) = self.n_views, self._cap
         acc, host = self._tables_q()
         acc.zero_()
-        n_chunks = math.ceil(Hc * Wc / self.chunk)
+        chunk = MOMENTS_CHUNK or self.chunk
+        n_chunks = math.ceil(Hc * Wc / chunk)
         hp = 1.0 if self.highpass_px else 0.0
         reg = [self._t] if self._q else []
         self._launch(("moments", self._q), regressor_kernels(self._q)[0], (nv, n_chunks),
-                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, self.chunk, acc,
+                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, chunk, acc,
                       self._diff], self.block_dim)
         wp.copy(host, acc)
         self._record()

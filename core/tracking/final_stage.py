@@ -120,7 +120,10 @@ and result are those of its own stage (identical on a 192² CPU trial, three bon
 
 :func:`final_model` sets :data:`MODEL` for a block (studies compare models in one process). Where
 the stage's time goes (one NVIDIA H100: 13.9 ms per bone-frame at 4 px, 18.6 ms at 8 px, three
-bones jointly) and what it would need to fit the speed goal: :mod:`core.tracking.likelihood_fast`.
+bones jointly) and what it would need to fit the speed goal: :mod:`core.tracking.likelihood_fast`;
+since, with fewer steps (a refinement ends at a step the data barely resolve, the robust round
+from the first refinement's last design, :data:`ROBUST_FROM_LAST`), 4.99 ms at 4 px and 8.55 ms at
+8 px on one NVIDIA H100 (:mod:`core.tracking.engine_likelihood`: Fewer steps).
 The settings and records (:class:`FinalModel`, :class:`BoneStage`, :class:`LikelihoodFit`,
 :func:`rejected`) are in :mod:`core.tracking.likelihood_model` (re-exported here).
 """
@@ -159,8 +162,9 @@ ROBUST_SANDWICH = False
 #: device, the weights the same), without a step of its own there: the robust factors from that
 #: step's residual, the robust refinement started at that centre with its images (no render where
 #: it stops at once, :data:`~core.tracking.engine_likelihood.STOP_PRED`). Off: a step at the first
-#: refinement's result (rendered) for the factors, as first measured; module docs: Fewer steps.
-ROBUST_FROM_LAST = False
+#: refinement's result (rendered) for the factors, as first measured. Measured with it:
+#: :mod:`core.tracking.engine_likelihood` (module docs: Fewer steps).
+ROBUST_FROM_LAST = True
 
 
 @contextmanager
@@ -317,6 +321,9 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
             # the factors from the last design's step (the same weights and images), the robust
             # refinement from its centre (ROBUST_FROM_LAST); the sandwich taken at the end
             (start, s), factor_step = last, 0
+            if ROBUST_SANDWICH and hinv is not None:  # (the robust refinement's sandwich uses its buffers)
+                yield
+                first["covariance"], hinv = eng.sandwich_result(hinv), None
         else:
             # the residual over the whole region (its typical pixel the noise's scale), then the
             # factors within the support

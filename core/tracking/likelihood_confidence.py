@@ -25,6 +25,16 @@ import warp as wp
 
 from .likelihood_kernels import autocov_kernel, meat_kernel, regressor_kernels, taper_kernel, vec6f
 
+#: pixels a thread block of the sandwich's meat kernel sums (None: the engine's ``chunk``, 4096, as
+#: first measured: some 80 blocks of 128 threads for two 400² regions, too few to fill a GPU, each
+#: pixel's 289 lags at 4 px in a thread). 512: the same terms summed in another order (σ within
+#: 3 · 10⁻⁷ relative), the kernel 0.72 → 0.36 ms per bone-frame at 4 px and 2.69 → 1.25 ms at 8 px
+#: (one NVIDIA H100, the acceptance trial at 1024²; ``tracking_stage_fewer_steps_h100.json``)
+MEAT_CHUNK: int | None = 512
+#: the same for the autocovariance kernel (None: the engine's ``chunk``; it has a block per lag
+#: already, and was slower with 512: 0.51 → 0.76 ms at 4 px)
+AUTOCOV_CHUNK: int | None = None
+
 
 class _Confidence:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s sandwich covariance (its
@@ -72,9 +82,10 @@ class _Confidence:
         nl = (2 * L + 1) ** 2
         cov = self._buffer("cov", (nv, nl, 2), wp.float64)
         cov.zero_()
-        n_chunks = math.ceil(Hc * Wc / self.chunk)
+        chunk = AUTOCOV_CHUNK or self.chunk
+        n_chunks = math.ceil(Hc * Wc / chunk)
         self._launch("autocov", autocov_kernel, (nv, nl // 2 + 1, n_chunks),
-                     [e, self._w, self._ref_hw, L, self.chunk, cov], self.block_dim)  # (the rest mirrored)
+                     [e, self._w, self._ref_hw, L, chunk, cov], self.block_dim)  # (the rest mirrored)
         taper = self._bufs.get(("taper", L))
         if taper is None:  # Bartlett's, per lag (rows, columns)
             d = np.arange(-L, L + 1)
@@ -84,7 +95,8 @@ class _Confidence:
         self._launch("taper", taper_kernel, (nv, nl), [cov, taper, cw])
         acc = self._buffer("meat", (nv, 36), wp.float64)
         acc.zero_()
-        self._launch("meat", meat_kernel, (nv, n_chunks), [jt, cw, self._ref_hw, L, self.chunk, acc],
+        mc = MEAT_CHUNK or self.chunk
+        self._launch("meat", meat_kernel, (nv, math.ceil(Hc * Wc / mc)), [jt, cw, self._ref_hw, L, mc, acc],
                      self.block_dim)
         host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
         wp.copy(host, acc)

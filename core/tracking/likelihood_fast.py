@@ -127,6 +127,13 @@ grows as σ²: FFT-based autocovariance and meat would make it σ-independent, o
 frame), the set-up on the device (``DEVICE_REGIONS``; 3.3 ms with a synchronisation around it) and a
 step captured as one CUDA graph (the device waits for the host ~5 ms per bone-frame today) — or the
 stage run only on the frames the tracker's checks single out.
+
+Since then (:mod:`core.tracking.engine_likelihood`: Fewer steps): 3.2 steps instead of 8.5 (2.2
+renders), the regions on the device, 4.99 ms per bone-frame at 4 px (8.55 at 8 px), the device's
+share 4.19 ms: DRRs 1.20, the sandwich's meat 0.72 (0.36 with 512 pixels a block,
+:data:`~core.tracking.likelihood_confidence.MEAT_CHUNK`, since the default) and autocovariance
+0.51, blurs 0.62, moments 0.47 ms. Forward differences (7 poses a step) would save ~0.4 ms of DRRs
+but bias the poses (~1 σ on a 256² CPU trial); a step captured as a CUDA graph, not tried.
 """
 
 from __future__ import annotations
@@ -233,11 +240,14 @@ def blur_block_dim(shape: tuple, axis: int) -> tuple:
 
 @wp.kernel
 def design_diff_kernel(img: wp.array3d(dtype=wp.float32), n_refs: int, ref_hw: wp.array(dtype=wp.vec2i),
-                       out: wp.array3d(dtype=wp.float32)):
+                       out: wp.array3d(dtype=wp.float32), forward: int):
     """The 13-pose design's images ``img`` (item ``b · n_refs + v``) as the centre and the six
     central differences (NaN read as 0): item v the centre's, item ``(j + 1) · n_refs + v`` the
     difference of poses 2j+1 and 2j+2; 0 outside view v's (h, w) region. The high-pass is linear,
-    so the moments need only these seven images a view low-passed. dim = (7 · n_refs, H, W)."""
+    so the moments need only these seven images a view low-passed. ``forward`` 1: the 7-pose
+    forward design (``x``, ``x + h_k e_k``; :data:`~core.tracking.engine_likelihood.FORWARD_DESIGN`),
+    the differences twice those of poses j+1 and 0 (the central differences' scale).
+    dim = (7 · n_refs, H, W)."""
     k, r, c = wp.tid()
     v = k % n_refs
     j = k // n_refs
@@ -245,6 +255,8 @@ def design_diff_kernel(img: wp.array3d(dtype=wp.float32), n_refs: int, ref_hw: w
     if r < ref_hw[v][0] and c < ref_hw[v][1]:
         if j == 0:
             x = K._val(img, v, r, c)
+        elif forward != 0:
+            x = 2.0 * (K._val(img, j * n_refs + v, r, c) - K._val(img, v, r, c))
         else:
             x = K._val(img, (2 * j - 1) * n_refs + v, r, c) - K._val(img, 2 * j * n_refs + v, r, c)
     out[k, r, c] = x

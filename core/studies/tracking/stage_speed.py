@@ -29,11 +29,15 @@ measured); ``exact`` the blocked blur and the median by per-view sorts (values u
 refinements' uphill test on every rise of χ² (as first measured; now on resolved steps only);
 ``jitter`` the stage's first refinement started 10⁻⁶ mm and degrees off (the stage's own spread
 under a perturbation of rounding's size: what ``variant_pairs`` of the others compare with);
+``last``, ``devreg``, ``stop<c>`` the fewer steps' flags one by one and ``old`` all three off (the
+stage before them; :mod:`core.tracking.engine_likelihood`: Fewer steps), ``fwd`` the forward design,
+``sc<n>`` / ``meat<n>`` / ``mc<n>`` the sandwich's / its meat's / the moments' pixels a thread block;
 ``a+b`` both (e.g. ``plain+jitter``, ``fast+strict``). Measured:
 ``resources/benchmarks/tracking_stage_speed_h100.json`` (one NVIDIA H100, 30 frames; its ``base``
 is today's ``plain``, its ``diff`` ``DIFF_IMAGES`` alone) and ``tracking_stage_speed_fast_h100.json``
 (``plain``, ``exact``, ``fast``; ``fast`` is today's default; the numbers in
-:mod:`core.tracking.likelihood_fast`).
+:mod:`core.tracking.likelihood_fast`); ``tracking_stage_fewer_steps_h100.json`` (``old`` against
+the fewer steps, two calls).
 """
 
 from __future__ import annotations
@@ -83,11 +87,20 @@ VARIANTS: dict = {
     "last": lambda: _flag("core.tracking.final_stage", "ROBUST_FROM_LAST", True),
     # the regions' line integrals made on the device (engine_likelihood.DEVICE_REGIONS)
     "devreg": lambda: _flag("core.tracking.engine_likelihood", "DEVICE_REGIONS", True),
+    # the 7-pose forward design (engine_likelihood.FORWARD_DESIGN)
+    "fwd": lambda: _flag("core.tracking.engine_likelihood", "FORWARD_DESIGN", True),
+    # the stage's defaults before the fewer steps: every refinement to tol, the robust round's own
+    # factor step, the regions on the host
+    "old": lambda: _flags(STOP_PRED=0.0, ROBUST_FROM_LAST=False, DEVICE_REGIONS=False, MEAT_CHUNK=None),
     # (and "stop<c>": a refinement ends after a step below c χ²/N, engine_likelihood.STOP_PRED = c)
 }
 _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
               "DIFF_IMAGES": "core.tracking.engine_likelihood",
-              "MEDIAN_BISECT": "core.tracking.likelihood_kernels"}
+              "MEDIAN_BISECT": "core.tracking.likelihood_kernels",
+              "STOP_PRED": "core.tracking.engine_likelihood",
+              "DEVICE_REGIONS": "core.tracking.engine_likelihood",
+              "ROBUST_FROM_LAST": "core.tracking.final_stage",
+              "MEAT_CHUNK": "core.tracking.likelihood_confidence"}
 
 
 @contextmanager
@@ -107,21 +120,42 @@ def _variant(name: str):
     """The context of variant ``name`` (``"a+b"``: both of :data:`VARIANTS`'s, in that order)."""
     st = ExitStack()
     for part in name.split("+"):
-        if part.startswith("stop") and part not in VARIANTS:
-            st.enter_context(_flag("core.tracking.engine_likelihood", "STOP_PRED", float(part[4:])))
+        num = _numbered(part)
+        if num is not None:
+            for module, flag in _NUMBERED[num[0]]:
+                st.enter_context(_flag(module, flag, num[1]))
         else:
             st.enter_context(VARIANTS[part]())
     return st
 
 
-def _known(part: str) -> bool:
-    """Whether ``part`` names a variant (:data:`VARIANTS`, or ``stop<c>``)."""
+#: variants with a number: ``stop<c>`` (engine_likelihood.STOP_PRED = c), ``sc<n>`` (the sandwich's
+#: pixels a block, both kernels: likelihood_confidence.MEAT_CHUNK and AUTOCOV_CHUNK), ``meat<n>`` (its
+#: meat kernel's alone), ``mc<n>`` (the moments': engine_likelihood.MOMENTS_CHUNK)
+_NUMBERED = {"stop": (("core.tracking.engine_likelihood", "STOP_PRED"),),
+             "sc": (("core.tracking.likelihood_confidence", "MEAT_CHUNK"),
+                    ("core.tracking.likelihood_confidence", "AUTOCOV_CHUNK")),
+             "meat": (("core.tracking.likelihood_confidence", "MEAT_CHUNK"),),
+             "mc": (("core.tracking.engine_likelihood", "MOMENTS_CHUNK"),)}
+
+
+def _numbered(part: str):
+    """``(prefix, value)`` of a numbered variant (:data:`_NUMBERED`), or None."""
     if part in VARIANTS:
-        return True
-    try:
-        return part.startswith("stop") and float(part[4:]) >= 0
-    except ValueError:
-        return False
+        return None
+    for pre in _NUMBERED:
+        if part.startswith(pre):
+            try:
+                x = (float if pre == "stop" else int)(part[len(pre):])
+            except ValueError:
+                return None
+            return (pre, x) if x >= 0 else None
+    return None
+
+
+def _known(part: str) -> bool:
+    """Whether ``part`` names a variant (:data:`VARIANTS`, or a numbered one: :data:`_NUMBERED`)."""
+    return part in VARIANTS or _numbered(part) is not None
 
 
 @contextmanager

@@ -15,6 +15,7 @@ from tests.core.tracking.test_likelihood_fast_kernels import noisy_talus  # noqa
 
 
 def _fewer(monkeypatch, stop: float = 4.0, last: bool = True) -> None:
+    """The fewer steps (the defaults) or, ``stop`` 0 and ``last`` False, the stage as first measured."""
     import core.tracking.engine_likelihood as el
     import core.tracking.final_stage as fst
 
@@ -34,8 +35,7 @@ def test_fewer_steps_near_the_converged_stage(noisy_talus, monkeypatch, frame): 
     o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=4.0)
     out = []
     for fewer in (False, True):
-        if fewer:
-            _fewer(monkeypatch)
+        _fewer(monkeypatch, 4.0 if fewer else 0.0, fewer)
         res = register(r, fr, bone=0, initial_pose=truth, center=model.centroid, options=o)
         assert res.timing["likelihood_taken"] == 1
         out.append((np.asarray(res.x, float), np.sqrt(np.diag(res.fit.covariance)),

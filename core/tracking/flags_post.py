@@ -36,6 +36,43 @@ run, now flagged. A frame far off with quiet neighbours still flags only itself 
 neighbour that is itself off by 0.7× the limit flags both, and neighbours near the limit by noise
 alone may be flagged with it (a 0.5° spike in the tests' track with every 2nd frame tracked flags
 three more, 1.7-2.5× the median residual without the spike).
+*A frame whose neighbours are flagged* (:data:`REACH`, the ``reach`` keyword; None: off). Once
+frames are flagged, a good frame with fewer than ``DEGREE + 2`` good neighbours within
+±:data:`HALF_WINDOW` has no fit, and the check before this rule never judged it (seed 4's sequential
+tibia frame 0, 1.31° off, beside flagged frames 1-4). Such a frame is judged against the straight
+line (:data:`GAP_DEGREE`) through its nearest *frames judged good* — judged by their own fits and not
+flagged, so not other frames without a fit — :data:`GAP_FRAMES` / 2 on each side within ``reach``
+tracked frames. Its residual (normalised by ``sqrt(1 + leverage)`` as above) is scaled by the median
+residual of the bone's :data:`GAP_SCALE` frames nearest to it, each fitted alike (through the frames
+judged good at the same frame offsets from it, or the mirrored ones): a local scale, which grows
+with the gap and with the motion's acceleration there, where the bone's median does neither. Over
+``limit`` × that scale (and :data:`FLOOR`) it is flagged (``"off the trajectory (... from the line
+through its nearest frames judged good 14, 15, 25, 26, its neighbours flagged; ...)"``). A frame
+with fewer than two such frames on a side — at a trial's ends, mostly — is not judged: it gets the
+note :data:`UNCHECKED` (not a flag), which :func:`apply_trajectory_flags` puts in the frame's
+``notes`` so the review panel shows that the check could not judge it. Lines extrapolated from one
+side were tried (the nearest four frames judged good on either side): on the stored runs below they
+flagged 5 of the 27 frames at a trial's end, 3 of them over 4× the bone's bound, but 4 of the 5 were
+flagged with their true pose put in their place too — a line from frames 3-9 missed the walking
+motion's first frame by 0.87-1.17 mm (normalised), where the frames' errors were 0.05-0.10 mm — and
+only seed 4's sequential tibia frame 0 was caught by its error (1.10° against a limit of 1.03°).
+Measured (:mod:`core.studies.tracking.trajectory_gaps`,
+``resources/benchmarks/tracking_trajectory_gaps_cpu.json``; the stored runs of seeds 0-4, 1024²,
+100 frames, jointly and sequentially, tracked on one NVIDIA H100 — seeds 0-2 at ea76c8b, their poses
+kept; seeds 3 and 4 at 56350ae and seed 4 with the bones kept apart at a5fd412, their poses rebuilt
+from the kept errors and the seed's truth — the check run on this 2-core x86_64 CPU, shared): of 3600
+bone-frames, 30 good ones were left without a fit, 4 of them over 4× the bone's bound (seed 4's tibia
+frame 0 in its three runs, frame 1 jointly with the bones apart). 3 lie between frames judged good
+(tibia frame 14: seed 1 jointly, seed 4 kept apart in both modes), all within 4× and none flagged;
+27 at a trial's end (frames 0, 1, 98, 99) get the note, the 4 over 4× among them. No flag changed:
+silent frames over 4× and good frames flagged are as before on every run. On the tests' walking track
+(100 frames, noise 0.01 mm / 0.05° per axis, 200 draws) with frames 16-19 and 21-24 0.6° off by
+turns about z, frame 20 among them was left without a fit in 176-190 draws of 200 and then flagged in
+5 of 186 (2.7 %) when good, 43 of 184 (23 %) when 0.15° off, 170 of 190 (89 %) at 0.3°, 172 of 176 at
+0.5°; the spikes next to it that lost their fit once the others were flagged are judged the same way
+(the check before left one of them, 19 or 21, unflagged in the tests' draw). The rule's sizes (a line,
+2 + 2 frames, 16 fitted alike, ±12) were chosen on these counts, seeds 3 and 4 included.
+
 Frames already flagged are neither judged nor used as neighbours. A bone with fewer than
 :data:`MIN_FRAMES` frames that have a residual is not judged.
 
@@ -109,8 +146,9 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["DEGREE", "FLAG", "FLOOR", "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "NEAR", "apply_trajectory_flags",
-           "journal_neighbours", "trajectory_flags", "trajectory_residuals"]
+__all__ = ["DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "HALF_WINDOW", "LIMIT",
+           "MIN_FRAMES", "NEAR", "REACH", "UNCHECKED", "apply_trajectory_flags", "journal_neighbours",
+           "trajectory_flags", "trajectory_residuals", "trajectory_review"]
 
 #: The flag's name (the message starts with it).
 FLAG = "off the trajectory"
@@ -140,6 +178,21 @@ NEAR = 0.7
 FLOOR = (0.005, 0.02)
 #: Good frames a bone needs before its trajectory is judged.
 MIN_FRAMES = 8
+#: A good frame left without a fit (fewer than ``DEGREE + 2`` good neighbours within
+#: ±:data:`HALF_WINDOW`) is judged from its nearest good frames within this many tracked frames on
+#: either side (the ``reach`` keyword; None: left unjudged; module docs, *A frame whose neighbours
+#: are flagged*).
+REACH = 12
+#: Such a frame is judged against the straight line (degree :data:`GAP_DEGREE`) through its this many
+#: nearest good frames within :data:`REACH`, ...
+GAP_FRAMES = 4
+#: ... the degree of that fit ...
+GAP_DEGREE = 1
+#: ... scaled by the median residual of the bone's this many good frames nearest to it, each fitted
+#: alike (through the good frames at the same offsets from it, or mirrored).
+GAP_SCALE = 16
+#: The note (not a flag) of a good frame the check could not judge: no fit within :data:`REACH`.
+UNCHECKED = "trajectory unchecked"
 
 
 def _deltas(A: np.ndarray, B: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -232,6 +285,99 @@ class _Table:
         return math.sqrt(float(r[:3] @ r[:3])) / k, math.degrees(math.sqrt(float(r[3:] @ r[3:]))) / k
 
 
+def _gap_fit(t: _Table, use: np.ndarray, i: int, reach: int) -> tuple[np.ndarray, bool]:
+    """Frame ``i``'s nearest good frames (in ``use``) within ``reach`` tracked frames, half of
+    :data:`GAP_FRAMES` on each side, sorted, and whether both sides have them (else the nearest
+    :data:`GAP_FRAMES` on whichever side, which may be fewer)."""
+    fr, half = t.fr, GAP_FRAMES // 2
+    d = fr - fr[i]
+    near = use & (np.abs(d) <= reach * t.step)
+    before = np.flatnonzero(near & (d < 0))[::-1][:half]
+    after = np.flatnonzero(near & (d > 0))[:half]
+    if len(before) == half and len(after) == half:
+        return np.sort(np.r_[before, after]), True
+    nb = np.flatnonzero(near & (d != 0))
+    return np.sort(nb[np.argsort(np.abs(d[nb]), kind="stable")][:GAP_FRAMES]), False
+
+
+def _gap_residuals(t: _Table, P: np.ndarray, c: np.ndarray, use: np.ndarray, i: int, nb: np.ndarray):
+    """Frame ``i``'s normalised residual (mm, degrees) against the line (:data:`GAP_DEGREE`) through
+    frames ``nb``, and ``(m, 2)`` those of the bone's :data:`GAP_SCALE` nearest other good frames
+    (fewer where fewer can be) each fitted through the good frames at the same frame offsets from it,
+    or the mirrored ones (the fit's weights are the same); None when singular."""
+    fr = t.fr
+    off = fr[nb] - fr[i]
+    x = off.astype(float)
+    A = np.vander(x, GAP_DEGREE + 1)
+    AtA = A.T @ A
+    if abs(np.linalg.det(AtA)) < 1e-12:
+        return None
+    row, k = np.linalg.solve(AtA, A.T)[-1], math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1]))
+
+    def norm(r):
+        return np.c_[np.linalg.norm(r[:, :3], axis=1) / k, np.degrees(np.linalg.norm(r[:, 3:], axis=1)) / k]
+
+    own = norm((row @ _deltas(np.repeat(P[i:i + 1], len(nb), axis=0), P[nb], c))[None])[0]
+    js = np.flatnonzero(use)
+    js = js[js != i]
+    rows, at = [], []
+    for sign in (1, -1):
+        want = fr[js, None] + sign * off
+        idx = np.minimum(np.searchsorted(fr, want), len(fr) - 1)
+        good = ((fr[idx] == want) & use[idx] & (idx != i)).all(axis=1)
+        a, b = js[good], idx[good]
+        if len(a):
+            Y = _deltas(np.repeat(P[a], len(off), axis=0), P[b.ravel()], c).reshape(len(a), len(off), 6)
+            rows.append(norm(np.einsum("m,nmk->nk", row, Y)))
+            at.append(np.abs(fr[a] - fr[i]))
+    if not rows:
+        return own, np.zeros((0, 2))
+    S = np.concatenate(rows)
+    return own, S[np.argsort(np.concatenate(at), kind="stable")[:GAP_SCALE]]
+
+
+def _judge_gaps(t: _Table, P, c, use, judge, R, limit: float, floor, reach: int, out: dict) -> dict[int, str]:
+    """Judge the good frames left without a fit by the other flags (module docs, *A frame whose
+    neighbours are flagged*), each through frames the fits judged good (``use``, a residual): flag
+    (into ``out``) those whose residual against the line through their nearest such frames exceeds
+    ``limit`` × the median of the nearest frames fitted alike; return the :data:`UNCHECKED` notes of
+    those it cannot judge."""
+    fr, floor = t.fr, np.asarray(floor, dtype=float)
+    fitted = np.isfinite(R).all(axis=1)
+    base = use & fitted  # judged by their own fits: neither flagged nor unfitted
+    notes = {}
+    for i in np.flatnonzero(use & judge & ~fitted):
+        i = int(i)
+        nb, both = _gap_fit(t, base, i, reach)
+        if not both:
+            why = (f"the nearest frames judged good, {', '.join(str(f) for f in fr[nb])}, on one side only: "
+                   "a line extrapolated to it follows the motion's acceleration more than its error"
+                   if len(nb) >= GAP_FRAMES else
+                   f"fewer than {GAP_FRAMES // 2} frames judged good on a side within {reach} tracked frames")
+            notes[int(fr[i])] = f"{UNCHECKED} (its neighbours flagged; {why})"
+            continue
+        got = _gap_residuals(t, P, c, base, i, nb)
+        if got is None:
+            notes[int(fr[i])] = f"{UNCHECKED} (its neighbours flagged; the line through {fr[nb]} singular)"
+            continue
+        own, S = got
+        if len(S) < GAP_SCALE:
+            notes[int(fr[i])] = (f"{UNCHECKED} (the line through its nearest frames judged good "
+                                 f"{', '.join(str(f) for f in fr[nb])}: {len(S)} of the bone's frames "
+                                 f"fitted alike, fewer than {GAP_SCALE}, to scale it)")
+            continue
+        med = np.median(S, axis=0)
+        lg = np.maximum(limit * med, floor)
+        if (own > lg).any():
+            tm, rd = own
+            out[int(fr[i])] = (f"{FLAG} ({tm:.3f} mm, {rd:.3f} deg from the line through its nearest frames "
+                               f"judged good {', '.join(str(f) for f in fr[nb])}, its neighbours flagged; "
+                               f"limits {lg[0]:.3f} mm, {lg[1]:.3f} deg, {limit:g} x the median "
+                               f"{med[0]:.3f} mm, {med[1]:.3f} deg of the {GAP_SCALE} nearest frames "
+                               "fitted alike)")
+    return notes
+
+
 def _inputs(frames, poses, center):
     """Frame numbers, poses (sorted by frame), which have a pose, the centre, and the sorting order."""
     fr = np.asarray(frames, dtype=int)
@@ -254,28 +400,39 @@ def trajectory_residuals(frames, poses, center, *, half_window: int = HALF_WINDO
     return out
 
 
-def trajectory_flags(frames, poses, center, *, limit: float = LIMIT, half_window: int = HALF_WINDOW,
-                     degree: int = DEGREE, floor=FLOOR, min_frames: int = MIN_FRAMES,
-                     judged=None, near: float | None = NEAR) -> dict[int, str]:
-    """Frame number -> the ``"off the trajectory"`` message, for the good frames of one bone
-    (``poses`` ``(n, 4, 4)`` at ``frames``; NaN rows are not good) whose residual exceeds ``limit`` ×
-    the bone's median (module docs). The worst frame over the limit is flagged first and left out
+def trajectory_flags(frames, poses, center, **kw) -> dict[int, str]:
+    """Frame number -> the ``"off the trajectory"`` message: the flags of :func:`trajectory_review`
+    (the same arguments), without the frames it could not judge."""
+    return trajectory_review(frames, poses, center, **kw)[0]
+
+
+def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_window: int = HALF_WINDOW,
+                      degree: int = DEGREE, floor=FLOOR, min_frames: int = MIN_FRAMES,
+                      judged=None, near: float | None = NEAR,
+                      reach: int | None = REACH) -> tuple[dict[int, str], dict[int, str]]:
+    """``(flags, unchecked)``: frame number -> the ``"off the trajectory"`` message, for the good frames
+    of one bone (``poses`` ``(n, 4, 4)`` at ``frames``; NaN rows are not good) whose residual exceeds
+    ``limit`` × the bone's median (module docs), and frame number -> the :data:`UNCHECKED` note for the
+    good frames it could not judge. The worst frame over the limit is flagged first and left out
     of its neighbours' fits before they are judged again, one frame at a time: a frame far off
     would otherwise pull its neighbours' fits and flag them too. ``judged`` (``(n,)`` bool, default
     all): the frames that may be flagged; the others are neighbours only — in the fits (left out
     when over the limit) and, when fewer than ``min_frames`` judged frames have a residual, in the
     median; never flagged. ``near`` (None: off): then each frame whose fit changed because frames
     near it were flagged is flagged too when its residual with them in the fit (the first one)
-    exceeds the limit and its residual without them exceeds ``near`` × the limit (module docs)."""
+    exceeds the limit and its residual without them exceeds ``near`` × the limit (module docs).
+    ``reach`` (None: off, such frames left unjudged and not noted): a frame left without a fit is
+    judged from its nearest good frames within ``reach`` tracked frames, against the bone's frames
+    fitted alike (module docs, *A frame whose neighbours are flagged*)."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
     judge = np.ones(len(fr), dtype=bool) if judged is None else np.asarray(judged, dtype=bool)[order]
     if not (judge & ok).any():
-        return {}
+        return {}, {}
     t = _Table(fr, P, ok, c, half_window, degree)
     R = t.residuals(ok)
     have = np.all(np.isfinite(R), axis=1)
     if have.sum() < min_frames:
-        return {}
+        return {}, {}
     # the scale from the judged frames when they are enough (module docs: smooth neighbours)
     own = have & judge
     med = np.median(R[own if own.sum() >= min_frames else have], axis=0)
@@ -297,20 +454,23 @@ def trajectory_flags(frames, poses, center, *, limit: float = LIMIT, half_window
         for j in range(max(0, i - half_window), min(len(fr), i + half_window + 1)):
             if use[j]:  # its neighbours judged again without it
                 R[j] = t.residual(j, use)
-    if near is None:
-        return out
-    # next to flagged frames: off with them in its fit, and still near the limit without them
-    lim_near = np.maximum(float(near) * float(limit) * med, np.asarray(floor, dtype=float))
-    ok_all = np.isfinite(first).all(axis=1) & np.isfinite(R).all(axis=1)
-    hit = use & judge & ok_all
-    hit[hit] = ((first[hit] / lim).max(axis=1) > 1.0) & ((R[hit] / lim_near).max(axis=1) > 1.0)
-    for i in np.flatnonzero(hit):
-        (t0, r0), (tm, rd) = first[i], R[i]
-        out[int(fr[i])] = (f"{FLAG} next to flagged frames ({t0:.3f} mm, {r0:.3f} deg from the fit through "
-                           f"its neighbours with them, {tm:.3f} mm, {rd:.3f} deg without; limits "
-                           f"{lim[0]:.3f} mm, {lim[1]:.3f} deg, {float(limit):g} x the bone's median "
-                           f"{med[0]:.3f} mm, {med[1]:.3f} deg, and {float(near):g} x them)")
-    return out
+    if near is not None:
+        # next to flagged frames: off with them in its fit, and still near the limit without them
+        lim_near = np.maximum(float(near) * float(limit) * med, np.asarray(floor, dtype=float))
+        ok_all = np.isfinite(first).all(axis=1) & np.isfinite(R).all(axis=1)
+        hit = use & judge & ok_all
+        hit[hit] = ((first[hit] / lim).max(axis=1) > 1.0) & ((R[hit] / lim_near).max(axis=1) > 1.0)
+        for i in np.flatnonzero(hit):
+            (t0, r0), (tm, rd) = first[i], R[i]
+            out[int(fr[i])] = (f"{FLAG} next to flagged frames ({t0:.3f} mm, {r0:.3f} deg from the fit "
+                               f"through its neighbours with them, {tm:.3f} mm, {rd:.3f} deg without; limits "
+                               f"{lim[0]:.3f} mm, {lim[1]:.3f} deg, {float(limit):g} x the bone's median "
+                               f"{med[0]:.3f} mm, {med[1]:.3f} deg, and {float(near):g} x them)")
+            use[i] = False
+    if reach is None:
+        return out, {}
+    unchecked = _judge_gaps(t, P, c, use, judge, R, float(limit), floor, int(reach), out)
+    return out, unchecked
 
 
 def journal_neighbours(states, frames=()) -> dict[str, dict[int, np.ndarray]]:
@@ -325,14 +485,14 @@ def journal_neighbours(states, frames=()) -> dict[str, dict[int, np.ndarray]]:
 
 
 def apply_trajectory_flags(result, centers, *, limit: float = LIMIT, neighbours=None, **kw):
-    """A :class:`~core.tracking.results.TrackingResult` with :func:`trajectory_flags` added to its
-    frames (``centers``: bone name -> rotation centre, its centroid) and the results whose flags
-    changed, ``(result, changed)``. Frames that carry a flag of an earlier post-pass are judged
-    afresh (the flag taken off first), so running it again changes nothing. The registration's
-    own outcome (``converged``) stays as it was: the frame passed its checks; the flag asks for
-    review. ``neighbours``: bone name -> {frame: pose}, good poses of frames the result does not
-    hold (:func:`journal_neighbours`), in the fits and the bone's scale, never judged (module
-    docs)."""
+    """A :class:`~core.tracking.results.TrackingResult` with :func:`trajectory_review`'s flags added to
+    its frames' ``flags`` and its :data:`UNCHECKED` notes to their ``notes`` (``centers``: bone name ->
+    rotation centre, its centroid), and the results whose flags or notes changed, ``(result,
+    changed)``. Frames that carry a flag or note of an earlier post-pass are judged afresh (those
+    taken off first), so running it again changes nothing. The registration's own outcome
+    (``converged``) stays as it was: the frame passed its checks; the flag asks for review.
+    ``neighbours``: bone name -> {frame: pose}, good poses of frames the result does not hold
+    (:func:`journal_neighbours`), in the fits and the bone's scale, never judged (module docs)."""
     from .results import TrackingResult
 
     results = dict(result.results)
@@ -347,16 +507,21 @@ def apply_trajectory_flags(result, centers, *, limit: float = LIMIT, neighbours=
             if fr is None:
                 continue
             own = tuple(s for s in fr.flags if not s.startswith(FLAG))
-            if own != fr.flags:
-                fr = replace(fr, flags=own)
+            notes = tuple(s for s in fr.notes if not s.startswith(UNCHECKED))
+            if own != fr.flags or notes != fr.notes:
+                fr = replace(fr, flags=own, notes=notes)
             base[f] = fr
         fs = [f for f in order if f in base and base[f].pose is not None and not base[f].flags]
         P = np.array([base[f].pose for f in fs] + list(near.values())).reshape(-1, 4, 4)
         judged = np.arange(len(P)) < len(fs)
-        got = trajectory_flags(fs + list(near), P, centers[b], limit=limit, judged=judged, **kw) if fs else {}
+        got, unchecked = (trajectory_review(fs + list(near), P, centers[b], limit=limit, judged=judged, **kw)
+                          if fs else ({}, {}))
         for f, fr in base.items():
             new = replace(fr, flags=(*fr.flags, got[f])) if f in got else fr
-            if new.flags != results[(b, f)].flags:
+            if f in unchecked:
+                new = replace(new, notes=(*new.notes, unchecked[f]))
+            old = results[(b, f)]
+            if new.flags != old.flags or new.notes != old.notes:
                 changed.append(new)
             results[(b, f)] = new
     return TrackingResult(result.bones, result.frames, results, result.status, result.time_s), changed

@@ -1,0 +1,95 @@
+"""The trajectory check's frames whose neighbours are all flagged (core.tracking.flags_post, ``reach``):
+judged from the nearest frames judged good further away on both sides — a bad one flagged, a good one
+not — and a frame it cannot judge so (one side only: a trial's end) noted as unchecked, not flagged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.tracking import flags_post
+from core.tracking.flags_post import (
+    FLAG,
+    UNCHECKED,
+    apply_trajectory_flags,
+    trajectory_flags,
+    trajectory_review,
+)
+from core.tracking.results import FrameResult, TrackingResult
+from tests.core.tracking.track_helpers import C, walking_track
+
+#: Frames off by ±0.6 degrees about z in turn (12x the noise): each flagged by its own fit, and a frame
+#: among them (20; 0 beside the trial's first four) left without a fit through good neighbours.
+INSIDE = {16: 0.6, 17: -0.6, 18: 0.6, 19: -0.6, 21: 0.6, 22: -0.6, 23: 0.6, 24: -0.6}
+START = {1: 0.6, 2: -0.6, 3: 0.6, 4: -0.6}
+
+
+def _spiked(spikes, off=None, n=60, seed=6):
+    """The tests' walking track with ``spikes`` (frame: degrees about z) and ``off`` (frame, degrees)."""
+    def shift(k, p):
+        p[5] += np.radians(spikes.get(k, 0.0) + (off[1] if off is not None and k == off[0] else 0.0))
+
+    return walking_track(n, (0.01, 0.05), seed, shift)
+
+
+def test_a_frame_among_flagged_neighbours_is_judged_from_frames_further_away():
+    fr = np.arange(60)
+    good = _spiked(INSIDE)
+    got = trajectory_flags(fr, good, C)
+    assert sorted(got) == sorted(INSIDE)  # frame 20 judged, not flagged
+    # spike 19 too was left without a fit once 16-18 and 21-24 were flagged: the check before missed it
+    assert "line through its nearest frames judged good 14, 15, 25, 26" in got[19]
+    assert sorted(trajectory_flags(fr, good, C, reach=None)) == [16, 17, 18, 21, 22, 23, 24]
+    _, unjudged = trajectory_review(fr, good, C, reach=0)  # no frame within reach: both noted
+    assert sorted(unjudged) == [19, 20] and all(m.startswith(UNCHECKED) for m in unjudged.values())
+    assert "fewer than 2 frames judged good on a side within 0 tracked frames" in unjudged[20]
+    bad = _spiked(INSIDE, off=(20, 0.5))  # 10x the noise, its neighbours all flagged
+    got = trajectory_flags(fr, bad, C)
+    assert sorted(got) == sorted([*INSIDE, 20])
+    assert got[20].startswith(FLAG) and got[21].startswith(FLAG)
+    assert "line through its nearest frames judged good 14, 15, 25, 26" in got[20]
+    assert 20 not in trajectory_flags(fr, bad, C, reach=None)  # the check before: no fit, never judged
+    assert trajectory_review(fr, bad, C)[1] == {}  # judged frames carry no note
+
+
+@pytest.mark.parametrize("off", [0.0, 1.0])
+def test_a_frame_at_the_trials_end_among_flagged_ones_is_noted_unchecked(off):
+    """Frames 0 and 2 left without a fit once 1, 3 and 4 are flagged (2 is a spike the check before
+    missed): the frames judged good are all after them, so they are noted, not judged (a line
+    extrapolated from 5-8 follows the motion's acceleration; on the acceptance trial's first frames
+    more than the error: module docs) — whatever frame 0's error."""
+    fr = np.arange(60)
+    P = _spiked(START, off=(0, off), seed=2)
+    assert sorted(trajectory_flags(fr, P, C, reach=None)) == [1, 3, 4]
+    got, unchecked = trajectory_review(fr, P, C)
+    assert sorted(got) == [1, 3, 4] and sorted(unchecked) == [0, 2]
+    assert all("5, 6, 7, 8, on one side only" in m for m in unchecked.values())
+
+
+def test_a_frame_it_cannot_judge_is_noted_unchecked_not_flagged():
+    P = walking_track(60, (0.01, 0.05), 3)
+    lost = {f: ("lost (test)",) for f in [*range(8, 20), *range(21, 33)]}  # per-frame flags: no neighbours
+    res = {("tibia", k): FrameResult("tibia", k, P[k], 0.8, 10, 0.0, True, lost.get(k, ()))
+           for k in range(len(P))}
+    out, changed = apply_trajectory_flags(TrackingResult(("tibia",), tuple(range(60)), res, "complete", 1.0),
+                                          {"tibia": C})
+    fr20 = out.results[("tibia", 20)]
+    assert [r.frame for r in changed] == [20] and not fr20.flags
+    assert len(fr20.notes) == 1 and fr20.notes[0].startswith(UNCHECKED)
+    assert f"fewer than 2 frames judged good on a side within {flags_post.REACH} tracked" in fr20.notes[0]
+    again, changed2 = apply_trajectory_flags(out, {"tibia": C})  # idempotent: the note not doubled
+    assert changed2 == [] and again.results[("tibia", 20)].notes == fr20.notes
+    off, changed3 = apply_trajectory_flags(out, {"tibia": C}, reach=None)  # the check as before: note off
+    assert [r.frame for r in changed3] == [20] and off.results[("tibia", 20)].notes == ()
+
+
+def test_too_few_frames_fitted_alike_leave_it_unchecked():
+    """A line through frames 1, 2, 3, 5 to frame 0 of a 12-frame track: fewer than GAP_SCALE frames
+    have good frames at those offsets to scale it by."""
+    P = _spiked({1: 0.0}, n=12)
+    ok = np.ones(12, dtype=bool)
+    from core.tracking.flags_post import _gap_residuals, _Table
+
+    t = _Table(np.arange(12), P, ok, C, flags_post.HALF_WINDOW, flags_post.DEGREE)
+    own, S = _gap_residuals(t, P, C, ok, 0, np.array([1, 2, 3, 5]))
+    assert own.shape == (2,) and 0 < len(S) < flags_post.GAP_SCALE

@@ -268,6 +268,7 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
         self._cmds: dict = {}  # recorded launches by name (_launch)
         self._cap = None
         self.timer = CostTimer()
+        self.renders = 0  # the steps' DRR launches (a step reusing the last design's images renders none)
         self.base = self.center = self.roi = None
         self._w0_set = False
 
@@ -403,6 +404,7 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
             X = X[_FORWARD] if FORWARD_DESIGN else X
             img, low = self._images(X)
             self.timer.evaluations += len(X)
+            self.renders += 1
         t0 = time.perf_counter()
         nv, (Hc, Wc) = self.n_views, self._cap
         acc, host = self._tables_q()

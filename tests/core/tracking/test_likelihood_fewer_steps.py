@@ -39,10 +39,11 @@ def test_fewer_steps_near_the_converged_stage(noisy_talus, monkeypatch, frame): 
         res = register(r, fr, bone=0, initial_pose=truth, center=model.centroid, options=o)
         assert res.timing["likelihood_taken"] == 1
         out.append((np.asarray(res.x, float), np.sqrt(np.diag(res.fit.covariance)),
-                    res.timing["likelihood_steps"]))
-    (x0, s0, n0), (x1, s1, n1) = out
+                    res.timing["likelihood_steps"], res.timing["likelihood_renders"]))
+    (x0, s0, n0, r0), (x1, s1, n1, r1) = out
     assert np.all(np.isfinite(s0)) and np.all(s0 > 0)
     assert n1 <= 3 < n0
+    assert r0 == n0 - 1 and r1 < n1  # (the robust refinement's first step takes the images before it)
     assert np.max(np.abs(x1 - x0) / s0) < 2e-2
     assert np.max(np.abs(s1 - s0) / s0) < 2e-2
 

@@ -82,8 +82,10 @@ class ReviewData(QtCore.QObject):
         conf = tracking.get("confidence") or {}
         self.sigma_mm[b, f] = _num(conf.get("translation_mm"))
         self.sigma_deg[b, f] = _num(conf.get("rotation_deg"))
-        if flags:
-            self.reasons[(b, f)] = "; ".join(flags)
+        # a frame the trajectory check could not judge says so (a note, not a flag: flags_post.UNCHECKED)
+        unchecked = [n for n in tracking.get("notes") or () if n.startswith("trajectory unchecked")]
+        if flags or unchecked:
+            self.reasons[(b, f)] = "; ".join(flags or unchecked)
         else:
             self.reasons.pop((b, f), None)
 

@@ -93,7 +93,7 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
     from ..study import Study
     from .batch_journal import SharedJournals
     from .bones import bone_model
-    from .flags_post import FLAG, apply_trajectory_flags, journal_neighbours
+    from .flags_post import FLAG, UNCHECKED, apply_trajectory_flags, journal_neighbours
     from .results import FrameResult, TrackingResult
 
     t0 = time.perf_counter()
@@ -163,7 +163,8 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
               + sum(bb == b for bb, _ in unjudged) for b in bones}
     return {"judged": len(results), "flagged": int(flagged), "review_flagged": review,
             "changed": [[fr.bone, int(fr.frame)] for fr in changed],
-            "changes": [{"bone": fr.bone, "frame": int(fr.frame), "flags": list(fr.flags)} for fr in changed],
+            "changes": [{"bone": fr.bone, "frame": int(fr.frame), "flags": list(fr.flags),
+                         "notes": [n for n in fr.notes if n.startswith(UNCHECKED)]} for fr in changed],
             "tasks_flagged": per_task, "reports": rewritten, "reports_unreadable": unreadable,
             "reports_unwritten": unwritten,
             "seconds": time.perf_counter() - t0}
@@ -234,7 +235,7 @@ def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
         flags = list(c.get("flags") or ())
         what = ("; ".join(flags) if any(s.startswith(FLAG) for s in flags) else
                 f"no longer off the trajectory (still flagged: {'; '.join(flags)})" if flags else
-                "no longer flagged")
+                f"not flagged, {'; '.join(c['notes'])}" if c.get("notes") else "no longer flagged")
         lines.append(f"{key}: {c['bone']} frame {int(c['frame'])}: {what}")
     if len(changes) > limit:
         lines.append(f"{key}: ... and {len(changes) - limit} more frames changed by the check: "

@@ -93,3 +93,15 @@ def test_too_few_frames_fitted_alike_leave_it_unchecked():
     t = _Table(np.arange(12), P, ok, C, flags_post.HALF_WINDOW, flags_post.DEGREE)
     own, S = _gap_residuals(t, P, C, ok, 0, np.array([1, 2, 3, 5]))
     assert own.shape == (2,) and 0 < len(S) < flags_post.GAP_SCALE
+
+
+def test_the_batch_pass_names_an_unchecked_frame_by_its_note():
+    from core.tracking.batch_pass import pass_messages
+
+    note = f"{UNCHECKED} (its neighbours flagged; test)"
+    entry = {"key": "k", "ranges": ["a", "b"], "judged": 10, "flagged": 1, "review_flagged": {"tibia": 1},
+             "changes": [{"bone": "tibia", "frame": 0, "flags": [], "notes": [note]},
+                         {"bone": "tibia", "frame": 3, "flags": [], "notes": []}]}
+    lines = pass_messages(entry)
+    assert lines[1] == f"k: tibia frame 0: not flagged, {note}"
+    assert lines[2] == "k: tibia frame 3: no longer flagged"

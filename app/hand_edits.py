@@ -21,8 +21,8 @@ refusals has a message of its own). A write that fails (a full disk) is said lik
 
 While a bone's edits wait, *Undo fix* of it, a tracking job and a batch wait for them (each would
 read or write the journal before them: :meth:`HandEdits.after_waiting`): the status bar says so,
-and they go ahead once the edits are journaled or refused — within :data:`HAND_EDIT_WAIT_S`; they
-were refused, to be asked again. Edits still waiting when the window closes are journaled
+and they go ahead once the edits are journaled or refused — within :data:`HAND_EDIT_WAIT_S`
+(they used to be refused, to be asked for again). Edits still waiting when the window closes are journaled
 or refused then, blocking for what is left of their wait (what waited for them is dropped); where
 refused, the window stays open for the message (:meth:`HandEdits.settle`, ``MainWindow.closeEvent``).
 

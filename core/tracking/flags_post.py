@@ -36,6 +36,7 @@ run, now flagged. A frame far off with quiet neighbours still flags only itself 
 neighbour that is itself off by 0.7× the limit flags both, and neighbours near the limit by noise
 alone may be flagged with it (a 0.5° spike in the tests' track with every 2nd frame tracked flags
 three more, 1.7-2.5× the median residual without the spike).
+
 *A frame whose neighbours are flagged* (:data:`REACH`, the ``reach`` keyword; None: off). Once
 frames are flagged, a good frame with fewer than ``DEGREE + 2`` good neighbours within
 ±:data:`HALF_WINDOW` has no fit, and the check before this rule never judged it (seed 4's sequential
@@ -50,12 +51,18 @@ with the gap and with the motion's acceleration there, where the bone's median d
 through its nearest frames judged good 14, 15, 25, 26, its neighbours flagged; ...)"``). A frame
 with fewer than two such frames on a side — at a trial's ends, mostly — is not judged: it gets the
 note :data:`UNCHECKED` (not a flag), which :func:`apply_trajectory_flags` puts in the frame's
-``notes`` so the review panel shows that the check could not judge it. Lines extrapolated from one
+``notes`` (journaled with the frame; the frames table shows it as the frame's reason, a batch's
+trajectory pass names it) so a user sees that the check could not judge it. Lines extrapolated from one
 side were tried (the nearest four frames judged good on either side): on the stored runs below they
 flagged 5 of the 27 frames at a trial's end, 3 of them over 4× the bone's bound, but 4 of the 5 were
 flagged with their true pose put in their place too — a line from frames 3-9 missed the walking
 motion's first frame by 0.87-1.17 mm (normalised), where the frames' errors were 0.05-0.10 mm — and
 only seed 4's sequential tibia frame 0 was caught by its error (1.10° against a limit of 1.03°).
+Judged instead relative to another bone of the run (the pose in that bone's frame where both are
+judged good: the foot's shared motion drops out, the line from frames 3-6 missing the tibia's true
+first frame by 0.26 mm / 0.19° instead of 1.88 mm / 0.87°, not normalised), the same one-sided lines
+left all 27 within the limit (0.26-0.97 of it; the 4 over 4× at 0.43-0.80): the other bone's errors
+widen the scale as much (a prototype, not kept).
 Measured (:mod:`core.studies.tracking.trajectory_gaps`,
 ``resources/benchmarks/tracking_trajectory_gaps_cpu.json``; the stored runs of seeds 0-4, 1024²,
 100 frames, jointly and sequentially, tracked on one NVIDIA H100 — seeds 0-2 at ea76c8b, their poses

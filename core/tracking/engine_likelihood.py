@@ -176,6 +176,13 @@ UPHILL_RESOLVED = 4.0
 #: O(h²)); implies :data:`DIFF_IMAGES`. Off: the 13-pose central design, as first measured.
 FORWARD_DESIGN = False
 _FORWARD = [0, 1, 3, 5, 7, 9, 11]  # step_design's x and x + h_k e_k
+#: A refinement's steps after its first render only the design's centre, the six differences (the
+#: Jacobian) those of the last full design (a chord method: one pose rendered and blurred instead
+#: of 13 and 7). Off: every step a full design, as first measured. Its fixed point is where the
+#: first design's Jacobian is orthogonal to the residual: with the fewer steps it moved poses by
+#: 0.09-0.18 σ from the default's on a 256² CPU trial (the stage's floor there 0.003-0.01 σ); not
+#: measured on a GPU.
+CHORD_STEPS = False
 #: pixels a thread block of a step's moments kernel sums (None: the engine's ``chunk``, 4096, as
 #: first measured; smaller: more blocks, the same terms summed in another order, float32 rounding)
 MOMENTS_CHUNK: int | None = None
@@ -382,6 +389,28 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
         self.timer.render += time.perf_counter() - t1
         return img, low
 
+    def _centre_images(self, x: np.ndarray, img, low):
+        """The design's centre at ``x`` rendered into the last design's images ``img`` and its
+        low-pass into ``low`` (items ``0 … views-1``; the differences kept: :data:`CHORD_STEPS`)."""
+        t0 = time.perf_counter()
+        one = self._render(self.poses(np.asarray(x, dtype=float)[None])[:, None], (self.bone,))
+        t1 = time.perf_counter()
+        nv = self.n_views
+        if self._psf is not None:
+            out = self._buffer("psf1", one.shape)
+            wp.launch(psf_kernel, dim=one.shape, inputs=[one, out, self._psf, self._ref_hw, nv],
+                      device=self.device)
+            one = out
+        c = self._buffer("c", (nv, *img.shape[1:]))
+        self._launch("diff1", design_diff_kernel, c.shape, [one, nv, self._ref_hw, c, 0])
+        n = c.size
+        wp.copy(img, c, 0, 0, n)
+        if self.highpass_px:
+            wp.copy(low, self._blurred("c", c, nv), 0, 0, n)
+        self.timer.host += t1 - t0
+        self.timer.render += time.perf_counter() - t1
+        return img, low
+
     def step(self, x, h, *, reuse: bool = False) -> dict:
         """The weighted products table of the 13-pose design about ``x`` (half-steps ``h``,
         mm and degrees) and :func:`solve_moments` of it (one DRR launch, 4-5 kernels, one
@@ -391,14 +420,19 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
         self.step_launch(x, h, reuse=reuse)
         return self.step_result()
 
-    def step_launch(self, x, h, *, reuse: bool = False) -> None:
+    def step_launch(self, x, h, *, reuse: bool = False, chord: bool = False) -> None:
         """The first half of :meth:`step`: its launches and the table's copy to the host enqueued,
-        nothing waited for (:meth:`step_result` takes it)."""
+        nothing waited for (:meth:`step_result` takes it). ``chord``: with :data:`CHORD_STEPS`, only
+        the centre rendered, the differences the last design's."""
         x = np.asarray(x, dtype=float)
         h = np.asarray(h, dtype=float)
         last = self._last
         if reuse and last is not None and np.array_equal(last[2], x) and np.array_equal(last[3], h):
             img, low = last[0], last[1]
+        elif chord and CHORD_STEPS and last is not None and self._diff and np.array_equal(last[3], h):
+            img, low = self._centre_images(x, last[0], last[1])
+            self.timer.evaluations += 1
+            self.renders += 1
         else:
             X = step_design(x, h)
             X = X[_FORWARD] if FORWARD_DESIGN else X
@@ -470,7 +504,7 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
         best, n_it, pred, last = None, 0, 0.0, None
         for it in range(1, int(iters) + 1):
             n_it = it
-            self.step_launch(x, hv, reuse=reuse and it == 1)
+            self.step_launch(x, hv, reuse=reuse and it == 1, chord=it > 1)
             yield
             s = self.step_result()
             share = s["chi2"] / max(self.n_pixels, 1)  # (χ²/N)

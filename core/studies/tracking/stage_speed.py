@@ -87,6 +87,8 @@ VARIANTS: dict = {
     "last": lambda: _flag("core.tracking.final_stage", "ROBUST_FROM_LAST", True),
     # the regions' line integrals made on the device (engine_likelihood.DEVICE_REGIONS)
     "devreg": lambda: _flag("core.tracking.engine_likelihood", "DEVICE_REGIONS", True),
+    # a refinement's later steps with the centre alone rendered (engine_likelihood.CHORD_STEPS)
+    "chord": lambda: _flag("core.tracking.engine_likelihood", "CHORD_STEPS", True),
     # the 7-pose forward design (engine_likelihood.FORWARD_DESIGN)
     "fwd": lambda: _flag("core.tracking.engine_likelihood", "FORWARD_DESIGN", True),
     # the stage's defaults before the fewer steps: every refinement to tol, the robust round's own

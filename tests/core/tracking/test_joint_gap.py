@@ -157,7 +157,17 @@ def test_probe_history_is_the_seeds_own_run():
     from core.studies.tracking import joint_gap as jg
 
     assert jg.history_for(0) == jg.ACCEPTANCE_JSON
-    assert jg.history_for(3) == jg.HELD_OUT_JSONS[0] and jg.history_for(4) == jg.HELD_OUT_JSONS[1]
+    # seed 3: today's synthesis
+    assert jg.history_for(3).endswith("tracking_joint_restart_acceptance_seed3_h100.json")
+    assert jg.history_for(4) == jg.HELD_OUT_JSONS[1]
+    assert jg.history_for(3, jg.HELD_OUT_JSONS[0]) == jg.HELD_OUT_JSONS[0]  # 56350ae's seed 3, asked for
+    with pytest.raises(ValueError, match="seed 3's run"):
+        jg.history_for(4, jg.HELD_OUT_JSONS[0])
+    # the stored runs the probe can start from hold per-frame joint errors by frame
+    for seed in (3, 4):
+        with open(jg.history_for(seed)) as fh:
+            d = json.load(fh)
+        assert len(jg._per_frame(d, "joint", "tibia")) == 100
     assert jg.history_for(4, "mine.json") == "mine.json"  # an unknown file: the caller's word
     with pytest.raises(ValueError, match="seed 0's run"):
         jg.history_for(3, jg.ACCEPTANCE_JSON)

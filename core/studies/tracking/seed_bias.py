@@ -78,6 +78,9 @@ pixels at 1024², scaled to the scene's size. Measured (this 2-core x86_64 machi
 its tissue regressor, takes the bias off: all of the tibia's, the talus's but ~0.1° over its
 controls; the regressor adds 0.01–0.02°, the rim band nothing for the talus. On two noise
 draws (the run's and another) the same: talus +0.93° → +0.25° at 4 px, tibia −0.74° → −0.06°.
+Tracking the whole held-out trial with the stage (``acceptance --seed 4 --final likelihood``, 1024²,
+0.5 mm voxels, one NVIDIA H100; ``tracking_acceptance_seed4_final_h100.json``) confirmed it: jointly
+the talus about x over frames 0–20 +0.43° → +0.14°, the tibia about z over 75–93 −0.47° → −0.10°.
 """
 
 from __future__ import annotations

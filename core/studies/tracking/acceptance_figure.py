@@ -47,11 +47,12 @@ def _figure(errors: dict, filtered: dict, path: str, cfg: dict, bound: dict | No
         a.legend(fontsize=7, loc="upper right")
     for a in ax[1]:
         a.set(xlabel="frame")
+    stage = _stage(cfg)  # on a line of its own: the first is as wide as the figure
     fig.suptitle(f"Synthetic walking trial, {cfg['pixels']}² views, {cfg['voxel_mm']} mm voxels, "
                  f"{cfg['mode']} tracking ({cfg['search']} search), start 5 mm / 5° off, "
-                 f"distortion correction: {cfg['correction']}{_stage(cfg)}\nlower row: Butterworth "
-                 f"low-pass at {cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: 0.15 target; dotted: "
-                 f"Cramér–Rao bound of a per-frame estimate; x: flagged)", fontsize=9)
+                 f"distortion correction: {cfg['correction']}" + (f"\n{stage[2:]}" if stage else "")
+                 + f"\nlower row: Butterworth low-pass at {cfg['frame_rate_hz']:.0f} Hz frame rate (dashed: "
+                 "0.15 target; dotted: Cramér–Rao bound of a per-frame estimate; x: flagged)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -16,7 +16,11 @@ NVIDIA H100 at 56350ae; ``resources/benchmarks/tracking_acceptance_seed3_h100.js
 ≤ 1.25× the bound not met (1.50–2.39×, 1.77–3.10×); converged met; zero silent frames not met
 (jointly 5 / 2 / 0 and 24 / 12 / 3 tibia / talus / calcaneus frames over 4× unflagged: runs of frames
 biased together, 0.05–3.3× the bone's median trajectory residual, per :func:`silent_details`); joint
-at least as good as sequential for 2 and 1 of the 3 bones; 2σ coverage met (99.3–100 %)."""
+at least as good as sequential for 2 and 1 of the 3 bones; 2σ coverage met (99.3–100 %). With the
+likelihood final stage (``--final likelihood``, 782362a; ``..._seed4_final_h100.json``,
+``..._seed3_final_h100.json``, seed 3 on today's synthesis): 1.43–1.92× and 1.27–1.60×; seed 4's
+talus 97–98 % converged; silent jointly 2 / 0 / 3 and 1 / 0 / 0; joint as good for 2 and 3 of 3;
+2σ coverage 91.0–100 %."""
 
 from __future__ import annotations
 

@@ -17,7 +17,9 @@
   by one worker only), and every GUI test (marked ``gui`` or using pytest-qt) is in one group, so
   windows never open on the shared X display from two processes at once. Each worker has its own
   XDG cache and settings folders; Warp's kernel cache is shared (Warp builds a module in a folder
-  of its own process and renames it into place).
+  of its own process and renames it into place). The groups go out longest first, by the seconds
+  each file took in the last such run (kept in pytest's cache, ``.pytest_cache``), so that the
+  two workers finish together; without that record, largest first by number of tests.
 """
 
 from __future__ import annotations
@@ -161,6 +163,28 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
     class GroupScheduling(LoadScopeScheduling):
         groups: dict[str, str] | None = None
 
+        ordered = False
+
+        def _assign_work_unit(self, node) -> None:
+            if not self.ordered:  # the first call: the queue holds every group
+                self.ordered = True
+                seconds = _cache_get(config, _SECONDS_KEY)
+                if seconds:
+                    # the groups in order of their seconds, longest first (xdist orders them by
+                    # number of tests): each worker's last groups are short ones
+                    n = sum(len(unit) for unit in self.workqueue.values())
+                    per_test = sum(seconds.values()) / max(1, n)  # a new file: a mean test's time
+                    cost: dict[str, float] = {}
+                    for scope, unit in self.workqueue.items():
+                        files = {nodeid.split("::")[0] for nodeid in unit}
+                        cost[scope] = sum(seconds[f] if f in seconds else
+                                          per_test * sum(1 for i in unit if i.startswith(f + "::"))
+                                          for f in files)
+                    order = sorted(self.workqueue.items(), key=lambda su: -cost[su[0]])  # stable
+                    self.workqueue.clear()
+                    self.workqueue.update(order)
+            super()._assign_work_unit(node)
+
         def _split_scope(self, nodeid: str) -> str:
             file = nodeid.split("::")[0]
             if self.groups is None:  # written by the workers before they sent their collection
@@ -170,6 +194,34 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
             return self.groups.get(file, "tests/app" if file.startswith("tests/app/") else file)
 
     return GroupScheduling(config, log)
+
+
+_SECONDS_KEY = "talus/xdist_file_seconds"  # {test file: seconds} of the last --dist loadgroup run
+_file_seconds: dict[str, float] = {}
+
+
+def _cache_get(config: pytest.Config, key: str):
+    cache = getattr(config, "cache", None)  # None with -p no:cacheprovider
+    return cache.get(key, None) if cache is not None else None
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """The controller of a ``--dist loadgroup`` run adds up each file's seconds (set-up, call and
+    tear-down of its tests, as the workers report them) for the next run's order."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        file = report.nodeid.split("::")[0]
+        _file_seconds[file] = _file_seconds.get(file, 0.0) + report.duration
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    config = session.config
+    cache = getattr(config, "cache", None)
+    if (cache is not None and _file_seconds and not os.environ.get("PYTEST_XDIST_WORKER")
+            and getattr(config.option, "dist", "no") == "loadgroup" and not config.option.keyword
+            and not config.option.markexpr):
+        seconds = _cache_get(config, _SECONDS_KEY) or {}
+        seconds.update({f: round(s, 2) for f, s in _file_seconds.items()})
+        cache.set(_SECONDS_KEY, seconds)
 
 
 def sample_data_dir() -> Path:

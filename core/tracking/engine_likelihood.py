@@ -73,8 +73,9 @@ the uphill rule of :data:`UPHILL_RESOLVED`, by 0.015 mm on 192² CPU tests; now 
 1024², within the stage's floor of 0.011 mm / 0.031°). Measured on one NVIDIA H100 (the acceptance
 trial at 1024², 30 frames, three bones jointly, old and new alternated in one call, three repeats;
 ``resources/benchmarks/tracking_stage_fewer_steps_h100.json``): 10.97 → 4.99 ms per bone-frame at 4
-px and 15.58 → 8.55 ms at 8 px, 8.54 → 3.23 steps (moment tables; 2.2 renders), the device's time
-8.30 → 4.19 ms (4 px), the frame 53 → 35 ms; errors over the Cramér–Rao bound (tibia, talus,
+px and 15.58 → 8.55 ms at 8 px, 8.54 → 3.23 steps (moment tables; about 2.2 renders, the robust
+round's first step on the images before it), the device's time 8.30 → 4.19 ms (4 px), the frame
+53 → 35 ms; errors over the Cramér–Rao bound (tibia, talus,
 calcaneus mm/°, 4 px) 1.670/1.435, 1.465/1.385, 1.380/1.308 → 1.633/1.476, 1.469/1.397, 1.343/1.285,
 no frame over 4× its bound unflagged; poses moved by up to 0.033 mm / 0.068° (over 90 bone-frames,
 the tracker carrying each pose into the next frame), σ by up to 16 %. A single step (no verification

@@ -128,7 +128,7 @@ frame), the set-up on the device (``DEVICE_REGIONS``; 3.3 ms with a synchronisat
 step captured as one CUDA graph (the device waits for the host ~5 ms per bone-frame today) — or the
 stage run only on the frames the tracker's checks single out.
 
-Since then (:mod:`core.tracking.engine_likelihood`: Fewer steps): 3.2 steps instead of 8.5 (2.2
+Since then (:mod:`core.tracking.engine_likelihood`: Fewer steps): 3.2 steps instead of 8.5 (about 2.2
 renders), the regions on the device, 4.99 ms per bone-frame at 4 px (8.55 at 8 px), the device's
 share 4.19 ms: DRRs 1.20, the sandwich's meat 0.72 (0.36 with 512 pixels a block,
 :data:`~core.tracking.likelihood_confidence.MEAT_CHUNK`, since the default) and autocovariance

@@ -31,6 +31,7 @@ refinements' uphill test on every rise of χ² (as first measured; now on resolv
 under a perturbation of rounding's size: what ``variant_pairs`` of the others compare with);
 ``last``, ``devreg``, ``stop<c>`` the fewer steps' flags one by one and ``old`` all three off (the
 stage before them; :mod:`core.tracking.engine_likelihood`: Fewer steps), ``fwd`` the forward design,
+``chord`` the later steps with the design's centre alone rendered,
 ``sc<n>`` / ``meat<n>`` / ``mc<n>`` the sandwich's / its meat's / the moments' pixels a thread block;
 ``a+b`` both (e.g. ``plain+jitter``, ``fast+strict``). Measured:
 ``resources/benchmarks/tracking_stage_speed_h100.json`` (one NVIDIA H100, 30 frames; its ``base``

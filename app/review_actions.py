@@ -256,8 +256,10 @@ class ReviewActions:
         s.require_writable("undoing a fix")
         if m.layers[m.index(bone)].locked:  # a bone handed to a batch: its journal is not the window's
             raise ValueError(self.locked_reason(bone))
-        if s.edits.after_waiting("undo fix", lambda: self.window._guard(lambda: self.undo_fix(bone, f)),
-                                 bone=bone):
+        # one waiting undo per bone and frame: an undo asked at another frame (or of another bone)
+        # meanwhile waits beside it rather than replacing it
+        if s.edits.after_waiting(f"undo fix {bone} {f}",
+                                 lambda: self.window._guard(lambda: self.undo_fix(bone, f)), bone=bone):
             self.window.statusBar().showMessage(
                 f"Undo fix of {bone} at frame {f}: waiting for its edit to be saved (another writer holds "
                 "its journal for a moment)…", 10_000)

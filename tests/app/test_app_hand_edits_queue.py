@@ -3,10 +3,10 @@ what the user does during the wait, through the window's menu actions, on the 96
 
 * *Undo fix* while the bone's edit waits waits for it (the journal it reads would lack the edit;
   it was refused, to be asked again), the status bar saying so, and undoes the fix of the frame it
-  was asked at once the edit is journaled; *Track all bones* likewise starts the tracking job once
-  the edit is journaled. An *Undo fix* that waits, then a move of the same frame: the move,
-  journaled after it, stays in the model (the fix's undo put the tracked pose back over it: model
-  and journal disagreed).
+  was asked at once the edit is journaled (two asked at two frames: both); *Track all bones*
+  likewise starts the tracking job once the edit is journaled. An *Undo fix* that waits, then a
+  move of the same frame: the move, journaled after it, stays in the model (the fix's undo put the
+  tracked pose back over it: model and journal disagreed).
 * Edit → Undo of a waiting move: the journal ends as the model.
 * Two bones waiting at once: both journaled once the locks come.
 * Closing the window while an edit waits: saved where the lock is free by then; refused, the
@@ -124,6 +124,38 @@ def test_tracking_started_while_an_edit_waits_starts_once_it_is_saved(qtbot, dem
                 "Tracking starts once the hand edits waiting for their journals are saved")
         assert [b for b, _ in seen] == [[layer.name for layer in m.layers]]
         np.testing.assert_allclose(seen[0][1], moved)  # the edit journaled before the tracker started
+
+
+def test_two_undo_fixes_asked_while_an_edit_waits_both_run(qtbot, demo_study, tmp_path, shown_errors):
+    """*Undo fix* at frame 1, then at frame 2, while the bone's edit waits: both wait and both run
+    once it is journaled (the second used to replace the first, which never ran though the status
+    bar had said it would)."""
+    folder = copy_study(demo_study, tmp_path)
+    tracked = _fixed_frame_1(folder)
+    with Study.open(folder, mode="w") as st:  # frame 2 fixed by hand too
+        tr = st.trial("walk")
+        tr.record_pose(BONE, 2, tracked, score=0.9, tracking={"flags": []})
+        fix = tracked.copy()
+        fix[1, 3] += 2.0
+        tr.record_pose(BONE, 2, fix)
+    with main_window(qtbot) as win:
+        s, m = _open(qtbot, win, folder)
+        m.set_frame(1)
+        lock = _lock(folder, s.trial_name, BONE).acquire()
+        QtCore.QTimer.singleShot(300, lock.release)
+        _action(win, "Move x+").trigger()
+        assert s.edits.waiting(BONE)
+        win.review.undo_fix_action.trigger()
+        m.set_frame(2)
+        win.review.undo_fix_action.trigger()
+        assert s.edits.waiting(BONE)
+        done = [f"{BONE} frame {f}: fix undone (tracking result restored)" for f in (1, 2)]
+        qtbot.waitUntil(lambda: all(d in _texts(win) for d in done), timeout=WAIT_MS)
+        assert not shown_errors
+        for f in (1, 2):
+            assert s.study.trial(s.trial_name).results(BONE).essential_records()[f][-1].kind == "tracked"
+            np.testing.assert_allclose(_journal(s)[f], tracked)
+            np.testing.assert_allclose(m.pose(BONE, f), tracked)
 
 
 def test_a_move_made_while_undo_fix_waits_stays(qtbot, demo_study, tmp_path):

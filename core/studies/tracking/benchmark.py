@@ -37,9 +37,14 @@ visible.
 
 ``--search`` picks the tracking search (``newton``: the Gauss–Newton engine,
 :mod:`core.tracking.engine`; ``local``: the quadratic-model search); ``--compare`` runs both on
-the same scene and device. Full size: 1024² views, 0.5 mm voxels, 100 frames (a GPU);
-``--quick``: 192² views, 1 mm voxels, 8 frames (this machine's CPU); ``--pixels``, ``--voxel``,
-``--frames`` override. JSON on stdout.
+the same scene and device. ``--final`` picks the final stage (``none``, the default, or
+``likelihood``: :attr:`~core.tracking.options.TrackingOptions.refine_likelihood`); a comma-separated
+list runs each case once per entry in that order on the same scene (``none,likelihood,likelihood,none``:
+the stage's cost end to end, alternated), the results under ``<case>``, ``<case>_likelihood`` and, for
+an entry's second occurrence, ``<case>_2`` / ``<case>_likelihood_2``; the device floor counts the
+Gauss–Newton engine's evaluations only, not the stage's. Full size: 1024² views, 0.5 mm voxels,
+100 frames (a GPU); ``--quick``: 192² views, 1 mm voxels, 8 frames (this machine's CPU);
+``--pixels``, ``--voxel``, ``--frames`` override. JSON on stdout.
 """
 
 from __future__ import annotations
@@ -225,20 +230,42 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: d
     return out
 
 
+def _final_runs(final: str, options) -> list:
+    """(key suffix, options) per entry of ``final`` (``"none"``, ``"likelihood"`` or a
+    comma-separated list of them), in order: ``""`` / ``"_likelihood"``, a second occurrence's
+    suffix ending in ``_2`` (a third's ``_3``); the likelihood entries' options with
+    ``refine_likelihood``. ``options`` None: only checks ``final``."""
+    from dataclasses import replace
+
+    finals = [f.strip() for f in str(final).split(",")]
+    if not all(f in ("none", "likelihood") for f in finals):
+        raise ValueError(f"final: expected none, likelihood or a comma-separated list of them, got {final!r}")
+    out, seen = [], {}
+    for f in finals:
+        seen[f] = seen.get(f, 0) + 1
+        suffix = ("" if f == "none" else "_" + f) + (f"_{seen[f]}" if seen[f] > 1 else "")
+        oo = options if options is None or f == "none" else replace(options, refine_likelihood=True)
+        out.append((suffix, oo))
+    return out
+
+
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,
         pixels: int | None = None, cases: str = "both", repeats: int = 3, search: str = "newton",
         compare: bool = False, voxel: float | None = None, bound: bool = True,
-        metric: str = "magnitudes") -> dict:
+        metric: str = "magnitudes", final: str = "none") -> dict:
     """Run the cases (``"one"``, ``"three"`` or ``"both"``) with the tracking ``search``
     (``compare``: ``newton`` and ``local`` both, the second under ``"<case>_local"``) and the
     gradient correlation of the gradient ``metric`` (``"magnitudes"``, the default term, or
-    ``"components"``: the gc term's ``components`` option); returns the JSON-ready results."""
+    ``"components"``: the gc term's ``components`` option) and the final stage(s) ``final``
+    (``"none"``, ``"likelihood"`` or a comma-separated list of them, module docs); returns the
+    JSON-ready results."""
     if int(repeats) != repeats or repeats < 1:
         raise ValueError(f"repeats: expected a whole number >= 1, got {repeats!r}")
     if cases not in ("one", "three", "both"):
         raise ValueError(f"cases: expected 'one', 'three' or 'both', got {cases!r}")
     if metric not in ("magnitudes", "components"):
         raise ValueError(f"metric: expected 'magnitudes' or 'components', got {metric!r}")
+    _final_runs(final, None)  # checks it before the scene is made
     from dataclasses import replace
 
     import warp as wp
@@ -278,15 +305,16 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     res["cramer_rao"] = cr
     res["cramer_rao_s"] = bound_s
     res["threads"] = {k: os.environ.get(k) for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
-    runs = [("", o)]
+    finals = [f.strip() for f in str(final).split(",")]
+    res["final"] = finals if len(finals) > 1 else finals[0]
+    runs = _final_runs(final, o)
     if compare:
         other = "local" if search != "local" else "newton"
         runs.append((f"_{other}", replace(base, registration=replace(base.registration, search=other))))
-    for suffix, oo in runs:
-        if cases in ("one", "both"):
-            res["one_bone" + suffix] = _case(ts, [1], oo, n, int(repeats), cr)
-        if cases in ("three", "both"):
-            res["three_bones" + suffix] = _case(ts, [0, 1, 2], oo, n, int(repeats), cr)
+    for case, bones in (("one_bone", [1]), ("three_bones", [0, 1, 2])):
+        if cases in (case.split("_")[0], "both"):
+            for suffix, oo in runs:
+                res[case + suffix] = _case(ts, bones, oo, n, int(repeats), cr)
     res["autoscoper_reference_s_per_frame_per_bone"] = [3.0, 13.0]
     return res
 
@@ -309,12 +337,15 @@ def main(argv=None, *, prog: str = "python -m core.studies.tracking.benchmark") 
     p.add_argument("--compare", action="store_true", help="also run the other search on the same scene")
     p.add_argument("--metric", choices=("magnitudes", "components"), default="magnitudes",
                    help="gradient correlation of the gradient magnitudes (default) or components")
+    p.add_argument("--final", default="none",
+                   help="final stage: none (default), likelihood, or a comma-separated list run in turn "
+                        "on the same scene (e.g. none,likelihood,likelihood,none)")
     p.add_argument("--no-bound", action="store_true", help="skip the Cramér-Rao bound")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases,
               repeats=a.repeats, search=a.search, compare=a.compare, voxel=a.voxel, bound=not a.no_bound,
-              metric=a.metric)
+              metric=a.metric, final=a.final)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

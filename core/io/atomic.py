@@ -364,9 +364,12 @@ class FileLock:
         return self._fd is not None
 
     def read_holder(self) -> dict[str, Any]:
-        """The holder information stored in the lock file (empty if unreadable)."""
+        """The holder information stored in the lock file (empty if unreadable). Its first JSON
+        object: a line being rewritten (:meth:`relabel`: the new line written over the old one, then
+        the old one's longer tail cut) reads as the new line, never as nothing."""
         try:
-            info = json.loads(self.path.read_text(encoding="utf-8") or "{}")
+            text = self.path.read_text(encoding="utf-8").lstrip()
+            info = json.JSONDecoder().raw_decode(text)[0] if text else {}
         except (OSError, ValueError):
             return {}
         return info if isinstance(info, dict) else {}
@@ -405,6 +408,9 @@ class FileLock:
     def relabel(self, by: str) -> None:
         """Name ``by`` as what holds the lock now (e.g. a tracker taking over a journal its handle
         already locked): the holder line is rewritten with ``since`` now, the lock kept throughout.
+        The new line is written over the old one before the rest is cut, so that a writer refused
+        meanwhile reads a holder (:meth:`read_holder`), never an empty file. The line cannot be
+        replaced by renaming a new file over it: the lock belongs to the file itself.
 
         Raises
         ------
@@ -425,9 +431,11 @@ class FileLock:
         }
         if self.by:
             info["by"] = self.by
-        os.ftruncate(fd, 0)
+        blob = json.dumps(info).encode()
         os.lseek(fd, 0, os.SEEK_SET)
-        os.write(fd, json.dumps(info).encode())
+        if os.write(fd, blob) != len(blob):
+            raise OSError(f"{self.path}: the holder line was written in part")
+        os.ftruncate(fd, len(blob))  # the old line's tail, where it was longer
         os.fsync(fd)
 
     def release(self) -> None:

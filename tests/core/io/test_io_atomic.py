@@ -104,6 +104,39 @@ def test_a_held_lock_relabelled_names_its_new_holder(tmp_path):
         lock.relabel("talus track")
 
 
+def test_a_relabelled_lock_always_names_a_holder(tmp_path):
+    """The holder line is rewritten in place (the lock belongs to the file: no new file renamed
+    over it): the new line over the old, then the old one's longer tail cut. A reader in between
+    gets the new holder, not nothing; one reading while the line is relabelled over and over never
+    reads an empty holder (it did: the line was cut to nothing first, then written)."""
+    import threading
+
+    lock = FileLock(tmp_path / ".lock", purpose="study X", by="a script with a long name").acquire()
+    path = tmp_path / ".lock"
+    old = path.read_bytes()
+    new = json.dumps({"pid": 1, "by": "short"}).encode()
+    assert len(new) < len(old)
+    path.write_bytes(new + old[len(new):])  # the new line written, the old tail not yet cut
+    assert FileLock(path).read_holder() == {"pid": 1, "by": "short"}
+    seen, stop = [], threading.Event()
+
+    def read():
+        other = FileLock(path)
+        while not stop.is_set():
+            seen.append(other.read_holder().get("by"))
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    try:
+        for k in range(400):
+            lock.relabel("a" if k % 2 else "a much longer name of what holds it " * 3)
+    finally:
+        stop.set()
+        reader.join()
+    lock.release()
+    assert seen and None not in seen
+
+
 @pytest.fixture(params=[0o022, 0o077, 0o002])
 def umask(request):
     old = os.umask(request.param)

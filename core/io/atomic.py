@@ -392,7 +392,11 @@ class FileLock:
                 break
             os.close(fd)
             if time.monotonic() >= deadline:
-                raise LockedError(self.path, self.read_holder(), self.purpose)
+                holder = self.read_holder()
+                if not holder:  # taken a moment ago, its holder line not yet written (or an old one)
+                    time.sleep(0.005)
+                    holder = self.read_holder()
+                raise LockedError(self.path, holder, self.purpose)
             time.sleep(min(delay, max(0.0, deadline - time.monotonic())))
             delay = min(delay * 2, 0.05)
         try:

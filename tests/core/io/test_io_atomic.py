@@ -137,6 +137,21 @@ def test_a_relabelled_lock_always_names_a_holder(tmp_path):
     assert seen and None not in seen
 
 
+def test_a_lock_just_taken_is_read_again_for_its_holder(tmp_path, monkeypatch):
+    """Refused by a lock taken a moment ago, whose holder line is not yet written (the file empty:
+    released locks are cut to nothing), a writer reads it again after a moment."""
+    path = tmp_path / ".lock"
+    lock = FileLock(path, by="talus track").acquire()
+    line = path.read_bytes()
+    path.write_bytes(b"")
+    monkeypatch.setattr(time, "sleep", lambda s: path.write_bytes(line))  # the holder writes meanwhile
+    with pytest.raises(LockedError) as refused:
+        FileLock(path).acquire()
+    monkeypatch.undo()
+    lock.release()
+    assert refused.value.holder.get("by") == "talus track"
+
+
 @pytest.fixture(params=[0o022, 0o077, 0o002])
 def umask(request):
     old = os.umask(request.param)

@@ -164,7 +164,8 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
     return {"judged": len(results), "flagged": int(flagged), "review_flagged": review,
             "changed": [[fr.bone, int(fr.frame)] for fr in changed],
             "changes": [{"bone": fr.bone, "frame": int(fr.frame), "flags": list(fr.flags),
-                         "notes": [n for n in fr.notes if n.startswith(UNCHECKED)]} for fr in changed],
+                         "notes": [n for n in fr.notes if n.startswith(UNCHECKED)],
+                         "was_flagged": bool(results[(fr.bone, fr.frame)].flags)} for fr in changed],
             "tasks_flagged": per_task, "reports": rewritten, "reports_unreadable": unreadable,
             "reports_unwritten": unwritten,
             "seconds": time.perf_counter() - t0}
@@ -235,7 +236,8 @@ def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
         flags = list(c.get("flags") or ())
         what = ("; ".join(flags) if any(s.startswith(FLAG) for s in flags) else
                 f"no longer off the trajectory (still flagged: {'; '.join(flags)})" if flags else
-                f"not flagged, {'; '.join(c['notes'])}" if c.get("notes") else "no longer flagged")
+                f"{'no longer' if c.get('was_flagged') else 'not'} flagged, {'; '.join(c['notes'])}"
+                if c.get("notes") else "no longer flagged")
         lines.append(f"{key}: {c['bone']} frame {int(c['frame'])}: {what}")
     if len(changes) > limit:
         lines.append(f"{key}: ... and {len(changes) - limit} more frames changed by the check: "

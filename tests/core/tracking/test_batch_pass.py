@@ -51,6 +51,7 @@ def test_range_reports_and_records_give_the_flags_after_the_trials_pass(keyed, t
     assert entry["changed"] == [[BONE, 10]]
     (change,) = entry["changes"]
     assert change["frame"] == 10 and change["flags"][0].startswith(FLAG)
+    assert change["was_flagged"] is False and change["notes"] == []  # its range's check had not flagged it
     assert entry["tasks_flagged"] == {a: 1, b: 0}
     assert entry["reports"] == ["walk.talus.12-0", "walk.talus.12-29"] and entry["reports_unreadable"] == []
     # the records: the count after the pass, and the task's own

@@ -101,7 +101,11 @@ def test_the_batch_pass_names_an_unchecked_frame_by_its_note():
     note = f"{UNCHECKED} (its neighbours flagged; test)"
     entry = {"key": "k", "ranges": ["a", "b"], "judged": 10, "flagged": 1, "review_flagged": {"tibia": 1},
              "changes": [{"bone": "tibia", "frame": 0, "flags": [], "notes": [note]},
-                         {"bone": "tibia", "frame": 3, "flags": [], "notes": []}]}
+                         {"bone": "tibia", "frame": 3, "flags": [], "notes": []},
+                         {"bone": "tibia", "frame": 99, "flags": [], "notes": [note], "was_flagged": True}]}
     lines = pass_messages(entry)
     assert lines[1] == f"k: tibia frame 0: not flagged, {note}"
     assert lines[2] == "k: tibia frame 3: no longer flagged"
+    # flagged by its range's own check, noted now: the flag came off (an entry without was_flagged,
+    # written before it, reads as not flagged before)
+    assert lines[3] == f"k: tibia frame 99: no longer flagged, {note}"

@@ -530,9 +530,11 @@ def apply_trajectory_flags(result, centers, *, limit: float = LIMIT, neighbours=
                           if fs else ({}, {}))
         for f, fr in base.items():
             new = replace(fr, flags=(*fr.flags, got[f])) if f in got else fr
-            if f in unchecked:
-                new = replace(new, notes=(*new.notes, unchecked[f]))
             old = results[(b, f)]
+            if f in unchecked:  # the same note where it was (a note added after it stays after it)
+                same = unchecked[f] in old.notes and tuple(
+                    s for s in old.notes if not s.startswith(UNCHECKED)) == new.notes
+                new = replace(new, notes=old.notes if same else (*new.notes, unchecked[f]))
             if new.flags != old.flags or new.notes != old.notes:
                 changed.append(new)
             results[(b, f)] = new

@@ -4,6 +4,8 @@ not — and a frame it cannot judge so (one side only: a trial's end) noted as u
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -81,6 +83,33 @@ def test_a_frame_it_cannot_judge_is_noted_unchecked_not_flagged():
     assert changed2 == [] and again.results[("tibia", 20)].notes == fr20.notes
     off, changed3 = apply_trajectory_flags(out, {"tibia": C}, reach=None)  # the check as before: note off
     assert [r.frame for r in changed3] == [20] and off.results[("tibia", 20)].notes == ()
+    # a note added after it (another step's) keeps its place: run again, nothing changes
+    later = dict(out.results)
+    later[("tibia", 20)] = replace(fr20, notes=(*fr20.notes, "a later note"))
+    out2 = TrackingResult(out.bones, out.frames, later, "complete", 1.0)
+    again2, changed4 = apply_trajectory_flags(out2, {"tibia": C})
+    assert changed4 == [] and again2.results[("tibia", 20)].notes == (*fr20.notes, "a later note")
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_note_never_changes_a_flag(seed):
+    """Spikes as :data:`START` at the trial's start and as :data:`INSIDE` about a random frame, which
+    is good or 0.5 deg off (frames at the start noted in every draw; the frame among the spikes
+    judged, flagged in some): the frames noted are never flagged, every flag of the check without
+    the rule (reach=None) stays, and the rule adds flags only to frames it judged (left without a
+    fit, not noted)."""
+    g = np.random.default_rng(seed)
+    c, s0 = int(g.integers(14, 46)), int(g.integers(0, 3))
+    spikes = {**{c + d: 0.6 * (-1) ** d for d in (-4, -3, -2, -1, 1, 2, 3, 4)},
+              **{s0 + 1 + k: 0.6 * (-1) ** k for k in range(4)}}
+    fr = np.arange(60)
+    P = _spiked(spikes, off=(c, float(g.choice([0.0, 0.5]))), seed=seed)
+    before = trajectory_flags(fr, P, C, reach=None)
+    unfitted = trajectory_review(fr, P, C, reach=0)[1]
+    got, notes = trajectory_review(fr, P, C)
+    assert not set(notes) & set(got)
+    assert set(before) <= set(got) and set(got) - set(before) <= set(unfitted) - set(notes)
+    assert notes and all(m.startswith(UNCHECKED) for m in notes.values())
 
 
 def test_too_few_frames_fitted_alike_leave_it_unchecked():

@@ -91,7 +91,9 @@ def _errors_fail_the_test(request, monkeypatch):
     an event loop through ``qt_api.exec``) end at once and raise
     :class:`tests.app._helpers.ErrorShown` — one running when the error comes, or the next one —
     so a test whose action failed fails then, not at its wait's timeout; an error no wait saw fails
-    the test at its end. ``shown_errors`` and ``modal_errors`` change that (module notes)."""
+    the test at its end. ``waitExposed``, ``waitActive`` and ``QTest.qWait`` run Qt's own loops,
+    which this does not end: an error during one is raised by the next pytest-qt wait. ``shown_errors``
+    and ``modal_errors`` change that (module notes)."""
     if "qtbot" not in request.fixturenames or "modal_errors" in request.fixturenames:
         yield
         return

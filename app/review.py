@@ -293,7 +293,11 @@ class FrameTableDock(QtWidgets.QWidget):
         self.view.verticalHeader().setDefaultSectionSize(20)
         self._status_delegate = _StatusDelegate(self.view)
         self.view.setItemDelegateForColumn(COLUMNS.index("Status"), self._status_delegate)
+        self._fitting = False  # while the layout sets widths (not the user)
+        self._bone_narrowed = False  # the Bone elided by the narrow layout
+        self._user_widths: dict[int, int] = {}  # Status / Bone as the user resized them: kept
         self._layout_columns(data.bones)
+        self.view.horizontalHeader().sectionResized.connect(self._section_resized)
         self.view.setAlternatingRowColors(True)
         # the current row's whole reason, word-wrapped under the table (hidden for a row without one)
         self.reason_label = QtWidgets.QLabel()
@@ -329,7 +333,8 @@ class FrameTableDock(QtWidgets.QWidget):
         view at the dock's default width (340 px at 1280x800), and where they would leave the
         Reason fewer than 20 letters the Status shows its colour square alone and the Bone is
         elided (to 6 letters at least), so that the Reason gets 20 letters at 340 px (it had 3,
-        readable only from the tooltip). The Reason after Status pushed the Score past the dock's
+        readable only from the tooltip) — unless the user resized them: their widths are kept
+        (:meth:`_section_resized`). The Reason after Status pushed the Score past the dock's
         edge there; as the last column it was itself past the edge."""
         header = self.view.horizontalHeader()
         fm = self.view.fontMetrics()
@@ -355,7 +360,24 @@ class FrameTableDock(QtWidgets.QWidget):
         self.view.viewport().installEventFilter(self)
         self._fit_reason()
 
+    def _section_resized(self, col: int, _old: int, new: int) -> None:
+        """A column the user resized (the header's drag): Status or Bone keep that width (the
+        narrow layout no longer narrows them), and the Reason is fitted to what is left."""
+        if self._fitting:
+            return
+        if col in (COLUMNS.index("Status"), COLUMNS.index("Bone")):
+            self._user_widths[col] = new
+        if col != COLUMNS.index("Reason"):
+            self._fit_reason()
+
     def _fit_reason(self) -> None:
+        self._fitting = True
+        try:
+            self._fit()
+        finally:
+            self._fitting = False
+
+    def _fit(self) -> None:
         """The Reason column's width: what the table's width leaves beside the columns before it
         (Frame to Score; narrowed, Status to its square and Bone elided, where at their widths
         they would leave it fewer than 20 letters) and as many of those after it (σ, Edited) as
@@ -365,17 +387,21 @@ class FrameTableDock(QtWidgets.QWidget):
         header = self.view.horizontalHeader()
         order = sorted(range(len(COLUMNS)), key=header.visualIndex)
         at = order.index(reason)
-        narrowed = (status, bone) if self._status_delegate.compact else ()
+        user = self._user_widths  # Status / Bone the user resized: their widths, never narrowed
+        narrowed = {status} if self._status_delegate.compact else set()
+        narrowed |= {bone} if self._bone_narrowed else set()
         # the columns before it as they are (a user may have widened one), Status and Bone at their
         # full widths where they are narrowed now
-        widths = {c: self._widths[c] if c in narrowed else self.view.columnWidth(c) for c in order[:at]}
+        widths = {c: user.get(c, self._widths[c]) if c in narrowed else self.view.columnWidth(c)
+                  for c in order[:at]}
         short = self._reason_wanted - (self.view.viewport().width() - sum(widths.values()))
-        compact = short > 0 and status in widths
+        compact = short > 0 and status in widths and status not in user
         if compact:  # the status's name goes (its colour stays), then letters of the bone's name
             short -= widths[status] - self._status_square
             widths[status] = self._status_square
-            if short > 0 and bone in widths:
-                widths[bone] = max(self._bone_min, widths[bone] - short)
+        if short > 0 and bone in widths and bone not in user:
+            widths[bone] = max(self._bone_min, widths[bone] - short)
+        self._bone_narrowed = bone in widths and bone not in user and widths[bone] < self._widths[bone]
         if compact != self._status_delegate.compact:
             self._status_delegate.compact = compact
             self.view.viewport().update()

@@ -2,8 +2,8 @@
 and Score in view, then the Reason, as wide as the dock leaves it, its text elided with the whole
 of it in the row's tooltip and, for the row clicked, word-wrapped under the table. At 340 px the
 Status shows its colour square alone and the Bone is elided, so that the Reason gets 20 letters (it
-had 3). The Reason after Status pushed the Score past the dock's edge at 340 px; as the last column
-the Reason was itself past the edge.
+had 3), unless the user resized them (their widths kept). The Reason after Status pushed the Score
+past the dock's edge at 340 px; as the last column the Reason was itself past the edge.
 
 ``TALUS_SCREENSHOTS=DIR`` keeps ``frames_reason_column.png`` (the dock at 340 and 480 px)."""
 
@@ -173,3 +173,40 @@ def test_the_narrow_layout_comes_and_goes_with_the_width(qtbot):
     w.resize(340, 400)
     qtbot.waitUntil(lambda: w._status_delegate.compact)
     assert w.view.columnWidth(status) == narrow[0]
+
+
+def test_status_and_bone_the_user_resized_keep_their_widths(qtbot):
+    """The narrow layout narrows Status and Bone only where the user has not resized them (the
+    header's drag sets the width): a Bone widened at 480 px stays so at 340 px and back at 480 px
+    (it was elided, then put back to the font's width), a Status widened at 340 px shows its name
+    at that width; the Reason gets what is left. A Bone the layout elided beside a Status the
+    user set comes back to its whole width in a wide dock."""
+    from app.review import COLUMNS
+
+    w = _dock(qtbot, 480)
+    status, bone = COLUMNS.index("Status"), COLUMNS.index("Bone")
+    fm = w.view.fontMetrics()
+    wide_bone = w.view.columnWidth(bone) + 30
+    w.view.setColumnWidth(bone, wide_bone)
+    for width in (340, 480):
+        w.resize(width, 400)
+        qtbot.waitUntil(lambda width=width: abs(w.width() - width) < 2)
+        qtbot.wait(20)
+        assert w.view.columnWidth(bone) == wide_bone
+    w.resize(340, 400)
+    qtbot.waitUntil(lambda: w._status_delegate.compact)
+    wide_status = fm.horizontalAdvance("flagged") + 3 * fm.height()
+    w.view.setColumnWidth(status, wide_status)  # its name shown again, at the user's width
+    assert not w._status_delegate.compact and w.view.columnWidth(status) == wide_status
+    w.resize(360, 400)
+    qtbot.waitUntil(lambda: abs(w.width() - 360) < 2)
+    qtbot.wait(20)
+    assert w.view.columnWidth(status) == wide_status and w.view.columnWidth(bone) == wide_bone
+
+    w = _dock(qtbot, 340)  # the Bone elided, then the Status set by the user: the Bone comes back
+    full_bone = w._widths[bone]
+    w.view.setColumnWidth(status, w._widths[status])
+    assert w.view.columnWidth(bone) < full_bone
+    w.resize(900, 400)
+    qtbot.waitUntil(lambda: w.view.columnWidth(bone) == full_bone)
+    assert w.view.columnWidth(status) == w._widths[status]

@@ -23,8 +23,9 @@ While a bone's edits wait, *Undo fix* of it, a tracking job and a batch wait for
 read or write the journal before them: :meth:`HandEdits.after_waiting`): the status bar says so,
 and they go ahead once the edits are journaled or refused — within :data:`HAND_EDIT_WAIT_S`
 (they used to be refused, to be asked for again). Edits still waiting when the window closes are journaled
-or refused then, blocking for what is left of their wait (what waited for them is dropped); where
-refused, the window stays open for the message (:meth:`HandEdits.settle`, ``MainWindow.closeEvent``).
+or refused then, blocking for what is left of their wait (what waited for them is dropped, and
+said); where refused, the window stays open for the message (:meth:`HandEdits.settle`,
+``MainWindow.closeEvent``).
 
 Without a Qt application, or with no one to tell (:attr:`app.session.StudySession.notify` None),
 the wait blocks and a refusal raises :class:`core.study.LockedError`.
@@ -272,10 +273,14 @@ class HandEdits:
 
     def settle(self) -> list[str]:
         """Journal or refuse the edits still waiting, blocking for what is left of their wait (the
-        window closes; what waited for them is dropped); returns the bones whose waiting edits were
-        refused (said through ``notify``), so that the window can stay open for the message to be
-        read."""
+        window closes; what waited for them is dropped, said through ``notify``); returns the bones
+        whose waiting edits were refused (said through ``notify``), so that the window can stay open
+        for the message to be read."""
+        dropped = [k.capitalize() for k in self._after]
         self._after.clear()
+        if dropped and self._s.notify is not None:  # the status bar had said they would go ahead
+            self._s.notify(f"{', '.join(dropped)}: not started (asked for while hand edits waited for "
+                           "their journals; the window is closing)", None)
         bones = list(self._waiting)
         if bones:
             self.poll(block=True)

@@ -258,7 +258,7 @@ class ReviewActions:
             raise ValueError(self.locked_reason(bone))
         # one waiting undo per bone and frame: an undo asked at another frame (or of another bone)
         # meanwhile waits beside it rather than replacing it
-        if s.edits.after_waiting(f"undo fix {bone} {f}",
+        if s.edits.after_waiting(f"undo fix of {bone} at frame {f}",
                                  lambda: self.window._guard(lambda: self.undo_fix(bone, f)), bone=bone):
             self.window.statusBar().showMessage(
                 f"Undo fix of {bone} at frame {f}: waiting for its edit to be saved (another writer holds "

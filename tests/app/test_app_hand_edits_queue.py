@@ -10,7 +10,8 @@ what the user does during the wait, through the window's menu actions, on the 96
 * Edit → Undo of a waiting move: the journal ends as the model.
 * Two bones waiting at once: both journaled once the locks come.
 * Closing the window while an edit waits: saved where the lock is free by then; refused, the
-  window stays open so that the message is read, and closes the second time.
+  window stays open so that the message is read, and closes the second time; what was asked for
+  meanwhile (tracking, *Undo fix*) is not started, and the messages say so.
 
 The locks are let go by a Qt timer (not a thread's clock), so the edit waits whatever the load.
 ``TALUS_SCREENSHOTS=DIR`` keeps ``undo_fix_waits.png`` (the status bar while Undo fix waits)."""
@@ -228,9 +229,14 @@ def test_closing_while_an_edit_waits(qtbot, demo_study, tmp_path):
         try:
             _action(win, "Move x+").trigger()
             assert s.edits.waiting(BONE)
+            _action(win, "Track &all bones").trigger()  # waits for the edit; dropped by the close
+            win.review.undo_fix_action.trigger()
             win.close()
             assert win.isVisible() and not s._closed and not s.edits.waiting()
             texts = [win.messages.item(i).text() for i in range(win.messages.count())]
+            assert texts[-3] == (f"Tracking, Undo fix of {BONE} at frame {m.current_frame}: not started "
+                                 "(asked for while hand edits waited for their journals; the window is "
+                                 "closing)")
             assert texts[-2].startswith(f"{BONE}: the edit is not saved (waited 1 s): its journal is being "
                                         "written by this window's batch (its trajectory check)")
             assert texts[-1] == (f"The window stays open: the last edits of {BONE} are not saved (the "

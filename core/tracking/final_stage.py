@@ -144,8 +144,9 @@ from .engine_likelihood import LikelihoodEngine, StepClock, likelihood_engine, r
 from .likelihood_model import BoneStage, FinalModel, LikelihoodFit, rejected
 from .likelihood_rim import apply_rim
 
-__all__ = ["MODEL", "BoneStage", "FinalModel", "LikelihoodFit", "final_model", "final_stage",
-           "final_stage_steps", "final_stages", "rejected", "robust_factors", "stage_neighbours"]
+__all__ = ["CONFIRM_FRACTION", "MODEL", "BoneStage", "FinalModel", "LikelihoodFit", "confirm_move",
+           "final_model", "final_stage", "final_stage_steps", "final_stages", "rejected", "robust_factors",
+           "stage_neighbours"]
 
 
 #: the final stage's model of the region's pixels (:class:`FinalModel`)
@@ -402,6 +403,45 @@ def final_stages(renderer, frame: FrameImages, calls: Sequence[tuple]) -> list:
 
 
 _PLAIN_FINAL_STAGE = final_stage  # (final_stages: a study may wrap the module's final_stage)
+
+#: :func:`confirm_move`: the stage run again from another start confirms its pose where it lands
+#: within this fraction of the stage's move of it (translation; rotation too, or within 0.05°)
+CONFIRM_FRACTION = 0.25
+
+
+def confirm_move(renderer, frame: FrameImages, res, start=None, *, bone: int, center, options,
+                 views: Sequence[int], others=None) -> dict | None:
+    """Whether the final stage's pose of ``res`` (a registration result whose pose is the stage's,
+    ``likelihood_taken``) is the stage's optimum and not an artefact of where it began (the
+    similarity's pose: the region and the robust weights were made about it, and a refinement stops
+    at a step the data barely resolve): the stage run again from ``start`` — by default the far side
+    of its pose, the similarity's pose mirrored through it (as far from it as the first start, within
+    the stage's reach) — with the same options and neighbours. Returns ``{"mm", "deg", "confirmed"}``
+    (the two stage poses' distance; confirmed where it is within :data:`CONFIRM_FRACTION` of the
+    first stage's move, translation and rotation, the rotation within 0.05° at least, and the second
+    run's move was taken), with the second run's ``evaluations`` and ``time_s``; None where ``res``'s
+    pose is not the stage's. :func:`core.tracking.frame_step.track_frame` asks it before a stage move
+    the move check flags is rejected (:data:`core.tracking.frame_step.STAGE_MOVE_CONFIRM`)."""
+    from .checks import _distance, pose_delta, step_pose
+
+    t = res.timing or {}
+    mm, deg = t.get("likelihood_move_mm"), t.get("likelihood_move_deg")
+    prior = getattr(getattr(res, "fit", None), "similarity", None)
+    if not t.get("likelihood_taken") or mm is None or deg is None or (start is None and prior is None):
+        return None
+    c = np.asarray(center, dtype=float)
+    if start is None:
+        start = step_pose(2.0 * pose_delta(prior.pose, res.pose, c), prior.pose, c)
+    start = np.asarray(start, dtype=float)
+    again = final_stage(renderer, frame, replace(res, pose=start, timing={}), bone=bone, initial_pose=start,
+                        center=center, options=options, views=views, others=others)
+    ta = again.timing or {}
+    dt, dr = _distance(again.pose, res.pose, c)
+    ok = bool(ta.get("likelihood_taken") and dt <= CONFIRM_FRACTION * mm
+              and dr <= max(CONFIRM_FRACTION * deg, 0.05))
+    return {"mm": float(dt), "deg": float(dr), "confirmed": ok,
+            "evaluations": int(again.evaluations - res.evaluations),
+            "time_s": float(ta.get("likelihood_s", 0.0))}
 
 
 def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_pose, center, options,

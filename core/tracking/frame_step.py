@@ -118,8 +118,8 @@ from .register import RegistrationOptions
 from .results import FrameResult
 
 __all__ = ["AHEAD", "FINAL_EVERY_ROUND", "MISSING_FLAG", "RESTART_FROM_PREDICTION", "SEQUENTIAL_NEIGHBOURS",
-           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
-           "stage_move_check", "track_frame"]
+           "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
+           "UNREADABLE_FLAG", "missing_flags", "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -137,6 +137,12 @@ RESTART_FROM_PREDICTION = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
+#: A stage move the move check flags is first confirmed (:func:`core.tracking.final_stage.confirm_move`:
+#: the stage run again from the far side of its pose lands on the same pose): confirmed, the frame keeps
+#: the stage's pose, unflagged, with a note; off, or not confirmed, it is flagged (and rejected) as before.
+#: (:mod:`core.studies.tracking.stage_residue`: on held-out seed 4 the check rejected moves that
+#: took the talus's similarity optimum back from 0.47° off.)
+STAGE_MOVE_CONFIRM = True
 #: The flag of a frame a view has no image for, its source giving no reason (:func:`missing_flags`).
 MISSING_FLAG = "frame missing in view"
 #: The flag of a frame a view's image could not be read for, with the source's reason.
@@ -276,6 +282,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                 known.add(i)
     out: dict[int, Attempt] = {}
     work = {i: _Work() for i in todo}
+    stage_others: dict = {}  # the neighbours each bone's last registration (its final stage) subtracted
 
     def others_of(i: int, cur: dict, kn: set):
         ids = [k for k in range(len(names)) if k != i and k in kn]
@@ -323,9 +330,11 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             opts, start = o.registration, start_of(i, rnd, current)
         opts = staged(rnd, opts)
         near = nullcontext()
+        stage_others[i] = others
         if seq_stage:
             from .final_stage import stage_neighbours
 
+            stage_others[i] = others if others is not None else others_of(i, current, known)
             near = stage_neighbours(others_of(i, current, known))
         with near:
             return register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
@@ -415,6 +424,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             moved = stage_move_check(a.result.timing, a.confidence, state[names[i]].moves, n=o.history,
                                      limit=o.stage_move_limit, sigmas=o.stage_move_sigmas,
                                      min_frames=o.stage_move_frames)
+            if moved and STAGE_MOVE_CONFIRM:
+                moved = _confirmed(run, frame, i, a, stage_others.get(i), work[i], moved)
             back = None
             if moved and o.stage_move_reject:
                 from .final_stage import rejected
@@ -426,6 +437,29 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             a.flags = a.flags + moved
         done[i] = _frame_result(names[i], f, a, work[i])
     return done
+
+
+def _confirmed(run: _Run, frame, i: int, a: Attempt, others, w: _Work, moved: list) -> list:
+    """The move check's flag ``moved`` of bone ``i``'s attempt ``a``, or none where the stage run again
+    from the far side of its pose confirms it (:func:`core.tracking.final_stage.confirm_move`; a note
+    says so); the second run's work added to ``w``."""
+    from .final_stage import confirm_move
+
+    try:
+        c = confirm_move(run.renderer, frame, a.result, bone=i, center=run.bones[i].centroid,
+                         options=run.options.registration, views=tuple(range(frame.n_views)), others=others)
+    except OutsideViewError:
+        return moved
+    if c is None:
+        return moved
+    w.evaluations += c["evaluations"]
+    w.time_s += c["time_s"]
+    if not c["confirmed"]:
+        return moved
+    mm = (a.result.timing or {}).get("likelihood_move_mm", float("nan"))
+    a.notes = (*a.notes, f"final stage's move {mm:.3f} mm kept: run again from the far side it ended "
+                         f"{c['mm']:.3f} mm, {c['deg']:.3f} deg from its pose")
+    return []
 
 
 def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,

@@ -107,11 +107,10 @@ def test_bone_state_keeps_the_good_frames_stage_moves():
     assert st.moves == [0.02] and len(st.history) == 4
 
 
-def test_a_flagged_stage_move_is_rejected(two_bones, monkeypatch):
-    """A frame whose stage move the check flags keeps the similarity's pose (the pose the stage
-    started from) and says so; a frame it does not flag keeps the stage's pose. Here every move
-    after the bone's first good one flags (limit 1 of a single frame's move, no σ allowance; frame 2
-    is frame 0's image)."""
+def _flagging_run(two_bones, monkeypatch):
+    """Sequential tracking of frames 0, 1, 2 where every move after the bone's first good one flags
+    (limit 1 of a single frame's move, no σ allowance; frame 2 is frame 0's image); per bone the
+    final stage's runs as (start, result) poses."""
     import core.tracking.final_stage as fst
     import core.tracking.register_options as ro
     from core.tracking.register import RegistrationOptions
@@ -135,6 +134,17 @@ def test_a_flagged_stage_move_is_rejected(two_bones, monkeypatch):
     o = TrackingOptions(mode="sequential", verify_restarts=0, registration=reg, refine_likelihood=True,
                         stage_move_limit=1.0, stage_move_sigmas=0.0, stage_move_frames=1)
     res = track(r, models, lambda f: frames[f % 2], [0, 1, 2], keyframes=skip, skip=skip, options=o)
+    return res, seen, models
+
+
+def test_a_flagged_stage_move_is_rejected(two_bones, monkeypatch):
+    """A frame whose stage move the check flags keeps the similarity's pose (the pose the stage
+    started from) and says so; a frame it does not flag keeps the stage's pose (the flagged move
+    not confirmed first: frame_step.STAGE_MOVE_CONFIRM off)."""
+    import core.tracking.frame_step as fs
+
+    monkeypatch.setattr(fs, "STAGE_MOVE_CONFIRM", False)
+    res, seen, models = _flagging_run(two_bones, monkeypatch)
     nm = models[0].name
     f1, f2 = res.results[(nm, 1)], res.results[(nm, 2)]
     (_, st1), (sim2, st2) = seen[0][-2:]
@@ -145,6 +155,28 @@ def test_a_flagged_stage_move_is_rejected(two_bones, monkeypatch):
     assert np.array_equal(f2.pose, sim2) and not np.array_equal(sim2, st2)
     assert f2.timing["likelihood_taken"] == 0 and f2.timing["likelihood_rejected"] == 1
     assert np.all(np.isfinite(f2.confidence["sigma"]))
+
+
+def test_a_flagged_stage_move_confirmed_from_the_guess_is_kept(two_bones, monkeypatch):
+    """With the confirmation (frame_step.STAGE_MOVE_CONFIRM, the default) the flagged move of frame 2
+    is run again from the far side of the stage's pose (the similarity's pose mirrored through it); it
+    lands on the stage's pose, so the frame keeps it, unflagged, with a note; a confirmation that
+    cannot succeed (CONFIRM_FRACTION 0) leaves the flag and the rejection as before."""
+    import core.tracking.final_stage as fst
+
+    res, seen, models = _flagging_run(two_bones, monkeypatch)
+    nm = models[0].name
+    f2 = res.results[(nm, 2)]
+    (sim2, st2), (far2, _) = seen[0][-2:]  # the stage from the similarity, then from the far side
+    assert np.linalg.norm(far2[:3, 3] - st2[:3, 3]) > 0.5 * np.linalg.norm(sim2[:3, 3] - st2[:3, 3])
+    assert not f2.flags and f2.converged and f2.timing["likelihood_taken"] == 1
+    assert np.array_equal(f2.pose, st2) and not np.array_equal(st2, sim2)
+    assert len(f2.notes) == 1 and f2.notes[0].startswith("final stage's move")
+    monkeypatch.setattr(fst, "CONFIRM_FRACTION", 0.0)
+    res, seen, models = _flagging_run(two_bones, monkeypatch)
+    f2 = res.results[(nm, 2)]
+    assert len(f2.flags) == 1 and "final stage rejected" in f2.flags[0] and not f2.notes
+    assert f2.timing["likelihood_rejected"] == 1
 
 
 def test_rejected_gives_back_the_similarity_result():

@@ -160,7 +160,17 @@ cmd_test() {
         rm -rf "$kernels"
     fi
     export TALUS_TEST_KERNEL_CACHE="$kernels"
-    export QT_QPA_PLATFORM=xcb PYTHONDONTWRITEBYTECODE=1
+    # Python's compiled modules, pytest's assert-rewritten test modules among them, go to a folder
+    # kept beside the virtual environment (none in the checkout): each worker spent ~11 s of CPU
+    # collecting the tests, rewriting every test module's asserts, 4 s with them kept (emptied as
+    # the kernel cache; the first run writes it)
+    local pycache="${TALUS_TEST_PYCACHE:-$VENV/talus-test-pycache}"
+    if [ -d "$pycache" ] && [ "$(du -sm "$pycache" | cut -f1)" -gt 1024 ]; then
+        log "emptying the bytecode cache $pycache (over 1 GiB)"
+        rm -rf "$pycache"
+    fi
+    unset PYTHONDONTWRITEBYTECODE
+    export QT_QPA_PLATFORM=xcb PYTHONPYCACHEPREFIX="$pycache"
     # one BLAS/OpenMP thread: the tests' many small matrix products and SVDs (200x200) ran 14-40x
     # slower, at 20-50x the CPU time, with a thread per core on a loaded 2-core machine
     export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}" OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"

@@ -3,7 +3,8 @@
 Usage::
 
     talus batch STUDY... [--trials a,b] [--bones a,b] [--mode auto|joint|sequential] [--joint]
-                [--split-bones] [--sequential-subtract auto|on|off] [--joint-restart] [--ranges] [--workers N]
+                [--split-bones] [--sequential-subtract auto|on|off] [--joint-rounds N] [--joint-restart]
+                [--ranges] [--workers N]
                 [--scheduler ADDRESS]
                 [--device cpu|cuda] [--frames START:STOP] [--metric gc|components]
                 [--final none|likelihood] [--threshold HU]
@@ -47,9 +48,11 @@ task; out-of-range values are refused naming the option before any task starts.
 sequential task's searches did — the neighbours subtracted or not, auto resolved, and kept on resume
 as its report recorded — is in its record (``sequential_subtract``, with
 ``sequential_subtract_note`` where it is not the plain choice) and gets a line on stderr.
-``--joint-restart`` is ``talus track``'s (off by default) and goes to every task; a joint task's record
-says whether its rounds after the first started from the prediction (``joint_restart``; a task run
-again keeps it, ``joint_restart_note`` saying when the frames it resumes ran with the other choice). Exit
+``--joint-rounds N`` and ``--joint-restart`` are ``talus track``'s (one round and off by default;
+``--joint-restart`` alone implies two rounds, ``--joint-rounds 1 --joint-restart`` is refused) and go to
+every task; a joint task's record says its rounds (``joint_rounds``) and whether those after the first
+started from the prediction (``joint_restart``; a task run again uses them as given,
+``joint_restart_note`` saying when the frames it resumes ran with other ones). Exit
 status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing it could
 track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -75,7 +78,7 @@ from ._shared import (
     text_bar,
     warp_device,
 )
-from .track import RESTART_HELP, add_check_arguments
+from .track import RESTART_HELP, ROUNDS_HELP, add_check_arguments
 
 __all__ = ["HELP", "configure", "final_stage_problems", "mode_note", "run", "subtract_messages"]
 
@@ -114,6 +117,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="as talus track --sequential-subtract, for every task: whether a sequential task "
                         "searches each bone with the trial's other bones' DRRs subtracted (auto: where the "
                         "frames are flatfield-corrected). Default auto")
+    p.add_argument("--joint-rounds", type=int, default=None, metavar="N",
+                   help="as talus track --joint-rounds, for every joint task: " + ROUNDS_HELP)
     p.add_argument("--joint-restart", action="store_true",
                    help="as talus track --joint-restart, for every joint task: " + RESTART_HELP)
     p.add_argument("--ranges", action="store_true",
@@ -264,7 +269,7 @@ def run(a: argparse.Namespace) -> int:
         raise CliError(f"--joint: contradicts --mode {a.mode} (--joint is --mode joint)")
     mode = "joint" if a.joint else a.mode
     _check_device(a.device, a.scheduler)
-    from .track import check_choices_of_args, check_error, parse_limits, stage_move_note
+    from .track import check_choices_of_args, check_error, joint_rounds_of_args, parse_limits, stage_move_note
 
     limits = parse_limits(a.max_uncertainty)
     checks = check_choices_of_args(a)
@@ -279,8 +284,13 @@ def run(a: argparse.Namespace) -> int:
         if note:
             print(f"{PROG} batch: {note}", file=sys.stderr)
     subtract = getattr(a, "sequential_subtract", "auto")
-    if getattr(a, "joint_restart", False) and mode == "sequential":
-        print(f"{PROG} batch: --joint-restart: no effect with --mode sequential", file=sys.stderr)
+    restart = bool(getattr(a, "joint_restart", False))
+    rounds = joint_rounds_of_args(a)  # refused here, naming the options, rather than in every task
+    given = [f for f, on in (("--joint-rounds", rounds is not None), ("--joint-restart", restart)) if on]
+    if given and mode == "sequential":
+        print(f"{PROG} batch: {', '.join(given)}: no effect with --mode sequential", file=sys.stderr)
+    if rounds is None:  # --joint-restart alone: two rounds
+        rounds = 2 if restart else 1
     split = bool(getattr(a, "split_bones", False))
     if split and mode != "sequential":
         raise CliError(f"--split-bones: one task per bone is a choice of --mode sequential, "
@@ -307,7 +317,8 @@ def run(a: argparse.Namespace) -> int:
                             confidence=not a.no_confidence, max_uncertainty=limits, frames=frames,
                             options=((("refine_likelihood", True),) if a.final == "likelihood" else ())
                             + ((("sequential_subtract", subtract == "on"),) if subtract != "auto" else ())
-                            + ((("joint_restart", True),) if getattr(a, "joint_restart", False) else ())
+                            + ((("joint_restart", True),) if restart else ())
+                            + ((("joint_rounds", rounds),) if rounds != 1 else ())
                             + tuple(checks.items()))
     progress = Progress("batch", quiet=a.quiet)
     follow = _Follow(progress, len(tasks))
@@ -336,7 +347,7 @@ def run(a: argparse.Namespace) -> int:
     print_json(summary, a.out)
     for line in subtract_messages(summary.get("task_records") or ()):  # the choice each task ran
         print(f"{PROG} batch: {line}", file=sys.stderr)
-    for r in summary.get("task_records") or ():  # a joint task run again with the other --joint-restart
+    for r in summary.get("task_records") or ():  # a joint task run again with other rounds or restart
         if r.get("joint_restart_note"):
             print(f"{PROG} batch: {r['key']}: {r['joint_restart_note']}", file=sys.stderr)
     if summary.get("trajectory_pass"):

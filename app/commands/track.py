@@ -4,7 +4,8 @@ Usage::
 
     talus track STUDY --trial T [--bones a,b] [--frames 0:500] [--backward] [--device cuda:0]
                 [--resume] [--guess velocity|previous|spline] [--mode auto|sequential|joint]
-                [--sequential-subtract auto|on|off] [--joint-restart] [--metric magnitudes|components]
+                [--sequential-subtract auto|on|off] [--joint-rounds N] [--joint-restart]
+                [--metric magnitudes|components]
                 [--search newton|local] [--scale S] [--final none|likelihood]
                 [--max-uncertainty MM,DEG] [--no-confidence]
                 [--collapse-ratio R] [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]
@@ -40,10 +41,14 @@ and ``"sequential_subtract_note"`` (also on stderr) why where it is not the plai
 tracked, or ``--resume`` keeping what the frames tracked before did (auto: the choice the run being
 resumed recorded, else the trial's other runs' where they agree; :mod:`core.tracking.from_study`).
 
-``--joint-restart`` (:data:`RESTART_HELP`; ``TrackingOptions.joint_restart``): joint tracking's rounds
-after the first start each bone from its prediction, not its previous round's pose; off by default.
-The report's ``"options"`` and the JSON summary record it for joint runs (``"joint_restart"``, with
-``"joint_restart_note"`` where ``--resume`` uses the other choice than the run being resumed did).
+``--joint-rounds N`` (:data:`ROUNDS_HELP`; ``TrackingOptions.joint_rounds``): joint tracking's rounds
+per frame, 1 by default. ``--joint-restart`` (:data:`RESTART_HELP`; ``TrackingOptions.joint_restart``):
+joint tracking's rounds after the first start each bone from its prediction, not its previous round's
+pose; off by default. One round has nothing to restart: ``--joint-restart`` alone implies
+``--joint-rounds 2``, and ``--joint-rounds 1 --joint-restart`` is refused naming both (exit 1). The
+report's ``"options"`` and the JSON summary record both for joint runs (``"joint_rounds"``,
+``"joint_restart"``, with ``"joint_restart_note"`` where ``--resume`` uses other rounds or the other
+restart choice than the run being resumed did); with ``--mode sequential`` they do nothing (a note).
 
 Failure checks (:data:`CHECKS`; the fields of :class:`core.tracking.options.TrackingOptions` of
 the same names, :mod:`core.tracking.checks`): ``--collapse-ratio R`` — a score below R × the
@@ -100,6 +105,7 @@ from .track_options import (
     FINALS,
     METRICS,
     RESTART_HELP,
+    ROUNDS_HELP,
     SEARCHES,
     STAGE_MOVES,
     SUBTRACT_HELP,
@@ -110,6 +116,7 @@ from .track_options import (
     check_choices_of_args,
     check_error,
     choices_of,
+    joint_rounds_of_args,
     options_from_choices,
     parse_frames,
     parse_limits,
@@ -119,7 +126,8 @@ from .track_options import (
 )
 
 # the options' names (app.commands.track_options) stay importable from here, as before the split
-__all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "RESTART_HELP", "SEARCHES", "STAGE_MOVES",
+__all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "RESTART_HELP", "ROUNDS_HELP", "SEARCHES",
+           "STAGE_MOVES",
            "SUBTRACTS", "SUBTRACT_HELP", "TRAJECTORY_OFF", "add_check_arguments", "check_choices",
            "choices_of", "configure", "final_stage_problem", "options_from_choices", "parse_frames",
            "registration_terms", "resumed_frames", "run", "stage_move_note", "stopped_lines",
@@ -159,6 +167,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "calibrated HU transfer); auto (the default): joint when the trial's frames "
                         "are flatfield-corrected, else sequential")
     p.add_argument("--sequential-subtract", choices=tuple(SUBTRACTS), default="auto", help=SUBTRACT_HELP)
+    p.add_argument("--joint-rounds", type=int, default=None, metavar="N", help=ROUNDS_HELP)
     p.add_argument("--joint-restart", action="store_true", help=RESTART_HELP)
     p.add_argument("--metric", default="magnitudes", metavar="magnitudes|components|KIND",
                    help="gradient correlation of gradient magnitudes (default; also 'gc') or of the "
@@ -232,18 +241,21 @@ def run(a: argparse.Namespace) -> int:
 
     warp_device(a.device)
     checks = check_choices_of_args(a)
+    rounds = joint_rounds_of_args(a)
     try:
         opts = options_from_choices(search=a.search, scale=a.scale, mode=a.mode, guess=a.guess,
                                     confidence=not a.no_confidence, metric=a.metric, final=a.final,
                                     max_uncertainty=limits, sequential_subtract=a.sequential_subtract,
-                                    joint_restart=a.joint_restart, **checks)
+                                    joint_restart=a.joint_restart, joint_rounds=rounds, **checks)
     except ValueError as exc:
         raise (check_error(exc) or exc) from None
     note = stage_move_note(checks, a.final)
     if note:
         print(f"{PROG} track: {note}", file=sys.stderr)
-    if a.joint_restart and a.mode == "sequential":
-        print(f"{PROG} track: --joint-restart: no effect with --mode sequential", file=sys.stderr)
+    given = [f for f, on in (("--joint-rounds", rounds is not None), ("--joint-restart", a.joint_restart))
+             if on]
+    if given and a.mode == "sequential":
+        print(f"{PROG} track: {', '.join(given)}: no effect with --mode sequential", file=sys.stderr)
     token = CancelToken()
     progress = Progress("track", quiet=a.quiet)
     bar = None
@@ -283,8 +295,10 @@ def run(a: argparse.Namespace) -> int:
     if why:  # one bone (nothing to subtract), or resumed with the recorded choice
         out["sequential_subtract_note"] = why
         print(f"{PROG} track: {why}", file=sys.stderr)
-    # joint runs: the rounds' starts (--joint-restart), and the note of a resume with the other choice
-    out.update((k, v) for k, v in (report.get("options") or {}).items() if k.startswith("joint_restart"))
+    # joint runs: the rounds and their starts (--joint-rounds, --joint-restart), and the note of a resume
+    # with other ones
+    out.update((k, v) for k, v in (report.get("options") or {}).items()
+               if k.startswith(("joint_restart", "joint_rounds")))
     if out.get("joint_restart_note"):
         print(f"{PROG} track: {out['joint_restart_note']}", file=sys.stderr)
     if a.final == "likelihood" and bar is not None:

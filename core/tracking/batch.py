@@ -36,10 +36,11 @@ Each task's record says what its searches did: ``mode`` (joint or sequential) an
 sequential task, ``sequential_subtract`` — the choice that ran, auto resolved to True or False
 (False for a task of one bone, ``sequential_subtract_note`` then saying why where the choice was
 on) — as its tracking report's ``"options"`` do. A task run again (resume) keeps the choice its
-report recorded (:func:`core.tracking.from_study.track_study`). A joint task's record says whether its
-rounds after the first started from the prediction (``joint_restart``, ``TrackingOptions.joint_restart``
-given in :attr:`TaskSettings.options`, as given on resume; ``joint_restart_note`` where the frames it
-resumes ran with the other choice).
+report recorded (:func:`core.tracking.from_study.track_study`). A joint task's record says its rounds
+per frame (``joint_rounds``, ``TrackingOptions.joint_rounds``, 1 by default) and whether its rounds
+after the first started from the prediction (``joint_restart``, ``TrackingOptions.joint_restart``),
+both given in :attr:`TaskSettings.options` and used as given on resume; ``joint_restart_note`` where
+the frames it resumes ran with other rounds or the other restart choice.
 
 A task runs :func:`run_task`: it opens its study for writing, which locks only the journals of
 its bones (:meth:`core.study.Study.lock_journal`), and calls
@@ -344,8 +345,8 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     (after loading, until the first frame is registered: bone models, renderer and Warp kernels,
     and the first frame's widened search and its check), ``frame_s`` (median of the later
     frames), host and process. ``progress(event)`` (and, on a Dask worker, the client) gets an
-    event per frame (its end event carries ``mode``, ``sequential_subtract`` and ``joint_restart``,
-    with their notes). ``cancel()``
+    event per frame (its end event carries ``mode``, ``sequential_subtract``, ``joint_rounds`` and
+    ``joint_restart``, with their notes). ``cancel()``
     (or, on a Dask worker, the Dask event named ``stop_event``) stops the task between
     registrations: the frames done stay in the journal."""
     from ..study import Study
@@ -413,8 +414,9 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
         # the choice its report recorded), and why where it is not the plain choice; None: joint
         sequential_subtract=used.get("sequential_subtract"),
         sequential_subtract_note=used.get("sequential_subtract_note"),
-        # a joint task's rounds after the first from the prediction (TrackingOptions.joint_restart), and
-        # the note of a task run again with the other choice; None: sequential
+        # a joint task's rounds per frame (TrackingOptions.joint_rounds), those after the first from the
+        # prediction (joint_restart), and the note of a task run again with other ones; None: sequential
+        joint_rounds=used.get("joint_rounds"),
         joint_restart=used.get("joint_restart"),
         joint_restart_note=used.get("joint_restart_note"),
         frames_recorded=int(summary.get("recorded", 0)),
@@ -428,7 +430,8 @@ def run_task(task: BatchTask, settings: TaskSettings | None = None, *,
     end = dict(base, kind="end", status=record["status"], seconds=seconds, mode=record["mode"],
                sequential_subtract=record["sequential_subtract"],
                sequential_subtract_note=record["sequential_subtract_note"],
-               joint_restart=record["joint_restart"], joint_restart_note=record["joint_restart_note"])
+               joint_rounds=record["joint_rounds"], joint_restart=record["joint_restart"],
+               joint_restart_note=record["joint_restart_note"])
     _emit(end)
     if progress is not None:
         progress(end)

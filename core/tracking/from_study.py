@@ -89,9 +89,10 @@ there too (a fresh ``talus batch --ranges`` run; that range's report reaches out
 resumes nothing: auto as for a new run, no note (such a range's record said "resumed … as the
 trial's earlier runs did: walk.1-0"). A joint
 run's report, or nothing tracked yet, leaves auto as for a new run; True or False still win. The
-report lists the bones tracked (``"bones"``). A joint run's ``"options"`` record ``"joint_restart"``
-(``TrackingOptions.joint_restart``, used as given), with ``"joint_restart_note"`` where a resumed run
-uses the other choice than the run being resumed recorded.
+report lists the bones tracked (``"bones"``). A joint run's ``"options"`` record ``"joint_rounds"``
+and ``"joint_restart"`` (``TrackingOptions.joint_rounds``, ``.joint_restart``, used as given), with
+``"joint_restart_note"`` where a resumed run uses other rounds or the other restart choice than the
+run being resumed recorded (a report without ``"joint_rounds"`` ran two: the default before).
 """
 
 from __future__ import annotations
@@ -269,11 +270,17 @@ def _earlier_runs(study, trial_name: str, report_name: str, bones: set,
     return out
 
 
-def _resumed_restart(study, report_name: str, restart: bool, skip: dict) -> str | None:
-    """The note of a joint run resumed with another ``joint_restart`` than the joint run being
-    resumed recorded in its report (off where it recorded none), else None (also with no tracking
-    result in the journal, ``skip``): its frames were tracked by the other choice (the option is
-    used as given)."""
+def _rounds_words(rounds: int, restart: bool, *, both: bool) -> str:
+    """``"2 joint rounds, joint restart on"`` (``both``), else the part that differs."""
+    return f"{rounds} joint round{'s' if rounds != 1 else ''}" + (
+        f", joint restart {'on' if restart else 'off'}" if both else "")
+
+
+def _resumed_restart(study, report_name: str, restart: bool, skip: dict, rounds: int = 2) -> str | None:
+    """The note of a joint run resumed with another ``joint_restart`` or ``joint_rounds`` than the
+    joint run being resumed recorded in its report (restart off and 2 rounds where it recorded none:
+    the defaults before), else None (also with no tracking result in the journal, ``skip``): its
+    frames were tracked by the other choice (the options are used as given)."""
     from ..study.errors import StudyError
 
     if not any(isinstance(r, FrameResult) for done in skip.values() for r in done.values()):
@@ -284,11 +291,17 @@ def _resumed_restart(study, report_name: str, restart: bool, skip: dict) -> str 
     except StudyError:  # none, or unreadable
         return None
     opts = old.get("options") if isinstance(old, dict) else None
-    if not isinstance(opts, dict) or opts.get("mode") != "joint" \
-            or bool(opts.get("joint_restart")) == restart:
+    if not isinstance(opts, dict) or opts.get("mode") != "joint":
         return None
-    return (f"resumed with joint restart {'on' if restart else 'off'}: the frames tracked before ran with it "
-            f"{'off' if restart else 'on'}")
+    was_restart, was_rounds = bool(opts.get("joint_restart")), opts.get("joint_rounds", 2)
+    if was_rounds == rounds:
+        if was_restart == restart:
+            return None
+        return (f"resumed with joint restart {'on' if restart else 'off'}: the frames tracked before ran "
+                f"with it {'off' if restart else 'on'}")
+    both = was_restart != restart
+    return (f"resumed with {_rounds_words(rounds, restart, both=both)}: the frames tracked before ran with "
+            f"{_rounds_words(was_rounds, was_restart, both=both)}")
 
 
 def _resumed_subtract(study, trial_name: str, report_name: str, skip: dict,
@@ -441,9 +454,11 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
             subtract_note = "on, but no other bone tracked: nothing to subtract"
         if subtract_note:
             report["options"]["sequential_subtract_note"] = subtract_note
-    if options.mode == "joint":  # the rounds after the first from the prediction (joint_restart)
+    if options.mode == "joint":  # the rounds, and those after the first from the prediction (joint_restart)
+        report["options"]["joint_rounds"] = int(options.joint_rounds)
         report["options"]["joint_restart"] = bool(options.joint_restart)
-        note = _resumed_restart(study, report_name, options.joint_restart, skip) if resume else None
+        note = _resumed_restart(study, report_name, options.joint_restart, skip,
+                                options.joint_rounds) if resume else None
         if note:
             report["options"]["joint_restart_note"] = note
     if likelihood:  # the final stage's move check flagged (or rejected) with these

@@ -102,15 +102,30 @@ class TrackingOptions:
     given. One bone tracked has nothing to subtract (the report says false). Joint tracking is the
     same whatever it holds.
 
+    ``joint_rounds`` (an integer ≥ 1, default 1): joint tracking's rounds per frame. Round 0 searches
+    every bone from its prediction with its neighbours subtracted at theirs; each further round
+    searches every bone again with its neighbours at the previous round's poses. One round by default:
+    on three syntheses of the 1024² acceptance trial (one NVIDIA H100;
+    ``resources/benchmarks/tracking_joint_one_round_acceptance_seed0_h100.json``, ``…seed4…``,
+    ``tracking_joint_restart_acceptance_seed3_h100.json``) one round matched sequential tracking on
+    seeds 0 and 3, fell short on seed 4 only where two rounds fall short too, and was never worse
+    than two rounds where the difference was resolved (better in 5 of 18 bone-units), at about 60 %
+    of the evaluations (121.8 against 202.3 a frame on seed 0). A second round is for a bone whose
+    neighbours' predictions are poor, as in the first frame (seed 4, the tibia's rotation at frame
+    0: 1.57° with one round, 1.21° with two, 0.25° sequentially). Sequential tracking has one round
+    whatever it holds.
+
     ``joint_restart``: joint tracking's rounds after the first start each bone (one with a history:
     not a first frame) from its prediction, as round 0 does, its neighbours subtracted at their
     previous round's poses; off (the default), from its previous round's pose
-    (:mod:`core.tracking.frame_step`, :mod:`core.studies.tracking.joint_gap`). On the synthetic
-    1024² acceptance trial (one NVIDIA H100, seed 0) joint tracking's errors came to sequential's, no
-    difference resolved (× the Cramér–Rao bound, mm/°: tibia 1.73/1.85 → 1.72/1.79), at 141 → 182
-    evaluations a frame (78.6 → 64.7 frames/s, three bones); off by default: one synthesis measured
-    (on held-out seed 4 joint tracking as it is was the better about the tibia's long axis after the
-    first frame, though not over the whole run). Sequential tracking ignores it.
+    (:mod:`core.tracking.frame_step`, :mod:`core.studies.tracking.joint_gap`). It acts on rounds
+    after the first only: with ``joint_rounds=1`` it would do nothing, and is refused (give
+    ``joint_rounds=2``; ``talus track --joint-restart`` alone implies two rounds). On the synthetic
+    1024² acceptance trial (one NVIDIA H100, seed 0, two rounds) joint tracking's errors came to
+    sequential's, no difference resolved (× the Cramér–Rao bound, mm/°: tibia 1.73/1.85 →
+    1.72/1.79), at 141 → 182 evaluations a frame (78.6 → 64.7 frames/s, three bones); off by
+    default (on held-out seed 3 it left the tibia's rotation worse than sequential's). Sequential
+    tracking ignores it.
 
     ``trajectory_limit`` (≥ 1, or None: off): once a run is complete, frames whose pose stands off
     the local fit through their neighbours by more than this many times the bone's median are
@@ -124,7 +139,7 @@ class TrackingOptions:
     first: RegistrationOptions | None = None
     guess: str = "velocity"
     mode: str = "sequential"
-    joint_rounds: int = 2
+    joint_rounds: int = 1  # one round since the 1024² syntheses (see above)
     min_score_ratio: float = 0.85
     min_start_ratio: float = 0.7
     max_jump: tuple[float, float] = (4.0, 6.0)
@@ -165,6 +180,13 @@ class TrackingOptions:
                 object.__setattr__(self, "first", replace(self.first, final="likelihood"))
         if not isinstance(self.joint_restart, bool):
             raise ValueError(f"joint_restart: expected True or False, got {self.joint_restart!r}")
+        n = self.joint_rounds
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+            raise ValueError(f"joint_rounds: expected an integer >= 1 (rounds per frame), got {n!r}")
+        object.__setattr__(self, "joint_rounds", int(n))
+        if self.joint_restart and n < 2:
+            raise ValueError(f"joint_restart: acts on the joint rounds after the first, and joint_rounds={n} "
+                             f"has none (give joint_rounds=2 or more, or leave joint_restart off)")
         if self.sequential_subtract is not None and not isinstance(self.sequential_subtract, bool):
             raise ValueError(f"sequential_subtract: expected True, False or None (auto), "
                              f"got {self.sequential_subtract!r}")

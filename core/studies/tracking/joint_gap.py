@@ -2,7 +2,7 @@
 core.studies.tracking.joint_gap``).
 
 Joint tracking (:func:`core.tracking.frame_step.track_frame`, ``mode="joint"``) is not one search
-over 18 parameters: it is ``joint_rounds`` (2) rounds of the bones' own 6-parameter Gauss–Newton
+over 18 parameters: it is ``joint_rounds`` (2 here) rounds of the bones' own 6-parameter Gauss–Newton
 searches in lockstep (:func:`core.tracking.joint.register_together`), each with its neighbours'
 DRRs subtracted — in round 0 every bone from its prediction with the neighbours at theirs, in
 round 1 every bone from its round-0 pose with the neighbours at their round-0 poses. Each bone's
@@ -388,8 +388,8 @@ def _brief(p: dict) -> dict:
     return {k: p[k] for k in ("rms_difference", "interval95", "verdict", "frames_joint_worse") if k in p}
 
 
-#: :func:`track_stretch`'s runs: (label, mode, joint's rounds after the first from the prediction)
-STRETCH_RUNS = (("joint", "joint", False), ("joint_restart", "joint", True),
+#: :func:`track_stretch`'s runs: (label, mode, rounds after the first from the prediction[, joint_rounds])
+STRETCH_RUNS = (("joint", "joint", False, 2), ("joint_restart", "joint", True, 2),  # two rounds as measured
                 ("sequential", "sequential", False))
 #: More runs :func:`track_stretch` knows (``--runs``): joint tracking with one round (``joint_rounds=1``:
 #: every bone from its prediction, the neighbours at theirs; round 0 alone)
@@ -490,7 +490,7 @@ def pool_stretches(results) -> dict:
 
 
 #: :func:`acceptance_restart`'s runs: (label, mode, RESTART_FROM_PREDICTION, joint_rounds or None)
-ACCEPTANCE_RUNS = (("joint", "joint", False, None), ("joint_restart", "joint", True, None),
+ACCEPTANCE_RUNS = (("joint", "joint", False, 2), ("joint_restart", "joint", True, 2),
                    ("joint_one_round", "joint", False, 1), ("sequential", "sequential", False, None))
 
 

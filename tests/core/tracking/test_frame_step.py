@@ -34,6 +34,7 @@ def _run(two_bones, monkeypatch, ahead: bool, **opts):
     monkeypatch.setattr(fs, "AHEAD", ahead)
     skip = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    opts = {"joint_rounds": 2, **opts}  # the round started ahead is the second: two rounds, pinned
     o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, **opts)
     res = track(r, models, frames.__getitem__, [0, 1], keyframes=skip, skip=skip, options=o)
     return res, calls

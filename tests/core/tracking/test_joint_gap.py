@@ -116,8 +116,8 @@ def test_acceptance_restart_runs_each_variant_on_one_scene(monkeypatch):
     monkeypatch.setattr(acc, "run", fake_run)
     out = acceptance_restart(quick=False)
     assert seen == [("joint", True, False, 2), ("joint", True, True, 2), ("joint", True, False, 1),
-                    ("sequential", True, False, 2)]
-    assert not fs.RESTART_FROM_PREDICTION and acc.study_options("joint").joint_rounds == 2
+                    ("sequential", True, False, 1)]  # joint as it was measured: two rounds, pinned
+    assert not fs.RESTART_FROM_PREDICTION and acc.study_options("joint").joint_rounds == 1  # the default
     assert set(out) >= {"joint_vs_sequential", "joint_restart_vs_sequential", "joint_restart_vs_joint",
                         "joint_one_round_vs_sequential", "joint_one_round_vs_joint"}
 

@@ -1,7 +1,8 @@
 """The likelihood engine's regions made on the device (engine_likelihood.DEVICE_REGIONS, the default)
 against the host's on the edge cases: a region at the image's rim, with unusable pixels (saturated,
 black, the frame's own mask) just outside it, on the rim and inside it, so that the mask's erosion
-reaches past the region and past the image; and a view without a usable pixel."""
+reaches past the region and past the image; and a view without a usable pixel. Also the stage's
+evaluations: the poses its steps rendered."""
 
 from __future__ import annotations
 
@@ -90,3 +91,18 @@ def test_a_view_without_usable_pixels_is_outside_the_view(talus_scene, monkeypat
                       options=replace(o, final="likelihood", final_highpass_px=2.0), views=(0, 1))
     assert out.timing["likelihood_taken"] == 0 and "likelihood_setup_s" not in out.timing
     np.testing.assert_array_equal(out.pose, res.pose)
+
+
+def test_the_stages_evaluations_are_the_poses_it_rendered(talus_scene):
+    """The registration's evaluations after the stage: the similarity's plus 13 a render (the steps'
+    DRR launches; a step on the images before it renders none)."""
+    from core.tracking.register import RegistrationOptions, register
+
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    truth = sc.poses(2)[0]
+    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=2.0)
+    res = register(r, prepare_frame(talus_scene["fluence"](2), valid_range=None), bone=0, initial_pose=truth,
+                   center=model.centroid, options=o)
+    t = res.timing
+    assert t["likelihood_taken"] == 1 and 1 <= t["likelihood_renders"] < t["likelihood_steps"]
+    assert res.evaluations == res.fit.similarity.evaluations + 13 * t["likelihood_renders"]

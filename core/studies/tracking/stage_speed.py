@@ -24,13 +24,18 @@ stages then run one after another: a serial breakdown, not the overlapped wall t
 Only this study reads the truth. JSON on stdout (``--out``: also to a file).
 
 Variants: ``base`` the modules' defaults; ``plain`` every speed flag off (the stage as first
-measured); ``exact`` the blocked blur and the median by per-view sorts (values unchanged);
-``fast`` those and the design's differences (:mod:`core.tracking.likelihood_fast`); ``strict`` the
+measured, the fewer steps' flags off too); ``exact`` the blocked blur and the median by per-view
+sorts (values unchanged); ``fast`` those and the design's differences
+(:mod:`core.tracking.likelihood_fast`; ``exact`` and ``fast`` with the fewer steps off, as they were
+measured against ``plain``); ``strict`` the
 refinements' uphill test on every rise of χ² (as first measured; now on resolved steps only);
 ``jitter`` the stage's first refinement started 10⁻⁶ mm and degrees off (the stage's own spread
 under a perturbation of rounding's size: what ``variant_pairs`` of the others compare with);
-``last``, ``devreg``, ``stop<c>`` the fewer steps' flags one by one and ``old`` all three off (the
-stage before them; :mod:`core.tracking.engine_likelihood`: Fewer steps), ``fwd`` the forward design,
+``last``, ``devreg``, ``stop<c>`` the fewer steps' flags set one by one and ``old`` all off (the
+stage before them; :mod:`core.tracking.engine_likelihood`: Fewer steps) — since 41d036e ``last`` and
+``devreg`` are the defaults, so alone they are ``base`` and ``stop<c>`` runs with both (the JSON's
+call 1, before, had them off): one at a time on the stage before is ``old+last``, ``old+stop4`` —,
+``fwd`` the forward design,
 ``chord`` the later steps with the design's centre alone rendered,
 ``sc<n>`` / ``meat<n>`` / ``mc<n>`` the sandwich's / its meat's / the moments' pixels a thread block;
 ``a+b`` both (e.g. ``plain+jitter``, ``fast+strict``). Measured:
@@ -67,18 +72,21 @@ def _flag(module: str, name: str, value):
         yield
 
 
+#: the fewer steps' flags off (the stage's defaults before 41d036e; engine_likelihood: Fewer steps)
+_OLD_STEPS = {"STOP_PRED": 0.0, "ROBUST_FROM_LAST": False, "DEVICE_REGIONS": False, "MEAT_CHUNK": None}
 #: the stage's variants by name: a context manager factory each (the module flags they set)
 VARIANTS: dict = {
     "base": _base,
     # the 13 images as centre and differences before the low-pass (engine_likelihood.DIFF_IMAGES)
     "diff": lambda: _flag("core.tracking.engine_likelihood", "DIFF_IMAGES", True),
     "nodiff": lambda: _flag("core.tracking.engine_likelihood", "DIFF_IMAGES", False),
-    # the changes that keep every value: blocked blurs, the median's count by bisection
-    "exact": lambda: _flags(BLOCK_BLUR=True, MEDIAN_BISECT=True, DIFF_IMAGES=False),
-    # those and the differences' images
-    "fast": lambda: _flags(BLOCK_BLUR=True, MEDIAN_BISECT=True, DIFF_IMAGES=True),
-    # every flag off (the stage as first measured)
-    "plain": lambda: _flags(BLOCK_BLUR=False, MEDIAN_BISECT=False, DIFF_IMAGES=False),
+    # the changes that keep every value: blocked blurs, the median's count by bisection (the fewer
+    # steps off, as measured: against plain)
+    "exact": lambda: _flags(BLOCK_BLUR=True, MEDIAN_BISECT=True, DIFF_IMAGES=False, **_OLD_STEPS),
+    # those and the differences' images (the fewer steps off)
+    "fast": lambda: _flags(BLOCK_BLUR=True, MEDIAN_BISECT=True, DIFF_IMAGES=True, **_OLD_STEPS),
+    # every speed flag off (the stage as first measured; the fewer steps too)
+    "plain": lambda: _flags(BLOCK_BLUR=False, MEDIAN_BISECT=False, DIFF_IMAGES=False, **_OLD_STEPS),
     # the refinements' uphill test on any rise of χ² (engine_likelihood.UPHILL_RESOLVED 0, as first measured)
     "strict": lambda: _flag("core.tracking.engine_likelihood", "UPHILL_RESOLVED", 0.0),
     # the stage's first refinement from 1e-6 mm and degrees off its start: the stage's own spread
@@ -94,7 +102,7 @@ VARIANTS: dict = {
     "fwd": lambda: _flag("core.tracking.engine_likelihood", "FORWARD_DESIGN", True),
     # the stage's defaults before the fewer steps: every refinement to tol, the robust round's own
     # factor step, the regions on the host
-    "old": lambda: _flags(STOP_PRED=0.0, ROBUST_FROM_LAST=False, DEVICE_REGIONS=False, MEAT_CHUNK=None),
+    "old": lambda: _flags(**_OLD_STEPS),
     # (and "stop<c>": a refinement ends after a step below c χ²/N, engine_likelihood.STOP_PRED = c)
 }
 _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",

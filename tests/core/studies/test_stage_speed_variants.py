@@ -1,0 +1,42 @@
+"""core.studies.tracking.stage_speed's variants set the flags their docs say: ``plain`` (and
+``exact``, ``fast``, as measured against it) is the stage as first measured, the fewer steps'
+flags (41d036e's defaults) off too; ``old+<flag>`` sets one of them on the stage before."""
+
+import pytest
+
+
+def _state():
+    import core.tracking.engine_likelihood as el
+    import core.tracking.final_stage as fst
+    import core.tracking.likelihood_confidence as lc
+
+    return {"STOP_PRED": el.STOP_PRED, "ROBUST_FROM_LAST": fst.ROBUST_FROM_LAST,
+            "DEVICE_REGIONS": el.DEVICE_REGIONS, "MEAT_CHUNK": lc.MEAT_CHUNK,
+            "DIFF_IMAGES": el.DIFF_IMAGES, "BLOCK_BLUR": el.BLOCK_BLUR}
+
+
+OLD = {"STOP_PRED": 0.0, "ROBUST_FROM_LAST": False, "DEVICE_REGIONS": False, "MEAT_CHUNK": None}
+
+
+@pytest.mark.parametrize("name, diff", [("plain", False), ("exact", False), ("fast", True), ("old", None)])
+def test_the_stage_before_the_fewer_steps(name, diff):
+    from core.studies.tracking.stage_speed import _variant
+
+    before = _state()
+    with _variant(name):
+        got = _state()
+    assert _state() == before  # (restored)
+    assert {k: got[k] for k in OLD} == OLD
+    if diff is not None:
+        assert got["DIFF_IMAGES"] is diff and got["BLOCK_BLUR"] is (name != "plain")
+
+
+def test_one_fewer_steps_flag_on_the_stage_before():
+    from core.studies.tracking.stage_speed import _variant
+
+    with _variant("old+last"):
+        got = _state()
+    assert got["ROBUST_FROM_LAST"] is True and got["STOP_PRED"] == 0.0 and got["DEVICE_REGIONS"] is False
+    with _variant("old+stop4"):
+        got = _state()
+    assert got["STOP_PRED"] == 4.0 and got["ROBUST_FROM_LAST"] is False

@@ -373,7 +373,7 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                     dt = time.perf_counter() - t1
                 d = _record(ts, res, names, n, dt, ends, bound)
                 d["likelihood_renders_per_bone_frame"] = float(np.mean(
-                    [(res.results[(nm, f)].timing or {}).get("likelihood_renders", np.nan)
+                    [(res.results[(nm, f)].timing or {}).get("likelihood_renders", 0)  # (as steps: 0 without)
                      for nm in names for f in range(n)]))
                 for nm in names:
                     d[nm].pop("error", None)

@@ -23,8 +23,10 @@ folder at the same path). *Start* builds the tasks of
   score and what its searches did with the other bones (*Neighbours*: joint, sequential, one
   bone while it runs; once it ends, from its record, e.g. *sequential, subtracted* — the
   ``sequential_subtract`` choice that ran, auto resolved — its tooltip the record's note, such as
-  a task of one bone having nothing to subtract; *joint, restart* where a joint task's rounds
-  after the first start from the prediction, the *Tracking options*' ``joint_restart``); the
+  a task of one bone having nothing to subtract; *joint, 2 rounds* where a joint task runs more
+  than the default one round, the *Tracking options*' ``joint_rounds`` (the tooltip gives the
+  rounds always), *restart* where its rounds after the first start from the prediction,
+  ``joint_restart``); the
   status bar shows the tasks and frames done of all; each task's start and end, and the
   summary, go to the messages;
 * *Cancel* (in the dock, or *Tracking → Cancel tracking*) stops the batch: tasks not started are
@@ -68,23 +70,29 @@ NEIGHBOURS = COLUMNS.index("Neighbours")
 RESTART_TIP = "Rounds after the first start each bone from its prediction (Tracking options)"
 
 
-def neighbours_text(task, record: dict | None = None, *, restart: bool = False) -> tuple[str, str]:
+def neighbours_text(task, record: dict | None = None, *, restart: bool = False,
+                    rounds: int = 1) -> tuple[str, str]:
     """``(text, tooltip)`` of a task's *Neighbours* cell: from its record (or end event) once it
     ran — the mode and the ``sequential_subtract`` choice that ran, the record's note as the
     tooltip — else what the task will do (joint, sequential, one bone). A joint task's cell says
-    ``restart`` where its rounds after the first start from the prediction (``joint_restart``: the
-    record's once it has one, else ``restart``, the choice the batch was given), the record's
-    ``joint_restart_note`` (a task resumed with the other choice) in the tooltip."""
-    joint_tip = "Tracked jointly: each bone with its neighbours' DRRs subtracted"
+    ``N rounds`` where it runs more than one round a frame (``joint_rounds``) and ``restart`` where its
+    rounds after the first start from the prediction (``joint_restart``): the record's once it has
+    them, else ``rounds`` and ``restart``, the batch's choices; the tooltip says the rounds, and the
+    record's ``joint_restart_note`` (a task resumed with other ones)."""
     if record is not None and record.get("joint_restart") is not None:
         restart = bool(record["joint_restart"])
+    if record is not None and record.get("joint_rounds") is not None:
+        rounds = int(record["joint_rounds"])
+    joint_tip = (f"Tracked jointly, {rounds} round{'s' if rounds != 1 else ''} a frame: each bone with its "
+                 f"neighbours' DRRs subtracted")
+    more = f", {rounds} rounds" if rounds != 1 else ""
     if restart:
         joint_tip += ". " + RESTART_TIP
     if record is not None and record.get("joint_restart_note"):
         joint_tip += f" ({record['joint_restart_note']})"
     if record is not None and record.get("mode") is not None:
         if record["mode"] == "joint":
-            return "joint, subtracted" + (", restart" if restart else ""), joint_tip
+            return "joint, subtracted" + more + (", restart" if restart else ""), joint_tip
         used = record.get("sequential_subtract")
         if used is not None:
             tip = record.get("sequential_subtract_note") or (
@@ -94,7 +102,7 @@ def neighbours_text(task, record: dict | None = None, *, restart: bool = False) 
     if len(task.bones) == 1:
         return "one bone", "A task of one bone: no neighbour to subtract"
     if task.tracking_mode == "joint":
-        return "joint" + (", restart" if restart else ""), joint_tip
+        return "joint" + more + (", restart" if restart else ""), joint_tip
     return "sequential", ("One bone after another; whether the others are subtracted "
                           "(Tracking options) is decided when the task runs")
 
@@ -237,6 +245,7 @@ class BatchPanel(QtCore.QObject):
         self._rows: dict[str, int] = {}
         self._tasks: dict = {}
         self._restart = False  # the batch's joint_restart (its joint tasks' rounds from the prediction)
+        self._rounds = 1  # the batch's joint_rounds
         self._frames: dict[str, tuple[int, int]] = {}
         self._ended: set[str] = set()
         self._bones: list[str] = []  # the window's trial's bones handed to the batch
@@ -314,6 +323,7 @@ class BatchPanel(QtCore.QObject):
             (f.name, getattr(opts, f.name)) for f in dataclasses.fields(opts) if f.init and f.name != "mode")
         settings = TaskSettings(device=self.window.device, options=options)
         self._restart = bool(opts is not None and opts.joint_restart)
+        self._rounds = 1 if opts is None else int(opts.joint_rounds)
         trial = session.trial_name
         self._bones = [b for b in bones if b in session.study.trial(trial).bones] if trial in trials else []
         for b in self._bones:  # the workers write these journals: no edits here meanwhile
@@ -413,7 +423,7 @@ class BatchPanel(QtCore.QObject):
         return item.text(), item.toolTip()
 
     def _show_neighbours(self, key: str, record: dict | None = None) -> None:
-        text, tip = neighbours_text(self._tasks[key], record, restart=self._restart)
+        text, tip = neighbours_text(self._tasks[key], record, restart=self._restart, rounds=self._rounds)
         item = self.table.item(self._rows[key], NEIGHBOURS)
         item.setText(text)
         item.setToolTip(tip)
@@ -457,7 +467,7 @@ class BatchPanel(QtCore.QObject):
             elif kind == "end" and row is not None:
                 self._ended.add(key)
                 self.table.item(row, 1).setText(str(e.get("status")))
-                self._show_neighbours(key, e)  # what ran: sequential_subtract, joint_restart
+                self._show_neighbours(key, e)  # what ran: sequential_subtract, joint_rounds, joint_restart
                 self.window.notify(f"Batch: {key} {e.get('status')} in {e.get('seconds', 0.0):.1f} s")
                 self._overall()
                 task, session = self._tasks[key], self.window.session

@@ -98,6 +98,8 @@ class TrackingActions:
         final = ", likelihood final stage" if c["final"] == "likelihood" else ""
         if c["sequential_subtract"] != "auto" and c["mode"] != "joint":  # --sequential-subtract on|off
             final += f", neighbours {'' if c['sequential_subtract'] == 'on' else 'not '}subtracted"
+        if c["joint_rounds"] != 1 and c["mode"] != "sequential":  # --joint-rounds
+            final += f", {c['joint_rounds']} joint rounds"
         if c["joint_restart"] and c["mode"] != "sequential":  # --joint-restart
             final += ", joint rounds from the prediction"
         default = check_choices(None)

@@ -20,11 +20,16 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   with the other bones' DRRs subtracted: automatic (the default: on where the trial's frames are
   flatfield-corrected, off on frames divided by the full scale, whose intensities the DRRs do not
   match), on or off. Disabled with the joint mode, which always subtracts them;
-* **Restart joint rounds from the prediction** (under the mode; ``talus track --joint-restart``,
+* **Joint rounds** (under the mode; ``talus track --joint-rounds``, ``TrackingOptions.joint_rounds``,
+  1 by default, 1–5 here) — joint tracking's rounds per frame; its tooltip says why one and what a
+  second is for (:data:`app.commands.track.ROUNDS_HELP`);
+* **Restart joint rounds from the prediction** (under the rounds; ``talus track --joint-restart``,
   ``TrackingOptions.joint_restart``, off by default) — joint tracking's rounds after the first start
   each bone from its prediction, not its previous round's pose; its tooltip gives the measured gain
-  and cost (:data:`app.commands.track.RESTART_HELP`). Disabled with the sequential mode, which has
-  one round;
+  and cost (:data:`app.commands.track.RESTART_FIGURES`). One round has nothing to restart: ticking it
+  at one round raises *Joint rounds* to 2 (as ``--joint-restart`` alone implies two rounds), and
+  setting the rounds to 1 unticks it. Both are disabled with the sequential mode, which has one
+  round;
 * **Guess** — the next frame's start: velocity, previous pose or a spline through the track;
 * **Final stage** — none (the default) or *likelihood*: every registration ends with a weighted
   least-squares refinement of the pose against the line-integral image
@@ -65,10 +70,11 @@ import html
 
 from PySide6 import QtGui, QtWidgets
 
-from .commands.track import CHECKS, RESTART_HELP, check_choices, choices_of, options_from_choices
+from .commands.track import CHECKS, check_choices, choices_of, options_from_choices
+from .commands.track_options import RESTART_FIGURES, ROUNDS_HELP
 
-__all__ = ["CHECK_RANGES", "FINALS", "METRICS", "OFF_FIELDS", "RESOLUTIONS", "SEARCHES", "SUBTRACTS",
-           "TrackingOptionsDialog", "choices_of", "options_from_choices", "wrapped_tip"]
+__all__ = ["CHECK_RANGES", "FINALS", "MAX_ROUNDS", "METRICS", "OFF_FIELDS", "RESOLUTIONS", "SEARCHES",
+           "SUBTRACTS", "TrackingOptionsDialog", "choices_of", "options_from_choices", "wrapped_tip"]
 
 #: (label, search) pairs shown in the dialog.
 SEARCHES = (("Gauss–Newton (faster)", "newton"), ("Local (quadratic models)", "local"))
@@ -81,6 +87,8 @@ _MODES = (("Automatic (joint on flatfield-corrected frames)", "auto"),
 #: (label, ``talus track --sequential-subtract``) pairs shown in the dialog.
 SUBTRACTS = (("Automatic (on flatfield-corrected frames)", "auto"), ("On", "on"), ("Off", "off"))
 _GUESSES = (("Velocity", "velocity"), ("Previous pose", "previous"), ("Spline", "spline"))
+#: The *Joint rounds* box's maximum (the dialog's own; ``TrackingOptions`` takes any integer >= 1).
+MAX_ROUNDS = 5
 #: (label, ``talus track --final``) pairs shown in the dialog.
 FINALS = (("None", "none"), ("Likelihood refinement (flatfield-corrected frames)", "likelihood"))
 #: The *Advanced checks* spin boxes: name -> (minimum, maximum, step, decimals, suffix); the ranges
@@ -115,6 +123,12 @@ def wrapped_tip(text: str) -> str:
     if not text or QtGui.Qt.mightBeRichText(text):
         return text
     return f"<p>{html.escape(text, quote=False)}</p>"
+
+
+def _words(text: str) -> str:
+    """A help text of ``talus track`` in the dialog's typography."""
+    return (text.replace("1024^2", "1024²").replace("x the Cramer-Rao", "× the Cramér–Rao").replace("->", "→")
+            .replace("mm/deg", "mm/°").replace(" deg)", "°)").replace("60 percent", "60 %"))
 
 
 def _spin(name: str, value: float | None, tip: str) -> QtWidgets.QDoubleSpinBox | QtWidgets.QSpinBox:
@@ -155,7 +169,7 @@ def _combo(pairs, value) -> QtWidgets.QComboBox:
 
 
 class TrackingOptionsDialog(QtWidgets.QDialog):
-    """Choose search, resolution, similarity, mode, the neighbours' subtraction, the joint rounds'
+    """Choose search, resolution, similarity, mode, the neighbours' subtraction, the joint rounds and their
     restart, guess, final stage,
     confidence and the failure checks' thresholds; :meth:`options` gives the result."""
 
@@ -170,11 +184,24 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.subtract = _combo(SUBTRACTS, c["sequential_subtract"])
         self.guess = _combo(_GUESSES, c["guess"])
         self.final = _combo(FINALS, c["final"])
+        self.joint_rounds = QtWidgets.QSpinBox()
+        self.joint_rounds.setRange(1, max(MAX_ROUNDS, c["joint_rounds"]))
+        self.joint_rounds.valueChanged.connect(
+            lambda n: self.joint_rounds.setSuffix(" round a frame" if n == 1 else " rounds a frame"))
+        self.joint_rounds.setValue(c["joint_rounds"])
+        self.joint_rounds.setSuffix(" round a frame" if c["joint_rounds"] == 1 else " rounds a frame")
+        self.joint_rounds.setToolTip(_words(ROUNDS_HELP.replace(" (default 1; 2 with --joint-restart)", "")
+                                            .replace("joint tracking: rounds", "Joint tracking's rounds")
+                                            .replace("an integer >= 1", "1 by default")) + ".")
         self.joint_restart = QtWidgets.QCheckBox("Restart joint rounds from the &prediction")
         self.joint_restart.setChecked(c["joint_restart"])
-        self.joint_restart.setToolTip(RESTART_HELP.replace("1024^2", "1024²").replace("x the Cramer-Rao",
-                                                                                       "× the Cramér–Rao")
-                                      .replace("->", "→").replace("mm/deg", "mm/°") + ".")
+        self.joint_restart.setToolTip(
+            "Joint tracking: start each bone's rounds after the first from its prediction, not from its "
+            "previous round's pose. One round has none: ticked at one joint round it raises Joint rounds "
+            "to 2 (as talus track --joint-restart alone does), and Joint rounds set to 1 unticks it. "
+            + _words(RESTART_FIGURES) + ".")
+        self.joint_restart.toggled.connect(self._restart_needs_rounds)
+        self.joint_rounds.valueChanged.connect(self._rounds_without_restart)
         self.confidence = QtWidgets.QCheckBox("Pose uncertainty of every frame")
         self.confidence.setChecked(c["confidence"])
         self.search.setToolTip("Gauss–Newton (the default) needs fewer renders per frame; local fits "
@@ -203,6 +230,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         form.addRow("S&imilarity:", self.similarity)
         form.addRow("&Mode:", self.mode)
         form.addRow("Su&btract neighbours:", self.subtract)
+        form.addRow("&Joint rounds:", self.joint_rounds)
         form.addRow("", self.joint_restart)
         form.addRow("&Guess:", self.guess)
         form.addRow("&Final stage:", self.final)
@@ -267,7 +295,18 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         """The neighbours' subtraction is a choice of sequential tracking: disabled in the joint mode;
         the joint rounds' restart one of joint tracking: disabled in the sequential mode."""
         self.subtract.setEnabled(self.mode.currentData() != "joint")
+        self.joint_rounds.setEnabled(self.mode.currentData() != "sequential")
         self.joint_restart.setEnabled(self.mode.currentData() != "sequential")
+
+    def _restart_needs_rounds(self, on: bool) -> None:
+        """Ticked at one round (which has nothing to restart): two rounds, as ``--joint-restart``."""
+        if on and self.joint_rounds.value() < 2:
+            self.joint_rounds.setValue(2)
+
+    def _rounds_without_restart(self, n: int) -> None:
+        """One round has nothing to restart: the restart unticked."""
+        if n < 2 and self.joint_restart.isChecked():
+            self.joint_restart.setChecked(False)
 
     def restore_defaults(self) -> None:
         for box in (self.search, self.resolution, self.similarity, self.mode, self.subtract, self.guess,
@@ -275,6 +314,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
             box.setCurrentIndex(0)
         self.confidence.setChecked(True)
         self.joint_restart.setChecked(False)
+        self.joint_rounds.setValue(1)
         self._set_checks(check_choices(None))
 
     def _set_checks(self, c: dict) -> None:
@@ -290,7 +330,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
                 "mode": self.mode.currentData(), "guess": self.guess.currentData(),
                 "confidence": self.confidence.isChecked(), "metric": self.similarity.currentData(),
                 "final": self.final.currentData(), "sequential_subtract": self.subtract.currentData(),
-                "joint_restart": self.joint_restart.isChecked(),
+                "joint_restart": self.joint_restart.isChecked(), "joint_rounds": self.joint_rounds.value(),
                 **{k: _spin_value(k, getattr(self, k)) for k in _SPIN_FIELDS},
                 "motion_floor": (self.floor_mm.value(), self.floor_deg.value()),
                 "stage_move_reject": not self.keep_stage_moves.isChecked()}

@@ -345,7 +345,7 @@ def test_batch_tasks_get_the_joint_restart(calibrated_window, qtbot, monkeypatch
     # the Batch dock's row says so (planned: nothing ran in this recorded batch)
     key = "study/walk/talus+calcaneus"
     text, tip = win.tracking.batch.task_neighbours(key)
-    assert text == "joint, restart" and "from its prediction" in tip
+    assert text == "joint, 2 rounds, restart" and "from its prediction" in tip and "2 rounds a frame" in tip
 
 
 def test_the_batch_dock_shows_the_joint_restart(calibrated_window, qtbot, monkeypatch):
@@ -365,15 +365,17 @@ def test_the_batch_dock_shows_the_joint_restart(calibrated_window, qtbot, monkey
         restart = s.tracking_options(joint=True).joint_restart
         on_event({"kind": "end", "key": key, "status": "complete", "seconds": 0.0, "mode": "joint",
                   "sequential_subtract": None, "sequential_subtract_note": None,
-                  "joint_restart": restart, "joint_restart_note": note if restart else None})
+                  "joint_rounds": 1 + restart, "joint_restart": restart,
+                  "joint_restart_note": note if restart else None})
         summary = recorded(tasks, s, on_event=on_event, **kw)
         for r in summary["task_records"]:
-            r.update(mode="joint", joint_restart=restart, joint_restart_note=note if restart else None)
+            r.update(mode="joint", joint_rounds=1 + restart, joint_restart=restart,
+                     joint_restart_note=note if restart else None)
         return summary
 
     monkeypatch.setattr(core_batch, "run_batch", run_batch)
     seen = []
-    for restart, text in ((True, "joint, subtracted, restart"), (False, "joint, subtracted")):
+    for restart, text in ((True, "joint, subtracted, 2 rounds, restart"), (False, "joint, subtracted")):
         win.tracking.options = options_from_choices(joint_restart=restart)
         dlg = _open_dialog(win, qtbot)
         panel = win.tracking.batch  # made with the first dialog

@@ -96,7 +96,8 @@ def test_menu_dialog_sets_the_next_tracking_jobs_options(qtbot, window):
     opts = window.tracking.options
     assert choices_of(opts) == {"search": "local", "scale": 2.0, "mode": "sequential", "guess": "velocity",
                                 "confidence": False, "metric": "components", "final": "likelihood",
-                                "sequential_subtract": "on", "joint_restart": False, **check_choices(None)}
+                                "sequential_subtract": "on", "joint_restart": False, "joint_rounds": 1,
+                                **check_choices(None)}
     assert any(t.kind == "gc" and t.options.get("components") for t in opts.registration.terms)
     assert opts.refine_likelihood and opts.registration.final == "likelihood"
     assert opts.first_options.final == "likelihood"  # first frames and retries end with it too

@@ -152,7 +152,7 @@ __all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "STOP_CONTRACT", "STOP
 #: The regions' line integrals and usable pixels made on the device from the fluence
 #: (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as the tracker's engine makes them)
 #: instead of on the host (:meth:`~core.tracking.cost.FrameImages.region`; off, as first measured:
-#: 3.2 → 1.5 ms of set-up per bone-frame on one NVIDIA H100, three bones jointly at 1024²). The
+#: 3.3-3.4 → 1.5 ms of set-up per bone-frame on one NVIDIA H100, three bones jointly at 1024²). The
 #: device's logarithm differs from numpy's float32 one in the last bit of 13-19 % of the pixels;
 #: that moved the stage's poses by up to 0.015 mm on 192² CPU tests before :data:`UPHILL_RESOLVED`,
 #: by 0.010 mm / 0.026° at 1024² since, the stage's floor (module docs: Fewer steps).
@@ -494,9 +494,12 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
                sandwich: bool = True, reuse: bool = False) -> dict:
         """Gauss–Newton minimisation of χ² from ``x0`` (default 0: the base pose), as
         :meth:`core.tracking.likelihood_cost.LikelihoodCost.refine` (stops when a step is below
-        ``tol`` or χ² rises, keeping the pose before; :data:`UPHILL_RESOLVED`). Returns ``{"x", "chi2",
-        "iterations", "covariance", "covariance_independent"}`` (mm, degrees): the sandwich covariance of
-        :meth:`sandwich` about the last design (``sandwich`` False: NaN, not computed, and
+        ``tol`` or :data:`STOP_PRED`, or χ² rises, keeping the pose before; :data:`UPHILL_RESOLVED`).
+        Returns ``{"x", "chi2", "iterations", "covariance", "covariance_independent", "design"}`` (mm,
+        degrees): ``chi2`` and the covariances are those of the last design's centre (``design``: that
+        centre and its step's result), ``x`` that centre plus its step, not rendered (after an uphill
+        stop ``x`` and ``chi2`` are the pose before's, the covariances the rejected design's, ``design``
+        None); the sandwich covariance of :meth:`sandwich` (``sandwich`` False: NaN, not computed, and
         :attr:`autocorrelation` None) and ``χ²/N · (JᵀWJ)⁻¹``.
         ``reuse``: the first step takes the last step's images where its design is the same
         (:meth:`step`)."""

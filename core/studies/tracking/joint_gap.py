@@ -110,6 +110,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -266,14 +267,15 @@ def history_for(seed: int, history: str | None = None) -> str:
     """The stored run whose errors give the probe's starts on scene ``seed``: ``history`` where
     given, else :data:`HISTORY_BY_SEED`'s. A run of another seed's trial would start every bone
     from that trial's errors: ValueError where ``history`` is a known run of another seed, or no
-    run of ``seed`` is known."""
-    known = RUN_SEEDS
+    run of ``seed`` is known (a known run however its path is written: the same file)."""
     if history is None:
         if seed not in HISTORY_BY_SEED:
             raise ValueError(f"seed {seed}: no stored run known (HISTORY_BY_SEED); give its history")
         return HISTORY_BY_SEED[seed]
-    if known.get(history, seed) != seed:
-        raise ValueError(f"history {history} is seed {known[history]}'s run, not seed {seed}'s")
+    real = os.path.realpath(history)
+    other = next((s for p, s in RUN_SEEDS.items() if os.path.realpath(p) == real), seed)
+    if other != seed:
+        raise ValueError(f"history {history} is seed {other}'s run, not seed {seed}'s")
     return history
 
 

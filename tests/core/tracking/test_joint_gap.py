@@ -163,6 +163,8 @@ def test_probe_history_is_the_seeds_own_run():
     assert jg.history_for(3, jg.HELD_OUT_JSONS[0]) == jg.HELD_OUT_JSONS[0]  # 56350ae's seed 3, asked for
     with pytest.raises(ValueError, match="seed 3's run"):
         jg.history_for(4, jg.HELD_OUT_JSONS[0])
+    with pytest.raises(ValueError, match="seed 0's run"):  # the same file written another way
+        jg.history_for(4, "./" + jg.ACCEPTANCE_JSON.replace("benchmarks/", "benchmarks//"))
     # the stored runs the probe can start from hold per-frame joint errors by frame
     for seed in (3, 4):
         with open(jg.history_for(seed)) as fh:

@@ -100,11 +100,13 @@ def studies_128(tmp_path_factory):
 @pytest.mark.parametrize("corrected", [True, False])
 def test_auto_subtracts_on_flatfield_corrected_frames_only(studies_128, tmp_path, capsys, monkeypatch,
                                                            corrected):
-    """``talus track --mode sequential`` (``--sequential-subtract`` auto) on 128² frames, Warp's CPU
-    device, frame 0 tracked from the keyframes: the talus is searched first, then the calcaneus — where
-    the frames are flatfield-corrected the talus with the calcaneus at its keyframe subtracted and the
-    calcaneus with the talus just registered, against the whole image where they are divided by the
-    full scale. The frames are the same in both studies; only the normalisation found differs."""
+    """``talus track --mode sequential`` (``--sequential-subtract`` auto) on 128² frames, tracked at
+    half resolution (``--scale 2``: the order and the subtraction are checked, not the accuracy),
+    Warp's CPU device, frame 0 tracked from the keyframes: the talus is searched first, then the
+    calcaneus — where the frames are flatfield-corrected the talus with the calcaneus at its keyframe
+    subtracted and the calcaneus with the talus just registered, against the whole image where they
+    are divided by the full scale. The frames are the same in both studies; only the normalisation
+    found differs."""
     import core.tracking.frame_step as fs
     from app.cli import main as talus
 
@@ -119,7 +121,7 @@ def test_auto_subtracts_on_flatfield_corrected_frames_only(studies_128, tmp_path
     monkeypatch.setattr(fs, "register_checked", spy)
     rc = talus(["track", str(folder), "--trial", "walk", "--bones", "talus,calcaneus", "--frames", "0:1",
                 "--mode", "sequential", "--device", "cpu", "--no-confidence", "--no-trajectory-check",
-                "--quiet"])
+                "--scale", "2", "--quiet"])
     out = json.loads(capsys.readouterr().out)
     assert rc == EXIT_OK
     assert out["sequential_subtract"] is corrected

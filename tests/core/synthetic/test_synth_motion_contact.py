@@ -64,8 +64,8 @@ def meshes():
 
 def test_no_pair_interpenetrates_over_seeds(meshes):
     n, changed = 41, []
-    # the mesh distances of every seed's frames are measured in one call per pair (the call's
-    # set-up, the meshes' triangle lists, cost as much as the frames)
+    # the mesh distances of every seed's frames are measured in one call per pair (each call sets
+    # up the meshes' triangle lists again)
     worst_kept = {pair: [] for pair in CONTACTS}  # (seed, pose a, pose b, exact space)
     crossed_free = {pair: [] for pair in CONTACTS}  # (seed, pose a, pose b)
     for seed in range(10):

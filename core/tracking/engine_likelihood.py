@@ -99,6 +99,7 @@ import math
 import time
 import weakref
 from collections.abc import Sequence
+from contextvars import ContextVar
 
 import numpy as np
 import warp as wp
@@ -206,6 +207,9 @@ STOP_PRED = 4.0
 #: (:mod:`core.studies.tracking.stage_residue`). Not on by default: at 1024² the stage before the
 #: fewer steps (to tol or five steps) left those calcaneus frames as far off. None: STOP_PRED alone.
 STOP_CONTRACT: float | None = None
+#: Inside :func:`core.tracking.final_stage.confirm_move`'s second run: refinements to ``tol`` (no
+#: :data:`STOP_PRED` stop; the robust round from the first refinement's result)
+TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
 
 
 class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence, _RegionWeights):
@@ -538,7 +542,7 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
             delta = np.linalg.solve(s["JJ"], s["Jr"])
             pred = float(s["Jr"] @ delta)  # the step's predicted decrease of χ²
             x = x + delta
-            small = pred < STOP_PRED * share
+            small = pred < STOP_PRED * share and not TO_TOL.get()
             if small and STOP_CONTRACT is not None:  # and contracted (the rest of the way a small part of it)
                 small = pred <= STOP_CONTRACT * prev if prev is not None else fast
             if rose or np.all(np.abs(delta) < tv) or small:

@@ -140,7 +140,14 @@ import numpy as np
 
 from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
-from .engine_likelihood import LikelihoodEngine, StepClock, likelihood_engine, run_side_by_side, run_steps
+from .engine_likelihood import (
+    TO_TOL,
+    LikelihoodEngine,
+    StepClock,
+    likelihood_engine,
+    run_side_by_side,
+    run_steps,
+)
 from .likelihood_model import BoneStage, FinalModel, LikelihoodFit, rejected
 from .likelihood_rim import apply_rim
 
@@ -317,7 +324,7 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
         if tissue is not None:
             tissue(out["x"])
             tissue = None
-        if (ROBUST_FROM_LAST and last is not None and eng._last is not None
+        if (ROBUST_FROM_LAST and not TO_TOL.get() and last is not None and eng._last is not None
                 and np.array_equal(eng._last[2], last[0])):
             # the factors from the last design's step (the same weights and images), the robust
             # refinement from its centre (ROBUST_FROM_LAST); the sandwich taken at the end
@@ -416,7 +423,8 @@ def confirm_move(renderer, frame: FrameImages, res, start=None, *, bone: int, ce
     similarity's pose: the region and the robust weights were made about it, and a refinement stops
     at a step the data barely resolve): the stage run again from ``start`` — by default the far side
     of its pose, the similarity's pose mirrored through it (as far from it as the first start, within
-    the stage's reach) — with the same options and neighbours. Returns ``{"mm", "deg", "confirmed"}``
+    the stage's reach) — with the same options and neighbours, its refinements to ``tol`` (at most
+    20 steps each; :data:`~core.tracking.engine_likelihood.TO_TOL`). Returns ``{"mm", "deg", "confirmed"}``
     (the two stage poses' distance; confirmed where it is within :data:`CONFIRM_FRACTION` of the
     first stage's move, translation and rotation, the rotation within 0.05° at least, and the second
     run's move was taken), with the second run's ``evaluations`` and ``time_s``; None where ``res``'s
@@ -433,8 +441,13 @@ def confirm_move(renderer, frame: FrameImages, res, start=None, *, bone: int, ce
     if start is None:
         start = step_pose(2.0 * pose_delta(prior.pose, res.pose, c), prior.pose, c)
     start = np.asarray(start, dtype=float)
-    again = final_stage(renderer, frame, replace(res, pose=start, timing={}), bone=bone, initial_pose=start,
-                        center=center, options=options, views=views, others=others)
+    token = TO_TOL.set(True)  # (to tol: a stop at a step the data barely resolve is no test of the optimum)
+    try:
+        again = final_stage(renderer, frame, replace(res, pose=start, timing={}), bone=bone,
+                            initial_pose=start, center=center, views=views, others=others,
+                            options=replace(options, final_iters=max(options.final_iters, 20)))
+    finally:
+        TO_TOL.reset(token)
     ta = again.timing or {}
     dt, dr = _distance(again.pose, res.pose, c)
     ok = bool(ta.get("likelihood_taken") and dt <= CONFIRM_FRACTION * mm

@@ -51,7 +51,7 @@ Measured (this 2-core x86_64 machine, shared; 512², 1 mm; the stored runs one N
   σx (seed 3: 0.035 mm, 1.31×), lag-1 autocorrelation 0.08: frame-to-frame noise, not a biased run;
   its 4-5 frames over 4× are that spread's tail (a normal spread alone gives about 2). Noise-free
   from the truth the stage is ≤ 0.022 mm off in x at frames 20, 30, 45, 53, 72 (the scene's parts
-  each ≤ 0.013 mm): no bias of the cost there; frame 96 0.083 mm (blur and glare 0.036, the trial's
+  each ≤ 0.017 mm): no bias of the cost there; frame 96 0.083 mm (blur and glare 0.036, the trial's
   chain with its grid correction 0.040 more, 0.017 of it the residual warp; without the other bones
   0.027). On the noisy frames the
   stage's result depends on its start: from the truth and the two tracked poses x differs by 0.074,

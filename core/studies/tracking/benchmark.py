@@ -300,6 +300,7 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
                      "volumes_kji": {m.name: list(m.volume.data.shape) for m in ts.models}},
            "synthesis_s": synth, "repeats": int(repeats), "options": o.registration.to_dict()}
     res["mode"] = o.mode
+    res["joint_rounds"] = o.joint_rounds  # the three-bone cases' rounds (1 since 8dbdcc2; 2 before)
     res["search"] = search
     res["metric"] = metric
     res["cramer_rao"] = cr

@@ -54,6 +54,14 @@ def test_stage_parts(scene, tmp_path):
     assert c["apart_mm"] >= 0 and "pose" not in c["first"]
 
 
+def test_highpass_part(scene):
+    out = sr.run(ts=scene, parts=("highpass",), highpass_frames=(1,), talus=(), runs={})
+    (row,) = out["highpass"]["rows"]
+    assert set(row) == {"frame"} | {f"{k}_hp{h:g}" for k in ("noisy", "noise_free") for h in sr.HIGHPASS_1024}
+    s = out["highpass"]["summary"]["noisy_hp4"]
+    assert s["n"] == 1 and np.allclose(s["rms"], np.abs(row["noisy_hp4"]), atol=1e-4)
+
+
 def test_flag_study(tmp_path):
     E = np.zeros((10, 6))
     E[8, 0] = 0.5  # 10x the bound: silent

@@ -51,11 +51,13 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   stage moved the pose more than the *stage move limit* × the median move of the bone's last good
   frames and more than the given fraction of its own translation σ, once the bone has that many
   good frames; such a frame keeps the similarity's pose unless *Keep flagged stage moves* is
-  ticked. *Trajectory limit* (``--trajectory-limit``, :mod:`core.tracking.flags_post`): once a
-  run is complete, a frame whose pose stands off the local fit through its neighbours' poses by
-  more than this × the bone's median residual is flagged *off the trajectory*, and it scales the
-  rule for frames next to flagged ones too (*off the trajectory next to flagged frames*, 0.7 × it
-  without them in the fit); its lowest step, *Off*, turns both off
+  ticked — or the move is confirmed first (the stage run again from the far side of its pose lands
+  on the same pose: the stage's pose kept, unflagged, with a note;
+  :data:`core.tracking.frame_step.STAGE_MOVE_CONFIRM`). *Trajectory limit* (``--trajectory-limit``,
+  :mod:`core.tracking.flags_post`): once a run is complete, a frame whose pose stands off the local
+  fit through its neighbours' poses by more than this × the bone's median residual is flagged *off
+  the trajectory*, and it scales the rule for frames next to flagged ones too (*off the trajectory
+  next to flagged frames*, 0.7 × it without them in the fit); its lowest step, *Off*, turns both off
   (``TrackingOptions.trajectory_limit=None``); its tooltip is the option's help. The spin boxes
   hold each to its valid range; an invalid value set from code is refused on *OK* with the option
   and its range named.

@@ -67,7 +67,9 @@ frames (default 4, ≥ 1) and more than ``--stage-move-sigmas S`` × its own tra
 0.5, ≥ 0) is flagged *uncertain*, once the bone has ``--stage-move-frames N`` good frames with a
 move (default 5, an integer ≥ 1); such a frame keeps the similarity's pose unless
 ``--keep-stage-moves`` is given (``TrackingOptions.stage_move_reject=False``: the stage's pose is
-kept, still flagged).
+kept, still flagged). A flagged move is first confirmed: where the stage run again from the far
+side of its pose lands on the same pose, the frame keeps the stage's pose, unflagged, with a note
+(:func:`core.tracking.final_stage.confirm_move`).
 
 The trajectory check (the same table; :mod:`core.tracking.flags_post`, run once the run is
 complete): a frame whose pose stands off the local fit through its neighbours' poses by more than

@@ -85,7 +85,9 @@ CHECKS = {
     "stage_move_limit": ("--stage-move-limit", 4.0,
                          "with --final likelihood only: flag a frame whose final stage moved the pose "
                          "(translation) more than K times the median move of the bone's last good frames "
-                         "('uncertain'; such a frame keeps the similarity's pose); a factor >= 1, default 4"),
+                         "('uncertain'; such a frame keeps the similarity's pose, unless the stage run "
+                         "again from the far side of its pose lands on the same pose: then the move is "
+                         "kept, unflagged, with a note); a factor >= 1, default 4"),
     "stage_move_sigmas": ("--stage-move-sigmas", 0.5,
                           "with --final likelihood only: never flag a final-stage move of S times the "
                           "frame's own translation sigma or less; a factor >= 0, default 0.5"),

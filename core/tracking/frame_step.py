@@ -12,7 +12,10 @@ The registrations' final stage (``final`` of the registration options, ``Trackin
 refine_likelihood``; :mod:`core.tracking.final_stage`) runs in the last round only: a round before
 it only gives the next round its start and the neighbours' poses to subtract, which the similarity's
 optimum does as well, so each bone is refined once per frame (with its neighbours at the poses of
-the round before), in joint as in sequential mode. A bone that a later round loses (outside a view)
+the round before), in joint as in sequential mode. With one joint round (the default since 8dbdcc2)
+there is no round before: the stage subtracts the neighbours at their predictions (in lockstep every
+neighbour; one by one, those not yet registered in the frame), as round 0's search does; every
+joint figure with the stage was measured with two rounds. A bone that a later round loses (outside a view)
 keeps the earlier round's pose, without the stage. Without a final stage nothing changes. On one
 NVIDIA H200 (1024², 100 frames, three bones jointly, the same call,
 ``resources/benchmarks/tracking_final_rounds_h200.json``) the stage after the last round took

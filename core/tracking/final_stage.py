@@ -429,7 +429,11 @@ def confirm_move(renderer, frame: FrameImages, res, start=None, *, bone: int, ce
     first stage's move, translation and rotation, the rotation within 0.05° at least, and the second
     run's move was taken), with the second run's ``evaluations`` and ``time_s``; None where ``res``'s
     pose is not the stage's. :func:`core.tracking.frame_step.track_frame` asks it before a stage move
-    the move check flags is rejected (:data:`core.tracking.frame_step.STAGE_MOVE_CONFIRM`)."""
+    the move check flags is rejected (:data:`core.tracking.frame_step.STAGE_MOVE_CONFIRM`). The far
+    side is the stage's move applied twice to the similarity's pose (the rotation ``R_d² R_sim``,
+    ``R_d = R_stage R_simᵀ``, the centre's image at ``2 c_stage − c_sim``: a composition, not rotation
+    vectors subtracted). It tests that the pose does not depend on the start, not that it is
+    right: a biased optimum of the stage's cost that both starts reach is confirmed."""
     from .checks import _distance, pose_delta, step_pose
 
     t = res.timing or {}

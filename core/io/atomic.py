@@ -331,6 +331,12 @@ else:
         fcntl.flock(fd, fcntl.LOCK_UN)
 
 
+#: times :meth:`FileLock.read_holder` reads a holder line that does not parse before it gives up: a
+#: read can meet the line half written over by :meth:`FileLock.relabel` (the kernel does not make a
+#: write and a read of the same bytes exclusive), which a read a millisecond later does not.
+_TORN_READS = 5
+
+
 class FileLock:
     """Exclusive, non-blocking, inter-process lock held on the file ``path``.
 
@@ -366,13 +372,23 @@ class FileLock:
     def read_holder(self) -> dict[str, Any]:
         """The holder information stored in the lock file (empty if unreadable). Its first JSON
         object: a line being rewritten (:meth:`relabel`: the new line written over the old one, then
-        the old one's longer tail cut) reads as the new line, never as nothing."""
-        try:
-            text = self.path.read_text(encoding="utf-8").lstrip()
-            info = json.JSONDecoder().raw_decode(text)[0] if text else {}
-        except (OSError, ValueError):
-            return {}
-        return info if isinstance(info, dict) else {}
+        the old one's longer tail cut) reads as the new line, never as nothing; a line read while it
+        was being written over (it does not parse) is read again, up to :data:`_TORN_READS` times."""
+        import time
+
+        for attempt in range(_TORN_READS):
+            try:
+                text = self.path.read_text(encoding="utf-8").lstrip()
+            except (OSError, ValueError):
+                return {}
+            try:
+                info = json.JSONDecoder().raw_decode(text)[0] if text else {}
+            except ValueError:  # read while the line was being written over (torn): read it again
+                if attempt + 1 < _TORN_READS:
+                    time.sleep(0.001)
+                continue
+            return info if isinstance(info, dict) else {}
+        return {}
 
     def acquire(self, timeout: float = 0.0) -> FileLock:
         """Take the lock, or raise :class:`LockedError` if it is still held elsewhere after

@@ -92,7 +92,8 @@ run as before; the round started ahead is used only where the jobs built after e
 those it was started with (the same bytes), otherwise it is dropped and run again from the
 checked poses. The results are those of checking first.
 
-Off by default (:data:`AHEAD`): on one NVIDIA H100 (1024², 100 frames, three bones jointly,
+Off by default (:data:`AHEAD`; with one round, the default, there is no next round to start): on
+one NVIDIA H100 (1024², 100 frames, three bones jointly in two rounds, the default then,
 ``resources/benchmarks/tracking_newton_h100_margin.json``) it gave 13.89 ms per frame after the
 first where checking first gave 13.87 ms. The lockstep loop is host-bound — the device waits for
 each lane's host arithmetic more than the host waits for the device — so the checks run in the

@@ -2,8 +2,7 @@
 
 :func:`track_frame` registers the bones of one frame — one bone at a time, or jointly in
 ``joint_rounds`` rounds (1 by default since 8dbdcc2; each bone with its neighbours subtracted at their
-latest estimates: with one round, in a first frame, the bones registered before it and the others at
-their keyframes of the frame) —
+latest estimates: with one round, in a first frame, only the bones registered before it) —
 each registration with the checks of :func:`core.tracking.attempt.register_checked`, and returns
 a :class:`~core.tracking.results.FrameResult` per bone. In joint rounds before the last, a
 registration's confidence (and its ``"uncertain"`` checks) is computed only where its attempt is
@@ -78,14 +77,11 @@ cannot tell and keeps it off. A bone whose result of the frame is taken back fro
 the frame (a hand-set pose, the user's pose of it there) is subtracted at it until it is registered
 in the frame, in the search and the final stage: without, in the first frame of a run started from
 keyframes the first bone had nothing subtracted (no other bone had a tracked pose yet), and a
-keyframe later in the range gave way to the constant-velocity guess. Joint tracking does the same
-(:data:`JOINT_KEYFRAMES`): its round 0 in a first frame registers the bones one after another and
-subtracted only those registered before it, so the first bone had nothing subtracted. On the ideal
-128² talus-calcaneus scene (CPU, keyframes at the truth) the talus went from 0.234 mm / 0.513° to
-0.0003 mm / 0.003°; from keyframes 1 mm / 1° off, from 0.243 / 0.397 and 0.261 / 0.335 to
-0.093 / 0.211 and 0.080 / 0.258 (mm / °), sequential tracking's poses
-(``tests/core/tracking/test_joint_first_frame_keyframes.py``). Frames without a keyframe are
-registered as before.
+keyframe later in the range gave way to the constant-velocity guess. Joint tracking is unchanged
+(its first round in a first frame subtracts only the bones registered before it): doing as sequential
+tracking does (:data:`JOINT_KEYFRAMES`) helped from keyframes near the truth and harmed from keyframes
+3-5 mm / 3-5° off; a second round in the first frame (:data:`FIRST_FRAME_SECOND_ROUND`) helped from
+5 mm / 5° (both off by default; their docs give the figures).
 
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The
@@ -129,9 +125,10 @@ from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION",
-           "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
-           "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags", "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG",
+           "RESTART_FROM_PREDICTION", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES",
+           "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags", "stage_move_check",
+           "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -166,9 +163,21 @@ SEQUENTIAL_NEIGHBOURS = True
 #: ``tracking_stage_residue_cpu.json``'s confirm part).
 STAGE_MOVE_CONFIRM = True
 #: Joint tracking subtracts a bone with a keyframe in the frame (the user's pose of it there) at it until it
-#: is registered in the frame, as sequential tracking does: in a first frame its round 0 registers the bones
-#: one after another and the first had nothing subtracted (no bone had a tracked pose yet); off: as before.
-JOINT_KEYFRAMES = True
+#: is registered in the frame, as sequential tracking does; off (the default): as before, a first frame's
+#: round 0 registers the bones one after another and the first has nothing subtracted. Measured on the
+#: ideal 128² talus-calcaneus scene (CPU, one round; ``test_joint_first_frame_keyframes.py``):
+#: the talus's first-frame error went from 0.234 mm / 0.513° to 0.0003 mm / 0.003° from keyframes at the
+#: truth, and from 0.24-0.26 mm / 0.33-0.40° to 0.08-0.09 mm / 0.21-0.26° from keyframes 1 mm / 1° off, but
+#: from keyframes 5 mm / 5° off (the acceptance study's) its rotation was worse in 4 of 5 draws, up to
+#: 2.76° against 0.26°, unflagged (3 mm / 3°: 2 of 4 worse, to 2.1°), sequential tracking's poses: a
+#: neighbour subtracted where it is not leaves its image's negative where it is.
+JOINT_KEYFRAMES = False
+#: Joint tracking's first frame (a bone in it without a tracked pose) gets a second round whatever
+#: ``joint_rounds`` holds: every bone again with its neighbours at their round-0 poses, so the bone
+#: registered first is registered once more with the others subtracted (off, the default: as before).
+#: Same scene, keyframes 5 mm / 5° off, one round: the talus 0.19-0.28 mm / 0.25-0.64° → 0.0004-0.0013 mm /
+#: 0.002-0.004° (4 draws; the calcaneus, registered after the talus, unchanged); later frames unchanged.
+FIRST_FRAME_SECOND_ROUND = False
 #: The flag of a frame a view has no image for, its source giving no reason (:func:`missing_flags`).
 MISSING_FLAG = "frame missing in view"
 #: The flag of a frame a view's image could not be read for, with the source's reason.
@@ -371,6 +380,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                                     host_only=host_only, defer_confidence=defer, prediction=predicted[i])
 
     rounds = o.joint_rounds if joint else 1
+    if joint and FIRST_FRAME_SECOND_ROUND and any(not hist[names[i]] for i in todo):
+        rounds = max(rounds, 2)  # a first frame: a second round (FIRST_FRAME_SECOND_ROUND)
 
     def staged(rnd: int, opts: RegistrationOptions) -> RegistrationOptions:
         """The registration options of round ``rnd``: the final stage only in the last round."""

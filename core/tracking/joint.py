@@ -26,8 +26,7 @@ The bones of a round all start from the estimates the round began with (the prev
 or the guesses), where the one-after-another rounds let a bone see the poses its predecessors
 had just found in the same round; the second round sees every bone's first-round pose either
 way. With one round (``TrackingOptions.joint_rounds``' default since 8dbdcc2) none does: in lockstep
-every bone, and its final stage, subtracts its neighbours at their predictions (a neighbour's keyframe
-of the frame where it has one: :data:`core.tracking.frame_step.JOINT_KEYFRAMES`).
+every bone, and its final stage, subtracts its neighbours at their predictions.
 """
 
 from __future__ import annotations

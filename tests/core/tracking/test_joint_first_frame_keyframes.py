@@ -42,6 +42,7 @@ def test_keyframes_subtracted_help_near_the_truth_only(talus_calcaneus_128, monk
     from core.tracking.trial import TrackingOptions, track
 
     sc, models, r, frames = talus_calcaneus_128
+    monkeypatch.setattr(fs, "FIRST_FRAME_SECOND_ROUND", False)  # one round in the first frame, as measured
     true_keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     joint = TrackingOptions(mode="joint", joint_rounds=1, verify_restarts=0, registration=REG)
     seq = TrackingOptions(mode="sequential", sequential_subtract=True, verify_restarts=0, registration=REG)
@@ -74,6 +75,7 @@ def test_second_round_in_the_first_frame_and_later_frames_unchanged(talus_calcan
     o = TrackingOptions(mode="joint", joint_rounds=1, verify_restarts=0, registration=REG)
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     given = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}  # frame 1 from frame 0's poses
+    monkeypatch.setattr(fs, "FIRST_FRAME_SECOND_ROUND", False)  # both switches off, then one on
     old = track(r, models, frames.__getitem__, [0, 1], keyframes=keys, options=o, skip=given)
     monkeypatch.setattr(fs, switch, True)
     new = track(r, models, frames.__getitem__, [0, 1], keyframes=keys, options=o, skip=given)

@@ -5,12 +5,9 @@ poses and σ close to the converged stage's, and bones side by side as each alon
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
-from core.geometry.transforms import pose_from_params
 from tests.core.tracking.test_likelihood_fast_kernels import noisy_talus  # noqa: F401 (a fixture)
 
 
@@ -46,34 +43,6 @@ def test_fewer_steps_near_the_converged_stage(noisy_talus, monkeypatch, frame): 
     assert r0 == n0 - 1 and r1 < n1  # (the robust refinement's first step takes the images before it)
     assert np.max(np.abs(x1 - x0) / s0) < 2e-2
     assert np.max(np.abs(s1 - s0) / s0) < 2e-2
-
-
-def test_fewer_steps_side_by_side_are_each_bones_own(talus_calcaneus_128, monkeypatch):
-    from core.tracking.cost import prepare_frame
-    from core.tracking.final_stage import final_stage, final_stages
-    from core.tracking.joint import JointJob, register_together
-    from core.tracking.register import RegistrationOptions
-
-    _fewer(monkeypatch)
-    sc, models, r, frames = talus_calcaneus_128
-    frame = prepare_frame(frames[1])
-    o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
-    truth = sc.poses(1)
-    offs = [np.r_[0.6, -0.4, 0.3, np.radians([0.8, -0.5, 0.6])],
-            np.r_[-0.5, 0.3, 0.4, np.radians([-0.6, 0.7, 0.4])]]
-    jobs = [JointJob(k, pose_from_params(d, center=m.centroid, base=truth[k]), m.centroid, m.outline,
-                     (truth[[1 - k]], [1 - k])) for k, (d, m) in enumerate(zip(offs, models, strict=True))]
-    regs = register_together(r, frame, jobs, o)
-    of = replace(o, final="likelihood", final_highpass_px=2.0)
-    calls = [(regs[k], {"bone": k, "initial_pose": job.initial_pose, "center": job.center, "options": of,
-                        "views": (0, 1), "others": job.others}) for k, job in enumerate(jobs)]
-    alone = [final_stage(r, frame, res, **kw) for res, kw in calls]
-    together = final_stages(r, frame, calls)
-    for a, t in zip(alone, together, strict=True):
-        assert a.timing["likelihood_taken"] == t.timing["likelihood_taken"] == 1
-        assert a.timing["likelihood_steps"] == t.timing["likelihood_steps"] > 0
-        np.testing.assert_array_equal(a.pose, t.pose)
-        np.testing.assert_array_equal(a.fit.covariance, t.fit.covariance)
 
 
 def test_chord_steps_render_the_centre_alone(noisy_talus, monkeypatch):  # noqa: F811

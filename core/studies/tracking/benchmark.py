@@ -316,6 +316,8 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
         if cases in (case.split("_")[0], "both"):
             for suffix, oo in runs:
                 res[case + suffix] = _case(ts, bones, oo, n, int(repeats), cr)
+                # what this case ran: the top level's "options" are the runs' without the final stage
+                res[case + suffix]["final"] = "likelihood" if oo.refine_likelihood else "none"
     res["autoscoper_reference_s_per_frame_per_bone"] = [3.0, 13.0]
     return res
 

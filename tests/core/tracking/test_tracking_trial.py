@@ -240,6 +240,7 @@ def test_benchmark_smoke_reports_one_bone_with_breakdown():
 
     res = run(quick=True, device="cpu", frames=2, pixels=64, cases="one", repeats=2)
     assert "three_bones" not in res and res["mode"] == "joint"
+    assert res["joint_rounds"] == 1 and res["one_bone"]["final"] == "none"  # what the case ran
     ee = res["one_bone"]["end_to_end"]
     assert len(ee["runs_wall_s"]) == 2 and ee["wall_s"] == pytest.approx(sum(ee["runs_wall_s"]) / 2)
     pb = ee["per_bone"]["talus"]

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["BONES", "CENTER", "INSIDE", "SEEDS", "counts", "main", "rebuild_check", "runs", "synthetic",
-           "truth"]
+           "truth", "walking_track"]
 
 BONES = ("tibia", "talus", "calcaneus")
 
@@ -156,9 +156,11 @@ def counts(bench: Path = BENCH, labels=None, **kw) -> dict:
     return {"per_seed": per_seed, "runs": per_run}
 
 
-def _walking(n: int, seed: int, shift: dict) -> np.ndarray:
-    """``(n, 4, 4)`` poses in smooth walking-like motion with noise 0.01 mm / 0.05° per axis (the
-    trajectory check's tests' track), frame ``k`` turned by ``shift[k]`` degrees more about z."""
+def walking_track(n: int = 40, noise=(0.01, 0.05), seed: int = 1, shift=None, center=None) -> np.ndarray:
+    """``(n, 4, 4)`` poses of a bone in smooth, walking-like motion (the trajectory check's tests' track):
+    translation (mm) and rotation (degrees) smooth in time plus Gaussian noise ``noise`` (mm, degrees);
+    ``shift(k, p)`` may change frame ``k``'s parameters ``p`` (mm, radians) in place before the pose is
+    made; about ``center`` (default :data:`CENTER`)."""
     from core.geometry.transforms import pose_from_params
 
     g = np.random.default_rng(seed)
@@ -167,11 +169,22 @@ def _walking(n: int, seed: int, shift: dict) -> np.ndarray:
     for k in range(n):
         p = np.r_[20 * t[k] + 5 * t[k] ** 2, 3 * np.sin(2 * t[k]), -4 * t[k],
                   np.radians([10 * t[k], -6 * t[k] ** 2, 4 * np.sin(3 * t[k])])]
-        p[:3] += g.normal(0, 0.01, 3)
-        p[3:] += np.radians(g.normal(0, 0.05, 3))
-        p[5] += np.radians(shift.get(k, 0.0))
-        P.append(pose_from_params(p, center=CENTER, base=np.eye(4)))
+        p[:3] += g.normal(0, noise[0], 3)
+        p[3:] += np.radians(g.normal(0, noise[1], 3))
+        if shift is not None:
+            shift(k, p)
+        P.append(pose_from_params(p, center=CENTER if center is None else center, base=np.eye(4)))
     return np.array(P)
+
+
+def _walking(n: int, seed: int, shift: dict) -> np.ndarray:
+    """:func:`walking_track` with noise 0.01 mm / 0.05° per axis, frame ``k`` turned by ``shift[k]``
+    degrees more about z."""
+
+    def turn(k, p):
+        p[5] += np.radians(shift.get(k, 0.0))
+
+    return walking_track(n, (0.01, 0.05), seed, turn)
 
 
 #: The tests' rotation centre (mm).

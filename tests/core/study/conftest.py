@@ -107,3 +107,19 @@ def python_child():
         for s in (p.stdout, p.stderr):
             if s is not None:
                 s.close()
+
+
+@pytest.fixture
+def talus_study(tmp_path, rig_files, views) -> Path:
+    """A study folder with one CT (a placeholder file, 1 mm voxels), the talus, and the trial walk01 of
+    the first view's frames: the journal and lock tests' smallest study."""
+    from core.study import Study
+
+    with Study.create(tmp_path / "st") as st:
+        st.add_calibration("day1", rig_files)
+        vol = tmp_path / "talus.tif"
+        vol.write_bytes(b"placeholder")
+        st.add_volume("ct", vol, voxel_size_mm=[1, 1, 1])
+        st.add_bone("talus", volume="ct")
+        st.add_trial("walk01", views[0], calibration="day1", bones=["talus"])
+    return tmp_path / "st"

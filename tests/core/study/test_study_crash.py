@@ -22,15 +22,8 @@ time.sleep(600)  # killed by the test
 
 
 @pytest.fixture
-def folder(tmp_path, rig_files, views):
-    with Study.create(tmp_path / "st") as st:
-        st.add_calibration("day1", rig_files)
-        vol = tmp_path / "talus.tif"
-        vol.write_bytes(b"placeholder")
-        st.add_volume("ct", vol, voxel_size_mm=[1, 1, 1])
-        st.add_bone("talus", volume="ct")
-        st.add_trial("walk01", views[0], calibration="day1", bones=["talus"])
-    return tmp_path / "st"
+def folder(talus_study):
+    return talus_study
 
 
 def test_two_writers_of_one_bone_get_a_clear_error(folder, python_child):

@@ -41,6 +41,13 @@ def _lock(folder, trial: str, bone: str) -> FileLock:
     return FileLock(path, purpose="pass", by=TRAJECTORY_CHECK)
 
 
+def _hold_for_a_moment(folder, s, bone: str = BONE) -> None:
+    """Take ``bone``'s journal lock of the open trial as another writer would, let go 300 ms later (on
+    the event loop), so that an edit made meanwhile waits."""
+    lock = _lock(folder, s.trial_name, bone).acquire()
+    QtCore.QTimer.singleShot(300, lambda: lock.release())  # a lambda keeps the lock alive; a bound method not
+
+
 def _open(qtbot, win, folder, bones=(BONE,)):
     """The study open, ``bones`` handed to a batch (their journals let go), the first selected."""
     with qtbot.waitSignal(win.pool.finished, timeout=HUNG_JOB_MS):
@@ -78,8 +85,7 @@ def test_undo_fix_while_an_edit_waits_waits_for_it(qtbot, demo_study, tmp_path, 
     with main_window(qtbot) as win:
         s, m = _open(qtbot, win, folder)
         m.set_frame(1)
-        lock = _lock(folder, s.trial_name, BONE).acquire()
-        QtCore.QTimer.singleShot(300, lock.release)
+        _hold_for_a_moment(folder, s)
         _action(win, "Move x+").trigger()
         assert s.edits.waiting(BONE)
         win.review.undo_fix_action.trigger()
@@ -114,8 +120,7 @@ def test_tracking_started_while_an_edit_waits_starts_once_it_is_saved(qtbot, dem
     with main_window(qtbot) as win:
         s, m = _open(qtbot, win, folder)
         f = m.current_frame
-        lock = _lock(folder, s.trial_name, BONE).acquire()
-        QtCore.QTimer.singleShot(300, lock.release)
+        _hold_for_a_moment(folder, s)
         _action(win, "Move x+").trigger()
         moved = m.pose(BONE)
         with job_ends(qtbot, win.pool, "tracking"):
@@ -142,8 +147,7 @@ def test_two_undo_fixes_asked_while_an_edit_waits_both_run(qtbot, demo_study, tm
     with main_window(qtbot) as win:
         s, m = _open(qtbot, win, folder)
         m.set_frame(1)
-        lock = _lock(folder, s.trial_name, BONE).acquire()
-        QtCore.QTimer.singleShot(300, lock.release)
+        _hold_for_a_moment(folder, s)
         _action(win, "Move x+").trigger()
         assert s.edits.waiting(BONE)
         win.review.undo_fix_action.trigger()
@@ -165,8 +169,7 @@ def test_a_move_made_while_undo_fix_waits_stays(qtbot, demo_study, tmp_path):
     with main_window(qtbot) as win:
         s, m = _open(qtbot, win, folder)
         m.set_frame(1)
-        lock = _lock(folder, s.trial_name, BONE).acquire()
-        QtCore.QTimer.singleShot(300, lock.release)
+        _hold_for_a_moment(folder, s)
         win.review.undo_fix_action.trigger()  # waits
         assert s.edits.waiting(BONE)
         _action(win, "Move x+").trigger()  # the same frame, behind it

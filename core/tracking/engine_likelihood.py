@@ -89,7 +89,8 @@ one by one (no CUDA graph; each from a recorded launch while its arguments stay 
 wait per step, for the engine's own work only (an event recorded after the table's copy):
 :meth:`LikelihoodEngine.refine_steps` yields there, so that several bones' refinements run side
 by side (:func:`run_side_by_side`). The kernels live in :mod:`core.tracking.likelihood_kernels`
-(re-exported here), the weights of the region (:meth:`LikelihoodEngine.scale_weights` …) in
+(re-exported here), its constructor and buffers in :mod:`core.tracking.likelihood_state`, the
+weights of the region (:meth:`LikelihoodEngine.scale_weights` …) in
 :mod:`core.tracking.likelihood_weights`.
 """
 
@@ -105,7 +106,7 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
-from .cost import CostTimer, FrameImages
+from .cost import FrameImages
 from .engine import GaussNewtonCost
 from .engine_search import step_design
 from .likelihood_confidence import _Confidence
@@ -142,6 +143,7 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
 )
 from .likelihood_launches import _Launches
 from .likelihood_solve import solve_moments
+from .likelihood_state import _EngineState
 from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 from .likelihood_weights import _RegionWeights
@@ -212,7 +214,8 @@ STOP_CONTRACT: float | None = None
 TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
 
 
-class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence, _RegionWeights):
+class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors, _Confidence,
+                       _RegionWeights):
     """The weighted least-squares refinement of one bone on the device (module docs), reusable from
     frame to frame (:func:`likelihood_engine` keeps one per renderer, bone and settings).
 
@@ -227,82 +230,6 @@ class LikelihoodEngine(_Launches, _FrameRegions, _TissueRegressors, _Confidence,
 
     _render = GaussNewtonCost._render
     poses = GaussNewtonCost.poses
-
-    def __init__(self, renderer, *, bone: int, views: Sequence[int], highpass_px: float | None = 4.0,
-                 psf=None, background: int = 0, weight_sigma_px: float = 2.0, lag_px: int | None = None,
-                 others_gain: bool = False, block_dim: int = 128, chunk: int = 4096) -> None:
-        from ..similarity.batched import gaussian_weights
-
-        if int(background) not in (0, 1):
-            raise ValueError(f"background: expected a polynomial order 0 or 1, got {background!r}")
-        self.psf = None if psf is None else np.asarray(psf, dtype=np.float64)
-        if self.psf is not None and (self.psf.ndim != 2 or self.psf.shape[0] % 2 == 0
-                                     or self.psf.shape[1] % 2 == 0 or self.psf.sum() <= 0):
-            raise ValueError(f"psf: expected an odd-sized 2-D kernel with a positive sum, "
-                             f"got {self.psf.shape}")
-        self._renderer_ref = weakref.ref(renderer)
-        self.device = renderer.device
-        self.bone = int(bone)
-        self.views = tuple(int(v) for v in views)
-        self.n_views = len(self.views)
-        self.scale = 1.0
-        self.background = int(background)
-        self.others_gain = bool(others_gain)
-        self._with_o = False  # the neighbours' DRRs a regressor in this frame (set_frame)
-        self._q = 0  # the frame's extra regressors a view (set_frame's regressors, set_tissue)
-        self._t = None  # their images (q · views, H, W) as the model sees them
-        self.highpass_px = float(highpass_px) if highpass_px else 0.0
-        self.weight_sigma_px = float(weight_sigma_px)
-        rad = 0 if self.psf is None else max(self.psf.shape) // 2
-        self.lag_px = int(lag_px) if lag_px is not None else max(2, round(2 * self.highpass_px) + rad)
-        self.block_dim, self.chunk = int(block_dim), int(chunk)
-        dev = self.device
-        self._taps = (wp.array(gaussian_weights(self.highpass_px, truncate=4.0), dtype=wp.float32, device=dev)
-                      if self.highpass_px else None)
-        self._wtaps = (wp.array(gaussian_weights(self.weight_sigma_px, truncate=4.0), dtype=wp.float32,
-                                device=dev) if self.weight_sigma_px > 0 else None)
-        self._psf = (None if self.psf is None else
-                     wp.array((self.psf / self.psf.sum()).astype(np.float32), dtype=wp.float32, device=dev))
-        self._ref_hw = wp.zeros(self.n_views, dtype=wp.vec2i, device=dev)
-        pinned = dev.is_cuda
-        self._host_hw = wp.zeros(self.n_views, dtype=wp.vec2i, device="cpu", pinned=pinned)
-        self._hw_last = None
-        # the device's preparation of the regions (_stage): its item table, the usable pixels
-        # counted per view (and their sum, the regions' maxima: fluoro_roi_kernel's outputs)
-        self._info = wp.zeros((self.n_views, 8), dtype=wp.int32, device=dev)
-        self._host_info = wp.zeros((self.n_views, 8), dtype=wp.int32, device="cpu", pinned=pinned)
-        self._msum = wp.zeros((self.n_views, 2), dtype=wp.float64, device=dev)
-        self._host_msum = wp.zeros((self.n_views, 2), dtype=wp.float64, device="cpu", pinned=pinned)
-        self._fmax = wp.zeros(self.n_views, dtype=wp.float32, device=dev)
-        self._count_pending = False
-        self._host: dict = {}  # pinned host buffers (_pinned)
-        self._up_event = None  # recorded after the last uploads from them
-        self._y_raw = self._o_raw = None
-        self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
-        self._last = None  # the last step's (images, low-passed images, x, h)
-        self._diff = 0  # its images in design_diff_kernel's layout (DIFF_IMAGES)
-        self._pending = None  # the half-steps of the step launched and not yet taken (step_result)
-        self._done = None  # an event recorded after the last work a result waits for (_record)
-        #: the rendered images copied into the engine's own buffer (refinements side by side:
-        #: other engines render into the renderer's between this one's launches)
-        self.own_images = False
-        self._acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device=dev)
-        self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
-        self._tables: dict = {}
-        self._bufs: dict = {}
-        self._cmds: dict = {}  # recorded launches by name (_launch)
-        self._cap = None
-        self.timer = CostTimer()
-        self.renders = 0  # the steps' DRR launches (a step reusing the last design's images renders none)
-        self.base = self.center = self.roi = None
-        self._w0_set = False
-
-    @property
-    def renderer(self):
-        r = self._renderer_ref()
-        if r is None:
-            raise RuntimeError("renderer: the renderer of this engine no longer exists")
-        return r
 
     # ------------------------------------------------------------------ per frame
     def set_frame(self, frame: FrameImages, *, base_pose, center, roi, others=None, regressors=None) -> None:

@@ -112,6 +112,7 @@ from .engine_search import step_design
 from .likelihood_confidence import _Confidence
 from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel
 from .likelihood_frames import _FrameRegions
+from .likelihood_graph import _StepGraphs
 from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names as before)
     NA,
     NZ,
@@ -148,7 +149,8 @@ from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 from .likelihood_weights import _RegionWeights
 
-__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "STOP_CONTRACT", "STOP_PRED", "UPHILL_RESOLVED",
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "STEP_GRAPH", "STOP_CONTRACT", "STOP_PRED",
+           "UPHILL_RESOLVED",
            "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device", "run_side_by_side",
            "run_steps", "solve_moments"]
 
@@ -187,6 +189,13 @@ _FORWARD = [0, 1, 3, 5, 7, 9, 11]  # step_design's x and x + h_k e_k
 #: 0.09-0.18 σ from the default's on a 256² CPU trial (the stage's floor there 0.003-0.01 σ); not
 #: measured on a GPU.
 CHORD_STEPS = False
+#: A step's device work (the design's item table, DRRs, differences, blurs, moments and the table's
+#: copy) recorded once per output size and replayed, on a CUDA device as one CUDA graph
+#: (:mod:`core.tracking.likelihood_graph`; the same values). None: on CUDA devices only; True: on
+#: every device (the CPU's launches one by one: tests); False: the step's launches made one by one,
+#: the item table filled on the host, as first measured. Used for the default model's steps (no
+#: PSF, no extra regressors, a high-pass, the design's differences, the 13-pose design).
+STEP_GRAPH: bool | None = None
 #: pixels a thread block of a step's moments kernel sums (None: the engine's ``chunk``, 4096, as
 #: first measured; smaller: more blocks, the same terms summed in another order, float32 rounding)
 MOMENTS_CHUNK: int | None = None
@@ -215,7 +224,7 @@ TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
 
 
 class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors, _Confidence,
-                       _RegionWeights):
+                       _RegionWeights, _StepGraphs):
     """The weighted least-squares refinement of one bone on the device (module docs), reusable from
     frame to frame (:func:`likelihood_engine` keeps one per renderer, bone and settings).
 
@@ -379,6 +388,19 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             img, low = self._centre_images(x, last[0], last[1])
             self.timer.evaluations += 1
             self.renders += 1
+        elif self._graph_step():  # (the step's work recorded: one graph)
+            t0 = time.perf_counter()
+            work = self._step_work()
+            work.x_np[:] = step_design(x, h)
+            work.replay()
+            self._record()
+            self._diff = 1
+            self._last = (work.dd, work.low, x, h)
+            self._pending = h
+            self.timer.evaluations += 13
+            self.renders += 1
+            self.timer.render += time.perf_counter() - t0
+            return
         else:
             X = step_design(x, h)
             X = X[_FORWARD] if FORWARD_DESIGN else X
@@ -389,7 +411,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         nv, (Hc, Wc) = self.n_views, self._cap
         acc, host = self._tables_q()
         acc.zero_()
-        chunk = MOMENTS_CHUNK or self.chunk
+        chunk = self._moments_chunk()
         n_chunks = math.ceil(Hc * Wc / chunk)
         hp = 1.0 if self.highpass_px else 0.0
         reg = [self._t] if self._q else []
@@ -401,6 +423,15 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         self._last = (img, low, x, h)
         self._pending = h
         self.timer.metric += time.perf_counter() - t0
+
+    def _moments_chunk(self) -> int:
+        return MOMENTS_CHUNK or self.chunk
+
+    def _graph_step(self) -> bool:
+        """Whether a step's design is rendered and summed by its recorded work (:data:`STEP_GRAPH`)."""
+        on = self.device.is_cuda if STEP_GRAPH is None else STEP_GRAPH
+        return bool(on and DIFF_IMAGES and BLOCK_BLUR and not FORWARD_DESIGN and self._psf is None
+                    and not self._q and self.highpass_px)
 
     def step_result(self) -> dict:
         """The second half of :meth:`step`: waits for the table of the last :meth:`step_launch`

@@ -1,0 +1,112 @@
+"""A likelihood final-stage step as one recorded piece of device work (:class:`core.tracking.
+engine_likelihood.LikelihoodEngine`'s, :data:`~core.tracking.engine_likelihood.STEP_GRAPH`): the copy
+of the design's 13 parameter rows from pinned memory, their DRR item table computed on the device
+(:class:`~core.tracking.engine_render.DeviceRender`, the tracker's engine's: the same arithmetic as
+the host's table in float64, the same float32 table), the DRR launch into the engine's own images,
+the design's centre and differences (:func:`~core.tracking.likelihood_fast.design_diff_kernel`),
+the two blur passes of the high-pass, the moments table and its copy to pinned host memory —
+captured as one CUDA graph on a CUDA device (enqueued launch by launch elsewhere). A step is then a
+copy of 78 numbers into pinned memory and one graph launch, where the plain step filled the item
+table on the host, uploaded it through the renderer's pinned buffer (waiting for that buffer's
+previous upload: the device's work on every step enqueued before it, the bones' stages side by
+side sharing it) and made 7 launches. The same values as the plain step's (its kernels, buffers of
+its own). A mixin of the engine's."""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+from .engine_render import DeviceRender
+from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel
+from .likelihood_kernels import wls_moments_kernel
+
+__all__ = ["StepWork"]
+
+#: graphs an engine keeps (by output size and the frame buffers they read; least recently used out)
+KEEP = 4
+
+
+class StepWork:
+    """One step's recorded device work for one output size and set of frame buffers (module docs):
+    ``x_np`` the design's pinned parameter rows, ``dd`` / ``low`` its centre-and-differences images
+    and their low-pass (the plain step's ``img`` and ``low`` with ``diff`` 1)."""
+
+    def __init__(self, eng, cap: tuple, render: tuple, key: tuple) -> None:
+        dev = eng.device
+        nv = eng.n_views
+        Hc, Wc = cap
+        self.key = key
+        self.x_host, self.x_dev, self.images, self.render = render  # (the graph's buffers kept alive)
+        images = self.images
+        self.x_np = self.x_host.numpy()
+        self.dd = wp.zeros((7 * nv, Hc, Wc), dtype=wp.float32, device=dev)
+        self.tmp = wp.zeros(self.dd.shape, dtype=wp.float32, device=dev)
+        self.low = wp.zeros(self.dd.shape, dtype=wp.float32, device=dev)
+        acc, host = eng._acc, eng._host_acc
+        self.acc = acc
+        cmds = [wp.launch(design_diff_kernel, dim=self.dd.shape, device=dev, record_cmd=True,
+                          inputs=[images, nv, eng._ref_hw, self.dd, 0])]
+        for a, b, axis in ((self.dd, self.tmp, 1), (self.tmp, self.low, 0)):
+            cmds.append(wp.launch(blur_block_kernel, dim=blur_block_dim(self.dd.shape, axis), device=dev,
+                                  record_cmd=True, inputs=[a, b, eng._taps, eng._ref_hw, nv, axis]))
+        chunk = eng._moments_chunk()
+        self.moments = wp.launch_tiled(wls_moments_kernel, dim=(nv, math.ceil(Hc * Wc / chunk)),
+                                       block_dim=eng.block_dim, device=dev, record_cmd=True,
+                                       inputs=[self.dd, self.low, 1.0, eng._y, eng._w, eng._o, eng._ref_hw,
+                                               nv, chunk, acc, 1])
+        self.cmds = cmds
+        self.copy = (host, acc)
+        self.graph = None
+        if dev.is_cuda:
+            with wp.ScopedCapture(device=dev) as cap_:
+                self._enqueue()
+            self.graph = cap_.graph
+
+    def _enqueue(self) -> None:
+        wp.copy(self.x_dev, self.x_host)
+        for cmd in self.render:
+            cmd.launch()
+        for cmd in self.cmds:
+            cmd.launch()
+        self.acc.zero_()
+        self.moments.launch()
+        wp.copy(*self.copy)
+
+    def replay(self) -> None:
+        """Enqueue the step (its rows written into :attr:`x_np` first)."""
+        if self.graph is not None:
+            wp.capture_launch(self.graph)
+        else:
+            self._enqueue()
+
+
+class _StepGraphs:
+    """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s recorded steps (its attributes:
+    the frame's buffers ``_y``, ``_w``, ``_o``, ``_ref_hw``, ``_cap``, the geometry ``base``,
+    ``center``, ``roi``)."""
+
+    def _step_work(self) -> StepWork:
+        """The recorded step for the frame's output size and buffers (made and, on CUDA, captured
+        where there is none yet); the device geometry uploaded where it changed."""
+        dr = self.__dict__.get("_dev_render")
+        if dr is None:
+            dr = self._dev_render = DeviceRender(self)
+            self._graphs, self._renders = {}, {}
+        dr.upload(self.base, self.center, self.roi)
+        cap = tuple(self._cap)
+        key = (cap, *(a.ptr for a in (self._y, self._w, self._o, self._ref_hw, self._taps, self._acc)),
+               self._moments_chunk(), self.block_dim)
+        hit = self._graphs.pop(key, None)
+        if hit is None:
+            render = self._renders.get(cap)
+            if render is None:
+                if len(self._renders) >= KEEP:
+                    self._renders.pop(next(iter(self._renders)))
+                render = self._renders[cap] = dr.record(self, 13, *cap)
+            if len(self._graphs) >= KEEP:
+                self._graphs.pop(next(iter(self._graphs)))
+            hit = StepWork(self, cap, render, key)
+        self._graphs[key] = hit  # (most recently used last)
+        return hit

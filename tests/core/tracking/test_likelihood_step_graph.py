@@ -1,0 +1,48 @@
+"""The likelihood final stage's recorded steps (core.tracking.likelihood_graph, engine_likelihood.
+STEP_GRAPH): the item table computed on the device, the step's launches recorded once — the same
+poses, confidences, steps and evaluations as the plain steps' (CPU device, ideal 128² views of the
+talus and calcaneus, their stages side by side)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from core.geometry.transforms import pose_from_params
+
+
+def test_recorded_steps_are_the_plain_steps(talus_calcaneus_128, monkeypatch):
+    import core.tracking.engine_likelihood as el
+    from core.tracking.cost import prepare_frame
+    from core.tracking.final_stage import final_stages
+    from core.tracking.joint import JointJob, register_together
+    from core.tracking.register import RegistrationOptions
+
+    sc, models, r, frames = talus_calcaneus_128
+    frame = prepare_frame(frames[1])
+    o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    truth = sc.poses(1)
+    offs = [np.r_[0.6, -0.4, 0.3, np.radians([0.8, -0.5, 0.6])],
+            np.r_[-0.5, 0.3, 0.4, np.radians([-0.6, 0.7, 0.4])]]
+    jobs = [JointJob(k, pose_from_params(d, center=m.centroid, base=truth[k]), m.centroid, m.outline,
+                     (truth[[1 - k]], [1 - k])) for k, (d, m) in enumerate(zip(offs, models, strict=True))]
+    regs = register_together(r, frame, jobs, o)
+    of = replace(o, final="likelihood", final_highpass_px=2.0)
+    calls = [(regs[k], {"bone": k, "initial_pose": job.initial_pose, "center": job.center, "options": of,
+                        "views": (0, 1), "others": job.others}) for k, job in enumerate(jobs)]
+    out = {}
+    for on in (False, True, False):  # (and the plain steps again after the recorded ones: same engines)
+        monkeypatch.setattr(el, "STEP_GRAPH", on)
+        out.setdefault(on, []).append(final_stages(r, frame, calls))
+    for a, b, c in zip(out[False][0], out[True][0], out[False][1], strict=True):
+        assert a.timing["likelihood_taken"] == b.timing["likelihood_taken"] == 1
+        assert a.timing["likelihood_steps"] == b.timing["likelihood_steps"] > 0
+        assert a.timing["likelihood_renders"] == b.timing["likelihood_renders"]
+        assert a.evaluations == b.evaluations
+        for x in (b, c):
+            np.testing.assert_array_equal(a.pose, x.pose)
+            np.testing.assert_array_equal(a.fit.covariance, x.fit.covariance)
+    eng = el.likelihood_engine(r, bone=0, views=(0, 1), highpass_px=2.0, lag_px=of.final_lag_px,
+                               others_gain=of.final_others_gain)
+    assert eng._graphs and all(w.graph is None for w in eng._graphs.values())  # (the CPU: no capture)

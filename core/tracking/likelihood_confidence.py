@@ -23,6 +23,7 @@ import time
 import numpy as np
 import warp as wp
 
+from .likelihood_fast import autocov_rows_dim, autocov_rows_kernel
 from .likelihood_kernels import autocov_kernel, meat_kernel, regressor_kernels, taper_kernel, vec6f
 
 #: pixels a thread block of the sandwich's meat kernel sums (None: the engine's ``chunk``, 4096, as
@@ -34,6 +35,16 @@ MEAT_CHUNK: int | None = 512
 #: the same for the autocovariance kernel (None: the engine's ``chunk``; it has a block per lag
 #: already, and was slower with 512: 0.51 → 0.76 ms at 4 px)
 AUTOCOV_CHUNK: int | None = None
+#: The autocovariance summed with 9 lags of a row a thread
+#: (:func:`~core.tracking.likelihood_fast.autocov_rows_kernel`: each pixel read once for them, 18
+#: passes over the region at 4 px instead of 145; the same pairs and products, summed in another
+#: order). Off: a pass per lag (:func:`~core.tracking.likelihood_kernels.autocov_kernel`), as first
+#: measured.
+AUTOCOV_ROWS = True
+#: The meat over half the lags (those after lag 0, twice; :func:`~core.tracking.likelihood_kernels.
+#: meat_kernel`'s ``half``): the same symmetric matrix in half the products (float32 sums in another
+#: order). Off: every lag, as first measured.
+MEAT_HALF = True
 
 
 class _Confidence:
@@ -84,8 +95,13 @@ class _Confidence:
         cov.zero_()
         chunk = AUTOCOV_CHUNK or self.chunk
         n_chunks = math.ceil(Hc * Wc / chunk)
-        self._launch("autocov", autocov_kernel, (nv, nl // 2 + 1, n_chunks),
-                     [e, self._w, self._ref_hw, L, chunk, cov], self.block_dim)  # (the rest mirrored)
+        if AUTOCOV_ROWS:  # (the first half of the lags; the rest mirrored)
+            dim, groups = autocov_rows_dim(nv, L, n_chunks)
+            self._launch("autocov_rows", autocov_rows_kernel, dim,
+                         [e, self._w, self._ref_hw, L, groups, chunk, cov], self.block_dim)
+        else:
+            self._launch("autocov", autocov_kernel, (nv, nl // 2 + 1, n_chunks),
+                         [e, self._w, self._ref_hw, L, chunk, cov], self.block_dim)
         taper = self._bufs.get(("taper", L))
         if taper is None:  # Bartlett's, per lag (rows, columns)
             d = np.arange(-L, L + 1)
@@ -96,8 +112,8 @@ class _Confidence:
         acc = self._buffer("meat", (nv, 36), wp.float64)
         acc.zero_()
         mc = MEAT_CHUNK or self.chunk
-        self._launch("meat", meat_kernel, (nv, math.ceil(Hc * Wc / mc)), [jt, cw, self._ref_hw, L, mc, acc],
-                     self.block_dim)
+        self._launch("meat", meat_kernel, (nv, math.ceil(Hc * Wc / mc)),
+                     [jt, cw, self._ref_hw, L, mc, acc, int(MEAT_HALF)], self.block_dim)
         host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
         wp.copy(host, acc)
         self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)

@@ -300,3 +300,66 @@ def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, stride: int,
         if wp.isfinite(x) and x > 0.0:
             s = x
     scale[v] = s
+
+
+AUTOCOV_GROUP = wp.constant(9)  # lags of one row of the window a thread of autocov_rows_kernel sums
+vec9d = wp.types.vector(length=9, dtype=wp.float64)
+
+
+@wp.kernel
+def autocov_rows_kernel(e: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
+                        ref_hw: wp.array(dtype=wp.vec2i), lag: int, groups: int, chunk: int,
+                        acc: wp.array3d(dtype=wp.float64)):
+    """:func:`~core.tracking.likelihood_kernels.autocov_kernel`'s sums (``acc[v, l]`` += the products
+    ``e_i e_{i+Δ_l}`` and the count of the pairs of usable pixels at lag ``Δ_l``, the first
+    ``(2 lag + 1)² // 2 + 1`` lags) with :data:`AUTOCOV_GROUP` lags of one row of the window a
+    thread: each pixel's value and weight read once for them, its neighbours along the row next to
+    each other. The same pairs and products (float32, summed in float64), in another order.
+    dim = (views, (lag + 1) · groups, chunks): row ``Δ_r = q // groups - lag`` (≤ 0), the lags
+    ``Δ_c`` of group ``q % groups`` of that row (row 0: ``Δ_c`` ≤ 0)."""
+    v, q, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    h = ref_hw[v][0]
+    w = ref_hw[v][1]
+    n = 2 * lag + 1
+    a = q // groups
+    g0 = (q - a * groups) * AUTOCOV_GROUP
+    dr = a - lag
+    last = n  # (exclusive) the row's last lag: row 0 stops at Δ_c = 0
+    if dr == 0:
+        last = lag + 1
+    W = e.shape[2]
+    start = ch * chunk
+    stop = wp.min(e.shape[1] * W, start + chunk)
+    s = vec9d()
+    m = vec9d()
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        rr = r + dr
+        if r < h and c < w and rr >= 0 and rr < h:
+            if wgt[v, r, c] > 0.0:
+                x = e[v, r, c]
+                for k in range(AUTOCOV_GROUP):
+                    b = g0 + k
+                    cc = c + b - lag
+                    if b < last and cc >= 0 and cc < w:
+                        if wgt[v, rr, cc] > 0.0:
+                            s[k] = s[k] + wp.float64(x * e[v, rr, cc])
+                            m[k] = m[k] + wp.float64(1.0)
+    ts = wp.tile_sum(wp.tile(s, preserve_type=True))
+    tm = wp.tile_sum(wp.tile(m, preserve_type=True))
+    if lane == 0:
+        xs = ts[0]
+        xm = tm[0]
+        for k in range(AUTOCOV_GROUP):
+            b = g0 + k
+            if b < last:
+                wp.atomic_add(acc, v, a * n + b, 0, xs[k])
+                wp.atomic_add(acc, v, a * n + b, 1, xm[k])
+
+
+def autocov_rows_dim(n_views: int, lag: int, n_chunks: int) -> tuple:
+    """``(dim, groups)`` of :func:`autocov_rows_kernel` for a lag window of ``lag``."""
+    groups = -(-(2 * int(lag) + 1) // int(AUTOCOV_GROUP))
+    return (int(n_views), (int(lag) + 1) * groups, int(n_chunks)), groups

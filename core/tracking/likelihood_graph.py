@@ -15,6 +15,7 @@ its own). A mixin of the engine's."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import warp as wp
 
@@ -24,6 +25,8 @@ from .likelihood_kernels import wls_moments_kernel
 
 __all__ = ["StepWork"]
 
+#: the first capture that failed (its error; None: none did)
+FAILED: str | None = None
 #: graphs an engine keeps (by output size and the frame buffers they read; least recently used out)
 KEEP = 4
 
@@ -60,9 +63,17 @@ class StepWork:
         self.copy = (host, acc)
         self.graph = None
         if dev.is_cuda:
-            with wp.ScopedCapture(device=dev) as cap_:
-                self._enqueue()
-            self.graph = cap_.graph
+            try:
+                with wp.ScopedCapture(device=dev) as cap_:
+                    self._enqueue()
+                self.graph = cap_.graph
+            except Exception as e:  # (a capture the device refused: the launches one by one, said once)
+                global FAILED
+                if FAILED is None:
+                    FAILED = repr(e)
+                    warnings.warn(f"likelihood stage: a step's CUDA graph not captured ({e!r}); "
+                                  f"its launches made one by one", RuntimeWarning, stacklevel=2)
+                wp.synchronize_device(dev)
 
     def _enqueue(self) -> None:
         wp.copy(self.x_dev, self.x_host)

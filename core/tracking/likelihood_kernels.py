@@ -307,9 +307,13 @@ def taper_kernel(acc: wp.array3d(dtype=wp.float64), taper: wp.array(dtype=wp.flo
 
 @wp.kernel
 def meat_kernel(jt: wp.array3d(dtype=vec6f), cw: wp.array2d(dtype=wp.float32),
-                ref_hw: wp.array(dtype=wp.vec2i), lag: int, chunk: int, acc: wp.array2d(dtype=wp.float64)):
+                ref_hw: wp.array(dtype=wp.vec2i), lag: int, chunk: int, acc: wp.array2d(dtype=wp.float64),
+                half: int):
     """acc[v] += Σ_i J̃_i (Σ_Δ C(Δ) J̃_{i+Δ})ᵀ (row-major 6 × 6; ``cw[v]`` the tapered
-    autocovariance per lag). dim = (views, chunks)."""
+    autocovariance per lag). ``half`` 1: the lags after lag 0 (in row-major order) only, each
+    counted twice, lag 0 once — a matrix whose symmetric part is the same (``C(-Δ) = C(Δ)``, the
+    pairs of usable pixels at ``-Δ`` those at ``Δ`` swapped: the terms of ``-Δ`` are the
+    transposes of those of ``Δ``), in half the products. dim = (views, chunks)."""
     v, ch, lane = wp.tid()
     bd = wp.block_dim()
     h = ref_hw[v][0]
@@ -332,10 +336,18 @@ def meat_kernel(jt: wp.array3d(dtype=vec6f), cw: wp.array2d(dtype=wp.float32),
                 a1 = wp.min(n, h - r + lag)
                 b0 = wp.max(0, lag - c)
                 b1 = wp.min(n, w - c + lag)
+                if half != 0:
+                    a0 = wp.max(a0, lag)
                 for a in range(a0, a1):
                     rr = r + a - lag
-                    for b in range(b0, b1):
-                        u += cw[v, a * n + b] * jt[v, rr, c + b - lag]
+                    bs = b0
+                    if half != 0 and a == lag:
+                        bs = wp.max(b0, lag)
+                    for b in range(bs, b1):
+                        f = cw[v, a * n + b]
+                        if half != 0 and (a != lag or b != lag):
+                            f = 2.0 * f
+                        u += f * jt[v, rr, c + b - lag]
                 s += wp.outer(ji, u)
     t = wp.tile_sum(wp.tile(s, preserve_type=True))
     if lane == 0:

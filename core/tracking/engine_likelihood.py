@@ -110,7 +110,7 @@ from .cost import FrameImages
 from .engine import GaussNewtonCost
 from .engine_search import step_design
 from .likelihood_confidence import _Confidence
-from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel
+from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel, wls_moments_tri_kernel
 from .likelihood_frames import _FrameRegions
 from .likelihood_graph import _StepGraphs
 from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names as before)
@@ -149,8 +149,8 @@ from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 from .likelihood_weights import _RegionWeights
 
-__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "STEP_GRAPH", "STOP_CONTRACT", "STOP_PRED",
-           "UPHILL_RESOLVED",
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "MOMENTS_TRI", "STEP_GRAPH", "STOP_CONTRACT",
+           "STOP_PRED", "UPHILL_RESOLVED",
            "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device", "run_side_by_side",
            "run_steps", "solve_moments"]
 
@@ -196,6 +196,10 @@ CHORD_STEPS = False
 #: the item table filled on the host, as first measured. Used for the default model's steps (no
 #: PSF, no extra regressors, a high-pass, the design's differences, the 13-pose design).
 STEP_GRAPH: bool | None = None
+#: A step's moments table summed on and above its diagonal only
+#: (:func:`~core.tracking.likelihood_fast.wls_moments_tri_kernel`: 78 of the 144 entries, each the
+#: same sum; the host mirrors the rest), without extra regressors. Off: every entry, as first measured.
+MOMENTS_TRI = True
 #: pixels a thread block of a step's moments kernel sums (None: the engine's ``chunk``, 4096, as
 #: first measured; smaller: more blocks, the same terms summed in another order, float32 rounding)
 MOMENTS_CHUNK: int | None = None
@@ -394,7 +398,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             work.x_np[:] = step_design(x, h)
             work.replay()
             self._record()
-            self._diff = 1
+            self._diff, self._tri = 1, work.tri
             self._last = (work.dd, work.low, x, h)
             self._pending = h
             self.timer.evaluations += 13
@@ -415,7 +419,9 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         n_chunks = math.ceil(Hc * Wc / chunk)
         hp = 1.0 if self.highpass_px else 0.0
         reg = [self._t] if self._q else []
-        self._launch(("moments", self._q), regressor_kernels(self._q)[0], (nv, n_chunks),
+        self._tri = self._moments_tri()
+        kernel = wls_moments_tri_kernel if self._tri else regressor_kernels(self._q)[0]
+        self._launch(("moments", self._q, self._tri), kernel, (nv, n_chunks),
                      [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, chunk, acc,
                       self._diff], self.block_dim)
         wp.copy(host, acc)
@@ -426,6 +432,9 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
 
     def _moments_chunk(self) -> int:
         return MOMENTS_CHUNK or self.chunk
+
+    def _moments_tri(self) -> bool:
+        return bool(MOMENTS_TRI and not self._q)
 
     def _graph_step(self) -> bool:
         """Whether a step's design is rendered and summed by its recorded work (:data:`STEP_GRAPH`)."""
@@ -444,6 +453,8 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             self._take_count()
         nz = NZ + self._q
         M = self._tables_q()[1].numpy().reshape(nv, nz, nz).copy()
+        if self._tri:  # (the entries above the diagonal mirrored below it)
+            M += np.swapaxes(np.triu(M, 1), 1, 2)
         self.timer.metric += time.perf_counter() - t0
         self.timer.calls += 1
         t1 = time.perf_counter()

@@ -363,3 +363,56 @@ def autocov_rows_dim(n_views: int, lag: int, n_chunks: int) -> tuple:
     """``(dim, groups)`` of :func:`autocov_rows_kernel` for a lag window of ``lag``."""
     groups = -(-(2 * int(lag) + 1) // int(AUTOCOV_GROUP))
     return (int(n_views), (int(lag) + 1) * groups, int(n_chunks)), groups
+
+
+NTRI = 78  # the 12 × 12 table's entries on and above the diagonal
+vec78f = wp.types.vector(length=78, dtype=wp.float32)
+_vec12f = wp.types.vector(length=12, dtype=wp.float32)
+
+
+@wp.kernel
+def wls_moments_tri_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
+                           y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
+                           oth: wp.array3d(dtype=wp.float32), ref_hw: wp.array(dtype=wp.vec2i), n_refs: int,
+                           chunk: int, acc: wp.array2d(dtype=wp.float64), diff: int):
+    """:func:`~core.tracking.likelihood_kernels.wls_moments_kernel` with the table's entries on and
+    above the diagonal only (78 of 144; each the same products summed in the same order): ``acc[v,
+    i · 12 + j]`` for ``i <= j``, the others left as they were (0: the host mirrors them). Half the
+    registers, the block's reduction and the atomics. dim = (views, chunks)."""
+    v, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    h = ref_hw[v][0]
+    w = ref_hw[v][1]
+    W = y.shape[2]
+    start = ch * chunk
+    stop = wp.min(y.shape[1] * W, start + chunk)
+    su = 2.0 / float(wp.max(w - 1, 1))
+    sv = 2.0 / float(wp.max(h - 1, 1))
+    s = vec78f()
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        c = p - r * W
+        if r < h and c < w:
+            wt = wgt[v, r, c]
+            if wt > 0.0:
+                z = _vec12f()
+                z[0] = y[v, r, c]
+                z[1] = _centre(drr, low, hp, v, r, c)
+                for j in range(6):
+                    z[2 + j] = _delta(drr, low, hp, j, n_refs, v, r, c, diff)
+                z[8] = 1.0
+                z[9] = float(c) * su - 1.0
+                z[10] = float(r) * sv - 1.0
+                z[11] = oth[v, r, c]
+                for i in range(12):  # (constant ranges: unrolled, every index a constant)
+                    for j in range(12):
+                        if j >= i:
+                            k = i * 12 - (i * (i - 1)) // 2 + j - i
+                            s[k] = s[k] + wt * (z[i] * z[j])
+    t = wp.tile_sum(wp.tile(s, preserve_type=True))
+    if lane == 0:
+        x = t[0]
+        for i in range(12):
+            for j in range(12):
+                if j >= i:
+                    wp.atomic_add(acc, v, i * 12 + j, wp.float64(x[i * 12 - (i * (i - 1)) // 2 + j - i]))

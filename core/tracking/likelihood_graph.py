@@ -20,7 +20,7 @@ import warnings
 import warp as wp
 
 from .engine_render import DeviceRender
-from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel
+from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel, wls_moments_tri_kernel
 from .likelihood_kernels import wls_moments_kernel
 
 __all__ = ["StepWork"]
@@ -55,8 +55,10 @@ class StepWork:
             cmds.append(wp.launch(blur_block_kernel, dim=blur_block_dim(self.dd.shape, axis), device=dev,
                                   record_cmd=True, inputs=[a, b, eng._taps, eng._ref_hw, nv, axis]))
         chunk = eng._moments_chunk()
-        self.moments = wp.launch_tiled(wls_moments_kernel, dim=(nv, math.ceil(Hc * Wc / chunk)),
-                                       block_dim=eng.block_dim, device=dev, record_cmd=True,
+        self.tri = bool(eng._moments_tri())
+        kernel = wls_moments_tri_kernel if self.tri else wls_moments_kernel
+        self.moments = wp.launch_tiled(kernel, dim=(nv, math.ceil(Hc * Wc / chunk)), block_dim=eng.block_dim,
+                                       device=dev, record_cmd=True,
                                        inputs=[self.dd, self.low, 1.0, eng._y, eng._w, eng._o, eng._ref_hw,
                                                nv, chunk, acc, 1])
         self.cmds = cmds
@@ -108,7 +110,7 @@ class _StepGraphs:
         dr.upload(self.base, self.center, self.roi)
         cap = tuple(self._cap)
         key = (cap, *(a.ptr for a in (self._y, self._w, self._o, self._ref_hw, self._taps, self._acc)),
-               self._moments_chunk(), self.block_dim)
+               self._moments_chunk(), self._moments_tri(), self.block_dim)
         hit = self._graphs.pop(key, None)
         if hit is None:
             render = self._renders.get(cap)

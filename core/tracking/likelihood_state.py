@@ -71,6 +71,7 @@ class _EngineState:
         self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
         self._last = None  # the last step's (images, low-passed images, x, h)
         self._diff = 0  # its images in design_diff_kernel's layout (DIFF_IMAGES)
+        self._tri = False  # its table summed on and above the diagonal only (MOMENTS_TRI)
         self._pending = None  # the half-steps of the step launched and not yet taken (step_result)
         self._done = None  # an event recorded after the last work a result waits for (_record)
         #: the rendered images copied into the engine's own buffer (refinements side by side:

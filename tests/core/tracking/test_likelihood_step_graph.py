@@ -46,3 +46,29 @@ def test_recorded_steps_are_the_plain_steps(talus_calcaneus_128, monkeypatch):
     eng = el.likelihood_engine(r, bone=0, views=(0, 1), highpass_px=2.0, lag_px=of.final_lag_px,
                                others_gain=of.final_others_gain)
     assert eng._graphs and all(w.graph is None for w in eng._graphs.values())  # (the CPU: no capture)
+
+
+def test_moments_triangle_is_the_full_table(talus_scene, monkeypatch):
+    """The table summed on and above its diagonal (engine_likelihood.MOMENTS_TRI), mirrored on the
+    host: the full table's entries to the bit (the same sums), with and without the design's
+    differences."""
+    import core.tracking.engine_likelihood as el
+    from core.tracking.cost import prepare_frame, search_roi
+
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    start = pose_from_params(np.r_[0.3, 0, 0, 0, np.radians(0.4), 0], center=model.centroid,
+                             base=sc.poses(2)[0])
+    fr = prepare_frame(talus_scene["fluence"](2), valid_range=None)
+    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
+    eng = el.LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
+    eng.set_frame(fr, base_pose=start, center=model.centroid, roi=roi)
+    x, h = np.array([0.05, -0.1, 0.0, 0.1, 0.0, -0.05]), np.full(6, 0.05)
+    for diff in (True, False):
+        monkeypatch.setattr(el, "DIFF_IMAGES", diff)
+        tables = []
+        for tri in (False, True):
+            monkeypatch.setattr(el, "MOMENTS_TRI", tri)
+            s = eng.step(x, h)
+            tables.append(s["M"])
+            assert eng._tri == tri
+        np.testing.assert_array_equal(tables[0], tables[1])

@@ -108,17 +108,22 @@ MEDIAN_BISECT = True
 
 
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
-                          device=None, bufs: dict | None = None):
+                          device=None, bufs: dict | None = None, launch=None):
     """:func:`core.tracking.final_stage.robust_factors` on the device: ``e``, ``w`` ``(views, H, W)``
     Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
     factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
     same Gaussian as the host's) and its per-view median taken there too (the views' used values
     sorted, :func:`warp.utils.segmented_sort_pairs`; the value of ``np.median``): no
-    synchronisation. ``bufs``: the caller's buffers, reused from call to call."""
+    synchronisation. ``bufs``: the caller's buffers, reused from call to call; ``launch``: the
+    caller's ``launch(name, kernel, dim, inputs)`` (recorded launches,
+    :meth:`~core.tracking.likelihood_launches._Launches._launch`; default :func:`warp.launch`)."""
     from ..similarity.batched import gaussian_weights  # scipy's gaussian_filter taps (truncate 4)
 
     device = device if device is not None else e.device
     bufs = {} if bufs is None else bufs
+    if launch is None:
+        def launch(_name, kernel, dim, inputs):
+            wp.launch(kernel, dim=dim, inputs=inputs, device=device)
     shape = tuple(e.shape)
 
     def buf(name, shp=shape, dtype=wp.float32):
@@ -132,11 +137,11 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
     if g is None:
         g = bufs[("rf_taps", float(sigma_px))] = wp.array(gaussian_weights(sigma_px, truncate=4.0),
                                                           dtype=wp.float32, device=device)
-    wp.launch(_robust_sq_kernel, dim=shape, inputs=[e, w, a, b], device=device)
-    wp.launch(_blur_pair_kernel, dim=shape, inputs=[a, b, g, 1, ta, tb], device=device)
-    wp.launch(_blur_pair_kernel, dim=shape, inputs=[ta, tb, g, 2, a, b], device=device)
+    launch("rf_sq", _robust_sq_kernel, shape, [e, w, a, b])
+    launch("rf_blur1", _blur_pair_kernel, shape, [a, b, g, 1, ta, tb])
+    launch("rf_blur2", _blur_pair_kernel, shape, [ta, tb, g, 2, a, b])
     local = buf("rf_local")
-    wp.launch(_local_rms_kernel, dim=shape, inputs=[a, b, w, local], device=device)
+    launch("rf_local", _local_rms_kernel, shape, [a, b, w, local])
     nv, n = shape[0], shape[1] * shape[2]
     keys = buf("rf_keys", (2 * nv * n,))
     vals = buf("rf_vals", (2 * nv * n,), wp.int32)
@@ -148,18 +153,22 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
                                          wp.array(starts[1:], dtype=wp.int32, device=device))
     scale = buf("rf_scale", (nv,))
     if MEDIAN_BISECT:  # each view's n keys at 2n·v, sorted on their own (their scratch after them)
-        wp.launch(_median_keys_only_kernel, dim=shape, inputs=[local, 2 * n, keys], device=device)
-        for v in range(nv):
-            wp.utils.radix_sort_pairs(keys[2 * n * v:2 * n * (v + 1)], vals[2 * n * v:2 * n * (v + 1)], n)
-        wp.launch(_median_sorted_kernel, dim=nv, inputs=[keys, n, 2 * n, scale], device=device)
+        launch("rf_keys", _median_keys_only_kernel, shape, [local, 2 * n, keys])
+        vkey = (keys.ptr, vals.ptr, nv, n)  # (each view's slices of these buffers, made once)
+        hit = bufs.get("rf_views")
+        if hit is None or hit[0] != vkey:
+            parts = [(keys[2 * n * v:2 * n * (v + 1)], vals[2 * n * v:2 * n * (v + 1)]) for v in range(nv)]
+            hit = bufs["rf_views"] = (vkey, parts)
+        for kv, vv in hit[1]:
+            wp.utils.radix_sort_pairs(kv, vv, n)
+        launch("rf_median", _median_sorted_kernel, (nv,), [keys, n, 2 * n, scale])
     else:
         count.zero_()
         wp.launch(_median_keys_kernel, dim=shape, inputs=[local, keys, count], device=device)
         wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
         wp.launch(_median_kernel, dim=nv, inputs=[keys, count, n, scale], device=device)
     out = buf("rf_out")
-    wp.launch(_robust_weight_kernel, dim=shape, device=device,
-              inputs=[local, scale, float(k), 1 if kind == "cauchy" else 0, out])
+    launch("rf_weight", _robust_weight_kernel, shape, [local, scale, float(k), int(kind == "cauchy"), out])
     return out
 
 

@@ -43,7 +43,11 @@ class _RegionWeights:
         (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
         e, _ = self._residual_device(s, jacobian=False, pin="lin_robust")  # (a sandwich's may be pending)
         return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
-                                     bufs=self._bufs)
+                                     bufs=self._bufs, launch=self._robust_launch)
+
+    def _robust_launch(self, name, kernel, dim, inputs) -> None:
+        """:func:`robust_factors_device`'s launches recorded (:meth:`_launch`)."""
+        self._launch(("robust", name), kernel, dim, inputs)
 
     def support(self, x=None) -> np.ndarray:
         """``(views, H, W)`` the bone's DRR at ``x`` (default the base pose) in the regions'

@@ -41,7 +41,14 @@ import warp as wp
 from .cost import CostTimer, OutsideViewError, mm_per_pixel
 from .engine import engine_cost, step_design, supports
 from .engine_search import LevenbergMarquardt
-from .register import RegistrationOptions, RegistrationResult, default_levels, result_of, search_region
+from .register import (
+    RegistrationOptions,
+    RegistrationResult,
+    before_stage,
+    default_levels,
+    result_of,
+    search_region,
+)
 
 __all__ = ["JointJob", "lockstep_applies", "register_together", "restarts_together"]
 
@@ -192,7 +199,8 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
             out[k] = exc
             continue
         # the single Gauss-Newton level of "newton" (wider half-steps on coarse pixels, newton_step)
-        lv = replace(default_levels(px * fs, sigma=o.sigma, search="newton")[-1], scale=fs)
+        # (with a final stage after it, its looser tolerance: before_stage)
+        lv = before_stage(replace(default_levels(px * fs, sigma=o.sigma, search="newton")[-1], scale=fs), o)
         sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
         lm = LevenbergMarquardt(np.zeros(6), step=sig6, lower=-hi, upper=hi, tol_x=lv.tol_x,
                                 max_generations=lv.max_generations, **dict(lv.options))

@@ -69,7 +69,14 @@ import numpy as np
 from . import optimize as opt
 from .cost import CostTimer, FrameImages, RegistrationCost, mm_per_pixel, search_roi, snap_roi
 from .quadratic import quadratic_search
-from .register_options import FINAL_STEP, Level, RegistrationOptions, default_levels, newton_step  # noqa: F401
+from .register_options import (  # noqa: F401
+    FINAL_STEP,
+    Level,
+    RegistrationOptions,
+    before_stage,
+    default_levels,
+    newton_step,
+)
 
 __all__ = ["Level", "RegistrationOptions", "RegistrationResult", "default_levels", "mm_per_pixel",
            "register"]
@@ -264,6 +271,8 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     if levels is None:
         px_mm = mm_per_pixel(renderer, base, center, views)
         levels = _automatic_levels(px_mm * fs, fs, o.sigma, search)
+        if search == "newton" and o.final is not None:  # a stage follows: its basin is enough
+            levels = tuple(before_stage(lv, o) for lv in levels)
     if roi is None:
         roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline,
                             snap=all(lv.method == "gauss_newton" for lv in levels))
@@ -331,7 +340,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         # the start, half resolution first (wider steps), then full resolution
         x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
         for i, lv in enumerate(_newton_fallback(mm_per_pixel(renderer, base, center, views) * fs)):
-            lv = replace(lv, scale=lv.scale * fs)
+            lv = before_stage(replace(lv, scale=lv.scale * fs), o)
             r = run_level(len(levels) + i, lv, x)
             stages.append(r)
             x = r.x

@@ -13,8 +13,8 @@ import numpy as np
 
 from .cost import DEFAULT_TERMS, NOISE_OPTION, MetricTerm
 
-__all__ = ["COARSE_NEWTON_MM", "COARSE_NEWTON_STEP_PX", "FINAL_STEP", "Level", "RegistrationOptions",
-           "default_levels", "newton_step"]
+__all__ = ["COARSE_NEWTON_MM", "COARSE_NEWTON_STEP_PX", "FINAL_STEP", "STAGE_SEARCH_TOL", "Level",
+           "RegistrationOptions", "before_stage", "default_levels", "newton_step"]
 
 _METHODS = ("cmaes", "pso", "pattern", "quadratic", "nelder_mead", "powell", "gauss_newton")
 _SEARCHES = ("global", "local", "newton", "global_newton")
@@ -29,6 +29,13 @@ COARSE_NEWTON_MM = 0.6
 #: The Gauss–Newton search's translation half-step on coarse pixels, in pixels (rotation: twice
 #: that in degrees, the ratio of :data:`FINAL_STEP`).
 COARSE_NEWTON_STEP_PX = 0.45
+#: With a final stage after it (``final`` of :class:`RegistrationOptions`), the ``"newton"`` search's
+#: full-resolution Gauss–Newton level stops once every coordinate of its next step is below this (mm,
+#: degrees) instead of its own ``tol_x`` (0.02): the stage refines the pose by its own cost, so the
+#: similarity's search only needs to land inside the stage's basin, not converge to its own optimum
+#: (:func:`before_stage`). None: the search as without a stage. First frames and retries (the
+#: ``"global_newton"`` search) and the restart check keep their levels.
+STAGE_SEARCH_TOL: float | None = 0.25
 
 
 def newton_step(mm_per_px: float) -> tuple[tuple[float, float], dict]:
@@ -57,6 +64,18 @@ def newton_step(mm_per_px: float) -> tuple[tuple[float, float], dict]:
         return FINAL_STEP, {}
     t = max(FINAL_STEP[0], round(COARSE_NEWTON_STEP_PX * mm_per_px, 2))
     return (t, round(t * FINAL_STEP[1] / FINAL_STEP[0], 2)), {"gradient": "corrected"}
+
+
+def before_stage(level: Level, options: RegistrationOptions) -> Level:
+    """``level`` as the ``"newton"`` search runs it in a registration of ``options``: with a final
+    stage (``options.final``) and :data:`STAGE_SEARCH_TOL` set, a full-resolution Gauss–Newton
+    level stops at that looser tolerance (its ``tol_x`` the larger of the two); otherwise
+    ``level`` itself."""
+    tol = STAGE_SEARCH_TOL
+    if (options.final is None or tol is None or level.method != "gauss_newton"
+            or level.scale != options.final_scale or level.tol_x >= tol):
+        return level
+    return replace(level, tol_x=float(tol))
 
 
 @dataclass(frozen=True)

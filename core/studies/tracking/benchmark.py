@@ -53,10 +53,11 @@ import argparse
 import os
 import platform
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["main", "run"]
+__all__ = ["FINALS", "main", "run"]
 
 
 def _floor(r, frames: int, results, bone_names) -> dict | None:
@@ -238,8 +239,8 @@ def _final_runs(final: str, options) -> list:
     from dataclasses import replace
 
     finals = [f.strip() for f in str(final).split(",")]
-    if not all(f in ("none", "likelihood") for f in finals):
-        raise ValueError(f"final: expected none, likelihood or a comma-separated list of them, got {final!r}")
+    if not all(f in FINALS for f in finals):
+        raise ValueError(f"final: expected one of {FINALS} or a comma-separated list of them, got {final!r}")
     out, seen = [], {}
     for f in finals:
         seen[f] = seen.get(f, 0) + 1
@@ -247,6 +248,27 @@ def _final_runs(final: str, options) -> list:
         oo = options if options is None or f == "none" else replace(options, refine_likelihood=True)
         out.append((suffix, oo))
     return out
+
+
+#: the ``--final`` entries: no stage, the likelihood stage after the search at its looser tolerance
+#: (:data:`core.tracking.register_options.STAGE_SEARCH_TOL`, the default), or after the search run to
+#: its own tolerance (``likelihood_full``: that constant None, as before)
+FINALS = ("none", "likelihood", "likelihood_full")
+
+
+@contextmanager
+def _search_tol(entry: str):
+    """:data:`~core.tracking.register_options.STAGE_SEARCH_TOL` for a ``--final`` entry's runs (None
+    for ``likelihood_full``; the module's value otherwise)."""
+    import core.tracking.register_options as ro
+
+    kept = ro.STAGE_SEARCH_TOL
+    if entry == "likelihood_full":
+        ro.STAGE_SEARCH_TOL = None
+    try:
+        yield ro.STAGE_SEARCH_TOL
+    finally:
+        ro.STAGE_SEARCH_TOL = kept
 
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,
@@ -314,10 +336,13 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
         runs.append((f"_{other}", replace(base, registration=replace(base.registration, search=other))))
     for case, bones in (("one_bone", [1]), ("three_bones", [0, 1, 2])):
         if cases in (case.split("_")[0], "both"):
-            for suffix, oo in runs:
-                res[case + suffix] = _case(ts, bones, oo, n, int(repeats), cr)
+            for (suffix, oo), entry in zip(runs, finals + ["none"] * (len(runs) - len(finals)), strict=True):
+                with _search_tol(entry if oo.refine_likelihood else "none") as tol:
+                    res[case + suffix] = _case(ts, bones, oo, n, int(repeats), cr)
                 # what this case ran: the top level's "options" are the runs' without the final stage
                 res[case + suffix]["final"] = "likelihood" if oo.refine_likelihood else "none"
+                if oo.refine_likelihood:  # the search's tolerance before the stage (None: its own 0.02)
+                    res[case + suffix]["stage_search_tol"] = tol
     res["autoscoper_reference_s_per_frame_per_bone"] = [3.0, 13.0]
     return res
 
@@ -341,8 +366,10 @@ def main(argv=None, *, prog: str = "python -m core.studies.tracking.benchmark") 
     p.add_argument("--metric", choices=("magnitudes", "components"), default="magnitudes",
                    help="gradient correlation of the gradient magnitudes (default) or components")
     p.add_argument("--final", default="none",
-                   help="final stage: none (default), likelihood, or a comma-separated list run in turn "
-                        "on the same scene (e.g. none,likelihood,likelihood,none)")
+                   help="final stage: none (default), likelihood (after the search at its looser "
+                        "tolerance before a stage), likelihood_full (after the search to its own tolerance, "
+                        "as before), or a comma-separated list run in turn on the same scene "
+                        "(e.g. none,likelihood)")
     p.add_argument("--no-bound", action="store_true", help="skip the Cramér-Rao bound")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)

@@ -23,3 +23,19 @@ def test_run_refuses_an_unknown_final_stage_before_making_the_scene():
 
     with pytest.raises(ValueError, match="final"):
         run(quick=True, device="cpu", frames=2, pixels=64, cases="one", final="likelihood,plain")
+
+
+def test_likelihood_full_runs_the_stage_after_the_search_to_its_own_tolerance():
+    import core.tracking.register_options as ro
+    from core.studies.tracking.benchmark import _final_runs, _search_tol
+    from core.tracking.trial import TrackingOptions
+
+    runs = _final_runs("likelihood_full,likelihood", TrackingOptions(mode="joint"))
+    assert [k for k, _ in runs] == ["_likelihood_full", "_likelihood"]
+    assert all(oo.refine_likelihood for _, oo in runs)
+    kept = ro.STAGE_SEARCH_TOL
+    with _search_tol("likelihood_full") as tol:
+        assert tol is None and ro.STAGE_SEARCH_TOL is None
+    assert ro.STAGE_SEARCH_TOL == kept
+    with _search_tol("likelihood") as tol:
+        assert tol == kept

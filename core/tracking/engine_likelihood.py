@@ -283,8 +283,8 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             self._host_upload(rois, masks, li, mask)
         else:
             self._stage(frame, staged, li, mask)
-        self._uploaded()
         self._frame_others(others, li)
+        self._uploaded()  # (after the neighbours' item table's upload too: _render_own)
         # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
         # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))

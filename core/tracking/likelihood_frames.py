@@ -158,7 +158,8 @@ class _FrameRegions:
         if not n:
             self._y_raw = li
             return
-        img = self._render(np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1]))
+        P, bones = np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1])
+        img = self._render_own(P, bones) if self._graph_step() else self._render(P, bones)
         y = self._y_raw = self._buffer("y_raw", (nv, Hc, Wc))
         o = self._buffer("o_raw", (nv, Hc, Wc))
         gain = self._with_o or self._psf is not None  # the PSF's blur before the subtraction

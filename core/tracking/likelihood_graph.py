@@ -10,15 +10,19 @@ copy of 78 numbers into pinned memory and one graph launch, where the plain step
 table on the host, uploaded it through the renderer's pinned buffer (waiting for that buffer's
 previous upload: the device's work on every step enqueued before it, the bones' stages side by
 side sharing it) and made 7 launches. The same values as the plain step's (its kernels, buffers of
-its own). A mixin of the engine's."""
+its own). With it the frame's neighbours' DRRs (:meth:`_StepGraphs._render_own`) go up through the
+engine's own pinned item table, not the renderer's shared one. A mixin of the engine's."""
 
 from __future__ import annotations
 
 import math
 import warnings
 
+import numpy as np
 import warp as wp
 
+from ..render import _kernels as RK
+from ..render._kernels import ITEM_COLS
 from .engine_render import DeviceRender
 from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel, wls_moments_tri_kernel
 from .likelihood_kernels import wls_moments_kernel
@@ -123,3 +127,50 @@ class _StepGraphs:
             hit = StepWork(self, cap, render, key)
         self._graphs[key] = hit  # (most recently used last)
         return hit
+
+    def _render_own(self, P, bones: tuple) -> wp.array:
+        """:func:`~core.tracking.engine_render.render_items` (the same item table, the same launch)
+        through the engine's own pinned buffer, item table and images instead of the renderer's
+        shared ones: no wait for another engine's upload from them (the neighbours' DRRs of
+        :meth:`set_frame`; its wait for the engine's last uploads covers this buffer's)."""
+        r = self.renderer
+        B, nb = P.shape[:2]
+        nv = self.n_views
+        key = (B, bones)
+        hit = self._tables.get(key)
+        if hit is None:
+            table = np.zeros((B, nv, nb, ITEM_COLS), dtype=np.float32)
+            table[..., 0] = np.array(self.views, dtype=np.float32)[None, :, None]
+            table[..., 1] = np.array(bones, dtype=np.float32)[None, None, :]
+            if len(self._tables) >= 8:
+                self._tables.pop(next(iter(self._tables)))
+            hit = self._tables[key] = [table, r._T_idx[list(bones)], r._src_h[list(self.views)], None]
+        table, T, S, roi_in = hit
+        M = T[:, :3, :3] @ np.swapaxes(P[..., :3, :3], -1, -2)  # (as render_items)
+        tt = T[:, :3, 3] - (M @ P[..., :3, 3:4])[..., 0]
+        table[..., 2:5] = (M @ S[:, :3].T).transpose(0, 3, 1, 2) + tt[:, None] * S[None, :, None, 3:4]
+        table[..., 5:14] = M.reshape(B, 1, nb, 9)
+        if roi_in is None or not np.array_equal(roi_in, self.roi):
+            table[..., 14:18] = self.roi[None, :, None, :]
+            hit[3] = self.roi.copy()
+        H, W = self._cap  # (render_items' size: the ROIs fit the cap)
+        n = B * nv * nb
+        own = self.__dict__.setdefault("_own_renders", {})
+        got = own.get((n, H, W))
+        if got is None:
+            dev = self.device
+            if len(own) >= KEEP:
+                own.pop(next(iter(own)))
+            host = wp.zeros((n, ITEM_COLS), dtype=wp.float32, device="cpu", pinned=dev.is_cuda)
+            items = wp.zeros((n, ITEM_COLS), dtype=wp.float32, device=dev)
+            out = wp.zeros((n, H, W), dtype=wp.float32, device=dev)
+            cmd = wp.launch(r._kernel, dim=RK.tiled_threads(n, H, W), device=dev, block_dim=r.block_dim,
+                            record_cmd=True,
+                            inputs=[r._atlas, r._dist, float(self.scale), float(r.step_mm),
+                                    float(r._value_scale), items, r._cam_M, r._vol_dims, r._vol_zoff, out])
+            got = own[(n, H, W)] = (host, host.numpy(), items, out, cmd)
+        host, host_np, items, out, cmd = got
+        host_np[...] = table.reshape(n, ITEM_COLS)
+        wp.copy(items, host)
+        cmd.launch()
+        return out

@@ -46,9 +46,11 @@ Measurements
   centroid position error (mm) and of the rotation error angle (degrees) over all frames, the
   converged fraction, flagged frames as the run returned them (the failure checks' and the
   trajectory post-pass's, :mod:`core.tracking.flags_post`, on by default; those the post-pass alone
-  flagged apart: ``flagged_off_trajectory_only``), frames over 4× the bone's bound flagged or
-  silent (``over_4x_bound``, with what the run showed of each silent one: ``silent_details``), and
-  *silent failures* (unflagged frames with an error above 0.5 mm or 0.5°);
+  flagged apart: ``flagged_off_trajectory_only``) with each one's reasons (``flag_reasons``: frame ->
+  its flags, then its notes marked ``note:``; :mod:`core.studies.tracking.acceptance_records`),
+  frames over 4× the bone's bound flagged or silent (``over_4x_bound``, with what the run showed of
+  each silent one: ``silent_details``), and *silent failures* (unflagged frames with an error above
+  0.5 mm or 0.5°);
 * **filtered trajectories** — the same errors after the zero-phase Butterworth low-pass of
   :meth:`core.tracking.trial.TrackingResult.filtered_poses` (cut-off by Winter's residual
   analysis per bone) at the scene's frame rate: 100 frames span 0.6 of a 0.6 s stance,
@@ -70,8 +72,9 @@ Measurements
 * **goals** — issue 20's per bone, measured and met or not (``goals``,
   :func:`core.studies.tracking.acceptance_goals.goals`: ≤ 1.25× the bound in mm and °, ≥ 99 %
   converged, no silent frame over 4× the bound, ≥ 90 % of the translation and of the rotation axes
-  within 2σ); with ``--mode joint,sequential`` (both modes in turn on the same frames)
-  ``joint_vs_sequential``, decided on the paired per-frame errors with a margin of 0.125× the bound
+  within 2σ; each frame over 4× the bound, whether it was flagged and why: ``over_4x_frames``);
+  with ``--mode joint,sequential`` (both modes in turn on the same frames) ``joint_vs_sequential``,
+  decided on the paired per-frame errors with a margin of 0.125× the bound
   (:func:`~core.studies.tracking.acceptance_goals.compare_modes`; ``python -m
   core.studies.tracking.acceptance_goals --regoal FILE`` recomputes a stored result's goals);
 * **joint space** — the smallest signed surface distance of tibia–talus and talus–calcaneus over
@@ -105,8 +108,9 @@ import time
 
 import numpy as np
 
-from core.geometry.transforms import params_from_pose, pose_from_params
+from core.geometry.transforms import pose_from_params
 from core.studies.tracking.acceptance_figure import LEGEND_HEADROOM, _figure
+from core.studies.tracking.acceptance_records import add_bound, bone_records, pose_errors
 from core.studies.tracking.grid_correction import TRIAL_BONES, grid_corrections, model_corrections
 
 __all__ = ["CORRECTIONS", "DEFAULT_CORRECTION", "FRAME_RATE_HZ", "LEGEND_HEADROOM", "TrackingScene",
@@ -252,12 +256,6 @@ def tracking_scene(*, quick: bool, device: str | None = None, seed: int = 0, n_f
                          phase=(0.0, 0.6 * n / 100.0), device=device, glare=glare, correction=correction)
 
 
-def pose_errors(pose: np.ndarray, truth: np.ndarray, center: np.ndarray) -> np.ndarray:
-    """``(6,)`` error of ``pose`` vs ``truth``: centroid displacement (mm) and rotation vector (deg)."""
-    e = params_from_pose(pose, center=center, base=truth)
-    return np.r_[e[:3], np.degrees(e[3:])]
-
-
 def _random_offset(g: np.random.Generator, mm: float, deg: float) -> np.ndarray:
     d, a = g.normal(size=3), g.normal(size=3)
     return np.r_[d / np.linalg.norm(d) * mm, a / np.linalg.norm(a) * np.radians(deg)]
@@ -369,7 +367,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     processes for the frames' image chain (0: this one); ``ts``: a scene made already
     (:func:`tracking_scene`, its frames kept: several modes on the same frames; ``quick``,
     ``seed``, ``n_frames``, ``correction`` and ``glare`` are then the scene's)."""
-    from core.studies.tracking.acceptance_goals import flag_counts, goals, joint_space, silent_details
+    from core.studies.tracking.acceptance_goals import goals, joint_space
     from core.studies.tracking.trial_frames import synthesise
     from core.tracking.trial import track
 
@@ -385,62 +383,10 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     synthesise(ts, range(ts.scene.n_frames), workers)  # the images first: not part of tracking time
     setup = time.perf_counter() - t0
     res = track(ts.renderer, ts.models, ts.frames, range(ts.scene.n_frames), keyframes=keyframes, options=o)
-    per_bone, all_err, all_filt, frames_with_pose = {}, {}, {}, {}
-    for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
-        if any(r.pose is not None and not r.flags for (bn, _), r in res.results.items() if bn == n):
-            F, cutoff = res.filtered_poses(n, FRAME_RATE_HZ, center=m.centroid)
-        else:  # every frame flagged or missing: the low-pass has nothing to go through
-            F, cutoff = np.full((ts.scene.n_frames, 4, 4), np.nan), None
-        ff = [f for f in range(ts.scene.n_frames) if np.all(np.isfinite(F[f]))]
-        Ef = np.array([pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in ff]).reshape(-1, 6)
-        all_filt[n] = (ff, Ef)
-        rows, inside, silent, conv, sig = [], [], 0, 0, []
-        frames_with_pose[n] = []
-        for f in range(ts.scene.n_frames):
-            fr = res.results[(n, f)]
-            conv += fr.converged
-            if fr.pose is None:
-                continue
-            e = pose_errors(fr.pose, ts.truth(f)[b], m.centroid)
-            rows.append(e)
-            frames_with_pose[n].append(f)
-            sig.append(fr.confidence["sigma"] if fr.confidence else None)
-            bad = np.linalg.norm(e[:3]) > 0.5 or np.linalg.norm(e[3:]) > 0.5
-            silent += bool(bad and not fr.flags)
-            if fr.confidence and all(s is not None for s in fr.confidence["sigma"]):
-                inside.append(np.abs(e) <= 2 * np.array(fr.confidence["sigma"]))
-        E = np.array(rows).reshape(-1, 6)  # no row: the bone has no pose in any frame
-        all_err[n] = E
-        motion = [np.linalg.norm(pose_errors(ts.truth(f + 1)[b], ts.truth(f)[b], m.centroid)[:3])
-                  for f in range(ts.scene.n_frames - 1)]
-        per_bone[n] = {
-            **_error_stats(E), "filtered": {"cutoff_hz": cutoff, **_error_stats(Ef), "frames": len(Ef)},
-            "mean_error": {"mm": E[:, :3].mean(0).round(4).tolist(),
-                           "deg": E[:, 3:].mean(0).round(4).tolist()} if len(E) else None,
-            "converged_fraction": conv / ts.scene.n_frames,
-            **flag_counts(res, n),
-            "silent_failures": silent,
-            "within_2_sigma_fraction": float(np.mean(inside)) if inside else None,
-            "motion_per_frame_mm": {"median": float(np.median(motion)), "max": float(np.max(motion))},
-            "per_frame_sigma": [None if q is None else [None if v is None else round(v, 5) for v in q]
-                                for q in sig],
-        }
+    rec = bone_records(ts, res, FRAME_RATE_HZ)  # per bone: errors, flags and their reasons, σ
     bound = cramer_rao(ts, range(0, ts.scene.n_frames, max(1, ts.scene.n_frames // 10)))
-    for n, E in all_err.items():
-        if n in bound:
-            cb = bound[n]
-            per_bone[n]["cramer_rao"] = cb
-            t = per_bone[n]  # None over the bound where the bone has no (filtered) frame
-            t["rms_over_bound"] = {k: None if v is None else v / cb[f"rms_{u}"] for k, v, u in (
-                ("mm", t["rms_error_mm"], "mm"), ("deg", t["rms_error_deg"], "deg"),
-                ("filtered_deg", t["filtered"]["rms_error_deg"], "deg"))}
-            t["std_error"] = {"mm": E[:, :3].std(0).round(4).tolist(),
-                              "deg": E[:, 3:].std(0).round(4).tolist()} if len(E) else None
-            ob = per_bone[n]["over_4x_bound"] = _over_bound(res, n, E, frames_with_pose[n], cb)
-            ob["silent_details"] = silent_details(res, n, ts.models[ts.names.index(n)].centroid, dict(
-                zip(frames_with_pose[n], E, strict=True)), cb, ob["silent_frames"])  # what the run showed
-        per_bone[n]["per_frame_error"] = E.round(5).tolist()
-        per_bone[n]["frames_with_pose"] = frames_with_pose[n]  # per_frame_error's, per_frame_sigma's
+    add_bound(rec, ts, res, bound)  # × the bound, the frames over 4× it; per-frame errors
+    per_bone = rec.tracking
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
            "frames": ts.scene.n_frames, "seed": seed, "mode": mode, "search": o.registration.search,
            "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact), "correction": correction,
@@ -464,21 +410,9 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
         out["capture_range"] = capture_range(ts, trials=trials, options=o, seed=seed + 1)
     out["total_s"] = time.perf_counter() - t0
     if figure:
-        _figure({n: (frames_with_pose[n], E) for n, E in all_err.items()}, all_filt, figure, cfg, bound,
+        _figure({n: (rec.frames[n], E) for n, E in rec.errors.items()}, rec.filtered, figure, cfg, bound,
                 {n: t["flagged_frames"] for n, t in per_bone.items()})
     return out
-
-
-def _error_stats(E: np.ndarray) -> dict:
-    """RMS and largest translation/rotation errors of ``E`` (frames' (n, 6) errors, per frame or
-    filtered); None where it has no frame (no pose in any frame; for the filter, every frame flagged
-    or missing: it keeps them NaN)."""
-    if not len(E):
-        return {"rms_error_mm": None, "rms_error_deg": None, "max_error_mm": None, "max_error_deg": None}
-    et, er = np.linalg.norm(E[:, :3], axis=1), np.linalg.norm(E[:, 3:], axis=1)
-    return {"rms_error_mm": float(np.sqrt(np.mean(et ** 2))),
-            "rms_error_deg": float(np.sqrt(np.mean(er ** 2))), "max_error_mm": float(et.max()),
-            "max_error_deg": float(er.max())}
 
 
 def study_options(mode: str, search: str | None = None, sequential_subtract: bool | None = None, *,
@@ -510,18 +444,6 @@ def study_options(mode: str, search: str | None = None, sequential_subtract: boo
     if o.mode == "sequential" and o.sequential_subtract is None:
         o = replace(o, sequential_subtract=True)
     return o
-
-
-def _over_bound(res, name: str, E: np.ndarray, frames: list, bound: dict, k: float = 4.0) -> dict:
-    """The issue's failure count: frames whose translation or rotation error is over ``k`` times the
-    bone's Cramér–Rao bound (RMS of its per-frame bounds), flagged or not (*silent*)."""
-    over = (np.linalg.norm(E[:, :3], axis=1) > k * bound["rms_mm"]) | (np.linalg.norm(E[:, 3:], axis=1)
-                                                                        > k * bound["rms_deg"])
-    bad = [f for f, o in zip(frames, over, strict=True) if o]
-    silent = [f for f in bad if not res.results[(name, f)].flags]
-    good_flagged = [f for f, o in zip(frames, over, strict=True) if not o and res.results[(name, f)].flags]
-    return {"k": k, "frames": bad, "silent": len(silent), "silent_frames": silent,
-            "false_flags": len(good_flagged)}
 
 
 def _mode_path(path: str, mode: str) -> str:

@@ -1,10 +1,12 @@
 """Issue 20's goals on the acceptance trial (:mod:`core.studies.tracking.acceptance`): per bone the
-goals met or not (:func:`goals`; the 2σ coverage per axis, :func:`sigma_coverage`), the flagged
-frames as the run returned them (:func:`flag_counts`), joint against sequential tracking on the
+goals met or not (:func:`goals`; the 2σ coverage per axis, :func:`sigma_coverage`; each frame over 4×
+the bound, flagged or not and why, :func:`over_4x_frames`), joint against sequential tracking on the
 paired per-frame errors (:func:`compare_modes`, as the harder trial's goal is decided:
 :func:`core.studies.tracking.hard_trial_stats.paired_comparison`, margin :func:`joint_margin`) and
-the smallest joint space against the truth's (:func:`joint_space`), and what a user's run showed of
-each silent frame over 4× the bound (:func:`silent_details`).
+the smallest joint space against the truth's (:func:`joint_space`). The flagged frames as the run
+returned them (``flag_counts``) and what a user's run showed of each silent frame over 4× the bound
+(``silent_details``) are :mod:`core.studies.tracking.acceptance_records`' (importable from here as
+before).
 
 ``python -m core.studies.tracking.acceptance_goals --regoal FILE [--joint-from FILE] [--out FILE]``
 recomputes the goals of a stored result without tracking (:func:`regoal`, :func:`main`).
@@ -26,9 +28,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from core.studies.tracking.acceptance_records import NOTE, flag_counts, silent_details
+
 __all__ = ["DRIFT_SEQUENTIAL", "GOALS", "JOINT_MARGIN_OF_GOAL", "PAIRS", "compare_drift", "compare_modes",
-           "flag_counts", "goals", "joint_margin", "joint_space", "main", "paired_errors", "paired_units",
-           "pool_drift", "regoal", "sigma_coverage", "silent_details"]
+           "flag_counts", "goals", "joint_margin", "joint_space", "main", "over_4x_frames", "paired_errors",
+           "paired_units", "pool_drift", "regoal", "sigma_coverage", "silent_details"]
 
 
 #: Bone pairs that touch in the trial (talocrural, subtalar): :func:`joint_space`.
@@ -108,73 +112,6 @@ def _mask_gap(ts):
     return gap
 
 
-def flag_counts(res, name: str) -> dict:
-    """The bone's flagged frames as the run returned them (the failure checks' flags and the
-    trajectory post-pass's), and how many of them the post-pass alone flagged."""
-    from core.tracking.flags_post import FLAG
-
-    mine = {f: r.flags for (bn, f), r in res.results.items() if bn == name and r.flags}
-    post = [f for f, fl in mine.items() if all(s.startswith(FLAG) for s in fl)]
-    return {"flagged_frames": sorted(mine), "flagged_off_trajectory_only": sorted(post)}
-
-
-def _rounded(v: float, digits: int = 3) -> float | None:
-    """``v`` to ``digits`` decimals, None where it is NaN (no residual) or infinite."""
-    return None if not np.isfinite(v) else round(float(v), digits)
-
-
-def silent_details(res, name: str, center, errors: dict, bound: dict, silent) -> list:
-    """Per silent frame of bone ``name`` (``silent``: frames over 4× the bound left unflagged), what
-    the run showed of it: its error (mm, °, and × the bone's bound ``rms_mm`` / ``rms_deg``), score,
-    convergence, confidence σ and notes; the errors × the bound of the frames within ±2 (a run of
-    frames off, or one alone); the flagged frames within the trajectory check's window; and the
-    trajectory check's view of it (:mod:`core.tracking.flags_post`, recomputed on the returned poses):
-    its residual against the fit through its good neighbours — with the frames only the post-pass
-    flagged in the fit (``first``, the pass's first judgement; the bone's median of those is the
-    scale) and without any flagged frame (``last``) — in mm and ° and × the scale, beside the limit
-    (:data:`~core.tracking.flags_post.LIMIT` × the scale) and the next-to-flagged rule's
-    (:data:`~core.tracking.flags_post.NEAR` × the limit). ``errors``: frame -> ``(6,)`` error."""
-    from core.tracking.flags_post import FLAG, HALF_WINDOW, LIMIT, NEAR, trajectory_residuals
-
-    mine = {f: r for (bn, f), r in res.results.items() if bn == name}
-    fs = sorted(f for f, r in mine.items() if r.pose is not None)
-    P = np.array([mine[f].pose for f in fs], dtype=float).reshape(-1, 4, 4)
-    own = np.array([any(not s.startswith(FLAG) for s in mine[f].flags) for f in fs], dtype=bool)
-    anyf = np.array([bool(mine[f].flags) for f in fs], dtype=bool)
-    R = {}
-    for k, drop in (("first", own), ("last", anyf)):
-        Q = P.copy()
-        Q[drop] = np.nan
-        R[k] = trajectory_residuals(fs, Q, center) if len(fs) else np.zeros((0, 2))
-    fin = np.isfinite(R["first"]).all(axis=1)
-    med = np.median(R["first"][fin], axis=0) if fin.any() else np.full(2, np.nan)
-
-    def over(f):
-        e = errors.get(f)
-        return None if e is None else round(float(max(np.linalg.norm(e[:3]) / bound["rms_mm"],
-                                                      np.linalg.norm(e[3:]) / bound["rms_deg"])), 2)
-
-    out = []
-    for f in silent:
-        r, e, i = mine[f], np.asarray(errors[f], dtype=float), fs.index(f)
-        et, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
-        traj = {k: {"mm": _rounded(R[k][i, 0], 4), "deg": _rounded(R[k][i, 1], 4),
-                    "x_median": [_rounded(R[k][i, u] / med[u], 2) for u in (0, 1)]} for k in R}
-        out.append({"frame": int(f), "error_mm": round(et, 4), "error_deg": round(er, 4),
-                    "over_bound": [round(et / bound["rms_mm"], 2), round(er / bound["rms_deg"], 2)],
-                    "error": np.round(e, 4).tolist(), "score": _rounded(r.score, 6),
-                    "converged": bool(r.converged), "retried": bool(r.retried), "notes": list(r.notes),
-                    "sigma": (r.confidence or {}).get("sigma"),
-                    "neighbours_over_bound": {str(g): over(g) for g in range(f - 2, f + 3)
-                                              if g in mine and g != f},
-                    "flagged_within_window": [g for g in sorted(mine)
-                                              if mine[g].flags and 0 < abs(g - f) <= HALF_WINDOW],
-                    "trajectory": {**traj, "median_mm": _rounded(med[0], 4),
-                                   "median_deg": _rounded(med[1], 4), "limit_x_median": LIMIT,
-                                   "near_x_median": round(NEAR * LIMIT, 3)}})
-    return out
-
-
 #: Issue 20's per-frame goals on the acceptance trial (:func:`goals`). ``min_within_2_sigma`` is
 #: checked per axis, the translation axes and the rotation axes each (:func:`sigma_coverage`), as
 #: the harder trial's is (:mod:`core.studies.tracking.hard_trial_stats`).
@@ -226,12 +163,35 @@ def sigma_coverage(t: dict) -> dict | None:
     return {**cov, "frames_without_sigma": int(np.isnan(sig).all(axis=1).sum())}
 
 
+def over_4x_frames(t: dict) -> list | None:
+    """Each frame of a bone's stored record ``t`` over 4× its bound (``over_4x_bound``'s ``frames``),
+    whether the run flagged it and why: ``{"frame", "flagged", "reasons"}``, a flagged frame's reasons
+    its ``flag_reasons`` (flags, then notes), a silent one's its notes (``silent_details``), marked
+    :data:`~core.studies.tracking.acceptance_records.NOTE` as there. None where the record has no
+    ``flag_reasons`` (a run before them) or no ``over_4x_bound`` (no bound); a silent frame without
+    ``silent_details`` has no ``reasons``."""
+    ob, why = t.get("over_4x_bound"), t.get("flag_reasons")
+    if ob is None or why is None:
+        return None
+    silent = set(ob.get("silent_frames", ()))
+    notes = {d["frame"]: [NOTE + s for s in d.get("notes", ())] for d in ob.get("silent_details") or ()}
+    out = []
+    for f in ob.get("frames", ()):
+        if f not in silent:
+            out.append({"frame": f, "flagged": True, "reasons": why.get(str(f), [])})
+        else:
+            out.append({"frame": f, "flagged": False, **({"reasons": notes[f]} if f in notes else {})})
+    return out
+
+
 def goals(per_bone: dict) -> dict:
     """Per bone, each of :data:`GOALS` — the measured value and whether it is met. The 2σ coverage
     is checked per axis on the stored per-frame errors and σ (:func:`sigma_coverage`):
     ``within_2_sigma_translation`` and ``within_2_sigma_rotation`` each at least 90 % (a correct σ
     gives 95.4 %; ``sigma_coverage`` has every measure); a bone without per-frame σ keeps the
-    fraction of all its axes (``within_2_sigma``)."""
+    fraction of all its axes (``within_2_sigma``). Each frame over 4× the bound, flagged or not and why
+    (``over_4x_frames``, :func:`over_4x_frames`): where the record has the flagged frames' reasons
+    (absent for a run stored before them)."""
     out = {}
     for n, t in per_bone.items():
         g = {"converged_fraction": [t["converged_fraction"],
@@ -251,6 +211,8 @@ def goals(per_bone: dict) -> dict:
                 v = cov["per_axis"][k]["observed"]
                 g[f"within_2_sigma_{k}"] = [v, bool(v >= GOALS["min_within_2_sigma"])]
             g["sigma_coverage"] = cov
+        if (over := over_4x_frames(t)) is not None:
+            g["over_4x_frames"] = over
         out[n] = g
     return out
 
@@ -461,7 +423,7 @@ def main(argv=None) -> int:
             other = json.load(fh)
     done = regoal(d, other)
     dirty = _git("status", "--porcelain", "--", "core/studies/tracking/acceptance_goals.py",
-                 "core/studies/tracking/hard_trial_stats.py")
+                 "core/studies/tracking/acceptance_records.py", "core/studies/tracking/hard_trial_stats.py")
     cmd = "python -m core.studies.tracking.acceptance_goals --regoal " + a.regoal
     cmd += f" --joint-from {a.joint_from}" if a.joint_from else ""
     d["regoal"] = {"command": cmd + (f" --out {a.out}" if a.out else ""),

@@ -49,7 +49,7 @@ import numpy as np
 __all__ = ["analyse", "cost_line", "count", "dump_run", "main"]
 
 #: The issue's failure: an error over this many times the bone's Cramér–Rao bound (RMS of its
-#: per-frame bounds), translation or rotation (:func:`core.studies.tracking.acceptance._over_bound`).
+#: per-frame bounds), translation or rotation (:func:`core.studies.tracking.acceptance_records.over_bound`).
 OVER = 4.0
 
 

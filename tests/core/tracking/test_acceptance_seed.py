@@ -79,27 +79,45 @@ def test_silent_details_give_the_frames_error_neighbours_and_trajectory_residual
     assert silent_details(res, "talus", C, errors, bound, []) == []
 
 
-def test_run_records_the_seed_and_the_silent_frames(monkeypatch):
+def test_run_records_the_seed_the_silent_frames_and_the_flagged_frames_reasons(monkeypatch):
     """run() with the tracker replaced by the true poses 0.01 mm off, the talus's frame 6 2 mm off
-    and unflagged: its config has the seed, the frame is silent with its details (64², 10 frames)."""
+    and unflagged (with a note), frame 3 2 mm off and flagged (with a note), frame 8 flagged though
+    good: its config has the seed, frame 6 is silent with its details; the record keeps frames 3 and
+    8's reasons, the goals list frames 3 and 6 over 4x the bound, flagged or not and why (64², 10
+    frames)."""
     import core.tracking.trial as trial_mod
+    from core.studies.tracking.acceptance_goals import regoal
+    from core.studies.tracking.acceptance_records import NOTE
     from core.tracking.results import FrameResult, TrackingResult
 
     ts = acceptance.TrackingScene(n_frames=10, pixels=64, spacing=2.0, device="cpu", names=("talus",))
+    flags = {3: ("score drop",), 8: (f"{FLAG} (1.2x)",)}
+    notes = {3: ("start corrected by restarts",), 6: ("unchecked (its neighbours flagged)",)}
 
     def track(renderer, models, frames, order, keyframes=None, options=None):
         res = {}
         for f in order:
             P = ts.truth(f)[0].copy()
-            P[0, 3] += 2.0 if f == 6 else 0.01
-            res[("talus", f)] = FrameResult("talus", f, P, 0.9, 1, 0.0, True)
+            P[0, 3] += 2.0 if f in (3, 6) else 0.01
+            res[("talus", f)] = FrameResult("talus", f, P, 0.9, 1, 0.0, True, flags=flags.get(f, ()),
+                                            notes=notes.get(f, ()))
         return TrackingResult(("talus",), tuple(order), res, "complete", 0.0)
 
     monkeypatch.setattr(trial_mod, "track", track)
     out = acceptance.run(ts=ts, mode="joint", capture_trials=0)
     assert out["config"]["seed"] == 0
-    ob = out["tracking"]["talus"]["over_4x_bound"]
-    assert ob["silent_frames"] == [6]
+    t = out["tracking"]["talus"]
+    ob = t["over_4x_bound"]
+    assert ob["frames"] == [3, 6] and ob["silent_frames"] == [6]
     (d,) = ob["silent_details"]
     assert d["frame"] == 6 and d["error_mm"] == pytest.approx(2.0, abs=1e-6) and d["sigma"] is None
+    assert t["flagged_frames"] == [3, 8]
+    assert t["flag_reasons"] == {"3": ["score drop", NOTE + "start corrected by restarts"],
+                                 "8": [f"{FLAG} (1.2x)"]}
+    assert out["goals"]["talus"]["over_4x_frames"] == [
+        {"frame": 3, "flagged": True, "reasons": ["score drop", NOTE + "start corrected by restarts"]},
+        {"frame": 6, "flagged": False, "reasons": [NOTE + "unchecked (its neighbours flagged)"]}]
     json.dumps(out, allow_nan=False)
+    stored = json.loads(json.dumps(out))
+    again = json.loads(json.dumps(out))
+    assert regoal(again) == ["goals"] and again == stored  # the goals as run() stored them

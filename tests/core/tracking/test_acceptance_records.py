@@ -1,0 +1,88 @@
+"""The acceptance study's per-bone records (core.studies.tracking.acceptance_records): each flagged
+frame's reasons (its flags, then its notes), the frames over 4x the Cramér–Rao bound; the goals' list
+of them, flagged or not and why (core.studies.tracking.acceptance_goals.over_4x_frames)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from core.studies.tracking.acceptance_goals import over_4x_frames, regoal
+from core.studies.tracking.acceptance_records import NOTE, flag_reasons, over_bound, reasons
+from core.tracking.flags_post import FLAG
+
+
+def _res(flags: dict, notes: dict | None = None, name: str = "talus"):
+    notes = notes or {}
+    return SimpleNamespace(results={(name, f): SimpleNamespace(flags=tuple(v), notes=tuple(notes.get(f, ())))
+                                    for f, v in flags.items()})
+
+
+def test_flag_reasons_are_the_flagged_frames_flags_then_notes():
+    res = _res({0: [], 3: ["score drop", "uncertain"], 11: [f"{FLAG} (2.1x)"], 2: []},
+               notes={0: ["start corrected by restarts"], 11: ["contact: 0.20 mm resolved to 0.00 mm"]})
+    res.results[("tibia", 5)] = SimpleNamespace(flags=("other bone",), notes=())
+    out = flag_reasons(res, "talus")
+    assert out == {"3": ["score drop", "uncertain"],
+                   "11": [f"{FLAG} (2.1x)", NOTE + "contact: 0.20 mm resolved to 0.00 mm"]}
+    assert list(out) == ["3", "11"]  # ascending frames, JSON keys; unflagged frame 0's note left out
+    assert flag_reasons(res, "calcaneus") == {}
+    assert reasons(SimpleNamespace(flags=())) == []  # a result without notes
+
+
+def test_over_bound_counts_silent_and_false_flags():
+    bound = {"rms_mm": 0.01, "rms_deg": 0.1}
+    E = np.zeros((5, 6))
+    E[1, :3] = [0.05, 0.0, 0.0]      # 5x in translation, flagged
+    E[2, 3:] = [0.0, 0.0, -0.45]     # 4.5x in rotation, not flagged: silent
+    E[3, :3] = [0.02, 0.02, 0.02]    # 3.5x: not over
+    frames = [0, 1, 2, 3, 5]         # frame 4 had no pose
+    res = _res({0: [], 1: ["score drop"], 2: [], 3: ["uncertain"], 5: []})
+    out = over_bound(res, "talus", E, frames, bound)
+    assert out["frames"] == [1, 2]
+    assert out["silent"] == 1 and out["silent_frames"] == [2]
+    assert out["false_flags"] == 1
+
+
+
+def _stored(**talus) -> dict:
+    """A stored one-mode acceptance result of one bone (talus, bound 0.01 mm / 0.1°): frames 3
+    (flagged) and 6 (silent) over 4x, frame 8 flagged though good; ``talus`` overrides its record."""
+    t = {"converged_fraction": 1.0, "within_2_sigma_fraction": None,
+         "rms_over_bound": {"mm": 2.0, "deg": 1.0}, "flagged_frames": [3, 8],
+         "flag_reasons": {"3": ["score drop", NOTE + "start corrected by restarts"], "8": [f"{FLAG} (1.2x)"]},
+         "over_4x_bound": {"k": 4.0, "frames": [3, 6], "silent": 1, "silent_frames": [6], "false_flags": 1,
+                           "silent_details": [{"frame": 6, "notes": ["unchecked (its neighbours flagged)"]}]}}
+    t.update(talus)
+    return {"study": "core.studies.tracking.acceptance", "config": {"mode": "joint"},
+            "tracking": {"talus": t}}
+
+
+def test_the_goals_list_each_frame_over_4x_flagged_or_not_and_why():
+    d = _stored()
+    assert regoal(d) == ["goals"]
+    g = d["goals"]["talus"]
+    assert g["silent_over_4x"] == [1, False]
+    assert g["over_4x_frames"] == [
+        {"frame": 3, "flagged": True, "reasons": ["score drop", NOTE + "start corrected by restarts"]},
+        {"frame": 6, "flagged": False, "reasons": [NOTE + "unchecked (its neighbours flagged)"]}]
+    none_over = _stored(over_4x_bound={"frames": [], "silent_frames": []})["tracking"]["talus"]
+    assert over_4x_frames(none_over) == []
+
+
+def test_a_result_stored_before_the_reasons_regoals_without_them():
+    """No ``flag_reasons`` (a run before them): no ``over_4x_frames``, the other goals as before; no
+    ``silent_details`` (older still): the silent frame has no ``reasons``; no bound: no list."""
+    old = _stored()
+    del old["tracking"]["talus"]["flag_reasons"]
+    new = _stored()
+    regoal(old)
+    regoal(new)
+    assert "over_4x_frames" not in old["goals"]["talus"]
+    assert old["goals"]["talus"] == {k: v for k, v in new["goals"]["talus"].items() if k != "over_4x_frames"}
+    older = _stored()
+    del older["tracking"]["talus"]["over_4x_bound"]["silent_details"]
+    regoal(older)
+    assert older["goals"]["talus"]["over_4x_frames"][1] == {"frame": 6, "flagged": False}
+    t = _stored()["tracking"]["talus"]
+    del t["over_4x_bound"]
+    assert over_4x_frames(t) is None

@@ -38,7 +38,11 @@ call 1, before, had them off): one at a time on the stage before is ``old+last``
 ``fwd`` the forward design,
 ``chord`` the later steps with the design's centre alone rendered,
 ``sc<n>`` / ``meat<n>`` / ``mc<n>`` the sandwich's / its meat's / the moments' pixels a thread block;
-``a+b`` both (e.g. ``plain+jitter``, ``fast+strict``). Measured:
+``prev`` this work's step graphs (:mod:`core.tracking.likelihood_graph`), moments' triangle and the
+sandwich's row-wise autocovariance and half-lag meat off (the defaults before them), ``nograph`` the
+step graphs alone off;
+``a+b`` both (e.g. ``plain+jitter``, ``fast+strict``). With the step graphs the kernel profile sees
+a step's DRRs, blurs and moments as one ``graph`` activity. Measured:
 ``resources/benchmarks/tracking_stage_speed_h100.json`` (one NVIDIA H100, 30 frames; its ``base``
 is today's ``plain``, its ``diff`` ``DIFF_IMAGES`` alone) and ``tracking_stage_speed_fast_h100.json``
 (``plain``, ``exact``, ``fast``; ``fast`` is today's default; the numbers in
@@ -74,6 +78,9 @@ def _flag(module: str, name: str, value):
 
 #: the fewer steps' flags off (the stage's defaults before 41d036e; engine_likelihood: Fewer steps)
 _OLD_STEPS = {"STOP_PRED": 0.0, "ROBUST_FROM_LAST": False, "DEVICE_REGIONS": False, "MEAT_CHUNK": None}
+#: the recorded steps, the moments' triangle and the sandwich's rows and half lags off (the defaults
+#: before them: engine_likelihood.STEP_GRAPH, MOMENTS_TRI; likelihood_confidence.AUTOCOV_ROWS, MEAT_HALF)
+_PREV = {"STEP_GRAPH": False, "MOMENTS_TRI": False, "AUTOCOV_ROWS": False, "MEAT_HALF": False}
 #: the stage's variants by name: a context manager factory each (the module flags they set)
 VARIANTS: dict = {
     "base": _base,
@@ -103,6 +110,12 @@ VARIANTS: dict = {
     # the stage's defaults before the fewer steps: every refinement to tol, the robust round's own
     # factor step, the regions on the host
     "old": lambda: _flags(**_OLD_STEPS),
+    # this work's device and host changes off (the defaults before them): the steps' launches one by
+    # one with the item table on the host, the full moments table, the autocovariance a pass per lag,
+    # the meat over every lag
+    "prev": lambda: _flags(**_PREV),
+    # the steps' launches one by one (engine_likelihood.STEP_GRAPH off), the new kernels kept
+    "nograph": lambda: _flag("core.tracking.engine_likelihood", "STEP_GRAPH", False),
     # (and "stop<c>": a refinement ends after a step below c χ²/N, engine_likelihood.STOP_PRED = c)
 }
 _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
@@ -111,7 +124,11 @@ _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
               "STOP_PRED": "core.tracking.engine_likelihood",
               "DEVICE_REGIONS": "core.tracking.engine_likelihood",
               "ROBUST_FROM_LAST": "core.tracking.final_stage",
-              "MEAT_CHUNK": "core.tracking.likelihood_confidence"}
+              "MEAT_CHUNK": "core.tracking.likelihood_confidence",
+              "STEP_GRAPH": "core.tracking.engine_likelihood",
+              "MOMENTS_TRI": "core.tracking.engine_likelihood",
+              "AUTOCOV_ROWS": "core.tracking.likelihood_confidence",
+              "MEAT_HALF": "core.tracking.likelihood_confidence"}
 
 
 @contextmanager
@@ -446,6 +463,9 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                 out["profile"] = prof
                 if checkpoint:
                     checkpoint(out)
+    import core.tracking.likelihood_graph as lg
+
+    out["step_graph_capture_failed"] = lg.FAILED  # (None: every capture the device was asked for made)
     out["total_s"] = time.perf_counter() - t0
     return out
 

@@ -289,6 +289,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))
         self._w0_set = False  # the expected counts as computed below (scale_weights keeps a copy)
+        self._count_weights = self._wcount_pending = False  # (count_weights)
         low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
         self._launch("weights", weights_kernel, (nv, Hc, Wc), [low, mask, self._w])
         self._y = self._buffer("y", (nv, Hc, Wc))
@@ -451,6 +452,8 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         self._wait()
         if self._count_pending:  # the regions prepared on the device: their usable pixels
             self._take_count()
+        if self._wcount_pending:  # (those with a positive weight: count_weights)
+            self._take_weights_count()
         nz = NZ + self._q
         M = self._tables_q()[1].numpy().reshape(nv, nz, nz).copy()
         if self._tri:  # (the entries above the diagonal mirrored below it)

@@ -477,6 +477,7 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
     timing = dict(res.timing)
     views = tuple(views)
     center = np.asarray(center, dtype=float)
+    eng = None
     try:
         roi = snap_roi(search_roi(renderer, res.pose, bone, views=views, center=center, reach_mm=1.0,
                                margin_px=o.margin_px), renderer, views)
@@ -495,7 +496,11 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
         timing.pop("likelihood_setup_s", None)  # (a region without usable pixels: seen at the first step)
         timing["likelihood_s"] = clock.seconds()
         timing["likelihood_taken"] = 0
-        return replace(res, timing=timing)
+        if eng is None:
+            return replace(res, timing=timing)
+        # (the regions made on the device: the first step rendered its design before the count was read)
+        timing["likelihood_renders"] = int(eng.renders)
+        return replace(res, timing=timing, evaluations=res.evaluations + int(eng.timer.evaluations))
     d = np.asarray(out["x"], dtype=float)
     cov = np.asarray(out["covariance_independent" if o.final_confidence == "independent" else "covariance"],
                      dtype=float)

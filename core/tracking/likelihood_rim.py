@@ -306,4 +306,5 @@ def apply_rim(eng, frame, radius_px: float) -> bool:
     eng._uploaded()  # (set_frame waits for this copy before writing the pinned buffers again)
     for w in (eng._w, eng._w0) if eng._w0_set else (eng._w,):
         wp.launch(_keep_kernel, dim=(nv, Hc, Wc), inputs=[w, f], device=eng.device)
+    eng.count_weights()  # (χ²/N over the pixels still weighed)
     return True

@@ -87,6 +87,7 @@ class _EngineState:
         self.renders = 0  # the steps' DRR launches (a step reusing the last design's images renders none)
         self.base = self.center = self.roi = None
         self._w0_set = False
+        self._count_weights = self._wcount_pending = False  # n_pixels from the weights (count_weights)
 
     @property
     def renderer(self):

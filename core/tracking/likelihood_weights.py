@@ -11,6 +11,24 @@ import warp as wp
 from .likelihood_kernels import _times_kernel, robust_factors_device
 
 
+@wp.kernel
+def _positive_count_kernel(w: wp.array3d(dtype=wp.float32), chunk: int, out: wp.array(dtype=wp.float64)):
+    """out[v] += the pixels of view v with a positive weight. dim = (views, chunks)."""
+    v, ch, lane = wp.tid()
+    bd = wp.block_dim()
+    W = w.shape[2]
+    start = ch * chunk
+    stop = wp.min(w.shape[1] * W, start + chunk)
+    n = float(0.0)  # noqa: UP018
+    for p in range(start + lane, stop, bd):
+        r = p // W
+        if w[v, r, p - r * W] > 0.0:
+            n += 1.0
+    t = wp.tile_sum(wp.tile(n))
+    if lane == 0:
+        wp.atomic_add(out, v, wp.float64(t[0]))
+
+
 class _RegionWeights:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s weights of the region (its
     attributes: ``n_views``, ``bone``, ``device``, ``_w``, ``_cap``, ``_ref_hw``, buffers, launches,
@@ -20,6 +38,27 @@ class _RegionWeights:
         """The weights back to the expected counts of :meth:`set_frame` (no factors)."""
         if self._w0_set:
             wp.copy(self._w, self._w0)
+            if self._count_weights:  # (some were zeroed: the count of the expected counts again)
+                self.count_weights()
+
+    def count_weights(self) -> None:
+        """The pixels with a positive weight counted on the device: :attr:`n_pixels` (the χ²/N of the
+        steps and the independent-pixel covariance) from the next step's synchronisation on, instead of
+        the region's usable pixels (a support mask or the rim band weighs some of them 0)."""
+        nv, (Hc, Wc) = self.n_views, self._cap
+        out = self._buffer("wcount", (nv,), wp.float64)
+        out.zero_()
+        self._launch("wcount", _positive_count_kernel, (nv, -(-Hc * Wc // self.chunk)),
+                     [self._w, self.chunk, out], self.block_dim)
+        host = self._pinned("wcount", (nv,), wp.float64, exact=True)
+        wp.copy(host, out)
+        self._count_weights = True
+        self._wcount_pending = True
+
+    def _take_weights_count(self) -> None:
+        """:meth:`count_weights`' count (copied before the last synchronisation) as :attr:`n_pixels`."""
+        self._wcount_pending = False
+        self.n_pixels = round(float(self._host["wcount"].numpy().sum()))
 
     def scale_weights(self, factor: np.ndarray) -> None:
         """The expected counts of :meth:`set_frame` times ``factor (views, H, W)`` (per pixel, on
@@ -30,12 +69,14 @@ class _RegionWeights:
             self._w0 = self._buffer("w0", (nv, Hc, Wc))
             wp.copy(self._w0, self._w)
             self._w0_set = True
-        if isinstance(factor, wp.array):  # already on the device (robust_weights)
+        if isinstance(factor, wp.array):  # already on the device (robust_weights: positive where w0 is)
             f = factor
         else:
             f = self._buffer("wf", (nv, Hc, Wc))
             f.assign(np.asarray(factor, dtype=np.float32).reshape(nv, Hc, Wc))
         self._launch("times", _times_kernel, (nv, Hc, Wc), [self._w0, f, self._w])
+        if not isinstance(factor, wp.array) or self._count_weights:  # (a factor 0 somewhere: counted)
+            self.count_weights()
 
     def robust_weights(self, s: dict, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy"):
         """The robust factors of the weighted residual at the centre of the last step's design

@@ -71,7 +71,8 @@ def test_device_regions_at_the_image_rim_equal_the_hosts(talus_scene, monkeypatc
 @pytest.mark.parametrize("device_regions", [False, True])
 def test_a_view_without_usable_pixels_is_outside_the_view(talus_scene, monkeypatch, device_regions):
     """Host: set_frame raises; device: the first step does (its count is read there), and the final
-    stage then keeps the similarity's pose either way."""
+    stage then keeps the similarity's pose either way, its evaluations counting the first step's 13
+    poses where it rendered them (device)."""
     from dataclasses import replace
 
     from core.tracking.final_stage import final_stage
@@ -91,6 +92,8 @@ def test_a_view_without_usable_pixels_is_outside_the_view(talus_scene, monkeypat
                       options=replace(o, final="likelihood", final_highpass_px=2.0), views=(0, 1))
     assert out.timing["likelihood_taken"] == 0 and "likelihood_setup_s" not in out.timing
     np.testing.assert_array_equal(out.pose, res.pose)
+    assert out.evaluations == res.evaluations + (13 if device_regions else 0)
+    assert out.timing.get("likelihood_renders", 0) == int(device_regions)
 
 
 def test_the_stages_evaluations_are_the_poses_it_rendered(talus_scene):

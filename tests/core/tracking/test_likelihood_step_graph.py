@@ -72,3 +72,32 @@ def test_moments_triangle_is_the_full_table(talus_scene, monkeypatch):
             tables.append(s["M"])
             assert eng._tri == tri
         np.testing.assert_array_equal(tables[0], tables[1])
+
+
+def test_chi2_share_counts_the_weighed_pixels(talus_scene):
+    """N of χ²/N (engine's n_pixels: the steps' stop and the independent-pixel covariance) counts the
+    pixels with a positive weight once a factor weighs some 0 (a support mask; the rim band), back to
+    the usable pixels when the weights are reset."""
+    import core.tracking.engine_likelihood as el
+    from core.tracking.cost import prepare_frame, search_roi
+
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    start = sc.poses(2)[0]
+    fr = prepare_frame(talus_scene["fluence"](2), valid_range=None)
+    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
+    eng = el.LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
+    eng.set_frame(fr, base_pose=start, center=model.centroid, roi=roi)
+    h = np.full(6, 0.05)
+    eng.step(np.zeros(6), h)
+    usable = eng.n_pixels
+    assert usable == int((eng._w.numpy() > 0).sum())
+    mask = np.ones((2, *eng._cap), np.float32)
+    mask[:, ::2] = 0.0  # (every other row)
+    eng.scale_weights(mask)
+    s = eng.step(np.zeros(6), h, reuse=True)
+    assert eng.n_pixels == int((eng._w.numpy() > 0).sum()) < usable
+    out = eng.refine(iters=1, sandwich=False, reuse=True)
+    np.testing.assert_allclose(out["covariance_independent"], np.linalg.inv(s["JJ"]) * s["chi2"] / eng.n_pixels)
+    eng.reset_weights()
+    eng.step(np.zeros(6), h, reuse=True)
+    assert eng.n_pixels == usable

@@ -54,7 +54,8 @@ Measurements
 * **filtered trajectories** — the same errors after the zero-phase Butterworth low-pass of
   :meth:`core.tracking.trial.TrackingResult.filtered_poses` (cut-off by Winter's residual
   analysis per bone) at the scene's frame rate: 100 frames span 0.6 of a 0.6 s stance,
-  :data:`FRAME_RATE_HZ` ≈ 278 Hz (labs film at 250–1000 Hz);
+  :data:`FRAME_RATE_HZ` ≈ 278 Hz (labs film at 250–1000 Hz); none (``None``) in a trial under 10
+  frames, the filter's least;
 * **capture range** — ``capture_trials`` first-frame registrations per bone
   (:func:`core.tracking.trial.register_start`: what a user gets from a hand-placed start) from
   the truth moved by exactly 5 mm and 5° in random directions (random frames). Success is

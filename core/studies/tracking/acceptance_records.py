@@ -15,12 +15,17 @@ import numpy as np
 
 from core.geometry.transforms import params_from_pose
 
-__all__ = ["NOTE", "BoneRecords", "add_bound", "bone_records", "error_stats", "flag_counts", "flag_reasons",
-           "over_bound", "pose_errors", "reasons", "silent_details"]
+__all__ = ["FILTER_MIN_FRAMES", "NOTE", "BoneRecords", "add_bound", "bone_records", "error_stats",
+           "flag_counts", "flag_reasons", "over_bound", "pose_errors", "reasons", "silent_details"]
 
 #: what marks a frame's note (an event that needed no review, ``FrameResult.notes``) among its reasons,
 #: after its flags (:func:`reasons`)
 NOTE = "note: "
+
+#: the fewest frames the trial's low-pass takes (:func:`core.tracking.kinematics.butterworth` at the
+#: second order :meth:`~core.tracking.results.TrackingResult.filtered_poses` uses: 3 (order + 1) + 1);
+#: a shorter trial's bones have no filtered errors (:func:`bone_records`)
+FILTER_MIN_FRAMES = 10
 
 
 def pose_errors(pose: np.ndarray, truth: np.ndarray, center: np.ndarray) -> np.ndarray:
@@ -149,15 +154,16 @@ class BoneRecords:
 def bone_records(ts, res, frame_rate_hz: float) -> BoneRecords:
     """Per bone of ``ts`` (a :class:`~core.studies.tracking.acceptance.TrackingScene`) tracked in
     ``res``: the errors of the tracked and the low-passed poses (cut-off by Winter's residual analysis
-    at ``frame_rate_hz``) against the truth, converged fraction, flagged frames
-    (:func:`flag_counts`) and each one's reasons
-    (``flag_reasons``, :func:`flag_reasons`), silent failures (unflagged frames over 0.5 mm or 0.5°),
-    the 2σ coverage and the per-frame σ."""
+    at ``frame_rate_hz``; none in a trial under :data:`FILTER_MIN_FRAMES` frames) against the truth,
+    converged fraction, flagged frames (:func:`flag_counts`) and each one's reasons (``flag_reasons``,
+    :func:`flag_reasons`), silent failures (unflagged frames over 0.5 mm or 0.5°), the 2σ coverage and
+    the per-frame σ."""
     out, n_frames = BoneRecords(), ts.scene.n_frames
     for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
-        if any(r.pose is not None and not r.flags for (bn, _), r in res.results.items() if bn == n):
+        if n_frames >= FILTER_MIN_FRAMES and any(r.pose is not None and not r.flags
+                                                 for (bn, _), r in res.results.items() if bn == n):
             F, cutoff = res.filtered_poses(n, frame_rate_hz, center=m.centroid)
-        else:  # every frame flagged or missing: the low-pass has nothing to go through
+        else:  # too few frames, or every frame flagged or missing: nothing for the low-pass
             F, cutoff = np.full((n_frames, 4, 4), np.nan), None
         ff = [f for f in range(n_frames) if np.all(np.isfinite(F[f]))]
         Ef = np.array([pose_errors(F[f], ts.truth(f)[b], m.centroid) for f in ff]).reshape(-1, 6)

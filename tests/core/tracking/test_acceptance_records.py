@@ -86,3 +86,41 @@ def test_a_result_stored_before_the_reasons_regoals_without_them():
     t = _stored()["tracking"]["talus"]
     del t["over_4x_bound"]
     assert over_4x_frames(t) is None
+
+
+def _scene_and_result(n_frames: int, flagged=()):
+    """A stand-in scene of one bone (talus) whose truth moves 1 mm a frame along x, and its tracking
+    result 0.01 mm off the truth in every frame, ``flagged`` frames flagged."""
+    from core.tracking.results import FrameResult, TrackingResult
+
+    def truth(f):
+        T = np.eye(4)
+        T[0, 3] = float(f)
+        return T[None]
+
+    ts = SimpleNamespace(scene=SimpleNamespace(n_frames=n_frames), names=("talus",),
+                         models=[SimpleNamespace(centroid=np.zeros(3))], truth=truth)
+    res = {}
+    for f in range(n_frames):
+        P = truth(f)[0].copy()
+        P[1, 3] += 0.01
+        res[("talus", f)] = FrameResult("talus", f, P, 0.9, 1, 0.0, True,
+                                        flags=("score drop",) if f in flagged else ())
+    return ts, TrackingResult(("talus",), tuple(range(n_frames)), res, "complete", 0.0)
+
+
+def test_a_trial_too_short_for_the_low_pass_keeps_its_records():
+    """Under FILTER_MIN_FRAMES frames (the Butterworth filter's least) the bone has no filtered
+    errors instead of the run failing after tracking; from that many on it has them."""
+    from core.studies.tracking.acceptance_records import FILTER_MIN_FRAMES, bone_records
+
+    ts, res = _scene_and_result(3, flagged=(1,))
+    rec = bone_records(ts, res, 278.0)
+    t = rec.tracking["talus"]
+    assert t["filtered"] == {"cutoff_hz": None, "rms_error_mm": None, "rms_error_deg": None,
+                             "max_error_mm": None, "max_error_deg": None, "frames": 0}
+    assert abs(t["rms_error_mm"] - 0.01) < 1e-9 and rec.frames["talus"] == [0, 1, 2]
+    assert t["flag_reasons"] == {"1": ["score drop"]}
+    ts, res = _scene_and_result(FILTER_MIN_FRAMES)
+    t = bone_records(ts, res, 278.0).tracking["talus"]
+    assert t["filtered"]["frames"] == FILTER_MIN_FRAMES and t["filtered"]["cutoff_hz"] is not None

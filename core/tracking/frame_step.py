@@ -77,11 +77,14 @@ cannot tell and keeps it off. A bone whose result of the frame is taken back fro
 the frame (a hand-set pose, the user's pose of it there) is subtracted at it until it is registered
 in the frame, in the search and the final stage: without, in the first frame of a run started from
 keyframes the first bone had nothing subtracted (no other bone had a tracked pose yet), and a
-keyframe later in the range gave way to the constant-velocity guess. Joint tracking is unchanged
-(its first round in a first frame subtracts only the bones registered before it): doing as sequential
-tracking does (:data:`JOINT_KEYFRAMES`) helped from keyframes near the truth and harmed from keyframes
-3-5 mm / 3-5° off (off by default); a second round in the first frame (:data:`FIRST_FRAME_SECOND_ROUND`)
-helped from 5 mm / 5° and is on by default (their docs give the figures).
+keyframe later in the range gave way to the constant-velocity guess. A keyframe off the truth is
+subtracted where the bone is not, and leaves its negative in the image (from 5 mm / 5° off, the talus
+of the ideal 128² scene registered first 0.3-2.6° off, unflagged): so a first frame gets a second pass,
+every bone with the others at their first pass's poses (:data:`SEQUENTIAL_SECOND_PASS`). Joint tracking
+is unchanged (its first round in a first frame subtracts only the bones registered before it): doing as
+sequential tracking does (:data:`JOINT_KEYFRAMES`) helped from keyframes near the truth and harmed from
+keyframes 3-5 mm / 3-5° off (off by default); a second round in the first frame
+(:data:`FIRST_FRAME_SECOND_ROUND`) helped from 5 mm / 5° and is on by default (their docs give the figures).
 
 Joint rounds in lockstep (:func:`core.tracking.joint.register_together`) need the previous
 round's poses, which its checks may still change (a flagged registration is retried wider). The
@@ -126,9 +129,9 @@ from .register import RegistrationOptions
 from .results import FrameResult
 
 __all__ = ["AHEAD", "FINAL_EVERY_ROUND", "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG",
-           "RESTART_FROM_PREDICTION", "SEQUENTIAL_NEIGHBOURS", "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES",
-           "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags", "stage_move_check",
-           "track_frame"]
+           "RESTART_FROM_PREDICTION", "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_MOVE_CONFIRM",
+           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
+           "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -181,6 +184,24 @@ JOINT_KEYFRAMES = False
 #: frames unchanged. On held-out seed 4 (one NVIDIA H100, 1024², no stage) the tibia's frame 0 was 1.21°
 #: off with two rounds and 1.57° with one (sequentially 0.25°); the switch not yet run there.
 FIRST_FRAME_SECOND_ROUND = True
+#: Sequential tracking that subtracts the neighbours (``sequential_subtract``, or the final stage's
+#: :data:`SEQUENTIAL_NEIGHBOURS`) gives a first frame (a bone in it without a tracked pose) a second pass:
+#: every bone registered again from its first pass's pose with the others at theirs (the first pass subtracts
+#: a bone not yet registered at its keyframe, which leaves its negative where the bone is not when the
+#: keyframe is off), with the first frame's options, checked from the first pass's pose (from the keyframe, a
+#: pose come back from 5 mm off would be a jump, retried from the keyframe: the frame's evaluations ×1.9-2.0,
+#: the same errors within 0.01°). Ideal 128² talus-calcaneus scene (CPU, this 2-core x86_64 machine;
+#: ``sequential_subtract``, no restarts; 6 draws; ``test_sequential_first_frame_second_pass.py``): from
+#: keyframes 5 mm / 5° off the talus went from 0.06-0.38 mm / 0.32-2.58° to 0.0005-0.0037 mm / 0.003-0.011°,
+#: the calcaneus from 0.002-0.030 mm / 0.017-0.069° to 0.0004-0.0024 mm / 0.002-0.004°, the frame's
+#: evaluations (both bones) +29-53 % (+23-39 % with 4 restarts, 3 draws); 3 mm / 3° (4 draws): the talus
+#: 0.11-0.17 mm / 0.22-1.10° → ≤ 0.002 mm / 0.006°; 1 mm / 1° (3 draws): 0.06-0.09 mm / 0.20-0.21° → ≤ 0.0025
+#: mm / 0.022°; true keyframes unchanged (0.0003 mm / 0.003°) at twice the evaluations (255 → 510 a bone). Not
+#: subtracting a bone's keyframe in the first pass gave, with a second pass (checked from the keyframe), the
+#: same within 0.01° (true keyframes: 0.005 mm / 0.006°), without one 0.17-0.27 mm / 0.32-0.68°. With the
+#: final stage alone subtracting (no ``sequential_subtract``; 3 draws) the talus went from 0.09-0.17 mm /
+#: 0.64-0.94° to 0.005 mm / 0.040-0.045°. Later frames are registered as before.
+SEQUENTIAL_SECOND_PASS = True
 #: The flag of a frame a view has no image for, its source giving no reason (:func:`missing_flags`).
 MISSING_FLAG = "frame missing in view"
 #: The flag of a frame a view's image could not be read for, with the source's reason.
@@ -367,6 +388,9 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             opts, start = (o.first_options if first else o.registration), guesses[i]
         else:
             opts, start = o.registration, start_of(i, rnd, current)
+        guess = guesses[i]
+        if rnd > 0 and first and not joint:  # sequential's second pass (SEQUENTIAL_SECOND_PASS):
+            opts, guess = o.first_options, start  # as wide as the first, checked from the first's pose
         opts = staged(rnd, opts)
         near = nullcontext()
         stage_others[i] = others
@@ -376,7 +400,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             stage_others[i] = others if others is not None else others_of(i, current, known)
             near = stage_neighbours(others_of(i, current, known))
         with near:
-            return register_checked(run.renderer, frame, bones[i], i, start, guesses[i], opts, o,
+            return register_checked(run.renderer, frame, bones[i], i, start, guess, opts, o,
                                     state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
                                     start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
                                     good_sigmas=state[b].sigmas, reference=state[b].reference,
@@ -385,6 +409,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     rounds = o.joint_rounds if joint else 1
     if joint and FIRST_FRAME_SECOND_ROUND and any(not hist[names[i]] for i in todo):
         rounds = max(rounds, 2)  # a first frame: a second round (FIRST_FRAME_SECOND_ROUND)
+    if (seq_stage or seq_search) and SEQUENTIAL_SECOND_PASS and any(not hist[names[i]] for i in todo):
+        rounds = 2  # a first frame: a second pass (SEQUENTIAL_SECOND_PASS)
 
     def staged(rnd: int, opts: RegistrationOptions) -> RegistrationOptions:
         """The registration options of round ``rnd``: the final stage only in the last round."""

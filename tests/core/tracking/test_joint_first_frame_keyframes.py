@@ -43,6 +43,7 @@ def test_keyframes_subtracted_help_near_the_truth_only(talus_calcaneus_128, monk
 
     sc, models, r, frames = talus_calcaneus_128
     monkeypatch.setattr(fs, "FIRST_FRAME_SECOND_ROUND", False)  # one round in the first frame, as measured
+    monkeypatch.setattr(fs, "SEQUENTIAL_SECOND_PASS", False)  # (and one sequential pass, compared with it)
     true_keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     joint = TrackingOptions(mode="joint", joint_rounds=1, verify_restarts=0, registration=REG)
     seq = TrackingOptions(mode="sequential", sequential_subtract=True, verify_restarts=0, registration=REG)

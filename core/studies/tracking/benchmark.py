@@ -274,13 +274,15 @@ def _search_tol(entry: str):
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,
         pixels: int | None = None, cases: str = "both", repeats: int = 3, search: str = "newton",
         compare: bool = False, voxel: float | None = None, bound: bool = True,
-        metric: str = "magnitudes", final: str = "none") -> dict:
+        metric: str = "magnitudes", final: str = "none", workers: int = 0) -> dict:
     """Run the cases (``"one"``, ``"three"`` or ``"both"``) with the tracking ``search``
     (``compare``: ``newton`` and ``local`` both, the second under ``"<case>_local"``) and the
     gradient correlation of the gradient ``metric`` (``"magnitudes"``, the default term, or
     ``"components"``: the gc term's ``components`` option) and the final stage(s) ``final``
-    (``"none"``, ``"likelihood"`` or a comma-separated list of them, module docs); returns the
-    JSON-ready results."""
+    (``"none"``, ``"likelihood"``, ``"likelihood_full"`` or a comma-separated list of them, module
+    docs); returns the JSON-ready results. ``workers``: processes for the frames' image chain before
+    the clock starts (0: this one; :func:`core.studies.tracking.trial_frames.synthesise`, the same
+    frames)."""
     if int(repeats) != repeats or repeats < 1:
         raise ValueError(f"repeats: expected a whole number >= 1, got {repeats!r}")
     if cases not in ("one", "three", "both"):
@@ -301,8 +303,9 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     ts = TrackingScene(n_frames=max(n, 2), pixels=px, spacing=vox,
                        phase=(0.0, 0.6 * max(n, 2) / 100.0), device=device)
     t0 = time.perf_counter()
-    for i in range(ts.scene.n_frames):
-        ts.frames(i)
+    from core.studies.tracking.trial_frames import synthesise
+
+    synthesise(ts, range(ts.scene.n_frames), int(workers))  # (the same frames, whatever the workers)
     synth = time.perf_counter() - t0
     base = TrackingOptions(mode="joint")  # synthetic frames: DRR intensities match the images
     if metric == "components":
@@ -371,11 +374,13 @@ def main(argv=None, *, prog: str = "python -m core.studies.tracking.benchmark") 
                         "as before), or a comma-separated list run in turn on the same scene "
                         "(e.g. none,likelihood)")
     p.add_argument("--no-bound", action="store_true", help="skip the Cramér-Rao bound")
+    p.add_argument("--workers", type=int, default=0,
+                   help="processes for the frames' image chain before the clock starts (default 0: this one)")
     p.add_argument("--out", default=None, help="also write the JSON here")
     a = p.parse_args(argv)
     res = run(quick=a.quick, device=a.device, frames=a.frames, pixels=a.pixels, cases=a.cases,
               repeats=a.repeats, search=a.search, compare=a.compare, voxel=a.voxel, bound=not a.no_bound,
-              metric=a.metric, final=a.final)
+              metric=a.metric, final=a.final, workers=a.workers)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

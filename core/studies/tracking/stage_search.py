@@ -56,7 +56,8 @@ def _digest(out: dict) -> dict:
 
 def run(*, pixels: int = 512, voxel: float = 1.0, frames: int = 20, seeds=(0, 4),
         modes=("joint", "sequential"),
-        tols=(None, 0.25), device: str | None = None, out_path: str | None = None) -> dict:
+        tols=(None, 0.25), device: str | None = None, out_path: str | None = None,
+        workers: int = 0) -> dict:
     """Every (seed, mode, tolerance) on the acceptance scene of each seed (module docs); ``out_path``:
     the JSON written there after each run too."""
     import core.tracking.register_options as ro
@@ -87,7 +88,7 @@ def run(*, pixels: int = 512, voxel: float = 1.0, frames: int = 20, seeds=(0, 4)
                     ro.STAGE_SEARCH_TOL = tol
                     got.clear()
                     t0 = time.perf_counter()
-                    a = accept(ts=ts, mode=mode, final="likelihood", capture_trials=0)
+                    a = accept(ts=ts, mode=mode, final="likelihood", capture_trials=0, workers=workers)
                     key = f"seed{seed}_{mode}_{'full' if tol is None else tol}"
                     out["runs"][key] = {"seed": seed, "mode": mode, "stage_search_tol": tol,
                                         "wall_s": time.perf_counter() - t0,
@@ -115,12 +116,13 @@ def main(argv=None) -> int:
     p.add_argument("--tols", default="full,0.25",
                    help="comma-separated: full (the search's own 0.02) or a tolerance (mm, degrees)")
     p.add_argument("--device", default=None)
+    p.add_argument("--workers", type=int, default=0, help="processes for the frames' image chain")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     res = run(pixels=a.pixels, voxel=a.voxel, frames=a.frames, seeds=[int(s) for s in a.seeds.split(",")],
               modes=[m.strip() for m in a.modes.split(",")],
               tols=[_tol(t.strip()) for t in a.tols.split(",")],
-              device=a.device, out_path=a.out)
+              device=a.device, out_path=a.out, workers=a.workers)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

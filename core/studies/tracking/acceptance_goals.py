@@ -200,8 +200,8 @@ def goals(per_bone: dict) -> dict:
             for k in ("mm", "deg"):
                 r = t["rms_over_bound"][k]
                 g[f"rms_over_bound_{k}"] = [r, r is not None and r <= GOALS["max_rms_over_bound"]]
-            s = t["over_4x_bound"]["silent"]
-            g["silent_over_4x"] = [s, s <= GOALS["max_silent_over_4x"]]
+            if (ob := t.get("over_4x_bound")) is not None:  # absent in the first stored runs
+                g["silent_over_4x"] = [ob["silent"], ob["silent"] <= GOALS["max_silent_over_4x"]]
         cov = sigma_coverage(t)
         if cov is None:
             w = t["within_2_sigma_fraction"]

@@ -124,3 +124,24 @@ def test_a_trial_too_short_for_the_low_pass_keeps_its_records():
     ts, res = _scene_and_result(FILTER_MIN_FRAMES)
     t = bone_records(ts, res, 278.0).tracking["talus"]
     assert t["filtered"]["frames"] == FILTER_MIN_FRAMES and t["filtered"]["cutoff_hz"] is not None
+
+
+def test_every_stored_acceptance_result_regoals_without_the_reasons():
+    """Every stored acceptance result (resources/benchmarks/tracking_acceptance*.json, all before the
+    reasons) regoals without an error and without ``over_4x_frames``; the first ones, without
+    ``over_4x_bound``, without ``silent_over_4x``."""
+    import json
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[3] / "resources" / "benchmarks"
+    files = sorted(bench.glob("tracking_acceptance*.json"))
+    assert files
+    for p in files:
+        d = json.loads(p.read_text(encoding="utf-8"))
+        regoal(d)
+        runs = [r for r in (d.get("runs") or {"mode": d}).values() if "goals" in r]
+        assert runs, p.name
+        for r in runs:
+            for n, g in r["goals"].items():
+                assert "over_4x_frames" not in g, p.name
+                assert ("silent_over_4x" in g) == ("over_4x_bound" in r["tracking"][n]), p.name

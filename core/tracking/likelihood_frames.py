@@ -87,16 +87,15 @@ class _FrameRegions:
             info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
         Ws_ = host.shape[2]
         n = (nv - 1) * host.shape[1] * Ws_ + (staged[-1][1] - staged[-1][0]) * Ws_
-        dev = self.device
         wp.copy(src, host, 0, 0, n)
         if given:
             wp.copy(gsrc, hg, 0, 0, n)
         wp.copy(self._info, self._host_info)
         self._msum.zero_()
         lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
-        wp.launch(fluoro_roi_kernel, dim=(nv, math.ceil(Hc * Wc / self.chunk), _LANES), device=dev,
-                  inputs=[src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
-                          self.chunk, li, mask, self._fmax, self._msum])
+        self._launch("roi", fluoro_roi_kernel, (nv, math.ceil(Hc * Wc / self.chunk), _LANES),
+                     [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
+                      self.chunk, li, mask, self._fmax, self._msum])
         wp.copy(self._host_msum, self._msum)
         self._count_pending = True
 

@@ -20,7 +20,10 @@ to the bit.
 :func:`warp.timing_begin`, around :func:`~core.tracking.final_stage.final_stages`: each kernel,
 copy and memset by name, total and count per bone-frame), against the stages' wall time there;
 ``parts`` — the engine's methods each timed with a device synchronisation before and after (the
-stages then run one after another: a serial breakdown, not the overlapped wall time).
+stages then run one after another: a serial breakdown, not the overlapped wall time);
+``--host-profile``: ``host`` — the stages run side by side under :mod:`cProfile` (per bone-frame, the
+functions with the most own time and the most time inside them; a wait for the device is the own time
+of the call that waits).
 Only this study reads the truth. JSON on stdout (``--out``: also to a file).
 
 Variants: ``base`` the modules' defaults; ``plain`` every speed flag off (the stage as first
@@ -232,6 +235,41 @@ def _kernel_profile(n_bone_frames_box: list, acc: dict):
     return _patched(fst, "final_stages", wrapped)
 
 
+def _host_profile(box: list, prof):
+    """A wrapper of :func:`~core.tracking.final_stage.final_stages` run under ``prof`` (a
+    :class:`cProfile.Profile`: the stages' host work, their waits for the device inside the C
+    functions that wait); ``box[0]`` counts the bones whose stage ran."""
+    import core.tracking.final_stage as fst
+
+    plain = fst.final_stages
+
+    def wrapped(renderer, frame, calls):
+        prof.enable()
+        try:
+            return plain(renderer, frame, calls)
+        finally:
+            prof.disable()
+            box[0] += sum(kw["options"].final is not None for _, kw in calls)
+
+    return _patched(fst, "final_stages", wrapped)
+
+
+def _host_table(prof, n: int, top: int = 30) -> dict:
+    """The functions of ``prof`` with the most own time and the most time inside them (ms and calls
+    per bone-frame over ``n`` bone-frames)."""
+    import pstats
+
+    st = pstats.Stats(prof).stats  # (file, line, name) -> (calls, primitive calls, tottime, cumtime, callers)
+
+    def row(k, v):
+        return {"function": f"{k[0].rsplit('/', 1)[-1]}:{k[1]}({k[2]})", "calls": v[1] / n,
+                "own_ms": 1e3 * v[2] / n, "inside_ms": 1e3 * v[3] / n}
+
+    items = list(st.items())
+    return {"own": [row(k, v) for k, v in sorted(items, key=lambda kv: -kv[1][2])[:top]],
+            "inside": [row(k, v) for k, v in sorted(items, key=lambda kv: -kv[1][3])[:top]]}
+
+
 _PARTS = ("set_frame", "set_tissue", "step_launch", "step_result", "robust_weights", "sandwich_launch",
           "sandwich_result", "scale_weights", "reset_weights")
 
@@ -329,18 +367,19 @@ def _frame_cache(folder):
 def run(*, device: str | None = None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5,
         highpass=(4.0, 8.0), variants=("base",), repeats: int = 2, profile_frames: int = 20,
         correction: str = "grid", glare: bool = True, warm_frames: int = 3, checkpoint=None,
-        frame_cache=None, poses_out=None) -> dict:
+        frame_cache=None, poses_out=None, host_profile: bool = False) -> dict:
     """Run the study (module docs); returns the JSON-ready results. ``frame_cache``: a folder the
     frames are kept in (:func:`_frame_cache`); ``poses_out``: an ``.npz`` file every run's poses
     are written to (``<variant>/hp<σ>/<bone>``: ``(frames, 4, 4)``, the first repeat's)."""
     with _frame_cache(frame_cache):
         return _run(device=device, frames=frames, pixels=pixels, voxel=voxel, highpass=highpass,
                     variants=variants, repeats=repeats, profile_frames=profile_frames, correction=correction,
-                    glare=glare, warm_frames=warm_frames, checkpoint=checkpoint, poses_out=poses_out)
+                    glare=glare, warm_frames=warm_frames, checkpoint=checkpoint, poses_out=poses_out,
+                    host_profile=host_profile)
 
 
 def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_frames, correction, glare,
-         warm_frames, checkpoint, poses_out) -> dict:
+         warm_frames, checkpoint, poses_out, host_profile=False) -> dict:
     import core.tracking.final_stage as fst
     from core.render import DRRRenderer
     from core.studies.tracking.ml_cost import _scene
@@ -445,6 +484,14 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                     res = track(r, models, ts.frames, range(m), keyframes=kf, options=opts[hp])
                 tim = [res.results[(nm, f)].timing or {} for nm in names for f in range(m)]
                 nbf = len(tim)
+                host = None
+                if host_profile:
+                    import cProfile
+
+                    hp_box, cp = [0], cProfile.Profile()
+                    with _variant(v), _host_profile(hp_box, cp):
+                        track(r, models, ts.frames, range(m), keyframes=kf, options=opts[hp])
+                    host = _host_table(cp, max(hp_box[0], 1))
                 prof[f"{v}/hp{hp:g}"] = {
                     "bone_frames": box[0],
                     "stage_wall_ms_per_bone_frame": 1e3 * box[1] / nb,
@@ -454,6 +501,7 @@ def _run(*, device, frames, pixels, voxel, highpass, variants, repeats, profile_
                                      for k, a in sorted(parts.items(), key=lambda kv: -kv[1][0])},
                     "serial_stage_ms_per_bone_frame": 1e3 * float(np.mean([t.get("likelihood_s", 0.0)
                                                                              for t in tim])),
+                    **({"host": host} if host is not None else {}),
                 }
                 pr = prof[f"{v}/hp{hp:g}"]
                 print(f"profile {v} hp{hp:g}: wall {pr['stage_wall_ms_per_bone_frame']:.2f}"
@@ -489,6 +537,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=None)
     p.add_argument("--frame-cache", default=None, help="a folder the trial's frames are kept in")
     p.add_argument("--poses-out", default=None, help="an .npz file for every run's poses")
+    p.add_argument("--host-profile", action="store_true",
+                   help="also profile the stages' host work (cProfile) over the profile frames")
     a = p.parse_args(argv)
     variants = tuple(a.variants.split(","))
     for v in variants:
@@ -502,7 +552,7 @@ def main(argv=None) -> int:
     out = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel,
               highpass=tuple(float(x) for x in a.highpass.split(",")), variants=variants, repeats=a.repeats,
               profile_frames=a.profile_frames, correction=a.correction, warm_frames=a.warm_frames,
-              checkpoint=save, frame_cache=a.frame_cache, poses_out=a.poses_out)
+              checkpoint=save, frame_cache=a.frame_cache, poses_out=a.poses_out, host_profile=a.host_profile)
     save(out)
     print(json.dumps({k: v for k, v in out.items() if k not in ("runs",)}, indent=1, default=float))
     return 0

@@ -40,3 +40,40 @@ def test_one_fewer_steps_flag_on_the_stage_before():
     with _variant("old+stop4"):
         got = _state()
     assert got["STOP_PRED"] == 4.0 and got["ROBUST_FROM_LAST"] is False
+
+
+def test_prev_and_nograph():
+    """``prev``: the step graphs, the moments' triangle and the sandwich's row-wise autocovariance and
+    half-lag meat off; ``nograph``: the step graphs alone."""
+    import core.tracking.engine_likelihood as el
+    import core.tracking.likelihood_confidence as lc
+    from core.studies.tracking.stage_speed import _variant
+
+    def state():
+        return (el.STEP_GRAPH, el.MOMENTS_TRI, lc.AUTOCOV_ROWS, lc.MEAT_HALF)
+
+    before = state()
+    assert before == (None, True, True, True)
+    with _variant("prev"):
+        assert state() == (False, False, False, False)
+    with _variant("nograph"):
+        assert state() == (False, True, True, True)
+    assert state() == before
+
+
+def test_host_table_per_bone_frame():
+    import cProfile
+
+    from core.studies.tracking.stage_speed import _host_table
+
+    def work():
+        return sum(i * i for i in range(2000))
+
+    p = cProfile.Profile()
+    p.enable()
+    for _ in range(4):
+        work()
+    p.disable()
+    t = _host_table(p, 2, top=5)
+    row = next(x for x in t["inside"] if x["function"].endswith("(work)"))
+    assert row["calls"] == 2.0 and row["inside_ms"] >= row["own_ms"] >= 0.0 and len(t["own"]) <= 5

@@ -3,7 +3,8 @@ calcaneus, Warp's CPU device, ``sequential_subtract``): the talus, registered fi
 subtracted at its keyframe, where the calcaneus is not, and the negative it leaves pulled the talus
 1-2.6° off, unflagged. :data:`core.tracking.frame_step.SEQUENTIAL_SECOND_PASS` (on) registers the
 first frame's bones a second time, each with the others at their first pass's poses; frames after the
-first are registered as before."""
+first are registered as before. A first frame's second round or pass is checked from the bone's round-0
+pose (:data:`~core.tracking.frame_step.FIRST_FRAME_CHECK_FROM_ROUND0`), joint tracking's too."""
 
 from __future__ import annotations
 
@@ -89,3 +90,52 @@ def test_later_frames_and_no_subtraction_unchanged(talus_calcaneus_128, monkeypa
     seen = _spy(monkeypatch)  # nothing subtracted (no stage): one pass, as before
     track(r, models, frames.__getitem__, [0], keyframes=_off_keyframes(sc, models), options=_options(False))
     assert [s[0] for s in seen] == [0, 1] and all(s[4] is None for s in seen)
+
+
+def test_second_pass_after_a_flagged_first_checked_from_the_keyframe(talus_calcaneus_128, monkeypatch):
+    """A first pass left flagged: the second is checked from the keyframe, as the first was (from the
+    flagged pose it would pass a jump unflagged)."""
+    import core.tracking.frame_step as fs
+    from core.tracking.trial import track
+
+    sc, models, r, frames = talus_calcaneus_128
+    off = _off_keyframes(sc, models)
+    real = fs.register_checked
+    seen = []
+
+    def flagged(*a, **k):  # the talus's first pass flagged
+        got = real(*a, **k)
+        if a[3] == 0 and k.get("verify"):
+            got.flags = [*got.flags, "a flag"]
+        seen.append((a[3], np.array(a[5]), k.get("verify")))
+        return got
+
+    monkeypatch.setattr(fs, "register_checked", flagged)
+    track(r, models, frames.__getitem__, [0], keyframes=off, options=_options())
+    (b0, g0, _), (b1, _, _), (b2, g2, v2), (b3, g3, _) = seen
+    assert (b0, b1, b2, b3) == (0, 1, 0, 1) and not v2
+    assert np.array_equal(g2, off["talus"][0]) and np.array_equal(g0, g2)  # the talus: from its keyframe
+    assert not np.array_equal(g3, off["calcaneus"][0])  # the calcaneus: from its unflagged first pass
+
+
+def test_joint_second_round_checked_from_round_0(talus_calcaneus_128, monkeypatch):
+    """Joint tracking's first-frame second round (FIRST_FRAME_SECOND_ROUND) from keyframes 5 mm / 5° off:
+    checked from round 0's poses it is not taken for a jump from the keyframes and retried."""
+    import core.tracking.frame_step as fs
+    from core.tracking.trial import TrackingOptions, track
+
+    sc, models, r, frames = talus_calcaneus_128
+    off = _off_keyframes(sc, models)
+    o = TrackingOptions(mode="joint", joint_rounds=1, verify_restarts=0, registration=REG,
+                        trajectory_limit=None)
+    assert fs.FIRST_FRAME_CHECK_FROM_ROUND0  # the default
+    seen = _spy(monkeypatch)
+    res = track(r, models, frames.__getitem__, [0], keyframes=off, options=o)
+    assert [s[0] for s in seen] == [0, 1, 0, 1]
+    for (_, _, g, _, _, v, a), first in zip(seen[2:], seen[:2], strict=True):
+        assert not v and not a.retried and np.array_equal(g, first[6].result.pose)
+    # the talus 0.0062 mm / 0.0019°, the calcaneus 0.0084 / 0.0052 at 857 and 724 evaluations (from the
+    # keyframes: 0.0013 / 0.0048 and 0.0088 / 0.0089 at 1688 and 1435, the second round retried)
+    for k, m in enumerate(models):
+        e = _error(res.results[(m.name, 0)].pose, sc.poses(0)[k], m.centroid)
+        assert e[0] < 0.02 and e[1] < 0.05

@@ -194,11 +194,14 @@ CHORD_STEPS = False
 #: (:mod:`core.tracking.likelihood_graph`; the same values). None: on CUDA devices only; True: on
 #: every device (the CPU's launches one by one: tests); False: the step's launches made one by one,
 #: the item table filled on the host, as first measured. Used for the default model's steps (no
-#: PSF, no extra regressors, a high-pass, the design's differences, the 13-pose design).
+#: PSF, no extra regressors, a high-pass, the design's differences, the 13-pose design). Measured with
+#: the moments' triangle and the sandwich's kernels: :mod:`core.tracking.likelihood_fast` (Phase 2).
 STEP_GRAPH: bool | None = None
 #: A step's moments table summed on and above its diagonal only
 #: (:func:`~core.tracking.likelihood_fast.wls_moments_tri_kernel`: 78 of the 144 entries, each the
 #: same sum; the host mirrors the rest), without extra regressors. Off: every entry, as first measured.
+#: One NVIDIA H100, the acceptance trial at 1024² (``tracking_stage_h2_h100.json``): 0.47 → 0.37 ms per
+#: bone-frame (3.6 tables).
 MOMENTS_TRI = True
 #: pixels a thread block of a step's moments kernel sums (None: the engine's ``chunk``, 4096, as
 #: first measured; smaller: more blocks, the same terms summed in another order, float32 rounding)

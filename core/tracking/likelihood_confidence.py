@@ -39,11 +39,13 @@ AUTOCOV_CHUNK: int | None = None
 #: (:func:`~core.tracking.likelihood_fast.autocov_rows_kernel`: each pixel read once for them, 18
 #: passes over the region at 4 px instead of 145; the same pairs and products, summed in another
 #: order). Off: a pass per lag (:func:`~core.tracking.likelihood_kernels.autocov_kernel`), as first
-#: measured.
+#: measured. One NVIDIA H100, the acceptance trial at 1024² (``tracking_stage_h2_h100.json``): 0.51 →
+#: 0.31 ms per bone-frame at 4 px, 1.87 → 1.08 ms at 8 px.
 AUTOCOV_ROWS = True
 #: The meat over half the lags (those after lag 0, twice; :func:`~core.tracking.likelihood_kernels.
 #: meat_kernel`'s ``half``): the same symmetric matrix in half the products (float32 sums in another
-#: order). Off: every lag, as first measured.
+#: order). Off: every lag, as first measured. Same call: 0.43 → 0.22 ms at 4 px, 1.50 → 0.75 ms at 8 px;
+#: σ within 7 · 10⁻⁸ relative over the 90 bone-frames.
 MEAT_HALF = True
 
 

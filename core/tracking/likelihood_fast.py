@@ -134,6 +134,23 @@ share 4.19 ms: DRRs 1.20, the sandwich's meat 0.72 (0.36 with 512 pixels a block
 :data:`~core.tracking.likelihood_confidence.MEAT_CHUNK`, since the default) and autocovariance
 0.51, blurs 0.62, moments 0.47 ms. Forward differences (7 poses a step) would save ~0.4 ms of DRRs
 but bias the poses (~1 σ on a 256² CPU trial); a step captured as a CUDA graph, not tried.
+
+Phase 2: a step as one CUDA graph (:mod:`core.tracking.likelihood_graph`,
+:data:`~core.tracking.engine_likelihood.STEP_GRAPH`), the moments on and above the table's diagonal
+(:func:`wls_moments_tri_kernel`), the autocovariance 9 lags of a row a thread (:func:`autocov_rows_kernel`)
+and the meat over half the lags (:data:`~core.tracking.likelihood_confidence.MEAT_HALF`). One NVIDIA H100
+(the acceptance trial at 1024², 30 frames, three bones jointly; ``stage_speed --variants prev,base,nograph``,
+three repeats alternated; ``resources/benchmarks/tracking_stage_h2_h100.json``): 5.48 → 4.66 ms per
+bone-frame at 4 px (the new kernels without the graphs 5.30), 7.99 → 6.01 ms at 8 px; the device's share
+3.92 → 3.36 ms (4 px) and 6.64 → 4.93 ms (8 px); poses within 3 · 10⁻¹³ mm, σ within 7 · 10⁻⁸ relative, the
+same steps, errors over the bound and flags. The graphs' device time is their kernels' (2.05 ms a
+bone-frame: DRRs ~1.1, blurs ~0.5, moments ~0.26, differences ~0.1); they save host launches. What stands
+between this and 2.5 ms (``tracking_stage_h2_host_h100.json``, a host profile): the set-up's copies of
+the fluence regions into pinned memory and the region's projection (``search_roi``), each step's 6 × 6
+solve's numpy calls (~0.2 ms), the robust factors' launches and sorts — the host's ~1.5 ms a bone-frame
+beyond the device's — and on the device the DRRs and blurs, which scale with the region's area (the
+bone's volume box projected, grown by 1 mm and 4 px: a box of the bone's outline would be smaller, not
+tried: it changes the pixels and so the poses).
 """
 
 from __future__ import annotations

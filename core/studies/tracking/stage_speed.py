@@ -50,7 +50,8 @@ a step's DRRs, blurs and moments as one ``graph`` activity. Measured:
 is today's ``plain``, its ``diff`` ``DIFF_IMAGES`` alone) and ``tracking_stage_speed_fast_h100.json``
 (``plain``, ``exact``, ``fast``; ``fast`` is today's default; the numbers in
 :mod:`core.tracking.likelihood_fast`); ``tracking_stage_fewer_steps_h100.json`` (``old`` against
-the fewer steps, two calls).
+the fewer steps, two calls); ``tracking_stage_h2_h100.json`` (``prev``, ``base``, ``nograph``) and
+``tracking_stage_h2_host_h100.json`` (``prev``, ``base`` with ``--host-profile``).
 """
 
 from __future__ import annotations

@@ -138,7 +138,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..geometry.transforms import params_from_pose
 from .cost import CostTimer, FrameImages, OutsideViewError, search_roi, snap_roi
 from .engine_likelihood import (
     TO_TOL,
@@ -411,6 +410,21 @@ def final_stages(renderer, frame: FrameImages, calls: Sequence[tuple]) -> list:
 
 _PLAIN_FINAL_STAGE = final_stage  # (final_stages: a study may wrap the module's final_stage)
 
+
+def stage_params(pose: np.ndarray, center: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """:func:`core.geometry.transforms.params_from_pose` of one stage pose (rigid: made by the engine's
+    :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.poses`) about ``center`` relative to the
+    rigid ``base``: the same arithmetic and values, without its checks of both transforms (a third of
+    its time)."""
+    from scipy.spatial.transform import Rotation
+
+    c = np.asarray(center, dtype=float)
+    R, Rb = pose[:3, :3], base[:3, :3]
+    rv = Rotation.from_matrix((R @ np.swapaxes(Rb, -1, -2)).reshape(-1, 3, 3)).as_rotvec().reshape(3)
+    disp = (np.einsum("...ij,...j->...i", R, c) + pose[:3, 3] - np.einsum("...ij,...j->...i", Rb, c)
+            - base[:3, 3])
+    return np.concatenate([disp, rv])
+
 #: :func:`confirm_move`: the stage run again from another start confirms its pose where it lands
 #: within this fraction of the stage's move of it (translation; rotation too, or within 0.05°)
 CONFIRM_FRACTION = 0.25
@@ -519,7 +533,7 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
         timing["likelihood_taken"] = 0
         return replace(res, timing=timing, evaluations=evals, time_s=res.time_s + dt)
     pose = eng.poses(d[None])[0]
-    p = params_from_pose(pose, center=center, base=np.asarray(initial_pose, dtype=float))
+    p = stage_params(pose, center, np.asarray(initial_pose, dtype=float))
     x = np.r_[p[:3], np.degrees(p[3:])]
     timing["likelihood_taken"] = 1
     fit = LikelihoodFit.of(cov, x=x, chi2=float(out["chi2"]),

@@ -38,7 +38,9 @@ squares of the bone's DRR against the line-integral image on the device
 (:mod:`core.tracking.engine_likelihood`: both high-passed by ``final_highpass_px``, the pixels
 weighted by their expected counts, the gain and an offset fitted linearly, the neighbours of
 ``others`` subtracted at their poses), a few Gauss–Newton steps from the similarity's optimum,
-in the bone's volume box grown by 1 mm. By default the pixels are weighted robustly
+in the bone's volume box grown by 1 mm. Before it the ``"newton"`` search stops at a looser
+tolerance (:data:`~core.tracking.register_options.STAGE_SEARCH_TOL`, 0.5 mm and degrees, against
+its own 0.02): the stage only needs a start inside its basin. By default the pixels are weighted robustly
 (:class:`~core.tracking.final_stage.FinalModel`, ``robust=2.5``, the module's ``MODEL``): after
 a first refinement each pixel's weight falls (Cauchy) where the local residual RMS is over 2.5 ×
 its view's median — structure the model lacks — and the pose is refined again; ``robust=None`` is

@@ -48,6 +48,28 @@ def _hull_points(points) -> np.ndarray:
     return V
 
 
+#: :func:`search_roi` without ``points``: the volume box's eight corners projected by
+#: :func:`_boxes` with the views' camera table (the same numbers as
+#: :meth:`core.render.DRRRenderer.auto_roi`, whose per-view projection took ~0.6 ms a call under
+#: cProfile on the likelihood stage's path). Off: ``auto_roi``, as first written.
+BOX_CORNERS = True
+
+_CORNERS: dict = {}  # search_roi: per renderer, its volumes' box corners as homogeneous columns
+
+
+def _box_lab(renderer, bone: int, pose: np.ndarray) -> np.ndarray:
+    """The lab positions ``(8, 3)`` of the corners of ``bone``'s volume box at ``pose`` (the
+    renderer's ``_corners``; the arithmetic of :meth:`~core.render.DRRRenderer.auto_roi`)."""
+    corners = renderer._corners
+    key = (id(renderer), int(bone))
+    hit = _CORNERS.get(key)
+    if hit is None or hit[0] is not corners:
+        if len(_CORNERS) >= 64:
+            _CORNERS.clear()
+        hit = _CORNERS[key] = (corners, np.c_[corners[bone], np.ones(8)])
+    return np.einsum("bij,kj->bki", pose[None], hit[1])[0, :, :3]
+
+
 _CAM_TABLES: dict = {}  # search_roi: per renderer and views, its cameras' numbers (_camera_table)
 
 
@@ -112,12 +134,15 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
     Raises :class:`OutsideViewError` when a view's ROI is empty.
 
     The views' cameras are projected together (their numbers kept per renderer,
-    :func:`_camera_table`): on the tracker's path, a few calls per frame."""
+    :func:`_camera_table`; the volume box's corners too, :data:`BOX_CORNERS`): on the tracker's
+    path, a few calls per frame."""
     pose = np.asarray(pose, float)
     views = tuple(int(v) for v in views)
     table = _camera_table(renderer, views)
     cams, reach_px = table[4], table[5]
-    if points is None:
+    if points is None and BOX_CORNERS and hasattr(renderer, "_corners"):
+        box = _boxes(cams, _box_lab(renderer, bone, pose), table)
+    elif points is None:
         box = renderer.auto_roi(pose[None, None], views=views, bones=[bone], margin=0)[0, :, 0].tolist()
     else:
         P = _hull_points(points)

@@ -67,3 +67,37 @@ def test_search_roi_projects_all_views_as_each_camera_does():
     assert got_inside > 100 and got_outside > 0
     snapped = snap_roi(np.array([[17, 3, 40, 50], [0, 100, 5, 30]]), renderer, (0, 1))
     np.testing.assert_array_equal(snapped, [[16, 0, 48, 64], [0, 96, 16, 32]])
+
+
+def test_search_roi_volume_box_as_auto_roi(monkeypatch):
+    """Without points, the volume box's corners projected with the camera table (roi.BOX_CORNERS)
+    give the regions of the renderer's auto_roi, to the pixel, inside, across and outside the views."""
+    import core.tracking.roi as roi_mod
+    from core.render.drr import DRRRenderer
+
+    rig = foot_rig(pixels=128)
+    lo, hi = np.array([-30.0, -18.0, -12.0]), np.array([34.0, 15.0, 13.0])
+    corners = np.array([[a, b, d] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for d in (lo[2], hi[2])])
+    renderer = SimpleNamespace(cameras=tuple(rig.cameras), _corners=[corners + 1.0, corners])
+    renderer.auto_roi = lambda *a, **k: DRRRenderer.auto_roi(renderer, *a, **k)
+    rng = np.random.default_rng(11)
+    center = corners.mean(axis=0)
+    seen = {"inside": 0, "outside": 0}
+    for k in range(80):
+        spread = 5.0 if k < 50 else 300.0
+        pose = pose_from_params(np.r_[rng.normal(0, spread, 3), rng.normal(0, 0.4, 3)], center=center)
+        got = []
+        for flag in (True, False):
+            monkeypatch.setattr(roi_mod, "BOX_CORNERS", flag)
+            try:
+                got.append(search_roi(renderer, pose, 1, views=(0, 1), center=center, reach_mm=1.0,
+                                      margin_px=4))
+            except OutsideViewError:
+                got.append(None)
+        if got[1] is None:
+            assert got[0] is None
+            seen["outside"] += 1
+        else:
+            np.testing.assert_array_equal(got[0], got[1])
+            seen["inside"] += 1
+    assert seen["inside"] > 50 and seen["outside"] > 0

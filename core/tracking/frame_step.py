@@ -128,11 +128,11 @@ from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
-__all__ = ["AHEAD", "FINAL_EVERY_ROUND", "FIRST_FRAME_CHECK_FROM_ROUND0", "FIRST_FRAME_SECOND_ROUND",
-           "JOINT_KEYFRAMES", "MISSING_FLAG",
-           "RESTART_FROM_PREDICTION", "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_MOVE_CONFIRM",
-           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
-           "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_CHECK_FROM_ROUND0",
+           "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION",
+           "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES",
+           "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags", "stage_move_check",
+           "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -166,6 +166,10 @@ SEQUENTIAL_NEIGHBOURS = True
 #: trajectory check): there the second run to tol took 9-15 steps against the first's 3-4 (512²,
 #: ``tracking_stage_residue_cpu.json``'s confirm part).
 STAGE_MOVE_CONFIRM = True
+#: The confirmation's translation floor (mm): a second run within it of the stage's pose, and within half
+#: the move, confirms it where the rotation passes ``confirm_move``'s test (which has a 0.05° floor for
+#: the rotation, none for the translation: moves of little translation were rejected; :func:`_confirmed`).
+CONFIRM_FLOOR_MM = 0.02
 #: Joint tracking subtracts a bone with a keyframe in the frame (the user's pose of it there) at it until it
 #: is registered in the frame, as sequential tracking does; off (the default): as before, a first frame's
 #: round 0 registers the bones one after another and the first has nothing subtracted. Measured on the
@@ -187,21 +191,15 @@ JOINT_KEYFRAMES = False
 FIRST_FRAME_SECOND_ROUND = True
 #: Sequential tracking that subtracts the neighbours (``sequential_subtract``, or the final stage's
 #: :data:`SEQUENTIAL_NEIGHBOURS`) gives a first frame (a bone in it without a tracked pose) a second pass:
-#: every bone registered again from its first pass's pose with the others at theirs (the first pass subtracts
-#: a bone not yet registered at its keyframe, which leaves its negative where the bone is not when the
-#: keyframe is off), with the first frame's options, checked from the first pass's pose (from the keyframe, a
-#: pose come back from 5 mm off would be a jump, retried from the keyframe: the frame's evaluations ×1.9-2.0,
-#: the same errors within 0.01°). Ideal 128² talus-calcaneus scene (CPU, this 2-core x86_64 machine;
-#: ``sequential_subtract``, no restarts; 6 draws; ``test_sequential_first_frame_second_pass.py``): from
-#: keyframes 5 mm / 5° off the talus went from 0.06-0.38 mm / 0.32-2.58° to 0.0005-0.0037 mm / 0.003-0.011°,
-#: the calcaneus from 0.002-0.030 mm / 0.017-0.069° to 0.0004-0.0024 mm / 0.002-0.004°, the frame's
-#: evaluations (both bones) +29-53 % (+23-39 % with 4 restarts, 3 draws); 3 mm / 3° (4 draws): the talus
-#: 0.11-0.17 mm / 0.22-1.10° → ≤ 0.002 mm / 0.006°; 1 mm / 1° (3 draws): 0.06-0.09 mm / 0.20-0.21° → ≤ 0.0025
-#: mm / 0.022°; true keyframes unchanged (0.0003 mm / 0.003°) at twice the evaluations (255 → 510 a bone). Not
-#: subtracting a bone's keyframe in the first pass gave, with a second pass (checked from the keyframe), the
-#: same within 0.01° (true keyframes: 0.005 mm / 0.006°), without one 0.17-0.27 mm / 0.32-0.68°. With the
-#: final stage alone subtracting (no ``sequential_subtract``; 3 draws) the talus went from 0.09-0.17 mm /
-#: 0.64-0.94° to 0.005 mm / 0.040-0.045°. Later frames are registered as before.
+#: every bone again from its first pass's pose, with the first frame's options, the others at their first
+#: pass's poses (the first pass subtracts a bone not yet registered at its keyframe: off the truth, its
+#: negative where the bone is not). Ideal 128² talus-calcaneus scene (CPU, this 2-core x86_64 machine;
+#: ``sequential_subtract``, no restarts; 6 draws), keyframes 5 mm / 5° off: the talus 0.06-0.38 mm /
+#: 0.32-2.58° → 0.0005-0.0037 mm / 0.003-0.011°, the calcaneus 0.002-0.030 mm / 0.017-0.069° → ≤ 0.0024
+#: mm / 0.004°, the frame's evaluations +29-53 % (+23-39 % with 4 restarts); 3 mm / 3° and 1 mm / 1°: the
+#: talus up to 1.10° and 0.21° → ≤ 0.022°; true keyframes unchanged at 255 → 510 evaluations a bone. The
+#: final stage alone subtracting: 0.64-0.94° → 0.04-0.045° (3 draws). Not subtracting keyframes in the
+#: first pass: 0.32-0.68° without a second pass, the same as this with one. Later frames unchanged.
 SEQUENTIAL_SECOND_PASS = True
 #: A first frame's second round (joint, :data:`FIRST_FRAME_SECOND_ROUND`) or pass (sequential,
 #: :data:`SEQUENTIAL_SECOND_PASS`) is checked from the bone's round-0 pose where round 0 left it unflagged
@@ -526,8 +524,10 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 def _confirmed(run: _Run, frame, i: int, a: Attempt, others, w: _Work, moved: list) -> list:
     """The move check's flag ``moved`` of bone ``i``'s attempt ``a``, or none where the stage run again
     from the far side of its pose confirms it (:func:`core.tracking.final_stage.confirm_move`; a note
-    says so); the second run's work added to ``w``."""
-    from .final_stage import confirm_move
+    says so); the second run's work added to ``w``. Where it lands within :data:`CONFIRM_FLOOR_MM` (and
+    half the move) too: on noisy 128² views (CPU; every stage move sent to it) two of 22 moves, 0.016 and
+    0.033 mm but 0.77° and 0.76°, landed 0.006 and 0.010 mm away and were rejected, 0.67-0.75° worse."""
+    from .final_stage import CONFIRM_FRACTION, confirm_move
 
     try:
         c = confirm_move(run.renderer, frame, a.result, bone=i, center=run.bones[i].centroid,
@@ -538,9 +538,11 @@ def _confirmed(run: _Run, frame, i: int, a: Attempt, others, w: _Work, moved: li
         return moved
     w.evaluations += c["evaluations"]
     w.time_s += c["time_s"]
-    if not c["confirmed"]:
+    t = a.result.timing or {}
+    mm, deg = t.get("likelihood_move_mm", float("nan")), t.get("likelihood_move_deg", float("nan"))
+    if not (c["confirmed"] or (c["mm"] <= min(CONFIRM_FLOOR_MM, 0.5 * mm)
+                               and c["deg"] <= max(CONFIRM_FRACTION * deg, 0.05))):
         return moved
-    mm = (a.result.timing or {}).get("likelihood_move_mm", float("nan"))
     a.notes = (*a.notes, f"final stage's move {mm:.3f} mm kept: run again from the far side it ended "
                          f"{c['mm']:.3f} mm, {c['deg']:.3f} deg from its pose")
     return []

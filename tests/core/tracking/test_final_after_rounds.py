@@ -163,6 +163,7 @@ def test_a_flagged_stage_move_confirmed_from_the_guess_is_kept(two_bones, monkey
     lands on the stage's pose, so the frame keeps it, unflagged, with a note; a confirmation that
     cannot succeed (CONFIRM_FRACTION 0) leaves the flag and the rejection as before."""
     import core.tracking.final_stage as fst
+    import core.tracking.frame_step as fs
 
     res, seen, models = _flagging_run(two_bones, monkeypatch)
     nm = models[0].name
@@ -173,6 +174,7 @@ def test_a_flagged_stage_move_confirmed_from_the_guess_is_kept(two_bones, monkey
     assert np.array_equal(f2.pose, st2) and not np.array_equal(st2, sim2)
     assert len(f2.notes) == 1 and f2.notes[0].startswith("final stage's move")
     monkeypatch.setattr(fst, "CONFIRM_FRACTION", 0.0)
+    monkeypatch.setattr(fs, "CONFIRM_FLOOR_MM", 0.0)  # (and frame_step's translation floor)
     res, seen, models = _flagging_run(two_bones, monkeypatch)
     f2 = res.results[(nm, 2)]
     assert len(f2.flags) == 1 and "final stage rejected" in f2.flags[0] and not f2.notes

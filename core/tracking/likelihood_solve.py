@@ -14,6 +14,8 @@ Pereyra), the step ``δ = (JᵀWJ)⁻¹ JᵀWr`` summed over views — the same 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .likelihood_kernels import NA, NZ
@@ -30,33 +32,60 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: boo
     regressor with a gain of their own; ``extra``: the tables' extra regressors (entries 12 … of
     ``z``, :func:`~core.tracking.likelihood_kernels.regressor_kernels`), each with its own
     coefficient. The views at once (stacked solves and products; the same values to 4e-16, in half
-    the time of a loop over the views)."""
+    the time of a loop over the views); the tables' entries taken by flat index arrays made once per
+    model (:func:`_indices`; the same arithmetic and values to the bit, 149 → 130 µs a call on a 2-core
+    x86_64 CPU)."""
     extra = int(extra)
     nz, na = NZ + extra, NA + extra
     M = np.asarray(M, dtype=np.float64).reshape(-1, nz, nz)
     n = len(M)
-    bg = [8] if background == 0 else [8, 9, 10]
-    ai = np.array([1, *bg, *([11] if others else []), *range(NZ, nz)])
-    # their places in A = (D, 1, u, v, O, T_1 … T_extra)
-    slot = [0, *range(1, len(bg) + 1), *([4] if others else []), *range(NA, na)]
-    di = np.arange(2, 8)
+    ix = _indices(int(background), bool(others), extra)
+    Mf = M.reshape(n, nz * nz)
     s = 1.0 / (2.0 * np.asarray(h, dtype=float))
-    G = M[:, ai[:, None], ai[None, :]]  # (views, p, p)
-    b = M[:, ai, 0]
+    G = Mf[:, ix.G]  # (views, p, p)
+    b = Mf[:, ix.b]
     coef = np.linalg.solve(G, b[..., None])[..., 0]  # (views, p)
     chi2 = float(np.sum(M[:, 0, 0] - np.einsum("vi,vi->v", coef, b)))
-    MDA = s[None, :, None] * M[:, di[:, None], ai[None, :]]  # (views, 6, p)
-    MDD = s[None, :, None] * M[:, di[:, None], di[None, :]] * s[None, None, :]
-    MDy = s[None, :] * M[:, di, 0]
+    MDA = s[None, :, None] * Mf[:, ix.DA]  # (views, 6, p)
+    MDD = s[None, :, None] * Mf[:, ix.DD] * s[None, None, :]
+    MDy = s[None, :] * Mf[:, ix.Dy]
     beta = np.linalg.solve(G, MDA.transpose(0, 2, 1))  # (views, p, 6)
     a = coef[:, 0]
     JJ = ((a * a)[:, None, None] * (MDD - MDA @ beta)).sum(axis=0)
     Jr = (a[:, None] * (MDy - (MDA @ coef[..., None])[..., 0])).sum(axis=0)
     lin = np.zeros((n, na + 7 + 6 * na))
-    lin[:, slot] = coef
+    lin[:, ix.slot] = coef
     lin[:, na] = a
     lin[:, na + 1:na + 7] = s
-    bf = np.zeros((n, na, 6))
-    bf[:, slot] = beta
-    lin[:, na + 7:] = bf.reshape(n, -1)
+    lin[:, ix.beta] = beta.reshape(n, -1)
     return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
+
+
+class _Index(NamedTuple):
+    G: np.ndarray  # (p, p) flat places of A's products in a table
+    b: np.ndarray  # (p,) of Aᵀy
+    DA: np.ndarray  # (6, p) of the differences' products with A
+    DD: np.ndarray  # (6, 6) of theirs
+    Dy: np.ndarray  # (6,) of theirs with y
+    slot: list  # A's columns' places in lin's coefficients
+    beta: np.ndarray  # (p * 6,) β's places in lin
+
+
+_INDEX: dict = {}
+
+
+def _indices(background: int, others: bool, extra: int) -> _Index:
+    """:func:`solve_moments`' places in a flat table (kept per model: index arrays are made once)."""
+    key = (background, others, extra)
+    hit = _INDEX.get(key)
+    if hit is None:
+        nz, na = NZ + extra, NA + extra
+        bg = [8] if background == 0 else [8, 9, 10]
+        ai = np.array([1, *bg, *([11] if others else []), *range(NZ, nz)])
+        # their places in A = (D, 1, u, v, O, T_1 … T_extra)
+        slot = [0, *range(1, len(bg) + 1), *([4] if others else []), *range(NA, na)]
+        di = np.arange(2, 8)
+        beta = (na + 7 + 6 * np.asarray(slot)[:, None] + np.arange(6)[None, :]).ravel()
+        hit = _INDEX[key] = _Index(ai[:, None] * nz + ai[None, :], ai * nz, di[:, None] * nz + ai[None, :],
+                                   di[:, None] * nz + di[None, :], di * nz, slot, beta)
+    return hit

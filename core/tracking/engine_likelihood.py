@@ -106,6 +106,7 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
+from . import likelihood_launches as _LL
 from .cost import FrameImages
 from .engine import GaussNewtonCost
 from .engine_search import step_design
@@ -275,6 +276,8 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             shapes = [(int(h), int(w)) for _, _, w, h in self.roi]
         self._cap = tuple(int(math.ceil(max(sh[k] for sh in shapes) / 32.0) * 32) for k in (0, 1))
         Hc, Wc = self._cap
+        if _LL.BUFFERS_PER_SIZE:  # (each size's buffers kept)
+            self._use_buffers(self._cap)
         hw = np.array(shapes, dtype=np.int32)
         if self._hw_last is None or not np.array_equal(hw, self._hw_last):
             self._host_hw.numpy()[:] = hw

@@ -7,10 +7,40 @@ from __future__ import annotations
 
 import warp as wp
 
+#: The engine's device buffers and recorded launches kept per output size (:meth:`_Launches._use_buffers`):
+#: a region whose size comes back (the regions' sizes, in 32-pixel steps, changed at 3-12 of 30
+#: frames per bone on the acceptance trial at 1024², among 2-5 sizes) reuses them and the step graphs
+#: captured on them; the same kernels on the same sizes: the same values. Off: one set, made anew
+#: where a size changes (and the step's graph captured again), as first written.
+BUFFERS_PER_SIZE = True
+#: sizes whose buffers an engine keeps (least recently used out; the step graphs keep as many)
+KEEP_SIZES = 4
+
 
 class _Launches:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s buffers, launches and waits (its
     attributes: ``device``, ``_bufs``, ``_cmds``, ``_done``)."""
+
+    def _use_buffers(self, key) -> None:
+        """The device buffers and recorded launches of ``key`` (the frame's output size) from now on:
+        each size's kept (the last :data:`KEEP_SIZES`), so that a region that comes back to a size it
+        had finds its buffers, its recorded launches and the step graphs made on them
+        (:mod:`~core.tracking.likelihood_graph`: keyed by the buffers' addresses) instead of
+        allocating, recording and capturing them again (:data:`BUFFERS_PER_SIZE`)."""
+        sets = self.__dict__.setdefault("_buf_sets", {})
+        cur = self.__dict__.get("_buf_key")
+        if cur == key:
+            return
+        if cur is not None:
+            sets[cur] = (self._bufs, self._cmds)
+        hit = sets.pop(key, None)
+        if hit is None:
+            hit = ({}, {})
+            while len(sets) >= KEEP_SIZES:
+                sets.pop(next(iter(sets)))
+        sets[key] = hit  # (most recently used last)
+        self._bufs, self._cmds = hit
+        self._buf_key = key
 
     def _buffer(self, name: str, shape: tuple, dtype=wp.float32):
         """The engine's device buffer ``name`` of ``shape`` (made anew where its shape changed)."""

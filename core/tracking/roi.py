@@ -8,11 +8,12 @@ costs take these regions.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["OutsideViewError", "search_roi", "snap_roi"]
+__all__ = ["OutsideViewError", "search_roi", "snap_roi", "support_points"]
 
 
 class OutsideViewError(ValueError):
@@ -161,6 +162,39 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
         out.append((lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1]))
     return np.array(out, dtype=np.int64).reshape(len(views), 4)
+
+
+_SUPPORT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def support_points(renderer, bone: int) -> np.ndarray | None:
+    """``(n, 3)`` points (the volume's physical frame, mm) whose convex hull holds every voxel of the
+    renderer's volume ``bone`` with a positive attenuation, each moved by ±1 voxel along every axis
+    (trilinear support): the support of the bone's DRR (:attr:`core.tracking.bones.BoneModel.outline`'s
+    construction, of ``μ > 0`` instead of the bone's mask). Kept per renderer; None where the volume
+    has no such voxel."""
+    per = _SUPPORT.setdefault(renderer, {})
+    if int(bone) in per:
+        return per[int(bone)]
+    from scipy.ndimage import binary_erosion
+    from scipy.spatial import ConvexHull, QhullError
+
+    vol = renderer.volumes[int(bone)]
+    mask = np.asarray(vol.data) > 0
+    out = None
+    if mask.any():
+        shell = mask & ~binary_erosion(mask)
+        k, j, i = np.nonzero(shell)
+        P = np.column_stack([i, j, k]).astype(float)
+        try:
+            P = P[ConvexHull(P).vertices]
+        except (QhullError, ValueError):  # flat or tiny supports: every shell voxel
+            pass
+        corners = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
+        out = vol.index_to_physical((P[:, None, :] + corners[None]).reshape(-1, 3))
+        out.setflags(write=False)
+    per[int(bone)] = out
+    return out
 
 
 def snap_roi(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:

@@ -41,6 +41,10 @@ call 1, before, had them off): one at a time on the stage before is ``old+last``
 ``fwd`` the forward design,
 ``chord`` the later steps with the design's centre alone rendered,
 ``sc<n>`` / ``meat<n>`` / ``mc<n>`` the sandwich's / its meat's / the moments' pixels a thread block;
+``hostprev`` phase 3's exact host changes off (:data:`core.tracking.roi.BOX_CORNERS`,
+:data:`core.tracking.likelihood_launches.BUFFERS_PER_SIZE`), ``ol<c>`` the region
+from the bone's DRR support grown by ``c`` more high-pass σ (:data:`core.tracking.final_stage.REGION_OUTLINE`;
+changes the poses);
 ``prev`` this work's step graphs (:mod:`core.tracking.likelihood_graph`), moments' triangle and the
 sandwich's row-wise autocovariance and half-lag meat off (the defaults before them), ``nograph`` the
 step graphs alone off;
@@ -85,6 +89,8 @@ _OLD_STEPS = {"STOP_PRED": 0.0, "ROBUST_FROM_LAST": False, "DEVICE_REGIONS": Fal
 #: the recorded steps, the moments' triangle and the sandwich's rows and half lags off (the defaults
 #: before them: engine_likelihood.STEP_GRAPH, MOMENTS_TRI; likelihood_confidence.AUTOCOV_ROWS, MEAT_HALF)
 _PREV = {"STEP_GRAPH": False, "MOMENTS_TRI": False, "AUTOCOV_ROWS": False, "MEAT_HALF": False}
+#: phase 3's exact host changes off (roi.BOX_CORNERS, likelihood_launches.BUFFERS_PER_SIZE)
+_HOST_PREV = {"BOX_CORNERS": False, "BUFFERS_PER_SIZE": False}
 #: the stage's variants by name: a context manager factory each (the module flags they set)
 VARIANTS: dict = {
     "base": _base,
@@ -120,7 +126,10 @@ VARIANTS: dict = {
     "prev": lambda: _flags(**_PREV),
     # the steps' launches one by one (engine_likelihood.STEP_GRAPH off), the new kernels kept
     "nograph": lambda: _flag("core.tracking.engine_likelihood", "STEP_GRAPH", False),
-    # (and "stop<c>": a refinement ends after a step below c χ²/N, engine_likelihood.STOP_PRED = c)
+    # phase 3's exact host changes off: search_roi's volume box by auto_roi, the buffers made anew per size
+    "hostprev": lambda: _flags(**_HOST_PREV),
+    # (and "stop<c>": a refinement ends after a step below c χ²/N, engine_likelihood.STOP_PRED = c;
+    # "ol<c>": the region from the bone's DRR support grown by c more high-pass σ, final_stage.REGION_OUTLINE)
 }
 _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
               "DIFF_IMAGES": "core.tracking.engine_likelihood",
@@ -132,7 +141,9 @@ _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
               "STEP_GRAPH": "core.tracking.engine_likelihood",
               "MOMENTS_TRI": "core.tracking.engine_likelihood",
               "AUTOCOV_ROWS": "core.tracking.likelihood_confidence",
-              "MEAT_HALF": "core.tracking.likelihood_confidence"}
+              "MEAT_HALF": "core.tracking.likelihood_confidence",
+              "BOX_CORNERS": "core.tracking.roi",
+              "BUFFERS_PER_SIZE": "core.tracking.likelihood_launches"}
 
 
 @contextmanager
@@ -168,7 +179,8 @@ _NUMBERED = {"stop": (("core.tracking.engine_likelihood", "STOP_PRED"),),
              "sc": (("core.tracking.likelihood_confidence", "MEAT_CHUNK"),
                     ("core.tracking.likelihood_confidence", "AUTOCOV_CHUNK")),
              "meat": (("core.tracking.likelihood_confidence", "MEAT_CHUNK"),),
-             "mc": (("core.tracking.engine_likelihood", "MOMENTS_CHUNK"),)}
+             "mc": (("core.tracking.engine_likelihood", "MOMENTS_CHUNK"),),
+             "ol": (("core.tracking.final_stage", "REGION_OUTLINE"),)}
 
 
 def _numbered(part: str):
@@ -178,7 +190,7 @@ def _numbered(part: str):
     for pre in _NUMBERED:
         if part.startswith(pre):
             try:
-                x = (float if pre == "stop" else int)(part[len(pre):])
+                x = (float if pre in ("stop", "ol") else int)(part[len(pre):])
             except ValueError:
                 return None
             return (pre, x) if x >= 0 else None

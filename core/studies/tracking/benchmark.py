@@ -38,13 +38,17 @@ visible.
 ``--search`` picks the tracking search (``newton``: the Gauss–Newton engine,
 :mod:`core.tracking.engine`; ``local``: the quadratic-model search); ``--compare`` runs both on
 the same scene and device. ``--final`` picks the final stage (``none``, the default, or
-``likelihood``: :attr:`~core.tracking.options.TrackingOptions.refine_likelihood`); a comma-separated
+``likelihood``: :attr:`~core.tracking.options.TrackingOptions.refine_likelihood`, the search before it
+stopping at :data:`~core.tracking.register_options.STAGE_SEARCH_TOL`; ``likelihood_full``: the stage
+after the search to its own tolerance, as before that constant, under ``<case>_likelihood_full``, each
+stage case's ``stage_search_tol`` saying which); a comma-separated
 list runs each case once per entry in that order on the same scene (``none,likelihood,likelihood,none``:
 the stage's cost end to end, alternated), the results under ``<case>``, ``<case>_likelihood`` and, for
 an entry's second occurrence, ``<case>_2`` / ``<case>_likelihood_2``; the device floor counts the
 Gauss–Newton engine's evaluations only, not the stage's. Full size: 1024² views, 0.5 mm voxels,
 100 frames (a GPU); ``--quick``: 192² views, 1 mm voxels, 8 frames (this machine's CPU);
-``--pixels``, ``--voxel``, ``--frames`` override. JSON on stdout.
+``--pixels``, ``--voxel``, ``--frames`` override; ``--workers``: the frames' image chain in that many
+processes (the same frames, made before the clock starts). JSON on stdout.
 """
 
 from __future__ import annotations

@@ -185,7 +185,8 @@ JOINT_KEYFRAMES = False
 #: registered first is registered once more with the others subtracted. On by default: with one round
 #: (the default since 8dbdcc2) the first frame is as two rounds made it before, at one extra round on that
 #: frame only. Same scene, keyframes 5 mm / 5° off, one round: the talus 0.19-0.28 mm / 0.25-0.64° →
-#: 0.0004-0.0013 mm / 0.002-0.004° (4 draws; the calcaneus, registered after the talus, unchanged); later
+#: 0.0004-0.0013 mm / 0.002-0.004° (4 draws, checked from the keyframes; now from round 0's poses:
+#: :data:`FIRST_FRAME_CHECK_FROM_ROUND0`; the calcaneus, registered after the talus, unchanged); later
 #: frames unchanged. On held-out seed 4 (one NVIDIA H100, 1024², no stage) the tibia's frame 0 was 1.21°
 #: off with two rounds and 1.57° with one (sequentially 0.25°); the switch not yet run there.
 FIRST_FRAME_SECOND_ROUND = True

@@ -208,9 +208,10 @@ SEQUENTIAL_SECOND_PASS = True
 #: from a keyframe 5 mm off is taken for a jump and retried from the keyframe, widened, with the restart
 #: check). A round 0 left flagged is checked from the keyframe still: from its pose a jump would pass
 #: unflagged. Ideal 128² talus-calcaneus scene (CPU, this 2-core x86_64 machine), keyframes 5 mm / 5° off:
-#: joint tracking (one round), 3 draws, the talus 0.0006-0.0019 mm / 0.003-0.007° → 0.003-0.006 mm /
-#: 0.004-0.007°, the calcaneus 0.004-0.009 mm / 0.004-0.012° → 0.004-0.008 mm / 0.006-0.013°, the frame's
-#: evaluations (both bones) 3195-3664 → 1677-1930 (with 4 restarts 4066-4496 → 2132-2359); from keyframes
+#: joint tracking (one round), 6 draws, the talus 0.0005-0.0019 mm / 0.002-0.007° → 0.003-0.006 mm /
+#: 0.004-0.008°, the calcaneus 0.004-0.009 mm / 0.004-0.012° → 0.004-0.008 mm / 0.006-0.013°, the frame's
+#: evaluations (both bones) 3195-3664 → 1677-1930 (3 draws with 4 restarts 4066-4496 → 2132-2359;
+#: ``resources/benchmarks/first_frame_keyframes_joint_cpu.json``, ``…_sequential_cpu.json``); from keyframes
 #: 1 mm / 1° off or true, no retry either way and the same poses. Sequential tracking's second pass (the
 #: test's draw): the same errors within 0.003 mm / 0.004°, 4290 → 2652 evaluations.
 FIRST_FRAME_CHECK_FROM_ROUND0 = True

@@ -9,7 +9,7 @@ the round began with: their constant-velocity predictions (a first frame's secon
 round-0 poses). The searched poses of the neighbours in this very frame are known by then. This
 study runs the tracker itself (:func:`core.tracking.trial.track`, the acceptance study's options
 with ``final="likelihood"``) on a stretch of the acceptance scene
-(:class:`~core.studies.tracking.acceptance.TrackingScene`, the grid correction) in three runs:
+(:class:`~core.studies.tracking.acceptance.TrackingScene`, the grid correction) in these runs:
 
 * ``joint`` — as the tracker runs (the stage's neighbours at their predictions);
 * ``joint_searched`` — the stage's neighbours at this frame's searched poses: the module's
@@ -19,6 +19,9 @@ with ``final="likelihood"``) on a stretch of the acceptance scene
   by side). A bone whose full-resolution search did not converge (the half-resolution fallback
   runs its own stage inside :func:`~core.tracking.register.register`), a retried registration and
   the move check's confirmation keep the predictions (counted: ``fallbacks``);
+* ``joint_staged`` — every stage run twice side by side: first with the neighbours at their
+  predictions (as ``joint``), then again from the same searched pose with the neighbours at the first
+  pass's stage poses (the first pass's evaluations are not counted);
 * ``sequential`` — sequential tracking (its stage subtracts the bones registered earlier in the
   frame at their registered poses, the others at their guesses), for joint − sequential.
 
@@ -46,15 +49,18 @@ import numpy as np
 
 __all__ = ["RUNS", "main", "run", "searched_others", "stage_neighbours_at"]
 
-#: the runs (label -> (mode, the stage's neighbours at this frame's searched poses))
-RUNS = {"joint": ("joint", False), "joint_searched": ("joint", True), "sequential": ("sequential", False)}
+#: the runs (label -> (mode, where the stage's neighbours are: :func:`stage_neighbours_at`'s ``at``))
+RUNS = {"joint": ("joint", "prediction"), "joint_searched": ("joint", "searched"),
+        "joint_staged": ("joint", "staged"), "sequential": ("sequential", "prediction")}
 
 
-def searched_others(calls) -> list:
+def searched_others(calls, poses=None) -> list:
     """``calls`` of :func:`~core.tracking.final_stage.final_stages` (per bone ``(res, kwargs)``) with
     each call's ``others`` poses replaced, for a neighbour that is one of the calls' bones, by that
-    bone's ``res.pose`` (its search's pose in this frame); other neighbours keep theirs."""
-    searched = {int(kw["bone"]): np.asarray(res.pose, dtype=float) for res, kw in calls}
+    bone's ``res.pose`` (its search's pose in this frame; ``poses``: the calls' bones' poses to use
+    instead, in the calls' order); other neighbours keep theirs."""
+    poses = [res.pose for res, _ in calls] if poses is None else poses
+    searched = {int(kw["bone"]): np.asarray(P, dtype=float) for (_, kw), P in zip(calls, poses, strict=True)}
     out = []
     for res, kw in calls:
         oth = kw.get("others")
@@ -68,9 +74,12 @@ def searched_others(calls) -> list:
 
 
 @contextmanager
-def stage_neighbours_at(searched: bool, log: list | None = None):
+def stage_neighbours_at(at: str | bool, log: list | None = None):
     """Inside the block joint tracking's side-by-side stages subtract the neighbours at this frame's
-    searched poses (``searched``; :func:`searched_others`) or as the tracker does; ``log`` gets one
+    searched poses (``at="searched"`` or True; :func:`searched_others`), at the poses a first pass of
+    the stages found (``"staged"``: every stage run twice, the second from the same searched pose
+    with the neighbours at the first pass's results) or as the tracker does (``"prediction"`` or
+    False); ``log`` gets one
     row per stage call: ``frame`` (the frame :func:`core.tracking.trial.track` is registering),
     ``bone``, its searched pose, ``others`` (the poses subtracted, bones) and the neighbours'
     searched poses, and ``n_calls`` (the bones staged side by side)."""
@@ -84,8 +93,16 @@ def stage_neighbours_at(searched: bool, log: list | None = None):
         now["frame"] = int(f)
         return plain_frame(run, f, *a, **k)
 
+    at = {True: "searched", False: "prediction"}.get(at, at)
+    if at not in ("prediction", "searched", "staged"):
+        raise ValueError(f"at: expected prediction, searched or staged, got {at!r}")
+
     def final_stages(renderer, frame, calls):
-        new = searched_others(calls) if searched else list(calls)
+        if at == "staged":
+            first = plain_stages(renderer, frame, list(calls))
+            new = searched_others(calls, [r.pose for r in first])
+        else:
+            new = searched_others(calls) if at == "searched" else list(calls)
         if log is not None:
             found = {int(kw["bone"]): np.asarray(res.pose, dtype=float) for res, kw in calls}
             for res, kw in new:
@@ -160,13 +177,13 @@ def _bone_run(ts, res, b: int, frames: list, bound: dict | None) -> dict:
     return out
 
 
-def _track(ts, frames: list, keyframes: dict, skip: dict | None, mode: str, searched: bool) -> tuple:
+def _track(ts, frames: list, keyframes: dict, skip: dict | None, mode: str, at: str) -> tuple:
     from core.studies.tracking.acceptance import study_options
     from core.tracking.trial import track
 
     log: list = []
     o = study_options(mode, final="likelihood")
-    with stage_neighbours_at(searched and mode == "joint", log):
+    with stage_neighbours_at(at if mode == "joint" else "prediction", log):
         res = track(ts.renderer, ts.models, ts.frames, frames, keyframes=keyframes, skip=skip, options=o)
     return res, log
 
@@ -219,9 +236,9 @@ def run(*, part: str = "stretch", seed: int = 4, first: int = 84, n: int = 12, p
                           for k, v in bound.items()},
            "scene_s": round(time.perf_counter() - t0, 1), "runs": {}, "stages": {}, "paired": {}}
     for label in runs:
-        mode, searched = RUNS[label]
+        mode, at = RUNS[label]
         t1 = time.perf_counter()
-        res, log = _track(ts, frames, keyframes, skip, mode, searched)
+        res, log = _track(ts, frames, keyframes, skip, mode, at)
         r = {"s": round(time.perf_counter() - t1, 1),
              "fallbacks": sum(1 for x in log if x["n_calls"] < len(ts.names))}
         for b, nm in enumerate(ts.names):
@@ -233,7 +250,7 @@ def run(*, part: str = "stretch", seed: int = 4, first: int = 84, n: int = 12, p
             keys = ("rms_mm", "rms_deg", "over_bound", "silent", "flagged")
             progress({"run": label, "s": r["s"], **{nm: {k: r[nm].get(k) for k in keys} for nm in ts.names}})
     pairs = [(a, b) for a in out["runs"] for b in out["runs"]
-             if a.startswith("joint") and (b == "sequential" or (a, b) == ("joint_searched", "joint"))]
+             if a.startswith("joint") and (b == "sequential" or (a != "joint" and b == "joint"))]
     for a, b in pairs:
         out["paired"][f"{a}_vs_{b}"] = {nm: _paired(out["runs"][a][nm], out["runs"][b][nm], bound.get(nm))
                                         for nm in ts.names}

@@ -163,6 +163,14 @@ def _run(level_method: str, fun, x0, *, sigma6, lo, hi, level: Level | None, tol
 
 _LEVELS: dict = {}  # (levels function, sigma, final scale) -> the "newton" levels (_automatic_levels)
 
+#: Study switch (off): with a final stage, the ``"newton"`` search's registration (one bone's; not joint
+#: tracking's side-by-side searches) runs the stage straight from the initial pose (the tracker's
+#: prediction) and scores the similarity once at the stage's pose; only where the stage's move is not
+#: taken (failed, or beyond its reach) does the search run, then the stage again. The stage's move then
+#: counts from the prediction (its confidence's move term, the frame step's move check, and a rejected
+#: move keeps the prediction): :func:`_stage_first`.
+STAGE_FIRST = False
+
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:
     """:func:`default_levels` at ``mm_px`` (mm per DRR pixel at the final scale ``fs``), scaled by
@@ -330,6 +338,12 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
                      seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
         return r
 
+    if (STAGE_FIRST and o.final is not None and search == "newton" and o.levels is None and tried is None
+            and x0 is None):
+        got = _stage_first(renderer, frame, engine_at(fs), bone=bone, base=base, center=center, options=o,
+                           views=views, others=others, t_start=t_start)
+        if got is not None:
+            return got
     for i, lv in enumerate(levels if tried is None else ()):
         r = run_level(i, lv, x)
         stages.append(r)
@@ -370,6 +384,33 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
 
     return final_stage(renderer, frame, res, bone=bone, initial_pose=base, center=center, options=o,
                        views=views, others=others)
+
+
+def _stage_first(renderer, frame, eng, *, bone: int, base, center, options, views, others, t_start: float):
+    """:data:`STAGE_FIRST`: the final stage from ``base`` (x = 0) and the similarity at its pose (one
+    evaluation on the full-resolution engine ``eng``); None where the stage's move was not taken."""
+    from .final_stage import final_stage
+
+    r0 = opt.OptimizeResult(np.zeros(6), float("nan"), 0, 0, 0.0, True, "stage_first", "none", None)
+    keys = ("render_s", "metric_s", "host_s", "calls", "evaluations")
+    res0 = RegistrationResult(pose=base.copy(), x=np.zeros(6), score=float("nan"),
+                              view_scores=np.full(len(views), np.nan), evaluations=0, generations=0,
+                              time_s=time.perf_counter() - t_start, converged=True, reason="stage_first",
+                              stages=(r0,), timing={k: 0.0 for k in keys}, fit=None)
+    st = final_stage(renderer, frame, res0, bone=bone, initial_pose=base, center=center, options=options,
+                     views=views, others=others)
+    if not (st.timing or {}).get("likelihood_taken"):
+        return None
+    score, vs = eng.score_and_views(st.x)
+    timing = dict(st.timing)
+    for k, v in eng.timer.to_dict().items():
+        timing[k] = timing.get(k, 0.0) + v
+    total = time.perf_counter() - t_start
+    timing["total_s"] = total
+    timing["optimizer_s"] = max(total - timing["render_s"] - timing["metric_s"] - timing["host_s"]
+                                - timing.get("likelihood_s", 0.0), 0.0)
+    return replace(st, score=score, view_scores=np.asarray(vs, dtype=float), evaluations=st.evaluations + 1,
+                   time_s=total, timing=timing)
 
 
 def result_of(stages, x, full, hi, *, model_score: bool, timers, engines, fit,

@@ -25,8 +25,8 @@ import numpy as np
 __all__ = ["main", "run"]
 
 
-def _tol(s: str) -> float | None:
-    return None if s == "full" else float(s)
+def _tol(s: str) -> float | str | None:
+    return None if s == "full" else s if s == "first" else float(s)
 
 
 def _steps(res) -> dict:
@@ -60,12 +60,13 @@ def run(*, pixels: int = 512, voxel: float = 1.0, frames: int = 20, seeds=(0, 4)
         workers: int = 0) -> dict:
     """Every (seed, mode, tolerance) on the acceptance scene of each seed (module docs); ``out_path``:
     the JSON written there after each run too."""
+    import core.tracking.register as reg
     import core.tracking.register_options as ro
     import core.tracking.trial as trial
     from core.studies.tracking.acceptance import DEFAULT_CORRECTION, TrackingScene
     from core.studies.tracking.acceptance import run as accept
 
-    kept = ro.STAGE_SEARCH_TOL
+    kept, kept_first = ro.STAGE_SEARCH_TOL, reg.STAGE_FIRST
     plain = trial.track
     got: list = []
 
@@ -85,7 +86,11 @@ def run(*, pixels: int = 512, voxel: float = 1.0, frames: int = 20, seeds=(0, 4)
                                correction=DEFAULT_CORRECTION)
             for mode in modes:
                 for tol in tols:
-                    ro.STAGE_SEARCH_TOL = tol
+                    # "first": the stage from the prediction, the search (to 0.5) only where its move is
+                    # not taken (core.tracking.register.STAGE_FIRST; one bone's registrations, not
+                    # joint tracking's side-by-side searches)
+                    reg.STAGE_FIRST = tol == "first"
+                    ro.STAGE_SEARCH_TOL = 0.5 if tol == "first" else tol
                     got.clear()
                     t0 = time.perf_counter()
                     a = accept(ts=ts, mode=mode, final="likelihood", capture_trials=0, workers=workers)
@@ -100,7 +105,7 @@ def run(*, pixels: int = 512, voxel: float = 1.0, frames: int = 20, seeds=(0, 4)
 
                         atomic_write(out_path, json.dumps(out, indent=2) + "\n")
     finally:
-        ro.STAGE_SEARCH_TOL = kept
+        ro.STAGE_SEARCH_TOL, reg.STAGE_FIRST = kept, kept_first
         trial.track = plain
     return out
 
@@ -114,7 +119,8 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", default="0,4")
     p.add_argument("--modes", default="joint,sequential")
     p.add_argument("--tols", default="full,0.25",
-                   help="comma-separated: full (the search's own 0.02) or a tolerance (mm, degrees)")
+                   help="comma-separated: full (the search's own 0.02), a tolerance (mm, degrees) or first "
+                   "(the stage from the prediction: register.STAGE_FIRST; sequential mode)")
     p.add_argument("--device", default=None)
     p.add_argument("--workers", type=int, default=0, help="processes for the frames' image chain")
     p.add_argument("--out", default=None)

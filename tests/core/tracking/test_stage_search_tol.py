@@ -86,3 +86,27 @@ def test_joint_side_by_side_searches_stop_at_the_looser_tolerance_before_a_stage
         o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton", final=final)
         out = register_together(r, frame, jobs(), o)
         assert all(res.converged for res in out) and recorded == [tol, tol]
+
+
+def test_stage_first_runs_the_stage_from_the_start_and_scores_its_pose(talus_scene, monkeypatch):
+    """The study switch STAGE_FIRST: the stage from the initial pose, no search where its move is
+    taken; the similarity scored once at the stage's pose (the real stage, ideal 128² views)."""
+    import core.tracking.register as reg
+    from core.studies.tracking.acceptance import pose_errors
+
+    sc = talus_scene
+    m = sc["model"]
+    frame = prepare_frame(sc["fluence"](1))
+    start = _start(sc, 1, [0.3, -0.2, 0.2, 0.3, -0.4, 0.3])
+    o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton", final="likelihood")
+    monkeypatch.setattr(reg, "STAGE_FIRST", True)
+    res = register(sc["renderer"], frame, bone=0, initial_pose=start, center=m.centroid, options=o,
+                   outline=m.outline)
+    assert res.reason == "stage_first" and res.timing["likelihood_taken"] == 1 and res.converged
+    assert res.timing["evaluations"] == 1 < res.evaluations  # the one score; the stage's poses besides
+    e = pose_errors(res.pose, sc["scene"].poses(1)[0], m.centroid)
+    assert np.linalg.norm(e[:3]) < 0.3 and np.linalg.norm(e[3:]) < 0.6, e
+    monkeypatch.setattr(reg, "STAGE_FIRST", False)
+    plain = register(sc["renderer"], frame, bone=0, initial_pose=start, center=m.centroid, options=o,
+                     outline=m.outline)
+    assert plain.reason != "stage_first" and plain.timing.get("engine_steps_x1", 0) >= 1

@@ -151,6 +151,14 @@ solve's numpy calls (~0.2 ms), the robust factors' launches and sorts — the ho
 beyond the device's — and on the device the DRRs and blurs, which scale with the region's area (the
 bone's volume box projected, grown by 1 mm and 4 px: a box of the bone's outline would be smaller, not
 tried: it changes the pixels and so the poses).
+
+Phase 3 (``resources/benchmarks/tracking_stage_h3_h100.json``, one NVIDIA H100, the same trial): the
+region's projection by the volume box's corners (:data:`core.tracking.roi.BOX_CORNERS`), the buffers and
+step graphs kept per output size (:data:`core.tracking.likelihood_launches.BUFFERS_PER_SIZE`) and
+:func:`~core.tracking.likelihood_solve.solve_moments`' index arrays made once: 5.17/4.74 → 4.05/4.35 ms per
+bone-frame (set-up 2.01/1.81 → 1.37/1.48 ms), poses within 3 · 10⁻¹³ mm. The region of the bone's DRR
+support instead of its box (:data:`core.tracking.final_stage.REGION_OUTLINE`, opt-in: grown by 8 σ it moves
+poses by up to 0.0095 mm / 0.023°): 3.53/2.93 ms against 4.03/3.75, the device's time 3.46 → 2.74-2.80 ms.
 """
 
 from __future__ import annotations

@@ -55,7 +55,9 @@ is today's ``plain``, its ``diff`` ``DIFF_IMAGES`` alone) and ``tracking_stage_s
 (``plain``, ``exact``, ``fast``; ``fast`` is today's default; the numbers in
 :mod:`core.tracking.likelihood_fast`); ``tracking_stage_fewer_steps_h100.json`` (``old`` against
 the fewer steps, two calls); ``tracking_stage_h2_h100.json`` (``prev``, ``base``, ``nograph``) and
-``tracking_stage_h2_host_h100.json`` (``prev``, ``base`` with ``--host-profile``).
+``tracking_stage_h2_host_h100.json`` (``prev``, ``base`` with ``--host-profile``);
+``tracking_stage_h3_h100.json`` (``hostprev``, ``base``, ``ol0``, ``ol2`` with ``--host-profile``, then
+``base``, ``ol4``, ``ol8``).
 """
 
 from __future__ import annotations

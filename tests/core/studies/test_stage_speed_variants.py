@@ -77,3 +77,23 @@ def test_host_table_per_bone_frame():
     t = _host_table(p, 2, top=5)
     row = next(x for x in t["inside"] if x["function"].endswith("(work)"))
     assert row["calls"] == 2.0 and row["inside_ms"] >= row["own_ms"] >= 0.0 and len(t["own"]) <= 5
+
+
+def test_hostprev_and_support_regions():
+    """``hostprev``: phase 3's exact host changes off; ``ol<c>``: the support region grown by c σ."""
+    import core.tracking.final_stage as fst
+    import core.tracking.likelihood_launches as LL
+    import core.tracking.roi as roi
+    from core.studies.tracking.stage_speed import _known, _variant
+
+    def state():
+        return (roi.BOX_CORNERS, LL.BUFFERS_PER_SIZE, fst.REGION_OUTLINE)
+
+    assert state() == (True, True, None)
+    with _variant("hostprev"):
+        assert state() == (False, False, None)
+    with _variant("ol8"):
+        assert state() == (True, True, 8.0)
+    with _variant("hostprev+ol2.5"):
+        assert state() == (False, False, 2.5)
+    assert state() == (True, True, None) and _known("ol0") and _known("old") and not _known("olx")

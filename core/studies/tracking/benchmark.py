@@ -255,24 +255,29 @@ def _final_runs(final: str, options) -> list:
 
 
 #: the ``--final`` entries: no stage, the likelihood stage after the search at its looser tolerance
-#: (:data:`core.tracking.register_options.STAGE_SEARCH_TOL`, the default), or after the search run to
-#: its own tolerance (``likelihood_full``: that constant None, as before)
-FINALS = ("none", "likelihood", "likelihood_full")
+#: (:data:`core.tracking.register_options.STAGE_SEARCH_TOL`, the default), after the search run to
+#: its own tolerance (``likelihood_full``: that constant None, as before), or straight from the
+#: prediction (``likelihood_first``: the study switch :data:`core.tracking.register.STAGE_FIRST`, one
+#: bone's registrations only)
+FINALS = ("none", "likelihood", "likelihood_full", "likelihood_first")
 
 
 @contextmanager
 def _search_tol(entry: str):
     """:data:`~core.tracking.register_options.STAGE_SEARCH_TOL` for a ``--final`` entry's runs (None
-    for ``likelihood_full``; the module's value otherwise)."""
+    for ``likelihood_full``; the module's value otherwise), and :data:`core.tracking.register.
+    STAGE_FIRST` on for ``likelihood_first``."""
+    import core.tracking.register as reg
     import core.tracking.register_options as ro
 
-    kept = ro.STAGE_SEARCH_TOL
+    kept, first = ro.STAGE_SEARCH_TOL, reg.STAGE_FIRST
     if entry == "likelihood_full":
         ro.STAGE_SEARCH_TOL = None
+    reg.STAGE_FIRST = entry == "likelihood_first"
     try:
-        yield ro.STAGE_SEARCH_TOL
+        yield ro.STAGE_SEARCH_TOL if not reg.STAGE_FIRST else "first"
     finally:
-        ro.STAGE_SEARCH_TOL = kept
+        ro.STAGE_SEARCH_TOL, reg.STAGE_FIRST = kept, first
 
 
 def run(*, quick: bool = False, device: str | None = None, frames: int | None = None,

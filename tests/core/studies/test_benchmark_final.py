@@ -39,3 +39,8 @@ def test_likelihood_full_runs_the_stage_after_the_search_to_its_own_tolerance():
     assert ro.STAGE_SEARCH_TOL == kept
     with _search_tol("likelihood") as tol:
         assert tol == kept
+    import core.tracking.register as reg
+
+    with _search_tol("likelihood_first") as tol:
+        assert tol == "first" and reg.STAGE_FIRST
+    assert not reg.STAGE_FIRST

@@ -97,7 +97,8 @@ def test_chi2_share_counts_the_weighed_pixels(talus_scene):
     s = eng.step(np.zeros(6), h, reuse=True)
     assert eng.n_pixels == int((eng._w.numpy() > 0).sum()) < usable
     out = eng.refine(iters=1, sandwich=False, reuse=True)
-    np.testing.assert_allclose(out["covariance_independent"], np.linalg.inv(s["JJ"]) * s["chi2"] / eng.n_pixels)
+    np.testing.assert_allclose(out["covariance_independent"],
+                               np.linalg.inv(s["JJ"]) * s["chi2"] / eng.n_pixels)
     eng.reset_weights()
     eng.step(np.zeros(6), h, reuse=True)
     assert eng.n_pixels == usable

@@ -185,36 +185,35 @@ JOINT_KEYFRAMES = False
 #: registered first is registered once more with the others subtracted. On by default: with one round
 #: (the default since 8dbdcc2) the first frame is as two rounds made it before, at one extra round on that
 #: frame only. Same scene, keyframes 5 mm / 5° off, one round: the talus 0.19-0.28 mm / 0.25-0.64° →
-#: 0.0004-0.0013 mm / 0.002-0.004° (4 draws, checked from the keyframes; now from round 0's poses:
-#: :data:`FIRST_FRAME_CHECK_FROM_ROUND0`; the calcaneus, registered after the talus, unchanged); later
+#: 0.0004-0.0013 mm / 0.002-0.004° (4 draws; the calcaneus, registered after the talus, unchanged); later
 #: frames unchanged. On held-out seed 4 (one NVIDIA H100, 1024², no stage) the tibia's frame 0 was 1.21°
 #: off with two rounds and 1.57° with one (sequentially 0.25°); the switch not yet run there.
 FIRST_FRAME_SECOND_ROUND = True
 #: Sequential tracking that subtracts the neighbours (``sequential_subtract``, or the final stage's
 #: :data:`SEQUENTIAL_NEIGHBOURS`) gives a first frame (a bone in it without a tracked pose) a second pass:
-#: every bone again from its first pass's pose, with the first frame's options, the others at their first
-#: pass's poses (the first pass subtracts a bone not yet registered at its keyframe: off the truth, its
-#: negative where the bone is not). Ideal 128² talus-calcaneus scene (CPU, this 2-core x86_64 machine;
-#: ``sequential_subtract``, no restarts; 6 draws), keyframes 5 mm / 5° off: the talus 0.06-0.38 mm /
-#: 0.32-2.58° → 0.0005-0.0037 mm / 0.003-0.011°, the calcaneus 0.002-0.030 mm / 0.017-0.069° → ≤ 0.0024
-#: mm / 0.004°, the frame's evaluations +29-53 % (+23-39 % with 4 restarts); 3 mm / 3° and 1 mm / 1°: the
-#: talus up to 1.10° and 0.21° → ≤ 0.022°; true keyframes unchanged at 255 → 510 evaluations a bone. The
-#: final stage alone subtracting: 0.64-0.94° → 0.04-0.045° (3 draws). Not subtracting keyframes in the
-#: first pass: 0.32-0.68° without a second pass, the same as this with one. Later frames unchanged.
+#: the first pass again (from the keyframes, the first frame's options) with the others at their first
+#: pass's poses, each checked from its first pass's pose (the first pass subtracts a bone not yet registered
+#: at its keyframe: off the truth, its negative where the bone is not). Ideal 128² scenes (CPU, this 2-core
+#: x86_64 machine; ``sequential_subtract``, no restarts), keyframes 5 mm / 5° off: talus-calcaneus (6 draws)
+#: the talus 0.06-0.38 mm / 0.32-2.58° → 0.0004-0.0029 mm / 0.003-0.011°, the calcaneus 0.002-0.030 mm /
+#: 0.017-0.069° → ≤ 0.0024 mm / 0.006°, the frame's evaluations ×1.84-1.98; tibia-talus-calcaneus (4
+#: draws) the tibia up to 1.07° → ≤ 0.075°, the talus 0.25-0.62° → ≤ 0.009°
+#: (``resources/benchmarks/first_frame_keyframes_sequential*_cpu.json``). From the first pass's poses
+#: instead (×1.3-1.5 evaluations) the tibia stayed 0.27-0.45° off (2 draws): its search stopped short.
+#: The final stage alone subtracting: 0.64-0.94° → 0.04-0.045° (3 draws, from the first pass's poses).
+#: Later frames unchanged.
 SEQUENTIAL_SECOND_PASS = True
-#: A first frame's second round (joint, :data:`FIRST_FRAME_SECOND_ROUND`) or pass (sequential,
-#: :data:`SEQUENTIAL_SECOND_PASS`) is checked from the bone's round-0 pose where round 0 left it unflagged
-#: (off: from its keyframe, as round 0 is, but without the first frame's wider jump limit: a pose come back
-#: from a keyframe 5 mm off is taken for a jump and retried from the keyframe, widened, with the restart
-#: check). A round 0 left flagged is checked from the keyframe still: from its pose a jump would pass
-#: unflagged. Ideal 128² talus-calcaneus scene (CPU, this 2-core x86_64 machine), keyframes 5 mm / 5° off:
-#: joint tracking (one round), 6 draws, the talus 0.0005-0.0019 mm / 0.002-0.007° → 0.003-0.006 mm /
-#: 0.004-0.008°, the calcaneus 0.004-0.009 mm / 0.004-0.012° → 0.004-0.008 mm / 0.006-0.013°, the frame's
-#: evaluations (both bones) 3195-3664 → 1677-1930 (3 draws with 4 restarts 4066-4496 → 2132-2359;
-#: ``resources/benchmarks/first_frame_keyframes_joint_cpu.json``, ``…_sequential_cpu.json``); from keyframes
-#: 1 mm / 1° off or true, no retry either way and the same poses. Sequential tracking's second pass (the
-#: test's draw): the same errors within 0.003 mm / 0.004°, 4290 → 2652 evaluations.
-FIRST_FRAME_CHECK_FROM_ROUND0 = True
+#: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`) is checked from the bone's
+#: round-0 pose where round 0 left it unflagged; off (the default): from its keyframe, as round 0, but without
+#: the first frame's wider jump limit, so a pose come back from a keyframe 5 mm off is taken for a jump and
+#: retried from the keyframe, widened. (Sequential tracking's second pass is always checked from its first
+#: pass's pose, and starts from the keyframe with the first frame's options: :data:`SEQUENTIAL_SECOND_PASS`.)
+#: Ideal 128² scenes (CPU, this 2-core x86_64 machine), keyframes 5 mm / 5° off, one round: on, the
+#: talus-calcaneus frame's evaluations 3195-3664 → 1677-1930 (6 draws), the talus 0.0005-0.0019 mm /
+#: 0.002-0.007° → 0.003-0.006 mm / 0.004-0.008°; but with the tibia (three bones; the lockstep round from
+#: round 0's poses, the registration's options) the tibia 0.023-0.025° → 0.39-0.50° (2 draws): the retry,
+#: wide from the keyframe, was what registered it (``resources/benchmarks/first_frame_keyframes_joint*``).
+FIRST_FRAME_CHECK_FROM_ROUND0 = False
 #: The flag of a frame a view has no image for, its source giving no reason (:func:`missing_flags`).
 MISSING_FLAG = "frame missing in view"
 #: The flag of a frame a view's image could not be read for, with the source's reason.
@@ -401,13 +400,13 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             opts, start = (o.first_options if first else o.registration), guesses[i]
         else:
             opts, start = o.registration, start_of(i, rnd, current)
-        if rnd > 0 and first and not joint:  # sequential's second pass (SEQUENTIAL_SECOND_PASS)
-            opts = o.first_options  # as wide as the first
+        if rnd > 0 and first and not joint:  # sequential's second pass: the first again (module docs)
+            opts, start = o.first_options, guesses[i]
         guess = guesses[i]
         kept = out.get(i)  # round 0's attempt (a first frame's second round)
-        if rnd > 0 and first and FIRST_FRAME_CHECK_FROM_ROUND0 and kept is not None \
+        if rnd > 0 and first and (FIRST_FRAME_CHECK_FROM_ROUND0 or not joint) and kept is not None \
                 and kept.result is not None and not kept.flags:
-            guess = start  # checked from round 0's unflagged pose, not from the keyframe
+            guess = kept.result.pose  # checked from round 0's unflagged pose, not from the keyframe
         opts = staged(rnd, opts)
         near = nullcontext()
         stage_others[i] = others

@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 
 
-def scene():
-    """``(scene, models, renderer, frames)`` of the ideal 128² talus-calcaneus scene (frame 0)."""
+def scene(names=("talus", "calcaneus")):
+    """``(scene, models, renderer, frames)`` of the ideal 128² scene of bones ``names`` (frame 0)."""
     from core.render import DRRRenderer
     from core.synthetic import make_foot_scene
     from core.tracking.bones import bone_model
 
-    sc = make_foot_scene(n_frames=2, pixels=128, spacing=1.5, names=("talus", "calcaneus"), beads_per_bone=0,
+    sc = make_foot_scene(n_frames=2, pixels=128, spacing=1.5, names=tuple(names), beads_per_bone=0,
                          phase=(0.0, 0.03), soft_tissue=False, imaging="ideal", floor_thickness_mm=0)
     models = [bone_model(b, mesh=False) for b in sc.bones]
     r = DRRRenderer(sc.rig, [b.to_attenuation(sc.bone_transfer) for b in sc.bones], device="cpu")
@@ -86,12 +86,13 @@ def main(argv=None) -> int:
     ap.add_argument("--off", type=float, default=5.0, help="keyframes this many mm and degrees off")
     ap.add_argument("--draws", default="0,1,2,3,4,5")
     ap.add_argument("--restarts", type=int, default=0)
+    ap.add_argument("--bones", default="talus,calcaneus", help="the scene's bones (tracked in this order)")
     ap.add_argument("--machine-name", default="this 2-core x86_64 machine (CPU)")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     if not isinstance(getattr(fs, a.switch, None), bool):
         ap.error(f"--switch: {a.switch} is not a boolean switch of core.tracking.frame_step")
-    built = scene()
+    built = scene(a.bones.split(","))
     runs = []
     for draw in (int(x) for x in a.draws.split(",")):
         keys = keyframes(built[0], built[1], draw, a.off)
@@ -111,7 +112,8 @@ def main(argv=None) -> int:
             "command": " ".join(["python -m core.studies.tracking.first_frame_keyframes",
                                  *(argv or sys.argv[1:])]),
             "commit": commit, "machine": a.machine_name, "device": "Warp CPU", "mode": a.mode,
-            "switch": a.switch, "off_mm_deg": a.off, "restarts": a.restarts, "runs": runs}, indent=1))
+            "bones": a.bones.split(","), "switch": a.switch, "off_mm_deg": a.off, "restarts": a.restarts,
+            "runs": runs}, indent=1))
     return 0
 
 

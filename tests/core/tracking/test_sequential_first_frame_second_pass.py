@@ -3,8 +3,9 @@ calcaneus, Warp's CPU device, ``sequential_subtract``): the talus, registered fi
 subtracted at its keyframe, where the calcaneus is not, and the negative it leaves pulled the talus
 1-2.6° off, unflagged. :data:`core.tracking.frame_step.SEQUENTIAL_SECOND_PASS` (on) registers the
 first frame's bones a second time, each with the others at their first pass's poses; frames after the
-first are registered as before. A first frame's second round or pass is checked from the bone's round-0
-pose (:data:`~core.tracking.frame_step.FIRST_FRAME_CHECK_FROM_ROUND0`), joint tracking's too."""
+first are registered as before. The second pass starts from the keyframes, as the first, and is checked
+from the first pass's poses; joint tracking's second round does so only with
+:data:`~core.tracking.frame_step.FIRST_FRAME_CHECK_FROM_ROUND0` (off)."""
 
 from __future__ import annotations
 
@@ -58,9 +59,9 @@ def test_first_frame_from_keyframes_far_off(talus_calcaneus_128, monkeypatch):
     for err in e:  # the talus 0.0028 mm / 0.0094°, the calcaneus 0.0032 / 0.0033 with the second pass
         assert err[0] < 0.02 and err[1] < 0.05
     assert not res.results[("talus", 0)].flags and not res.results[("calcaneus", 0)].flags
-    # the registrations: the first pass (verified, the calcaneus at its keyframe for the talus), then
-    # every bone again from its first pass's pose, the other at its first pass's pose, as wide as the
-    # first pass and checked from where it starts (not from the keyframe 5 mm away)
+    # the registrations: the first pass (verified, the calcaneus at its keyframe for the talus), then the
+    # first pass again (from the keyframes, as wide), the other bone at its first pass's pose, each checked
+    # from its first pass's pose (from the keyframe 5 mm away, a pose come back would be a jump)
     (b0, s0, g0, w0, o0, v0, a0), (b1, _, _, w1, o1, v1, a1), (b2, s2, g2, w2, o2, v2, a2), \
         (b3, s3, g3, w3, o3, v3, _) = seen[:4]
     assert len(seen) == 4 and (b0, b1, b2, b3) == (0, 1, 0, 1)
@@ -68,9 +69,9 @@ def test_first_frame_from_keyframes_far_off(talus_calcaneus_128, monkeypatch):
     assert np.array_equal(s0, off["talus"][0]) and np.array_equal(g0, off["talus"][0])
     assert o0[1] == [1] and np.array_equal(o0[0][0], off["calcaneus"][0])
     assert o1[1] == [0] and np.array_equal(o1[0][0], a0.result.pose)
-    assert np.array_equal(s2, a0.result.pose) and np.array_equal(g2, a0.result.pose)
+    assert np.array_equal(s2, off["talus"][0]) and np.array_equal(g2, a0.result.pose)
     assert o2[1] == [1] and np.array_equal(o2[0][0], a1.result.pose)
-    assert np.array_equal(s3, a1.result.pose) and np.array_equal(g3, a1.result.pose)
+    assert np.array_equal(s3, off["calcaneus"][0]) and np.array_equal(g3, a1.result.pose)
     assert o3[1] == [0] and np.array_equal(o3[0][0], a2.result.pose)
     assert w0 == w1 == w2 == w3 == (10.0, 10.0)  # the first frame's options (REG widened twice)
 
@@ -120,7 +121,8 @@ def test_second_pass_after_a_flagged_first_checked_from_the_keyframe(talus_calca
 
 def test_joint_second_round_checked_from_round_0(talus_calcaneus_128, monkeypatch):
     """Joint tracking's first-frame second round (FIRST_FRAME_SECOND_ROUND) from keyframes 5 mm / 5° off:
-    checked from round 0's poses it is not taken for a jump from the keyframes and retried."""
+    checked from round 0's poses (FIRST_FRAME_CHECK_FROM_ROUND0, off by default: it left the tibia of a
+    three-bone scene 0.39-0.50° off) it is not taken for a jump from the keyframes and retried."""
     import core.tracking.frame_step as fs
     from core.tracking.trial import TrackingOptions, track
 
@@ -128,7 +130,8 @@ def test_joint_second_round_checked_from_round_0(talus_calcaneus_128, monkeypatc
     off = _off_keyframes(sc, models)
     o = TrackingOptions(mode="joint", joint_rounds=1, verify_restarts=0, registration=REG,
                         trajectory_limit=None)
-    assert fs.FIRST_FRAME_CHECK_FROM_ROUND0  # the default
+    assert not fs.FIRST_FRAME_CHECK_FROM_ROUND0  # the default
+    monkeypatch.setattr(fs, "FIRST_FRAME_CHECK_FROM_ROUND0", True)
     seen = _spy(monkeypatch)
     res = track(r, models, frames.__getitem__, [0], keyframes=off, options=o)
     assert [s[0] for s in seen] == [0, 1, 0, 1]

@@ -211,7 +211,7 @@ SEQUENTIAL_SECOND_PASS = True
 #: Ideal 128² scenes (CPU, this 2-core x86_64 machine), keyframes 5 mm / 5° off, one round: on, the
 #: talus-calcaneus frame's evaluations 3195-3664 → 1677-1930 (6 draws), the talus 0.0005-0.0019 mm /
 #: 0.002-0.007° → 0.003-0.006 mm / 0.004-0.008°; but with the tibia (three bones; the lockstep round from
-#: round 0's poses, the registration's options) the tibia 0.023-0.025° → 0.39-0.50° (2 draws): the retry,
+#: round 0's poses, the registration's options) the tibia 0.023-0.032° → 0.39-0.50° (4 draws): the retry,
 #: wide from the keyframe, was what registered it (``resources/benchmarks/first_frame_keyframes_joint*``).
 FIRST_FRAME_CHECK_FROM_ROUND0 = False
 #: The flag of a frame a view has no image for, its source giving no reason (:func:`missing_flags`).

@@ -200,8 +200,8 @@ FIRST_FRAME_SECOND_ROUND = True
 #: draws) the tibia up to 1.07° → ≤ 0.075°, the talus 0.25-0.62° → ≤ 0.009°
 #: (``resources/benchmarks/first_frame_keyframes_sequential*_cpu.json``). From the first pass's poses
 #: instead (×1.3-1.5 evaluations) the tibia stayed 0.27-0.45° off (2 draws): its search stopped short.
-#: The final stage alone subtracting: 0.64-0.94° → 0.04-0.045° (3 draws, from the first pass's poses).
-#: Later frames unchanged.
+#: The final stage alone subtracting (no ``sequential_subtract``): the talus 0.64-0.94° → 0.040-0.045° (3
+#: draws). Later frames unchanged.
 SEQUENTIAL_SECOND_PASS = True
 #: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`) is checked from the bone's
 #: round-0 pose where round 0 left it unflagged; off (the default): from its keyframe, as round 0, but without

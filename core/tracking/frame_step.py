@@ -14,7 +14,8 @@ it only gives the next round its start and the neighbours' poses to subtract, wh
 optimum does as well, so each bone is refined once per frame (with its neighbours at the poses of
 the round before), in joint as in sequential mode. With one joint round (the default since 8dbdcc2)
 there is no round before: the stage subtracts the neighbours at their predictions (in lockstep every
-neighbour; one by one, those not yet registered in the frame), as round 0's search does; every
+neighbour; one by one, those not yet registered in the frame), as round 0's search does (in lockstep
+at their searched poses with :data:`STAGE_AT_SEARCHED`, off); every
 joint figure with the stage was measured with two rounds. A bone that a later round loses (outside a view)
 keeps the earlier round's pose, without the stage. Without a final stage nothing changes. On one
 NVIDIA H200 (1024², 100 frames, three bones jointly, the same call,
@@ -124,15 +125,16 @@ from .cost import OutsideViewError
 from .feed import MissingView
 from .frame_state import _BoneState, _Run, motion_prediction, predict_pose
 from .joint import JointJob, lockstep_applies, register_together
+from .joint_stage import searched_stages
 from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
 
 __all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_CHECK_FROM_ROUND0",
            "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION",
-           "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES",
-           "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags", "stage_move_check",
-           "track_frame"]
+           "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_AT_SEARCHED", "STAGE_MOVE_CONFIRM",
+           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
+           "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -152,6 +154,9 @@ RESTART_FROM_PREDICTION = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
+#: Joint lockstep rounds' final stages subtract each neighbour at the pose its search found in this frame,
+#: not its prediction (:mod:`core.tracking.joint_stage`, whose docs give the 512² measurement); off.
+STAGE_AT_SEARCHED = False
 #: A stage move the move check flags is first confirmed (:func:`core.tracking.final_stage.confirm_move`:
 #: the stage run again from the far side of its pose lands on the same pose): confirmed, the frame keeps
 #: the stage's pose, unflagged, with a note; off, or not confirmed, it is flagged (and rejected) as before.
@@ -388,8 +393,9 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
     def together(rnd: int, jobs: list[JointJob], idle=None) -> tuple[list, float]:
         t0 = time.perf_counter()
-        got = register_together(run.renderer, frame, jobs, staged(rnd, o.registration), profile=o.profile,
-                                cancel=run.cancel, idle=idle)
+        with searched_stages(STAGE_AT_SEARCHED and o.registration.final is not None):
+            got = register_together(run.renderer, frame, jobs, staged(rnd, o.registration), profile=o.profile,
+                                    cancel=run.cancel, idle=idle)
         return got, (time.perf_counter() - t0) / len(jobs)
 
     def check(i: int, rnd: int, others, pre, host_only: bool = False):

@@ -1,0 +1,80 @@
+"""Joint tracking's final stages with the neighbours at this frame's searched poses
+(:data:`core.tracking.frame_step.STAGE_AT_SEARCHED`, off by default).
+
+In a lockstep round (:func:`core.tracking.joint.register_together`) every bone's similarity search
+runs to its end before any final stage; the stages then run side by side
+(:func:`core.tracking.final_stage.final_stages`), each subtracting its neighbours at the poses the
+round began with — with one round (the default since 8dbdcc2) their constant-velocity predictions.
+Inside :func:`searched_stages` each side-by-side stage subtracts instead, for a neighbour staged in
+the same call, the pose that neighbour's own search found in this frame (:func:`searched_others`);
+a neighbour not staged there (its search fell back to half resolution, which runs its own stage)
+keeps its pose, as do retried registrations and the stage-move check's confirmation.
+
+The switch is a context variable read by a wrapper of :func:`~core.tracking.final_stage.final_stages`
+put into that module the first time the block is entered (``register_together`` looks the function
+up at each call); outside the block, or in another thread, the wrapper passes the calls on unchanged.
+Its natural home is ``register_together`` itself (the stage's ``others`` of each job); it lives here
+while that module is another engineer's.
+
+Measured (:mod:`core.studies.tracking.stage_neighbours`, acceptance scene at 512², 1 mm voxels, this
+2-core x86_64 machine, shared; ``resources/benchmarks/tracking_stage_neighbours_cpu.json``): see
+that study's JSON and the README's paragraph on the one-round stage.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from contextvars import ContextVar
+
+import numpy as np
+
+__all__ = ["searched_others", "searched_stages"]
+
+_ON: ContextVar = ContextVar("joint_stage_searched", default=False)
+
+
+def searched_others(calls) -> list:
+    """``calls`` of :func:`~core.tracking.final_stage.final_stages` (per bone ``(res, kwargs)``) with
+    each call's ``others`` poses replaced, for a neighbour that is one of the calls' bones, by that
+    bone's ``res.pose`` (its search's pose in this frame); other neighbours keep theirs. The input
+    is not changed."""
+    found = {int(kw["bone"]): np.asarray(res.pose, dtype=float) for res, kw in calls}
+    out = []
+    for res, kw in calls:
+        oth = kw.get("others")
+        if oth is not None:
+            P = np.asarray(oth[0], dtype=float).reshape(-1, 4, 4)
+            ids = list(oth[1])
+            kw = {**kw, "others": (np.stack([found.get(int(b), P[j]) for j, b in enumerate(ids)]), ids)}
+        out.append((res, kw))
+    return out
+
+
+def _install() -> None:
+    from . import final_stage as fst
+
+    if getattr(fst.final_stages, "_searched_switch", False):
+        return
+    plain = fst.final_stages
+
+    def final_stages(renderer, frame, calls):
+        return plain(renderer, frame, searched_others(calls) if _ON.get() else calls)
+
+    final_stages.__doc__ = plain.__doc__
+    final_stages._searched_switch = True
+    fst.final_stages = final_stages
+
+
+@contextmanager
+def searched_stages(on: bool = True):
+    """Inside the block (``on``), in this thread, joint registration's side-by-side final stages
+    subtract each staged neighbour at its searched pose (module docs); ``on`` False: nothing changes."""
+    if not on:
+        yield
+        return
+    _install()
+    token = _ON.set(True)
+    try:
+        yield
+    finally:
+        _ON.reset(token)

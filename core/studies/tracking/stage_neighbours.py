@@ -35,6 +35,27 @@ pose the stage subtracted and of that neighbour's search in the frame (and of th
 Parts: ``stretch`` (``--first``, ``--n``: frames ``first`` … ``first + n − 1``, the two before
 given at their true poses, the history the predictions start from) and ``first`` (frames 0 …
 ``n − 1`` from the acceptance study's keyframes, 5 mm / 5° off the truth at frame 0).
+
+Measured (this 2-core x86_64 machine, shared; 512², 1 mm voxels, ba7b4b0, the search before the stage
+to 0.5 mm / °; ``resources/benchmarks/tracking_stage_neighbours_cpu.json``, with the same at 316e1b2's
+0.25): the lockstep round does run every search before any stage (no fallback in any frame). 1024²'s
+calcaneus swing along x (frames 89-91 jointly only) does not reproduce at 512²: there the calcaneus is
++0.21-0.27 mm off along x at frames 88, 89, 92 in every run, sequential too (3.03 / 2.91 × its bound in mm
+jointly / sequentially over 84-95). In the stored 1024² run the calcaneus's joint − sequential error along
+x at 89-91 (+0.041, −0.123, +0.087 mm) follows the talus's prediction (its last two unflagged frames
+extrapolated: −0.54°, +0.58°, −0.46° about y off, after its frame 88 at −0.28°), with the sign reversed;
+over the run the correlation is −0.28 (about y) and −0.40 (along z): the stage's neighbour at its
+prediction. At 512² the searched poses were nearer the truth than the predictions for the talus and the
+calcaneus (seed 4 frames 84-95: 0.19 / 0.66 against 0.23 / 0.74 mm / °, 0.19 / 0.28 against 0.28 / 0.36),
+not the tibia's rotation (0.51° against 0.29°: its search's bias about its long axis, which its stage
+takes off). × the bound (mm / °), joint → joint_searched, sequential in brackets: seed 4 84-95 tibia
+1.99 / 1.34 → 1.92 / 1.32 (1.99 / 1.35), talus 1.73 / 1.65 → 1.70 / 1.74 (1.70 / 1.68), calcaneus
+3.03 / 1.81 → 2.80 / 1.71 (2.91 / 1.77); frames over 4× unflagged 3 → 2 (3); joint at least as good as
+sequential fails the calcaneus in both units as the tracker runs, none with the searched poses. Seed 0
+40-51: all within ±0.05 × (talus 2.14 / 2.07 → 2.15 / 2.04), silent 1 → 0 (0). Seed 4 frames 0-9: tibia
+1.50 / 2.25 → 1.54 / 2.29, talus 1.59 / 1.47 → 1.68 / 1.48, calcaneus 1.76 / 2.01 → 1.73 / 2.02, silent 0
+→ 0 (1). ``joint_staged`` (stages twice; 0.5 only): 4 silent frames, every comparison
+with sequential met, at twice the stage's cost.
 """
 
 from __future__ import annotations

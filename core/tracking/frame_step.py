@@ -155,7 +155,7 @@ RESTART_FROM_PREDICTION = False
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
 #: Joint lockstep rounds' final stages subtract each neighbour at the pose its search found in this frame,
-#: not its prediction (:mod:`core.tracking.joint_stage`, whose docs give the 512² measurement); off.
+#: not its prediction (:mod:`core.tracking.joint_stage`: its docs give the 512², 1024² measurements); off.
 STAGE_AT_SEARCHED = False
 #: A stage move the move check flags is first confirmed (:func:`core.tracking.final_stage.confirm_move`:
 #: the stage run again from the far side of its pose lands on the same pose): confirmed, the frame keeps

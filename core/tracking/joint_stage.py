@@ -13,11 +13,16 @@ keeps its pose, as do retried registrations and the stage-move check's confirmat
 The switch is a context variable read by a wrapper of :func:`~core.tracking.final_stage.final_stages`
 put into that module the first time the block is entered (``register_together`` looks the function
 up at each call); outside the block, or in another thread, the wrapper passes the calls on unchanged.
-Its natural home is ``register_together`` itself (the stage's ``others`` of each job); it lives here
-while that module is another engineer's.
+Its natural home is ``register_together`` itself (the stage's ``others`` of each job); it lives here,
+as a wrapper, so that ``register_together`` stays unchanged while the switch is off.
 
-Off by default: the measurement is mixed (:mod:`core.studies.tracking.stage_neighbours`, acceptance
-scene at 512², 1 mm voxels, seed 4 frames 84-95 and 0-9, seed 0 frames 40-51; this 2-core x86_64
+Off by default. At 1024² (one NVIDIA H100, the acceptance study with ``--final likelihood`` at 9c2906d,
+``resources/benchmarks/tracking_acceptance_seed{0,3,4}_final_searched_9c2906d_h100.json`` against
+``…_final_c7320cb_h100.json``) it took seed 4's silent tibia frames jointly from 2 to 1 (the tibia's
+rotation 1.89 → 1.83× its bound), moved seed 0's ratios by at most 0.02, but gave seed 3's tibia 2 silent
+frames jointly where it had none. At 512² the measurement was mixed too
+(:mod:`core.studies.tracking.stage_neighbours`, acceptance scene at 512², 1 mm voxels, seed 4 frames
+84-95 and 0-9, seed 0 frames 40-51; this 2-core x86_64
 machine, shared; ``resources/benchmarks/tracking_stage_neighbours_cpu.json``). Over the three stretches
 it cut the frames over 4× the bound left unflagged from 4 to 2 and the joint-against-sequential
 comparisons that missed the acceptance margin from 2 to 0 (seed 4's calcaneus 3.03 / 1.81 → 2.80 / 1.71 ×

@@ -33,6 +33,7 @@ little (+0.0009 mm, +0.005°). Single noise draws; the 1024² run decides.
 
 from __future__ import annotations
 
+import threading
 from contextlib import contextmanager
 from contextvars import ContextVar
 
@@ -41,6 +42,7 @@ import numpy as np
 __all__ = ["searched_others", "searched_stages"]
 
 _ON: ContextVar = ContextVar("joint_stage_searched", default=False)
+_INSTALL = threading.Lock()  # (two threads entering the block at once: one wrapper, not one around another)
 
 
 def searched_others(calls) -> list:
@@ -63,16 +65,17 @@ def searched_others(calls) -> list:
 def _install() -> None:
     from . import final_stage as fst
 
-    if getattr(fst.final_stages, "_searched_switch", False):
-        return
-    plain = fst.final_stages
+    with _INSTALL:
+        if getattr(fst.final_stages, "_searched_switch", False):
+            return
+        plain = fst.final_stages
 
-    def final_stages(renderer, frame, calls):
-        return plain(renderer, frame, searched_others(calls) if _ON.get() else calls)
+        def final_stages(renderer, frame, calls):
+            return plain(renderer, frame, searched_others(calls) if _ON.get() else calls)
 
-    final_stages.__doc__ = plain.__doc__
-    final_stages._searched_switch = True
-    fst.final_stages = final_stages
+        final_stages.__doc__ = plain.__doc__
+        final_stages._searched_switch = True
+        fst.final_stages = final_stages
 
 
 @contextmanager

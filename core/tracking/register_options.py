@@ -41,7 +41,7 @@ COARSE_NEWTON_STEP_PX = 0.45
 #: voxels, 20 frames, three bones jointly with the stage (this 2-core x86_64 machine's CPU;
 #: :mod:`core.studies.tracking.stage_search`): the search's 13-pose steps per bone-frame after the first
 #: 2.51 (its own 0.02) → 1.61 (0.25) → 1.14 (0.5), the stage's 2.96-2.98 either way, × the Cramér–Rao
-#: bound (mm/°) tibia 1.81/1.28 → 1.80/1.29 → 1.81/1.22, talus 1.54/1.66 → 1.55/1.66 → 1.52/1.64,
+#: bound (mm/°) tibia 1.81/1.28 → 1.80/1.29 → 1.81/1.22, talus 1.54/1.66 → 1.55/1.66 → 1.52/1.63,
 #: calcaneus 1.30/1.63 → 1.28/1.60 → 1.27/1.55, no frame over 4× the bound, every frame converged.
 #: One NVIDIA H100, ``talus bench track`` (1024², 100 frames): one bone with the stage 9.15 → 7.16 ms a
 #: frame after the first, three bones jointly 23.37 → 20.35 ms, bound ratios the same or lower

@@ -40,8 +40,9 @@ visible.
 the same scene and device. ``--final`` picks the final stage (``none``, the default, or
 ``likelihood``: :attr:`~core.tracking.options.TrackingOptions.refine_likelihood`, the search before it
 stopping at :data:`~core.tracking.register_options.STAGE_SEARCH_TOL`; ``likelihood_full``: the stage
-after the search to its own tolerance, as before that constant, under ``<case>_likelihood_full``, each
-stage case's ``stage_search_tol`` saying which); a comma-separated
+after the search to its own tolerance, as before that constant, under ``<case>_likelihood_full``;
+``likelihood_first``: the stage straight from the prediction, :data:`core.tracking.register.STAGE_FIRST`,
+one bone's registrations only; each stage case's ``stage_search_tol`` saying which); a comma-separated
 list runs each case once per entry in that order on the same scene (``none,likelihood,likelihood,none``:
 the stage's cost end to end, alternated), the results under ``<case>``, ``<case>_likelihood`` and, for
 an entry's second occurrence, ``<case>_2`` / ``<case>_likelihood_2``; the device floor counts the
@@ -236,8 +237,8 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: d
 
 
 def _final_runs(final: str, options) -> list:
-    """(key suffix, options) per entry of ``final`` (``"none"``, ``"likelihood"`` or a
-    comma-separated list of them), in order: ``""`` / ``"_likelihood"``, a second occurrence's
+    """(key suffix, options) per entry of ``final`` (one of :data:`FINALS` or a comma-separated
+    list of them), in order: ``""`` / ``"_likelihood"``, a second occurrence's
     suffix ending in ``_2`` (a third's ``_3``); the likelihood entries' options with
     ``refine_likelihood``. ``options`` None: only checks ``final``."""
     from dataclasses import replace
@@ -288,10 +289,9 @@ def run(*, quick: bool = False, device: str | None = None, frames: int | None = 
     (``compare``: ``newton`` and ``local`` both, the second under ``"<case>_local"``) and the
     gradient correlation of the gradient ``metric`` (``"magnitudes"``, the default term, or
     ``"components"``: the gc term's ``components`` option) and the final stage(s) ``final``
-    (``"none"``, ``"likelihood"``, ``"likelihood_full"`` or a comma-separated list of them, module
-    docs); returns the JSON-ready results. ``workers``: processes for the frames' image chain before
-    the clock starts (0: this one; :func:`core.studies.tracking.trial_frames.synthesise`, the same
-    frames)."""
+    (one of :data:`FINALS` or a comma-separated list of them, module docs); returns the JSON-ready
+    results. ``workers``: processes for the frames' image chain before the clock starts (0: this
+    one; :func:`core.studies.tracking.trial_frames.synthesise`, the same frames)."""
     if int(repeats) != repeats or repeats < 1:
         raise ValueError(f"repeats: expected a whole number >= 1, got {repeats!r}")
     if cases not in ("one", "three", "both"):
@@ -380,8 +380,8 @@ def main(argv=None, *, prog: str = "python -m core.studies.tracking.benchmark") 
     p.add_argument("--final", default="none",
                    help="final stage: none (default), likelihood (after the search at its looser "
                         "tolerance before a stage), likelihood_full (after the search to its own tolerance, "
-                        "as before), or a comma-separated list run in turn on the same scene "
-                        "(e.g. none,likelihood)")
+                        "as before), likelihood_first (the stage from the prediction; one bone), or a "
+                        "comma-separated list run in turn on the same scene (e.g. none,likelihood)")
     p.add_argument("--no-bound", action="store_true", help="skip the Cramér-Rao bound")
     p.add_argument("--workers", type=int, default=0,
                    help="processes for the frames' image chain before the clock starts (default 0: this one)")

@@ -94,16 +94,20 @@ def main(argv=None) -> int:
         ap.error(f"--switch: {a.switch} is not a boolean switch of core.tracking.frame_step")
     built = scene(a.bones.split(","))
     runs = []
-    for draw in (int(x) for x in a.draws.split(",")):
-        keys = keyframes(built[0], built[1], draw, a.off)
-        row = {"draw": draw}
-        for on in (False, True):
-            setattr(fs, a.switch, on)
-            row["on" if on else "off"] = got = first_frame(built, keys, mode=a.mode, restarts=a.restarts)
-            print(f"draw {draw} {a.switch}={'on' if on else 'off'}: " + "; ".join(
-                f"{m.name} {got[m.name]['mm']:.4f} mm {got[m.name]['deg']:.4f} deg "
-                f"{got[m.name]['evaluations']} evals" for m in built[1]), flush=True)
-        runs.append(row)
+    kept = getattr(fs, a.switch)
+    try:
+        for draw in (int(x) for x in a.draws.split(",")):
+            keys = keyframes(built[0], built[1], draw, a.off)
+            row = {"draw": draw}
+            for on in (False, True):
+                setattr(fs, a.switch, on)
+                row["on" if on else "off"] = got = first_frame(built, keys, mode=a.mode, restarts=a.restarts)
+                print(f"draw {draw} {a.switch}={'on' if on else 'off'}: " + "; ".join(
+                    f"{m.name} {got[m.name]['mm']:.4f} mm {got[m.name]['deg']:.4f} deg "
+                    f"{got[m.name]['evaluations']} evals" for m in built[1]), flush=True)
+            runs.append(row)
+    finally:  # (the switch as it was: main may run inside another program, a test)
+        setattr(fs, a.switch, kept)
     if a.json is not None:
         git = ["git", "rev-parse", "--short", "HEAD"]
         commit = subprocess.run(git, capture_output=True, text=True).stdout.strip()

@@ -83,9 +83,11 @@ at all) took 6.1 ms but the tibia's rotation to 1.57×; forward differences (:da
 7 poses) moved poses by ~1 σ on a 256² CPU trial (the derivatives' O(h) error biases the fixed point).
 
 The device work reuses the engine's renderer launch (:meth:`core.tracking.engine.GaussNewtonCost._render`,
-its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. Kernels are launched
-one by one (no CUDA graph; each from a recorded launch while its arguments stay the same,
-:meth:`LikelihoodEngine._launch`, :mod:`core.tracking.likelihood_launches`): 4-5 launches and one
+its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. A step of the default
+model is one CUDA graph on a CUDA device (:data:`STEP_GRAPH`, :mod:`core.tracking.likelihood_graph`);
+the other kernels (and a step's where it is off) are launched one by one, each from a recorded launch
+while its arguments stay the same (:meth:`LikelihoodEngine._launch`,
+:mod:`core.tracking.likelihood_launches`): one graph launch (4-5 launches without it) and one
 wait per step, for the engine's own work only (an event recorded after the table's copy):
 :meth:`LikelihoodEngine.refine_steps` yields there, so that several bones' refinements run side
 by side (:func:`run_side_by_side`). The kernels live in :mod:`core.tracking.likelihood_kernels`

@@ -259,7 +259,7 @@ class DRRRenderer:
         self.empty_space_skipping = bool(empty_space_skipping)
         self.cameras = cams
         self.volumes = vols
-        tr = transfer or HUTransfer()
+        tr = self.transfer = transfer or HUTransfer()  # (HU volumes' μ: roi.support_points too)
         for v in vols:
             if v.units not in ("HU", "1/mm"):
                 raise ValueError(

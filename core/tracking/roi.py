@@ -180,7 +180,8 @@ def support_points(renderer, bone: int) -> np.ndarray | None:
     from scipy.spatial import ConvexHull, QhullError
 
     vol = renderer.volumes[int(bone)]
-    mask = np.asarray(vol.data) > 0
+    data, tr = np.asarray(vol.data), getattr(renderer, "transfer", None)
+    mask = (data if vol.units != "HU" or tr is None else tr(data)) > 0  # (μ as the renderer has it)
     out = None
     if mask.any():
         shell = mask & ~binary_erosion(mask)

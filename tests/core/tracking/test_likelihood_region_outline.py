@@ -81,3 +81,23 @@ def test_buffers_kept_per_size_give_the_same_steps(talus_scene, monkeypatch):
     for a, b in zip(out[False], out[True], strict=True):
         for k in ("JJ", "Jr", "chi2", "M"):
             np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_support_points_of_a_volume_in_hu(talus_scene):
+    """A volume in HU: the support is where the renderer's transfer gives μ > 0 (HU above -1000 with
+    the default transfer, not HU > 0; above the threshold with one)."""
+    from scipy.spatial import Delaunay
+
+    from core.render import DRRRenderer
+    from core.render.volume import CTVolume, HUTransfer
+
+    hu = np.full((10, 12, 14), -500.0, dtype=np.float32)  # (fat-like: μ > 0, HU < 0)
+    hu[3:7, 4:8, 5:9] = 400.0
+    vol = CTVolume(hu, spacing=np.full(3, 2.0), origin=np.array([-14.0, -12.0, -10.0]), units="HU")
+    for tr in (None, HUTransfer(threshold=150.0)):
+        r = DRRRenderer(talus_scene["scene"].rig, [vol], transfer=tr, device="cpu")
+        P = support_points(r, 0)
+        k, j, i = np.nonzero(r.transfer(hu) > 0)
+        assert len(k) == (hu.size if tr is None else 64)
+        inside = Delaunay(P).find_simplex(vol.index_to_physical(np.column_stack([i, j, k]).astype(float)))
+        assert (inside >= 0).all()

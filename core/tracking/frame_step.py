@@ -206,7 +206,7 @@ FIRST_FRAME_SECOND_ROUND = True
 #: (``resources/benchmarks/first_frame_keyframes_sequential*_cpu.json``). From the first pass's poses
 #: instead (×1.3-1.5 evaluations) the tibia stayed 0.27-0.45° off (2 draws): its search stopped short.
 #: The final stage alone subtracting (no ``sequential_subtract``): the talus 0.64-0.94° → 0.040-0.045° (3
-#: draws). Later frames unchanged.
+#: draws). Later frames unchanged. The second pass runs the first pass's restart check too (figures before).
 SEQUENTIAL_SECOND_PASS = True
 #: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`) is checked from the bone's
 #: round-0 pose where round 0 left it unflagged; off (the default): from its keyframe, as round 0, but without
@@ -423,7 +423,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             near = stage_neighbours(others_of(i, current, known))
         with near:
             return register_checked(run.renderer, frame, bones[i], i, start, guess, opts, o,
-                                    state[b].scores, others, run.cancel, hist[b], verify=first and rnd == 0,
+                                    state[b].scores, others, run.cancel, hist[b],
+                                    verify=first and (rnd == 0 or not joint),  # sequential's 2nd pass too
                                     start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
                                     good_sigmas=state[b].sigmas, reference=state[b].reference,
                                     host_only=host_only, defer_confidence=defer, prediction=predicted[i])

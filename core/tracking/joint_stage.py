@@ -45,12 +45,13 @@ _ON: ContextVar = ContextVar("joint_stage_searched", default=False)
 _INSTALL = threading.Lock()  # (two threads entering the block at once: one wrapper, not one around another)
 
 
-def searched_others(calls) -> list:
+def searched_others(calls, poses=None) -> list:
     """``calls`` of :func:`~core.tracking.final_stage.final_stages` (per bone ``(res, kwargs)``) with
     each call's ``others`` poses replaced, for a neighbour that is one of the calls' bones, by that
-    bone's ``res.pose`` (its search's pose in this frame); other neighbours keep theirs. The input
-    is not changed."""
-    found = {int(kw["bone"]): np.asarray(res.pose, dtype=float) for res, kw in calls}
+    bone's ``res.pose`` (its search's pose in this frame; ``poses``: the calls' bones' poses to use
+    instead, in the calls' order); other neighbours keep theirs. The input is not changed."""
+    poses = [res.pose for res, _ in calls] if poses is None else poses
+    found = {int(kw["bone"]): np.asarray(P, dtype=float) for (_, kw), P in zip(calls, poses, strict=True)}
     out = []
     for res, kw in calls:
         oth = kw.get("others")

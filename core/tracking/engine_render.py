@@ -60,11 +60,10 @@ def host_poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarra
     return out
 
 
-def render_items(self, P: np.ndarray, bones: tuple) -> wp.array:
-    """The DRRs of ``bones`` at poses ``P (B, n_bones, 4, 4)`` in the views and ROIs of the engine
-    ``self`` at its output size: the images of :meth:`core.render.DRRRenderer.render` (item
-    ``(b · n_views + v) · n_bones + n``), its item table filled here without the checks of
-    poses the engine made rigid itself (the inverse in closed form), one launch."""
+def item_table(self, P: np.ndarray, bones: tuple) -> np.ndarray:
+    """The item table ``(B, n_views, n_bones, ITEM_COLS)`` of the DRRs of ``bones`` at poses ``P (B,
+    n_bones, 4, 4)`` in the views and ROIs of the engine ``self``, filled without the checks of poses
+    the engine made rigid itself (the inverse in closed form); kept per ``(B, bones)`` and refilled."""
     r = self.renderer
     B, nb = P.shape[:2]
     nv = self.n_views
@@ -87,10 +86,18 @@ def render_items(self, P: np.ndarray, bones: tuple) -> wp.array:
     if roi_in is None or not np.array_equal(roi_in, self.roi):
         table[..., 14:18] = self.roi[None, :, None, :]
         hit[3] = self.roi.copy()
+    return table
+
+
+def render_items(self, P: np.ndarray, bones: tuple) -> wp.array:
+    """The DRRs of ``bones`` at poses ``P (B, n_bones, 4, 4)`` in the views and ROIs of the engine
+    ``self`` at its output size: the images of :meth:`core.render.DRRRenderer.render` (item
+    ``(b · n_views + v) · n_bones + n``), its item table (:func:`item_table`), one launch."""
+    table = item_table(self, P, bones)
     Hc, Wc = self._cap
     H = max(Hc, math.ceil(int(self.roi[:, 3].max()) / self.scale))
     W = max(Wc, math.ceil(int(self.roi[:, 2].max()) / self.scale))
-    return r._launch(table.reshape(B * nv * nb, ITEM_COLS), H, W, self.scale)
+    return self.renderer._launch(table.reshape(-1, ITEM_COLS), H, W, self.scale)
 
 
 class DeviceRender:

@@ -18,12 +18,11 @@ from __future__ import annotations
 import math
 import warnings
 
-import numpy as np
 import warp as wp
 
 from ..render import _kernels as RK
 from ..render._kernels import ITEM_COLS
-from .engine_render import DeviceRender
+from .engine_render import DeviceRender, item_table
 from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel, wls_moments_tri_kernel
 from .likelihood_kernels import wls_moments_kernel
 
@@ -134,27 +133,9 @@ class _StepGraphs:
         shared ones: no wait for another engine's upload from them (the neighbours' DRRs of
         :meth:`set_frame`; its wait for the engine's last uploads covers this buffer's)."""
         r = self.renderer
-        B, nb = P.shape[:2]
-        nv = self.n_views
-        key = (B, bones)
-        hit = self._tables.get(key)
-        if hit is None:
-            table = np.zeros((B, nv, nb, ITEM_COLS), dtype=np.float32)
-            table[..., 0] = np.array(self.views, dtype=np.float32)[None, :, None]
-            table[..., 1] = np.array(bones, dtype=np.float32)[None, None, :]
-            if len(self._tables) >= 8:
-                self._tables.pop(next(iter(self._tables)))
-            hit = self._tables[key] = [table, r._T_idx[list(bones)], r._src_h[list(self.views)], None]
-        table, T, S, roi_in = hit
-        M = T[:, :3, :3] @ np.swapaxes(P[..., :3, :3], -1, -2)  # (as render_items)
-        tt = T[:, :3, 3] - (M @ P[..., :3, 3:4])[..., 0]
-        table[..., 2:5] = (M @ S[:, :3].T).transpose(0, 3, 1, 2) + tt[:, None] * S[None, :, None, 3:4]
-        table[..., 5:14] = M.reshape(B, 1, nb, 9)
-        if roi_in is None or not np.array_equal(roi_in, self.roi):
-            table[..., 14:18] = self.roi[None, :, None, :]
-            hit[3] = self.roi.copy()
+        table = item_table(self, P, bones)
         H, W = self._cap  # (render_items' size: the ROIs fit the cap)
-        n = B * nv * nb
+        n = table.shape[0] * table.shape[1] * table.shape[2]
         own = self.__dict__.setdefault("_own_renders", {})
         got = own.get((n, H, W))
         if got is None:

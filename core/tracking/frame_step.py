@@ -25,29 +25,10 @@ NVIDIA H200 (1024², 100 frames, three bones jointly, the same call,
 talus, calcaneus 4.34/1.69, 1.36/1.28, 1.90/1.41 × the Cramér–Rao bound in mm/degrees, against
 4.34/1.69, 1.37/1.30, 1.89/1.40).
 
-With the final stage, a frame whose stage moved the pose (translation) more than
-:data:`STAGE_MOVE_LIMIT` × the median move of the bone's last good frames, and more than half its
-own translation σ, is flagged ``"uncertain"`` (:func:`stage_move_check`; recorded, not retried,
-still used for the guesses; the thresholds are ``TrackingOptions.stage_move_limit``,
-``stage_move_sigmas`` and ``stage_move_frames``): the similarity's optimum and the weighted
-least-squares fit disagree far more than they do on that bone's other frames. Such a frame keeps
-the similarity's pose — the stage's move is rejected (``stage_move_reject``, the default;
-:func:`core.tracking.final_stage.rejected`; the flag says so, ``timing["likelihood_rejected"]``
-is 1 and ``likelihood_taken`` 0) — and its confidence stays the stage's (its sandwich plus the
-move, which spans both poses). Measured on one NVIDIA H200, same trial and stage (no robust
-weights; ``resources/benchmarks/tracking_final_reject_h200.json``): the 17 flagged tibia frames
-(72-76, 78-89) rejected, the tibia went from 4.34/1.69 to 2.39/1.80 × its bound (mm/degrees; the
-tracker alone 2.21/2.01) and its frames over 4× the bound from 19 to 5 (2 silent, 55 and 91, as
-before); the talus and calcaneus unchanged. With the stage's default robust weights
-(:data:`core.tracking.final_stage.MODEL`) the check flagged nothing on that trial (tibia
-2.16/1.46 ×, 2 frames over 4×, both silent; the tracker alone 7). On that trial the stage moved the tibia
-0.08-0.24 mm in frames 72-89 (its good frames' median 0.01-0.02 mm) and its error there was the
-move: 19 tibia frames were over 4× their bound with the stage, all unflagged (7 tibia and 1
-calcaneus frame without it). The check, applied to that run's per-frame moves and σ, flags 17 of
-the 19 and none of the 281 bone-frames within 4× their bound (limits 3-6 the same; 2 flags 15
-talus frames); the two left (frames 55 and 91, 0.065 and 0.071 mm against 0.060 mm) moved no more
-than usual. Rotation moves do not separate them (good frames' rotation moves reached 5.5× their
-recent median), so only translation is checked.
+With the final stage, a frame whose stage moved the pose far more than the bone's other frames' stages
+did is flagged ``"uncertain"`` and the move rejected, unless the stage run again from the far side
+of its pose confirms it (:data:`STAGE_MOVE_CONFIRM`): :mod:`core.tracking.stage_move` (the check, its
+thresholds and what it caught).
 
 In sequential tracking of several bones the final stage subtracts the neighbours too, as joint
 tracking's does (:data:`SEQUENTIAL_NEIGHBOURS`): the bones registered earlier in the frame at
@@ -110,11 +91,8 @@ whole round. It pays once the host's share of a step falls below the device's.
 
 from __future__ import annotations
 
-import statistics
 import time
-from collections.abc import Sequence
 from contextlib import nullcontext
-from dataclasses import dataclass, field
 from dataclasses import replace as _replace
 
 import numpy as np
@@ -122,13 +100,16 @@ import numpy as np
 from .attempt import Attempt, confidence_of, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
-from .feed import MissingView
+from .frame_records import MISSING_FLAG, UNREADABLE_FLAG, missing_flags
+from .frame_records import Work as _Work
+from .frame_records import frame_result as _frame_result
 from .frame_state import _BoneState, _Run, motion_prediction, predict_pose
 from .joint import JointJob, lockstep_applies, register_together
 from .joint_stage import searched_stages
 from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
+from .stage_move import confirmed, stage_move_check
 
 __all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_CHECK_FROM_ROUND0",
            "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION",
@@ -219,102 +200,6 @@ SEQUENTIAL_SECOND_PASS = True
 #: round 0's poses, the registration's options) the tibia 0.023-0.032° → 0.39-0.50° (4 draws): the retry,
 #: wide from the keyframe, was what registered it (``resources/benchmarks/first_frame_keyframes_joint*``).
 FIRST_FRAME_CHECK_FROM_ROUND0 = False
-#: The flag of a frame a view has no image for, its source giving no reason (:func:`missing_flags`).
-MISSING_FLAG = "frame missing in view"
-#: The flag of a frame a view's image could not be read for, with the source's reason.
-UNREADABLE_FLAG = "frame cannot be read"
-
-
-@dataclass
-class _Work:
-    """Work spent on one bone in one frame, every round and registration added up."""
-
-    evaluations: int = 0
-    time_s: float = 0.0
-    timing: dict = field(default_factory=dict)
-
-    def add(self, a: Attempt) -> None:
-        self.evaluations += a.evaluations
-        self.time_s += a.time_s
-        for k, v in (a.timing or {}).items():
-            self.timing[k] = self.timing.get(k, 0) + v
-
-
-#: The final stage's outcome in a registration's timing (:mod:`core.tracking.final_stage`): of the
-#: registration kept, not summed over a frame's registrations like the times.
-_STAGE_KEYS = ("likelihood_taken", "likelihood_move_mm", "likelihood_move_deg", "likelihood_rejected")
-
-
-def _frame_result(name: str, f: int, a: Attempt, w: _Work) -> FrameResult:
-    """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work (the
-    times summed; the final stage's outcome, ``_STAGE_KEYS``, that of the registration kept)."""
-    res = a.result
-    if res is None:
-        return FrameResult(name, f, None, np.nan, w.evaluations, w.time_s, False, tuple(a.flags), a.retried,
-                           None, w.timing or None)
-    timing = w.timing
-    if any(k in timing for k in _STAGE_KEYS):
-        timing = {k: v for k, v in timing.items() if k not in _STAGE_KEYS}
-        timing.update((k, res.timing[k]) for k in _STAGE_KEYS if k in (res.timing or {}))
-    return FrameResult(name, f, res.pose, res.score, w.evaluations, w.time_s, not a.flags, tuple(a.flags),
-                       a.retried, a.confidence, timing or None, a.notes)
-
-
-def stage_move_check(timing: dict | None, confidence: dict | None, moves, *, n: int = 10,
-                     limit: float = STAGE_MOVE_LIMIT, sigmas: float = STAGE_MOVE_SIGMAS,
-                     min_frames: int = STAGE_MOVE_FRAMES) -> list[str]:
-    """The ``"uncertain"`` flag of a frame whose final stage (``timing`` of its registration: the
-    stage taken, its move) moved the pose more than ``limit`` × the median translation move of the
-    bone's last ``n`` good frames (``moves``, mm, tracking order; at least ``min_frames`` of them)
-    and more than ``sigmas`` × the frame's own translation σ (``confidence``; when it has one): the
-    similarity's optimum and the weighted least-squares fit disagree far more than they do on this
-    bone's frames. Module docs: what it caught on the acceptance trial."""
-    t = timing or {}
-    mm = t.get("likelihood_move_mm")
-    if not t.get("likelihood_taken") or mm is None or not np.isfinite(mm):
-        return []
-    recent = [float(v) for v in list(moves or [])[-int(n):] if v is not None and np.isfinite(v)]
-    if len(recent) < min_frames:
-        return []
-    med = statistics.median(recent)
-    st = (confidence or {}).get("translation_mm")
-    if mm <= limit * med or (st is not None and np.isfinite(st) and mm <= sigmas * st):
-        return []
-    return [f"uncertain (the final stage moved the pose {mm:.3f} mm from the similarity's optimum; over "
-            f"{limit:g} x the bone's recent {med:.3f} mm)"]
-
-
-def missing_flags(imgs: Sequence) -> tuple[str, ...]:
-    """The flags of a frame some view of which has no image: ``imgs[v]`` None, or a
-    :class:`~core.tracking.feed.MissingView` carrying the reason its frame source gave (a file and
-    the reader's error; :class:`core.tracking.feed.FrameFeed`). Views with a reason are said in one
-    :data:`UNREADABLE_FLAG` flag, counted from 1 as the reasons of
-    :func:`core.tracking.from_study.frame_reader` always were (``"frame cannot be read: view 2:
-    <file>: <error>"``; one reason shared by every view of a frame of several views is said once,
-    without them); views without one in :data:`MISSING_FLAG`'s, counted from 1 too, as the window
-    and every other message count views (``"frame missing in view 1, 2"``; it counted from 0 before).
-    Empty when every view has its image."""
-    said, absent = {}, []
-    for v, im in enumerate(imgs):
-        if isinstance(im, MissingView) and im.reason:
-            said[v] = im.reason
-        elif im is None or isinstance(im, MissingView):
-            absent.append(v + 1)
-    out = []
-    if said:
-        reasons: dict[str, list[int]] = {}
-        for v, r in said.items():
-            reasons.setdefault(r, []).append(v + 1)
-        if len(imgs) > 1 and len(said) == len(imgs) and len(reasons) == 1:  # the whole frame, one reason
-            out.append(f"{UNREADABLE_FLAG}: {next(iter(reasons))}")
-        else:
-            out.append(f"{UNREADABLE_FLAG}: " + "; ".join(f"view {', '.join(map(str, vs))}: {r}"
-                                                          for r, vs in reasons.items()))
-    if absent:
-        out.append(f"{MISSING_FLAG} {', '.join(map(str, absent))}")
-    return tuple(out)
-
-
 def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
                 skip: dict) -> dict[int, FrameResult] | None:
     """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
@@ -530,30 +415,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
 
 def _confirmed(run: _Run, frame, i: int, a: Attempt, others, w: _Work, moved: list) -> list:
-    """The move check's flag ``moved`` of bone ``i``'s attempt ``a``, or none where the stage run again
-    from the far side of its pose confirms it (:func:`core.tracking.final_stage.confirm_move`; a note
-    says so); the second run's work added to ``w``. Where it lands within :data:`CONFIRM_FLOOR_MM` (and
-    half the move) too: on noisy 128² views (CPU; every stage move sent to it) two of 22 moves, 0.016 and
-    0.033 mm but 0.77° and 0.76°, landed 0.006 and 0.010 mm away and were rejected, 0.67-0.75° worse."""
-    from .final_stage import CONFIRM_FRACTION, confirm_move
-
-    try:
-        c = confirm_move(run.renderer, frame, a.result, bone=i, center=run.bones[i].centroid,
-                         options=run.options.registration, views=tuple(range(frame.n_views)), others=others)
-    except OutsideViewError:
-        return moved
-    if c is None:
-        return moved
-    w.evaluations += c["evaluations"]
-    w.time_s += c["time_s"]
-    t = a.result.timing or {}
-    mm, deg = t.get("likelihood_move_mm", float("nan")), t.get("likelihood_move_deg", float("nan"))
-    if not (c["confirmed"] or (c["mm"] <= min(CONFIRM_FLOOR_MM, 0.5 * mm)
-                               and c["deg"] <= max(CONFIRM_FRACTION * deg, 0.05))):
-        return moved
-    a.notes = (*a.notes, f"final stage's move {mm:.3f} mm kept: run again from the far side it ended "
-                         f"{c['mm']:.3f} mm, {c['deg']:.3f} deg from its pose")
-    return []
+    """:func:`core.tracking.stage_move.confirmed` with :data:`CONFIRM_FLOOR_MM` as it is now."""
+    return confirmed(run, frame, i, a, others, w, moved, floor_mm=CONFIRM_FLOOR_MM)
 
 
 def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,

@@ -158,12 +158,16 @@ from dataclasses import replace
 
 import numpy as np
 
-__all__ = ["DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "HALF_WINDOW", "LIMIT",
-           "MIN_FRAMES", "NEAR", "REACH", "UNCHECKED", "apply_trajectory_flags", "journal_neighbours",
-           "trajectory_flags", "trajectory_residuals", "trajectory_review"]
+__all__ = ["BACKWARD_FLAG", "DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "HALF_WINDOW",
+           "LIMIT", "MIN_FRAMES", "NEAR", "REACH", "UNCHECKED", "apply_trajectory_flags",
+           "journal_neighbours", "trajectory_flags", "trajectory_residuals", "trajectory_review"]
 
 #: The flag's name (the message starts with it).
 FLAG = "off the trajectory"
+#: The flag of :mod:`core.tracking.backward_check` (a first frame whose registration backward from the
+#: frames after it lands elsewhere), a review flag run after the tracking as this module's: named here,
+#: where :mod:`core.tracking.frame_state` reads both.
+BACKWARD_FLAG = "first frame off its backward registration"
 #: Neighbours on each side of a frame used for its fit (tracked frames: frame numbers within this
 #: many times the frames' median spacing, so that every k-th frame tracked is judged alike). With
 #: :data:`DEGREE` 2 and :data:`LIMIT` 2.5, over the four runs of the module docs: ±3 frames caught

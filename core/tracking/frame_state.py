@@ -16,6 +16,7 @@ import numpy as np
 from ..geometry.transforms import pose_from_params
 from .bones import BoneModel
 from .checks import _predict, pose_delta
+from .flags_post import BACKWARD_FLAG
 from .flags_post import FLAG as TRAJECTORY_FLAG
 from .options import TrackingOptions
 from .results import FrameResult
@@ -112,9 +113,10 @@ class _BoneState:
         stage's moves), or a flagged one (:meth:`add_flagged`)."""
         if fr.pose is None:
             return
-        # the trajectory post-pass's flag (core.tracking.flags_post) came after the run that made
-        # the frame: a restored frame feeds the guesses as that run's did
-        flags = tuple(x for x in fr.flags if not x.startswith(TRAJECTORY_FLAG))
+        # the trajectory post-pass's and the backward check's flags (core.tracking.flags_post,
+        # backward_check) came after the run that made the frame: a restored frame feeds the guesses
+        # as that run's did
+        flags = tuple(x for x in fr.flags if not x.startswith((TRAJECTORY_FLAG, BACKWARD_FLAG)))
         if not flags:
             self.add_good(frame, fr.pose, fr.score, fr.confidence)
             t = fr.timing or {}

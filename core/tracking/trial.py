@@ -127,7 +127,12 @@ the local fit through their neighbours by more than ``trajectory_limit`` (None: 
 median residual — frames a few Cramér–Rao bound-widths off that converged and scored as usual, which
 no check of a single frame tells apart (that module's docs give what it caught); those frames are
 handed to ``record_result`` again with the flag. A range's fits run through ``neighbours``, good
-poses outside it (the journal's), which are never flagged by it.
+poses outside it (the journal's), which are never flagged by it. Before it, the run's first frame is
+registered once more as the frame step registers any later frame, from the prediction of the frames
+after it (:mod:`core.tracking.backward_check`, :data:`~core.tracking.backward_check.BACKWARD_CHECK`):
+where the two registrations disagree by more than the trajectory check's limit, the first frame is
+flagged ``"first frame off its backward registration"``, else noted; a first frame is registered from a
+hand-placed keyframe and has no history that the checks of a single frame could judge it by.
 
 The thresholds are :class:`TrackingOptions` fields, defaulting to the module constants named
 above: ``collapse_ratio`` (:data:`~core.tracking.checks.COLLAPSE_RATIO`), ``motion_limit``,
@@ -183,6 +188,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
+from . import backward_check as backward
 from .attempt import register_checked
 from .bones import BoneModel
 from .checks import SAME_OPTIMUM, pose_delta, same_optimum, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
@@ -301,6 +307,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
     total, done = len(order) * len(names), 0
     t0 = time.perf_counter()
     status = "complete"
+    changed: set = set()  # (bone, frame) of the results the post-passes changed
 
     def finish(fr: FrameResult) -> None:
         nonlocal done
@@ -350,6 +357,8 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                         record_result(fr)
                 state[b].add(f, fr)
                 finish(fr)
+        if status == "complete" and backward.BACKWARD_CHECK:  # the first frame again, from later frames
+            changed = {(fr.bone, fr.frame) for fr in backward.backward_check(run, feed, order, results, skip)}
     finally:
         feed.close()
     out = TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
@@ -357,10 +366,12 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
         centers = {b.name: b.centroid for b in bones}
         near = {b: {**(neighbours or {}).get(b, {}),
                     **{f: p for f, p in skip[b].items() if not isinstance(p, FrameResult)}} for b in names}
-        out, changed = apply_trajectory_flags(out, centers, limit=o.trajectory_limit, neighbours=near)
-        for fr in changed:  # journaled again with the flag (the review panel reads the journal)
-            if record_result is not None and fr.pose is not None:
-                record_result(fr)
+        out, again = apply_trajectory_flags(out, centers, limit=o.trajectory_limit, neighbours=near)
+        changed |= {(fr.bone, fr.frame) for fr in again}
+    for key in sorted(changed, key=lambda k: (k[1], names.index(k[0]))):  # journaled again with the flag or
+        fr = out.results[key]  # note (the review panel reads the journal)
+        if record_result is not None and fr.pose is not None:
+            record_result(fr)
     return out
 
 

@@ -1,0 +1,189 @@
+"""The first tracked frame registered once more, backward from the frames after it
+(:func:`backward_check`), once a :func:`core.tracking.trial.track` run is complete.
+
+A bone's first frame is registered unlike the others: from a hand-placed keyframe (the acceptance
+study's 5 mm / 5° off), with the first frame's widened options, a global search, the restart check and
+a second round or pass. The frames after it are registered from the constant-velocity prediction of
+the frames before them. Two things leave a wrong first frame unseen. The per-frame checks judge a
+frame against the bone's own history, which a first frame does not have; and the trajectory
+post-pass (:mod:`core.tracking.flags_post`) judges it only by extrapolating the fit through the
+frames after it, which divides its residual by ``sqrt(1 + leverage)``: about 3 for the parabola
+through frames 1-4. Seed 4's tibia at frame 0 (one NVIDIA H100, 1024², c7320cb,
+``resources/benchmarks/tracking_acceptance_seed4_final_c7320cb_h100.json``) was 0.72° off (−0.69°
+about its long axis, 6.3× its bound) in both modes, its neighbours −0.15° to −0.29° about that axis;
+jointly the parabola through frames 1-4 missed it by 0.304° about z, 0.110° normalised, 1.12× the
+bone's median (the limit 2.5×); sequentially frame 2 was flagged and it was left unchecked. Rules
+from the trajectory alone do not separate it: judged against the bone's own frames fitted alike
+(the same one-sided fit through the next 2-6 frames, as the gap rule of :mod:`core.tracking.flags_post`
+scales its frames), seed 4's tibia frame 0 stood 1.4-2.7× their median in rotation and the good first
+frames of seeds 0, 3 and 4 up to 2.3× (rotation) and 4.4× (translation, where the truth itself
+misses such a fit by 1.5-5× the median: the walking motion accelerates at the trial's start).
+
+So the check asks the images instead: after the forward pass, the first frame of each bone is
+registered again as the tracker registers every other frame — the frame step of
+:func:`core.tracking.frame_step.track_frame`, from the constant-velocity prediction of the bone's
+nearest two good frames after it, the history (guesses, scores, σ, stage moves) those frames and the
+ones after them make when taken in reverse order, the neighbours subtracted as in any later frame
+(the first frame's keyframes are not used: the registration is the frame step's, not the first
+frame's) — and the two registrations are compared. Where they disagree by more than :data:`LIMIT` ×
+the bone's median trajectory residual (:func:`core.tracking.flags_post.trajectory_residuals`, the
+trajectory check's scale; at least :data:`FLOOR`) in translation or rotation, the first frame is
+flagged (:data:`FLAG`, with both distances and the limits); otherwise it gets the note :data:`NOTE`
+with the distance. A bone with fewer than :data:`~core.tracking.flags_post.MIN_FRAMES` trajectory
+residuals (a short run) has no scale and is not judged (the note gives the distance): the backward
+registration carries the errors of the frames it is predicted from (on the ideal 128² talus-calcaneus
+scene from true keyframes, the talus's third frame 0.24° off left it 0.23° from a first frame 0.003° off).
+The first frame's pose is kept either way: two registrations that disagree do not tell which is right
+(the backward one carries the errors of the frames it was predicted from), so the frame is sent for
+review. A backward registration that is itself flagged, or has no pose, judges
+nothing (a note says so); a bone with fewer than two good frames among the :data:`REACH` tracked
+frames after its first, or whose first frame is flagged already or was given as a pose, is not
+checked.
+
+The flag is a review flag, as the trajectory post-pass's: the registration's ``converged`` stays as
+it was, and :class:`core.tracking.frame_state._BoneState` takes a frame restored with it (resume) as
+the run that made it did. Frames that carry an earlier check's flag or note are judged afresh (those
+taken off first), so a resumed run that completes gives the flags of an uninterrupted one: the
+backward registration is seeded from its frame number, as every registration is. It costs one
+frame's registration per run (its evaluations and seconds go into the frame's ``timing`` as
+``backward_evaluations`` and ``backward_s``, not into its ``evaluations``) and runs before the
+trajectory post-pass, which then neither judges a flagged first frame nor fits through it.
+:data:`BACKWARD_CHECK` turns it off.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .checks import _distance
+from .flags_post import BACKWARD_FLAG, LIMIT, MIN_FRAMES, trajectory_residuals
+from .frame_state import _BoneState
+from .frame_step import track_frame
+
+__all__ = ["BACKWARD_CHECK", "FLAG", "FLOOR", "LIMIT", "NOTE", "REACH", "backward_check"]
+
+#: Whether :func:`core.tracking.trial.track` registers a complete run's first frame again backward.
+BACKWARD_CHECK = True
+#: The flag's name (:data:`core.tracking.flags_post.BACKWARD_FLAG`; the message starts with it).
+FLAG = BACKWARD_FLAG
+#: The note of a first frame checked and not flagged, or not judged (the message starts with it).
+NOTE = "first frame registered again backward"
+#: The two good frames the backward prediction starts from lie within this many tracked frames after
+#: the first.
+REACH = 4
+#: The smallest disagreement (mm, degrees) that is flagged: :data:`core.tracking.frame_step.CONFIRM_FLOOR_MM`
+#: and the stage confirmation's 0.05° (:func:`core.tracking.final_stage.confirm_move`).
+FLOOR = (0.02, 0.05)
+
+
+def _own(fr):
+    """``fr`` without this check's flag and note."""
+    flags = tuple(s for s in fr.flags if not s.startswith(FLAG))
+    notes = tuple(s for s in fr.notes if not s.startswith(NOTE))
+    t = {k: v for k, v in (fr.timing or {}).items() if not k.startswith("backward_")}
+    if flags == fr.flags and notes == fr.notes and t == (fr.timing or {}):
+        return fr
+    return replace(fr, flags=flags, notes=notes, timing=t if fr.timing is not None else None)
+
+
+def _scale(results, order, name, center):
+    """The bone's median trajectory residual (mm, degrees) over its good frames of the run, or None
+    with fewer than :data:`~core.tracking.flags_post.MIN_FRAMES` residuals."""
+    fs = [f for f in order
+          if (fr := results.get((name, f))) is not None and fr.pose is not None and not fr.flags]
+    if len(fs) < MIN_FRAMES:
+        return None
+    R = trajectory_residuals(fs, np.array([results[(name, f)].pose for f in fs]), center)
+    R = R[np.isfinite(R).all(axis=1)]
+    return np.median(R, axis=0) if len(R) >= MIN_FRAMES else None
+
+
+def backward_check(run, feed, order, results: dict, skip: dict) -> list:
+    """Register the first frame of ``order`` again from the frames after it (module docs) and flag or
+    note each checked bone's result in ``results`` ((bone, frame) -> FrameResult, updated in place);
+    returns the results whose flags, notes or timing changed. ``run``: the
+    :class:`~core.tracking.frame_state._Run`; ``feed``: the run's
+    :class:`~core.tracking.feed.FrameFeed` (the frame is read again); ``skip``: the run's given frames
+    (bone -> {frame: pose or FrameResult}). Nothing changes when the backward registration is
+    cancelled."""
+    if len(order) < 3:
+        return []
+    f0, names, o = order[0], run.names, run.options
+    base, todo, state, skip2 = {}, [], {b: _BoneState() for b in names}, {b: {} for b in names}
+    for i, b in enumerate(names):
+        fr = results.get((b, f0))
+        if fr is None or fr.pose is None:
+            continue
+        base[i] = _own(fr)
+        skip2[b] = {f0: base[i]}  # a bone not checked: subtracted at its forward pose
+        if base[i].flags:
+            continue
+        after = []  # the bone's frames after the first, nearest first, as the forward pass kept them
+        for f in order[1:]:
+            got = results.get((b, f))
+            if got is None:
+                got = skip.get(b, {}).get(f)
+            if got is not None:
+                after.append((f, got))
+            if len(after) >= o.history:
+                break
+        for f, got in reversed(after):
+            if hasattr(got, "flags"):
+                state[b].add(f, got)
+            else:  # a given pose: good
+                state[b].add_good(f, got, None)
+        near = set(order[1:1 + REACH])
+        if len(state[b].history) >= 2 and {state[b].history[-1][0], state[b].history[-2][0]} <= near:
+            todo.append(i)
+            skip2[b] = {}
+    changed = {}
+    for i, fr in base.items():  # an earlier check's flag and note taken off (judged afresh below)
+        if fr is not results[(names[i], f0)]:
+            changed[i] = fr
+    if todo:
+        # the first frame's keyframes are not the frame step's: the checked bones start from their
+        # predictions, and their neighbours are subtracted at their guesses, as in any later frame
+        kf = {b: {k: v for k, v in (run.keyframes.get(b) or {}).items()
+                  if k != f0 or names.index(b) not in todo} for b in names}
+        imgs, frame = feed.get(f0)
+        new = track_frame(replace(run, keyframes=kf), f0, imgs, frame, todo, state, skip2)
+        if new is None:  # cancelled: as the forward pass left it
+            return []
+        for i in todo:
+            b, fr, back = names[i], base[i], new.get(i)
+            c = run.bones[i].centroid
+            f1, f2 = state[b].history[-1][0], state[b].history[-2][0]
+            src = f"its registration from the prediction of frames {f2}, {f1}"
+            if back is None or back.pose is None or back.flags:
+                why = "; ".join(back.flags) if back is not None and back.flags else "no pose"
+                fr = replace(fr, notes=(*fr.notes, f"{NOTE}: not judged, {src} flagged ({why})"))
+            else:
+                dt, dr = _distance(fr.pose, back.pose, c)
+                s = _scale(results, order, b, c)
+                if s is None:
+                    fr = replace(fr, notes=(*fr.notes, (
+                        f"{NOTE}: not judged ({dt:.3f} mm, {dr:.3f} deg from {src}; fewer than "
+                        f"{MIN_FRAMES} of the bone's frames with a trajectory residual to scale it)")))
+                else:
+                    lim = np.maximum(LIMIT * s, FLOOR)
+                    msg = (f"({dt:.3f} mm, {dr:.3f} deg from {src}; limits {lim[0]:.3f} mm, {lim[1]:.3f} "
+                           f"deg, {LIMIT:g} x the bone's median trajectory residual {s[0]:.3f} mm, "
+                           f"{s[1]:.3f} deg)")
+                    if dt > lim[0] or dr > lim[1]:
+                        fr = replace(fr, flags=(*fr.flags, f"{FLAG} {msg}"))
+                    else:
+                        fr = replace(fr, notes=(*fr.notes, f"{NOTE} {msg}"))
+            if back is not None:
+                fr = replace(fr, timing={**(fr.timing or {}), "backward_evaluations": int(back.evaluations),
+                                         "backward_s": float(back.time_s)})
+            changed[i] = fr
+    out = []
+    for i, fr in changed.items():
+        key = (names[i], f0)
+        old = results[key]
+        if fr.flags != old.flags or fr.notes != old.notes or fr.timing != old.timing:
+            results[key] = fr
+            out.append(fr)
+    return out

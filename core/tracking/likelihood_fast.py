@@ -395,6 +395,25 @@ vec78f = wp.types.vector(length=78, dtype=wp.float32)
 _vec12f = wp.types.vector(length=12, dtype=wp.float32)
 
 
+@wp.func
+def moments_z(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
+              y: wp.array3d(dtype=wp.float32), oth: wp.array3d(dtype=wp.float32), n_refs: int, v: int, r: int,
+              c: int, su: float, sv: float, diff: int) -> _vec12f:
+    """A moments kernel's ``z = (y, D, δ_1 … δ_6, 1, u, v, O)`` of view v at (r, c) (``u = c · su - 1``,
+    ``v = r · sv - 1``; :func:`~core.tracking.likelihood_kernels.wls_moments_kernel` and
+    :func:`wls_moments_tri_kernel` both)."""
+    z = _vec12f()
+    z[0] = y[v, r, c]
+    z[1] = _centre(drr, low, hp, v, r, c)
+    for j in range(6):
+        z[2 + j] = _delta(drr, low, hp, j, n_refs, v, r, c, diff)
+    z[8] = 1.0
+    z[9] = float(c) * su - 1.0
+    z[10] = float(r) * sv - 1.0
+    z[11] = oth[v, r, c]
+    return z
+
+
 @wp.kernel
 def wls_moments_tri_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=wp.float32), hp: float,
                            y: wp.array3d(dtype=wp.float32), wgt: wp.array3d(dtype=wp.float32),
@@ -420,15 +439,7 @@ def wls_moments_tri_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dt
         if r < h and c < w:
             wt = wgt[v, r, c]
             if wt > 0.0:
-                z = _vec12f()
-                z[0] = y[v, r, c]
-                z[1] = _centre(drr, low, hp, v, r, c)
-                for j in range(6):
-                    z[2 + j] = _delta(drr, low, hp, j, n_refs, v, r, c, diff)
-                z[8] = 1.0
-                z[9] = float(c) * su - 1.0
-                z[10] = float(r) * sv - 1.0
-                z[11] = oth[v, r, c]
+                z = moments_z(drr, low, hp, y, oth, n_refs, v, r, c, su, sv, diff)
                 for i in range(12):  # (constant ranges: unrolled, every index a constant)
                     for j in range(12):
                         if j >= i:

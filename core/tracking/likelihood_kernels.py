@@ -11,7 +11,14 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
-from .likelihood_fast import _centre, _delta, _hp, _median_keys_only_kernel, _median_sorted_kernel  # noqa: F401
+from .likelihood_fast import (  # noqa: F401
+    _centre,
+    _delta,
+    _hp,
+    _median_keys_only_kernel,
+    _median_sorted_kernel,
+    moments_z,
+)
 from .likelihood_robust_kernels import (  # (their names here as before)
     _blur_pair_kernel,
     _local_rms_kernel,
@@ -205,15 +212,7 @@ def wls_moments_kernel(drr: wp.array3d(dtype=wp.float32), low: wp.array3d(dtype=
         if r < h and c < w:
             wt = wgt[v, r, c]
             if wt > 0.0:
-                z = vec12f()
-                z[0] = y[v, r, c]
-                z[1] = _centre(drr, low, hp, v, r, c)
-                for j in range(6):
-                    z[2 + j] = _delta(drr, low, hp, j, n_refs, v, r, c, diff)
-                z[8] = 1.0
-                z[9] = float(c) * su - 1.0
-                z[10] = float(r) * sv - 1.0
-                z[11] = oth[v, r, c]
+                z = moments_z(drr, low, hp, y, oth, n_refs, v, r, c, su, sv, diff)
                 s += wt * wp.outer(z, z)
     t = wp.tile_sum(wp.tile(s, preserve_type=True))
     if lane == 0:

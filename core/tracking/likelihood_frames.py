@@ -14,6 +14,14 @@ from .cost import FrameImages, OutsideViewError, fluoro_rois, padded_region
 from .engine_kernels import _LANES, fluoro_roi_kernel
 from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
 
+#: The likelihood stage's regions of the fluence taken on the device from the tracker's engine's
+#: upload of the same frame (:class:`~core.tracking.engine.GaussNewtonCost`'s staged rows, the search
+#: region grown by the mask's erosion) where those rows cover the stage's: no host copy into pinned
+#: memory and no upload. The same fluence values and the same kernel: the same line integrals and
+#: usable pixels (the erosion reads the same pixels: the stage's rows are its region grown by the
+#: erosion, clipped to the image only). Off: each stage uploads its rows itself, as first written.
+SHARE_SEARCH_UPLOAD = True
+
 
 class _FrameRegions:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s frame set-up steps (its
@@ -57,14 +65,46 @@ class _FrameRegions:
                 self._up_event = wp.Event(self.device)
             wp.record_event(self._up_event)
 
+    def _search_upload(self, frame: FrameImages, staged: list):
+        """``(src, given, rows)``: the fluence of this frame that the tracker's engine of this bone and
+        views (:class:`~core.tracking.engine.GaussNewtonCost` at full resolution, its ``_stage_src``
+        and ``_stage_given``) holds on the device, where its rows per view ``(r0, r1, c0, c1)`` cover
+        ``staged``'s with the same erosion; None where none does (:data:`SHARE_SEARCH_UPLOAD`)."""
+        from . import engine as E
+
+        per = E._CACHE.get(self.renderer)
+        for c in list(per.values()) if per else ():
+            last = getattr(c, "_staged_last", None)
+            src = getattr(c, "_stage_src", None)
+            if (last is None or src is None or last[0]() is not frame or int(c.bone) != self.bone
+                    or float(c.scale) != 1.0 or tuple(c.views) != self.views or src.device != self.device):
+                continue
+            rows = last[1][0]
+            p = frame._erode if frame._valid is not None else 0
+            if len(rows) == self.n_views and all(
+                    int(q[4]) == p and q[0] <= a[0] and a[1] <= q[1] and q[2] <= a[2] and a[3] <= q[3]
+                    for q, a in zip(rows, staged, strict=True)):
+                return src, c._stage_given, rows
+        return None
+
     def _stage(self, frame: FrameImages, staged: list, li, mask) -> None:
-        """Each view's region of the fluence uploaded as it is and its line integrals and usable
+        """Each view's region of the fluence uploaded as it is (or the tracker's engine's upload of
+        it taken on the device: :data:`SHARE_SEARCH_UPLOAD`) and its line integrals and usable
         pixels made on the device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, the
         values of :meth:`~core.tracking.cost.FrameImages.region`); the usable pixels counted there,
         taken at the next step's synchronisation."""
         nv = self.n_views
-        Hc, Wc = self._cap
         p = frame._erode if frame._valid is not None else 0
+        shared = self._search_upload(frame, staged) if SHARE_SEARCH_UPLOAD else None
+        if shared is not None:
+            src, gsrc, rows = shared
+            info = self._host_info.numpy()
+            for i, v in enumerate(self.views):
+                r0, r1, c0, c1 = (int(a) for a in rows[i][:4])
+                u0, v0, w, h = (int(a) for a in self.roi[i])
+                info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(frame._given[v] is not None), 0)
+            self._roi_launch(frame, src, gsrc, li, mask, p)
+            return
         Hs = max(r1 - r0 for r0, r1, _, _ in staged)
         Ws = max(c1 - c0 for _, _, c0, c1 in staged)
         given = any(frame._given[v] is not None for v in self.views)
@@ -90,10 +130,16 @@ class _FrameRegions:
         wp.copy(src, host, 0, 0, n)
         if given:
             wp.copy(gsrc, hg, 0, 0, n)
+        self._roi_launch(frame, src, gsrc, li, mask, p)
+
+    def _roi_launch(self, frame: FrameImages, src, gsrc, li, mask, p: int) -> None:
+        """:func:`~core.tracking.engine_kernels.fluoro_roi_kernel` on the staged fluence ``src`` (the
+        item table in ``_host_info``) into ``li`` and ``mask``, the usable pixels' count copied back."""
+        Hc, Wc = self._cap
         wp.copy(self._info, self._host_info)
         self._msum.zero_()
         lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
-        self._launch("roi", fluoro_roi_kernel, (nv, math.ceil(Hc * Wc / self.chunk), _LANES),
+        self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / self.chunk), _LANES),
                      [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
                       self.chunk, li, mask, self._fmax, self._msum])
         wp.copy(self._host_msum, self._msum)

@@ -109,13 +109,14 @@ from .joint_stage import searched_stages
 from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
+from .second_pass import stage_pass
 from .stage_move import confirmed, stage_move_check
 
 __all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_CHECK_FROM_ROUND0",
            "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION",
-           "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_AT_SEARCHED", "STAGE_MOVE_CONFIRM",
-           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
-           "stage_move_check", "track_frame"]
+           "SECOND_PASS_STAGE_ONLY", "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_AT_SEARCHED",
+           "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
+           "UNREADABLE_FLAG", "missing_flags", "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -187,7 +188,8 @@ FIRST_FRAME_SECOND_ROUND = True
 #: (``resources/benchmarks/first_frame_keyframes_sequential*_cpu.json``). From the first pass's poses
 #: instead (×1.3-1.5 evaluations) the tibia stayed 0.27-0.45° off (2 draws): its search stopped short.
 #: The final stage alone subtracting (no ``sequential_subtract``): the talus 0.64-0.94° → 0.040-0.045° (3
-#: draws). Later frames unchanged. The second pass runs the first pass's restart check too (figures before).
+#: draws). Later frames unchanged. The second pass runs the first pass's restart check too (figures before);
+#: with the stage but not ``sequential_subtract``, only the stage (:data:`SECOND_PASS_STAGE_ONLY`).
 SEQUENTIAL_SECOND_PASS = True
 #: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`) is checked from the bone's
 #: round-0 pose where round 0 left it unflagged; off (the default): from its keyframe, as round 0, but without
@@ -200,6 +202,15 @@ SEQUENTIAL_SECOND_PASS = True
 #: round 0's poses, the registration's options) the tibia 0.023-0.032° → 0.39-0.50° (4 draws): the retry,
 #: wide from the keyframe, was what registered it (``resources/benchmarks/first_frame_keyframes_joint*``).
 FIRST_FRAME_CHECK_FROM_ROUND0 = False
+#: Sequential tracking's first-frame second pass (:data:`SEQUENTIAL_SECOND_PASS`) with the final stage but
+#: without ``sequential_subtract`` runs the stage alone from the first pass's pose, the first pass's restart
+#: check's verdict kept (:mod:`core.tracking.second_pass`): its search would repeat the first pass's (no
+#: neighbours subtracted in either). Off: the whole first pass again, the stage at its end (as before).
+#: Ideal 128² scenes, keyframes 5 mm / 5° off (CPU, this 2-core x86_64 machine): every pose and flag the
+#: same to the bit, a bone's frame evaluations ×0.48-0.51 (``second_pass_stage_cpu.json``; the module's docs).
+SECOND_PASS_STAGE_ONLY = True
+
+
 def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: dict[str, _BoneState],
                 skip: dict) -> dict[int, FrameResult] | None:
     """Register bones ``todo`` in frame ``f`` (``frame``: the prepared ``imgs``); their results,
@@ -222,6 +233,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     seq_stage = (not joint and len(names) > 1 and o.registration.final is not None and SEQUENTIAL_NEIGHBOURS)
     # sequential_subtract: the search subtracts them as well (module docs)
     seq_search = not joint and len(names) > 1 and o.sequential_subtract
+    # the first frame's second pass without sequential_subtract: the stage alone (SECOND_PASS_STAGE_ONLY)
+    stage_only = seq_stage and not seq_search and SECOND_PASS_STAGE_ONLY
     current = dict(guesses)  # each bone's latest estimate in this frame (joint: what is subtracted)
     if joint or seq_stage or seq_search:
         for i, b in enumerate(names):
@@ -306,13 +319,18 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
             stage_others[i] = others if others is not None else others_of(i, current, known)
             near = stage_neighbours(others_of(i, current, known))
+        args = (run.renderer, frame, bones[i], i, start, guess, opts, o, state[b].scores, others, run.cancel,
+                hist[b])
+        kw = dict(verify=first and (rnd == 0 or not joint),  # sequential's 2nd pass too
+                  start_score=state[b].start_score, seed=f, frame_number=f, good_sigmas=state[b].sigmas,
+                  reference=state[b].reference, host_only=host_only, defer_confidence=defer,
+                  prediction=predicted[i])
         with near:
-            return register_checked(run.renderer, frame, bones[i], i, start, guess, opts, o,
-                                    state[b].scores, others, run.cancel, hist[b],
-                                    verify=first and (rnd == 0 or not joint),  # sequential's 2nd pass too
-                                    start_score=state[b].start_score, seed=f, pre=pre, frame_number=f,
-                                    good_sigmas=state[b].sigmas, reference=state[b].reference,
-                                    host_only=host_only, defer_confidence=defer, prediction=predicted[i])
+            if rnd > 0 and stage_only and pre is None:  # the second pass: the stage alone where it may
+                got = stage_pass(register_checked, kept, *args, **kw)
+                if got is not None:
+                    return got
+            return register_checked(*args, pre=pre, **kw)
 
     rounds = o.joint_rounds if joint else 1
     if joint and FIRST_FRAME_SECOND_ROUND and any(not hist[names[i]] for i in todo):

@@ -16,8 +16,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .bones import BoneModel
+from .checks import MOTION_FLOOR, MOTION_LIMIT
 from .checks import confirmable as _confirmable
 from .checks import failures as _failures
+from .checks import motion_limits as _motion_limits
 from .checks import same_optimum as _same_optimum
 from .checks import sigma_check as _sigma_check
 from .checks import uncertain as _uncertain
@@ -107,8 +109,14 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     cancelled = cancel if cancel is not None else (lambda: False)
     try:
         if pre is None:
+            idle = None
+            if frame_number is not None and history:  # the motion check's limits while the device works
+                def idle() -> None:
+                    _motion_limits(history, frame_number, c, n=o.history,
+                                   limit=getattr(o, "motion_limit", MOTION_LIMIT),
+                                   floor=getattr(o, "motion_floor", MOTION_FLOOR), prediction=prediction)
             res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
-                           others=others, cancel=cancel, profile=o.profile, outline=bone.outline)
+                           others=others, cancel=cancel, profile=o.profile, outline=bone.outline, idle=idle)
         else:
             res, spent = pre
             t0 -= spent

@@ -29,8 +29,8 @@ import numpy as np
 from ..geometry.transforms import params_from_pose, pose_from_params
 
 __all__ = ["COLLAPSE_RATIO", "MOTION_FLOOR", "MOTION_LIMIT", "SAME_OPTIMUM", "SCORE_DROP", "SIGMA_LIMIT",
-           "confirmable", "failures", "motion_check", "motion_miss", "pose_delta", "same_optimum",
-           "sigma_check", "step_pose", "uncertain"]
+           "confirmable", "failures", "motion_check", "motion_limits", "motion_miss", "pose_delta",
+           "same_optimum", "sigma_check", "step_pose", "uncertain"]
 
 #: Poses closer than this (mm, degrees) are the same optimum (:func:`same_optimum`).
 SAME_OPTIMUM = (0.5, 0.5)
@@ -332,17 +332,7 @@ def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float 
     the tracker checks each bone's registrations of a frame — joint tracking's rounds, retries —
     against its one history."""
     c = np.asarray(center, dtype=float)
-    key = (int(frame), c.tobytes(), int(n), float(limit), tuple(floor), int(min_residuals))
-    hit = _BOUNDS.get(id(history))
-    if (hit is not None and hit[0] is history and hit[1] == len(history) and hit[1]
-            and hit[2] is history[-1][1] and hit[3] == key):
-        got = hit[4]
-    else:
-        got = _bounds(history, frame, c, n, limit, floor, min_residuals, prediction)
-        if isinstance(history, list):
-            if len(_BOUNDS) >= 64:
-                _BOUNDS.clear()
-            _BOUNDS[id(history)] = (history, len(history), history[-1][1] if history else None, key, got)
+    got = _limits(history, frame, c, n, limit, floor, min_residuals, prediction)
     if got is None:
         return None
     pred, lim_t, lim_r, m = got
@@ -353,6 +343,31 @@ def motion_miss(pose, history, frame: int, center, *, n: int = 10, limit: float 
         pred = _predict(f0, T0, f1, T1, frame, c)
     dt, dr = _distance(pred, pose, c)
     return dt, dr, lim_t, lim_r, m
+
+
+def motion_limits(history, frame: int, center, *, n: int = 10, limit: float = MOTION_LIMIT,
+                  floor=MOTION_FLOOR, min_residuals: int = 3, prediction=None) -> None:
+    """Compute and keep the limits (and prediction) of :func:`motion_miss` for ``history`` and
+    ``frame`` now, as its first call would (arguments as there): the tracker does so while the device
+    works on the frame's first search step (:func:`core.tracking.attempt.register_checked`), and
+    the checks after the registration find them kept. The same values either way."""
+    _limits(history, frame, np.asarray(center, dtype=float), n, limit, floor, min_residuals, prediction)
+
+
+def _limits(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min_residuals: int, prediction):
+    """:func:`_bounds` of ``history`` and ``frame``, kept per history list while it is unchanged (its
+    length and last pose the same objects) for the same frame and options (:func:`motion_miss`)."""
+    key = (int(frame), c.tobytes(), int(n), float(limit), tuple(floor), int(min_residuals))
+    hit = _BOUNDS.get(id(history))
+    if (hit is not None and hit[0] is history and hit[1] == len(history) and hit[1]
+            and hit[2] is history[-1][1] and hit[3] == key):
+        return hit[4]
+    got = _bounds(history, frame, c, n, limit, floor, min_residuals, prediction)
+    if isinstance(history, list):
+        if len(_BOUNDS) >= 64:
+            _BOUNDS.clear()
+        _BOUNDS[id(history)] = (history, len(history), history[-1][1] if history else None, key, got)
+    return got
 
 
 def _bounds(history, frame: int, c: np.ndarray, n: int, limit: float, floor, min_residuals: int,

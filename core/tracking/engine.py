@@ -472,8 +472,10 @@ class GaussNewtonCost(_EngineBuffers):
         tm.metric += time.perf_counter() - t0
         return 1.0 - scores, views, gn
 
-    def _evaluate(self, X: np.ndarray):
+    def _evaluate(self, X: np.ndarray, idle=None):
         self.submit(X)
+        if idle is not None:  # host work that needs nothing of this evaluation, while the device works
+            idle()
         t0 = time.perf_counter()
         if self.device.is_cuda:
             wp.synchronize_device(self.device)
@@ -502,12 +504,14 @@ class GaussNewtonCost(_EngineBuffers):
         c, v, _ = self._evaluate(np.asarray(x, dtype=float)[None])
         return float(1.0 - c[0]), v[0]
 
-    def step(self, x, h) -> GaussNewtonStep:
+    def step(self, x, h, idle=None) -> GaussNewtonStep:
         """Evaluate the 13-pose design about ``x`` with half-steps ``h`` (6,): costs, gradient and
-        Gauss–Newton Hessian (one DRR launch, one metric graph)."""
+        Gauss–Newton Hessian (one DRR launch, one metric graph). ``idle``: a callable run once the
+        evaluation is enqueued, before the wait for the device (host work that needs nothing of it;
+        on the CPU, where the launches run as they are enqueued, after them)."""
         x = np.asarray(x, dtype=float)
         h = np.asarray(h, dtype=float)
-        return self.newton(x, h, self._evaluate(step_design(x, h)))
+        return self.newton(x, h, self._evaluate(step_design(x, h), idle))
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

@@ -284,7 +284,7 @@ class LevenbergMarquardt:
 def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
                         tol_noise: float = 0.1, max_generations: int = 8, trust=None, lam: float = 1e-3,
                         cancel: Callable[[], bool] | None = None,
-                        gradient: str = "moments") -> OptimizeResult:
+                        gradient: str = "moments", idle: Callable[[], None] | None = None) -> OptimizeResult:
     """Levenberg–Marquardt search of ``cost`` (a :class:`~core.tracking.engine.GaussNewtonCost`)
     from ``x0`` inside ``[lower, upper]`` (module docs of :mod:`core.tracking.engine`).
 
@@ -309,11 +309,21 @@ def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
     are as rough as the cost; the difference changes slowly with the pose. Shrunk by its noise
     along the Hessian's eigenvectors (:meth:`LevenbergMarquardt._correction`); held fixed in the
     secant estimate (the correction's change between steps is its estimate's, not curvature).
+
+    ``idle``: a callable run once, while the device works on the first step (``cost.step``'s
+    ``idle``; after the search where it took no step): host work of the caller's that needs nothing
+    of the search (:func:`core.tracking.register.register`'s). The same iterates.
     """
     lm = LevenbergMarquardt(x0, step=step, lower=lower, upper=upper, tol_x=tol_x, tol_noise=tol_noise,
                             max_generations=max_generations, trust=trust, lam=lam, gradient=gradient)
     while (x := lm.ask(cancel)) is not None:
-        lm.tell(cost.step(x, lm.h))
+        if idle is None:
+            lm.tell(cost.step(x, lm.h))
+        else:
+            lm.tell(cost.step(x, lm.h, idle))
+            idle = None
+    if idle is not None:  # no step was taken (cancelled): run once all the same
+        idle()
     return lm.result()
 
 

@@ -227,7 +227,7 @@ def search_region(renderer, pose, bone: int, *, views, center, options: Registra
 def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
              options: RegistrationOptions | None = None, views: Sequence[int] | None = None,
              others=None, cancel: Callable[[], bool] | None = None, profile: bool = False,
-             x0=None, outline=None, roi=None, tried=None) -> RegistrationResult:
+             x0=None, outline=None, roi=None, tried=None, idle=None) -> RegistrationResult:
     """Register bone ``bone`` of ``renderer`` to ``frame`` starting from ``initial_pose``.
 
     Parameters
@@ -262,6 +262,11 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         The ``"newton"`` search's full-resolution stage already run with these inputs that did not
         converge, its engine and the seconds it took (:func:`core.tracking.joint.register_together`):
         the registration goes on with its half-resolution fallback instead of repeating it.
+    idle : callable, optional
+        Host work of the caller's that needs nothing of this registration (e.g. the tracker's checks
+        prepared ahead): run once, while the device works on the first Gauss–Newton step (on a CUDA
+        device the host would otherwise wait there), or, without such a step, before the result is
+        made. The same registration.
 
     Raises
     ------
@@ -326,11 +331,14 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         return engines[scale]
 
     def run_level(i: int, lv: Level, x):
+        nonlocal idle
         sig6 = np.array([lv.sigma[0]] * 3 + [lv.sigma[1]] * 3)
         if lv.method == "gauss_newton":
             from .engine import gauss_newton_search
 
             kw = dict(lv.options)
+            if idle is not None:  # while the device works on the first step
+                kw["idle"], idle = idle, None
             r = gauss_newton_search(engine_at(lv.scale), x, step=sig6, lower=lo, upper=hi, tol_x=lv.tol_x,
                                     max_generations=lv.max_generations, cancel=cancel, **kw)
         else:
@@ -344,6 +352,9 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
 
     if (STAGE_FIRST and o.final is not None and search == "newton" and o.levels is None and tried is None
             and x0 is None):
+        if idle is not None:
+            idle, f = None, idle
+            f()
         got = _stage_first(renderer, frame, engine_at(fs), bone=bone, base=base, center=center, options=o,
                            views=views, others=others, t_start=t_start)
         if got is not None:
@@ -367,6 +378,9 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             if r.reason == "cancelled":
                 break
         levels = (*levels, lv)
+    if idle is not None:  # no Gauss-Newton step ran it
+        idle, f = None, idle
+        f()
     last_gn = levels[-1].method == "gauss_newton" and levels[-1].scale == fs
     full = engine_at(fs) if (last_gn and not o.refine) else cost_at(fs)
     if o.refine and stages[-1].reason != "cancelled":

@@ -22,6 +22,12 @@ from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
 #: erosion, clipped to the image only). Off: each stage uploads its rows itself, as first written.
 SHARE_SEARCH_UPLOAD = True
 
+#: pixels a (view, chunk) of :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` prepares in the
+#: stage's set-up (None: the engine's ``chunk``, 4096, as first written: some 30 blocks of 128 threads
+#: for two 300² regions). Each pixel's values are its own and the count of usable pixels (the only sum
+#: the stage reads) an integer: the same line integrals, masks and count with any chunk.
+ROI_CHUNK: int | None = 512
+
 
 class _FrameRegions:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s frame set-up steps (its
@@ -139,9 +145,10 @@ class _FrameRegions:
         wp.copy(self._info, self._host_info)
         self._msum.zero_()
         lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
-        self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / self.chunk), _LANES),
+        chunk = ROI_CHUNK or self.chunk
+        self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
                      [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
-                      self.chunk, li, mask, self._fmax, self._msum])
+                      chunk, li, mask, self._fmax, self._msum])
         wp.copy(self._host_msum, self._msum)
         self._count_pending = True
 

@@ -499,7 +499,9 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         engine keeps its own copy of the images (:attr:`own_images`) while side by side.
         ``sandwich="later"``: the sandwich launched and not waited for, ``covariance`` None and
         ``sandwich`` the H⁻¹ that :meth:`sandwich_result` takes (after more work of the engine's
-        enqueued: it reads the sandwich's result when the device has got to it)."""
+        enqueued: it reads the sandwich's result when the device has got to it); ``"defer"``: not even
+        launched, its design's step result ``sandwich_s`` for the caller's :meth:`sandwich_launch`
+        (before the engine's images or weights change)."""
         hv = np.array([step[0]] * 3 + [step[1]] * 3, dtype=float)
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
@@ -538,8 +540,11 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         except np.linalg.LinAlgError:
             return {**out, "covariance": nan, "covariance_independent": nan}
         out["covariance_independent"] = Hinv * s["chi2"] / max(self.n_pixels, 1)
-        if sandwich == "later":  # launched; the caller takes it (sandwich_result(out["sandwich"]))
-            self.sandwich_launch(s)
+        if sandwich in ("later", "defer"):  # the caller takes it (sandwich_result(out["sandwich"]))
+            if sandwich == "later":  # (launched; "defer": the caller launches it, sandwich_launch(s))
+                self.sandwich_launch(s)
+            else:
+                out["sandwich_s"] = s
             out["covariance"] = None
             out["sandwich"] = Hinv
         elif sandwich:

@@ -147,6 +147,7 @@ from .engine_likelihood import (
     run_side_by_side,
     run_steps,
 )
+from .likelihood_host import _support_mask, robust_factors, stage_params
 from .likelihood_model import BoneStage, FinalModel, LikelihoodFit, rejected
 from .likelihood_rim import apply_rim
 from .roi import support_points
@@ -173,6 +174,13 @@ ROBUST_SANDWICH = False
 #: refinement's result (rendered) for the factors, as first measured. Measured with it:
 #: :mod:`core.tracking.engine_likelihood` (module docs: Fewer steps).
 ROBUST_FROM_LAST = True
+#: The first refinement's sandwich (the stage's confidence) enqueued after the robust refinement's first
+#: step (which takes the same images: :data:`ROBUST_FROM_LAST`), reading the frame's weights kept
+#: before the robust factors (``_w0``), with an event of its own: the host waits for that step
+#: without it and solves the step while the device computes it. The same inputs and kernels: the same
+#: covariance, steps and poses. Off: enqueued before the robust factors, as first written (a step's
+#: wait then waits for it too).
+SANDWICH_AFTER_STEP = True
 #: Opt-in: the stage's region the box of the bone's DRR support (:func:`~core.tracking.roi.support_points`,
 #: the hull of the volume's positive voxels) at the similarity's pose instead of its volume box's,
 #: grown as before (1 mm of reach, the options' ``margin_px``) plus this many high-pass σ (the
@@ -265,42 +273,6 @@ def stage_neighbours(others):
         _NEIGHBOURS.reset(token)
 
 
-def robust_factors(e: np.ndarray, used: np.ndarray, k: float, *, sigma_px: float = 2.0,
-                   kind: str = "cauchy") -> np.ndarray:
-    """Per pixel of ``e (views, H, W)`` (the weighted residual; ``used`` its usable pixels) the
-    factor of its weight (module docs): 1 where the local residual RMS is that of the view's
-    typical pixel, falling where it is ``k`` times larger or more; 0 where not ``used``."""
-    from scipy import ndimage
-
-    e = np.asarray(e, dtype=np.float64)
-    used = np.asarray(used, dtype=bool)
-    out = np.zeros(e.shape, np.float64)
-    for v in range(e.shape[0]):
-        m = used[v]
-        if not m.any():
-            continue
-        num = ndimage.gaussian_filter(np.where(m, e[v] ** 2, 0.0), sigma_px, mode="constant")
-        den = ndimage.gaussian_filter(m.astype(np.float64), sigma_px, mode="constant")
-        local = np.sqrt(num / np.maximum(den, 1e-6))
-        s = float(np.median(local[m]))
-        if not (np.isfinite(s) and s > 0):
-            out[v] = m
-            continue
-        u = local / s
-        f = 1.0 / (1.0 + (u / k) ** 2) if kind == "cauchy" else np.minimum(1.0, k / np.maximum(u, 1e-12))
-        out[v] = np.where(m, f, 0.0)
-    return out
-
-
-def _support_mask(eng, px: float) -> np.ndarray:
-    """The bone's DRR support at the base pose grown by ``px`` pixels (a square window)."""
-    from scipy import ndimage
-
-    D = eng.support()
-    r = round(px)
-    return np.stack([ndimage.maximum_filter(d > 0, size=2 * r + 1) if r else d > 0 for d in D])
-
-
 def _refine(eng, o, model: FinalModel, tissue=None) -> dict:
     """The engine's refinement with ``model``'s region and weights (module docs)."""
     return run_steps(_refine_steps(eng, o, model, tissue))
@@ -314,6 +286,23 @@ def _engine_refine(eng, *a, **k):
     return (yield from eng.refine_steps(*a, **k))
 
 
+_H0 = np.full(6, 0.05)  # (refine_steps' half-steps: its default step)
+
+
+def _after_first_launch(steps, launch, *args):
+    """The refinement ``steps`` (a generator of :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.
+    refine_steps`' kind) with ``launch(*args)`` enqueued after its first step's work, before its
+    first wait (:data:`SANDWICH_AFTER_STEP`)."""
+    try:
+        nxt = next(steps)
+    except StopIteration as stop:
+        launch(*args)
+        return stop.value
+    launch(*args)
+    yield nxt
+    return (yield from steps)
+
+
 def _refine_steps(eng, o, model: FinalModel, tissue=None):
     """:func:`_refine` as a generator (its value the result) that yields where it would wait for
     the device (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps`).
@@ -325,11 +314,15 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
         eng.scale_weights(mask)
     if model.robust is None:
         return (yield from _engine_refine(eng, iters=o.final_iters))
-    # the first refinement's sandwich launched, taken after the robust factors' step (no wait of its own)
-    later = "later" if type(eng).refine is _PLAIN_REFINE else True
+    # the first refinement's sandwich launched, taken after the robust factors' step (no wait of its
+    # own); SANDWICH_AFTER_STEP: launched after the robust refinement's first step (see there)
+    plain = type(eng).refine is _PLAIN_REFINE
+    defer = plain and SANDWICH_AFTER_STEP and not ROBUST_SANDWICH and tissue is None and mask is None
+    later = ("defer" if defer else "later") if plain else True
     out = yield from _engine_refine(eng, iters=o.final_iters, sandwich=later)
     first = out  # its sandwich is the stage's confidence (module docs)
     hinv = out.pop("sandwich", None)
+    pending = out.pop("sandwich_s", None)  # (its design's step: launched before the images change)
     n_it = int(out["iterations"])
     for _ in range(int(model.rounds)):
         if not np.all(np.isfinite(out["x"])):
@@ -346,7 +339,13 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
             if ROBUST_SANDWICH and hinv is not None:  # (the robust refinement's sandwich uses its buffers)
                 yield
                 first["covariance"], hinv = eng.sandwich_result(hinv), None
+            if pending is not None and not np.array_equal(eng._last[3], _H0):  # (its first step renders)
+                eng.sandwich_launch(pending)
+                pending = None
         else:
+            if pending is not None:  # (before this step's images replace the design's)
+                eng.sandwich_launch(pending)
+                pending = None
             # the residual over the whole region (its typical pixel the noise's scale), then the
             # factors within the support
             start, factor_step = out["x"], 1
@@ -368,8 +367,14 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
         eng.scale_weights(f)
         # (the robust refinement's own sandwich where the first's is known to have failed)
         own = ROBUST_SANDWICH or (hinv is None and not np.all(np.isfinite(first["covariance"])))
-        out = yield from _engine_refine(eng, start, iters=o.final_iters, sandwich=own, reuse=True)
+        steps = _engine_refine(eng, start, iters=o.final_iters, sandwich=own, reuse=True)
+        if pending is not None:  # its first step on the design's images: the sandwich after it
+            steps = _after_first_launch(steps, eng.sandwich_launch, pending, eng._w0)
+            pending = None
+        out = yield from steps
         n_it += factor_step + int(out["iterations"])
+    if pending is not None:  # (no robust round ran)
+        eng.sandwich_launch(pending)
     if hinv is not None:  # (no robust round, or one from the last design: the device has done it since)
         yield
         first["covariance"] = eng.sandwich_result(hinv)
@@ -425,20 +430,6 @@ def final_stages(renderer, frame: FrameImages, calls: Sequence[tuple]) -> list:
 
 _PLAIN_FINAL_STAGE = final_stage  # (final_stages: a study may wrap the module's final_stage)
 
-
-def stage_params(pose: np.ndarray, center: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """:func:`core.geometry.transforms.params_from_pose` of one stage pose (rigid: made by the engine's
-    :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.poses`) about ``center`` relative to the
-    rigid ``base``: the same arithmetic and values, without its checks of both transforms (a third of
-    its time)."""
-    from scipy.spatial.transform import Rotation
-
-    c = np.asarray(center, dtype=float)
-    R, Rb = pose[:3, :3], base[:3, :3]
-    rv = Rotation.from_matrix((R @ np.swapaxes(Rb, -1, -2)).reshape(-1, 3, 3)).as_rotvec().reshape(3)
-    disp = (np.einsum("...ij,...j->...i", R, c) + pose[:3, 3] - np.einsum("...ij,...j->...i", Rb, c)
-            - base[:3, 3])
-    return np.concatenate([disp, rv])
 
 #: :func:`confirm_move`: the stage run again from another start confirms its pose where it lands
 #: within this fraction of the stage's move of it (translation; rotation too, or within 0.05°)

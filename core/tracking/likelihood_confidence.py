@@ -53,13 +53,15 @@ class _Confidence:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s sandwich covariance (its
     attributes: the last step's images ``_last``, the frame's buffers, ``lag_px``, launches)."""
 
-    def _residual_device(self, s: dict, jacobian: bool = True, pin: str = "lin") -> tuple:
+    def _residual_device(self, s: dict, jacobian: bool = True, pin: str = "lin", weights=None) -> tuple:
         """``(e, jt)`` on the device: the weighted residual ``e = √w (y - A coef)`` and its
         projections at the centre of the last step's design (``s``: that :meth:`step`'s result;
         :func:`~core.tracking.likelihood_kernels.residual_kernel`), in the engine's buffers ``"e"`` and
         ``"jt"`` (``jacobian`` False: ``jt`` not computed). ``pin``: the pinned host buffer the fit's
-        coefficients go up from (another than an upload still pending from the last one's)."""
+        coefficients go up from (another than an upload still pending from the last one's).
+        ``weights``: ``w`` (default the engine's weights now)."""
         img, low, _, _ = self._last
+        w = self._w if weights is None else weights
         nv, (Hc, Wc) = self.n_views, self._cap
         hp = 1.0 if self.highpass_px else 0.0
         lin_h = self._pinned(pin, s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
@@ -69,9 +71,9 @@ class _Confidence:
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
         reg = [self._t] if self._q else []
-        self._launch(("residual", bool(jacobian), self._q), regressor_kernels(self._q)[1], (nv, Hc, Wc),
-                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, lin, e, jt,
-                      int(jacobian), self._diff])
+        self._launch(("residual", bool(jacobian), self._q, weights is None), regressor_kernels(self._q)[1],
+                     (nv, Hc, Wc), [img, low, hp, self._y, w, self._o, *reg, self._ref_hw, nv, lin, e, jt,
+                                    int(jacobian), self._diff])
         return e, jt
 
     def residual(self, s: dict) -> np.ndarray:
@@ -85,12 +87,16 @@ class _Confidence:
         self.sandwich_launch(s)
         return self.sandwich_result(Hinv)
 
-    def sandwich_launch(self, s: dict) -> None:
-        """The first half of :meth:`sandwich`: its kernels and copies enqueued (no wait)."""
+    def sandwich_launch(self, s: dict, weights=None) -> None:
+        """The first half of :meth:`sandwich`: its kernels and copies enqueued (no wait; an event of
+        its own recorded after them, which :meth:`sandwich_result` waits for: a step enqueued after it
+        is waited for without it). ``weights``: the weights ``w`` it reads (default the engine's now:
+        the robust round's :meth:`scale_weights` keeps the frame's in ``_w0``)."""
         t0 = time.perf_counter()
         nv, (Hc, Wc) = self.n_views, self._cap
         dev = self.device
-        e, jt = self._residual_device(s)
+        e, jt = self._residual_device(s, weights=weights)
+        w = self._w if weights is None else weights
         L = self.lag_px
         nl = (2 * L + 1) ** 2
         cov = self._buffer("cov", (nv, nl, 2), wp.float64)
@@ -99,11 +105,11 @@ class _Confidence:
         n_chunks = math.ceil(Hc * Wc / chunk)
         if AUTOCOV_ROWS:  # (the first half of the lags; the rest mirrored)
             dim, groups = autocov_rows_dim(nv, L, n_chunks)
-            self._launch("autocov_rows", autocov_rows_kernel, dim,
-                         [e, self._w, self._ref_hw, L, groups, chunk, cov], self.block_dim)
+            self._launch(("autocov_rows", weights is None), autocov_rows_kernel, dim,
+                         [e, w, self._ref_hw, L, groups, chunk, cov], self.block_dim)
         else:
-            self._launch("autocov", autocov_kernel, (nv, nl // 2 + 1, n_chunks),
-                         [e, self._w, self._ref_hw, L, chunk, cov], self.block_dim)
+            self._launch(("autocov", weights is None), autocov_kernel, (nv, nl // 2 + 1, n_chunks),
+                         [e, w, self._ref_hw, L, chunk, cov], self.block_dim)
         taper = self._bufs.get(("taper", L))
         if taper is None:  # Bartlett's, per lag (rows, columns)
             d = np.arange(-L, L + 1)
@@ -120,14 +126,21 @@ class _Confidence:
         wp.copy(host, acc)
         self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
         wp.copy(self._cov_host, cov)  # for autocorrelation
-        self._record()
+        if dev.is_cuda:  # (its own event: _wait waits for the engine's steps, this for the sandwich)
+            if self.__dict__.get("_sw_event") is None:
+                self._sw_event = wp.Event(dev)
+            wp.record_event(self._sw_event)
         self.timer.metric += time.perf_counter() - t0
 
     def sandwich_result(self, Hinv: np.ndarray) -> np.ndarray:
         """The second half of :meth:`sandwich`: waits for the meat of the last
         :meth:`sandwich_launch`."""
         t0 = time.perf_counter()
-        self._wait()
+        ev = self.__dict__.get("_sw_event")
+        if ev is not None:
+            wp.synchronize_event(ev)
+        else:
+            self._wait()
         meat = self._host["meat"].numpy().reshape(self.n_views, 6, 6).sum(axis=0)
         meat = 0.5 * (meat + meat.T)
         self.timer.metric += time.perf_counter() - t0

@@ -358,7 +358,8 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                 state[b].add(f, fr)
                 finish(fr)
         if status == "complete" and backward.BACKWARD_CHECK:  # the first frame again, from later frames
-            changed = {(fr.bone, fr.frame) for fr in backward.backward_check(run, feed, order, results, skip)}
+            changed = {(fr.bone, fr.frame)
+                       for fr in backward.backward_check(run, feed, order, results, skip, track_frame)}
     finally:
         feed.close()
     out = TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)

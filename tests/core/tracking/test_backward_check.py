@@ -52,7 +52,7 @@ def test_first_frame_off_flagged_backward(three_frames, monkeypatch):
     recorded = []
     assert bc.BACKWARD_CHECK  # the default
     # a scale as the trajectory check's median residual of a longer run (three frames have none)
-    monkeypatch.setattr(bc, "_scale", lambda *a: np.array([0.04, 0.12]))
+    monkeypatch.setattr(bc, "_scale", lambda *a: np.array([0.08, 0.24]))
     res = track(r, models, frames.__getitem__, [0, 1, 2], keyframes=off, options=_options(),
                 record_result=recorded.append)
     err = _errors(res, sc, models)
@@ -93,3 +93,60 @@ def test_short_run_not_judged(three_frames):
         fr = res.results[(m.name, 0)]
         assert not fr.flags and len(fr.notes) == 1 and fr.notes[0].startswith(f"{bc.NOTE}: not judged")
         assert "fewer than 8 of the bone's frames with a trajectory residual" in fr.notes[0]
+
+
+def _fake_run(monkeypatch, P, back_turn_deg, skip=None, frames=range(20)):
+    """track() with a frame step that returns ``P``'s pose of the frame, and the first frame's pose turned
+    by ``back_turn_deg`` about z when registered again; (result, the calls' (frame, todo, history frames,
+    keyframes of the frame))."""
+    from core.geometry.transforms import pose_from_params
+    from core.tracking import trial
+    from core.tracking.results import FrameResult
+    from tests.core.tracking.track_helpers import C
+
+    calls = []
+
+    def step(run, f, imgs, frame, todo, state, skip_):
+        calls.append((f, list(todo), [g for g, _ in state["tibia"].history], dict(run.keyframes["tibia"])))
+        pose = P[f]
+        if f == 0 and state["tibia"].history:  # the backward registration
+            pose = pose_from_params(np.r_[0, 0, 0, 0, 0, np.radians(back_turn_deg)], center=C, base=P[f])
+        return {0: FrameResult("tibia", f, pose, 0.8, 10, 0.0, True)}
+
+    class _Bone:
+        name, centroid = "tibia", C
+
+    class _Renderer:
+        volumes = (None,)
+
+    monkeypatch.setattr(trial, "track_frame", step)
+    res = trial.track(_Renderer(), [_Bone()], lambda f: [np.zeros((4, 4))], frames,
+                      keyframes={"tibia": {0: P[0]}}, skip=skip)
+    return res, calls
+
+
+def test_backward_registration_from_the_frames_after_it(monkeypatch):
+    """The first frame's second registration: the frame step with the bone's later frames as its history in
+    reverse order (frames 10 to 1, the prediction from 2 and 1), the first frame's keyframe not used; a turn
+    of 0.3° (6x the track's noise) flagged, 0.01° noted. Synthetic poses: no rendering."""
+    import core.tracking.backward_check as bc
+    from tests.core.tracking.track_helpers import walking_track
+
+    P = walking_track(20, (0.01, 0.05), 1)
+    res, calls = _fake_run(monkeypatch, P, 0.3)
+    assert [c[0] for c in calls] == [*range(20), 0]
+    _, todo, hist, kf = calls[-1]
+    assert todo == [0] and hist == list(range(10, 0, -1)) and 0 not in kf
+    fr = res.results[("tibia", 0)]
+    assert len(fr.flags) == 1 and fr.flags[0].startswith(bc.FLAG) and "0.300 deg" in fr.flags[0]
+    assert "from the prediction of frames 2, 1" in fr.flags[0]
+    assert [r.frame for r in res.flagged] == [0]
+    res, _ = _fake_run(monkeypatch, P, 0.01)
+    fr = res.results[("tibia", 0)]
+    assert not fr.flags and fr.notes[0].startswith(bc.NOTE) and "0.010 deg" in fr.notes[0]
+    # resumed with the first frame flagged by the check: judged afresh (one flag), and fed the guesses
+    res, _ = _fake_run(monkeypatch, P, 0.3)
+    flagged = res.results[("tibia", 0)]
+    again, calls = _fake_run(monkeypatch, P, 0.3, skip={"tibia": {0: flagged}})
+    assert calls[0][0] == 1 and calls[0][2] == [0]  # frame 1 predicted from the restored first frame
+    assert again.results[("tibia", 0)].flags == flagged.flags

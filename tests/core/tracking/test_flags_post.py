@@ -13,6 +13,15 @@ from core.tracking.results import FrameResult, TrackingResult
 from tests.core.tracking.track_helpers import C, walking_track
 
 
+@pytest.fixture(autouse=True)
+def _trajectory_pass_alone(monkeypatch):
+    """These tests judge the trajectory post-pass alone: the first frame's backward registration
+    (:mod:`core.tracking.backward_check`, tests of its own) off."""
+    from core.tracking import backward_check
+
+    monkeypatch.setattr(backward_check, "BACKWARD_CHECK", False)
+
+
 def _track(n=40, noise=(0.01, 0.05), seed=1, off=None):
     """Poses of a bone in walking-like smooth motion (mm, degrees per frame) with registration noise;
     ``off``: (frame, mm, degrees) added to one frame."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
+import pytest
 
 from core.study.results import append_pose, read_journal
 from core.tracking import trial
@@ -15,6 +16,15 @@ from core.tracking.batch import TaskSettings
 from core.tracking.flags_post import FLAG, journal_neighbours
 from core.tracking.results import FrameResult
 from tests.core.tracking.test_flags_post import C, _track
+
+
+@pytest.fixture(autouse=True)
+def _trajectory_pass_alone(monkeypatch):
+    """These tests judge the trajectory post-pass alone: the first frame's backward registration
+    (:mod:`core.tracking.backward_check`, tests of its own) off."""
+    from core.tracking import backward_check
+
+    monkeypatch.setattr(backward_check, "BACKWARD_CHECK", False)
 
 
 class _Bone:

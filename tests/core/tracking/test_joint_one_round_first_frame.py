@@ -3,7 +3,9 @@
 :func:`core.tracking.attempt.register_checked`: ``first and rnd == 0``), a second round is not; with
 one round a bone has only the bones registered before it in the frame subtracted (nothing known
 yet; :data:`core.tracking.frame_step.JOINT_KEYFRAMES`, off, would subtract the others' keyframes); a
-second round subtracts each bone's round-0 pose (ideal 128² views, CPU device). With
+second round in lockstep subtracts each bone's round-0 pose (ideal 128² views, CPU device). The tests
+pin the lockstep round (``FIRST_FRAME_AS_PASS`` off; on by default, the second round of a first frame
+is sequential tracking's second pass: ``test_joint_first_frame_pass.py``). With
 :data:`core.tracking.frame_step.FIRST_FRAME_SECOND_ROUND` (on by default) a first frame gets the second
 round whatever the rounds: the test turns it off to see the rounds as asked, and checks the default too."""
 
@@ -32,6 +34,7 @@ def test_first_frame_rounds_verify_and_neighbours(talus_calcaneus_128, monkeypat
 
     monkeypatch.setattr(fs, "register_checked", spy)
     monkeypatch.setattr(fs, "FIRST_FRAME_SECOND_ROUND", False)  # the rounds as asked (the default: one more)
+    monkeypatch.setattr(fs, "FIRST_FRAME_AS_PASS", False, raising=False)  # the second round in lockstep
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}  # keyframes only: a first frame
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode="joint", joint_rounds=rounds, verify_restarts=0, registration=reg)
@@ -49,7 +52,8 @@ def test_first_frame_rounds_verify_and_neighbours(talus_calcaneus_128, monkeypat
 
 def test_one_round_gets_a_second_round_in_the_first_frame_by_default(talus_calcaneus_128, monkeypatch):
     """FIRST_FRAME_SECOND_ROUND on (the default): joint tracking with one round registers a first frame
-    twice, the second round not verified and each bone with the other's round-0 pose, as two rounds do."""
+    twice; in lockstep (FIRST_FRAME_AS_PASS off) the second round not verified and each bone with the
+    other's round-0 pose, as two rounds do."""
     import core.tracking.frame_step as fs
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions, track
@@ -66,6 +70,7 @@ def test_one_round_gets_a_second_round_in_the_first_frame_by_default(talus_calca
         return got
 
     monkeypatch.setattr(fs, "register_checked", spy)
+    monkeypatch.setattr(fs, "FIRST_FRAME_AS_PASS", False, raising=False)  # the second round in lockstep
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg)

@@ -47,7 +47,11 @@ backward registration is seeded from its frame number, as every registration is.
 frame's registration per run (its evaluations and seconds go into the frame's ``timing`` as
 ``backward_evaluations`` and ``backward_s``, not into its ``evaluations``) and runs before the
 trajectory post-pass, which then neither judges a flagged first frame nor fits through it.
-:data:`BACKWARD_CHECK` turns it off.
+:data:`BACKWARD_CHECK` turns it off. A run over a range checks the range's first frame in tracking order
+(a backward range's highest frame) from its own side only: a keyframe that two ranges of ``talus batch``
+both track is checked by each, and its journal keeps the outcome of the range recorded last (the
+trajectory post-pass of :func:`core.tracking.batch.trajectory_pass` judges the ranges together, this
+check does not).
 
 *Measured* (``resources/benchmarks/tracking_backward_check_h100.json``): the acceptance study on seeds
 0, 3 and 4 (``--mode joint,sequential --final likelihood``, 1024², 100 frames) at 8536510, one NVIDIA
@@ -142,8 +146,8 @@ def backward_check(run, feed, order, results: dict, skip: dict, step=track_frame
             continue
         base[i] = _own(fr)
         skip2[b] = {f0: base[i]}  # a bone not checked: subtracted at its forward pose
-        if base[i].flags:
-            continue
+        if [x for x in base[i].flags if not x.startswith(TRAJECTORY_FLAG)]:  # flagged already (the
+            continue  # trajectory post-pass's flag of a restored frame comes after, judged afresh)
         after = []  # the bone's frames after the first, nearest first, as the forward pass kept them
         for f in order[1:]:
             got = results.get((b, f))

@@ -112,8 +112,9 @@ from .results import FrameResult
 from .second_pass import stage_pass
 from .stage_move import confirmed, stage_move_check
 
-__all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_CHECK_FROM_ROUND0",
-           "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION",
+__all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_AS_PASS",
+           "FIRST_FRAME_CHECK_FROM_ROUND0", "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG",
+           "RESTART_FROM_PREDICTION",
            "SECOND_PASS_STAGE_ONLY", "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_AT_SEARCHED",
            "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
            "UNREADABLE_FLAG", "missing_flags", "stage_move_check", "track_frame"]
@@ -192,7 +193,8 @@ FIRST_FRAME_SECOND_ROUND = True
 #: with the stage but not ``sequential_subtract``, only the stage (:data:`SECOND_PASS_STAGE_ONLY`).
 SEQUENTIAL_SECOND_PASS = True
 #: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`) is checked from the bone's
-#: round-0 pose where round 0 left it unflagged; off (the default): from its keyframe, as round 0, but without
+#: round-0 pose where round 0 left it unflagged (the lockstep round only: with :data:`FIRST_FRAME_AS_PASS`,
+#: the default, it always is); off (the default): from its keyframe, as round 0, but without
 #: the first frame's wider jump limit, so a pose come back from a keyframe 5 mm off is taken for a jump and
 #: retried from the keyframe, widened. (Sequential tracking's second pass is always checked from its first
 #: pass's pose, and starts from the keyframe with the first frame's options: :data:`SEQUENTIAL_SECOND_PASS`.)
@@ -202,6 +204,21 @@ SEQUENTIAL_SECOND_PASS = True
 #: round 0's poses, the registration's options) the tibia 0.023-0.032° → 0.39-0.50° (4 draws): the retry,
 #: wide from the keyframe, was what registered it (``resources/benchmarks/first_frame_keyframes_joint*``).
 FIRST_FRAME_CHECK_FROM_ROUND0 = False
+#: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`) as sequential tracking's
+#: second pass (:data:`SEQUENTIAL_SECOND_PASS`): the bones without a tracked pose one at a time, not in
+#: lockstep (each with the bones before it at this round's poses, the others at round 0's), each from its
+#: keyframe with the first frame's options, checked from its round-0 pose where round 0 left it unflagged,
+#: with round 0's restart check (a flag of round 0's checks stands unless the same checks clear it). In
+#: lockstep every neighbour was subtracted at its round-0 pose and the round had no restart check. Ideal
+#: 128² tibia-talus-calcaneus scene (CPU, this 2-core x86_64 machine), keyframes 5 mm / 5° off, 6 draws:
+#: the talus 0.024-0.027 mm / 0.113-0.123° (the tibia subtracted at its round-0 pose, 0.86° off on draw 0;
+#: at the truth: 0.002°) → 0.0005-0.0018 mm / 0.0041-0.0057° (sequentially 0.0005-0.0025 mm /
+#: 0.0017-0.0086°), the calcaneus 0.015-0.019° → 0.0004-0.0076° (sequentially 0.0017-0.0062°), the tibia,
+#: registered first either way, the same 0.005-0.032° (sequentially 0.005-0.075°); the frame's evaluations
+#: 5049-5457 → 5010-5442 (with 4 restarts, 2 draws: 6609-7019 → 6583-6753). Talus-calcaneus (6 draws):
+#: the talus the same, the calcaneus 0.004-0.012° → 0.003-0.007°, 3195-3664 → 3204-3433 evaluations
+#: (``resources/benchmarks/first_frame_keyframes_joint*_pass*_cpu.json``). Off: the lockstep round as before.
+FIRST_FRAME_AS_PASS = True
 #: Sequential tracking's first-frame second pass (:data:`SEQUENTIAL_SECOND_PASS`) with the final stage but
 #: without ``sequential_subtract`` runs the stage alone from the first pass's pose, the first pass's restart
 #: check's verdict kept (:mod:`core.tracking.second_pass`): its search would repeat the first pass's (no
@@ -274,7 +291,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         return hit[1] if hit is not None and same_optimum(hit[0], start, bones[i].centroid) else None
 
     def side_of(rnd: int) -> list[int]:  # bones tracked from a guess (round 0: not a first frame)
-        return [i for i in todo if rnd > 0 or hist[names[i]]]
+        return [i for i in todo if (rnd > 0 and not FIRST_FRAME_AS_PASS) or hist[names[i]]]
 
     def start_of(i: int, rnd: int, cur: dict):
         """Where bone ``i``'s search starts in round ``rnd``: its guess in round 0 (and in every
@@ -304,11 +321,12 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             opts, start = (o.first_options if first else o.registration), guesses[i]
         else:
             opts, start = o.registration, start_of(i, rnd, current)
-        if rnd > 0 and first and not joint:  # sequential's second pass: the first again (module docs)
+        again = rnd > 0 and first and (not joint or FIRST_FRAME_AS_PASS)  # the first again (module docs)
+        if again:  # sequential's second pass (joint's first-frame second round: FIRST_FRAME_AS_PASS)
             opts, start = o.first_options, guesses[i]
         guess = guesses[i]
         kept = out.get(i)  # round 0's attempt (a first frame's second round)
-        if rnd > 0 and first and (FIRST_FRAME_CHECK_FROM_ROUND0 or not joint) and kept is not None \
+        if rnd > 0 and first and (FIRST_FRAME_CHECK_FROM_ROUND0 or again) and kept is not None \
                 and kept.result is not None and not kept.flags:
             guess = kept.result.pose  # checked from round 0's unflagged pose, not from the keyframe
         opts = staged(rnd, opts)
@@ -321,7 +339,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             near = stage_neighbours(others_of(i, current, known))
         args = (run.renderer, frame, bones[i], i, start, guess, opts, o, state[b].scores, others, run.cancel,
                 hist[b])
-        kw = dict(verify=first and (rnd == 0 or not joint),  # sequential's 2nd pass too
+        kw = dict(verify=first and (rnd == 0 or again),  # the second pass too
                   start_score=state[b].start_score, seed=f, frame_number=f, good_sigmas=state[b].sigmas,
                   reference=state[b].reference, host_only=host_only, defer_confidence=defer,
                   prediction=predicted[i])

@@ -179,8 +179,12 @@ ROBUST_FROM_LAST = True
 #: before the robust factors (``_w0``), with an event of its own: the host waits for that step
 #: without it and solves the step while the device computes it. The same inputs and kernels: the same
 #: covariance, steps and poses. Off: enqueued before the robust factors, as first written (a step's
-#: wait then waits for it too).
-SANDWICH_AFTER_STEP = True
+#: wait then waits for it too), where the host's enqueuing of the robust factors (0.4 ms a bone-frame)
+#: overlaps it already: on one NVIDIA H100 (the talus at 1024², 40 frames, three repeats alternated,
+#: ``tracking_stage_one_bone_1d5ed65_h100.json``) the stage took 4.55 ms a bone-frame with it and 4.52
+#: without (median), the host's waits 1.31 and 1.29 ms: off, as measured no faster (three bones not
+#: measured).
+SANDWICH_AFTER_STEP = False
 #: Opt-in: the stage's region the box of the bone's DRR support (:func:`~core.tracking.roi.support_points`,
 #: the hull of the volume's positive voxels) at the similarity's pose instead of its volume box's,
 #: grown as before (1 mm of reach, the options' ``margin_px``) plus this many high-pass σ (the

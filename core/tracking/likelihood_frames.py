@@ -20,13 +20,20 @@ from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
 #: memory and no upload. The same fluence values and the same kernel: the same line integrals and
 #: usable pixels (the erosion reads the same pixels: the stage's rows are its region grown by the
 #: erosion, clipped to the image only). Off: each stage uploads its rows itself, as first written.
+#: On ``talus bench track``'s trial (1024², the talus alone) it is never taken: the stage's region (the
+#: volume box at the searched pose grown by 1 mm and the margin, snapped outwards to 16 px) reaches past
+#: the search's rows in every frame (the stage's set-up still 0.70 ms of host copies a bone-frame on one
+#: NVIDIA H100, ``tracking_stage_one_bone_1d5ed65_h100.json``): the stage's own rows would have to go up
+#: while the search runs instead.
 SHARE_SEARCH_UPLOAD = True
 
 #: pixels a (view, chunk) of :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` prepares in the
 #: stage's set-up (None: the engine's ``chunk``, 4096, as first written: some 30 blocks of 128 threads
 #: for two 300² regions). Each pixel's values are its own and the count of usable pixels (the only sum
-#: the stage reads) an integer: the same line integrals, masks and count with any chunk.
-ROI_CHUNK: int | None = 512
+#: the stage reads) an integer: the same line integrals, masks and count with any chunk. 512 measured
+#: slower on one NVIDIA H100 (the talus at 1024², ``tracking_stage_one_bone_1d5ed65_h100.json``): 0.14 →
+#: 0.37 ms of the device a bone-frame (every thread's atomics on the views' maximum and count).
+ROI_CHUNK: int | None = None
 
 
 class _FrameRegions:

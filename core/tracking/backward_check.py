@@ -13,11 +13,14 @@ through frames 1-4. Seed 4's tibia at frame 0 (one NVIDIA H100, 1024², c7320cb,
 about its long axis, 6.3× its bound) in both modes, its neighbours −0.15° to −0.29° about that axis;
 jointly the parabola through frames 1-4 missed it by 0.304° about z, 0.110° normalised, 1.12× the
 bone's median (the limit 2.5×); sequentially frame 2 was flagged and it was left unchecked. Rules
-from the trajectory alone do not separate it: judged against the bone's own frames fitted alike
-(the same one-sided fit through the next 2-6 frames, as the gap rule of :mod:`core.tracking.flags_post`
-scales its frames), seed 4's tibia frame 0 stood 1.4-2.7× their median in rotation and the good first
-frames of seeds 0, 3 and 4 up to 2.3× (rotation) and 4.4× (translation, where the truth itself
-misses such a fit by 1.5-5× the median: the walking motion accelerates at the trial's start).
+from the trajectory alone barely separate it: judged against the bone's own frames fitted alike (the
+same one-sided fit, as the gap rule of :mod:`core.tracking.flags_post` scales its frames; the c7320cb
+runs of seeds 0, 3 and 4, both modes, 18 first frames), in rotation the parabola through the next 4
+frames put it at 1.58× and 1.44× their median (good first frames up to 2.35×), the parabola through 6 at
+2.53× and 2.59× (up to 2.94×), the line through 2 at 2.23× and 2.33× (up to 2.28×) and only the line
+through 3 apart, 2.59× and 2.71× against at most 2.07×; in translation good first frames reached 5.5×,
+the truth itself missing such fits by up to 5.1× the median (the walking motion accelerates at the
+trial's start).
 
 So the check asks the images instead: after the forward pass, the first frame of each bone is registered
 again as the tracker registers every other frame — the frame step of

@@ -154,7 +154,7 @@ from .roi import support_points
 
 __all__ = ["CONFIRM_FRACTION", "MODEL", "BoneStage", "FinalModel", "LikelihoodFit", "confirm_move",
            "final_model", "final_stage", "final_stage_steps", "final_stages", "rejected", "robust_factors",
-           "stage_neighbours"]
+           "stage_neighbours", "stage_prefetch"]
 
 
 #: the final stage's model of the region's pixels (:class:`FinalModel`)
@@ -483,6 +483,39 @@ def confirm_move(renderer, frame: FrameImages, res, start=None, *, bone: int, ce
     return {"mm": float(dt), "deg": float(dr), "confirmed": ok,
             "evaluations": int(again.evaluations - res.evaluations),
             "time_s": float(ta.get("likelihood_s", 0.0))}
+
+
+#: :func:`stage_prefetch`'s regions: the stage's at the given pose grown by this much more reach (mm;
+#: the search's move from its start, the prediction, rarely exceeds it; the regions are snapped to 16 px)
+PREFETCH_REACH_MM = 2.0
+
+
+def stage_prefetch(renderer, frame: FrameImages, *, bone: int, pose, center, options, views: Sequence[int],
+                   reach_mm: float | None = None) -> bool:
+    """Upload the fluence of the regions the final stage of ``options`` will need in ``frame`` while
+    the search still runs (:meth:`~core.tracking.likelihood_frames._FrameRegions.prefetch`; e.g. in
+    :func:`core.tracking.register.register`'s ``idle`` slot, while the device works on the search's
+    first step): the stage's regions (:func:`final_stage_steps`) at ``pose`` (the search's start, its
+    prediction) grown by ``reach_mm`` more (:data:`PREFETCH_REACH_MM`). The stage then takes them on
+    the device where they cover its own regions at the searched pose (the same values; else it uploads
+    its own). Returns whether they went up (False: no stage, an outline region, regions the host makes)."""
+    from .engine_likelihood import DEVICE_REGIONS
+
+    o = options
+    if o.final is None or REGION_OUTLINE is not None or not DEVICE_REGIONS:
+        return False
+    _, hp = MODEL.for_bone(bone, o.final_highpass_px)
+    views = tuple(views)
+    extra = PREFETCH_REACH_MM if reach_mm is None else float(reach_mm)
+    try:
+        roi = snap_roi(search_roi(renderer, np.asarray(pose, dtype=float), bone, views=views,
+                                  center=np.asarray(center, dtype=float), reach_mm=1.0 + extra,
+                                  margin_px=o.margin_px), renderer, views)
+    except OutsideViewError:
+        return False
+    eng = likelihood_engine(renderer, bone=bone, views=views, highpass_px=hp, lag_px=o.final_lag_px,
+                            others_gain=o.final_others_gain)
+    return eng.prefetch(frame, roi)
 
 
 def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_pose, center, options,

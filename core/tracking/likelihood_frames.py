@@ -6,6 +6,7 @@ taken from them. A mixin of the engine's; the engine's module docs (Set-up) say 
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 import warp as wp
@@ -35,22 +36,38 @@ SHARE_SEARCH_UPLOAD = True
 #: 0.37 ms of the device a bone-frame (every thread's atomics on the views' maximum and count).
 ROI_CHUNK: int | None = None
 
+#: :meth:`_FrameRegions.prefetch`'s rows of the frame taken by the stage's set-up where they cover its
+#: own (off: the stage uploads its rows whatever went up before)
+PREFETCH = True
+
+
+def _covering(frame, rows, staged: list, src, gsrc):
+    """``(src, gsrc, rows)`` where the uploaded ``rows`` (per view ``(r0, r1, c0, c1, erosion)``)
+    cover ``staged``'s with the frame's erosion, else None."""
+    p = frame._erode if frame._valid is not None else 0
+    if len(rows) == len(staged) and all(
+            int(q[4]) == p and q[0] <= a[0] and a[1] <= q[1] and q[2] <= a[2] and a[3] <= q[3]
+            for q, a in zip(rows, staged, strict=True)):
+        return src, gsrc, rows
+    return None
+
 
 class _FrameRegions:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s frame set-up steps (its
     attributes: ``views``, ``roi``, ``renderer``, ``device``, buffers)."""
 
-    def _staged(self, frame) -> list | None:
+    def _staged(self, frame, roi=None) -> list | None:
         """Per view ``(r0, r1, c0, c1)``, the image rows and columns to upload for the device's
-        preparation of the regions (each grown by the mask's erosion), or None where the host
-        prepares them (not a :class:`~core.tracking.cost.FrameImages`, a region reaching outside
-        its image: :func:`~core.tracking.cost.fluoro_rois`)."""
+        preparation of the regions ``roi`` (default the frame's, :attr:`roi`; each grown by the mask's
+        erosion), or None where the host prepares them (not a :class:`~core.tracking.cost.FrameImages`,
+        a region reaching outside its image: :func:`~core.tracking.cost.fluoro_rois`)."""
         if not isinstance(frame, FrameImages):
             return None
         p = frame._erode if frame._valid is not None else 0
+        roi = self.roi if roi is None else np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)
         out = []
         for i, v in enumerate(self.views):
-            u0, v0, w, h = (int(a) for a in self.roi[i])
+            u0, v0, w, h = (int(a) for a in roi[i])
             H, W = frame.shapes[v]
             if w <= 0 or h <= 0 or u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
                 return None
@@ -78,6 +95,61 @@ class _FrameRegions:
                 self._up_event = wp.Event(self.device)
             wp.record_event(self._up_event)
 
+    def prefetch(self, frame: FrameImages, roi) -> bool:
+        """Upload the fluence (and the frame's own masks) of the regions ``roi (views, 4)`` of ``frame``,
+        grown by the mask's erosion, ahead of :meth:`set_frame` (while the search of the frame runs:
+        :func:`core.tracking.final_stage.stage_prefetch`): a later set-up of this frame whose rows they
+        cover takes them on the device instead of copying and uploading its own (:data:`PREFETCH`; the
+        same fluence: the same regions). Returns whether anything went up (False: regions the host
+        prepares)."""
+        rows = self._staged(frame, roi)
+        if rows is None:
+            return False
+        ev = self.__dict__.get("_pre_event")
+        if ev is not None:  # (the pinned rows written again after their last copy)
+            wp.synchronize_event(ev)
+        nv = self.n_views
+        Hs = max(r1 - r0 for r0, r1, _, _ in rows)
+        Ws = max(c1 - c0 for _, _, c0, c1 in rows)
+        given = any(frame._given[v] is not None for v in self.views)
+        host = self._pinned("pre", (nv, Hs, Ws))
+        hg = self._pinned("pre_given", tuple(host.shape), wp.uint8) if given else None
+        src, gsrc = self.__dict__.get("_pre_src"), self.__dict__.get("_pre_given")
+        if src is None or tuple(src.shape) != tuple(host.shape):
+            src = self._pre_src = wp.zeros(tuple(host.shape), dtype=wp.float32, device=self.device)
+        if given and (gsrc is None or tuple(gsrc.shape) != tuple(host.shape)):
+            gsrc = self._pre_given = wp.zeros(tuple(host.shape), dtype=wp.uint8, device=self.device)
+        elif gsrc is None:
+            gsrc = self._pre_given = wp.zeros((nv, 1, 1), dtype=wp.uint8, device=self.device)
+        hn = host.numpy()
+        gn = None if hg is None else hg.numpy()
+        for i, v in enumerate(self.views):
+            r0, r1, c0, c1 = rows[i]
+            hn[i, :r1 - r0, :c1 - c0] = frame._fluence[v][r0:r1, c0:c1]
+            g = frame._given[v]
+            if g is not None:
+                gn[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
+        Ws_ = host.shape[2]
+        n = (nv - 1) * host.shape[1] * Ws_ + (rows[-1][1] - rows[-1][0]) * Ws_
+        wp.copy(src, host, 0, 0, n)
+        if given:
+            wp.copy(gsrc, hg, 0, 0, n)
+        if self.device.is_cuda:
+            if ev is None:
+                ev = self._pre_event = wp.Event(self.device)
+            wp.record_event(ev)
+        p = frame._erode if frame._valid is not None else 0
+        self._pre = (weakref.ref(frame), [(*r, p) for r in rows], src, gsrc)
+        return True
+
+    def _prefetched(self, frame: FrameImages, staged: list):
+        """:meth:`prefetch`'s ``(src, given, rows)`` where it uploaded this frame's rows covering
+        ``staged``'s, else None."""
+        pre = self.__dict__.get("_pre")
+        if pre is None or pre[0]() is not frame:
+            return None
+        return _covering(frame, pre[1], staged, pre[2], pre[3])
+
     def _search_upload(self, frame: FrameImages, staged: list):
         """``(src, given, rows)``: the fluence of this frame that the tracker's engine of this bone and
         views (:class:`~core.tracking.engine.GaussNewtonCost` at full resolution, its ``_stage_src``
@@ -92,12 +164,9 @@ class _FrameRegions:
             if (last is None or src is None or last[0]() is not frame or int(c.bone) != self.bone
                     or float(c.scale) != 1.0 or tuple(c.views) != self.views or src.device != self.device):
                 continue
-            rows = last[1][0]
-            p = frame._erode if frame._valid is not None else 0
-            if len(rows) == self.n_views and all(
-                    int(q[4]) == p and q[0] <= a[0] and a[1] <= q[1] and q[2] <= a[2] and a[3] <= q[3]
-                    for q, a in zip(rows, staged, strict=True)):
-                return src, c._stage_given, rows
+            hit = _covering(frame, last[1][0], staged, src, c._stage_given)
+            if hit is not None:
+                return hit
         return None
 
     def _stage(self, frame: FrameImages, staged: list, li, mask) -> None:
@@ -109,6 +178,8 @@ class _FrameRegions:
         nv = self.n_views
         p = frame._erode if frame._valid is not None else 0
         shared = self._search_upload(frame, staged) if SHARE_SEARCH_UPLOAD else None
+        if shared is None and PREFETCH:
+            shared = self._prefetched(frame, staged)
         if shared is not None:
             src, gsrc, rows = shared
             info = self._host_info.numpy()

@@ -17,6 +17,9 @@ options the benchmark's ``--final likelihood`` run (the search stopping at
 * ``host`` (``--host-profile``) — the stage under :mod:`cProfile` (the functions with the most own
   time per bone-frame).
 
+The variant ``prefetch`` (alone or ``a+prefetch``) calls
+:func:`~core.tracking.final_stage.stage_prefetch` in each registration's ``idle`` slot (the search's
+first step on the device), at the search's start; the runs count the stages that took its rows.
 Also the poses of every variant against the first's (largest difference, mm / degrees, and whether
 equal to the bit). JSON on stdout (``--out``: also to a file).
 """
@@ -151,6 +154,51 @@ def _cprofile(prof, box: list):
     return _patched(fst, "final_stage", wrapped)
 
 
+@contextmanager
+def _prefetching(counts: list):
+    """The stage's fluence rows uploaded in each registration's ``idle`` slot
+    (:func:`~core.tracking.final_stage.stage_prefetch` at the search's start, chained before the frame
+    step's own idle work); ``counts``: [stages that took them, stages that did not]."""
+    import core.tracking.attempt as at
+    import core.tracking.likelihood_frames as lf
+    from core.tracking.final_stage import stage_prefetch
+
+    plain, taken = at.register, lf._FrameRegions._prefetched
+
+    def register(renderer, frame, *, bone, initial_pose, center, options=None, views=None, idle=None, **kw):
+        def pre() -> None:
+            if options is not None:
+                vs = tuple(range(frame.n_views)) if views is None else views
+                stage_prefetch(renderer, frame, bone=bone, pose=initial_pose, center=center, options=options,
+                               views=vs)
+            if idle is not None:
+                idle()
+        return plain(renderer, frame, bone=bone, initial_pose=initial_pose, center=center, options=options,
+                     views=views, idle=pre, **kw)
+
+    def counted(self, *a, **k):
+        out = taken(self, *a, **k)
+        counts[0 if out is not None else 1] += 1
+        return out
+
+    with _patched(at, "register", register), _patched(lf._FrameRegions, "_prefetched", counted):
+        yield
+
+
+def _variant_of(name: str, counts: list):
+    """:func:`core.studies.tracking.stage_speed._variant` of ``name`` with the part ``prefetch``
+    (:func:`_prefetching`) known too."""
+    from core.studies.tracking.stage_speed import _variant
+
+    parts = name.split("+")
+    st = ExitStack()
+    if "prefetch" in parts:
+        st.enter_context(_prefetching(counts))
+    rest = "+".join(x for x in parts if x != "prefetch") or "base"
+    st.enter_context(_variant(rest))
+    return st
+
+
 def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5, variants=("base",),
         repeats: int = 3, profile: bool = True, host_profile: bool = False, workers: int = 0) -> dict:
     """Run the study (module docs); returns the JSON-ready results."""
@@ -159,7 +207,7 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
     from core.render import DRRRenderer
     from core.studies.tracking.acceptance import TrackingScene
     from core.studies.tracking.benchmark import _search_tol
-    from core.studies.tracking.stage_speed import _host_table, _pose_diff, _variant
+    from core.studies.tracking.stage_speed import _host_table, _pose_diff
     from core.studies.tracking.trial_frames import synthesise
     from core.tracking.trial import TrackingOptions, track
 
@@ -180,7 +228,7 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
     poses: dict = {}
     with _search_tol("likelihood"):
         for v in variants:  # warm-up: kernels, buffers, graphs
-            with _variant(v):
+            with _variant_of(v, [0, 0]):
                 track(r, [m], ts.frames, range(min(n, 4)), keyframes=kf, options=o)
         for rep in range(int(repeats)):
             for v in (variants if rep % 2 == 0 else variants[::-1]):
@@ -189,7 +237,8 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
                 def progress(done, total, fr, ends=ends):
                     ends[fr.frame] = time.perf_counter()
 
-                with _variant(v):
+                counts = [0, 0]
+                with _variant_of(v, counts):
                     t1 = time.perf_counter()
                     res = track(r, [m], ts.frames, range(n), keyframes=kf, options=o, progress=progress)
                     wall = time.perf_counter() - t1
@@ -203,7 +252,8 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
                      "registration_ms_median": 1e3 * float(np.median([x.time_s for x in rs[1:]])),
                      "steps_mean": float(np.mean([t.get("likelihood_steps", 0) for t in tim])),
                      "renders_mean": float(np.mean([t.get("likelihood_renders", 0) for t in tim])),
-                     "taken": int(sum(t.get("likelihood_taken", 0) for t in tim))}
+                     "taken": int(sum(t.get("likelihood_taken", 0) for t in tim)),
+                     "prefetch_taken": counts[0], "prefetch_not_taken": counts[1]}
                 runs[v].append(d)
                 poses.setdefault(v, {(m.name, f): rs[f].pose for f in range(n)})
                 print(f"{v} rep {rep}: {d['ms_per_frame_after_first']:.3f} ms/frame after the first, stage "
@@ -224,7 +274,7 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
             p: dict = {}
             if profile:
                 acc: dict = {}
-                with _variant(v), _host_parts(acc):
+                with _variant_of(v, [0, 0]), _host_parts(acc):
                     track(r, [m], ts.frames, range(n), keyframes=kf, options=o)
                 nb = max(acc.get("final_stage", [0, 1])[1], 1)
                 p["host_parts"] = {k: {"ms_per_bone_frame": 1e3 * a[0] / nb,
@@ -232,7 +282,7 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
                                    for k, a in sorted(acc.items(), key=lambda kv: -kv[1][0])}
                 kacc: dict = {}
                 box = [0, 0.0]
-                with _variant(v), _kernels(kacc, box):
+                with _variant_of(v, [0, 0]), _kernels(kacc, box):
                     track(r, [m], ts.frames, range(n), keyframes=kf, options=o)
                 nb = max(box[0], 1)
                 p["stage_wall_ms_timed"] = 1e3 * box[1] / nb
@@ -249,7 +299,7 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
                 import cProfile
 
                 cp, box = cProfile.Profile(), [0]
-                with _variant(v), _cprofile(cp, box):
+                with _variant_of(v, [0, 0]), _cprofile(cp, box):
                     track(r, [m], ts.frames, range(n), keyframes=kf, options=o)
                 p["host"] = _host_table(cp, max(box[0], 1), top=25)
             prof[v] = p
@@ -268,7 +318,8 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--pixels", type=int, default=1024)
     p.add_argument("--voxel", type=float, default=0.5)
-    p.add_argument("--variants", default="base", help="comma-separated (stage_speed's variants)")
+    p.add_argument("--variants", default="base",
+                   help="comma-separated: stage_speed's variants, and prefetch")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--no-profile", action="store_true")
     p.add_argument("--host-profile", action="store_true")

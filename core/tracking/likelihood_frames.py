@@ -24,9 +24,10 @@ from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
 #: On ``talus bench track``'s trial (1024², the talus alone) it is never taken: the stage's region (the
 #: volume box at the searched pose grown by 1 mm and the margin, snapped outwards to 16 px) reaches past
 #: the search's rows in every frame (the stage's set-up still 0.70 ms of host copies a bone-frame on one
-#: NVIDIA H100, ``tracking_stage_one_bone_1d5ed65_h100.json``): the stage's own rows would have to go up
-#: while the search runs instead.
-SHARE_SEARCH_UPLOAD = True
+#: NVIDIA H100, ``tracking_stage_one_bone_1d5ed65_h100.json``): off (the engine's siblings share its
+#: upload buffer, read only, and another's rows there would not be seen); the stage's own rows go up
+#: while the search runs instead (:meth:`_FrameRegions.prefetch`).
+SHARE_SEARCH_UPLOAD = False
 
 #: pixels a (view, chunk) of :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` prepares in the
 #: stage's set-up (None: the engine's ``chunk``, 4096, as first written: some 30 blocks of 128 threads
@@ -160,11 +161,12 @@ class _FrameRegions:
         per = E._CACHE.get(self.renderer)
         for c in list(per.values()) if per else ():
             last = getattr(c, "_staged_last", None)
-            src = getattr(c, "_stage_src", None)
-            if (last is None or src is None or last[0]() is not frame or int(c.bone) != self.bone
-                    or float(c.scale) != 1.0 or tuple(c.views) != self.views or src.device != self.device):
+            src, gsrc = getattr(c, "_stage_src", None), getattr(c, "_stage_given", None)
+            if (last is None or src is None or gsrc is None or last[0]() is not frame
+                    or getattr(c, "bone", None) != self.bone or getattr(c, "scale", None) != 1.0
+                    or tuple(getattr(c, "views", ())) != self.views or src.device != self.device):
                 continue
-            hit = _covering(frame, last[1][0], staged, src, c._stage_given)
+            hit = _covering(frame, last[1][0], staged, src, gsrc)
             if hit is not None:
                 return hit
         return None

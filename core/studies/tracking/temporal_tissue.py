@@ -16,16 +16,23 @@ one more regressor with its own gain, and the same weighted least-squares refine
 (:class:`core.tracking.likelihood_cost.LikelihoodCost`, the stage's robust factors and second
 refinement) run with a narrower high-pass or none.
 
-Variants (:func:`parse`): ``<source><K>[l[σ]][s][g]:<method>`` — ``source`` ``a`` (oracle: the
-previous residuals at the TRUE poses, the upper limit of the idea) or ``b`` (realistic: at the
-poses the same variant estimated in those frames, run frame after frame from the trial's start,
-the first ``K`` frames refined by today's form — the feedback of a pose error included); ``l``:
-the averaged residual low-passed by a Gaussian of σ px at 1024² scaled (default 4, i.e. 1 px at
-256²); ``s``: each previous residual shifted by the bone's projected centroid motion; ``g``: the
-residual a regressor with its own gain instead of subtracted at gain 1; ``method`` as
+Variants (:func:`parse`): ``<source><K>[l[σ]][s][g][c][t]:<method>`` — ``source`` ``a`` (oracle:
+the other frames' residuals at the TRUE poses, the upper limit of the idea), ``b`` (realistic,
+causal: at the poses the same variant estimated in those frames, run frame after frame from the
+trial's start, the first ``K`` frames refined by today's form — the feedback of a pose error
+included) or ``p`` (realistic, two passes: at the poses today's form ``hp4+r`` estimated in those
+frames); ``K`` frames before ``t`` (``c``, centred: also the ``K`` after it — offline, the bones'
+motion cancels to first order); ``l``: the averaged residual low-passed by a Gaussian of σ px at
+1024² scaled (default 4, i.e. 1 px at 256²); ``s``: each residual shifted by the bone's projected
+centroid motion; ``g``: the residual a regressor with its own gain instead of subtracted at gain
+1; ``t`` (probe, ``a`` only): the soft tissue's true change since each frame added back (what is
+left is the bones' edges' mismatch moving); ``method`` as
 :func:`core.studies.tracking.background_fit.method` (``hp<σ>`` a high-pass of σ px at 1024²
 scaled, ``hp0`` none; ``leg<k>`` a Legendre background; ``+r`` the robust second refinement).
-A plain method (``hp4+r``, today's form) uses no residual.
+A plain method (``hp4+r``, today's form) uses no residual. The residuals' bone gains are 1 (the
+frame's bones are at gain 1 in line integrals; ``residual_gain_hp``: fitted on high-passed images
+instead — they come out 0.6–0.93 at 256², the frame's blur), and the neighbours' DRRs subtracted
+with them (:func:`neighbour_correction`).
 
 Frames (:mod:`core.studies.tracking.background_fit`): ``grid`` (the distortion correction fitted
 to grid frames, the user's path) and ``true`` (the true residual warp removed, oracle); the
@@ -58,13 +65,13 @@ def parse(name: str, pixels: int) -> dict:
     head, sep, meth = name.partition(":")
     if not sep:
         return {"source": None, "K": 0, "lowpass_px": None, "shift": False, "regressor": False,
-                "tissue_motion": False, "method": name}
+                "tissue_motion": False, "centred": False, "method": name}
     src, rest = head[:1], head[1:]
     i = 0
     while i < len(rest) and rest[i].isdigit():
         i += 1
-    if src not in ("a", "b") or not i:
-        raise ValueError(f"variant: expected <a|b><K>[l[σ]][s][g]:<method>, got {name!r}")
+    if src not in ("a", "b", "p") or not i:
+        raise ValueError(f"variant: expected <a|b|p><K>[l[σ]][s][g][c][t]:<method>, got {name!r}")
     K, flags = int(rest[:i]), rest[i:]
     low = None
     if "l" in flags:
@@ -75,11 +82,10 @@ def parse(name: str, pixels: int) -> dict:
             j += 1
         low = (float(num) if num else 4.0) * pixels / 1024
         flags = flags.replace("l" + num, "")
-    if set(flags) - set("sgt") or K < 1 or ("t" in flags and src != "a"):
+    if set(flags) - set("sgtc") or K < 1 or ("t" in flags and src != "a") or ("c" in flags and src == "b"):
         raise ValueError(f"variant: unknown flags or K < 1 in {name!r}")
     return {"source": src, "K": K, "lowpass_px": low, "shift": "s" in flags, "regressor": "g" in flags,
-            "tissue_motion": "t" in flags,
-            "method": meth}
+            "tissue_motion": "t" in flags, "centred": "c" in flags, "method": meth}
 
 
 def view_gains(Y, D, masks, highpass_px: float = 1.0) -> np.ndarray:
@@ -260,7 +266,11 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
     est: dict = {}  # (set, variant, draw) -> {frame: (bones, 4, 4) refined poses}
     cache = {st: _Frames(src, ts0, residual_gain_hp) for st in sets}
     fits: dict = {}  # (set, frame, draw, bone, method) -> pose of a fit without a residual (shared)
+    first: dict = {}  # (set, frame, draw) -> today's form's poses (all bones; the p source)
     kmax = max([V[v]["K"] for v in variants] + [0])
+    for v, p in V.items():
+        if p["centred"] and frames[-1] + p["K"] >= n_frames:
+            raise ValueError(f"{v}: needs frames + K < n_frames = {n_frames}")
     for f in todo:
         P_true = ts0.truth(f)
         P0 = estimated_poses(ts0, f, pose_error, seed)
@@ -276,9 +286,18 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
                     use = p["source"] is not None and f >= p["K"]
                     meth = p["method"] if use or p["source"] is None else "hp4+r"
                     if use:
-                        prev = range(f - p["K"], f)
-                        Ps = [ts0.truth(k) if p["source"] == "a" else est[(st, v, s)][k] for k in prev]
-                        tag = "true" if p["source"] == "a" else v
+                        after = range(f + 1, f + p["K"] + 1) if p["centred"] else ()
+                        prev = [*range(f - p["K"], f), *after]
+                        if p["source"] == "p":
+                            for k in prev:
+                                if (st, k, s) not in first:
+                                    P0k = estimated_poses(ts0, k, pose_error, seed)
+                                    first[(st, k, s)] = np.stack([
+                                        fit_bone(ts, fc.frame(st, k, s), b, P0k, "hp4+r", pixels, margin)
+                                        if b in bones else P0k[b] for b in range(len(names))])
+                        Ps = [ts0.truth(k) if p["source"] == "a" else first[(st, k, s)] if p["source"] == "p"
+                              else est[(st, v, s)][k] for k in prev]
+                        tag = {"a": "true", "p": "first"}.get(p["source"], v)
                         RG = [fc.residual(st, k, s, Ps[i], tag) for i, k in enumerate(prev)]
                         R = [x[0] for x in RG]
                         if p["tissue_motion"]:  # probe: the tissue's true change since t - k added back
@@ -314,6 +333,7 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
                                 d["noisy"][-1].append(e)
             fc.drop_before(f - kmax)
         fits = {k: x for k, x in fits.items() if k[1] == f}
+        first = {k: x for k, x in first.items() if k[1] >= f - kmax}
         for key in [k for k in est if min(est[k], default=f) < f - 8]:
             est[key] = {k: x for k, x in est[key].items() if k >= f - 8}
         if f in frames:

@@ -18,7 +18,8 @@ def test_parse_variants():
     p = tt.parse("b12l8sg:hp0+r", 512)
     assert (p["source"], p["K"], p["lowpass_px"], p["shift"], p["regressor"]) == ("b", 12, 4.0, True, True)
     assert tt.parse("a1t:hp0+r", 256)["tissue_motion"]
-    for bad in ("c1:hp0", "a:hp0", "a0:hp0", "a2x:hp0", "b1t:hp0"):
+    assert tt.parse("p2c:hp0+r", 256)["centred"]
+    for bad in ("c1:hp0", "a:hp0", "a0:hp0", "a2x:hp0", "b1t:hp0", "b1c:hp0"):
         with pytest.raises(ValueError, match="variant"):
             tt.parse(bad, 256)
 

@@ -114,7 +114,7 @@ from .cost import (
     mm_per_pixel,
     rim_radius,
 )
-from .engine_buffers import _BUFFER_SETS, _Buffers, _EngineBuffers  # noqa: F401 (re-exported)
+from .engine_buffers import _BUFFER_SETS, _Buffers, _EngineBuffers, copy_array  # noqa: F401 (re-exported)
 from .engine_frames import apply_rim_band, host_stage, pyramid_rois, stage, staged_shapes
 from .engine_kernels import (
     N_POSES,
@@ -320,7 +320,7 @@ class GaussNewtonCost(_EngineBuffers):
         hw_now = tuple(tuple(int(a) for a in sh) for sh in shapes)
         if hw_now != self._hw_last:
             self._host_hw_np[:] = np.array(shapes, dtype=np.int32)
-            wp.copy(self._ref_hw, self._host_hw)
+            copy_array(self._ref_hw, self._host_hw)
             self._hw_last = hw_now
         rim = rim_radius(self.rim_sigmas, self._f_sig, self.scale)
         if staged is None:

@@ -25,6 +25,38 @@ _BUFFER_SETS = 6
 _SERIAL = itertools.count()
 
 
+def copy_array(dst: wp.array, src: wp.array, count: int = 0) -> None:
+    """``wp.copy(dst, src, 0, 0, count)`` of contiguous arrays: between a CUDA array and host memory
+    the runtime's copy on the CUDA side's current stream (``wp_memcpy_h2d`` / ``wp_memcpy_d2h``, what
+    ``wp.copy`` calls there) without ``wp.copy``'s argument checks and dispatch, the same bytes; any
+    other pair (host to host, device to device, strided arrays) through ``wp.copy``. The engine's
+    per-frame uploads (:meth:`~core.tracking.engine.GaussNewtonCost.set_frame`): ``wp.copy`` took
+    18.6 us of host time per call on one NVIDIA H100's host (bae210d, 16 copies a frame of the
+    talus with the likelihood stage; in ``resources/benchmarks/tracking_bench_final_bae210d_h100.json``'s
+    diagnostic every such copy bypassed so gave the two fastest of twelve runs, 6.55 and 6.64 ms a
+    frame after the first, its third 7.33, the other arms' 6.67-9.27; not timed on its own).
+    ``count``: elements of ``src`` (0: all of it), at most ``dst``'s."""
+    if type(dst) is wp.array and type(src) is wp.array and dst.is_contiguous and src.is_contiguous:
+        n = int(count) or src.size
+        if n > src.size or n > dst.size or wp.types.type_size_in_bytes(dst.dtype) != \
+                wp.types.type_size_in_bytes(src.dtype):
+            raise ValueError(f"copy_array: {n} elements do not fit the arrays ({src.size}, {dst.size})")
+        nbytes = n * wp.types.type_size_in_bytes(src.dtype)
+        from warp._src.context import runtime
+
+        if dst.device.is_cuda and src.device.is_cpu:
+            if not runtime.core.wp_memcpy_h2d(dst.device.context, dst.ptr, src.ptr, nbytes,
+                                              dst.device.stream.cuda_stream):
+                raise RuntimeError(f"Warp copy error: {runtime.get_error_string()}")
+            return
+        if src.device.is_cuda and dst.device.is_cpu:
+            if not runtime.core.wp_memcpy_d2h(src.device.context, dst.ptr, src.ptr, nbytes,
+                                              src.device.stream.cuda_stream):
+                raise RuntimeError(f"Warp copy error: {runtime.get_error_string()}")
+            return
+    wp.copy(dst, src, 0, 0, count)
+
+
 @dataclass(eq=False)
 class _Buffers:
     """The fluoroscope buffers of one output size of an engine, the pipelines recorded on them
@@ -71,7 +103,7 @@ class _EngineBuffers:
             buf = wp.zeros(dst.shape, dtype=dst.dtype, device="cpu", pinned=self.device.is_cuda)
             hit = self._pinned[name] = (buf, buf.numpy())
         hit[1][:] = values
-        wp.copy(dst, hit[0])
+        copy_array(dst, hit[0])
 
     def _taps(self, px_mm: float):
         """The DRR and fluoroscope blur taps at this pixel size (kept for the next frames)."""

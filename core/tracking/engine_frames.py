@@ -18,6 +18,7 @@ import numpy as np
 import warp as wp
 
 from .cost import FrameImages, OutsideViewError, padded_region
+from .engine_buffers import copy_array
 from .engine_kernels import _LANES, fluoro_roi_kernel, fluoro_shift_kernel, keep_kernel
 
 __all__ = ["apply_rim_band", "host_stage", "pyramid_rois", "stage", "staged_shapes"]
@@ -146,9 +147,9 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
     if upload:  # up to the last view's first hs rows (whole rows of the buffer: one contiguous block)
         _, Hs, Ws = self._stage_src.shape
         n = (nv - 1) * Hs * Ws + int(info[nv - 1, 4]) * Ws
-        wp.copy(self._stage_src, self._host_stage_wp, 0, 0, n)
+        copy_array(self._stage_src, self._host_stage_wp, n)
         if given:
-            wp.copy(self._stage_given, self._host_gstage_wp, 0, 0, n)
+            copy_array(self._stage_given, self._host_gstage_wp, n)
         self._staged_last = (weakref.ref(frame), key)
     lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
     done = (key, self._bufs.serial, float(lo), float(hi), int(p), frame._valid is not None)
@@ -157,7 +158,7 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
         return False  # raw0, the masks and the statistics on the device are these regions'
     if self._info_last is None or not np.array_equal(info, self._info_last):
         self._host_info_np[:] = info
-        wp.copy(self._info, self._host_info)
+        copy_array(self._info, self._host_info)
         self._info_last = info
     self._fmax.zero_()
     self._msum.zero_()
@@ -166,7 +167,7 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
                  [self._stage_src, self._stage_given, self._info, float(lo), float(hi), int(p),
                   int(frame._valid is not None), chunk, self._raw0, self._fmask, self._fmax, self._msum])
     self._launch("shift", fluoro_shift_kernel, (nv,), [self._msum, self.mode, self._fshift, self._count])
-    wp.copy(self._host_count, self._count)
+    copy_array(self._host_count, self._count)
     self._stage_done = (weakref.ref(frame), done)
     self._stage_checked = False
     return True

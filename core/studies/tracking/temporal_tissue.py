@@ -70,7 +70,7 @@ def parse(name: str, pixels: int) -> dict:
     i = 0
     while i < len(rest) and rest[i].isdigit():
         i += 1
-    if src not in ("a", "b", "p") or not i:
+    if src not in ("a", "b", "p", "q") or not i:
         raise ValueError(f"variant: expected <a|b|p><K>[l[σ]][s][g][c][t]:<method>, got {name!r}")
     K, flags = int(rest[:i]), rest[i:]
     low = None
@@ -269,12 +269,51 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
     first: dict = {}  # (set, frame, draw) -> today's form's poses (all bones; the p source)
     kmax = max([V[v]["K"] for v in variants] + [0])
     for v, p in V.items():
-        if p["centred"] and frames[-1] + p["K"] >= n_frames:
-            raise ValueError(f"{v}: needs frames + K < n_frames = {n_frames}")
+        reach = p["K"] * (2 if p["source"] == "q" else 1)
+        if frames[0] < reach or (p["centred"] and frames[-1] + reach >= n_frames):
+            raise ValueError(f"{v}: needs frames within K (2K for q) of 0 and n_frames = {n_frames}")
+    def others(p, f):  # the frames whose residuals frame f uses
+        after = range(f + 1, f + p["K"] + 1) if p["centred"] else ()
+        return [*range(f - p["K"], f), *after]
+
+    def residual_fit(st, f, s, v, Ps, tag):
+        """Frame f's poses by variant v with the residuals of its other frames at poses Ps."""
+        p, ts, fc = V[v], src.scene(st), cache[st]
+        prev = others(p, f)
+        P0 = estimated_poses(ts0, f, pose_error, seed)
+        RG = [fc.residual(st, k, s, Ps[i], tag) for i, k in enumerate(prev)]
+        R = [x[0] for x in RG]
+        if p["tissue_motion"]:  # probe: the tissue's true change since t - k added back
+            R = [r + fc.tissue(f) - fc.tissue(k) for r, k in zip(R, prev, strict=True)]
+        gbar = np.mean([x[1] for x in RG], axis=0)
+        D0 = ts0.renderer.render(P0[None], roi="full").numpy()[0]
+        P_hat = P0.copy()
+        for b in bones:
+            c = ts0.models[b].centroid
+            sh = [projected_shift(ts0.scene.rig, c, Pk[b], P0[b]) for Pk in Ps] if p["shift"] else None
+            Ab = averaged(R, lowpass_px=p["lowpass_px"], shifts=sh) + neighbour_correction(D0, gbar, b)
+            P_hat[b] = fit_bone(ts, fc.frame(st, f, s), b, P0, p["method"], pixels, margin, Ab,
+                                p["regressor"])
+        return P_hat
+
+    def passes(st, f, s, v, level):
+        """Frame f's poses after ``level`` passes: 1 today's form, then variant v with the residuals
+        at the previous pass's poses (cached)."""
+        key = (st, f, s, v[1:] if level > 1 else "", level)  # p and q of the same form share passes
+        if key not in first:
+            if level == 1:
+                P0 = estimated_poses(ts0, f, pose_error, seed)
+                first[key] = np.stack([fit_bone(src.scene(st), cache[st].frame(st, f, s), b, P0, "hp4+r",
+                                                pixels, margin) if b in bones else P0[b]
+                                       for b in range(len(names))])
+            else:
+                Ps = [passes(st, k, s, v, level - 1) for k in others(V[v], f)]
+                first[key] = residual_fit(st, f, s, v, Ps, f"pass{level - 1}:{v}")
+        return first[key]
+
     for f in todo:
         P_true = ts0.truth(f)
         P0 = estimated_poses(ts0, f, pose_error, seed)
-        D0 = None  # the bones' DRRs at P0 (whole views), made when a residual is used
         for st in sets:
             ts, fc = src.scene(st), cache[st]
             for s in [None, *range(seeds)]:
@@ -285,40 +324,19 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
                         continue
                     use = p["source"] is not None and f >= p["K"]
                     meth = p["method"] if use or p["source"] is None else "hp4+r"
-                    if use:
-                        after = range(f + 1, f + p["K"] + 1) if p["centred"] else ()
-                        prev = [*range(f - p["K"], f), *after]
-                        if p["source"] == "p":
-                            for k in prev:
-                                if (st, k, s) not in first:
-                                    P0k = estimated_poses(ts0, k, pose_error, seed)
-                                    first[(st, k, s)] = np.stack([
-                                        fit_bone(ts, fc.frame(st, k, s), b, P0k, "hp4+r", pixels, margin)
-                                        if b in bones else P0k[b] for b in range(len(names))])
-                        Ps = [ts0.truth(k) if p["source"] == "a" else first[(st, k, s)] if p["source"] == "p"
-                              else est[(st, v, s)][k] for k in prev]
-                        tag = {"a": "true", "p": "first"}.get(p["source"], v)
-                        RG = [fc.residual(st, k, s, Ps[i], tag) for i, k in enumerate(prev)]
-                        R = [x[0] for x in RG]
-                        if p["tissue_motion"]:  # probe: the tissue's true change since t - k added back
-                            R = [r + fc.tissue(f) - fc.tissue(k) for r, k in zip(R, prev, strict=True)]
-                        gbar = np.mean([x[1] for x in RG], axis=0)
-                        if D0 is None:
-                            D0 = ts0.renderer.render(P0[None], roi="full").numpy()[0]
-                    P_hat = P0.copy()
-                    for b in bones:
-                        if not use:
+                    if not use:
+                        P_hat = P0.copy()
+                        for b in bones:
                             key = (st, f, s, b, meth)
                             if key not in fits:
                                 fits[key] = fit_bone(ts, frame, b, P0, meth, pixels, margin)
                             P_hat[b] = fits[key]
-                            continue
-                        c = ts0.models[b].centroid
-                        sh = ([projected_shift(ts0.scene.rig, c, Pk[b], P0[b]) for Pk in Ps]
-                              if p["shift"] else None)
-                        Ab = (averaged(R, lowpass_px=p["lowpass_px"], shifts=sh)
-                              + neighbour_correction(D0, gbar, b))
-                        P_hat[b] = fit_bone(ts, frame, b, P0, meth, pixels, margin, Ab, p["regressor"])
+                    elif p["source"] in ("p", "q"):
+                        P_hat = passes(st, f, s, v, 2 if p["source"] == "p" else 3)
+                    else:
+                        Ps = [ts0.truth(k) if p["source"] == "a" else est[(st, v, s)][k]
+                              for k in others(p, f)]
+                        P_hat = residual_fit(st, f, s, v, Ps, "true" if p["source"] == "a" else v)
                     if p["source"] == "b":
                         est.setdefault((st, v, s), {})[f] = P_hat
                     if f in frames:
@@ -331,9 +349,9 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
                                 d["noisy"].append([])
                             else:
                                 d["noisy"][-1].append(e)
-            fc.drop_before(f - kmax)
+            fc.drop_before(f - 2 * kmax)
         fits = {k: x for k, x in fits.items() if k[1] == f}
-        first = {k: x for k, x in first.items() if k[1] >= f - kmax}
+        first = {k: x for k, x in first.items() if k[1] >= f - 2 * kmax}
         for key in [k for k in est if min(est[k], default=f) < f - 8]:
             est[key] = {k: x for k, x in est[key].items() if k >= f - 8}
         if f in frames:

@@ -111,6 +111,7 @@ from ..similarity import _kernels as K
 from . import likelihood_launches as _LL
 from .cost import FrameImages
 from .engine import GaussNewtonCost
+from .engine_buffers import copy_array
 from .engine_search import step_design
 from .likelihood_confidence import _Confidence
 from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel, wls_moments_tri_kernel
@@ -283,7 +284,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         hw = np.array(shapes, dtype=np.int32)
         if self._hw_last is None or not np.array_equal(hw, self._hw_last):
             self._host_hw.numpy()[:] = hw
-            wp.copy(self._ref_hw, self._host_hw)
+            copy_array(self._ref_hw, self._host_hw)
             self._hw_last = hw
         li = self._buffer("li", (nv, Hc, Wc))
         mask = self._buffer("mask", (nv, Hc, Wc), wp.uint8)
@@ -433,7 +434,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         self._launch(("moments", self._q, self._tri), kernel, (nv, n_chunks),
                      [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, chunk, acc,
                       self._diff], self.block_dim)
-        wp.copy(host, acc)
+        copy_array(host, acc)
         self._record()
         self._last = (img, low, x, h)
         self._pending = h

@@ -23,6 +23,7 @@ import warp as wp
 
 from ..render import _kernels as RK
 from ..render._kernels import ITEM_COLS
+from .engine_buffers import copy_array
 from .engine_kernels import GEO_LEN, pose_table_kernel
 
 __all__ = ["DeviceRender", "host_poses", "render_items"]
@@ -132,7 +133,7 @@ class DeviceRender:
         g[9:12] = base[:3, 3]
         g[12:15] = center
         g[27:] = roi.ravel()
-        wp.copy(self.geo, self._host_geo)
+        copy_array(self.geo, self._host_geo)
         self._last = key
         return True
 

@@ -23,6 +23,7 @@ import time
 import numpy as np
 import warp as wp
 
+from .engine_buffers import copy_array
 from .likelihood_fast import autocov_rows_dim, autocov_rows_kernel
 from .likelihood_kernels import autocov_kernel, meat_kernel, regressor_kernels, taper_kernel, vec6f
 
@@ -67,7 +68,7 @@ class _Confidence:
         lin_h = self._pinned(pin, s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
         lin_h.numpy()[...] = s["lin"]
         lin = self._buffer("lin", s["lin"].shape)
-        wp.copy(lin, lin_h)
+        copy_array(lin, lin_h)
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
         reg = [self._t] if self._q else []
@@ -123,9 +124,9 @@ class _Confidence:
         self._launch("meat", meat_kernel, (nv, math.ceil(Hc * Wc / mc)),
                      [jt, cw, self._ref_hw, L, mc, acc, int(MEAT_HALF)], self.block_dim)
         host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
-        wp.copy(host, acc)
+        copy_array(host, acc)
         self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
-        wp.copy(self._cov_host, cov)  # for autocorrelation
+        copy_array(self._cov_host, cov)  # for autocorrelation
         if dev.is_cuda:  # (its own event: _wait waits for the engine's steps, this for the sandwich)
             if self.__dict__.get("_sw_event") is None:
                 self._sw_event = wp.Event(dev)

@@ -12,6 +12,7 @@ import numpy as np
 import warp as wp
 
 from .cost import FrameImages, OutsideViewError, fluoro_rois, padded_region
+from .engine_buffers import copy_array
 from .engine_kernels import _LANES, fluoro_roi_kernel
 from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
 
@@ -132,9 +133,9 @@ class _FrameRegions:
                 gn[i, :r1 - r0, :c1 - c0] = g[r0:r1, c0:c1]
         Ws_ = host.shape[2]
         n = (nv - 1) * host.shape[1] * Ws_ + (rows[-1][1] - rows[-1][0]) * Ws_
-        wp.copy(src, host, 0, 0, n)
+        copy_array(src, host, n)
         if given:
-            wp.copy(gsrc, hg, 0, 0, n)
+            copy_array(gsrc, hg, n)
         if self.device.is_cuda:
             if ev is None:
                 ev = self._pre_event = wp.Event(self.device)
@@ -213,23 +214,23 @@ class _FrameRegions:
             info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(g is not None), 0)
         Ws_ = host.shape[2]
         n = (nv - 1) * host.shape[1] * Ws_ + (staged[-1][1] - staged[-1][0]) * Ws_
-        wp.copy(src, host, 0, 0, n)
+        copy_array(src, host, n)
         if given:
-            wp.copy(gsrc, hg, 0, 0, n)
+            copy_array(gsrc, hg, n)
         self._roi_launch(frame, src, gsrc, li, mask, p)
 
     def _roi_launch(self, frame: FrameImages, src, gsrc, li, mask, p: int) -> None:
         """:func:`~core.tracking.engine_kernels.fluoro_roi_kernel` on the staged fluence ``src`` (the
         item table in ``_host_info``) into ``li`` and ``mask``, the usable pixels' count copied back."""
         Hc, Wc = self._cap
-        wp.copy(self._info, self._host_info)
+        copy_array(self._info, self._host_info)
         self._msum.zero_()
         lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
         chunk = ROI_CHUNK or self.chunk
         self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
                      [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
                       chunk, li, mask, self._fmax, self._msum])
-        wp.copy(self._host_msum, self._msum)
+        copy_array(self._host_msum, self._msum)
         self._count_pending = True
 
     def _regions(self, frame) -> tuple[list, list]:

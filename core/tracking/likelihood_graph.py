@@ -22,6 +22,7 @@ import warp as wp
 
 from ..render import _kernels as RK
 from ..render._kernels import ITEM_COLS
+from .engine_buffers import copy_array
 from .engine_render import DeviceRender, item_table
 from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel, wls_moments_tri_kernel
 from .likelihood_kernels import wls_moments_kernel
@@ -152,6 +153,6 @@ class _StepGraphs:
             got = own[(n, H, W)] = (host, host.numpy(), items, out, cmd)
         host, host_np, items, out, cmd = got
         host_np[...] = table.reshape(n, ITEM_COLS)
-        wp.copy(items, host)
+        copy_array(items, host)
         cmd.launch()
         return out

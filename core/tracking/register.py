@@ -175,6 +175,16 @@ _LEVELS: dict = {}  # (levels function, sigma, final scale) -> the "newton" leve
 #: (``resources/benchmarks/tracking_bench_stage_first_h100.json``).
 STAGE_FIRST = False
 
+#: With a final stage, the ``"newton"`` search's registration uploads the stage's fluence rows while the
+#: device works on its first step (:func:`core.tracking.final_stage.stage_prefetch` in :func:`register`'s
+#: ``idle`` slot, before the caller's own idle work): the stage's regions at the initial pose grown by
+#: :data:`~core.tracking.final_stage.PREFETCH_REACH_MM`, which the stage takes on the device where they
+#: cover its regions at the searched pose, else it uploads its own (the same values either way: the same
+#: poses, scores and confidences). On one NVIDIA H100's host the stage spent 0.70 ms a bone-frame on those
+#: copies and the host waited about 0.5 ms on the search's first step (the talus alone at 1024²,
+#: ``tracking_bench_final_bae210d_h100.json``); the prefetch itself not yet timed on a GPU.
+STAGE_PREFETCH = True
+
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:
     """:func:`default_levels` at ``mm_px`` (mm per DRR pixel at the final scale ``fs``), scaled by
@@ -350,6 +360,9 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
                      seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
         return r
 
+    if STAGE_PREFETCH and o.final is not None and search == "newton" and tried is None:
+        idle = _with_stage_prefetch(idle, renderer, frame, bone=bone, pose=base, center=center, options=o,
+                                    views=views)
     if (STAGE_FIRST and o.final is not None and search == "newton" and o.levels is None and tried is None
             and x0 is None):
         if idle is not None:
@@ -402,6 +415,20 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
 
     return final_stage(renderer, frame, res, bone=bone, initial_pose=base, center=center, options=o,
                        views=views, others=others)
+
+
+def _with_stage_prefetch(idle, renderer, frame, **kw):
+    """:data:`STAGE_PREFETCH`'s idle work: the final stage's fluence rows uploaded
+    (:func:`core.tracking.final_stage.stage_prefetch`, keywords ``kw``), then the caller's ``idle``."""
+
+    def work() -> None:
+        from .final_stage import stage_prefetch
+
+        stage_prefetch(renderer, frame, **kw)
+        if idle is not None:
+            idle()
+
+    return work
 
 
 def _stage_first(renderer, frame, eng, *, bone: int, base, center, options, views, others, t_start: float):

@@ -82,11 +82,13 @@ def test_stage_from_its_prefetched_rows_is_the_same(talus_scene, monkeypatch, sh
     its own (the start 0.5 mm off) and uploads its own where not (a prefetch about a pose 25 mm off);
     the registration with its stage the same to the bit as without a prefetch."""
     import core.tracking.likelihood_frames as lf
+    import core.tracking.register as reg
     from core.tracking.cost import prepare_frame
     from core.tracking.final_stage import stage_prefetch
     from core.tracking.register import RegistrationOptions, register
 
     monkeypatch.setattr(lf, "SHARE_SEARCH_UPLOAD", False)
+    monkeypatch.setattr(reg, "STAGE_PREFETCH", False)  # (register's own prefetch: only the test's idle here)
     plain = lf._FrameRegions._prefetched
     used: list = []
 

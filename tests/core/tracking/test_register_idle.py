@@ -92,3 +92,36 @@ def test_motion_limits_ahead_are_those_motion_miss_computes():
     hist.append((12, pose))
     motion_limits(hist, 13, c)
     assert checks._BOUNDS[id(hist)] is not kept
+
+
+def test_register_with_a_stage_prefetches_its_rows_in_the_idle_slot(talus_scene, monkeypatch):
+    """register.STAGE_PREFETCH: the stage's rows uploaded once while the first step is in flight, at the
+    initial pose, before the caller's idle work; the registration the same to the bit as without."""
+    import core.tracking.final_stage as fs
+    import core.tracking.register as reg
+
+    sc = talus_scene
+    m = sc["model"]
+    frame = prepare_frame(sc["fluence"](2))
+    start = _start(sc, 2, [0.4, -0.3, 0.2, 0.3, 0.0, -0.2])
+    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=2.0)
+    kw = dict(bone=0, initial_pose=start, center=m.centroid, options=o)
+    eng = engine_cost(sc["renderer"], bone=0, views=(0, 1), scale=1.0, term=o.terms[0])
+    plain = fs.stage_prefetch
+    seen = []
+
+    def spy(*a, **k):
+        seen.append(("prefetch", eng._pending is not None, np.array_equal(k["pose"], start)))
+        return plain(*a, **k)
+
+    monkeypatch.setattr(fs, "stage_prefetch", spy)
+    monkeypatch.setattr(reg, "STAGE_PREFETCH", False)
+    off = register(sc["renderer"], frame, **kw)
+    assert seen == []
+    monkeypatch.setattr(reg, "STAGE_PREFETCH", True)
+    on = register(sc["renderer"], frame, idle=lambda: seen.append("caller"), **kw)
+    assert seen == [("prefetch", True, True), "caller"]
+    assert on.timing["likelihood_taken"] == off.timing["likelihood_taken"] == 1
+    np.testing.assert_array_equal(on.pose, off.pose)
+    np.testing.assert_array_equal(np.asarray(on.fit.covariance), np.asarray(off.fit.covariance))
+    assert on.evaluations == off.evaluations

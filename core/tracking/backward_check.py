@@ -40,7 +40,8 @@ off). The first frame's pose is kept either way: two registrations that disagree
 right (the backward one carries the errors of the frames it was predicted from), so the frame is sent
 for review. A backward registration that is itself flagged, or has no pose, judges nothing (a note says
 so); a bone with fewer than two good frames among the :data:`REACH` tracked frames after its first, or
-whose first frame is flagged already or was given as a pose, is not checked.
+whose first frame is flagged already or was given as a pose, is not checked (one given as a pose, a hand
+fix taken back on resume, is subtracted at it as the forward pass did).
 
 The flag is a review flag, as the trajectory post-pass's: the registration's ``converged`` stays as
 it was, and :class:`core.tracking.frame_state._BoneState` takes a frame restored with it (resume) as
@@ -87,6 +88,7 @@ from .flags_post import BACKWARD_FLAG, MIN_FRAMES, trajectory_residuals
 from .flags_post import FLAG as TRAJECTORY_FLAG
 from .frame_state import _BoneState
 from .frame_step import track_frame
+from .results import FrameResult
 
 __all__ = ["BACKWARD_CHECK", "FLAG", "FLOOR", "LIMIT", "NOTE", "REACH", "backward_check"]
 
@@ -145,6 +147,13 @@ def backward_check(run, feed, order, results: dict, skip: dict, step=track_frame
     base, todo, state, skip2 = {}, [], {b: _BoneState() for b in names}, {b: {} for b in names}
     for i, b in enumerate(names):
         fr = results.get((b, f0))
+        given = skip.get(b, {}).get(f0)
+        if fr is None and given is not None and not isinstance(given, FrameResult):
+            # given as a pose (a hand fix taken back on resume): a good pose of the frame, subtracted
+            # at it as the forward pass had it (track adds it to the history before the frame step)
+            skip2[b] = {f0: given}
+            state[b].add_good(f0, given, None)
+            continue
         if fr is None or fr.pose is None:
             continue
         base[i] = _own(fr)
@@ -161,7 +170,7 @@ def backward_check(run, feed, order, results: dict, skip: dict, step=track_frame
             if len(after) >= o.history:
                 break
         for f, got in reversed(after):
-            if hasattr(got, "flags"):
+            if isinstance(got, FrameResult):
                 state[b].add(f, got)
             else:  # a given pose: good
                 state[b].add_good(f, got, None)

@@ -130,9 +130,12 @@ handed to ``record_result`` again with the flag. A range's fits run through ``ne
 poses outside it (the journal's), which are never flagged by it. Before it, the run's first frame is
 registered once more as the frame step registers any later frame, from the prediction of the frames
 after it (:mod:`core.tracking.backward_check`, :data:`~core.tracking.backward_check.BACKWARD_CHECK`):
-where the two registrations disagree by more than the trajectory check's limit, the first frame is
-flagged ``"first frame off its backward registration"``, else noted; a first frame is registered from a
-hand-placed keyframe and has no history that the checks of a single frame could judge it by.
+where the two registrations disagree by more than :data:`~core.tracking.backward_check.LIMIT` (1.25, its
+own, not ``trajectory_limit``) × the bone's median trajectory residual, the first frame is flagged
+``"first frame off its backward registration"``, else noted (a run too short for that scale: noted, not
+judged); a first frame is registered from a hand-placed keyframe and has no history that the checks of a
+single frame could judge it by. The flag and note are journaled again through ``record_result``; the
+window shows the flag once the run ends (it reloads the journal), ``progress`` is not called again.
 
 The thresholds are :class:`TrackingOptions` fields, defaulting to the module constants named
 above: ``collapse_ratio`` (:data:`~core.tracking.checks.COLLAPSE_RATIO`), ``motion_limit``,

@@ -55,7 +55,9 @@ trajectory post-pass, which then neither judges a flagged first frame nor fits t
 (a backward range's highest frame) from its own side only: a keyframe that two ranges of ``talus batch``
 both track is checked by each, and its journal keeps the outcome of the range recorded last (the
 trajectory post-pass of :func:`core.tracking.batch.trajectory_pass` judges the ranges together, this
-check does not).
+check does not). With the ranges on workers side by side that is the range that finished last: unlike
+the trajectory flags (:mod:`core.tracking.batch`'s notes), this flag or note at the shared keyframe
+depends on the order the tasks ran; a batch's summary and the first range's report may say otherwise.
 
 *Measured* (``resources/benchmarks/tracking_backward_check_h100.json``): the acceptance study on seeds
 0, 3 and 4 (``--mode joint,sequential --final likelihood``, 1024², 100 frames) at 8536510, one NVIDIA

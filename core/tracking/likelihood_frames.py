@@ -196,7 +196,9 @@ class _FrameRegions:
         Ws = max(c1 - c0 for _, _, c0, c1 in staged)
         given = any(frame._given[v] is not None for v in self.views)
         host = self._pinned("stage", (nv, Hs, Ws))
-        hg = self._pinned("stage_given", (nv, Hs, Ws), wp.uint8) if given else None
+        # (of the fluence's buffer's shape: both go up as one block in its layout, n elements; grown
+        # only for frames with masks of their own, it would be smaller after a larger frame without)
+        hg = self._pinned("stage_given", tuple(host.shape), wp.uint8) if given else None
         src = self._buffer("stage", tuple(host.shape))
         gsrc = self._buffer("stage_given", tuple(host.shape), wp.uint8) if given else \
             self._buffer("stage_given", (nv, 1, 1), wp.uint8)

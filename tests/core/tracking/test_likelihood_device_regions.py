@@ -109,3 +109,32 @@ def test_the_stages_evaluations_are_the_poses_it_rendered(talus_scene):
     t = res.timing
     assert t["likelihood_taken"] == 1 and 1 <= t["likelihood_renders"] < t["likelihood_steps"]
     assert res.evaluations == res.fit.similarity.evaluations + 13 * t["likelihood_renders"]
+
+
+def test_own_masks_after_a_larger_frame_without_them(talus_scene, monkeypatch):
+    """The stage's pinned buffers are grown only: a frame with masks of its own after a larger frame
+    without them uploads its masks in the fluence buffer's layout (one block of the same n elements),
+    so its regions are those of a fresh engine (before: the mask buffer kept the smaller shape, the
+    copy raised or misplaced the masks)."""
+    import core.tracking.engine_likelihood as el
+    from core.tracking.engine_likelihood import LikelihoodEngine
+
+    monkeypatch.setattr(el, "DEVICE_REGIONS", True)
+    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
+    fl = [np.array(f, dtype=np.float32) for f in talus_scene["fluence"](3)]
+    H, W = fl[0].shape
+    masks = [None, np.ones((H, W), bool)]
+    masks[1][50:60, 45:55] = False
+    own = prepare_frame(fl, masks=masks, valid_range=(0.02, 1.5), erode_px=2)
+    small = np.array([[30, 20, 40, 48], [40, 30, 40, 48]])
+    kw = dict(base_pose=sc.poses(3)[0], center=model.centroid)
+    eng = LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
+    larger = np.array([[10, 10, 100, 100]] * 2)
+    eng.set_frame(prepare_frame(fl, valid_range=(0.02, 1.5), erode_px=2), roi=larger, **kw)
+    eng.set_frame(own, roi=small, **kw)
+    fresh = LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
+    fresh.set_frame(own, roi=small, **kw)
+    m, m0 = eng._bufs["mask"].numpy(), fresh._bufs["mask"].numpy()
+    assert not m0[1, 20:30, 5:15].any() and m0[1].any()  # (the block of the frame's own mask)
+    np.testing.assert_array_equal(m > 0, m0 > 0)
+    np.testing.assert_array_equal(eng._bufs["li"].numpy(), fresh._bufs["li"].numpy())

@@ -16,30 +16,13 @@ from .engine_buffers import copy_array
 from .engine_kernels import _LANES, fluoro_roi_kernel
 from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
 
-#: The likelihood stage's regions of the fluence taken on the device from the tracker's engine's
-#: upload of the same frame (:class:`~core.tracking.engine.GaussNewtonCost`'s staged rows, the search
-#: region grown by the mask's erosion) where those rows cover the stage's: no host copy into pinned
-#: memory and no upload. The same fluence values and the same kernel: the same line integrals and
-#: usable pixels (the erosion reads the same pixels: the stage's rows are its region grown by the
-#: erosion, clipped to the image only). Off: each stage uploads its rows itself, as first written.
-#: On ``talus bench track``'s trial (1024², the talus alone) it is never taken: the stage's region (the
-#: volume box at the searched pose grown by 1 mm and the margin, snapped outwards to 16 px) reaches past
-#: the search's rows in every frame (the stage's set-up still 0.70 ms of host copies a bone-frame on one
-#: NVIDIA H100, ``tracking_stage_one_bone_1d5ed65_h100.json``): off (the engine's siblings share its
-#: upload buffer, read only, and another's rows there would not be seen); the stage's own rows go up
-#: while the search runs instead (:meth:`_FrameRegions.prefetch`).
-SHARE_SEARCH_UPLOAD = False
-
-#: pixels a (view, chunk) of :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` prepares in the
-#: stage's set-up (None: the engine's ``chunk``, 4096, as first written: some 30 blocks of 128 threads
-#: for two 300² regions). Each pixel's values are its own and the count of usable pixels (the only sum
-#: the stage reads) an integer: the same line integrals, masks and count with any chunk. 512 measured
-#: slower on one NVIDIA H100 (the talus at 1024², ``tracking_stage_one_bone_1d5ed65_h100.json``): 0.14 →
-#: 0.37 ms of the device a bone-frame (every thread's atomics on the views' maximum and count).
-ROI_CHUNK: int | None = None
-
 #: :meth:`_FrameRegions.prefetch`'s rows of the frame taken by the stage's set-up where they cover its
-#: own (off: the stage uploads its rows whatever went up before)
+#: own (off: the stage uploads its rows whatever went up before). Tried before it and removed: the rows
+#: the tracker's engine uploaded for the search taken instead (44159b4; never taken on ``talus bench
+#: track``'s trial, 1024², the talus: the stage's region, snapped outwards, reaches past the search's
+#: rows in every frame) and :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` over 512-pixel
+#: chunks (a6686da; 0.14 -> 0.37 ms of the device a bone-frame on one NVIDIA H100, its atomics;
+#: ``tracking_stage_one_bone_1d5ed65_h100.json``).
 PREFETCH = True
 
 
@@ -152,37 +135,15 @@ class _FrameRegions:
             return None
         return _covering(frame, pre[1], staged, pre[2], pre[3])
 
-    def _search_upload(self, frame: FrameImages, staged: list):
-        """``(src, given, rows)``: the fluence of this frame that the tracker's engine of this bone and
-        views (:class:`~core.tracking.engine.GaussNewtonCost` at full resolution, its ``_stage_src``
-        and ``_stage_given``) holds on the device, where its rows per view ``(r0, r1, c0, c1)`` cover
-        ``staged``'s with the same erosion; None where none does (:data:`SHARE_SEARCH_UPLOAD`)."""
-        from . import engine as E
-
-        per = E._CACHE.get(self.renderer)
-        for c in list(per.values()) if per else ():
-            last = getattr(c, "_staged_last", None)
-            src, gsrc = getattr(c, "_stage_src", None), getattr(c, "_stage_given", None)
-            if (last is None or src is None or gsrc is None or last[0]() is not frame
-                    or getattr(c, "bone", None) != self.bone or getattr(c, "scale", None) != 1.0
-                    or tuple(getattr(c, "views", ())) != self.views or src.device != self.device):
-                continue
-            hit = _covering(frame, last[1][0], staged, src, gsrc)
-            if hit is not None:
-                return hit
-        return None
-
     def _stage(self, frame: FrameImages, staged: list, li, mask) -> None:
-        """Each view's region of the fluence uploaded as it is (or the tracker's engine's upload of
-        it taken on the device: :data:`SHARE_SEARCH_UPLOAD`) and its line integrals and usable
-        pixels made on the device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, the
+        """Each view's region of the fluence uploaded as it is (or :meth:`prefetch`'s upload of it
+        taken on the device: :data:`PREFETCH`) and its line integrals and usable pixels made on the
+        device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, the
         values of :meth:`~core.tracking.cost.FrameImages.region`); the usable pixels counted there,
         taken at the next step's synchronisation."""
         nv = self.n_views
         p = frame._erode if frame._valid is not None else 0
-        shared = self._search_upload(frame, staged) if SHARE_SEARCH_UPLOAD else None
-        if shared is None and PREFETCH:
-            shared = self._prefetched(frame, staged)
+        shared = self._prefetched(frame, staged) if PREFETCH else None
         if shared is not None:
             src, gsrc, rows = shared
             info = self._host_info.numpy()
@@ -228,7 +189,7 @@ class _FrameRegions:
         copy_array(self._info, self._host_info)
         self._msum.zero_()
         lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
-        chunk = ROI_CHUNK or self.chunk
+        chunk = self.chunk  # (the engine's 4096: smaller chunks were slower, PREFETCH's docs)
         self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
                      [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
                       chunk, li, mask, self._fmax, self._msum])

@@ -45,9 +45,9 @@ call 1, before, had them off): one at a time on the stage before is ``old+last``
 :data:`core.tracking.likelihood_launches.BUFFERS_PER_SIZE`), ``ol<c>`` the region
 from the bone's DRR support grown by ``c`` more high-pass σ (:data:`core.tracking.final_stage.REGION_OUTLINE`;
 changes the poses);
-``stageprev`` the stage's regions from the search's upload, their smaller chunks and the sandwich
-after the robust step off (:data:`core.tracking.likelihood_frames.SHARE_SEARCH_UPLOAD`, ``ROI_CHUNK``,
-:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`);
+``stageprev`` the sandwich after the robust step off (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`;
+the stage's regions from the search's upload and their smaller chunks, which it turned off too, are
+removed);
 ``prev`` this work's step graphs (:mod:`core.tracking.likelihood_graph`), moments' triangle and the
 sandwich's row-wise autocovariance and half-lag meat off (the defaults before them), ``nograph`` the
 step graphs alone off;
@@ -133,9 +133,8 @@ VARIANTS: dict = {
     "nograph": lambda: _flag("core.tracking.engine_likelihood", "STEP_GRAPH", False),
     # phase 3's exact host changes off: search_roi's volume box by auto_roi, the buffers made anew per size
     "hostprev": lambda: _flags(**_HOST_PREV),
-    # the stage's shared upload, region chunks and sandwich after the robust step off (the stage's own
-    # upload of the fluence, the regions' 4096-pixel chunks, the sandwich before the robust factors)
-    "stageprev": lambda: _flags(SHARE_SEARCH_UPLOAD=False, ROI_CHUNK=None, SANDWICH_AFTER_STEP=False),
+    # the sandwich after the robust step off (the sandwich before the robust factors)
+    "stageprev": lambda: _flags(SANDWICH_AFTER_STEP=False),
     # (and "stop<c>": a refinement ends after a step below c χ²/N, engine_likelihood.STOP_PRED = c;
     # "ol<c>": the region from the bone's DRR support grown by c more high-pass σ, final_stage.REGION_OUTLINE)
 }
@@ -152,8 +151,6 @@ _FLAG_HOME = {"BLOCK_BLUR": "core.tracking.engine_likelihood",
               "MEAT_HALF": "core.tracking.likelihood_confidence",
               "BOX_CORNERS": "core.tracking.roi",
               "BUFFERS_PER_SIZE": "core.tracking.likelihood_launches",
-              "SHARE_SEARCH_UPLOAD": "core.tracking.likelihood_frames",
-              "ROI_CHUNK": "core.tracking.likelihood_frames",
               "SANDWICH_AFTER_STEP": "core.tracking.final_stage"}
 
 

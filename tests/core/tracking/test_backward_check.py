@@ -150,3 +150,31 @@ def test_backward_registration_from_the_frames_after_it(monkeypatch):
     again, calls = _fake_run(monkeypatch, P, 0.3, skip={"tibia": {0: flagged}})
     assert calls[0][0] == 1 and calls[0][2] == [0]  # frame 1 predicted from the restored first frame
     assert again.results[("tibia", 0)].flags == flagged.flags
+
+
+
+def test_joint_run_checks_every_bone(three_frames, monkeypatch):
+    """Joint tracking: both bones' first frames registered again in one frame step (each with the other at
+    its prediction, as in any later frame) from frames 2 and 1; from true keyframes, three frames give no
+    scale: noted, not judged."""
+    import core.tracking.backward_check as bc
+    from core.tracking import trial
+
+    sc, models, r, frames = three_frames
+    calls = []
+    real = trial.track_frame
+
+    def step(run, f, imgs, frame, todo, state, skip):
+        calls.append((f, list(todo), {b: [g for g, _ in state[b].history] for b in run.names}))
+        return real(run, f, imgs, frame, todo, state, skip)
+
+    monkeypatch.setattr(trial, "track_frame", step)
+    true = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    o = trial.TrackingOptions(mode="joint", verify_restarts=0, registration=REG, trajectory_limit=None)
+    res = trial.track(r, models, frames.__getitem__, [0, 1, 2], keyframes=true, options=o)
+    assert [c[0] for c in calls] == [0, 1, 2, 0]
+    assert calls[-1][1] == [0, 1] and calls[-1][2] == {"talus": [2, 1], "calcaneus": [2, 1]}
+    for m in models:
+        fr = res.results[(m.name, 0)]
+        assert not fr.flags and len(fr.notes) == 1 and fr.notes[0].startswith(f"{bc.NOTE}: not judged")
+        assert fr.timing["backward_evaluations"] > 0

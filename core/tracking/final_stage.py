@@ -182,8 +182,10 @@ ROBUST_FROM_LAST = True
 #: wait then waits for it too), where the host's enqueuing of the robust factors (0.4 ms a bone-frame)
 #: overlaps it already: on one NVIDIA H100 (the talus at 1024², 40 frames, three repeats alternated,
 #: ``tracking_stage_one_bone_1d5ed65_h100.json``) the stage took 4.55 ms a bone-frame with it and 4.52
-#: without (median), the host's waits 1.31 and 1.29 ms: off, as measured no faster (three bones not
-#: measured).
+#: without (median), the host's waits 1.31 and 1.29 ms; but that run's "with" also made the regions over
+#: 512-pixel chunks (0.23 ms more device work in the set-up, since removed), so its own effect was not
+#: isolated: off until measured alone (``stage_one_bone``'s variants ``base`` and ``after``; three bones
+#: not measured).
 SANDWICH_AFTER_STEP = False
 #: Opt-in: the stage's region the box of the bone's DRR support (:func:`~core.tracking.roi.support_points`,
 #: the hull of the volume's positive voxels) at the similarity's pose instead of its volume box's,

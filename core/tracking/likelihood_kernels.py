@@ -455,17 +455,12 @@ def regressor_kernels(q: int) -> tuple:
             if r < h and c < w:
                 wt = wgt[v, r, c]
                 if wt > 0.0:
+                    z0 = moments_z(drr, low, hp, y, oth, n_refs, v, r, c, su, sv, diff)
                     z = vz()
-                    z[0] = y[v, r, c]
-                    z[1] = _centre(drr, low, hp, v, r, c)
-                    for j in range(6):
-                        z[2 + j] = _delta(drr, low, hp, j, n_refs, v, r, c, diff)
-                    z[8] = 1.0
-                    z[9] = float(c) * su - 1.0
-                    z[10] = float(r) * sv - 1.0
-                    z[11] = oth[v, r, c]
+                    for j in range(NZ):
+                        z[j] = z0[j]
                     for j in range(q):
-                        z[12 + j] = reg[j * n_refs + v, r, c]
+                        z[NZ + j] = reg[j * n_refs + v, r, c]
                     s += wt * wp.outer(z, z)
         t = wp.tile_sum(wp.tile(s, preserve_type=True))
         if lane == 0:

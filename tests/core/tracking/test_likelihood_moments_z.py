@@ -56,3 +56,38 @@ def test_moments_kernels_share_z_and_agree():
             ww = np.where(w[v, :h, :wd] > 0, w[v, :h, :wd], 0.0)
             M = np.einsum("ihw,jhw,hw->ij", Z, Z, ww)
             np.testing.assert_allclose(tabs[0][v], M, rtol=2e-4, atol=2e-3)
+
+
+def test_regressor_moments_kernel_extends_the_full_table():
+    """The moments kernel with extra regressors (likelihood_kernels.regressor_kernels, q = 1): its first
+    12 × 12 entries are wls_moments_kernel's table to the bit (the same z through moments_z), the last
+    row and column Σ w z t (float64 check)."""
+    from core.tracking.likelihood_kernels import NZ, regressor_kernels, wls_moments_kernel
+
+    g = np.random.default_rng(5)
+    nv, H, W = 2, 20, 32
+    hw = np.array([[20, 29], [17, 32]], np.int32)
+    dev = "cpu"
+    ref = wp.array(hw, dtype=wp.vec2i, device=dev)
+    img = wp.array(g.normal(size=(13 * nv, H, W)).astype(np.float32), device=dev)
+    low = wp.array((0.1 * g.normal(size=(13 * nv, H, W))).astype(np.float32), device=dev)
+    y, o, t = (g.normal(size=(nv, H, W)).astype(np.float32) for _ in range(3))
+    w = g.uniform(0.0, 2.0, size=(nv, H, W)).astype(np.float32)
+    w[w < 0.3] = 0.0
+    Y, O, T, Wt = (wp.array(a, dtype=wp.float32, device=dev) for a in (y, o, t, w))
+    acc = wp.zeros((nv, NZ * NZ), dtype=wp.float64, device=dev)
+    wp.launch_tiled(wls_moments_kernel, dim=(nv, 2), block_dim=32, device=dev,
+                    inputs=[img, low, 1.0, Y, Wt, O, ref, nv, 400, acc, 0])
+    nz = NZ + 1
+    acc1 = wp.zeros((nv, nz * nz), dtype=wp.float64, device=dev)
+    wp.launch_tiled(regressor_kernels(1)[0], dim=(nv, 2), block_dim=32, device=dev,
+                    inputs=[img, low, 1.0, Y, Wt, O, T, ref, nv, 400, acc1, 0])
+    full, ext = acc.numpy().reshape(nv, NZ, NZ), acc1.numpy().reshape(nv, nz, nz)
+    np.testing.assert_array_equal(ext[:, :NZ, :NZ], full)
+    for v in range(nv):
+        h, wd = hw[v]
+        ww = np.where(w[v, :h, :wd] > 0, w[v, :h, :wd], 0.0).astype(np.float64)
+        np.testing.assert_allclose(ext[v, NZ, NZ], np.sum(ww * t[v, :h, :wd].astype(np.float64) ** 2),
+                                   rtol=1e-4)
+        np.testing.assert_allclose(ext[v, 0, NZ], np.sum(ww * y[v, :h, :wd] * t[v, :h, :wd]), rtol=1e-4,
+                                   atol=1e-3)

@@ -17,9 +17,12 @@ options the benchmark's ``--final likelihood`` run (the search stopping at
 * ``host`` (``--host-profile``) — the stage under :mod:`cProfile` (the functions with the most own
   time per bone-frame).
 
-The variant ``prefetch`` (alone or ``a+prefetch``) calls
-:func:`~core.tracking.final_stage.stage_prefetch` in each registration's ``idle`` slot (the search's
-first step on the device), at the search's start; the runs count the stages that took its rows.
+The study's own parts (alone or ``a+b``): ``noprefetch`` / ``prefetch`` the registration's upload of
+the stage's rows while the search runs off / on (:data:`core.tracking.register.STAGE_PREFETCH`, on by
+default: :func:`~core.tracking.final_stage.stage_prefetch` in its ``idle`` slot), ``after`` the first
+refinement's sandwich after the robust refinement's first step
+(:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, off by default; ``base`` against ``after``
+measures it alone). The runs count the stages that took the prefetched rows.
 Also the poses of every variant against the first's (largest difference, mm / degrees, and whether
 equal to the bit). JSON on stdout (``--out``: also to a file).
 """
@@ -155,46 +158,43 @@ def _cprofile(prof, box: list):
 
 
 @contextmanager
-def _prefetching(counts: list):
-    """The stage's fluence rows uploaded in each registration's ``idle`` slot
-    (:func:`~core.tracking.final_stage.stage_prefetch` at the search's start, chained before the frame
-    step's own idle work); ``counts``: [stages that took them, stages that did not]."""
-    import core.tracking.attempt as at
+def _counting(counts: list):
+    """``counts``: [stages that took the rows :func:`~core.tracking.final_stage.stage_prefetch` uploaded
+    while the search ran, stages that uploaded their own]."""
     import core.tracking.likelihood_frames as lf
-    from core.tracking.final_stage import stage_prefetch
 
-    plain, taken = at.register, lf._FrameRegions._prefetched
-
-    def register(renderer, frame, *, bone, initial_pose, center, options=None, views=None, idle=None, **kw):
-        def pre() -> None:
-            if options is not None:
-                vs = tuple(range(frame.n_views)) if views is None else views
-                stage_prefetch(renderer, frame, bone=bone, pose=initial_pose, center=center, options=options,
-                               views=vs)
-            if idle is not None:
-                idle()
-        return plain(renderer, frame, bone=bone, initial_pose=initial_pose, center=center, options=options,
-                     views=views, idle=pre, **kw)
+    taken = lf._FrameRegions._prefetched
 
     def counted(self, *a, **k):
         out = taken(self, *a, **k)
         counts[0 if out is not None else 1] += 1
         return out
 
-    with _patched(at, "register", register), _patched(lf._FrameRegions, "_prefetched", counted):
+    with _patched(lf._FrameRegions, "_prefetched", counted):
         yield
 
 
+#: this study's own variant parts (module, flag, value): the registration's prefetch of the stage's rows
+#: on / off (:data:`core.tracking.register.STAGE_PREFETCH`, on by default since e16b5f3), the first
+#: refinement's sandwich after the robust refinement's first step
+#: (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, off)
+_PARTS = {"prefetch": ("core.tracking.register", "STAGE_PREFETCH", True),
+          "noprefetch": ("core.tracking.register", "STAGE_PREFETCH", False),
+          "after": ("core.tracking.final_stage", "SANDWICH_AFTER_STEP", True)}
+
+
 def _variant_of(name: str, counts: list):
-    """:func:`core.studies.tracking.stage_speed._variant` of ``name`` with the part ``prefetch``
-    (:func:`_prefetching`) known too."""
-    from core.studies.tracking.stage_speed import _variant
+    """:func:`core.studies.tracking.stage_speed._variant` of ``name`` with this study's parts
+    (:data:`_PARTS`) known too, the stages that took prefetched rows counted into ``counts``."""
+    from core.studies.tracking.stage_speed import _flag, _variant
 
     parts = name.split("+")
     st = ExitStack()
-    if "prefetch" in parts:
-        st.enter_context(_prefetching(counts))
-    rest = "+".join(x for x in parts if x != "prefetch") or "base"
+    st.enter_context(_counting(counts))
+    for x in parts:
+        if x in _PARTS:
+            st.enter_context(_flag(*_PARTS[x]))
+    rest = "+".join(x for x in parts if x not in _PARTS) or "base"
     st.enter_context(_variant(rest))
     return st
 
@@ -319,7 +319,7 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=1024)
     p.add_argument("--voxel", type=float, default=0.5)
     p.add_argument("--variants", default="base",
-                   help="comma-separated: stage_speed's variants, and prefetch")
+                   help="comma-separated: stage_speed's variants, and prefetch, noprefetch, after")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--no-profile", action="store_true")
     p.add_argument("--host-profile", action="store_true")

@@ -38,8 +38,8 @@ def copy_array(dst: wp.array, src: wp.array, count: int = 0) -> None:
     ``count``: elements of ``src`` (0: all of it), at most ``dst``'s."""
     if type(dst) is wp.array and type(src) is wp.array and dst.is_contiguous and src.is_contiguous:
         n = int(count) or src.size
-        if n > src.size or n > dst.size or wp.types.type_size_in_bytes(dst.dtype) != \
-                wp.types.type_size_in_bytes(src.dtype):
+        if n < 0 or n > src.size or n > dst.size or wp.types.type_size_in_bytes(dst.dtype) != \
+                wp.types.type_size_in_bytes(src.dtype):  # (a negative count: a huge size_t at the runtime)
             raise ValueError(f"copy_array: {n} elements do not fit the arrays ({src.size}, {dst.size})")
         nbytes = n * wp.types.type_size_in_bytes(src.dtype)
         from warp._src.context import runtime

@@ -20,6 +20,10 @@ def test_copy_array_on_the_host_is_wp_copy():
     assert np.array_equal(a.numpy(), src.numpy())
     with pytest.raises(ValueError, match="do not fit"):
         copy_array(wp.zeros(4, dtype=wp.float32, device="cpu"), src)
+    with pytest.raises(ValueError, match="do not fit"):  # (checked before the runtime's copy)
+        copy_array(a, src, -3)
+    with pytest.raises(ValueError, match="do not fit"):  # (elements of another size)
+        copy_array(wp.zeros(12, dtype=wp.float64, device="cpu"), src)
 
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="a CUDA device")

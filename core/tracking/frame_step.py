@@ -112,12 +112,12 @@ from .results import FrameResult
 from .second_pass import stage_pass
 from .stage_move import confirmed, stage_move_check
 
-__all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_AS_PASS",
-           "FIRST_FRAME_CHECK_FROM_ROUND0", "FIRST_FRAME_SECOND_ROUND", "JOINT_KEYFRAMES", "MISSING_FLAG",
-           "RESTART_FROM_PREDICTION",
-           "SECOND_PASS_STAGE_ONLY", "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_AT_SEARCHED",
-           "STAGE_MOVE_CONFIRM", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS",
-           "UNREADABLE_FLAG", "missing_flags", "stage_move_check", "track_frame"]
+__all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_AGAIN_MOVED", "FIRST_FRAME_AS_PASS",
+           "FIRST_FRAME_CHECK_FROM_ROUND0", "FIRST_FRAME_MOVE_FLOOR", "FIRST_FRAME_SECOND_ROUND",
+           "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION", "SECOND_PASS_STAGE_ONLY",
+           "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_AT_SEARCHED", "STAGE_MOVE_CONFIRM",
+           "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
+           "stage_move_check", "track_frame"]
 
 #: Start joint tracking's next lockstep round before this round's checks (module docs; measured no
 #: faster on one H100 while the loop is host-bound).
@@ -209,16 +209,40 @@ FIRST_FRAME_CHECK_FROM_ROUND0 = False
 #: lockstep (each with the bones before it at this round's poses, the others at round 0's), each from its
 #: keyframe with the first frame's options, checked from its round-0 pose where round 0 left it unflagged,
 #: with round 0's restart check (a flag of round 0's checks stands unless the same checks clear it). In
-#: lockstep every neighbour was subtracted at its round-0 pose and the round had no restart check. Ideal
-#: 128² tibia-talus-calcaneus scene (CPU, this 2-core x86_64 machine), keyframes 5 mm / 5° off, 6 draws:
-#: the talus 0.024-0.027 mm / 0.113-0.123° (the tibia subtracted at its round-0 pose, 0.86° off on draw 0;
-#: at the truth: 0.002°) → 0.0005-0.0018 mm / 0.0041-0.0057° (sequentially 0.0005-0.0025 mm /
-#: 0.0017-0.0086°), the calcaneus 0.015-0.019° → 0.0004-0.0076° (sequentially 0.0017-0.0062°), the tibia,
-#: registered first either way, the same 0.005-0.032° (sequentially 0.005-0.075°); the frame's evaluations
-#: 5049-5457 → 5010-5442 (with 4 restarts, 2 draws: 6609-7019 → 6583-6753). Talus-calcaneus (6 draws):
-#: the talus the same, the calcaneus 0.004-0.012° → 0.003-0.007°, 3195-3664 → 3204-3433 evaluations
-#: (``resources/benchmarks/first_frame_keyframes_joint*_pass*_cpu.json``). Off: the lockstep round as before.
-FIRST_FRAME_AS_PASS = True
+#: lockstep every neighbour was subtracted at its round-0 pose and the round had no restart check. Ideal 128²
+#: tibia-talus-calcaneus scene (CPU, this 2-core x86_64 machine), keyframes 5 mm / 5° off, 6 draws: the talus
+#: 0.024-0.027 mm / 0.113-0.123° (the tibia subtracted at its round-0 pose, 0.86° off on draw 0; at the truth:
+#: 0.002°) → 0.0005-0.0018 mm / 0.0041-0.0057° (sequentially 0.0005-0.0025 mm / 0.0017-0.0086°), the calcaneus
+#: 0.015-0.019° → 0.0004-0.0076° (sequentially 0.0017-0.0062°), the tibia, registered first either way, the
+#: same 0.005-0.032° (sequentially 0.005-0.075°); the frame's evaluations 5049-5457 → 5010-5442 (with 4
+#: restarts, 2 draws: 6609-7019 → 6583-6753). Talus-calcaneus (6 draws): the talus the same, the calcaneus
+#: 0.004-0.012° → 0.003-0.007°, 3195-3664 → 3204-3433 evaluations
+#: (``resources/benchmarks/first_frame_keyframes_joint*_pass*_cpu.json``). Off (the default since the 1024²
+#: cost below): the lockstep round (:data:`FIRST_FRAME_AGAIN_MOVED`). One bone at a time, the joint first
+#: frame of ``talus bench track`` (three bones with the stage, 1024², one NVIDIA H100) took 348 ms against
+#: 171 ms in lockstep, and three bones fell from 50.2 to 43.1 frames/s; at 1024² seeds 0, 3, 4's joint first
+#: frames were already as good as sequential tracking's (the talus 0.23/0.13/0.21° against 0.24/0.14/0.20°).
+FIRST_FRAME_AS_PASS = False
+#: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`; not with
+#: :data:`FIRST_FRAME_AS_PASS`) in lockstep as before (from round 0's poses, the neighbours at theirs, checked
+#: from the keyframes), with round 0's restart check where round 0 left the bone flagged (its flag stands
+#: unless the same checks clear it; before, that round dropped it); then, side by side again, the bones left
+#: unflagged whose neighbours moved in that round by more than :data:`FIRST_FRAME_MOVE_FLOOR` once more, from
+#: their poses, the neighbours at theirs, checked from them (the final stage runs in both rounds). Where no
+#: neighbour moved, the frame costs one lockstep round, as before. Ideal 128² scenes (CPU, this 2-core x86_64
+#: machine, shared; one joint round, no restarts), keyframes 5 mm / 5° off, 6 draws: tibia-talus-calcaneus,
+#: every bone once more, the talus 0.024-0.027 mm / 0.113-0.123° (the tibia subtracted at its round-0 pose,
+#: 0.86° off on draw 0) → 0.0012-0.0022 mm / 0.0032-0.0050° (one at a time, :data:`FIRST_FRAME_AS_PASS`:
+#: 0.0041-0.0057°), the calcaneus 0.015-0.019° → 0.0018-0.0039°, the tibia 0.005-0.032° → 0.005-0.009°, the
+#: frame's evaluations 5049-5457 → 5088-5496 (13 a bone); talus-calcaneus, the calcaneus once more,
+#: 0.004-0.012° → 0.002-0.003°, the talus unchanged, 3195-3664 → 3208-3677
+#: (``resources/benchmarks/first_frame_again_moved_cpu.json``). Off: the lockstep round alone, as before
+#: bae210d.
+FIRST_FRAME_AGAIN_MOVED = True
+#: :data:`FIRST_FRAME_AGAIN_MOVED`'s floor (mm, degrees): a neighbour's move in the round (its pose subtracted
+#: against its new one) beyond either sends the bone round once more (the confirmation floor,
+#: :data:`CONFIRM_FLOOR_MM`, and :func:`core.tracking.final_stage.confirm_move`'s 0.05°).
+FIRST_FRAME_MOVE_FLOOR = (0.02, 0.05)
 #: Sequential tracking's first-frame second pass (:data:`SEQUENTIAL_SECOND_PASS`) with the final stage but
 #: without ``sequential_subtract`` runs the stage alone from the first pass's pose, the first pass's restart
 #: check's verdict kept (:mod:`core.tracking.second_pass`): its search would repeat the first pass's (no
@@ -322,12 +346,13 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         else:
             opts, start = o.registration, start_of(i, rnd, current)
         again = rnd > 0 and first and (not joint or FIRST_FRAME_AS_PASS)  # the first again (module docs)
+        lock = adaptive and rnd == 1 and first  # joint's first-frame lockstep round (FIRST_FRAME_AGAIN_MOVED)
         if again:  # sequential's second pass (joint's first-frame second round: FIRST_FRAME_AS_PASS)
             opts, start = o.first_options, guesses[i]
         guess = guesses[i]
-        kept = out.get(i)  # round 0's attempt (a first frame's second round)
-        if rnd > 0 and first and (FIRST_FRAME_CHECK_FROM_ROUND0 or again) and kept is not None \
-                and kept.result is not None and not kept.flags:
+        kept = out.get(i)  # round 0's attempt (a first frame's second round; round 1's in the round after)
+        flagged = kept is None or kept.result is None or bool(kept.flags)
+        if rnd > 0 and first and (FIRST_FRAME_CHECK_FROM_ROUND0 or again or rnd > 1) and not flagged:
             guess = kept.result.pose  # checked from round 0's unflagged pose, not from the keyframe
         opts = staged(rnd, opts)
         near = nullcontext()
@@ -339,16 +364,21 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             near = stage_neighbours(others_of(i, current, known))
         args = (run.renderer, frame, bones[i], i, start, guess, opts, o, state[b].scores, others, run.cancel,
                 hist[b])
-        kw = dict(verify=first and (rnd == 0 or again),  # the second pass too
+        kw = dict(verify=first and (rnd == 0 or again or (lock and flagged)),  # the second pass too
                   start_score=state[b].start_score, seed=f, frame_number=f, good_sigmas=state[b].sigmas,
                   reference=state[b].reference, host_only=host_only, defer_confidence=defer,
                   prediction=predicted[i])
         with near:
-            if rnd > 0 and stage_only and pre is None:  # the second pass: the stage alone where it may
+            got = None
+            if rnd > 0 and stage_only and pre is None and first:  # the second pass: the stage alone (may)
                 got = stage_pass(register_checked, kept, *args, **kw)
-                if got is not None:
+                if got is not None and not got.retried:
                     return got
-            return register_checked(*args, pre=pre, **kw)
+            new = register_checked(*args, pre=pre, **kw)
+            if got is not None:  # (the stage pass's work, its result dropped for a retry: counted too)
+                new.evaluations += got.evaluations
+                new.time_s += got.time_s
+            return new
 
     rounds = o.joint_rounds if joint else 1
     if joint and FIRST_FRAME_SECOND_ROUND and any(not hist[names[i]] for i in todo):
@@ -358,7 +388,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
     def staged(rnd: int, opts: RegistrationOptions) -> RegistrationOptions:
         """The registration options of round ``rnd``: the final stage only in the last round."""
-        if opts.final is None or rnd == rounds - 1 or FINAL_EVERY_ROUND:
+        if opts.final is None or rnd >= rounds - 1 or FINAL_EVERY_ROUND:  # (a round after it: AGAIN_MOVED)
             return opts
         return _replace(opts, final=None)
 
@@ -366,11 +396,15 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     defer_from = rounds if run.contacts is not None else 0
 
     ahead = None  # (signature, jobs, results, seconds per job) of a round started before the checks
-    for rnd in range(rounds):
+    adaptive = (joint and FIRST_FRAME_AGAIN_MOVED and not FIRST_FRAME_AS_PASS and rounds > 1
+                and any(not hist[names[i]] for i in todo))
+    plan = [(rnd, list(todo)) for rnd in range(rounds)]
+    for rnd, these in plan:  # (a first frame's round after the last appended: FIRST_FRAME_AGAIN_MOVED)
         pre = {}
         checked: dict = {}
+        before = dict(current)
         if lockstep:
-            side = side_of(rnd)
+            side = [i for i in side_of(rnd) if i in these]
             if len(side) > 1:
                 if run.cancel():
                     return None
@@ -403,7 +437,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                     while tasks:
                         idle()
                     ahead = (sig, nxt, got, spent)
-        for i in todo:
+        for i in these:
             if run.cancel():
                 return None
             others = None
@@ -417,7 +451,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             if run.contacts is not None and new.result is not None and not run.cancel.fired:
                 done = [k for k in range(len(names)) if k != i and k in out and out[k].result is not None]
                 if done:  # neighbours registered in this frame, not mere guesses
-                    opts = o.first_options if (rnd == 0 and not hist[names[i]]) else o.registration
+                    wide = not hist[names[i]] and (rnd == 0 or FIRST_FRAME_AS_PASS)  # registered with these
+                    opts = o.first_options if wide else o.registration
                     _keep_apart(run, frame, i, new, others, [(k, current[k]) for k in done], opts)
             if run.cancel.fired:  # the registration was cut short: nothing of this frame stands
                 return None
@@ -428,6 +463,10 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
             if new.result is not None:
                 current[i] = new.result.pose
                 known.add(i)
+        if adaptive and rnd == rounds - 1:  # the bones whose neighbours moved: once more
+            more = _moved_around(these, before, current, out, bones)
+            if more:
+                plan.append((rnd + 1, more))
     done = {}
     for i in todo:
         a = settle(out[i])
@@ -487,6 +526,22 @@ def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
     if o.confidence and fit is not None:
         a.confidence = confidence_of(fit, o)
     a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm")
+
+
+def _moved_around(todo: list[int], before: dict, current: dict, out: dict, bones) -> list[int]:
+    """The bones of ``todo`` left unflagged whose neighbours (of ``todo``) moved from ``before`` to
+    ``current`` by more than :data:`FIRST_FRAME_MOVE_FLOOR` (:data:`FIRST_FRAME_AGAIN_MOVED`)."""
+    from .checks import _distance
+
+    mm, deg = FIRST_FRAME_MOVE_FLOOR
+    moved = set()
+    for k in todo:
+        if k in before and k in current:
+            dt, dr = _distance(before[k], current[k], bones[k].centroid)
+            if dt > mm or dr > deg:
+                moved.add(k)
+    return [i for i in todo if out.get(i) is not None and out[i].result is not None and not out[i].flags
+            and moved - {i}]
 
 
 def _signature(jobs: list[JointJob]) -> tuple:

@@ -45,8 +45,9 @@ def stage_pass(checked, kept: Attempt | None, renderer, frame, bone, index: int,
     ``checked`` (:func:`~core.tracking.attempt.register_checked`, whose arguments the rest are: those of
     the second pass's registration) with the stage's result in place of the registration, the restart
     check left out (the first pass's verdict stands; its notes are kept). None where the pass must be
-    registered again whole: ``kept`` flagged, without a pose, or run with a stage already, or the stage's
-    result failing the checks (a retry: searches of its own, and the restart check after them)."""
+    registered again whole: ``kept`` flagged, without a pose, or run with a stage already; where the stage's
+    result failed the checks (``retried``: the retry's searches ran without the restart check that follows
+    them) the caller registers the pass whole too, counting this attempt's work."""
     from .final_stage import final_stage
 
     res = getattr(kept, "result", None)
@@ -61,7 +62,6 @@ def stage_pass(checked, kept: Attempt | None, renderer, frame, bone, index: int,
     plain = replace(o, verify_restarts=0) if verify and o.verify_restarts else o
     a = checked(renderer, frame, bone, index, start, guess, opts, plain, good_scores, others, cancel, history,
                 verify=verify, pre=(staged, spent), **kw)
-    if a is None or a.retried:
-        return None
-    a.notes = (*kept.notes, *a.notes)
+    if a is not None:
+        a.notes = (*kept.notes, *a.notes)
     return a

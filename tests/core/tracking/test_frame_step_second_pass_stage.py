@@ -126,7 +126,7 @@ def test_stage_pass_without_rendering(monkeypatch):
     def retried(*a, **k):
         return Attempt(k["pre"][0], [], True, 30, 0.1, None, {})
 
-    assert stage_pass(retried, kept, None, frame, bone, 0, "s", "g", opts, o, [], None, None, []) is None
+    assert stage_pass(retried, kept, None, frame, bone, 0, "s", "g", opts, o, [], None, None, []).retried
 
 
 @dataclass

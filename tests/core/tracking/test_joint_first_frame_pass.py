@@ -1,5 +1,5 @@
 """Joint tracking's first-frame second round as sequential tracking's second pass
-(:data:`core.tracking.frame_step.FIRST_FRAME_AS_PASS`, on by default; ideal 128² views, CPU device):
+(:data:`core.tracking.frame_step.FIRST_FRAME_AS_PASS`, on in this module; ideal 128² views, CPU device):
 one bone at a time (the bones before it at this round's poses), from its keyframe with the first
 frame's options, with the restart check of round 0. In lockstep the round subtracted every neighbour at
 its round-0 pose, so with three bones the talus saw the tibia 0.86° off and ended 0.11-0.12° off; and
@@ -23,6 +23,14 @@ def _error(P, truth, center) -> tuple[float, float]:
     return float(np.linalg.norm(d[:3])), float(np.rad2deg(np.linalg.norm(d[3:])))
 
 
+@pytest.fixture(autouse=True)
+def _as_pass(monkeypatch):
+    """FIRST_FRAME_AS_PASS on (off by default since the lockstep round's 1024² cost)."""
+    import core.tracking.frame_step as fs
+
+    monkeypatch.setattr(fs, "FIRST_FRAME_AS_PASS", True)
+
+
 def _spy(monkeypatch) -> list:
     """Every register_checked call of frame_step: (bone, others' poses, guess, verify, result)."""
     import core.tracking.frame_step as fs
@@ -44,7 +52,7 @@ def test_second_round_one_bone_at_a_time_verified(talus_calcaneus_128, monkeypat
     import core.tracking.frame_step as fs
     from core.tracking.trial import TrackingOptions, track
 
-    assert fs.FIRST_FRAME_SECOND_ROUND and fs.FIRST_FRAME_AS_PASS  # the defaults
+    assert fs.FIRST_FRAME_SECOND_ROUND and fs.FIRST_FRAME_AS_PASS  # (the default; the module's fixture)
     sc, models, r, frames = talus_calcaneus_128
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     o = TrackingOptions(mode="joint", verify_restarts=0, registration=REG)
@@ -99,6 +107,7 @@ def test_round_0_flag_kept_unless_the_second_round_clears_it(talus_calcaneus_128
     assert any(f.startswith("ambiguous optimum") for f in flags) == (times == 2)
     assert not res.results[("calcaneus", 0)].flags
     monkeypatch.setattr(fs, "FIRST_FRAME_AS_PASS", False)  # lockstep: no check in the second round
+    monkeypatch.setattr(fs, "FIRST_FRAME_AGAIN_MOVED", False)  # (as before it)
     calls.clear()
     res = track(r, models, frames.__getitem__, [0], keyframes=keys, options=o)
     assert calls == [0, 1] and not res.results[("talus", 0)].flags

@@ -35,6 +35,7 @@ def test_first_frame_rounds_verify_and_neighbours(talus_calcaneus_128, monkeypat
     monkeypatch.setattr(fs, "register_checked", spy)
     monkeypatch.setattr(fs, "FIRST_FRAME_SECOND_ROUND", False)  # the rounds as asked (the default: one more)
     monkeypatch.setattr(fs, "FIRST_FRAME_AS_PASS", False)  # the second round in lockstep
+    monkeypatch.setattr(fs, "FIRST_FRAME_AGAIN_MOVED", False)  # (the lockstep round as before)
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}  # keyframes only: a first frame
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode="joint", joint_rounds=rounds, verify_restarts=0, registration=reg)
@@ -71,6 +72,7 @@ def test_one_round_gets_a_second_round_in_the_first_frame_by_default(talus_calca
 
     monkeypatch.setattr(fs, "register_checked", spy)
     monkeypatch.setattr(fs, "FIRST_FRAME_AS_PASS", False)  # the second round in lockstep
+    monkeypatch.setattr(fs, "FIRST_FRAME_AGAIN_MOVED", False)  # (the lockstep round as before)
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg)

@@ -133,6 +133,7 @@ def test_joint_second_round_checked_from_round_0(talus_calcaneus_128, monkeypatc
     assert not fs.FIRST_FRAME_CHECK_FROM_ROUND0  # the default
     monkeypatch.setattr(fs, "FIRST_FRAME_CHECK_FROM_ROUND0", True)
     monkeypatch.setattr(fs, "FIRST_FRAME_AS_PASS", False)  # (the lockstep round's switch)
+    monkeypatch.setattr(fs, "FIRST_FRAME_AGAIN_MOVED", False)  # (the lockstep round as before)
     seen = _spy(monkeypatch)
     res = track(r, models, frames.__getitem__, [0], keyframes=off, options=o)
     assert [s[0] for s in seen] == [0, 1, 0, 1]

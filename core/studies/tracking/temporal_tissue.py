@@ -20,9 +20,10 @@ Variants (:func:`parse`): ``<source><K>[l[σ]][s][g][c][t]:<method>`` — ``sour
 the other frames' residuals at the TRUE poses, the upper limit of the idea), ``b`` (realistic,
 causal: at the poses the same variant estimated in those frames, run frame after frame from the
 trial's start, the first ``K`` frames refined by today's form — the feedback of a pose error
-included) or ``p`` (realistic, two passes: at the poses today's form ``hp4+r`` estimated in those
-frames); ``K`` frames before ``t`` (``c``, centred: also the ``K`` after it — offline, the bones'
-motion cancels to first order); ``l``: the averaged residual low-passed by a Gaussian of σ px at
+included), ``p`` (realistic, two passes: at the poses today's form ``hp4+r`` estimated in those
+frames) or ``q`` (three passes: at the poses the ``p`` form estimated in those frames); ``K``
+frames before ``t`` (``c``, centred: also the ``K`` after it — offline, the bones' motion cancels
+to first order); ``l``: the averaged residual low-passed by a Gaussian of σ px at
 1024² scaled (default 4, i.e. 1 px at 256²); ``s``: each residual shifted by the bone's projected
 centroid motion; ``g``: the residual a regressor with its own gain instead of subtracted at gain
 1; ``t`` (probe, ``a`` only): the soft tissue's true change since each frame added back (what is
@@ -43,6 +44,46 @@ Every refinement starts from the bone's estimated pose (:func:`core.studies.trac
 tissue_regressor.estimated_poses`, 0.05 mm / 0.05° per axis off the truth), the other bones at
 theirs subtracted at gain 1. Ratios are over the Cramér–Rao bound of the evaluated frames. Only
 this study reads the truth.
+
+Measured (``resources/benchmarks/tracking_temporal_tissue_cpu.json``, this 2-core x86_64 machine,
+shared; 256², 1 mm voxels, the 20-frame trial — the 100-frame trial's motion per frame — frames 4,
+8, 12, 16, each noise-free and with 2 draws: 8 samples per bone, a spread ratio ±25 %; RMS error
+over the bound, mm / degrees, tibia, talus, calcaneus; today's form ``hp4+r`` 1.74/0.91,
+1.47/2.29, 1.66/1.67 on ``true`` and 2.98/0.99, 1.38/2.17, 2.21/1.60 on ``grid`` frames):
+
+* The previous frames fail even at the TRUE poses (``true``): ``a1:hp0+r`` 4.36/3.40, 4.46/3.34,
+  5.03/1.25 (bias 4.12/2.92, 3.98/2.15, 4.60/0.94 against today's 0.97/0.26, 0.29/0.35,
+  0.53/0.35); K = 2 and 4 worse (``a4:hp0+r`` bias 7.76/6.69, 11.0/5.10, 9.82/2.83), a low-pass
+  does not help (``a4l:hp0+r`` alike), a high-pass makes it worse (``a1:hp4+r`` tibia bias 13.1,
+  ``a1:hp2+r`` 14.8), so does a shift by the bone's motion (``a1s:hp2+r`` 4.13/1.70, 2.09/1.93,
+  2.40/2.00); with the tissue's true change added back (``a1t:hp0+r``) the tibia is still biased
+  4.2× (the bones' edges). Why: the bones move 0.17–1.47 px per frame here (the view's largest
+  centroid motion), and the residual's change from frame t-1 to t over the stage's regions is
+  0.005–0.065 RMS in line integral (noise-free; the bone's own peak 0.37–0.81), on the bone's scale.
+* Centred (the frame before and the frame after, offline) at the TRUE poses it beats today's form:
+  ``a1c:hp0+r`` 0.74/1.14, 1.05/1.13, 1.37/1.21 on ``true`` and 0.72/1.11, 1.04/1.20, 1.40/1.16 on
+  ``grid`` (there bias 0.45/0.33, 0.35/0.50, 0.28/0.23: the grid's leftover distortion is in the
+  residual too); only the tibia's rotation is not better (1.14 and 1.11 against 0.91 and 0.99,
+  within the ratios' ±25 %). The change left is 0.0024–0.011 RMS.
+  K = 2 (``a2c``) biases more, the low-pass (``a1cl``) and a 0.5 px high-pass (``a1c:hp2+r``,
+  tibia 4.2×) lose.
+* At a tracker's poses it does not: the residuals at today's form's poses (two passes,
+  ``p1c:hp0+r``) 1.29/1.08, 1.57/1.97, 1.30/1.42 (``true``) and 2.24/1.00, 1.54/1.78, 1.59/1.43
+  (``grid``): a pose error δ at t±1 leaves -δ·∂D in their residual, which pulls frame t to the same
+  error, so a bias constant over three frames is a fixed point (``grid`` tibia mean error (+0.030,
+  -0.016, +0.006) mm in the first pass, (+0.029, -0.016, +0.003) in the second; calcaneus (0.022,
+  0.023, 0.020) → (0.017, 0.020, 0.016)); the talus's translation is worse than today's on both
+  sets. A third pass (``q1c:hp0+r``, the residuals at the second pass's poses) lowers the spread
+  (talus 1.37/1.69 → 0.99/1.31 on ``true``, 1.30/1.51 → 0.92/1.17 on ``grid``) but not the bias
+  (``grid`` tibia (+0.028, -0.016, +0.003) mm): RMS 1.60/1.25, 1.28/1.49, 1.52/1.43 (``true``) and
+  2.48/0.99, 1.28/1.35, 1.94/1.48 (``grid``) — no bone within 1.25× in both units.
+
+What it would take in the device stage (not recommended on these numbers): two or more passes over
+the trial (today's stage first), each frame's residual over the bones' regions from one render of
+the three bones at the previous pass's poses (the neighbours' render it already makes), the mean of
+frames t-1 and t+1 subtracted from the line integrals (one image a view, in place of the high-pass's
+two blur passes), the neighbours' subtraction and the constant background as today; the bias that
+today's stage leaves (the grid's leftover distortion, the tissue's pull) stays in every pass.
 
 JSON on stdout (``--out``: also to a file, rewritten after each frame).
 """

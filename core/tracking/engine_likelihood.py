@@ -28,7 +28,9 @@ Extra regressors (a frame's soft tissue: :meth:`LikelihoodEngine.set_tissue`, or
 
 Set-up (:meth:`LikelihoodEngine.set_frame`)
 -------------------------------------------
-Per frame each view's region of the fluence is uploaded and its line integrals and usable pixels
+Per frame each view's region of the fluence is uploaded (or taken on the device from the rows
+:func:`~core.tracking.final_stage.stage_prefetch` uploaded while the search ran, where they cover it:
+:data:`~core.tracking.likelihood_frames.PREFETCH`) and its line integrals and usable pixels
 made on the device (:data:`DEVICE_REGIONS`; off: cut on the host, numpy's float32 logarithm, as
 first measured, and uploaded from pinned buffers, a float32 and a byte plane per view); the
 neighbours' DRRs are rendered with the steps' launch, summed and subtracted on the device

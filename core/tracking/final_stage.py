@@ -488,7 +488,9 @@ def confirm_move(renderer, frame: FrameImages, res, start=None, *, bone: int, ce
 
 
 #: :func:`stage_prefetch`'s regions: the stage's at the given pose grown by this much more reach (mm;
-#: the search's move from its start, the prediction, rarely exceeds it; the regions are snapped to 16 px)
+#: for the search's move from its start, the prediction; the regions are snapped to 16 px). How often
+#: the move exceeds it on a real trial is not measured; on a 2-core CPU at 256² (stage_one_bone, 6
+#: frames) every ``newton`` registration's stage took the prefetched rows.
 PREFETCH_REACH_MM = 2.0
 
 

@@ -28,12 +28,14 @@ had just found in the same round; the second round sees every bone's first-round
 way. With one round (``TrackingOptions.joint_rounds``' default since 8dbdcc2) none does: in lockstep
 every bone, and its final stage, subtracts its neighbours at their predictions.
 
-A first frame's bones (no tracked pose yet) are not registered here: round 0 registers them one after
-another, and the first frame's second round, since bae210d, as sequential tracking's second pass
-(:data:`core.tracking.frame_step.FIRST_FRAME_AS_PASS`): in lockstep every bone subtracted its neighbours
-at their round-0 poses, so the error of the bone registered first (nothing subtracted) went into the
-others' second round (the talus of the three-bone 128² scene 0.11-0.12° off, one bone at a time
-0.004-0.006°).
+A first frame's bones (no tracked pose yet) are registered here from the first frame's second round on:
+round 0 registers them one after another. The second round subtracts every neighbour at its round-0 pose,
+so the error of the bone registered first (nothing subtracted) goes into the others' second round (the
+talus of the three-bone 128² scene 0.11-0.12° off); the bones whose neighbours moved in it are registered
+here once more, the neighbours at their new poses (0.003-0.005°;
+:data:`core.tracking.frame_step.FIRST_FRAME_AGAIN_MOVED`). One bone at a time instead, as sequential
+tracking's second pass (:data:`~core.tracking.frame_step.FIRST_FRAME_AS_PASS`, off: 0.004-0.006°), the
+first frame took twice as long at 1024² on one NVIDIA H100.
 """
 
 from __future__ import annotations

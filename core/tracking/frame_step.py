@@ -193,8 +193,9 @@ FIRST_FRAME_SECOND_ROUND = True
 #: with the stage but not ``sequential_subtract``, only the stage (:data:`SECOND_PASS_STAGE_ONLY`).
 SEQUENTIAL_SECOND_PASS = True
 #: Joint tracking's first-frame second round (:data:`FIRST_FRAME_SECOND_ROUND`) is checked from the bone's
-#: round-0 pose where round 0 left it unflagged (the lockstep round only: with :data:`FIRST_FRAME_AS_PASS`,
-#: the default, it always is); off (the default): from its keyframe, as round 0, but without
+#: round-0 pose where round 0 left it unflagged (the lockstep round only: with :data:`FIRST_FRAME_AS_PASS`
+#: it always is; the round after it, :data:`FIRST_FRAME_AGAIN_MOVED`, is checked from the lockstep round's
+#: poses); off (the default): from its keyframe, as round 0, but without
 #: the first frame's wider jump limit, so a pose come back from a keyframe 5 mm off is taken for a jump and
 #: retried from the keyframe, widened. (Sequential tracking's second pass is always checked from its first
 #: pass's pose, and starts from the keyframe with the first frame's options: :data:`SEQUENTIAL_SECOND_PASS`.)

@@ -182,8 +182,15 @@ STAGE_FIRST = False
 #: cover its regions at the searched pose, else it uploads its own (the same values either way: the same
 #: poses, scores and confidences). On one NVIDIA H100's host the stage spent 0.70 ms a bone-frame on those
 #: copies and the host waited about 0.5 ms on the search's first step (the talus alone at 1024²,
-#: ``tracking_bench_final_bae210d_h100.json``); the prefetch itself not yet timed on a GPU.
-STAGE_PREFETCH = True
+#: ``tracking_bench_final_bae210d_h100.json``). Off: timed on one NVIDIA H100 (f4b86cd, where joint
+#: registration prefetches too, :func:`core.tracking.joint._prefetching`; ``talus bench track --cases three
+#: --final likelihood`` with the switch off, then on, one call) three bones jointly with the stage ran 44.0
+#: frames/s without it and 38.5 with it (runs 2.19-2.59 s against 2.50-2.62 s; first frame 192 / 254 ms,
+#: 21.0 / 23.7 ms a frame after it; the same poses): the prefetch's host work (the regions at the start, the
+#: engine's look-up) sits on the host's critical path and its copies queue behind the search's step on the
+#: same stream. One bone's effect was not measured alone (6c8beab, with it on: 130.2 frames/s against
+#: c7320cb's 135.4 without it, the runs' ranges overlapping); off for both until it is.
+STAGE_PREFETCH = False
 
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:

@@ -18,8 +18,9 @@ options the benchmark's ``--final likelihood`` run (the search stopping at
   time per bone-frame).
 
 The study's own parts (alone or ``a+b``): ``noprefetch`` / ``prefetch`` the registration's upload of
-the stage's rows while the search runs off / on (:data:`core.tracking.register.STAGE_PREFETCH`, on by
-default: :func:`~core.tracking.final_stage.stage_prefetch` in its ``idle`` slot), ``after`` the first
+the stage's rows while the search runs off / on (:data:`core.tracking.register.STAGE_PREFETCH`, off
+by default since a three-bone GPU run, see its docs: :func:`~core.tracking.final_stage.stage_prefetch` in
+its ``idle`` slot), ``after`` the first
 refinement's sandwich after the robust refinement's first step
 (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, off by default; ``base`` against ``after``
 measures it alone). The runs count the stages that took the prefetched rows.
@@ -175,7 +176,8 @@ def _counting(counts: list):
 
 
 #: this study's own variant parts (module, flag, value): the registration's prefetch of the stage's rows
-#: on / off (:data:`core.tracking.register.STAGE_PREFETCH`, on by default since e16b5f3), the first
+#: on / off (:data:`core.tracking.register.STAGE_PREFETCH`, on by default from e16b5f3, off since the
+#: three-bone GPU run of its docs), the first
 #: refinement's sandwich after the robust refinement's first step
 #: (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, off)
 _PARTS = {"prefetch": ("core.tracking.register", "STAGE_PREFETCH", True),

@@ -45,7 +45,8 @@ def test_joint_stages_take_rows_prefetched_during_the_searches(talus_calcaneus_1
         monkeypatch.setattr(reg, "STAGE_PREFETCH", on)
         frame = prepare_frame(frames[1])  # a new frame object each time: no rows left from the other run
         jobs = [JointJob(k, pose_from_params(d, center=m.centroid, base=truth[k]), m.centroid, m.outline,
-                         (truth[[1 - k]], [1 - k])) for k, (d, m) in enumerate(zip(offs, models, strict=True))]
+                         (truth[[1 - k]], [1 - k]))
+                for k, (d, m) in enumerate(zip(offs, models, strict=True))]
         used.clear()
         calls.clear()
         regs = register_together(r, frame, jobs, replace(o), idle=idle)

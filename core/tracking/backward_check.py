@@ -56,11 +56,14 @@ frame's registration per run (its evaluations and seconds go into the frame's ``
 trajectory post-pass, which then neither judges a flagged first frame nor fits through it.
 :data:`BACKWARD_CHECK` turns it off. A run over a range checks the range's first frame in tracking order
 (a backward range's highest frame) from its own side only: a keyframe that two ranges of ``talus batch``
-both track is checked by each, and its journal keeps the outcome of the range recorded last (the
-trajectory post-pass of :func:`core.tracking.batch.trajectory_pass` judges the ranges together, this
-check does not). With the ranges on workers side by side that is the range that finished last: unlike
-the trajectory flags (:mod:`core.tracking.batch`'s notes), this flag or note at the shared keyframe
-depends on the order the tasks ran; a batch's summary and the first range's report may say otherwise.
+both track is checked by each, its journal keeping the outcome of the range recorded last and each
+range's report its own. Once every range is done, the batch's trajectory pass
+(:func:`core.tracking.batch.trajectory_pass`, :mod:`core.tracking.batch_pass`) gives the frame both
+ranges' flags and notes of this check where either range flagged it, in the journal and both
+reports, so, as the trajectory flags (:mod:`core.tracking.batch`'s notes), the flag does not depend
+on the order the tasks ran (a frame neither range flagged keeps the note of the range recorded last,
+whose distance does). Where that pass does not judge the group (a range not complete,
+the trajectory check off) the journal keeps the last range's outcome.
 
 *Measured* (``resources/benchmarks/tracking_backward_check_h100.json``): the acceptance study on seeds
 0, 3 and 4 (``--mode joint,sequential --final likelihood``, 1024², 100 frames) at 8536510, one NVIDIA

@@ -18,6 +18,18 @@ other good poses as neighbours) and
   :func:`final_records` sets each range task's record's ``flagged`` to the count after the pass
   (``flagged_before_pass``: the task's own).
 
+Before it judges, the pass makes the backward check's outcome (:mod:`core.tracking.backward_check`)
+at a keyframe two ranges share independent of the order they ran: each range checked it from its
+own side, the journal kept the outcome of the range recorded last and each range's report its own.
+Where either range flagged it, the frame takes every range's flag and note of that check, the
+ranges in frame order (the backward one first) — and, as in that range, the trajectory check neither
+judges it nor fits through it; where none did it keeps the journal's note (the last range's distance:
+a note, not a review flag, so the frame is not journaled again for it). A range report that cannot
+be read adds nothing (the journal's outcome stays); with the trajectory check off, or a range not
+complete, the group is not judged and the journal keeps the last range's outcome. A change's
+``was_off_trajectory`` tells a frame whose trajectory flag came off from one flagged otherwise
+(such a keyframe).
+
 The pass reads the group's journals, judges them and journals its changes holding the bones'
 journal locks (:meth:`core.tracking.batch_journal.SharedJournals.holding`), so a hand fix — a pose
 the window or another process records, under the same lock — lands before the read (the pass
@@ -91,6 +103,7 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
     """:func:`run_pass` of one group: its journal read, judged, the changes recorded and its
     range reports rewritten."""
     from ..study import Study
+    from .backward_check import NOTE as BACKWARD_NOTE
     from .batch_journal import SharedJournals
     from .bones import bone_model
     from .flags_post import FLAG, UNCHECKED, apply_trajectory_flags, journal_neighbours
@@ -115,10 +128,18 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
             states = {b: trial.results(b) for b in bones}
             results = {(b, f): FrameResult.from_journal(b, r) for b in bones for f in frames
                        if (r := states[b].records.get(f)) is not None and r.kind == "tracked"}
-            res = TrackingResult(tuple(bones), tuple(frames), results, "complete", 0.0)
+            # a keyframe two ranges share: the backward check's outcomes of both ranges (their reports)
+            merged = _shared_first_frames(results, tasks, bones, st.read_report)
+            res = TrackingResult(tuple(bones), tuple(frames), merged, "complete", 0.0)
             # every other good pose of the journal a neighbour: outside the ranges, hand fixes in them
             near = journal_neighbours(states)
             out, changed = apply_trajectory_flags(res, centers, limit=limit, neighbours=near)
+            # a shared keyframe given the other range's outcome: changed against the journal too
+            seen, at = {(fr.bone, fr.frame) for fr in changed}, {k: i for i, k in enumerate(results)}
+            changed = sorted(changed + [out.results[k] for k, fr in merged.items() if k not in seen
+                                        and fr is not results[k] and (fr.flags, fr.notes) != (
+                                            results[k].flags, results[k].notes)],
+                             key=lambda fr: at.get((fr.bone, fr.frame), len(at)))
             done = []
             try:
                 for fr in changed:
@@ -159,16 +180,70 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
                     continue
                 rewritten.append(t.report_name)
     flagged = sum(any(s.startswith(FLAG) for s in fr.flags) for fr in final.values())
+    off = {k for k, fr in results.items() if any(s.startswith(FLAG) for s in fr.flags)}  # before the pass
     review = {b: sum(bool(fr.flags) for (bb, _), fr in final.items() if bb == b)
               + sum(bb == b for bb, _ in unjudged) for b in bones}
     return {"judged": len(results), "flagged": int(flagged), "review_flagged": review,
             "changed": [[fr.bone, int(fr.frame)] for fr in changed],
             "changes": [{"bone": fr.bone, "frame": int(fr.frame), "flags": list(fr.flags),
-                         "notes": [n for n in fr.notes if n.startswith(UNCHECKED)],
-                         "was_flagged": bool(results[(fr.bone, fr.frame)].flags)} for fr in changed],
+                         "notes": [n for n in fr.notes if n.startswith((UNCHECKED, BACKWARD_NOTE))],
+                         "was_flagged": bool(results[(fr.bone, fr.frame)].flags),
+                         "was_off_trajectory": (fr.bone, fr.frame) in off}
+                        for fr in changed],
             "tasks_flagged": per_task, "reports": rewritten, "reports_unreadable": unreadable,
             "reports_unwritten": unwritten,
             "seconds": time.perf_counter() - t0}
+
+
+def _shared_first_frames(results: dict, tasks: Sequence, bones: Sequence[str], read) -> dict:
+    """``results`` ((bone, frame) -> the journal's FrameResult) with the backward check's outcome
+    (:mod:`core.tracking.backward_check`) at each first frame that two or more ranges share made
+    independent of the order the ranges ran: the journal keeps the outcome of the range recorded
+    last, each range's report its own (``read``: the study's ``read_report``, called with
+    ``"tracking"`` and a report's name). The frame carries every range's flag and note of that
+    check where either range flagged it, the ranges in frame order (the backward range first,
+    whatever order ``tasks`` and the runs came in); a frame no range flagged keeps the journal's note
+    (the range recorded last: a note, not a review flag). A report that cannot be read adds nothing;
+    the journal's own outcome is kept (after the reports')."""
+    from dataclasses import replace
+
+    from .backward_check import FLAG as BACKWARD
+    from .backward_check import NOTE
+
+    firsts: dict[int, list] = {}
+    for t in sorted((t for t in tasks if t.order), key=lambda t: (min(t.order), max(t.order), t.key)):
+        firsts.setdefault(int(t.order[0]), []).append(t)
+    out = dict(results)
+    for f, ts in firsts.items():
+        if len(ts) < 2 or not any((b, f) in results for b in bones):
+            continue
+        found: dict[str, tuple[list, list]] = {b: ([], []) for b in bones}
+        for t in ts:
+            try:
+                rep = read("tracking", t.report_name)
+            except Exception:  # removed by hand, its lock held: the journal's outcome stays
+                continue
+            if not isinstance(rep, dict):
+                continue
+            entries = [d for key in ("flagged", "frames_done") if isinstance(rep.get(key), list)
+                       for d in rep[key] if isinstance(d, dict) and d.get("frame") == f]
+            for b in bones:
+                for d in (d for d in entries if d.get("bone") == b):
+                    flags, notes = found[b]
+                    flags += [s for s in d.get("flags") or () if str(s).startswith(BACKWARD)]
+                    notes += [s for s in d.get("notes") or () if str(s).startswith(NOTE)]
+        for b in bones:
+            fr = results.get((b, f))
+            if fr is None:
+                continue
+            flags = found[b][0] + [s for s in fr.flags if s.startswith(BACKWARD)]
+            if not flags:  # no range flagged it: the journal's note as it is
+                continue
+            notes = found[b][1] + [s for s in fr.notes if s.startswith(NOTE)]
+            out[(b, f)] = replace(
+                fr, flags=(*(s for s in fr.flags if not s.startswith(BACKWARD)), *dict.fromkeys(flags)),
+                notes=(*(s for s in fr.notes if not s.startswith(NOTE)), *dict.fromkeys(notes)))
+    return out
 
 
 def _final_report(report: dict, final: Sequence, section: dict) -> dict:
@@ -234,7 +309,10 @@ def pass_messages(entry: dict, limit: int = MAX_NAMED) -> list[str]:
              f"{entry.get('flagged', 0)} off the trajectory, {len(changes)} changed by the check)"]
     for c in changes[:limit]:
         flags = list(c.get("flags") or ())
-        what = ("; ".join(flags) if any(s.startswith(FLAG) for s in flags) else
+        # a frame flagged otherwise, e.g. a shared keyframe's backward check (its flag from another
+        # range), was not off the trajectory before (an entry without the key: as before it)
+        was_off = c.get("was_off_trajectory", c.get("was_flagged", True))
+        what = ("; ".join(flags) if any(s.startswith(FLAG) for s in flags) or (flags and not was_off) else
                 f"no longer off the trajectory (still flagged: {'; '.join(flags)})" if flags else
                 f"{'no longer' if c.get('was_flagged') else 'not'} flagged, {'; '.join(c['notes'])}"
                 if c.get("notes") else "no longer flagged")

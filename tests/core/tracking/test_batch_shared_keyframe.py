@@ -88,3 +88,36 @@ def test_no_range_flagging_the_shared_keyframe_keeps_the_journals_note(keyed, tm
         assert ("frames 10, 11" in note) is rev  # the backward range's prediction when it ran last
         (entry,) = s["trajectory_pass"]
         assert entry["changed"] == []  # not journaled again for a note
+
+
+def test_merge_of_synthetic_records_ignores_task_order_and_an_unreadable_report():
+    # no study: the journal's record and the two range reports as dicts, the reports in both orders
+    from types import SimpleNamespace
+
+    from core.tracking.batch_pass import _shared_first_frames
+
+    back = SimpleNamespace(order=[12, 11, 10], report_name="back", key="k:12-10")
+    fwd = SimpleNamespace(order=[12, 13, 14], report_name="fwd", key="k:12-14")
+    flag, note = f"{FLAG} (fwd)", f"{NOTE} (back)"
+    reports = {"back": {"frames_done": [{"bone": BONE, "frame": 12, "flags": [], "notes": [note]}]},
+               "fwd": {"flagged": [{"bone": BONE, "frame": 12, "flags": [flag], "notes": []}]}}
+    P = np.eye(4)
+
+    def read(kind, name):
+        return reports[name]
+
+    for journal in (FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, notes=("other", note)),
+                    FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, (flag,))):
+        for tasks in ([back, fwd], [fwd, back]):
+            got = _shared_first_frames({(BONE, 12): journal}, tasks, [BONE], read)[(BONE, 12)]
+            assert got.flags == (flag,) and note in got.notes
+    # the flagging range's report unreadable: the journal's note stays, nothing invented
+    journal = FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, notes=(note,))
+
+    def unreadable(kind, name):
+        if name == "fwd":
+            raise OSError("removed")
+        return reports[name]
+
+    got = _shared_first_frames({(BONE, 12): journal}, [back, fwd], [BONE], unreadable)[(BONE, 12)]
+    assert got is journal

@@ -58,22 +58,34 @@ def keyframes(sc, models, draw: int, off: float) -> dict:
 
 def first_frame(built, keys: dict, *, mode: str, restarts: int = 0) -> dict:
     """Each bone's first-frame error (mm, degrees), evaluations and flags, and the seconds taken."""
-    from core.tracking.checks import pose_delta
     from core.tracking.register import RegistrationOptions
-    from core.tracking.trial import TrackingOptions, track
+    from core.tracking.trial import TrackingOptions
 
-    sc, models, r, frames = built
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode=mode, joint_rounds=1, sequential_subtract=mode == "sequential",
                         verify_restarts=restarts, registration=reg, trajectory_limit=None)
+    return tracked_first_frame(built, keys, o)
+
+
+def tracked_first_frame(built, keys: dict, options, *, extra: bool = False) -> dict:
+    """Frame 0 of ``built`` tracked from ``keys`` with the tracking ``options``: each bone's error (mm,
+    degrees), evaluations and flags (``extra``: also its notes, whether its final stage was taken and its
+    pose), and the seconds taken."""
+    from core.tracking.checks import pose_delta
+    from core.tracking.trial import track
+
+    sc, models, r, frames = built
     t0 = time.perf_counter()
-    res = track(r, models, frames.__getitem__, [0], keyframes=keys, options=o)
+    res = track(r, models, frames.__getitem__, [0], keyframes=keys, options=options)
     out = {"seconds": time.perf_counter() - t0}
     for k, m in enumerate(models):
         fr = res.results[(m.name, 0)]
         d = pose_delta(sc.poses(0)[k], fr.pose, m.centroid)
         out[m.name] = {"mm": float(np.linalg.norm(d[:3])), "deg": float(np.degrees(np.linalg.norm(d[3:]))),
                        "evaluations": int(fr.evaluations), "flags": list(fr.flags)}
+        if extra:
+            out[m.name].update(notes=list(fr.notes), stage_taken=(fr.timing or {}).get("likelihood_taken"),
+                               pose=fr.pose.tolist())
     return out
 
 

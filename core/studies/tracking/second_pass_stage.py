@@ -16,7 +16,6 @@ import argparse
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -24,25 +23,15 @@ import numpy as np
 
 def first_frame(built, keys: dict, *, restarts: int, highpass: float) -> dict:
     """Each bone's first-frame pose, error (mm, degrees), evaluations, flags and notes; the seconds."""
-    from core.tracking.checks import pose_delta
+    from core.studies.tracking.first_frame_keyframes import tracked_first_frame
     from core.tracking.register import RegistrationOptions
-    from core.tracking.trial import TrackingOptions, track
+    from core.tracking.trial import TrackingOptions
 
-    sc, models, r, frames = built
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton",
                               final_highpass_px=highpass)
     o = TrackingOptions(mode="sequential", sequential_subtract=False, verify_restarts=restarts,
                         registration=reg, refine_likelihood=True, trajectory_limit=None)
-    t0 = time.perf_counter()
-    res = track(r, models, frames.__getitem__, [0], keyframes=keys, options=o)
-    out = {"seconds": time.perf_counter() - t0}
-    for k, m in enumerate(models):
-        fr = res.results[(m.name, 0)]
-        d = pose_delta(sc.poses(0)[k], fr.pose, m.centroid)
-        out[m.name] = {"mm": float(np.linalg.norm(d[:3])), "deg": float(np.degrees(np.linalg.norm(d[3:]))),
-                       "evaluations": int(fr.evaluations), "flags": list(fr.flags), "notes": list(fr.notes),
-                       "stage_taken": (fr.timing or {}).get("likelihood_taken"), "pose": fr.pose.tolist()}
-    return out
+    return tracked_first_frame(built, keys, o, extra=True)
 
 
 def main(argv=None) -> int:

@@ -101,3 +101,21 @@ def walking_talus_64():
     """The same walk in ideal 64² views: for tests of the tracking loop's plumbing (journal,
     resume, cancel, review flags), where a registration costs about 2.3x less CPU than at 128²."""
     return _walking_talus(64)
+
+
+@pytest.fixture
+def prefetch_used(monkeypatch):
+    """Whether each likelihood stage's set-up took prefetched fluence rows
+    (``likelihood_frames._FrameRegions._prefetched`` spied on): a list, one bool a stage, in order."""
+    import core.tracking.likelihood_frames as lf
+
+    plain = lf._FrameRegions._prefetched
+    used: list = []
+
+    def spy(self, *a, **k):
+        out = plain(self, *a, **k)
+        used.append(out is not None)
+        return out
+
+    monkeypatch.setattr(lf._FrameRegions, "_prefetched", spy)
+    return used

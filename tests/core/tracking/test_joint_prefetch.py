@@ -13,22 +13,14 @@ import numpy as np
 from core.geometry.transforms import pose_from_params
 
 
-def test_joint_stages_take_rows_prefetched_during_the_searches(talus_calcaneus_128, monkeypatch):
-    import core.tracking.likelihood_frames as lf
+def test_joint_stages_take_rows_prefetched_during_the_searches(talus_calcaneus_128, monkeypatch,
+                                                                prefetch_used):
     import core.tracking.register as reg
     from core.tracking.cost import prepare_frame
     from core.tracking.joint import JointJob, register_together
     from core.tracking.register import RegistrationOptions
 
-    plain = lf._FrameRegions._prefetched
-    used: list = []
-
-    def spy(self, *a, **k):
-        out = plain(self, *a, **k)
-        used.append(out is not None)
-        return out
-
-    monkeypatch.setattr(lf._FrameRegions, "_prefetched", spy)
+    used = prefetch_used
     sc, models, r, frames = talus_calcaneus_128
     o = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton", final="likelihood",
                             final_highpass_px=2.0)

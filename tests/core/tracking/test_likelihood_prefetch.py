@@ -11,27 +11,18 @@ import pytest
 
 
 @pytest.mark.parametrize("shift_mm", [0.0, 25.0])
-def test_stage_from_its_prefetched_rows_is_the_same(talus_scene, monkeypatch, shift_mm):
+def test_stage_from_its_prefetched_rows_is_the_same(talus_scene, monkeypatch, prefetch_used, shift_mm):
     """final_stage.stage_prefetch in register's idle slot (the stage's regions at the search's start
     grown by 2 mm more reach, uploaded while the search runs): the stage takes them where they cover
     its own (the start 0.5 mm off) and uploads its own where not (a prefetch about a pose 25 mm off);
     the registration with its stage the same to the bit as without a prefetch."""
-    import core.tracking.likelihood_frames as lf
     import core.tracking.register as reg
     from core.tracking.cost import prepare_frame
     from core.tracking.final_stage import stage_prefetch
     from core.tracking.register import RegistrationOptions, register
 
     monkeypatch.setattr(reg, "STAGE_PREFETCH", False)  # (register's own prefetch: only the test's idle here)
-    plain = lf._FrameRegions._prefetched
-    used: list = []
-
-    def spy(self, *a, **k):
-        out = plain(self, *a, **k)
-        used.append(out is not None)
-        return out
-
-    monkeypatch.setattr(lf._FrameRegions, "_prefetched", spy)
+    used = prefetch_used
     sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
     fl = [np.array(f, dtype=np.float32) for f in talus_scene["fluence"](2)]
     H, W = fl[0].shape
@@ -61,26 +52,17 @@ def test_stage_from_its_prefetched_rows_is_the_same(talus_scene, monkeypatch, sh
     np.testing.assert_array_equal(np.asarray(out[0].fit.covariance), np.asarray(out[1].fit.covariance))
 
 
-def test_a_prefetch_of_another_frame_is_not_taken(talus_scene, monkeypatch):
+def test_a_prefetch_of_another_frame_is_not_taken(talus_scene, monkeypatch, prefetch_used):
     """Rows prefetched for another frame object (the same images) or before another frame's prefetch
     on the same engine are not taken: the stage uploads its own; the rows of the frame's own last
     prefetch are. The same pose each time."""
-    import core.tracking.likelihood_frames as lf
     import core.tracking.register as reg
     from core.tracking.cost import prepare_frame
     from core.tracking.final_stage import final_stage, stage_prefetch
     from core.tracking.register import RegistrationOptions, register
 
     monkeypatch.setattr(reg, "STAGE_PREFETCH", False)
-    plain = lf._FrameRegions._prefetched
-    used: list = []
-
-    def spy(self, *a, **k):
-        out = plain(self, *a, **k)
-        used.append(out is not None)
-        return out
-
-    monkeypatch.setattr(lf._FrameRegions, "_prefetched", spy)
+    used = prefetch_used
     sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
     fl = talus_scene["fluence"](2)
     a, b = prepare_frame(fl, valid_range=None), prepare_frame(fl, valid_range=None)

@@ -37,53 +37,10 @@ neighbour that is itself off by 0.7× the limit flags both, and neighbours near 
 alone may be flagged with it (a 0.5° spike in the tests' track with every 2nd frame tracked flags
 three more, 1.7-2.5× the median residual without the spike).
 
-*A frame whose neighbours are flagged* (:data:`REACH`, the ``reach`` keyword; None: off). Once
-frames are flagged, a good frame with fewer than ``DEGREE + 2`` good neighbours within
-±:data:`HALF_WINDOW` has no fit, and the check before this rule never judged it (seed 4's sequential
-tibia frame 0, 1.31° off, beside flagged frames 1-4). Such a frame is judged against the straight
-line (:data:`GAP_DEGREE`) through its nearest *frames judged good* — judged by their own fits and not
-flagged, so not other frames without a fit — :data:`GAP_FRAMES` / 2 on each side within ``reach``
-tracked frames. Its residual (normalised by ``sqrt(1 + leverage)`` as above) is scaled by the median
-residual of the bone's :data:`GAP_SCALE` frames nearest to it, each fitted alike (through the frames
-judged good at the same frame offsets from it, or the mirrored ones): a local scale, which grows
-with the gap and with the motion's acceleration there, where the bone's median does neither. Over
-``limit`` × that scale (and :data:`FLOOR`) it is flagged (``"off the trajectory (... from the line
-through its nearest frames judged good 14, 15, 25, 26, its neighbours flagged; ...)"``). A frame
-with fewer than two such frames on a side — at a trial's ends, mostly — is not judged: it gets the
-note :data:`UNCHECKED` (not a flag), which :func:`apply_trajectory_flags` puts in the frame's
-``notes`` (journaled with the frame; the frames table shows it as the frame's reason, a batch's
-trajectory pass names it) so a user sees that the check could not judge it. Lines extrapolated from one
-side were tried (the nearest four frames judged good on either side): on the stored runs below they
-flagged 5 of the 27 frames at a trial's end, 3 of them over 4× the bone's bound, but 4 of the 5 were
-flagged with their true pose put in their place too — a line from frames 3-9 missed the walking
-motion's first frame by 0.87-1.17 mm (normalised), where the frames' errors were 0.05-0.10 mm — and
-only seed 4's sequential tibia frame 0 was caught by its error (1.10° against a limit of 1.03°).
-Judged instead relative to another bone of the run (the pose in that bone's frame where both are
-judged good: the foot's shared motion drops out, the line from frames 3-6 missing the tibia's true
-first frame by 0.26 mm / 0.19° instead of 1.88 mm / 0.87°, not normalised), the same one-sided lines
-left all 27 within the limit (0.26-0.97 of it; the 4 over 4× at 0.43-0.80): the other bone's errors
-widen the scale as much (a prototype, not kept).
-Measured (:mod:`core.studies.tracking.trajectory_gaps`,
-``resources/benchmarks/tracking_trajectory_gaps_cpu.json``; the stored runs of seeds 0-4, 1024²,
-100 frames, jointly and sequentially, tracked on one NVIDIA H100 — seeds 0-2 at ea76c8b, their poses
-kept; seeds 3 and 4 at 56350ae and seed 4 with the bones kept apart at a5fd412, their poses rebuilt
-from the kept errors and the seed's truth — the check run on this 2-core x86_64 CPU, shared): of 3600
-bone-frames, 30 good ones were left without a fit, 4 of them over 4× the bone's bound (seed 4's tibia
-frame 0 in its three runs, frame 1 jointly with the bones apart). 3 lie between frames judged good
-(tibia frame 14: seed 1 jointly, seed 4 kept apart in both modes), all within 4× and none flagged;
-27 at a trial's end (frames 0, 1, 98, 99) get the note, the 4 over 4× among them. No flag changed:
-silent frames over 4× and good frames flagged are as before on every run. On the tests' walking track
-(100 frames, noise 0.01 mm / 0.05° per axis, 200 draws) with frames 16-19 and 21-24 0.6° off by
-turns about z, frame 20 among them was left without a fit in 176-190 draws of 200 and then flagged in
-5 of 186 (2.7 %) when good, 43 of 184 (23 %) when 0.15° off, 170 of 190 (89 %) at 0.3°, 172 of 176 at
-0.5°; the spikes next to it that lost their fit once the others were flagged are judged the same way
-(the check before left one of them, 19 or 21, unflagged in the tests' draw). The rule's sizes (a line,
-2 + 2 frames, 16 fitted alike, ±12) were chosen on these counts, seeds 3 and 4 included. That 2.7 %
-(0.9-6.2 % at 95 %) is about 7× the false-flag rate of the check's own fits on the same draws
-without spikes, 79 of 20000 good frames (0.40 %; ``synthetic['main']`` of the JSON): a wider gap
-and a median of 16 frames make a noisier limit. Accepted because such frames are rare — 3 judged in
-the stored runs' 3600 bone-frames, about 0.08 false flags expected there, where the check flagged
-228 of their 3307 good bone-frames (6.9 %) — and a flag only asks for review.
+*A frame whose neighbours are flagged* (:data:`REACH`, the ``reach`` keyword; None: off): a good frame
+left without a fit once its neighbours are flagged is judged against the line through its nearest
+frames judged good further away, or noted :data:`UNCHECKED` where it cannot be
+(:mod:`core.tracking.flags_gaps`, whose docs say how and what it caught).
 
 Frames already flagged are neither judged nor used as neighbours. A bone with fewer than
 :data:`MIN_FRAMES` frames that have a residual is not judged.
@@ -153,17 +110,17 @@ flagged both neighbours of a frame 12× the noise off in the tests; so judged, a
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np
+
+from .flags_fit import FLAG, UNCHECKED, _deltas, _Table  # noqa: F401 (_deltas: the studies')
+from .flags_gaps import GAP_DEGREE, GAP_FRAMES, GAP_SCALE, REACH, _judge_gaps
 
 __all__ = ["BACKWARD_FLAG", "DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "HALF_WINDOW",
            "LIMIT", "MIN_FRAMES", "NEAR", "REACH", "UNCHECKED", "apply_trajectory_flags",
            "journal_neighbours", "trajectory_flags", "trajectory_residuals", "trajectory_review"]
 
-#: The flag's name (the message starts with it).
-FLAG = "off the trajectory"
 #: The flag of :mod:`core.tracking.backward_check` (a first frame whose registration backward from the
 #: frames after it lands elsewhere), a review flag run after the tracking as this module's: named here,
 #: where :mod:`core.tracking.frame_state` reads both.
@@ -194,204 +151,6 @@ NEAR = 0.7
 FLOOR = (0.005, 0.02)
 #: Good frames a bone needs before its trajectory is judged.
 MIN_FRAMES = 8
-#: A good frame left without a fit (fewer than ``DEGREE + 2`` good neighbours within
-#: ±:data:`HALF_WINDOW`) is judged from its nearest good frames within this many tracked frames on
-#: either side (the ``reach`` keyword; None: left unjudged; module docs, *A frame whose neighbours
-#: are flagged*).
-REACH = 12
-#: Such a frame is judged against the straight line (degree :data:`GAP_DEGREE`) through its this many
-#: nearest good frames within :data:`REACH`, ...
-GAP_FRAMES = 4
-#: ... the degree of that fit ...
-GAP_DEGREE = 1
-#: ... scaled by the median residual of the bone's this many good frames nearest to it, each fitted
-#: alike (through the good frames at the same offsets from it, or mirrored).
-GAP_SCALE = 16
-#: The note (not a flag) of a good frame the check could not judge: no fit within :data:`REACH`.
-UNCHECKED = "trajectory unchecked"
-
-
-def _deltas(A: np.ndarray, B: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """``(n, 6)`` :func:`~core.tracking.checks.pose_delta` of rigid poses ``A[k]`` to ``B[k]`` about
-    ``c`` (mm, rotation vector in rad), batched; the rotations between neighbouring frames are far from
-    a half turn."""
-    Ra, Rb = A[:, :3, :3], B[:, :3, :3]
-    R = Rb @ np.swapaxes(Ra, 1, 2)
-    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
-    sn = 0.5 * np.linalg.norm(w, axis=1)
-    cs = 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0)
-    th = np.arctan2(sn, cs)
-    k = np.where(sn < 1e-12, 0.5, th / (2.0 * np.maximum(sn, 1e-300)))
-    disp = Rb @ c + B[:, :3, 3] - Ra @ c - A[:, :3, 3]
-    return np.concatenate((disp, k[:, None] * w), axis=1)
-
-
-class _Table:
-    """The poses' parameters about each frame of its neighbours within ``half_window`` (frames sorted
-    by number), and each frame's normalised residual given the frames in use (module docs)."""
-
-    def __init__(self, fr: np.ndarray, P: np.ndarray, ok: np.ndarray, c: np.ndarray, half_window: int,
-                 degree: int) -> None:
-        n, h = len(fr), int(half_window)
-        self.fr, self.ok, self.degree = fr, ok, int(degree)
-        # every k-th frame tracked: the window counts tracked frames (k the frames' median spacing)
-        self.step = max(1, int(np.median(np.diff(fr)))) if n > 1 else 1
-        self.offsets = np.array([d for d in range(-h, h + 1) if d != 0], dtype=int)
-        self.Y = np.full((n, len(self.offsets), 6), np.nan)
-        self.near = np.zeros((n, len(self.offsets)), dtype=bool)
-        idx = np.arange(n)
-        for m, d in enumerate(self.offsets):  # distinct frame numbers: neighbours lie within h places
-            j = idx + d
-            inside = (j >= 0) & (j < n)
-            a, b = idx[inside], j[inside]
-            good = ok[a] & ok[b] & (np.abs(fr[b] - fr[a]) <= h * self.step)
-            a, b = a[good], b[good]
-            if len(a):
-                self.Y[a, m] = _deltas(P[a], P[b], c)
-                self.near[a, m] = True
-        self._solve: dict = {}
-
-    def residuals(self, use: np.ndarray) -> np.ndarray:
-        """``(n, 2)`` :meth:`residual` of every frame in ``use``, frames with the same neighbours'
-        offsets batched (most have all of them)."""
-        n = len(use)
-        j = np.arange(n)[:, None] + self.offsets
-        sel = self.near & use[np.clip(j, 0, n - 1)]
-        out = np.full((n, 2), np.nan)
-        todo = np.flatnonzero(use)
-        steps = self.fr[np.clip(j[todo], 0, n - 1)] - self.fr[todo, None]
-        full = todo[sel[todo].all(axis=1) & (steps == self.offsets * self.step).all(axis=1)]  # evenly spaced
-        if len(full):
-            hit = self._weights((self.offsets * self.step).astype(float))
-            if hit is not None:
-                row, k = hit
-                r = np.einsum("m,nmk->nk", row, self.Y[full])
-                out[full, 0] = np.linalg.norm(r[:, :3], axis=1) / k
-                out[full, 1] = np.degrees(np.linalg.norm(r[:, 3:], axis=1)) / k
-        for i in np.setdiff1d(todo, full):
-            out[i] = self.residual(int(i), use)
-        return out
-
-    def _weights(self, x: np.ndarray):
-        """The fit's value at the frame as weights on neighbours at offsets ``x``, and
-        ``sqrt(1 + leverage)``; None when the fit is singular."""
-        key = x.tobytes()
-        if key not in self._solve:
-            A = np.vander(x, self.degree + 1)
-            AtA = A.T @ A
-            if abs(np.linalg.det(AtA)) < 1e-12:
-                self._solve[key] = None
-            else:
-                self._solve[key] = (np.linalg.solve(AtA, A.T)[-1],
-                                    math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1])))
-        return self._solve[key]
-
-    def residual(self, i: int, use: np.ndarray) -> tuple[float, float]:
-        """Frame ``i``'s normalised residual (mm, degrees) against the fit through its neighbours in
-        ``use`` (NaN with fewer than ``degree + 2``)."""
-        j = i + self.offsets
-        sel = self.near[i] & use[np.minimum(np.maximum(j, 0), len(use) - 1)]
-        if sel.sum() < self.degree + 2:
-            return math.nan, math.nan
-        hit = self._weights((self.fr[j[sel]] - self.fr[i]).astype(float))
-        if hit is None:
-            return math.nan, math.nan
-        row, k = hit
-        r = row @ self.Y[i, sel]
-        return math.sqrt(float(r[:3] @ r[:3])) / k, math.degrees(math.sqrt(float(r[3:] @ r[3:]))) / k
-
-
-def _gap_fit(t: _Table, use: np.ndarray, i: int, reach: int) -> tuple[np.ndarray, bool]:
-    """Frame ``i``'s nearest good frames (in ``use``) within ``reach`` tracked frames, half of
-    :data:`GAP_FRAMES` on each side, sorted, and whether both sides have them (else the nearest
-    :data:`GAP_FRAMES` on whichever side, which may be fewer)."""
-    fr, half = t.fr, GAP_FRAMES // 2
-    d = fr - fr[i]
-    near = use & (np.abs(d) <= reach * t.step)
-    before = np.flatnonzero(near & (d < 0))[::-1][:half]
-    after = np.flatnonzero(near & (d > 0))[:half]
-    if len(before) == half and len(after) == half:
-        return np.sort(np.r_[before, after]), True
-    nb = np.flatnonzero(near & (d != 0))
-    return np.sort(nb[np.argsort(np.abs(d[nb]), kind="stable")][:GAP_FRAMES]), False
-
-
-def _gap_residuals(t: _Table, P: np.ndarray, c: np.ndarray, use: np.ndarray, i: int, nb: np.ndarray):
-    """Frame ``i``'s normalised residual (mm, degrees) against the line (:data:`GAP_DEGREE`) through
-    frames ``nb``, and ``(m, 2)`` those of the bone's :data:`GAP_SCALE` nearest other good frames
-    (fewer where fewer can be) each fitted through the good frames at the same frame offsets from it,
-    or the mirrored ones (the fit's weights are the same); None when singular."""
-    fr = t.fr
-    off = fr[nb] - fr[i]
-    x = off.astype(float)
-    A = np.vander(x, GAP_DEGREE + 1)
-    AtA = A.T @ A
-    if abs(np.linalg.det(AtA)) < 1e-12:
-        return None
-    row, k = np.linalg.solve(AtA, A.T)[-1], math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1]))
-
-    def norm(r):
-        return np.c_[np.linalg.norm(r[:, :3], axis=1) / k, np.degrees(np.linalg.norm(r[:, 3:], axis=1)) / k]
-
-    own = norm((row @ _deltas(np.repeat(P[i:i + 1], len(nb), axis=0), P[nb], c))[None])[0]
-    js = np.flatnonzero(use)
-    js = js[js != i]
-    rows, at = [], []
-    for sign in (1, -1):
-        want = fr[js, None] + sign * off
-        idx = np.minimum(np.searchsorted(fr, want), len(fr) - 1)
-        good = ((fr[idx] == want) & use[idx] & (idx != i)).all(axis=1)
-        a, b = js[good], idx[good]
-        if len(a):
-            Y = _deltas(np.repeat(P[a], len(off), axis=0), P[b.ravel()], c).reshape(len(a), len(off), 6)
-            rows.append(norm(np.einsum("m,nmk->nk", row, Y)))
-            at.append(np.abs(fr[a] - fr[i]))
-    if not rows:
-        return own, np.zeros((0, 2))
-    S = np.concatenate(rows)
-    return own, S[np.argsort(np.concatenate(at), kind="stable")[:GAP_SCALE]]
-
-
-def _judge_gaps(t: _Table, P, c, use, judge, R, limit: float, floor, reach: int, out: dict) -> dict[int, str]:
-    """Judge the good frames left without a fit by the other flags (module docs, *A frame whose
-    neighbours are flagged*), each through frames the fits judged good (``use``, a residual): flag
-    (into ``out``) those whose residual against the line through their nearest such frames exceeds
-    ``limit`` × the median of the nearest frames fitted alike; return the :data:`UNCHECKED` notes of
-    those it cannot judge."""
-    fr, floor = t.fr, np.asarray(floor, dtype=float)
-    fitted = np.isfinite(R).all(axis=1)
-    base = use & fitted  # judged by their own fits: neither flagged nor unfitted
-    notes = {}
-    for i in np.flatnonzero(use & judge & ~fitted):
-        i = int(i)
-        nb, both = _gap_fit(t, base, i, reach)
-        if not both:
-            why = (f"the nearest frames judged good, {', '.join(str(f) for f in fr[nb])}, on one side only: "
-                   "a line extrapolated to it follows the motion's acceleration more than its error"
-                   if len(nb) >= GAP_FRAMES else
-                   f"fewer than {GAP_FRAMES // 2} frames judged good on a side within {reach} tracked frames")
-            notes[int(fr[i])] = f"{UNCHECKED} (its neighbours flagged; {why})"
-            continue
-        got = _gap_residuals(t, P, c, base, i, nb)
-        if got is None:
-            notes[int(fr[i])] = f"{UNCHECKED} (its neighbours flagged; the line through {fr[nb]} singular)"
-            continue
-        own, S = got
-        if len(S) < GAP_SCALE:
-            notes[int(fr[i])] = (f"{UNCHECKED} (the line through its nearest frames judged good "
-                                 f"{', '.join(str(f) for f in fr[nb])}: {len(S)} of the bone's frames "
-                                 f"fitted alike, fewer than {GAP_SCALE}, to scale it)")
-            continue
-        med = np.median(S, axis=0)
-        lg = np.maximum(limit * med, floor)
-        if (own > lg).any():
-            tm, rd = own
-            out[int(fr[i])] = (f"{FLAG} ({tm:.3f} mm, {rd:.3f} deg from the line through its nearest frames "
-                               f"judged good {', '.join(str(f) for f in fr[nb])}, its neighbours flagged; "
-                               f"limits {lg[0]:.3f} mm, {lg[1]:.3f} deg, {limit:g} x the median "
-                               f"{med[0]:.3f} mm, {med[1]:.3f} deg of the {GAP_SCALE} nearest frames "
-                               "fitted alike)")
-    return notes
 
 
 def _inputs(frames, poses, center):

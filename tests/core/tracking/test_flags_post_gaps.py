@@ -117,7 +117,7 @@ def test_too_few_frames_fitted_alike_leave_it_unchecked():
     have good frames at those offsets to scale it by."""
     P = _spiked({1: 0.0}, n=12)
     ok = np.ones(12, dtype=bool)
-    from core.tracking.flags_post import _gap_residuals, _Table
+    from core.tracking.flags_gaps import _gap_residuals, _Table
 
     t = _Table(np.arange(12), P, ok, C, flags_post.HALF_WINDOW, flags_post.DEGREE)
     own, S = _gap_residuals(t, P, C, ok, 0, np.array([1, 2, 3, 5]))

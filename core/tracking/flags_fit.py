@@ -1,0 +1,108 @@
+"""The local fits of a bone's trajectory that the review flags of :mod:`core.tracking.flags_post`,
+:mod:`core.tracking.flags_gaps` and :mod:`core.tracking.flags_pairs` judge frames by (the module docs of
+:mod:`core.tracking.flags_post` say how): the poses' parameters about each frame of its neighbours, and a
+frame's normalised residual against the polynomial through the neighbours in use; and the names the
+rules' messages start with."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["FLAG", "UNCHECKED"]
+
+#: The flag's name (the message starts with it).
+FLAG = "off the trajectory"
+#: The note (not a flag) of a good frame the check could not judge: no fit within :data:`REACH`.
+UNCHECKED = "trajectory unchecked"
+
+
+def _deltas(A: np.ndarray, B: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``(n, 6)`` :func:`~core.tracking.checks.pose_delta` of rigid poses ``A[k]`` to ``B[k]`` about
+    ``c`` (mm, rotation vector in rad), batched; the rotations between neighbouring frames are far from
+    a half turn."""
+    Ra, Rb = A[:, :3, :3], B[:, :3, :3]
+    R = Rb @ np.swapaxes(Ra, 1, 2)
+    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], axis=1)
+    sn = 0.5 * np.linalg.norm(w, axis=1)
+    cs = 0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0)
+    th = np.arctan2(sn, cs)
+    k = np.where(sn < 1e-12, 0.5, th / (2.0 * np.maximum(sn, 1e-300)))
+    disp = Rb @ c + B[:, :3, 3] - Ra @ c - A[:, :3, 3]
+    return np.concatenate((disp, k[:, None] * w), axis=1)
+
+
+class _Table:
+    """The poses' parameters about each frame of its neighbours within ``half_window`` (frames sorted
+    by number), and each frame's normalised residual given the frames in use (module docs)."""
+
+    def __init__(self, fr: np.ndarray, P: np.ndarray, ok: np.ndarray, c: np.ndarray, half_window: int,
+                 degree: int) -> None:
+        n, h = len(fr), int(half_window)
+        self.fr, self.ok, self.degree = fr, ok, int(degree)
+        # every k-th frame tracked: the window counts tracked frames (k the frames' median spacing)
+        self.step = max(1, int(np.median(np.diff(fr)))) if n > 1 else 1
+        self.offsets = np.array([d for d in range(-h, h + 1) if d != 0], dtype=int)
+        self.Y = np.full((n, len(self.offsets), 6), np.nan)
+        self.near = np.zeros((n, len(self.offsets)), dtype=bool)
+        idx = np.arange(n)
+        for m, d in enumerate(self.offsets):  # distinct frame numbers: neighbours lie within h places
+            j = idx + d
+            inside = (j >= 0) & (j < n)
+            a, b = idx[inside], j[inside]
+            good = ok[a] & ok[b] & (np.abs(fr[b] - fr[a]) <= h * self.step)
+            a, b = a[good], b[good]
+            if len(a):
+                self.Y[a, m] = _deltas(P[a], P[b], c)
+                self.near[a, m] = True
+        self._solve: dict = {}
+
+    def residuals(self, use: np.ndarray) -> np.ndarray:
+        """``(n, 2)`` :meth:`residual` of every frame in ``use``, frames with the same neighbours'
+        offsets batched (most have all of them)."""
+        n = len(use)
+        j = np.arange(n)[:, None] + self.offsets
+        sel = self.near & use[np.clip(j, 0, n - 1)]
+        out = np.full((n, 2), np.nan)
+        todo = np.flatnonzero(use)
+        steps = self.fr[np.clip(j[todo], 0, n - 1)] - self.fr[todo, None]
+        full = todo[sel[todo].all(axis=1) & (steps == self.offsets * self.step).all(axis=1)]  # evenly spaced
+        if len(full):
+            hit = self._weights((self.offsets * self.step).astype(float))
+            if hit is not None:
+                row, k = hit
+                r = np.einsum("m,nmk->nk", row, self.Y[full])
+                out[full, 0] = np.linalg.norm(r[:, :3], axis=1) / k
+                out[full, 1] = np.degrees(np.linalg.norm(r[:, 3:], axis=1)) / k
+        for i in np.setdiff1d(todo, full):
+            out[i] = self.residual(int(i), use)
+        return out
+
+    def _weights(self, x: np.ndarray):
+        """The fit's value at the frame as weights on neighbours at offsets ``x``, and
+        ``sqrt(1 + leverage)``; None when the fit is singular."""
+        key = x.tobytes()
+        if key not in self._solve:
+            A = np.vander(x, self.degree + 1)
+            AtA = A.T @ A
+            if abs(np.linalg.det(AtA)) < 1e-12:
+                self._solve[key] = None
+            else:
+                self._solve[key] = (np.linalg.solve(AtA, A.T)[-1],
+                                    math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1])))
+        return self._solve[key]
+
+    def residual(self, i: int, use: np.ndarray) -> tuple[float, float]:
+        """Frame ``i``'s normalised residual (mm, degrees) against the fit through its neighbours in
+        ``use`` (NaN with fewer than ``degree + 2``)."""
+        j = i + self.offsets
+        sel = self.near[i] & use[np.minimum(np.maximum(j, 0), len(use) - 1)]
+        if sel.sum() < self.degree + 2:
+            return math.nan, math.nan
+        hit = self._weights((self.fr[j[sel]] - self.fr[i]).astype(float))
+        if hit is None:
+            return math.nan, math.nan
+        row, k = hit
+        r = row @ self.Y[i, sel]
+        return math.sqrt(float(r[:3] @ r[:3])) / k, math.degrees(math.sqrt(float(r[3:] @ r[3:]))) / k

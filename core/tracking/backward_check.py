@@ -27,11 +27,14 @@ repository; a re-computation with the gap rule's scaling gave other ratios (the 
 
 So the check asks the images instead: after the forward pass, the first frame of each bone is registered
 again as the tracker registers every other frame — the frame step of
-:func:`core.tracking.frame_step.track_frame`, from the constant-velocity prediction of the bone's
-nearest two good frames after it, the history (guesses, scores, σ, stage moves) those frames and the
-ones after them make when taken in reverse order, the neighbours subtracted as in any later frame (the
-first frame's keyframes are not used: the registration is the frame step's, not the first frame's) — and
-the two registrations are compared. Where they disagree by more than :data:`LIMIT` × the bone's median
+:func:`core.tracking.frame_step.track_frame`, from the run's guess (``TrackingOptions.guess``) from the
+bone's good frames after it — the constant-velocity prediction of the nearest two by default, the pose
+of the nearest with ``"previous"``, the spline through the bone's other keyframes with ``"spline"``
+where they lie on both sides of it (the note names which) — the history (guesses, scores, σ, stage
+moves) those frames and the ones after them make when taken in reverse order, the neighbours subtracted
+as in any later frame (the first frame's keyframes are not used: the registration is the frame step's,
+not the first frame's) — and the two registrations are compared. Where they disagree by more than
+``TrackingOptions.backward_limit`` (default :data:`LIMIT`) × the bone's median
 trajectory residual (:func:`core.tracking.flags_post.trajectory_residuals`, the trajectory check's
 scale, over the run's good frames; at least :data:`FLOOR`) in translation or rotation, the first frame
 is flagged (:data:`FLAG`, with both distances and the limits); otherwise it gets the note :data:`NOTE`
@@ -54,10 +57,10 @@ backward registration is seeded from its frame number, as every registration is.
 frame's registration per run (its evaluations and seconds go into the frame's ``timing`` as
 ``backward_evaluations`` and ``backward_s``, not into its ``evaluations``) and runs before the
 trajectory post-pass, which then neither judges a flagged first frame nor fits through it.
-:data:`BACKWARD_CHECK` turns it off. A run over a range checks the range's first frame in tracking order
-(a backward range's highest frame) from its own side only: a keyframe that two ranges of ``talus batch``
-both track is checked by each, its journal keeping the outcome of the range recorded last and each
-range's report its own. Once every range is done, the batch's trajectory pass
+``TrackingOptions.backward_limit=None`` turns it off. A run over a range checks the range's first frame
+in tracking order (a backward range's highest frame) from its own side only: a keyframe that two
+ranges of ``talus batch`` both track is checked by each, its journal keeping the outcome of the range
+recorded last and each range's report its own. Once every range is done, the batch's trajectory pass
 (:func:`core.tracking.batch.trajectory_pass`, :mod:`core.tracking.batch_pass`) gives the frame both
 ranges' flags and notes of this check where either range flagged it, in the journal and both
 reports, so, as the trajectory flags (:mod:`core.tracking.batch`'s notes), the flag does not depend
@@ -96,19 +99,20 @@ from .flags_post import BACKWARD_FLAG, MIN_FRAMES, trajectory_residuals
 from .flags_post import FLAG as TRAJECTORY_FLAG
 from .frame_state import _BoneState
 from .frame_step import track_frame
+from .options import BACKWARD_LIMIT
 from .results import FrameResult
 
-__all__ = ["BACKWARD_CHECK", "FLAG", "FLOOR", "LIMIT", "NOTE", "REACH", "backward_check"]
+__all__ = ["FLAG", "FLOOR", "LIMIT", "NOTE", "REACH", "backward_check"]
 
-#: Whether :func:`core.tracking.trial.track` registers a complete run's first frame again backward.
-BACKWARD_CHECK = True
 #: The flag's name (:data:`core.tracking.flags_post.BACKWARD_FLAG`; the message starts with it).
 FLAG = BACKWARD_FLAG
 #: The note of a first frame checked and not flagged, or not judged (the message starts with it).
 NOTE = "first frame registered again backward"
 #: A first frame whose backward registration lands more than this many times the bone's median trajectory
-#: residual away (translation or rotation) is flagged (module docs, *Measured*: chosen on those runs).
-LIMIT = 1.25
+#: residual away (translation or rotation) is flagged (module docs, *Measured*: chosen on those runs): the
+#: default of ``TrackingOptions.backward_limit`` (:data:`core.tracking.options.BACKWARD_LIMIT`), which
+#: the check uses (None: the check off).
+LIMIT = BACKWARD_LIMIT
 #: The two good frames the backward prediction starts from lie within this many tracked frames after
 #: the first.
 REACH = 4
@@ -140,6 +144,20 @@ def _scale(results, order, name, center):
     return np.median(R, axis=0) if len(R) >= MIN_FRAMES else None
 
 
+def _source(guess: str, keyframes: dict, f0: int, f1: int, f2: int) -> str:
+    """The backward registration as the note and flag name it: where the frame step started it
+    (:func:`core.tracking.frame_state.predict_pose` with the run's ``guess``, the bone's
+    ``keyframes`` without ``f0``'s own and its history of the frames after ``f0``, ``f1`` the
+    nearest and ``f2`` the next)."""
+    ks = sorted(keyframes or {})
+    if guess == "spline" and len(ks) >= 2 and ks[0] <= f0 <= ks[-1]:  # predict_pose's spline
+        knots = ", ".join(map(str, ks)) if len(ks) <= 4 else f"{ks[0]}, {ks[1]}, ..., {ks[-1]}"
+        return f"its registration from the spline guess through keyframes {knots}"
+    if guess == "previous":
+        return f"its registration from the pose of frame {f1}"
+    return f"its registration from the constant-velocity prediction of frames {f1} and {f2}"
+
+
 def backward_check(run, feed, order, results: dict, skip: dict, step=track_frame) -> list:
     """Register the first frame of ``order`` again from the frames after it (module docs) and flag or
     note each checked bone's result in ``results`` ((bone, frame) -> FrameResult, updated in place);
@@ -149,9 +167,10 @@ def backward_check(run, feed, order, results: dict, skip: dict, step=track_frame
     (bone -> {frame: pose or FrameResult}); ``step``: the run's frame step
     (:func:`~core.tracking.frame_step.track_frame`). Nothing changes when the backward registration is
     cancelled."""
-    if len(order) < 3:
+    if len(order) < 3 or run.options.backward_limit is None:
         return []
     f0, names, o = order[0], run.names, run.options
+    limit = float(o.backward_limit)
     base, todo, state, skip2 = {}, [], {b: _BoneState() for b in names}, {b: {} for b in names}
     for i, b in enumerate(names):
         fr = results.get((b, f0))
@@ -203,7 +222,7 @@ def backward_check(run, feed, order, results: dict, skip: dict, step=track_frame
             b, fr, back = names[i], base[i], new.get(i)
             c = run.bones[i].centroid
             f1, f2 = state[b].history[-1][0], state[b].history[-2][0]
-            src = f"its registration from the prediction of frames {f2}, {f1}"
+            src = _source(o.guess, kf[b], f0, f1, f2)
             if back is None or back.pose is None or back.flags:
                 why = "; ".join(back.flags) if back is not None and back.flags else "no pose"
                 fr = replace(fr, notes=(*fr.notes, f"{NOTE}: not judged, {src} flagged ({why})"))
@@ -215,9 +234,9 @@ def backward_check(run, feed, order, results: dict, skip: dict, step=track_frame
                         f"{NOTE}: not judged ({dt:.3f} mm, {dr:.3f} deg from {src}; fewer than "
                         f"{MIN_FRAMES} of the bone's frames with a trajectory residual to scale it)")))
                 else:
-                    lim = np.maximum(LIMIT * s, FLOOR)
+                    lim = np.maximum(limit * s, FLOOR)
                     msg = (f"({dt:.3f} mm, {dr:.3f} deg from {src}; limits {lim[0]:.3f} mm, {lim[1]:.3f} "
-                           f"deg, {LIMIT:g} x the bone's median trajectory residual {s[0]:.3f} mm, "
+                           f"deg, {limit:g} x the bone's median trajectory residual {s[0]:.3f} mm, "
                            f"{s[1]:.3f} deg)")
                     if dt > lim[0] or dr > lim[1]:
                         fr = replace(fr, flags=(*fr.flags, f"{FLAG} {msg}"))

@@ -6,8 +6,9 @@ the study's CT (a bone whose CT has no voxel above the threshold is reported and
 others are tracked), starts from the poses already in the trial's journal (keyframes), records
 every registered frame with :meth:`core.study.Trial.record_pose` as it finishes, and keeps the
 report ``results/reports/tracking/<trial>.json`` (summary, per-frame scores, evaluations,
-confidence and review flags; under ``"options"`` the mode and the failure checks' thresholds,
-:data:`core.tracking.options.CHECK_FIELDS`) up to date — written when a frame is flagged, at least
+confidence and review flags; under ``"options"`` the mode, the failure checks' thresholds,
+:data:`core.tracking.options.CHECK_FIELDS`, ``"trajectory_limit"`` and ``"backward_limit"``, None
+where that check is off) up to date — written when a frame is flagged, at least
 every ``report_every_s`` seconds, and at the end. ``resume=True`` carries on an interrupted run from
 the journal: the frames done keep their review state and enter the report as they were
 (:func:`core.tracking.trial.journal_inputs`).
@@ -446,7 +447,8 @@ def track_study(study, trial_name: str, bones: Sequence[str] | None = None,
               "stopped": stopped, "options": {"resume": resume,
                                               "mode": options.mode,
                                               "checks": {k: getattr(options, k) for k in CHECK_FIELDS},
-                                              "trajectory_limit": options.trajectory_limit}}
+                                              "trajectory_limit": options.trajectory_limit,
+                                              "backward_limit": options.backward_limit}}
     if options.mode == "sequential":  # whether each bone's search subtracted its neighbours
         # (one bone tracked: nothing to subtract, whatever the choice)
         report["options"]["sequential_subtract"] = bool(options.sequential_subtract) and len(models) > 1

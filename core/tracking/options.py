@@ -11,8 +11,8 @@ from .checks import COLLAPSE_RATIO, MOTION_FLOOR, MOTION_LIMIT, SIGMA_LIMIT
 from .flags_post import LIMIT as TRAJECTORY_LIMIT
 from .register import RegistrationOptions
 
-__all__ = ["CHECK_FIELDS", "DEFAULT_SEARCH", "STAGE_MOVE_FIELDS", "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT",
-           "STAGE_MOVE_SIGMAS", "TrackingOptions"]
+__all__ = ["BACKWARD_LIMIT", "CHECK_FIELDS", "DEFAULT_SEARCH", "STAGE_MOVE_FIELDS", "STAGE_MOVE_FRAMES",
+           "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "TrackingOptions"]
 
 #: With the final stage: a stage that moves a bone's pose (translation) more than this multiple of
 #: the median move of the bone's last good frames flags the frame ``"uncertain"``
@@ -22,6 +22,12 @@ STAGE_MOVE_LIMIT = 4.0
 STAGE_MOVE_SIGMAS = 0.5
 #: The bone's good frames with a stage move needed before the check applies.
 STAGE_MOVE_FRAMES = 5
+
+#: Once a run is complete its first frame is registered again backward from the frames after it
+#: (:mod:`core.tracking.backward_check`); a first frame whose two registrations disagree by more than
+#: this many times the bone's median trajectory residual is flagged (the default of
+#: ``TrackingOptions.backward_limit``; chosen in that module's docs, *Measured*).
+BACKWARD_LIMIT = 1.25
 
 #: The thresholds of the tracker's failure checks (:mod:`core.tracking.checks`) that are options:
 #: field name -> (what it is, its unit). Their defaults are the module constants of that name.
@@ -131,7 +137,13 @@ class TrackingOptions:
     the local fit through their neighbours by more than this many times the bone's median are
     flagged ``"off the trajectory"`` (:mod:`core.tracking.flags_post`, default its ``LIMIT``), and
     frames next to flagged ones that stand off it by more than this with them in the fit and by more
-    than ``flags_post.NEAR`` × this without them."""
+    than ``flags_post.NEAR`` × this without them.
+
+    ``backward_limit`` (> 0, or None: off): once a run is complete, its first frame is registered
+    again from the frames after it, as any later frame, and flagged ``"first frame off its backward
+    registration"`` where the two registrations disagree by more than this many times the bone's
+    median trajectory residual (:mod:`core.tracking.backward_check`, default :data:`BACKWARD_LIMIT`);
+    None skips that registration."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0),
@@ -170,6 +182,7 @@ class TrackingOptions:
     stage_move_frames: int = STAGE_MOVE_FRAMES
     stage_move_reject: bool = True
     trajectory_limit: float | None = TRAJECTORY_LIMIT
+    backward_limit: float | None = BACKWARD_LIMIT
 
     def __post_init__(self) -> None:
         if not isinstance(self.refine_likelihood, bool):
@@ -258,6 +271,9 @@ class TrackingOptions:
         if self.trajectory_limit is not None and number("trajectory_limit", self.trajectory_limit) < 1:
             raise ValueError(f"trajectory_limit: expected a factor >= 1 (times the bone's median residual) "
                              f"or None, got {self.trajectory_limit!r}")
+        if self.backward_limit is not None and not number("backward_limit", self.backward_limit) > 0:
+            raise ValueError(f"backward_limit: expected a factor > 0 (times the bone's median trajectory "
+                             f"residual) or None, got {self.backward_limit!r}")
 
     @property
     def first_options(self) -> RegistrationOptions:

@@ -128,10 +128,10 @@ median residual — frames a few Cramér–Rao bound-widths off that converged a
 no check of a single frame tells apart (that module's docs give what it caught); those frames are
 handed to ``record_result`` again with the flag. A range's fits run through ``neighbours``, good
 poses outside it (the journal's), which are never flagged by it. Before it, the run's first frame is
-registered once more as the frame step registers any later frame, from the prediction of the frames
-after it (:mod:`core.tracking.backward_check`, :data:`~core.tracking.backward_check.BACKWARD_CHECK`):
-where the two registrations disagree by more than :data:`~core.tracking.backward_check.LIMIT` (1.25, its
-own, not ``trajectory_limit``) × the bone's median trajectory residual, the first frame is flagged
+registered once more as the frame step registers any later frame, from the guess the frames after it
+give (:mod:`core.tracking.backward_check`): where the two registrations disagree by more than
+``backward_limit`` (default 1.25, its own, not ``trajectory_limit``; None: off) × the bone's median
+trajectory residual, the first frame is flagged
 ``"first frame off its backward registration"``, else noted (a run too short for that scale: noted, not
 judged); a first frame is registered from a hand-placed keyframe and has no history that the checks of a
 single frame could judge it by. The flag and note are journaled again through ``record_result``; the
@@ -360,7 +360,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                         record_result(fr)
                 state[b].add(f, fr)
                 finish(fr)
-        if status == "complete" and backward.BACKWARD_CHECK:  # the first frame again, from later frames
+        if status == "complete" and o.backward_limit is not None:  # the first frame again, from later frames
             changed = {(fr.bone, fr.frame)
                        for fr in backward.backward_check(run, feed, order, results, skip, track_frame)}
     finally:

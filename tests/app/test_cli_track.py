@@ -50,7 +50,7 @@ def test_track_command_records_reports_and_resumes(demo, capsys):
         assert rep["normalisation"] == doc["normalisation"]  # how the frames were corrected
         assert rep["options"]["checks"] == {"collapse_ratio": 0.6, "motion_limit": 6.0,
                                             "motion_floor": [1.0, 2.0], "sigma_limit": 3.0}  # the defaults
-        assert rep["options"]["trajectory_limit"] == 2.5
+        assert rep["options"]["trajectory_limit"] == 2.5 and rep["options"]["backward_limit"] == 1.25
     journal = demo / "results" / "walk" / "poses" / "talus.jsonl"
     before = journal.read_bytes()
     rc = main([str(demo), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--device", "cpu",

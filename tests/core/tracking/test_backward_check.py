@@ -3,8 +3,8 @@ the talus and calcaneus over three frames (Warp's CPU device): sequential tracki
 first frame (:data:`core.tracking.frame_step.SEQUENTIAL_SECOND_PASS` off), from keyframes 5 mm / 5° off,
 leaves the talus's first frame degrees off, unflagged (the calcaneus, subtracted at its keyframe, is
 where it is not); the frames after it are registered from it and come back to the truth. Registered
-again from the prediction of frames 2 and 1, the talus lands elsewhere and its first frame is flagged;
-the calcaneus's agrees and gets the note. Ground truth in the test only."""
+again from the constant-velocity prediction of frames 1 and 2, the talus lands elsewhere and its first
+frame is flagged; the calcaneus's agrees and gets the note. Ground truth in the test only."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_first_frame_off_flagged_backward(three_frames, monkeypatch):
     monkeypatch.setattr(fs, "SEQUENTIAL_SECOND_PASS", False)
     off = _off_keyframes(sc, models)
     recorded = []
-    assert bc.BACKWARD_CHECK  # the default
+    assert _options().backward_limit == bc.LIMIT == 1.25  # the default
     # a scale as the trajectory check's median residual of a longer run (three frames have none)
     monkeypatch.setattr(bc, "_scale", lambda *a: np.array([0.08, 0.24]))
     res = track(r, models, frames.__getitem__, [0, 1, 2], keyframes=off, options=_options(),
@@ -63,7 +63,8 @@ def test_first_frame_off_flagged_backward(three_frames, monkeypatch):
     assert err["calcaneus"][0][1] > 5 * max(e[1] for e in err["calcaneus"][1:])
     talus, calc = res.results[("talus", 0)], res.results[("calcaneus", 0)]
     assert len(talus.flags) == 1 and talus.flags[0].startswith(bc.FLAG) and talus.converged
-    assert "from the prediction of frames 2, 1; limits 0.100 mm, 0.300 deg" in talus.flags[0]
+    assert ("from its registration from the constant-velocity prediction of frames 1 and 2; limits 0.100 mm, "
+            "0.300 deg, 1.25 x the bone's median") in talus.flags[0]
     assert not calc.flags and len(calc.notes) == 1 and calc.notes[0].startswith(bc.NOTE)
     for m in models:
         assert res.results[(m.name, 0)].timing["backward_evaluations"] > 0
@@ -71,9 +72,11 @@ def test_first_frame_off_flagged_backward(three_frames, monkeypatch):
     # journaled again with the flag, after the frames' own records
     assert [(fr.bone, fr.frame) for fr in recorded[-2:]] == [("talus", 0), ("calcaneus", 0)]
     assert recorded[-2].flags == talus.flags and recorded[-1].notes == calc.notes
-    # off: the same poses, the first frames silent
-    monkeypatch.setattr(bc, "BACKWARD_CHECK", False)
-    old = track(r, models, frames.__getitem__, [0, 1, 2], keyframes=off, options=_options())
+    # off (TrackingOptions.backward_limit None): the same poses, the first frames silent
+    from dataclasses import replace
+
+    old = track(r, models, frames.__getitem__, [0, 1, 2], keyframes=off,
+                options=replace(_options(), backward_limit=None))
     for key, fr in old.results.items():
         np.testing.assert_array_equal(fr.pose, res.results[key].pose)
         assert not fr.flags and not fr.notes
@@ -139,7 +142,7 @@ def test_backward_registration_from_the_frames_after_it(monkeypatch):
     assert todo == [0] and hist == list(range(10, 0, -1)) and 0 not in kf
     fr = res.results[("tibia", 0)]
     assert len(fr.flags) == 1 and fr.flags[0].startswith(bc.FLAG) and "0.300 deg" in fr.flags[0]
-    assert "from the prediction of frames 2, 1" in fr.flags[0]
+    assert "from the constant-velocity prediction of frames 1 and 2" in fr.flags[0]
     assert [r.frame for r in res.flagged] == [0]
     res, _ = _fake_run(monkeypatch, P, 0.01)
     fr = res.results[("tibia", 0)]

@@ -10,7 +10,7 @@ import numpy as np
 from tests.core.tracking.track_helpers import C, walking_track
 
 
-def _run(monkeypatch, P: dict, turn: dict, *, skip=None, frames=range(20), keyframes=None):
+def _run(monkeypatch, P: dict, turn: dict, *, skip=None, frames=range(20), keyframes=None, options=None):
     """track() of the bones of ``P`` (name -> (n, 4, 4) poses) with a frame step returning ``P``'s pose
     of the frame, and a bone's first frame turned by ``turn[name]`` degrees about z when registered again;
     (result, the calls' (frame, todo, {bone: skip's entry of the frame}, {bone: history frames}))."""
@@ -43,7 +43,7 @@ def _run(monkeypatch, P: dict, turn: dict, *, skip=None, frames=range(20), keyfr
     monkeypatch.setattr(trial, "track_frame", step)
     kf = keyframes if keyframes is not None else {b: {frames[0]: P[b][frames[0]]} for b in names}
     res = trial.track(_Renderer(), [_Bone(b) for b in names], lambda f: [np.zeros((4, 4))], frames,
-                      keyframes=kf, skip=skip)
+                      keyframes=kf, skip=skip, options=options)
     return res, calls
 
 
@@ -104,4 +104,51 @@ def test_later_frame_given_as_a_pose(monkeypatch):
     res, calls = _run(monkeypatch, P, {"tibia": 0.01}, skip={"tibia": {2: P["tibia"][2] + 0.0}})
     f, todo, _, hist = calls[-1]
     assert f == 0 and todo == [0] and hist["tibia"] == list(range(10, 0, -1))
-    assert "from the prediction of frames 2, 1" in res.results[("tibia", 0)].notes[0]
+    assert "from the constant-velocity prediction of frames 1 and 2" in res.results[("tibia", 0)].notes[0]
+
+
+def test_limit_is_the_runs_option_and_none_turns_the_check_off(monkeypatch):
+    """``TrackingOptions.backward_limit``: the first frame's backward registration 0.3 deg off (6x the
+    track's noise) is flagged at the default 1.25 x the median, noted at 10 x (the limit named in the
+    note); None: no backward registration, no flag or note."""
+    from core.tracking.backward_check import FLAG, NOTE
+    from core.tracking.trial import TrackingOptions
+
+    P = {"tibia": walking_track(20, (0.01, 0.05), 1)}
+    res, calls = _run(monkeypatch, P, {"tibia": 0.3})
+    assert res.results[("tibia", 0)].flags[0].startswith(FLAG) and len(calls) == 21
+    assert "1.25 x the bone's median trajectory residual" in res.results[("tibia", 0)].flags[0]
+    res, _ = _run(monkeypatch, P, {"tibia": 0.3}, options=TrackingOptions(backward_limit=10))
+    fr = res.results[("tibia", 0)]
+    assert not fr.flags and fr.notes[0].startswith(NOTE) and "10 x the bone's median" in fr.notes[0]
+    res, calls = _run(monkeypatch, P, {"tibia": 0.3}, options=TrackingOptions(backward_limit=None))
+    fr = res.results[("tibia", 0)]
+    assert len(calls) == 20 and not fr.flags and not fr.notes
+    assert "backward_evaluations" not in (fr.timing or {})
+
+
+def test_note_names_the_guess_the_backward_registration_started_from(monkeypatch):
+    """The note says where the frame step started the backward registration, as the run's guess: the
+    constant-velocity prediction of the two nearest frames, the pose of the nearest (``"previous"``), or
+    the spline through the bone's other keyframes where they lie on both sides of the first frame
+    (``"spline"``; without them the spline guess is the velocity one)."""
+    from core.tracking.backward_check import _source
+    from core.tracking.trial import TrackingOptions
+
+    P = {"tibia": walking_track(30, (0.01, 0.05), 1)}
+    frames = range(10, 30)
+    notes = {}
+    for guess, kf in (("velocity", (10,)), ("previous", (10,)), ("spline", (10,)), ("spline", (4, 10, 16)),
+                      ("spline", (0, 4, 10, 16, 22, 28))):
+        res, _ = _run(monkeypatch, P, {"tibia": 0.01}, frames=frames, options=TrackingOptions(guess=guess),
+                      keyframes={"tibia": {k: P["tibia"][k] for k in kf}})
+        notes[(guess, len(kf))] = res.results[("tibia", 10)].notes[0]
+    assert "from its registration from the constant-velocity prediction of frames 11 and 12;" in notes[
+        ("velocity", 1)]
+    assert "from its registration from the pose of frame 11;" in notes[("previous", 1)]
+    assert "from the constant-velocity prediction of frames 11 and 12;" in notes[("spline", 1)]
+    assert "from its registration from the spline guess through keyframes 4, 16;" in notes[("spline", 3)]
+    assert "spline guess through keyframes 0, 4, ..., 28;" in notes[("spline", 6)]
+    # backward range (frames 12 down to 0): its nearest frames are below it
+    assert _source("velocity", {}, 12, 11, 10).endswith("prediction of frames 11 and 10")
+

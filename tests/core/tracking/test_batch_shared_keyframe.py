@@ -85,7 +85,7 @@ def test_no_range_flagging_the_shared_keyframe_keeps_the_journals_note(keyed, tm
         rec, _, s, _ = _run(keyed, tmp_path, monkeypatch, f"none{int(rev)}", rev, "neither")
         assert not [x for x in rec["flags"] if x.startswith(FLAG)]
         (note,) = [x for x in rec["notes"] if x.startswith(NOTE)]  # the range recorded last
-        assert ("frames 10, 11" in note) is rev  # the backward range's prediction when it ran last
+        assert ("frames 11 and 10" in note) is rev  # the backward range's prediction when it ran last
         (entry,) = s["trajectory_pass"]
         assert entry["changed"] == []  # not journaled again for a note
 

@@ -24,7 +24,7 @@ def _trajectory_pass_alone(monkeypatch):
     (:mod:`core.tracking.backward_check`, tests of its own) off."""
     from core.tracking import backward_check
 
-    monkeypatch.setattr(backward_check, "BACKWARD_CHECK", False)
+    monkeypatch.setattr(backward_check, "backward_check", lambda *a, **k: [])  # as backward_limit=None
 
 
 class _Bone:

@@ -103,7 +103,8 @@ class TrackingActions:
         if c["joint_restart"] and c["mode"] != "sequential":  # --joint-restart
             final += ", joint rounds from the prediction"
         default = check_choices(None)
-        failure = [k for k in CHECKS if k not in STAGE_MOVES and k != "trajectory_limit"]  # thresholds
+        after_run = ("trajectory_limit", "backward_limit")  # the checks once a run is complete
+        failure = [k for k in CHECKS if k not in STAGE_MOVES and k not in after_run]  # thresholds
         checks = "" if all(c[k] == default[k] for k in failure) else (
             f", checks: collapse {c['collapse_ratio']:g}, motion {c['motion_limit']:g}x (floor "
             f"{c['motion_floor'][0]:g} mm, {c['motion_floor'][1]:g} deg), sigma {c['sigma_limit']:g}x")
@@ -114,6 +115,9 @@ class TrackingActions:
         if c["trajectory_limit"] != default["trajectory_limit"]:  # the post-pass over the trajectory
             checks += (", trajectory check off" if c["trajectory_limit"] is None
                        else f", trajectory check {c['trajectory_limit']:g}x")
+        if c["backward_limit"] != default["backward_limit"]:  # the first frame registered again backward
+            checks += (", backward check off" if c["backward_limit"] is None
+                       else f", backward check {c['backward_limit']:g}x")
         self.window.notify(f"Tracking options: {c['search']} search, {res} resolution{gc}, {c['mode']}, "
                            f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}{checks}")
 

@@ -58,7 +58,12 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   fit through its neighbours' poses by more than this × the bone's median residual is flagged *off
   the trajectory*, and it scales the rule for frames next to flagged ones too (*off the trajectory
   next to flagged frames*, 0.7 × it without them in the fit); its lowest step, *Off*, turns both off
-  (``TrackingOptions.trajectory_limit=None``); its tooltip is the option's help. The spin boxes
+  (``TrackingOptions.trajectory_limit=None``); its tooltip is the option's help. *Backward limit*
+  (``--backward-limit``, :mod:`core.tracking.backward_check`): once a run is complete, its first frame
+  is registered again from the frames after it and flagged *first frame off its backward registration*
+  where the two registrations disagree by more than this × the bone's median trajectory residual
+  (default 1.25); its lowest step, *Off*, skips that registration (``TrackingOptions.backward_limit=None``).
+  The spin boxes
   hold each to its valid range; an invalid value set from code is refused on *OK* with the option
   and its range named.
 
@@ -106,15 +111,18 @@ CHECK_RANGES = {
     "stage_move_frames": (1, 1000, 1, 0, " good frames"),  # an integer: a QSpinBox
     # its minimum, a step below the tracker's 1, reads "Off" (any value below 1: None)
     "trajectory_limit": (1.0 - 0.25, 100.0, 0.25, 2, " × median residual"),
+    # any value > 0 is valid: its minimum 0 reads "Off"
+    "backward_limit": (0.0, 100.0, 0.25, 2, " × median residual"),
 }
 #: The *Advanced checks* spin boxes whose minimum means the check is off (the choice None).
-OFF_FIELDS = ("trajectory_limit",)
+OFF_FIELDS = ("trajectory_limit", "backward_limit")
 
 #: The *Advanced checks* rows, in order: (:data:`CHECKS` field, label); ``motion_floor`` is two spin
 #: boxes (``floor_mm``, ``floor_deg``), every other field one spin box named as the field.
 _CHECK_ROWS = (("collapse_ratio", "Score &collapse below:"), ("motion_limit", "Motion &limit:"),
                ("motion_floor", "Motion fl&oor:"), ("sigma_limit", "&Uncertain above:"),
-               ("trajectory_limit", "&Trajectory limit:"), ("stage_move_limit", "Stage mo&ve limit:"),
+               ("trajectory_limit", "&Trajectory limit:"), ("backward_limit", "Back&ward limit:"),
+               ("stage_move_limit", "Stage mo&ve limit:"),
                ("stage_move_sigmas", "Stage move &at least:"), ("stage_move_frames", "Move check &needs:"))
 _SPIN_FIELDS = tuple(name for name, _label in _CHECK_ROWS if name != "motion_floor")
 
@@ -156,7 +164,8 @@ def _spin(name: str, value: float | None, tip: str) -> QtWidgets.QDoubleSpinBox 
 
 def _spin_value(name: str, box):
     """The choice a spin box holds: its value, or None for an :data:`OFF_FIELDS` box at its minimum
-    (*Off*); a typed value between *Off* and the range's 1 is refused on *OK*, naming the option."""
+    (*Off*); a typed value between *Off* and the trajectory limit's 1 is refused on *OK*, naming the
+    option."""
     v = box.value()
     return None if name in OFF_FIELDS and v <= box.minimum() else v
 

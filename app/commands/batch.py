@@ -10,9 +10,9 @@ Usage::
                 [--final none|likelihood] [--threshold HU]
                 [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R] [--motion-limit K]
                 [--motion-floor MM,DEG] [--sigma-limit K] [--trajectory-limit K|off]
-                [--no-trajectory-check] [--stage-move-limit K]
-                [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves]
-                [--out SUMMARY.json] [--quiet]
+                [--no-trajectory-check] [--backward-limit K|off] [--no-backward-check]
+                [--stage-move-limit K] [--stage-move-sigmas S] [--stage-move-frames N]
+                [--keep-stage-moves] [--out SUMMARY.json] [--quiet]
 
 Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto`` (the
 default) makes one task of each trial whose frames are flatfield-corrected (a calibrated study), its
@@ -41,7 +41,8 @@ checks' thresholds (``--collapse-ratio``, ``--motion-limit``, ``--motion-floor``
 and the final stage's move check (``--stage-move-limit``, ``--stage-move-sigmas``,
 ``--stage-move-frames``, ``--keep-stage-moves``; with ``--final likelihood`` only) and the
 trajectory check run once a task's run is complete (``--trajectory-limit K|off``, which scales
-its rule for frames next to flagged ones too and turns both off, ``--no-trajectory-check``) are
+its rule for frames next to flagged ones too and turns both off, ``--no-trajectory-check``) and the
+backward check of its first frame (``--backward-limit K|off``, ``--no-backward-check``) are
 ``talus track``'s (:data:`app.commands.track.CHECKS`), for every
 task; out-of-range values are refused naming the option before any task starts.
 ``--sequential-subtract auto|on|off`` is ``talus track``'s and goes to every task; what each

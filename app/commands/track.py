@@ -10,7 +10,8 @@ Usage::
                 [--max-uncertainty MM,DEG] [--no-confidence]
                 [--collapse-ratio R] [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]
                 [--stage-move-limit K] [--stage-move-sigmas S] [--stage-move-frames N]
-                [--keep-stage-moves] [--trajectory-limit K|off] [--no-trajectory-check] [--quiet]
+                [--keep-stage-moves] [--trajectory-limit K|off] [--no-trajectory-check]
+                [--backward-limit K|off] [--no-backward-check] [--quiet]
 
 Every registered frame is saved to the study's pose journal as it finishes; the tracking report
 (``results/reports/tracking/<trial>.json``) lists per-frame scores and the frames flagged for
@@ -78,6 +79,15 @@ complete): a frame whose pose stands off the local fit through its neighbours' p
 and 0.7 K × without (*off the trajectory next to flagged frames*, ``flags_post.NEAR``): K scales both
 rules; ``--trajectory-limit off`` or ``--no-trajectory-check`` turns both off
 (``TrackingOptions.trajectory_limit=None``).
+
+The backward check (the same table; :mod:`core.tracking.backward_check`, run once the run is complete,
+before the trajectory check): the run's first frame, registered from a keyframe, is registered again as
+any later frame from the frames after it, and flagged *first frame off its backward registration* where
+the two registrations disagree by more than ``--backward-limit K`` × the bone's median trajectory
+residual (default 1.25, > 0; the pose is kept, the frame sent for review), else noted with the
+distance; ``--backward-limit off`` or ``--no-backward-check`` skips it
+(``TrackingOptions.backward_limit=None``). The report's ``"options"`` record both limits
+(``"trajectory_limit"``, ``"backward_limit"``; null where off).
 """
 
 from __future__ import annotations

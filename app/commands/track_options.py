@@ -14,8 +14,9 @@ import argparse
 
 from ._shared import CliError
 
-__all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "METRICS", "RESTART_FIGURES", "RESTART_HELP", "ROUNDS_HELP",
-           "SEARCHES", "STAGE_MOVES", "SUBTRACTS", "SUBTRACT_HELP", "TRAJECTORY_OFF", "add_check_arguments",
+__all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "METRICS", "OFF_CHECKS", "RESTART_FIGURES", "RESTART_HELP",
+           "ROUNDS_HELP", "SEARCHES", "STAGE_MOVES", "SUBTRACTS", "SUBTRACT_HELP", "TRAJECTORY_OFF",
+           "add_check_arguments",
            "check_choices", "check_choices_of_args", "check_error", "choices_of", "joint_rounds_of_args",
            "options_from_choices", "parse_frames", "parse_limits", "registration_terms", "stage_move_note",
            "subtract_choice"]
@@ -109,16 +110,29 @@ CHECKS = {
                          "left unflagged went from 5 to 1 (to 0 with the next-to-flagged rule, which flagged "
                          "3 more good bone-frames), and 14 of 295 good bone-frames were flagged; a factor "
                          ">= 1 or off, default 2.5"),
+    "backward_limit": ("--backward-limit", 1.25,
+                       "once the run is complete, register its first frame again as any later frame, from "
+                       "the frames after it, and flag it where the two registrations disagree by more than K "
+                       "times the bone's median trajectory residual ('first frame off its backward "
+                       "registration'; the pose is kept, the frame sent for review), else note the distance; "
+                       "'off' skips that registration. On the synthetic 1024^2 acceptance trial at 8536510 "
+                       "(seeds 0, 3 and 4, both modes, tracked on one NVIDIA H100) the 16 good first frames "
+                       "came back at most 1.00 times the median away, seed 4's tibia (0.72 deg off) 1.46 and "
+                       "1.72 times: 1.25 flags it and no good one (chosen on those runs, none held out); a "
+                       "factor > 0 or off, default 1.25"),
 }
-#: ``--trajectory-limit off`` (and ``--no-trajectory-check``): the trajectory check turned off.
+#: ``--trajectory-limit off`` (``--no-trajectory-check``), ``--backward-limit off``
+#: (``--no-backward-check``): that check turned off.
 TRAJECTORY_OFF = "off"
+#: The :data:`CHECKS` entries that ``off`` turns off (the choice None), with their second spelling.
+OFF_CHECKS = {"trajectory_limit": "--no-trajectory-check", "backward_limit": "--no-backward-check"}
 
 #: The :data:`CHECKS` entries of the likelihood final stage's move check (meaningful with ``--final
 #: likelihood`` only).
 STAGE_MOVES = ("stage_move_limit", "stage_move_sigmas", "stage_move_frames", "stage_move_reject")
 _METAVARS = {"collapse_ratio": "R", "motion_limit": "K", "motion_floor": "MM,DEG", "sigma_limit": "K",
              "stage_move_limit": "K", "stage_move_sigmas": "S", "stage_move_frames": "N",
-             "trajectory_limit": "K|off"}
+             "trajectory_limit": "K|off", "backward_limit": "K|off"}
 
 
 def registration_terms(metric: str = "magnitudes") -> tuple:
@@ -143,16 +157,18 @@ def options_from_choices(search: str = DEFAULT_SEARCH, scale: float = 1.0, mode:
                          stage_move_frames: int = CHECKS["stage_move_frames"][1],
                          stage_move_reject: bool = CHECKS["stage_move_reject"][1],
                          trajectory_limit: float | None = CHECKS["trajectory_limit"][1],
+                         backward_limit: float | None = CHECKS["backward_limit"][1],
                          sequential_subtract: str = "auto", joint_restart: bool = False,
                          joint_rounds: int | None = None):
     """The :class:`core.tracking.trial.TrackingOptions` of ``talus track --search S --scale X --mode M
     --guess G --metric C --final F [--no-confidence] [--max-uncertainty MM,DEG] [--collapse-ratio R]
     [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K] [--stage-move-limit K]
-    [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves] [--trajectory-limit K|off]``
-    — the one mapping of these choices, shared by the command and the window's *Tracking options*
-    dialog. ``final``: ``"none"`` or ``"likelihood"`` (``TrackingOptions.refine_likelihood``); the
-    last nine are the failure checks' thresholds, the final stage's move check and the trajectory
-    check (:data:`CHECKS`; ``trajectory_limit`` None: off), checked by ``TrackingOptions``;
+    [--stage-move-sigmas S] [--stage-move-frames N] [--keep-stage-moves] [--trajectory-limit K|off]
+    [--backward-limit K|off]`` — the one mapping of these choices, shared by the command and the
+    window's *Tracking options* dialog. ``final``: ``"none"`` or ``"likelihood"``
+    (``TrackingOptions.refine_likelihood``); the last ten are the failure checks' thresholds, the final
+    stage's move check, the trajectory check and the first frame's backward check (:data:`CHECKS`;
+    ``trajectory_limit`` or ``backward_limit`` None: that check off), checked by ``TrackingOptions``;
     ``sequential_subtract``: ``"auto"``, ``"on"`` or ``"off"`` (:data:`SUBTRACTS`); ``joint_restart``:
     ``--joint-restart``; ``joint_rounds``: ``--joint-rounds`` (None, not given: 2 with the restart, else
     1, as the command; a number is used as given, ``TrackingOptions`` refusing 1 with the restart)."""
@@ -172,7 +188,7 @@ def options_from_choices(search: str = DEFAULT_SEARCH, scale: float = 1.0, mode:
                            motion_floor=motion_floor, sigma_limit=sigma_limit,
                            stage_move_limit=stage_move_limit, stage_move_sigmas=stage_move_sigmas,
                            stage_move_frames=stage_move_frames, stage_move_reject=stage_move_reject,
-                           trajectory_limit=trajectory_limit,
+                           trajectory_limit=trajectory_limit, backward_limit=backward_limit,
                            sequential_subtract=SUBTRACTS[sequential_subtract], joint_restart=joint_restart,
                            joint_rounds=(2 if joint_restart is True else 1) if joint_rounds is None
                            else joint_rounds)
@@ -185,8 +201,8 @@ def subtract_choice(value) -> str:
 
 def _choice(field: str, v):
     """A threshold as :data:`CHECKS` holds it: (mm, deg) floats, an int, a bool, a float or None
-    (the trajectory check off)."""
-    if v is None and field == "trajectory_limit":
+    (an :data:`OFF_CHECKS` check off)."""
+    if v is None and field in OFF_CHECKS:
         return None
     if field == "motion_floor":
         return tuple(float(x) for x in v)
@@ -273,14 +289,14 @@ def parse_limits(text: str | None, option: str = "--max-uncertainty") -> tuple[f
 
 
 def _limit_or_off(text: str):
-    """``--trajectory-limit K|off``: a number, or :data:`TRAJECTORY_OFF` (the range is checked by the
-    library)."""
+    """``--trajectory-limit K|off`` (``--backward-limit K|off``): a number, or :data:`TRAJECTORY_OFF`
+    (the range is checked by the library)."""
     if text.strip().lower() in (TRAJECTORY_OFF, "none"):
         return TRAJECTORY_OFF
     try:
         return float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a factor >= 1 or 'off', got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected a factor or 'off', got {text!r}") from None
 
 
 def add_check_arguments(p: argparse.ArgumentParser) -> None:
@@ -292,14 +308,17 @@ def add_check_arguments(p: argparse.ArgumentParser) -> None:
                                                        "on the bone's other frames is flagged")
     t = p.add_argument_group("trajectory check", "once the run is complete: frames whose pose stands off "
                                                  "their neighbours' trajectory are flagged")
+    b = p.add_argument_group("backward check", "once the run is complete: its first frame, registered from "
+                                               "a keyframe, is registered again from the frames after it")
     for field, (flag, _default, text) in CHECKS.items():
-        group = s if field in STAGE_MOVES else t if field == "trajectory_limit" else g
-        if field == "trajectory_limit":  # the two spellings refused together (argparse names both)
+        group = s if field in STAGE_MOVES else {"trajectory_limit": t, "backward_limit": b}.get(field, g)
+        if field in OFF_CHECKS:  # the two spellings refused together (argparse names both)
             one = group.add_mutually_exclusive_group()
             one.add_argument(flag, dest=field, default=None, metavar=_METAVARS[field], type=_limit_or_off,
                              help=text)
-            one.add_argument("--no-trajectory-check", dest=field, action="store_const",
-                             const=TRAJECTORY_OFF, help=f"no trajectory check (as {flag} off)")
+            what = "trajectory check" if field == "trajectory_limit" else "backward check of the first frame"
+            one.add_argument(OFF_CHECKS[field], dest=field, action="store_const",
+                             const=TRAJECTORY_OFF, help=f"no {what} (as {flag} off)")
         elif field == "stage_move_reject":
             group.add_argument(flag, dest=field, action="store_const", const=False, default=None, help=text)
         else:
@@ -309,8 +328,8 @@ def add_check_arguments(p: argparse.ArgumentParser) -> None:
 
 def check_choices_of_args(a: argparse.Namespace) -> dict:
     """The thresholds given on the command line (:func:`add_check_arguments`), as
-    :func:`options_from_choices` keywords (``trajectory_limit`` None: turned off); the others keep
-    their defaults."""
+    :func:`options_from_choices` keywords (``trajectory_limit`` or ``backward_limit`` None: turned
+    off); the others keep their defaults."""
     out = {}
     for field, (flag, _default, _text) in CHECKS.items():
         v = getattr(a, field, None)
@@ -318,7 +337,7 @@ def check_choices_of_args(a: argparse.Namespace) -> dict:
             continue
         if field == "motion_floor":
             v = parse_limits(v, flag)
-        elif field == "trajectory_limit" and v == TRAJECTORY_OFF:
+        elif field in OFF_CHECKS and v == TRAJECTORY_OFF:
             v = None
         elif field == "stage_move_frames" and v.is_integer():  # argparse gives a float
             v = int(v)  # a fraction stays one, refused by TrackingOptions naming the option

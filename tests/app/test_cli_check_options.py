@@ -46,7 +46,7 @@ def tracker(monkeypatch):
 
 def test_the_command_line_defaults_are_the_trackers():
     o = TrackingOptions()
-    fields = {**CHECK_FIELDS, **STAGE_MOVE_FIELDS, "trajectory_limit": None}
+    fields = {**CHECK_FIELDS, **STAGE_MOVE_FIELDS, "trajectory_limit": None, "backward_limit": None}
     assert set(track.CHECKS) == set(fields) and set(track.STAGE_MOVES) == set(STAGE_MOVE_FIELDS)
     assert {k: d for k, (_, d, _) in track.CHECKS.items()} == {k: getattr(o, k) for k in fields}
     assert track.check_choices(track.options_from_choices()) == track.check_choices(None)

@@ -1,0 +1,96 @@
+"""``talus track`` and ``talus batch``: the first frame's backward check (``--backward-limit K|off``,
+``--no-backward-check``; ``TrackingOptions.backward_limit``) parsed, checked and handed to the tracker
+(not run here), its choice round-tripping through the window's mapping, and its help."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.cli import EXIT_NOTHING_DONE, EXIT_OK
+from app.cli import main as talus
+from app.commands import track
+from core.tracking.backward_check import LIMIT
+from core.tracking.options import TrackingOptions
+from tests.app._helpers import copy_study
+
+
+@pytest.fixture
+def study(demo_study, tmp_path):
+    return copy_study(demo_study, tmp_path)
+
+
+@pytest.fixture
+def tracker(monkeypatch):
+    """track_study replaced: the options of each call, nothing tracked."""
+    import core.tracking.from_study as from_study
+
+    seen = []
+
+    def fake_track_study(study, trial, bones, frames, *, options, **kw):
+        seen.append(options)
+        return None, {"summary": {"status": "stopped"}}
+
+    monkeypatch.setattr(from_study, "track_study", fake_track_study)
+    return seen
+
+
+def test_the_default_and_off_round_trip():
+    assert track.CHECKS["backward_limit"][1] == TrackingOptions().backward_limit == LIMIT == 1.25
+    assert track.check_choices(None)["backward_limit"] == 1.25
+    for value in (None, 0.5, 2.0):
+        o = track.options_from_choices(backward_limit=value)
+        assert o.backward_limit == value and track.choices_of(o)["backward_limit"] == value
+        assert track.options_from_choices(**track.choices_of(o)) == o
+    both = track.options_from_choices(backward_limit=None, trajectory_limit=None)
+    assert (both.backward_limit, both.trajectory_limit) == (None, None)
+    for bad in (0, -1.0, float("nan"), "1"):
+        with pytest.raises(ValueError, match="^backward_limit: expected a"):
+            TrackingOptions(backward_limit=bad)
+
+
+@pytest.mark.parametrize(("flags", "expected"), [
+    ([], 1.25), (["--backward-limit", "2"], 2.0), (["--backward-limit", "0.75"], 0.75),
+    (["--backward-limit", "off"], None), (["--no-backward-check"], None),
+    (["--no-backward-check", "--no-trajectory-check"], None)])
+def test_the_backward_check_reaches_track_and_batch(study, tracker, monkeypatch, capsys, flags, expected):
+    import core.tracking.batch as core_batch
+
+    settings = []
+    monkeypatch.setattr(core_batch, "run_serial",
+                        lambda tasks, s, progress=None: settings.append(s) or {"status": "complete",
+                                                                               "failures": []})
+    assert talus(["track", str(study), "--trial", "walk", "--frames", "0:1", "--quiet", *flags]) \
+        == EXIT_NOTHING_DONE
+    assert talus(["batch", str(study), "--workers", "0", "--quiet", *flags]) == EXIT_OK
+    capsys.readouterr()
+    assert tracker[0].backward_limit == expected
+    assert tracker[0].trajectory_limit == (None if "--no-trajectory-check" in flags else 2.5)  # its own
+    for joint in (False, True):
+        assert settings[0].tracking_options(joint=joint).backward_limit == expected
+
+
+def test_a_bad_limit_and_both_spellings_are_refused(study, tracker, capsys):
+    for command in ("track", "batch"):
+        extra = ["--trial", "walk"] if command == "track" else ["--workers", "0"]
+        assert talus([command, str(study), *extra, "--quiet", "--backward-limit", "0"]) == 1
+        err = capsys.readouterr().err
+        assert "--backward-limit: expected a factor > 0" in err, err
+        with pytest.raises(SystemExit) as e:
+            talus([command, str(study), *extra, "--backward-limit", "3", "--no-backward-check"])
+        assert e.value.code == 2
+        err = capsys.readouterr().err
+        assert "--no-backward-check" in err and "--backward-limit" in err and "not allowed" in err
+        with pytest.raises(SystemExit):
+            talus([command, str(study), *extra, "--backward-limit", "high"])
+        assert "expected a factor or 'off'" in capsys.readouterr().err
+    assert tracker == []  # nothing started
+
+
+def test_help_names_the_backward_check(capsys):
+    for command in ("track", "batch"):
+        with pytest.raises(SystemExit):
+            talus([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert "--backward-limit K|off" in text and "--no-backward-check" in text
+        assert "first frame off its backward registration" in text and "default 1.25" in text
+        assert "1.46 and 1.72 times" in text

@@ -130,7 +130,6 @@ The settings and records (:class:`FinalModel`, :class:`BoneStage`, :class:`Likel
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -150,11 +149,12 @@ from .engine_likelihood import (
 from .likelihood_host import _support_mask, robust_factors, stage_params
 from .likelihood_model import BoneStage, FinalModel, LikelihoodFit, rejected
 from .likelihood_rim import apply_rim
+from .likelihood_tissue import _set_tissue, tissue_renderer
 from .roi import support_points
 
 __all__ = ["CONFIRM_FRACTION", "MODEL", "BoneStage", "FinalModel", "LikelihoodFit", "confirm_move",
            "final_model", "final_stage", "final_stage_steps", "final_stages", "rejected", "robust_factors",
-           "stage_neighbours", "stage_prefetch"]
+           "stage_neighbours", "stage_prefetch", "tissue_renderer"]
 
 
 #: the final stage's model of the region's pixels (:class:`FinalModel`)
@@ -216,51 +216,6 @@ def final_model(model: FinalModel | None = None, **kw):
 
 
 _PLAIN_REFINE = LikelihoodEngine.refine  # (a study may wrap it: _engine_refine)
-
-_TISSUE_RENDERERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-def tissue_renderer(renderer, tissue: Sequence) -> object:
-    """A :class:`~core.render.DRRRenderer` of the volumes of ``tissue`` (``(CTVolume, bone)``
-    pairs; volumes in HU through the default transfer) with ``renderer``'s cameras and device,
-    kept for ``renderer``'s lifetime."""
-    from ..render import DRRRenderer
-
-    per = _TISSUE_RENDERERS.setdefault(renderer, {})
-    key = tuple(id(v) for v, _ in tissue)
-    hit = per.get(key)
-    if hit is None:
-        vols = [v if v.units != "HU" else v.to_attenuation() for v, _ in tissue]
-        hit = per[key] = (DRRRenderer(renderer.cameras, vols, device=str(renderer.device)),
-                          tuple(v for v, _ in tissue))  # (the volumes kept: their ids are the key)
-    return hit[0]
-
-
-def _set_tissue(eng, renderer, model: FinalModel, bone: int, pose, others):
-    """The engine's tissue regressor of this frame (:attr:`FinalModel.tissue`): each volume at the
-    current estimate of its bone's pose — the stage's own bone at the similarity's pose ``pose``,
-    a neighbour at its pose in ``others`` — those of bones with neither left out. Returns the
-    callable that renders it again at the first refinement's ``x`` (``tissue_again`` and a volume
-    following the stage's bone), else None."""
-    if not model.tissue:
-        return None
-    known = {int(bone): np.asarray(pose, dtype=float)}
-    if others is not None:
-        for P, b in zip(np.asarray(others[0], dtype=float).reshape(-1, 4, 4), others[1], strict=True):
-            known.setdefault(int(b), P)
-    use = [k for k, (_, b) in enumerate(model.tissue) if b in known]
-    if not use:
-        return None
-    tr = tissue_renderer(renderer, model.tissue)
-    follows = [model.tissue[k][1] for k in use]
-
-    def render(x=None) -> None:
-        own = known[int(bone)] if x is None else eng.poses(np.asarray(x, dtype=float)[None])[0]
-        P = np.stack([own if b == int(bone) else known[b] for b in follows])
-        eng.set_tissue(tr, P, volumes=use, each=model.tissue_each, psf=model.tissue_psf)
-
-    render()
-    return render if model.tissue_again and int(bone) in follows else None
 
 #: the neighbours (``(poses, bones)``) a final stage subtracts where its registration gives none
 _NEIGHBOURS: ContextVar = ContextVar("final_stage_neighbours", default=None)

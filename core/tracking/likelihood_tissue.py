@@ -1,7 +1,9 @@
 """The likelihood final stage's extra regressors (:class:`core.tracking.engine_likelihood.LikelihoodEngine`'s
 frame's soft tissue, :meth:`~_TissueRegressors.set_tissue`, or given images, ``set_frame(regressors=)``):
 uploaded or rendered on the device, high-passed like the frame, and the moments tables they widen. A
-mixin of the engine's.
+mixin of the engine's; and the final stage's side of the tissue (:func:`tissue_renderer`, the volumes'
+renderer kept per renderer, and ``_set_tissue``, the volumes rendered at the current estimate of their
+bones' poses; :mod:`core.tracking.final_stage` re-exports :func:`tissue_renderer`).
 
 The semantics are those of :class:`~core.tracking.likelihood_cost.LikelihoodCost`'s ``regressors``:
 the frame's ``q`` regressors a view ``T_1 … T_q`` are appended to the moments' ``z`` (``12 + q``
@@ -24,6 +26,8 @@ at 2 mm; with a coarser volume, leave it out of the tibia's stage
 from __future__ import annotations
 
 import time
+import weakref
+from collections.abc import Sequence
 
 import numpy as np
 import warp as wp
@@ -107,3 +111,50 @@ class _TissueRegressors:
         acc = self._buffer(("acc", self._q), (self.n_views, nz * nz), wp.float64)
         host = self._pinned(("acc", self._q), (self.n_views, nz * nz), wp.float64, exact=True)
         return acc, host
+
+
+_TISSUE_RENDERERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def tissue_renderer(renderer, tissue: Sequence) -> object:
+    """A :class:`~core.render.DRRRenderer` of the volumes of ``tissue`` (``(CTVolume, bone)``
+    pairs; volumes in HU through the default transfer) with ``renderer``'s cameras and device,
+    kept for ``renderer``'s lifetime."""
+    from ..render import DRRRenderer
+
+    per = _TISSUE_RENDERERS.setdefault(renderer, {})
+    key = tuple(id(v) for v, _ in tissue)
+    hit = per.get(key)
+    if hit is None:
+        vols = [v if v.units != "HU" else v.to_attenuation() for v, _ in tissue]
+        hit = per[key] = (DRRRenderer(renderer.cameras, vols, device=str(renderer.device)),
+                          tuple(v for v, _ in tissue))  # (the volumes kept: their ids are the key)
+    return hit[0]
+
+
+def _set_tissue(eng, renderer, model, bone: int, pose, others):
+    """The engine's tissue regressor of this frame (``model``'s tissue, the stage's
+    :class:`~core.tracking.likelihood_model.FinalModel`): each volume at the
+    current estimate of its bone's pose — the stage's own bone at the similarity's pose ``pose``,
+    a neighbour at its pose in ``others`` — those of bones with neither left out. Returns the
+    callable that renders it again at the first refinement's ``x`` (``tissue_again`` and a volume
+    following the stage's bone), else None."""
+    if not model.tissue:
+        return None
+    known = {int(bone): np.asarray(pose, dtype=float)}
+    if others is not None:
+        for P, b in zip(np.asarray(others[0], dtype=float).reshape(-1, 4, 4), others[1], strict=True):
+            known.setdefault(int(b), P)
+    use = [k for k, (_, b) in enumerate(model.tissue) if b in known]
+    if not use:
+        return None
+    tr = tissue_renderer(renderer, model.tissue)
+    follows = [model.tissue[k][1] for k in use]
+
+    def render(x=None) -> None:
+        own = known[int(bone)] if x is None else eng.poses(np.asarray(x, dtype=float)[None])[0]
+        P = np.stack([own if b == int(bone) else known[b] for b in follows])
+        eng.set_tissue(tr, P, volumes=use, each=model.tissue_each, psf=model.tissue_psf)
+
+    render()
+    return render if model.tissue_again and int(bone) in follows else None

@@ -179,14 +179,14 @@ ROBUST_FROM_LAST = True
 #: before the robust factors (``_w0``), with an event of its own: the host waits for that step
 #: without it and solves the step while the device computes it. The same inputs and kernels: the same
 #: covariance, steps and poses. Off: enqueued before the robust factors, as first written (a step's
-#: wait then waits for it too), where the host's enqueuing of the robust factors (0.4 ms a bone-frame)
-#: overlaps it already: on one NVIDIA H100 (the talus at 1024², 40 frames, three repeats alternated,
-#: ``tracking_stage_one_bone_1d5ed65_h100.json``) the stage took 4.55 ms a bone-frame with it and 4.52
-#: without (median), the host's waits 1.31 and 1.29 ms; but that run's "with" also made the regions over
-#: 512-pixel chunks (0.23 ms more device work in the set-up, since removed), so its own effect was not
-#: isolated: off until measured alone (``stage_one_bone``'s variants ``base`` and ``after``; three bones
-#: not measured).
-SANDWICH_AFTER_STEP = False
+#: wait then waits for it too). Measured alone on one NVIDIA H100 (97b2893, the talus at 1024², 40 frames,
+#: three repeats alternated, ``stage_one_bone --variants base,prefetch,after``,
+#: ``tracking_stage_one_bone_97b2893_h100.json``): the stage 4.30-4.67 ms a bone-frame off, 3.65-4.13 on
+#: (median over the frames, per run), the frame after the first 8.58-8.90 → 7.17-7.96 ms, the host's
+#: waits 1.42 → 1.23 ms; poses within 7e-13 mm (the device's float64 atomics' order). On since; three
+#: bones jointly not measured (the same values). An earlier run at 1d5ed65 (4.55 against 4.52 ms) had it
+#: only with the regions over 512-pixel chunks (0.23 ms more device work, since removed).
+SANDWICH_AFTER_STEP = True
 #: Opt-in: the stage's region the box of the bone's DRR support (:func:`~core.tracking.roi.support_points`,
 #: the hull of the volume's positive voxels) at the similarity's pose instead of its volume box's,
 #: grown as before (1 mm of reach, the options' ``margin_px``) plus this many high-pass σ (the

@@ -18,12 +18,12 @@ options the benchmark's ``--final likelihood`` run (the search stopping at
   time per bone-frame).
 
 The study's own parts (alone or ``a+b``): ``noprefetch`` / ``prefetch`` the registration's upload of
-the stage's rows while the search runs off / on (:data:`core.tracking.register.STAGE_PREFETCH`, off
-by default since a three-bone GPU run, see its docs: :func:`~core.tracking.final_stage.stage_prefetch` in
-its ``idle`` slot), ``after`` the first
-refinement's sandwich after the robust refinement's first step
-(:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, off by default; ``base`` against ``after``
-measures it alone). The runs count the stages that took the prefetched rows.
+the stage's rows while the search runs off / on (:data:`core.tracking.register.STAGE_PREFETCH`:
+:func:`~core.tracking.final_stage.stage_prefetch` in its ``idle`` slot), ``noafter`` / ``after`` the first
+refinement's sandwich before the robust factors / after the robust refinement's first step
+(:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, on by default since both were measured alone:
+``resources/benchmarks/tracking_stage_one_bone_97b2893_h100.json``, when both were off by default).
+The runs count the stages that took the prefetched rows.
 Also the poses of every variant against the first's (largest difference, mm / degrees, and whether
 equal to the bit). JSON on stdout (``--out``: also to a file).
 """
@@ -176,13 +176,12 @@ def _counting(counts: list):
 
 
 #: this study's own variant parts (module, flag, value): the registration's prefetch of the stage's rows
-#: on / off (:data:`core.tracking.register.STAGE_PREFETCH`, on by default from e16b5f3, off since the
-#: three-bone GPU run of its docs), the first
-#: refinement's sandwich after the robust refinement's first step
-#: (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, off)
+#: on / off (:data:`core.tracking.register.STAGE_PREFETCH`), the first refinement's sandwich after the
+#: robust refinement's first step on / off (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`)
 _PARTS = {"prefetch": ("core.tracking.register", "STAGE_PREFETCH", True),
           "noprefetch": ("core.tracking.register", "STAGE_PREFETCH", False),
-          "after": ("core.tracking.final_stage", "SANDWICH_AFTER_STEP", True)}
+          "after": ("core.tracking.final_stage", "SANDWICH_AFTER_STEP", True),
+          "noafter": ("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False)}
 
 
 def _variant_of(name: str, counts: list):
@@ -321,7 +320,7 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=1024)
     p.add_argument("--voxel", type=float, default=0.5)
     p.add_argument("--variants", default="base",
-                   help="comma-separated: stage_speed's variants, and prefetch, noprefetch, after")
+                   help="comma-separated: stage_speed's variants, and prefetch, noprefetch, after, noafter")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--no-profile", action="store_true")
     p.add_argument("--host-profile", action="store_true")

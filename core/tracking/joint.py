@@ -164,31 +164,6 @@ def _result(ln: _Search, fs: float, hi: np.ndarray, full, spent: float) -> Regis
                      t_start=time.perf_counter() - spent)
 
 
-def _prefetching(idle, renderer, frame, jobs: list, options, views) -> Callable[[], None] | None:
-    """``idle`` with :data:`core.tracking.register.STAGE_PREFETCH`'s work first: before each of the
-    first waits one job's final-stage fluence rows uploaded (:func:`core.tracking.final_stage.stage_prefetch`
-    at its search's start, as :func:`~core.tracking.register.register` does for one bone), then the
-    caller's ``idle`` as before. The stages take the rows where they cover their regions (the same
-    values); ``idle`` itself where the switch is off."""
-    from . import register as _reg
-
-    if not _reg.STAGE_PREFETCH or not jobs:
-        return idle
-    pending = list(jobs)
-
-    def work() -> None:
-        if pending:
-            from .final_stage import stage_prefetch
-
-            job = pending.pop(0)
-            stage_prefetch(renderer, frame, bone=job.bone, pose=job.initial_pose, center=job.center,
-                           options=options, views=views)
-        if idle is not None:
-            idle()
-
-    return work
-
-
 def register_together(renderer, frame, jobs: Sequence[JointJob], options: RegistrationOptions, *,
                       profile: bool = False, cancel: Callable[[], bool] | None = None,
                       idle: Callable[[], None] | None = None) -> list:
@@ -243,8 +218,6 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
         lanes[k].own_s = time.perf_counter() - t0
     t_loop = time.perf_counter()
     errors: dict = {}
-    if o.final is not None:  # the stages' rows go up while the searches run (register.STAGE_PREFETCH)
-        idle = _prefetching(idle, renderer, frame, [jobs[k] for k in lanes], o, views)
     _drive(lanes, queue, push, errors, idle)
     share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly
     staged: list = []  # the converged bones' final stages, run side by side (final_stages)

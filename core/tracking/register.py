@@ -180,17 +180,17 @@ STAGE_FIRST = False
 #: ``idle`` slot, before the caller's own idle work): the stage's regions at the initial pose grown by
 #: :data:`~core.tracking.final_stage.PREFETCH_REACH_MM`, which the stage takes on the device where they
 #: cover its regions at the searched pose, else it uploads its own (the same values either way: the same
-#: poses, scores and confidences). On one NVIDIA H100's host the stage spent 0.70 ms a bone-frame on those
-#: copies and the host waited about 0.5 ms on the search's first step (the talus alone at 1024²,
-#: ``tracking_bench_final_bae210d_h100.json``). Off: timed on one NVIDIA H100 (f4b86cd, where joint
-#: registration prefetches too, :func:`core.tracking.joint._prefetching`; ``talus bench track --cases three
-#: --final likelihood`` with the switch off, then on, one call) three bones jointly with the stage ran 44.0
-#: frames/s without it and 38.5 with it (runs 2.19-2.59 s against 2.50-2.62 s; first frame 192 / 254 ms,
-#: 21.0 / 23.7 ms a frame after it; the same poses): the prefetch's host work (the regions at the start, the
-#: engine's look-up) sits on the host's critical path and its copies queue behind the search's step on the
-#: same stream. One bone's effect was not measured alone (6c8beab, with it on: 130.2 frames/s against
-#: c7320cb's 135.4 without it, the runs' ranges overlapping); off for both until it is.
-STAGE_PREFETCH = False
+#: poses, scores and confidences). On one NVIDIA H100 (97b2893, ``stage_one_bone --variants
+#: base,prefetch,after``, the talus at 1024², 40 frames, 3 repeats alternated;
+#: ``tracking_stage_one_bone_97b2893_h100.json``) one
+#: bone's stage took 3.34-4.16 ms a bone-frame with it against 4.30-4.67 without (its set-up 0.42-0.63
+#: against 1.05-1.15 ms; every stage took the rows), the frame after the first 7.66-8.97 against
+#: 8.58-8.90 ms: on. Joint registration does not prefetch: at f4b86cd, where it did
+#: (``joint._prefetching``, since removed), ``talus bench track --cases three --final likelihood`` with the
+#: switch off, then on, in one call ran three bones jointly at 44.0 frames/s without it and 38.5 with it
+#: (runs 2.19-2.59 s against 2.50-2.62 s; the same poses): its host work sat on the critical path and its
+#: copies queued behind the searches' steps on the same stream.
+STAGE_PREFETCH = True
 
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:

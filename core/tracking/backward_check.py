@@ -60,13 +60,14 @@ trajectory post-pass, which then neither judges a flagged first frame nor fits t
 ``TrackingOptions.backward_limit=None`` turns it off. A run over a range checks the range's first frame
 in tracking order (a backward range's highest frame) from its own side only: a keyframe that two
 ranges of ``talus batch`` both track is checked by each, its journal keeping the outcome of the range
-recorded last and each range's report its own. Once every range is done, the batch's trajectory pass
+recorded last and each range's report its own. Once every range has run, the batch's pass
 (:func:`core.tracking.batch.trajectory_pass`, :mod:`core.tracking.batch_pass`) gives the frame both
-ranges' flags and notes of this check where either range flagged it, in the journal and both
-reports, so, as the trajectory flags (:mod:`core.tracking.batch`'s notes), the flag does not depend
-on the order the tasks ran (a frame neither range flagged keeps the note of the range recorded last,
-whose distance does). Where that pass does not judge the group (a range not complete,
-the trajectory check off) the journal keeps the last range's outcome.
+ranges' flags and notes of this check, the ranges in frame order (the backward one first), and in its
+``timing`` their backward registrations added up (``backward_ranges`` says how many), in the journal
+and both reports — whether or not a range flagged it, with the trajectory check on or off and with a
+range of the group not complete (then only the keyframe is merged), wherever two of the ranges'
+reports can be read — so, as the trajectory flags (:mod:`core.tracking.batch`'s notes), the frame's
+flag, notes and timing do not depend on the order the tasks ran.
 
 *Measured* (``resources/benchmarks/tracking_backward_check_h100.json``): the acceptance study on seeds
 0, 3 and 4 (``--mode joint,sequential --final likelihood``, 1024², 100 frames) at 8536510, one NVIDIA

@@ -477,7 +477,10 @@ def trajectory_pass(tasks: Sequence[BatchTask], records: Sequence[dict],
     write, with the error: the journal holds the flags after the pass all the same),
     ``seconds``; or ``skipped`` (a range not complete) or ``error`` (e.g. another writer holds the
     bone), the ranges' own flags then staying but in the frames named under ``journaled`` (those
-    journaled before it failed, of ``changed_total``) — the batch summary's ``"trajectory_pass"``."""
+    journaled before it failed, of ``changed_total``) — the batch summary's ``"trajectory_pass"``.
+    ``shared_keyframes``: the keyframes two ranges share given both ranges' backward checks, also
+    where the group is not judged (``skipped``, ``off``; ``shared_error`` where that failed);
+    ``journaled_again``: every frame the pass journaled (:mod:`core.tracking.batch_pass`)."""
     from .batch_pass import run_pass
 
     return run_pass(tasks, records, settings or TaskSettings())

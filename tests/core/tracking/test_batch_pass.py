@@ -89,10 +89,18 @@ def test_range_reports_and_records_give_the_flags_after_the_trials_pass(keyed, t
 def test_a_trial_whose_ranges_are_not_all_complete_is_not_judged_and_says_so():
     tasks = [batch.BatchTask("/s/demo", "walk", (BONE,), r) for r in ((12, 0), (12, 29))]
     records = [{"key": tasks[0].key, "status": "complete"}, {"key": tasks[1].key, "status": "cancelled"}]
-    (entry,) = batch.trajectory_pass(tasks, records, SETTINGS)  # the study is never opened
+    # not judged; the keyframe both ranges share is merged all the same (here no study to open: said)
+    (entry,) = batch.trajectory_pass(tasks, records, SETTINGS)
     assert entry["key"] == "demo/walk/talus"
     assert "1 of 2 ranges not complete (demo/walk/talus:12-29)" in entry["skipped"]
-    assert "tasks_flagged" not in entry
+    assert "tasks_flagged" not in entry and "error" not in entry and entry["shared_error"]
+    line, merge = pass_messages(entry)
+    assert "did not run" in line and "each range keeps its own flags" in line
+    assert "the backward checks of the keyframe its ranges share not merged" in merge
+    # ranges that share no first frame: nothing opened
+    apart = [batch.BatchTask("/s/demo", "walk", (BONE,), r) for r in ((12, 0), (13, 29))]
+    (entry,) = batch.trajectory_pass(apart, [{"key": apart[0].key, "status": "complete"}], SETTINGS)
+    assert "skipped" in entry and "shared_error" not in entry
     (line,) = pass_messages(entry)
     assert "did not run" in line and "each range keeps its own flags" in line
     assert batch.trajectory_pass([batch.BatchTask("/s/demo", "walk", (BONE,))], records, SETTINGS) == []

@@ -1,7 +1,9 @@
 """``talus batch --ranges``: the backward check's outcome at the keyframe two ranges share
 (core.tracking.backward_check) does not depend on the order the ranges ran — after the trial's pass
-(core.tracking.batch_pass) it is flagged when either range flagged it, with each range's flag and
-note. Synthetic poses (the registration is replaced): no rendering."""
+(core.tracking.batch_pass) the frame carries both ranges' flags and notes in frame order and their backward
+registrations' evaluations added up, in the journal and both reports, whether or not a range flagged it,
+with the trajectory check on or off, and with a range not complete. Synthetic poses (the registration is
+replaced): no rendering."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from tests.core.tracking.test_flags_post import _track
 BONE = "talus"
 KEY = 12  # the keyed walk's talus keyframe: ranges 12-0 and 12-29
 SETTINGS = batch.TaskSettings(device="cpu", confidence=False)
+NO_TRAJECTORY = batch.TaskSettings(device="cpu", confidence=False, options=(("trajectory_limit", None),))
 
 
 def _turned(pose, deg):
@@ -28,12 +31,9 @@ def _turned(pose, deg):
     return out
 
 
-def _run(keyed, tmp_path, monkeypatch, name, reverse, off_from):
-    """The keyed walk copied to ``name``, its two talus ranges run serially (``reverse``: the forward
-    range first), the keyframe's backward registration 2 deg off when it is predicted from the frames
-    after it (``off_from`` "after") or before it ("before"; else neither), the registration otherwise
-    on a smooth walk: (the keyframe's journal record, the two reports' keyframe entries, the summary,
-    every journaled frame's flags and notes)."""
+def _step(off_from):
+    """The frame step: a smooth walk, the keyframe's backward registration 2 deg off when it is predicted
+    from the frames after it (``off_from`` "after") or before it ("before"; else neither)."""
     P = _track(n=30)
 
     def step(run, f, imgs, fr, todo, state, skip):
@@ -42,18 +42,35 @@ def _run(keyed, tmp_path, monkeypatch, name, reverse, off_from):
                     and all((g > KEY) == (off_from == "after") for g in hist))
         return {0: FrameResult(BONE, f, _turned(P[f], 2.0) if backward else P[f], 0.8, 10, 0.0, True)}
 
-    monkeypatch.setattr(trial, "track_frame", step)
-    folder = shutil.copytree(keyed, tmp_path / name)
-    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
-    s = batch.run_serial(tasks[::-1] if reverse else tasks, SETTINGS)
-    assert s["status"] == "complete"
+    return step
+
+
+def _state(folder, tasks):
+    """Every journaled frame (pose and tracking fields) and every range report's frames and pass sections:
+    what must not depend on the order the ranges ran."""
     with Study.open(folder) as st:
         recs = st.trial("walk").results(BONE).records
-        rec = recs[KEY].tracking
-        every = {int(f): (r.tracking["flags"], r.tracking["notes"]) for f, r in recs.items() if r.tracking}
-        reps = [st.read_report("tracking", t.report_name) for t in tasks]
-    entries = [[d for d in r["frames_done"] if d["frame"] == KEY] for r in reps]
-    return rec, entries, s, every
+        journal = {int(f): (np.asarray(r.pose).round(12).tolist(), r.tracking) for f, r in recs.items()
+                   if r.tracking}
+        reports = {t.report_name: {k: v for k, v in st.read_report("tracking", t.report_name).items()
+                                   if k in ("frames_done", "flagged", "trajectory_pass", "shared_keyframes")}
+                   for t in tasks}
+    return journal, reports
+
+
+def _run(keyed, tmp_path, monkeypatch, name, reverse, off_from, settings=SETTINGS):
+    """The keyed walk copied to ``name``, its two talus ranges run serially (``reverse``: the forward
+    range first) with :func:`_step`: (the keyframe's journal record, the two reports' keyframe entries, the
+    summary, :func:`_state`)."""
+    monkeypatch.setattr(trial, "track_frame", _step(off_from))
+    folder = shutil.copytree(keyed, tmp_path / name / "demo")  # the same study name: the same messages
+    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    s = batch.run_serial(tasks[::-1] if reverse else tasks, settings)
+    assert s["status"] == "complete"
+    state = _state(folder, tasks)
+    rec = state[0][KEY][1]
+    entries = [[d for d in r["frames_done"] if d["frame"] == KEY] for r in state[1].values()]
+    return rec, entries, s, state
 
 
 def test_the_shared_keyframes_backward_flag_does_not_depend_on_the_order_the_ranges_ran(
@@ -61,33 +78,109 @@ def test_the_shared_keyframes_backward_flag_does_not_depend_on_the_order_the_ran
     for off_from in ("after", "before"):  # the forward range flags it, then the backward one
         runs = [_run(keyed, tmp_path, monkeypatch, f"{off_from}{int(rev)}", rev, off_from)
                 for rev in (False, True)]
-        (rec0, ent0, s0, all0), (rec1, ent1, s1, all1) = runs
-        assert all0 == all1 and len(all0) == 30  # every frame's flags and notes, not only the keyframe's
+        (_, _, s0, state0), (_, _, s1, state1) = runs
+        assert state0 == state1 and len(state0[0]) == 30  # every frame journaled and reported alike
         for rec, entries, *_ in runs:
             flags = [x for x in rec["flags"] if x.startswith(FLAG)]
             notes = [x for x in rec["notes"] if x.startswith(NOTE)]
             assert len(flags) == 1 and len(notes) == 1  # one range's flag, the other's note
             for (d,) in entries:  # both range reports say what the journal says
-                assert d["flags"] == rec["flags"] and d["notes"] == rec["notes"]
-        assert (rec0["flags"], rec0["notes"]) == (rec1["flags"], rec1["notes"])
-        assert ent0 == ent1
+                assert (d["flags"], d["notes"], d["timing"]) == (rec["flags"], rec["notes"], rec["timing"])
+            # both ranges' backward registrations (10 evaluations each, the stub's)
+            assert rec["timing"]["backward_evaluations"] == 20 and rec["timing"]["backward_ranges"] == 2
         for s in (s0, s1):
             # the range that ran first had its flag or note overwritten in the journal; the pass restored it
             (entry,) = s["trajectory_pass"]
             assert entry["changed"] == [[BONE, KEY]] and entry["review_flagged"] == {BONE: 1}
+            assert entry["shared_keyframes"] == [[BONE, KEY]]
             (line,) = [m for m in pass_messages(entry) if f"frame {KEY}:" in m]
             assert FLAG in line and "off the trajectory" not in line  # it never was
             assert entry["changes"][0]["was_off_trajectory"] is False
 
 
-def test_no_range_flagging_the_shared_keyframe_keeps_the_journals_note(keyed, tmp_path, monkeypatch):
-    for rev in (False, True):
-        rec, _, s, _ = _run(keyed, tmp_path, monkeypatch, f"none{int(rev)}", rev, "neither")
+def test_no_range_flagging_the_shared_keyframe_gets_both_ranges_notes(keyed, tmp_path, monkeypatch):
+    runs = [_run(keyed, tmp_path, monkeypatch, f"none{int(rev)}", rev, "neither") for rev in (False, True)]
+    assert runs[0][3] == runs[1][3]  # journal and reports, whichever range ran last
+    for rec, entries, s, _ in runs:
         assert not [x for x in rec["flags"] if x.startswith(FLAG)]
-        (note,) = [x for x in rec["notes"] if x.startswith(NOTE)]  # the range recorded last
-        assert ("frames 11 and 10" in note) is rev  # the backward range's prediction when it ran last
+        # the backward range's note (predicted from frames 11 and 10) first, then the forward range's
+        back, fwd = [x for x in rec["notes"] if x.startswith(NOTE)]
+        assert "frames 11 and 10;" in back and "frames 13 and 14;" in fwd
+        assert [d["notes"] for (d,) in entries] == [rec["notes"]] * 2
         (entry,) = s["trajectory_pass"]
-        assert entry["changed"] == []  # not journaled again for a note
+        assert entry["changed"] == [] and entry["shared_keyframes"] == [[BONE, KEY]]  # a note: not named
+        assert entry["journaled_again"] == [[BONE, KEY]]
+        assert not [m for m in pass_messages(entry) if f"frame {KEY}:" in m]
+    # a pass run again changes nothing (the reports' sums are not added again)
+    folder = tmp_path / "none1" / "demo"
+    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    before = _state(folder, tasks)
+    (again,) = batch.trajectory_pass(tasks, [{"key": t.key, "status": "complete"} for t in tasks], SETTINGS)
+    assert again["journaled_again"] == [] and again["reports"] == [] and _state(folder, tasks) == before
+
+
+def test_the_merge_runs_with_the_trajectory_check_off(keyed, tmp_path, monkeypatch):
+    runs = [_run(keyed, tmp_path, monkeypatch, f"off{int(rev)}", rev, "after", NO_TRAJECTORY)
+            for rev in (False, True)]
+    assert runs[0][3] == runs[1][3]
+    for rec, entries, s, (_, reports) in runs:
+        assert len([x for x in rec["flags"] if x.startswith(FLAG)]) == 1
+        assert len([x for x in rec["notes"] if x.startswith(NOTE)]) == 1
+        assert [d["flags"] for (d,) in entries] == [rec["flags"]] * 2
+        (entry,) = s["trajectory_pass"]
+        assert entry["off"] and entry["judged"] == 0 and entry["changed"] == [[BONE, KEY]]
+        assert entry["shared_keyframes"] == [[BONE, KEY]] and "review_flagged" not in entry
+        lines = pass_messages(entry)
+        assert lines[0] == ("demo/walk/talus: trajectory check off (the keyframe they share given both "
+                            "ranges' backward checks)")
+        assert lines[1].startswith(f"demo/walk/talus: talus frame {KEY}: {FLAG}") and len(lines) == 2
+        # no trajectory section: the reports say what was merged
+        for rep in reports.values():
+            assert "trajectory_pass" not in rep
+            assert rep["shared_keyframes"]["shared_keyframes"] == [[BONE, KEY]]
+            assert rep["shared_keyframes"]["judged"] == 0 and rep["shared_keyframes"]["limit"] is None
+        rec_counts = {r["key"]: (r["flagged_before_pass"], r["flagged"]) for r in s["task_records"]}
+        assert sorted(rec_counts.values()) == [(0, 1), (1, 1)]  # the range that lost its flag gets it back
+
+
+def test_the_merge_runs_with_a_range_not_complete(keyed, tmp_path, monkeypatch):
+    """A second keyframe at 20 makes three ranges, 12-0, 12-19 and 20-29; 20-29 cancelled after frame 22
+    leaves the group not judged. The two ranges sharing 12, run in both orders (12-19 flagging it), give the
+    same journal and reports: the flag and the other range's note."""
+    monkeypatch.setattr(trial, "track_frame", _step("after"))
+    states = []
+    for rev in (False, True):
+        folder = shutil.copytree(keyed, tmp_path / f"part{int(rev)}" / "demo")
+        with Study.open(folder, mode="w") as st:
+            st.trial("walk").record_pose(BONE, 20, _track(n=30)[20])
+        tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+        assert [t.frames for t in tasks] == [(12, 0), (12, 19), (20, 29)]
+        back, fwd, last = tasks
+        done: list[int] = []
+        records = {last.key: batch.run_task(last, SETTINGS, progress=lambda e, done=done: done.append(
+            e.get("frame")), cancel=lambda done=done: 22 in done)}
+        for t in ([fwd, back] if rev else [back, fwd]):
+            records[t.key] = batch.run_task(t, SETTINGS)
+        assert records[last.key]["status"] == "cancelled" and records[back.key]["status"] == "complete"
+        (entry,) = batch.trajectory_pass(tasks, [records[t.key] for t in tasks], SETTINGS)
+        assert "1 of 3 ranges not complete" in entry["skipped"] and entry["shared_keyframes"] == [[BONE, KEY]]
+        assert entry["changed"] == [[BONE, KEY]]  # the flag or the note the range run last overwrote
+        journal, reports = _state(folder, tasks)
+        rec = journal[KEY][1]
+        assert len([x for x in rec["flags"] if x.startswith(FLAG)]) == 1
+        assert len([x for x in rec["notes"] if x.startswith(NOTE)]) == 1
+        assert rec["timing"]["backward_ranges"] == 2
+        for name in (back.report_name, fwd.report_name):
+            (d,) = [d for d in reports[name]["frames_done"] if d["frame"] == KEY]
+            assert (d["flags"], d["notes"]) == (rec["flags"], rec["notes"])
+            assert reports[name]["shared_keyframes"]["shared_keyframes"] == [[BONE, KEY]]
+        assert "shared_keyframes" not in reports[last.report_name]  # not one of the ranges sharing 12
+        lines = pass_messages(entry)
+        assert "did not run (1 of 3 ranges not complete" in lines[0]
+        assert "the keyframe they share given both ranges' backward checks" in lines[0]
+        assert lines[1].startswith(f"demo/walk/talus: talus frame {KEY}: {FLAG}") and len(lines) == 2
+        states.append((journal, reports))
+    assert states[0] == states[1]
 
 
 def test_merge_of_synthetic_records_ignores_task_order_and_an_unreadable_report():
@@ -99,19 +192,25 @@ def test_merge_of_synthetic_records_ignores_task_order_and_an_unreadable_report(
     back = SimpleNamespace(order=[12, 11, 10], report_name="back", key="k:12-10")
     fwd = SimpleNamespace(order=[12, 13, 14], report_name="fwd", key="k:12-14")
     flag, note = f"{FLAG} (fwd)", f"{NOTE} (back)"
-    reports = {"back": {"frames_done": [{"bone": BONE, "frame": 12, "flags": [], "notes": [note]}]},
-               "fwd": {"flagged": [{"bone": BONE, "frame": 12, "flags": [flag], "notes": []}]}}
+    t_back = {"backward_evaluations": 7, "backward_s": 0.5}
+    t_fwd = {"backward_evaluations": 9, "backward_s": 0.25}
+    reports = {"back": {"frames_done": [{"bone": BONE, "frame": 12, "flags": [], "notes": [note],
+                                         "timing": t_back}]},
+               "fwd": {"flagged": [{"bone": BONE, "frame": 12, "flags": [flag], "notes": [],
+                                    "timing": t_fwd}]}}
     P = np.eye(4)
 
     def read(kind, name):
         return reports[name]
 
-    for journal in (FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, notes=("other", note)),
-                    FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, (flag,))):
+    for journal in (FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, notes=("other", note), timing=dict(t_back)),
+                    FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, (flag,), timing=dict(t_fwd))):
         for tasks in ([back, fwd], [fwd, back]):
-            got = _shared_first_frames({(BONE, 12): journal}, tasks, [BONE], read)[(BONE, 12)]
-            assert got.flags == (flag,) and note in got.notes
-    # the flagging range's report unreadable: the journal's note stays, nothing invented
+            merged, joined = _shared_first_frames({(BONE, 12): journal}, tasks, [BONE], read)
+            got = merged[(BONE, 12)]
+            assert joined == [(BONE, 12)] and got.flags == (flag,) and note in got.notes
+            assert got.timing == {"backward_evaluations": 16, "backward_s": 0.75, "backward_ranges": 2}
+    # the flagging range's report unreadable: the journal's record stays, nothing invented
     journal = FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, notes=(note,))
 
     def unreadable(kind, name):
@@ -119,5 +218,12 @@ def test_merge_of_synthetic_records_ignores_task_order_and_an_unreadable_report(
             raise OSError("removed")
         return reports[name]
 
-    got = _shared_first_frames({(BONE, 12): journal}, [back, fwd], [BONE], unreadable)[(BONE, 12)]
-    assert got is journal
+    merged, joined = _shared_first_frames({(BONE, 12): journal}, [back, fwd], [BONE], unreadable)
+    assert merged[(BONE, 12)] is journal and joined == []
+    # reports written by an earlier merge hold the sum: taken as it is
+    summed = {"backward_evaluations": 16, "backward_s": 0.75, "backward_ranges": 2}
+    for r in reports.values():
+        for d in r.get("frames_done", []) + r.get("flagged", []):
+            d["timing"] = dict(summed)
+    merged, _ = _shared_first_frames({(BONE, 12): journal}, [back, fwd], [BONE], read)
+    assert merged[(BONE, 12)].timing == summed

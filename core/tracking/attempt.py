@@ -10,6 +10,7 @@ per-frame confidence; see the module docs of :mod:`core.tracking.trial`.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -31,7 +32,7 @@ from .verify import verify_start
 if TYPE_CHECKING:
     from .options import TrackingOptions
 
-__all__ = ["Attempt", "confidence_of", "register_checked", "settle"]
+__all__ = ["Attempt", "confidence_of", "limits_ahead", "register_checked", "settle"]
 
 #: timings that are parts of another timing of the same registration (not added to the sum)
 _PARTS = frozenset({"likelihood_setup_s"})
@@ -81,6 +82,26 @@ def confidence_of(fit, o: TrackingOptions) -> dict:
         k = float(o.confidence_scale)
         c = replace(c, sigma=c.sigma * k, covariance=c.covariance * k * k)
     return c.to_dict()
+
+
+def limits_ahead(checks: list, o: TrackingOptions, frame_number: int) -> Callable[[], None] | None:
+    """Host work for a registration's waits (``idle`` of :func:`core.tracking.joint.register_together`):
+    at each call the motion check's limits of the next of ``checks`` (per bone ``(history, centre,
+    prediction)``, as :func:`register_checked` passes them to the checks) computed and kept, as
+    :func:`register_checked`'s own idle does for one bone, so that the checks after the registration
+    find them (the same values). None where no bone has a history."""
+    todo = [c for c in checks if c[0]]
+    if not todo:
+        return None
+
+    def idle() -> None:
+        if todo:
+            history, c, prediction = todo.pop(0)
+            _motion_limits(history, frame_number, c, n=o.history,
+                           limit=getattr(o, "motion_limit", MOTION_LIMIT),
+                           floor=getattr(o, "motion_floor", MOTION_FLOOR), prediction=prediction)
+
+    return idle
 
 
 def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,

@@ -97,7 +97,7 @@ from dataclasses import replace as _replace
 
 import numpy as np
 
-from .attempt import Attempt, confidence_of, register_checked, settle
+from .attempt import Attempt, confidence_of, limits_ahead, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
 from .frame_records import MISSING_FLAG, UNREADABLE_FLAG, missing_flags
@@ -333,6 +333,9 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 
     def together(rnd: int, jobs: list[JointJob], idle=None) -> tuple[list, float]:
         t0 = time.perf_counter()
+        if idle is None:  # the checks' motion limits while the device works on the searches' steps
+            idle = limits_ahead([(hist[names[j.bone]], bones[j.bone].centroid, predicted[j.bone])
+                                 for j in jobs], o, f)
         with searched_stages(STAGE_AT_SEARCHED and o.registration.final is not None):
             got = register_together(run.renderer, frame, jobs, staged(rnd, o.registration), profile=o.profile,
                                     cancel=run.cancel, idle=idle)

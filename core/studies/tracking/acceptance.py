@@ -390,7 +390,8 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     per_bone = rec.tracking
     cfg = {"pixels": ts.scene.rig[0].width, "voxel_mm": float(ts.models[0].volume.spacing[0]),
            "frames": ts.scene.n_frames, "seed": seed, "mode": mode, "search": o.registration.search,
-           "trajectory_limit": o.trajectory_limit, "contact": bool(o.contact), "correction": correction,
+           "trajectory_limit": o.trajectory_limit, "backward_limit": o.backward_limit,
+           "contact": bool(o.contact), "correction": correction,
            "sequential_subtract": o.sequential_subtract, "joint_rounds": o.joint_rounds,
            "start_error": "5 mm, 5 deg",
            "final": o.registration.final or "none", "glare_undone": bool(ts.glare),

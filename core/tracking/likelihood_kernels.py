@@ -22,8 +22,10 @@ from .likelihood_fast import (  # noqa: F401
 from .likelihood_robust_kernels import (  # (their names here as before)
     _blur_pair_kernel,
     _local_rms_kernel,
+    _local_rms_keys_kernel,
     _median_kernel,
     _median_keys_kernel,
+    _median_signed_kernel,
     _robust_sq_kernel,
     _robust_weight_kernel,
 )
@@ -112,6 +114,14 @@ def _times_kernel(a: wp.array3d(dtype=wp.float32), b: wp.array3d(dtype=wp.float3
 #: them (no segmented sort, no atomic a pixel; the same median: :mod:`core.tracking.likelihood_fast`);
 #: off: one segmented sort, the count taken as the keys are written, as first measured
 MEDIAN_BISECT = True
+#: With one or two views (a biplane rig), :func:`robust_factors_device`'s keys written by the local RMS's
+#: own kernel (:func:`~core.tracking.likelihood_robust_kernels._local_rms_keys_kernel`: view 1's negated)
+#: and both views sorted by one radix sort of their bits as unsigned integers, which orders view 0's
+#: values, then view 1's, each ascending with its unused pixels last: the same sorted values, so the same
+#: median (:func:`~core.tracking.likelihood_robust_kernels._median_signed_kernel`), with one launch and
+#: one sort fewer (each sort's host call 80 µs on one NVIDIA H100's host, ``stage_one_bone``'s profile
+#: at 97b2893). Off: :data:`MEDIAN_BISECT`'s sort a view.
+MEDIAN_ONE_SORT = True
 
 
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
@@ -120,7 +130,8 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
     Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
     factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
     same Gaussian as the host's) and its per-view median taken there too (the views' used values
-    sorted, :func:`warp.utils.segmented_sort_pairs`; the value of ``np.median``): no
+    sorted: both in one radix sort, :data:`MEDIAN_ONE_SORT`, else a sort a view or a segmented sort;
+    the value of ``np.median``): no
     synchronisation. ``bufs``: the caller's buffers, reused from call to call; ``launch``: the
     caller's ``launch(name, kernel, dim, inputs)`` (recorded launches,
     :meth:`~core.tracking.likelihood_launches._Launches._launch`; default :func:`warp.launch`)."""
@@ -148,33 +159,42 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
     launch("rf_blur1", _blur_pair_kernel, shape, [a, b, g, 1, ta, tb])
     launch("rf_blur2", _blur_pair_kernel, shape, [ta, tb, g, 2, a, b])
     local = buf("rf_local")
-    launch("rf_local", _local_rms_kernel, shape, [a, b, w, local])
     nv, n = shape[0], shape[1] * shape[2]
     keys = buf("rf_keys", (2 * nv * n,))
     vals = buf("rf_vals", (2 * nv * n,), wp.int32)
-    count = buf("rf_count", (nv,), wp.int32)
-    seg = bufs.get(("rf_seg", nv, n))
-    if seg is None:
-        starts = np.arange(nv + 1, dtype=np.int32) * n  # the views' segments of the keys
-        seg = bufs[("rf_seg", nv, n)] = (wp.array(starts[:-1], dtype=wp.int32, device=device),
-                                         wp.array(starts[1:], dtype=wp.int32, device=device))
     scale = buf("rf_scale", (nv,))
-    if MEDIAN_BISECT:  # each view's n keys at 2n·v, sorted on their own (their scratch after them)
-        launch("rf_keys", _median_keys_only_kernel, shape, [local, 2 * n, keys])
-        vkey = (keys.ptr, vals.ptr, nv, n)  # (each view's slices of these buffers, made once)
-        hit = bufs.get("rf_views")
-        if hit is None or hit[0] != vkey:
-            parts = [(keys[2 * n * v:2 * n * (v + 1)], vals[2 * n * v:2 * n * (v + 1)]) for v in range(nv)]
-            hit = bufs["rf_views"] = (vkey, parts)
-        for kv, vv in hit[1]:
-            wp.utils.radix_sort_pairs(kv, vv, n)
-        launch("rf_median", _median_sorted_kernel, (nv,), [keys, n, 2 * n, scale])
-    else:
-        count.zero_()
-        wp.launch(_median_keys_kernel, dim=shape, inputs=[local, keys, count], device=device)
-        wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
-        wp.launch(_median_kernel, dim=nv, inputs=[keys, count, n, scale], device=device)
     out = buf("rf_out")
+    if MEDIAN_ONE_SORT and nv <= 2:  # both views' keys in one sort of their bits (MEDIAN_ONE_SORT)
+        launch("rf_local_keys", _local_rms_keys_kernel, shape, [a, b, w, n, local, keys])
+        bits = bufs.get("rf_bits")
+        if bits is None or bits.ptr != keys.ptr or bits.shape != keys.shape:
+            bits = bufs["rf_bits"] = wp.array(ptr=keys.ptr, dtype=wp.uint32, shape=keys.shape, device=device)
+        wp.utils.radix_sort_pairs(bits, vals, nv * n)
+        launch("rf_median1", _median_signed_kernel, (nv,), [keys, n, scale])
+    else:
+        launch("rf_local", _local_rms_kernel, shape, [a, b, w, local])
+        count = buf("rf_count", (nv,), wp.int32)
+        seg = bufs.get(("rf_seg", nv, n))
+        if seg is None:
+            starts = np.arange(nv + 1, dtype=np.int32) * n  # the views' segments of the keys
+            seg = bufs[("rf_seg", nv, n)] = (wp.array(starts[:-1], dtype=wp.int32, device=device),
+                                             wp.array(starts[1:], dtype=wp.int32, device=device))
+        if MEDIAN_BISECT:  # each view's n keys at 2n·v, sorted on their own (their scratch after them)
+            launch("rf_keys", _median_keys_only_kernel, shape, [local, 2 * n, keys])
+            vkey = (keys.ptr, vals.ptr, nv, n)  # (each view's slices of these buffers, made once)
+            hit = bufs.get("rf_views")
+            if hit is None or hit[0] != vkey:
+                parts = [(keys[2 * n * v:2 * n * (v + 1)], vals[2 * n * v:2 * n * (v + 1)])
+                         for v in range(nv)]
+                hit = bufs["rf_views"] = (vkey, parts)
+            for kv, vv in hit[1]:
+                wp.utils.radix_sort_pairs(kv, vv, n)
+            launch("rf_median", _median_sorted_kernel, (nv,), [keys, n, 2 * n, scale])
+        else:
+            count.zero_()
+            wp.launch(_median_keys_kernel, dim=shape, inputs=[local, keys, count], device=device)
+            wp.utils.segmented_sort_pairs(keys, vals, nv * n, seg[0], seg[1])
+            wp.launch(_median_kernel, dim=nv, inputs=[keys, count, n, scale], device=device)
     launch("rf_weight", _robust_weight_kernel, shape, [local, scale, float(k), int(kind == "cauchy"), out])
     return out
 

@@ -2,8 +2,9 @@
 (:func:`core.tracking.likelihood_kernels.robust_factors_device`, which launches them; the host's
 :func:`core.tracking.final_stage.robust_factors` is the reference): the squared residual over the
 used pixels, the separable Gaussian of that pair, the local RMS, its per-view median (the
-segmented-sort path; the bisection path's kernels are in :mod:`core.tracking.likelihood_fast`) and
-the Cauchy or Huber factor. :mod:`core.tracking.likelihood_kernels` re-exports every name."""
+segmented-sort path; the bisection path's kernels are in :mod:`core.tracking.likelihood_fast`; the
+one-sort path's, :func:`_local_rms_keys_kernel` and :func:`_median_signed_kernel`, here) and the
+Cauchy or Huber factor. :mod:`core.tracking.likelihood_kernels` re-exports every name."""
 
 from __future__ import annotations
 
@@ -110,6 +111,60 @@ def _median_kernel(keys: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.in
     s = float(0.0)  # noqa: UP018
     if m > 0:
         x = (keys[v * n + (m - 1) // 2] + keys[v * n + m // 2]) * 0.5
+        if wp.isfinite(x) and x > 0.0:
+            s = x
+    scale[v] = s
+
+
+@wp.kernel
+def _local_rms_keys_kernel(num: wp.array3d(dtype=wp.float32), den: wp.array3d(dtype=wp.float32),
+                           w: wp.array3d(dtype=wp.float32), n: int, out: wp.array3d(dtype=wp.float32),
+                           keys: wp.array(dtype=wp.float32)):
+    """:func:`_local_rms_kernel` (``out``) and, in the same pass, the median's sort keys of one or
+    two views (:data:`~core.tracking.likelihood_kernels.MEDIAN_ONE_SORT`): view v's at ``v · n +
+    r · W + c``, view 0's the local RMS (+0 for a zero) and +inf where unused, view 1's their
+    negatives (-0 for a zero, -inf where unused). Sorted as unsigned 32-bit integers (the same
+    buffer's bits) the keys then hold view 0's values ascending, its unused last, then view 1's
+    ascending (the sign bit sets them after every non-negative float; below it the bits of
+    non-negative floats order as their values), its unused last. dim = items (1 or 2), H, W."""
+    k, r, c = wp.tid()
+    x = float(-1.0)  # noqa: UP018
+    if w[k, r, c] > 0.0:
+        x = wp.sqrt(num[k, r, c] / wp.max(den[k, r, c], 1e-6))
+    out[k, r, c] = x
+    key = float(wp.inf)
+    if x > 0.0:
+        key = x
+    elif x >= 0.0:  # (a zero of either sign: +0, so that its negative's sign bit is set)
+        key = 0.0
+    sg = float(1.0)  # noqa: UP018
+    if k == 1:  # (a product, not Warp's negation, which compiles as 0 - key: +0 for a zero)
+        sg = -1.0
+    keys[k * n + r * out.shape[2] + c] = key * sg
+
+
+@wp.kernel
+def _median_signed_kernel(keys: wp.array(dtype=wp.float32), n: int, scale: wp.array(dtype=wp.float32)):
+    """:func:`_median_kernel` of :func:`_local_rms_keys_kernel`'s keys sorted as unsigned integers:
+    view v's ``n`` sorted keys at ``v · n`` (view 1's negated back), its count of used values the
+    keys before the first infinite one (by bisection). dim = items (1 or 2)."""
+    v = wp.tid()
+    o = v * n
+    sg = float(1.0)  # noqa: UP018
+    if v == 1:
+        sg = -1.0
+    lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
+    hi = int(n)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sg * keys[o + mid] < wp.inf:
+            lo = mid + 1
+        else:
+            hi = mid
+    m = lo
+    s = float(0.0)  # noqa: UP018
+    if m > 0:
+        x = (sg * keys[o + (m - 1) // 2] + sg * keys[o + m // 2]) * 0.5
         if wp.isfinite(x) and x > 0.0:
             s = x
     scale[v] = s

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import warp as wp
 
+from . import joint_pipeline
 from .cost import CostTimer, OutsideViewError, mm_per_pixel
 from .engine import engine_cost, step_design, supports
 from .engine_search import LevenbergMarquardt
@@ -217,6 +218,10 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
         push(k)  # the bone's first step in flight while the next bone's regions are prepared
         lanes[k].own_s = time.perf_counter() - t0
     t_loop = time.perf_counter()
+    if o.final is not None and joint_pipeline.applies(jobs):  # each bone's stage from its search's end
+        return joint_pipeline.run_pipelined(renderer, frame, jobs, o, lanes, queue, out, t_loop=t_loop,
+                                            fs=fs, hi=hi, views=views, submit=_submit, collect=_collect,
+                                            result=_result, cancel=cancel, profile=profile, idle=idle)
     errors: dict = {}
     _drive(lanes, queue, push, errors, idle)
     share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly

@@ -1,0 +1,77 @@
+"""Joint registration's searches and final stages in one pipeline (core.tracking.joint_pipeline): the
+same results to the bit as the stages run after every search (the switch off), on the ideal 128²
+talus-calcaneus views (CPU device): a first frame and the frame after it, jointly with the likelihood
+stage; a search that falls back to half resolution too."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _track(fixture, monkeypatch, on: bool, frames=(0, 1)):
+    import core.tracking.joint_pipeline as jp
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions, track
+
+    sc, models, r, imgs = fixture
+    monkeypatch.setattr(jp, "PIPELINED_STAGES", on)
+    keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, refine_likelihood=True)
+    return track(r, models, imgs.__getitem__, list(frames), keyframes=keys, options=o)
+
+
+def _same(a, b) -> None:
+    assert a.results.keys() == b.results.keys()
+    for key, x in a.results.items():
+        y = b.results[key]
+        np.testing.assert_array_equal(x.pose, y.pose)
+        assert x.score == y.score or (np.isnan(x.score) and np.isnan(y.score))
+        assert (x.flags, x.notes, x.evaluations, x.retried) == (y.flags, y.notes, y.evaluations, y.retried)
+        assert x.confidence == y.confidence
+        for k in ("likelihood_taken", "likelihood_steps", "likelihood_move_mm", "likelihood_move_deg"):
+            assert (x.timing or {}).get(k) == (y.timing or {}).get(k)
+
+
+def test_pipelined_stages_give_the_same_results(talus_calcaneus_128, monkeypatch):
+    import core.tracking.joint_pipeline as jp
+
+    used = []
+    real = jp.run_pipelined
+
+    def spy(*a, **k):
+        used.append(len(a[4]))
+        return real(*a, **k)
+
+    monkeypatch.setattr(jp, "run_pipelined", spy)
+    off = _track(talus_calcaneus_128, monkeypatch, False)
+    assert not used
+    on = _track(talus_calcaneus_128, monkeypatch, True)
+    assert used  # (the lockstep rounds of the first frame and the frame after it)
+    assert all(r.timing.get("likelihood_taken") for r in on.results.values())
+    _same(off, on)
+
+
+def test_pipelined_fallback_to_half_resolution(talus_calcaneus_128, monkeypatch):
+    """A bone whose full-resolution steps do not converge (one step allowed) goes on with the
+    half-resolution fallback after the loop: the same results as before."""
+    from dataclasses import replace
+
+    import core.tracking.joint as joint
+    import core.tracking.register as register
+
+    real = joint.before_stage
+    monkeypatch.setattr(joint, "before_stage", lambda lv, o: replace(real(lv, o), max_generations=1))
+    tried = []
+    plain = register.register
+
+    def spy(*a, **k):
+        tried.append(k.get("tried") is not None)
+        return plain(*a, **k)
+
+    monkeypatch.setattr(register, "register", spy)
+    off = _track(talus_calcaneus_128, monkeypatch, False, frames=(0, 1))
+    n = sum(tried)
+    on = _track(talus_calcaneus_128, monkeypatch, True, frames=(0, 1))
+    assert n > 0 and sum(tried) == 2 * n  # (the fallbacks, as many either way)
+    _same(off, on)

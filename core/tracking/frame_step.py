@@ -331,14 +331,14 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         return [JointJob(i, starts[i], bones[i].centroid, bones[i].outline, others_of(i, cur, kn),
                          roi_of(i, starts[i])) for i in side]
 
-    def together(rnd: int, jobs: list[JointJob], idle=None) -> tuple[list, float]:
+    def together(rnd: int, jobs: list[JointJob], idle=None, done=None) -> tuple[list, float]:
         t0 = time.perf_counter()
         if idle is None:  # the checks' motion limits while the device works on the searches' steps
             idle = limits_ahead([(hist[names[j.bone]], bones[j.bone].centroid, predicted[j.bone])
                                  for j in jobs], o, f)
         with searched_stages(STAGE_AT_SEARCHED and o.registration.final is not None):
             got = register_together(run.renderer, frame, jobs, staged(rnd, o.registration), profile=o.profile,
-                                    cancel=run.cancel, idle=idle)
+                                    cancel=run.cancel, idle=idle, done=done)
         return got, (time.perf_counter() - t0) / len(jobs)
 
     def check(i: int, rnd: int, others, pre, host_only: bool = False):
@@ -415,8 +415,14 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                 jobs = jobs_of(rnd, side, current, known)
                 if ahead is not None and ahead[0] == _signature(jobs):
                     _, jobs, got, spent = ahead  # started with these very jobs
-                else:
-                    got, spent = together(rnd, jobs)
+                else:  # (a bone's checks, host work only, while the others' stages run: taken below)
+                    t1 = time.perf_counter()
+
+                    def early(k, res, rnd=rnd, jobs=jobs, side=side, checked=checked, t1=t1) -> None:
+                        spent = (time.perf_counter() - t1) / len(jobs)
+                        checked[side[k]] = check(side[k], rnd, jobs[k].others, (res, spent), host_only=True)
+
+                    got, spent = together(rnd, jobs, done=early)
                 ahead = None
                 pre = {i: (r, job.others, spent) for i, r, job in zip(side, got, jobs, strict=True)}
                 rois.update((job.bone, (job.initial_pose, job.roi)) for job in jobs if job.roi is not None)

@@ -167,13 +167,17 @@ def _result(ln: _Search, fs: float, hi: np.ndarray, full, spent: float) -> Regis
 
 def register_together(renderer, frame, jobs: Sequence[JointJob], options: RegistrationOptions, *,
                       profile: bool = False, cancel: Callable[[], bool] | None = None,
-                      idle: Callable[[], None] | None = None) -> list:
+                      idle: Callable[[], None] | None = None,
+                      done: Callable[[int, object], None] | None = None) -> list:
     """Register every job in ``frame`` (module docs); per job a
     :class:`~core.tracking.register.RegistrationResult`, or the
     :class:`~core.tracking.cost.OutsideViewError` its registration raised. Jobs without
     ``roi`` get theirs filled in. ``idle``: host work of the caller's that uses neither the
     device nor these bones' engines, called before each wait for a step (a piece at a time: the
-    previous round's checks, :mod:`core.tracking.frame_step`)."""
+    previous round's checks, :mod:`core.tracking.frame_step`). ``done(k, result)``: host work of the
+    caller's on job ``k``'s result, called where that result is final while other jobs' steps are
+    still in flight (the stages in one pipeline, :mod:`core.tracking.joint_pipeline`; the caller
+    still gets every result in the list)."""
     from .final_stage import final_stages
     from .register import register
 
@@ -221,7 +225,8 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
     if o.final is not None and joint_pipeline.applies(jobs):  # each bone's stage from its search's end
         return joint_pipeline.run_pipelined(renderer, frame, jobs, o, lanes, queue, out, t_loop=t_loop,
                                             fs=fs, hi=hi, views=views, submit=_submit, collect=_collect,
-                                            result=_result, cancel=cancel, profile=profile, idle=idle)
+                                            result=_result, cancel=cancel, profile=profile, idle=idle,
+                                            done=done)
     errors: dict = {}
     _drive(lanes, queue, push, errors, idle)
     share = (time.perf_counter() - t_loop) / max(len(lanes), 1)  # the shared iterations, split evenly

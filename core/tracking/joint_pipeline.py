@@ -52,13 +52,16 @@ def applies(jobs) -> bool:
 
 def run_pipelined(renderer, frame, jobs, o, lanes: dict, queue: list, out: list, *, t_loop: float, fs: float,
                   hi, views, submit: Callable, collect: Callable, result: Callable, cancel=None,
-                  profile: bool = False, idle: Callable[[], None] | None = None) -> list:
+                  profile: bool = False, idle: Callable[[], None] | None = None,
+                  done: Callable[[int, object], None] | None = None) -> list:
     """The searches of ``lanes`` (``k`` → the lane of ``jobs[k]``; ``queue``: the lanes with a step in
     flight, in the order enqueued) to their ends, each converged bone's final stage started there,
     every step taken as it comes (module docs); fills and returns ``out`` (per job its
     :class:`~core.tracking.register.RegistrationResult` or the OutsideViewError raised).
     ``submit``, ``collect``, ``result``: :mod:`core.tracking.joint`'s ``_submit``, ``_collect`` and
-    ``_result``; ``idle``: the caller's host work, called before each wait for a search's step."""
+    ``_result``; ``idle``: the caller's host work, called before each wait for a search's step;
+    ``done(k, result)``: the caller's host work on a stage's result, called as the stage ends while
+    other steps are in flight (the checks of :mod:`core.tracking.frame_step`)."""
     from .cost import OutsideViewError
     from .final_stage import final_stage_steps
     from .likelihood_steps import StepClock
@@ -80,6 +83,8 @@ def run_pipelined(renderer, frame, jobs, o, lanes: dict, queue: list, out: list,
             todo.append(("g", k))
         except StopIteration as stop:
             out[k] = stop.value
+            if done is not None and todo:  # (the other steps in flight meanwhile)
+                done(k, out[k])
         finally:
             c.spent += time.perf_counter() - t
             c.t = time.perf_counter()

@@ -34,20 +34,31 @@ def _same(a, b) -> None:
 
 
 def test_pipelined_stages_give_the_same_results(talus_calcaneus_128, monkeypatch):
+    """Also the checks of a bone whose stage ended while the other's ran (frame_step's ``done``, host
+    work only), taken by the frame's checks."""
+    import core.tracking.frame_step as fs
     import core.tracking.joint_pipeline as jp
 
-    used = []
-    real = jp.run_pipelined
+    used, early = [], []
+    real, checked = jp.run_pipelined, fs.register_checked
 
     def spy(*a, **k):
         used.append(len(a[4]))
         return real(*a, **k)
 
+    def spy_checks(*a, **k):
+        got = checked(*a, **k)
+        if k.get("host_only"):
+            early.append(got is not None)
+        return got
+
     monkeypatch.setattr(jp, "run_pipelined", spy)
+    monkeypatch.setattr(fs, "register_checked", spy_checks)
     off = _track(talus_calcaneus_128, monkeypatch, False)
-    assert not used
+    assert not used and not early
     on = _track(talus_calcaneus_128, monkeypatch, True)
     assert used  # (the lockstep rounds of the first frame and the frame after it)
+    assert any(early)  # (a bone checked while the other's stage ran, its checks kept)
     assert all(r.timing.get("likelihood_taken") for r in on.results.values())
     _same(off, on)
 

@@ -20,7 +20,19 @@ import numpy as np
 
 from .likelihood_kernels import NA, NZ
 
+try:  # numpy.linalg.solve's gufunc, called as it calls it
+    from numpy.linalg import _umath_linalg as _ul
+except ImportError:  # pragma: no cover
+    _ul = None
+
 __all__ = ["solve_moments"]
+
+#: :func:`solve_moments` gathers the table's entries with one index array and calls the stacked solve's
+#: gufunc itself, as :func:`numpy.linalg.solve` calls it (the same LAPACK solve under the same error
+#: state, without its checks), both solves under one error state: the same values to the bit (1,800
+#: random tables of every model), 95 → 84 µs a call on this 2-core x86_64 machine. Off: through
+#: :func:`numpy.linalg.solve` and an index array per block, as before.
+DIRECT_SOLVES = True
 
 
 def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False,
@@ -42,14 +54,26 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: boo
     ix = _indices(int(background), bool(others), extra)
     Mf = M.reshape(n, nz * nz)
     s = 1.0 / (2.0 * np.asarray(h, dtype=float))
-    G = Mf[:, ix.G]  # (views, p, p)
-    b = Mf[:, ix.b]
-    coef = np.linalg.solve(G, b[..., None])[..., 0]  # (views, p)
+    if DIRECT_SOLVES and _ul is not None:
+        X = Mf[:, ix.all]  # (the entries at once; the same values)
+        e, p = ix.ends, len(ix.slot)
+        G = X[:, :e[0]].reshape(n, p, p)
+        b = X[:, e[0]:e[1]]
+        MDA = s[None, :, None] * X[:, e[1]:e[2]].reshape(n, 6, p)
+        MDD = s[None, :, None] * X[:, e[2]:e[3]].reshape(n, 6, 6) * s[None, None, :]
+        MDy = s[None, :] * X[:, e[3]:e[4]]
+        with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+            coef = _ul.solve(G, b[..., None], signature="dd->d")[..., 0]  # (views, p)
+            beta = _ul.solve(G, MDA.transpose(0, 2, 1), signature="dd->d")  # (views, p, 6)
+    else:
+        G = Mf[:, ix.G]  # (views, p, p)
+        b = Mf[:, ix.b]
+        coef = np.linalg.solve(G, b[..., None])[..., 0]  # (views, p)
+        MDA = s[None, :, None] * Mf[:, ix.DA]  # (views, 6, p)
+        MDD = s[None, :, None] * Mf[:, ix.DD] * s[None, None, :]
+        MDy = s[None, :] * Mf[:, ix.Dy]
+        beta = np.linalg.solve(G, MDA.transpose(0, 2, 1))  # (views, p, 6)
     chi2 = float(np.sum(M[:, 0, 0] - np.einsum("vi,vi->v", coef, b)))
-    MDA = s[None, :, None] * Mf[:, ix.DA]  # (views, 6, p)
-    MDD = s[None, :, None] * Mf[:, ix.DD] * s[None, None, :]
-    MDy = s[None, :] * Mf[:, ix.Dy]
-    beta = np.linalg.solve(G, MDA.transpose(0, 2, 1))  # (views, p, 6)
     a = coef[:, 0]
     JJ = ((a * a)[:, None, None] * (MDD - MDA @ beta)).sum(axis=0)
     Jr = (a[:, None] * (MDy - (MDA @ coef[..., None])[..., 0])).sum(axis=0)
@@ -61,6 +85,11 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: boo
     return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
 
 
+def _singular(err, flag):
+    """:func:`numpy.linalg.solve`'s error for a singular matrix (its gufunc's ``invalid`` flag)."""
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
 class _Index(NamedTuple):
     G: np.ndarray  # (p, p) flat places of A's products in a table
     b: np.ndarray  # (p,) of Aᵀy
@@ -69,6 +98,8 @@ class _Index(NamedTuple):
     Dy: np.ndarray  # (6,) of theirs with y
     slot: list  # A's columns' places in lin's coefficients
     beta: np.ndarray  # (p * 6,) β's places in lin
+    all: np.ndarray  # G, b, DA, DD, Dy's places one after another (flat)
+    ends: tuple  # where each of them ends in ``all``
 
 
 _INDEX: dict = {}
@@ -86,6 +117,8 @@ def _indices(background: int, others: bool, extra: int) -> _Index:
         slot = [0, *range(1, len(bg) + 1), *([4] if others else []), *range(NA, na)]
         di = np.arange(2, 8)
         beta = (na + 7 + 6 * np.asarray(slot)[:, None] + np.arange(6)[None, :]).ravel()
-        hit = _INDEX[key] = _Index(ai[:, None] * nz + ai[None, :], ai * nz, di[:, None] * nz + ai[None, :],
-                                   di[:, None] * nz + di[None, :], di * nz, slot, beta)
+        parts = (ai[:, None] * nz + ai[None, :], ai * nz, di[:, None] * nz + ai[None, :],
+                 di[:, None] * nz + di[None, :], di * nz)
+        ends = tuple(int(x) for x in np.cumsum([q.size for q in parts]))
+        hit = _INDEX[key] = _Index(*parts, slot, beta, np.concatenate([q.ravel() for q in parts]), ends)
     return hit

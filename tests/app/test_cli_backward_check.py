@@ -44,7 +44,7 @@ def test_the_default_and_off_round_trip():
     both = track.options_from_choices(backward_limit=None, trajectory_limit=None)
     assert (both.backward_limit, both.trajectory_limit) == (None, None)
     for bad in (0, -1.0, float("nan"), "1"):
-        with pytest.raises(ValueError, match="^backward_limit: expected a"):
+        with pytest.raises(ValueError, match=r"^backward_limit: expected a"):
             TrackingOptions(backward_limit=bad)
 
 
@@ -94,3 +94,24 @@ def test_help_names_the_backward_check(capsys):
         assert "--backward-limit K|off" in text and "--no-backward-check" in text
         assert "first frame off its backward registration" in text and "default 1.25" in text
         assert "1.46 and 1.72 times" in text
+
+
+def test_the_report_records_the_limit_used(study, monkeypatch, capsys):
+    """The tracking report's options (written as the run starts) say which limit the run used (null:
+    the check off); the renderer and the frame loop replaced, nothing tracked."""
+    import core.render
+    import core.tracking.from_study as from_study
+    from core.study import Study
+
+    def no_run(renderer, models, *args, **kw):
+        return from_study.TrackingResult(tuple(m.name for m in models), (), {}, "complete", 0.0)
+
+    monkeypatch.setattr(core.render, "DRRRenderer", lambda *a, **k: None)
+    monkeypatch.setattr(from_study, "track", no_run)
+    # the default's entry: test_cli_track (a real run)
+    talus(["track", str(study), "--trial", "walk", "--bones", "talus", "--frames", "1:2", "--device", "cpu",
+           "--quiet", "--no-backward-check"])
+    capsys.readouterr()
+    with Study.open(study) as st:
+        options = st.read_report("tracking", "walk")["options"]
+    assert options["backward_limit"] is None and options["trajectory_limit"] == 2.5

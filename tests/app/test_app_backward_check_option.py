@@ -36,7 +36,8 @@ def test_the_backward_check_is_set_or_turned_off_in_advanced_checks(qtbot, windo
     qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
     box = dialog.backward_limit
     assert box.value() == check_choices(None)["backward_limit"] == 1.25 and box.isEnabled()
-    assert "--backward-limit" in box.toolTip() and "first frame off its backward registration" in box.toolTip()
+    tip = box.toolTip()
+    assert "--backward-limit" in tip and "first frame off its backward registration" in tip
     form = dialog.checks_group.layout()
     assert form.labelForField(box).text() == "Back&ward limit:"
     assert form.getWidgetPosition(box)[0] == form.getWidgetPosition(dialog.trajectory_limit)[0] + 1

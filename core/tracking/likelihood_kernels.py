@@ -30,7 +30,7 @@ from .likelihood_robust_kernels import (  # (their names here as before)
     _robust_weight_kernel,
 )
 
-__all__ = ["regressor_kernels", "robust_factors_device"]
+__all__ = ["regressor_kernels", "robust_factors_device", "robust_one_sort_applies", "robust_sort"]
 
 NZ = 12  # z = (y, D, δ_1..δ_6, 1, u, v, O)
 NA = 5  # A = (D, 1, u, v, O): the linear terms residual_kernel reads
@@ -124,8 +124,24 @@ MEDIAN_BISECT = True
 MEDIAN_ONE_SORT = True
 
 
+def robust_one_sort_applies(n_views: int) -> bool:
+    """Whether :func:`robust_factors_device` takes :data:`MEDIAN_ONE_SORT`'s path for ``n_views``."""
+    return bool(MEDIAN_ONE_SORT and n_views <= 2)
+
+
+def robust_sort(bufs: dict, shape: tuple, device) -> None:
+    """:data:`MEDIAN_ONE_SORT`'s sort of the keys in ``bufs`` (:func:`robust_factors_device`'s) of the
+    regions' ``shape`` (views, H, W): their bits as unsigned integers, one radix sort."""
+    nv, n = shape[0], shape[1] * shape[2]
+    keys, vals = bufs["rf_keys"], bufs["rf_vals"]
+    bits = bufs.get("rf_bits")
+    if bits is None or bits.ptr != keys.ptr or bits.shape != keys.shape:
+        bits = bufs["rf_bits"] = wp.array(ptr=keys.ptr, dtype=wp.uint32, shape=keys.shape, device=device)
+    wp.utils.radix_sort_pairs(bits, vals, nv * n)
+
+
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
-                          device=None, bufs: dict | None = None, launch=None):
+                          device=None, bufs: dict | None = None, launch=None, part: str | None = None):
     """:func:`core.tracking.final_stage.robust_factors` on the device: ``e``, ``w`` ``(views, H, W)``
     Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
     factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
@@ -134,7 +150,11 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
     the value of ``np.median``): no
     synchronisation. ``bufs``: the caller's buffers, reused from call to call; ``launch``: the
     caller's ``launch(name, kernel, dim, inputs)`` (recorded launches,
-    :meth:`~core.tracking.likelihood_launches._Launches._launch`; default :func:`warp.launch`)."""
+    :meth:`~core.tracking.likelihood_launches._Launches._launch`; default :func:`warp.launch`).
+    ``part`` (:data:`MEDIAN_ONE_SORT`'s path only, :func:`robust_one_sort_applies`): ``"keys"`` the
+    launches up to the keys (returns None), ``"scale"`` those after the sort (:func:`robust_sort`;
+    the median and the factors): the same work in three pieces, the sort's the only one that is not
+    kernel launches (the engine records the two others as CUDA graphs)."""
     from ..similarity.batched import gaussian_weights  # scipy's gaussian_filter taps (truncate 4)
 
     device = device if device is not None else e.device
@@ -150,6 +170,13 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
             b = bufs[name] = wp.zeros(shp, dtype=dtype, device=device)
         return b
 
+    nv, n = shape[0], shape[1] * shape[2]
+    if part == "scale":  # (after the keys and robust_sort)
+        local, scale, out = buf("rf_local"), buf("rf_scale", (nv,)), buf("rf_out")
+        launch("rf_median1", _median_signed_kernel, (nv,), [buf("rf_keys", (2 * nv * n,)), n, scale])
+        launch("rf_weight", _robust_weight_kernel, shape,
+               [local, scale, float(k), int(kind == "cauchy"), out])
+        return out
     a, b, ta, tb = buf("rf_a"), buf("rf_b"), buf("rf_ta"), buf("rf_tb")
     g = bufs.get(("rf_taps", float(sigma_px)))
     if g is None:
@@ -159,17 +186,15 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
     launch("rf_blur1", _blur_pair_kernel, shape, [a, b, g, 1, ta, tb])
     launch("rf_blur2", _blur_pair_kernel, shape, [ta, tb, g, 2, a, b])
     local = buf("rf_local")
-    nv, n = shape[0], shape[1] * shape[2]
     keys = buf("rf_keys", (2 * nv * n,))
     vals = buf("rf_vals", (2 * nv * n,), wp.int32)
     scale = buf("rf_scale", (nv,))
     out = buf("rf_out")
-    if MEDIAN_ONE_SORT and nv <= 2:  # both views' keys in one sort of their bits (MEDIAN_ONE_SORT)
+    if robust_one_sort_applies(nv):  # both views' keys in one sort of their bits (MEDIAN_ONE_SORT)
         launch("rf_local_keys", _local_rms_keys_kernel, shape, [a, b, w, n, local, keys])
-        bits = bufs.get("rf_bits")
-        if bits is None or bits.ptr != keys.ptr or bits.shape != keys.shape:
-            bits = bufs["rf_bits"] = wp.array(ptr=keys.ptr, dtype=wp.uint32, shape=keys.shape, device=device)
-        wp.utils.radix_sort_pairs(bits, vals, nv * n)
+        if part == "keys":
+            return None
+        robust_sort(bufs, shape, device)
         launch("rf_median1", _median_signed_kernel, (nv,), [keys, n, scale])
     else:
         launch("rf_local", _local_rms_kernel, shape, [a, b, w, local])

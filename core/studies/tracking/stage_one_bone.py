@@ -22,7 +22,9 @@ the stage's rows while the search runs off / on (:data:`core.tracking.register.S
 :func:`~core.tracking.final_stage.stage_prefetch` in its ``idle`` slot), ``noafter`` / ``after`` the first
 refinement's sandwich before the robust factors / after the robust refinement's first step
 (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, on by default since both were measured alone:
-``resources/benchmarks/tracking_stage_one_bone_97b2893_h100.json``, when both were off by default).
+``resources/benchmarks/tracking_stage_one_bone_97b2893_h100.json``, when both were off by default);
+``nograph``, ``sorts``, ``npsolve`` the robust factors' CUDA graphs, their median's one sort and the
+solves' direct calls off, ``h2prev`` all five as at 97b2893 (:data:`_PARTS`).
 The runs count the stages that took the prefetched rows.
 Also the poses of every variant against the first's (largest difference, mm / degrees, and whether
 equal to the bit). JSON on stdout (``--out``: also to a file).
@@ -175,13 +177,23 @@ def _counting(counts: list):
         yield
 
 
-#: this study's own variant parts (module, flag, value): the registration's prefetch of the stage's rows
-#: on / off (:data:`core.tracking.register.STAGE_PREFETCH`), the first refinement's sandwich after the
-#: robust refinement's first step on / off (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`)
-_PARTS = {"prefetch": ("core.tracking.register", "STAGE_PREFETCH", True),
-          "noprefetch": ("core.tracking.register", "STAGE_PREFETCH", False),
-          "after": ("core.tracking.final_stage", "SANDWICH_AFTER_STEP", True),
-          "noafter": ("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False)}
+#: this study's own variant parts (name -> (module, flag, value) triples): the registration's prefetch of
+#: the stage's rows on / off (:data:`core.tracking.register.STAGE_PREFETCH`), the first refinement's
+#: sandwich after the robust refinement's first step on / off
+#: (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`), the robust factors' launches as CUDA graphs off
+#: (:data:`core.tracking.likelihood_weights.ROBUST_GRAPHS`), their median's one sort off
+#: (:data:`core.tracking.likelihood_kernels.MEDIAN_ONE_SORT`), the solves through
+#: :func:`numpy.linalg.solve` (:data:`core.tracking.likelihood_solve.DIRECT_SOLVES` off); ``h2prev`` all five
+#: as at 97b2893 (the prefetch and the sandwich's place off, the three others not there yet)
+_PARTS = {"prefetch": (("core.tracking.register", "STAGE_PREFETCH", True),),
+          "noprefetch": (("core.tracking.register", "STAGE_PREFETCH", False),),
+          "after": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", True),),
+          "noafter": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False),),
+          "nograph": (("core.tracking.likelihood_weights", "ROBUST_GRAPHS", False),),
+          "sorts": (("core.tracking.likelihood_kernels", "MEDIAN_ONE_SORT", False),),
+          "npsolve": (("core.tracking.likelihood_solve", "DIRECT_SOLVES", False),)}
+_PARTS["h2prev"] = tuple(t for k in ("noprefetch", "noafter", "nograph", "sorts", "npsolve")
+                         for t in _PARTS[k])
 
 
 def _variant_of(name: str, counts: list):
@@ -193,8 +205,8 @@ def _variant_of(name: str, counts: list):
     st = ExitStack()
     st.enter_context(_counting(counts))
     for x in parts:
-        if x in _PARTS:
-            st.enter_context(_flag(*_PARTS[x]))
+        for flag in _PARTS.get(x, ()):
+            st.enter_context(_flag(*flag))
     rest = "+".join(x for x in parts if x not in _PARTS) or "base"
     st.enter_context(_variant(rest))
     return st
@@ -320,7 +332,7 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=1024)
     p.add_argument("--voxel", type=float, default=0.5)
     p.add_argument("--variants", default="base",
-                   help="comma-separated: stage_speed's variants, and prefetch, noprefetch, after, noafter")
+                   help="comma-separated: stage_speed's variants and this study's parts (_PARTS)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--no-profile", action="store_true")
     p.add_argument("--host-profile", action="store_true")

@@ -273,6 +273,11 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
                       f"{d['stage_ms_median']:.3f} ms (median; set-up {d['setup_ms_mean']:.3f}), "
                       f"{d['steps_mean']:.2f} steps", flush=True)
         out["runs"] = runs
+        from core.tracking.engine_likelihood import _CACHE
+
+        states = [v if isinstance(v, str) else "recorded" for e in _CACHE.get(r, {}).values()
+                  for v in e.__dict__.get("_robust_graphs", {}).values()]
+        out["robust_graphs"] = {x: states.count(x) for x in sorted(set(states))}  # (ROBUST_GRAPHS' states)
         out["summary"] = {v: {k: float(np.median([x[k] for x in runs[v]]))
                               for k in ("ms_per_frame_after_first", "stage_ms_median", "stage_ms_mean",
                                         "setup_ms_mean", "registration_ms_median", "steps_mean")}

@@ -37,6 +37,12 @@ neighbour that is itself off by 0.7× the limit flags both, and neighbours near 
 alone may be flagged with it (a 0.5° spike in the tests' track with every 2nd frame tracked flags
 three more, 1.7-2.5× the median residual without the spike).
 
+*Two frames off together* (:data:`PAIR`, the ``pair`` keyword; None: off, the check before it): each
+pair of consecutive good frames is judged with both left out of the fits, the frames the other rules
+took out only through the pair's pull put back in them, and flagged when both stand off by more than
+``pair`` × ``limit`` × the bone's median such residual (:mod:`core.tracking.flags_pairs`, whose docs
+say how and what it caught: seed 3's tibia frames 69 and 70 at 6c8beab). It only adds flags.
+
 *A frame whose neighbours are flagged* (:data:`REACH`, the ``reach`` keyword; None: off): a good frame
 left without a fit once its neighbours are flagged is judged against the line through its nearest
 frames judged good further away, or noted :data:`UNCHECKED` where it cannot be
@@ -116,9 +122,10 @@ import numpy as np
 
 from .flags_fit import FLAG, UNCHECKED, _deltas, _Table  # noqa: F401 (_deltas: the studies')
 from .flags_gaps import GAP_DEGREE, GAP_FRAMES, GAP_SCALE, REACH, _judge_gaps
+from .flags_pairs import PAIR, PAIR_GATE, Pairs, pair_scale
 
 __all__ = ["BACKWARD_FLAG", "DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "HALF_WINDOW",
-           "LIMIT", "MIN_FRAMES", "NEAR", "REACH", "UNCHECKED", "apply_trajectory_flags",
+           "LIMIT", "MIN_FRAMES", "NEAR", "PAIR", "PAIR_GATE", "REACH", "UNCHECKED", "apply_trajectory_flags",
            "journal_neighbours", "trajectory_flags", "trajectory_residuals", "trajectory_review"]
 
 #: The flag of :mod:`core.tracking.backward_check` (a first frame whose registration backward from the
@@ -183,8 +190,9 @@ def trajectory_flags(frames, poses, center, **kw) -> dict[int, str]:
 
 def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_window: int = HALF_WINDOW,
                       degree: int = DEGREE, floor=FLOOR, min_frames: int = MIN_FRAMES,
-                      judged=None, near: float | None = NEAR,
-                      reach: int | None = REACH) -> tuple[dict[int, str], dict[int, str]]:
+                      judged=None, near: float | None = NEAR, reach: int | None = REACH,
+                      pair: float | None = PAIR,
+                      pair_gate: float = PAIR_GATE) -> tuple[dict[int, str], dict[int, str]]:
     """``(flags, unchecked)``: frame number -> the ``"off the trajectory"`` message, for the good frames
     of one bone (``poses`` ``(n, 4, 4)`` at ``frames``; NaN rows are not good) whose residual exceeds
     ``limit`` × the bone's median (module docs), and frame number -> the :data:`UNCHECKED` note for the
@@ -198,7 +206,10 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     exceeds the limit and its residual without them exceeds ``near`` × the limit (module docs).
     ``reach`` (None: off, such frames left unjudged and not noted): a frame left without a fit is
     judged from its nearest good frames within ``reach`` tracked frames, against the bone's frames
-    fitted alike (module docs, *A frame whose neighbours are flagged*)."""
+    fitted alike (module docs, *A frame whose neighbours are flagged*). ``pair`` (None: off): pairs of
+    consecutive frames judged with both left out of the fits, those whose frames both exceed ``pair`` ×
+    ``limit`` × the bone's median such residual flagged (and both first residuals over ``pair_gate`` ×
+    ``limit`` × the bone's median; module docs, *Two frames off together*)."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
     judge = np.ones(len(fr), dtype=bool) if judged is None else np.asarray(judged, dtype=bool)[order]
     if not (judge & ok).any():
@@ -242,10 +253,31 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
                                f"{lim[0]:.3f} mm, {lim[1]:.3f} deg, {float(limit):g} x the bone's median "
                                f"{med[0]:.3f} mm, {med[1]:.3f} deg, and {float(near):g} x them)")
             use[i] = False
+    if pair is not None:
+        gate = np.maximum(float(pair_gate) * float(limit) * med, np.asarray(floor, dtype=float))
+        _pairs(t, ok, use, judge, float(pair) * float(limit), floor, min_frames, first, gate, lim, out)
     if reach is None:
         return out, {}
     unchecked = _judge_gaps(t, P, c, use, judge, R, float(limit), floor, int(reach), out)
     return out, unchecked
+
+
+def _pairs(t, ok, use, judge, factor: float, floor, min_frames: int, first, gate, lim_one, out: dict) -> None:
+    """The pair rule (module docs, *Two frames off together*; :mod:`core.tracking.flags_pairs`): scaled
+    by every pair of consecutive good frames (those starting at a judged frame when they are enough),
+    judged with all good frames but the pairs it flagged in the fits; flags into ``out`` and takes
+    the frames flagged out of ``use``."""
+    med, m = pair_scale(t, ok, ok & judge)
+    if not m >= min_frames:
+        med, m = pair_scale(t, ok, ok)
+    if not m >= min_frames:
+        return
+    pairs = Pairs(t, use, judge, np.maximum(factor * med, np.asarray(floor, dtype=float)), med, factor,
+                  first, gate, ok & ~use, lim_one)
+    for k, frames in pairs.judge_all():
+        for m_, j in enumerate(frames):
+            if judge[j] and int(t.fr[j]) not in out:
+                out[int(t.fr[j])] = pairs.message(k, m_)
 
 
 def journal_neighbours(states, frames=()) -> dict[str, dict[int, np.ndarray]]:

@@ -71,7 +71,8 @@ def test_the_kept_runs_give_the_benchmarks_counts_without_and_with_the_near_rule
     frames over 4x left silent 20 -> 17 of 39, good bone-frames flagged 89 -> 100 of 1761 (the check as
     it was before frames whose neighbours are all flagged were judged: ``reach=None``); judging them
     (flags_post.REACH) changes no flag here: of the 11 such frames one (seed 1's joint tibia frame 14) lies
-    between frames judged good and passes, 10 at a trial's end are noted unchecked."""
+    between frames judged good and passes, 10 at a trial's end are noted unchecked. The pair rule
+    (flags_post.PAIR, 'pair=None' before it) flags two good frames more."""
     import json
     from pathlib import Path
 
@@ -82,10 +83,12 @@ def test_the_kept_runs_give_the_benchmarks_counts_without_and_with_the_near_rule
     kept = str(bench / "tracking_silent_checks_per_frame_h100.json")
     runs = [f"{kept}#{s}_{m}" for s in range(3) for m in ("joint", "sequential")]
     for near, total in ((None, (39, 20, 1761, 89)), (0.7, (39, 17, 1761, 100))):
-        got = trajectory_counts(runs, near=near, reach=None)
+        got = trajectory_counts(runs, near=near, reach=None, pair=None)
         assert tuple(got["total"][k] for k in ("over", "silent", "good", "good_flagged")) == total
         assert got["total"] == stored[str(near)]["total"]
         for r in runs:  # per run and bone, as stored under the dumps' names
             assert got["runs"][r] == stored[str(near)]["runs"][f"d_{r.rsplit('#', 1)[1]}_newton.npz"]
-    now = trajectory_counts(runs)["total"]
+    now = trajectory_counts(runs, pair=None)["total"]
     assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 100)
+    now = trajectory_counts(runs)["total"]  # the pair rule (flags_post.PAIR): seed 2's calcaneus 92, 93
+    assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 102)

@@ -35,7 +35,9 @@ folder at the same path). *Start* builds the tasks of
   the messages give each task's flagged frames — for the frame ranges of a trial's bone, the
   counts after the trajectory check that judges them together once all are done, and the frames
   that check changed (the first 10 named with their flags, the rest counted), as a single run
-  names its flagged frames.
+  names its flagged frames; a check that failed, or the merge of the keyframe two ranges share
+  that failed where the check did not judge them (``shared_error``), is an error message (the
+  Messages dock comes to the front), in the words ``talus batch`` prints.
 
 Worker events reach the GUI thread through a queue drained by a timer (no Qt call from the
 batch's thread).
@@ -512,8 +514,11 @@ class BatchPanel(QtCore.QObject):
             if r.get("flagged") and r["key"] not in judged:
                 self.window.notify(f"Batch: {r['key']}: {r['flagged']} frames flagged for review")
         for p in passes:  # the final counts of each trial's bone(s) over its ranges, and what changed
+            # an error: the check failed (``error``), or, in a group not judged, the merge of the keyframe
+            # its ranges share (``shared_error``); the same lines as talus batch prints
+            failed = bool(p.get("error") or p.get("shared_error"))
             for line in pass_messages(p, limit=MAX_FLAG_MESSAGES):
-                self.window.notify(f"Batch: {line}", error=bool(p.get("error")))
+                self.window.notify(f"Batch: {line}", error=failed)
         for f in s["failures"]:
             self.window.notify(f"Batch: {f['key']} failed after {f['attempts']} attempts: {f['error']}",
                                error=True)

@@ -148,3 +148,53 @@ def test_the_window_names_ten_changed_frames_and_counts_the_rest(window, qtbot, 
                for t in texts)
     assert "Batch: study/walk/calcaneus:0-29: 4 frames flagged for review" in texts  # not judged here
     assert not any(t.startswith("Batch: study/walk/talus:12-") and "flagged for review" in t for t in texts)
+
+
+
+def test_a_failed_merge_of_the_shared_keyframe_is_an_error_message(window, qtbot, monkeypatch):
+    """The pass's ``shared_error`` (the trajectory check off, the merge of the keyframe the two ranges
+    share failed): its lines are error messages, as a failed check's, in the words talus batch prints
+    (the batch is recorded, not run)."""
+    import core.tracking.batch as core_batch
+    from core.tracking.batch_pass import pass_messages
+    from tests.app.test_cli_batch import SHARED_ERROR
+
+    def run_batch(tasks, settings=None, *, on_event=None, **kw):
+        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
+                     seconds=0.0, flagged=0) for t in tasks]
+        entry = dict(SHARED_ERROR, ranges=[t.key for t in tasks])
+        return dict(core_batch.summarize(tasks, core_batch.final_records(recs, [entry]), [], wall_s=0.1,
+                                         workers=1), trajectory_pass=[entry])
+
+    seen, notify = [], window.notify
+
+    def recorded(text, *, error=False, tag=None):
+        seen.append((text, error))
+        notify(text, error=error, tag=tag)
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
+    monkeypatch.setattr(window, "notify", recorded)
+    window.model.select(BONE)
+    window.tracking.batch_action.trigger()
+    dlg, panel = window.tracking.batch.dialog, window.tracking.batch
+    qtbot.waitExposed(dlg)
+    _click_box(qtbot, dlg.ranges_box)
+    assert dlg.choice()["bones"] == [BONE] and dlg.choice()["ranges"]
+    with qtbot.waitSignal(panel.finished, timeout=HUNG_MS) as done:
+        qtbot.mouseClick(dlg.start_button, LEFT)
+    (entry,) = done.args[0]["trajectory_pass"]
+    lines = pass_messages(entry, limit=MAX_FLAG_MESSAGES)
+    assert len(lines) == 2 and "not merged (LockedError: walk.talus is being written" in lines[1]
+    assert "after journaling 1 of 2 (talus frame 12)" in lines[1]
+    for line in lines:  # each line shown, as an error
+        assert (f"Batch: {line}", True) in seen
+        assert f"Batch: {line}" in _texts(window)
+    assert not any(error for text, error in seen if not text.startswith("Batch: study/walk/talus: "))
+    assert window.messages_dock.isVisible()
+    folder = os.environ.get("TALUS_SCREENSHOTS")
+    if folder:
+        window.resize(1500, 800)
+        window.resizeDocks([window.messages_dock], [900], QtCore.Qt.Orientation.Horizontal)
+        qtbot.wait(100)
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        assert window.grab().save(str(Path(folder) / "batch_shared_error.png"))

@@ -266,3 +266,34 @@ def test_a_batch_tracks_with_talus_tracks_options():
 
     for joint, mode in ((False, "sequential"), (True, "joint")):
         assert TaskSettings().tracking_options(joint=joint) == options_from_choices(mode=mode)
+
+
+#: A group the trajectory check did not judge (it is off) whose shared keyframe's merge failed after
+#: journaling one frame: ``shared_error`` (core.tracking.batch_pass.run_pass).
+SHARED_ERROR = {"key": "study/walk/talus", "ranges": ["study/walk/talus:12-0", "study/walk/talus:12-29"],
+                "judged": 0, "flagged": 0, "changed": [], "seconds": 0.0, "off": True,
+                "shared_error": "LockedError: walk.talus is being written by another process",
+                "journaled": [["talus", 12]], "changed_total": 2}
+
+
+def test_batch_prints_a_failed_merge_of_the_shared_keyframe(demo, capsys, monkeypatch):
+    """The pass's ``shared_error`` (the trajectory check off, the merge of the keyframe two ranges share
+    failed): stderr gives the lines the window shows as error messages (the tasks recorded, not run)."""
+    import core.tracking.batch as core_batch
+    from app.tracking_actions import MAX_FLAG_MESSAGES
+    from core.tracking.batch_pass import pass_messages
+
+    def run_serial(tasks, settings=None, *, progress=None, cancel=None):
+        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
+                     seconds=0.0) for t in tasks]
+        return dict(core_batch.summarize(tasks, recs, [], wall_s=0.1, workers=0),
+                    trajectory_pass=[SHARED_ERROR])
+
+    monkeypatch.setattr(core_batch, "run_serial", run_serial)
+    rc = talus_batch([str(demo), "--trials", "walk", "--bones", "talus", "--workers", "0", "--quiet"])
+    out = capsys.readouterr()
+    assert rc == EXIT_OK, out.err
+    lines = pass_messages(SHARED_ERROR, limit=MAX_FLAG_MESSAGES)
+    assert lines == pass_messages(SHARED_ERROR) and "not merged (LockedError" in lines[1]
+    for line in lines:  # as the window's messages, "Batch: " there
+        assert f"talus batch: {line}\n" in out.err

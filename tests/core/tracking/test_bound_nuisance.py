@@ -104,3 +104,30 @@ def test_bad_basis_is_refused(talus_scene):
                        line_integral=[np.ones((128, 128))] * 2, quanta_per_pixel=1.0)
     with pytest.raises(ValueError, match="spacing_px"):
         spline_factors((0, 0, 10, 10), 0.0)
+
+
+def test_study_bounds_each_model_and_restates_a_stored_run():
+    from core.studies.tracking import acceptance
+    from core.studies.tracking.tissue_bound import background, bounds, models, restate
+
+    ts = acceptance.TrackingScene(n_frames=2, pixels=80, spacing=2.0, device="cpu", correction="exact")
+    mods = models(80, spacings=(16.0, 8.0))
+    assert mods["bs8"]["spacing_px"] == pytest.approx(2.5) and mods["hp"]["sigma_px"] == pytest.approx(0.3125)
+    R = background(ts, 0)
+    L = ts.scene.line_integrals(0, renderer=ts._scene_renderer)
+    assert R.shape == L.shape and np.all(R <= L + 1e-4) and R.max() > 1.0  # tissue and walkway: part of L
+    b = bounds(ts, [1], {k: mods[k] for k in ("bs16", "bs8")})
+    known = acceptance.cramer_rao(ts, [1])  # the acceptance study's bound is the known-tissue one
+    for n, t in b.items():
+        assert t["frames"] == [1]
+        assert t["known"]["rms_mm"] == pytest.approx(known[n]["rms_mm"], rel=1e-9)
+        assert t["known"]["rms_deg"] == pytest.approx(known[n]["rms_deg"], rel=1e-9)
+        assert 1.0 <= t["bs16"]["ratio"]["mm"] <= t["bs8"]["ratio"]["mm"] * (1 + 1e-9)
+        assert t["bs8"]["bias_rms"]["mm"] > 0
+    n = ts.names[0]
+    cr = {"rms_mm": 0.02, "rms_deg": 0.1}
+    row = {"rms_error_mm": 0.03, "rms_error_deg": 0.2, "cramer_rao": cr}
+    stored = {"runs": {"joint": {"tracking": {n: row}}}}
+    r = restate(stored, b, ("bs8",))["joint"][n]
+    assert r["over_known"] == pytest.approx({"mm": 1.5, "deg": 2.0})
+    assert r["over_bs8"]["mm"] == pytest.approx(1.5 / b[n]["bs8"]["ratio"]["mm"])

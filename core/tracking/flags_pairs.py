@@ -51,7 +51,8 @@ local fit sees), 33 -> 39 of 478; seed 0 with the stage 39 -> 40 of 597, without
 the kept runs of seeds 0-2 at ea76c8b (:mod:`core.studies.tracking.silent_checks`) silent 17 -> 17 of
 39, good frames flagged 100 -> 102 of 1761. On the tests' walking track (0.05 deg noise per axis)
 two frames 0.25 and 0.275 deg off together were flagged both in 3 of 8 draws where the check without
-the rule missed one or both; a single frame 0.5 deg off flags as before.
+the rule missed one or both; a single frame 0.5 deg off flags as before. The check took 14-19 ms per
+bone over 100 frames with the rule, 8 without (those runs, this machine loaded).
 """
 
 from __future__ import annotations

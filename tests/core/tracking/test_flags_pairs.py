@@ -61,3 +61,20 @@ def test_a_smooth_noisy_track_is_not_flagged_by_the_rule():
     assert extra <= 2  # of 1200 good frames
     P = walking_track(N, (0.0, 0.0), 1)
     assert _flags(P) == {}  # noise-free: below the floor
+
+
+def test_the_batched_pair_scale_is_the_pairs_one_by_one():
+    from core.tracking.flags_fit import _Table
+    from core.tracking.flags_pairs import pair_residuals, pair_scale
+
+    P = _track(3, {30: 0.25, 31: 0.275})
+    P[[12, 40, 41]] = np.nan  # frames without a pose: windows not full, pairs broken
+    fr = np.arange(N) * 2  # every 2nd frame tracked
+    ok = np.all(np.isfinite(P.reshape(N, -1)), axis=1)
+    t = _Table(fr, P, ok, C, 4, 2)
+    for which in (ok, ok & (np.arange(N) % 3 == 0)):
+        vals = [x for i in np.flatnonzero(which) if (r := pair_residuals(t, ok, int(i))) is not None
+                for x in r if np.all(np.isfinite(x))]
+        med, m = pair_scale(t, ok, which)
+        assert m == len(vals) > 8
+        np.testing.assert_allclose(med, np.median(vals, axis=0), rtol=0, atol=1e-12)

@@ -85,12 +85,12 @@ JSON on stdout (``--out``: also to a file, rewritten after each frame).
 
 from __future__ import annotations
 
-import argparse
-import platform
 import time
 from dataclasses import replace
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["FRAME_SETS", "METHODS", "frame_images", "method", "run", "summarise"]
 
@@ -325,12 +325,13 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
     names = ts0.names
     bones = list(range(len(names))) if bones is None else [int(b) for b in bones]
     margin = RegistrationOptions().margin_px
-    out = {"study": "core.studies.tracking.background_fit", "machine": platform.machine(),
-           "pixels": pixels, "voxel_mm": voxel, "frames": frames, "seeds": seeds, "sets": list(sets),
-           "methods": {m: dict(zip(("cost", "refine"), method(m, pixels), strict=True)) for m in methods},
-           "glare_measured": [{"fraction": g.fraction, "sigma_px": g.sigma_px}
-                              for g in src.scene(sets[0]).glare],
-           "generator_glare_fraction": [m.glare_fraction for m in ts0.scene.imaging]}
+    out = cli.header("core.studies.tracking.background_fit", pixels=pixels, voxel_mm=voxel, frames=frames,
+                     seeds=seeds, sets=list(sets),
+                     methods={m: dict(zip(("cost", "refine"), method(m, pixels), strict=True))
+                              for m in methods},
+                     glare_measured=[{"fraction": g.fraction, "sigma_px": g.sigma_px}
+                                     for g in src.scene(sets[0]).glare],
+                     generator_glare_fraction=[m.glare_fraction for m in ts0.scene.imaging])
     bound = cramer_rao(ts0, frames)
     out["bound"] = bound
     out["setup_s"] = time.perf_counter() - t0
@@ -355,11 +356,7 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
         out["results"] = {st: {mth: {nm: summarise(d["free"], d["noisy"], bound.get(nm))
                                      for nm, d in bm.items()} for mth, bm in sm.items()}
                           for st, sm in errs.items()}
-        out["frames_done"] = frames[: frames.index(f) + 1]
-        out["total_s"] = time.perf_counter() - t0
-        print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
-        if checkpoint:
-            checkpoint(out)
+        cli.frame_done(out, f, t0, checkpoint, frames[: frames.index(f) + 1])
     for f in components_frames:
         out.setdefault("tissue_residual", {})[str(f)] = tissue_residual(ts0, f)
         out.setdefault("components", {})[str(f)] = component_bias(ts0, f, component_methods, pixels, margin)
@@ -370,32 +367,19 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.background_fit",
-                                description=__doc__.split("\n")[0])
-    p.add_argument("--pixels", type=int, default=256)
-    p.add_argument("--voxel", type=float, default=1.0)
-    p.add_argument("--n-frames", type=int, default=20, help="the trial's length (its phase scales with it)")
-    p.add_argument("--frames", default="0,2,4,6,8,10,12,14,16,18")
-    p.add_argument("--seeds", type=int, default=2)
-    p.add_argument("--sets", default="true,grid")
+    p = cli.parser("core.studies.tracking.background_fit", __doc__)
+    cli.add_scene(p, frames="0,2,4,6,8,10,12,14,16,18", sets="true,grid")
     p.add_argument("--methods", default=",".join(METHODS))
-    p.add_argument("--bones", default="", help="bone indices (default all)")
+    p.add_argument("--bones", default="", help=cli.BONES_HELP)
     p.add_argument("--components-frames", default="", help="frames of the noise-free parts' test")
     p.add_argument("--component-methods", default="hp4+r,leg0,leg2,leg4,leg4t+r")
-    p.add_argument("--out", default=None)
+    cli.add_output(p, machine_name=False)
     a = p.parse_args(argv)
-    from core.io.atomic import json_checkpoint, print_json
-
-    checkpoint = json_checkpoint(a.out, indent=1)
-
-    res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames,
-              frames=[int(x) for x in a.frames.split(",") if x], seeds=a.seeds,
-              sets=[x for x in a.sets.split(",") if x], methods=[x for x in a.methods.split(",") if x],
-              bones=[int(x) for x in a.bones.split(",") if x] or None,
-              components_frames=[int(x) for x in a.components_frames.split(",") if x],
-              component_methods=[x for x in a.component_methods.split(",") if x], checkpoint=checkpoint)
-    print_json(res, a.out)
-    return 0
+    res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames, frames=cli.ints(a.frames), seeds=a.seeds,
+              sets=cli.names(a.sets), methods=cli.names(a.methods), bones=cli.ints(a.bones) or None,
+              components_frames=cli.ints(a.components_frames),
+              component_methods=cli.names(a.component_methods), checkpoint=cli.checkpoint(a))
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

@@ -90,11 +90,11 @@ JSON on stdout (``--out``: also to a file, rewritten after each frame).
 
 from __future__ import annotations
 
-import argparse
-import platform
 import time
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["averaged", "fit_bone", "neighbour_correction", "parse", "projected_shift", "residual_images",
            "run"]
@@ -297,9 +297,9 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
             raise ValueError(f"{v}: needs frames >= K = {p['K']}")
     chained = [v for v in variants if V[v]["source"] == "b"]
     todo = sorted(set(frames) | (set(range(frames[-1] + 1)) if chained else set()))
-    out = {"study": "core.studies.tracking.temporal_tissue", "machine": platform.machine(), "pixels": pixels,
-           "voxel_mm": voxel, "n_frames": n_frames, "frames": frames, "seeds": seeds, "sets": list(sets),
-           "pose_error": pose_error, "residual_gain_hp": residual_gain_hp, "variants": V}
+    out = cli.header("core.studies.tracking.temporal_tissue", pixels=pixels, voxel_mm=voxel,
+                     n_frames=n_frames, frames=frames, seeds=seeds, sets=list(sets), pose_error=pose_error,
+                     residual_gain_hp=residual_gain_hp, variants=V)
     bound = cramer_rao(ts0, frames)
     out["bound"] = bound
     out["setup_s"] = time.perf_counter() - t0
@@ -400,11 +400,8 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
                                        {"free_errors": np.round(d["free"], 5).tolist()}
                                        for nm, d in vm.items()} for v, vm in sm.items()}
                               for st, sm in errs.items()}
-            out["frames_done"] = [x for x in frames if x <= f]
-        out["total_s"] = time.perf_counter() - t0
-        print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
-        if checkpoint:
-            checkpoint(out)
+        # (a frame only the chained variants need: its progress, the frames done as they were)
+        cli.frame_done(out, f, t0, checkpoint, [x for x in frames if x <= f] if f in frames else None)
     return out
 
 
@@ -420,41 +417,19 @@ def table(res: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.temporal_tissue",
-                                description=__doc__.split("\n")[0])
-    p.add_argument("--pixels", type=int, default=256)
-    p.add_argument("--voxel", type=float, default=1.0)
-    p.add_argument("--n-frames", type=int, default=20, help="the trial's length (its phase scales with it)")
-    p.add_argument("--frames", default="4,8,12,16")
-    p.add_argument("--seeds", type=int, default=2)
-    p.add_argument("--sets", default="true,grid")
+    p = cli.parser("core.studies.tracking.temporal_tissue", __doc__)
+    cli.add_scene(p, frames="4,8,12,16", sets="true,grid")
     p.add_argument("--variants", default="hp4+r,a4:hp0+r,a4:hp2+r,a4:hp4+r")
-    p.add_argument("--bones", default="", help="bone indices (default all)")
+    p.add_argument("--bones", default="", help=cli.BONES_HELP)
     p.add_argument("--pose-error", type=float, default=0.05, help="mm / degrees per axis of the start poses")
     p.add_argument("--residual-gain-hp", type=float, default=None,
                    help="the residuals' bone gains fitted on images high-passed by this many px (default 1)")
-    p.add_argument("--machine-name", default=None, help="a name for the machine, written into the JSON")
-    p.add_argument("--table", action="store_true", help="print the summary table to stderr at the end")
-    p.add_argument("--out", default=None)
+    cli.add_output(p, table=True)
     a = p.parse_args(argv)
-    from core.io.atomic import json_checkpoint, print_json
-
-    def lst(s):
-        return [x for x in s.split(",") if x]
-
-    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
-    res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames, frames=[int(x) for x in lst(a.frames)],
-              seeds=a.seeds, sets=lst(a.sets), variants=lst(a.variants),
-              bones=[int(x) for x in lst(a.bones)] or None, pose_error=a.pose_error,
-              residual_gain_hp=a.residual_gain_hp, checkpoint=checkpoint)
-    if a.machine_name:
-        res["machine_name"] = a.machine_name
-    if a.table:
-        import sys
-
-        print("\n".join(table(res)), file=sys.stderr)
-    print_json(res, a.out)
-    return 0
+    res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames, frames=cli.ints(a.frames), seeds=a.seeds,
+              sets=cli.names(a.sets), variants=cli.names(a.variants), bones=cli.ints(a.bones) or None,
+              pose_error=a.pose_error, residual_gain_hp=a.residual_gain_hp, checkpoint=cli.checkpoint(a))
+    return cli.finish(res, a, table)
 
 
 if __name__ == "__main__":

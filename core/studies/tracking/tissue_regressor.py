@@ -108,11 +108,11 @@ JSON on stdout (``--out``: also to a file, rewritten after each frame).
 
 from __future__ import annotations
 
-import argparse
-import platform
 import time
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["TISSUES", "estimated_poses", "regressor_images", "run", "user_tissue"]
 
@@ -281,10 +281,11 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
     talus = names.index("talus")
     margin = RegistrationOptions().margin_px
     psf = estimated_psf(ts0)
-    out = {"study": "core.studies.tracking.tissue_regressor", "machine": platform.machine(),
-           "pixels": pixels, "voxel_mm": voxel, "n_frames": n_frames, "frames": frames, "seeds": seeds,
-           "sets": list(sets), "tissues": list(tissues), "modes": list(modes), "pose_error": pose_error,
-           "methods": {m: dict(zip(("cost", "refine"), method(m, pixels), strict=True)) for m in methods}}
+    out = cli.header("core.studies.tracking.tissue_regressor", pixels=pixels, voxel_mm=voxel,
+                     n_frames=n_frames, frames=frames, seeds=seeds, sets=list(sets), tissues=list(tissues),
+                     modes=list(modes), pose_error=pose_error,
+                     methods={m: dict(zip(("cost", "refine"), method(m, pixels), strict=True))
+                              for m in methods})
     bound = cramer_rao(ts0, frames)
     out["bound"] = bound
     renders = {k: _TissueRender(ts0, k.split(":")[0], device) for k in tissues}
@@ -319,11 +320,7 @@ def run(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=ran
                                               for nm, d in bm.items()} for m, bm in km.items()}
                                       for k, km in mm.items()} for mode, mm in sm.items()}
                           for st, sm in errs.items()}
-        out["frames_done"] = frames[: frames.index(f) + 1]
-        out["total_s"] = time.perf_counter() - t0
-        print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
-        if checkpoint:
-            checkpoint(out)
+        cli.frame_done(out, f, t0, checkpoint, frames[: frames.index(f) + 1])
     return out
 
 
@@ -342,35 +339,18 @@ def table(res: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.tissue_regressor",
-                                description=__doc__.split("\n")[0])
-    p.add_argument("--pixels", type=int, default=256)
-    p.add_argument("--voxel", type=float, default=1.0)
-    p.add_argument("--n-frames", type=int, default=20, help="the trial's length (its phase scales with it)")
-    p.add_argument("--frames", default="0,2,4,6,8,10,12,14,16,18")
-    p.add_argument("--seeds", type=int, default=2)
-    p.add_argument("--sets", default="grid")
+    p = cli.parser("core.studies.tracking.tissue_regressor", __doc__)
+    cli.add_scene(p, frames="0,2,4,6,8,10,12,14,16,18", sets="grid")
     p.add_argument("--methods", default="hp4+r,hp4t+r,hp2t+r,leg4t+r")
     p.add_argument("--tissues", default="coarse", help=f"volumes of {TISSUES} (':2' after one: two parts)")
     p.add_argument("--modes", default="joint,alone")
     p.add_argument("--pose-error", type=float, default=0.05, help="mm / degrees per axis (0: true poses)")
-    p.add_argument("--machine-name", default=None, help="a name for the machine, written into the JSON")
-    p.add_argument("--out", default=None)
+    cli.add_output(p)
     a = p.parse_args(argv)
-    from core.io.atomic import json_checkpoint, print_json
-
-    def lst(s):
-        return [x for x in s.split(",") if x]
-
-    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
-
-    res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames, frames=[int(x) for x in lst(a.frames)],
-              seeds=a.seeds, sets=lst(a.sets), methods=lst(a.methods), tissues=lst(a.tissues),
-              modes=lst(a.modes), pose_error=a.pose_error, checkpoint=checkpoint)
-    if a.machine_name:
-        res["machine_name"] = a.machine_name
-    print_json(res, a.out)
-    return 0
+    res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames, frames=cli.ints(a.frames), seeds=a.seeds,
+              sets=cli.names(a.sets), methods=cli.names(a.methods), tissues=cli.names(a.tissues),
+              modes=cli.names(a.modes), pose_error=a.pose_error, checkpoint=cli.checkpoint(a))
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

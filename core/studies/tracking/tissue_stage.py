@@ -63,11 +63,12 @@ JSON on stdout (``--out``: also to a file, rewritten after each run).
 
 from __future__ import annotations
 
-import argparse
 import time
 from dataclasses import replace
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["main", "run", "tissue_model"]
 
@@ -295,11 +296,7 @@ def probe(*, pixels: int = 256, voxel: float = 1.0, n_frames: int = 20, frames=r
                                                               round(rd / bound[nm]["rms_deg"], 3)],
                                                "mean_error": E.mean(axis=0).round(5).tolist()}
         out["results"] = res
-        out["frames_done"] = frames[: frames.index(f) + 1]
-        out["total_s"] = time.perf_counter() - t0
-        print(f"frame {f} done {out['total_s']:.0f}s", flush=True)
-        if checkpoint:
-            checkpoint(out)
+        cli.frame_done(out, f, t0, checkpoint, frames[: frames.index(f) + 1])
     return out
 
 
@@ -327,8 +324,7 @@ def table(res: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.tissue_stage",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.tissue_stage", __doc__)
     p.add_argument("--device", default=None)
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--pixels", type=int, default=1024)
@@ -346,40 +342,29 @@ def main(argv=None) -> int:
     p.add_argument("--no-glare", action="store_true", help="the frames' veiling glare left in")
     p.add_argument("--correction", choices=("model", "grid"), default="grid")
     p.add_argument("--warm-frames", type=int, default=3)
-    p.add_argument("--machine-name", default=None, help="the machine's name for the JSON (e.g. the GPU)")
+    cli.add_machine_name(p)
     p.add_argument("--probe", action="store_true",
                    help="the tissue model's own effect: the stage from the true poses (probe(); CPU sizes)")
     p.add_argument("--probe-frames", default="0,2,4,6,8,10,12,14,16,18")
-    p.add_argument("--probe-bones", default="", help="bone indices (default all)")
+    p.add_argument("--probe-bones", default="", help=cli.BONES_HELP)
     p.add_argument("--probe-modes", default="plain", help="plain, robust, est, robust+est (probe())")
     p.add_argument("--probe-kinds", default="none,coarse,exact")
-    p.add_argument("--out", default=None)
+    cli.add_output(p, machine_name=False)
     a = p.parse_args(argv)
-    from core.io.atomic import json_checkpoint, print_json
-
-    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
-
+    checkpoint = cli.checkpoint(a)
     if a.probe:
-        res = probe(pixels=a.pixels, voxel=a.voxel, n_frames=a.frames,
-                    frames=[int(x) for x in a.probe_frames.split(",") if x],
-                    highpass=[float(x) for x in a.highpass.split(",") if x], coarse_mm=a.coarse_mm,
-                    tissue_psf=not a.no_tissue_psf, correction=a.correction, glare=not a.no_glare,
-                    device=a.device or "cpu", bones=[int(x) for x in a.probe_bones.split(",") if x] or None,
-                    modes=a.probe_modes.split(","), kinds=a.probe_kinds.split(","), checkpoint=checkpoint)
-        if a.machine_name:
-            res["machine_name"] = a.machine_name
-        print_json(res, a.out)
-        return 0
+        res = probe(pixels=a.pixels, voxel=a.voxel, n_frames=a.frames, frames=cli.ints(a.probe_frames),
+                    highpass=cli.floats(a.highpass), coarse_mm=a.coarse_mm, tissue_psf=not a.no_tissue_psf,
+                    correction=a.correction, glare=not a.no_glare, device=a.device or "cpu",
+                    bones=cli.ints(a.probe_bones) or None, modes=a.probe_modes.split(","),
+                    kinds=a.probe_kinds.split(","), checkpoint=checkpoint)
+        return cli.finish(res, a)
     res = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel, workers=a.workers,
-              highpass=[float(x) for x in a.highpass.split(",") if x],
-              cases=[x for x in a.cases.split(",") if x], kind=a.tissue, coarse_mm=a.coarse_mm,
+              highpass=cli.floats(a.highpass), cases=cli.names(a.cases), kind=a.tissue, coarse_mm=a.coarse_mm,
               tissue_psf=not a.no_tissue_psf, each=a.each, again=a.again, glare=not a.no_glare,
               variants=a.variants.split(",") if a.variants else ("",), tracker=not a.no_tracker,
               correction=a.correction, warm_frames=a.warm_frames, checkpoint=checkpoint)
-    if a.machine_name:
-        res["machine_name"] = a.machine_name
-    print_json(res, a.out)
-    return 0
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

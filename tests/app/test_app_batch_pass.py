@@ -106,24 +106,34 @@ def test_the_window_gives_the_flags_after_the_trajectory_check_over_the_ranges(w
         assert window.grab().save(str(Path(folder) / "batch_trajectory_pass.png"))
 
 
-def test_the_window_names_ten_changed_frames_and_counts_the_rest(window, qtbot, monkeypatch):
-    """A long trial's check changes many frames: the first 10 named, the rest counted; a range
-    task the check did not judge keeps its own count (the batch is recorded, not run)."""
+def _recorded_batch(monkeypatch, entry_of, flagged: int) -> None:
+    """``run_batch`` replaced: nothing run, every task complete with ``flagged`` frames flagged, the
+    trajectory pass's one entry ``entry_of(tasks)``."""
     import core.tracking.batch as core_batch
-    from core.tracking.flags_post import FLAG
 
     def run_batch(tasks, settings=None, *, on_event=None, **kw):
         recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
-                     seconds=0.0, flagged=4) for t in tasks]
-        ranges = [t.key for t in tasks if t.bones == (BONE,)]
-        entry = {"key": "study/walk/talus", "ranges": ranges, "judged": 30, "flagged": 13,
-                 "review_flagged": {BONE: 14},
-                 "changes": [{"bone": BONE, "frame": f, "flags": [f"{FLAG} (test)"]} for f in range(13)],
-                 "tasks_flagged": dict.fromkeys(ranges, 7)}
+                     seconds=0.0, flagged=flagged) for t in tasks]
+        entry = entry_of(tasks)
         return dict(core_batch.summarize(tasks, core_batch.final_records(recs, [entry]), [], wall_s=0.1,
                                          workers=1), trajectory_pass=[entry])
 
     monkeypatch.setattr(core_batch, "run_batch", run_batch)
+
+
+def test_the_window_names_ten_changed_frames_and_counts_the_rest(window, qtbot, monkeypatch):
+    """A long trial's check changes many frames: the first 10 named, the rest counted; a range
+    task the check did not judge keeps its own count (the batch is recorded, not run)."""
+    from core.tracking.flags_post import FLAG
+
+    def entry_of(tasks):
+        ranges = [t.key for t in tasks if t.bones == (BONE,)]
+        return {"key": "study/walk/talus", "ranges": ranges, "judged": 30, "flagged": 13,
+                "review_flagged": {BONE: 14},
+                "changes": [{"bone": BONE, "frame": f, "flags": [f"{FLAG} (test)"]} for f in range(13)],
+                "tasks_flagged": dict.fromkeys(ranges, 7)}
+
+    _recorded_batch(monkeypatch, entry_of, flagged=4)
     window.model.select(BONE)
     window.tracking.batch_action.trigger()
     dlg, panel = window.tracking.batch.dialog, window.tracking.batch
@@ -155,24 +165,16 @@ def test_a_failed_merge_of_the_shared_keyframe_is_an_error_message(window, qtbot
     """The pass's ``shared_error`` (the trajectory check off, the merge of the keyframe the two ranges
     share failed): its lines are error messages, as a failed check's, in the words talus batch prints
     (the batch is recorded, not run)."""
-    import core.tracking.batch as core_batch
     from core.tracking.batch_pass import pass_messages
     from tests.app.test_cli_batch import SHARED_ERROR
 
-    def run_batch(tasks, settings=None, *, on_event=None, **kw):
-        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
-                     seconds=0.0, flagged=0) for t in tasks]
-        entry = dict(SHARED_ERROR, ranges=[t.key for t in tasks])
-        return dict(core_batch.summarize(tasks, core_batch.final_records(recs, [entry]), [], wall_s=0.1,
-                                         workers=1), trajectory_pass=[entry])
-
+    _recorded_batch(monkeypatch, lambda tasks: dict(SHARED_ERROR, ranges=[t.key for t in tasks]), flagged=0)
     seen, notify = [], window.notify
 
     def recorded(text, *, error=False, tag=None):
         seen.append((text, error))
         notify(text, error=error, tag=tag)
 
-    monkeypatch.setattr(core_batch, "run_batch", run_batch)
     monkeypatch.setattr(window, "notify", recorded)
     window.model.select(BONE)
     window.tracking.batch_action.trigger()

@@ -1,0 +1,261 @@
+"""Where a tracking frame's time goes: ``python -m core.studies.tracking.frame_profile [--device cuda:0]
+[--frames 100] [--pixels 1024] [--voxel 0.5] [--bones three|one] [--final likelihood|none] [--workers 12]
+[--repeats 3] [--cprofile] [--out FILE]``.
+
+The scene and trial of ``talus bench track`` (:mod:`core.studies.tracking.benchmark`: the synthetic walking
+trial, frames synthesised before the clock starts, frame 0 from the true pose, joint tracking of tibia,
+talus and calcaneus or the talus alone, ``--final likelihood``: the likelihood stage). After a two-frame
+warm-up, ``repeats`` plain runs (wall, first frame, ms a frame after it), then one run with the tracker's
+functions wrapped (:data:`WRAPPED`): the wall time of each call (``perf_counter``), inclusive and exclusive of
+the wrapped functions it calls, summed per phase — ``first`` (frame 0), ``later`` (the frames after it;
+divide by their number for a frame), ``backward`` (the backward check's registration of the first frame at
+the run's end, :mod:`core.tracking.backward_check`) and ``loop`` (the tracker's loop outside the frame step).
+``wp.synchronize_*``: the host's waits for the device; ``stage_gen.next0`` / ``stage_gen.next``: a final
+stage's set-up and first step / each later step up to its next wait (its generator,
+:func:`core.tracking.final_stage.final_stage_steps`). The wrappers cost about a millisecond a frame of three
+bones; ``--cprofile`` adds a run under :mod:`cProfile` (its text next to the JSON). JSON on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import time
+from contextlib import contextmanager
+
+import numpy as np
+
+__all__ = ["WRAPPED", "main", "profile_run", "wrapped"]
+
+#: (module, attribute) of the functions wrapped, by the name their callers look them up by; classes'
+#: methods as "Class.method"
+WRAPPED = (
+    ("core.tracking.trial", ("apply_trajectory_flags",)),
+    ("core.tracking.frame_step", ("register_together", "register_checked", "settle", "stage_move_check",
+                                  "_frame_result", "motion_prediction", "predict_pose", "_moved_around",
+                                  "stage_pass", "_confirmed", "missing_flags")),
+    ("core.tracking.joint_pipeline", ("run_pipelined",)),
+    ("core.tracking.joint", ("search_region", "engine_cost", "mm_per_pixel", "_submit", "_collect", "_drive",
+                             "_result", "register", "restarts_together")),
+    ("core.tracking.final_stage", ("final_stages", "run_side_by_side", "confirm_move")),
+    ("core.tracking.attempt", ("register", "verify_start", "_failures", "confidence_of", "_conf_flags",
+                               "_motion_limits")),
+    ("core.tracking.register", ("_run", "search_region", "result_of", "mm_per_pixel")),
+    ("core.tracking.engine", ("gauss_newton_search", "GaussNewtonCost.set_frame", "GaussNewtonCost.submit",
+                              "GaussNewtonCost.collect", "GaussNewtonCost.newton",
+                              "GaussNewtonCost.sibling")),
+    ("core.tracking.engine_search", ("LevenbergMarquardt.ask", "LevenbergMarquardt.tell",
+                                     "LevenbergMarquardt.result")),
+    ("core.tracking.engine_likelihood", ("LikelihoodEngine.set_frame", "LikelihoodEngine.refine_steps")),
+    ("core.tracking.feed", ("FrameFeed.get", "FrameFeed.prefetch")),
+    ("core.tracking.frame_state", ("_BoneState.add",)),
+    ("warp", ("synchronize_event", "synchronize_device", "synchronize_stream", "synchronize")),
+)
+
+
+class _Stats:
+    """Calls, inclusive and exclusive seconds per (phase, name)."""
+
+    def __init__(self) -> None:
+        self.rows: dict = {}
+        self.stack: list = []
+        self.phase = "loop"
+        self.first = None  # the run's first frame (its first frame step's)
+
+    def timed(self, fn, name: str):
+        @functools.wraps(fn)  # (its module and name: joint_pipeline.applies tells final_stages by them)
+        def w(*a, **k):
+            self.stack.append(0.0)
+            t = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                self.done(name, time.perf_counter() - t)
+        return w
+
+    def done(self, name: str, dt: float) -> None:
+        child = self.stack.pop()
+        if self.stack:
+            self.stack[-1] += dt
+        s = self.rows.setdefault((self.phase, name), [0, 0.0, 0.0])
+        s[0] += 1
+        s[1] += dt
+        s[2] += dt - child
+
+    def table(self) -> dict:
+        out: dict = {}
+        for (ph, name), (n, inc, exc) in sorted(self.rows.items(), key=lambda kv: -kv[1][1]):
+            out.setdefault(ph, []).append({"name": name, "calls": n, "incl_ms": 1e3 * inc,
+                                           "excl_ms": 1e3 * exc})
+        return out
+
+
+@contextmanager
+def wrapped():
+    """Inside the block the functions of :data:`WRAPPED` (and the frame step, the backward check and the
+    final stages' generators) are timed; yields the :class:`_Stats`. Everything is restored after."""
+    import importlib
+
+    import core.tracking.backward_check as backward
+    import core.tracking.final_stage as fst
+    import core.tracking.trial as trial
+
+    st = _Stats()
+    kept: list = []
+
+    def put(obj, attr, new) -> None:
+        kept.append((obj, attr, getattr(obj, attr)))
+        setattr(obj, attr, new)
+
+    for modname, names in WRAPPED:
+        mod = importlib.import_module(modname)
+        for name in names:
+            obj, _, attr = name.rpartition(".")
+            owner = getattr(mod, obj) if obj else mod
+            if hasattr(owner, attr):
+                short = "wp" if modname == "warp" else modname.rsplit(".", 1)[-1]
+                label = name if obj else f"{short}.{attr}"
+                put(owner, attr, st.timed(getattr(owner, attr), label))
+    step = trial.track_frame
+
+    def frame_step(run, f, *a, **k):
+        old = st.phase
+        if old != "backward":
+            st.first = f if st.first is None else st.first
+            st.phase = "first" if f == st.first else "later"
+        try:
+            return st.timed(step, "track_frame")(run, f, *a, **k)
+        finally:
+            st.phase = old
+
+    check = backward.backward_check
+
+    def backward_check(*a, **k):
+        old, st.phase = st.phase, "backward"
+        try:
+            return st.timed(check, "backward_check")(*a, **k)
+        finally:
+            st.phase = old
+
+    steps = fst.final_stage_steps
+
+    def final_stage_steps(*a, **k):
+        g = steps(*a, **k)
+
+        def timed():
+            n = 0
+            while True:
+                st.stack.append(0.0)
+                t = time.perf_counter()
+                try:
+                    v = next(g)
+                except StopIteration as stop:
+                    st.done("stage_gen.next_last", time.perf_counter() - t)
+                    return stop.value
+                st.done("stage_gen.next0" if n == 0 else "stage_gen.next", time.perf_counter() - t)
+                n += 1
+                yield v
+
+        return timed()
+
+    put(trial, "track_frame", frame_step)
+    put(backward, "backward_check", backward_check)
+    put(fst, "final_stage_steps", final_stage_steps)
+    try:
+        yield st
+    finally:
+        for obj, attr, old in reversed(kept):
+            setattr(obj, attr, old)
+
+
+def profile_run(renderer, models, frames, order, keyframes, options) -> dict:
+    """One run of :func:`core.tracking.trial.track` with :func:`wrapped`: the run's times and the table."""
+    from core.tracking.trial import track
+
+    with wrapped() as st:
+        got = _timed_track(track, renderer, models, frames, list(order), keyframes, options)
+    got["stats"] = st.table()
+    return got
+
+
+def _timed_track(track, renderer, models, frames, order, keyframes, options) -> dict:
+    ends: dict = {}
+
+    def progress(done, total, fr):
+        ends[fr.frame] = time.perf_counter()
+
+    t0 = time.perf_counter()
+    res = track(renderer, models, frames, order, keyframes=keyframes, options=options, progress=progress)
+    wall = time.perf_counter() - t0
+    first = ends.get(order[0], t0) - t0
+    n = max(len(order) - 1, 1)
+    evals = float(np.mean([x.evaluations for x in res.results.values()])) * len(models)
+    return {"wall_s": wall, "first_frame_ms": 1e3 * first,
+            "ms_per_frame_after_first": 1e3 * (wall - first) / n, "evaluations_per_frame": evals}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.frame_profile",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--device", default=None)
+    p.add_argument("--frames", type=int, default=100)
+    p.add_argument("--pixels", type=int, default=1024)
+    p.add_argument("--voxel", type=float, default=0.5)
+    p.add_argument("--bones", choices=("three", "one"), default="three")
+    p.add_argument("--final", choices=("likelihood", "none"), default="likelihood")
+    p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--cprofile", action="store_true")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    from dataclasses import replace
+
+    import warp as wp
+
+    from core.render import DRRRenderer
+    from core.studies.tracking.acceptance import TrackingScene
+    from core.studies.tracking.trial_frames import synthesise
+    from core.tracking.trial import TrackingOptions, track
+
+    n = max(int(a.frames), 2)
+    ts = TrackingScene(n_frames=n, pixels=a.pixels, spacing=a.voxel, phase=(0.0, 0.6 * n / 100.0),
+                       device=a.device)
+    synthesise(ts, range(n), int(a.workers))
+    bones = [0, 1, 2] if a.bones == "three" else [1]
+    models = [ts.models[b] for b in bones]
+    r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
+                    device=ts.device)
+    kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
+    o = TrackingOptions(mode="joint")
+    if a.final == "likelihood":
+        o = replace(o, refine_likelihood=True)
+    track(r, models, ts.frames, [0, 1], keyframes=kf, options=o)  # warm-up: kernels, buffers
+    dev = wp.get_device(str(ts.renderer.device))
+    out = {"study": "core.studies.tracking.frame_profile", "device": str(dev),
+           "device_name": getattr(dev, "name", str(dev)), "frames": n, "pixels": a.pixels,
+           "voxel_mm": a.voxel, "bones": [m.name for m in models], "final": a.final,
+           "plain": [_timed_track(track, r, models, ts.frames, range(n), kf, o)
+                     for _ in range(int(a.repeats))]}
+    out["wrapped"] = profile_run(r, models, ts.frames, range(n), kf, o)
+    if a.cprofile:
+        import cProfile
+        import io
+        import pstats
+
+        pr = cProfile.Profile()
+        pr.enable()
+        out["cprofile_run"] = _timed_track(track, r, models, ts.frames, range(n), kf, o)
+        pr.disable()
+        s = io.StringIO()
+        pstats.Stats(pr, stream=s).sort_stats("tottime").print_stats(60)
+        if a.out:
+            with open(a.out + ".cprofile.txt", "w") as fh:
+                fh.write(s.getvalue())
+    from core.io.atomic import print_json
+
+    print_json(out, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

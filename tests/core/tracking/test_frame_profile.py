@@ -1,0 +1,42 @@
+"""The frame profile study's wrappers (core.studies.tracking.frame_profile): per phase the frame step's
+calls and its parts timed, the joint pipeline still taken under them, and every wrapped function
+restored after the block (ideal 128² talus-calcaneus, CPU device)."""
+
+from __future__ import annotations
+
+
+def test_profile_run_phases_and_restores(talus_calcaneus_128):
+    import importlib
+
+    import core.tracking.final_stage as fst
+    import core.tracking.trial as trial
+    from core.studies.tracking.frame_profile import WRAPPED, profile_run
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions
+
+    def current():
+        got = {}
+        for modname, names in WRAPPED:
+            mod = importlib.import_module(modname)
+            for name in names:
+                obj, _, attr = name.rpartition(".")
+                owner = getattr(mod, obj) if obj else mod
+                got[(modname, name)] = getattr(owner, attr, None)
+        return got, trial.track_frame, fst.final_stage_steps
+
+    before = current()
+    sc, models, r, imgs = talus_calcaneus_128
+    keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, refine_likelihood=True)
+    got = profile_run(r, models, imgs.__getitem__, [0, 1], keys, o)
+    assert current() == before
+    stats = got["stats"]
+    rows = {ph: {x["name"]: x for x in stats[ph]} for ph in stats}
+    assert rows["first"]["track_frame"]["calls"] == rows["later"]["track_frame"]["calls"] == 1
+    assert rows["later"]["joint_pipeline.run_pipelined"]["calls"] == 1  # (applies() sees final_stages)
+    assert rows["later"]["stage_gen.next0"]["calls"] == 2
+    for ph in stats:
+        for x in stats[ph]:
+            assert 0 <= x["excl_ms"] <= x["incl_ms"] + 1e-9
+    assert got["wall_s"] > 0 and got["ms_per_frame_after_first"] > 0

@@ -168,24 +168,26 @@ def wrapped():
             setattr(obj, attr, old)
 
 
-def profile_run(renderer, models, frames, order, keyframes, options) -> dict:
-    """One run of :func:`core.tracking.trial.track` with :func:`wrapped`: the run's times and the table."""
+def profile_run(renderer, models, frames, order, keyframes, options, skip=None) -> dict:
+    """One run of :func:`core.tracking.trial.track` with :func:`wrapped` (``skip``: track's): the run's
+    times and the table (the first phase that of the run's first frame step)."""
     from core.tracking.trial import track
 
     with wrapped() as st:
-        got = _timed_track(track, renderer, models, frames, list(order), keyframes, options)
+        got = _timed_track(track, renderer, models, frames, list(order), keyframes, options, skip)
     got["stats"] = st.table()
     return got
 
 
-def _timed_track(track, renderer, models, frames, order, keyframes, options) -> dict:
+def _timed_track(track, renderer, models, frames, order, keyframes, options, skip=None) -> dict:
     ends: dict = {}
 
     def progress(done, total, fr):
         ends[fr.frame] = time.perf_counter()
 
     t0 = time.perf_counter()
-    res = track(renderer, models, frames, order, keyframes=keyframes, options=options, progress=progress)
+    res = track(renderer, models, frames, order, keyframes=keyframes, options=options, progress=progress,
+                skip=skip)
     wall = time.perf_counter() - t0
     first = ends.get(order[0], t0) - t0
     n = max(len(order) - 1, 1)

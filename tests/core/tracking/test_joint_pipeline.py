@@ -1,14 +1,15 @@
 """Joint registration's searches and final stages in one pipeline (core.tracking.joint_pipeline): the
 same results to the bit as the stages run after every search (the switch off), on the ideal 128²
-talus-calcaneus views (CPU device): a first frame and the frame after it, jointly with the likelihood
-stage; a search that falls back to half resolution too."""
+talus-calcaneus views (CPU device): a frame after a given one, jointly with the likelihood stage; a
+search that falls back to half resolution too."""
 
 from __future__ import annotations
 
 import numpy as np
 
 
-def _track(fixture, monkeypatch, on: bool, frames=(0, 1)):
+def _track(fixture, monkeypatch, on: bool):
+    """Frame 1 tracked from frame 0's true poses, given (a later frame's lockstep round)."""
     import core.tracking.joint_pipeline as jp
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions, track
@@ -18,7 +19,7 @@ def _track(fixture, monkeypatch, on: bool, frames=(0, 1)):
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, refine_likelihood=True)
-    return track(r, models, imgs.__getitem__, list(frames), keyframes=keys, options=o)
+    return track(r, models, imgs.__getitem__, [0, 1], keyframes=keys, skip=keys, options=o)
 
 
 def _same(a, b) -> None:
@@ -57,7 +58,7 @@ def test_pipelined_stages_give_the_same_results(talus_calcaneus_128, monkeypatch
     off = _track(talus_calcaneus_128, monkeypatch, False)
     assert not used and not early
     on = _track(talus_calcaneus_128, monkeypatch, True)
-    assert used  # (the lockstep rounds of the first frame and the frame after it)
+    assert used
     assert any(early)  # (a bone checked while the other's stage ran, its checks kept)
     assert all(r.timing.get("likelihood_taken") for r in on.results.values())
     _same(off, on)
@@ -81,8 +82,8 @@ def test_pipelined_fallback_to_half_resolution(talus_calcaneus_128, monkeypatch)
         return plain(*a, **k)
 
     monkeypatch.setattr(register, "register", spy)
-    off = _track(talus_calcaneus_128, monkeypatch, False, frames=(0, 1))
+    off = _track(talus_calcaneus_128, monkeypatch, False)
     n = sum(tried)
-    on = _track(talus_calcaneus_128, monkeypatch, True, frames=(0, 1))
+    on = _track(talus_calcaneus_128, monkeypatch, True)
     assert n > 0 and sum(tried) == 2 * n  # (the fallbacks, as many either way)
     _same(off, on)

@@ -32,25 +32,57 @@ def pyramid_rois(frame: FrameImages, views, roi, scale: float) -> tuple[list, li
     values of ``scipy.ndimage.gaussian_filter(mode="nearest")`` within float32 rounding (7e-7 on
     line integrals up to 3) in a fifth to a sixth of its time (about 1 ms per 400 × 500 region
     and pass on the H100 machine's host: a first frame's three pyramid preparations took 13 of
-    its 65 ms) — then sampled at the DRR's rays. Raises OutsideViewError like it."""
+    its 65 ms) — then sampled at the DRR's rays. The regions are read in the calling thread, then
+    low-passed and sampled side by side, a thread a view (the same arrays as one after another).
+    Raises OutsideViewError like it."""
+    from concurrent.futures import wait
+
+    s = float(scale)
+    roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
+    # the regions read in this thread, in order (the frame's region cache is not shared between threads)
+    regions = [(int(v), *padded_region(frame, v, roi[i], s)) for i, v in enumerate(views)]
+    if len(regions) < 2:
+        out = [_pyramid_view(*a, s) for a in regions]
+    else:
+        pool = _view_pool()
+        futs = [pool.submit(_pyramid_view, *a, s) for a in regions[1:]]
+        try:
+            first = _pyramid_view(*regions[0], s)
+        finally:
+            wait(futs)  # every thread done before anything is raised
+        out = [first] + [f.result() for f in futs]
+    for (v, *_), (_, mask) in zip(regions, out, strict=True):
+        if not mask.any():
+            raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
+    return [o[0] for o in out], [o[1] for o in out]
+
+
+_POOL = None
+
+
+def _view_pool():
+    """The threads :func:`pyramid_rois` prepares the views after the first in (made once)."""
+    global _POOL
+    if _POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(3, thread_name_prefix="talus-pyramid")
+    return _POOL
+
+
+def _pyramid_view(v: int, sub, m, r, s: float):
+    """One view's low-passed, sampled region and usable-pixel mask of :func:`pyramid_rois` from its
+    padded region (:func:`~core.tracking.cost.padded_region`; OpenCV releases the GIL)."""
     import cv2
 
     from ..similarity import sample_roi
 
-    s = float(scale)
-    roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
     sig = 0.5 * s
     k = 2 * int(4.0 * sig + 0.5) + 1
-    rois, masks = [], []
-    for i, v in enumerate(views):
-        sub, m, r = padded_region(frame, v, roi[i], s)  # the region fluoro_rois reads
-        sub = cv2.GaussianBlur(sub, (k, k), sig, sigmaY=sig, borderType=cv2.BORDER_REPLICATE)
-        rois.append(sample_roi(sub, r, scale=s))
-        mm = None if m is None else sample_roi(m.astype(np.float32), r, scale=s) > 0.999
-        masks.append(np.ones(rois[-1].shape, bool) if mm is None else np.ascontiguousarray(mm))
-        if not masks[-1].any():
-            raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
-    return rois, masks
+    sub = cv2.GaussianBlur(sub, (k, k), sig, sigmaY=sig, borderType=cv2.BORDER_REPLICATE)
+    img = sample_roi(sub, r, scale=s)
+    mm = None if m is None else sample_roi(m.astype(np.float32), r, scale=s) > 0.999
+    return img, (np.ones(img.shape, bool) if mm is None else np.ascontiguousarray(mm))
 
 
 def staged_shapes(self, frame) -> list | None:

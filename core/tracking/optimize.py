@@ -160,6 +160,7 @@ def cmaes(fun: Callable, x0, *, sigma0=1.0, lower=None, upper=None, popsize: int
             "maxiter": np.inf, "tolflatfitness": 10**9}
     if popsize is not None:
         opts["popsize"] = _positive_int(popsize, "popsize")
+    opts["BoundaryHandler"] = _bound_transform()
     import warnings
 
     with warnings.catch_warnings():
@@ -194,6 +195,43 @@ def cmaes(fun: Callable, x0, *, sigma0=1.0, lower=None, upper=None, popsize: int
     m = np.clip(np.asarray(es.mean, dtype=float), lo, hi)
     tr(m[None])
     return tr.result(reason, "cmaes")
+
+
+_BOUND_TRANSFORM = None
+
+
+def _bound_transform():
+    """``cma.BoundTransform`` (the package's default boundary handling) whose transformation returns a
+    solution inside its identity domain ``[lb + al, ub - au]`` at once, as the package's returns it
+    there after five tests of the solution and ten array operations (a quarter of :func:`cmaes`'s host
+    time with a population of 24 in 6 dimensions): the same solutions, the same object. Made once."""
+    global _BOUND_TRANSFORM
+    if _BOUND_TRANSFORM is None:
+        import cma
+        from cma.transformations import BoxConstraintsLinQuadTransformation
+
+        class _LinQuad(BoxConstraintsLinQuadTransformation):
+            def initialize(self, length=None):
+                super().initialize(length)
+                self._identity = (self._lb + self._al, self._ub - self._au)
+
+            def __call__(self, solution_genotype, copy=True):
+                lo, hi = self._identity
+                y = solution_genotype
+                if (isinstance(y, np.ndarray) and y.dtype == np.float64 and y.shape == lo.shape
+                        and ((y >= lo) & (y <= hi)).all()):
+                    return y  # none of the package's five cases applies: y itself, unchanged
+                return super().__call__(solution_genotype, copy)
+
+            transform = __call__
+
+        class _BoundTransform(cma.BoundTransform):
+            def __init__(self, bounds=None):
+                super().__init__(bounds)
+                self.bounds_tf = _LinQuad(self.to_dim_times_two(bounds))
+
+        _BOUND_TRANSFORM = _BoundTransform
+    return _BOUND_TRANSFORM
 
 
 #: Autoscoper's PSO settings (libautoscoper PSO.hpp / Tracker.cpp).

@@ -18,6 +18,11 @@ from .likelihood_kernels import _times_kernel, robust_factors_device, robust_one
 ROBUST_GRAPHS = True
 #: the robust graphs an engine keeps (least recently used out)
 KEEP_ROBUST_GRAPHS = 4
+#: the engine's buffers the robust graphs' launches take (besides the frame's): the fit's coefficients,
+#: the residual and its projections, the squared residual and its blurs, the local RMS, the keys, the
+#: scale and the factors (:func:`~core.tracking.likelihood_kernels.robust_factors_device`)
+_ROBUST_BUFFERS = ("lin", "e", "jt", "rf_a", "rf_b", "rf_ta", "rf_tb", "rf_local", "rf_keys", "rf_scale",
+                   "rf_out")
 
 
 @wp.kernel
@@ -108,10 +113,7 @@ class _RegionWeights:
         first graph uploads from)."""
         b = self._bufs
         lin_h = self._pinned("lin_robust", s["lin"].shape, exact=True)
-        img, low = self._last[0], self._last[1]
-        key = (img.ptr, low.ptr, self._y.ptr, self._w.ptr, self._o.ptr, self._ref_hw.ptr, lin_h.ptr,
-               *(getattr(b.get(x), "ptr", None) for x in ("lin", "e", "rf_keys", "rf_out")),
-               tuple(self._w.shape), s["lin"].shape, self._q, self._diff, float(k), sigma_px, kind)
+        key = self._robust_key(s, lin_h, k, sigma_px, kind)
         graphs = self.__dict__.setdefault("_robust_graphs", {})
         hit = graphs.pop(key, None)
         shape = tuple(self._w.shape)
@@ -150,6 +152,19 @@ class _RegionWeights:
         robust_sort(b, shape, self.device)
         wp.capture_launch(hit[1])
         return b["rf_out"]
+
+    def _robust_key(self, s: dict, lin_h, k: float, sigma_px: float, kind: str) -> tuple:
+        """What :meth:`_robust_graphed`'s graphs are recorded on: the address of every array their
+        launches take (:data:`_ROBUST_BUFFERS`, the frame's and the pinned coefficients'; None where a
+        buffer is not made yet), the sizes and the numbers. A graph replays only on the very buffers
+        it was recorded with: an engine keeps its buffers per region size (the last few, least
+        recently used out), and a size met again after its set was dropped gets new ones."""
+        b = self._bufs
+        img, low = self._last[0], self._last[1]
+        return (img.ptr, low.ptr, self._y.ptr, self._w.ptr, self._o.ptr, self._ref_hw.ptr, lin_h.ptr,
+                self._t.ptr if self._q else 0,  # (the frame's extra regressors, where it has some)
+                *(getattr(b.get(x), "ptr", None) for x in (*_ROBUST_BUFFERS, ("rf_taps", sigma_px))),
+                tuple(self._w.shape), s["lin"].shape, self._q, self._diff, float(k), sigma_px, kind)
 
     def _robust_launch(self, name, kernel, dim, inputs) -> None:
         """:func:`robust_factors_device`'s launches recorded (:meth:`_launch`)."""

@@ -12,6 +12,7 @@ and regions: the next round of joint tracking, the restarts) is not uploaded aga
 from __future__ import annotations
 
 import math
+import os
 import weakref
 
 import numpy as np
@@ -61,13 +62,24 @@ _POOL = None
 
 
 def _view_pool():
-    """The threads :func:`pyramid_rois` prepares the views after the first in (made once)."""
+    """The threads :func:`pyramid_rois` prepares the views after the first in (made once a process:
+    a forked child makes its own, :func:`_forget_pool`)."""
     global _POOL
     if _POOL is None:
         from concurrent.futures import ThreadPoolExecutor
 
         _POOL = ThreadPoolExecutor(3, thread_name_prefix="talus-pyramid")
     return _POOL
+
+
+def _forget_pool() -> None:
+    """In a forked child: the parent's pool, whose threads the child does not have (work handed to it
+    would never run), forgotten."""
+    global _POOL
+    _POOL = None
+
+
+os.register_at_fork(after_in_child=_forget_pool)
 
 
 def _pyramid_view(v: int, sub, m, r, s: float):

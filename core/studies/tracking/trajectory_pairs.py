@@ -25,7 +25,7 @@ so the rule's limits were chosen on seed 0's false alarms and on pairs put into 
 tibia's long axis, where seed 3's pair stood off), signs alternating, every 3rd frame 4-94 in turn,
 each on its own. Seeds 3 and 4 are reported as held out for the limits; the rule's form (pairs judged
 with the frames the other rules took out put back in their fits where the pair explains them) was
-made for seed 3's pair, the one the task names, so seed 3 is not held out for the form.
+made for seed 3's pair, the silent frame that led to the rule, so seed 3 is not held out for the form.
 """
 
 from __future__ import annotations

@@ -183,3 +183,17 @@ def run_command(argv, command, name: str) -> int:
         return a.run(a)
     except Exception as exc:
         return report_error(exc, name)
+
+
+def track_options_spy(monkeypatch) -> list:
+    """``track_study`` replaced: the options of each call kept in the returned list, nothing tracked."""
+    import core.tracking.from_study as from_study
+
+    seen = []
+
+    def fake_track_study(study, trial, bones, frames, *, options, **kw):
+        seen.append(options)
+        return None, {"summary": {"status": "stopped"}}
+
+    monkeypatch.setattr(from_study, "track_study", fake_track_study)
+    return seen

@@ -11,7 +11,7 @@ from app.cli import main as talus
 from app.commands import track
 from core.tracking.backward_check import LIMIT
 from core.tracking.options import TrackingOptions
-from tests.app._helpers import copy_study
+from tests.app._helpers import copy_study, track_options_spy
 
 
 @pytest.fixture
@@ -22,16 +22,7 @@ def study(demo_study, tmp_path):
 @pytest.fixture
 def tracker(monkeypatch):
     """track_study replaced: the options of each call, nothing tracked."""
-    import core.tracking.from_study as from_study
-
-    seen = []
-
-    def fake_track_study(study, trial, bones, frames, *, options, **kw):
-        seen.append(options)
-        return None, {"summary": {"status": "stopped"}}
-
-    monkeypatch.setattr(from_study, "track_study", fake_track_study)
-    return seen
+    return track_options_spy(monkeypatch)
 
 
 def test_the_default_and_off_round_trip():

@@ -13,7 +13,7 @@ from app.cli import EXIT_NOTHING_DONE, EXIT_OK
 from app.cli import main as talus
 from app.commands import track
 from core.tracking.options import CHECK_FIELDS, STAGE_MOVE_FIELDS, TrackingOptions
-from tests.app._helpers import copy_study
+from tests.app._helpers import copy_study, track_options_spy
 
 FLAGS = ["--collapse-ratio", "0.5", "--motion-limit", "4", "--motion-floor", "0.5,1.5",
          "--sigma-limit", "2.5"]
@@ -32,16 +32,7 @@ def study(demo_study, tmp_path):
 @pytest.fixture
 def tracker(monkeypatch):
     """track_study replaced: the options of each call, nothing tracked."""
-    import core.tracking.from_study as from_study
-
-    seen = []
-
-    def fake_track_study(study, trial, bones, frames, *, options, **kw):
-        seen.append(options)
-        return None, {"summary": {"status": "stopped"}}
-
-    monkeypatch.setattr(from_study, "track_study", fake_track_study)
-    return seen
+    return track_options_spy(monkeypatch)
 
 
 def test_the_command_line_defaults_are_the_trackers():

@@ -302,6 +302,27 @@ def _median_keys_only_kernel(local: wp.array3d(dtype=wp.float32), stride: int,
         keys[i] = wp.inf
 
 
+@wp.func
+def sorted_median(keys: wp.array(dtype=wp.float32), o: int, n: int, sg: float):
+    """The median of the ``n`` sorted keys at ``o`` (each times ``sg``, ±1) before the first infinite
+    one, found by bisection; 0 where there are none or the median is not finite and positive."""
+    lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
+    hi = int(n)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sg * keys[o + mid] < wp.inf:
+            lo = mid + 1
+        else:
+            hi = mid
+    m = lo
+    s = float(0.0)  # noqa: UP018
+    if m > 0:
+        x = (sg * keys[o + (m - 1) // 2] + sg * keys[o + m // 2]) * 0.5
+        if wp.isfinite(x) and x > 0.0:
+            s = x
+    return s
+
+
 @wp.kernel
 def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, stride: int,
                           scale: wp.array(dtype=wp.float32)):
@@ -309,22 +330,7 @@ def _median_sorted_kernel(keys: wp.array(dtype=wp.float32), n: int, stride: int,
     found in its ``n`` sorted keys at ``v · stride`` (the keys before the first +inf, by bisection).
     dim = items."""
     v = wp.tid()
-    o = v * stride
-    lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
-    hi = int(n)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if keys[o + mid] < wp.inf:
-            lo = mid + 1
-        else:
-            hi = mid
-    m = lo
-    s = float(0.0)  # noqa: UP018
-    if m > 0:
-        x = (keys[o + (m - 1) // 2] + keys[o + m // 2]) * 0.5
-        if wp.isfinite(x) and x > 0.0:
-            s = x
-    scale[v] = s
+    scale[v] = sorted_median(keys, v * stride, n, 1.0)
 
 
 AUTOCOV_GROUP = wp.constant(9)  # lags of one row of the window a thread of autocov_rows_kernel sums

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from .likelihood_fast import sorted_median
+
 
 @wp.kernel
 def _robust_sq_kernel(e: wp.array3d(dtype=wp.float32), w: wp.array3d(dtype=wp.float32),
@@ -149,22 +151,7 @@ def _median_signed_kernel(keys: wp.array(dtype=wp.float32), n: int, scale: wp.ar
     view v's ``n`` sorted keys at ``v · n`` (view 1's negated back), its count of used values the
     keys before the first infinite one (by bisection). dim = items (1 or 2)."""
     v = wp.tid()
-    o = v * n
     sg = float(1.0)  # noqa: UP018
     if v == 1:
         sg = -1.0
-    lo = int(0)  # noqa: UP018, RUF046 (a Warp variable, not a constant)
-    hi = int(n)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if sg * keys[o + mid] < wp.inf:
-            lo = mid + 1
-        else:
-            hi = mid
-    m = lo
-    s = float(0.0)  # noqa: UP018
-    if m > 0:
-        x = (sg * keys[o + (m - 1) // 2] + sg * keys[o + m // 2]) * 0.5
-        if wp.isfinite(x) and x > 0.0:
-            s = x
-    scale[v] = s
+    scale[v] = sorted_median(keys, v * n, n, sg)

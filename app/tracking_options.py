@@ -111,8 +111,8 @@ CHECK_RANGES = {
     "stage_move_frames": (1, 1000, 1, 0, " good frames"),  # an integer: a QSpinBox
     # its minimum, a step below the tracker's 1, reads "Off" (any value below 1: None)
     "trajectory_limit": (1.0 - 0.25, 100.0, 0.25, 2, " × median residual"),
-    # any value > 0 is valid: its minimum 0 reads "Off"
-    "backward_limit": (0.0, 100.0, 0.25, 2, " × median residual"),
+    # as the trajectory limit: its minimum, a step below the tracker's 1, reads "Off"
+    "backward_limit": (1.0 - 0.25, 100.0, 0.25, 2, " × median residual"),
 }
 #: The *Advanced checks* spin boxes whose minimum means the check is off (the choice None).
 OFF_FIELDS = ("trajectory_limit", "backward_limit")
@@ -164,7 +164,7 @@ def _spin(name: str, value: float | None, tip: str) -> QtWidgets.QDoubleSpinBox 
 
 def _spin_value(name: str, box):
     """The choice a spin box holds: its value, or None for an :data:`OFF_FIELDS` box at its minimum
-    (*Off*); a typed value between *Off* and the trajectory limit's 1 is refused on *OK*, naming the
+    (*Off*); a typed value between *Off* and the limits' 1 is refused on *OK*, naming the
     option."""
     v = box.value()
     return None if name in OFF_FIELDS and v <= box.minimum() else v

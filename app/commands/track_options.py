@@ -119,7 +119,7 @@ CHECKS = {
                        "(seeds 0, 3 and 4, both modes, tracked on one NVIDIA H100) the 16 good first frames "
                        "came back at most 1.00 times the median away, seed 4's tibia (0.72 deg off) 1.46 and "
                        "1.72 times: 1.25 flags it and no good one (chosen on those runs, none held out); a "
-                       "factor > 0 or off, default 1.25"),
+                       "factor >= 1 or off, default 1.25"),
 }
 #: ``--trajectory-limit off`` (``--no-trajectory-check``), ``--backward-limit off``
 #: (``--no-backward-check``): that check turned off.

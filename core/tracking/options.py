@@ -139,11 +139,13 @@ class TrackingOptions:
     frames next to flagged ones that stand off it by more than this with them in the fit and by more
     than ``flags_post.NEAR`` × this without them.
 
-    ``backward_limit`` (> 0, or None: off): once a run is complete, its first frame is registered
+    ``backward_limit`` (≥ 1, or None: off): once a run is complete, its first frame is registered
     again from the frames after it, as any later frame, and flagged ``"first frame off its backward
     registration"`` where the two registrations disagree by more than this many times the bone's
     median trajectory residual (:mod:`core.tracking.backward_check`, default :data:`BACKWARD_LIMIT`);
-    None skips that registration."""
+    None skips that registration. Below 1 it would flag a first frame whose two registrations
+    disagree by less than the bone's typical frame-to-fit residual (the good first frames measured
+    came back up to 1.00× it), so it is refused, as ``trajectory_limit`` below 1 is."""
 
     registration: RegistrationOptions = field(
         default_factory=lambda: RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0),
@@ -271,9 +273,9 @@ class TrackingOptions:
         if self.trajectory_limit is not None and number("trajectory_limit", self.trajectory_limit) < 1:
             raise ValueError(f"trajectory_limit: expected a factor >= 1 (times the bone's median residual) "
                              f"or None, got {self.trajectory_limit!r}")
-        if self.backward_limit is not None and not number("backward_limit", self.backward_limit) > 0:
-            raise ValueError(f"backward_limit: expected a factor > 0 (times the bone's median trajectory "
-                             f"residual) or None, got {self.backward_limit!r}")
+        if self.backward_limit is not None and number("backward_limit", self.backward_limit) < 1:
+            raise ValueError(f"backward_limit: expected a factor >= 1 (times the bone's median trajectory "
+                             f"residual) or None (off), got {self.backward_limit!r}")
 
     @property
     def first_options(self) -> RegistrationOptions:

@@ -30,7 +30,7 @@ def _last(window) -> str:
     return window.messages.item(window.messages.count() - 1).text()
 
 
-def test_the_backward_check_is_set_or_turned_off_in_advanced_checks(qtbot, window):
+def test_the_backward_check_is_set_or_turned_off_in_advanced_checks(qtbot, window, shown_errors):
     assert "backward_limit" in OFF_FIELDS
     dialog = window.tracking.edit_options()
     qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
@@ -55,19 +55,19 @@ def test_the_backward_check_is_set_or_turned_off_in_advanced_checks(qtbot, windo
     assert options_from_choices(**choices_of(opts)) == opts
     assert "backward check 2x" in _last(window) and "trajectory check" not in _last(window)
 
-    # a limit under 1 is valid (the good first frames measured came back up to 1.00x the median)
-    dialog = window.tracking.edit_options()
-    qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
-    _type(qtbot, dialog.backward_limit, "0.5")
-    _accept(qtbot, dialog)
-    assert window.tracking.options.backward_limit == 0.5 and "backward check 0.5x" in _last(window)
-
-    # its lowest step is "Off": the tracker's None, the trajectory check untouched
+    # a limit under 1 is refused on OK, as the trajectory limit's, naming the option and its range
     dialog = window.tracking.edit_options()
     qtbot.waitUntil(dialog.isVisible, timeout=HUNG_MS)
     box = dialog.backward_limit
-    assert box.value() == 0.5
-    _type(qtbot, box, "0.25")
+    assert box.minimum() == 0.75 and box.specialValueText() == "Off"
+    _type(qtbot, box, "0.9")  # between Off and 1: refused, not Off
+    _click(qtbot, dialog, "Ok")
+    assert dialog.isVisible() and dialog.result() == 0  # not accepted
+    assert shown_errors[-1][1].startswith("backward_limit: expected a factor >= 1"), shown_errors
+    assert window.tracking.options.backward_limit == 2.0  # unchanged
+
+    # its lowest step is "Off": the tracker's None, the trajectory check untouched
+    _type(qtbot, box, "1")
     box.setFocus()
     qtbot.keyClick(box, QtCore.Qt.Key.Key_Down)
     assert box.text() == "Off"

@@ -28,7 +28,7 @@ def tracker(monkeypatch):
 def test_the_default_and_off_round_trip():
     assert track.CHECKS["backward_limit"][1] == TrackingOptions().backward_limit == LIMIT == 1.25
     assert track.check_choices(None)["backward_limit"] == 1.25
-    for value in (None, 0.5, 2.0):
+    for value in (None, 1.0, 2.0):
         o = track.options_from_choices(backward_limit=value)
         assert o.backward_limit == value and track.choices_of(o)["backward_limit"] == value
         assert track.options_from_choices(**track.choices_of(o)) == o
@@ -37,10 +37,14 @@ def test_the_default_and_off_round_trip():
     for bad in (0, -1.0, float("nan"), "1"):
         with pytest.raises(ValueError, match=r"^backward_limit: expected a"):
             TrackingOptions(backward_limit=bad)
+    for under in (0.5, 0.999):  # under 1, as the trajectory limit: refused, the range named
+        with pytest.raises(ValueError, match=r"^backward_limit: expected a factor >= 1 .* or None \(off\), "
+                                             rf"got {under}$"):
+            TrackingOptions(backward_limit=under)
 
 
 @pytest.mark.parametrize(("flags", "expected"), [
-    ([], 1.25), (["--backward-limit", "2"], 2.0), (["--backward-limit", "0.75"], 0.75),
+    ([], 1.25), (["--backward-limit", "2"], 2.0), (["--backward-limit", "1"], 1.0),
     (["--backward-limit", "off"], None), (["--no-backward-check"], None),
     (["--no-backward-check", "--no-trajectory-check"], None)])
 def test_the_backward_check_reaches_track_and_batch(study, tracker, monkeypatch, capsys, flags, expected):
@@ -63,9 +67,11 @@ def test_the_backward_check_reaches_track_and_batch(study, tracker, monkeypatch,
 def test_a_bad_limit_and_both_spellings_are_refused(study, tracker, capsys):
     for command in ("track", "batch"):
         extra = ["--trial", "walk"] if command == "track" else ["--workers", "0"]
-        assert talus([command, str(study), *extra, "--quiet", "--backward-limit", "0"]) == 1
-        err = capsys.readouterr().err
-        assert "--backward-limit: expected a factor > 0" in err, err
+        for under in ("0", "0.75"):
+            assert talus([command, str(study), *extra, "--quiet", "--backward-limit", under]) == 1
+            err = capsys.readouterr().err
+            assert "--backward-limit: expected a factor >= 1 (times the bone's median trajectory " \
+                   f"residual) or None (off), got {float(under)}" in err, err
         with pytest.raises(SystemExit) as e:
             talus([command, str(study), *extra, "--backward-limit", "3", "--no-backward-check"])
         assert e.value.code == 2
@@ -84,7 +90,7 @@ def test_help_names_the_backward_check(capsys):
         text = " ".join(capsys.readouterr().out.split())
         assert "--backward-limit K|off" in text and "--no-backward-check" in text
         assert "first frame off its backward registration" in text and "default 1.25" in text
-        assert "1.46 and 1.72 times" in text
+        assert "1.46 and 1.72 times" in text and "a factor >= 1 or off, default 1.25" in text
 
 
 def test_the_report_records_the_limit_used(study, monkeypatch, capsys):

@@ -79,7 +79,8 @@ def _forget_pool() -> None:
     _POOL = None
 
 
-os.register_at_fork(after_in_child=_forget_pool)
+if hasattr(os, "register_at_fork"):  # (Unix only: Windows has no fork)
+    os.register_at_fork(after_in_child=_forget_pool)
 
 
 def _pyramid_view(v: int, sub, m, r, s: float):

@@ -37,3 +37,18 @@ def test_a_forked_child_prepares_the_views_side_by_side():
         p.join()
     assert not alive, "the child hung in pyramid_rois"
     assert p.exitcode == 0 and q.get(timeout=5) == want
+
+
+def test_imports_without_register_at_fork(monkeypatch):
+    """Where os has no register_at_fork (Windows), the module imports all the same."""
+    import importlib
+    import os
+
+    import core.tracking.engine_frames as ef
+
+    monkeypatch.delattr(os, "register_at_fork")
+    try:
+        importlib.reload(ef)
+    finally:
+        monkeypatch.undo()
+        importlib.reload(ef)

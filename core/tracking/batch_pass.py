@@ -38,6 +38,18 @@ has its shared keyframe merged all the same: the journal, the ranges' reports of
 range recorded last). A change's ``was_off_trajectory`` tells a frame whose trajectory flag came off
 from one flagged otherwise (such a keyframe).
 
+The merge gives such a keyframe its work once, named: its ``time_s`` and ``evaluations`` become those of
+the sharing ranges' distinct registrations of it added up, and its ``timing`` says so
+(:data:`SHARED_KEYS`: ``shared_ranges``, the ranges whose reports were read; ``shared_registrations``,
+the registrations in the sum). A range run after the one that registered the keyframe takes it back
+from the journal, as a resumed frame, and its report gave the other range's time and evaluations as
+the frame's own (a serial batch: the range run first's, unnamed in both reports); that registration is
+in the sum once, while ranges run side by side each registered the frame and both are. The journal and
+the sharing ranges' reports say the same (each report's ``summary.evaluations`` moved with it: a sum
+over the ranges' reports counts the keyframe's work in each); a
+report written by an earlier pass holds the sum (its ``shared_registrations``), so a pass run again adds
+nothing.
+
 The pass reads the group's journals, judges them and journals its changes holding the bones'
 journal locks (:meth:`core.tracking.batch_journal.SharedJournals.holding`), so a hand fix — a pose
 the window or another process records, under the same lock — lands before the read (the pass
@@ -61,11 +73,14 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["final_records", "pass_messages", "run_pass"]
+__all__ = ["SHARED_KEYS", "final_records", "pass_messages", "run_pass"]
 
 #: Changed frames named one by one in :func:`pass_messages` (the rest counted), as the window
 #: names a single run's flagged frames.
 MAX_NAMED = 10
+#: The ``timing`` keys of a keyframe two ranges share, once merged (:func:`_shared_work`): how many
+#: ranges' reports share it, and how many registrations its ``time_s`` and ``evaluations`` add up.
+SHARED_KEYS = ("shared_ranges", "shared_registrations")
 
 
 def run_pass(tasks: Sequence, records: Sequence[dict], settings) -> list[dict]:
@@ -240,8 +255,9 @@ def _trial_pass(study: str, trial_name: str, bones: Sequence[str], frames: Seque
 
 
 def _differs(a, b) -> bool:
-    """Whether two results of a frame differ in what the backward checks' merge sets."""
-    return (a.flags, a.notes, a.timing) != (b.flags, b.notes, b.timing)
+    """Whether two results of a frame differ in what the shared keyframes' merge sets."""
+    return (a.flags, a.notes, a.timing, a.time_s, a.evaluations) != (b.flags, b.notes, b.timing, b.time_s,
+                                                                      b.evaluations)
 
 
 def _shared_first_frames(results: dict, tasks: Sequence, bones: Sequence[str], read) -> tuple[dict, list]:
@@ -294,13 +310,37 @@ def _shared_first_frames(results: dict, tasks: Sequence, bones: Sequence[str], r
             runs = [([str(s) for s in (*(d.get("flags") or ()), *(d.get("notes") or ()))
                       if str(s).startswith((BACKWARD, NOTE))], d.get("timing")) for d in mine]
             runs.append(([s for s in (*fr.flags, *fr.notes) if s.startswith((BACKWARD, NOTE))], fr.timing))
+            time_s, evaluations, shared = _shared_work(fr, mine, len(reports))
             new = replace(
                 fr, flags=(*(s for s in fr.flags if not s.startswith(BACKWARD)), *dict.fromkeys(flags)),
                 notes=(*(s for s in fr.notes if not s.startswith(NOTE)), *dict.fromkeys(notes)),
-                timing=_backward_timing(fr.timing, runs))
+                timing={**(_backward_timing(fr.timing, runs) or {}), **shared},
+                time_s=time_s, evaluations=evaluations)
             if _differs(new, fr):
                 out[(b, f)] = new
     return out, joined
+
+
+def _shared_work(fr, entries: Sequence[dict], ranges: int) -> tuple[float, int, dict]:
+    """The frame's work as the ranges sharing it did it: ``(time_s, evaluations, keys)``, the time and
+    evaluations of its distinct registrations added up and ``keys`` naming them in its ``timing``
+    (:data:`SHARED_KEYS`: ``shared_ranges``, the ``ranges`` whose reports were read;
+    ``shared_registrations``, how many registrations the sum holds). ``fr``: the journal's result;
+    ``entries``: the readable range reports' entries of the frame. A range that took the frame back
+    from the journal (run after the one that registered it) reports that registration's time and
+    evaluations, which are counted once; ranges run side by side each registered it, and both are
+    counted. An entry written by an earlier merge holds the sum already (its
+    ``shared_registrations``): taken as it is, so that a pass run again adds nothing."""
+    runs = [(float(d["time_s"] or 0.0), int(d.get("evaluations") or 0), d.get("timing")) for d in entries
+            if "time_s" in d]  # (an entry without it reports no registration)
+    runs.append((float(fr.time_s), int(fr.evaluations), fr.timing))
+    summed = next(((t, e, tm) for t, e, tm in runs if isinstance(tm, dict) and SHARED_KEYS[1] in tm), None)
+    if summed is not None:
+        return summed[0], summed[1], {SHARED_KEYS[0]: int(summed[2].get(SHARED_KEYS[0], ranges)),
+                                      SHARED_KEYS[1]: int(summed[2][SHARED_KEYS[1]])}
+    distinct = list(dict.fromkeys((t, e) for t, e, _ in runs))
+    return (sum(t for t, _ in distinct), sum(e for _, e in distinct),
+            {SHARED_KEYS[0]: int(ranges), SHARED_KEYS[1]: len(distinct)})
 
 
 def _backward_timing(timing: dict | None, runs: Sequence) -> dict | None:
@@ -331,12 +371,16 @@ def _backward_timing(timing: dict | None, runs: Sequence) -> dict | None:
 def _final_report(report: dict, final: Sequence, section: dict, name: str = "trajectory_pass") -> dict:
     """``report`` (a range task's tracking report) with the frames of ``final`` (its frames as the
     pass left them, in tracking order) in ``frames_done`` and ``flagged``, ``summary.flagged``
-    counted again and ``section`` as ``name``."""
+    counted again, ``summary.evaluations`` moved by what the frames' evaluations moved (a shared
+    keyframe's registrations added up) and ``section`` as ``name``."""
     by_key = {(fr.bone, int(fr.frame)): fr.to_dict() for fr in final}
-    new = dict(report)
+    new, moved = dict(report), 0
     if isinstance(report.get("frames_done"), list):
         new["frames_done"] = [by_key.get((d.get("bone"), d.get("frame")), d) if isinstance(d, dict) else d
                               for d in report["frames_done"]]
+        moved = sum(int(b.get("evaluations") or 0) - int(a.get("evaluations") or 0)
+                    for a, b in zip(report["frames_done"], new["frames_done"], strict=True)
+                    if isinstance(a, dict) and a is not b)
     # the task's flagged frames the pass did not judge (no pose: a view's frame missing, outside a
     # view; no longer a tracking result in the journal) stay listed
     kept = [d for d in report.get("flagged") or []
@@ -344,6 +388,8 @@ def _final_report(report: dict, final: Sequence, section: dict, name: str = "tra
     new["flagged"] = kept + [d for d in by_key.values() if d["flags"]]
     if isinstance(report.get("summary"), dict):
         new["summary"] = dict(report["summary"], flagged=len(new["flagged"]))
+        if moved and isinstance(report["summary"].get("evaluations"), int):
+            new["summary"]["evaluations"] = report["summary"]["evaluations"] + moved
     new[name] = section
     return new
 

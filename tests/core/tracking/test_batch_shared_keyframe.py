@@ -7,14 +7,16 @@ replaced): no rendering."""
 
 from __future__ import annotations
 
+import itertools
 import shutil
+import threading
 
 import numpy as np
 
 from core.study import Study
 from core.tracking import batch, trial
 from core.tracking.backward_check import FLAG, NOTE
-from core.tracking.batch_pass import pass_messages
+from core.tracking.batch_pass import SHARED_KEYS, pass_messages
 from core.tracking.results import FrameResult
 from tests.core.tracking.test_flags_post import _track
 
@@ -209,7 +211,10 @@ def test_merge_of_synthetic_records_ignores_task_order_and_an_unreadable_report(
             merged, joined = _shared_first_frames({(BONE, 12): journal}, tasks, [BONE], read)
             got = merged[(BONE, 12)]
             assert joined == [(BONE, 12)] and got.flags == (flag,) and note in got.notes
-            assert got.timing == {"backward_evaluations": 16, "backward_s": 0.75, "backward_ranges": 2}
+            # the reports' entries carry no time_s: the journal's registration alone, named as shared
+            assert got.timing == {"backward_evaluations": 16, "backward_s": 0.75, "backward_ranges": 2,
+                                  "shared_ranges": 2, "shared_registrations": 1}
+            assert (got.time_s, got.evaluations) == (0.0, 10)
     # the flagging range's report unreadable: the journal's record stays, nothing invented
     journal = FrameResult(BONE, 12, P, 0.8, 10, 0.0, True, notes=(note,))
 
@@ -226,4 +231,74 @@ def test_merge_of_synthetic_records_ignores_task_order_and_an_unreadable_report(
         for d in r.get("frames_done", []) + r.get("flagged", []):
             d["timing"] = dict(summed)
     merged, _ = _shared_first_frames({(BONE, 12): journal}, [back, fwd], [BONE], read)
-    assert merged[(BONE, 12)].timing == summed
+    assert {k: v for k, v in merged[(BONE, 12)].timing.items() if k.startswith("backward_")} == summed
+
+
+def _timed_step(barrier=None):
+    """The frame step of a smooth walk, each registration its own time and evaluations (the n-th call: n s,
+    100 + n); ``barrier``: a range's first frame waits there for the other's (both register the keyframe
+    before either journals it, as ranges run side by side on two workers)."""
+    P, calls = _track(n=30), itertools.count(1)
+
+    def step(run, f, imgs, fr, todo, state, skip):
+        n = next(calls)
+        if barrier is not None and f == KEY and not state[BONE].history:
+            barrier.wait()
+        return {0: FrameResult(BONE, f, P[f], 0.8, 100 + n, float(n), True)}
+
+    return step
+
+
+def _keyframe_work(folder, tasks):
+    """The keyframe's (time_s, evaluations, shared timing keys) in the journal and each range report, and
+    each report's summary evaluations against its frames' sum."""
+    with Study.open(folder) as st:
+        t = st.trial("walk").results(BONE).records[KEY].tracking
+        out = [(t["time_s"], t["evaluations"], {k: t["timing"].get(k) for k in SHARED_KEYS})]
+        for task in tasks:
+            rep = st.read_report("tracking", task.report_name)
+            (d,) = [d for d in rep["frames_done"] if d["frame"] == KEY]
+            out.append((d["time_s"], d["evaluations"], {k: d["timing"].get(k) for k in SHARED_KEYS}))
+            assert rep["summary"]["evaluations"] == sum(e["evaluations"] for e in rep["frames_done"])
+    return out
+
+
+def test_the_shared_keyframes_registration_is_named_and_counted_once(keyed, tmp_path, monkeypatch):
+    """Run one after the other, the second range takes the keyframe back from the journal: its report gave
+    the first range's registration as its own. After the pass both reports and the journal give that one
+    registration, named (shared by 2 ranges, 1 registration), whichever range ran first."""
+    for rev in (False, True):
+        monkeypatch.setattr(trial, "track_frame", _timed_step())
+        folder = shutil.copytree(keyed, tmp_path / f"serial{int(rev)}" / "demo")
+        tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+        batch.run_serial(tasks[::-1] if rev else tasks, SETTINGS)
+        first = 1.0  # the keyframe is the first range's first call, whichever range that is
+        work = _keyframe_work(folder, tasks)
+        assert work == [(first, 101, {"shared_ranges": 2, "shared_registrations": 1})] * 3
+        # a pass run again changes nothing
+        (again,) = batch.trajectory_pass(tasks, [{"key": t.key, "status": "complete"} for t in tasks],
+                                         SETTINGS)
+        assert again["journaled_again"] == [] and _keyframe_work(folder, tasks) == work
+
+
+def test_ranges_run_side_by_side_count_both_registrations(keyed, tmp_path, monkeypatch):
+    """Run side by side (threads here, workers in a batch), both ranges register the keyframe: after the
+    pass its time and evaluations are both registrations' (2 registrations), in both reports (their summaries
+    moved with them) and the journal."""
+    monkeypatch.setattr(trial, "track_frame", _timed_step(threading.Barrier(2, timeout=60)))
+    folder = shutil.copytree(keyed, tmp_path / "parallel" / "demo")
+    tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
+    records = {}
+    threads = [threading.Thread(target=lambda t=t: records.__setitem__(t.key, batch.run_task(t, SETTINGS)))
+               for t in tasks]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert [records[t.key]["frames_resumed"] for t in tasks] == [0, 0]  # both registered it
+    (entry,) = batch.trajectory_pass(tasks, [records[t.key] for t in tasks], SETTINGS)
+    assert entry["shared_keyframes"] == [[BONE, KEY]]
+    work = _keyframe_work(folder, tasks)
+    assert work == [(1.0 + 2.0, 101 + 102, {"shared_ranges": 2, "shared_registrations": 2})] * 3
+    (again,) = batch.trajectory_pass(tasks, [records[t.key] for t in tasks], SETTINGS)
+    assert again["journaled_again"] == [] and _keyframe_work(folder, tasks) == work

@@ -156,13 +156,24 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
     frame again, in the same buffers, their usable pixels already counted and found (joint
     tracking's second round, which subtracts the neighbours at new poses): nothing to do, and
     False (else True: the count is to be checked)."""
+    from .engine_upload import frame_rows, holding
+
     dev = self.device
     nv = self.n_views
     p = staged[0][4]
     Hc, Wc = self._cap
+    key = (tuple(staged), tuple(self.views))
+    lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
+    up = holding(dev, frame) if self.views == tuple(range(frame.n_views)) else None
+    if up is not None:  # the whole frame on the device, shared by the frame's engines (engine_upload)
+        done = (key, self._bufs.serial, float(lo), float(hi), int(p), frame._valid is not None)
+        last = self._stage_done
+        if self._stage_checked and last is not None and last[0]() is frame and last[1] == done:
+            return False  # raw0, the masks and the statistics on the device are these regions'
+        _prepare(self, frame, frame_rows(frame, self.views, self.roi), up.src, up.given, done)
+        return True
     need = (nv, Hc + 2 * p, Wc + 2 * p)
     given = any(frame._given[v] is not None for v in self.views)
-    key = (tuple(staged), tuple(self.views))
     last = self._staged_last
     upload = not (last is not None and last[0]() is frame and last[1] == key)  # else on the device
     if self._stage_src is None or any(a < b for a, b in zip(self._stage_src.shape, need, strict=True)):
@@ -196,11 +207,22 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
         if given:
             copy_array(self._stage_given, self._host_gstage_wp, n)
         self._staged_last = (weakref.ref(frame), key)
-    lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
     done = (key, self._bufs.serial, float(lo), float(hi), int(p), frame._valid is not None)
     last = self._stage_done
     if not upload and self._stage_checked and last is not None and last[0]() is frame and last[1] == done:
         return False  # raw0, the masks and the statistics on the device are these regions'
+    _prepare(self, frame, info, self._stage_src, self._stage_given, done)
+    return True
+
+
+def _prepare(self, frame: FrameImages, info: np.ndarray, src, given, done: tuple) -> None:
+    """:func:`stage`'s launches: the regions ``info`` (:func:`fluoro_roi_kernel`'s rows) of the fluence
+    ``src`` and masks ``given`` on the device prepared into the engine ``self``'s buffers, with their
+    statistics and the usable pixels' count (copied to the host); ``done`` its key of what was prepared."""
+    nv = self.n_views
+    Hc, Wc = self._cap
+    p = done[4]
+    lo, hi = done[2], done[3]
     if self._info_last is None or not np.array_equal(info, self._info_last):
         self._host_info_np[:] = info
         copy_array(self._info, self._host_info)
@@ -209,13 +231,12 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
     self._msum.zero_()
     chunk = 4096
     self._launch("roi", fluoro_roi_kernel, (nv, math.ceil(Hc * Wc / chunk), _LANES),
-                 [self._stage_src, self._stage_given, self._info, float(lo), float(hi), int(p),
+                 [src, given, self._info, float(lo), float(hi), int(p),
                   int(frame._valid is not None), chunk, self._raw0, self._fmask, self._fmax, self._msum])
     self._launch("shift", fluoro_shift_kernel, (nv,), [self._msum, self.mode, self._fshift, self._count])
     copy_array(self._host_count, self._count)
     self._stage_done = (weakref.ref(frame), done)
     self._stage_checked = False
-    return True
 
 
 def apply_rim_band(self, frame, radius_px: float) -> bool:

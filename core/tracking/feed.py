@@ -31,6 +31,7 @@ does not finish within a 5 ms registration (``resources/benchmarks/tracking_nois
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -70,11 +71,19 @@ class FrameFeed:
         self.current_frame = None
         self.previous_keys: tuple = ()
         self.noise_pool = None
+        self.before = None  # weak reference to the frame handed out before current_frame
 
-    def _prepare(self, imgs: list, noise=()):
+    def _prepare(self, imgs: list, noise=(), pin: tuple = ()):
         if any(_missing(im) for im in imgs):
             return None
         frame = prepare_frame(imgs, valid_range=self.valid_range, erode_px=self.erode_px)
+        if pin:  # its pinned copy for joint registration's shared upload where the frames before it shared
+            from .engine_upload import pin_ahead
+
+            try:
+                pin_ahead(frame, after=pin)
+            except Exception:  # (the registration then makes the copy itself)
+                pass
         if noise:
             try:  # a thread per view and radius (numpy releases the GIL in their large steps)
                 if len(noise) > 1:
@@ -111,6 +120,7 @@ class FrameFeed:
         without its image is None, or a :class:`MissingView` with the source's reason."""
         if self.current_frame is not None:  # its registrations are done: what they drew is final
             self.previous_keys = tuple(self.current_frame.noise_sample_keys)
+            self.before = weakref.ref(self.current_frame)
         if self.ahead is not None and self.ahead[0] == f:
             _, imgs, fut = self.ahead
             self.ahead = None
@@ -147,7 +157,9 @@ class FrameFeed:
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="talus-frames")
-        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys()))
+        done = tuple(a for a in (self.current_frame, self.before() if self.before is not None else None)
+                     if a is not None)  # (the frames handed out last: pinned ahead where they were shared)
+        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys(), done))
 
     def close(self) -> None:
         if self.pool is not None:

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import warp as wp
 
-from . import joint_pipeline
+from . import engine_upload, joint_pipeline
 from .cost import CostTimer, OutsideViewError, mm_per_pixel
 from .engine import engine_cost, step_design, supports
 from .engine_search import LevenbergMarquardt
@@ -195,6 +195,8 @@ def register_together(renderer, frame, jobs: Sequence[JointJob], options: Regist
         if _submit(lanes[k], cancel):
             queue.append(k)
 
+    if len(jobs) > 1:  # the whole frame on the device once, every bone's regions read there (engine_upload)
+        engine_upload.share(renderer.device, frame)
     for k, job in enumerate(jobs):
         t0 = time.perf_counter()
         base = np.asarray(job.initial_pose, dtype=float)

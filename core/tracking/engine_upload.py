@@ -1,0 +1,247 @@
+"""One upload of a frame's fluence shared by the Gauss–Newton engines of its bones (joint tracking).
+
+Each engine (:class:`core.tracking.engine.GaussNewtonCost`) prepares its full-resolution search regions
+on the device from the fluence of the frame (:func:`core.tracking.engine_frames.stage`): on its own it
+copies each view's region (grown by the usable-pixel mask's erosion) into pinned memory and uploads it —
+three bones tracked jointly copied three overlapping regions of each view a frame, on the host's
+critical path. :func:`share` instead puts the whole frame (every view's fluence, and the frame's own
+masks where it has them) on the device once, from a pinned copy, and every engine of that frame reads
+its regions there (:func:`holding`; each bone's region an offset into the whole image): the same pixels
+through the same kernel, so the same line integrals, masks and statistics to the bit.
+
+The pinned copy is made ahead where it can be: :class:`core.tracking.feed.FrameFeed` prepares the next
+frame in a worker thread while the current one registers, and there copies its fluence into one of
+:data:`PINNED_SETS` pinned buffer sets (:func:`pin_ahead`; numpy's copy releases the GIL), so that the
+registering thread only enqueues the upload. A set whose upload may still be in flight is not written
+again until the registering thread has waited for its event (the worker makes no CUDA call). Where no
+pinned copy is ready (the first frame, a frame the feed did not prepare) :func:`share` makes it itself.
+
+One bone's registration does not share (its own region is a fifth of the frame: the whole frame's upload
+would cost the device more than the host saves); :func:`core.tracking.joint.register_together` calls
+:func:`share` for its jobs' frame, and any registration of that frame afterwards (the fallback, the final
+stage's passes, the frame's later rounds) reads the same device copy while it holds that frame.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import weakref
+
+import numpy as np
+import warp as wp
+
+from .engine_buffers import copy_array
+
+__all__ = ["DEVICES", "PINNED_SETS", "SHARED_UPLOAD", "FrameUpload", "holding", "pin_ahead", "share"]
+
+#: Switch: joint registration's engines read their regions from one upload of the whole frame.
+SHARED_UPLOAD = True
+
+#: The device kinds it applies on ("cuda"; the tests add "cpu", where it runs the same code).
+DEVICES = ("cuda",)
+
+#: Pinned buffer sets per device: the frame being registered, the next one filled ahead, one spare.
+PINNED_SETS = 3
+
+_STAMP = itertools.count(1)
+
+
+class _HostSet:
+    """One pinned copy of a frame: its fluence (``(n_views, H, W)`` float32) and masks (uint8)."""
+
+    def __init__(self, shape: tuple, pinned: bool) -> None:
+        self.fluence = wp.zeros(shape, dtype=wp.float32, device="cpu", pinned=pinned)
+        self.given = wp.zeros(shape, dtype=wp.uint8, device="cpu", pinned=pinned)
+        self.fluence_np = self.fluence.numpy()
+        self.given_np = self.given.numpy()
+        self.frame = None  # weak reference to the frame it holds (None: nothing, or being filled)
+        self.has_given = False
+        self.filling = False  # being written (a thread of its own)
+        self.event = None  # recorded after the last upload from it (CUDA)
+        self.busy = False  # an upload from it may be in flight: not written until its event is waited for
+        self.stamp = 0  # when it was filled (the least recently filled is written first)
+
+    def fill(self, frame) -> None:
+        """Copy ``frame``'s fluence and masks in (the caller has marked the set as filling)."""
+        fl, gv = self.fluence_np, self.given_np
+        has = False
+        for v in range(frame.n_views):
+            f = frame._fluence[v]
+            h, w = f.shape
+            fl[v, :h, :w] = f
+            g = frame._given[v]
+            if g is not None:
+                gv[v, :h, :w] = g
+                has = True
+        self.has_given = has
+
+
+class FrameUpload:
+    """The whole frame on one device (``src`` fluence, ``given`` masks, ``(n_views, H, W)``), the frame it
+    holds (:attr:`on_device`) and the pinned sets it is uploaded from."""
+
+    def __init__(self, device, shape: tuple) -> None:
+        self.device = device
+        self.shape = tuple(int(a) for a in shape)
+        pinned = device.is_cuda
+        self.src = wp.zeros(self.shape, dtype=wp.float32, device=device)
+        self.given = wp.zeros(self.shape, dtype=wp.uint8, device=device)
+        self.sets = [_HostSet(self.shape, pinned) for _ in range(PINNED_SETS)]
+        self.lock = threading.Lock()
+        self.on_device = None  # weak reference to the frame whose fluence src holds
+        self.given_on = False  # given holds that frame's masks
+        self.uploads = 0  # uploads made (tests)
+        self.filled_here = 0  # pinned copies made by share itself (not ahead)
+
+    def fits(self, frame) -> bool:
+        nv, H, W = self.shape
+        return frame.n_views == nv and all(h <= H and w <= W for h, w in frame.shapes)
+
+    def holds(self, frame) -> bool:
+        return self.on_device is not None and self.on_device() is frame
+
+    def _take(self, frame) -> _HostSet | None:
+        """(Under the lock) a set to fill with ``frame``: the least recently filled of those not busy,
+        not being filled and not holding the frame on the device; marked as filling. None: none free."""
+        cur = self.on_device() if self.on_device is not None else None
+        free = [s for s in self.sets if not s.busy and not s.filling
+                and not (cur is not None and s.frame is not None and s.frame() is cur)]
+        if not free:
+            return None
+        s = min(free, key=lambda a: a.stamp)
+        s.filling, s.frame = True, None
+        return s
+
+    def pin_ahead(self, frame) -> bool:
+        """Copy ``frame`` into a free pinned set (a worker thread: no CUDA call); False where none is
+        free or it is already held."""
+        with self.lock:
+            if any(s.frame is not None and s.frame() is frame for s in self.sets):
+                return False
+            s = self._take(frame)
+        if s is None:
+            return False
+        try:
+            s.fill(frame)
+        finally:
+            with self.lock:
+                s.filling = False
+        with self.lock:
+            s.frame, s.stamp = weakref.ref(frame), next(_STAMP)
+        return True
+
+    def upload(self, frame) -> None:
+        """Put ``frame`` on the device (the registering thread): from the set holding it (filled ahead),
+        else from a set filled here; the earlier uploads' events waited for first (done long since in a
+        tracking run: the frames before this one have synchronised), so their sets may be written
+        again."""
+        if self.holds(frame):
+            return
+        cuda = self.device.is_cuda
+        for s in self.sets:
+            if s.busy:
+                if cuda and s.event is not None:
+                    wp.synchronize_event(s.event)
+                s.busy = False
+        with self.lock:
+            s = next((a for a in self.sets if not a.filling and a.frame is not None and a.frame() is frame),
+                     None)
+            if s is None:
+                s = self._take(frame)
+            if s is None:  # (not in a tracking run: the worker fills one set at a time) one more set
+                s = _HostSet(self.shape, cuda)
+                s.filling = True
+                self.sets.append(s)
+            s.busy = True  # not written from here on, until the next upload has waited for its event
+        if s.filling:
+            try:
+                s.fill(frame)
+            finally:
+                with self.lock:
+                    s.filling = False
+                    s.frame, s.stamp = weakref.ref(frame), next(_STAMP)
+            self.filled_here += 1
+        copy_array(self.src, s.fluence)
+        if s.has_given:
+            copy_array(self.given, s.given)
+        if cuda:
+            if s.event is None:
+                s.event = wp.Event(self.device)
+            wp.record_event(s.event)
+        self.on_device = weakref.ref(frame)
+        self.given_on = s.has_given
+        self.uploads += 1
+
+
+_UPLOADS: dict = {}  # device alias -> FrameUpload
+_ACTIVE: list = []  # the FrameUpload shared last (pin_ahead fills its sets)
+
+
+def applies(device) -> bool:
+    kind = "cuda" if device.is_cuda else "cpu"
+    return SHARED_UPLOAD and kind in DEVICES
+
+
+def share(device, frame) -> FrameUpload | None:
+    """Put the whole of ``frame`` (a :class:`~core.tracking.cost.FrameImages`) on ``device`` for the
+    engines of its bones (module docs); None where it does not apply (switched off, another device kind,
+    another kind of frame)."""
+    from .cost import FrameImages
+
+    if not (applies(device) and isinstance(frame, FrameImages)) or frame.n_views == 0:
+        return None
+    up = _UPLOADS.get(device.alias)
+    if up is None or not up.fits(frame):
+        nv = frame.n_views
+        H = max(h for h, _ in frame.shapes)
+        W = max(w for _, w in frame.shapes)
+        if up is not None and up.shape[0] == nv:  # grown (the larger of the two)
+            H, W = max(H, up.shape[1]), max(W, up.shape[2])
+        up = _UPLOADS[device.alias] = FrameUpload(device, (nv, H, W))
+    _ACTIVE[:] = [up]
+    up.upload(frame)
+    return up
+
+
+def holding(device, frame) -> FrameUpload | None:
+    """The :class:`FrameUpload` of ``device`` that holds ``frame`` now, or None."""
+    if not SHARED_UPLOAD:
+        return None
+    up = _UPLOADS.get(device.alias)
+    return up if up is not None and up.holds(frame) else None
+
+
+def pin_ahead(frame, after=()) -> bool:
+    """The pinned copy of ``frame`` made now (:class:`core.tracking.feed.FrameFeed`'s worker thread) for
+    the device that shared a frame last, where that device holds one of the frames ``after`` (those
+    handed out before it: the run shares its frames; one bone's run after joint tracking does not);
+    False where not, or where it does not fit."""
+    if not SHARED_UPLOAD or not _ACTIVE:
+        return False
+    up = _ACTIVE[0]
+    if not up.fits(frame) or not any(up.holds(a) for a in after):
+        return False
+    return up.pin_ahead(frame)
+
+
+def _forget() -> None:
+    """In a forked child: the parent's device buffers and pinned memory are not the child's."""
+    _UPLOADS.clear()
+    _ACTIVE.clear()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget)
+
+
+def frame_rows(frame, views, roi) -> np.ndarray:
+    """``info`` rows of :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` for the regions ``roi``
+    ``(n, 4)`` of ``views`` read from the whole images: ``(h, w, v0, u0, H, W, has_given, 0)``."""
+    info = np.zeros((len(views), 8), dtype=np.int32)
+    for i, v in enumerate(views):
+        u0, v0, w, h = (int(a) for a in roi[i])
+        H, W = frame.shapes[v]
+        info[i] = (h, w, v0, u0, H, W, int(frame._given[v] is not None), 0)
+    return info

@@ -1,0 +1,113 @@
+"""Joint registration's engines reading their regions from one upload of the whole frame
+(core.tracking.engine_upload, run on Warp's CPU device here): the same results to the bit as each engine
+uploading its own regions, on the ideal 128² talus-calcaneus views (frame 1 tracked jointly from frame
+0's given poses, with the likelihood stage); the pinned sets filled ahead and taken; a frame not held
+is uploaded again."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tests.core.tracking.test_joint_pipeline import _same
+
+
+def _track(fixture, monkeypatch, on: bool, frames=(0, 1)):
+    import core.tracking.engine_upload as eu
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions, track
+
+    sc, models, r, imgs = fixture
+    monkeypatch.setattr(eu, "SHARED_UPLOAD", on)
+    monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))
+    keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, refine_likelihood=True)
+    return track(r, models, imgs.__getitem__, list(frames), keyframes=keys, skip=keys, options=o)
+
+
+def test_shared_upload_gives_the_same_results(talus_calcaneus_128, monkeypatch):
+    import core.tracking.engine_frames as ef
+    import core.tracking.engine_upload as eu
+
+    shared = []
+    real = ef._prepare
+
+    def spy(self, frame, info, src, given, done):
+        up = eu._UPLOADS.get(self.device.alias)
+        shared.append(up is not None and src is up.src)
+        return real(self, frame, info, src, given, done)
+
+    monkeypatch.setattr(ef, "_prepare", spy)
+    off = _track(talus_calcaneus_128, monkeypatch, False)
+    assert shared and not any(shared)
+    shared.clear()
+    on = _track(talus_calcaneus_128, monkeypatch, True)
+    assert shared and all(shared)  # every full-resolution preparation of the joint frame read the upload
+    _same(off, on)
+
+
+def test_pinned_ahead_by_the_feed(talus_calcaneus_128, monkeypatch):
+    """The feed's worker fills a pinned set with the next frame once a frame was shared; share takes it
+    (no copy of its own), and a frame no longer held is uploaded again; the device holds the frame's
+    whole fluence."""
+    import warp as wp
+
+    import core.tracking.engine_upload as eu
+    from core.tracking.cost import prepare_frame
+    from core.tracking.feed import FrameFeed
+
+    monkeypatch.setattr(eu, "_UPLOADS", {})
+    monkeypatch.setattr(eu, "_ACTIVE", [])
+    monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))
+    imgs = talus_calcaneus_128[3]
+    dev = wp.get_device("cpu")
+    feed = FrameFeed(imgs.__getitem__, (0.02, 0.999), 3)
+    try:
+        _, f0 = feed.get(0)
+        up = eu.share(dev, f0)
+        assert up.filled_here == 1 and eu.holding(dev, f0) is up
+        feed.prefetch(1)
+        _, f1 = feed.get(1)
+        assert any(s.frame is not None and s.frame() is f1 for s in up.sets)  # filled ahead
+        assert eu.share(dev, f1) is up and up.filled_here == 1 and up.uploads == 2
+        assert eu.holding(dev, f0) is None and eu.holding(dev, f1) is up
+        src = up.src.numpy()
+        for v, im in enumerate(imgs[1]):
+            h, w = im.shape
+            np.testing.assert_array_equal(src[v, :h, :w], np.asarray(im, np.float32))
+        eu.share(dev, f0)  # back to frame 0: its set still holds it
+        assert up.uploads == 3 and up.filled_here == 1 and eu.holding(dev, f0) is up
+        # a run whose frames the device does not hold (one bone's, after joint tracking) pins nothing
+        other = prepare_frame(imgs[1])
+        assert not eu.pin_ahead(other, after=(f1,)) and eu.pin_ahead(other, after=(f1, f0))
+    finally:
+        feed.close()
+
+
+def test_sets_not_written_while_busy():
+    """The set uploaded last is not written by the worker (the least recently filled of the others is); a
+    frame filled ahead is not copied again, one whose set was written over is."""
+    import warp as wp
+
+    from core.tracking.cost import prepare_frame
+    from core.tracking.engine_upload import FrameUpload
+
+    rng = np.random.default_rng(0)
+    frames = [prepare_frame([rng.uniform(0.1, 0.9, (16, 20)).astype(np.float32) for _ in range(2)])
+              for _ in range(4)]
+    up = FrameUpload(wp.get_device("cpu"), (2, 16, 20))
+    up.upload(frames[0])
+    assert up.filled_here == 1 and up.holds(frames[0])
+    assert up.pin_ahead(frames[1]) and not up.pin_ahead(frames[1])
+    assert up.pin_ahead(frames[2])
+    busy = [s for s in up.sets if s.busy]
+    assert len(busy) == 1 and busy[0].frame() is frames[0]
+    assert up.pin_ahead(frames[3])  # over the least recently filled set not busy (frame 1's)
+    assert busy[0].frame() is frames[0]
+    assert sorted(id(s.frame()) for s in up.sets) == sorted(id(f) for f in (frames[0], frames[2], frames[3]))
+    up.upload(frames[2])
+    assert up.filled_here == 1  # taken from its set
+    np.testing.assert_array_equal(up.src.numpy()[1], frames[2]._fluence[1])
+    up.upload(frames[1])  # copied again (its set was written over)
+    assert up.filled_here == 2 and up.holds(frames[1])
+    np.testing.assert_array_equal(up.src.numpy()[0], frames[1]._fluence[0])

@@ -111,6 +111,7 @@ import warp as wp
 
 from ..similarity import _kernels as K
 from . import likelihood_launches as _LL
+from . import likelihood_solve as _LS
 from .cost import FrameImages
 from .engine import GaussNewtonCost
 from .engine_buffers import copy_array
@@ -466,6 +467,17 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         if self._wcount_pending:  # (those with a positive weight: count_weights)
             self._take_weights_count()
         nz = NZ + self._q
+        if _LS.LEAN_SOLVES:  # (the pinned table's numpy view kept; copied, mirrored and solved at once)
+            host = self._tables_q()[1]
+            view = self.__dict__.get("_host_view")
+            if view is None or view[0] is not host:
+                view = self._host_view = (host, host.numpy())
+            self.timer.metric += time.perf_counter() - t0
+            self.timer.calls += 1
+            t1 = time.perf_counter()
+            out = _LS.solve_tables(view[1], h, self.background, self._with_o, self._q, self._tri)
+            self.timer.host += time.perf_counter() - t1
+            return out
         M = self._tables_q()[1].numpy().reshape(nv, nz, nz).copy()
         if self._tri:  # (the entries above the diagonal mirrored below it)
             M += np.swapaxes(np.triu(M, 1), 1, 2)
@@ -524,7 +536,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
                 last = None
                 break
             best = last = (x.copy(), s)
-            delta = np.linalg.solve(s["JJ"], s["Jr"])
+            delta = _LS.solve6(s["JJ"], s["Jr"])
             pred = float(s["Jr"] @ delta)  # the step's predicted decrease of χ²
             x = x + delta
             small = pred < STOP_PRED * share and not TO_TOL.get()
@@ -539,7 +551,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         if best is None:  # not even the start could be fitted
             return {**out, "covariance": nan, "covariance_independent": nan}
         try:  # the last design rendered (its images are on the device)
-            Hinv = np.linalg.inv(s["JJ"])
+            Hinv = _LS.inv6(s["JJ"])
         except np.linalg.LinAlgError:
             return {**out, "covariance": nan, "covariance_independent": nan}
         out["covariance_independent"] = Hinv * s["chi2"] / max(self.n_pixels, 1)

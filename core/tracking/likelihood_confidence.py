@@ -48,6 +48,11 @@ AUTOCOV_ROWS = True
 #: order). Off: every lag, as first measured. Same call: 0.43 → 0.22 ms at 4 px, 1.50 → 0.75 ms at 8 px;
 #: σ within 7 · 10⁻⁸ relative over the 90 bone-frames.
 MEAT_HALF = True
+#: A sandwich's autocovariance (:attr:`~_Confidence.autocorrelation`, read by studies) copied from the
+#: device where it is read, not after every sandwich (the same buffer: the last sandwich's values, the copy
+#: waits for it); off: copied into a pinned buffer after every sandwich, as before (one copy fewer a
+#: bone-frame: the stage reads back only what it decides on).
+COV_ON_READ = True
 
 
 class _Confidence:
@@ -125,8 +130,11 @@ class _Confidence:
                      [jt, cw, self._ref_hw, L, mc, acc, int(MEAT_HALF)], self.block_dim)
         host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
         copy_array(host, acc)
-        self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
-        copy_array(self._cov_host, cov)  # for autocorrelation
+        if COV_ON_READ:  # (autocorrelation reads the device's buffer: the last sandwich's, as a copy is)
+            self._cov_host = cov
+        else:
+            self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
+            copy_array(self._cov_host, cov)  # for autocorrelation
         if dev.is_cuda:  # (its own event: _wait waits for the engine's steps, this for the sandwich)
             if self.__dict__.get("_sw_event") is None:
                 self._sw_event = wp.Event(dev)

@@ -25,7 +25,7 @@ try:  # numpy.linalg.solve's gufunc, called as it calls it
 except ImportError:  # pragma: no cover
     _ul = None
 
-__all__ = ["solve_moments"]
+__all__ = ["StepTables", "inv6", "solve6", "solve_moments", "solve_tables"]
 
 #: :func:`solve_moments` gathers the table's entries with one index array and calls the stacked solve's
 #: gufunc itself, as :func:`numpy.linalg.solve` calls it (the same LAPACK solve under the same error
@@ -33,6 +33,14 @@ __all__ = ["solve_moments"]
 #: random tables of every model), 95 → 84 µs a call on this 2-core x86_64 machine. Off: through
 #: :func:`numpy.linalg.solve` and an index array per block, as before.
 DIRECT_SOLVES = True
+#: :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.step_result` takes the host's tables through
+#: :func:`solve_tables` (the pinned table's numpy view kept, the triangle mirrored by one index
+#: assignment, the differences' scales applied to every gathered entry in two products, both kept per
+#: half-step) and :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps` solves and inverts
+#: its 6×6 system through numpy's gufuncs (:func:`solve6`, :func:`inv6`): the same operations on the
+#: same values, fewer numpy calls. Off: the table copied, mirrored with :func:`numpy.triu`,
+#: :func:`solve_moments` and :func:`numpy.linalg.solve` / :func:`numpy.linalg.inv`, as before.
+LEAN_SOLVES = True
 
 
 def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False,
@@ -83,6 +91,121 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: boo
     lin[:, na + 1:na + 7] = s
     lin[:, ix.beta] = beta.reshape(n, -1)
     return {"JJ": 0.5 * (JJ + JJ.T), "Jr": Jr, "chi2": max(chi2, 0.0), "lin": lin}
+
+
+def solve_tables(T: np.ndarray, h: np.ndarray, background: int = 0, others: bool = False, extra: int = 0,
+                 tri: bool = False) -> dict:
+    """:func:`solve_moments` of the host's flat tables ``T (views, nz²)`` (the step's pinned copy; ``tri``:
+    only the entries on and above the diagonal summed, zeros below) with ``"M"`` the ``(views, nz, nz)``
+    tables, mirrored — :data:`LEAN_SOLVES`' path: the entries gathered from above the diagonal (where the
+    mirror's ``0 + u`` is ``u``: a table summed from zero holds no -0), the differences' scales applied in
+    two products of every gathered entry, ``"lin"`` and ``"M"`` made where they are read
+    (:class:`StepTables`): the same operations on the same values as :func:`numpy.triu`'s mirror and
+    :func:`solve_moments`, the same results to the bit."""
+    extra = int(extra)
+    nz = NZ + extra
+    n = T.shape[0]
+    Tf = np.array(T, dtype=np.float64).reshape(n, nz * nz)  # (a copy: the pinned table is written again)
+    if not (DIRECT_SOLVES and _ul is not None):
+        M = Tf.reshape(n, nz, nz)
+        if tri:
+            M += np.swapaxes(np.triu(M, 1), 1, 2)
+        out = solve_moments(M, h, background, others, extra)
+        out["M"] = M
+        return out
+    pl = _plan(int(background), bool(others), extra, np.asarray(h, dtype=float))
+    ix = pl.index
+    e, p = ix.ends, len(ix.slot)
+    X = Tf[:, pl.upper if tri else ix.all]
+    G = X[:, :e[0]].reshape(n, p, p)
+    b = X[:, e[0]:e[1]]
+    Y = X[:, e[1]:] * pl.sa  # s_k times each difference's entry (D_k A, D_k D_l, D_k y) ...
+    Y *= pl.sb  # ... and D_k D_l's times s_l (the others' times 1: exact)
+    r = e[2] - e[1]
+    MDA = Y[:, :r].reshape(n, 6, p)
+    MDD = Y[:, r:r + 36].reshape(n, 6, 6)
+    MDy = Y[:, r + 36:]
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        coef = _ul.solve(G, b[..., None], signature="dd->d")[..., 0]  # (views, p)
+        beta = _ul.solve(G, MDA.transpose(0, 2, 1), signature="dd->d")  # (views, p, 6)
+    chi2 = float((Tf[:, 0] - np.einsum("vi,vi->v", coef, b)).sum())
+    a = coef[:, 0]
+    JJ = ((a * a)[:, None, None] * (MDD - MDA @ beta)).sum(axis=0)
+    Jr = (a[:, None] * (MDy - (MDA @ coef[..., None])[..., 0])).sum(axis=0)
+    return StepTables(JJ=0.5 * (JJ + JJ.T), Jr=Jr, chi2=max(chi2, 0.0),
+                      _tables=(Tf, nz, tri, coef, beta, pl.s, ix, extra))
+
+
+class StepTables(dict):
+    """:func:`solve_tables`' result: ``"lin"`` (the linear fit and projections the residual kernels read)
+    and ``"M"`` (the tables, mirrored) made the first time they are read (``s["lin"]``), from the kept
+    copy and solves (``"_tables"``); the same values as :func:`solve_moments`' and the mirror's."""
+
+    def __missing__(self, key):
+        Tf, nz, tri, coef, beta, s, ix, extra = self["_tables"]
+        n = len(Tf)
+        if key == "lin":
+            na = NA + extra
+            v = np.zeros((n, na + 7 + 6 * na))
+            v[:, ix.slot] = coef
+            v[:, na] = coef[:, 0]
+            v[:, na + 1:na + 7] = s
+            v[:, ix.beta] = beta.reshape(n, -1)
+        elif key == "M":
+            v = Tf.reshape(n, nz, nz).copy()
+            if tri:
+                v += np.swapaxes(np.triu(v, 1), 1, 2)
+        else:
+            raise KeyError(key)
+        self[key] = v
+        return v
+
+
+def solve6(JJ: np.ndarray, Jr: np.ndarray) -> np.ndarray:
+    """``numpy.linalg.solve(JJ, Jr)`` (float64, one system) through its gufunc under its error state: the
+    same LAPACK solve and values, a singular system's LinAlgError (:data:`LEAN_SOLVES`)."""
+    if _ul is None or not LEAN_SOLVES:
+        return np.linalg.solve(JJ, Jr)
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return _ul.solve1(JJ, Jr, signature="dd->d")
+
+
+def inv6(JJ: np.ndarray) -> np.ndarray:
+    """``numpy.linalg.inv(JJ)`` (float64) through its gufunc under its error state (:func:`solve6`)."""
+    if _ul is None or not LEAN_SOLVES:
+        return np.linalg.inv(JJ)
+    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return _ul.inv(JJ, signature="d->d")
+
+
+class _Plan(NamedTuple):
+    index: _Index
+    upper: np.ndarray  # the gathered places (:attr:`_Index.all`), those below the diagonal their mirrors'
+    s: np.ndarray  # 1 / 2h
+    sa: np.ndarray  # s_k of each gathered difference entry (D_k A, D_k D_l, D_k y)
+    sb: np.ndarray  # s_l of D_k D_l's, 1 of the others
+
+
+_PLANS: dict = {}
+
+
+def _plan(background: int, others: bool, extra: int, h: np.ndarray) -> _Plan:
+    """:func:`solve_tables`' places and scales for a model and half-steps (kept: the steps' ``h`` repeat)."""
+    key = (background, others, extra, h.tobytes())
+    hit = _PLANS.get(key)
+    if hit is None:
+        ix = _indices(background, others, extra)
+        nz, p = NZ + extra, len(ix.slot)
+        i, j = np.tril_indices(nz, -1)
+        s = 1.0 / (2.0 * h)
+        sa = np.concatenate([np.repeat(s, p), np.repeat(s, 6), s])
+        sb = np.concatenate([np.ones(6 * p), np.tile(s, 6), np.ones(6)])
+        if len(_PLANS) >= 64:
+            _PLANS.clear()
+        flat = np.arange(nz * nz)
+        flat[i * nz + j] = j * nz + i  # (each place below the diagonal its mirror's above it)
+        hit = _PLANS[key] = _Plan(ix, flat[ix.all], s, sa, sb)
+    return hit
 
 
 def _singular(err, flag):

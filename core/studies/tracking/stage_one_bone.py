@@ -24,7 +24,9 @@ refinement's sandwich before the robust factors / after the robust refinement's 
 (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, on by default since both were measured alone:
 ``resources/benchmarks/tracking_stage_one_bone_97b2893_h100.json``, when both were off by default);
 ``nograph``, ``sorts``, ``npsolve`` the robust factors' CUDA graphs, their median's one sort and the
-solves' direct calls off, ``h2prev`` all five as at 97b2893 (:data:`_PARTS`).
+solves' direct calls off, ``h2prev`` all five as at 97b2893, ``nolean`` the steps' tables solved and the
+sandwich's autocovariance copied as before :data:`core.tracking.likelihood_solve.LEAN_SOLVES` and
+:data:`core.tracking.likelihood_confidence.COV_ON_READ` (:data:`_PARTS`).
 The runs count the stages that took the prefetched rows.
 Also the poses of every variant against the first's (largest difference, mm / degrees, and whether
 equal to the bit). JSON on stdout (``--out``: also to a file).
@@ -48,6 +50,7 @@ _HOST = (("core.tracking.final_stage", None, "final_stage"),
          ("core.tracking.final_stage", None, "_refine_steps"),
          ("core.tracking.final_stage", None, "stage_params"),
          ("core.tracking.engine_likelihood", None, "solve_moments"),
+         ("core.tracking.likelihood_solve", None, "solve_tables"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "set_frame"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "_stage"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "_staged"),
@@ -191,7 +194,9 @@ _PARTS = {"prefetch": (("core.tracking.register", "STAGE_PREFETCH", True),),
           "noafter": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False),),
           "nograph": (("core.tracking.likelihood_weights", "ROBUST_GRAPHS", False),),
           "sorts": (("core.tracking.likelihood_kernels", "MEDIAN_ONE_SORT", False),),
-          "npsolve": (("core.tracking.likelihood_solve", "DIRECT_SOLVES", False),)}
+          "npsolve": (("core.tracking.likelihood_solve", "DIRECT_SOLVES", False),),
+          "nolean": (("core.tracking.likelihood_solve", "LEAN_SOLVES", False),
+                     ("core.tracking.likelihood_confidence", "COV_ON_READ", False))}
 _PARTS["h2prev"] = tuple(t for k in ("noprefetch", "noafter", "nograph", "sorts", "npsolve")
                          for t in _PARTS[k])
 

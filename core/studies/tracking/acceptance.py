@@ -44,9 +44,10 @@ Measurements
 * **tracking** — frame 0 starts from the truth moved by ``start_error`` (5 mm, 5° in random
   directions), every frame is tracked (:func:`core.tracking.trial.track`); per bone the RMS of the
   centroid position error (mm) and of the rotation error angle (degrees) over all frames, the
-  converged fraction, flagged frames as the run returned them (the failure checks' and the
-  trajectory post-pass's, :mod:`core.tracking.flags_post`, on by default; those the post-pass alone
-  flagged apart: ``flagged_off_trajectory_only``) with each one's reasons (``flag_reasons``: frame ->
+  converged fraction and the frames not converged (``unconverged_frames``), flagged frames as the
+  run returned them (the failure checks' and the trajectory post-pass's,
+  :mod:`core.tracking.flags_post`, on by default; those the post-pass alone flagged apart:
+  ``flagged_off_trajectory_only``) with each one's reasons (``flag_reasons``: frame ->
   its flags, then its notes marked ``note:``; :mod:`core.studies.tracking.acceptance_records`),
   frames over 4× the bone's bound flagged or silent (``over_4x_bound``, with what the run showed of
   each silent one: ``silent_details``), and *silent failures* (unflagged frames with an error above
@@ -73,7 +74,9 @@ Measurements
 * **goals** — issue 20's per bone, measured and met or not (``goals``,
   :func:`core.studies.tracking.acceptance_goals.goals`: ≤ 1.25× the bound in mm and °, ≥ 99 %
   converged, no silent frame over 4× the bound, ≥ 90 % of the translation and of the rotation axes
-  within 2σ; each frame over 4× the bound, whether it was flagged and why: ``over_4x_frames``);
+  within 2σ; each frame over 4× the bound, whether it was flagged and why: ``over_4x_frames``; each
+  flagged frame within 4× and each frame not converged, with why: ``flagged_within_4x``,
+  ``unconverged_frames``);
   with ``--mode joint,sequential`` (both modes in turn on the same frames) ``joint_vs_sequential``,
   decided on the paired per-frame errors with a margin of 0.125× the bound
   (:func:`~core.studies.tracking.acceptance_goals.compare_modes`; ``python -m

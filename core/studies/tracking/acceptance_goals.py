@@ -1,7 +1,8 @@
 """Issue 20's goals on the acceptance trial (:mod:`core.studies.tracking.acceptance`): per bone the
-goals met or not (:func:`goals`; the 2σ coverage per axis, :func:`sigma_coverage`; each frame over 4×
-the bound, flagged or not and why, :func:`over_4x_frames`), joint against sequential tracking on the
-paired per-frame errors (:func:`compare_modes`, as the harder trial's goal is decided:
+goals met or not (:func:`goals`; the 2σ coverage per axis, :func:`sigma_coverage`; each frame over 4× the
+bound, flagged or not and why, :func:`over_4x_frames`; each flagged frame within it and each frame not
+converged, with why, :func:`flagged_within_4x`, :func:`unconverged_frames`), joint against sequential
+tracking on the paired per-frame errors (:func:`compare_modes`, as the harder trial's goal is decided:
 :func:`core.studies.tracking.hard_trial_stats.paired_comparison`, margin :func:`joint_margin`) and
 the smallest joint space against the truth's (:func:`joint_space`). The flagged frames as the run
 returned them (``flag_counts``) and what a user's run showed of each silent frame over 4× the bound
@@ -31,8 +32,9 @@ import numpy as np
 from core.studies.tracking.acceptance_records import NOTE, flag_counts, silent_details
 
 __all__ = ["DRIFT_SEQUENTIAL", "GOALS", "JOINT_MARGIN_OF_GOAL", "PAIRS", "compare_drift", "compare_modes",
-           "flag_counts", "goals", "joint_margin", "joint_space", "main", "over_4x_frames", "paired_errors",
-           "paired_units", "pool_drift", "regoal", "sigma_coverage", "silent_details"]
+           "flag_counts", "flagged_within_4x", "goals", "joint_margin", "joint_space", "main",
+           "over_4x_frames", "paired_errors", "paired_units", "pool_drift", "regoal", "sigma_coverage",
+           "silent_details", "unconverged_frames"]
 
 
 #: Bone pairs that touch in the trial (talocrural, subtalar): :func:`joint_space`.
@@ -184,14 +186,41 @@ def over_4x_frames(t: dict) -> list | None:
     return out
 
 
+def unconverged_frames(t: dict) -> list | None:
+    """Each frame of a bone's stored record ``t`` that did not converge (``unconverged_frames``), with
+    its reasons (``flag_reasons``: its flags, then its notes; empty where it has none): the frames
+    behind ``converged_fraction``. None where the record has no ``unconverged_frames`` (a run stored
+    before them: which frames they were is not in it)."""
+    if t.get("unconverged_frames") is None:
+        return None
+    why = t.get("flag_reasons") or {}
+    return [{"frame": int(f), "reasons": why.get(str(f), [])} for f in t["unconverged_frames"]]
+
+
+def flagged_within_4x(t: dict) -> list | None:
+    """Each flagged frame of a bone's stored record ``t`` whose error is within 4× its bound (flagged
+    though good: ``over_4x_bound``'s ``false_flags``), with its reasons (``flag_reasons``): a frame
+    with a pose that ``flagged_frames`` lists and ``over_4x_bound``'s ``frames`` does not (a flagged
+    frame without a pose, not in ``frames_with_pose``, left out where that is stored). None where the
+    record has no ``flag_reasons`` or no ``over_4x_bound``."""
+    ob, why = t.get("over_4x_bound"), t.get("flag_reasons")
+    if ob is None or why is None:
+        return None
+    over, posed = set(ob.get("frames", ())), t.get("frames_with_pose")
+    return [{"frame": int(f), "reasons": why.get(str(f), [])} for f in t.get("flagged_frames", ())
+            if f not in over and (posed is None or f in posed)]
+
+
 def goals(per_bone: dict) -> dict:
     """Per bone, each of :data:`GOALS` — the measured value and whether it is met. The 2σ coverage
     is checked per axis on the stored per-frame errors and σ (:func:`sigma_coverage`):
     ``within_2_sigma_translation`` and ``within_2_sigma_rotation`` each at least 90 % (a correct σ
     gives 95.4 %; ``sigma_coverage`` has every measure); a bone without per-frame σ keeps the
     fraction of all its axes (``within_2_sigma``). Each frame over 4× the bound, flagged or not and why
-    (``over_4x_frames``, :func:`over_4x_frames`): where the record has the flagged frames' reasons
-    (absent for a run stored before them)."""
+    (``over_4x_frames``, :func:`over_4x_frames`) and each flagged frame within 4× and why
+    (``flagged_within_4x``, :func:`flagged_within_4x`): where the record has the flagged frames'
+    reasons (absent for a run stored before them); each frame not converged and why
+    (``unconverged_frames``, :func:`unconverged_frames`): where the record lists them."""
     out = {}
     for n, t in per_bone.items():
         g = {"converged_fraction": [t["converged_fraction"],
@@ -213,6 +242,10 @@ def goals(per_bone: dict) -> dict:
             g["sigma_coverage"] = cov
         if (over := over_4x_frames(t)) is not None:
             g["over_4x_frames"] = over
+        if (within := flagged_within_4x(t)) is not None:
+            g["flagged_within_4x"] = within
+        if (unconv := unconverged_frames(t)) is not None:
+            g["unconverged_frames"] = unconv
         out[n] = g
     return out
 

@@ -1,11 +1,12 @@
 """The acceptance study's per-bone records of one tracking run (:func:`core.studies.tracking.acceptance.run`):
 per bone its per-frame errors against the truth and their statistics, the low-passed trajectory's, the
-converged fraction, the flagged frames as the run returned them (:func:`flag_counts`) with each one's
-reasons (:func:`flag_reasons`: its flags, then its notes), silent frames, the confidence σ
-(:func:`bone_records`); with the Cramér–Rao bound, the errors over it and the frames over 4× it, flagged
-or silent (:func:`add_bound`, :func:`over_bound`), with what the run showed of each silent one
-(:func:`silent_details`). ``pose_errors`` is importable from :mod:`core.studies.tracking.acceptance`,
-``flag_counts`` and ``silent_details`` from :mod:`core.studies.tracking.acceptance_goals`, as before."""
+converged fraction and the frames not converged, the flagged frames as the run returned them
+(:func:`flag_counts`) with each one's reasons (:func:`flag_reasons`: its flags, then its notes), silent
+frames, the confidence σ (:func:`bone_records`); with the Cramér–Rao bound, the errors over it and the
+frames over 4× it, flagged or silent (:func:`add_bound`, :func:`over_bound`), with what the run showed
+of each silent one (:func:`silent_details`). ``pose_errors`` is importable from
+:mod:`core.studies.tracking.acceptance`, ``flag_counts`` and ``silent_details`` from
+:mod:`core.studies.tracking.acceptance_goals`, as before."""
 
 from __future__ import annotations
 
@@ -128,14 +129,15 @@ def silent_details(res, name: str, center, errors: dict, bound: dict, silent) ->
 
 def over_bound(res, name: str, E: np.ndarray, frames: list, bound: dict, k: float = 4.0) -> dict:
     """The issue's failure count: frames whose translation or rotation error is over ``k`` times the
-    bone's Cramér–Rao bound (RMS of its per-frame bounds), flagged or not (*silent*)."""
+    bone's Cramér–Rao bound (RMS of its per-frame bounds), flagged or not (*silent*), and the flagged
+    frames within it (``false_flags``, ``false_flag_frames``)."""
     over = (np.linalg.norm(E[:, :3], axis=1) > k * bound["rms_mm"]) | (np.linalg.norm(E[:, 3:], axis=1)
                                                                         > k * bound["rms_deg"])
     bad = [f for f, o in zip(frames, over, strict=True) if o]
     silent = [f for f in bad if not res.results[(name, f)].flags]
     good_flagged = [f for f, o in zip(frames, over, strict=True) if not o and res.results[(name, f)].flags]
     return {"k": k, "frames": bad, "silent": len(silent), "silent_frames": silent,
-            "false_flags": len(good_flagged)}
+            "false_flags": len(good_flagged), "false_flag_frames": good_flagged}
 
 
 @dataclass
@@ -155,7 +157,8 @@ def bone_records(ts, res, frame_rate_hz: float) -> BoneRecords:
     """Per bone of ``ts`` (a :class:`~core.studies.tracking.acceptance.TrackingScene`) tracked in
     ``res``: the errors of the tracked and the low-passed poses (cut-off by Winter's residual analysis
     at ``frame_rate_hz``; none in a trial under :data:`FILTER_MIN_FRAMES` frames) against the truth,
-    converged fraction, flagged frames (:func:`flag_counts`) and each one's reasons (``flag_reasons``,
+    converged fraction and the frames not converged (``unconverged_frames``), flagged frames
+    (:func:`flag_counts`) and each one's reasons (``flag_reasons``,
     :func:`flag_reasons`), silent failures (unflagged frames over 0.5 mm or 0.5°), the 2σ coverage and
     the per-frame σ."""
     out, n_frames = BoneRecords(), ts.scene.n_frames
@@ -191,6 +194,9 @@ def bone_records(ts, res, frame_rate_hz: float) -> BoneRecords:
             "mean_error": {"mm": E[:, :3].mean(0).round(4).tolist(),
                            "deg": E[:, 3:].mean(0).round(4).tolist()} if len(E) else None,
             "converged_fraction": conv / n_frames,
+            # the frames that did not converge (a registration the frame step flagged, or no pose), whose
+            # reasons are in flag_reasons: what "converged 98 %" counts
+            "unconverged_frames": [f for f in range(n_frames) if not res.results[(n, f)].converged],
             **flag_counts(res, n),
             "flag_reasons": flag_reasons(res, n),
             "silent_failures": silent,

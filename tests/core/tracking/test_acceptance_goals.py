@@ -251,6 +251,11 @@ def test_a_bone_flagged_or_without_a_pose_in_every_frame_keeps_the_runs_results(
     out = acceptance.run(ts=ts, mode="joint", capture_trials=0, figure=str(tmp_path / "f.png"))
     t = out["tracking"]["talus"]
     assert t["filtered"]["rms_error_mm"] is None and t["filtered"]["frames"] == 0
+    # the frames behind the converged fraction, with why (no pose: not converged, nothing returned why)
+    assert t["unconverged_frames"] == ([] if talus == "flagged" else list(range(12)))
+    assert out["goals"]["talus"]["unconverged_frames"] == [{"frame": f, "reasons": ["test"]}
+                                                           for f in t["unconverged_frames"]]
+    assert out["tracking"]["tibia"]["unconverged_frames"] == [] == out["goals"]["tibia"]["unconverged_frames"]
     assert t["rms_over_bound"]["filtered_deg"] is None
     if talus == "no pose":
         assert t["rms_error_mm"] is t["max_error_deg"] is t["mean_error"] is t["std_error"] is None

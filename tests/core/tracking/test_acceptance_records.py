@@ -1,6 +1,7 @@
 """The acceptance study's per-bone records (core.studies.tracking.acceptance_records): each flagged
-frame's reasons (its flags, then its notes), the frames over 4x the Cramér–Rao bound; the goals' list
-of them, flagged or not and why (core.studies.tracking.acceptance_goals.over_4x_frames)."""
+frame's reasons (its flags, then its notes), the frames over 4x the Cramér–Rao bound, the frames not
+converged; the goals' lists of them, flagged or not and why (core.studies.tracking.acceptance_goals:
+over_4x_frames, flagged_within_4x, unconverged_frames)."""
 
 from types import SimpleNamespace
 
@@ -40,7 +41,7 @@ def test_over_bound_counts_silent_and_false_flags():
     out = over_bound(res, "talus", E, frames, bound)
     assert out["frames"] == [1, 2]
     assert out["silent"] == 1 and out["silent_frames"] == [2]
-    assert out["false_flags"] == 1
+    assert out["false_flags"] == 1 and out["false_flag_frames"] == [3]
 
 
 
@@ -69,6 +70,40 @@ def test_the_goals_list_each_frame_over_4x_flagged_or_not_and_why():
     assert over_4x_frames(none_over) == []
 
 
+def test_the_goals_list_the_frames_not_converged_and_the_flagged_ones_within_4x_with_why():
+    """``converged 98 %`` traced to its frames: ``unconverged_frames`` with their reasons where the record
+    lists them (none in a result stored before them: ``--regoal`` leaves the list out); the flagged frames
+    within 4x the bound with theirs, from the stored flagged frames (old results too)."""
+    d = _stored(converged_fraction=0.9, unconverged_frames=[3, 4])
+    regoal(d)
+    g = d["goals"]["talus"]
+    assert g["converged_fraction"] == [0.9, False]
+    assert g["unconverged_frames"] == [
+        {"frame": 3, "reasons": ["score drop", NOTE + "start corrected by restarts"]},
+        {"frame": 4, "reasons": []}]  # not flagged (e.g. no pose: nothing returned why)
+    assert g["flagged_within_4x"] == [{"frame": 8, "reasons": [f"{FLAG} (1.2x)"]}]
+    old = _stored()  # no unconverged_frames
+    regoal(old)
+    assert "unconverged_frames" not in old["goals"]["talus"]
+    assert old["goals"]["talus"]["flagged_within_4x"] == g["flagged_within_4x"]
+    # a flagged frame without a pose (not in frames_with_pose) is neither over nor within 4x
+    posed = _stored(frames_with_pose=[0, 1, 2, 3, 4, 5, 6, 7])
+    regoal(posed)
+    assert posed["goals"]["talus"]["flagged_within_4x"] == []
+
+
+def test_the_records_list_the_frames_not_converged():
+    from dataclasses import replace
+
+    from core.studies.tracking.acceptance_records import bone_records
+
+    ts, res = _scene_and_result(4, flagged=(1,))
+    res.results[("talus", 1)] = replace(res.results[("talus", 1)], converged=False)
+    res.results[("talus", 3)] = replace(res.results[("talus", 3)], pose=None, converged=False)
+    t = bone_records(ts, res, 278.0).tracking["talus"]
+    assert t["converged_fraction"] == 0.5 and t["unconverged_frames"] == [1, 3]
+
+
 def test_a_result_stored_before_the_reasons_regoals_without_them():
     """No ``flag_reasons`` (a run before them): no ``over_4x_frames``, the other goals as before; no
     ``silent_details`` (older still): the silent frame has no ``reasons``; no bound: no list."""
@@ -77,8 +112,9 @@ def test_a_result_stored_before_the_reasons_regoals_without_them():
     new = _stored()
     regoal(old)
     regoal(new)
-    assert "over_4x_frames" not in old["goals"]["talus"]
-    assert old["goals"]["talus"] == {k: v for k, v in new["goals"]["talus"].items() if k != "over_4x_frames"}
+    assert "over_4x_frames" not in old["goals"]["talus"] and "flagged_within_4x" not in old["goals"]["talus"]
+    assert old["goals"]["talus"] == {k: v for k, v in new["goals"]["talus"].items()
+                                     if k not in ("over_4x_frames", "flagged_within_4x")}
     older = _stored()
     del older["tracking"]["talus"]["over_4x_bound"]["silent_details"]
     regoal(older)
@@ -145,4 +181,6 @@ def test_every_stored_acceptance_result_regoals():
             for n, g in r["goals"].items():
                 # only results stored with the reasons (flag_reasons, since 3ee57ee) list them
                 assert ("over_4x_frames" in g) == ("flag_reasons" in r["tracking"][n]), p.name
+                assert ("flagged_within_4x" in g) == ("over_4x_frames" in g), p.name
+                assert ("unconverged_frames" in g) == ("unconverged_frames" in r["tracking"][n]), p.name
                 assert ("silent_over_4x" in g) == ("over_4x_bound" in r["tracking"][n]), p.name

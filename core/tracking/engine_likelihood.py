@@ -268,6 +268,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         (on the device path at the next :meth:`step`'s synchronisation)."""
         t0 = time.perf_counter()
         self._fast = False  # (no refinement of this frame yet: STOP_CONTRACT)
+        self._frame_work = None  # (the recorded step of the last frame: _step_work)
         self.base = np.asarray(base_pose, dtype=float)
         self.center = np.asarray(center, dtype=float)
         self.roi = np.asarray(roi, dtype=np.int64).reshape(self.n_views, 4)

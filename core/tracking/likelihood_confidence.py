@@ -71,7 +71,7 @@ class _Confidence:
         nv, (Hc, Wc) = self.n_views, self._cap
         hp = 1.0 if self.highpass_px else 0.0
         lin_h = self._pinned(pin, s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
-        lin_h.numpy()[...] = s["lin"]
+        self._view(lin_h)[...] = s["lin"]
         lin = self._buffer("lin", s["lin"].shape)
         copy_array(lin, lin_h)
         e = self._buffer("e", (nv, Hc, Wc))
@@ -150,7 +150,7 @@ class _Confidence:
             wp.synchronize_event(ev)
         else:
             self._wait()
-        meat = self._host["meat"].numpy().reshape(self.n_views, 6, 6).sum(axis=0)
+        meat = self._view(self._host["meat"]).reshape(self.n_views, 6, 6).sum(axis=0)
         meat = 0.5 * (meat + meat.T)
         self.timer.metric += time.perf_counter() - t0
         return Hinv @ meat @ Hinv

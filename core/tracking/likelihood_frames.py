@@ -146,7 +146,7 @@ class _FrameRegions:
         shared = self._prefetched(frame, staged) if PREFETCH else None
         if shared is not None:
             src, gsrc, rows = shared
-            info = self._host_info.numpy()
+            info = self._view(self._host_info)
             for i, v in enumerate(self.views):
                 r0, r1, c0, c1 = (int(a) for a in rows[i][:4])
                 u0, v0, w, h = (int(a) for a in self.roi[i])
@@ -165,7 +165,7 @@ class _FrameRegions:
             self._buffer("stage_given", (nv, 1, 1), wp.uint8)
         hn = host.numpy()
         gn = None if hg is None else hg.numpy()
-        info = self._host_info.numpy()
+        info = self._view(self._host_info)
         info[:] = 0
         for i, v in enumerate(self.views):
             r0, r1, c0, c1 = staged[i]
@@ -274,7 +274,7 @@ class _FrameRegions:
         """The usable pixels the device's preparation counted (copied before the last
         synchronisation); raises OutsideViewError for a view without any."""
         self._count_pending = False
-        n = self._host_msum.numpy()[:, 0]
+        n = self._view(self._host_msum)[:, 0]
         self.n_pixels = round(float(n.sum()))
         for i, k in enumerate(n):
             if k <= 0:

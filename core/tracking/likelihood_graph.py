@@ -106,7 +106,13 @@ class _StepGraphs:
 
     def _step_work(self) -> StepWork:
         """The recorded step for the frame's output size and buffers (made and, on CUDA, captured
-        where there is none yet); the device geometry uploaded where it changed."""
+        where there is none yet); the device geometry uploaded where it changed. Kept for the frame
+        (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame` drops it: its geometry and
+        buffers are the frame's), for the moments' settings it was made with."""
+        settings = (self._moments_chunk(), self._moments_tri(), self.block_dim)
+        fw = self.__dict__.get("_frame_work")
+        if fw is not None and fw[0] == settings:
+            return fw[1]
         dr = self.__dict__.get("_dev_render")
         if dr is None:
             dr = self._dev_render = DeviceRender(self)
@@ -126,6 +132,7 @@ class _StepGraphs:
                 self._graphs.pop(next(iter(self._graphs)))
             hit = StepWork(self, cap, render, key)
         self._graphs[key] = hit  # (most recently used last)
+        self._frame_work = (settings, hit)
         return hit
 
     def _render_own(self, P, bones: tuple) -> wp.array:

@@ -21,6 +21,18 @@ class _Launches:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s buffers, launches and waits (its
     attributes: ``device``, ``_bufs``, ``_cmds``, ``_done``)."""
 
+    def _view(self, host):
+        """``host.numpy()`` of a small pinned host buffer of the engine's (the fit's coefficients, the
+        meat, the regions' item table and counts), made once per buffer and kept (the same memory:
+        Warp makes the numpy view anew on every call)."""
+        views = self.__dict__.setdefault("_views", {})
+        hit = views.get(id(host))
+        if hit is None or hit[0] is not host:
+            if len(views) >= 32:
+                views.clear()
+            hit = views[id(host)] = (host, host.numpy())
+        return hit[1]
+
     def _use_buffers(self, key) -> None:
         """The device buffers and recorded launches of ``key`` (the frame's output size) from now on:
         each size's kept (the last :data:`KEEP_SIZES`), so that a region that comes back to a size it

@@ -72,7 +72,7 @@ class _RegionWeights:
     def _take_weights_count(self) -> None:
         """:meth:`count_weights`' count (copied before the last synchronisation) as :attr:`n_pixels`."""
         self._wcount_pending = False
-        self.n_pixels = round(float(self._host["wcount"].numpy().sum()))
+        self.n_pixels = round(float(self._view(self._host["wcount"]).sum()))
 
     def scale_weights(self, factor: np.ndarray) -> None:
         """The expected counts of :meth:`set_frame` times ``factor (views, H, W)`` (per pixel, on
@@ -140,7 +140,7 @@ class _RegionWeights:
                 wp.synchronize_device(self.device)
                 hit = "never"
         elif hit != "never":
-            lin_h.numpy()[...] = s["lin"]  # (what the recorded upload reads)
+            self._view(lin_h)[...] = s["lin"]  # (what the recorded upload reads)
         graphs[key] = hit  # (most recently used last)
         while len(graphs) > KEEP_ROBUST_GRAPHS:
             graphs.pop(next(iter(graphs)))

@@ -59,7 +59,7 @@ def add_output(p: argparse.ArgumentParser, *, machine_name: bool = True, table: 
         add_machine_name(p)
     if table:
         p.add_argument("--table", action="store_true", help="print the summary table to stderr at the end")
-    p.add_argument("--out", default=None)
+    p.add_argument("--out", default=None, help="also write the JSON here")
 
 
 def names(text: str) -> list[str]:

@@ -373,7 +373,7 @@ def main(argv=None) -> int:
     p.add_argument("--bones", default="", help=cli.BONES_HELP)
     p.add_argument("--components-frames", default="", help="frames of the noise-free parts' test")
     p.add_argument("--component-methods", default="hp4+r,leg0,leg2,leg4,leg4t+r")
-    cli.add_output(p, machine_name=False)
+    cli.add_output(p)
     a = p.parse_args(argv)
     res = run(pixels=a.pixels, voxel=a.voxel, n_frames=a.n_frames, frames=cli.ints(a.frames), seeds=a.seeds,
               sets=cli.names(a.sets), methods=cli.names(a.methods), bones=cli.ints(a.bones) or None,

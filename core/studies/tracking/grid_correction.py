@@ -57,13 +57,14 @@ distortion is not what holds the tibia at ~1.5× its bound.
 
 from __future__ import annotations
 
-import argparse
 import platform
 import time
 from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["GridCorrection", "bone_points", "bone_residuals", "estimate_corrections", "field_points",
            "grid_corrections", "grid_session", "main", "model_corrections", "residuals", "run"]
@@ -366,21 +367,13 @@ def run(*, pixels: int = 1024, spacing: float = 0.5, n_grids=(1, 5), seed: int =
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.grid_correction",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.grid_correction", __doc__)
     p.add_argument("--pixels", type=int, default=1024, help="views' size (the trial's: 1024)")
     p.add_argument("--grids", default="1,5", help="numbers of grid frames per camera to compare")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--machine-name", default=None, help="the machine in words (written into the JSON)")
-    p.add_argument("--out", default=None, help="also write the JSON here")
+    cli.add_output(p)
     a = p.parse_args(argv)
-    from core.io.atomic import print_json
-
-    res = run(pixels=a.pixels, n_grids=[int(x) for x in a.grids.split(",") if x], seed=a.seed)
-    if a.machine_name:
-        res["machine_name"] = a.machine_name
-    print_json(res, a.out)
-    return 0
+    return cli.finish(run(pixels=a.pixels, n_grids=cli.ints(a.grids), seed=a.seed), a)
 
 
 if __name__ == "__main__":

@@ -56,7 +56,6 @@ JSON on stdout (``--out``: also to a file).
 
 from __future__ import annotations
 
-import argparse
 import platform
 import time
 from dataclasses import replace
@@ -65,6 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from core.geometry.transforms import pose_from_params
+from core.studies.tracking import _study_cli as cli
 from core.studies.tracking.acceptance import pose_errors
 
 __all__ = ["bound_ratio", "bounds_at", "main", "noise_check", "oracle_ml", "response", "run", "spread",
@@ -397,8 +397,7 @@ def run(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 4, frame: in
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.hard_bound_check",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.hard_bound_check", __doc__)
     p.add_argument("--pixels", type=int, default=192)
     p.add_argument("--voxel", type=float, default=1.0)
     p.add_argument("--frames", type=int, default=4)
@@ -415,29 +414,19 @@ def main(argv=None) -> int:
     p.add_argument("--reference", default=None, help="with --bound-ratio: a hard_trial JSON to compare with")
     p.add_argument("--device", default="cpu")
     p.add_argument("--cache", default=None)
-    p.add_argument("--machine-name", default=None)
-    p.add_argument("--out", default=None)
+    cli.add_output(p)
     a = p.parse_args(argv)
     import sys
 
-    from core.io.atomic import print_json
-
     if a.bound_ratio:
-        res = bound_ratio(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, seed=a.seed, device=a.device,
-                          cache=a.cache, frames=[int(x) for x in a.bound_ratio.split(",")],
-                          reference=a.reference)
-        if a.machine_name:
-            res["machine_name"] = a.machine_name
-        print_json(res, a.out)
-        return 0
+        return cli.finish(bound_ratio(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, seed=a.seed,
+                                      device=a.device, cache=a.cache, frames=cli.ints(a.bound_ratio),
+                                      reference=a.reference), a)
     res = run(pixels=a.pixels, spacing=a.voxel, n_frames=a.frames, frame=a.frame, seed=a.seed, bone=a.bone,
               draws=a.draws, tracker_draws=a.tracker_draws, noise_draws=a.noise_draws, far_draws=a.far_draws,
               with_response=not a.no_response, device=a.device, cache=a.cache,
               progress=lambda k, n: print(f"{k}/{n}", file=sys.stderr, flush=True))
-    if a.machine_name:
-        res["machine_name"] = a.machine_name
-    print_json(res, a.out)
-    return 0
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

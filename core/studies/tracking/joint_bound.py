@@ -54,12 +54,13 @@ bound's test): the bound can move, this trial's bones do not move it.
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import time
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["bounds", "frame_bounds", "hard_bounds", "main", "restate", "run", "run_hard"]
 
@@ -240,8 +241,7 @@ def run_hard(*, pixels: int = 192, spacing: float = 1.0, n_frames: int = 6, ever
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.joint_bound",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.joint_bound", __doc__)
     p.add_argument("--quick", action="store_true", help="256² views, 1 mm voxels (default 1024², 0.5 mm)")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--trial", choices=("acceptance", "hard"), default="acceptance",
@@ -257,11 +257,8 @@ def main(argv=None) -> int:
                    "none with another)")
     p.add_argument("--seed", type=int, default=0,
                    help="scene seed (the acceptance study's --seed, HardRun's; 0, the default: the trial)")
-    p.add_argument("--machine-name", default=None, help="the machine, in words, for the JSON")
-    p.add_argument("--out", default=None, help="also write the JSON here")
+    cli.add_output(p)
     a = p.parse_args(argv)
-    from core.io.atomic import print_json
-
     if a.trial == "hard":
         res = run_hard(pixels=a.pixels or 192, spacing=a.spacing, n_frames=a.frames, every=a.every or 1,
                        device=a.device, seed=a.seed)
@@ -269,10 +266,7 @@ def main(argv=None) -> int:
         stored = a.stored if a.stored is not None else (STORED if a.seed == 0 else None)
         res = run(quick=a.quick, device=a.device, every=a.every or 10, stored=stored or None,
                   pixels=a.pixels, seed=a.seed)
-    if a.machine_name:
-        res["machine_name"] = a.machine_name
-    print_json(res, a.out)
-    return 0
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

@@ -80,13 +80,14 @@ the tracking speed without and with the band (:func:`speed`).
 
 from __future__ import annotations
 
-import argparse
 import platform
 import re
 import time
 from dataclasses import replace
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["COSTS", "VARIANTS", "acceptance_with", "long_axis", "run", "speed", "variant_frames"]
 
@@ -410,8 +411,7 @@ def speed(costs=("gc", "band", "gc", "band"), cases=((0,), (0, 1, 2)), *, frames
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.tibia_cost",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.tibia_cost", __doc__)
     p.add_argument("--pixels", type=int, default=1024)
     p.add_argument("--voxel", type=float, default=1.0)
     p.add_argument("--frames", default="0,20,40,60,81")
@@ -425,43 +425,30 @@ def main(argv=None) -> int:
                    help="start each registration turned by this much about the tibia's long axis")
     p.add_argument("--draws", type=int, default=1, help="noise draws per noisy frame (the trial's own first)")
     p.add_argument("--device", default="cpu", help="Warp device (auto: CUDA where present)")
-    p.add_argument("--machine-name", default=None)
+    cli.add_machine_name(p)
     p.add_argument("--acceptance", default=None, metavar="COST",
                    help="instead: the acceptance study (both modes) with this cost for every bone")
     p.add_argument("--seed", type=int, default=0, help="--acceptance: the scene's seed")
     p.add_argument("--quick", action="store_true", help="--acceptance: the quick size (256², 20 frames)")
     p.add_argument("--workers", type=int, default=0, help="--acceptance: processes for the image chain")
     p.add_argument("--speed", action="store_true", help="instead: tracking speed without and with the band")
-    p.add_argument("--out", default=None)
+    cli.add_output(p, machine_name=False)
     a = p.parse_args(argv)
-    from core.io.atomic import json_checkpoint, print_json
-
+    device = None if a.device == "auto" else a.device
     if a.speed:
-        res = speed(workers=a.workers, device=None if a.device == "auto" else a.device)
-        if a.machine_name:
-            res["machine_name"] = a.machine_name
-        print_json(res, a.out)
-        return 0
+        return cli.finish(speed(workers=a.workers, device=device), a)
     if a.acceptance:
-        res = acceptance_with(a.acceptance, seed=a.seed, quick=a.quick, workers=a.workers,
-                              device=None if a.device == "auto" else a.device)
-        if a.machine_name:
-            res["machine_name"] = a.machine_name
-        print_json(res, a.out)
-        return 0
-
-    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
+        return cli.finish(acceptance_with(a.acceptance, seed=a.seed, quick=a.quick, workers=a.workers,
+                                          device=device), a)
 
     def split(s):
-        return tuple(x for x in s.split(",") if x)
+        return tuple(cli.names(s))
 
-    res = run(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in split(a.frames)],
-              variants=split(a.variants), costs=split(a.costs), cost_variants=split(a.cost_variants),
-              noises=split(a.noises), band_px=a.band_px, device=a.device, correction=a.correction,
-              start_deg=a.start_deg, draws=a.draws, checkpoint=checkpoint)
-    checkpoint(res)
-    print_json(res, a.out)
-    return 0
+    res = run(pixels=a.pixels, voxel=a.voxel, frames=cli.ints(a.frames), variants=split(a.variants),
+              costs=split(a.costs), cost_variants=split(a.cost_variants), noises=split(a.noises),
+              band_px=a.band_px, device=a.device, correction=a.correction, start_deg=a.start_deg,
+              draws=a.draws, checkpoint=cli.checkpoint(a))
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

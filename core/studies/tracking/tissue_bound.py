@@ -50,12 +50,13 @@ shared; ratios to the known-tissue bound, mm / °, tibia, talus, calcaneus):
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import time
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["background", "bounds", "main", "models", "restate", "run"]
 
@@ -214,8 +215,7 @@ def run(*, seed: int = 0, pixels: int = 256, voxel_mm: float = 1.0, every: int =
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.tissue_bound",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.tissue_bound", __doc__)
     p.add_argument("--seed", type=int, default=0, help="scene seed (the acceptance study's --seed)")
     p.add_argument("--pixels", type=int, default=256, help="views' size (default 256)")
     p.add_argument("--voxel", type=float, default=1.0, help="voxel size, mm: 1 (default) or 0.5")
@@ -226,18 +226,12 @@ def main(argv=None) -> int:
     p.add_argument("--keep", type=float, default=0.5, help="hp model: the low-pass's least kept fraction")
     p.add_argument("--grow-check", action="store_true", help="also the region's growth on the first frame")
     p.add_argument("--device", default=None, help="Warp device (default CUDA when present)")
-    p.add_argument("--machine-name", default=None, help="the machine, in words, for the JSON")
-    p.add_argument("--out", default=None, help="also write the JSON here")
+    cli.add_output(p)
     a = p.parse_args(argv)
-    from core.io.atomic import print_json
-
-    frames = None if not a.frames else [int(x) for x in a.frames.split(",")]
-    res = run(seed=a.seed, pixels=a.pixels, voxel_mm=a.voxel, every=a.every, frames=frames,
-              stored=a.stored or None, grow_check=a.grow_check, keep=a.keep, device=a.device)
-    if a.machine_name:
-        res["machine_name"] = a.machine_name
-    print_json(res, a.out)
-    return 0
+    res = run(seed=a.seed, pixels=a.pixels, voxel_mm=a.voxel, every=a.every,
+              frames=cli.ints(a.frames or "") or None, stored=a.stored or None, grow_check=a.grow_check,
+              keep=a.keep, device=a.device)
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
-"""core.studies.tracking._study_cli: the command line and JSON set-up the tissue studies share
-(temporal_tissue, tissue_regressor, background_fit, tissue_stage): their options, what ``main`` hands
-their ``run``, the checkpoints and the JSON at the end (the runs replaced: nothing rendered)."""
+"""core.studies.tracking._study_cli: the command line and JSON set-up the studies share (the tissue
+studies temporal_tissue, tissue_regressor, background_fit, tissue_stage; grid_correction, joint_bound,
+hard_bound_check, tissue_bound, tibia_cost): their options, what ``main`` hands their ``run``, the
+checkpoints and the JSON at the end (the runs replaced: nothing rendered)."""
 
 from __future__ import annotations
 
@@ -20,11 +21,23 @@ OPTIONS = {
     "tissue_regressor": ["--pixels", "--voxel", "--n-frames", "--frames", "--seeds", "--sets", "--methods",
                          "--tissues", "--modes", "--pose-error", "--machine-name", "--out"],
     "background_fit": ["--pixels", "--voxel", "--n-frames", "--frames", "--seeds", "--sets", "--methods",
-                       "--bones", "--components-frames", "--component-methods", "--out"],
+                       "--bones", "--components-frames", "--component-methods", "--machine-name", "--out"],
     "tissue_stage": ["--device", "--frames", "--pixels", "--voxel", "--workers", "--highpass", "--cases",
                      "--tissue", "--coarse-mm", "--no-tissue-psf", "--each", "--again", "--variants",
                      "--no-tracker", "--no-glare", "--correction", "--warm-frames", "--machine-name",
                      "--probe", "--probe-frames", "--probe-bones", "--probe-modes", "--probe-kinds", "--out"],
+    # the bound and correction studies, their options as before they took this module's parser and ending
+    "grid_correction": ["--pixels", "--grids", "--seed", "--machine-name", "--out"],
+    "joint_bound": ["--quick", "--device", "--trial", "--pixels", "--spacing", "--frames", "--every",
+                    "--stored", "--seed", "--machine-name", "--out"],
+    "hard_bound_check": ["--pixels", "--voxel", "--frames", "--frame", "--seed", "--bone", "--draws",
+                         "--tracker-draws", "--noise-draws", "--far-draws", "--no-response", "--bound-ratio",
+                         "--reference", "--device", "--cache", "--machine-name", "--out"],
+    "tissue_bound": ["--seed", "--pixels", "--voxel", "--every", "--frames", "--stored", "--keep",
+                     "--grow-check", "--device", "--machine-name", "--out"],
+    "tibia_cost": ["--pixels", "--voxel", "--frames", "--variants", "--costs", "--cost-variants", "--noises",
+                   "--band-px", "--correction", "--start-deg", "--draws", "--device", "--machine-name",
+                   "--acceptance", "--seed", "--quick", "--workers", "--speed", "--out"],
 }
 
 
@@ -78,6 +91,8 @@ def test_main_hands_run_the_lists_and_writes_the_json(monkeypatch, tmp_path, cap
     kw = seen["run"]
     assert kw["bones"] is None and kw["components_frames"] == [2, 4] and kw["methods"] == list(mod.METHODS)
     assert "machine_name" not in json.loads(capsys.readouterr().out)
+    assert mod.main(["--machine-name", "this 2-core x86_64 machine"]) == 0  # as the other studies
+    assert json.loads(capsys.readouterr().out)["machine_name"] == "this 2-core x86_64 machine"
 
 
 def test_tissue_stage_main_runs_the_probe_or_the_study(monkeypatch, capsys):
@@ -113,3 +128,60 @@ def test_lists_checkpoint_header_and_frame_done(tmp_path, capsys):
     assert saved["frames_done"] == [0, 2] and saved["machine_name"] == "m" and saved["total_s"] > 0
     cli.frame_done(out, 3, 0.0, None)  # a frame not counted: frames_done as it was, nothing written
     assert out["frames_done"] == [0, 2] and json.loads((tmp_path / "c.json").read_text()) == saved
+
+
+def _recorded(monkeypatch, mod, *fns):
+    """Replace ``mod``'s ``fns``: each records its arguments (and checkpoints where handed one)."""
+    seen = {}
+
+    def stub(fn):
+        def run(*args, **kw):
+            seen[fn] = (args, kw)
+            res = {"study": mod.__name__, "results": {}}
+            if kw.get("checkpoint") is not None:
+                kw["checkpoint"](res)
+            return res
+        return run
+
+    for fn in fns:
+        monkeypatch.setattr(mod, fn, stub(fn))
+    return seen
+
+
+@pytest.mark.parametrize(("name", "argv", "fn", "expected"), [
+    ("grid_correction", ["--grids", "1,,3"], "run", {"pixels": 1024, "n_grids": [1, 3], "seed": 0}),
+    ("joint_bound", ["--quick", "--seed", "3"], "run",
+     {"quick": True, "device": None, "every": 10, "stored": None, "pixels": None, "seed": 3}),
+    ("joint_bound", ["--trial", "hard", "--frames", "2"], "run_hard",
+     {"pixels": 192, "spacing": 1.0, "n_frames": 2, "every": 1, "device": None, "seed": 0}),
+    ("hard_bound_check", ["--bound-ratio", "1,3"], "bound_ratio",
+     {"pixels": 192, "spacing": 1.0, "n_frames": 4, "seed": 0, "device": "cpu", "cache": None,
+      "frames": [1, 3], "reference": None}),
+    ("tissue_bound", ["--frames", "0,50", "--stored", ""], "run",
+     {"seed": 0, "pixels": 256, "voxel_mm": 1.0, "every": 10, "frames": [0, 50], "stored": None,
+      "grow_check": False, "keep": 0.5, "device": None}),
+    ("tissue_bound", [], "run", {"frames": None, "stored": "default"}),
+    ("tibia_cost", ["--speed", "--device", "auto"], "speed", {"workers": 0, "device": None}),
+    ("tibia_cost", ["--acceptance", "band", "--quick"], "acceptance_with",
+     {"seed": 0, "quick": True, "workers": 0, "device": "cpu"}),
+    ("tibia_cost", ["--frames", "0,20", "--noises", "free"], "run",
+     {"frames": [0, 20], "noises": ("free",), "device": "cpu", "variants": ("trial", "norim", "fill", "band",
+                                                                             "notissue", "alone", "exact")}),
+])
+def test_the_bound_studies_main_hands_run_its_choices_and_ends_as_the_others(
+        monkeypatch, tmp_path, capsys, name, argv, fn, expected):
+    """Each converted main: the same arguments handed to its run as before, its JSON on stdout and to
+    ``--out`` with ``machine_name``, as :func:`cli.finish` ends the tissue studies."""
+    mod = _study(name)
+    others = {"joint_bound": ["run_hard"], "hard_bound_check": ["bound_ratio"],
+              "tibia_cost": ["speed", "acceptance_with"]}
+    seen = _recorded(monkeypatch, mod, "run", *others.get(name, []))
+    out = tmp_path / "r.json"
+    assert mod.main([*argv, "--machine-name", "one CPU", "--out", str(out)]) == 0
+    (only,) = seen
+    assert only == fn
+    kw = seen[fn][1]
+    assert {k: kw[k] for k in expected} == expected
+    text = capsys.readouterr().out
+    assert json.loads(text) == json.loads(out.read_text()) == {
+        "study": mod.__name__, "results": {}, "machine_name": "one CPU"}

@@ -55,12 +55,13 @@ JSON on stdout (``--out``: also to a file, rewritten as it goes).
 
 from __future__ import annotations
 
-import argparse
 import platform
 import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["Candidate", "main", "parse", "screen", "wls_step"]
 
@@ -504,8 +505,7 @@ def table(res: dict) -> list[str]:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.spread_screen",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.spread_screen", __doc__)
     p.add_argument("--pixels", type=int, default=512)
     p.add_argument("--voxel", type=float, default=0.5)
     p.add_argument("--frames", default=",".join(map(str, range(0, 100, 10))))
@@ -513,18 +513,12 @@ def main(argv=None) -> int:
     p.add_argument("--draws", type=int, default=30)
     p.add_argument("--candidates", default=",".join(DEFAULT_CANDIDATES))
     p.add_argument("--device", default="cpu")
-    p.add_argument("--machine-name", default=None)
-    p.add_argument("--out", default=None)
+    cli.add_output(p)
     a = p.parse_args(argv)
-    from core.io.atomic import json_checkpoint, print_json
-
-    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
-    res = screen(pixels=a.pixels, voxel=a.voxel, frames=[int(x) for x in a.frames.split(",") if x],
-                 bones=[int(x) for x in a.bones.split(",") if x], draws=a.draws,
-                 candidates=[x for x in a.candidates.split(",") if x], device=a.device, checkpoint=checkpoint)
-    checkpoint(res)
-    print_json(res, a.out)
-    return 0
+    res = screen(pixels=a.pixels, voxel=a.voxel, frames=cli.ints(a.frames), bones=cli.ints(a.bones),
+                 draws=a.draws, candidates=cli.names(a.candidates), device=a.device,
+                 checkpoint=cli.checkpoint(a))
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

@@ -129,13 +129,14 @@ JSON on stdout (``--out``: also to a file, rewritten as it goes).
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import time
 from dataclasses import replace
 
 import numpy as np
+
+from core.studies.tracking import _study_cli as cli
 
 __all__ = ["bias", "main", "run"]
 
@@ -398,8 +399,7 @@ def run(*, device: str | None = None, frames: int = 100, pixels: int = 1024, vox
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.tissue_tibia",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.tissue_tibia", __doc__)
     p.add_argument("--bias", action="store_true", help="the CPU bias study (bias())")
     p.add_argument("--device", default=None)
     p.add_argument("--frames", default=None,
@@ -412,26 +412,19 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--cases", default="three,tibia")
     p.add_argument("--labels", default="", help="the runs (run(); default those of the module docs)")
-    p.add_argument("--machine-name", default=None, help="the machine's name for the JSON (e.g. the GPU)")
-    p.add_argument("--out", default=None)
+    cli.add_output(p)
     a = p.parse_args(argv)
-    from core.io.atomic import json_checkpoint, print_json
-
-    checkpoint = json_checkpoint(a.out, indent=1, machine_name=a.machine_name)
-
+    checkpoint = cli.checkpoint(a)
     if a.bias:
         fr = a.frames or ",".join(map(str, range(0, 100, 10)))
-        res = bias(pixels=a.pixels or 256, voxel=a.voxel or 1.0, frames=[int(x) for x in fr.split(",") if x],
-                   bones=[int(x) for x in a.bones.split(",") if x],
-                   kinds=[x for x in a.kinds.split(",") if x],
-                   highpass=a.highpass, device=a.device or "cpu", checkpoint=checkpoint)
+        res = bias(pixels=a.pixels or 256, voxel=a.voxel or 1.0, frames=cli.ints(fr), bones=cli.ints(a.bones),
+                   kinds=cli.names(a.kinds), highpass=a.highpass, device=a.device or "cpu",
+                   checkpoint=checkpoint)
     else:
         res = run(device=a.device, frames=int(a.frames or 100), pixels=a.pixels or 1024, voxel=a.voxel or 0.5,
-                  workers=a.workers, cases=[x for x in a.cases.split(",") if x],
-                  labels=[x for x in a.labels.split(",") if x] or None, checkpoint=checkpoint)
-    checkpoint(res)
-    print_json(res, a.out)
-    return 0
+                  workers=a.workers, cases=cli.names(a.cases), labels=cli.names(a.labels) or None,
+                  checkpoint=checkpoint)
+    return cli.finish(res, a)
 
 
 if __name__ == "__main__":

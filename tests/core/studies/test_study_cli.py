@@ -1,7 +1,7 @@
 """core.studies.tracking._study_cli: the command line and JSON set-up the studies share (the tissue
 studies temporal_tissue, tissue_regressor, background_fit, tissue_stage; grid_correction, joint_bound,
-hard_bound_check, tissue_bound, tibia_cost): their options, what ``main`` hands their ``run``, the
-checkpoints and the JSON at the end (the runs replaced: nothing rendered)."""
+hard_bound_check, tissue_bound, tibia_cost, spread_screen, tissue_tibia): their options, what ``main``
+hands their ``run``, the checkpoints and the JSON at the end (the runs replaced: nothing rendered)."""
 
 from __future__ import annotations
 
@@ -38,6 +38,10 @@ OPTIONS = {
     "tibia_cost": ["--pixels", "--voxel", "--frames", "--variants", "--costs", "--cost-variants", "--noises",
                    "--band-px", "--correction", "--start-deg", "--draws", "--device", "--machine-name",
                    "--acceptance", "--seed", "--quick", "--workers", "--speed", "--out"],
+    "spread_screen": ["--pixels", "--voxel", "--frames", "--bones", "--draws", "--candidates", "--device",
+                      "--machine-name", "--out"],
+    "tissue_tibia": ["--bias", "--device", "--frames", "--pixels", "--voxel", "--bones", "--kinds",
+                     "--highpass", "--workers", "--cases", "--labels", "--machine-name", "--out"],
 }
 
 
@@ -167,15 +171,25 @@ def _recorded(monkeypatch, mod, *fns):
     ("tibia_cost", ["--frames", "0,20", "--noises", "free"], "run",
      {"frames": [0, 20], "noises": ("free",), "device": "cpu", "variants": ("trial", "norim", "fill", "band",
                                                                              "notissue", "alone", "exact")}),
+    ("spread_screen", ["--frames", "0,10", "--candidates", "a,,b"], "screen",
+     {"pixels": 512, "voxel": 0.5, "frames": [0, 10], "bones": [0, 1, 2], "draws": 30,
+      "candidates": ["a", "b"], "device": "cpu"}),
+    ("tissue_tibia", ["--bias", "--kinds", "exact"], "bias",
+     {"pixels": 256, "voxel": 1.0, "frames": list(range(0, 100, 10)), "bones": [0, 1, 2], "kinds": ["exact"],
+      "highpass": 8.0, "device": "cpu"}),
+    ("tissue_tibia", ["--frames", "20"], "run",
+     {"device": None, "frames": 20, "pixels": 1024, "voxel": 0.5, "workers": 0, "cases": ["three", "tibia"],
+      "labels": None}),
 ])
 def test_the_bound_studies_main_hands_run_its_choices_and_ends_as_the_others(
         monkeypatch, tmp_path, capsys, name, argv, fn, expected):
     """Each converted main: the same arguments handed to its run as before, its JSON on stdout and to
     ``--out`` with ``machine_name``, as :func:`cli.finish` ends the tissue studies."""
     mod = _study(name)
-    others = {"joint_bound": ["run_hard"], "hard_bound_check": ["bound_ratio"],
-              "tibia_cost": ["speed", "acceptance_with"]}
-    seen = _recorded(monkeypatch, mod, "run", *others.get(name, []))
+    fns = {"joint_bound": ["run", "run_hard"], "hard_bound_check": ["run", "bound_ratio"],
+           "tibia_cost": ["run", "speed", "acceptance_with"], "spread_screen": ["screen"],
+           "tissue_tibia": ["run", "bias"]}
+    seen = _recorded(monkeypatch, mod, *fns.get(name, ["run"]))
     out = tmp_path / "r.json"
     assert mod.main([*argv, "--machine-name", "one CPU", "--out", str(out)]) == 0
     (only,) = seen

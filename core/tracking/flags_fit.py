@@ -93,16 +93,32 @@ class _Table:
                                     math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1])))
         return self._solve[key]
 
-    def residual(self, i: int, use: np.ndarray) -> tuple[float, float]:
-        """Frame ``i``'s normalised residual (mm, degrees) against the fit through its neighbours in
-        ``use`` (NaN with fewer than ``degree + 2``)."""
+    def _fit(self, i: int, use: np.ndarray):
+        """The fit's weights on frame ``i``'s neighbours in ``use``, ``sqrt(1 + leverage)`` and which
+        neighbours (a mask of :attr:`offsets`); None with fewer than ``degree + 2`` or a singular fit."""
         j = i + self.offsets
         sel = self.near[i] & use[np.minimum(np.maximum(j, 0), len(use) - 1)]
         if sel.sum() < self.degree + 2:
-            return math.nan, math.nan
+            return None
         hit = self._weights((self.fr[j[sel]] - self.fr[i]).astype(float))
+        return None if hit is None else (*hit, sel)
+
+    def residual(self, i: int, use: np.ndarray) -> tuple[float, float]:
+        """Frame ``i``'s normalised residual (mm, degrees) against the fit through its neighbours in
+        ``use`` (NaN with fewer than ``degree + 2``)."""
+        hit = self._fit(i, use)
         if hit is None:
             return math.nan, math.nan
-        row, k = hit
+        row, k, sel = hit
         r = row @ self.Y[i, sel]
         return math.sqrt(float(r[:3] @ r[:3])) / k, math.degrees(math.sqrt(float(r[3:] @ r[3:]))) / k
+
+    def residual_vector(self, i: int, use: np.ndarray) -> np.ndarray | None:
+        """Frame ``i``'s residual as a vector (``(6,)``: mm, rotation vector in rad; the fit's value at
+        ``i`` in the parameters about ``i``'s own pose, divided by ``sqrt(1 + leverage)``: its norms are
+        :meth:`residual`'s); None where :meth:`residual` is NaN."""
+        hit = self._fit(i, use)
+        if hit is None:
+            return None
+        row, k, sel = hit
+        return (row @ self.Y[i, sel]) / k

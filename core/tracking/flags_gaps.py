@@ -28,6 +28,24 @@ judged good: the foot's shared motion drops out, the line from frames 3-6 missin
 first frame by 0.26 mm / 0.19° instead of 1.88 mm / 0.87°, not normalised), the same one-sided lines
 left all 27 within the limit (0.26-0.97 of it; the 4 over 4× at 0.43-0.80): the other bone's errors
 widen the scale as much (a prototype, not kept).
+
+*One side only* (:data:`ONE_SIDED`, the ``one_sided`` keyword of
+:func:`~core.tracking.flags_post.trajectory_review`; False: noted as before). A frame left without a fit
+whose frames judged good lie on one side only — a trial's first or last frames beside flagged ones — is
+flagged for review (``"off the trajectory not ruled out (trajectory unchecked: its neighbours flagged; the
+nearest frames judged good, 4, 5, 6, 9, on one side only: ...)"``) instead of noted: the check cannot judge
+it, and its neighbours' flags say the trial is in trouble there. Seed 4's tibia frame 0 at b797131, jointly
+(0.65° off, 5.7x its bound; ``resources/benchmarks/tracking_acceptance_seed4_final_b797131_h100.json``) was
+noted so and silent: its backward registration (:mod:`core.tracking.backward_check`) landed 0.084° from it,
+0.83x the bone's median residual against a limit of 1.25x, which ``TrackingOptions`` does not let go under 1
+(seed 3's good first tibia frame came back 1.00x). Flagging the one-sided frames costs what is noted: on the
+stored runs of :mod:`core.studies.tracking.trajectory_silent` (its JSON) 10 frames at b797131 (6 good, under
+2x their bound, of 1385; the one over 4x caught), and on the held-out sets 44 (the stage off at 445a8ae /
+782362a, seeds 0-2 at ea76c8b, seeds 3-4 at 56350ae / a5fd412; 14 good of 2800, 7 over 4x), each frame noted
+when judged without this rule and :mod:`core.tracking.flags_along`'s. Frames noted for other reasons (fewer
+than two frames judged good on a side within ``reach``) stay noted. With ``one_sided`` (the default) the
+flag replaces the note; the review panel shows it as a flag.
+
 Measured (:mod:`core.studies.tracking.trajectory_gaps`,
 ``resources/benchmarks/tracking_trajectory_gaps_cpu.json``; the stored runs of seeds 0-4, 1024²,
 100 frames, jointly and sequentially, tracked on one NVIDIA H100 — seeds 0-2 at ea76c8b, their poses
@@ -59,7 +77,7 @@ import numpy as np
 
 from .flags_fit import FLAG, UNCHECKED, _deltas, _Table
 
-__all__ = ["GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "REACH"]
+__all__ = ["GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "ONE_SIDED", "ONE_SIDED_FLAG", "REACH"]
 
 #: A good frame left without a fit (fewer than ``DEGREE + 2`` good neighbours within
 #: ±:data:`HALF_WINDOW`) is judged from its nearest good frames within this many tracked frames on
@@ -74,6 +92,13 @@ GAP_DEGREE = 1
 #: ... scaled by the median residual of the bone's this many good frames nearest to it, each fitted
 #: alike (through the good frames at the same offsets from it, or mirrored).
 GAP_SCALE = 16
+#: A frame left without a fit whose nearest frames judged good lie on one side only (a trial's end) is
+#: flagged for review (:data:`ONE_SIDED_FLAG`) rather than noted :data:`~core.tracking.flags_fit.UNCHECKED`
+#: (the ``one_sided`` keyword's default of :func:`core.tracking.flags_post.trajectory_review`; False:
+#: noted; module docs, *One side only*).
+ONE_SIDED = True
+#: The message of such a frame starts with this (the check's flag, :data:`~core.tracking.flags_fit.FLAG`).
+ONE_SIDED_FLAG = f"{FLAG} not ruled out"
 
 
 def _gap_fit(t: _Table, use: np.ndarray, i: int, reach: int) -> tuple[np.ndarray, bool]:
@@ -127,12 +152,14 @@ def _gap_residuals(t: _Table, P: np.ndarray, c: np.ndarray, use: np.ndarray, i: 
     return own, S[np.argsort(np.concatenate(at), kind="stable")[:GAP_SCALE]]
 
 
-def _judge_gaps(t: _Table, P, c, use, judge, R, limit: float, floor, reach: int, out: dict) -> dict[int, str]:
+def _judge_gaps(t: _Table, P, c, use, judge, R, limit: float, floor, reach: int, out: dict,
+                one_sided: bool = False) -> dict[int, str]:
     """Judge the good frames left without a fit by the other flags (module docs, *A frame whose
     neighbours are flagged*), each through frames the fits judged good (``use``, a residual): flag
     (into ``out``) those whose residual against the line through their nearest such frames exceeds
     ``limit`` × the median of the nearest frames fitted alike; return the :data:`UNCHECKED` notes of
-    those it cannot judge."""
+    those it cannot judge — but for those with such frames on one side only (a trial's end), flagged
+    (:data:`ONE_SIDED_FLAG`) instead where ``one_sided``."""
     fr, floor = t.fr, np.asarray(floor, dtype=float)
     fitted = np.isfinite(R).all(axis=1)
     base = use & fitted  # judged by their own fits: neither flagged nor unfitted
@@ -145,7 +172,10 @@ def _judge_gaps(t: _Table, P, c, use, judge, R, limit: float, floor, reach: int,
                    "a line extrapolated to it follows the motion's acceleration more than its error"
                    if len(nb) >= GAP_FRAMES else
                    f"fewer than {GAP_FRAMES // 2} frames judged good on a side within {reach} tracked frames")
-            notes[int(fr[i])] = f"{UNCHECKED} (its neighbours flagged; {why})"
+            if one_sided and len(nb) >= GAP_FRAMES:
+                out[int(fr[i])] = f"{ONE_SIDED_FLAG} ({UNCHECKED}: its neighbours flagged; {why})"
+            else:
+                notes[int(fr[i])] = f"{UNCHECKED} (its neighbours flagged; {why})"
             continue
         got = _gap_residuals(t, P, c, base, i, nb)
         if got is None:

@@ -43,10 +43,18 @@ took out only through the pair's pull put back in them, and flagged when both st
 ``pair`` × ``limit`` × the bone's median such residual (:mod:`core.tracking.flags_pairs`, whose docs
 say how and what it caught: seed 3's tibia frames 69 and 70 at 6c8beab). It only adds flags.
 
+*Next to a flagged frame, off the same way* (:data:`ALONG`, the ``along`` keyword; None: off): after
+those rules, a good frame next to a frame the check flagged is flagged too when its residual without that
+frame exceeds the ``near`` limit and points the same way as the flagged frame's (cosine over ``along``):
+the flagged frame's pull on its fit had hidden it (:mod:`core.tracking.flags_along`, whose docs say how
+and what it caught: seed 4's tibia frame 7 at b797131).
+
 *A frame whose neighbours are flagged* (:data:`REACH`, the ``reach`` keyword; None: off): a good frame
 left without a fit once its neighbours are flagged is judged against the line through its nearest
 frames judged good further away, or noted :data:`UNCHECKED` where it cannot be
-(:mod:`core.tracking.flags_gaps`, whose docs say how and what it caught).
+(:mod:`core.tracking.flags_gaps`, whose docs say how and what it caught) — but one whose frames judged
+good lie on one side only (a trial's end) is flagged for review instead (:data:`ONE_SIDED`, the
+``one_sided`` keyword; False: noted; seed 4's tibia frame 0 at b797131).
 
 Frames already flagged are neither judged nor used as neighbours. A bone with fewer than
 :data:`MIN_FRAMES` frames that have a residual is not judged.
@@ -120,13 +128,15 @@ from dataclasses import replace
 
 import numpy as np
 
+from .flags_along import ALONG, judge_along
 from .flags_fit import FLAG, UNCHECKED, _deltas, _Table  # noqa: F401 (_deltas: the studies')
-from .flags_gaps import GAP_DEGREE, GAP_FRAMES, GAP_SCALE, REACH, _judge_gaps
+from .flags_gaps import GAP_DEGREE, GAP_FRAMES, GAP_SCALE, ONE_SIDED, REACH, _judge_gaps
 from .flags_pairs import PAIR, PAIR_GATE, Pairs, pair_scale
 
-__all__ = ["BACKWARD_FLAG", "DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE", "HALF_WINDOW",
-           "LIMIT", "MIN_FRAMES", "NEAR", "PAIR", "PAIR_GATE", "REACH", "UNCHECKED", "apply_trajectory_flags",
-           "journal_neighbours", "trajectory_flags", "trajectory_residuals", "trajectory_review"]
+__all__ = ["ALONG", "BACKWARD_FLAG", "DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE",
+           "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "NEAR", "ONE_SIDED", "PAIR", "PAIR_GATE", "REACH",
+           "UNCHECKED", "apply_trajectory_flags", "journal_neighbours", "trajectory_flags",
+           "trajectory_residuals", "trajectory_review"]
 
 #: The flag of :mod:`core.tracking.backward_check` (a first frame whose registration backward from the
 #: frames after it lands elsewhere), a review flag run after the tracking as this module's: named here,
@@ -191,8 +201,9 @@ def trajectory_flags(frames, poses, center, **kw) -> dict[int, str]:
 def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_window: int = HALF_WINDOW,
                       degree: int = DEGREE, floor=FLOOR, min_frames: int = MIN_FRAMES,
                       judged=None, near: float | None = NEAR, reach: int | None = REACH,
-                      pair: float | None = PAIR,
-                      pair_gate: float = PAIR_GATE) -> tuple[dict[int, str], dict[int, str]]:
+                      pair: float | None = PAIR, pair_gate: float = PAIR_GATE,
+                      along: float | None = ALONG,
+                      one_sided: bool = ONE_SIDED) -> tuple[dict[int, str], dict[int, str]]:
     """``(flags, unchecked)``: frame number -> the ``"off the trajectory"`` message, for the good frames
     of one bone (``poses`` ``(n, 4, 4)`` at ``frames``; NaN rows are not good) whose residual exceeds
     ``limit`` × the bone's median (module docs), and frame number -> the :data:`UNCHECKED` note for the
@@ -209,7 +220,10 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     fitted alike (module docs, *A frame whose neighbours are flagged*). ``pair`` (None: off): pairs of
     consecutive frames judged with both left out of the fits, those whose frames both exceed ``pair`` ×
     ``limit`` × the bone's median such residual flagged (and both first residuals over ``pair_gate`` ×
-    ``limit`` × the bone's median; module docs, *Two frames off together*)."""
+    ``limit`` × the bone's median; module docs, *Two frames off together*). ``along`` (None: off; needs
+    ``near``): a good frame next to a flagged one, off the same way, flagged (module docs, *Next to a
+    flagged frame, off the same way*). ``one_sided`` (False: noted): a frame left without a fit whose
+    frames judged good lie on one side only flagged for review, not noted."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
     judge = np.ones(len(fr), dtype=bool) if judged is None else np.asarray(judged, dtype=bool)[order]
     if not (judge & ok).any():
@@ -256,9 +270,12 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     if pair is not None:
         gate = np.maximum(float(pair_gate) * float(limit) * med, np.asarray(floor, dtype=float))
         _pairs(t, ok, use, judge, float(pair) * float(limit), floor, min_frames, first, gate, lim, out)
+    if along is not None and near is not None:
+        lim_near = np.maximum(float(near) * float(limit) * med, np.asarray(floor, dtype=float))
+        judge_along(t, ok, use, judge, lim_near, float(near) * float(limit), float(along), out)
     if reach is None:
         return out, {}
-    unchecked = _judge_gaps(t, P, c, use, judge, R, float(limit), floor, int(reach), out)
+    unchecked = _judge_gaps(t, P, c, use, judge, R, float(limit), floor, int(reach), out, bool(one_sided))
     return out, unchecked
 
 

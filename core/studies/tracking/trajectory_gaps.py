@@ -127,9 +127,12 @@ def counts(bench: Path = BENCH, labels=None, **kw) -> dict:
     """Per run and bone, and per seed: the frames left without a fit (``unfitted``; the check with
     ``reach=0``), the frames over 4× among them, what the check (``kw``: its keywords) flags and
     notes beyond the check without the judgement (``reach=None``), and the silent frames over 4× and
-    good frames flagged before and after (``labels``: :func:`runs`'s)."""
+    good frames flagged before and after (``labels``: :func:`runs`'s). The rules made after this one
+    (``along``, ``one_sided``; :mod:`core.studies.tracking.trajectory_silent` measures them) are off
+    unless ``kw`` gives them."""
     from core.tracking.flags_post import trajectory_review
 
+    kw = {"along": None, "one_sided": False, **kw}
     per_run, per_seed = {}, {}
     for run, b, P, own, over, c in runs(bench, labels):
         Q = P.copy()
@@ -198,21 +201,22 @@ def synthetic(tracks: int = 200, offs=(0.0, 0.15, 0.3, 0.5)) -> dict:
     20 turned ``off`` degrees more, how often it is left without a fit by the other flags, and of
     those how often the check flags or notes it. ``"main"``: for comparison, the good frames the
     check's own fits flag on the same draws without spikes (every frame good), its false-flag rate
-    where a frame has a fit."""
+    where a frame has a fit. The rules made after this one off, as :func:`counts`."""
     from core.tracking.flags_post import trajectory_review
 
     out = {}
     fr = np.arange(100)
+    kw = {"along": None, "one_sided": False}  # as counts
     for off in offs:
         unfitted = flagged = noted = 0
         for s in range(tracks):
             P = _walking(100, s, {**INSIDE, 20: off})
-            if 20 not in trajectory_review(fr, P, CENTER, reach=0)[1]:
+            if 20 not in trajectory_review(fr, P, CENTER, reach=0, **kw)[1]:
                 continue
-            got, notes = trajectory_review(fr, P, CENTER)
+            got, notes = trajectory_review(fr, P, CENTER, **kw)
             unfitted, flagged, noted = unfitted + 1, flagged + (20 in got), noted + (20 in notes)
         out[f"{off:g}"] = {"tracks": tracks, "unfitted": unfitted, "flagged": flagged, "noted": noted}
-    flagged = sum(len(trajectory_review(fr, _walking(100, s, {}), CENTER)[0]) for s in range(tracks))
+    flagged = sum(len(trajectory_review(fr, _walking(100, s, {}), CENTER, **kw)[0]) for s in range(tracks))
     out["main"] = {"tracks": tracks, "good_frames": tracks * len(fr), "flagged": int(flagged)}
     return out
 

@@ -1,12 +1,14 @@
 """The trajectory check's frames whose neighbours are flagged, on the stored runs
 (core.studies.tracking.trajectory_gaps): the rebuilt poses match the kept ones, and seed 4's
-sequential tibia frame 0 (1.31 degrees off, its neighbours 1-4 flagged) is noted unchecked."""
+sequential tibia frame 0 (1.31 degrees off, its neighbours 1-4 flagged) is noted unchecked (flagged for
+review with the check's default ``one_sided``)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from core.studies.tracking import trajectory_gaps as gaps
+from core.tracking.flags_gaps import ONE_SIDED_FLAG
 from core.tracking.flags_post import UNCHECKED
 
 
@@ -29,5 +31,7 @@ def test_seed_4s_first_tibia_frame_among_flagged_ones_is_noted_not_judged():
         if (run, b) == ("4i_sequential", "tibia"):
             Q = P.copy()
             Q[own] = np.nan
-            _, notes = trajectory_review(np.arange(len(Q)), Q, c)
+            _, notes = trajectory_review(np.arange(len(Q)), Q, c, one_sided=False, along=None)
             assert notes[0].startswith(UNCHECKED) and "5, 7, 8, 9, on one side only" in notes[0]
+            got, notes = trajectory_review(np.arange(len(Q)), Q, c)  # by default: flagged for review
+            assert 0 not in notes and got[0].startswith(ONE_SIDED_FLAG) and "on one side only" in got[0]

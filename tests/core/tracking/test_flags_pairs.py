@@ -23,7 +23,9 @@ def _track(seed: int, turns=None) -> np.ndarray:
 
 
 def _flags(P, **kw):
-    return trajectory_review(np.arange(len(P)), P, C, **kw)[0]
+    """The check's flags; the rule for frames next to flagged ones off the same way (``along``, judged
+    after this one on what it left: tests of its own, test_flags_along) off unless given."""
+    return trajectory_review(np.arange(len(P)), P, C, **{"along": None, **kw})[0]
 
 
 def test_a_pair_off_together_is_flagged_where_the_check_before_missed_it():

@@ -1,6 +1,8 @@
 """The trajectory check's frames whose neighbours are all flagged (core.tracking.flags_post, ``reach``):
 judged from the nearest frames judged good further away on both sides — a bad one flagged, a good one
-not — and a frame it cannot judge so (one side only: a trial's end) noted as unchecked, not flagged."""
+not — and a frame it cannot judge so noted as unchecked, not flagged, but for one whose frames judged good
+lie on one side only (a trial's end): flagged for review by default (``one_sided``, flags_gaps.ONE_SIDED),
+noted with ``one_sided=False``."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import numpy as np
 import pytest
 
 from core.tracking import flags_post
+from core.tracking.flags_gaps import ONE_SIDED_FLAG
 from core.tracking.flags_post import (
     FLAG,
     UNCHECKED,
@@ -63,9 +66,14 @@ def test_a_frame_at_the_trials_end_among_flagged_ones_is_noted_unchecked(off):
     fr = np.arange(60)
     P = _spiked(START, off=(0, off), seed=2)
     assert sorted(trajectory_flags(fr, P, C, reach=None)) == [1, 3, 4]
-    got, unchecked = trajectory_review(fr, P, C)
+    got, unchecked = trajectory_review(fr, P, C, one_sided=False)
     assert sorted(got) == [1, 3, 4] and sorted(unchecked) == [0, 2]
     assert all("5, 6, 7, 8, on one side only" in m for m in unchecked.values())
+    # by default (flags_gaps.ONE_SIDED) they are flagged for review instead, with the same reason
+    got, unchecked = trajectory_review(fr, P, C)
+    assert sorted(got) == [0, 1, 2, 3, 4] and unchecked == {}
+    assert all(got[f].startswith(f"{ONE_SIDED_FLAG} ({UNCHECKED}: its neighbours flagged; the nearest frames "
+                                 "judged good, 5, 6, 7, 8, on one side only") for f in (0, 2))
 
 
 def test_a_frame_it_cannot_judge_is_noted_unchecked_not_flagged():
@@ -106,10 +114,15 @@ def test_a_note_never_changes_a_flag(seed):
     P = _spiked(spikes, off=(c, float(g.choice([0.0, 0.5]))), seed=seed)
     before = trajectory_flags(fr, P, C, reach=None)
     unfitted = trajectory_review(fr, P, C, reach=0)[1]
-    got, notes = trajectory_review(fr, P, C)
+    got, notes = trajectory_review(fr, P, C, one_sided=False)
     assert not set(notes) & set(got)
     assert set(before) <= set(got) and set(got) - set(before) <= set(unfitted) - set(notes)
     assert notes and all(m.startswith(UNCHECKED) for m in notes.values())
+    # by default the frames noted from one side only are flagged instead; the others as they were
+    got1, notes1 = trajectory_review(fr, P, C)
+    one = {f for f, m in notes.items() if "on one side only" in m}
+    assert one and set(got1) == set(got) | one and set(notes1) == set(notes) - one
+    assert all(got1[f].startswith(ONE_SIDED_FLAG) for f in one) and all(got1[f] == got[f] for f in got)
 
 
 def test_too_few_frames_fitted_alike_leave_it_unchecked():

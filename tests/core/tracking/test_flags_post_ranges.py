@@ -87,7 +87,9 @@ def test_a_short_range_is_judged_thanks_to_its_neighbours(monkeypatch, tmp_path)
     assert not alone.flagged  # too few frames to judge
     state = _journal(tmp_path, P, [f for f in range(40) if f not in rng])
     res, again = _run(monkeypatch, P, rng, neighbours=journal_neighbours({"tibia": state}, rng))
-    assert [r.frame for r in res.flagged] == [22] and [r.frame for r in again] == [22]
+    # frame 21, good, stands off the same way as 22 without it (the noise's draw): flagged with it
+    assert [r.frame for r in res.flagged] == [21, 22] and [r.frame for r in again] == [21, 22]
+    assert res.results[("tibia", 21)].flags[0].startswith(f"{FLAG} next to flagged frame 22, the same way")
     # hand fixes in the range (skip's poses) are neighbours too, never judged
     monkeypatch.setattr(trial, "track_frame",
                         lambda run, f, imgs, fr, todo, state, skip: {0: FrameResult("tibia", f, P[f], 0.8, 10,

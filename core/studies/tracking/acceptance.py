@@ -86,13 +86,15 @@ Measurements
   surfaces; stored runs before it (``"surfaces"`` absent) measured it on the voxel masks, which
   read up to ~0.3 mm low at 0.5 mm voxels (seed 0's truth 0.144 against 0.426 mm).
 
-``--quick`` (CPU, this machine) uses 256² views, 1 mm voxels, 20 frames and 5 capture trials per
-bone; the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). The JSON goes
-to stdout (and ``--out``); ``--figure`` saves per-frame errors as a PNG; ``--workers`` makes the
-frames' image chain in that many processes (:mod:`core.studies.tracking.trial_frames`). ``--seed N``
-(0, the default: the acceptance trial) synthesises another trial of the same design — the rig's placement,
-the bones' texture, the motion's perturbation, the noise, the grid frames, the starts (``seed + 7``) and
-the capture range's (``seed + 1``) drawn afresh — kept in ``config.seed`` (a two-mode result's ``seed``).
+``--quick`` (CPU, this machine) uses 256² views, 1 mm voxels, 20 frames and 5 capture trials per bone;
+the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). The JSON goes to stdout (and
+``--out``, with ``machine_name`` from ``--machine-name``, as the other studies'
+:mod:`core.studies.tracking._study_cli` endings); ``--figure`` saves per-frame errors as a PNG;
+``--workers`` makes the frames' image chain in that many processes
+(:mod:`core.studies.tracking.trial_frames`). ``--seed N`` (0, the default: the acceptance trial)
+synthesises another trial of the same design — the rig's placement, the bones' texture, the motion's
+perturbation, the noise, the grid frames, the starts (``seed + 7``) and the capture range's (``seed +
+1``) drawn afresh — kept in ``config.seed`` (a two-mode result's ``seed``).
 ``--final likelihood`` ends every registration (the capture range's too) with the likelihood final
 stage (``TrackingOptions.refine_likelihood``; ``--final-highpass PX``, its σ in pixels of the views,
 default 4); ``--glare`` undoes the measured veiling glare; both kept in ``config`` (default: neither).
@@ -105,14 +107,13 @@ held-out paragraphs).
 
 from __future__ import annotations
 
-import argparse
-import json
 import platform
 import time
 
 import numpy as np
 
 from core.geometry.transforms import pose_from_params
+from core.studies.tracking import _study_cli as cli
 from core.studies.tracking.acceptance_figure import LEGEND_HEADROOM, _figure
 from core.studies.tracking.acceptance_records import add_bound, bone_records, pose_errors
 from core.studies.tracking.grid_correction import TRIAL_BONES, grid_corrections, model_corrections
@@ -460,8 +461,7 @@ def _mode_path(path: str, mode: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.acceptance",
-                                description=__doc__.split("\n")[0])
+    p = cli.parser("core.studies.tracking.acceptance", __doc__)
     p.add_argument("--quick", action="store_true", help="256² views, 1 mm voxels, 20 frames, 5 trials")
     p.add_argument("--device", default=None, help="Warp device (cpu, cuda:0); default CUDA when present")
     p.add_argument("--frames", type=int, default=None, help="number of frames (default 20 quick / 100)")
@@ -487,7 +487,7 @@ def main(argv=None) -> int:
                    help="--final likelihood: the stage's high-pass σ in pixels of the views (default 4)")
     p.add_argument("--glare", action="store_true",
                    help="undo the veiling glare measured from calibration disc frames")
-    p.add_argument("--out", default=None, help="also write the JSON here")
+    cli.add_output(p)
     p.add_argument("--figure", default=None, help="save per-frame errors as a PNG")
     a = p.parse_args(argv)
     modes = [m.strip() for m in a.mode.split(",") if m.strip()]
@@ -495,7 +495,6 @@ def main(argv=None) -> int:
         p.error(f"--mode: expected joint, sequential or joint,sequential, got {a.mode!r}")
     if a.final_highpass is not None and a.final != "likelihood":
         p.error("--final-highpass: with --final likelihood only")
-    from core.io.atomic import atomic_write, print_json
     from core.studies.tracking.acceptance_goals import compare_modes
 
     kw = {"quick": a.quick, "device": a.device, "n_frames": a.frames, "correction": a.correction,
@@ -503,8 +502,7 @@ def main(argv=None) -> int:
           "final": None if a.final == "none" else a.final, "final_highpass_px": a.final_highpass,
           "sequential_subtract": {"auto": None, "on": True, "off": False}[a.sequential_subtract]}
     if len(modes) == 1:
-        print_json(run(capture_trials=a.capture_trials, mode=modes[0], figure=a.figure, **kw), a.out)
-        return 0
+        return cli.finish(run(capture_trials=a.capture_trials, mode=modes[0], figure=a.figure, **kw), a)
     t0 = time.perf_counter()
     ts = tracking_scene(quick=a.quick, device=a.device, n_frames=a.frames, correction=a.correction,
                         seed=a.seed, glare=a.glare)
@@ -514,10 +512,9 @@ def main(argv=None) -> int:
         out["runs"][m] = run(capture_trials=a.capture_trials if k == 0 else 0, mode=m, ts=ts,
                              figure=_mode_path(a.figure, m) if a.figure else None, **kw)
         out["joint_vs_sequential"] = compare_modes(out["runs"])
-        if a.out and k + 1 < len(modes):  # each mode kept as soon as it is done
-            atomic_write(a.out, json.dumps(out, indent=2) + "\n")
-    print_json(out, a.out)
-    return 0
+        if k + 1 < len(modes):  # each mode kept as soon as it is done
+            cli.checkpoint(a)(out)
+    return cli.finish(out, a)
 
 
 if __name__ == "__main__":

@@ -147,13 +147,17 @@ def test_main_runs_both_modes_on_one_scene(monkeypatch, tmp_path):
     monkeypatch.setattr(core.io.atomic, "print_json", lambda obj, out=None: out and
                         (tmp_path / "o.json").write_text(json.dumps(obj)))
     acceptance.main(["--quick", "--mode", "joint,sequential", "--figure", "f.png", "--workers", "4",
-                     "--out", str(tmp_path / "o.json")])
+                     "--machine-name", "this 2-core x86_64 machine", "--out", str(tmp_path / "o.json")])
     assert [c["mode"] for c in calls] == ["joint", "sequential"]
     assert [c["ts"] for c in calls] == ["scene", "scene"] and calls[0]["workers"] == 4
     assert calls[0]["capture_trials"] is None and calls[1]["capture_trials"] == 0
     assert [c["figure"] for c in calls] == ["f_joint.png", "f_sequential.png"]
     out = json.loads((tmp_path / "o.json").read_text())
     assert list(out["runs"]) == ["joint", "sequential"] and out["joint_vs_sequential"] == {}
+    assert out["machine_name"] == "this 2-core x86_64 machine"  # --machine-name, as the other studies
+    acceptance.main(["--quick", "--machine-name", "one NVIDIA H100", "--out", str(tmp_path / "o.json")])
+    out = json.loads((tmp_path / "o.json").read_text())
+    assert calls[-1]["mode"] == "joint" and out == {"tracking": {}, "machine_name": "one NVIDIA H100"}
     with pytest.raises(SystemExit):
         acceptance.main(["--mode", "joint,both"])
 

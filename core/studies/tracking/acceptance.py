@@ -93,8 +93,8 @@ the full study 1024² views, 0.5 mm voxels, 100 frames and 50 trials (a GPU). Th
 ``--workers`` makes the frames' image chain in that many processes
 (:mod:`core.studies.tracking.trial_frames`). ``--seed N`` (0, the default: the acceptance trial)
 synthesises another trial of the same design — the rig's placement, the bones' texture, the motion's
-perturbation, the noise, the grid frames, the starts (``seed + 7``) and the capture range's (``seed +
-1``) drawn afresh — kept in ``config.seed`` (a two-mode result's ``seed``).
+perturbation, the noise, the grid frames, the starts (``seed + 7``) and the capture range's
+(``seed + 1``) drawn afresh — kept in ``config.seed`` (a two-mode result's ``seed``).
 ``--final likelihood`` ends every registration (the capture range's too) with the likelihood final
 stage (``TrackingOptions.refine_likelihood``; ``--final-highpass PX``, its σ in pixels of the views,
 default 4); ``--glare`` undoes the measured veiling glare; both kept in ``config`` (default: neither).

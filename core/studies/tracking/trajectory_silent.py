@@ -26,7 +26,29 @@ kept: those frames neither judged nor in the fits):
 
 A frame is *over* when its translation or rotation error exceeds 4x the bone's RMS bound, *good* when both
 are under 2x (frames between are neither). The numbers are in the module's JSON
-(``resources/benchmarks/tracking_trajectory_silent_cpu.json``) and :mod:`core.tracking.flags_along`'s docs.
+(``resources/benchmarks/tracking_trajectory_silent_cpu.json``, at d904484, this 2-core x86_64 machine,
+shared) and :mod:`core.tracking.flags_along`'s docs.
+
+What sets the three apart (:func:`signals`; each value with the share of b797131's unflagged good frames
+that reach as high). The JSONs keep per frame the error, the confidence σ and the flags with their reasons;
+no score, stage move or searched pose but for the silent frames themselves, so those could not be set
+against good frames. The tibia's frame 0 has no fit once frame 2 is flagged (with frame 2 in it, 1.12x the
+median: 58 % of good frames as high); its backward registration landed 0.83x the median away (the limit
+1.25x, not allowed under 1: seed 3's good first frame came back 1.00x); its σ 1.39x the bone's median (28 %)
+and 1.05x the frames about it (58 %). Frame 7: 1.11x with frame 8 in its fit (58 %), 2.11x without (4 %),
+the same way as frame 8 (cosine 0.99 about the long axis); σ 1.57x / 1.03x (18 % / 64 %). The calcaneus's
+frame 53: 2.39x jointly and 2.20x sequentially (1.3 % and 2.8-3.9 %) with no flagged neighbour, σ 1.15x /
+1.10x (47 % / 43 %), within its 2σ (0.18 mm against σx 0.23 mm): the tail of the bone's spread along x.
+
+So frame 7 is caught by its residual without its flagged neighbour and its direction (``along``), frame 0
+only by sending a trial's end beside flagged frames for review (``one_sided``); together, silent over 4x
+4 -> 2 of 17, good frames flagged 65 -> 87 of 1385 (4.7 -> 6.3 %); held out 282 -> 266 of 455 and 83 -> 126
+of 2800 (3.0 -> 4.5 %). Frame 53 has no signal of its own: the check's limit (:func:`tradeoff`, the two
+rules on) 2.5 / 2.4 / 2.3 / 2.2 / 2.1 / 2.0 leaves 2 / 2 / 1 / 1 / 1 / 1 silent on b797131 for 87 / 105 /
+127 / 180 / 221 / 268 good frames flagged (2.3 catches it jointly, not sequentially; at 2.2 and below both
+are caught but the joint tibia frame 0 gets a fit and is left silent again), held out 126 / 182 / 271 / 309
+/ 369 / 440 of 2800 good frames flagged (silent 266 / 260 / 236 / 222 / 208 / 201 of 455). No limit reaches
+zero on these runs, and 2.3 already flags 9.2 % of b797131's good frames.
 """
 
 from __future__ import annotations

@@ -151,3 +151,24 @@ def test_the_batch_pass_names_an_unchecked_frame_by_its_note():
     # flagged by its range's own check, noted now: the flag came off (an entry without was_flagged,
     # written before it, reads as not flagged before)
     assert lines[3] == f"k: tibia frame 99: no longer flagged, {note}"
+
+
+def test_a_trials_end_flagged_for_review_is_judged_afresh_when_run_again():
+    """apply_trajectory_flags: frames 0 and 2 (START's spikes 1, 3, 4 flagged) get the one-sided flag
+    in their flags, not a note; run again nothing changes; with ``one_sided=False`` the flag gives way to
+    the note."""
+    P = _spiked(START, off=(0, 0.0), seed=2)
+    res = {("tibia", k): FrameResult("tibia", k, P[k], 0.8, 10, 0.0, True) for k in range(len(P))}
+    out, changed = apply_trajectory_flags(TrackingResult(("tibia",), tuple(range(60)), res, "complete", 1.0),
+                                          {"tibia": C})
+    assert sorted(r.frame for r in changed) == [0, 1, 2, 3, 4]
+    for f in (0, 2):
+        fr = out.results[("tibia", f)]
+        assert len(fr.flags) == 1 and fr.flags[0].startswith(ONE_SIDED_FLAG) and fr.notes == ()
+    again, changed2 = apply_trajectory_flags(out, {"tibia": C})
+    assert changed2 == [] and all(again.results[k].flags == out.results[k].flags for k in out.results)
+    noted, changed3 = apply_trajectory_flags(out, {"tibia": C}, one_sided=False)
+    assert sorted(r.frame for r in changed3) == [0, 2]
+    for f in (0, 2):
+        fr = noted.results[("tibia", f)]
+        assert fr.flags == () and fr.notes[0].startswith(UNCHECKED)

@@ -31,7 +31,6 @@ does not finish within a 5 ms registration (``resources/benchmarks/tracking_nois
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -71,7 +70,7 @@ class FrameFeed:
         self.current_frame = None
         self.previous_keys: tuple = ()
         self.noise_pool = None
-        self.before = None  # weak reference to the frame handed out before current_frame
+        self.before = None  # the frame handed out before current_frame
 
     def _prepare(self, imgs: list, noise=(), pin: tuple = ()):
         if any(_missing(im) for im in imgs):
@@ -120,7 +119,7 @@ class FrameFeed:
         without its image is None, or a :class:`MissingView` with the source's reason."""
         if self.current_frame is not None:  # its registrations are done: what they drew is final
             self.previous_keys = tuple(self.current_frame.noise_sample_keys)
-            self.before = weakref.ref(self.current_frame)
+            self.before = self.current_frame  # (kept: the shared upload's check, pin_ahead)
         if self.ahead is not None and self.ahead[0] == f:
             _, imgs, fut = self.ahead
             self.ahead = None
@@ -157,8 +156,8 @@ class FrameFeed:
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="talus-frames")
-        done = tuple(a for a in (self.current_frame, self.before() if self.before is not None else None)
-                     if a is not None)  # (the frames handed out last: pinned ahead where they were shared)
+        done = tuple(a for a in (self.current_frame, self.before) if a is not None)  # (the frames handed out
+        # last: the next one pinned ahead where they were shared)
         self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys(), done))
 
     def close(self) -> None:

@@ -111,3 +111,25 @@ def test_sets_not_written_while_busy():
     up.upload(frames[1])  # copied again (its set was written over)
     assert up.filled_here == 2 and up.holds(frames[1])
     np.testing.assert_array_equal(up.src.numpy()[0], frames[1]._fluence[0])
+
+
+def test_pinned_ahead_in_a_tracking_run(talus_calcaneus_128, monkeypatch):
+    """Frames 1-3 tracked jointly (the views of frames 1, 0, 1 again; frame 0 given): the third is
+    pinned ahead by the feed while the second registers (the frames before it shared), the others are
+    copied by share itself."""
+    import core.tracking.engine_upload as eu
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions, track
+
+    monkeypatch.setattr(eu, "_UPLOADS", {})
+    monkeypatch.setattr(eu, "_ACTIVE", [])
+    monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))
+    sc, models, r, imgs = talus_calcaneus_128
+    keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, refine_likelihood=True,
+                        backward_limit=None)
+    got = track(r, models, lambda f: imgs[f % 2], [0, 1, 2, 3], keyframes=keys, skip=keys, options=o)
+    assert all(x.pose is not None for x in got.results.values())
+    (up,) = eu._UPLOADS.values()
+    assert (up.uploads, up.filled_here) == (3, 2)

@@ -19,7 +19,10 @@ pinned copy is ready (the first frame, a frame the feed did not prepare) :func:`
 One bone's registration does not share (its own region is a fifth of the frame: the whole frame's upload
 would cost the device more than the host saves); :func:`core.tracking.joint.register_together` calls
 :func:`share` for its jobs' frame, and any registration of that frame afterwards (the fallback, the final
-stage's passes, the frame's later rounds) reads the same device copy while it holds that frame.
+stage's passes, the frame's later rounds) reads the same device copy while it holds that frame. Each
+registering thread has its own device copy and pinned sets (keyed by ``threading.get_ident()``; the feed's
+worker fills those of the thread that asked it to prefetch): two trials tracked at once in one process
+(two windows, a batch beside a window) never read or overwrite each other's frame.
 """
 
 from __future__ import annotations
@@ -175,8 +178,8 @@ class FrameUpload:
         self.uploads += 1
 
 
-_UPLOADS: dict = {}  # device alias -> FrameUpload
-_ACTIVE: list = []  # the FrameUpload shared last (pin_ahead fills its sets)
+_UPLOADS: dict = {}  # (device alias, registering thread) -> FrameUpload
+_ACTIVE: dict = {}  # registering thread -> the FrameUpload it shared last (pin_ahead fills its sets)
 
 
 def applies(device) -> bool:
@@ -187,41 +190,42 @@ def applies(device) -> bool:
 def share(device, frame) -> FrameUpload | None:
     """Put the whole of ``frame`` (a :class:`~core.tracking.cost.FrameImages`) on ``device`` for the
     engines of its bones (module docs); None where it does not apply (switched off, another device kind,
-    another kind of frame)."""
+    another kind of frame). Each registering thread has its own device copy and pinned sets (two windows
+    or a window and a batch tracking at once in one process do not share them)."""
     from .cost import FrameImages
 
     if not (applies(device) and isinstance(frame, FrameImages)) or frame.n_views == 0:
         return None
-    up = _UPLOADS.get(device.alias)
+    key = (device.alias, threading.get_ident())
+    up = _UPLOADS.get(key)
     if up is None or not up.fits(frame):
         nv = frame.n_views
         H = max(h for h, _ in frame.shapes)
         W = max(w for _, w in frame.shapes)
         if up is not None and up.shape[0] == nv:  # grown (the larger of the two)
             H, W = max(H, up.shape[1]), max(W, up.shape[2])
-        up = _UPLOADS[device.alias] = FrameUpload(device, (nv, H, W))
-    _ACTIVE[:] = [up]
+        up = _UPLOADS[key] = FrameUpload(device, (nv, H, W))
+    _ACTIVE[key[1]] = up
     up.upload(frame)
     return up
 
 
 def holding(device, frame) -> FrameUpload | None:
-    """The :class:`FrameUpload` of ``device`` that holds ``frame`` now, or None."""
+    """The :class:`FrameUpload` of ``device`` and the calling thread that holds ``frame`` now, or None."""
     if not SHARED_UPLOAD:
         return None
-    up = _UPLOADS.get(device.alias)
+    up = _UPLOADS.get((device.alias, threading.get_ident()))
     return up if up is not None and up.holds(frame) else None
 
 
-def pin_ahead(frame, after=()) -> bool:
+def pin_ahead(frame, after=(), owner: int | None = None) -> bool:
     """The pinned copy of ``frame`` made now (:class:`core.tracking.feed.FrameFeed`'s worker thread) for
-    the device that shared a frame last, where that device holds one of the frames ``after`` (those
-    handed out before it: the run shares its frames; one bone's run after joint tracking does not);
-    False where not, or where it does not fit."""
-    if not SHARED_UPLOAD or not _ACTIVE:
-        return False
-    up = _ACTIVE[0]
-    if not up.fits(frame) or not any(up.holds(a) for a in after):
+    the registering thread ``owner`` (its ``threading.get_ident()``; None: the calling thread), in the
+    sets of the device it shared a frame on last, where that device holds one of the frames ``after``
+    (those handed out before it: the run shares its frames; one bone's run after joint tracking does
+    not); False where not, or where it does not fit."""
+    up = _ACTIVE.get(threading.get_ident() if owner is None else owner) if SHARED_UPLOAD else None
+    if up is None or not up.fits(frame) or not any(up.holds(a) for a in after):
         return False
     return up.pin_ahead(frame)
 

@@ -31,6 +31,7 @@ does not finish within a 5 ms registration (``resources/benchmarks/tracking_nois
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -76,11 +77,11 @@ class FrameFeed:
         if any(_missing(im) for im in imgs):
             return None
         frame = prepare_frame(imgs, valid_range=self.valid_range, erode_px=self.erode_px)
-        if pin:  # its pinned copy for joint registration's shared upload where the frames before it shared
+        if len(pin) > 1:  # its pinned copy for joint registration's shared upload (engine_upload)
             from .engine_upload import pin_ahead
 
             try:
-                pin_ahead(frame, after=pin)
+                pin_ahead(frame, after=pin[1:], owner=pin[0])
             except Exception:  # (the registration then makes the copy itself)
                 pass
         if noise:
@@ -156,9 +157,9 @@ class FrameFeed:
             return
         if self.pool is None:
             self.pool = ThreadPoolExecutor(1, thread_name_prefix="talus-frames")
-        done = tuple(a for a in (self.current_frame, self.before) if a is not None)  # (the frames handed out
-        # last: the next one pinned ahead where they were shared)
-        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys(), done))
+        # (this thread and the frames handed out last: the next one pinned ahead where they were shared)
+        pin = (threading.get_ident(), *(a for a in (self.current_frame, self.before) if a is not None))
+        self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys(), pin))
 
     def close(self) -> None:
         if self.pool is not None:

@@ -33,11 +33,13 @@ def test_shared_upload_gives_the_same_results(talus_calcaneus_128, monkeypatch):
     real = ef._prepare
 
     def spy(self, frame, info, src, given, done):
-        up = eu._UPLOADS.get(self.device.alias)
+        up = eu.holding(self.device, frame)
         shared.append(up is not None and src is up.src)
         return real(self, frame, info, src, given, done)
 
     monkeypatch.setattr(ef, "_prepare", spy)
+    monkeypatch.setattr(eu, "_UPLOADS", {})
+    monkeypatch.setattr(eu, "_ACTIVE", {})
     off = _track(talus_calcaneus_128, monkeypatch, False)
     assert shared and not any(shared)
     shared.clear()
@@ -57,7 +59,7 @@ def test_pinned_ahead_by_the_feed(talus_calcaneus_128, monkeypatch):
     from core.tracking.feed import FrameFeed
 
     monkeypatch.setattr(eu, "_UPLOADS", {})
-    monkeypatch.setattr(eu, "_ACTIVE", [])
+    monkeypatch.setattr(eu, "_ACTIVE", {})
     monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))
     imgs = talus_calcaneus_128[3]
     dev = wp.get_device("cpu")
@@ -122,7 +124,7 @@ def test_pinned_ahead_in_a_tracking_run(talus_calcaneus_128, monkeypatch):
     from core.tracking.trial import TrackingOptions, track
 
     monkeypatch.setattr(eu, "_UPLOADS", {})
-    monkeypatch.setattr(eu, "_ACTIVE", [])
+    monkeypatch.setattr(eu, "_ACTIVE", {})
     monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))
     sc, models, r, imgs = talus_calcaneus_128
     keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
@@ -133,3 +135,38 @@ def test_pinned_ahead_in_a_tracking_run(talus_calcaneus_128, monkeypatch):
     assert all(x.pose is not None for x in got.results.values())
     (up,) = eu._UPLOADS.values()
     assert (up.uploads, up.filled_here) == (3, 2)
+
+
+def test_each_registering_thread_has_its_own(monkeypatch):
+    """Two threads sharing frames at once in one process (two windows tracking, a batch beside a window)
+    each have their own device copy: a frame shared by one is not held for the other, and the other's
+    upload does not overwrite it."""
+    import threading
+
+    import warp as wp
+
+    import core.tracking.engine_upload as eu
+    from core.tracking.cost import prepare_frame
+
+    monkeypatch.setattr(eu, "_UPLOADS", {})
+    monkeypatch.setattr(eu, "_ACTIVE", {})
+    monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))
+    dev = wp.get_device("cpu")
+    rng = np.random.default_rng(1)
+    fa, fb = (prepare_frame([rng.uniform(0.1, 0.9, (12, 10)).astype(np.float32) for _ in range(2)])
+              for _ in range(2))
+    ua = eu.share(dev, fa)
+    seen = {}
+
+    def other() -> None:
+        seen["held_a"] = eu.holding(dev, fa)
+        seen["up"] = eu.share(dev, fb)
+        seen["held_b"] = eu.holding(dev, fb)
+
+    t = threading.Thread(target=other)
+    t.start()
+    t.join()
+    assert seen["held_a"] is None and seen["up"] is not ua and seen["held_b"] is seen["up"]
+    assert eu.holding(dev, fa) is ua and eu.holding(dev, fb) is None
+    np.testing.assert_array_equal(ua.src.numpy()[0], fa._fluence[0])
+    assert len(eu._UPLOADS) == 2

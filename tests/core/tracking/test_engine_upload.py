@@ -170,3 +170,7 @@ def test_each_registering_thread_has_its_own(monkeypatch):
     assert eu.holding(dev, fa) is ua and eu.holding(dev, fb) is None
     np.testing.assert_array_equal(ua.src.numpy()[0], fa._fluence[0])
     assert len(eu._UPLOADS) == 2
+    t = threading.Thread(target=lambda: eu.share(dev, fb))  # a new thread: the finished one's let go (or
+    t.start()  # taken over, where the new thread has its ident)
+    t.join()
+    assert len(eu._UPLOADS) == 2 and eu.holding(dev, fa) is ua

@@ -10,8 +10,11 @@ functions wrapped (:data:`WRAPPED`): the wall time of each call (``perf_counter`
 the wrapped functions it calls, summed per phase — ``first`` (frame 0), ``later`` (the frames after it;
 divide by their number for a frame), ``backward`` (the backward check's registration of the first frame at
 the run's end, :mod:`core.tracking.backward_check`) and ``loop`` (the tracker's loop outside the frame step).
-``wp.synchronize_*``: the host's waits for the device; ``stage_gen.next0`` / ``stage_gen.next``: a final
-stage's set-up and first step / each later step up to its next wait (its generator,
+``wp.synchronize_*``: the host's waits for the device; ``engine.stage``: the engine's full-resolution
+regions prepared on the device (in ``set_frame``; with their host copies where the frame is not shared),
+``engine_upload.share``: joint registration's one upload of the whole frame, ``GaussNewtonCost._render``:
+the neighbours' DRRs to subtract; ``stage_gen.next0`` / ``stage_gen.next``: a final stage's set-up and first
+step / each later step up to its next wait (its generator,
 :func:`core.tracking.final_stage.final_stage_steps`). The wrappers cost about a millisecond a frame of three
 bones; ``--cprofile`` adds a run under :mod:`cProfile` (its text next to the JSON). JSON on stdout.
 """
@@ -43,7 +46,8 @@ WRAPPED = (
     ("core.tracking.register", ("_run", "search_region", "result_of", "mm_per_pixel")),
     ("core.tracking.engine", ("gauss_newton_search", "GaussNewtonCost.set_frame", "GaussNewtonCost.submit",
                               "GaussNewtonCost.collect", "GaussNewtonCost.newton",
-                              "GaussNewtonCost.sibling")),
+                              "GaussNewtonCost.sibling", "GaussNewtonCost._render", "stage", "pyramid_rois")),
+    ("core.tracking.engine_upload", ("share",)),
     ("core.tracking.engine_search", ("LevenbergMarquardt.ask", "LevenbergMarquardt.tell",
                                      "LevenbergMarquardt.result")),
     ("core.tracking.engine_likelihood", ("LikelihoodEngine.set_frame", "LikelihoodEngine.refine_steps")),

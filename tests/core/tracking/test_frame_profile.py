@@ -36,6 +36,7 @@ def test_profile_run_phases_and_restores(talus_calcaneus_128):
     assert "later" not in stats and rows["first"]["track_frame"]["calls"] == 1  # (the run's first frame step)
     assert rows["first"]["joint_pipeline.run_pipelined"]["calls"] == 1  # (applies() sees final_stages)
     assert rows["first"]["stage_gen.next0"]["calls"] == 2
+    assert rows["first"]["engine_upload.share"]["calls"] >= 1 and rows["first"]["engine.stage"]["calls"] >= 2
     for ph in stats:
         for x in stats[ph]:
             assert 0 <= x["excl_ms"] <= x["incl_ms"] + 1e-9

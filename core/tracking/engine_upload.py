@@ -16,8 +16,9 @@ registering thread only enqueues the upload. A set whose upload may still be in 
 again until the registering thread has waited for its event (the worker makes no CUDA call). Where no
 pinned copy is ready (the first frame, a frame the feed did not prepare) :func:`share` makes it itself.
 
-One bone's registration does not share (its own region is a fifth of the frame: the whole frame's upload
-would cost the device more than the host saves); :func:`core.tracking.joint.register_together` calls
+One bone's registration does not share (its own regions are an eighth of the frame for the talus: the whole
+frame's upload would cost the device more than the host saves; not measured);
+:func:`core.tracking.joint.register_together` calls
 :func:`share` for its jobs' frame, and any registration of that frame afterwards (the fallback, the final
 stage's passes, the frame's later rounds) reads the same device copy while it holds that frame. Each
 registering thread has its own device copy and pinned sets (keyed by ``threading.get_ident()``; the feed's

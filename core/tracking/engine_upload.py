@@ -173,7 +173,7 @@ class FrameUpload:
         if cuda:
             if s.event is None:
                 s.event = wp.Event(self.device)
-            wp.record_event(s.event)
+            self.device.stream.record_event(s.event)  # (the stream the copies went on)
         self.on_device = weakref.ref(frame)
         self.given_on = s.has_given
         self.uploads += 1

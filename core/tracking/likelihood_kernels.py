@@ -141,7 +141,7 @@ def robust_sort(bufs: dict, shape: tuple, device) -> None:
 
 
 def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy",
-                          device=None, bufs: dict | None = None, launch=None, part: str | None = None):
+                          device=None, bufs: dict | None = None, launch=None):
     """:func:`core.tracking.final_stage.robust_factors` on the device: ``e``, ``w`` ``(views, H, W)``
     Warp arrays (the weighted residual and the weights; a pixel is used where ``w > 0``); the
     factors as a Warp array of that shape. The local RMS is filtered on the device (separable, the
@@ -150,11 +150,7 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
     the value of ``np.median``): no
     synchronisation. ``bufs``: the caller's buffers, reused from call to call; ``launch``: the
     caller's ``launch(name, kernel, dim, inputs)`` (recorded launches,
-    :meth:`~core.tracking.likelihood_launches._Launches._launch`; default :func:`warp.launch`).
-    ``part`` (:data:`MEDIAN_ONE_SORT`'s path only, :func:`robust_one_sort_applies`): ``"keys"`` the
-    launches up to the keys (returns None), ``"scale"`` those after the sort (:func:`robust_sort`;
-    the median and the factors): the same work in three pieces, the sort's the only one that is not
-    kernel launches (the engine records the two others as CUDA graphs)."""
+    :meth:`~core.tracking.likelihood_launches._Launches._launch`; default :func:`warp.launch`)."""
     from ..similarity.batched import gaussian_weights  # scipy's gaussian_filter taps (truncate 4)
 
     device = device if device is not None else e.device
@@ -171,12 +167,6 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
         return b
 
     nv, n = shape[0], shape[1] * shape[2]
-    if part == "scale":  # (after the keys and robust_sort)
-        local, scale, out = buf("rf_local"), buf("rf_scale", (nv,)), buf("rf_out")
-        launch("rf_median1", _median_signed_kernel, (nv,), [buf("rf_keys", (2 * nv * n,)), n, scale])
-        launch("rf_weight", _robust_weight_kernel, shape,
-               [local, scale, float(k), int(kind == "cauchy"), out])
-        return out
     a, b, ta, tb = buf("rf_a"), buf("rf_b"), buf("rf_ta"), buf("rf_tb")
     g = bufs.get(("rf_taps", float(sigma_px)))
     if g is None:
@@ -192,8 +182,6 @@ def robust_factors_device(e, w, k: float, *, sigma_px: float = 2.0, kind: str = 
     out = buf("rf_out")
     if robust_one_sort_applies(nv):  # both views' keys in one sort of their bits (MEDIAN_ONE_SORT)
         launch("rf_local_keys", _local_rms_keys_kernel, shape, [a, b, w, n, local, keys])
-        if part == "keys":
-            return None
         robust_sort(bufs, shape, device)
         launch("rf_median1", _median_signed_kernel, (nv,), [keys, n, scale])
     else:

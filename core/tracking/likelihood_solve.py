@@ -27,19 +27,18 @@ except ImportError:  # pragma: no cover
 
 __all__ = ["StepTables", "inv6", "solve6", "solve_moments", "solve_tables"]
 
-#: :func:`solve_moments` gathers the table's entries with one index array and calls the stacked solve's
-#: gufunc itself, as :func:`numpy.linalg.solve` calls it (the same LAPACK solve under the same error
-#: state, without its checks), both solves under one error state: the same values to the bit (1,800
-#: random tables of every model), 95 → 84 µs a call on this 2-core x86_64 machine. Off: through
-#: :func:`numpy.linalg.solve` and an index array per block, as before.
-DIRECT_SOLVES = True
 #: :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.step_result` takes the host's tables through
-#: :func:`solve_tables` (the pinned table's numpy view kept, the triangle mirrored by one index
-#: assignment, the differences' scales applied to every gathered entry in two products, both kept per
-#: half-step) and :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps` solves and inverts
-#: its 6×6 system through numpy's gufuncs (:func:`solve6`, :func:`inv6`): the same operations on the
-#: same values, fewer numpy calls. Off: the table copied, mirrored with :func:`numpy.triu`,
-#: :func:`solve_moments` and :func:`numpy.linalg.solve` / :func:`numpy.linalg.inv`, as before.
+#: :func:`solve_tables` (the pinned table's numpy view kept; the entries gathered with one index array from
+#: above the diagonal, no mirror; the differences' scales applied in two products; the stacked solves
+#: through :func:`numpy.linalg.solve`'s own gufunc, called as it calls it, both under one error state;
+#: ``"lin"`` and ``"M"`` made where read) and :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.
+#: refine_steps` solves and inverts its 6×6 system through numpy's gufuncs (:func:`solve6`, :func:`inv6`):
+#: the same LAPACK calls and operations on the same values, the same results to the bit (tests: 3600
+#: random tables of every model; stages at 128², ``core.studies.tracking.stage_exact``), fewer numpy
+#: calls: 50 → 30 µs a table on this 2-core x86_64 machine; on one NVIDIA H100's host (``stage_one_bone``'s
+#: profile, 3.2 tables a bone-frame) the step results' host time besides their waits 0.69 → 0.39 ms a
+#: bone-frame. Off: the table copied, mirrored with :func:`numpy.triu`, :func:`solve_moments` (through
+#: :func:`numpy.linalg.solve`) and :func:`numpy.linalg.solve` / :func:`numpy.linalg.inv`, as before.
 LEAN_SOLVES = True
 
 
@@ -62,25 +61,13 @@ def solve_moments(M: np.ndarray, h: np.ndarray, background: int = 0, others: boo
     ix = _indices(int(background), bool(others), extra)
     Mf = M.reshape(n, nz * nz)
     s = 1.0 / (2.0 * np.asarray(h, dtype=float))
-    if DIRECT_SOLVES and _ul is not None:
-        X = Mf[:, ix.all]  # (the entries at once; the same values)
-        e, p = ix.ends, len(ix.slot)
-        G = X[:, :e[0]].reshape(n, p, p)
-        b = X[:, e[0]:e[1]]
-        MDA = s[None, :, None] * X[:, e[1]:e[2]].reshape(n, 6, p)
-        MDD = s[None, :, None] * X[:, e[2]:e[3]].reshape(n, 6, 6) * s[None, None, :]
-        MDy = s[None, :] * X[:, e[3]:e[4]]
-        with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
-            coef = _ul.solve(G, b[..., None], signature="dd->d")[..., 0]  # (views, p)
-            beta = _ul.solve(G, MDA.transpose(0, 2, 1), signature="dd->d")  # (views, p, 6)
-    else:
-        G = Mf[:, ix.G]  # (views, p, p)
-        b = Mf[:, ix.b]
-        coef = np.linalg.solve(G, b[..., None])[..., 0]  # (views, p)
-        MDA = s[None, :, None] * Mf[:, ix.DA]  # (views, 6, p)
-        MDD = s[None, :, None] * Mf[:, ix.DD] * s[None, None, :]
-        MDy = s[None, :] * Mf[:, ix.Dy]
-        beta = np.linalg.solve(G, MDA.transpose(0, 2, 1))  # (views, p, 6)
+    G = Mf[:, ix.G]  # (views, p, p)
+    b = Mf[:, ix.b]
+    coef = np.linalg.solve(G, b[..., None])[..., 0]  # (views, p)
+    MDA = s[None, :, None] * Mf[:, ix.DA]  # (views, 6, p)
+    MDD = s[None, :, None] * Mf[:, ix.DD] * s[None, None, :]
+    MDy = s[None, :] * Mf[:, ix.Dy]
+    beta = np.linalg.solve(G, MDA.transpose(0, 2, 1))  # (views, p, 6)
     chi2 = float(np.sum(M[:, 0, 0] - np.einsum("vi,vi->v", coef, b)))
     a = coef[:, 0]
     JJ = ((a * a)[:, None, None] * (MDD - MDA @ beta)).sum(axis=0)
@@ -106,7 +93,7 @@ def solve_tables(T: np.ndarray, h: np.ndarray, background: int = 0, others: bool
     nz = NZ + extra
     n = T.shape[0]
     Tf = np.array(T, dtype=np.float64).reshape(n, nz * nz)  # (a copy: the pinned table is written again)
-    if not (DIRECT_SOLVES and _ul is not None):
+    if _ul is None:  # pragma: no cover (a numpy without the gufuncs: the plain path)
         M = Tf.reshape(n, nz, nz)
         if tri:
             M += np.swapaxes(np.triu(M, 1), 1, 2)

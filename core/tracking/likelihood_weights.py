@@ -8,21 +8,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .likelihood_kernels import _times_kernel, robust_factors_device, robust_one_sort_applies, robust_sort
-
-#: On a CUDA device (and :data:`~core.tracking.likelihood_kernels.MEDIAN_ONE_SORT`'s path), the robust
-#: factors' launches before the sort (the fit's coefficients' upload, the residual, the squared residual,
-#: its two blur passes, the local RMS and the keys) and after it (the median, the factors) each replayed
-#: as a CUDA graph, recorded on the second call with the same buffers: 3 host calls a robust round
-#: instead of 9, the same kernels on the same buffers (the same values). Off: launched one by one.
-ROBUST_GRAPHS = True
-#: the robust graphs an engine keeps (least recently used out)
-KEEP_ROBUST_GRAPHS = 4
-#: the engine's buffers the robust graphs' launches take (besides the frame's): the fit's coefficients,
-#: the residual and its projections, the squared residual and its blurs, the local RMS, the keys, the
-#: scale and the factors (:func:`~core.tracking.likelihood_kernels.robust_factors_device`)
-_ROBUST_BUFFERS = ("lin", "e", "jt", "rf_a", "rf_b", "rf_ta", "rf_tb", "rf_local", "rf_keys", "rf_scale",
-                   "rf_out")
+from .likelihood_kernels import _times_kernel, robust_factors_device
 
 
 @wp.kernel
@@ -96,75 +82,9 @@ class _RegionWeights:
         """The robust factors of the weighted residual at the centre of the last step's design
         (``s``: that :meth:`step`'s result) and the current weights' usable pixels, on the device
         (:func:`robust_factors_device`; a Warp array for :meth:`scale_weights`)."""
-        if self._robust_graphs_apply():
-            return self._robust_graphed(s, k, float(sigma_px), kind)
         e, _ = self._residual_device(s, jacobian=False, pin="lin_robust")  # (a sandwich's may be pending)
         return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
                                      bufs=self._bufs, launch=self._robust_launch)
-
-    def _robust_graphs_apply(self) -> bool:
-        """Whether :meth:`robust_weights` replays CUDA graphs (:data:`ROBUST_GRAPHS`)."""
-        return bool(ROBUST_GRAPHS and self.device.is_cuda and robust_one_sort_applies(self.n_views))
-
-    def _robust_graphed(self, s: dict, k: float, sigma_px: float, kind: str):
-        """:meth:`robust_weights` with its launches before and after the sort replayed as two CUDA
-        graphs (:data:`ROBUST_GRAPHS`): the first call with a set of buffers launched one by one, the
-        second recorded, later ones replayed (the fit's coefficients written into the pinned buffer the
-        first graph uploads from)."""
-        b = self._bufs
-        lin_h = self._pinned("lin_robust", s["lin"].shape, exact=True)
-        key = self._robust_key(s, lin_h, k, sigma_px, kind)
-        graphs = self.__dict__.setdefault("_robust_graphs", {})
-        hit = graphs.pop(key, None)
-        shape = tuple(self._w.shape)
-
-        def keys() -> None:
-            e, _ = self._residual_device(s, jacobian=False, pin="lin_robust")
-            robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device, bufs=b,
-                                  launch=self._robust_launch, part="keys")
-
-        def scale():
-            return robust_factors_device(b["e"], self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
-                                         bufs=b, launch=self._robust_launch, part="scale")
-
-        if hit is None or None in key:  # the first call with these buffers: one by one
-            hit = "seen"
-        elif hit == "seen":  # the second: recorded (the capture writes the coefficients' pinned buffer)
-            try:
-                with wp.ScopedCapture(device=self.device) as ca:
-                    keys()
-                with wp.ScopedCapture(device=self.device) as cb:
-                    scale()
-                hit = (ca.graph, cb.graph)
-            except Exception:  # (a capture the device refused: one by one with these buffers)
-                wp.synchronize_device(self.device)
-                hit = "never"
-        elif hit != "never":
-            self._view(lin_h)[...] = s["lin"]  # (what the recorded upload reads)
-        graphs[key] = hit  # (most recently used last)
-        while len(graphs) > KEEP_ROBUST_GRAPHS:
-            graphs.pop(next(iter(graphs)))
-        if isinstance(hit, str):
-            keys()
-            robust_sort(b, shape, self.device)
-            return scale()
-        wp.capture_launch(hit[0])
-        robust_sort(b, shape, self.device)
-        wp.capture_launch(hit[1])
-        return b["rf_out"]
-
-    def _robust_key(self, s: dict, lin_h, k: float, sigma_px: float, kind: str) -> tuple:
-        """What :meth:`_robust_graphed`'s graphs are recorded on: the address of every array their
-        launches take (:data:`_ROBUST_BUFFERS`, the frame's and the pinned coefficients'; None where a
-        buffer is not made yet), the sizes and the numbers. A graph replays only on the very buffers
-        it was recorded with: an engine keeps its buffers per region size (the last few, least
-        recently used out), and a size met again after its set was dropped gets new ones."""
-        b = self._bufs
-        img, low = self._last[0], self._last[1]
-        return (img.ptr, low.ptr, self._y.ptr, self._w.ptr, self._o.ptr, self._ref_hw.ptr, lin_h.ptr,
-                self._t.ptr if self._q else 0,  # (the frame's extra regressors, where it has some)
-                *(getattr(b.get(x), "ptr", None) for x in (*_ROBUST_BUFFERS, ("rf_taps", sigma_px))),
-                tuple(self._w.shape), s["lin"].shape, self._q, self._diff, float(k), sigma_px, kind)
 
     def _robust_launch(self, name, kernel, dim, inputs) -> None:
         """:func:`robust_factors_device`'s launches recorded (:meth:`_launch`)."""

@@ -23,10 +23,10 @@ the stage's rows while the search runs off / on (:data:`core.tracking.register.S
 refinement's sandwich before the robust factors / after the robust refinement's first step
 (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, on by default since both were measured alone:
 ``resources/benchmarks/tracking_stage_one_bone_97b2893_h100.json``, when both were off by default);
-``nograph``, ``sorts``, ``npsolve`` the robust factors' CUDA graphs, their median's one sort and the
-solves' direct calls off, ``h2prev`` all five as at 97b2893, ``nolean`` the steps' tables solved and the
-sandwich's autocovariance copied as before :data:`core.tracking.likelihood_solve.LEAN_SOLVES` and
-:data:`core.tracking.likelihood_confidence.COV_ON_READ` (:data:`_PARTS`).
+``sorts`` the robust factors' median's one sort off, ``nolean`` the steps' tables solved and the
+sandwich's autocovariance copied as before (:data:`core.tracking.likelihood_solve.LEAN_SOLVES`,
+:data:`core.tracking.likelihood_confidence.COV_ON_READ`), ``h2prev`` the three first as at 97b2893
+(:data:`_PARTS`).
 The runs count the stages that took the prefetched rows.
 Also the poses of every variant against the first's (largest difference, mm / degrees, and whether
 equal to the bit). JSON on stdout (``--out``: also to a file).
@@ -183,22 +183,20 @@ def _counting(counts: list):
 #: this study's own variant parts (name -> (module, flag, value) triples): the registration's prefetch of
 #: the stage's rows on / off (:data:`core.tracking.register.STAGE_PREFETCH`), the first refinement's
 #: sandwich after the robust refinement's first step on / off
-#: (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`), the robust factors' launches as CUDA graphs off
-#: (:data:`core.tracking.likelihood_weights.ROBUST_GRAPHS`), their median's one sort off
-#: (:data:`core.tracking.likelihood_kernels.MEDIAN_ONE_SORT`), the solves through
-#: :func:`numpy.linalg.solve` (:data:`core.tracking.likelihood_solve.DIRECT_SOLVES` off); ``h2prev`` all five
-#: as at 97b2893 (the prefetch and the sandwich's place off, the three others not there yet)
+#: (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`), the robust factors' median's one sort off
+#: (:data:`core.tracking.likelihood_kernels.MEDIAN_ONE_SORT`), the steps' tables solved and the sandwich's
+#: autocovariance copied as before (:data:`core.tracking.likelihood_solve.LEAN_SOLVES`,
+#: :data:`core.tracking.likelihood_confidence.COV_ON_READ` off); ``h2prev`` the three first as at 97b2893
+#: (the robust factors' CUDA graphs and the solves' direct calls measured then are removed since:
+#: ``tracking_stage_one_bone_328e54e_h100.json``)
 _PARTS = {"prefetch": (("core.tracking.register", "STAGE_PREFETCH", True),),
           "noprefetch": (("core.tracking.register", "STAGE_PREFETCH", False),),
           "after": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", True),),
           "noafter": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False),),
-          "nograph": (("core.tracking.likelihood_weights", "ROBUST_GRAPHS", False),),
           "sorts": (("core.tracking.likelihood_kernels", "MEDIAN_ONE_SORT", False),),
-          "npsolve": (("core.tracking.likelihood_solve", "DIRECT_SOLVES", False),),
           "nolean": (("core.tracking.likelihood_solve", "LEAN_SOLVES", False),
                      ("core.tracking.likelihood_confidence", "COV_ON_READ", False))}
-_PARTS["h2prev"] = tuple(t for k in ("noprefetch", "noafter", "nograph", "sorts", "npsolve")
-                         for t in _PARTS[k])
+_PARTS["h2prev"] = tuple(t for k in ("noprefetch", "noafter", "sorts") for t in _PARTS[k])
 
 
 def _variant_of(name: str, counts: list):
@@ -278,11 +276,6 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
                       f"{d['stage_ms_median']:.3f} ms (median; set-up {d['setup_ms_mean']:.3f}), "
                       f"{d['steps_mean']:.2f} steps", flush=True)
         out["runs"] = runs
-        from core.tracking.engine_likelihood import _CACHE
-
-        states = [v if isinstance(v, str) else "recorded" for e in _CACHE.get(r, {}).values()
-                  for v in e.__dict__.get("_robust_graphs", {}).values()]
-        out["robust_graphs"] = {x: states.count(x) for x in sorted(set(states))}  # (ROBUST_GRAPHS' states)
         out["summary"] = {v: {k: float(np.median([x[k] for x in runs[v]]))
                               for k in ("ms_per_frame_after_first", "stage_ms_median", "stage_ms_mean",
                                         "setup_ms_mean", "registration_ms_median", "steps_mean")}

@@ -51,6 +51,8 @@ def test_singular_systems_raise_linalgerror():
     with pytest.raises(np.linalg.LinAlgError):
         ls.solve_tables(np.zeros((2, 144)), np.full(6, 0.05), tri=True)
     with pytest.raises(np.linalg.LinAlgError):
+        ls.solve_moments(np.zeros((2, 12, 12)), np.full(6, 0.05))
+    with pytest.raises(np.linalg.LinAlgError):
         ls.solve6(np.zeros((6, 6)), np.ones(6))
     with pytest.raises(np.linalg.LinAlgError):
         ls.inv6(np.zeros((6, 6)))

@@ -27,7 +27,11 @@ refinement's sandwich before the robust factors / after the robust refinement's 
 sandwich's autocovariance copied as before (:data:`core.tracking.likelihood_solve.LEAN_SOLVES`,
 :data:`core.tracking.likelihood_confidence.COV_ON_READ`), ``h2prev`` the three first as at 97b2893
 (:data:`_PARTS`).
-The runs count the stages that took the prefetched rows.
+The runs count the stages that took the prefetched rows. ``--interleave N``: then ``N`` tracks more in which
+the variants take the stage in turn, frame by frame (the ``i``-th stage call under variant ``(i + run) % k``:
+the host's drift, 20 % from run to run on one NVIDIA H100's host, shared; only flags read inside the stage
+count there, not the prefetch's), with per variant the stage's ms over those calls and, against the first,
+the median of the differences within each cycle of ``k`` consecutive calls (``interleaved``).
 Also the poses of every variant against the first's (largest difference, mm / degrees, and whether
 equal to the bit). JSON on stdout (``--out``: also to a file).
 """
@@ -41,6 +45,12 @@ from contextlib import ExitStack, contextmanager
 import numpy as np
 
 __all__ = ["main", "run"]
+
+
+def _json_line(x) -> str:
+    import json
+
+    return json.dumps(x, default=float)
 
 #: functions timed on the host (module, owner or None, name) by ``host_parts``
 _HOST = (("core.tracking.final_stage", None, "final_stage"),
@@ -215,8 +225,55 @@ def _variant_of(name: str, counts: list):
     return st
 
 
+@contextmanager
+def _interleaving(variants, shift: int, calls: list):
+    """:func:`~core.tracking.final_stage.final_stage` under ``variants[(i + shift) % k]`` at its ``i``-th call
+    (a stage run again by the move check's confirmation, ``TO_TOL``, under the defaults and not counted);
+    ``calls`` gets ``(variant, stage ms)`` per counted call."""
+    import core.tracking.final_stage as fst
+    from core.tracking.engine_likelihood import TO_TOL
+
+    plain = fst.final_stage
+
+    def wrapped(*a, **k):
+        if TO_TOL.get():
+            return plain(*a, **k)
+        v = variants[(len(calls) + shift) % len(variants)]
+        with _variant_of(v, [0, 0]):
+            res = plain(*a, **k)
+        calls.append((v, 1e3 * float((res.timing or {}).get("likelihood_s", 0.0))))
+        return res
+
+    with _patched(fst, "final_stage", wrapped):
+        yield
+
+
+def _interleaved_summary(variants, runs: list) -> dict:
+    """Per variant the stage's ms over the interleaved runs' calls (median, mean, count) and, against the
+    first variant, the median of the differences within each cycle of ``k`` consecutive calls (each
+    variant once a cycle: the host's drift shared)."""
+    k = len(variants)
+    per = {v: [t for calls in runs for u, t in calls if u == v] for v in variants}
+    out = {"per_variant": {v: {"stage_ms_median": float(np.median(x)) if x else None,
+                               "stage_ms_mean": float(np.mean(x)) if x else None, "calls": len(x)}
+                           for v, x in per.items()}}
+    diffs: dict = {v: [] for v in variants[1:]}
+    for calls in runs:
+        for c in range(0, len(calls) - k + 1, k):
+            cyc = dict(calls[c:c + k])
+            for v in variants[1:]:
+                if v in cyc and variants[0] in cyc:
+                    diffs[v].append(cyc[v] - cyc[variants[0]])
+    out["cycle_difference_ms_against_" + variants[0]] = {
+        v: {"median": float(np.median(d)) if d else None,
+            "quartiles": [float(q) for q in np.percentile(d, [25, 75])] if d else None, "cycles": len(d)}
+        for v, d in diffs.items()}
+    return out
+
+
 def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5, variants=("base",),
-        repeats: int = 3, profile: bool = True, host_profile: bool = False, workers: int = 0) -> dict:
+        repeats: int = 3, profile: bool = True, host_profile: bool = False, workers: int = 0,
+        interleave: int = 0) -> dict:
     """Run the study (module docs); returns the JSON-ready results."""
     from dataclasses import replace
 
@@ -276,6 +333,17 @@ def run(*, device=None, frames: int = 40, pixels: int = 1024, voxel: float = 0.5
                       f"{d['stage_ms_median']:.3f} ms (median; set-up {d['setup_ms_mean']:.3f}), "
                       f"{d['steps_mean']:.2f} steps", flush=True)
         out["runs"] = runs
+        ilv: list = []
+        for rep in range(int(interleave)):  # the variants frame by frame within one track (module docs)
+            calls: list = []
+            with _interleaving(tuple(variants), rep, calls):
+                track(r, [m], ts.frames, range(n), keyframes=kf, options=o)
+            ilv.append(calls)
+        if ilv:
+            out["interleaved"] = {"runs": ilv, **_interleaved_summary(tuple(variants), ilv)}
+            print("interleaved: " + _json_line(out["interleaved"]["per_variant"]), flush=True)
+            print("  cycles: " + _json_line(out["interleaved"]["cycle_difference_ms_against_" + variants[0]]),
+                  flush=True)
         out["summary"] = {v: {k: float(np.median([x[k] for x in runs[v]]))
                               for k in ("ms_per_frame_after_first", "stage_ms_median", "stage_ms_mean",
                                         "setup_ms_mean", "registration_ms_median", "steps_mean")}
@@ -340,11 +408,13 @@ def main(argv=None) -> int:
     p.add_argument("--no-profile", action="store_true")
     p.add_argument("--host-profile", action="store_true")
     p.add_argument("--workers", type=int, default=0)
+    p.add_argument("--interleave", type=int, default=0,
+                   help="tracks with the variants in turn frame by frame (their flags inside the stage only)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     out = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel,
               variants=tuple(a.variants.split(",")), repeats=a.repeats, profile=not a.no_profile,
-              host_profile=a.host_profile, workers=a.workers)
+              host_profile=a.host_profile, workers=a.workers, interleave=a.interleave)
     text = json.dumps(out, indent=1, default=float)
     if a.out:
         pathlib.Path(a.out).write_text(text)

@@ -127,13 +127,15 @@ class FrameUpload:
             s = self._take(frame)
         if s is None:
             return False
+        ok = False
         try:
             s.fill(frame)
+            ok = True
         finally:
-            with self.lock:
+            with self.lock:  # (both at once: a set no longer filling is never seen without its frame)
                 s.filling = False
-        with self.lock:
-            s.frame, s.stamp = weakref.ref(frame), next(_STAMP)
+                if ok:
+                    s.frame, s.stamp = weakref.ref(frame), next(_STAMP)
         return True
 
     def upload(self, frame) -> None:
@@ -160,12 +162,17 @@ class FrameUpload:
                 self.sets.append(s)
             s.busy = True  # not written from here on, until the next upload has waited for its event
         if s.filling:
+            ok = False
             try:
                 s.fill(frame)
+                ok = True
             finally:
                 with self.lock:
                     s.filling = False
-                    s.frame, s.stamp = weakref.ref(frame), next(_STAMP)
+                    if ok:
+                        s.frame, s.stamp = weakref.ref(frame), next(_STAMP)
+                    else:
+                        s.busy = False
             self.filled_here += 1
         copy_array(self.src, s.fluence)
         if s.has_given:

@@ -44,7 +44,8 @@ STAGE_KEYS = ("likelihood_taken", "likelihood_move_mm", "likelihood_move_deg", "
 
 def frame_result(name: str, f: int, a: Attempt, w: Work) -> FrameResult:
     """The :class:`FrameResult` of a bone's final attempt in frame ``f`` with all its work (the
-    times summed; the final stage's outcome, ``STAGE_KEYS``, that of the registration kept)."""
+    times summed; the final stage's outcome, ``STAGE_KEYS``, that of the registration kept; the
+    search's pose before its final stage, ``search_pose``, where it has the stage's fit)."""
     res = a.result
     if res is None:
         return FrameResult(name, f, None, np.nan, w.evaluations, w.time_s, False, tuple(a.flags), a.retried,
@@ -53,8 +54,10 @@ def frame_result(name: str, f: int, a: Attempt, w: Work) -> FrameResult:
     if any(k in timing for k in STAGE_KEYS):
         timing = {k: v for k, v in timing.items() if k not in STAGE_KEYS}
         timing.update((k, res.timing[k]) for k in STAGE_KEYS if k in (res.timing or {}))
+    prior = getattr(getattr(res, "fit", None), "similarity", None)  # (the search's, before a final stage)
     return FrameResult(name, f, res.pose, res.score, w.evaluations, w.time_s, not a.flags, tuple(a.flags),
-                       a.retried, a.confidence, timing or None, a.notes)
+                       a.retried, a.confidence, timing or None, a.notes,
+                       None if prior is None else np.asarray(prior.pose, dtype=float))
 
 
 def missing_flags(imgs: Sequence) -> tuple[str, ...]:

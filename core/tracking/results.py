@@ -17,7 +17,10 @@ class FrameResult:
     ``converged`` (passed every check), ``flags`` (reasons for review), ``retried``, the
     :class:`~core.tracking.confidence.PoseConfidence` as a dict (or None), the time breakdown
     and ``notes`` (events that needed no review, e.g. a start corrected by restarts). Work and
-    time add up every registration of the bone in the frame (both rounds of joint tracking)."""
+    time add up every registration of the bone in the frame (both rounds of joint tracking).
+    ``search_pose``: the search's pose the final stage started from, where a stage's fit is kept
+    (its move taken, or rejected: then ``pose`` is it); None without (``pose`` is the search's).
+    Not in :meth:`to_dict` (a journal keeps the pose only)."""
 
     bone: str
     frame: int
@@ -31,6 +34,7 @@ class FrameResult:
     confidence: dict | None = None
     timing: dict | None = None
     notes: tuple[str, ...] = ()
+    search_pose: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         score = None if not np.isfinite(self.score) else self.score

@@ -64,7 +64,10 @@ Measurements
   within 0.5 mm of the truth on average (mean target registration error, the usual capture
   criterion); ``strict_success_fraction`` — centroid error ≤ 0.5 mm *and* rotation ≤ 0.5°;
 * **confidence** — the fraction of per-axis errors within 2 sigma of the curvature confidence
-  (each frame's error and confidence sigma are kept: ``per_frame_error``, ``per_frame_sigma``);
+  (each frame's error and confidence sigma are kept: ``per_frame_error``, ``per_frame_sigma``; and,
+  flagged or not, its signals, ``per_frame_signals``: score, evaluations, time, the final stage's
+  outcome, move and time, the searched pose's error —
+  :func:`~core.studies.tracking.acceptance_records.frame_signals`);
 * **Cramér–Rao bound** — per bone, the least RMS error any unbiased estimate from one frame can
   have at the trial's photon counts (:func:`cramer_rao`, every tenth frame), and the measured
   RMS errors divided by it (``rms_over_bound``): how close the tracker gets to what the images

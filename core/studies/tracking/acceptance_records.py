@@ -2,11 +2,12 @@
 per bone its per-frame errors against the truth and their statistics, the low-passed trajectory's, the
 converged fraction and the frames not converged, the flagged frames as the run returned them
 (:func:`flag_counts`) with each one's reasons (:func:`flag_reasons`: its flags, then its notes), silent
-frames, the confidence σ (:func:`bone_records`); with the Cramér–Rao bound, the errors over it and the
-frames over 4× it, flagged or silent (:func:`add_bound`, :func:`over_bound`), with what the run showed
-of each silent one (:func:`silent_details`). ``pose_errors`` is importable from
-:mod:`core.studies.tracking.acceptance`, ``flag_counts`` and ``silent_details`` from
-:mod:`core.studies.tracking.acceptance_goals`, as before."""
+frames, the confidence σ and each frame's signals — score, work, the final stage's outcome and move,
+the searched pose's error (:func:`frame_signals`) — (:func:`bone_records`); with the Cramér–Rao
+bound, the errors over it and the frames over 4× it, flagged or silent (:func:`add_bound`,
+:func:`over_bound`), with what the run showed of each silent one (:func:`silent_details`).
+``pose_errors`` is importable from :mod:`core.studies.tracking.acceptance`, ``flag_counts`` and
+``silent_details`` from :mod:`core.studies.tracking.acceptance_goals`, as before."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ import numpy as np
 from core.geometry.transforms import params_from_pose
 
 __all__ = ["FILTER_MIN_FRAMES", "NOTE", "BoneRecords", "add_bound", "bone_records", "error_stats",
-           "flag_counts", "flag_reasons", "over_bound", "pose_errors", "reasons", "silent_details"]
+           "flag_counts", "flag_reasons", "frame_signals", "over_bound", "pose_errors", "reasons",
+           "silent_details"]
 
 #: what marks a frame's note (an event that needed no review, ``FrameResult.notes``) among its reasons,
 #: after its flags (:func:`reasons`)
@@ -73,6 +75,60 @@ def flag_counts(res, name: str) -> dict:
 def _rounded(v: float, digits: int = 3) -> float | None:
     """``v`` to ``digits`` decimals, None where it is NaN (no residual) or infinite."""
     return None if not np.isfinite(v) else round(float(v), digits)
+
+
+def _stage(timing: dict | None) -> str | None:
+    """A frame's final stage outcome from its ``timing`` (:data:`core.tracking.frame_records.STAGE_KEYS`):
+    ``"taken"`` (the pose is the stage's), ``"rejected"`` (the move check sent it back to the search's),
+    ``"untaken"`` (it ran, its steps failed or left its reach: the search's pose), None (the registration
+    kept ran none: no stage, or a retry's search kept)."""
+    t = timing or {}
+    if t.get("likelihood_rejected"):
+        return "rejected"
+    if "likelihood_taken" not in t:
+        return None
+    return "taken" if t["likelihood_taken"] else "untaken"
+
+
+def frame_signals(res, name: str, frames, truth, center) -> dict:
+    """Bone ``name``'s per-frame signals in ``res`` (a tracking result), compact arrays in the order of
+    ``frames`` (its frames with a pose, ``frames_with_pose``), flagged or not — what a flag rule can be
+    tested on against the good frames: ``score`` (the search's, the final stage leaves it), ``evaluations``
+    and ``time_s`` (every registration of the frame), ``retried``; the final stage's outcome
+    (``stage``: :func:`_stage`), its move's size from its timing (``stage_move_mm`` / ``_deg``, also
+    where rejected), the stages' time and steps over the frame's registrations (``stage_s``,
+    ``stage_steps``), and its move as a vector where the pose is the stage's (``stage_move``: the
+    stage's pose relative to the search's, :func:`pose_errors`, mm and degrees; None otherwise);
+    ``search_error``: the search's pose's error against the truth (``truth(f)``: the bone's true pose
+    in frame ``f``) as ``per_frame_error``'s (the pose's own where no stage moved it); ``cost_noise``
+    of the confidence (σ is ``per_frame_sigma``). Rounded as the errors are (5 decimals; the score 6,
+    times 4); None where a value is missing or not finite."""
+    def num(v, d):
+        return None if v is None or not np.isfinite(v) else round(float(v), d)
+
+    keys = ("score", "evaluations", "time_s", "retried", "stage", "stage_move_mm", "stage_move_deg",
+            "stage_s", "stage_steps", "stage_move", "search_error", "cost_noise")
+    out: dict = {k: [] for k in keys}
+    for f in frames:
+        r = res.results[(name, f)]
+        t, st = r.timing or {}, _stage(r.timing)
+        sp = getattr(r, "search_pose", None)
+        search = r.pose if sp is None else sp
+        steps = t.get("likelihood_steps")
+        out["score"].append(num(r.score, 6))
+        out["evaluations"].append(int(r.evaluations))
+        out["time_s"].append(num(r.time_s, 4))
+        out["retried"].append(bool(r.retried))
+        out["stage"].append(st)
+        out["stage_move_mm"].append(num(t.get("likelihood_move_mm"), 5))
+        out["stage_move_deg"].append(num(t.get("likelihood_move_deg"), 5))
+        out["stage_s"].append(num(t.get("likelihood_s"), 4))
+        out["stage_steps"].append(None if steps is None else int(steps))
+        out["stage_move"].append(pose_errors(r.pose, sp, center).round(5).tolist()
+                                 if st == "taken" and sp is not None else None)
+        out["search_error"].append(pose_errors(search, truth(f), center).round(5).tolist())
+        out["cost_noise"].append(num((r.confidence or {}).get("cost_noise"), 6))
+    return out
 
 
 def silent_details(res, name: str, center, errors: dict, bound: dict, silent) -> list:
@@ -159,8 +215,8 @@ def bone_records(ts, res, frame_rate_hz: float) -> BoneRecords:
     at ``frame_rate_hz``; none in a trial under :data:`FILTER_MIN_FRAMES` frames) against the truth,
     converged fraction and the frames not converged (``unconverged_frames``), flagged frames
     (:func:`flag_counts`) and each one's reasons (``flag_reasons``,
-    :func:`flag_reasons`), silent failures (unflagged frames over 0.5 mm or 0.5°), the 2σ coverage and
-    the per-frame σ."""
+    :func:`flag_reasons`), silent failures (unflagged frames over 0.5 mm or 0.5°), the 2σ coverage,
+    the per-frame σ and the per-frame signals (``per_frame_signals``, :func:`frame_signals`)."""
     out, n_frames = BoneRecords(), ts.scene.n_frames
     for b, (n, m) in enumerate(zip(ts.names, ts.models, strict=True)):
         if n_frames >= FILTER_MIN_FRAMES and any(r.pose is not None and not r.flags
@@ -204,6 +260,9 @@ def bone_records(ts, res, frame_rate_hz: float) -> BoneRecords:
             "motion_per_frame_mm": {"median": float(np.median(motion)), "max": float(np.max(motion))},
             "per_frame_sigma": [None if q is None else [None if v is None else round(v, 5) for v in q]
                                 for q in sig],
+            # (frames_with_pose's order: every frame's score, work, the final stage's outcome and move,
+            # the searched pose's error; frame_signals)
+            "per_frame_signals": frame_signals(res, n, fwp, lambda f, b=b: ts.truth(f)[b], m.centroid),
         }
     return out
 

@@ -184,3 +184,67 @@ def test_every_stored_acceptance_result_regoals():
                 assert ("flagged_within_4x" in g) == ("over_4x_frames" in g), p.name
                 assert ("unconverged_frames" in g) == ("unconverged_frames" in r["tracking"][n]), p.name
                 assert ("silent_over_4x" in g) == ("over_4x_bound" in r["tracking"][n]), p.name
+
+
+def test_the_records_keep_every_frames_signals_the_stage_and_the_searched_pose():
+    """``per_frame_signals`` (frame_signals), in frames_with_pose's order, flagged or not: frame 0 without
+    a stage, frame 1's stage taken (moved 0.02 mm in y from the searched pose, which is 0.01 mm off the
+    truth in x), frame 2's rejected (its pose the search's, the move's size kept), frame 3's run but not
+    taken; frame 4 has no pose (left out)."""
+    from dataclasses import replace
+
+    from core.studies.tracking.acceptance_records import bone_records, frame_signals
+
+    ts, res = _scene_and_result(5, flagged=(2,))
+    R = res.results
+    search = ts.truth(1)[0].copy()
+    search[0, 3] += 0.01
+    stage = search.copy()
+    stage[1, 3] += 0.02
+    R[("talus", 1)] = replace(R[("talus", 1)], pose=stage, search_pose=search, retried=True,
+                              confidence={"sigma": [0.01] * 6, "cost_noise": 0.25},
+                              timing={"likelihood_taken": 1, "likelihood_move_mm": 0.02,
+                                      "likelihood_move_deg": 0.0, "likelihood_s": 0.12345,
+                                      "likelihood_steps": 3})
+    R[("talus", 2)] = replace(R[("talus", 2)], search_pose=R[("talus", 2)].pose,
+                              timing={"likelihood_taken": 0, "likelihood_rejected": 1,
+                                      "likelihood_move_mm": 0.3, "likelihood_move_deg": float("nan")})
+    R[("talus", 3)] = replace(R[("talus", 3)], timing={"likelihood_taken": 0, "likelihood_s": 0.01})
+    R[("talus", 4)] = replace(R[("talus", 4)], pose=None, score=float("nan"), converged=False)
+    rec = bone_records(ts, res, 278.0)
+    s = rec.tracking["talus"]["per_frame_signals"]
+    assert rec.frames["talus"] == [0, 1, 2, 3]  # (frames_with_pose)
+    assert all(len(v) == 4 for v in s.values())
+    assert s["stage"] == [None, "taken", "rejected", "untaken"]
+    assert s["stage_move_mm"] == [None, 0.02, 0.3, None] and s["stage_move_deg"] == [None, 0.0, None, None]
+    assert s["stage_s"] == [None, 0.1235, None, 0.01] and s["stage_steps"] == [None, 3, None, None]
+    assert s["stage_move"][0] is None and s["stage_move"][2:] == [None, None]
+    assert np.allclose(s["stage_move"][1], [0, 0.02, 0, 0, 0, 0], atol=1e-9)
+    assert np.allclose(s["search_error"][1], [0.01, 0, 0, 0, 0, 0], atol=1e-9)
+    for f in (0, 2, 3):  # no stage moved the pose: the searched pose's error is the pose's
+        assert np.allclose(s["search_error"][f], [0, 0.01, 0, 0, 0, 0], atol=1e-9)
+    assert s["score"] == [0.9] * 4 and s["evaluations"] == [1] * 4 and s["time_s"] == [0.0] * 4
+    assert s["retried"] == [False, True, False, False] and s["cost_noise"] == [None, 0.25, None, None]
+    assert frame_signals(res, "talus", [], ts.truth, np.zeros(3)) == {k: [] for k in s}
+    import json
+
+    json.dumps(s, allow_nan=False)
+
+
+def test_a_frame_result_keeps_the_searched_pose_its_final_stage_started_from():
+    """frame_result: ``search_pose`` is the stage fit's similarity pose (taken, or rejected: the pose
+    itself), None where the result has no stage fit; not in to_dict (a journal keeps the pose only)."""
+    from core.tracking.attempt import Attempt
+    from core.tracking.frame_records import Work, frame_result
+
+    S, P = np.eye(4), np.eye(4)
+    P[0, 3] = 0.05
+    fit = SimpleNamespace(similarity=SimpleNamespace(pose=S))
+    staged = SimpleNamespace(pose=P, score=0.8, timing={}, fit=fit)
+    plain = SimpleNamespace(pose=P, score=0.8, timing={}, fit=None)
+    a = Attempt(staged, [], False, 0, 0.0, None, None)
+    fr = frame_result("talus", 1, a, Work())
+    assert np.array_equal(fr.search_pose, S) and np.array_equal(fr.pose, P)
+    assert "search_pose" not in fr.to_dict()
+    a.result = plain
+    assert frame_result("talus", 1, a, Work()).search_pose is None

@@ -117,7 +117,42 @@ def test_run_records_the_seed_the_silent_frames_and_the_flagged_frames_reasons(m
     assert out["goals"]["talus"]["over_4x_frames"] == [
         {"frame": 3, "flagged": True, "reasons": ["score drop", NOTE + "start corrected by restarts"]},
         {"frame": 6, "flagged": False, "reasons": [NOTE + "unchecked (its neighbours flagged)"]}]
+    sig = t["per_frame_signals"]  # every frame's, flagged or not, in frames_with_pose's order
+    assert sig["score"] == [0.9] * 10 and sig["stage"] == [None] * 10 and len(sig["search_error"]) == 10
+    assert sig["search_error"] == t["per_frame_error"]  # no stage: the searched pose is the pose
     json.dumps(out, allow_nan=False)
     stored = json.loads(json.dumps(out))
     again = json.loads(json.dumps(out))
     assert regoal(again) == ["goals"] and again == stored  # the goals as run() stored them
+
+
+def test_a_tiny_real_run_with_the_final_stage_keeps_each_frames_signals():
+    """run() on a real 64² trial of the talus (2 frames, 2 mm voxels, Warp's CPU device) with the
+    likelihood final stage: every frame with a pose has its score, work, the stage's outcome and the
+    searched pose's error; where the stage's pose was taken, its move's vector has the size its timing
+    gives, and the pose's error is the searched pose's plus about that move."""
+    from core.geometry.transforms import pose_from_params
+    from core.studies.tracking.acceptance_goals import regoal
+
+    ts = acceptance.TrackingScene(n_frames=2, pixels=64, spacing=2.0, device="cpu", names=("talus",))
+    out = acceptance.run(ts=ts, mode="joint", capture_trials=0, final="likelihood")
+    t = out["tracking"]["talus"]
+    sig, fwp = t["per_frame_signals"], t["frames_with_pose"]
+    assert fwp and all(len(v) == len(fwp) for v in sig.values())
+    assert all(s is not None for s in sig["score"]) and min(sig["evaluations"]) > 0
+    assert set(sig["stage"]) <= {"taken", "rejected", "untaken", None}  # None: the kept search had none
+    c = ts.models[0].centroid
+    for k, f in enumerate(fwp):
+        if sig["stage"][k] != "taken":
+            continue
+        m = np.asarray(sig["stage_move"][k])
+        assert np.linalg.norm(m[:3]) == pytest.approx(sig["stage_move_mm"][k], abs=2e-5)
+        assert np.linalg.norm(m[3:]) == pytest.approx(sig["stage_move_deg"][k], abs=2e-5)
+        S = pose_from_params(np.r_[sig["search_error"][k][:3], np.radians(sig["search_error"][k][3:])],
+                             center=c, base=ts.truth(f)[0])
+        P = pose_from_params(np.r_[m[:3], np.radians(m[3:])], center=c, base=S)
+        e = acceptance.pose_errors(P, ts.truth(f)[0], c)
+        assert np.allclose(e, t["per_frame_error"][k], atol=1e-4)
+    assert "taken" in sig["stage"]
+    json.dumps(out, allow_nan=False)
+    regoal(json.loads(json.dumps(out)))

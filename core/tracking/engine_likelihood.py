@@ -461,32 +461,19 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         and solves it."""
         t0 = time.perf_counter()
         h, self._pending = self._pending, None
-        nv = self.n_views
         self._wait()
         if self._count_pending:  # the regions prepared on the device: their usable pixels
             self._take_count()
         if self._wcount_pending:  # (those with a positive weight: count_weights)
             self._take_weights_count()
-        nz = NZ + self._q
-        if _LS.LEAN_SOLVES:  # (the pinned table's numpy view kept; copied, mirrored and solved at once)
-            host = self._tables_q()[1]
-            view = self.__dict__.get("_host_view")
-            if view is None or view[0] is not host:
-                view = self._host_view = (host, host.numpy())
-            self.timer.metric += time.perf_counter() - t0
-            self.timer.calls += 1
-            t1 = time.perf_counter()
-            out = _LS.solve_tables(view[1], h, self.background, self._with_o, self._q, self._tri)
-            self.timer.host += time.perf_counter() - t1
-            return out
-        M = self._tables_q()[1].numpy().reshape(nv, nz, nz).copy()
-        if self._tri:  # (the entries above the diagonal mirrored below it)
-            M += np.swapaxes(np.triu(M, 1), 1, 2)
+        host = self._tables_q()[1]  # (its numpy view kept: Warp makes one anew on every call)
+        view = self.__dict__.get("_host_view")
+        if view is None or view[0] is not host:
+            view = self._host_view = (host, host.numpy())
         self.timer.metric += time.perf_counter() - t0
         self.timer.calls += 1
         t1 = time.perf_counter()
-        out = solve_moments(M, h, self.background, self._with_o, self._q)
-        out["M"] = M
+        out = _LS.solve_tables(view[1], h, self.background, self._with_o, self._q, self._tri)
         self.timer.host += time.perf_counter() - t1
         return out
 

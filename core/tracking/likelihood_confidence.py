@@ -138,7 +138,7 @@ class _Confidence:
         if dev.is_cuda:  # (its own event: _wait waits for the engine's steps, this for the sandwich)
             if self.__dict__.get("_sw_event") is None:
                 self._sw_event = wp.Event(dev)
-            wp.record_event(self._sw_event)
+            dev.stream.record_event(self._sw_event)  # (the engine's device's stream, its work's)
         self.timer.metric += time.perf_counter() - t0
 
     def sandwich_result(self, Hinv: np.ndarray) -> np.ndarray:

@@ -78,7 +78,7 @@ class _FrameRegions:
         if self.device.is_cuda:
             if self._up_event is None:
                 self._up_event = wp.Event(self.device)
-            wp.record_event(self._up_event)
+            self.device.stream.record_event(self._up_event)  # (the stream its copies went on)
 
     def prefetch(self, frame: FrameImages, roi) -> bool:
         """Upload the fluence (and the frame's own masks) of the regions ``roi (views, 4)`` of ``frame``,
@@ -122,7 +122,7 @@ class _FrameRegions:
         if self.device.is_cuda:
             if ev is None:
                 ev = self._pre_event = wp.Event(self.device)
-            wp.record_event(ev)
+            self.device.stream.record_event(ev)
         p = frame._erode if frame._valid is not None else 0
         self._pre = (weakref.ref(frame), [(*r, p) for r in rows], src, gsrc)
         return True

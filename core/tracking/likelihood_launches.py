@@ -83,7 +83,7 @@ class _Launches:
         if self.device.is_cuda:
             if self._done is None:
                 self._done = wp.Event(self.device)
-            wp.record_event(self._done)
+            self.device.stream.record_event(self._done)  # (the stream its work went on)
 
     def _wait(self) -> None:
         """Wait for the work enqueued up to the last :meth:`_record` (other engines' work enqueued

@@ -93,7 +93,7 @@ def solve_tables(T: np.ndarray, h: np.ndarray, background: int = 0, others: bool
     nz = NZ + extra
     n = T.shape[0]
     Tf = np.array(T, dtype=np.float64).reshape(n, nz * nz)  # (a copy: the pinned table is written again)
-    if _ul is None:  # pragma: no cover (a numpy without the gufuncs: the plain path)
+    if not LEAN_SOLVES or _ul is None:  # (as before: mirrored with numpy.triu, solve_moments)
         M = Tf.reshape(n, nz, nz)
         if tri:
             M += np.swapaxes(np.triu(M, 1), 1, 2)

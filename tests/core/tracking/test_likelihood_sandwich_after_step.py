@@ -9,22 +9,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.core.tracking.stage_helpers import noisy_start
+
 
 @pytest.mark.parametrize("from_last", [True, False])
 def test_sandwich_after_the_robust_step_is_the_same(talus_scene, monkeypatch, from_last):
     import core.tracking.final_stage as fst
-    from core.tracking.cost import prepare_frame
-    from core.tracking.register import RegistrationOptions, register
+    from core.tracking.register import register
 
     monkeypatch.setattr(fst, "ROBUST_FROM_LAST", from_last)
-    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
-    g = np.random.default_rng(4)
-    fl = [np.clip(f * (1.0 + 0.01 * g.normal(size=f.shape)), 0.0, 1.0).astype(np.float32)
-          for f in talus_scene["fluence"](3)]
-    frame = prepare_frame(fl, valid_range=None)
-    start = sc.poses(3)[0].copy()
-    start[:3, 3] += (0.3, 0.2, -0.2)
-    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=2.0)
+    model, r = talus_scene["model"], talus_scene["renderer"]
+    frame, start, o = noisy_start(talus_scene)
     launched = []
     plain = fst._after_first_launch
 

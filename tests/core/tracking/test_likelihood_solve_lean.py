@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.core.tracking.stage_helpers import engine_at, noisy_start
+
 
 def _table(g, nv, nz):
     Z = g.normal(size=(nv, 300, nz)) * g.uniform(0.1, 10.0, size=nz)
@@ -61,17 +63,10 @@ def test_singular_systems_raise_linalgerror():
 def test_a_stage_is_the_same_to_the_bit(talus_scene, monkeypatch):
     import core.tracking.likelihood_confidence as lc
     import core.tracking.likelihood_solve as ls
-    from core.tracking.cost import prepare_frame
-    from core.tracking.register import RegistrationOptions, register
+    from core.tracking.register import register
 
-    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
-    g = np.random.default_rng(4)
-    fl = [np.clip(f * (1.0 + 0.01 * g.normal(size=f.shape)), 0.0, 1.0).astype(np.float32)
-          for f in talus_scene["fluence"](3)]
-    frame = prepare_frame(fl, valid_range=None)
-    start = sc.poses(3)[0].copy()
-    start[:3, 3] += (0.3, 0.2, -0.2)
-    o = RegistrationOptions(bounds=(3.0, 3.0), search="newton", final="likelihood", final_highpass_px=2.0)
+    model, r = talus_scene["model"], talus_scene["renderer"]
+    frame, start, o = noisy_start(talus_scene)
     out = []
     for lean in (False, True):
         monkeypatch.setattr(ls, "LEAN_SOLVES", lean)
@@ -87,16 +82,9 @@ def test_a_stage_is_the_same_to_the_bit(talus_scene, monkeypatch):
 
 
 def test_the_autocorrelation_read_from_the_device_is_the_copy(talus_scene, monkeypatch):
-    import core.tracking.engine_likelihood as el
     import core.tracking.likelihood_confidence as lc
-    from core.tracking.cost import prepare_frame, search_roi
 
-    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
-    start = sc.poses(2)[0]
-    fr = prepare_frame(talus_scene["fluence"](2), valid_range=None)
-    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
-    eng = el.LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
-    eng.set_frame(fr, base_pose=start, center=model.centroid, roi=roi)
+    eng = engine_at(talus_scene)
     s = eng.step(np.zeros(6), np.full(6, 0.05))
     out = []
     for on in (False, True):

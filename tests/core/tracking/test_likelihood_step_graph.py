@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.geometry.transforms import pose_from_params
-from tests.core.tracking.stage_helpers import stage_calls
+from tests.core.tracking.stage_helpers import engine_at, stage_calls
 
 
 def test_recorded_steps_are_the_plain_steps(talus_calcaneus_128, monkeypatch):
@@ -63,15 +63,7 @@ def test_chi2_share_counts_the_weighed_pixels(talus_scene):
     """N of χ²/N (engine's n_pixels: the steps' stop and the independent-pixel covariance) counts the
     pixels with a positive weight once a factor weighs some 0 (a support mask; the rim band), back to
     the usable pixels when the weights are reset."""
-    import core.tracking.engine_likelihood as el
-    from core.tracking.cost import prepare_frame, search_roi
-
-    sc, model, r = talus_scene["scene"], talus_scene["model"], talus_scene["renderer"]
-    start = sc.poses(2)[0]
-    fr = prepare_frame(talus_scene["fluence"](2), valid_range=None)
-    roi = search_roi(r, start, 0, views=[0, 1], center=model.centroid, reach_mm=2.0)
-    eng = el.LikelihoodEngine(r, bone=0, views=(0, 1), highpass_px=2.0)
-    eng.set_frame(fr, base_pose=start, center=model.centroid, roi=roi)
+    eng = engine_at(talus_scene)
     h = np.full(6, 0.05)
     eng.step(np.zeros(6), h)
     usable = eng.n_pixels

@@ -213,10 +213,10 @@ def share(device, frame) -> FrameUpload | None:
         if up is not None and up.shape[0] == nv:  # grown (the larger of the two)
             H, W = max(H, up.shape[1]), max(W, up.shape[2])
         alive = {t.ident for t in threading.enumerate()}  # (those of threads gone let go: their memory)
-        for k in [k for k in _UPLOADS if k[1] not in alive]:
-            del _UPLOADS[k]
-        for k in [k for k in _ACTIVE if k not in alive]:
-            del _ACTIVE[k]
+        for k in [k for k in list(_UPLOADS) if k[1] not in alive]:  # (a copy: another thread may add a key)
+            _UPLOADS.pop(k, None)
+        for k in [k for k in list(_ACTIVE) if k not in alive]:
+            _ACTIVE.pop(k, None)
         up = _UPLOADS[key] = FrameUpload(device, (nv, H, W))
     _ACTIVE[key[1]] = up
     up.upload(frame)

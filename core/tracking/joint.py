@@ -118,7 +118,7 @@ def _submit(ln: _Search, cancel) -> bool:
     if dev.is_cuda:
         if ln.event is None:
             ln.event = wp.Event(dev)
-        wp.record_event(ln.event)
+        dev.stream.record_event(ln.event)  # (the stream the step went on)
     return True
 
 

@@ -100,9 +100,10 @@ def frame_signals(res, name: str, frames, truth, center) -> dict:
     ``stage_steps``), and its move as a vector where the pose is the stage's (``stage_move``: the
     stage's pose relative to the search's, :func:`pose_errors`, mm and degrees; None otherwise);
     ``search_error``: the search's pose's error against the truth (``truth(f)``: the bone's true pose
-    in frame ``f``) as ``per_frame_error``'s (the pose's own where no stage moved it); ``cost_noise``
-    of the confidence (σ is ``per_frame_sigma``). Rounded as the errors are (5 decimals; the score 6,
-    times 4); None where a value is missing or not finite."""
+    in frame ``f``) as ``per_frame_error``'s, where the pose is the stage's (None otherwise: the pose
+    is the search's, its error ``per_frame_error``'s: kept once, the JSON writes a number a line);
+    ``cost_noise`` of the confidence (σ is ``per_frame_sigma``). Rounded as the errors are (5 decimals;
+    the score 6, times 4); None where a value is missing or not finite."""
     def num(v, d):
         return None if v is None or not np.isfinite(v) else round(float(v), d)
 
@@ -113,7 +114,7 @@ def frame_signals(res, name: str, frames, truth, center) -> dict:
         r = res.results[(name, f)]
         t, st = r.timing or {}, _stage(r.timing)
         sp = getattr(r, "search_pose", None)
-        search = r.pose if sp is None else sp
+        moved = st == "taken" and sp is not None  # (else the pose is the search's)
         steps = t.get("likelihood_steps")
         out["score"].append(num(r.score, 6))
         out["evaluations"].append(int(r.evaluations))
@@ -124,9 +125,8 @@ def frame_signals(res, name: str, frames, truth, center) -> dict:
         out["stage_move_deg"].append(num(t.get("likelihood_move_deg"), 5))
         out["stage_s"].append(num(t.get("likelihood_s"), 4))
         out["stage_steps"].append(None if steps is None else int(steps))
-        out["stage_move"].append(pose_errors(r.pose, sp, center).round(5).tolist()
-                                 if st == "taken" and sp is not None else None)
-        out["search_error"].append(pose_errors(search, truth(f), center).round(5).tolist())
+        out["stage_move"].append(pose_errors(r.pose, sp, center).round(5).tolist() if moved else None)
+        out["search_error"].append(pose_errors(sp, truth(f), center).round(5).tolist() if moved else None)
         out["cost_noise"].append(num((r.confidence or {}).get("cost_noise"), 6))
     return out
 
@@ -134,7 +134,8 @@ def frame_signals(res, name: str, frames, truth, center) -> dict:
 def silent_details(res, name: str, center, errors: dict, bound: dict, silent) -> list:
     """Per silent frame of bone ``name`` (``silent``: frames over 4× the bound left unflagged), what
     the run showed of it: its error (mm, °, and × the bone's bound ``rms_mm`` / ``rms_deg``), score,
-    convergence, confidence σ and notes; the errors × the bound of the frames within ±2 (a run of
+    convergence, confidence σ and notes, the final stage's outcome and move (``stage``,
+    ``stage_move_mm``: :func:`frame_signals`'); the errors × the bound of the frames within ±2 (a run of
     frames off, or one alone); the flagged frames within the trajectory check's window; and the
     trajectory check's view of it (:mod:`core.tracking.flags_post`, recomputed on the returned poses):
     its residual against the fit through its good neighbours — with the frames only the post-pass
@@ -165,6 +166,7 @@ def silent_details(res, name: str, center, errors: dict, bound: dict, silent) ->
     out = []
     for f in silent:
         r, e, i = mine[f], np.asarray(errors[f], dtype=float), fs.index(f)
+        t = getattr(r, "timing", None) or {}
         et, er = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
         traj = {k: {"mm": _rounded(R[k][i, 0], 4), "deg": _rounded(R[k][i, 1], 4),
                     "x_median": [_rounded(R[k][i, u] / med[u], 2) for u in (0, 1)]} for k in R}
@@ -172,6 +174,7 @@ def silent_details(res, name: str, center, errors: dict, bound: dict, silent) ->
                     "over_bound": [round(et / bound["rms_mm"], 2), round(er / bound["rms_deg"], 2)],
                     "error": np.round(e, 4).tolist(), "score": _rounded(r.score, 6),
                     "converged": bool(r.converged), "retried": bool(r.retried), "notes": list(r.notes),
+                    "stage": _stage(t), "stage_move_mm": _rounded(t.get("likelihood_move_mm", np.nan), 5),
                     "sigma": (r.confidence or {}).get("sigma"),
                     "neighbours_over_bound": {str(g): over(g) for g in range(f - 2, f + 3)
                                               if g in mine and g != f},

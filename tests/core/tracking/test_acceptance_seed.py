@@ -72,6 +72,7 @@ def test_silent_details_give_the_frames_error_neighbours_and_trajectory_residual
     assert sorted(d["neighbours_over_bound"]) == ["18", "19", "21", "22"]
     assert all(v < 4 for v in d["neighbours_over_bound"].values())
     assert d["sigma"] == [0.01, 0.01, 0.01, 0.05, 0.05, 0.05] and d["score"] == 0.9 and d["converged"]
+    assert d["stage"] is None and d["stage_move_mm"] is None  # no final stage
     tr = d["trajectory"]
     assert 0.003 < tr["median_mm"] < 0.05 and tr["limit_x_median"] == 2.5
     assert tr["last"]["x_median"][0] > 2.5 and tr["first"]["mm"] != tr["last"]["mm"]
@@ -118,8 +119,8 @@ def test_run_records_the_seed_the_silent_frames_and_the_flagged_frames_reasons(m
         {"frame": 3, "flagged": True, "reasons": ["score drop", NOTE + "start corrected by restarts"]},
         {"frame": 6, "flagged": False, "reasons": [NOTE + "unchecked (its neighbours flagged)"]}]
     sig = t["per_frame_signals"]  # every frame's, flagged or not, in frames_with_pose's order
-    assert sig["score"] == [0.9] * 10 and sig["stage"] == [None] * 10 and len(sig["search_error"]) == 10
-    assert sig["search_error"] == t["per_frame_error"]  # no stage: the searched pose is the pose
+    assert sig["score"] == [0.9] * 10 and sig["stage"] == [None] * 10
+    assert sig["search_error"] == [None] * 10 == sig["stage_move"]  # no stage: the pose is the search's
     json.dumps(out, allow_nan=False)
     stored = json.loads(json.dumps(out))
     again = json.loads(json.dumps(out))

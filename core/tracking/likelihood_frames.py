@@ -24,6 +24,12 @@ from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
 #: chunks (a6686da; 0.14 -> 0.37 ms of the device a bone-frame on one NVIDIA H100, its atomics;
 #: ``tracking_stage_one_bone_1d5ed65_h100.json``).
 PREFETCH = True
+#: The stage's set-up reads its regions from the whole frame on the device where joint registration put
+#: it there (:func:`core.tracking.engine_upload.holding`: the frame's engines share one upload of it) and
+#: the engine's views are the frame's: no pinned copy and upload of its own rows, the same pixels through
+#: the same kernel (the same regions to the bit). Off: the stage copies and uploads its rows, as before.
+#: Not measured on a GPU (three bones jointly: one copy and upload a bone-frame fewer on the host).
+HELD_FRAME = True
 
 
 def _covering(frame, rows, staged: list, src, gsrc):
@@ -135,14 +141,32 @@ class _FrameRegions:
             return None
         return _covering(frame, pre[1], staged, pre[2], pre[3])
 
+    def _held(self, frame: FrameImages):
+        """The :class:`~core.tracking.engine_upload.FrameUpload` holding ``frame`` on the engine's device
+        where the stage reads its regions there (:data:`HELD_FRAME`: the engine's views the frame's, in
+        order), else None."""
+        if not HELD_FRAME or self.views != tuple(range(frame.n_views)):
+            return None
+        from .engine_upload import holding
+
+        return holding(self.device, frame)
+
     def _stage(self, frame: FrameImages, staged: list, li, mask) -> None:
         """Each view's region of the fluence uploaded as it is (or :meth:`prefetch`'s upload of it
         taken on the device: :data:`PREFETCH`) and its line integrals and usable pixels made on the
         device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, the
         values of :meth:`~core.tracking.cost.FrameImages.region`); the usable pixels counted there,
-        taken at the next step's synchronisation."""
+        taken at the next step's synchronisation. Read from the whole frame where joint registration
+        put it on the device (:data:`HELD_FRAME`)."""
         nv = self.n_views
         p = frame._erode if frame._valid is not None else 0
+        up = self._held(frame)
+        if up is not None:  # the whole frame on the device (HELD_FRAME): the regions read there
+            from .engine_upload import frame_rows
+
+            self._view(self._host_info)[:] = frame_rows(frame, self.views, self.roi)
+            self._roi_launch(frame, up.src, up.given, li, mask, p)
+            return
         shared = self._prefetched(frame, staged) if PREFETCH else None
         if shared is not None:
             src, gsrc, rows = shared

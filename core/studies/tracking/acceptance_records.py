@@ -3,9 +3,10 @@ per bone its per-frame errors against the truth and their statistics, the low-pa
 converged fraction and the frames not converged, the flagged frames as the run returned them
 (:func:`flag_counts`) with each one's reasons (:func:`flag_reasons`: its flags, then its notes), silent
 frames, the confidence σ and each frame's signals — score, work, the final stage's outcome and move,
-the searched pose's error (:func:`frame_signals`) — (:func:`bone_records`); with the Cramér–Rao
-bound, the errors over it and the frames over 4× it, flagged or silent (:func:`add_bound`,
-:func:`over_bound`), with what the run showed of each silent one (:func:`silent_details`).
+the searched pose's error (:func:`frame_signals`; a stored record's as arrays: :func:`stored_signals`)
+— (:func:`bone_records`); with the Cramér–Rao bound, the errors over it and the frames over 4× it,
+flagged or silent (:func:`add_bound`, :func:`over_bound`), with what the run showed of each silent one
+(:func:`silent_details`).
 ``pose_errors`` is importable from :mod:`core.studies.tracking.acceptance`, ``flag_counts`` and
 ``silent_details`` from :mod:`core.studies.tracking.acceptance_goals`, as before."""
 
@@ -19,7 +20,7 @@ from core.geometry.transforms import params_from_pose
 
 __all__ = ["FILTER_MIN_FRAMES", "NOTE", "BoneRecords", "add_bound", "bone_records", "error_stats",
            "flag_counts", "flag_reasons", "frame_signals", "over_bound", "pose_errors", "reasons",
-           "silent_details"]
+           "silent_details", "stored_signals"]
 
 #: what marks a frame's note (an event that needed no review, ``FrameResult.notes``) among its reasons,
 #: after its flags (:func:`reasons`)
@@ -128,6 +129,40 @@ def frame_signals(res, name: str, frames, truth, center) -> dict:
         out["stage_move"].append(pose_errors(r.pose, sp, center).round(5).tolist() if moved else None)
         out["search_error"].append(pose_errors(sp, truth(f), center).round(5).tolist() if moved else None)
         out["cost_noise"].append(num((r.confidence or {}).get("cost_noise"), 6))
+    return out
+
+
+def stored_signals(t: dict) -> dict | None:
+    """A bone's stored record ``t`` (a JSON's ``tracking[bone]``) as per-frame arrays, to test a flag
+    rule on: ``frames``; ``(n, 6)`` arrays (mm, degrees) ``error``, ``search_error`` (the pose's error
+    where the pose is the search's), ``stage_move`` (the pose relative to the search's: zero there; a
+    rejected stage's move has its size only, ``stage_move_mm``) and ``sigma`` (NaN where the frame has
+    none, ``inf`` on an unbounded axis); ``over_bound`` (the larger of the translation and the rotation
+    error over the bone's Cramér–Rao bound; NaN without one), ``flagged`` (bool) and the scalar
+    signals of :func:`frame_signals` as float arrays (NaN for None; ``stage`` as stored). None where
+    the record has no ``per_frame_signals`` (a run before them)."""
+    sig = t.get("per_frame_signals")
+    if sig is None:
+        return None
+    E = np.asarray(t["per_frame_error"], dtype=float).reshape(-1, 6)
+    frames = np.asarray(t["frames_with_pose"], dtype=int)
+
+    def vec(rows, fill):
+        return np.array([fill[k] if q is None else q for k, q in enumerate(rows)], dtype=float).reshape(-1, 6)
+
+    out = {"frames": frames, "error": E, "search_error": vec(sig["search_error"], E),
+           "stage_move": vec(sig["stage_move"], np.zeros_like(E)), "stage": list(sig["stage"]),
+           "flagged": np.isin(frames, t.get("flagged_frames") or [])}
+    sg = t.get("per_frame_sigma") or [None] * len(E)
+    out["sigma"] = np.array([[np.nan] * 6 if q is None else [np.inf if v is None else v for v in q]
+                             for q in sg], dtype=float).reshape(-1, 6)
+    cb = t.get("cramer_rao")
+    out["over_bound"] = (np.maximum(np.linalg.norm(E[:, :3], axis=1) / cb["rms_mm"],
+                                    np.linalg.norm(E[:, 3:], axis=1) / cb["rms_deg"])
+                         if cb else np.full(len(E), np.nan))
+    for k, v in sig.items():
+        if k not in out and k not in ("search_error", "stage_move"):
+            out[k] = np.array([np.nan if x is None else float(x) for x in v], dtype=float)
     return out
 
 

@@ -227,7 +227,20 @@ def test_the_records_keep_every_frames_signals_the_stage_and_the_searched_pose()
     assert frame_signals(res, "talus", [], ts.truth, np.zeros(3)) == {k: [] for k in s}
     import json
 
+    from core.studies.tracking.acceptance_records import add_bound, stored_signals
+
     json.dumps(s, allow_nan=False)
+    add_bound(rec, ts, res, {})  # (no bound: per_frame_error and frames_with_pose only)
+    t = json.loads(json.dumps(rec.tracking["talus"]))
+    a = stored_signals(t)
+    assert np.allclose(a["search_error"][1], s["search_error"][1]) and np.array_equal(a["search_error"][0],
+                                                                                    a["error"][0])
+    assert np.allclose(a["stage_move"][1], s["stage_move"][1]) and not a["stage_move"][[0, 2, 3]].any()
+    assert a["flagged"].tolist() == [False, False, True, False] and np.isnan(a["over_bound"]).all()
+    assert a["stage_s"][1] == 0.1235 and np.isnan(a["stage_s"][0]) and a["retried"].tolist() == [0, 1, 0, 0]
+    assert a["sigma"][1].tolist() == [0.01] * 6 and np.isnan(a["sigma"][0]).all()
+    del t["per_frame_signals"]
+    assert stored_signals(t) is None  # a run before them
 
 
 def test_a_frame_result_keeps_the_searched_pose_its_final_stage_started_from():

@@ -121,6 +121,14 @@ def test_run_records_the_seed_the_silent_frames_and_the_flagged_frames_reasons(m
     sig = t["per_frame_signals"]  # every frame's, flagged or not, in frames_with_pose's order
     assert sig["score"] == [0.9] * 10 and sig["stage"] == [None] * 10
     assert sig["search_error"] == [None] * 10 == sig["stage_move"]  # no stage: the pose is the search's
+    from core.studies.tracking.acceptance_records import stored_signals
+
+    a = stored_signals(json.loads(json.dumps(t)))  # the stored record as arrays
+    assert a["frames"].tolist() == list(range(10))
+    assert a["flagged"].tolist() == [f in (3, 8) for f in range(10)]
+    assert np.array_equal(a["search_error"], a["error"]) and not a["stage_move"].any()
+    assert a["over_bound"][6] > 4 > a["over_bound"][5] and np.isnan(a["sigma"]).all()
+    assert a["score"].tolist() == [0.9] * 10 and a["stage"] == [None] * 10
     json.dumps(out, allow_nan=False)
     stored = json.loads(json.dumps(out))
     again = json.loads(json.dumps(out))
@@ -155,5 +163,10 @@ def test_a_tiny_real_run_with_the_final_stage_keeps_each_frames_signals():
         e = acceptance.pose_errors(P, ts.truth(f)[0], c)
         assert np.allclose(e, t["per_frame_error"][k], atol=1e-4)
     assert "taken" in sig["stage"]
+    from core.studies.tracking.acceptance_records import stored_signals
+
+    a = stored_signals(json.loads(json.dumps(t)))
+    for k, st in enumerate(sig["stage"]):
+        assert np.allclose(a["search_error"][k], sig["search_error"][k] if st == "taken" else a["error"][k])
     json.dumps(out, allow_nan=False)
     regoal(json.loads(json.dumps(out)))

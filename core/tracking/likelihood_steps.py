@@ -88,14 +88,22 @@ class SecantScale:
     kept within ``[1 / max_factor, 1]``: a step is never shortened, and at most 1.6 times Gauss–
     Newton's, so that a direction whose curvature is Gauss–Newton's (θ 1 there, the step's θ set by
     a weaker one) still converges (each step -0.6 of the one before there; 2 would not converge).
-    ``owner``: an object whose ``_theta`` (the engine's: the bone's last refinement's θ) it starts
-    from and keeps up to date, or the starting θ itself."""
+    ``owner``: an object whose ``_theta`` (the engine's: its last refinement's θ) it starts from and
+    keeps up to date, or the starting θ itself; ``theta``: the starting θ instead of the owner's (the
+    engine's first refinement in a frame starts from 1, its robust round from the first's θ: a frame's
+    result does not depend on the frames before)."""
 
-    def __init__(self, owner=1.0, *, max_factor: float = 1.6, min_share: float = 0.01) -> None:
+    def __init__(self, owner=1.0, *, theta: float | None = None, max_factor: float = 1.6,
+                 min_share: float = 0.01) -> None:
         self.max_factor = float(max_factor)
         self.min_share = float(min_share)
         self._owner = None if isinstance(owner, int | float) else owner
-        self.theta = self._clip(float(owner) if self._owner is None else getattr(owner, "_theta", 1.0))
+        given = theta is not None
+        if not given:
+            theta = float(owner) if self._owner is None else getattr(owner, "_theta", 1.0)
+        self.theta = self._clip(theta)
+        if given and self._owner is not None:  # (the owner's from here: what the refinement measures)
+            self._owner._theta = self.theta
         self._last = None  # (u, g0, H) of the step taken last
 
     def _clip(self, theta: float) -> float:

@@ -18,8 +18,8 @@ stored 1024² runs' poses as starts):
   :data:`~core.tracking.engine_likelihood.SECANT_STEPS`, to tol with and without): the steps, how
   far apart the starts' results are, and the error (from the run without the stage's pose, where
   the tracker starts the stage) over the Cramér–Rao bound at this size
-  (:func:`core.studies.tracking.acceptance.cramer_rao`). The secant's θ carried from frame to frame
-  as the tracker's engine carries it (each start of a frame from the θ the frame before left).
+  (:func:`core.studies.tracking.acceptance.cramer_rao`), and the θ the secant rule's refinements
+  ended with (a frame's first refinement starts at 1, its robust round from the first's θ).
 
 Measured: :mod:`core.tracking.likelihood_steps`' docs (the cause) and the README paragraph after
 "What the stage leaves on seed 4" (``resources/benchmarks/tracking_stage_contraction_cpu.json``).
@@ -43,6 +43,12 @@ RULES = {"fewer": (False, False), "secant": (True, False), "exact": (False, True
 #: noisy frame and the model renderer's own (``self``)
 CAUSE_KINDS = ("bones", "bones+tissue", "all", "all/blur", "all/full", "noisy", "self")
 FRAMES = tuple(range(5, 100, 10))
+#: the ``frames`` part's starts: the truth, the stored runs' poses (``none``, ``stage``) and this
+#: size's similarity optimum from the run without the stage's pose (``similarity``:
+#: :func:`~core.studies.tracking.stage_residue.similarity`, a registration a frame). The error is
+#: that from ``similarity`` where it is run, else from ``none`` (the 1024² similarity's pose, whose
+#: noise is not this frame's: a stop part-way to the stage's optimum keeps some of it)
+STARTS = ("truth", "none", "stage")
 
 
 @contextmanager
@@ -135,25 +141,23 @@ def _kind_frame(ts, f: int, b: int, kind: str):
     return prepare_frame(component_frames(ts, f, (kind,))[kind])
 
 
-def _theta_of(ts, value: float | None = None) -> float:
-    """The θ the renderer's stage engines carry (set to ``value`` first where given)."""
+def _theta_of(ts) -> float:
+    """The θ the renderer's stage engine (the last used: one bone at a time) ended with."""
     import core.tracking.engine_likelihood as el
 
     engines = list(el._CACHE.get(ts.renderer, {}).values())
-    if value is not None:
-        for e in engines:
-            e._theta = float(value)
-    return float(engines[0]._theta) if engines else 1.0
+    return float(getattr(engines[-1], "_theta", 1.0)) if engines else 1.0
 
 
 def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("cause", "frames"),
         bones=("tibia", "talus", "calcaneus"), frames=FRAMES, cause=("calcaneus", 30), rules=tuple(RULES),
-        device: str | None = "cpu", checkpoint=None) -> dict:
+        starts=STARTS, device: str | None = "cpu", checkpoint=None) -> dict:
     """The study (module docs); returns the JSON-ready results."""
     from core.studies.tracking.acceptance import TrackingScene, cramer_rao, pose_errors
-    from core.studies.tracking.stage_residue import RUNS, _frames_of, stage_from, stored_poses
+    from core.studies.tracking.stage_residue import RUNS, _frames_of, similarity, stage_from, stored_poses
 
     t0 = time.perf_counter()
+    start_set = tuple(starts)
     ts = TrackingScene(n_frames=100, pixels=pixels, spacing=voxel, seed=seed, device=device,
                        correction="grid", phase=(0.0, 0.6))
     hp = 4.0 * pixels / 1024
@@ -181,36 +185,38 @@ def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("cause",
             save()
     if "frames" in parts:
         res = out["frames"] = {}
+        ref = "similarity" if "similarity" in start_set else "none"  # (the tracker's start)
         bound = cramer_rao(ts, frames)
         out["cramer_rao"] = bound
         for nm in bones:
             b = ts.names.index(nm)
             c = ts.models[b].centroid
-            rows, carry = [], 1.0
+            rows = []
             for f in frames:
                 if f not in stored["none"].get(nm, {}):
                     continue
                 fr = _frames_of(ts, f, b, "noisy")
                 starts = {"truth": ts.truth(f)[b],
                           **{k: p[nm][f] for k, p in stored.items() if f in p.get(nm, {})}}
+                if "similarity" in start_set:  # (this size's similarity optimum, the stage's start)
+                    starts["similarity"] = similarity(ts, fr, f, b, stored["none"][nm][f])
+                starts = {k: v for k, v in starts.items() if k in start_set}
                 row = {"frame": f, "start_error": {k: pose_errors(P0, ts.truth(f)[b], c).round(4).tolist()
                                                    for k, P0 in starts.items()}}
-                nxt = carry
+                theta = None
                 for rule in rules:
                     sec, exact = RULES[rule]
                     r = {}
                     with secant_steps(sec):
                         for k, P0 in starts.items():
-                            _theta_of(ts, carry)  # (each start from the θ the frame before left)
                             r[k] = stage_from(ts, fr, f, b, P0, highpass_px=hp, exact=exact)
-                            if sec and not exact and k == "none":
-                                nxt = _theta_of(ts)
+                            if sec and not exact and k == ref:
+                                theta = round(_theta_of(ts), 3)
                     E = np.array([r[k]["error"] for k in starts])
                     row[rule] = {"steps": {k: r[k]["steps"] for k in starts},
                                  "error": {k: r[k]["error"] for k in starts},
                                  "spread": (E.max(0) - E.min(0)).round(4).tolist()}
-                row["theta_carried"] = round(carry, 3)
-                carry = nxt
+                row["theta"], row["reference"] = theta, ref
                 rows.append(row)
                 res[nm] = {"rows": rows, "summary": _summary(rows, rules, bound.get(nm))}
                 save()
@@ -219,21 +225,22 @@ def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("cause",
 
 
 def _summary(rows: list, rules, bound: dict | None) -> dict:
-    """Per rule: steps a bone-frame (mean over frames and starts, and from the run without the
-    stage's pose), the starts' spread (RMS over frames per axis, the largest in mm), the error
-    from the run without the stage's pose (RMS mm, degrees) and over the bound."""
+    """Per rule: steps a bone-frame (mean over frames and starts, and from the reference start:
+    :data:`STARTS`), the starts' spread (RMS over frames per axis, the largest in mm; where more than
+    one start), the error from the reference start (RMS mm, degrees) and over the bound."""
     out = {}
     for rule in rules:
         R = [r[rule] for r in rows if rule in r]
         if not R:
             continue
         S = np.array([r["spread"] for r in R])
-        E = np.array([r["error"]["none"] for r in R])
+        ref = rows[0].get("reference", "none")
+        E = np.array([r["error"][ref] for r in R])
         mm = float(np.sqrt(np.mean(np.sum(E[:, :3] ** 2, axis=1))))
         deg = float(np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, axis=1))))
         steps = [v for r in R for v in r["steps"].values()]
         d = {"frames": len(R), "steps_mean": round(float(np.mean(steps)), 2),
-             "steps_from_none": round(float(np.mean([r["steps"]["none"] for r in R])), 2),
+             "steps_from_reference": round(float(np.mean([r["steps"][ref] for r in R])), 2),
              "spread_rms": np.sqrt((S ** 2).mean(0)).round(4).tolist(),
              "spread_max_mm": round(float(S[:, :3].max()), 4),
              "error_rms_mm": round(mm, 4), "error_rms_deg": round(deg, 4)}
@@ -253,12 +260,14 @@ def main(argv=None) -> int:
     p.add_argument("--bones", default="tibia,talus,calcaneus")
     p.add_argument("--frames", default=",".join(map(str, FRAMES)))
     p.add_argument("--rules", default=",".join(RULES))
+    p.add_argument("--starts", default=",".join(STARTS))
     p.add_argument("--device", default="cpu")
     cli.add_output(p)
     a = p.parse_args(argv)
     res = run(seed=a.seed, pixels=a.pixels, voxel=a.voxel, parts=tuple(cli.names(a.parts)),
               bones=tuple(cli.names(a.bones)), frames=tuple(cli.ints(a.frames)),
-              rules=tuple(cli.names(a.rules)), device=a.device, checkpoint=cli.checkpoint(a))
+              rules=tuple(cli.names(a.rules)), starts=tuple(cli.names(a.starts)), device=a.device,
+              checkpoint=cli.checkpoint(a))
     return cli.finish(res, a)
 
 

@@ -115,3 +115,6 @@ def test_secant_scale_is_clipped_resolved_and_carried():
     small.step({"JJ": H, "Jr": np.zeros(6)}, np.zeros(6), 1.0)  # (uᵀHu below 0.01 χ²/N: not measured)
     assert small.theta == 0.7
     assert SecantScale(float("nan")).theta == 1.0
+    o2 = Owner()
+    fresh = SecantScale(o2, theta=1.0)  # (a frame's first refinement: from 1, the owner's from here)
+    assert fresh.theta == 1.0 and o2._theta == 1.0

@@ -104,6 +104,16 @@ def limits_ahead(checks: list, o: TrackingOptions, frame_number: int) -> Callabl
     return idle
 
 
+def _final_stage_of(renderer, frame, res, index: int, base, center, opts: RegistrationOptions, others):
+    """``res`` (a registration without its final stage: the restart check's, whose ``x`` is relative to
+    ``base``, the checked pose) through the final stage of ``opts``, as :func:`~core.tracking.register.
+    register` ends a registration with one."""
+    from .final_stage import final_stage
+
+    return final_stage(renderer, frame, res, bone=index, initial_pose=base, center=center, options=opts,
+                       views=tuple(range(frame.n_views)), others=others)
+
+
 def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess, opts: RegistrationOptions,
                      o: TrackingOptions, good_scores, others, cancel, history, *, verify: bool = False,
                      start_score: float | None = None, seed: int = 0, pre=None,
@@ -183,6 +193,7 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
     notes = []
     chk = None
     if (verify or retried) and o.verify_restarts and not cancelled():
+        checked = res
         try:
             chk = verify_start(renderer, frame, bone=index, result=res, center=c, options=o.registration,
                                n=o.verify_restarts, spread=o.verify_spread, seed=seed, others=others,
@@ -202,6 +213,14 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                         best = r2
                 except OutsideViewError:
                     pass
+                if best is chk.result and opts.final is not None and "likelihood_taken" not in best.timing:
+                    # the restarts are searches only: the kept one through the final stage, as every
+                    # registration of opts ends (else the frame keeps a pose no stage refined)
+                    best = _final_stage_of(renderer, frame, best, index, checked.pose, c, opts, others)
+                    evals += best.evaluations - chk.result.evaluations
+                    for k in ("likelihood_s", "likelihood_setup_s", "likelihood_steps", "likelihood_renders"):
+                        if k in best.timing:
+                            timing[k] = timing.get(k, 0) + best.timing[k]
                 res = best
                 flags = _failures(res, guess, c, good_scores, o, start_score=start_score,
                                   jump_factor=o.retry_factor * jump, **more)

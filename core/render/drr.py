@@ -392,8 +392,8 @@ class DRRRenderer:
             wp.synchronize_event(event)
         host_np[...] = table
         wp.copy(items, host)
-        if event is not None:
-            wp.record_event(event)
+        if event is not None:  # (on the stream the copy went on: the device's own, not the current device's)
+            dev.stream.record_event(event)
         for cmd in cmds:
             cmd.set_param_at_index(2, float(scale))
         run_parallel(cmds)

@@ -2,7 +2,8 @@
 its result (the restarts are searches only: joint.restarts_together runs no final stage), that result goes
 through the final stage as every other registration the frame keeps — not a pose no stage refined, with the
 earlier attempts' stage time in its timing and no stage outcome (ideal 128² talus, Warp's CPU device; the
-restart check replaced by one whose better optimum is the search's pose without a stage)."""
+restart check replaced by one whose better optimum is the search's pose without a stage, the wider search
+from it by one that scores lower)."""
 
 from __future__ import annotations
 
@@ -29,20 +30,27 @@ def test_a_restart_kept_goes_through_the_final_stage(talus_scene, monkeypatch):
     search = register(r, frame, bone=0, initial_pose=start, center=model.centroid,
                       options=replace(opts, final=None))  # (the restarts' kind: no stage)
     assert "likelihood_taken" not in search.timing
-    better = replace(search, score=search.score + 1.0)  # (beats the wider search from it: kept)
-    checked = []
+    better = replace(search, score=search.score + 1.0)
+    checked, wider = [], []
 
     def restarts(*a, **k):
         checked.append(k["result"])
         return StartCheck(better, True, False, (better.score,), ((0.0, 0.0),), 7)
 
+    def wider_search(*a, **k):
+        wider.append(k["options"].search)
+        return replace(search, score=search.score - 1.0)  # (the restart stays the better)
+
     monkeypatch.setattr(at, "verify_start", restarts)
-    a = at.register_checked(r, frame, model, 0, start, start, opts, o, [], None, None, [], verify=True)
-    assert checked and "start corrected by restarts" in a.notes
+    monkeypatch.setattr(at, "register", wider_search)
+    a = at.register_checked(r, frame, model, 0, start, start, opts, o, [], None, None, [], verify=True,
+                            pre=(search, 0.0))
+    assert checked and wider == ["global_newton"] and "start corrected by restarts" in a.notes
     t = a.result.timing
     assert t.get("likelihood_taken") in (0, 1)  # the stage ran on the kept restart
     if t["likelihood_taken"]:
         assert isinstance(a.result.fit, LikelihoodFit)
         np.testing.assert_array_equal(a.result.fit.similarity.pose, better.pose)
-    assert a.result.evaluations > better.evaluations  # (its renders counted)
-    assert a.evaluations >= a.result.evaluations - better.evaluations + 7  # (the stage in the attempt)
+    stage = a.result.evaluations - better.evaluations
+    assert stage > 0 and a.evaluations >= stage + 7  # (its renders counted, in the attempt's work too)
+    assert a.timing["likelihood_s"] > 0

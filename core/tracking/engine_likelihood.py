@@ -152,12 +152,12 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
 from .likelihood_launches import _Launches
 from .likelihood_solve import solve_moments
 from .likelihood_state import _EngineState
-from .likelihood_steps import StepClock, run_side_by_side, run_steps
+from .likelihood_steps import SecantScale, StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 from .likelihood_weights import _RegionWeights
 
-__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "MOMENTS_TRI", "STEP_GRAPH", "STOP_CONTRACT",
-           "STOP_PRED", "UPHILL_RESOLVED",
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "MOMENTS_TRI", "SECANT_STEPS", "STEP_GRAPH",
+           "STOP_CONTRACT", "STOP_PRED", "UPHILL_RESOLVED",
            "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device", "run_side_by_side",
            "run_steps", "solve_moments"]
 
@@ -232,6 +232,11 @@ STOP_PRED = 4.0
 #: (:mod:`core.studies.tracking.stage_residue`). Not on by default: at 1024² the stage before the
 #: fewer steps (to tol or five steps) left those calcaneus frames as far off. None: STOP_PRED alone.
 STOP_CONTRACT: float | None = None
+#: A refinement's steps lengthened by the χ² curvature measured along the step before: the same fixed
+#: point in fewer steps where the frame is blurrier than the DRR (:class:`~.likelihood_steps.SecantScale`,
+#: a frame's first refinement from θ 1; measured: core.studies.tracking.stage_contraction). Off: as first
+#: measured.
+SECANT_STEPS = True
 #: Inside :func:`core.tracking.final_stage.confirm_move`'s second run: refinements to ``tol`` (no
 #: :data:`STOP_PRED` stop; the robust round from the first refinement's result)
 TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
@@ -510,6 +515,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         best, n_it, pred, last = None, 0, 0.0, None
         fast, self._fast = getattr(self, "_fast", False), False  # (STOP_CONTRACT: the refinement before)
+        sec = SecantScale(self, theta=None if reuse else 1.0) if SECANT_STEPS else None  # (reuse: its θ)
         for it in range(1, int(iters) + 1):
             n_it = it
             prev = pred if it > 1 else None  # the step before's predicted decrease
@@ -525,6 +531,8 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
                 break
             best = last = (x.copy(), s)
             delta = _LS.solve6(s["JJ"], s["Jr"])
+            if sec is not None:  # (lengthened by the curvature measured along the steps before: SECANT_STEPS)
+                delta = sec.step(s, delta, share)
             pred = float(s["Jr"] @ delta)  # the step's predicted decrease of χ²
             x = x + delta
             small = pred < STOP_PRED * share and not TO_TOL.get()

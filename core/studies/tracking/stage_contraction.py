@@ -12,6 +12,10 @@ stored 1024² runs' poses as starts):
   ``tol`` (:func:`gauss_newton`), how much each is of the one before, and per pose axis the slope
   of ``JᵀWr`` over ±0.05 mm / ° about the end against ``JᵀWJ``'s diagonal (θ: 1 where the
   curvature is Gauss–Newton's; :func:`curvature_ratios`);
+* ``psf`` — the ``cause`` frame's whole chain (noise-free) and noisy frame with the DRR blurred by
+  the PSF estimated from synthetic pinhole frames (:func:`core.studies.tracking.bound_gap.
+  estimated_psf`, what a lab measures) and by Gaussians of its σ times :data:`PSF_WIDTHS`: whether
+  a PSF brings θ to 1;
 * ``frames`` — per bone, frames over the trial, the stage as the tracker runs it
   (:func:`core.studies.tracking.stage_residue.stage_from`) from the truth and the stored runs'
   poses under each rule of :data:`RULES` (the fewer steps with and without
@@ -36,13 +40,17 @@ from core.studies.tracking import _study_cli as cli
 
 __all__ = ["RULES", "curvature_ratios", "gauss_newton", "main", "run", "secant_steps"]
 
-#: the ``frames`` part's rules: label -> (engine_likelihood.SECANT_STEPS, to tol)
-RULES = {"fewer": (False, False), "secant": (True, False), "exact": (False, True),
-         "exact_secant": (True, True)}
+#: the ``frames`` part's rules: label -> (engine_likelihood.SECANT_STEPS, to tol, the DRR blurred by the
+#: PSF estimated from pinhole frames: ``psf`` part)
+RULES = {"fewer": (False, False, False), "secant": (True, False, False), "exact": (False, True, False),
+         "exact_secant": (True, True, False), "psf": (False, False, True), "psf_exact": (False, True, True)}
 #: the ``cause`` part's frames of the image's parts (stage_limits.COMPONENTS' names), then the
 #: noisy frame and the model renderer's own (``self``)
 CAUSE_KINDS = ("bones", "bones+tissue", "all", "all/blur", "all/full", "noisy", "self")
 FRAMES = tuple(range(5, 100, 10))
+#: the ``psf`` part's frames and the Gaussian PSFs' widths over the estimated PSF's σ (second moment)
+PSF_KINDS = ("all/full", "noisy")
+PSF_WIDTHS = (1.0, 1.2, 1.5, 2.0)
 #: the ``frames`` part's starts: the truth, the stored runs' poses (``none``, ``stage``) and this
 #: size's similarity optimum from the run without the stage's pose (``similarity``:
 #: :func:`~core.studies.tracking.stage_residue.similarity`, a registration a frame). The error is
@@ -66,9 +74,9 @@ def secant_steps(on: bool):
         el.SECANT_STEPS = saved
 
 
-def _engine(ts, frame, f: int, b: int, base, hp: float):
+def _engine(ts, frame, f: int, b: int, base, hp: float, psf=None):
     """The stage's engine of bone ``b`` set on ``frame`` about ``base`` as
-    :func:`~core.studies.tracking.stage_residue.stage_from` sets it."""
+    :func:`~core.studies.tracking.stage_residue.stage_from` sets it (``psf``: its DRRs blurred by it)."""
     import core.tracking.final_stage as fst
     from core.studies.tracking.acceptance import study_options
     from core.tracking.cost import search_roi, snap_roi
@@ -81,7 +89,7 @@ def _engine(ts, frame, f: int, b: int, base, hp: float):
     oth = [k for k in range(len(ts.names)) if k != b]
     _, hpb = fst.MODEL.for_bone(b, o.final_highpass_px)
     eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=hpb, lag_px=o.final_lag_px,
-                                others_gain=o.final_others_gain)
+                                others_gain=o.final_others_gain, psf=psf)
     eng.set_frame(frame, base_pose=base, center=m.centroid, roi=roi, others=(P[oth], oth))
     return eng
 
@@ -141,6 +149,23 @@ def _kind_frame(ts, f: int, b: int, kind: str):
     return prepare_frame(component_frames(ts, f, (kind,))[kind])
 
 
+_PSF: dict = {}
+
+
+def _estimated_psf(ts) -> tuple:
+    """The PSF estimated from view 0's synthetic pinhole frames (unit sum; kept per scene) and its σ
+    (second moment, pixels)."""
+    from core.studies.tracking.bound_gap import estimated_psf
+
+    hit = _PSF.get(id(ts))
+    if hit is None:
+        est = np.asarray(estimated_psf(ts)[0], dtype=float)
+        est = est / est.sum()
+        r = np.arange(est.shape[0]) - est.shape[0] // 2
+        hit = _PSF[id(ts)] = (est, float(np.sqrt((est * (r[:, None] ** 2 + r[None, :] ** 2)).sum() / 2.0)))
+    return hit
+
+
 def _theta_of(ts) -> float:
     """The θ the renderer's stage engine (the last used: one bone at a time) ended with."""
     import core.tracking.engine_likelihood as el
@@ -183,6 +208,25 @@ def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("cause",
                                                   ts.models[b].centroid).round(4).tolist()})
             out["cause"] = {"bone": nm, "frame": f, "start": "stage", "rows": rows}
             save()
+    if "psf" in parts:  # the DRR blurred by the PSF estimated from pinhole frames, and wider
+        from core.imaging.psf import gaussian_psf
+
+        nm, f = cause
+        b = ts.names.index(nm)
+        est, s_est = _estimated_psf(ts)
+        rows = []
+        for kind in PSF_KINDS:
+            fr = _kind_frame(ts, f, b, kind)
+            for label, k in (("none", None), ("estimated", est),
+                             *((f"gaussian x{w:g}", gaussian_psf(w * s_est)) for w in PSF_WIDTHS)):
+                eng = _engine(ts, fr, f, b, stored["stage"][nm][f], hp, psf=k)
+                g = gauss_newton(eng)
+                rows.append({"kind": kind, "psf": label, **{q: v for q, v in g.items() if q != "x"},
+                             **curvature_ratios(eng, g["x"]),
+                             "end_error": pose_errors(eng.poses(g["x"][None])[0], ts.truth(f)[b],
+                                                      ts.models[b].centroid).round(4).tolist()})
+                out["psf"] = {"bone": nm, "frame": f, "estimated_sigma_px": round(s_est, 3), "rows": rows}
+                save()
     if "frames" in parts:
         res = out["frames"] = {}
         ref = "similarity" if "similarity" in start_set else "none"  # (the tracker's start)
@@ -205,11 +249,12 @@ def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("cause",
                                                    for k, P0 in starts.items()}}
                 theta = None
                 for rule in rules:
-                    sec, exact = RULES[rule]
+                    sec, exact, blur = RULES[rule]
                     r = {}
                     with secant_steps(sec):
                         for k, P0 in starts.items():
-                            r[k] = stage_from(ts, fr, f, b, P0, highpass_px=hp, exact=exact)
+                            r[k] = stage_from(ts, fr, f, b, P0, highpass_px=hp, exact=exact,
+                                              psf=_estimated_psf(ts)[0] if blur else None)
                             if sec and not exact and k == ref:
                                 theta = round(_theta_of(ts), 3)
                     E = np.array([r[k]["error"] for k in starts])

@@ -139,12 +139,13 @@ HIGHPASS_FRAMES = tuple(range(4, 100, 8))
 
 
 def stage_from(ts, frame, f: int, b: int, base, *, highpass_px: float, others: bool = True,
-               exact: bool = False, pose: bool = False) -> dict:
+               exact: bool = False, pose: bool = False, psf=None) -> dict:
     """The final stage of bone ``b`` in ``frame`` (prepared) from pose ``base`` as
     :func:`core.tracking.final_stage.final_stage_steps` runs it (region about ``base``, the default
     :data:`~core.tracking.final_stage.MODEL`), the other bones at their true poses subtracted
     (``others``); its error against the truth (mm, degrees), the move (``d``: mm, degrees), the
-    sandwich σ and with the move (``"sandwich+move"``) and the steps."""
+    sandwich σ and with the move (``"sandwich+move"``) and the steps. ``psf``: the stage's DRRs
+    blurred by it (:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s ``psf``)."""
     import core.tracking.final_stage as fst
     from core.studies.tracking.acceptance import pose_errors, study_options
     from core.tracking.cost import search_roi, snap_roi
@@ -161,7 +162,7 @@ def stage_from(ts, frame, f: int, b: int, base, *, highpass_px: float, others: b
     oth = [k for k in range(len(ts.names)) if k != b]
     model, hp = fst.MODEL.for_bone(b, o.final_highpass_px)
     eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=hp, lag_px=o.final_lag_px,
-                                others_gain=o.final_others_gain)
+                                others_gain=o.final_others_gain, psf=psf)
     eng.set_frame(frame, base_pose=base, center=m.centroid, roi=roi, others=(P[oth], oth) if others else None)
     with exact_steps(exact):
         r = fst._refine(eng, o, model)

@@ -38,13 +38,20 @@ PIPELINED_STAGES = True
 
 def applies(jobs) -> bool:
     """Whether :func:`run_pipelined` gives what the searches then ``final_stages`` give: the switch
-    on, the module's own ``final_stages`` and ``final_stage`` (no study's wrapper, no searched-pose
-    switch installed), every job's bone its own."""
+    on, the module's own ``final_stages`` and ``final_stage`` (no study's wrapper; the searched-pose
+    switch of :mod:`core.tracking.joint_stage` off here — its wrapper, once installed, stays for the
+    process and passes the calls on unchanged while off), every job's bone its own."""
     if not PIPELINED_STAGES:
         return False
     from . import final_stage as fst
 
     f = fst.final_stages
+    if getattr(f, "_searched_switch", False):  # joint_stage's wrapper: on in this context, every search first
+        from .joint_stage import _ON
+
+        if _ON.get():
+            return False
+        f = getattr(f, "_plain", f)
     return (fst.final_stage is fst._PLAIN_FINAL_STAGE and getattr(f, "__module__", None) == fst.__name__
             and getattr(f, "__qualname__", None) == "final_stages"
             and len({int(j.bone) for j in jobs}) == len(jobs))

@@ -76,6 +76,7 @@ def _install() -> None:
 
         final_stages.__doc__ = plain.__doc__
         final_stages._searched_switch = True
+        final_stages._plain = plain  # (off, the calls pass to it unchanged: joint_pipeline.applies)
         fst.final_stages = final_stages
 
 

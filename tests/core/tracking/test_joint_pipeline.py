@@ -87,3 +87,23 @@ def test_pipelined_fallback_to_half_resolution(talus_calcaneus_128, monkeypatch)
     on = _track(talus_calcaneus_128, monkeypatch, True)
     assert n > 0 and sum(tried) == 2 * n  # (the fallbacks, as many either way)
     _same(off, on)
+
+
+def test_the_pipeline_after_the_searched_pose_switch_was_used(talus_calcaneus_128, monkeypatch):
+    """joint_stage installs its switch's wrapper of final_stages once for the process; outside the switch
+    the wrapper passes the calls on unchanged, so the pipeline applies there as before the switch was first
+    used (it stayed off for the rest of the process), and not inside the switch."""
+    import core.tracking.final_stage as fst
+    import core.tracking.joint_pipeline as jp
+    from core.tracking.joint_stage import searched_stages
+
+    monkeypatch.setattr(fst, "final_stages", fst.final_stages)  # (the switch's wrapper taken off after)
+    used = []
+    real = jp.run_pipelined
+    monkeypatch.setattr(jp, "run_pipelined", lambda *a, **k: used.append(1) or real(*a, **k))
+    jobs = [type("Job", (), {"bone": b})() for b in (0, 1)]
+    with searched_stages(True):
+        assert fst.final_stages._searched_switch and not jp.applies(jobs)
+    assert jp.applies(jobs)  # the switch off: its wrapper is the module's own final_stages
+    _track(talus_calcaneus_128, monkeypatch, True)
+    assert used

@@ -234,9 +234,12 @@ STOP_PRED = 4.0
 STOP_CONTRACT: float | None = None
 #: A refinement's steps lengthened by the χ² curvature measured along the step before: the same fixed
 #: point in fewer steps where the frame is blurrier than the DRR (:class:`~.likelihood_steps.SecantScale`,
-#: a frame's first refinement from θ 1; measured: core.studies.tracking.stage_contraction). Off: as first
-#: measured.
-SECANT_STEPS = True
+#: a frame's first refinement from θ 1; measured: core.studies.tracking.stage_contraction). Off by
+#: default: on one NVIDIA H100 at 1024² (the acceptance study at d262386, seeds 0, 3, 4) it left the
+#: errors over the bound a little worse in five of the six seed-modes (seed 4's tibia rotation better,
+#: 1.86 → 1.80×; its calcaneus translation 1.86 → 1.92×, one more frame over 4× unflagged) for more
+#: evaluations (52.6 → 52.99 a frame, one bone).
+SECANT_STEPS = False
 #: Inside :func:`core.tracking.final_stage.confirm_move`'s second run: refinements to ``tol`` (no
 #: :data:`STOP_PRED` stop; the robust round from the first refinement's result)
 TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)

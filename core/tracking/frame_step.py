@@ -509,7 +509,9 @@ def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
     """Joint tracking with ``contact``: when bone ``i``'s registered pose comes closer than the
     margin to a neighbour registered in this frame (``placed``: (index, pose)), polish it under
     the interpenetration penalty of :mod:`core.tracking.contact` (``a`` is updated in place: pose,
-    score, confidence, work, a note with the depth resolved)."""
+    score, confidence, work, a note with the depth resolved). The polish re-optimises the similarity: a
+    pose the final stage refined is then not the stage's (its outcome ``likelihood_taken`` 0, said in the
+    note)."""
     from .contact import penetration_depths, polish_with_contact
 
     o = run.options
@@ -528,6 +530,9 @@ def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
     except OutsideViewError:
         return
     a.result = _replace(a.result, pose=P, score=score, fit=fit)
+    staged = bool((a.result.timing or {}).get("likelihood_taken"))
+    if staged:  # (the polish moved the final stage's pose: the stage ran, its pose is not the one kept)
+        a.result = _replace(a.result, timing={**a.result.timing, "likelihood_taken": 0})
     a.evaluations += evals
     dt = time.perf_counter() - t0
     a.time_s += dt
@@ -535,7 +540,8 @@ def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
         a.timing["other_s"] = a.timing.get("other_s", 0.0) + dt
     if o.confidence and fit is not None:
         a.confidence = confidence_of(fit, o)
-    a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm")
+    a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm"
+               + ("; the final stage's pose polished with the similarity" if staged else ""))
 
 
 def _moved_around(todo: list[int], before: dict, current: dict, out: dict, bones) -> list[int]:

@@ -36,7 +36,7 @@ shared; ratios to the known-tissue bound, mm / °, tibia, talus, calcaneus):
   information where no smooth field reaches. So only the 1024², 0.5 mm runs (frames 0, 20, …,
   80) re-express the stored runs.
 * At 1024², 0.5 mm, seeds 0 / 3 / 4: d = 18.8 mm 1.03–1.07 / 1.01–1.04; 9.4 mm 1.06–1.12 /
-  1.04–1.08; 4.7 mm 1.13–1.33 / 1.12–1.17 (the tibia's translation highest, 1.31–1.33); the
+  1.04–1.08; 4.7 mm 1.13–1.32 / 1.12–1.17 (the tibia's translation highest, 1.31–1.32); the
   stage's high-pass class 1.22–1.54 / 1.21–1.28.
 * The true tissue's bias over each model's own bound (RMS over frames): 18.8 mm 2.2–9.6×, 9.4 mm
   0.28–1.66× (over 1 for the tibia in every seed), 4.7 mm 0.10–0.59×, high-pass class 0.05–0.56×:

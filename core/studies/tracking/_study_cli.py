@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 
 __all__ = ["add_machine_name", "add_output", "add_scene", "checkpoint", "finish", "floats", "frame_done",
-           "header", "ints", "names", "parser"]
+           "header", "ints", "names", "parser", "write_stamped"]
 
 #: ``--bones``' help (and alike options': bone indices of the scene).
 BONES_HELP = "bone indices (default all)"
@@ -113,3 +113,20 @@ def finish(res: dict, a: argparse.Namespace, table: Callable[[dict], list[str]] 
         print("\n".join(table(res)), file=sys.stderr)
     print_json(res, a.out)
     return 0
+
+
+def write_stamped(path, module: str, argv: Sequence[str] | None, machine: str, res: dict) -> None:
+    """Write ``res`` to ``path`` (indented by one) after the run's stamp: ``study`` (``module``),
+    ``command`` (``python -m <module>`` and the arguments, ``argv`` or the process's), ``commit`` (the
+    checkout's short HEAD), ``machine`` and ``cpu_s`` (the process's CPU time so far) — the stored-run
+    studies' JSON (trajectory_pairs, trajectory_silent)."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[3]).stdout.strip()
+    args = sys.argv[1:] if argv is None else argv
+    Path(path).write_text(json.dumps({"study": module, "command": f"python -m {module} " + " ".join(args),
+                                      "commit": head, "machine": machine,
+                                      "cpu_s": round(time.process_time(), 1), **res}, indent=1) + "\n")

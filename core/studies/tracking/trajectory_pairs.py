@@ -181,17 +181,9 @@ def main(argv=None) -> int:
               f"{s['good_flagged_off']} -> {s['good_flagged_on']} of {s['good']}")
     print("stored trajectory flags reproduced:", got["reproduced"])
     if a.out:
-        import subprocess
-        import sys
-        import time
+        from ._study_cli import write_stamped
 
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).resolve().parents[3]).stdout.strip()
-        Path(a.out).write_text(json.dumps({"study": "core.studies.tracking.trajectory_pairs",
-                                           "command": "python -m core.studies.tracking.trajectory_pairs "
-                                                      + " ".join(sys.argv[1:] if argv is None else argv),
-                                           "commit": head, "machine": a.machine_name,
-                                           "cpu_s": round(time.process_time(), 1), **got}, indent=1) + "\n")
+        write_stamped(a.out, "core.studies.tracking.trajectory_pairs", argv, a.machine_name, got)
     return 0
 
 

@@ -199,3 +199,20 @@ def test_the_bound_studies_main_hands_run_its_choices_and_ends_as_the_others(
     text = capsys.readouterr().out
     assert json.loads(text) == json.loads(out.read_text()) == {
         "study": mod.__name__, "results": {}, "machine_name": "one CPU"}
+
+
+def test_write_stamped(tmp_path):
+    """The stored-run studies' JSON: the stamp (study, command, commit, machine, CPU time), then the
+    results."""
+    import json
+
+    from core.studies.tracking._study_cli import write_stamped
+
+    out = tmp_path / "r.json"
+    write_stamped(out, "core.studies.tracking.trajectory_pairs", ["--no-tune"], "m", {"x": 1})
+    got = json.loads(out.read_text())
+    assert list(got)[:5] == ["study", "command", "commit", "machine", "cpu_s"]
+    assert got["study"] == "core.studies.tracking.trajectory_pairs"
+    assert got["machine"] == "m" and got["x"] == 1
+    assert got["command"] == "python -m core.studies.tracking.trajectory_pairs --no-tune"
+    assert out.read_text().endswith("}\n") and '\n "x": 1' in out.read_text()

@@ -77,21 +77,11 @@ def secant_steps(on: bool):
 def _engine(ts, frame, f: int, b: int, base, hp: float, psf=None):
     """The stage's engine of bone ``b`` set on ``frame`` about ``base`` as
     :func:`~core.studies.tracking.stage_residue.stage_from` sets it (``psf``: its DRRs blurred by it)."""
-    import core.tracking.final_stage as fst
     from core.studies.tracking.acceptance import study_options
-    from core.tracking.cost import search_roi, snap_roi
+    from core.studies.tracking.stage_residue import stage_engine
 
     o = study_options("joint", final="likelihood", final_highpass_px=hp).registration
-    P, m = ts.truth(f), ts.models[b]
-    views = tuple(range(len(ts.scene.rig)))
-    roi = snap_roi(search_roi(ts.renderer, base, b, views=views, center=m.centroid, reach_mm=1.0,
-                              margin_px=o.margin_px), ts.renderer, views)
-    oth = [k for k in range(len(ts.names)) if k != b]
-    _, hpb = fst.MODEL.for_bone(b, o.final_highpass_px)
-    eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=hpb, lag_px=o.final_lag_px,
-                                others_gain=o.final_others_gain, psf=psf)
-    eng.set_frame(frame, base_pose=base, center=m.centroid, roi=roi, others=(P[oth], oth))
-    return eng
+    return stage_engine(ts, frame, b, base, o, ts.truth(f), psf=psf)
 
 
 def gauss_newton(eng, *, h: float = 0.05, tol: float = 1e-3, iters: int = 20) -> dict:

@@ -138,6 +138,28 @@ HIGHPASS_1024 = (4.0, 6.0, 8.0)
 HIGHPASS_FRAMES = tuple(range(4, 100, 8))
 
 
+def stage_engine(ts, frame, b: int, base, o, truth=None, *, psf=None):
+    """The final stage's engine of bone ``b`` set on ``frame`` (prepared) about pose ``base`` as
+    :func:`core.tracking.final_stage.final_stage_steps` sets it (region about ``base``, the default
+    :data:`~core.tracking.final_stage.MODEL`'s high-pass for the bone, registration options ``o``), the
+    other bones subtracted at their poses in ``truth`` (all bones' poses; None: none subtracted).
+    ``psf``: the stage's DRRs blurred by it."""
+    import core.tracking.final_stage as fst
+    from core.tracking.cost import search_roi, snap_roi
+
+    m = ts.models[b]
+    views = tuple(range(len(ts.scene.rig)))
+    roi = snap_roi(search_roi(ts.renderer, base, b, views=views, center=m.centroid, reach_mm=1.0,
+                              margin_px=o.margin_px), ts.renderer, views)
+    oth = [k for k in range(len(ts.names)) if k != b]
+    _, hp = fst.MODEL.for_bone(b, o.final_highpass_px)
+    eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=hp, lag_px=o.final_lag_px,
+                                others_gain=o.final_others_gain, psf=psf)
+    eng.set_frame(frame, base_pose=base, center=m.centroid, roi=roi,
+                  others=(truth[oth], oth) if truth is not None else None)
+    return eng
+
+
 def stage_from(ts, frame, f: int, b: int, base, *, highpass_px: float, others: bool = True,
                exact: bool = False, pose: bool = False, psf=None) -> dict:
     """The final stage of bone ``b`` in ``frame`` (prepared) from pose ``base`` as
@@ -148,22 +170,14 @@ def stage_from(ts, frame, f: int, b: int, base, *, highpass_px: float, others: b
     blurred by it (:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s ``psf``)."""
     import core.tracking.final_stage as fst
     from core.studies.tracking.acceptance import pose_errors, study_options
-    from core.tracking.cost import search_roi, snap_roi
 
     o = study_options("joint", final="likelihood", final_highpass_px=highpass_px).registration
     if exact:
         o = replace(o, final_iters=EXACT_ITERS)
-    P = ts.truth(f)
-    m = ts.models[b]
-    views = tuple(range(len(ts.scene.rig)))
+    P, m = ts.truth(f), ts.models[b]
     base = np.asarray(base, dtype=float)
-    roi = snap_roi(search_roi(ts.renderer, base, b, views=views, center=m.centroid, reach_mm=1.0,
-                              margin_px=o.margin_px), ts.renderer, views)
-    oth = [k for k in range(len(ts.names)) if k != b]
-    model, hp = fst.MODEL.for_bone(b, o.final_highpass_px)
-    eng = fst.likelihood_engine(ts.renderer, bone=b, views=views, highpass_px=hp, lag_px=o.final_lag_px,
-                                others_gain=o.final_others_gain, psf=psf)
-    eng.set_frame(frame, base_pose=base, center=m.centroid, roi=roi, others=(P[oth], oth) if others else None)
+    model, _ = fst.MODEL.for_bone(b, o.final_highpass_px)
+    eng = stage_engine(ts, frame, b, base, o, P if others else None, psf=psf)
     with exact_steps(exact):
         r = fst._refine(eng, o, model)
     d = np.asarray(r["x"], dtype=float)

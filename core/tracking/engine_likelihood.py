@@ -152,12 +152,12 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
 from .likelihood_launches import _Launches
 from .likelihood_solve import solve_moments
 from .likelihood_state import _EngineState
-from .likelihood_steps import SecantScale, StepClock, run_side_by_side, run_steps
+from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 from .likelihood_weights import _RegionWeights
 
-__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "MOMENTS_TRI", "SECANT_STEPS", "STEP_GRAPH",
-           "STOP_CONTRACT", "STOP_PRED", "UPHILL_RESOLVED",
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "MOMENTS_TRI", "STEP_GRAPH", "STOP_PRED",
+           "UPHILL_RESOLVED",
            "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device", "run_side_by_side",
            "run_steps", "solve_moments"]
 
@@ -219,27 +219,6 @@ MOMENTS_CHUNK: int | None = None
 #: tracker's optimum: the next step is 1-10 % of this one's length; module docs: Fewer steps).
 #: 0: only ``tol`` (1e-3 mm and degrees, far below σ) or an uphill step ends it, as first measured.
 STOP_PRED = 4.0
-#: Opt-in: :data:`STOP_PRED`'s stop needs the step to have contracted: its predicted decrease at most
-#: this fraction of the step's before it (Gauss–Newton converging fast, the rest of the way a small
-#: part of this step), or, a refinement's first step, the engine's refinement before it in the frame
-#: (the robust round's: the first refinement) to have ended converged. Where Gauss–Newton converges
-#: slowly (a weak direction: the calcaneus along lab x on held-out seed 4 at 512² on a 2-core CPU,
-#: each step 0.5-0.9 of the one before) a step below STOP_PRED left the pose up to 0.074 mm short of
-#: the stage's optimum, on the side it started from; with 0.1 the three starts' results (the truth, the
-#: tracked poses with and without the stage at 1024²) fell within 0.004-0.005 mm of each other on
-#: frames 30 and 53 but not 72 (0.060 mm: a crawl of 0.002 mm steps after a contracted one; to tol,
-#: 0.003 mm), for 3.9 steps a talus frame instead of 3.0 (frames 53-70, errors unchanged)
-#: (:mod:`core.studies.tracking.stage_residue`). Not on by default: at 1024² the stage before the
-#: fewer steps (to tol or five steps) left those calcaneus frames as far off. None: STOP_PRED alone.
-STOP_CONTRACT: float | None = None
-#: A refinement's steps lengthened by the χ² curvature measured along the step before: the same fixed
-#: point in fewer steps where the frame is blurrier than the DRR (:class:`~.likelihood_steps.SecantScale`,
-#: a frame's first refinement from θ 1; measured: core.studies.tracking.stage_contraction). Off by
-#: default: on one NVIDIA H100 at 1024² (the acceptance study at d262386, seeds 0, 3, 4) it left the
-#: errors over the bound a little worse in five of the six seed-modes (seed 4's tibia rotation better,
-#: 1.86 → 1.80×; its calcaneus translation 1.86 → 1.92×, one more frame over 4× unflagged) for more
-#: evaluations (52.6 → 52.99 a frame, one bone).
-SECANT_STEPS = False
 #: Inside :func:`core.tracking.final_stage.confirm_move`'s second run: refinements to ``tol`` (no
 #: :data:`STOP_PRED` stop; the robust round from the first refinement's result)
 TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
@@ -275,7 +254,6 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         Raises :class:`~core.tracking.cost.OutsideViewError` for a region without usable pixels
         (on the device path at the next :meth:`step`'s synchronisation)."""
         t0 = time.perf_counter()
-        self._fast = False  # (no refinement of this frame yet: STOP_CONTRACT)
         self._frame_work = None  # (the recorded step of the last frame: _step_work)
         self.base = np.asarray(base_pose, dtype=float)
         self.center = np.asarray(center, dtype=float)
@@ -517,11 +495,8 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         best, n_it, pred, last = None, 0, 0.0, None
-        fast, self._fast = getattr(self, "_fast", False), False  # (STOP_CONTRACT: the refinement before)
-        sec = SecantScale(self, theta=None if reuse else 1.0) if SECANT_STEPS else None  # (reuse: its θ)
         for it in range(1, int(iters) + 1):
             n_it = it
-            prev = pred if it > 1 else None  # the step before's predicted decrease
             self.step_launch(x, hv, reuse=reuse and it == 1, chord=it > 1)
             yield
             s = self.step_result()
@@ -534,15 +509,10 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
                 break
             best = last = (x.copy(), s)
             delta = _LS.solve6(s["JJ"], s["Jr"])
-            if sec is not None:  # (lengthened by the curvature measured along the steps before: SECANT_STEPS)
-                delta = sec.step(s, delta, share)
             pred = float(s["Jr"] @ delta)  # the step's predicted decrease of χ²
             x = x + delta
             small = pred < STOP_PRED * share and not TO_TOL.get()
-            if small and STOP_CONTRACT is not None:  # and contracted (the rest of the way a small part of it)
-                small = pred <= STOP_CONTRACT * prev if prev is not None else fast
             if rose or np.all(np.abs(delta) < tv) or small:
-                self._fast = True
                 break  # (risen after a step the data do not resolve, or a step below STOP_PRED: converged)
         out = {"x": x, "chi2": best[1]["chi2"] if best else np.nan, "iterations": n_it,
                "design": last}  # (the last design's centre and its step, where the result stepped from it)

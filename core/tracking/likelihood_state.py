@@ -70,7 +70,6 @@ class _EngineState:
         self._y_raw = self._o_raw = None
         self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
         self._last = None  # the last step's (images, low-passed images, x, h)
-        self._theta = 1.0  # the last refinement's curvature over Gauss–Newton's (SecantScale)
         self._diff = 0  # its images in design_diff_kernel's layout (DIFF_IMAGES)
         self._tri = False  # its table summed on and above the diagonal only (MOMENTS_TRI)
         self._pending = None  # the half-steps of the step launched and not yet taken (step_result)

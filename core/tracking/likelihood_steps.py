@@ -1,7 +1,6 @@
 """Running the likelihood final stage's step generators (:meth:`core.tracking.engine_likelihood.
 LikelihoodEngine.refine_steps`' kind: each yields where it would wait for the device): to their end,
-or several side by side so that one's host work overlaps the device's work on the others'; and the
-steps' secant length (:class:`SecantScale`, :data:`~core.tracking.engine_likelihood.SECANT_STEPS`).
+or several side by side so that one's host work overlaps the device's work on the others'.
 
 Why the steps are short (``python -m core.studies.tracking.stage_contraction``, this 2-core x86_64
 machine, shared; held-out seed 4 at 512², 1 mm): the frame is blurrier than the model — the
@@ -14,16 +13,17 @@ bones alone and 1.01-1.03 with the soft tissue and walkway (Gauss–Newton in 3-
 the one before), 0.78-0.91 through the blur and glare, 0.69-0.87 through the trial's whole chain,
 0.52-0.86 on the noisy frame (steps 0.6-0.7 of the one before; the weakest direction of ``JᵀWJ``
 0.57). The moments' arithmetic is right (``JᵀWJ`` and ``JᵀWr`` from the same differences: on a
-frame rendered by the model's renderer θ is 1.00 and the steps contract 0.02-0.17 a step)."""
+frame rendered by the model's renderer θ is 1.00 and the steps contract 0.02-0.17 a step). The steps
+lengthened by the secant θ measured along the step before (``SECANT_STEPS``, ae5c64b) and a stop that
+needed a contracted step (``STOP_CONTRACT``) were tried and removed: neither paid (README, *Why the
+stage's Gauss–Newton steps contract slowly* and *Speed and the goals at d262386*)."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Sequence
 
-import numpy as np
-
-__all__ = ["SecantScale", "StepClock", "run_side_by_side", "run_steps"]
+__all__ = ["StepClock", "run_side_by_side", "run_steps"]
 
 
 def run_steps(steps):
@@ -77,55 +77,3 @@ def run_side_by_side(steps: Sequence, clocks: Sequence[StepClock] | None = None)
         live = nxt
     return out
 
-
-class SecantScale:
-    """A Gauss–Newton refinement's steps lengthened by the χ² curvature measured along the last
-    one: after a step ``u`` from a design with ``JᵀWr = g₀`` and ``JᵀWJ = H`` to one with ``g₁``, the
-    secant ``θ = (g₀ - g₁)·u / uᵀHu`` is the curvature along ``u`` over Gauss–Newton's (1 where the
-    model is the frame's; module docs: 0.5-0.9 on the trial's blurred frames); the next step is
-    ``δ / θ`` (:attr:`factor`; the caller's predicted decrease is ``Jrᵀ`` of it). ``θ`` is measured
-    only on steps the data resolve (``uᵀHu`` at least ``min_share`` pixels' shares of χ², χ²/N) and
-    kept within ``[1 / max_factor, 1]``: a step is never shortened, and at most 1.6 times Gauss–
-    Newton's, so that a direction whose curvature is Gauss–Newton's (θ 1 there, the step's θ set by
-    a weaker one) still converges (each step -0.6 of the one before there; 2 would not converge).
-    ``owner``: an object whose ``_theta`` (the engine's: its last refinement's θ) it starts from and
-    keeps up to date, or the starting θ itself; ``theta``: the starting θ instead of the owner's (the
-    engine's first refinement in a frame starts from 1, its robust round from the first's θ: a frame's
-    result does not depend on the frames before)."""
-
-    def __init__(self, owner=1.0, *, theta: float | None = None, max_factor: float = 1.6,
-                 min_share: float = 0.01) -> None:
-        self.max_factor = float(max_factor)
-        self.min_share = float(min_share)
-        self._owner = None if isinstance(owner, int | float) else owner
-        given = theta is not None
-        if not given:
-            theta = float(owner) if self._owner is None else getattr(owner, "_theta", 1.0)
-        self.theta = self._clip(theta)
-        if given and self._owner is not None:  # (the owner's from here: what the refinement measures)
-            self._owner._theta = self.theta
-        self._last = None  # (u, g0, H) of the step taken last
-
-    def _clip(self, theta: float) -> float:
-        return float(min(1.0, max(1.0 / self.max_factor, theta))) if np.isfinite(theta) else 1.0
-
-    @property
-    def factor(self) -> float:
-        """The next step's length over Gauss–Newton's (``1 / θ``)."""
-        return 1.0 / self.theta
-
-    def step(self, s: dict, delta: np.ndarray, share: float) -> np.ndarray:
-        """The step to take from the design whose result is ``s`` (``JJ``, ``Jr``) and Gauss–Newton
-        step ``delta``: θ measured along the last step taken (where resolved), ``delta / θ``
-        returned and kept as the step taken."""
-        g1 = np.asarray(s["Jr"], dtype=float)
-        if self._last is not None:
-            u, g0, H = self._last
-            den = float(u @ H @ u)
-            if den > self.min_share * share and den > 0.0:
-                self.theta = self._clip(float((g0 - g1) @ u) / den)
-                if self._owner is not None:
-                    self._owner._theta = self.theta
-        u = self.factor * np.asarray(delta, dtype=float)
-        self._last = (u, g1, np.asarray(s["JJ"], dtype=float))
-        return u

@@ -1,5 +1,5 @@
 """Why the likelihood final stage's Gauss–Newton steps contract slowly, and the stage's result
-against its start with the steps' secant length (``python -m core.studies.tracking.stage_contraction``).
+against its start (``python -m core.studies.tracking.stage_contraction``).
 
 The scene is :mod:`core.studies.tracking.stage_residue`'s (held-out seed 4, the grid correction,
 the high-pass scaled from 4 px at 1024², the other bones at their true poses subtracted, the
@@ -18,12 +18,12 @@ stored 1024² runs' poses as starts):
   a PSF brings θ to 1;
 * ``frames`` — per bone, frames over the trial, the stage as the tracker runs it
   (:func:`core.studies.tracking.stage_residue.stage_from`) from the truth and the stored runs'
-  poses under each rule of :data:`RULES` (the fewer steps with and without
-  :data:`~core.tracking.engine_likelihood.SECANT_STEPS`, to tol with and without): the steps, how
-  far apart the starts' results are, and the error (from the run without the stage's pose, where
-  the tracker starts the stage) over the Cramér–Rao bound at this size
-  (:func:`core.studies.tracking.acceptance.cramer_rao`), and the θ the secant rule's refinements
-  ended with (a frame's first refinement starts at 1, its robust round from the first's θ).
+  poses under each rule of :data:`RULES` (the fewer steps and to tol, with and without the estimated
+  PSF): the steps, how far apart the starts' results are, and the error (from the run without the
+  stage's pose, where the tracker starts the stage) over the Cramér–Rao bound at this size
+  (:func:`core.studies.tracking.acceptance.cramer_rao`). (The steps' secant length,
+  ``SECANT_STEPS``, and its rules ``secant`` and ``exact_secant`` are removed: they did not pay;
+  ``tracking_stage_contraction_cpu.json`` keeps what they measured.)
 
 Measured: :mod:`core.tracking.likelihood_steps`' docs (the cause) and the README paragraph after
 "What the stage leaves on seed 4" (``resources/benchmarks/tracking_stage_contraction_cpu.json``).
@@ -32,18 +32,16 @@ Measured: :mod:`core.tracking.likelihood_steps`' docs (the cause) and the README
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 
 import numpy as np
 
 from core.studies.tracking import _study_cli as cli
 
-__all__ = ["RULES", "curvature_ratios", "gauss_newton", "main", "run", "secant_steps"]
+__all__ = ["RULES", "curvature_ratios", "gauss_newton", "main", "run"]
 
-#: the ``frames`` part's rules: label -> (engine_likelihood.SECANT_STEPS, to tol, the DRR blurred by the
-#: PSF estimated from pinhole frames: ``psf`` part)
-RULES = {"fewer": (False, False, False), "secant": (True, False, False), "exact": (False, True, False),
-         "exact_secant": (True, True, False), "psf": (False, False, True), "psf_exact": (False, True, True)}
+#: the ``frames`` part's rules: label -> (to tol, the DRR blurred by the PSF estimated from pinhole
+#: frames: ``psf`` part)
+RULES = {"fewer": (False, False), "exact": (True, False), "psf": (False, True), "psf_exact": (True, True)}
 #: the ``cause`` part's frames of the image's parts (stage_limits.COMPONENTS' names), then the
 #: noisy frame and the model renderer's own (``self``)
 CAUSE_KINDS = ("bones", "bones+tissue", "all", "all/blur", "all/full", "noisy", "self")
@@ -57,21 +55,6 @@ PSF_WIDTHS = (1.0, 1.2, 1.5, 2.0)
 #: that from ``similarity`` where it is run, else from ``none`` (the 1024² similarity's pose, whose
 #: noise is not this frame's: a stop part-way to the stage's optimum keeps some of it)
 STARTS = ("truth", "none", "stage")
-
-
-@contextmanager
-def secant_steps(on: bool):
-    """:data:`~core.tracking.engine_likelihood.SECANT_STEPS` is ``on`` inside the block."""
-    import core.tracking.engine_likelihood as el
-
-    if not hasattr(el, "SECANT_STEPS"):
-        raise RuntimeError("engine_likelihood.SECANT_STEPS: not in this tree (the secant rules need it)")
-    saved = el.SECANT_STEPS
-    el.SECANT_STEPS = bool(on)
-    try:
-        yield
-    finally:
-        el.SECANT_STEPS = saved
 
 
 def _engine(ts, frame, f: int, b: int, base, hp: float, psf=None):
@@ -156,14 +139,6 @@ def _estimated_psf(ts) -> tuple:
     return hit
 
 
-def _theta_of(ts) -> float:
-    """The θ the renderer's stage engine (the last used: one bone at a time) ended with."""
-    import core.tracking.engine_likelihood as el
-
-    engines = list(el._CACHE.get(ts.renderer, {}).values())
-    return float(getattr(engines[-1], "_theta", 1.0)) if engines else 1.0
-
-
 def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("cause", "frames"),
         bones=("tibia", "talus", "calcaneus"), frames=FRAMES, cause=("calcaneus", 30), rules=tuple(RULES),
         starts=STARTS, device: str | None = "cpu", checkpoint=None) -> dict:
@@ -237,21 +212,17 @@ def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("cause",
                 starts = {k: v for k, v in starts.items() if k in start_set}
                 row = {"frame": f, "start_error": {k: pose_errors(P0, ts.truth(f)[b], c).round(4).tolist()
                                                    for k, P0 in starts.items()}}
-                theta = None
                 for rule in rules:
-                    sec, exact, blur = RULES[rule]
+                    exact, blur = RULES[rule]
                     r = {}
-                    with secant_steps(sec):
-                        for k, P0 in starts.items():
-                            r[k] = stage_from(ts, fr, f, b, P0, highpass_px=hp, exact=exact,
-                                              psf=_estimated_psf(ts)[0] if blur else None)
-                            if sec and not exact and k == ref:
-                                theta = round(_theta_of(ts), 3)
+                    for k, P0 in starts.items():
+                        r[k] = stage_from(ts, fr, f, b, P0, highpass_px=hp, exact=exact,
+                                          psf=_estimated_psf(ts)[0] if blur else None)
                     E = np.array([r[k]["error"] for k in starts])
                     row[rule] = {"steps": {k: r[k]["steps"] for k in starts},
                                  "error": {k: r[k]["error"] for k in starts},
                                  "spread": (E.max(0) - E.min(0)).round(4).tolist()}
-                row["theta"], row["reference"] = theta, ref
+                row["reference"] = ref
                 rows.append(row)
                 res[nm] = {"rows": rows, "summary": _summary(rows, rules, bound.get(nm))}
                 save()

@@ -59,7 +59,7 @@ Measured (this 2-core x86_64 machine, shared; 512², 1 mm; the stored runs one N
   stage's result depends on its start: from the truth and the two tracked poses x differs by 0.074,
   0.040, 0.069 mm at 30, 53, 72 (controls 0.018, 0.034), the Gauss–Newton steps along x shrinking by
   only 0.5-0.9 a step and STOP_PRED stopping at a step the data barely resolve; to tol 0.0001-0.0026
-  mm; with the opt-in :data:`~core.tracking.engine_likelihood.STOP_CONTRACT` 0.004, 0.005, 0.060 mm
+  mm; with a stop that needed a contracted step (``STOP_CONTRACT``, since removed) 0.004, 0.005, 0.060 mm
   (3.9 steps a talus frame instead of 3.0). At 1024² the stage before the fewer steps left frame 30
   as far off (+0.172 against +0.167 mm): the stop is not shown to set the 1024² error. A wider
   high-pass does not narrow the spread (``highpass``, every eighth frame, to tol from the truth, one
@@ -129,10 +129,10 @@ def exact_steps(on: bool = True):
 
 #: the steps of a refinement under :func:`exact_steps`
 EXACT_ITERS = 20
-#: the stopping rules the ``start`` part compares: label -> (engine_likelihood.STOP_CONTRACT, exact):
-#: ``fewer`` the fewer steps as 41d036e made them (STOP_PRED alone), ``contract`` with the stop
-#: needing a contracted step (the default), ``exact`` to tol (:func:`exact_steps`)
-STOP_RULES = {"fewer": (None, False), "contract": (0.1, False), "exact": (None, True)}
+#: the stopping rules the ``start`` part compares: label -> exact: ``fewer`` the fewer steps as 41d036e
+#: made them (STOP_PRED), ``exact`` to tol (:func:`exact_steps`). (A stop that needed a contracted step,
+#: ``contract``, measured in tracking_stage_residue_cpu.json, is removed.)
+STOP_RULES = {"fewer": False, "exact": True}
 #: the ``highpass`` part's σ (pixels at 1024², scaled to the scene) and frames
 HIGHPASS_1024 = (4.0, 6.0, 8.0)
 HIGHPASS_FRAMES = tuple(range(4, 100, 8))
@@ -322,8 +322,6 @@ def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("moves",
                 out["confirm"] = res
                 save()
     if "start" in parts:  # the stage's result against its start under each stopping rule (STOP_RULES)
-        import core.tracking.engine_likelihood as el
-
         res = []
         for nm, fs in (("calcaneus", calcaneus), ("talus", tuple(confirm))):
             b = ts.names.index(nm)
@@ -331,15 +329,10 @@ def run(*, seed: int = 4, pixels: int = 512, voxel: float = 1.0, parts=("moves",
                 fr = _frames_of(ts, f, b, "noisy")
                 starts = {"truth": ts.truth(f)[b],
                           **{k: p[nm][f] for k, p in stored.items() if f in p.get(nm, {})}}
-                for rule, (contract, exact) in STOP_RULES.items():
+                for rule, exact in STOP_RULES.items():
                     row = {"bone": nm, "frame": f, "rule": rule}
-                    saved = el.STOP_CONTRACT
-                    el.STOP_CONTRACT = contract
-                    try:
-                        for k, P0 in starts.items():
-                            row[k] = stage_from(ts, fr, f, b, P0, highpass_px=hp, exact=exact)
-                    finally:
-                        el.STOP_CONTRACT = saved
+                    for k, P0 in starts.items():
+                        row[k] = stage_from(ts, fr, f, b, P0, highpass_px=hp, exact=exact)
                     E = np.array([row[k]["error"] for k in starts])
                     row["spread"] = (E.max(0) - E.min(0)).round(4).tolist()  # the starts' results apart
                     res.append(row)

@@ -1,16 +1,12 @@
-"""Why the likelihood stage's Gauss–Newton steps contract slowly, and the steps' secant length
-(engine_likelihood.SECANT_STEPS, likelihood_steps.SecantScale): the moments' arithmetic gives the
+"""Why the likelihood stage's Gauss–Newton steps contract slowly: the moments' arithmetic gives the
 exact step of a linear model in one step; a frame blurrier than the model has a χ² curvature below
-Gauss–Newton's, so the steps shrink by 1 - θ a step; the secant length reaches the same point in
-fewer steps (numpy; the engine's refinement with them: test_likelihood_secant_refine)."""
+Gauss–Newton's, so the steps shrink by 1 - θ a step (numpy)."""
 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from core.tracking.likelihood_solve import solve_moments
-from core.tracking.likelihood_steps import SecantScale
 
 
 def _table(z: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -53,12 +49,12 @@ def _profile(t: np.ndarray, blur: float = 0.0) -> np.ndarray:
     return 0.5 * (1.0 + erf(t / np.sqrt(2.0 * (1.0 + blur ** 2))))
 
 
-def _blurred_gn(t_true: float, blur: float, secant: bool, *, steps: int = 30, tol: float = 1e-6):
+def _blurred_gn(t_true: float, blur: float, *, steps: int = 30, tol: float = 1e-6):
     """Gauss–Newton for the edge's place ``t`` fitting the sharp model ``a D(p - t) + c`` to a frame
-    blurred by ``blur`` px at ``t_true``: the iterates and the curvature ratio at the end."""
+    blurred by ``blur`` px at ``t_true``: the iterates."""
     p = np.arange(-20.0, 20.0, 0.25)
     y = 2.0 * _profile(p - t_true, blur) + 0.5
-    t, xs, sec = 0.0, [], SecantScale(1.0, min_share=0.0)
+    t, xs = 0.0, []
     for _ in range(steps):
         D = _profile(p - t)
         dD = (_profile(p - t - 1e-4) - _profile(p - t + 1e-4)) / 2e-4  # ∂D/∂t (the model moved)
@@ -68,53 +64,20 @@ def _blurred_gn(t_true: float, blur: float, secant: bool, *, steps: int = 30, to
         J = coef[0] * (dD - A @ np.linalg.lstsq(A, dD, rcond=None)[0])  # (gain and offset projected out)
         s = {"JJ": np.array([[J @ J]]), "Jr": np.array([J @ r])}
         d = np.linalg.solve(s["JJ"], s["Jr"])
-        if secant:
-            d = sec.step(s, d, 1.0)
         t += float(d[0])
         xs.append(t)
         if abs(d[0]) < tol:
             break
-    return np.array(xs), sec.theta
+    return np.array(xs)
 
 
-def test_a_blurred_frame_contracts_the_steps_and_the_secant_length_takes_fewer():
+def test_a_blurred_frame_contracts_the_steps():
     """The model matches the frame (no blur): Gauss–Newton in 3 steps; the frame blurred by 2 px
     more than the model: each step 0.44 of the one before (1 - θ, θ the χ² curvature over Gauss–
-    Newton's, 0.57), all on one side; with the secant length (θ measured, kept at 1/1.6 at least)
-    half as many steps (8 against 16), to the same point."""
-    sharp, _ = _blurred_gn(0.4, 0.0, False)
+    Newton's, 0.57), all on one side, to the same point."""
+    sharp = _blurred_gn(0.4, 0.0)
     assert len(sharp) <= 4 and abs(sharp[-1] - 0.4) < 1e-6
-    plain, _ = _blurred_gn(0.4, 2.0, False)
+    plain = _blurred_gn(0.4, 2.0)
     d = np.diff(np.r_[0.0, plain])
     ratio = d[2:8] / d[1:7]
     assert np.all((ratio > 0.4) & (ratio < 0.47))
-    fast, theta = _blurred_gn(0.4, 2.0, True)
-    assert theta == pytest.approx(1 / 1.6)
-    assert abs(fast[-1] - plain[-1]) < 1e-5  # the same fixed point
-    assert len(fast) <= len(plain) // 2
-
-
-def test_secant_scale_is_clipped_resolved_and_carried():
-    """θ within [1/max_factor, 1] (never a shorter step), left alone on steps below ``min_share``,
-    written back to its owner (the engine: the bone's next refinement starts from it)."""
-    class Owner:
-        _theta = 0.8
-
-    o = Owner()
-    sec = SecantScale(o, max_factor=2.0, min_share=0.01)
-    assert sec.theta == 0.8 and sec.factor == pytest.approx(1.25)
-    H = np.eye(6)
-    u = sec.step({"JJ": H, "Jr": np.r_[1.0, np.zeros(5)]}, np.r_[1.0, np.zeros(5)], 1.0)
-    np.testing.assert_allclose(u, np.r_[1.25, np.zeros(5)])
-    sec.step({"JJ": H, "Jr": np.r_[0.9, np.zeros(5)]}, np.r_[0.9, np.zeros(5)], 1.0)  # θ = 0.1 / 1.25²
-    assert sec.theta == 0.5 and o._theta == 0.5
-    sec.step({"JJ": H, "Jr": np.r_[-5.0, np.zeros(5)]}, np.r_[-5.0, np.zeros(5)], 1.0)  # curvature above GN's
-    assert sec.theta == 1.0
-    small = SecantScale(0.7, min_share=0.01)
-    small.step({"JJ": H, "Jr": np.full(6, 1e-3)}, np.full(6, 1e-3), 1.0)
-    small.step({"JJ": H, "Jr": np.zeros(6)}, np.zeros(6), 1.0)  # (uᵀHu below 0.01 χ²/N: not measured)
-    assert small.theta == 0.7
-    assert SecantScale(float("nan")).theta == 1.0
-    o2 = Owner()
-    fresh = SecantScale(o2, theta=1.0)  # (a frame's first refinement: from 1, the owner's from here)
-    assert fresh.theta == 1.0 and o2._theta == 1.0

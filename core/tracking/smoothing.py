@@ -1,0 +1,367 @@
+"""Covariance-weighted smoothing of a bone's tracked poses (Rauch–Tung–Striebel), its smoothing
+chosen from the data.
+
+Each frame's pose is estimated from that frame alone; its confidence σ
+(:class:`~core.tracking.confidence.PoseConfidence`) says how well. :func:`smooth_poses` pools
+neighbouring frames instead: per bone, the six pose coordinates — the path of ``center`` (mm) and
+the rotation vector of ``R R_refᵀ`` (``R_ref`` the middle tracked frame's rotation) — each follow a
+constant-velocity model (``model="velocity"``: white-noise acceleration, a cubic smoothing spline's
+prior) or a constant-acceleration one (``"acceleration"``: white-noise jerk), measured once a frame
+with variance ``k² σ_f²`` (σ_f the frame's own σ on that coordinate, the rotation's carried into
+the rotation vector's coordinates by the inverse left Jacobian; ``weigh="equal"``: the
+coordinate's median σ in every frame). The Kalman filter runs forward and the Rauch–Tung–Striebel
+smoother back: each frame's smoothed pose and covariance use every frame of the trial.
+
+Nothing is tuned to a trial by hand: per coordinate the process noise ``q = k² λ`` and the
+measurement scale ``k`` are the maximum of the innovations' likelihood (no truth needed) —
+``k`` in closed form for each ``λ`` (the likelihood concentrated), ``λ`` over a log grid of
+:data:`GRID` values, refined by a parabola through the best three. The tracker's σ is a scale, not
+a calibrated standard error (its errors within 2σ far more often than 95 % on some bones): ``k``
+takes its level from the data, ``σ_f`` only weighs the frames against each other.
+
+Frames without a pose, or flagged for review (``flagged``; ``flagged_weight`` 0, the default),
+are not measured: they get the pose their neighbours imply, with its (larger) covariance.
+``robust``: frames whose smoothed residual stands more than ``robust`` × their own scaled σ off
+(RMS over the translation or the rotation coordinates) are down-weighted by ``(robust / d)²`` and
+the fit repeated (:data:`ROBUST_ROUNDS` rounds); None: no down-weighting.
+
+This smoother uses neighbouring frames, so the single-frame Cramér–Rao bound
+(:mod:`core.tracking.bound`) does not bound it: its errors can fall below that bound, and are a
+separate figure from the per-frame goal. A real transient faster than the process noise allows
+(an impact) is smoothed too; ``core.studies.tracking.smoother`` measures how much.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.transforms import matrix_to_rotvec, rotvec_to_matrix
+
+__all__ = ["GRID", "MODELS", "ROBUST_ROUNDS", "SmoothedPoses", "left_jacobian", "smooth_poses",
+           "smooth_track"]
+
+#: the motion models: state per coordinate (position, velocity[, acceleration])
+MODELS = ("velocity", "acceleration")
+#: λ = q / k² (per frame) tried: log-spaced, 4 a decade
+GRID = np.logspace(-12.0, 4.0, 65)
+#: refits with the robust weights (``robust``)
+ROBUST_ROUNDS = 3
+
+
+@dataclass(frozen=True, eq=False)
+class SmoothedPoses:
+    """:func:`smooth_poses`' result over the ``n`` frames given.
+
+    Attributes
+    ----------
+    poses : (n, 4, 4) array
+        Smoothed ``T_lab_from_bone``; NaN before the first and after the last frame with a pose
+        (an unmeasured frame at either end gets the pose its neighbours extrapolate, with its
+        growing covariance).
+    sigma : (n, 6) array
+        Smoothed σ, tx, ty, tz in mm and rx, ry, rz in degrees about ``center`` (the tracker's
+        confidence's units and axes: a left perturbation of the pose).
+    covariance : (n, 6, 6) array
+        The smoothed covariance in those units.
+    weights : (n,) array
+        Each frame's measurement weight (1 plain; below 1 down-weighted by ``robust``; 0 not
+        measured: no pose, flagged, or no σ).
+    scale : (6,) array
+        ``k`` per coordinate: the factor the σ given were scaled by (measurement σ = k σ_f).
+    process_noise : (6,) array
+        ``q`` per coordinate, (mm or rad)² per frame³ (velocity) or per frame⁵ (acceleration).
+    model : str
+    log_likelihood : (6,) array
+        The innovations' concentrated log-likelihood per coordinate at the chosen ``λ``.
+    """
+
+    poses: np.ndarray
+    sigma: np.ndarray
+    covariance: np.ndarray
+    weights: np.ndarray
+    scale: np.ndarray
+    process_noise: np.ndarray
+    model: str
+    log_likelihood: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    def to_dict(self) -> dict:
+        """JSON-ready: per frame the pose (4×4 rows, None where NaN), σ, covariance and weight; the
+        model, scale and process noise."""
+        def rows(a, d):
+            return [None if not np.all(np.isfinite(x)) else np.round(x, d).tolist() for x in a]
+
+        return {"model": self.model, "scale": np.round(self.scale, 5).tolist(),
+                "process_noise": [float(f"{q:.4g}") for q in self.process_noise],
+                "poses": rows(self.poses, 6), "sigma": rows(self.sigma, 6),
+                "covariance": rows(self.covariance, 8), "weights": np.round(self.weights, 4).tolist()}
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, float)
+    S = np.zeros((*v.shape[:-1], 3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
+
+
+def left_jacobian(phi, *, inverse: bool = False) -> np.ndarray:
+    """``(..., 3, 3)`` left Jacobian ``J_l(φ)`` of SO(3) (or its inverse): ``exp(J_l δ) exp(φ) ≈
+    exp(φ + δ)``, so a left perturbation ``e`` of ``exp(φ)`` moves the rotation vector by
+    ``J_l⁻¹ e``. ``phi``: ``(..., 3)`` rotation vectors, radians."""
+    phi = np.asarray(phi, float)
+    th = np.linalg.norm(phi, axis=-1)[..., None, None]
+    S = _skew(phi)
+    S2 = S @ S
+    small = th < 1e-6
+    t = np.where(small, 1.0, th)
+    eye = np.broadcast_to(np.eye(3), S.shape)
+    if inverse:
+        c = np.where(small, 1.0 / 12.0, 1.0 / t ** 2 - (1 + np.cos(t)) / (2 * t * np.sin(t)))
+        return eye - 0.5 * S + c * S2
+    a = np.where(small, 0.5, (1 - np.cos(t)) / t ** 2)
+    b = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t ** 3)
+    return eye + a * S + b * S2
+
+
+def _model(model: str) -> tuple[np.ndarray, np.ndarray]:
+    """Transition ``F`` and unit process covariance ``Q0`` of one frame (continuous white noise)."""
+    if model == "velocity":
+        return np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]])
+    if model == "acceleration":
+        F = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
+        Q = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
+        return F, Q
+    raise ValueError(f"model: expected one of {MODELS}, got {model!r}")
+
+
+def _kalman(z, r, lam, model: str, *, keep: bool = False):
+    """Forward filter of ``C`` independent coordinates, each with ``G`` process-noise ratios.
+
+    ``z``, ``r``: ``(n, C)`` measurements and their variances (unit scale; ``inf`` or a NaN ``z``: no
+    measurement); ``lam``: ``(C, G)``. Returns the concentrated log-likelihood ``(C, G)``, the scale
+    ``k² (C, G)``, and with ``keep`` the predicted and filtered states and covariances
+    ``(n, C, G, d[, d])`` for the smoother."""
+    F, Q0 = _model(model)
+    d = len(F)
+    n, C = z.shape
+    G = lam.shape[1]
+    meas = np.isfinite(z) & np.isfinite(r) & (r > 0)
+    z0 = np.array([z[meas[:, c], c][0] if meas[:, c].any() else 0.0 for c in range(C)])
+    zc = np.where(meas, z - z0, 0.0)
+    span = np.array([np.ptp(zc[meas[:, c], c]) if meas[:, c].any() else 1.0 for c in range(C)])
+    big = (1e3 * (span + 1.0)) ** 2  # a diffuse start: the first d measurements set the state
+    x = np.zeros((C, G, d))
+    P = np.broadcast_to(np.eye(d), (C, G, d, d)) * big[:, None, None, None]
+    Q = lam[..., None, None] * Q0
+    ssum = np.zeros((C, G))
+    logs = np.zeros((C, G))
+    count = np.zeros(C, dtype=int)
+    seen = np.zeros(C, dtype=int)
+    store = {k: np.empty((n, C, G, d) + ((d,) if k[0] == "P" else ())) for k in ("xp", "Pp", "xf", "Pf")} \
+        if keep else None
+    for t in range(n):
+        if t:
+            x = x @ F.T
+            P = F @ P @ F.T + Q
+        if keep:
+            store["xp"][t], store["Pp"][t] = x, P
+        m = meas[t]
+        if m.any():
+            S = P[..., 0, 0] + np.where(m, r[t], 1.0)[:, None]
+            K = P[..., :, 0] / S[..., None]
+            v = zc[t][:, None] - x[..., 0]
+            mk = m[:, None, None]
+            x = np.where(mk, x + K * v[..., None], x)
+            P = np.where(mk[..., None], P - K[..., :, None] * K[..., None, :] * S[..., None, None], P)
+            use = m & (seen >= d)  # the diffuse start's first d innovations left out
+            ssum += np.where(use[:, None], v ** 2 / S, 0.0)
+            logs += np.where(use[:, None], np.log(S), 0.0)
+            count += use
+            seen += m
+        if keep:
+            store["xf"][t], store["Pf"][t] = x, P
+    cnt = np.maximum(count, 1)[:, None]
+    k2 = ssum / cnt
+    ll = -0.5 * (cnt * np.log(np.maximum(k2, 1e-300)) + logs + cnt * (1 + math.log(2 * math.pi)))
+    if keep:
+        return ll, k2, store, z0
+    return ll, k2
+
+
+def _rts(store, model: str):
+    """Rauch–Tung–Striebel pass over :func:`_kalman`'s stored states: smoothed states and
+    covariances ``(n, C, G, d[, d])`` (unit scale)."""
+    F, _ = _model(model)
+    xs, Ps = store["xf"].copy(), store["Pf"].copy()
+    for t in range(len(xs) - 2, -1, -1):
+        A = np.linalg.solve(store["Pp"][t + 1], (store["Pf"][t] @ F.T).swapaxes(-1, -2)).swapaxes(-1, -2)
+        xs[t] = store["xf"][t] + (A @ (xs[t + 1] - store["xp"][t + 1])[..., None])[..., 0]
+        Ps[t] = store["Pf"][t] + A @ (Ps[t + 1] - store["Pp"][t + 1]) @ A.swapaxes(-1, -2)
+    return xs, Ps
+
+
+def _best_lambda(ll: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Per row of ``ll (C, G)``, the grid's best ``λ`` refined by a parabola in ``log λ`` through it
+    and its neighbours (the grid's end where it is best there)."""
+    lg = np.log(grid)
+    out = np.empty(len(ll))
+    for c, row in enumerate(ll):
+        i = int(np.nanargmax(row))
+        out[c] = lg[i]
+        if 0 < i < len(row) - 1:
+            a, b, e = row[i - 1], row[i], row[i + 1]
+            den = a - 2 * b + e
+            if den < 0:
+                out[c] = lg[i] + 0.5 * (lg[1] - lg[0]) * (a - e) / den
+    return np.exp(out)
+
+
+def _row_mean(a: np.ndarray) -> np.ndarray:
+    """Mean of each row's finite values (NaN where none)."""
+    f = np.isfinite(a)
+    return np.where(f.any(axis=1), np.where(f, a, 0.0).sum(axis=1) / np.maximum(f.sum(axis=1), 1), np.nan)
+
+
+def _chart(P: np.ndarray, center: np.ndarray):
+    """The poses' coordinates: the path of ``center`` and the rotation vector about the middle
+    tracked frame's rotation (NaN where no pose); and that reference rotation."""
+    ok = np.all(np.isfinite(P), axis=(1, 2))
+    idx = np.flatnonzero(ok)
+    ref = P[idx[len(idx) // 2], :3, :3]
+    z = np.full((len(P), 6), np.nan)
+    z[ok, :3] = P[ok, :3, :3] @ center + P[ok, :3, 3]
+    z[ok, 3:] = matrix_to_rotvec(P[ok, :3, :3] @ ref.T)
+    return z, ref, ok
+
+
+def _chart_sigma(z, sigma, ok, weigh):
+    """Per frame and coordinate the measurement σ in the chart's units (mm, rad): the translation's
+    as given, the rotation's (degrees, a left perturbation) through ``J_l⁻¹`` of the frame's
+    rotation vector (the diagonal of the carried covariance); inf where a group has no finite σ."""
+    s = np.array(sigma, dtype=float)  # copy: NaN rows filled below
+    s = np.where(np.isfinite(s) | np.isinf(s), s, np.nan)
+    med = np.array([np.nanmedian(col[np.isfinite(col)]) if np.isfinite(col).any() else np.nan for col in s.T])
+    if weigh == "equal":
+        s = np.where(np.isfinite(s), med, s)
+    s = np.where(np.isnan(s), med, s)  # a frame without σ: the coordinate's median
+    out = np.full_like(s, np.inf)
+    out[:, :3] = s[:, :3]
+    Ji = left_jacobian(np.where(ok[:, None], z[:, 3:], 0.0), inverse=True)
+    Sr = np.radians(s[:, 3:])
+    fin = np.isfinite(Sr).all(axis=1)
+    C = Ji[fin] * Sr[fin, None, :] ** 2 @ Ji[fin].swapaxes(-1, -2)
+    out[fin, 3:] = np.sqrt(np.einsum("nii->ni", C))
+    out[~np.isfinite(out[:, :3]).all(axis=1), :3] = np.inf
+    return out
+
+
+def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "velocity", weigh: str = "sigma",
+                 robust: float | None = 2.5, flagged_weight: float = 0.0) -> SmoothedPoses:
+    """Smooth one bone's tracked poses with the covariance-weighted RTS smoother (module docs).
+
+    Parameters
+    ----------
+    poses : (n, 4, 4) array
+        ``T_lab_from_bone`` of consecutive frames (NaN where none).
+    sigma : (n, 6) array
+        Each frame's confidence σ (tx, ty, tz mm; rx, ry, rz degrees, as
+        :class:`~core.tracking.confidence.PoseConfidence`); NaN where a frame has none (the
+        coordinate's median used), ``inf`` on an unbounded axis (that group not measured).
+    center : (3,) array
+        Bone-frame point (mm) whose path is smoothed, the σ's rotation centre (the centroid).
+    flagged : (n,) bool array, optional
+        Frames flagged for review: measured with ``flagged_weight`` (0: not at all).
+    model : {"velocity", "acceleration"}
+    weigh : {"sigma", "equal"}
+        Weigh each frame by its own σ, or every frame of a coordinate alike (its median σ).
+    robust : float or None
+        Down-weighting threshold on a frame's scaled residual (module docs); None: off.
+    flagged_weight : float
+        The weight of a flagged frame's measurement, in [0, 1].
+
+    Returns
+    -------
+    SmoothedPoses
+    """
+    P = np.asarray(poses, dtype=float)
+    if P.ndim != 3 or P.shape[1:] != (4, 4):
+        raise ValueError(f"poses: expected shape (n, 4, 4), got {P.shape}")
+    n = len(P)
+    S = np.asarray(sigma, dtype=float)
+    if S.shape != (n, 6):
+        raise ValueError(f"sigma: expected shape ({n}, 6), got {S.shape}")
+    c = np.asarray(center, dtype=float).reshape(3)
+    fl = np.zeros(n, bool) if flagged is None else np.asarray(flagged, bool).reshape(n)
+    _model(model)
+    if weigh not in ("sigma", "equal"):
+        raise ValueError(f"weigh: expected 'sigma' or 'equal', got {weigh!r}")
+    if robust is not None and not robust > 0:
+        raise ValueError(f"robust: expected a positive threshold or None, got {robust!r}")
+    if not 0.0 <= flagged_weight <= 1.0:
+        raise ValueError(f"flagged_weight: expected a weight in [0, 1], got {flagged_weight!r}")
+    d = len(_model(model)[0])
+    ok = np.all(np.isfinite(P), axis=(1, 2))
+    w = np.where(ok, np.where(fl, flagged_weight, 1.0), 0.0)
+    if (w > 0).sum() < d + 2:
+        raise ValueError(f"poses: expected at least {d + 2} measured (posed, unflagged) frames, "
+                         f"got {(w > 0).sum()}")
+    z, ref, ok = _chart(np.where(w[:, None, None] > 0, P, np.nan), c)
+    s = _chart_sigma(z, S, ok, weigh)
+    rob = np.ones(n)
+    for _ in range(1 + (ROBUST_ROUNDS if robust is not None else 0)):
+        wt = w * rob
+        r = np.where(wt[:, None] > 0, s ** 2 / np.maximum(wt, 1e-12)[:, None], np.inf)
+        ll, _ = _kalman(z, r, np.broadcast_to(GRID, (6, len(GRID))), model)
+        lam = _best_lambda(ll, GRID)
+        llb, k2, store, z0 = _kalman(z, r, lam[:, None], model, keep=True)
+        xs, Ps = _rts(store, model)
+        xs, Ps, k2 = xs[:, :, 0], Ps[:, :, 0], k2[:, 0]
+        if robust is None:
+            break
+        res = (z - z0 - xs[..., 0]) / np.sqrt(k2 * s ** 2)
+        with np.errstate(invalid="ignore"):
+            dd = np.sqrt(np.fmax(_row_mean(res[:, :3] ** 2), _row_mean(res[:, 3:] ** 2)))
+        far = np.isfinite(dd) & (dd > robust)
+        new = np.where(far, (robust / np.where(far, dd, 1.0)) ** 2, 1.0)
+        if np.allclose(new, rob, atol=1e-3):
+            break
+        rob = new
+    x = xs[..., 0] + z0
+    var = Ps[..., 0, 0] * k2
+    posed = np.flatnonzero(np.all(np.isfinite(P), axis=(1, 2)))
+    inside = np.zeros(n, bool)
+    inside[posed[0]:posed[-1] + 1] = True
+    out = np.full((n, 4, 4), np.nan)
+    R = rotvec_to_matrix(x[inside, 3:]) @ ref
+    out[inside, :3, :3] = R
+    out[inside, :3, 3] = x[inside, :3] - R @ c
+    out[inside, 3] = [0.0, 0.0, 0.0, 1.0]
+    cov = np.full((n, 6, 6), np.nan)
+    cov[inside] = 0.0
+    cov[inside, :3, :3] = np.eye(3) * var[inside, None, :3]
+    J = left_jacobian(x[inside, 3:])
+    Cr = J * var[inside, None, 3:] @ J.swapaxes(-1, -2)
+    cov[inside, 3:, 3:] = np.degrees(np.degrees(Cr))
+    sig = np.sqrt(np.einsum("nii->ni", cov))
+    return SmoothedPoses(out, sig, cov, w * rob, np.sqrt(k2), k2 * lam, model, llb[:, 0])
+
+
+def smooth_track(result, bone: str, *, center, **options) -> SmoothedPoses:
+    """:func:`smooth_poses` of ``bone``'s poses in ``result`` (a
+    :class:`~core.tracking.results.TrackingResult` over consecutive frames), with each frame's
+    confidence σ and flags; ``options``: :func:`smooth_poses`' keywords."""
+    P = result.poses(bone)
+    S = np.full((len(P), 6), np.nan)
+    fl = np.zeros(len(P), bool)
+    for k, f in enumerate(result.frames):
+        r = result.results.get((bone, f))
+        if r is None:
+            continue
+        fl[k] = bool(r.flags)
+        sg = (r.confidence or {}).get("sigma")
+        if sg is not None:
+            S[k] = [np.inf if v is None else v for v in sg]
+    return smooth_poses(P, S, center=center, flagged=fl, **options)

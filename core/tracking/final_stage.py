@@ -390,6 +390,7 @@ def final_stages(renderer, frame: FrameImages, calls: Sequence[tuple]) -> list:
 
 
 _PLAIN_FINAL_STAGE = final_stage  # (final_stages: a study may wrap the module's final_stage)
+_PLAIN_FINAL_STAGES = final_stages  # (core.tracking.joint_pipeline.applies: the module's own, by identity)
 
 
 #: :func:`confirm_move`: the stage run again from another start confirms its pose where it lands

@@ -68,13 +68,29 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from core.tracking.joint_stage import searched_others
-
 __all__ = ["RUNS", "main", "run", "searched_others", "stage_neighbours_at"]
 
 #: the runs (label -> (mode, where the stage's neighbours are: :func:`stage_neighbours_at`'s ``at``))
 RUNS = {"joint": ("joint", "prediction"), "joint_searched": ("joint", "searched"),
         "joint_staged": ("joint", "staged"), "sequential": ("sequential", "prediction")}
+
+
+def searched_others(calls, poses=None) -> list:
+    """``calls`` of :func:`~core.tracking.final_stage.final_stages` (per bone ``(res, kwargs)``) with
+    each call's ``others`` poses replaced, for a neighbour that is one of the calls' bones, by that
+    bone's ``res.pose`` (its search's pose in this frame; ``poses``: the calls' bones' poses to use
+    instead, in the calls' order); other neighbours keep theirs. The input is not changed."""
+    poses = [res.pose for res, _ in calls] if poses is None else poses
+    found = {int(kw["bone"]): np.asarray(P, dtype=float) for (_, kw), P in zip(calls, poses, strict=True)}
+    out = []
+    for res, kw in calls:
+        oth = kw.get("others")
+        if oth is not None:
+            P = np.asarray(oth[0], dtype=float).reshape(-1, 4, 4)
+            ids = list(oth[1])
+            kw = {**kw, "others": (np.stack([found.get(int(b), P[j]) for j, b in enumerate(ids)]), ids)}
+        out.append((res, kw))
+    return out
 
 
 @contextmanager

@@ -161,6 +161,17 @@ class FrameFeed:
         pin = (threading.get_ident(), *(a for a in (self.current_frame, self.before) if a is not None))
         self.ahead = (f, imgs, self.pool.submit(self._prepare, imgs, self._noise_keys(), pin))
 
+    def upload_ahead(self, device) -> bool:
+        """The frame read ahead (:meth:`prefetch`) put on ``device`` now
+        (:func:`core.tracking.engine_upload.share`) where the worker has prepared it; nothing (False)
+        where it has not yet, or could not (its turn then raises or flags as before)."""
+        a = self.ahead
+        if a is None or not a[2].done() or a[2].exception() is not None or a[2].result() is None:
+            return False
+        from .engine_upload import share
+
+        return share(device, a[2].result()) is not None
+
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)

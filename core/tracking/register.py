@@ -64,12 +64,15 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from . import optimize as opt
 from .cost import CostTimer, FrameImages, RegistrationCost, mm_per_pixel, search_roi, snap_roi
+from .likelihood_steps import run_steps
 from .quadratic import quadratic_search
 from .register_options import (  # noqa: F401
     FINAL_STEP,
@@ -191,6 +194,53 @@ STAGE_FIRST = False
 #: (runs 2.19-2.59 s against 2.50-2.62 s; the same poses): its host work sat on the critical path and its
 #: copies queued behind the searches' steps on the same stream.
 STAGE_PREFETCH = True
+
+#: One bone's registration (the ``"newton"`` and ``"global_newton"`` searches over every view of a
+#: :class:`~core.tracking.cost.FrameImages`) puts the whole frame on the device once
+#: (:func:`core.tracking.engine_upload.share`, as joint registration does) and its search regions and its
+#: final stage's are read there: no pinned copy of either's rows on the host, no prefetch of the stage's
+#: rows (:data:`STAGE_PREFETCH` is then skipped), the next frame's pinned copy made ahead in the feed's
+#: worker; the same pixels through the same kernels, so the same results to the bit. Off: each uploads its
+#: own rows, as before.
+SHARE_FRAME = True
+
+#: What to run once while the device works on the final stage's first step (:func:`stage_idle`): set by
+#: :func:`core.tracking.trial.track` to put the next frame on the device there
+#: (:data:`core.tracking.trial.NEXT_FRAME_AHEAD`). None: nothing.
+_STAGE_IDLE: ContextVar = ContextVar("register_stage_idle", default=None)
+
+
+@contextmanager
+def stage_idle(fn):
+    """Within the block, one bone's registrations (:func:`register`) run ``fn()`` once while the device
+    works on their final stage's first step (where the host would otherwise wait: the stage's generator
+    yields there, :func:`core.tracking.final_stage.final_stage_steps`), then let it go; ``fn`` must need
+    nothing of the registration (e.g. the next frame's upload). A study's wrapper of
+    :func:`~core.tracking.final_stage.final_stage` is called as before, without it."""
+    token = _STAGE_IDLE.set([fn] if fn is not None else None)
+    try:
+        yield
+    finally:
+        _STAGE_IDLE.reset(token)
+
+
+def _final_stage(renderer, frame, res, **kw):
+    """:func:`core.tracking.final_stage.final_stage`, with :func:`stage_idle`'s work (once) at its first
+    wait for the device."""
+    from . import final_stage as fst
+
+    slot = _STAGE_IDLE.get()
+    if not slot or fst.final_stage is not fst._PLAIN_FINAL_STAGE:
+        return fst.final_stage(renderer, frame, res, **kw)
+    steps = fst.final_stage_steps(renderer, frame, res, **kw)
+    try:
+        next(steps)
+    except StopIteration as stop:
+        return stop.value
+    fn = slot.pop() if slot else None
+    if fn is not None:
+        fn()
+    return run_steps(steps)
 
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:
@@ -367,7 +417,12 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
                      seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
         return r
 
-    if STAGE_PREFETCH and o.final is not None and search == "newton" and tried is None:
+    held = False
+    if SHARE_FRAME and search in ("newton", "global_newton") and views == tuple(range(frame.n_views)):
+        from . import engine_upload  # the whole frame on the device (one bone's; joint's shared it)
+
+        held = engine_upload.share(renderer.device, frame) is not None
+    if STAGE_PREFETCH and o.final is not None and search == "newton" and tried is None and not held:
         idle = _with_stage_prefetch(idle, renderer, frame, bone=bone, pose=base, center=center, options=o,
                                     views=views)
     if (STAGE_FIRST and o.final is not None and search == "newton" and o.levels is None and tried is None
@@ -418,10 +473,8 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
                     t_start=t_start)
     if o.final is None:
         return res
-    from .final_stage import final_stage
-
-    return final_stage(renderer, frame, res, bone=bone, initial_pose=base, center=center, options=o,
-                       views=views, others=others)
+    return _final_stage(renderer, frame, res, bone=bone, initial_pose=base, center=center, options=o,
+                        views=views, others=others)
 
 
 def _with_stage_prefetch(idle, renderer, frame, **kw):

@@ -186,6 +186,7 @@ restarts run the global CMA-ES stage.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Mapping, Sequence
 
@@ -200,10 +201,18 @@ from .flags_post import apply_trajectory_flags
 from .frame_state import _BoneState, _Cancel, _Run, predict_pose
 from .frame_step import track_frame
 from .options import TrackingOptions
+from .register import stage_idle
 from .results import FrameResult, TrackingResult
 
-__all__ = ["FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs", "predict_pose",
-           "register_start", "track"]
+__all__ = ["NEXT_FRAME_AHEAD", "FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs",
+           "predict_pose", "register_start", "track"]
+
+#: One bone tracked with the final stage: the next frame (prepared by the feed's worker, where it is
+#: ready) is put on the device (:func:`core.tracking.engine_upload.share`) while the device works on this
+#: frame's final stage's first step (:func:`core.tracking.register.stage_idle`), where the host would
+#: wait, instead of at the next frame's start (:data:`core.tracking.register.SHARE_FRAME`). This frame's
+#: later registrations (a retry, the move's confirmation) upload its rows again; the same values.
+NEXT_FRAME_AHEAD = True
 
 
 
@@ -343,9 +352,15 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
             new = {}
             if todo:
                 imgs, frame = feed.get(f)
-                if k + 1 < len(order) and todo_of(order[k + 1])[1]:  # prepared while this one registers
+                nxt = k + 1 < len(order) and bool(todo_of(order[k + 1])[1])
+                if nxt:  # prepared while this one registers
                     feed.prefetch(order[k + 1])
-                new = track_frame(run, f, imgs, frame, todo, state, skip)
+                # one bone: the next frame put on the device while this one's final stage runs
+                ahead = None
+                if NEXT_FRAME_AHEAD and nxt and len(names) == 1 and o.registration.final is not None:
+                    ahead = functools.partial(feed.upload_ahead, renderer.device)
+                with stage_idle(ahead):
+                    new = track_frame(run, f, imgs, frame, todo, state, skip)
             if new is None:
                 status = "cancelled"
                 break

@@ -26,6 +26,7 @@ import warp as wp
 from .engine_buffers import copy_array
 from .likelihood_fast import autocov_rows_dim, autocov_rows_kernel
 from .likelihood_kernels import autocov_kernel, meat_kernel, regressor_kernels, taper_kernel, vec6f
+from .likelihood_stride import autocov_stride_kernel, meat_stride_kernel, stride_cells
 
 #: pixels a thread block of the sandwich's meat kernel sums (None: the engine's ``chunk``, 4096, as
 #: first measured: some 80 blocks of 128 threads for two 400² regions, too few to fill a GPU, each
@@ -48,6 +49,11 @@ AUTOCOV_ROWS = True
 #: order). Off: every lag, as first measured. Same call: 0.43 → 0.22 ms at 4 px, 1.50 → 0.75 ms at 8 px;
 #: σ within 7 · 10⁻⁸ relative over the 90 bone-frames.
 MEAT_HALF = True
+#: The sandwich's autocovariance and meat summed over the region's pixels whose row and column are
+#: multiples of this (:mod:`core.tracking.likelihood_stride`; their partners at every lag still every
+#: pixel; the meat times its square): 1 / stride² of the two passes' work, an estimate of the same
+#: matrix. 1: every pixel, as first measured.
+SANDWICH_STRIDE = 1
 #: A sandwich's autocovariance (:attr:`~_Confidence.autocorrelation`, read by studies) copied from the
 #: device where it is read, not after every sandwich (the same buffer: the last sandwich's values, the copy
 #: waits for it); off: copied into a pinned buffer after every sandwich, as before (one copy fewer a
@@ -109,7 +115,12 @@ class _Confidence:
         cov.zero_()
         chunk = AUTOCOV_CHUNK or self.chunk
         n_chunks = math.ceil(Hc * Wc / chunk)
-        if AUTOCOV_ROWS:  # (the first half of the lags; the rest mirrored)
+        stride = self._sw_stride = max(1, int(SANDWICH_STRIDE))
+        if stride > 1:  # (over the sub-lattice: likelihood_stride; the first half of the lags)
+            dim, groups = autocov_rows_dim(nv, L, math.ceil(stride_cells((Hc, Wc), stride) / chunk))
+            self._launch(("autocov_stride", weights is None), autocov_stride_kernel, dim,
+                         [e, w, self._ref_hw, L, groups, chunk, stride, cov], self.block_dim)
+        elif AUTOCOV_ROWS:  # (the first half of the lags; the rest mirrored)
             dim, groups = autocov_rows_dim(nv, L, n_chunks)
             self._launch(("autocov_rows", weights is None), autocov_rows_kernel, dim,
                          [e, w, self._ref_hw, L, groups, chunk, cov], self.block_dim)
@@ -126,8 +137,13 @@ class _Confidence:
         acc = self._buffer("meat", (nv, 36), wp.float64)
         acc.zero_()
         mc = MEAT_CHUNK or self.chunk
-        self._launch("meat", meat_kernel, (nv, math.ceil(Hc * Wc / mc)),
-                     [jt, cw, self._ref_hw, L, mc, acc, int(MEAT_HALF)], self.block_dim)
+        if stride > 1:
+            dim = (nv, math.ceil(stride_cells((Hc, Wc), stride) / mc))
+            self._launch("meat_stride", meat_stride_kernel, dim,
+                         [jt, cw, self._ref_hw, L, mc, stride, acc, int(MEAT_HALF)], self.block_dim)
+        else:
+            self._launch("meat", meat_kernel, (nv, math.ceil(Hc * Wc / mc)),
+                         [jt, cw, self._ref_hw, L, mc, acc, int(MEAT_HALF)], self.block_dim)
         host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
         copy_array(host, acc)
         if COV_ON_READ:  # (autocorrelation reads the device's buffer: the last sandwich's, as a copy is)
@@ -152,6 +168,9 @@ class _Confidence:
             self._wait()
         meat = self._view(self._host["meat"]).reshape(self.n_views, 6, 6).sum(axis=0)
         meat = 0.5 * (meat + meat.T)
+        stride = self.__dict__.get("_sw_stride", 1)
+        if stride > 1:  # (the sub-lattice's sum: one pixel in stride²)
+            meat = meat * float(stride * stride)
         self.timer.metric += time.perf_counter() - t0
         return Hinv @ meat @ Hinv
 

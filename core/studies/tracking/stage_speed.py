@@ -182,13 +182,15 @@ def _variant(name: str):
 
 #: variants with a number: ``stop<c>`` (engine_likelihood.STOP_PRED = c), ``sc<n>`` (the sandwich's
 #: pixels a block, both kernels: likelihood_confidence.MEAT_CHUNK and AUTOCOV_CHUNK), ``meat<n>`` (its
-#: meat kernel's alone), ``mc<n>`` (the moments': engine_likelihood.MOMENTS_CHUNK)
+#: meat kernel's alone), ``mc<n>`` (the moments': engine_likelihood.MOMENTS_CHUNK), ``stride<n>`` (the
+#: sandwich over the pixels of a sub-lattice: likelihood_confidence.SANDWICH_STRIDE)
 _NUMBERED = {"stop": (("core.tracking.engine_likelihood", "STOP_PRED"),),
              "sc": (("core.tracking.likelihood_confidence", "MEAT_CHUNK"),
                     ("core.tracking.likelihood_confidence", "AUTOCOV_CHUNK")),
              "meat": (("core.tracking.likelihood_confidence", "MEAT_CHUNK"),),
              "mc": (("core.tracking.engine_likelihood", "MOMENTS_CHUNK"),),
-             "ol": (("core.tracking.final_stage", "REGION_OUTLINE"),)}
+             "ol": (("core.tracking.final_stage", "REGION_OUTLINE"),),
+             "stride": (("core.tracking.likelihood_confidence", "SANDWICH_STRIDE"),)}
 
 
 def _numbered(part: str):

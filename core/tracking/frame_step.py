@@ -14,8 +14,7 @@ it only gives the next round its start and the neighbours' poses to subtract, wh
 optimum does as well, so each bone is refined once per frame (with its neighbours at the poses of
 the round before), in joint as in sequential mode. With one joint round (the default since 8dbdcc2)
 there is no round before: the stage subtracts the neighbours at their predictions (in lockstep every
-neighbour; one by one, those not yet registered in the frame), as round 0's search does (in lockstep
-at their searched poses with :data:`STAGE_AT_SEARCHED`, off); every
+neighbour; one by one, those not yet registered in the frame), as round 0's search does; every
 joint figure with the stage was measured with two rounds. A bone that a later round loses (outside a view)
 keeps the earlier round's pose, without the stage. Without a final stage nothing changes. On one
 NVIDIA H200 (1024², 100 frames, three bones jointly, the same call,
@@ -97,7 +96,7 @@ from dataclasses import replace as _replace
 
 import numpy as np
 
-from .attempt import Attempt, confidence_of, limits_ahead, register_checked, settle
+from .attempt import Attempt, limits_ahead, register_checked, settle
 from .checks import same_optimum
 from .cost import OutsideViewError
 from .frame_records import MISSING_FLAG, UNREADABLE_FLAG, missing_flags
@@ -105,7 +104,7 @@ from .frame_records import Work as _Work
 from .frame_records import frame_result as _frame_result
 from .frame_state import _BoneState, _Run, motion_prediction, predict_pose
 from .joint import JointJob, lockstep_applies, register_together
-from .joint_stage import searched_stages
+from .keep_apart import keep_apart
 from .options import STAGE_MOVE_FRAMES, STAGE_MOVE_LIMIT, STAGE_MOVE_SIGMAS
 from .register import RegistrationOptions
 from .results import FrameResult
@@ -115,7 +114,7 @@ from .stage_move import confirmed, stage_move_check
 __all__ = ["AHEAD", "CONFIRM_FLOOR_MM", "FINAL_EVERY_ROUND", "FIRST_FRAME_AGAIN_MOVED", "FIRST_FRAME_AS_PASS",
            "FIRST_FRAME_CHECK_FROM_ROUND0", "FIRST_FRAME_MOVE_FLOOR", "FIRST_FRAME_SECOND_ROUND",
            "JOINT_KEYFRAMES", "MISSING_FLAG", "RESTART_FROM_PREDICTION", "SECOND_PASS_STAGE_ONLY",
-           "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_AT_SEARCHED", "STAGE_MOVE_CONFIRM",
+           "SEQUENTIAL_NEIGHBOURS", "SEQUENTIAL_SECOND_PASS", "STAGE_MOVE_CONFIRM",
            "STAGE_MOVE_FRAMES", "STAGE_MOVE_LIMIT", "STAGE_MOVE_SIGMAS", "UNREADABLE_FLAG", "missing_flags",
            "stage_move_check", "track_frame"]
 
@@ -137,9 +136,6 @@ RESTART_FROM_PREDICTION = False
 #: Sequential tracking's final stage subtracts the neighbours (the bones registered in the frame, the
 #: others at their guesses; off: none, as before; kept for comparison by studies).
 SEQUENTIAL_NEIGHBOURS = True
-#: Joint lockstep rounds' final stages subtract each neighbour at the pose its search found in this frame,
-#: not its prediction (:mod:`core.tracking.joint_stage`: its docs give the 512², 1024² measurements); off.
-STAGE_AT_SEARCHED = False
 #: A stage move the move check flags is first confirmed (:func:`core.tracking.final_stage.confirm_move`:
 #: the stage run again from the far side of its pose lands on the same pose): confirmed, the frame keeps
 #: the stage's pose, unflagged, with a note; off, or not confirmed, it is flagged (and rejected) as before.
@@ -336,9 +332,8 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
         if idle is None:  # the checks' motion limits while the device works on the searches' steps
             idle = limits_ahead([(hist[names[j.bone]], bones[j.bone].centroid, predicted[j.bone])
                                  for j in jobs], o, f)
-        with searched_stages(STAGE_AT_SEARCHED and o.registration.final is not None):
-            got = register_together(run.renderer, frame, jobs, staged(rnd, o.registration), profile=o.profile,
-                                    cancel=run.cancel, idle=idle, done=done)
+        got = register_together(run.renderer, frame, jobs, staged(rnd, o.registration), profile=o.profile,
+                                cancel=run.cancel, idle=idle, done=done)
         return got, (time.perf_counter() - t0) / len(jobs)
 
     def check(i: int, rnd: int, others, pre, host_only: bool = False):
@@ -463,7 +458,7 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
                 if done:  # neighbours registered in this frame, not mere guesses
                     wide = not hist[names[i]] and (rnd == 0 or FIRST_FRAME_AS_PASS)  # registered with these
                     opts = o.first_options if wide else o.registration
-                    _keep_apart(run, frame, i, new, others, [(k, current[k]) for k in done], opts)
+                    keep_apart(run, frame, i, new, others, [(k, current[k]) for k in done], opts)
             if run.cancel.fired:  # the registration was cut short: nothing of this frame stands
                 return None
             work[i].add(new)
@@ -502,46 +497,6 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
 def _confirmed(run: _Run, frame, i: int, a: Attempt, others, w: _Work, moved: list) -> list:
     """:func:`core.tracking.stage_move.confirmed` with :data:`CONFIRM_FLOOR_MM` as it is now."""
     return confirmed(run, frame, i, a, others, w, moved, floor_mm=CONFIRM_FLOOR_MM)
-
-
-def _keep_apart(run: _Run, frame, i: int, a: Attempt, others, placed: list,
-                opts: RegistrationOptions) -> None:
-    """Joint tracking with ``contact``: when bone ``i``'s registered pose comes closer than the
-    margin to a neighbour registered in this frame (``placed``: (index, pose)), polish it under
-    the interpenetration penalty of :mod:`core.tracking.contact` (``a`` is updated in place: pose,
-    score, confidence, work, a note with the depth resolved). The polish re-optimises the similarity: a
-    pose the final stage refined is then not the stage's (its outcome ``likelihood_taken`` 0, said in the
-    note)."""
-    from .contact import penetration_depths, polish_with_contact
-
-    o = run.options
-    neighbours = [(run.contacts[k], P) for k, P in placed]
-    me = run.contacts[i]
-    depth = float(penetration_depths(me, a.result.pose[None], neighbours, margin=o.contact_margin_mm)[0])
-    if depth <= 0:
-        return
-    t0 = time.perf_counter()
-    bone = run.bones[i]
-    try:
-        P, score, fit, evals, left = polish_with_contact(
-            run.renderer, frame, bone=i, pose=a.result.pose, center=bone.centroid, contact=me,
-            neighbours=neighbours, terms=opts.terms, others=others, outline=bone.outline,
-            weight=o.contact_weight, margin=o.contact_margin_mm, margin_px=opts.margin_px, cancel=run.cancel)
-    except OutsideViewError:
-        return
-    a.result = _replace(a.result, pose=P, score=score, fit=fit)
-    staged = bool((a.result.timing or {}).get("likelihood_taken"))
-    if staged:  # (the polish moved the final stage's pose: the stage ran, its pose is not the one kept)
-        a.result = _replace(a.result, timing={**a.result.timing, "likelihood_taken": 0})
-    a.evaluations += evals
-    dt = time.perf_counter() - t0
-    a.time_s += dt
-    if a.timing is not None:
-        a.timing["other_s"] = a.timing.get("other_s", 0.0) + dt
-    if o.confidence and fit is not None:
-        a.confidence = confidence_of(fit, o)
-    a.notes = (*a.notes, f"contact: {depth:.2f} mm interpenetration resolved to {left:.2f} mm"
-               + ("; the final stage's pose polished with the similarity" if staged else ""))
 
 
 def _moved_around(todo: list[int], before: dict, current: dict, out: dict, bones) -> list[int]:

@@ -67,7 +67,7 @@ class _Stats:
         self.first = None  # the run's first frame (its first frame step's)
 
     def timed(self, fn, name: str):
-        @functools.wraps(fn)  # (its module and name: joint_pipeline.applies tells final_stages by them)
+        @functools.wraps(fn)  # (its module and name kept; __wrapped__ the function it calls)
         def w(*a, **k):
             self.stack.append(0.0)
             t = time.perf_counter()
@@ -75,6 +75,7 @@ class _Stats:
                 return fn(*a, **k)
             finally:
                 self.done(name, time.perf_counter() - t)
+        w._timing_only = True  # (the calls passed on unchanged: joint_pipeline.applies looks through it)
         return w
 
     def done(self, name: str, dt: float) -> None:

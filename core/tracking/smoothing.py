@@ -19,8 +19,9 @@ measurement scale ``k`` are the maximum of the innovations' likelihood (no truth
 a calibrated standard error (its errors within 2σ far more often than 95 % on some bones): ``k``
 takes its level from the data, ``σ_f`` only weighs the frames against each other.
 
-Frames without a pose, or flagged for review (``flagged``; ``flagged_weight`` 0, the default),
-are not measured: they get the pose their neighbours imply, with its (larger) covariance.
+Frames without a pose are not measured: they get the pose their neighbours imply, with its (larger)
+covariance; so are frames flagged for review (``flagged``) with ``flagged_weight`` 0 (default 1:
+measured as the others, the robust weights judging them).
 ``robust``: frames whose smoothed residual stands more than ``robust`` × their own scaled σ off
 (RMS over the translation or the rotation coordinates) are down-weighted by ``(robust / d)²`` and
 the fit repeated (:data:`ROBUST_ROUNDS` rounds); None: no down-weighting.
@@ -258,8 +259,8 @@ def _chart_sigma(z, sigma, ok, weigh):
     return out
 
 
-def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "velocity", weigh: str = "sigma",
-                 robust: float | None = 2.5, flagged_weight: float = 0.0) -> SmoothedPoses:
+def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "acceleration", weigh: str = "sigma",
+                 robust: float | None = 2.5, flagged_weight: float = 1.0) -> SmoothedPoses:
     """Smooth one bone's tracked poses with the covariance-weighted RTS smoother (module docs).
 
     Parameters
@@ -274,13 +275,17 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "velocity",
         Bone-frame point (mm) whose path is smoothed, the σ's rotation centre (the centroid).
     flagged : (n,) bool array, optional
         Frames flagged for review: measured with ``flagged_weight`` (0: not at all).
-    model : {"velocity", "acceleration"}
+    model : {"acceleration", "velocity"}
+        The motion model (default constant acceleration: on the acceptance trial the constant
+        velocity one followed the heel strike's acceleration badly, ``core.studies.tracking.smoother``).
     weigh : {"sigma", "equal"}
         Weigh each frame by its own σ, or every frame of a coordinate alike (its median σ).
     robust : float or None
         Down-weighting threshold on a frame's scaled residual (module docs); None: off.
     flagged_weight : float
-        The weight of a flagged frame's measurement, in [0, 1].
+        The weight of a flagged frame's measurement, in [0, 1] (default 1: most flagged frames of
+        the acceptance trial are good, and ``robust`` weighs down those off their neighbours;
+        skipping them left the ones at a trial's ends to extrapolation, ``core.studies.tracking.smoother``).
 
     Returns
     -------

@@ -67,7 +67,7 @@ def test_flagged_frame_skipped_and_outlier_down_weighted():
     P, _ = _noisy(T, sigma, 0.5, seed=1)
     bad = P.copy()
     bad[40] = pose_from_params(np.r_[1.0, -1.0, 0.5, 0.02, 0.0, 0.0], center=CENTER, base=T[40])
-    sk = smooth_poses(bad, sigma, center=CENTER, flagged=np.arange(len(T)) == 40, model="acceleration")
+    sk = smooth_poses(bad, sigma, center=CENTER, flagged=np.arange(len(T)) == 40, flagged_weight=0.0)
     assert sk.weights[40] == 0
     assert np.linalg.norm(_errors(sk.poses, T)[40, :3]) < 0.1
     rb = smooth_poses(bad, sigma, center=CENTER, model="acceleration", robust=2.5)
@@ -100,9 +100,9 @@ def test_smooth_track_reads_sigma_and_flags():
     res = {("b", f): FrameResult("b", f, P[f], 0.5, 10, 0.0, True, ("x",) if f == 7 else (),
                                  confidence={"sigma": sigma[f].tolist()}) for f in range(len(T))}
     tr = TrackingResult(("b",), tuple(range(len(T))), res, "complete", 0.0)
-    sm = smooth_track(tr, "b", center=CENTER, model="acceleration")
+    sm = smooth_track(tr, "b", center=CENTER, flagged_weight=0.0)
     assert sm.weights[7] == 0 and sm.poses.shape == (len(T), 4, 4)
-    direct = smooth_poses(P, sigma, center=CENTER, flagged=np.arange(len(T)) == 7, model="acceleration")
+    direct = smooth_poses(P, sigma, center=CENTER, flagged=np.arange(len(T)) == 7, flagged_weight=0.0)
     assert np.allclose(sm.poses, direct.poses)
 
 
@@ -116,4 +116,4 @@ def test_arguments_checked():
     with pytest.raises(ValueError, match="flagged_weight"):
         smooth_poses(T, s, center=CENTER, flagged_weight=2.0)
     with pytest.raises(ValueError, match="measured"):
-        smooth_poses(T, s, center=CENTER, flagged=np.ones(20, bool))
+        smooth_poses(T, s, center=CENTER, flagged=np.ones(20, bool), flagged_weight=0.0)

@@ -1,0 +1,237 @@
+"""The covariance-weighted smoother of the tracked poses against the truth, on stored acceptance runs
+(``python -m core.studies.tracking.smoother``).
+
+Runs: the acceptance study's seeds 0, 3 and 4 at d262386, both modes (one NVIDIA H100, 1024², 0.5
+mm, 100 frames, the final stage; ``tracking_acceptance_seed{0,3,4}_final_d262386_h100.json``).
+Each keeps every frame's error against the truth, σ and flags; the tracked poses are rebuilt as
+those errors applied to the seed's true poses (:func:`core.studies.tracking.trajectory_gaps.truth`,
+the motion made again from the seed; rotation centre the seed's bone model's centroid at 0.5 mm,
+:func:`centroids`, the one the errors are about). Per bone, mode and seed three estimates are
+compared with the truth:
+
+* ``raw``: the tracked poses (each frame alone);
+* ``lowpass``: the acceptance study's fixed low-pass (second-order zero-phase Butterworth, cut-off
+  by Winter's residual analysis, flagged frames left out and not scored,
+  :meth:`~core.tracking.results.TrackingResult.filtered_poses`);
+* the smoother :func:`core.tracking.smoothing.smooth_poses` in the variants of :data:`VARIANTS`
+  (the model, the flagged frames' weight, the robust down-weighting, weighing by each frame's σ or
+  not), every frame scored.
+
+Measures (:func:`measures`): RMS error over the bone's single-frame Cramér–Rao bound (mm, °; the
+bound does not bound an estimate that pools frames: a separate figure from the per-frame goal),
+the largest error, the frames over 4× the bound and those of them not flagged (silent), and for
+the smoother its covariance's coverage (the fraction of translation and of rotation axes within
+2σ; a correct σ gives 95.4 %), the scale ``k`` it found on the tracker's σ.
+
+Transient (:func:`transient`): the truth given a heel-strike-like jerk at frame :data:`T0` — each
+coordinate stepped by ``amplitude`` (mm; the same number in degrees) as a damped second-order
+system's step response (:data:`TRANSIENT_HZ`, damping :data:`TRANSIENT_ZETA`: it settles within a
+few frames at the trial's 278 Hz, overshooting) — plus the run's own errors; the smoother's added
+error there is its error with the transient minus without, RMS over frames ``T0 - 3`` to
+``T0 + 12``, beside the raw frames' error in that window.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from core.studies.tracking.acceptance_records import pose_errors
+from core.studies.tracking.trajectory_gaps import BENCH, BONES, _rebuilt, truth
+
+__all__ = ["RUNS", "T0", "VARIANTS", "centroids", "lowpass_errors", "main", "measures", "run", "table",
+           "transient"]
+
+#: seed -> the stored acceptance run (both modes)
+RUNS = {s: f"tracking_acceptance_seed{s}_final_d262386_h100.json" for s in (0, 3, 4)}
+#: the smoother's variants: name -> smooth_poses keywords
+VARIANTS = {
+    "acceleration": {},  # smooth_poses' defaults: constant acceleration, flagged frames measured, robust 2.5
+    "acceleration_skip_flagged": {"flagged_weight": 0.0},
+    "acceleration_flagged_quarter": {"flagged_weight": 0.25},
+    "acceleration_not_robust": {"robust": None},
+    "acceleration_equal": {"weigh": "equal"},
+    "velocity": {"model": "velocity"},
+    "velocity_skip_flagged": {"model": "velocity", "flagged_weight": 0.0},
+}
+#: the transient's frame, natural frequency (Hz) and damping
+T0, TRANSIENT_HZ, TRANSIENT_ZETA = 50, 40.0, 0.4
+FRAME_RATE_HZ = 100 / 0.36  # the acceptance trial's (core.studies.tracking.acceptance.FRAME_RATE_HZ)
+
+
+def centroids(seed: int) -> list[np.ndarray]:
+    """The seed's bone models' centroids (0.5 mm phantoms, as the acceptance study's scene)."""
+    from core.synthetic.phantoms import foot_phantoms
+    from core.tracking.bones import bone_model
+
+    return [bone_model(p.volume, mesh=False).centroid for p in foot_phantoms(BONES, spacing=0.5, seed=seed)]
+
+
+def _errors(P, T, c) -> np.ndarray:
+    """``(n, 6)`` errors (mm, degrees) of poses ``P`` against ``T``; NaN rows where ``P`` has none."""
+    out = np.full((len(P), 6), np.nan)
+    for f, (p, t) in enumerate(zip(P, T, strict=True)):
+        if np.all(np.isfinite(p)):
+            out[f] = pose_errors(p, t, c)
+    return out
+
+
+def measures(E, bound: dict, flagged, sigma=None) -> dict:
+    """RMS over the bound, largest errors, frames over 4× (silent: not ``flagged``) of errors ``E``
+    (frames without a row of NaN left out); with ``sigma`` the 2σ coverage per group of axes."""
+    ok = np.isfinite(E).all(axis=1)
+    frames = np.flatnonzero(ok)
+    et, er = np.linalg.norm(E[ok, :3], axis=1), np.linalg.norm(E[ok, 3:], axis=1)
+    over = (et > 4 * bound["rms_mm"]) | (er > 4 * bound["rms_deg"])
+    out = {"frames": int(ok.sum()),
+           "rms_over_bound": [round(float(np.sqrt(np.mean(et ** 2)) / bound["rms_mm"]), 3),
+                              round(float(np.sqrt(np.mean(er ** 2)) / bound["rms_deg"]), 3)],
+           "rms": [round(float(np.sqrt(np.mean(et ** 2))), 5), round(float(np.sqrt(np.mean(er ** 2))), 5)],
+           "max": [round(float(et.max()), 5), round(float(er.max()), 5)],
+           "over_4x": frames[over].tolist(), "silent_over_4x": frames[over & ~flagged[ok]].tolist()}
+    if sigma is not None:
+        inside = np.abs(E[ok]) <= 2 * sigma[ok]
+        out["within_2_sigma"] = [round(float(inside[:, :3].mean()), 3), round(float(inside[:, 3:].mean()), 3)]
+    return out
+
+
+def lowpass_errors(P, T, c, flagged) -> tuple[np.ndarray, float]:
+    """The acceptance study's low-pass of ``P`` (flagged frames out, NaN) and its errors; the cut-off."""
+    from core.tracking.kinematics import filter_poses, residual_cutoff
+
+    Q = P.copy()
+    Q[flagged] = np.nan
+    ok = np.all(np.isfinite(Q), axis=(1, 2))
+    path = np.full((len(Q), 3), np.nan)
+    path[ok] = Q[ok, :3, :3] @ c + Q[ok, :3, 3]
+    fc, _ = residual_cutoff(path, FRAME_RATE_HZ)
+    return _errors(filter_poses(Q, FRAME_RATE_HZ, fc, center=c), T, c), fc
+
+
+def _step(n: int, t0: int) -> np.ndarray:
+    """The damped second-order step response at frames ``0..n-1`` (0 before ``t0``, → 1)."""
+    s = (np.arange(n) - t0) / FRAME_RATE_HZ
+    w, z = 2 * math.pi * TRANSIENT_HZ, TRANSIENT_ZETA
+    wd = w * math.sqrt(1 - z * z)
+    y = 1 - np.exp(-z * w * s) * (np.cos(wd * s) + z * w / wd * np.sin(wd * s))
+    return np.where(s > 0, y, 0.0)
+
+
+def transient(T, c, amplitude: float, t0: int = T0) -> np.ndarray:
+    """``T`` with the jerk (module docs): every coordinate stepped by ``amplitude`` mm / degrees."""
+    from core.geometry.transforms import pose_from_params
+
+    u = _step(len(T), t0)[:, None] * amplitude * np.r_[np.ones(3), np.radians(np.ones(3))]
+    return np.array([pose_from_params(d, center=c, base=t) for d, t in zip(u, T, strict=True)])
+
+
+def _window_rms(E, lo, hi) -> list[float]:
+    W = E[lo:hi]
+    return [round(float(np.sqrt(np.nanmean(np.sum(W[:, :3] ** 2, 1)))), 5),
+            round(float(np.sqrt(np.nanmean(np.sum(W[:, 3:] ** 2, 1)))), 5)]
+
+
+def _window_max(E, lo, hi) -> list[float]:
+    W = E[lo:hi]
+    return [round(float(np.nanmax(np.linalg.norm(W[:, :3], axis=1))), 5),
+            round(float(np.nanmax(np.linalg.norm(W[:, 3:], axis=1))), 5)]
+
+
+def _jerks(E, Es, S, fl, T, c, kw, amplitudes) -> dict:
+    """Per amplitude, the transient's errors in its window (module docs): the raw frames', the
+    smoother's without and with it, the difference (``added``, RMS and largest)."""
+    from core.tracking.smoothing import smooth_poses
+
+    lo, hi = T0 - 3, T0 + 13
+    out = {}
+    for a in amplitudes:
+        Tj = transient(T, c, a)
+        Ej = _errors(smooth_poses(_rebuilt(E, Tj, c), S, center=c, flagged=fl, **kw).poses, Tj, c)
+        out[str(a)] = {"raw": _window_rms(E, lo, hi), "smoothed_plain": _window_rms(Es, lo, hi),
+                       "smoothed_jerk": _window_rms(Ej, lo, hi), "added": _window_rms(Ej - Es, lo, hi),
+                       "max_added": _window_max(Ej - Es, lo, hi)}
+    return out
+
+
+def _stored(t: dict, n: int):
+    """A stored bone record's errors, σ (``(n, 6)``, NaN where none) and flags."""
+    E = np.full((n, 6), np.nan)
+    E[t["frames_with_pose"]] = t["per_frame_error"]
+    S = np.full((n, 6), np.nan)
+    S[t["frames_with_pose"]] = [[np.inf if v is None else v for v in q] if q else [np.nan] * 6
+                                for q in t["per_frame_sigma"]]
+    return E, S, np.isin(np.arange(n), t["flagged_frames"])
+
+
+def run(seeds=(0, 3, 4), variants=None, amplitudes=(0.25, 1.0), bench: Path = BENCH) -> dict:
+    """Every stored run's bones, the estimates and their measures (module docs)."""
+    from core.tracking.smoothing import smooth_poses
+
+    variants = VARIANTS if variants is None else {k: VARIANTS[k] for k in variants}
+    out: dict = {}
+    for seed in seeds:
+        d = json.loads((bench / RUNS[seed]).read_text())
+        T, cs = truth(int(seed)), centroids(int(seed))
+        for mode, r in d["runs"].items():
+            for b, t in r["tracking"].items():
+                k, c, cb = BONES.index(b), cs[BONES.index(b)], t["cramer_rao"]
+                E, S, fl = _stored(t, T.shape[1])
+                P = _rebuilt(E, T[k], c)
+                El, fc = lowpass_errors(P, T[k], c, fl)
+                rec = {"raw": measures(E, cb, fl),
+                       "lowpass": {"cutoff_hz": round(fc, 2), **measures(El, cb, fl)}}
+                for name, kw in variants.items():
+                    sm = smooth_poses(P, S, center=c, flagged=fl, **kw)
+                    Es = _errors(sm.poses, T[k], c)
+                    low = np.flatnonzero((sm.weights > 0) & (sm.weights < 0.999)).tolist()
+                    rec[name] = {**measures(Es, cb, fl, sm.sigma), "scale": np.round(sm.scale, 3).tolist(),
+                                 "down_weighted": low,
+                                 "transient": _jerks(E, Es, S, fl, T[k], c, kw, amplitudes)}
+                out.setdefault(str(seed), {}).setdefault(mode, {})[b] = rec
+    return out
+
+
+def table(res: dict, variant: str = "acceleration") -> list[str]:
+    """One line per seed, mode and bone: × the bound (mm/°) raw, low-pass, ``variant``; over 4×
+    (silent); the variant's coverage and the 1 mm transient's added error."""
+    lines = [f"seed mode bone: x bound mm/deg raw | lowpass | {variant}; over4x raw/lp/sm (silent raw); "
+             "2sigma t/r; jerk 1.0 added mm/deg (raw window)"]
+    for seed, modes in res.items():
+        for mode, bones in modes.items():
+            for b, r in bones.items():
+                s, j = r[variant], r[variant]["transient"].get("1.0", {})
+                lines.append(f"{seed} {mode[:3]} {b:9s} {r['raw']['rms_over_bound']} | "
+                             f"{r['lowpass']['rms_over_bound']} | {s['rms_over_bound']}; "
+                             f"{len(r['raw']['over_4x'])}/{len(r['lowpass']['over_4x'])}/{len(s['over_4x'])} "
+                             f"({len(r['raw']['silent_over_4x'])}); {s['within_2_sigma']}; "
+                             f"{j.get('added')} ({j.get('raw')})")
+    return lines
+
+
+def main(argv=None) -> int:
+    """Run the study; the JSON (stamped) to ``--out``, the table to stderr."""
+    import sys
+
+    from core.studies.tracking import _study_cli as cli
+
+    p = cli.parser(__name__, __doc__)
+    p.add_argument("--seeds", default="0,3,4")
+    p.add_argument("--variants", default=",".join(VARIANTS))
+    p.add_argument("--machine", default="this 2-core x86_64 machine, shared")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    res = {"runs": run(cli.ints(a.seeds), cli.names(a.variants)),
+           "variants": {k: VARIANTS[k] for k in cli.names(a.variants)},
+           "transient": {"frame": T0, "natural_hz": TRANSIENT_HZ, "damping": TRANSIENT_ZETA,
+                         "window": [T0 - 3, T0 + 12]}}
+    print("\n".join(table(res["runs"], cli.names(a.variants)[0])), file=sys.stderr)
+    if a.out:
+        cli.write_stamped(a.out, __name__, argv, a.machine, res)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

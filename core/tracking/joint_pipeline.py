@@ -13,14 +13,14 @@ where it would wait for the device, as :func:`~core.tracking.engine_likelihood.r
 drives them).
 
 The same values: a bone's stage starts from its own search's result and its neighbours at the poses
-the round began with, whatever the other bones' searches do (the stage at the searched poses,
-:data:`core.tracking.frame_step.STAGE_AT_SEARCHED`, needs every search first and runs as before); each
+the round began with, whatever the other bones' searches do; each
 search and each stage works on its own engine and buffers, the device in the order of one stream, a
 stage keeping its own copy of the rendered images (``side_by_side``) as it does among the other
 stages. A bone whose search did not converge goes on with the half-resolution fallback of
 :func:`~core.tracking.register.register` after the loop (before, the stages waited for it; the same
-values: its engines are its own). Used where ``final_stages`` is the module's own function and
-``final_stage`` not wrapped (a study's wrapper sees every call: then as before), and every job's
+values: its engines are its own). Used where ``final_stages`` and ``final_stage`` are the module's own
+functions, told by identity (a study's wrapper sees every call: then as before; one that only times the
+calls and passes them on unchanged, marked with :func:`timing_only`, is looked through), and every job's
 bone differs.
 """
 
@@ -29,31 +29,39 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-__all__ = ["PIPELINED_STAGES", "applies", "run_pipelined"]
+__all__ = ["PIPELINED_STAGES", "applies", "run_pipelined", "timing_only"]
 
 #: Run joint registration's searches and final stages in one pipeline (module docs); off: the stages
 #: after every search, side by side (as before).
 PIPELINED_STAGES = True
 
 
+def timing_only(wrapper: Callable) -> Callable:
+    """Mark ``wrapper`` — a study's :func:`functools.wraps` wrapper of ``final_stages`` that passes every
+    call on unchanged (its ``__wrapped__`` the function it calls), timing it — as one :func:`applies`
+    looks through; returns it."""
+    wrapper._timing_only = True
+    return wrapper
+
+
+def _own(f, own) -> bool:
+    """Whether ``f`` is ``own``, or wrappers marked :func:`timing_only` around it."""
+    while f is not own:
+        if not getattr(f, "_timing_only", False):
+            return False
+        f = getattr(f, "__wrapped__", None)
+    return True
+
+
 def applies(jobs) -> bool:
     """Whether :func:`run_pipelined` gives what the searches then ``final_stages`` give: the switch
-    on, the module's own ``final_stages`` and ``final_stage`` (no study's wrapper; the searched-pose
-    switch of :mod:`core.tracking.joint_stage` off here — its wrapper, once installed, stays for the
-    process and passes the calls on unchanged while off), every job's bone its own."""
+    on, the final stage module's own ``final_stages`` (by identity; a :func:`timing_only` wrapper of it
+    looked through) and ``final_stage`` (no study's wrapper), every job's bone its own."""
     if not PIPELINED_STAGES:
         return False
     from . import final_stage as fst
 
-    f = fst.final_stages
-    if getattr(f, "_searched_switch", False):  # joint_stage's wrapper: on in this context, every search first
-        from .joint_stage import _ON
-
-        if _ON.get():
-            return False
-        f = getattr(f, "_plain", f)
-    return (fst.final_stage is fst._PLAIN_FINAL_STAGE and getattr(f, "__module__", None) == fst.__name__
-            and getattr(f, "__qualname__", None) == "final_stages"
+    return (fst.final_stage is fst._PLAIN_FINAL_STAGE and _own(fst.final_stages, fst._PLAIN_FINAL_STAGES)
             and len({int(j.bone) for j in jobs}) == len(jobs))
 
 

@@ -89,21 +89,37 @@ def test_pipelined_fallback_to_half_resolution(talus_calcaneus_128, monkeypatch)
     _same(off, on)
 
 
-def test_the_pipeline_after_the_searched_pose_switch_was_used(talus_calcaneus_128, monkeypatch):
-    """joint_stage installs its switch's wrapper of final_stages once for the process; outside the switch
-    the wrapper passes the calls on unchanged, so the pipeline applies there as before the switch was first
-    used (it stayed off for the rest of the process), and not inside the switch."""
+def test_applies_tells_the_stages_by_identity(monkeypatch):
+    """A study's wrapper of final_stages made with functools.wraps (the module's name and qualname copied)
+    turns the pipeline off, as any wrapper does (it sees every call only without the pipeline), unless
+    marked timing_only (it passes the calls on unchanged: frame_profile's), through every wrapper to the
+    module's own function; a wrapped final_stage turns it off too."""
+    import functools
+
     import core.tracking.final_stage as fst
     import core.tracking.joint_pipeline as jp
-    from core.tracking.joint_stage import searched_stages
 
-    monkeypatch.setattr(fst, "final_stages", fst.final_stages)  # (the switch's wrapper taken off after)
-    used = []
-    real = jp.run_pipelined
-    monkeypatch.setattr(jp, "run_pipelined", lambda *a, **k: used.append(1) or real(*a, **k))
     jobs = [type("Job", (), {"bone": b})() for b in (0, 1)]
-    with searched_stages(True):
-        assert fst.final_stages._searched_switch and not jp.applies(jobs)
-    assert jp.applies(jobs)  # the switch off: its wrapper is the module's own final_stages
-    _track(talus_calcaneus_128, monkeypatch, True)
-    assert used
+    own = fst.final_stages
+    assert own is fst._PLAIN_FINAL_STAGES and jp.applies(jobs)
+    assert not jp.applies(jobs + jobs[:1])  # (a bone twice)
+
+    def wrap(f):
+        @functools.wraps(f)
+        def w(*a, **k):
+            return f(*a, **k)
+        return w
+
+    plain = wrap(own)
+    assert plain.__qualname__ == "final_stages" and plain.__module__ == fst.__name__
+    monkeypatch.setattr(fst, "final_stages", plain)
+    assert not jp.applies(jobs)
+    monkeypatch.setattr(fst, "final_stages", jp.timing_only(wrap(own)))
+    assert jp.applies(jobs)
+    monkeypatch.setattr(fst, "final_stages", jp.timing_only(wrap(jp.timing_only(wrap(own)))))
+    assert jp.applies(jobs)
+    monkeypatch.setattr(fst, "final_stages", jp.timing_only(wrap(plain)))  # (a timing one around another)
+    assert not jp.applies(jobs)
+    monkeypatch.setattr(fst, "final_stages", own)
+    monkeypatch.setattr(fst, "final_stage", jp.timing_only(wrap(fst.final_stage)))
+    assert not jp.applies(jobs)  # (final_stage is called by final_stages: any wrapper of it sees every call)

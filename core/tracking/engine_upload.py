@@ -16,11 +16,16 @@ registering thread only enqueues the upload. A set whose upload may still be in 
 again until the registering thread has waited for its event (the worker makes no CUDA call). Where no
 pinned copy is ready (the first frame, a frame the feed did not prepare) :func:`share` makes it itself.
 
-One bone's registration does not share (its own regions are an eighth of the frame for the talus: the whole
-frame's upload would cost the device more than the host saves; not measured);
 :func:`core.tracking.joint.register_together` calls
 :func:`share` for its jobs' frame, and any registration of that frame afterwards (the fallback, the final
-stage's passes, the frame's later rounds) reads the same device copy while it holds that frame. Each
+stage's passes, the frame's later rounds) reads the same device copy while it holds that frame. One bone's
+registration shares its frame too (:data:`core.tracking.register.SHARE_FRAME`; its regions are an eighth of
+the frame for the talus, but the device is idle while the host prepares the search, and the host copies go),
+and with the final stage the next frame goes up while the device works on this frame's stage
+(:data:`core.tracking.trial.NEXT_FRAME_AHEAD`): on CUDA on a stream of its own (``ahead``), after the
+device's work so far (which may still read the frame held before) and beside the stage's later steps; the
+device's stream waits for it only where the frame is read (:meth:`FrameUpload.ready`, in :func:`share` and
+:func:`holding`). Each
 registering thread has its own device copy and pinned sets (keyed by ``threading.get_ident()``; the feed's
 worker fills those of the thread that asked it to prefetch): two trials tracked at once in one process
 (two windows, a batch beside a window) never read or overwrite each other's frame.
@@ -98,6 +103,11 @@ class FrameUpload:
         self.given_on = False  # given holds that frame's masks
         self.uploads = 0  # uploads made (tests)
         self.filled_here = 0  # pinned copies made by share itself (not ahead)
+        # (CUDA) an upload made ahead on a stream of its own (upload's ``ahead``): the event the device's
+        # stream waits for before it reads the frame (ready), the stream and its start event
+        self.pending = None
+        self.side = None
+        self.side_start = None
 
     def fits(self, frame) -> bool:
         nv, H, W = self.shape
@@ -138,11 +148,21 @@ class FrameUpload:
                     s.frame, s.stamp = weakref.ref(frame), next(_STAMP)
         return True
 
-    def upload(self, frame) -> None:
+    def ready(self) -> None:
+        """(CUDA) The device's stream made to wait for an upload made ahead on the side stream before
+        its next work (which reads the frame); nothing where none is pending."""
+        if self.pending is not None:
+            self.device.stream.wait_event(self.pending)
+            self.pending = None
+
+    def upload(self, frame, ahead: bool = False) -> None:
         """Put ``frame`` on the device (the registering thread): from the set holding it (filled ahead),
         else from a set filled here; the earlier uploads' events waited for first (done long since in a
         tracking run: the frames before this one have synchronised), so their sets may be written
-        again."""
+        again. ``ahead`` (CUDA): the copy on a stream of its own, after the work the device's stream has
+        been given so far (which may still read the frame held before) and beside what it is given next
+        (another frame's final stage), the device's stream waiting for it only where the frame is read
+        (:meth:`ready`: :func:`share`, :func:`holding`)."""
         if self.holds(frame):
             return
         cuda = self.device.is_cuda
@@ -174,13 +194,27 @@ class FrameUpload:
                     else:
                         s.busy = False
             self.filled_here += 1
-        copy_array(self.src, s.fluence)
-        if s.has_given:
-            copy_array(self.given, s.given)
+        side = cuda and ahead
+        if side:
+            if self.side is None:
+                self.side = wp.Stream(self.device)
+                self.side_start = wp.Event(self.device)
+            self.device.stream.record_event(self.side_start)  # (the reads of the frame held before)
+            self.side.wait_event(self.side_start)
+            self.ready()  # (an earlier ahead upload: the stream's order, the side stream's after it)
+        elif cuda:
+            self.ready()  # (a copy over one still in flight on the side stream: after it)
+        with wp.ScopedStream(self.side, sync_enter=False) if side else _nothing():
+            copy_array(self.src, s.fluence)
+            if s.has_given:
+                copy_array(self.given, s.given)
         if cuda:
+            stream = self.side if side else self.device.stream
             if s.event is None:
                 s.event = wp.Event(self.device)
-            self.device.stream.record_event(s.event)  # (the stream the copies went on)
+            stream.record_event(s.event)  # (the stream the copies went on)
+            if side:
+                self.pending = s.event
         self.on_device = weakref.ref(frame)
         self.given_on = s.has_given
         self.uploads += 1
@@ -195,7 +229,15 @@ def applies(device) -> bool:
     return SHARED_UPLOAD and kind in DEVICES
 
 
-def share(device, frame) -> FrameUpload | None:
+class _nothing:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *a):
+        return False
+
+
+def share(device, frame, ahead: bool = False) -> FrameUpload | None:
     """Put the whole of ``frame`` (a :class:`~core.tracking.cost.FrameImages`) on ``device`` for the
     engines of its bones (module docs); None where it does not apply (switched off, another device kind,
     another kind of frame). Each registering thread has its own device copy and pinned sets (two windows
@@ -219,7 +261,11 @@ def share(device, frame) -> FrameUpload | None:
             _ACTIVE.pop(k, None)
         up = _UPLOADS[key] = FrameUpload(device, (nv, H, W))
     _ACTIVE[key[1]] = up
-    up.upload(frame)
+    if ahead:
+        up.upload(frame, ahead=True)
+    else:
+        up.upload(frame)
+        up.ready()
     return up
 
 
@@ -228,7 +274,10 @@ def holding(device, frame) -> FrameUpload | None:
     if not SHARED_UPLOAD:
         return None
     up = _UPLOADS.get((device.alias, threading.get_ident()))
-    return up if up is not None and up.holds(frame) else None
+    if up is None or not up.holds(frame):
+        return None
+    up.ready()
+    return up
 
 
 def pin_ahead(frame, after=(), owner: int | None = None) -> bool:

@@ -163,14 +163,15 @@ class FrameFeed:
 
     def upload_ahead(self, device) -> bool:
         """The frame read ahead (:meth:`prefetch`) put on ``device`` now
-        (:func:`core.tracking.engine_upload.share`) where the worker has prepared it; nothing (False)
-        where it has not yet, or could not (its turn then raises or flags as before)."""
+        (:func:`core.tracking.engine_upload.share`; on CUDA on a stream of its own, beside the work the
+        device is given meanwhile) where the worker has prepared it; nothing (False) where it has not
+        yet, or could not (its turn then raises or flags as before)."""
         a = self.ahead
         if a is None or not a[2].done() or a[2].exception() is not None or a[2].result() is None:
             return False
         from .engine_upload import share
 
-        return share(device, a[2].result()) is not None
+        return share(device, a[2].result(), ahead=True) is not None
 
     def close(self) -> None:
         if self.pool is not None:

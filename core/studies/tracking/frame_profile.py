@@ -1,6 +1,6 @@
 """Where a tracking frame's time goes: ``python -m core.studies.tracking.frame_profile [--device cuda:0]
 [--frames 100] [--pixels 1024] [--voxel 0.5] [--bones three|one] [--final likelihood|none] [--workers 12]
-[--repeats 3] [--cprofile] [--out FILE]``.
+[--repeats 3] [--variants SPEC] [--cprofile] [--out FILE]``.
 
 The scene and trial of ``talus bench track`` (:mod:`core.studies.tracking.benchmark`: the synthetic walking
 trial, frames synthesised before the clock starts, frame 0 from the true pose, joint tracking of tibia,
@@ -16,7 +16,11 @@ regions prepared on the device (in ``set_frame``; with their host copies where t
 the neighbours' DRRs to subtract; ``stage_gen.next0`` / ``stage_gen.next``: a final stage's set-up and first
 step / each later step up to its next wait (its generator,
 :func:`core.tracking.final_stage.final_stage_steps`). The wrappers cost about a millisecond a frame of three
-bones; ``--cprofile`` adds a run under :mod:`cProfile` (its text next to the JSON). JSON on stdout.
+bones; ``--cprofile`` adds a run under :mod:`cProfile` (its text next to the JSON). ``--variants
+'name:module.ATTR=value,...;name2:...'`` (modules under ``core.tracking``, values Python literals) runs
+the plain runs once per variant in turn, ``repeats`` rounds (``variants``: each one's runs; the host's
+drift shared), each with its switches set and put back after; the wrapped run has the modules' own. JSON on
+stdout.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["WRAPPED", "main", "profile_run", "wrapped"]
+__all__ = ["WRAPPED", "main", "parse_variants", "profile_run", "switched", "wrapped"]
 
 #: (module, attribute) of the functions wrapped, by the name their callers look them up by; classes'
 #: methods as "Class.method"
@@ -201,6 +205,45 @@ def _timed_track(track, renderer, models, frames, order, keyframes, options, ski
             "ms_per_frame_after_first": 1e3 * (wall - first) / n, "evaluations_per_frame": evals}
 
 
+def parse_variants(spec: str | None) -> dict:
+    """``{name: [(module, attribute, value), ...]}`` of ``--variants`` (module docs)."""
+    import ast
+
+    out: dict = {}
+    for part in (spec or "").split(";"):
+        if not part.strip():
+            continue
+        name, _, sets = part.partition(":")
+        items = []
+        for a in sets.split(","):
+            if not a.strip():
+                continue
+            path, _, val = a.partition("=")
+            mod, _, attr = path.strip().rpartition(".")
+            items.append(("core.tracking." + mod, attr, ast.literal_eval(val.strip())))
+        out[name.strip()] = items
+    return out
+
+
+@contextmanager
+def switched(items):
+    """The module attributes of ``items`` ``(module, attribute, value)`` set within the block."""
+    import importlib
+
+    kept = []
+    try:
+        for mod, attr, val in items:
+            m = importlib.import_module(mod)
+            if not hasattr(m, attr):
+                raise ValueError(f"variants: {mod} has no {attr}")
+            kept.append((m, attr, getattr(m, attr)))
+            setattr(m, attr, val)
+        yield
+    finally:
+        for m, attr, old in reversed(kept):
+            setattr(m, attr, old)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m core.studies.tracking.frame_profile",
                                 description=__doc__.split("\n")[0])
@@ -213,6 +256,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--cprofile", action="store_true")
+    p.add_argument("--variants", default=None)
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     from dataclasses import replace
@@ -241,8 +285,21 @@ def main(argv=None) -> int:
     out = {"study": "core.studies.tracking.frame_profile", "device": str(dev),
            "device_name": getattr(dev, "name", str(dev)), "frames": n, "pixels": a.pixels,
            "voxel_mm": a.voxel, "bones": [m.name for m in models], "final": a.final,
-           "plain": [_timed_track(track, r, models, ts.frames, range(n), kf, o)
-                     for _ in range(int(a.repeats))]}
+           "plain": []}
+    variants = parse_variants(a.variants)
+
+    def plain() -> dict:
+        return _timed_track(track, r, models, ts.frames, range(n), kf, o)
+
+    if variants:
+        out["variants"] = {k: {"switches": [f"{m}.{at}={v!r}" for m, at, v in it], "runs": []}
+                           for k, it in variants.items()}
+        for _ in range(int(a.repeats)):
+            for k, it in variants.items():
+                with switched(it):
+                    out["variants"][k]["runs"].append(plain())
+    else:
+        out["plain"] = [plain() for _ in range(int(a.repeats))]
     out["wrapped"] = profile_run(r, models, ts.frames, range(n), kf, o)
     if a.cprofile:
         import cProfile

@@ -41,3 +41,19 @@ def test_profile_run_phases_and_restores(talus_calcaneus_128):
         for x in stats[ph]:
             assert 0 <= x["excl_ms"] <= x["incl_ms"] + 1e-9
     assert got["wall_s"] > 0 and got["ms_per_frame_after_first"] > 0
+
+
+def test_variants_parsed_and_switched():
+    """``--variants``: each name's switches (modules under core.tracking, literal values), set within the
+    block and put back after."""
+    import core.tracking.register as reg
+    import core.tracking.trial as trial
+    from core.studies.tracking.frame_profile import parse_variants, switched
+
+    v = parse_variants("base:register.SHARE_FRAME=False,trial.NEXT_FRAME_AHEAD=0; on:")
+    assert v == {"base": [("core.tracking.register", "SHARE_FRAME", False),
+                          ("core.tracking.trial", "NEXT_FRAME_AHEAD", 0)], "on": []}
+    was = (reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD)
+    with switched(v["base"]):
+        assert (reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD) == (False, 0)
+    assert (reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD) == was

@@ -49,12 +49,16 @@ __all__ = ["RUNS", "T0", "VARIANTS", "centroids", "lowpass_errors", "main", "mea
 RUNS = {s: f"tracking_acceptance_seed{s}_final_d262386_h100.json" for s in (0, 3, 4)}
 #: the smoother's variants: name -> smooth_poses keywords
 VARIANTS = {
-    "acceleration": {},  # smooth_poses' defaults: constant acceleration, flagged frames measured, robust 2.5
+    # smooth_poses' defaults: constant acceleration, every frame alike (the median sigma), flagged frames
+    # measured, robust 2.5, bursts let in
+    "acceleration": {},
+    "acceleration_sigma": {"weigh": "sigma"},
+    "acceleration_no_bursts": {"transients": None},
     "acceleration_skip_flagged": {"flagged_weight": 0.0},
     "acceleration_flagged_quarter": {"flagged_weight": 0.25},
     "acceleration_not_robust": {"robust": None},
-    "acceleration_equal": {"weigh": "equal"},
     "velocity": {"model": "velocity"},
+    "velocity_no_bursts": {"model": "velocity", "transients": None},
     "velocity_skip_flagged": {"model": "velocity", "flagged_weight": 0.0},
 }
 #: the transient's frame, natural frequency (Hz) and damping
@@ -149,10 +153,11 @@ def _jerks(E, Es, S, fl, T, c, kw, amplitudes) -> dict:
     out = {}
     for a in amplitudes:
         Tj = transient(T, c, a)
-        Ej = _errors(smooth_poses(_rebuilt(E, Tj, c), S, center=c, flagged=fl, **kw).poses, Tj, c)
-        out[str(a)] = {"raw": _window_rms(E, lo, hi), "smoothed_plain": _window_rms(Es, lo, hi),
-                       "smoothed_jerk": _window_rms(Ej, lo, hi), "added": _window_rms(Ej - Es, lo, hi),
-                       "max_added": _window_max(Ej - Es, lo, hi)}
+        sm = smooth_poses(_rebuilt(E, Tj, c), S, center=c, flagged=fl, **kw)
+        Ej = _errors(sm.poses, Tj, c)
+        out[str(a)] = {"bursts": sm.bursts, "raw": _window_rms(E, lo, hi),
+                       "smoothed_plain": _window_rms(Es, lo, hi), "smoothed_jerk": _window_rms(Ej, lo, hi),
+                       "added": _window_rms(Ej - Es, lo, hi), "max_added": _window_max(Ej - Es, lo, hi)}
     return out
 
 
@@ -188,7 +193,7 @@ def run(seeds=(0, 3, 4), variants=None, amplitudes=(0.25, 1.0), bench: Path = BE
                     Es = _errors(sm.poses, T[k], c)
                     low = np.flatnonzero((sm.weights > 0) & (sm.weights < 0.999)).tolist()
                     rec[name] = {**measures(Es, cb, fl, sm.sigma), "scale": np.round(sm.scale, 3).tolist(),
-                                 "down_weighted": low,
+                                 "down_weighted": low, "bursts": sm.bursts,
                                  "transient": _jerks(E, Es, S, fl, T[k], c, kw, amplitudes)}
                 out.setdefault(str(seed), {}).setdefault(mode, {})[b] = rec
     return out

@@ -77,6 +77,27 @@ def test_flagged_frame_skipped_and_outlier_down_weighted():
     assert np.linalg.norm(_errors(plain.poses, T)[40, :3]) > np.linalg.norm(_errors(rb.poses, T)[40, :3])
 
 
+def test_a_real_jerk_lets_a_burst_in():
+    """A fast step in the truth (2 mm within ~3 frames): the likelihood lets a burst of process noise
+    in there, and the smoothed poses follow the step far better than without."""
+    T = _truth()
+    n = len(T)
+    step = np.clip((np.arange(n) - 40) / 3.0, 0.0, 1.0)[:, None] * np.r_[2.0, -2.0, 1.0, 0.0, 0.0, 0.0]
+    Tj = np.array([pose_from_params(d, center=CENTER, base=b) for d, b in zip(step, T, strict=True)])
+    sigma = np.tile([0.05, 0.05, 0.05, 0.2, 0.2, 0.2], (n, 1))
+    P, E = _noisy(Tj, sigma, 0.5, seed=4)
+    on = smooth_poses(P, sigma, center=CENTER)
+    off = smooth_poses(P, sigma, center=CENTER, transients=None)
+    assert on.bursts and min(abs(t - 41) for t in on.bursts) <= 2 and not off.bursts
+    win = slice(36, 48)
+    e_on = np.linalg.norm(_errors(on.poses, Tj)[win, :3], axis=1)
+    e_off = np.linalg.norm(_errors(off.poses, Tj)[win, :3], axis=1)
+    assert e_on.max() < 0.5 * e_off.max()
+    assert np.sqrt(np.mean(e_on ** 2)) < 1.5 * np.sqrt(np.mean(np.sum(E[win, :3] ** 2, 1)))
+    plain = smooth_poses(_noisy(T, sigma, 0.5, seed=4)[0], sigma, center=CENTER)
+    assert plain.bursts == []
+
+
 def test_missing_frames_get_their_neighbours_pose():
     T = _truth()
     sigma = np.tile([0.05, 0.05, 0.05, 0.2, 0.2, 0.2], (len(T), 1))

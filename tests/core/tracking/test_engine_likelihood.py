@@ -56,7 +56,10 @@ def test_refine_recovers_a_known_pose_with_a_covariance(talus_scene):
     assert np.allclose(eng.autocorrelation[:, eng.lag_px, eng.lag_px], 1.0)
 
 
-def test_sandwich_without_lags_is_the_independent_covariance(talus_scene):
+def test_sandwich_without_lags_is_the_independent_covariance(talus_scene, monkeypatch):
+    import core.tracking.likelihood_confidence as lc
+
+    monkeypatch.setattr(lc, "SANDWICH_STRIDE", 1)  # (every pixel: the sums exactly JᵀWJ's)
     eng, _, _ = _setup(talus_scene, 1, [0.2, 0, 0, 0, 0, 0.2], highpass_px=2.0, lag_px=0)
     s = eng.step(np.zeros(6), np.full(6, 0.05))
     Hinv = np.linalg.inv(s["JJ"])
@@ -200,9 +203,13 @@ def test_set_up_on_the_device_equals_the_hosts_regions(talus_scene, monkeypatch,
     assert eng.n_pixels == sum(int(k.sum()) for k in masks)
 
 
-def test_autocorrelation_equals_numpys(talus_scene):
+def test_autocorrelation_equals_numpys(talus_scene, monkeypatch):
     """The sandwich's residual autocorrelation (half the lags summed on the device, the others
-    their mirror) equals the pairs' mean products computed with numpy over every lag."""
+    their mirror) equals the pairs' mean products computed with numpy over every lag (every pixel:
+    the sub-lattice's in test_likelihood_stride)."""
+    import core.tracking.likelihood_confidence as lc
+
+    monkeypatch.setattr(lc, "SANDWICH_STRIDE", 1)
     eng, _, _ = _setup(talus_scene, 2, [0.2, 0, 0, 0, 0.3, 0], highpass_px=2.0, lag_px=3)
     s = eng.step(np.zeros(6), np.full(6, 0.05))
     eng.sandwich(s, np.linalg.inv(s["JJ"]))

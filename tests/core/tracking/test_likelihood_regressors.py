@@ -54,7 +54,10 @@ def test_solve_moments_with_an_extra_regressor_is_the_least_squares_fit():
     assert plain["chi2"] >= s["chi2"]
 
 
-def test_device_step_residual_and_sandwich_equal_the_host_reference(talus_scene):
+def test_device_step_residual_and_sandwich_equal_the_host_reference(talus_scene, monkeypatch):
+    import core.tracking.likelihood_confidence as lc
+
+    monkeypatch.setattr(lc, "SANDWICH_STRIDE", 1)  # (the reference sums every pixel)
     _, model, r, _, fr, start, roi, crops = _scene(talus_scene, 2)
     host = LikelihoodCost(r, fr, bone=0, base_pose=start, center=model.centroid, roi=roi, views=(0, 1),
                           background=0, regressors=crops)

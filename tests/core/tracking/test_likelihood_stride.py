@@ -52,6 +52,7 @@ def test_strided_sandwich_is_near_every_pixels(talus_scene, monkeypatch):
     eng, _, _ = _setup(talus_scene, 3, [0.2, -0.1, 0, 0.2, 0, 0.1], highpass_px=4.0)
     s = eng.step(np.zeros(6), np.full(6, 0.05))
     Hinv = np.linalg.inv(s["JJ"])
+    monkeypatch.setattr(lc, "SANDWICH_STRIDE", 1)
     C1 = eng.sandwich(s, Hinv)
     monkeypatch.setattr(lc, "SANDWICH_STRIDE", 2)
     C2 = eng.sandwich(s, Hinv)

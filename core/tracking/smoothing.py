@@ -27,6 +27,15 @@ measured as the others, the robust weights judging them).
 (RMS over the translation or the rotation coordinates) are down-weighted by ``(robust / d)²`` and
 the fit repeated (at most :data:`MAX_ROUNDS` fits in all); None: no down-weighting.
 
+Scale
+-----
+Where the motion is too fast or irregular for the model at the trial's frame rate (a few frames
+over a whole stance), the likelihood can explain it as measurement noise far above the tracker's
+σ, and smooth the real motion away (a 12-frame stance: k ≈ 10, errors up to 1 mm against 0.07 mm
+per frame). ``max_scale`` (:data:`MAX_SCALE`) bounds ``k``: the ``λ`` is the likeliest of those
+whose ``k`` is within it, else the largest tried (hardly any smoothing). On the acceptance runs
+``k`` was 0.12–1.1, the bound never met.
+
 Transients
 ----------
 One process noise for the whole trial smooths a real fast transient (an impact: a heel strike's
@@ -54,8 +63,8 @@ import numpy as np
 
 from ..geometry.transforms import matrix_to_rotvec, rotvec_to_matrix
 
-__all__ = ["BURSTS", "GRID", "MAX_BURSTS", "MAX_ROUNDS", "MODELS", "TRANSIENT_GAIN", "SmoothedPoses",
-           "left_jacobian", "smooth_poses", "smooth_track"]
+__all__ = ["BURSTS", "GRID", "MAX_BURSTS", "MAX_ROUNDS", "MAX_SCALE", "MODELS", "TRANSIENT_GAIN",
+           "SmoothedPoses", "left_jacobian", "smooth_poses", "smooth_track"]
 
 #: the motion models: state per coordinate (position, velocity[, acceleration])
 MODELS = ("velocity", "acceleration")
@@ -68,6 +77,8 @@ MAX_BURSTS = 6
 #: a burst's process-noise factors tried, and the pooled log-likelihood gain that lets one in
 BURSTS = (1e2, 1e4, 1e6)
 TRANSIENT_GAIN = 15.0
+#: the largest scale ``k`` on the σ given (``max_scale``)
+MAX_SCALE = 2.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -253,7 +264,7 @@ def _best_lambda(ll: np.ndarray, grid: np.ndarray) -> np.ndarray:
     for c, row in enumerate(ll):
         i = int(np.nanargmax(row))
         out[c] = lg[i]
-        if 0 < i < len(row) - 1:
+        if 0 < i < len(row) - 1 and np.isfinite(row[i - 1:i + 2]).all():
             a, b, e = row[i - 1], row[i], row[i + 1]
             den = a - 2 * b + e
             if den < 0:
@@ -302,7 +313,8 @@ def _chart_sigma(z, sigma, ok, weigh):
 
 def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "acceleration", weigh: str = "equal",
                  robust: float | None = 2.5, flagged_weight: float = 1.0,
-                 transients: float | None = TRANSIENT_GAIN) -> SmoothedPoses:
+                 transients: float | None = TRANSIENT_GAIN,
+                 max_scale: float | None = MAX_SCALE) -> SmoothedPoses:
     """Smooth one bone's tracked poses with the covariance-weighted RTS smoother (module docs).
 
     Parameters
@@ -326,6 +338,8 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
         × the bound 0.85 / 0.71 against 0.80 / 0.66 on average, ``core.studies.tracking.smoother``).
     robust : float or None
         Down-weighting threshold on a frame's scaled residual (module docs); None: off.
+    max_scale : float or None
+        The largest ``k`` allowed (module docs, *Scale*); None: any.
     transients : float or None
         The log-likelihood gain over which a burst of process noise is let in at a frame (module
         docs, *Transients*); None: never.
@@ -354,6 +368,8 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
         raise ValueError(f"robust: expected a positive threshold or None, got {robust!r}")
     if not 0.0 <= flagged_weight <= 1.0:
         raise ValueError(f"flagged_weight: expected a weight in [0, 1], got {flagged_weight!r}")
+    if max_scale is not None and not max_scale > 0:
+        raise ValueError(f"max_scale: expected a positive scale or None, got {max_scale!r}")
     if transients is not None and not transients > 0:
         raise ValueError(f"transients: expected a positive log-likelihood gain or None, got {transients!r}")
     d = len(_model(model)[0])
@@ -369,7 +385,10 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
     for _ in range(MAX_ROUNDS + 1):
         wt = w * rob
         r = np.where(wt[:, None] > 0, s ** 2 / np.maximum(wt, 1e-12)[:, None], np.inf)
-        ll, _ = _kalman(z, r, np.broadcast_to(GRID, (6, len(GRID))), model, boost=boost)
+        ll, kg = _kalman(z, r, np.broadcast_to(GRID, (6, len(GRID))), model, boost=boost)
+        if max_scale is not None:  # the frames no noisier than max_scale x their sigma say
+            ll = np.where(kg <= max_scale ** 2, ll, -np.inf)
+            ll[np.isinf(ll).all(axis=1), -1] = 0.0  # none: the least smoothing tried
         lam = _best_lambda(ll, GRID)
         llb, k2, store, z0 = _kalman(z, r, lam[:, None], model, keep=True, boost=boost)
         xs, Ps = _rts(store, model)

@@ -10,12 +10,17 @@ import math
 
 import numpy as np
 
-__all__ = ["FLAG", "UNCHECKED"]
+__all__ = ["ENDS", "FLAG", "UNCHECKED"]
 
 #: The flag's name (the message starts with it).
 FLAG = "off the trajectory"
 #: The note (not a flag) of a good frame the check could not judge: no fit within :data:`REACH`.
 UNCHECKED = "trajectory unchecked"
+#: A frame within ``half_window`` tracked frames of a trial's first or last frame with a pose is fitted
+#: through the frames of its window shifted inside the trial (``2 * half_window`` wide), not the window
+#: cut at the end (the ``ends`` keyword's default of :func:`core.tracking.flags_post.trajectory_review`;
+#: False: cut, the check before; :mod:`core.tracking.flags_post`'s docs, *A trial's ends*).
+ENDS = True
 
 
 def _deltas(A: np.ndarray, B: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -38,7 +43,7 @@ class _Table:
     by number), and each frame's normalised residual given the frames in use (module docs)."""
 
     def __init__(self, fr: np.ndarray, P: np.ndarray, ok: np.ndarray, c: np.ndarray, half_window: int,
-                 degree: int) -> None:
+                 degree: int, ends: bool = False) -> None:
         n, h = len(fr), int(half_window)
         self.fr, self.ok, self.degree = fr, ok, int(degree)
         # every k-th frame tracked: the window counts tracked frames (k the frames' median spacing)
@@ -57,6 +62,21 @@ class _Table:
                 self.Y[a, m] = _deltas(P[a], P[b], c)
                 self.near[a, m] = True
         self._solve: dict = {}
+        # a trial's end: a frame whose ±h window reaches past the first or last frame with a pose is
+        # fitted through the frames of the 2h-wide window shifted inside the trial (module docs)
+        self.span = 2 * h
+        self.ext: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.end = np.zeros(n, dtype=bool)
+        self.ends = bool(ends)
+        if self.ends and ok.any():
+            lo, hi = int(fr[ok].min()), int(fr[ok].max())
+            w = h * self.step
+            for i in np.flatnonzero(ok & ((fr - w < lo) | (fr + w > hi))):
+                a = min(max(int(fr[i]) - w, lo), max(lo, hi - 2 * w))
+                js = np.arange(max(0, i - 2 * h), min(n, i + 2 * h + 1))
+                js = js[(js != i) & ok[js] & (fr[js] >= a) & (fr[js] <= a + 2 * w)]
+                self.end[i] = True
+                self.ext[int(i)] = (js, _deltas(np.repeat(P[i:i + 1], len(js), axis=0), P[js], c))
 
     def residuals(self, use: np.ndarray) -> np.ndarray:
         """``(n, 2)`` :meth:`residual` of every frame in ``use``, frames with the same neighbours'
@@ -67,7 +87,8 @@ class _Table:
         out = np.full((n, 2), np.nan)
         todo = np.flatnonzero(use)
         steps = self.fr[np.clip(j[todo], 0, n - 1)] - self.fr[todo, None]
-        full = todo[sel[todo].all(axis=1) & (steps == self.offsets * self.step).all(axis=1)]  # evenly spaced
+        full = todo[sel[todo].all(axis=1) & (steps == self.offsets * self.step).all(axis=1)  # evenly spaced
+                    & ~self.end[todo]]
         if len(full):
             hit = self._weights((self.offsets * self.step).astype(float))
             if hit is not None:
@@ -95,7 +116,15 @@ class _Table:
 
     def _fit(self, i: int, use: np.ndarray):
         """The fit's weights on frame ``i``'s neighbours in ``use``, ``sqrt(1 + leverage)`` and which
-        neighbours (a mask of :attr:`offsets`); None with fewer than ``degree + 2`` or a singular fit."""
+        neighbours (a mask of :attr:`offsets`, or at a trial's end of its window's frames, :attr:`ext`);
+        None with fewer than ``degree + 2`` or a singular fit."""
+        if i in self.ext:
+            js, _ = self.ext[i]
+            sel = use[js]
+            if sel.sum() < self.degree + 2:
+                return None
+            hit = self._weights((self.fr[js[sel]] - self.fr[i]).astype(float))
+            return None if hit is None else (*hit, sel)
         j = i + self.offsets
         sel = self.near[i] & use[np.minimum(np.maximum(j, 0), len(use) - 1)]
         if sel.sum() < self.degree + 2:
@@ -110,7 +139,7 @@ class _Table:
         if hit is None:
             return math.nan, math.nan
         row, k, sel = hit
-        r = row @ self.Y[i, sel]
+        r = row @ self._y(i)[sel]
         return math.sqrt(float(r[:3] @ r[:3])) / k, math.degrees(math.sqrt(float(r[3:] @ r[3:]))) / k
 
     def residual_vector(self, i: int, use: np.ndarray) -> np.ndarray | None:
@@ -121,4 +150,16 @@ class _Table:
         if hit is None:
             return None
         row, k, sel = hit
-        return (row @ self.Y[i, sel]) / k
+        return (row @ self._y(i)[sel]) / k
+
+    def _y(self, i: int) -> np.ndarray:
+        """Frame ``i``'s neighbours' parameters about it, in :meth:`_fit`'s order."""
+        return self.ext[i][1] if i in self.ext else self.Y[i]
+
+    def neighbours(self, i: int, use: np.ndarray) -> np.ndarray:
+        """The indices of frame ``i``'s neighbours in ``use`` that its fit goes through."""
+        if i in self.ext:
+            js = self.ext[i][0]
+            return js[use[js]]
+        j = i + self.offsets
+        return j[self.near[i] & use[np.clip(j, 0, len(use) - 1)]]

@@ -82,6 +82,14 @@ def _partner(t: _Table, use: np.ndarray, i: int) -> int | None:
     return None
 
 
+def _both_sides(t: _Table, use: np.ndarray, j: int) -> bool:
+    """Whether frame ``j``'s fit through the frames in ``use`` has neighbours before and after it: an
+    extrapolated fit (a trial's end without the pair) is too wide to say a frame stood off only through
+    the pair's pull."""
+    d = t.fr[t.neighbours(j, use)] - t.fr[j]
+    return bool((d < 0).any() and (d > 0).any())
+
+
 def pair_residuals(t: _Table, use: np.ndarray, i: int) -> np.ndarray | None:
     """``(2, 2)`` normalised residuals (mm, degrees) of frame ``i`` and the next tracked one, each
     against the fit through the frames in ``use`` with both left out (NaN without enough
@@ -175,7 +183,8 @@ class Pairs:
             v[i] = v[i + 1] = False
             for j in near:
                 r = np.asarray(self.t.residual(int(j), v))
-                if np.all(np.isfinite(r)) and (r <= self.lim_one).all():
+                if np.all(np.isfinite(r)) and (r <= self.lim_one).all() and (
+                        not self.t.ends or _both_sides(self.t, v, int(j))):
                     u[j] = True
         return u
 

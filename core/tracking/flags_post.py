@@ -56,6 +56,14 @@ frames judged good further away, or noted :data:`UNCHECKED` where it cannot be
 good lie on one side only (a trial's end) is flagged for review instead (:data:`ONE_SIDED`, the
 ``one_sided`` keyword; False: noted; seed 4's tibia frame 0 at b797131).
 
+*A trial's ends* (:data:`ENDS`, the ``ends`` keyword; False: the check before; :data:`CROWD`, the ``crowd``
+keyword, None: off): a frame within ``half_window`` of the first or last frame with a pose is fitted
+through the frames of the window shifted inside the trial, not the window cut at the end, so a bad end
+frame stands off its fit more than its good neighbours do theirs and is flagged in their place; the
+bone's median leaves those frames out (when enough others have residuals); a good end frame with
+``crowd`` or more flagged frames near it and no fit through its nearest ones is flagged for review
+(:mod:`core.tracking.flags_ends`, whose docs say why and what it changed).
+
 Frames already flagged are neither judged nor used as neighbours. A bone with fewer than
 :data:`MIN_FRAMES` frames that have a residual is not judged.
 
@@ -129,13 +137,14 @@ from dataclasses import replace
 import numpy as np
 
 from .flags_along import ALONG, judge_along
-from .flags_fit import FLAG, UNCHECKED, _deltas, _Table  # noqa: F401 (_deltas: the studies')
+from .flags_ends import CROWD, judge_crowded_ends
+from .flags_fit import ENDS, FLAG, UNCHECKED, _deltas, _Table  # noqa: F401 (_deltas: the studies')
 from .flags_gaps import GAP_DEGREE, GAP_FRAMES, GAP_SCALE, ONE_SIDED, REACH, _judge_gaps
 from .flags_pairs import PAIR, PAIR_GATE, Pairs, pair_scale
 
-__all__ = ["ALONG", "BACKWARD_FLAG", "DEGREE", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES", "GAP_SCALE",
-           "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "NEAR", "ONE_SIDED", "PAIR", "PAIR_GATE", "REACH",
-           "UNCHECKED", "apply_trajectory_flags", "journal_neighbours", "trajectory_flags",
+__all__ = ["ALONG", "BACKWARD_FLAG", "CROWD", "DEGREE", "ENDS", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES",
+           "GAP_SCALE", "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "NEAR", "ONE_SIDED", "PAIR", "PAIR_GATE",
+           "REACH", "UNCHECKED", "apply_trajectory_flags", "journal_neighbours", "trajectory_flags",
            "trajectory_residuals", "trajectory_review"]
 
 #: The flag of :mod:`core.tracking.backward_check` (a first frame whose registration backward from the
@@ -181,12 +190,12 @@ def _inputs(frames, poses, center):
 
 
 def trajectory_residuals(frames, poses, center, *, half_window: int = HALF_WINDOW,
-                         degree: int = DEGREE) -> np.ndarray:
+                         degree: int = DEGREE, ends: bool = ENDS) -> np.ndarray:
     """``(n, 2)`` normalised residuals (mm, degrees) of each pose against the local fit of the others
     (module docs); NaN where a frame has too few neighbours (``degree + 2`` at least) or no pose.
     ``frames``: the frame numbers of ``poses`` (``(n, 4, 4)``, NaN where none; distinct)."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
-    t = _Table(fr, P, ok, c, half_window, degree)
+    t = _Table(fr, P, ok, c, half_window, degree, ends)
     out = np.full((len(P), 2), np.nan)
     out[order] = t.residuals(ok)
     return out
@@ -202,8 +211,8 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
                       degree: int = DEGREE, floor=FLOOR, min_frames: int = MIN_FRAMES,
                       judged=None, near: float | None = NEAR, reach: int | None = REACH,
                       pair: float | None = PAIR, pair_gate: float = PAIR_GATE,
-                      along: float | None = ALONG,
-                      one_sided: bool = ONE_SIDED) -> tuple[dict[int, str], dict[int, str]]:
+                      along: float | None = ALONG, one_sided: bool = ONE_SIDED,
+                      ends: bool = ENDS, crowd: int | None = CROWD) -> tuple[dict[int, str], dict[int, str]]:
     """``(flags, unchecked)``: frame number -> the ``"off the trajectory"`` message, for the good frames
     of one bone (``poses`` ``(n, 4, 4)`` at ``frames``; NaN rows are not good) whose residual exceeds
     ``limit`` × the bone's median (module docs), and frame number -> the :data:`UNCHECKED` note for the
@@ -223,19 +232,23 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     ``limit`` × the bone's median; module docs, *Two frames off together*). ``along`` (None: off; needs
     ``near``): a good frame next to a flagged one, off the same way, flagged (module docs, *Next to a
     flagged frame, off the same way*). ``one_sided`` (False: noted): a frame left without a fit whose
-    frames judged good lie on one side only flagged for review, not noted."""
+    frames judged good lie on one side only flagged for review, not noted. ``ends`` (False: the window
+    cut at a trial's ends) and ``crowd`` (None: off; needs ``one_sided``): module docs, *A trial's ends*."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
     judge = np.ones(len(fr), dtype=bool) if judged is None else np.asarray(judged, dtype=bool)[order]
     if not (judge & ok).any():
         return {}, {}
-    t = _Table(fr, P, ok, c, half_window, degree)
+    t = _Table(fr, P, ok, c, half_window, degree, ends)
     R = t.residuals(ok)
     have = np.all(np.isfinite(R), axis=1)
     if have.sum() < min_frames:
         return {}, {}
     # the scale from the judged frames when they are enough (module docs: smooth neighbours)
     own = have & judge
-    med = np.median(R[own if own.sum() >= min_frames else have], axis=0)
+    pick = own if own.sum() >= min_frames else have
+    if (pick & ~t.end).sum() >= min_frames:  # not a trial's end frames, extrapolated (flags_ends)
+        pick = pick & ~t.end
+    med = np.median(R[pick], axis=0)
     lim = np.maximum(float(limit) * med, np.asarray(floor, dtype=float))
     use = ok.copy()
     out = {}
@@ -251,8 +264,8 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
                                f"limits {lim[0]:.3f} mm, {lim[1]:.3f} deg, {float(limit):g} x the bone's "
                                f"median {med[0]:.3f} mm, {med[1]:.3f} deg)")
         use[i] = False
-        for j in range(max(0, i - half_window), min(len(fr), i + half_window + 1)):
-            if use[j]:  # its neighbours judged again without it
+        for j in range(max(0, i - t.span), min(len(fr), i + t.span + 1)):
+            if use[j] and (abs(j - i) <= half_window or t.end[j]):  # its neighbours judged again without it
                 R[j] = t.residual(j, use)
     if near is not None:
         # next to flagged frames: off with them in its fit, and still near the limit without them
@@ -276,6 +289,8 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     if reach is None:
         return out, {}
     unchecked = _judge_gaps(t, P, c, use, judge, R, float(limit), floor, int(reach), out, bool(one_sided))
+    if t.ends and one_sided and crowd is not None:
+        judge_crowded_ends(t, ok, use & ~np.isin(fr, list(out)), judge, half_window, out, int(crowd))
     return out, unchecked
 
 

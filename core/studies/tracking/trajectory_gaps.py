@@ -128,11 +128,11 @@ def counts(bench: Path = BENCH, labels=None, **kw) -> dict:
     ``reach=0``), the frames over 4× among them, what the check (``kw``: its keywords) flags and
     notes beyond the check without the judgement (``reach=None``), and the silent frames over 4× and
     good frames flagged before and after (``labels``: :func:`runs`'s). The rules made after this one
-    (``along``, ``one_sided``; :mod:`core.studies.tracking.trajectory_silent` measures them) are off
-    unless ``kw`` gives them."""
+    (``along``, ``one_sided``, ``ends``; :mod:`core.studies.tracking.trajectory_silent` measures them) are
+    off unless ``kw`` gives them."""
     from core.tracking.flags_post import trajectory_review
 
-    kw = {"along": None, "one_sided": False, **kw}
+    kw = {"along": None, "one_sided": False, "ends": False, **kw}
     per_run, per_seed = {}, {}
     for run, b, P, own, over, c in runs(bench, labels):
         Q = P.copy()
@@ -206,7 +206,7 @@ def synthetic(tracks: int = 200, offs=(0.0, 0.15, 0.3, 0.5)) -> dict:
 
     out = {}
     fr = np.arange(100)
-    kw = {"along": None, "one_sided": False}  # as counts
+    kw = {"along": None, "one_sided": False, "ends": False}  # as counts
     for off in offs:
         unfitted = flagged = noted = 0
         for s in range(tracks):

@@ -87,11 +87,12 @@ def runs(bench: Path = BENCH, seeds=None):
 
 def _review(P, c, pair, gate):
     """The check with the pair rule as given and the rules made after it off (``along``, ``one_sided``:
-    :mod:`core.studies.tracking.trajectory_silent` measures them), as the stored runs were judged."""
+    :mod:`core.studies.tracking.trajectory_silent` measures them; ``ends``), as the stored runs were
+    judged."""
     from core.tracking.flags_post import trajectory_review
 
     return trajectory_review(np.arange(len(P)), P, c, pair=pair, pair_gate=gate, along=None,
-                             one_sided=False)[0]
+                             one_sided=False, ends=False)[0]
 
 
 def counts(rs, pair: float, gate: float) -> dict:

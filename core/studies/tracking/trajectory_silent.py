@@ -61,7 +61,7 @@ import numpy as np
 
 from core.studies.tracking.trajectory_gaps import BENCH, BONES, KEPT, _rebuilt, truth
 
-__all__ = ["SETS", "counts", "injected", "main", "runs", "signals", "tradeoff"]
+__all__ = ["AFTER", "BEFORE", "SETS", "counts", "injected", "main", "runs", "signals", "tradeoff"]
 
 #: Set name -> (label, scene seed, the bones kept apart, the acceptance study's JSON) of each stored run.
 SETS = {
@@ -75,7 +75,10 @@ SETS = {
     "a5fd412": [("4", "4", True, "tracking_acceptance_seed4_h100.json")],
 }
 #: The check without the rules this study measures (the check at b797131).
-BEFORE = {"along": None, "one_sided": False}
+BEFORE = {"along": None, "one_sided": False, "ends": False}
+#: The check with them, as measured (d904484; the trial's ends as then: :mod:`core.tracking.flags_ends`
+#: came after, :mod:`core.studies.tracking.trajectory_ends` measures it).
+AFTER = {"ends": False}
 
 
 def _row(sets, label, mode, b, E, S, own, bound, c, traj=None):
@@ -85,19 +88,19 @@ def _row(sets, label, mode, b, E, S, own, bound, c, traj=None):
             "c": c, "stored": traj}
 
 
-def runs(bench: Path = BENCH, sets=None):
+def runs(bench: Path = BENCH, sets=None, table=None):
     """Dicts of every stored run and bone (``sets``: only those of :data:`SETS`): ``set``, ``run``
     (label and mode), ``mode``, ``bone``, the rebuilt poses ``P`` (NaN where the per-frame or backward
     checks flagged), ``E`` the errors, ``S`` the confidence σ (or None), ``own`` those flags, ``ratio``
     each frame's error over the bound (mm, degrees), ``bound`` (RMS mm, degrees), ``over``, ``good``,
-    centre ``c``, ``stored`` the run's own trajectory flags (b797131's; None for the older sets, judged by
-    an older check), ``T`` the true poses
-    (the rebuilt runs only)."""
+    centre ``c``, ``stored`` the run's own trajectory flags (b797131's and d262386's; None for the older
+    sets, judged by an older check), ``T`` the true poses (the rebuilt runs only). ``table``: set name ->
+    runs as :data:`SETS` (default), for another study's sets."""
     from core.studies.tracking.silent_checks import load
 
     center = {b: g["center"] for b, g in load(f"{bench / KEPT}#0_joint").items()}
     truths: dict = {}
-    for name, items in SETS.items():
+    for name, items in (SETS if table is None else table).items():
         if sets is not None and name not in sets:
             continue
         if name == "ea76c8b":
@@ -127,7 +130,7 @@ def runs(bench: Path = BENCH, sets=None):
                     own = np.zeros(n, dtype=bool)
                     own[[f for f in t["flagged_frames"] if f not in traj]] = True
                     cr = t["cramer_rao"]
-                    stored = sorted(traj) if name == "b797131" else None  # older sets: an older check's
+                    stored = sorted(traj) if name in ("b797131", "d262386") else None  # older: older checks
                     r = _row(name, label, mode, b, E, S, own, np.array([cr["rms_mm"], cr["rms_deg"]]),
                              center[b], stored)
                     r["T"] = T[BONES.index(b)]
@@ -171,7 +174,7 @@ def counts(rs) -> dict:
     rules flag (their error over the bound, over 4x or not, the message) and its silent frames after;
     and whether the check without them gives each run's stored flags (where kept)."""
     before = [_review(r, **BEFORE) for r in rs]
-    after = [_review(r) for r in rs]
+    after = [_review(r, **AFTER) for r in rs]
     a, b = _tally(rs, before), _tally(rs, after)
     per = {}
     for k in a:
@@ -201,10 +204,10 @@ def tradeoff(rs, limits=(2.5, 2.4, 2.3, 2.2, 2.1, 2.0), alongs=(None, 0.0, 0.5, 
     defaults otherwise), and the rule's cosine (``along``; None: off)."""
     out = {"limit": {}, "along": {}}
     for lim in limits:
-        t = _tally(rs, [_review(r, limit=lim) for r in rs])
+        t = _tally(rs, [_review(r, limit=lim, **AFTER) for r in rs])
         out["limit"][f"{lim:g}"] = {k: v for k, v in t.items() if "/" not in k}
     for al in alongs:
-        t = _tally(rs, [_review(r, along=al) for r in rs])
+        t = _tally(rs, [_review(r, along=al, **AFTER) for r in rs])
         out["along"][str(al)] = {k: v for k, v in t.items() if "/" not in k}
     return out
 
@@ -286,7 +289,7 @@ def injected(rs, k=(4.3, 6.0), every: int = 3) -> dict:
             q = dict(r, P=_rebuilt(E, r["T"], r["c"]))
             q["P"][r["own"]] = np.nan
             out["pairs"] += 1
-            for name, kw in (("before", BEFORE), ("after", {})):
+            for name, kw in (("before", BEFORE), ("after", AFTER)):
                 got = _review(q, **kw)
                 out[name]["f"] += f in got
                 out[name]["both"] += f in got and f + 1 in got

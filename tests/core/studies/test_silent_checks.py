@@ -59,7 +59,7 @@ def test_the_kept_runs_read_back_and_the_near_rule_flags_frame_81():
     tibia = load(path)["tibia"]
     assert np.flatnonzero(tibia["over"]).tolist() == [41, 50, 79, 81, 89]
     assert np.flatnonzero(tibia["over"] & ~tibia["flags"]).tolist() == [81]  # as the tracker left it
-    later = {"along": None, "one_sided": False}  # rules made after it (trajectory_silent)
+    later = {"along": None, "one_sided": False, "ends": False}  # rules made after it (trajectory_silent)
     before = trajectory_counts([path], near=None, **later)["runs"][path]
     after = trajectory_counts([path], **later)["runs"][path]
     assert before["tibia"]["silent"] == [81] and after["tibia"]["silent"] == []
@@ -84,14 +84,17 @@ def test_the_kept_runs_give_the_benchmarks_counts_without_and_with_the_near_rule
     kept = str(bench / "tracking_silent_checks_per_frame_h100.json")
     runs = [f"{kept}#{s}_{m}" for s in range(3) for m in ("joint", "sequential")]
     for near, total in ((None, (39, 20, 1761, 89)), (0.7, (39, 17, 1761, 100))):
-        got = trajectory_counts(runs, near=near, reach=None, pair=None, along=None, one_sided=False)
+        got = trajectory_counts(runs, near=near, reach=None, pair=None, along=None, one_sided=False,
+                                ends=False)
         assert tuple(got["total"][k] for k in ("over", "silent", "good", "good_flagged")) == total
         assert got["total"] == stored[str(near)]["total"]
         for r in runs:  # per run and bone, as stored under the dumps' names
             assert got["runs"][r] == stored[str(near)]["runs"][f"d_{r.rsplit('#', 1)[1]}_newton.npz"]
-    now = trajectory_counts(runs, pair=None, along=None, one_sided=False)["total"]
+    now = trajectory_counts(runs, pair=None, along=None, one_sided=False, ends=False)["total"]
     assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 100)
-    now = trajectory_counts(runs, along=None, one_sided=False)["total"]  # the pair rule: calcaneus 92-93
+    now = trajectory_counts(runs, along=None, one_sided=False, ends=False)["total"]  # pairs: calcaneus 92-93
     assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 102)
-    now = trajectory_counts(runs)["total"]  # frames next to flagged ones off the same way, one-sided ones
+    now = trajectory_counts(runs, ends=False)["total"]  # frames next to flagged ones the same way, one-sided
     assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 125)
+    now = trajectory_counts(runs)["total"]  # the trial's ends fitted through the shifted window (flags_ends)
+    assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 120)

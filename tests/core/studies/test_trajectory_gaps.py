@@ -31,7 +31,9 @@ def test_seed_4s_first_tibia_frame_among_flagged_ones_is_noted_not_judged():
         if (run, b) == ("4i_sequential", "tibia"):
             Q = P.copy()
             Q[own] = np.nan
-            _, notes = trajectory_review(np.arange(len(Q)), Q, c, one_sided=False, along=None)
+            _, notes = trajectory_review(np.arange(len(Q)), Q, c, one_sided=False, along=None, ends=False)
             assert notes[0].startswith(UNCHECKED) and "5, 7, 8, 9, on one side only" in notes[0]
-            got, notes = trajectory_review(np.arange(len(Q)), Q, c)  # by default: flagged for review
+            got, notes = trajectory_review(np.arange(len(Q)), Q, c, ends=False)  # one_sided: for review
             assert 0 not in notes and got[0].startswith(ONE_SIDED_FLAG) and "on one side only" in got[0]
+            got, notes = trajectory_review(np.arange(len(Q)), Q, c)  # shifted window (flags_ends): its fit
+            assert notes == {} and got[0].startswith("off the trajectory (0.122 mm, 0.225 deg from the fit")

@@ -6,11 +6,12 @@ rendering."""
 from __future__ import annotations
 
 import shutil
+from functools import partial
 
 import numpy as np
 
 from core.study import Study
-from core.tracking import batch, trial
+from core.tracking import batch, flags_post, trial
 from core.tracking.batch_pass import pass_messages
 from core.tracking.flags_post import FLAG
 from core.tracking.results import FrameResult
@@ -32,6 +33,9 @@ def _batch(keyed, tmp_path, monkeypatch, step=None):
     12-0, run first, judges it without 13-29 and does not flag it; judged with the whole trial it
     is off the trajectory): (folder, tasks)."""
     P = _track(n=30, off=(10, 0.0, 0.2))
+    # the check with the window cut at a trial's ends (ends=False): with flags_ends the range 12-0 fits frame
+    # 10, near its end, through 8 frames and flags it itself
+    monkeypatch.setattr(flags_post, "trajectory_review", partial(flags_post.trajectory_review, ends=False))
     monkeypatch.setattr(trial, "track_frame", step or (lambda run, f, imgs, fr, todo, state, skip: {
         0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)}))
     folder = shutil.copytree(keyed, tmp_path / "demo")

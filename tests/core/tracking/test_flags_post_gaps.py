@@ -59,21 +59,30 @@ def test_a_frame_among_flagged_neighbours_is_judged_from_frames_further_away():
 
 @pytest.mark.parametrize("off", [0.0, 1.0])
 def test_a_frame_at_the_trials_end_among_flagged_ones_is_noted_unchecked(off):
-    """Frames 0 and 2 left without a fit once 1, 3 and 4 are flagged (2 is a spike the check before
-    missed): the frames judged good are all after them, so they are noted, not judged (a line
+    """The trial's ends fitted through the window cut at them (``ends=False``, the check before
+    flags_ends): frames 0 and 2 left without a fit once 1, 3 and 4 are flagged (2 is a spike the check
+    before missed): the frames judged good are all after them, so they are noted, not judged (a line
     extrapolated from 5-8 follows the motion's acceleration; on the acceptance trial's first frames
     more than the error: module docs) — whatever frame 0's error."""
     fr = np.arange(60)
     P = _spiked(START, off=(0, off), seed=2)
-    assert sorted(trajectory_flags(fr, P, C, reach=None)) == [1, 3, 4]
-    got, unchecked = trajectory_review(fr, P, C, one_sided=False)
+    assert sorted(trajectory_flags(fr, P, C, reach=None, ends=False)) == [1, 3, 4]
+    got, unchecked = trajectory_review(fr, P, C, one_sided=False, ends=False)
     assert sorted(got) == [1, 3, 4] and sorted(unchecked) == [0, 2]
     assert all("5, 6, 7, 8, on one side only" in m for m in unchecked.values())
     # by default (flags_gaps.ONE_SIDED) they are flagged for review instead, with the same reason
-    got, unchecked = trajectory_review(fr, P, C)
+    got, unchecked = trajectory_review(fr, P, C, ends=False)
     assert sorted(got) == [0, 1, 2, 3, 4] and unchecked == {}
     assert all(got[f].startswith(f"{ONE_SIDED_FLAG} ({UNCHECKED}: its neighbours flagged; the nearest frames "
                                  "judged good, 5, 6, 7, 8, on one side only") for f in (0, 2))
+    # with the trial's ends fitted through the window shifted inside it (the default, flags_ends) frames 0
+    # and 2 have fits: every frame 0-4 is flagged, by its fit or, beside three flagged frames or more, for
+    # review (flags_ends.CROWD; without it, frames 0 and 1 are silent when frame 0 is 1 deg off)
+    got, unchecked = trajectory_review(fr, P, C)
+    assert sorted(got) == [0, 1, 2, 3, 4] and unchecked == {}
+    assert any("near it flagged at the trial's end" in m for m in got.values())
+    if off:
+        assert sorted(trajectory_review(fr, P, C, crowd=None)[0]) == [2, 3, 4]
 
 
 def test_a_frame_it_cannot_judge_is_noted_unchecked_not_flagged():
@@ -105,21 +114,22 @@ def test_a_note_never_changes_a_flag(seed):
     is good or 0.5 deg off (frames at the start noted in every draw; the frame among the spikes
     judged, flagged in some): the frames noted are never flagged, every flag of the check without
     the rule (reach=None) stays, and the rule adds flags only to frames it judged (left without a
-    fit, not noted)."""
+    fit, not noted). The trial's ends fitted through the window cut at them (``ends=False``: with the
+    shifted window the frames at the start have fits, flags_ends)."""
     g = np.random.default_rng(seed)
     c, s0 = int(g.integers(14, 46)), int(g.integers(0, 3))
     spikes = {**{c + d: 0.6 * (-1) ** d for d in (-4, -3, -2, -1, 1, 2, 3, 4)},
               **{s0 + 1 + k: 0.6 * (-1) ** k for k in range(4)}}
     fr = np.arange(60)
     P = _spiked(spikes, off=(c, float(g.choice([0.0, 0.5]))), seed=seed)
-    before = trajectory_flags(fr, P, C, reach=None)
-    unfitted = trajectory_review(fr, P, C, reach=0)[1]
-    got, notes = trajectory_review(fr, P, C, one_sided=False)
+    before = trajectory_flags(fr, P, C, reach=None, ends=False)
+    unfitted = trajectory_review(fr, P, C, reach=0, ends=False)[1]
+    got, notes = trajectory_review(fr, P, C, one_sided=False, ends=False)
     assert not set(notes) & set(got)
     assert set(before) <= set(got) and set(got) - set(before) <= set(unfitted) - set(notes)
     assert notes and all(m.startswith(UNCHECKED) for m in notes.values())
     # by default the frames noted from one side only are flagged instead; the others as they were
-    got1, notes1 = trajectory_review(fr, P, C)
+    got1, notes1 = trajectory_review(fr, P, C, ends=False)
     one = {f for f, m in notes.items() if "on one side only" in m}
     assert one and set(got1) == set(got) | one and set(notes1) == set(notes) - one
     assert all(got1[f].startswith(ONE_SIDED_FLAG) for f in one) and all(got1[f] == got[f] for f in got)
@@ -156,18 +166,19 @@ def test_the_batch_pass_names_an_unchecked_frame_by_its_note():
 def test_a_trials_end_flagged_for_review_is_judged_afresh_when_run_again():
     """apply_trajectory_flags: frames 0 and 2 (START's spikes 1, 3, 4 flagged) get the one-sided flag
     in their flags, not a note; run again nothing changes; with ``one_sided=False`` the flag gives way to
-    the note."""
+    the note (the trial's ends fitted through the window cut at them, ``ends=False``, as before
+    flags_ends)."""
     P = _spiked(START, off=(0, 0.0), seed=2)
     res = {("tibia", k): FrameResult("tibia", k, P[k], 0.8, 10, 0.0, True) for k in range(len(P))}
     out, changed = apply_trajectory_flags(TrackingResult(("tibia",), tuple(range(60)), res, "complete", 1.0),
-                                          {"tibia": C})
+                                          {"tibia": C}, ends=False)
     assert sorted(r.frame for r in changed) == [0, 1, 2, 3, 4]
     for f in (0, 2):
         fr = out.results[("tibia", f)]
         assert len(fr.flags) == 1 and fr.flags[0].startswith(ONE_SIDED_FLAG) and fr.notes == ()
-    again, changed2 = apply_trajectory_flags(out, {"tibia": C})
+    again, changed2 = apply_trajectory_flags(out, {"tibia": C}, ends=False)
     assert changed2 == [] and all(again.results[k].flags == out.results[k].flags for k in out.results)
-    noted, changed3 = apply_trajectory_flags(out, {"tibia": C}, one_sided=False)
+    noted, changed3 = apply_trajectory_flags(out, {"tibia": C}, one_sided=False, ends=False)
     assert sorted(r.frame for r in changed3) == [0, 2]
     for f in (0, 2):
         fr = noted.results[("tibia", f)]

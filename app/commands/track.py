@@ -11,7 +11,7 @@ Usage::
                 [--collapse-ratio R] [--motion-limit K] [--motion-floor MM,DEG] [--sigma-limit K]
                 [--stage-move-limit K] [--stage-move-sigmas S] [--stage-move-frames N]
                 [--keep-stage-moves] [--trajectory-limit K|off] [--no-trajectory-check]
-                [--backward-limit K|off] [--no-backward-check] [--quiet]
+                [--backward-limit K|off] [--no-backward-check] [--smooth] [--quiet]
 
 Every registered frame is saved to the study's pose journal as it finishes; the tracking report
 (``results/reports/tracking/<trial>.json``) lists per-frame scores and the frames flagged for
@@ -80,6 +80,12 @@ and 0.7 K × without (*off the trajectory next to flagged frames*, ``flags_post.
 rules; ``--trajectory-limit off`` or ``--no-trajectory-check`` turns both off
 (``TrackingOptions.trajectory_limit=None``).
 
+``--smooth`` (:data:`SMOOTH_HELP`): once the run is complete, each tracked bone's poses are also
+smoothed over the trial (:func:`core.tracking.smoothing_trial.smooth_trial`) into
+``results/reports/smoothing/<trial>.json`` with their covariance; the journal's poses stay the
+results. The JSON summary's ``"smoothed"`` names the report and the bones (a bone with too few poses
+is skipped, saying why).
+
 The backward check (the same table; :mod:`core.tracking.backward_check`, run once the run is complete,
 before the trajectory check): the run's first frame, registered from a keyframe, is registered again as
 any later frame from the frames after it, and flagged *first frame off its backward registration* where
@@ -146,6 +152,15 @@ __all__ = ["CHECKS", "DEFAULT_SEARCH", "FINALS", "HELP", "METRICS", "RESTART_HEL
            "subtract_choice"]
 
 HELP = "track bones of a study trial, saving each pose as it finishes"
+
+#: ``--smooth``'s help (core.tracking.smoothing_trial)
+SMOOTH_HELP = ("once the run is complete, also smooth each bone's poses over the trial (a constant-"
+               "acceleration Rauch-Tung-Striebel smoother, its smoothing and the confidence's scale by "
+               "maximum likelihood) into results/reports/smoothing/TRIAL.json with their covariance; the "
+               "journal's poses stay the results. On the synthetic walking trial's stored runs (seeds 0/3/4, "
+               "both modes, this 2-core CPU) x the single-frame Cramer-Rao bound 0.55-1.13 mm / 0.42-1.21 "
+               "deg against 1.18-1.92 / 1.27-1.81 per frame, no frame over 4x against 21; it pools frames, "
+               "so that bound does not bound it. Default off")
 
 
 def final_stage_problem(study, trial: str) -> str | None:
@@ -215,6 +230,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="flag frames for review whose confidence (length of the sigma vector) exceeds "
                         "MM in translation or DEG in rotation, e.g. 0.3,0.6")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--smooth", action="store_true", help=SMOOTH_HELP)
     add_check_arguments(p)
     p.set_defaults(run=run)
 
@@ -325,6 +341,8 @@ def run(a: argparse.Namespace) -> int:
                 why += f"; the move check rejected it in {rejected}"
             print(f"{PROG} track: the likelihood refinement was kept in {took} of {ran} bone-frames; the "
                   f"others keep the similarity's pose ({why})", file=sys.stderr)
+    if a.smooth and result is not None and not cancelled:
+        out["smoothed"] = _smooth(folder, a.trial, result.bones, a.threshold)
     print_json(out)
     for line in stopped_lines(report.get("stopped"), tracked=result is not None or cancelled):
         print(f"{PROG} track: {line}", file=sys.stderr)
@@ -333,6 +351,20 @@ def run(a: argparse.Namespace) -> int:
               f"('{PROG} track ... --resume' carries on)", file=sys.stderr)
         return EXIT_CANCELLED
     return EXIT_NOTHING_DONE if result is None else EXIT_OK
+
+
+def _smooth(folder, trial: str, bones, threshold_hu: float) -> dict:
+    """``--smooth``: the tracked bones' smoothed poses written beside the results
+    (:func:`core.tracking.smoothing_trial.smooth_trial`); the JSON summary's ``"smoothed"``."""
+    from core.study import Study
+    from core.tracking.smoothing_trial import REPORT_KIND, smooth_trial
+
+    with Study.open(folder, mode="w") as study:
+        rep = smooth_trial(study, trial, list(bones), threshold_hu=threshold_hu)
+    for b, why in rep["skipped"].items():
+        print(f"{PROG} track: {b} not smoothed: {why}", file=sys.stderr)
+    return {"report": f"results/reports/{REPORT_KIND}/{trial}.json", "bones": sorted(rep["bones"]),
+            "skipped": rep["skipped"]}
 
 
 def resumed_frames(trial, bones, frames) -> frozenset:

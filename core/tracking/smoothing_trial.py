@@ -1,0 +1,79 @@
+"""Smoothed poses of a study trial's tracked bones, stored beside the tracked ones
+(:func:`smooth_trial`; ``talus track --smooth``).
+
+The journal's poses stay the results: each bone's smoothed poses
+(:func:`core.tracking.smoothing.smooth_poses`, from the journal's poses, each frame's confidence σ
+and flags as tracking recorded them) and their covariance go to the report
+``results/reports/smoothing/<trial>.json``. They pool neighbouring frames, so the single-frame
+Cramér–Rao bound does not bound them: a separate figure from the per-frame one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from .smoothing import smooth_poses
+
+__all__ = ["REPORT_KIND", "bone_series", "smooth_trial"]
+
+#: the report's kind: ``results/reports/<kind>/<trial>.json``
+REPORT_KIND = "smoothing"
+
+
+def bone_series(records: dict, frames: Sequence[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A journal's records (frame -> :class:`~core.study.results.PoseRecord`) over ``frames``:
+    ``(n, 4, 4)`` poses (NaN where none), ``(n, 6)`` σ (NaN where the record has no confidence, a
+    hand-set pose; ``inf`` on an unbounded axis) and ``(n,)`` flagged."""
+    n = len(frames)
+    P, S, fl = np.full((n, 4, 4), np.nan), np.full((n, 6), np.nan), np.zeros(n, bool)
+    for k, f in enumerate(frames):
+        rec = records.get(f)
+        if rec is None or rec.pose is None:
+            continue
+        P[k] = rec.pose
+        t = rec.tracking or {}
+        fl[k] = bool(t.get("flags"))
+        sg = (t.get("confidence") or {}).get("sigma")
+        if sg is not None:
+            S[k] = [np.inf if v is None else v for v in sg]
+    return P, S, fl
+
+
+def smooth_trial(study, trial_name: str, bones: Sequence[str] | None = None, *, threshold_hu: float = 200.0,
+                 write: bool = True, **options) -> dict:
+    """Smooth each bone of trial ``trial_name`` (``bones``, default the trial's) over the frames
+    from its first to its last pose; ``options``: :func:`~core.tracking.smoothing.smooth_poses`'
+    keywords. The rotation centre is the bone model's centroid at ``threshold_hu`` (tracking's,
+    about which its σ is). Returns the report (per bone its first and last frame, centre and
+    :meth:`~core.tracking.smoothing.SmoothedPoses.to_dict`; a bone with too few poses under
+    ``skipped`` with why), written to ``results/reports/smoothing/<trial>.json`` when ``write`` (the
+    study open for writing)."""
+    from .bones import bone_model
+
+    trial = study.trial(trial_name)
+    names = list(trial.bones if bones is None else bones)
+    out: dict = {"trial": trial_name, "options": {k: v for k, v in options.items()},
+                 "note": "smoothed over neighbouring frames: not the tracked results (the journal keeps "
+                         "those), and not bounded by the single-frame Cramer-Rao bound",
+                 "bones": {}, "skipped": {}}
+    for b in names:
+        recs = trial.results(b).records
+        posed = sorted(f for f, r in recs.items() if r.pose is not None)
+        if not posed:
+            out["skipped"][b] = "no pose"
+            continue
+        frames = list(range(posed[0], posed[-1] + 1))
+        P, S, fl = bone_series(recs, frames)
+        c = bone_model(study.bone_volume(b), name=b, threshold=threshold_hu, mesh=False).centroid
+        try:
+            sm = smooth_poses(P, S, center=c, flagged=fl, **options)
+        except ValueError as exc:  # too few measured frames
+            out["skipped"][b] = str(exc)
+            continue
+        out["bones"][b] = {"frames": [frames[0], frames[-1]], "center": np.round(c, 5).tolist(),
+                           **sm.to_dict()}
+    if write:
+        study.write_report(REPORT_KIND, trial_name, out)
+    return out

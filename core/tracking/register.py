@@ -201,8 +201,9 @@ STAGE_PREFETCH = True
 #: final stage's are read there: no pinned copy of either's rows on the host, no prefetch of the stage's
 #: rows (:data:`STAGE_PREFETCH` is then skipped), the next frame's pinned copy made ahead in the feed's
 #: worker; the same pixels through the same kernels, so the same results to the bit. Off: each uploads its
-#: own rows, as before.
-SHARE_FRAME = True
+#: own rows, as before. Off until timed on a GPU (the whole frame's upload, 8 MB at 1024², goes on the
+#: device's stream at the frame's start, where the host prepares the search).
+SHARE_FRAME = False
 
 #: What to run once while the device works on the final stage's first step (:func:`stage_idle`): set by
 #: :func:`core.tracking.trial.track` to put the next frame on the device there

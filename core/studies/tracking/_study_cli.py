@@ -22,8 +22,8 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 
-__all__ = ["add_machine_name", "add_output", "add_scene", "checkpoint", "finish", "floats", "frame_done",
-           "header", "ints", "names", "parser", "write_stamped"]
+__all__ = ["CPU_MACHINE", "add_machine_name", "add_output", "add_scene", "checkpoint", "finish", "floats",
+           "frame_done", "header", "ints", "names", "parser", "stored_parser", "write_stamped"]
 
 #: ``--bones``' help (and alike options': bone indices of the scene).
 BONES_HELP = "bone indices (default all)"
@@ -45,6 +45,21 @@ def add_scene(p: argparse.ArgumentParser, *, frames: str, sets: str, pixels: int
     p.add_argument("--frames", default=frames)
     p.add_argument("--seeds", type=int, default=seeds)
     p.add_argument("--sets", default=sets)
+
+
+#: ``--machine-name``'s default for the studies of stored runs (:func:`stored_parser`): they judge on the CPU.
+CPU_MACHINE = "this 2-core x86_64 machine, shared"
+
+
+def stored_parser(module: str, doc: str | None, what: str = "the results") -> argparse.ArgumentParser:
+    """The parser of a study of stored runs (trajectory_gaps, trajectory_pairs, trajectory_silent,
+    trajectory_ends): :func:`parser` (``module``: its name under ``core.studies.tracking``) with ``--out``
+    ("write ``what`` as JSON here") and ``--machine-name`` (default :data:`CPU_MACHINE`); the study adds
+    its own options after them and writes its JSON with :func:`write_stamped`."""
+    p = parser(f"core.studies.tracking.{module}", doc)
+    p.add_argument("--out", default=None, help=f"write {what} as JSON here")
+    p.add_argument("--machine-name", default=CPU_MACHINE)
+    return p
 
 
 def add_machine_name(p: argparse.ArgumentParser) -> None:
@@ -119,7 +134,7 @@ def write_stamped(path, module: str, argv: Sequence[str] | None, machine: str, r
     """Write ``res`` to ``path`` (indented by one) after the run's stamp: ``study`` (``module``),
     ``command`` (``python -m <module>`` and the arguments, ``argv`` or the process's), ``commit`` (the
     checkout's short HEAD), ``machine`` and ``cpu_s`` (the process's CPU time so far) — the stored-run
-    studies' JSON (trajectory_pairs, trajectory_silent)."""
+    studies' JSON (:func:`stored_parser`'s)."""
     import json
     import subprocess
     from pathlib import Path

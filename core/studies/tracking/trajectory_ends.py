@@ -138,11 +138,9 @@ def walking(frames=FRAMES, sizes=SIZES, draws: int = 6, n: int = 60) -> dict:
 
 
 def main(argv=None) -> int:
-    from ._study_cli import parser, write_stamped
+    from ._study_cli import stored_parser, write_stamped
 
-    p = parser("core.studies.tracking.trajectory_ends", __doc__)
-    p.add_argument("--out", default=None, help="write the results as JSON here")
-    p.add_argument("--machine-name", default="this 2-core x86_64 machine, shared")
+    p = stored_parser("trajectory_ends", __doc__)
     p.add_argument("--draws", type=int, default=6, help="noise draws of the walking track (0: none)")
     a = p.parse_args(argv)
     from core.studies.tracking.trajectory_silent import runs

@@ -33,7 +33,6 @@ acceptance study counts.
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -222,10 +221,9 @@ def synthetic(tracks: int = 200, offs=(0.0, 0.15, 0.3, 0.5)) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.trajectory_gaps",
-                                description=__doc__.split("\n")[0])
-    p.add_argument("--out", default=None, help="write the counts as JSON here")
-    p.add_argument("--machine-name", default="this 2-core x86_64 machine, shared")
+    from ._study_cli import stored_parser, write_stamped
+
+    p = stored_parser("trajectory_gaps", __doc__, "the counts")
     p.add_argument("--tracks", type=int, default=200, help="noise draws of the synthetic track (0: none)")
     a = p.parse_args(argv)
     got = counts()
@@ -244,8 +242,7 @@ def main(argv=None) -> int:
               f"{s['silent_before']} -> {s['silent_after']} of {s['over']}, good flagged "
               f"{s['good_flagged_before']} -> {s['good_flagged_after']} of {s['good']}")
     if a.out:
-        Path(a.out).write_text(json.dumps({"study": "core.studies.tracking.trajectory_gaps",
-                                           "machine": a.machine_name, **got}, indent=1) + "\n")
+        write_stamped(a.out, "core.studies.tracking.trajectory_gaps", argv, a.machine_name, got)
     return 0
 
 

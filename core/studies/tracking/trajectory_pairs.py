@@ -30,7 +30,6 @@ made for seed 3's pair, the silent frame that led to the rule, so seed 3 is not 
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -163,10 +162,9 @@ def tune(rs, gates=(0.5, 0.7, 0.9), pairs=(0.9, 1.0, 1.1)) -> list[dict]:
 def main(argv=None) -> int:
     from core.tracking.flags_pairs import PAIR, PAIR_GATE
 
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.trajectory_pairs",
-                                description=__doc__.split("\n")[0])
-    p.add_argument("--out", default=None, help="write the counts as JSON here")
-    p.add_argument("--machine-name", default="this 2-core x86_64 machine, shared")
+    from ._study_cli import stored_parser, write_stamped
+
+    p = stored_parser("trajectory_pairs", __doc__, "the counts")
     p.add_argument("--no-tune", action="store_true", help="skip seed 0's grid")
     a = p.parse_args(argv)
     rs = list(runs())
@@ -182,8 +180,6 @@ def main(argv=None) -> int:
               f"{s['good_flagged_off']} -> {s['good_flagged_on']} of {s['good']}")
     print("stored trajectory flags reproduced:", got["reproduced"])
     if a.out:
-        from ._study_cli import write_stamped
-
         write_stamped(a.out, "core.studies.tracking.trajectory_pairs", argv, a.machine_name, got)
     return 0
 

@@ -53,7 +53,6 @@ zero on these runs, and 2.3 already flags 9.2 % of b797131's good frames.
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -297,10 +296,9 @@ def injected(rs, k=(4.3, 6.0), every: int = 3) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m core.studies.tracking.trajectory_silent",
-                                description=__doc__.split("\n")[0])
-    p.add_argument("--out", default=None, help="write the results as JSON here")
-    p.add_argument("--machine-name", default="this 2-core x86_64 machine, shared")
+    from ._study_cli import stored_parser, write_stamped
+
+    p = stored_parser("trajectory_silent", __doc__, "the results")
     p.add_argument("--no-tradeoff", action="store_true", help="skip the limit and cosine sweeps")
     a = p.parse_args(argv)
     rs = list(runs())
@@ -318,8 +316,6 @@ def main(argv=None) -> int:
     print("injected pairs (seed 0):", got["injected_seed0_b797131"])
     print("stored trajectory flags reproduced:", got["reproduced"])
     if a.out:
-        from ._study_cli import write_stamped
-
         write_stamped(a.out, "core.studies.tracking.trajectory_silent", argv, a.machine_name, got)
     return 0
 

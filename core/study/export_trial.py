@@ -35,10 +35,11 @@ def _volume_flip(study, bone: str):
 
 
 def export_trial(study, trial: str, fmt: str, out: str | os.PathLike, *, bones=None, rate: float = 100.0,
-                 frame: int | None = None, camera: int = 0) -> list[Path]:
+                 frame: int | None = None, camera: int = 0, poses=None) -> list[Path]:
     """Write ``trial``'s poses as ``fmt`` to ``out`` (a file, or a folder for ``tfm``/``jts``).
 
-    Returns the paths written.
+    ``poses``: bone -> ``(n_frames, 4, 4)`` written instead of the recorded ones (e.g. the smoothed
+    poses of :func:`core.tracking.smoothing_trial.smoothed_poses`). Returns the paths written.
     """
     if fmt not in FORMATS:
         raise ValueError(f"fmt: expected one of {', '.join(FORMATS)}, got {fmt!r}")
@@ -48,7 +49,8 @@ def export_trial(study, trial: str, fmt: str, out: str | os.PathLike, *, bones=N
     names = tuple(bones) if bones else tr.bones
     if not names:
         raise ValueError(f"bones: trial {trial!r} has no bones")
-    P = np.stack([tr.poses(b) for b in names], axis=1)  # (n, nb, 4, 4)
+    P = np.stack([tr.poses(b) if poses is None else np.asarray(poses[b], float) for b in names],
+                 axis=1)  # (n, nb, 4, 4)
     n = len(P)
     out = Path(out)
     frames = np.arange(n) + tr.frame_offset

@@ -137,7 +137,7 @@ def _optional() -> dict[str, PoseFormat]:
         name, suffix, label, description = _OPTIONAL.get(fmt, (fmt, "", fmt, f"talus export --format {fmt}"))
 
         def write(path, poses, trial, fmt=fmt, **options):
-            export_trial(trial._study, trial.name, fmt, path, bones=list(poses), **options)
+            export_trial(trial._study, trial.name, fmt, path, bones=list(poses), poses=poses, **options)
 
         out[name] = PoseFormat(name, suffix, description, write, label)
     return out
@@ -186,11 +186,13 @@ def trial_poses(trial, bones=None) -> dict[str, np.ndarray]:
     return {b: trial.poses(b) for b in names}
 
 
-def export_poses(trial, path: str | os.PathLike, fmt: str, *, bones=None, **options) -> Path:
+def export_poses(trial, path: str | os.PathLike, fmt: str, *, bones=None, poses=None, **options) -> Path:
     """Write the poses of ``trial`` (a :class:`core.study.Trial`) as format ``fmt`` to ``path``.
 
-    ``options`` go to the formats of :func:`core.study.export_trial.export_trial` (``rate``,
-    ``frame``, ``camera``). Returns ``path``.
+    ``poses``: bone -> ``(n_frames, 4, 4)`` written instead of the recorded ones (the bones'
+    ``bones``, default the trial's; e.g. the smoothed poses of
+    :func:`core.tracking.smoothing_trial.smoothed_poses`). ``options`` go to the formats of
+    :func:`core.study.export_trial.export_trial` (``rate``, ``frame``, ``camera``). Returns ``path``.
     """
     formats = available_formats()
     fmt = ALIASES.get(fmt, fmt)
@@ -201,5 +203,8 @@ def export_poses(trial, path: str | os.PathLike, fmt: str, *, bones=None, **opti
         raise ValueError(f"path: the folder {p.parent} does not exist")
     if formats[fmt].folder:  # a folder of files (one per bone)
         p.mkdir(parents=False, exist_ok=True)
-    formats[fmt].write(p, trial_poses(trial, bones), trial, **options)
+    chosen = trial_poses(trial, bones)
+    if poses is not None:
+        chosen = {b: np.asarray(poses[b], float) for b in chosen}
+    formats[fmt].write(p, chosen, trial, **options)
     return p

@@ -1,5 +1,6 @@
 """Smoothed poses of a study trial's tracked bones, stored beside the tracked ones
-(:func:`smooth_trial`; ``talus track --smooth``).
+(:func:`smooth_trial`; ``talus track --smooth``), or exported in their place
+(:func:`smoothed_poses`; the window's *File → Export…*, *Smoothed poses*).
 
 The journal's poses stay the results: each bone's smoothed poses
 (:func:`core.tracking.smoothing.smooth_poses`, from the journal's poses, each frame's confidence σ
@@ -16,7 +17,7 @@ import numpy as np
 
 from .smoothing import smooth_poses
 
-__all__ = ["REPORT_KIND", "bone_series", "smooth_trial"]
+__all__ = ["REPORT_KIND", "bone_series", "smooth_trial", "smoothed_poses"]
 
 #: the report's kind: ``results/reports/<kind>/<trial>.json``
 REPORT_KIND = "smoothing"
@@ -41,6 +42,28 @@ def bone_series(records: dict, frames: Sequence[int]) -> tuple[np.ndarray, np.nd
     return P, S, fl
 
 
+def _smooth_bones(study, trial_name: str, bones, threshold_hu: float, options: dict):
+    """Per bone ``(first frame, centre, SmoothedPoses)`` and the bones skipped with why."""
+    from .bones import bone_model
+
+    trial = study.trial(trial_name)
+    done, skipped = {}, {}
+    for b in list(trial.bones if bones is None else bones):
+        recs = trial.results(b).records
+        posed = sorted(f for f, r in recs.items() if r.pose is not None)
+        if not posed:
+            skipped[b] = "no pose"
+            continue
+        frames = list(range(posed[0], posed[-1] + 1))
+        P, S, fl = bone_series(recs, frames)
+        c = bone_model(study.bone_volume(b), name=b, threshold=threshold_hu, mesh=False).centroid
+        try:
+            done[b] = (frames[0], c, smooth_poses(P, S, center=c, flagged=fl, **options))
+        except ValueError as exc:  # too few measured frames
+            skipped[b] = str(exc)
+    return done, skipped
+
+
 def smooth_trial(study, trial_name: str, bones: Sequence[str] | None = None, *, threshold_hu: float = 200.0,
                  write: bool = True, **options) -> dict:
     """Smooth each bone of trial ``trial_name`` (``bones``, default the trial's) over the frames
@@ -50,30 +73,31 @@ def smooth_trial(study, trial_name: str, bones: Sequence[str] | None = None, *, 
     :meth:`~core.tracking.smoothing.SmoothedPoses.to_dict`; a bone with too few poses under
     ``skipped`` with why), written to ``results/reports/smoothing/<trial>.json`` when ``write`` (the
     study open for writing)."""
-    from .bones import bone_model
-
-    trial = study.trial(trial_name)
-    names = list(trial.bones if bones is None else bones)
+    done, skipped = _smooth_bones(study, trial_name, bones, threshold_hu, options)
     out: dict = {"trial": trial_name, "options": {k: v for k, v in options.items()},
                  "note": "smoothed over neighbouring frames: not the tracked results (the journal keeps "
                          "those), and not bounded by the single-frame Cramer-Rao bound",
-                 "bones": {}, "skipped": {}}
-    for b in names:
-        recs = trial.results(b).records
-        posed = sorted(f for f, r in recs.items() if r.pose is not None)
-        if not posed:
-            out["skipped"][b] = "no pose"
-            continue
-        frames = list(range(posed[0], posed[-1] + 1))
-        P, S, fl = bone_series(recs, frames)
-        c = bone_model(study.bone_volume(b), name=b, threshold=threshold_hu, mesh=False).centroid
-        try:
-            sm = smooth_poses(P, S, center=c, flagged=fl, **options)
-        except ValueError as exc:  # too few measured frames
-            out["skipped"][b] = str(exc)
-            continue
-        out["bones"][b] = {"frames": [frames[0], frames[-1]], "center": np.round(c, 5).tolist(),
-                           **sm.to_dict()}
+                 "bones": {b: {"frames": [lo, lo + len(sm.poses) - 1], "center": np.round(c, 5).tolist(),
+                               **sm.to_dict()} for b, (lo, c, sm) in done.items()},
+                 "skipped": skipped}
     if write:
         study.write_report(REPORT_KIND, trial_name, out)
+    return out
+
+
+def smoothed_poses(study, trial_name: str, bones: Sequence[str] | None = None, *, threshold_hu: float = 200.0,
+                   **options) -> dict[str, np.ndarray]:
+    """Bone -> ``(n_frames, 4, 4)`` smoothed poses of trial ``trial_name`` (as :func:`smooth_trial`'s,
+    computed afresh, not written; NaN outside a bone's first and last pose, and for a bone too short
+    to smooth), to export in place of the tracked ones (:func:`core.study.exports.export_poses`'
+    ``poses``)."""
+    trial = study.trial(trial_name)
+    done, _ = _smooth_bones(study, trial_name, bones, threshold_hu, options)
+    out = {}
+    for b in (trial.bones if bones is None else bones):
+        P = np.full((trial.n_frames, 4, 4), np.nan)
+        if b in done:
+            lo, _, sm = done[b]
+            P[lo:lo + len(sm.poses)] = sm.poses
+        out[b] = P
     return out

@@ -101,3 +101,59 @@ def test_bone_series_reads_sigma_flags_and_hand_poses():
     assert np.isnan(P[1]).all() and np.isfinite(P[[0, 2]]).all()
     assert fl.tolist() == [True, False, False]
     assert np.isinf(S[0, 5]) and np.isnan(S[2]).all() and S[0, 0] == 0.1
+
+
+@pytest.mark.gui
+def test_export_dialog_writes_the_smoothed_poses(study, qtbot, tmp_path, monkeypatch):
+    """File → Export…, *Smoothed poses* ticked: the CSV holds the smoothed poses
+    (core.tracking.smoothing_trial.smoothed_poses), unticked the tracked ones; off by default, and
+    off (disabled) for the plots and the report."""
+    import csv
+
+    from PySide6 import QtCore
+
+    from app.main_window import MainWindow
+    from core.tracking import from_study
+    from core.tracking.smoothing_trial import smoothed_poses
+
+    truths = {p.stem: np.load(p) for p in (study / "poses").glob("*.npy")}
+    with Study.open(study, mode="w") as st:  # the stand-in's tracked poses (the CLI test's, if it ran)
+        _fake_track(truths, _centroids(study))(st, "walk")
+    monkeypatch.setattr(from_study, "track_study", None)  # nothing tracks here
+    monkeypatch.setenv("TALUS_SETTINGS_DIR", str(tmp_path / "settings"))
+    win = MainWindow(device="cpu", create_scene_on_show=False)
+    qtbot.addWidget(win)
+    win.show()
+    try:
+        win.open_study(study)
+        dlg = win.review.export_dialog()
+        dlg.select("csv")
+        assert dlg.smoothed.isEnabled() and not dlg.smoothed.isChecked()
+        names = dlg.chosen_bones()
+
+        def export(name, smoothed):
+            if dlg.smoothed.isChecked() != smoothed:
+                qtbot.mouseClick(dlg.smoothed, QtCore.Qt.MouseButton.LeftButton)
+            assert dlg.smoothed.isChecked() == smoothed
+            dlg.path.setText(str(tmp_path / name))
+            qtbot.mouseClick(dlg.export_button, QtCore.Qt.MouseButton.LeftButton)
+            assert dlg.status.text().startswith("Exported"), dlg.status.text()
+            with open(tmp_path / name, newline="") as fh:
+                rows = list(csv.reader(fh))[1:]
+            return np.array([[[float(v) for v in r[1 + 16 * k:17 + 16 * k]] for k in range(len(names))]
+                             for r in rows]).reshape(-1, len(names), 4, 4)
+
+        raw = export("raw.csv", False)
+        sm = export("smoothed.csv", True)
+        dlg.grab().save(str(tmp_path / "export_smoothed.png"))
+        with Study.open(study) as st:
+            want = smoothed_poses(st, "walk", names)
+            tracked = np.stack([st.trial("walk").poses(b) for b in names], axis=1)
+        np.testing.assert_allclose(raw, tracked, atol=1e-9)
+        np.testing.assert_allclose(sm, np.stack([want[b] for b in names], axis=1), atol=1e-9)
+        assert not np.allclose(sm, raw)
+        dlg.select("report", ".html")
+        assert not dlg.smoothed.isEnabled()
+        dlg.reject()
+    finally:
+        win.close()

@@ -35,9 +35,11 @@ bone-runs), × the single-frame bound mm / °: raw 1.18–1.92 / 1.27–1.81 wit
 silent); the low-pass 0.69–4.25 / 0.60–1.41 (the tibia's translation 2.7–4.3×: 22–25 Hz lags its
 0.4 mm a frame) with 53 over 4× among the unflagged frames it scores; the smoother's defaults
 0.55–1.13 / 0.42–1.21 (mean 0.80 / 0.66), none over 4× (seed 4's calcaneus frames 30 and 53 pulled
-in), coverage 72–88 % within 2σ (a correct σ: 95.4 %; the errors are correlated from frame to frame,
-the smoother takes them as independent). Weighing by each frame's σ: 0.56–1.16 / 0.43–1.35; flagged
-frames skipped: up to 2.7× (a flagged trial end extrapolated); constant velocity 0.77–1.39 /
+in); within 2σ 80–97 % of the translation and 72–98 % of the rotation axes (means 89 / 86 %; a
+correct σ: 95.4 %, short of it in every run over all six axes: the frames' errors are somewhat
+correlated, lag-1 up to 0.5, and the smoother takes them as independent; its bias where it
+smooths real motion adds). Weighing by each frame's σ: 0.56–1.16 / 0.43–1.35; flagged frames
+skipped: up to 2.7× (a flagged trial end extrapolated); constant velocity 0.77–1.39 /
 0.48–1.26. The transient: no burst let in on any plain run; the 1 mm / 1° jerk found in every run,
 its added error 0.023 mm / 0.138° RMS in the window (without bursts 0.056 / 0.249; the raw frames'
 own error there 0.048 / 0.164): with it the smoothed poses' error there is 0.037 mm / 0.152°, worse

@@ -32,7 +32,7 @@ error there is its error with the transient minus without, RMS over frames ``T0 
 
 Measured (``resources/benchmarks/tracking_smoother_cpu.json``, this 2-core x86_64 machine, shared; 18
 bone-runs), × the single-frame bound mm / °: raw 1.18–1.92 / 1.27–1.81 with 21 frames over 4× (5
-silent); the low-pass 0.69–4.25 / 0.60–1.41 (the tibia's translation 2.7–4.3×: 22–25 Hz lags its
+silent); the low-pass 0.69–4.25 / 0.60–1.41 (the tibia's translation 1.7–4.3×: 22–26 Hz lags its
 0.4 mm a frame) with 53 over 4× among the unflagged frames it scores; the smoother's defaults
 0.55–1.13 / 0.42–1.21 (mean 0.80 / 0.66), none over 4× (seed 4's calcaneus frames 30 and 53 pulled
 in); within 2σ 80–97 % of the translation and 72–98 % of the rotation axes (means 89 / 86 %; a

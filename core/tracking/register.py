@@ -64,16 +64,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from contextlib import contextmanager
-from contextvars import ContextVar
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from . import optimize as opt
 from .cost import CostTimer, FrameImages, RegistrationCost, mm_per_pixel, search_roi, snap_roi
-from .likelihood_steps import run_steps
 from .quadratic import quadratic_search
+from .register_ahead import final_stage_idle, forget, keep, take
 from .register_options import (  # noqa: F401
     FINAL_STEP,
     Level,
@@ -205,43 +203,40 @@ STAGE_PREFETCH = True
 #: device's stream at the frame's start, where the host prepares the search).
 SHARE_FRAME = False
 
-#: What to run once while the device works on the final stage's first step (:func:`stage_idle`): set by
-#: :func:`core.tracking.trial.track` to put the next frame on the device there
-#: (:data:`core.tracking.trial.NEXT_FRAME_AHEAD`). None: nothing.
-_STAGE_IDLE: ContextVar = ContextVar("register_stage_idle", default=None)
+def prepare_search(renderer, frame, *, bone: int, pose, center, options: RegistrationOptions,
+                   outline=None) -> bool:
+    """Prepare the ``"newton"`` search of ``bone`` in ``frame`` from ``pose`` ahead of its registration
+    (e.g. while the device works on the frame before's final stage, :func:`stage_idle`): its pixel size,
+    its search regions and its full-resolution engine's regions (``set_frame``), kept so that
+    :func:`register` from this very pose, centre and options (every view, no neighbours) takes them
+    instead of making them again (the same values: the same calls). False where nothing was prepared
+    (another search, a pose outside a view)."""
+    o = options
+    if o.search != "newton" or o.levels is not None:
+        return False
+    from .engine import engine_cost, supports
 
-
-@contextmanager
-def stage_idle(fn):
-    """Within the block, one bone's registrations (:func:`register`) run ``fn()`` once while the device
-    works on their final stage's first step (where the host would otherwise wait: the stage's generator
-    yields there, :func:`core.tracking.final_stage.final_stage_steps`), then let it go; ``fn`` must need
-    nothing of the registration (e.g. the next frame's upload). A study's wrapper of
-    :func:`~core.tracking.final_stage.final_stage` is called as before, without it."""
-    token = _STAGE_IDLE.set([fn] if fn is not None else None)
+    if not supports(o.terms) or len(o.terms) != 1:
+        return False
+    base = np.asarray(pose, dtype=float)
+    center = np.asarray(center, dtype=float)
+    views = tuple(range(frame.n_views))
+    fs = o.final_scale
+    forget()
     try:
-        yield
-    finally:
-        _STAGE_IDLE.reset(token)
-
-
-def _final_stage(renderer, frame, res, **kw):
-    """:func:`core.tracking.final_stage.final_stage`, with :func:`stage_idle`'s work (once) at its first
-    wait for the device."""
-    from . import final_stage as fst
-
-    slot = _STAGE_IDLE.get()
-    if not slot or fst.final_stage is not fst._PLAIN_FINAL_STAGE:
-        return fst.final_stage(renderer, frame, res, **kw)
-    steps = fst.final_stage_steps(renderer, frame, res, **kw)
-    try:
-        next(steps)
-    except StopIteration as stop:
-        return stop.value
-    fn = slot.pop() if slot else None
-    if fn is not None:
-        fn()
-    return run_steps(steps)
+        px_mm = mm_per_pixel(renderer, base, center, views)
+        levels = _automatic_levels(px_mm * fs, fs, o.sigma, "newton")
+        if o.final is not None:
+            levels = tuple(before_stage(lv, o) for lv in levels)
+        if not (len(levels) == 1 and levels[0].method == "gauss_newton" and levels[0].scale == fs):
+            return False
+        roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline)
+        c = engine_cost(renderer, bone=bone, views=views, scale=fs, term=o.terms[0])
+        c.set_frame(frame, base_pose=base, center=center, roi=roi, others=None, px_mm=px_mm)
+    except Exception:  # (OutsideViewError among them: the registration meets it again, as it would)
+        return False
+    keep(renderer, bone, base, center, views, o, px_mm, roi)
+    return True
 
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:
@@ -355,12 +350,17 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             search = "local" if search == "newton" else "global"
     px_mm = None  # the full-resolution pixel size at the bone (the engine's smoothing takes it too)
     levels = o.levels
+    ahead = None
+    if levels is None and search == "newton" and tried is None and roi is None:  # prepare_search's
+        ahead = take(renderer, bone, base, center, views, o, others)
     if levels is None:
-        px_mm = mm_per_pixel(renderer, base, center, views)
+        px_mm = mm_per_pixel(renderer, base, center, views) if ahead is None else ahead[0]
         levels = _automatic_levels(px_mm * fs, fs, o.sigma, search)
         if search == "newton" and o.final is not None:  # a stage follows: its basin is enough
             levels = tuple(before_stage(lv, o) for lv in levels)
-    if roi is None:
+    if roi is None and ahead is not None:
+        roi = ahead[1]
+    elif roi is None:
         roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline,
                             snap=all(lv.method == "gauss_newton" for lv in levels))
     else:
@@ -474,7 +474,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
                     t_start=t_start)
     if o.final is None:
         return res
-    return _final_stage(renderer, frame, res, bone=bone, initial_pose=base, center=center, options=o,
+    return final_stage_idle(renderer, frame, res, bone=bone, initial_pose=base, center=center, options=o,
                         views=views, others=others)
 
 

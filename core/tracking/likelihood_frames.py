@@ -15,6 +15,7 @@ from .cost import FrameImages, OutsideViewError, fluoro_rois, padded_region
 from .engine_buffers import copy_array
 from .engine_kernels import _LANES, fluoro_roi_kernel
 from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
+from .likelihood_roi import roi_count_kernel
 
 #: :meth:`_FrameRegions.prefetch`'s rows of the frame taken by the stage's set-up where they cover its
 #: own (off: the stage uploads its rows whatever went up before). Tried before it and removed: the rows
@@ -30,6 +31,13 @@ PREFETCH = True
 #: the same kernel (the same regions to the bit). Off: the stage copies and uploads its rows, as before.
 #: Not measured on a GPU (three bones jointly: one copy and upload a bone-frame fewer on the host).
 HELD_FRAME = True
+#: The regions made by :func:`~core.tracking.likelihood_roi.roi_count_kernel`: the usable pixels counted
+#: per thread block of :data:`ROI_BLOCK_CHUNK` pixels (one atomic a block instead of three a thread; the
+#: region's maximum and sum, which the stage does not read, not made). The same line integrals, usable
+#: pixels and count (exact). Off: :func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as before.
+ROI_BLOCK_COUNT = True
+#: pixels a thread block of :func:`~core.tracking.likelihood_roi.roi_count_kernel` prepares
+ROI_BLOCK_CHUNK = 1024
 
 
 def _covering(frame, rows, staged: list, src, gsrc):
@@ -213,10 +221,16 @@ class _FrameRegions:
         copy_array(self._info, self._host_info)
         self._msum.zero_()
         lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
-        chunk = self.chunk  # (the engine's 4096: smaller chunks were slower, PREFETCH's docs)
-        self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
-                     [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
-                      chunk, li, mask, self._fmax, self._msum])
+        if ROI_BLOCK_COUNT:  # (a count per thread block: likelihood_roi)
+            chunk = int(ROI_BLOCK_CHUNK)
+            self._launch("roi_count", roi_count_kernel, (self.n_views, math.ceil(Hc * Wc / chunk)),
+                         [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
+                          chunk, li, mask, self._msum], _LANES)
+        else:
+            chunk = self.chunk  # (the engine's 4096: smaller chunks were slower, PREFETCH's docs)
+            self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
+                         [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
+                          chunk, li, mask, self._fmax, self._msum])
         copy_array(self._host_msum, self._msum)
         self._count_pending = True
 

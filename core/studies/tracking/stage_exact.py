@@ -3,8 +3,10 @@ benchmark's kind of trial (:class:`~core.studies.tracking.acceptance.TrackingSce
 voxels, 4 frames, frame 0 given) tracked with the likelihood stage under each variant
 (:func:`core.studies.tracking.stage_one_bone._variant_of`'s names: ``stage_speed``'s variants and
 ``stage_one_bone``'s parts), in three cases — the talus alone, the three bones jointly, the talus and the
-calcaneus sequentially — and every bone-frame's pose, covariance, independent-pixel covariance, stage
-steps and taken flag compared with the first variant's: ``identical`` where all are equal to the bit
+calcaneus sequentially — and every bone-frame's pose, confidence σ (the frame's ``confidence``: the stage's
+covariance as the tracker reports it; before 2026-11-28 only the fit's covariances, which a tracked frame does
+not keep: NaN in every variant), covariance, independent-pixel covariance, stage steps and taken flag compared
+with the first variant's: ``identical`` where all are equal to the bit
 (else the largest differences). JSON on stdout (``--out``: also to a file)."""
 
 from __future__ import annotations
@@ -23,7 +25,9 @@ CASES = (("one", (1,), "joint"), ("three", (0, 1, 2), "joint"), ("two", (1, 2), 
 def _record(res) -> dict:
     fit = getattr(res, "fit", None)
     t = res.timing or {}
+    conf = getattr(res, "confidence", None) or {}  # (a tracked frame's: the stage's σ; its fit is not kept)
     return {"pose": np.asarray(res.pose, dtype=float),
+            "sigma": np.asarray(conf.get("sigma", [np.nan] * 6), dtype=float),
             "cov": np.asarray(getattr(fit, "covariance", np.full((6, 6), np.nan)), dtype=float),
             "cov_ind": np.asarray(getattr(fit, "covariance_independent", np.full((6, 6), np.nan)),
                                   dtype=float),

@@ -23,8 +23,9 @@ the stage's rows while the search runs off / on (:data:`core.tracking.register.S
 refinement's sandwich before the robust factors / after the robust refinement's first step
 (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, on by default since both were measured alone:
 ``resources/benchmarks/tracking_stage_one_bone_97b2893_h100.json``, when both were off by default);
-``sorts`` the robust factors' median's one sort off, ``nolean`` the steps' tables solved and the
-sandwich's autocovariance copied as before (:data:`core.tracking.likelihood_solve.LEAN_SOLVES`,
+``sorts`` the robust factors' median's one sort off, ``roiprev`` the regions by the tracker's engine's
+kernel (:data:`core.tracking.likelihood_frames.ROI_BLOCK_COUNT` off), ``nolean`` the steps' tables solved
+and the sandwich's autocovariance copied as before (:data:`core.tracking.likelihood_solve.LEAN_SOLVES`,
 :data:`core.tracking.likelihood_confidence.COV_ON_READ`), ``h2prev`` the three first as at 97b2893
 (:data:`_PARTS`).
 The runs count the stages that took the prefetched rows. ``--interleave N``: then ``N`` tracks more in which
@@ -205,7 +206,8 @@ _PARTS = {"prefetch": (("core.tracking.register", "STAGE_PREFETCH", True),),
           "noafter": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False),),
           "sorts": (("core.tracking.likelihood_kernels", "MEDIAN_ONE_SORT", False),),
           "nolean": (("core.tracking.likelihood_solve", "LEAN_SOLVES", False),
-                     ("core.tracking.likelihood_confidence", "COV_ON_READ", False))}
+                     ("core.tracking.likelihood_confidence", "COV_ON_READ", False)),
+          "roiprev": (("core.tracking.likelihood_frames", "ROI_BLOCK_COUNT", False),)}
 _PARTS["h2prev"] = tuple(t for k in ("noprefetch", "noafter", "sorts") for t in _PARTS[k])
 
 

@@ -67,6 +67,12 @@ def test_the_window_gives_the_flags_after_the_trajectory_check_over_the_ranges(w
 
     # frame 10 0.2 deg off: the range 12-0, run first, does not flag it alone; the trial does
     P = _track(n=30, off=(10, 0.0, 0.2))
+    from functools import partial
+
+    from core.tracking import flags_post
+
+    # the trial's ends cut (ends=False): with flags_ends the range flags frame 10 itself
+    monkeypatch.setattr(flags_post, "trajectory_review", partial(flags_post.trajectory_review, ends=False))
     monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
         0: FrameResult(BONE, f, P[f], 0.8, 10, 0.0, True)})
     window.model.select(BONE)

@@ -198,6 +198,12 @@ def test_batch_ranges_print_the_trajectory_check_over_each_trials_ranges(demo, t
             t.clear_pose("talus", f)
         t.record_pose("talus", 12, np.load(folder / "poses" / "talus.npy")[12])
     P = _track(n=30, off=(10, 0.0, 0.2))
+    from functools import partial
+
+    from core.tracking import flags_post
+
+    # the trial's ends cut (ends=False): with flags_ends the range flags frame 10 itself
+    monkeypatch.setattr(flags_post, "trajectory_review", partial(flags_post.trajectory_review, ends=False))
     monkeypatch.setattr(trial, "track_frame", lambda run, f, imgs, fr, todo, state, skip: {
         0: FrameResult("talus", f, P[f], 0.8, 10, 0.0, True)})
     rc = talus_batch([str(folder), "--bones", "talus", "--ranges", "--workers", "0", "--device", "cpu",

@@ -27,6 +27,7 @@ from .checks import uncertain as _uncertain
 from .confidence import confidence_from_fit, curvature_confidence
 from .cost import OutsideViewError, RegistrationCost, search_roi
 from .register import RegistrationOptions, register
+from .stage_sigma import remeasurable, remeasured
 from .verify import verify_start
 
 if TYPE_CHECKING:
@@ -73,6 +74,12 @@ def _conf_flags(conf, flags, o: TrackingOptions, good_sigmas) -> list:
     if good_sigmas is not None and not any(f.startswith("uncertain") for f in (*flags, *out)):
         out += _sigma_check(conf, good_sigmas, n=o.history, limit=o.sigma_limit)
     return out
+
+
+def _lengths(conf: dict) -> str:
+    """A confidence's σ lengths as a note says them."""
+    t, r = conf.get("translation_mm"), conf.get("rotation_deg")
+    return "not determined" if t is None or r is None else f"{t:.3f} mm, {r:.3f} deg"
 
 
 def confidence_of(fit, o: TrackingOptions) -> dict:
@@ -258,7 +265,21 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
             conf = None
         evals += 73 if conf is not None else 0
     if pending is None:
-        flags += _conf_flags(conf, flags, o, good_sigmas)
+        more = _conf_flags(conf, flags, o, good_sigmas)
+        if more and conf is not None and not cancelled() and remeasurable(res, o.registration):
+            # the σ's stage move from the similarity's optimum, not from where its search stopped
+            if host_only:  # (stage_sigma)
+                return None
+            got = remeasured(renderer, frame, res, bone=index, center=c, options=o.registration,
+                             others=others, outline=bone.outline, cancel=cancel, profile=o.profile)
+            if got is not None:
+                res, conv = got
+                add(conv)
+                was, conf = conf, confidence_of(res.fit, o)
+                more = _conf_flags(conf, flags, o, good_sigmas)
+                notes.append(f"confidence's stage move from the similarity's optimum: {_lengths(was)} -> "
+                             f"{_lengths(conf)} (its search had stopped before the stage)")
+        flags += more
     dt = time.perf_counter() - t0
     # confidence, restarts, set-up (the final stage's set-up is a part of its likelihood_s)
     timing["other_s"] = dt - sum(v for k, v in timing.items() if k.endswith("_s") and k not in _PARTS)

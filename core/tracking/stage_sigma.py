@@ -25,7 +25,10 @@ there σ is 0.22° / 0.23°, neither flagged; and the stage from that optimum la
 about x of the same pose. So where the σ checks flag a frame whose stage took its move, the similarity's
 search goes on from the searched pose to its own tolerance (the tracker's ``"newton"`` search without a
 stage; its work counted), the move is measured from that optimum and the checks judge that σ, which is
-the frame's confidence (a note says so; the pose, the stage's outcome and its move in the timing stay).
+the frame's confidence (a note says so). The stage's move in the timing is then the move from that
+optimum, and the fit's similarity that optimum: the stage-move check (:func:`core.tracking.stage_move.
+stage_move_check`, after the frame's registrations) reads both, and a move it rejects leaves the
+similarity's optimum, not the stopped search's pose; otherwise the pose is the stage's, as it was.
 The frames the checks do not flag keep the move from the searched pose (converging every search is what
 the looser tolerance saves; on the three seeds' d262386 runs these three bone-frames were the only ones
 the σ checks flagged). Not applied to a confidence left to :func:`~core.tracking.attempt.settle` (a first
@@ -70,8 +73,9 @@ def remeasured(renderer, frame, res, *, bone: int, center, options, others=None,
                profile: bool = False):
     """``(res with its fit's σ re-measured, the similarity's optimum)`` (module docs): the similarity
     searched on from ``res.fit.similarity``'s pose with ``options`` (the tracker's registration options)
-    without a stage, and the covariance's move part taken from there; None where it does not apply or
-    the search leaves the views."""
+    without a stage, and the covariance's move part taken from there; the fit's ``similarity`` that optimum
+    (a rejected move keeps it) and the stage's move in the timing from it (the move check reads it, against
+    this σ); None where it does not apply or the search leaves the views."""
     from .likelihood_model import LikelihoodFit
     from .register import register
 
@@ -91,7 +95,9 @@ def remeasured(renderer, frame, res, *, bone: int, center, options, others=None,
         return None
     try:
         new = LikelihoodFit.of(cov, x=fit.x, chi2=fit.chi2, covariance_independent=fit.covariance_independent,
-                               similarity=sim)
+                               similarity=conv)
     except np.linalg.LinAlgError:
         return None
-    return replace(res, fit=new), conv
+    timing = {**res.timing, "likelihood_move_mm": float(np.linalg.norm(d1[:3])),
+              "likelihood_move_deg": float(np.linalg.norm(d1[3:]))}
+    return replace(res, fit=new, timing=timing), conv

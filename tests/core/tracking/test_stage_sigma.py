@@ -53,7 +53,9 @@ def test_the_move_is_the_stages_own(staged, monkeypatch):
     assert conv is sim and calls[0]["options"].final is None and calls[0]["initial_pose"] is sim.pose
     np.testing.assert_allclose(got.fit.covariance, res.fit.covariance, rtol=1e-9, atol=1e-12)
     np.testing.assert_array_equal(got.pose, res.pose)
-    assert got.fit.similarity is sim and got.timing == res.timing
+    assert got.fit.similarity is conv
+    for k in ("likelihood_move_mm", "likelihood_move_deg"):  # (the move from the optimum: the same here)
+        assert got.timing[k] == pytest.approx(res.timing[k], rel=1e-6, abs=1e-9)
 
 
 def _stopped_short(staged, deg: float):
@@ -69,7 +71,9 @@ def _stopped_short(staged, deg: float):
     d = _move(res.pose, far.pose, c)
     new = LikelihoodFit.of(S + np.outer(d, d), x=fit.x, chi2=fit.chi2,
                            covariance_independent=fit.covariance_independent, similarity=far)
-    return replace(res, fit=new), far, S
+    t = {**res.timing, "likelihood_move_mm": float(np.linalg.norm(d[:3])),
+         "likelihood_move_deg": float(np.linalg.norm(d[3:]))}
+    return replace(res, fit=new, timing=t), far, S
 
 
 def _checked(staged, res, S, monkeypatch, optimum, *, host_only=False):
@@ -97,7 +101,7 @@ def _checked(staged, res, S, monkeypatch, optimum, *, host_only=False):
 def test_a_flag_from_where_the_search_stopped_is_remeasured(staged, monkeypatch):
     """The search stopped 2° about x from the stage's pose, the similarity's optimum 1e-5° from it (the
     ideal views' σ is about 0.001°): the σ from the optimum, not flagged, a note; the search's work
-    counted; the pose and the stage's outcome kept."""
+    counted; the pose and the stage's outcome kept, its move from the optimum."""
     res, far, S = _stopped_short(staged, 2.0)
     c = staged["model"].centroid
     d = np.sqrt(np.diag(S))
@@ -109,7 +113,11 @@ def test_a_flag_from_where_the_search_stopped_is_remeasured(staged, monkeypatch)
     assert a.flags == [] and any("similarity's optimum" in n for n in a.notes)
     assert a.confidence["rotation_deg"] == pytest.approx(float(np.linalg.norm(d[3:])), rel=0.02)
     np.testing.assert_array_equal(a.result.pose, res.pose)
-    assert a.result.timing == res.timing and a.evaluations == res.evaluations + 26
+    np.testing.assert_array_equal(a.result.fit.similarity.pose, near)  # (a rejected move keeps the optimum)
+    t = a.result.timing
+    assert t["likelihood_taken"] == 1 and t["likelihood_move_deg"] == pytest.approx(1e-5, rel=1e-3)
+    assert res.timing["likelihood_move_deg"] == pytest.approx(2.0, rel=1e-6)  # (the run's own, not changed)
+    assert a.evaluations == res.evaluations + 26
 
 
 def test_a_similarity_that_disagrees_stays_flagged(staged, monkeypatch):

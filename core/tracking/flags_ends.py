@@ -18,10 +18,15 @@ the good frames of the ``2 * HALF_WINDOW``-wide window shifted to lie inside the
 through the eight before it (``sqrt(1 + leverage)`` 1.72), the frame before it through seven before and
 the last (whose weight is then 0.3). The frame off now stands off its fit more than its neighbours do
 theirs and is flagged first (:class:`~core.tracking.flags_fit._Table`), and a good end frame keeps a fit
-when a frame near it is flagged. Those frames' residuals (extrapolated) are left out of the bone's median
-when enough others have one. The pair rule (:mod:`core.tracking.flags_pairs`) no longer puts a frame back
+when a frame near it is flagged. The pair rule (:mod:`core.tracking.flags_pairs`) no longer puts a frame back
 in a pair's fits when its own fit without the pair is extrapolated (the bad last frame had been put back
 by its wide residual, and the pair before it flagged through its pull).
+
+*The scale* (:data:`SCALE_WITHOUT_ENDS`). The bone's median residual, which sets the limit, is taken over
+the frames fitted on both sides, the end frames (extrapolated) left out when enough others have a residual;
+before, every frame's residual entered it, the end frames' with the window cut. This moves the limit of
+the whole trial, not only of its ends: on d262386 most of the change in good frames flagged is this, in the
+trials' middle (below).
 
 *Crowded ends* (``crowd``, :func:`judge_crowded_ends`). A good frame within ``HALF_WINDOW`` of a trial's
 end whose cut window (its nearest ``HALF_WINDOW`` tracked frames on each side) holds :data:`CROWD` or more
@@ -41,12 +46,19 @@ turned more about z, caught / good frames flagged over the draws, before -> now:
 the first frame 0.3° 0/6 -> 4/6, 1-5° (+14 to +24) -> (+0 to +1); frames 1-3 and 56-58 caught as before,
 good frames flagged 6-12 a cell -> 0-8 (a 5° spike flags neighbours by the near rule as in the trial's
 middle). The stored acceptance runs (1024², 100 frames, both modes, tracked on one NVIDIA H100, rebuilt
-from the kept errors), frames over 4x their bound left silent and good frames (under 2x) flagged, before
--> now: d262386 (seeds 0, 3, 4) 5 -> 3 of 21 and 70 -> 49 of 1373 (the end frames: 1 -> 0 of 5, 18 ->
-18 of 117); b797131 2 -> 2 of 17, 87 -> 83 of 1385; held out (nostage, ea76c8b, 56350ae, a5fd412) 266 ->
-264 of 455, 126 -> 138 of 2800. ``crowd`` 2 / 3 / 4 / off: d262386 good flagged 52 / 49 / 48 / 46, silent
-3 at each; held out silent 264 / 264 / 269 / 269 (frames at the trials' starts), good flagged 144 / 138 /
-134 / 134.
+from the kept errors), frames over 4x their bound left silent and good frames (under 2x) flagged, before ->
+the shifted windows with the median as before -> with the median without the end frames (the default):
+d262386 (seeds 0, 3, 4) 5 -> 4 -> 3 of 21 and 70 -> 64 -> 49 of 1373; at its end frames (within 4 of a
+trial's end) silent 1 -> 0 -> 0 of 5 (seed 4's sequential tibia frame 0 caught) and good flagged 18 -> 19
+-> 18 of 117, so the 21 fewer good frames flagged (net; most of them seed 3's tibia) and the joint calcaneus
+frame 30 caught (4.1x) are frames in the middle whose limit moved with the scale; b797131 2 -> 2 -> 2 of
+17, 87 -> 88 -> 83 of 1385; held out (nostage, ea76c8b, 56350ae, a5fd412) 266 -> 263 -> 264 of 455, 126
+-> 136 -> 138 of 2800. ``crowd`` 2 / 3 / 4 / off (the default scale): d262386 good flagged 52 / 49 / 48 /
+46, silent 3 at each; held out silent 264 / 264 / 269 / 269 (frames at the trials' starts), good flagged
+144 / 138 / 134 / 134. Left: with frames missing just before a trial's end (the walking track's 52-55
+without a pose), the shifted window [51, 59] holds 51 and 56-58 only, and once a bad last frame is flagged
+frames 56-58 are flagged "not ruled out" (as the check before flagged them with no bad frame at all): the
+window does not reach past frames without a pose.
 """
 
 from __future__ import annotations
@@ -56,8 +68,12 @@ import numpy as np
 from .flags_fit import ENDS, _Table
 from .flags_gaps import ONE_SIDED_FLAG
 
-__all__ = ["CROWD", "ENDS", "judge_crowded_ends"]
+__all__ = ["CROWD", "ENDS", "SCALE_WITHOUT_ENDS", "judge_crowded_ends"]
 
+#: The bone's median (the check's scale) leaves out the frames fitted through the shifted window when enough
+#: others have a residual (module docs, *The scale*; False: the median of every frame's residual with the
+#: window cut at the trial's ends, as before — a switch for the study, not a keyword).
+SCALE_WITHOUT_ENDS = True
 #: A good frame at a trial's end (within ``half_window`` of it) is flagged for review when this many frames
 #: or more within ``half_window`` tracked frames of it are flagged by the check.
 CROWD = 3

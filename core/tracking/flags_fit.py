@@ -100,6 +100,16 @@ class _Table:
             out[i] = self.residual(int(i), use)
         return out
 
+    def cut_residuals(self, use: np.ndarray) -> np.ndarray:
+        """:meth:`residuals` with every frame fitted through its ±``half_window`` window cut at the
+        trial's ends, as before :mod:`core.tracking.flags_ends`."""
+        ext, end = self.ext, self.end
+        self.ext, self.end = {}, np.zeros_like(end)
+        try:
+            return self.residuals(use)
+        finally:
+            self.ext, self.end = ext, end
+
     def _weights(self, x: np.ndarray):
         """The fit's value at the frame as weights on neighbours at offsets ``x``, and
         ``sqrt(1 + leverage)``; None when the fit is singular."""

@@ -136,6 +136,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from . import flags_ends
 from .flags_along import ALONG, judge_along
 from .flags_ends import CROWD, judge_crowded_ends
 from .flags_fit import ENDS, FLAG, UNCHECKED, _deltas, _Table  # noqa: F401 (_deltas: the studies')
@@ -246,9 +247,14 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     # the scale from the judged frames when they are enough (module docs: smooth neighbours)
     own = have & judge
     pick = own if own.sum() >= min_frames else have
-    if (pick & ~t.end).sum() >= min_frames:  # not a trial's end frames, extrapolated (flags_ends)
-        pick = pick & ~t.end
-    med = np.median(R[pick], axis=0)
+    if t.ext and not flags_ends.SCALE_WITHOUT_ENDS:  # the scale as before flags_ends: the windows cut
+        Rc = t.cut_residuals(ok)
+        hc = np.all(np.isfinite(Rc), axis=1)
+        med = np.median(Rc[hc & judge if (hc & judge).sum() >= min_frames else hc], axis=0)
+    else:
+        if (pick & ~t.end).sum() >= min_frames:  # not a trial's end frames, extrapolated (flags_ends)
+            pick = pick & ~t.end
+        med = np.median(R[pick], axis=0)
     lim = np.maximum(float(limit) * med, np.asarray(floor, dtype=float))
     use = ok.copy()
     out = {}

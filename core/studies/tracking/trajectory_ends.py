@@ -13,8 +13,10 @@ more near it are flagged. This study measures the check with it (the defaults) a
   h100.json``; 1024², 100 frames, jointly and sequentially, tracked on one NVIDIA H100, their poses rebuilt
   from the kept errors and the seed's truth), per set: frames over 4x their bound left silent, good frames
   (under 2x) flagged, and the same for the frames within ``HALF_WINDOW`` of a trial's end (``ends``);
+* :func:`scale_split`: the change split in two — the shifted windows with the bone's median as before, and
+  with the median leaving the end frames out (the default);
 * :func:`crowd_sweep`: those totals for ``crowd`` 2, 3, 4 and off;
-* :func:`walking`: r1's repro (``/work/notes``' r1_edge_frames_repro): the tests' walking track (60 frames,
+* :func:`walking`: the review's repro of the bad end frame: the tests' walking track (60 frames,
   0.01 mm / 0.05° noise per axis, 6 draws), one frame turned 0.3-5° more about z — the first and last
   frames and frames 1-3 and 56-58 — caught, and good frames flagged over the draws.
 
@@ -28,7 +30,7 @@ import numpy as np
 
 from core.studies.tracking.trajectory_silent import SETS, _ok, _review, _tally
 
-__all__ = ["BEFORE", "FRAMES", "SIZES", "TABLE", "counts", "crowd_sweep", "main", "walking"]
+__all__ = ["BEFORE", "FRAMES", "SIZES", "TABLE", "counts", "crowd_sweep", "main", "scale_split", "walking"]
 
 #: The stored runs: :mod:`core.studies.tracking.trajectory_silent`'s and d262386's (the check at it gives
 #: their stored flags).
@@ -99,6 +101,24 @@ def counts(rs, **kw) -> dict:
     return {"per_set": per, "changed": runs_out, "d262386_reproduced": bool(reproduced) and all(reproduced)}
 
 
+def scale_split(rs) -> dict:
+    """The change split in two: per set, the check with the shifted windows and the bone's median as before
+    (:data:`core.tracking.flags_ends.SCALE_WITHOUT_ENDS` False: every frame's residual with the window cut)
+    — the end handling alone — next to the defaults (the median without the end frames)."""
+    from core.tracking import flags_ends
+
+    out = {}
+    for name, v in (("windows_only", False), ("with_scale", True)):
+        old, flags_ends.SCALE_WITHOUT_ENDS = flags_ends.SCALE_WITHOUT_ENDS, v
+        try:
+            t = _totals(rs, [_review(r) for r in rs])
+        finally:
+            flags_ends.SCALE_WITHOUT_ENDS = old
+        out[name] = {k: {n: x[n] for n in ("silent", "good_flagged", "ends_silent", "ends_good_flagged")}
+                     for k, x in t.items()}
+    return out
+
+
 def crowd_sweep(rs, crowds=(2, 3, 4, None)) -> dict:
     """Per ``crowd`` (None: off): silent frames and good frames flagged per set, the end frames' too."""
     out = {}
@@ -110,8 +130,8 @@ def crowd_sweep(rs, crowds=(2, 3, 4, None)) -> dict:
 
 
 def walking(frames=FRAMES, sizes=SIZES, draws: int = 6, n: int = 60) -> dict:
-    """r1's repro: per frame turned and size, over ``draws`` noise draws of the walking track, the draws
-    that flag it and the good frames flagged (all the others), before and now; and without a frame
+    """The review's repro: per frame turned and size, over ``draws`` noise draws of the walking track, the
+    draws that flag it and the good frames flagged (all the others), before and now; and without a frame
     turned, the good frames flagged (the noise's own)."""
     from core.studies.tracking.trajectory_gaps import CENTER, walking_track
     from core.tracking.flags_post import trajectory_review
@@ -147,6 +167,7 @@ def main(argv=None) -> int:
 
     rs = list(runs(table=TABLE))
     got = counts(rs)
+    got["scale"] = scale_split(rs)
     got["crowd"] = crowd_sweep(rs)
     if a.draws:
         got["walking"] = walking(draws=a.draws)
@@ -158,6 +179,8 @@ def main(argv=None) -> int:
               f"{b['ends_good_flagged']} -> {n['ends_good_flagged']} of "
               f"{b['ends_good']}")
     print("d262386's stored flags reproduced by the check before:", got["d262386_reproduced"])
+    for name, v in got["scale"].items():
+        print(f"{name}:", {k: (s["silent"], s["good_flagged"]) for k, s in v.items()})
     for c, v in got["crowd"].items():
         print(f"crowd {c}:", {k: (s["silent"], s["good_flagged"]) for k, s in v.items()})
     if a.draws:

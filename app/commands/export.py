@@ -3,7 +3,7 @@
 Usage::
 
     talus export STUDY --trial T --format F [--out PATH] [--bones a,b] [--rate HZ] [--frame F]
-                 [--camera C]
+                 [--camera C] [--smooth [--threshold HU]]
 
 Formats (see :mod:`core.study.export_trial` and :mod:`core.study.exports`): ``tra`` or
 ``tra-autoscoper``: Autoscoper ``.tra`` in Autoscoper's volume frame; ``tra-talus``: the same
@@ -15,6 +15,13 @@ frame), one JointTrack ``.jts`` per bone (a camera's frame), C3D (4x4 rotations)
 ``<trial>_<format>`` for tfm and jts; :func:`core.study.exports.default_path`), so no two formats
 write the same file; ``tra`` is named ``tra-autoscoper`` there. An ``--out`` that is an existing
 folder gets that file name inside it (tfm and jts write their files into ``--out``).
+
+``--smooth`` (:data:`SMOOTH_HELP`; off by default) writes each bone's poses smoothed over the
+trial in place of the tracked ones, in any format: the poses of *File → Export…*'s *Smoothed
+poses* (:func:`core.tracking.smoothing_trial.smoothed_poses`, computed afresh from the journal;
+the rotation centre the bone model's centroid at ``--threshold``, tracking's 200 HU by default). A
+bone with too few poses to smooth is written as NaN, with a warning; the JSON summary's
+``"smoothed"`` is true and its ``frames_with_pose`` counts the smoothed poses written.
 """
 
 from __future__ import annotations
@@ -25,12 +32,16 @@ from pathlib import Path
 
 from ._shared import EXIT_OK, PROG, names, print_json, study_folder
 
-__all__ = ["HELP", "configure", "posed_frames", "run"]
+__all__ = ["HELP", "SMOOTH_HELP", "configure", "posed_frames", "run"]
 
 HELP = "write a trial's poses for other tools (.tra, C3D, .mot...)"
 TRIAL_FORMATS = ("tra", "xromm-csv", "tfm", "jts", "c3d", "mot", "trc", "jcs")  # export_trial's names
 POSE_FORMATS = ("tra-talus", "csv", "csv-6dof", "json")  # core.study.exports
 FORMATS = (*TRIAL_FORMATS, "tra-autoscoper", *POSE_FORMATS)
+#: ``--smooth``'s help (core.tracking.smoothing_trial.smoothed_poses, the dialog's Smoothed poses)
+SMOOTH_HELP = ("write each bone's poses smoothed over the trial (a constant-acceleration Rauch-Tung-"
+               "Striebel smoother, its smoothing and the confidence's scale from the data) instead of the "
+               "tracked ones, as File > Export... 'Smoothed poses'; the journal's poses are not changed")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -48,6 +59,10 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="frame rate, Hz (default: an imported XMALab trial's recording speed, else 100)")
     p.add_argument("--frame", type=int, default=None, help="tfm: the frame (default the first with poses)")
     p.add_argument("--camera", type=int, default=0, help="jts: camera index (default 0)")
+    p.add_argument("--smooth", action="store_true", help=SMOOTH_HELP)
+    p.add_argument("--threshold", type=float, default=200.0,
+                   help="--smooth: bone threshold, HU, of the model whose centroid is the rotation centre "
+                        "(default 200, tracking's)")
     p.set_defaults(run=run)
 
 
@@ -72,26 +87,49 @@ def run(a: argparse.Namespace) -> int:
             from core.study.exports import recording_rate
 
             a.rate = recording_rate(study, a.trial)
+        poses, unsmoothed = _smoothed(study, a.trial, bones, a.threshold) if a.smooth else (None, [])
         if fmt in POSE_FORMATS:
             from core.study.exports import export_poses
 
-            paths = [export_poses(study.trial(a.trial), out, fmt, bones=bones)]
+            paths = [export_poses(study.trial(a.trial), out, fmt, bones=bones, poses=poses)]
         else:
             paths = export_trial(study, a.trial, fmt, out, bones=bones, rate=a.rate, frame=a.frame,
-                                 camera=a.camera)
-        posed, n = posed_frames(study.trial(a.trial), bones)
+                                 camera=a.camera, poses=poses)
+        posed, n = posed_frames(study.trial(a.trial), bones, poses)
+    for b in unsmoothed:
+        print(f"{PROG} export: WARNING: {b} has too few poses to smooth: written as NaN", file=sys.stderr)
     counts = ", ".join(f"{b} {k}" for b, k in posed.items())
     print(f"{PROG} export: wrote {len(paths)} file(s); frames with a pose, of {n}: {counts}", file=sys.stderr)
     if not any(posed.values()):
         print(f"{PROG} export: WARNING: no bone has a pose in trial {a.trial!r}: the file holds no numbers "
               "(NaN / empty); track the trial or set keyframes first", file=sys.stderr)
-    print_json({"format": a.fmt, "files": [str(p) for p in paths], "frames": n, "frames_with_pose": posed})
+    print_json({"format": a.fmt, "files": [str(p) for p in paths], "frames": n, "frames_with_pose": posed,
+                **({"smoothed": True} if a.smooth else {})})
     return EXIT_OK
 
 
-def posed_frames(trial, bones=None) -> tuple[dict[str, int], int]:
-    """``({bone: frames with a pose}, frames)`` of what an export of ``trial`` holds (NaN elsewhere)."""
+def _smoothed(study, trial: str, bones, threshold_hu: float) -> tuple[dict, list[str]]:
+    """``--smooth``: bone -> the smoothed poses to write (:func:`core.tracking.smoothing_trial.
+    smoothed_poses`), and the bones with poses that came back all NaN (too few to smooth)."""
     import numpy as np
 
+    from core.tracking.smoothing_trial import smoothed_poses
+
+    tr = study.trial(trial)
+    names = list(bones or tr.bones)
+    poses = smoothed_poses(study, trial, names, threshold_hu=threshold_hu)
+    lost = [b for b in names if np.isfinite(tr.poses(b)).all(axis=(1, 2)).any()
+            and not np.isfinite(poses[b]).all(axis=(1, 2)).any()]
+    return poses, lost
+
+
+def posed_frames(trial, bones=None, poses=None) -> tuple[dict[str, int], int]:
+    """``({bone: frames with a pose}, frames)`` of what an export of ``trial`` holds (NaN elsewhere);
+    ``poses``: bone -> the poses written instead of the recorded ones (``--smooth``)."""
+    import numpy as np
+
+    def of(b):
+        return trial.poses(b) if poses is None else poses[b]
+
     n = trial.n_frames
-    return {b: int(np.isfinite(trial.poses(b)).all(axis=(1, 2)).sum()) for b in (bones or trial.bones)}, n
+    return {b: int(np.isfinite(of(b)).all(axis=(1, 2)).sum()) for b in (bones or trial.bones)}, n

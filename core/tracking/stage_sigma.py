@@ -75,7 +75,7 @@ def remeasured(renderer, frame, res, *, bone: int, center, options, others=None,
     searched on from ``res.fit.similarity``'s pose with ``options`` (the tracker's registration options)
     without a stage, and the covariance's move part taken from there; the fit's ``similarity`` that optimum
     (a rejected move keeps it) and the stage's move in the timing from it (the move check reads it, against
-    this σ); None where it does not apply or the search leaves the views."""
+    this σ); None where it does not apply, the search leaves the views or is cancelled."""
     from .likelihood_model import LikelihoodFit
     from .register import register
 
@@ -89,6 +89,8 @@ def remeasured(renderer, frame, res, *, bone: int, center, options, others=None,
                         outline=outline)
     except OutsideViewError:
         return None
+    if any(getattr(st, "reason", None) == "cancelled" for st in getattr(conv, "stages", ())):
+        return None  # (cut short: no optimum)
     d0, d1 = _move(res.pose, sim.pose, center), _move(res.pose, conv.pose, center)
     cov = np.asarray(fit.covariance, dtype=float) - np.outer(d0, d0) + np.outer(d1, d1)
     if not np.all(np.isfinite(cov)):

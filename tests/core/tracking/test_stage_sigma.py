@@ -137,3 +137,15 @@ def test_host_only_leaves_it_to_the_full_checks_and_the_switch_off_flags(staged,
     monkeypatch.setattr(ss, "REMEASURE", False)
     a, searched, _ = _checked(staged, res, S, monkeypatch, near)
     assert not searched and any(f.startswith("uncertain") for f in a.flags)
+
+
+def test_a_search_cut_short_leaves_the_sigma(staged, monkeypatch):
+    import core.tracking.register as register
+    import core.tracking.stage_sigma as ss
+
+    res = staged["res"]
+    sim = res.fit.similarity
+    cut = replace(sim, stages=(*sim.stages[:-1], replace(sim.stages[-1], reason="cancelled")))
+    monkeypatch.setattr(register, "register", lambda *a, **k: cut)
+    assert ss.remeasured(staged["renderer"], staged["frame"], res, bone=0, center=staged["model"].centroid,
+                         options=staged["o"].registration) is None

@@ -4,10 +4,11 @@ voxels, 4 frames, frame 0 given) tracked with the likelihood stage under each va
 (:func:`core.studies.tracking.stage_one_bone._variant_of`'s names: ``stage_speed``'s variants and
 ``stage_one_bone``'s parts), in three cases — the talus alone, the three bones jointly, the talus and the
 calcaneus sequentially — and every bone-frame's pose, confidence σ (the frame's ``confidence``: the stage's
-covariance as the tracker reports it; before 2026-11-28 only the fit's covariances, which a tracked frame does
-not keep: NaN in every variant), covariance, independent-pixel covariance, stage steps and taken flag compared
-with the first variant's: ``identical`` where all are equal to the bit
-(else the largest differences). JSON on stdout (``--out``: also to a file)."""
+covariance as the tracker reports it), flags (how many, and whether one is ``uncertain``), covariance,
+independent-pixel covariance, stage steps and taken flag compared with the first variant's: ``identical``
+where all are equal to the bit (else the largest differences). (Before 2026-11-28 only the fit's
+covariances, which a tracked frame does not keep: NaN in every variant.) JSON on stdout (``--out``: also to
+a file)."""
 
 from __future__ import annotations
 
@@ -22,12 +23,19 @@ __all__ = ["main", "run"]
 CASES = (("one", (1,), "joint"), ("three", (0, 1, 2), "joint"), ("two", (1, 2), "sequential"))
 
 
+def _flags(res) -> np.ndarray:
+    """A frame's flags: how many, and whether one is ``uncertain`` (the move check's)."""
+    flags = [str(f) for f in (getattr(res, "flags", ()) or ())]
+    return np.asarray([len(flags), any("uncertain" in f for f in flags)], dtype=float)
+
+
 def _record(res) -> dict:
     fit = getattr(res, "fit", None)
     t = res.timing or {}
     conf = getattr(res, "confidence", None) or {}  # (a tracked frame's: the stage's σ; its fit is not kept)
     return {"pose": np.asarray(res.pose, dtype=float),
             "sigma": np.asarray(conf.get("sigma", [np.nan] * 6), dtype=float),
+            "flags": _flags(res),
             "cov": np.asarray(getattr(fit, "covariance", np.full((6, 6), np.nan)), dtype=float),
             "cov_ind": np.asarray(getattr(fit, "covariance_independent", np.full((6, 6), np.nan)),
                                   dtype=float),

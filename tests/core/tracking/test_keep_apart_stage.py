@@ -126,3 +126,25 @@ def test_a_stage_that_takes_no_move_leaves_the_polished_pose(scene, monkeypatch)
     a = scene.a
     assert len(calls) == 1 and a.result.timing["likelihood_taken"] == 0 and a.evaluations == 131
     assert any("polished with the similarity" in n for n in a.notes)
+
+
+def test_joint_tracking_with_contact_and_the_stage(talus_calcaneus_128):
+    """Unstubbed, through the tracker (ideal 128² talus-calcaneus, frame 1 from frame 0's given poses, a 6 mm
+    margin so that the calcaneus is polished apart from the talus): the polished pose went through the stage
+    once more, its outcome as the note says."""
+    from core.tracking.register import RegistrationOptions
+    from core.tracking.trial import TrackingOptions, track
+
+    sc, models, r, imgs = talus_calcaneus_128
+    keys = {m.name: {0: sc.poses(0)[k]} for k, m in enumerate(models)}
+    reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
+    o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, refine_likelihood=True,
+                        contact=True, contact_margin_mm=6.0)
+    res = track(r, models, imgs.__getitem__, [0, 1], keyframes=keys, skip=keys, options=o)
+    polished = [fr for fr in res.results.values() if any(n.startswith("contact:") for n in fr.notes)]
+    assert polished
+    for fr in polished:
+        note = next(n for n in fr.notes if n.startswith("contact:"))
+        assert "final stage run again" in note
+        assert fr.timing["likelihood_taken"] == (1 if note.endswith("its pose kept") else 0)
+        assert fr.timing["likelihood_steps"] >= 2  # (the two stages' steps, one at least each)

@@ -5,12 +5,21 @@ Where bone ``i``'s registered pose comes closer than ``TrackingOptions.contact_m
 neighbour registered in the same frame, :func:`core.tracking.contact.polish_with_contact`
 re-optimises the image similarity with the interpenetration penalty about it, and its pose replaces
 the registration's. With the final stage (``TrackingOptions.refine_likelihood``) the registration's
-pose was the stage's, and the polish — a similarity search — drops the stage's refinement. So the
-polished pose goes through the stage once more (:data:`RESTAGE`; bounded: once, the stage knows no
-penalty): where the stage's pose from there does not come deeper into a neighbour than the polished
-pose, it is kept (the stage's outcome and confidence, a note); otherwise, or where the stage does not
-take its move, the polished pose stands with the stage's outcome ``likelihood_taken`` 0 and a note,
-as before (f0b8a7a). The second stage's time, steps and renders are added to the attempt's.
+pose was the stage's, and the polish — a similarity search — drops the stage's refinement: the polished
+pose stands with the stage's outcome ``likelihood_taken`` 0 and a note (f0b8a7a).
+
+:data:`RESTAGE` (off) runs the stage once more from the polished pose and keeps its pose where it comes no
+deeper into a neighbour than the polished pose (the stage's outcome and confidence, a note; the second
+stage's time, steps and renders added to the attempt's). It did not pay: the stage knows no penalty, and
+from the polished pose it went back to its own optimum, as deep in the neighbour as before, in every case
+tried (the ideal 128² talus-calcaneus frames, this 2-core x86_64 machine's CPU: with a 6 mm margin 1.63 mm
+in, polished to 0.84 mm, the stage again 1.63 mm in, as ``test_keep_apart_stage`` pins; with 2 and 3 mm,
+0.12 and 0.58 mm back in), so the polished pose stood at the cost of a second stage. Keeping the
+stage's refinement needs the penalty in the stage's own cost (:mod:`core.tracking.engine_likelihood`).
+Moving the staged pose off the neighbour in the stage's own metric (the nearest pose in ``xᵀ H x`` no
+deeper than the polished one; SLSQP on the host) was tried on the same frames and not kept: the stage's
+σ there is a few µm, every such pose hundreds of σ away, and the nearest in that metric was 1.9 mm /
+2.6° from the stage's pose where the polish moved it 0.4 mm / 1.0°.
 """
 
 from __future__ import annotations
@@ -23,9 +32,10 @@ from .cost import OutsideViewError
 
 __all__ = ["RESTAGE", "keep_apart"]
 
-#: A polished pose that the final stage had refined goes through the stage once more (module docs);
-#: off: the polished pose stands, the stage's outcome ``likelihood_taken`` 0 (as before).
-RESTAGE = True
+#: A polished pose that the final stage had refined goes through the stage once more, its pose kept where no
+#: deeper (module docs: it went back to its own optimum in every case tried); off: the polished pose stands,
+#: the stage's outcome ``likelihood_taken`` 0.
+RESTAGE = False
 
 #: the stage's times and counts added to the attempt's (as the restart check's kept stage's are)
 _STAGE_WORK = ("likelihood_s", "likelihood_setup_s", "likelihood_steps", "likelihood_renders")
@@ -34,9 +44,9 @@ _STAGE_WORK = ("likelihood_s", "likelihood_setup_s", "likelihood_steps", "likeli
 def keep_apart(run, frame, i: int, a: Attempt, others, placed: list, opts) -> None:
     """When bone ``i``'s registered pose (``a.result``) comes closer than the margin to a neighbour
     registered in this frame (``placed``: (index, pose)), polish it under the interpenetration penalty
-    of :mod:`core.tracking.contact` and, where the stage had refined it, run the stage of ``opts``
-    (the registration options) once more from the polished pose (module docs). ``a`` is updated in
-    place: pose, score, fit, confidence, work, a note with the depth resolved. ``others``: the
+    of :mod:`core.tracking.contact` and, where the stage had refined it and :data:`RESTAGE` is on, run the
+    stage of ``opts`` (the registration options) once more from the polished pose (module docs). ``a`` is
+    updated in place: pose, score, fit, confidence, work, a note with the depth resolved. ``others``: the
     neighbours the registration subtracted (the stage subtracts them too)."""
     from . import contact
 

@@ -1,9 +1,10 @@
 """core.tracking.keep_apart (joint tracking with ``contact``) after a final stage, the polish, its
 penetration test and the stage stubbed (no rendering): where the contact polish moves a pose the stage
 refined (the polish re-optimises the similarity with the interpenetration penalty), the polished pose
-goes through the stage once more (RESTAGE) and the stage's pose is kept where it comes no deeper into a
-neighbour; otherwise, or with RESTAGE off, the polished pose stands and the frame's stage outcome says
-the stage's pose was not kept (``likelihood_taken`` 0, a note), not "taken" with the stage's move."""
+stands and the frame's stage outcome says the stage's pose was not kept (``likelihood_taken`` 0, a note),
+not "taken" with the stage's move; with RESTAGE (off by default) it goes through the stage once more and the
+stage's pose is kept where it comes no deeper into a neighbour. Last, through the tracker, unstubbed: the
+stage run again goes back as deep as before (why RESTAGE is off)."""
 
 from __future__ import annotations
 
@@ -41,6 +42,7 @@ def scene(monkeypatch):
         return SimpleNamespace(**{**vars(obj), **kw})
 
     monkeypatch.setattr(ka, "_replace", replace)
+    monkeypatch.setattr(ka, "RESTAGE", True)  # (off by default: these tests are of it)
     o = TrackingOptions(mode="joint", contact=True, refine_likelihood=True, confidence=False)
     run = SimpleNamespace(options=o, contacts={0: "me", 1: "other"}, renderer=None, cancel=lambda: False,
                           bones=[SimpleNamespace(centroid=np.zeros(3), outline=None)] * 2)
@@ -128,10 +130,12 @@ def test_a_stage_that_takes_no_move_leaves_the_polished_pose(scene, monkeypatch)
     assert any("polished with the similarity" in n for n in a.notes)
 
 
-def test_joint_tracking_with_contact_and_the_stage(talus_calcaneus_128):
+def test_joint_tracking_with_contact_and_the_stage(talus_calcaneus_128, monkeypatch):
     """Unstubbed, through the tracker (ideal 128² talus-calcaneus, frame 1 from frame 0's given poses, a 6 mm
-    margin so that the calcaneus is polished apart from the talus): the polished pose went through the stage
-    once more, its outcome as the note says."""
+    margin so that the calcaneus is polished apart from the talus): by default the polished pose stands
+    (``likelihood_taken`` 0, the note); with RESTAGE the stage run again from it goes back as deep into the
+    talus as the staged pose was (it knows no penalty: why RESTAGE is off) and the polished pose stands."""
+    import core.tracking.keep_apart as ka
     from core.tracking.register import RegistrationOptions
     from core.tracking.trial import TrackingOptions, track
 
@@ -140,11 +144,21 @@ def test_joint_tracking_with_contact_and_the_stage(talus_calcaneus_128):
     reg = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
     o = TrackingOptions(mode="joint", verify_restarts=0, registration=reg, refine_likelihood=True,
                         contact=True, contact_margin_mm=6.0)
-    res = track(r, models, imgs.__getitem__, [0, 1], keyframes=keys, skip=keys, options=o)
-    polished = [fr for fr in res.results.values() if any(n.startswith("contact:") for n in fr.notes)]
-    assert polished
-    for fr in polished:
-        note = next(n for n in fr.notes if n.startswith("contact:"))
-        assert "final stage run again" in note
-        assert fr.timing["likelihood_taken"] == (1 if note.endswith("its pose kept") else 0)
-        assert fr.timing["likelihood_steps"] >= 2  # (the two stages' steps, one at least each)
+
+    def polished():
+        res = track(r, models, imgs.__getitem__, [0, 1], keyframes=keys, skip=keys, options=o)
+        out = [(fr, next(n for n in fr.notes if n.startswith("contact:"))) for fr in res.results.values()
+               if any(n.startswith("contact:") for n in fr.notes)]
+        assert out
+        return out
+
+    assert not ka.RESTAGE
+    for fr, note in polished():
+        assert note.endswith("the final stage's pose polished with the similarity")
+        assert fr.timing["likelihood_taken"] == 0
+    monkeypatch.setattr(ka, "RESTAGE", True)
+    for fr, note in polished():
+        assert "the final stage run again from the polished pose came" in note
+        before = float(note.split(" mm interpenetration")[0].split()[-1])
+        back = float(note.split("pose came ")[1].split()[0])
+        assert abs(back - before) <= 0.02 and fr.timing["likelihood_taken"] == 0

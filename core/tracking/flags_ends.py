@@ -22,6 +22,15 @@ when a frame near it is flagged. The pair rule (:mod:`core.tracking.flags_pairs`
 in a pair's fits when its own fit without the pair is extrapolated (the bad last frame had been put back
 by its wide residual, and the pair before it flagged through its pull).
 
+*The motion's model error* (:data:`CALIBRATE`). A parabola through the 8 frames on one side follows an
+accelerating start less well than one through 4 frames on either side: on the true poses of the tests'
+walking talus scene (0.1-2.6 mm a frame early on) it missed frame 0 by 1.2 mm where the cut window's missed
+it by 0.05 mm, and flagged good frames 0-3 of a 12-frame trial. So an end frame's residual is divided by
+how much wider than the bone's median the residuals of the bone's frames fitted alike are — each frame
+with frames at the same offsets (or the mirrored ones), the fit's value extrapolated to it — the larger of
+mm and degrees, and not below 1 (:meth:`~core.tracking.flags_fit._Table._factor`; 1 on the tests' smooth
+walking track, where it changes nothing). That scene's 12 frames then flag none.
+
 *The scale* (:data:`SCALE_WITHOUT_ENDS`). The bone's median residual, which sets the limit, is taken over
 the frames fitted on both sides, the end frames (extrapolated) left out when enough others have a residual;
 before, every frame's residual entered it, the end frames' with the window cut. This moves the limit of
@@ -42,23 +51,23 @@ Measured (:mod:`core.studies.tracking.trajectory_ends`, ``resources/benchmarks/t
 cpu.json``; the check run on this 2-core x86_64 machine, shared). The tests' walking track (60 frames,
 0.01 mm / 0.05° noise per axis, 6 draws; one good frame flagged in them without a frame turned), one frame
 turned more about z, caught / good frames flagged over the draws, before -> now: the last frame 0.3° 1/6
-(+2) -> 3/6 (+1), 0.5° 3/6 (+3) -> 6/6 (+2), 1° 6/6 (+15) -> 6/6 (+2), 2° and 5° 6/6 (+24) -> 6/6 (+2);
+(+2) -> 3/6 (+1), 0.5° 3/6 (+3) -> 6/6 (+2), 1° 6/6 (+15) -> 6/6 (+1), 2° and 5° 6/6 (+24) -> 6/6 (+1);
 the first frame 0.3° 0/6 -> 4/6, 1-5° (+14 to +24) -> (+0 to +1); frames 1-3 and 56-58 caught as before,
 good frames flagged 6-12 a cell -> 0-8 (a 5° spike flags neighbours by the near rule as in the trial's
 middle). The stored acceptance runs (1024², 100 frames, both modes, tracked on one NVIDIA H100, rebuilt
 from the kept errors), frames over 4x their bound left silent and good frames (under 2x) flagged, before ->
 the shifted windows with the median as before -> with the median without the end frames (the default):
-d262386 (seeds 0, 3, 4) 5 -> 4 -> 3 of 21 and 70 -> 64 -> 49 of 1373; at its end frames (within 4 of a
-trial's end) silent 1 -> 0 -> 0 of 5 (seed 4's sequential tibia frame 0 caught) and good flagged 18 -> 19
--> 18 of 117, so the 21 fewer good frames flagged (net; most of them seed 3's tibia) and the joint calcaneus
-frame 30 caught (4.1x) are frames in the middle whose limit moved with the scale; b797131 2 -> 2 -> 2 of
-17, 87 -> 88 -> 83 of 1385; held out (nostage, ea76c8b, 56350ae, a5fd412) 266 -> 263 -> 264 of 455, 126
--> 136 -> 138 of 2800. ``crowd`` 2 / 3 / 4 / off (the default scale): d262386 good flagged 52 / 49 / 48 /
-46, silent 3 at each; held out silent 264 / 264 / 269 / 269 (frames at the trials' starts), good flagged
-144 / 138 / 134 / 134. Left: with frames missing just before a trial's end (the walking track's 52-55
-without a pose), the shifted window [51, 59] holds 51 and 56-58 only, and once a bad last frame is flagged
-frames 56-58 are flagged "not ruled out" (as the check before flagged them with no bad frame at all): the
-window does not reach past frames without a pose.
+d262386 (seeds 0, 3, 4) 5 -> 4 -> 3 of 21 and 70 -> 64 -> 53 of 1373; at its end frames (within 4 of a
+trial's end) silent 1 -> 0 (seed 4's sequential tibia frame 0 caught) and good flagged 18 -> 18 of 117
+with the default, so the 17 fewer good frames flagged (net) and the joint calcaneus frame 30 caught
+(4.1x) are frames in the middle whose limit moved with the scale; b797131 2 -> 2 -> 2 of 17, 87 -> 88 ->
+85 of 1385; held out (nostage, ea76c8b, 56350ae, a5fd412) 266 -> 269 -> 270 of 455 (seed 4's tibia at
+its start, frames off together, 4 more silent with the calibration), 126 -> 128 -> 130 of 2800.
+``crowd`` 2 / 3 / 4 / off: d262386 good flagged 57 / 53 / 49 / 47, silent 3 at each; held out silent 268
+/ 270 / 272 / 272, good flagged 140 / 130 / 126 / 126. Left: with frames missing just before a trial's end
+(the walking track's 52-55 without a pose), the shifted window [51, 59] holds 51 and 56-58 only, and once a
+bad last frame is flagged frames 56-58 are flagged "not ruled out" (as the check before flagged them with no
+bad frame at all): the window does not reach past frames without a pose.
 """
 
 from __future__ import annotations
@@ -68,12 +77,15 @@ import numpy as np
 from .flags_fit import ENDS, _Table
 from .flags_gaps import ONE_SIDED_FLAG
 
-__all__ = ["CROWD", "ENDS", "SCALE_WITHOUT_ENDS", "judge_crowded_ends"]
+__all__ = ["CALIBRATE", "CROWD", "ENDS", "SCALE_WITHOUT_ENDS", "judge_crowded_ends"]
 
 #: The bone's median (the check's scale) leaves out the frames fitted through the shifted window when enough
 #: others have a residual (module docs, *The scale*; False: the median of every frame's residual with the
 #: window cut at the trial's ends, as before — a switch for the study, not a keyword).
 SCALE_WITHOUT_ENDS = True
+#: A trial's end frames' residuals are divided by how much wider the bone's frames fitted alike (the same
+#: one-sided offsets) stand off than its median (module docs, *The motion's model error*).
+CALIBRATE = True
 #: A good frame at a trial's end (within ``half_window`` of it) is flagged for review when this many frames
 #: or more within ``half_window`` tracked frames of it are flagged by the check.
 CROWD = 3

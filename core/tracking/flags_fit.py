@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-__all__ = ["ENDS", "FLAG", "UNCHECKED"]
+__all__ = ["ALIKE", "ENDS", "FLAG", "UNCHECKED"]
 
 #: The flag's name (the message starts with it).
 FLAG = "off the trajectory"
@@ -21,6 +21,9 @@ UNCHECKED = "trajectory unchecked"
 #: cut at the end (the ``ends`` keyword's default of :func:`core.tracking.flags_post.trajectory_review`;
 #: False: cut, the check before; :mod:`core.tracking.flags_post`'s docs, *A trial's ends*).
 ENDS = True
+#: A trial's end frame's residual is calibrated by the median residual of the bone's frames fitted alike
+#: when this many or more can be (:meth:`_Table._factor`).
+ALIKE = 8
 
 
 def _deltas(A: np.ndarray, B: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -45,7 +48,7 @@ class _Table:
     def __init__(self, fr: np.ndarray, P: np.ndarray, ok: np.ndarray, c: np.ndarray, half_window: int,
                  degree: int, ends: bool = False) -> None:
         n, h = len(fr), int(half_window)
-        self.fr, self.ok, self.degree = fr, ok, int(degree)
+        self.fr, self.ok, self.degree, self.P, self.c = fr, ok, int(degree), P, c
         # every k-th frame tracked: the window counts tracked frames (k the frames' median spacing)
         self.step = max(1, int(np.median(np.diff(fr)))) if n > 1 else 1
         self.offsets = np.array([d for d in range(-h, h + 1) if d != 0], dtype=int)
@@ -65,16 +68,18 @@ class _Table:
         # a trial's end: a frame whose ±h window reaches past the first or last frame with a pose is
         # fitted through the frames of the 2h-wide window shifted inside the trial (module docs)
         self.span = 2 * h
+        self.scale: np.ndarray | None = None  # the bone's median residual (mm, deg): calibrate()
+        self._alike: dict = {}
         self.ext: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.end = np.zeros(n, dtype=bool)
         self.ends = bool(ends)
         if self.ends and ok.any():
             lo, hi = int(fr[ok].min()), int(fr[ok].max())
-            w = h * self.step
+            w, span = h * self.step, 2 * h * self.step
             for i in np.flatnonzero(ok & ((fr - w < lo) | (fr + w > hi))):
-                a = min(max(int(fr[i]) - w, lo), max(lo, hi - 2 * w))
+                a = min(max(int(fr[i]) - w, lo), max(lo, hi - span))
                 js = np.arange(max(0, i - 2 * h), min(n, i + 2 * h + 1))
-                js = js[(js != i) & ok[js] & (fr[js] >= a) & (fr[js] <= a + 2 * w)]
+                js = js[(js != i) & ok[js] & (fr[js] >= a) & (fr[js] <= a + span)]
                 self.end[i] = True
                 self.ext[int(i)] = (js, _deltas(np.repeat(P[i:i + 1], len(js), axis=0), P[js], c))
 
@@ -99,6 +104,43 @@ class _Table:
         for i in np.setdiff1d(todo, full):
             out[i] = self.residual(int(i), use)
         return out
+
+    def calibrate(self, scale: np.ndarray) -> None:
+        """The bone's median residual (mm, degrees; the check's scale) that a trial's end frames'
+        residuals are calibrated to (:meth:`_factor`)."""
+        self.scale = np.asarray(scale, dtype=float)
+
+    def _factor(self, x: np.ndarray, row: np.ndarray, k: float) -> np.ndarray:
+        """How much wider than the bone's median (:meth:`calibrate`; 1 where none, or narrower) the
+        median residual of the bone's frames fitted alike is — each through the frames at the same frame
+        offsets ``x`` from it, or the mirrored ones (the fit's weights ``row``, ``sqrt(1 + leverage)``
+        ``k``), the larger of mm and degrees: an extrapolation follows the motion's acceleration less well
+        than a fit on both sides (module docs of :mod:`core.tracking.flags_ends`)."""
+        if self.scale is None:
+            return 1.0
+        key = x.tobytes()
+        if key not in self._alike:
+            fr, ok, off = self.fr, self.ok, x.astype(int)
+            js = np.flatnonzero(ok)
+            vals = []
+            for sign in (1, -1):
+                want = fr[js, None] + sign * off
+                idx = np.minimum(np.searchsorted(fr, want), len(fr) - 1)
+                good = ((fr[idx] == want) & ok[idx]).all(axis=1)
+                a, b = js[good], idx[good]
+                if len(a):
+                    Y = _deltas(np.repeat(self.P[a], len(off), axis=0), self.P[b.ravel()],
+                                self.c).reshape(len(a), len(off), 6)
+                    r = np.einsum("m,nmk->nk", row, Y) / k
+                    vals.append(np.c_[np.linalg.norm(r[:, :3], axis=1),
+                                      np.degrees(np.linalg.norm(r[:, 3:], axis=1))])
+            f = 1.0
+            if vals:
+                S = np.concatenate(vals)
+                if len(S) >= ALIKE:
+                    f = max(1.0, float((np.median(S, axis=0) / np.maximum(self.scale, 1e-12)).max()))
+            self._alike[key] = f
+        return self._alike[key]
 
     def cut_residuals(self, use: np.ndarray) -> np.ndarray:
         """:meth:`residuals` with every frame fitted through its ±``half_window`` window cut at the
@@ -133,8 +175,9 @@ class _Table:
             sel = use[js]
             if sel.sum() < self.degree + 2:
                 return None
-            hit = self._weights((self.fr[js[sel]] - self.fr[i]).astype(float))
-            return None if hit is None else (*hit, sel)
+            x = (self.fr[js[sel]] - self.fr[i]).astype(float)
+            hit = self._weights(x)
+            return None if hit is None else (hit[0], hit[1] * self._factor(x, *hit), sel)
         j = i + self.offsets
         sel = self.near[i] & use[np.minimum(np.maximum(j, 0), len(use) - 1)]
         if sel.sum() < self.degree + 2:

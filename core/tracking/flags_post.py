@@ -255,6 +255,10 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
         if (pick & ~t.end).sum() >= min_frames:  # not a trial's end frames, extrapolated (flags_ends)
             pick = pick & ~t.end
         med = np.median(R[pick], axis=0)
+    if t.ext and flags_ends.CALIBRATE:  # a trial's end frames calibrated to that scale (flags_ends)
+        t.calibrate(med)
+        for i in t.ext:
+            R[i] = t.residual(i, ok)
     lim = np.maximum(float(limit) * med, np.asarray(floor, dtype=float))
     use = ok.copy()
     out = {}

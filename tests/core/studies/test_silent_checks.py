@@ -97,4 +97,4 @@ def test_the_kept_runs_give_the_benchmarks_counts_without_and_with_the_near_rule
     now = trajectory_counts(runs, ends=False)["total"]  # frames next to flagged ones the same way, one-sided
     assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 125)
     now = trajectory_counts(runs)["total"]  # the trial's ends fitted through the shifted window (flags_ends)
-    assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 120)
+    assert tuple(now[k] for k in ("over", "silent", "good", "good_flagged")) == (39, 17, 1761, 115)

@@ -36,4 +36,4 @@ def test_seed_4s_first_tibia_frame_among_flagged_ones_is_noted_not_judged():
             got, notes = trajectory_review(np.arange(len(Q)), Q, c, ends=False)  # one_sided: for review
             assert 0 not in notes and got[0].startswith(ONE_SIDED_FLAG) and "on one side only" in got[0]
             got, notes = trajectory_review(np.arange(len(Q)), Q, c)  # shifted window (flags_ends): its fit
-            assert notes == {} and got[0].startswith("off the trajectory (0.122 mm, 0.225 deg from the fit")
+            assert notes == {} and got[0].startswith("off the trajectory (0.052 mm, 0.191 deg from the fit")

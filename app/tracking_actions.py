@@ -11,6 +11,13 @@ job runs); the status bar shows the frame, frames per second and the time left. 
 lists the flagged frames with their reasons. Tracked bones are locked against edits while the job
 runs.
 
+With *Smooth the poses afterwards* ticked in *Tracking options…* (:attr:`TrackingActions.smooth`, off
+by default; ``talus track --smooth``) the job, once its run is complete, also smooths the tracked
+bones' poses over the trial (:func:`core.tracking.smoothing_trial.smooth_trial`) into
+``results/reports/smoothing/<trial>.json``, the status bar saying so meanwhile. A run stopped or
+cancelled is not smoothed, nor one cancelled while smoothing (the report is written only after the
+last bone, if the job was not cancelled meanwhile); the journal's poses stay the results.
+
 *Tracking → Track in batch…* hands the study's tracking to a Dask batch instead (local cluster or
 a given scheduler) and follows it: :mod:`app.batch_panel`.
 """
@@ -20,7 +27,7 @@ from __future__ import annotations
 import queue
 import time
 
-__all__ = ["TrackingActions", "check_batch_available"]
+__all__ = ["TrackingActions", "check_batch_available", "smooth_after"]
 
 KEY = "tracking"
 #: Flagged frames named one by one in the messages after a run (the rest counted): the trajectory
@@ -48,6 +55,8 @@ class TrackingActions:
         self.batch = None  # app.batch_panel.BatchPanel, made on first use
         self.batch_action = None
         self.options = None  # core.tracking TrackingOptions (None: the engine's defaults)
+        self.smooth = False  # Tracking options' "Smooth the poses afterwards" (talus track --smooth)
+        self._notes: queue.SimpleQueue = queue.SimpleQueue()  # status-bar lines from the worker
         self.options_action = None
         self._bones: list[str] = []
         self._was_locked: dict[str, bool] = {}
@@ -82,16 +91,18 @@ class TrackingActions:
         tracking job started in the window. Returns the (modal) dialog."""
         from .tracking_options import TrackingOptionsDialog
 
-        dialog = TrackingOptionsDialog(self.options, self.window)
-        dialog.accepted.connect(lambda: self._set_options(dialog.options()))
+        dialog = TrackingOptionsDialog(self.options, self.window, smooth=self.smooth)
+        dialog.accepted.connect(lambda: self._set_options(dialog.options(), smooth=dialog.smooth()))
         dialog.open()
         return dialog
 
-    def _set_options(self, options) -> None:
+    def _set_options(self, options, *, smooth: bool | None = None) -> None:
         from .commands.track import CHECKS, STAGE_MOVES, check_choices
         from .tracking_options import choices_of
 
         self.options = options
+        if smooth is not None:
+            self.smooth = bool(smooth)
         c = choices_of(options)
         res = "full" if c["scale"] == 1 else f"1/{c['scale']:g}"
         gc = ", gradient components" if c["metric"] == "components" else ""
@@ -118,8 +129,10 @@ class TrackingActions:
         if c["backward_limit"] != default["backward_limit"]:  # the first frame registered again backward
             checks += (", backward check off" if c["backward_limit"] is None
                        else f", backward check {c['backward_limit']:g}x")
+        after = ", poses smoothed afterwards" if self.smooth else ""
         self.window.notify(f"Tracking options: {c['search']} search, {res} resolution{gc}, {c['mode']}, "
-                           f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}{checks}")
+                           f"{c['guess']} guess{'' if c['confidence'] else ', no confidence'}{final}{checks}"
+                           f"{after}")
 
     def track_in_batch(self):
         """Open the batch dialog (:mod:`app.batch_panel`); returns it."""
@@ -177,20 +190,27 @@ class TrackingActions:
             self._was_locked[b] = m.layers[m.index(b)].locked
             m.set_layer_property(b, "locked", True)
         study, trial = session.study, session.trial_name
-        device, options = self.window.device, self.options
-        results = self._results
+        device, options, smooth = self.window.device, self.options, self.smooth
+        results, notes = self._results, self._notes
         while not results.empty():
             results.get_nowait()
+        while not notes.empty():
+            notes.get_nowait()
 
         def on_progress(progress, done, total, fr):
             results.put((fr.to_dict(), fr.pose))
             progress(done, total)
 
         def job(progress, cancel):
-            return track_study(study, trial, bones, frames, options=options, device=device,
-                               lock_by=WINDOW_TRACKING,
-                               resume=False, progress=lambda d, t, fr: on_progress(progress, d, t, fr),
-                               cancel=cancel)
+            res, report = track_study(study, trial, bones, frames, options=options, device=device,
+                                      lock_by=WINDOW_TRACKING,
+                                      resume=False, progress=lambda d, t, fr: on_progress(progress, d, t, fr),
+                                      cancel=cancel)
+            if smooth and res is not None and not cancel() and isinstance(report, dict):
+                notes.put(f"Smoothing the poses of {', '.join(res.bones)} over the trial…")
+                progress(n, n)  # the GUI thread shows the note (drain_results)
+                report["smoothed"] = smooth_after(study, trial, list(res.bones), cancel)
+            return res, report
 
         n = m.n_frames if frames is None else len(frames)
         self._t0 = time.monotonic()
@@ -211,6 +231,12 @@ class TrackingActions:
         """Hand the results finished so far to the review data (GUI thread) and update the
         status bar: frame i/N, frames per second, time left."""
         review = getattr(self.window, "review", None)
+        note = None
+        while not self._notes.empty():  # the job's phase after its frames (smoothing)
+            note = self._notes.get_nowait()
+        if note is not None:
+            self.last_feedback = note
+            self.window.set_feedback(note)
         got = False
         while True:
             try:
@@ -221,7 +247,7 @@ class TrackingActions:
             self._frames_seen.add(int(res["frame"]))
             if review is not None and review.data is not None:
                 review.data.apply_result(res, pose)
-        if not got:
+        if not got or note is not None:
             return
         done, n = len(self._frames_seen), self._frames_total
         dt = max(time.monotonic() - self._t0, 1e-9)
@@ -301,3 +327,26 @@ class TrackingActions:
             f"Tracking {summary.get('status', 'done')}: {summary.get('results', 0)} frames, "
             f"{len(flagged)} flagged for review"
             + ("" if res is not None else f" ({report.get('stopped')})"))
+        smoothed = report.get("smoothed") if isinstance(report, dict) else None
+        if smoothed:
+            for b, why in smoothed["skipped"].items():
+                self.window.notify(f"{b} not smoothed: {why}")
+            if smoothed["bones"]:
+                self.window.notify(f"Smoothed poses of {', '.join(smoothed['bones'])} written to "
+                                   f"{smoothed['report']} (the journal keeps the tracked poses)")
+
+
+def smooth_after(study, trial: str, bones: list[str], cancel) -> dict | None:
+    """*Smooth the poses afterwards*: ``bones``' poses smoothed over ``trial``
+    (:func:`core.tracking.smoothing_trial.smooth_trial`) and the report written, unless ``cancel()``
+    reads True once they are smoothed (then nothing is written; None). Returns the report's path
+    (relative to the study), the bones smoothed and those skipped with why, as ``talus track
+    --smooth``'s summary."""
+    from core.tracking.smoothing_trial import REPORT_KIND, smooth_trial
+
+    rep = smooth_trial(study, trial, bones, write=False)
+    if cancel():
+        return None
+    study.write_report(REPORT_KIND, trial, rep)
+    return {"report": f"results/reports/{REPORT_KIND}/{trial}.json", "bones": sorted(rep["bones"]),
+            "skipped": rep["skipped"]}

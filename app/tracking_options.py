@@ -40,6 +40,12 @@ track`` itself for ``--search``, ``--scale``, ``--metric``, ``--mode``, ``--gues
   for three bones jointly. It needs flatfield-corrected frames: a trial without a flatfield
   correction is refused when the job starts (:func:`app.commands.track.final_stage_problem`);
 * **Confidence** — the pose uncertainty of every frame (costs a few renders per frame);
+* **Smooth the poses afterwards** (under it; ``talus track --smooth``, off by default) — once a run is
+  complete, each tracked bone's poses are also smoothed over the trial
+  (:func:`core.tracking.smoothing_trial.smooth_trial`) into ``results/reports/smoothing/<trial>.json``;
+  the journal's poses stay the results. Not a tracker option: the window's tracking job does it
+  (:mod:`app.tracking_actions`), so the dialog holds it beside the options (:meth:`TrackingOptionsDialog.
+  smooth`), not in them;
 * **Advanced checks** — the thresholds of the checks that flag frames for review
   (``talus track --collapse-ratio``, ``--motion-limit``, ``--motion-floor``, ``--sigma-limit``;
   :data:`app.commands.track.CHECKS`): a score below the *collapse* ratio × the bone's recent median
@@ -77,11 +83,12 @@ import html
 
 from PySide6 import QtGui, QtWidgets
 
-from .commands.track import CHECKS, check_choices, choices_of, options_from_choices
+from .commands.track import CHECKS, SMOOTH_HELP, check_choices, choices_of, options_from_choices
 from .commands.track_options import RESTART_FIGURES, ROUNDS_HELP
 
 __all__ = ["CHECK_RANGES", "FINALS", "MAX_ROUNDS", "METRICS", "OFF_FIELDS", "RESOLUTIONS", "SEARCHES",
-           "SUBTRACTS", "TrackingOptionsDialog", "choices_of", "options_from_choices", "wrapped_tip"]
+           "SMOOTH_TIP", "SUBTRACTS", "TrackingOptionsDialog", "choices_of", "options_from_choices",
+           "wrapped_tip"]
 
 #: (label, search) pairs shown in the dialog.
 SEARCHES = (("Gauss–Newton (faster)", "newton"), ("Local (quadratic models)", "local"))
@@ -141,6 +148,13 @@ def _words(text: str) -> str:
             .replace("mm/deg", "mm/°").replace(" deg)", "°)").replace("60 percent", "60 %"))
 
 
+#: *Smooth the poses afterwards*' tooltip: ``talus track --smooth``'s help in the dialog's typography
+SMOOTH_TIP = _words("O" + SMOOTH_HELP[1:].replace("this 2-core CPU", "a 2-core CPU").replace(
+    "Rauch-Tung-Striebel", "Rauch–Tung–Striebel").replace("Cramer-Rao", "Cramér–Rao").replace(
+    " x the single", " × the single").replace(" deg against", "° against").replace(
+    "Default off", "Off by default") + ".")
+
+
 def _spin(name: str, value: float | None, tip: str) -> QtWidgets.QDoubleSpinBox | QtWidgets.QSpinBox:
     lo, hi, step, decimals, suffix = CHECK_RANGES[name]
     if value is None:  # an OFF_FIELDS check turned off: the box's minimum
@@ -184,7 +198,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
     restart, guess, final stage,
     confidence and the failure checks' thresholds; :meth:`options` gives the result."""
 
-    def __init__(self, options=None, parent=None) -> None:
+    def __init__(self, options=None, parent=None, *, smooth: bool = False) -> None:
         super().__init__(parent)
         self.setWindowTitle("Tracking options")
         c = choices_of(options)
@@ -215,6 +229,10 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         self.joint_rounds.valueChanged.connect(self._rounds_without_restart)
         self.confidence = QtWidgets.QCheckBox("Pose uncertainty of every frame")
         self.confidence.setChecked(c["confidence"])
+        self.smooth_after = QtWidgets.QCheckBox("Smoot&h the poses afterwards")
+        self.smooth_after.setObjectName("tracking-smooth")
+        self.smooth_after.setChecked(bool(smooth))
+        self.smooth_after.setToolTip(SMOOTH_TIP)
         self.search.setToolTip("Gauss–Newton (the default) needs fewer renders per frame; local fits "
                                "quadratic models and was the more accurate on a CPU at coarse views; "
                                "first frames and retries always search globally")
@@ -246,6 +264,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
         form.addRow("&Guess:", self.guess)
         form.addRow("&Final stage:", self.final)
         form.addRow("", self.confidence)
+        form.addRow("", self.smooth_after)
         checks = self._checks_group(c)
         buttons = QtWidgets.QDialogButtonBox(
             QtWidgets.QDialogButtonBox.StandardButton.Ok | QtWidgets.QDialogButtonBox.StandardButton.Cancel
@@ -324,6 +343,7 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
                     self.final):
             box.setCurrentIndex(0)
         self.confidence.setChecked(True)
+        self.smooth_after.setChecked(False)
         self.joint_restart.setChecked(False)
         self.joint_rounds.setValue(1)
         self._set_checks(check_choices(None))
@@ -348,6 +368,12 @@ class TrackingOptionsDialog(QtWidgets.QDialog):
 
     def options(self):
         return options_from_choices(**self.choices())
+
+    def smooth(self) -> bool:
+        """*Smooth the poses afterwards*: whether the window's tracking job smooths each tracked bone's
+        poses once the run is complete (not a tracker option: :class:`app.tracking_actions.TrackingActions`'
+        ``smooth``)."""
+        return self.smooth_after.isChecked()
 
     def accept(self) -> None:
         """OK: the options must be valid (the error names the option and its range), else the

@@ -12,7 +12,7 @@ Usage::
                 [--motion-floor MM,DEG] [--sigma-limit K] [--trajectory-limit K|off]
                 [--no-trajectory-check] [--backward-limit K|off] [--no-backward-check]
                 [--stage-move-limit K] [--stage-move-sigmas S] [--stage-move-frames N]
-                [--keep-stage-moves] [--out SUMMARY.json] [--quiet]
+                [--keep-stage-moves] [--smooth] [--out SUMMARY.json] [--quiet]
 
 Tasks follow ``--mode`` as ``talus track --mode`` tracks (:mod:`core.tracking.batch`): ``auto`` (the
 default) makes one task of each trial whose frames are flatfield-corrected (a calibrated study), its
@@ -53,7 +53,10 @@ as its report recorded — is in its record (``sequential_subtract``, with
 ``--joint-restart`` alone implies two rounds, ``--joint-rounds 1 --joint-restart`` is refused) and go to
 every task; a joint task's record says its rounds (``joint_rounds``) and whether those after the first
 started from the prediction (``joint_restart``; a task run again uses them as given,
-``joint_restart_note`` saying when the frames it resumes ran with other ones). Exit
+``joint_restart_note`` saying when the frames it resumes ran with other ones). ``--smooth`` is
+``talus track --smooth`` for each trial whose tasks all complete, once the batch has run
+(:mod:`app.commands.batch_smooth`): the summary's ``"smoothed"`` lists per trial the report and the
+bones, or why it was not smoothed, and stderr gets a line each. Exit
 status: 0 all tasks complete, 1 a task failed (twice) or bad input, 4 a task had nothing it could
 track, 130 interrupted (the frames finished so far are saved; run it again to go on).
 """
@@ -79,7 +82,7 @@ from ._shared import (
     text_bar,
     warp_device,
 )
-from .track import RESTART_HELP, ROUNDS_HELP, add_check_arguments
+from .track import RESTART_HELP, ROUNDS_HELP, SMOOTH_HELP, add_check_arguments
 
 __all__ = ["HELP", "configure", "final_stage_problems", "mode_note", "run", "subtract_messages"]
 
@@ -150,6 +153,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-confidence", action="store_true", help="skip the per-frame uncertainty")
     p.add_argument("--max-uncertainty", default=None, metavar="MM,DEG",
                    help="flag frames whose confidence exceeds MM or DEG for review (as talus track)")
+    p.add_argument("--smooth", action="store_true",
+                   help="as talus track --smooth, for each trial whose tasks all complete, once the batch "
+                        "has run: " + SMOOTH_HELP.replace("once the run is complete, also ", ""))
     p.add_argument("--out", default=None, help="also write the JSON summary to this file")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_check_arguments(p)  # as talus track
@@ -345,6 +351,11 @@ def run(a: argparse.Namespace) -> int:
         return EXIT_CANCELLED
     finally:
         progress.close()
+    if getattr(a, "smooth", False):  # after the trajectory pass, whose flags the smoother weighs
+        from .batch_smooth import smooth_trials
+
+        summary["smoothed"] = smooth_trials(tasks, summary.get("task_records") or (),
+                                            threshold_hu=a.threshold)
     print_json(summary, a.out)
     for line in subtract_messages(summary.get("task_records") or ()):  # the choice each task ran
         print(f"{PROG} batch: {line}", file=sys.stderr)
@@ -357,6 +368,10 @@ def run(a: argparse.Namespace) -> int:
         for entry in summary["trajectory_pass"]:  # per trial's bone(s): judged, flagged, changed
             for line in pass_messages(entry):
                 print(f"{PROG} batch: {line}", file=sys.stderr)
+    if summary.get("smoothed"):
+        from .batch_smooth import smooth_messages
+
+        smooth_messages(summary["smoothed"])
     for f in summary["failures"]:
         print(f"{PROG} batch: task {f['key']} failed after {f['attempts']} attempts: {f['error']}",
               file=sys.stderr)

@@ -37,7 +37,9 @@ folder at the same path). *Start* builds the tasks of
   that check changed (the first 10 named with their flags, the rest counted), as a single run
   names its flagged frames; a check that failed, or the merge of the keyframe two ranges share
   that failed where the check did not judge them (``shared_error``), is an error message (the
-  Messages dock comes to the front), in the words ``talus batch`` prints.
+  Messages dock comes to the front), in the words ``talus batch`` prints;
+* with *Tracking options*' *Smooth the poses afterwards* ticked, each trial whose tasks all complete
+  is then smoothed (``talus batch --smooth``, :mod:`app.commands.batch_smooth`; not after a cancel).
 
 Worker events reach the GUI thread through a queue drained by a timer (no Qt call from the
 batch's thread).
@@ -338,12 +340,19 @@ class BatchPanel(QtCore.QObject):
         self.summary = None
         self._stop.clear()
         events, stop = self._events, self._stop
+        smooth, study = self.window.tracking.smooth, session.study
 
         def work() -> None:
             try:
                 summary = run_batch(tasks, settings, workers=workers, scheduler=scheduler,
                                     on_event=events.put, cancel=stop.is_set,
                                     on_start=lambda info: events.put(dict(info, kind="cluster")))
+                if smooth and not stop.is_set():  # Tracking options' Smooth the poses afterwards
+                    from .commands.batch_smooth import smooth_trials
+
+                    events.put({"kind": "smoothing"})
+                    summary["smoothed"] = smooth_trials(tasks, summary.get("task_records") or (),
+                                                        study=study, cancel=stop.is_set)
                 events.put({"kind": "done", "summary": summary})
             except BaseException as exc:  # shown in the window; the batch thread never raises
                 events.put({"kind": "error", "text": "".join(traceback.format_exception(exc)).rstrip()})
@@ -476,6 +485,8 @@ class BatchPanel(QtCore.QObject):
                 shown = [b for b in task.bones if b in self._bones]
                 if shown and session is not None and task.trial == session.trial_name:
                     self.window.tracking.reload_bones(shown)  # the window's trial: show it now
+            elif kind == "smoothing":
+                self.where.setText("Smoothing the poses over the trials…")
             elif kind in ("done", "error"):
                 self._finish(e)
                 continue
@@ -519,6 +530,10 @@ class BatchPanel(QtCore.QObject):
             failed = bool(p.get("error") or p.get("shared_error"))
             for line in pass_messages(p, limit=MAX_FLAG_MESSAGES):
                 self.window.notify(f"Batch: {line}", error=failed)
+        from .commands.batch_smooth import smooth_lines
+
+        for line in smooth_lines(s.get("smoothed") or ()):
+            self.window.notify(f"Batch: {line}")
         for f in s["failures"]:
             self.window.notify(f"Batch: {f['key']} failed after {f['attempts']} attempts: {f['error']}",
                                error=True)

@@ -187,3 +187,37 @@ def test_smooth_after_writes_nothing_when_cancelled_while_smoothing(demo, tmp_pa
         rep = json.loads((study / REPORT).read_text())
         np.testing.assert_allclose(np.array(rep["bones"][bones[0]]["poses"], float),
                                    smoothed_poses(st, "walk", bones)[bones[0]], atol=1e-5)  # 6 digits
+
+
+def test_the_windows_batch_smooths_each_complete_trial(qtbot, window, demo, tmp_path, monkeypatch):
+    """*Track in batch…* with the box ticked: ``talus batch --smooth`` on the window's study (the
+    batch's tasks a stand-in reporting complete on poses recorded before)."""
+    pytest.importorskip("distributed")
+    import core.tracking.batch as core_batch
+    from core.study import Study
+
+    study = copy_study(demo, tmp_path)
+    truths = {p.stem: np.load(p) for p in (study / "poses").glob("*.npy")}
+    with Study.open(study, mode="w") as st:
+        _fake_track(truths)(st, "walk")
+
+    def run_batch(tasks, settings=None, *, on_event=None, **kw):
+        recs = [dict(key=t.key, study=t.study, trial=t.trial, bones=list(t.bones), status="complete",
+                     seconds=0.0) for t in tasks]
+        return core_batch.summarize(tasks, recs, [], wall_s=0.1, workers=1)
+
+    monkeypatch.setattr(core_batch, "run_batch", run_batch)
+    window.open_study(study)
+    _tick_smooth(qtbot, window, True)
+    window.model.select("talus")
+    window.tracking.batch_action.trigger()
+    dlg = window.tracking.batch.dialog
+    qtbot.waitExposed(dlg)
+    with qtbot.waitSignal(window.tracking.batch.finished, timeout=HUNG_MS) as done:
+        qtbot.mouseClick(dlg.start_button, QtCore.Qt.MouseButton.LeftButton)
+    s = done.args[0]
+    assert s["status"] == "complete" and s["smoothed"][0]["bones"] == ["talus"], s.get("smoothed")
+    rep = json.loads((study / REPORT).read_text())
+    assert sorted(rep["bones"]) == ["talus"]
+    assert any(m.startswith("Batch: ") and f"smoothed poses of talus in {REPORT.as_posix()}" in m
+               for m in _messages(window))

@@ -72,17 +72,33 @@ def smooth_trial(study, trial_name: str, bones: Sequence[str] | None = None, *, 
     about which its σ is). Returns the report (per bone its first and last frame, centre and
     :meth:`~core.tracking.smoothing.SmoothedPoses.to_dict`; a bone with too few poses under
     ``skipped`` with why), written to ``results/reports/smoothing/<trial>.json`` when ``write`` (the
-    study open for writing)."""
+    study open for writing). Written, it keeps the bones of an earlier report of the trial that
+    this call did not smooth (a run of other bones adds to it; each bone's entry names its options)."""
     done, skipped = _smooth_bones(study, trial_name, bones, threshold_hu, options)
-    out: dict = {"trial": trial_name, "options": {k: v for k, v in options.items()},
+    opts = {k: v for k, v in options.items()}
+    out: dict = {"trial": trial_name, "options": opts,
                  "note": "smoothed over neighbouring frames: not the tracked results (the journal keeps "
                          "those), and not bounded by the single-frame Cramer-Rao bound",
                  "bones": {b: {"frames": [lo, lo + len(sm.poses) - 1], "center": np.round(c, 5).tolist(),
-                               **sm.to_dict()} for b, (lo, c, sm) in done.items()},
+                               "options": opts, **sm.to_dict()} for b, (lo, c, sm) in done.items()},
                  "skipped": skipped}
     if write:
-        study.write_report(REPORT_KIND, trial_name, out)
+        study.write_report(REPORT_KIND, trial_name, _merged(study, trial_name, out))
     return out
+
+
+def _merged(study, trial_name: str, out: dict) -> dict:
+    """``out`` with the bones of the trial's earlier report that ``out`` neither smoothed nor skipped."""
+    if trial_name not in study.report_names(REPORT_KIND):
+        return out
+    try:
+        old = study.read_report(REPORT_KIND, trial_name)
+    except Exception:  # an unreadable earlier report is replaced
+        return out
+    new = set(out["bones"]) | set(out["skipped"])
+    kept = {b: e for b, e in (old.get("bones") or {}).items() if b not in new}
+    kept_skipped = {b: w for b, w in (old.get("skipped") or {}).items() if b not in new and b not in kept}
+    return {**out, "bones": {**kept, **out["bones"]}, "skipped": {**kept_skipped, **out["skipped"]}}
 
 
 def smoothed_poses(study, trial_name: str, bones: Sequence[str] | None = None, *, threshold_hu: float = 200.0,

@@ -157,3 +157,27 @@ def test_export_dialog_writes_the_smoothed_poses(study, qtbot, tmp_path, monkeyp
         dlg.reject()
     finally:
         win.close()
+
+
+def test_a_second_run_of_other_bones_adds_to_the_report(study, monkeypatch, capsys):
+    """Smoothing the talus, then the tibia, leaves both in the trial's report (the second run does not
+    replace the first's bones); smoothing the talus again replaces its own entry only."""
+    from app.cli import main as talus
+    from core.tracking import from_study
+
+    truths = {p.stem: np.load(p) for p in (study / "poses").glob("*.npy")}
+    monkeypatch.setattr(from_study, "track_study", _fake_track(truths, _centroids(study)))
+    report = study / "results" / "reports" / "smoothing" / "walk.json"
+    report.unlink(missing_ok=True)
+    base = ["track", str(study), "--trial", "walk", "--device", "cpu", "--quiet", "--smooth"]
+    assert talus([*base, "--bones", "talus"]) == 0
+    assert sorted(json.loads(report.read_text())["bones"]) == ["talus"]
+    assert talus([*base, "--bones", "tibia"]) == 0
+    capsys.readouterr()
+    rep = json.loads(report.read_text())
+    assert sorted(rep["bones"]) == ["talus", "tibia"]
+    talus_before = rep["bones"]["talus"]["poses"]
+    assert talus([*base, "--bones", "talus"]) == 0
+    rep = json.loads(report.read_text())
+    assert sorted(rep["bones"]) == ["talus", "tibia"]
+    assert np.allclose(np.array(rep["bones"]["talus"]["poses"], float), np.array(talus_before, float))

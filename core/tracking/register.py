@@ -199,9 +199,11 @@ STAGE_PREFETCH = True
 #: final stage's are read there: no pinned copy of either's rows on the host, no prefetch of the stage's
 #: rows (:data:`STAGE_PREFETCH` is then skipped), the next frame's pinned copy made ahead in the feed's
 #: worker; the same pixels through the same kernels, so the same results to the bit. Off: each uploads its
-#: own rows, as before. Off until timed on a GPU (the whole frame's upload, 8 MB at 1024², goes on the
-#: device's stream at the frame's start, where the host prepares the search).
-SHARE_FRAME = False
+#: own rows, as before. On since it was timed on one NVIDIA H100 (with :data:`core.tracking.trial.
+#: NEXT_FRAME_AHEAD`; ``resources/benchmarks/tracking_share_frame_h100.json``: the benchmark's one bone with
+#: the stage, frame_profile's alternated rounds 7.82/6.97/7.78 ms a frame off against 5.88/6.92/5.99 with
+#: both, and ``talus bench track --cases one`` 89.6 frames/s off against 128.3 and 125.4 on, the same poses).
+SHARE_FRAME = True
 
 def prepare_search(renderer, frame, *, bone: int, pose, center, options: RegistrationOptions,
                    outline=None) -> bool:

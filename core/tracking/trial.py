@@ -212,9 +212,9 @@ __all__ = ["NEXT_FRAME_AHEAD", "FrameResult", "TrackingOptions", "TrackingResult
 #: ready) is put on the device (:func:`core.tracking.engine_upload.share`) while the device works on this
 #: frame's final stage's first step (:func:`core.tracking.register.stage_idle`), where the host would
 #: wait, instead of at the next frame's start (:data:`core.tracking.register.SHARE_FRAME`). This frame's
-#: later registrations (a retry, the move's confirmation) upload its rows again; the same values. Off until
-#: timed on a GPU.
-NEXT_FRAME_AHEAD = False
+#: later registrations (a retry, the move's confirmation) upload its rows again; the same values. On with
+#: :data:`~core.tracking.register.SHARE_FRAME` (timed there).
+NEXT_FRAME_AHEAD = True
 
 
 

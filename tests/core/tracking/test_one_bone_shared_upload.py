@@ -38,8 +38,13 @@ def serial(walking_talus):
     import core.tracking.search_ahead as sa
     import core.tracking.trial as trial
 
-    assert not (reg.SHARE_FRAME or trial.NEXT_FRAME_AHEAD or sa.SEARCH_AHEAD)  # (the defaults)
-    return _track(walking_talus)
+    assert reg.SHARE_FRAME and trial.NEXT_FRAME_AHEAD and not sa.SEARCH_AHEAD  # (the defaults)
+    was = reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD
+    reg.SHARE_FRAME = trial.NEXT_FRAME_AHEAD = False  # the serial loop, each registration its own rows
+    try:
+        return _track(walking_talus)
+    finally:
+        reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD = was
 
 
 def test_one_bone_shared_upload_gives_the_same_results(walking_talus, serial, monkeypatch):

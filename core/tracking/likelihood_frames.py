@@ -35,7 +35,10 @@ HELD_FRAME = True
 #: per thread block of :data:`ROI_BLOCK_CHUNK` pixels (one atomic a block instead of three a thread; the
 #: region's maximum and sum, which the stage does not read, not made). The same line integrals, usable
 #: pixels and count (exact). Off: :func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as before.
-ROI_BLOCK_COUNT = True
+#: Off by default: timed on one NVIDIA H100 (``stage_one_bone --interleave 3``, 13 stages a variant,
+#: ``resources/benchmarks/tracking_share_frame_h100.json``) the stage took 2.73 ms (median) with it
+#: against 2.57 with the earlier kernel; too few stages to call, but no gain shown.
+ROI_BLOCK_COUNT = False
 #: pixels a thread block of :func:`~core.tracking.likelihood_roi.roi_count_kernel` prepares
 ROI_BLOCK_CHUNK = 1024
 

@@ -104,9 +104,11 @@ def _merged(study, trial_name: str, out: dict) -> dict:
 def smoothed_poses(study, trial_name: str, bones: Sequence[str] | None = None, *, threshold_hu: float = 200.0,
                    **options) -> dict[str, np.ndarray]:
     """Bone -> ``(n_frames, 4, 4)`` smoothed poses of trial ``trial_name`` (as :func:`smooth_trial`'s,
-    computed afresh, not written; NaN outside a bone's first and last pose, and for a bone too short
-    to smooth), to export in place of the tracked ones (:func:`core.study.exports.export_poses`'
-    ``poses``)."""
+    computed afresh, not written; NaN outside a bone's first and last pose, at a frame without a pose of
+    its own — the smoother's prediction there is in the report, not written as if tracked, as the tracked
+    export and :meth:`~core.tracking.results.TrackingResult.filtered_poses` leave such a frame — and for
+    a bone too short to smooth), to export in place of the tracked ones
+    (:func:`core.study.exports.export_poses`' ``poses``)."""
     trial = study.trial(trial_name)
     done, _ = _smooth_bones(study, trial_name, bones, threshold_hu, options)
     out = {}
@@ -115,5 +117,8 @@ def smoothed_poses(study, trial_name: str, bones: Sequence[str] | None = None, *
         if b in done:
             lo, _, sm = done[b]
             P[lo:lo + len(sm.poses)] = sm.poses
+            recs = trial.results(b).records
+            none = [f for f in range(lo, lo + len(sm.poses)) if getattr(recs.get(f), "pose", None) is None]
+            P[none] = np.nan  # (no pose of its own: not tracked there)
         out[b] = P
     return out

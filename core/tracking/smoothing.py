@@ -451,7 +451,7 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
     Cr = J * var[inside, None, 3:] @ J.swapaxes(-1, -2)
     cov[inside, 3:, 3:] = np.degrees(np.degrees(Cr))
     sig = np.sqrt(np.einsum("nii->ni", cov))
-    return SmoothedPoses(out, sig, cov, w * rob, np.sqrt(k2), k2 * lam, model, llb[:, 0], sorted(jumps))
+    return SmoothedPoses(out, sig, cov, wt, np.sqrt(k2), k2 * lam, model, llb[:, 0], sorted(jumps))
 
 
 def smooth_track(result, bone: str, *, center, **options) -> SmoothedPoses:

@@ -80,15 +80,34 @@ def smooth_trial(study, trial_name: str, bones: Sequence[str] | None = None, *, 
                  "note": "smoothed over neighbouring frames: not the tracked results (the journal keeps "
                          "those), and not bounded by the single-frame Cramer-Rao bound",
                  "bones": {b: {"frames": [lo, lo + len(sm.poses) - 1], "center": np.round(c, 5).tolist(),
-                               "options": opts, **sm.to_dict()} for b, (lo, c, sm) in done.items()},
+                               "options": opts, "journal": _journal_stamp(study, trial_name, b),
+                               **sm.to_dict()} for b, (lo, c, sm) in done.items()},
                  "skipped": skipped}
     if write:
         study.write_report(REPORT_KIND, trial_name, _merged(study, trial_name, out))
     return out
 
 
+def _journal_stamp(study, trial_name: str, bone: str) -> str:
+    """A digest of ``bone``'s journal in the trial (each recorded pose's frame, pose and flags): what its
+    smoothing was made from (:func:`_merged` keeps an earlier entry only while it is the same)."""
+    import hashlib
+
+    recs = study.trial(trial_name).results(bone).records
+    h = hashlib.sha1()
+    for f in sorted(recs):
+        r = recs[f]
+        if r.pose is not None:
+            h.update(np.int64(f).tobytes())
+            h.update(np.asarray(r.pose, dtype=float).tobytes())
+            h.update(repr((r.tracking or {}).get("flags")).encode())
+    return h.hexdigest()
+
+
 def _merged(study, trial_name: str, out: dict) -> dict:
-    """``out`` with the bones of the trial's earlier report that ``out`` neither smoothed nor skipped."""
+    """``out`` with the bones of the trial's earlier report that ``out`` neither smoothed nor skipped, each
+    while its journal is the one it was smoothed from (a bone re-tracked since is dropped, said in
+    ``skipped``: its smoothed poses would no longer describe the journal)."""
     if trial_name not in study.report_names(REPORT_KIND):
         return out
     try:
@@ -96,9 +115,20 @@ def _merged(study, trial_name: str, out: dict) -> dict:
     except Exception:  # an unreadable earlier report is replaced
         return out
     new = set(out["bones"]) | set(out["skipped"])
-    kept = {b: e for b, e in (old.get("bones") or {}).items() if b not in new}
+    kept, stale = {}, {}
+    for b, e in (old.get("bones") or {}).items():
+        if b in new:
+            continue
+        try:
+            same = e.get("journal") == _journal_stamp(study, trial_name, b)
+        except Exception:  # (a bone no longer in the trial)
+            same = False
+        if same:
+            kept[b] = e
+        else:
+            stale[b] = "its journal changed since it was smoothed (re-tracked): smooth it again"
     kept_skipped = {b: w for b, w in (old.get("skipped") or {}).items() if b not in new and b not in kept}
-    return {**out, "bones": {**kept, **out["bones"]}, "skipped": {**kept_skipped, **out["skipped"]}}
+    return {**out, "bones": {**kept, **out["bones"]}, "skipped": {**kept_skipped, **stale, **out["skipped"]}}
 
 
 def smoothed_poses(study, trial_name: str, bones: Sequence[str] | None = None, *, threshold_hu: float = 200.0,

@@ -15,7 +15,6 @@ from .cost import FrameImages, OutsideViewError, fluoro_rois, padded_region
 from .engine_buffers import copy_array
 from .engine_kernels import _LANES, fluoro_roi_kernel
 from .likelihood_kernels import highpass_kernel, others_kernel, psf_kernel
-from .likelihood_roi import roi_count_kernel
 
 #: :meth:`_FrameRegions.prefetch`'s rows of the frame taken by the stage's set-up where they cover its
 #: own (off: the stage uploads its rows whatever went up before). Tried before it and removed: the rows
@@ -31,16 +30,10 @@ PREFETCH = True
 #: the same kernel (the same regions to the bit). Off: the stage copies and uploads its rows, as before.
 #: Not measured on a GPU (three bones jointly: one copy and upload a bone-frame fewer on the host).
 HELD_FRAME = True
-#: The regions made by :func:`~core.tracking.likelihood_roi.roi_count_kernel`: the usable pixels counted
-#: per thread block of :data:`ROI_BLOCK_CHUNK` pixels (one atomic a block instead of three a thread; the
-#: region's maximum and sum, which the stage does not read, not made). The same line integrals, usable
-#: pixels and count (exact). Off: :func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, as before.
-#: Off by default: timed on one NVIDIA H100 (``stage_one_bone --interleave 3``, 13 stages a variant,
-#: ``resources/benchmarks/tracking_share_frame_h100.json``) the stage took 2.73 ms (median) with it
-#: against 2.57 with the earlier kernel; too few stages to call, but no gain shown.
-ROI_BLOCK_COUNT = False
-#: pixels a thread block of :func:`~core.tracking.likelihood_roi.roi_count_kernel` prepares
-ROI_BLOCK_CHUNK = 1024
+#: Tried and removed (c44087f, then its kernel): the regions made with the usable pixels counted per thread
+#: block (one atomic a block instead of three a thread; exact): timed on one NVIDIA H100 (``stage_one_bone
+#: --interleave 3``, ``resources/benchmarks/tracking_share_frame_h100.json``) the stage took 2.73 ms (median)
+#: with it against 2.57 with :func:`~core.tracking.engine_kernels.fluoro_roi_kernel`.
 
 
 def _covering(frame, rows, staged: list, src, gsrc):
@@ -224,16 +217,10 @@ class _FrameRegions:
         copy_array(self._info, self._host_info)
         self._msum.zero_()
         lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
-        if ROI_BLOCK_COUNT:  # (a count per thread block: likelihood_roi)
-            chunk = int(ROI_BLOCK_CHUNK)
-            self._launch("roi_count", roi_count_kernel, (self.n_views, math.ceil(Hc * Wc / chunk)),
-                         [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
-                          chunk, li, mask, self._msum], _LANES)
-        else:
-            chunk = self.chunk  # (the engine's 4096: smaller chunks were slower, PREFETCH's docs)
-            self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
-                         [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
-                          chunk, li, mask, self._fmax, self._msum])
+        chunk = self.chunk  # (the engine's 4096: smaller chunks were slower, PREFETCH's docs)
+        self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
+                     [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
+                      chunk, li, mask, self._fmax, self._msum])
         copy_array(self._host_msum, self._msum)
         self._count_pending = True
 

@@ -23,10 +23,10 @@ the stage's rows while the search runs off / on (:data:`core.tracking.register.S
 refinement's sandwich before the robust factors / after the robust refinement's first step
 (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`, on by default since both were measured alone:
 ``resources/benchmarks/tracking_stage_one_bone_97b2893_h100.json``, when both were off by default);
-``sorts`` the robust factors' median's one sort off, ``roiprev`` the regions by the tracker's engine's
-kernel (:data:`core.tracking.likelihood_frames.ROI_BLOCK_COUNT` off), ``nolean`` the steps' tables solved
-and the sandwich's autocovariance copied as before (:data:`core.tracking.likelihood_solve.LEAN_SOLVES`,
-:data:`core.tracking.likelihood_confidence.COV_ON_READ`), ``h2prev`` the three first as at 97b2893
+``sorts`` the robust factors' median's one sort off (``roiprev``, the regions by the tracker's engine's
+kernel instead of a count per thread block, went with that kernel: ``tracking_share_frame_h100.json``),
+``nolean`` the steps' tables solved and the sandwich's autocovariance copied as before
+(:data:`core.tracking.likelihood_solve.LEAN_SOLVES`, :data:`core.tracking.likelihood_confidence.COV_ON_READ`), ``h2prev`` the three first as at 97b2893
 (:data:`_PARTS`).
 The runs count the stages that took the prefetched rows. ``--interleave N``: then ``N`` tracks more in which
 the variants take the stage in turn, frame by frame (the ``i``-th stage call under variant ``(i + run) % k``:
@@ -206,8 +206,7 @@ _PARTS = {"prefetch": (("core.tracking.register", "STAGE_PREFETCH", True),),
           "noafter": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False),),
           "sorts": (("core.tracking.likelihood_kernels", "MEDIAN_ONE_SORT", False),),
           "nolean": (("core.tracking.likelihood_solve", "LEAN_SOLVES", False),
-                     ("core.tracking.likelihood_confidence", "COV_ON_READ", False)),
-          "roiprev": (("core.tracking.likelihood_frames", "ROI_BLOCK_COUNT", False),)}
+                     ("core.tracking.likelihood_confidence", "COV_ON_READ", False))}
 _PARTS["h2prev"] = tuple(t for k in ("noprefetch", "noafter", "sorts") for t in _PARTS[k])
 
 

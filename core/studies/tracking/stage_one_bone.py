@@ -26,8 +26,8 @@ refinement's sandwich before the robust factors / after the robust refinement's 
 ``sorts`` the robust factors' median's one sort off (``roiprev``, the regions by the tracker's engine's
 kernel instead of a count per thread block, went with that kernel: ``tracking_share_frame_h100.json``),
 ``nolean`` the steps' tables solved and the sandwich's autocovariance copied as before
-(:data:`core.tracking.likelihood_solve.LEAN_SOLVES`, :data:`core.tracking.likelihood_confidence.COV_ON_READ`), ``h2prev`` the three first as at 97b2893
-(:data:`_PARTS`).
+(:data:`core.tracking.likelihood_solve.LEAN_SOLVES`, :data:`core.tracking.likelihood_confidence.COV_ON_READ`),
+``h2prev`` the three first as at 97b2893 (:data:`_PARTS`).
 The runs count the stages that took the prefetched rows. ``--interleave N``: then ``N`` tracks more in which
 the variants take the stage in turn, frame by frame (the ``i``-th stage call under variant ``(i + run) % k``:
 the host's drift, 20 % from run to run on one NVIDIA H100's host, shared; only flags read inside the stage

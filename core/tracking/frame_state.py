@@ -149,6 +149,3 @@ class _Run:
     options: TrackingOptions
     cancel: _Cancel
     contacts: list | None = None
-    #: one bone's next frame's start prepared during this frame's final stage
-    #: (:mod:`core.tracking.search_ahead`): frame -> its record
-    ahead: dict = field(default_factory=dict)

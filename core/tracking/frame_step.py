@@ -265,12 +265,6 @@ def track_frame(run: _Run, f: int, imgs: list, frame, todo: list[int], state: di
     predicted = {i: motion_prediction(hist[names[i]], f, bones[i].centroid) for i in todo}
     guesses = {i: predict_pose(hist[names[i]], f, bones[i].centroid, guess=o.guess,
                                keyframes=run.keyframes.get(names[i]), prediction=predicted[i]) for i in todo}
-    if run.ahead and len(todo) == 1:  # one bone: the start prepared during the frame before's stage
-        from .search_ahead import start
-
-        g = start(run, state, f, todo[0])
-        if g is not None:
-            guesses[todo[0]] = g
     joint = o.mode == "joint" and len(names) > 1
     # sequential tracking with the final stage: the stage subtracts the neighbours as joint tracking
     # does (the bones registered in this frame, the others at their guesses; module docs)

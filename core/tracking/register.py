@@ -71,7 +71,7 @@ import numpy as np
 from . import optimize as opt
 from .cost import CostTimer, FrameImages, RegistrationCost, mm_per_pixel, search_roi, snap_roi
 from .quadratic import quadratic_search
-from .register_ahead import final_stage_idle, forget, keep, take
+from .register_ahead import final_stage_idle
 from .register_options import (  # noqa: F401
     FINAL_STEP,
     Level,
@@ -205,42 +205,6 @@ STAGE_PREFETCH = True
 #: both, and ``talus bench track --cases one`` 89.6 frames/s off against 128.3 and 125.4 on, the same poses).
 SHARE_FRAME = True
 
-def prepare_search(renderer, frame, *, bone: int, pose, center, options: RegistrationOptions,
-                   outline=None) -> bool:
-    """Prepare the ``"newton"`` search of ``bone`` in ``frame`` from ``pose`` ahead of its registration
-    (e.g. while the device works on the frame before's final stage, :func:`stage_idle`): its pixel size,
-    its search regions and its full-resolution engine's regions (``set_frame``), kept so that
-    :func:`register` from this very pose, centre and options (every view, no neighbours) takes them
-    instead of making them again (the same values: the same calls). False where nothing was prepared
-    (another search, a pose outside a view)."""
-    o = options
-    if o.search != "newton" or o.levels is not None:
-        return False
-    from .engine import engine_cost, supports
-
-    if not supports(o.terms) or len(o.terms) != 1:
-        return False
-    base = np.asarray(pose, dtype=float)
-    center = np.asarray(center, dtype=float)
-    views = tuple(range(frame.n_views))
-    fs = o.final_scale
-    forget()
-    try:
-        px_mm = mm_per_pixel(renderer, base, center, views)
-        levels = _automatic_levels(px_mm * fs, fs, o.sigma, "newton")
-        if o.final is not None:
-            levels = tuple(before_stage(lv, o) for lv in levels)
-        if not (len(levels) == 1 and levels[0].method == "gauss_newton" and levels[0].scale == fs):
-            return False
-        roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline)
-        c = engine_cost(renderer, bone=bone, views=views, scale=fs, term=o.terms[0])
-        c.set_frame(frame, base_pose=base, center=center, roi=roi, others=None, px_mm=px_mm)
-    except Exception:  # (OutsideViewError among them: the registration meets it again, as it would)
-        return False
-    keep(renderer, bone, base, center, views, o, px_mm, roi)
-    return True
-
-
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:
     """:func:`default_levels` at ``mm_px`` (mm per DRR pixel at the final scale ``fs``), scaled by
     ``fs``. The ``"newton"`` search's levels depend on the pixel size only through
@@ -352,17 +316,12 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             search = "local" if search == "newton" else "global"
     px_mm = None  # the full-resolution pixel size at the bone (the engine's smoothing takes it too)
     levels = o.levels
-    ahead = None
-    if levels is None and search == "newton" and tried is None and roi is None:  # prepare_search's
-        ahead = take(renderer, bone, base, center, views, o, others)
     if levels is None:
-        px_mm = mm_per_pixel(renderer, base, center, views) if ahead is None else ahead[0]
+        px_mm = mm_per_pixel(renderer, base, center, views)
         levels = _automatic_levels(px_mm * fs, fs, o.sigma, search)
         if search == "newton" and o.final is not None:  # a stage follows: its basin is enough
             levels = tuple(before_stage(lv, o) for lv in levels)
-    if roi is None and ahead is not None:
-        roi = ahead[1]
-    elif roi is None:
+    if roi is None:
         roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline,
                             snap=all(lv.method == "gauss_newton" for lv in levels))
     else:

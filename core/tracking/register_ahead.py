@@ -1,11 +1,12 @@
-"""Host work run while the device works on one bone's final stage, and the next frame's search prepared
-ahead (:func:`core.tracking.register.register`'s helpers).
+"""Host work run while the device works on one bone's final stage (:func:`core.tracking.register.register`'s
+helper).
 
 :func:`stage_idle` hands one bone's registrations a callable run while the device works on their final
 stage (where the host waits otherwise): :func:`core.tracking.trial.track` puts the next frame on the device
-there (:data:`core.tracking.trial.NEXT_FRAME_AHEAD`) and prepares the next frame's search from this frame's
-searched pose (:data:`core.tracking.search_ahead.SEARCH_AHEAD`; :func:`core.tracking.register.prepare_search`,
-which leaves its pixel size and search regions here, :func:`keep`, for :func:`take`).
+there (:data:`core.tracking.trial.NEXT_FRAME_AHEAD`). Tried and removed: the next frame's search prepared
+there from this frame's searched pose (``search_ahead.SEARCH_AHEAD``, 680f52a): not exact (a relative σ
+check flipped on the tests' walking talus), and no faster on one NVIDIA H100 than the shared upload alone
+(``resources/benchmarks/tracking_share_frame_h100.json``).
 """
 
 from __future__ import annotations
@@ -15,12 +16,10 @@ from contextvars import ContextVar
 
 from .likelihood_steps import run_steps
 
-__all__ = ["final_stage_idle", "forget", "keep", "stage_idle", "take"]
+__all__ = ["final_stage_idle", "stage_idle"]
 
 #: What to run while the device works on the final stage (:func:`stage_idle`); None: nothing.
 _STAGE_IDLE: ContextVar = ContextVar("register_stage_idle", default=None)
-
-_AHEAD: dict = {}  # prepare_search's (renderer id, bone, pose, centre, views) -> (options, px_mm, roi)
 
 
 @contextmanager
@@ -30,8 +29,7 @@ def stage_idle(fn):
     final stage's first step (where the host would otherwise wait: the stage's generator yields there,
     :func:`core.tracking.final_stage.final_stage_steps`), then let it go; where it returns a generator, one
     piece of it (up to its next ``yield``) runs at each of the stage's waits and the rest after the stage.
-    ``fn`` must not change what the registration reads (e.g. the next frame's upload, the next frame's
-    search prepared: :func:`core.tracking.register.prepare_search`). A study's wrapper of
+    ``fn`` must not change what the registration reads (e.g. the next frame's upload). A study's wrapper of
     :func:`~core.tracking.final_stage.final_stage` is called as before, without it."""
     token = _STAGE_IDLE.set([fn] if fn is not None else None)
     try:
@@ -70,21 +68,3 @@ def final_stage_idle(renderer, frame, res, **kw):
                 pass
             return stop.value
 
-
-def forget() -> None:
-    """Drop what :func:`keep` kept."""
-    _AHEAD.clear()
-
-
-def keep(renderer, bone: int, base, center, views: tuple, options, px_mm: float, roi) -> None:
-    """What :func:`core.tracking.register.prepare_search` prepared for ``bone`` from pose ``base``."""
-    _AHEAD[(id(renderer), int(bone), base.tobytes(), center.tobytes(), tuple(views))] = (options, px_mm, roi)
-
-
-def take(renderer, bone: int, base, center, views: tuple, options, others):
-    """:func:`keep`'s ``(px_mm, roi)`` for a registration of ``bone`` from ``base`` with these ``options``
-    (the same object) and no neighbours, or None; taken once."""
-    if not _AHEAD or others is not None:
-        return None
-    hit = _AHEAD.pop((id(renderer), int(bone), base.tobytes(), center.tobytes(), tuple(views)), None)
-    return None if hit is None or hit[0] is not options else hit[1:]

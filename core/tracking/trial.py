@@ -193,7 +193,6 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from . import backward_check as backward
-from . import search_ahead
 from .attempt import register_checked
 from .bones import BoneModel
 from .checks import SAME_OPTIMUM, pose_delta, same_optimum, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
@@ -357,12 +356,10 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
                 nxt = k + 1 < len(order) and bool(todo_of(order[k + 1])[1])
                 if nxt:  # prepared while this one registers
                     feed.prefetch(order[k + 1])
-                # one bone: the next frame put on the device, and its search prepared, while this one's
-                # final stage runs
+                # one bone: the next frame put on the device while this one's final stage runs
                 ahead = None
-                if (NEXT_FRAME_AHEAD or search_ahead.SEARCH_AHEAD) and nxt and len(names) == 1 and \
-                        o.registration.final is not None:
-                    ahead = functools.partial(_stage_work, run, state, feed, f, order[k + 1])
+                if NEXT_FRAME_AHEAD and nxt and len(names) == 1 and o.registration.final is not None:
+                    ahead = functools.partial(_stage_work, feed, run.renderer.device)
                 with stage_idle(ahead):
                     new = track_frame(run, f, imgs, frame, todo, state, skip)
             if new is None:
@@ -398,15 +395,10 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
     return out
 
 
-def _stage_work(run: _Run, state: dict, feed: FrameFeed, f: int, f_next: int, res):
-    """What one bone's frame ``f`` does while the device works on its final stage (a generator, a piece a
-    wait): the next frame put on the device (:data:`NEXT_FRAME_AHEAD`), its search prepared
-    (:data:`core.tracking.search_ahead.SEARCH_AHEAD`)."""
-    if NEXT_FRAME_AHEAD:
-        feed.upload_ahead(run.renderer.device)
-    if search_ahead.SEARCH_AHEAD:
-        yield
-        yield from search_ahead.prepare(run, state, feed, f, f_next, res)
+def _stage_work(feed: FrameFeed, device, res) -> None:
+    """What one bone's frame does while the device works on its final stage: the next frame put on the
+    device (:data:`NEXT_FRAME_AHEAD`)."""
+    feed.upload_ahead(device)
 
 
 def register_start(renderer, frame, bone: BoneModel, index: int, start, *,

@@ -4,12 +4,7 @@ against the serial loop with every switch off (one run, shared by the tests):
 * the whole frame uploaded once and read by the search and the stage (core.tracking.register.SHARE_FRAME),
   the next frame put up during the stage's first step (core.tracking.trial.NEXT_FRAME_AHEAD;
   engine_upload.DEVICES patched to take the CPU): the same poses, scores, flags, confidences and stage
-  outcomes to the bit;
-* the next frame's search prepared during the stage from the searched pose
-  (core.tracking.search_ahead.SEARCH_AHEAD): the prepared start taken in every frame after the second, the
-  poses within 0.005 mm and 0.02 deg of the serial loop's (its start differs by about twice the stage's
-  move), the flags the same but the relative sigma check's (the stage's sandwich from another searched
-  pose)."""
+  outcomes to the bit."""
 
 from __future__ import annotations
 
@@ -35,10 +30,9 @@ def _track(walk):
 @pytest.fixture(scope="module")
 def serial(walking_talus):
     import core.tracking.register as reg
-    import core.tracking.search_ahead as sa
     import core.tracking.trial as trial
 
-    assert reg.SHARE_FRAME and trial.NEXT_FRAME_AHEAD and not sa.SEARCH_AHEAD  # (the defaults)
+    assert reg.SHARE_FRAME and trial.NEXT_FRAME_AHEAD  # (the defaults)
     was = reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD
     reg.SHARE_FRAME = trial.NEXT_FRAME_AHEAD = False  # the serial loop, each registration its own rows
     try:
@@ -90,29 +84,3 @@ def test_one_bone_shared_upload_gives_the_same_results(walking_talus, serial, mo
     _same(serial, on)
     assert all(np.all(np.isfinite(fr.pose)) for fr in on.results.values())
 
-
-def test_search_ahead_within_the_stage_tolerance(walking_talus, serial, monkeypatch):
-    import core.tracking.register as reg
-    import core.tracking.search_ahead as sa
-    from core.tracking.checks import _distance
-
-    taken, plain = [], reg.take
-
-    def take(*a, **k):
-        got = plain(*a, **k)
-        taken.append(got is not None)
-        return got
-
-    monkeypatch.setattr(reg, "take", take)
-    monkeypatch.setattr(sa, "SEARCH_AHEAD", True)
-    on = _track(walking_talus)
-    assert sum(taken) >= len(FRAMES) - 2  # (frames 0 and 1: no history to predict from)
-    c = walking_talus["model"].centroid
-    d = np.array([_distance(a.pose, on.results[k].pose, c) for k, a in serial.results.items()])
-    # measured on this 2-core x86_64 machine over 12 frames: at most 0.0009 mm and 0.0045 deg (frame 7,
-    # flagged uncertain in both; 0.77 of its rotation sigma, the other frames 0.008 at most)
-    assert d[:2].max() == 0.0 and d[:, 0].max() <= 0.005 and d[:, 1].max() <= 0.02
-    for k, a in serial.results.items():  # the flags but the relative sigma check's (a stage's sandwich from
-        b = on.results[k]  # another searched pose: frame 6's sigma 0.013 -> 0.037 mm, over 3 x the recent)
-        assert [x for x in a.flags if not x.startswith("uncertain")] == \
-            [x for x in b.flags if not x.startswith("uncertain")]

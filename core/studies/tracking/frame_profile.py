@@ -32,7 +32,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["WRAPPED", "main", "parse_variants", "profile_run", "switched", "wrapped"]
+__all__ = ["WRAPPED", "frame_walls", "main", "parse_variants", "profile_run", "switched", "wrapped"]
 
 #: (module, attribute) of the functions wrapped, by the name their callers look them up by; classes'
 #: methods as "Class.method"
@@ -188,21 +188,44 @@ def profile_run(renderer, models, frames, order, keyframes, options, skip=None) 
     return got
 
 
+def frame_walls(ends: dict, order, t0: float, wall: float) -> dict:
+    """A run's clock frame by frame: ``ends`` the time each frame of ``order`` finished (its last bone's
+    ``progress``), ``t0`` the run's start and ``wall`` its length. The frames after the first, each from
+    the end of the one before (``median_ms``, ``mean_ms``, ``max_ms``, ``slowest``: the three slowest
+    ``[frame, ms]``), and ``after_last_frame_ms``: the run after its last frame's end (the backward check,
+    the trajectory post-pass). A pause of the host (a full garbage collection) shows in ``max_ms`` and the
+    mean, not in the median."""
+    t = [ends[f] for f in order if f in ends]
+    if not t:
+        return {}
+    d = np.diff(t) * 1e3
+    fr = [f for f in order if f in ends][1:]
+    slow = sorted(zip(fr, d.tolist(), strict=True), key=lambda x: -x[1])[:3]
+    got = {k: (float(fn(d)) if len(d) else None) for k, fn in (("median_ms", np.median), ("mean_ms", np.mean),
+                                                               ("max_ms", np.max))}
+    return {**got, "slowest": [[int(f), ms] for f, ms in slow],
+            "after_last_frame_ms": 1e3 * (t0 + wall - t[-1])}
+
+
 def _timed_track(track, renderer, models, frames, order, keyframes, options, skip=None) -> dict:
+    from core.tracking.gc_pause import GcWatch
+
     ends: dict = {}
 
     def progress(done, total, fr):
         ends[fr.frame] = time.perf_counter()
 
-    t0 = time.perf_counter()
-    res = track(renderer, models, frames, order, keyframes=keyframes, options=options, progress=progress,
-                skip=skip)
-    wall = time.perf_counter() - t0
+    with GcWatch() as gw:
+        t0 = time.perf_counter()
+        res = track(renderer, models, frames, order, keyframes=keyframes, options=options, progress=progress,
+                    skip=skip)
+        wall = time.perf_counter() - t0
     first = ends.get(order[0], t0) - t0
     n = max(len(order) - 1, 1)
     evals = float(np.mean([x.evaluations for x in res.results.values()])) * len(models)
     return {"wall_s": wall, "first_frame_ms": 1e3 * first,
-            "ms_per_frame_after_first": 1e3 * (wall - first) / n, "evaluations_per_frame": evals}
+            "ms_per_frame_after_first": 1e3 * (wall - first) / n, "evaluations_per_frame": evals,
+            "frames": frame_walls(ends, order, t0, wall), "gc": gw.to_dict()}
 
 
 def parse_variants(spec: str | None) -> dict:

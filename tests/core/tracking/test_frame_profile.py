@@ -41,6 +41,8 @@ def test_profile_run_phases_and_restores(talus_calcaneus_128):
         for x in stats[ph]:
             assert 0 <= x["excl_ms"] <= x["incl_ms"] + 1e-9
     assert got["wall_s"] > 0 and got["ms_per_frame_after_first"] > 0
+    assert set(got["gc"]) == {"collections", "pause_ms", "pause_ms_total"}
+    assert "after_last_frame_ms" in got["frames"]
 
 
 def test_variants_parsed_and_switched():
@@ -57,3 +59,14 @@ def test_variants_parsed_and_switched():
     with switched(v["base"]):
         assert (reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD) == (False, 0)
     assert (reg.SHARE_FRAME, trial.NEXT_FRAME_AHEAD) == was
+
+
+def test_frame_walls():
+    """Each frame after the first timed from the end of the one before; the run after its last frame apart."""
+    from core.studies.tracking.frame_profile import frame_walls
+
+    got = frame_walls({3: 1.0, 4: 1.002, 5: 1.012, 6: 1.015}, [3, 4, 5, 6], 0.9, 0.125)
+    assert abs(got["median_ms"] - 3.0) < 1e-6 and abs(got["max_ms"] - 10.0) < 1e-6
+    assert abs(got["mean_ms"] - 5.0) < 1e-6 and got["slowest"][0][0] == 5
+    assert abs(got["after_last_frame_ms"] - 10.0) < 1e-6
+    assert frame_walls({}, [1, 2], 0.0, 1.0) == {}

@@ -243,6 +243,8 @@ def test_benchmark_smoke_reports_one_bone_with_breakdown():
     assert res["joint_rounds"] == 1 and res["one_bone"]["final"] == "none"  # what the case ran
     ee = res["one_bone"]["end_to_end"]
     assert len(ee["runs_wall_s"]) == 2 and ee["wall_s"] == pytest.approx(sum(ee["runs_wall_s"]) / 2)
+    assert len(ee["gc_runs"]) == 2 and {"median_ms", "after_last_frame_ms"} <= set(ee["frame_clock"])
+    assert ee["registration_ms_mean_after_first_frame"] > 0  # (a host pause: the mean and the longest frame)
     pb = ee["per_bone"]["talus"]
     assert pb["flagged"] == len(pb["flagged_frames"])
     if "bound_ratio" in pb:  # silent failures: over 4x the per-frame bound and not flagged

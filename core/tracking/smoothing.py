@@ -22,18 +22,29 @@ takes its level from the data, ``σ_f`` only weighs the frames against each othe
 
 Frames without a pose are not measured: they get the pose their neighbours imply, with its (larger)
 covariance; so are frames flagged for review (``flagged``) with ``flagged_weight`` 0 (default 1:
-measured as the others, the robust weights judging them).
-``robust``: frames whose smoothed residual stands more than ``robust`` × their own scaled σ off
-(RMS over the translation or the rotation coordinates) are down-weighted by ``(robust / d)²`` and
-the fit repeated (at most :data:`MAX_ROUNDS` fits in all); None: no down-weighting. A known fault: a
-frame far off its neighbours is followed, not pulled in, with the defaults — on a synthetic track (σ
-0.05 mm) a frame flagged 1, 2 or 5 mm off came out 0.96-1.01, 1.97-2.02 or 4.92-4.99 mm off, its weight
-1: the bursts (*Transients*) take its spike, out and back, for a transient, and beyond ~2 mm no process
-noise keeps ``k`` within ``max_scale`` (*Scale*), so the least smoothing is taken and the smoother follows
-the data; 0.5 mm is pulled in, and with ``flagged_weight`` 0 the flagged frame is (0.007-0.033 mm), but
-skipping flagged frames cost the acceptance runs more (their end frames extrapolated: tibia up to 2.71×
-its bound in mm, 11 frames over 4×, ``tracking_smoother_cpu.json``'s ``acceleration_skip_flagged``)
-(``tests/core/tracking/test_smoothing_outliers.py``, a strict xfail until it is pulled in).
+measured as the others, the outlier search and the robust weights judging them).
+
+Outliers
+--------
+A frame far off its neighbours (a tracking failure, flagged or not) is judged by the same likelihood
+as a transient (*Transients*): with the bursts, each candidate frame is tried as an *outlier*, its
+measurement's variance multiplied (per coordinate, the best of :data:`OUTLIERS`, a coordinate changed
+where it gains), and the intervention that raises the innovations' likelihood most is taken where its
+gain is over ``outliers`` (:data:`OUTLIER_GAIN`) — a spike out and back is one outlier better than two
+bursts, a step one burst better than a run of outliers — and the fit repeated (at most
+:data:`MAX_OUTLIERS`). A flagged frame's gain is credited ``flagged_prior`` (:data:`FLAGGED_PRIOR`, log
+prior odds): the tracker's flag makes it suspect, so where an outlier and a burst explain a frame alike
+(at a trial's last frame a spike and a step look the same) the flagged one is taken for an outlier. The
+first frames, whose innovations the filter's diffuse start leaves out of the likelihood, are judged on
+the frames reversed in time. Before, with the bursts alone, a frame flagged 1, 2 or 5 mm off on a
+synthetic track (σ 0.05 mm) came out 0.96-1.01, 1.97-2.02 or 4.92-4.99 mm off (its spike taken for a
+transient, or beyond ~2 mm no process noise keeping ``k`` within ``max_scale``); now it is pulled in
+(0.007-0.033 mm, as with ``flagged_weight`` 0), at either end of the trial and three in a row too
+(``tests/core/tracking/test_smoothing_outliers.py``). Two or more frames off alike at a trial's very
+end agree with each other, a step there, and are followed. ``robust``: then frames whose smoothed
+residual stands more than ``robust`` × their own scaled σ off (RMS over the translation or the rotation
+coordinates) are down-weighted by ``(robust / d)²`` and the fit repeated (at most :data:`MAX_ROUNDS`
+fits in all); None: no down-weighting.
 
 Scale
 -----
@@ -42,7 +53,10 @@ over a whole stance), the likelihood can explain it as measurement noise far abo
 σ, and smooth the real motion away (a 12-frame stance of the demo trial: k up to 16, errors up to
 1.4 mm against 0.02–0.07 mm per frame; bounded, 0.01–0.12 mm). ``max_scale`` (:data:`MAX_SCALE`)
 bounds ``k``: the ``λ`` is the likeliest of those whose ``k`` is within it, else the largest tried
-(hardly any smoothing). On the acceptance runs ``k`` was 0.15–1.24, the bound never met.
+(hardly any smoothing). ``k`` is judged there by the median normalised innovation (over that of χ²
+with one degree of freedom), which one frame far off does not move: by the mean, a frame 5 mm off at
+σ 0.05 mm pushed every ``k`` over the bound and the least smoothing was taken. On the acceptance runs
+``k`` was 0.15–1.24, the bound never met.
 
 Transients
 ----------
@@ -67,28 +81,36 @@ separate figure from the per-frame goal. A real transient faster than the proces
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..geometry.transforms import matrix_to_rotvec, rotvec_to_matrix
+from .smoothing_filter import best_lambda, candidate_frames, interventions, kalman, model_matrices, rts
 
-__all__ = ["BURSTS", "BURST_CANDIDATES", "GRID", "MAX_BURSTS", "MAX_ROUNDS", "MAX_SCALE", "MODELS",
-           "TRANSIENT_GAIN", "SmoothedPoses", "left_jacobian", "smooth_poses", "smooth_track"]
+__all__ = ["BURSTS", "BURST_CANDIDATES", "FLAGGED_PRIOR", "GRID", "MAX_BURSTS", "MAX_OUTLIERS",
+           "MAX_ROUNDS", "MAX_SCALE", "MODELS", "OUTLIERS", "OUTLIER_GAIN", "TRANSIENT_GAIN", "SmoothedPoses",
+           "left_jacobian", "smooth_poses", "smooth_track"]
 
 #: the motion models: state per coordinate (position, velocity[, acceleration])
 MODELS = ("velocity", "acceleration")
 #: λ = q / k² (per frame) tried: log-spaced, 4 a decade
 GRID = np.logspace(-12.0, 4.0, 65)
-#: the most refits (robust weights, bursts)
-MAX_ROUNDS = 24
+#: the most refits (robust weights, bursts, outliers)
+MAX_ROUNDS = 40
 #: the most bursts let in
 MAX_BURSTS = 6
 #: a burst's process-noise factors tried, and the pooled log-likelihood gain that lets one in
 BURSTS = (1e2, 1e4, 1e6)
 TRANSIENT_GAIN = 15.0
-#: the frames tried for a burst each time: those whose residuals, about them, are largest
+#: the most frames taken for outliers
+MAX_OUTLIERS = 16
+#: an outlier's measurement-variance factors tried, and the log-likelihood gain that takes one
+#: (``outliers``), and the log prior odds credited to a flagged frame's gain (``flagged_prior``)
+OUTLIERS = (1e2, 1e4, 1e6)
+OUTLIER_GAIN = 15.0
+FLAGGED_PRIOR = 10.0
+#: the frames tried for a burst or an outlier each time: those whose residuals, about them, are largest
 BURST_CANDIDATES = 24
 #: the largest scale ``k`` on the σ given (``max_scale``)
 MAX_SCALE = 2.0
@@ -110,8 +132,8 @@ class SmoothedPoses:
     covariance : (n, 6, 6) array
         The smoothed covariance in those units.
     weights : (n,) array
-        Each frame's measurement weight (1 plain; below 1 down-weighted by ``robust``; 0 not
-        measured: no pose, flagged, or no σ).
+        Each frame's measurement weight (1 plain; below 1 down-weighted by ``robust``, or taken for
+        an outlier: 1 / its largest variance factor; 0 not measured: no pose, flagged, or no σ).
     scale : (6,) array
         ``k`` per coordinate: the factor the σ given were scaled by (measurement σ = k σ_f).
     process_noise : (6,) array
@@ -121,6 +143,8 @@ class SmoothedPoses:
         The innovations' concentrated log-likelihood per coordinate at the chosen ``λ``.
     bursts : list of int
         Frames (indices) where a burst of process noise was let in (``transients``).
+    outliers : list of int
+        Frames (indices) taken for outliers, their measurement's variance multiplied (``outliers``).
     """
 
     poses: np.ndarray
@@ -132,6 +156,7 @@ class SmoothedPoses:
     model: str
     log_likelihood: np.ndarray = field(default_factory=lambda: np.zeros(6))
     bursts: list = field(default_factory=list)
+    outliers: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """JSON-ready: per frame the pose (4×4 rows, None where NaN), σ, covariance and weight; the
@@ -140,6 +165,7 @@ class SmoothedPoses:
             return [None if not np.all(np.isfinite(x)) else np.round(x, d).tolist() for x in a]
 
         return {"model": self.model, "scale": np.round(self.scale, 5).tolist(), "bursts": list(self.bursts),
+                "outliers": list(self.outliers),
                 "process_noise": [float(f"{q:.4g}") for q in self.process_noise],
                 "poses": rows(self.poses, 6), "sigma": rows(self.sigma, 6),
                 "covariance": rows(self.covariance, 8), "weights": np.round(self.weights, 4).tolist()}
@@ -170,134 +196,6 @@ def left_jacobian(phi, *, inverse: bool = False) -> np.ndarray:
     a = np.where(small, 0.5, (1 - np.cos(t)) / t ** 2)
     b = np.where(small, 1.0 / 6.0, (t - np.sin(t)) / t ** 3)
     return eye + a * S + b * S2
-
-
-def _model(model: str) -> tuple[np.ndarray, np.ndarray]:
-    """Transition ``F`` and unit process covariance ``Q0`` of one frame (continuous white noise)."""
-    if model == "velocity":
-        return np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]])
-    if model == "acceleration":
-        F = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
-        Q = np.array([[1 / 20, 1 / 8, 1 / 6], [1 / 8, 1 / 3, 1 / 2], [1 / 6, 1 / 2, 1.0]])
-        return F, Q
-    raise ValueError(f"model: expected one of {MODELS}, got {model!r}")
-
-
-def _kalman(z, r, lam, model: str, *, keep: bool = False, boost=None):
-    """Forward filter of ``C`` independent coordinates, each with ``G`` process-noise ratios.
-
-    ``z``, ``r``: ``(n, C)`` measurements and their variances (unit scale; ``inf`` or a NaN ``z``: no
-    measurement); ``lam``: ``(C, G)``. Returns the concentrated log-likelihood ``(C, G)``, the scale
-    ``k² (C, G)``, and with ``keep`` the predicted and filtered states and covariances
-    ``(n, C, G, d[, d])`` for the smoother. ``boost``: ``(n, C, 1 or G)`` factors on the process
-    noise of the step into each frame (a burst, :func:`_burst`; default none)."""
-    F, Q0 = _model(model)
-    d = len(F)
-    n, C = z.shape
-    G = lam.shape[1]
-    meas = np.isfinite(z) & np.isfinite(r) & (r > 0)
-    z0 = np.array([z[meas[:, c], c][0] if meas[:, c].any() else 0.0 for c in range(C)])
-    zc = np.where(meas, z - z0, 0.0)
-    span = np.array([np.ptp(zc[meas[:, c], c]) if meas[:, c].any() else 1.0 for c in range(C)])
-    big = (1e3 * (span + 1.0)) ** 2  # a diffuse start: the first d measurements set the state
-    x = np.zeros((C, G, d))
-    P = np.broadcast_to(np.eye(d), (C, G, d, d)) * big[:, None, None, None]
-    Q = lam[..., None, None] * Q0
-    ssum = np.zeros((C, G))
-    logs = np.zeros((C, G))
-    count = np.zeros(C, dtype=int)
-    seen = np.zeros(C, dtype=int)
-    store = {k: np.empty((n, C, G, d) + ((d,) if k[0] == "P" else ())) for k in ("xp", "Pp", "xf", "Pf")} \
-        if keep else None
-    for t in range(n):
-        if t:
-            x = x @ F.T
-            P = F @ P @ F.T + (Q if boost is None else Q * boost[t][..., None, None])
-        if keep:
-            store["xp"][t], store["Pp"][t] = x, P
-        m = meas[t]
-        if m.any():
-            S = P[..., 0, 0] + np.where(m, r[t], 1.0)[:, None]
-            K = P[..., :, 0] / S[..., None]
-            v = zc[t][:, None] - x[..., 0]
-            mk = m[:, None, None]
-            x = np.where(mk, x + K * v[..., None], x)
-            P = np.where(mk[..., None], P - K[..., :, None] * K[..., None, :] * S[..., None, None], P)
-            use = m & (seen >= d)  # the diffuse start's first d innovations left out
-            ssum += np.where(use[:, None], v ** 2 / S, 0.0)
-            logs += np.where(use[:, None], np.log(S), 0.0)
-            count += use
-            seen += m
-        if keep:
-            store["xf"][t], store["Pf"][t] = x, P
-    cnt = np.maximum(count, 1)[:, None]
-    k2 = ssum / cnt
-    ll = -0.5 * (cnt * np.log(np.maximum(k2, 1e-300)) + logs + cnt * (1 + math.log(2 * math.pi)))
-    if keep:
-        return ll, k2, store, z0
-    return ll, k2
-
-
-def _rts(store, model: str):
-    """Rauch–Tung–Striebel pass over :func:`_kalman`'s stored states: smoothed states and
-    covariances ``(n, C, G, d[, d])`` (unit scale)."""
-    F, _ = _model(model)
-    xs, Ps = store["xf"].copy(), store["Pf"].copy()
-    for t in range(len(xs) - 2, -1, -1):
-        A = np.linalg.solve(store["Pp"][t + 1], (store["Pf"][t] @ F.T).swapaxes(-1, -2)).swapaxes(-1, -2)
-        xs[t] = store["xf"][t] + (A @ (xs[t + 1] - store["xp"][t + 1])[..., None])[..., 0]
-        Ps[t] = store["Pf"][t] + A @ (Ps[t + 1] - store["Pp"][t + 1]) @ A.swapaxes(-1, -2)
-    return xs, Ps
-
-
-def _burst(z, r, lam, model: str, boost, base, gain: float, frames):
-    """Of ``frames`` (candidate indices, none 0), the frame where a burst of process noise raises
-    the likelihood most, pooled over the six coordinates (each its best factor of :data:`BURSTS`, a
-    coordinate counted where it gains), and each coordinate's factor there (1 where it gains under 1);
-    ``(None, None)`` where the pooled gain is not over ``gain``. ``base``: ``(C,)`` the
-    log-likelihood without it."""
-    frames = np.asarray(frames, dtype=int)
-    m, nb = len(frames), len(BURSTS)
-    if not m:
-        return None, None
-    cand = np.repeat(boost, m * nb, axis=2)  # candidate (factor b, frame frames[j]) at column b m + j
-    for b, f in enumerate(BURSTS):
-        cand[frames, :, b * m + np.arange(m)] *= f
-    ll, _ = _kalman(z, r, np.broadcast_to(lam[:, None], (len(lam), m * nb)), model, boost=cand)
-    g = (ll - base[:, None]).reshape(len(lam), nb, m)
-    best, which = g.max(axis=1), g.argmax(axis=1)
-    pooled = np.clip(best, 0.0, None).sum(axis=0)
-    j = int(np.argmax(pooled))
-    if not pooled[j] > gain:
-        return None, None
-    return int(frames[j]), np.where(best[:, j] > 1.0, np.asarray(BURSTS)[which[:, j]], 1.0)
-
-
-def _burst_frames(res: np.ndarray, count: int) -> np.ndarray:
-    """The ``count`` frames (never the first) whose scaled residuals ``res (n, C)``, squared and
-    summed over the coordinates and the frames within ±2, are largest: where a transient the model
-    lags leaves its mark (the candidates :func:`_burst` tries)."""
-    e = np.nansum(np.where(np.isfinite(res), res, 0.0) ** 2, axis=1)
-    w = np.convolve(e, np.ones(5), mode="same")
-    w[0] = -np.inf
-    order = np.argsort(-w, kind="stable")[:min(count, len(w) - 1)]
-    return np.sort(order)
-
-
-def _best_lambda(ll: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """Per row of ``ll (C, G)``, the grid's best ``λ`` refined by a parabola in ``log λ`` through it
-    and its neighbours (the grid's end where it is best there)."""
-    lg = np.log(grid)
-    out = np.empty(len(ll))
-    for c, row in enumerate(ll):
-        i = int(np.nanargmax(row))
-        out[c] = lg[i]
-        if 0 < i < len(row) - 1 and np.isfinite(row[i - 1:i + 2]).all():
-            a, b, e = row[i - 1], row[i], row[i + 1]
-            den = a - 2 * b + e
-            if den < 0:
-                out[c] = lg[i] + 0.5 * (lg[1] - lg[0]) * (a - e) / den
-    return np.exp(out)
 
 
 def _row_mean(a: np.ndarray) -> np.ndarray:
@@ -339,9 +237,36 @@ def _chart_sigma(z, sigma, ok, weigh):
     return out
 
 
+def _intervention(z, r, lam, model, boost, inflate, base, res, d, transients, outliers, credit, allowed):
+    """The next burst or outlier (:func:`~core.tracking.smoothing_filter.interventions`) among the
+    frames whose residuals ``res`` are largest, or an outlier among the first ``d + 1`` frames judged
+    on the frames reversed in time (forwards the filter's diffuse start takes the first ``d``
+    measurements as they are: their innovations are not in the likelihood), whichever gains more."""
+    cand = candidate_frames(res, BURST_CANDIDATES)
+    found = interventions(z, r, lam, model, boost, inflate, base, cand, bursts=BURSTS, outliers=OUTLIERS,
+                          burst_gain=transients, outlier_gain=outliers, credit=credit, allowed=allowed)
+    if outliers is None:
+        return found
+    n = len(z)
+    first = np.arange(min(d + 1, n))
+    if not allowed[first].any():
+        return None
+    zr, rr = z[::-1], r[::-1]
+    br = np.concatenate([boost[:1], boost[:0:-1]])  # the step into reversed frame t is the one into n - t
+    ir = inflate[::-1]
+    llr, _, _ = kalman(zr, rr, lam[:, None], model, boost=br, inflate=ir)
+    back = interventions(zr, rr, lam, model, br, ir, llr[:, 0], n - 1 - first[::-1], bursts=BURSTS,
+                         outliers=OUTLIERS, burst_gain=None, outlier_gain=outliers, credit=credit[::-1],
+                         allowed=allowed[::-1])
+    if back is not None and (found is None or back[3] > found[3]):
+        return back[0], n - 1 - back[1], back[2], back[3]
+    return found
+
+
 def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "acceleration", weigh: str = "equal",
                  robust: float | None = 2.5, flagged_weight: float = 1.0,
-                 transients: float | None = TRANSIENT_GAIN,
+                 transients: float | None = TRANSIENT_GAIN, outliers: float | None = OUTLIER_GAIN,
+                 flagged_prior: float = FLAGGED_PRIOR,
                  max_scale: float | None = MAX_SCALE) -> SmoothedPoses:
     """Smooth one bone's tracked poses with the covariance-weighted RTS smoother (module docs).
 
@@ -373,6 +298,11 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
     transients : float or None
         The log-likelihood gain over which a burst of process noise is let in at a frame (module
         docs, *Transients*); None: never.
+    outliers : float or None
+        The log-likelihood gain over which a frame is taken for an outlier, its measurement's
+        variance multiplied (module docs, *Outliers*); None: never.
+    flagged_prior : float
+        Log prior odds credited to a flagged frame's gain as an outlier (module docs, *Outliers*).
     flagged_weight : float
         The weight of a flagged frame's measurement, in [0, 1] (default 1: most flagged frames of
         the acceptance trial are good, and ``robust`` weighs down those off their neighbours;
@@ -391,7 +321,7 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
         raise ValueError(f"sigma: expected shape ({n}, 6), got {S.shape}")
     c = np.asarray(center, dtype=float).reshape(3)
     fl = np.zeros(n, bool) if flagged is None else np.asarray(flagged, bool).reshape(n)
-    _model(model)
+    model_matrices(model)
     if weigh not in ("sigma", "equal"):
         raise ValueError(f"weigh: expected 'sigma' or 'equal', got {weigh!r}")
     if robust is not None and not robust > 0:
@@ -400,9 +330,12 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
         raise ValueError(f"flagged_weight: expected a weight in [0, 1], got {flagged_weight!r}")
     if max_scale is not None and not max_scale > 0:
         raise ValueError(f"max_scale: expected a positive scale or None, got {max_scale!r}")
-    if transients is not None and not transients > 0:
-        raise ValueError(f"transients: expected a positive log-likelihood gain or None, got {transients!r}")
-    d = len(_model(model)[0])
+    for name, g in (("transients", transients), ("outliers", outliers)):
+        if g is not None and not g > 0:
+            raise ValueError(f"{name}: expected a positive log-likelihood gain or None, got {g!r}")
+    if not flagged_prior >= 0:
+        raise ValueError(f"flagged_prior: expected a log prior odds >= 0, got {flagged_prior!r}")
+    d = len(model_matrices(model)[0])
     ok = np.all(np.isfinite(P), axis=(1, 2))
     w = np.where(ok, np.where(fl, flagged_weight, 1.0), 0.0)
     if (w > 0).sum() < d + 2:
@@ -410,27 +343,33 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
                          f"got {(w > 0).sum()}")
     z, ref, ok = _chart(np.where(w[:, None, None] > 0, P, np.nan), c)
     s = _chart_sigma(z, S, ok, weigh)
-    rob, boost, jumps = np.ones(n), np.ones((n, 6, 1)), []
-    bursts_done = transients is None
+    rob, boost, inflate, jumps, outl = np.ones(n), np.ones((n, 6, 1)), np.ones((n, 6, 1)), [], []
+    credit = np.where(fl, flagged_prior, 0.0)
+    search = transients is not None or outliers is not None
     for _ in range(MAX_ROUNDS + 1):
         wt = w * rob
         r = np.where(wt[:, None] > 0, s ** 2 / np.maximum(wt, 1e-12)[:, None], np.inf)
-        ll, kg = _kalman(z, r, np.broadcast_to(GRID, (6, len(GRID))), model, boost=boost)
-        if max_scale is not None:  # the frames no noisier than max_scale x their sigma say
-            ll = np.where(kg <= max_scale ** 2, ll, -np.inf)
+        ll, _, kr = kalman(z, r, np.broadcast_to(GRID, (6, len(GRID))), model, boost=boost, inflate=inflate)
+        if max_scale is not None:  # the frames no noisier than max_scale x their sigma say (robustly: the
+            ll = np.where(kr <= max_scale ** 2, ll, -np.inf)  # median, a frame far off does not move it)
             ll[np.isinf(ll).all(axis=1), -1] = 0.0  # none: the least smoothing tried
-        lam = _best_lambda(ll, GRID)
-        llb, k2, store, z0 = _kalman(z, r, lam[:, None], model, keep=True, boost=boost)
-        xs, Ps = _rts(store, model)
+        lam = best_lambda(ll, GRID)
+        llb, k2, _, store, z0 = kalman(z, r, lam[:, None], model, keep=True, boost=boost, inflate=inflate)
+        xs, Ps = rts(store, model)
         xs, Ps, k2 = xs[:, :, 0], Ps[:, :, 0], k2[:, 0]
-        if not bursts_done:  # first the bursts, every frame at its plain weight
+        if search:  # first the bursts and outliers, every other frame at its plain weight
             res = (z - z0 - xs[..., 0]) / np.sqrt(k2 * s ** 2)
-            t, factors = _burst(z, r, lam, model, boost, llb[:, 0], transients,
-                                _burst_frames(res, BURST_CANDIDATES))
-            if t is not None:
-                boost[t, :, 0] *= factors
-                jumps.append(t)
-            bursts_done = t is None or len(jumps) >= MAX_BURSTS
+            found = _intervention(z, r, lam, model, boost, inflate, llb[:, 0], res, d,
+                                  transients if len(jumps) < MAX_BURSTS else None,
+                                  outliers if len(outl) < MAX_OUTLIERS else None, credit,
+                                  (inflate[:, :, 0] == 1.0).all(axis=1) & (w > 0))
+            if found is not None and found[0] == "burst":
+                boost[found[1], :, 0] *= found[2]
+                jumps.append(found[1])
+            elif found is not None:
+                inflate[found[1], :, 0] *= found[2]
+                outl.append(found[1])
+            search = found is not None
             continue
         if robust is None:
             break
@@ -459,7 +398,8 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
     Cr = J * var[inside, None, 3:] @ J.swapaxes(-1, -2)
     cov[inside, 3:, 3:] = np.degrees(np.degrees(Cr))
     sig = np.sqrt(np.einsum("nii->ni", cov))
-    return SmoothedPoses(out, sig, cov, wt, np.sqrt(k2), k2 * lam, model, llb[:, 0], sorted(jumps))
+    return SmoothedPoses(out, sig, cov, wt / inflate[:, :, 0].max(axis=1), np.sqrt(k2), k2 * lam, model,
+                         llb[:, 0], sorted(jumps), sorted(outl))
 
 
 def smooth_track(result, bone: str, *, center, **options) -> SmoothedPoses:

@@ -70,10 +70,13 @@ def test_flagged_frame_skipped_and_outlier_down_weighted():
     sk = smooth_poses(bad, sigma, center=CENTER, flagged=np.arange(len(T)) == 40, flagged_weight=0.0)
     assert sk.weights[40] == 0
     assert np.linalg.norm(_errors(sk.poses, T)[40, :3]) < 0.1
-    rb = smooth_poses(bad, sigma, center=CENTER, model="acceleration", robust=2.5)
-    assert rb.weights[40] < 0.05
+    rb = smooth_poses(bad, sigma, center=CENTER, model="acceleration", robust=2.5, outliers=None)
+    assert rb.weights[40] < 0.05 and rb.outliers == []
     assert np.linalg.norm(_errors(rb.poses, T)[40, :3]) < 0.1
-    plain = smooth_poses(bad, sigma, center=CENTER, model="acceleration", robust=None)
+    out = smooth_poses(bad, sigma, center=CENTER, model="acceleration", robust=None)
+    assert out.outliers == [40] and out.weights[40] < 0.05  # taken for an outlier: its variance multiplied
+    assert np.linalg.norm(_errors(out.poses, T)[40, :3]) < 0.1
+    plain = smooth_poses(bad, sigma, center=CENTER, model="acceleration", robust=None, outliers=None)
     assert np.linalg.norm(_errors(plain.poses, T)[40, :3]) > np.linalg.norm(_errors(rb.poses, T)[40, :3])
 
 

@@ -253,16 +253,33 @@ MOTION_LIMIT = 6.0
 MOTION_FLOOR = (1.0, 2.0)
 
 
+_PREDICTIONS: dict = {}  # _predict's poses by their inputs (bytes, frames), a copy handed out each call
+
+
 def _predict(f0, T0, f1, T1, f, c) -> np.ndarray:
     """Constant-velocity prediction at frame ``f`` from poses at frames ``f0``, ``f1`` (as
     :func:`core.tracking.trial.predict_pose` ``"velocity"``; the tracker computes a frame's once,
-    :func:`core.tracking.frame_state.motion_prediction`, and hands it to :func:`failures`)."""
+    :func:`core.tracking.frame_state.motion_prediction`, and hands it to :func:`failures`). Kept by its
+    inputs for the next call with the same ones: a frame's motion prediction is, once its pose joins the
+    history, the prediction whose miss the next frame's motion limits measure (:func:`_miss`). A new
+    array each call (the caller's own)."""
     T1 = np.asarray(T1, float)
     if f1 == f0:
         return T1
     T0 = np.asarray(T0, float)
     c = np.asarray(c, dtype=float)
-    return step_pose(pose_delta(T0, T1, c) * (f - f1) / (f1 - f0), T1, c)
+    key = None
+    if T0.shape == T1.shape == (4, 4) and c.shape == (3,):
+        key = (T0.tobytes(), T1.tobytes(), c.tobytes(), f0, f1, f)
+        hit = _PREDICTIONS.get(key)
+        if hit is not None:
+            return hit.copy()
+    out = step_pose(pose_delta(T0, T1, c) * (f - f1) / (f1 - f0), T1, c)
+    if key is not None:
+        if len(_PREDICTIONS) >= 64:
+            _PREDICTIONS.clear()
+        _PREDICTIONS[key] = out.copy()
+    return out
 
 
 def _reach(f0, f1, f) -> float:

@@ -1,7 +1,12 @@
-"""The run's objects of before it frozen out of the cyclic garbage collector (core.tracking.trial.GC_FREEZE,
-core.tracking.gc_pause): the same poses, scores, flags and confidences to the bit as with it off, with a full
-collection forced after every frame; the freeze lifted after the run, and left alone where something else
-froze objects first."""
+"""The frame loop's host work trimmed exactly, against the loop without the trims (the talus tracked 8 frames
+in ideal 64² views with the likelihood stage, Warp's CPU device): the same poses, scores, flags and
+confidences to the bit.
+
+* The run's objects of before it frozen out of the cyclic garbage collector (core.tracking.trial.GC_FREEZE,
+  core.tracking.gc_pause), with a full collection forced after every frame; the freeze lifted after the
+  run, and left alone where something else froze objects first.
+* The constant-velocity predictions kept by their inputs (core.tracking.checks._predict: a frame's motion
+  prediction is the next frame's newest motion miss), against a run that keeps none."""
 
 from __future__ import annotations
 
@@ -29,15 +34,30 @@ def _track(walk, seen):
                  progress=progress)
 
 
-def test_gc_freeze_gives_the_same_results(walking_talus_64, monkeypatch):
+class _NoCache(dict):
+    """A cache that keeps nothing."""
+
+    def get(self, key, default=None):
+        return default
+
+    def __setitem__(self, key, value) -> None:
+        pass
+
+
+def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
+    import core.tracking.checks as checks
     import core.tracking.trial as trial
 
     assert trial.GC_FREEZE  # (the default)
     off_seen, on_seen = [], []
     monkeypatch.setattr(trial, "GC_FREEZE", False)
+    monkeypatch.setattr(checks, "_PREDICTIONS", _NoCache())
     off = _track(walking_talus_64, off_seen)
     monkeypatch.setattr(trial, "GC_FREEZE", True)
+    kept = {}
+    monkeypatch.setattr(checks, "_PREDICTIONS", kept)
     on = _track(walking_talus_64, on_seen)
+    assert kept  # (the predictions were kept)
     _same(off, on)
     assert off.status == on.status == "complete"
     assert not any(off_seen) and all(on_seen) and len(on_seen) == len(FRAMES)  # frozen while it ran
@@ -65,3 +85,21 @@ def test_frozen_leaves_an_earlier_freeze_alone():
     assert w.collections[2] >= 1 and w.pause_s[2] >= 0.0
     assert w._cb not in gc.callbacks
     assert set(w.to_dict()) == {"collections", "pause_ms", "pause_ms_total"}
+
+
+def test_kept_prediction_same_bits_new_array():
+    import numpy as np
+
+    import core.tracking.checks as checks
+    from core.geometry.transforms import pose_from_params
+
+    c = np.array([10.0, -20.0, 35.0])
+    T0 = pose_from_params(np.r_[1.0, 2.0, -0.5, 0.01, -0.02, 0.03], center=c)
+    T1 = pose_from_params(np.r_[1.4, 2.3, -0.2, 0.015, -0.018, 0.034], center=c)
+    checks._PREDICTIONS.clear()
+    a = checks._predict(3, T0, 5, T1, 6, c)
+    b = checks._predict(3, T0.copy(), 5, T1.copy(), 6, c.copy())
+    assert a is not b and a.tobytes() == b.tobytes()
+    a[0, 0] = 7.0  # the caller's own array: the kept one unchanged
+    assert checks._predict(3, T0, 5, T1, 6, c).tobytes() == b.tobytes()
+    assert checks._predict(3, T0, 5, T1, 7, c).tobytes() != b.tobytes()  # another frame

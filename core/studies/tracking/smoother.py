@@ -57,16 +57,18 @@ import numpy as np
 from core.studies.tracking.acceptance_records import pose_errors
 from core.studies.tracking.trajectory_gaps import BENCH, BONES, _rebuilt, truth
 
-__all__ = ["RUNS", "T0", "VARIANTS", "centroids", "lowpass_errors", "main", "measures", "run", "table",
-           "transient"]
+__all__ = ["OUTLIER_FRAME", "OUTLIER_MM", "RUNS", "T0", "VARIANTS", "centroids", "error_structure",
+           "lowpass_errors", "main", "measures", "run", "table", "transient"]
 
 #: seed -> the stored acceptance run (both modes)
 RUNS = {s: f"tracking_acceptance_seed{s}_final_d262386_h100.json" for s in (0, 3, 4)}
 #: the smoother's variants: name -> smooth_poses keywords
 VARIANTS = {
     # smooth_poses' defaults: constant acceleration, every frame alike (the median sigma), flagged frames
-    # measured, robust 2.5, bursts let in
+    # measured, robust 2.5, bursts let in, outliers taken (a flagged frame credited FLAGGED_PRIOR)
     "acceleration": {},
+    "acceleration_no_outliers": {"outliers": None},
+    "acceleration_no_flagged_prior": {"flagged_prior": 0.0},
     "acceleration_sigma": {"weigh": "sigma"},
     "acceleration_no_bursts": {"transients": None},
     "acceleration_skip_flagged": {"flagged_weight": 0.0},
@@ -78,6 +80,8 @@ VARIANTS = {
 }
 #: the transient's frame, natural frequency (Hz) and damping
 T0, TRANSIENT_HZ, TRANSIENT_ZETA = 50, 40.0, 0.4
+#: the frame moved off (and flagged) in the outlier test, and by how much (mm, along the lab's x)
+OUTLIER_FRAME, OUTLIER_MM = 40, (1.0, 2.0, 5.0)
 FRAME_RATE_HZ = 100 / 0.36  # the acceptance trial's (core.studies.tracking.acceptance.FRAME_RATE_HZ)
 
 
@@ -114,6 +118,41 @@ def measures(E, bound: dict, flagged, sigma=None) -> dict:
     if sigma is not None:
         inside = np.abs(E[ok]) <= 2 * sigma[ok]
         out["within_2_sigma"] = [round(float(inside[:, :3].mean()), 3), round(float(inside[:, 3:].mean()), 3)]
+        about = np.abs(E[ok] - E[ok].mean(axis=0)) <= 2 * sigma[ok]  # about the run's mean error
+        out["within_2_sigma_about_mean"] = [round(float(about[:, :3].mean()), 3),
+                                            round(float(about[:, 3:].mean()), 3)]
+    return out
+
+
+def error_structure(E) -> dict:
+    """Per axis of the per-frame errors ``E``: the share of their mean square that is the run's mean
+    error (common to every frame: no pooling of frames removes it) and their lag-1 correlation."""
+    ok = np.isfinite(E).all(axis=1)
+    X = E[ok]
+    mu = X.mean(axis=0)
+    c = X - mu
+    lag1 = (c[1:] * c[:-1]).sum(axis=0) / np.maximum((c * c).sum(axis=0), 1e-300)
+    return {"mean_share": np.round(mu ** 2 / np.maximum((X ** 2).mean(axis=0), 1e-300), 3).tolist(),
+            "lag1": np.round(lag1, 3).tolist()}
+
+
+def _outliers(E, S, fl, T, c, kw) -> dict:
+    """Per offset of :data:`OUTLIER_MM`: frame :data:`OUTLIER_FRAME` moved that far along the lab's x
+    and flagged; the smoothed pose's translation error there (mm) and whether it was taken for an
+    outlier."""
+    from core.tracking.smoothing import smooth_poses
+
+    out = {}
+    for mm in OUTLIER_MM:
+        P = _rebuilt(E, T, c)
+        P[OUTLIER_FRAME, 0, 3] += mm
+        f = fl.copy()
+        f[OUTLIER_FRAME] = True
+        sm = smooth_poses(P, S, center=c, flagged=f, **kw)
+        e = _errors(sm.poses[OUTLIER_FRAME:OUTLIER_FRAME + 1], T[OUTLIER_FRAME:OUTLIER_FRAME + 1], c)[0]
+        w = round(float(sm.weights[OUTLIER_FRAME]), 5)
+        out[str(mm)] = {"error_mm": round(float(np.linalg.norm(e[:3])), 4),
+                        "outlier": OUTLIER_FRAME in sm.outliers, "weight": w}
     return out
 
 
@@ -201,15 +240,16 @@ def run(seeds=(0, 3, 4), variants=None, amplitudes=(0.25, 1.0), bench: Path = BE
                 E, S, fl = _stored(t, T.shape[1])
                 P = _rebuilt(E, T[k], c)
                 El, fc = lowpass_errors(P, T[k], c, fl)
-                rec = {"raw": measures(E, cb, fl),
+                rec = {"raw": {**measures(E, cb, fl), **error_structure(E)},
                        "lowpass": {"cutoff_hz": round(fc, 2), **measures(El, cb, fl)}}
                 for name, kw in variants.items():
                     sm = smooth_poses(P, S, center=c, flagged=fl, **kw)
                     Es = _errors(sm.poses, T[k], c)
                     low = np.flatnonzero((sm.weights > 0) & (sm.weights < 0.999)).tolist()
                     rec[name] = {**measures(Es, cb, fl, sm.sigma), "scale": np.round(sm.scale, 3).tolist(),
-                                 "down_weighted": low, "bursts": sm.bursts,
-                                 "transient": _jerks(E, Es, S, fl, T[k], c, kw, amplitudes)}
+                                 "down_weighted": low, "bursts": sm.bursts, "outliers": sm.outliers,
+                                 "transient": _jerks(E, Es, S, fl, T[k], c, kw, amplitudes),
+                                 "flagged_outlier": _outliers(E, S, fl, T[k], c, kw)}
                 out.setdefault(str(seed), {}).setdefault(mode, {})[b] = rec
     return out
 
@@ -218,7 +258,8 @@ def table(res: dict, variant: str = "acceleration") -> list[str]:
     """One line per seed, mode and bone: × the bound (mm/°) raw, low-pass, ``variant``; over 4×
     (silent); the variant's coverage and the 1 mm transient's added error."""
     lines = [f"seed mode bone: x bound mm/deg raw | lowpass | {variant}; over4x raw/lp/sm (silent raw); "
-             "2sigma t/r; jerk 1.0 added mm/deg (raw window)"]
+             "2sigma t/r (about the mean error); jerk 1.0 added mm/deg (raw window); "
+             "flagged 1/2/5 mm off: mm"]
     for seed, modes in res.items():
         for mode, bones in modes.items():
             for b, r in bones.items():
@@ -226,8 +267,9 @@ def table(res: dict, variant: str = "acceleration") -> list[str]:
                 lines.append(f"{seed} {mode[:3]} {b:9s} {r['raw']['rms_over_bound']} | "
                              f"{r['lowpass']['rms_over_bound']} | {s['rms_over_bound']}; "
                              f"{len(r['raw']['over_4x'])}/{len(r['lowpass']['over_4x'])}/{len(s['over_4x'])} "
-                             f"({len(r['raw']['silent_over_4x'])}); {s['within_2_sigma']}; "
-                             f"{j.get('added')} ({j.get('raw')})")
+                             f"({len(r['raw']['silent_over_4x'])}); {s['within_2_sigma']} "
+                             f"({s['within_2_sigma_about_mean']}); {j.get('added')} ({j.get('raw')}); "
+                             f"{[o['error_mm'] for o in s['flagged_outlier'].values()]}")
     return lines
 
 

@@ -110,6 +110,7 @@ import numpy as np
 import warp as wp
 
 from ..similarity import _kernels as K
+from . import likelihood_device_steps as _DS
 from . import likelihood_launches as _LL
 from . import likelihood_solve as _LS
 from .cost import FrameImages
@@ -156,8 +157,8 @@ from .likelihood_steps import StepClock, run_side_by_side, run_steps
 from .likelihood_tissue import _TissueRegressors
 from .likelihood_weights import _RegionWeights
 
-__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DIFF_IMAGES", "MOMENTS_TRI", "STEP_GRAPH", "STOP_PRED",
-           "UPHILL_RESOLVED",
+__all__ = ["BLOCK_BLUR", "DEVICE_REGIONS", "DEVICE_STEPS", "DIFF_IMAGES", "MOMENTS_TRI", "STEP_GRAPH",
+           "STOP_PRED", "UPHILL_RESOLVED",
            "LikelihoodEngine", "StepClock", "likelihood_engine", "robust_factors_device", "run_side_by_side",
            "run_steps", "solve_moments"]
 
@@ -219,6 +220,11 @@ MOMENTS_CHUNK: int | None = None
 #: tracker's optimum: the next step is 1-10 % of this one's length; module docs: Fewer steps).
 #: 0: only ``tol`` (1e-3 mm and degrees, far below σ) or an uphill step ends it, as first measured.
 STOP_PRED = 4.0
+#: A refinement's steps back to back on the device, the host waiting once (each step's table solved, the
+#: stopping rules and the next design by a kernel, the loop a CUDA graph's conditional node:
+#: :mod:`core.tracking.likelihood_device_steps`); the same steps up to the solves' float64 rounding. Off:
+#: the host solves each step's table and enqueues the next, as first measured.
+DEVICE_STEPS = False
 #: Inside :func:`core.tracking.final_stage.confirm_move`'s second run: refinements to ``tol`` (no
 #: :data:`STOP_PRED` stop; the robust round from the first refinement's result)
 TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
@@ -495,7 +501,13 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         tv = np.array([tol[0]] * 3 + [tol[1]] * 3, dtype=float)
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         best, n_it, pred, last = None, 0, 0.0, None
-        for it in range(1, int(iters) + 1):
+        got = None
+        if DEVICE_STEPS and not CHORD_STEPS and _DS.usable(self, iters, reuse, x, hv):  # (on the device)
+            got = yield from _DS.device_refine(self, x, hv, tv, iters, reuse, uphill=UPHILL_RESOLVED,
+                                               stop=STOP_PRED, small_ok=not TO_TOL.get())
+        if got is not None:
+            x, best, n_it, last, s = got
+        for it in range(1, int(iters) + 1 if got is None else 0):
             n_it = it
             self.step_launch(x, hv, reuse=reuse and it == 1, chord=it > 1)
             yield

@@ -1,0 +1,479 @@
+"""A likelihood refinement's steps run on the device back to back (:data:`~core.tracking.engine_likelihood.
+DEVICE_STEPS`): :meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps`' loop — the step's
+moments table solved (:func:`~core.tracking.likelihood_solve.solve_tables`' arithmetic: the gain and
+background projected out per view, ``JᵀWJ``, ``JᵀWr``, χ²), the 6×6 system solved, the uphill and
+stopping rules (:data:`~core.tracking.engine_likelihood.UPHILL_RESOLVED`, :data:`~core.tracking.
+engine_likelihood.STOP_PRED`, ``tol``, ``iters``) and the next design written — in one single-thread
+float64 kernel (:func:`device_step_kernel`) after each step's work, the loop a CUDA graph's conditional
+while node (:func:`warp.capture_while`) whose condition that kernel clears when the refinement ends. The
+host enqueues the first step, the loop and the copies of the result, and waits once, where the host loop
+waits for every step's table, solves it and enqueues the next step while the device idles.
+
+After the wait the host solves the last step's table again (and, after an uphill stop, the best step's):
+``s``, ``chi2`` and the final step ``δ`` are those the host loop computes from those tables (float64,
+LAPACK); the device's own solves decide the steps (Gaussian elimination with partial pivoting, float64:
+the same as LAPACK's to rounding), so a pose differs from the host loop's only where a rounding-level
+difference of a step moved a DRR's float32 item table. Used for the recorded step
+(:meth:`~core.tracking.engine_likelihood.LikelihoodEngine._graph_step`: the default model); a refinement
+whose first step would reuse images that are not the recorded step's, whose pixel count comes from the
+weights (:meth:`~core.tracking.likelihood_weights._RegionWeights.count_weights`) or whose device cannot
+capture a conditional node runs the host loop. Off by default until measured."""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+import warp as wp
+
+from . import likelihood_solve as _LS
+from .engine_search import step_design
+from .likelihood_kernels import NZ
+
+__all__ = ["FAILED", "device_refine", "device_step_kernel", "usable"]
+
+wp.set_module_options({"enable_backward": False, "max_unroll": 1})  # (one thread's loops: short code)
+
+#: the first capture of a device loop that failed (its error; None: none did)
+FAILED: str | None = None
+
+# the state's places (float64): the design's centre, the half-steps, tol, the best step's centre
+_X, _H, _TV, _BX = 0, 6, 12, 18
+(_BCHI, _HASB, _PRED, _IT, _ITERS, _NHOST, _UP, _STOP, _SMALL, _STATUS, _LAST, _BG, _OTH, _TRI,
+ _REND) = range(24, 39)
+_XN = 40  # the result's x (the device's)
+_NS = 48
+#: statuses: running, converged (a step taken, the loop ended by rose / tol / STOP_PRED), uphill
+#: (the pose before stands), a singular system, a view without usable pixels, the iterations spent
+RUNNING, CONVERGED, UPHILL, SINGULAR, OUTSIDE, SPENT = 0, 1, 2, 3, 4, 5
+
+
+@wp.func
+def _m(t: wp.array2d(dtype=wp.float64), v: int, i: int, j: int, tri: int) -> wp.float64:
+    """Entry ``(i, j)`` of view ``v``'s table (``tri``: summed on and above the diagonal only)."""
+    if tri != 0 and i > j:
+        return t[v, j * NZ + i]
+    return t[v, i * NZ + j]
+
+
+@wp.func
+def _ai(i: int, bg: int) -> int:
+    """``A``'s ``i``-th column's place in ``z``: (D, 1[, u, v][, O])."""
+    if i == 0:
+        return 1
+    if i == 1:
+        return 8
+    if bg != 0 and i < 4:
+        return 7 + i
+    return 11
+
+
+@wp.func
+def _lu(ws: wp.array(dtype=wp.float64), a0: int, piv0: int, n: int) -> int:
+    """LU with partial pivoting of the ``n × n`` matrix at ``ws[a0:]`` (row-major) in place (the pivots'
+    rows at ``ws[piv0:]``; the multipliers by the pivot's reciprocal, as LAPACK's dgetrf2); 0 where a
+    pivot is exactly zero (LAPACK's singular matrix), else 1."""
+    for k in range(n):
+        p = k
+        big = wp.abs(ws[a0 + k * n + k])
+        for i in range(k + 1, n):
+            c = wp.abs(ws[a0 + i * n + k])
+            if c > big:
+                big = c
+                p = i
+        ws[piv0 + k] = wp.float64(p)
+        if ws[a0 + p * n + k] == wp.float64(0.0):
+            return 0
+        if p != k:
+            for j in range(n):
+                tmp = ws[a0 + k * n + j]
+                ws[a0 + k * n + j] = ws[a0 + p * n + j]
+                ws[a0 + p * n + j] = tmp
+        r = wp.float64(1.0) / ws[a0 + k * n + k]
+        for i in range(k + 1, n):
+            ws[a0 + i * n + k] = ws[a0 + i * n + k] * r
+        for i in range(k + 1, n):
+            l_ = ws[a0 + i * n + k]
+            for j in range(k + 1, n):
+                ws[a0 + i * n + j] = ws[a0 + i * n + j] - l_ * ws[a0 + k * n + j]
+    return 1
+
+
+@wp.func
+def _lu_solve(ws: wp.array(dtype=wp.float64), a0: int, piv0: int, n: int, b0: int):
+    """The system of :func:`_lu`'s factors solved for the right-hand side at ``ws[b0:b0 + n]`` in place."""
+    for k in range(n):
+        p = int(ws[piv0 + k])
+        if p != k:
+            tmp = ws[b0 + k]
+            ws[b0 + k] = ws[b0 + p]
+            ws[b0 + p] = tmp
+    for k in range(n):
+        for i in range(k + 1, n):
+            ws[b0 + i] = ws[b0 + i] - ws[b0 + k] * ws[a0 + i * n + k]
+    for kk in range(n):
+        k = n - 1 - kk
+        ws[b0 + k] = ws[b0 + k] / ws[a0 + k * n + k]
+        for i in range(k):
+            ws[b0 + i] = ws[b0 + i] - ws[b0 + k] * ws[a0 + i * n + k]
+
+
+@wp.func
+def _stop(st: wp.array(dtype=wp.float64), cond: wp.array(dtype=wp.int32), status: int):
+    st[_STATUS] = wp.float64(status)
+    cond[0] = 0
+
+
+# the scratch's places: G and its pivots, the right-hand sides (b, then D_k A's rows), JJ, its pivots,
+# Jr / δ, the differences' products per view (D_k A, D_k D_l, D_k y)
+_WG, _WGP, _WB, _WJ, _WJP, _WR, _WDA, _WDD, _WDY, _WS = 0, 25, 30, 70, 106, 112, 118, 148, 184, 190
+_NW = 200
+
+
+@wp.kernel
+def device_step_kernel(acc: wp.array2d(dtype=wp.float64), nv: int, counts: wp.array2d(dtype=wp.float64),
+                       st: wp.array(dtype=wp.float64), ws: wp.array(dtype=wp.float64),
+                       last: wp.array2d(dtype=wp.float64), best: wp.array2d(dtype=wp.float64),
+                       xd: wp.array2d(dtype=wp.float64), cond: wp.array(dtype=wp.int32)):
+    """One step of the refinement after its table ``acc`` (module docs; one thread): the table moved to
+    ``last`` (``acc`` zeroed for the next step), solved, the rules applied, the next design written into
+    ``xd`` or ``cond`` cleared."""
+    # (Warp: module constants first read inside a branch are merged as if assigned there: locals here)
+    o_x = _X
+    o_h = _H
+    o_tv = _TV
+    o_bx = _BX
+    o_bchi = _BCHI
+    o_hasb = _HASB
+    o_pred = _PRED
+    o_it = _IT
+    o_iters = _ITERS
+    o_nhost = _NHOST
+    o_up = _UP
+    o_stop = _STOP
+    o_small = _SMALL
+    o_last = _LAST
+    o_bg = _BG
+    o_oth = _OTH
+    o_tri = _TRI
+    o_rend = _REND
+    o_xn = _XN
+    o_wg = _WG
+    o_wgp = _WGP
+    o_wb = _WB
+    o_wj = _WJ
+    o_wjp = _WJP
+    o_wr = _WR
+    o_wda = _WDA
+    o_wdd = _WDD
+    o_wdy = _WDY
+    o_ws = _WS
+    c_nz = NZ
+    c_outside = OUTSIDE
+    c_singular = SINGULAR
+    c_uphill = UPHILL
+    c_converged = CONVERGED
+    c_spent = SPENT
+
+    if cond[0] == 0:
+        return
+    st[o_it] = st[o_it] + wp.float64(1.0)
+    for v in range(nv):
+        for k in range(c_nz * c_nz):
+            last[v, k] = acc[v, k]
+            acc[v, k] = wp.float64(0.0)
+    n = st[o_nhost]
+    if n < wp.float64(0.0):  # (the regions' usable pixels counted on the device: set_frame)
+        n = wp.float64(0.0)
+        for v in range(nv):
+            if counts[v, 0] <= wp.float64(0.0):
+                _stop(st, cond, c_outside)
+                return
+            n = n + counts[v, 0]
+    n = wp.max(n, wp.float64(1.0))
+    bg = int(st[o_bg])
+    tri = int(st[o_tri])
+    p = 2 + 2 * bg + int(st[o_oth])
+    for k in range(6):
+        ws[o_ws + k] = wp.float64(1.0) / (wp.float64(2.0) * st[o_h + k])
+    for k in range(36):
+        ws[o_wj + k] = wp.float64(0.0)
+    for k in range(6):
+        ws[o_wr + k] = wp.float64(0.0)
+    chi2 = wp.float64(0.0)
+    for v in range(nv):
+        for i in range(p):
+            for j in range(p):
+                ws[o_wg + i * p + j] = _m(last, v, _ai(i, bg), _ai(j, bg), tri)
+            ws[o_wb + i] = _m(last, v, _ai(i, bg), 0, tri)
+        for k in range(6):
+            sk = ws[o_ws + k]
+            for i in range(p):
+                ws[o_wda + k * p + i] = _m(last, v, 2 + k, _ai(i, bg), tri) * sk
+                ws[o_wb + (k + 1) * p + i] = ws[o_wda + k * p + i]
+            for j in range(6):
+                ws[o_wdd + k * 6 + j] = _m(last, v, 2 + k, 2 + j, tri) * sk * ws[o_ws + j]
+            ws[o_wdy + k] = _m(last, v, 2 + k, 0, tri) * sk
+        if _lu(ws, o_wg, o_wgp, p) == 0:
+            _stop(st, cond, c_singular)
+            return
+        for r in range(7):  # coef (r 0), β's columns
+            _lu_solve(ws, o_wg, o_wgp, p, o_wb + r * p)
+        dot = wp.float64(0.0)
+        for i in range(p):
+            dot = dot + ws[o_wb + i] * _m(last, v, _ai(i, bg), 0, tri)
+        chi2 = chi2 + (_m(last, v, 0, 0, tri) - dot)
+        a = ws[o_wb]
+        for k in range(6):
+            for j in range(6):
+                s = wp.float64(0.0)
+                for i in range(p):
+                    s = s + ws[o_wda + k * p + i] * ws[o_wb + (j + 1) * p + i]
+                ws[o_wj + k * 6 + j] = ws[o_wj + k * 6 + j] + a * a * (ws[o_wdd + k * 6 + j] - s)
+            s = wp.float64(0.0)
+            for i in range(p):
+                s = s + ws[o_wda + k * p + i] * ws[o_wb + i]
+            ws[o_wr + k] = ws[o_wr + k] + a * (ws[o_wdy + k] - s)
+    for k in range(6):
+        for j in range(k + 1, 6):
+            u = wp.float64(0.5) * (ws[o_wj + k * 6 + j] + ws[o_wj + j * 6 + k])
+            ws[o_wj + k * 6 + j] = u
+            ws[o_wj + j * 6 + k] = u
+    chi2 = wp.max(chi2, wp.float64(0.0))
+    rose = st[o_hasb] != wp.float64(0.0) and chi2 > st[o_bchi]
+    if not wp.isfinite(chi2) or (rose and st[o_pred] >= st[o_up] * st[o_bchi] / n):
+        for k in range(6):  # uphill: the pose before stands
+            if st[o_hasb] != wp.float64(0.0):
+                st[o_xn + k] = st[o_bx + k]
+            else:
+                st[o_xn + k] = st[o_x + k]
+        st[o_last] = wp.float64(0.0)
+        _stop(st, cond, c_uphill)
+        return
+    for v in range(nv):  # the best step's table
+        for k in range(c_nz * c_nz):
+            best[v, k] = last[v, k]
+    for k in range(6):
+        st[o_bx + k] = st[o_x + k]
+    st[o_bchi] = chi2
+    st[o_hasb] = wp.float64(1.0)
+    st[o_last] = wp.float64(1.0)
+    rhs = o_wr
+    if _lu(ws, o_wj, o_wjp, 6) == 0:
+        _stop(st, cond, c_singular)
+        return
+    for k in range(6):
+        ws[o_wb + k] = ws[o_wr + k]
+    _lu_solve(ws, o_wj, o_wjp, 6, o_wb)
+    pred = wp.float64(0.0)
+    small_d = wp.int32(1)  # (Warp: a variable the loop below changes)
+    for k in range(6):
+        pred = pred + ws[rhs + k] * ws[o_wb + k]
+        st[o_xn + k] = st[o_x + k] + ws[o_wb + k]
+        if not (wp.abs(ws[o_wb + k]) < st[o_tv + k]):
+            small_d = wp.int32(0)
+    st[o_pred] = pred
+    small = pred < st[o_stop] * (chi2 / n) and st[o_small] != wp.float64(0.0)
+    if rose or small_d != 0 or small:
+        _stop(st, cond, c_converged)
+        return
+    if st[o_it] >= st[o_iters]:
+        _stop(st, cond, c_spent)
+        return
+    for k in range(6):
+        st[o_x + k] = st[o_xn + k]
+    for r in range(13):  # step_design: x, x + h_k e_k, x - h_k e_k
+        for j in range(6):
+            d = wp.float64(0.0)
+            if r > 0 and (r - 1) // 2 == j:
+                d = wp.float64(1.0)
+                if (r - 1) % 2 == 1:
+                    d = wp.float64(-1.0)
+            xd[r, j] = st[o_x + j] + d * st[o_h + j]
+    st[o_rend] = st[o_rend] + wp.float64(1.0)
+
+
+@wp.kernel
+def _zero_kernel(acc: wp.array2d(dtype=wp.float64), cond: wp.array(dtype=wp.int32), nv: int):
+    """The first step's table zeroed and the loop's condition set (one thread)."""
+    for v in range(nv):
+        for k in range(NZ * NZ):
+            acc[v, k] = wp.float64(0.0)
+    cond[0] = 1
+
+
+class _Loop:
+    """One recorded step's (:class:`~core.tracking.likelihood_graph.StepWork`'s) device loop: the first
+    step rendered or on the last images (``first``), the loop and the result's copies (``rest``), as CUDA
+    graphs on a CUDA device (launched one by one elsewhere)."""
+
+    def __init__(self, eng, work, bufs: dict) -> None:
+        dev = eng.device
+        nv = eng.n_views
+        self.bufs = bufs
+        b = bufs
+        x_dev = self.x_dev = work.x_dev
+        self.zero = wp.launch(_zero_kernel, dim=1, device=dev, record_cmd=True,
+                              inputs=[eng._acc, b["cond"], nv])
+        self.solve = wp.launch(device_step_kernel, dim=1, device=dev, record_cmd=True,
+                               inputs=[eng._acc, nv, eng._msum, b["st"], b["ws"], b["last"], b["best"], x_dev,
+                                       b["cond"]])
+        self.work = work
+        self.graphs = None
+        if dev.is_cuda:
+            try:
+                graphs = []
+                for fn in (lambda: self._first(False), lambda: self._first(True), self._rest):
+                    with wp.ScopedCapture(device=dev) as cap:
+                        fn()
+                    graphs.append(cap.graph)
+                self.graphs = graphs
+            except Exception as e:  # (a device without conditional nodes: the host loop, said once)
+                global FAILED
+                if FAILED is None:
+                    FAILED = repr(e)
+                    warnings.warn(f"likelihood stage: the steps' device loop not captured ({e!r}); "
+                                  f"the host's loop runs", RuntimeWarning, stacklevel=2)
+                wp.synchronize_device(dev)
+                self.failed = True
+                return
+        self.failed = False
+
+    def _body(self) -> None:
+        w = self.work
+        for cmd in w.render:
+            cmd.launch()
+        for cmd in w.cmds:
+            cmd.launch()
+        w.moments.launch()
+        self.solve.launch()
+
+    def _first(self, reuse: bool) -> None:
+        self.zero.launch()
+        if reuse:
+            self.work.moments.launch()
+            self.solve.launch()
+        else:
+            self._body()
+
+    def _rest(self) -> None:
+        b = self.bufs
+        wp.capture_while(b["cond"], self._body)
+        wp.copy(b["st_host"], b["st"])
+        wp.copy(b["last_host"], b["last"])
+        wp.copy(b["best_host"], b["best"])
+
+    def first(self, reuse: bool) -> None:
+        if self.graphs is not None:
+            wp.capture_launch(self.graphs[1 if reuse else 0])
+        else:
+            self._first(reuse)
+
+    def rest(self) -> None:
+        if self.graphs is not None:
+            wp.capture_launch(self.graphs[2])
+        else:
+            self._rest()
+
+
+def _buffers(eng) -> dict:
+    """The engine's device loop's buffers (made once)."""
+    b = eng.__dict__.get("_dev_loop_bufs")
+    if b is None:
+        dev, nv = eng.device, eng.n_views
+        pinned = dev.is_cuda
+        b = {"st": wp.zeros(_NS, dtype=wp.float64, device=dev),
+             "ws": wp.zeros(_NW, dtype=wp.float64, device=dev),
+             "last": wp.zeros((nv, NZ * NZ), dtype=wp.float64, device=dev),
+             "best": wp.zeros((nv, NZ * NZ), dtype=wp.float64, device=dev),
+             "cond": wp.zeros(1, dtype=wp.int32, device=dev),
+             "st_host": wp.zeros(_NS, dtype=wp.float64, device="cpu", pinned=pinned),
+             "last_host": wp.zeros((nv, NZ * NZ), dtype=wp.float64, device="cpu", pinned=pinned),
+             "best_host": wp.zeros((nv, NZ * NZ), dtype=wp.float64, device="cpu", pinned=pinned)}
+        b["st_np"] = b["st_host"].numpy()
+        b["last_np"] = b["last_host"].numpy()
+        b["best_np"] = b["best_host"].numpy()
+        eng._dev_loop_bufs = b
+    return b
+
+
+def usable(eng, iters: int, reuse: bool, x: np.ndarray, h: np.ndarray) -> bool:
+    """Whether the refinement can run on the device (module docs)."""
+    if int(iters) < 1 or eng._wcount_pending or not eng._graph_step():
+        return False
+    if FAILED is not None and eng.device.is_cuda:
+        return False
+    last = eng._last
+    if reuse and last is not None and np.array_equal(last[2], x) and np.array_equal(last[3], h):
+        fw = eng.__dict__.get("_frame_work")
+        return fw is not None and last[0] is fw[1].dd  # (the first step on the recorded step's images)
+    return True
+
+
+def device_refine(eng, x: np.ndarray, h: np.ndarray, tv: np.ndarray, iters: int, reuse: bool, *,
+                  uphill: float, stop: float, small_ok: bool):
+    """:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.refine_steps`' loop on the device (module
+    docs), a generator that yields after the first step is enqueued and where it waits; its value
+    ``(x, best, n_it, last, s)`` as the host loop leaves them (``None`` instead where the device loop could
+    not be made: the caller runs the host's)."""
+    t0 = time.perf_counter()
+    last0 = eng._last
+    reused = bool(reuse and last0 is not None and np.array_equal(last0[2], x) and np.array_equal(last0[3], h))
+    work = eng._step_work()
+    b = _buffers(eng)
+    loop = getattr(work, "device_loop", None)
+    if loop is None:
+        loop = work.device_loop = _Loop(eng, work, b)
+    if loop.failed:
+        return None
+    st = b["st_np"]
+    st[:] = 0.0
+    st[_X:_X + 6] = x
+    st[_H:_H + 6] = h
+    st[_TV:_TV + 6] = tv
+    st[_ITERS] = int(iters)
+    st[_NHOST] = -1.0 if eng._count_pending else float(eng.n_pixels)
+    st[_UP], st[_STOP], st[_SMALL] = float(uphill), float(stop), float(bool(small_ok))
+    st[_BG], st[_OTH], st[_TRI] = float(eng.background), float(bool(eng._with_o)), float(work.tri)
+    wp.copy(b["st"], b["st_host"])
+    if not reused:
+        work.x_np[:] = step_design(x, h)
+        wp.copy(loop.x_dev, work.x_host)
+    loop.first(reused)
+    eng.timer.render += time.perf_counter() - t0
+    yield  # (the first step enqueued: a caller's launch after it, e.g. the first refinement's sandwich)
+    t0 = time.perf_counter()
+    loop.rest()
+    eng._record()
+    eng._pending = None
+    eng.timer.render += time.perf_counter() - t0
+    yield
+    t0 = time.perf_counter()
+    eng._wait()
+    if eng._count_pending:  # (raises for a region without usable pixels, as the host loop's first result)
+        eng._take_count()
+    status, n_it = int(st[_STATUS]), int(st[_IT])
+    renders = int(st[_REND]) + (0 if reused else 1)
+    eng.renders += renders
+    eng.timer.evaluations += 13 * renders
+    eng.timer.calls += n_it
+    centre = st[_X:_X + 6].copy()
+    eng._diff, eng._tri = 1, work.tri
+    eng._last = (work.dd, work.low, centre, h)
+    if status == SINGULAR:
+        raise np.linalg.LinAlgError("Singular matrix")
+    args = (eng.background, eng._with_o, eng._q, eng._tri)
+    s = _LS.solve_tables(b["last_np"], h, *args)
+    if status == UPHILL:
+        if st[_HASB]:
+            best = (st[_BX:_BX + 6].copy(), _LS.solve_tables(b["best_np"], h, *args))
+            x = best[0]
+        else:
+            best, x = None, centre
+        last = None
+    else:
+        best = last = (centre, s)
+        x = centre + _LS.solve6(s["JJ"], s["Jr"])
+    eng.timer.metric += time.perf_counter() - t0
+    return x, best, n_it, last, s

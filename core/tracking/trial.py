@@ -222,6 +222,15 @@ NEXT_FRAME_AHEAD = True
 #: poses and flags (tests); off: as before.
 GC_FREEZE = True
 
+#: The backward check's frame (the run's first, registered again after the last: :mod:`core.tracking.
+#: backward_check`) read and prepared while the last frame registers, as every frame is while the one
+#: before it registers (:class:`core.tracking.feed.FrameFeed`), and with one bone put on the device during
+#: the last frame's final stage (:data:`NEXT_FRAME_AHEAD`), instead of after the loop: on one NVIDIA H100
+#: the check's frame read and its upload took 1.07 + 1.05 ms after the last frame
+#: (``profile_one_bone_ad38ce9_h100.json``). The same frame, the same poses and flags (tests); wasted where
+#: the check then finds nothing to register (a cancelled run, a resumed one whose first frame is given).
+BACKWARD_AHEAD = True
+
 
 def journal_inputs(states: Mapping, frames: Sequence[int], *, resume: bool = False) -> tuple[dict, dict]:
     """``(keyframes, skip)`` for :func:`track` from each bone's journal (a mapping bone name ->
@@ -371,6 +380,9 @@ def _track_frames(run, bones, names, order, skip, state, o, frames, neighbours, 
                 nxt = k + 1 < len(order) and bool(todo_of(order[k + 1])[1])
                 if nxt:  # prepared while this one registers
                     feed.prefetch(order[k + 1])
+                elif BACKWARD_AHEAD and k + 1 == len(order) and backward.applies(order, o):
+                    feed.prefetch(order[0])  # the backward check's frame, read again (BACKWARD_AHEAD)
+                    nxt = True
                 # one bone: the next frame put on the device while this one's final stage runs
                 ahead = None
                 if NEXT_FRAME_AHEAD and nxt and len(names) == 1 and o.registration.final is not None:

@@ -6,7 +6,11 @@ confidences to the bit.
   core.tracking.gc_pause), with a full collection forced after every frame; the freeze lifted after the
   run, and left alone where something else froze objects first.
 * The constant-velocity predictions kept by their inputs (core.tracking.checks._predict: a frame's motion
-  prediction is the next frame's newest motion miss), against a run that keeps none."""
+  prediction is the next frame's newest motion miss), against a run that keeps none.
+* The backward check's frame read, prepared and put on the device while the last frame registers
+  (core.tracking.trial.BACKWARD_AHEAD; engine_upload.DEVICES patched to take the CPU, in both runs) and its
+  trajectory scales computed during its registration's final stage (core.tracking.backward_check.
+  SCALE_AHEAD)."""
 
 from __future__ import annotations
 
@@ -45,19 +49,55 @@ class _NoCache(dict):
 
 
 def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
+    import inspect
+
+    import core.tracking.backward_check as backward
     import core.tracking.checks as checks
+    import core.tracking.engine_upload as eu
+    import core.tracking.feed as feed
     import core.tracking.trial as trial
 
-    assert trial.GC_FREEZE  # (the default)
+    assert trial.GC_FREEZE and trial.BACKWARD_AHEAD and backward.SCALE_AHEAD  # (the defaults)
+    monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))  # (the shared upload and the uploads ahead on CPU)
+    got, ahead, scaled = [], [], []
+    real_get, real_ahead, real_scale = feed.FrameFeed.get, feed.FrameFeed.upload_ahead, backward._scale
+
+    def get(self, f):
+        got.append((f, self.ahead is not None and self.ahead[0] == f))  # (taken from the look-ahead)
+        return real_get(self, f)
+
+    def upload_ahead(self, device):
+        ok = real_ahead(self, device)
+        ahead.append((self.ahead[0] if self.ahead else None, ok))
+        return ok
+
+    def scale(*a, **k):
+        scaled.append(any(fr.function == "final_stage_idle" for fr in inspect.stack()))  # (in the stage)
+        return real_scale(*a, **k)
+
+    monkeypatch.setattr(feed.FrameFeed, "get", get)
+    monkeypatch.setattr(feed.FrameFeed, "upload_ahead", upload_ahead)
+    monkeypatch.setattr(backward, "_scale", scale)
     off_seen, on_seen = [], []
-    monkeypatch.setattr(trial, "GC_FREEZE", False)
+    for m, v in ((trial, "GC_FREEZE"), (trial, "BACKWARD_AHEAD"), (backward, "SCALE_AHEAD")):
+        monkeypatch.setattr(m, v, False)
     monkeypatch.setattr(checks, "_PREDICTIONS", _NoCache())
+    monkeypatch.setattr(eu, "_UPLOADS", {})
+    monkeypatch.setattr(eu, "_ACTIVE", {})
     off = _track(walking_talus_64, off_seen)
-    monkeypatch.setattr(trial, "GC_FREEZE", True)
+    assert got[-1] == (FRAMES[0], False) and scaled == [False]  # (as before: read after the loop)
+    got.clear(), ahead.clear(), scaled.clear()
+    for m, v in ((trial, "GC_FREEZE"), (trial, "BACKWARD_AHEAD"), (backward, "SCALE_AHEAD")):
+        monkeypatch.setattr(m, v, True)
     kept = {}
     monkeypatch.setattr(checks, "_PREDICTIONS", kept)
+    monkeypatch.setattr(eu, "_UPLOADS", {})
+    monkeypatch.setattr(eu, "_ACTIVE", {})
     on = _track(walking_talus_64, on_seen)
     assert kept  # (the predictions were kept)
+    assert got[-1] == (FRAMES[0], True)  # the backward check's frame taken from the look-ahead
+    assert (FRAMES[0], True) in ahead  # and put on the device during the last frame's stage
+    assert scaled == [True]  # the scale computed during the backward registration's stage
     _same(off, on)
     assert off.status == on.status == "complete"
     assert not any(off_seen) and all(on_seen) and len(on_seen) == len(FRAMES)  # frozen while it ran

@@ -64,6 +64,13 @@ bone's median leaves those frames out (when enough others have residuals); a goo
 ``crowd`` or more flagged frames near it and no fit through its nearest ones is flagged for review
 (:mod:`core.tracking.flags_ends`, whose docs say why and what it changed).
 
+*Moved off by the final stage* (:data:`STAGE`, the ``stage`` keyword; None: off): after those rules, a good
+frame whose search's pose before the final stage is known (``searched``; :func:`apply_trajectory_flags`
+takes each frame's ``search_pose``) is flagged when it stands off its fit by more than ``stage`` × the
+limit and the search's pose, against the same fit, by less than :data:`STAGE_RATIO` × as much: the stage
+moved it off (:mod:`core.tracking.flags_stage`, whose docs say how and what it caught: seed 4's calcaneus
+frame 53 at b941103, in both modes).
+
 Frames already flagged are neither judged nor used as neighbours. A bone with fewer than
 :data:`MIN_FRAMES` frames that have a residual is not judged.
 
@@ -142,11 +149,12 @@ from .flags_ends import CROWD, judge_crowded_ends
 from .flags_fit import ENDS, FLAG, UNCHECKED, _deltas, _Table  # noqa: F401 (_deltas: the studies')
 from .flags_gaps import GAP_DEGREE, GAP_FRAMES, GAP_SCALE, ONE_SIDED, REACH, _judge_gaps
 from .flags_pairs import PAIR, PAIR_GATE, Pairs, pair_scale
+from .flags_stage import STAGE, STAGE_FLAG, STAGE_RATIO, judge_stage
 
 __all__ = ["ALONG", "BACKWARD_FLAG", "CROWD", "DEGREE", "ENDS", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES",
            "GAP_SCALE", "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "NEAR", "ONE_SIDED", "PAIR", "PAIR_GATE",
-           "REACH", "UNCHECKED", "apply_trajectory_flags", "journal_neighbours", "trajectory_flags",
-           "trajectory_residuals", "trajectory_review"]
+           "REACH", "STAGE", "STAGE_FLAG", "STAGE_RATIO", "UNCHECKED", "apply_trajectory_flags",
+           "journal_neighbours", "trajectory_flags", "trajectory_residuals", "trajectory_review"]
 
 #: The flag of :mod:`core.tracking.backward_check` (a first frame whose registration backward from the
 #: frames after it lands elsewhere), a review flag run after the tracking as this module's: named here,
@@ -213,7 +221,9 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
                       judged=None, near: float | None = NEAR, reach: int | None = REACH,
                       pair: float | None = PAIR, pair_gate: float = PAIR_GATE,
                       along: float | None = ALONG, one_sided: bool = ONE_SIDED,
-                      ends: bool = ENDS, crowd: int | None = CROWD) -> tuple[dict[int, str], dict[int, str]]:
+                      ends: bool = ENDS, crowd: int | None = CROWD, searched=None,
+                      stage: float | None = STAGE, stage_ratio: float = STAGE_RATIO,
+                      stage_kept=None) -> tuple[dict[int, str], dict[int, str]]:
     """``(flags, unchecked)``: frame number -> the ``"off the trajectory"`` message, for the good frames
     of one bone (``poses`` ``(n, 4, 4)`` at ``frames``; NaN rows are not good) whose residual exceeds
     ``limit`` × the bone's median (module docs), and frame number -> the :data:`UNCHECKED` note for the
@@ -234,7 +244,11 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     ``near``): a good frame next to a flagged one, off the same way, flagged (module docs, *Next to a
     flagged frame, off the same way*). ``one_sided`` (False: noted): a frame left without a fit whose
     frames judged good lie on one side only flagged for review, not noted. ``ends`` (False: the window
-    cut at a trial's ends) and ``crowd`` (None: off; needs ``one_sided``): module docs, *A trial's ends*."""
+    cut at a trial's ends) and ``crowd`` (None: off; needs ``one_sided``): module docs, *A trial's ends*.
+    ``searched`` (``(n, 4, 4)``, NaN where none; None: no frame has one) the search's poses before the
+    final stage, and ``stage`` (None: off) with ``stage_ratio``: module docs, *Moved off by the final
+    stage*; ``stage_kept``: frame number -> the rule's flag of a frame whose search's pose is not known,
+    kept where the frame is still good at the rule (:mod:`core.tracking.flags_stage`)."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
     judge = np.ones(len(fr), dtype=bool) if judged is None else np.asarray(judged, dtype=bool)[order]
     if not (judge & ok).any():
@@ -296,6 +310,11 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     if along is not None and near is not None:
         lim_near = np.maximum(float(near) * float(limit) * med, np.asarray(floor, dtype=float))
         judge_along(t, ok, use, judge, lim_near, float(near) * float(limit), float(along), out)
+    if stage is not None and (searched is not None or stage_kept):
+        S = None if searched is None else np.asarray(searched, dtype=float).reshape(len(fr), 4, 4)[order]
+        at = {int(f): m for m, f in enumerate(fr)}
+        kept = {at[int(f)]: msg for f, msg in (stage_kept or {}).items() if int(f) in at}
+        judge_stage(t, S, use, judge, med, float(limit), floor, float(stage), float(stage_ratio), out, kept)
     if reach is None:
         return out, {}
     unchecked = _judge_gaps(t, P, c, use, judge, R, float(limit), floor, int(reach), out, bool(one_sided))
@@ -350,12 +369,14 @@ def apply_trajectory_flags(result, centers, *, limit: float = LIMIT, neighbours=
     for b in result.bones:
         near = {int(f): p for f, p in ((neighbours or {}).get(b) or {}).items()
                 if (b, int(f)) not in results and p is not None and np.all(np.isfinite(p))}
-        base = {}
+        base, kept = {}, {}
         for f in order:
             fr = results.get((b, f))
             if fr is None:
                 continue
             own = tuple(s for s in fr.flags if not s.startswith(FLAG))
+            if fr.search_pose is None:  # the stage rule's flag without the search's pose: kept (flags_stage)
+                kept.update((f, s) for s in fr.flags if s.startswith(STAGE_FLAG))
             notes = tuple(s for s in fr.notes if not s.startswith(UNCHECKED))
             if own != fr.flags or notes != fr.notes:
                 fr = replace(fr, flags=own, notes=notes)
@@ -363,8 +384,15 @@ def apply_trajectory_flags(result, centers, *, limit: float = LIMIT, neighbours=
         fs = [f for f in order if f in base and base[f].pose is not None and not base[f].flags]
         P = np.array([base[f].pose for f in fs] + list(near.values())).reshape(-1, 4, 4)
         judged = np.arange(len(P)) < len(fs)
-        got, unchecked = (trajectory_review(fs + list(near), P, centers[b], limit=limit, judged=judged, **kw)
-                          if fs else ({}, {}))
+        more = {"stage_kept": {f: s for f, s in kept.items() if f in fs}}
+        if any(base[f].search_pose is not None for f in fs):
+            S = np.full_like(P, np.nan)
+            for m, f in enumerate(fs):
+                if base[f].search_pose is not None:
+                    S[m] = base[f].search_pose
+            more["searched"] = S
+        got, unchecked = (trajectory_review(fs + list(near), P, centers[b], limit=limit, judged=judged,
+                                            **{**more, **kw}) if fs else ({}, {}))
         for f, fr in base.items():
             new = replace(fr, flags=(*fr.flags, got[f])) if f in got else fr
             old = results[(b, f)]

@@ -143,3 +143,17 @@ def test_kept_prediction_same_bits_new_array():
     a[0, 0] = 7.0  # the caller's own array: the kept one unchanged
     assert checks._predict(3, T0, 5, T1, 6, c).tobytes() == b.tobytes()
     assert checks._predict(3, T0, 5, T1, 7, c).tobytes() != b.tobytes()  # another frame
+
+
+def test_switch_interval_set_within_and_put_back():
+    import sys
+
+    from core.tracking.trial import SWITCH_INTERVAL, _switch_interval
+
+    assert SWITCH_INTERVAL is None  # (the default: left as it is)
+    was = sys.getswitchinterval()
+    with _switch_interval(None):
+        assert sys.getswitchinterval() == was
+    with _switch_interval(0.0005):
+        assert abs(sys.getswitchinterval() - 0.0005) < 1e-9
+    assert sys.getswitchinterval() == was

@@ -33,7 +33,7 @@ from .likelihood_kernels import NZ
 
 __all__ = ["FAILED", "device_refine", "device_step_kernel", "usable"]
 
-wp.set_module_options({"enable_backward": False, "max_unroll": 1})  # (one thread's loops: short code)
+wp.set_module_options({"enable_backward": False})
 
 #: the first capture of a device loop that failed (its error; None: none did)
 FAILED: str | None = None
@@ -49,96 +49,121 @@ _NS = 48
 RUNNING, CONVERGED, UPHILL, SINGULAR, OUTSIDE, SPENT = 0, 1, 2, 3, 4, 5
 
 
+mat55d = wp.types.matrix(shape=(5, 5), dtype=wp.float64)
+mat65d = wp.types.matrix(shape=(6, 5), dtype=wp.float64)
+mat66d = wp.types.matrix(shape=(6, 6), dtype=wp.float64)
+vec5d = wp.types.vector(length=5, dtype=wp.float64)
+vec6d = wp.types.vector(length=6, dtype=wp.float64)
+
+
 @wp.func
 def _m(t: wp.array2d(dtype=wp.float64), v: int, i: int, j: int, tri: int) -> wp.float64:
     """Entry ``(i, j)`` of view ``v``'s table (``tri``: summed on and above the diagonal only)."""
-    if tri != 0 and i > j:
-        return t[v, j * NZ + i]
-    return t[v, i * NZ + j]
+    a = wp.min(i, j)
+    b = wp.max(i, j)
+    if tri == 0:
+        a = i
+        b = j
+    return t[v, a * 12 + b]
 
 
 @wp.func
 def _ai(i: int, bg: int) -> int:
     """``A``'s ``i``-th column's place in ``z``: (D, 1[, u, v][, O])."""
+    k = 11
     if i == 0:
-        return 1
-    if i == 1:
-        return 8
-    if bg != 0 and i < 4:
-        return 7 + i
-    return 11
+        k = 1
+    elif i == 1:
+        k = 8
+    elif bg != 0 and i < 4:
+        k = 7 + i
+    return k
 
 
 @wp.func
-def _lu(ws: wp.array(dtype=wp.float64), a0: int, piv0: int, n: int) -> int:
-    """LU with partial pivoting of the ``n × n`` matrix at ``ws[a0:]`` (row-major) in place (the pivots'
-    rows at ``ws[piv0:]``; the multipliers by the pivot's reciprocal, as LAPACK's dgetrf2); 0 where a
-    pivot is exactly zero (LAPACK's singular matrix), else 1."""
-    for k in range(n):
-        p = k
-        big = wp.abs(ws[a0 + k * n + k])
-        for i in range(k + 1, n):
-            c = wp.abs(ws[a0 + i * n + k])
-            if c > big:
-                big = c
-                p = i
-        ws[piv0 + k] = wp.float64(p)
-        if ws[a0 + p * n + k] == wp.float64(0.0):
-            return 0
-        if p != k:
-            for j in range(n):
-                tmp = ws[a0 + k * n + j]
-                ws[a0 + k * n + j] = ws[a0 + p * n + j]
-                ws[a0 + p * n + j] = tmp
-        r = wp.float64(1.0) / ws[a0 + k * n + k]
-        for i in range(k + 1, n):
-            ws[a0 + i * n + k] = ws[a0 + i * n + k] * r
-        for i in range(k + 1, n):
-            l_ = ws[a0 + i * n + k]
-            for j in range(k + 1, n):
-                ws[a0 + i * n + j] = ws[a0 + i * n + j] - l_ * ws[a0 + k * n + j]
-    return 1
+def _ldl5(a: mat55d) -> mat55d:
+    """LDLᵀ of the symmetric ``a`` without pivoting (L's multipliers below the diagonal, D on it)."""
+    f = mat55d()
+    for j in range(5):
+        d = a[j, j]
+        for k in range(j):
+            d = d - f[j, k] * f[j, k] * f[k, k]
+        f[j, j] = d
+        for i in range(j + 1, 5):
+            s = a[i, j]
+            for k in range(j):
+                s = s - f[i, k] * f[j, k] * f[k, k]
+            f[i, j] = s / d
+    return f
 
 
 @wp.func
-def _lu_solve(ws: wp.array(dtype=wp.float64), a0: int, piv0: int, n: int, b0: int):
-    """The system of :func:`_lu`'s factors solved for the right-hand side at ``ws[b0:b0 + n]`` in place."""
-    for k in range(n):
-        p = int(ws[piv0 + k])
-        if p != k:
-            tmp = ws[b0 + k]
-            ws[b0 + k] = ws[b0 + p]
-            ws[b0 + p] = tmp
-    for k in range(n):
-        for i in range(k + 1, n):
-            ws[b0 + i] = ws[b0 + i] - ws[b0 + k] * ws[a0 + i * n + k]
-    for kk in range(n):
-        k = n - 1 - kk
-        ws[b0 + k] = ws[b0 + k] / ws[a0 + k * n + k]
-        for i in range(k):
-            ws[b0 + i] = ws[b0 + i] - ws[b0 + k] * ws[a0 + i * n + k]
+def _sol5(f: mat55d, b: vec5d) -> vec5d:
+    """The system of :func:`_ldl5`'s factors solved for ``b``."""
+    y = vec5d()
+    for i in range(5):
+        s = b[i]
+        for k in range(i):
+            s = s - f[i, k] * y[k]
+        y[i] = s
+    x = vec5d()
+    for ii in range(5):
+        i = 4 - ii
+        s = y[i] / f[i, i]
+        for k in range(i + 1, 5):
+            s = s - f[k, i] * x[k]
+        x[i] = s
+    return x
+
+
+@wp.func
+def _ldl6(a: mat66d) -> mat66d:
+    """:func:`_ldl5` of a 6×6 matrix."""
+    f = mat66d()
+    for j in range(6):
+        d = a[j, j]
+        for k in range(j):
+            d = d - f[j, k] * f[j, k] * f[k, k]
+        f[j, j] = d
+        for i in range(j + 1, 6):
+            s = a[i, j]
+            for k in range(j):
+                s = s - f[i, k] * f[j, k] * f[k, k]
+            f[i, j] = s / d
+    return f
+
+
+@wp.func
+def _sol6(f: mat66d, b: vec6d) -> vec6d:
+    """:func:`_sol5` of a 6×6 system."""
+    y = vec6d()
+    for i in range(6):
+        s = b[i]
+        for k in range(i):
+            s = s - f[i, k] * y[k]
+        y[i] = s
+    x = vec6d()
+    for ii in range(6):
+        i = 5 - ii
+        s = y[i] / f[i, i]
+        for k in range(i + 1, 6):
+            s = s - f[k, i] * x[k]
+        x[i] = s
+    return x
 
 
 @wp.func
 def _stop(st: wp.array(dtype=wp.float64), cond: wp.array(dtype=wp.int32), status: int):
-    st[_STATUS] = wp.float64(status)
+    st[33] = wp.float64(status)  # (_STATUS)
     cond[0] = 0
-
-
-# the scratch's places: G and its pivots, the right-hand sides (b, then D_k A's rows), JJ, its pivots,
-# Jr / δ, the differences' products per view (D_k A, D_k D_l, D_k y)
-_WG, _WGP, _WB, _WJ, _WJP, _WR, _WDA, _WDD, _WDY, _WS = 0, 25, 30, 70, 106, 112, 118, 148, 184, 190
-_NW = 200
 
 
 @wp.kernel
 def device_step_kernel(acc: wp.array2d(dtype=wp.float64), nv: int, counts: wp.array2d(dtype=wp.float64),
-                       st: wp.array(dtype=wp.float64), ws: wp.array(dtype=wp.float64),
-                       last: wp.array2d(dtype=wp.float64), best: wp.array2d(dtype=wp.float64),
-                       xd: wp.array2d(dtype=wp.float64), cond: wp.array(dtype=wp.int32)):
-    """One step of the refinement after its table ``acc`` (module docs; one thread): the table moved to
-    ``last`` (``acc`` zeroed for the next step), solved, the rules applied, the next design written into
-    ``xd`` or ``cond`` cleared."""
+                       st: wp.array(dtype=wp.float64), xd: wp.array2d(dtype=wp.float64),
+                       cond: wp.array(dtype=wp.int32)):
+    """One step of the refinement after its table ``acc`` (module docs; one thread, the small systems in
+    registers): solved, the rules applied, the next design written into ``xd`` or ``cond`` cleared."""
     # (Warp: module constants first read inside a branch are merged as if assigned there: locals here)
     o_x = _X
     o_h = _H
@@ -159,17 +184,6 @@ def device_step_kernel(acc: wp.array2d(dtype=wp.float64), nv: int, counts: wp.ar
     o_tri = _TRI
     o_rend = _REND
     o_xn = _XN
-    o_wg = _WG
-    o_wgp = _WGP
-    o_wb = _WB
-    o_wj = _WJ
-    o_wjp = _WJP
-    o_wr = _WR
-    o_wda = _WDA
-    o_wdd = _WDD
-    o_wdy = _WDY
-    o_ws = _WS
-    c_nz = NZ
     c_outside = OUTSIDE
     c_singular = SINGULAR
     c_uphill = UPHILL
@@ -179,99 +193,113 @@ def device_step_kernel(acc: wp.array2d(dtype=wp.float64), nv: int, counts: wp.ar
     if cond[0] == 0:
         return
     st[o_it] = st[o_it] + wp.float64(1.0)
-    for v in range(nv):
-        for k in range(c_nz * c_nz):
-            last[v, k] = acc[v, k]
-            acc[v, k] = wp.float64(0.0)
     n = st[o_nhost]
     if n < wp.float64(0.0):  # (the regions' usable pixels counted on the device: set_frame)
         n = wp.float64(0.0)
+        out = wp.int32(0)
         for v in range(nv):
             if counts[v, 0] <= wp.float64(0.0):
-                _stop(st, cond, c_outside)
-                return
+                out = wp.int32(1)
             n = n + counts[v, 0]
+        if out != 0:
+            _stop(st, cond, c_outside)
+            return
     n = wp.max(n, wp.float64(1.0))
     bg = int(st[o_bg])
     tri = int(st[o_tri])
     p = 2 + 2 * bg + int(st[o_oth])
+    s = vec6d()
     for k in range(6):
-        ws[o_ws + k] = wp.float64(1.0) / (wp.float64(2.0) * st[o_h + k])
-    for k in range(36):
-        ws[o_wj + k] = wp.float64(0.0)
-    for k in range(6):
-        ws[o_wr + k] = wp.float64(0.0)
+        s[k] = wp.float64(1.0) / (wp.float64(2.0) * st[o_h + k])
+    jj = mat66d()
+    jr = vec6d()
     chi2 = wp.float64(0.0)
+    bad = wp.int32(0)
     for v in range(nv):
-        for i in range(p):
-            for j in range(p):
-                ws[o_wg + i * p + j] = _m(last, v, _ai(i, bg), _ai(j, bg), tri)
-            ws[o_wb + i] = _m(last, v, _ai(i, bg), 0, tri)
+        g = mat55d()
+        b = vec5d()
+        da = mat65d()
+        dd = mat66d()
+        dy = vec6d()
+        for i in range(5):
+            for j in range(5):
+                idv = wp.where(i == j, wp.float64(1.0), wp.float64(0.0))
+                g[i, j] = wp.where(i < p and j < p, _m(acc, v, _ai(i, bg), _ai(j, bg), tri), idv)
+            b[i] = wp.where(i < p, _m(acc, v, _ai(i, bg), 0, tri), wp.float64(0.0))
         for k in range(6):
-            sk = ws[o_ws + k]
-            for i in range(p):
-                ws[o_wda + k * p + i] = _m(last, v, 2 + k, _ai(i, bg), tri) * sk
-                ws[o_wb + (k + 1) * p + i] = ws[o_wda + k * p + i]
+            for i in range(5):
+                da[k, i] = wp.where(i < p, _m(acc, v, 2 + k, _ai(i, bg), tri) * s[k], wp.float64(0.0))
             for j in range(6):
-                ws[o_wdd + k * 6 + j] = _m(last, v, 2 + k, 2 + j, tri) * sk * ws[o_ws + j]
-            ws[o_wdy + k] = _m(last, v, 2 + k, 0, tri) * sk
-        if _lu(ws, o_wg, o_wgp, p) == 0:
-            _stop(st, cond, c_singular)
-            return
-        for r in range(7):  # coef (r 0), β's columns
-            _lu_solve(ws, o_wg, o_wgp, p, o_wb + r * p)
+                dd[k, j] = _m(acc, v, 2 + k, 2 + j, tri) * s[k] * s[j]
+            dy[k] = _m(acc, v, 2 + k, 0, tri) * s[k]
+        f = _ldl5(g)
+        for i in range(5):
+            if f[i, i] == wp.float64(0.0):
+                bad = wp.int32(1)
+        coef = _sol5(f, b)
+        beta = mat65d()  # (β transposed: row j the solve for D_j A)
+        for j in range(6):
+            col = vec5d()
+            for i in range(5):
+                col[i] = da[j, i]
+            bj = _sol5(f, col)
+            for i in range(5):
+                beta[j, i] = bj[i]
         dot = wp.float64(0.0)
-        for i in range(p):
-            dot = dot + ws[o_wb + i] * _m(last, v, _ai(i, bg), 0, tri)
-        chi2 = chi2 + (_m(last, v, 0, 0, tri) - dot)
-        a = ws[o_wb]
+        for i in range(5):
+            dot = dot + coef[i] * b[i]
+        chi2 = chi2 + (_m(acc, v, 0, 0, tri) - dot)
+        a = coef[0]
+        jv = mat66d()
+        rv = vec6d()
         for k in range(6):
             for j in range(6):
-                s = wp.float64(0.0)
-                for i in range(p):
-                    s = s + ws[o_wda + k * p + i] * ws[o_wb + (j + 1) * p + i]
-                ws[o_wj + k * 6 + j] = ws[o_wj + k * 6 + j] + a * a * (ws[o_wdd + k * 6 + j] - s)
-            s = wp.float64(0.0)
-            for i in range(p):
-                s = s + ws[o_wda + k * p + i] * ws[o_wb + i]
-            ws[o_wr + k] = ws[o_wr + k] + a * (ws[o_wdy + k] - s)
+                t = wp.float64(0.0)
+                for i in range(5):
+                    t = t + da[k, i] * beta[j, i]
+                jv[k, j] = a * a * (dd[k, j] - t)
+            t = wp.float64(0.0)
+            for i in range(5):
+                t = t + da[k, i] * coef[i]
+            rv[k] = a * (dy[k] - t)
+        jj = jj + jv
+        jr = jr + rv
+    if bad != 0:
+        _stop(st, cond, c_singular)
+        return
+    js = mat66d()
     for k in range(6):
-        for j in range(k + 1, 6):
-            u = wp.float64(0.5) * (ws[o_wj + k * 6 + j] + ws[o_wj + j * 6 + k])
-            ws[o_wj + k * 6 + j] = u
-            ws[o_wj + j * 6 + k] = u
+        for j in range(6):
+            js[k, j] = wp.float64(0.5) * (jj[k, j] + jj[j, k])
     chi2 = wp.max(chi2, wp.float64(0.0))
     rose = st[o_hasb] != wp.float64(0.0) and chi2 > st[o_bchi]
     if not wp.isfinite(chi2) or (rose and st[o_pred] >= st[o_up] * st[o_bchi] / n):
+        hasb = st[o_hasb] != wp.float64(0.0)
         for k in range(6):  # uphill: the pose before stands
-            if st[o_hasb] != wp.float64(0.0):
-                st[o_xn + k] = st[o_bx + k]
-            else:
-                st[o_xn + k] = st[o_x + k]
+            st[o_xn + k] = wp.where(hasb, st[o_bx + k], st[o_x + k])
         st[o_last] = wp.float64(0.0)
         _stop(st, cond, c_uphill)
         return
-    for v in range(nv):  # the best step's table
-        for k in range(c_nz * c_nz):
-            best[v, k] = last[v, k]
     for k in range(6):
         st[o_bx + k] = st[o_x + k]
     st[o_bchi] = chi2
     st[o_hasb] = wp.float64(1.0)
     st[o_last] = wp.float64(1.0)
-    rhs = o_wr
-    if _lu(ws, o_wj, o_wjp, 6) == 0:
+    fj = _ldl6(js)
+    zero = wp.int32(0)
+    for k in range(6):
+        if fj[k, k] == wp.float64(0.0):
+            zero = wp.int32(1)
+    if zero != 0:
         _stop(st, cond, c_singular)
         return
-    for k in range(6):
-        ws[o_wb + k] = ws[o_wr + k]
-    _lu_solve(ws, o_wj, o_wjp, 6, o_wb)
+    delta = _sol6(fj, jr)
     pred = wp.float64(0.0)
-    small_d = wp.int32(1)  # (Warp: a variable the loop below changes)
+    small_d = wp.int32(1)
     for k in range(6):
-        pred = pred + ws[rhs + k] * ws[o_wb + k]
-        st[o_xn + k] = st[o_x + k] + ws[o_wb + k]
-        if not (wp.abs(ws[o_wb + k]) < st[o_tv + k]):
+        pred = pred + jr[k] * delta[k]
+        st[o_xn + k] = st[o_x + k] + delta[k]
+        if not (wp.abs(delta[k]) < st[o_tv + k]):
             small_d = wp.int32(0)
     st[o_pred] = pred
     small = pred < st[o_stop] * (chi2 / n) and st[o_small] != wp.float64(0.0)
@@ -287,19 +315,29 @@ def device_step_kernel(acc: wp.array2d(dtype=wp.float64), nv: int, counts: wp.ar
         for j in range(6):
             d = wp.float64(0.0)
             if r > 0 and (r - 1) // 2 == j:
-                d = wp.float64(1.0)
-                if (r - 1) % 2 == 1:
-                    d = wp.float64(-1.0)
+                d = wp.where((r - 1) % 2 == 1, wp.float64(-1.0), wp.float64(1.0))
             xd[r, j] = st[o_x + j] + d * st[o_h + j]
     st[o_rend] = st[o_rend] + wp.float64(1.0)
 
 
 @wp.kernel
-def _zero_kernel(acc: wp.array2d(dtype=wp.float64), cond: wp.array(dtype=wp.int32), nv: int):
-    """The first step's table zeroed and the loop's condition set (one thread)."""
-    for v in range(nv):
-        for k in range(NZ * NZ):
-            acc[v, k] = wp.float64(0.0)
+def _zero_kernel(acc: wp.array2d(dtype=wp.float64)):
+    """The next step's table zeroed."""
+    v, k = wp.tid()
+    acc[v, k] = wp.float64(0.0)
+
+
+@wp.kernel
+def _keep_kernel(acc: wp.array2d(dtype=wp.float64), st: wp.array(dtype=wp.float64),
+                 best: wp.array2d(dtype=wp.float64)):
+    """The step's table kept as the best where the step was taken."""
+    v, k = wp.tid()
+    if st[34] != wp.float64(0.0):  # (_LAST)
+        best[v, k] = acc[v, k]
+
+
+@wp.kernel
+def _start_kernel(cond: wp.array(dtype=wp.int32)):
     cond[0] = 1
 
 
@@ -314,11 +352,13 @@ class _Loop:
         self.bufs = bufs
         b = bufs
         x_dev = self.x_dev = work.x_dev
-        self.zero = wp.launch(_zero_kernel, dim=1, device=dev, record_cmd=True,
-                              inputs=[eng._acc, b["cond"], nv])
+        tab = (nv, NZ * NZ)
+        self.start = wp.launch(_start_kernel, dim=1, device=dev, record_cmd=True, inputs=[b["cond"]])
+        self.zero = wp.launch(_zero_kernel, dim=tab, device=dev, record_cmd=True, inputs=[eng._acc])
         self.solve = wp.launch(device_step_kernel, dim=1, device=dev, record_cmd=True,
-                               inputs=[eng._acc, nv, eng._msum, b["st"], b["ws"], b["last"], b["best"], x_dev,
-                                       b["cond"]])
+                               inputs=[eng._acc, nv, eng._msum, b["st"], x_dev, b["cond"]])
+        self.keep = wp.launch(_keep_kernel, dim=tab, device=dev, record_cmd=True,
+                              inputs=[eng._acc, b["st"], b["best"]])
         self.work = work
         self.graphs = None
         if dev.is_cuda:
@@ -340,28 +380,25 @@ class _Loop:
                 return
         self.failed = False
 
-    def _body(self) -> None:
+    def _body(self, render: bool = True) -> None:
         w = self.work
-        for cmd in w.render:
-            cmd.launch()
-        for cmd in w.cmds:
-            cmd.launch()
+        self.zero.launch()
+        if render:
+            for cmd in (*w.render, *w.cmds):
+                cmd.launch()
         w.moments.launch()
         self.solve.launch()
+        self.keep.launch()
 
     def _first(self, reuse: bool) -> None:
-        self.zero.launch()
-        if reuse:
-            self.work.moments.launch()
-            self.solve.launch()
-        else:
-            self._body()
+        self.start.launch()
+        self._body(not reuse)
 
     def _rest(self) -> None:
         b = self.bufs
         wp.capture_while(b["cond"], self._body)
         wp.copy(b["st_host"], b["st"])
-        wp.copy(b["last_host"], b["last"])
+        wp.copy(b["last_host"], self.work.acc)
         wp.copy(b["best_host"], b["best"])
 
     def first(self, reuse: bool) -> None:
@@ -384,8 +421,6 @@ def _buffers(eng) -> dict:
         dev, nv = eng.device, eng.n_views
         pinned = dev.is_cuda
         b = {"st": wp.zeros(_NS, dtype=wp.float64, device=dev),
-             "ws": wp.zeros(_NW, dtype=wp.float64, device=dev),
-             "last": wp.zeros((nv, NZ * NZ), dtype=wp.float64, device=dev),
              "best": wp.zeros((nv, NZ * NZ), dtype=wp.float64, device=dev),
              "cond": wp.zeros(1, dtype=wp.int32, device=dev),
              "st_host": wp.zeros(_NS, dtype=wp.float64, device="cpu", pinned=pinned),

@@ -91,3 +91,14 @@ def test_the_same_residuals_to_the_bit(shared):
             use[::7] = False  # fits with frames left out: other offsets
             got.append(np.array([t.residual(i, u) for u in (ok, use) for i in range(len(P))]))
         assert np.array_equal(got[0], got[1], equal_nan=True)
+
+
+def test_the_calibrations_median_is_numpys_to_the_bit():
+    rng = np.random.default_rng(0)
+    for m in [*range(1, 12), 99, 100, 257]:
+        for ties in (False, True):
+            S = np.abs(rng.normal(size=(m, 2))) * 0.05
+            S = np.round(S, 3) if ties else S
+            assert np.array_equal(flags_fit._median(S), np.median(S, axis=0))
+    S[0, 1] = np.nan
+    assert np.array_equal(flags_fit._median(S), np.median(S, axis=0), equal_nan=True)

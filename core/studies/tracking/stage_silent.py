@@ -44,17 +44,18 @@ SIGNAL_SETS = ("b941103", "d262386")
 SILENT = tuple((s, f"4_{m}", "calcaneus", 53) for s in SIGNAL_SETS for m in ("joint", "sequential"))
 
 
-def runs():
-    """:func:`core.studies.tracking.trajectory_silent.runs` over :data:`TABLE`, each with ``S`` the search's
-    poses (NaN where none: the older sets) and, for :data:`SIGNAL_SETS`, ``sig`` the stored
-    ``per_frame_signals``."""
+def runs(table=None):
+    """:func:`core.studies.tracking.trajectory_silent.runs` over :data:`TABLE` (or ``table``, alike), each
+    with ``searched`` the search's poses (None: the older sets) and, for :data:`SIGNAL_SETS`, ``sig`` the
+    stored ``per_frame_signals`` (b941103's with ``stored``, its stored trajectory flags)."""
     from core.studies.tracking.trajectory_gaps import BENCH, _rebuilt
     from core.studies.tracking.trajectory_silent import runs as stored
 
-    for r in stored(table=TABLE):
+    table = TABLE if table is None else table
+    for r in stored(table=table):
         r["searched"] = None
         if r["set"] in SIGNAL_SETS:
-            file = dict((lab, f) for lab, _, _, f in TABLE[r["set"]])[r["run"].split("_")[0]]
+            file = dict((lab, f) for lab, _, _, f in table[r["set"]])[r["run"].split("_")[0]]
             t = json.loads((BENCH / file).read_text())["runs"][r["mode"]]["tracking"][r["bone"]]
             sig = t["per_frame_signals"]
             if r["set"] == "b941103":

@@ -48,7 +48,9 @@ rules on) 2.5 / 2.4 / 2.3 / 2.2 / 2.1 / 2.0 leaves 2 / 2 / 1 / 1 / 1 / 1 silent 
 127 / 180 / 221 / 268 good frames flagged (2.3 catches it jointly, not sequentially; at 2.2 and below both
 are caught but the joint tibia frame 0 gets a fit and is left silent again), held out 126 / 182 / 271 / 309
 / 369 / 440 of 2800 good frames flagged (silent 266 / 260 / 236 / 222 / 208 / 201 of 455). No limit reaches
-zero on these runs, and 2.3 already flags 9.2 % of b797131's good frames.
+zero on these runs, and 2.3 already flags 9.2 % of b797131's good frames. The search's pose before the final
+stage, kept by the later runs (b941103, d262386), sets it apart: :mod:`core.tracking.flags_stage` (24ec33e)
+flags it in both modes (:mod:`core.studies.tracking.stage_silent`).
 """
 
 from __future__ import annotations

@@ -43,6 +43,7 @@ _X, _H, _TV, _BX = 0, 6, 12, 18
 (_BCHI, _HASB, _PRED, _IT, _ITERS, _NHOST, _UP, _STOP, _SMALL, _STATUS, _LAST, _BG, _OTH, _TRI,
  _REND) = range(24, 39)
 _XN = 40  # the result's x (the device's)
+assert (_STATUS, _LAST) == (33, 34)  # (the places _stop and _keep_kernel write and read as numbers)
 _NS = 48
 #: statuses: running, converged (a step taken, the loop ended by rose / tol / STOP_PRED), uphill
 #: (the pose before stands), a singular system, a view without usable pixels, the iterations spent

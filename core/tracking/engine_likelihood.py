@@ -223,8 +223,10 @@ STOP_PRED = 4.0
 #: A refinement's steps back to back on the device, the host waiting once (each step's table solved, the
 #: stopping rules and the next design by a kernel, the loop a CUDA graph's conditional node:
 #: :mod:`core.tracking.likelihood_device_steps`); the same steps up to the solves' float64 rounding. Off:
-#: the host solves each step's table and enqueues the next, as first measured.
-DEVICE_STEPS = False
+#: the host solves each step's table and enqueues the next, as first measured. ``"render"``: only refinements
+#: whose first step renders (a robust refinement's first step on the last design's images, where it most
+#: often ends, on the host).
+DEVICE_STEPS: bool | str = False
 #: Inside :func:`core.tracking.final_stage.confirm_move`'s second run: refinements to ``tol`` (no
 #: :data:`STOP_PRED` stop; the robust round from the first refinement's result)
 TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
@@ -502,7 +504,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         x = np.zeros(6) if x0 is None else np.asarray(x0, dtype=float).copy()
         best, n_it, pred, last = None, 0, 0.0, None
         got = None
-        if DEVICE_STEPS and not CHORD_STEPS and _DS.usable(self, iters, reuse, x, hv):  # (on the device)
+        if DEVICE_STEPS and not CHORD_STEPS and _DS.usable(self, iters, reuse, x, hv, DEVICE_STEPS):
             got = yield from _DS.device_refine(self, x, hv, tv, iters, reuse, uphill=UPHILL_RESOLVED,
                                                stop=STOP_PRED, small_ok=not TO_TOL.get())
         if got is not None:

@@ -434,14 +434,17 @@ def _buffers(eng) -> dict:
     return b
 
 
-def usable(eng, iters: int, reuse: bool, x: np.ndarray, h: np.ndarray) -> bool:
-    """Whether the refinement can run on the device (module docs)."""
+def usable(eng, iters: int, reuse: bool, x: np.ndarray, h: np.ndarray, mode=True) -> bool:
+    """Whether the refinement can run on the device (module docs; ``mode`` ``"render"``: not where its first
+    step reuses the last design's images)."""
     if int(iters) < 1 or eng._wcount_pending or not eng._graph_step():
         return False
     if FAILED is not None and eng.device.is_cuda:
         return False
     last = eng._last
     if reuse and last is not None and np.array_equal(last[2], x) and np.array_equal(last[3], h):
+        if mode == "render":
+            return False
         fw = eng.__dict__.get("_frame_work")
         return fw is not None and last[0] is fw[1].dd  # (the first step on the recorded step's images)
     return True

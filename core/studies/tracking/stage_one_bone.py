@@ -196,7 +196,8 @@ def _counting(counts: list):
 #: sandwich after the robust refinement's first step on / off
 #: (:data:`core.tracking.final_stage.SANDWICH_AFTER_STEP`), the robust factors' median's one sort off
 #: (:data:`core.tracking.likelihood_kernels.MEDIAN_ONE_SORT`), a refinement's steps on the device / the host
-#: (``devsteps`` / ``hoststeps``: :data:`core.tracking.engine_likelihood.DEVICE_STEPS`), the steps' tables
+#: (``devsteps`` / ``hoststeps``, ``devrender`` its ``"render"``: :data:`core.tracking.engine_likelihood.
+#: DEVICE_STEPS`), the steps' tables
 #: solved and the sandwich's autocovariance copied as before (:data:`core.tracking.likelihood_solve.
 #: LEAN_SOLVES`, :data:`core.tracking.likelihood_confidence.COV_ON_READ` off); ``h2prev`` the three
 #: first as at 97b2893 (the robust factors' CUDA graphs and the solves' direct calls measured then are
@@ -207,6 +208,7 @@ _PARTS = {"prefetch": (("core.tracking.register", "STAGE_PREFETCH", True),),
           "noafter": (("core.tracking.final_stage", "SANDWICH_AFTER_STEP", False),),
           "sorts": (("core.tracking.likelihood_kernels", "MEDIAN_ONE_SORT", False),),
           "devsteps": (("core.tracking.engine_likelihood", "DEVICE_STEPS", True),),
+          "devrender": (("core.tracking.engine_likelihood", "DEVICE_STEPS", "render"),),
           "hoststeps": (("core.tracking.engine_likelihood", "DEVICE_STEPS", False),),
           "nolean": (("core.tracking.likelihood_solve", "LEAN_SOLVES", False),
                      ("core.tracking.likelihood_confidence", "COV_ON_READ", False))}

@@ -48,8 +48,10 @@ def test_device_steps_are_the_host_loop_side_by_side(talus_calcaneus_128, monkey
         _same(a, b)
 
 
-def test_device_steps_are_the_host_loop_noisy(talus_scene, monkeypatch):
-    """The whole registration with its stage (the robust round, the sandwich after its first step)."""
+@pytest.mark.parametrize("mode", [True, "render"])
+def test_device_steps_are_the_host_loop_noisy(talus_scene, monkeypatch, mode):
+    """The whole registration with its stage (the robust round, the sandwich after its first step; "render":
+    the robust refinement's first step on the host)."""
     import core.tracking.engine_likelihood as el
     from core.tracking.register import register
 
@@ -57,7 +59,7 @@ def test_device_steps_are_the_host_loop_noisy(talus_scene, monkeypatch):
     frame, start, o = noisy_start(talus_scene)
     model, r = talus_scene["model"], talus_scene["renderer"]
     got = []
-    for on in (False, True):
+    for on in (False, mode):
         monkeypatch.setattr(el, "DEVICE_STEPS", on)
         got.append(register(r, frame, bone=0, initial_pose=start, center=model.centroid, options=o))
     _same(*got)

@@ -6,7 +6,8 @@ on seed 4 the calcaneus's frame 53 was over 4x (4.27x jointly, 4.13x sequentiall
 not flagged, in both modes. This study asks what a run holds about it (:func:`signals`: each signal with
 the share of the unflagged good frames that reach as high) and measures the rule made for it,
 :mod:`core.tracking.flags_stage` (:func:`counts`: frames over 4x left silent and good frames flagged,
-before and with it, per set; :func:`sweep`: its two limits).
+before and with it, per set; :func:`sweep`: its two limits; :func:`injected`: frames like frame 53 put
+into the held-out seeds' tracks).
 
 Runs (1024², 100 frames, jointly and sequentially, tracked on one NVIDIA H100; the check run here on the
 CPU), their poses rebuilt from the kept per-frame errors and the seed's truth as
@@ -33,7 +34,7 @@ import numpy as np
 from core.studies.tracking.trajectory_ends import TABLE as ENDS_TABLE
 from core.studies.tracking.trajectory_silent import _ok, _review
 
-__all__ = ["SIGNAL_SETS", "TABLE", "counts", "main", "runs", "signals", "sweep"]
+__all__ = ["SIGNAL_SETS", "TABLE", "counts", "injected", "main", "runs", "signals", "sweep"]
 
 #: The stored runs: b941103's (the silent frame's) and :mod:`core.studies.tracking.trajectory_ends`' sets.
 TABLE = {"b941103": [(s, s, True, f"tracking_acceptance_seed{s}_final_b941103_h100.json") for s in "034"],
@@ -135,6 +136,44 @@ def _sum(t: dict) -> dict:
     return out
 
 
+def injected(rs, *, k: float = 4.3, every: int = 3, sets=("b941103",), seeds=("0", "3")) -> dict:
+    """Frames like frame 53 put into the held-out tracks (``sets``' runs of ``seeds``, which the rule was
+    not made on): frame ``f`` (every ``every``-th of 4-94 in turn, each on its own, a good frame not
+    flagged by the per-frame checks) moved along x, the way its error already points, until its
+    translation error is ``k`` × the bone's RMS bound; its search's pose the frame's own pose before
+    (the stage moved it off). Per bone and in all: the frames put in, and those the check flags before
+    the rule and with it."""
+    from core.studies.tracking.trajectory_gaps import _rebuilt
+
+    out: dict = {"all": {"frames": 0, "before": 0, "after": 0}}
+    for r in rs:
+        if r["set"] not in sets or r["run"].split("_")[0] not in seeds:
+            continue
+        row = out.setdefault(r["bone"], {"frames": 0, "before": 0, "after": 0})
+        for f in range(4, 95, every):
+            e = r["E"][f]
+            if r["own"][f] or not r["good"][f] or not np.all(np.isfinite(e)):
+                continue
+            E = r["E"].copy()
+            t = k * r["bound"][0]
+            rest = float(e[1] ** 2 + e[2] ** 2)
+            if t * t <= rest:
+                continue
+            E[f, 0] = np.copysign(np.sqrt(t * t - rest), e[0] if e[0] != 0 else 1.0)
+            P = _rebuilt(E, r["T"], r["c"])
+            P[~_ok(r)] = np.nan
+            S = np.full_like(P, np.nan)
+            S[f] = r["P"][f]
+            q = dict(r, P=P)
+            before = f in _review(q, stage=None)
+            after = f in _review(q, searched=S)
+            for w in (row, out["all"]):
+                w["frames"] += 1
+                w["before"] += before
+                w["after"] += after
+    return out
+
+
 def _share(x: float, pool: np.ndarray):
     pool = pool[np.isfinite(pool)]
     return None if not np.isfinite(x) or not len(pool) else round(float(np.mean(pool >= x)), 4)
@@ -215,6 +254,7 @@ def main(argv=None) -> int:
     got = {"signals": signals(rs), **counts(rs)}
     if not a.no_sweep:
         got["sweep"] = sweep(rs)
+    got["injected"] = {f"{k:g}": injected(rs, k=k) for k in (4.3, 5.0)}
     for row in got["signals"]:
         print(row["frame"], {k: v for k, v in row.items() if k != "frame"})
     for k, v in got["per_set"].items():
@@ -223,6 +263,8 @@ def main(argv=None) -> int:
               f"{b['good_flagged']} -> {n['good_flagged']} of {b['good']}, mid flagged {b['mid_flagged']} -> "
               f"{n['mid_flagged']}")
     print("b941103 stored flags reproduced by the check before:", got["b941103_reproduced"])
+    for k, v in got["injected"].items():
+        print(f"injected {k}x:", v)
     for k, v in got.get("sweep", {}).items():
         print(k, {n: v[n] for n in ("silent", "good_flagged", "mid_flagged")})
     if a.out:

@@ -29,7 +29,8 @@ ENDS = True
 #: this 2-core x86_64 machine (shared), over the 18 bones of the acceptance runs at b941103 (seeds 0, 3
 #: and 4, both modes; poses rebuilt from the kept errors), alternated: 26.7 ms a bone (median) before,
 #: 13.1 with the weights solved afresh, 10.8 with them kept from an earlier run (the calibration's
-#: deltas were about half of the time before).
+#: deltas were about half of the time before); with its median by partition (:func:`_median`, 7b679ee)
+#: 110.9 against 49.2 ms on the same machine heavily loaded (paired ratio 2.26, 1.97 without it).
 SHARED = True
 #: ``(degree, offsets' bytes)`` -> :meth:`_Table._weights`' value, for every table (:data:`SHARED`);
 #: emptied when it holds :data:`_WEIGHTS_MAX`.

@@ -2,14 +2,14 @@
 (:func:`frozen`) and its collections counted (:class:`GcWatch`).
 
 A tracking process holds a few hundred thousand objects the collector follows (Warp's kernels and
-their syntax trees, ``inspect`` signatures, modules: 242 000 after a one-bone warm-up on this 2-core
-x86_64 machine, Python 3.11), made before the run and alive through it. Each full collection walks
-all of them: 150–215 ms on this machine, shared (one bone's frame loop on CPU, 24 frames of 64²,
-one full collection in its first run after the warm-up). The frames of a run allocate a few hundred
-objects that outlive the young collections, so the full ones are rare, but one that falls inside a
-100-frame run of ~0.6 s costs that run its length over 99 frames (~0.5–2 ms a frame) and is missed
-by a median of per-frame registration times. :func:`gc.freeze` moves every object alive at the run's
-start out of the collector's generations (:func:`gc.unfreeze` after the run puts them back): the
+their syntax trees, ``inspect`` signatures, modules: 242 000-247 000 after a one-bone warm-up on this
+2-core x86_64 machine, Python 3.11), made before the run and alive through it. Each full collection
+walks all of them: 150-222 ms on this machine, shared, 0.001 ms with them frozen
+(``resources/benchmarks/tracking_host_pauses_cpu.json``, :mod:`core.studies.tracking.host_pauses`). On
+this machine's CPU path a run of 8 frames made 1-2 young collections and no full one; a full one that
+falls inside a 100-frame run of ~0.6 s (one NVIDIA H100) would cost it ~0.5-2 ms a frame, missed by a
+median of per-frame registration times. :func:`gc.freeze` moves every object alive at the run's start
+out of the collector's generations (:func:`gc.unfreeze` after the run puts them back): the
 collections during the run walk the run's own objects only. What is collected and when changes
 nothing the tracker computes (the same poses and flags, tests); objects of before the run that
 become garbage during it are collected after it.

@@ -220,8 +220,8 @@ NEXT_FRAME_AHEAD = True
 
 #: The objects alive when a run starts frozen out of the cyclic garbage collector while it runs
 #: (:func:`core.tracking.gc_pause.frozen`): its full collections then walk the run's own objects, not the
-#: process's few hundred thousand (150-215 ms a full collection on this 2-core x86_64 machine). The same
-#: poses and flags (tests); off: as before.
+#: process's few hundred thousand (150-222 ms a full collection on this 2-core x86_64 machine,
+#: ``tracking_host_pauses_cpu.json``). The same poses and flags (tests); off: as before.
 GC_FREEZE = True
 
 #: The interpreter's thread switch interval (seconds, :func:`sys.setswitchinterval`) while a run tracks, put
@@ -229,8 +229,10 @@ GC_FREEZE = True
 #: interpreter at each wait for the device, and the feed's worker (the next frame's preparation,
 #: :class:`core.tracking.feed.FrameFeed`) or the pyramid's threads may take it: where one of them then runs
 #: Python code, the registering thread waits up to the interval for it back after the device is done. On
-#: this 2-core x86_64 machine, shared, 400 waits of 0.2 ms overshot by 49 ms in all alone and 151 ms beside a
-#: worker preparing 1024² frame pairs without pause (0.5 ms interval: 44 and 117 ms); not timed in a run.
+#: this 2-core x86_64 machine, shared, 400 sleeps of 0.2 ms overshot by 44 ms in all alone and 280 ms beside
+#: a thread preparing 1024² frame pairs without pause, at 0.5 ms by 58 and 85 ms
+#: (``resources/benchmarks/tracking_host_pauses_cpu.json``, :mod:`core.studies.tracking.host_pauses`); not
+#: timed in a run.
 #: The same poses either way (nothing computed depends on it).
 SWITCH_INTERVAL = None
 

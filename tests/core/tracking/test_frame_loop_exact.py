@@ -157,3 +157,15 @@ def test_switch_interval_set_within_and_put_back():
     with _switch_interval(0.0005):
         assert abs(sys.getswitchinterval() - 0.0005) < 1e-9
     assert sys.getswitchinterval() == was
+
+
+def test_host_pauses_gil_overshoot_puts_the_interval_back():
+    import sys
+
+    from core.studies.tracking.host_pauses import gil_overshoot
+
+    was = sys.getswitchinterval()
+    got = gil_overshoot(n=10, worker=True, interval=0.0005)
+    assert sys.getswitchinterval() == was
+    assert got["worker"] and got["switch_interval_s"] == 0.0005 and got["sum_ms"] >= 0.0
+    assert gil_overshoot(n=5)["frames_prepared"] == 0

@@ -35,7 +35,7 @@ def model_matrices(model: str) -> tuple[np.ndarray, np.ndarray]:
     raise ValueError(f"model: expected 'velocity' or 'acceleration', got {model!r}")
 
 
-def kalman(z, r, lam, model: str, *, keep: bool = False, boost=None, inflate=None):
+def kalman(z, r, lam, model: str, *, keep: bool = False, boost=None, inflate=None, ar=None):
     """Forward filter of ``C`` independent coordinates, each with ``G`` process-noise ratios.
 
     ``z``, ``r``: ``(n, C)`` measurements and their variances (unit scale; ``inf`` or a NaN ``z``: no
@@ -45,16 +45,19 @@ def kalman(z, r, lam, model: str, *, keep: bool = False, boost=None, inflate=Non
     ``(C, G)``, the scale ``k²`` it concentrates (the mean squared normalised innovation), the robust
     scale (their median over :data:`CHI2_1_MEDIAN`: a few outliers do not move it), and with ``keep``
     the predicted and filtered states and covariances ``(n, C, G, d[, d])`` and the coordinates'
-    offsets ``z0`` for :func:`rts`."""
+    offsets ``z0`` for :func:`rts`.
+
+    ``ar``: ``(phi, base)``, the measurement errors correlated from frame to frame: each coordinate's
+    error is an AR(1) process with coefficient ``phi`` ``(C, G)`` and variance ``base`` ``(n, C)``
+    (a frame's plain variance), one more state; what ``r`` (times ``inflate``) adds over ``base`` is
+    white. The states are then ``d + 1`` long, the last the error (:func:`_kalman_ar`)."""
+    if ar is not None:
+        return _kalman_ar(z, r, lam, model, keep, boost, inflate, *ar)
     F, Q0 = model_matrices(model)
     d = len(F)
     n, C = z.shape
     G = lam.shape[1]
-    meas = np.isfinite(z) & np.isfinite(r) & (r > 0)
-    z0 = np.array([z[meas[:, c], c][0] if meas[:, c].any() else 0.0 for c in range(C)])
-    zc = np.where(meas, z - z0, 0.0)
-    span = np.array([np.ptp(zc[meas[:, c], c]) if meas[:, c].any() else 1.0 for c in range(C)])
-    big = (1e3 * (span + 1.0)) ** 2  # a diffuse start: the first d measurements set the state
+    meas, z0, zc, big = _start(z, r)  # a diffuse start: the first d measurements set the state
     x = np.zeros((C, G, d))
     P = np.broadcast_to(np.eye(d), (C, G, d, d)) * big[:, None, None, None]
     Q = lam[..., None, None] * Q0
@@ -97,13 +100,91 @@ def kalman(z, r, lam, model: str, *, keep: bool = False, boost=None, inflate=Non
     return ll, k2, k2r
 
 
+def _start(z, r):
+    """The measured entries, each coordinate's first measurement, the measurements less it and the
+    diffuse start's variance."""
+    C = z.shape[1]
+    meas = np.isfinite(z) & np.isfinite(r) & (r > 0)
+    z0 = np.array([z[meas[:, c], c][0] if meas[:, c].any() else 0.0 for c in range(C)])
+    zc = np.where(meas, z - z0, 0.0)
+    span = np.array([np.ptp(zc[meas[:, c], c]) if meas[:, c].any() else 1.0 for c in range(C)])
+    return meas, z0, zc, (1e3 * (span + 1.0)) ** 2
+
+
+def _kalman_ar(z, r, lam, model, keep, boost, inflate, phi, base):
+    """:func:`kalman` with AR(1) measurement errors (its ``ar``): the state is the motion's and the
+    error's, measured as their sum."""
+    F0, Q0 = model_matrices(model)
+    d = len(F0)
+    n, C = z.shape
+    G = lam.shape[1]
+    a = d + 1
+    meas, z0, zc, big = _start(z, r)
+    F = np.zeros((C, G, a, a))
+    F[..., :d, :d] = F0
+    F[..., d, d] = phi
+    Ft = F.swapaxes(-1, -2)
+    Qm = lam[..., None, None] * Q0
+    b = np.where(np.isfinite(base) & (base > 0), base, np.nan)
+    b0 = np.array([np.nanmedian(b[:, c]) if np.isfinite(b[:, c]).any() else 1.0 for c in range(C)])
+    b = np.where(np.isfinite(b), b, b0)
+    x = np.zeros((C, G, a))
+    P = np.zeros((C, G, a, a))
+    P[..., :d, :d] = np.eye(d) * big[:, None, None, None]
+    P[..., d, d] = b[0][:, None]
+    u2 = np.full((n, C, G), np.nan)
+    logs = np.zeros((C, G))
+    count = np.zeros(C, dtype=int)
+    seen = np.zeros(C, dtype=int)
+    store = {k: np.empty((n, C, G, a) + ((a,) if k[0] == "P" else ())) for k in ("xp", "Pp", "xf", "Pf")} \
+        if keep else None
+    for t in range(n):
+        if t:
+            x = (F @ x[..., None])[..., 0]
+            P = F @ P @ Ft
+            P[..., :d, :d] += Qm if boost is None else Qm * boost[t][..., None, None]
+            P[..., d, d] += (1.0 - phi ** 2) * b[t][:, None]
+        if keep:
+            store["xp"][t], store["Pp"][t] = x, P
+        m = meas[t]
+        if m.any():
+            rt = np.where(m, r[t], 1.0)[:, None]
+            white = np.maximum((rt if inflate is None else rt * inflate[t]) - b[t][:, None], 0.0)
+            PH = P[..., :, 0] + P[..., :, d]
+            S = PH[..., 0] + PH[..., d] + white
+            K = PH / S[..., None]
+            v = zc[t][:, None] - x[..., 0] - x[..., d]
+            mk = m[:, None, None]
+            x = np.where(mk, x + K * v[..., None], x)
+            P = np.where(mk[..., None], P - K[..., :, None] * K[..., None, :] * S[..., None, None], P)
+            use = m & (seen >= d)
+            u2[t] = np.where(use[:, None], v ** 2 / S, np.nan)
+            logs += np.where(use[:, None], np.log(S), 0.0)
+            count += use
+            seen += m
+        if keep:
+            store["xf"][t], store["Pf"][t] = x, P
+    if keep:
+        store["F"] = F
+    cnt = np.maximum(count, 1)[:, None]
+    k2 = np.nansum(u2, axis=0) / cnt
+    with np.errstate(all="ignore"):
+        k2r = np.where(count[:, None] > 0, np.nanmedian(np.where(count[None, :, None] > 0, u2, 0.0), axis=0),
+                       0.0) / CHI2_1_MEDIAN
+    ll = -0.5 * (cnt * np.log(np.maximum(k2, 1e-300)) + logs + cnt * (1 + math.log(2 * math.pi)))
+    if keep:
+        return ll, k2, k2r, store, z0
+    return ll, k2, k2r
+
+
 def rts(store, model: str):
     """Rauch–Tung–Striebel pass over :func:`kalman`'s stored states: smoothed states and
     covariances ``(n, C, G, d[, d])`` (unit scale)."""
-    F, _ = model_matrices(model)
+    F = store["F"] if "F" in store else model_matrices(model)[0]
     xs, Ps = store["xf"].copy(), store["Pf"].copy()
     for t in range(len(xs) - 2, -1, -1):
-        A = np.linalg.solve(store["Pp"][t + 1], (store["Pf"][t] @ F.T).swapaxes(-1, -2)).swapaxes(-1, -2)
+        A = np.linalg.solve(store["Pp"][t + 1], (store["Pf"][t] @ F.swapaxes(-1, -2)).swapaxes(-1, -2)
+                            ).swapaxes(-1, -2)
         xs[t] = store["xf"][t] + (A @ (xs[t + 1] - store["xp"][t + 1])[..., None])[..., 0]
         Ps[t] = store["Pf"][t] + A @ (Ps[t + 1] - store["Pp"][t + 1]) @ A.swapaxes(-1, -2)
     return xs, Ps

@@ -65,8 +65,10 @@ RUNS = {s: f"tracking_acceptance_seed{s}_final_d262386_h100.json" for s in (0, 3
 #: the smoother's variants: name -> smooth_poses keywords
 VARIANTS = {
     # smooth_poses' defaults: constant acceleration, every frame alike (the median sigma), flagged frames
-    # measured, robust 2.5, bursts let in, outliers taken (a flagged frame credited FLAGGED_PRIOR)
+    # measured, robust 2.5, bursts let in, outliers taken (a flagged frame credited FLAGGED_PRIOR), the
+    # errors' AR(1) correlation fitted
     "acceleration": {},
+    "acceleration_independent": {"correlated": False},
     "acceleration_no_outliers": {"outliers": None},
     "acceleration_no_flagged_prior": {"flagged_prior": 0.0},
     "acceleration_sigma": {"weigh": "sigma"},

@@ -62,7 +62,7 @@ import numpy as np
 
 from ..geometry.transforms import pose_from_params
 from .noise import NOISE_OPTION, FrameNoise, noise_maps
-from .roi import OutsideViewError, search_roi, snap_roi
+from .roi import OutsideViewError, pixel_mm, search_roi, snap_roi
 
 __all__ = ["DEFAULT_TERMS", "NOISE_OPTION", "RIM_OPTION", "CostTimer", "FrameImages", "MetricTerm",
            "OutsideViewError", "RegistrationCost", "fluoro_rois", "metric_terms", "mm_per_pixel",
@@ -103,15 +103,9 @@ _MM_KEYS = {"fluoro_sigma_mm": "fluoro_sigma", "drr_sigma_mm": "drr_sigma"}
 
 
 def mm_per_pixel(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence[int] | None = None) -> float:
-    """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views``."""
-    views = range(len(renderer.cameras)) if views is None else views
-    c = pose[:3, :3] @ center + pose[:3, 3]
-    out = []
-    for v in views:
-        cam = renderer.cameras[v]
-        depth = float(cam.R[2] @ c + cam.t[2])  # the depth of Camera.project
-        out.append(depth / max(cam.fx, cam.fy))
-    return float(np.mean(out))
+    """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views`` (the depth of
+    :meth:`core.geometry.Camera.project` over ``max(fx, fy)``; :func:`core.tracking.roi.pixel_mm`)."""
+    return pixel_mm(renderer, pose, center, views)
 
 
 def _in_pixels(options, px_mm: float | None) -> dict:

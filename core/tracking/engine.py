@@ -246,6 +246,7 @@ class GaussNewtonCost(_EngineBuffers):
         self._prepared = None  # (the frame, the inputs) of the regions now prepared (set_frame)
         self._unsynced = False  # a preparation's copies from pinned memory may still be in flight
         self._cmds: dict = {}  # recorded launches of the frame preparation (_launch)
+        self._cmd_last: dict = {}  # name -> (dim, inputs, launch) of its last launch (_launch's shortcut)
         self._hw_last = self._info_last = None  # the ROI sizes and staging geometry on the device
         self._siblings: dict = {}  # costs sharing this one's prepared regions (sibling)
         # CUDA: the poses' item tables on the device, each step one graph (engine_render)
@@ -287,14 +288,28 @@ class GaussNewtonCost(_EngineBuffers):
         self._prepared = None
         if self._unsynced and self.device.is_cuda:  # the last preparation's copies from pinned memory
             wp.synchronize_device(self.device)
+        if others is None or not len(others[1]):  # (one bone: the preparation as one CUDA graph, PREP_GRAPH)
+            self._record()
+        try:
+            self._prepare_frame(frame, key, others, px_mm)
+        except BaseException:
+            self._flush()  # (what was asked for before the error, run as it would have been)
+            raise
+        self._replay()
+        self.timer.host += time.perf_counter() - t0
+
+    def _prepare_frame(self, frame, key, others, px_mm) -> None:
+        """:meth:`set_frame`'s preparation of a new frame or new inputs (its operations recorded where
+        :data:`~core.tracking.engine_buffers.PREP_GRAPH` is set)."""
         if self._dev_render is not None:
-            self._dev_render.upload(self.base, self.center, self.roi)
+            self._dev_render.upload(self.base, self.center, self.roi, copy=self._copy)
         if px_mm is None:
             px_mm = mm_per_pixel(self.renderer, self.base, self.center, self.views)
         px_mm = self.scale * px_mm
         taps, ftaps = self._taps(px_mm)
         staged = staged_shapes(self, frame) if self.device_frames else None
         if staged is None:
+            self._flush()  # (the host's preparation: its copies as they are asked for)
             if self.scale > 1 and isinstance(frame, FrameImages):  # a pyramid level
                 rois, masks = pyramid_rois(frame, self.views, self.roi, self.scale)
             else:
@@ -302,7 +317,7 @@ class GaussNewtonCost(_EngineBuffers):
                                           scale=self.scale)
             shapes = [r.shape for r in rois]
         else:
-            shapes = [(int(r[3]), int(r[2])) for r in self.roi]
+            shapes = [(r[3], r[2]) for r in self.roi.tolist()]
         need = (max(sh[0] for sh in shapes), max(sh[1] for sh in shapes))
         same_taps = (taps is None and self._blur_taps is None) or (
             taps is not None and self._blur_taps is not None and len(taps) == len(self._blur_taps))
@@ -311,7 +326,7 @@ class GaussNewtonCost(_EngineBuffers):
         new = tuple(int(math.ceil(n / 32.0) * 32) for n in need)
         if new != self._cap or not same_taps:
             self._allocate(new, taps)
-        if taps is not None and not np.array_equal(taps, self._blur_taps):
+        if taps is not None and taps is not self._blur_taps and not np.array_equal(taps, self._blur_taps):
             self._put("blur", self._blur, taps)
         self._blur_taps = self._bufs.blur_taps = taps
         Hc, Wc = self._cap
@@ -320,7 +335,7 @@ class GaussNewtonCost(_EngineBuffers):
         hw_now = tuple(tuple(int(a) for a in sh) for sh in shapes)
         if hw_now != self._hw_last:
             self._host_hw_np[:] = np.array(shapes, dtype=np.int32)
-            copy_array(self._ref_hw, self._host_hw)
+            self._copy(self._ref_hw, self._host_hw)
             self._hw_last = hw_now
         rim = rim_radius(self.rim_sigmas, self._f_sig, self.scale)
         if staged is None:
@@ -337,6 +352,7 @@ class GaussNewtonCost(_EngineBuffers):
             self._rim_on = rim
         src = self._raw0  # the regions' line integrals as prepared
         if others is not None and len(others[1]):  # subtracted on the device, at the fixed output size
+            self._flush()
             nb = len(others[1])
             images = self._render(np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1]))
             self._launch("subtract", subtract_kernel, (nv, Hc, Wc), [self._raw0, images, nb, self._raw])
@@ -345,14 +361,14 @@ class GaussNewtonCost(_EngineBuffers):
             if self._fblur is None or len(self._fblur) != len(ftaps):
                 self._fblur = wp.array(ftaps, dtype=wp.float32, device=dev)
                 self._fblur_taps = ftaps
-            elif not np.array_equal(ftaps, self._fblur_taps):
+            elif ftaps is not self._fblur_taps and not np.array_equal(ftaps, self._fblur_taps):
                 self._put("fblur", self._fblur, ftaps)
                 self._fblur_taps = ftaps
             for a, dst, axis in ((src, self._ftmp, 1), (self._ftmp, self._fluoro, 0)):
                 self._launch(f"blur{axis}", K.blur_kernel, (nv, Hc, Wc),
                              [a, dst, self._fblur, self._ref_hw, nv, axis])
         else:
-            wp.copy(self._fluoro, src)
+            self._copy(self._fluoro, src)
         ys = self._fluoro
         noise = int(self.noise and self.scale == 1.0 and isinstance(frame, FrameImages))
         if noise:
@@ -365,7 +381,6 @@ class GaussNewtonCost(_EngineBuffers):
         self._count_pending = ran
         self._prepared = (weakref.ref(frame), key)
         self._unsynced = True
-        self.timer.host += time.perf_counter() - t0
 
     def _noise_setup(self, frame: FrameImages, ftaps, src) -> wp.array:
         """The noise correction's inputs of this frame (full resolution): each view's ``E₁``

@@ -24,6 +24,17 @@ _BUFFER_SETS = 6
 
 _SERIAL = itertools.count()
 
+#: Switch (off; CUDA devices): a frame's preparation in
+#: :meth:`~core.tracking.engine.GaussNewtonCost.set_frame` (full resolution, the regions read from the
+#: shared upload of the frame, no neighbours subtracted: one bone) — the pose geometry and blur taps
+#: uploaded from pinned memory, the statistics zeroed, the regions prepared, smoothed and differentiated,
+#: the usable-pixel count copied back: about twelve runtime calls, 10-20 us of host time each on one
+#: NVIDIA H100's host (cProfile at ad38ce9) — recorded and replayed as one CUDA graph, one per sequence of
+#: operations (kept per engine, :data:`PREP_GRAPHS`); the same operations in the same order on the same
+#: buffers, so the same results to the bit. On the CPU the recorded operations run in order (a test's path).
+PREP_GRAPH = False
+PREP_GRAPHS = 16
+
 
 def copy_array(dst: wp.array, src: wp.array, count: int = 0) -> None:
     """``wp.copy(dst, src, 0, 0, count)`` of contiguous arrays: between a CUDA array and host memory
@@ -57,6 +68,17 @@ def copy_array(dst: wp.array, src: wp.array, count: int = 0) -> None:
     wp.copy(dst, src, 0, 0, count)
 
 
+def _same_inputs(kept: list, inputs: list) -> bool:
+    """Whether ``inputs`` give the key :meth:`_EngineBuffers._launch` made of ``kept``: each the same object,
+    or numbers of equal value (a shortcut: anything else is looked up by its key)."""
+    if len(kept) != len(inputs):
+        return False
+    for a, b in zip(kept, inputs, strict=True):
+        if a is not b and not (isinstance(a, (int, float)) and isinstance(b, (int, float)) and a == b):
+            return False
+    return True
+
+
 @dataclass(eq=False)
 class _Buffers:
     """The fluoroscope buffers of one output size of an engine, the pipelines recorded on them
@@ -79,12 +101,92 @@ class _Buffers:
     host_mask_wp: object = None
 
 
+def _run_op(op: tuple) -> None:
+    """One recorded operation (:meth:`_EngineBuffers._copy`, ``_zero``, ``_launch``)."""
+    if op[0] == 0:
+        copy_array(op[1], op[2], op[3])
+    elif op[0] == 1:
+        op[1].zero_()
+    else:
+        op[1].launch()
+
+
 class _EngineBuffers:
     """The buffer handling of :class:`core.tracking.engine.GaussNewtonCost` (module docs)."""
+
+    _rec = None  # the operations recorded (PREP_GRAPH), or None: each runs as it is asked for
+    _prep_graphs = None  # key -> (graph, operations): the recorded preparations captured
+    _prep_failed = False  # a capture failed: this engine's preparations run one by one
+
+    def _copy(self, dst: wp.array, src: wp.array, count: int = 0) -> None:
+        """:func:`copy_array` now, or recorded (:data:`PREP_GRAPH`)."""
+        if self._rec is None:
+            copy_array(dst, src, count)
+        else:
+            self._rec.append((0, dst, src, count))
+
+    def _zero(self, a: wp.array) -> None:
+        if self._rec is None:
+            a.zero_()
+        else:
+            self._rec.append((1, a, None, 0))
+
+    def _record(self) -> None:
+        """Record the operations asked for from here on (:data:`PREP_GRAPH`, a CUDA device; on the CPU too
+        where the switch is set, to run them in order at :meth:`_replay`)."""
+        if PREP_GRAPH and not self._prep_failed:
+            self._rec = []
+
+    def _flush(self) -> None:
+        """Run the operations recorded so far, in order, and record no more (a path no graph takes)."""
+        ops, self._rec = self._rec, None
+        for op in ops or ():
+            _run_op(op)
+
+    def _replay(self) -> None:
+        """The recorded operations enqueued: as one CUDA graph (captured the first time this sequence of
+        operations on these buffers is seen), or in order."""
+        ops, self._rec = self._rec, None
+        if not ops:
+            return
+        if not self.device.is_cuda:
+            for op in ops:
+                _run_op(op)
+            return
+        if self._prep_graphs is None:
+            self._prep_graphs = {}
+        key = tuple((op[0], id(op[1]), id(op[2]), op[3]) for op in ops)
+        hit = self._prep_graphs.get(key)
+        if hit is None:
+            try:
+                with wp.ScopedCapture(device=self.device) as cap:
+                    for op in ops:
+                        _run_op(op)
+            except Exception as e:  # (a capture the device refused: this engine's operations one by one)
+                import warnings
+
+                self._prep_failed = True
+                warnings.warn(f"Gauss-Newton engine: a frame's preparation not captured as a CUDA graph "
+                              f"({e!r}); its operations run one by one", RuntimeWarning, stacklevel=2)
+                wp.synchronize_device(self.device)
+                for op in ops:
+                    _run_op(op)
+                return
+            while len(self._prep_graphs) >= PREP_GRAPHS:
+                self._prep_graphs.pop(next(iter(self._prep_graphs)))
+            hit = self._prep_graphs[key] = (cap.graph, ops)  # (the operations' objects kept with it)
+        wp.capture_launch(hit[0])
 
     def _launch(self, name: str, kernel, dim: tuple, inputs: list) -> None:
         """Launch ``kernel`` through a recorded launch, kept while its dimensions, arrays and
         values stay the same (the frame preparation's launches from frame to frame)."""
+        last = self._cmd_last.get(name)
+        if last is not None and last[0] == dim and _same_inputs(last[1], inputs):  # this name's last launch
+            if self._rec is None:
+                last[2].launch()
+            else:
+                self._rec.append((2, last[2], None, 0))
+            return
         key = (name, dim, tuple([(a.ptr, a.shape) if isinstance(a, wp.array)
                                  else a if isinstance(a, (int, float)) else id(a) for a in inputs]))
         cmd = self._cmds.get(key)
@@ -93,7 +195,11 @@ class _EngineBuffers:
             if len(self._cmds) >= 8 * _BUFFER_SETS:
                 self._cmds.pop(next(iter(self._cmds)))
             self._cmds[key] = cmd
-        cmd.launch()
+        self._cmd_last[name] = (dim, list(inputs), cmd)
+        if self._rec is None:
+            cmd.launch()
+        else:
+            self._rec.append((2, cmd, None, 0))
 
     def _put(self, name: str, dst: wp.array, values: np.ndarray) -> None:
         """Copy ``values`` into the device array ``dst`` through a pinned buffer of this cost's
@@ -103,7 +209,7 @@ class _EngineBuffers:
             buf = wp.zeros(dst.shape, dtype=dst.dtype, device="cpu", pinned=self.device.is_cuda)
             hit = self._pinned[name] = (buf, buf.numpy())
         hit[1][:] = values
-        copy_array(dst, hit[0])
+        self._copy(dst, hit[0])
 
     def _taps(self, px_mm: float):
         """The DRR and fluoroscope blur taps at this pixel size (kept for the next frames)."""
@@ -165,7 +271,8 @@ class _EngineBuffers:
         sib = self._siblings.get(k)
         if sib is None:
             sib = copy.copy(self)
-            sib._siblings, sib._pipes, sib._tables, sib._cmds = {}, {}, {}, {}
+            sib._siblings, sib._pipes, sib._tables, sib._cmds, sib._cmd_last = {}, {}, {}, {}, {}
+            sib._rec, sib._prep_graphs = None, None
             sib._buf_sets, sib._bufs = {}, None
             sib._pending, sib._prepared, sib._unsynced = None, None, False
             self._siblings[k] = sib

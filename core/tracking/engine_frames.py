@@ -108,11 +108,11 @@ def staged_shapes(self, frame) -> list | None:
         return None
     p = frame._erode if frame._valid is not None else 0
     out = []
-    for i, v in enumerate(self.views):
-        u0, v0, w, h = (int(a) for a in self.roi[i])
+    shapes = frame.shapes
+    for v, (u0, v0, w, h) in zip(self.views, self.roi.tolist(), strict=True):  # (Python integers)
         if w <= 0 or h <= 0:
             raise OutsideViewError(f"roi: the search region of view {v} is empty (outside the image)")
-        H, W = frame.shapes[v]
+        H, W = shapes[v]
         if u0 < 0 or v0 < 0 or u0 + w > W or v0 + h > H:
             return None
         out.append((max(v0 - p, 0), min(v0 + h + p, H), max(u0 - p, 0), min(u0 + w + p, W), p))
@@ -172,6 +172,7 @@ def stage(self, frame: FrameImages, staged: list) -> bool:
             return False  # raw0, the masks and the statistics on the device are these regions'
         _prepare(self, frame, frame_rows(frame, self.views, self.roi), up.src, up.given, done)
         return True
+    self._flush()  # (this engine's own rows: uploaded as they are asked for, not recorded)
     need = (nv, Hc + 2 * p, Wc + 2 * p)
     given = any(frame._given[v] is not None for v in self.views)
     last = self._staged_last
@@ -223,18 +224,19 @@ def _prepare(self, frame: FrameImages, info: np.ndarray, src, given, done: tuple
     Hc, Wc = self._cap
     p = done[4]
     lo, hi = done[2], done[3]
-    if self._info_last is None or not np.array_equal(info, self._info_last):
+    last = self._info_last  # (int32 rows: equal arrays are equal bytes)
+    if last is None or last.shape != info.shape or last.tobytes() != info.tobytes():
         self._host_info_np[:] = info
-        copy_array(self._info, self._host_info)
+        self._copy(self._info, self._host_info)
         self._info_last = info
-    self._fmax.zero_()
-    self._msum.zero_()
+    self._zero(self._fmax)
+    self._zero(self._msum)
     chunk = 4096
     self._launch("roi", fluoro_roi_kernel, (nv, math.ceil(Hc * Wc / chunk), _LANES),
                  [src, given, self._info, float(lo), float(hi), int(p),
                   int(frame._valid is not None), chunk, self._raw0, self._fmask, self._fmax, self._msum])
     self._launch("shift", fluoro_shift_kernel, (nv,), [self._msum, self.mode, self._fshift, self._count])
-    copy_array(self._host_count, self._count)
+    self._copy(self._host_count, self._count)
     self._stage_done = (weakref.ref(frame), done)
     self._stage_checked = False
 

@@ -36,9 +36,10 @@ def host_poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarra
     """:func:`core.geometry.transforms.pose_from_params` of ``(mm, degrees)`` rows ``X``."""
     B = len(X)
     r = np.radians(X[:, 3:])
-    th = np.linalg.norm(r, axis=1)
+    th = np.sqrt(np.add.reduce(r * r, axis=1))  # (np.linalg.norm(r, axis=1)'s arithmetic, without its checks)
     small = th < 1e-8
-    k = r / np.where(small, 1.0, th)[:, None]
+    any_small = bool(np.logical_or.reduce(small))
+    k = r / (np.where(small, 1.0, th) if any_small else th)[:, None]
     # the cross-product matrices of the axes, filled in place (the values np.stack gave)
     Kx = np.zeros((B, 3, 3))
     Kx[:, 0, 1] = -k[:, 2]
@@ -49,7 +50,7 @@ def host_poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarra
     Kx[:, 2, 1] = k[:, 0]
     s, c = np.sin(th)[:, None, None], (1.0 - np.cos(th))[:, None, None]
     Rd = _EYE3 + s * Kx + c * (Kx @ Kx)
-    if small.any():
+    if any_small:
         Rd[small] = _EYE3
     Rb, tb = base[:3, :3], base[:3, 3]
     c_lab = Rb @ center + tb
@@ -122,9 +123,10 @@ class DeviceRender:
         self._geo_np[15:27] = np.asarray(r._T_idx[c.bone], dtype=np.float64)[:3].ravel()
         self._last = None
 
-    def upload(self, base: np.ndarray, center: np.ndarray, roi: np.ndarray) -> bool:
+    def upload(self, base: np.ndarray, center: np.ndarray, roi: np.ndarray, copy=copy_array) -> bool:
         """Enqueue the copies of a new base pose, centre and ROIs (True when something was copied:
-        the pinned buffers must not change until the device has taken them)."""
+        the pinned buffers must not change until the device has taken them; ``copy``: how, the
+        engine's own where it records its preparation)."""
         key = (base.tobytes(), center.tobytes(), roi.tobytes())
         if key == self._last:
             return False
@@ -133,7 +135,7 @@ class DeviceRender:
         g[9:12] = base[:3, 3]
         g[12:15] = center
         g[27:] = roi.ravel()
-        copy_array(self.geo, self._host_geo)
+        copy(self.geo, self._host_geo)
         self._last = key
         return True
 

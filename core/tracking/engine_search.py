@@ -85,14 +85,17 @@ def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.nd
     nv = len(M)
     w = [1.0 / nv] * nv if weights is None else list(np.asarray(weights, float) / np.sum(weights))
     n = M[:, 0, 0]
-    ok = n >= 2
-    every = bool(ok.all())
+    every = all(a >= 2 for a in n.tolist())  # (the checks on Python floats: the same comparisons)
+    ok = None if every else n >= 2
     m = M[:, 0] / (n if every else np.where(ok, n, 1.0))[:, None]
     # centred sums of (., a, b, D): S - n m mᵀ, scaled
     C = (M - n[:, None, None] * (m[:, :, None] * m[:, None, :])) * _scale2(h)
     caa, cbb, cab = C[:, 1, 1], C[:, 2, 2], C[:, 1, 2]
-    ok &= (caa > 0) & (cbb > 0)
-    if every and bool(ok.all()):  # every view has contrast: nothing to leave out
+    if every:
+        every = all(a > 0 and b > 0 for a, b in zip(caa.tolist(), cbb.tolist(), strict=True))
+    if not every:
+        ok = (n >= 2) & (caa > 0) & (cbb > 0)
+    if every:  # every view has contrast: nothing to leave out
         cb = cbb
         sq = np.sqrt(caa * cbb)
     elif not ok.any():
@@ -144,15 +147,15 @@ class LevenbergMarquardt:
         self.t_start = time.perf_counter()
         self.lo = np.asarray(lower, dtype=float)
         self.hi = np.asarray(upper, dtype=float)
-        self.h = np.array(np.broadcast_to(np.asarray(step, dtype=float), (6,)))
-        self.tr = (8.0 * self.h if trust is None
-                   else np.array(np.broadcast_to(np.asarray(trust, dtype=float), (6,))))
-        if not (self.h.min() > 0 and self.tr.min() > 0):
+        self.h = _six(step)
+        self.tr = 8.0 * self.h if trust is None else _six(trust)
+        # (every value above 0, as min() > 0: a NaN fails)
+        if not (all(v > 0 for v in self.h.tolist()) and all(v > 0 for v in self.tr.tolist())):
             raise ValueError(f"step, trust: expected positive (mm, degrees) values, got {step!r}, {trust!r}")
         self.x0 = np.asarray(x0, dtype=float)
         # keep the design inside the box
         self._lo_in, self._hi_in = self.lo + self.h, self.hi - self.h
-        self.x = np.clip(self.x0, self._lo_in, self._hi_in)
+        self.x = self.x0.clip(self._lo_in, self._hi_in)  # (np.clip's method, without its dispatch)
         self.tol_x, self.tol_noise = float(tol_x), float(tol_noise)
         self.max_generations = int(max_generations)
         self.best = None  # the accepted step
@@ -175,7 +178,7 @@ class LevenbergMarquardt:
             d = np.linalg.solve(A, -s.g)
         except np.linalg.LinAlgError:
             d = -s.g / dg
-        u = (np.abs(d) / self.tr).max()
+        u = np.maximum.reduce(np.abs(d) / self.tr)  # (ndarray.max's ufunc)
         return d / u if u > 1 else d
 
     def _correction(self, s) -> np.ndarray:
@@ -246,7 +249,7 @@ class LevenbergMarquardt:
                 self.reason, self.done = "stalled", True
                 return
             d = self._solve(best, self.lam)
-            self.x = np.clip(best.x + d, self._lo_in, self._hi_in)
+            self.x = (best.x + d).clip(self._lo_in, self._hi_in)
             return
         if best is not None:  # secant: the gradient's change along the step against the model's
             # (the moments' gradients: the correction held fixed, its own change is no curvature)
@@ -262,11 +265,13 @@ class LevenbergMarquardt:
         d = self._solve(s, self.lam)
         if _TRACE is not None:
             _TRACE.append((s.x.copy(), s.cost, self.noise, d.copy(), self.alpha))
-        if (np.abs(d) < self.tol_x).all() or 0.5 * self.alpha * d @ s.H @ d < self.tol_noise * self.noise:
+        tol = self.tol_x
+        if (all(v < tol for v in np.abs(d).tolist())
+                or 0.5 * self.alpha * d @ s.H @ d < self.tol_noise * self.noise):
             self.reason, self.done = "tol_x", True
-            self.final_x = np.clip(s.x + d, self.lo, self.hi)
+            self.final_x = (s.x + d).clip(self.lo, self.hi)
             return
-        self.x = np.clip(s.x + d, self._lo_in, self._hi_in)
+        self.x = (s.x + d).clip(self._lo_in, self._hi_in)
 
     def result(self) -> OptimizeResult:
         """The outcome once :meth:`ask` has returned None."""
@@ -279,6 +284,12 @@ class LevenbergMarquardt:
         fun = fit.predict(final_x - self.best.x)
         return OptimizeResult(final_x, float(fun), self.evals, self.gens, t, self.reason == "tol_x",
                               self.reason, "gauss_newton", fit)
+
+
+def _six(v) -> np.ndarray:
+    """``v`` as a new (6,) float array (a scalar repeated): ``np.array(np.broadcast_to(v, (6,)))``."""
+    a = np.asarray(v, dtype=float)
+    return a.copy() if a.shape == (6,) else np.array(np.broadcast_to(a, (6,)))
 
 
 def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,

@@ -305,9 +305,7 @@ if hasattr(os, "register_at_fork"):
 def frame_rows(frame, views, roi) -> np.ndarray:
     """``info`` rows of :func:`~core.tracking.engine_kernels.fluoro_roi_kernel` for the regions ``roi``
     ``(n, 4)`` of ``views`` read from the whole images: ``(h, w, v0, u0, H, W, has_given, 0)``."""
-    info = np.zeros((len(views), 8), dtype=np.int32)
-    for i, v in enumerate(views):
-        u0, v0, w, h = (int(a) for a in roi[i])
-        H, W = frame.shapes[v]
-        info[i] = (h, w, v0, u0, H, W, int(frame._given[v] is not None), 0)
-    return info
+    shapes, given = frame.shapes, frame._given
+    rows = [(h, w, v0, u0, *shapes[v], int(given[v] is not None), 0)
+            for v, (u0, v0, w, h) in zip(views, np.asarray(roi).tolist(), strict=False)]
+    return np.array(rows, dtype=np.int32).reshape(len(views), 8)

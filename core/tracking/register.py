@@ -69,7 +69,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import optimize as opt
-from .cost import CostTimer, FrameImages, RegistrationCost, mm_per_pixel, search_roi, snap_roi
+from .cost import CostTimer, FrameImages, RegistrationCost, mm_per_pixel, search_roi
 from .quadratic import quadratic_search
 from .register_ahead import final_stage_idle
 from .register_options import (  # noqa: F401
@@ -228,6 +228,25 @@ def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Leve
     return hit
 
 
+_STAGED: dict = {}  # id(levels) -> (levels, key, their before_stage levels) (_staged_levels)
+
+
+def _staged_levels(levels: tuple, o: RegistrationOptions) -> tuple:
+    """``before_stage`` of each of the automatic ``levels`` (kept per levels tuple, the options' final scale
+    and the stage's tolerance: the same frozen levels from frame to frame, not made anew each time)."""
+    from . import register_options as ro
+
+    key = (before_stage, o.final_scale, ro.STAGE_SEARCH_TOL)
+    hit = _STAGED.get(id(levels))
+    if hit is not None and hit[0] is levels and hit[1] == key:
+        return hit[2]
+    out = tuple(before_stage(lv, o) for lv in levels)
+    if len(_STAGED) >= 16:
+        _STAGED.clear()
+    _STAGED[id(levels)] = (levels, key, out)
+    return out
+
+
 def _newton_fallback(mm_per_px: float, coarsest_mm: float = 1.2) -> tuple[Level, ...]:
     """The levels of the ``"newton"`` search's second attempt: Gauss–Newton steps at the
     second-finest pyramid scale (half-steps and trust twice as wide), then at full resolution; at
@@ -247,10 +266,9 @@ def search_region(renderer, pose, bone: int, *, views, center, options: Registra
     ``pose`` (:func:`core.tracking.cost.search_roi` reaching the option's bounds; with ``snap``, on
     the 16-pixel grid the Gauss–Newton engine's buffers keep from frame to frame)."""
     o = options
-    roi = search_roi(renderer, pose, bone, views=views, center=center,
-                     reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
-                     points=outline)
-    return snap_roi(roi, renderer, views) if snap else roi
+    return search_roi(renderer, pose, bone, views=views, center=center,
+                      reach_mm=o.bounds[0] + math.radians(o.bounds[1]) * 30.0, margin_px=o.margin_px,
+                      points=outline, grid=16 if snap else 0)  # (snap_roi's lattice, in the same pass)
 
 
 def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
@@ -320,7 +338,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         px_mm = mm_per_pixel(renderer, base, center, views)
         levels = _automatic_levels(px_mm * fs, fs, o.sigma, search)
         if search == "newton" and o.final is not None:  # a stage follows: its basin is enough
-            levels = tuple(before_stage(lv, o) for lv in levels)
+            levels = _staged_levels(levels, o)
     if roi is None:
         roi = search_region(renderer, base, bone, views=views, center=center, options=o, outline=outline,
                             snap=all(lv.method == "gauss_newton" for lv in levels))
@@ -494,13 +512,16 @@ def result_of(stages, x, full, hi, *, model_score: bool, timers, engines, fit,
     last = stages[-1]
     x = np.asarray(x, dtype=float)
     if model_score and last.converged and last.model is not None:
-        score = float(1.0 - last.model.predict(x - last.model.x))
+        if x is last.x and last.method == "gauss_newton":  # its value there (LevenbergMarquardt.result)
+            score = float(1.0 - last.fun)
+        else:
+            score = float(1.0 - last.model.predict(x - last.model.x))
         view_scores = np.asarray(last.model.view_scores, dtype=float)
     else:
         score, view_scores = full.score_and_views(x)
     converged = last.converged and all(s.reason != "cancelled" for s in stages)
     reason = last.reason
-    if np.any(np.abs(x) >= hi * (1 - 1e-6)):
+    if np.logical_or.reduce(np.abs(x) >= hi * (1 - 1e-6), axis=None):  # (np.any's ufunc)
         converged, reason = False, "at_bound"
     timing = {"render_s": 0.0, "metric_s": 0.0, "host_s": 0.0, "calls": 0, "evaluations": 0}
     for c in timers:

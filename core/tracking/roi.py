@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["OutsideViewError", "search_roi", "snap_roi", "support_points"]
+__all__ = ["OutsideViewError", "pixel_mm", "search_roi", "snap_roi", "support_points"]
 
 
 class OutsideViewError(ValueError):
@@ -77,8 +77,8 @@ _CAM_TABLES: dict = {}  # search_roi: per renderer and views, its cameras' numbe
 def _camera_table(renderer, views: tuple) -> tuple:
     """The cameras of ``views`` as arrays for :func:`search_roi`'s projection of all views at once:
     ``(rows (3 V, 3): the views' R stacked, t (3 V, 1), f (V, 2, 1): fx, fy, c (V, 2, 1): cu, cv,
-    cameras, max(fx, fy) per view)``; kept per renderer and views while its cameras (frozen) are the
-    same."""
+    cameras, max(fx, fy) per view, each view's R[2] and t[2] (the depth of Camera.project), (width,
+    height) per view)``; kept per renderer and views while its cameras (frozen) are the same."""
     cams = renderer.cameras
     key = (id(renderer), views)
     hit = _CAM_TABLES.get(key)
@@ -88,7 +88,8 @@ def _camera_table(renderer, views: tuple) -> tuple:
     f = np.array([[c.fx, c.fy] for c in sel])[:, :, None]
     cc = np.array([[c.cu, c.cv] for c in sel])[:, :, None]
     table = (np.concatenate([c.R for c in sel]), np.concatenate([c.t for c in sel])[:, None], f, cc, sel,
-             tuple(max(c.fx, c.fy) for c in sel))
+             tuple(max(c.fx, c.fy) for c in sel), tuple(c.R[2] for c in sel), tuple(c.t[2] for c in sel),
+             tuple((c.width, c.height) for c in sel))
     if len(_CAM_TABLES) >= 64:
         _CAM_TABLES.clear()
     _CAM_TABLES[key] = (cams, table)
@@ -104,41 +105,43 @@ def _boxes(cams, lab: np.ndarray, table) -> list:
     xc += t
     xc = xc.reshape(len(cams), 3, len(lab))
     z = xc[:, 2:]
-    zmin = np.fmin.reduce(z, axis=2).ravel()  # a point at or behind a view's source: its whole image
+    zmin = np.fmin.reduce(z, axis=2).ravel().tolist()  # a point at or behind a view's source: its whole image
+    behind = [a <= 0 for a in zmin]
     uv = xc[:, :2] * f  # (V, 2, n): fx x / z + cu, fy y / z + cv
-    if (zmin > 0).all():
+    if all(a > 0 for a in zmin):
         uv /= z
     else:
         with np.errstate(divide="ignore", invalid="ignore"):
             uv /= z
     uv += cc
-    behind = (zmin <= 0).tolist()
-    lows, highs = uv.min(axis=2).tolist(), uv.max(axis=2).tolist()
+    # (the reductions' ufuncs themselves: the values of uv.min / uv.max without their wrappers)
+    lows, highs = np.minimum.reduce(uv, axis=2).tolist(), np.maximum.reduce(uv, axis=2).tolist()
     out = []
-    for cam, bad, a, b in zip(cams, behind, lows, highs, strict=True):
-        W, H = cam.width, cam.height
+    floor, ceil = math.floor, math.ceil
+    for (W, H), bad, a, b in zip(table[8], behind, lows, highs, strict=True):
         if bad:
-            lo, hi = (0, 0), (W, H)
-        else:
-            lo = (min(max(math.floor(a[0]), 0), W), min(max(math.floor(a[1]), 0), H))
-            hi = (min(max(math.ceil(b[0]) + 1, 0), W), min(max(math.ceil(b[1]) + 1, 0), H))
-        out.append((lo[0], lo[1], max(hi[0] - lo[0], 0), max(hi[1] - lo[1], 0)))
+            out.append((0, 0, W, H))
+            continue
+        lo0, lo1 = min(max(floor(a[0]), 0), W), min(max(floor(a[1]), 0), H)
+        hi0, hi1 = min(max(ceil(b[0]) + 1, 0), W), min(max(ceil(b[1]) + 1, 0), H)
+        out.append((lo0, lo1, max(hi0 - lo0, 0), max(hi1 - lo1, 0)))
     return out
 
 
 def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], center: np.ndarray,
-               reach_mm: float, margin_px: int = 4, points=None) -> np.ndarray:
+               reach_mm: float, margin_px: int = 4, points=None, grid: int = 0) -> np.ndarray:
     """``(n_views, 4)`` ROIs ``(u0, v0, w, h)``: the bone's projected box at ``pose`` grown by the
     image displacement of a ``reach_mm`` move of its centre (plus ``margin_px``), clipped to the
     image. The box is that of ``points`` (``(n, 3)`` in the bone's CT frame, mm; e.g.
     :attr:`core.tracking.bones.BoneModel.outline`) when given, else of the volume's box.
+    ``grid`` > 0: snapped as :func:`snap_roi` snaps them (the same numbers).
     Raises :class:`OutsideViewError` when a view's ROI is empty.
 
     The views' cameras are projected together (their numbers kept per renderer,
     :func:`_camera_table`; the volume box's corners too, :data:`BOX_CORNERS`): on the tracker's
     path, a few calls per frame."""
     pose = np.asarray(pose, float)
-    views = tuple(int(v) for v in views)
+    views = tuple([int(v) for v in views])
     table = _camera_table(renderer, views)
     cams, reach_px = table[4], table[5]
     if points is None and BOX_CORNERS and hasattr(renderer, "_corners"):
@@ -150,18 +153,42 @@ def search_roi(renderer, pose: np.ndarray, bone: int, *, views: Sequence[int], c
         box = _boxes(cams, P @ pose[:3, :3].T + pose[:3, 3], table)
     c_lab = pose[:3, :3] @ center + pose[:3, 3]
     out = []
-    for cam, v, (u0, v0, w0, h0), f_px in zip(cams, views, box, reach_px, strict=True):
-        depth = float(cam.R[2] @ c_lab + cam.t[2])  # the depth of Camera.project
-        grow = margin_px + (math.ceil(reach_mm * f_px / max(depth, 1e-6)) if depth > 0 else 0)
+    ceil = math.ceil
+    for cam, v, (u0, v0, w0, h0), f_px, r2, t2, (W, H) in zip(cams, views, box, reach_px, table[6], table[7],
+                                                                table[8], strict=True):
+        depth = float(r2 @ c_lab + t2)  # the depth of Camera.project
+        grow = margin_px + (ceil(reach_mm * f_px / max(depth, 1e-6)) if depth > 0 else 0)
         u0, v0, w0, h0 = int(u0), int(v0), int(w0), int(h0)
         if w0 <= 0 or h0 <= 0:
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
-        lo = (max(u0 - grow, 0), max(v0 - grow, 0))
-        hi = (min(u0 + w0 + grow, cam.width), min(v0 + h0 + grow, cam.height))
-        if hi[0] <= lo[0] or hi[1] <= lo[1]:
+        lo0, lo1 = max(u0 - grow, 0), max(v0 - grow, 0)
+        hi0, hi1 = min(u0 + w0 + grow, W), min(v0 + h0 + grow, H)
+        if hi0 <= lo0 or hi1 <= lo1:
             raise OutsideViewError(f"views: the bone projects outside view {v} ({cam.name})")
-        out.append((lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1]))
+        out.append((lo0, lo1, hi0 - lo0, hi1 - lo1) if grid <= 0 else _snapped(lo0, lo1, hi0 - lo0, hi1 - lo1,
+                                                                              W, H, grid))
     return np.array(out, dtype=np.int64).reshape(len(views), 4)
+
+
+def _snapped(u0: int, v0: int, w: int, h: int, W: int, H: int, grid: int) -> tuple:
+    """One region grown outwards to the ``grid``-pixel lattice inside a ``W`` × ``H`` image (snap_roi)."""
+    a0, b0 = (u0 // grid) * grid, (v0 // grid) * grid
+    a1 = min(-(-(u0 + w) // grid) * grid, W)
+    b1 = min(-(-(v0 + h) // grid) * grid, H)
+    return (a0, b0, a1 - a0, b1 - b0)
+
+
+def pixel_mm(renderer, pose: np.ndarray, center: np.ndarray, views: Sequence[int] | None = None) -> float:
+    """Mean size (mm) of a full-resolution pixel at the bone's centre over ``views``
+    (:func:`core.tracking.cost.mm_per_pixel`; the cameras' numbers of :func:`_camera_table`, the
+    same arithmetic)."""
+    views = tuple(range(len(renderer.cameras))) if views is None else tuple([int(v) for v in views])
+    table = _camera_table(renderer, views)
+    c = pose[:3, :3] @ center + pose[:3, 3]
+    out = [float(r2 @ c + t2) / f for r2, t2, f in zip(table[6], table[7], table[5], strict=True)]
+    if len(out) == 2:  # (np.mean of two: their sum, halved)
+        return (out[0] + out[1]) / 2
+    return float(np.mean(out))
 
 
 _SUPPORT: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -206,8 +233,5 @@ def snap_roi(roi: np.ndarray, renderer, views, grid: int = 16) -> np.ndarray:
     out = []
     for (u0, v0, w, h), v in zip(rows.tolist(), views, strict=True):  # (Python integers: the same numbers)
         cam = renderer.cameras[v]
-        a0, b0 = (u0 // grid) * grid, (v0 // grid) * grid
-        a1 = min(-(-(u0 + w) // grid) * grid, cam.width)
-        b1 = min(-(-(v0 + h) // grid) * grid, cam.height)
-        out.append((a0, b0, a1 - a0, b1 - b0))
+        out.append(_snapped(u0, v0, w, h, cam.width, cam.height, grid))
     return np.array(out, dtype=np.int64).reshape(rows.shape)

@@ -188,6 +188,7 @@ from __future__ import annotations
 
 import functools
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import contextmanager
@@ -436,18 +437,29 @@ def _track_frames(run, bones, names, order, skip, state, o, frames, neighbours, 
     return out
 
 
+_SWITCHED = {"runs": 0, "kept": None}  # runs inside _switch_interval and the interval before the first
+_SWITCH_LOCK = threading.Lock()
+
+
 @contextmanager
 def _switch_interval(seconds):
-    """:data:`SWITCH_INTERVAL` within the block (None: nothing)."""
+    """:data:`SWITCH_INTERVAL` within the block (None: nothing); runs in several threads share it: the
+    first to enter keeps the interval it found, the last to leave puts it back."""
     if seconds is None:
         yield
         return
-    kept = sys.getswitchinterval()
-    sys.setswitchinterval(float(seconds))
+    with _SWITCH_LOCK:
+        if _SWITCHED["runs"] == 0:
+            _SWITCHED["kept"] = sys.getswitchinterval()
+        _SWITCHED["runs"] += 1
+        sys.setswitchinterval(float(seconds))
     try:
         yield
     finally:
-        sys.setswitchinterval(kept)
+        with _SWITCH_LOCK:
+            _SWITCHED["runs"] -= 1
+            if _SWITCHED["runs"] == 0:
+                sys.setswitchinterval(_SWITCHED["kept"])
 
 
 def _stage_work(feed: FrameFeed, device, res) -> None:

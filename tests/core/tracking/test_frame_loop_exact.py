@@ -157,6 +157,13 @@ def test_switch_interval_set_within_and_put_back():
     with _switch_interval(0.0005):
         assert abs(sys.getswitchinterval() - 0.0005) < 1e-9
     assert sys.getswitchinterval() == was
+    a, b = _switch_interval(0.0005), _switch_interval(0.0005)  # two runs overlapping (threads)
+    a.__enter__()
+    b.__enter__()
+    a.__exit__(None, None, None)  # the first to leave: the other still runs
+    assert abs(sys.getswitchinterval() - 0.0005) < 1e-9
+    b.__exit__(None, None, None)
+    assert sys.getswitchinterval() == was  # the last puts back what the first found
 
 
 def test_host_pauses_gil_overshoot_puts_the_interval_back():

@@ -260,6 +260,18 @@ def _chart_sigma(z, sigma, ok, weigh):
     return out
 
 
+def _padded(sm: SmoothedPoses, lo: int, n: int) -> SmoothedPoses:
+    """``sm`` over frames ``lo ..`` of ``n``: NaN poses, σ and covariance and weight 0 elsewhere."""
+    def pad(a, fill):
+        out = np.full((n, *a.shape[1:]), fill, dtype=float)
+        out[lo:lo + len(a)] = a
+        return out
+
+    return SmoothedPoses(pad(sm.poses, np.nan), pad(sm.sigma, np.nan), pad(sm.covariance, np.nan),
+                         pad(sm.weights, 0.0), sm.scale, sm.process_noise, sm.model, sm.log_likelihood,
+                         [int(t + lo) for t in sm.bursts], [int(t + lo) for t in sm.outliers], sm.correlation)
+
+
 def _fit(z, r, model, boost, inflate, max_scale, robust: bool):
     """Per coordinate the likeliest ``λ`` of :data:`GRID` (refined, :func:`best_lambda`) whose scale
     is within ``max_scale`` (module docs, *Scale*), judged by the mean normalised innovation or with
@@ -286,8 +298,8 @@ def _fit_correlation(z, r, model, boost, inflate, max_scale, lam, base):
 
 def _intervention(z, r, lam, model, boost, inflate, base, res, d, transients, outliers, credit, allowed):
     """The next burst or outlier (:func:`~core.tracking.smoothing_filter.interventions`) among the
-    frames whose residuals ``res`` are largest, or an outlier among the first ``d + 1`` frames judged
-    on the frames reversed in time (forwards the filter's diffuse start takes the first ``d``
+    frames whose residuals ``res`` are largest, or an outlier among the first ``d + 1`` measured frames
+    judged on the frames reversed in time (forwards the filter's diffuse start takes the first ``d``
     measurements as they are: their innovations are not in the likelihood), whichever gains more."""
     cand = candidate_frames(res, BURST_CANDIDATES)
     found = interventions(z, r, lam, model, boost, inflate, base, cand, bursts=BURSTS, outliers=OUTLIERS,
@@ -295,9 +307,9 @@ def _intervention(z, r, lam, model, boost, inflate, base, res, d, transients, ou
     if outliers is None:
         return found
     n = len(z)
-    first = np.arange(min(d + 1, n))
+    first = np.flatnonzero(np.isfinite(r).any(axis=1))[:d + 1]  # the first d + 1 measured frames
     if not allowed[first].any():
-        return None
+        return found
     zr, rr = z[::-1], r[::-1]
     br = np.concatenate([boost[:1], boost[:0:-1]])  # the step into reversed frame t is the one into n - t
     ir = inflate[::-1]
@@ -391,6 +403,14 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
     if (w > 0).sum() < d + 2:
         raise ValueError(f"poses: expected at least {d + 2} measured (posed, unflagged) frames, "
                          f"got {(w > 0).sum()}")
+    posed = np.flatnonzero(ok)
+    if posed[0] > 0 or posed[-1] < n - 1:  # the filter over the posed frames' span only (its diffuse start
+        lo, hi = posed[0], posed[-1] + 1  # carried over leading frames without a pose lost precision)
+        sub = smooth_poses(P[lo:hi], S[lo:hi], center=c, flagged=fl[lo:hi], model=model, weigh=weigh,
+                           robust=robust, flagged_weight=flagged_weight, transients=transients,
+                           outliers=outliers, flagged_prior=flagged_prior, correlated=correlated,
+                           max_scale=max_scale)
+        return _padded(sub, lo, n)
     z, ref, ok = _chart(np.where(w[:, None, None] > 0, P, np.nan), c)
     s = _chart_sigma(z, S, ok, weigh)
     rob, boost, inflate, jumps, outl = np.ones(n), np.ones((n, 6, 1)), np.ones((n, 6, 1)), [], []
@@ -408,13 +428,13 @@ def smooth_poses(poses, sigma, *, center, flagged=None, model: str = "accelerati
             found = _intervention(z, r, lam, model, boost, inflate, llb[:, 0], res, d,
                                   transients if len(jumps) < MAX_BURSTS else None,
                                   outliers if len(outl) < MAX_OUTLIERS else None, credit,
-                                  (inflate[:, :, 0] == 1.0).all(axis=1) & (w > 0))
+                                  (w > 0) & (inflate[:, :, 0].max(axis=1) < max(OUTLIERS)))
             if found is not None and found[0] == "burst":
                 boost[found[1], :, 0] *= found[2]
                 jumps.append(found[1])
             elif found is not None:
-                inflate[found[1], :, 0] *= found[2]
-                outl.append(found[1])
+                inflate[found[1], :, 0] = np.minimum(inflate[found[1], :, 0] * found[2], max(OUTLIERS))
+                outl += [] if found[1] in outl else [found[1]]
             search = found is not None
             continue
         if robust is None:

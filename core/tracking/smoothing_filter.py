@@ -239,10 +239,10 @@ def interventions(z, r, lam, model: str, boost, inflate, base, frames, *, bursts
             best = ("burst", int(frames[j]), fb[:, j], float(gb[j]))
     if no:
         go, fo = pooled(g[:, nb * m:], outliers, len(ofr))
-        go = go + cr[ofr]
-        j = int(np.argmax(go))
-        if go[j] > outlier_gain and (best is None or go[j] > best[3]):
-            best = ("outlier", int(ofr[j]), fo[:, j], float(go[j]))
+        score = np.where(go + cr[ofr] > outlier_gain, go + cr[ofr], -np.inf)
+        j = int(np.argmax(score))
+        if np.isfinite(score[j]) and (best is None or score[j] > best[3]):
+            best = ("outlier", int(ofr[j]), fo[:, j], float(score[j]))
     return best
 
 

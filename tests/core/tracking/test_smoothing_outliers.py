@@ -63,3 +63,21 @@ def test_far_off_frames_at_the_ends_and_in_a_row_are_pulled_in():
             e = np.linalg.norm(_errors(s.poses, T)[list(frames), :3], axis=1)
             assert e.max() < 0.1, (frames, mm, e)
             assert sorted(s.outliers) == list(frames)
+
+
+def test_far_off_frames_after_frames_without_a_pose():
+    """Frames 0-4 without a pose: a flagged frame far off inside the trial, and the first posed frame flagged
+    off, are still pulled in (the filter runs over the posed frames' span; the first measured frames are
+    judged reversed in time)."""
+    from core.tracking.smoothing import smooth_poses
+
+    for mm in (1.0, 5.0):
+        T, P, sigma, fl = _track(mm)
+        P[:5] = np.nan
+        s = smooth_poses(P, sigma, center=CENTER, flagged=fl)
+        assert np.linalg.norm(_errors(s.poses[40:41], T[40:41])[0, :3]) < 0.05 and s.outliers == [40]
+        assert np.all(np.isnan(s.poses[:5])) and np.all(s.weights[:5] == 0)
+    T, P, sigma, fl = _track(2.0, frames=(5,))
+    P[:5] = np.nan
+    s = smooth_poses(P, sigma, center=CENTER, flagged=fl)
+    assert np.linalg.norm(_errors(s.poses[5:6], T[5:6])[0, :3]) < 0.1 and s.outliers == [5]

@@ -34,6 +34,7 @@ _SERIAL = itertools.count()
 #: buffers, so the same results to the bit. On the CPU the recorded operations run in order (a test's path).
 PREP_GRAPH = False
 PREP_GRAPHS = 16
+_CAPTURE_CPU = False  # (tests: the CPU's recorded operations captured too, as Warp's CPU graphs)
 
 
 def copy_array(dst: wp.array, src: wp.array, count: int = 0) -> None:
@@ -149,7 +150,7 @@ class _EngineBuffers:
         ops, self._rec = self._rec, None
         if not ops:
             return
-        if not self.device.is_cuda:
+        if not (self.device.is_cuda or _CAPTURE_CPU):
             for op in ops:
                 _run_op(op)
             return

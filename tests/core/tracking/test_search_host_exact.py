@@ -339,12 +339,25 @@ def test_talus_tracked_as_with_the_code_replaced(walking_talus, current, monkeyp
     assert all(np.all(np.isfinite(fr.pose)) for fr in current.results.values())
 
 
-def test_preparation_recorded_gives_the_same_results(walking_talus, current, monkeypatch):
+@pytest.mark.parametrize("capture", [False, True])
+def test_preparation_recorded_gives_the_same_results(walking_talus, current, monkeypatch, capture):
     """core.tracking.engine_buffers.PREP_GRAPH: each frame's preparation recorded, then run in order (on a
-    CUDA device one graph): the same poses, scores, flags and confidences."""
+    CUDA device one graph; ``capture``: here too, as Warp's CPU graphs, kept and launched again): the same
+    poses, scores, flags and confidences."""
+    import warp as wp
+
     import core.tracking.engine_buffers as eb
 
     _shared_on_cpu(monkeypatch)
+    monkeypatch.setattr(eb, "_CAPTURE_CPU", capture)
+    launched = []
+    real_launch = wp.capture_launch
+
+    def launch(graph, *a, **k):
+        launched.append(graph)
+        return real_launch(graph, *a, **k)
+
+    monkeypatch.setattr(wp, "capture_launch", launch)
     replayed = []
     real = eb._EngineBuffers._replay
 
@@ -356,4 +369,6 @@ def test_preparation_recorded_gives_the_same_results(walking_talus, current, mon
     monkeypatch.setattr(eb, "PREP_GRAPH", True)
     on = _track(walking_talus)
     assert len(replayed) >= 5 and max(replayed) >= 8  # (a new frame: copies, zeroes, launches recorded)
+    if capture:  # every recorded preparation launched as a graph, some of them again
+        assert len(launched) >= len(replayed) > len(set(map(id, launched))) >= 1
     _same(current, on)

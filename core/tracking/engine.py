@@ -337,6 +337,8 @@ class GaussNewtonCost(_EngineBuffers):
             self._host_hw_np[:] = np.array(shapes, dtype=np.int32)
             self._copy(self._ref_hw, self._host_hw)
             self._hw_last = hw_now
+        elif self._rec is not None:  # (recorded: copied again, the same values: one graph either way)
+            self._copy(self._ref_hw, self._host_hw)
         rim = rim_radius(self.rim_sigmas, self._f_sig, self.scale)
         if staged is None:
             host_stage(self, rois, masks)

@@ -229,6 +229,8 @@ def _prepare(self, frame: FrameImages, info: np.ndarray, src, given, done: tuple
         self._host_info_np[:] = info
         self._copy(self._info, self._host_info)
         self._info_last = info
+    elif self._rec is not None:  # (recorded: copied again, the same rows: one graph either way)
+        self._copy(self._info, self._host_info)
     self._zero(self._fmax)
     self._zero(self._msum)
     chunk = 4096

@@ -30,20 +30,32 @@ few frames at the trial's 278 Hz, overshooting) — plus the run's own errors; t
 error there is its error with the transient minus without, RMS over frames ``T0 - 3`` to
 ``T0 + 12``, beside the raw frames' error in that window.
 
+Outliers (:func:`_outliers`): frame :data:`OUTLIER_FRAME` of each run moved 1, 2 and 5 mm along the
+lab's x and flagged; the smoothed pose's error there. Error structure (:func:`error_structure`): per
+axis the share of the per-frame errors' mean square that is the run's mean error, and their lag-1
+correlation; coverage is also given about the run's mean error (``within_2_sigma_about_mean``).
+
 Measured (``resources/benchmarks/tracking_smoother_cpu.json``, this 2-core x86_64 machine, shared; 18
 bone-runs), × the single-frame bound mm / °: raw 1.18–1.92 / 1.27–1.81 with 21 frames over 4× (5
-silent); the low-pass 0.69–4.25 / 0.60–1.41 (the tibia's translation 1.7–4.3×: 22–26 Hz lags its
+silent); the low-pass 0.69–4.26 / 0.60–1.41 (the tibia's translation 1.7–4.3×: 22–26 Hz lags its
 0.4 mm a frame) with 53 over 4× among the unflagged frames it scores; the smoother's defaults
-0.55–1.13 / 0.42–1.21 (mean 0.80 / 0.66), none over 4× (seed 4's calcaneus frames 30 and 53 pulled
-in); within 2σ 80–97 % of the translation and 72–98 % of the rotation axes (means 89 / 86 %; a
-correct σ: 95.4 %, short of it in every run over all six axes: the frames' errors are somewhat
-correlated, lag-1 up to 0.5, and the smoother takes them as independent; its bias where it
-smooths real motion adds). Weighing by each frame's σ: 0.56–1.16 / 0.43–1.35; flagged frames
-skipped: up to 2.7× (a flagged trial end extrapolated); constant velocity 0.77–1.39 /
-0.48–1.26. The transient: no burst let in on any plain run; the 1 mm / 1° jerk found in every run,
-its added error 0.024 mm / 0.138° RMS in the window (without bursts 0.056 / 0.249; the raw frames'
-own error there 0.048 / 0.164): with it the smoothed poses' error there is 0.037 mm / 0.152°, worse
-than the raw frames' in rotation in 6 of 18 runs.
+0.54–1.13 / 0.42–1.14 (mean 0.81 / 0.65), none over 4×; within 2σ 77–98 % of the translation and
+73–98 % of the rotation axes (means 90.6 / 87.2 %; about the run's mean error 93.6 / 94.3 %; a
+correct σ: 95.4 %). The runs' mean error is 0–31 % of their per-frame mean square per axis (5 % on
+average), their lag-1 correlation −0.16 to 0.50: the smoother models the second (AR(1), ``correlated``;
+with independent errors, ``acceleration_independent``: 77–97 / 71–98 %, means 88.5 / 86.0 %), not the
+first, which no trial's data can tell from the pose. Before the outlier search and the AR(1) errors
+(f0325fc's defaults, this study at 17a41b8): 0.55–1.13 / 0.42–1.21 (mean 0.80 / 0.66), within 2σ
+80–97 / 72–98 % (means 89.2 / 86.4 %). A flagged frame moved 1, 2 or 5 mm: 0.012–0.043 mm off in
+every run (taken for an outlier), without the outlier search up to 1.06 / 2.06 / 5.06 mm; the defaults
+take 11 of the runs' own flagged frames (in 8 runs) for outliers, without the flag's prior none
+(``acceleration_no_flagged_prior``: 0.54–1.13 / 0.42–1.21, means 0.80 / 0.66, within 2σ 91.5 / 87.7
+%). Weighing by each frame's σ: 0.55–1.16 / 0.44–1.53; flagged frames skipped: up to 2.7× (a flagged
+trial end extrapolated); constant velocity 0.77–1.39 / 0.48–1.26. The transient: no burst let in on
+any plain run; the 1 mm / 1° jerk found in every run, its added error 0.024 mm / 0.143° RMS in the
+window (without bursts 0.163 / 0.321; independent errors 0.023 / 0.140; the raw frames' own error
+there 0.048 / 0.164): with it the smoothed poses' error there is 0.038 mm / 0.156°, worse than the raw
+frames' in rotation in 6 of 18 runs.
 """
 
 from __future__ import annotations

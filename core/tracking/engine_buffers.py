@@ -32,6 +32,8 @@ _SERIAL = itertools.count()
 #: NVIDIA H100's host (cProfile at ad38ce9) — recorded and replayed as one CUDA graph, one per sequence of
 #: operations (kept per engine, :data:`PREP_GRAPHS`); the same operations in the same order on the same
 #: buffers, so the same results to the bit. On the CPU the recorded operations run in order (a test's path).
+#: Timed on one NVIDIA H100 at f4f4b08 (frame_profile --bones one --variants, 4 alternated rounds, ms a frame
+#: after the first): off 7.52/8.57/7.91/7.20, on 5.74/7.62/7.43/8.08, captured without a warning; left off.
 PREP_GRAPH = False
 PREP_GRAPHS = 16
 _CAPTURE_CPU = False  # (tests: the CPU's recorded operations captured too, as Warp's CPU graphs)

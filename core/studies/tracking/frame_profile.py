@@ -19,8 +19,10 @@ step / each later step up to its next wait (its generator,
 bones; ``--cprofile`` adds a run under :mod:`cProfile` (its text next to the JSON). ``--variants
 'name:module.ATTR=value,...;name2:...'`` (modules under ``core.tracking``, values Python literals) runs
 the plain runs once per variant in turn, ``repeats`` rounds (``variants``: each one's runs; the host's
-drift shared), each with its switches set and put back after; the wrapped run has the modules' own. JSON on
-stdout.
+drift shared), each with its switches set and put back after; the wrapped run has the modules' own.
+Round ``i`` starts with the ``i``-th variant (``round_orders``): on one NVIDIA H100 at f4f4b08 the variant
+run first in every round (then always the same) was the slowest in all four rounds, a position bias as
+large as any switch (``resources/benchmarks/tracking_bench_final_f4f4b08_h100.json``). JSON on stdout.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["WRAPPED", "frame_walls", "main", "parse_variants", "profile_run", "switched", "wrapped"]
+__all__ = ["WRAPPED", "frame_walls", "main", "parse_variants", "profile_run", "rotated", "switched",
+           "wrapped"]
 
 #: (module, attribute) of the functions wrapped, by the name their callers look them up by; classes'
 #: methods as "Class.method"
@@ -248,6 +251,14 @@ def parse_variants(spec: str | None) -> dict:
     return out
 
 
+def rotated(names: list, i: int) -> list:
+    """``names`` rotated left by ``i`` (round ``i``'s order of the variants)."""
+    if not names:
+        return []
+    i %= len(names)
+    return names[i:] + names[:i]
+
+
 @contextmanager
 def switched(items):
     """The module attributes of ``items`` ``(module, attribute, value)`` set within the block."""
@@ -317,9 +328,12 @@ def main(argv=None) -> int:
     if variants:
         out["variants"] = {k: {"switches": [f"{m}.{at}={v!r}" for m, at, v in it], "runs": []}
                            for k, it in variants.items()}
-        for _ in range(int(a.repeats)):
-            for k, it in variants.items():
-                with switched(it):
+        out["round_orders"] = []
+        for i in range(int(a.repeats)):  # each round starts one variant later (module docs: position bias)
+            order = rotated(list(variants), i)
+            out["round_orders"].append(order)
+            for k in order:
+                with switched(variants[k]):
                     out["variants"][k]["runs"].append(plain())
     else:
         out["plain"] = [plain() for _ in range(int(a.repeats))]

@@ -70,3 +70,13 @@ def test_frame_walls():
     assert abs(got["mean_ms"] - 5.0) < 1e-6 and got["slowest"][0][0] == 5
     assert abs(got["after_last_frame_ms"] - 10.0) < 1e-6
     assert frame_walls({}, [1, 2], 0.0, 1.0) == {}
+
+
+def test_rounds_rotate_the_variants_order():
+    """Round ``i`` starts with the ``i``-th variant, so no variant always runs first (a position bias)."""
+    from core.studies.tracking.frame_profile import rotated
+
+    names = ["base", "a", "b"]
+    assert [rotated(names, i) for i in range(4)] == [["base", "a", "b"], ["a", "b", "base"],
+                                                     ["b", "base", "a"], ["base", "a", "b"]]
+    assert rotated([], 2) == []

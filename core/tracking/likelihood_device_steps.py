@@ -11,8 +11,9 @@ waits for every step's table, solves it and enqueues the next step while the dev
 
 After the wait the host solves the last step's table again (and, after an uphill stop, the best step's):
 ``s``, ``chi2`` and the final step ``δ`` are those the host loop computes from those tables (float64,
-LAPACK); the device's own solves decide the steps (Gaussian elimination with partial pivoting, float64:
-the same as LAPACK's to rounding), so a pose differs from the host loop's only where a rounding-level
+LAPACK); the device's own solves decide the steps (LDLᵀ without pivoting, float64, in registers: the
+systems are Gram matrices; an exactly zero pivot stops the loop as singular; the same as LAPACK's LU to
+rounding on the tests), so a pose differs from the host loop's only where a rounding-level
 difference of a step moved a DRR's float32 item table. Used for the recorded step
 (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine._graph_step`: the default model); a refinement
 whose first step would reuse images that are not the recorded step's, whose pixel count comes from the

@@ -222,8 +222,13 @@ NEXT_FRAME_AHEAD = True
 #: The objects alive when a run starts frozen out of the cyclic garbage collector while it runs
 #: (:func:`core.tracking.gc_pause.frozen`): its full collections then walk the run's own objects, not the
 #: process's few hundred thousand (150-222 ms a full collection on this 2-core x86_64 machine,
-#: ``tracking_host_pauses_cpu.json``). The same poses and flags (tests); off: as before.
-GC_FREEZE = True
+#: ``tracking_host_pauses_cpu.json``). The same poses and flags (tests). Off by default: on one NVIDIA H100's
+#: host at f4f4b08 (``resources/benchmarks/tracking_bench_final_f4f4b08_h100.json``) runs with it on still had
+#: full collections of 100-134 ms (one of frame_profile's four default runs, every bench process's first
+#: three-bone run), and no run with it off had one (frame_profile, four alternated rounds, one bone: 0.4-0.7
+#: ms of pauses a run off against 0.4-132.8 on): freezing seems to make a full collection come sooner (the
+#: frozen objects no longer count towards its threshold) without making it cheap.
+GC_FREEZE = False
 
 #: The interpreter's thread switch interval (seconds, :func:`sys.setswitchinterval`) while a run tracks, put
 #: back after; None (the default): left as it is (5 ms unless changed). The registering thread gives up the

@@ -57,7 +57,7 @@ def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
     import core.tracking.feed as feed
     import core.tracking.trial as trial
 
-    assert trial.GC_FREEZE and trial.BACKWARD_AHEAD and backward.SCALE_AHEAD  # (the defaults)
+    assert not trial.GC_FREEZE and trial.BACKWARD_AHEAD and backward.SCALE_AHEAD  # (the defaults)
     monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))  # (the shared upload and the uploads ahead on CPU)
     got, ahead, scaled = [], [], []
     real_get, real_ahead, real_scale = feed.FrameFeed.get, feed.FrameFeed.upload_ahead, backward._scale

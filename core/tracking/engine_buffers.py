@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from .cost import CostTimer, _in_pixels
+from .likelihood_launches import _same_inputs  # (the same shortcut as the stage's recorded launches)
 
 #: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`_EngineBuffers._allocate`):
 #: over the 100-frame walking trial at 1024² the tracking frames' search regions take 2-4 sizes per
@@ -69,17 +70,6 @@ def copy_array(dst: wp.array, src: wp.array, count: int = 0) -> None:
                 raise RuntimeError(f"Warp copy error: {runtime.get_error_string()}")
             return
     wp.copy(dst, src, 0, 0, count)
-
-
-def _same_inputs(kept: list, inputs: list) -> bool:
-    """Whether ``inputs`` give the key :meth:`_EngineBuffers._launch` made of ``kept``: each the same object,
-    or numbers of equal value (a shortcut: anything else is looked up by its key)."""
-    if len(kept) != len(inputs):
-        return False
-    for a, b in zip(kept, inputs, strict=True):
-        if a is not b and not (isinstance(a, (int, float)) and isinstance(b, (int, float)) and a == b):
-            return False
-    return True
 
 
 @dataclass(eq=False)

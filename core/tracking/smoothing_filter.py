@@ -89,14 +89,21 @@ def kalman(z, r, lam, model: str, *, keep: bool = False, boost=None, inflate=Non
             seen += m
         if keep:
             store["xf"][t], store["Pf"][t] = x, P
+    ll, k2, k2r = _summary(u2, logs, count)
+    if keep:
+        return ll, k2, k2r, store, z0
+    return ll, k2, k2r
+
+
+def _summary(u2, logs, count):
+    """A pass's log-likelihood, the scale's ML estimate (mean squared normalised innovation) and its
+    robust one (their median over χ²₁'s) from the innovations ``u2``, ``logs`` and ``count``."""
     cnt = np.maximum(count, 1)[:, None]
     k2 = np.nansum(u2, axis=0) / cnt
     with np.errstate(all="ignore"):
         k2r = np.where(count[:, None] > 0, np.nanmedian(np.where(count[None, :, None] > 0, u2, 0.0), axis=0),
                        0.0) / CHI2_1_MEDIAN
     ll = -0.5 * (cnt * np.log(np.maximum(k2, 1e-300)) + logs + cnt * (1 + math.log(2 * math.pi)))
-    if keep:
-        return ll, k2, k2r, store, z0
     return ll, k2, k2r
 
 
@@ -166,12 +173,7 @@ def _kalman_ar(z, r, lam, model, keep, boost, inflate, phi, base):
             store["xf"][t], store["Pf"][t] = x, P
     if keep:
         store["F"] = F
-    cnt = np.maximum(count, 1)[:, None]
-    k2 = np.nansum(u2, axis=0) / cnt
-    with np.errstate(all="ignore"):
-        k2r = np.where(count[:, None] > 0, np.nanmedian(np.where(count[None, :, None] > 0, u2, 0.0), axis=0),
-                       0.0) / CHI2_1_MEDIAN
-    ll = -0.5 * (cnt * np.log(np.maximum(k2, 1e-300)) + logs + cnt * (1 + math.log(2 * math.pi)))
+    ll, k2, k2r = _summary(u2, logs, count)
     if keep:
         return ll, k2, k2r, store, z0
     return ll, k2, k2r

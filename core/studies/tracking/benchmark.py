@@ -12,7 +12,8 @@ restart check) and ``ms_per_frame_after_first`` / ``frames_per_second_after_firs
 that follow it, wall clock from the end of frame 0 to the end of the run) are reported;
 ``frame_clock`` takes the median run frame by frame (the median, mean and longest frame from the end
 of the one before, the three slowest, and the run after its last frame: the backward check and the
-trajectory post-pass; :func:`core.studies.tracking.frame_profile.frame_walls`), ``gc_runs`` each run's
+trajectory post-pass; :func:`core.studies.tracking.frame_profile.frame_walls`; with the slow frames' records,
+what ran in them, :class:`core.studies.tracking.loop_clock.FrameClock`), ``gc_runs`` each run's
 garbage collections (:class:`core.tracking.gc_pause.GcWatch`) and
 ``registration_ms_mean_after_first_frame`` the mean beside the median: a host pause inside the run shows
 in the mean and the longest frame, not in the medians.
@@ -136,7 +137,7 @@ def _floor(r, frames: int, results, bone_names) -> dict | None:
 def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: dict | None = None) -> dict:
     from core.render import DRRRenderer
     from core.studies.tracking.acceptance import FRAME_RATE_HZ, pose_errors
-    from core.studies.tracking.frame_profile import frame_walls
+    from core.studies.tracking.loop_clock import FrameClock
     from core.tracking.gc_pause import GcWatch
     from core.tracking.trial import track
 
@@ -152,18 +153,14 @@ def _case(ts, bones: list[int], options, frames: int, repeats: int = 3, bound: d
         o = replace(options, profile=prof)
         walls, firsts, clocks, gcs, runs = [], [], [], [], []
         for _ in range(1 if prof else repeats):  # the median of repeats: host timing is noisy
-            ends: dict[int, float] = {}
-
-            def progress(done, total, fr, ends=ends):  # when each frame's last bone finished
-                ends[fr.frame] = time.perf_counter()
-
-            with GcWatch() as gw:
+            clock = FrameClock()  # when each frame's last bone finished, and what ran in the frame
+            with GcWatch() as gw, clock.watching():
                 t0 = time.perf_counter()
                 runs.append(track(r, models, ts.frames, range(frames), keyframes=kf, options=o,
-                                  progress=progress))
+                                  progress=clock.progress))
                 walls.append(time.perf_counter() - t0)
-            firsts.append(ends.get(0, t0) - t0)
-            clocks.append(frame_walls(ends, range(frames), t0, walls[-1]))
+            firsts.append(clock.ends[0][0] - t0 if 0 in clock.ends else 0.0)
+            clocks.append(clock.report(range(frames), t0, walls[-1]))
             gcs.append(gw.to_dict())
         wall = float(np.median(walls))
         k = int(np.argsort(walls)[len(walls) // 2])  # the median run: its results, timings and clock

@@ -5,16 +5,17 @@
 The scene and trial of ``talus bench track`` (:mod:`core.studies.tracking.benchmark`: the synthetic walking
 trial, frames synthesised before the clock starts, frame 0 from the true pose, joint tracking of tibia,
 talus and calcaneus or the talus alone, ``--final likelihood``: the likelihood stage). After a two-frame
-warm-up, ``repeats`` plain runs (wall, first frame, ms a frame after it), then one run with the tracker's
-functions wrapped (:data:`WRAPPED`): the wall time of each call (``perf_counter``), inclusive and exclusive of
-the wrapped functions it calls, summed per phase — ``first`` (frame 0), ``later`` (the frames after it;
-divide by their number for a frame), ``backward`` (the backward check's registration of the first frame at
-the run's end, :mod:`core.tracking.backward_check`) and ``loop`` (the tracker's loop outside the frame step).
-``wp.synchronize_*``: the host's waits for the device; ``engine.stage``: the engine's full-resolution
-regions prepared on the device (in ``set_frame``; with their host copies where the frame is not shared),
-``engine_upload.share``: joint registration's one upload of the whole frame, ``GaussNewtonCost._render``:
-the neighbours' DRRs to subtract; ``stage_gen.next0`` / ``stage_gen.next``: a final stage's set-up and first
-step / each later step up to its next wait (its generator,
+warm-up, ``repeats`` plain runs (wall, first frame, ms a frame after it; ``frames``: the run frame by frame,
+its slow frames with what ran in them, :class:`core.studies.tracking.loop_clock.FrameClock`), then one run
+with the tracker's functions wrapped (:data:`WRAPPED`): the wall time of each call (``perf_counter``),
+inclusive and exclusive of the wrapped functions it calls, summed per phase — ``first`` (frame 0), ``later``
+(the frames after it; divide by their number for a frame), ``backward`` (the backward check's registration of
+the first frame at the run's end, :mod:`core.tracking.backward_check`) and ``loop`` (the tracker's loop
+outside the frame step). ``wp.synchronize_*``: the host's waits for the device; ``engine.stage``: the engine's
+full-resolution regions prepared on the device (in ``set_frame``; with their host copies where the frame is
+not shared), ``engine_upload.share``: joint registration's one upload of the whole frame,
+``GaussNewtonCost._render``: the neighbours' DRRs to subtract; ``stage_gen.next0`` / ``stage_gen.next``: a
+final stage's set-up and first step / each later step up to its next wait (its generator,
 :func:`core.tracking.final_stage.final_stage_steps`). The wrappers cost about a millisecond a frame of three
 bones; ``--cprofile`` adds a run under :mod:`cProfile` (its text next to the JSON). ``--variants
 'name:module.ATTR=value,...;name2:...'`` (modules under ``core.tracking``, values Python literals) runs
@@ -211,24 +212,22 @@ def frame_walls(ends: dict, order, t0: float, wall: float) -> dict:
 
 
 def _timed_track(track, renderer, models, frames, order, keyframes, options, skip=None) -> dict:
+    from core.studies.tracking.loop_clock import FrameClock
     from core.tracking.gc_pause import GcWatch
 
-    ends: dict = {}
-
-    def progress(done, total, fr):
-        ends[fr.frame] = time.perf_counter()
-
-    with GcWatch() as gw:
+    clock = FrameClock()
+    with GcWatch() as gw, clock.watching():
         t0 = time.perf_counter()
-        res = track(renderer, models, frames, order, keyframes=keyframes, options=options, progress=progress,
-                    skip=skip)
+        res = track(renderer, models, frames, order, keyframes=keyframes, options=options,
+                    progress=clock.progress, skip=skip)
         wall = time.perf_counter() - t0
+    ends = {f: e[0] for f, e in clock.ends.items()}
     first = ends.get(order[0], t0) - t0
     n = max(len(order) - 1, 1)
     evals = float(np.mean([x.evaluations for x in res.results.values()])) * len(models)
     return {"wall_s": wall, "first_frame_ms": 1e3 * first,
             "ms_per_frame_after_first": 1e3 * (wall - first) / n, "evaluations_per_frame": evals,
-            "frames": frame_walls(ends, order, t0, wall), "gc": gw.to_dict()}
+            "frames": clock.report(order, t0, wall), "gc": gw.to_dict()}
 
 
 def parse_variants(spec: str | None) -> dict:

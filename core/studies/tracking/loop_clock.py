@@ -18,15 +18,17 @@ as :func:`core.studies.tracking.frame_profile.frame_walls` does; per frame the c
 * ``gc_ms`` and ``gc``: the garbage collections in the frame (pause and generations);
 * ``after_last`` (the run after its last frame: the backward check, the trajectory post-pass): its wall,
   CPU, feed, worker and collection times as above (the clock stops at the end of :meth:`FrameClock.
-  watching`, so the caller ends the block right after the run);
+  watching`, so the caller ends the block right after the run), and the wall and thread CPU times of
+  the backward check (``backward_ms``, ``backward_cpu_ms``; :mod:`core.tracking.backward_check`) and
+  of the trajectory post-pass (``post_pass_ms``, ``post_pass_cpu_ms``; :mod:`core.tracking.flags_post`);
 * ``evaluations``, ``retried``, ``flagged``, ``stage_steps`` (the final stage's steps), ``other_ms`` (the
   registrations' ``other_s``): what the registrations did.
 
 :meth:`FrameClock.report` gives the frames over :data:`SLOW` × the median (``slow``, each with those
 fields) and ``clusters``, runs of consecutive slow frames, besides the summary of ``frame_walls``. The
-clock wraps the feed's two methods and adds a garbage-collector callback within :meth:`FrameClock.watching`
-only (put back after); ``progress`` is its per-frame hook. Timing only: what the tracker computes is the
-same (its calls pass on unchanged).
+clock wraps the feed's two methods, the backward check and the post-pass, and adds a garbage-collector
+callback within :meth:`FrameClock.watching` only (put back after); ``progress`` is its per-frame hook.
+Timing only: what the tracker computes is the same (its calls pass on unchanged).
 """
 
 from __future__ import annotations
@@ -66,6 +68,7 @@ class FrameClock:
         self._lock = threading.Lock()
         self.start = (time.perf_counter(), time.thread_time(), time.process_time())
         self.stop = None  # (the same, at the end of watching())
+        self.after: dict = {}  # the backward check's and the post-pass's (seconds, thread CPU seconds)
 
     def progress(self, done, total, fr) -> None:
         """``track``'s ``progress``: the frame's end (the last of its bones') and its result."""
@@ -82,7 +85,9 @@ class FrameClock:
     def watching(self):
         """Within the block the feed's ``get`` and its worker's preparation are timed and the garbage
         collections recorded (module docs); the clock's start is taken on entry."""
+        import core.tracking.backward_check as backward
         import core.tracking.feed as feed
+        import core.tracking.trial as trial
 
         get, prepare = feed.FrameFeed.get, feed.FrameFeed._prepare
         clock = self
@@ -104,7 +109,20 @@ class FrameClock:
                 with clock._lock:
                     clock.worker.append((t, time.perf_counter()))
 
+        def timed_after(fn, name):
+            def w(*a, **k):
+                t, c = time.perf_counter(), time.thread_time()
+                try:
+                    return fn(*a, **k)
+                finally:
+                    clock.after[name] = (time.perf_counter() - t, time.thread_time() - c)
+            return w
+
         feed.FrameFeed.get, feed.FrameFeed._prepare = timed_get, timed_prepare
+        kept = [(backward, "backward_check", backward.backward_check),
+                (trial, "apply_trajectory_flags", trial.apply_trajectory_flags)]
+        for mod, name, fn in kept:
+            setattr(mod, name, timed_after(fn, name))
         gc.callbacks.append(self._gc)
         self.start = (time.perf_counter(), time.thread_time(), time.process_time())
         try:
@@ -112,6 +130,8 @@ class FrameClock:
         finally:
             self.stop = (time.perf_counter(), time.thread_time(), time.process_time())
             feed.FrameFeed.get, feed.FrameFeed._prepare = get, prepare
+            for mod, name, fn in kept:
+                setattr(mod, name, fn)
             if self._gc in gc.callbacks:
                 gc.callbacks.remove(self._gc)
 
@@ -185,4 +205,8 @@ class FrameClock:
                 "feed_wait_ms": 1e3 * sum(e - s for s, e, _, _ in self.gets if s >= a),
                 "worker_ms": 1e3 * sum(max(0.0, min(e, b) - max(s, a)) for s, e in self.worker),
                 "gc_ms": 1e3 * sum(e - s for s, e, _ in self.gcs if s >= a)}
+            for name, key in (("backward_check", "backward"), ("apply_trajectory_flags", "post_pass")):
+                if name in self.after:
+                    out["after_last"][f"{key}_ms"] = 1e3 * self.after[name][0]
+                    out["after_last"][f"{key}_cpu_ms"] = 1e3 * self.after[name][1]
         return out

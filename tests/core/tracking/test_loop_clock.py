@@ -28,6 +28,7 @@ def test_rows_slow_frames_and_clusters():
     c.gcs = [(0.081, 0.083, 2)]  # inside frame 4 (0.080-0.101)
     c.worker = [(0.049, 0.052)]
     c.stop = (t + 0.01, t / 2 + 0.004, t + 0.01)
+    c.after = {"apply_trajectory_flags": (0.003, 0.0025)}
     rows = c.rows(range(9))
     assert [r["frame"] for r in rows] == list(range(9))
     assert abs(rows[1]["ms"] - 5.0) < 1e-9 and abs(rows[1]["reg_ms"] - 4.0) < 1e-9
@@ -41,17 +42,21 @@ def test_rows_slow_frames_and_clusters():
     assert got["clusters"] == [[3, 4], [7, 7]]
     assert abs(got["typical"]["ms"] - 5.0) < 1e-9 and got["slow"][0]["evaluations"] == 100
     assert abs(got["after_last"]["ms"] - 10.0) < 1e-6 and abs(got["after_last"]["cpu_ms"] - 4.0) < 1e-6
+    assert abs(got["after_last"]["post_pass_ms"] - 3.0) < 1e-9 and "backward_ms" not in got["after_last"]
     assert abs(got["after_last_frame_ms"] - 10.0) < 1e-6 and got["slowest"][0][0] == 4
 
 
 def test_watching_times_the_feed_and_puts_it_back():
     import gc
 
+    import core.tracking.backward_check as backward
     import core.tracking.feed as feed
+    import core.tracking.trial as trial
     from core.studies.tracking.loop_clock import FrameClock
     from core.tracking.options import TrackingOptions
 
-    before = (feed.FrameFeed.get, feed.FrameFeed._prepare)
+    before = (feed.FrameFeed.get, feed.FrameFeed._prepare, backward.backward_check,
+              trial.apply_trajectory_flags)
     o = TrackingOptions()
     imgs = {f: [np.full((32, 32), 0.5 + 0.01 * f), np.full((32, 32), 0.4)] for f in range(3)}
     c = FrameClock()
@@ -66,7 +71,9 @@ def test_watching_times_the_feed_and_puts_it_back():
                 gc.collect()
         finally:
             fd.close()
-    assert (feed.FrameFeed.get, feed.FrameFeed._prepare) == before
+        assert trial.apply_trajectory_flags is not before[3]  # (timed within the block)
+    assert (feed.FrameFeed.get, feed.FrameFeed._prepare, backward.backward_check,
+            trial.apply_trajectory_flags) == before
     assert [g[2] for g in c.gets] == [0, 1, 2] and len(c.worker) == 3 and len(c.gcs) >= 3
     assert c._gc not in gc.callbacks and c.stop is not None
     rows = c.rows(range(3))

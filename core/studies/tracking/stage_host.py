@@ -1,0 +1,306 @@
+"""The likelihood final stage's host time per bone-frame, the device's work taken out
+(``python -m core.studies.tracking.stage_host``).
+
+The benchmark's kind of trial (:class:`~core.studies.tracking.acceptance.TrackingScene`, by default 128²,
+1.5 mm voxels, 8 frames) is tracked once with the likelihood stage (the talus alone, or the three bones
+jointly: ``--bones three``), every stage call (:func:`core.tracking.final_stage.final_stage_steps`'
+arguments) kept. The calls after the first frame's are then replayed, ``--repeats`` times under each
+variant (:data:`VARIANTS`, their order rotated call by call), each stage run to its end
+(:func:`~core.tracking.engine_likelihood.run_steps`; several bones of a frame side by side, as
+:func:`~core.tracking.final_stage.final_stages` runs them). Each stage's wall time is split into the
+device's part and the rest, the host's work (Python, numpy, the runtime calls): on Warp's CPU device a
+kernel runs inside its launch, so the device's part is the kernels' invocations, the CPU renderer's
+threads, the radix sorts and the recorded graphs' replays, each timed; on a CUDA device it is the host's
+waits for the device (:func:`warp.synchronize_event`, :func:`warp.synchronize_device`). Per variant: the
+host's and the device's ms per bone-frame (median over the calls of each call's median over the repeats;
+mean), the stage's steps, and against the first variant whether every pose, covariance, step count and
+taken flag is the same to the bit (else the largest differences). ``--cprofile``: the first variant's
+stages under :mod:`cProfile` (the functions with the most own time per bone-frame). JSON on stdout
+(``--out``: also to a file).
+
+Variants: ``base`` the modules' defaults; ``graph`` a step's recorded work replayed on every device
+(:data:`~core.tracking.engine_likelihood.STEP_GRAPH` True: on the CPU the path a CUDA device takes);
+``devsteps`` / ``devrender`` :data:`~core.tracking.engine_likelihood.DEVICE_STEPS` True / ``"render"``;
+``prev`` the stage's host cuts of :data:`PREV` off (as before them); ``a+b`` both.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import ExitStack, contextmanager
+
+import numpy as np
+
+__all__ = ["PREV", "VARIANTS", "main", "run"]
+
+#: the host cuts' switches (module, name, value before them)
+PREV: tuple = ()
+
+#: the variants' switches (module, name, value), beside ``prev``
+VARIANTS = {"base": (), "graph": (("core.tracking.engine_likelihood", "STEP_GRAPH", True),),
+            "devsteps": (("core.tracking.engine_likelihood", "DEVICE_STEPS", True),),
+            "devrender": (("core.tracking.engine_likelihood", "DEVICE_STEPS", "render"),)}
+
+
+def _switches(name: str) -> list:
+    out = []
+    for part in name.split("+"):
+        if part == "prev":
+            out += list(PREV)
+        elif part in VARIANTS:
+            out += list(VARIANTS[part])
+        else:
+            raise ValueError(f"unknown variant {part!r} (known: prev, {', '.join(VARIANTS)})")
+    return out
+
+
+@contextmanager
+def _variant(name: str):
+    import importlib
+
+    kept = []
+    try:
+        for mod, attr, value in _switches(name):
+            m = importlib.import_module(mod)
+            kept.append((m, attr, getattr(m, attr)))
+            setattr(m, attr, value)
+        yield
+    finally:
+        for m, attr, value in reversed(kept):
+            setattr(m, attr, value)
+
+
+class _KernelClock:
+    """The device's work the host does not do: on Warp's CPU device the kernel invocations timed
+    (``warp._src.context.invoke`` and ``invoke_cpu_blocks``), the CPU renderer's launches in its threads
+    (:func:`core.render.drr.run_parallel`), the radix sorts and recorded graphs' replays
+    (:func:`warp.capture_launch`) as a whole; on a CUDA device the host's waits for it
+    (:func:`warp.synchronize_event`, :func:`warp.synchronize_device`)."""
+
+    def __init__(self) -> None:
+        self.s = 0.0
+        self.n = 0
+        self._inside = 0
+
+    @contextmanager
+    def installed(self, cuda: bool = False):
+        import warp as wp
+        from warp._src import context as C
+
+        import core.render.drr as drr
+        import core.tracking.cpu_threads as ct
+
+        if cuda:
+            places = [(wp, "synchronize_event"), (wp, "synchronize_device")]
+        else:
+            places = [(C, "invoke"), (C, "invoke_cpu_blocks"), (drr, "run_parallel"), (ct, "run_parallel"),
+                      (wp, "capture_launch"), (wp.utils, "radix_sort_pairs")]
+        plain = [(m, k, getattr(m, k)) for m, k in places]
+
+        def timed(f):
+            def g(*a, **k):
+                if self._inside:
+                    return f(*a, **k)
+                self._inside += 1
+                t = time.perf_counter()
+                try:
+                    return f(*a, **k)
+                finally:
+                    self.s += time.perf_counter() - t
+                    self.n += 1
+                    self._inside -= 1
+            return g
+
+        try:
+            for m, k, f in plain:
+                setattr(m, k, timed(f))
+            yield self
+        finally:
+            for m, k, f in plain:
+                setattr(m, k, f)
+
+
+def _capture(ts, bones, frames: int):
+    """Track ``frames`` frames of ``ts`` with the stage; the stage calls (per frame, the list of
+    ``(res, kwargs)``; several: one frame's bones side by side) and the run."""
+    from dataclasses import replace
+
+    import core.tracking.final_stage as fs
+    from core.tracking.trial import TrackingOptions, track
+
+    models = [ts.models[b] for b in bones]
+    from core.render import DRRRenderer
+
+    r = DRRRenderer(ts.scene.rig, [m.volume.to_attenuation(ts.scene.bone_transfer) for m in models],
+                    device=ts.device)
+    kf = {m.name: {0: ts.truth(0)[b]} for m, b in zip(models, bones, strict=True)}
+    o = replace(TrackingOptions(mode="joint"), refine_likelihood=True)
+    calls: list = []
+    plain = fs.final_stage_steps
+
+    def kept(renderer, frame, res, **kw):
+        calls.append((renderer, frame, res, dict(kw)))
+        return plain(renderer, frame, res, **kw)
+
+    fs.final_stage_steps = kept
+    try:
+        run = track(r, models, ts.frames, range(frames), keyframes=kf, options=o)
+    finally:
+        fs.final_stage_steps = plain
+    groups: list = []  # (the calls of one frame's side-by-side stages together: same frame object)
+    for c in calls:
+        if c[3].get("side_by_side") and groups and groups[-1][0][3].get("side_by_side") \
+                and groups[-1][0][1] is c[1] and len(groups[-1]) < len(bones):
+            groups[-1].append(c)
+        else:
+            groups.append([c])
+    return groups, run
+
+
+def _replay(group) -> list:
+    """One frame's stage calls run again (side by side where they were); their results."""
+    from core.tracking.engine_likelihood import StepClock, run_side_by_side, run_steps
+    from core.tracking.final_stage import final_stage_steps
+
+    if len(group) == 1:
+        renderer, frame, res, kw = group[0]
+        kw = {k: v for k, v in kw.items() if k not in ("clock", "side_by_side")}
+        return [run_steps(final_stage_steps(renderer, frame, res, **kw))]
+    clocks = [StepClock() for _ in group]
+    gens = [final_stage_steps(renderer, frame, res, **{**kw, "clock": c})
+            for (renderer, frame, res, kw), c in zip(group, clocks, strict=True)]
+    return run_side_by_side(gens, clocks)
+
+
+def _record(res) -> dict:
+    fit = getattr(res, "fit", None)
+    t = res.timing or {}
+    nan = np.full((6, 6), np.nan)
+    return {"pose": np.asarray(res.pose, dtype=float),
+            "cov": np.asarray(getattr(fit, "covariance", nan) if fit is not None else nan, dtype=float),
+            "steps": float(t.get("likelihood_steps", np.nan)),
+            "taken": float(t.get("likelihood_taken", np.nan))}
+
+
+def _compare(a: list, b: list) -> dict:
+    same, dp, dc = True, 0.0, 0.0
+    for x, y in zip(a, b, strict=True):
+        for k in x:
+            eq = np.array_equal(x[k], y[k], equal_nan=True)
+            same &= bool(eq)
+        dp = max(dp, float(np.nanmax(np.abs(x["pose"] - y["pose"]))))
+        with np.errstate(invalid="ignore"):
+            rel = np.abs(x["cov"] - y["cov"]) / np.maximum(np.abs(x["cov"]), 1e-300)
+        dc = max(dc, float(np.nanmax(rel)) if np.any(np.isfinite(rel)) else 0.0)
+    return {"identical": same, "pose_max_diff": dp, "cov_max_rel_diff": dc}
+
+
+def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel: float = 1.5,
+        bones: str = "one", variants=("base",), repeats: int = 5, cprofile: bool = False) -> dict:
+    import platform
+
+    import warp as wp
+
+    from core.studies.tracking.acceptance import TrackingScene
+
+    wp.config.quiet = True
+    wp.init()
+    idx = [1] if bones == "one" else [0, 1, 2]
+    ts = TrackingScene(n_frames=max(frames, 2), pixels=pixels, spacing=voxel,
+                       phase=(0.0, 0.6 * max(frames, 2) / 100.0), device=device)
+    for f in range(frames):
+        ts.frames(f)
+    groups, _ = _capture(ts, idx, frames)
+    groups = groups[1:]  # (the first frame's stage sets up the engine's buffers: not timed)
+    cuda = wp.get_device(str(ts.renderer.device)).is_cuda
+    clock = _KernelClock()
+    n_bf = sum(len(g) for g in groups)
+    per = {v: {"wall": [[] for _ in groups], "kern": [[] for _ in groups]} for v in variants}
+    recs: dict = {}
+    with ExitStack() as es:
+        es.enter_context(clock.installed(cuda))
+        for v in variants:  # (once each first: kernels and buffers of every variant made)
+            with _variant(v):
+                for g in groups:
+                    _replay(g)
+        for rep in range(int(repeats)):
+            for gi, g in enumerate(groups):
+                for k in range(len(variants)):
+                    v = variants[(k + rep + gi) % len(variants)]
+                    with _variant(v):
+                        s0 = clock.s
+                        t0 = time.perf_counter()
+                        out = _replay(g)
+                        wall = time.perf_counter() - t0
+                    per[v]["wall"][gi].append(wall)
+                    per[v]["kern"][gi].append(clock.s - s0)
+                    if rep == 0:
+                        recs.setdefault(v, []).extend(_record(x) for x in out)
+    res = {"study": "core.studies.tracking.stage_host", "machine": platform.machine(),
+           "device": str(ts.renderer.device), "device_name": getattr(wp.get_device(str(ts.renderer.device)),
+                                                                     "name", ""),
+           "pixels": pixels, "voxel_mm": voxel, "frames": frames, "bones": bones, "repeats": int(repeats),
+           "bone_frames_timed": n_bf, "variants": {}}
+    for v in variants:
+        w = np.array([np.median(x) for x in per[v]["wall"]]) * 1e3
+        kk = np.array([np.median(x) for x in per[v]["kern"]]) * 1e3
+        nb = np.array([len(g) for g in groups])
+        host = (w - kk) / nb
+        steps = [r["steps"] for r in recs[v]]
+        res["variants"][v] = {"switches": [f"{m}.{a}={val!r}" for m, a, val in _switches(v)],
+                              "host_ms_per_bone_frame_median": float(np.median(host)),
+                              "host_ms_per_bone_frame_mean": float(np.mean(host)),
+                              "device_ms_per_bone_frame_mean": float(np.mean(kk / nb)),
+                              "wall_ms_per_bone_frame_mean": float(np.mean(w / nb)),
+                              "steps_mean": float(np.nanmean(steps))}
+        if v != variants[0]:
+            res["variants"][v]["against_" + variants[0]] = _compare(recs[variants[0]], recs[v])
+    if cprofile:
+        res["cprofile"] = _profile(groups, variants[0], n_bf)
+    return res
+
+
+def _profile(groups, variant: str, n_bf: int, top: int = 30) -> list:
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    with _variant(variant):
+        prof.enable()
+        for g in groups:
+            _replay(g)
+        prof.disable()
+    st = pstats.Stats(prof)
+    rows = []
+    for (fn, line, name), (_, nc, tt, ct, _) in st.stats.items():
+        rows.append({"function": f"{fn.split('/core/')[-1] if '/core/' in fn else fn.split('/')[-1]}:{line}"
+                                 f"({name})", "calls_per_bone_frame": nc / n_bf,
+                     "own_ms_per_bone_frame": tt * 1e3 / n_bf, "cum_ms_per_bone_frame": ct * 1e3 / n_bf})
+    rows.sort(key=lambda r: -r["own_ms_per_bone_frame"])
+    return rows[:top]
+
+
+def main(argv=None) -> int:
+    from core.studies.tracking import _study_cli as cli
+
+    p = cli.parser("core.studies.tracking.stage_host", __doc__)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--frames", type=int, default=8)
+    p.add_argument("--pixels", type=int, default=128)
+    p.add_argument("--voxel", type=float, default=1.5)
+    p.add_argument("--bones", choices=("one", "three"), default="one")
+    p.add_argument("--variants", default="base")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--cprofile", action="store_true")
+    p.add_argument("--out", default=None)
+    a = p.parse_args(argv)
+    res = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel, bones=a.bones,
+              variants=tuple(a.variants.split(",")), repeats=a.repeats, cprofile=a.cprofile)
+    from core.io.atomic import print_json
+
+    print_json(res, a.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -482,7 +482,7 @@ class GaussNewtonCost(_EngineBuffers):
         tm.evaluations += B
         self.batches[B] = self.batches.get(B, 0) + 1
         out = out.astype(np.float64)
-        if not np.isfinite(out).all():
+        if not math.isfinite(np.add.reduce(out)):  # (float32 values: a finite sum is all finite)
             out = np.nan_to_num(out, nan=-1.0)
         scores = out[:B]
         views = out[B:].reshape(B, self.n_views)

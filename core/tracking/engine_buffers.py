@@ -13,6 +13,7 @@ from typing import Self
 
 import numpy as np
 import warp as wp
+import warp._src.context as _wp_context
 
 from .cost import CostTimer, _in_pixels
 from .likelihood_launches import _same_inputs  # (the same shortcut as the stage's recorded launches)
@@ -57,7 +58,7 @@ def copy_array(dst: wp.array, src: wp.array, count: int = 0) -> None:
                 wp.types.type_size_in_bytes(src.dtype):  # (a negative count: a huge size_t at the runtime)
             raise ValueError(f"copy_array: {n} elements do not fit the arrays ({src.size}, {dst.size})")
         nbytes = n * wp.types.type_size_in_bytes(src.dtype)
-        from warp._src.context import runtime
+        runtime = _wp_context.runtime  # (set by wp.init: looked up now, not imported at each call)
 
         if dst.device.is_cuda and src.device.is_cpu:
             if not runtime.core.wp_memcpy_h2d(dst.device.context, dst.ptr, src.ptr, nbytes,

@@ -12,11 +12,15 @@ cost's gradient and Gauss–Newton Hessian.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy._core.umath import clip as _clip  # (ndarray.clip's ufunc for float bounds, without its dispatch)
+from numpy.linalg import _umath_linalg
+from numpy.linalg._linalg import _raise_linalgerror_singular as _raise_singular
 
 from .engine_kernels import N_POSES as _N
 from .optimize import OptimizeResult
@@ -51,22 +55,35 @@ for _k in range(6):
     _DESIGN[1 + 2 * _k, _k], _DESIGN[2 + 2 * _k, _k] = 1.0, -1.0
 
 
+_OFFSETS: dict = {}  # h -> the design's offsets _DESIGN * h (step_design)
+
+
 def step_design(x, h) -> np.ndarray:
     """``(13, 6)`` poses of a step: ``x``, then ``x + h_k e_k``, ``x - h_k e_k`` for k = 1…6."""
-    return np.asarray(x, dtype=float) + _DESIGN * np.asarray(h, dtype=float)  # x ± h_k exactly, x + 0 = x
+    h = np.asarray(h, dtype=float)
+    key = h.tobytes()
+    dh = _OFFSETS.get(key)
+    if dh is None:  # (a search's half-steps: the same from step to step)
+        if len(_OFFSETS) >= 64:
+            _OFFSETS.clear()
+        dh = _OFFSETS[key] = _DESIGN * h
+    return np.asarray(x, dtype=float) + dh  # x ± h_k exactly, x + 0 = x
 
 
 _SCALES: dict = {}  # h -> the outer product of the moments' scales (moments_to_newton)
 
 
-def _scale2(h: np.ndarray) -> np.ndarray:
-    key = h.tobytes()
+def _scale2(h: np.ndarray, nv: int = 0) -> np.ndarray:
+    """The outer product ``(9, 9)`` of the moments' scales of half-steps ``h``; with ``nv``, repeated
+    ``(nv, 9, 9)`` (contiguous: a product with it one plain loop, not a broadcast)."""
+    key = (h.tobytes(), nv)
     s2 = _SCALES.get(key)
     if s2 is None:
         sc = np.concatenate([np.ones(3), 1.0 / (2 * h)])  # z -> (1, a, b, D_1..D_6)
         if len(_SCALES) >= 64:
             _SCALES.clear()
-        s2 = _SCALES[key] = np.outer(sc, sc)
+        s2 = np.outer(sc, sc)
+        s2 = _SCALES[key] = np.ascontiguousarray(np.broadcast_to(s2, (nv, 9, 9))) if nv else s2
     return s2
 
 
@@ -77,11 +94,101 @@ def moments_to_newton(M, h, weights=None) -> tuple[np.ndarray, np.ndarray, np.nd
     ``Σ_v w_v (1 - r_v)`` (``weights`` default equal, normalised) in x units (see the module
     docs of :mod:`core.tracking.engine`). A view without contrast in Ω
     contributes r = 0 and nothing to g and H. (The views' centred sums in one pass; the same
-    arithmetic, element by element, as one view at a time. Where every view has contrast —
-    every step of a tracked bone — the views left out are not masked: the same values with
+    arithmetic, element by element, as one view at a time. Where every view has contrast and the
+    weights are equal — every step of a tracked bone — :class:`_Work`: the same values with
     fewer array operations on the step's critical path.)"""
     M = np.asarray(M, dtype=np.float64).reshape(-1, 9, 9)
     h = np.asarray(h, dtype=float)
+    if weights is None and all(a >= 2 for a in M[:, 0, 0].tolist()):  # (on Python floats: the same tests)
+        got = _work(len(M)).newton(M, h)
+        if got is not None:
+            return got
+    return _moments_general(M, h, weights)
+
+
+class _Work:
+    """:func:`moments_to_newton`'s arrays for ``nv`` views where every view has at least 2 pixels and
+    the weights are equal: the moments copied in, the centred sums, each view's terms and the views
+    of them the arithmetic reads, made once (a thread's own: :func:`_work`), so that a step's algebra
+    is ~20 ufunc calls into them. The operations of :func:`_moments_general`'s expressions, element
+    by element in the same order (``n (m_i m_j)``, ``(C_1k / √(caa cbb)) - (r C_2k) / cbb``,
+    ``(C_kl - (C_2k C_2l) / cbb) / cbb``); each view's correlation from Python floats (``sqrt``,
+    ``*`` and ``/`` correctly rounded as numpy's); the sums over the views as reductions along the
+    first axis from 0 — ``g = 0 - w dr_0 - w dr_1 …``, ``H = 0 + c_0 J_0 + c_1 J_1 …``, the loop's
+    order: the same values to the bit."""
+
+    def __init__(self, nv: int) -> None:
+        self.w = 1.0 / nv
+        self.M = M = np.zeros((nv, 9, 9))
+        self.n1 = M[:, 0, 0, None]  # (nv, 1)
+        self.n2 = M[:, 0, 0, None, None]  # (nv, 1, 1)
+        self.M0 = M[:, 0]
+        self.m = m = np.zeros((nv, 9))
+        self.mi, self.mj = m[:, :, None], m[:, None, :]
+        self.C = C = np.zeros((nv, 9, 9))
+        self.cab = C[:, 1:3, 1:3]
+        self.C1, self.C2 = C[:, 1, 3:], C[:, 2, 3:]
+        self.C2k, self.C2l = C[:, 2, 3:, None], C[:, 2, None, 3:]
+        self.C33 = C[:, 3:, 3:]
+        self.K = K = np.zeros((nv, 4, 1))  # per view: sqrt(caa cbb), r, cbb, its weight in H
+        self.Kf = K.reshape(-1)
+        self.sq, self.r, self.cb = K[:, 0], K[:, 1], K[:, 2]
+        self.cb3, self.c3 = K[:, 2:3], K[:, 3:4]  # (nv, 1, 1)
+        self.t = np.zeros((nv, 6))
+        self.dr = np.zeros((nv, 6))
+        self.J = np.zeros((nv, 6, 6))
+
+    def newton(self, M: np.ndarray, h: np.ndarray):
+        """(r, g, H) of the moments ``M`` (n_views, 9, 9), or None where a view has no contrast."""
+        self.M[...] = M
+        m, C, J, dr, t = self.m, self.C, self.J, self.dr, self.t
+        np.divide(self.M0, self.n1, out=m)
+        np.multiply(self.mi, self.mj, out=C)
+        np.multiply(self.n2, C, out=C)
+        np.subtract(self.M, C, out=C)
+        np.multiply(C, _scale2(h, len(C)), out=C)  # centred sums of (., a, b, D): S - n m mᵀ, scaled
+        w = self.w
+        rows = []
+        rl = []
+        for (caa, cab), (_, cbb) in self.cab.tolist():
+            if not (caa > 0 and cbb > 0):
+                return None
+            sq = math.sqrt(caa * cbb)
+            r = cab / sq
+            rl.append(r)
+            rows += (sq, r, cbb, w * max(r, 0.05))
+        self.Kf[:] = rows
+        np.divide(self.C1, self.sq, out=dr)
+        np.multiply(self.r, self.C2, out=t)
+        np.divide(t, self.cb, out=t)
+        np.subtract(dr, t, out=dr)
+        np.multiply(self.C2k, self.C2l, out=J)
+        np.divide(J, self.cb3, out=J)
+        np.subtract(self.C33, J, out=J)
+        np.divide(J, self.cb3, out=J)
+        np.multiply(dr, w, out=dr)
+        np.multiply(J, self.c3, out=J)
+        g = np.subtract.reduce(dr, axis=0, initial=0.0)
+        H = np.add.reduce(J, axis=0, initial=0.0)
+        return np.array(rl), g, 0.5 * (H + H.T)
+
+
+_WORK = threading.local()
+
+
+def _work(nv: int) -> _Work:
+    """This thread's :class:`_Work` for ``nv`` views."""
+    got = getattr(_WORK, "by_nv", None)
+    if got is None:
+        got = _WORK.by_nv = {}
+    w = got.get(nv)
+    if w is None:
+        w = got[nv] = _Work(nv)
+    return w
+
+
+def _moments_general(M, h, weights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`moments_to_newton` of any moments and weights (views without contrast left out)."""
     nv = len(M)
     w = [1.0 / nv] * nv if weights is None else list(np.asarray(weights, float) / np.sum(weights))
     n = M[:, 0, 0]
@@ -155,7 +262,7 @@ class LevenbergMarquardt:
         self.x0 = np.asarray(x0, dtype=float)
         # keep the design inside the box
         self._lo_in, self._hi_in = self.lo + self.h, self.hi - self.h
-        self.x = self.x0.clip(self._lo_in, self._hi_in)  # (np.clip's method, without its dispatch)
+        self.x = _clip(self.x0, self._lo_in, self._hi_in)
         self.tol_x, self.tol_noise = float(tol_x), float(tol_noise)
         self.max_generations = int(max_generations)
         self.best = None  # the accepted step
@@ -171,15 +278,18 @@ class LevenbergMarquardt:
 
     def _solve(self, s, lam_: float) -> np.ndarray:
         A = np.multiply(self.alpha, s.H, order="C")
-        # (αH + λ diag(max(diag αH, 1e-12))): the damping on the diagonal alone (a strided view of it)
-        dg = np.maximum(A.diagonal(), 1e-12)
-        A.reshape(36)[::7] += lam_ * dg
+        # (αH + λ diag(max(diag αH, 1e-12))): the damping on the diagonal alone (a strided view of it),
+        # its six values in Python floats (max as np.maximum's, a NaN kept; a + λ·m as the in-place add)
+        dg = [max(a, 1e-12) for a in A.diagonal().tolist()]
+        A.reshape(36)[::7] = [a + lam_ * m for a, m in zip(A.diagonal().tolist(), dg, strict=True)]
         try:
-            d = np.linalg.solve(A, -s.g)
+            d = _solve6(A, -s.g)
         except np.linalg.LinAlgError:
-            d = -s.g / dg
-        u = np.maximum.reduce(np.abs(d) / self.tr)  # (ndarray.max's ufunc)
-        return d / u if u > 1 else d
+            d = -s.g / np.array(dg)
+        # the largest |d_k| / trust_k (np.maximum.reduce's: NaN where any is, and then no shortening)
+        q = [abs(a) / t for a, t in zip(d.tolist(), self.tr.tolist(), strict=True)]
+        u = max(q)
+        return d / u if u > 1 and all(v == v for v in q) else d
 
     def _correction(self, s) -> np.ndarray:
         """``gradient="corrected"``: the mean over the steps so far of the scores' central differences
@@ -249,15 +359,16 @@ class LevenbergMarquardt:
                 self.reason, self.done = "stalled", True
                 return
             d = self._solve(best, self.lam)
-            self.x = (best.x + d).clip(self._lo_in, self._hi_in)
+            self.x = _clip(best.x + d, self._lo_in, self._hi_in)
             return
         if best is not None:  # secant: the gradient's change along the step against the model's
             # (the moments' gradients: the correction held fixed, its own change is no curvature)
             dx = s.x - best.x
             den = float(dx @ best.H @ dx)
             num = float((g_moments - self._best_g) @ dx)
-            if den > 0 and num > 0 and (np.abs(dx) <= 4 * h).all():  # a short step: near quadratic
-                self.alpha = float(min(max(num / den, 0.5), 1.5))
+            short = zip(dx.tolist(), h.tolist(), strict=True)
+            if den > 0 and num > 0 and all(abs(a) <= 4 * b for a, b in short):
+                self.alpha = float(min(max(num / den, 0.5), 1.5))  # (a short step: near quadratic)
         self.best, self._best_g = s, g_moments
         self._coef, res = _residuals(s, self.alpha)
         self.noise = math.sqrt(float(res @ res) / 6.0)  # (np.sqrt's value: both correctly rounded)
@@ -266,12 +377,12 @@ class LevenbergMarquardt:
         if _TRACE is not None:
             _TRACE.append((s.x.copy(), s.cost, self.noise, d.copy(), self.alpha))
         tol = self.tol_x
-        if (all(v < tol for v in np.abs(d).tolist())
+        if (all(abs(v) < tol for v in d.tolist())
                 or 0.5 * self.alpha * d @ s.H @ d < self.tol_noise * self.noise):
             self.reason, self.done = "tol_x", True
-            self.final_x = (s.x + d).clip(self.lo, self.hi)
+            self.final_x = _clip(s.x + d, self.lo, self.hi)
             return
-        self.x = (s.x + d).clip(self._lo_in, self._hi_in)
+        self.x = _clip(s.x + d, self._lo_in, self._hi_in)
 
     def result(self) -> OptimizeResult:
         """The outcome once :meth:`ask` has returned None."""
@@ -290,6 +401,14 @@ def _six(v) -> np.ndarray:
     """``v`` as a new (6,) float array (a scalar repeated): ``np.array(np.broadcast_to(v, (6,)))``."""
     a = np.asarray(v, dtype=float)
     return a.copy() if a.shape == (6,) else np.array(np.broadcast_to(a, (6,)))
+
+
+def _solve6(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(A, b)`` of a float64 ``(6, 6)`` matrix and ``(6,)`` vector: its LAPACK gufunc
+    under its error state (a singular matrix raises LinAlgError), without its argument checks and
+    conversions — the same call, the same values."""
+    with np.errstate(call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return _umath_linalg.solve1(A, b, signature="dd->d")
 
 
 def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
@@ -341,22 +460,25 @@ def gauss_newton_search(cost, x0, *, step, lower, upper, tol_x: float = 0.02,
 def _residuals(s: GaussNewtonStep, alpha: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares ``(c0, g)`` of the 13 costs with the Hessian fixed (``alpha H``), and the
     residuals. The design's columns (1, ±h_k at rows 2k+1, 2k+2) are orthogonal: the fit is
-    the mean and the central differences, in closed form."""
-    h = np.asarray(s.h, dtype=float)
-    q = 0.5 * alpha * h * h * s.H.diagonal()
-    y = np.array(s.costs, dtype=float)
-    y[1::2] -= q
-    y[2::2] -= q
-    c0 = np.add.reduce(y) / _N  # the mean
-    g = (y[1::2] - y[2::2]) / (2.0 * h)
-    hg = h * g
-    res = y - c0
-    res[1::2] = y[1::2] - (c0 + hg)
-    res[2::2] = y[2::2] - (c0 - hg)
-    coef = np.empty(7)
-    coef[0] = c0
-    coef[1:] = g
-    return coef, res
+    the mean and the central differences, in closed form. (Element by element in Python floats,
+    the operations of the arrays' expressions in their order; the mean numpy's sum of the 13.)"""
+    hl = np.asarray(s.h, dtype=float).tolist()
+    a = 0.5 * alpha
+    y = np.asarray(s.costs, dtype=float).tolist()
+    for k, (hk, dk) in enumerate(zip(hl, s.H.diagonal().tolist(), strict=True)):
+        q = a * hk * hk * dk
+        y[2 * k + 1] -= q
+        y[2 * k + 2] -= q
+    c0 = float(np.add.reduce(np.array(y))) / _N  # the mean
+    coef = [c0]
+    res = [y[0] - c0]
+    for k, hk in enumerate(hl):
+        yp, ym = y[2 * k + 1], y[2 * k + 2]
+        gk = (yp - ym) / (2.0 * hk)
+        hg = hk * gk
+        coef.append(gk)
+        res += (yp - (c0 + hg), ym - (c0 - hg))
+    return np.array(coef), np.array(res)
 
 
 def _roughness(s: GaussNewtonStep, alpha: float = 1.0) -> float:
@@ -377,5 +499,5 @@ class GaussNewtonFit(QuadraticFit):
 def _fit(s: GaussNewtonStep, noise: float, alpha: float = 1.0, coef=None) -> GaussNewtonFit:
     if coef is None:
         coef, _ = _residuals(s, alpha)
-    return GaussNewtonFit(np.array(s.x), np.array(s.h), float(coef[0]), np.array(s.g), alpha * np.array(s.H),
+    return GaussNewtonFit(np.array(s.x), np.array(s.h), float(coef[0]), np.array(s.g), alpha * s.H,
                           float(noise), 6, np.array(s.costs), np.array(s.view_scores[0]))

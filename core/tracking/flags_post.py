@@ -188,6 +188,19 @@ FLOOR = (0.005, 0.02)
 MIN_FRAMES = 8
 
 
+#: :func:`trajectory_review` takes the table of local fits (and the first residuals) that
+#: :func:`trajectory_residuals` made last for the same frames, poses and options, instead of making it
+#: again: the backward check (:mod:`core.tracking.backward_check`) scales its limits by
+#: ``trajectory_residuals`` of the run's good frames, the same frames and poses the post-pass then judges
+#: when it flags none (exact: the same table, made from the same numbers; False: made anew).
+SHARE_TABLE = True
+_TABLES: dict = {}  # trajectory_residuals' (inputs' key) -> (table, residuals), taken once (SHARE_TABLE)
+
+
+def _key(fr, P, ok, c, half_window, degree, ends) -> tuple:
+    return (fr.tobytes(), P.tobytes(), ok.tobytes(), c.tobytes(), int(half_window), int(degree), bool(ends))
+
+
 def _inputs(frames, poses, center):
     """Frame numbers, poses (sorted by frame), which have a pose, the centre, and the sorting order."""
     fr = np.asarray(frames, dtype=int)
@@ -205,8 +218,13 @@ def trajectory_residuals(frames, poses, center, *, half_window: int = HALF_WINDO
     ``frames``: the frame numbers of ``poses`` (``(n, 4, 4)``, NaN where none; distinct)."""
     fr, P, ok, c, order = _inputs(frames, poses, center)
     t = _Table(fr, P, ok, c, half_window, degree, ends)
+    R = t.residuals(ok)
+    if SHARE_TABLE:  # (for the post-pass over the same frames; the last few kept)
+        if len(_TABLES) >= 4:
+            _TABLES.pop(next(iter(_TABLES)), None)
+        _TABLES[_key(fr, P, ok, c, half_window, degree, ends)] = (t, R.copy())
     out = np.full((len(P), 2), np.nan)
-    out[order] = t.residuals(ok)
+    out[order] = R
     return out
 
 
@@ -253,8 +271,12 @@ def trajectory_review(frames, poses, center, *, limit: float = LIMIT, half_windo
     judge = np.ones(len(fr), dtype=bool) if judged is None else np.asarray(judged, dtype=bool)[order]
     if not (judge & ok).any():
         return {}, {}
-    t = _Table(fr, P, ok, c, half_window, degree, ends)
-    R = t.residuals(ok)
+    hit = _TABLES.pop(_key(fr, P, ok, c, half_window, degree, ends), None) if SHARE_TABLE else None
+    if hit is not None:  # trajectory_residuals' table of these frames (SHARE_TABLE), now this review's own
+        t, R = hit
+    else:
+        t = _Table(fr, P, ok, c, half_window, degree, ends)
+        R = t.residuals(ok)
     have = np.all(np.isfinite(R), axis=1)
     if have.sum() < min_frames:
         return {}, {}

@@ -10,7 +10,10 @@ confidences to the bit.
 * The backward check's frame read, prepared and put on the device while the last frame registers
   (core.tracking.trial.BACKWARD_AHEAD; engine_upload.DEVICES patched to take the CPU, in both runs) and its
   trajectory scales computed during its registration's final stage (core.tracking.backward_check.
-  SCALE_AHEAD)."""
+  SCALE_AHEAD).
+* The trajectory post-pass taking the table of local fits the backward check's scales made
+  (core.tracking.flags_post.SHARE_TABLE) and its residuals kept by their neighbours
+  (core.tracking.flags_fit.MEMO)."""
 
 from __future__ import annotations
 
@@ -55,9 +58,12 @@ def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
     import core.tracking.checks as checks
     import core.tracking.engine_upload as eu
     import core.tracking.feed as feed
+    import core.tracking.flags_fit as ff
+    import core.tracking.flags_post as fp
     import core.tracking.trial as trial
 
     assert not trial.GC_FREEZE and trial.BACKWARD_AHEAD and backward.SCALE_AHEAD  # (the defaults)
+    assert fp.SHARE_TABLE and ff.MEMO
     monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))  # (the shared upload and the uploads ahead on CPU)
     got, ahead, scaled = [], [], []
     real_get, real_ahead, real_scale = feed.FrameFeed.get, feed.FrameFeed.upload_ahead, backward._scale
@@ -79,7 +85,9 @@ def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
     monkeypatch.setattr(feed.FrameFeed, "upload_ahead", upload_ahead)
     monkeypatch.setattr(backward, "_scale", scale)
     off_seen, on_seen = [], []
-    for m, v in ((trial, "GC_FREEZE"), (trial, "BACKWARD_AHEAD"), (backward, "SCALE_AHEAD")):
+    switches = ((trial, "GC_FREEZE"), (trial, "BACKWARD_AHEAD"), (backward, "SCALE_AHEAD"),
+                (fp, "SHARE_TABLE"), (ff, "MEMO"))
+    for m, v in switches:
         monkeypatch.setattr(m, v, False)
     monkeypatch.setattr(checks, "_PREDICTIONS", _NoCache())
     monkeypatch.setattr(eu, "_UPLOADS", {})
@@ -87,8 +95,17 @@ def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
     off = _track(walking_talus_64, off_seen)
     assert got[-1] == (FRAMES[0], False) and scaled == [False]  # (as before: read after the loop)
     got.clear(), ahead.clear(), scaled.clear()
-    for m, v in ((trial, "GC_FREEZE"), (trial, "BACKWARD_AHEAD"), (backward, "SCALE_AHEAD")):
+    for m, v in switches:
         monkeypatch.setattr(m, v, True)
+    tables = {}
+    monkeypatch.setattr(fp, "_TABLES", tables)
+    real_table, made = fp._Table, []
+
+    def table(*a, **k):
+        made.append(1)
+        return real_table(*a, **k)
+
+    monkeypatch.setattr(fp, "_Table", table)
     kept = {}
     monkeypatch.setattr(checks, "_PREDICTIONS", kept)
     monkeypatch.setattr(eu, "_UPLOADS", {})
@@ -98,6 +115,7 @@ def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
     assert got[-1] == (FRAMES[0], True)  # the backward check's frame taken from the look-ahead
     assert (FRAMES[0], True) in ahead  # and put on the device during the last frame's stage
     assert scaled == [True]  # the scale computed during the backward registration's stage
+    assert len(made) == 1 and not tables  # its table taken by the post-pass
     _same(off, on)
     assert off.status == on.status == "complete"
     assert not any(off_seen) and all(on_seen) and len(on_seen) == len(FRAMES)  # frozen while it ran

@@ -8,7 +8,8 @@ frame changes the model there: a burst of process noise in the step into it (a r
 model lags) or its measurement's variance multiplied (an outlier: the frame off its neighbours).
 :func:`interventions` tries both at candidate frames and keeps the one the likelihood favours most —
 a spike out and back is one outlier better than two bursts, a step one burst better than a run of
-outliers.
+outliers. At a trial's ends a run of flagged frames off alike agrees with itself (a step there): no one of
+them is off its neighbours, so :func:`group_outliers` tries the run as one outlier (:func:`end_runs`).
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ import math
 
 import numpy as np
 
-__all__ = ["CHI2_1_MEDIAN", "best_lambda", "candidate_frames", "interventions", "kalman", "model_matrices",
-           "rts"]
+__all__ = ["CHI2_1_MEDIAN", "best_lambda", "candidate_frames", "end_runs", "group_outliers", "interventions",
+           "kalman", "model_matrices", "rts"]
 
 #: the median of χ² with one degree of freedom (a squared standard normal)
 CHI2_1_MEDIAN = 0.454936
@@ -246,6 +247,51 @@ def interventions(z, r, lam, model: str, boost, inflate, base, frames, *, bursts
         if np.isfinite(score[j]) and (best is None or score[j] > best[3]):
             best = ("outlier", int(ofr[j]), fo[:, j], float(score[j]))
     return best
+
+
+def end_runs(flagged, allowed, longest: int) -> tuple[list, list]:
+    """The runs of ``flagged`` frames (``(n,)`` bool) that may be taken for outliers (``allowed``) at the
+    series' ends: ``(start, end)`` groups — the first 2, 3, … (at most ``longest``) frames of the run that
+    starts at frame 0, the last 2, 3, … of the run that ends at frame ``n - 1`` — each a sorted index
+    array."""
+    fl, ok = np.asarray(flagged, bool), np.asarray(allowed, bool)
+    n = len(fl)
+    out = []
+    for order in (np.arange(n), np.arange(n)[::-1]):
+        run = []
+        for t in order:
+            if not (fl[t] and ok[t]) or len(run) == longest:
+                break
+            run.append(int(t))
+        out.append([np.sort(np.array(run[:k])) for k in range(2, len(run) + 1)])
+    return out[0], out[1]
+
+
+def group_outliers(z, r, lam, model: str, boost, inflate, base, groups, *, outliers, outlier_gain: float,
+                   credit: float = 0.0):
+    """Of ``groups`` (index arrays), the one whose frames' measurement variances multiplied together
+    (each coordinate its best factor of ``outliers``, counted where it gains over 1, as
+    :func:`interventions`) raise the innovations' likelihood most over ``base`` ``(C,)``: a run of frames
+    taken as one outlier, credited ``credit`` (log prior odds of the run being off). Returns
+    ``("outliers", frames, (C,) factors, gain)`` (the gain with the credit) where that is over
+    ``outlier_gain``, else None."""
+    if not len(groups):
+        return None
+    C, m = len(lam), len(groups)
+    cols = len(outliers) * m
+    ci = np.repeat(np.broadcast_to(inflate, (len(z), C, 1)), cols, axis=2).copy()
+    for o, f in enumerate(outliers):
+        for j, g in enumerate(groups):
+            ci[g, :, o * m + j] *= f
+    ll, _, _ = kalman(z, r, np.broadcast_to(lam[:, None], (C, cols)), model, boost=boost, inflate=ci)
+    g = (ll - base[:, None]).reshape(C, len(outliers), m)
+    top, which = g.max(axis=1), g.argmax(axis=1)
+    gain = np.clip(top, 0.0, None).sum(axis=0) + credit
+    j = int(np.argmax(gain))
+    if not gain[j] > outlier_gain:
+        return None
+    factors = np.where(top[:, j] > 1.0, np.asarray(outliers)[which[:, j]], 1.0)
+    return "outliers", [int(t) for t in groups[j]], factors, float(gain[j])
 
 
 def candidate_frames(res: np.ndarray, count: int) -> np.ndarray:

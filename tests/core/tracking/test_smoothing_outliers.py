@@ -5,7 +5,10 @@ the spike, out and back, for a transient, and beyond ~2 mm no process noise kept
 max_scale); now the search takes it for an outlier (one frame's variance multiplied explains the spike
 better than two bursts) and the scale's bound judges k by the median innovation, so it is pulled in, as
 with flagged_weight=0. So are such frames at a trial's ends (the first frames judged on the frames
-reversed in time) and three consecutive frames inside it."""
+reversed in time) and three consecutive frames inside it. A run of flagged frames off alike at a trial's
+end agrees with itself (a step there) and was followed (frames 0-2 flagged 2 mm off: frame 1 3.49 mm off);
+it is now tried as one outlier and pulled in; a run of good flagged frames there, and an unflagged step,
+are left as they were."""
 
 from __future__ import annotations
 
@@ -81,3 +84,37 @@ def test_far_off_frames_after_frames_without_a_pose():
     P[:5] = np.nan
     s = smooth_poses(P, sigma, center=CENTER, flagged=fl)
     assert np.linalg.norm(_errors(s.poses[5:6], T[5:6])[0, :3]) < 0.1 and s.outliers == [5]
+
+
+def test_runs_of_flagged_frames_at_the_ends_are_pulled_in():
+    from core.tracking.smoothing import smooth_poses
+
+    for frames in ((0, 1), (0, 1, 2), (0, 1, 2, 3, 4), (78, 79), (77, 78, 79)):
+        for mm in (1.0, 2.0, 5.0):
+            T, P, sigma, fl = _track(mm, 3, frames)
+            s = smooth_poses(P, sigma, center=CENTER, flagged=fl)
+            e = np.linalg.norm(_errors(s.poses, T)[list(frames), :3], axis=1)
+            assert e.max() < 0.1, (frames, mm, e)  # before: up to 3.49 mm (0-2), 2.10 mm (77-79) at 2 mm
+            assert sorted(s.outliers) == list(frames) and s.bursts == []
+
+
+def test_good_flagged_runs_and_unflagged_steps_at_the_ends_are_left_alone():
+    from core.tracking.smoothing import END_RUN, smooth_poses
+    from core.tracking.smoothing_filter import end_runs
+
+    for frames in ((0, 1, 2, 3), (74, 75, 76, 77, 78, 79)):
+        for seed in (3, 4):
+            T, P, sigma, fl = _track(0.0, seed, frames)
+            s = smooth_poses(P, sigma, center=CENTER, flagged=fl)
+            plain = smooth_poses(P, sigma, center=CENTER)
+            assert s.outliers == [] and np.allclose(s.poses, plain.poses, atol=1e-9, equal_nan=True)
+    T, P, sigma, fl = _track(2.0, 3, (77, 78, 79))
+    s = smooth_poses(P, sigma, center=CENTER)  # not flagged: a step at the end, followed as before
+    assert not {77, 78, 79} & set(s.outliers) and np.linalg.norm(_errors(s.poses, T)[79, :3]) > 1.0
+    fl = np.zeros(10, bool)
+    fl[[0, 1, 2, 7, 8, 9]] = True
+    ok = np.ones(10, bool)
+    ok[1] = False  # taken as far as it may be already: the run at the start stops before it
+    start, end = end_runs(fl, ok, END_RUN)
+    assert start == [] and [g.tolist() for g in end] == [[8, 9], [7, 8, 9]]
+    assert len(end_runs(np.ones(20, bool), np.ones(20, bool), 3)[0]) == 2  # at most 3 frames a run

@@ -25,6 +25,9 @@ median ratio as high as ``ρ``). Per axis: ``m_i / σ_i``, ``s_i / σ_i``, ``w_i
 autocorrelation of the errors about their mean, and the mean's t statistic from 10 batch means of 10 frames
 (their spread, not the frames', so slow drifts widen it).
 
+The same for the search's poses before the likelihood final stage moved them (``searched``: the stored
+``per_frame_signals.search_error``): what the stage takes off and what it adds.
+
 Limits: the bound's ``σ`` is the mean over every tenth frame, not each frame's; ``w`` of a frame next to a
 jump (a flagged frame) takes the jump in; the stored errors are rounded to 1e-5.
 
@@ -41,7 +44,7 @@ import json
 
 import numpy as np
 
-__all__ = ["decompose", "main", "study"]
+__all__ = ["decompose", "main", "searched", "study"]
 
 FILES = "resources/benchmarks/tracking_acceptance_seed{seed}_final_f4f4b08_h100.json"
 SEEDS = (0, 3, 4)
@@ -123,17 +126,36 @@ def decompose(t: dict) -> dict:
     return out
 
 
+def searched(t: dict) -> dict | None:
+    """``t`` with each frame's error the search's, before the final stage moved it
+    (``per_frame_signals.search_error``; a frame the stage did not move keeps its own), or None where the
+    record has no such signals."""
+    se = (t.get("per_frame_signals") or {}).get("search_error")
+    if se is None:
+        return None
+    E = [e if v is None else v for e, v in zip(t["per_frame_error"], se, strict=True)]
+    return {**t, "per_frame_error": E}
+
+
 def study(paths) -> dict:
-    """Per file (an acceptance study's JSON with ``runs``), per mode and bone: :func:`decompose`."""
+    """Per file (an acceptance study's JSON with ``runs``), per mode and bone: :func:`decompose`, with
+    the same of the search's poses before the final stage (``searched``, :func:`searched`) where kept."""
     out = {}
     for p in paths:
         with open(p) as fh:
             d = json.load(fh)
         runs = d["runs"] if "runs" in d else {d["config"]["mode"]: d}
         seed = str(d.get("seed", next(iter(runs.values()))["config"].get("seed", 0)))
-        out[seed] = {"file": p, "runs": {m: {n: decompose(t) for n, t in r["tracking"].items()
+        out[seed] = {"file": p, "runs": {m: {n: _both(t) for n, t in r["tracking"].items()
                                                if "cramer_rao" in t} for m, r in runs.items()}}
     return out
+
+
+def _both(t: dict) -> dict:
+    d = decompose(t)
+    if (s := searched(t)) is not None:
+        d["searched"] = {k: v for k, v in decompose(s).items() if k in UNITS}
+    return d
 
 
 def _table(res: dict) -> str:

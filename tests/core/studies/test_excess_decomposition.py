@@ -63,3 +63,16 @@ def test_main_reads_stored_runs(tmp_path, capsys):
     d = json.loads(out.read_text())
     assert list(d["seeds"]["4"]["runs"]["joint"]) == ["talus"]  # a bone without a bound is left out
     assert d["seeds"]["4"]["runs"]["joint"]["talus"]["frames"] == 30
+    assert "searched" not in d["seeds"]["4"]["runs"]["joint"]["talus"]  # no signals kept
+
+
+def test_the_searched_poses_are_decomposed_where_kept():
+    from core.studies.tracking.excess_decomposition import searched
+
+    E = np.random.default_rng(3).standard_normal((20, 6)) * SIGMA
+    t = _record(E)
+    assert searched(t) is None
+    t["per_frame_signals"] = {"search_error": [None] * 19 + [(E[19] + 1).tolist()]}
+    s = searched(t)
+    assert np.array_equal(s["per_frame_error"][:19], t["per_frame_error"][:19])
+    assert s["per_frame_error"][19] == (E[19] + 1).tolist() and t["per_frame_error"][19] == E[19].tolist()

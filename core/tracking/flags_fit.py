@@ -39,6 +39,10 @@ SHARED = True
 #: from the table's making (exact: the same arithmetic on the same numbers, the residuals to the bit; False:
 #: as before). :mod:`core.studies.tracking.loop_host` times it.
 MEMO = True
+#: A table makes its poses' deltas (every frame offset's, and a trial's end frames') in one batch each,
+#: not one per offset and end frame (exact: each row's arithmetic is the same in any batch; False: as
+#: before).
+BATCHED = True
 #: ``(degree, offsets' bytes)`` -> :meth:`_Table._weights`' value, for every table (:data:`SHARED`);
 #: emptied when it holds :data:`_WEIGHTS_MAX`.
 _WEIGHTS: dict = {}
@@ -90,6 +94,7 @@ class _Table:
         self.Y = np.full((n, len(self.offsets), 6), np.nan)
         self.near = np.zeros((n, len(self.offsets)), dtype=bool)
         idx = np.arange(n)
+        pairs = []
         for m, d in enumerate(self.offsets):  # distinct frame numbers: neighbours lie within h places
             j = idx + d
             inside = (j >= 0) & (j < n)
@@ -97,8 +102,15 @@ class _Table:
             good = ok[a] & ok[b] & (np.abs(fr[b] - fr[a]) <= h * self.step)
             a, b = a[good], b[good]
             if len(a):
-                self.Y[a, m] = _deltas(P[a], P[b], c)
+                if BATCHED:
+                    pairs.append((a, b, m))
+                else:
+                    self.Y[a, m] = _deltas(P[a], P[b], c)
                 self.near[a, m] = True
+        if pairs:  # (BATCHED) every offset's deltas in one batch: each row's arithmetic as alone
+            A = np.concatenate([a for a, _, _ in pairs])
+            D = _deltas(P[A], P[np.concatenate([b for _, b, _ in pairs])], c)
+            self.Y[A, np.concatenate([np.full(len(a), m) for a, _, m in pairs])] = D
         self._solve: dict = {}
         self._memo: dict = {}  # (frame index, neighbours' mask bytes[, scale bytes]) -> residual (MEMO)
         # each frame's window: its neighbours' indices (clipped) and frame offsets, as _fit computes them
@@ -116,12 +128,22 @@ class _Table:
         if self.ends and ok.any():
             lo, hi = int(fr[ok].min()), int(fr[ok].max())
             w, span = h * self.step, 2 * h * self.step
+            todo = []
             for i in np.flatnonzero(ok & ((fr - w < lo) | (fr + w > hi))):
                 a = min(max(int(fr[i]) - w, lo), max(lo, hi - span))
                 js = np.arange(max(0, i - 2 * h), min(n, i + 2 * h + 1))
                 js = js[(js != i) & ok[js] & (fr[js] >= a) & (fr[js] <= a + span)]
                 self.end[i] = True
-                self.ext[int(i)] = (js, _deltas(np.repeat(P[i:i + 1], len(js), axis=0), P[js], c))
+                if BATCHED:
+                    todo.append((int(i), js))
+                else:
+                    self.ext[int(i)] = (js, _deltas(np.repeat(P[i:i + 1], len(js), axis=0), P[js], c))
+            if todo:  # (BATCHED) the end frames' deltas in one batch
+                D = _deltas(P[np.concatenate([np.full(len(js), i) for i, js in todo])],
+                            P[np.concatenate([js for _, js in todo])], c)
+                at = np.cumsum([0] + [len(js) for _, js in todo])
+                for k, (i, js) in enumerate(todo):
+                    self.ext[i] = (js, D[at[k]:at[k + 1]])
 
     def residuals(self, use: np.ndarray) -> np.ndarray:
         """``(n, 2)`` :meth:`residual` of every frame in ``use``, frames with the same neighbours'

@@ -17,7 +17,7 @@ the two alternated round by round (the host's drift shared), JSON on stdout:
   (outside the registrations) and ``other_ms`` (the registrations' ``other_s``). On the CPU the kernels
   dominate the registrations: the post-pass's and the loop's parts are the host's.
 
-The switches (:data:`TRIMS`): :data:`core.tracking.flags_fit.MEMO`,
+The switches (:data:`TRIMS`): :data:`core.tracking.flags_fit.MEMO`, :data:`core.tracking.flags_fit.BATCHED`,
 :data:`core.tracking.flags_post.SHARE_TABLE`.
 """
 
@@ -31,7 +31,8 @@ import numpy as np
 __all__ = ["TRIMS", "after_last", "loop", "main", "tracks"]
 
 #: (module, switch) of the trims compared: all off (``before``) against all on (``after``).
-TRIMS = (("core.tracking.flags_fit", "MEMO"), ("core.tracking.flags_post", "SHARE_TABLE"))
+TRIMS = (("core.tracking.flags_fit", "MEMO"), ("core.tracking.flags_fit", "BATCHED"),
+         ("core.tracking.flags_post", "SHARE_TABLE"))
 
 
 def _set(on: bool) -> None:

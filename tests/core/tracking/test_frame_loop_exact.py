@@ -12,8 +12,8 @@ confidences to the bit.
   trajectory scales computed during its registration's final stage (core.tracking.backward_check.
   SCALE_AHEAD).
 * The trajectory post-pass taking the table of local fits the backward check's scales made
-  (core.tracking.flags_post.SHARE_TABLE) and its residuals kept by their neighbours
-  (core.tracking.flags_fit.MEMO)."""
+  (core.tracking.flags_post.SHARE_TABLE), its residuals kept by their neighbours
+  (core.tracking.flags_fit.MEMO) and its deltas made in one batch (core.tracking.flags_fit.BATCHED)."""
 
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
     import core.tracking.trial as trial
 
     assert not trial.GC_FREEZE and trial.BACKWARD_AHEAD and backward.SCALE_AHEAD  # (the defaults)
-    assert fp.SHARE_TABLE and ff.MEMO
+    assert fp.SHARE_TABLE and ff.MEMO and ff.BATCHED
     monkeypatch.setattr(eu, "DEVICES", ("cuda", "cpu"))  # (the shared upload and the uploads ahead on CPU)
     got, ahead, scaled = [], [], []
     real_get, real_ahead, real_scale = feed.FrameFeed.get, feed.FrameFeed.upload_ahead, backward._scale
@@ -86,7 +86,7 @@ def test_trimmed_loop_gives_the_same_results(walking_talus_64, monkeypatch):
     monkeypatch.setattr(backward, "_scale", scale)
     off_seen, on_seen = [], []
     switches = ((trial, "GC_FREEZE"), (trial, "BACKWARD_AHEAD"), (backward, "SCALE_AHEAD"),
-                (fp, "SHARE_TABLE"), (ff, "MEMO"))
+                (fp, "SHARE_TABLE"), (ff, "MEMO"), (ff, "BATCHED"))
     for m, v in switches:
         monkeypatch.setattr(m, v, False)
     monkeypatch.setattr(checks, "_PREDICTIONS", _NoCache())

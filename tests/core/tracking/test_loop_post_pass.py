@@ -1,5 +1,6 @@
 """The trajectory post-pass's host trims, exact: each frame's residual kept by the neighbours its fit goes
-through (core.tracking.flags_fit.MEMO) and the table of local fits that trajectory_residuals made taken by
+through (core.tracking.flags_fit.MEMO), the table's deltas made in one batch (core.tracking.flags_fit.BATCHED)
+and the table of local fits that trajectory_residuals made taken by
 the review of the same frames (core.tracking.flags_post.SHARE_TABLE) give the same flags and notes, message
 for message, as the pass without them, on tracks with frames turned off the trajectory, frames missing,
 every other frame tracked, neighbours outside the run and the search's poses."""
@@ -45,16 +46,19 @@ def _review(frames, P, judged, S):
     return R, trajectory_review(frames, P, CENTER, judged=judged, searched=S)
 
 
-@pytest.mark.parametrize("memo,share", [(True, False), (False, True), (True, True)])
-def test_same_flags_with_the_trims(monkeypatch, memo, share):
+@pytest.mark.parametrize("memo,share,batched", [(True, False, False), (False, True, False),
+                                                (False, False, True), (True, True, True)])
+def test_same_flags_with_the_trims(monkeypatch, memo, share, batched):
     import core.tracking.flags_fit as ff
     import core.tracking.flags_post as fp
 
     tracks = _tracks()
     monkeypatch.setattr(ff, "MEMO", False)
+    monkeypatch.setattr(ff, "BATCHED", False)
     monkeypatch.setattr(fp, "SHARE_TABLE", False)
     before = [_review(*t) for t in tracks]
     monkeypatch.setattr(ff, "MEMO", memo)
+    monkeypatch.setattr(ff, "BATCHED", batched)
     monkeypatch.setattr(fp, "SHARE_TABLE", share)
     taken = []
     real = fp._Table

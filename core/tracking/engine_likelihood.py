@@ -89,8 +89,9 @@ its pose mapping) and the separable blur of :mod:`core.similarity._kernels`. A s
 model is one CUDA graph on a CUDA device (:data:`STEP_GRAPH`, :mod:`core.tracking.likelihood_graph`);
 the other kernels (and a step's where it is off) are launched one by one, each from a recorded launch
 while its arguments stay the same (:meth:`LikelihoodEngine._launch`,
-:mod:`core.tracking.likelihood_launches`): one graph launch (4-5 launches without it) and one
-wait per step, for the engine's own work only (an event recorded after the table's copy):
+:mod:`core.tracking.likelihood_launches`; the frame's set-up, the robust factors and the sandwich each
+one recorded graph too, :mod:`core.tracking.likelihood_segments`): one graph launch (4-5 launches without
+it) and one wait per step, for the engine's own work only (an event recorded after the table's copy):
 :meth:`LikelihoodEngine.refine_steps` yields there, so that several bones' refinements run side
 by side (:func:`run_side_by_side`). The kernels live in :mod:`core.tracking.likelihood_kernels`
 (re-exported here), its constructor and buffers in :mod:`core.tracking.likelihood_state`, the
@@ -151,6 +152,7 @@ from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names
     wls_moments_kernel,
 )
 from .likelihood_launches import _Launches
+from .likelihood_segments import _Segments
 from .likelihood_solve import solve_moments
 from .likelihood_state import _EngineState
 from .likelihood_steps import StepClock, run_side_by_side, run_steps
@@ -233,7 +235,7 @@ TO_TOL: ContextVar = ContextVar("likelihood_to_tol", default=False)
 
 
 class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors, _Confidence,
-                       _RegionWeights, _StepGraphs):
+                       _RegionWeights, _StepGraphs, _Segments):
     """The weighted least-squares refinement of one bone on the device (module docs), reusable from
     frame to frame (:func:`likelihood_engine` keeps one per renderer, bone and settings).
 
@@ -286,21 +288,42 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             self._hw_last = hw
         li = self._buffer("li", (nv, Hc, Wc))
         mask = self._buffer("mask", (nv, Hc, Wc), wp.uint8)
+        # without neighbours the regions, weights and high-pass are one recorded piece (SEGMENT_GRAPHS)
+        alone = staged is not None and (others is None or not len(others[1])) and self._segments_on()
+        made = None
         if staged is None:
             self._host_upload(rois, masks, li, mask)
         else:
-            self._stage(frame, staged, li, mask)
+            made = self._stage(frame, staged, li, mask, launch=not alone)
         self._frame_others(others, li)
-        self._uploaded()  # (after the neighbours' item table's upload too: _render_own)
+        if not alone:
+            self._uploaded()  # (after the neighbours' item table's upload too: _render_own)
         # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
         # neither the steps nor the covariances depend on one)
         self._w = self._buffer("w", (nv, Hc, Wc))
         self._w0_set = False  # the expected counts as computed below (scale_weights keeps a copy)
         self._count_weights = self._wcount_pending = False  # (count_weights)
-        low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
-        self._launch("weights", weights_kernel, (nv, Hc, Wc), [low, mask, self._w])
         self._y = self._buffer("y", (nv, Hc, Wc))
         self._o = self._buffer("o", (nv, Hc, Wc))
+        if alone:
+            key = (made, self._y_raw, self._o_raw, self._wtaps, self._taps, self.highpass_px, BLOCK_BLUR,
+                   self.chunk)
+            self._segment("prep", key, lambda: self._prep_enqueue(made, li, mask))
+            self._uploaded()
+        else:
+            self._prep_enqueue(None, li, mask)
+        self._frame_regressors(regressors, hw)
+        self.timer.host += time.perf_counter() - t0
+
+    def _prep_enqueue(self, made, li, mask) -> None:
+        """:meth:`set_frame`'s device work after the uploads: the regions made (``made``: the arguments of
+        :meth:`~core.tracking.likelihood_frames._FrameRegions._roi_enqueue`, or None where done), the
+        weights and the high-passes."""
+        nv, (Hc, Wc) = self.n_views, self._cap
+        if made is not None:
+            self._roi_enqueue(*made)
+        low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
+        self._launch("weights", weights_kernel, (nv, Hc, Wc), [low, mask, self._w])
         pairs = ((self._y_raw, self._y), (self._o_raw, self._o)) if self._o_raw is not None else \
             ((self._y_raw, self._y),)
         if self._o_raw is None:  # no neighbours' regressor: its high-pass is 0
@@ -311,8 +334,6 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
                 self._launch(("highpass", i), highpass_kernel, (nv, Hc, Wc), [src, low, 1.0, dst])
             else:
                 wp.copy(dst, src)
-        self._frame_regressors(regressors, hw)
-        self.timer.host += time.perf_counter() - t0
 
     def _blurred(self, tag: str, src, n_refs: int, taps=None):
         """The Gaussian low-pass of ``src`` (two passes of the separable blur; ``taps`` default the

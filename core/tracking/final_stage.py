@@ -316,16 +316,19 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
             s = eng.step_result()
             if hinv is not None:  # (the device has done it: it came before this step)
                 first["covariance"], hinv = eng.sandwich_result(hinv), None
-        if ROBUST_ON_DEVICE:
-            f = eng.robust_weights(s, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
-            if mask is not None:
-                f = f.numpy() * mask
+        if ROBUST_ON_DEVICE and mask is None:  # (the factors' filter and the product: one piece)
+            eng.robust_scale(s, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
         else:
-            e = eng.residual(s)
-            used = eng._w.numpy() > 0
-            f = robust_factors(e, used, model.robust, sigma_px=model.robust_sigma_px, kind=model.robust_kind)
-            f = f if mask is None else f * mask
-        eng.scale_weights(f)
+            if ROBUST_ON_DEVICE:
+                f = eng.robust_weights(s, model.robust, sigma_px=model.robust_sigma_px,
+                                       kind=model.robust_kind).numpy() * mask
+            else:
+                e = eng.residual(s)
+                used = eng._w.numpy() > 0
+                f = robust_factors(e, used, model.robust, sigma_px=model.robust_sigma_px,
+                                   kind=model.robust_kind)
+                f = f if mask is None else f * mask
+            eng.scale_weights(f)
         # (the robust refinement's own sandwich where the first's is known to have failed)
         own = ROBUST_SANDWICH or (hinv is None and not np.all(np.isfinite(first["covariance"])))
         steps = _engine_refine(eng, start, iters=o.final_iters, sandwich=own, reuse=True)

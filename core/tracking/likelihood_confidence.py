@@ -77,13 +77,22 @@ class _Confidence:
         ``"jt"`` (``jacobian`` False: ``jt`` not computed). ``pin``: the pinned host buffer the fit's
         coefficients go up from (another than an upload still pending from the last one's).
         ``weights``: ``w`` (default the engine's weights now)."""
+        lin_h = self._lin_pinned(s, pin)
+        return self._residual_enqueue(lin_h, jacobian, weights)
+
+    def _lin_pinned(self, s: dict, pin: str):
+        """The fit's coefficients ``s["lin"]`` written into the pinned host buffer ``pin``."""
+        lin_h = self._pinned(pin, s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
+        self._view(lin_h)[...] = s["lin"]
+        return lin_h
+
+    def _residual_enqueue(self, lin_h, jacobian: bool, weights) -> tuple:
+        """:meth:`_residual_device`'s device work: the coefficients up from ``lin_h``, the residual."""
         img, low, _, _ = self._last
         w = self._w if weights is None else weights
         nv, (Hc, Wc) = self.n_views, self._cap
         hp = 1.0 if self.highpass_px else 0.0
-        lin_h = self._pinned(pin, s["lin"].shape, exact=True)  # (taken since: a step's wait followed it)
-        self._view(lin_h)[...] = s["lin"]
-        lin = self._buffer("lin", s["lin"].shape)
+        lin = self._buffer("lin", tuple(lin_h.shape))
         copy_array(lin, lin_h)
         e = self._buffer("e", (nv, Hc, Wc))
         jt = self._buffer("jt", (nv, Hc, Wc), vec6f)
@@ -92,6 +101,12 @@ class _Confidence:
                      (nv, Hc, Wc), [img, low, hp, self._y, w, self._o, *reg, self._ref_hw, nv, lin, e, jt,
                                     int(jacobian), self._diff])
         return e, jt
+
+    def _residual_key(self, weights) -> tuple:
+        """What a recorded residual reads besides the engine's kept buffers (:meth:`_segment`'s key)."""
+        last = self._last
+        return (last[0], last[1], weights, self._w, self._y, self._o, self._t, self._q, self._diff,
+                self.highpass_px)
 
     def residual(self, s: dict) -> np.ndarray:
         """``(views, H, W)`` the weighted residual ``e = √w (y - A coef)`` at the centre of the last
@@ -108,19 +123,35 @@ class _Confidence:
         """The first half of :meth:`sandwich`: its kernels and copies enqueued (no wait; an event of
         its own recorded after them, which :meth:`sandwich_result` waits for: a step enqueued after it
         is waited for without it). ``weights``: the weights ``w`` it reads (default the engine's now:
-        the robust round's :meth:`scale_weights` keeps the frame's in ``_w0``)."""
+        the robust round's :meth:`scale_weights` keeps the frame's in ``_w0``). One recorded graph
+        where :data:`~core.tracking.likelihood_segments.SEGMENT_GRAPHS` applies."""
         t0 = time.perf_counter()
+        dev = self.device
+        lin_h = self._lin_pinned(s, "lin")
+        L = self.lag_px
+        stride = self._sw_stride = max(1, int(SANDWICH_STRIDE))
+        key = (self._residual_key(weights), L, stride, AUTOCOV_CHUNK, MEAT_CHUNK, AUTOCOV_ROWS, MEAT_HALF,
+               COV_ON_READ, self.chunk, self.block_dim)
+        self._segment("sandwich", key, lambda: self._sandwich_enqueue(lin_h, weights, L, stride))
+        self._cov_host = self._bufs["cov"] if COV_ON_READ else self._host["cov"]
+        if dev.is_cuda:  # (its own event: _wait waits for the engine's steps, this for the sandwich)
+            if self.__dict__.get("_sw_event") is None:
+                self._sw_event = wp.Event(dev)
+            dev.stream.record_event(self._sw_event)  # (the engine's device's stream, its work's)
+        self.timer.metric += time.perf_counter() - t0
+
+    def _sandwich_enqueue(self, lin_h, weights, L: int, stride: int) -> None:
+        """:meth:`sandwich_launch`'s device work (the meat into the pinned ``"meat"``; the autocovariance
+        into the pinned ``"cov"`` too without :data:`COV_ON_READ`)."""
         nv, (Hc, Wc) = self.n_views, self._cap
         dev = self.device
-        e, jt = self._residual_device(s, weights=weights)
+        e, jt = self._residual_enqueue(lin_h, True, weights)
         w = self._w if weights is None else weights
-        L = self.lag_px
         nl = (2 * L + 1) ** 2
         cov = self._buffer("cov", (nv, nl, 2), wp.float64)
         cov.zero_()
         chunk = AUTOCOV_CHUNK or self.chunk
         n_chunks = math.ceil(Hc * Wc / chunk)
-        stride = self._sw_stride = max(1, int(SANDWICH_STRIDE))
         if stride > 1:  # (over the sub-lattice: likelihood_stride; the first half of the lags)
             chunk = max(64, chunk // (stride * stride))  # (as many thread blocks as every pixel's)
             dim, groups = autocov_rows_dim(nv, L, math.ceil(stride_cells((Hc, Wc), stride) / chunk))
@@ -153,16 +184,8 @@ class _Confidence:
                          [jt, cw, self._ref_hw, L, mc, acc, int(MEAT_HALF)], self.block_dim)
         host = self._pinned("meat", (nv, 36), wp.float64, exact=True)
         copy_array(host, acc)
-        if COV_ON_READ:  # (autocorrelation reads the device's buffer: the last sandwich's, as a copy is)
-            self._cov_host = cov
-        else:
-            self._cov_host = self._pinned("cov", (nv, nl, 2), wp.float64, exact=True)
-            copy_array(self._cov_host, cov)  # for autocorrelation
-        if dev.is_cuda:  # (its own event: _wait waits for the engine's steps, this for the sandwich)
-            if self.__dict__.get("_sw_event") is None:
-                self._sw_event = wp.Event(dev)
-            dev.stream.record_event(self._sw_event)  # (the engine's device's stream, its work's)
-        self.timer.metric += time.perf_counter() - t0
+        if not COV_ON_READ:  # (autocorrelation reads the device's buffer, as a copy is, where COV_ON_READ)
+            copy_array(self._pinned("cov", (nv, nl, 2), wp.float64, exact=True), cov)  # for autocorrelation
 
     def sandwich_result(self, Hinv: np.ndarray) -> np.ndarray:
         """The second half of :meth:`sandwich`: waits for the meat of the last

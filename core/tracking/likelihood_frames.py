@@ -155,13 +155,14 @@ class _FrameRegions:
 
         return holding(self.device, frame)
 
-    def _stage(self, frame: FrameImages, staged: list, li, mask) -> None:
+    def _stage(self, frame: FrameImages, staged: list, li, mask, launch: bool = True):
         """Each view's region of the fluence uploaded as it is (or :meth:`prefetch`'s upload of it
         taken on the device: :data:`PREFETCH`) and its line integrals and usable pixels made on the
         device (:func:`~core.tracking.engine_kernels.fluoro_roi_kernel`, the
         values of :meth:`~core.tracking.cost.FrameImages.region`); the usable pixels counted there,
         taken at the next step's synchronisation. Read from the whole frame where joint registration
-        put it on the device (:data:`HELD_FRAME`)."""
+        put it on the device (:data:`HELD_FRAME`). ``launch`` False: the regions' kernel not launched, its
+        arguments returned for :meth:`_roi_enqueue` (the item table written, the rows uploaded)."""
         nv = self.n_views
         p = frame._erode if frame._valid is not None else 0
         up = self._held(frame)
@@ -169,8 +170,7 @@ class _FrameRegions:
             from .engine_upload import frame_rows
 
             self._view(self._host_info)[:] = frame_rows(frame, self.views, self.roi)
-            self._roi_launch(frame, up.src, up.given, li, mask, p)
-            return
+            return self._roi_made(frame, up.src, up.given, li, mask, p, launch)
         shared = self._prefetched(frame, staged) if PREFETCH else None
         if shared is not None:
             src, gsrc, rows = shared
@@ -179,8 +179,7 @@ class _FrameRegions:
                 r0, r1, c0, c1 = (int(a) for a in rows[i][:4])
                 u0, v0, w, h = (int(a) for a in self.roi[i])
                 info[i] = (h, w, v0 - r0, u0 - c0, r1 - r0, c1 - c0, int(frame._given[v] is not None), 0)
-            self._roi_launch(frame, src, gsrc, li, mask, p)
-            return
+            return self._roi_made(frame, src, gsrc, li, mask, p, launch)
         Hs = max(r1 - r0 for r0, r1, _, _ in staged)
         Ws = max(c1 - c0 for _, _, c0, c1 in staged)
         given = any(frame._given[v] is not None for v in self.views)
@@ -208,21 +207,35 @@ class _FrameRegions:
         copy_array(src, host, n)
         if given:
             copy_array(gsrc, hg, n)
-        self._roi_launch(frame, src, gsrc, li, mask, p)
+        return self._roi_made(frame, src, gsrc, li, mask, p, launch)
+
+    def _roi_made(self, frame: FrameImages, src, gsrc, li, mask, p: int, launch: bool):
+        """:meth:`_roi_launch` (``launch``), or its :meth:`_roi_enqueue` arguments returned (not enqueued)."""
+        if launch:
+            self._roi_launch(frame, src, gsrc, li, mask, p)
+            return None
+        return self._roi_args(frame, src, gsrc, li, mask, p)
+
+    def _roi_args(self, frame: FrameImages, src, gsrc, li, mask, p: int) -> tuple:
+        """:meth:`_roi_enqueue`'s arguments (the count taken at the next step's synchronisation)."""
+        lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
+        self._count_pending = True
+        return (src, gsrc, li, mask, float(lo), float(hi), int(p), int(frame._valid is not None))
 
     def _roi_launch(self, frame: FrameImages, src, gsrc, li, mask, p: int) -> None:
         """:func:`~core.tracking.engine_kernels.fluoro_roi_kernel` on the staged fluence ``src`` (the
         item table in ``_host_info``) into ``li`` and ``mask``, the usable pixels' count copied back."""
+        self._roi_enqueue(*self._roi_args(frame, src, gsrc, li, mask, p))
+
+    def _roi_enqueue(self, src, gsrc, li, mask, lo: float, hi: float, p: int, valid: int) -> None:
+        """:meth:`_roi_launch`'s device work."""
         Hc, Wc = self._cap
         copy_array(self._info, self._host_info)
         self._msum.zero_()
-        lo, hi = frame._valid if frame._valid is not None else (0.0, 0.0)
         chunk = self.chunk  # (the engine's 4096: smaller chunks were slower, PREFETCH's docs)
         self._launch("roi", fluoro_roi_kernel, (self.n_views, math.ceil(Hc * Wc / chunk), _LANES),
-                     [src, gsrc, self._info, float(lo), float(hi), int(p), int(frame._valid is not None),
-                      chunk, li, mask, self._fmax, self._msum])
+                     [src, gsrc, self._info, lo, hi, p, valid, chunk, li, mask, self._fmax, self._msum])
         copy_array(self._host_msum, self._msum)
-        self._count_pending = True
 
     def _regions(self, frame) -> tuple[list, list]:
         """Per view the region's line integrals and usable pixels (views into the frame's cached

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from .likelihood_segments import Tracked
+
 #: The engine's device buffers and recorded launches kept per output size (:meth:`_Launches._use_buffers`):
 #: a region whose size comes back (the regions' sizes, in 32-pixel steps, changed at 3-12 of 30
 #: frames per bone on the acceptance trial at 1024², among 2-5 sizes) reuses them and the step graphs
@@ -63,7 +65,7 @@ class _Launches:
             sets[cur] = (self._bufs, self._cmds)
         hit = sets.pop(key, None)
         if hit is None:
-            hit = ({}, {})
+            hit = (Tracked(), {})
             while len(sets) >= KEEP_SIZES:
                 sets.pop(next(iter(sets)))
         sets[key] = hit  # (most recently used last)

@@ -13,6 +13,7 @@ import warp as wp
 
 from .cost import CostTimer
 from .likelihood_kernels import NZ
+from .likelihood_segments import Tracked
 
 
 class _EngineState:
@@ -65,7 +66,7 @@ class _EngineState:
         self._host_msum = wp.zeros((self.n_views, 2), dtype=wp.float64, device="cpu", pinned=pinned)
         self._fmax = wp.zeros(self.n_views, dtype=wp.float32, device=dev)
         self._count_pending = False
-        self._host: dict = {}  # pinned host buffers (_pinned)
+        self._host: dict = Tracked()  # pinned host buffers (_pinned; Tracked: the recorded pieces' validity)
         self._up_event = None  # recorded after the last uploads from them
         self._y_raw = self._o_raw = None
         self._cov_host = None  # the last sandwich's autocovariance (autocorrelation)
@@ -80,7 +81,7 @@ class _EngineState:
         self._acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device=dev)
         self._host_acc = wp.zeros((self.n_views, NZ * NZ), dtype=wp.float64, device="cpu", pinned=dev.is_cuda)
         self._tables: dict = {}
-        self._bufs: dict = {}
+        self._bufs: dict = Tracked()
         self._cmds: dict = {}  # recorded launches by name (_launch)
         self._cap = None
         self.timer = CostTimer()

@@ -86,6 +86,35 @@ class _RegionWeights:
         return robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
                                      bufs=self._bufs, launch=self._robust_launch)
 
+    def robust_scale(self, s: dict, k: float, *, sigma_px: float = 2.0, kind: str = "cauchy") -> None:
+        """:meth:`scale_weights` of :meth:`robust_weights`' factors: the same work, one recorded graph where
+        :data:`~core.tracking.likelihood_segments.SEGMENT_GRAPHS` applies (the fit's coefficients written
+        into their pinned buffer first, the frame's weights kept in ``_w0`` after)."""
+        if self._count_weights:  # (the weights counted again after the product: the calls one by one)
+            self.scale_weights(self.robust_weights(s, k, sigma_px=sigma_px, kind=kind))
+            return
+        from .likelihood_kernels import MEDIAN_BISECT, MEDIAN_ONE_SORT
+
+        lin_h = self._lin_pinned(s, "lin_robust")  # (a sandwich's upload may be pending)
+        first = not self._w0_set
+        key = (self._residual_key(None), float(k), float(sigma_px), str(kind), first, MEDIAN_ONE_SORT,
+               MEDIAN_BISECT, self.n_views)
+        self._segment("robust", key, lambda: self._robust_enqueue(lin_h, k, sigma_px, kind, first))
+        if first:
+            self._w0 = self._bufs["w0"]
+            self._w0_set = True
+
+    def _robust_enqueue(self, lin_h, k: float, sigma_px: float, kind: str, first: bool) -> None:
+        """:meth:`robust_scale`'s device work."""
+        e, _ = self._residual_enqueue(lin_h, False, None)
+        f = robust_factors_device(e, self._w, k, sigma_px=sigma_px, kind=kind, device=self.device,
+                                  bufs=self._bufs, launch=self._robust_launch)
+        nv, (Hc, Wc) = self.n_views, self._cap
+        w0 = self._buffer("w0", (nv, Hc, Wc))
+        if first:
+            wp.copy(w0, self._w)
+        self._launch("times", _times_kernel, (nv, Hc, Wc), [w0, f, self._w])
+
     def _robust_launch(self, name, kernel, dim, inputs) -> None:
         """:func:`robust_factors_device`'s launches recorded (:meth:`_launch`)."""
         self._launch(("robust", name), kernel, dim, inputs)

@@ -7,21 +7,26 @@ jointly: ``--bones three``), every stage call (:func:`core.tracking.final_stage.
 arguments) kept. The calls after the first frame's are then replayed, ``--repeats`` times under each
 variant (:data:`VARIANTS`, their order rotated call by call), each stage run to its end
 (:func:`~core.tracking.engine_likelihood.run_steps`; several bones of a frame side by side, as
-:func:`~core.tracking.final_stage.final_stages` runs them). Each stage's wall time is split into the
-device's part and the rest, the host's work (Python, numpy, the runtime calls): on Warp's CPU device a
-kernel runs inside its launch, so the device's part is the kernels' invocations, the CPU renderer's
-threads, the radix sorts and the recorded graphs' replays, each timed; on a CUDA device it is the host's
-waits for the device (:func:`warp.synchronize_event`, :func:`warp.synchronize_device`). Per variant: the
-host's and the device's ms per bone-frame (median over the calls of each call's median over the repeats;
-mean), the stage's steps, and against the first variant whether every pose, covariance, step count and
-taken flag is the same to the bit (else the largest differences). ``--cprofile``: the first variant's
-stages under :mod:`cProfile` (the functions with the most own time per bone-frame). JSON on stdout
-(``--out``: also to a file).
+:func:`~core.tracking.final_stage.final_stages` runs them). Each stage's time is split into the device's
+part and the rest, the host's work (Python, numpy, the runtime calls), in wall time and in this thread's
+CPU time (:func:`time.thread_time`: what other processes of a loaded machine take is not counted; the
+CPU's figure to compare). On Warp's CPU device a kernel runs inside its launch, so the device's part is
+the kernels' invocations, the CPU renderer's threads, the radix sorts and the recorded graphs' replays,
+each timed; on a CUDA device it is the host's waits for the device (:func:`warp.synchronize_event`,
+:func:`warp.synchronize_device`). Per variant: the host's and the device's ms per bone-frame (median
+over the calls of each call's median over the repeats; mean), the stage's steps; against the first
+variant the median over the calls of each call's median difference of the host's CPU time
+(``host_cpu_ms_diff_median_<first>``) and whether every pose, covariance, step count and taken flag is
+the same to the bit (else the largest differences). ``--cprofile``: the first variant's stages under
+:mod:`cProfile` (the functions with the most own time per bone-frame). JSON on stdout (``--out``: also
+to a file).
 
 Variants: ``base`` the modules' defaults; ``graph`` a step's recorded work replayed on every device
 (:data:`~core.tracking.engine_likelihood.STEP_GRAPH` True: on the CPU the path a CUDA device takes);
 ``devsteps`` / ``devrender`` :data:`~core.tracking.engine_likelihood.DEVICE_STEPS` True / ``"render"``;
-``prev`` the stage's host cuts of :data:`PREV` off (as before them); ``a+b`` both.
+``segments`` / ``nosegments`` :data:`~core.tracking.likelihood_segments.SEGMENT_GRAPHS` True / False (the
+stage's set-up, robust factors and sandwich as recorded graphs on every device / on none); ``prev`` the
+stage's host cuts of :data:`PREV` off (as before them); ``a+b`` both.
 """
 
 from __future__ import annotations
@@ -39,7 +44,9 @@ PREV: tuple = ()
 #: the variants' switches (module, name, value), beside ``prev``
 VARIANTS = {"base": (), "graph": (("core.tracking.engine_likelihood", "STEP_GRAPH", True),),
             "devsteps": (("core.tracking.engine_likelihood", "DEVICE_STEPS", True),),
-            "devrender": (("core.tracking.engine_likelihood", "DEVICE_STEPS", "render"),)}
+            "devrender": (("core.tracking.engine_likelihood", "DEVICE_STEPS", "render"),),
+            "segments": (("core.tracking.likelihood_segments", "SEGMENT_GRAPHS", True),),
+            "nosegments": (("core.tracking.likelihood_segments", "SEGMENT_GRAPHS", False),)}
 
 
 def _switches(name: str) -> list:
@@ -78,7 +85,8 @@ class _KernelClock:
     (:func:`warp.synchronize_event`, :func:`warp.synchronize_device`)."""
 
     def __init__(self) -> None:
-        self.s = 0.0
+        self.s = 0.0  # wall seconds inside
+        self.c = 0.0  # this thread's CPU seconds inside
         self.n = 0
         self._inside = 0
 
@@ -102,11 +110,12 @@ class _KernelClock:
                 if self._inside:
                     return f(*a, **k)
                 self._inside += 1
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.thread_time()
                 try:
                     return f(*a, **k)
                 finally:
                     self.s += time.perf_counter() - t
+                    self.c += time.thread_time() - c
                     self.n += 1
                     self._inside -= 1
             return g
@@ -215,7 +224,7 @@ def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel
     cuda = wp.get_device(str(ts.renderer.device)).is_cuda
     clock = _KernelClock()
     n_bf = sum(len(g) for g in groups)
-    per = {v: {"wall": [[] for _ in groups], "kern": [[] for _ in groups]} for v in variants}
+    per = {v: {q: [[] for _ in groups] for q in ("wall", "kern", "cpu", "kcpu")} for v in variants}
     recs: dict = {}
     with ExitStack() as es:
         es.enter_context(clock.installed(cuda))
@@ -228,12 +237,14 @@ def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel
                 for k in range(len(variants)):
                     v = variants[(k + rep + gi) % len(variants)]
                     with _variant(v):
-                        s0 = clock.s
-                        t0 = time.perf_counter()
+                        s0, k0 = clock.s, clock.c
+                        t0, c0 = time.perf_counter(), time.thread_time()
                         out = _replay(g)
-                        wall = time.perf_counter() - t0
+                        wall, cpu = time.perf_counter() - t0, time.thread_time() - c0
                     per[v]["wall"][gi].append(wall)
                     per[v]["kern"][gi].append(clock.s - s0)
+                    per[v]["cpu"][gi].append(cpu)
+                    per[v]["kcpu"][gi].append(clock.c - k0)
                     if rep == 0:
                         recs.setdefault(v, []).extend(_record(x) for x in out)
     res = {"study": "core.studies.tracking.stage_host", "machine": platform.machine(),
@@ -241,19 +252,30 @@ def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel
                                                                      "name", ""),
            "pixels": pixels, "voxel_mm": voxel, "frames": frames, "bones": bones, "repeats": int(repeats),
            "bone_frames_timed": n_bf, "variants": {}}
+    nb = np.array([len(g) for g in groups])
+
+    def host_cpu(v):  # (per call, per repeat: this thread's CPU time outside the device's part)
+        return [(np.array(c) - np.array(k)) * 1e3 / n for c, k, n in zip(per[v]["cpu"], per[v]["kcpu"], nb,
+                                                                           strict=True)]
+
     for v in variants:
         w = np.array([np.median(x) for x in per[v]["wall"]]) * 1e3
         kk = np.array([np.median(x) for x in per[v]["kern"]]) * 1e3
-        nb = np.array([len(g) for g in groups])
         host = (w - kk) / nb
+        hc = np.array([np.median(x) for x in host_cpu(v)])
         steps = [r["steps"] for r in recs[v]]
         res["variants"][v] = {"switches": [f"{m}.{a}={val!r}" for m, a, val in _switches(v)],
                               "host_ms_per_bone_frame_median": float(np.median(host)),
                               "host_ms_per_bone_frame_mean": float(np.mean(host)),
+                              "host_cpu_ms_per_bone_frame_median": float(np.median(hc)),
+                              "host_cpu_ms_per_bone_frame_mean": float(np.mean(hc)),
                               "device_ms_per_bone_frame_mean": float(np.mean(kk / nb)),
                               "wall_ms_per_bone_frame_mean": float(np.mean(w / nb)),
                               "steps_mean": float(np.nanmean(steps))}
         if v != variants[0]:
+            a, b = host_cpu(variants[0]), host_cpu(v)
+            d = np.array([np.median(np.array(y) - np.array(x)) for x, y in zip(a, b, strict=True)])
+            res["variants"][v]["host_cpu_ms_diff_median_" + variants[0]] = float(np.median(d))
             res["variants"][v]["against_" + variants[0]] = _compare(recs[variants[0]], recs[v])
     if cprofile:
         res["cprofile"] = _profile(groups, variants[0], n_bf)

@@ -1,0 +1,105 @@
+"""Pieces of the likelihood final stage's device work recorded once and replayed as one graph
+(:class:`core.tracking.engine_likelihood.LikelihoodEngine`'s, :data:`SEGMENT_GRAPHS`): the frame's
+set-up (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame`: the regions' item table
+up, their line integrals and usable pixels made and counted, the count back, the weights and the
+high-pass: about eleven runtime calls), the robust factors and the weights they scale
+(:meth:`~core.tracking.likelihood_weights._RegionWeights.robust_scale`: the fit's coefficients up, the
+residual, the factors' filter, sort and median, the weights' copy and product: about eleven) and the
+sandwich (:meth:`~core.tracking.likelihood_confidence._Confidence.sandwich_launch`: the coefficients up,
+the residual and its projections, the autocovariance, its taper, the meat and its copy back: eight).
+
+A piece is a function that only enqueues device work (launches, copies, fills) on the engine's
+buffers; the host's own writes (the pinned coefficients, the item table) and state stay outside it.
+Its first call with a key runs it as it is (buffers made, launches recorded, the sort's scratch
+reserved); its second call with the same key and no buffer of the engine's made since runs it under
+:class:`warp.ScopedCapture` and launches the graph; later calls launch the graph. The key holds what
+the piece's launches read besides the engine's kept buffers (the images' arrays, the settings and
+module switches it reads); a buffer made anywhere in the engine (:class:`Tracked`: its buffer dicts
+count their insertions) makes every piece record again. The same kernels, copies and fills in the
+same order on the same buffers: the same values to the bit (on Warp's CPU device its graphs replay
+the same compiled kernels; tests compare every pose and covariance with the pieces run one call at a
+time). A capture the device refuses (its error said once, :data:`FAILED`) leaves the pieces run one
+call at a time. A mixin of the engine's."""
+
+from __future__ import annotations
+
+import warnings
+
+import warp as wp
+
+__all__ = ["FAILED", "SEGMENT_GRAPHS", "Tracked"]
+
+#: The stage's set-up, robust factors and sandwich each replayed as one recorded graph (module docs;
+#: the same values). None: on CUDA devices only; True: on every device (the CPU's graphs: tests and the
+#: CPU's timing, :mod:`core.studies.tracking.stage_host`); False: launched call by call, as before.
+SEGMENT_GRAPHS: bool | None = None
+#: the first capture that failed (its error; None: none did)
+FAILED: str | None = None
+
+
+class Tracked(dict):
+    """A dict of an engine's buffers that counts the buffers put in it (:attr:`made`): a recorded piece
+    is valid while the count it was recorded at stands."""
+
+    made = 0
+
+    def __setitem__(self, key, value) -> None:
+        self.made += 1
+        super().__setitem__(key, value)
+
+    def setdefault(self, key, default=None):
+        if key not in self:
+            self[key] = default
+        return self[key]
+
+
+class _Segments:
+    """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s recorded pieces (its attributes:
+    ``device``, ``_bufs``, ``_host``)."""
+
+    def _segments_on(self) -> bool:
+        on = self.device.is_cuda if SEGMENT_GRAPHS is None else SEGMENT_GRAPHS
+        return bool(on) and FAILED is None
+
+    def _segment(self, name: str, key: tuple, enqueue) -> None:
+        """``enqueue()`` (device work only, module docs) run as it is, recorded, or replayed as its
+        graph: the same work whichever."""
+        if not self._segments_on():
+            enqueue()
+            return
+        segs = self.__dict__.setdefault("_segs", {})
+        bufs, host = self._bufs, self._host
+        made = (bufs.made, host.made)
+        hit = segs.get(name)
+        same = hit is not None and hit[0] is bufs and hit[1] is host and hit[2] == made and hit[3] == key
+        if same and hit[4] is not None:
+            wp.capture_launch(hit[4])
+            return
+        if not same:  # (run as it is: its buffers and the launches' records made outside a capture)
+            enqueue()
+            segs[name] = (bufs, host, (bufs.made, host.made), key, None)
+            return
+        graph = self._capture(enqueue)
+        if graph is None:
+            return
+        wp.capture_launch(graph)
+        now = (bufs.made, host.made)
+        segs[name] = (bufs, host, now, key, graph if now == made else None)  # (a buffer made: not kept)
+
+    def _capture(self, enqueue):
+        """``enqueue()`` captured as a graph, or run as it is where the device refused (None)."""
+        global FAILED
+        dev = self.device
+        try:
+            with wp.ScopedCapture(device=dev) as cap:
+                enqueue()
+            return cap.graph
+        except Exception as e:  # (a capture the device refused: the pieces call by call, said once)
+            if FAILED is None:
+                FAILED = repr(e)
+                warnings.warn(f"likelihood stage: a piece's graph not captured ({e!r}); its calls made one "
+                              f"by one", RuntimeWarning, stacklevel=3)
+            if dev.is_cuda:
+                wp.synchronize_device(dev)
+            enqueue()
+            return None

@@ -40,8 +40,9 @@ SHARED = True
 #: as before). :mod:`core.studies.tracking.loop_host` times it.
 MEMO = True
 #: A table makes its poses' deltas (every frame offset's, and a trial's end frames') in one batch each,
-#: not one per offset and end frame (exact: each row's arithmetic is the same in any batch; False: as
-#: before).
+#: not one per offset and end frame, and the pair rule (:mod:`core.tracking.flags_pairs`) finds its pairs
+#: and the pairs it scores for all frames at once (exact: each row's arithmetic is the same in any batch,
+#: the same booleans; False: as before).
 BATCHED = True
 #: ``(degree, offsets' bytes)`` -> :meth:`_Table._weights`' value, for every table (:data:`SHARED`);
 #: emptied when it holds :data:`_WEIGHTS_MAX`.
@@ -122,6 +123,7 @@ class _Table:
         self.scale: np.ndarray | None = None  # the bone's median residual (mm, deg): calibrate()
         self._alike: dict = {}
         self._offsets: tuple | None = None
+        self._okH: tuple | None = None  # (frames with a pose, their rows of _offset_deltas' H) (MEMO)
         self.ext: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.end = np.zeros(n, dtype=bool)
         self.ends = bool(ends)
@@ -217,15 +219,26 @@ class _Table:
         """:meth:`_alike_residuals` (the same values to the bit, both offsets' signs in one batch) from
         every offset's deltas computed once (:meth:`_offset_deltas`, :data:`SHARED`)."""
         H, D, at = self._offset_deltas()
-        js = np.flatnonzero(self.ok)
+        if MEMO:  # (the frames with a pose and their rows of H kept)
+            if self._okH is None:
+                self._okH = (np.flatnonzero(self.ok), H[self.ok])
+            js, Hj = self._okH
+        else:
+            js = np.flatnonzero(self.ok)
+            Hj = H[js]
         cols = np.stack([at[off], at[-off]])  # (2, m): the offsets, then mirrored
-        Hj = H[js]
         a = [js[Hj[:, c].all(axis=1)] for c in cols]
         rows = np.concatenate(a)
         if not len(rows):
             return np.zeros((0, 2))
         C = np.repeat(cols, [len(a[0]), len(a[1])], axis=0)
         r = np.einsum("m,nmk->nk", row, D[rows[:, None], C]) / k
+        if MEMO:  # np.linalg.norm's arithmetic (the square root of add.reduce of x * x), written in place
+            out = np.empty((len(r), 2))
+            t, w = r[:, :3], r[:, 3:]
+            np.sqrt(np.add.reduce(t * t, axis=1), out=out[:, 0])
+            np.degrees(np.sqrt(np.add.reduce(w * w, axis=1)), out=out[:, 1])
+            return out
         return np.stack([np.linalg.norm(r[:, :3], axis=1), np.degrees(np.linalg.norm(r[:, 3:], axis=1))],
                         axis=1)
 

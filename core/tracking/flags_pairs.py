@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import flags_fit
 from .flags_fit import FLAG, _Table
 
 __all__ = ["PAIR", "PAIR_GATE", "Pairs", "pair_residuals", "pair_scale"]
@@ -108,8 +109,13 @@ def pair_scale(t: _Table, use: np.ndarray, which: np.ndarray) -> tuple[np.ndarra
     neighbour of an evenly spaced window in ``use`` (most) are fitted in one batch, the others one by
     one (:func:`pair_residuals`' values)."""
     n = len(use)
-    first = np.array([i for i in np.flatnonzero(which & use) if _partner(t, use, int(i)) is not None],
-                     dtype=int)
+    if flags_fit.BATCHED:  # _partner of every candidate at once (the same frames)
+        cand = np.flatnonzero(which & use)
+        nxt = np.minimum(cand + 1, n - 1)
+        first = cand[(cand + 1 < n) & use[nxt] & (t.fr[nxt] - t.fr[cand] == t.step)]
+    else:
+        first = np.array([i for i in np.flatnonzero(which & use) if _partner(t, use, int(i)) is not None],
+                         dtype=int)
     if not len(first):
         return np.full(2, np.nan), 0
     j = np.arange(n)[:, None] + t.offsets
@@ -154,10 +160,20 @@ class Pairs:
     def rescore(self, lo: int, hi: int) -> None:
         """Score again the pairs starting at ``lo`` .. ``hi - 1``."""
         n, judge = len(self.use), self.judge
-        for i in range(max(0, lo), min(n - 1, hi)):
-            both = self.use[i:i + 2] | self.out[i:i + 2]
-            on = (bool((self.use[i:i + 2] & judge[i:i + 2]).any()) and bool(both.all())
-                  and bool(((self.R[i:i + 2] / self.gate).max(axis=1) > 1.0).all()))
+        a, b = max(0, lo), min(n - 1, hi)
+        gated = None
+        if flags_fit.BATCHED and b > a:  # the pairs scored, the whole range at once (the same booleans)
+            both = self.use[a:b + 1] | self.out[a:b + 1]
+            mine = self.use[a:b + 1] & judge[a:b + 1]
+            over = (self.R[a:b + 1] / self.gate).max(axis=1) > 1.0
+            gated = ((mine[:-1] | mine[1:]) & both[:-1] & both[1:] & over[:-1] & over[1:]).tolist()
+        for i in range(a, b):
+            if gated is not None:
+                on = gated[i - a]
+            else:
+                both = self.use[i:i + 2] | self.out[i:i + 2]
+                on = (bool((self.use[i:i + 2] & judge[i:i + 2]).any()) and bool(both.all())
+                      and bool(((self.R[i:i + 2] / self.gate).max(axis=1) > 1.0).all()))
             r = None
             if on:
                 u = self._fits(i)

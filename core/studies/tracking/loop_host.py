@@ -154,14 +154,17 @@ def main(argv=None) -> int:
     p.add_argument("--rounds", type=int, default=8)
     p.add_argument("--loop-frames", type=int, default=12)
     p.add_argument("--loop-rounds", type=int, default=3)
+    p.add_argument("--note", default=None, help="a note kept in the JSON (the machine, its load)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     import os
     import platform
+    import sys
 
-    out = {"study": "core.studies.tracking.loop_host", "machine": platform.machine(),
-           "cpu_count": os.cpu_count(), "load_average_before": list(os.getloadavg()),
-           "trims": [f"{m}.{s}" for m, s in TRIMS],
+    cmd = " ".join(["python -m core.studies.tracking.loop_host", *(argv or sys.argv[1:])])
+    out = {"study": "core.studies.tracking.loop_host", "command": cmd, "note": a.note,
+           "machine": platform.machine(), "cpu_count": os.cpu_count(),
+           "load_average_before": list(os.getloadavg()), "trims": [f"{m}.{s}" for m, s in TRIMS],
            "after_last": after_last(a.tracks, a.frames, a.rounds)}
     if a.loop_frames > 0:
         out["loop"] = loop(a.loop_frames, a.loop_rounds)

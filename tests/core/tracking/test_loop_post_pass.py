@@ -97,3 +97,14 @@ def test_shared_table_taken_once_and_only_for_the_same_inputs(monkeypatch):
     assert len(fp._TABLES) == 1
     fp.trajectory_review(frames, P, CENTER)
     assert not fp._TABLES  # taken, once
+
+
+def test_loop_host_after_last_measures_both_and_puts_the_trims_back():
+    import core.tracking.flags_fit as ff
+    import core.tracking.flags_post as fp
+    from core.studies.tracking.loop_host import after_last
+
+    got = after_last(n_tracks=2, frames=30, rounds=2)
+    assert got["flags_and_notes_same"] and set(got["ms_per_bone"]) == {"before", "after"}
+    assert all(len(v["rounds"]) == 2 for v in got["ms_per_bone"].values())
+    assert ff.MEMO and ff.BATCHED and fp.SHARE_TABLE  # (the defaults again)

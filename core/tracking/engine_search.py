@@ -18,9 +18,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy._core.umath import clip as _clip  # (ndarray.clip's ufunc for float bounds, without its dispatch)
 from numpy.linalg import _umath_linalg
-from numpy.linalg._linalg import _raise_linalgerror_singular as _raise_singular
+
+try:  # (numpy 2: ndarray.clip's ufunc for float bounds, without its dispatch; np.linalg.solve's error call)
+    from numpy._core.umath import clip as _clip
+    from numpy.linalg._linalg import _raise_linalgerror_singular as _raise_singular
+except ImportError:  # (numpy 1.26)
+    from numpy.core.umath import clip as _clip
+    from numpy.linalg.linalg import _raise_linalgerror_singular as _raise_singular
 
 from .engine_kernels import N_POSES as _N
 from .optimize import OptimizeResult

@@ -233,11 +233,12 @@ class _Table:
             return np.zeros((0, 2))
         C = np.repeat(cols, [len(a[0]), len(a[1])], axis=0)
         r = np.einsum("m,nmk->nk", row, D[rows[:, None], C]) / k
-        if MEMO:  # np.linalg.norm's arithmetic (the square root of add.reduce of x * x), written in place
+        if MEMO:  # np.linalg.norm's arithmetic (the square root of add.reduce of x * x: for three terms
+            # (a + b) + c, 200 000 random rows the same to the bit), written in place
             out = np.empty((len(r), 2))
-            t, w = r[:, :3], r[:, 3:]
-            np.sqrt(np.add.reduce(t * t, axis=1), out=out[:, 0])
-            np.degrees(np.sqrt(np.add.reduce(w * w, axis=1)), out=out[:, 1])
+            q = r * r
+            np.sqrt(q[:, 0] + q[:, 1] + q[:, 2], out=out[:, 0])
+            np.degrees(np.sqrt(q[:, 3] + q[:, 4] + q[:, 5]), out=out[:, 1])
             return out
         return np.stack([np.linalg.norm(r[:, :3], axis=1), np.degrees(np.linalg.norm(r[:, 3:], axis=1))],
                         axis=1)

@@ -108,3 +108,13 @@ def test_loop_host_after_last_measures_both_and_puts_the_trims_back():
     assert got["flags_and_notes_same"] and set(got["ms_per_bone"]) == {"before", "after"}
     assert all(len(v["rounds"]) == 2 for v in got["ms_per_bone"].values())
     assert ff.MEMO and ff.BATCHED and fp.SHARE_TABLE  # (the defaults again)
+
+
+def test_three_term_norms_are_numpys():
+    """The end frames' calibration (flags_fit.MEMO) sums three squares as (a + b) + c: np.linalg.norm's
+    add.reduce over three terms, to the bit (this numpy)."""
+    g = np.random.default_rng(5)
+    X = g.normal(size=(20000, 6)) * 10.0 ** g.uniform(-6, 3, size=(20000, 1))
+    q = X * X
+    assert np.array_equal(np.sqrt(q[:, 0] + q[:, 1] + q[:, 2]), np.linalg.norm(X[:, :3], axis=1))
+    assert np.array_equal(np.sqrt(q[:, 3] + q[:, 4] + q[:, 5]), np.linalg.norm(X[:, 3:], axis=1))

@@ -119,7 +119,7 @@ from .engine import GaussNewtonCost
 from .engine_buffers import copy_array
 from .engine_search import step_design
 from .likelihood_confidence import _Confidence
-from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel, wls_moments_tri_kernel
+from .likelihood_fast import blur_block_dim, blur_block_kernel, design_diff_kernel
 from .likelihood_frames import _FrameRegions
 from .likelihood_graph import _StepGraphs
 from .likelihood_kernels import (  # noqa: F401 (re-exported: the kernels' names as before)
@@ -315,26 +315,6 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         self._frame_regressors(regressors, hw)
         self.timer.host += time.perf_counter() - t0
 
-    def _prep_enqueue(self, made, li, mask) -> None:
-        """:meth:`set_frame`'s device work after the uploads: the regions made (``made``: the arguments of
-        :meth:`~core.tracking.likelihood_frames._FrameRegions._roi_enqueue`, or None where done), the
-        weights and the high-passes."""
-        nv, (Hc, Wc) = self.n_views, self._cap
-        if made is not None:
-            self._roi_enqueue(*made)
-        low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
-        self._launch("weights", weights_kernel, (nv, Hc, Wc), [low, mask, self._w])
-        pairs = ((self._y_raw, self._y), (self._o_raw, self._o)) if self._o_raw is not None else \
-            ((self._y_raw, self._y),)
-        if self._o_raw is None:  # no neighbours' regressor: its high-pass is 0
-            self._o.zero_()
-        for i, (src, dst) in enumerate(pairs):
-            if self.highpass_px:
-                low = self._blurred("y", src, nv)
-                self._launch(("highpass", i), highpass_kernel, (nv, Hc, Wc), [src, low, 1.0, dst])
-            else:
-                wp.copy(dst, src)
-
     def _blurred(self, tag: str, src, n_refs: int, taps=None):
         """The Gaussian low-pass of ``src`` (two passes of the separable blur; ``taps`` default the
         high-pass's)."""
@@ -441,19 +421,10 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             self.timer.evaluations += len(X)
             self.renders += 1
         t0 = time.perf_counter()
-        nv, (Hc, Wc) = self.n_views, self._cap
-        acc, host = self._tables_q()
-        acc.zero_()
-        chunk = self._moments_chunk()
-        n_chunks = math.ceil(Hc * Wc / chunk)
-        hp = 1.0 if self.highpass_px else 0.0
-        reg = [self._t] if self._q else []
         self._tri = self._moments_tri()
-        kernel = wls_moments_tri_kernel if self._tri else regressor_kernels(self._q)[0]
-        self._launch(("moments", self._q, self._tri), kernel, (nv, n_chunks),
-                     [img, low, hp, self._y, self._w, self._o, *reg, self._ref_hw, nv, chunk, acc,
-                      self._diff], self.block_dim)
-        copy_array(host, acc)
+        key = (img, low, self._y, self._w, self._o, self._t, self._q, self._tri, self._diff, self.highpass_px,
+               self._moments_chunk(), self.block_dim)
+        self._segment("moments", key, lambda: self._moments_enqueue(img, low))
         self._record()
         self._last = (img, low, x, h)
         self._pending = h

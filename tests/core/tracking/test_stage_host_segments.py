@@ -62,18 +62,20 @@ def test_pieces_replayed_give_the_same_stages(talus_calcaneus_128, graphs, monke
 
 def test_a_buffer_made_records_again(talus_calcaneus_128, graphs, monkeypatch):
     """A piece recorded on buffers that an engine replaces is not replayed on them: after the engine's
-    buffers are dropped the stage runs each piece as it is first, the same results."""
+    buffers are dropped each piece runs as it is first (fewer graphs launched than in the stage before),
+    the same results."""
     import core.tracking.likelihood_segments as seg
+    from core.tracking.engine_likelihood import likelihood_engine
     from core.tracking.final_stage import final_stage
 
     r, frame, calls, _ = stage_calls(talus_calcaneus_128)
     res, kw = calls[0]
     kw = {**kw, "others": None}
     monkeypatch.setattr(seg, "SEGMENT_GRAPHS", True)
-    first = [final_stage(r, frame, res, **kw) for _ in range(3)]
-    assert graphs
-    from core.tracking.engine_likelihood import likelihood_engine
-
+    first = [final_stage(r, frame, res, **kw) for _ in range(2)]
+    n = len(graphs)
+    first.append(final_stage(r, frame, res, **kw))
+    replayed = len(graphs) - n
     o = kw["options"]
     eng = likelihood_engine(r, bone=kw["bone"], views=kw["views"], highpass_px=o.final_highpass_px,
                             lag_px=o.final_lag_px, others_gain=o.final_others_gain)
@@ -81,7 +83,7 @@ def test_a_buffer_made_records_again(talus_calcaneus_128, graphs, monkeypatch):
     eng._bufs["x"] = None  # (a buffer made: the pieces' stamps stale)
     n = len(graphs)
     again = final_stage(r, frame, res, **kw)
-    assert len(graphs) == n  # (run as they are: recorded again from here)
+    assert len(graphs) - n < replayed
     for a in first:
         np.testing.assert_array_equal(a.pose, again.pose)
         np.testing.assert_array_equal(a.fit.covariance, again.fit.covariance)

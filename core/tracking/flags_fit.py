@@ -173,6 +173,7 @@ class _Table:
         """The bone's median residual (mm, degrees; the check's scale) that a trial's end frames'
         residuals are calibrated to (:meth:`_factor`)."""
         self.scale = np.asarray(scale, dtype=float)
+        self._scale_key = self.scale.tobytes()  # (residual's key at a trial's end, MEMO)
 
     def _factor(self, x: np.ndarray, row: np.ndarray, k: float) -> np.ndarray:
         """How much wider than the bone's median (:meth:`calibrate`; 1 where none, or narrower) the
@@ -299,20 +300,21 @@ class _Table:
                 _WEIGHTS[(self.degree, key)] = self._solve[key]
         return self._solve[key]
 
-    def _fit(self, i: int, use: np.ndarray):
+    def _fit(self, i: int, use: np.ndarray, sel: np.ndarray | None = None):
         """The fit's weights on frame ``i``'s neighbours in ``use``, ``sqrt(1 + leverage)`` and which
         neighbours (a mask of :attr:`offsets`, or at a trial's end of its window's frames, :attr:`ext`);
-        None with fewer than ``degree + 2`` or a singular fit."""
+        None with fewer than ``degree + 2`` or a singular fit. ``sel``: that mask, where the caller has it
+        (:meth:`residual`)."""
         if i in self.ext:
             js, _ = self.ext[i]
-            sel = use[js]
+            sel = use[js] if sel is None else sel
             if sel.sum() < self.degree + 2:
                 return None
             x = (self.fr[js[sel]] - self.fr[i]).astype(float)
             hit = self._weights(x)
             return None if hit is None else (hit[0], hit[1] * self._factor(x, *hit), sel)
         if MEMO:  # (the same numbers: a neighbour in near[i] lies inside the table, its index unclipped)
-            sel = self.near[i] & use[self._jc[i]]
+            sel = self.near[i] & use[self._jc[i]] if sel is None else sel
             if sel.sum() < self.degree + 2:
                 return None
             hit = self._weights(self._dx[i][sel])
@@ -327,23 +329,23 @@ class _Table:
     def residual(self, i: int, use: np.ndarray) -> tuple[float, float]:
         """Frame ``i``'s normalised residual (mm, degrees) against the fit through its neighbours in
         ``use`` (NaN with fewer than ``degree + 2``); kept by those neighbours (:data:`MEMO`)."""
-        key = None
-        if MEMO:
-            if i in self.ext:
-                key = (i, use[self.ext[i][0]].tobytes(), None if self.scale is None else self.scale.tobytes())
-            else:
-                key = (i, (self.near[i] & use[self._jc[i]]).tobytes())
-            hit = self._memo.get(key)
-            if hit is not None:
-                return hit
-        out = self._residual(i, use)
-        if key is not None:
-            self._memo[key] = out
-        return out
+        if not MEMO:
+            return self._residual(i, use)
+        ext = self.ext.get(i)
+        if ext is not None:
+            sel = use[ext[0]]
+            key = (i, sel.tobytes(), None if self.scale is None else self._scale_key)
+        else:
+            sel = self.near[i] & use[self._jc[i]]
+            key = (i, sel.tobytes())
+        hit = self._memo.get(key)
+        if hit is None:
+            hit = self._memo[key] = self._residual(i, use, sel)
+        return hit
 
-    def _residual(self, i: int, use: np.ndarray) -> tuple[float, float]:
-        """:meth:`residual` computed."""
-        hit = self._fit(i, use)
+    def _residual(self, i: int, use: np.ndarray, sel: np.ndarray | None = None) -> tuple[float, float]:
+        """:meth:`residual` computed (``sel``: :meth:`_fit`'s)."""
+        hit = self._fit(i, use, sel)
         if hit is None:
             return math.nan, math.nan
         row, k, sel = hit

@@ -40,14 +40,18 @@ def host_poses(X: np.ndarray, base: np.ndarray, center: np.ndarray) -> np.ndarra
     small = th < 1e-8
     any_small = bool(np.logical_or.reduce(small))
     k = r / (np.where(small, 1.0, th) if any_small else th)[:, None]
-    # the cross-product matrices of the axes, filled in place (the values np.stack gave)
-    Kx = np.zeros((B, 3, 3))
-    Kx[:, 0, 1] = -k[:, 2]
-    Kx[:, 0, 2] = k[:, 1]
-    Kx[:, 1, 0] = k[:, 2]
-    Kx[:, 1, 2] = -k[:, 0]
-    Kx[:, 2, 0] = -k[:, 1]
-    Kx[:, 2, 1] = k[:, 0]
+    # the cross-product matrices of the axes (the values np.stack gave): a row or two from Python floats (a
+    # negation is exact), more filled in place
+    if B <= 2:
+        Kx = np.array([((0.0, -c, b), (c, 0.0, -a), (-b, a, 0.0)) for a, b, c in k.tolist()]).reshape(B, 3, 3)
+    else:
+        Kx = np.zeros((B, 3, 3))
+        Kx[:, 0, 1] = -k[:, 2]
+        Kx[:, 0, 2] = k[:, 1]
+        Kx[:, 1, 0] = k[:, 2]
+        Kx[:, 1, 2] = -k[:, 0]
+        Kx[:, 2, 0] = -k[:, 1]
+        Kx[:, 2, 1] = k[:, 0]
     s, c = np.sin(th)[:, None, None], (1.0 - np.cos(th))[:, None, None]
     Rd = _EYE3 + s * Kx + c * (Kx @ Kx)
     if any_small:

@@ -255,7 +255,8 @@ class LevenbergMarquardt:
             raise ValueError(f"gradient: expected one of {GRADIENTS}, got {gradient!r}")
         self.gradient = gradient
         # gradient="corrected": the scores' gradient less the moments' and its variance, summed over steps
-        self._dsum, self._dvar, self._dn = np.zeros(6), np.zeros(6), 0
+        corrected = gradient == "corrected"
+        self._dsum, self._dvar, self._dn = (np.zeros(6), np.zeros(6), 0) if corrected else (0, 0, 0)
         self.t_start = time.perf_counter()
         self.lo = np.asarray(lower, dtype=float)
         self.hi = np.asarray(upper, dtype=float)
@@ -504,5 +505,7 @@ class GaussNewtonFit(QuadraticFit):
 def _fit(s: GaussNewtonStep, noise: float, alpha: float = 1.0, coef=None) -> GaussNewtonFit:
     if coef is None:
         coef, _ = _residuals(s, alpha)
-    return GaussNewtonFit(np.array(s.x), np.array(s.h), float(coef[0]), np.array(s.g), alpha * s.H,
-                          float(noise), 6, np.array(s.costs), np.array(s.view_scores[0]))
+    # (the step's own arrays, made for it and not written after, without copies; its half-steps are the
+    # search's: copied)
+    return GaussNewtonFit(s.x, np.array(s.h), float(coef[0]), s.g, alpha * s.H, float(noise), 6, s.costs,
+                          np.array(s.view_scores[0]))

@@ -303,3 +303,22 @@ def test_step_design_as_before():
         got[:] = 0.0  # (the caller's own array: the kept offsets unchanged)
         assert step_design(x, h).tobytes() == (x + _DESIGN * h).tobytes()
     assert step_design([0.0] * 6, 0.5).tobytes() == (_DESIGN * 0.5).tobytes()
+
+
+def test_host_poses_as_before():
+    """One or two rows' cross-product matrices from Python floats: the poses of the array fill."""
+    from core.tracking.engine_render import host_poses
+    from tests.core.tracking.test_search_host_exact import _old_host_poses
+
+    rng = np.random.default_rng(6)
+    base = np.eye(4)
+    base[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    base[:3, 3] = rng.normal(size=3) * 50.0
+    c = rng.normal(size=3) * 30.0
+    for B in (1, 2, 3, 13, 0):
+        for i in range(60):
+            X = rng.normal(size=(B, 6)) * 10.0 ** rng.uniform(-9, 1)
+            if i % 7 == 0 and B:
+                X[0, 3:] = 0.0  # (no rotation: the small-angle branch)
+            got, want = host_poses(X, base, c), _old_host_poses(X, base, c)
+            assert got.shape == want.shape and got.tobytes() == want.tobytes()

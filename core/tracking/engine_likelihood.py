@@ -282,7 +282,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         if _LL.BUFFERS_PER_SIZE:  # (each size's buffers kept)
             self._use_buffers(self._cap)
         hw = np.array(shapes, dtype=np.int32)
-        if self._hw_last is None or not np.array_equal(hw, self._hw_last):
+        if self._hw_last is None or not same_array(hw, self._hw_last):
             self._host_hw.numpy()[:] = hw
             copy_array(self._ref_hw, self._host_hw)
             self._hw_last = hw
@@ -395,9 +395,9 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         x = np.asarray(x, dtype=float)
         h = np.asarray(h, dtype=float)
         last = self._last
-        if reuse and last is not None and np.array_equal(last[2], x) and np.array_equal(last[3], h):
+        if reuse and last is not None and same_array(last[2], x) and same_array(last[3], h):
             img, low = last[0], last[1]
-        elif chord and CHORD_STEPS and last is not None and self._diff and np.array_equal(last[3], h):
+        elif chord and CHORD_STEPS and last is not None and self._diff and same_array(last[3], h):
             img, low = self._centre_images(x, last[0], last[1])
             self.timer.evaluations += 1
             self.renders += 1
@@ -508,7 +508,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             s = self.step_result()
             share = s["chi2"] / max(self.n_pixels, 1)  # (χ²/N)
             rose = best is not None and s["chi2"] > best[1]["chi2"]
-            if not np.isfinite(s["chi2"]) or (rose and pred >= UPHILL_RESOLVED * best[1]["chi2"]
+            if not math.isfinite(s["chi2"]) or (rose and pred >= UPHILL_RESOLVED * best[1]["chi2"]
                                               / max(self.n_pixels, 1)):
                 x = best[0] if best is not None else x  # uphill: the previous pose stands
                 last = None
@@ -518,7 +518,7 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             pred = float(s["Jr"] @ delta)  # the step's predicted decrease of χ²
             x = x + delta
             small = pred < STOP_PRED * share and not TO_TOL.get()
-            if rose or np.all(np.abs(delta) < tv) or small:
+            if rose or (np.abs(delta) < tv).all() or small:
                 break  # (risen after a step the data do not resolve, or a step below STOP_PRED: converged)
         out = {"x": x, "chi2": best[1]["chi2"] if best else np.nan, "iterations": n_it,
                "design": last}  # (the last design's centre and its step, where the result stepped from it)
@@ -545,6 +545,12 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             out["covariance"] = nan
             self._cov_host = None
         return out
+
+
+def same_array(a, b) -> bool:
+    """``numpy.array_equal(a, b)`` of two arrays (the same shape and every entry equal), without its
+    conversions and dispatch."""
+    return a is b or (a.shape == b.shape and bool((a == b).all()))
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

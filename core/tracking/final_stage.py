@@ -145,6 +145,7 @@ from .engine_likelihood import (
     likelihood_engine,
     run_side_by_side,
     run_steps,
+    same_array,
 )
 from .likelihood_host import _support_mask, robust_factors, stage_params
 from .likelihood_model import BoneStage, FinalModel, LikelihoodFit, rejected
@@ -286,21 +287,21 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
     pending = out.pop("sandwich_s", None)  # (its design's step: launched before the images change)
     n_it = int(out["iterations"])
     for _ in range(int(model.rounds)):
-        if not np.all(np.isfinite(out["x"])):
+        if not np.isfinite(out["x"]).all():
             break
         last = out.get("design") if out is first and tissue is None and mask is None else None
         if tissue is not None:
             tissue(out["x"])
             tissue = None
         if (ROBUST_FROM_LAST and not TO_TOL.get() and last is not None and eng._last is not None
-                and np.array_equal(eng._last[2], last[0])):
+                and same_array(eng._last[2], last[0])):
             # the factors from the last design's step (the same weights and images), the robust
             # refinement from its centre (ROBUST_FROM_LAST); the sandwich taken at the end
             (start, s), factor_step = last, 0
             if ROBUST_SANDWICH and hinv is not None:  # (the robust refinement's sandwich uses its buffers)
                 yield
                 first["covariance"], hinv = eng.sandwich_result(hinv), None
-            if pending is not None and not np.array_equal(eng._last[3], _H0):  # (its first step renders)
+            if pending is not None and not same_array(eng._last[3], _H0):  # (its first step renders)
                 eng.sandwich_launch(pending)
                 pending = None
         else:
@@ -330,7 +331,7 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
                 f = f if mask is None else f * mask
             eng.scale_weights(f)
         # (the robust refinement's own sandwich where the first's is known to have failed)
-        own = ROBUST_SANDWICH or (hinv is None and not np.all(np.isfinite(first["covariance"])))
+        own = ROBUST_SANDWICH or (hinv is None and not np.isfinite(first["covariance"]).all())
         steps = _engine_refine(eng, start, iters=o.final_iters, sandwich=own, reuse=True)
         if pending is not None:  # its first step on the design's images: the sandwich after it
             steps = _after_first_launch(steps, eng.sandwich_launch, pending, eng._w0)
@@ -343,8 +344,8 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
         yield
         first["covariance"] = eng.sandwich_result(hinv)
         d = out.get("design")
-        if (not np.all(np.isfinite(first["covariance"])) and out is not first and d is not None
-                and not np.all(np.isfinite(out["covariance"]))):  # (then the robust refinement's own)
+        if (not np.isfinite(first["covariance"]).all() and out is not first and d is not None
+                and not np.isfinite(out["covariance"]).all()):  # (then the robust refinement's own)
             try:
                 hr = np.linalg.inv(d[1]["JJ"])
             except np.linalg.LinAlgError:
@@ -355,7 +356,7 @@ def _refine_steps(eng, o, model: FinalModel, tissue=None):
                 out["covariance"] = eng.sandwich_result(hr)
     out["iterations"] = n_it
     out["covariance_robust"] = out["covariance"]
-    if np.all(np.isfinite(first["covariance"])):
+    if np.isfinite(first["covariance"]).all():
         out["covariance"] = first["covariance"]
         out["covariance_independent"] = first["covariance_independent"]
     return out
@@ -538,7 +539,7 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
     evals = res.evaluations + int(eng.timer.evaluations)  # (the poses the steps rendered)
     timing["likelihood_move_mm"] = float(np.linalg.norm(d[:3]))  # NaN when the steps failed
     timing["likelihood_move_deg"] = float(np.linalg.norm(d[3:]))
-    if not (np.all(np.isfinite(d)) and np.all(np.abs(d) <= reach) and np.all(np.isfinite(cov))):
+    if not (np.isfinite(d).all() and (np.abs(d) <= reach).all() and np.isfinite(cov).all()):
         timing["likelihood_taken"] = 0
         return replace(res, timing=timing, evaluations=evals, time_s=res.time_s + dt)
     pose = eng.poses(d[None])[0]

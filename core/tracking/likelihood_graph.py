@@ -33,6 +33,9 @@ __all__ = ["StepWork"]
 FAILED: str | None = None
 #: graphs an engine keeps (by output size and the frame buffers they read; least recently used out)
 KEEP = 4
+#: a step's work captured on Warp's CPU device too (its CPU graphs: the path a CUDA device takes, for
+#: :mod:`core.studies.tracking.stage_host`'s timing and tests); off: launched one by one there
+CAPTURE_CPU = False
 
 
 class StepWork:
@@ -68,7 +71,7 @@ class StepWork:
         self.cmds = cmds
         self.copy = (host, acc)
         self.graph = None
-        if dev.is_cuda:
+        if dev.is_cuda or CAPTURE_CPU:
             try:
                 with wp.ScopedCapture(device=dev) as cap_:
                     self._enqueue()

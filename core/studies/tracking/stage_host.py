@@ -17,12 +17,15 @@ each timed; on a CUDA device it is the host's waits for the device (:func:`warp.
 over the calls of each call's median over the repeats; mean), the stage's steps; against the first
 variant the median over the calls of each call's median difference of the host's CPU time
 (``host_cpu_ms_diff_median_<first>``) and whether every pose, covariance, step count and taken flag is
-the same to the bit (else the largest differences). ``--cprofile``: the first variant's stages under
-:mod:`cProfile` (the functions with the most own time per bone-frame). JSON on stdout (``--out``: also
-to a file).
+the same to the bit (else the largest differences); the Python function calls a bone-frame (one pass of
+the calls under :mod:`cProfile`: a count that does not depend on the machine's load). ``--cprofile``:
+the first variant's stages under :mod:`cProfile` (the functions with the most own time per
+bone-frame). JSON on stdout (``--out``: also to a file).
 
 Variants: ``base`` the modules' defaults; ``graph`` a step's recorded work replayed on every device
-(:data:`~core.tracking.engine_likelihood.STEP_GRAPH` True: on the CPU the path a CUDA device takes);
+(:data:`~core.tracking.engine_likelihood.STEP_GRAPH` True: on the CPU the path a CUDA device takes, its
+launches one by one); ``cpugraph`` that and the step's work captured as a Warp CPU graph too
+(:data:`~core.tracking.likelihood_graph.CAPTURE_CPU`: one replay a step, as a CUDA graph's);
 ``devsteps`` / ``devrender`` :data:`~core.tracking.engine_likelihood.DEVICE_STEPS` True / ``"render"``;
 ``segments`` / ``nosegments`` :data:`~core.tracking.likelihood_segments.SEGMENT_GRAPHS` True / False (the
 stage's set-up, robust factors and sandwich as recorded graphs on every device / on none); ``prev`` the
@@ -43,6 +46,8 @@ PREV: tuple = ()
 
 #: the variants' switches (module, name, value), beside ``prev``
 VARIANTS = {"base": (), "graph": (("core.tracking.engine_likelihood", "STEP_GRAPH", True),),
+            "cpugraph": (("core.tracking.engine_likelihood", "STEP_GRAPH", True),
+                         ("core.tracking.likelihood_graph", "CAPTURE_CPU", True)),
             "devsteps": (("core.tracking.engine_likelihood", "DEVICE_STEPS", True),),
             "devrender": (("core.tracking.engine_likelihood", "DEVICE_STEPS", "render"),),
             "segments": (("core.tracking.likelihood_segments", "SEGMENT_GRAPHS", True),),
@@ -277,9 +282,24 @@ def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel
             d = np.array([np.median(np.array(y) - np.array(x)) for x, y in zip(a, b, strict=True)])
             res["variants"][v]["host_cpu_ms_diff_median_" + variants[0]] = float(np.median(d))
             res["variants"][v]["against_" + variants[0]] = _compare(recs[variants[0]], recs[v])
+    for v in variants:  # (the Python function calls a bone-frame: one pass under cProfile)
+        res["variants"][v]["python_calls_per_bone_frame"] = _calls(groups, v, n_bf)
     if cprofile:
         res["cprofile"] = _profile(groups, variants[0], n_bf)
     return res
+
+
+def _calls(groups, variant: str, n_bf: int) -> float:
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    with _variant(variant):
+        prof.enable()
+        for g in groups:
+            _replay(g)
+        prof.disable()
+    return float(sum(v[1] for v in pstats.Stats(prof).stats.values()) / n_bf)
 
 
 def _profile(groups, variant: str, n_bf: int, top: int = 30) -> list:

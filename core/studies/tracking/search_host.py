@@ -1,6 +1,6 @@
 """The Gauss–Newton search's host time per frame, replayed: ``python -m core.studies.tracking.search_host
 [--device cpu|cuda:0] [--frames 8] [--pixels 128] [--voxel 1.5] [--repeats 200] [--workers 0]
-[--cprofile FILE] [--out FILE]``.
+[--prep-graph off|on|both|off,on,...] [--cprofile FILE] [--out FILE]``.
 
 The bench's trial (:mod:`core.studies.tracking.frame_profile`: the synthetic walking trial of
 ``talus bench track``, the talus alone, joint mode, the likelihood stage; frames synthesised before it
@@ -20,9 +20,13 @@ step's wait for the device too, on an idle device). Every replay must give the r
 
 ``host_us_per_frame``: per search the minimum and the median over the replays (``perf_counter``),
 summed over the frames after the first, divided by their number; ``steps_per_frame`` the 13-pose steps.
-``set_frame_us_per_frame``: the engine's :meth:`~core.tracking.engine.GaussNewtonCost.set_frame` calls
-of the recorded run timed as they ran, per frame after the first (on a CUDA device its host time: it
-enqueues the frame's preparation without a wait; on the CPU its kernels run inside it).
+``set_frame``: per recorded run, the engine's :meth:`~core.tracking.engine.GaussNewtonCost.set_frame`
+calls timed as they ran (``set_frame_us_per_frame``, per frame after the first; on a CUDA device its host
+time: it enqueues the frame's preparation without a wait; on the CPU its kernels run inside it) and the
+fingerprint (sha1) of the run's tracked poses and scores. ``--prep-graph``: the trial recorded once per
+entry, :data:`core.tracking.engine_buffers.PREP_GRAPH` set to it (``both``: off, then on; alternate them,
+``off,on,off,on``, for the position in the process), each run after a two-frame warm-up of its own; the
+searches replayed are the first run's; ``same_poses_in_every_run``: every run's fingerprint equal.
 ``results_sha1``: the recorded searches' results (x, cost, evaluations), a fingerprint to compare between
 trees. ``--cprofile FILE``: the replays once more under :mod:`cProfile` (its text in FILE). JSON on stdout.
 """
@@ -178,11 +182,14 @@ def main(argv=None) -> int:
     p.add_argument("--voxel", type=float, default=1.5)
     p.add_argument("--repeats", type=int, default=200)
     p.add_argument("--workers", type=int, default=0)
-    p.add_argument("--prep-graph", choices=("off", "on", "both"), default="off")
+    p.add_argument("--prep-graph", default="off")
     p.add_argument("--cprofile", default=None)
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
-    graphs = {"off": (False,), "on": (True,), "both": (False, True)}[a.prep_graph]
+    names = [v.strip() for v in a.prep_graph.replace("both", "off,on").split(",") if v.strip()]
+    if not names or set(names) - {"off", "on"}:
+        p.error(f"--prep-graph: off, on, both or a list of them (off,on,off,on), got {a.prep_graph!r}")
+    graphs = tuple(v == "on" for v in names)
     t0 = time.perf_counter()
     runs = record(a.frames, a.pixels, a.voxel, a.device, a.workers, graphs)
     t_rec = time.perf_counter() - t0
@@ -204,13 +211,12 @@ def main(argv=None) -> int:
     import warp as wp
 
     dev = wp.get_device(a.device)
-    prep = {}
+    prep = []
     for graph, (_, prepared, poses) in zip(graphs, runs, strict=True):
         dts = [dt for f, dt in prepared if f is not None and f != 0]
-        prep["prep_graph_" + ("on" if graph else "off")] = {
-            "set_frame_us_per_frame": 1e6 * sum(dts) / frames_after,
-            "calls_per_frame": len(dts) / frames_after,
-            "us_median_call": 1e6 * float(np.median(dts)) if dts else None, "poses_sha1": poses}
+        prep.append({"prep_graph": bool(graph), "set_frame_us_per_frame": 1e6 * sum(dts) / frames_after,
+                     "calls_per_frame": len(dts) / frames_after,
+                     "us_median_call": 1e6 * float(np.median(dts)) if dts else None, "poses_sha1": poses})
     out = {
         "study": "core.studies.tracking.search_host",
         "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
@@ -225,7 +231,7 @@ def main(argv=None) -> int:
         "host_us_per_step": {"min": 1e6 * sum(q[2] for q in later) / steps,
                              "median": 1e6 * sum(q[3] for q in later) / steps},
         "set_frame": prep,
-        "same_poses_across_prep_graph": len({v["poses_sha1"] for v in prep.values()}) == 1,
+        "same_poses_in_every_run": len({v["poses_sha1"] for v in prep}) == 1,
         "per_search": [{"frame": f, "steps": s, "min_us": 1e6 * m, "median_us": 1e6 * md}
                        for f, s, m, md in per],
         "results_sha1": sha.hexdigest(),

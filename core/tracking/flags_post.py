@@ -154,7 +154,8 @@ from .flags_stage import STAGE, STAGE_FLAG, STAGE_RATIO, judge_stage
 __all__ = ["ALONG", "BACKWARD_FLAG", "CROWD", "DEGREE", "ENDS", "FLAG", "FLOOR", "GAP_DEGREE", "GAP_FRAMES",
            "GAP_SCALE", "HALF_WINDOW", "LIMIT", "MIN_FRAMES", "NEAR", "ONE_SIDED", "PAIR", "PAIR_GATE",
            "REACH", "STAGE", "STAGE_FLAG", "STAGE_RATIO", "UNCHECKED", "apply_trajectory_flags",
-           "journal_neighbours", "trajectory_flags", "trajectory_residuals", "trajectory_review"]
+           "journal_neighbours", "release_tables", "trajectory_flags", "trajectory_residuals",
+           "trajectory_review"]
 
 #: The flag of :mod:`core.tracking.backward_check` (a first frame whose registration backward from the
 #: frames after it lands elsewhere), a review flag run after the tracking as this module's: named here,
@@ -195,6 +196,14 @@ MIN_FRAMES = 8
 #: when it flags none (exact: the same table, made from the same numbers; False: made anew).
 SHARE_TABLE = True
 _TABLES: dict = {}  # trajectory_residuals' (inputs' key) -> (table, residuals), taken once (SHARE_TABLE)
+
+
+def release_tables() -> None:
+    """Let go of the tables :func:`trajectory_residuals` kept for a review that did not come
+    (:data:`SHARE_TABLE`; the post-pass off, or the backward check's frame flagged): the tracker calls it
+    at a run's end, so a long run's tables are not held after it (another run's taken from under it is
+    made again: the same values)."""
+    _TABLES.clear()
 
 
 def _key(fr, P, ok, c, half_window, degree, ends) -> tuple:

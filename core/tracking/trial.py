@@ -200,7 +200,7 @@ from .attempt import register_checked
 from .bones import BoneModel
 from .checks import SAME_OPTIMUM, pose_delta, same_optimum, step_pose  # noqa: F401 (SAME_OPTIMUM: the docs' name)
 from .feed import FrameFeed
-from .flags_post import apply_trajectory_flags
+from .flags_post import apply_trajectory_flags, release_tables
 from .frame_state import _BoneState, _Cancel, _Run, predict_pose
 from .frame_step import track_frame
 from .gc_pause import frozen
@@ -429,12 +429,16 @@ def _track_frames(run, bones, names, order, skip, state, o, frames, neighbours, 
     finally:
         feed.close()
     out = TrackingResult(names, tuple(order), results, status, time.perf_counter() - t0)
-    if status == "complete" and o.trajectory_limit is not None:  # review flags from the whole track
-        centers = {b.name: b.centroid for b in bones}
-        near = {b: {**(neighbours or {}).get(b, {}),
-                    **{f: p for f, p in skip[b].items() if not isinstance(p, FrameResult)}} for b in names}
-        out, again = apply_trajectory_flags(out, centers, limit=o.trajectory_limit, neighbours=near)
-        changed |= {(fr.bone, fr.frame) for fr in again}
+    try:
+        if status == "complete" and o.trajectory_limit is not None:  # review flags from the whole track
+            centers = {b.name: b.centroid for b in bones}
+            near = {b: {**(neighbours or {}).get(b, {}),
+                        **{f: p for f, p in skip[b].items() if not isinstance(p, FrameResult)}}
+                    for b in names}
+            out, again = apply_trajectory_flags(out, centers, limit=o.trajectory_limit, neighbours=near)
+            changed |= {(fr.bone, fr.frame) for fr in again}
+    finally:
+        release_tables()  # (the backward check's tables the post-pass did not take: flags_post.SHARE_TABLE)
     for key in sorted(changed, key=lambda k: (k[1], names.index(k[0]))):  # journaled again with the flag or
         fr = out.results[key]  # note (the review panel reads the journal)
         if record_result is not None and fr.pose is not None:

@@ -97,6 +97,9 @@ def test_shared_table_taken_once_and_only_for_the_same_inputs(monkeypatch):
     assert len(fp._TABLES) == 1
     fp.trajectory_review(frames, P, CENTER)
     assert not fp._TABLES  # taken, once
+    fp.trajectory_residuals(frames, P, CENTER)
+    fp.release_tables()  # (a run's end: one not taken let go)
+    assert not fp._TABLES
 
 
 def test_loop_host_after_last_measures_both_and_puts_the_trims_back():

@@ -25,10 +25,11 @@ as :func:`core.studies.tracking.frame_profile.frame_walls` does; per frame the c
   registrations' ``other_s``): what the registrations did.
 
 :meth:`FrameClock.report` gives the frames over :data:`SLOW` × the median (``slow``, each with those
-fields) and ``clusters``, runs of consecutive slow frames, besides the summary of ``frame_walls``. The
-clock wraps the feed's two methods, the backward check and the post-pass, and adds a garbage-collector
-callback within :meth:`FrameClock.watching` only (put back after); ``progress`` is its per-frame hook.
-Timing only: what the tracker computes is the same (its calls pass on unchanged).
+fields; ``slowest_records``: the three slowest frames', whatever their ratio) and ``clusters``, runs of
+consecutive slow frames, besides the summary of ``frame_walls``. The clock wraps the feed's two methods,
+the backward check and the post-pass, and adds a garbage-collector callback within
+:meth:`FrameClock.watching` only (put back after); ``progress`` is its per-frame hook. Timing only: what
+the tracker computes is the same (its calls pass on unchanged).
 """
 
 from __future__ import annotations
@@ -168,6 +169,7 @@ class FrameClock:
     def report(self, order, t0: float, wall: float, slow: float = SLOW) -> dict:
         """``frame_walls``' summary of the run (``t0`` its start, ``wall`` its length) with ``slow``:
         the frames after the first over ``slow`` × their median, each with its record (module docs),
+        ``slowest_records`` the three slowest frames' records,
         ``clusters``: runs of consecutive slow frames (``[first, last]`` frame numbers), and the medians
         of the records' fields over the frames after the first (``typical``)."""
         from core.studies.tracking.frame_profile import frame_walls
@@ -194,6 +196,8 @@ class FrameClock:
         out["typical"] = {k: float(np.median([r[k] for r in rows])) for k in keys}
         out["slow_over_median"] = slow
         out["slow"] = hot
+        # the three slowest frames' records whatever their ratio to the median (frame_walls' "slowest")
+        out["slowest_records"] = sorted(rows, key=lambda r: -r["ms"])[:3]
         out["clusters"] = clusters
         out["switch_interval_s"] = sys.getswitchinterval()
         last = max((e for e in self.ends.values()), default=None, key=lambda e: e[0])

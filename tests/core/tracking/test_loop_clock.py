@@ -40,6 +40,7 @@ def test_rows_slow_frames_and_clusters():
     got = c.report(range(9), 0.0, t + 0.01)
     assert [r["frame"] for r in got["slow"]] == [3, 4, 7]  # over 2x the median (5 ms)
     assert got["clusters"] == [[3, 4], [7, 7]]
+    assert [r["frame"] for r in got["slowest_records"]] == [4, 3, 7]
     assert abs(got["typical"]["ms"] - 5.0) < 1e-9 and got["slow"][0]["evaluations"] == 100
     assert abs(got["after_last"]["ms"] - 10.0) < 1e-6 and abs(got["after_last"]["cpu_ms"] - 4.0) < 1e-6
     assert abs(got["after_last"]["post_pass_ms"] - 3.0) < 1e-9 and "backward_ms" not in got["after_last"]

@@ -112,7 +112,7 @@ class _StepGraphs:
         where there is none yet); the device geometry uploaded where it changed. Kept for the frame
         (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame` drops it: its geometry and
         buffers are the frame's), for the moments' settings it was made with."""
-        settings = (self._moments_chunk(), self._moments_tri(), self.block_dim)
+        settings = (self._moments_chunk(), self._moments_tri(), self.block_dim, bool(CAPTURE_CPU))
         fw = self.__dict__.get("_frame_work")
         if fw is not None and fw[0] == settings:
             return fw[1]
@@ -123,7 +123,7 @@ class _StepGraphs:
         dr.upload(self.base, self.center, self.roi)
         cap = tuple(self._cap)
         key = (cap, *(a.ptr for a in (self._y, self._w, self._o, self._ref_hw, self._taps, self._acc)),
-               self._moments_chunk(), self._moments_tri(), self.block_dim)
+               self._moments_chunk(), self._moments_tri(), self.block_dim, bool(CAPTURE_CPU))
         hit = self._graphs.pop(key, None)
         if hit is None:
             render = self._renders.get(cap)

@@ -7,20 +7,23 @@ jointly: ``--bones three``), every stage call (:func:`core.tracking.final_stage.
 arguments) kept. The calls after the first frame's are then replayed, ``--repeats`` times under each
 variant (:data:`VARIANTS`, their order rotated call by call), each stage run to its end
 (:func:`~core.tracking.engine_likelihood.run_steps`; several bones of a frame side by side, as
-:func:`~core.tracking.final_stage.final_stages` runs them). Each stage's time is split into the device's
-part and the rest, the host's work (Python, numpy, the runtime calls), in wall time and in this thread's
-CPU time (:func:`time.thread_time`: what other processes of a loaded machine take is not counted; the
-CPU's figure to compare). On Warp's CPU device a kernel runs inside its launch, so the device's part is
-the kernels' invocations, the CPU renderer's threads, the radix sorts and the recorded graphs' replays,
-each timed; on a CUDA device it is the host's waits for the device (:func:`warp.synchronize_event`,
-:func:`warp.synchronize_device`). Per variant: the host's and the device's ms per bone-frame (median
-over the calls of each call's median over the repeats; mean), the stage's steps; against the first
-variant the median over the calls of each call's median difference of the host's CPU time
-(``host_cpu_ms_diff_median_<first>``) and whether every pose, covariance, step count and taken flag is
-the same to the bit (else the largest differences); the Python function calls a bone-frame (one pass of
-the calls under :mod:`cProfile`: a count that does not depend on the machine's load). ``--cprofile``:
-the first variant's stages under :mod:`cProfile` (the functions with the most own time per
-bone-frame). JSON on stdout (``--out``: also to a file).
+:func:`~core.tracking.final_stage.final_stages` runs them), each after its frame was put on the device as
+tracking puts it there (:func:`core.tracking.engine_upload.share`, untimed; on the CPU too unless
+``--no-held``: the stage's set-up then reads its regions from that upload, as on a CUDA device).
+
+Each stage's time is split into the device's part and the rest, the host's work (Python, numpy, the
+runtime calls), in wall time and in this thread's CPU time (:func:`time.thread_time`: what other
+processes of a loaded machine take is not counted; the CPU's figure to compare). On Warp's CPU device a
+kernel runs inside its launch, so the device's part is the kernels' invocations, the CPU renderer's
+threads, the radix sorts and the recorded graphs' replays, each timed; on a CUDA device it is the host's
+waits for the device (:func:`warp.synchronize_event`, :func:`warp.synchronize_device`). Per variant: the
+host's and the device's ms per bone-frame (median over the calls of each call's median over the repeats;
+mean), the stage's steps; against the first variant the median over the calls of each call's median
+difference of the host's CPU time (``host_cpu_ms_diff_median_<first>``) and whether every pose,
+covariance, step count and taken flag is the same to the bit (else the largest differences); the Python
+function calls a bone-frame (one pass of the calls under :mod:`cProfile`: a count that does not depend
+on the machine's load). ``--cprofile``: the first variant's stages under :mod:`cProfile` (the functions
+with the most own time per bone-frame). JSON on stdout (``--out``: also to a file).
 
 Variants: ``base`` the modules' defaults; ``graph`` a step's recorded work replayed on every device
 (:data:`~core.tracking.engine_likelihood.STEP_GRAPH` True: on the CPU the path a CUDA device takes, its
@@ -28,8 +31,8 @@ launches one by one); ``cpugraph`` that and the step's work captured as a Warp C
 (:data:`~core.tracking.likelihood_graph.CAPTURE_CPU`: one replay a step, as a CUDA graph's);
 ``devsteps`` / ``devrender`` :data:`~core.tracking.engine_likelihood.DEVICE_STEPS` True / ``"render"``;
 ``segments`` / ``nosegments`` :data:`~core.tracking.likelihood_segments.SEGMENT_GRAPHS` True / False (the
-stage's set-up, robust factors and sandwich as recorded graphs on every device / on none); ``prev`` the
-stage's host cuts of :data:`PREV` off (as before them); ``a+b`` both.
+stage's set-up, robust factors, sandwich and the robust step's moments as recorded graphs on every
+device / on none); ``prev`` the stage's host cuts of :data:`PREV` off (as before them); ``a+b`` both.
 """
 
 from __future__ import annotations
@@ -171,6 +174,18 @@ def _capture(ts, bones, frames: int):
     return groups, run
 
 
+def _hold(group) -> None:
+    """The group's frame put on the device as tracking puts it there (:func:`core.tracking.engine_upload.
+    share`: the stage then reads its regions from that upload, :data:`~core.tracking.likelihood_frames.
+    HELD_FRAME`), outside the timed stage; nothing where the shared upload does not apply."""
+    import warp as wp
+
+    from core.tracking import engine_upload as eu
+
+    renderer, frame = group[0][0], group[0][1]
+    eu.share(wp.get_device(str(renderer.device)), frame)
+
+
 def _replay(group) -> list:
     """One frame's stage calls run again (side by side where they were); their results."""
     from core.tracking.engine_likelihood import StepClock, run_side_by_side, run_steps
@@ -210,7 +225,24 @@ def _compare(a: list, b: list) -> dict:
 
 
 def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel: float = 1.5,
-        bones: str = "one", variants=("base",), repeats: int = 5, cprofile: bool = False) -> dict:
+        bones: str = "one", variants=("base",), repeats: int = 5, cprofile: bool = False,
+        held: bool = True) -> dict:
+    """The study (module docs); ``held``: the frames shared on the device on every device kind, as
+    tracking shares them on a CUDA device (:data:`core.tracking.engine_upload.DEVICES`; the stage's
+    set-up reads its regions there)."""
+    from core.tracking import engine_upload as eu
+
+    kept = eu.DEVICES
+    if held:
+        eu.DEVICES = ("cuda", "cpu")
+    try:
+        return _run(device=device, frames=frames, pixels=pixels, voxel=voxel, bones=bones, variants=variants,
+                    repeats=repeats, cprofile=cprofile, held=held)
+    finally:
+        eu.DEVICES = kept
+
+
+def _run(*, device, frames, pixels, voxel, bones, variants, repeats, cprofile, held) -> dict:
     import platform
 
     import warp as wp
@@ -236,11 +268,13 @@ def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel
         for v in variants:  # (once each first: kernels and buffers of every variant made)
             with _variant(v):
                 for g in groups:
+                    _hold(g)
                     _replay(g)
         for rep in range(int(repeats)):
             for gi, g in enumerate(groups):
                 for k in range(len(variants)):
                     v = variants[(k + rep + gi) % len(variants)]
+                    _hold(g)
                     with _variant(v):
                         s0, k0 = clock.s, clock.c
                         t0, c0 = time.perf_counter(), time.thread_time()
@@ -256,6 +290,7 @@ def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel
            "device": str(ts.renderer.device), "device_name": getattr(wp.get_device(str(ts.renderer.device)),
                                                                      "name", ""),
            "pixels": pixels, "voxel_mm": voxel, "frames": frames, "bones": bones, "repeats": int(repeats),
+           "held_frames": bool(held),
            "bone_frames_timed": n_bf, "variants": {}}
     nb = np.array([len(g) for g in groups])
 
@@ -295,10 +330,11 @@ def _calls(groups, variant: str, n_bf: int) -> float:
 
     prof = cProfile.Profile()
     with _variant(variant):
-        prof.enable()
         for g in groups:
+            _hold(g)
+            prof.enable()
             _replay(g)
-        prof.disable()
+            prof.disable()
     return float(sum(v[1] for v in pstats.Stats(prof).stats.values()) / n_bf)
 
 
@@ -308,10 +344,11 @@ def _profile(groups, variant: str, n_bf: int, top: int = 30) -> list:
 
     prof = cProfile.Profile()
     with _variant(variant):
-        prof.enable()
         for g in groups:
+            _hold(g)
+            prof.enable()
             _replay(g)
-        prof.disable()
+            prof.disable()
     st = pstats.Stats(prof)
     rows = []
     for (fn, line, name), (_, nc, tt, ct, _) in st.stats.items():
@@ -334,10 +371,13 @@ def main(argv=None) -> int:
     p.add_argument("--variants", default="base")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--cprofile", action="store_true")
+    p.add_argument("--no-held", action="store_true",
+                   help="the frames not shared on the device where tracking would not (the CPU)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     res = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel, bones=a.bones,
-              variants=tuple(a.variants.split(",")), repeats=a.repeats, cprofile=a.cprofile)
+              variants=tuple(a.variants.split(",")), repeats=a.repeats, cprofile=a.cprofile,
+              held=not a.no_held)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

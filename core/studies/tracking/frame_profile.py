@@ -16,11 +16,13 @@ full-resolution regions prepared on the device (in ``set_frame``; with their hos
 not shared), ``engine_upload.share``: joint registration's one upload of the whole frame,
 ``GaussNewtonCost._render``: the neighbours' DRRs to subtract; ``stage_gen.next0`` / ``stage_gen.next``: a
 final stage's set-up and first step / each later step up to its next wait (its generator,
-:func:`core.tracking.final_stage.final_stage_steps`). The wrappers cost about a millisecond a frame of three
-bones; ``--cprofile`` adds a run under :mod:`cProfile` (its text next to the JSON). ``--variants
-'name:module.ATTR=value,...;name2:...'`` (modules under ``core.tracking``, values Python literals) runs
-the plain runs once per variant in turn, ``repeats`` rounds (``variants``: each one's runs; the host's
-drift shared), each with its switches set and put back after; the wrapped run has the modules' own.
+:func:`core.tracking.final_stage.final_stage_steps`); ``unusual_calls``: the wrapped calls of the wrapped
+run's three slowest frames that the median frame did not make (or made fewer or more times), with their
+time. The wrappers cost about a millisecond a frame of three bones; ``--cprofile`` adds a run under
+:mod:`cProfile` (its text next to the JSON). ``--variants 'name:module.ATTR=value,...;name2:...'``
+(modules under ``core.tracking``, values Python literals) runs the plain runs once per variant in turn,
+``repeats`` rounds (``variants``: each one's runs; the host's drift shared), each with its switches set and
+put back after; the wrapped run has the modules' own.
 Round ``i`` starts with the ``i``-th variant (``round_orders``): on one NVIDIA H100 at f4f4b08 the variant
 run first in every round (then always the same) was the slowest in all four rounds, a position bias as
 large as any switch (``resources/benchmarks/tracking_bench_final_f4f4b08_h100.json``). JSON on stdout.
@@ -73,6 +75,8 @@ class _Stats:
         self.stack: list = []
         self.phase = "loop"
         self.first = None  # the run's first frame (its first frame step's)
+        self.frame = None  # the frame whose step is running (None: the loop, the backward check)
+        self.per_frame: dict = {}  # frame -> {name: [calls, inclusive seconds]} within its frame step
 
     def timed(self, fn, name: str):
         @functools.wraps(fn)  # (its module and name kept; __wrapped__ the function it calls)
@@ -94,6 +98,25 @@ class _Stats:
         s[0] += 1
         s[1] += dt
         s[2] += dt - child
+        if self.frame is not None:
+            c = self.per_frame.setdefault(self.frame, {}).setdefault(name, [0, 0.0])
+            c[0] += 1
+            c[1] += dt
+
+    def unusual(self, frames) -> dict:
+        """Per frame of ``frames`` (those after the run's first), the wrapped functions its step called a
+        number of times other than the median over the frames after the first (a function a frame did not
+        call counts 0): ``{frame: [[name, calls, median calls, inclusive ms], ...]}``, what ran in a slow
+        frame that the others did not run (or ran more often)."""
+        later = [f for f in self.per_frame if f != self.first]
+        names = {n for f in later for n in self.per_frame[f]}
+        med = {n: float(np.median([self.per_frame[f].get(n, [0, 0.0])[0] for f in later])) for n in names}
+        out = {}
+        for f in frames:
+            got = self.per_frame.get(f, {})
+            out[int(f)] = sorted(([n, got.get(n, [0, 0.0])[0], med[n], 1e3 * got.get(n, [0, 0.0])[1]]
+                                  for n in names if got.get(n, [0, 0.0])[0] != med[n]), key=lambda r: -r[3])
+        return out
 
     def table(self) -> dict:
         out: dict = {}
@@ -136,10 +159,11 @@ def wrapped():
         if old != "backward":
             st.first = f if st.first is None else st.first
             st.phase = "first" if f == st.first else "later"
+        was, st.frame = st.frame, (f if old != "backward" else None)
         try:
             return st.timed(step, "track_frame")(run, f, *a, **k)
         finally:
-            st.phase = old
+            st.phase, st.frame = old, was
 
     check = backward.backward_check
 
@@ -183,12 +207,16 @@ def wrapped():
 
 def profile_run(renderer, models, frames, order, keyframes, options, skip=None) -> dict:
     """One run of :func:`core.tracking.trial.track` with :func:`wrapped` (``skip``: track's): the run's
-    times and the table (the first phase that of the run's first frame step)."""
+    times and the table (the first phase that of the run's first frame step), and ``unusual_calls``: the
+    wrapped calls of the three slowest frames after the first whose counts differ from the median frame's
+    (:meth:`_Stats.unusual`)."""
     from core.tracking.trial import track
 
     with wrapped() as st:
         got = _timed_track(track, renderer, models, frames, list(order), keyframes, options, skip)
     got["stats"] = st.table()
+    # what the three slowest frames after the first called that the others did not (loop_clock's records)
+    got["unusual_calls"] = st.unusual([r["frame"] for r in got["frames"].get("slowest_records", [])])
     return got
 
 

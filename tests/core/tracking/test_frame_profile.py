@@ -80,3 +80,19 @@ def test_rounds_rotate_the_variants_order():
     assert [rotated(names, i) for i in range(4)] == [["base", "a", "b"], ["a", "b", "base"],
                                                      ["b", "base", "a"], ["base", "a", "b"]]
     assert rotated([], 2) == []
+
+
+def test_unusual_calls_of_a_slow_frame():
+    """What a frame's step called that the median frame after the first did not (or more often)."""
+    from core.studies.tracking.frame_profile import _Stats
+
+    st = _Stats()
+    st.first = 0
+    st.per_frame = {0: {"register._run": [1, 0.02]},
+                    **{f: {"attempt.register": [1, 0.004], "engine.stage": [1, 0.0005]} for f in range(1, 9)}}
+    st.per_frame[6] = {"attempt.register": [2, 0.009], "engine.stage": [2, 0.001],
+                       "stage_sigma.remeasured": [1, 0.004]}
+    got = st.unusual([6, 3])
+    assert got[3] == []
+    assert [r[0] for r in got[6]] == ["attempt.register", "stage_sigma.remeasured", "engine.stage"]
+    assert got[6][1][1:3] == [1, 0.0] and abs(got[6][0][3] - 9.0) < 1e-9

@@ -52,7 +52,7 @@ WRAPPED = (
                              "_result", "register", "restarts_together")),
     ("core.tracking.final_stage", ("final_stages", "run_side_by_side", "confirm_move")),
     ("core.tracking.attempt", ("register", "verify_start", "_failures", "confidence_of", "_conf_flags",
-                               "_motion_limits")),
+                               "_motion_limits", "remeasured")),
     ("core.tracking.register", ("_run", "search_region", "result_of", "mm_per_pixel")),
     ("core.tracking.engine", ("gauss_newton_search", "GaussNewtonCost.set_frame", "GaussNewtonCost.submit",
                               "GaussNewtonCost.collect", "GaussNewtonCost.newton",

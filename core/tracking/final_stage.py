@@ -544,7 +544,7 @@ def final_stage_steps(renderer, frame: FrameImages, res, *, bone: int, initial_p
         return replace(res, timing=timing, evaluations=evals, time_s=res.time_s + dt)
     pose = eng.poses(d[None])[0]
     p = stage_params(pose, center, np.asarray(initial_pose, dtype=float))
-    x = np.r_[p[:3], np.degrees(p[3:])]
+    x = np.concatenate((p[:3], np.degrees(p[3:])))
     timing["likelihood_taken"] = 1
     fit = LikelihoodFit.of(cov, x=x, chi2=float(out["chi2"]),
                            covariance_independent=out["covariance_independent"], similarity=res)

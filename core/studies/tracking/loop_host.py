@@ -1,5 +1,6 @@
 """Host time of the frame loop's parts outside the registrations: ``python -m core.studies.tracking.loop_host
-[--tracks 12] [--frames 100] [--rounds 8] [--loop-frames 12] [--loop-rounds 3] [--out FILE]``.
+[--tracks 12] [--frames 100] [--rounds 8] [--acceptance] [--loop-frames 12] [--loop-rounds 3] [--note TEXT]
+[--out FILE]``.
 
 Two measurements, each of the loop's exact trims switched off (``before``) and on (``after``, the defaults),
 the two alternated round by round (the host's drift shared), JSON on stdout:
@@ -9,7 +10,9 @@ the two alternated round by round (the host's drift shared), JSON on stdout:
   trajectory residual) and the trajectory post-pass (:func:`core.tracking.flags_post.apply_trajectory_flags`)
   on ``tracks`` synthetic tracks of ``frames`` frames (the walking motion of the trajectory check's tests,
   0.02 mm / 0.1° noise per axis, a few frames turned 0.3-0.8° off, the search's poses beside); the thread's
-  CPU time per bone (median of the rounds), and whether the flags and notes were the same;
+  CPU time per bone (median of the rounds), and whether the flags and notes were the same; with
+  ``--acceptance`` the same on the stored acceptance runs' 18 bones (``after_last_acceptance``: seeds 0-2,
+  both modes, the poses rebuilt from their kept errors, :func:`stored`);
 * ``loop`` (``--loop-frames`` > 0): :func:`core.tracking.trial.track` on Warp's CPU device (the talus in
   ideal 64² views, the walk of the tracking tests' 60 frames, the likelihood stage, one bone as ``talus bench
   track`` runs it) with the frame clock of :mod:`core.studies.tracking.loop_clock`: first frame, the run
@@ -28,7 +31,7 @@ import time
 
 import numpy as np
 
-__all__ = ["TRIMS", "after_last", "loop", "main", "tracks"]
+__all__ = ["TRIMS", "after_last", "loop", "main", "stored", "tracks"]
 
 #: (module, switch) of the trims compared: all off (``before``) against all on (``after``).
 TRIMS = (("core.tracking.flags_fit", "MEMO"), ("core.tracking.flags_fit", "BATCHED"),
@@ -70,32 +73,50 @@ def tracks(n_tracks: int, frames: int, seed: int = 3) -> list:
     return out
 
 
-def _after_last_once(r) -> tuple[float, list]:
+def stored(labels=("0", "1", "2")) -> list:
+    """The stored acceptance runs' bones (:func:`core.studies.tracking.trajectory_gaps.runs`: seeds 0-2,
+    1024², 100 frames, both modes, tracked on one NVIDIA H100; the frames their per-frame checks flagged
+    kept flagged) as one-bone :class:`~core.tracking.results.TrackingResult` with their centres."""
+    from core.studies.tracking.trajectory_gaps import runs
+    from core.tracking.results import FrameResult, TrackingResult
+
+    out = []
+    for _, b, P, own, _, c in runs(labels=labels):
+        res = {(b, f): FrameResult(b, f, P[f], 0.9, 52, 0.005, not own[f], ("score drop",) if own[f] else ())
+               for f in range(len(P)) if np.all(np.isfinite(P[f]))}
+        out.append((TrackingResult((b,), tuple(range(len(P))), res, "complete", 1.0), np.asarray(c, float)))
+    return out
+
+
+def _after_last_once(r, center=None) -> tuple[float, list]:
     from core.studies.tracking.trajectory_gaps import CENTER
     from core.tracking.backward_check import _scale
     from core.tracking.flags_post import apply_trajectory_flags
 
+    b, c = r.bones[0], CENTER if center is None else center
     t = time.thread_time()
-    _scale(r.results, list(r.frames), "talus", CENTER)
-    _, changed = apply_trajectory_flags(r, {"talus": CENTER})
+    _scale(r.results, list(r.frames), b, c)
+    _, changed = apply_trajectory_flags(r, {b: c})
     dt = time.thread_time() - t
     return dt, [(x.frame, x.flags, x.notes) for x in changed]
 
 
-def after_last(n_tracks: int = 12, frames: int = 100, rounds: int = 8) -> dict:
-    """The ``after_last`` measurement (module docs)."""
-    rs = tracks(n_tracks, frames)
+def after_last(n_tracks: int = 12, frames: int = 100, rounds: int = 8, acceptance: bool = False) -> dict:
+    """The ``after_last`` measurement (module docs); ``acceptance``: on :func:`stored`'s bones instead of
+    synthetic tracks."""
+    rs = stored() if acceptance else [(r, None) for r in tracks(n_tracks, frames)]
     got, ms = {}, {"before": [], "after": []}
     for name in ("before", "after"):  # (a first pass each: caches, and the flags compared)
         _set(name == "after")
-        got[name] = [_after_last_once(r)[1] for r in rs]
+        got[name] = [_after_last_once(*r)[1] for r in rs]
     for i in range(int(rounds)):
         for name in (("before", "after") if i % 2 == 0 else ("after", "before")):
             _set(name == "after")
-            ms[name].append(1e3 * float(np.median([_after_last_once(r)[0] for r in rs])))
+            ms[name].append(1e3 * float(np.median([_after_last_once(*r)[0] for r in rs])))
     _set(True)
     flagged = sum(len(x) for x in got["after"])
-    return {"tracks": n_tracks, "frames": frames, "rounds": rounds,
+    return {"tracks": len(rs), "frames": frames if not acceptance else 100, "rounds": rounds,
+            "source": "stored acceptance runs (seeds 0-2, both modes)" if acceptance else "synthetic tracks",
             "flags_and_notes_same": got["before"] == got["after"], "frames_flagged_or_noted": flagged,
             "ms_per_bone": {k: {"median": float(np.median(v)), "rounds": v} for k, v in ms.items()}}
 
@@ -154,6 +175,8 @@ def main(argv=None) -> int:
     p.add_argument("--rounds", type=int, default=8)
     p.add_argument("--loop-frames", type=int, default=12)
     p.add_argument("--loop-rounds", type=int, default=3)
+    p.add_argument("--acceptance", action="store_true",
+                   help="also time the after-last work on the stored acceptance runs' 18 bones")
     p.add_argument("--note", default=None, help="a note kept in the JSON (the machine, its load)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
@@ -166,6 +189,8 @@ def main(argv=None) -> int:
            "machine": platform.machine(), "cpu_count": os.cpu_count(),
            "load_average_before": list(os.getloadavg()), "trims": [f"{m}.{s}" for m, s in TRIMS],
            "after_last": after_last(a.tracks, a.frames, a.rounds)}
+    if a.acceptance:
+        out["after_last_acceptance"] = after_last(rounds=a.rounds, acceptance=True)
     if a.loop_frames > 0:
         out["loop"] = loop(a.loop_frames, a.loop_rounds)
     out["load_average_after"] = list(os.getloadavg())

@@ -26,7 +26,7 @@ _BUFFER_SETS = 6
 
 _SERIAL = itertools.count()
 
-#: Switch (off; CUDA devices): a frame's preparation in
+#: Switch (on since the H200 measurement below; CUDA devices): a frame's preparation in
 #: :meth:`~core.tracking.engine.GaussNewtonCost.set_frame` (full resolution, the regions read from the
 #: shared upload of the frame, no neighbours subtracted: one bone) — the pose geometry and blur taps
 #: uploaded from pinned memory, the statistics zeroed, the regions prepared, smoothed and differentiated,
@@ -35,8 +35,12 @@ _SERIAL = itertools.count()
 #: operations (kept per engine, :data:`PREP_GRAPHS`); the same operations in the same order on the same
 #: buffers, so the same results to the bit. On the CPU the recorded operations run in order (a test's path).
 #: Timed on one NVIDIA H100 at f4f4b08 (frame_profile --bones one --variants, 4 alternated rounds, ms a frame
-#: after the first): off 7.52/8.57/7.91/7.20, on 5.74/7.62/7.43/8.08, captured without a warning; left off.
-PREP_GRAPH = False
+#: after the first): off 7.52/8.57/7.91/7.20, on 5.74/7.62/7.43/8.08, captured without a warning; left off
+#: then. Its host time alone on one NVIDIA H200's host at 4f533f9
+#: (``python -m core.studies.tracking.search_host --device cuda:0 --prep-graph off,on,off,on``, the bench's
+#: one-bone trial at 1024², 100 frames; ``resources/benchmarks/tracking_search_host_h200.json``):
+#: set_frame 462 / 514 us a frame off, 304 / 272 us on.
+PREP_GRAPH = True
 PREP_GRAPHS = 16
 _CAPTURE_CPU = False  # (tests: the CPU's recorded operations captured too, as Warp's CPU graphs)
 

@@ -309,8 +309,11 @@ def _track(walking_talus):
 @pytest.fixture(scope="module")
 def current(walking_talus):
     """The talus tracked by the current code (the shared upload taken), once for the tests below."""
+    import core.tracking.engine_buffers as eb
+
     with pytest.MonkeyPatch.context() as mp:
         _shared_on_cpu(mp)
+        mp.setattr(eb, "PREP_GRAPH", False)  # (the operations run as asked for: the switch's reference)
         return _track(walking_talus)
 
 

@@ -288,14 +288,20 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
             self._hw_last = hw
         li = self._buffer("li", (nv, Hc, Wc))
         mask = self._buffer("mask", (nv, Hc, Wc), wp.uint8)
-        # without neighbours the regions, weights and high-pass are one recorded piece (SEGMENT_GRAPHS)
-        alone = staged is not None and (others is None or not len(others[1])) and self._segments_on()
-        made = None
+        # the regions, the neighbours' DRRs (through the engine's own item table), the weights and the
+        # high-pass one recorded piece (SEGMENT_GRAPHS)
+        n_o = 0 if others is None else len(others[1])
+        alone = staged is not None and self._segments_on() and (
+            not n_o or (self._graph_step() and self._psf is None))
+        made = oth = None
         if staged is None:
             self._host_upload(rois, masks, li, mask)
         else:
             made = self._stage(frame, staged, li, mask, launch=not alone)
-        self._frame_others(others, li)
+        if alone and n_o:
+            oth = self._others_own(others, li)
+        else:
+            self._frame_others(others, li)
         if not alone:
             self._uploaded()  # (after the neighbours' item table's upload too: _render_own)
         # the weights: the expected counts exp(-G ∗ y) of the unsubtracted line integrals (no scale:
@@ -306,9 +312,9 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
         self._y = self._buffer("y", (nv, Hc, Wc))
         self._o = self._buffer("o", (nv, Hc, Wc))
         if alone:
-            key = (made, self._y_raw, self._o_raw, self._wtaps, self._taps, self.highpass_px, BLOCK_BLUR,
+            key = (made, oth, self._y_raw, self._o_raw, self._wtaps, self._taps, self.highpass_px, BLOCK_BLUR,
                    self.chunk)
-            self._segment("prep", key, lambda: self._prep_enqueue(made, li, mask))
+            self._segment("prep", key, lambda: self._prep_enqueue(made, li, mask, oth))
             self._uploaded()
         else:
             self._prep_enqueue(None, li, mask)

@@ -311,6 +311,31 @@ class _FrameRegions:
         if self._with_o:
             self._o_raw = o
 
+    def _others_own(self, others, li) -> tuple:
+        """:meth:`_frame_others`' host part where its DRRs go through the engine's own item table
+        (:meth:`~core.tracking.likelihood_graph._StepGraphs._render_own`, no PSF): the table written, the
+        buffers and settings set; the arguments of its device part (:meth:`_others_enqueue`) returned."""
+        nv = self.n_views
+        Hc, Wc = self._cap
+        n = len(others[1])
+        self._with_o = bool(n and self.others_gain)
+        self._o_raw = None
+        P, bones = np.asarray(others[0], dtype=float)[None], tuple(int(b) for b in others[1])
+        host, _, items, img, cmd = self._render_own(P, bones, launch=False)
+        y = self._y_raw = self._buffer("y_raw", (nv, Hc, Wc))
+        o = self._buffer("o_raw", (nv, Hc, Wc))
+        if self._with_o:
+            self._o_raw = o
+        return (host, items, cmd, img, n, li, int(self._with_o), y, o)
+
+    def _others_enqueue(self, host, items, cmd, img, n: int, li, gain: int, y, o) -> None:
+        """:meth:`_others_own`'s device part: the item table up, the DRRs, the neighbours taken out."""
+        nv = self.n_views
+        Hc, Wc = self._cap
+        copy_array(items, host)
+        cmd.launch()
+        self._launch("others", others_kernel, (nv, Hc, Wc), [img, n, li, self._ref_hw, gain, y, o])
+
     def _take_count(self) -> None:
         """The usable pixels the device's preparation counted (copied before the last
         synchronisation); raises OutsideViewError for a view without any."""

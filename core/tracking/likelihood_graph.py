@@ -138,11 +138,13 @@ class _StepGraphs:
         self._frame_work = (settings, hit)
         return hit
 
-    def _render_own(self, P, bones: tuple) -> wp.array:
+    def _render_own(self, P, bones: tuple, launch: bool = True):
         """:func:`~core.tracking.engine_render.render_items` (the same item table, the same launch)
         through the engine's own pinned buffer, item table and images instead of the renderer's
         shared ones: no wait for another engine's upload from them (the neighbours' DRRs of
-        :meth:`set_frame`; its wait for the engine's last uploads covers this buffer's)."""
+        :meth:`set_frame`; its wait for the engine's last uploads covers this buffer's). ``launch`` False:
+        the item table written into the pinned buffer, its copy and the launch not enqueued; the pinned
+        buffer, its numpy view, the device's table, the images and the recorded launch returned."""
         r = self.renderer
         table = item_table(self, P, bones)
         H, W = self._cap  # (render_items' size: the ROIs fit the cap)
@@ -163,6 +165,8 @@ class _StepGraphs:
             got = own[(n, H, W)] = (host, host.numpy(), items, out, cmd)
         host, host_np, items, out, cmd = got
         host_np[...] = table.reshape(n, ITEM_COLS)
+        if not launch:
+            return got
         copy_array(items, host)
         cmd.launch()
         return out

@@ -1,13 +1,14 @@
 """Pieces of the likelihood final stage's device work recorded once and replayed as one graph
-(:class:`core.tracking.engine_likelihood.LikelihoodEngine`'s, :data:`SEGMENT_GRAPHS`): the frame's
-set-up (:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame`: the regions' item table
-up, their line integrals and usable pixels made and counted, the count back, the weights and the
-high-pass: about eleven runtime calls), the robust factors and the weights they scale
+(:class:`core.tracking.engine_likelihood.LikelihoodEngine`'s, :data:`SEGMENT_GRAPHS`): the frame's set-up
+(:meth:`~core.tracking.engine_likelihood.LikelihoodEngine.set_frame`: the regions' item table up, their line
+integrals and usable pixels made and counted, the count back, the weights and the high-pass: about eleven
+runtime calls; with neighbours, where their DRRs go through the engine's own item table, that table up,
+their DRRs and the neighbours taken out too: three more), the robust factors and the weights they scale
 (:meth:`~core.tracking.likelihood_weights._RegionWeights.robust_scale`: the fit's coefficients up, the
 residual, the factors' filter, sort and median, the weights' copy and product: about eleven) and the
-sandwich (:meth:`~core.tracking.likelihood_confidence._Confidence.sandwich_launch`: the coefficients up,
-the residual and its projections, the autocovariance, its taper, the meat and its copy back: eight) and a
-step's moments table where its images are not the recorded step's (:meth:`~core.tracking.engine_likelihood.
+sandwich (:meth:`~core.tracking.likelihood_confidence._Confidence.sandwich_launch`: the coefficients up, the
+residual and its projections, the autocovariance, its taper, the meat and its copy back: eight) and a step's
+moments table where its images are not the recorded step's (:meth:`~core.tracking.engine_likelihood.
 LikelihoodEngine.step_launch`: the robust refinement's first step on the last design's images; the table
 zeroed, summed and copied back: three).
 
@@ -89,15 +90,18 @@ class _Segments:
         now = (bufs.made, host.made)
         segs[name] = (host, now, key, graph if now == made else None)  # (a buffer made: not kept)
 
-    def _prep_enqueue(self, made, li, mask) -> None:
+    def _prep_enqueue(self, made, li, mask, others=None) -> None:
         """:meth:`set_frame`'s device work after the uploads: the regions made (``made``: the arguments of
         :meth:`~core.tracking.likelihood_frames._FrameRegions._roi_enqueue`, or None where done), the
-        weights and the high-passes."""
+        neighbours' DRRs taken out (``others``: the arguments of :meth:`~core.tracking.likelihood_frames.
+        _FrameRegions._others_enqueue`, or None where done or none), the weights and the high-passes."""
         from .likelihood_kernels import highpass_kernel, weights_kernel
 
         nv, (Hc, Wc) = self.n_views, self._cap
         if made is not None:
             self._roi_enqueue(*made)
+        if others is not None:
+            self._others_enqueue(*others)
         low = self._blurred("w", li, nv, self._wtaps) if self._wtaps is not None else li
         self._launch("weights", weights_kernel, (nv, Hc, Wc), [low, mask, self._w])
         pairs = ((self._y_raw, self._y), (self._o_raw, self._o)) if self._o_raw is not None else \

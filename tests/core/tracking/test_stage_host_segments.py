@@ -2,7 +2,7 @@
 (core.tracking.likelihood_segments.SEGMENT_GRAPHS, Warp's CPU graphs here) against their calls made one
 by one: the same poses, covariances and steps to the bit, on the ideal 128² talus-calcaneus frame — each
 bone alone (every piece: its first call run as it is, its second captured, the third replayed) and both
-side by side with the other subtracted (no set-up piece there)."""
+side by side with the other subtracted (its DRRs in the set-up's piece on the recorded step's path)."""
 
 from __future__ import annotations
 
@@ -41,9 +41,14 @@ def graphs(monkeypatch):
     return launched
 
 
-def test_pieces_replayed_give_the_same_stages(talus_calcaneus_128, graphs, monkeypatch):
+@pytest.mark.parametrize("step_graph", [None, True])
+def test_pieces_replayed_give_the_same_stages(talus_calcaneus_128, graphs, monkeypatch, step_graph):
+    """(STEP_GRAPH True: the recorded step's path, a CUDA device's, where the neighbours' DRRs are in the
+    set-up's piece too.)"""
+    import core.tracking.engine_likelihood as el
     import core.tracking.likelihood_segments as seg
 
+    monkeypatch.setattr(el, "STEP_GRAPH", step_graph)
     r, frame, calls, _ = stage_calls(talus_calcaneus_128)
     monkeypatch.setattr(seg, "SEGMENT_GRAPHS", False)
     plain = _runs(r, frame, calls)

@@ -92,3 +92,26 @@ def test_a_buffer_made_records_again(talus_calcaneus_128, graphs, monkeypatch):
     for a in first:
         np.testing.assert_array_equal(a.pose, again.pose)
         np.testing.assert_array_equal(a.fit.covariance, again.fit.covariance)
+
+
+def test_a_switch_changed_records_again(talus_calcaneus_128, graphs, monkeypatch):
+    """A module switch a piece reads (the sandwich's stride) changed between stages: the piece is not
+    replayed as recorded with the old one; the same results as the calls made one by one with the new."""
+    import core.tracking.likelihood_confidence as lc
+    import core.tracking.likelihood_segments as seg
+    from core.tracking.final_stage import final_stage
+
+    r, frame, calls, _ = stage_calls(talus_calcaneus_128)
+    res, kw = calls[1]
+    kw = {**kw, "others": None}
+    monkeypatch.setattr(seg, "SEGMENT_GRAPHS", True)
+    for _ in range(3):
+        final_stage(r, frame, res, **kw)
+    assert graphs
+    monkeypatch.setattr(lc, "SANDWICH_STRIDE", 1)
+    got = [final_stage(r, frame, res, **kw) for _ in range(3)]
+    monkeypatch.setattr(seg, "SEGMENT_GRAPHS", False)
+    plain = final_stage(r, frame, res, **kw)
+    for g in got:
+        np.testing.assert_array_equal(g.pose, plain.pose)
+        np.testing.assert_array_equal(g.fit.covariance, plain.fit.covariance)

@@ -25,14 +25,15 @@ function calls a bone-frame (one pass of the calls under :mod:`cProfile`: a coun
 on the machine's load). ``--cprofile``: the first variant's stages under :mod:`cProfile` (the functions
 with the most own time per bone-frame). JSON on stdout (``--out``: also to a file).
 
-Variants: ``base`` the modules' defaults; ``graph`` a step's recorded work replayed on every device
-(:data:`~core.tracking.engine_likelihood.STEP_GRAPH` True: on the CPU the path a CUDA device takes, its
-launches one by one); ``cpugraph`` that and the step's work captured as a Warp CPU graph too
-(:data:`~core.tracking.likelihood_graph.CAPTURE_CPU`: one replay a step, as a CUDA graph's);
-``devsteps`` / ``devrender`` :data:`~core.tracking.engine_likelihood.DEVICE_STEPS` True / ``"render"``;
-``segments`` / ``nosegments`` :data:`~core.tracking.likelihood_segments.SEGMENT_GRAPHS` True / False (the
-stage's set-up, robust factors, sandwich and the robust step's moments as recorded graphs on every
-device / on none); ``prev`` the stage's host cuts of :data:`PREV` off (as before them); ``a+b`` both.
+Variants: ``base`` the modules' defaults (``again``: the same under another name, against ``base`` the floor
+of the comparisons: a CUDA device's float atomics sum in another order from run to run); ``graph`` a step's
+recorded work replayed on every device (:data:`~core.tracking.engine_likelihood.STEP_GRAPH` True: on the CPU
+the path a CUDA device takes, its launches one by one); ``cpugraph`` that and the step's work captured as a
+Warp CPU graph too (:data:`~core.tracking.likelihood_graph.CAPTURE_CPU`: one replay a step, as a CUDA
+graph's); ``devsteps`` / ``devrender`` :data:`~core.tracking.engine_likelihood.DEVICE_STEPS` True /
+``"render"``; ``segments`` / ``nosegments`` :data:`~core.tracking.likelihood_segments.SEGMENT_GRAPHS` True /
+False (the stage's set-up, robust factors, sandwich and the robust step's moments as recorded graphs on
+every device / on none); ``prev`` the stage's host cuts of :data:`PREV` off (as before them); ``a+b`` both.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ __all__ = ["PREV", "VARIANTS", "main", "run"]
 PREV: tuple = ()
 
 #: the variants' switches (module, name, value), beside ``prev``
-VARIANTS = {"base": (), "graph": (("core.tracking.engine_likelihood", "STEP_GRAPH", True),),
+VARIANTS = {"base": (), "again": (), "graph": (("core.tracking.engine_likelihood", "STEP_GRAPH", True),),
             "cpugraph": (("core.tracking.engine_likelihood", "STEP_GRAPH", True),
                          ("core.tracking.likelihood_graph", "CAPTURE_CPU", True)),
             "devsteps": (("core.tracking.engine_likelihood", "DEVICE_STEPS", True),),

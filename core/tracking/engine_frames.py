@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import weakref
 
 import numpy as np
@@ -22,7 +23,8 @@ from .cost import FrameImages, OutsideViewError, padded_region
 from .engine_buffers import copy_array
 from .engine_kernels import _LANES, fluoro_roi_kernel, fluoro_shift_kernel, keep_kernel
 
-__all__ = ["apply_rim_band", "host_stage", "pyramid_rois", "stage", "staged_shapes"]
+__all__ = ["PYRAMID_AHEAD", "apply_rim_band", "host_stage", "pyramid_ahead", "pyramid_rois", "stage",
+           "staged_shapes"]
 
 
 def pyramid_rois(frame: FrameImages, views, roi, scale: float) -> tuple[list, list]:
@@ -40,6 +42,12 @@ def pyramid_rois(frame: FrameImages, views, roi, scale: float) -> tuple[list, li
 
     s = float(scale)
     roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
+    got = _AHEAD.pop(threading.get_ident(), None)
+    if got is not None:
+        wait(got[2])  # (started with other inputs: finished before anything else is given to the pool)
+        if got[0][0]() is frame and got[0][1:] == (tuple(int(v) for v in views), roi.tobytes(), s):
+            out = [f.result() for f in got[2]]
+            return _checked(got[1], out)
     # the regions read in this thread, in order (the frame's region cache is not shared between threads)
     regions = [(int(v), *padded_region(frame, v, roi[i], s)) for i, v in enumerate(views)]
     if len(regions) < 2:
@@ -52,10 +60,52 @@ def pyramid_rois(frame: FrameImages, views, roi, scale: float) -> tuple[list, li
         finally:
             wait(futs)  # every thread done before anything is raised
         out = [first] + [f.result() for f in futs]
+    return _checked(regions, out)
+
+
+def _checked(regions: list, out: list) -> tuple[list, list]:
+    """:func:`pyramid_rois`'s regions and masks from its views' ``out``; OutsideViewError where a view
+    has no usable pixel."""
     for (v, *_), (_, mask) in zip(regions, out, strict=True):
         if not mask.any():
             raise OutsideViewError(f"frame: no usable fluoroscope pixel in the search region of view {v}")
     return [o[0] for o in out], [o[1] for o in out]
+
+
+#: A pyramid level's regions prepared ahead (:func:`pyramid_ahead`): the global search
+#: (:func:`core.tracking.register.register`, ``"global_newton"``) has the next level's regions low-passed
+#: and sampled in the view threads while its CMA-ES stage runs, and that level's preparation
+#: (:func:`pyramid_rois`, the same inputs) takes them: the same function on the same regions, the same
+#: arrays. Off: each level prepares its own when it starts.
+PYRAMID_AHEAD = True
+
+_AHEAD: dict = {}  # registering thread -> ((weak reference to the frame, views, roi bytes, scale), regions,
+# futures)
+
+
+def pyramid_ahead(frame, views, roi, scale: float) -> None:
+    """:func:`pyramid_rois` of these inputs started now in the view threads (:data:`PYRAMID_AHEAD`); the
+    calling thread's next :func:`pyramid_rois` takes the result where its inputs are the same (else it
+    waits for it and prepares its own). Nothing where the switch is off, the scale is not a pyramid
+    level, the frame is not a :class:`~core.tracking.cost.FrameImages` or a region is outside its view
+    (the level's own preparation raises it)."""
+    s = float(scale)
+    if not (PYRAMID_AHEAD and s > 1 and isinstance(frame, FrameImages)):
+        return
+    roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
+    try:  # (read in this thread, as pyramid_rois reads them)
+        regions = [(int(v), *padded_region(frame, v, roi[i], s)) for i, v in enumerate(views)]
+    except OutsideViewError:
+        return
+    pool = _view_pool()
+    futs = [pool.submit(_pyramid_view, *a, s) for a in regions]
+    old = _AHEAD.pop(threading.get_ident(), None)
+    if old is not None:
+        from concurrent.futures import wait
+
+        wait(old[2])
+    key = (weakref.ref(frame), tuple(int(v) for v in views), roi.tobytes(), s)
+    _AHEAD[threading.get_ident()] = (key, regions, futs)
 
 
 _POOL = None
@@ -77,6 +127,7 @@ def _forget_pool() -> None:
     would never run), forgotten."""
     global _POOL
     _POOL = None
+    _AHEAD.clear()
 
 
 if hasattr(os, "register_at_fork"):  # (Unix only: Windows has no fork)

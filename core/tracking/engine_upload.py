@@ -43,7 +43,8 @@ import warp as wp
 
 from .engine_buffers import copy_array
 
-__all__ = ["DEVICES", "PINNED_SETS", "SHARED_UPLOAD", "FrameUpload", "holding", "pin_ahead", "share"]
+__all__ = ["DEVICES", "FILL_ASIDE", "PINNED_SETS", "SHARED_UPLOAD", "FrameUpload", "fill_aside", "holding",
+           "pin_ahead", "share", "wait_aside"]
 
 #: Switch: joint registration's engines read their regions from one upload of the whole frame.
 SHARED_UPLOAD = True
@@ -108,6 +109,7 @@ class FrameUpload:
         self.pending = None
         self.side = None
         self.side_start = None
+        self.coming = None  # weak reference to a frame being pinned aside before its upload (fill_aside)
 
     def fits(self, frame) -> bool:
         nv, H, W = self.shape
@@ -120,8 +122,10 @@ class FrameUpload:
         """(Under the lock) a set to fill with ``frame``: the least recently filled of those not busy,
         not being filled and not holding the frame on the device; marked as filling. None: none free."""
         cur = self.on_device() if self.on_device is not None else None
+        com = self.coming() if self.coming is not None else None
+        keep = tuple(a for a in (cur, com) if a is not None)
         free = [s for s in self.sets if not s.busy and not s.filling
-                and not (cur is not None and s.frame is not None and s.frame() is cur)]
+                and not (s.frame is not None and any(s.frame() is a for a in keep))]
         if not free:
             return None
         s = min(free, key=lambda a: a.stamp)
@@ -216,6 +220,8 @@ class FrameUpload:
             if side:
                 self.pending = s.event
         self.on_device = weakref.ref(frame)
+        if self.coming is not None and self.coming() is frame:
+            self.coming = None
         self.given_on = s.has_given
         self.uploads += 1
 
@@ -242,6 +248,20 @@ def share(device, frame, ahead: bool = False) -> FrameUpload | None:
     engines of its bones (module docs); None where it does not apply (switched off, another device kind,
     another kind of frame). Each registering thread has its own device copy and pinned sets (two windows
     or a window and a batch tracking at once in one process do not share them)."""
+    up = _upload_of(device, frame)
+    if up is None:
+        return None
+    if ahead:
+        up.upload(frame, ahead=True)
+    else:
+        up.upload(frame)
+        up.ready()
+    return up
+
+
+def _upload_of(device, frame) -> FrameUpload | None:
+    """The calling thread's :class:`FrameUpload` of ``device`` that fits ``frame`` (made or grown here),
+    marked as the one it shares last; None where :func:`share` does not apply."""
     from .cost import FrameImages
 
     if not (applies(device) and isinstance(frame, FrameImages)) or frame.n_views == 0:
@@ -261,12 +281,50 @@ def share(device, frame, ahead: bool = False) -> FrameUpload | None:
             _ACTIVE.pop(k, None)
         up = _UPLOADS[key] = FrameUpload(device, (nv, H, W))
     _ACTIVE[key[1]] = up
-    if ahead:
-        up.upload(frame, ahead=True)
-    else:
-        up.upload(frame)
-        up.ready()
     return up
+
+
+#: A first frame's pinned copy made aside: :func:`core.tracking.register.register`'s global search
+#: (``"global_newton"``: a first frame, a retry) starts the copy in a thread of its own (:func:`fill_aside`)
+#: and shares the frame (:func:`share`) only before its first full-resolution preparation — the
+#: CMA-ES stage and the coarser Gauss–Newton levels read host pyramids, not the upload — so that the copy
+#: (no frame before the first to pin it ahead) runs beside them instead of before them. The same pixels
+#: uploaded before anything reads them: the same results. Off: :func:`share` at the registration's start.
+FILL_ASIDE = True
+
+_PIN_POOL = None
+
+
+def fill_aside(device, frame):
+    """The pinned copy of ``frame`` for the calling thread's upload of ``device`` started in a thread of
+    its own (:data:`FILL_ASIDE`): a future to wait for (:func:`wait_aside`) before :func:`share` of the
+    frame, which then finds the copy made; None where there is nothing to do (the switch off, sharing
+    does not apply, the frame already held or pinned). A frame marked as coming so pinned counts as held
+    for :func:`pin_ahead` (the feed's worker pins the next frame meanwhile)."""
+    global _PIN_POOL
+    if not FILL_ASIDE:
+        return None
+    up = _upload_of(device, frame)
+    if up is None or up.holds(frame):
+        return None
+    with up.lock:
+        if any(s.frame is not None and s.frame() is frame for s in up.sets):
+            return None
+        up.coming = weakref.ref(frame)
+    if _PIN_POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _PIN_POOL = ThreadPoolExecutor(1, thread_name_prefix="talus-pin")
+    return _PIN_POOL.submit(up.pin_ahead, frame)
+
+
+def wait_aside(fut) -> None:
+    """Wait for :func:`fill_aside`'s copy (an error in it is left to :func:`share`, which then makes the
+    copy itself)."""
+    from concurrent.futures import wait
+
+    if fut is not None:
+        wait((fut,))
 
 
 def holding(device, frame) -> FrameUpload | None:
@@ -287,15 +345,20 @@ def pin_ahead(frame, after=(), owner: int | None = None) -> bool:
     (those handed out before it: the run shares its frames; one bone's run after joint tracking does
     not); False where not, or where it does not fit."""
     up = _ACTIVE.get(threading.get_ident() if owner is None else owner) if SHARED_UPLOAD else None
-    if up is None or not up.fits(frame) or not any(up.holds(a) for a in after):
+    if up is None or not up.fits(frame):
+        return False
+    com = up.coming() if up.coming is not None else None
+    if not any(up.holds(a) or (com is not None and a is com) for a in after):
         return False
     return up.pin_ahead(frame)
 
 
 def _forget() -> None:
-    """In a forked child: the parent's device buffers and pinned memory are not the child's."""
+    """In a forked child: the parent's device buffers, pinned memory and thread are not the child's."""
+    global _PIN_POOL
     _UPLOADS.clear()
     _ACTIVE.clear()
+    _PIN_POOL = None
 
 
 if hasattr(os, "register_at_fork"):

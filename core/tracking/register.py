@@ -356,7 +356,21 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         stages.append(r_tried)
         t_start -= spent
 
+    aside = None  # the frame's pinned copy being made aside (engine_upload.fill_aside), shared before a full
+    # resolution preparation reads it
+
+    def hold() -> None:
+        nonlocal aside
+        if aside is not None:
+            from . import engine_upload
+
+            a, aside = aside, None
+            engine_upload.wait_aside(a)
+            engine_upload.share(renderer.device, frame)
+
     def cost_at(scale: float) -> RegistrationCost:
+        if not scale > 1:
+            hold()
         if scale not in costs:
             costs[scale] = RegistrationCost(renderer, frame, bone=bone, base_pose=base, center=center,
                                             roi=roi, scale=scale, terms=o.terms, views=views,
@@ -364,6 +378,8 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
         return costs[scale]
 
     def engine_at(scale: float):
+        if not scale > 1:
+            hold()
         if scale not in engines:
             from .engine import engine_cost
 
@@ -393,6 +409,12 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             # scores; buffers, pipeline and graph kept from frame to frame, where a RegistrationCost
             # was built per registration)
             fun = engine_at(lv.scale) if (lv.method == "cmaes" and engine_global) else cost_at(lv.scale)
+            if lv.method == "cmaes" and engine_global and i + 1 < len(levels):
+                nxt = levels[i + 1]  # the next level's pyramid made while the CMA-ES stage runs
+                if nxt.method == "gauss_newton" and nxt.scale > 1 and nxt.scale not in engines:
+                    from .engine_frames import pyramid_ahead
+
+                    pyramid_ahead(frame, views, roi, nxt.scale)
             r = _run(lv.method, fun, x, sigma6=sig6, lo=lo, hi=hi, level=lv, tol=lv.tol_x,
                      seed=o.seed * 1000 + i, cancel=cancel, popsize=lv.popsize, max_gen=lv.max_generations)
         return r
@@ -401,7 +423,10 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
     if SHARE_FRAME and search in ("newton", "global_newton") and views == tuple(range(frame.n_views)):
         from . import engine_upload  # the whole frame on the device (one bone's; joint's shared it)
 
-        held = engine_upload.share(renderer.device, frame) is not None
+        if engine_global and tried is None and levels[0].scale > 1:  # (the coarse levels read pyramids)
+            aside = engine_upload.fill_aside(renderer.device, frame)
+        if aside is None:
+            held = engine_upload.share(renderer.device, frame) is not None
     if STAGE_PREFETCH and o.final is not None and search == "newton" and tried is None and not held:
         idle = _with_stage_prefetch(idle, renderer, frame, bone=bone, pose=base, center=center, options=o,
                                     views=views)
@@ -433,6 +458,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             if r.reason == "cancelled":
                 break
         levels = (*levels, lv)
+    hold()  # (a run that stopped before its full-resolution levels: the frame shared as before the stage)
     if idle is not None:  # no Gauss-Newton step ran it
         idle, f = None, idle
         f()

@@ -82,76 +82,49 @@ def _ai(i: int, bg: int) -> int:
     return k
 
 
-@wp.func
-def _ldl5(a: mat55d) -> mat55d:
-    """LDLᵀ of the symmetric ``a`` without pivoting (L's multipliers below the diagonal, D on it)."""
-    f = mat55d()
-    for j in range(5):
-        d = a[j, j]
-        for k in range(j):
-            d = d - f[j, k] * f[j, k] * f[k, k]
-        f[j, j] = d
-        for i in range(j + 1, 5):
-            s = a[i, j]
+def _ldl_sol(n: int, mat, vec) -> tuple:
+    """``(ldl, sol)`` for ``n × n`` systems (``mat``, ``vec`` Warp's types of that size): ``ldl(a)`` the
+    LDLᵀ of the symmetric ``a`` without pivoting (L's multipliers below the diagonal, D on it), ``sol(f,
+    b)`` the system of those factors solved for ``b`` (``n`` a constant of each function: the same loops
+    as one function written per size)."""
+
+    def ldl(a):
+        f = mat()
+        for j in range(n):
+            d = a[j, j]
             for k in range(j):
-                s = s - f[i, k] * f[j, k] * f[k, k]
-            f[i, j] = s / d
-    return f
+                d = d - f[j, k] * f[j, k] * f[k, k]
+            f[j, j] = d
+            for i in range(j + 1, n):
+                s = a[i, j]
+                for k in range(j):
+                    s = s - f[i, k] * f[j, k] * f[k, k]
+                f[i, j] = s / d
+        return f
+
+    def sol(f, b):
+        y = vec()
+        for i in range(n):
+            s = b[i]
+            for k in range(i):
+                s = s - f[i, k] * y[k]
+            y[i] = s
+        x = vec()
+        for ii in range(n):
+            i = n - 1 - ii
+            s = y[i] / f[i, i]
+            for k in range(i + 1, n):
+                s = s - f[k, i] * x[k]
+            x[i] = s
+        return x
+
+    ldl.__annotations__ = {"a": mat, "return": mat}  # (types, not strings: the module's annotations are)
+    sol.__annotations__ = {"f": mat, "b": vec, "return": vec}
+    return wp.func(ldl), wp.func(sol)
 
 
-@wp.func
-def _sol5(f: mat55d, b: vec5d) -> vec5d:
-    """The system of :func:`_ldl5`'s factors solved for ``b``."""
-    y = vec5d()
-    for i in range(5):
-        s = b[i]
-        for k in range(i):
-            s = s - f[i, k] * y[k]
-        y[i] = s
-    x = vec5d()
-    for ii in range(5):
-        i = 4 - ii
-        s = y[i] / f[i, i]
-        for k in range(i + 1, 5):
-            s = s - f[k, i] * x[k]
-        x[i] = s
-    return x
-
-
-@wp.func
-def _ldl6(a: mat66d) -> mat66d:
-    """:func:`_ldl5` of a 6×6 matrix."""
-    f = mat66d()
-    for j in range(6):
-        d = a[j, j]
-        for k in range(j):
-            d = d - f[j, k] * f[j, k] * f[k, k]
-        f[j, j] = d
-        for i in range(j + 1, 6):
-            s = a[i, j]
-            for k in range(j):
-                s = s - f[i, k] * f[j, k] * f[k, k]
-            f[i, j] = s / d
-    return f
-
-
-@wp.func
-def _sol6(f: mat66d, b: vec6d) -> vec6d:
-    """:func:`_sol5` of a 6×6 system."""
-    y = vec6d()
-    for i in range(6):
-        s = b[i]
-        for k in range(i):
-            s = s - f[i, k] * y[k]
-        y[i] = s
-    x = vec6d()
-    for ii in range(6):
-        i = 5 - ii
-        s = y[i] / f[i, i]
-        for k in range(i + 1, 6):
-            s = s - f[k, i] * x[k]
-        x[i] = s
-    return x
+_ldl5, _sol5 = _ldl_sol(5, mat55d, vec5d)
+_ldl6, _sol6 = _ldl_sol(6, mat66d, vec6d)
 
 
 @wp.func

@@ -227,10 +227,11 @@ def _compare(a: list, b: list) -> dict:
 
 def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel: float = 1.5,
         bones: str = "one", variants=("base",), repeats: int = 5, cprofile: bool = False,
-        held: bool = True) -> dict:
+        held: bool = True, workers: int = 0) -> dict:
     """The study (module docs); ``held``: the frames shared on the device on every device kind, as
     tracking shares them on a CUDA device (:data:`core.tracking.engine_upload.DEVICES`; the stage's
-    set-up reads its regions there)."""
+    set-up reads its regions there); ``workers``: processes for the frames' image chain before the run
+    (:func:`core.studies.tracking.trial_frames.synthesise`, the same frames)."""
     from core.tracking import engine_upload as eu
 
     kept = eu.DEVICES
@@ -238,12 +239,12 @@ def run(*, device: str | None = "cpu", frames: int = 8, pixels: int = 128, voxel
         eu.DEVICES = ("cuda", "cpu")
     try:
         return _run(device=device, frames=frames, pixels=pixels, voxel=voxel, bones=bones, variants=variants,
-                    repeats=repeats, cprofile=cprofile, held=held)
+                    repeats=repeats, cprofile=cprofile, held=held, workers=workers)
     finally:
         eu.DEVICES = kept
 
 
-def _run(*, device, frames, pixels, voxel, bones, variants, repeats, cprofile, held) -> dict:
+def _run(*, device, frames, pixels, voxel, bones, variants, repeats, cprofile, held, workers) -> dict:
     import platform
 
     import warp as wp
@@ -255,8 +256,9 @@ def _run(*, device, frames, pixels, voxel, bones, variants, repeats, cprofile, h
     idx = [1] if bones == "one" else [0, 1, 2]
     ts = TrackingScene(n_frames=max(frames, 2), pixels=pixels, spacing=voxel,
                        phase=(0.0, 0.6 * max(frames, 2) / 100.0), device=device)
-    for f in range(frames):
-        ts.frames(f)
+    from core.studies.tracking.trial_frames import synthesise
+
+    synthesise(ts, range(frames), int(workers))  # (the same frames, whatever the workers)
     groups, _ = _capture(ts, idx, frames)
     groups = groups[1:]  # (the first frame's stage sets up the engine's buffers: not timed)
     cuda = wp.get_device(str(ts.renderer.device)).is_cuda
@@ -372,13 +374,14 @@ def main(argv=None) -> int:
     p.add_argument("--variants", default="base")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--cprofile", action="store_true")
+    p.add_argument("--workers", type=int, default=0, help="processes for the frames' image chain")
     p.add_argument("--no-held", action="store_true",
                    help="the frames not shared on the device where tracking would not (the CPU)")
     p.add_argument("--out", default=None)
     a = p.parse_args(argv)
     res = run(device=a.device, frames=a.frames, pixels=a.pixels, voxel=a.voxel, bones=a.bones,
               variants=tuple(a.variants.split(",")), repeats=a.repeats, cprofile=a.cprofile,
-              held=not a.no_held)
+              held=not a.no_held, workers=a.workers)
     from core.io.atomic import print_json
 
     print_json(res, a.out)

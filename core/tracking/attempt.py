@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -26,6 +27,7 @@ from .checks import sigma_check as _sigma_check
 from .checks import uncertain as _uncertain
 from .confidence import confidence_from_fit, curvature_confidence
 from .cost import OutsideViewError, RegistrationCost, search_roi
+from .first_restarts import during_stage
 from .register import RegistrationOptions, register
 from .stage_sigma import remeasurable, remeasured
 from .verify import verify_start
@@ -153,8 +155,14 @@ def register_checked(renderer, frame, bone: BoneModel, index: int, start, guess,
                     _motion_limits(history, frame_number, c, n=o.history,
                                    limit=getattr(o, "motion_limit", MOTION_LIMIT),
                                    floor=getattr(o, "motion_floor", MOTION_FLOOR), prediction=prediction)
-            res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
-                           others=others, cancel=cancel, profile=o.profile, outline=bone.outline, idle=idle)
+            ahead = nullcontext()
+            if verify and o.verify_restarts:  # the restart check's first regions made during the stage
+                ahead = during_stage(renderer, frame, bone=index, center=c, options=o.registration,
+                                     spread=o.verify_spread, outline=bone.outline)
+            with ahead:
+                res = register(renderer, frame, bone=index, initial_pose=start, center=c, options=opts,
+                               others=others, cancel=cancel, profile=o.profile, outline=bone.outline,
+                               idle=idle)
         else:
             res, spent = pre
             t0 -= spent

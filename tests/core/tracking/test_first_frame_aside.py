@@ -1,39 +1,30 @@
-"""The first frame's global search with its pinned copy made aside and its next pyramid level made ahead
-(core.tracking.engine_upload.FILL_ASIDE, core.tracking.engine_frames.PYRAMID_AHEAD), against both off:
-the ideal 128² walking talus, frames 0-2 on Warp's CPU device, the shared upload taking the CPU
-(engine_upload.DEVICES patched) and the automatic levels keeping the pyramid scales 4 and 2 at these
-pixels (default_levels' coarsest pixel widened), so that the CMA-ES stage runs at scale 4 and a
-Gauss-Newton level at scale 2: the same poses, scores, flags, notes, confidences and stage outcomes to the
-bit; the first frame's copy made aside (not in the registering thread) and the scale-2 regions taken
-from the ahead preparation."""
+"""The first frame's global search with its pinned copy made aside, its next pyramid level made ahead and
+the restart check's first level made during its final stage (core.tracking.engine_upload.FILL_ASIDE,
+core.tracking.engine_frames.PYRAMID_AHEAD, core.tracking.first_restarts.RESTART_REGIONS_AHEAD), against
+all three off: the ideal 128² walking talus, frames 0-1 on Warp's CPU device, the shared upload taking the
+CPU (engine_upload.DEVICES patched) and the automatic levels keeping the pyramid scales 4 and 2 at these
+pixels (default_levels' and the restarts' coarsest pixel widened), so that the CMA-ES stage runs at scale
+4, a Gauss-Newton level and the restarts' first level at scale 2: the same poses, scores, flags, notes,
+confidences and stage outcomes to the bit; the first frame's copy made aside (not in the registering
+thread) and regions taken from the ahead preparations."""
 
 from __future__ import annotations
 
 import functools
+import threading
 
 import numpy as np
 import pytest
 
 from tests.core.tracking.test_joint_pipeline import _same
 
-FRAMES = range(0, 3)
-
-
-class _Taken(dict):
-    """``engine_frames._AHEAD`` counting the preparations taken from it."""
-
-    taken = 0
-
-    def pop(self, *a):
-        got = super().pop(*a)
-        if got is not None:
-            type(self).taken += 1
-        return got
+FRAMES = range(0, 2)
 
 
 def _track(walk, monkeypatch, on: bool):
     import core.tracking.engine_frames as ef
     import core.tracking.engine_upload as eu
+    import core.tracking.first_restarts as first_restarts
     import core.tracking.register as reg
     from core.tracking.register import RegistrationOptions
     from core.tracking.register_options import default_levels
@@ -44,7 +35,9 @@ def _track(walk, monkeypatch, on: bool):
     monkeypatch.setattr(eu, "_ACTIVE", {})
     monkeypatch.setattr(eu, "FILL_ASIDE", on)
     monkeypatch.setattr(ef, "PYRAMID_AHEAD", on)
+    monkeypatch.setattr(first_restarts, "RESTART_REGIONS_AHEAD", on)
     monkeypatch.setattr(reg, "default_levels", functools.partial(default_levels, coarsest_mm=12.0))
+    monkeypatch.setattr(reg, "_newton_fallback", functools.partial(reg._newton_fallback, coarsest_mm=12.0))
     sc, model = walk["scene"], walk["model"]
     keys = {model.name: {FRAMES[0]: sc.poses(FRAMES[0])[0]}}
     ro = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
@@ -59,6 +52,7 @@ def plain(walking_talus):
 
 
 def test_first_frame_aside_gives_the_same_results(walking_talus, plain, monkeypatch):
+    import core.tracking.engine as eng
     import core.tracking.engine_frames as ef
     import core.tracking.engine_upload as eu
 
@@ -78,11 +72,22 @@ def test_first_frame_aside_gives_the_same_results(walking_talus, plain, monkeypa
 
     monkeypatch.setattr(eu.FrameUpload, "upload", upload)
     monkeypatch.setattr(eu, "fill_aside", aside)
-    monkeypatch.setattr(ef, "_AHEAD", _Taken())
-    _Taken.taken = 0
+    hits = []
+    real_rois = eng.pyramid_rois
+
+    def rois(frame, views, roi, scale):
+        got = ef._AHEAD.get(threading.get_ident())
+        hits.append(got is not None and got[0][0]() is frame and got[0][1:] == (
+            tuple(int(v) for v in views), np.asarray(roi, dtype=np.int64).tobytes(), float(scale)))
+        return real_rois(frame, views, roi, scale)
+
+    monkeypatch.setattr(eng, "pyramid_rois", rois)
     on = _track(walking_talus, monkeypatch, True)
     assert asides and asides[0]  # the first frame's global search pinned its frame aside
     assert firsts == [0]  # and the first upload found that copy made
-    assert _Taken.taken >= 1  # the scale-2 level took the regions prepared during the CMA-ES stage
+    # the search's scale-2 level took the regions prepared during the CMA-ES stage, and the restart check's
+    # those prepared during the stage (where the stage moved no region's edge across a pixel)
+    assert sum(hits) >= 1
+    print('pyramid levels taken from the ahead preparations:', hits)
     _same(plain, on)
     assert all(np.all(np.isfinite(fr.pose)) for fr in on.results.values())

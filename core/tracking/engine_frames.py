@@ -45,9 +45,9 @@ def pyramid_rois(frame: FrameImages, views, roi, scale: float) -> tuple[list, li
     got = _AHEAD.pop(threading.get_ident(), None)
     if got is not None:
         wait(got[2])  # (started with other inputs: finished before anything else is given to the pool)
-        if got[0][0]() is frame and got[0][1:] == (tuple(int(v) for v in views), roi.tobytes(), s):
-            out = [f.result() for f in got[2]]
-            return _checked(got[1], out)
+        if (got[0][0]() is frame and got[0][1:] == (tuple(int(v) for v in views), roi.tobytes(), s)
+                and all(f.exception() is None for f in got[2])):  # (else prepared here: raised in order)
+            return _checked(got[1], [f.result() for f in got[2]])
     # the regions read in this thread, in order (the frame's region cache is not shared between threads)
     regions = [(int(v), *padded_region(frame, v, roi[i], s)) for i, v in enumerate(views)]
     if len(regions) < 2:
@@ -83,22 +83,35 @@ _AHEAD: dict = {}  # registering thread -> ((weak reference to the frame, views,
 # futures)
 
 
+class _Uncached:
+    """A frame's shapes and its regions read without its region cache (which is not shared between
+    threads): :meth:`~core.tracking.cost.FrameImages.region`'s values, not kept."""
+
+    def __init__(self, frame) -> None:
+        self.shapes = frame.shapes
+        self.region = frame._region
+
+
+def _ahead_view(frame, v: int, row, s: float):
+    """One view's :func:`_pyramid_view` of :func:`pyramid_ahead`, its padded region read here (a view
+    thread; :func:`~core.tracking.cost.padded_region` of the frame's uncached regions)."""
+    sub, m, r = padded_region(_Uncached(frame), v, row, s)
+    return _pyramid_view(v, sub, m, r, s)
+
+
 def pyramid_ahead(frame, views, roi, scale: float) -> None:
-    """:func:`pyramid_rois` of these inputs started now in the view threads (:data:`PYRAMID_AHEAD`); the
-    calling thread's next :func:`pyramid_rois` takes the result where its inputs are the same (else it
-    waits for it and prepares its own). Nothing where the switch is off, the scale is not a pyramid
-    level, the frame is not a :class:`~core.tracking.cost.FrameImages` or a region is outside its view
-    (the level's own preparation raises it)."""
+    """:func:`pyramid_rois` of these inputs started now in the view threads (:data:`PYRAMID_AHEAD`), the
+    regions read there too; the calling thread's next :func:`pyramid_rois` takes the result where its
+    inputs are the same (else it waits for it and prepares its own; also where a view raised, e.g. a
+    region outside its view: its own preparation raises it). Nothing where the switch is off, the scale
+    is not a pyramid level or the frame is not a :class:`~core.tracking.cost.FrameImages`."""
     s = float(scale)
     if not (PYRAMID_AHEAD and s > 1 and isinstance(frame, FrameImages)):
         return
     roi = np.asarray(roi, dtype=np.int64).reshape(len(views), 4)
-    try:  # (read in this thread, as pyramid_rois reads them)
-        regions = [(int(v), *padded_region(frame, v, roi[i], s)) for i, v in enumerate(views)]
-    except OutsideViewError:
-        return
     pool = _view_pool()
-    futs = [pool.submit(_pyramid_view, *a, s) for a in regions]
+    futs = [pool.submit(_ahead_view, frame, int(v), roi[i], s) for i, v in enumerate(views)]
+    regions = [(int(v),) for v in views]
     old = _AHEAD.pop(threading.get_ident(), None)
     if old is not None:
         from concurrent.futures import wait

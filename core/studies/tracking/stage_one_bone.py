@@ -66,12 +66,16 @@ _HOST = (("core.tracking.final_stage", None, "final_stage"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "_stage"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "_staged"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "_frame_others"),
+         ("core.tracking.engine_likelihood", "LikelihoodEngine", "_others_own"),  # (the recorded set-up's)
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "step_launch"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "step_result"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "_step_work"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "_wait"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "robust_weights"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "scale_weights"),
+         # (the stage's default robust round: both of the above as one recorded piece; it calls them
+         # where the weights are counted, so theirs are inside its time there)
+         ("core.tracking.engine_likelihood", "LikelihoodEngine", "robust_scale"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "sandwich_launch"),
          ("core.tracking.engine_likelihood", "LikelihoodEngine", "sandwich_result"))
 

@@ -293,8 +293,10 @@ def _host_table(prof, n: int, top: int = 30) -> dict:
             "inside": [row(k, v) for k, v in sorted(items, key=lambda kv: -kv[1][3])[:top]]}
 
 
+#: (robust_scale: the stage's default robust round, robust_weights and scale_weights as one recorded piece;
+#: it calls those two where the weights are counted, their time then inside its own)
 _PARTS = ("set_frame", "set_tissue", "step_launch", "step_result", "robust_weights", "sandwich_launch",
-          "sandwich_result", "scale_weights", "reset_weights")
+          "sandwich_result", "scale_weights", "robust_scale", "reset_weights")
 
 
 def _parts_profile(acc: dict):

@@ -50,8 +50,9 @@ Measurements
   ``flagged_off_trajectory_only``) with each one's reasons (``flag_reasons``: frame ->
   its flags, then its notes marked ``note:``; :mod:`core.studies.tracking.acceptance_records`),
   frames over 4× the bone's bound flagged or silent (``over_4x_bound``, with what the run showed of
-  each silent one: ``silent_details``), and *silent failures* (unflagged frames with an error above
-  0.5 mm or 0.5°);
+  each silent one: ``silent_details``; issue 20's count), and the unflagged frames with an error above
+  0.5 mm or 0.5° (``silent_over_half_mm_or_deg``, an absolute threshold; ``silent_failures`` in runs
+  stored before, :func:`~core.studies.tracking.acceptance_records.silent_over_half`);
 * **filtered trajectories** — the same errors after the zero-phase Butterworth low-pass of
   :meth:`core.tracking.trial.TrackingResult.filtered_poses` (cut-off by Winter's residual
   analysis per bone) at the scene's frame rate: 100 frames span 0.6 of a 0.6 s stance,

@@ -43,8 +43,8 @@ import warp as wp
 
 from .engine_buffers import copy_array
 
-__all__ = ["DEVICES", "FILL_ASIDE", "PINNED_SETS", "SHARED_UPLOAD", "FrameUpload", "fill_aside", "holding",
-           "pin_ahead", "share", "wait_aside"]
+__all__ = ["DEVICES", "FILL_ASIDE", "PINNED_SETS", "SHARED_UPLOAD", "Aside", "FrameUpload", "fill_aside",
+           "holding", "pin_ahead", "share"]
 
 #: Switch: joint registration's engines read their regions from one upload of the whole frame.
 SHARED_UPLOAD = True
@@ -285,23 +285,50 @@ def _upload_of(device, frame) -> FrameUpload | None:
 
 
 #: A first frame's pinned copy made aside: :func:`core.tracking.register.register`'s global search
-#: (``"global_newton"``: a first frame, a retry) starts the copy in a thread of its own (:func:`fill_aside`)
-#: and shares the frame (:func:`share`) only before its first full-resolution preparation — the
-#: CMA-ES stage and the coarser Gauss–Newton levels read host pyramids, not the upload — so that the copy
-#: (no frame before the first to pin it ahead) runs beside them instead of before them. The same pixels
+#: (``"global_newton"``: a first frame, a retry) has the copy made in a thread of its own (:func:`fill_aside`,
+#: started once its CMA-ES stage's pyramid is prepared) and shares the frame (:func:`share`) only before its
+#: first full-resolution preparation — the CMA-ES stage and the coarser Gauss–Newton levels read host
+#: pyramids, not the upload — so that the copy (no frame before the first to pin it ahead) runs beside the
+#: CMA-ES stage instead of before it. The same pixels
 #: uploaded before anything reads them: the same results. Off: :func:`share` at the registration's start.
 FILL_ASIDE = True
 
 _PIN_POOL = None
 
 
-def fill_aside(device, frame):
-    """The pinned copy of ``frame`` for the calling thread's upload of ``device`` started in a thread of
-    its own (:data:`FILL_ASIDE`): a future to wait for (:func:`wait_aside`) before :func:`share` of the
-    frame, which then finds the copy made; None where there is nothing to do (the switch off, sharing
-    does not apply, the frame already held or pinned). A frame marked as coming so pinned counts as held
-    for :func:`pin_ahead` (the feed's worker pins the next frame meanwhile)."""
-    global _PIN_POOL
+class Aside:
+    """A frame's pinned copy to be made aside (:func:`fill_aside`): :meth:`start` hands it to a thread of
+    its own, :meth:`wait` waits for it (nothing where it was not started: :func:`share` then makes the
+    copy itself; an error in it is left to :func:`share` likewise)."""
+
+    def __init__(self, up: FrameUpload, frame) -> None:
+        self.up, self.frame, self.future = up, weakref.ref(frame), None
+
+    def start(self) -> None:
+        global _PIN_POOL
+        frame = self.frame()
+        if self.future is not None or frame is None:
+            return
+        if _PIN_POOL is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _PIN_POOL = ThreadPoolExecutor(1, thread_name_prefix="talus-pin")
+        self.future = _PIN_POOL.submit(self.up.pin_ahead, frame)
+
+    def wait(self) -> None:
+        from concurrent.futures import wait
+
+        if self.future is not None:
+            wait((self.future,))
+
+
+def fill_aside(device, frame) -> Aside | None:
+    """The pinned copy of ``frame`` for the calling thread's upload of ``device`` to be made in a thread of
+    its own (:data:`FILL_ASIDE`): an :class:`Aside` to start when the caller's own host work leaves the
+    machine room for it, and to wait for before :func:`share` of the frame, which then finds the copy
+    made; None where there is nothing to do (the switch off, sharing does not apply, the frame already
+    held or pinned). The frame is marked as coming from now on: it counts as held for :func:`pin_ahead`
+    (the feed's worker pins the next frame meanwhile, as where the frame was shared here)."""
     if not FILL_ASIDE:
         return None
     up = _upload_of(device, frame)
@@ -311,20 +338,7 @@ def fill_aside(device, frame):
         if any(s.frame is not None and s.frame() is frame for s in up.sets):
             return None
         up.coming = weakref.ref(frame)
-    if _PIN_POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _PIN_POOL = ThreadPoolExecutor(1, thread_name_prefix="talus-pin")
-    return _PIN_POOL.submit(up.pin_ahead, frame)
-
-
-def wait_aside(fut) -> None:
-    """Wait for :func:`fill_aside`'s copy (an error in it is left to :func:`share`, which then makes the
-    copy itself)."""
-    from concurrent.futures import wait
-
-    if fut is not None:
-        wait((fut,))
+    return Aside(up, frame)
 
 
 def holding(device, frame) -> FrameUpload | None:

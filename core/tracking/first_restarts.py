@@ -12,6 +12,14 @@ a millimetre, so the restart check's box about the stage's pose is most often th
 is, its level takes the regions prepared (the same function on the same inputs: the same arrays); where the
 stage moved a region's edge across a pixel, the level prepares its own as before (the same results either
 way). :data:`RESTART_REGIONS_AHEAD` switches it.
+
+Measured and left off: on this 2-core x86_64 machine the bench's one-bone trial's first frame at 1024²
+(``python -m core.studies.tracking.first_host --pixels 1024 --voxel 2 --rounds 3``, the talus on Warp's
+CPU device; ``resources/benchmarks/tracking_first_host_restarts_cpu.json``) found the restarts' box about
+the stage's pose different from the one about the searched pose in all three runs (pixels of 0.3 mm at the
+bone: the stage's move of hundredths of a millimetre moved an edge of an unsnapped box across a pixel),
+so the restarts prepared their own regions every time; at 512² (the levels of 1024² kept, ``--coarsest
+2.5``) and in the tests at 128² the restarts took them.
 """
 
 from __future__ import annotations
@@ -23,8 +31,9 @@ import numpy as np
 
 __all__ = ["RESTART_REGIONS_AHEAD", "restart_level", "restart_regions_ahead"]
 
-#: The restart check's first pyramid level prepared during the checked registration's final stage (on).
-RESTART_REGIONS_AHEAD = True
+#: The restart check's first pyramid level prepared during the checked registration's final stage (off: module
+#: docs, *Measured*).
+RESTART_REGIONS_AHEAD = False
 
 
 def restart_level(renderer, frame, pose, center, options, spread, views) -> tuple | None:

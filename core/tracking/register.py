@@ -365,7 +365,7 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             from . import engine_upload
 
             a, aside = aside, None
-            engine_upload.wait_aside(a)
+            a.wait()
             engine_upload.share(renderer.device, frame)
 
     def cost_at(scale: float) -> RegistrationCost:
@@ -409,6 +409,8 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             # scores; buffers, pipeline and graph kept from frame to frame, where a RegistrationCost
             # was built per registration)
             fun = engine_at(lv.scale) if (lv.method == "cmaes" and engine_global) else cost_at(lv.scale)
+            if lv.method == "cmaes" and engine_global and aside is not None:
+                aside.start()  # the frame's pinned copy made while the CMA-ES stage runs (its pyramid made)
             if lv.method == "cmaes" and engine_global and i + 1 < len(levels):
                 nxt = levels[i + 1]  # the next level's pyramid made while the CMA-ES stage runs
                 if nxt.method == "gauss_newton" and nxt.scale > 1 and nxt.scale not in engines:

@@ -31,7 +31,8 @@ machine, one thread, shared): 13.9 s for the 6 bone-frames, of which 11.6 s Warp
 derivatives, the gain's DRR, the frames' line integrals: milliseconds on a GPU) and ~0.4 s a bone-frame
 of host work (the spline Gram matrices, 1,000–2,000 parameters, and their Cholesky factors): ~12 s of
 host work for the study's 30 bone-frames a seed. Its ratios there: tibia 1.30 / 1.12, talus 1.17 /
-1.13, calcaneus 1.15 / 1.12 (mm / °).
+1.13, calcaneus 1.15 / 1.12 (mm / °). In the acceptance runs at 0cdb2c1 on one NVIDIA H200
+(``tracking_acceptance_seed{0,3,4}_final_0cdb2c1_h200.json``) it took 24.8–32.6 s a seed.
 
 ``--grow-check``: one frame, the field's region grown by 1, 2 and 3 knot spacings (how much the
 truncation of the field to the bone's region matters: ≤ 1.1 % and ≤ 0.4 % against 3).

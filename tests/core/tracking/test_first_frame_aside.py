@@ -1,7 +1,7 @@
 """The first frame's global search with its pinned copy made aside, its next pyramid level made ahead and
 the restart check's first level made during its final stage (core.tracking.engine_upload.FILL_ASIDE,
 core.tracking.engine_frames.PYRAMID_AHEAD, core.tracking.first_restarts.RESTART_REGIONS_AHEAD), against
-all three off: the ideal 128² walking talus, frames 0-1 on Warp's CPU device, the shared upload taking the
+all three off: the ideal 64² walking talus, frames 0-1 on Warp's CPU device, the shared upload taking the
 CPU (engine_upload.DEVICES patched) and the automatic levels keeping the pyramid scales 4 and 2 at these
 pixels (default_levels' and the restarts' coarsest pixel widened), so that the CMA-ES stage runs at scale
 4, a Gauss-Newton level and the restarts' first level at scale 2: the same poses, scores, flags, notes,
@@ -36,8 +36,8 @@ def _track(walk, monkeypatch, on: bool):
     monkeypatch.setattr(eu, "FILL_ASIDE", on)
     monkeypatch.setattr(ef, "PYRAMID_AHEAD", on)
     monkeypatch.setattr(first_restarts, "RESTART_REGIONS_AHEAD", on)
-    monkeypatch.setattr(reg, "default_levels", functools.partial(default_levels, coarsest_mm=12.0))
-    monkeypatch.setattr(reg, "_newton_fallback", functools.partial(reg._newton_fallback, coarsest_mm=12.0))
+    monkeypatch.setattr(reg, "default_levels", functools.partial(default_levels, coarsest_mm=24.0))
+    monkeypatch.setattr(reg, "_newton_fallback", functools.partial(reg._newton_fallback, coarsest_mm=24.0))
     sc, model = walk["scene"], walk["model"]
     keys = {model.name: {FRAMES[0]: sc.poses(FRAMES[0])[0]}}
     ro = RegistrationOptions(bounds=(5.0, 5.0), sigma=(1.0, 1.0), search="newton")
@@ -46,12 +46,12 @@ def _track(walk, monkeypatch, on: bool):
 
 
 @pytest.fixture(scope="module")
-def plain(walking_talus):
+def plain(walking_talus_64):
     with pytest.MonkeyPatch.context() as mp:
-        return _track(walking_talus, mp, False)
+        return _track(walking_talus_64, mp, False)
 
 
-def test_first_frame_aside_gives_the_same_results(walking_talus, plain, monkeypatch):
+def test_first_frame_aside_gives_the_same_results(walking_talus_64, plain, monkeypatch):
     import core.tracking.engine as eng
     import core.tracking.engine_frames as ef
     import core.tracking.engine_upload as eu
@@ -82,7 +82,7 @@ def test_first_frame_aside_gives_the_same_results(walking_talus, plain, monkeypa
         return real_rois(frame, views, roi, scale)
 
     monkeypatch.setattr(eng, "pyramid_rois", rois)
-    on = _track(walking_talus, monkeypatch, True)
+    on = _track(walking_talus_64, monkeypatch, True)
     assert asides and asides[0]  # the first frame's global search pinned its frame aside
     assert firsts == [0]  # and the first upload found that copy made
     # the search's scale-2 level took the regions prepared during the CMA-ES stage, and the restart check's

@@ -203,6 +203,11 @@ STAGE_PREFETCH = True
 #: NEXT_FRAME_AHEAD`; ``resources/benchmarks/tracking_share_frame_h100.json``: the benchmark's one bone with
 #: the stage, frame_profile's alternated rounds 7.82/6.97/7.78 ms a frame off against 5.88/6.92/5.99 with
 #: both, and ``talus bench track --cases one`` 89.6 frames/s off against 128.3 and 125.4 on, the same poses).
+#: The global search (``"global_newton"``: a first frame, a retry) shares the frame only before its first
+#: full-resolution preparation, its pinned copy made meanwhile beside the CMA-ES stage
+#: (:data:`core.tracking.engine_upload.FILL_ASIDE`), and has its next pyramid level's regions made in the view
+#: threads during that stage (:data:`core.tracking.engine_frames.PYRAMID_AHEAD`; both timed in
+#: ``resources/benchmarks/tracking_first_host_cpu.json``).
 SHARE_FRAME = True
 
 def _automatic_levels(mm_px: float, fs: float, sigma, search: str) -> tuple[Level, ...]:

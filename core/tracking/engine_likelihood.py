@@ -554,9 +554,9 @@ class LikelihoodEngine(_EngineState, _Launches, _FrameRegions, _TissueRegressors
 
 
 def same_array(a, b) -> bool:
-    """``numpy.array_equal(a, b)`` of two arrays (the same shape and every entry equal), without its
-    conversions and dispatch."""
-    return a is b or (a.shape == b.shape and bool((a == b).all()))
+    """``numpy.array_equal(a, b)`` of two arrays (the same shape and every entry equal, so never where a NaN
+    is: not even ``a`` against itself), without its conversions and dispatch."""
+    return a.shape == b.shape and bool((a == b).all())
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

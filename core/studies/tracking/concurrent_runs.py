@@ -26,10 +26,11 @@ too. With both taken out, this 2-core x86_64 machine's CPU runs (``--device cpu 
 or crashed.
 
 Reported (JSON on stdout, and ``--out``): per run its wall time, the error it raised (``null``: none) and its
-poses' largest difference from the sequential run of the same thread (mm, degrees) and the number of frames
-whose pose differs; the sequential runs' own difference; the runtime warnings (a capture refused) and the
-switches' ``FAILED`` after each round. On the CPU nothing is captured (the graphs are CUDA's): the runs
-agree there, which is what the study's test checks."""
+poses' largest difference from the sequential run of the same thread (mm, degrees), the number of frames
+whose pose differs and of those whose flags or notes differ; the sequential runs' own difference; the
+runtime warnings (a capture refused) and the switches' ``FAILED`` after each round. On the CPU nothing is
+captured by default (the graphs are CUDA's): with the two causes above serialized the runs agree there,
+which is what the study's test checks."""
 
 from __future__ import annotations
 
@@ -48,14 +49,16 @@ __all__ = ["compare", "main", "run"]
 
 def compare(a, b) -> dict:
     """The largest differences of two tracking results' poses over their common bone-frames (mm of the
-    translation, degrees of the rotation) and the bone-frames whose pose differs (a pose on one side only
-    counts)."""
+    translation, degrees of the rotation), the bone-frames whose pose differs (a pose on one side only
+    counts) and those whose flags or notes differ (the post-pass's and the checks')."""
     from core.geometry.transforms import matrix_to_rotvec
 
     mm = deg = 0.0
-    differ = 0
+    differ = flags = 0
     for k in a.results.keys() & b.results.keys():
-        p, q = a.results[k].pose, b.results[k].pose
+        ra, rb = a.results[k], b.results[k]
+        flags += int(tuple(ra.flags) != tuple(rb.flags) or tuple(ra.notes) != tuple(rb.notes))
+        p, q = ra.pose, rb.pose
         if p is None or q is None:
             differ += int((p is None) != (q is None))
             continue
@@ -65,7 +68,7 @@ def compare(a, b) -> dict:
         differ += 1
         mm = max(mm, float(np.linalg.norm(p[:3, 3] - q[:3, 3])))
         deg = max(deg, float(np.degrees(np.linalg.norm(matrix_to_rotvec(p[:3, :3] @ q[:3, :3].T)))))
-    return {"max_mm": mm, "max_deg": deg, "frames_differ": differ}
+    return {"max_mm": mm, "max_deg": deg, "frames_differ": differ, "flags_differ": flags}
 
 
 def _failed() -> dict:

@@ -17,4 +17,5 @@ def test_concurrent_runs_agree_on_the_cpu():
     for k in ("a", "b"):
         got = rec["concurrent"][k]
         assert got["error"] is None and got["vs_sequential"]["frames_differ"] == 0, got
+        assert got["vs_sequential"]["flags_differ"] == 0, got
     assert rec["after_concurrent"]["likelihood_segments.FAILED"] is None

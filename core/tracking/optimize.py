@@ -153,7 +153,12 @@ def cmaes(fun: Callable, x0, *, sigma0=1.0, lower=None, upper=None, popsize: int
     if np.any(sig <= 0) or not np.all(np.isfinite(sig)):
         raise ValueError(f"sigma0: expected positive steps, got {sigma0!r}")
     max_generations = _positive_int(max_generations, "max_generations")
-    opts = {"seed": int(seed) + 1, "verbose": -9, "CMA_stds": sig.tolist(),
+    # the search's own generator, not numpy's global one (which ``cma`` would re-seed and draw from,
+    # shared with every thread and the user's scripts): the same samples as cma's ``seed: seed + 1``
+    # (``np.random.seed(s)`` then ``np.random.randn`` is ``RandomState(s).randn``); ``seed`` NaN: cma
+    # leaves the global generator alone when ``randn`` is given.
+    opts = {"seed": np.nan, "randn": np.random.RandomState(int(seed) + 1).randn,
+            "verbose": -9, "CMA_stds": sig.tolist(),
             "bounds": [np.where(np.isfinite(lo), lo, None).tolist(),
                        np.where(np.isfinite(hi), hi, None).tolist()],
             "tolx": 0, "tolfun": 0, "tolfunhist": 0, "tolstagnation": 10**9, "maxfevals": np.inf,

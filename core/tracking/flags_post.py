@@ -139,6 +139,7 @@ flagged both neighbours of a frame 12× the noise off in the tests; so judged, a
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 
 import numpy as np
@@ -195,19 +196,24 @@ MIN_FRAMES = 8
 #: ``trajectory_residuals`` of the run's good frames, the same frames and poses the post-pass then judges
 #: when it flags none (exact: the same table, made from the same numbers; False: made anew).
 SHARE_TABLE = True
-_TABLES: dict = {}  # trajectory_residuals' (inputs' key) -> (table, residuals), taken once (SHARE_TABLE)
+_TABLES: dict = {}  # trajectory_residuals' (thread, inputs' key) -> (table, residuals), taken once
 
 
 def release_tables() -> None:
     """Let go of the tables :func:`trajectory_residuals` kept for a review that did not come
     (:data:`SHARE_TABLE`; the post-pass off, or the backward check's frame flagged): the tracker calls it
     at a run's end, so a long run's tables are not held after it (another run's taken from under it is
-    made again: the same values)."""
-    _TABLES.clear()
+    made again: the same values). Only the calling thread's: a run's backward check and post-pass run in
+    its thread (trial._track_frames), and another thread's run keeps its own."""
+    tid = threading.get_ident()
+    for k in list(_TABLES):  # (a copy of the keys in one call: another thread may add or take one meanwhile)
+        if k[0] == tid:
+            _TABLES.pop(k, None)
 
 
 def _key(fr, P, ok, c, half_window, degree, ends) -> tuple:
-    return (fr.tobytes(), P.tobytes(), ok.tobytes(), c.tobytes(), int(half_window), int(degree), bool(ends))
+    return (threading.get_ident(), fr.tobytes(), P.tobytes(), ok.tobytes(), c.tobytes(), int(half_window),
+            int(degree), bool(ends))
 
 
 def _inputs(frames, poses, center):
@@ -229,9 +235,13 @@ def trajectory_residuals(frames, poses, center, *, half_window: int = HALF_WINDO
     t = _Table(fr, P, ok, c, half_window, degree, ends)
     R = t.residuals(ok)
     if SHARE_TABLE:  # (for the post-pass over the same frames; the last few kept)
-        if len(_TABLES) >= 4:
-            _TABLES.pop(next(iter(_TABLES)), None)
-        _TABLES[_key(fr, P, ok, c, half_window, degree, ends)] = (t, R.copy())
+        key = _key(fr, P, ok, c, half_window, degree, ends)
+        mine = [k for k in list(_TABLES) if k[0] == key[0]]  # (list: one call, safe while others add)
+        if len(mine) >= 4:  # this thread's oldest let go
+            _TABLES.pop(mine[0], None)
+        elif len(_TABLES) >= 16:  # (threads gone without release_tables: the oldest of all let go)
+            _TABLES.pop(next(iter(list(_TABLES)), None), None)
+        _TABLES[key] = (t, R.copy())
     out = np.full((len(P), 2), np.nan)
     out[order] = R
     return out

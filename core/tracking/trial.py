@@ -208,8 +208,8 @@ from .options import TrackingOptions
 from .register_ahead import stage_idle
 from .results import FrameResult, TrackingResult
 
-__all__ = ["NEXT_FRAME_AHEAD", "FrameResult", "TrackingOptions", "TrackingResult", "journal_inputs",
-           "predict_pose", "register_start", "track"]
+__all__ = ["NEXT_FRAME_AHEAD", "FrameResult", "TrackingOptions", "TrackingResult", "device_lock",
+           "journal_inputs", "predict_pose", "register_start", "track"]
 
 #: One bone tracked with the final stage: the next frame (prepared by the feed's worker, where it is
 #: ready) is put on the device (:func:`core.tracking.engine_upload.share`) while the device works on this
@@ -333,6 +333,7 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
 
     Frames are registered from their inputs only (the seeds depend on the frame, not on what
     ran before), so a run resumed from its journal gives the results of an uninterrupted run.
+    A second tracking on the same device in another thread waits for this one (:func:`device_lock`).
     """
     o = options or TrackingOptions()
     order = [int(f) for f in frame_order]
@@ -351,9 +352,28 @@ def track(renderer, bones: Sequence[BoneModel], frames: Callable[[int], Sequence
 
         contacts = [ContactModel.from_bone(b) for b in bones]
     run = _Run(renderer, bones, names, keyframes, o, _Cancel(cancel), contacts)
-    with frozen(GC_FREEZE), _switch_interval(SWITCH_INTERVAL):
+    with device_lock(getattr(renderer, "device", None)), frozen(GC_FREEZE), _switch_interval(SWITCH_INTERVAL):
         return _track_frames(run, bones, names, order, skip, state, o, frames, neighbours, record,
                              record_result, progress)
+
+
+_DEVICE_LOCKS: dict[str, threading.RLock] = {}
+_DEVICE_LOCKS_MADE = threading.Lock()
+
+
+def device_lock(device) -> threading.RLock:
+    """The device's one registering thread: :func:`track` holds this lock for its whole run, so a second
+    tracking on the same device in another thread waits for the first to finish. Warp's current stream is
+    one per device for every thread, and a graph being captured on it would take another thread's launches
+    (or refuse their synchronisation); two runs at once also share Warp's CPU tile kernels' shared memory.
+    Re-entrant (a tracking inside a tracking's callback on the same thread does not wait); keyed by the
+    device's name (``str(device)``; ``None``: one lock for renderers without a device)."""
+    key = str(device)
+    lock = _DEVICE_LOCKS.get(key)
+    if lock is None:
+        with _DEVICE_LOCKS_MADE:
+            lock = _DEVICE_LOCKS.setdefault(key, threading.RLock())
+    return lock
 
 
 def _track_frames(run, bones, names, order, skip, state, o, frames, neighbours, record, record_result,

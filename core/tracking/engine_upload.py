@@ -27,8 +27,9 @@ device's work so far (which may still read the frame held before) and beside the
 device's stream waits for it only where the frame is read (:meth:`FrameUpload.ready`, in :func:`share` and
 :func:`holding`). Each
 registering thread has its own device copy and pinned sets (keyed by ``threading.get_ident()``; the feed's
-worker fills those of the thread that asked it to prefetch): two trials tracked at once in one process
-(two windows, a batch beside a window) never read or overwrite each other's frame.
+worker fills those of the thread that asked it to prefetch): two trials started at once in one process
+(two windows, a batch beside a window) never read or overwrite each other's frame; their registrations take
+turns on a device (:func:`core.tracking.trial.device_lock`, held by ``track`` for its run).
 """
 
 from __future__ import annotations
@@ -247,7 +248,8 @@ def share(device, frame, ahead: bool = False) -> FrameUpload | None:
     """Put the whole of ``frame`` (a :class:`~core.tracking.cost.FrameImages`) on ``device`` for the
     engines of its bones (module docs); None where it does not apply (switched off, another device kind,
     another kind of frame). Each registering thread has its own device copy and pinned sets (two windows
-    or a window and a batch tracking at once in one process do not share them)."""
+    or a window and a batch started at once in one process do not share them; their runs take turns on the
+    device: :func:`core.tracking.trial.device_lock`)."""
     up = _upload_of(device, frame)
     if up is None:
         return None

@@ -16,7 +16,7 @@ import warp as wp
 import warp._src.context as _wp_context
 
 from .cost import CostTimer, _in_pixels
-from .likelihood_launches import _same_inputs  # (the same shortcut as the stage's recorded launches)
+from .launch_inputs import same_inputs as _same_inputs  # (the same shortcut as the stage's recorded launches)
 
 #: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`_EngineBuffers._allocate`):
 #: over the 100-frame walking trial at 1024² the tracking frames' search regions take 2-4 sizes per

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from .launch_inputs import same_inputs
 from .likelihood_segments import Tracked
 
 #: The engine's device buffers and recorded launches kept per output size (:meth:`_Launches._use_buffers`):
@@ -25,14 +26,7 @@ KEEP_SIZES = 4
 SAME_OBJECTS = True
 
 
-def _same_inputs(kept: list, inputs: list) -> bool:
-    """Whether ``inputs`` are the objects of ``kept`` (numbers: of equal value, as the key compares them)."""
-    if len(kept) != len(inputs):
-        return False
-    for a, b in zip(kept, inputs, strict=True):
-        if a is not b and not (isinstance(a, (int, float)) and isinstance(b, (int, float)) and a == b):
-            return False
-    return True
+_same_inputs = same_inputs  # (the name the engine's callers know)
 
 
 class _Launches:

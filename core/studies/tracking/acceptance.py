@@ -76,8 +76,8 @@ Measurements
   low-passed trajectory, which pools neighbouring frames, with the same per-frame bound: it can
   and should fall below 1); beside it (never instead: issue 20's goal is judged on the known-tissue
   bound, the stricter) the bound with the soft tissue and walkway unknown, a smooth field per view
-  (:func:`core.studies.tracking.tissue_bound.acceptance_bound`: cubic B-splines every 4.69 mm at the
-  isocentre plus the bone's gain; ``cramer_rao.tissue_unknown``, once per scene for both modes) and
+  (:func:`core.studies.tracking.tissue_bound_acceptance.acceptance_bound`: cubic B-splines every 4.69 mm
+  at the isocentre plus the bone's gain; ``cramer_rao.tissue_unknown``, once per scene for both modes) and
   the RMS errors over it (``rms_over_tissue_unknown_bound``; ``--no-tissue-bound`` leaves it out);
 * **goals** — issue 20's per bone, measured and met or not (``goals``,
   :func:`core.studies.tracking.acceptance_goals.goals`: ≤ 1.25× the bound in mm and °, ≥ 99 %
@@ -402,7 +402,7 @@ def run(*, quick: bool = True, device: str | None = None, capture_trials: int | 
     frames_b = range(0, ts.scene.n_frames, max(1, ts.scene.n_frames // 10))
     bound = cramer_rao(ts, frames_b)
     if tissue_bound and bound:  # beside the known-tissue bound, never instead of it (module docs)
-        from core.studies.tracking.tissue_bound import add_acceptance_bound
+        from core.studies.tracking.tissue_bound_acceptance import add_acceptance_bound
 
         add_acceptance_bound(ts, bound, frames_b)
     add_bound(rec, ts, res, bound)  # × the bound, the frames over 4× it; per-frame errors

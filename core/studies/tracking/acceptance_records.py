@@ -324,7 +324,7 @@ def add_bound(rec: BoneRecords, ts, res, bound: dict) -> None:
     over it (None where the bone has no (filtered) frame), the errors' spread, the frames over 4×
     it (:func:`over_bound`) with what the run showed of each silent one
     (:func:`silent_details`), and where the bound has the tissue-unknown one (``tissue_unknown``,
-    :func:`core.studies.tracking.tissue_bound.acceptance_bound`) the RMS errors over that beside
+    :func:`core.studies.tracking.tissue_bound_acceptance.acceptance_bound`) the RMS errors over that beside
     (``rms_over_tissue_unknown_bound``; the goal is judged on ``rms_over_bound``); and to every bone's its
     per-frame errors and their frames (``per_frame_error``, ``frames_with_pose``)."""
     for n, E in rec.errors.items():

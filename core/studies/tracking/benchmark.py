@@ -12,7 +12,7 @@ restart check) and ``ms_per_frame_after_first`` / ``frames_per_second_after_firs
 that follow it, wall clock from the end of frame 0 to the end of the run) are reported;
 ``frame_clock`` takes the median run frame by frame (the median, mean and longest frame from the end
 of the one before, the three slowest, and the run after its last frame: the backward check and the
-trajectory post-pass; :func:`core.studies.tracking.frame_profile.frame_walls`; with the slow frames' records,
+trajectory post-pass; :func:`core.studies.tracking.loop_clock.frame_walls`; with the slow frames' records,
 what ran in them, :class:`core.studies.tracking.loop_clock.FrameClock`), ``gc_runs`` each run's
 garbage collections (:class:`core.tracking.gc_pause.GcWatch`) and
 ``registration_ms_mean_after_first_frame`` the mean beside the median: a host pause inside the run shows

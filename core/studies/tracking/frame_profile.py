@@ -37,6 +37,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from core.studies.tracking.loop_clock import frame_walls  # (re-exported: its old home)
+
 __all__ = ["WRAPPED", "frame_walls", "main", "parse_variants", "profile_run", "rotated", "switched",
            "wrapped"]
 
@@ -218,25 +220,6 @@ def profile_run(renderer, models, frames, order, keyframes, options, skip=None) 
     # what the three slowest frames after the first called that the others did not (loop_clock's records)
     got["unusual_calls"] = st.unusual([r["frame"] for r in got["frames"].get("slowest_records", [])])
     return got
-
-
-def frame_walls(ends: dict, order, t0: float, wall: float) -> dict:
-    """A run's clock frame by frame: ``ends`` the time each frame of ``order`` finished (its last bone's
-    ``progress``), ``t0`` the run's start and ``wall`` its length. The frames after the first, each from
-    the end of the one before (``median_ms``, ``mean_ms``, ``max_ms``, ``slowest``: the three slowest
-    ``[frame, ms]``), and ``after_last_frame_ms``: the run after its last frame's end (the backward check,
-    the trajectory post-pass). A pause of the host (a full garbage collection) shows in ``max_ms`` and the
-    mean, not in the median."""
-    t = [ends[f] for f in order if f in ends]
-    if not t:
-        return {}
-    d = np.diff(t) * 1e3
-    fr = [f for f in order if f in ends][1:]
-    slow = sorted(zip(fr, d.tolist(), strict=True), key=lambda x: -x[1])[:3]
-    got = {k: (float(fn(d)) if len(d) else None) for k, fn in (("median_ms", np.median), ("mean_ms", np.mean),
-                                                               ("max_ms", np.max))}
-    return {**got, "slowest": [[int(f), ms] for f, ms in slow],
-            "after_last_frame_ms": 1e3 * (t0 + wall - t[-1])}
 
 
 def _timed_track(track, renderer, models, frames, order, keyframes, options, skip=None) -> dict:

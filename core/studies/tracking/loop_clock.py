@@ -2,7 +2,7 @@
 pins the slow frames of :mod:`core.studies.tracking.frame_profile` and ``talus bench track``.
 
 A run's frames after the first are timed from the end of the frame before (its last bone's ``progress``),
-as :func:`core.studies.tracking.frame_profile.frame_walls` does; per frame the clock also keeps
+as :func:`frame_walls` does; per frame the clock also keeps
 
 * ``reg_ms``: the frame's registrations (the sum of its results' ``time_s``), and ``loop_ms``, the rest of
   its wall (the frame step's set-up, the checks' records, the feed, ``progress``, a pause between frames);
@@ -42,7 +42,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["SLOW", "FrameClock"]
+__all__ = ["SLOW", "FrameClock", "frame_walls"]
 
 #: A frame whose wall exceeds this many times the run's median frame is reported with its details.
 SLOW = 2.0
@@ -172,8 +172,6 @@ class FrameClock:
         ``slowest_records`` the three slowest frames' records,
         ``clusters``: runs of consecutive slow frames (``[first, last]`` frame numbers), and the medians
         of the records' fields over the frames after the first (``typical``)."""
-        from core.studies.tracking.frame_profile import frame_walls
-
         out = frame_walls({f: e[0] for f, e in self.ends.items()}, order, t0, wall)
         rows = self.rows(order)[1:]
         if not rows:
@@ -214,3 +212,22 @@ class FrameClock:
                     out["after_last"][f"{key}_ms"] = 1e3 * self.after[name][0]
                     out["after_last"][f"{key}_cpu_ms"] = 1e3 * self.after[name][1]
         return out
+
+
+def frame_walls(ends: dict, order, t0: float, wall: float) -> dict:
+    """A run's clock frame by frame: ``ends`` the time each frame of ``order`` finished (its last bone's
+    ``progress``), ``t0`` the run's start and ``wall`` its length. The frames after the first, each from
+    the end of the one before (``median_ms``, ``mean_ms``, ``max_ms``, ``slowest``: the three slowest
+    ``[frame, ms]``), and ``after_last_frame_ms``: the run after its last frame's end (the backward check,
+    the trajectory post-pass). A pause of the host (a full garbage collection) shows in ``max_ms`` and the
+    mean, not in the median."""
+    t = [ends[f] for f in order if f in ends]
+    if not t:
+        return {}
+    d = np.diff(t) * 1e3
+    fr = [f for f in order if f in ends][1:]
+    slow = sorted(zip(fr, d.tolist(), strict=True), key=lambda x: -x[1])[:3]
+    got = {k: (float(fn(d)) if len(d) else None) for k, fn in (("median_ms", np.median), ("mean_ms", np.mean),
+                                                               ("max_ms", np.max))}
+    return {**got, "slowest": [[int(f), ms] for f, ms in slow],
+            "after_last_frame_ms": 1e3 * (t0 + wall - t[-1])}

@@ -1,14 +1,15 @@
 """The acceptance study's bound with the soft tissue unknown, reported beside the known-tissue one
-(core.studies.tracking.tissue_bound.acceptance_bound; ``rms_over_tissue_unknown_bound``), and the record's
-count of unflagged frames over 0.5 mm / 0.5° under its new name (``silent_over_half_mm_or_deg``, read from
-runs stored as ``silent_failures`` too)."""
+(core.studies.tracking.tissue_bound_acceptance.acceptance_bound; ``rms_over_tissue_unknown_bound``), and the
+record's count of unflagged frames over 0.5 mm / 0.5° under its new name (``silent_over_half_mm_or_deg``, read
+from runs stored as ``silent_failures`` too)."""
 
 import json
 
 import numpy as np
 import pytest
 
-from core.studies.tracking import acceptance, tissue_bound
+from core.studies.tracking import acceptance
+from core.studies.tracking import tissue_bound_acceptance as tissue_bound
 from core.studies.tracking.acceptance_goals import TISSUE_UNKNOWN_NOTE, goals, regoal
 from core.studies.tracking.acceptance_records import SILENT_OVER_HALF, silent_over_half
 

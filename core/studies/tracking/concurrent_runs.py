@@ -30,7 +30,13 @@ poses' largest difference from the sequential run of the same thread (mm, degree
 whose pose differs and of those whose flags or notes differ; the sequential runs' own difference; the
 runtime warnings (a capture refused) and the switches' ``FAILED`` after each round. On the CPU nothing is
 captured by default (the graphs are CUDA's): with the two causes above serialized the runs agree there,
-which is what the study's test checks."""
+which is what the study's test checks.
+
+Since 6a412dc the CMA-ES search draws from a generator of its own (numpy's global state untouched), and since
+df08b5b :func:`core.tracking.trial.track` holds a lock per device for its run
+(:func:`core.tracking.trial.device_lock`): the two "concurrent" runs now take turns on the device, so this
+study checks that turn-taking gives the sequential runs' poses and that no capture is refused, not two
+captures at once."""
 
 from __future__ import annotations
 

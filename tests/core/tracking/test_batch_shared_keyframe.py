@@ -286,6 +286,8 @@ def test_ranges_run_side_by_side_count_both_registrations(keyed, tmp_path, monke
     pass its time and evaluations are both registrations' (2 registrations), in both reports (their summaries
     moved with them) and the journal."""
     monkeypatch.setattr(trial, "track_frame", _timed_step(threading.Barrier(2, timeout=60)))
+    # (the threads stand for a batch's worker processes, each with its own device lock: no rendering here)
+    monkeypatch.setattr(trial, "device_lock", lambda device: threading.RLock())
     folder = shutil.copytree(keyed, tmp_path / "parallel" / "demo")
     tasks = batch.build_tasks([folder], bones=[BONE], ranges=True)
     records = {}

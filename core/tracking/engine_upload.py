@@ -323,6 +323,15 @@ class Aside:
         if self.future is not None:
             wait((self.future,))
 
+    def drop(self) -> None:
+        """The registration stopped before sharing the frame (an error, a cancel): the copy waited for (a
+        set it filled holds the frame, found again by a retry) and the frame no longer counted as coming."""
+        self.wait()
+        frame = self.frame()
+        with self.up.lock:
+            if self.up.coming is not None and self.up.coming() is frame:
+                self.up.coming = None
+
 
 def fill_aside(device, frame) -> Aside | None:
     """The pinned copy of ``frame`` for the calling thread's upload of ``device`` to be made in a thread of

@@ -434,38 +434,44 @@ def register(renderer, frame: FrameImages, *, bone: int, initial_pose, center,
             aside = engine_upload.fill_aside(renderer.device, frame)
         if aside is None:
             held = engine_upload.share(renderer.device, frame) is not None
-    if STAGE_PREFETCH and o.final is not None and search == "newton" and tried is None and not held:
-        idle = _with_stage_prefetch(idle, renderer, frame, bone=bone, pose=base, center=center, options=o,
-                                    views=views)
-    if (STAGE_FIRST and o.final is not None and search == "newton" and o.levels is None and tried is None
-            and x0 is None):
-        if idle is not None:
-            idle, f = None, idle
-            f()
-        got = _stage_first(renderer, frame, engine_at(fs), bone=bone, base=base, center=center, options=o,
-                           views=views, others=others, t_start=t_start)
-        if got is not None:
-            return got
-    for i, lv in enumerate(levels if tried is None else ()):
-        r = run_level(i, lv, x)
-        stages.append(r)
-        x = r.x
-        if r.reason == "cancelled":
-            break
-    if (o.levels is None and search == "newton" and not stages[-1].converged
-            and stages[-1].reason != "cancelled"):
-        # beyond the full-resolution steps' reach (a large move since the last frame): again from
-        # the start, half resolution first (wider steps), then full resolution
-        x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
-        for i, lv in enumerate(_newton_fallback(mm_per_pixel(renderer, base, center, views) * fs)):
-            lv = before_stage(replace(lv, scale=lv.scale * fs), o)
-            r = run_level(len(levels) + i, lv, x)
+    try:
+        if STAGE_PREFETCH and o.final is not None and search == "newton" and tried is None and not held:
+            idle = _with_stage_prefetch(idle, renderer, frame, bone=bone, pose=base, center=center, options=o,
+                                        views=views)
+        if (STAGE_FIRST and o.final is not None and search == "newton" and o.levels is None and tried is None
+                and x0 is None):
+            if idle is not None:
+                idle, f = None, idle
+                f()
+            got = _stage_first(renderer, frame, engine_at(fs), bone=bone, base=base, center=center, options=o,
+                               views=views, others=others, t_start=t_start)
+            if got is not None:
+                return got
+        for i, lv in enumerate(levels if tried is None else ()):
+            r = run_level(i, lv, x)
             stages.append(r)
             x = r.x
             if r.reason == "cancelled":
                 break
-        levels = (*levels, lv)
-    hold()  # (a run that stopped before its full-resolution levels: the frame shared as before the stage)
+        if (o.levels is None and search == "newton" and not stages[-1].converged
+                and stages[-1].reason != "cancelled"):
+            # beyond the full-resolution steps' reach (a large move since the last frame): again from
+            # the start, half resolution first (wider steps), then full resolution
+            x = np.zeros(6) if x0 is None else np.clip(np.asarray(x0, dtype=float), lo, hi)
+            for i, lv in enumerate(_newton_fallback(mm_per_pixel(renderer, base, center, views) * fs)):
+                lv = before_stage(replace(lv, scale=lv.scale * fs), o)
+                r = run_level(len(levels) + i, lv, x)
+                stages.append(r)
+                x = r.x
+                if r.reason == "cancelled":
+                    break
+            levels = (*levels, lv)
+        hold()  # (a run that stopped before its full-resolution levels: the frame shared as before the stage)
+    except BaseException:  # (a level raised or was cancelled: the copy made aside waited for, the frame
+        if aside is not None:  # no longer counted as coming, so no pinned set stays reserved for it)
+            a, aside = aside, None
+            a.drop()
+        raise
     if idle is not None:  # no Gauss-Newton step ran it
         idle, f = None, idle
         f()

@@ -91,3 +91,30 @@ def test_first_frame_aside_gives_the_same_results(walking_talus_64, plain, monke
     print('pyramid levels taken from the ahead preparations:', hits)
     _same(plain, on)
     assert all(np.all(np.isfinite(fr.pose)) for fr in on.results.values())
+
+
+def test_a_first_frame_that_raises_leaves_no_frame_coming(walking_talus_64, monkeypatch):
+    """The global search's CMA-ES level raising after the copy aside started: the copy waited for and the
+    frame no longer counted as coming (no pinned set kept for it), the error raised as before."""
+    import core.tracking.engine_upload as eu
+    import core.tracking.register as reg
+
+    drops, real_run, real_drop = [], reg._run, eu.Aside.drop
+
+    def run(method, *a, **k):
+        if method == "cmaes":
+            raise RuntimeError("a level's error")
+        return real_run(method, *a, **k)
+
+    def drop(self):
+        real_drop(self)
+        drops.append(self.future is not None and self.future.done())
+
+    monkeypatch.setattr(reg, "_run", run)
+    monkeypatch.setattr(eu.Aside, "drop", drop)
+    with pytest.raises(RuntimeError, match="a level's error"):
+        _track(walking_talus_64, monkeypatch, True)
+    assert drops == [True]  # (started before the level ran, finished when dropped)
+    ups = list(eu._UPLOADS.values())
+    assert ups and all(up.coming is None for up in ups)
+    assert not any(s.filling for up in ups for s in up.sets)

@@ -16,7 +16,7 @@ import warp as wp
 import warp._src.context as _wp_context
 
 from .cost import CostTimer, _in_pixels
-from .launch_inputs import same_inputs as _same_inputs  # (the same shortcut as the stage's recorded launches)
+from .launch_inputs import same_inputs  # (the same shortcut as the stage's recorded launches)
 
 #: Buffer sets (output sizes) an engine keeps with their pipelines (:meth:`_EngineBuffers._allocate`):
 #: over the 100-frame walking trial at 1024² the tracking frames' search regions take 2-4 sizes per
@@ -179,7 +179,7 @@ class _EngineBuffers:
         """Launch ``kernel`` through a recorded launch, kept while its dimensions, arrays and
         values stay the same (the frame preparation's launches from frame to frame)."""
         last = self._cmd_last.get(name)
-        if last is not None and last[0] == dim and _same_inputs(last[1], inputs):  # this name's last launch
+        if last is not None and last[0] == dim and same_inputs(last[1], inputs):  # this name's last launch
             if self._rec is None:
                 last[2].launch()
             else:

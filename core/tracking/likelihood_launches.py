@@ -26,9 +26,6 @@ KEEP_SIZES = 4
 SAME_OBJECTS = True
 
 
-_same_inputs = same_inputs  # (the name the engine's callers know)
-
-
 class _Launches:
     """:class:`~core.tracking.engine_likelihood.LikelihoodEngine`'s buffers, launches and waits (its
     attributes: ``device``, ``_bufs``, ``_cmds``, ``_done``)."""
@@ -80,7 +77,7 @@ class _Launches:
         building the launch's parameters each time."""
         hit = self._cmds.get(name)
         if (SAME_OBJECTS and hit is not None and hit[2] == dim and hit[3] == block_dim
-                and _same_inputs(hit[4], inputs)):  # (the same objects: the same key)
+                and same_inputs(hit[4], inputs)):  # (the same objects: the same key)
             hit[1].launch()
             return
         key = (tuple(dim), block_dim, *((a.ptr, a.shape, a.strides, a.dtype) if isinstance(a, wp.array) else a

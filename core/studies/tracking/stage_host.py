@@ -327,7 +327,8 @@ def _run(*, device, frames, pixels, voxel, bones, variants, repeats, cprofile, h
     return res
 
 
-def _calls(groups, variant: str, n_bf: int) -> float:
+def _profiled(groups, variant: str):
+    """The replays of ``groups`` under ``variant`` with cProfile on (the holds outside it): their stats."""
     import cProfile
     import pstats
 
@@ -338,21 +339,15 @@ def _calls(groups, variant: str, n_bf: int) -> float:
             prof.enable()
             _replay(g)
             prof.disable()
-    return float(sum(v[1] for v in pstats.Stats(prof).stats.values()) / n_bf)
+    return pstats.Stats(prof)
+
+
+def _calls(groups, variant: str, n_bf: int) -> float:
+    return float(sum(v[1] for v in _profiled(groups, variant).stats.values()) / n_bf)
 
 
 def _profile(groups, variant: str, n_bf: int, top: int = 30) -> list:
-    import cProfile
-    import pstats
-
-    prof = cProfile.Profile()
-    with _variant(variant):
-        for g in groups:
-            _hold(g)
-            prof.enable()
-            _replay(g)
-            prof.disable()
-    st = pstats.Stats(prof)
+    st = _profiled(groups, variant)
     rows = []
     for (fn, line, name), (_, nc, tt, ct, _) in st.stats.items():
         rows.append({"function": f"{fn.split('/core/')[-1] if '/core/' in fn else fn.split('/')[-1]}:{line}"
